@@ -1,0 +1,25 @@
+"""sympredict: symplectic large-step prediction of parameter-dependent Hamiltonian dynamics.
+
+The main entry point is :class:`SymplecticKernelPredictor`.
+"""
+
+from sympredict.exceptions import (
+    ExtrapolationWarning,
+    ModelFileError,
+    NewtonConvergenceError,
+    NotFittedError,
+    SympredictError,
+)
+from sympredict.predictor import SymplecticKernelPredictor
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "SymplecticKernelPredictor",
+    "SympredictError",
+    "NewtonConvergenceError",
+    "ModelFileError",
+    "NotFittedError",
+    "ExtrapolationWarning",
+    "__version__",
+]

@@ -1,0 +1,103 @@
+"""Input validation shared by the public entry points (messages name the argument)."""
+
+from __future__ import annotations
+
+from typing import Optional
+
+import numpy as np
+
+__all__ = ["as_states", "as_parameter", "as_steps", "as_positive_int"]
+
+
+def _as_float_array(value, name: str) -> np.ndarray:
+    try:
+        arr = np.asarray(value)
+    except Exception as exc:  # ragged lists and the like
+        raise ValueError(f"{name} must be a numeric array: {exc}") from None
+    if arr.dtype == object or not (np.issubdtype(arr.dtype, np.number) or arr.dtype == bool):
+        raise ValueError(f"{name} must be a real numeric array, got dtype {arr.dtype}")
+    if np.iscomplexobj(arr):
+        raise ValueError(f"{name} must be real, got complex values")
+    arr = arr.astype(float)
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} contains NaN or Inf")
+    return arr
+
+
+def as_states(x, name: str, dim: Optional[int] = None, allow_single: bool = True):
+    """Validate a batch of states ``(B, 2n)`` (or one state ``(2n,)``).
+
+    Returns
+    -------
+    states : ndarray of shape (B, 2n)
+    single : bool
+        Whether a single state was passed (the caller returns ``(2n,)`` then).
+    """
+    arr = _as_float_array(x, name)
+    single = arr.ndim == 1 and allow_single
+    if single:
+        arr = arr[None, :]
+    if arr.ndim != 2:
+        raise ValueError(f"{name} must have shape (batch, 2n){' or (2n,)' if allow_single else ''}, got {arr.shape}")
+    if len(arr) == 0:
+        raise ValueError(f"{name} is empty")
+    if dim is not None and arr.shape[1] != dim:
+        raise ValueError(f"{name} must have {dim} state components (2n = {dim}), got {arr.shape[1]}")
+    if dim is None and (arr.shape[1] == 0 or arr.shape[1] % 2):
+        raise ValueError(f"{name} must have an even, positive number of state components (q, p), got {arr.shape[1]}")
+    return np.ascontiguousarray(arr), single
+
+
+def as_parameter(mu, n: int, d_mu: Optional[int], name: str = "mu") -> np.ndarray:
+    """Validate parameters for ``n`` instances; returns ``(n, d_mu)``.
+
+    Accepted: a scalar (``d_mu = 1``), ``(n,)`` (``d_mu = 1``), ``(d_mu,)``
+    (one vector for all instances, ``d_mu > 1``), ``(n, d_mu)`` or ``(1, d_mu)``.
+    With ``d_mu=None`` (fit), the dimension is taken from the input.
+    """
+    arr = _as_float_array(mu, name)
+    if arr.ndim == 0:
+        arr = np.full((n, 1), float(arr))
+    elif arr.ndim == 1:
+        if d_mu is not None and d_mu > 1:
+            if len(arr) != d_mu:
+                raise ValueError(f"{name} must have {d_mu} components per instance, got shape {arr.shape}")
+            arr = np.broadcast_to(arr, (n, d_mu))
+        else:
+            if len(arr) not in (1, n):
+                raise ValueError(f"{name} must have length {n} (one value per instance) or be a scalar, got {arr.shape}")
+            arr = np.broadcast_to(arr[:, None], (n, 1))
+    elif arr.ndim == 2:
+        if arr.shape[0] not in (1, n):
+            raise ValueError(f"{name} must have shape ({n}, d_mu), got {arr.shape}")
+        arr = np.broadcast_to(arr, (n, arr.shape[1]))
+    else:
+        raise ValueError(f"{name} must be a scalar, (batch,) or (batch, d_mu), got shape {arr.shape}")
+    if d_mu is not None and arr.shape[1] != d_mu:
+        raise ValueError(f"{name} must have {d_mu} component(s) (as in training), got {arr.shape[1]}")
+    if arr.shape[1] == 0:
+        raise ValueError(f"{name} has zero components")
+    return np.ascontiguousarray(arr)
+
+
+def as_steps(dt, n: int, name: str = "dt") -> np.ndarray:
+    """Validate macro steps for ``n`` instances: a positive scalar or ``(n,)``; returns ``(n,)``."""
+    if dt is None:
+        raise ValueError(f"{name} is required: the macro time step, a positive float or one per instance")
+    arr = _as_float_array(dt, name)
+    if arr.ndim == 0 or (arr.ndim == 1 and len(arr) == 1):
+        arr = np.full(n, float(arr.reshape(-1)[0]))
+    elif arr.ndim != 1 or len(arr) != n:
+        raise ValueError(f"{name} must be a scalar or have shape ({n},), got {arr.shape}")
+    if np.any(arr <= 0):
+        raise ValueError(f"{name} must be positive, got min {arr.min()!r}")
+    return arr
+
+
+def as_positive_int(value, name: str, minimum: int = 1) -> int:
+    """An integer ``>= minimum`` (bools rejected)."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
+    if value < minimum:
+        raise ValueError(f"{name} must be >= {minimum}, got {value}")
+    return int(value)

@@ -1,0 +1,105 @@
+"""Flow-map data: samples ``x1 = Phi_mu^dT(x0)`` and their mixed-variable form.
+
+The symplectic predictor is trained on the *mixed* variables and targets
+
+* ``xi = (q0, p1)``,
+* ``y = J^T (x1 - x0) / dT = (-(p1 - p0) / dT, (q1 - q0) / dT)``,
+
+with ``J = [[0, I], [-I, 0]]``, so that the implicit symplectic-Euler update
+``p1 = p0 - dT d_q s(q0, p1)``, ``q1 = q0 + dT d_p s(q0, p1)`` reproduces the
+data exactly where ``grad_xi s(xi_j) = y_j``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from sympredict._checks import as_parameter, as_states, as_steps
+
+__all__ = ["FlowMapData", "mixed_variables"]
+
+
+def mixed_variables(x0: np.ndarray, x1: np.ndarray, dt: np.ndarray):
+    """Mixed variables and gradient targets of flow-map samples.
+
+    Parameters
+    ----------
+    x0, x1 : ndarray of shape (M, 2n)
+    dt : ndarray of shape (M,)
+
+    Returns
+    -------
+    xi : ndarray of shape (M, 2n)
+        ``(q0, p1)``.
+    y : ndarray of shape (M, 2n)
+        ``J^T (x1 - x0) / dT``.
+    """
+    n = x0.shape[1] // 2
+    xi = np.concatenate([x0[:, :n], x1[:, n:]], axis=1)
+    inc = (x1 - x0) / dt[:, None]
+    y = np.concatenate([-inc[:, n:], inc[:, :n]], axis=1)
+    return xi, y
+
+
+@dataclass
+class FlowMapData:
+    """A set of flow-map samples over parameters and macro steps.
+
+    Attributes
+    ----------
+    x0, x1 : ndarray of shape (M, 2n)
+        Initial and propagated states, ``x1 = Phi_mu^dt(x0)``.
+    mu : ndarray of shape (M, d_mu)
+        Parameters (``d_mu = 0`` for a parameter-free system).
+    dt : ndarray of shape (M,)
+        Macro steps.
+    """
+
+    x0: np.ndarray
+    x1: np.ndarray
+    mu: np.ndarray
+    dt: np.ndarray
+
+    def __post_init__(self):
+        self.x0, _ = as_states(self.x0, "x0", allow_single=False)
+        self.x1, _ = as_states(self.x1, "x1", dim=self.x0.shape[1], allow_single=False)
+        m = len(self.x0)
+        if len(self.x1) != m:
+            raise ValueError(f"x0 and x1 must have the same number of samples, got {m} and {len(self.x1)}")
+        if self.mu is None or np.size(self.mu) == 0:
+            self.mu = np.zeros((m, 0))
+        else:
+            self.mu = as_parameter(self.mu, m, None)
+        self.dt = as_steps(self.dt, m)
+
+    def __len__(self) -> int:
+        return len(self.x0)
+
+    def subset(self, index) -> "FlowMapData":
+        """The samples selected by ``index`` (an index array, slice or mask)."""
+        return FlowMapData(self.x0[index], self.x1[index], self.mu[index], self.dt[index])
+
+    def split(self, validation_fraction: float, seed: int = 0):
+        """Random train/validation split.
+
+        Returns
+        -------
+        (FlowMapData, FlowMapData)
+            Training and validation parts.
+        """
+        if not 0 < validation_fraction < 1:
+            raise ValueError(f"validation_fraction must lie in (0, 1), got {validation_fraction!r}")
+        perm = np.random.default_rng(seed).permutation(len(self))
+        n_val = max(1, int(round(validation_fraction * len(self))))
+        return self.subset(np.sort(perm[n_val:])), self.subset(np.sort(perm[:n_val]))
+
+    def concatenate(self, other: "FlowMapData") -> "FlowMapData":
+        """The union of two data sets (same state and parameter dimensions)."""
+        return FlowMapData(
+            np.concatenate([self.x0, other.x0]),
+            np.concatenate([self.x1, other.x1]),
+            np.concatenate([self.mu, other.mu]),
+            np.concatenate([self.dt, other.dt]),
+        )

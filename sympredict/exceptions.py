@@ -1,0 +1,59 @@
+"""The package's exceptions: numerical failure and unusable files.
+
+Bad user input raises :class:`ValueError` (with a message naming the argument);
+the classes here are for what goes wrong *inside* a correct call.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["SympredictError", "NewtonConvergenceError", "ModelFileError", "NotFittedError", "ExtrapolationWarning"]
+
+
+class SympredictError(Exception):
+    """Base class of sympredict's own errors."""
+
+
+class NotFittedError(SympredictError, ValueError):
+    """A model was used before :meth:`fit` (or :meth:`load`)."""
+
+
+class ModelFileError(SympredictError, ValueError):
+    """A file is not a readable sympredict file (foreign, truncated, corrupted or newer schema)."""
+
+
+class NewtonConvergenceError(SympredictError):
+    """Newton's method for an implicit step did not converge for some instances.
+
+    Attributes
+    ----------
+    instances : ndarray of int
+        Indices (into the batch passed by the caller) of the failed instances.
+    residuals : ndarray of float
+        Their last residual norms (``inf``/``nan`` for non-finite iterates).
+    step : int or None
+        Index of the macro step within a rollout, if any.
+    """
+
+    def __init__(self, instances, residuals, reason: str = "did not converge", step=None):
+        self.instances = np.asarray(instances, dtype=int)
+        self.residuals = np.asarray(residuals, dtype=float)
+        self.reason = reason
+        self.step = step
+        shown = ", ".join(f"{i} (residual {r:.2e})" for i, r in zip(self.instances[:10], self.residuals[:10]))
+        more = f" and {len(self.instances) - 10} more" if len(self.instances) > 10 else ""
+        where = f" at macro step {step}" if step is not None else ""
+        super().__init__(
+            f"Newton solve of the implicit step {reason}{where} for {len(self.instances)} instance(s): "
+            f"{shown}{more}. A step that is too large for the surrogate (dT * L_S >= 1) or a state far "
+            f"outside the training domain are the usual causes."
+        )
+
+    def at_step(self, step: int) -> "NewtonConvergenceError":
+        """The same error, annotated with the rollout step."""
+        return NewtonConvergenceError(self.instances, self.residuals, self.reason, step)
+
+
+class ExtrapolationWarning(UserWarning):
+    """A query lies outside the box spanned by the training data (extrapolation is allowed)."""
