@@ -138,8 +138,9 @@ class GreedyHistory:
         Wall time in seconds from the start of the run to the end of each step.
     stop_reason : str
         ``'max_centers'``, ``'tol'`` (max residual at or below ``tol``),
-        ``'power'`` (every remaining candidate's power function is at round-off)
-        or ``'exhausted'`` (every candidate selected).
+        ``'power'`` (every remaining candidate's power function is at round-off),
+        ``'diverged'`` (residual blow-up from round-off, truncated to the best
+        step) or ``'exhausted'`` (every candidate selected).
     """
 
     train_max_residual: np.ndarray
@@ -206,7 +207,8 @@ def greedy_interpolation(
     max_centers: int,
     tol: float = 1e-10,
     criterion: str = "f",
-    power_tol: float = 1e-13,
+    power_tol: float = 1e-12,
+    divergence_factor: float = 100.0,
     validation: Optional[tuple] = None,
     memory_limit: Optional[float] = None,
     log_every: int = 100,
@@ -230,7 +232,15 @@ def greedy_interpolation(
     power_tol
         Candidates with ``P2_i <= power_tol * max(G_ii)`` are never selected
         (breakdown guard); when no candidate is left the run stops with
-        reason ``'power'``.
+        reason ``'power'``.  The new basis column is computed with a relative
+        error of about ``eps_mach sqrt(m) G_ii / P2_j``; below ``1e-12`` the
+        basis degrades and the residual can blow up (seen at ``1e-13`` on the
+        pendulum).
+    divergence_factor
+        Safety net for that loss of accuracy: when ``E_train(m)`` exceeds
+        ``divergence_factor`` times its minimum so far, the run stops with
+        reason ``'diverged'`` and is truncated to the step with the smallest
+        ``E_train`` (a prefix of a Newton expansion is again an interpolant).
     validation
         Optional ``(val_functionals, val_targets)``; then ``E_val(m)`` is
         recorded at ``O(N_val m)`` extra work per step.
@@ -283,6 +293,7 @@ def greedy_interpolation(
     train_hist = [np.abs(res).max()]
     val_hist = [np.abs(vres).max()] if n_val else None
     tmp = np.empty(n)
+    best_train = train_hist[0]
     stop_reason = "max_centers" if max_centers < n else "exhausted"
     t0 = time.perf_counter()
     m = 0
@@ -331,6 +342,19 @@ def greedy_interpolation(
         m += 1
         elapsed[m - 1] = time.perf_counter() - t0
         train_hist.append(np.abs(res).max())
+        best_train = min(best_train, train_hist[-1])
+        if train_hist[-1] > divergence_factor * best_train:
+            stop_reason = "diverged"
+            m_best = int(np.argmin(train_hist))
+            logger.warning(
+                f"greedy residual blew up at {m} centres ({train_hist[-1]:.2e} vs best {best_train:.2e}): "
+                f"round-off in the Newton basis; truncating to {m_best} centres (raise power_tol to avoid)"
+            )
+            m = m_best
+            del train_hist[m + 1 :]
+            if val_hist is not None:
+                del val_hist[m + 1 :]
+            break
         if log_every and m % log_every == 0:
             logger.info(
                 f"{m} centres: E_train={train_hist[-1]:.3e}"

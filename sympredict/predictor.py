@@ -32,6 +32,12 @@ from sympredict.surrogate import HBSurrogate
 
 __all__ = ["SymplecticKernelPredictor"]
 
+
+def _fmt(v) -> str:
+    """A short component-wise rendering of a parameter vector."""
+    v = np.atleast_1d(v)
+    return f"{v[0]:.6g}" if v.size == 1 else "(" + ", ".join(f"{a:.6g}" for a in v) + ")"
+
 logger = getLogger("sympredict.predictor")
 
 _EPS = np.finfo(float).eps
@@ -98,7 +104,7 @@ class SymplecticKernelPredictor:
         max_centers: int = 1000,
         tol: float = 1e-10,
         criterion: str = "f",
-        power_tol: float = 1e-13,
+        power_tol: float = 1e-12,
         newton_max_iter: int = 50,
         memory_limit: Optional[float] = None,
     ):
@@ -265,9 +271,14 @@ class SymplecticKernelPredictor:
         d = self.domain_
         outside = []
         if mu.shape[1] and (np.any(mu < d["mu_min"]) or np.any(mu > d["mu_max"])):
-            outside.append(f"mu in [{mu.min(axis=0)}, {mu.max(axis=0)}] vs training box [{d['mu_min']}, {d['mu_max']}]")
+            outside.append(
+                f"query mu spans {_fmt(mu.min(axis=0))}..{_fmt(mu.max(axis=0))}, "
+                f"training box {_fmt(d['mu_min'])}..{_fmt(d['mu_max'])}"
+            )
         if self.dt_fixed_ is None and (np.any(dt < d["dt_min"]) or np.any(dt > d["dt_max"])):
-            outside.append(f"dt in [{dt.min()}, {dt.max()}] vs training range [{d['dt_min']}, {d['dt_max']}]")
+            outside.append(
+                f"query dt spans {dt.min():.6g}..{dt.max():.6g}, training range {float(d['dt_min']):.6g}..{float(d['dt_max']):.6g}"
+            )
         if outside:
             warnings.warn("extrapolation: " + "; ".join(outside), ExtrapolationWarning, stacklevel=4)
 

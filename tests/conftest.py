@@ -1,0 +1,33 @@
+import numpy as np
+import pytest
+from threadpoolctl import threadpool_limits
+
+from sympredict import SymplecticKernelPredictor
+from sympredict.kernels import IMQ
+from sympredict.systems.pendulum import Pendulum, flow_map_data
+
+# Small dense problems: one BLAS thread is fastest and avoids oversubscription on 2 cores.
+threadpool_limits(1)
+
+
+@pytest.fixture(scope="session")
+def pendulum():
+    return Pendulum()
+
+
+@pytest.fixture(scope="session")
+def small_pendulum_data(pendulum):
+    """Scenario A on a coarse 20 x 20 grid: 5 lengths x 3 steps x ~230 states."""
+    return flow_map_data(pendulum, n_grid=20)
+
+
+@pytest.fixture(scope="session")
+def small_pendulum_model(small_pendulum_data):
+    d = small_pendulum_data
+    model = SymplecticKernelPredictor(IMQ(0.15), mu_kernel=IMQ(2.0), dt_kernel=IMQ(5.0), max_centers=600, tol=1e-10)
+    return model.fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
+
+
+@pytest.fixture
+def rng():
+    return np.random.default_rng(12345)
