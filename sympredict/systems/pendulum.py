@@ -224,24 +224,37 @@ def flow_map_data(
 
 
 def random_flow_map_data(
-    system: Pendulum, n_samples: int, mu_range=(0.7, 0.8), dt_range=(0.04, 0.06), seed: int = 0, h_max: float = 1e-3
+    system: Pendulum,
+    n_samples: int,
+    mu_range=(0.7, 0.8),
+    dt_range=(0.04, 0.06),
+    seed: int = 0,
+    h_max: float = 1e-3,
+    mu_values=None,
+    dt_values=None,
 ) -> FlowMapData:
     """Flow-map samples at random energy-bounded states, lengths and steps (validation data).
 
-    States are drawn uniformly in the sampling box and kept when ``H < 2 g``;
-    lengths and steps uniformly in their ranges.
+    States are drawn uniformly in the sampling box and kept when ``H < 2 g``.
+    Lengths and steps are drawn uniformly from ``mu_values`` / ``dt_values``
+    when given (e.g. the training grid, as for the paper's validation
+    curves), else uniformly in ``mu_range`` / ``dt_range``.
     """
     n_samples = as_positive_int(n_samples, "n_samples")
     rng = np.random.default_rng(seed)
+
+    def draw(values, bounds, size):
+        return rng.choice(np.asarray(values, dtype=float), size=size) if values is not None else rng.uniform(*bounds, size=size)
+
     pmax = 2 * np.sqrt(system.g)
     x0 = np.empty((0, 2))
     mu = np.empty(0)
     while len(x0) < n_samples:
         cand = rng.uniform([-np.pi, -pmax], [np.pi, pmax], size=(2 * n_samples, 2))
-        lengths = rng.uniform(*mu_range, size=2 * n_samples)
+        lengths = draw(mu_values, mu_range, 2 * n_samples)
         keep = system.hamiltonian(cand, lengths) < 2 * system.g
         x0 = np.concatenate([x0, cand[keep]])
         mu = np.concatenate([mu, lengths[keep]])
     x0, mu = x0[:n_samples], mu[:n_samples]
-    dt = rng.uniform(*dt_range, size=n_samples)
+    dt = draw(dt_values, dt_range, n_samples)
     return FlowMapData(x0, system.flow(x0, mu, dt, h_max), mu[:, None], dt)

@@ -1,0 +1,52 @@
+"""Benchmark: pendulum scenario A, the paper's protocol, with time and peak memory.
+
+Run (not part of the test suite; the 'paper' preset needs ~10 GiB and minutes):
+
+    python benchmarks/pendulum_scenario_a.py --preset paper --threads 2 --out benchmarks/results
+
+Writes ``<out>/pendulum_scenario_a_<preset>.json`` and prints a table.  Run it in
+a fresh process: the peak memory is the process's maximum resident set size.
+"""
+
+import argparse
+import json
+import os
+import platform
+import time
+from pathlib import Path
+
+import numpy as np
+from pymor.core.logger import set_log_levels
+from threadpoolctl import threadpool_info, threadpool_limits
+
+from sympredict.experiments.pendulum import PRESETS, run_scenario_a
+
+parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+parser.add_argument("--preset", choices=sorted(PRESETS), default="quick")
+parser.add_argument("--threads", type=int, default=os.cpu_count())
+parser.add_argument("--seed", type=int, default=0)
+parser.add_argument("--out", default="benchmarks/results")
+args = parser.parse_args()
+
+set_log_levels({"sympredict": "INFO"})
+out = Path(args.out)
+out.mkdir(parents=True, exist_ok=True)
+t0 = time.perf_counter()
+with threadpool_limits(limits=args.threads):
+    blas = [{k: d.get(k) for k in ("internal_api", "num_threads", "version")} for d in threadpool_info()]
+    results = run_scenario_a(PRESETS[args.preset], seed=args.seed)
+summary = results["summary"]
+summary["wall_total_s"] = time.perf_counter() - t0
+summary["machine"] = {"cpus": os.cpu_count(), "platform": platform.platform(), "numpy": np.__version__, "blas": blas}
+path = out / f"pendulum_scenario_a_{args.preset}.json"
+path.write_text(json.dumps(summary, indent=2))
+
+print(f"\npendulum scenario A, preset {args.preset}, {args.threads} BLAS threads")
+print(f"  {summary['n_functionals']} functionals -> {summary['n_centers']} centres ({summary['stop_reason']}), "
+      f"E_train {summary['E_train']:.2e}, E_val {summary['E_val']:.2e}")
+print(f"  data {summary['time_data_s']:.1f} s, training {summary['time_fit_s']:.1f} s, peak RSS {summary['peak_rss_gib']:.2f} GiB")
+print(f"  {'dT':>8} {'kernel med':>11} {'kernel max':>11} {'IM med':>9} {'IM max':>9} {'ratio':>7} {'kernel s':>9} {'IM s':>6}")
+for r in summary["per_dt"]:
+    print(f"  {r['dt']:>8} {r['kernel_median_err']:>11.2e} {r['kernel_max_err']:>11.2e} {r['im_median_err']:>9.2e} "
+          f"{r['im_max_err']:>9.2e} {r['ratio_median']:>7.0f} {r['time_kernel_s']:>9.2f} {r['time_im_s']:>6.2f}")
+print(f"written to {path}")

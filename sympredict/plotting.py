@@ -1,0 +1,85 @@
+"""Matplotlib figures of experiment results (no computation here)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+
+__all__ = ["greedy_residuals", "error_over_time", "phase_portrait", "energy_error", "save"]
+
+_COLORS = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+
+
+def save(fig, out_dir, name: str) -> list[str]:
+    """Write ``name.png`` and ``name.pdf`` into ``out_dir``; returns the file names."""
+    out_dir = Path(out_dir)
+    names = []
+    for ext in ("png", "pdf"):
+        fig.savefig(out_dir / f"{name}.{ext}", dpi=150, bbox_inches="tight")
+        names.append(f"{name}.{ext}")
+    plt.close(fig)
+    return names
+
+
+def greedy_residuals(history, title: str):
+    """``E_train(m)`` (solid) and ``E_val(m)`` (dashed) against the number of centres, log-log."""
+    fig, ax = plt.subplots(figsize=(5.5, 4))
+    m = history.n_centers
+    ax.loglog(m[1:], history.train_max_residual[1:], "-", color=_COLORS[0], label="training $E_{train}(m)$")
+    if history.val_max_residual is not None:
+        ax.loglog(m[1:], history.val_max_residual[1:], "--", color=_COLORS[1], label="validation $E_{val}(m)$")
+    ax.set_xlabel("number of selected centres $m$")
+    ax.set_ylabel(r"max state-gradient residual $\max|\partial_{\xi_l} e_m|$")
+    ax.set_title(title)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend()
+    return fig
+
+
+def error_over_time(curves, title: str, ylabel: str = "mean relative error $e_{rel}(t)$"):
+    """Error curves over time, log scale.
+
+    Parameters
+    ----------
+    curves : list of dict
+        Each with ``t``, ``values``, ``label``, ``style`` (``'-'`` or ``'--'``) and ``color`` index.
+    """
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for c in curves:
+        ax.semilogy(c["t"][1:], c["values"][1:], c.get("style", "-"), color=_COLORS[c.get("color", 0) % len(_COLORS)], label=c["label"], lw=1.2)
+    ax.set_xlabel("time $t$")
+    ax.set_ylabel(ylabel)
+    ax.set_title(title)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    return fig
+
+
+def phase_portrait(trajectories, title: str):
+    """``(q, p)`` curves; ``trajectories`` maps a label to an array of shape (K+1, 2)."""
+    fig, ax = plt.subplots(figsize=(5, 4.5))
+    for i, (label, traj) in enumerate(trajectories.items()):
+        ax.plot(traj[:, 0], traj[:, 1], "-" if i == 0 else "--", color=_COLORS[i], label=label, lw=1.0)
+    ax.set_xlabel("angle $q$ [rad]")
+    ax.set_ylabel("angular momentum $p$")
+    ax.set_title(title)
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=8)
+    return fig
+
+
+def energy_error(t, curves, title: str):
+    """Relative Hamiltonian error ``|H(x_k) - H(x_0)| / |H(x_0)|`` over time; ``curves`` maps label -> values."""
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for i, (label, values) in enumerate(curves.items()):
+        ax.semilogy(t[1:], values[1:], color=_COLORS[i], label=label, lw=1.0)
+    ax.set_xlabel("time $t$")
+    ax.set_ylabel("relative Hamiltonian error")
+    ax.set_title(title)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    return fig
