@@ -17,9 +17,17 @@ import numpy as np
 
 from sympredict.exceptions import NewtonConvergenceError
 
-__all__ = ["apply_J", "implicit_midpoint_step", "symplectic_euler_step", "stormer_verlet_step", "integrate"]
+__all__ = ["micro_steps", "apply_J", "implicit_midpoint_step", "symplectic_euler_step", "stormer_verlet_step", "integrate"]
 
 _EPS = np.finfo(float).eps
+
+
+def micro_steps(t, h_max: float) -> np.ndarray:
+    """Number of micro steps of size at most ``h_max`` covering ``t`` exactly (``ceil(t / h_max)``).
+
+    ``t / h_max`` is rounded to 9 digits first so that ``0.05 / 1e-3`` gives 50, not 51.
+    """
+    return np.maximum(1, np.ceil(np.round(np.asarray(t, dtype=float) / h_max, 9)).astype(int))
 
 
 def apply_J(v: np.ndarray) -> np.ndarray:

@@ -10,9 +10,9 @@ from sympredict.systems.pendulum import (
     DT_TRAIN,
     energy_bounded_grid,
     flow_map_data,
-    micro_steps,
     random_flow_map_data,
 )
+from sympredict.integrators import micro_steps
 
 
 def _states(rng, n=6):

@@ -12,6 +12,7 @@ import numpy as np
 from sympredict._checks import as_parameter, as_positive_int, as_states, as_steps
 from sympredict.data import FlowMapData
 from sympredict.exceptions import NewtonConvergenceError
+from sympredict.integrators import micro_steps
 
 __all__ = [
     "Pendulum",
@@ -21,7 +22,6 @@ __all__ = [
     "energy_bounded_grid",
     "flow_map_data",
     "random_flow_map_data",
-    "micro_steps",
 ]
 
 #: Training lengths and macro steps of scenario A (paper section 4.2).
@@ -31,14 +31,6 @@ DT_TRAIN = (0.04, 0.05, 0.06)
 DT_TEST = (0.0509, 0.04847, 0.05292)
 
 _EPS = np.finfo(float).eps
-
-
-def micro_steps(t: np.ndarray, h_max: float) -> np.ndarray:
-    """Number of micro steps of size at most ``h_max`` covering ``t`` exactly (``ceil(t / h_max)``).
-
-    ``t / h_max`` is rounded to 9 digits first so that ``0.05 / 1e-3`` gives 50, not 51.
-    """
-    return np.maximum(1, np.ceil(np.round(np.asarray(t, dtype=float) / h_max, 9)).astype(int))
 
 
 class Pendulum:
