@@ -1,8 +1,8 @@
 """The ``sympredict`` command (argument parsing, progress and files; no numerics here).
 
-``sympredict run pendulum --quick --out DIR`` trains the scenario-A pendulum
-predictor and writes into ``DIR``: the trained model (``model.h5``), figures
-(PNG and PDF), ``results.json`` and ``summary.md``.
+``sympredict run pendulum|wave|all --quick --out DIR`` trains and evaluates the
+paper's scenarios and writes into ``DIR``: trained models (HDF5), figures (PNG
+and PDF), ``results.json`` and ``summary.md``.
 """
 
 from __future__ import annotations
@@ -16,13 +16,17 @@ from pathlib import Path
 
 __all__ = ["main"]
 
+SYSTEMS = ("pendulum", "wave")
 
-def _write_pendulum_outputs(results: dict, out: Path, command: str) -> list[str]:
+
+def _run_pendulum(preset_name: str, seed: int, out: Path):
+    """Pendulum scenario A: returns (JSON summary, figure files, Markdown lines)."""
     from sympredict import plotting
+    from sympredict.experiments.pendulum import PRESETS, run_scenario_a
 
-    figures = []
-    figures += plotting.save(
-        plotting.greedy_residuals(results["history"], "Pendulum scenario A: f-greedy residuals"), out, "pendulum_greedy_residuals"
+    results = run_scenario_a(PRESETS[preset_name], seed=seed, model_path=out / "pendulum_model.h5")
+    figures = plotting.save(
+        plotting.greedy_residuals({"": results["history"]}, "Pendulum scenario A: f-greedy residuals"), out, "pendulum_greedy_residuals"
     )
     curves = []
     for i, r in enumerate(results["per_dt"]):
@@ -51,18 +55,14 @@ def _write_pendulum_outputs(results: dict, out: Path, command: str) -> list[str]
         "pendulum_energy_error",
     )
     s = results["summary"]
-    with open(out / "results.json", "w") as f:
-        json.dump({"pendulum_scenario_a": s, "figures": figures, "command": command}, f, indent=2)
     lines = [
-        "# sympredict results: pendulum scenario A",
-        "",
-        f"Command: `{command}`",
+        "## Pendulum scenario A",
         "",
         f"- training data: {s['n_samples']} samples ({s['n_functionals']} functionals), "
         f"{s['preset']['n_grid']}x{s['preset']['n_grid']} energy-bounded grid, lengths 0.7..0.8 (5), dT 0.04/0.05/0.06",
         f"- model: IMQ eps = {s['preset']['eps']}, {s['n_centers']} centres (stop: {s['stop_reason']})",
         f"- f-greedy: E_train = {s['E_train']:.2e}, E_val = {s['E_val']:.2e} ({s['n_val_samples']} validation samples)",
-        f"- time: data {s['time_data_s']:.1f} s, training {s['time_fit_s']:.1f} s; peak memory {s['peak_rss_gib']:.2f} GiB",
+        f"- time: data {s['time_data_s']:.1f} s, training {s['time_fit_s']:.1f} s; peak memory of the process so far {s['peak_rss_gib']:.2f} GiB",
         "",
         f"Test: 5 q0 ~ U[0, pi/2] x 5 lengths ~ U[0.7, 0.8], p0 = 0, T = {s['preset']['horizon']}; "
         "mean relative error over the 25 trajectories, then median / max over time.",
@@ -75,31 +75,90 @@ def _write_pendulum_outputs(results: dict, out: Path, command: str) -> list[str]
             f"| {r['dt']} | {r['kernel_median_err']:.2e} | {r['kernel_max_err']:.2e} | {r['im_median_err']:.2e} | "
             f"{r['im_max_err']:.2e} | {r['ratio_median']:.0f}x | {r['kernel_max_energy_err']:.2e} | {r['im_max_energy_err']:.2e} |"
         )
-    lines += ["", "Figures:", ""] + [f"- `{name}`" for name in figures if name.endswith(".png")]
-    (out / "summary.md").write_text("\n".join(lines) + "\n")
-    return figures
+    for r in s["per_dt"]:
+        print(f"  pendulum dT={r['dt']}: kernel median error {r['kernel_median_err']:.2e} (max {r['kernel_max_err']:.2e}), "
+              f"implicit midpoint {r['im_median_err']:.2e} (ratio {r['ratio_median']:.3g})")
+    return s, figures, lines
+
+
+def _run_wave(preset_name: str, seed: int, out: Path):
+    """Wave MOR pipeline: returns (JSON summary, figure files, Markdown lines)."""
+    import numpy as np
+
+    from sympredict import plotting
+    from sympredict.experiments.wave import PRESETS, run_wave
+
+    results = run_wave(PRESETS[preset_name], seed=seed)
+    for r in results["per_dt"]:
+        r["model"].save(out / f"wave_model_dt{r['dt']}.h5")
+    figures = plotting.save(
+        plotting.greedy_residuals({f", dT={r['dt']}": r["model"].history_ for r in results["per_dt"]}, "Reduced wave: f-greedy residuals"),
+        out,
+        "wave_greedy_residuals",
+    )
+    for space, title in (("red", "reduced coordinates"), ("full", "full space, after reconstruction")):
+        curves = []
+        for i, r in enumerate(results["per_dt"]):
+            t = r["cases"][0]["t"]
+            kernel = np.mean([c["err"][f"kernel_{space}"] for c in r["cases"]], axis=0)
+            im = np.mean([c["err"][f"im_{space}"] for c in r["cases"]], axis=0)
+            curves.append({"t": t, "values": kernel, "label": f"kernel, dT={r['dt']}", "style": "-", "color": i})
+            curves.append({"t": t, "values": im, "label": f"implicit midpoint, dT={r['dt']}", "style": "--", "color": i})
+        figures += plotting.save(
+            plotting.error_over_time(curves, f"Wave, {title}: error vs micro-step reference (mean over test speeds)"),
+            out,
+            f"wave_error_over_time_{space}",
+        )
+    s = results["summary"]
+    b = s["basis"]
+    lines = [
+        "## Wave equation: MOR pipeline",
+        "",
+        f"- FOM: N = {s['preset']['n_points']} points (2N = {2 * s['preset']['n_points']}), pyMOR QuadraticHamiltonianModel, mu = c^2",
+        f"- basis: complex SVD of {b['n_snapshots']} snapshots at c_ref = 0.3 in {b['time_basis_s']:.2f} s "
+        f"(snapshots {b['time_snapshots_s']:.2f} s); 2n = {2 * s['preset']['n_reduced']}; "
+        f"max |V^T J V - J| = {b['symplecticity']:.1e}, max |V^T V - I| = {b['orthonormality']:.1e}; "
+        f"leading singular values {', '.join(f'{v:.3g}' for v in b['singular_values'][:2 * s['preset']['n_reduced'] + 2])}",
+        f"- data per dT: {s['preset']['samples_per_speed']} reduced states per training speed (6 speeds), uniform in the energy ellipsoid",
+        f"- test: speeds {', '.join(f'{c:.3f}' for c in s['test_speeds'])}, {s['preset']['n_test_ics']} initial conditions each, "
+        f"T = {s['preset']['horizon']}; errors are time averages of the mean relative error over the initial conditions",
+        "",
+        "| dT | kernel (chosen on validation) | centres | E_train | c | kernel, reduced | IM, reduced | kernel, full | IM, full | ratio | time ROM+kernel / FOM ref |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in s["per_dt"]:
+        for c in r["cases"]:
+            lines.append(
+                f"| {r['dt']} | {r['kernel']['state']} x {r['kernel']['mu']} | {r['n_centers']} ({r['stop_reason']}) | {r['E_train']:.1e} | "
+                f"{c['c']:.3f} | {c['mean_kernel_red']:.2e} | {c['mean_im_red']:.2e} | {c['mean_kernel_full']:.2e} | {c['mean_im_full']:.2e} | "
+                f"{c['ratio_red']:.0f}x | {c['time_kernel_s']:.3f} s / {c['time_fom_ref_s']:.2f} s |"
+            )
+            print(f"  wave dT={r['dt']} c={c['c']:.3f}: kernel {c['mean_kernel_red']:.2e}, implicit midpoint {c['mean_im_red']:.2e} "
+                  f"(ratio {c['ratio_red']:.3g})")
+    return s, figures, lines
 
 
 def _cmd_run(args) -> int:
     from threadpoolctl import threadpool_limits
 
-    from sympredict.experiments.pendulum import PRESETS, run_scenario_a
-
     preset_name = args.preset or ("paper" if args.paper else "quick")
+    systems = SYSTEMS if args.system == "all" else (args.system,)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    command = "sympredict " + " ".join(sys.argv[1:]) if sys.argv[0].endswith("sympredict") else "sympredict run " + args.system
+    command = "sympredict " + " ".join(sys.argv[1:] if sys.argv[0].endswith("sympredict") else ["run", args.system, "..."])
     t0 = time.perf_counter()
-    print(f"sympredict: {args.system}, preset '{preset_name}', {args.threads} BLAS thread(s), output in {out}/", flush=True)
+    print(f"sympredict: {', '.join(systems)}, preset '{preset_name}', {args.threads} BLAS thread(s), output in {out}/", flush=True)
+    results, figures, lines = {}, [], ["# sympredict results", "", f"Command: `{command}`", ""]
+    runners = {"pendulum": _run_pendulum, "wave": _run_wave}
     with threadpool_limits(limits=args.threads):
-        results = run_scenario_a(PRESETS[preset_name], seed=args.seed, model_path=out / "pendulum_model.h5")
-    _write_pendulum_outputs(results, out, command)
-    s = results["summary"]
-    print(f"trained {s['n_centers']} centres on {s['n_functionals']} functionals in {s['time_fit_s']:.1f} s "
-          f"(E_train {s['E_train']:.2e}, E_val {s['E_val']:.2e})")
-    for r in s["per_dt"]:
-        print(f"  dT={r['dt']}: kernel median error {r['kernel_median_err']:.2e} (max {r['kernel_max_err']:.2e}), "
-              f"implicit midpoint {r['im_median_err']:.2e} (ratio {r['ratio_median']:.3g})")
+        for system in systems:
+            summary, figs, md = runners[system](preset_name, args.seed, out)
+            results[system] = summary
+            figures += figs
+            lines += md + ["", "Figures: " + ", ".join(f"`{f}`" for f in figs if f.endswith(".png")), ""]
+    with open(out / "results.json", "w") as f:
+        json.dump({"command": command, "preset": preset_name, "results": results, "figures": figures}, f, indent=2)
+    (out / "summary.md").write_text("\n".join(lines) + "\n")
     print(f"done in {time.perf_counter() - t0:.0f} s; summary: {out / 'summary.md'}")
     return 0
 
@@ -107,12 +166,12 @@ def _cmd_run(args) -> int:
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="sympredict", description="Symplectic large-step kernel predictors for Hamiltonian systems.")
     sub = parser.add_subparsers(dest="command", required=True)
-    run = sub.add_parser("run", help="train, evaluate and write figures and a summary for a system")
-    run.add_argument("system", choices=["pendulum"], help="the scenario to run")
+    run = sub.add_parser("run", help="train, evaluate and write figures and a summary")
+    run.add_argument("system", choices=[*SYSTEMS, "all"], help="the scenario to run")
     run.add_argument("--out", required=True, help="output folder (created if missing)")
     size = run.add_mutually_exclusive_group()
-    size.add_argument("--quick", action="store_true", help="50x50 grid, 1500 centres: about a minute on 2 cores (default)")
-    size.add_argument("--paper", action="store_true", help="the paper's 200x200 grid (688,464 functionals): minutes, ~10 GiB")
+    size.add_argument("--quick", action="store_true", help="small data (default): pendulum ~30 s, wave ~2 min on 2 cores")
+    size.add_argument("--paper", action="store_true", help="the paper's data sizes: minutes, ~10 GiB")
     size.add_argument("--preset", choices=["smoke", "quick", "paper"], help="a preset by name ('smoke': seconds, for testing)")
     run.add_argument("--seed", type=int, default=0, help="seed of the validation and test draws (default 0)")
     run.add_argument("--threads", type=int, default=os.cpu_count() or 1, help="BLAS threads (default: all cores)")
@@ -124,7 +183,7 @@ def main(argv=None) -> int:
     from pymor.core.logger import set_log_levels
 
     args = build_parser().parse_args(argv)
-    set_log_levels({"sympredict": "INFO"})
+    set_log_levels({"sympredict": "INFO", "pymor": "WARN"})
     return args.func(args)
 
 

@@ -25,18 +25,26 @@ def save(fig, out_dir, name: str) -> list[str]:
     return names
 
 
-def greedy_residuals(history, title: str):
-    """``E_train(m)`` (solid) and ``E_val(m)`` (dashed) against the number of centres, log-log."""
+def greedy_residuals(histories, title: str):
+    """``E_train(m)`` (solid) and ``E_val(m)`` (dashed) against the number of centres, log-log.
+
+    Parameters
+    ----------
+    histories : dict
+        Label -> :class:`~sympredict.greedy.GreedyHistory` (one colour each).
+    """
     fig, ax = plt.subplots(figsize=(5.5, 4))
-    m = history.n_centers
-    ax.loglog(m[1:], history.train_max_residual[1:], "-", color=_COLORS[0], label="training $E_{train}(m)$")
-    if history.val_max_residual is not None:
-        ax.loglog(m[1:], history.val_max_residual[1:], "--", color=_COLORS[1], label="validation $E_{val}(m)$")
+    for i, (label, history) in enumerate(histories.items()):
+        m = history.n_centers
+        color = _COLORS[i % len(_COLORS)]
+        ax.loglog(m[1:], history.train_max_residual[1:], "-", color=color, label=f"training{label}")
+        if history.val_max_residual is not None:
+            ax.loglog(m[1:], history.val_max_residual[1:], "--", color=color, label=f"validation{label}")
     ax.set_xlabel("number of selected centres $m$")
     ax.set_ylabel(r"max state-gradient residual $\max|\partial_{\xi_l} e_m|$")
     ax.set_title(title)
     ax.grid(True, which="both", alpha=0.3)
-    ax.legend()
+    ax.legend(fontsize=8)
     return fig
 
 

@@ -9,7 +9,9 @@ so state shapes ~5e-3 fit there, pendulum states are of size ~5).
 
 from __future__ import annotations
 
+import contextlib
 import itertools
+import logging
 import time
 from dataclasses import dataclass, field
 from typing import Optional, Sequence
@@ -24,6 +26,20 @@ from sympredict.predictor import SymplecticKernelPredictor
 __all__ = ["log_grid", "kernel_grid", "SelectionResult", "select_kernels"]
 
 logger = getLogger("sympredict.selection")
+
+
+@contextlib.contextmanager
+def _quiet(*names):
+    """Raise the given loggers to WARNING for the duration (candidate fits are logged as one line each)."""
+    loggers = [logging.getLogger(n) for n in names]
+    levels = [lg.level for lg in loggers]
+    for lg in loggers:
+        lg.setLevel(max(lg.getEffectiveLevel(), logging.WARNING))
+    try:
+        yield
+    finally:
+        for lg, level in zip(loggers, levels):
+            lg.setLevel(level)
 
 
 def log_grid(lo: float, hi: float, per_decade: int = 2) -> np.ndarray:
@@ -104,8 +120,9 @@ def select_kernels(
             raise ValueError("dt_kernels must not contain None when the data have several macro steps")
         model = SymplecticKernelPredictor(state, mu_k, dt_k, max_centers=m_star, tol=0.0)
         t0 = time.perf_counter()
-        model.fit(data.x0, data.x1, mu=mu if mu_k is not None else None, dt=data.dt,
-                  validation=(validation.x0, validation.x1, vmu if mu_k is not None else None, validation.dt))
+        with _quiet("sympredict.greedy", "sympredict.predictor"):
+            model.fit(data.x0, data.x1, mu=mu if mu_k is not None else None, dt=data.dt,
+                      validation=(validation.x0, validation.x1, vmu if mu_k is not None else None, validation.dt))
         score = float(model.history_.val_max_residual[-1])
         row = {
             "state": repr(state),

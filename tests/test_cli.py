@@ -10,18 +10,21 @@ from sympredict.cli import main
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def test_run_pendulum_smoke_writes_everything(tmp_path, capsys):
-    assert main(["run", "pendulum", "--preset", "smoke", "--out", str(tmp_path), "--threads", "1"]) == 0
+def test_run_all_smoke_writes_everything(tmp_path, capsys):
+    assert main(["run", "all", "--preset", "smoke", "--out", str(tmp_path), "--threads", "1"]) == 0
     results = json.loads((tmp_path / "results.json").read_text())
-    summary = results["pendulum_scenario_a"]
-    assert summary["n_centers"] == 150 and len(summary["per_dt"]) == 3
+    pendulum = results["results"]["pendulum"]
+    assert pendulum["n_centers"] == 150 and len(pendulum["per_dt"]) == 3
+    wave = results["results"]["wave"]
+    assert wave["basis"]["symplecticity"] < 1e-13 and len(wave["per_dt"][0]["cases"]) == 2
     for name in results["figures"]:
         assert (tmp_path / name).stat().st_size > 1000
-    assert len(results["figures"]) == 8  # 4 figures x (png, pdf)
+    assert len(results["figures"]) == 2 * (4 + 3)  # pendulum 4, wave 3 figures, each png + pdf
     text = (tmp_path / "summary.md").read_text()
-    assert "| dT |" in text and "pendulum_phase_portrait.png" in text
-    assert (tmp_path / "pendulum_model.h5").exists()
-    assert "kernel median error" in capsys.readouterr().out
+    assert "## Pendulum scenario A" in text and "## Wave equation" in text and "pendulum_phase_portrait.png" in text
+    assert (tmp_path / "pendulum_model.h5").exists() and (tmp_path / "wave_model_dt0.1.h5").exists()
+    out = capsys.readouterr().out
+    assert "kernel median error" in out and "wave dT=0.1" in out
 
 
 def test_cli_rejects_unknown_system(tmp_path):
@@ -40,3 +43,12 @@ def test_example_runs(tmp_path):
     )
     assert proc.returncode == 0, proc.stderr
     assert out.stat().st_size > 1000 and "kernel predictor" in proc.stdout
+
+
+def test_wave_example_runs():
+    proc = subprocess.run(
+        [sys.executable, str(ROOT / "examples" / "wave_mor_workflow.py"), "--n-points", "80", "--samples", "60", "--centers", "80"],
+        capture_output=True, text=True, timeout=300,
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert "ROM + kernel predictor" in proc.stdout and "V^T J V - J" in proc.stdout

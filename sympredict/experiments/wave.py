@@ -74,7 +74,7 @@ class WavePreset:
     n_test_ics: int = 5
     horizon: float = 6.0
     state_eps: tuple = (3e-4, 1e-3, 3e-3, 1e-2)
-    mu_eps: tuple = (3.0, 10.0, 30.0)
+    mu_eps: tuple = (1.0, 3.0, 10.0)
     families: tuple = ("imq", "matern52")
     m_star: int = 300
 
