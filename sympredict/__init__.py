@@ -8,6 +8,7 @@ from sympredict.exceptions import (
     ModelFileError,
     NewtonConvergenceError,
     NotFittedError,
+    SolvabilityError,
     SympredictError,
 )
 from sympredict.predictor import SymplecticKernelPredictor
@@ -18,6 +19,7 @@ __all__ = [
     "SymplecticKernelPredictor",
     "SympredictError",
     "NewtonConvergenceError",
+    "SolvabilityError",
     "ModelFileError",
     "NotFittedError",
     "ExtrapolationWarning",

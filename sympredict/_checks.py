@@ -90,7 +90,7 @@ def as_steps(dt, n: int, name: str = "dt") -> np.ndarray:
     elif arr.ndim != 1 or len(arr) != n:
         raise ValueError(f"{name} must be a scalar or have shape ({n},), got {arr.shape}")
     if np.any(arr <= 0):
-        raise ValueError(f"{name} must be positive, got min {arr.min()!r}")
+        raise ValueError(f"{name} must be positive, got min {float(arr.min())!r}")
     return arr
 
 

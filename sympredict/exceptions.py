@@ -8,7 +8,14 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["SympredictError", "NewtonConvergenceError", "ModelFileError", "NotFittedError", "ExtrapolationWarning"]
+__all__ = [
+    "SympredictError",
+    "NewtonConvergenceError",
+    "SolvabilityError",
+    "ModelFileError",
+    "NotFittedError",
+    "ExtrapolationWarning",
+]
 
 
 class SympredictError(Exception):
@@ -53,6 +60,28 @@ class NewtonConvergenceError(SympredictError):
     def at_step(self, step: int) -> "NewtonConvergenceError":
         """The same error, annotated with the rollout step."""
         return NewtonConvergenceError(self.instances, self.residuals, self.reason, step)
+
+
+class SolvabilityError(SympredictError):
+    """The implicit step is not known to be solvable: ``dT * L_S >= 1`` at some instances.
+
+    Attributes
+    ----------
+    instances : ndarray of int
+        Offending instances.
+    margins : ndarray of float
+        Their ``dT * L_S`` estimates.
+    """
+
+    def __init__(self, instances, margins):
+        self.instances = np.asarray(instances, dtype=int)
+        self.margins = np.asarray(margins, dtype=float)
+        shown = ", ".join(f"{i} (dT*L_S = {v:.2f})" for i, v in zip(self.instances[:10], self.margins[:10]))
+        more = f" and {len(self.instances) - 10} more" if len(self.instances) > 10 else ""
+        super().__init__(
+            f"the implicit step is not guaranteed solvable for {len(self.instances)} instance(s): {shown}{more}. "
+            "dT * L_S < 1 is required (paper, Prop. 2); use a smaller dT or stay inside the training domain."
+        )
 
 
 class ExtrapolationWarning(UserWarning):

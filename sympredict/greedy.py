@@ -188,14 +188,21 @@ def available_memory() -> int:
     return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
 
 
+def _fmt_bytes(n: float) -> str:
+    for unit, size in (("GiB", 2**30), ("MiB", 2**20), ("KiB", 2**10)):
+        if n >= size:
+            return f"{n / size:.2f} {unit}"
+    return f"{n:.0f} B"
+
+
 def _check_memory(max_centers: int, n_train: int, n_val: int, memory_limit: Optional[float]) -> None:
     need = 8 * max_centers * (n_train + n_val)
     limit = memory_limit if memory_limit is not None else 0.9 * available_memory()
     if need > limit:
         fit_centers = int(limit // (8 * (n_train + n_val)))
         raise ValueError(
-            f"the Newton basis needs {need / 2**30:.2f} GiB ({max_centers} centres x "
-            f"{n_train + n_val} functionals x 8 bytes) but the memory limit is {limit / 2**30:.2f} GiB; "
+            f"the Newton basis needs {_fmt_bytes(need)} ({max_centers} centres x "
+            f"{n_train + n_val} functionals x 8 bytes) but the memory limit is {_fmt_bytes(limit)}; "
             f"use max_centers <= {fit_centers}, fewer training samples, or raise memory_limit"
         )
 

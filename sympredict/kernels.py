@@ -41,6 +41,14 @@ import numpy as np
 
 __all__ = ["RadialKernel", "IMQ", "Matern32", "Matern52", "ProductKernel", "KERNEL_FAMILIES", "kernel_from_spec"]
 
+#: Shape parameters are limited to [1e-50, 1e50]: the derivative factors contain
+#: ``eps**6``, which must stay a finite, normal float64.
+_EPS_RANGE = (1e-50, 1e50)
+
+#: ``exp(-x)`` underflows to 0 beyond this; arguments are clamped to it so that
+#: ``(1 + eps r) exp(-eps r)`` is 0, not ``inf * 0``, at enormous distances.
+_EXP_CLAMP = 745.0
+
 #: Below this distance the factors that are singular at ``r = 0`` are set to 0;
 #: the products they enter are then ``O(r)`` or smaller and already below
 #: round-off, while ``1/r**3`` of a larger ``r`` cannot overflow.
@@ -67,6 +75,11 @@ class RadialKernel:
             raise ValueError(f"{type(self).__name__}: eps must be a positive float, got {eps!r}") from None
         if not np.isfinite(eps) or eps <= 0:
             raise ValueError(f"{type(self).__name__}: eps must be a finite positive float, got {eps!r}")
+        if not _EPS_RANGE[0] <= eps <= _EPS_RANGE[1]:
+            raise ValueError(
+                f"{type(self).__name__}: eps must lie in [{_EPS_RANGE[0]:.0e}, {_EPS_RANGE[1]:.0e}] "
+                f"(eps**6 enters the derivatives), got {eps!r}"
+            )
         self.eps = eps
 
     def __repr__(self) -> str:
@@ -197,14 +210,15 @@ class Matern52(RadialKernel):
     name = "matern52"
 
     def phi(self, r):
-        er = self.eps * np.asarray(r, dtype=float)
+        er = np.minimum(self.eps * np.asarray(r, dtype=float), _EXP_CLAMP)
         return (1.0 + er + er * er / 3.0) * np.exp(-er)
 
     def factors(self, r, order=2):
         r = np.asarray(r, dtype=float)
         e = self.eps
-        E = np.exp(-e * r)
-        A = -(e * e / 3.0) * (1.0 + e * r) * E
+        er = np.minimum(e * r, _EXP_CLAMP)
+        E = np.exp(-er)
+        A = -(e * e / 3.0) * (1.0 + er) * E
         B = (e**4 / 3.0) * E
         if order == 2:
             return A, B
@@ -224,19 +238,20 @@ class Matern32(RadialKernel):
     name = "matern32"
 
     def phi(self, r):
-        er = self.eps * np.asarray(r, dtype=float)
+        er = np.minimum(self.eps * np.asarray(r, dtype=float), _EXP_CLAMP)
         return (1.0 + er) * np.exp(-er)
 
     def factors(self, r, order=2):
         r = np.asarray(r, dtype=float)
         e = self.eps
-        E = np.exp(-e * r)
+        er = np.minimum(e * r, _EXP_CLAMP)
+        E = np.exp(-er)
         inv_r, _ = _safe_inverse_r(r)
         A = -e * e * E
         B = e**3 * E * inv_r
         if order == 2:
             return A, B
-        C = -(e**3) * (1.0 + e * r) * E * inv_r**3
+        C = -(e**3) * (1.0 + er) * E * inv_r**3
         return A, B, C
 
 

@@ -25,7 +25,7 @@ from pymor.core.logger import getLogger
 
 from sympredict._checks import as_parameter, as_positive_int, as_states, as_steps
 from sympredict.data import FlowMapData, mixed_variables
-from sympredict.exceptions import ExtrapolationWarning, NewtonConvergenceError, NotFittedError
+from sympredict.exceptions import ExtrapolationWarning, NewtonConvergenceError, NotFittedError, SolvabilityError
 from sympredict.greedy import HBFunctionals, greedy_interpolation
 from sympredict.kernels import IMQ, ProductKernel, RadialKernel
 from sympredict.surrogate import HBSurrogate
@@ -85,7 +85,7 @@ class SymplecticKernelPredictor:
     dt_fixed_ : float or None
         The training step when ``dt_kernel is None``.
     domain_ : dict
-        Training box: ``xi_min``, ``xi_max``, ``mu_min``, ``mu_max``, ``dt_min``, ``dt_max``.
+        Training box: ``x_min``, ``x_max`` (states ``x0`` and ``x1``), ``mu_min``, ``mu_max``, ``dt_min``, ``dt_max``.
 
     Examples
     --------
@@ -224,9 +224,10 @@ class SymplecticKernelPredictor:
         self.surrogate_ = HBSurrogate(kernel, xi[points], data.mu[points], data.dt[points], comps, result.coef)
         self.history_ = result.history
         self._set_shape_info(xi.shape[1], data.mu.shape[1], data.dt[0] if self.dt_kernel is None else None)
+        states = np.concatenate([data.x0, data.x1])
         self.domain_ = {
-            "xi_min": xi.min(axis=0),
-            "xi_max": xi.max(axis=0),
+            "x_min": states.min(axis=0),
+            "x_max": states.max(axis=0),
             "mu_min": data.mu.min(axis=0),
             "mu_max": data.mu.max(axis=0),
             "dt_min": np.array(data.dt.min()),
@@ -264,12 +265,20 @@ class SymplecticKernelPredictor:
                 )
         else:
             dt_arr = as_steps(dt, b)
-        self._warn_outside(mu_arr, dt_arr)
+        self._warn_outside(mu_arr, dt_arr, x)
         return x, single, mu_arr, dt_arr
 
-    def _warn_outside(self, mu, dt):
+    def _warn_outside(self, mu, dt, x):
         d = self.domain_
         outside = []
+        # the box of all training states x0 and x1 bounds what the surrogate has seen
+        lo, hi = d["x_min"], d["x_max"]
+        margin = 1e-9 * (hi - lo + 1.0)
+        if np.any(x < lo - margin) or np.any(x > hi + margin):
+            outside.append(
+                f"query states span {_fmt(x.min(axis=0))}..{_fmt(x.max(axis=0))}, "
+                f"training states {_fmt(lo)}..{_fmt(hi)}"
+            )
         if mu.shape[1] and (np.any(mu < d["mu_min"]) or np.any(mu > d["mu_max"])):
             outside.append(
                 f"query mu spans {_fmt(mu.min(axis=0))}..{_fmt(mu.max(axis=0))}, "
@@ -363,7 +372,7 @@ class SymplecticKernelPredictor:
         out = self._solve_step(x, self.surrogate_.weights(mu, dt), dt)
         return out[0] if single else out
 
-    def rollout(self, x0, n_steps: int, mu=None, dt=None) -> np.ndarray:
+    def rollout(self, x0, n_steps: int, mu=None, dt=None, *, check_solvability: bool = False) -> np.ndarray:
         """Trajectories of ``n_steps`` predicted macro steps.
 
         Parameters
@@ -373,6 +382,10 @@ class SymplecticKernelPredictor:
             Number of macro steps ``K >= 0``.
         mu, dt
             As in :meth:`step`; fixed per instance along the trajectory.
+        check_solvability
+            Before stepping, estimate ``dT * L_S`` at the initial states
+            (:meth:`solvability`) and raise :class:`SolvabilityError` naming the
+            instances where it is ``>= 1``.
 
         Returns
         -------
@@ -387,6 +400,11 @@ class SymplecticKernelPredictor:
         n_steps = as_positive_int(n_steps, "n_steps", minimum=0)
         x, single, mu, dt = self._query(x0, mu, dt, name="x0")
         weights = self.surrogate_.weights(mu, dt)
+        if check_solvability:
+            margin = self._solvability(x, weights, dt)
+            bad = np.flatnonzero(~(margin < 1.0))
+            if bad.size:
+                raise SolvabilityError(bad, margin[bad])
         traj = np.empty((len(x), n_steps + 1, self.dim_))
         traj[:, 0] = x
         for k in range(n_steps):
@@ -395,6 +413,26 @@ class SymplecticKernelPredictor:
             except NewtonConvergenceError as err:
                 raise err.at_step(k) from None
         return traj[0] if single else traj
+
+    def _solvability(self, x, weights, dt):
+        n = self.dim_ // 2
+        _, hess = self.surrogate_.gradient_hessian(x, weights)
+        return dt * np.linalg.norm(hess[:, :, n:], ord=2, axis=(1, 2))
+
+    def solvability(self, x, mu=None, dt=None) -> np.ndarray:
+        """``dT * L_S`` estimated at the states ``x``: the implicit step is a contraction where it is < 1.
+
+        ``L_S = ||d^2_xi s(q0, p) I_2||_2``: the spectral norm of the Hessian columns
+        belonging to ``p`` (paper, Prop. 2 (ii)), evaluated at ``xi = (q0, p0)``.
+        It is a local estimate, not the supremum over the domain that the theorem uses.
+
+        Returns
+        -------
+        ndarray of shape (B,) (or a float for a single state)
+        """
+        x, single, mu, dt = self._query(x, mu, dt)
+        margin = self._solvability(x, self.surrogate_.weights(mu, dt), dt)
+        return float(margin[0]) if single else margin
 
     def step_jacobian(self, x, mu=None, dt=None) -> np.ndarray:
         """Jacobian ``D Phi`` of the predicted step, by implicit differentiation.

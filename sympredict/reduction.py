@@ -59,7 +59,7 @@ class ComplexSVDBasis:
     @property
     def projection_error(self) -> float:
         """``sqrt(sum_{k>n} s_k^2 / sum_k s_k^2)``: relative snapshot projection error of the basis."""
-        s2 = self.singular_values**2
+        s2 = (self.singular_values / self.singular_values[0]) ** 2
         return float(np.sqrt(max(0.0, s2[self.n :].sum()) / s2.sum()))
 
     def to_pymor(self, phase_space):
@@ -101,7 +101,7 @@ def complex_svd_basis(snapshots: np.ndarray, n: Optional[int] = None, tol: Optio
     ``O(N K min(N, K))`` for the SVD; memory ``16 N K`` bytes for ``X``.
     """
     snapshots = np.asarray(snapshots, dtype=float)
-    if snapshots.ndim != 2 or snapshots.shape[1] % 2 or len(snapshots) == 0:
+    if snapshots.ndim != 2 or snapshots.shape[1] % 2 or snapshots.shape[1] == 0 or len(snapshots) == 0:
         raise ValueError(f"snapshots must have shape (K, 2N) with K >= 1, got {snapshots.shape}")
     if not np.all(np.isfinite(snapshots)):
         raise ValueError("snapshots contain NaN or Inf")
@@ -114,7 +114,7 @@ def complex_svd_basis(snapshots: np.ndarray, n: Optional[int] = None, tol: Optio
     if tol is not None:
         if not (np.isfinite(tol) and tol > 0):
             raise ValueError(f"tol must be a positive float, got {tol!r}")
-        s2 = s**2
+        s2 = (s / s[0]) ** 2 if s[0] > 0 else np.ones_like(s)  # normalized: no overflow for huge snapshots
         tail = np.sqrt(np.maximum(0.0, 1.0 - np.cumsum(s2) / s2.sum()))
         n = int(np.argmax(tail <= tol)) + 1 if np.any(tail <= tol) else len(s)
         n = min(n, max(rank, 1))

@@ -69,7 +69,7 @@ def test_four_dimensional_system_symplectic_and_exact(state_kernel, rng):
     assert model.n_centers_ == 100 and model.history_.stop_reason == "exhausted"
     # all functionals selected: the step reproduces every training sample
     np.testing.assert_allclose(model.step(x0, mu=mu), x1, atol=1e-7)
-    xq = rng.uniform(-1, 1, size=(10, 4))
+    xq = rng.uniform(-0.8, 0.8, size=(10, 4))
     muq = rng.uniform(mu.min(), mu.max(), 10)
     assert symplecticity_defect(model.step_jacobian(xq, mu=muq)).max() <= 1e-8
     assert model.dt_fixed_ == 0.1
