@@ -11,12 +11,13 @@ from sympredict.exceptions import (
     SolvabilityError,
     SympredictError,
 )
-from sympredict.predictor import SymplecticKernelPredictor
+from sympredict.predictor import DirectKernelPredictor, SymplecticKernelPredictor
 
 __version__ = "0.1.0"
 
 __all__ = [
     "SymplecticKernelPredictor",
+    "DirectKernelPredictor",
     "SympredictError",
     "NewtonConvergenceError",
     "SolvabilityError",

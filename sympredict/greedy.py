@@ -44,6 +44,7 @@ from sympredict.kernels import ProductKernel
 __all__ = [
     "FunctionalSet",
     "HBFunctionals",
+    "ValueFunctionals",
     "GreedyHistory",
     "GreedyResult",
     "greedy_interpolation",
@@ -119,6 +120,45 @@ class HBFunctionals:
             blk = out2[sl]
             np.multiply(diff, (-(w * B) * diff[:, b])[:, None], out=blk)
             blk[:, b] -= w * A
+        return out
+
+
+class ValueFunctionals:
+    """Point evaluations ``f -> f(x_p, mu_p, dT_p)`` (the direct model's functionals).
+
+    Gramian entries are plain kernel values ``k_x(x_p, x_q) k_mu k_dT``; the
+    diagonal is ``phi(0) = 1``.
+
+    Parameters
+    ----------
+    kernel
+        Product kernel on ``(x, mu, dT)``.
+    x : ndarray of shape (M, 2n)
+    mu : ndarray of shape (M, d_mu)
+    dt : ndarray of shape (M,)
+    """
+
+    def __init__(self, kernel: ProductKernel, x, mu, dt):
+        self.kernel = kernel
+        self.x = np.ascontiguousarray(x, dtype=float)
+        n_points = len(self.x)
+        self.mu = np.asarray(mu, dtype=float).reshape(n_points, -1)
+        self.dt = np.asarray(dt, dtype=float).reshape(n_points)
+        self.n_functionals = n_points
+
+    def diagonal(self) -> np.ndarray:
+        return np.full(self.n_functionals, float(self.kernel.state.phi(np.zeros(1))[0]))
+
+    def representer(self, i: int):
+        return self.x[i], self.mu[i], self.dt[i]
+
+    def column(self, representer, out: np.ndarray) -> np.ndarray:
+        x_q, mu_q, dt_q = representer
+        for start in range(0, len(self.x), _COLUMN_CHUNK):
+            sl = slice(start, start + _COLUMN_CHUNK)
+            diff = self.x[sl] - x_q
+            w = self.kernel.parameter_factor(self.mu[sl], self.dt[sl], mu_q[None, :], np.atleast_1d(dt_q))[:, 0]
+            out[sl] = w * self.kernel.state.phi(np.sqrt(np.einsum("pa,pa->p", diff, diff)))
         return out
 
 

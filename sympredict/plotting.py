@@ -9,7 +9,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-__all__ = ["greedy_residuals", "error_over_time", "phase_portrait", "energy_error", "save"]
+__all__ = ["greedy_residuals", "error_over_time", "phase_portrait", "energy_error", "trajectories_over_time", "hamiltonian_over_time", "save"]
 
 _COLORS = plt.rcParams["axes.prop_cycle"].by_key()["color"]
 
@@ -89,5 +89,34 @@ def energy_error(t, curves, title: str):
     ax.set_ylabel("relative Hamiltonian error")
     ax.set_title(title)
     ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    return fig
+
+
+def trajectories_over_time(t, trajectories, title: str):
+    """``q(t)`` and ``p(t)`` in two panels; ``trajectories`` maps a label to an array (K+1, 2)."""
+    fig, axes = plt.subplots(2, 1, figsize=(7, 5), sharex=True)
+    for i, (label, traj) in enumerate(trajectories.items()):
+        for ax, comp in zip(axes, (0, 1)):
+            ax.plot(t, traj[:, comp], "-" if i == 0 else "--", color=_COLORS[i], label=label, lw=1.5 if i == 0 else 1.0)
+    axes[0].set_ylabel("angle $q(t)$ [rad]")
+    axes[1].set_ylabel("angular momentum $p(t)$")
+    axes[1].set_xlabel("time $t$")
+    axes[0].set_title(title)
+    for ax in axes:
+        ax.grid(True, alpha=0.3)
+    axes[0].legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    return fig
+
+
+def hamiltonian_over_time(t, energies, title: str):
+    """``H(x(t))`` along trajectories; ``energies`` maps a label to values (K+1,)."""
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for i, (label, values) in enumerate(energies.items()):
+        ax.plot(t, values, "-" if i == 0 else "--", color=_COLORS[i], label=label, lw=1.5 if i == 0 else 1.0)
+    ax.set_xlabel("time $t$")
+    ax.set_ylabel("Hamiltonian $H(q, p; l)$")
+    ax.set_title(title)
+    ax.grid(True, alpha=0.3)
     ax.legend(fontsize=8)
     return fig

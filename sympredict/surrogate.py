@@ -21,7 +21,7 @@ import numpy as np
 
 from sympredict.kernels import ProductKernel
 
-__all__ = ["HBSurrogate"]
+__all__ = ["HBSurrogate", "ValueSurrogate"]
 
 #: Target number of float64 entries of the ``(chunk, m, 2n)`` difference array
 #: per chunk (about 32 MB); bounds the temporaries of all evaluations.
@@ -197,3 +197,50 @@ class HBSurrogate:
         if with_floor:
             return grad, hess, floor
         return grad, hess
+
+
+class ValueSurrogate:
+    """Vector-valued kernel interpolant ``r(x, mu, dT) = sum_j c_j k((x, mu, dT), z_j)``, ``c_j in R^q``.
+
+    The direct (non-symplectic) baseline's model of the step increment.
+
+    Parameters
+    ----------
+    kernel
+        The product kernel.
+    centers_x : ndarray of shape (m, 2n)
+    centers_mu : ndarray of shape (m, d_mu)
+    centers_dt : ndarray of shape (m,)
+    coef : ndarray of shape (m, q)
+
+    Notes
+    -----
+    Evaluation ``O(B m (2n + q))``, chunked over the queries.
+    """
+
+    def __init__(self, kernel: ProductKernel, centers_x, centers_mu, centers_dt, coef):
+        self.kernel = kernel
+        self.centers_x = np.ascontiguousarray(centers_x, dtype=float)
+        m = len(self.centers_x)
+        self.centers_mu = np.asarray(centers_mu, dtype=float).reshape(m, -1)
+        self.centers_dt = np.asarray(centers_dt, dtype=float).reshape(m)
+        self.coef = np.asarray(coef, dtype=float).reshape(m, -1)
+
+    @property
+    def n_centers(self) -> int:
+        return len(self.coef)
+
+    def weights(self, mu: np.ndarray, dt: np.ndarray) -> np.ndarray:
+        """Parameter factors ``k_mu(mu_b, mu_j) k_dT(dT_b, dT_j)``, shape (B, m)."""
+        return self.kernel.parameter_factor(mu, dt, self.centers_mu, self.centers_dt)
+
+    def value(self, x: np.ndarray, weights: np.ndarray) -> np.ndarray:
+        """``r(x)`` for queries (B, 2n) with weights (B, m); shape (B, q)."""
+        out = np.empty((len(x), self.coef.shape[1]))
+        step = max(1, _CHUNK_ENTRIES // max(1, self.n_centers * x.shape[1]))
+        for start in range(0, len(x), step):
+            sl = slice(start, start + step)
+            diff = x[sl, None, :] - self.centers_x[None, :, :]
+            k = self.kernel.state.phi(np.sqrt(np.einsum("bma,bma->bm", diff, diff)))
+            out[sl] = (k * weights[sl]) @ self.coef
+        return out

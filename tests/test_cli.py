@@ -19,7 +19,9 @@ def test_run_all_smoke_writes_everything(tmp_path, capsys):
     assert wave["basis"]["symplecticity"] < 1e-13 and len(wave["per_dt"][0]["cases"]) == 2
     for name in results["figures"]:
         assert (tmp_path / name).stat().st_size > 1000
-    assert len(results["figures"]) == 2 * (4 + 3)  # pendulum 4, wave 3 figures, each png + pdf
+    assert len(results["figures"]) == 2 * (4 + 5 + 3)  # pendulum A 4, B 5, wave 3 figures, each png + pdf
+    b = pendulum["scenario_b"]
+    assert b["mu"] == 0.825 and len(b["per_dt"]) == 3 and b["n_centers_direct"] > 0
     text = (tmp_path / "summary.md").read_text()
     assert "## Pendulum scenario A" in text and "## Wave equation" in text and "pendulum_phase_portrait.png" in text
     assert (tmp_path / "pendulum_model.h5").exists() and (tmp_path / "wave_model_dt0.1.h5").exists()
