@@ -1,0 +1,81 @@
+"""The direct (non-symplectic) baseline and kernel selection by validation."""
+
+import numpy as np
+import pytest
+
+from sympredict import DirectKernelPredictor, SymplecticKernelPredictor
+from sympredict.data import FlowMapData
+from sympredict.greedy import ValueFunctionals, dense_interpolation, greedy_interpolation
+from sympredict.kernels import IMQ, Matern52, ProductKernel
+from sympredict.selection import kernel_grid, log_grid, select_kernels
+
+
+def test_value_greedy_to_exhaustion_equals_dense_solve(rng):
+    kernel = ProductKernel(Matern52(0.8), IMQ(2.0), IMQ(5.0))
+    x = rng.uniform(-2, 2, size=(25, 2))
+    fun = ValueFunctionals(kernel, x, rng.uniform(0.7, 0.8, (25, 1)), rng.choice([0.04, 0.06], 25))
+    y = np.column_stack([np.sin(x[:, 0]), np.cos(x[:, 1])])
+    res = greedy_interpolation(fun, y, max_centers=25, tol=0.0, power_tol=0.0)
+    coef = np.zeros_like(y)
+    coef[res.selected] = res.coef
+    dense = dense_interpolation(fun, y)
+    np.testing.assert_allclose(coef, dense, atol=1e-8 * np.abs(dense).max())
+
+
+def test_direct_model_interpolates_the_step(pendulum, small_pendulum_data, rng):
+    d = small_pendulum_data.subset(slice(0, 60))
+    model = DirectKernelPredictor(IMQ(0.3), IMQ(2.0), IMQ(5.0), max_centers=60, tol=0.0, power_tol=0.0)
+    model.fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
+    assert model.n_centers_ == 60
+    np.testing.assert_allclose(model.step(d.x0, mu=d.mu, dt=d.dt), d.x1, atol=1e-8)
+    traj = model.rollout(d.x0[:3], 4, mu=d.mu[:3], dt=d.dt[:3])
+    assert traj.shape == (3, 5, 2)
+    np.testing.assert_allclose(traj[:, 1], model.step(d.x0[:3], mu=d.mu[:3], dt=d.dt[:3]), atol=1e-14)
+    with pytest.raises(ValueError, match="mu_kernel is set"):
+        DirectKernelPredictor(IMQ(1.0), IMQ(1.0), IMQ(1.0)).fit(d.x0, d.x1, dt=d.dt)
+
+
+def test_direct_model_drifts_in_energy_where_the_symplectic_one_does_not(pendulum):
+    """The paper's qualitative claim, on a small case: same data, same kernel, long rollout."""
+    from sympredict.metrics import relative_hamiltonian_error
+    from sympredict.systems.pendulum import flow_map_data
+
+    d = flow_map_data(pendulum, n_grid=16, p_nonpositive=True)
+    kernels = (IMQ(0.15), IMQ(2.0), IMQ(5.0))
+    x0, mu = np.array([[1.0, 0.0]]), np.array([[0.75]])
+    drift = {}
+    for cls in (SymplecticKernelPredictor, DirectKernelPredictor):
+        model = cls(*kernels, max_centers=300).fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
+        energy_err = relative_hamiltonian_error(pendulum, model.rollout(x0, 2000, mu=0.75, dt=0.05), mu)[0]
+        drift[cls.__name__] = energy_err[-200:].mean()
+    assert drift["SymplecticKernelPredictor"] * 10 < drift["DirectKernelPredictor"]
+
+
+def test_log_grid_and_kernel_grid():
+    np.testing.assert_allclose(log_grid(1e-3, 1e-1, 2), [1e-3, 10**-2.5, 1e-2, 10**-1.5, 1e-1])
+    assert kernel_grid(("imq", "matern52"), [0.1, 1.0]) == [IMQ(0.1), IMQ(1.0), Matern52(0.1), Matern52(1.0)]
+    assert kernel_grid((), [0.1]) == [None]
+    with pytest.raises(ValueError, match="unknown kernel families"):
+        kernel_grid(("gauss",), [1.0])
+    with pytest.raises(ValueError, match="lo <= hi"):
+        log_grid(1.0, 0.1)
+
+
+def test_select_kernels_picks_the_smallest_validation_residual(small_pendulum_data):
+    data, val = small_pendulum_data.split(0.2, seed=1)
+    result = select_kernels(data, val, [IMQ(0.05), IMQ(0.15), IMQ(5.0)], [IMQ(2.0)], [IMQ(5.0)], m_star=60)
+    scores = {row["state"]: row["E_val"] for row in result.table}
+    assert len(scores) == 3
+    assert result.score == min(scores.values()) == scores[repr(result.state)]
+    assert result.state != IMQ(5.0)  # a far too narrow kernel cannot interpolate 60 centres' worth of data
+    with pytest.raises(ValueError, match="must not contain None"):
+        select_kernels(data, val, [IMQ(0.15)], [IMQ(2.0)], [None], m_star=10)
+
+
+def test_flow_map_data_split_and_concatenate(small_pendulum_data):
+    train, val = small_pendulum_data.split(0.25, seed=0)
+    assert len(train) + len(val) == len(small_pendulum_data)
+    both = train.concatenate(val)
+    assert isinstance(both, FlowMapData) and len(both) == len(small_pendulum_data)
+    with pytest.raises(ValueError, match="validation_fraction"):
+        small_pendulum_data.split(1.5)
