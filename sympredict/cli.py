@@ -223,11 +223,21 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
+    """Entry point; user errors end with one line on stderr and exit code 1, never a traceback."""
     from pymor.core.logger import set_log_levels
+
+    from sympredict.exceptions import SympredictError
 
     args = build_parser().parse_args(argv)
     set_log_levels({"sympredict": "INFO", "pymor": "WARN"})
-    return args.func(args)
+    try:
+        return args.func(args)
+    except (ValueError, SympredictError, OSError) as exc:
+        print(f"sympredict: error: {exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print("sympredict: interrupted", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":
