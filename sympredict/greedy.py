@@ -73,7 +73,26 @@ class FunctionalSet(Protocol):
         """``lambda_i^(1) lambda^(2) k`` for all candidates ``i`` of this set, into ``out`` (N,)."""
 
 
-class HBFunctionals:
+class _AugmentedPoints:
+    """Points ``(x_p, mu_p, dT_p)`` of the augmented domain and their parameter factors."""
+
+    def __init__(self, kernel: ProductKernel, points, mu, dt):
+        self.kernel = kernel
+        self.points = np.ascontiguousarray(points, dtype=float)
+        n_points = len(self.points)
+        self.mu = np.asarray(mu, dtype=float).reshape(n_points, -1)
+        self.dt = np.asarray(dt, dtype=float).reshape(n_points)
+
+    def _chunks(self):
+        for start in range(0, len(self.points), _COLUMN_CHUNK):
+            yield slice(start, start + _COLUMN_CHUNK)
+
+    def _parameter_factor(self, sl, mu_q, dt_q) -> np.ndarray:
+        """``k_mu(mu_p, mu_q) k_dT(dT_p, dT_q)`` for the points in ``sl``, shape (chunk,)."""
+        return self.kernel.parameter_factor(self.mu[sl], self.dt[sl], mu_q[None, :], np.atleast_1d(dt_q))[:, 0]
+
+
+class HBFunctionals(_AugmentedPoints):
     """State-derivative functionals ``d/dxi_a`` at augmented points ``(xi_p, mu_p, dT_p)``.
 
     The flat candidate index is ``i = p * 2n + a`` (point ``p``, component ``a``).
@@ -88,12 +107,9 @@ class HBFunctionals:
     """
 
     def __init__(self, kernel: ProductKernel, xi, mu, dt):
-        self.kernel = kernel
-        self.xi = np.ascontiguousarray(xi, dtype=float)
-        n_points, self.dim = self.xi.shape
-        self.mu = np.asarray(mu, dtype=float).reshape(n_points, -1)
-        self.dt = np.asarray(dt, dtype=float).reshape(n_points)
-        self.n_functionals = n_points * self.dim
+        super().__init__(kernel, xi, mu, dt)
+        self.dim = self.points.shape[1]
+        self.n_functionals = len(self.points) * self.dim
 
     def diagonal(self) -> np.ndarray:
         # r = 0: d/dx_a d/dy_a k = -A(0); the parameter factors are 1 on the diagonal
@@ -102,7 +118,7 @@ class HBFunctionals:
 
     def representer(self, i: int):
         p, a = divmod(int(i), self.dim)
-        return self.xi[p], self.mu[p], self.dt[p], a
+        return self.points[p], self.mu[p], self.dt[p], a
 
     def column(self, representer, out: np.ndarray) -> np.ndarray:
         """Gramian column ``w_p (-B d_pa d_pb - A delta_ab)``, ``d_p = xi_p - xi_q``.
@@ -111,19 +127,17 @@ class HBFunctionals:
         """
         xi_q, mu_q, dt_q, b = representer
         out2 = out.reshape(-1, self.dim)
-        for start in range(0, len(self.xi), _COLUMN_CHUNK):
-            sl = slice(start, start + _COLUMN_CHUNK)
-            diff = self.xi[sl] - xi_q
-            r = np.sqrt(np.einsum("pa,pa->p", diff, diff))
-            A, B = self.kernel.state.factors(r, order=2)
-            w = self.kernel.parameter_factor(self.mu[sl], self.dt[sl], mu_q[None, :], np.atleast_1d(dt_q))[:, 0]
+        for sl in self._chunks():
+            diff = self.points[sl] - xi_q
+            A, B = self.kernel.state.factors(np.sqrt(np.einsum("pa,pa->p", diff, diff)), order=2)
+            w = self._parameter_factor(sl, mu_q, dt_q)
             blk = out2[sl]
             np.multiply(diff, (-(w * B) * diff[:, b])[:, None], out=blk)
             blk[:, b] -= w * A
         return out
 
 
-class ValueFunctionals:
+class ValueFunctionals(_AugmentedPoints):
     """Point evaluations ``f -> f(x_p, mu_p, dT_p)`` (the direct model's functionals).
 
     Gramian entries are plain kernel values ``k_x(x_p, x_q) k_mu k_dT``; the
@@ -139,26 +153,20 @@ class ValueFunctionals:
     """
 
     def __init__(self, kernel: ProductKernel, x, mu, dt):
-        self.kernel = kernel
-        self.x = np.ascontiguousarray(x, dtype=float)
-        n_points = len(self.x)
-        self.mu = np.asarray(mu, dtype=float).reshape(n_points, -1)
-        self.dt = np.asarray(dt, dtype=float).reshape(n_points)
-        self.n_functionals = n_points
+        super().__init__(kernel, x, mu, dt)
+        self.n_functionals = len(self.points)
 
     def diagonal(self) -> np.ndarray:
         return np.full(self.n_functionals, float(self.kernel.state.phi(np.zeros(1))[0]))
 
     def representer(self, i: int):
-        return self.x[i], self.mu[i], self.dt[i]
+        return self.points[i], self.mu[i], self.dt[i]
 
     def column(self, representer, out: np.ndarray) -> np.ndarray:
         x_q, mu_q, dt_q = representer
-        for start in range(0, len(self.x), _COLUMN_CHUNK):
-            sl = slice(start, start + _COLUMN_CHUNK)
-            diff = self.x[sl] - x_q
-            w = self.kernel.parameter_factor(self.mu[sl], self.dt[sl], mu_q[None, :], np.atleast_1d(dt_q))[:, 0]
-            out[sl] = w * self.kernel.state.phi(np.sqrt(np.einsum("pa,pa->p", diff, diff)))
+        for sl in self._chunks():
+            diff = self.points[sl] - x_q
+            out[sl] = self._parameter_factor(sl, mu_q, dt_q) * self.kernel.state.phi(np.sqrt(np.einsum("pa,pa->p", diff, diff)))
         return out
 
 

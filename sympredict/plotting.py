@@ -14,6 +14,18 @@ __all__ = ["greedy_residuals", "error_over_time", "phase_portrait", "energy_erro
 _COLORS = plt.rcParams["axes.prop_cycle"].by_key()["color"]
 
 
+def _decorate(ax, xlabel: str, ylabel: str, title: str, legend_outside: bool = False):
+    """Labels, title, grid and legend: the same on every figure."""
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.set_title(title)
+    ax.grid(True, which="both", alpha=0.3)
+    if legend_outside:
+        ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    else:
+        ax.legend(fontsize=8)
+
+
 def save(fig, out_dir, name: str) -> list[str]:
     """Write ``name.png`` and ``name.pdf`` into ``out_dir``; returns the file names."""
     out_dir = Path(out_dir)
@@ -40,11 +52,7 @@ def greedy_residuals(histories, title: str):
         ax.loglog(m[1:], history.train_max_residual[1:], "-", color=color, label=f"training{label}")
         if history.val_max_residual is not None:
             ax.loglog(m[1:], history.val_max_residual[1:], "--", color=color, label=f"validation{label}")
-    ax.set_xlabel("number of selected centres $m$")
-    ax.set_ylabel(r"max state-gradient residual $\max|\partial_{\xi_l} e_m|$")
-    ax.set_title(title)
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8)
+    _decorate(ax, "number of selected centres $m$", r"max state-gradient residual $\max|\partial_{\xi_l} e_m|$", title)
     return fig
 
 
@@ -59,11 +67,7 @@ def error_over_time(curves, title: str, ylabel: str = "mean relative error $e_{r
     fig, ax = plt.subplots(figsize=(6, 4))
     for c in curves:
         ax.semilogy(c["t"][1:], c["values"][1:], c.get("style", "-"), color=_COLORS[c.get("color", 0) % len(_COLORS)], label=c["label"], lw=1.2)
-    ax.set_xlabel("time $t$")
-    ax.set_ylabel(ylabel)
-    ax.set_title(title)
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    _decorate(ax, "time $t$", ylabel, title, legend_outside=True)
     return fig
 
 
@@ -72,11 +76,7 @@ def phase_portrait(trajectories, title: str):
     fig, ax = plt.subplots(figsize=(5, 4.5))
     for i, (label, traj) in enumerate(trajectories.items()):
         ax.plot(traj[:, 0], traj[:, 1], "-" if i == 0 else "--", color=_COLORS[i], label=label, lw=1.0)
-    ax.set_xlabel("angle $q$ [rad]")
-    ax.set_ylabel("angular momentum $p$")
-    ax.set_title(title)
-    ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=8)
+    _decorate(ax, "angle $q$ [rad]", "angular momentum $p$", title)
     return fig
 
 
@@ -85,11 +85,7 @@ def energy_error(t, curves, title: str):
     fig, ax = plt.subplots(figsize=(6, 4))
     for i, (label, values) in enumerate(curves.items()):
         ax.semilogy(t[1:], values[1:], color=_COLORS[i], label=label, lw=1.0)
-    ax.set_xlabel("time $t$")
-    ax.set_ylabel("relative Hamiltonian error")
-    ax.set_title(title)
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8)
+    _decorate(ax, "time $t$", "relative Hamiltonian error", title)
     return fig
 
 
@@ -114,9 +110,5 @@ def hamiltonian_over_time(t, energies, title: str):
     fig, ax = plt.subplots(figsize=(6, 4))
     for i, (label, values) in enumerate(energies.items()):
         ax.plot(t, values, "-" if i == 0 else "--", color=_COLORS[i], label=label, lw=1.5 if i == 0 else 1.0)
-    ax.set_xlabel("time $t$")
-    ax.set_ylabel("Hamiltonian $H(q, p; l)$")
-    ax.set_title(title)
-    ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=8)
+    _decorate(ax, "time $t$", "Hamiltonian $H(q, p; l)$", title)
     return fig
