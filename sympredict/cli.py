@@ -2,7 +2,8 @@
 
 ``sympredict run pendulum|wave|all --quick --out DIR`` trains and evaluates the
 paper's scenarios and writes into ``DIR``: trained models (HDF5), figures (PNG
-and PDF), ``results.json`` and ``summary.md``.
+and PDF), ``results.json`` and ``summary.md``.  ``data``, ``train``, ``predict``
+and ``report`` work on HDF5 data sets and models.
 """
 
 from __future__ import annotations
@@ -206,6 +207,98 @@ def _cmd_run(args) -> int:
     return 0
 
 
+def _parse_kernel(spec: str):
+    """``family:eps`` (e.g. ``imq:0.15``) -> kernel; ``none`` -> None."""
+    from sympredict.kernels import KERNEL_FAMILIES
+
+    if spec.lower() == "none":
+        return None
+    family, _, eps = spec.partition(":")
+    if family not in KERNEL_FAMILIES or not eps:
+        raise ValueError(f"kernel spec {spec!r} must be FAMILY:EPS with FAMILY in {sorted(KERNEL_FAMILIES)}, or 'none'")
+    try:
+        return KERNEL_FAMILIES[family](float(eps))
+    except ValueError as exc:
+        raise ValueError(f"kernel spec {spec!r}: {exc}") from None
+
+
+def _cmd_data(args) -> int:
+    from sympredict.io import save_dataset
+    from sympredict.systems.pendulum import DT_TRAIN, MU_TRAIN, Pendulum, flow_map_data, random_flow_map_data
+
+    pendulum = Pendulum()
+    if args.random:
+        data = random_flow_map_data(pendulum, args.random, seed=args.seed)
+        meta = {"system": "pendulum", "kind": "random", "n_samples": args.random, "seed": args.seed}
+    else:
+        data = flow_map_data(pendulum, MU_TRAIN, DT_TRAIN, n_grid=args.n_grid, p_nonpositive=args.p_nonpositive)
+        meta = {"system": "pendulum", "kind": "grid", "n_grid": args.n_grid, "p_nonpositive": args.p_nonpositive}
+    save_dataset(data, args.out, **meta)
+    print(f"wrote {len(data)} pendulum flow-map samples to {args.out}")
+    return 0
+
+
+def _cmd_train(args) -> int:
+    from threadpoolctl import threadpool_limits
+
+    from sympredict import SymplecticKernelPredictor
+    from sympredict.io import load_dataset
+
+    data, meta = load_dataset(args.data)
+    validation = load_dataset(args.validation)[0] if args.validation else None
+    kernels = [_parse_kernel(k) for k in (args.state, args.mu, args.dt)]
+    model = SymplecticKernelPredictor(*kernels, max_centers=args.centers, tol=args.tol)
+    mu = data.mu if kernels[1] is not None else None
+    if validation is not None and kernels[1] is None:
+        validation = (validation.x0, validation.x1, None, validation.dt)
+    with threadpool_limits(limits=args.threads):
+        model.fit(data.x0, data.x1, mu=mu, dt=data.dt, validation=validation)
+    model.save(args.out)
+    h = model.history_
+    print(f"trained {model.n_centers_} centres ({h.stop_reason}) on {len(data)} samples of {meta.get('system', 'unknown system')}: "
+          f"E_train {h.train_max_residual[-1]:.2e}" + (f", E_val {h.val_max_residual[-1]:.2e}" if h.val_max_residual is not None else "")
+          + f"; saved to {args.out}")
+    return 0
+
+
+def _cmd_predict(args) -> int:
+    import numpy as np
+
+    from sympredict import SymplecticKernelPredictor
+
+    model = SymplecticKernelPredictor.load(args.model)
+    try:
+        x0 = np.array([[float(v) for v in state.split(",")] for state in args.x0])
+    except ValueError:
+        raise ValueError(f"--x0 takes comma-separated numbers per state, e.g. --x0 1.0,0.0; got {args.x0}") from None
+    traj = model.rollout(x0, args.steps, mu=args.mu, dt=args.dt, check_solvability=args.check)
+    if args.out:
+        header = "instance,step," + ",".join(f"q{i}" for i in range(model.dim_ // 2)) + "," + ",".join(f"p{i}" for i in range(model.dim_ // 2))
+        rows = [[b, k, *traj[b, k]] for b in range(traj.shape[0]) for k in range(traj.shape[1])]
+        np.savetxt(args.out, np.array(rows), delimiter=",", header=header, comments="", fmt=["%d", "%d"] + ["%.17g"] * model.dim_)
+        print(f"wrote {traj.shape[0]} trajectories of {args.steps} steps to {args.out}")
+    else:
+        for b in range(traj.shape[0]):
+            print(f"instance {b}: x({args.steps} steps) = {', '.join(f'{v:.12g}' for v in traj[b, -1])}")
+    return 0
+
+
+def _cmd_report(args) -> int:
+    from sympredict import SymplecticKernelPredictor
+
+    model = SymplecticKernelPredictor.load(args.model)
+    h, d = model.history_, model.domain_
+    print(f"{args.model}: SymplecticKernelPredictor, state dimension 2n = {model.dim_}, {model.n_mu_} parameter(s)")
+    print(f"  kernel: state {model.kernel_.state!r}, mu {model.kernel_.mu!r}, dt {model.kernel_.dt!r}")
+    print(f"  {model.n_centers_} centres, greedy stop: {h.stop_reason}, E_train {h.train_max_residual[-1]:.3e}"
+          + (f", E_val {h.val_max_residual[-1]:.3e}" if h.val_max_residual is not None else ""))
+    print(f"  training box: states {d['x_min'].round(6).tolist()} .. {d['x_max'].round(6).tolist()}")
+    if model.n_mu_:
+        print(f"                mu {d['mu_min'].round(6).tolist()} .. {d['mu_max'].round(6).tolist()}")
+    print(f"                dt {float(d['dt_min']):.6g} .. {float(d['dt_max']):.6g}" + (" (fixed step)" if model.dt_fixed_ else ""))
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="sympredict", description="Symplectic large-step kernel predictors for Hamiltonian systems.")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -219,6 +312,40 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--seed", type=int, default=0, help="seed of the validation and test draws (default 0)")
     run.add_argument("--threads", type=int, default=os.cpu_count() or 1, help="BLAS threads (default: all cores)")
     run.set_defaults(func=_cmd_run)
+
+    data = sub.add_parser("data", help="write a pendulum flow-map data set (HDF5)")
+    data.add_argument("--out", required=True, help="data file (.h5)")
+    data.add_argument("--n-grid", type=int, default=50, help="energy-bounded grid points per axis (default 50; paper 200)")
+    data.add_argument("--p-nonpositive", action="store_true", help="keep only states with p <= 0 (scenario B)")
+    data.add_argument("--random", type=int, default=0, metavar="N", help="N random samples instead of the grid (validation data)")
+    data.add_argument("--seed", type=int, default=0)
+    data.set_defaults(func=_cmd_data)
+
+    train = sub.add_parser("train", help="train a symplectic predictor on a data set and save it (HDF5)")
+    train.add_argument("data", help="data set written by 'sympredict data' or sympredict.io.save_dataset")
+    train.add_argument("--out", required=True, help="model file (.h5)")
+    train.add_argument("--validation", help="validation data set (records E_val)")
+    train.add_argument("--state", default="imq:0.15", help="state kernel FAMILY:EPS (default imq:0.15)")
+    train.add_argument("--mu", default="imq:2.0", help="parameter kernel FAMILY:EPS or 'none' (default imq:2.0)")
+    train.add_argument("--dt", default="imq:5.0", help="step kernel FAMILY:EPS or 'none' (default imq:5.0)")
+    train.add_argument("--centers", type=int, default=1500, help="maximal number of centres (default 1500)")
+    train.add_argument("--tol", type=float, default=1e-10, help="greedy residual tolerance (default 1e-10)")
+    train.add_argument("--threads", type=int, default=os.cpu_count() or 1)
+    train.set_defaults(func=_cmd_train)
+
+    predict = sub.add_parser("predict", help="roll a saved model out from given initial states")
+    predict.add_argument("model", help="model file")
+    predict.add_argument("--x0", required=True, nargs="+", help="initial states, each comma-separated (q..., p...)")
+    predict.add_argument("--mu", type=float, help="parameter (models with one parameter)")
+    predict.add_argument("--dt", type=float, help="macro step (default: the training step of a fixed-step model)")
+    predict.add_argument("--steps", type=int, required=True, help="number of macro steps")
+    predict.add_argument("--check", action="store_true", help="refuse to start where dT * L_S >= 1")
+    predict.add_argument("--out", help="CSV file for the trajectories (default: print the final states)")
+    predict.set_defaults(func=_cmd_predict)
+
+    report = sub.add_parser("report", help="describe a saved model: kernel, centres, residuals, training box")
+    report.add_argument("model", help="model file")
+    report.set_defaults(func=_cmd_report)
     return parser
 
 

@@ -1,6 +1,8 @@
 """The command line and the example run end to end (smallest sizes)."""
 
 import json
+
+import numpy as np
 import subprocess
 import sys
 from pathlib import Path
@@ -68,3 +70,26 @@ def test_cli_user_errors_are_one_line_without_traceback(tmp_path):
     proc = subprocess.run([sys.executable, "-m", "sympredict.cli", "run", "pendulum", "--preset", "huge", "--out", str(tmp_path)],
                           capture_output=True, text=True)
     assert proc.returncode == 2 and "invalid choice" in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_data_train_predict_report_workflow(tmp_path, capsys):
+    data, val, model, csv = (str(tmp_path / n) for n in ("d.h5", "v.h5", "m.h5", "t.csv"))
+    assert main(["data", "--n-grid", "12", "--out", data]) == 0
+    assert main(["data", "--random", "50", "--out", val]) == 0
+    assert main(["train", data, "--validation", val, "--centers", "60", "--out", model, "--threads", "1"]) == 0
+    assert main(["predict", model, "--x0", "1.0,0.0", "0.5,0.2", "--mu", "0.75", "--dt", "0.05", "--steps", "5", "--out", csv]) == 0
+    rows = np.loadtxt(csv, delimiter=",", skiprows=1)
+    assert rows.shape == (2 * 6, 4) and np.all(np.isfinite(rows))
+    from sympredict import SymplecticKernelPredictor
+
+    expected = SymplecticKernelPredictor.load(model).rollout(np.array([[1.0, 0.0], [0.5, 0.2]]), 5, mu=0.75, dt=0.05)
+    np.testing.assert_array_equal(rows[:, 2:], expected.reshape(-1, 2))
+    assert main(["report", model]) == 0
+    out = capsys.readouterr().out
+    assert "60 centres" in out and "training box" in out
+    # wrong file kinds and bad arguments: one line, exit code 1
+    assert main(["predict", data, "--x0", "1,0", "--steps", "2"]) == 1
+    assert main(["train", model, "--out", str(tmp_path / "x.h5")]) == 1
+    assert main(["train", data, "--state", "gauss:1", "--out", str(tmp_path / "x.h5")]) == 1
+    err = capsys.readouterr().err
+    assert err.count("sympredict: error:") == 3 and "Traceback" not in err
