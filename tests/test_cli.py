@@ -1,11 +1,11 @@
 """The command line and the example run end to end (smallest sizes)."""
 
 import json
-
-import numpy as np
 import subprocess
 import sys
 from pathlib import Path
+
+import numpy as np
 
 from sympredict.cli import main
 
