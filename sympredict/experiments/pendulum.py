@@ -49,7 +49,12 @@ class PendulumPreset:
     horizon
         Final time ``T`` of the test trajectories (paper: 20).
     eps
-        Shape parameters ``(state, mu, dT)`` of the IMQ factors.
+        Shape parameters ``(state, mu, dT)`` of the IMQ factors.  The default
+        (0.2, 1.5, 3.0) was chosen by trajectory validation: the paper's test
+        protocol on seeds 100..103, disjoint from the test seed 0, over
+        {0.15, 0.2} x {1.5, 2} x {3, 5} on the quick data
+        (``benchmarks/pendulum_trajectory_selection.py``).  The paper's own
+        (0.15, 2, 5) scored 9.1e-5 there, this one 6.1e-5.
     n_grid_b, max_centers_b
         Scenario B (training states with ``p <= 0``, less data): grid and greedy budget.
     """
@@ -58,7 +63,7 @@ class PendulumPreset:
     max_centers: int
     n_val: int
     horizon: float
-    eps: tuple = (0.15, 2.0, 5.0)
+    eps: tuple = (0.2, 1.5, 3.0)
     dt_test: tuple = field(default=DT_TEST)
     n_grid_b: int = 30
     max_centers_b: int = 1000
