@@ -23,7 +23,7 @@ SYSTEMS = ("pendulum", "wave")
 def _run_pendulum(preset_name: str, seed: int, out: Path):
     """Pendulum scenario A: returns (JSON summary, figure files, Markdown lines)."""
     from sympredict import plotting
-    from sympredict.experiments.pendulum import PRESETS, run_scenario_a, run_scenario_b
+    from sympredict.experiments.pendulum import PRESETS, run_scenario_a, run_scenario_b, run_speed_accuracy
 
     results = run_scenario_a(PRESETS[preset_name], seed=seed, model_path=out / "pendulum_model.h5")
     figures = plotting.save(
@@ -79,6 +79,26 @@ def _run_pendulum(preset_name: str, seed: int, out: Path):
     for r in s["per_dt"]:
         print(f"  pendulum dT={r['dt']}: kernel median error {r['kernel_median_err']:.2e} (max {r['kernel_max_err']:.2e}), "
               f"implicit midpoint {r['im_median_err']:.2e} (ratio {r['ratio_median']:.3g})")
+
+    sa = run_speed_accuracy(results["model"], PRESETS[preset_name], seed=seed)
+    figures += plotting.save(
+        plotting.speed_accuracy(sa["rows"], sa["reference_time_s"], f"Pendulum: speed against accuracy, dT={sa['dt']}"),
+        out,
+        "pendulum_speed_accuracy",
+    )
+    lines += [
+        "",
+        f"### Speed against accuracy (dT = {sa['dt']}, {sa['n_trajectories']} trajectories x {sa['n_steps']} steps, "
+        f"medians of {sa['repeats']} timed runs, side by side in one process)",
+        "",
+        f"Micro-step reference (implicit midpoint, h <= 1e-3): {sa['reference_time_s'] * 1e3:.2f} ms per trajectory.",
+        "",
+        "| method | size | ms per trajectory | median error | max error |",
+        "|---|---|---|---|---|",
+        *[f"| {r['method']} | {('m=' if r['method'] == 'kernel predictor' else 'dT/')}{r['size']} | "
+          f"{r['time_per_trajectory_s'] * 1e3:.2f} | {r['median_err']:.2e} | {r['max_err']:.2e} |" for r in sa["rows"]],
+    ]
+    s["speed_accuracy"] = sa
 
     b = run_scenario_b(PRESETS[preset_name], seed=seed)
     sb = b["summary"]

@@ -216,12 +216,29 @@ class GreedyResult:
     newton_coef : ndarray of shape (m,) or (m, q)
         Coefficients ``beta`` in the Newton basis.
     history : GreedyHistory
+    chol : ndarray of shape (m, m)
+        ``L[i, k] = v_k(lambda_{j_i})``: Newton-basis values at the selected
+        functionals (the Cholesky factor of their Gramian); what :meth:`coef_prefix` needs.
     """
 
     selected: np.ndarray
     coef: np.ndarray
     newton_coef: np.ndarray
     history: GreedyHistory = field(repr=False)
+    chol: Optional[np.ndarray] = field(default=None, repr=False)
+
+    def coef_prefix(self, m: int) -> np.ndarray:
+        """Kernel-basis coefficients of the interpolant on the first ``m`` selected functionals.
+
+        A prefix of a Newton expansion is the greedy's interpolant after ``m``
+        steps, so every smaller model comes from one run: ``c = L[:m, :m]^{-T} beta[:m]``,
+        ``O(m^2)``.  Equal (to round-off) to a fresh run with ``max_centers=m``.
+        """
+        if self.chol is None:
+            raise ValueError("this result does not carry the Newton basis values at the selected functionals")
+        if not 1 <= m <= len(self.selected):
+            raise ValueError(f"m must lie in 1..{len(self.selected)}, got {m}")
+        return solve_triangular(self.chol[:m, :m], self.newton_coef[:m], lower=True, trans="T")
 
 
 def available_memory() -> int:
@@ -429,7 +446,7 @@ def greedy_interpolation(
         coef, newton = coef[:, 0], beta[:m, 0].copy()
     else:
         newton = beta[:m].copy()
-    return GreedyResult(selected=selected[:m].copy(), coef=coef, newton_coef=newton, history=history)
+    return GreedyResult(selected=selected[:m].copy(), coef=coef, newton_coef=newton, history=history, chol=chol[:m, :m].copy())
 
 
 def dense_interpolation(functionals: HBFunctionals, targets: np.ndarray) -> np.ndarray:

@@ -9,7 +9,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-__all__ = ["greedy_residuals", "error_over_time", "phase_portrait", "energy_error", "trajectories_over_time", "hamiltonian_over_time", "save"]
+__all__ = ["greedy_residuals", "error_over_time", "phase_portrait", "energy_error", "trajectories_over_time", "hamiltonian_over_time", "speed_accuracy", "save"]
 
 _COLORS = plt.rcParams["axes.prop_cycle"].by_key()["color"]
 
@@ -111,4 +111,29 @@ def hamiltonian_over_time(t, energies, title: str):
     for i, (label, values) in enumerate(energies.items()):
         ax.plot(t, values, "-" if i == 0 else "--", color=_COLORS[i], label=label, lw=1.5 if i == 0 else 1.0)
     _decorate(ax, "time $t$", "Hamiltonian $H(q, p; l)$", title)
+    return fig
+
+
+def speed_accuracy(rows, reference_time: float, title: str):
+    """Median error over time against wall time per trajectory, one line per method, log-log.
+
+    Parameters
+    ----------
+    rows : list of dict
+        ``method``, ``size`` (centres or step refinement), ``time_per_trajectory_s``, ``median_err``.
+    reference_time
+        Wall time per trajectory of the micro-step reference (a vertical line).
+    """
+    fig, ax = plt.subplots(figsize=(6.5, 4.5))
+    methods = list(dict.fromkeys(r["method"] for r in rows))
+    for i, method in enumerate(methods):
+        pts = [r for r in rows if r["method"] == method]
+        t = [r["time_per_trajectory_s"] for r in pts]
+        e = [r["median_err"] for r in pts]
+        ax.loglog(t, e, "o-", color=_COLORS[i], label=method)
+        for r in pts:
+            tag = f"m={r['size']}" if method == "kernel predictor" else f"dT/{r['size']}"
+            ax.annotate(tag, (r["time_per_trajectory_s"], r["median_err"]), fontsize=7, xytext=(3, 3), textcoords="offset points")
+    ax.axvline(reference_time, color="k", ls=":", label="micro-step reference (h <= 1e-3)")
+    _decorate(ax, "wall time per trajectory [s]", "median over time of the mean relative error", title)
     return fig

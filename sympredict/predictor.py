@@ -31,7 +31,7 @@ from pymor.core.logger import getLogger
 from sympredict._checks import as_parameter, as_positive_int, as_states, as_steps
 from sympredict.data import FlowMapData, mixed_variables
 from sympredict.exceptions import ExtrapolationWarning, NewtonConvergenceError, NotFittedError, SolvabilityError
-from sympredict.greedy import HBFunctionals, ValueFunctionals, greedy_interpolation
+from sympredict.greedy import GreedyHistory, HBFunctionals, ValueFunctionals, greedy_interpolation
 from sympredict.kernels import IMQ, ProductKernel, RadialKernel
 from sympredict.surrogate import HBSurrogate, ValueSurrogate
 
@@ -350,8 +350,48 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         self.kernel_ = kernel
         self.surrogate_ = HBSurrogate(kernel, xi[points], data.mu[points], data.dt[points], comps, result.coef)
         self.history_ = result.history
+        self._greedy_result = result
         self._set_fitted_state(data)
         return self
+
+    def truncated(self, n_centers: int) -> "SymplecticKernelPredictor":
+        """The model made of the first ``n_centers`` centres of this fit (a smaller, cheaper model).
+
+        Uses the greedy's Newton expansion (:meth:`GreedyResult.coef_prefix`): no
+        refit, and the result equals a fit with ``max_centers=n_centers`` to
+        round-off.  Available on models fitted in this process (the Newton data
+        are not saved to files).
+
+        Returns
+        -------
+        SymplecticKernelPredictor
+            A fitted copy; its ``history_`` is cut at ``n_centers``.
+        """
+        import copy
+
+        self._check_fitted()
+        result = getattr(self, "_greedy_result", None)
+        if result is None:
+            raise ValueError("truncation needs the greedy's Newton data, which are not stored in model files: refit instead")
+        n_centers = as_positive_int(n_centers, "n_centers")
+        if n_centers > self.n_centers_:
+            raise ValueError(f"n_centers must be <= {self.n_centers_}, got {n_centers}")
+        sur = self.surrogate_
+        small = copy.copy(self)
+        small.max_centers = n_centers
+        small.surrogate_ = HBSurrogate(
+            sur.kernel, sur.centers_xi[:n_centers], sur.centers_mu[:n_centers], sur.centers_dt[:n_centers],
+            sur.components[:n_centers], result.coef_prefix(n_centers),
+        )
+        h = self.history_
+        small.history_ = GreedyHistory(
+            train_max_residual=h.train_max_residual[: n_centers + 1],
+            val_max_residual=None if h.val_max_residual is None else h.val_max_residual[: n_centers + 1],
+            selected_power=h.selected_power[:n_centers],
+            elapsed=h.elapsed[:n_centers],
+            stop_reason=f"truncated to {n_centers} of {self.n_centers_} centres",
+        )
+        return small  # keeps the full run's Newton data: it can be truncated further
 
     def _solve_step(self, x: np.ndarray, weights: np.ndarray, dt: np.ndarray) -> np.ndarray:
         """One implicit symplectic-Euler step for a validated batch.

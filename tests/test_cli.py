@@ -21,7 +21,13 @@ def test_run_all_smoke_writes_everything(tmp_path, capsys):
     assert wave["basis"]["symplecticity"] < 1e-13 and len(wave["per_dt"][0]["cases"]) == 2
     for name in results["figures"]:
         assert (tmp_path / name).stat().st_size > 1000
-    assert len(results["figures"]) == 2 * (4 + 5 + 3)  # pendulum A 4, B 5, wave 3 figures, each png + pdf
+    assert len(results["figures"]) == 2 * (5 + 5 + 3)  # pendulum A 4 + speed/accuracy, B 5, wave 3 figures, png + pdf
+    rows = pendulum["speed_accuracy"]["rows"]
+    assert {r["method"] for r in rows} == {"kernel predictor", "implicit midpoint", "Stormer-Verlet"}
+    assert all(r["time_per_trajectory_s"] > 0 and r["median_err"] > 0 for r in rows)
+    # finer steps are more accurate: the chart shows real convergence, not noise
+    im = [r["median_err"] for r in rows if r["method"] == "implicit midpoint"]
+    assert all(a > b for a, b in zip(im, im[1:]))
     b = pendulum["scenario_b"]
     assert b["mu"] == 0.825 and len(b["per_dt"]) == 3 and b["n_centers_direct"] > 0
     text = (tmp_path / "summary.md").read_text()

@@ -217,3 +217,22 @@ def test_extrapolation_warns(small_pendulum_model):
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         small_pendulum_model.step(np.array([0.3, 0.0]), mu=0.75, dt=0.05)
+
+
+def test_truncated_model_equals_refit_with_fewer_centres(small_pendulum_data, rng, tmp_path):
+    d = small_pendulum_data
+    kernels = (IMQ(0.15), IMQ(2.0), IMQ(5.0))
+    full = SymplecticKernelPredictor(*kernels, max_centers=200).fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
+    small = full.truncated(80)
+    refit = SymplecticKernelPredictor(*kernels, max_centers=80).fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
+    np.testing.assert_array_equal(small.surrogate_.centers_xi, refit.surrogate_.centers_xi)
+    np.testing.assert_allclose(small.surrogate_.coef, refit.surrogate_.coef, rtol=1e-10, atol=1e-10 * np.abs(refit.surrogate_.coef).max())
+    x, mu, dt = _random_queries(rng, 5)
+    np.testing.assert_allclose(small.step(x, mu=mu, dt=dt), refit.step(x, mu=mu, dt=dt), atol=1e-12)
+    assert small.n_centers_ == 80 and full.n_centers_ == 200 and len(small.history_.train_max_residual) == 81
+    with pytest.raises(ValueError, match="n_centers must be <= 200"):
+        full.truncated(201)
+    np.testing.assert_array_equal(small.truncated(10).surrogate_.coef, full.truncated(10).surrogate_.coef)
+    small.save(tmp_path / "small.h5")
+    with pytest.raises(ValueError, match="not stored in model files"):
+        SymplecticKernelPredictor.load(tmp_path / "small.h5").truncated(10)

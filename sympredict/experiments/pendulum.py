@@ -18,14 +18,14 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 from pymor.core.logger import getLogger
 
-from sympredict.integrators import implicit_midpoint_step, integrate
+from sympredict.integrators import implicit_midpoint_step, integrate, stormer_verlet_step
 from sympredict.kernels import IMQ, RadialKernel
 from sympredict.metrics import relative_hamiltonian_error, relative_trajectory_error
 from sympredict.exceptions import ExtrapolationWarning
 from sympredict.predictor import DirectKernelPredictor, SymplecticKernelPredictor
 from sympredict.systems.pendulum import DT_TEST, DT_TRAIN, MU_TRAIN, Pendulum, flow_map_data, random_flow_map_data
 
-__all__ = ["PendulumPreset", "PRESETS", "run_scenario_a", "run_scenario_b", "paper_test_instances", "MU_EXTRAPOLATION", "DT_EXTRAPOLATION"]
+__all__ = ["PendulumPreset", "PRESETS", "run_scenario_a", "run_scenario_b", "run_speed_accuracy", "paper_test_instances", "MU_EXTRAPOLATION", "DT_EXTRAPOLATION"]
 
 #: The paper's extrapolation case of scenario B.
 MU_EXTRAPOLATION = 0.825
@@ -271,3 +271,59 @@ def run_scenario_b(preset: PendulumPreset, seed: int = 0) -> dict:
         },
     }
     return {"summary": summary, "per_dt": per_dt, "example": example, "energy": energy, "energy_err": energy_err, "models": models}
+
+
+def run_speed_accuracy(
+    model: SymplecticKernelPredictor,
+    preset: PendulumPreset,
+    seed: int = 0,
+    dt: float = DT_TEST[0],
+    centers=(100, 200, 400, 800, 1500),
+    refinements=(1, 2, 4, 8, 16),
+    repeats: int = 3,
+) -> dict:
+    """Online wall time per trajectory against error, all methods timed side by side in this process.
+
+    On the scenario-A test set (25 trajectories, ``T = preset.horizon``) at
+    macro step ``dt``: the kernel predictor truncated to each number of
+    ``centers`` (prefixes of one fit, :meth:`SymplecticKernelPredictor.truncated`),
+    implicit midpoint and Störmer–Verlet with ``dt / r`` for each refinement
+    ``r`` (states compared at the macro grid), and the micro-step reference.
+    Times are medians over ``repeats`` runs of the whole batch, divided by the
+    batch size.
+
+    Returns
+    -------
+    dict
+        ``rows``: one dict per method and size (``method``, ``size``,
+        ``time_per_trajectory_s``, ``median_err``, ``max_err``); ``reference_time_s``.
+    """
+    system = Pendulum()
+    x0, lengths = paper_test_instances(seed)
+    n_steps = int(np.floor(preset.horizon / dt + 1e-9))
+
+    def timed(run):
+        times, out = [], None
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            out = run()
+            times.append(time.perf_counter() - t0)
+        return float(np.median(times)) / len(x0), out
+
+    t_ref, ref = timed(lambda: system.trajectory(x0, lengths, dt, n_steps))
+    rows = []
+
+    def record(method, size, seconds, traj):
+        err = relative_trajectory_error(traj, ref).mean(axis=0)[1:]
+        rows.append({"method": method, "size": size, "time_per_trajectory_s": seconds,
+                     "median_err": float(np.median(err)), "max_err": float(err.max())})
+
+    for m in [c for c in centers if c <= model.n_centers_]:
+        small = model.truncated(m)
+        seconds, traj = timed(lambda: small.rollout(x0, n_steps, mu=lengths, dt=dt))
+        record("kernel predictor", m, seconds, traj)
+    for name, scheme in (("implicit midpoint", implicit_midpoint_step), ("Stormer-Verlet", stormer_verlet_step)):
+        for r in refinements:
+            seconds, traj = timed(lambda: integrate(scheme, system, x0, lengths[:, None], dt / r, n_steps * r)[:, ::r])
+            record(name, r, seconds, traj)
+    return {"dt": dt, "n_trajectories": len(x0), "n_steps": n_steps, "repeats": repeats, "reference_time_s": t_ref, "rows": rows}
