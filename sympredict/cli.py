@@ -23,7 +23,7 @@ SYSTEMS = ("pendulum", "wave")
 def _run_pendulum(preset_name: str, seed: int, out: Path):
     """Pendulum scenario A: returns (JSON summary, figure files, Markdown lines)."""
     from sympredict import plotting
-    from sympredict.experiments.pendulum import PRESETS, run_scenario_a, run_scenario_b, run_speed_accuracy
+    from sympredict.experiments.pendulum import PRESETS, run_scenario_a, run_scenario_b, run_speed_accuracy, run_stability
 
     results = run_scenario_a(PRESETS[preset_name], seed=seed, model_path=out / "pendulum_model.h5")
     figures = plotting.save(
@@ -140,6 +140,43 @@ def _run_pendulum(preset_name: str, seed: int, out: Path):
         f"{sb['energy_drift_symplectic']:+.1e} (symplectic) vs {sb['energy_drift_direct']:+.1e} (direct).",
     ]
     s["scenario_b"] = sb
+
+    st = run_stability(results["model"], PRESETS[preset_name])
+    figures += plotting.save(
+        plotting.stability_sweeps(st["dt_sweep"], st["mu_sweep"], (0.04, 0.06), (0.7, 0.8),
+                                  f"Where methods fail: step sweep, l={st['mu']}, q0={st['q0']}"),
+        out,
+        "pendulum_stability",
+    )
+
+    def cell(v):
+        return f"{v:.2e}" if isinstance(v, float) else v
+
+    lines += [
+        "",
+        f"## Where methods fail (q0 = {st['q0']}, p0 = 0, l = {st['mu']})",
+        "",
+        f"Long horizon: {st['periods']} periods ({st['n_steps']} steps of dT = {st['dt']}):",
+        "",
+        "| method | energy error, first tenth | energy error, last tenth | phase error at the end [rad] | final relative error |",
+        "|---|---|---|---|---|",
+        *[f"| {k} | {v['energy_first']:.2e} | {v['energy_last']:.2e} | {v['phase_error_rad']:+.2e} | {v['final_rel_err']:.2e} |"
+          for k, v in st["long"].items()],
+        "",
+        f"Step sweep (training steps 0.04..0.06; T = {PRESETS[preset_name].horizon}; mean relative error, or how the method failed):",
+        "",
+        "| dT | dT * L_S (kernel) | kernel predictor | implicit midpoint | Stormer-Verlet |",
+        "|---|---|---|---|---|",
+        *[f"| {r['dt']} | {r['solvability']:.2f} | {cell(r['kernel'])} | {cell(r['implicit midpoint'])} | {cell(r['Stormer-Verlet'])} |"
+          for r in st["dt_sweep"]],
+        "",
+        "Extrapolation in the length (training lengths 0.7..0.8):",
+        "",
+        "| l | kernel predictor | implicit midpoint |",
+        "|---|---|---|",
+        *[f"| {r['mu']} | {cell(r['kernel'])} | {cell(r['implicit midpoint'])} |" for r in st["mu_sweep"]],
+    ]
+    s["stability"] = st
     print(f"  scenario B at l={sb['mu']}: energy drift symplectic {sb['energy_drift_symplectic']:+.1e}, "
           f"direct {sb['energy_drift_direct']:+.1e}")
     return s, figures, lines

@@ -9,7 +9,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-__all__ = ["greedy_residuals", "error_over_time", "phase_portrait", "energy_error", "trajectories_over_time", "hamiltonian_over_time", "speed_accuracy", "save"]
+__all__ = ["greedy_residuals", "error_over_time", "phase_portrait", "energy_error", "trajectories_over_time", "hamiltonian_over_time", "speed_accuracy", "stability_sweeps", "save"]
 
 _COLORS = plt.rcParams["axes.prop_cycle"].by_key()["color"]
 
@@ -136,4 +136,27 @@ def speed_accuracy(rows, reference_time: float, title: str):
             ax.annotate(tag, (r["time_per_trajectory_s"], r["median_err"]), fontsize=7, xytext=(3, 3), textcoords="offset points")
     ax.axvline(reference_time, color="k", ls=":", label="micro-step reference (h <= 1e-3)")
     _decorate(ax, "wall time per trajectory [s]", "median over time of the mean relative error", title)
+    return fig
+
+
+def stability_sweeps(dt_rows, mu_rows, dt_train, mu_train, title: str):
+    """Two panels: mean relative error against ``dT`` and against ``mu`` (log scale).
+
+    Rows hold a float error per method or a string when the method failed; failures
+    are drawn as crosses on the top edge.  The training ranges are shaded.
+    """
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    for ax, rows, key, train, xlabel in ((axes[0], dt_rows, "dt", dt_train, "macro step $\\Delta T$"),
+                                         (axes[1], mu_rows, "mu", mu_train, "pendulum length $l$")):
+        methods = [k for k in rows[0] if k not in (key, "solvability", "inside_training_box")]
+        ax.axvspan(*train, color="0.9", label="training range")
+        for i, method in enumerate(methods):
+            ok = [(r[key], r[method]) for r in rows if isinstance(r[method], float)]
+            bad = [r[key] for r in rows if not isinstance(r[method], float)]
+            if ok:
+                ax.semilogy(*zip(*ok), "o-", color=_COLORS[i], label=method, ms=4)
+            if bad:
+                ax.plot(bad, [1e1] * len(bad), "x", color=_COLORS[i], ms=9, mew=2, label=f"{method}: failed")
+        ax.set_xscale("log" if key == "dt" else "linear")
+        _decorate(ax, xlabel, "mean relative error over $[0, T]$", title if key == "dt" else "extrapolation in the length")
     return fig

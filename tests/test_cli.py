@@ -21,7 +21,18 @@ def test_run_all_smoke_writes_everything(tmp_path, capsys):
     assert wave["basis"]["symplecticity"] < 1e-13 and len(wave["per_dt"][0]["cases"]) == 2
     for name in results["figures"]:
         assert (tmp_path / name).stat().st_size > 1000
-    assert len(results["figures"]) == 2 * (5 + 5 + 3)  # pendulum A 4 + speed/accuracy, B 5, wave 3 figures, png + pdf
+    assert len(results["figures"]) == 2 * (6 + 5 + 3)  # pendulum A 4 + speed/accuracy + stability, B 5, wave 3; png + pdf
+    st = pendulum["stability"]
+    assert set(st["long"]) == {"kernel predictor", "direct kernel", "implicit midpoint"}
+    assert len(st["dt_sweep"]) == 12 and len(st["mu_sweep"]) == 8
+    # failures are reported as the documented strings, never raised
+    allowed = ("refused: dT*L_S >= 1", "unstable (state grew)")
+    for row in st["dt_sweep"]:
+        for method in ("kernel", "implicit midpoint", "Stormer-Verlet"):
+            assert isinstance(row[method], float) or row[method] in allowed or row[method].startswith("Newton failed")
+    # far beyond its stability limit the explicit method is useless
+    sv_small, sv_large = st["dt_sweep"][0]["Stormer-Verlet"], st["dt_sweep"][-1]["Stormer-Verlet"]
+    assert isinstance(sv_large, str) or sv_large > 100 * sv_small
     rows = pendulum["speed_accuracy"]["rows"]
     assert {r["method"] for r in rows} == {"kernel predictor", "implicit midpoint", "Stormer-Verlet"}
     assert all(r["time_per_trajectory_s"] > 0 and r["median_err"] > 0 for r in rows)

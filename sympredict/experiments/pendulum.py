@@ -13,6 +13,7 @@ from __future__ import annotations
 import resource
 import time
 import warnings
+from typing import Optional
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
@@ -21,11 +22,11 @@ from pymor.core.logger import getLogger
 from sympredict.integrators import implicit_midpoint_step, integrate, stormer_verlet_step
 from sympredict.kernels import IMQ, RadialKernel
 from sympredict.metrics import relative_hamiltonian_error, relative_trajectory_error
-from sympredict.exceptions import ExtrapolationWarning
+from sympredict.exceptions import ExtrapolationWarning, NewtonConvergenceError, SolvabilityError
 from sympredict.predictor import DirectKernelPredictor, SymplecticKernelPredictor
 from sympredict.systems.pendulum import DT_TEST, DT_TRAIN, MU_TRAIN, Pendulum, flow_map_data, random_flow_map_data
 
-__all__ = ["PendulumPreset", "PRESETS", "run_scenario_a", "run_scenario_b", "run_speed_accuracy", "paper_test_instances", "MU_EXTRAPOLATION", "DT_EXTRAPOLATION"]
+__all__ = ["PendulumPreset", "PRESETS", "run_scenario_a", "run_scenario_b", "run_speed_accuracy", "run_stability", "paper_test_instances", "MU_EXTRAPOLATION", "DT_EXTRAPOLATION"]
 
 #: The paper's extrapolation case of scenario B.
 MU_EXTRAPOLATION = 0.825
@@ -57,6 +58,8 @@ class PendulumPreset:
         (0.15, 2, 5) scored 9.1e-5 there, this one 6.1e-5.
     n_grid_b, max_centers_b
         Scenario B (training states with ``p <= 0``, less data): grid and greedy budget.
+    stability_periods
+        Horizon of the long-time test of :func:`run_stability`, in periods (issue target: 1000).
     """
 
     n_grid: int
@@ -67,15 +70,18 @@ class PendulumPreset:
     dt_test: tuple = field(default=DT_TEST)
     n_grid_b: int = 30
     max_centers_b: int = 1000
+    stability_periods: int = 100
 
 
 PRESETS = {
     # seconds: for tests of the pipeline itself, not of accuracy
-    "smoke": PendulumPreset(n_grid=14, max_centers=150, n_val=200, horizon=2.0, n_grid_b=12, max_centers_b=100),
+    "smoke": PendulumPreset(n_grid=14, max_centers=150, n_val=200, horizon=2.0, n_grid_b=12, max_centers_b=100, stability_periods=5),
     # about a minute on 2 cores: already meets the paper's accuracy
     "quick": PendulumPreset(n_grid=50, max_centers=1500, n_val=2000, horizon=20.0),
     # the paper's data size: 688,464 candidate functionals
-    "paper": PendulumPreset(n_grid=200, max_centers=1500, n_val=20000, horizon=20.0, n_grid_b=100, max_centers_b=1500),
+    "paper": PendulumPreset(
+        n_grid=200, max_centers=1500, n_val=20000, horizon=20.0, n_grid_b=100, max_centers_b=1500, stability_periods=1000
+    ),
 }
 
 
@@ -327,3 +333,129 @@ def run_speed_accuracy(
             seconds, traj = timed(lambda: integrate(scheme, system, x0, lengths[:, None], dt / r, n_steps * r)[:, ::r])
             record(name, r, seconds, traj)
     return {"dt": dt, "n_trajectories": len(x0), "n_steps": n_steps, "repeats": repeats, "reference_time_s": t_ref, "rows": rows}
+
+
+def _upward_crossings(t, q):
+    """Times of the upward zero crossings of ``q(t)`` (linear interpolation), shape (k,)."""
+    idx = np.flatnonzero((q[:-1] < 0) & (q[1:] >= 0))
+    return t[idx] - q[idx] * (t[idx + 1] - t[idx]) / (q[idx + 1] - q[idx])
+
+
+def _phase_error(t, q_pred, q_ref) -> float:
+    """Phase error in radians at the end: ``2 pi`` times the drift of the upward zero crossings, in periods."""
+    a, b = _upward_crossings(t, q_pred), _upward_crossings(t, q_ref)
+    k = min(len(a), len(b))
+    if k < 2:
+        return float("nan")
+    period = np.mean(np.diff(b[:k]))
+    return float(2 * np.pi * (a[k - 1] - b[k - 1]) / period)
+
+
+def run_stability(
+    model: SymplecticKernelPredictor,
+    preset: PendulumPreset,
+    direct: Optional[DirectKernelPredictor] = None,
+    q0: float = 1.0,
+    mu: float = 0.75,
+    dt: float = 0.05,
+    dt_sweep=(0.03, 0.04, 0.05, 0.06, 0.08, 0.1, 0.15, 0.2, 0.3, 0.5, 0.8, 1.2),
+    mu_sweep=(0.6, 0.65, 0.7, 0.75, 0.8, 0.85, 0.9, 1.0),
+) -> dict:
+    """Where methods fail: long horizons, large steps, extrapolation in the length.
+
+    1. *Long horizon*: ``preset.stability_periods`` periods from ``(q0, 0)`` at
+       ``(mu, dt)``; relative energy error (max over the first and the last tenth)
+       and phase error (drift of the zero crossings of ``q``) for the kernel
+       predictor, the direct model and implicit midpoint at ``dt``.
+    2. *Step sweep* over ``dt_sweep`` (training steps 0.04..0.06) at ``T = preset.horizon``:
+       ``dT * L_S`` at the initial state, and whether the kernel rollout, implicit
+       midpoint and Störmer–Verlet finish, with their errors.  Failures are caught
+       and reported (``SolvabilityError`` before the rollout, ``NewtonConvergenceError``
+       during it, non-finite or exploding states for the explicit method), never raised.
+    3. *Parameter sweep* over ``mu_sweep`` (training lengths 0.7..0.8) at ``dt``.
+
+    ``direct`` defaults to a :class:`DirectKernelPredictor` trained on the
+    scenario-A data with the same kernel and budget as ``model``.
+
+    Returns
+    -------
+    dict
+        ``long``: per method ``energy_first``, ``energy_last``, ``phase_error_rad``, ``final_rel_err``;
+        ``dt_sweep`` and ``mu_sweep``: lists of rows.
+    """
+    system = Pendulum()
+    if direct is None:
+        data = flow_map_data(system, n_grid=preset.n_grid)
+        direct = DirectKernelPredictor(model.kernel_.state, model.kernel_.mu, model.kernel_.dt, max_centers=model.max_centers)
+        with logger.block("stability: direct model on the scenario-A data"):
+            direct.fit(data.x0, data.x1, mu=data.mu, dt=data.dt)
+    x0 = np.array([[q0, 0.0]])
+    period = 4 * np.sqrt(mu / system.g) * _complete_elliptic_k(np.sin(q0 / 2) ** 2)
+    n_steps = int(np.ceil(preset.stability_periods * period / dt))
+    out = {"q0": q0, "mu": mu, "dt": dt, "periods": preset.stability_periods, "period": float(period), "n_steps": n_steps}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ExtrapolationWarning)
+        with logger.block(f"stability: {preset.stability_periods} periods ({n_steps} steps of {dt})"):
+            ref = system.trajectory(x0, mu, dt, n_steps)[0]
+            runs = {
+                "kernel predictor": model.rollout(x0, n_steps, mu=mu, dt=dt)[0],
+                "direct kernel": direct.rollout(x0, n_steps, mu=mu, dt=dt)[0],
+                "implicit midpoint": integrate(implicit_midpoint_step, system, x0, np.array([[mu]]), dt, n_steps)[0],
+            }
+        t = dt * np.arange(n_steps + 1)
+        lengths = np.full(n_steps + 1, mu)
+        e0 = system.hamiltonian(x0, mu)[0]
+        tenth = max(1, n_steps // 10)
+        long = {}
+        for name, traj in runs.items():
+            finite = np.all(np.isfinite(traj))
+            err = np.abs(system.hamiltonian(np.nan_to_num(traj), lengths) - e0) / e0 if finite else np.full(n_steps + 1, np.inf)
+            long[name] = {
+                "energy_first": float(err[:tenth].max()),
+                "energy_last": float(err[-tenth:].max()),
+                "phase_error_rad": _phase_error(t, traj[:, 0], ref[:, 0]) if finite else float("nan"),
+                "final_rel_err": float(np.linalg.norm(traj[-1] - ref[-1]) / np.linalg.norm(ref[-1])) if finite else float("inf"),
+            }
+        out["long"] = long
+
+        rows = []
+        for h in dt_sweep:
+            k = int(np.floor(preset.horizon / h + 1e-9))
+            ref_h = system.trajectory(x0, mu, h, k)
+            row = {"dt": h, "solvability": float(model.solvability(x0[0], mu=mu, dt=h))}
+            try:
+                pred = model.rollout(x0, k, mu=mu, dt=h, check_solvability=True)
+                row["kernel"] = float(relative_trajectory_error(pred, ref_h)[0, 1:].mean())
+            except SolvabilityError:
+                row["kernel"] = "refused: dT*L_S >= 1"
+            except NewtonConvergenceError as err:
+                row["kernel"] = f"Newton failed at step {err.step}"
+            try:
+                row["implicit midpoint"] = float(relative_trajectory_error(
+                    integrate(implicit_midpoint_step, system, x0, np.array([[mu]]), h, k), ref_h)[0, 1:].mean())
+            except NewtonConvergenceError as err:
+                row["implicit midpoint"] = f"Newton failed at step {err.step}"
+            with np.errstate(all="ignore"):
+                sv = integrate(stormer_verlet_step, system, x0, np.array([[mu]]), h, k)
+            sv_err = relative_trajectory_error(np.nan_to_num(sv, nan=1e300, posinf=1e300, neginf=-1e300), ref_h)[0, 1:].mean()
+            # a bounded but wrong orbit has relative error <= ~3; beyond 10 the explicit scheme has blown up
+            row["Stormer-Verlet"] = float(sv_err) if np.isfinite(sv_err) and sv_err < 10 else "unstable (state grew)"
+            rows.append(row)
+        out["dt_sweep"] = rows
+
+        rows = []
+        k = int(np.floor(preset.horizon / dt + 1e-9))
+        for m in mu_sweep:
+            ref_m = system.trajectory(x0, m, dt, k)
+            kern = relative_trajectory_error(model.rollout(x0, k, mu=m, dt=dt), ref_m)[0, 1:].mean()
+            im = relative_trajectory_error(integrate(implicit_midpoint_step, system, x0, np.array([[m]]), dt, k), ref_m)[0, 1:].mean()
+            rows.append({"mu": m, "inside_training_box": bool(0.7 <= m <= 0.8), "kernel": float(kern), "implicit midpoint": float(im)})
+        out["mu_sweep"] = rows
+    return out
+
+
+def _complete_elliptic_k(m: float) -> float:
+    """Complete elliptic integral of the first kind ``K(m)`` (pendulum period ``4 sqrt(l/g) K(sin^2(q0/2))``)."""
+    from scipy.special import ellipk
+
+    return float(ellipk(m))
