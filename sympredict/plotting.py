@@ -156,7 +156,8 @@ def stability_sweeps(dt_rows, mu_rows, dt_train, mu_train, title: str):
             if ok:
                 ax.semilogy(*zip(*ok), "o-", color=_COLORS[i], label=method, ms=4)
             if bad:
-                ax.plot(bad, [1e1] * len(bad), "x", color=_COLORS[i], ms=9, mew=2, label=f"{method}: failed")
+                # staggered per method so that failures at the same step stay visible
+                ax.plot(bad, [1e1 * 2.0**i] * len(bad), "x", color=_COLORS[i], ms=9, mew=2, label=f"{method}: failed")
         ax.set_xscale("log" if key == "dt" else "linear")
         _decorate(ax, xlabel, "mean relative error over $[0, T]$", title if key == "dt" else "extrapolation in the length")
     return fig
