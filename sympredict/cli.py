@@ -95,8 +95,9 @@ def _run_pendulum(preset_name: str, seed: int, out: Path):
         "",
         "| method | size | ms per trajectory | median error | max error |",
         "|---|---|---|---|---|",
-        *[f"| {r['method']} | {('m=' if r['method'] == 'kernel predictor' else 'dT/')}{r['size']} | "
+        *[f"| {r['method']} | {('m=' if 'kernel' in r['method'] else 'dT/')}{r['size']} | "
           f"{r['time_per_trajectory_s'] * 1e3:.2f} | {r['median_err']:.2e} | {r['max_err']:.2e} |" for r in sa["rows"]],
+        *(["", "Targets no model reached: " + "; ".join(sa["unreached"])] if sa["unreached"] else []),
     ]
     s["speed_accuracy"] = sa
 

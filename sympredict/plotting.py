@@ -130,9 +130,9 @@ def speed_accuracy(rows, reference_time: float, title: str):
         pts = [r for r in rows if r["method"] == method]
         t = [r["time_per_trajectory_s"] for r in pts]
         e = [r["median_err"] for r in pts]
-        ax.loglog(t, e, "o-", color=_COLORS[i], label=method)
+        ax.loglog(t, e, "o-" if len(pts) > 1 else "s", color=_COLORS[i], label=method, ms=5 if len(pts) > 1 else 8)
         for r in pts:
-            tag = f"m={r['size']}" if method == "kernel predictor" else f"dT/{r['size']}"
+            tag = f"m={r['size']}" if "kernel" in method else f"dT/{r['size']}"
             ax.annotate(tag, (r["time_per_trajectory_s"], r["median_err"]), fontsize=7, xytext=(3, 3), textcoords="offset points")
     ax.axvline(reference_time, color="k", ls=":", label="micro-step reference (h <= 1e-3)")
     _decorate(ax, "wall time per trajectory [s]", "median over time of the mean relative error", title)

@@ -393,6 +393,33 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         )
         return small  # keeps the full run's Newton data: it can be truncated further
 
+    def smallest(self, target: float) -> "SymplecticKernelPredictor":
+        """The fewest centres whose validation residual ``E_val(m)`` is at or below ``target``.
+
+        No bigger model than the case needs: ``E_val(m)`` was recorded for every
+        ``m`` during the fit, so this is a look-up plus :meth:`truncated`.
+
+        Raises
+        ------
+        ValueError
+            Without validation data at fit time, or when no ``m`` reaches the
+            target (the message gives the best ``E_val`` reached and where).
+        """
+        self._check_fitted()
+        val = self.history_.val_max_residual
+        if val is None:
+            raise ValueError("smallest() needs validation data at fit time (fit(..., validation=...))")
+        if not (np.isfinite(target) and target > 0):
+            raise ValueError(f"target must be a positive float, got {target!r}")
+        hits = np.flatnonzero(val[1:] <= target)
+        if hits.size == 0:
+            best = int(np.argmin(val[1:])) + 1
+            raise ValueError(
+                f"no number of centres reaches E_val <= {target:.2e}: the best is {val[best]:.2e} at {best} centres "
+                f"(of {self.n_centers_}); train with more centres or more data"
+            )
+        return self.truncated(int(hits[0]) + 1)
+
     def _solve_step(self, x: np.ndarray, weights: np.ndarray, dt: np.ndarray) -> np.ndarray:
         """One implicit symplectic-Euler step for a validated batch.
 

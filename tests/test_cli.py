@@ -34,7 +34,11 @@ def test_run_all_smoke_writes_everything(tmp_path, capsys):
     sv_small, sv_large = st["dt_sweep"][0]["Stormer-Verlet"], st["dt_sweep"][-1]["Stormer-Verlet"]
     assert isinstance(sv_large, str) or sv_large > 100 * sv_small
     rows = pendulum["speed_accuracy"]["rows"]
-    assert {r["method"] for r in rows} == {"kernel predictor", "implicit midpoint", "Stormer-Verlet"}
+    methods = {r["method"] for r in rows}
+    assert {"kernel predictor", "implicit midpoint", "Stormer-Verlet"} <= methods
+    # smallest models for the validation targets: measured, or listed as unreached (smoke is tiny)
+    smallest = [m for m in methods if m.startswith("smallest kernel")]
+    assert len(smallest) + len(pendulum["speed_accuracy"]["unreached"]) == 2
     assert all(r["time_per_trajectory_s"] > 0 and r["median_err"] > 0 for r in rows)
     # finer steps are more accurate: the chart shows real convergence, not noise
     im = [r["median_err"] for r in rows if r["method"] == "implicit midpoint"]

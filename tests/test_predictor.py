@@ -236,3 +236,24 @@ def test_truncated_model_equals_refit_with_fewer_centres(small_pendulum_data, rn
     small.save(tmp_path / "small.h5")
     with pytest.raises(ValueError, match="not stored in model files"):
         SymplecticKernelPredictor.load(tmp_path / "small.h5").truncated(10)
+
+
+def test_smallest_model_meeting_a_validation_target(small_pendulum_data):
+    train, val = small_pendulum_data.split(0.2, seed=2)
+    model = SymplecticKernelPredictor(IMQ(0.15), IMQ(2.0), IMQ(5.0), max_centers=300).fit(
+        train.x0, train.x1, mu=train.mu, dt=train.dt, validation=val
+    )
+    curve = model.history_.val_max_residual
+    target = float(np.sort(curve[1:])[len(curve) // 2])  # a target reached somewhere in the middle
+    small = model.smallest(target)
+    m = small.n_centers_
+    assert curve[m] <= target and np.all(curve[1:m] > target)
+    # the truncated model really has that validation residual
+    from sympredict.data import mixed_variables
+
+    xi, y = mixed_variables(val.x0, val.x1, val.dt)
+    assert np.abs(small.surrogate_gradient(xi, mu=val.mu, dt=val.dt) - y).max() == pytest.approx(curve[m], rel=1e-6)
+    with pytest.raises(ValueError, match="the best is"):
+        model.smallest(curve[1:].min() / 10)
+    with pytest.raises(ValueError, match="validation data"):
+        SymplecticKernelPredictor(IMQ(0.15), IMQ(2.0), IMQ(5.0), max_centers=20).fit(train.x0, train.x1, mu=train.mu, dt=train.dt).smallest(1.0)

@@ -287,6 +287,7 @@ def run_speed_accuracy(
     centers=(100, 200, 400, 800, 1500),
     refinements=(1, 2, 4, 8, 16),
     repeats: int = 3,
+    targets=(1e-3, 1e-4),
 ) -> dict:
     """Online wall time per trajectory against error, all methods timed side by side in this process.
 
@@ -298,11 +299,16 @@ def run_speed_accuracy(
     Times are medians over ``repeats`` runs of the whole batch, divided by the
     batch size.
 
+    For each validation ``target`` the smallest model with ``E_val <= target``
+    (:meth:`SymplecticKernelPredictor.smallest`) is measured too (method
+    ``"smallest kernel, E_val <= target"``); unreachable targets are listed in
+    ``unreached``.
+
     Returns
     -------
     dict
         ``rows``: one dict per method and size (``method``, ``size``,
-        ``time_per_trajectory_s``, ``median_err``, ``max_err``); ``reference_time_s``.
+        ``time_per_trajectory_s``, ``median_err``, ``max_err``); ``reference_time_s``; ``unreached``.
     """
     system = Pendulum()
     x0, lengths = paper_test_instances(seed)
@@ -328,11 +334,21 @@ def run_speed_accuracy(
         small = model.truncated(m)
         seconds, traj = timed(lambda: small.rollout(x0, n_steps, mu=lengths, dt=dt))
         record("kernel predictor", m, seconds, traj)
+    unreached = []
+    for target in targets:
+        try:
+            small = model.smallest(target)
+        except ValueError as exc:
+            unreached.append(f"E_val <= {target:g}: {exc}")
+            continue
+        seconds, traj = timed(lambda: small.rollout(x0, n_steps, mu=lengths, dt=dt))
+        record(f"smallest kernel, E_val <= {target:g}", small.n_centers_, seconds, traj)
     for name, scheme in (("implicit midpoint", implicit_midpoint_step), ("Stormer-Verlet", stormer_verlet_step)):
         for r in refinements:
             seconds, traj = timed(lambda: integrate(scheme, system, x0, lengths[:, None], dt / r, n_steps * r)[:, ::r])
             record(name, r, seconds, traj)
-    return {"dt": dt, "n_trajectories": len(x0), "n_steps": n_steps, "repeats": repeats, "reference_time_s": t_ref, "rows": rows}
+    return {"dt": dt, "n_trajectories": len(x0), "n_steps": n_steps, "repeats": repeats, "reference_time_s": t_ref,
+            "rows": rows, "unreached": unreached}
 
 
 def _upward_crossings(t, q):
