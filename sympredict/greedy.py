@@ -238,7 +238,7 @@ class GreedyResult:
             raise ValueError("this result does not carry the Newton basis values at the selected functionals")
         if not 1 <= m <= len(self.selected):
             raise ValueError(f"m must lie in 1..{len(self.selected)}, got {m}")
-        return solve_triangular(self.chol[:m, :m], self.newton_coef[:m], lower=True, trans="T")
+        return _kernel_coefficients(self.chol[:m, :m], self.newton_coef[:m])
 
 
 def available_memory() -> int:
@@ -258,6 +258,18 @@ def _fmt_bytes(n: float) -> str:
         if n >= size:
             return f"{n / size:.2f} {unit}"
     return f"{n:.0f} B"
+
+
+def _abs_residual(res: np.ndarray, out: np.ndarray) -> np.ndarray:
+    """``max_k |r_ik|`` per candidate into ``out`` (N,), without a temporary for one output."""
+    if res.shape[1] == 1:
+        return np.abs(res[:, 0], out=out)
+    return np.abs(res).max(axis=1, out=out)
+
+
+def _kernel_coefficients(chol: np.ndarray, beta: np.ndarray) -> np.ndarray:
+    """Kernel-basis coefficients ``c = L^{-T} beta`` from the Newton expansion (``O(m^2)``)."""
+    return solve_triangular(chol, beta, lower=True, trans="T")
 
 
 def _check_memory(max_centers: int, n_train: int, n_val: int, memory_limit: Optional[float]) -> None:
@@ -362,7 +374,8 @@ def greedy_interpolation(
     selected = np.empty(max_centers, dtype=np.int64)
     sel_power = np.empty(max_centers)
     elapsed = np.empty(max_centers)
-    train_hist = [np.abs(res).max()]
+    _abs_residual(res, out=res_abs)
+    train_hist = [res_abs.max()]
     val_hist = [np.abs(vres).max()] if n_val else None
     tmp = np.empty(n)
     best_train = train_hist[0]
@@ -370,10 +383,7 @@ def greedy_interpolation(
     t0 = time.perf_counter()
     m = 0
     while m < max_centers:
-        if y.shape[1] == 1:
-            np.abs(res[:, 0], out=res_abs)
-        else:
-            np.abs(res).max(axis=1, out=res_abs)
+        # res_abs holds |r| of the current residual (computed once per step, below)
         score = res_abs if criterion == "f" else p2.copy()
         score[p2 <= breakdown] = -np.inf
         j = int(np.argmax(score))
@@ -413,7 +423,8 @@ def greedy_interpolation(
         sel_power[m] = pj
         m += 1
         elapsed[m - 1] = time.perf_counter() - t0
-        train_hist.append(np.abs(res).max())
+        _abs_residual(res, out=res_abs)
+        train_hist.append(res_abs.max())
         best_train = min(best_train, train_hist[-1])
         if train_hist[-1] > divergence_factor * best_train:
             stop_reason = "diverged"
@@ -433,7 +444,7 @@ def greedy_interpolation(
                 + (f", E_val={val_hist[-1]:.3e}" if n_val else "")
                 + f", P={pj:.2e}, {elapsed[m - 1]:.1f}s"
             )
-    coef = solve_triangular(chol[:m, :m], beta[:m], lower=True, trans="T") if m else np.zeros((0, y.shape[1]))
+    coef = _kernel_coefficients(chol[:m, :m], beta[:m]) if m else np.zeros((0, y.shape[1]))
     history = GreedyHistory(
         train_max_residual=np.array(train_hist),
         val_max_residual=None if val_hist is None else np.array(val_hist),

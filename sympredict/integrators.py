@@ -16,6 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from sympredict.exceptions import NewtonConvergenceError
+from sympredict.metrics import canonical_J
 
 __all__ = ["micro_steps", "apply_J", "implicit_midpoint_step", "symplectic_euler_step", "stormer_verlet_step", "integrate"]
 
@@ -71,7 +72,7 @@ def implicit_midpoint_step(system, x, mu, h, *, max_iter: int = 50) -> np.ndarra
     hh = _as_h(h, b)
     x1 = x + hh * apply_J(system.gradient(x, mu))
     eye = np.eye(dim)
-    J = np.block([[np.zeros((dim // 2, dim // 2)), np.eye(dim // 2)], [-np.eye(dim // 2), np.zeros((dim // 2, dim // 2))]])
+    J = canonical_J(dim)
     active = np.arange(b)
     last = np.full(b, np.inf)
     for _ in range(max_iter):
