@@ -85,3 +85,29 @@ def test_flow_map_data_and_scenario_b(pendulum):
     np.testing.assert_array_equal(v1.x1, v2.x1)
     with pytest.raises(ValueError, match="positive"):
         pendulum.flow(np.zeros((1, 2)), -0.7, 0.05)
+
+
+def test_pendulum_period_formula_matches_the_reference_flow(pendulum):
+    """4 sqrt(l/g) K(sin^2(q0/2)) (used by the stability study) against zero crossings of the reference."""
+    from sympredict.experiments.pendulum import _complete_elliptic_k, _upward_crossings
+
+    q0, length = 1.2, 0.75
+    traj = pendulum.trajectory(np.array([[q0, 0.0]]), length, 0.01, 1000)[0]  # t in [0, 10]
+    crossings = _upward_crossings(0.01 * np.arange(1001), traj[:, 0])
+    measured = np.mean(np.diff(crossings))
+    predicted = 4 * np.sqrt(length / pendulum.g) * _complete_elliptic_k(np.sin(q0 / 2) ** 2)
+    assert measured == pytest.approx(predicted, rel=1e-5)
+
+
+def test_phase_error_of_shifted_sinusoids():
+    from sympredict.experiments.pendulum import _phase_error, _upward_crossings
+
+    t = np.linspace(0, 50, 20001)
+    ref = np.sin(2 * np.pi * t / 2.0)
+    # a constant phase lag of 0.3 rad: the crossings come later, so the error is +0.3
+    assert _phase_error(t, np.sin(2 * np.pi * t / 2.0 - 0.3), ref) == pytest.approx(0.3, abs=1e-4)
+    # a 1% longer period: the k-th matched crossing is k * 0.02 late, i.e. 2 pi k 0.01 rad
+    slow = np.sin(2 * np.pi * t / 2.02)
+    k = min(len(_upward_crossings(t, slow)), len(_upward_crossings(t, ref)))
+    assert _phase_error(t, slow, ref) == pytest.approx(2 * np.pi * k * 0.01, rel=1e-3)
+    assert np.isnan(_phase_error(t[:10], ref[:10], ref[:10]))

@@ -360,10 +360,16 @@ def _upward_crossings(t, q):
 def _phase_error(t, q_pred, q_ref) -> float:
     """Phase error in radians at the end: ``2 pi`` times the drift of the upward zero crossings, in periods."""
     a, b = _upward_crossings(t, q_pred), _upward_crossings(t, q_ref)
-    k = min(len(a), len(b))
-    if k < 2:
+    if min(len(a), len(b)) < 2:
         return float("nan")
-    period = np.mean(np.diff(b[:k]))
+    period = np.mean(np.diff(b))
+    # pair the crossings that belong together: the first ones may be a whole period
+    # apart when one signal's first crossing falls before the grid or exactly on it
+    offset = int(round((a[0] - b[0]) / period))
+    a, b = (a, b[offset:]) if offset > 0 else (a[-offset:], b)
+    k = min(len(a), len(b))
+    if k < 1:
+        return float("nan")
     return float(2 * np.pi * (a[k - 1] - b[k - 1]) / period)
 
 
