@@ -143,6 +143,48 @@ def _public_bases(app, name, obj, options, bases):
             i += 1
 
 
+# -- command-line help ------------------------------------------------------------
+from docutils import nodes  # noqa: E402
+from sphinx.util.docutils import SphinxDirective  # noqa: E402
+
+
+class SympredictHelp(SphinxDirective):
+    """``sympredict-help`` directive: the ``--help`` text of ``sympredict`` or of one subcommand.
+
+    The text comes from ``sympredict.cli.build_parser()`` at build time, so the
+    page always shows the options of the code it documents.  An unknown
+    subcommand is an error.
+    """
+
+    optional_arguments = 1
+
+    def run(self):
+        import argparse
+
+        from sympredict.cli import build_parser
+
+        parser = build_parser()
+        if self.arguments:
+            name = self.arguments[0]
+            sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+            if name not in sub.choices:
+                raise self.error(f"sympredict has no subcommand {name!r} (it has {', '.join(sub.choices)})")
+            parser = sub.choices[name]
+        old = os.environ.get("COLUMNS")
+        os.environ["COLUMNS"] = "88"  # argparse wraps to the terminal width: fix it
+        try:
+            text = parser.format_help().rstrip()
+        finally:
+            if old is None:
+                del os.environ["COLUMNS"]
+            else:
+                os.environ["COLUMNS"] = old
+        block = nodes.literal_block(text, text)
+        block["language"] = "text"
+        return [block]
+
+
 def setup(app):
     app.connect("autodoc-process-docstring", _split_attribute_lists, priority=400)
+    app.add_directive("sympredict-help", SympredictHelp)
     app.connect("autodoc-process-bases", _public_bases)
