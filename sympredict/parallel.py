@@ -764,14 +764,18 @@ def _w_load_shards(payload, store=None):
 
 @_guarded
 def _w_step(winner, store=None):
-    """Apply the previous winner (``None`` at the start) to every local shard, then report each shard."""
+    """Apply the previous winner (``None`` at the start) to every local shard, then report each shard.
+
+    Returns ``(reports, seconds)``: one report per local shard and the compute time spent here.
+    """
+    t0 = time.perf_counter()
     out = []
     for sid in sorted(store.shards):
         shard = store.shards[sid]
         if winner is not None:
             shard.update(*winner)
         out.append((sid,) + shard.report())
-    return out
+    return out, time.perf_counter() - t0
 
 
 @_guarded
@@ -800,6 +804,7 @@ def sharded_greedy(
     timeout: Optional[float] = 60.0,
     log_every: int = 100,
     callback: Optional[Callable[[int, float], None]] = None,
+    stats: Optional[dict] = None,
 ) -> GreedyResult:
     """f-greedy (or P-greedy) with the candidates sharded over a pyMOR worker pool.
 
@@ -831,6 +836,12 @@ def sharded_greedy(
         processes are still detected), ``0`` disables the watchdog.
     callback
         Called on the driver after each step with ``(m, E_train(m))``.
+    stats
+        A dict to fill with per-step timings: ``winner_call`` (m,) and
+        ``step_call`` (m,) wall seconds of the two pool calls on the driver,
+        ``worker_compute`` (m, workers) seconds spent computing in each
+        worker's step (the rest of ``step_call`` is communication and
+        waiting), plus ``n_workers``, ``n_shards``, ``shard_sizes``, ``workers``.
 
     Returns
     -------
@@ -918,10 +929,11 @@ def sharded_greedy(
             if sorted(owner) != list(range(n_shards)):
                 raise RuntimeError(f"shards were not placed as planned: {loaded}")  # pragma: no cover
             reports = _checked(pool.apply(_w_step, None, store=store))
-            train_max, val_max, best = _combine(reports)
+            train_max, val_max, best = _combine([r for r, _ in reports])
             train_hist = [train_max]
             val_hist = [val_max] if n_val else None
             best_train = train_hist[0]
+            timing = []
             t0 = time.perf_counter()
             m = 0
             while m < max_centers:
@@ -932,7 +944,9 @@ def sharded_greedy(
                 if criterion == "f" and score <= tol:
                     stop_reason = "tol"
                     break
+                t_call = time.perf_counter()
                 rep, coeffs_j, p2_j, res_j = _checked(pool.apply_only(_w_winner, owner[sid], sid, j, m, store=store))
+                t_winner = time.perf_counter() - t_call
                 pj = np.sqrt(p2_j)
                 chol[m, :m] = coeffs_j
                 chol[m, m] = pj
@@ -940,10 +954,14 @@ def sharded_greedy(
                 beta[m] = b
                 selected[m] = j
                 sel_power[m] = pj
+                t_call = time.perf_counter()
                 reports = _checked(pool.apply(_w_step, (m, rep, coeffs_j, pj, b, j), store=store))
+                t_step = time.perf_counter() - t_call
+                if stats is not None:
+                    timing.append((t_winner, t_step) + tuple(sec for _, sec in reports))
                 m += 1
                 elapsed[m - 1] = time.perf_counter() - t0
-                train_max, val_max, best = _combine(reports)
+                train_max, val_max, best = _combine([r for r, _ in reports])
                 train_hist.append(train_max)
                 if n_val:
                     val_hist.append(val_max)
@@ -971,6 +989,10 @@ def sharded_greedy(
         finally:
             _raise_failures(pool.apply(_w_clear, store=store))
 
+    if stats is not None:
+        t = np.array(timing).reshape(-1, 2 + n_workers)
+        stats.update(winner_call=t[:, 0], step_call=t[:, 1], worker_compute=t[:, 2:], n_workers=n_workers,
+                     n_shards=n_shards, shard_sizes=np.diff(bounds) * per, workers=workers)
     coef = _kernel_coefficients(chol[:m, :m], beta[:m]) if m else np.zeros((0, y.shape[1]))
     history = GreedyHistory(
         train_max_residual=np.array(train_hist),
@@ -1005,7 +1027,8 @@ def _combine(reports):
 
 
 def fit_predictor(model, x0, x1, mu=None, dt=None, *, validation=None, pool=None, n_shards: Optional[int] = None,
-                  memory_limit_per_rank: Optional[float] = None, timeout: Optional[float] = 60.0):
+                  memory_limit_per_rank: Optional[float] = None, timeout: Optional[float] = 60.0,
+                  stats: Optional[dict] = None):
     """``model.fit(x0, x1, mu, dt, validation=validation)`` with the greedy sharded over ``pool``.
 
     Runs the model's own ``fit`` (validation, duplicate check, default kernel,
@@ -1014,7 +1037,9 @@ def fit_predictor(model, x0, x1, mu=None, dt=None, *, validation=None, pool=None
     ``criterion``, ``power_tol``); so the fitted model equals ``model.fit(...)``
     (same centres; coefficients to round-off).  Works for
     :class:`~sympredict.predictor.SymplecticKernelPredictor` and
-    :class:`~sympredict.predictor.DirectKernelPredictor`.
+    :class:`~sympredict.predictor.DirectKernelPredictor`.  ``pool``,
+    ``n_shards``, ``memory_limit_per_rank``, ``timeout`` and ``stats`` are
+    passed to :func:`sharded_greedy`.
 
     Returns
     -------
@@ -1030,7 +1055,7 @@ def fit_predictor(model, x0, x1, mu=None, dt=None, *, validation=None, pool=None
             return sharded_greedy(
                 functionals, targets, max_centers=model.max_centers, tol=model.tol, criterion=model.criterion,
                 power_tol=model.power_tol, validation=val, pool=pool, n_shards=n_shards,
-                memory_limit_per_rank=memory_limit_per_rank, timeout=timeout,
+                memory_limit_per_rank=memory_limit_per_rank, timeout=timeout, stats=stats,
             )
 
     model._greedy = _greedy  # instance attribute shadows the method for this one call

@@ -1,0 +1,167 @@
+"""Pendulum scenario A training: serial greedy vs the sharded greedy on MPI ranks; writes JSON.
+
+Serial (one process, the serial greedy of ``model.fit``, BLAS threads set with threadpoolctl)::
+
+    .venv/bin/python benchmarks/mpi_scaling.py --preset quick --threads 2 --out results/mpi_a.json
+    .venv/bin/python benchmarks/mpi_scaling.py --preset quick --threads 1 --out results/mpi_b.json
+
+Sharded (P MPI ranks, one BLAS thread each, ``sympredict.parallel.fit_predictor``)::
+
+    .venv/bin/mpiexec -disable-auto-cleanup -n 2 .venv/bin/python -m pymor.tools.mpi \\
+        benchmarks/mpi_scaling.py --preset quick --threads 1 --out results/mpi_c.json
+
+Data, kernel and greedy settings are those of ``run_scenario_a`` (seed 0):
+the energy-bounded grid over ``MU_TRAIN x DT_TRAIN``, ``n_val`` validation
+samples on the training ``(mu, dT)`` grid, IMQ(0.2, 1.5, 3.0), ``tol=1e-10``.
+Recorded: data and fit wall times, peak resident memory of every rank, the
+selection (to check that every mode selects the same functionals), per-step
+timings (serial: from ``history_.elapsed``; sharded: the two pool calls and
+each worker's compute time), and the round-trip latency of empty pool calls.
+``--compare A.json B.json ...`` prints a table and checks equal selections.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import resource
+import sys
+import time
+
+import numpy as np
+
+
+def _peak_rss_bytes() -> int:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+
+
+def _step_profile(step_seconds: np.ndarray, n_functionals: int) -> dict:
+    """Per-step time against the step index: ``t(m) ~ a + b m``; ``b / N`` is the time per basis entry."""
+    m = np.arange(len(step_seconds))
+    b, a = np.polyfit(m, step_seconds, 1) if len(m) > 2 else (np.nan, np.nan)
+    return {"fit_a_s": float(a), "fit_b_s_per_centre": float(b), "ns_per_basis_entry": float(b / n_functionals * 1e9),
+            "median_s": float(np.median(step_seconds)), "total_s": float(step_seconds.sum())}
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--preset", default="quick", choices=["smoke", "quick", "paper"])
+    parser.add_argument("--threads", type=int, default=1, help="BLAS threads per process (threadpoolctl)")
+    parser.add_argument("--max-centers", type=int, default=None, help="override the preset's greedy budget")
+    parser.add_argument("--out", default=None, help="JSON file to write")
+    parser.add_argument("--compare", nargs="+", default=None, help="JSON files to tabulate (no run)")
+    args = parser.parse_args(argv)
+    if args.compare:
+        return compare(args.compare)
+
+    from pymor.tools import mpi
+    from threadpoolctl import threadpool_limits
+
+    threadpool_limits(limits=args.threads)
+
+    from sympredict import SymplecticKernelPredictor, parallel as par
+    from sympredict.experiments.pendulum import PRESETS
+    from sympredict.kernels import IMQ
+    from sympredict.systems.pendulum import DT_TRAIN, MU_TRAIN, Pendulum, flow_map_data, random_flow_map_data
+
+    preset = PRESETS[args.preset]
+    max_centers = args.max_centers or preset.max_centers
+    sharded = mpi.parallel
+    pool = None
+    out = {"preset": args.preset, "threads_per_rank": args.threads, "max_centers": max_centers}
+    if sharded:
+        from pymor.parallel.default import new_parallel_pool
+
+        pool = new_parallel_pool()
+        par.set_blas_threads(pool, args.threads)
+        out["mode"] = f"sharded, {len(pool)} MPI ranks x {args.threads} BLAS thread(s)"
+        out["ranks"] = len(pool)
+        # latency of an empty round trip through the pool (what every greedy step pays twice)
+        lat = {}
+        for name, call in [("apply", lambda: pool.apply(abs, 0)), ("apply_only", lambda: pool.apply_only(abs, 1, 0))]:
+            call()
+            t0 = time.perf_counter()
+            for _ in range(300):
+                call()
+            lat[name + "_us"] = (time.perf_counter() - t0) / 300 * 1e6
+        out["pool_call_latency"] = lat
+    else:
+        out["mode"] = f"serial greedy, 1 process x {args.threads} BLAS thread(s)"
+        out["ranks"] = 1
+
+    system = Pendulum()
+    t0 = time.perf_counter()
+    if sharded:
+        data = par.pendulum_flow_map_data(system, n_grid=preset.n_grid, pool=pool)
+        val = par.pendulum_random_flow_map_data(system, preset.n_val, seed=1, mu_values=MU_TRAIN, dt_values=DT_TRAIN, pool=pool)
+    else:
+        data = flow_map_data(system, n_grid=preset.n_grid)
+        val = random_flow_map_data(system, preset.n_val, seed=1, mu_values=MU_TRAIN, dt_values=DT_TRAIN)
+    out["time_data_s"] = time.perf_counter() - t0
+    n_functionals = 2 * len(data)
+    out["n_functionals"] = n_functionals
+    out["n_val_functionals"] = 2 * len(val)
+
+    eps = preset.eps
+    model = SymplecticKernelPredictor(IMQ(eps[0]), IMQ(eps[1]), IMQ(eps[2]), max_centers=max_centers, tol=1e-10)
+    stats = {}
+    t0 = time.perf_counter()
+    if sharded:
+        par.fit_predictor(model, data.x0, data.x1, mu=data.mu, dt=data.dt, validation=val, pool=pool, stats=stats)
+    else:
+        model.fit(data.x0, data.x1, mu=data.mu, dt=data.dt, validation=val)
+    out["time_fit_s"] = time.perf_counter() - t0
+    hist = model.history_
+    out["n_centers"] = model.n_centers_
+    out["stop_reason"] = hist.stop_reason
+    out["E_train"] = float(hist.train_max_residual[-1])
+    out["E_val"] = float(hist.val_max_residual[-1])
+    sel = np.asarray(model._greedy_result.selected)
+    out["selected_sha1"] = hashlib.sha1(sel.astype(np.int64).tobytes()).hexdigest()
+    out["selected_first"] = sel[:20].tolist()
+    out["coef_abs_sum"] = float(np.abs(model.surrogate_.coef).sum())
+    steps = np.diff(np.concatenate([[0.0], hist.elapsed]))
+    out["greedy_loop_s"] = float(hist.elapsed[-1])
+    out["step_profile"] = _step_profile(steps, n_functionals)
+    if sharded:
+        rss = [r.ru_maxrss * 1024 for r in pool.apply(resource.getrusage, resource.RUSAGE_SELF)]
+        comp = stats["worker_compute"]
+        comm = stats["step_call"] - comp.max(axis=1)
+        out["peak_rss_bytes_per_rank"] = rss
+        out["sharded"] = {
+            "shard_sizes": stats["shard_sizes"].tolist(),
+            "compute_per_rank_total_s": comp.sum(axis=0).tolist(),
+            "compute_max_profile": _step_profile(comp.max(axis=1), n_functionals // out["ranks"]),
+            "winner_call_total_s": float(stats["winner_call"].sum()),
+            "winner_call_median_us": float(np.median(stats["winner_call"]) * 1e6),
+            "step_call_total_s": float(stats["step_call"].sum()),
+            "step_overhead_median_us": float(np.median(comm) * 1e6),
+            "step_overhead_total_s": float(comm.sum()),
+            "imbalance_total_s": float((comp.max(axis=1) - comp.min(axis=1)).sum()),
+        }
+    else:
+        out["peak_rss_bytes_per_rank"] = [_peak_rss_bytes()]
+    text = json.dumps(out, indent=1)
+    print(text, flush=True)
+    if args.out:
+        with open(args.out, "w") as f:
+            f.write(text + "\n")
+    return 0
+
+
+def compare(paths) -> int:
+    runs = [json.load(open(p)) for p in paths]
+    print("| run | functionals | centres | data s | fit s | greedy loop s | peak RSS per rank (GiB) |")
+    print("|---|---|---|---|---|---|---|")
+    for r in runs:
+        rss = ", ".join(f"{b / 2**30:.2f}" for b in r["peak_rss_bytes_per_rank"])
+        print(f"| {r['mode']} | {r['n_functionals']:,} | {r['n_centers']} | {r['time_data_s']:.1f} | {r['time_fit_s']:.1f} | "
+              f"{r['greedy_loop_s']:.1f} | {rss} |")
+    same = len({r["selected_sha1"] for r in runs}) == 1
+    print(f"\nsame selection in all runs: {same}")
+    return 0 if same else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
