@@ -1,7 +1,7 @@
 """sympredict.parallel on pyMOR's dummy pool (sharding simulated with several shards on one worker),
 plus the two-rank MPI checks of tests/mpi/ when mpi4py and mpiexec are installed."""
 
-import sys
+import importlib.util
 from pathlib import Path
 
 import numpy as np
@@ -16,8 +16,9 @@ from sympredict.kernels import IMQ, ProductKernel
 from sympredict.predictor import DirectKernelPredictor
 from sympredict.systems.pendulum import flow_map_data, random_flow_map_data
 
-sys.path.insert(0, str(Path(__file__).parent / "mpi"))
-import launch  # noqa: E402  (tests/mpi/launch.py)
+_spec = importlib.util.spec_from_file_location("sympredict_tests_mpi_launch", Path(__file__).parent / "mpi" / "launch.py")
+launch = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(launch)
 
 KERNEL = ProductKernel(IMQ(0.2), IMQ(1.5), IMQ(3.0))
 
