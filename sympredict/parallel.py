@@ -753,13 +753,17 @@ def _w_load_shards(payload, store=None):
             f"{_fmt_bytes(limit)}; use more ranks (at least {max(1, math.ceil(settings['need_total'] / limit)) if limit > 0 else 'more'}), fewer centres, "
             "or raise memory_limit_per_rank"
         )
-    store.shards.clear()
     for s in specs:
         store.shards[s["shard_id"]] = _Shard(
             s["shard_id"], s["offset"], s["functionals"], s["targets"], s["val_functionals"], s["val_targets"],
             settings["max_centers"], settings["criterion"], settings["breakdown"],
         )
     return me[0], me[1], sorted(store.shards)
+
+
+@_guarded
+def _w_shard_ids(store=None):
+    return sorted(store.shards)
 
 
 @_guarded
@@ -924,10 +928,12 @@ def sharded_greedy(
 
     with _Watchdog(pool, workers, timeout), pool.push(_ShardStore()) as store:
         try:
-            loaded = _checked(pool.map(_w_load_shards, payloads, store=store))
-            owner = {sid: w for w, (_, _, sids) in enumerate(loaded) for sid in sids}
+            _checked(pool.map(_w_load_shards, payloads, store=store))
+            # where the shards landed, by worker index (apply answers in worker order; map need not place item w on worker w)
+            placed = _checked(pool.apply(_w_shard_ids, store=store))
+            owner = {sid: w for w, sids in enumerate(placed) for sid in sids}
             if sorted(owner) != list(range(n_shards)):
-                raise RuntimeError(f"shards were not placed as planned: {loaded}")  # pragma: no cover
+                raise RuntimeError(f"shards were not placed once each: {placed}")  # pragma: no cover
             reports = _checked(pool.apply(_w_step, None, store=store))
             train_max, val_max, best = _combine([r for r, _ in reports])
             train_hist = [train_max]
