@@ -46,10 +46,11 @@ Failures
     *dies* (killed, ``os._exit``, segfault) is found by a watchdog thread on the
     driver (process liveness for ranks on the driver's host, MPI heartbeats for
     all ranks); it logs ``worker rank k ... died`` and aborts the MPI job
-    (``MPI_Abort``) instead of waiting forever in a collective.  With MPICH,
-    launch with ``mpiexec -disable-auto-cleanup``: otherwise Hydra SIGKILLs
-    the driver within milliseconds of a worker's death, before anything can be
-    reported (see ``docs/parallel.md``).
+    (``MPI_Abort``) instead of waiting forever in a collective.  MPICH's
+    launcher itself ends the job when a rank is killed by a signal (its banner
+    names the PID; the driver logs the rank of every PID at INFO) and, unless
+    started with ``-disable-auto-cleanup``, when a rank exits.  See
+    ``docs/parallel.md`` for what each case looks like.
 """
 
 from __future__ import annotations
@@ -143,16 +144,16 @@ class _Failure:
 def _guarded(function):
     """Worker-side wrapper: return a :class:`_Failure` instead of raising.
 
-    pyMOR's MPI event loop catches a worker's exception, prints it and skips the
-    ``gather`` that the driver is waiting in: the run would hang.  Every worker
-    function of this module is wrapped.
+    pyMOR's MPI event loop catches a worker's exception (``SystemExit``
+    included), prints it and skips the ``gather`` that the driver is waiting
+    in: the run would hang.  Every worker function of this module is wrapped.
     """
 
     @functools.wraps(function)
     def wrapper(*args, **kwargs):
         try:
             return function(*args, **kwargs)
-        except Exception as exc:  # noqa: BLE001 -- everything goes back to the driver
+        except BaseException as exc:  # noqa: BLE001 -- everything, SystemExit included, goes back to the driver
             return _Failure(exc)
 
     return wrapper

@@ -2,6 +2,7 @@
 plus the two-rank MPI checks of tests/mpi/ when mpi4py and mpiexec are installed."""
 
 import importlib.util
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -172,6 +173,9 @@ def test_worker_exceptions_come_back_naming_the_rank():
     with pytest.raises(par.WorkerError, match=r"worker rank 0 on .* raised AttributeError") as info:
         par._checked(dummy_pool.apply(par._w_winner, 0, 0, 0, store=None))
     assert info.value.rank == 0 and "Traceback" in info.value.remote_traceback
+    # sys.exit on a worker is an error too (pyMOR's event loop would swallow it and leave the driver waiting)
+    with pytest.raises(par.WorkerError, match="SystemExit"):
+        par._checked(dummy_pool.apply(par._guarded(sys.exit), 3))
 
 
 def test_bad_arguments(problem):

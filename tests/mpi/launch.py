@@ -6,14 +6,16 @@ Runs (each under a time limit, so a hang is a failure, never a stuck CI job):
 
 1. ``compare``: sharded vs serial selection, pool data, memory limit, worker
    exceptions; must print ``MPI CHECK OK`` and exit 0.
-2. ``--exit 1`` (with ``-disable-auto-cleanup``): rank 1 calls ``os._exit(0)``
-   mid-run; the job must exit 75 with ``worker rank 1 ... died``.
-3. ``--freeze 1``: rank 1 is SIGSTOPped mid-run; the heartbeat timeout must
-   end the job with exit code 75 and ``worker rank 1 ... no heartbeat``.
-4. ``--kill 1``: rank 1 is SIGKILLed mid-run; MPICH's launcher then kills the
-   driver within milliseconds, so the job must end (no hang) with a non-zero
-   code and a report naming rank 1: ours (``worker rank 1``) or the launcher's
-   ``BAD TERMINATION ... PID <pid of rank 1>``.
+2. ``--exit 1`` (with ``-disable-auto-cleanup``, else MPICH ends the job
+   silently with code 0): rank 1 calls ``os._exit(0)`` mid-run; the job must
+   exit 75 with ``worker rank 1 ... died``.
+3. ``--freeze 1`` (plain ``mpiexec``): rank 1 is SIGSTOPped mid-run; the
+   heartbeat timeout must end the job with exit code 75 and
+   ``worker rank 1 ... no heartbeat``.
+4. ``--kill 1`` (plain ``mpiexec``): rank 1 is SIGKILLed mid-run; MPICH's
+   launcher then kills the driver within milliseconds, so the job must end
+   (no hang) with a non-zero code and a report naming rank 1: ours
+   (``worker rank 1``) or the launcher's ``BAD TERMINATION ... PID <pid of rank 1>``.
 
 Used by ``tests/test_parallel.py`` and runnable on its own (CI step).
 """
@@ -69,12 +71,12 @@ def judge_exit() -> tuple[bool, str]:
 
 
 def judge_freeze() -> tuple[bool, str]:
-    rc, out = run(["--freeze", "1"], cleanup=False)
+    rc, out = run(["--freeze", "1"])
     return rc == 75 and "worker rank 1" in out and "no heartbeat" in out, f"rc={rc}\n{out}"
 
 
 def judge_kill() -> tuple[bool, str]:
-    rc, out = run(["--kill", "1"], cleanup=False)
+    rc, out = run(["--kill", "1"])
     pid = re.search(r"sending SIGKILL to rank 1 \(pid (\d+)\)", out)
     named = "worker rank 1 " in out or (pid is not None and f"PID {pid.group(1)} " in out)
     return rc not in (0, -999) and named, f"rc={rc}\n{out}"
