@@ -7,7 +7,7 @@ Serial (one process, the serial greedy of ``model.fit``, BLAS threads set with t
 
 Sharded (P MPI ranks, one BLAS thread each, ``sympredict.parallel.fit_predictor``)::
 
-    .venv/bin/mpiexec -disable-auto-cleanup -n 2 .venv/bin/python -m pymor.tools.mpi \\
+    .venv/bin/mpiexec -n 2 .venv/bin/python -m pymor.tools.mpi \\
         benchmarks/mpi_scaling.py --preset quick --threads 1 --out results/mpi_c.json
 
 Data, kernel and greedy settings are those of ``run_scenario_a`` (seed 0):
