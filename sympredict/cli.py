@@ -61,7 +61,9 @@ def _run_pendulum(preset_name: str, seed: int, out: Path):
         "",
         f"- training data: {s['n_samples']} samples ({s['n_functionals']} functionals), "
         f"{s['preset']['n_grid']}x{s['preset']['n_grid']} energy-bounded grid, lengths 0.7..0.8 (5), dT 0.04/0.05/0.06",
-        f"- model: IMQ eps = {s['preset']['eps']}, {s['n_centers']} centres (stop: {s['stop_reason']})",
+        f"- model: kernel {' x '.join(s['kernel'])}"
+        + (f" (chosen by validation, below)" if s["selection"] else " (preset shapes)")
+        + f", {s['n_centers']} centres (stop: {s['stop_reason']})",
         f"- f-greedy: E_train = {s['E_train']:.2e}, E_val = {s['E_val']:.2e} ({s['n_val_samples']} validation samples)",
         f"- time: data {s['time_data_s']:.1f} s, training {s['time_fit_s']:.1f} s; peak memory of the process so far {s['peak_rss_gib']:.2f} GiB",
         "",
@@ -74,8 +76,24 @@ def _run_pendulum(preset_name: str, seed: int, out: Path):
     for r in s["per_dt"]:
         lines.append(
             f"| {r['dt']} | {r['kernel_median_err']:.2e} | {r['kernel_max_err']:.2e} | {r['im_median_err']:.2e} | "
-            f"{r['im_max_err']:.2e} | {r['ratio_median']:.0f}x | {r['kernel_max_energy_err']:.2e} | {r['im_max_energy_err']:.2e} |"
+            f"{r['im_max_err']:.2e} | {_ratio(r['ratio_median'])} | {r['kernel_max_energy_err']:.2e} | {r['im_max_energy_err']:.2e} |"
         )
+    if s["selection"]:
+        sel = s["selection"]
+        lines += [
+            "",
+            f"### Kernel selection by validation ({sel['n_candidates']} candidates, {sel['time_s']:.0f} s)",
+            "",
+            f"Screening on a {s['preset']['select_n_grid']}x{s['preset']['select_n_grid']} grid ({sel['n_samples']} samples), "
+            f"{sel['n_val_samples']} validation samples, E_val at m* = {sel['m_screen']} centres; best per family:",
+            "",
+            "| family | best tuple | E_val(m*) |",
+            "|---|---|---|",
+            *[f"| {fam} | {row['state']} x {row['mu']} x {row['dt']} | {row['E_val']:.2e} |" for fam, row in sel["best_per_family"].items()],
+            "",
+            f"Refinement of the winner's shapes (factor 2, one factor at a time) at m* = {sel['m_refine']}: "
+            f"{' x '.join(sel['chosen'])} with E_val = {sel['chosen_E_val']:.2e}.",
+        ]
     for r in s["per_dt"]:
         print(f"  pendulum dT={r['dt']}: kernel median error {r['kernel_median_err']:.2e} (max {r['kernel_max_err']:.2e}), "
               f"implicit midpoint {r['im_median_err']:.2e} (ratio {r['ratio_median']:.3g})")
@@ -101,7 +119,8 @@ def _run_pendulum(preset_name: str, seed: int, out: Path):
     ]
     s["speed_accuracy"] = sa
 
-    b = run_scenario_b(PRESETS[preset_name], seed=seed)
+    kernel = results["model"].kernel_
+    b = run_scenario_b(PRESETS[preset_name], seed=seed, kernels=(kernel.state, kernel.mu, kernel.dt))
     sb = b["summary"]
     curves = []
     for i, r in enumerate(b["per_dt"]):
@@ -233,11 +252,94 @@ def _run_wave(preset_name: str, seed: int, out: Path):
             lines.append(
                 f"| {r['dt']} | {r['kernel']['state']} x {r['kernel']['mu']} | {r['n_centers']} ({r['stop_reason']}) | {r['E_train']:.1e} | "
                 f"{c['c']:.3f} | {c['mean_kernel_red']:.2e} | {c['mean_im_red']:.2e} | {c['mean_kernel_full']:.2e} | {c['mean_im_full']:.2e} | "
-                f"{c['ratio_red']:.0f}x | {c['time_kernel_s']:.3f} s / {c['time_fom_ref_s']:.2f} s |"
+                f"{_ratio(c['ratio_red'])} | {c['time_kernel_s']:.3f} s / {c['time_fom_ref_s']:.2f} s |"
             )
             print(f"  wave dT={r['dt']} c={c['c']:.3f}: kernel {c['mean_kernel_red']:.2e}, implicit midpoint {c['mean_im_red']:.2e} "
                   f"(ratio {c['ratio_red']:.3g})")
+
+    sa = s["speed_accuracy"]
+    figures += plotting.save(
+        plotting.speed_accuracy(sa["rows"], sa["reference_time_s"], f"Wave: FOM vs ROM vs ROM + kernel, dT={sa['dt']}"),
+        out,
+        "wave_speed_accuracy",
+    )
+    lines += [
+        "",
+        f"### Speed against accuracy (dT = {sa['dt']}, {sa['n_trajectories']} trajectories x {sa['n_steps']} steps, "
+        f"medians of {sa['repeats']} timed runs, side by side in one process)",
+        "",
+        "Errors of full-space states against the FOM's exact solution (sine transform); every method starts from the same "
+        "full states and returns full states (ROM methods include projection and reconstruction).",
+        "",
+        "| method | size | ms per trajectory | median error | max error |",
+        "|---|---|---|---|---|",
+        *[f"| {r['method']} | {r['tag']} | {r['time_per_trajectory_s'] * 1e3:.3f} | {r['median_err']:.2e} | {r['max_err']:.2e} |"
+          for r in sa["rows"]],
+    ]
+    z = s["smallest"]
+    lines += [
+        "",
+        f"### No bigger model than needed: target {z['target']:.0e} (dT = {z['dt']})",
+        "",
+        f"Validation: FOM trajectories in the first {s['preset']['n_modes']} sine modes at random speeds, error against the exact FOM "
+        f"solution. Reduction errors by reduced dimension: "
+        + ", ".join(f"2n = {2 * int(n)}: {e:.1e}" for n, e in z["rom_errors"].items())
+        + f" (budget for the reduction: {z['rom_share']:.0%} of the target).",
+        "",
+        (f"Built: 2n = {2 * z['n_reduced']}, {z['n_centers']} of {z['of_centers']} centres ({z['kernel']['state']} x {z['kernel']['mu']}); "
+         f"validation error {z['validation_error']:.2e}, error on fresh test trajectories {z['test_error']:.2e}."
+         if z["reached"] else
+         f"Target NOT reached: 2n = {2 * z['n_reduced']}, all {z['of_centers']} centres give {z['validation_error']:.2e} "
+         f"(test {z['test_error']:.2e})."),
+    ]
+    print(f"  wave smallest model for {z['target']:.0e}: 2n = {2 * z['n_reduced']}, "
+          f"{z['n_centers'] if z['reached'] else 'target not reached with all'} centres, validation error {z['validation_error']:.2e}")
     return s, figures, lines
+
+
+def _ratio(v: float) -> str:
+    """A ratio of errors for tables: whole numbers from 10 on, two digits below."""
+    return f"{v:.0f}x" if v >= 10 else f"{v:.2g}x"
+
+
+def _claims(results: dict) -> list[dict]:
+    """The paper's qualitative claims, each checked against this run's numbers.
+
+    Returns
+    -------
+    list of dict
+        ``claim``, ``holds`` (bool) and ``evidence`` (the numbers, in words).
+    """
+    claims = []
+    if "pendulum" in results:
+        p = results["pendulum"]
+        ratios = [r["ratio_median"] for r in p["per_dt"]]
+        pointwise = [r["ratio_min_over_time"] for r in p["per_dt"]]
+        claims.append({
+            "claim": "pendulum A: the kernel predictor is below implicit midpoint at every test step in the training range, "
+                     "by two orders of magnitude (ratio of median errors >= 100)",
+            "holds": min(ratios) >= 100 and min(pointwise) > 1,
+            "evidence": f"ratios of medians {', '.join(_ratio(v) for v in ratios)} at dT = "
+                        f"{', '.join(str(r['dt']) for r in p['per_dt'])}; smallest ratio at any time {_ratio(min(pointwise))}",
+        })
+        b = p["scenario_b"]
+        ds, dd = b["energy_drift_symplectic"], b["energy_drift_direct"]
+        claims.append({
+            "claim": "pendulum B (extrapolation): bounded energy error for the symplectic predictor, drift for the direct model "
+                     "(|drift direct| >= 10 |drift symplectic|)",
+            "holds": abs(dd) >= 10 * abs(ds),
+            "evidence": f"relative energy drift {ds:+.1e} (symplectic) vs {dd:+.1e} (direct); max relative energy error "
+                        f"{b['max_rel_energy_err_symplectic']:.1e} vs {b['max_rel_energy_err_direct']:.1e}",
+        })
+    if "wave" in results:
+        w = results["wave"]
+        ratios = {r["dt"]: min(c["ratio_red"] for c in r["cases"]) for r in w["per_dt"]}
+        claims.append({
+            "claim": "wave: the ROM + kernel predictor is below ROM + implicit midpoint at every test speed and step",
+            "holds": min(ratios.values()) > 1,
+            "evidence": "smallest ratio of mean errors per dT: " + ", ".join(f"{_ratio(v)} at {dt}" for dt, v in ratios.items()),
+        })
+    return claims
 
 
 def _cmd_run(args) -> int:
@@ -258,8 +360,13 @@ def _cmd_run(args) -> int:
             results[system] = summary
             figures += figs
             lines += md + ["", "Figures: " + ", ".join(f"`{f}`" for f in figs if f.endswith(".png")), ""]
+    claims = _claims(results)
+    lines[4:4] = ["## The paper's claims, checked on this run", "",
+                  *[f"- {'HOLDS' if c['holds'] else 'DOES NOT HOLD'}: {c['claim']}. {c['evidence']}." for c in claims], ""]
+    for c in claims:
+        print(f"  claim {'holds' if c['holds'] else 'DOES NOT HOLD'}: {c['claim']}")
     with open(out / "results.json", "w") as f:
-        json.dump({"command": command, "preset": preset_name, "results": results, "figures": figures}, f, indent=2)
+        json.dump({"command": command, "preset": preset_name, "claims": claims, "results": results, "figures": figures}, f, indent=2)
     (out / "summary.md").write_text("\n".join(lines) + "\n")
     print(f"done in {time.perf_counter() - t0:.0f} s; summary: {out / 'summary.md'}")
     return 0

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+import math
 from pathlib import Path
 
 import matplotlib
@@ -9,7 +11,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-__all__ = ["greedy_residuals", "error_over_time", "phase_portrait", "energy_error", "trajectories_over_time", "hamiltonian_over_time", "speed_accuracy", "stability_sweeps", "save"]
+__all__ = ["greedy_residuals", "error_over_time", "phase_portrait", "energy_error", "trajectories_over_time", "hamiltonian_over_time", "speed_accuracy", "stability_sweeps", "figure_data", "save"]
 
 _COLORS = plt.rcParams["axes.prop_cycle"].by_key()["color"]
 
@@ -26,13 +28,45 @@ def _decorate(ax, xlabel: str, ylabel: str, title: str, legend_outside: bool = F
         ax.legend(fontsize=8)
 
 
+def _finite_or_none(values) -> list:
+    return [float(v) if math.isfinite(float(v)) else None for v in values]
+
+
+def figure_data(fig) -> dict:
+    """The data a figure shows, as plain lists: per panel its title, axis labels and scales, and every labelled line.
+
+    Returns
+    -------
+    dict
+        ``{"axes": [{"title", "xlabel", "ylabel", "xscale", "yscale", "lines": [{"label", "x", "y"}]}]}``;
+        non-finite values become ``None``.  Lines whose label starts with ``_``
+        (matplotlib's unlabelled artists) are left out.
+    """
+    axes = []
+    for ax in fig.axes:
+        lines = [
+            {"label": line.get_label(), "x": _finite_or_none(line.get_xdata()), "y": _finite_or_none(line.get_ydata())}
+            for line in ax.get_lines()
+            if not line.get_label().startswith("_")
+        ]
+        axes.append({"title": ax.get_title(), "xlabel": ax.get_xlabel(), "ylabel": ax.get_ylabel(),
+                     "xscale": ax.get_xscale(), "yscale": ax.get_yscale(), "lines": lines})
+    return {"axes": axes}
+
+
 def save(fig, out_dir, name: str) -> list[str]:
-    """Write ``name.png`` and ``name.pdf`` into ``out_dir``; returns the file names."""
+    """Write ``name.png`` and ``name.pdf`` into ``out_dir``, and the data shown in ``name.json``.
+
+    The JSON file (:func:`figure_data`) lets tests and readers check what a
+    figure shows without parsing the image.  Returns the names of the PNG and PDF files.
+    """
     out_dir = Path(out_dir)
     names = []
     for ext in ("png", "pdf"):
         fig.savefig(out_dir / f"{name}.{ext}", dpi=150, bbox_inches="tight")
         names.append(f"{name}.{ext}")
+    with open(out_dir / f"{name}.json", "w") as f:
+        json.dump(figure_data(fig), f)
     plt.close(fig)
     return names
 
@@ -120,7 +154,8 @@ def speed_accuracy(rows, reference_time: float, title: str):
     Parameters
     ----------
     rows : list of dict
-        ``method``, ``size`` (centres or step refinement), ``time_per_trajectory_s``, ``median_err``.
+        ``method``, ``size`` (centres or step refinement), ``time_per_trajectory_s``, ``median_err``,
+        optionally ``tag`` (the point's annotation; default ``m=size`` for kernel methods, ``dT/size`` otherwise).
     reference_time
         Wall time per trajectory of the micro-step reference (a vertical line).
     """
@@ -132,7 +167,7 @@ def speed_accuracy(rows, reference_time: float, title: str):
         e = [r["median_err"] for r in pts]
         ax.loglog(t, e, "o-" if len(pts) > 1 else "s", color=_COLORS[i], label=method, ms=5 if len(pts) > 1 else 8)
         for r in pts:
-            tag = f"m={r['size']}" if "kernel" in method else f"dT/{r['size']}"
+            tag = r.get("tag") or (f"m={r['size']}" if "kernel" in method else f"dT/{r['size']}")
             ax.annotate(tag, (r["time_per_trajectory_s"], r["median_err"]), fontsize=7, xytext=(3, 3), textcoords="offset points")
     ax.axvline(reference_time, color="k", ls=":", label="micro-step reference (h <= 1e-3)")
     _decorate(ax, "wall time per trajectory [s]", "median over time of the mean relative error", title)

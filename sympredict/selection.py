@@ -23,7 +23,7 @@ from sympredict.data import FlowMapData
 from sympredict.kernels import KERNEL_FAMILIES, RadialKernel
 from sympredict.predictor import SymplecticKernelPredictor
 
-__all__ = ["log_grid", "kernel_grid", "SelectionResult", "select_kernels"]
+__all__ = ["log_grid", "kernel_grid", "SelectionResult", "select_kernels", "refine_kernel_shapes"]
 
 logger = getLogger("sympredict.selection")
 
@@ -70,15 +70,23 @@ class SelectionResult:
         The chosen kernels (``None`` where the factor is dropped).
     score : float
         Its ``E_val(m_star)``.
+    complete : bool
+        Whether its greedy reached ``m_star`` centres (or the residual tolerance).
     table : list of dict
-        Every candidate with its ``E_val(m_star)``, ``E_train(m_star)``, centres and fit time.
+        Every candidate with its ``E_val(m_star)``, ``E_train(m_star)``, centres,
+        ``complete`` and fit time.
     """
 
     state: RadialKernel
     mu: Optional[RadialKernel]
     dt: Optional[RadialKernel]
     score: float
+    complete: bool = True
     table: list = field(default_factory=list)
+
+    def rank(self) -> tuple:
+        """Sort key, smaller is better: complete candidates first, then by ``E_val``; non-finite scores last."""
+        return (not np.isfinite(self.score), not self.complete, self.score if np.isfinite(self.score) else np.inf)
 
 
 def select_kernels(
@@ -107,8 +115,13 @@ def select_kernels(
     Notes
     -----
     Cost: one greedy to ``m_star`` per candidate, ``O(m_star^2 (N + N_val))`` each.
-    A candidate whose greedy stops early (power breakdown) is scored at its
-    last step; non-finite scores never win.
+    A candidate whose greedy stops early on a power breakdown (the kernel
+    matrix is numerically singular: the kernel cannot use more centres) is
+    scored at its last step but ranked behind every candidate that reached
+    ``m_star``: the final model is trained with at least ``m_star`` centres,
+    and on the pendulum such a kernel (IMQ eps 0.1, stopped at 791 of 1500)
+    gave 8x larger trajectory errors than the complete runner-up of equal
+    ``E_val``.  Non-finite scores never win.
     """
     mu = None if data.mu.shape[1] == 0 else data.mu
     vmu = None if validation.mu.shape[1] == 0 else validation.mu
@@ -124,6 +137,7 @@ def select_kernels(
             model.fit(data.x0, data.x1, mu=mu if mu_k is not None else None, dt=data.dt,
                       validation=(validation.x0, validation.x1, vmu if mu_k is not None else None, validation.dt))
         score = float(model.history_.val_max_residual[-1])
+        complete = model.n_centers_ >= m_star or model.history_.stop_reason == "tol"
         row = {
             "state": repr(state),
             "mu": repr(mu_k),
@@ -131,12 +145,15 @@ def select_kernels(
             "E_val": score,
             "E_train": float(model.history_.train_max_residual[-1]),
             "n_centers": model.n_centers_,
+            "complete": complete,
             "fit_s": time.perf_counter() - t0,
         }
         table.append(row)
-        logger.info(f"{row['state']}, {row['mu']}, {row['dt']}: E_val({model.n_centers_}) = {score:.3e}")
-        if np.isfinite(score) and (best is None or score < best.score):
-            best = SelectionResult(state, mu_k, dt_k, score)
+        logger.info(f"{row['state']}, {row['mu']}, {row['dt']}: E_val({model.n_centers_}) = {score:.3e}"
+                    + ("" if complete else f" (stopped early: {model.history_.stop_reason})"))
+        candidate = SelectionResult(state, mu_k, dt_k, score, complete)
+        if np.isfinite(score) and (best is None or candidate.rank() < best.rank()):
+            best = candidate
     if best is None:
         raise ValueError("no candidate produced a finite validation residual")
     best.table = table
@@ -147,3 +164,62 @@ def select_kernels(
         if len(same_family) > 1 and chosen.eps in (same_family[0], same_family[-1]):
             logger.warning(f"the chosen {name} kernel {chosen!r} lies on the edge of its shape grid: widen the grid")
     return best
+
+
+def refine_kernel_shapes(
+    data: FlowMapData,
+    validation: FlowMapData,
+    start: SelectionResult,
+    m_star: int,
+    factor: float = 2.0,
+    max_sweeps: int = 3,
+) -> SelectionResult:
+    """Coordinate search of the shape parameters around ``start`` at a larger ``m_star``.
+
+    A grid search at small ``m_star`` is cheap but favours flat kernels (few
+    centres resolve little); this refines the winner where the final model
+    lives.  Each sweep tries every factor's shape times ``1/factor`` and
+    ``factor`` (the family kept), one factor at a time, keeping any candidate
+    that ranks better (:meth:`SelectionResult.rank`: complete runs first, then
+    lower ``E_val(m_star)``); it stops after a sweep without improvement
+    or after ``max_sweeps`` sweeps.
+
+    Returns
+    -------
+    SelectionResult
+        The best tuple, scored at ``m_star``; ``table`` lists every candidate
+        evaluated here (the start re-scored first).
+
+    Notes
+    -----
+    Cost: at most ``1 + 6 max_sweeps`` greedy fits to ``m_star`` centres (fewer
+    with dropped factors); candidates already scored are not refitted.
+    """
+    if not (factor > 1):
+        raise ValueError(f"factor must be > 1, got {factor!r}")
+    scored = {}
+
+    def score(tup):
+        key = tuple(repr(k) for k in tup)
+        if key not in scored:
+            scored[key] = select_kernels(data, validation, [tup[0]], [tup[1]], [tup[2]], m_star=m_star)
+        return scored[key]
+
+    best = score((start.state, start.mu, start.dt))
+    for sweep in range(max_sweeps):
+        improved = False
+        for i in range(3):
+            current = (best.state, best.mu, best.dt)
+            if current[i] is None:
+                continue
+            for f in (1 / factor, factor):
+                tup = list(current)
+                tup[i] = type(current[i])(current[i].eps * f)
+                cand = score(tuple(tup))
+                if cand.rank() < best.rank():
+                    best, improved = cand, True
+        logger.info(f"shape refinement sweep {sweep + 1}: {best.state!r}, {best.mu!r}, {best.dt!r}: E_val({m_star}) = {best.score:.3e}")
+        if not improved:
+            break
+    table = [row for r in scored.values() for row in r.table]
+    return SelectionResult(best.state, best.mu, best.dt, best.score, best.complete, table)

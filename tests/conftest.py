@@ -31,3 +31,19 @@ def small_pendulum_model(small_pendulum_data):
 @pytest.fixture
 def rng():
     return np.random.default_rng(12345)
+
+
+@pytest.fixture(scope="session")
+def smoke_run(tmp_path_factory):
+    """``sympredict run all --preset smoke`` once per session: (output folder, results.json content, stdout)."""
+    import contextlib
+    import io
+    import json
+
+    from sympredict.cli import main
+
+    out = tmp_path_factory.mktemp("smoke_run")
+    stdout = io.StringIO()
+    with contextlib.redirect_stdout(stdout):
+        assert main(["run", "all", "--preset", "smoke", "--out", str(out), "--threads", "1"]) == 0
+    return out, json.loads((out / "results.json").read_text()), stdout.getvalue()

@@ -12,16 +12,15 @@ from sympredict.cli import main
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def test_run_all_smoke_writes_everything(tmp_path, capsys):
-    assert main(["run", "all", "--preset", "smoke", "--out", str(tmp_path), "--threads", "1"]) == 0
-    results = json.loads((tmp_path / "results.json").read_text())
+def test_run_all_smoke_writes_everything(smoke_run):
+    tmp_path, results, out = smoke_run
     pendulum = results["results"]["pendulum"]
     assert pendulum["n_centers"] == 150 and len(pendulum["per_dt"]) == 3
     wave = results["results"]["wave"]
     assert wave["basis"]["symplecticity"] < 1e-13 and len(wave["per_dt"][0]["cases"]) == 2
     for name in results["figures"]:
         assert (tmp_path / name).stat().st_size > 1000
-    assert len(results["figures"]) == 2 * (6 + 5 + 3)  # pendulum A 4 + speed/accuracy + stability, B 5, wave 3; png + pdf
+    assert len(results["figures"]) == 2 * (6 + 5 + 4)  # pendulum A 4 + speed/accuracy + stability, B 5, wave 3 + speed/accuracy; png + pdf
     st = pendulum["stability"]
     assert set(st["long"]) == {"kernel predictor", "direct kernel", "implicit midpoint"}
     assert len(st["dt_sweep"]) == 12 and len(st["mu_sweep"]) == 8
@@ -48,8 +47,20 @@ def test_run_all_smoke_writes_everything(tmp_path, capsys):
     text = (tmp_path / "summary.md").read_text()
     assert "## Pendulum scenario A" in text and "## Wave equation" in text and "pendulum_phase_portrait.png" in text
     assert (tmp_path / "pendulum_model.h5").exists() and (tmp_path / "wave_model_dt0.1.h5").exists()
-    out = capsys.readouterr().out
     assert "kernel median error" in out and "wave dT=0.1" in out
+    # the paper's claims are stated with their numbers, in the summary and in results.json
+    assert len(results["claims"]) == 3 and all(isinstance(c["holds"], bool) and c["evidence"] for c in results["claims"])
+    assert text.count("- HOLDS: ") + text.count("- DOES NOT HOLD: ") == 3
+    assert ("DOES NOT HOLD" in text) == (not all(c["holds"] for c in results["claims"]))
+    # kernel selection by validation ran by default and its winner is the model's kernel
+    sel = pendulum["selection"]
+    assert sel["chosen"] == pendulum["kernel"] and set(sel["best_per_family"]) == {"imq", "matern32", "matern52"}
+    assert sel["chosen_E_val"] <= min(row["E_val"] for row in sel["refine_table"])
+    # no bigger model than needed: the wave sizing met its target on validation data with a prefix of the model
+    z = wave["smallest"]
+    assert z["reached"] and z["validation_error"] <= z["target"] and z["n_centers"] <= z["of_centers"]
+    assert all(e > z["rom_share"] * z["target"] for n, e in z["rom_errors"].items() if int(n) < z["n_reduced"])
+    assert all(e > z["target"] for m, e in z["center_errors"].items() if int(m) < z["n_centers"])
 
 
 def test_cli_rejects_unknown_system(tmp_path):

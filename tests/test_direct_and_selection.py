@@ -7,7 +7,7 @@ from sympredict import DirectKernelPredictor, SymplecticKernelPredictor
 from sympredict.data import FlowMapData
 from sympredict.greedy import ValueFunctionals, dense_interpolation, greedy_interpolation
 from sympredict.kernels import IMQ, Matern52, ProductKernel
-from sympredict.selection import kernel_grid, log_grid, select_kernels
+from sympredict.selection import SelectionResult, kernel_grid, log_grid, refine_kernel_shapes, select_kernels
 
 
 def test_value_greedy_to_exhaustion_equals_dense_solve(rng):
@@ -66,10 +66,36 @@ def test_select_kernels_picks_the_smallest_validation_residual(small_pendulum_da
     result = select_kernels(data, val, [IMQ(0.05), IMQ(0.15), IMQ(5.0)], [IMQ(2.0)], [IMQ(5.0)], m_star=60)
     scores = {row["state"]: row["E_val"] for row in result.table}
     assert len(scores) == 3
-    assert result.score == min(scores.values()) == scores[repr(result.state)]
+    for row in result.table:
+        assert row["complete"] == (row["n_centers"] >= 60)
+    complete = {row["state"]: row["E_val"] for row in result.table if row["complete"]}
+    assert result.score == min(complete.values()) == scores[repr(result.state)]
     assert result.state != IMQ(5.0)  # a far too narrow kernel cannot interpolate 60 centres' worth of data
     with pytest.raises(ValueError, match="must not contain None"):
         select_kernels(data, val, [IMQ(0.15)], [IMQ(2.0)], [None], m_star=10)
+
+
+def test_selection_ranks_complete_runs_before_early_stops():
+    early = SelectionResult(IMQ(0.1), None, None, 1e-6, complete=False)
+    complete = SelectionResult(IMQ(0.2), None, None, 1e-4, complete=True)
+    worse = SelectionResult(IMQ(0.3), None, None, 1e-3, complete=True)
+    broken = SelectionResult(IMQ(0.4), None, None, float("nan"), complete=True)
+    assert sorted([broken, early, worse, complete], key=SelectionResult.rank) == [complete, worse, early, broken]
+
+
+def test_refine_kernel_shapes_moves_by_factor_two_and_never_gets_worse(small_pendulum_data):
+    data, val = small_pendulum_data.split(0.2, seed=1)
+    start = select_kernels(data, val, [IMQ(0.6)], [IMQ(2.0)], [IMQ(5.0)], m_star=80)
+    refined = refine_kernel_shapes(data, val, start, m_star=80, max_sweeps=2)
+    assert refined.rank() <= start.rank()
+    assert refined.state.eps < 0.6  # 0.6 is too narrow for this data: the search moves towards flatter kernels
+    for row in refined.table:  # every candidate is the start scaled by powers of two, per factor
+        for key, eps0 in (("state", 0.6), ("mu", 2.0), ("dt", 5.0)):
+            eps = float(row[key][4:-1])
+            assert np.log2(eps / eps0) == pytest.approx(round(np.log2(eps / eps0)))
+    assert len({(r["state"], r["mu"], r["dt"]) for r in refined.table}) == len(refined.table)  # nothing refitted
+    with pytest.raises(ValueError, match="factor"):
+        refine_kernel_shapes(data, val, start, m_star=10, factor=1.0)
 
 
 def test_flow_map_data_split_and_concatenate(small_pendulum_data):
