@@ -31,7 +31,7 @@ from pymor.core.logger import getLogger
 from sympredict._checks import as_parameter, as_positive_int, as_states, as_steps
 from sympredict.data import FlowMapData, mixed_variables
 from sympredict.exceptions import ExtrapolationWarning, NewtonConvergenceError, NotFittedError, SolvabilityError
-from sympredict.greedy import GreedyHistory, HBFunctionals, ValueFunctionals, greedy_interpolation
+from sympredict.greedy import GreedyHistory, HBFunctionals, ValueFunctionals, active_set_greedy, greedy_interpolation
 from sympredict.kernels import IMQ, ProductKernel, RadialKernel
 from sympredict.surrogate import HBSurrogate, ValueSurrogate
 
@@ -151,6 +151,10 @@ class _FlowMapKernelModel:
         return ProductKernel(state_kernel, self.mu_kernel, self.dt_kernel)
 
     def _greedy(self, functionals, targets, validation):
+        extra = {}
+        basis_dtype = getattr(self, "basis_dtype", "float64")
+        if basis_dtype != "float64":
+            extra["basis_dtype"] = basis_dtype
         with logger.block(f"f-greedy over {functionals.n_functionals} functionals"):
             return greedy_interpolation(
                 functionals,
@@ -161,6 +165,7 @@ class _FlowMapKernelModel:
                 power_tol=self.power_tol,
                 validation=validation,
                 memory_limit=self.memory_limit,
+                **extra,
             )
 
     def _set_fitted_state(self, data: FlowMapData):
@@ -268,6 +273,29 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         Maximal Newton iterations per implicit step.
     memory_limit
         Bytes the greedy's Newton basis may use (default: 90% of available memory).
+    backend
+        Newton solver of :meth:`step` / :meth:`rollout`: ``'numpy'`` (the
+        reference, batched over instances), ``'numba'`` (compiled,
+        :mod:`sympredict._fastkernels`: one fused pass over the centres per
+        iteration, a whole rollout in one call, instances in parallel; needs
+        ``pip install sympredict[fast]``) or ``'auto'`` (numba when importable).
+        Both agree to round-off (the gradient's floor, see
+        :meth:`HBSurrogate.gradient_hessian`).
+    basis_dtype
+        Storage of the greedy's Newton basis: ``'float64'`` (exact f-greedy,
+        default) or ``'float32'`` (half the memory and memory traffic; the
+        residual is kept in float64, see :func:`greedy_interpolation`; on the
+        pendulum with IMQ 0.15 the float32 basis loses the power function
+        after ~300 centres and the run stops as ``'diverged'``).
+    training
+        ``'exact'`` (default): f-greedy over all candidate functionals
+        (:func:`greedy_interpolation`).  ``'fast'``: f-greedy on an active
+        subset of the samples refreshed against the full residual
+        (:func:`~sympredict.greedy.active_set_greedy`): the run stops when the
+        max residual over *all* functionals reaches ``tol`` (or at
+        ``max_centers``); memory ``O(m N_active)`` instead of ``O(m N)``.
+        Scenario A (688,464 functionals, ``tol=1e-5``) trains in a fraction of
+        the exact path's time (``docs/performance.md``).
 
     Attributes
     ----------
@@ -306,12 +334,18 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         power_tol: float = 1e-12,
         newton_max_iter: int = 50,
         memory_limit: Optional[float] = None,
+        backend: str = "auto",
+        basis_dtype: str = "float64",
+        training: str = "exact",
     ):
         super().__init__(
             state_kernel, mu_kernel, dt_kernel, max_centers=max_centers, tol=tol, criterion=criterion,
             power_tol=power_tol, memory_limit=memory_limit,
         )
         self.newton_max_iter = newton_max_iter
+        self.backend = backend
+        self.basis_dtype = basis_dtype
+        self.training = training
 
     def fit(self, x0, x1, mu=None, dt=None, *, validation=None) -> "SymplecticKernelPredictor":
         """Train the surrogate on flow-map samples.
@@ -337,6 +371,15 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         Newton basis, ``N = 2n M`` candidate functionals, ``m`` centres.
         """
         as_positive_int(self.newton_max_iter, "newton_max_iter")
+        if getattr(self, "backend", "auto") not in ("auto", "numpy", "numba"):
+            raise ValueError(f"backend must be 'auto', 'numpy' or 'numba', got {self.backend!r}")
+        if getattr(self, "basis_dtype", "float64") not in ("float64", "float32"):
+            raise ValueError(f"basis_dtype must be 'float64' or 'float32', got {self.basis_dtype!r}")
+        training = getattr(self, "training", "exact")
+        if training not in ("exact", "fast"):
+            raise ValueError(f"training must be 'exact' or 'fast', got {training!r}")
+        if training == "fast" and (self.criterion != "f" or self.basis_dtype != "float64"):
+            raise ValueError("training='fast' is an f-greedy with a float64 basis: use criterion='f', basis_dtype='float64'")
         data, validation = self._fit_data(x0, x1, mu, dt, validation)
         xi, y = mixed_variables(data.x0, data.x1, data.dt)
         self._check_duplicates(xi, data)
@@ -345,7 +388,15 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         if validation is not None:
             vxi, vy = mixed_variables(validation.x0, validation.x1, validation.dt)
             val = (HBFunctionals(kernel, vxi, validation.mu, validation.dt), vy.reshape(-1))
-        result = self._greedy(HBFunctionals(kernel, xi, data.mu, data.dt), y.reshape(-1), val)
+        functionals = HBFunctionals(kernel, xi, data.mu, data.dt)
+        if training == "fast":
+            with logger.block(f"active-set f-greedy over {functionals.n_functionals} functionals"):
+                result = active_set_greedy(
+                    functionals, y.reshape(-1), max_centers=self.max_centers, tol=self.tol, power_tol=self.power_tol,
+                    validation=val, memory_limit=self.memory_limit,
+                )
+        else:
+            result = self._greedy(functionals, y.reshape(-1), val)
         points, comps = np.divmod(result.selected, xi.shape[1])
         self.kernel_ = kernel
         self.surrogate_ = HBSurrogate(kernel, xi[points], data.mu[points], data.dt[points], comps, result.coef)
@@ -420,8 +471,65 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
             )
         return self.truncated(int(hits[0]) + 1)
 
+    # ------------------------------------------------------- Newton backends
+    def _compiled(self) -> bool:
+        """Whether :meth:`step` / :meth:`rollout` use the compiled kernels (resolves ``backend``)."""
+        from sympredict import _fastkernels
+
+        backend = getattr(self, "backend", "auto")
+        if backend == "numpy":
+            return False
+        if backend == "auto":
+            return _fastkernels.HAVE_NUMBA and self.surrogate_.kernel.state.name in _fastkernels.KERNEL_KINDS
+        if backend == "numba":
+            if not _fastkernels.HAVE_NUMBA:
+                raise ImportError("backend='numba' needs numba: pip install 'sympredict[fast]' (or use backend='numpy')")
+            return True
+        raise ValueError(f"backend must be 'auto', 'numpy' or 'numba', got {backend!r}")
+
+    def _compiled_rollout(self, x, weights, dt, n_steps: int, step_index: bool) -> np.ndarray:
+        """``n_steps`` steps in compiled code; failures raise as the NumPy path would.
+
+        The instances named are those of the first failing macro step and, within
+        it, of the first failing Newton iteration (non-finite residual before a
+        singular Jacobian), exactly the set the batched NumPy iteration reports.
+        """
+        from sympredict import _fastkernels
+
+        as_positive_int(self.newton_max_iter, "newton_max_iter")
+        sur = self.surrogate_
+        traj, codes, fail_step, fail_iter, resid = _fastkernels.newton_rollout(
+            x, weights, dt, sur.layout(), sur.kernel.state.name, sur.kernel.state.eps, self.newton_max_iter, n_steps
+        )
+        failed = codes != 0
+        if np.any(failed):
+            k = fail_step[failed].min()
+            at = failed & (fail_step == k)
+            sel = at & (fail_iter == fail_iter[at].min())
+            for code, reason in (
+                (1, "produced a non-finite iterate"),
+                (2, "hit a singular Jacobian I + dT d_p d_q s"),
+                (3, f"did not converge in {self.newton_max_iter} iterations"),
+            ):
+                hit = sel & (codes == code)
+                if np.any(hit):
+                    err = NewtonConvergenceError(np.flatnonzero(hit), resid[hit], reason=reason)
+                    raise (err.at_step(int(k)) if step_index else err)
+        return traj
+
+    def _rollout(self, x, weights, dt, n_steps: int) -> np.ndarray:
+        if self._compiled():
+            return self._compiled_rollout(x, weights, dt, n_steps, step_index=True)
+        return super()._rollout(x, weights, dt, n_steps)
+
     def _solve_step(self, x: np.ndarray, weights: np.ndarray, dt: np.ndarray) -> np.ndarray:
-        """One implicit symplectic-Euler step for a validated batch.
+        """One implicit step for a validated batch, on the configured backend."""
+        if self._compiled():
+            return self._compiled_rollout(x, weights, dt, 1, step_index=False)[:, 1]
+        return self._solve_step_numpy(x, weights, dt)
+
+    def _solve_step_numpy(self, x: np.ndarray, weights: np.ndarray, dt: np.ndarray) -> np.ndarray:
+        """One implicit symplectic-Euler step for a validated batch (NumPy reference).
 
         Newton for ``F(p1) = p1 - p0 + dT d_q s(q0, p1) = 0`` with Jacobian
         ``I + dT d_p d_q s``.  An instance stops iterating when ``|F|`` reaches
@@ -431,7 +539,9 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         within 1000x of the floor.  Anything else after ``newton_max_iter``
         iterations raises :class:`NewtonConvergenceError`.
 
-        Cost per iteration ``O(B_active m (2n)^2)``.
+        All instances advance together; converged instances leave the active
+        set.  Cost per iteration ``O(B_active m (2n + n^2))``
+        (:meth:`HBSurrogate.newton_terms`).
         """
         n = self.dim_ // 2
         sur = self.surrogate_
@@ -445,7 +555,7 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         eye = np.eye(n)
         for _ in range(self.newton_max_iter):
             xi = np.concatenate([q0[active], p[active]], axis=1)
-            g, hess, floor = sur.gradient_hessian(xi, weights[active], with_floor=True)
+            g, hess_qp, floor = sur.newton_terms(xi, weights[active])
             ha = h[active]
             F = p[active] - p0[active] + ha * g[:, :n]
             f_norm = np.abs(F).max(axis=1)
@@ -454,7 +564,7 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
             bad = ~np.isfinite(f_norm)
             if np.any(bad):
                 raise NewtonConvergenceError(active[bad], f_norm[bad], reason="produced a non-finite iterate")
-            jac = eye + ha[:, :, None] * hess[:, :n, n:]
+            jac = eye + ha[:, :, None] * hess_qp
             try:
                 delta = np.linalg.solve(jac, F[:, :, None])[:, :, 0]
             except np.linalg.LinAlgError:

@@ -1,0 +1,271 @@
+"""Fast paths against their references: compiled Newton (numba) vs NumPy, float32 greedy vs float64.
+
+The NumPy Newton iteration is the reference.  The compiled one sums over the
+centres in another order, so the two agree to the round-off floor of the
+surrogate's gradient (``eps * sum |terms|``, see ``HBSurrogate.gradient_hessian``):
+to 1e-12 on a well-conditioned model, to that floor on an ill-conditioned one,
+where the NumPy path does not even agree with itself across batch sizes.
+
+numba is an optional dependency (``sympredict[fast]``); the tests that need it
+are skipped with a reason shown by ``-ra`` when it is not installed.
+"""
+
+import numpy as np
+import pytest
+
+from sympredict import NewtonConvergenceError, SymplecticKernelPredictor
+from sympredict import _fastkernels
+from sympredict.greedy import HBFunctionals, greedy_interpolation
+from sympredict.integrators import implicit_midpoint_step, integrate
+from sympredict.kernels import IMQ, Matern32, Matern52, ProductKernel
+from sympredict.surrogate import HBSurrogate
+
+needs_numba = pytest.mark.skipif(not _fastkernels.HAVE_NUMBA, reason="numba not installed (pip install sympredict[fast])")
+
+
+def _queries(rng, n):
+    x = np.column_stack([rng.uniform(0.0, np.pi / 2, n), rng.uniform(-0.5, 0.5, n)])
+    return x, rng.uniform(0.71, 0.79, n), rng.uniform(0.045, 0.055, n)
+
+
+def _with_backend(model, backend):
+    twin = SymplecticKernelPredictor.__new__(SymplecticKernelPredictor)
+    twin.__dict__.update(model.__dict__)
+    twin.backend = backend
+    return twin
+
+
+@pytest.fixture(scope="module")
+def well_conditioned_model(small_pendulum_data):
+    """50 centres: coefficients ~1e4, gradient floor ~1e-12, so 1e-12 agreement is meaningful."""
+    d = small_pendulum_data
+    model = SymplecticKernelPredictor(IMQ(0.15), mu_kernel=IMQ(2.0), dt_kernel=IMQ(5.0), max_centers=50, backend="numpy")
+    return model.fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
+
+
+def test_newton_terms_equal_gradient_hessian_block(small_pendulum_model, rng):
+    sur = small_pendulum_model.surrogate_
+    for kernel in (IMQ(0.3), Matern52(0.5), Matern32(0.5)):
+        # a 2n = 4 surrogate with random centres/components exercises every Hessian term
+        m, dim = 40, 4
+        s4 = HBSurrogate(ProductKernel(kernel), rng.normal(size=(m, dim)), np.zeros((m, 0)), np.ones(m),
+                         rng.integers(0, dim, m), rng.normal(size=m))
+        xi = rng.normal(size=(7, dim))
+        w = s4.weights(np.zeros((7, 0)), np.ones(7))
+        g_ref, h_ref, f_ref = s4.gradient_hessian(xi, w, with_floor=True)
+        g, hqp, floor = s4.newton_terms(xi, w)
+        np.testing.assert_allclose(g, g_ref, rtol=1e-13, atol=1e-13)
+        np.testing.assert_allclose(hqp, h_ref[:, :2, 2:], rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(floor, f_ref, rtol=1e-13)
+    x, mu, dt = _queries(rng, 5)
+    w = sur.weights(mu[:, None], dt)
+    g_ref, h_ref = sur.gradient_hessian(x, w)
+    g, hqp, _ = sur.newton_terms(x, w)
+    # coefficients ~3e7 cancel to O(1) values: the two summation orders agree to ~1e-9 relative
+    np.testing.assert_allclose(g, g_ref, rtol=0, atol=1e-7)
+    np.testing.assert_allclose(hqp, h_ref[:, :1, 1:], rtol=1e-7)
+
+
+@needs_numba
+def test_compiled_rollout_equals_numpy_to_1e12(well_conditioned_model, rng):
+    x, mu, dt = _queries(rng, 30)
+    ref = _with_backend(well_conditioned_model, "numpy").rollout(x, 40, mu=mu, dt=dt)
+    fast = _with_backend(well_conditioned_model, "numba").rollout(x, 40, mu=mu, dt=dt)
+    np.testing.assert_allclose(fast, ref, rtol=0, atol=1e-12)
+    # single step and a single trajectory (the serial, latency path)
+    np.testing.assert_allclose(
+        _with_backend(well_conditioned_model, "numba").step(x, mu=mu, dt=dt), ref[:, 1], rtol=0, atol=1e-12
+    )
+    one = _with_backend(well_conditioned_model, "numba").rollout(x[3], 40, mu=mu[3], dt=dt[3])
+    np.testing.assert_allclose(one, ref[3], rtol=0, atol=1e-12)
+
+
+@needs_numba
+@pytest.mark.parametrize("state_kernel", [IMQ(0.3), Matern52(0.4), Matern32(0.4)], ids=repr)
+@pytest.mark.parametrize("with_mu", [True, False])
+def test_compiled_equals_numpy_four_dimensional(state_kernel, with_mu, rng):
+    """2n = 4 (Hessian block 2 x 2, pivoted LU), every kernel family, with and without a parameter."""
+    from tests.test_predictor import CoupledOscillators
+
+    system = CoupledOscillators()
+    x0 = rng.uniform(-1, 1, size=(40, 4))
+    mu = rng.uniform(1.0, 2.0, size=(40, 1)) if with_mu else np.full((40, 1), 1.5)
+    x1 = integrate(implicit_midpoint_step, system, x0, mu, 0.01, 10)[:, -1]
+    model = SymplecticKernelPredictor(state_kernel, mu_kernel=IMQ(1.0) if with_mu else None, max_centers=60, backend="numpy")
+    model.fit(x0, x1, mu=mu if with_mu else None, dt=0.1)
+    xq = rng.uniform(-0.7, 0.7, size=(12, 4))
+    kw = {"mu": rng.uniform(1.1, 1.9, 12)} if with_mu else {}
+    ref = model.rollout(xq, 15, **kw)
+    fast = _with_backend(model, "numba").rollout(xq, 15, **kw)
+    scale = np.abs(model.surrogate_.coef).sum()  # round-off scale of the gradient sums
+    np.testing.assert_allclose(fast, ref, rtol=0, atol=max(1e-12, 1e-14 * scale))
+
+
+@needs_numba
+def test_compiled_agrees_to_the_round_off_floor_on_an_ill_conditioned_model(small_pendulum_model, rng):
+    """600 centres, coefficients ~3e7: both paths are only defined to the gradient floor."""
+    x, mu, dt = _queries(rng, 20)
+    numpy_model = _with_backend(small_pendulum_model, "numpy")
+    ref = numpy_model.rollout(x, 20, mu=mu, dt=dt)
+    fast = _with_backend(small_pendulum_model, "numba").rollout(x, 20, mu=mu, dt=dt)
+    sur = small_pendulum_model.surrogate_
+    _, _, floor = sur.gradient_hessian(x, sur.weights(mu[:, None], dt), with_floor=True)
+    # per step the solutions differ by ~dT * floor; allow 20 steps' growth and a factor 100
+    bound = 100 * 20 * dt.max() * floor.max()
+    assert bound < 1e-5
+    assert np.abs(fast - ref).max() <= bound
+    # the NumPy reference itself differs by as much between batch compositions
+    single = np.stack([numpy_model.rollout(x[i], 20, mu=mu[i], dt=dt[i]) for i in range(len(x))])
+    assert np.abs(single - ref).max() <= bound
+
+
+@needs_numba
+def test_compiled_rollout_is_bit_reproducible_across_batches_and_threads(small_pendulum_model, rng):
+    model = _with_backend(small_pendulum_model, "numba")
+    x, mu, dt = _queries(rng, 24)
+    full = model.rollout(x, 10, mu=mu, dt=dt)
+    single = np.stack([model.rollout(x[i], 10, mu=mu[i], dt=dt[i]) for i in range(len(x))])
+    np.testing.assert_array_equal(full, single)
+    before = _fastkernels.get_num_threads()
+    try:
+        _fastkernels.set_num_threads(1)
+        np.testing.assert_array_equal(model.rollout(x, 10, mu=mu, dt=dt), full)
+    finally:
+        _fastkernels.set_num_threads(before)
+
+
+@needs_numba
+@pytest.mark.parametrize("backend", ["numpy", "numba"])
+def test_newton_failure_reported_alike(small_pendulum_model, rng, backend):
+    x, mu, dt = _queries(rng, 10)
+    strict = _with_backend(small_pendulum_model, backend)
+    strict.newton_max_iter = 1
+    with pytest.raises(NewtonConvergenceError) as info:
+        strict.rollout(x, 3, mu=mu, dt=dt)
+    reference = _with_backend(small_pendulum_model, "numpy")
+    reference.newton_max_iter = 1
+    with pytest.raises(NewtonConvergenceError) as ref_info:
+        reference.rollout(x, 3, mu=mu, dt=dt)
+    assert info.value.step == ref_info.value.step == 0
+    np.testing.assert_array_equal(info.value.instances, ref_info.value.instances)
+    assert info.value.reason == ref_info.value.reason
+
+
+def test_backend_argument_checked(small_pendulum_model, small_pendulum_data, monkeypatch):
+    x = np.array([[0.3, 0.0]])
+    bad = _with_backend(small_pendulum_model, "fortran")
+    with pytest.raises(ValueError, match="backend"):
+        bad.step(x, mu=0.75, dt=0.05)
+    d = small_pendulum_data
+    with pytest.raises(ValueError, match="backend"):
+        SymplecticKernelPredictor(IMQ(0.15), mu_kernel=IMQ(2.0), dt_kernel=IMQ(5.0), backend="gpu").fit(
+            d.x0[:20], d.x1[:20], mu=d.mu[:20], dt=d.dt[:20]
+        )
+    monkeypatch.setattr(_fastkernels, "HAVE_NUMBA", False)
+    with pytest.raises(ImportError, match="numba"):
+        _with_backend(small_pendulum_model, "numba").step(x, mu=0.75, dt=0.05)
+    # 'auto' falls back to the NumPy reference
+    auto = _with_backend(small_pendulum_model, "auto")
+    np.testing.assert_array_equal(auto.step(x, mu=0.75, dt=0.05), _with_backend(small_pendulum_model, "numpy").step(x, mu=0.75, dt=0.05))
+
+
+# ------------------------------------------------------------------ training paths
+def _pendulum_functionals(data, kernel=None):
+    from sympredict.data import mixed_variables
+
+    kernel = kernel or ProductKernel(IMQ(0.15), IMQ(2.0), IMQ(5.0))
+    xi, y = mixed_variables(data.x0, data.x1, data.dt)
+    return HBFunctionals(kernel, xi, data.mu, data.dt), y.reshape(-1)
+
+
+def test_functional_residuals_match_the_greedy_residual(small_pendulum_data, monkeypatch):
+    from sympredict.greedy import functional_residuals
+
+    fun, y = _pendulum_functionals(small_pendulum_data)
+    res = greedy_interpolation(fun, y, max_centers=200, tol=0.0)
+    direct = functional_residuals(fun, y, res.selected, res.coef)
+    # the greedy's Newton-form residual and the directly evaluated one agree to round-off
+    assert abs(np.abs(direct).max() - res.history.train_max_residual[-1]) <= 1e-6 * res.history.train_max_residual[-1] + 1e-9
+    np.testing.assert_allclose(direct[res.selected], 0.0, atol=1e-8)
+    # the NumPy fallback computes the same numbers
+    monkeypatch.setattr(_fastkernels, "HAVE_NUMBA", False)
+    fun2, _ = _pendulum_functionals(small_pendulum_data)
+    np.testing.assert_allclose(functional_residuals(fun2, y, res.selected, res.coef), direct, rtol=0, atol=1e-9)
+
+
+def test_gram_rows_equal_columns(rng):
+    for state in (IMQ(0.5), Matern32(0.7), Matern52(0.6)):
+        kernel = ProductKernel(state, IMQ(1.0), IMQ(2.0))
+        f = HBFunctionals(kernel, rng.normal(size=(700, 4)), rng.normal(size=(700, 1)), rng.uniform(0.1, 0.2, 700))
+        g = HBFunctionals(kernel, rng.normal(size=(30, 4)), rng.normal(size=(30, 1)), rng.uniform(0.1, 0.2, 30))
+        idx = rng.integers(0, g.n_functionals, 9)
+        rows = f.gram_rows(g, idx, out=np.empty((9, f.n_functionals)))
+        for k, i in enumerate(idx):
+            np.testing.assert_array_equal(rows[k], f.column(g.representer(i), np.empty(f.n_functionals)))
+
+
+def test_keep_basis_and_memory_message_offers_float32(small_pendulum_data):
+    fun, y = _pendulum_functionals(small_pendulum_data)
+    res = greedy_interpolation(fun, y, max_centers=50, keep_basis=True)
+    assert res.basis.shape == (50, fun.n_functionals)
+    # Newton-basis values at the selected functionals are the Cholesky factor
+    np.testing.assert_allclose(res.basis[:, res.selected].T, res.chol, atol=1e-12)
+    need = 8 * 300 * fun.n_functionals
+    with pytest.raises(ValueError, match="basis_dtype='float32'") as info:
+        greedy_interpolation(fun, y, max_centers=300, memory_limit=0.6 * need)
+    assert "max_centers <= " in str(info.value) and "training functionals" in str(info.value)
+    with pytest.raises(ValueError, match="basis_dtype"):
+        greedy_interpolation(fun, y, max_centers=5, basis_dtype="float16")
+
+
+def test_float32_basis_against_float64(small_pendulum_data):
+    """Half the memory; accurate while the power function stays well above float32 round-off."""
+    from sympredict.greedy import functional_residuals
+
+    fun, y = _pendulum_functionals(small_pendulum_data)
+    r64 = greedy_interpolation(fun, y, max_centers=60, tol=0.0)
+    r32 = greedy_interpolation(fun, y, max_centers=60, tol=0.0, basis_dtype="float32")
+    np.testing.assert_array_equal(r32.selected[:20], r64.selected[:20])
+    e64 = np.abs(functional_residuals(fun, y, r64.selected, r64.coef)).max()
+    e32 = np.abs(functional_residuals(fun, y, r32.selected, r32.coef)).max()
+    assert e32 <= 1.5 * e64
+    # the tracked residual is the model's residual (checked by direct evaluation)
+    assert abs(e32 - r32.history.train_max_residual[-1]) <= 1e-3 * e32
+
+
+def test_active_set_on_all_points_is_the_exact_greedy(small_pendulum_data):
+    from sympredict.greedy import active_set_greedy
+
+    fun, y = _pendulum_functionals(small_pendulum_data)
+    n_points = len(fun.points)
+    exact = greedy_interpolation(fun, y, max_centers=600, tol=2e-3)
+    fast = active_set_greedy(fun, y, max_centers=600, tol=2e-3, margin=1.0, initial_points=n_points)
+    np.testing.assert_array_equal(fast.selected, exact.selected)
+    np.testing.assert_allclose(fast.coef, exact.coef, rtol=1e-9, atol=1e-9 * np.abs(exact.coef).max())
+    assert fast.history.stop_reason == exact.history.stop_reason == "tol"
+
+
+def test_active_set_reaches_tol_over_all_functionals(small_pendulum_data):
+    from sympredict.greedy import active_set_greedy, functional_residuals
+
+    fun, y = _pendulum_functionals(small_pendulum_data)
+    tol = 1e-3
+    res = active_set_greedy(fun, y, max_centers=800, tol=tol, initial_points=200, refresh_every=40, max_new_points=100)
+    assert res.history.stop_reason == "tol"
+    direct = functional_residuals(fun, y, res.selected, res.coef)
+    assert np.abs(direct).max() <= tol
+    assert res.history.train_max_residual[-1] == pytest.approx(np.abs(direct).max(), rel=1e-6)
+    assert len(np.unique(res.selected)) == len(res.selected)
+
+
+def test_predictor_fast_training(small_pendulum_data, rng):
+    d = small_pendulum_data
+    kw = dict(mu_kernel=IMQ(2.0), dt_kernel=IMQ(5.0), max_centers=800, tol=1e-3)
+    fast = SymplecticKernelPredictor(IMQ(0.15), training="fast", **kw).fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
+    exact = SymplecticKernelPredictor(IMQ(0.15), **kw).fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
+    assert fast.history_.stop_reason == "tol" and fast.history_.train_max_residual[-1] <= 1e-3
+    x, mu, dt = _queries(rng, 8)
+    a, b = fast.rollout(x, 30, mu=mu, dt=dt), exact.rollout(x, 30, mu=mu, dt=dt)
+    assert np.abs(a - b).max() < 1e-2
+    with pytest.raises(ValueError, match="training"):
+        SymplecticKernelPredictor(IMQ(0.15), training="quick", **kw).fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
