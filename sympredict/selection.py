@@ -84,9 +84,11 @@ class SelectionResult:
     complete: bool = True
     table: list = field(default_factory=list)
 
-    def rank(self) -> tuple:
-        """Sort key, smaller is better: complete candidates first, then by ``E_val``; non-finite scores last."""
-        return (not np.isfinite(self.score), not self.complete, self.score if np.isfinite(self.score) else np.inf)
+    def rank(self, prefer_complete: bool = False) -> tuple:
+        """Sort key, smaller is better: by ``E_val``, non-finite scores last; with ``prefer_complete``,
+        candidates that reached ``m_star`` before those that stopped early."""
+        finite = bool(np.isfinite(self.score))
+        return (not finite, prefer_complete and not self.complete, self.score if finite else np.inf)
 
 
 def select_kernels(
@@ -96,6 +98,7 @@ def select_kernels(
     mu_kernels: Sequence[Optional[RadialKernel]] = (None,),
     dt_kernels: Sequence[Optional[RadialKernel]] = (None,),
     m_star: int = 300,
+    prefer_complete: bool = False,
 ) -> SelectionResult:
     """Grid search over kernel tuples by validation residual at ``m_star`` centres.
 
@@ -107,6 +110,10 @@ def select_kernels(
         Candidates per factor (``None`` drops a factor).
     m_star
         Number of greedy centres at which candidates are compared.
+    prefer_complete
+        Rank candidates whose greedy stopped early (power breakdown) behind
+        those that reached ``m_star`` (:meth:`SelectionResult.rank`).  Use it
+        when ``m_star`` is close to the final budget.
 
     Returns
     -------
@@ -117,11 +124,14 @@ def select_kernels(
     Cost: one greedy to ``m_star`` per candidate, ``O(m_star^2 (N + N_val))`` each.
     A candidate whose greedy stops early on a power breakdown (the kernel
     matrix is numerically singular: the kernel cannot use more centres) is
-    scored at its last step but ranked behind every candidate that reached
-    ``m_star``: the final model is trained with at least ``m_star`` centres,
-    and on the pendulum such a kernel (IMQ eps 0.1, stopped at 791 of 1500)
-    gave 8x larger trajectory errors than the complete runner-up of equal
-    ``E_val``.  Non-finite scores never win.
+    scored at its last step.  That suits small ``m_star`` and cases where
+    every kernel breaks down early anyway (the reduced wave: the best kernel
+    stops at 273 centres, the best complete one at 383 with twice its
+    error).  Near the final budget, ``prefer_complete`` ranks it behind every
+    candidate that reached ``m_star``: on the pendulum such a kernel (IMQ
+    eps 0.1, 786 of 1000 centres) had the lowest ``E_val(1000)``, but its
+    final model stopped at 791 of 1500 centres with 8x larger trajectory
+    errors than the complete runner-up's.  Non-finite scores never win.
     """
     mu = None if data.mu.shape[1] == 0 else data.mu
     vmu = None if validation.mu.shape[1] == 0 else validation.mu
@@ -152,7 +162,7 @@ def select_kernels(
         logger.info(f"{row['state']}, {row['mu']}, {row['dt']}: E_val({model.n_centers_}) = {score:.3e}"
                     + ("" if complete else f" (stopped early: {model.history_.stop_reason})"))
         candidate = SelectionResult(state, mu_k, dt_k, score, complete)
-        if np.isfinite(score) and (best is None or candidate.rank() < best.rank()):
+        if np.isfinite(score) and (best is None or candidate.rank(prefer_complete) < best.rank(prefer_complete)):
             best = candidate
     if best is None:
         raise ValueError("no candidate produced a finite validation residual")
@@ -173,6 +183,7 @@ def refine_kernel_shapes(
     m_star: int,
     factor: float = 2.0,
     max_sweeps: int = 3,
+    prefer_complete: bool = False,
 ) -> SelectionResult:
     """Coordinate search of the shape parameters around ``start`` at a larger ``m_star``.
 
@@ -180,8 +191,8 @@ def refine_kernel_shapes(
     centres resolve little); this refines the winner where the final model
     lives.  Each sweep tries every factor's shape times ``1/factor`` and
     ``factor`` (the family kept), one factor at a time, keeping any candidate
-    that ranks better (:meth:`SelectionResult.rank`: complete runs first, then
-    lower ``E_val(m_star)``); it stops after a sweep without improvement
+    that ranks better (:meth:`SelectionResult.rank`: lower ``E_val(m_star)``,
+    with ``prefer_complete`` complete runs first); it stops after a sweep without improvement
     or after ``max_sweeps`` sweeps.
 
     Returns
@@ -202,7 +213,7 @@ def refine_kernel_shapes(
     def score(tup):
         key = tuple(repr(k) for k in tup)
         if key not in scored:
-            scored[key] = select_kernels(data, validation, [tup[0]], [tup[1]], [tup[2]], m_star=m_star)
+            scored[key] = select_kernels(data, validation, [tup[0]], [tup[1]], [tup[2]], m_star=m_star, prefer_complete=prefer_complete)
         return scored[key]
 
     best = score((start.state, start.mu, start.dt))
@@ -216,7 +227,7 @@ def refine_kernel_shapes(
                 tup = list(current)
                 tup[i] = type(current[i])(current[i].eps * f)
                 cand = score(tuple(tup))
-                if cand.rank() < best.rank():
+                if cand.rank(prefer_complete) < best.rank(prefer_complete):
                     best, improved = cand, True
         logger.info(f"shape refinement sweep {sweep + 1}: {best.state!r}, {best.mu!r}, {best.dt!r}: E_val({m_star}) = {best.score:.3e}")
         if not improved:

@@ -68,8 +68,10 @@ def test_select_kernels_picks_the_smallest_validation_residual(small_pendulum_da
     assert len(scores) == 3
     for row in result.table:
         assert row["complete"] == (row["n_centers"] >= 60)
-    complete = {row["state"]: row["E_val"] for row in result.table if row["complete"]}
-    assert result.score == min(complete.values()) == scores[repr(result.state)]
+    assert result.score == min(scores.values()) == scores[repr(result.state)]
+    preferred = select_kernels(data, val, [IMQ(0.05), IMQ(0.15), IMQ(5.0)], [IMQ(2.0)], [IMQ(5.0)], m_star=60, prefer_complete=True)
+    complete = {row["state"]: row["E_val"] for row in preferred.table if row["complete"]}
+    assert preferred.score == min(complete.values() or scores.values())
     assert result.state != IMQ(5.0)  # a far too narrow kernel cannot interpolate 60 centres' worth of data
     with pytest.raises(ValueError, match="must not contain None"):
         select_kernels(data, val, [IMQ(0.15)], [IMQ(2.0)], [None], m_star=10)
@@ -80,14 +82,15 @@ def test_selection_ranks_complete_runs_before_early_stops():
     complete = SelectionResult(IMQ(0.2), None, None, 1e-4, complete=True)
     worse = SelectionResult(IMQ(0.3), None, None, 1e-3, complete=True)
     broken = SelectionResult(IMQ(0.4), None, None, float("nan"), complete=True)
-    assert sorted([broken, early, worse, complete], key=SelectionResult.rank) == [complete, worse, early, broken]
+    assert sorted([broken, early, worse, complete], key=lambda r: r.rank(prefer_complete=True)) == [complete, worse, early, broken]
+    assert sorted([broken, early, worse, complete], key=SelectionResult.rank) == [early, complete, worse, broken]
 
 
 def test_refine_kernel_shapes_moves_by_factor_two_and_never_gets_worse(small_pendulum_data):
     data, val = small_pendulum_data.split(0.2, seed=1)
     start = select_kernels(data, val, [IMQ(0.6)], [IMQ(2.0)], [IMQ(5.0)], m_star=80)
-    refined = refine_kernel_shapes(data, val, start, m_star=80, max_sweeps=2)
-    assert refined.rank() <= start.rank()
+    refined = refine_kernel_shapes(data, val, start, m_star=80, max_sweeps=2, prefer_complete=True)
+    assert refined.rank(True) <= start.rank(True)
     assert refined.state.eps < 0.6  # 0.6 is too narrow for this data: the search moves towards flatter kernels
     for row in refined.table:  # every candidate is the start scaled by powers of two, per factor
         for key, eps0 in (("state", 0.6), ("mu", 2.0), ("dt", 5.0)):

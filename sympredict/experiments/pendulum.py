@@ -132,7 +132,9 @@ def select_pendulum_kernels(preset: PendulumPreset, seed: int = 0) -> dict:
        centres on a ``select_n_grid`` energy-bounded grid; the tuple with the
        smallest ``E_val`` wins.
     2. Refinement: coordinate search of the winner's shapes (factor 2) at
-       ``select_m_refine`` centres (:func:`~sympredict.selection.refine_kernel_shapes`).
+       ``select_m_refine`` centres (:func:`~sympredict.selection.refine_kernel_shapes`),
+       candidates whose greedy breaks down before ``select_m_refine`` ranked last
+       (``prefer_complete``).
 
     The validation samples (seed ``seed + 2``) are disjoint from scenario A's
     validation (``seed + 1``) and test (``seed``) draws, and their lengths and
@@ -162,11 +164,13 @@ def select_pendulum_kernels(preset: PendulumPreset, seed: int = 0) -> dict:
         for family in preset.select_families:
             r = select_kernels(data, val, *(kernel_grid((family,), eps) for eps in preset.select_eps), m_star=preset.select_m_screen)
             table += r.table
-            if screen is None or r.rank() < screen.rank():
+            if screen is None or r.score < screen.score:
                 screen = r
         screen.table = table
     with logger.block(f"kernel selection: shape refinement at m* = {preset.select_m_refine}"):
-        refine = refine_kernel_shapes(data, val, screen, m_star=preset.select_m_refine, max_sweeps=preset.select_sweeps)
+        # m* = 1000 is near the final budget: a kernel that breaks down before it cannot use that budget
+        refine = refine_kernel_shapes(data, val, screen, m_star=preset.select_m_refine, max_sweeps=preset.select_sweeps,
+                                      prefer_complete=True)
     seconds = time.perf_counter() - t0
     summary = {
         "n_samples": len(data),
@@ -177,7 +181,7 @@ def select_pendulum_kernels(preset: PendulumPreset, seed: int = 0) -> dict:
         "screen_E_val": screen.score,
         "best_per_family": {
             family: min((row for row in screen.table if row["state"].startswith(KERNEL_FAMILIES[family].__name__ + "(")),
-                        key=lambda row: (not row["complete"], row["E_val"]))
+                        key=lambda row: row["E_val"])
             for family in preset.select_families
         },
         "chosen": [repr(refine.state), repr(refine.mu), repr(refine.dt)],
