@@ -459,22 +459,49 @@ def greedy_interpolation(
     tmp = np.empty(n)
     best_train = train_hist[0]
     stop_reason = "max_centers" if max_centers < n else "exhausted"
+    # With numba, the vector work after the matrix-vector product is one fused
+    # pass (sympredict._fastkernels.greedy_update, bit-identical to the NumPy code).
+    from sympredict import _fastkernels
+
+    fused = _fastkernels.HAVE_NUMBA and criterion == "f" and y.shape[1] == 1
+    zeros = np.zeros(n) if fused else None
+    next_sel = None
     t0 = time.perf_counter()
     m = 0
     while m < max_centers:
-        # res_abs holds |r| of the current residual (computed once per step, below)
-        score = res_abs if criterion == "f" else p2.copy()
-        score[p2 <= breakdown] = -np.inf
-        j = int(np.argmax(score))
-        if not np.isfinite(score[j]):
+        if next_sel is None:
+            # res_abs holds |r| of the current residual (computed once per step, below)
+            score = res_abs if criterion == "f" else p2.copy()
+            score[p2 <= breakdown] = -np.inf
+            j = int(np.argmax(score))
+            best = score[j]
+        else:
+            j, best = next_sel
+        if not np.isfinite(best):
             stop_reason = "power"
             break
-        if res_abs[j] <= tol and criterion == "f":
+        if best <= tol and criterion == "f":
             stop_reason = "tol"
             break
         rep = functionals.representer(j)
         coeffs_j = basis[:m, j].astype(float)
-        if single:
+        if fused:
+            if single:
+                row = functionals.column(rep, out=row64)
+                t = _matvec_t(basis, m, coeffs_j) if m else zeros
+            else:
+                row = functionals.column(rep, out=basis[m])
+                t = basis[:m].T @ coeffs_j if m else zeros
+            pj = np.sqrt(p2[j])
+            b = res[j] / pj
+            max_abs, next_j, next_best = _fastkernels.greedy_update(row, t, 1.0 / pj, b[0], res[:, 0], p2, j, breakdown)
+            next_sel = (next_j, next_best)
+            if single:
+                basis[m] = row
+            chol[m, :m] = coeffs_j
+            chol[m, m] = pj
+            beta[m] = b
+        elif single:
             row = functionals.column(rep, out=row64)
             if m:
                 row -= _matvec_t(basis, m, coeffs_j)
@@ -482,22 +509,23 @@ def greedy_interpolation(
             row = functionals.column(rep, out=basis[m])
             if m:
                 row -= basis[:m].T @ coeffs_j
-        pj = np.sqrt(p2[j])
-        row *= 1.0 / pj
-        if single:
-            basis[m] = row
-        chol[m, :m] = coeffs_j
-        chol[m, m] = pj
-        b = res[j] / pj
-        beta[m] = b
-        if y.shape[1] == 1:
-            res[:, 0] -= b[0] * row
-        else:
-            res -= row[:, None] * b
-        res[j] = 0.0
-        np.square(row, out=tmp)
-        p2 -= tmp
-        p2[j] = 0.0
+        if not fused:
+            pj = np.sqrt(p2[j])
+            row *= 1.0 / pj
+            if single:
+                basis[m] = row
+            chol[m, :m] = coeffs_j
+            chol[m, m] = pj
+            b = res[j] / pj
+            beta[m] = b
+            if y.shape[1] == 1:
+                res[:, 0] -= b[0] * row
+            else:
+                res -= row[:, None] * b
+            res[j] = 0.0
+            np.square(row, out=tmp)
+            p2 -= tmp
+            p2[j] = 0.0
         if n_val:
             if single:
                 vrow = val_functionals.column(rep, out=vrow64)
@@ -516,8 +544,11 @@ def greedy_interpolation(
         sel_power[m] = pj
         m += 1
         elapsed[m - 1] = time.perf_counter() - t0
-        _abs_residual(res, out=res_abs)
-        train_hist.append(res_abs.max())
+        if fused:
+            train_hist.append(max_abs)
+        else:
+            _abs_residual(res, out=res_abs)
+            train_hist.append(res_abs.max())
         best_train = min(best_train, train_hist[-1])
         if train_hist[-1] > divergence_factor * best_train:
             stop_reason = "diverged"
@@ -568,7 +599,7 @@ def active_set_greedy(
     memory_limit: Optional[float] = None,
     log_every: int = 100,
     initial_points: int = 8192,
-    refresh_every: int = 150,
+    refresh_every: int = 200,
     max_new_points: int = 4096,
     margin: float = 0.7,
     seed: int = 0,

@@ -269,3 +269,31 @@ def test_predictor_fast_training(small_pendulum_data, rng):
     assert np.abs(a - b).max() < 1e-2
     with pytest.raises(ValueError, match="training"):
         SymplecticKernelPredictor(IMQ(0.15), training="quick", **kw).fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
+
+
+@needs_numba
+def test_fused_greedy_update_is_bit_identical_to_numpy(small_pendulum_data, monkeypatch):
+    """The exact f-greedy gives the same bits with and without the compiled vector pass."""
+    from sympredict.data import mixed_variables
+    from sympredict.systems.pendulum import Pendulum, random_flow_map_data
+
+    fun, y = _pendulum_functionals(small_pendulum_data)
+    val = random_flow_map_data(Pendulum(), 150, seed=3)
+    vxi, vy = mixed_variables(val.x0, val.x1, val.dt)
+    vfun = HBFunctionals(fun.kernel, vxi, val.mu, val.dt)
+    fused = greedy_interpolation(fun, y, max_centers=250, tol=0.0, validation=(vfun, vy.reshape(-1)))
+    monkeypatch.setattr(_fastkernels, "HAVE_NUMBA", False)
+    plain = greedy_interpolation(fun, y, max_centers=250, tol=0.0, validation=(vfun, vy.reshape(-1)))
+    np.testing.assert_array_equal(fused.selected, plain.selected)
+    np.testing.assert_array_equal(fused.coef, plain.coef)
+    np.testing.assert_array_equal(fused.chol, plain.chol)
+    np.testing.assert_array_equal(fused.history.train_max_residual, plain.history.train_max_residual)
+    np.testing.assert_array_equal(fused.history.val_max_residual, plain.history.val_max_residual)
+    # and the tolerance and power stops fire at the same step
+    for kw in ({"tol": 1e-2}, {"tol": 0.0, "power_tol": 1e-3}):
+        monkeypatch.setattr(_fastkernels, "HAVE_NUMBA", True)
+        a = greedy_interpolation(fun, y, max_centers=400, **kw)
+        monkeypatch.setattr(_fastkernels, "HAVE_NUMBA", False)
+        b = greedy_interpolation(fun, y, max_centers=400, **kw)
+        assert a.history.stop_reason == b.history.stop_reason
+        np.testing.assert_array_equal(a.selected, b.selected)
