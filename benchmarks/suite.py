@@ -258,6 +258,23 @@ def section_rollout(model, batch: int = 1000, steps_fast: int = 100, steps_numpy
         out["numba_vs_numpy_max_diff"] = float(np.abs(fast - ref).max())
         out["speedup_batch"] = out["numba"]["traj_steps_per_s"] / out["numpy"]["traj_steps_per_s"]
     sur = model.surrogate_
+    if _fastkernels.HAVE_NUMBA:
+        # compute bound: passes over the centres per step, time per centre visit against the
+        # vectorised kernel-factor loop alone (one division, one square root per centre)
+        stats = {}
+        w = sur.weights(mu[:, None], dt)
+        _fastkernels.newton_rollout(x0, w, dt, sur.layout(), sur.kernel.state.name, sur.kernel.state.eps, 50, 20,
+                                    parallel=False, stats=stats)
+        t1 = median_time(lambda: _fastkernels.newton_rollout(x0, w, dt, sur.layout(), sur.kernel.state.name,
+                                                             sur.kernel.state.eps, 50, 20, parallel=False), 3)
+        visits = float(stats["passes"].sum()) * sur.n_centers
+        t_factor = _fastkernels.factor_throughput()
+        out["compute_bound"] = {
+            "passes_per_step": float(stats["passes"].mean()) / 20,
+            "ns_per_centre_visit_1_thread": 1e9 * t1 / visits,
+            "ns_per_factor_evaluation_1_thread": 1e9 * t_factor,
+            "ratio": t1 / visits / t_factor,
+        }
     _, _, floor = sur.gradient_hessian(x0[sub], sur.weights(mu[sub, None], dt[sub]), with_floor=True)
     out["gradient_roundoff_floor"] = float(floor.max())
     out["max_abs_coef"] = float(np.abs(sur.coef).max())
@@ -513,6 +530,11 @@ def markdown(results: dict) -> str:
                              f"{x['traj_steps_per_s']:,.0f} traj-steps/s | |")
                 lines.append(f"| latency {backend}, 1 trajectory | {x['latency_ms_per_step_in_rollout']:.3f} ms/step in a rollout, "
                              f"{x['latency_ms_per_step_call']:.3f} ms per step() call | |")
+        if "compute_bound" in r:
+            c = r["compute_bound"]
+            lines.append(f"| compiled Newton pass, 1 thread | {c['ns_per_centre_visit_1_thread']:.2f} ns per centre visit "
+                         f"({c['passes_per_step']:.2f} passes per step); {c['ratio']:.1f}x the kernel-factor loop alone "
+                         f"({c['ns_per_factor_evaluation_1_thread']:.2f} ns) | |")
         if "numba_vs_numpy_max_diff" in r:
             lines.append(f"| numba vs NumPy trajectories (200 x 20 steps) | max diff {r['numba_vs_numpy_max_diff']:.1e} | "
                          f"NumPy batch vs single {r['numpy_batch_vs_single_max_diff']:.1e}, gradient floor {r['gradient_roundoff_floor']:.1e} |")

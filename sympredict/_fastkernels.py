@@ -32,6 +32,7 @@ iterations.
 from __future__ import annotations
 
 import math
+from typing import Optional
 
 import numpy as np
 
@@ -411,7 +412,7 @@ if HAVE_NUMBA:  # noqa: C901 - the compiled definitions
         return 3, f_norm, max_iter
 
     @_jit
-    def _rollout_one(i, x0, W, h, cT, seg, kind, eps, max_iter, chunk, traj, codes, fail_step, fail_iter, resid):
+    def _rollout_one(i, x0, W, h, cT, seg, kind, eps, max_iter, chunk, traj, codes, fail_step, fail_iter, resid, passes):
         dim = x0.shape[1]
         n = dim // 2
         sc = (np.empty((dim, chunk)), np.empty(chunk), np.empty(chunk), np.empty(chunk), np.empty(chunk), np.empty(chunk))
@@ -431,6 +432,7 @@ if HAVE_NUMBA:  # noqa: C901 - the compiled definitions
         resid[i] = 0.0
         for k in range(n_steps):
             code, r, it = _solve_one(traj[i, k], W[i], h[i], cT, seg, kind, eps, max_iter, traj[i, k + 1], sc, grad, hqp, jac, rhs, p, delta, xi)
+            passes[i] += it + 2  # the explicit guess's gradient pass and it + 1 Newton passes
             if code != 0:
                 codes[i] = code
                 fail_step[i] = k
@@ -442,14 +444,14 @@ if HAVE_NUMBA:  # noqa: C901 - the compiled definitions
                 return
 
     @numba.njit(cache=True, nogil=True, parallel=True)
-    def _rollout_parallel(x0, W, h, cT, seg, kind, eps, max_iter, chunk, traj, codes, fail_step, fail_iter, resid):
+    def _rollout_parallel(x0, W, h, cT, seg, kind, eps, max_iter, chunk, traj, codes, fail_step, fail_iter, resid, passes):
         for i in numba.prange(x0.shape[0]):
-            _rollout_one(i, x0, W, h, cT, seg, kind, eps, max_iter, chunk, traj, codes, fail_step, fail_iter, resid)
+            _rollout_one(i, x0, W, h, cT, seg, kind, eps, max_iter, chunk, traj, codes, fail_step, fail_iter, resid, passes)
 
     @_jit
-    def _rollout_serial(x0, W, h, cT, seg, kind, eps, max_iter, chunk, traj, codes, fail_step, fail_iter, resid):
+    def _rollout_serial(x0, W, h, cT, seg, kind, eps, max_iter, chunk, traj, codes, fail_step, fail_iter, resid, passes):
         for i in range(x0.shape[0]):
-            _rollout_one(i, x0, W, h, cT, seg, kind, eps, max_iter, chunk, traj, codes, fail_step, fail_iter, resid)
+            _rollout_one(i, x0, W, h, cT, seg, kind, eps, max_iter, chunk, traj, codes, fail_step, fail_iter, resid, passes)
 
 
     @numba.njit(cache=True, nogil=True, parallel=True)
@@ -580,7 +582,7 @@ CHUNK = 256
 
 
 def newton_rollout(x0, weights, dt, layout: CenterLayout, kernel_name: str, eps: float, max_iter: int, n_steps: int,
-                   *, weights_ordered: bool = False, parallel=None):
+                   *, weights_ordered: bool = False, parallel=None, stats: Optional[dict] = None):
     """``n_steps`` implicit symplectic-Euler steps for every instance, in compiled code.
 
     Parameters
@@ -604,6 +606,9 @@ def newton_rollout(x0, weights, dt, layout: CenterLayout, kernel_name: str, eps:
         Number of macro steps ``K``.
     parallel
         Run instances on numba's threads; default: when ``B >= 8``.
+    stats
+        If a dict, ``stats['passes']`` receives the passes over the centres per
+        instance (one per gradient or Newton evaluation), shape (B,).
 
     Returns
     -------
@@ -637,8 +642,11 @@ def newton_rollout(x0, weights, dt, layout: CenterLayout, kernel_name: str, eps:
     if parallel is None:
         parallel = b >= PARALLEL_MIN_BATCH
     fn = _rollout_parallel if parallel else _rollout_serial
+    passes = np.zeros(b, dtype=np.int64)
     fn(x0, weights, dt, layout.cT, layout.seg, KERNEL_KINDS[kernel_name], float(eps), int(max_iter), CHUNK,
-       traj, codes, fail_step, fail_iter, resid)
+       traj, codes, fail_step, fail_iter, resid, passes)
+    if stats is not None:
+        stats["passes"] = passes
     return traj, codes, fail_step, fail_iter, resid
 
 
@@ -770,3 +778,24 @@ def greedy_update(row, t, inv_pj: float, b: float, res, p2, j: int, breakdown: f
     max_abs = cmax.max() if not np.isnan(cmax).any() else np.nan
     k = int(np.argmax(cbest))  # first chunk with the best score: first index overall
     return float(max_abs), int(carg[k]), float(cbest[k])
+
+
+def factor_throughput(n: int = 1 << 20, eps: float = 0.2, repeats: int = 5) -> float:
+    """Seconds per IMQ factor evaluation ``(A, B, C)`` in the compiled, vectorised loop (median).
+
+    The floor of any evaluation of the surrogate's derivatives: one division,
+    one square root and a few multiplications per centre.  Benchmarks compare
+    the compiled Newton pass's time per centre with it.
+    """
+    _check_available()
+    import time
+
+    r2 = np.random.default_rng(0).uniform(0.0, 4.0, n)
+    fA, fB, fC = np.empty(n), np.empty(n), np.empty(n)
+    _chunk_factors(0, eps, r2, fA, fB, fC, n)
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        _chunk_factors(0, eps, r2, fA, fB, fC, n)
+        times.append(time.perf_counter() - t0)
+    return float(np.median(times)) / n
