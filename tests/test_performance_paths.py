@@ -297,3 +297,20 @@ def test_fused_greedy_update_is_bit_identical_to_numpy(small_pendulum_data, monk
         b = greedy_interpolation(fun, y, max_centers=400, **kw)
         assert a.history.stop_reason == b.history.stop_reason
         np.testing.assert_array_equal(a.selected, b.selected)
+
+
+@needs_numba
+def test_matvec_and_rollout_statistics(small_pendulum_model, rng):
+    basis = rng.standard_normal((37, 50001))
+    c = rng.standard_normal(37)
+    for dtype in (np.float64, np.float32):
+        b = basis.astype(dtype)
+        got = _fastkernels.matvec_t(b, 33, c)
+        np.testing.assert_allclose(got, b[:33].astype(float).T @ c[:33], rtol=1e-12, atol=1e-12)
+    sur = small_pendulum_model.surrogate_
+    x, mu, dt = _queries(rng, 6)
+    stats = {}
+    _fastkernels.newton_rollout(x, sur.weights(mu[:, None], dt), dt, sur.layout(), "imq", sur.kernel.state.eps, 50, 4, stats=stats)
+    # per step: one gradient pass for the explicit guess, at least one Newton pass
+    assert np.all(stats["passes"] >= 2 * 4) and np.all(stats["passes"] <= 4 * 51)
+    assert 0 < _fastkernels.factor_throughput(n=1 << 12, repeats=1) < 1e-6
