@@ -545,6 +545,53 @@ if HAVE_NUMBA:  # noqa: C901 - the compiled definitions
             _greedy_update_chunk(ch, row, t, inv_pj, b, res, p2, j, breakdown, chunk, cmax, carg, cbest)
 
 
+    @_jit
+    def _hb_column_imq2_range(p0, p1, points, mu, dt, xq, muq, dtq, b, e2, c3, emu, edt, has_mu, has_dt, out):
+        d_mu = mu.shape[1]
+        for p in range(p0, p1):
+            d0 = points[p, 0] - xq[0]
+            d1 = points[p, 1] - xq[1]
+            r = math.sqrt(d0 * d0 + d1 * d1)
+            inv_u = 1.0 / (1.0 + e2 * r * r)
+            sq = math.sqrt(inv_u)
+            A = -e2 * inv_u * sq
+            B = c3 * inv_u * inv_u * sq
+            w = 1.0
+            if has_mu:
+                m2 = 0.0
+                for a in range(d_mu):
+                    dm = mu[p, a] - muq[a]
+                    m2 = dm * dm if a == 0 else m2 + dm * dm
+                t = emu * math.sqrt(m2)
+                w = 1.0 / math.sqrt(1.0 + t * t)
+            if has_dt:
+                dd = dt[p] - dtq
+                t = edt * math.sqrt(dd * dd)
+                kd = 1.0 / math.sqrt(1.0 + t * t)
+                w = w * kd if has_mu else kd
+            g = (-(w * B)) * (d1 if b == 1 else d0)
+            v0 = d0 * g
+            v1 = d1 * g
+            if b == 0:
+                v0 -= w * A
+            else:
+                v1 -= w * A
+            out[2 * p] = v0
+            out[2 * p + 1] = v1
+
+    @_jit
+    def _hb_column_imq2_serial(points, mu, dt, xq, muq, dtq, b, e2, c3, emu, edt, has_mu, has_dt, out):
+        _hb_column_imq2_range(0, points.shape[0], points, mu, dt, xq, muq, dtq, b, e2, c3, emu, edt, has_mu, has_dt, out)
+
+    @numba.njit(cache=True, nogil=True, parallel=True)
+    def _hb_column_imq2_parallel(points, mu, dt, xq, muq, dtq, b, e2, c3, emu, edt, has_mu, has_dt, out):
+        n_pts = points.shape[0]
+        block = 32768
+        for k in numba.prange((n_pts + block - 1) // block):
+            _hb_column_imq2_range(k * block, min(n_pts, (k + 1) * block), points, mu, dt, xq, muq, dtq, b, e2, c3,
+                                  emu, edt, has_mu, has_dt, out)
+
+
 def _check_available():
     if not HAVE_NUMBA:
         raise ImportError("the compiled backend needs numba: pip install 'sympredict[fast]' (or numba>=0.59)")
@@ -725,6 +772,9 @@ def gradients(xi, group, group_weights, layout: CenterLayout, kernel_name: str, 
     return out
 
 
+#: Whether the greedy's compiled O(N) passes (column, vector update) run on numba's threads.
+GREEDY_PARALLEL = False
+
 #: Entries per chunk of :func:`greedy_update` (one parallel task).
 UPDATE_CHUNK = 65536
 
@@ -799,3 +849,34 @@ def factor_throughput(n: int = 1 << 20, eps: float = 0.2, repeats: int = 5) -> f
         _chunk_factors(0, eps, r2, fA, fB, fC, n)
         times.append(time.perf_counter() - t0)
     return float(np.median(times)) / n
+
+
+def hb_column_supported(kernel, dim: int, d_mu: int) -> bool:
+    """Whether :func:`hb_column` reproduces ``HBFunctionals.column`` bit for bit.
+
+    The same operations in the same order as the NumPy column are only
+    guaranteed where NumPy's own sums are sequential: ``2n = 2``, at most two
+    parameter components, and IMQ factors (no ``exp``, whose NumPy and libm
+    versions may differ in the last bit).
+    """
+    if not HAVE_NUMBA or dim != 2 or d_mu > 2:
+        return False
+    return kernel.state.name == "imq" and all(k is None or k.name == "imq" for k in (kernel.mu, kernel.dt))
+
+
+def hb_column(kernel, points, mu, dt, representer, out: np.ndarray) -> np.ndarray:
+    """The Gramian column of one state-derivative functional, compiled (see :func:`hb_column_supported`).
+
+    ``out[2 p + a] = w_p (-B d_pa d_pb - A delta_ab)`` with ``d_p = xi_p - xi_q``,
+    ``w_p = k_mu(mu_p, mu_q) k_dT(dT_p, dT_q)``; one pass, no temporaries.
+    ``O(N)``; bit-identical to :meth:`sympredict.greedy.HBFunctionals.column`.
+    """
+    xq, muq, dtq, b = representer
+    e2 = kernel.state.eps**2
+    c3 = 3.0 * e2 * e2
+    emu = kernel.mu.eps if kernel.mu is not None else 0.0
+    edt = kernel.dt.eps if kernel.dt is not None else 0.0
+    fn = _hb_column_imq2_parallel if (GREEDY_PARALLEL and len(points) > 65536) else _hb_column_imq2_serial
+    fn(points, mu, dt, np.ascontiguousarray(xq, dtype=np.float64), np.ascontiguousarray(muq, dtype=np.float64),
+       float(dtq), int(b), e2, c3, emu, edt, kernel.mu is not None, kernel.dt is not None, out)
+    return out

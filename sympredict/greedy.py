@@ -48,6 +48,7 @@ import numpy as np
 from pymor.core.logger import getLogger
 from scipy.linalg import solve_triangular
 
+from sympredict import _fastkernels
 from sympredict.kernels import ProductKernel
 
 __all__ = [
@@ -121,6 +122,8 @@ class HBFunctionals(_AugmentedPoints):
         super().__init__(kernel, xi, mu, dt)
         self.dim = self.points.shape[1]
         self.n_functionals = len(self.points) * self.dim
+        # compiled column where it is bit-identical to the NumPy one (2n = 2, IMQ factors)
+        self._compiled_column = _fastkernels.hb_column_supported(kernel, self.dim, self.mu.shape[1])
 
     def diagonal(self) -> np.ndarray:
         # r = 0: d/dx_a d/dy_a k = -A(0); the parameter factors are 1 on the diagonal
@@ -136,6 +139,8 @@ class HBFunctionals(_AugmentedPoints):
 
         ``out`` has shape (N,) and is filled in chunks of points.
         """
+        if self._compiled_column:
+            return _fastkernels.hb_column(self.kernel, self.points, self.mu, self.dt, representer, out)
         xi_q, mu_q, dt_q, b = representer
         out2 = out.reshape(-1, self.dim)
         for sl in self._chunks():
@@ -503,7 +508,8 @@ def greedy_interpolation(
                 t = basis[:m].T @ coeffs_j if m else zeros
             pj = np.sqrt(p2[j])
             b = res[j] / pj
-            max_abs, next_j, next_best = _fastkernels.greedy_update(row, t, 1.0 / pj, b[0], res[:, 0], p2, j, breakdown)
+            max_abs, next_j, next_best = _fastkernels.greedy_update(row, t, 1.0 / pj, b[0], res[:, 0], p2, j, breakdown,
+                                                                    parallel=_fastkernels.GREEDY_PARALLEL)
             next_sel = (next_j, next_best)
             if single:
                 basis[m] = row

@@ -314,3 +314,31 @@ def test_matvec_and_rollout_statistics(small_pendulum_model, rng):
     # per step: one gradient pass for the explicit guess, at least one Newton pass
     assert np.all(stats["passes"] >= 2 * 4) and np.all(stats["passes"] <= 4 * 51)
     assert 0 < _fastkernels.factor_throughput(n=1 << 12, repeats=1) < 1e-6
+
+
+@needs_numba
+def test_compiled_column_is_bit_identical(rng):
+    """The compiled Gramian column (2n = 2, IMQ factors) equals the NumPy column bit for bit."""
+    cases = [
+        (ProductKernel(IMQ(0.15), IMQ(2.0), IMQ(5.0)), 1),
+        (ProductKernel(IMQ(0.7), None, IMQ(3.0)), 1),
+        (ProductKernel(IMQ(3.3), IMQ(1.0), None), 2),
+        (ProductKernel(IMQ(1e-3)), 0),
+    ]
+    for kernel, d_mu in cases:
+        xi = rng.uniform(-3, 3, (5000, 2))
+        xi[:10] = xi[10:20]  # coincident points: r = 0
+        mu = rng.uniform(0.7, 0.8, (5000, d_mu))
+        dt = rng.choice([0.04, 0.05, 0.06], 5000)
+        fun = HBFunctionals(kernel, xi, mu, dt)
+        assert fun._compiled_column
+        for j in (0, 1, 21, 9999):
+            rep = fun.representer(j)
+            got = fun.column(rep, np.empty(fun.n_functionals))
+            fun._compiled_column = False
+            ref = fun.column(rep, np.empty(fun.n_functionals))
+            fun._compiled_column = True
+            np.testing.assert_array_equal(got, ref)
+    # not used where NumPy's sums are not sequential or exp enters
+    assert not HBFunctionals(ProductKernel(IMQ(0.5)), rng.normal(size=(5, 4)), np.zeros((5, 0)), np.ones(5))._compiled_column
+    assert not HBFunctionals(ProductKernel(Matern52(0.5)), rng.normal(size=(5, 2)), np.zeros((5, 0)), np.ones(5))._compiled_column
