@@ -139,7 +139,7 @@ class HBFunctionals(_AugmentedPoints):
 
         ``out`` has shape (N,) and is filled in chunks of points.
         """
-        if self._compiled_column:
+        if getattr(self, "_compiled_column", False):
             return _fastkernels.hb_column(self.kernel, self.points, self.mu, self.dt, representer, out)
         xi_q, mu_q, dt_q, b = representer
         out2 = out.reshape(-1, self.dim)
