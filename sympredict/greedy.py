@@ -326,6 +326,16 @@ def _kernel_coefficients(chol: np.ndarray, beta: np.ndarray) -> np.ndarray:
     return solve_triangular(chol, beta, lower=True, trans="T")
 
 
+def _finite_coefficients(coef: np.ndarray, targets: np.ndarray) -> np.ndarray:
+    """``coef``, or a ``ValueError`` when it overflowed (targets near the float64 limit)."""
+    if not np.all(np.isfinite(coef)):
+        raise ValueError(
+            f"the kernel coefficients overflow (max |target| = {np.abs(targets).max():.3g}): the training targets "
+            "are too large for float64; rescale the data (for flow maps, (x1 - x0) / dt with a tiny dt)"
+        )
+    return coef
+
+
 def _check_memory(
     max_centers: int, n_train: int, n_val: int, memory_limit: Optional[float], itemsize: int = 8
 ) -> None:
@@ -583,7 +593,7 @@ def greedy_interpolation(
                 + (f", E_val={val_hist[-1]:.3e}" if n_val else "")
                 + f", P={pj:.2e}, {elapsed[m - 1]:.1f}s"
             )
-    coef = _kernel_coefficients(chol[:m, :m], beta[:m]) if m else np.zeros((0, y.shape[1]))
+    coef = _finite_coefficients(_kernel_coefficients(chol[:m, :m], beta[:m]), y) if m else np.zeros((0, y.shape[1]))
     history = GreedyHistory(
         train_max_residual=np.array(train_hist),
         val_max_residual=None if val_hist is None else np.array(val_hist),
@@ -842,7 +852,7 @@ def active_set_greedy(
         in_active[new] = True
         pts = np.concatenate([pts, new])
         sub = HBFunctionals(kernel, functionals.points[pts], functionals.mu[pts], functionals.dt[pts])
-    coef = _kernel_coefficients(chol[:m, :m], beta[:m]) if m else np.zeros(0)
+    coef = _finite_coefficients(_kernel_coefficients(chol[:m, :m], beta[:m]), y) if m else np.zeros(0)
     train_hist[-1] = full_max
     history = GreedyHistory(
         train_max_residual=np.array(train_hist),

@@ -342,3 +342,11 @@ def test_compiled_column_is_bit_identical(rng):
     # not used where NumPy's sums are not sequential or exp enters
     assert not HBFunctionals(ProductKernel(IMQ(0.5)), rng.normal(size=(5, 4)), np.zeros((5, 0)), np.ones(5))._compiled_column
     assert not HBFunctionals(ProductKernel(Matern52(0.5)), rng.normal(size=(5, 2)), np.zeros((5, 0)), np.ones(5))._compiled_column
+
+
+def test_overflowing_coefficients_raise(rng):
+    """Targets near the float64 limit (a subnormal dt) overflow the coefficients: an error, not inf."""
+    model = SymplecticKernelPredictor(IMQ(0.5), IMQ(1.0), max_centers=1, backend="numpy")
+    x0 = np.array([[0.0, 0.0]])
+    with pytest.raises(ValueError, match="overflow"):
+        model.fit(x0, x0 + 0.125, mu=0.0, dt=2.225073858507203e-309)
