@@ -1,4 +1,4 @@
-"""Optional compiled (numba) kernels for the prediction hot path.
+"""Optional compiled (numba) kernels: the prediction hot path and the greedy's O(N) passes.
 
 The implicit symplectic-Euler step solves, per instance,
 ``F(p) = p - p0 + dT d_q s(q0, p) = 0`` by Newton with Jacobian
@@ -10,15 +10,28 @@ iteration, instance by instance, in compiled code:
   gradient of ``s`` (all ``2n`` components), the ``n x n`` block
   ``d_p d_q s`` of its Hessian that the Jacobian needs, and the round-off
   floor of the gradient (no ``(B, m, (2n)^2)`` or even ``(B, m, 2n)``
-  temporaries: ``O(2n + n^2)`` scratch per instance);
+  temporaries: ``O((2n + 5) * CHUNK)`` scratch per thread; the centres are
+  grouped by differentiated component, :class:`CenterLayout`, and visited in
+  chunks that stay in L1, each sum a reduction with four fixed partial sums so
+  that results are bit-reproducible);
 * every instance iterates only until it has converged, with the stopping rule
   of the reference (floor, stalled update, stagnation near the floor);
 * a whole rollout of ``K`` steps runs in one call, instances in parallel
   (``numba.prange``) when the batch is large enough, serially for one
   trajectory (latency).
 
-Results agree with the NumPy reference to round-off (summation order differs);
-``tests/test_performance_paths.py`` checks trajectories to ``1e-12``.
+Results agree with the NumPy reference to round-off (summation order differs):
+``tests/test_performance_paths.py`` checks trajectories to ``1e-12`` on a
+well-conditioned model and to the gradient's round-off floor on an
+ill-conditioned one, where NumPy does not agree with itself across batch sizes
+either.
+
+For the exact f-greedy (:mod:`sympredict.greedy`): :func:`greedy_update` (the
+vector work of a step after the matrix-vector product, one pass) and
+:func:`hb_column` (the Gramian column for ``2n = 2`` and IMQ factors) are
+bit-identical to the NumPy code they replace; :func:`matvec_t` (float64
+accumulation over a float32 basis) and :func:`gradients` (surrogate gradients at
+all training points, for the active-set greedy's refreshes) are not meant to be.
 
 numba is optional (``pip install sympredict[fast]``): :data:`HAVE_NUMBA` says
 whether it is importable, and nothing here is compiled before first use.
@@ -98,79 +111,6 @@ if HAVE_NUMBA:  # noqa: C901 - the compiled definitions
         B = eps**3 * E * inv_r
         C = -(eps**3) * (1.0 + er) * E * (inv_r * inv_r * inv_r)
         return A, B, C
-
-    @_jit
-    def _gradient(xi, w, centers, comps, kind, eps, d, grad):
-        """``grad <- d s / d xi`` at one point; ``d`` is scratch of shape (2n,).  ``O(m 2n)``."""
-        m, dim = centers.shape
-        for a in range(dim):
-            grad[a] = 0.0
-        for j in range(m):
-            r2 = 0.0
-            for a in range(dim):
-                da = xi[a] - centers[j, a]
-                d[a] = da
-                r2 += da * da
-            A, B, C = _factors(kind, eps, r2)
-            lj = comps[j]
-            wBg = w[j] * B * d[lj]
-            for a in range(dim):
-                grad[a] -= wBg * d[a]
-            grad[lj] -= w[j] * A
-
-    @_jit
-    def _newton_terms(xi, w, centers, comps, kind, eps, n, d, grad, hqp):
-        """Gradient, Hessian block ``d_p d_q s`` and gradient floor at one point, in one pass.
-
-        With ``g_j = d_{j l_j}``, ``H_ac = -sum_j w_j C_j g_j d_ja d_jc - M_ac - M_ca``
-        for ``a < n <= c`` (no ``delta_ac`` term off the diagonal blocks),
-        ``M_ac = sum_j w_j B_j d_ja [l_j = c]``.  ``O(m (2n + n^2))`` flops.
-
-        Returns the floor ``eps (sum_j |w_j B_j g_j| max_a |d_ja| + sum_j |w_j A_j|)``.
-        """
-        m, dim = centers.shape
-        for a in range(dim):
-            grad[a] = 0.0
-        for a in range(n):
-            for c in range(n):
-                hqp[a, c] = 0.0
-        fl_b = 0.0
-        fl_a = 0.0
-        for j in range(m):
-            r2 = 0.0
-            dmax = 0.0
-            for a in range(dim):
-                da = xi[a] - centers[j, a]
-                d[a] = da
-                r2 += da * da
-                ad = abs(da)
-                if ad > dmax:
-                    dmax = ad
-            A, B, C = _factors(kind, eps, r2)
-            lj = comps[j]
-            wj = w[j]
-            g = d[lj]
-            wA = wj * A
-            wB = wj * B
-            wBg = wB * g
-            wCg = wj * C * g
-            for a in range(dim):
-                grad[a] -= wBg * d[a]
-            grad[lj] -= wA
-            for a in range(n):
-                t = wCg * d[a]
-                for c in range(n):
-                    hqp[a, c] -= t * d[n + c]
-            if lj >= n:
-                cc = lj - n
-                for a in range(n):
-                    hqp[a, cc] -= wB * d[a]
-            else:
-                for c in range(n):
-                    hqp[lj, c] -= wB * d[n + c]
-            fl_b += abs(wBg) * dmax
-            fl_a += abs(wA)
-        return _EPS * (fl_b + fl_a)
 
     @_jit
     def _chunk_factors(kind, eps, r2, fA, fB, fC, L):
