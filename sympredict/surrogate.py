@@ -29,6 +29,35 @@ __all__ = ["HBSurrogate", "ValueSurrogate"]
 _CHUNK_ENTRIES = 1 << 17
 
 
+def _distances_1d(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``|a_i - b_j|`` for one-component parameters as ``sqrt((a_i - b_j)^2)``, shape (Na, Nb).
+
+    The same operations as :func:`sympredict.kernels.pairwise_distances` for one
+    component (bit for bit), without its general-case overhead (the weights of a
+    single query are on the latency path of :meth:`SymplecticKernelPredictor.step`).
+    """
+    d = a.reshape(-1, 1) - b.reshape(1, -1)
+    np.square(d, out=d)
+    return np.sqrt(d, out=d)
+
+
+def _parameter_factor(kernel: ProductKernel, mu, dt, centers_mu, centers_dt) -> np.ndarray:
+    """``kernel.parameter_factor`` (bit-identical), with a short path for one-component parameters."""
+    mu = np.asarray(mu, dtype=float)
+    dt = np.asarray(dt, dtype=float).reshape(-1)
+    if kernel.mu is not None and (mu.ndim != 2 or mu.shape[1] != 1 or centers_mu.shape[1] != 1):
+        return kernel.parameter_factor(mu, dt, centers_mu, centers_dt)
+    out = None
+    if kernel.mu is not None:
+        out = kernel.mu.phi(_distances_1d(mu[:, 0], centers_mu[:, 0]))
+    if kernel.dt is not None:
+        kd = kernel.dt.phi(_distances_1d(dt, centers_dt))
+        out = kd if out is None else out * kd
+    if out is None:
+        out = np.ones((len(dt), len(centers_dt)))
+    return out
+
+
 class HBSurrogate:
     """Fitted gradient-HB surrogate: centres, derivative components, coefficients.
 
@@ -89,7 +118,7 @@ class HBSurrogate:
         -------
         ndarray of shape (B, m)
         """
-        factor = self.kernel.parameter_factor(mu, dt, self.centers_mu, self.centers_dt)
+        factor = _parameter_factor(self.kernel, mu, dt, self.centers_mu, self.centers_dt)
         factor *= self.coef
         return factor
 

@@ -350,3 +350,17 @@ def test_overflowing_coefficients_raise(rng):
     x0 = np.array([[0.0, 0.0]])
     with pytest.raises(ValueError, match="overflow"):
         model.fit(x0, x0 + 0.125, mu=0.0, dt=2.225073858507203e-309)
+
+
+def test_short_parameter_factor_is_bit_identical(rng):
+    from sympredict.surrogate import _parameter_factor
+
+    cm, cd = rng.uniform(0.7, 0.8, (300, 1)), rng.choice([0.04, 0.05, 0.06], 300)
+    for kernel in (ProductKernel(IMQ(0.2), IMQ(1.5), IMQ(3.0)), ProductKernel(IMQ(0.2), Matern52(2.0), None),
+                   ProductKernel(IMQ(0.2), None, Matern32(4.0)), ProductKernel(IMQ(0.2))):
+        for b in (1, 7, 50):
+            mu, dt = rng.uniform(0.6, 0.9, (b, 1)), rng.uniform(0.03, 0.07, b)
+            np.testing.assert_array_equal(_parameter_factor(kernel, mu, dt, cm, cd), kernel.parameter_factor(mu, dt, cm, cd))
+    k2 = ProductKernel(IMQ(0.2), IMQ(1.5), IMQ(3.0))
+    mu2, cm2 = rng.normal(size=(4, 2)), rng.normal(size=(300, 2))
+    np.testing.assert_array_equal(_parameter_factor(k2, mu2, dt[:4], cm2, cd), k2.parameter_factor(mu2, dt[:4], cm2, cd))
