@@ -217,7 +217,8 @@ def bandwidth_ratio(history: GreedyHistory, basis: np.ndarray, n_samples: int = 
 def section_greedy(n_grid: int, centers: int, n_grid_f32: int, centers_f32: int) -> dict:
     data, fun, y = pendulum_functionals(n_grid)
     out = {"n_functionals": fun.n_functionals, "centers": centers, "kernel": list(EPS_A)}
-    out["first_touch_s"] = touch_memory(8 * centers * fun.n_functionals * 1.05)
+    greedy_interpolation(fun, y, max_centers=3, tol=0.0, log_every=0)  # load the compiled kernels (not timed)
+    out["first_touch_s"] = touch_memory(8 * centers * fun.n_functionals * 1.3)
     t0 = time.perf_counter()
     res = greedy_interpolation(fun, y, max_centers=centers, tol=0.0, keep_basis=True, log_every=0)
     out["time_s"] = time.perf_counter() - t0
@@ -484,6 +485,9 @@ def _scenario_a_child(kind: str, out_path: str, threads: int, n_grid: int = 200)
         data, fun, y = pendulum_functionals(n_grid)
         t_data = time.perf_counter() - t0
         rss_data = peak_rss()
+        greedy_interpolation(fun, y, max_centers=3, tol=0.0, log_every=0)  # load the compiled kernels (not timed)
+        if kind == "fast":
+            functional_residuals(fun, y, np.array([0, 1]), np.ones(2))
         t0 = time.perf_counter()
         if kind == "exact":
             res = greedy_interpolation(fun, y, max_centers=1500, tol=1e-10, keep_basis=True)
@@ -512,7 +516,7 @@ def section_scenario_a(threads: int, n_grid: int = 200) -> dict:
     for kind in ("fast", "exact"):
         # warm the memory in this process (freed again before the child starts; the child's
         # peak RSS is its own): the VM's first-touch cost is reported, not mixed into training
-        warm_bytes = 1.03 * 8 * 1500 * n_functionals if kind == "exact" else 2**30
+        warm_bytes = 1.15 * 8 * 1500 * n_functionals if kind == "exact" else 2**30
         t_touch = touch_memory(warm_bytes)
         with tempfile.TemporaryDirectory() as tmp:
             path = os.path.join(tmp, "out.json")
