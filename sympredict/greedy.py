@@ -575,7 +575,8 @@ def greedy_interpolation(
             _abs_residual(res, out=res_abs)
             train_hist.append(res_abs.max())
         best_train = min(best_train, train_hist[-1])
-        if train_hist[-1] > divergence_factor * best_train:
+        # compared by division: divergence_factor * best_train overflows for targets near the float64 limit
+        if train_hist[-1] / divergence_factor > best_train:
             stop_reason = "diverged"
             m_best = int(np.argmin(train_hist))
             logger.warning(
@@ -773,7 +774,7 @@ def active_set_greedy(
             elapsed[m - 1] = time.perf_counter() - t0
             train_hist.append(res_abs.max())
             best_train = min(best_train, train_hist[-1])
-            if train_hist[-1] > divergence_factor * best_train:
+            if train_hist[-1] / divergence_factor > best_train:  # no overflow near the float64 limit
                 m_best = int(np.argmin(train_hist))
                 logger.warning(
                     f"active-set greedy residual blew up at {m} centres ({train_hist[-1]:.2e} vs best {best_train:.2e}); "

@@ -975,7 +975,7 @@ def sharded_greedy(
                 best_train = min(best_train, train_max)
                 if callback is not None:
                     callback(m, train_max)
-                if train_max > divergence_factor * best_train:
+                if train_max / divergence_factor > best_train:  # as the serial greedy (no overflow)
                     stop_reason = "diverged"
                     m_best = int(np.argmin(train_hist))
                     logger.warning(
