@@ -591,39 +591,11 @@ def build_rom(preset, seed: int = 0, *, pool=None):
     """:func:`sympredict.experiments.wave.build_rom` with the FOM snapshots computed over ``pool``.
 
     Returns what the serial function returns (``fom, rom, energy, info``), the
-    same basis bit for bit (the test compares them).  Mirrors the serial
-    function line by line; a ``pool`` argument there would make this copy unnecessary.
+    same basis bit for bit (the test compares them).
     """
-    from sympredict.experiments.wave import C_REF, logger as wave_logger
-    from sympredict.reduction import SymplecticROM, complex_svd_basis, symplecticity_of_basis
-    from sympredict.systems.wave import WaveFOM
+    from sympredict.experiments.wave import build_rom as serial_build_rom
 
-    pool = dummy_pool if pool is None else pool
-    t0 = time.perf_counter()
-    fom = WaveFOM(preset.n_points, T=preset.horizon)
-    mu_ref = C_REF**2
-    energy = fom.reference_energy(mu_ref)
-    with wave_logger.block(f"snapshots at c_ref={C_REF}: {preset.n_snapshot_states} trajectories, {preset.n_modes} modes, "
-                           f"{len(pool)} worker(s)"):
-        x0 = fom.low_frequency_states(preset.n_snapshot_states, preset.n_modes, mu_ref, energy, seed=seed)
-        n_snap = int(round(preset.horizon / preset.snapshot_dt))
-        snapshots = wave_snapshots(fom, x0, mu_ref, preset.snapshot_dt, n_snap, pool=pool).reshape(-1, fom.dim)
-    t_snap = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    basis = complex_svd_basis(snapshots, n=preset.n_reduced)
-    t_basis = time.perf_counter() - t0
-    rom = SymplecticROM(fom, basis)
-    info = {
-        "n_snapshots": len(snapshots),
-        "time_snapshots_s": t_snap,
-        "time_basis_s": t_basis,
-        "singular_values": basis.singular_values[: 2 * preset.n_reduced + 4].tolist(),
-        "projection_error": basis.projection_error,
-        "symplecticity": symplecticity_of_basis(basis.V),
-        "orthonormality": float(np.abs(basis.V.T @ basis.V - np.eye(basis.V.shape[1])).max()),
-        "energy_bound": energy,
-    }
-    return fom, rom, energy, info
+    return serial_build_rom(preset, seed, pool=dummy_pool if pool is None else pool)
 
 
 # --------------------------------------------------------------------------- sharded greedy

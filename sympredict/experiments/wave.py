@@ -101,8 +101,9 @@ PRESETS = {
 }
 
 
-def fom_snapshots(preset: WavePreset, seed: int = 0):
-    """FOM and its snapshot trajectories at ``c_ref``.
+def fom_snapshots(preset: WavePreset, seed: int = 0, pool=None):
+    """FOM and its snapshot trajectories at ``c_ref``; with a pyMOR worker ``pool``, computed over it
+    (:func:`sympredict.parallel.wave_snapshots`, the same snapshots bit for bit).
 
     Returns
     -------
@@ -120,12 +121,18 @@ def fom_snapshots(preset: WavePreset, seed: int = 0):
     with logger.block(f"snapshots at c_ref={C_REF}: {preset.n_snapshot_states} trajectories, {preset.n_modes} modes"):
         x0 = fom.low_frequency_states(preset.n_snapshot_states, preset.n_modes, mu_ref, energy, seed=seed)
         n_snap = int(round(preset.horizon / preset.snapshot_dt))
-        snapshots = fom.trajectory(x0, mu_ref, preset.snapshot_dt, n_snap).reshape(-1, fom.dim)
+        if pool is None:
+            snapshots = fom.trajectory(x0, mu_ref, preset.snapshot_dt, n_snap)
+        else:
+            from sympredict.parallel import wave_snapshots
+
+            snapshots = wave_snapshots(fom, x0, mu_ref, preset.snapshot_dt, n_snap, pool=pool)
+        snapshots = snapshots.reshape(-1, fom.dim)
     return fom, snapshots, energy, time.perf_counter() - t0
 
 
-def build_rom(preset: WavePreset, seed: int = 0):
-    """FOM, snapshots at ``c_ref``, complex-SVD basis, reduced model.
+def build_rom(preset: WavePreset, seed: int = 0, pool=None):
+    """FOM, snapshots at ``c_ref`` (over ``pool`` when given), complex-SVD basis, reduced model.
 
     Returns
     -------
@@ -136,7 +143,7 @@ def build_rom(preset: WavePreset, seed: int = 0):
     info : dict
         Timings, singular values, symplecticity and orthonormality of the basis.
     """
-    fom, snapshots, energy, t_snap = fom_snapshots(preset, seed)
+    fom, snapshots, energy, t_snap = fom_snapshots(preset, seed, pool)
     t0 = time.perf_counter()
     basis = complex_svd_basis(snapshots, n=preset.n_reduced)
     t_basis = time.perf_counter() - t0
