@@ -126,3 +126,20 @@ def test_pipeline_kernel_beats_implicit_midpoint():
             # the basis is exact for these states: reduced and full-space errors agree
             assert case["mean_kernel_full"] == pytest.approx(case["mean_kernel_red"], rel=1e-3)
     assert result["summary"]["basis"]["symplecticity"] < 1e-13
+
+
+def test_smallest_wave_model_reports_an_unreached_target_and_checks_input():
+    from dataclasses import replace
+
+    from sympredict.experiments.wave import PRESETS, smallest_wave_model
+
+    preset = replace(PRESETS["smoke"], max_centers=6, m_star=6)
+    result = smallest_wave_model(preset, 1e-2, 0.1)
+    # six centres cannot reach 1e-2: reported as such, with the largest model's error, never raised
+    assert not result["reached"] and result["n_centers"] is None and result["of_centers"] == 6
+    assert result["validation_error"] == result["center_errors"]["6"] > 1e-2
+    assert result["n_reduced"] == 2 and result["rom_errors"]["1"] > 0.5 * 1e-2 >= result["rom_errors"]["2"]
+    with pytest.raises(ValueError, match="target"):
+        smallest_wave_model(preset, -1.0, 0.1)
+    with pytest.raises(ValueError, match="rom_share"):
+        smallest_wave_model(preset, 1e-2, 0.1, rom_share=1.5)

@@ -444,6 +444,8 @@ def smallest_wave_model(
             if err <= rom_share * target:
                 rom = candidate
                 break
+    if rom is None and not rom_errors:
+        raise ValueError("the snapshots have numerical rank 0: no reduced basis exists")
     if rom is None:
         raise ValueError(
             f"no reduced dimension up to 2n = {2 * max(rom_errors)} reaches {rom_share * target:.1e} "
@@ -453,7 +455,7 @@ def smallest_wave_model(
         trained = train_wave_predictor(rom, preset, dt, energy, seed=seed + 8000)
     model = trained["model"]
     x0_red = rom.project(x0)
-    sizes = np.unique(np.round(np.geomspace(10, model.n_centers_, 24)).astype(int))
+    sizes = np.unique(np.round(np.geomspace(min(10, model.n_centers_), model.n_centers_, 24)).astype(int))
     center_errors = {}
     chosen = None
     with logger.block(f"smallest model: fewest centres (of {model.n_centers_}) for target {target:.1e}"):
