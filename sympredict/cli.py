@@ -20,6 +20,26 @@ __all__ = ["main"]
 SYSTEMS = ("pendulum", "wave")
 
 
+def _speed_accuracy_section(sa: dict, out: Path, name: str, title: str, note: str):
+    """Figure and Markdown table of a speed-against-accuracy run (pendulum or wave): (figure files, lines)."""
+    from sympredict import plotting
+
+    figures = plotting.save(plotting.speed_accuracy(sa["rows"], sa["reference_time_s"], title), out, name)
+    lines = [
+        "",
+        f"### Speed against accuracy (dT = {sa['dt']}, {sa['n_trajectories']} trajectories x {sa['n_steps']} steps, "
+        f"medians of {sa['repeats']} timed runs, side by side in one process)",
+        "",
+        note,
+        "",
+        "| method | size | ms per trajectory | median error | max error |",
+        "|---|---|---|---|---|",
+        *[f"| {r['method']} | {plotting.point_tag(r)} | {r['time_per_trajectory_s'] * 1e3:.3g} | {r['median_err']:.2e} | "
+          f"{r['max_err']:.2e} |" for r in sa["rows"]],
+    ]
+    return figures, lines
+
+
 def _run_pendulum(preset_name: str, seed: int, out: Path):
     """Pendulum scenario A: returns (JSON summary, figure files, Markdown lines)."""
     from sympredict import plotting
@@ -99,24 +119,12 @@ def _run_pendulum(preset_name: str, seed: int, out: Path):
               f"implicit midpoint {r['im_median_err']:.2e} (ratio {r['ratio_median']:.3g})")
 
     sa = run_speed_accuracy(results["model"], PRESETS[preset_name], seed=seed)
-    figures += plotting.save(
-        plotting.speed_accuracy(sa["rows"], sa["reference_time_s"], f"Pendulum: speed against accuracy, dT={sa['dt']}"),
-        out,
-        "pendulum_speed_accuracy",
-    )
-    lines += [
-        "",
-        f"### Speed against accuracy (dT = {sa['dt']}, {sa['n_trajectories']} trajectories x {sa['n_steps']} steps, "
-        f"medians of {sa['repeats']} timed runs, side by side in one process)",
-        "",
+    figs, md = _speed_accuracy_section(
+        sa, out, "pendulum_speed_accuracy", f"Pendulum: speed against accuracy, dT={sa['dt']}",
         f"Micro-step reference (implicit midpoint, h <= 1e-3): {sa['reference_time_s'] * 1e3:.2f} ms per trajectory.",
-        "",
-        "| method | size | ms per trajectory | median error | max error |",
-        "|---|---|---|---|---|",
-        *[f"| {r['method']} | {('m=' if 'kernel' in r['method'] else 'dT/')}{r['size']} | "
-          f"{r['time_per_trajectory_s'] * 1e3:.2f} | {r['median_err']:.2e} | {r['max_err']:.2e} |" for r in sa["rows"]],
-        *(["", "Targets no model reached: " + "; ".join(sa["unreached"])] if sa["unreached"] else []),
-    ]
+    )
+    figures += figs
+    lines += md + (["", "Targets no model reached: " + "; ".join(sa["unreached"])] if sa["unreached"] else [])
     s["speed_accuracy"] = sa
 
     kernel = results["model"].kernel_
@@ -258,24 +266,13 @@ def _run_wave(preset_name: str, seed: int, out: Path):
                   f"(ratio {c['ratio_red']:.3g})")
 
     sa = s["speed_accuracy"]
-    figures += plotting.save(
-        plotting.speed_accuracy(sa["rows"], sa["reference_time_s"], f"Wave: FOM vs ROM vs ROM + kernel, dT={sa['dt']}"),
-        out,
-        "wave_speed_accuracy",
-    )
-    lines += [
-        "",
-        f"### Speed against accuracy (dT = {sa['dt']}, {sa['n_trajectories']} trajectories x {sa['n_steps']} steps, "
-        f"medians of {sa['repeats']} timed runs, side by side in one process)",
-        "",
+    figs, md = _speed_accuracy_section(
+        sa, out, "wave_speed_accuracy", f"Wave: FOM vs ROM vs ROM + kernel, dT={sa['dt']}",
         "Errors of full-space states against the FOM's exact solution (sine transform); every method starts from the same "
         "full states and returns full states (ROM methods include projection and reconstruction).",
-        "",
-        "| method | size | ms per trajectory | median error | max error |",
-        "|---|---|---|---|---|",
-        *[f"| {r['method']} | {r['tag']} | {r['time_per_trajectory_s'] * 1e3:.3f} | {r['median_err']:.2e} | {r['max_err']:.2e} |"
-          for r in sa["rows"]],
-    ]
+    )
+    figures += figs
+    lines += md
     z = s["smallest"]
     lines += [
         "",

@@ -11,7 +11,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-__all__ = ["greedy_residuals", "error_over_time", "phase_portrait", "energy_error", "trajectories_over_time", "hamiltonian_over_time", "speed_accuracy", "stability_sweeps", "figure_data", "save"]
+__all__ = ["greedy_residuals", "error_over_time", "phase_portrait", "energy_error", "trajectories_over_time", "hamiltonian_over_time", "speed_accuracy", "stability_sweeps", "point_tag", "figure_data", "save"]
 
 _COLORS = plt.rcParams["axes.prop_cycle"].by_key()["color"]
 
@@ -148,6 +148,11 @@ def hamiltonian_over_time(t, energies, title: str):
     return fig
 
 
+def point_tag(row: dict) -> str:
+    """Label of a speed-accuracy point: its ``tag``, else ``m=size`` for kernel methods and ``dT/size`` otherwise."""
+    return row.get("tag") or (f"m={row['size']}" if "kernel" in row["method"] else f"dT/{row['size']}")
+
+
 def speed_accuracy(rows, reference_time: float, title: str):
     """Median error over time against wall time per trajectory, one line per method, log-log.
 
@@ -167,7 +172,7 @@ def speed_accuracy(rows, reference_time: float, title: str):
         e = [r["median_err"] for r in pts]
         ax.loglog(t, e, "o-" if len(pts) > 1 else "s", color=_COLORS[i], label=method, ms=5 if len(pts) > 1 else 8)
         for r in pts:
-            tag = r.get("tag") or (f"m={r['size']}" if "kernel" in method else f"dT/{r['size']}")
+            tag = point_tag(r)
             ax.annotate(tag, (r["time_per_trajectory_s"], r["median_err"]), fontsize=7, xytext=(3, 3), textcoords="offset points")
     ax.axvline(reference_time, color="k", ls=":", label="micro-step reference (h <= 1e-3)")
     _decorate(ax, "wall time per trajectory [s]", "median over time of the mean relative error", title)
