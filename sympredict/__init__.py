@@ -13,7 +13,7 @@ from sympredict.exceptions import (
 )
 from sympredict.predictor import DirectKernelPredictor, SymplecticKernelPredictor
 
-__version__ = "0.1.0"
+from sympredict._version import __version__
 
 __all__ = [
     "SymplecticKernelPredictor",

@@ -27,7 +27,7 @@ def test_failed_save_keeps_previous_file(small_pendulum_data, tmp_path, monkeypa
     path = tmp_path / "data.h5"
     save_dataset(small_pendulum_data, path)
     before = path.read_bytes()
-    import sympredict.io as io_module
+    import sympredict.container as io_module
 
     def broken_replace(src, dst):
         raise KeyboardInterrupt  # an interruption right before the rename

@@ -1,0 +1,101 @@
+"""The estimator contract: parameters from ``__init__``, ``get_params`` / ``set_params``, ``clone``.
+
+scikit-learn's convention, without depending on scikit-learn (its
+``sklearn.base.clone`` works on these objects too; the tests check it):
+
+* ``__init__`` stores its keyword arguments under their own names and does
+  nothing else; validation happens in ``fit`` (or wherever the value is used);
+* :meth:`Parametrized.get_params` lists exactly the parameters of
+  ``__init__`` (``deep=True`` adds ``name__sub`` entries for parameters that
+  are themselves parametrized, e.g. a kernel's ``eps``);
+* :meth:`Parametrized.set_params` sets them, nested with ``__``;
+* :func:`clone` builds an unfitted copy with the same parameters (nested
+  parametrized objects cloned too; other values deep-copied, except objects
+  that define ``__sklearn_clone__``, such as a training strategy holding a
+  worker pool, which decide for themselves).
+
+Kernels, training strategies and estimators all derive from
+:class:`Parametrized`.
+"""
+
+from __future__ import annotations
+
+import copy
+import inspect
+
+__all__ = ["Parametrized", "clone"]
+
+
+class Parametrized:
+    """Mixin: parameters are the arguments of ``__init__``, stored as attributes of the same name."""
+
+    @classmethod
+    def _param_names(cls) -> list[str]:
+        init = cls.__init__
+        if init is object.__init__:
+            return []
+        names = []
+        for p in inspect.signature(init).parameters.values():
+            if p.name == "self":
+                continue
+            if p.kind in (p.VAR_POSITIONAL, p.VAR_KEYWORD):
+                raise TypeError(f"{cls.__name__}.__init__ must not take *args or **kwargs (estimator contract)")
+            names.append(p.name)
+        return sorted(names)
+
+    def get_params(self, deep: bool = True) -> dict:
+        """The ``__init__`` parameters and their values; ``deep`` adds nested ``name__sub`` entries."""
+        out = {}
+        for name in self._param_names():
+            value = getattr(self, name)
+            if deep and hasattr(value, "get_params") and not isinstance(value, type):
+                out.update((f"{name}__{k}", v) for k, v in value.get_params(deep=True).items())
+            out[name] = value
+        return out
+
+    def set_params(self, **params):
+        """Set parameters (nested ones as ``name__sub``); returns ``self``.
+
+        Raises
+        ------
+        ValueError
+            For a name that is not a parameter (the message lists the valid ones).
+        """
+        valid = self._param_names()
+        nested: dict = {}
+        for key, value in params.items():
+            name, _, sub = key.partition("__")
+            if name not in valid:
+                raise ValueError(f"{type(self).__name__} has no parameter {name!r}; valid parameters: {valid}")
+            if sub:
+                nested.setdefault(name, {})[sub] = value
+            else:
+                setattr(self, name, value)
+        for name, sub_params in nested.items():
+            target = getattr(self, name)
+            if not hasattr(target, "set_params"):
+                raise ValueError(f"{type(self).__name__}.{name} = {target!r} has no parameters to set ({sorted(sub_params)})")
+            # kernels are immutable values: set_params returns a new one
+            setattr(self, name, target.set_params(**sub_params))
+        return self
+
+    def __sklearn_clone__(self):
+        return clone(self)
+
+
+def clone(obj):
+    """An unfitted copy of ``obj`` with the same parameters (scikit-learn's ``clone``).
+
+    Parametrized objects are rebuilt from ``get_params(deep=False)`` with each
+    parameter cloned; lists and tuples are cloned element-wise; objects with a
+    ``__sklearn_clone__`` of their own decide (a training strategy keeps its
+    worker pool); anything else is deep-copied.
+    """
+    if isinstance(obj, Parametrized):
+        params = {k: clone(v) for k, v in obj.get_params(deep=False).items()}
+        return type(obj)(**params)
+    if isinstance(obj, (list, tuple, set, frozenset)):
+        return type(obj)(clone(v) for v in obj)
+    if hasattr(obj, "__sklearn_clone__") and not isinstance(obj, type):
+        return obj.__sklearn_clone__()
+    return copy.deepcopy(obj)
