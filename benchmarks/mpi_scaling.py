@@ -5,7 +5,7 @@ Serial (one process, the serial greedy of ``model.fit``, BLAS threads set with t
     .venv/bin/python benchmarks/mpi_scaling.py --preset quick --threads 2 --out results/mpi_a.json
     .venv/bin/python benchmarks/mpi_scaling.py --preset quick --threads 1 --out results/mpi_b.json
 
-Sharded (P MPI ranks, one BLAS thread each, ``sympredict.parallel.fit_predictor``)::
+Sharded (P MPI ranks, one BLAS thread each, ``trainer=ShardedGreedy(pool)``)::
 
     .venv/bin/mpiexec -n 2 .venv/bin/python -m pymor.tools.mpi \\
         benchmarks/mpi_scaling.py --preset quick --threads 1 --out results/mpi_c.json
@@ -66,6 +66,7 @@ def main(argv=None) -> int:
     threadpool_limits(limits=args.threads)
 
     from sympredict import SymplecticKernelPredictor, parallel as par
+    from sympredict.greedy import ShardedGreedy
     from sympredict.experiments.pendulum import PRESETS
     from sympredict.kernels import IMQ
     from sympredict.systems.pendulum import DT_TRAIN, MU_TRAIN, Pendulum, flow_map_data, random_flow_map_data
@@ -98,8 +99,8 @@ def main(argv=None) -> int:
     system = Pendulum()
     t0 = time.perf_counter()
     if sharded:
-        data = par.pendulum_flow_map_data(system, n_grid=preset.n_grid, pool=pool)
-        val = par.pendulum_random_flow_map_data(system, preset.n_val, seed=1, mu_values=MU_TRAIN, dt_values=DT_TRAIN, pool=pool)
+        data = flow_map_data(system, n_grid=preset.n_grid, pool=pool)
+        val = random_flow_map_data(system, preset.n_val, seed=1, mu_values=MU_TRAIN, dt_values=DT_TRAIN, pool=pool)
     else:
         data = flow_map_data(system, n_grid=preset.n_grid)
         val = random_flow_map_data(system, preset.n_val, seed=1, mu_values=MU_TRAIN, dt_values=DT_TRAIN)
@@ -110,13 +111,11 @@ def main(argv=None) -> int:
     out["n_val_functionals"] = 2 * len(val)
 
     eps = preset.eps
-    model = SymplecticKernelPredictor(IMQ(eps[0]), IMQ(eps[1]), IMQ(eps[2]), max_centers=max_centers, tol=1e-10)
-    stats = {}
+    model = SymplecticKernelPredictor(IMQ(eps[0]), IMQ(eps[1]), IMQ(eps[2]), max_centers=max_centers, tol=1e-10,
+                                      trainer=ShardedGreedy(pool) if sharded else None)
     t0 = time.perf_counter()
-    if sharded:
-        par.fit_predictor(model, data.x0, data.x1, mu=data.mu, dt=data.dt, validation=val, pool=pool, stats=stats)
-    else:
-        model.fit(data.x0, data.x1, mu=data.mu, dt=data.dt, validation=val)
+    model.fit(data.x0, data.x1, mu=data.mu, dt=data.dt, validation=val)
+    stats = model.greedy_result_.stats
     out["time_fit_s"] = time.perf_counter() - t0
     hist = model.history_
     out["n_centers"] = model.n_centers_

@@ -35,7 +35,7 @@ Sections (``--sections``, comma separated; default all but ``scenario_a``):
 ``scenario_a``
     Full pendulum scenario A (688,464 functionals): exact f-greedy (1500
     centres, with the in-run bandwidth ratio over its own 8 GB basis) and the
-    fast active-set path (``training='fast'``, ``tol=1e-5``), wall time, peak
+    fast active-set path (``trainer=ActiveSetGreedy()``, ``tol=1e-5``), wall time, peak
     memory, max residual over all functionals, trajectory errors (paper protocol).
 """
 
@@ -61,13 +61,8 @@ from threadpoolctl import threadpool_info, threadpool_limits  # noqa: E402
 
 from sympredict import SymplecticKernelPredictor, _fastkernels  # noqa: E402
 from sympredict.data import mixed_variables  # noqa: E402
-from sympredict.greedy import (  # noqa: E402
-    GreedyHistory,
-    HBFunctionals,
-    active_set_greedy,
-    functional_residuals,
-    greedy_interpolation,
-)
+from sympredict.functionals import HBFunctionals, functional_residuals  # noqa: E402
+from sympredict.greedy import GreedyHistory, active_set_greedy, greedy_interpolation  # noqa: E402
 from sympredict.kernels import IMQ, ProductKernel  # noqa: E402
 from sympredict.metrics import relative_trajectory_error  # noqa: E402
 from sympredict.surrogate import HBSurrogate  # noqa: E402
@@ -138,7 +133,7 @@ def model_from_greedy(data, functionals: HBFunctionals, result, eps=EPS_A) -> Sy
     model.kernel_ = k
     model.surrogate_ = HBSurrogate(k, functionals.points[points], functionals.mu[points], functionals.dt[points], comps, result.coef)
     model.history_ = result.history
-    model._greedy_result = result
+    model.greedy_result_ = result
     model._set_fitted_state(data)
     return model
 
@@ -294,10 +289,10 @@ def section_rollout(model, batch: int = 1000, steps_fast: int = 100, steps_numpy
         # vectorised kernel-factor loop alone (one division, one square root per centre)
         stats = {}
         w = sur.weights(mu[:, None], dt)
-        _fastkernels.newton_rollout(x0, w, dt, sur.layout(), sur.kernel.state.name, sur.kernel.state.eps, 50, 20,
+        _fastkernels.newton_rollout(x0, w, dt, sur.layout(), sur.kernel.state, 50, 20,
                                     parallel=False, stats=stats)
-        t1 = median_time(lambda: _fastkernels.newton_rollout(x0, w, dt, sur.layout(), sur.kernel.state.name,
-                                                             sur.kernel.state.eps, 50, 20, parallel=False), 3)
+        t1 = median_time(lambda: _fastkernels.newton_rollout(x0, w, dt, sur.layout(), sur.kernel.state,
+                                                             50, 20, parallel=False), 3)
         visits = float(stats["passes"].sum()) * sur.n_centers
         t_factor = _fastkernels.factor_throughput()
         out["compute_bound"] = {
@@ -353,11 +348,11 @@ def section_scaling(model, repeats: int = 3) -> dict:
             pts = np.random.default_rng(1).uniform(-1, 1, (400, dim))
             w = sur.weights(np.full((1, 1), 0.5), np.ones(1))
             grp = np.zeros(len(pts), dtype=np.int64)
-            _fastkernels.gradients(pts[:10], grp[:10], w, lay, "imq", 0.5)
-            t_d.append(median_time(lambda: _fastkernels.gradients(pts, grp, w, lay, "imq", 0.5), repeats) / len(pts))
+            _fastkernels.gradients(pts[:10], grp[:10], w, lay, IMQ(0.5))
+            t_d.append(median_time(lambda: _fastkernels.gradients(pts, grp, w, lay, IMQ(0.5)), repeats) / len(pts))
             wb = np.ascontiguousarray(np.repeat(w, len(pts), axis=0))
             h = np.full(len(pts), 0.01)
-            run = lambda: _fastkernels.newton_rollout(pts, wb, h, lay, "imq", 0.5, 50, 5)  # noqa: E731
+            run = lambda: _fastkernels.newton_rollout(pts, wb, h, lay, IMQ(0.5), 50, 5)  # noqa: E731
             run()
             t_s.append(median_time(run, repeats) / (len(pts) * 5))
             t_dn.append(median_time(lambda: sur.newton_terms(pts[:200], wb[:200]), repeats) / 200)

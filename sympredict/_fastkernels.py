@@ -2,8 +2,8 @@
 
 The implicit symplectic-Euler step solves, per instance,
 ``F(p) = p - p0 + dT d_q s(q0, p) = 0`` by Newton with Jacobian
-``I + dT d_p d_q s``.  The NumPy path (:meth:`SymplecticKernelPredictor._solve_step`
-with ``backend='numpy'``) is the reference; the functions here compute the same
+``I + dT d_p d_q s``.  The NumPy path (:func:`sympredict.newton.solve_step_numpy`,
+``backend='numpy'``) is the reference; the functions here compute the same
 iteration, instance by instance, in compiled code:
 
 * one fused pass over the ``m`` centres per Newton iteration computes the
@@ -15,7 +15,7 @@ iteration, instance by instance, in compiled code:
   chunks that stay in L1, each sum a reduction with four fixed partial sums so
   that results are bit-reproducible);
 * every instance iterates only until it has converged, with the stopping rule
-  of the reference (floor, stalled update, stagnation near the floor);
+  of the reference (:mod:`sympredict.newton_rule`: the same function);
 * a whole rollout of ``K`` steps runs in one call, instances in parallel
   (``numba.prange``) when the batch is large enough, serially for one
   trajectory (latency).
@@ -26,9 +26,14 @@ well-conditioned model and to the gradient's round-off floor on an
 ill-conditioned one, where NumPy does not agree with itself across batch sizes
 either.
 
+Kernel formulas are not written here: :func:`compiled_formulas` compiles a
+family's own static methods (:class:`sympredict.kernels.RadialKernel`), so
+every registered family runs compiled, and the compiled functions take them
+as arguments (numba specialises once per family).
+
 For the exact f-greedy (:mod:`sympredict.greedy`): :func:`greedy_update` (the
 vector work of a step after the matrix-vector product, one pass) and
-:func:`hb_column` (the Gramian column for ``2n = 2`` and IMQ factors) are
+:func:`hb_column` (the Gramian column for ``2n = 2`` and exact-arithmetic families) are
 bit-identical to the NumPy code they replace; :func:`matvec_t` (float64
 accumulation over a float32 basis) and :func:`gradients` (surrogate gradients at
 all training points, for the active-set greedy's refreshes) are not meant to be.
@@ -45,6 +50,7 @@ iterations.
 from __future__ import annotations
 
 import math
+import time
 from typing import Optional
 
 import numpy as np
@@ -57,18 +63,18 @@ except ImportError:  # pragma: no cover
     numba = None
     HAVE_NUMBA = False
 
-__all__ = ["HAVE_NUMBA", "KERNEL_KINDS", "CenterLayout", "newton_solve", "newton_rollout", "matvec_t", "set_num_threads", "get_num_threads"]
+from sympredict.kernels import IMQ
+from sympredict.newton_rule import converged, residual_floor
 
-#: Kernel family -> integer code used in the compiled code.
-KERNEL_KINDS = {"imq": 0, "matern52": 1, "matern32": 2}
+__all__ = [
+    "HAVE_NUMBA", "compiled_formulas", "CenterLayout", "newton_solve", "newton_rollout", "matvec_t", "set_num_threads",
+    "get_num_threads",
+]
 
 #: Batches below this size are solved on one thread (thread start-up costs more).
 PARALLEL_MIN_BATCH = 8
 
 _EPS = float(np.finfo(float).eps)
-_TINY = float(np.finfo(float).tiny)
-_EXP_CLAMP = 745.0
-_R_TINY = 1e-100
 
 
 def get_num_threads() -> int:
@@ -87,50 +93,11 @@ if HAVE_NUMBA:  # noqa: C901 - the compiled definitions
     _jit = numba.njit(cache=True, nogil=True, fastmath=False, error_model="numpy")
 
     @_jit
-    def _factors(kind, eps, r2):
-        """Derivative factors ``(A, B, C)`` at squared distance ``r2`` (see :mod:`sympredict.kernels`)."""
-        if kind == 0:  # IMQ
-            e2 = eps * eps
-            inv_u = 1.0 / (1.0 + e2 * r2)
-            sq = math.sqrt(inv_u)
-            A = -e2 * inv_u * sq
-            B = 3.0 * e2 * e2 * inv_u * inv_u * sq
-            C = -15.0 * e2 * e2 * e2 * (inv_u * inv_u * inv_u) * sq
-            return A, B, C
-        r = math.sqrt(r2)
-        er = min(eps * r, _EXP_CLAMP)
-        E = math.exp(-er)
-        inv_r = 1.0 / r if r >= _R_TINY else 0.0
-        if kind == 1:  # Matern 5/2
-            A = -(eps * eps / 3.0) * (1.0 + er) * E
-            B = (eps**4 / 3.0) * E
-            C = -(eps**5 / 3.0) * E * inv_r
-            return A, B, C
-        # Matern 3/2
-        A = -eps * eps * E
-        B = eps**3 * E * inv_r
-        C = -(eps**3) * (1.0 + er) * E * (inv_r * inv_r * inv_r)
-        return A, B, C
-
-    @_jit
-    def _chunk_factors(kind, eps, r2, fA, fB, fC, L):
-        """``_factors`` over the first ``L`` entries of ``r2`` (a vectorisable loop for the IMQ)."""
-        if kind == 0:
-            e2 = eps * eps
-            ca = -e2
-            cb = 3.0 * e2 * e2
-            cc = -15.0 * e2 * e2 * e2
-            for j in range(L):
-                inv_u = 1.0 / (1.0 + e2 * r2[j])
-                sq = math.sqrt(inv_u)
-                t = inv_u * sq
-                fA[j] = ca * t
-                t = t * inv_u
-                fB[j] = cb * t
-                fC[j] = cc * t * inv_u
-        else:
-            for j in range(L):
-                fA[j], fB[j], fC[j] = _factors(kind, eps, r2[j])
+    def _chunk_factors(factors, eps, r2, fA, fB, fC, L):
+        """The family's ``(A, B, C)`` (``factors``: its compiled :meth:`~sympredict.kernels.RadialKernel.all_factors`)
+        at the distances ``sqrt(r2[j])``, ``j < L``."""
+        for j in range(L):
+            fA[j], fB[j], fC[j] = factors(eps, math.sqrt(r2[j]))
 
     # Sums over a chunk with four interleaved partial sums: vectorisable
     # without fast-math reassociation, and with a summation order that depends
@@ -176,7 +143,7 @@ if HAVE_NUMBA:  # noqa: C901 - the compiled definitions
         return (s0 + s1) + (s2 + s3)
 
     @_jit
-    def _terms(xi, w, cT, seg, kind, eps, n, want_hess, dif, r2, dmax, fA, fB, fC, grad, hqp):
+    def _terms(xi, w, cT, seg, factors, eps, n, want_hess, dif, r2, dmax, fA, fB, fC, grad, hqp):
         """Gradient (and Hessian block ``d_p d_q s`` and gradient floor) at one point.
 
         Centres are grouped by differentiated component: ``cT`` (2n, m) holds
@@ -218,7 +185,7 @@ if HAVE_NUMBA:  # noqa: C901 - the compiled definitions
                         r2[j] += da * da
                         ad = abs(da)
                         dmax[j] = ad if ad > dmax[j] else dmax[j]
-                _chunk_factors(kind, eps, r2, fA, fB, fC, L)
+                _chunk_factors(factors, eps, r2, fA, fB, fC, L)
                 # in place: fA <- w A, fB <- w B, fC <- w C g, r2 <- w B g, dmax <- floor terms
                 g_row = dif[l]
                 for j in range(L):
@@ -288,7 +255,7 @@ if HAVE_NUMBA:  # noqa: C901 - the compiled definitions
         return True
 
     @_jit
-    def _solve_one(x, w, h, cT, seg, kind, eps, max_iter, out, sc, grad, hqp, jac, rhs, p, delta, xi):
+    def _solve_one(x, w, h, cT, seg, factors, eps, max_iter, out, sc, grad, hqp, jac, rhs, p, delta, xi):
         """One implicit step for one instance: ``out <- Phi(x)``.  Returns ``(code, residual, iteration)``.
 
         The iteration and stopping rule of the NumPy reference
@@ -297,7 +264,7 @@ if HAVE_NUMBA:  # noqa: C901 - the compiled definitions
         dif, r2, dmax, fA, fB, fC = sc
         dim = x.shape[0]
         n = dim // 2
-        _terms(x, w, cT, seg, kind, eps, n, False, dif, r2, dmax, fA, fB, fC, grad, hqp)
+        _terms(x, w, cT, seg, factors, eps, n, False, dif, r2, dmax, fA, fB, fC, grad, hqp)
         for k in range(n):
             p[k] = x[n + k] - h * grad[k]
             xi[k] = x[k]
@@ -306,7 +273,7 @@ if HAVE_NUMBA:  # noqa: C901 - the compiled definitions
         for it in range(max_iter):
             for k in range(n):
                 xi[n + k] = p[k]
-            floor = _terms(xi, w, cT, seg, kind, eps, n, True, dif, r2, dmax, fA, fB, fC, grad, hqp)
+            floor = _terms(xi, w, cT, seg, factors, eps, n, True, dif, r2, dmax, fA, fB, fC, grad, hqp)
             f_norm = 0.0
             scale = 0.0
             finite = True
@@ -326,7 +293,7 @@ if HAVE_NUMBA:  # noqa: C901 - the compiled definitions
                     scale = ap
             if not finite:
                 return 1, np.nan if f_norm == f_norm else f_norm, it
-            f_floor = 4 * _EPS * scale + 4 * h * floor + _TINY
+            f_floor = residual_floor(scale, floor, h)
             for a in range(n):
                 for c in range(n):
                     jac[a, c] = h * hqp[a, c]
@@ -338,10 +305,7 @@ if HAVE_NUMBA:  # noqa: C901 - the compiled definitions
                 v = abs(delta[k])
                 if v > d_norm or v != v:
                     d_norm = v
-            done = (f_norm <= f_floor) or (d_norm <= 2 * _EPS * scale)
-            if not done and d_norm >= 0.5 * last and f_norm <= 1e3 * f_floor:
-                done = True
-            if done:
+            if converged(f_norm, f_floor, d_norm, last, scale):
                 for k in range(n):
                     out[k] = x[k] + h * grad[n + k]
                     out[n + k] = p[k]
@@ -352,7 +316,7 @@ if HAVE_NUMBA:  # noqa: C901 - the compiled definitions
         return 3, f_norm, max_iter
 
     @_jit
-    def _rollout_one(i, x0, W, h, cT, seg, kind, eps, max_iter, chunk, traj, codes, fail_step, fail_iter, resid, passes):
+    def _rollout_one(i, x0, W, h, cT, seg, factors, eps, max_iter, chunk, traj, codes, fail_step, fail_iter, resid, passes):
         dim = x0.shape[1]
         n = dim // 2
         sc = (np.empty((dim, chunk)), np.empty(chunk), np.empty(chunk), np.empty(chunk), np.empty(chunk), np.empty(chunk))
@@ -371,7 +335,7 @@ if HAVE_NUMBA:  # noqa: C901 - the compiled definitions
         fail_iter[i] = -1
         resid[i] = 0.0
         for k in range(n_steps):
-            code, r, it = _solve_one(traj[i, k], W[i], h[i], cT, seg, kind, eps, max_iter, traj[i, k + 1], sc, grad, hqp, jac, rhs, p, delta, xi)
+            code, r, it = _solve_one(traj[i, k], W[i], h[i], cT, seg, factors, eps, max_iter, traj[i, k + 1], sc, grad, hqp, jac, rhs, p, delta, xi)
             passes[i] += it + 2  # the explicit guess's gradient pass and it + 1 Newton passes
             if code != 0:
                 codes[i] = code
@@ -384,14 +348,14 @@ if HAVE_NUMBA:  # noqa: C901 - the compiled definitions
                 return
 
     @numba.njit(cache=True, nogil=True, parallel=True)
-    def _rollout_parallel(x0, W, h, cT, seg, kind, eps, max_iter, chunk, traj, codes, fail_step, fail_iter, resid, passes):
+    def _rollout_parallel(x0, W, h, cT, seg, factors, eps, max_iter, chunk, traj, codes, fail_step, fail_iter, resid, passes):
         for i in numba.prange(x0.shape[0]):
-            _rollout_one(i, x0, W, h, cT, seg, kind, eps, max_iter, chunk, traj, codes, fail_step, fail_iter, resid, passes)
+            _rollout_one(i, x0, W, h, cT, seg, factors, eps, max_iter, chunk, traj, codes, fail_step, fail_iter, resid, passes)
 
     @_jit
-    def _rollout_serial(x0, W, h, cT, seg, kind, eps, max_iter, chunk, traj, codes, fail_step, fail_iter, resid, passes):
+    def _rollout_serial(x0, W, h, cT, seg, factors, eps, max_iter, chunk, traj, codes, fail_step, fail_iter, resid, passes):
         for i in range(x0.shape[0]):
-            _rollout_one(i, x0, W, h, cT, seg, kind, eps, max_iter, chunk, traj, codes, fail_step, fail_iter, resid, passes)
+            _rollout_one(i, x0, W, h, cT, seg, factors, eps, max_iter, chunk, traj, codes, fail_step, fail_iter, resid, passes)
 
 
     @numba.njit(cache=True, nogil=True, parallel=True)
@@ -427,7 +391,7 @@ if HAVE_NUMBA:  # noqa: C901 - the compiled definitions
 
 
     @numba.njit(cache=True, nogil=True, parallel=True)
-    def _gradients_kernel(xi, group, Wg, cT, seg, kind, eps, chunk, out):
+    def _gradients_kernel(xi, group, Wg, cT, seg, factors, eps, chunk, out):
         dim = xi.shape[1]
         n = dim // 2
         n_pts = xi.shape[0]
@@ -441,7 +405,7 @@ if HAVE_NUMBA:  # noqa: C901 - the compiled definitions
             fC = np.empty(chunk)
             hqp = np.empty((n, n))
             for i in range(blk * block, min(n_pts, (blk + 1) * block)):
-                _terms(xi[i], Wg[group[i]], cT, seg, kind, eps, n, False, dif, r2, dmax, fA, fB, fC, out[i], hqp)
+                _terms(xi[i], Wg[group[i]], cT, seg, factors, eps, n, False, dif, r2, dmax, fA, fB, fC, out[i], hqp)
 
 
     @_jit
@@ -486,28 +450,24 @@ if HAVE_NUMBA:  # noqa: C901 - the compiled definitions
 
 
     @_jit
-    def _hb_column_imq2_range(p0, p1, points, mu, dt, xq, muq, dtq, b, e2, c3, emu, edt, has_mu, has_dt, out):
+    def _hb_column2_range(p0, p1, points, mu, dt, xq, muq, dtq, b, e, first_factors, emu, mu_profile, edt, dt_profile,
+                          has_mu, has_dt, out):
+        """Column entries of points ``p0:p1`` (``2n = 2``), the operations of the NumPy column in its order."""
         d_mu = mu.shape[1]
         for p in range(p0, p1):
             d0 = points[p, 0] - xq[0]
             d1 = points[p, 1] - xq[1]
-            r = math.sqrt(d0 * d0 + d1 * d1)
-            inv_u = 1.0 / (1.0 + e2 * r * r)
-            sq = math.sqrt(inv_u)
-            A = -e2 * inv_u * sq
-            B = c3 * inv_u * inv_u * sq
+            A, B = first_factors(e, math.sqrt(d0 * d0 + d1 * d1))
             w = 1.0
             if has_mu:
                 m2 = 0.0
                 for a in range(d_mu):
                     dm = mu[p, a] - muq[a]
                     m2 = dm * dm if a == 0 else m2 + dm * dm
-                t = emu * math.sqrt(m2)
-                w = 1.0 / math.sqrt(1.0 + t * t)
+                w = mu_profile(emu, math.sqrt(m2))
             if has_dt:
                 dd = dt[p] - dtq
-                t = edt * math.sqrt(dd * dd)
-                kd = 1.0 / math.sqrt(1.0 + t * t)
+                kd = dt_profile(edt, math.sqrt(dd * dd))
                 w = w * kd if has_mu else kd
             g = (-(w * B)) * (d1 if b == 1 else d0)
             v0 = d0 * g
@@ -520,16 +480,38 @@ if HAVE_NUMBA:  # noqa: C901 - the compiled definitions
             out[2 * p + 1] = v1
 
     @_jit
-    def _hb_column_imq2_serial(points, mu, dt, xq, muq, dtq, b, e2, c3, emu, edt, has_mu, has_dt, out):
-        _hb_column_imq2_range(0, points.shape[0], points, mu, dt, xq, muq, dtq, b, e2, c3, emu, edt, has_mu, has_dt, out)
+    def _hb_column2_serial(points, mu, dt, xq, muq, dtq, b, e, first_factors, emu, mu_profile, edt, dt_profile,
+                           has_mu, has_dt, out):
+        _hb_column2_range(0, points.shape[0], points, mu, dt, xq, muq, dtq, b, e, first_factors, emu, mu_profile, edt,
+                          dt_profile, has_mu, has_dt, out)
 
     @numba.njit(cache=True, nogil=True, parallel=True)
-    def _hb_column_imq2_parallel(points, mu, dt, xq, muq, dtq, b, e2, c3, emu, edt, has_mu, has_dt, out):
+    def _hb_column2_parallel(points, mu, dt, xq, muq, dtq, b, e, first_factors, emu, mu_profile, edt, dt_profile,
+                             has_mu, has_dt, out):
         n_pts = points.shape[0]
         block = 32768
         for k in numba.prange((n_pts + block - 1) // block):
-            _hb_column_imq2_range(k * block, min(n_pts, (k + 1) * block), points, mu, dt, xq, muq, dtq, b, e2, c3,
-                                  emu, edt, has_mu, has_dt, out)
+            _hb_column2_range(k * block, min(n_pts, (k + 1) * block), points, mu, dt, xq, muq, dtq, b, e, first_factors,
+                              emu, mu_profile, edt, dt_profile, has_mu, has_dt, out)
+
+
+_COMPILED_FORMULAS: dict = {}
+
+
+def compiled_formulas(family: type):
+    """The compiled ``(profile, first_factors, all_factors)`` of a kernel family (compiled once, cached on disk).
+
+    The same Python functions as the NumPy path (:class:`sympredict.kernels.RadialKernel`):
+    a family's formulas are written once.
+    """
+    _check_available()
+    out = _COMPILED_FORMULAS.get(family)
+    if out is None:
+        out = _COMPILED_FORMULAS[family] = tuple(
+            numba.njit(getattr(family, name), cache=True, nogil=True, error_model="numpy")
+            for name in ("profile", "first_factors", "all_factors")
+        )
+    return out
 
 
 def _check_available():
@@ -568,7 +550,7 @@ class CenterLayout:
 CHUNK = 256
 
 
-def newton_rollout(x0, weights, dt, layout: CenterLayout, kernel_name: str, eps: float, max_iter: int, n_steps: int,
+def newton_rollout(x0, weights, dt, layout: CenterLayout, kernel, max_iter: int, n_steps: int,
                    *, weights_ordered: bool = False, parallel=None, stats: Optional[dict] = None):
     """``n_steps`` implicit symplectic-Euler steps for every instance, in compiled code.
 
@@ -583,10 +565,8 @@ def newton_rollout(x0, weights, dt, layout: CenterLayout, kernel_name: str, eps:
         Macro steps.
     layout
         The centres (:class:`CenterLayout`).
-    kernel_name
-        ``'imq'``, ``'matern52'`` or ``'matern32'``.
-    eps
-        Shape parameter of the state kernel.
+    kernel
+        The state kernel (a :class:`~sympredict.kernels.RadialKernel`; any registered family).
     max_iter
         Newton iterations per step.
     n_steps
@@ -630,14 +610,14 @@ def newton_rollout(x0, weights, dt, layout: CenterLayout, kernel_name: str, eps:
         parallel = b >= PARALLEL_MIN_BATCH
     fn = _rollout_parallel if parallel else _rollout_serial
     passes = np.zeros(b, dtype=np.int64)
-    fn(x0, weights, dt, layout.cT, layout.seg, KERNEL_KINDS[kernel_name], float(eps), int(max_iter), CHUNK,
+    fn(x0, weights, dt, layout.cT, layout.seg, compiled_formulas(type(kernel))[2], float(kernel.eps), int(max_iter), CHUNK,
        traj, codes, fail_step, fail_iter, resid, passes)
     if stats is not None:
         stats["passes"] = passes
     return traj, codes, fail_step, fail_iter, resid
 
 
-def newton_solve(x, weights, dt, layout: CenterLayout, kernel_name: str, eps: float, max_iter: int, **kw):
+def newton_solve(x, weights, dt, layout: CenterLayout, kernel, max_iter: int, **kw):
     """One implicit step for every instance (:func:`newton_rollout` with ``K = 1``).
 
     Returns
@@ -645,7 +625,7 @@ def newton_solve(x, weights, dt, layout: CenterLayout, kernel_name: str, eps: fl
     x1 : ndarray of shape (B, 2n)
     codes, fail_step, fail_iter, residual : ndarray of shape (B,)
     """
-    traj, codes, fail_step, fail_iter, resid = newton_rollout(x, weights, dt, layout, kernel_name, eps, max_iter, 1, **kw)
+    traj, codes, fail_step, fail_iter, resid = newton_rollout(x, weights, dt, layout, kernel, max_iter, 1, **kw)
     return traj[:, 1], codes, fail_step, fail_iter, resid
 
 
@@ -680,7 +660,7 @@ def matvec_t(basis: np.ndarray, m: int, c: np.ndarray) -> np.ndarray:
     return out
 
 
-def gradients(xi, group, group_weights, layout: CenterLayout, kernel_name: str, eps: float) -> np.ndarray:
+def gradients(xi, group, group_weights, layout: CenterLayout, kernel) -> np.ndarray:
     """Surrogate gradients at many points whose parameters take few distinct values.
 
     Parameters
@@ -693,6 +673,8 @@ def gradients(xi, group, group_weights, layout: CenterLayout, kernel_name: str, 
         Centre weights per distinct ``(mu, dT)``, in the surrogate's centre order.
     layout
         The centres (:class:`CenterLayout`).
+    kernel
+        The state kernel.
 
     Returns
     -------
@@ -708,7 +690,7 @@ def gradients(xi, group, group_weights, layout: CenterLayout, kernel_name: str, 
     out = np.empty_like(xi)
     wg = np.ascontiguousarray(np.asarray(group_weights, dtype=np.float64)[:, layout.order])
     _gradients_kernel(xi, np.ascontiguousarray(group, dtype=np.int64), wg, layout.cT, layout.seg,
-                      KERNEL_KINDS[kernel_name], float(eps), CHUNK, out)
+                      compiled_formulas(type(kernel))[2], float(kernel.eps), CHUNK, out)
     return out
 
 
@@ -771,22 +753,21 @@ def greedy_update(row, t, inv_pj: float, b: float, res, p2, j: int, breakdown: f
 
 
 def factor_throughput(n: int = 1 << 20, eps: float = 0.2, repeats: int = 5) -> float:
-    """Seconds per IMQ factor evaluation ``(A, B, C)`` in the compiled, vectorised loop (median).
+    """Seconds per IMQ factor evaluation ``(A, B, C)`` in the compiled loop of the Newton pass (median).
 
-    The floor of any evaluation of the surrogate's derivatives: one division,
-    one square root and a few multiplications per centre.  Benchmarks compare
-    the compiled Newton pass's time per centre with it.
+    The floor of any evaluation of the surrogate's derivatives: a square root,
+    one division, one square root and a few multiplications per centre.
+    Benchmarks compare the compiled Newton pass's time per centre with it.
     """
     _check_available()
-    import time
-
+    factors = compiled_formulas(IMQ)[2]
     r2 = np.random.default_rng(0).uniform(0.0, 4.0, n)
     fA, fB, fC = np.empty(n), np.empty(n), np.empty(n)
-    _chunk_factors(0, eps, r2, fA, fB, fC, n)
+    _chunk_factors(factors, eps, r2, fA, fB, fC, n)
     times = []
     for _ in range(repeats):
         t0 = time.perf_counter()
-        _chunk_factors(0, eps, r2, fA, fB, fC, n)
+        _chunk_factors(factors, eps, r2, fA, fB, fC, n)
         times.append(time.perf_counter() - t0)
     return float(np.median(times)) / n
 
@@ -795,13 +776,14 @@ def hb_column_supported(kernel, dim: int, d_mu: int) -> bool:
     """Whether :func:`hb_column` reproduces ``HBFunctionals.column`` bit for bit.
 
     The same operations in the same order as the NumPy column are only
-    guaranteed where NumPy's own sums are sequential: ``2n = 2``, at most two
-    parameter components, and IMQ factors (no ``exp``, whose NumPy and libm
-    versions may differ in the last bit).
+    guaranteed where NumPy's own sums are sequential (``2n = 2``, at most two
+    parameter components) and where every factor's formulas use correctly
+    rounded operations only (:attr:`RadialKernel.exact_arithmetic`: no
+    ``exp``, whose NumPy and libm versions may differ in the last bit).
     """
     if not HAVE_NUMBA or dim != 2 or d_mu > 2:
         return False
-    return kernel.state.name == "imq" and all(k is None or k.name == "imq" for k in (kernel.mu, kernel.dt))
+    return all(k is None or k.exact_arithmetic for k in (kernel.state, kernel.mu, kernel.dt))
 
 
 def hb_column(kernel, points, mu, dt, representer, out: np.ndarray) -> np.ndarray:
@@ -809,14 +791,17 @@ def hb_column(kernel, points, mu, dt, representer, out: np.ndarray) -> np.ndarra
 
     ``out[2 p + a] = w_p (-B d_pa d_pb - A delta_ab)`` with ``d_p = xi_p - xi_q``,
     ``w_p = k_mu(mu_p, mu_q) k_dT(dT_p, dT_q)``; one pass, no temporaries.
-    ``O(N)``; bit-identical to :meth:`sympredict.greedy.HBFunctionals.column`.
+    ``O(N)``; bit-identical to :meth:`sympredict.functionals.HBFunctionals.column`.
     """
     xq, muq, dtq, b = representer
-    e2 = kernel.state.eps**2
-    c3 = 3.0 * e2 * e2
+    first_factors = compiled_formulas(type(kernel.state))[1]
+    # a dropped factor still needs a compiled profile in its argument slot (never called)
+    mu_profile = compiled_formulas(type(kernel.mu if kernel.mu is not None else kernel.state))[0]
+    dt_profile = compiled_formulas(type(kernel.dt if kernel.dt is not None else kernel.state))[0]
     emu = kernel.mu.eps if kernel.mu is not None else 0.0
     edt = kernel.dt.eps if kernel.dt is not None else 0.0
-    fn = _hb_column_imq2_parallel if (GREEDY_PARALLEL and len(points) > 65536) else _hb_column_imq2_serial
+    fn = _hb_column2_parallel if (GREEDY_PARALLEL and len(points) > 65536) else _hb_column2_serial
     fn(points, mu, dt, np.ascontiguousarray(xq, dtype=np.float64), np.ascontiguousarray(muq, dtype=np.float64),
-       float(dtq), int(b), e2, c3, emu, edt, kernel.mu is not None, kernel.dt is not None, out)
+       float(dtq), int(b), float(kernel.state.eps), first_factors, emu, mu_profile, edt, dt_profile,
+       kernel.mu is not None, kernel.dt is not None, out)
     return out

@@ -79,6 +79,10 @@ class Parametrized:
             setattr(self, name, target.set_params(**sub_params))
         return self
 
+    def __repr__(self) -> str:
+        args = ", ".join(f"{k}={v!r}" for k, v in self.get_params(deep=False).items())
+        return f"{type(self).__name__}({args})"
+
     def __sklearn_clone__(self):
         return clone(self)
 
@@ -92,6 +96,8 @@ def clone(obj):
     worker pool); anything else is deep-copied.
     """
     if isinstance(obj, Parametrized):
+        if type(obj).__sklearn_clone__ is not Parametrized.__sklearn_clone__:
+            return obj.__sklearn_clone__()  # the class decides (e.g. a strategy that shares its pool)
         params = {k: clone(v) for k, v in obj.get_params(deep=False).items()}
         return type(obj)(**params)
     if isinstance(obj, (list, tuple, set, frozenset)):

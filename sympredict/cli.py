@@ -109,7 +109,7 @@ def _run_pendulum(preset_name: str, seed: int, out: Path):
             "",
             "| family | best tuple | E_val(m*) |",
             "|---|---|---|",
-            *[f"| {fam} | {row['state']} x {row['mu']} x {row['dt']} | {row['E_val']:.2e} |" for fam, row in sel["best_per_family"].items()],
+            *[f"| {fam} | {row['kernels']} | {row['E_val']:.2e} |" for fam, row in sel["best_per_family"].items()],
             "",
             f"Refinement of the winner's shapes (factor 2, one factor at a time) at m* = {sel['m_refine']}: "
             f"{' x '.join(sel['chosen'])} with E_val = {sel['chosen_E_val']:.2e}.",

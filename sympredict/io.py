@@ -7,89 +7,30 @@ The container (layout, checksum, atomic save, checked load) is
 
 from __future__ import annotations
 
-import numpy as np
-
 from sympredict.container import SCHEMA_VERSION, read_container, write_container
+from sympredict.data import FlowMapData
 from sympredict.exceptions import ModelFileError
+from sympredict.predictor import MODEL_FORMAT, DirectKernelPredictor, SymplecticKernelPredictor
 
 __all__ = ["SCHEMA_VERSION", "save_model", "load_model", "save_dataset", "load_dataset"]
 
-_MODEL_FORMAT = "sympredict-model"
 _DATA_FORMAT = "sympredict-dataset"
+_ESTIMATORS = {cls.__name__: cls for cls in (SymplecticKernelPredictor, DirectKernelPredictor)}
 
 
 def save_model(model, path) -> None:
-    """Save a fitted :class:`~sympredict.SymplecticKernelPredictor` (atomic)."""
-    sur = model.surrogate_
-    hist = model.history_
-    settings = {
-        "kernel": model.kernel_.spec,
-        "state_kernel_given": model.state_kernel is not None,
-        "max_centers": int(model.max_centers),
-        "tol": float(model.tol),
-        "criterion": model.criterion,
-        "power_tol": float(model.power_tol),
-        "newton_max_iter": int(model.newton_max_iter),
-        "memory_limit": model.memory_limit,
-        "dim": model.dim_,
-        "n_mu": model.n_mu_,
-        "dt_fixed": model.dt_fixed_,
-        "stop_reason": hist.stop_reason,
-    }
-    arrays = {
-        "centers_xi": sur.centers_xi,
-        "centers_mu": sur.centers_mu,
-        "centers_dt": sur.centers_dt,
-        "components": sur.components,
-        "coef": sur.coef,
-        "train_max_residual": hist.train_max_residual,
-        "selected_power": hist.selected_power,
-        "elapsed": hist.elapsed,
-    }
-    if hist.val_max_residual is not None:
-        arrays["val_max_residual"] = hist.val_max_residual
-    arrays.update({f"domain_{k}": np.asarray(v) for k, v in model.domain_.items()})
-    write_container(path, _MODEL_FORMAT, settings, arrays)
+    """Save a fitted :class:`~sympredict.SymplecticKernelPredictor` or :class:`~sympredict.DirectKernelPredictor` (atomic)."""
+    model.save(path)
 
 
 def load_model(path):
-    """Load a model written by :func:`save_model`; :class:`ModelFileError` if unusable."""
-    from sympredict.greedy import GreedyHistory
-    from sympredict.kernels import ProductKernel, kernel_from_spec
-    from sympredict.predictor import SymplecticKernelPredictor
-    from sympredict.surrogate import HBSurrogate
-
-    settings, arrays = read_container(path, _MODEL_FORMAT)
-    try:
-        spec = settings["kernel"]
-        kernel = ProductKernel(kernel_from_spec(spec["state"]), kernel_from_spec(spec["mu"]), kernel_from_spec(spec["dt"]))
-        model = SymplecticKernelPredictor(
-            kernel.state if settings["state_kernel_given"] else None,
-            kernel.mu,
-            kernel.dt,
-            max_centers=settings["max_centers"],
-            tol=settings["tol"],
-            criterion=settings["criterion"],
-            power_tol=settings["power_tol"],
-            newton_max_iter=settings["newton_max_iter"],
-            memory_limit=settings["memory_limit"],
-        )
-        model.kernel_ = kernel
-        model.surrogate_ = HBSurrogate(
-            kernel, arrays["centers_xi"], arrays["centers_mu"], arrays["centers_dt"], arrays["components"], arrays["coef"]
-        )
-        model.history_ = GreedyHistory(
-            train_max_residual=arrays["train_max_residual"],
-            val_max_residual=arrays.get("val_max_residual"),
-            selected_power=arrays["selected_power"],
-            elapsed=arrays["elapsed"],
-            stop_reason=settings["stop_reason"],
-        )
-        model._set_shape_info(settings["dim"], settings["n_mu"], settings["dt_fixed"])
-        model.domain_ = {k[len("domain_"):]: v for k, v in arrays.items() if k.startswith("domain_")}
-    except (KeyError, TypeError, ValueError) as exc:
-        raise ModelFileError(f"{str(path)!r} is an incomplete sympredict model file: {exc!r}") from None
-    return model
+    """Load a model written by :func:`save_model`, whichever estimator it holds; :class:`ModelFileError` if unusable."""
+    settings, arrays = read_container(path, MODEL_FORMAT)
+    name = settings.get("class", "SymplecticKernelPredictor") if isinstance(settings, dict) else None
+    cls = _ESTIMATORS.get(name)
+    if cls is None:
+        raise ModelFileError(f"{str(path)!r} holds an unknown estimator {name!r}; known: {sorted(_ESTIMATORS)}")
+    return cls._from_container(settings, arrays, path)
 
 
 def save_dataset(data, path, **metadata) -> None:
@@ -100,8 +41,6 @@ def save_dataset(data, path, **metadata) -> None:
 
 def load_dataset(path):
     """Load a data set written by :func:`save_dataset`; returns ``(FlowMapData, metadata)``."""
-    from sympredict.data import FlowMapData
-
     settings, arrays = read_container(path, _DATA_FORMAT)
     try:
         data = FlowMapData(arrays["x0"], arrays["x1"], arrays["mu"], arrays["dt"])

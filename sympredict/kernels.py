@@ -39,7 +39,18 @@ from typing import Optional
 
 import numpy as np
 
-__all__ = ["RadialKernel", "IMQ", "Matern32", "Matern52", "ProductKernel", "KERNEL_FAMILIES", "kernel_from_spec"]
+from sympredict.base import Parametrized
+
+try:  # helpers the family formulas call must compile with them (numba is optional)
+    from numba.extending import register_jitable as _compilable
+except ImportError:  # pragma: no cover - without numba nothing is compiled
+
+    def _compilable(function):
+        return function
+
+__all__ = [
+    "RadialKernel", "IMQ", "Matern32", "Matern52", "ProductKernel", "KERNEL_FAMILIES", "register_family", "kernel_from_spec",
+]
 
 #: Shape parameters are limited to [1e-50, 1e50]: the derivative factors contain
 #: ``eps**6``, which must stay a finite, normal float64.
@@ -55,8 +66,22 @@ _EXP_CLAMP = 745.0
 _R_TINY = 1e-100
 
 
-class RadialKernel:
+class RadialKernel(Parametrized):
     """Base class of radial kernels ``k(x, y) = phi(eps * |x - y|)``.
+
+    A family is one subclass that defines its formulas once, as static
+    methods of ``(e, r)`` (shape parameter, distance) written with arithmetic,
+    ``np.sqrt``, ``np.exp``, ``np.minimum`` and ``np.maximum`` only, so that
+    the same function runs on NumPy arrays here and, compiled by numba, on
+    scalars in :mod:`sympredict._fastkernels`:
+
+    * :meth:`profile`: ``phi(r)``;
+    * :meth:`first_factors`: ``(A, B)``;
+    * :meth:`all_factors`: ``(A, B, C)``.
+
+    Registering the class in :data:`KERNEL_FAMILIES` (the
+    :func:`register_family` decorator) makes it available by name in files,
+    the CLI and model selection, and to the compiled paths.
 
     Parameters
     ----------
@@ -67,6 +92,11 @@ class RadialKernel:
 
     #: Short name used in files and specs.
     name: str = "radial"
+
+    #: Whether the formulas use only ``+ - * /`` and ``sqrt`` (each correctly
+    #: rounded in every implementation), so that compiled code reproduces
+    #: NumPy's values bit for bit; ``exp`` differs between NumPy's SIMD and libm.
+    exact_arithmetic: bool = False
 
     def __init__(self, eps: float):
         try:
@@ -91,15 +121,39 @@ class RadialKernel:
     def __hash__(self) -> int:
         return hash((type(self).__name__, self.eps))
 
+    def set_params(self, **params) -> "RadialKernel":
+        """A new kernel with the given parameters changed (kernels are immutable values)."""
+        valid = self._param_names()
+        unknown = sorted(set(params) - set(valid))
+        if unknown:
+            raise ValueError(f"{type(self).__name__} has no parameter(s) {unknown}; valid parameters: {valid}")
+        return type(self)(**{**self.get_params(deep=False), **params})
+
     @property
     def spec(self) -> dict:
         """A JSON/HDF5-friendly description ``{'family': name, 'eps': eps}``."""
         return {"family": self.name, "eps": self.eps}
 
+    # --- the family's formulas (static: shared with the compiled code) ---
+    @staticmethod
+    def profile(e, r):
+        """``phi(r)`` for shape ``e``; elementwise on arrays, or on scalars in compiled code."""
+        raise NotImplementedError
+
+    @staticmethod
+    def first_factors(e, r):
+        """``(A, B)`` at distance ``r`` (see the module docstring)."""
+        raise NotImplementedError
+
+    @staticmethod
+    def all_factors(e, r):
+        """``(A, B, C)`` at distance ``r``."""
+        raise NotImplementedError
+
     # --- profile and derivative factors, all elementwise in ``r >= 0`` ---
     def phi(self, r: np.ndarray) -> np.ndarray:
         """Kernel profile ``phi(r)``, elementwise."""
-        raise NotImplementedError
+        return self.profile(self.eps, np.asarray(r, dtype=float))
 
     def factors(self, r: np.ndarray, order: int = 2):
         """Derivative factors ``(A, B)`` (``order=2``) or ``(A, B, C)`` (``order=3``).
@@ -116,7 +170,10 @@ class RadialKernel:
         -------
         tuple of ndarray, each of the shape of ``r``
         """
-        raise NotImplementedError
+        r = np.asarray(r, dtype=float)
+        if order == 2:
+            return self.first_factors(self.eps, r)
+        return self.all_factors(self.eps, r)
 
     # --- matrix-valued helpers ---
     def __call__(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -174,59 +231,78 @@ def pairwise_distances(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     return np.sqrt(np.einsum("ija,ija->ij", diff, diff))
 
 
-def _safe_inverse_r(r: np.ndarray):
-    """Return ``(1/r, mask)`` with ``1/r`` replaced by 0 where ``r < _R_TINY``."""
-    small = r < _R_TINY
-    inv = 1.0 / np.where(small, 1.0, r)
-    inv[small] = 0.0
-    return inv, small
+@_compilable
+def _inverse_r(r):
+    """``1/r``, and 0 where ``r < _R_TINY`` (on arrays and on compiled scalars alike)."""
+    return (r >= _R_TINY) / np.maximum(r, _R_TINY)
 
 
+#: The kernel families by name (as used in specs, files, the CLI and the compiled code).
+KERNEL_FAMILIES: dict = {}
+
+
+def register_family(cls):
+    """Class decorator: make a :class:`RadialKernel` subclass available by its ``name``."""
+    if not (isinstance(cls, type) and issubclass(cls, RadialKernel)) or cls.name in KERNEL_FAMILIES:
+        raise ValueError(f"cannot register {cls!r}: not a RadialKernel subclass, or the name {getattr(cls, 'name', None)!r} is taken")
+    KERNEL_FAMILIES[cls.name] = cls
+    return cls
+
+
+@register_family
 class IMQ(RadialKernel):
     """Inverse multiquadric ``phi(r) = (1 + eps^2 r^2)^(-1/2)`` (infinitely smooth)."""
 
     name = "imq"
+    exact_arithmetic = True
 
-    def phi(self, r):
-        r = np.asarray(r, dtype=float)
-        return 1.0 / np.sqrt(1.0 + (self.eps * r) ** 2)
+    @staticmethod
+    def profile(e, r):
+        return 1.0 / np.sqrt(1.0 + (e * r) ** 2)
 
-    def factors(self, r, order=2):
-        r = np.asarray(r, dtype=float)
-        e2 = self.eps**2
+    @staticmethod
+    def first_factors(e, r):
+        e2 = e * e
         inv_u = 1.0 / (1.0 + e2 * r * r)
         sq = np.sqrt(inv_u)
-        A = -e2 * inv_u * sq  # -e^2 u^(-3/2)
-        B = 3.0 * e2 * e2 * inv_u * inv_u * sq  # 3 e^4 u^(-5/2)
-        if order == 2:
-            return A, B
-        C = -15.0 * e2 * e2 * e2 * inv_u**3 * sq  # -15 e^6 u^(-7/2)
+        return -e2 * inv_u * sq, 3.0 * e2 * e2 * inv_u * inv_u * sq  # -e^2 u^(-3/2), 3 e^4 u^(-5/2)
+
+    @staticmethod
+    def all_factors(e, r):
+        e2 = e * e
+        inv_u = 1.0 / (1.0 + e2 * r * r)
+        sq = np.sqrt(inv_u)
+        A = -e2 * inv_u * sq
+        B = 3.0 * e2 * e2 * inv_u * inv_u * sq
+        C = -15.0 * e2 * e2 * e2 * (inv_u * inv_u * inv_u) * sq  # -15 e^6 u^(-7/2)
         return A, B, C
 
 
+@register_family
 class Matern52(RadialKernel):
     """Matérn 5/2 ``phi(r) = (1 + eps r + eps^2 r^2 / 3) exp(-eps r)`` (``C^4``)."""
 
     name = "matern52"
 
-    def phi(self, r):
-        er = np.minimum(self.eps * np.asarray(r, dtype=float), _EXP_CLAMP)
+    @staticmethod
+    def profile(e, r):
+        er = np.minimum(e * r, _EXP_CLAMP)
         return (1.0 + er + er * er / 3.0) * np.exp(-er)
 
-    def factors(self, r, order=2):
-        r = np.asarray(r, dtype=float)
-        e = self.eps
+    @staticmethod
+    def first_factors(e, r):
         er = np.minimum(e * r, _EXP_CLAMP)
         E = np.exp(-er)
-        A = -(e * e / 3.0) * (1.0 + er) * E
-        B = (e**4 / 3.0) * E
-        if order == 2:
-            return A, B
-        inv_r, _ = _safe_inverse_r(r)
-        C = -(e**5 / 3.0) * E * inv_r
-        return A, B, C
+        return -(e * e / 3.0) * (1.0 + er) * E, (e**4 / 3.0) * E
+
+    @staticmethod
+    def all_factors(e, r):
+        er = np.minimum(e * r, _EXP_CLAMP)
+        E = np.exp(-er)
+        return -(e * e / 3.0) * (1.0 + er) * E, (e**4 / 3.0) * E, -(e**5 / 3.0) * E * _inverse_r(r)
 
 
+@register_family
 class Matern32(RadialKernel):
     """Matérn 3/2 ``phi(r) = (1 + eps r) exp(-eps r)`` (``C^2`` only).
 
@@ -237,26 +313,23 @@ class Matern32(RadialKernel):
 
     name = "matern32"
 
-    def phi(self, r):
-        er = np.minimum(self.eps * np.asarray(r, dtype=float), _EXP_CLAMP)
+    @staticmethod
+    def profile(e, r):
+        er = np.minimum(e * r, _EXP_CLAMP)
         return (1.0 + er) * np.exp(-er)
 
-    def factors(self, r, order=2):
-        r = np.asarray(r, dtype=float)
-        e = self.eps
+    @staticmethod
+    def first_factors(e, r):
         er = np.minimum(e * r, _EXP_CLAMP)
         E = np.exp(-er)
-        inv_r, _ = _safe_inverse_r(r)
-        A = -e * e * E
-        B = e**3 * E * inv_r
-        if order == 2:
-            return A, B
-        C = -(e**3) * (1.0 + er) * E * inv_r**3
-        return A, B, C
+        return -e * e * E, e**3 * E * _inverse_r(r)
 
-
-#: The kernel families by name (as used in specs, files and the CLI).
-KERNEL_FAMILIES = {cls.name: cls for cls in (IMQ, Matern32, Matern52)}
+    @staticmethod
+    def all_factors(e, r):
+        er = np.minimum(e * r, _EXP_CLAMP)
+        E = np.exp(-er)
+        inv_r = _inverse_r(r)
+        return -e * e * E, e**3 * E * inv_r, -(e**3) * (1.0 + er) * E * (inv_r * inv_r * inv_r)
 
 
 def kernel_from_spec(spec: Optional[dict]) -> Optional[RadialKernel]:

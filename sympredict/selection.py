@@ -19,6 +19,7 @@ from typing import Optional, Sequence
 import numpy as np
 from pymor.core.logger import getLogger
 
+from sympredict.base import clone
 from sympredict.data import FlowMapData
 from sympredict.kernels import KERNEL_FAMILIES, RadialKernel
 from sympredict.predictor import SymplecticKernelPredictor
@@ -40,6 +41,10 @@ def _quiet(*names):
     finally:
         for lg, level in zip(loggers, levels):
             lg.setLevel(level)
+
+
+def _spec(kernel: Optional[RadialKernel]) -> Optional[dict]:
+    return None if kernel is None else kernel.spec
 
 
 def log_grid(lo: float, hi: float, per_decade: int = 2) -> np.ndarray:
@@ -73,8 +78,10 @@ class SelectionResult:
     complete : bool
         Whether its greedy reached ``m_star`` centres (or the residual tolerance).
     table : list of dict
-        Every candidate with its ``E_val(m_star)``, ``E_train(m_star)``, centres,
-        ``complete`` and fit time.
+        Every candidate: its kernels' specs (``state``, ``mu``, ``dt``: ``{'family', 'eps'}``
+        or ``None``), a readable ``kernels`` label, ``E_val(m_star)``,
+        ``E_train(m_star)``, centres, ``complete``, fit time, and ``error`` for
+        a candidate whose fit failed (scored ``inf``, skipped).
     """
 
     state: RadialKernel
@@ -99,6 +106,7 @@ def select_kernels(
     dt_kernels: Sequence[Optional[RadialKernel]] = (None,),
     m_star: int = 300,
     prefer_complete: bool = False,
+    estimator: Optional[SymplecticKernelPredictor] = None,
 ) -> SelectionResult:
     """Grid search over kernel tuples by validation residual at ``m_star`` centres.
 
@@ -114,6 +122,11 @@ def select_kernels(
         Rank candidates whose greedy stopped early (power breakdown) behind
         those that reached ``m_star`` (:meth:`SelectionResult.rank`).  Use it
         when ``m_star`` is close to the final budget.
+    estimator
+        The (unfitted) estimator whose settings every candidate shares; each
+        candidate is ``clone(estimator).set_params(state_kernel=..., mu_kernel=...,
+        dt_kernel=..., max_centers=m_star, tol=0)``.  Default
+        ``SymplecticKernelPredictor()``.
 
     Returns
     -------
@@ -133,6 +146,7 @@ def select_kernels(
     final model stopped at 791 of 1500 centres with 8x larger trajectory
     errors than the complete runner-up's.  Non-finite scores never win.
     """
+    base = SymplecticKernelPredictor() if estimator is None else estimator
     mu = None if data.mu.shape[1] == 0 else data.mu
     vmu = None if validation.mu.shape[1] == 0 else validation.mu
     dt_fixed = np.ptp(data.dt) == 0
@@ -141,25 +155,27 @@ def select_kernels(
     for state, mu_k, dt_k in itertools.product(state_kernels, mu_kernels, dt_kernels):
         if dt_k is None and not dt_fixed:
             raise ValueError("dt_kernels must not contain None when the data have several macro steps")
-        model = SymplecticKernelPredictor(state, mu_k, dt_k, max_centers=m_star, tol=0.0)
+        model = clone(base).set_params(state_kernel=state, mu_kernel=mu_k, dt_kernel=dt_k, max_centers=m_star, tol=0.0)
+        label = " x ".join(repr(k) for k in (state, mu_k, dt_k) if k is not None)
+        row = {"state": _spec(state), "mu": _spec(mu_k), "dt": _spec(dt_k), "kernels": label}
         t0 = time.perf_counter()
-        with _quiet("sympredict.greedy", "sympredict.predictor"):
-            model.fit(data.x0, data.x1, mu=mu if mu_k is not None else None, dt=data.dt,
-                      validation=(validation.x0, validation.x1, vmu if mu_k is not None else None, validation.dt))
+        try:
+            with _quiet("sympredict.greedy", "sympredict.predictor"):
+                model.fit(data.x0, data.x1, mu=mu if mu_k is not None else None, dt=data.dt,
+                          validation=(validation.x0, validation.x1, vmu if mu_k is not None else None, validation.dt))
+        except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
+            # a candidate that cannot be trained (coefficients overflow, memory, ...) is scored and skipped
+            row.update(E_val=np.inf, E_train=np.inf, n_centers=0, complete=False, error=str(exc),
+                       fit_s=time.perf_counter() - t0)
+            table.append(row)
+            logger.warning(f"{label}: fit failed, candidate skipped ({exc})")
+            continue
         score = float(model.history_.val_max_residual[-1])
         complete = model.n_centers_ >= m_star or model.history_.stop_reason == "tol"
-        row = {
-            "state": repr(state),
-            "mu": repr(mu_k),
-            "dt": repr(dt_k),
-            "E_val": score,
-            "E_train": float(model.history_.train_max_residual[-1]),
-            "n_centers": model.n_centers_,
-            "complete": complete,
-            "fit_s": time.perf_counter() - t0,
-        }
+        row.update(E_val=score, E_train=float(model.history_.train_max_residual[-1]), n_centers=model.n_centers_,
+                   complete=complete, fit_s=time.perf_counter() - t0)
         table.append(row)
-        logger.info(f"{row['state']}, {row['mu']}, {row['dt']}: E_val({model.n_centers_}) = {score:.3e}"
+        logger.info(f"{label}: E_val({model.n_centers_}) = {score:.3e}"
                     + ("" if complete else f" (stopped early: {model.history_.stop_reason})"))
         candidate = SelectionResult(state, mu_k, dt_k, score, complete)
         if np.isfinite(score) and (best is None or candidate.rank(prefer_complete) < best.rank(prefer_complete)):
@@ -184,6 +200,7 @@ def refine_kernel_shapes(
     factor: float = 2.0,
     max_sweeps: int = 3,
     prefer_complete: bool = False,
+    estimator: Optional[SymplecticKernelPredictor] = None,
 ) -> SelectionResult:
     """Coordinate search of the shape parameters around ``start`` at a larger ``m_star``.
 
@@ -211,10 +228,10 @@ def refine_kernel_shapes(
     scored = {}
 
     def score(tup):
-        key = tuple(repr(k) for k in tup)
-        if key not in scored:
-            scored[key] = select_kernels(data, validation, [tup[0]], [tup[1]], [tup[2]], m_star=m_star, prefer_complete=prefer_complete)
-        return scored[key]
+        if tup not in scored:  # kernels are values: equal family and shape, equal key
+            scored[tup] = select_kernels(data, validation, [tup[0]], [tup[1]], [tup[2]], m_star=m_star,
+                                         prefer_complete=prefer_complete, estimator=estimator)
+        return scored[tup]
 
     best = score((start.state, start.mu, start.dt))
     for sweep in range(max_sweeps):
@@ -225,7 +242,7 @@ def refine_kernel_shapes(
                 continue
             for f in (1 / factor, factor):
                 tup = list(current)
-                tup[i] = type(current[i])(current[i].eps * f)
+                tup[i] = current[i].set_params(eps=current[i].eps * f)
                 cand = score(tuple(tup))
                 if cand.rank(prefer_complete) < best.rank(prefer_complete):
                     best, improved = cand, True

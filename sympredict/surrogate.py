@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from sympredict._fastkernels import CenterLayout
 from sympredict.kernels import ProductKernel
 
 __all__ = ["HBSurrogate", "ValueSurrogate"]
@@ -99,6 +100,7 @@ class HBSurrogate:
         self._onehot = np.zeros((m, dim))
         self._onehot[np.arange(m), self.components] = 1.0
         self._flat_components = np.arange(m) * dim + self.components
+        self._layout = None  # the compiled kernels' arrangement, made on first use
 
     @property
     def n_centers(self) -> int:
@@ -148,12 +150,9 @@ class HBSurrogate:
 
     def layout(self):
         """The centres arranged for the compiled kernels (:class:`sympredict._fastkernels.CenterLayout`), cached."""
-        lay = getattr(self, "_layout", None)
-        if lay is None:
-            from sympredict._fastkernels import CenterLayout
-
-            lay = self._layout = CenterLayout(self.centers_xi, self.components)
-        return lay
+        if self._layout is None:
+            self._layout = CenterLayout(self.centers_xi, self.components)
+        return self._layout
 
     def value(self, xi: np.ndarray, weights: np.ndarray) -> np.ndarray:
         """Surrogate values ``s`` (``d/dy_l k = -A d_l``).

@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from sympredict.data import mixed_variables
-from sympredict.greedy import HBFunctionals, dense_interpolation, greedy_interpolation
+from sympredict.functionals import HBFunctionals, dense_interpolation
+from sympredict.greedy import greedy_interpolation
 from sympredict.kernels import IMQ, Matern32, Matern52, ProductKernel
 from sympredict.surrogate import HBSurrogate
 

@@ -10,12 +10,15 @@ numba is an optional dependency (``sympredict[fast]``); the tests that need it
 are skipped with a reason shown by ``-ra`` when it is not installed.
 """
 
+import copy
+
 import numpy as np
 import pytest
 
 from sympredict import NewtonConvergenceError, SymplecticKernelPredictor
 from sympredict import _fastkernels
-from sympredict.greedy import HBFunctionals, greedy_interpolation
+from sympredict.functionals import HBFunctionals
+from sympredict.greedy import ActiveSetGreedy, DenseStore, greedy_interpolation, run_greedy
 from sympredict.integrators import implicit_midpoint_step, integrate
 from sympredict.kernels import IMQ, Matern32, Matern52, ProductKernel
 from sympredict.surrogate import HBSurrogate
@@ -29,10 +32,8 @@ def _queries(rng, n):
 
 
 def _with_backend(model, backend):
-    twin = SymplecticKernelPredictor.__new__(SymplecticKernelPredictor)
-    twin.__dict__.update(model.__dict__)
-    twin.backend = backend
-    return twin
+    """The fitted model with another Newton backend (a shallow copy: the fitted state is shared)."""
+    return copy.copy(model).set_params(backend=backend)
 
 
 @pytest.fixture(scope="module")
@@ -178,8 +179,8 @@ def _pendulum_functionals(data, kernel=None):
     return HBFunctionals(kernel, xi, data.mu, data.dt), y.reshape(-1)
 
 
-def test_functional_residuals_match_the_greedy_residual(small_pendulum_data, monkeypatch):
-    from sympredict.greedy import functional_residuals
+def test_functional_residuals_match_the_greedy_residual(small_pendulum_data):
+    from sympredict.functionals import functional_residuals
 
     fun, y = _pendulum_functionals(small_pendulum_data)
     res = greedy_interpolation(fun, y, max_centers=200, tol=0.0)
@@ -187,10 +188,8 @@ def test_functional_residuals_match_the_greedy_residual(small_pendulum_data, mon
     # the greedy's Newton-form residual and the directly evaluated one agree to round-off
     assert abs(np.abs(direct).max() - res.history.train_max_residual[-1]) <= 1e-6 * res.history.train_max_residual[-1] + 1e-9
     np.testing.assert_allclose(direct[res.selected], 0.0, atol=1e-8)
-    # the NumPy fallback computes the same numbers
-    monkeypatch.setattr(_fastkernels, "HAVE_NUMBA", False)
-    fun2, _ = _pendulum_functionals(small_pendulum_data)
-    np.testing.assert_allclose(functional_residuals(fun2, y, res.selected, res.coef), direct, rtol=0, atol=1e-9)
+    # the NumPy evaluation computes the same numbers
+    np.testing.assert_allclose(functional_residuals(fun, y, res.selected, res.coef, compiled=False), direct, rtol=0, atol=1e-9)
 
 
 def test_gram_rows_equal_columns(rng):
@@ -220,7 +219,7 @@ def test_keep_basis_and_memory_message_offers_float32(small_pendulum_data):
 
 def test_float32_basis_against_float64(small_pendulum_data):
     """Half the memory; accurate while the power function stays well above float32 round-off."""
-    from sympredict.greedy import functional_residuals
+    from sympredict.functionals import functional_residuals
 
     fun, y = _pendulum_functionals(small_pendulum_data)
     r64 = greedy_interpolation(fun, y, max_centers=60, tol=0.0)
@@ -246,7 +245,8 @@ def test_active_set_on_all_points_is_the_exact_greedy(small_pendulum_data):
 
 
 def test_active_set_reaches_tol_over_all_functionals(small_pendulum_data):
-    from sympredict.greedy import active_set_greedy, functional_residuals
+    from sympredict.functionals import functional_residuals
+    from sympredict.greedy import active_set_greedy
 
     fun, y = _pendulum_functionals(small_pendulum_data)
     tol = 1e-3
@@ -261,18 +261,29 @@ def test_active_set_reaches_tol_over_all_functionals(small_pendulum_data):
 def test_predictor_fast_training(small_pendulum_data, rng):
     d = small_pendulum_data
     kw = dict(mu_kernel=IMQ(2.0), dt_kernel=IMQ(5.0), max_centers=800, tol=1e-3)
-    fast = SymplecticKernelPredictor(IMQ(0.15), training="fast", **kw).fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
+    fast = SymplecticKernelPredictor(IMQ(0.15), trainer=ActiveSetGreedy(), **kw).fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
     exact = SymplecticKernelPredictor(IMQ(0.15), **kw).fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
     assert fast.history_.stop_reason == "tol" and fast.history_.train_max_residual[-1] <= 1e-3
     x, mu, dt = _queries(rng, 8)
     a, b = fast.rollout(x, 30, mu=mu, dt=dt), exact.rollout(x, 30, mu=mu, dt=dt)
     assert np.abs(a - b).max() < 1e-2
-    with pytest.raises(ValueError, match="training"):
-        SymplecticKernelPredictor(IMQ(0.15), training="quick", **kw).fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
+    with pytest.raises(ValueError, match="trainer"):
+        SymplecticKernelPredictor(IMQ(0.15), trainer="quick", **kw).fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
+    with pytest.raises(ValueError, match="criterion='f'"):
+        SymplecticKernelPredictor(IMQ(0.15), trainer=ActiveSetGreedy(), criterion="p", **kw).fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
+
+
+def _dense(fun, y, compiled, **kw):
+    """The exact greedy with or without the compiled fused update pass."""
+    kw.setdefault("max_centers", 400)
+    store = DenseStore(fun, y, validation=kw.pop("validation", None), power_tol=kw.pop("power_tol", 1e-12),
+                       basis_dtype=kw.pop("basis_dtype", "float64"), compiled=compiled)
+    return run_greedy(store, **kw)
 
 
 @needs_numba
-def test_fused_greedy_update_is_bit_identical_to_numpy(small_pendulum_data, monkeypatch):
+@pytest.mark.parametrize("basis_dtype", ["float64", "float32"])
+def test_fused_greedy_update_is_bit_identical_to_numpy(small_pendulum_data, basis_dtype):
     """The exact f-greedy gives the same bits with and without the compiled vector pass."""
     from sympredict.data import mixed_variables
     from sympredict.systems.pendulum import Pendulum, random_flow_map_data
@@ -281,9 +292,8 @@ def test_fused_greedy_update_is_bit_identical_to_numpy(small_pendulum_data, monk
     val = random_flow_map_data(Pendulum(), 150, seed=3)
     vxi, vy = mixed_variables(val.x0, val.x1, val.dt)
     vfun = HBFunctionals(fun.kernel, vxi, val.mu, val.dt)
-    fused = greedy_interpolation(fun, y, max_centers=250, tol=0.0, validation=(vfun, vy.reshape(-1)))
-    monkeypatch.setattr(_fastkernels, "HAVE_NUMBA", False)
-    plain = greedy_interpolation(fun, y, max_centers=250, tol=0.0, validation=(vfun, vy.reshape(-1)))
+    fused = _dense(fun, y, True, max_centers=250, tol=0.0, validation=(vfun, vy.reshape(-1)), basis_dtype=basis_dtype)
+    plain = _dense(fun, y, False, max_centers=250, tol=0.0, validation=(vfun, vy.reshape(-1)), basis_dtype=basis_dtype)
     np.testing.assert_array_equal(fused.selected, plain.selected)
     np.testing.assert_array_equal(fused.coef, plain.coef)
     np.testing.assert_array_equal(fused.chol, plain.chol)
@@ -291,10 +301,8 @@ def test_fused_greedy_update_is_bit_identical_to_numpy(small_pendulum_data, monk
     np.testing.assert_array_equal(fused.history.val_max_residual, plain.history.val_max_residual)
     # and the tolerance and power stops fire at the same step
     for kw in ({"tol": 1e-2}, {"tol": 0.0, "power_tol": 1e-3}):
-        monkeypatch.setattr(_fastkernels, "HAVE_NUMBA", True)
-        a = greedy_interpolation(fun, y, max_centers=400, **kw)
-        monkeypatch.setattr(_fastkernels, "HAVE_NUMBA", False)
-        b = greedy_interpolation(fun, y, max_centers=400, **kw)
+        a = _dense(fun, y, True, basis_dtype=basis_dtype, **kw)
+        b = _dense(fun, y, False, basis_dtype=basis_dtype, **kw)
         assert a.history.stop_reason == b.history.stop_reason
         np.testing.assert_array_equal(a.selected, b.selected)
 
@@ -310,7 +318,7 @@ def test_matvec_and_rollout_statistics(small_pendulum_model, rng):
     sur = small_pendulum_model.surrogate_
     x, mu, dt = _queries(rng, 6)
     stats = {}
-    _fastkernels.newton_rollout(x, sur.weights(mu[:, None], dt), dt, sur.layout(), "imq", sur.kernel.state.eps, 50, 4, stats=stats)
+    _fastkernels.newton_rollout(x, sur.weights(mu[:, None], dt), dt, sur.layout(), sur.kernel.state, 50, 4, stats=stats)
     # per step: one gradient pass for the explicit guess, at least one Newton pass
     assert np.all(stats["passes"] >= 2 * 4) and np.all(stats["passes"] <= 4 * 51)
     assert 0 < _fastkernels.factor_throughput(n=1 << 12, repeats=1) < 1e-6

@@ -15,7 +15,8 @@ from hypothesis.extra import numpy as hnp
 
 from sympredict import ExtrapolationWarning, NewtonConvergenceError, SolvabilityError, SymplecticKernelPredictor, SympredictError
 from sympredict.data import FlowMapData
-from sympredict.greedy import HBFunctionals, greedy_interpolation
+from sympredict.functionals import HBFunctionals
+from sympredict.greedy import greedy_interpolation
 from sympredict.kernels import IMQ, KERNEL_FAMILIES, Matern52, ProductKernel
 from sympredict.metrics import relative_hamiltonian_error
 from sympredict.reduction import complex_svd_basis

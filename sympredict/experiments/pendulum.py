@@ -20,10 +20,11 @@ import numpy as np
 from pymor.core.logger import getLogger
 
 from sympredict.integrators import implicit_midpoint_step, integrate, stormer_verlet_step
-from sympredict.kernels import IMQ, KERNEL_FAMILIES, RadialKernel
+from sympredict.kernels import IMQ, RadialKernel
 from sympredict.metrics import relative_hamiltonian_error, relative_trajectory_error
 from sympredict.exceptions import ExtrapolationWarning, NewtonConvergenceError, SolvabilityError
 from sympredict.predictor import DirectKernelPredictor, SymplecticKernelPredictor
+from sympredict.selection import kernel_grid, refine_kernel_shapes, select_kernels
 from sympredict.systems.pendulum import DT_TEST, DT_TRAIN, MU_TRAIN, Pendulum, flow_map_data, random_flow_map_data
 
 __all__ = ["PendulumPreset", "PRESETS", "select_pendulum_kernels", "run_scenario_a", "run_scenario_b", "run_speed_accuracy", "run_stability", "paper_test_instances", "MU_EXTRAPOLATION", "DT_EXTRAPOLATION"]
@@ -149,8 +150,6 @@ def select_pendulum_kernels(preset: PendulumPreset, seed: int = 0) -> dict:
         ``kernels`` (state, mu, dt), ``screen`` and ``refine`` (:class:`SelectionResult`),
         ``time_s`` and JSON-ready ``summary``.
     """
-    from sympredict.selection import kernel_grid, refine_kernel_shapes, select_kernels
-
     system = Pendulum()
     t0 = time.perf_counter()
     data = flow_map_data(system, n_grid=preset.select_n_grid)
@@ -180,8 +179,7 @@ def select_pendulum_kernels(preset: PendulumPreset, seed: int = 0) -> dict:
         "screen_winner": [repr(screen.state), repr(screen.mu), repr(screen.dt)],
         "screen_E_val": screen.score,
         "best_per_family": {
-            family: min((row for row in screen.table if row["state"].startswith(KERNEL_FAMILIES[family].__name__ + "(")),
-                        key=lambda row: row["E_val"])
+            family: min((row for row in screen.table if row["state"]["family"] == family), key=lambda row: row["E_val"])
             for family in preset.select_families
         },
         "chosen": [repr(refine.state), repr(refine.mu), repr(refine.dt)],

@@ -21,12 +21,14 @@ from __future__ import annotations
 
 import time
 from dataclasses import asdict, dataclass, replace
+from typing import Optional
 
 import numpy as np
 from pymor.core.logger import getLogger
 
 from sympredict.data import FlowMapData
 from sympredict.metrics import relative_trajectory_error
+from sympredict.parallel import pool_flow, pool_map_instances
 from sympredict.predictor import SymplecticKernelPredictor
 from sympredict.reduction import SymplecticROM, complex_svd_basis, symplecticity_of_basis
 from sympredict.selection import kernel_grid, select_kernels
@@ -103,7 +105,7 @@ PRESETS = {
 
 def fom_snapshots(preset: WavePreset, seed: int = 0, pool=None):
     """FOM and its snapshot trajectories at ``c_ref``; with a pyMOR worker ``pool``, computed over it
-    (:func:`sympredict.parallel.wave_snapshots`, the same snapshots bit for bit).
+    (:func:`sympredict.parallel.pool_map_instances`, the same snapshots bit for bit).
 
     Returns
     -------
@@ -124,9 +126,7 @@ def fom_snapshots(preset: WavePreset, seed: int = 0, pool=None):
         if pool is None:
             snapshots = fom.trajectory(x0, mu_ref, preset.snapshot_dt, n_snap)
         else:
-            from sympredict.parallel import wave_snapshots
-
-            snapshots = wave_snapshots(fom, x0, mu_ref, preset.snapshot_dt, n_snap, pool=pool)
+            snapshots = pool_map_instances(fom, "trajectory", x0, mu_ref, preset.snapshot_dt, n_snap, pool=pool)
         snapshots = snapshots.reshape(-1, fom.dim)
     return fom, snapshots, energy, time.perf_counter() - t0
 
@@ -161,8 +161,13 @@ def build_rom(preset: WavePreset, seed: int = 0, pool=None):
     return fom, rom, energy, info
 
 
-def reduced_flow_map_data(rom: SymplecticROM, speeds, dt: float, n_per_speed: int, energy: float, seed: int) -> FlowMapData:
+def reduced_flow_map_data(rom: SymplecticROM, speeds, dt: float, n_per_speed: int, energy: float, seed: int, *,
+                          pool=None, chunk_size: Optional[int] = None) -> FlowMapData:
     """Reduced states uniform in ``{H_red(x; c^2) <= energy}`` per speed, and their reference flows over ``dt``.
+
+    With ``pool`` (or ``chunk_size``) the flows are evaluated over a pyMOR worker
+    pool in chunks of states (:func:`sympredict.parallel.pool_flow`, the same
+    samples bit for bit).
 
     Returns
     -------
@@ -173,7 +178,11 @@ def reduced_flow_map_data(rom: SymplecticROM, speeds, dt: float, n_per_speed: in
     for i, c in enumerate(speeds):
         mu = float(c) ** 2
         x0 = rom.system.sample_energy_ellipsoid(n_per_speed, mu, energy, seed=seed + i)
-        parts.append(FlowMapData(x0, rom.system.flow(x0, mu, dt), np.full((n_per_speed, 1), mu), np.full(n_per_speed, dt)))
+        if pool is None and chunk_size is None:
+            x1 = rom.system.flow(x0, mu, dt)
+        else:
+            x1 = pool_flow(rom.system, x0, mu, dt, pool=pool, chunk_size=chunk_size)
+        parts.append(FlowMapData(x0, x1, np.full((n_per_speed, 1), mu), np.full(n_per_speed, dt)))
     out = parts[0]
     for p in parts[1:]:
         out = out.concatenate(p)

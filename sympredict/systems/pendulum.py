@@ -7,12 +7,18 @@ micro step of at most ``1e-3`` (as in the paper), solved to round-off.
 
 from __future__ import annotations
 
+from typing import Optional
+
 import numpy as np
+from pymor.core.logger import getLogger
 
 from sympredict._checks import as_parameter, as_positive_int, as_states, as_steps
 from sympredict.data import FlowMapData
 from sympredict.exceptions import NewtonConvergenceError
 from sympredict.integrators import micro_steps
+from sympredict.parallel import pool_flow
+
+logger = getLogger("sympredict.systems.pendulum")
 
 __all__ = [
     "Pendulum",
@@ -179,6 +185,9 @@ def flow_map_data(
     n_grid: int = 200,
     p_nonpositive: bool = False,
     h_max: float = 1e-3,
+    *,
+    pool=None,
+    chunk_size: Optional[int] = None,
 ) -> FlowMapData:
     """Flow-map samples over ``mus x dts x energy-bounded grid`` (scenario A; B with ``p_nonpositive``).
 
@@ -194,6 +203,10 @@ def flow_map_data(
         Keep only initial states with ``p <= 0`` (scenario B).
     h_max
         Micro step of the reference flow.
+    pool, chunk_size
+        Evaluate the reference flows over a pyMOR worker pool in chunks of
+        instances (:func:`sympredict.parallel.pool_flow`: the same samples bit
+        for bit); ``None``: in this process.
 
     Returns
     -------
@@ -212,7 +225,7 @@ def flow_map_data(
     x0 = np.concatenate(x0s)
     mu = np.concatenate(mu_list)
     dt = np.concatenate(dt_list)
-    return FlowMapData(x0, system.flow(x0, mu, dt, h_max), mu[:, None], dt)
+    return FlowMapData(x0, _flows(system, x0, mu, dt, h_max, pool, chunk_size), mu[:, None], dt)
 
 
 def random_flow_map_data(
@@ -224,13 +237,17 @@ def random_flow_map_data(
     h_max: float = 1e-3,
     mu_values=None,
     dt_values=None,
+    *,
+    pool=None,
+    chunk_size: Optional[int] = None,
 ) -> FlowMapData:
     """Flow-map samples at random energy-bounded states, lengths and steps (validation data).
 
     States are drawn uniformly in the sampling box and kept when ``H < 2 g``.
     Lengths and steps are drawn uniformly from ``mu_values`` / ``dt_values``
     when given (e.g. the training grid, as for the paper's validation
-    curves), else uniformly in ``mu_range`` / ``dt_range``.
+    curves), else uniformly in ``mu_range`` / ``dt_range``.  ``pool`` and
+    ``chunk_size`` as in :func:`flow_map_data`.
     """
     n_samples = as_positive_int(n_samples, "n_samples")
     rng = np.random.default_rng(seed)
@@ -249,4 +266,12 @@ def random_flow_map_data(
         mu = np.concatenate([mu, lengths[keep]])
     x0, mu = x0[:n_samples], mu[:n_samples]
     dt = draw(dt_values, dt_range, n_samples)
-    return FlowMapData(x0, system.flow(x0, mu, dt, h_max), mu[:, None], dt)
+    return FlowMapData(x0, _flows(system, x0, mu, dt, h_max, pool, chunk_size), mu[:, None], dt)
+
+
+def _flows(system: Pendulum, x0, mu, dt, h_max, pool, chunk_size) -> np.ndarray:
+    """Reference flows of the samples, in this process or over a worker pool (the same arrays)."""
+    if pool is None and chunk_size is None:
+        return system.flow(x0, mu, dt, h_max)
+    with logger.block(f"pendulum reference flows: {len(x0)} samples on {len(pool) if pool is not None else 1} worker(s)"):
+        return pool_flow(system, x0, mu, dt, h_max, pool=pool, chunk_size=chunk_size)

@@ -1,0 +1,126 @@
+"""Newton solvers of the implicit symplectic-Euler step: the NumPy reference and the compiled rollout.
+
+Per instance, ``F(p1) = p1 - p0 + dT d_q s(q0, p1) = 0`` with Jacobian
+``I + dT d_p d_q s``; then ``q1 = q0 + dT d_p s(q0, p1)``.  Both solvers start
+from the explicit guess ``p1 ~ p0 - dT d_q s(q0, p0)`` and stop each instance
+by the one stopping rule of :mod:`sympredict.newton_rule`.  A failed solve
+raises :class:`~sympredict.exceptions.NewtonConvergenceError` naming the
+instances of the first failing macro step and, within it, of the first
+failing Newton iteration (non-finite residual before a singular Jacobian
+before no convergence): the same report from both backends.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from sympredict import _fastkernels
+from sympredict.exceptions import NewtonConvergenceError
+from sympredict.newton_rule import EPS, converged, residual_floor
+from sympredict.surrogate import HBSurrogate
+
+__all__ = ["solve_step_numpy", "rollout_numpy", "rollout_compiled", "FAILURE_REASONS"]
+
+#: Failure codes of the compiled solver and the reason each names.
+FAILURE_REASONS = {
+    1: "produced a non-finite iterate",
+    2: "hit a singular Jacobian I + dT d_p d_q s",
+    3: "did not converge in {max_iter} iterations",
+}
+
+
+def solve_step_numpy(sur: HBSurrogate, x: np.ndarray, weights: np.ndarray, dt: np.ndarray, max_iter: int) -> np.ndarray:
+    """One implicit symplectic-Euler step for a validated batch (NumPy reference).
+
+    Parameters
+    ----------
+    sur
+        The fitted surrogate.
+    x : ndarray of shape (B, 2n)
+    weights : ndarray of shape (B, m)
+        :meth:`HBSurrogate.weights` of the instances' ``(mu, dT)``.
+    dt : ndarray of shape (B,)
+    max_iter
+        Newton iterations at most.
+
+    Returns
+    -------
+    ndarray of shape (B, 2n)
+
+    Notes
+    -----
+    All instances advance together; converged instances leave the active
+    set.  Cost per iteration ``O(B_active m (2n + n^2))`` (:meth:`HBSurrogate.newton_terms`).
+    """
+    n = x.shape[1] // 2
+    q0, p0 = x[:, :n], x[:, n:]
+    h = dt[:, None]
+    p = p0 - h * sur.gradient(x, weights)[:, :n]
+    out = np.empty_like(x)
+    active = np.arange(len(x))
+    last_update = np.full(len(x), np.inf)
+    eye = np.eye(n)
+    for _ in range(max_iter):
+        xi = np.concatenate([q0[active], p[active]], axis=1)
+        g, hess_qp, floor = sur.newton_terms(xi, weights[active])
+        ha = h[active]
+        F = p[active] - p0[active] + ha * g[:, :n]
+        f_norm = np.abs(F).max(axis=1)
+        scale = np.maximum(np.abs(p[active]).max(axis=1), np.abs(p0[active]).max(axis=1))
+        f_floor = residual_floor(scale, floor, ha[:, 0])
+        bad = ~np.isfinite(f_norm)
+        if np.any(bad):
+            raise NewtonConvergenceError(active[bad], f_norm[bad], reason=FAILURE_REASONS[1])
+        jac = eye + ha[:, :, None] * hess_qp
+        try:
+            delta = np.linalg.solve(jac, F[:, :, None])[:, :, 0]
+        except np.linalg.LinAlgError:
+            singular = np.abs(np.linalg.det(jac)) <= EPS
+            raise NewtonConvergenceError(active[singular], f_norm[singular], reason=FAILURE_REASONS[2]) from None
+        d_norm = np.abs(delta).max(axis=1)
+        done = converged(f_norm, f_floor, d_norm, last_update[active], scale)
+        idx = active[done]
+        out[idx, :n] = q0[idx] + ha[done] * g[done, n:]
+        out[idx, n:] = p[idx]
+        keep = ~done
+        active = active[keep]
+        last_update[active] = d_norm[keep]
+        p[active] -= delta[keep]
+        if active.size == 0:
+            return out
+    raise NewtonConvergenceError(active, f_norm[keep], reason=FAILURE_REASONS[3].format(max_iter=max_iter))
+
+
+def rollout_numpy(advance, x: np.ndarray, n_steps: int) -> np.ndarray:
+    """``n_steps`` steps ``x <- advance(x)`` (B, K+1, 2n); a failure names its macro step."""
+    traj = np.empty((len(x), n_steps + 1, x.shape[1]))
+    traj[:, 0] = x
+    for k in range(n_steps):
+        try:
+            traj[:, k + 1] = advance(traj[:, k])
+        except NewtonConvergenceError as err:
+            raise err.at_step(k) from None
+    return traj
+
+
+def rollout_compiled(sur: HBSurrogate, x, weights, dt, n_steps: int, max_iter: int, step_index: bool = True):
+    """``n_steps`` steps in compiled code (:func:`sympredict._fastkernels.newton_rollout`); failures raise as the NumPy path's.
+
+    Returns
+    -------
+    ndarray of shape (B, K+1, 2n)
+    """
+    traj, codes, fail_step, fail_iter, resid = _fastkernels.newton_rollout(
+        x, weights, dt, sur.layout(), sur.kernel.state, max_iter, n_steps
+    )
+    failed = codes != 0
+    if np.any(failed):
+        k = fail_step[failed].min()
+        at = failed & (fail_step == k)
+        sel = at & (fail_iter == fail_iter[at].min())
+        for code in (1, 2, 3):
+            hit = sel & (codes == code)
+            if np.any(hit):
+                err = NewtonConvergenceError(np.flatnonzero(hit), resid[hit], reason=FAILURE_REASONS[code].format(max_iter=max_iter))
+                raise (err.at_step(int(k)) if step_index else err)
+    return traj

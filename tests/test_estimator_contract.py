@@ -1,0 +1,180 @@
+"""scikit-learn's estimator contract, training strategies as parameters, and every setting in model files."""
+
+import copy
+import json
+
+import h5py
+import numpy as np
+import pytest
+import sklearn.base
+from pymor.parallel.dummy import dummy_pool
+
+from sympredict import DirectKernelPredictor, ModelFileError, SymplecticKernelPredictor
+from sympredict.base import Parametrized, clone
+from sympredict.greedy import TRAINERS, ActiveSetGreedy, ExactGreedy, ShardedGreedy
+from sympredict.io import load_model, save_model
+from sympredict.kernels import IMQ, Matern32, Matern52
+
+
+def _data(d, n=400):
+    idx = np.random.default_rng(0).choice(len(d), n, replace=False)
+    return d.x0[idx], d.x1[idx], d.mu[idx], d.dt[idx]
+
+
+@pytest.mark.parametrize("cls", [SymplecticKernelPredictor, DirectKernelPredictor])
+def test_params_come_from_init_and_sklearn_clone_works(cls):
+    model = cls(IMQ(0.2), IMQ(1.5), Matern52(3.0), max_centers=77, tol=1e-7, trainer=ExactGreedy("float32"))
+    params = model.get_params(deep=False)
+    import inspect
+
+    assert set(params) == set(inspect.signature(cls.__init__).parameters) - {"self"}
+    assert params["max_centers"] == 77 and params["trainer"] == model.trainer
+    deep = model.get_params(deep=True)
+    assert deep["state_kernel__eps"] == 0.2 and deep["dt_kernel__eps"] == 3.0 and deep["trainer__basis_dtype"] == "float32"
+    for copy_ in (clone(model), sklearn.base.clone(model)):
+        assert type(copy_) is cls and copy_ is not model
+        assert repr(copy_.get_params(deep=False)) == repr(params)
+        assert copy_.trainer is not model.trainer and copy_.trainer.get_params() == model.trainer.get_params()
+        assert not copy_.is_fitted
+
+
+def test_set_params_nested_and_checked():
+    model = SymplecticKernelPredictor(IMQ(0.2), IMQ(1.5), IMQ(3.0))
+    same = model.set_params(state_kernel__eps=0.4, max_centers=12, trainer=ActiveSetGreedy())
+    assert same is model and model.state_kernel == IMQ(0.4) and model.max_centers == 12
+    model.set_params(trainer__refresh_every=17)
+    assert model.trainer.refresh_every == 17
+    with pytest.raises(ValueError, match="no parameter 'max_center'.*valid parameters"):
+        model.set_params(max_center=3)
+    with pytest.raises(ValueError, match="no parameter"):
+        model.set_params(state_kernel__shape=3)
+    # kernels are values: set_params gives a new kernel, the old one is untouched
+    k = IMQ(1.0)
+    assert k.set_params(eps=2.0) == IMQ(2.0) and k == IMQ(1.0)
+
+
+def test_init_only_stores(small_pendulum_data):
+    """Nonsense settings are accepted by __init__ and refused by fit, naming the setting."""
+    x0, x1, mu, dt = _data(small_pendulum_data, 60)
+    for kw, match in [({"max_centers": 0}, "max_centers"), ({"tol": float("nan")}, "tol"),
+                      ({"power_tol": float("nan")}, "power_tol"), ({"power_tol": 2.0}, "power_tol"),
+                      ({"memory_limit": float("nan")}, "memory_limit"), ({"criterion": "q"}, "criterion"),
+                      ({"backend": "gpu"}, "backend"), ({"trainer": "fast"}, "trainer"),
+                      ({"newton_max_iter": 0}, "newton_max_iter")]:
+        model = SymplecticKernelPredictor(IMQ(0.2), IMQ(1.5), IMQ(3.0), **kw)
+        assert model.get_params()[next(iter(kw))] is kw[next(iter(kw))]
+        with pytest.raises(ValueError, match=match):
+            model.fit(x0, x1, mu=mu, dt=dt)
+
+
+def test_strategies_that_cannot_combine_say_so(small_pendulum_data):
+    x0, x1, mu, dt = _data(small_pendulum_data, 60)
+    with pytest.raises(ValueError, match="criterion='f'"):
+        SymplecticKernelPredictor(IMQ(0.2), IMQ(1.5), IMQ(3.0), criterion="p", trainer=ActiveSetGreedy()).fit(x0, x1, mu=mu, dt=dt)
+    with pytest.raises(ValueError, match="direct model"):
+        DirectKernelPredictor(IMQ(0.2), IMQ(1.5), IMQ(3.0), trainer=ActiveSetGreedy()).fit(x0, x1, mu=mu, dt=dt)
+    with pytest.raises(ValueError, match="basis_dtype"):
+        SymplecticKernelPredictor(IMQ(0.2), IMQ(1.5), IMQ(3.0), trainer=ExactGreedy("float16")).fit(x0, x1, mu=mu, dt=dt)
+
+
+def test_sharded_strategy_keeps_its_pool_when_cloned():
+    trainer = ShardedGreedy(dummy_pool, n_shards=2)
+    for c in (clone(trainer), sklearn.base.clone(trainer), clone(SymplecticKernelPredictor(trainer=trainer)).trainer):
+        assert c is not trainer and c.pool is dummy_pool and c.n_shards == 2
+
+
+@pytest.mark.parametrize("trainer", [None, ExactGreedy(), ExactGreedy("float32"), ActiveSetGreedy(initial_points=100, seed=3),
+                                     ShardedGreedy(dummy_pool, n_shards=2, timeout=5.0)], ids=repr)
+def test_every_setting_round_trips_through_files(small_pendulum_data, tmp_path, trainer):
+    x0, x1, mu, dt = _data(small_pendulum_data)
+    model = SymplecticKernelPredictor(None, IMQ(1.5), Matern32(3.0), max_centers=40, tol=1e-9, criterion="f",
+                                      power_tol=1e-11, newton_max_iter=31, memory_limit=2e9, backend="numpy",
+                                      trainer=trainer).fit(x0, x1, mu=mu, dt=dt)
+    path = tmp_path / "m.h5"
+    model.save(path)
+    back = SymplecticKernelPredictor.load(path)
+    expected = model.get_params(deep=False)
+    if isinstance(trainer, ShardedGreedy):
+        expected["trainer"] = ShardedGreedy(None, n_shards=2, timeout=5.0)  # a pool is a connection, not a setting
+    assert repr(back.get_params(deep=True)) == repr(clone(model).set_params(trainer=expected["trainer"]).get_params(deep=True))
+    assert back.state_kernel is None and back.kernel_ == model.kernel_
+    np.testing.assert_array_equal(back.step(x0[:5], mu=mu[:5], dt=dt[:5]), model.step(x0[:5], mu=mu[:5], dt=dt[:5]))
+    # the same model written twice gives the same settings and arrays: no timings in the file
+    path2 = tmp_path / "m2.h5"
+    clone(model).fit(x0, x1, mu=mu, dt=dt).save(path2)
+    with h5py.File(path, "r") as a, h5py.File(path2, "r") as b:
+        assert a.attrs["settings"] == b.attrs["settings"] and a.attrs["checksum"] == b.attrs["checksum"]
+
+
+def test_direct_model_files_and_io_dispatch(small_pendulum_data, tmp_path):
+    x0, x1, mu, dt = _data(small_pendulum_data)
+    model = DirectKernelPredictor(IMQ(0.2), IMQ(1.5), IMQ(3.0), max_centers=30).fit(x0, x1, mu=mu, dt=dt)
+    save_model(model, tmp_path / "d.h5")
+    back = load_model(tmp_path / "d.h5")
+    assert type(back) is DirectKernelPredictor
+    np.testing.assert_array_equal(back.rollout(x0[:3], 4, mu=mu[:3], dt=dt[:3]), model.rollout(x0[:3], 4, mu=mu[:3], dt=dt[:3]))
+    with pytest.raises(ModelFileError, match="not a SymplecticKernelPredictor"):
+        SymplecticKernelPredictor.load(tmp_path / "d.h5")
+
+
+def test_layout_1_files_still_load(small_pendulum_data, tmp_path):
+    """A model file of sympredict 0.1 (settings without 'layout', timings in the arrays) loads as before."""
+    from sympredict.container import write_container
+    from sympredict.predictor import MODEL_FORMAT
+
+    x0, x1, mu, dt = _data(small_pendulum_data)
+    model = SymplecticKernelPredictor(IMQ(0.2), IMQ(1.5), IMQ(3.0), max_centers=30).fit(x0, x1, mu=mu, dt=dt)
+    sur, h = model.surrogate_, model.history_
+    settings = {"kernel": model.kernel_.spec, "state_kernel_given": True, "max_centers": 30, "tol": 1e-10, "criterion": "f",
+                "power_tol": 1e-12, "newton_max_iter": 50, "memory_limit": None, "dim": 2, "n_mu": 1, "dt_fixed": None,
+                "stop_reason": h.stop_reason}
+    arrays = {"centers_xi": sur.centers_xi, "centers_mu": sur.centers_mu, "centers_dt": sur.centers_dt,
+              "components": sur.components, "coef": sur.coef, "train_max_residual": h.train_max_residual,
+              "selected_power": h.selected_power, "elapsed": h.elapsed}
+    arrays.update({f"domain_{k}": np.asarray(v) for k, v in model.domain_.items()})
+    write_container(tmp_path / "old.h5", MODEL_FORMAT, settings, arrays)
+    back = load_model(tmp_path / "old.h5")
+    assert back.max_centers == 30 and back.state_kernel == IMQ(0.2) and back.trainer is None
+    np.testing.assert_array_equal(back.step(x0[:5], mu=mu[:5], dt=dt[:5]), model.step(x0[:5], mu=mu[:5], dt=dt[:5]))
+
+
+def test_inconsistent_model_files_are_refused(small_pendulum_data, tmp_path):
+    from sympredict.container import read_container, write_container
+    from sympredict.predictor import MODEL_FORMAT
+
+    x0, x1, mu, dt = _data(small_pendulum_data)
+    SymplecticKernelPredictor(IMQ(0.2), IMQ(1.5), IMQ(3.0), max_centers=30).fit(x0, x1, mu=mu, dt=dt).save(tmp_path / "m.h5")
+    settings, arrays = read_container(tmp_path / "m.h5", MODEL_FORMAT)
+    for change, match in [(lambda s, a: a.__setitem__("components", a["components"] + 5), "components"),
+                          (lambda s, a: a.__setitem__("coef", a["coef"] * np.nan), "finite"),
+                          (lambda s, a: a.pop("domain_x_min"), "training box"),
+                          (lambda s, a: a.__setitem__("centers_mu", a["centers_mu"][:3]), "centers_mu"),
+                          (lambda s, a: s["params"].__setitem__("trainer", {"trainer": {"name": "Magic", "params": {}}}), "Magic"),
+                          (lambda s, a: s.__setitem__("class", "Sneaky"), "Sneaky")]:
+        s, a = json.loads(json.dumps(settings)), dict(arrays)
+        change(s, a)
+        write_container(tmp_path / "bad.h5", MODEL_FORMAT, s, a)
+        with pytest.raises(ModelFileError, match=match):
+            load_model(tmp_path / "bad.h5")
+
+
+def test_trainers_registry_and_a_new_strategy(small_pendulum_data):
+    """A new training strategy is a Trainer subclass with a store method (docs/architecture.md)."""
+    from sympredict.greedy import DenseStore, Trainer
+
+    assert set(TRAINERS) >= {"ExactGreedy", "ActiveSetGreedy", "ShardedGreedy"}
+
+    class EveryOtherCentre(Trainer):  # a toy strategy: the exact greedy on every other sample
+        def __init__(self, stride: int = 2):
+            self.stride = stride
+
+        def store(self, functionals, targets, *, criterion, power_tol, tol, validation, memory_limit):
+            return DenseStore(functionals, targets, criterion=criterion, power_tol=power_tol, validation=validation,
+                              memory_limit=memory_limit)
+
+    x0, x1, mu, dt = _data(small_pendulum_data, 200)
+    a = SymplecticKernelPredictor(IMQ(0.2), IMQ(1.5), IMQ(3.0), max_centers=25, trainer=EveryOtherCentre()).fit(x0, x1, mu=mu, dt=dt)
+    b = SymplecticKernelPredictor(IMQ(0.2), IMQ(1.5), IMQ(3.0), max_centers=25).fit(x0, x1, mu=mu, dt=dt)
+    np.testing.assert_array_equal(a.surrogate_.coef, b.surrogate_.coef)
+    assert isinstance(clone(a.trainer), EveryOtherCentre) and isinstance(a.trainer, Parametrized)
+    assert copy.copy(a).n_centers_ == 25
