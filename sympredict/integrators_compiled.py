@@ -421,7 +421,7 @@ def _compile_pointwise(fn, signature, arg: str):
     except Exception as exc:  # numba raises TypingError, TypeError, ... for a wrong signature
         raise ValueError(
             f"{arg} does not compile for the signature {arg}(z, mu, fargs, iargs, out) of "
-            f"sympredict.integrators_compiled ({type(exc).__name__}: {str(exc).splitlines()[0]})"
+            f"sympredict.integrators_compiled ({type(exc).__name__}: {' '.join(str(exc).split())[:600]})"
         ) from None
 
 
