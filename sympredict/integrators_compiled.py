@@ -416,6 +416,8 @@ def _kernels():
 
 def _compile_pointwise(fn, signature, arg: str):
     """Compile a numba function for the fixed signature; ``ValueError`` naming ``arg`` if it does not fit."""
+    if signature.args in fn.overloads:  # already compiled (or loaded from the disk cache): skip numba's lock
+        return
     try:
         fn.compile(signature)
     except Exception as exc:  # numba raises TypingError, TypeError, ... for a wrong signature
