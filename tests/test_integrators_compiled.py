@@ -291,3 +291,14 @@ def test_system_specific_domain_and_separability_checks():
         PointwiseHamiltonian(2, 1, grad_V=_JIT[1])
     with pytest.raises(ValueError, match="dim"):
         PointwiseHamiltonian(3, 1, grad_H=_JIT[2])
+
+
+def test_without_numba_the_numpy_reference_runs(monkeypatch):
+    import sympredict.integrators_compiled as ic
+
+    system, x, mu = _case("henon_heiles", b=3)
+    compiled = rollout(system, x, mu, 0.1, 5, scheme="yoshida4")
+    monkeypatch.setattr(ic, "HAVE_NUMBA", False)
+    np.testing.assert_allclose(ic.rollout(system, x, mu, 0.1, 5, scheme="yoshida4"), compiled, rtol=0, atol=1e-14)
+    with pytest.raises(ValueError, match="numba is not installed"):
+        ic.rollout(system, x, mu, 0.1, 5, backend="numba")
