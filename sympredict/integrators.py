@@ -9,6 +9,10 @@ for states ``x`` of shape ``(B, 2n)`` ordered ``(q, p)`` and parameters ``mu``
 of shape ``(B, d_mu)``.  The equations of motion are ``x' = J grad H`` with
 ``J = [[0, I], [-I, 0]]``.  Every scheme has the same signature
 ``step(system, x, mu, h) -> x_next`` with ``h`` a float or ``(B,)``.
+
+The code here is the NumPy reference.  :mod:`sympredict.integrators_compiled`
+runs the same schemes (:data:`SCHEMES`) as one compiled, batched rollout and
+takes its composition coefficients (:data:`COMPOSITIONS`) from this module.
 """
 
 from __future__ import annotations
@@ -18,9 +22,49 @@ import numpy as np
 from sympredict.exceptions import NewtonConvergenceError
 from sympredict.metrics import canonical_J
 
-__all__ = ["micro_steps", "apply_J", "implicit_midpoint_step", "symplectic_euler_step", "stormer_verlet_step", "integrate"]
+__all__ = [
+    "micro_steps",
+    "apply_J",
+    "COMPOSITIONS",
+    "SCHEMES",
+    "SCHEME_ORDERS",
+    "implicit_midpoint_step",
+    "symplectic_euler_step",
+    "stormer_verlet_step",
+    "composition_step",
+    "yoshida4_step",
+    "kahan_li6_step",
+    "integrate",
+]
 
 _EPS = np.finfo(float).eps
+
+_CBRT2 = 2.0 ** (1.0 / 3.0)
+
+#: Symmetric compositions ``Phi_h = SV_{g_s h} o ... o SV_{g_1 h}`` of the Störmer–Verlet step:
+#: the step fractions ``g_i`` (they sum to 1).  Defined once; the compiled path uses these tuples.
+#:
+#: * ``"stormer_verlet"``: the base method itself, order 2.
+#: * ``"yoshida4"``: Yoshida's triple jump, order 4 (H. Yoshida, Phys. Lett. A 150 (1990) 262-268):
+#:   ``g_1 = g_3 = 1 / (2 - 2^(1/3))``, ``g_2 = -2^(1/3) / (2 - 2^(1/3))``.
+#: * ``"kahan_li6"``: Kahan and Li's 9-stage method s9odr6a, order 6 (W. Kahan, R.-C. Li,
+#:   Math. Comp. 66 (1997) 1089-1099), coefficients as printed in Hairer, Lubich, Wanner,
+#:   *Geometric Numerical Integration*, 2nd ed. (2006), section V.3.2.
+COMPOSITIONS = {
+    "stormer_verlet": (1.0,),
+    "yoshida4": (1.0 / (2.0 - _CBRT2), -_CBRT2 / (2.0 - _CBRT2), 1.0 / (2.0 - _CBRT2)),
+    "kahan_li6": (
+        0.39216144400731413927925056,
+        0.33259913678935943859974864,
+        -0.70624617255763935980996482,
+        0.08221359629355080023149045,
+        0.79854399093482996339895035,
+        0.08221359629355080023149045,
+        -0.70624617255763935980996482,
+        0.33259913678935943859974864,
+        0.39216144400731413927925056,
+    ),
+}
 
 
 def micro_steps(t, h_max: float) -> np.ndarray:
@@ -141,14 +185,85 @@ def stormer_verlet_step(system, x, mu, h) -> np.ndarray:
     return np.concatenate([q, p], axis=1)
 
 
-def integrate(step, system, x0, mu, h, n_steps: int) -> np.ndarray:
-    """Trajectories ``(B, K+1, 2n)`` of ``n_steps`` applications of ``step(system, x, mu, h)``."""
+def composition_step(system, x, mu, h, *, fractions) -> np.ndarray:
+    """The composition ``SV_{g_s h} o ... o SV_{g_1 h}`` of Störmer–Verlet steps (separable ``H`` only).
+
+    Parameters
+    ----------
+    system, x, mu, h
+        As for :func:`stormer_verlet_step`.
+    fractions : sequence of float
+        Step fractions ``g_i`` (e.g. ``COMPOSITIONS["yoshida4"]``).
+
+    Returns
+    -------
+    ndarray of shape (B, 2n)
+
+    Notes
+    -----
+    ``3 s`` gradient evaluations of shape (B, 2n) for ``s`` stages (the
+    reference recomputes what the compiled path reuses).
+    """
+    x = np.asarray(x, dtype=float)
+    hh = _as_h(h, len(x))[:, 0]
+    for g in fractions:
+        x = stormer_verlet_step(system, x, mu, g * hh)
+    return x
+
+
+def yoshida4_step(system, x, mu, h) -> np.ndarray:
+    """Yoshida's 4th-order triple jump of Störmer–Verlet (``COMPOSITIONS["yoshida4"]``); separable ``H``."""
+    return composition_step(system, x, mu, h, fractions=COMPOSITIONS["yoshida4"])
+
+
+def kahan_li6_step(system, x, mu, h) -> np.ndarray:
+    """Kahan–Li's 6th-order 9-stage composition of Störmer–Verlet (``COMPOSITIONS["kahan_li6"]``); separable ``H``."""
+    return composition_step(system, x, mu, h, fractions=COMPOSITIONS["kahan_li6"])
+
+
+#: Scheme name -> NumPy reference step ``step(system, x, mu, h)``.
+SCHEMES = {
+    "stormer_verlet": stormer_verlet_step,
+    "yoshida4": yoshida4_step,
+    "kahan_li6": kahan_li6_step,
+    "implicit_midpoint": implicit_midpoint_step,
+}
+
+#: Scheme name -> classical order.
+SCHEME_ORDERS = {"stormer_verlet": 2, "yoshida4": 4, "kahan_li6": 6, "implicit_midpoint": 2}
+
+
+def integrate(step, system, x0, mu, h, n_steps: int, substeps: int = 1) -> np.ndarray:
+    """Trajectories ``(B, K+1, 2n)`` of ``n_steps`` macro steps, each ``substeps`` applications of ``step``.
+
+    Parameters
+    ----------
+    step
+        ``step(system, x, mu, h)``, e.g. :func:`stormer_verlet_step`.
+    system
+        See the module docstring.
+    x0 : ndarray of shape (B, 2n)
+    mu : ndarray of shape (B, d_mu)
+    h : float or ndarray of shape (B,)
+        The step of ``step`` (the macro step is ``substeps * h``).
+    n_steps : int
+        Macro steps ``K`` (output rows after the initial state).
+    substeps : int
+        Steps per macro step.
+
+    Returns
+    -------
+    ndarray of shape (B, K+1, 2n)
+        States at ``t_k = k * substeps * h``.
+    """
     x = np.asarray(x0, dtype=float)
     traj = np.empty((len(x), n_steps + 1, x.shape[1]))
     traj[:, 0] = x
     for k in range(n_steps):
         try:
-            traj[:, k + 1] = step(system, traj[:, k], mu, h)
+            for _ in range(substeps):
+                x = step(system, x, mu, h)
         except NewtonConvergenceError as err:
             raise err.at_step(k) from None
+        traj[:, k + 1] = x
     return traj

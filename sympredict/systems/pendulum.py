@@ -7,6 +7,7 @@ micro step of at most ``1e-3`` (as in the paper), solved to round-off.
 
 from __future__ import annotations
 
+import math
 from typing import Optional
 
 import numpy as np
@@ -16,6 +17,7 @@ from sympredict._checks import as_parameter, as_positive_int, as_states, as_step
 from sympredict.data import FlowMapData
 from sympredict.exceptions import NewtonConvergenceError
 from sympredict.integrators import micro_steps
+from sympredict.integrators_compiled import PointwiseHamiltonian, jit_pointwise
 from sympredict.parallel import pool_flow
 
 logger = getLogger("sympredict.systems.pendulum")
@@ -37,6 +39,36 @@ DT_TRAIN = (0.04, 0.05, 0.06)
 DT_TEST = (0.0509, 0.04847, 0.05292)
 
 _EPS = np.finfo(float).eps
+
+
+# Per-instance gradients for the compiled integrators (sympredict.integrators_compiled):
+# mu = (l,), fargs = (m, g); the arithmetic is that of Pendulum.gradient / hessian.
+@jit_pointwise
+def _grad_V(q, mu, fargs, iargs, out):
+    """``dV/dq = m g l sin q``."""
+    out[0] = fargs[0] * fargs[1] * mu[0] * math.sin(q[0])
+
+
+@jit_pointwise
+def _grad_T(p, mu, fargs, iargs, out):
+    """``dT/dp = p / (m l^2)``."""
+    out[0] = p[0] / (fargs[0] * mu[0] * mu[0])
+
+
+@jit_pointwise
+def _grad_H(x, mu, fargs, iargs, out):
+    """``grad H = (m g l sin q, p / (m l^2))``."""
+    out[0] = fargs[0] * fargs[1] * mu[0] * math.sin(x[0])
+    out[1] = x[1] / (fargs[0] * mu[0] * mu[0])
+
+
+@jit_pointwise
+def _hess_H(x, mu, fargs, iargs, out):
+    """``diag(m g l cos q, 1 / (m l^2))``."""
+    out[0, 0] = fargs[0] * fargs[1] * mu[0] * math.cos(x[0])
+    out[0, 1] = 0.0
+    out[1, 0] = 0.0
+    out[1, 1] = 1.0 / (fargs[0] * mu[0] * mu[0])
 
 
 class Pendulum:
@@ -65,6 +97,17 @@ class Pendulum:
         if np.any(length <= 0):
             raise ValueError(f"pendulum length mu must be positive, got min {length.min()}")
         return length
+
+    def pointwise(self) -> PointwiseHamiltonian:
+        """Per-instance gradients and Hessian for :func:`sympredict.integrators_compiled.rollout` (compiled with numba).
+
+        ``H`` is separable (``T = p^2 / (2 m l^2)``, ``V = m g l (1 - cos q)``):
+        every scheme applies.
+        """
+        return PointwiseHamiltonian(
+            2, 1, grad_T=_grad_T, grad_V=_grad_V, grad_H=_grad_H, hess_H=_hess_H, fargs=(self.mass, self.g),
+            check_mu=lambda mu: self._lengths(mu, len(mu)), name=repr(self),
+        )
 
     def hamiltonian(self, x, mu) -> np.ndarray:
         """Energy, shape (B,), for states (B, 2) and lengths (B,) or (B, 1)."""

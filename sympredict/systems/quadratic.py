@@ -18,8 +18,54 @@ from scipy.linalg import expm, solve
 from sympredict._checks import as_parameter, as_positive_int, as_states, as_steps
 from sympredict.metrics import canonical_J
 from sympredict.integrators import micro_steps
+from sympredict.integrators_compiled import PointwiseHamiltonian, jit_pointwise
 
 __all__ = ["QuadraticHamiltonian"]
+
+
+# Per-instance gradients for the compiled integrators (sympredict.integrators_compiled):
+# fargs = (H0.ravel(), H1.ravel()) of the 2n x 2n matrices, iargs = (2n,), mu = (mu,);
+# out = H0 z + mu H1 z on the block that z belongs to (the diagonal blocks for a separable H).
+@jit_pointwise
+def _block_matvec(z, mu, fargs, dim, offset, out):
+    m = z.shape[0]
+    off1 = dim * dim
+    for j in range(m):
+        s0 = 0.0
+        s1 = 0.0
+        row = (offset + j) * dim + offset
+        for k in range(m):
+            s0 += fargs[row + k] * z[k]
+            s1 += fargs[off1 + row + k] * z[k]
+        out[j] = s0 + mu[0] * s1
+
+
+@jit_pointwise
+def _grad_V(q, mu, fargs, iargs, out):
+    """``dV/dq = (H0_qq + mu H1_qq) q``."""
+    _block_matvec(q, mu, fargs, iargs[0], 0, out)
+
+
+@jit_pointwise
+def _grad_T(p, mu, fargs, iargs, out):
+    """``dT/dp = (H0_pp + mu H1_pp) p``."""
+    _block_matvec(p, mu, fargs, iargs[0], p.shape[0], out)
+
+
+@jit_pointwise
+def _grad_H(x, mu, fargs, iargs, out):
+    """``(H0 + mu H1) x``."""
+    _block_matvec(x, mu, fargs, iargs[0], 0, out)
+
+
+@jit_pointwise
+def _hess_H(x, mu, fargs, iargs, out):
+    """``H0 + mu H1``."""
+    dim = x.shape[0]
+    off1 = dim * dim
+    for j in range(dim):
+        for k in range(dim):
+            out[j, k] = fargs[j * dim + k] + mu[0] * fargs[off1 + j * dim + k]
 
 
 class QuadraticHamiltonian:
@@ -63,6 +109,24 @@ class QuadraticHamiltonian:
         if not np.allclose(H0 + 0.5 * H1, mat[0.5], atol=1e-10 * np.abs(mat[1.0]).max()):
             raise ValueError("the operator is not affine in mu")
         return cls(H0, H1)
+
+    @property
+    def separable(self) -> bool:
+        """Whether the ``q``-``p`` blocks of ``H0`` and ``H1`` vanish (``H = T(p) + V(q)``: explicit schemes apply)."""
+        n = self.dim // 2
+        return not (np.any(self.H0[:n, n:]) or np.any(self.H1[:n, n:]))
+
+    def pointwise(self) -> PointwiseHamiltonian:
+        """Per-instance gradients and Hessian for :func:`sympredict.integrators_compiled.rollout` (compiled with numba).
+
+        ``grad_T`` / ``grad_V`` (the diagonal blocks) only when :attr:`separable`;
+        ``grad_H`` / ``hess_H`` always.  ``O((2n)^2)`` per evaluation.
+        """
+        sep = self.separable
+        return PointwiseHamiltonian(
+            self.dim, 1, grad_T=_grad_T if sep else None, grad_V=_grad_V if sep else None, grad_H=_grad_H,
+            hess_H=_hess_H, fargs=np.concatenate([self.H0.ravel(), self.H1.ravel()]), iargs=(self.dim,), name=f"QuadraticHamiltonian(2n={self.dim})",
+        )
 
     def matrix(self, mu: float) -> np.ndarray:
         """``H0 + mu H1``, shape (2n, 2n)."""

@@ -26,6 +26,7 @@ from scipy.sparse.linalg import splu
 
 from sympredict._checks import as_parameter, as_positive_int, as_states, as_steps
 from sympredict.integrators import micro_steps
+from sympredict.integrators_compiled import PointwiseHamiltonian, jit_pointwise
 
 __all__ = ["C_TRAIN", "C_REF", "DT_WAVE", "fd_laplacian", "laplacian_eigenvalues", "sine_modes", "WaveFOM"]
 
@@ -67,6 +68,52 @@ def sine_modes(n_points: int, modes) -> np.ndarray:
     k = np.arange(1, modes + 1) if np.isscalar(modes) else np.asarray(modes)
     j = np.arange(1, n_points + 1)
     return np.sqrt(2.0 / (n_points + 1)) * np.sin(np.pi * np.outer(j, k) / (n_points + 1))
+
+
+# Per-instance gradients for the compiled integrators (sympredict.integrators_compiled):
+# mu = (c^2,), fargs = D.data and iargs = (D.indptr, D.indices) of D in CSR; O(nnz(D)) per gradient.
+@jit_pointwise
+def _csr_matvec_scaled(q, scale, data, iargs, out):
+    """``out = scale * (D q)``, ``D`` in CSR (``iargs = (indptr, indices)``, ``len(indptr) = len(q) + 1``)."""
+    n = q.shape[0]
+    for j in range(n):
+        s = 0.0
+        for k in range(iargs[j], iargs[j + 1]):
+            s += data[k] * q[iargs[n + 1 + k]]
+        out[j] = scale * s
+
+
+@jit_pointwise
+def _grad_V(q, mu, fargs, iargs, out):
+    """``dV/dq = mu D q``."""
+    _csr_matvec_scaled(q, mu[0], fargs, iargs, out)
+
+
+@jit_pointwise
+def _grad_T(p, mu, fargs, iargs, out):
+    """``dT/dp = p``."""
+    for j in range(p.shape[0]):
+        out[j] = p[j]
+
+
+@jit_pointwise
+def _grad_H(x, mu, fargs, iargs, out):
+    """``(mu D q, p)``."""
+    n = x.shape[0] // 2
+    _csr_matvec_scaled(x[:n], mu[0], fargs, iargs, out[:n])
+    for j in range(n):
+        out[n + j] = x[n + j]
+
+
+@jit_pointwise
+def _hess_H(x, mu, fargs, iargs, out):
+    """``diag(mu D, I)``, dense (``O(N^2)`` writes: for small ``N``)."""
+    n = x.shape[0] // 2
+    out[:, :] = 0.0
+    for j in range(n):
+        for k in range(iargs[j], iargs[j + 1]):
+            out[j, iargs[n + 1 + k]] = mu[0] * fargs[k]
+        out[n + j, n + j] = 1.0
 
 
 class WaveFOM:
@@ -162,6 +209,40 @@ class WaveFOM:
         n = self.n_points
         q, p = x[:, :n], x[:, n:]
         return 0.5 * np.einsum("bi,bi->b", p, p) + 0.5 * mu * np.einsum("bi,bi->b", q, (self.D @ q.T).T)
+
+    def gradient(self, x, mu) -> np.ndarray:
+        """``grad H = (mu D q, p)``, shape (B, 2N), for states (B, 2N); ``O(B nnz(D))``."""
+        x, _ = as_states(x, "x", dim=self.dim)
+        mu = self.check_mu(mu, len(x))
+        n = self.n_points
+        return np.hstack([mu[:, None] * (self.D @ x[:, :n].T).T, x[:, n:]])
+
+    def hessian(self, x, mu) -> np.ndarray:
+        """``diag(mu D, I)`` per instance, dense (B, 2N, 2N): for implicit midpoint on small ``N`` only."""
+        x, _ = as_states(x, "x", dim=self.dim)
+        mu = self.check_mu(mu, len(x))
+        n = self.n_points
+        hess = np.zeros((len(x), self.dim, self.dim))
+        hess[:, :n, :n] = mu[:, None, None] * self.D.toarray()[None]
+        hess[:, n:, n:] = np.eye(n)[None]
+        return hess
+
+    def pointwise(self) -> PointwiseHamiltonian:
+        """Per-instance gradients for :func:`sympredict.integrators_compiled.rollout` (compiled with numba).
+
+        Separable (``T = p^T p / 2``, ``V = mu q^T D q / 2``): every scheme
+        applies; ``grad V`` is a CSR matrix-vector product, ``O(nnz(D))``.
+        Implicit midpoint solves with a dense ``2N x 2N`` Jacobian,
+        ``O(N^3)`` per Newton iteration: for small ``N``
+        (:meth:`trajectory` is the sparse solver for this linear system).
+        """
+        D = self.D.tocsr()
+        D.sort_indices()
+        return PointwiseHamiltonian(
+            self.dim, 1, grad_T=_grad_T, grad_V=_grad_V, grad_H=_grad_H, hess_H=_hess_H, fargs=D.data,
+            iargs=np.concatenate([D.indptr, D.indices]), check_mu=lambda mu: self.check_mu(mu, len(mu)),
+            name=f"WaveFOM(N={self.n_points})",
+        )
 
     def unit_mode_state(self, k: int = 1) -> np.ndarray:
         """Displacement ``sin(k pi z)`` (unit amplitude), zero velocity; shape (2N,)."""
