@@ -409,6 +409,19 @@ if HAVE_NUMBA:  # noqa: C901 - the compiled definitions
 
 
     @_jit
+    def _newton_terms_kernel(xi, W, cT, seg, factors, eps, chunk, grad, hqp, floor):
+        dim = xi.shape[1]
+        n = dim // 2
+        dif = np.empty((dim, chunk))
+        r2 = np.empty(chunk)
+        dmax = np.empty(chunk)
+        fA = np.empty(chunk)
+        fB = np.empty(chunk)
+        fC = np.empty(chunk)
+        for i in range(xi.shape[0]):
+            floor[i] = _terms(xi[i], W[i], cT, seg, factors, eps, n, True, dif, r2, dmax, fA, fB, fC, grad[i], hqp[i])
+
+    @_jit
     def _greedy_update_chunk(ch, row, t, inv_pj, b, res, p2, j, breakdown, chunk, cmax, carg, cbest):
         """One chunk of :func:`greedy_update`: its max ``|r|`` and its best selectable candidate."""
         n = row.shape[0]
@@ -692,6 +705,39 @@ def gradients(xi, group, group_weights, layout: CenterLayout, kernel) -> np.ndar
     _gradients_kernel(xi, np.ascontiguousarray(group, dtype=np.int64), wg, layout.cT, layout.seg,
                       compiled_formulas(type(kernel))[2], float(kernel.eps), CHUNK, out)
     return out
+
+
+def newton_terms(xi, weights, layout: CenterLayout, kernel):
+    """What one compiled Newton iteration computes at each point: gradient, ``d_p d_q s`` block, gradient floor.
+
+    The compiled twin of :meth:`sympredict.surrogate.HBSurrogate.newton_terms`
+    (same outputs, another summation order), for checking the compiled pass
+    family by family; serial, ``O(B m (2n + n^2))``.
+
+    Parameters
+    ----------
+    xi : ndarray of shape (B, 2n)
+    weights : ndarray of shape (B, m)
+        In the surrogate's centre order.
+    layout
+        The centres (:class:`CenterLayout`).
+    kernel
+        The state kernel.
+
+    Returns
+    -------
+    grad : ndarray of shape (B, 2n)
+    hess_qp : ndarray of shape (B, n, n)
+    floor : ndarray of shape (B,)
+    """
+    _check_available()
+    xi = np.ascontiguousarray(xi, dtype=np.float64)
+    b, dim = xi.shape
+    grad, hqp, floor = np.empty((b, dim)), np.empty((b, dim // 2, dim // 2)), np.empty(b)
+    w = np.ascontiguousarray(np.asarray(weights, dtype=np.float64)[:, layout.order])
+    _newton_terms_kernel(xi, w, layout.cT, layout.seg, compiled_formulas(type(kernel))[2], float(kernel.eps), CHUNK,
+                         grad, hqp, floor)
+    return grad, hqp, floor
 
 
 #: Whether the greedy's compiled O(N) passes (column, vector update) run on numba's threads.

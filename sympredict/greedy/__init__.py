@@ -59,8 +59,17 @@ def greedy_interpolation(functionals, targets, *, max_centers: int, tol: float =
     targets : ndarray of shape (N,) or (N, q)
         Data ``y_i = lambda_i(f)``; ``q > 1`` interpolates ``q`` outputs with
         shared centres (selection by the max over outputs).
-    max_centers, tol, criterion, divergence_factor, log_every
-        See :func:`~sympredict.greedy.loop.run_greedy`.
+    max_centers
+        Upper bound on the number of selected functionals.
+    tol
+        f-greedy stops when ``max |r| <= tol`` over the selectable candidates.
+    criterion
+        ``'f'`` (residual) or ``'p'`` (power function).
+    divergence_factor
+        Blow-up factor of the residual that stops and truncates the run
+        (:func:`~sympredict.greedy.loop.run_greedy`).
+    log_every
+        Log progress every this many steps.
     power_tol
         Candidates with ``P2_i <= power_tol * max(G_ii)`` are never selected
         (breakdown guard); when no candidate is left the run stops with
@@ -104,7 +113,7 @@ def active_set_greedy(functionals, targets, *, max_centers: int, tol: float = 1e
     """Fast f-greedy on an active subset of the points, refreshed against the full residual (:class:`ActiveSetStore`).
 
     Arguments as in :func:`greedy_interpolation` (f-greedy, one output) and
-    :class:`ActiveSetStore`.  ``history.train_max_residual[k]`` is the active
+    :class:`~sympredict.greedy.active_set.ActiveSetStore`.  ``history.train_max_residual[k]`` is the active
     set's maximum after ``k`` centres, except the last entry: the full maximum
     over all ``N`` candidates; ``'tol'`` only if that full maximum is at or below ``tol``.
     """
@@ -120,13 +129,13 @@ def sharded_greedy(functionals, targets, *, max_centers: int, tol: float = 1e-10
                    pool=None, n_shards: Optional[int] = None, memory_limit_per_rank: Optional[float] = None,
                    timeout: Optional[float] = 60.0, log_every: int = 100,
                    callback: Optional[Callable[[int, float], None]] = None, stats: Optional[dict] = None) -> GreedyResult:
-    """f-greedy (or P-greedy) with the candidates sharded over a pyMOR worker pool (:class:`ShardedStore`).
+    """f-greedy (or P-greedy) with the candidates sharded over a pyMOR worker pool (:class:`~sympredict.greedy.sharded.ShardedStore`).
 
     Same arguments and result as :func:`greedy_interpolation` (same selection
     and coefficients), plus the store's ``pool``, ``n_shards``,
     ``memory_limit_per_rank`` and ``timeout``; ``callback(m, E_train(m))``
     after each step; ``stats``, a dict filled with the pool timings
-    (:attr:`ShardedStore.stats`).
+    (the store's ``stats``).
 
     Raises
     ------

@@ -210,12 +210,12 @@ class Expansion:
 
     Attributes
     ----------
-    selected : ndarray of shape (max_centers,), int
+    selected : ndarray of shape (m_max,), int
         Global flat indices of the selected functionals (first ``m`` valid).
-    chol : ndarray of shape (max_centers, max_centers)
+    chol : ndarray of shape (m_max, m_max)
         ``L[i, k] = v_k(lambda_{j_i})``.
-    beta : ndarray of shape (max_centers, q)
-        Newton coefficients.
+    beta : ndarray of shape (m_max, q)
+        Newton coefficients (``m_max``: the run's ``max_centers``).
     """
 
     def __init__(self, max_centers: int, n_outputs: int):

@@ -5,15 +5,15 @@ An estimator takes a strategy as its ``trainer`` parameter
 its ``fit`` builds the candidate functionals and calls :meth:`Trainer.run`,
 which builds a store and runs :func:`~sympredict.greedy.loop.run_greedy`.
 
-=======================  ======================================  ======================================
-strategy                 store                                   use it for
-=======================  ======================================  ======================================
-:class:`ExactGreedy`     all candidates in memory (float64 or    the exact f-/P-greedy (default)
-                         float32 basis)
-:class:`ActiveSetGreedy` an active subset, refreshed against     large data, a residual target ``tol``
-                         the full residual                       (f-greedy, HB functionals)
-:class:`ShardedGreedy`   shards on a pyMOR worker pool (MPI)     data whose basis exceeds one node
-=======================  ======================================  ======================================
+=========================  ======================================  ======================================
+strategy                   store                                   use it for
+=========================  ======================================  ======================================
+:class:`ExactGreedy`       all candidates in memory (float64 or    the exact f-/P-greedy (default)
+                           float32 basis)
+:class:`ActiveSetGreedy`   an active subset, refreshed against     large data, a residual target ``tol``
+                           the full residual                       (f-greedy, HB functionals)
+:class:`ShardedGreedy`     shards on a pyMOR worker pool (MPI)     data whose basis exceeds one node
+=========================  ======================================  ======================================
 
 A strategy that cannot combine with a setting (a P-greedy on the active set,
 a float32 basis on shards) raises ``ValueError`` when the run starts.  A new
