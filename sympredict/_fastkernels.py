@@ -63,6 +63,7 @@ except ImportError:  # pragma: no cover
     numba = None
     HAVE_NUMBA = False
 
+from sympredict._numeric import lu_solve_inplace
 from sympredict.kernels import IMQ
 from sympredict.newton_rule import converged, residual_floor
 
@@ -216,46 +217,7 @@ if HAVE_NUMBA:  # noqa: C901 - the compiled definitions
         return _EPS * floor
 
     @_jit
-    def _lu_solve(jac, rhs, out):
-        """Solve ``jac out = rhs`` (n x n, partial pivoting, ``jac`` and ``rhs`` overwritten).
-
-        Returns False on an exact zero pivot (LAPACK ``getrf``'s singular case).
-        """
-        n = jac.shape[0]
-        for k in range(n):
-            piv = k
-            best = abs(jac[k, k])
-            for i in range(k + 1, n):
-                v = abs(jac[i, k])
-                if v > best:
-                    best = v
-                    piv = i
-            if jac[piv, k] == 0.0:
-                return False
-            if piv != k:
-                for c in range(n):
-                    tmp = jac[k, c]
-                    jac[k, c] = jac[piv, c]
-                    jac[piv, c] = tmp
-                tmp = rhs[k]
-                rhs[k] = rhs[piv]
-                rhs[piv] = tmp
-            inv = 1.0 / jac[k, k]
-            for i in range(k + 1, n):
-                f = jac[i, k] * inv
-                if f != 0.0:
-                    for c in range(k + 1, n):
-                        jac[i, c] -= f * jac[k, c]
-                    rhs[i] -= f * rhs[k]
-        for i in range(n - 1, -1, -1):
-            s = rhs[i]
-            for c in range(i + 1, n):
-                s -= jac[i, c] * out[c]
-            out[i] = s / jac[i, i]
-        return True
-
-    @_jit
-    def _solve_one(x, w, h, cT, seg, factors, eps, max_iter, out, sc, grad, hqp, jac, rhs, p, delta, xi):
+    def _solve_one(x, w, h, cT, seg, factors, eps, max_iter, out, sc, grad, hqp, jac, delta, p, xi):
         """One implicit step for one instance: ``out <- Phi(x)``.  Returns ``(code, residual, iteration)``.
 
         The iteration and stopping rule of the NumPy reference
@@ -279,7 +241,7 @@ if HAVE_NUMBA:  # noqa: C901 - the compiled definitions
             finite = True
             for k in range(n):
                 fk = p[k] - x[n + k] + h * grad[k]
-                rhs[k] = fk
+                delta[k] = fk
                 if not math.isfinite(fk):
                     finite = False
                 af = abs(fk)
@@ -298,7 +260,7 @@ if HAVE_NUMBA:  # noqa: C901 - the compiled definitions
                 for c in range(n):
                     jac[a, c] = h * hqp[a, c]
                 jac[a, a] += 1.0
-            if not _lu_solve(jac, rhs, delta):
+            if not lu_solve_inplace(jac, delta):  # the residual becomes the Newton update
                 return 2, f_norm, it
             d_norm = 0.0
             for k in range(n):
@@ -323,7 +285,6 @@ if HAVE_NUMBA:  # noqa: C901 - the compiled definitions
         grad = np.empty(dim)
         hqp = np.empty((n, n))
         jac = np.empty((n, n))
-        rhs = np.empty(n)
         p = np.empty(n)
         delta = np.empty(n)
         xi = np.empty(dim)
@@ -335,7 +296,7 @@ if HAVE_NUMBA:  # noqa: C901 - the compiled definitions
         fail_iter[i] = -1
         resid[i] = 0.0
         for k in range(n_steps):
-            code, r, it = _solve_one(traj[i, k], W[i], h[i], cT, seg, factors, eps, max_iter, traj[i, k + 1], sc, grad, hqp, jac, rhs, p, delta, xi)
+            code, r, it = _solve_one(traj[i, k], W[i], h[i], cT, seg, factors, eps, max_iter, traj[i, k + 1], sc, grad, hqp, jac, delta, p, xi)
             passes[i] += it + 2  # the explicit guess's gradient pass and it + 1 Newton passes
             if code != 0:
                 codes[i] = code

@@ -57,6 +57,7 @@ import math
 
 import numpy as np
 
+from sympredict._numeric import lu_solve_inplace
 from sympredict._checks import as_parameter, as_positive_int, as_states, as_steps
 from sympredict.exceptions import NewtonConvergenceError
 from sympredict.integrators import COMPOSITIONS, SCHEMES, integrate
@@ -264,40 +265,6 @@ def _explicit_serial(grad_T, grad_V, fargs, iargs, x0, mu, h, n_steps, substeps,
         _explicit_one(i, grad_T, grad_V, fargs, iargs, x0, mu, h, n_steps, substeps, fractions, traj)
 
 
-def _lu_solve_inplace(a, b):
-    """Solve ``a x = b`` by Gaussian elimination with partial pivoting; ``b`` becomes ``x``, ``a`` is destroyed.
-
-    Returns False for an exact zero pivot.  ``O(dim^3)``.
-    """
-    dim = a.shape[0]
-    for c in range(dim):
-        piv = c
-        best = abs(a[c, c])
-        for r in range(c + 1, dim):
-            if abs(a[r, c]) > best:
-                best = abs(a[r, c])
-                piv = r
-        if best == 0.0:
-            return False
-        if piv != c:
-            for j in range(dim):
-                a[c, j], a[piv, j] = a[piv, j], a[c, j]
-            b[c], b[piv] = b[piv], b[c]
-        inv = 1.0 / a[c, c]
-        for r in range(c + 1, dim):
-            f = a[r, c] * inv
-            if f != 0.0:
-                for j in range(c + 1, dim):
-                    a[r, j] -= f * a[c, j]
-                b[r] -= f * b[c]
-    for r in range(dim - 1, -1, -1):
-        s = b[r]
-        for j in range(r + 1, dim):
-            s -= a[r, j] * b[j]
-        b[r] = s / a[r, r]
-    return True
-
-
 def _midpoint_instance(i, grad_H, hess_H, fargs, iargs, x0, mu, h, n_steps, substeps, max_iter, traj, codes,
                        fail_step, resid):
     """One instance of the implicit-midpoint rollout (Newton, stopping rule of the NumPy reference)."""
@@ -336,7 +303,7 @@ def _midpoint_instance(i, grad_H, hess_H, fargs, iargs, x0, mu, h, n_steps, subs
                         jac[n + j, l] = -(c * (-hess[j, l]))
                 for j in range(dim):
                     jac[j, j] += 1.0
-                if not _lu_solve_inplace(jac, delta):
+                if not lu_solve_inplace(jac, delta):
                     code = 2
                     break
                 d_norm = 0.0
@@ -384,7 +351,6 @@ def _midpoint_serial(grad_H, hess_H, fargs, iargs, x0, mu, h, n_steps, substeps,
 
 if HAVE_NUMBA:
     _jit = functools.partial(numba.njit, cache=True, nogil=True, error_model="numpy")
-    _lu_solve_inplace = _jit(_lu_solve_inplace)
     _explicit_one = _jit(_explicit_instance)
     _midpoint_one = _jit(_midpoint_instance)
     _explicit_parallel = _jit(parallel=True)(_explicit_parallel)

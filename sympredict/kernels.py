@@ -39,14 +39,9 @@ from typing import Optional
 
 import numpy as np
 
+from sympredict._numeric import compilable
 from sympredict.base import Parametrized
 
-try:  # helpers the family formulas call must compile with them (numba is optional)
-    from numba.extending import register_jitable as _compilable
-except ImportError:  # pragma: no cover - without numba nothing is compiled
-
-    def _compilable(function):
-        return function
 
 __all__ = [
     "RadialKernel", "IMQ", "Matern32", "Matern52", "ProductKernel", "KERNEL_FAMILIES", "register_family", "kernel_from_spec",
@@ -231,7 +226,7 @@ def pairwise_distances(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     return np.sqrt(np.einsum("ija,ija->ij", diff, diff))
 
 
-@_compilable
+@compilable
 def _inverse_r(r):
     """``1/r``, and 0 where ``r < _R_TINY`` (on arrays and on compiled scalars alike)."""
     return (r >= _R_TINY) / np.maximum(r, _R_TINY)

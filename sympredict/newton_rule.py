@@ -19,12 +19,8 @@ from __future__ import annotations
 
 import numpy as np
 
-try:  # compiled callers need a compilable rule (numba is optional)
-    from numba.extending import register_jitable as _compilable
-except ImportError:  # pragma: no cover
+from sympredict._numeric import compilable
 
-    def _compilable(function):
-        return function
 
 
 __all__ = ["FLOOR_FACTOR", "UPDATE_FACTOR", "STALL_RATIO", "STALL_FLOOR_FACTOR", "residual_floor", "converged"]
@@ -42,13 +38,13 @@ STALL_RATIO = 0.5
 STALL_FLOOR_FACTOR = 1e3
 
 
-@_compilable
+@compilable
 def residual_floor(scale, gradient_floor, h):
     """Round-off floor of ``|F|_inf``: ``4 eps |p| + 4 dT floor_grad + tiny``."""
     return FLOOR_FACTOR * EPS * scale + FLOOR_FACTOR * h * gradient_floor + TINY
 
 
-@_compilable
+@compilable
 def converged(f_norm, f_floor, d_norm, last_update, scale):
     """Whether an instance stops iterating (elementwise on arrays; scalars when compiled).
 

@@ -16,7 +16,7 @@ PACKAGE = Path(__file__).resolve().parents[1] / "sympredict"
 
 #: Lowest first.  A module may import modules of its own layer or below, never above.
 LAYERS = [
-    ("foundations", ["_version", "exceptions", "base", "_checks", "metrics", "data", "newton_rule", "container"]),
+    ("foundations", ["_version", "_numeric", "exceptions", "base", "_checks", "metrics", "data", "newton_rule", "container"]),
     ("pool plumbing", ["parallel"]),
     ("kernels", ["kernels", "_fastkernels"]),
     ("functionals", ["functionals"]),

@@ -52,9 +52,10 @@ def _fd(f, r, h):
     return (f(r + h) - f(r - h)) / (2 * h)
 
 
+@pytest.mark.parametrize("eps", [0.4, 1.7])
 @pytest.mark.parametrize("name", FAMILIES)
-def test_factors_match_finite_differences_of_the_profile(name):
-    kernel = KERNEL_FAMILIES[name](0.8)
+def test_factors_match_finite_differences_of_the_profile(name, eps):
+    kernel = KERNEL_FAMILIES[name](eps)
     r = np.linspace(0.2, 4.0, 17) / kernel.eps
     h = 1e-5 / kernel.eps
     A, B, C = kernel.factors(r, order=3)

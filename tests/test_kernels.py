@@ -8,24 +8,7 @@ from sympredict.kernels import IMQ, KERNEL_FAMILIES, Matern32, Matern52, Product
 KERNELS = [IMQ(0.4), IMQ(1.7), Matern32(0.5), Matern32(1.3), Matern52(0.6), Matern52(2.0)]
 
 
-def _fd(f, r, h):
-    return (f(r + h) - f(r - h)) / (2 * h)
-
-
-@pytest.mark.parametrize("kernel", KERNELS, ids=repr)
-def test_factors_match_finite_differences_of_profile(kernel):
-    r = np.linspace(0.2, 4.0, 17) / kernel.eps
-    h = 1e-5 / kernel.eps
-    A, B, C = kernel.factors(r, order=3)
-    # A = phi'(r) / r
-    np.testing.assert_allclose(A, _fd(kernel.phi, r, h) / r, rtol=1e-7, atol=1e-12)
-    # B = 2 dA/d(r^2) = A'(r) / r, C = 2 dB/d(r^2) = B'(r) / r
-    np.testing.assert_allclose(B, _fd(lambda s: kernel.factors(s)[0], r, h) / r, rtol=1e-6, atol=1e-12)
-    np.testing.assert_allclose(C, _fd(lambda s: kernel.factors(s)[1], r, h) / r, rtol=1e-6, atol=1e-12)
-    # order-2 and order-3 factors agree
-    A2, B2 = kernel.factors(r, order=2)
-    np.testing.assert_array_equal(A, A2)
-    np.testing.assert_array_equal(B, B2)
+# factors against finite differences of the profile: tests/test_kernel_families.py (every registered family)
 
 
 @pytest.mark.parametrize("kernel", KERNELS, ids=repr)

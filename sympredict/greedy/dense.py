@@ -20,7 +20,7 @@ from typing import Optional
 import numpy as np
 
 from sympredict import _fastkernels
-from sympredict.greedy.loop import Expansion, check_memory
+from sympredict.greedy.loop import Expansion, as_targets, check_memory
 
 __all__ = ["DenseStore", "abs_residual", "matvec_t"]
 
@@ -88,11 +88,8 @@ class DenseStore:
             raise ValueError(f"basis_dtype must be 'float64' or 'float32', got {basis_dtype!r}")
         self.functionals = functionals
         self.n_functionals = n = functionals.n_functionals
-        y = np.asarray(targets, dtype=float)
-        self.squeeze = y.ndim == 1
-        self.y = y.reshape(n, -1)
+        self.y, self.squeeze, self.targets_max = as_targets(targets, n)
         self.n_outputs = self.y.shape[1]
-        self.targets_max = float(np.abs(self.y).max()) if n else 0.0
         self.criterion = criterion
         self.power_tol = power_tol
         self.val_functionals, self.n_val = None, 0

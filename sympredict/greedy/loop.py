@@ -57,6 +57,7 @@ __all__ = [
     "format_bytes",
     "check_memory",
     "kernel_coefficients",
+    "as_targets",
 ]
 
 logger = getLogger("sympredict.greedy")
@@ -158,6 +159,13 @@ def format_bytes(n: float) -> str:
             return f"{n / size:.2f} {unit}"
     return f"{n:.0f} B"
 
+
+
+def as_targets(targets, n: int) -> tuple:
+    """The greedy's data as a float array of shape (N, q), whether it was a vector, and ``max |y|``."""
+    y = np.asarray(targets, dtype=float)
+    y2 = y.reshape(n, -1)
+    return y2, y.ndim == 1, float(np.abs(y2).max()) if n else 0.0
 
 
 def kernel_coefficients(chol: np.ndarray, beta: np.ndarray) -> np.ndarray:

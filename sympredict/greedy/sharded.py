@@ -40,7 +40,7 @@ from pymor.core.logger import getLogger
 from pymor.parallel.dummy import dummy_pool
 
 from sympredict.greedy.dense import DenseStore
-from sympredict.greedy.loop import Expansion, available_memory, format_bytes
+from sympredict.greedy.loop import Expansion, as_targets, available_memory, format_bytes
 from sympredict.parallel import Watchdog, checked, guarded, whoami, worker_info
 
 __all__ = ["SHARD_ALIGN", "shard_bounds", "ShardedStore"]
@@ -225,11 +225,8 @@ class ShardedStore:
         _subset(functionals, 0, 1)  # TypeError for functionals that cannot be sharded
         self.functionals = functionals
         self.n_functionals = n = functionals.n_functionals
-        y = np.asarray(targets, dtype=float)
-        self.squeeze = y.ndim == 1
-        self.y = y.reshape(n, -1)
+        self.y, self.squeeze, self.targets_max = as_targets(targets, n)
         self.n_outputs = self.y.shape[1]
-        self.targets_max = float(np.abs(self.y).max()) if n else 0.0
         self.criterion = criterion
         self.power_tol = power_tol
         self.pool = dummy_pool if pool is None else pool
