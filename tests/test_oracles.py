@@ -117,6 +117,18 @@ def test_symplectic_inverse_of_a_non_orthonormal_symplectic_basis(rng):
     np.testing.assert_allclose(symplectic_inverse(S), np.block([[np.eye(big_n), -B], [np.zeros((big_n, big_n)), np.eye(big_n)]]), atol=1e-13)
 
 
+def test_projection_error_is_the_relative_snapshot_residual(rng):
+    """``projection_error`` = ``||S - S V V^T||_F / ||S||_F`` for the snapshots ``S`` (rows), computed directly."""
+    snapshots = rng.normal(size=(40, 10)) * np.geomspace(1.0, 1e-3, 10)
+    for n in (1, 2, 4):
+        basis = complex_svd_basis(snapshots, n=n)
+        V = basis.V
+        direct = np.linalg.norm(snapshots - snapshots @ V @ V.T) / np.linalg.norm(snapshots)
+        assert basis.projection_error == pytest.approx(direct, rel=1e-10)
+        # and tol picks the smallest n that meets it
+        assert complex_svd_basis(snapshots, tol=basis.projection_error * (1 + 1e-9)).n == n
+
+
 # ------------------------------------------------------------------ 4-D step Jacobian
 class CoupledPendula:
     """2n = 4: ``H = |p|^2 / 2 + (1 - cos q1) + (1 - cos q2) + mu (q1 - q2)^2 / 2``."""
