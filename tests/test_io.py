@@ -39,3 +39,26 @@ def test_failed_save_keeps_previous_file(small_pendulum_data, tmp_path, monkeypa
     assert [p.name for p in tmp_path.iterdir()] == ["data.h5"]
     with pytest.raises(ValueError, match="does not exist"):
         save_dataset(small_pendulum_data, tmp_path / "nowhere" / "d.h5")
+
+
+def test_model_roundtrip_keeps_predictions_and_history(tmp_path):
+    """Everything a saved model reports comes back: predictions bit for bit, the greedy's curves and stop reason."""
+    from sympredict import SymplecticKernelPredictor
+    from sympredict.kernels import IMQ
+    from sympredict.systems.pendulum import Pendulum, flow_map_data, random_flow_map_data
+
+    data = flow_map_data(Pendulum(), mus=(0.7, 0.8), dts=(0.04, 0.06), n_grid=8)
+    val = random_flow_map_data(Pendulum(), 40, seed=1)
+    model = SymplecticKernelPredictor(IMQ(0.3), IMQ(2.0), IMQ(5.0), max_centers=30).fit(
+        data.x0, data.x1, mu=data.mu, dt=data.dt, validation=val)
+    path = tmp_path / "model.h5"
+    model.save(path)
+    loaded = SymplecticKernelPredictor.load(path)
+    for name in ("train_max_residual", "val_max_residual", "selected_power", "elapsed"):
+        got, expected = getattr(loaded.history_, name), getattr(model.history_, name)
+        assert got is not None and expected is not None, name
+        np.testing.assert_array_equal(got, expected, err_msg=name)
+    assert loaded.history_.stop_reason == model.history_.stop_reason
+    assert loaded.n_centers_ == model.n_centers_ and loaded.kernel_ == model.kernel_
+    x = data.x0[:5]
+    np.testing.assert_array_equal(loaded.rollout(x, 3, mu=0.75, dt=0.05), model.rollout(x, 3, mu=0.75, dt=0.05))

@@ -188,7 +188,9 @@ def test_fixed_step_parameter_free_model(pendulum, rng):
     x0 = np.column_stack([rng.uniform(-1, 1, 60), rng.uniform(-3, 3, 60)])
     x1 = pendulum.flow(x0, 0.75, 0.05)
     model = SymplecticKernelPredictor(max_centers=80).fit(x0, x1, dt=0.05)
-    assert model.kernel_.state.eps > 0  # default state kernel from the data diameter
+    # default state kernel IMQ(1 / diameter of the training xi = (q0, p1)), as documented
+    xi = np.column_stack([x0[:, 0], x1[:, 1]])
+    assert model.kernel_.state.eps == pytest.approx(1.0 / np.linalg.norm(np.ptp(xi, axis=0)), rel=1e-12)
     assert model.step(x0[:3]).shape == (3, 2)
     with pytest.raises(ValueError, match="fixed step"):
         model.step(x0[:3], dt=0.1)

@@ -1,8 +1,18 @@
 """Reliability: random input through the public entries, reproducibility, numerical failure, long runs.
 
-The property tests run 10,600 hypothesis examples in total: every call either
-returns finite arrays of the documented shape or raises ``ValueError`` or a
-package error (``SympredictError``) -- never an unrelated exception, never NaN.
+Two kinds of property tests:
+
+* *random input* (10,600 hypothesis examples): every call either returns finite
+  arrays of the documented shape or raises ``ValueError`` or a package error
+  (``SympredictError``) -- never an unrelated exception, never NaN.  Most of
+  these examples are invalid, so on their own they would pass for a function
+  that always raises;
+* *valid input* (``test_*_valid_*``): states in the training box, parameters and
+  steps in the training ranges, distinct training samples.  These must succeed
+  (step, rollout: every example; fit: at least 95 % of the examples, the rest may
+  only stop with a documented greedy stop) and give consistent results; next to
+  them, valid input with exactly one argument broken must raise ``ValueError``
+  with a message that names that argument.
 """
 
 import warnings
@@ -175,14 +185,17 @@ def test_state_outside_training_box_warns(tiny_model):
 
 
 @pytest.mark.slow
-def test_long_rollout_energy_bounded_no_drift():
+@pytest.mark.parametrize("backend", ["numba", "numpy"])
+def test_long_rollout_energy_bounded_no_drift(backend):
     """100,000 macro steps (t = 5,000, ~3,000 periods): bounded energy error, all states finite.
 
-    About a minute (single-trajectory Newton steps are dominated by Python overhead), hence ``slow``.
+    On both Newton paths: the compiled rollout (~2 s) and the NumPy reference (40-75 s: a
+    single-trajectory Newton step is dominated by Python overhead), hence ``slow``.
     """
     pendulum = Pendulum()
     data = flow_map_data(pendulum, mus=(0.7, 0.8), dts=(0.04, 0.06), n_grid=14)
-    model = SymplecticKernelPredictor(IMQ(0.15), IMQ(2.0), IMQ(5.0), max_centers=150).fit(data.x0, data.x1, mu=data.mu, dt=data.dt)
+    model = SymplecticKernelPredictor(IMQ(0.15), IMQ(2.0), IMQ(5.0), max_centers=150, backend=backend)
+    model.fit(data.x0, data.x1, mu=data.mu, dt=data.dt)
     x0 = np.array([[1.0, 0.0]])
     traj = model.rollout(x0, 100_000, mu=0.75, dt=0.05)
     assert np.all(np.isfinite(traj))
@@ -192,3 +205,104 @@ def test_long_rollout_energy_bounded_no_drift():
     early, overall, last = err[:1_000].max(), err.max(), err[-1_000:].max()
     assert overall <= 1.5 * early, f"energy error grows: {early:.2e} in the first 1,000 steps, {overall:.2e} overall"
     assert last >= 0.5 * early, "the oscillation should persist, not decay (a sign of dissipation)"
+
+
+# ------------------------------------------------------------------ valid input: must succeed
+def _batch(n):
+    """(x (n, 2), mu (n,), dt (n,)) inside the tiny model's training box."""
+    return st.tuples(
+        hnp.arrays(np.float64, (n, 2), elements=st.floats(-1.0, 1.0)),
+        hnp.arrays(np.float64, (n,), elements=st.floats(0.7, 0.8)),
+        hnp.arrays(np.float64, (n,), elements=st.floats(0.04, 0.06)),
+    )
+
+
+valid_batches = st.integers(1, 6).flatmap(_batch)
+
+
+@examples(300)
+@given(batch=valid_batches, scalar=st.booleans())
+def test_step_valid_input_always_succeeds(tiny_model, batch, scalar):
+    x, mu, dt = batch
+    if scalar:  # scalar mu and dt broadcast over the batch
+        mu, dt = np.full_like(mu, mu[0]), np.full_like(dt, dt[0])
+    out = tiny_model.step(x, mu=mu[0] if scalar else mu, dt=dt[0] if scalar else dt)
+    assert out.shape == x.shape and np.all(np.isfinite(out))
+    # a single state gives the batch's row; a step of this size moves every state
+    np.testing.assert_allclose(tiny_model.step(x[0], mu=mu[0], dt=dt[0]), out[0], rtol=1e-12, atol=1e-12)
+    assert np.all(np.abs(out - x).max(axis=1) > 0)
+
+
+@examples(150)
+@given(batch=valid_batches, n_steps=st.integers(0, 6))
+def test_rollout_valid_input_always_succeeds_and_equals_repeated_steps(tiny_model, batch, n_steps):
+    x, mu, dt = batch
+    traj = tiny_model.rollout(x, n_steps, mu=mu, dt=dt)
+    assert traj.shape == (len(x), n_steps + 1, 2) and np.all(np.isfinite(traj))
+    np.testing.assert_array_equal(traj[:, 0], x)
+    # every step of the rollout, not only the first, is the public step of the previous state
+    for k in range(n_steps):
+        np.testing.assert_allclose(traj[:, k + 1], tiny_model.step(traj[:, k], mu=mu, dt=dt), rtol=1e-12, atol=1e-12)
+
+
+def test_fit_valid_data_succeeds():
+    """Distinct samples of the pendulum's flow: the fit must succeed and interpolate its selected samples."""
+    pendulum = Pendulum()
+    outcomes = []
+
+    @examples(120)
+    @given(
+        x0=st.lists(st.tuples(st.floats(-1.5, 1.5), st.floats(-2.0, 2.0)), min_size=2, max_size=12, unique=True),
+        centers=st.integers(1, 8),
+        with_mu=st.booleans(),
+        dt=st.floats(0.03, 0.08),
+    )
+    def fit_once(x0, centers, with_mu, dt):
+        x0 = np.array(x0)
+        mu = np.linspace(0.7, 0.8, len(x0))
+        x1 = pendulum.flow(x0, mu if with_mu else 0.75, dt)
+        model = SymplecticKernelPredictor(IMQ(0.5), IMQ(1.0) if with_mu else None, max_centers=centers, tol=0.0)
+        try:
+            model.fit(x0, x1, mu=mu if with_mu else None, dt=dt)
+        except EXPECTED:
+            outcomes.append(False)
+            return
+        outcomes.append(True)
+        assert 1 <= model.n_centers_ <= min(centers, 2 * len(x0))
+        assert model.history_.stop_reason in ("max_centers", "exhausted", "power", "tol", "diverged")
+        assert np.all(np.isfinite(model.surrogate_.coef))
+        # f-greedy's first pick is interpolated exactly: the largest |gradient target|, so the
+        # training residual after m centres is at most the largest target
+        assert model.history_.train_max_residual[-1] <= model.history_.train_max_residual[0] * (1 + 1e-12)
+        pred = model.step(x0, mu=mu if with_mu else None, dt=dt)
+        assert pred.shape == x0.shape and np.all(np.isfinite(pred))
+
+    fit_once()
+    assert len(outcomes) >= 100
+    share = sum(outcomes) / len(outcomes)
+    assert share >= 0.95, f"only {share:.0%} of {len(outcomes)} valid fits succeeded"
+
+
+# ------------------------------------------------------------------ valid input with one argument broken: the message names it
+BREAKS = {
+    "x has NaN": (lambda x, mu, dt: (np.where(np.arange(x.size).reshape(x.shape) == 0, np.nan, x), mu, dt), "x contains NaN or Inf"),
+    "x has 3 components": (lambda x, mu, dt: (np.column_stack([x, x[:, :1]]), mu, dt), "x must have 2 state components"),
+    "x is 3-D": (lambda x, mu, dt: (x[None], mu, dt), "x must have shape"),
+    "mu has the wrong length": (lambda x, mu, dt: (x, np.append(mu, 0.75), dt), "mu .*must have length"),
+    "mu is missing": (lambda x, mu, dt: (x, None, dt), "mu is required"),
+    "dt is not positive": (lambda x, mu, dt: (x, mu, -dt), "dt must be positive"),
+    "dt has the wrong length": (lambda x, mu, dt: (x, mu, np.append(dt, 0.05)), "dt must be a scalar or have shape"),
+    "dt is missing": (lambda x, mu, dt: (x, mu, None), "dt is required"),
+}
+
+
+@examples(300)
+@given(batch=valid_batches, kind=st.sampled_from(sorted(BREAKS)), rollout=st.booleans())
+def test_one_broken_argument_is_named_in_the_error(tiny_model, batch, kind, rollout):
+    breaker, message = BREAKS[kind]
+    x, mu, dt = breaker(*batch)
+    with pytest.raises(ValueError, match=message.replace("x ", "x0 ") if rollout else message):
+        if rollout:
+            tiny_model.rollout(x, 2, mu=mu, dt=dt)
+        else:
+            tiny_model.step(x, mu=mu, dt=dt)

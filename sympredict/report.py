@@ -1,0 +1,339 @@
+"""Reports of experiment results: figures, Markdown sections and the paper's claims (no numerics, no printing).
+
+Each ``*_figures`` function returns the figures of one part of a run as an
+ordered ``{file stem: matplotlib Figure}`` (so that tests can read the drawn
+data back from the figure objects); :func:`save_figures` writes them.  Each
+``*_markdown`` function returns the Markdown lines of that part of
+``summary.md``; :func:`claims` checks the paper's qualitative claims against a
+run's numbers.  The command line (:mod:`sympredict.cli`) runs the experiments
+and calls these.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from sympredict import plotting
+
+__all__ = [
+    "ratio",
+    "save_figures",
+    "speed_accuracy_figure",
+    "speed_accuracy_markdown",
+    "pendulum_a_figures",
+    "pendulum_a_markdown",
+    "pendulum_b_figures",
+    "pendulum_b_markdown",
+    "stability_figures",
+    "stability_markdown",
+    "wave_figures",
+    "wave_markdown",
+    "smallest_model_markdown",
+    "claims",
+    "claims_markdown",
+]
+
+
+def ratio(v: float) -> str:
+    """A ratio of errors for tables: whole numbers from 10 on, two digits below."""
+    return f"{v:.0f}x" if v >= 10 else f"{v:.2g}x"
+
+
+def save_figures(figures: dict, out) -> list[str]:
+    """Write every figure of ``{stem: Figure}`` as PNG, PDF and JSON data (:func:`plotting.save`) into ``out``.
+
+    Returns the PNG and PDF file names in order.
+    """
+    names = []
+    for stem, fig in figures.items():
+        names += plotting.save(fig, Path(out), stem)
+    return names
+
+
+def speed_accuracy_figure(sa: dict, name: str, title: str) -> dict:
+    """``{name: Figure}`` of a speed-against-accuracy run (pendulum or wave)."""
+    return {name: plotting.speed_accuracy(sa["rows"], sa["reference_time_s"], title)}
+
+
+def speed_accuracy_markdown(sa: dict, note: str) -> list[str]:
+    """Markdown table of a speed-against-accuracy run (pendulum or wave)."""
+    return [
+        "",
+        f"### Speed against accuracy (dT = {sa['dt']}, {sa['n_trajectories']} trajectories x {sa['n_steps']} steps, "
+        f"medians of {sa['repeats']} timed runs, side by side in one process)",
+        "",
+        note,
+        "",
+        "| method | size | ms per trajectory | median error | max error |",
+        "|---|---|---|---|---|",
+        *[f"| {r['method']} | {plotting.point_tag(r)} | {r['time_per_trajectory_s'] * 1e3:.3g} | {r['median_err']:.2e} | "
+          f"{r['max_err']:.2e} |" for r in sa["rows"]],
+    ]
+
+
+def pendulum_a_figures(results: dict) -> dict:
+    """Scenario A (:func:`~sympredict.experiments.pendulum.run_scenario_a`'s result): greedy residuals,
+    error over time, phase portrait and energy error of the first test step."""
+    figures = {"pendulum_greedy_residuals": plotting.greedy_residuals({"": results["history"]}, "Pendulum scenario A: f-greedy residuals")}
+    curves = []
+    for i, r in enumerate(results["per_dt"]):
+        curves.append({"t": r["t"], "values": r["err_kernel"], "label": f"kernel, dT={r['dt']}", "style": "-", "color": i})
+        curves.append({"t": r["t"], "values": r["err_im"], "label": f"implicit midpoint, dT={r['dt']}", "style": "--", "color": i})
+    figures["pendulum_error_over_time"] = plotting.error_over_time(curves, "Pendulum scenario A: error vs micro-step reference")
+    r0 = results["per_dt"][0]
+    ex = r0["example"]
+    figures["pendulum_phase_portrait"] = plotting.phase_portrait(
+        {"reference (implicit midpoint, h<=1e-3)": ex["ref"], "kernel predictor": ex["kernel"], "implicit midpoint, macro step": ex["im"]},
+        f"Phase portrait, l={ex['mu']:.3f}, dT={r0['dt']}",
+    )
+    figures["pendulum_energy_error"] = plotting.energy_error(
+        r0["t"],
+        {"kernel predictor": r0["energy_kernel"], "implicit midpoint, macro step": r0["energy_im"], "reference": r0["energy_ref"]},
+        f"Relative Hamiltonian error (mean over test set), dT={r0['dt']}",
+    )
+    return figures
+
+
+def pendulum_a_markdown(s: dict) -> list[str]:
+    """Scenario A section of ``summary.md`` from its JSON summary ``s`` (training, error table, kernel selection)."""
+    lines = [
+        "## Pendulum scenario A",
+        "",
+        f"- training data: {s['n_samples']} samples ({s['n_functionals']} functionals), "
+        f"{s['preset']['n_grid']}x{s['preset']['n_grid']} energy-bounded grid, lengths 0.7..0.8 (5), dT 0.04/0.05/0.06",
+        f"- model: kernel {' x '.join(s['kernel'])}"
+        + (" (chosen by validation, below)" if s["selection"] else " (preset shapes)")
+        + f", {s['n_centers']} centres (stop: {s['stop_reason']})",
+        f"- f-greedy: E_train = {s['E_train']:.2e}, E_val = {s['E_val']:.2e} ({s['n_val_samples']} validation samples)",
+        f"- time: data {s['time_data_s']:.1f} s, training {s['time_fit_s']:.1f} s; peak memory of the process so far {s['peak_rss_gib']:.2f} GiB",
+        "",
+        f"Test: 5 q0 ~ U[0, pi/2] x 5 lengths ~ U[0.7, 0.8], p0 = 0, T = {s['preset']['horizon']}; "
+        "mean relative error over the 25 trajectories, then median / max over time.",
+        "",
+        "| dT | kernel median | kernel max | implicit midpoint median | implicit midpoint max | ratio (median) | kernel max energy err | IM max energy err |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for r in s["per_dt"]:
+        lines.append(
+            f"| {r['dt']} | {r['kernel_median_err']:.2e} | {r['kernel_max_err']:.2e} | {r['im_median_err']:.2e} | "
+            f"{r['im_max_err']:.2e} | {ratio(r['ratio_median'])} | {r['kernel_max_energy_err']:.2e} | {r['im_max_energy_err']:.2e} |"
+        )
+    if s["selection"]:
+        sel = s["selection"]
+        lines += [
+            "",
+            f"### Kernel selection by validation ({sel['n_candidates']} candidates, {sel['time_s']:.0f} s)",
+            "",
+            f"Screening on a {s['preset']['select_n_grid']}x{s['preset']['select_n_grid']} grid ({sel['n_samples']} samples), "
+            f"{sel['n_val_samples']} validation samples, E_val at m* = {sel['m_screen']} centres; best per family:",
+            "",
+            "| family | best tuple | E_val(m*) |",
+            "|---|---|---|",
+            *[f"| {fam} | {row['kernels']} | {row['E_val']:.2e} |" for fam, row in sel["best_per_family"].items()],
+            "",
+            f"Refinement of the winner's shapes (factor 2, one factor at a time) at m* = {sel['m_refine']}: "
+            f"{' x '.join(sel['chosen'])} with E_val = {sel['chosen_E_val']:.2e}.",
+        ]
+    return lines
+
+
+def pendulum_b_figures(b: dict) -> dict:
+    """Scenario B (:func:`~sympredict.experiments.pendulum.run_scenario_b`'s result): error over time,
+    trajectory, phase portrait, Hamiltonian and energy error of the example trajectory."""
+    sb = b["summary"]
+    curves = []
+    for i, r in enumerate(b["per_dt"]):
+        curves.append({"t": r["t"], "values": r["err_symplectic"], "label": f"symplectic kernel, dT={r['dt']}", "style": "-", "color": i})
+        curves.append({"t": r["t"], "values": r["err_direct"], "label": f"direct kernel, dT={r['dt']}", "style": "--", "color": i})
+    where = f"l={sb['mu']} (extrapolated), dT={sb['dt_example']}"
+    figures = {"pendulum_b_error_over_time": plotting.error_over_time(
+        curves, f"Pendulum scenario B, l={sb['mu']} (extrapolated): error vs reference")}
+    ex = b["example"]
+    labelled = {"reference": ex["reference"], "symplectic kernel": ex["symplectic"], "direct kernel": ex["direct"]}
+    figures["pendulum_b_trajectories"] = plotting.trajectories_over_time(ex["t"], labelled, f"Scenario B trajectory, {where}")
+    figures["pendulum_b_phase_portrait"] = plotting.phase_portrait(labelled, f"Scenario B phase portrait, {where}")
+    energies = {"reference": b["energy"]["reference"], "symplectic kernel": b["energy"]["symplectic"], "direct kernel": b["energy"]["direct"]}
+    figures["pendulum_b_hamiltonian"] = plotting.hamiltonian_over_time(ex["t"], energies, f"Scenario B Hamiltonian, {where}")
+    figures["pendulum_b_energy_error"] = plotting.energy_error(
+        ex["t"], {"reference": b["energy_err"]["reference"], "symplectic kernel": b["energy_err"]["symplectic"],
+                  "direct kernel": b["energy_err"]["direct"]}, f"Scenario B relative Hamiltonian error, {where}")
+    return figures
+
+
+def pendulum_b_markdown(sb: dict) -> list[str]:
+    """Scenario B section of ``summary.md`` from its JSON summary ``sb``."""
+    where = f"l={sb['mu']} (extrapolated), dT={sb['dt_example']}"
+    return [
+        "",
+        "## Pendulum scenario B: less data (p <= 0), extrapolation in the length",
+        "",
+        f"- training data: {sb['n_samples']} samples with p0 <= 0; symplectic model {sb['n_centers_symplectic']} centres, "
+        f"direct (non-symplectic) model {sb['n_centers_direct']} centres, same kernel",
+        f"- test at l = {sb['mu']} (training lengths 0.7..0.8), 5 random q0, p0 = 0",
+        "",
+        "| dT | symplectic median error | direct median error |",
+        "|---|---|---|",
+        *[f"| {r['dt']} | {r['symplectic_median_err']:.2e} | {r['direct_median_err']:.2e} |" for r in sb["per_dt"]],
+        "",
+        f"One trajectory (q0 = {sb['q0_example']:.3f}, {where}): relative energy error at most "
+        f"{sb['max_rel_energy_err_symplectic']:.1e} (symplectic), {sb['max_rel_energy_err_direct']:.1e} (direct), "
+        f"{sb['max_rel_energy_err_reference']:.1e} (reference); energy drift (last tenth minus first tenth, relative) "
+        f"{sb['energy_drift_symplectic']:+.1e} (symplectic) vs {sb['energy_drift_direct']:+.1e} (direct).",
+    ]
+
+
+def stability_figures(st: dict) -> dict:
+    """Step and length sweeps of :func:`~sympredict.experiments.pendulum.run_stability`."""
+    return {"pendulum_stability": plotting.stability_sweeps(
+        st["dt_sweep"], st["mu_sweep"], (0.04, 0.06), (0.7, 0.8), f"Where methods fail: step sweep, l={st['mu']}, q0={st['q0']}")}
+
+
+def _cell(v):
+    return f"{v:.2e}" if isinstance(v, float) else v
+
+
+def stability_markdown(st: dict, horizon: float) -> list[str]:
+    """'Where methods fail' section: long horizon, step sweep (test horizon ``horizon``), length sweep."""
+    return [
+        "",
+        f"## Where methods fail (q0 = {st['q0']}, p0 = 0, l = {st['mu']})",
+        "",
+        f"Long horizon: {st['periods']} periods ({st['n_steps']} steps of dT = {st['dt']}):",
+        "",
+        "| method | energy error, first tenth | energy error, last tenth | phase error at the end [rad] | final relative error |",
+        "|---|---|---|---|---|",
+        *[f"| {k} | {v['energy_first']:.2e} | {v['energy_last']:.2e} | {v['phase_error_rad']:+.2e} | {v['final_rel_err']:.2e} |"
+          for k, v in st["long"].items()],
+        "",
+        f"Step sweep (training steps 0.04..0.06; T = {horizon}; mean relative error, or how the method failed):",
+        "",
+        "| dT | dT * L_S (kernel) | kernel predictor | implicit midpoint | Stormer-Verlet |",
+        "|---|---|---|---|---|",
+        *[f"| {r['dt']} | {r['solvability']:.2f} | {_cell(r['kernel'])} | {_cell(r['implicit midpoint'])} | {_cell(r['Stormer-Verlet'])} |"
+          for r in st["dt_sweep"]],
+        "",
+        "Extrapolation in the length (training lengths 0.7..0.8):",
+        "",
+        "| l | kernel predictor | implicit midpoint |",
+        "|---|---|---|",
+        *[f"| {r['mu']} | {_cell(r['kernel'])} | {_cell(r['implicit midpoint'])} |" for r in st["mu_sweep"]],
+    ]
+
+
+def wave_figures(results: dict) -> dict:
+    """Wave pipeline (:func:`~sympredict.experiments.wave.run_wave`'s result): greedy residuals per dT and
+    error over time (mean over the test cases) in reduced and full coordinates."""
+    figures = {"wave_greedy_residuals": plotting.greedy_residuals(
+        {f", dT={r['dt']}": r["model"].history_ for r in results["per_dt"]}, "Reduced wave: f-greedy residuals")}
+    for space, title in (("red", "reduced coordinates"), ("full", "full space, after reconstruction")):
+        curves = []
+        for i, r in enumerate(results["per_dt"]):
+            t = r["cases"][0]["t"]
+            kernel = np.mean([c["err"][f"kernel_{space}"] for c in r["cases"]], axis=0)
+            im = np.mean([c["err"][f"im_{space}"] for c in r["cases"]], axis=0)
+            curves.append({"t": t, "values": kernel, "label": f"kernel, dT={r['dt']}", "style": "-", "color": i})
+            curves.append({"t": t, "values": im, "label": f"implicit midpoint, dT={r['dt']}", "style": "--", "color": i})
+        figures[f"wave_error_over_time_{space}"] = plotting.error_over_time(
+            curves, f"Wave, {title}: error vs micro-step reference (mean over test speeds)")
+    return figures
+
+
+def wave_markdown(s: dict) -> list[str]:
+    """Wave section of ``summary.md`` (FOM, basis, data, error table) from its JSON summary ``s``."""
+    b = s["basis"]
+    lines = [
+        "## Wave equation: MOR pipeline",
+        "",
+        f"- FOM: N = {s['preset']['n_points']} points (2N = {2 * s['preset']['n_points']}), pyMOR QuadraticHamiltonianModel, mu = c^2",
+        f"- basis: complex SVD of {b['n_snapshots']} snapshots at c_ref = 0.3 in {b['time_basis_s']:.2f} s "
+        f"(snapshots {b['time_snapshots_s']:.2f} s); 2n = {2 * s['preset']['n_reduced']}; "
+        f"max |V^T J V - J| = {b['symplecticity']:.1e}, max |V^T V - I| = {b['orthonormality']:.1e}; "
+        f"leading singular values {', '.join(f'{v:.3g}' for v in b['singular_values'][:2 * s['preset']['n_reduced'] + 2])}",
+        f"- data per dT: {s['preset']['samples_per_speed']} reduced states per training speed (6 speeds), uniform in the energy ellipsoid",
+        f"- test: speeds {', '.join(f'{c:.3f}' for c in s['test_speeds'])}, {s['preset']['n_test_ics']} initial conditions each, "
+        f"T = {s['preset']['horizon']}; errors are time averages of the mean relative error over the initial conditions",
+        "",
+        "| dT | kernel (chosen on validation) | centres | E_train | c | kernel, reduced | IM, reduced | kernel, full | IM, full | ratio | time ROM+kernel / FOM ref |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in s["per_dt"]:
+        for c in r["cases"]:
+            lines.append(
+                f"| {r['dt']} | {r['kernel']['state']} x {r['kernel']['mu']} | {r['n_centers']} ({r['stop_reason']}) | {r['E_train']:.1e} | "
+                f"{c['c']:.3f} | {c['mean_kernel_red']:.2e} | {c['mean_im_red']:.2e} | {c['mean_kernel_full']:.2e} | {c['mean_im_full']:.2e} | "
+                f"{ratio(c['ratio_red'])} | {c['time_kernel_s']:.3f} s / {c['time_fom_ref_s']:.2f} s |"
+            )
+    return lines
+
+
+def smallest_model_markdown(s: dict) -> list[str]:
+    """Wave model sizing ('no bigger model than needed') from the wave JSON summary ``s``."""
+    z = s["smallest"]
+    return [
+        "",
+        f"### No bigger model than needed: target {z['target']:.0e} (dT = {z['dt']})",
+        "",
+        f"Validation: FOM trajectories in the first {s['preset']['n_modes']} sine modes at random speeds, error against the exact FOM "
+        f"solution. Reduction errors by reduced dimension: "
+        + ", ".join(f"2n = {2 * int(n)}: {e:.1e}" for n, e in z["rom_errors"].items())
+        + f" (budget for the reduction: {z['rom_share']:.0%} of the target).",
+        "",
+        (f"Built: 2n = {2 * z['n_reduced']}, {z['n_centers']} of {z['of_centers']} centres ({z['kernel']['state']} x {z['kernel']['mu']}); "
+         f"validation error {z['validation_error']:.2e}, error on fresh test trajectories {z['test_error']:.2e}."
+         if z["reached"] else
+         f"Target NOT reached: 2n = {2 * z['n_reduced']}, all {z['of_centers']} centres give {z['validation_error']:.2e} "
+         f"(test {z['test_error']:.2e})."),
+    ]
+
+
+def claims(results: dict) -> list[dict]:
+    """The paper's qualitative claims, each checked against this run's numbers.
+
+    Parameters
+    ----------
+    results : dict
+        JSON summaries by system (``"pendulum"`` with ``"scenario_b"``, ``"wave"``).
+
+    Returns
+    -------
+    list of dict
+        ``claim``, ``holds`` (bool) and ``evidence`` (the numbers, in words).
+    """
+    out = []
+    if "pendulum" in results:
+        p = results["pendulum"]
+        ratios = [r["ratio_median"] for r in p["per_dt"]]
+        pointwise = [r["ratio_min_over_time"] for r in p["per_dt"]]
+        out.append({
+            "claim": "pendulum A: the kernel predictor is below implicit midpoint at every test step in the training range, "
+                     "by two orders of magnitude (ratio of median errors >= 100)",
+            "holds": min(ratios) >= 100 and min(pointwise) > 1,
+            "evidence": f"ratios of medians {', '.join(ratio(v) for v in ratios)} at dT = "
+                        f"{', '.join(str(r['dt']) for r in p['per_dt'])}; smallest ratio at any time {ratio(min(pointwise))}",
+        })
+        b = p["scenario_b"]
+        ds, dd = b["energy_drift_symplectic"], b["energy_drift_direct"]
+        out.append({
+            "claim": "pendulum B (extrapolation): bounded energy error for the symplectic predictor, drift for the direct model "
+                     "(|drift direct| >= 10 |drift symplectic|)",
+            "holds": abs(dd) >= 10 * abs(ds),
+            "evidence": f"relative energy drift {ds:+.1e} (symplectic) vs {dd:+.1e} (direct); max relative energy error "
+                        f"{b['max_rel_energy_err_symplectic']:.1e} vs {b['max_rel_energy_err_direct']:.1e}",
+        })
+    if "wave" in results:
+        w = results["wave"]
+        ratios = {r["dt"]: min(c["ratio_red"] for c in r["cases"]) for r in w["per_dt"]}
+        out.append({
+            "claim": "wave: the ROM + kernel predictor is below ROM + implicit midpoint at every test speed and step",
+            "holds": min(ratios.values()) > 1,
+            "evidence": "smallest ratio of mean errors per dT: " + ", ".join(f"{ratio(v)} at {dt}" for dt, v in ratios.items()),
+        })
+    return out
+
+
+def claims_markdown(checked: list[dict]) -> list[str]:
+    """The claims section of ``summary.md``."""
+    return ["## The paper's claims, checked on this run", "",
+            *[f"- {'HOLDS' if c['holds'] else 'DOES NOT HOLD'}: {c['claim']}. {c['evidence']}." for c in checked], ""]

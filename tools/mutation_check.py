@@ -1,0 +1,270 @@
+"""Mutation check: apply a fixed list of meaningful faults, one at a time, and run the tests that must catch each.
+
+Usage (from the repository root, with the project's virtual environment)::
+
+    .venv/bin/python tools/mutation_check.py                 # every fault, one at a time
+    .venv/bin/python tools/mutation_check.py --only F1 E1    # some faults
+    .venv/bin/python tools/mutation_check.py --list          # the list, nothing run
+    .venv/bin/python tools/mutation_check.py --jobs 2 --json result.json
+
+Each fault is an exact source snippet and its replacement in one file, with the
+test files to run.  The script copies the tree once into a temporary folder
+(the working tree is never touched), and for each fault restores the pristine
+file, applies the replacement and runs ``pytest -x -q`` on the listed files
+with the copy first on ``sys.path``.  Outcomes:
+
+* ``CAUGHT``   -- the tests failed (what we want);
+* ``SURVIVED`` -- the tests passed with the fault in place;
+* ``TIMEOUT``  -- the tests ran past ``--timeout`` (counted as caught, listed);
+* ``ERROR``    -- the snippet occurs zero times or more than once: the code moved or
+  changed, and the fault must be re-targeted.  Never skipped silently.
+
+The exit status is 0 only when every fault is caught (``CAUGHT`` or ``TIMEOUT``).
+CPU use: one pytest process per fault (``--jobs`` in parallel); the whole list
+takes several minutes on 2 cores.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@dataclass(frozen=True)
+class Fault:
+    id: str
+    area: str
+    file: str
+    snippet: str
+    replacement: str
+    tests: tuple
+    what: str
+
+
+P = "sympredict/"
+FAULTS = [
+    # ----------------------------------------------------------------- kernels
+    Fault("K1", "kernels", P + "kernels.py", "A = -e2 * inv_u * sq  # -e^2 u^(-3/2)", "A = -e2 * inv_u  # -e^2 u^(-3/2)",
+          ("tests/test_kernels.py",), "IMQ first derivative factor A has the wrong power"),
+    Fault("K2", "kernels", P + "kernels.py", "B = 3.0 * e2 * e2 * inv_u * inv_u * sq", "B = 2.0 * e2 * e2 * inv_u * inv_u * sq",
+          ("tests/test_kernels.py",), "IMQ second derivative factor B has the wrong constant"),
+    Fault("K3", "kernels", P + "kernels.py", "C = -15.0 * e2 * e2 * e2 * inv_u**3 * sq", "C = -5.0 * e2 * e2 * e2 * inv_u**3 * sq",
+          ("tests/test_kernels.py", "tests/test_oracles.py"), "IMQ third derivative factor C (Hessian of s) wrong"),
+    Fault("K4", "kernels", P + "kernels.py", "A = -(e * e / 3.0) * (1.0 + er) * E", "A = -(e * e / 3.0) * er * E",
+          ("tests/test_kernels.py",), "Matern 5/2 factor A wrong"),
+    Fault("K5", "kernels", P + "kernels.py", "B = e**3 * E * inv_r", "B = e**2 * E * inv_r",
+          ("tests/test_kernels.py",), "Matern 3/2 factor B wrong"),
+    # ----------------------------------------------------------------- surrogate and data
+    Fault("S1", "surrogate", P + "surrogate.py", "diff)[:, 0, :] - (w * A) @ self._onehot", "diff)[:, 0, :] + (w * A) @ self._onehot",
+          ("tests/test_surrogate.py", "tests/test_greedy.py"), "sign of the A term in the surrogate gradient"),
+    Fault("D1", "data", P + "data.py", "y = np.concatenate([-inc[:, n:], inc[:, :n]], axis=1)", "y = np.concatenate([inc[:, n:], inc[:, :n]], axis=1)",
+          ("tests/test_predictor.py",), "gradient targets J^T (x1 - x0) / dT with the wrong sign"),
+    Fault("D2", "data", P + "data.py", "xi = np.concatenate([x0[:, :n], x1[:, n:]], axis=1)", "xi = np.concatenate([x0[:, :n], x0[:, n:]], axis=1)",
+          ("tests/test_predictor.py",), "mixed variables (q0, p0) instead of (q0, p1)"),
+    # ----------------------------------------------------------------- greedy (lead is rewriting greedy.py: re-target after merge)
+    Fault("G1", "greedy", P + "greedy.py", 'score = res_abs if criterion == "f" else p2.copy()', 'score = p2.copy() if criterion == "f" else res_abs',
+          ("tests/test_greedy.py",), "f-greedy and P-greedy selection rules swapped"),
+    Fault("G2", "greedy", P + "greedy.py", 'if best <= tol and criterion == "f":', 'if best < 0 and criterion == "f":',
+          ("tests/test_greedy.py", "tests/test_performance_paths.py"), "residual tolerance never stops the greedy"),
+    # ----------------------------------------------------------------- Newton and the step (predictor.py, _fastkernels.py: lead's files)
+    Fault("N1", "Newton", P + "_fastkernels.py", "p[k] = x[n + k] - h * grad[k]", "p[k] = x[n + k] + h * grad[k]",
+          ("tests/test_oracles.py",), "compiled Newton: wrong sign of the explicit initial guess (same result, more iterations)"),
+    Fault("N2", "Newton", P + "_fastkernels.py", "out[k] = x[k] + h * grad[n + k]", "out[k] = x[k] - h * grad[n + k]",
+          ("tests/test_predictor.py",), "compiled step: q1 = q0 - dT d_p s"),
+    Fault("N3", "Newton", P + "predictor.py", "out[idx, :n] = q0[idx] + ha[done] * g[done, n:]", "out[idx, :n] = q0[idx] - ha[done] * g[done, n:]",
+          ("tests/test_performance_paths.py",), "NumPy reference step: q1 = q0 - dT d_p s"),
+    Fault("N4", "Newton", P + "predictor.py", "return dt * np.linalg.norm(hess[:, :, n:], ord=2, axis=(1, 2))",
+          "return dt * np.linalg.norm(hess[:, :, :n], ord=2, axis=(1, 2))",
+          ("tests/test_oracles.py",), "solvability reads the q columns of the Hessian"),
+    Fault("N5", "Newton", P + "predictor.py", "Minv = np.linalg.inv(eye + h * Sqp)", "Minv = np.linalg.inv(eye - h * Sqp)",
+          ("tests/test_oracles.py",), "step Jacobian: wrong sign in M = I + dT S_qp"),
+    Fault("N6", "Newton", P + "predictor.py", "dq_dp = h * (Spp @ Minv)", "dq_dp = h * Spp",
+          ("tests/test_oracles.py",), "step Jacobian: dq1/dp0 misses M^-1"),
+    # ----------------------------------------------------------------- reduction
+    Fault("R1", "reduction", P + "reduction.py", "return canonical_J(V.shape[1]).T @ V.T @ canonical_J(V.shape[0])", "return V.T",
+          ("tests/test_oracles.py",), "symplectic inverse V+ = V^T (coincides only for orthosymplectic V)"),
+    Fault("R2", "reduction", P + "reduction.py", "V = np.block([[Un.real, -Un.imag], [Un.imag, Un.real]])",
+          "V = np.block([[Un.real, Un.imag], [Un.imag, Un.real]])", ("tests/test_wave.py",), "complex-SVD basis not symplectic"),
+    Fault("R3", "reduction", P + "reduction.py", "return float(np.sqrt(max(0.0, s2[self.n :].sum()) / s2.sum()))",
+          "return float(np.sqrt(max(0.0, s2[self.n + 1 :].sum()) / s2.sum()))", ("tests/test_wave.py", "tests/test_oracles.py"),
+          "projection error skips a mode"),
+    # ----------------------------------------------------------------- integrators
+    Fault("I1", "integrators", P + "integrators.py", "mid = 0.5 * (xa + x1a)", "mid = x1a",
+          ("tests/test_integrators.py",), "implicit midpoint evaluates at the end point (implicit Euler)"),
+    Fault("I2", "integrators", P + "integrators.py", "p = p - 0.5 * hh * system.gradient(x, mu)[:, :n]", "p = p - hh * system.gradient(x, mu)[:, :n]",
+          ("tests/test_integrators.py",), "Stormer-Verlet: full instead of half kick"),
+    Fault("I3", "integrators", P + "integrators.py", "return np.concatenate([q0 + hh * g[:, n:], p], axis=1)",
+          "return np.concatenate([q0 - hh * g[:, n:], p], axis=1)", ("tests/test_integrators.py",), "symplectic Euler: wrong sign of the q update"),
+    # ----------------------------------------------------------------- systems and metrics
+    Fault("P1", "systems", P + "systems/pendulum.py", "def __init__(self, g: float = 9.81, mass: float = 1.0):",
+          "def __init__(self, g: float = 9.8, mass: float = 1.0):", ("tests/test_oracles.py",), "default g = 9.8"),
+    Fault("P2", "systems", P + "systems/pendulum.py", "x[:, 1] / (self.mass * length**2)])", "x[:, 1] / length**2])",
+          ("tests/test_oracles.py",), "mass dropped from dH/dp in the gradient"),
+    Fault("P3", "systems", P + "systems/pendulum.py", "a = h / (2 * self.mass * length**2)", "a = h / (2 * length**2)",
+          ("tests/test_oracles.py",), "mass dropped from dH/dp in the reference flow"),
+    Fault("W1", "systems", P + "systems/wave.py", "2.0 * np.ones(n_points)", "2.5 * np.ones(n_points)",
+          ("tests/test_wave.py",), "finite-difference Laplacian diagonal wrong"),
+    Fault("Q1", "systems", P + "systems/quadratic.py", 'return 0.5 * (np.einsum("bi,ij,bj->b", x, self.H0, x)',
+          'return 1.0 * (np.einsum("bi,ij,bj->b", x, self.H0, x)', ("tests/test_wave.py",), "quadratic Hamiltonian without 1/2"),
+    Fault("M1", "metrics", P + "metrics.py", "return np.linalg.norm(pred - ref, axis=-1) / np.linalg.norm(ref, axis=-1)",
+          "return np.linalg.norm(pred - ref, axis=-1) / np.linalg.norm(pred, axis=-1)",
+          ("tests/test_published_numbers.py",), "relative error normalised by the prediction"),
+    Fault("M2", "metrics", P + "metrics.py", "return np.abs(energy - energy[:, :1]) / np.abs(energy[:, :1])",
+          "return np.abs(energy - energy[:, 1:2]) / np.abs(energy[:, :1])", ("tests/test_published_numbers.py",),
+          "energy error against H(x_1) instead of H(x_0)"),
+    # ----------------------------------------------------------------- experiments
+    Fault("E1", "experiments", P + "experiments/pendulum.py", "err_im = relative_trajectory_error(im, ref).mean(axis=0)",
+          "err_im = relative_trajectory_error(pred, ref).mean(axis=0)", ("tests/test_published_numbers.py",),
+          "scenario A: implicit-midpoint error computed from the kernel's prediction"),
+    Fault("E2", "experiments", P + "experiments/pendulum.py", '"energy_im": relative_hamiltonian_error(system, im, lengths[:, None])',
+          '"energy_im": relative_hamiltonian_error(system, pred, lengths[:, None])', ("tests/test_published_numbers.py",),
+          "scenario A: implicit-midpoint energy error from the kernel's prediction"),
+    Fault("E3", "experiments", P + "experiments/pendulum.py", '"mu": float(lengths[-1])}', '"mu": float(lengths[0])}',
+          ("tests/test_published_numbers.py",), "phase portrait titled with the wrong length"),
+    Fault("E4", "experiments", P + "experiments/pendulum.py",
+          'for name, cls in (("symplectic", SymplecticKernelPredictor), ("direct", DirectKernelPredictor)):',
+          'for name, cls in (("symplectic", DirectKernelPredictor), ("direct", SymplecticKernelPredictor)):',
+          ("tests/test_published_numbers.py",), "scenario B: the two model classes swapped"),
+    Fault("E5", "experiments", P + "experiments/pendulum.py",
+          '"ratio_median": float(np.median(r["err_im"][1:]) / np.median(r["err_kernel"][1:])),',
+          '"ratio_median": float(np.median(r["err_kernel"][1:]) / np.median(r["err_im"][1:])),',
+          ("tests/test_published_numbers.py",), "published ratio inverted"),
+    Fault("E6", "experiments", P + "experiments/wave.py", '"im_red": relative_trajectory_error(im, ref).mean(axis=0),',
+          '"im_red": relative_trajectory_error(pred, ref).mean(axis=0),', ("tests/test_wave.py",),
+          "wave: implicit-midpoint error computed from the kernel's prediction"),
+    # ----------------------------------------------------------------- figures and report
+    Fault("F1", "figures", P + "report.py", '"kernel predictor": ex["kernel"], "implicit midpoint, macro step": ex["im"]',
+          '"kernel predictor": ex["ref"], "implicit midpoint, macro step": ex["im"]', ("tests/test_published_numbers.py",),
+          "phase portrait draws the reference under the kernel's label"),
+    Fault("F2", "figures", P + "report.py", '"symplectic kernel": ex["symplectic"], "direct kernel": ex["direct"]',
+          '"symplectic kernel": ex["direct"], "direct kernel": ex["symplectic"]', ("tests/test_published_numbers.py",),
+          "scenario B: symplectic and direct trajectories swapped"),
+    Fault("F3", "figures", P + "report.py", '{"kernel predictor": r0["energy_kernel"], "implicit midpoint, macro step": r0["energy_im"]',
+          '{"kernel predictor": r0["energy_im"], "implicit midpoint, macro step": r0["energy_kernel"]', ("tests/test_published_numbers.py",),
+          "scenario A energy figure: labels swapped"),
+    Fault("F4", "figures", P + "report.py", '"holds": min(ratios) >= 100 and min(pointwise) > 1,', '"holds": min(ratios) >= 10 and min(pointwise) > 1,',
+          ("tests/test_published_numbers.py",), "claim threshold: one order of magnitude instead of two"),
+    Fault("F5", "figures", P + "plotting.py", 'ax.semilogy(c["t"][1:], c["values"][1:]', 'ax.semilogy(c["t"][:-1], c["values"][1:]',
+          ("tests/test_published_numbers.py",), "error curves shifted by one step in time"),
+    Fault("F6", "figures", P + "plotting.py", "ax.plot(traj[:, 0], traj[:, 1]", "ax.plot(traj[:, 1], traj[:, 0]",
+          ("tests/test_published_numbers.py",), "phase portrait axes swapped"),
+    Fault("F7", "figures", P + "plotting.py", "for ax, comp in zip(axes, (0, 1)):", "for ax, comp in zip(axes, (1, 0)):",
+          ("tests/test_published_numbers.py",), "q(t) and p(t) panels swapped"),
+    # ----------------------------------------------------------------- I/O (io.py and container.py: other developers' files)
+    Fault("O1", "I/O", P + "container.py", "if _checksum(arrays) != checksum:", "if False:",
+          ("tests/test_io.py", "tests/test_predictor.py"), "checksum never verified"),
+    Fault("O2", "I/O", P + "io.py", 'arrays = {"x0": data.x0, "x1": data.x1, "mu": data.mu, "dt": data.dt}',
+          'arrays = {"x0": data.x0, "x1": data.x1, "mu": data.mu, "dt": data.dt[::-1]}', ("tests/test_io.py",),
+          "data set saved with reordered steps"),
+    Fault("O3", "I/O", P + "io.py", 'val_max_residual=arrays.get("val_max_residual"),', "val_max_residual=None,",
+          ("tests/test_io.py", "tests/test_predictor.py", "tests/test_cli.py"), "validation history lost on load"),
+]
+
+
+def _copy_tree(dst: Path):
+    ignore = shutil.ignore_patterns(".venv", ".git", "_build", "__pycache__", "*.pyc", ".pytest_cache", ".hypothesis", "*.egg-info")
+    shutil.copytree(ROOT, dst, ignore=ignore, dirs_exist_ok=True)
+
+
+def run_fault(fault: Fault, workdir: Path, timeout: float) -> dict:
+    """Apply ``fault`` in a private copy ``workdir`` of the tree and run its tests; returns the outcome."""
+    target = workdir / fault.file
+    pristine = (ROOT / fault.file).read_text()
+    count = pristine.count(fault.snippet)
+    result = {**asdict(fault), "tests": list(fault.tests)}
+    if count != 1:
+        result.update(outcome="ERROR", detail=f"snippet found {count} times in {fault.file} (the code moved: re-target the fault)")
+        return result
+    missing = [t for t in fault.tests if not (workdir / t).exists()]
+    if missing:
+        result.update(outcome="ERROR", detail=f"test files missing: {missing}")
+        return result
+    target.write_text(pristine.replace(fault.snippet, fault.replacement))
+    env = {**os.environ, "PYTHONPATH": str(workdir), "PYTHONDONTWRITEBYTECODE": "1", "OMP_NUM_THREADS": "1",
+           "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "NUMBA_NUM_THREADS": "1"}
+    cmd = [sys.executable, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider", *fault.tests]
+    t0 = time.perf_counter()
+    try:
+        proc = subprocess.run(cmd, cwd=workdir, env=env, capture_output=True, text=True, timeout=timeout)
+        out = proc.stdout + proc.stderr
+        if proc.returncode == 0:
+            result.update(outcome="SURVIVED", detail=out.strip().splitlines()[-1] if out.strip() else "")
+        elif proc.returncode in (1,):
+            failed = [line for line in out.splitlines() if line.startswith(("FAILED", "ERROR"))]
+            result.update(outcome="CAUGHT", detail=failed[0] if failed else out.strip().splitlines()[-1])
+        else:
+            result.update(outcome="ERROR", detail=f"pytest exit code {proc.returncode}: {out.strip()[-500:]}")
+    except subprocess.TimeoutExpired:
+        result.update(outcome="TIMEOUT", detail=f"tests ran past {timeout:.0f} s")
+    finally:
+        target.write_text(pristine)
+    result["seconds"] = round(time.perf_counter() - t0, 1)
+    return result
+
+
+def _check_import_path(workdir: Path):
+    """The copy, not the installed checkout, must be what the tests import."""
+    env = {**os.environ, "PYTHONPATH": str(workdir)}
+    got = subprocess.run([sys.executable, "-c", "import sympredict, os; print(os.path.dirname(sympredict.__file__))"],
+                         cwd=workdir, env=env, capture_output=True, text=True).stdout.strip()
+    if Path(got).resolve() != (workdir / "sympredict").resolve():
+        raise SystemExit(f"mutation_check: the tests would import sympredict from {got}, not from the copy {workdir}")
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--only", nargs="+", metavar="ID", help="run these faults only")
+    ap.add_argument("--list", action="store_true", help="print the faults and exit")
+    ap.add_argument("--jobs", type=int, default=1, help="faults run in parallel (each in its own copy of the tree)")
+    ap.add_argument("--timeout", type=float, default=900, help="seconds per fault before it counts as TIMEOUT")
+    ap.add_argument("--json", help="write the results here")
+    args = ap.parse_args(argv)
+    faults = FAULTS
+    if args.only:
+        unknown = set(args.only) - {f.id for f in FAULTS}
+        if unknown:
+            ap.error(f"unknown fault ids: {sorted(unknown)}")
+        faults = [f for f in FAULTS if f.id in args.only]
+    if args.list:
+        for f in faults:
+            print(f"{f.id:4s} {f.area:12s} {f.file:32s} {f.what}")
+        return 0
+    with tempfile.TemporaryDirectory(prefix="sympredict-mutants-") as tmp:
+        workdirs = [Path(tmp) / f"copy{i}" for i in range(max(1, args.jobs))]
+        for w in workdirs:
+            _copy_tree(w)
+        _check_import_path(workdirs[0])
+        t0 = time.perf_counter()
+        results = [None] * len(faults)
+
+        def run_chunk(k):
+            # copy k runs faults k, k + jobs, ...: faults that share a copy run one after the other
+            for i in range(k, len(faults), len(workdirs)):
+                results[i] = run_fault(faults[i], workdirs[k], args.timeout)
+                r = results[i]
+                print(f"{r['id']:4s} {r['outcome']:8s} {r['seconds']:6.1f} s  {r['what']}" + (f"  [{r['detail']}]" if r["outcome"] != "CAUGHT" else ""),
+                      flush=True)
+
+        with ThreadPoolExecutor(len(workdirs)) as pool:
+            list(pool.map(run_chunk, range(len(workdirs))))
+        total = time.perf_counter() - t0
+    counts = {k: sum(r["outcome"] == k for r in results) for k in ("CAUGHT", "TIMEOUT", "SURVIVED", "ERROR")}
+    print(f"{len(results)} faults in {total:.0f} s: " + ", ".join(f"{v} {k.lower()}" for k, v in counts.items()))
+    if args.json:
+        Path(args.json).write_text(json.dumps({"total_seconds": total, "counts": counts, "results": results}, indent=1))
+    return 0 if counts["SURVIVED"] == counts["ERROR"] == 0 else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
