@@ -51,6 +51,7 @@ from __future__ import annotations
 
 import math
 import time
+import types
 from typing import Optional
 
 import numpy as np
@@ -89,9 +90,18 @@ def set_num_threads(n: int) -> None:
         numba.set_num_threads(int(n))
 
 
-if HAVE_NUMBA:  # noqa: C901 - the compiled definitions
+def _build(cache: bool):  # noqa: C901 - the compiled definitions
+    """Compile-on-first-call definitions of every compiled kernel, as one namespace.
 
-    _jit = numba.njit(cache=True, nogil=True, fastmath=False, error_model="numpy")
+    Built twice: cached on disk (``cache=True``) for the package's own kernel
+    families, and not cached for families defined elsewhere.  numba's cache
+    index of a function lists every type it was compiled for; a family class
+    from a script or a test module in that list would make the index
+    unreadable to any process that cannot import that module.  The functions
+    of one namespace call each other (closures), so the two never mix.
+    """
+    _jit = numba.njit(cache=cache, nogil=True, fastmath=False, error_model="numpy")
+    _pjit = numba.njit(cache=cache, nogil=True, parallel=True)
 
     @_jit
     def _chunk_factors(factors, eps, r2, fA, fB, fC, L):
@@ -308,7 +318,7 @@ if HAVE_NUMBA:  # noqa: C901 - the compiled definitions
                         traj[i, kk, a] = np.nan
                 return
 
-    @numba.njit(cache=True, nogil=True, parallel=True)
+    @_pjit
     def _rollout_parallel(x0, W, h, cT, seg, factors, eps, max_iter, chunk, traj, codes, fail_step, fail_iter, resid, passes):
         for i in numba.prange(x0.shape[0]):
             _rollout_one(i, x0, W, h, cT, seg, factors, eps, max_iter, chunk, traj, codes, fail_step, fail_iter, resid, passes)
@@ -319,7 +329,7 @@ if HAVE_NUMBA:  # noqa: C901 - the compiled definitions
             _rollout_one(i, x0, W, h, cT, seg, factors, eps, max_iter, chunk, traj, codes, fail_step, fail_iter, resid, passes)
 
 
-    @numba.njit(cache=True, nogil=True, parallel=True)
+    @_pjit
     def _matvec_t_kernel(basis, m, c, out, chunk):
         """Column chunks in parallel; four rows per sweep over a chunk's float64 sums."""
         n = basis.shape[1]
@@ -351,7 +361,7 @@ if HAVE_NUMBA:  # noqa: C901 - the compiled definitions
             out[i0:i1] = acc
 
 
-    @numba.njit(cache=True, nogil=True, parallel=True)
+    @_pjit
     def _gradients_kernel(xi, group, Wg, cT, seg, factors, eps, chunk, out):
         dim = xi.shape[1]
         n = dim // 2
@@ -412,7 +422,7 @@ if HAVE_NUMBA:  # noqa: C901 - the compiled definitions
         carg[ch] = arg
         cbest[ch] = best
 
-    @numba.njit(cache=True, nogil=True, parallel=True)
+    @_pjit
     def _greedy_update_parallel(row, t, inv_pj, b, res, p2, j, breakdown, chunk, cmax, carg, cbest):
         for ch in numba.prange(cmax.shape[0]):
             _greedy_update_chunk(ch, row, t, inv_pj, b, res, p2, j, breakdown, chunk, cmax, carg, cbest)
@@ -459,7 +469,7 @@ if HAVE_NUMBA:  # noqa: C901 - the compiled definitions
         _hb_column2_range(0, points.shape[0], points, mu, dt, xq, muq, dtq, b, e, first_factors, emu, mu_profile, edt,
                           dt_profile, has_mu, has_dt, out)
 
-    @numba.njit(cache=True, nogil=True, parallel=True)
+    @_pjit
     def _hb_column2_parallel(points, mu, dt, xq, muq, dtq, b, e, first_factors, emu, mu_profile, edt, dt_profile,
                              has_mu, has_dt, out):
         n_pts = points.shape[0]
@@ -467,6 +477,21 @@ if HAVE_NUMBA:  # noqa: C901 - the compiled definitions
         for k in numba.prange((n_pts + block - 1) // block):
             _hb_column2_range(k * block, min(n_pts, (k + 1) * block), points, mu, dt, xq, muq, dtq, b, e, first_factors,
                               emu, mu_profile, edt, dt_profile, has_mu, has_dt, out)
+
+    return types.SimpleNamespace(**{k: v for k, v in locals().items() if k not in ("cache", "_jit", "_pjit")})
+
+
+_NAMESPACES: dict = {}
+
+
+def _kernels(*families) -> types.SimpleNamespace:
+    """The compiled kernels for these kernel families: cached on disk only if all are the package's own."""
+    _check_available()
+    cache = all(f.__module__.startswith("sympredict.") for f in families)
+    ns = _NAMESPACES.get(cache)
+    if ns is None:
+        ns = _NAMESPACES[cache] = _build(cache)
+    return ns
 
 
 _COMPILED_FORMULAS: dict = {}
@@ -481,8 +506,9 @@ def compiled_formulas(family: type):
     _check_available()
     out = _COMPILED_FORMULAS.get(family)
     if out is None:
+        cache = family.__module__.startswith("sympredict.")  # see _build: other families' types stay out of the cache
         out = _COMPILED_FORMULAS[family] = tuple(
-            numba.njit(getattr(family, name), cache=True, nogil=True, error_model="numpy")
+            numba.njit(getattr(family, name), cache=cache, nogil=True, error_model="numpy")
             for name in ("profile", "first_factors", "all_factors")
         )
     return out
@@ -582,7 +608,8 @@ def newton_rollout(x0, weights, dt, layout: CenterLayout, kernel, max_iter: int,
     resid = np.zeros(b)
     if parallel is None:
         parallel = b >= PARALLEL_MIN_BATCH
-    fn = _rollout_parallel if parallel else _rollout_serial
+    ns = _kernels(type(kernel))
+    fn = ns._rollout_parallel if parallel else ns._rollout_serial
     passes = np.zeros(b, dtype=np.int64)
     fn(x0, weights, dt, layout.cT, layout.seg, compiled_formulas(type(kernel))[2], float(kernel.eps), int(max_iter), CHUNK,
        traj, codes, fail_step, fail_iter, resid, passes)
@@ -630,7 +657,7 @@ def matvec_t(basis: np.ndarray, m: int, c: np.ndarray) -> np.ndarray:
     """
     _check_available()
     out = np.empty(basis.shape[1])
-    _matvec_t_kernel(basis, int(m), np.ascontiguousarray(c, dtype=np.float64), out, MATVEC_CHUNK)
+    _kernels()._matvec_t_kernel(basis, int(m), np.ascontiguousarray(c, dtype=np.float64), out, MATVEC_CHUNK)
     return out
 
 
@@ -663,7 +690,7 @@ def gradients(xi, group, group_weights, layout: CenterLayout, kernel) -> np.ndar
     xi = np.ascontiguousarray(xi, dtype=np.float64)
     out = np.empty_like(xi)
     wg = np.ascontiguousarray(np.asarray(group_weights, dtype=np.float64)[:, layout.order])
-    _gradients_kernel(xi, np.ascontiguousarray(group, dtype=np.int64), wg, layout.cT, layout.seg,
+    _kernels(type(kernel))._gradients_kernel(xi, np.ascontiguousarray(group, dtype=np.int64), wg, layout.cT, layout.seg,
                       compiled_formulas(type(kernel))[2], float(kernel.eps), CHUNK, out)
     return out
 
@@ -696,7 +723,7 @@ def newton_terms(xi, weights, layout: CenterLayout, kernel):
     b, dim = xi.shape
     grad, hqp, floor = np.empty((b, dim)), np.empty((b, dim // 2, dim // 2)), np.empty(b)
     w = np.ascontiguousarray(np.asarray(weights, dtype=np.float64)[:, layout.order])
-    _newton_terms_kernel(xi, w, layout.cT, layout.seg, compiled_formulas(type(kernel))[2], float(kernel.eps), CHUNK,
+    _kernels(type(kernel))._newton_terms_kernel(xi, w, layout.cT, layout.seg, compiled_formulas(type(kernel))[2], float(kernel.eps), CHUNK,
                          grad, hqp, floor)
     return grad, hqp, floor
 
@@ -752,7 +779,8 @@ def greedy_update(row, t, inv_pj: float, b: float, res, p2, j: int, breakdown: f
     cmax = np.empty(n_chunks)
     carg = np.empty(n_chunks, dtype=np.int64)
     cbest = np.empty(n_chunks)
-    kernel = _greedy_update_parallel if (parallel and n_chunks > 1) else _greedy_update_serial
+    ns = _kernels()
+    kernel = ns._greedy_update_parallel if (parallel and n_chunks > 1) else ns._greedy_update_serial
     kernel(row, t, float(inv_pj), float(b), res, p2, int(j), float(breakdown), UPDATE_CHUNK, cmax, carg, cbest)
     max_abs = cmax.max() if not np.isnan(cmax).any() else np.nan
     k = int(np.argmax(cbest))  # first chunk with the best score: first index overall
@@ -770,11 +798,12 @@ def factor_throughput(n: int = 1 << 20, eps: float = 0.2, repeats: int = 5) -> f
     factors = compiled_formulas(IMQ)[2]
     r2 = np.random.default_rng(0).uniform(0.0, 4.0, n)
     fA, fB, fC = np.empty(n), np.empty(n), np.empty(n)
-    _chunk_factors(factors, eps, r2, fA, fB, fC, n)
+    chunk_factors = _kernels(IMQ)._chunk_factors
+    chunk_factors(factors, eps, r2, fA, fB, fC, n)
     times = []
     for _ in range(repeats):
         t0 = time.perf_counter()
-        _chunk_factors(factors, eps, r2, fA, fB, fC, n)
+        chunk_factors(factors, eps, r2, fA, fB, fC, n)
         times.append(time.perf_counter() - t0)
     return float(np.median(times)) / n
 
@@ -807,7 +836,8 @@ def hb_column(kernel, points, mu, dt, representer, out: np.ndarray) -> np.ndarra
     dt_profile = compiled_formulas(type(kernel.dt if kernel.dt is not None else kernel.state))[0]
     emu = kernel.mu.eps if kernel.mu is not None else 0.0
     edt = kernel.dt.eps if kernel.dt is not None else 0.0
-    fn = _hb_column2_parallel if (GREEDY_PARALLEL and len(points) > 65536) else _hb_column2_serial
+    ns = _kernels(*(type(k) for k in (kernel.state, kernel.mu, kernel.dt) if k is not None))
+    fn = ns._hb_column2_parallel if (GREEDY_PARALLEL and len(points) > 65536) else ns._hb_column2_serial
     fn(points, mu, dt, np.ascontiguousarray(xq, dtype=np.float64), np.ascontiguousarray(muq, dtype=np.float64),
        float(dtq), int(b), float(kernel.state.eps), first_factors, emu, mu_profile, edt, dt_profile,
        kernel.mu is not None, kernel.dt is not None, out)

@@ -118,3 +118,23 @@ def test_a_new_family_trains_and_rolls_out_compiled(small_pendulum_data, rng):
     ref = model.set_params(backend="numpy").rollout(x, 10, mu=mu, dt=dt)
     np.testing.assert_allclose(fast, ref, rtol=0, atol=1e-9)
     assert model.history_.train_max_residual[-1] < 0.1 * model.history_.train_max_residual[0]
+
+
+@needs_numba
+def test_a_foreign_family_leaves_the_disk_cache_readable(small_pendulum_data, rng):
+    """numba's cache index of a compiled function lists its types: a family from a module other processes
+    cannot import (this test module) must not enter it, or every later process fails to load the cache."""
+    import subprocess
+    import sys
+
+    d = small_pendulum_data
+    idx = rng.choice(len(d), 300, replace=False)
+    model = SymplecticKernelPredictor(Gaussian(0.3), IMQ(2.0), IMQ(5.0), max_centers=30, backend="numba")
+    model.fit(d.x0[idx], d.x1[idx], mu=d.mu[idx], dt=d.dt[idx]).rollout(d.x0[idx[:9]], 3, mu=0.75, dt=0.05)
+    code = ("import numpy as np; from sympredict import SymplecticKernelPredictor; from sympredict.kernels import IMQ; "
+            "from sympredict.systems.pendulum import Pendulum, flow_map_data; d = flow_map_data(Pendulum(), n_grid=8); "
+            "m = SymplecticKernelPredictor(IMQ(0.3), IMQ(2.0), IMQ(5.0), max_centers=20, backend='numba')"
+            ".fit(d.x0, d.x1, mu=d.mu, dt=d.dt); print(m.rollout(d.x0[:9], 3, mu=0.75, dt=0.05).shape)")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert "(9, 4, 2)" in done.stdout

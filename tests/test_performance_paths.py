@@ -162,11 +162,13 @@ def test_backend_argument_checked(small_pendulum_model, small_pendulum_data, mon
         SymplecticKernelPredictor(IMQ(0.15), mu_kernel=IMQ(2.0), dt_kernel=IMQ(5.0), backend="gpu").fit(
             d.x0[:20], d.x1[:20], mu=d.mu[:20], dt=d.dt[:20]
         )
+    auto = _with_backend(small_pendulum_model, "auto")
+    assert auto._compiled() is _fastkernels.HAVE_NUMBA  # 'auto' compiles exactly when numba is there
+    # without numba: 'numba' is refused, 'auto' takes the NumPy reference (and reports it)
     monkeypatch.setattr(_fastkernels, "HAVE_NUMBA", False)
     with pytest.raises(ImportError, match="numba"):
         _with_backend(small_pendulum_model, "numba").step(x, mu=0.75, dt=0.05)
-    # 'auto' falls back to the NumPy reference
-    auto = _with_backend(small_pendulum_model, "auto")
+    assert auto._compiled() is False
     np.testing.assert_array_equal(auto.step(x, mu=0.75, dt=0.05), _with_backend(small_pendulum_model, "numpy").step(x, mu=0.75, dt=0.05))
 
 

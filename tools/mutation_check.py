@@ -55,16 +55,16 @@ class Fault:
 P = "sympredict/"
 FAULTS = [
     # ----------------------------------------------------------------- kernels
-    Fault("K1", "kernels", P + "kernels.py", "A = -e2 * inv_u * sq  # -e^2 u^(-3/2)", "A = -e2 * inv_u  # -e^2 u^(-3/2)",
-          ("tests/test_kernels.py",), "IMQ first derivative factor A has the wrong power"),
+    Fault("K1", "kernels", P + "kernels.py", "return -e2 * inv_u * sq, 3.0", "return -e2 * inv_u, 3.0",
+          ("tests/test_kernel_families.py",), "IMQ first derivative factor A has the wrong power"),
     Fault("K2", "kernels", P + "kernels.py", "B = 3.0 * e2 * e2 * inv_u * inv_u * sq", "B = 2.0 * e2 * e2 * inv_u * inv_u * sq",
-          ("tests/test_kernels.py",), "IMQ second derivative factor B has the wrong constant"),
-    Fault("K3", "kernels", P + "kernels.py", "C = -15.0 * e2 * e2 * e2 * inv_u**3 * sq", "C = -5.0 * e2 * e2 * e2 * inv_u**3 * sq",
-          ("tests/test_kernels.py", "tests/test_oracles.py"), "IMQ third derivative factor C (Hessian of s) wrong"),
-    Fault("K4", "kernels", P + "kernels.py", "A = -(e * e / 3.0) * (1.0 + er) * E", "A = -(e * e / 3.0) * er * E",
-          ("tests/test_kernels.py",), "Matern 5/2 factor A wrong"),
-    Fault("K5", "kernels", P + "kernels.py", "B = e**3 * E * inv_r", "B = e**2 * E * inv_r",
-          ("tests/test_kernels.py",), "Matern 3/2 factor B wrong"),
+          ("tests/test_kernels.py", "tests/test_kernel_families.py"), "IMQ second derivative factor B has the wrong constant"),
+    Fault("K3", "kernels", P + "kernels.py", "C = -15.0 * e2 * e2 * e2 * (inv_u * inv_u * inv_u) * sq", "C = -5.0 * e2 * e2 * e2 * (inv_u * inv_u * inv_u) * sq",
+          ("tests/test_kernel_families.py", "tests/test_oracles.py"), "IMQ third derivative factor C (Hessian of s) wrong"),
+    Fault("K4", "kernels", P + "kernels.py", "return -(e * e / 3.0) * (1.0 + er) * E, (e**4 / 3.0) * E\n", "return -(e * e / 3.0) * er * E, (e**4 / 3.0) * E\n",
+          ("tests/test_kernels.py", "tests/test_kernel_families.py"), "Matern 5/2 factor A wrong"),
+    Fault("K5", "kernels", P + "kernels.py", "return -e * e * E, e**3 * E * _inverse_r(r)", "return -e * e * E, e**2 * E * _inverse_r(r)",
+          ("tests/test_kernels.py", "tests/test_kernel_families.py"), "Matern 3/2 factor B wrong"),
     # ----------------------------------------------------------------- surrogate and data
     Fault("S1", "surrogate", P + "surrogate.py", "diff)[:, 0, :] - (w * A) @ self._onehot", "diff)[:, 0, :] + (w * A) @ self._onehot",
           ("tests/test_surrogate.py", "tests/test_greedy.py"), "sign of the A term in the surrogate gradient"),
@@ -73,16 +73,16 @@ FAULTS = [
     Fault("D2", "data", P + "data.py", "xi = np.concatenate([x0[:, :n], x1[:, n:]], axis=1)", "xi = np.concatenate([x0[:, :n], x0[:, n:]], axis=1)",
           ("tests/test_predictor.py",), "mixed variables (q0, p0) instead of (q0, p1)"),
     # ----------------------------------------------------------------- greedy (lead is rewriting greedy.py: re-target after merge)
-    Fault("G1", "greedy", P + "greedy.py", 'score = res_abs if criterion == "f" else p2.copy()', 'score = p2.copy() if criterion == "f" else res_abs',
+    Fault("G1", "greedy", P + "greedy/dense.py", 'score = self.res_abs if self.criterion == "f" else self.p2.copy()', 'score = self.p2.copy() if self.criterion == "f" else self.res_abs',
           ("tests/test_greedy.py",), "f-greedy and P-greedy selection rules swapped"),
-    Fault("G2", "greedy", P + "greedy.py", 'if best <= tol and criterion == "f":', 'if best < 0 and criterion == "f":',
+    Fault("G2", "greedy", P + "greedy/loop.py", 'if criterion == "f" and certified <= tol:', 'if criterion == "f" and certified < 0:',
           ("tests/test_greedy.py", "tests/test_performance_paths.py"), "residual tolerance never stops the greedy"),
     # ----------------------------------------------------------------- Newton and the step (predictor.py, _fastkernels.py: lead's files)
     Fault("N1", "Newton", P + "_fastkernels.py", "p[k] = x[n + k] - h * grad[k]", "p[k] = x[n + k] + h * grad[k]",
           ("tests/test_oracles.py",), "compiled Newton: wrong sign of the explicit initial guess (same result, more iterations)"),
     Fault("N2", "Newton", P + "_fastkernels.py", "out[k] = x[k] + h * grad[n + k]", "out[k] = x[k] - h * grad[n + k]",
           ("tests/test_predictor.py",), "compiled step: q1 = q0 - dT d_p s"),
-    Fault("N3", "Newton", P + "predictor.py", "out[idx, :n] = q0[idx] + ha[done] * g[done, n:]", "out[idx, :n] = q0[idx] - ha[done] * g[done, n:]",
+    Fault("N3", "Newton", P + "newton.py", "out[idx, :n] = q0[idx] + ha[done] * g[done, n:]", "out[idx, :n] = q0[idx] - ha[done] * g[done, n:]",
           ("tests/test_performance_paths.py",), "NumPy reference step: q1 = q0 - dT d_p s"),
     Fault("N4", "Newton", P + "predictor.py", "return dt * np.linalg.norm(hess[:, :, n:], ord=2, axis=(1, 2))",
           "return dt * np.linalg.norm(hess[:, :, :n], ord=2, axis=(1, 2))",
@@ -167,7 +167,7 @@ FAULTS = [
     Fault("O2", "I/O", P + "io.py", 'arrays = {"x0": data.x0, "x1": data.x1, "mu": data.mu, "dt": data.dt}',
           'arrays = {"x0": data.x0, "x1": data.x1, "mu": data.mu, "dt": data.dt[::-1]}', ("tests/test_io.py",),
           "data set saved with reordered steps"),
-    Fault("O3", "I/O", P + "io.py", 'val_max_residual=arrays.get("val_max_residual"),', "val_max_residual=None,",
+    Fault("O3", "I/O", P + "predictor.py", 'val_max_residual=arrays.get("val_max_residual"),', "val_max_residual=None,",
           ("tests/test_io.py", "tests/test_predictor.py", "tests/test_cli.py"), "validation history lost on load"),
 ]
 

@@ -29,14 +29,14 @@ from pymor.core.logger import getLogger
 from scipy.linalg import solve_triangular
 
 from sympredict.functionals import HBFunctionals, functional_residuals
-from sympredict.greedy.loop import Expansion, check_memory
+from sympredict.greedy.loop import BaseStore, Expansion, check_memory
 
 __all__ = ["ActiveSetStore"]
 
 logger = getLogger("sympredict.greedy")
 
 
-class ActiveSetStore:
+class ActiveSetStore(BaseStore):
     """Newton basis on an active subset of the points (f-greedy, one output, HB functionals).
 
     Parameters
@@ -67,7 +67,6 @@ class ActiveSetStore:
         Seed of the initial draw and of the refresh samples.
     """
 
-    stats: dict = {}  # nothing beyond the history
     label = "active-set greedy"
 
     def __init__(self, functionals, targets, *, tol: float, power_tol: float = 1e-12, validation: Optional[tuple] = None,
@@ -76,9 +75,9 @@ class ActiveSetStore:
         if not isinstance(functionals, HBFunctionals):
             raise ValueError("the active-set greedy needs HBFunctionals (state-derivative functionals)")
         n = functionals.n_functionals
-        y = np.asarray(targets, dtype=float)
-        if y.size != n:
-            raise ValueError(f"the active-set greedy interpolates one output: targets must have shape ({n},), got {y.shape}")
+        if np.size(targets) != n:
+            raise ValueError(f"the active-set greedy interpolates one output: targets must have shape ({n},), "
+                             f"got {np.shape(targets)}")
         if not 0 < margin <= 1:
             raise ValueError(f"margin must lie in (0, 1], got {margin!r}")
         if not 0 < refresh_fraction <= 1:
@@ -87,26 +86,17 @@ class ActiveSetStore:
                             ("max_new_points", max_new_points)):
             if int(value) != value or value < 1:
                 raise ValueError(f"{name} must be a positive integer, got {value!r}")
-        self.functionals = functionals
-        self.n_functionals = n
-        self.y = y.reshape(n)
-        self.n_outputs = 1
+        super().__init__(functionals, targets, criterion="f", power_tol=power_tol, validation=validation)
         self.squeeze = True
-        self.targets_max = float(np.abs(self.y).max()) if n else 0.0
+        self.targets = self.y[:, 0]  # one output: the flat target vector
         self.tol = tol
         self.inner_tol = margin * tol
-        self.power_tol = power_tol
         self.memory_limit = memory_limit
         self.initial_points = int(initial_points)
         self.refresh_every = int(refresh_every)
         self.max_new_points = int(max_new_points)
         self.refresh_fraction = refresh_fraction
         self.seed = seed
-        self.val_functionals, self.n_val = None, 0
-        if validation is not None:
-            self.val_functionals, val_targets = validation
-            self.n_val = self.val_functionals.n_functionals
-            self.vres = np.array(val_targets, dtype=float).reshape(self.n_val)
 
     # ------------------------------------------------------------------ protocol
     def open(self, expansion: Expansion):
@@ -128,12 +118,12 @@ class ActiveSetStore:
         self.sub = HBFunctionals(f.kernel, f.points[pts], f.mu[pts], f.dt[pts])
         self.basis = np.empty((self.max_centers, cap_points * dim))
         self.vbasis = np.empty((self.max_centers, self.n_val)) if self.n_val else None
-        self.res = self.y[self.cand].copy()
+        self.res = self.targets[self.cand].copy()
         self.p2 = np.full(len(self.cand), self.diag0)
         self.res_abs = np.abs(self.res)
         self.since_refresh = 0
         self.full_at = -1  # number of centres at the last evaluation of the full residual
-        self.full_max = float(np.abs(self.y).max())
+        self.full_max = self.targets_max
         return self.full_max, (np.abs(self.vres).max() if self.n_val else None)
 
     def select(self, m: int):
@@ -183,7 +173,7 @@ class ActiveSetStore:
             if m:
                 vrow -= self.vbasis[:m].T @ coeffs_j
             vrow *= 1.0 / pj
-            self.vres -= b * vrow
+            self.vres[:, 0] -= b * vrow
             val_max = np.abs(self.vres).max()
         self.since_refresh += 1
         return self.res_abs.max(), val_max
@@ -194,13 +184,10 @@ class ActiveSetStore:
             self._evaluate_full(m)
         return self.full_max
 
-    def close(self) -> None:
-        pass
-
     # ------------------------------------------------------------------ refreshes
     def _evaluate_full(self, m: int) -> np.ndarray:
         e = self.expansion
-        r_all = functional_residuals(self.functionals, self.y, e.selected[:m], e.coef(m)) if m else self.y.copy()
+        r_all = functional_residuals(self.functionals, self.targets, e.selected[:m], e.coef(m)) if m else self.targets.copy()
         self.full_max = float(np.abs(r_all).max())
         self.full_at = m
         logger.info(f"refresh at {m} centres: full max residual {self.full_max:.3e} ({len(self.cand)} active candidates)")
@@ -215,7 +202,7 @@ class ActiveSetStore:
             outside = np.flatnonzero(~self.in_active)
             size = min(outside.size, max(1, int(np.ceil(self.refresh_fraction * outside.size))))
             pool = np.sort(self.rng.choice(outside, size=size, replace=False)) if size else outside
-            r_eval = functional_residuals(self.functionals, self.y, e.selected[:m], e.coef(m), points=pool)
+            r_eval = functional_residuals(self.functionals, self.targets, e.selected[:m], e.coef(m), points=pool)
             sample_max = float(np.abs(r_eval).max()) if r_eval.size else 0.0
             logger.info(f"refresh at {m} centres: max residual {sample_max:.3e} on {pool.size} sampled points "
                         f"({len(self.cand)} active candidates)")
@@ -245,7 +232,7 @@ class ActiveSetStore:
             grown[:m, :n_s] = self.basis[:m, :n_s]
             self.basis = grown
         self.basis[:m, n_s : n_s + n_new] = vals
-        self.res = np.concatenate([self.res, self.y[new_cand] - e.beta[:m, 0] @ vals])
+        self.res = np.concatenate([self.res, self.targets[new_cand] - e.beta[:m, 0] @ vals])
         self.p2 = np.concatenate([self.p2, self.diag0 - np.einsum("ki,ki->i", vals, vals)])
         self.res_abs = np.abs(self.res)
         self.cand = np.concatenate([self.cand, new_cand])

@@ -20,7 +20,7 @@ from typing import Optional
 import numpy as np
 
 from sympredict import _fastkernels
-from sympredict.greedy.loop import Expansion, as_targets, check_memory
+from sympredict.greedy.loop import BaseStore, Expansion, check_memory
 
 __all__ = ["DenseStore", "abs_residual", "matvec_t"]
 
@@ -44,7 +44,7 @@ def matvec_t(basis: np.ndarray, m: int, c: np.ndarray) -> np.ndarray:
     return (basis[:m].T @ c.astype(np.float32)).astype(float)
 
 
-class DenseStore:
+class DenseStore(BaseStore):
     """Newton basis, residuals and power function of all ``N`` candidates (and the validation set).
 
     Parameters
@@ -78,7 +78,6 @@ class DenseStore:
     (a shard's view of another shard's winner).
     """
 
-    stats: dict = {}  # nothing beyond the history
     label = "greedy"
 
     def __init__(self, functionals, targets, *, criterion: str = "f", power_tol: float = 1e-12,
@@ -86,19 +85,7 @@ class DenseStore:
                  compiled: Optional[bool] = None, diagonal_max: Optional[float] = None):
         if basis_dtype not in ("float64", "float32"):
             raise ValueError(f"basis_dtype must be 'float64' or 'float32', got {basis_dtype!r}")
-        self.functionals = functionals
-        self.n_functionals = n = functionals.n_functionals
-        self.y, self.squeeze, self.targets_max = as_targets(targets, n)
-        self.n_outputs = self.y.shape[1]
-        self.criterion = criterion
-        self.power_tol = power_tol
-        self.val_functionals, self.n_val = None, 0
-        if validation is not None:
-            self.val_functionals, val_targets = validation
-            self.n_val = self.val_functionals.n_functionals
-            self.vres = np.array(val_targets, dtype=float).reshape(self.n_val, -1)
-            if self.vres.shape[1] != self.n_outputs:
-                raise ValueError("validation targets must have as many outputs as the training targets")
+        super().__init__(functionals, targets, criterion=criterion, power_tol=power_tol, validation=validation)
         self.memory_limit = memory_limit
         self.dtype = np.dtype(basis_dtype)
         self.diagonal_max = diagonal_max
@@ -201,9 +188,3 @@ class DenseStore:
             return max_abs, val_max
         abs_residual(self.res, out=self.res_abs)
         return self.res_abs.max(), val_max
-
-    def finish(self, m: int):
-        return None
-
-    def close(self) -> None:
-        pass

@@ -58,6 +58,7 @@ __all__ = [
     "check_memory",
     "kernel_coefficients",
     "as_targets",
+    "BaseStore",
 ]
 
 logger = getLogger("sympredict.greedy")
@@ -289,6 +290,46 @@ class NewtonBasisStore(Protocol):
 
     def close(self) -> None:
         """Release what :meth:`open` acquired (called on every exit path)."""
+
+
+class BaseStore:
+    """What every store sets up from its arguments: targets, criterion, breakdown setting, validation set.
+
+    Subclasses call ``super().__init__`` and implement :class:`NewtonBasisStore`'s
+    ``open``, ``select``, ``winner`` and ``add``; ``finish`` and ``close`` default
+    to nothing.
+
+    Attributes
+    ----------
+    y : ndarray of shape (N, q)
+    vres : ndarray of shape (N_val, q)
+        The validation residual (the validation targets at the start).
+    """
+
+    label = "greedy"
+
+    def __init__(self, functionals, targets, *, criterion: str = "f", power_tol: float = 1e-12,
+                 validation: Optional[tuple] = None):
+        self.functionals = functionals
+        self.n_functionals = n = functionals.n_functionals
+        self.y, self.squeeze, self.targets_max = as_targets(targets, n)
+        self.n_outputs = self.y.shape[1]
+        self.criterion = criterion
+        self.power_tol = power_tol
+        self.stats = {}
+        self.val_functionals, self.n_val, self.vres = None, 0, None
+        if validation is not None:
+            self.val_functionals, val_targets = validation
+            self.n_val = self.val_functionals.n_functionals
+            self.vres = np.array(val_targets, dtype=float).reshape(self.n_val, -1)
+            if self.vres.shape[1] != self.n_outputs:
+                raise ValueError("validation targets must have as many outputs as the training targets")
+
+    def finish(self, m: int) -> Optional[float]:
+        return None
+
+    def close(self) -> None:
+        pass
 
 
 def run_greedy(

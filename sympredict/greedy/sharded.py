@@ -40,7 +40,7 @@ from pymor.core.logger import getLogger
 from pymor.parallel.dummy import dummy_pool
 
 from sympredict.greedy.dense import DenseStore
-from sympredict.greedy.loop import Expansion, as_targets, available_memory, format_bytes
+from sympredict.greedy.loop import BaseStore, Expansion, available_memory, format_bytes
 from sympredict.parallel import Watchdog, checked, guarded, whoami, worker_info
 
 __all__ = ["SHARD_ALIGN", "shard_bounds", "ShardedStore"]
@@ -183,7 +183,7 @@ def _combine(reports):
     return train_max, val_max, best
 
 
-class ShardedStore:
+class ShardedStore(BaseStore):
     """The candidates' Newton basis sharded over a pyMOR worker pool (driver side).
 
     Parameters
@@ -223,27 +223,15 @@ class ShardedStore:
                  validation: Optional[tuple] = None, pool=None, n_shards: Optional[int] = None,
                  memory_limit_per_rank: Optional[float] = None, timeout: Optional[float] = 60.0):
         _subset(functionals, 0, 1)  # TypeError for functionals that cannot be sharded
-        self.functionals = functionals
-        self.n_functionals = n = functionals.n_functionals
-        self.y, self.squeeze, self.targets_max = as_targets(targets, n)
-        self.n_outputs = self.y.shape[1]
-        self.criterion = criterion
-        self.power_tol = power_tol
+        super().__init__(functionals, targets, criterion=criterion, power_tol=power_tol, validation=validation)
         self.pool = dummy_pool if pool is None else pool
         self.n_workers = len(self.pool)
         self.n_shards = self.n_workers if n_shards is None else int(n_shards)
         n_points = len(functionals.points)
         if not 1 <= self.n_shards <= max(1, n_points):
             raise ValueError(f"n_shards must lie in 1..{n_points} (the number of points), got {self.n_shards}")
-        self.validation = validation
-        self.n_val = 0
-        if validation is not None:
-            self.n_val = validation[0].n_functionals
-            if np.asarray(validation[1], dtype=float).reshape(self.n_val, -1).shape[1] != self.n_outputs:
-                raise ValueError("validation targets must have as many outputs as the training targets")
         self.memory_limit_per_rank = memory_limit_per_rank
         self.timeout = timeout
-        self.stats = {}
         self._stack = None
 
     def _payloads(self, max_centers: int, workers: list) -> tuple:
@@ -255,8 +243,7 @@ class ShardedStore:
         bounds = shard_bounds(len(f.points), n_shards, per)
         val_f, vres0, vbounds = None, None, None
         if self.n_val:
-            val_f = self.validation[0]
-            vres0 = np.array(self.validation[1], dtype=float).reshape(self.n_val, -1)
+            val_f, vres0 = self.val_functionals, self.vres
             vbounds = shard_bounds(len(val_f.points), n_shards, val_f.n_functionals // len(val_f.points))
         specs = []
         for s in range(n_shards):
