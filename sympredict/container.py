@@ -72,7 +72,15 @@ from pymor.core.logger import getLogger
 from sympredict._version import __version__
 from sympredict.exceptions import ModelFileError
 
-__all__ = ["SCHEMA_VERSION", "STALE_GRACE_S", "STALE_MAX_AGE_S", "write_container", "read_container"]
+__all__ = [
+    "SCHEMA_VERSION",
+    "STALE_GRACE_S",
+    "STALE_MAX_AGE_S",
+    "write_container",
+    "read_container",
+    "check_save_path",
+    "is_stale",
+]
 
 logger = getLogger("sympredict.container")
 
@@ -112,12 +120,18 @@ def _checksum_v2(fmt: str, version: int, package_version: str, settings_json: st
     for text in (fmt, str(int(version)), package_version, settings_json):
         put(text.encode())
     for name in sorted(arrays):
-        arr = np.ascontiguousarray(arrays[name])
+        arr = _c_order(arrays[name])
         put(name.encode())
         put(arr.dtype.str.encode())
         put(repr(tuple(arr.shape)).encode())
         put(arr.reshape(-1).view(np.uint8) if arr.size else b"")
     return digest.hexdigest()
+
+
+def _c_order(arr) -> np.ndarray:
+    """``arr`` as a C-contiguous array of the same shape (``np.ascontiguousarray`` makes 0-d arrays 1-d)."""
+    arr = np.asarray(arr)
+    return arr if arr.flags.c_contiguous else arr.copy(order="C")
 
 
 # --------------------------------------------------------------------------- writing
@@ -141,7 +155,7 @@ def _checked_arrays(arrays: dict) -> dict:
     for name, arr in arrays.items():
         if not isinstance(name, str) or not name or "/" in name or name in (".", ".."):
             raise ValueError(f"array name {name!r} must be a non-empty string without '/'")
-        arr = np.ascontiguousarray(arr)
+        arr = _c_order(arr)
         if arr.dtype.kind not in _ARRAY_KINDS:
             raise ValueError(f"array {name!r} must be numeric (float, int or bool), got dtype {arr.dtype}")
         out[name] = arr
@@ -174,6 +188,18 @@ def _target(path: Path) -> tuple[Path, os.stat_result | None]:
     return real, st
 
 
+def check_save_path(path) -> Path:
+    """Check that ``path`` can take a saved file, before any work; returns it with symlinks resolved.
+
+    Raises
+    ------
+    ValueError
+        ``path`` is a directory, FIFO, device or socket, an unresolvable
+        symlink, or its directory does not exist.
+    """
+    return _target(Path(path))[0]
+
+
 def _kind(mode: int) -> str:
     for test, name in ((stat.S_ISFIFO, "FIFO"), (stat.S_ISCHR, "character device"), (stat.S_ISBLK, "block device"),
                        (stat.S_ISSOCK, "socket"), (stat.S_ISDIR, "directory")):
@@ -196,6 +222,21 @@ def _pid_alive(pid: int) -> bool:
     return True
 
 
+def is_stale(pid, mtime: float, now: float | None = None) -> bool:
+    """Whether a temporary file or folder of ours may be removed (the rule of the module docstring).
+
+    Parameters
+    ----------
+    pid : int or None
+        The owner's process id from the name (None for names without one).
+    mtime : float
+        Its modification time (seconds since the epoch).
+    """
+    age = (time.time() if now is None else now) - mtime
+    dead = pid is not None and not _pid_alive(int(pid))
+    return age >= STALE_MAX_AGE_S or (dead and age >= STALE_GRACE_S)
+
+
 def _remove_stale_temps(directory: Path, name: str) -> None:
     """Remove our own temporary files of ``name`` left by killed saves (see the module docstring)."""
     pattern = _temp_pattern(name)
@@ -214,10 +255,8 @@ def _remove_stale_temps(directory: Path, name: str) -> None:
             continue
         if not stat.S_ISREG(st.st_mode):
             continue
-        age = now - st.st_mtime
         pid = match.group("pid")
-        dead = pid is not None and not _pid_alive(int(pid))
-        if age >= STALE_MAX_AGE_S or (dead and age >= STALE_GRACE_S):
+        if is_stale(None if pid is None else int(pid), st.st_mtime, now):
             try:
                 os.unlink(entry.path)
                 logger.info(f"removed stale temporary file {entry.path} (left by an interrupted save)")
