@@ -74,6 +74,7 @@ from sympredict.exceptions import ModelFileError
 
 __all__ = [
     "SCHEMA_VERSION",
+    "MAX_SETTINGS_BYTES",
     "STALE_GRACE_S",
     "STALE_MAX_AGE_S",
     "write_container",
@@ -90,6 +91,9 @@ SCHEMA_VERSION = 2
 STALE_GRACE_S = 60.0
 #: A temporary file this old is removed whatever its pid says (pid reuse, other hosts).
 STALE_MAX_AGE_S = 24 * 3600.0
+
+#: Largest settings JSON (an attribute in the root's object header, whose messages hold < 64 KiB).
+MAX_SETTINGS_BYTES = 60000
 
 _ROOT_ATTRS = {"format": str, "schema_version": int, "package_version": str, "checksum": str, "settings": str}
 _ARRAY_KINDS = "fiub"
@@ -139,15 +143,22 @@ def _image(fmt: str, settings_json: str, arrays: dict) -> bytes:
     """The complete HDF5 file as bytes (deterministic: no timestamps, fixed order)."""
     buffer = io.BytesIO()
     with h5py.File(buffer, "w") as f:
-        f.attrs["format"] = fmt
+        # fixed-length strings, stored in the object header: variable-length ones live in
+        # HDF5's global heap, whose damaged copies can hang HDF5's reader
+        f.attrs["format"] = _fixed_string(fmt)
         f.attrs["schema_version"] = np.int64(SCHEMA_VERSION)
-        f.attrs["package_version"] = __version__
-        f.attrs["checksum"] = _checksum_v2(fmt, SCHEMA_VERSION, __version__, settings_json, arrays)
-        f.attrs["settings"] = settings_json
+        f.attrs["package_version"] = _fixed_string(__version__)
+        f.attrs["checksum"] = _fixed_string(_checksum_v2(fmt, SCHEMA_VERSION, __version__, settings_json, arrays))
+        f.attrs["settings"] = _fixed_string(settings_json)
         grp = f.create_group("arrays")
         for name, arr in arrays.items():
             grp.create_dataset(name, data=arr, track_times=False)
     return buffer.getvalue()
+
+
+def _fixed_string(text: str) -> np.ndarray:
+    data = text.encode("ascii")
+    return np.array(data, dtype=f"S{max(1, len(data))}")
 
 
 def _checked_arrays(arrays: dict) -> dict:
@@ -301,9 +312,13 @@ def write_container(path, fmt: str, settings: dict, arrays: dict) -> None:
     """
     path = Path(path)
     try:
-        settings_json = json.dumps(settings)
+        settings_json = json.dumps(settings)  # ASCII (ensure_ascii)
     except (TypeError, ValueError) as exc:
         raise ValueError(f"settings must be JSON-serializable (plain str, int, float, bool, list, dict): {exc}") from None
+    if len(settings_json) > MAX_SETTINGS_BYTES:
+        raise ValueError(f"settings take {len(settings_json)} bytes as JSON, at most {MAX_SETTINGS_BYTES} fit in the file header")
+    if not isinstance(fmt, str) or not fmt.isascii() or not fmt:
+        raise ValueError(f"fmt must be a non-empty ASCII string, got {fmt!r}")
     arrays = _checked_arrays(arrays)
     target, st = _target(path)
     image = _image(fmt, settings_json, arrays)
@@ -369,35 +384,82 @@ def _open_regular(path: Path):
         raise
 
 
-def _scalar_attr(f, name: str, path: Path):
-    """Root attribute ``name``, checked to be a scalar of the writer's type, before reading it."""
+def _scalar_attr(f, name: str, path: Path, file_size: int, allow_vlen: bool = False):
+    """Root attribute ``name``, checked to be a scalar of the writer's type and size, before reading it.
+
+    Variable-length strings (schema 1 only, ``allow_vlen``) must have passed
+    :func:`_check_global_heaps` first.
+    """
     aid = h5py.h5a.open(f.id, name.encode())
     if aid.shape != ():
         raise ModelFileError(f"{str(path)!r}: attribute {name!r} must be a scalar, has shape {aid.shape}")
     want = _ROOT_ATTRS[name]
-    is_str = h5py.check_string_dtype(aid.dtype) is not None
-    if want is str and not is_str:
+    info = h5py.check_string_dtype(aid.dtype)
+    if want is str and info is None:
         raise ModelFileError(f"{str(path)!r}: attribute {name!r} must be a string, has type {aid.dtype}")
-    if want is int and (is_str or aid.dtype.kind not in "iu"):
+    if want is int and (info is not None or aid.dtype.kind not in "iu"):
         raise ModelFileError(f"{str(path)!r}: attribute {name!r} must be an integer, has type {aid.dtype}")
+    if info is not None and info.length is None and not allow_vlen:
+        raise ModelFileError(f"{str(path)!r}: attribute {name!r} is a variable-length string, which this schema never writes")
+    if aid.dtype.itemsize > file_size or aid.get_storage_size() > file_size:
+        raise ModelFileError(f"{str(path)!r}: attribute {name!r} declares more bytes than the file has")
     value = f.attrs[name]
     if want is str:
         if isinstance(value, bytes):
-            value = value.decode("utf-8")
+            value = value.decode("ascii")
         if not isinstance(value, str):
             raise ModelFileError(f"{str(path)!r}: attribute {name!r} must be a string")
         return value
     return int(value)
 
 
-def _check_version(f, path: Path) -> int:
+def _check_global_heaps(fh, file_size: int, path: Path) -> None:
+    """Check every HDF5 global heap collection in the file before HDF5 parses one (schema 1 files).
+
+    HDF5 reads variable-length strings from global heap collections (signature
+    ``GCOL``); its parser loops forever on an object of size 0 and trusts the
+    sizes it finds.  Every ``GCOL`` occurrence (HDF5 checks the signature at the
+    address it follows, so a collection it can read is among them) must have
+    version 1, lie inside the file, and its objects must tile it: each
+    advances, none crosses the end.  ``O(file size)``.
+    """
+    fh.seek(0)
+    data = fh.read(file_size)
+    start = data.find(b"GCOL")
+    while start >= 0:
+        problem = None
+        if start + 16 > len(data) or data[start + 4] != 1:
+            problem = "header"
+        else:
+            size = int.from_bytes(data[start + 8:start + 16], "little")
+            end = start + size
+            if size < 16 or end > len(data):
+                problem = f"size {size}"
+            p = start + 16
+            while problem is None and p + 16 <= end:
+                index = int.from_bytes(data[p:p + 2], "little")
+                obj = int.from_bytes(data[p + 8:p + 16], "little")
+                need = obj if index == 0 else 16 + (obj + 7) // 8 * 8
+                if need <= 0 or p + need > end:
+                    problem = f"object {index} of size {obj}"
+                p += max(need, 1)
+        if problem is not None:
+            raise ModelFileError(f"{str(path)!r} is damaged: global heap collection at byte {start} is invalid ({problem})")
+        start = data.find(b"GCOL", start + 1)
+    fh.seek(0)
+
+
+def _check_version(f, path: Path, file_size: int) -> int:
     if "schema_version" not in f.attrs:
         raise ModelFileError(f"{str(path)!r} has no schema_version attribute")
-    version = _scalar_attr(f, "schema_version", path)
+    version = _scalar_attr(f, "schema_version", path, file_size)
     if version > SCHEMA_VERSION:
-        raw = f.attrs.get("package_version")
+        try:  # only a fixed-length string is read here (no heap access in a file we cannot check)
+            writer = f"sympredict {_scalar_attr(f, 'package_version', path, file_size)}"
+        except Exception:
+            writer = "a newer sympredict"
         raise ModelFileError(
-            f"{str(path)!r} has schema version {version}, written by sympredict {raw!s}; "
+            f"{str(path)!r} has schema version {version}, written by {writer}; "
             f"this sympredict reads up to version {SCHEMA_VERSION}: upgrade sympredict"
         )
     if version < 1:
@@ -496,10 +558,12 @@ def read_container(path, fmt: str):
         with fh, h5py.File(fh, "r") as f:
             if "format" not in f.attrs:
                 raise ModelFileError(f"{str(path)!r} is an HDF5 file but not a sympredict file (no 'format' attribute)")
-            found = _scalar_attr(f, "format", path)
+            version = _check_version(f, path, file_size)
+            if version == 1:  # written with variable-length strings: check the heaps HDF5 will parse
+                _check_global_heaps(fh, file_size, path)
+            found = _scalar_attr(f, "format", path, file_size, allow_vlen=version == 1)
             if found != fmt:
                 raise ModelFileError(f"{str(path)!r} is a {found!r} file, expected {fmt!r}")
-            version = _check_version(f, path)
             names = set(f.attrs.keys())
             if names != set(_ROOT_ATTRS):
                 extra, missing = sorted(names - set(_ROOT_ATTRS)), sorted(set(_ROOT_ATTRS) - names)
@@ -507,7 +571,7 @@ def read_container(path, fmt: str):
                     f"{str(path)!r} has unexpected root attributes {extra[:5]}" if extra
                     else f"{str(path)!r} lacks the attributes {missing}"
                 )
-            attrs = {name: _scalar_attr(f, name, path) for name in _ROOT_ATTRS}
+            attrs = {name: _scalar_attr(f, name, path, file_size, allow_vlen=version == 1) for name in _ROOT_ATTRS}
             datasets = _checked_datasets(f, path, file_size)
             arrays = {name: ds[()] for name, ds in datasets.items()}
     except ModelFileError:
