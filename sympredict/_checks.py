@@ -6,7 +6,7 @@ from typing import Optional
 
 import numpy as np
 
-__all__ = ["as_states", "as_parameter", "as_steps", "as_positive_int"]
+__all__ = ["as_states", "as_parameter", "as_steps", "as_positive_int", "as_real", "as_real_array"]
 
 
 def _as_float_array(value, name: str) -> np.ndarray:
@@ -22,6 +22,11 @@ def _as_float_array(value, name: str) -> np.ndarray:
     if not np.all(np.isfinite(arr)):
         raise ValueError(f"{name} contains NaN or Inf")
     return arr
+
+
+def as_real_array(value, name: str) -> np.ndarray:
+    """A real, finite float array of any shape (complex, strings, objects and NaN/Inf rejected)."""
+    return _as_float_array(value, name)
 
 
 def as_states(x, name: str, dim: Optional[int] = None, allow_single: bool = True):
@@ -92,6 +97,21 @@ def as_steps(dt, n: int, name: str = "dt") -> np.ndarray:
     if np.any(arr <= 0):
         raise ValueError(f"{name} must be positive, got min {float(arr.min())!r}")
     return arr
+
+
+def as_real(value, name: str, *, positive: bool = False, nonnegative: bool = False) -> float:
+    """A finite real number (bools, strings, complex and NaN/Inf rejected), optionally ``> 0`` or ``>= 0``."""
+    arr = np.asarray(value) if not isinstance(value, (bool, np.bool_)) else None
+    if arr is None or arr.ndim != 0 or arr.dtype.kind not in "iuf":
+        raise ValueError(f"{name} must be a real number, got {value!r}")
+    number = float(arr)
+    if not np.isfinite(number):
+        raise ValueError(f"{name} must be finite, got {number!r}")
+    if positive and number <= 0:
+        raise ValueError(f"{name} must be positive, got {number!r}")
+    if nonnegative and number < 0:
+        raise ValueError(f"{name} must be >= 0, got {number!r}")
+    return number
 
 
 def as_positive_int(value, name: str, minimum: int = 1) -> int:

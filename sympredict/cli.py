@@ -4,13 +4,29 @@
 paper's scenarios and writes into ``DIR``: trained models (HDF5), figures (PNG
 and PDF), ``results.json`` and ``summary.md``.  ``data``, ``train``, ``predict``
 and ``report`` work on HDF5 data sets and models.
+
+A run never leaves a folder that passes for complete when it is not: it writes
+into a hidden sibling ``.DIR.partial-PID-XXXXXXXX``, puts the marker
+``.sympredict-run.json`` there last, and renames the folder to ``DIR`` only
+then.  A failed or interrupted run removes its staging folder (one killed
+with SIGKILL is removed by a later run, see :func:`sympredict.container.is_stale`)
+and leaves an existing ``DIR`` as it was.  An existing ``DIR`` is replaced
+only if it is empty or a previous run's output (it has the marker, or only
+the files a run writes); anything else is refused before the work starts.
+Output paths are checked before any work, and one equal to an input path is
+refused.  Every error is one line on stderr with a non-zero exit code.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
+import re
+import secrets
+import shutil
+import stat
 import sys
 import time
 from pathlib import Path
@@ -20,6 +36,9 @@ from sympredict import report
 __all__ = ["main"]
 
 SYSTEMS = ("pendulum", "wave")
+#: Written last into a run's output folder: the run completed.
+RUN_MARKER = ".sympredict-run.json"
+_RUN_OUTPUT_SUFFIXES = (".png", ".pdf", ".json", ".h5", ".md")
 
 
 def _run_pendulum(preset_name: str, seed: int, out: Path):
@@ -85,33 +104,127 @@ def _run_wave(preset_name: str, seed: int, out: Path):
     return s, figures, lines
 
 
+def _check_run_folder(out: Path) -> None:
+    """Refuse an ``--out`` that a run may not replace (before any work); see the module docstring."""
+    if out.exists() or out.is_symlink():
+        if not out.is_dir():
+            raise ValueError(f"--out {str(out)!r} exists and is not a directory; give a folder")
+        cwd = Path.cwd().resolve()
+        if out.resolve() == cwd or out.resolve() in cwd.parents:
+            raise ValueError(f"--out {str(out)!r} is the current directory or contains it; run from outside it")
+        entries = list(out.iterdir())
+        legacy = any(e.name == "results.json" for e in entries) and all(
+            e.is_file() and not e.is_symlink() and e.suffix in _RUN_OUTPUT_SUFFIXES for e in entries
+        )
+        if entries and not (out / RUN_MARKER).is_file() and not legacy:
+            raise ValueError(
+                f"--out {str(out)!r} exists and is not the output folder of a previous run (it holds other files, "
+                f"e.g. {entries[0].name!r}); give a new or empty folder"
+            )
+    parent = out.parent
+    while not parent.exists():
+        parent = parent.parent
+    if not parent.is_dir():
+        raise ValueError(f"--out {str(out)!r}: {str(parent)!r} is not a directory")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise ValueError(f"--out {str(out)!r}: no permission to create folders in {str(parent)!r}")
+
+
+def _remove_stale_staging(parent: Path, name: str) -> None:
+    """Remove staging folders of ``name`` left by killed runs (same rule as the container's temp files)."""
+    from sympredict.container import is_stale
+
+    pattern = re.compile(r"\." + re.escape(name) + r"\.(?:partial|old)-(\d+)-[0-9a-f]{8}")
+    try:
+        entries = list(os.scandir(parent))
+    except OSError:
+        return
+    for entry in entries:
+        match = pattern.fullmatch(entry.name)
+        if match and entry.is_dir(follow_symlinks=False) and is_stale(int(match.group(1)), entry.stat(follow_symlinks=False).st_mtime):
+            shutil.rmtree(entry.path, ignore_errors=True)
+
+
+def _publish_run(staging: Path, out: Path) -> None:
+    """Rename the finished ``staging`` folder to ``out`` (replacing a previous run's folder)."""
+    if out.exists():
+        old = out.parent / f".{out.name}.old-{os.getpid()}-{secrets.token_hex(4)}"
+        os.chmod(staging, stat.S_IMODE(out.stat().st_mode))
+        os.rename(out, old)
+        try:
+            os.rename(staging, out)
+        except BaseException:
+            os.rename(old, out)
+            raise
+        shutil.rmtree(old, ignore_errors=True)
+    else:
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(staging, 0o777 & ~umask)
+        os.rename(staging, out)
+
+
 def _cmd_run(args) -> int:
     from threadpoolctl import threadpool_limits
 
     preset_name = args.preset or ("paper" if args.paper else "quick")
     systems = SYSTEMS if args.system == "all" else (args.system,)
     out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    if out.is_symlink() and out.is_dir():  # write into the folder the link names; the link stays
+        out = Path(os.path.realpath(out))
+    _check_run_folder(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    _remove_stale_staging(out.parent, out.name)
+    staging = out.parent / f".{out.name}.partial-{os.getpid()}-{secrets.token_hex(4)}"
+    staging.mkdir()
     command = "sympredict " + " ".join(sys.argv[1:] if sys.argv[0].endswith("sympredict") else ["run", args.system, "..."])
     t0 = time.perf_counter()
     print(f"sympredict: {', '.join(systems)}, preset '{preset_name}', {args.threads} BLAS thread(s), output in {out}/", flush=True)
-    results, figures, lines = {}, [], ["# sympredict results", "", f"Command: `{command}`", ""]
-    runners = {"pendulum": _run_pendulum, "wave": _run_wave}
-    with threadpool_limits(limits=args.threads):
-        for system in systems:
-            summary, figs, md = runners[system](preset_name, args.seed, out)
-            results[system] = summary
-            figures += figs
-            lines += md + ["", "Figures: " + ", ".join(f"`{f}`" for f in figs if f.endswith(".png")), ""]
-    claims = report.claims(results)
-    lines[4:4] = report.claims_markdown(claims)
-    for c in claims:
-        print(f"  claim {'holds' if c['holds'] else 'DOES NOT HOLD'}: {c['claim']}")
-    with open(out / "results.json", "w") as f:
-        json.dump({"command": command, "preset": preset_name, "claims": claims, "results": results, "figures": figures}, f, indent=2)
-    (out / "summary.md").write_text("\n".join(lines) + "\n")
+    try:
+        results, figures, lines = {}, [], ["# sympredict results", "", f"Command: `{command}`", ""]
+        runners = {"pendulum": _run_pendulum, "wave": _run_wave}
+        with threadpool_limits(limits=args.threads):
+            for system in systems:
+                summary, figs, md = runners[system](preset_name, args.seed, staging)
+                results[system] = summary
+                figures += figs
+                lines += md + ["", "Figures: " + ", ".join(f"`{f}`" for f in figs if f.endswith(".png")), ""]
+        claims = report.claims(results)
+        lines[4:4] = report.claims_markdown(claims)
+        for c in claims:
+            print(f"  claim {'holds' if c['holds'] else 'DOES NOT HOLD'}: {c['claim']}")
+        with open(staging / "results.json", "w") as f:
+            json.dump({"command": command, "preset": preset_name, "claims": claims, "results": results, "figures": figures}, f, indent=2)
+        (staging / "summary.md").write_text("\n".join(lines) + "\n")
+        marker = {"complete": True, "command": command, "preset": preset_name, "systems": list(systems),
+                  "files": sorted(p.name for p in staging.iterdir())}
+        (staging / RUN_MARKER).write_text(json.dumps(marker, indent=2) + "\n")
+        _publish_run(staging, out)
+    finally:
+        if staging.exists():  # failed or interrupted: nothing half-written survives
+            shutil.rmtree(staging, ignore_errors=True)
     print(f"done in {time.perf_counter() - t0:.0f} s; summary: {out / 'summary.md'}")
     return 0
+
+
+def _check_output_file(out, *inputs, option: str = "--out") -> None:
+    """Refuse an output file that is a directory or special file, lacks its folder, or is one of the inputs."""
+    from sympredict.container import check_save_path
+
+    try:
+        check_save_path(out)
+    except ValueError as exc:
+        raise ValueError(f"{option}: {exc}") from None
+    for given in inputs:
+        if given is not None and _same_file(out, given):
+            raise ValueError(f"{option} {str(out)!r} is also an input ({str(given)!r}): refusing to overwrite an input")
+
+
+def _same_file(a, b) -> bool:
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return os.path.realpath(a) == os.path.realpath(b)
 
 
 def _parse_kernel(spec: str):
@@ -133,6 +246,7 @@ def _cmd_data(args) -> int:
     from sympredict.io import save_dataset
     from sympredict.systems.pendulum import DT_TRAIN, MU_TRAIN, Pendulum, flow_map_data, random_flow_map_data
 
+    _check_output_file(args.out)
     pendulum = Pendulum()
     if args.random:
         data = random_flow_map_data(pendulum, args.random, seed=args.seed)
@@ -151,6 +265,7 @@ def _cmd_train(args) -> int:
     from sympredict import SymplecticKernelPredictor
     from sympredict.io import load_dataset
 
+    _check_output_file(args.out, args.data, args.validation)
     data, meta = load_dataset(args.data)
     validation = load_dataset(args.validation)[0] if args.validation else None
     kernels = [_parse_kernel(k) for k in (args.state, args.mu, args.dt)]
@@ -173,6 +288,8 @@ def _cmd_predict(args) -> int:
 
     from sympredict import SymplecticKernelPredictor
 
+    if args.out:
+        _check_output_file(args.out, args.model)
     model = SymplecticKernelPredictor.load(args.model)
     try:
         x0 = np.array([[float(v) for v in state.split(",")] for state in args.x0])
@@ -206,8 +323,47 @@ def _cmd_report(args) -> int:
     return 0
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with errors on one line (``prog: error: message``), exit code 2."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+def _int_at_least(minimum: int):
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer >= {minimum}, got {text!r}") from None
+        if value < minimum:
+            raise argparse.ArgumentTypeError(f"must be >= {minimum}, got {value}")
+        return value
+
+    parse.__name__ = f"integer >= {minimum}"
+    return parse
+
+
+def _finite_float(positive: bool = False, nonnegative: bool = False):
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+        if not math.isfinite(value):
+            raise argparse.ArgumentTypeError(f"must be finite, got {text!r}")
+        if positive and value <= 0:
+            raise argparse.ArgumentTypeError(f"must be positive, got {value!r}")
+        if nonnegative and value < 0:
+            raise argparse.ArgumentTypeError(f"must be >= 0, got {value!r}")
+        return value
+
+    parse.__name__ = "number"
+    return parse
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="sympredict", description="Symplectic large-step kernel predictors for Hamiltonian systems.")
+    parser = _Parser(prog="sympredict", description="Symplectic large-step kernel predictors for Hamiltonian systems.")
     sub = parser.add_subparsers(dest="command", required=True)
     run = sub.add_parser("run", help="train, evaluate and write figures and a summary")
     run.add_argument("system", choices=[*SYSTEMS, "all"], help="the scenario to run")
@@ -216,16 +372,16 @@ def build_parser() -> argparse.ArgumentParser:
     size.add_argument("--quick", action="store_true", help="small data (default): pendulum ~30 s, wave ~2 min on 2 cores")
     size.add_argument("--paper", action="store_true", help="the paper's data sizes: minutes, ~10 GiB")
     size.add_argument("--preset", choices=["smoke", "quick", "paper"], help="a preset by name ('smoke': seconds, for testing)")
-    run.add_argument("--seed", type=int, default=0, help="seed of the validation and test draws (default 0)")
-    run.add_argument("--threads", type=int, default=os.cpu_count() or 1, help="BLAS threads (default: all cores)")
+    run.add_argument("--seed", type=_int_at_least(0), default=0, help="seed of the validation and test draws (default 0)")
+    run.add_argument("--threads", type=_int_at_least(1), default=os.cpu_count() or 1, help="BLAS threads (default: all cores)")
     run.set_defaults(func=_cmd_run)
 
     data = sub.add_parser("data", help="write a pendulum flow-map data set (HDF5)")
     data.add_argument("--out", required=True, help="data file (.h5)")
-    data.add_argument("--n-grid", type=int, default=50, help="energy-bounded grid points per axis (default 50; paper 200)")
+    data.add_argument("--n-grid", type=_int_at_least(2), default=50, help="energy-bounded grid points per axis (default 50; paper 200)")
     data.add_argument("--p-nonpositive", action="store_true", help="keep only states with p <= 0 (scenario B)")
-    data.add_argument("--random", type=int, default=0, metavar="N", help="N random samples instead of the grid (validation data)")
-    data.add_argument("--seed", type=int, default=0)
+    data.add_argument("--random", type=_int_at_least(0), default=0, metavar="N", help="N random samples instead of the grid (validation data)")
+    data.add_argument("--seed", type=_int_at_least(0), default=0)
     data.set_defaults(func=_cmd_data)
 
     train = sub.add_parser("train", help="train a symplectic predictor on a data set and save it (HDF5)")
@@ -235,17 +391,17 @@ def build_parser() -> argparse.ArgumentParser:
     train.add_argument("--state", default="imq:0.15", help="state kernel FAMILY:EPS (default imq:0.15)")
     train.add_argument("--mu", default="imq:2.0", help="parameter kernel FAMILY:EPS or 'none' (default imq:2.0)")
     train.add_argument("--dt", default="imq:5.0", help="step kernel FAMILY:EPS or 'none' (default imq:5.0)")
-    train.add_argument("--centers", type=int, default=1500, help="maximal number of centres (default 1500)")
-    train.add_argument("--tol", type=float, default=1e-10, help="greedy residual tolerance (default 1e-10)")
-    train.add_argument("--threads", type=int, default=os.cpu_count() or 1)
+    train.add_argument("--centers", type=_int_at_least(1), default=1500, help="maximal number of centres (default 1500)")
+    train.add_argument("--tol", type=_finite_float(nonnegative=True), default=1e-10, help="greedy residual tolerance (default 1e-10)")
+    train.add_argument("--threads", type=_int_at_least(1), default=os.cpu_count() or 1)
     train.set_defaults(func=_cmd_train)
 
     predict = sub.add_parser("predict", help="roll a saved model out from given initial states")
     predict.add_argument("model", help="model file")
     predict.add_argument("--x0", required=True, nargs="+", help="initial states, each comma-separated (q..., p...)")
-    predict.add_argument("--mu", type=float, help="parameter (models with one parameter)")
-    predict.add_argument("--dt", type=float, help="macro step (default: the training step of a fixed-step model)")
-    predict.add_argument("--steps", type=int, required=True, help="number of macro steps")
+    predict.add_argument("--mu", type=_finite_float(), help="parameter (models with one parameter)")
+    predict.add_argument("--dt", type=_finite_float(positive=True), help="macro step (default: the training step of a fixed-step model)")
+    predict.add_argument("--steps", type=_int_at_least(0), required=True, help="number of macro steps")
     predict.add_argument("--check", action="store_true", help="refuse to start where dT * L_S >= 1")
     predict.add_argument("--out", help="CSV file for the trajectories (default: print the final states)")
     predict.set_defaults(func=_cmd_predict)
@@ -267,7 +423,8 @@ def main(argv=None) -> int:
     try:
         return args.func(args)
     except (ValueError, SympredictError, OSError) as exc:
-        print(f"sympredict: error: {exc}", file=sys.stderr)
+        message = " ".join(str(exc).split()) or type(exc).__name__
+        print(f"sympredict: error: {message}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         print("sympredict: interrupted", file=sys.stderr)

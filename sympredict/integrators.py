@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from sympredict._checks import as_real
 from sympredict.exceptions import NewtonConvergenceError
 from sympredict.metrics import canonical_J
 
@@ -71,8 +72,21 @@ def micro_steps(t, h_max: float) -> np.ndarray:
     """Number of micro steps of size at most ``h_max`` covering ``t`` exactly (``ceil(t / h_max)``).
 
     ``t / h_max`` is rounded to 9 digits first so that ``0.05 / 1e-3`` gives 50, not 51.
+
+    Raises
+    ------
+    ValueError
+        If ``h_max`` is not a finite positive number, ``t`` is negative or not
+        finite, or more than ``1e12`` micro steps would be needed.
     """
-    return np.maximum(1, np.ceil(np.round(np.asarray(t, dtype=float) / h_max, 9)).astype(int))
+    h_max = as_real(h_max, "h_max", positive=True)
+    t = np.asarray(t, dtype=float)
+    if not np.all(np.isfinite(t)) or np.any(t < 0):
+        raise ValueError(f"times must be finite and >= 0, got {t.min() if t.size else t!r}..{t.max() if t.size else t!r}")
+    ratio = np.round(t / h_max, 9)
+    if np.any(ratio > 1e12):
+        raise ValueError(f"t / h_max = {float(ratio.max()):.3g} micro steps: too many (h_max = {h_max!r} too small for t)")
+    return np.maximum(1, np.ceil(ratio).astype(np.int64))
 
 
 def apply_J(v: np.ndarray) -> np.ndarray:

@@ -40,10 +40,41 @@ def save_dataset(data, path, **metadata) -> None:
 
 
 def load_dataset(path):
-    """Load a data set written by :func:`save_dataset`; returns ``(FlowMapData, metadata)``."""
+    """Load a data set written by :func:`save_dataset`; returns ``(FlowMapData, metadata)``.
+
+    Besides the container's checks, the arrays must be consistent: ``x0`` and
+    ``x1`` of one shape ``(M, 2n)``, ``mu`` of shape ``(M, d_mu)``, ``dt`` of
+    shape ``(M,)`` and positive, all finite; anything else raises
+    :class:`ModelFileError` naming the problem.
+    """
     settings, arrays = read_container(path, _DATA_FORMAT)
+    where = f"{str(path)!r} is not a valid sympredict data set"
+    expected = {"x0", "x1", "mu", "dt"}
+    if set(arrays) != expected:
+        missing, extra = sorted(expected - set(arrays)), sorted(set(arrays) - expected)
+        raise ModelFileError(f"{where}: " + (f"missing arrays {missing}" if missing else f"unexpected arrays {extra}"))
+    x0, x1, mu, dt = (np.asarray(arrays[k]) for k in ("x0", "x1", "mu", "dt"))
+    for name, arr in (("x0", x0), ("x1", x1), ("mu", mu), ("dt", dt)):
+        if arr.dtype.kind not in "fiu":
+            raise ModelFileError(f"{where}: {name} has dtype {arr.dtype}, expected floats")
+        if not np.all(np.isfinite(arr)):
+            raise ModelFileError(f"{where}: {name} contains NaN or Inf")
+    if x0.ndim != 2 or x0.shape[0] == 0 or x0.shape[1] == 0 or x0.shape[1] % 2:
+        raise ModelFileError(f"{where}: x0 must have shape (M, 2n) with M >= 1, got {x0.shape}")
+    m = x0.shape[0]
+    if x1.shape != x0.shape:
+        raise ModelFileError(f"{where}: x1 has shape {x1.shape}, x0 has {x0.shape}")
+    if mu.ndim != 2 or mu.shape[0] != m:
+        raise ModelFileError(f"{where}: mu must have shape ({m}, d_mu), got {mu.shape}")
+    if dt.shape != (m,):
+        raise ModelFileError(f"{where}: dt must have shape ({m},), got {dt.shape}")
+    if np.any(dt <= 0):
+        raise ModelFileError(f"{where}: dt must be positive, min is {float(dt.min())!r}")
+    metadata = settings.get("metadata", {})
+    if set(settings) != {"metadata"} or not isinstance(metadata, dict):
+        raise ModelFileError(f"{where}: its settings must be {{'metadata': {{...}}}}")
     try:
-        data = FlowMapData(arrays["x0"], arrays["x1"], arrays["mu"], arrays["dt"])
-    except (KeyError, ValueError) as exc:
-        raise ModelFileError(f"{str(path)!r} is an incomplete or invalid sympredict data set: {exc}") from None
-    return data, settings.get("metadata", {})
+        data = FlowMapData(x0, x1, mu, dt)
+    except ValueError as exc:
+        raise ModelFileError(f"{where}: {exc}") from None
+    return data, metadata

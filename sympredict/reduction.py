@@ -27,6 +27,7 @@ import numpy as np
 from pymor.core.logger import getLogger
 from scipy.linalg import svd
 
+from sympredict._checks import as_real_array
 from sympredict.metrics import canonical_J
 from sympredict.systems.quadratic import QuadraticHamiltonian
 
@@ -100,11 +101,9 @@ def complex_svd_basis(snapshots: np.ndarray, n: Optional[int] = None, tol: Optio
     -----
     ``O(N K min(N, K))`` for the SVD; memory ``16 N K`` bytes for ``X``.
     """
-    snapshots = np.asarray(snapshots, dtype=float)
+    snapshots = as_real_array(snapshots, "snapshots")  # complex, strings, NaN/Inf refused
     if snapshots.ndim != 2 or snapshots.shape[1] % 2 or snapshots.shape[1] == 0 or len(snapshots) == 0:
         raise ValueError(f"snapshots must have shape (K, 2N) with K >= 1, got {snapshots.shape}")
-    if not np.all(np.isfinite(snapshots)):
-        raise ValueError("snapshots contain NaN or Inf")
     if (n is None) == (tol is None):
         raise ValueError("give exactly one of n (number of modes) and tol (relative projection error)")
     big_n = snapshots.shape[1] // 2

@@ -13,7 +13,7 @@ from typing import Optional
 import numpy as np
 from pymor.core.logger import getLogger
 
-from sympredict._checks import as_parameter, as_positive_int, as_states, as_steps
+from sympredict._checks import as_parameter, as_positive_int, as_real, as_states, as_steps
 from sympredict.data import FlowMapData
 from sympredict.exceptions import NewtonConvergenceError
 from sympredict.integrators import micro_steps
@@ -39,6 +39,8 @@ DT_TRAIN = (0.04, 0.05, 0.06)
 DT_TEST = (0.0509, 0.04847, 0.05292)
 
 _EPS = np.finfo(float).eps
+#: Rounds of ``2 n_samples`` draws :func:`random_flow_map_data` tries before giving up.
+MAX_DRAW_ROUNDS = 50
 
 
 # Per-instance gradients for the compiled integrators (sympredict.integrators_compiled):
@@ -86,8 +88,8 @@ class Pendulum:
     n_mu = 1
 
     def __init__(self, g: float = 9.81, mass: float = 1.0):
-        self.g = float(g)
-        self.mass = float(mass)
+        self.g = as_real(g, "g", positive=True)
+        self.mass = as_real(mass, "mass", positive=True)
 
     def __repr__(self) -> str:
         return f"Pendulum(g={self.g}, mass={self.mass})"
@@ -214,7 +216,7 @@ def energy_bounded_grid(system: Pendulum, length: float, n_grid: int = 200, ener
     ndarray of shape (M, 2)
     """
     n_grid = as_positive_int(n_grid, "n_grid", minimum=2)
-    energy_max = 2 * system.g if energy_max is None else float(energy_max)
+    energy_max = 2 * system.g if energy_max is None else as_real(energy_max, "energy_max", positive=True)
     pmax = 2 * np.sqrt(system.g)
     q, p = np.meshgrid(np.linspace(-np.pi, np.pi, n_grid), np.linspace(-pmax, pmax, n_grid), indexing="ij")
     x = np.column_stack([q.ravel(), p.ravel()])
@@ -256,6 +258,11 @@ def flow_map_data(
     FlowMapData
         ``mu`` of shape (M, 1).
     """
+    mus, dts = np.atleast_1d(np.asarray(mus, dtype=float)), np.atleast_1d(np.asarray(dts, dtype=float))
+    if mus.ndim != 1 or len(mus) == 0:
+        raise ValueError(f"mus must be a non-empty sequence of lengths, got shape {mus.shape}")
+    if dts.ndim != 1 or len(dts) == 0:
+        raise ValueError(f"dts must be a non-empty sequence of macro steps, got shape {dts.shape}")
     x0s, mu_list, dt_list = [], [], []
     for length in mus:
         grid = energy_bounded_grid(system, length, n_grid)
@@ -291,8 +298,22 @@ def random_flow_map_data(
     when given (e.g. the training grid, as for the paper's validation
     curves), else uniformly in ``mu_range`` / ``dt_range``.  ``pool`` and
     ``chunk_size`` as in :func:`flow_map_data`.
+
+    Raises
+    ------
+    ValueError
+        Bad ranges, or fewer than ``n_samples`` states accepted within
+        :data:`MAX_DRAW_ROUNDS` rounds of ``2 n_samples`` draws (acceptance
+        below about 1 %: the energy bound excludes nearly the whole box).
     """
     n_samples = as_positive_int(n_samples, "n_samples")
+    for name, bounds, values in (("mu_range", mu_range, mu_values), ("dt_range", dt_range, dt_values)):
+        if values is None:
+            if len(bounds) != 2:
+                raise ValueError(f"{name} must be (low, high), got {bounds!r}")
+            low, high = (as_real(v, name, positive=True) for v in bounds)
+            if low > high:
+                raise ValueError(f"{name} must satisfy low <= high, got {bounds!r}")
     rng = np.random.default_rng(seed)
 
     def draw(values, bounds, size):
@@ -301,12 +322,20 @@ def random_flow_map_data(
     pmax = 2 * np.sqrt(system.g)
     x0 = np.empty((0, 2))
     mu = np.empty(0)
-    while len(x0) < n_samples:
+    for _ in range(MAX_DRAW_ROUNDS):
+        if len(x0) >= n_samples:
+            break
         cand = rng.uniform([-np.pi, -pmax], [np.pi, pmax], size=(2 * n_samples, 2))
         lengths = draw(mu_values, mu_range, 2 * n_samples)
         keep = system.hamiltonian(cand, lengths) < 2 * system.g
         x0 = np.concatenate([x0, cand[keep]])
         mu = np.concatenate([mu, lengths[keep]])
+    if len(x0) < n_samples:
+        raise ValueError(
+            f"random_flow_map_data: only {len(x0)} of {n_samples} states accepted (H < 2 g) in "
+            f"{MAX_DRAW_ROUNDS * 2 * n_samples} draws; the energy bound excludes nearly the whole sampling box "
+            f"for {system!r} and these lengths"
+        )
     x0, mu = x0[:n_samples], mu[:n_samples]
     dt = draw(dt_values, dt_range, n_samples)
     return FlowMapData(x0, _flows(system, x0, mu, dt, h_max, pool, chunk_size), mu[:, None], dt)

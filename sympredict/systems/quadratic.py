@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.linalg import expm, solve
 
-from sympredict._checks import as_parameter, as_positive_int, as_states, as_steps
+from sympredict._checks import as_parameter, as_positive_int, as_real, as_real_array, as_states, as_steps
 from sympredict.metrics import canonical_J
 from sympredict.integrators import micro_steps
 from sympredict.integrators_compiled import PointwiseHamiltonian, jit_pointwise
@@ -80,8 +80,8 @@ class QuadraticHamiltonian:
     n_mu = 1
 
     def __init__(self, H0: np.ndarray, H1: np.ndarray):
-        H0 = np.asarray(H0, dtype=float)
-        H1 = np.asarray(H1, dtype=float)
+        H0 = as_real_array(H0, "H0")
+        H1 = as_real_array(H1, "H1")
         if H0.ndim != 2 or H0.shape[0] != H0.shape[1] or H0.shape[0] % 2 or H0.shape != H1.shape:
             raise ValueError(f"H0 and H1 must be square of equal, even size, got {H0.shape} and {H1.shape}")
         for name, M in (("H0", H0), ("H1", H1)):
@@ -130,7 +130,7 @@ class QuadraticHamiltonian:
 
     def matrix(self, mu: float) -> np.ndarray:
         """``H0 + mu H1``, shape (2n, 2n)."""
-        return self.H0 + float(mu) * self.H1
+        return self.H0 + as_real(mu, "mu") * self.H1
 
     def hamiltonian(self, x, mu) -> np.ndarray:
         """Energies, shape (B,), for states (B, 2n) and parameters (B,) / (B, 1)."""
@@ -173,6 +173,8 @@ class QuadraticHamiltonian:
 
     def midpoint_propagator(self, mu: float, h: float, n_steps: int = 1) -> np.ndarray:
         """Matrix of ``n_steps`` implicit-midpoint steps of size ``h``: ``((I - h/2 A)^{-1}(I + h/2 A))^n``."""
+        h = as_real(h, "h", positive=True)
+        n_steps = as_positive_int(n_steps, "n_steps", minimum=0)
         A = self.J @ self.matrix(mu)
         eye = np.eye(self.dim)
         step = solve(eye - 0.5 * h * A, eye + 0.5 * h * A)
@@ -180,7 +182,7 @@ class QuadraticHamiltonian:
 
     def exact_propagator(self, mu: float, t: float) -> np.ndarray:
         """``expm(t J H(mu))``."""
-        return expm(t * (self.J @ self.matrix(mu)))
+        return expm(as_real(t, "t") * (self.J @ self.matrix(mu)))
 
     def _grouped(self, x0, mu, t, propagator):
         x0, single = as_states(x0, "x0", dim=self.dim)

@@ -24,7 +24,7 @@ import numpy as np
 import scipy.sparse as sps
 from scipy.sparse.linalg import splu
 
-from sympredict._checks import as_parameter, as_positive_int, as_states, as_steps
+from sympredict._checks import as_parameter, as_positive_int, as_real, as_states, as_steps
 from sympredict.integrators import micro_steps
 from sympredict.integrators_compiled import PointwiseHamiltonian, jit_pointwise
 
@@ -39,6 +39,7 @@ DT_WAVE = (0.1, 0.05, 0.025)
 def fd_laplacian(n_points: int, length: float = 1.0) -> sps.csc_matrix:
     """SPD central-difference matrix of ``-d^2/dz^2``: ``tridiag(-1, 2, -1) / h^2``, ``h = L / (N + 1)``."""
     n_points = as_positive_int(n_points, "n_points")
+    length = as_real(length, "length", positive=True)
     h = length / (n_points + 1)
     off = -np.ones(n_points - 1)
     return sps.diags([off, 2.0 * np.ones(n_points), off], [-1, 0, 1], format="csc") / h**2
@@ -46,6 +47,8 @@ def fd_laplacian(n_points: int, length: float = 1.0) -> sps.csc_matrix:
 
 def laplacian_eigenvalues(n_points: int, length: float = 1.0) -> np.ndarray:
     """Eigenvalues ``(2/h^2)(1 - cos(k pi h / L))``, ``k = 1..N``, of :func:`fd_laplacian`."""
+    n_points = as_positive_int(n_points, "n_points")
+    length = as_real(length, "length", positive=True)
     h = length / (n_points + 1)
     k = np.arange(1, n_points + 1)
     return (2.0 / h**2) * (1.0 - np.cos(k * np.pi * h / length))
@@ -148,9 +151,12 @@ class WaveFOM:
         from pymor.parameters.functionals import ProjectionParameterFunctional
 
         self.n_points = as_positive_int(n_points, "n_points", minimum=2)
-        if not (np.isfinite(length) and length > 0):
-            raise ValueError(f"length must be positive, got {length!r}")
-        lo, hi = (float(v) for v in mu_range)
+        length = as_real(length, "length", positive=True)
+        T = as_real(T, "T", positive=True)
+        dt_micro = as_real(dt_micro, "dt_micro", positive=True)
+        if len(mu_range) != 2:
+            raise ValueError(f"mu_range must be (min, max), got {mu_range!r}")
+        lo, hi = (as_real(v, "mu_range") for v in mu_range)
         if not (0 < lo <= hi):
             raise ValueError(f"mu_range must satisfy 0 < min <= max, got {mu_range!r}")
         self.length = float(length)
@@ -200,7 +206,7 @@ class WaveFOM:
     # ------------------------------------------------------------ physics
     def hamiltonian_matrix(self, mu: float) -> sps.csc_matrix:
         """``H(mu) = diag(mu D, I)``, sparse (2N, 2N)."""
-        return sps.block_diag([float(mu) * self.D, sps.identity(self.n_points)], format="csc")
+        return sps.block_diag([as_real(mu, "mu") * self.D, sps.identity(self.n_points)], format="csc")
 
     def hamiltonian(self, x, mu) -> np.ndarray:
         """Energies (B,) of states (B, 2N)."""
@@ -267,6 +273,8 @@ class WaveFOM:
         """
         n_states = as_positive_int(n_states, "n_states")
         n_modes = as_positive_int(n_modes, "n_modes")
+        mu = as_real(mu, "mu", positive=True)
+        energy = as_real(energy, "energy", positive=True)
         if n_modes > self.n_points:
             raise ValueError(f"n_modes must be <= n_points = {self.n_points}, got {n_modes}")
         rng = np.random.default_rng(seed)
@@ -324,6 +332,7 @@ class WaveFOM:
         """Exact trajectories via the sine transform (modal frequencies ``sqrt(mu lambda_k)``), (B, K+1, 2N)."""
         x0, single = as_states(x0, "x0", dim=self.dim)
         mu = self.check_mu(mu, len(x0))
+        dt = float(as_steps(dt, 1)[0])
         n_steps = as_positive_int(n_steps, "n_steps", minimum=0)
         n = self.n_points
         phi = sine_modes(n, n)
