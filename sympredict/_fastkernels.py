@@ -690,8 +690,8 @@ def gradients(xi, group, group_weights, layout: CenterLayout, kernel) -> np.ndar
     xi = np.ascontiguousarray(xi, dtype=np.float64)
     out = np.empty_like(xi)
     wg = np.ascontiguousarray(np.asarray(group_weights, dtype=np.float64)[:, layout.order])
-    _kernels(type(kernel))._gradients_kernel(xi, np.ascontiguousarray(group, dtype=np.int64), wg, layout.cT, layout.seg,
-                      compiled_formulas(type(kernel))[2], float(kernel.eps), CHUNK, out)
+    _kernels(type(kernel))._gradients_kernel(xi, np.ascontiguousarray(group, dtype=np.int64), wg, layout.cT,
+                                             layout.seg, compiled_formulas(type(kernel))[2], float(kernel.eps), CHUNK, out)
     return out
 
 
@@ -723,8 +723,8 @@ def newton_terms(xi, weights, layout: CenterLayout, kernel):
     b, dim = xi.shape
     grad, hqp, floor = np.empty((b, dim)), np.empty((b, dim // 2, dim // 2)), np.empty(b)
     w = np.ascontiguousarray(np.asarray(weights, dtype=np.float64)[:, layout.order])
-    _kernels(type(kernel))._newton_terms_kernel(xi, w, layout.cT, layout.seg, compiled_formulas(type(kernel))[2], float(kernel.eps), CHUNK,
-                         grad, hqp, floor)
+    _kernels(type(kernel))._newton_terms_kernel(xi, w, layout.cT, layout.seg, compiled_formulas(type(kernel))[2],
+                                                float(kernel.eps), CHUNK, grad, hqp, floor)
     return grad, hqp, floor
 
 

@@ -6,6 +6,9 @@ the classes here are for what goes wrong *inside* a correct call.
 
 from __future__ import annotations
 
+import contextlib
+import warnings
+
 import numpy as np
 
 __all__ = [
@@ -15,6 +18,7 @@ __all__ = [
     "ModelFileError",
     "NotFittedError",
     "ExtrapolationWarning",
+    "extrapolation_expected",
 ]
 
 
@@ -86,3 +90,16 @@ class SolvabilityError(SympredictError):
 
 class ExtrapolationWarning(UserWarning):
     """A query lies outside the box spanned by the training data (extrapolation is allowed)."""
+
+
+@contextlib.contextmanager
+def extrapolation_expected():
+    """Silence :class:`ExtrapolationWarning` inside the block: for code that extrapolates on purpose.
+
+    Experiments use it where leaving the training box is part of the design
+    (scenario B, the stability study) or is measured as an error (the small
+    truncated models of a size search); the call site says which.
+    """
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ExtrapolationWarning)
+        yield

@@ -7,6 +7,8 @@ The container (layout, checksum, atomic save, checked load) is
 
 from __future__ import annotations
 
+import numpy as np
+
 from sympredict.container import SCHEMA_VERSION, read_container, write_container
 from sympredict.data import FlowMapData
 from sympredict.exceptions import ModelFileError

@@ -104,9 +104,8 @@ class _FlowMapKernelModel(Parametrized):
     ``_surrogate_from(kernel, arrays)`` and ``_advance(x, weights, dt)``.
     """
 
-    #: Candidate functionals and surrogate of the subclass.
+    #: The class of the subclass's candidate functionals (:mod:`sympredict.functionals`).
     _functionals = None
-    _surrogate_class = None
 
     def __repr__(self) -> str:
         fitted = f", {self.surrogate_.n_centers} centres" if self.is_fitted else ", unfitted"
@@ -263,13 +262,35 @@ class _FlowMapKernelModel(Parametrized):
         self._warn_outside(mu_arr, dt_arr, x)
         return x, single, mu_arr, dt_arr
 
+    def _outside_states(self, x: np.ndarray) -> np.ndarray:
+        """Which states lie outside the box of all training states ``x0`` and ``x1`` (what the surrogate has seen).
+
+        ``x`` of shape (..., 2n); returns a bool array of shape (...).
+        """
+        lo, hi = self.domain_["x_min"], self.domain_["x_max"]
+        margin = 1e-9 * (hi - lo + 1.0)
+        return np.any((x < lo - margin) | (x > hi + margin), axis=-1)
+
+    def _warn_if_trajectory_leaves(self, traj: np.ndarray) -> None:
+        """Warn when a rollout that starts inside the training states leaves them (it extrapolates from there on).
+
+        One pass of comparisons over ``traj`` (B, K+1, 2n): ``O(B K 2n)``, small next to the rollout.
+        """
+        outside = self._outside_states(traj)
+        left = outside[:, 1:].any(axis=1) & ~outside[:, 0]
+        if np.any(left):
+            first = np.argmax(outside[left, 1:], axis=1) + 1
+            warnings.warn(
+                f"extrapolation: {int(left.sum())} of {len(traj)} trajectories leave the training states "
+                f"{_fmt(self.domain_['x_min'])}..{_fmt(self.domain_['x_max'])} (instances {np.flatnonzero(left)[:5].tolist()}"
+                f"{'...' if left.sum() > 5 else ''}, first at step {int(first.min())}); the prediction from there on "
+                "is an extrapolation", ExtrapolationWarning, stacklevel=3)
+
     def _warn_outside(self, mu, dt, x):
         d = self.domain_
         outside = []
-        # the box of all training states x0 and x1 bounds what the surrogate has seen
         lo, hi = d["x_min"], d["x_max"]
-        margin = 1e-9 * (hi - lo + 1.0)
-        if np.any(x < lo - margin) or np.any(x > hi + margin):
+        if np.any(self._outside_states(x)):
             outside.append(
                 f"query states span {_fmt(x.min(axis=0))}..{_fmt(x.max(axis=0))}, "
                 f"training states {_fmt(lo)}..{_fmt(hi)}"
@@ -665,6 +686,7 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
             if bad.size:
                 raise SolvabilityError(bad, margin[bad])
         traj = self._rollout(x, weights, dt, n_steps)
+        self._warn_if_trajectory_leaves(traj)
         return traj[0] if single else traj
 
     def _solvability(self, x, weights, dt):
@@ -813,6 +835,7 @@ class DirectKernelPredictor(_FlowMapKernelModel):
         n_steps = as_positive_int(n_steps, "n_steps", minimum=0)
         x, single, mu, dt = self._query(x0, mu, dt, name="x0")
         traj = self._rollout(x, self.surrogate_.weights(mu, dt), dt, n_steps)
+        self._warn_if_trajectory_leaves(traj)
         return traj[0] if single else traj
 
     # ----------------------------------------------------------------- files

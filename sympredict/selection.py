@@ -43,6 +43,10 @@ def _quiet(*names):
             lg.setLevel(level)
 
 
+#: Shape parameters the automatic widening of a grid may reach.
+WIDEN_LIMITS = (1e-6, 1e6)
+
+
 def _spec(kernel: Optional[RadialKernel]) -> Optional[dict]:
     return None if kernel is None else kernel.spec
 
@@ -107,6 +111,7 @@ def select_kernels(
     m_star: int = 300,
     prefer_complete: bool = False,
     estimator: Optional[SymplecticKernelPredictor] = None,
+    widen: int = 2,
 ) -> SelectionResult:
     """Grid search over kernel tuples by validation residual at ``m_star`` centres.
 
@@ -127,6 +132,12 @@ def select_kernels(
         candidate is ``clone(estimator).set_params(state_kernel=..., mu_kernel=...,
         dt_kernel=..., max_centers=m_star, tol=0)``.  Default
         ``SymplecticKernelPredictor()``.
+    widen
+        When the winner's shape lies on the edge of its grid (a family with at
+        least two shapes), try one more grid step beyond that edge (the grid's
+        ratio there), at most ``widen`` times per factor and within
+        :data:`WIDEN_LIMITS`; such candidates are marked ``widened`` in the table.
+        A winner still on an edge afterwards is logged as a warning.
 
     Returns
     -------
@@ -144,51 +155,92 @@ def select_kernels(
     candidate that reached ``m_star``: on the pendulum such a kernel (IMQ
     eps 0.1, 786 of 1000 centres) had the lowest ``E_val(1000)``, but its
     final model stopped at 791 of 1500 centres with 8x larger trajectory
-    errors than the complete runner-up's.  Non-finite scores never win.
+    errors than the complete runner-up's.  Non-finite scores never win; a
+    candidate whose fit fails (``ValueError``, e.g. overflowing coefficients)
+    is scored ``inf``, logged and skipped.  When no candidate has halved its
+    validation residual at ``m_star``, a warning says that ``m_star`` is below
+    what they need (the ranking says little about the final size).
     """
     base = SymplecticKernelPredictor() if estimator is None else estimator
     mu = None if data.mu.shape[1] == 0 else data.mu
     vmu = None if validation.mu.shape[1] == 0 else validation.mu
     dt_fixed = np.ptp(data.dt) == 0
     table = []
-    best = None
-    for state, mu_k, dt_k in itertools.product(state_kernels, mu_kernels, dt_kernels):
-        if dt_k is None and not dt_fixed:
-            raise ValueError("dt_kernels must not contain None when the data have several macro steps")
+    unresolved = []  # per fitted candidate: is its validation residual at m_star still above half its start?
+
+    def score(tup, widened=False) -> SelectionResult:
+        state, mu_k, dt_k = tup
         model = clone(base).set_params(state_kernel=state, mu_kernel=mu_k, dt_kernel=dt_k, max_centers=m_star, tol=0.0)
-        label = " x ".join(repr(k) for k in (state, mu_k, dt_k) if k is not None)
-        row = {"state": _spec(state), "mu": _spec(mu_k), "dt": _spec(dt_k), "kernels": label}
+        label = " x ".join(repr(k) for k in tup if k is not None)
+        row = {"state": _spec(state), "mu": _spec(mu_k), "dt": _spec(dt_k), "kernels": label, "widened": widened}
         t0 = time.perf_counter()
         try:
             with _quiet("sympredict.greedy", "sympredict.predictor"):
                 model.fit(data.x0, data.x1, mu=mu if mu_k is not None else None, dt=data.dt,
                           validation=(validation.x0, validation.x1, vmu if mu_k is not None else None, validation.dt))
-        except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
+        except (ValueError, ArithmeticError) as exc:  # LinAlgError is a ValueError
             # a candidate that cannot be trained (coefficients overflow, memory, ...) is scored and skipped
             row.update(E_val=np.inf, E_train=np.inf, n_centers=0, complete=False, error=str(exc),
                        fit_s=time.perf_counter() - t0)
             table.append(row)
             logger.warning(f"{label}: fit failed, candidate skipped ({exc})")
-            continue
-        score = float(model.history_.val_max_residual[-1])
+            return SelectionResult(state, mu_k, dt_k, np.inf, False)
+        val = model.history_.val_max_residual
+        value = float(val[-1])
         complete = model.n_centers_ >= m_star or model.history_.stop_reason == "tol"
-        row.update(E_val=score, E_train=float(model.history_.train_max_residual[-1]), n_centers=model.n_centers_,
+        if np.isfinite(value):
+            unresolved.append(value > 0.5 * float(val[0]))
+        row.update(E_val=value, E_train=float(model.history_.train_max_residual[-1]), n_centers=model.n_centers_,
                    complete=complete, fit_s=time.perf_counter() - t0)
         table.append(row)
-        logger.info(f"{label}: E_val({model.n_centers_}) = {score:.3e}"
+        logger.info(f"{label}: E_val({model.n_centers_}) = {value:.3e}"
                     + ("" if complete else f" (stopped early: {model.history_.stop_reason})"))
-        candidate = SelectionResult(state, mu_k, dt_k, score, complete)
-        if np.isfinite(score) and (best is None or candidate.rank(prefer_complete) < best.rank(prefer_complete)):
+        return SelectionResult(state, mu_k, dt_k, value, complete)
+
+    def better(a, b) -> bool:
+        return np.isfinite(a.score) and (b is None or a.rank(prefer_complete) < b.rank(prefer_complete))
+
+    best = None
+    for tup in itertools.product(state_kernels, mu_kernels, dt_kernels):
+        if tup[2] is None and not dt_fixed:
+            raise ValueError("dt_kernels must not contain None when the data have several macro steps")
+        candidate = score(tup)
+        if better(candidate, best):
             best = candidate
     if best is None:
-        raise ValueError("no candidate produced a finite validation residual")
+        raise ValueError("no candidate produced a finite validation residual: every fit failed or broke down "
+                         "(see the table of the log); try other kernel families or shapes")
+    # a winner on the edge of its shape grid: extend the grid beyond that edge, one step at a time
+    grids = [sorted({k.eps for k in opts if k is not None and type(k) is type(chosen)}) if chosen is not None else []
+             for opts, chosen in ((state_kernels, best.state), (mu_kernels, best.mu), (dt_kernels, best.dt))]
+    for _ in range(widen):
+        moved = False
+        for i, grid in enumerate(grids):
+            tup = [best.state, best.mu, best.dt]
+            chosen = tup[i]
+            if chosen is None or len(grid) < 2 or chosen.eps not in (grid[0], grid[-1]):
+                continue
+            ratio = grid[0] / grid[1] if chosen.eps == grid[0] else grid[-1] / grid[-2]
+            eps = chosen.eps * ratio
+            if not WIDEN_LIMITS[0] <= eps <= WIDEN_LIMITS[1]:
+                continue
+            grid.insert(0 if ratio < 1 else len(grid), eps)
+            tup[i] = chosen.set_params(eps=eps)
+            logger.info(f"the chosen {('state', 'mu', 'dt')[i]} kernel {chosen!r} lies on the edge of its shape grid: "
+                        f"trying {tup[i]!r}")
+            candidate = score(tuple(tup), widened=True)
+            if better(candidate, best):
+                best, moved = candidate, True
+        if not moved:
+            break
     best.table = table
-    for name, chosen, options in (("state", best.state, state_kernels), ("mu", best.mu, mu_kernels), ("dt", best.dt, dt_kernels)):
-        if chosen is None:
-            continue
-        same_family = sorted(k.eps for k in options if k is not None and type(k) is type(chosen))
-        if len(same_family) > 1 and chosen.eps in (same_family[0], same_family[-1]):
-            logger.warning(f"the chosen {name} kernel {chosen!r} lies on the edge of its shape grid: widen the grid")
+    for name, chosen, grid in zip(("state", "mu", "dt"), (best.state, best.mu, best.dt), grids):
+        if chosen is not None and len(grid) > 1 and chosen.eps in (grid[0], grid[-1]):
+            logger.warning(f"the chosen {name} kernel {chosen!r} lies on the edge of its shape grid"
+                           + (f" after widening it {widen} time(s)" if widen else "") + ": widen the grid")
+    if unresolved and all(unresolved):
+        logger.warning(f"m_star={m_star} is below what every candidate needs: no candidate has halved its validation "
+                       "residual at m_star, so the ranking says little about the final size; raise m_star")
     return best
 
 
@@ -230,7 +282,7 @@ def refine_kernel_shapes(
     def score(tup):
         if tup not in scored:  # kernels are values: equal family and shape, equal key
             scored[tup] = select_kernels(data, validation, [tup[0]], [tup[1]], [tup[2]], m_star=m_star,
-                                         prefer_complete=prefer_complete, estimator=estimator)
+                                         prefer_complete=prefer_complete, estimator=estimator, widen=0)
         return scored[tup]
 
     best = score((start.state, start.mu, start.dt))

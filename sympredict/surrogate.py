@@ -30,6 +30,12 @@ __all__ = ["HBSurrogate", "ValueSurrogate"]
 _CHUNK_ENTRIES = 1 << 17
 
 
+def _rows(values, m: int) -> np.ndarray:
+    """``values`` as a float array of ``m`` rows (a 2-D array stays as it is, so ``m = 0`` keeps its columns)."""
+    arr = np.asarray(values, dtype=float)
+    return arr if arr.ndim == 2 else arr.reshape(m, -1)
+
+
 def _distances_1d(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """``|a_i - b_j|`` for one-component parameters as ``sqrt((a_i - b_j)^2)``, shape (Na, Nb).
 
@@ -91,7 +97,7 @@ class HBSurrogate:
         self.kernel = kernel
         self.centers_xi = np.ascontiguousarray(centers_xi, dtype=float)
         m, dim = self.centers_xi.shape
-        self.centers_mu = np.asarray(centers_mu, dtype=float).reshape(m, -1)
+        self.centers_mu = _rows(centers_mu, m)
         self.centers_dt = np.asarray(centers_dt, dtype=float).reshape(m)
         self.components = np.asarray(components, dtype=np.int64).reshape(m)
         self.coef = np.asarray(coef, dtype=float).reshape(m)
@@ -327,9 +333,9 @@ class ValueSurrogate:
         self.kernel = kernel
         self.centers_x = np.ascontiguousarray(centers_x, dtype=float)
         m = len(self.centers_x)
-        self.centers_mu = np.asarray(centers_mu, dtype=float).reshape(m, -1)
+        self.centers_mu = _rows(centers_mu, m)
         self.centers_dt = np.asarray(centers_dt, dtype=float).reshape(m)
-        self.coef = np.asarray(coef, dtype=float).reshape(m, -1)
+        self.coef = _rows(coef, m)
 
     @property
     def n_centers(self) -> int:

@@ -28,7 +28,7 @@ def fake_runner(fail=None):
 
 @pytest.fixture
 def fake_run(monkeypatch):
-    monkeypatch.setattr(cli, "_claims", lambda results: [])
+    monkeypatch.setattr(cli.report, "claims", lambda results: [])
 
     def use(fail=None):
         monkeypatch.setattr(cli, "_run_pendulum", fake_runner(fail))

@@ -3,6 +3,8 @@
 import numpy as np
 import pytest
 
+from sympredict import ExtrapolationWarning
+
 from sympredict import DirectKernelPredictor, SymplecticKernelPredictor
 from sympredict.data import FlowMapData
 from sympredict.functionals import ValueFunctionals, dense_interpolation
@@ -29,7 +31,8 @@ def test_direct_model_interpolates_the_step(pendulum, small_pendulum_data, rng):
     model.fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
     assert model.n_centers_ == 60
     np.testing.assert_allclose(model.step(d.x0, mu=d.mu, dt=d.dt), d.x1, atol=1e-8)
-    traj = model.rollout(d.x0[:3], 4, mu=d.mu[:3], dt=d.dt[:3])
+    with pytest.warns(ExtrapolationWarning, match="leave the training states"):  # 60 samples: a corner of the phase space
+        traj = model.rollout(d.x0[:3], 4, mu=d.mu[:3], dt=d.dt[:3])
     assert traj.shape == (3, 5, 2)
     np.testing.assert_allclose(traj[:, 1], model.step(d.x0[:3], mu=d.mu[:3], dt=d.dt[:3]), atol=1e-14)
     with pytest.raises(ValueError, match="mu_kernel is set"):
@@ -47,7 +50,9 @@ def test_direct_model_drifts_in_energy_where_the_symplectic_one_does_not(pendulu
     drift = {}
     for cls in (SymplecticKernelPredictor, DirectKernelPredictor):
         model = cls(*kernels, max_centers=300).fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
-        energy_err = relative_hamiltonian_error(pendulum, model.rollout(x0, 2000, mu=0.75, dt=0.05), mu)[0]
+        with pytest.warns(ExtrapolationWarning, match="leave the training states"):  # trained on p <= 0 (scenario B)
+            traj = model.rollout(x0, 2000, mu=0.75, dt=0.05)
+        energy_err = relative_hamiltonian_error(pendulum, traj, mu)[0]
         drift[cls.__name__] = energy_err[-200:].mean()
     assert drift["SymplecticKernelPredictor"] * 10 < drift["DirectKernelPredictor"]
 
@@ -64,13 +69,14 @@ def test_log_grid_and_kernel_grid():
 
 def test_select_kernels_picks_the_smallest_validation_residual(small_pendulum_data):
     data, val = small_pendulum_data.split(0.2, seed=1)
-    result = select_kernels(data, val, [IMQ(0.05), IMQ(0.15), IMQ(5.0)], [IMQ(2.0)], [IMQ(5.0)], m_star=60)
+    result = select_kernels(data, val, [IMQ(0.05), IMQ(0.15), IMQ(5.0)], [IMQ(2.0)], [IMQ(5.0)], m_star=60, widen=0)
     scores = {kernel_from_spec(row["state"]): row["E_val"] for row in result.table}
     assert len(scores) == 3
     for row in result.table:
         assert row["complete"] == (row["n_centers"] >= 60)
     assert result.score == min(scores.values()) == scores[result.state]
-    preferred = select_kernels(data, val, [IMQ(0.05), IMQ(0.15), IMQ(5.0)], [IMQ(2.0)], [IMQ(5.0)], m_star=60, prefer_complete=True)
+    preferred = select_kernels(data, val, [IMQ(0.05), IMQ(0.15), IMQ(5.0)], [IMQ(2.0)], [IMQ(5.0)], m_star=60,
+                               prefer_complete=True, widen=0)
     complete = {kernel_from_spec(row["state"]): row["E_val"] for row in preferred.table if row["complete"]}
     assert preferred.score == min(complete.values() or scores.values())
     assert result.state != IMQ(5.0)  # a far too narrow kernel cannot interpolate 60 centres' worth of data
@@ -109,3 +115,32 @@ def test_flow_map_data_split_and_concatenate(small_pendulum_data):
     assert isinstance(both, FlowMapData) and len(both) == len(small_pendulum_data)
     with pytest.raises(ValueError, match="validation_fraction"):
         small_pendulum_data.split(1.5)
+
+
+def test_selection_survives_failing_candidates_and_widens_its_grid(small_pendulum_data, caplog):
+    """A failing fit is scored inf and skipped; a winner on the edge of its grid moves beyond it; a too small m* warns."""
+    import logging
+
+    data, val = small_pendulum_data.split(0.2, seed=1)
+
+    class FailsAtHalf(SymplecticKernelPredictor):  # a candidate whose fit raises
+        def fit(self, *args, **kwargs):
+            if self.state_kernel.eps == 0.5:
+                raise ValueError("the kernel coefficients overflow (test)")
+            return super().fit(*args, **kwargs)
+
+    caplog.set_level(logging.INFO, logger="sympredict.selection")
+    result = select_kernels(data, val, [IMQ(0.5), IMQ(1.2), IMQ(2.4)], [IMQ(2.0)], [IMQ(5.0)], m_star=60,
+                            estimator=FailsAtHalf(), widen=0)
+    failed = [row for row in result.table if "error" in row]
+    assert len(failed) == 1 and failed[0]["E_val"] == np.inf and failed[0]["state"]["eps"] == 0.5
+    assert result.state == IMQ(1.2)  # the best that could be fitted
+    # the grid 0.6, 1.2: the flatter edge wins, so the search goes on to 0.3 and 0.15 (grid ratio 2)
+    widened = select_kernels(data, val, [IMQ(0.6), IMQ(1.2)], [IMQ(2.0)], [IMQ(5.0)], m_star=60, widen=2)
+    tried = [row["state"]["eps"] for row in widened.table if row["widened"]]
+    assert tried[:1] == [0.3] and widened.state.eps < 0.6
+    assert widened.score <= min(row["E_val"] for row in widened.table if not row["widened"])
+    # every validation curve still falls at m* = 8: the warning says so
+    caplog.clear()
+    select_kernels(data, val, [IMQ(0.15), IMQ(0.3)], [IMQ(2.0)], [IMQ(5.0)], m_star=8, widen=0)
+    assert any("below what every candidate needs" in r.getMessage() for r in caplog.records)

@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from sympredict.exceptions import extrapolation_expected
 from sympredict import ModelFileError
 from sympredict.io import load_dataset, save_dataset
 
@@ -54,11 +55,14 @@ def test_model_roundtrip_keeps_predictions_and_history(tmp_path):
     path = tmp_path / "model.h5"
     model.save(path)
     loaded = SymplecticKernelPredictor.load(path)
-    for name in ("train_max_residual", "val_max_residual", "selected_power", "elapsed"):
+    for name in ("train_max_residual", "val_max_residual", "selected_power"):
         got, expected = getattr(loaded.history_, name), getattr(model.history_, name)
         assert got is not None and expected is not None, name
         np.testing.assert_array_equal(got, expected, err_msg=name)
+    # wall-clock timings stay out of files (a file is byte-for-byte reproducible): loaded as NaN, one per step
+    assert loaded.history_.elapsed.shape == model.history_.elapsed.shape and np.all(np.isnan(loaded.history_.elapsed))
     assert loaded.history_.stop_reason == model.history_.stop_reason
     assert loaded.n_centers_ == model.n_centers_ and loaded.kernel_ == model.kernel_
     x = data.x0[:5]
-    np.testing.assert_array_equal(loaded.rollout(x, 3, mu=0.75, dt=0.05), model.rollout(x, 3, mu=0.75, dt=0.05))
+    with extrapolation_expected():  # a round trip, not accuracy: 30 centres may drift off the training states
+        np.testing.assert_array_equal(loaded.rollout(x, 3, mu=0.75, dt=0.05), model.rollout(x, 3, mu=0.75, dt=0.05))

@@ -8,6 +8,7 @@ family added later is checked without writing a test for it.
 import numpy as np
 import pytest
 
+from sympredict.exceptions import extrapolation_expected
 from sympredict import SymplecticKernelPredictor, _fastkernels
 from sympredict.kernels import IMQ, KERNEL_FAMILIES, ProductKernel, RadialKernel, register_family
 from sympredict.surrogate import HBSurrogate
@@ -114,8 +115,9 @@ def test_a_new_family_trains_and_rolls_out_compiled(small_pendulum_data, rng):
     model.fit(d.x0[idx], d.x1[idx], mu=d.mu[idx], dt=d.dt[idx])
     x = d.x0[idx[:6]]
     mu, dt = d.mu[idx[:6], 0], d.dt[idx[:6]]
-    fast = model.rollout(x, 10, mu=mu, dt=dt)
-    ref = model.set_params(backend="numpy").rollout(x, 10, mu=mu, dt=dt)
+    with extrapolation_expected():  # backends compared, not accuracy: a trajectory may leave the training states
+        fast = model.rollout(x, 10, mu=mu, dt=dt)
+        ref = model.set_params(backend="numpy").rollout(x, 10, mu=mu, dt=dt)
     np.testing.assert_allclose(fast, ref, rtol=0, atol=1e-9)
     assert model.history_.train_max_residual[-1] < 0.1 * model.history_.train_max_residual[0]
 

@@ -15,6 +15,7 @@ import copy
 import numpy as np
 import pytest
 
+from sympredict.exceptions import extrapolation_expected
 from sympredict import NewtonConvergenceError, SymplecticKernelPredictor
 from sympredict import _fastkernels
 from sympredict.functionals import HBFunctionals
@@ -96,8 +97,9 @@ def test_compiled_equals_numpy_four_dimensional(state_kernel, with_mu, rng):
     model.fit(x0, x1, mu=mu if with_mu else None, dt=0.1)
     xq = rng.uniform(-0.7, 0.7, size=(12, 4))
     kw = {"mu": rng.uniform(1.1, 1.9, 12)} if with_mu else {}
-    ref = model.rollout(xq, 15, **kw)
-    fast = _with_backend(model, "numba").rollout(xq, 15, **kw)
+    with extrapolation_expected():  # backends compared, not accuracy: a trajectory may leave the training states
+        ref = model.rollout(xq, 15, **kw)
+        fast = _with_backend(model, "numba").rollout(xq, 15, **kw)
     scale = np.abs(model.surrogate_.coef).sum()  # round-off scale of the gradient sums
     np.testing.assert_allclose(fast, ref, rtol=0, atol=max(1e-12, 1e-14 * scale))
 

@@ -23,6 +23,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
+from sympredict.exceptions import extrapolation_expected
 from sympredict import ExtrapolationWarning, NewtonConvergenceError, SolvabilityError, SymplecticKernelPredictor, SympredictError
 from sympredict.data import FlowMapData
 from sympredict.functionals import HBFunctionals
@@ -94,8 +95,8 @@ def test_fit_random_data(x0, shift, mu, dt, centers, with_mu):
     model = SymplecticKernelPredictor(IMQ(0.5), IMQ(1.0) if with_mu else None, max_centers=centers)
     x1 = x0 + shift
     fitted = _finite_or_expected(lambda: model.fit(x0, x1, mu=mu, dt=dt).surrogate_.coef)
-    if fitted is not None:
-        assert 1 <= model.n_centers_ <= centers
+    if fitted is not None:  # zero increments select nothing: the zero surrogate, the identity map
+        assert (1 if np.any(x1 != x0) else 0) <= model.n_centers_ <= centers
 
 
 @examples(2000)
@@ -152,7 +153,9 @@ def test_same_seed_gives_bit_identical_data_selection_and_predictions():
     np.testing.assert_array_equal(models[0].surrogate_.centers_xi, models[1].surrogate_.centers_xi)
     np.testing.assert_array_equal(models[0].surrogate_.coef, models[1].surrogate_.coef)
     x = a.x0[:5]
-    np.testing.assert_array_equal(models[0].rollout(x, 10, mu=a.mu[:5], dt=0.05), models[1].rollout(x, 10, mu=a.mu[:5], dt=0.05))
+    with extrapolation_expected():  # reproducibility, not accuracy: a trajectory may leave the training states
+        np.testing.assert_array_equal(models[0].rollout(x, 10, mu=a.mu[:5], dt=0.05),
+                                      models[1].rollout(x, 10, mu=a.mu[:5], dt=0.05))
 
 
 def test_flat_kernel_stops_cleanly_with_reason():

@@ -162,13 +162,25 @@ FAULTS = [
     Fault("F7", "figures", P + "plotting.py", "for ax, comp in zip(axes, (0, 1)):", "for ax, comp in zip(axes, (1, 0)):",
           ("tests/test_published_numbers.py",), "q(t) and p(t) panels swapped"),
     # ----------------------------------------------------------------- I/O (io.py and container.py: other developers' files)
-    Fault("O1", "I/O", P + "container.py", "if _checksum(arrays) != checksum:", "if False:",
+    Fault("O1", "I/O", P + "container.py", "    if expected != attrs[\"checksum\"]:", "    if False:",
           ("tests/test_io.py", "tests/test_predictor.py"), "checksum never verified"),
     Fault("O2", "I/O", P + "io.py", 'arrays = {"x0": data.x0, "x1": data.x1, "mu": data.mu, "dt": data.dt}',
           'arrays = {"x0": data.x0, "x1": data.x1, "mu": data.mu, "dt": data.dt[::-1]}', ("tests/test_io.py",),
           "data set saved with reordered steps"),
     Fault("O3", "I/O", P + "predictor.py", 'val_max_residual=arrays.get("val_max_residual"),', "val_max_residual=None,",
           ("tests/test_io.py", "tests/test_predictor.py", "tests/test_cli.py"), "validation history lost on load"),
+    # ----------------------------------------------------------------- the reshaped core (loop, stores, contract)
+    Fault("L1", "greedy", P + "greedy/loop.py", "                m = m_best\n", "                pass\n",
+          ("tests/test_greedy.py",), "a diverged run is not truncated to its best step"),
+    Fault("L2", "greedy", P + "greedy/sharded.py", "if best is None or score > best[0]:", "if best is None or score >= best[0]:",
+          ("tests/test_parallel.py",), "sharded ties go to the highest index, not the lowest (as np.argmax)"),
+    Fault("L3", "greedy", P + "greedy/active_set.py", "if full and self.full_max <= self.tol:", "if full and self.full_max <= 10 * self.tol:",
+          ("tests/test_performance_paths.py",), "the active set stops before the full residual reaches tol"),
+    Fault("B1", "contract", P + "base.py", "        return type(obj)(**params)", "        return obj",
+          ("tests/test_estimator_contract.py",), "clone returns the object itself"),
+    Fault("X1", "estimators", P + "predictor.py", "        self._warn_if_trajectory_leaves(traj)\n        return traj[0] if single else traj\n\n    def _solvability",
+          "        return traj[0] if single else traj\n\n    def _solvability",
+          ("tests/test_no_silent_numerics.py",), "a symplectic rollout leaving the training states does not warn"),
 ]
 
 
