@@ -618,7 +618,8 @@ def check_generating_function(system, data: FlowMapData, fail_below: float = 1e-
     Raises
     ------
     ValueError
-        If ``min sigma < fail_below`` (the interpolation problem has no smooth solution).
+        If ``min sigma < fail_below``, or a data step lies at or past ``dt_max``
+        (the form broke at a smaller step even if ``dp1/dp0`` is invertible again there).
 
     Warns
     -----
@@ -631,6 +632,8 @@ def check_generating_function(system, data: FlowMapData, fail_below: float = 1e-
     sigma = type2_sigma_min(system.flow_jacobian(x0, mu, dt))
     worst = int(np.argmin(sigma))
     dt_max = _largest_admissible_dt(system, x0, mu, dt, fail_below)
+    if dt.max() >= dt_max:  # past the first singularity, even where dp1/dp0 has recovered
+        worst = int(np.argmax(dt))
     info = _report_existence(float(sigma[worst]), mu[worst], float(dt[worst]), dt_max, fail_below, warn_below)
     info["points"] = len(idx)
     return info
@@ -643,6 +646,10 @@ def _report_existence(s_min: float, mu_worst, dt_worst: float, dt_max: float, fa
     cause = (f"the type-II generating function s(q0, p1) needs dp1/dp0 invertible, but its smallest singular value "
              f"is {s_min:.2e} at {where} (a linear mode of frequency omega has dp1/dp0 = cos(omega dT): "
              f"it fails at omega dT = pi/2); the largest admissible dT here is about {dt_max:.4g}")
+    if dt_worst >= dt_max:
+        raise ValueError(cause.replace("but its smallest singular value", "and dT = %.4g lies past the first step where it "
+                                       "is singular (smallest singular value here" % dt_worst, 1).replace(" at mu", ") at mu", 1)
+                         + ": use a smaller macro step")
     if s_min < fail_below:
         raise ValueError(cause + ": use a smaller macro step")
     if s_min < warn_below:
@@ -653,28 +660,35 @@ def _report_existence(s_min: float, mu_worst, dt_worst: float, dt_max: float, fa
     return {"sigma_min": s_min, "dt_max": dt_max}
 
 
-def _largest_admissible_dt(system, x0, mu, dt, threshold: float) -> float:
-    """Smallest over the points of the first ``dT`` where ``sigma(dp1/dp0)`` drops below ``threshold``.
+def _broken(jac: np.ndarray, threshold: float) -> bool:
+    """``dp1/dp0`` singular or past a singularity: ``sigma_min < threshold`` or ``det <= 0`` (it is ``+1`` at ``dT = 0``)."""
+    n = jac.shape[-1] // 2
+    block = jac[..., n:, n:]
+    return bool(np.any(type2_sigma_min(jac) < threshold) or np.any(np.linalg.det(block) <= 0))
 
-    Linear systems: ``pi / (2 omega_max)`` refined by a scan of the exact
-    propagator (modes coupled through ``H`` may break earlier or later than the
-    decoupled estimate); otherwise a scan over ``(0, 4 max dT]`` on up to 10 points.
+
+def _largest_admissible_dt(system, x0, mu, dt, threshold: float) -> float:
+    """The first ``dT`` of a scan where ``dp1/dp0`` becomes (nearly) singular at some point (:func:`_broken`).
+
+    Linear systems: exact propagators on a grid of ``(0, 2 pi / omega_max]``
+    (800 steps; modes coupled through ``H`` may break before ``pi / (2 omega_max)``);
+    otherwise finite-difference Jacobians of the reference flow at up to 10 of the
+    points on ``(0, 4 max dT]`` (40 steps).  A sign change of ``det(dp1/dp0)``
+    between grid points counts, so a coarse grid cannot step over the singularity.
     """
     if isinstance(system, LinearHamiltonianSystem):
-        om = max(float(system.frequencies(m).max()) for m in np.unique(mu, axis=0))
+        pts = np.unique(mu, axis=0)
+        om = max(float(system.frequencies(m).max()) for m in pts)
         if om == 0:
             return np.inf
-        grid = np.linspace(0, 2 * np.pi / om, 801)[1:]
-        pts = np.unique(mu, axis=0)
         generators = [system.J @ system.matrix(m) for m in pts]
-        for t in grid:
-            if min(type2_sigma_min(expm(t * A)) for A in generators) < threshold:
+        for t in np.linspace(0, 2 * np.pi / om, 801)[1:]:
+            if any(_broken(expm(t * A), threshold) for A in generators):
                 return float(t)
         return float(np.pi / (2 * om))
     sub = slice(0, min(10, len(x0)))
     grid = np.linspace(0, 4 * float(dt.max()), 41)[1:]
     for t in grid:
-        sig = type2_sigma_min(system.flow_jacobian(x0[sub], mu[sub], np.full(len(x0[sub]), t)))
-        if sig.min() < threshold:
+        if _broken(system.flow_jacobian(x0[sub], mu[sub], np.full(len(x0[sub]), t)), threshold):
             return float(t)
     return float(grid[-1])  # admissible at least up to here

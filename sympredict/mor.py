@@ -40,6 +40,8 @@ from __future__ import annotations
 
 from typing import Optional, Sequence
 
+import warnings
+
 import numpy as np
 from pymor.core.base import BasicObject
 from pymor.models.interface import Model
@@ -47,6 +49,7 @@ from pymor.vectorarrays.numpy import NumpyVectorSpace
 
 from sympredict.base import clone
 from sympredict.data import FlowMapData
+from sympredict.exceptions import ExtrapolationWarning
 from sympredict.flowmaps import (
     _report_existence,
     check_generating_function,
@@ -144,7 +147,14 @@ class SymplecticKernelModel(Model):
         if "solution" in quantities:
             x0 = self.initial_data.as_range_array(mu).to_numpy().reshape(1, -1)
             vec = mu_to_vector(mu, self.parameters)
-            traj = self.flow_map.rollout(x0, self.n_steps, mu=vec if vec.size else None, dt=self.dt)[0]
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always", ExtrapolationWarning)
+                traj = self.flow_map.rollout(x0, self.n_steps, mu=vec if vec.size else None, dt=self.dt)[0]
+            for w in caught:  # logged, not raised: a ROM run past T or near the data's edge extrapolates by design
+                if issubclass(w.category, ExtrapolationWarning):
+                    self.logger.warning(str(w.message))
+                else:
+                    warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
             data["solution"] = self.solution_space.from_numpy(traj.T)
             quantities.remove("solution")
         super()._compute(quantities, data, mu)
@@ -214,6 +224,8 @@ class SymplecticKernelReductor(BasicObject):
         self.V = basis_matrix(RB)  # (2N, 2n)
         self.V_plus_array = RB.transposed_symplectic_inverse().to_array()
         self.dim = 2 * len(RB)
+        if data == "projected" and fom.num_values is None and getattr(fom.time_stepper, "nt", None):
+            self._check_stride(fom.T / fom.time_stepper.nt)
         self.mu_lo, self.mu_hi = parameter_box(self.training_parameters, fom.parameters, parameter_space)
 
     # ------------------------------------------------------------ projection
@@ -280,12 +292,16 @@ class SymplecticKernelReductor(BasicObject):
                 raise ValueError("the FOM's output grid changes with mu")
             h = h_mu
             trajs.append(self.project(U))
+        stride = self._check_stride(h)
+        k = int(round(self.horizon / h)) + 1
+        return trajectory_pairs(np.stack([t[:k] for t in trajs]), rows, h, stride)
+
+    def _check_stride(self, h: float) -> int:
         stride = int(round(self.dt / h))
         if stride < 1 or not np.isclose(stride * h, self.dt, rtol=1e-9, atol=0):
             raise ValueError(f"data='projected' needs dt to be a multiple of the FOM's output step {h:.6g} "
                              f"(T / nt), got dt = {self.dt:.6g}: use dt = k * {h:.6g}")
-        k = int(round(self.horizon / h)) + 1
-        return trajectory_pairs(np.stack([t[:k] for t in trajs]), rows, h, stride)
+        return stride
 
     def _check_existence_projected(self, data):
         """Type-II check from the data: per parameter a least-squares linear fit ``x1 ~ M x0`` (exact for linear FOMs)."""

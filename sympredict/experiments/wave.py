@@ -145,7 +145,7 @@ def build_rom(preset: WavePreset, seed: int = 0, pool=None):
     """
     fom, snapshots, energy, t_snap = fom_snapshots(preset, seed, pool)
     t0 = time.perf_counter()
-    basis = complex_svd_basis(snapshots, n=preset.n_reduced)
+    basis = complex_svd_basis(snapshots, n=preset.n_reduced, layout="rows")
     t_basis = time.perf_counter() - t0
     rom = SymplecticROM(fom, basis)
     info = {
@@ -443,7 +443,7 @@ def smallest_wave_model(
     with logger.block(f"smallest model for target {target:.1e}: reduced dimension"):
         for n in range(1, n_max + 1):
             try:
-                basis = complex_svd_basis(snapshots, n=n)
+                basis = complex_svd_basis(snapshots, n=n, layout="rows")
             except ValueError:  # beyond the numerical rank of the snapshots
                 break
             candidate = SymplecticROM(fom, basis)
