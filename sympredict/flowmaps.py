@@ -41,7 +41,10 @@ import warnings
 from typing import Callable, Optional, Sequence
 
 import numpy as np
+from pymor.algorithms.to_matrix import to_matrix
 from pymor.core.logger import getLogger
+from pymor.models.symplectic import BaseQuadraticHamiltonianModel
+from pymor.parameters.base import Mu, Parameters
 from scipy.linalg import expm
 
 from sympredict._checks import as_positive_int, as_states, as_steps
@@ -80,8 +83,6 @@ def parse_mu(mu, parameters):
     Accepts a ``Mu``, a dict, a number or array (pyMOR's ``Parameters.parse``),
     and ``None`` for a parameter-free model.
     """
-    from pymor.parameters.base import Mu
-
     if mu is None and not parameters:
         return Mu()
     if not isinstance(mu, Mu):
@@ -135,8 +136,6 @@ def random_parameters(parameters, lo, hi, n: int, seed: int = 0) -> list:
     -------
     list of pyMOR Mu
     """
-    from pymor.parameters.base import Mu
-
     n = as_positive_int(n, "n")
     rng = np.random.default_rng(seed)
     lo, hi = np.asarray(lo, float), np.asarray(hi, float)
@@ -282,8 +281,6 @@ class HamiltonianSystem(_System):
     """
 
     def __init__(self, H: Callable, grad_H: Callable, dim: int, parameters=None, rtol: float = 1e-11):
-        from pymor.parameters.base import Parameters
-
         self.H = H
         self.grad_H = grad_H
         self.dim = as_positive_int(dim, "dim", minimum=2)
@@ -430,10 +427,6 @@ def linear_system_from_pymor(model) -> LinearHamiltonianSystem:
     value with ``to_matrix``, so any parameter dependence works; meant for
     reduced models (``2n`` small).  ``mu`` vectors follow :func:`mu_to_vector`.
     """
-    from pymor.algorithms.to_matrix import to_matrix
-    from pymor.models.symplectic import BaseQuadraticHamiltonianModel
-    from pymor.parameters.base import Mu
-
     if not isinstance(model, BaseQuadraticHamiltonianModel):
         raise ValueError(f"expected a pyMOR (reduced) QuadraticHamiltonianModel, got {type(model).__name__}")
     params = model.parameters
@@ -536,14 +529,17 @@ def sampled_flow_map_data(system, mus: np.ndarray, dts, sampler: Callable, n_per
 
     Parameters
     ----------
-    mus : ndarray of shape (P, d)
-        Parameter vectors (``d = 0``: one row, parameter-free).
+    mus : ndarray of shape (P, d), or a sequence of pyMOR Mu
+        Parameter vectors (``d = 0``: one row, parameter-free); ``Mu`` objects are
+        flattened by :func:`mu_to_vector` with ``system.parameters``.
     dts : float or sequence of float
         Macro steps; each sample gets one drawn uniformly from this set (or the range
         ``(lo, hi)`` given as a 2-tuple ``("range", lo, hi)``).
     sampler : callable ``(mu (d,), n, rng) -> (n, 2n)``
     """
     rng = np.random.default_rng(seed)
+    if system.n_mu and len(mus) and isinstance(mus[0], Mu):
+        mus = mus_to_matrix(mus, system.parameters)
     mus = np.asarray(mus, dtype=float).reshape(-1, system.n_mu) if system.n_mu else np.zeros((1, 0))
     x0s, ms, ds = [], [], []
     for m in mus:

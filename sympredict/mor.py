@@ -43,7 +43,12 @@ from typing import Optional, Sequence
 import warnings
 
 import numpy as np
+from pymor.algorithms.projection import project
+from pymor.algorithms.symplectic import SymplecticBasis
 from pymor.core.base import BasicObject
+from pymor.models.symplectic import QuadraticHamiltonianModel
+from pymor.operators.symplectic import CanonicalSymplecticFormOperator
+from pymor.reductors.symplectic import QuadraticHamiltonianRBReductor
 from pymor.models.interface import Model
 from pymor.vectorarrays.numpy import NumpyVectorSpace
 
@@ -87,8 +92,6 @@ def _to_columns(U) -> np.ndarray:
 
 def check_symplectic_basis(RB, phase_space=None, tol: float = _SYMPLECTIC_TOL) -> float:
     """``max |V^T J_2N V - J_2n|`` of a pyMOR ``SymplecticBasis``; ``ValueError`` if not one, or above ``tol``."""
-    from pymor.algorithms.symplectic import SymplecticBasis
-    from pymor.operators.symplectic import CanonicalSymplecticFormOperator
 
     if not isinstance(RB, SymplecticBasis):
         raise ValueError(f"RB must be a pyMOR SymplecticBasis (e.g. sympredict.reduction.complex_svd_basis(...).to_pymor(...)), "
@@ -203,8 +206,6 @@ class SymplecticKernelReductor(BasicObject):
     def __init__(self, fom, RB, training_parameters, dt, predictor=None, data="reduced", *, parameter_space=None,
                  n_samples: int = 400, radius: float = 0.05, n_validation: int = 3, horizon: Optional[float] = None,
                  state_scaling: str = "diag", max_centers: int = 1000, check_existence: bool = True, seed: int = 0):
-        from pymor.models.symplectic import QuadraticHamiltonianModel
-
         if not isinstance(fom, QuadraticHamiltonianModel):
             raise ValueError(f"fom must be a pyMOR QuadraticHamiltonianModel (a Hamiltonian model), got {type(fom).__name__}")
         check_symplectic_basis(RB, fom.solution_space)
@@ -242,8 +243,6 @@ class SymplecticKernelReductor(BasicObject):
         return self.RB.to_array().lincomb(U_red.to_numpy())  # pyMOR: coefficients (2n, len)
 
     def _reduced_initial_data(self):
-        from pymor.algorithms.projection import project
-
         return project(self.fom.initial_data, self.V_plus_array, None)
 
     def _initial_state(self, mu) -> np.ndarray:
@@ -260,8 +259,6 @@ class SymplecticKernelReductor(BasicObject):
         return random_parameters(self.fom.parameters, self.mu_lo, self.mu_hi, self.n_validation, seed=self.seed + 7)
 
     def _reduced_data(self, mus, n_per_mu, seed):
-        from pymor.reductors.symplectic import QuadraticHamiltonianRBReductor
-
         if not hasattr(self, "galerkin_rom"):
             with self.logger.block("symplectic Galerkin projection (pyMOR QuadraticHamiltonianRBReductor)"):
                 self.galerkin_rom = QuadraticHamiltonianRBReductor(self.fom, self.RB).reduce()

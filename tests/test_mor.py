@@ -308,3 +308,35 @@ def test_reductor_bad_input(wave):
     rom = reductor.reduce()
     with pytest.raises(ValueError, match="does not match"):
         rom.solve(Mu({"d": np.array([0.1])}))
+
+
+# ---------------------------------------------------------------- examples (CI, small sizes)
+def _run_example(name, *args):
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    out = subprocess.run([sys.executable, str(root / "examples" / name), *args], capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr[-3000:]
+    return out.stdout
+
+
+@pytest.mark.parametrize("data", ["projected", "reduced"])
+def test_example_pymor_wave_reductor(data):
+    import re
+
+    out = _run_example("pymor_wave_reductor.py", "--T", "1", "--centers", "200", "--samples", "100", "--data", data)
+    pairs = [(float(a), float(b)) for a, b in re.findall(r"kernel ROM ([0-9.e+-]+), Galerkin ROM ([0-9.e+-]+)", out)]
+    assert len(pairs) == 3
+    assert all(k <= 1.5 * g + 1e-3 for k, g in pairs), out
+    assert "finite: True" in out
+
+
+def test_example_henon_heiles():
+    import re
+
+    out = _run_example("henon_heiles.py", "--samples", "120", "--centers", "250", "--steps", "60")
+    err10 = float(re.search(r"after 10 steps ([0-9.e+-]+)", out).group(1))
+    assert err10 < 0.1, out
+    assert float(re.search(r"symplecticity defect ([0-9.e+-]+)", out).group(1)) < 1e-9
