@@ -291,7 +291,8 @@ class SymplecticKernelReductor(BasicObject):
             trajs.append(self.project(U))
         stride = self._check_stride(h)
         k = int(round(self.horizon / h)) + 1
-        return trajectory_pairs(np.stack([t[:k] for t in trajs]), rows, h, stride)
+        # dt exactly: the predictor is a fixed-step model and the ROM queries self.dt
+        return trajectory_pairs(np.stack([t[:k] for t in trajs]), rows, self.dt / stride, stride)
 
     def _check_stride(self, h: float) -> int:
         stride = int(round(self.dt / h))
@@ -354,9 +355,11 @@ class SymplecticKernelReductor(BasicObject):
         state_scaling = SymplecticScaling(self.state_scaling).fit(np.concatenate([train.x0, train.x1]))
         mu_scaling = BoxScaling().fit(train.mu, self.mu_lo, self.mu_hi) if vary_mu else None
 
+        assert np.allclose(train.dt, self.dt) and np.allclose(val.dt, self.dt)
+
         def scaled(d):
             return FlowMapData(state_scaling.transform(d.x0), state_scaling.transform(d.x1),
-                               mu_scaling.transform(d.mu) if vary_mu else None, d.dt / self.dt)
+                               mu_scaling.transform(d.mu) if vary_mu else None, np.ones(len(d)))  # time unit dt
 
         s_train, s_val = scaled(train), scaled(val)
         if self.predictor is None:
