@@ -340,3 +340,15 @@ def test_example_henon_heiles():
     err10 = float(re.search(r"after 10 steps ([0-9.e+-]+)", out).group(1))
     assert err10 < 0.1, out
     assert float(re.search(r"symplecticity defect ([0-9.e+-]+)", out).group(1)) < 1e-9
+
+
+def test_reductor_clones_the_given_predictor(wave):
+    fom, train, RB, dt = wave
+    given = SymplecticKernelPredictor(IMQ(0.05), IMQ(0.5), None, max_centers=120)
+    reductor = SymplecticKernelReductor(fom, RB, train, dt, predictor=given, n_samples=80)
+    rom = reductor.reduce()
+    assert not given.is_fitted and reductor.predictor_.is_fitted and reductor.predictor_ is not given
+    assert reductor.predictor_.get_params()["state_kernel"] == IMQ(0.05)
+    assert len(rom.solve(fom.parameters.parse(0.1))) == round(fom.T / dt) + 1
+    with pytest.raises(ValueError, match="mu_kernel=None"):
+        SymplecticKernelReductor(fom, RB, train, dt, predictor=SymplecticKernelPredictor(IMQ(0.05)), n_samples=80).reduce()
