@@ -71,6 +71,7 @@ __all__ = [
     "trajectory_pairs",
     "type2_sigma_min",
     "check_generating_function",
+    "first_singular_step",
 ]
 
 logger = getLogger("sympredict.flowmaps")
@@ -663,6 +664,22 @@ def _broken(jac: np.ndarray, threshold: float) -> bool:
     return bool(np.any(type2_sigma_min(jac) < threshold) or np.any(np.linalg.det(block) <= 0))
 
 
+def first_singular_step(generators, threshold: float = 1e-2, n_grid: int = 800) -> float:
+    """First ``t`` where ``dp1/dp0`` of ``expm(t A)`` becomes (nearly) singular, over linear generators ``A = J H``.
+
+    Scans ``(0, 2 pi / omega_max]`` on ``n_grid`` points (``omega_max`` the largest
+    ``|Im|`` eigenvalue); returns ``pi / (2 omega_max)`` if no point breaks, ``inf``
+    for ``omega_max = 0``.  Cost ``O(n_grid * len(generators))`` matrix exponentials.
+    """
+    om = max(float(np.abs(np.linalg.eigvals(A).imag).max()) for A in generators)
+    if om == 0:
+        return np.inf
+    for t in np.linspace(0, 2 * np.pi / om, n_grid + 1)[1:]:
+        if any(_broken(expm(t * A), threshold) for A in generators):
+            return float(t)
+    return float(np.pi / (2 * om))
+
+
 def _largest_admissible_dt(system, x0, mu, dt, threshold: float) -> float:
     """The first ``dT`` of a scan where ``dp1/dp0`` becomes (nearly) singular at some point (:func:`_broken`).
 
@@ -673,15 +690,7 @@ def _largest_admissible_dt(system, x0, mu, dt, threshold: float) -> float:
     between grid points counts, so a coarse grid cannot step over the singularity.
     """
     if isinstance(system, LinearHamiltonianSystem):
-        pts = np.unique(mu, axis=0)
-        om = max(float(system.frequencies(m).max()) for m in pts)
-        if om == 0:
-            return np.inf
-        generators = [system.J @ system.matrix(m) for m in pts]
-        for t in np.linspace(0, 2 * np.pi / om, 801)[1:]:
-            if any(_broken(expm(t * A), threshold) for A in generators):
-                return float(t)
-        return float(np.pi / (2 * om))
+        return first_singular_step([system.J @ system.matrix(m) for m in np.unique(mu, axis=0)], threshold)
     sub = slice(0, min(10, len(x0)))
     grid = np.linspace(0, 4 * float(dt.max()), 41)[1:]
     for t in grid:

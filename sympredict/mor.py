@@ -43,6 +43,7 @@ from typing import Optional, Sequence
 import warnings
 
 import numpy as np
+from scipy.linalg import logm
 from pymor.algorithms.projection import project
 from pymor.algorithms.symplectic import SymplecticBasis
 from pymor.core.base import BasicObject
@@ -57,6 +58,7 @@ from sympredict.data import FlowMapData
 from sympredict.exceptions import ExtrapolationWarning
 from sympredict.flowmaps import (
     _report_existence,
+    first_singular_step,
     check_generating_function,
     linear_system_from_pymor,
     mu_to_vector,
@@ -302,8 +304,9 @@ class SymplecticKernelReductor(BasicObject):
         return stride
 
     def _check_existence_projected(self, data):
-        """Type-II check from the data: per parameter a least-squares linear fit ``x1 ~ M x0`` (exact for linear FOMs)."""
-        worst = (np.inf, None, np.inf)
+        """Type-II check from the data alone: per parameter a least-squares linear map ``x1 ~ M x0``
+        (exact for a linear FOM), its generator ``log(M) / dt`` for the largest admissible step."""
+        worst, generators = (np.inf, None), []
         for row in np.unique(data.mu, axis=0):
             sel = np.all(data.mu == row, axis=1)
             M, _, rank, _ = np.linalg.lstsq(data.x0[sel], data.x1[sel], rcond=None)
@@ -313,13 +316,12 @@ class SymplecticKernelReductor(BasicObject):
                 continue
             M = M.T
             sigma = float(type2_sigma_min(M[None])[0])
-            angle = np.abs(np.angle(np.linalg.eigvals(M))).max()
-            dt_max = np.pi / 2 * self.dt / angle if angle > 0 else np.inf
+            generators.append(np.real(logm(M)) / self.dt)
             if sigma < worst[0]:
-                worst = (sigma, row, dt_max)
+                worst = (sigma, row)
         if worst[1] is None:
             return {}
-        return _report_existence(worst[0], worst[1], self.dt, min(worst[2], np.inf), 1e-2, 0.1)
+        return _report_existence(worst[0], worst[1], self.dt, first_singular_step(generators), 1e-2, 0.1)
 
     def training_data(self):
         """Training and validation :class:`~sympredict.data.FlowMapData` in original reduced coordinates."""

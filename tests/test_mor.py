@@ -304,6 +304,8 @@ def test_reductor_bad_input(wave):
         SymplecticKernelReductor(fom, RB, [Mu({"d": np.array([0.1])})], dt)
     with pytest.raises(ValueError, match="multiple of the FOM's output step"):
         SymplecticKernelReductor(fom, RB, train, 1.55 * dt, data="projected")
+    with pytest.raises(ValueError, match=r"past the first step where it is singular.*largest admissible dT here is about 1\.[34]"):
+        SymplecticKernelReductor(fom, RB, train, 20 * dt, n_samples=50).training_data()  # omega_max dT > pi/2
     reductor = SymplecticKernelReductor(fom, RB, train, dt, n_samples=100, max_centers=100)
     rom = reductor.reduce()
     with pytest.raises(ValueError, match="does not match"):
