@@ -228,9 +228,13 @@ class _System:
     dim: int
     n_mu: int
 
+    parameters = Parameters({})
+
     def _inputs(self, x0, mu, t):
         x0, single = as_states(x0, "x0", dim=self.dim)
         b = len(x0)
+        if isinstance(mu, Mu):  # a pyMOR Mu: flattened in Parameters order (mu_to_vector)
+            mu = mu_to_vector(mu, self.parameters)
         mu = _as_mu_array(mu, b, self.n_mu)
         if mu.shape[1] != self.n_mu:
             raise ValueError(f"mu must have {self.n_mu} component(s) per instance, got shape {np.shape(mu)}")
@@ -317,10 +321,17 @@ class LinearHamiltonianSystem(_System):
     n_mu : int
     linear_term : callable ``mu (d,) -> ndarray (2n,)``, optional
         ``h(mu)``.
+    parameters : pyMOR ``Parameters`` or dict, optional
+        Names and dimensions, so that methods also take a pyMOR ``Mu`` for ``mu``.
     """
 
-    def __init__(self, matrix: Callable, dim: int, n_mu: int = 0, linear_term: Optional[Callable] = None):
+    def __init__(self, matrix: Callable, dim: int, n_mu: int = 0, linear_term: Optional[Callable] = None,
+                 parameters=None):
         self._matrix_fn = matrix
+        if parameters is not None:
+            self.parameters = Parameters(parameters)
+            if self.parameters.dim != n_mu:
+                raise ValueError(f"parameters {dict(self.parameters)} have dimension {self.parameters.dim}, n_mu = {n_mu}")
         self._h_fn = linear_term
         self.dim = as_positive_int(dim, "dim", minimum=2)
         self.n_mu = int(n_mu)
@@ -447,7 +458,7 @@ def linear_system_from_pymor(model) -> LinearHamiltonianSystem:
         return h.to_numpy().ravel() if hasattr(h, "to_numpy") else np.hstack([b.to_numpy().ravel() for b in h.blocks])
 
     dim = model.H_op.source.dim
-    return LinearHamiltonianSystem(matrix, dim, params.dim, linear_term)
+    return LinearHamiltonianSystem(matrix, dim, params.dim, linear_term, parameters=params)
 
 
 # ---------------------------------------------------------------- samplers
