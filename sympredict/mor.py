@@ -196,8 +196,10 @@ class SymplecticKernelReductor(BasicObject):
         Number of validation parameters (random in the box).
     horizon : float, optional
         Time span of the trajectories sampled (default ``fom.T``).
-    state_scaling : {"diag", "uniform", "none"}
-        :class:`~sympredict.scaling.SymplecticScaling` mode.
+    state_scaling : {"diag", "uniform", "williamson", "none"}
+        :class:`~sympredict.scaling.SymplecticScaling` mode; ``"williamson"``
+        (``data="reduced"`` only) uses the Williamson form of ``V^T H(mu) V`` at
+        the centre of the parameter box.
     max_centers : int
         Budget of the default predictor.
     check_existence : bool
@@ -213,6 +215,8 @@ class SymplecticKernelReductor(BasicObject):
         check_symplectic_basis(RB, fom.solution_space)
         if data not in ("reduced", "projected"):
             raise ValueError(f"data must be 'reduced' or 'projected', got {data!r}")
+        if state_scaling == "williamson" and data != "reduced":
+            raise ValueError("state_scaling='williamson' needs the reduced operator: use data='reduced' or 'diag'")
         if not (np.isfinite(dt) and dt > 0):
             raise ValueError(f"dt must be a positive float, got {dt!r}")
         if not fom.parameters:
@@ -354,7 +358,11 @@ class SymplecticKernelReductor(BasicObject):
             train, val = self.training_data()
         self.train_data_, self.validation_data_ = train, val
         vary_mu = train.mu.shape[1] > 0 and bool(np.any(np.ptp(train.mu, axis=0) > 0))
-        state_scaling = SymplecticScaling(self.state_scaling).fit(np.concatenate([train.x0, train.x1]))
+        reference = None
+        if self.state_scaling == "williamson":
+            centre = 0.5 * (self.mu_lo + self.mu_hi)
+            reference = self.reduced_system.matrix(centre)
+        state_scaling = SymplecticScaling(self.state_scaling, reference).fit(np.concatenate([train.x0, train.x1]))
         mu_scaling = BoxScaling().fit(train.mu, self.mu_lo, self.mu_hi) if vary_mu else None
 
         assert np.allclose(train.dt, self.dt) and np.allclose(val.dt, self.dt)

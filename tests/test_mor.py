@@ -168,6 +168,36 @@ def test_scaled_predictor_step_is_symplectic():
     assert np.abs(flow.step(x0[:5], mu=[1.0], dt=0.05) - x0[:5]).max() > 1e-3
 
 
+def test_williamson_form_is_symplectic_and_diagonalizes():
+    from sympredict.scaling import williamson
+
+    rng = np.random.default_rng(3)
+    A = rng.normal(size=(6, 6))
+    H = A @ A.T + 0.5 * np.eye(6)
+    S, d = williamson(H)
+    J = np.block([[np.zeros((3, 3)), np.eye(3)], [-np.eye(3), np.zeros((3, 3))]])
+    np.testing.assert_allclose(S.T @ J @ S, J, atol=1e-10)
+    np.testing.assert_allclose(S.T @ H @ S, np.diag(np.concatenate([d, d])), atol=1e-10 * np.abs(H).max())
+    # symplectic eigenvalues = |eigenvalues of J H| (the modal frequencies)
+    np.testing.assert_allclose(np.sort(d), np.sort(np.abs(np.linalg.eigvals(J @ H).imag))[::2], rtol=1e-9)
+    with pytest.raises(ValueError, match="SPD"):
+        williamson(-H)
+
+
+def test_reductor_with_williamson_scaling(wave):
+    fom, train, RB, dt = wave
+    red = SymplecticKernelReductor(fom, RB, train, dt, n_samples=200, max_centers=300, state_scaling="williamson")
+    rom = red.reduce()
+    mu = fom.parameters.parse(0.111)
+    gal = QuadraticHamiltonianRBReductor(fom, RB)
+    e_gal = relative_error(fom, gal.reconstruct(gal.reduce().solve(mu))[::10], mu)
+    assert relative_error(fom, red.reconstruct(rom.solve(mu)), mu) <= 1.5 * e_gal + 1e-3
+    x = rom.solve(mu).to_numpy().T[:4]
+    assert assert_symplectic_step(rom.flow_map, x, mu=[0.111], dt=dt, atol=1e-8, fd_h=1e-3, fd_atol=1e-3)["analytic"] < 1e-8
+    with pytest.raises(ValueError, match="williamson"):
+        SymplecticKernelReductor(fom, RB, train, dt, data="projected", state_scaling="williamson")
+
+
 # ---------------------------------------------------------------- sympredict.testing
 def test_testing_assertions_fail_with_clear_messages():
     class Stretch:
