@@ -35,7 +35,7 @@ mu_ref = C_REF**2
 energy = fom.reference_energy(mu_ref)                      # unit-amplitude fundamental mode
 x0 = fom.low_frequency_states(10, 2, mu_ref, energy, seed=0)
 snapshots = fom.trajectory(x0, mu_ref, 0.02, 300).reshape(-1, fom.dim)
-basis = complex_svd_basis(snapshots, n=2)
+basis = complex_svd_basis(snapshots, n=2, layout="rows")
 print(f"singular values {basis.singular_values[:4]}, V^T J V - J: {symplecticity_of_basis(basis.V):.1e}")
 
 # 3. reduction (pyMOR's QuadraticHamiltonianRBReductor inside)

@@ -18,6 +18,7 @@ __all__ = [
     "ModelFileError",
     "NotFittedError",
     "ExtrapolationWarning",
+    "GeneratingFunctionWarning",
     "extrapolation_expected",
 ]
 
@@ -90,6 +91,11 @@ class SolvabilityError(SympredictError):
 
 class ExtrapolationWarning(UserWarning):
     """A query lies outside the box spanned by the training data (extrapolation is allowed)."""
+
+
+class GeneratingFunctionWarning(UserWarning):
+    """The type-II generating function ``s(q0, p1)`` is close to not existing on the data
+    (``dp1/dp0`` nearly singular): the macro step is close to its largest admissible value."""
 
 
 @contextlib.contextmanager

@@ -28,10 +28,11 @@ from pymor.core.logger import getLogger
 from scipy.linalg import svd
 
 from sympredict._checks import as_real_array
+from sympredict.flowmaps import linear_system_from_pymor
 from sympredict.metrics import canonical_J
 from sympredict.systems.quadratic import QuadraticHamiltonian
 
-__all__ = ["ComplexSVDBasis", "complex_svd_basis", "symplectic_inverse", "symplecticity_of_basis", "SymplecticROM"]
+__all__ = ["ComplexSVDBasis", "snapshot_rows", "basis_columns", "complex_svd_basis", "symplectic_inverse", "symplecticity_of_basis", "SymplecticROM"]
 
 logger = getLogger("sympredict.reduction")
 
@@ -74,34 +75,88 @@ class ComplexSVDBasis:
         return SymplecticBasis(E, F)
 
 
-def complex_svd_basis(snapshots: np.ndarray, n: Optional[int] = None, tol: Optional[float] = None) -> ComplexSVDBasis:
+def snapshot_rows(snapshots, layout: Optional[str] = None) -> np.ndarray:
+    """Snapshots as rows ``(K, 2N)`` ordered ``(q, p)``, from a VectorArray or an ndarray of known layout.
+
+    Parameters
+    ----------
+    snapshots : VectorArray or ndarray
+        A pyMOR VectorArray (a blocked ``(q, p)`` phase space or a NumPy space of
+        even dimension; any length), or an ndarray of shape ``(K, 2N)``
+        (``layout="rows"``, sympredict's convention) or ``(2N, K)``
+        (``layout="columns"``, what pyMOR's ``to_numpy()`` returns).
+    layout : {None, "rows", "columns"}
+        Needed for an ndarray whose orientation cannot be told from its shape:
+        ``None`` accepts only ``(K, 2N)`` with ``K`` odd; a ``(2N, K)`` array
+        with ``K`` odd, or any array with two even dimensions, is refused
+        (never silently transposed).
+
+    Returns
+    -------
+    ndarray of shape (K, 2N)
+    """
+    if hasattr(snapshots, "space") and hasattr(snapshots, "to_numpy"):
+        if layout is not None:
+            raise ValueError("layout applies to ndarrays only: a VectorArray knows its orientation")
+        cols = np.vstack([b.to_numpy() for b in snapshots.blocks]) if hasattr(snapshots, "blocks") else snapshots.to_numpy()
+        return np.ascontiguousarray(as_real_array(cols, "snapshots").T)
+    arr = as_real_array(snapshots, "snapshots")  # complex, strings, NaN/Inf refused
+    if arr.ndim != 2 or arr.size == 0:
+        raise ValueError(f"snapshots must have shape (K, 2N) with K >= 1, got {arr.shape}")
+    if layout == "rows":
+        return arr
+    if layout == "columns":
+        return np.ascontiguousarray(arr.T)
+    if layout is not None:
+        raise ValueError(f"layout must be None, 'rows' or 'columns', got {layout!r}")
+    k, d = arr.shape
+    if d % 2 and k % 2 == 0:
+        raise ValueError(
+            f"snapshots of shape {arr.shape} look like pyMOR's (dim, len) layout (an odd number of columns "
+            "cannot be a phase space (q, p)): pass layout='columns', or the VectorArray itself"
+        )
+    if d % 2 == 0 and k % 2 == 0:
+        raise ValueError(
+            f"snapshots of shape {arr.shape} are ambiguous: pass layout='rows' for (K, 2N) = (snapshots, dimension) "
+            "or layout='columns' for pyMOR's (2N, K), or pass the VectorArray itself"
+        )
+    return arr
+
+
+def complex_svd_basis(snapshots, n: Optional[int] = None, tol: Optional[float] = None, *,
+                      layout: Optional[str] = None) -> ComplexSVDBasis:
     """PSD complex-SVD symplectic basis from phase-space snapshots.
 
     Parameters
     ----------
-    snapshots : ndarray of shape (K, 2N)
-        Snapshot states ordered ``(q, p)``.
+    snapshots : VectorArray, or ndarray of shape (K, 2N) / (2N, K)
+        Snapshot states ordered ``(q, p)``; see :func:`snapshot_rows` (an
+        ndarray whose orientation is ambiguous needs ``layout``).
     n
         Number of complex modes (reduced dimension ``2n``).
     tol
         Alternatively, the smallest ``n`` whose relative projection error
         ``sqrt(sum_{k>n} s_k^2 / sum s_k^2)`` is ``<= tol``.
+    layout : {None, "rows", "columns"}
+        Orientation of an ndarray (:func:`snapshot_rows`).
 
     Returns
     -------
     ComplexSVDBasis
+        ``to_pymor(phase_space)`` gives the pyMOR ``SymplecticBasis``.
 
     Raises
     ------
     ValueError
-        If neither or both of ``n`` and ``tol`` are given, or ``n`` exceeds the
-        numerical rank of the snapshots (singular values below ``1e-12 s_1``).
+        If neither or both of ``n`` and ``tol`` are given, ``n`` exceeds the
+        numerical rank of the snapshots (singular values below ``1e-12 s_1``),
+        or the orientation of an ndarray is ambiguous.
 
     Notes
     -----
     ``O(N K min(N, K))`` for the SVD; memory ``16 N K`` bytes for ``X``.
     """
-    snapshots = as_real_array(snapshots, "snapshots")  # complex, strings, NaN/Inf refused
+    snapshots = snapshot_rows(snapshots, layout)  # complex, strings, NaN/Inf refused there
     if snapshots.ndim != 2 or snapshots.shape[1] % 2 or snapshots.shape[1] == 0 or len(snapshots) == 0:
         raise ValueError(f"snapshots must have shape (K, 2N) with K >= 1, got {snapshots.shape}")
     if (n is None) == (tol is None):
@@ -134,19 +189,51 @@ def symplectic_inverse(V: np.ndarray) -> np.ndarray:
     return canonical_J(V.shape[1]).T @ V.T @ canonical_J(V.shape[0])
 
 
-def symplecticity_of_basis(V: np.ndarray) -> float:
-    """``max |V^T J_2N V - J_2n|``."""
+def basis_columns(V) -> np.ndarray:
+    """A basis as a (2N, 2n) array: from an ndarray, a ``ComplexSVDBasis`` or a pyMOR ``SymplecticBasis``.
+
+    Raises
+    ------
+    ValueError
+        For an ndarray with fewer rows than columns (a transposed basis ``(2n, 2N)``)
+        or odd dimensions.
+    """
+    if isinstance(V, ComplexSVDBasis):
+        return V.V
+    if hasattr(V, "to_array") and hasattr(V, "phase_space"):  # pyMOR SymplecticBasis
+        return snapshot_rows(V.to_array()).T
+    V = np.asarray(V, dtype=float)
+    if V.ndim != 2 or V.shape[0] % 2 or V.shape[1] % 2 or V.size == 0:
+        raise ValueError(f"a symplectic basis must have shape (2N, 2n) with even sizes, got {np.shape(V)}")
+    if V.shape[0] < V.shape[1]:
+        raise ValueError(
+            f"the basis has shape {V.shape}: fewer rows than columns, so it is transposed; a basis is (2N, 2n), "
+            "one column per basis vector (pass V.T)"
+        )
+    return V
+
+
+def symplecticity_of_basis(V) -> float:
+    """``max |V^T J_2N V - J_2n|`` of a (2N, 2n) basis (ndarray, ``ComplexSVDBasis`` or pyMOR ``SymplecticBasis``).
+
+    Raises
+    ------
+    ValueError
+        For a transposed ndarray basis (:func:`basis_columns`).
+    """
+    V = basis_columns(V)
     return float(np.abs(V.T @ canonical_J(V.shape[0]) @ V - canonical_J(V.shape[1])).max())
 
 
 class SymplecticROM:
-    """``fom -> reductor.reduce() -> rom`` for a wave FOM, plus NumPy projection and reconstruction.
+    """``fom -> reductor.reduce() -> rom`` (symplectic Galerkin), plus NumPy projection and reconstruction.
 
     Parameters
     ----------
-    fom : sympredict.systems.wave.WaveFOM
-        The full-order model (its ``model`` is a pyMOR ``QuadraticHamiltonianModel``).
-    basis : ComplexSVDBasis
+    fom : pymor.models.symplectic.QuadraticHamiltonianModel or sympredict.systems.wave.WaveFOM
+        The full-order model: any pyMOR quadratic Hamiltonian model (identity
+        mass), or a ``WaveFOM`` (its ``model`` is used).
+    basis : ComplexSVDBasis or pymor.algorithms.symplectic.SymplecticBasis
         A symplectic basis of the FOM's phase space.
     symplectic_tol
         Largest accepted ``max |V^T J V - J|``.
@@ -154,28 +241,50 @@ class SymplecticROM:
     Attributes
     ----------
     reductor : pymor.reductors.symplectic.QuadraticHamiltonianRBReductor
-    rom : pyMOR reduced model (``V^T H(mu) V``, affine in ``mu``)
-    system : QuadraticHamiltonian
-        The reduced Hamiltonian as two dense ``2n x 2n`` matrices, for NumPy stepping.
+    rom : pyMOR reduced model (``V^T H(mu) V``)
+    system : QuadraticHamiltonian or sympredict.flowmaps.LinearHamiltonianSystem
+        The reduced Hamiltonian for NumPy stepping: a ``QuadraticHamiltonian``
+        (``H0 + mu H1``, scalar ``mu``) when the model has one scalar affine
+        parameter named ``mu`` (the wave), otherwise a ``LinearHamiltonianSystem``
+        assembling ``V^T H(mu) V`` per parameter vector
+        (:func:`sympredict.flowmaps.mu_to_vector` order).
     V, V_plus : ndarray of shapes (2N, 2n), (2n, 2N)
     """
 
-    def __init__(self, fom, basis: ComplexSVDBasis, symplectic_tol: float = 1e-10):
+    def __init__(self, fom, basis, symplectic_tol: float = 1e-10):
+        from pymor.algorithms.symplectic import SymplecticBasis
+        from pymor.models.symplectic import QuadraticHamiltonianModel
         from pymor.reductors.symplectic import QuadraticHamiltonianRBReductor
 
-        if basis.V.shape[0] != fom.dim:
-            raise ValueError(f"basis has {basis.V.shape[0]} rows but the FOM phase space has dimension {fom.dim}")
-        defect = symplecticity_of_basis(basis.V)
+        model = getattr(fom, "model", fom)
+        if not isinstance(model, QuadraticHamiltonianModel):
+            raise ValueError(f"fom must be a pyMOR QuadraticHamiltonianModel (or a WaveFOM), got {type(fom).__name__}")
+        phase_space = model.solution_space
+        V = basis_columns(basis)
+        if V.shape[0] != phase_space.dim:
+            raise ValueError(f"basis has {V.shape[0]} rows but the FOM phase space has dimension {phase_space.dim}")
+        if isinstance(basis, SymplecticBasis) and basis.phase_space != phase_space:
+            raise ValueError(f"basis lives in {basis.phase_space}, the FOM in {phase_space}: mismatched spaces")
+        defect = symplecticity_of_basis(V)
         if defect > symplectic_tol:
             raise ValueError(f"the basis is not symplectic: max |V^T J V - J| = {defect:.2e} > {symplectic_tol:.0e}")
         self.fom = fom
+        self.model = model
         self.basis = basis
-        self.V = basis.V
-        self.V_plus = symplectic_inverse(basis.V)
-        with logger.block(f"symplectic Galerkin projection onto 2n = {basis.V.shape[1]}"):
-            self.reductor = QuadraticHamiltonianRBReductor(fom.model, basis.to_pymor(fom.phase_space))
+        self.V = V
+        self.V_plus = symplectic_inverse(V)
+        rb = basis if isinstance(basis, SymplecticBasis) else basis.to_pymor(phase_space)
+        with logger.block(f"symplectic Galerkin projection onto 2n = {V.shape[1]}"):
+            self.reductor = QuadraticHamiltonianRBReductor(model, rb)
             self.rom = self.reductor.reduce()
-        self.system = QuadraticHamiltonian.from_pymor(self.rom.H_op)
+        params = self.rom.H_op.parameters
+        if set(params) == {"mu"} and params["mu"] == 1:
+            try:
+                self.system = QuadraticHamiltonian.from_pymor(self.rom.H_op)
+            except ValueError:  # not affine in mu: assemble per parameter
+                self.system = linear_system_from_pymor(self.rom)
+        else:
+            self.system = linear_system_from_pymor(self.rom)
 
     @property
     def dim(self) -> int:
@@ -183,7 +292,11 @@ class SymplecticROM:
         return self.V.shape[1]
 
     def project(self, x) -> np.ndarray:
-        """Reduced coordinates ``V+ x`` of full states (..., 2N) -> (..., 2n)."""
+        """Reduced coordinates ``V+ x`` of full states (..., 2N) -> (..., 2n), or of a VectorArray -> (len, 2n)."""
+        if hasattr(x, "space"):
+            if x.space != self.model.solution_space:
+                raise ValueError(f"x must lie in the FOM's solution space {self.model.solution_space}, got {x.space}")
+            x = snapshot_rows(x)
         return np.asarray(x) @ self.V_plus.T
 
     def reconstruct(self, x_red) -> np.ndarray:

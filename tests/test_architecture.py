@@ -24,7 +24,7 @@ LAYERS = [
     ("surrogate, Newton solvers, integrators", ["surrogate", "newton", "integrators", "integrators_compiled"]),
     ("systems", ["systems"]),
     ("estimators", ["predictor", "sympredict"]),
-    ("selection, io, mor", ["selection", "io", "reduction", "mor", "flowmaps", "testing"]),
+    ("selection, io, mor", ["selection", "io", "reduction", "mor", "flowmaps", "scaling", "testing"]),
     ("experiments", ["experiments"]),
     ("report", ["report", "plotting"]),
     ("cli", ["cli"]),

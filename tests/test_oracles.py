@@ -99,7 +99,7 @@ def test_symplectic_inverse_of_a_non_orthonormal_symplectic_basis(rng):
     """``V = [[I, B], [0, I]] V0`` with ``B`` symmetric is symplectic, not orthonormal: ``V+ = J^T V^T J != V^T``."""
     big_n, n = 5, 2
     snapshots = rng.normal(size=(30, 2 * big_n))
-    V0 = complex_svd_basis(snapshots, n=n).V
+    V0 = complex_svd_basis(snapshots, n=n, layout="rows").V
     B = rng.normal(size=(big_n, big_n))
     B = B + B.T
     S = np.block([[np.eye(big_n), B], [np.zeros((big_n, big_n)), np.eye(big_n)]])
@@ -121,12 +121,12 @@ def test_projection_error_is_the_relative_snapshot_residual(rng):
     """``projection_error`` = ``||S - S V V^T||_F / ||S||_F`` for the snapshots ``S`` (rows), computed directly."""
     snapshots = rng.normal(size=(40, 10)) * np.geomspace(1.0, 1e-3, 10)
     for n in (1, 2, 4):
-        basis = complex_svd_basis(snapshots, n=n)
+        basis = complex_svd_basis(snapshots, n=n, layout="rows")
         V = basis.V
         direct = np.linalg.norm(snapshots - snapshots @ V @ V.T) / np.linalg.norm(snapshots)
         assert basis.projection_error == pytest.approx(direct, rel=1e-10)
         # and tol picks the smallest n that meets it
-        assert complex_svd_basis(snapshots, tol=basis.projection_error * (1 + 1e-9)).n == n
+        assert complex_svd_basis(snapshots, tol=basis.projection_error * (1 + 1e-9), layout="rows").n == n
 
 
 # ------------------------------------------------------------------ 4-D step Jacobian

@@ -53,7 +53,7 @@ def test_pymor_model_solution_matches_numpy_reference(fom):
 
 
 def test_complex_svd_basis_is_symplectic_and_orthonormal(snapshots):
-    basis = complex_svd_basis(snapshots, n=3)
+    basis = complex_svd_basis(snapshots, n=3, layout="rows")
     V = basis.V
     assert symplecticity_of_basis(V) < 1e-13
     np.testing.assert_allclose(V.T @ V, np.eye(6), atol=1e-13)
@@ -61,15 +61,15 @@ def test_complex_svd_basis_is_symplectic_and_orthonormal(snapshots):
     assert np.all(np.diff(basis.singular_values) <= 0)
     # the snapshots live in 3 sine modes: the basis captures them
     assert basis.projection_error < 1e-10
-    assert complex_svd_basis(snapshots, tol=1e-8).n == 3
-    assert complex_svd_basis(snapshots, tol=0.5).n < 3
+    assert complex_svd_basis(snapshots, tol=1e-8, layout="rows").n == 3
+    assert complex_svd_basis(snapshots, tol=0.5, layout="rows").n < 3
 
 
 def test_basis_errors(snapshots):
     with pytest.raises(ValueError, match="exceeds the numerical rank 3"):
-        complex_svd_basis(snapshots, n=4)
+        complex_svd_basis(snapshots, n=4, layout="rows")
     with pytest.raises(ValueError, match="exactly one"):
-        complex_svd_basis(snapshots)
+        complex_svd_basis(snapshots, layout="rows")
     with pytest.raises(ValueError, match="NaN"):
         complex_svd_basis(np.full((3, 8), np.nan), n=1)
     with pytest.raises(ValueError, match="shape"):
@@ -77,7 +77,7 @@ def test_basis_errors(snapshots):
 
 
 def test_reduced_operator_and_reconstruction(fom, snapshots, rng):
-    basis = complex_svd_basis(snapshots, n=3)
+    basis = complex_svd_basis(snapshots, n=3, layout="rows")
     rom = SymplecticROM(fom, basis)
     for mu in rng.uniform(0.04, 0.09, 3):
         direct = basis.V.T @ fom.hamiltonian_matrix(mu).toarray() @ basis.V
@@ -95,7 +95,7 @@ def test_reduced_operator_and_reconstruction(fom, snapshots, rng):
 
 
 def test_rom_rejects_bad_bases_and_parameters(fom, snapshots):
-    basis = complex_svd_basis(snapshots, n=2)
+    basis = complex_svd_basis(snapshots, n=2, layout="rows")
     bad = type(basis)(V=basis.V * 1.1, singular_values=basis.singular_values, n=2)
     with pytest.raises(ValueError, match="not symplectic"):
         SymplecticROM(fom, bad)

@@ -1,0 +1,219 @@
+"""Assertions for your own pytest suites: symplectic steps, bounded energy, ROM vs FOM, symplectic bases.
+
+Each raises ``AssertionError`` with a message that names the worst instance
+and the measured value against the tolerance, e.g. ::
+
+    from sympredict.testing import assert_symplectic_step, assert_energy_bounded
+
+    def test_my_model_is_symplectic(model, states):
+        assert_symplectic_step(model, states, mu=0.75, dt=0.05)
+
+    def test_energy(model, system, x0):
+        traj = model.rollout(x0, 10_000, mu=0.75, dt=0.05)
+        assert_energy_bounded(system.hamiltonian, traj, mu=0.75, rtol=1e-3)
+
+A *model* here is anything with ``step(x, mu=, dt=)`` and (for the analytic
+check) ``step_jacobian(x, mu=, dt=)``: a fitted
+:class:`~sympredict.SymplecticKernelPredictor`, or the flow map of a
+:class:`~sympredict.mor.SymplecticKernelModel` (``rom.flow_map``).
+"""
+
+from __future__ import annotations
+
+from typing import Callable, Optional, Sequence
+
+import warnings
+
+import numpy as np
+
+from sympredict.exceptions import ExtrapolationWarning
+from sympredict.metrics import canonical_J
+from sympredict.reduction import symplecticity_of_basis
+
+__all__ = ["assert_symplectic_step", "assert_energy_bounded", "assert_rom_matches_fom", "assert_symplectic_basis",
+           "finite_difference_jacobian"]
+
+
+def finite_difference_jacobian(step: Callable, x: np.ndarray, h: float = 1e-4) -> np.ndarray:
+    """Central-difference Jacobian of a batched map ``step (B, 2n) -> (B, 2n)``, Richardson-extrapolated; (B, 2n, 2n).
+
+    Per component the step is ``h * (|x_i| + 1e-2 |x|_inf)`` (components of
+    very different sizes each get a relative step); ``(4 D(h/2) - D(h)) / 3``
+    removes the ``O(h^2)`` term.  ``4 * 2n`` batched calls of ``step``.
+    """
+    x = np.atleast_2d(np.asarray(x, dtype=float))
+    b, d = x.shape
+    base = h * (np.abs(x) + 1e-2 * np.abs(x).max(axis=1, keepdims=True) + np.finfo(float).tiny)
+
+    def central(hh):
+        cols = []
+        for i in range(d):
+            e = np.zeros((b, d))
+            e[:, i] = hh[:, i]
+            cols.append((step(x + e) - step(x - e)) / (2 * hh[:, i : i + 1]))
+        return np.stack(cols, axis=2)
+
+    return (4 * central(base / 2) - central(base)) / 3
+
+
+def _defect(jac: np.ndarray) -> np.ndarray:
+    J = canonical_J(jac.shape[-1])
+    return np.abs(np.swapaxes(jac, -1, -2) @ J @ jac - J).max(axis=(-2, -1))
+
+
+def assert_symplectic_step(model, x, mu=None, dt=None, atol: float = 1e-8, fd: bool = True, fd_h: float = 1e-4,
+                           fd_atol: float = 1e-5) -> dict:
+    """Assert ``D Phi^T J D Phi = J`` for the learned step at the states ``x``.
+
+    Checks the analytic Jacobian (``model.step_jacobian``, if the model has
+    one) to ``atol`` (max-norm), and, with ``fd``, an independent
+    central-difference Jacobian of ``model.step`` to ``fd_atol`` (its own error
+    is ``O(fd_h^2)`` plus round-off over ``fd_h``, and the defect is quadratic in
+    ``D Phi``: the bound is ``fd_atol * max(1, max|D Phi|^2)``); the two Jacobians
+    must agree to ``fd_atol * max(1, max|D Phi|)``.
+
+    Parameters
+    ----------
+    x : array_like of shape (B, 2n)
+    mu, dt
+        As the model's ``step`` takes them (fixed for the batch).
+
+    Returns
+    -------
+    dict
+        ``analytic`` and ``finite_differences``: max defects.
+
+    ``ExtrapolationWarning`` is silenced here: the perturbed states may leave
+    the training box by ``fd_h``.
+    """
+    x = np.atleast_2d(np.asarray(x, dtype=float))
+    with warnings.catch_warnings():
+        # the perturbed states of the finite differences may leave the training box by a hair
+        warnings.simplefilter("ignore", ExtrapolationWarning)
+        return _symplectic_step(model, x, mu, dt, atol, fd, fd_h, fd_atol)
+
+
+def _symplectic_step(model, x, mu, dt, atol, fd, fd_h, fd_atol) -> dict:
+    out = {}
+    jac = None
+    if hasattr(model, "step_jacobian"):
+        jac = np.asarray(model.step_jacobian(x, mu=mu, dt=dt)).reshape(len(x), x.shape[1], x.shape[1])
+        d = _defect(jac)
+        i = int(np.argmax(d))
+        out["analytic"] = float(d[i])
+        if not d[i] <= atol:
+            raise AssertionError(f"the step is not symplectic: max |DPhi^T J DPhi - J| = {d[i]:.3e} > atol = {atol:.1e} "
+                                 f"(analytic Jacobian) at state #{i} {x[i].tolist()}")
+    if fd:
+        fdj = finite_difference_jacobian(lambda z: np.asarray(model.step(z, mu=mu, dt=dt)), x, fd_h)
+        # the defect is quadratic in DPhi: its FD error scales with max(1, |DPhi|^2)
+        scale = np.maximum(1.0, np.abs(fdj).max(axis=(1, 2)) ** 2)
+        d = _defect(fdj)
+        i = int(np.argmax(d / scale))
+        out["finite_differences"] = float(d[i])
+        if not d[i] <= fd_atol * scale[i]:
+            raise AssertionError(f"the step is not symplectic: max |DPhi^T J DPhi - J| = {d[i]:.3e} > fd_atol * "
+                                 f"max(1, |DPhi|^2) = {fd_atol * scale[i]:.1e} (finite-difference Jacobian, h = {fd_h:g}) "
+                                 f"at state #{i} {x[i].tolist()}")
+        if jac is not None:
+            gap = np.abs(fdj - jac).max(axis=(1, 2))
+            i = int(np.argmax(gap))
+            if not gap[i] <= fd_atol * max(1.0, np.abs(jac[i]).max()):
+                raise AssertionError(f"step_jacobian disagrees with finite differences of step by {gap[i]:.3e} "
+                                     f"(> {fd_atol:.1e}) at state #{i} {x[i].tolist()}")
+    return out
+
+
+def assert_energy_bounded(hamiltonian: Callable, trajectories, mu=None, rtol: float = 1e-3, atol: float = 0.0) -> float:
+    """Assert ``|H(x_k) - H(x_0)| <= rtol |H(x_0)| + atol`` along trajectories (e.g. a long rollout).
+
+    Parameters
+    ----------
+    hamiltonian : callable ``(x (M, 2n), mu) -> (M,)``
+        E.g. ``system.hamiltonian``; called with ``mu`` repeated per state when ``mu`` is not None.
+    trajectories : ndarray of shape (B, K+1, 2n) or (K+1, 2n)
+
+    Returns
+    -------
+    float
+        The largest relative energy error.
+    """
+    traj = np.asarray(trajectories, dtype=float)
+    if traj.ndim == 2:
+        traj = traj[None]
+    b, k1, d = traj.shape
+    if not np.all(np.isfinite(traj)):
+        bad = np.argwhere(~np.isfinite(traj).all(axis=2))[0]
+        raise AssertionError(f"trajectory #{bad[0]} is not finite from step {bad[1]} on")
+    flat = traj.reshape(-1, d)
+    if mu is None:
+        energy = np.asarray(hamiltonian(flat)).reshape(b, k1)
+    else:
+        m = np.asarray(mu, dtype=float)
+        m = np.repeat(m.reshape(b, -1), k1, axis=0) if m.ndim and m.shape[0] == b and b > 1 else np.broadcast_to(m.reshape(1, -1), (b * k1, m.size))
+        energy = np.asarray(hamiltonian(flat, m if m.shape[1] > 1 else m[:, 0])).reshape(b, k1)
+    err = np.abs(energy - energy[:, :1])
+    bound = rtol * np.abs(energy[:, :1]) + atol
+    worst = np.unravel_index(np.argmax(err - bound), err.shape)
+    rel = err / np.maximum(np.abs(energy[:, :1]), np.finfo(float).tiny)
+    if np.any(err > bound):
+        raise AssertionError(f"energy error not bounded: |H(x_k) - H(x_0)| = {err[worst]:.3e} > "
+                             f"{bound[worst[0], 0]:.3e} (rtol {rtol:.1e}, atol {atol:.1e}) in trajectory #{worst[0]} at "
+                             f"step {worst[1]} of {k1 - 1} (H(x_0) = {energy[worst[0], 0]:.6g})")
+    return float(rel.max())
+
+
+def assert_rom_matches_fom(fom, rom, mus: Sequence, rtol: float, reconstruct: Optional[Callable] = None,
+                           stride: Optional[int] = None) -> list:
+    """Assert ``|u_fom(t_k) - V u_rom(t_k)| <= rtol max_k |u_fom(t_k)|`` on the ROM's time grid for each ``mu``.
+
+    Parameters
+    ----------
+    fom, rom : pyMOR models
+        ``rom.solve(mu)`` gives states at ``t_k = k T / (len - 1)``; ``fom.solve(mu)`` on a finer grid
+        that contains the ROM's (every ``stride``-th FOM state; inferred from the lengths).
+    mus : sequence of pyMOR Mu
+    reconstruct : callable, optional
+        ``U_red -> VectorArray in fom.solution_space`` (e.g. ``reductor.reconstruct``); default identity.
+
+    Returns
+    -------
+    list of float
+        Per ``mu``, the largest error relative to the largest FOM state norm.
+    """
+    errors = []
+    for mu in mus:
+        U = fom.solve(mu)
+        R = rom.solve(mu)
+        R = reconstruct(R) if reconstruct is not None else R
+        s = stride
+        if s is None:
+            s = (len(U) - 1) // max(1, len(R) - 1)
+            if s < 1 or (len(R) - 1) * s > len(U) - 1:
+                raise AssertionError(f"cannot align the ROM's {len(R)} states with the FOM's {len(U)}: pass stride")
+        Uc = U[::s][: len(R)]
+        if len(Uc) != len(R):
+            raise AssertionError(f"the FOM grid (every {s}-th of {len(U)}) does not cover the ROM's {len(R)} states")
+        err = (Uc - R).norm()
+        scale = Uc.norm().max()
+        k = int(np.argmax(err))
+        rel = float(err[k] / scale)
+        errors.append(rel)
+        if not rel <= rtol:
+            raise AssertionError(f"ROM differs from FOM at mu = {mu}, time index {k} (of {len(R) - 1}): "
+                                 f"|u_fom - V u_rom| / max|u_fom| = {rel:.3e} > rtol = {rtol:.1e}")
+    return errors
+
+
+def assert_symplectic_basis(V, atol: float = 1e-10) -> float:
+    """Assert ``V^T J_2N V = J_2n`` (max-norm ``atol``) for an ndarray (2N, 2n), ``ComplexSVDBasis`` or pyMOR ``SymplecticBasis``.
+
+    A transposed ndarray basis fails with a message saying so.
+    """
+    try:
+        defect = symplecticity_of_basis(V)
+    except ValueError as exc:
+        raise AssertionError(f"not a valid basis: {exc}") from None
+    if not defect <= atol:
+        raise AssertionError(f"the basis is not symplectic: max |V^T J V - J| = {defect:.3e} > atol = {atol:.1e}")
+    return defect
