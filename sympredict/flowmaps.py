@@ -482,28 +482,51 @@ def sample_energy_ellipsoid(system: LinearHamiltonianSystem, n: int, mu, energy:
     return np.sqrt(2.0 * energy) * np.linalg.solve(L.T, _unit_ball(rng, n, system.dim).T).T
 
 
-def sample_energy_box(system, n: int, mu, energy: float, lo, hi, rng, max_tries: int = 1000) -> np.ndarray:
+def sample_energy_box(system, n: int, mu, energy: float, lo, hi, rng, max_tries: int = 1000, strict: bool = False):
     """States uniform in ``{x in [lo, hi] : H(x; mu) <= energy}`` by rejection, shape (n, 2n).
+
+    Parameters
+    ----------
+    mu
+        The parameter vector, or a callable ``draw(size) -> (size,) or (size, d_mu)`` giving each
+        candidate state its own parameter (drawn after the states of each round); then the
+        accepted parameters are returned too.
+    strict
+        Accept ``H < energy`` instead of ``H <= energy``.
+    max_tries
+        Rounds of ``2 n`` candidates before giving up.
+
+    Returns
+    -------
+    ndarray of shape (n, 2n), and with a callable ``mu`` the accepted parameters (n,) or (n, d_mu)
 
     Raises
     ------
     ValueError
-        If fewer than ``n`` states are accepted in ``max_tries`` rounds (the set is tiny in the box).
+        If fewer than ``n`` states are accepted in ``max_tries`` rounds (the set is tiny in the box);
+        the message gives the counts.
     """
     n = as_positive_int(n, "n")
     lo = np.broadcast_to(np.asarray(lo, float), (system.dim,))
     hi = np.broadcast_to(np.asarray(hi, float), (system.dim,))
-    mu = np.asarray([] if mu is None else mu, dtype=float).reshape(1, -1)
-    got = []
+    per_state = callable(mu)
+    if not per_state:
+        mu = np.asarray([] if mu is None else mu, dtype=float).reshape(1, -1)
+    states, params = [], []
     count = 0
     for _ in range(max_tries):
         cand = rng.uniform(lo, hi, size=(2 * n, system.dim))
-        keep = cand[system.hamiltonian(cand, np.repeat(mu, len(cand), axis=0)) <= energy]
-        got.append(keep)
-        count += len(keep)
+        m = mu(len(cand)) if per_state else np.repeat(mu, len(cand), axis=0)
+        h = system.hamiltonian(cand, m)
+        keep = h < energy if strict else h <= energy
+        states.append(cand[keep])
+        params.append(m[keep])
+        count += int(keep.sum())
         if count >= n:
-            return np.concatenate(got)[:n]
-    raise ValueError(f"only {count} of {n} states with H <= {energy} found in the box after {max_tries} rounds")
+            x = np.concatenate(states)[:n]
+            return (x, np.concatenate(params)[:n]) if per_state else x
+    raise ValueError(f"only {count} of {n} states accepted (H {'<' if strict else '<='} {energy:g}) in "
+                     f"{max_tries * 2 * n} draws")
 
 
 def sample_trajectory_neighbourhood(trajectories: np.ndarray, n: int, radius: float, rng, scale=None) -> np.ndarray:

@@ -16,6 +16,7 @@ from pymor.core.logger import getLogger
 from sympredict._checks import as_parameter, as_positive_int, as_real, as_states, as_steps
 from sympredict.data import FlowMapData
 from sympredict.exceptions import NewtonConvergenceError
+from sympredict.flowmaps import sample_energy_box
 from sympredict.integrators import micro_steps
 from sympredict.integrators_compiled import PointwiseHamiltonian, jit_pointwise
 from sympredict.parallel import pool_flow
@@ -320,23 +321,12 @@ def random_flow_map_data(
         return rng.choice(np.asarray(values, dtype=float), size=size) if values is not None else rng.uniform(*bounds, size=size)
 
     pmax = 2 * np.sqrt(system.g)
-    x0 = np.empty((0, 2))
-    mu = np.empty(0)
-    for _ in range(MAX_DRAW_ROUNDS):
-        if len(x0) >= n_samples:
-            break
-        cand = rng.uniform([-np.pi, -pmax], [np.pi, pmax], size=(2 * n_samples, 2))
-        lengths = draw(mu_values, mu_range, 2 * n_samples)
-        keep = system.hamiltonian(cand, lengths) < 2 * system.g
-        x0 = np.concatenate([x0, cand[keep]])
-        mu = np.concatenate([mu, lengths[keep]])
-    if len(x0) < n_samples:
-        raise ValueError(
-            f"random_flow_map_data: only {len(x0)} of {n_samples} states accepted (H < 2 g) in "
-            f"{MAX_DRAW_ROUNDS * 2 * n_samples} draws; the energy bound excludes nearly the whole sampling box "
-            f"for {system!r} and these lengths"
-        )
-    x0, mu = x0[:n_samples], mu[:n_samples]
+    try:
+        x0, mu = sample_energy_box(system, n_samples, lambda size: draw(mu_values, mu_range, size), 2 * system.g,
+                                   [-np.pi, -pmax], [np.pi, pmax], rng, max_tries=MAX_DRAW_ROUNDS, strict=True)
+    except ValueError as exc:
+        raise ValueError(f"random_flow_map_data: {exc}; the energy bound excludes nearly the whole sampling box "
+                         f"for {system!r} and these lengths") from None
     dt = draw(dt_values, dt_range, n_samples)
     return FlowMapData(x0, _flows(system, x0, mu, dt, h_max, pool, chunk_size), mu[:, None], dt)
 
