@@ -24,7 +24,7 @@ LAYERS = [
     ("surrogate, Newton solvers, integrators", ["surrogate", "newton", "integrators", "integrators_compiled"]),
     ("systems", ["systems", "flowmaps"]),
     ("estimators", ["predictor", "sympredict"]),
-    ("selection, io, mor", ["selection", "io", "reduction", "mor", "scaling", "testing"]),
+    ("selection, io, mor", ["selection", "io", "reduction", "mor", "scaling", "testing", "nonlinear_mor"]),
     ("experiments", ["experiments"]),
     ("report", ["report", "plotting"]),
     ("cli", ["cli"]),
