@@ -1,0 +1,209 @@
+"""Sine-Gordon MOR end to end (issue 15): FOM, symplectic Galerkin and DEIM ROMs, learned reduced flow maps.
+
+:func:`run_sine_gordon` returns results (numbers and arrays), no figures:
+
+* FOM trajectories (compiled Kahan–Li-6, step halving to ``ref_tol``) at a grid
+  of training parameters ``(c, amplitude)`` and at random test parameters
+  (never trained on), initial states ``amplitude * sech(x/w) cos(k x)``;
+* a complex-SVD symplectic basis per ``2n`` from the training snapshots;
+* per ``2n``: the errors against the FOM (mean over time of the relative
+  error of the reconstructed state) of the Galerkin ROM (implicit midpoint with
+  ``substeps`` sub-steps per output step: its own reference), the DEIM ROM
+  (``m = deim_factor * 2n`` points), the kernel ROM learned from Galerkin
+  trajectories (``'reduced'``) and from projected FOM trajectories
+  (``'projected'``, non-intrusive), each a :class:`~sympredict.SymplecticKernelPredictor`
+  with a kernel on ``c`` at the fixed macro step ``DT``, and RK4 / implicit
+  midpoint on the Galerkin ROM at the same ``DT`` (one step per output);
+* online wall times per trajectory (medians of ``repeats``, same process,
+  BLAS on one thread): kernel rollout, Galerkin and DEIM ROMs at their
+  accurate step, FOM; the Galerkin ROM's cost for each ``N`` of ``cost_N``
+  (its arithmetic does not depend on the basis, so a random orthosymplectic
+  basis of that size is timed), the kernel's reduced cost (independent of ``N``)
+  and the reconstruction ``V y`` per ``N`` separately.
+
+The learned ROMs use the estimator directly: ``sympredict.mor.SymplecticKernelReductor``
+takes a ``QuadraticHamiltonianModel`` FOM only (see the issue-15 report).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass, field, replace
+
+import numpy as np
+from pymor.core.logger import getLogger
+
+from sympredict.kernels import IMQ
+from sympredict.metrics import canonical_J, relative_trajectory_error
+from sympredict.nonlinear_mor import ReducedSineGordon, nonlinear_snapshots
+from sympredict.predictor import SymplecticKernelPredictor
+from sympredict.reduction import complex_svd_basis, symplecticity_of_basis
+from sympredict.systems.sine_gordon import SineGordonFOM
+
+__all__ = ["SineGordonPreset", "PRESETS", "run_sine_gordon"]
+
+logger = getLogger("sympredict.experiments.sine_gordon")
+
+
+@dataclass(frozen=True)
+class SineGordonPreset:
+    """Sizes of one run (``quick``: minutes on 2 cores; ``paper``: the issue's sizes)."""
+
+    n_points: int = 1000
+    length: float = 20.0
+    c_range: tuple = (0.8, 1.2)
+    amplitude_range: tuple = (0.5, 1.5)
+    n_c: int = 3
+    n_amplitude: int = 3
+    n_test: int = 3
+    T: float = 5.0
+    DT: float = 0.1
+    long_factor: int = 10
+    dims: tuple = (8, 12)
+    deim_factor: int = 2
+    substeps: int = 4
+    max_centers: int = 600
+    state_eps: float = None  # None: IMQ(1 / diameter of the training xi), the estimator's default
+    mu_eps: float = 2.5
+    ref_tol: float = 1e-7
+    cost_N: tuple = (1000, 4000, 16000)
+    repeats: int = 5
+    seed: int = 0
+
+
+PRESETS = {
+    "quick": SineGordonPreset(),
+    "paper": SineGordonPreset(n_c=5, n_amplitude=6, n_test=5, dims=(8, 12, 16), max_centers=3000, repeats=11),
+    "tiny": SineGordonPreset(n_points=60, length=12.0, n_c=2, n_amplitude=2, n_test=2, T=2.0, dims=(4,),
+                             max_centers=60, cost_N=(60, 120), repeats=2, long_factor=2),
+}
+
+
+def _median_time(fn, repeats):
+    times = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t)
+    return float(np.median(times))
+
+
+def _random_orthosymplectic(N, n, rng):
+    A = rng.normal(size=(N, n)) + 1j * rng.normal(size=(N, n))
+    U, _ = np.linalg.qr(A)
+    return np.block([[U.real, -U.imag], [U.imag, U.real]])
+
+
+def run_sine_gordon(preset: SineGordonPreset = PRESETS["quick"], **overrides) -> dict:
+    """Run the scenario; returns a JSON-friendly dict (lists and floats) plus arrays for the figures."""
+    from threadpoolctl import threadpool_limits
+
+    p = replace(preset, **overrides)
+    rng = np.random.default_rng(p.seed)
+    fom = SineGordonFOM(n_points=p.n_points, length=p.length, c_range=p.c_range, amplitude_range=p.amplitude_range,
+                        T=p.T, nt=int(round(p.T / p.DT)))
+    u0 = fom.sech_cos(2.0, 1.0)
+    K = int(round(p.T / p.DT))
+    c_tr = np.repeat(np.linspace(*p.c_range, p.n_c), p.n_amplitude)
+    a_tr = np.tile(np.linspace(*p.amplitude_range, p.n_amplitude), p.n_c)
+    c_te = rng.uniform(*p.c_range, p.n_test)
+    a_te = rng.uniform(*p.amplitude_range, p.n_test)
+    out = {"preset": asdict(p), "test_c": c_te.tolist(), "test_amplitude": a_te.tolist(), "dims": {}}
+    with threadpool_limits(1):
+        t = time.perf_counter()
+        X_tr, est = fom.reference_trajectory(a_tr[:, None] * u0, c_tr, p.DT, K, tol=p.ref_tol, return_error=True)
+        out["fom_train_time"] = time.perf_counter() - t
+        X_te = fom.reference_trajectory(a_te[:, None] * u0, c_te, p.DT, p.long_factor * K, tol=p.ref_tol)
+        out["fom_step_halving_estimate"] = est
+        x_te = X_te[:, : K + 1]
+        out["fom_time_per_trajectory"] = _median_time(
+            lambda: fom.reference_trajectory(a_te[:1, None] * u0, c_te[:1], p.DT, K, tol=p.ref_tol), max(1, p.repeats // 2))
+        snaps = X_tr.reshape(-1, fom.dim)
+        for dim in p.dims:
+            out["dims"][dim] = _one_dimension(fom, p, dim // 2, snaps, X_tr, c_tr, X_te, c_te, K)
+        out["cost_vs_N"] = _cost_vs_N(fom, p, rng, out)
+    out["arrays"] = {"x": fom.x, "fom_test_u": x_te[0, :, : fom.n_points]}
+    return out
+
+
+def _err(rom, Y, X):
+    """Mean over time of the relative error of the reconstruction, per test trajectory (B,)."""
+    return relative_trajectory_error(rom.reconstruct(Y), X).mean(axis=1)
+
+
+def _one_dimension(fom, p, n, snaps, X_tr, c_tr, X_te, c_te, K):
+    basis = complex_svd_basis(snaps, n=n)
+    res = {"projection_error": basis.projection_error, "symplecticity": symplecticity_of_basis(basis.V)}
+    gal = ReducedSineGordon.galerkin(fom, basis.V)
+    deim = ReducedSineGordon.deim(fom, basis.V, nonlinear_snapshots(fom, X_tr), p.deim_factor * 2 * n)
+    x_te = X_te[:, : K + 1]
+    y0 = gal.project(X_te[:, 0])
+    cte = c_te
+    Yg = gal.solve(y0, cte, p.DT, p.long_factor * K, substeps=p.substeps)
+    res["galerkin_error"] = _err(gal, Yg[:, : K + 1], x_te).tolist()
+    Yd = deim.solve(y0, cte, p.DT, K, substeps=p.substeps)
+    res["deim_error"] = _err(deim, Yd, x_te).tolist()
+    res["deim_points"] = deim.n_interpolation
+    # classical schemes on the Galerkin ROM at the macro step DT (one step per output)
+    for scheme in ("rk4", "implicit_midpoint"):
+        try:
+            Y = gal.solve(y0, cte, p.DT, K, scheme=scheme, substeps=1)
+            res[f"galerkin_{scheme}_at_DT_error"] = _err(gal, Y, x_te).tolist()
+        except Exception as exc:  # a Newton failure is a result here
+            res[f"galerkin_{scheme}_at_DT_error"] = f"failed: {type(exc).__name__}"
+    # linearized frequencies of the reduced system at the largest c: eigenvalues i omega of J dg(y0)
+    res["DT_omega_max"] = float(p.DT * np.abs(np.linalg.eigvals(_jg(gal, y0[0], float(p.c_range[1])))).max())
+    # learned reduced flow maps: data from Galerkin trajectories (intrusive) or projected FOM trajectories
+    Yg_tr = gal.solve(gal.project(X_tr[:, 0]), c_tr, p.DT, K, substeps=p.substeps)
+    Yp_tr = gal.project(X_tr)
+    # validation: the first test parameter's projected FOM trajectory (the test errors use all)
+    for data, Ytr in (("reduced", Yg_tr), ("projected", Yp_tr)):
+        x0 = Ytr[:, :-1].reshape(-1, gal.dim)
+        x1 = Ytr[:, 1:].reshape(-1, gal.dim)
+        mu = np.repeat(c_tr, K)[:, None]
+        model = SymplecticKernelPredictor(None if p.state_eps is None else IMQ(p.state_eps), mu_kernel=IMQ(p.mu_eps), max_centers=p.max_centers, tol=1e-9)
+        t = time.perf_counter()
+        model.fit(x0, x1, mu=mu, dt=p.DT)
+        fit_time = time.perf_counter() - t
+        try:
+            Yk = model.rollout(y0, p.long_factor * K, mu=cte[:, None], dt=p.DT)
+            err = _err(gal, Yk[:, : K + 1], x_te).tolist()
+            E = gal.reduced_energy(Yk.reshape(-1, gal.dim), np.repeat(cte, Yk.shape[1])).reshape(len(cte), -1)
+            energy_err = float(np.max(np.abs(E - E[:, :1]) / np.abs(E[:, :1])))
+            t_online = _median_time(lambda: model.rollout(y0[:1], K, mu=cte[:1, None], dt=p.DT), p.repeats)
+        except Exception as exc:
+            err, energy_err, t_online, Yk = f"failed: {type(exc).__name__}: {exc}"[:200], None, None, None
+        res[f"kernel_{data}"] = {"error": err, "energy_error_long": energy_err, "fit_time": fit_time,
+                                 "centers": int(model.surrogate_.n_centers),
+                                 "train_residual": [float(v) for v in model.history_.train_max_residual[:: max(1, len(model.history_.train_max_residual) // 50)]],
+                                 "time_per_trajectory": t_online}
+    Eg = gal.reduced_energy(Yg.reshape(-1, gal.dim), np.repeat(cte, Yg.shape[1])).reshape(len(cte), -1)
+    res["galerkin_energy_error_long"] = float(np.max(np.abs(Eg - Eg[:, :1]) / np.abs(Eg[:, :1])))
+    res["galerkin_time_per_trajectory"] = _median_time(lambda: gal.solve(y0[:1], cte[:1], p.DT, K, substeps=p.substeps), p.repeats)
+    res["galerkin_rk4_time_per_trajectory"] = _median_time(
+        lambda: gal.solve(y0[:1], cte[:1], p.DT, K, scheme="rk4", substeps=p.substeps), p.repeats)
+    res["deim_time_per_trajectory"] = _median_time(lambda: deim.solve(y0[:1], cte[:1], p.DT, K, substeps=p.substeps), p.repeats)
+    return res
+
+
+def _jg(rom, y, c):
+    """``J dg`` at one reduced state: its eigenvalues are ``i omega`` (linearized frequencies)."""
+    return canonical_J(rom.dim) @ rom.jacobian(y, c)
+
+
+def _cost_vs_N(fom, p, rng, out):
+    """Galerkin RK4 cost per trajectory and reconstruction cost for each N (random orthosymplectic bases)."""
+    K = int(round(p.T / p.DT))
+    rows = []
+    for N in p.cost_N:
+        f = SineGordonFOM(n_points=N, length=p.length, c_range=p.c_range, T=p.T, nt=K)
+        for dim in p.dims:
+            V = _random_orthosymplectic(N, dim // 2, rng)
+            gal = ReducedSineGordon.galerkin(f, V)
+            y0 = 0.1 * rng.normal(size=(1, dim))
+            t_rk4 = _median_time(lambda: gal.solve(y0, 1.0, p.DT, K, scheme="rk4", substeps=p.substeps), p.repeats)
+            Y = gal.solve(y0, 1.0, p.DT, K, scheme="rk4", substeps=p.substeps)
+            t_rec = _median_time(lambda: gal.reconstruct(Y[0]), p.repeats)
+            kern = out["dims"].get(dim, {}).get("kernel_projected", {}).get("time_per_trajectory")
+            rows.append({"N": N, "dim": dim, "galerkin_rk4": t_rk4, "reconstruction": t_rec, "kernel": kern})
+    return rows
