@@ -74,7 +74,7 @@ class SineGordonPreset:
 PRESETS = {
     "quick": SineGordonPreset(),
     "paper": SineGordonPreset(n_c=5, n_amplitude=6, n_test=5, dims=(8, 12, 16), max_centers=3000, repeats=11),
-    "tiny": SineGordonPreset(n_points=60, length=12.0, n_c=2, n_amplitude=2, n_test=2, T=2.0, dims=(4,),
+    "smoke": SineGordonPreset(n_points=60, length=12.0, n_c=2, n_amplitude=2, n_test=2, T=2.0, dims=(4,),
                              max_centers=60, cost_N=(60, 120), repeats=2, long_factor=2),
 }
 
@@ -95,7 +95,7 @@ def _random_orthosymplectic(N, n, rng):
 
 
 def run_sine_gordon(preset: SineGordonPreset = PRESETS["quick"], **overrides) -> dict:
-    """Run the scenario; returns a JSON-friendly dict (lists and floats) plus arrays for the figures."""
+    """Run the scenario; returns a JSON-friendly dict (lists and floats; the figures are drawn from it)."""
     from threadpoolctl import threadpool_limits
 
     p = replace(preset, **overrides)
@@ -122,13 +122,23 @@ def run_sine_gordon(preset: SineGordonPreset = PRESETS["quick"], **overrides) ->
         for dim in p.dims:
             out["dims"][dim] = _one_dimension(fom, p, dim // 2, snaps, X_tr, c_tr, X_te, c_te, K)
         out["cost_vs_N"] = _cost_vs_N(fom, p, rng, out)
-    out["arrays"] = {"x": fom.x, "fom_test_u": x_te[0, :, : fom.n_points]}
     return out
+
+
+def _curve(rom, Y, X):
+    """Relative error of the reconstruction over time, mean over the test trajectories (K+1,)."""
+    return relative_trajectory_error(rom.reconstruct(Y), X).mean(axis=0)
 
 
 def _err(rom, Y, X):
     """Mean over time of the relative error of the reconstruction, per test trajectory (B,)."""
     return relative_trajectory_error(rom.reconstruct(Y), X).mean(axis=1)
+
+
+def _energy_curve(rom, Y, c):
+    """Max over the test trajectories of ``|E(t) - E(0)| / |E(0)|``, ``E = dx H(V y)``, over time (K+1,)."""
+    E = rom.reduced_energy(Y.reshape(-1, rom.dim), np.repeat(c, Y.shape[1])).reshape(len(c), -1)
+    return np.max(np.abs(E - E[:, :1]) / np.abs(E[:, :1]), axis=0)
 
 
 def _one_dimension(fom, p, n, snaps, X_tr, c_tr, X_te, c_te, K):
@@ -138,17 +148,30 @@ def _one_dimension(fom, p, n, snaps, X_tr, c_tr, X_te, c_te, K):
     deim = ReducedSineGordon.deim(fom, basis.V, nonlinear_snapshots(fom, X_tr), p.deim_factor * 2 * n)
     x_te = X_te[:, : K + 1]
     y0 = gal.project(X_te[:, 0])
-    cte = c_te
-    Yg = gal.solve(y0, cte, p.DT, p.long_factor * K, substeps=p.substeps)
+    t = p.DT * np.arange(K + 1)
+    t_long = p.DT * np.arange(p.long_factor * K + 1)
+    curves = {"t": t.tolist()}
+    energy = {"t": t_long.tolist()}
+    snap_k = [0, K // 2, K]
+    snapshots = {"t": [float(t[k]) for k in snap_k], "x": fom.x.tolist(),
+                 "fom": x_te[0, snap_k, : fom.n_points].tolist()}
+    Yg = gal.solve(y0, c_te, p.DT, p.long_factor * K, substeps=p.substeps)
     res["galerkin_error"] = _err(gal, Yg[:, : K + 1], x_te).tolist()
-    Yd = deim.solve(y0, cte, p.DT, K, substeps=p.substeps)
+    curves["galerkin"] = _curve(gal, Yg[:, : K + 1], x_te).tolist()
+    energy["galerkin"] = _energy_curve(gal, Yg, c_te).tolist()
+    res["galerkin_energy_error_long"] = max(energy["galerkin"])
+    snapshots["galerkin"] = gal.reconstruct(Yg[0, snap_k])[:, : fom.n_points].tolist()
+    Yd = deim.solve(y0, c_te, p.DT, K, substeps=p.substeps)
     res["deim_error"] = _err(deim, Yd, x_te).tolist()
+    curves["deim"] = _curve(deim, Yd, x_te).tolist()
+    snapshots["deim"] = deim.reconstruct(Yd[0, snap_k])[:, : fom.n_points].tolist()
     res["deim_points"] = deim.n_interpolation
     # classical schemes on the Galerkin ROM at the macro step DT (one step per output)
     for scheme in ("rk4", "implicit_midpoint"):
         try:
-            Y = gal.solve(y0, cte, p.DT, K, scheme=scheme, substeps=1)
+            Y = gal.solve(y0, c_te, p.DT, K, scheme=scheme, substeps=1)
             res[f"galerkin_{scheme}_at_DT_error"] = _err(gal, Y, x_te).tolist()
+            curves[f"galerkin_{scheme}_at_DT"] = _curve(gal, Y, x_te).tolist()
         except Exception as exc:  # a Newton failure is a result here
             res[f"galerkin_{scheme}_at_DT_error"] = f"failed: {type(exc).__name__}"
     # linearized frequencies of the reduced system at the largest c: eigenvalues i omega of J dg(y0)
@@ -156,33 +179,38 @@ def _one_dimension(fom, p, n, snaps, X_tr, c_tr, X_te, c_te, K):
     # learned reduced flow maps: data from Galerkin trajectories (intrusive) or projected FOM trajectories
     Yg_tr = gal.solve(gal.project(X_tr[:, 0]), c_tr, p.DT, K, substeps=p.substeps)
     Yp_tr = gal.project(X_tr)
-    # validation: the first test parameter's projected FOM trajectory (the test errors use all)
     for data, Ytr in (("reduced", Yg_tr), ("projected", Yp_tr)):
         x0 = Ytr[:, :-1].reshape(-1, gal.dim)
         x1 = Ytr[:, 1:].reshape(-1, gal.dim)
         mu = np.repeat(c_tr, K)[:, None]
-        model = SymplecticKernelPredictor(None if p.state_eps is None else IMQ(p.state_eps), mu_kernel=IMQ(p.mu_eps), max_centers=p.max_centers, tol=1e-9)
-        t = time.perf_counter()
+        model = SymplecticKernelPredictor(None if p.state_eps is None else IMQ(p.state_eps), mu_kernel=IMQ(p.mu_eps),
+                                          max_centers=p.max_centers, tol=1e-9)
+        t0 = time.perf_counter()
         model.fit(x0, x1, mu=mu, dt=p.DT)
-        fit_time = time.perf_counter() - t
+        fit_time = time.perf_counter() - t0
+        hist = model.history_.train_max_residual
+        entry = {"fit_time": fit_time, "centers": int(model.surrogate_.n_centers),
+                 "train_residual": [float(v) for v in hist], "error": None, "energy_error_long": None,
+                 "time_per_trajectory": None, "failure": None}
         try:
-            Yk = model.rollout(y0, p.long_factor * K, mu=cte[:, None], dt=p.DT)
-            err = _err(gal, Yk[:, : K + 1], x_te).tolist()
-            E = gal.reduced_energy(Yk.reshape(-1, gal.dim), np.repeat(cte, Yk.shape[1])).reshape(len(cte), -1)
-            energy_err = float(np.max(np.abs(E - E[:, :1]) / np.abs(E[:, :1])))
-            t_online = _median_time(lambda: model.rollout(y0[:1], K, mu=cte[:1, None], dt=p.DT), p.repeats)
-        except Exception as exc:
-            err, energy_err, t_online, Yk = f"failed: {type(exc).__name__}: {exc}"[:200], None, None, None
-        res[f"kernel_{data}"] = {"error": err, "energy_error_long": energy_err, "fit_time": fit_time,
-                                 "centers": int(model.surrogate_.n_centers),
-                                 "train_residual": [float(v) for v in model.history_.train_max_residual[:: max(1, len(model.history_.train_max_residual) // 50)]],
-                                 "time_per_trajectory": t_online}
-    Eg = gal.reduced_energy(Yg.reshape(-1, gal.dim), np.repeat(cte, Yg.shape[1])).reshape(len(cte), -1)
-    res["galerkin_energy_error_long"] = float(np.max(np.abs(Eg - Eg[:, :1]) / np.abs(Eg[:, :1])))
-    res["galerkin_time_per_trajectory"] = _median_time(lambda: gal.solve(y0[:1], cte[:1], p.DT, K, substeps=p.substeps), p.repeats)
+            Yk = model.rollout(y0, p.long_factor * K, mu=c_te[:, None], dt=p.DT)
+            entry["error"] = _err(gal, Yk[:, : K + 1], x_te).tolist()
+            curves[f"kernel_{data}"] = _curve(gal, Yk[:, : K + 1], x_te).tolist()
+            energy[f"kernel_{data}"] = _energy_curve(gal, Yk, c_te).tolist()
+            entry["energy_error_long"] = max(energy[f"kernel_{data}"])
+            snapshots[f"kernel_{data}"] = gal.reconstruct(Yk[0, snap_k])[:, : fom.n_points].tolist()
+            entry["time_per_trajectory"] = _median_time(lambda: model.rollout(y0[:1], K, mu=c_te[:1, None], dt=p.DT),
+                                                        p.repeats)
+        except Exception as exc:  # a failed rollout is a result, reported as such
+            entry["failure"] = f"{type(exc).__name__}: {exc}"[:300]
+        res[f"kernel_{data}"] = entry
+    res["curves"], res["energy"], res["snapshots"] = curves, energy, snapshots
+    res["galerkin_time_per_trajectory"] = _median_time(lambda: gal.solve(y0[:1], c_te[:1], p.DT, K, substeps=p.substeps), p.repeats)
     res["galerkin_rk4_time_per_trajectory"] = _median_time(
-        lambda: gal.solve(y0[:1], cte[:1], p.DT, K, scheme="rk4", substeps=p.substeps), p.repeats)
-    res["deim_time_per_trajectory"] = _median_time(lambda: deim.solve(y0[:1], cte[:1], p.DT, K, substeps=p.substeps), p.repeats)
+        lambda: gal.solve(y0[:1], c_te[:1], p.DT, K, scheme="rk4", substeps=p.substeps), p.repeats)
+    res["deim_time_per_trajectory"] = _median_time(lambda: deim.solve(y0[:1], c_te[:1], p.DT, K, substeps=p.substeps), p.repeats)
+    res["deim_rk4_time_per_trajectory"] = _median_time(
+        lambda: deim.solve(y0[:1], c_te[:1], p.DT, K, scheme="rk4", substeps=p.substeps), p.repeats)
     return res
 
 
