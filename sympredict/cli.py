@@ -27,6 +27,7 @@ import re
 import secrets
 import shutil
 import stat
+import statistics
 import sys
 import time
 from pathlib import Path
@@ -102,6 +103,19 @@ def _run_wave(preset_name: str, seed: int, out: Path):
     print(f"  wave smallest model for {z['target']:.0e}: 2n = {2 * z['n_reduced']}, "
           f"{z['n_centers'] if z['reached'] else 'target not reached with all'} centres, validation error {z['validation_error']:.2e}")
     return s, figures, lines
+
+
+def _run_sine_gordon(preset_name: str, seed: int, out: Path):
+    """Sine-Gordon MOR (issue 15): returns (JSON summary, figure files, Markdown lines)."""
+    from sympredict.experiments.sine_gordon import PRESETS, run_sine_gordon
+
+    s = run_sine_gordon(PRESETS[preset_name], seed=seed)
+    figures = report.save_figures(report.sine_gordon_figures(s), out)
+    for d, r in s["dims"].items():
+        k = r["kernel_projected"]["error"]
+        print(f"  sine-Gordon 2n={d}: Galerkin {statistics.median(r['galerkin_error']):.2e}, DEIM {statistics.median(r['deim_error']):.2e}, "
+              f"kernel (FOM data) {'failed' if k is None else format(statistics.median(k), '.2e')}")
+    return s, figures, report.sine_gordon_markdown(s)
 
 
 def _check_run_folder(out: Path) -> None:
@@ -182,7 +196,7 @@ def _cmd_run(args) -> int:
     print(f"sympredict: {', '.join(systems)}, preset '{preset_name}', {args.threads} BLAS thread(s), output in {out}/", flush=True)
     try:
         results, figures, lines = {}, [], ["# sympredict results", "", f"Command: `{command}`", ""]
-        runners = {"pendulum": _run_pendulum, "wave": _run_wave}
+        runners = {"pendulum": _run_pendulum, "wave": _run_wave, "sine-gordon": _run_sine_gordon}
         with threadpool_limits(limits=args.threads):
             for system in systems:
                 summary, figs, md = runners[system](preset_name, args.seed, staging)
@@ -366,7 +380,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="sympredict", description="Symplectic large-step kernel predictors for Hamiltonian systems.")
     sub = parser.add_subparsers(dest="command", required=True)
     run = sub.add_parser("run", help="train, evaluate and write figures and a summary")
-    run.add_argument("system", choices=[*SYSTEMS, "all"], help="the scenario to run")
+    run.add_argument("system", choices=[*SYSTEMS, "sine-gordon", "all"],
+                     help="the scenario to run ('all': pendulum and wave; sine-Gordon runs alone)")
     run.add_argument("--out", required=True, help="output folder (created if missing)")
     size = run.add_mutually_exclusive_group()
     size.add_argument("--quick", action="store_true", help="small data (default): pendulum ~30 s, wave ~2 min on 2 cores")

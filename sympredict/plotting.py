@@ -201,3 +201,30 @@ def stability_sweeps(dt_rows, mu_rows, dt_train, mu_train, title: str):
         ax.set_xscale("log" if key == "dt" else "linear")
         _decorate(ax, xlabel, "mean relative error over $[0, T]$", title if key == "dt" else "extrapolation in the length")
     return fig
+
+
+def solution_snapshots(x, times, solutions, title: str):
+    """``u(x, t)`` at a few times, one panel per time; ``solutions`` maps a label to rows (len(times), N)."""
+    fig, axes = plt.subplots(1, len(times), figsize=(4 * len(times), 3.5), sharey=True)
+    axes = list(axes) if len(times) > 1 else [axes]
+    for k, (ax, t) in enumerate(zip(axes, times)):
+        for i, (label, rows) in enumerate(solutions.items()):
+            ax.plot(x, rows[k], "-" if i == 0 else "--", color=_COLORS[i % len(_COLORS)], label=label, lw=1.5 if i == 0 else 1.0)
+        ax.set_title(f"{title}, t = {t:g}")
+        ax.set_xlabel("x")
+        ax.grid(True, alpha=0.3)
+    axes[0].set_ylabel("u(x, t)")
+    axes[-1].legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    return fig
+
+
+def cost_against_n(rows, title: str):
+    """Online wall time per trajectory against ``N``, log-log; ``rows``: ``N``, ``label``, ``time`` (one line per label)."""
+    fig, ax = plt.subplots(figsize=(6, 4))
+    labels = list(dict.fromkeys(r["label"] for r in rows))
+    for i, label in enumerate(labels):
+        pts = sorted((r["N"], r["time"]) for r in rows if r["label"] == label and r["time"] is not None)
+        if pts:
+            ax.loglog(*zip(*pts), "o-", color=_COLORS[i % len(_COLORS)], label=label, ms=4)
+    _decorate(ax, "full dimension N (grid points)", "wall time per trajectory [s]", title, legend_outside=True)
+    return fig

@@ -33,6 +33,10 @@ __all__ = [
     "smallest_model_markdown",
     "claims",
     "claims_markdown",
+    "sine_gordon_figures",
+    "sine_gordon_markdown",
+    "sine_gordon_claims",
+    "sine_gordon_speed_rows",
 ]
 
 
@@ -330,6 +334,8 @@ def claims(results: dict) -> list[dict]:
             "holds": min(ratios.values()) > 1,
             "evidence": "smallest ratio of mean errors per dT: " + ", ".join(f"{ratio(v)} at {dt}" for dt, v in ratios.items()),
         })
+    if "sine-gordon" in results:
+        out += sine_gordon_claims(results["sine-gordon"])
     return out
 
 
@@ -337,3 +343,166 @@ def claims_markdown(checked: list[dict]) -> list[str]:
     """The claims section of ``summary.md``."""
     return ["## The paper's claims, checked on this run", "",
             *[f"- {'HOLDS' if c['holds'] else 'DOES NOT HOLD'}: {c['claim']}. {c['evidence']}." for c in checked], ""]
+
+
+# ------------------------------------------------------------------ sine-Gordon (issue 15)
+_SG_METHODS = (("galerkin", "Galerkin ROM (implicit midpoint, DT/r)"), ("deim", "DEIM ROM"),
+               ("galerkin_rk4_at_DT", "Galerkin ROM + RK4 at DT"), ("galerkin_implicit_midpoint_at_DT", "Galerkin ROM + IM at DT"),
+               ("kernel_reduced", "kernel ROM (Galerkin data)"), ("kernel_projected", "kernel ROM (projected FOM data)"))
+
+
+def _median(v):
+    return float(np.median(v)) if isinstance(v, list) else None
+
+
+def sine_gordon_speed_rows(s: dict) -> list[dict]:
+    """Speed-against-accuracy rows (:func:`plotting.speed_accuracy`) of a sine-Gordon summary: per 2n and method,
+    the median over the test parameters of the mean relative error against the FOM and the median wall time."""
+    rows = []
+    for dim, r in s["dims"].items():
+        for method, err, t in (("Galerkin ROM (IM)", r["galerkin_error"], r["galerkin_time_per_trajectory"]),
+                               ("Galerkin ROM (RK4)", r["galerkin_error"], r["galerkin_rk4_time_per_trajectory"]),
+                               ("DEIM ROM (IM)", r["deim_error"], r["deim_time_per_trajectory"]),
+                               ("kernel ROM, Galerkin data", r["kernel_reduced"]["error"], r["kernel_reduced"]["time_per_trajectory"]),
+                               ("kernel ROM, FOM data", r["kernel_projected"]["error"], r["kernel_projected"]["time_per_trajectory"])):
+            if _median(err) is not None and t is not None:
+                rows.append({"method": method, "size": int(dim), "tag": f"2n={dim}", "time_per_trajectory_s": t,
+                             "median_err": _median(err)})
+    return rows
+
+
+def sine_gordon_figures(s: dict) -> dict:
+    """Figures of :func:`~sympredict.experiments.sine_gordon.run_sine_gordon`'s summary ``s``: greedy curves, error
+    over time per method and 2n, energy error over the long horizon, u(x, t) snapshots, speed against accuracy,
+    online cost against N."""
+    from types import SimpleNamespace
+
+    figs = {}
+    hist = {}
+    for dim, r in s["dims"].items():
+        for data in ("reduced", "projected"):
+            res = np.asarray(r[f"kernel_{data}"]["train_residual"], dtype=float)
+            hist[f", 2n={dim}, {data}"] = SimpleNamespace(n_centers=np.arange(len(res)), train_max_residual=res,
+                                                          val_max_residual=None)
+    figs["sine_gordon_greedy_residuals"] = plotting.greedy_residuals(hist, "Sine-Gordon ROM: f-greedy residuals")
+    for dim, r in s["dims"].items():
+        c = r["curves"]
+        curves = [{"t": c["t"], "values": c[key], "label": label, "style": "-" if "kernel" in key else "--", "color": i}
+                  for i, (key, label) in enumerate(_SG_METHODS) if key in c]
+        figs[f"sine_gordon_error_over_time_2n{dim}"] = plotting.error_over_time(
+            curves, f"Sine-Gordon, 2n={dim}: error vs FOM (mean over test parameters)")
+        e = r["energy"]
+        figs[f"sine_gordon_energy_2n{dim}"] = plotting.energy_error(
+            np.asarray(e["t"]), {k: np.asarray(v) for k, v in e.items() if k != "t"},
+            f"Sine-Gordon, 2n={dim}: energy error dx H(V y), max over tests")
+    last = list(s["dims"])[-1]
+    sn = s["dims"][last]["snapshots"]
+    figs["sine_gordon_snapshots"] = plotting.solution_snapshots(
+        sn["x"], sn["t"], {k: v for k, v in sn.items() if k not in ("x", "t")}, f"2n={last}")
+    figs["sine_gordon_speed_accuracy"] = plotting.speed_accuracy(
+        sine_gordon_speed_rows(s), s["fom_time_per_trajectory"], "Sine-Gordon: speed against accuracy (test parameters)")
+    rows = []
+    for row in s["cost_vs_N"]:
+        rows.append({"N": row["N"], "label": f"Galerkin RK4, 2n={row['dim']}", "time": row["galerkin_rk4"]})
+        rows.append({"N": row["N"], "label": f"kernel (reduced coords), 2n={row['dim']}", "time": row["kernel"]})
+        rows.append({"N": row["N"], "label": f"reconstruction V y, 2n={row['dim']}", "time": row["reconstruction"]})
+        rows.append({"N": row["N"], "label": f"DEIM ROM RK4, 2n={row['dim']}", "time": row.get("deim_rk4")})
+    figs["sine_gordon_cost_vs_N"] = plotting.cost_against_n(rows, "Sine-Gordon: online cost against N")
+    return figs
+
+
+def sine_gordon_claims(s: dict) -> list[dict]:
+    """The issue-15 targets, each checked against this run's numbers (missed targets are reported as such)."""
+    out = []
+    dims = list(s["dims"])
+    ok2x, ev = [], []
+    for d in dims:
+        r = s["dims"][d]
+        k = r["kernel_reduced"]["error"]
+        if not isinstance(k, list):
+            ok2x.append(False)
+            ev.append(f"2n={d}: kernel failed ({r['kernel_reduced']['failure']})")
+            continue
+        worst = max(a / b for a, b in zip(k, r["galerkin_error"]))
+        ok2x.append(worst <= 2)
+        ev.append(f"2n={d}: worst kernel/Galerkin ratio {worst:.2g}")
+    out.append({"claim": "sine-Gordon: kernel ROM (Galerkin data) within 2x of the Galerkin ROM's error against the FOM at every "
+                         "test parameter, for every 2n", "holds": all(ok2x), "evidence": "; ".join(ev)})
+    okp, ev = [], []
+    for d in dims:
+        r = s["dims"][d]
+        k = r["kernel_projected"]["error"]
+        if not isinstance(k, list):
+            okp.append(False)
+            ev.append(f"2n={d}: failed ({r['kernel_projected']['failure']})")
+            continue
+        worst = max(a / b for a, b in zip(k, r["galerkin_error"]))
+        okp.append(worst <= 1)
+        ev.append(f"2n={d}: worst ratio {worst:.2g}")
+    out.append({"claim": "sine-Gordon: non-intrusive kernel ROM (projected FOM data) at or below the Galerkin ROM's error at "
+                         "every test parameter", "holds": all(okp), "evidence": "; ".join(ev)})
+    wom = {d: s["dims"][d]["DT_omega_max"] for d in dims}
+    large = [d for d in dims if wom[d] >= 1]
+    ev = ", ".join(f"2n={d}: DT omega_max = {wom[d]:.2f}" for d in dims)
+    if not large:
+        out.append({"claim": "sine-Gordon large-step regime (DT omega_max >= 1): kernel ROM >= 10x more accurate than RK4 / "
+                             "implicit midpoint on the Galerkin ROM at the same DT", "holds": False,
+                    "evidence": f"not reached by this run's DT ({ev}): not tested"})
+    else:
+        res = []
+        for d in large:
+            r = s["dims"][d]
+            best = min(_median(r[k]) for k in ("galerkin_rk4_at_DT_error", "galerkin_implicit_midpoint_at_DT_error")
+                       if isinstance(r[k], list))
+            kern = _median(r["kernel_reduced"]["error"])
+            res.append((d, best, kern))
+        out.append({"claim": "sine-Gordon large-step regime: kernel ROM >= 10x more accurate than the best classical scheme on "
+                             "the Galerkin ROM at the same DT", "holds": all(k is not None and b >= 10 * k for _, b, k in res),
+                    "evidence": "; ".join(f"2n={d}: best classical {b:.2e}, kernel {k}" for d, b, k in res) + f" ({ev})"})
+    big = max(row["N"] for row in s["cost_vs_N"])
+    meet = [d for d, ok in zip(dims, ok2x) if ok]
+    if meet:
+        d = meet[0]
+        row = next(r for r in s["cost_vs_N"] if r["N"] == big and r["dim"] == int(d))
+        speed = row["galerkin_rk4"] / row["kernel"] if row["kernel"] else None
+        out.append({"claim": f"sine-Gordon: kernel ROM >= 10x cheaper online than the compiled Galerkin ROM (RK4) at N = {big} "
+                             "for the smallest model meeting the 2x condition", "holds": bool(speed and speed >= 10),
+                    "evidence": f"2n={d}: Galerkin RK4 {row['galerkin_rk4'] * 1e3:.2f} ms, kernel {row['kernel'] * 1e3:.2f} ms "
+                                f"per trajectory (ratio {speed:.3g}); reconstruction V y {row['reconstruction'] * 1e3:.2f} ms"})
+    else:
+        out.append({"claim": f"sine-Gordon: kernel ROM >= 10x cheaper than the Galerkin ROM at N = {big} for the smallest model "
+                             "meeting the 2x condition", "holds": False, "evidence": "no 2n met the 2x condition"})
+    return out
+
+
+def sine_gordon_markdown(s: dict) -> list[str]:
+    """Sine-Gordon section of ``summary.md`` from its JSON summary ``s``."""
+    p = s["preset"]
+    lines = ["## Sine-Gordon (issue 15)", "",
+             f"FOM: u_tt = c^2 u_xx - sin u on (0, {p['length']}), Dirichlet, N = {p['n_points']}, c in {p['c_range']}, "
+             f"initial states amplitude * sech(x/2) cos(x) with amplitude in {p['amplitude_range']}; {p['n_c'] * p['n_amplitude']} "
+             f"training trajectories over T = {p['T']}, {len(s['test_c'])} random test parameters; reference Kahan-Li-6 with step "
+             f"halving (estimate {s['fom_step_halving_estimate']:.1e}), {s['fom_time_per_trajectory'] * 1e3:.1f} ms per trajectory. "
+             f"DT = {p['DT']}. Timings: medians of {p['repeats']} runs in one process on a shared 2-core machine, BLAS on one thread.",
+             "", "| 2n | proj. err | Galerkin | DEIM (m) | RK4 at DT | IM at DT | kernel (Galerkin data) | kernel (FOM data) | "
+                 "DT omega_max | energy err 10T Galerkin / kernel |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    for d, r in s["dims"].items():
+        def f(v):
+            return f"{_median(v):.2e}" if isinstance(v, list) else str(v)
+        kr, kp = r["kernel_reduced"], r["kernel_projected"]
+        lines.append(f"| {d} | {r['projection_error']:.1e} | {f(r['galerkin_error'])} | {f(r['deim_error'])} ({r['deim_points']}) | "
+                     f"{f(r['galerkin_rk4_at_DT_error'])} | {f(r['galerkin_implicit_midpoint_at_DT_error'])} | "
+                     f"{f(kr['error']) if kr['error'] else 'failed'} | {f(kp['error']) if kp['error'] else 'failed'} | "
+                     f"{r['DT_omega_max']:.2f} | {r['galerkin_energy_error_long']:.1e} / "
+                     f"{kr['energy_error_long'] if kr['energy_error_long'] is None else format(kr['energy_error_long'], '.1e')} |")
+    lines += ["", "Errors: median over the test parameters of the mean over time of |V y(t) - x(t)| / |x(t)|. "
+              "The DEIM ROM is not Hamiltonian (its reduced Jacobian is not symmetric), so it is not symplectic.", "",
+              "| N | 2n | Galerkin RK4 [ms] | DEIM RK4 [ms] | kernel [ms] | reconstruction V y [ms] |", "|---|---|---|---|---|---|"]
+    for row in s["cost_vs_N"]:
+        k = row["kernel"]
+        lines.append(f"| {row['N']} | {row['dim']} | {row['galerkin_rk4'] * 1e3:.2f} | {row['deim_rk4'] * 1e3:.2f} | "
+                     f"{'-' if k is None else format(k * 1e3, '.2f')} | {row['reconstruction'] * 1e3:.3f} |")
+    lines += ["", "Kernel and DEIM costs in reduced coordinates do not depend on N (the same computation for every N; "
+              "timed once); the Galerkin ROM's cost is timed per N with a random orthosymplectic basis of that size."]
+    return lines

@@ -1,28 +1,78 @@
-"""The sine-Gordon scenario on a tiny preset: every method runs, the results are consistent with their oracles."""
+"""The sine-Gordon scenario on the smoke preset: every method runs, results agree with their oracles, and the
+figures show the numbers of the results file."""
+
+import json
 
 import numpy as np
+import pytest
 
+from sympredict import plotting, report
 from sympredict.experiments.sine_gordon import PRESETS, run_sine_gordon
 
 
-def test_tiny_run_is_consistent():
-    r = run_sine_gordon(PRESETS["smoke"])
+@pytest.fixture(scope="module")
+def smoke():
+    return json.loads(json.dumps(run_sine_gordon(PRESETS["smoke"])))  # as written to results.json (string keys)
+
+
+def test_smoke_run_is_consistent(smoke):
+    r = smoke
     assert r["fom_step_halving_estimate"] <= PRESETS["smoke"].ref_tol
-    res = r["dims"][4]
+    res = r["dims"]["4"]
     assert res["symplecticity"] < 1e-12
     gal = np.array(res["galerkin_error"])
-    # the Galerkin error cannot beat the basis: at least a fraction of the snapshot projection error scale, and finite
     assert np.all(np.isfinite(gal)) and np.all(gal < 1.0)
-    # RK4 / implicit midpoint at DT with DT omega_max < 1 reach the Galerkin ROM's own error (reduction floor)
+    # with DT omega_max < 1, RK4 at DT reaches the Galerkin ROM's own error (the reduction floor)
     assert res["DT_omega_max"] < 1
     assert np.allclose(res["galerkin_rk4_at_DT_error"], gal, rtol=0.1)
     assert np.allclose(res["deim_error"], gal, rtol=0.5)
     assert res["galerkin_energy_error_long"] < 1e-3
-    assert len(res["energy"]["galerkin"]) == len(res["energy"]["t"]) == PRESETS["smoke"].long_factor * (len(res["curves"]["t"]) - 1) + 1
+    assert len(res["energy"]["galerkin"]) == len(res["energy"]["t"]) == \
+        PRESETS["smoke"].long_factor * (len(res["curves"]["t"]) - 1) + 1
     for data in ("reduced", "projected"):
         k = res[f"kernel_{data}"]
         assert k["centers"] <= PRESETS["smoke"].max_centers
         assert (k["failure"] is None) == (k["time_per_trajectory"] is not None)
         if k["failure"] is None:
-            assert len(res["curves"][f"kernel_{data}"]) == len(res["curves"]["t"])
+            assert np.isclose(np.mean(res["curves"][f"kernel_{data}"]), np.mean(k["error"]))
     assert {row["N"] for row in r["cost_vs_N"]} == set(PRESETS["smoke"].cost_N)
+
+
+def test_figures_show_the_results(smoke):
+    figs = report.sine_gordon_figures(smoke)
+    res = smoke["dims"]["4"]
+    data = plotting.figure_data(figs["sine_gordon_error_over_time_2n4"])
+    lines = {ln["label"]: ln for ln in data["axes"][0]["lines"]}
+    assert np.allclose(lines["Galerkin ROM (implicit midpoint, DT/r)"]["y"], res["curves"]["galerkin"][1:])
+    assert np.allclose(lines["DEIM ROM"]["y"], res["curves"]["deim"][1:])
+    if res["kernel_projected"]["failure"] is None:
+        assert np.allclose(lines["kernel ROM (projected FOM data)"]["y"], res["curves"]["kernel_projected"][1:])
+    sa = {ln["label"]: ln for ln in plotting.figure_data(figs["sine_gordon_speed_accuracy"])["axes"][0]["lines"]}
+    assert np.isclose(sa["Galerkin ROM (IM)"]["y"][0], np.median(res["galerkin_error"]))
+    assert np.isclose(sa["Galerkin ROM (IM)"]["x"][0], res["galerkin_time_per_trajectory"])
+    cost = {ln["label"]: ln for ln in plotting.figure_data(figs["sine_gordon_cost_vs_N"])["axes"][0]["lines"]}
+    rows = sorted((r["N"], r["galerkin_rk4"]) for r in smoke["cost_vs_N"] if r["dim"] == 4)
+    assert np.allclose(cost["Galerkin RK4, 2n=4"]["x"], [n for n, _ in rows])
+    assert np.allclose(cost["Galerkin RK4, 2n=4"]["y"], [t for _, t in rows])
+    sn = plotting.figure_data(figs["sine_gordon_snapshots"])
+    assert np.allclose(sn["axes"][1]["lines"][0]["y"], res["snapshots"]["fom"][1])
+    claims = report.sine_gordon_claims(smoke)
+    assert len(claims) == 4 and all(isinstance(c["holds"], bool) for c in claims)
+    md = "\n".join(report.sine_gordon_markdown(smoke))
+    assert f"{np.median(res['galerkin_error']):.2e}" in md
+    for f in figs.values():
+        plotting.plt.close(f)
+
+
+@pytest.mark.slow
+def test_cli_smoke_run(tmp_path):
+    from sympredict.cli import main
+
+    assert main(["run", "sine-gordon", "--preset", "smoke", "--out", str(tmp_path / "run")]) == 0
+    out = tmp_path / "run"
+    results = json.loads((out / "results.json").read_text())
+    s = results["results"]["sine-gordon"]
+    fig = json.loads((out / "sine_gordon_error_over_time_2n4.json").read_text())
+    lines = {ln["label"]: ln for ln in fig["axes"][0]["lines"]}
+    assert np.allclose(lines["Galerkin ROM (implicit midpoint, DT/r)"]["y"], s["dims"]["4"]["curves"]["galerkin"][1:])
+    assert any("sine-Gordon" in c["claim"] for c in results["claims"])
