@@ -404,7 +404,9 @@ def sine_gordon_figures(s: dict) -> dict:
     rows = []
     for row in s["cost_vs_N"]:
         rows.append({"N": row["N"], "label": f"Galerkin RK4, 2n={row['dim']}", "time": row["galerkin_rk4"]})
-        rows.append({"N": row["N"], "label": f"kernel (reduced coords), 2n={row['dim']}", "time": row["kernel"]})
+        rows.append({"N": row["N"], "label": f"Galerkin RK4 one step per DT, 2n={row['dim']}", "time": row["galerkin_rk4_at_DT"]})
+        rows.append({"N": row["N"], "label": f"kernel, Galerkin data, 2n={row['dim']}", "time": row["kernel"]})
+        rows.append({"N": row["N"], "label": f"kernel, FOM data, 2n={row['dim']}", "time": row["kernel_projected"]})
         rows.append({"N": row["N"], "label": f"reconstruction V y, 2n={row['dim']}", "time": row["reconstruction"]})
         rows.append({"N": row["N"], "label": f"DEIM ROM RK4, 2n={row['dim']}", "time": row.get("deim_rk4")})
     figs["sine_gordon_cost_vs_N"] = plotting.cost_against_n(rows, "Sine-Gordon: online cost against N")
@@ -464,10 +466,12 @@ def sine_gordon_claims(s: dict) -> list[dict]:
     if meet:
         d = meet[0]
         row = next(r for r in s["cost_vs_N"] if r["N"] == big and r["dim"] == int(d))
-        speed = row["galerkin_rk4"] / row["kernel"] if row["kernel"] else None
+        # the cheaper Galerkin variant: one RK4 step per DT where that is as accurate (DT omega_max < 1), else sub-stepped
+        t_gal = row["galerkin_rk4_at_DT"] if s["dims"][d]["DT_omega_max"] < 1 else row["galerkin_rk4"]
+        speed = t_gal / row["kernel"] if row["kernel"] else None
         out.append({"claim": f"sine-Gordon: kernel ROM >= 10x cheaper online than the compiled Galerkin ROM (RK4) at N = {big} "
                              "for the smallest model meeting the 2x condition", "holds": bool(speed and speed >= 10),
-                    "evidence": f"2n={d}: Galerkin RK4 {row['galerkin_rk4'] * 1e3:.2f} ms, kernel {row['kernel'] * 1e3:.2f} ms "
+                    "evidence": f"2n={d}: Galerkin RK4 {t_gal * 1e3:.2f} ms, kernel {row['kernel'] * 1e3:.2f} ms "
                                 f"per trajectory (ratio {speed:.3g}); reconstruction V y {row['reconstruction'] * 1e3:.2f} ms"})
     else:
         out.append({"claim": f"sine-Gordon: kernel ROM >= 10x cheaper than the Galerkin ROM at N = {big} for the smallest model "
@@ -498,10 +502,12 @@ def sine_gordon_markdown(s: dict) -> list[str]:
                      f"{kr['energy_error_long'] if kr['energy_error_long'] is None else format(kr['energy_error_long'], '.1e')} |")
     lines += ["", "Errors: median over the test parameters of the mean over time of |V y(t) - x(t)| / |x(t)|. "
               "The DEIM ROM is not Hamiltonian (its reduced Jacobian is not symmetric), so it is not symplectic.", "",
-              "| N | 2n | Galerkin RK4 [ms] | DEIM RK4 [ms] | kernel [ms] | reconstruction V y [ms] |", "|---|---|---|---|---|---|"]
+              "| N | 2n | Galerkin RK4, r sub-steps [ms] | Galerkin RK4 at DT [ms] | DEIM RK4 [ms] | kernel [ms] | reconstruction V y [ms] |",
+              "|---|---|---|---|---|---|---|"]
     for row in s["cost_vs_N"]:
         k = row["kernel"]
-        lines.append(f"| {row['N']} | {row['dim']} | {row['galerkin_rk4'] * 1e3:.2f} | {row['deim_rk4'] * 1e3:.2f} | "
+        lines.append(f"| {row['N']} | {row['dim']} | {row['galerkin_rk4'] * 1e3:.2f} | {row['galerkin_rk4_at_DT'] * 1e3:.2f} | "
+                     f"{row['deim_rk4'] * 1e3:.2f} | "
                      f"{'-' if k is None else format(k * 1e3, '.2f')} | {row['reconstruction'] * 1e3:.3f} |")
     lines += ["", "Kernel and DEIM costs in reduced coordinates do not depend on N (the same computation for every N; "
               "timed once); the Galerkin ROM's cost is timed per N with a random orthosymplectic basis of that size."]
