@@ -19,7 +19,7 @@ def setup():
     rng = np.random.default_rng(0)
     x0 = np.stack([a * fom.sech_cos(1.5, 1.0) for a in (0.8, 1.2, 1.6)])
     traj = rollout(fom, x0, [[0.9], [1.0], [1.1]], 0.1, 40, scheme="kahan_li6", substeps=8)
-    basis = complex_svd_basis(traj.reshape(-1, fom.dim), n=5)
+    basis = complex_svd_basis(traj.reshape(-1, fom.dim), n=5, layout="rows")
     return fom, basis, traj, rng
 
 
@@ -51,7 +51,7 @@ def test_galerkin_field_is_projected_gradient(setup):
 def test_complete_basis_reproduces_the_fom(setup):
     """With n = N (a complete orthosymplectic basis) the Galerkin ROM is the FOM in other coordinates."""
     fom, _, _, rng = setup
-    basis = complex_svd_basis(rng.normal(size=(3 * fom.n_points, fom.dim)), n=fom.n_points)
+    basis = complex_svd_basis(rng.normal(size=(3 * fom.n_points, fom.dim)), n=fom.n_points, layout="rows")
     rom = ReducedSineGordon.galerkin(fom, basis.V)
     x0 = 0.7 * fom.sech_cos(1.5, 1.0)
     full = rollout(fom.pointwise(), x0[None], [[1.0]], 0.1, 10, scheme="implicit_midpoint", substeps=2)[0]

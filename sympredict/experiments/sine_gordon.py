@@ -142,7 +142,7 @@ def _energy_curve(rom, Y, c):
 
 
 def _one_dimension(fom, p, n, snaps, X_tr, c_tr, X_te, c_te, K):
-    basis = complex_svd_basis(snaps, n=n)
+    basis = complex_svd_basis(snaps, n=n, layout="rows")
     res = {"projection_error": basis.projection_error, "symplecticity": symplecticity_of_basis(basis.V)}
     gal = ReducedSineGordon.galerkin(fom, basis.V)
     deim = ReducedSineGordon.deim(fom, basis.V, nonlinear_snapshots(fom, X_tr), p.deim_factor * 2 * n)
