@@ -12,7 +12,8 @@
   (``m = deim_factor * 2n`` points), the kernel ROM learned from Galerkin
   trajectories (``'reduced'``) and from projected FOM trajectories
   (``'projected'``, non-intrusive), each a :class:`~sympredict.SymplecticKernelPredictor`
-  with a kernel on ``c`` at the fixed macro step ``DT``, and RK4 / implicit
+  with a kernel on ``c`` at the fixed macro step ``DT``, trained in the scaled coordinates of
+  :mod:`sympredict.scaling` (as ``SymplecticKernelReductor`` does), and RK4 / implicit
   midpoint on the Galerkin ROM at the same ``DT`` (one step per output);
 * online wall times per trajectory (medians of ``repeats``, same process,
   BLAS on one thread): kernel rollout, Galerkin and DEIM ROMs at their
@@ -38,6 +39,7 @@ from sympredict.metrics import canonical_J, relative_trajectory_error
 from sympredict.nonlinear_mor import ReducedSineGordon, nonlinear_snapshots
 from sympredict.predictor import SymplecticKernelPredictor
 from sympredict.reduction import complex_svd_basis, symplecticity_of_basis
+from sympredict.scaling import BoxScaling, NormalizedFlowMap, SymplecticScaling
 from sympredict.systems.sine_gordon import SineGordonFOM
 
 __all__ = ["SineGordonPreset", "PRESETS", "run_sine_gordon"]
@@ -64,7 +66,8 @@ class SineGordonPreset:
     substeps: int = 4
     max_centers: int = 600
     state_eps: float = None  # None: IMQ(1 / diameter of the training xi), the estimator's default
-    mu_eps: float = 2.5
+    mu_eps: float = 1.0  # on c scaled to [0, 1]
+    state_scaling: str = "diag"
     ref_tol: float = 1e-7
     cost_N: tuple = (1000, 4000, 16000)
     repeats: int = 5
@@ -183,23 +186,28 @@ def _one_dimension(fom, p, n, snaps, X_tr, c_tr, X_te, c_te, K):
         x0 = Ytr[:, :-1].reshape(-1, gal.dim)
         x1 = Ytr[:, 1:].reshape(-1, gal.dim)
         mu = np.repeat(c_tr, K)[:, None]
+        # scaled coordinates (sympredict.scaling, as the reductor does): conformally symplectic state map, c onto
+        # [0, 1], time unit DT; the learned step stays symplectic in the original coordinates
+        st = SymplecticScaling(p.state_scaling).fit(np.concatenate([x0, x1]))
+        ms = BoxScaling().fit(mu, np.array([p.c_range[0]]), np.array([p.c_range[1]]))
         model = SymplecticKernelPredictor(None if p.state_eps is None else IMQ(p.state_eps), mu_kernel=IMQ(p.mu_eps),
                                           max_centers=p.max_centers, tol=1e-9)
         t0 = time.perf_counter()
-        model.fit(x0, x1, mu=mu, dt=p.DT)
+        model.fit(st.transform(x0), st.transform(x1), mu=ms.transform(mu), dt=1.0)
         fit_time = time.perf_counter() - t0
+        flow = NormalizedFlowMap(model, st, ms, p.DT)
         hist = model.history_.train_max_residual
         entry = {"fit_time": fit_time, "centers": int(model.surrogate_.n_centers),
                  "train_residual": [float(v) for v in hist], "error": None, "energy_error_long": None,
                  "time_per_trajectory": None, "failure": None}
         try:
-            Yk = model.rollout(y0, p.long_factor * K, mu=c_te[:, None], dt=p.DT)
+            Yk = flow.rollout(y0, p.long_factor * K, mu=c_te[:, None], dt=p.DT)
             entry["error"] = _err(gal, Yk[:, : K + 1], x_te).tolist()
             curves[f"kernel_{data}"] = _curve(gal, Yk[:, : K + 1], x_te).tolist()
             energy[f"kernel_{data}"] = _energy_curve(gal, Yk, c_te).tolist()
             entry["energy_error_long"] = max(energy[f"kernel_{data}"])
             snapshots[f"kernel_{data}"] = gal.reconstruct(Yk[0, snap_k])[:, : fom.n_points].tolist()
-            entry["time_per_trajectory"] = _median_time(lambda: model.rollout(y0[:1], K, mu=c_te[:1, None], dt=p.DT),
+            entry["time_per_trajectory"] = _median_time(lambda: flow.rollout(y0[:1], K, mu=c_te[:1, None], dt=p.DT),
                                                         p.repeats)
         except Exception as exc:  # a failed rollout is a result, reported as such
             entry["failure"] = f"{type(exc).__name__}: {exc}"[:300]
