@@ -348,7 +348,8 @@ def claims_markdown(checked: list[dict]) -> list[str]:
 # ------------------------------------------------------------------ sine-Gordon (issue 15)
 _SG_METHODS = (("galerkin", "Galerkin ROM (implicit midpoint, DT/r)"), ("deim", "DEIM ROM"),
                ("galerkin_rk4_at_DT", "Galerkin ROM + RK4 at DT"), ("galerkin_implicit_midpoint_at_DT", "Galerkin ROM + IM at DT"),
-               ("kernel_reduced", "kernel ROM (Galerkin data)"), ("kernel_projected", "kernel ROM (projected FOM data)"))
+               ("kernel_reduced", "kernel ROM (Galerkin data)"), ("kernel_projected", "kernel ROM (projected FOM data)"),
+               ("data_driven", "pyMOR DataDrivenReductor (VKOGA)"))
 
 
 def _median(v):
@@ -364,7 +365,8 @@ def sine_gordon_speed_rows(s: dict) -> list[dict]:
                                ("Galerkin ROM (RK4)", r["galerkin_error"], r["galerkin_rk4_time_per_trajectory"]),
                                ("DEIM ROM (IM)", r["deim_error"], r["deim_time_per_trajectory"]),
                                ("kernel ROM, Galerkin data", r["kernel_reduced"]["error"], r["kernel_reduced"]["time_per_trajectory"]),
-                               ("kernel ROM, FOM data", r["kernel_projected"]["error"], r["kernel_projected"]["time_per_trajectory"])):
+                               ("kernel ROM, FOM data", r["kernel_projected"]["error"], r["kernel_projected"]["time_per_trajectory"]),
+                               ("pyMOR DataDrivenReductor", r["data_driven"]["error"], r["data_driven"]["time_per_trajectory"])):
             if _median(err) is not None and t is not None:
                 rows.append({"method": method, "size": int(dim), "tag": f"2n={dim}", "time_per_trajectory_s": t,
                              "median_err": _median(err)})
@@ -489,8 +491,8 @@ def sine_gordon_markdown(s: dict) -> list[str]:
              f"halving (estimate {s['fom_step_halving_estimate']:.1e}), {s['fom_time_per_trajectory'] * 1e3:.1f} ms per trajectory. "
              f"DT = {p['DT']}. Timings: medians of {p['repeats']} runs in one process on a shared 2-core machine, BLAS on one thread.",
              "", "| 2n | proj. err | Galerkin | DEIM (m) | RK4 at DT | IM at DT | kernel (Galerkin data) | kernel (FOM data) | "
-                 "DT omega_max | energy err 10T Galerkin / kernel |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+                 "pyMOR DataDriven | DT omega_max | energy err 10T Galerkin / kernel |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     for d, r in s["dims"].items():
         def f(v):
             return f"{_median(v):.2e}" if isinstance(v, list) else str(v)
@@ -498,6 +500,7 @@ def sine_gordon_markdown(s: dict) -> list[str]:
         lines.append(f"| {d} | {r['projection_error']:.1e} | {f(r['galerkin_error'])} | {f(r['deim_error'])} ({r['deim_points']}) | "
                      f"{f(r['galerkin_rk4_at_DT_error'])} | {f(r['galerkin_implicit_midpoint_at_DT_error'])} | "
                      f"{f(kr['error']) if kr['error'] else 'failed'} | {f(kp['error']) if kp['error'] else 'failed'} | "
+                     f"{f(r['data_driven']['error']) if r['data_driven']['error'] else 'failed'} | "
                      f"{r['DT_omega_max']:.2f} | {r['galerkin_energy_error_long']:.1e} / "
                      f"{kr['energy_error_long'] if kr['energy_error_long'] is None else format(kr['energy_error_long'], '.1e')} |")
     lines += ["", "Errors: median over the test parameters of the mean over time of |V y(t) - x(t)| / |x(t)|. "

@@ -36,6 +36,9 @@ def test_smoke_run_is_consistent(smoke):
         if k["failure"] is None:
             assert np.isclose(np.mean(res["curves"][f"kernel_{data}"]), np.mean(k["error"]))
     assert {row["N"] for row in r["cost_vs_N"]} == set(PRESETS["smoke"].cost_N)
+    dd = res["data_driven"]  # pyMOR's DataDrivenReductor runs on the same projected data
+    assert dd["failure"] is None, dd["failure"]
+    assert len(dd["error"]) == PRESETS["smoke"].n_test and np.isclose(np.mean(res["curves"]["data_driven"]), np.mean(dd["error"]))
 
 
 def test_figures_show_the_results(smoke):
