@@ -60,7 +60,7 @@ def test_figures_show_the_results(smoke):
     sn = plotting.figure_data(figs["sine_gordon_snapshots"])
     assert np.allclose(sn["axes"][1]["lines"][0]["y"], res["snapshots"]["fom"][1])
     claims = report.sine_gordon_claims(smoke)
-    assert len(claims) == 4 and all(isinstance(c["holds"], bool) for c in claims)
+    assert len(claims) == 5 and all(isinstance(c["holds"], bool) for c in claims)
     md = "\n".join(report.sine_gordon_markdown(smoke))
     assert f"{np.median(res['galerkin_error']):.2e}" in md
     for f in figs.values():
