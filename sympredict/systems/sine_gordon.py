@@ -506,6 +506,8 @@ class CompiledSymplecticTimeStepper(TimeStepper):
         r = max(1, int(np.ceil(abs(dt) * fom.omega_max(c) / _H_OMEGA)))
         x0 = fom.from_pymor(initial_data)
         traj = rollout(fom, x0, np.full((len(x0), 1), c), dt, self.nt, scheme=self.scheme, substeps=r)[0]
-        every = 1 if not num_values else max(1, self.nt // (num_values - 1))
+        if num_values and (num_values < 2 or self.nt % (num_values - 1)):
+            raise ValueError(f"num_values - 1 must divide nt = {self.nt}, got num_values = {num_values}")
+        every = 1 if not num_values else self.nt // (num_values - 1)
         for k in range(0, self.nt + 1, every):
             yield fom.to_pymor(traj[k]), initial_time + k * dt
