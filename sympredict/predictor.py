@@ -136,6 +136,10 @@ class _FlowMapKernelModel(Parametrized):
             if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)) \
                     or not (np.isfinite(value) and value >= 0):
                 raise ValueError(f"{name} must be a finite non-negative float, got {value!r}")
+        reg = self.regularization
+        if isinstance(reg, bool) or not isinstance(reg, (int, float, np.floating, np.integer)) \
+                or not (np.isfinite(reg) and reg >= 0):
+            raise ValueError(f"regularization must be a finite non-negative float, got {reg!r}")
         if not self.power_tol < 1:
             raise ValueError(f"power_tol must be below 1 (relative to the Gramian diagonal), got {self.power_tol!r}")
         if self.criterion not in ("f", "p"):
@@ -210,7 +214,8 @@ class _FlowMapKernelModel(Parametrized):
         """
         functionals = self._functionals(kernel, points, data.mu, data.dt)
         result = trainer.run(functionals, targets, max_centers=self.max_centers, tol=self.tol, criterion=self.criterion,
-                             power_tol=self.power_tol, validation=validation, memory_limit=self.memory_limit)
+                             power_tol=self.power_tol, validation=validation, memory_limit=self.memory_limit,
+                             regularization=float(self.regularization))
         self.kernel_ = kernel
         self.history_ = result.history
         self.greedy_result_ = result
@@ -436,6 +441,16 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         *all* functionals reaches ``tol``) or
         :class:`~sympredict.greedy.ShardedGreedy` (a pyMOR worker pool, the
         exact greedy's centres).
+    regularization
+        Ridge term ``lambda >= 0`` for noisy data: the greedy builds the Newton
+        basis of ``G + lambda I`` (:class:`~sympredict.greedy.dense.DenseStore`;
+        ``ExactGreedy`` and ``ShardedGreedy``), so the coefficients solve
+        ``(G_sel + lambda I) c = y_sel`` on the selected centres instead of
+        interpolating them.  ``0`` (default) is the exact interpolation, run by
+        the same code as before this option existed.  Choose it on validation
+        data with :func:`sympredict.selection.select_regularization`.  The
+        training residuals in ``history_`` are those of the augmented kernel
+        (0 at the centres), the validation residuals those of the model.
 
     Attributes
     ----------
@@ -480,6 +495,7 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         memory_limit: Optional[float] = None,
         backend: str = "auto",
         trainer: Optional[Trainer] = None,
+        regularization: float = 0.0,
     ):
         self.state_kernel = state_kernel
         self.mu_kernel = mu_kernel
@@ -492,6 +508,7 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         self.memory_limit = memory_limit
         self.backend = backend
         self.trainer = trainer
+        self.regularization = regularization
 
     def fit(self, x0, x1, mu=None, dt=None, *, validation=None) -> "SymplecticKernelPredictor":
         """Train the surrogate on flow-map samples.
@@ -797,6 +814,7 @@ class DirectKernelPredictor(_FlowMapKernelModel):
         power_tol: float = 1e-12,
         memory_limit: Optional[float] = None,
         trainer: Optional[Trainer] = None,
+        regularization: float = 0.0,
     ):
         self.state_kernel = state_kernel
         self.mu_kernel = mu_kernel
@@ -807,6 +825,7 @@ class DirectKernelPredictor(_FlowMapKernelModel):
         self.power_tol = power_tol
         self.memory_limit = memory_limit
         self.trainer = trainer
+        self.regularization = regularization
 
     def fit(self, x0, x1, mu=None, dt=None, *, validation=None) -> "DirectKernelPredictor":
         """Train on flow-map samples (same arguments as :meth:`SymplecticKernelPredictor.fit`)."""

@@ -49,7 +49,7 @@ __all__ = [
 def greedy_interpolation(functionals, targets, *, max_centers: int, tol: float = 1e-10, criterion: str = "f",
                          power_tol: float = 1e-12, divergence_factor: float = 100.0, validation: Optional[tuple] = None,
                          memory_limit: Optional[float] = None, log_every: int = 100, basis_dtype: str = "float64",
-                         keep_basis: bool = False) -> GreedyResult:
+                         keep_basis: bool = False, regularization: float = 0.0) -> GreedyResult:
     """Sparse generalized interpolation by f-greedy (or P-greedy) selection, all candidates in memory.
 
     Parameters
@@ -86,6 +86,9 @@ def greedy_interpolation(functionals, targets, *, max_centers: int, tol: float =
         ``'float64'`` (the exact greedy) or ``'float32'`` (:class:`DenseStore`).
     keep_basis
         Return the Newton basis in :attr:`GreedyResult.basis` (benchmarks).
+    regularization
+        Ridge term ``lambda >= 0``: the Newton basis of ``G + lambda I`` (noisy
+        data, :class:`DenseStore`); ``0`` is the exact interpolation.
 
     Returns
     -------
@@ -97,7 +100,7 @@ def greedy_interpolation(functionals, targets, *, max_centers: int, tol: float =
     bytes (:mod:`sympredict.greedy.dense`).
     """
     store = DenseStore(functionals, targets, criterion=criterion, power_tol=power_tol, validation=validation,
-                       memory_limit=memory_limit, basis_dtype=basis_dtype)
+                       memory_limit=memory_limit, basis_dtype=basis_dtype, regularization=regularization)
     result = run_greedy(store, max_centers=max_centers, tol=tol, criterion=criterion,
                         divergence_factor=divergence_factor, log_every=log_every)
     if keep_basis:
@@ -128,12 +131,13 @@ def sharded_greedy(functionals, targets, *, max_centers: int, tol: float = 1e-10
                    power_tol: float = 1e-12, divergence_factor: float = 100.0, validation: Optional[tuple] = None,
                    pool=None, n_shards: Optional[int] = None, memory_limit_per_rank: Optional[float] = None,
                    timeout: Optional[float] = 60.0, log_every: int = 100,
-                   callback: Optional[Callable[[int, float], None]] = None, stats: Optional[dict] = None) -> GreedyResult:
+                   callback: Optional[Callable[[int, float], None]] = None, stats: Optional[dict] = None,
+                   regularization: float = 0.0) -> GreedyResult:
     """f-greedy (or P-greedy) with the candidates sharded over a pyMOR worker pool (:class:`~sympredict.greedy.sharded.ShardedStore`).
 
     Same arguments and result as :func:`greedy_interpolation` (same selection
     and coefficients), plus the store's ``pool``, ``n_shards``,
-    ``memory_limit_per_rank`` and ``timeout``; ``callback(m, E_train(m))``
+    ``memory_limit_per_rank``, ``timeout`` and ``regularization``; ``callback(m, E_train(m))``
     after each step; ``stats``, a dict filled with the pool timings
     (the store's ``stats``).
 
@@ -145,7 +149,8 @@ def sharded_greedy(functionals, targets, *, max_centers: int, tol: float = 1e-10
         Any other exception on a worker (names the rank, carries the remote traceback).
     """
     store = ShardedStore(functionals, targets, criterion=criterion, power_tol=power_tol, validation=validation,
-                         pool=pool, n_shards=n_shards, memory_limit_per_rank=memory_limit_per_rank, timeout=timeout)
+                         pool=pool, n_shards=n_shards, memory_limit_per_rank=memory_limit_per_rank, timeout=timeout,
+                         regularization=regularization)
     result = run_greedy(store, max_centers=max_centers, tol=tol, criterion=criterion,
                         divergence_factor=divergence_factor, log_every=log_every, callback=callback)
     if stats is not None:

@@ -71,6 +71,18 @@ class DenseStore(BaseStore):
         ``max G_ii`` over the whole candidate set, when this store holds only a
         part of it (a shard of :class:`~sympredict.greedy.sharded.ShardedStore`);
         default: over its own candidates.
+    regularization
+        Ridge term ``lambda >= 0``: the Newton basis of ``G + lambda I``
+        (noisy data; regularized interpolation).  The power function starts
+        at ``G_ii + lambda`` and a selected functional's column gets
+        ``+ lambda`` at its own index; the coefficients ``c = L^{-T} beta``
+        then solve ``(G_sel + lambda I) c = y_sel`` on the selected
+        functionals (kernel ridge regression on the centres), and the model
+        evaluates ``s`` with the plain kernel.  Training residuals are those of
+        the augmented kernel (at a centre ``r_j = 0`` while
+        ``y_j - lambda_j(s) = lambda c_j``); validation residuals are those of
+        ``s`` itself.  ``0`` (default) runs exactly the unregularized code.
+        The breakdown guard stays relative to ``max G_ii``.
 
     Notes
     -----
@@ -82,13 +94,17 @@ class DenseStore(BaseStore):
 
     def __init__(self, functionals, targets, *, criterion: str = "f", power_tol: float = 1e-12,
                  validation: Optional[tuple] = None, memory_limit: Optional[float] = None, basis_dtype: str = "float64",
-                 compiled: Optional[bool] = None, diagonal_max: Optional[float] = None):
+                 compiled: Optional[bool] = None, diagonal_max: Optional[float] = None,
+                 regularization: float = 0.0):
+        if not (np.isfinite(regularization) and regularization >= 0):
+            raise ValueError(f"regularization must be a finite non-negative float, got {regularization!r}")
         if basis_dtype not in ("float64", "float32"):
             raise ValueError(f"basis_dtype must be 'float64' or 'float32', got {basis_dtype!r}")
         super().__init__(functionals, targets, criterion=criterion, power_tol=power_tol, validation=validation)
         self.memory_limit = memory_limit
         self.dtype = np.dtype(basis_dtype)
         self.diagonal_max = diagonal_max
+        self.regularization = float(regularization)
         if compiled and not _fastkernels.HAVE_NUMBA:
             raise ImportError("compiled=True needs numba: pip install 'sympredict[fast]'")
         self.compiled = _fastkernels.HAVE_NUMBA if compiled is None else bool(compiled)
@@ -102,6 +118,8 @@ class DenseStore(BaseStore):
         self.res_abs = np.empty(n)
         self.p2 = self.functionals.diagonal().astype(float)
         self.breakdown = self.power_tol * (self.p2.max() if self.diagonal_max is None else self.diagonal_max)
+        if self.regularization:
+            self.p2 += self.regularization  # diagonal of G + lambda I
         self.basis = np.empty((max_centers, n), dtype=self.dtype)
         self.vbasis = np.empty((max_centers, n_val), dtype=self.dtype) if n_val else None
         self.row64 = np.empty(n) if self.single else None
@@ -141,6 +159,8 @@ class DenseStore(BaseStore):
             else:
                 row = self.functionals.column(rep, out=basis[m])
                 t = basis[:m].T @ coeffs_j if m else self.zeros
+            if self.regularization and j >= 0:
+                row[j] += self.regularization  # column of G + lambda I
             max_abs, next_j, next_best = _fastkernels.greedy_update(
                 row, t, 1.0 / pj, b[0], self.res[:, 0], self.p2, j, self.breakdown, parallel=_fastkernels.GREEDY_PARALLEL
             )
@@ -156,6 +176,8 @@ class DenseStore(BaseStore):
                 row = self.functionals.column(rep, out=basis[m])
                 if m:
                     row -= basis[:m].T @ coeffs_j
+            if self.regularization and j >= 0:
+                row[j] += self.regularization  # column of G + lambda I (the basis values at j are subtracted above)
             row *= 1.0 / pj
             if single:
                 basis[m] = row

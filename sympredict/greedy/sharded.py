@@ -125,7 +125,8 @@ def _w_load_shards(payload, shards=None):
     for s in specs:
         val = (s["val_functionals"], s["val_targets"]) if s["n_val"] else None
         store = DenseStore(s["functionals"], s["targets"], criterion=settings["criterion"], power_tol=settings["power_tol"],
-                           validation=val, memory_limit=np.inf, diagonal_max=settings["diagonal_max"])
+                           validation=val, memory_limit=np.inf, diagonal_max=settings["diagonal_max"],
+                           regularization=settings["regularization"])
         shards.shards[s["shard_id"]] = (s["offset"], store, store.open(_Sized(settings["max_centers"])))
     return sorted(shards.shards)
 
@@ -207,6 +208,9 @@ class ShardedStore(BaseStore):
         Seconds without a heartbeat after which an MPI worker counts as dead
         (:class:`~sympredict.parallel.Watchdog`); ``None`` disables heartbeats
         (dead local processes are still detected), ``0`` disables the watchdog.
+    regularization
+        Ridge term ``lambda`` of :class:`~sympredict.greedy.dense.DenseStore`
+        (each shard adds it at the selected functional's own index when it holds it).
 
     Attributes
     ----------
@@ -221,7 +225,10 @@ class ShardedStore(BaseStore):
 
     def __init__(self, functionals, targets, *, criterion: str = "f", power_tol: float = 1e-12,
                  validation: Optional[tuple] = None, pool=None, n_shards: Optional[int] = None,
-                 memory_limit_per_rank: Optional[float] = None, timeout: Optional[float] = 60.0):
+                 memory_limit_per_rank: Optional[float] = None, timeout: Optional[float] = 60.0,
+                 regularization: float = 0.0):
+        if not (np.isfinite(regularization) and regularization >= 0):
+            raise ValueError(f"regularization must be a finite non-negative float, got {regularization!r}")
         _subset(functionals, 0, 1)  # TypeError for functionals that cannot be sharded
         super().__init__(functionals, targets, criterion=criterion, power_tol=power_tol, validation=validation)
         self.pool = dummy_pool if pool is None else pool
@@ -232,6 +239,7 @@ class ShardedStore(BaseStore):
             raise ValueError(f"n_shards must lie in 1..{n_points} (the number of points), got {self.n_shards}")
         self.memory_limit_per_rank = memory_limit_per_rank
         self.timeout = timeout
+        self.regularization = float(regularization)
         self._stack = None
 
     def _payloads(self, max_centers: int, workers: list) -> tuple:
@@ -259,7 +267,8 @@ class ShardedStore(BaseStore):
             specs.append(spec)
         wb = shard_bounds(n_shards, self.n_workers, align=1)  # shards of worker w: wb[w]..wb[w+1]
         settings = {"max_centers": max_centers, "criterion": self.criterion, "power_tol": self.power_tol,
-                    "diagonal_max": float(f.diagonal().max()), "memory_limit_per_rank": self.memory_limit_per_rank,
+                    "diagonal_max": float(f.diagonal().max()), "regularization": self.regularization,
+                    "memory_limit_per_rank": self.memory_limit_per_rank,
                     "ranks_on_host": ranks_on_host, "need_total": 8 * max_centers * (self.n_functionals + self.n_val)}
         return [(specs[wb[w]: wb[w + 1]], settings) for w in range(self.n_workers)], bounds, per
 

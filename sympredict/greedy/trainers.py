@@ -52,16 +52,30 @@ class Trainer(Parametrized):
     """A training strategy: builds the store the greedy loop runs on."""
 
     def store(self, functionals, targets, *, criterion: str, power_tol: float, tol: float,
-              validation: Optional[tuple], memory_limit: Optional[float]):
-        """The :class:`~sympredict.greedy.loop.NewtonBasisStore` for these candidates and settings."""
+              validation: Optional[tuple], memory_limit: Optional[float], regularization: float = 0.0):
+        """The :class:`~sympredict.greedy.loop.NewtonBasisStore` for these candidates and settings.
+
+        ``regularization`` is the ridge term ``lambda`` (the Newton basis of
+        ``G + lambda I``, :class:`~sympredict.greedy.dense.DenseStore`); a
+        strategy that has no regularized store raises ``ValueError`` for
+        ``lambda > 0``; :meth:`run` passes the keyword only when ``lambda > 0``.
+        """
         raise NotImplementedError
 
     def run(self, functionals, targets, *, max_centers: int, tol: float = 1e-10, criterion: str = "f",
             power_tol: float = 1e-12, validation: Optional[tuple] = None, memory_limit: Optional[float] = None,
-            divergence_factor: float = 100.0, log_every: int = 100, callback=None) -> GreedyResult:
+            divergence_factor: float = 100.0, log_every: int = 100, callback=None,
+            regularization: float = 0.0) -> GreedyResult:
         """Greedy selection over ``functionals`` with this strategy's store (:func:`run_greedy`)."""
-        store = self.store(functionals, targets, criterion=criterion, power_tol=power_tol, tol=tol,
-                           validation=validation, memory_limit=memory_limit)
+        # passed only when set: strategies written before the option (store without the keyword) keep working
+        extra = {"regularization": regularization} if regularization else {}
+        try:
+            store = self.store(functionals, targets, criterion=criterion, power_tol=power_tol, tol=tol,
+                               validation=validation, memory_limit=memory_limit, **extra)
+        except TypeError as exc:
+            if extra and "regularization" in str(exc):
+                raise ValueError(f"the training strategy {type(self).__name__} does not support regularization > 0") from None
+            raise
         with logger.block(f"{store.label} over {functionals.n_functionals} functionals"):
             return run_greedy(store, max_centers=max_centers, tol=tol, criterion=criterion,
                               divergence_factor=divergence_factor, log_every=log_every, callback=callback)
@@ -88,9 +102,9 @@ class ExactGreedy(Trainer):
     def __init__(self, basis_dtype: str = "float64"):
         self.basis_dtype = basis_dtype
 
-    def store(self, functionals, targets, *, criterion, power_tol, tol, validation, memory_limit):
+    def store(self, functionals, targets, *, criterion, power_tol, tol, validation, memory_limit, regularization=0.0):
         return DenseStore(functionals, targets, criterion=criterion, power_tol=power_tol, validation=validation,
-                          memory_limit=memory_limit, basis_dtype=self.basis_dtype)
+                          memory_limit=memory_limit, basis_dtype=self.basis_dtype, regularization=regularization)
 
 
 @register_trainer
@@ -113,7 +127,10 @@ class ActiveSetGreedy(Trainer):
         self.refresh_fraction = refresh_fraction
         self.seed = seed
 
-    def store(self, functionals, targets, *, criterion, power_tol, tol, validation, memory_limit):
+    def store(self, functionals, targets, *, criterion, power_tol, tol, validation, memory_limit, regularization=0.0):
+        if regularization:
+            raise ValueError("ActiveSetGreedy has no regularized store: use ExactGreedy() or ShardedGreedy() "
+                             "with regularization > 0")
         if criterion != "f":
             raise ValueError(f"ActiveSetGreedy is an f-greedy: use criterion='f' (got {criterion!r}) or ExactGreedy()")
         if not isinstance(functionals, HBFunctionals):
@@ -157,10 +174,10 @@ class ShardedGreedy(Trainer):
         params = self.get_params(deep=False)
         return type(self)(**params)  # the same pool object: a pool is a connection, not a setting
 
-    def store(self, functionals, targets, *, criterion, power_tol, tol, validation, memory_limit):
+    def store(self, functionals, targets, *, criterion, power_tol, tol, validation, memory_limit, regularization=0.0):
         return ShardedStore(functionals, targets, criterion=criterion, power_tol=power_tol, validation=validation,
                             pool=self.pool, n_shards=self.n_shards, memory_limit_per_rank=self.memory_limit_per_rank,
-                            timeout=self.timeout)
+                            timeout=self.timeout, regularization=regularization)
 
     @property
     def spec(self) -> dict:
