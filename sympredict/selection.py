@@ -321,11 +321,14 @@ class RegularizationResult:
     table : list of dict
         Every candidate: ``regularization``, ``score``, ``E_val`` (max residual), ``rms_val``,
         ``n_centers``, ``stop_reason``, ``fit_s``.
+    model : SymplecticKernelPredictor
+        The fitted model of the chosen ``lambda``.
     """
 
     regularization: float
     score: float
     table: list = field(default_factory=list)
+    model: Optional[SymplecticKernelPredictor] = field(default=None, repr=False)
 
 
 def select_regularization(
@@ -390,7 +393,7 @@ def select_regularization(
                       "stop_reason": model.history_.stop_reason, "fit_s": time.perf_counter() - t0})
         logger.info(f"regularization {lam:.3g}: {metric} validation residual {score:.4e} ({model.n_centers_} centres)")
         if np.isfinite(score) and (best is None or score < best[1]):
-            best = (lam, score)
+            best = (lam, score, model)
     if best is None:
         raise ValueError("no regularization produced a finite validation score")
-    return RegularizationResult(best[0], best[1], table)
+    return RegularizationResult(best[0], best[1], table, best[2])
