@@ -19,7 +19,8 @@ from sympredict.exceptions import NewtonConvergenceError
 from sympredict.newton_rule import EPS, converged, residual_floor
 from sympredict.surrogate import HBSurrogate
 
-__all__ = ["solve_step_numpy", "rollout_numpy", "rollout_compiled", "FAILURE_REASONS"]
+__all__ = ["solve_step_numpy", "solve_midpoint_numpy", "midpoint_jacobian", "rollout_numpy", "rollout_compiled",
+           "FAILURE_REASONS", "MIDPOINT_FAILURE_REASONS"]
 
 #: Failure codes of the compiled solver and the reason each names.
 FAILURE_REASONS = {
@@ -27,6 +28,101 @@ FAILURE_REASONS = {
     2: "hit a singular Jacobian I + dT d_p d_q s",
     3: "did not converge in {max_iter} iterations",
 }
+
+#: The same codes for the midpoint update (its Jacobian is ``I - dT/2 J Hess s``).
+MIDPOINT_FAILURE_REASONS = {**FAILURE_REASONS, 2: "hit a singular Jacobian I - dT/2 J Hess s"}
+
+
+def _j_times(v: np.ndarray) -> np.ndarray:
+    """``J v`` for ``J = [[0, I], [-I, 0]]`` on the last axis (``(a_q, a_p) -> (a_p, -a_q)``)."""
+    n = v.shape[-1] // 2
+    return np.concatenate([v[..., n:], -v[..., :n]], axis=-1)
+
+
+def solve_midpoint_numpy(sur: HBSurrogate, x: np.ndarray, weights: np.ndarray, dt: np.ndarray,
+                         max_iter: int) -> np.ndarray:
+    """One step of the symmetric (midpoint) generating-function update (NumPy reference).
+
+    ``x1 = x0 + dT J grad s(z)`` with the midpoint ``z = (x0 + x1) / 2``: per
+    instance Newton's method on the ``2n`` unknowns ``z``,
+    ``F(z) = z - x0 - dT/2 J grad s(z) = 0`` with Jacobian ``I - dT/2 J Hess s(z)``,
+    from the explicit guess ``z = x0 + dT/2 J grad s(x0)``; then
+    ``x1 = x0 + dT J grad s(z)``.  Stopped by the one rule of
+    :mod:`sympredict.newton_rule` with the half step ``dT/2`` in the residual
+    floor and ``scale = max(|z|, |x0|)``.  ``dt`` may be negative: with the same
+    ``s`` (the same ``weights``) the step with ``-dT`` inverts the step with ``dT``.
+
+    Parameters
+    ----------
+    sur
+        The fitted surrogate (trained on midpoints, see
+        :class:`~sympredict.predictor.SymplecticKernelPredictor` ``update``).
+    x : ndarray of shape (B, 2n)
+    weights : ndarray of shape (B, m)
+    dt : ndarray of shape (B,)
+    max_iter
+        Newton iterations at most.
+
+    Returns
+    -------
+    ndarray of shape (B, 2n)
+
+    Raises
+    ------
+    NewtonConvergenceError
+        Naming the instances, as :func:`solve_step_numpy`.
+
+    Notes
+    -----
+    Cost per iteration ``O(B_active m (2n)^2)`` for the full Hessian
+    (:meth:`HBSurrogate.gradient_hessian`) plus a ``(2n)^3`` solve per instance.
+    """
+    half = 0.5 * dt[:, None]
+    z = x + half * _j_times(sur.gradient(x, weights))
+    out = np.empty_like(x)
+    active = np.arange(len(x))
+    last_update = np.full(len(x), np.inf)
+    eye = np.eye(x.shape[1])
+    for _ in range(max_iter):
+        g, hess, floor = sur.gradient_hessian(z[active], weights[active], with_floor=True)
+        ha = half[active]
+        jg = _j_times(g)
+        F = z[active] - x[active] - ha * jg
+        f_norm = np.abs(F).max(axis=1)
+        scale = np.maximum(np.abs(z[active]).max(axis=1), np.abs(x[active]).max(axis=1))
+        f_floor = residual_floor(scale, floor, np.abs(ha[:, 0]))
+        bad = ~np.isfinite(f_norm)
+        if np.any(bad):
+            raise NewtonConvergenceError(active[bad], f_norm[bad], reason=MIDPOINT_FAILURE_REASONS[1])
+        jac = eye - ha[:, :, None] * _j_times(hess.transpose(0, 2, 1)).transpose(0, 2, 1)
+        try:
+            delta = np.linalg.solve(jac, F[:, :, None])[:, :, 0]
+        except np.linalg.LinAlgError:
+            singular = np.abs(np.linalg.det(jac)) <= EPS
+            raise NewtonConvergenceError(active[singular], f_norm[singular], reason=MIDPOINT_FAILURE_REASONS[2]) from None
+        d_norm = np.abs(delta).max(axis=1)
+        done = converged(f_norm, f_floor, d_norm, last_update[active], scale)
+        idx = active[done]
+        out[idx] = x[idx] + 2.0 * ha[done] * jg[done]
+        keep = ~done
+        active = active[keep]
+        last_update[active] = d_norm[keep]
+        z[active] -= delta[keep]
+        if active.size == 0:
+            return out
+    raise NewtonConvergenceError(active, f_norm[keep], reason=MIDPOINT_FAILURE_REASONS[3].format(max_iter=max_iter))
+
+
+def midpoint_jacobian(hess: np.ndarray, dt: np.ndarray) -> np.ndarray:
+    """``D Phi = (I - A)^{-1} (I + A)``, ``A = dT/2 J Hess s(z)``, of the midpoint update (B, 2n, 2n).
+
+    From ``dx1 = dx0 + dT/2 J H (dx0 + dx1)``.  ``J H`` is Hamiltonian, so this
+    Cayley transform is symplectic: ``D Phi^T J D Phi = J``.
+    """
+    eye = np.eye(hess.shape[-1])
+    jh = _j_times(hess.transpose(0, 2, 1)).transpose(0, 2, 1)  # J H: J applied to each column
+    a = 0.5 * dt[:, None, None] * jh
+    return np.linalg.solve(eye - a, eye + a)
 
 
 def solve_step_numpy(sur: HBSurrogate, x: np.ndarray, weights: np.ndarray, dt: np.ndarray, max_iter: int) -> np.ndarray:

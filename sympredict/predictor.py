@@ -42,7 +42,7 @@ from sympredict.functionals import HBFunctionals, ValueFunctionals
 from sympredict.greedy import GreedyHistory, Trainer, trainer_from_spec
 from sympredict.greedy.trainers import ExactGreedy
 from sympredict.kernels import IMQ, ProductKernel, RadialKernel, kernel_from_spec
-from sympredict.newton import rollout_compiled, rollout_numpy, solve_step_numpy
+from sympredict.newton import midpoint_jacobian, rollout_compiled, rollout_numpy, solve_midpoint_numpy, solve_step_numpy
 from sympredict.surrogate import HBSurrogate, ValueSurrogate
 
 __all__ = ["SymplecticKernelPredictor", "DirectKernelPredictor", "MODEL_FORMAT"]
@@ -55,6 +55,26 @@ MODEL_FORMAT = "sympredict-model"
 MODEL_LAYOUT = 2
 
 _BACKENDS = ("auto", "numpy", "numba")
+
+#: The generating-function updates of :class:`SymplecticKernelPredictor` (``update``).
+UPDATES = ("symplectic_euler", "midpoint")
+
+
+def update_variables(update: str, x0: np.ndarray, x1: np.ndarray, dt: np.ndarray):
+    """Interpolation points and gradient targets of flow-map samples for an update.
+
+    Both updates learn ``grad s = y = J^T (x1 - x0) / dT``; they differ in where:
+    ``'symplectic_euler'`` at the mixed state ``(q0, p1)``
+    (:func:`~sympredict.data.mixed_variables`), ``'midpoint'`` at ``(x0 + x1) / 2``.
+
+    Returns
+    -------
+    xi, y : ndarray of shape (M, 2n)
+    """
+    xi, y = mixed_variables(x0, x1, dt)
+    if update == "midpoint":
+        xi = 0.5 * (x0 + x1)
+    return xi, y
 
 
 def _fmt(v) -> str:
@@ -451,6 +471,19 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         data with :func:`sympredict.selection.select_regularization`.  The
         training residuals in ``history_`` are those of the augmented kernel
         (0 at the centres), the validation residuals those of the model.
+    update
+        The generating-function update.  ``'symplectic_euler'`` (default, the
+        paper's): ``s(q0, p1)`` of type II, the implicit symplectic-Euler step
+        above.  ``'midpoint'``: the symmetric (Poincare-type) update
+        ``x1 = x0 + dT J grad s((x0 + x1) / 2, mu, dT)``, trained on
+        ``y = J^T (x1 - x0) / dT`` at the midpoints and solved by Newton on all
+        ``2n`` unknowns (Jacobian ``I - dT/2 J Hess s``,
+        :func:`~sympredict.newton.solve_midpoint_numpy`).  Symplectic for every
+        ``s`` (a Cayley transform) and time-symmetric (with the same ``s``,
+        ``-dT`` inverts the step); on a linear mode turning by ``theta`` per
+        step its generating function exists for ``theta < pi`` where the type-II
+        form degenerates at ``pi/2``.  NumPy solver only so far (``backend='auto'``
+        uses it; ``'numba'`` is refused).
 
     Attributes
     ----------
@@ -496,6 +529,7 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         backend: str = "auto",
         trainer: Optional[Trainer] = None,
         regularization: float = 0.0,
+        update: str = "symplectic_euler",
     ):
         self.state_kernel = state_kernel
         self.mu_kernel = mu_kernel
@@ -505,6 +539,7 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         self.criterion = criterion
         self.power_tol = power_tol
         self.newton_max_iter = newton_max_iter
+        self.update = update
         self.memory_limit = memory_limit
         self.backend = backend
         self.trainer = trainer
@@ -538,15 +573,19 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         as_positive_int(self.newton_max_iter, "newton_max_iter")
         if self.backend not in _BACKENDS:
             raise ValueError(f"backend must be 'auto', 'numpy' or 'numba', got {self.backend!r}")
+        if self.update not in UPDATES:
+            raise ValueError(f"update must be one of {UPDATES}, got {self.update!r}")
+        if self.update == "midpoint" and self.backend == "numba":
+            raise ValueError("update='midpoint' has no compiled solver yet: use backend='numpy' or 'auto'")
         data, validation = self._fit_data(x0, x1, mu, dt, validation)
         if data.x0.shape[1] % 2:
             raise ValueError(f"states must have an even dimension 2n (q, p), got {data.x0.shape[1]}")
-        xi, y = mixed_variables(data.x0, data.x1, data.dt)
+        xi, y = update_variables(self.update, data.x0, data.x1, data.dt)
         self._check_duplicates(xi, data)
         kernel = self._product_kernel(xi)
         val = None
         if validation is not None:
-            vxi, vy = mixed_variables(validation.x0, validation.x1, validation.dt)
+            vxi, vy = update_variables(self.update, validation.x0, validation.x1, validation.dt)
             val = (HBFunctionals(kernel, vxi, validation.mu, validation.dt), vy.reshape(-1))
         points, comps = self._train(trainer, kernel, xi, y.reshape(-1), data, val)
         self.surrogate_ = HBSurrogate(kernel, xi[points], data.mu[points], data.dt[points], comps, self.greedy_result_.coef)
@@ -619,6 +658,10 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
     # ------------------------------------------------------- Newton backends
     def _compiled(self) -> bool:
         """Whether :meth:`step` / :meth:`rollout` use the compiled solver (resolves ``backend``)."""
+        if self.update == "midpoint":
+            if self.backend == "numba":
+                raise ValueError("update='midpoint' has no compiled solver yet: use backend='numpy' or 'auto'")
+            return False
         if self.backend == "numpy":
             return False
         if self.backend == "auto":
@@ -640,6 +683,8 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         max_iter = as_positive_int(self.newton_max_iter, "newton_max_iter")
         if self._compiled():
             return rollout_compiled(self.surrogate_, x, weights, dt, 1, max_iter, step_index=False)[:, 1]
+        if self.update == "midpoint":
+            return solve_midpoint_numpy(self.surrogate_, x, weights, dt, max_iter)
         return solve_step_numpy(self.surrogate_, x, weights, dt, max_iter)
 
     _advance = _solve_step
@@ -709,6 +754,8 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
     def _solvability(self, x, weights, dt):
         n = self.dim_ // 2
         _, hess = self.surrogate_.gradient_hessian(x, weights)
+        if self.update == "midpoint":  # z -> x0 + dT/2 J grad s(z) contracts where dT/2 |Hess s| < 1
+            return 0.5 * dt * np.linalg.norm(hess, ord=2, axis=(1, 2))
         return dt * np.linalg.norm(hess[:, :, n:], ord=2, axis=(1, 2))
 
     def solvability(self, x, mu=None, dt=None) -> np.ndarray:
@@ -729,6 +776,9 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
     def step_jacobian(self, x, mu=None, dt=None) -> np.ndarray:
         """Jacobian ``D Phi`` of the predicted step, by implicit differentiation.
 
+        (For ``update='midpoint'``: ``(I - A)^{-1} (I + A)``, ``A = dT/2 J Hess s(z)``,
+        :func:`~sympredict.newton.midpoint_jacobian`.)
+
         With ``S`` the Hessian of ``s`` at ``(q0, p1)`` and ``M = I + dT S_qp``:
         ``dp1 = M^{-1} (dp0 - dT S_qq dq0)`` and
         ``dq1 = (I + dT S_pq) dq0 + dT S_pp dp1``.
@@ -741,6 +791,10 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         x, single, mu, dt = self._query(x, mu, dt)
         weights = self.surrogate_.weights(mu, dt)
         x1 = self._solve_step(x, weights, dt)
+        if self.update == "midpoint":
+            _, S = self.surrogate_.gradient_hessian(0.5 * (x + x1), weights)
+            jac = midpoint_jacobian(S, dt)
+            return jac[0] if single else jac
         n = self.dim_ // 2
         xi = np.concatenate([x[:, :n], x1[:, n:]], axis=1)
         _, S = self.surrogate_.gradient_hessian(xi, weights)
@@ -756,7 +810,7 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         return jac[0] if single else jac
 
     def surrogate_gradient(self, xi, mu=None, dt=None) -> np.ndarray:
-        """``grad_xi s(xi, mu, dT)`` at mixed states ``xi = (q0, p1)``, shape (B, 2n)."""
+        """``grad_xi s(xi, mu, dT)`` at mixed states ``xi = (q0, p1)`` (midpoints for ``update='midpoint'``), shape (B, 2n)."""
         xi, single, mu, dt = self._query(xi, mu, dt, name="xi")
         g = self.surrogate_.gradient(xi, self.surrogate_.weights(mu, dt))
         return g[0] if single else g

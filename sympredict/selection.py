@@ -21,10 +21,10 @@ import numpy as np
 from pymor.core.logger import getLogger
 
 from sympredict.base import clone
-from sympredict.data import FlowMapData, mixed_variables
+from sympredict.data import FlowMapData
 from sympredict.exceptions import ExtrapolationWarning
 from sympredict.kernels import KERNEL_FAMILIES, RadialKernel
-from sympredict.predictor import SymplecticKernelPredictor
+from sympredict.predictor import SymplecticKernelPredictor, update_variables
 
 __all__ = ["log_grid", "kernel_grid", "SelectionResult", "select_kernels", "refine_kernel_shapes",
            "RegularizationResult", "select_regularization"]
@@ -376,7 +376,7 @@ def select_regularization(
         raise ValueError(f"lambdas must be finite non-negative floats, got {lambdas!r}")
     mu = None if data.mu.shape[1] == 0 else data.mu
     vmu = None if validation.mu.shape[1] == 0 else validation.mu
-    vxi, vy = mixed_variables(validation.x0, validation.x1, validation.dt)
+    vxi, vy = update_variables(getattr(estimator, "update", "symplectic_euler"), validation.x0, validation.x1, validation.dt)
     table, best = [], None
     for lam in values:
         model = clone(estimator).set_params(regularization=lam)
