@@ -323,12 +323,15 @@ class RegularizationResult:
         ``n_centers``, ``stop_reason``, ``fit_s``.
     model : SymplecticKernelPredictor
         The fitted model of the chosen ``lambda``.
+    models : dict
+        ``lambda -> fitted model`` of every candidate (``keep_models=True``; else empty).
     """
 
     regularization: float
     score: float
     table: list = field(default_factory=list)
     model: Optional[SymplecticKernelPredictor] = field(default=None, repr=False)
+    models: dict = field(default_factory=dict, repr=False)
 
 
 def select_regularization(
@@ -337,6 +340,7 @@ def select_regularization(
     lambdas,
     estimator: SymplecticKernelPredictor,
     metric: str = "rms",
+    keep_models: bool = False,
 ) -> RegularizationResult:
     """The ridge term ``lambda`` of the greedy (noisy data) chosen on validation data.
 
@@ -359,6 +363,8 @@ def select_regularization(
     metric
         ``'rms'`` (default: root mean square over all validation functionals,
         the noise-robust score) or ``'max'`` (``E_val``, the maximum).
+    keep_models
+        Return every candidate's fitted model (:attr:`RegularizationResult.models`).
 
     Returns
     -------
@@ -377,7 +383,7 @@ def select_regularization(
     mu = None if data.mu.shape[1] == 0 else data.mu
     vmu = None if validation.mu.shape[1] == 0 else validation.mu
     vxi, vy = update_variables(getattr(estimator, "update", "symplectic_euler"), validation.x0, validation.x1, validation.dt)
-    table, best = [], None
+    table, best, models = [], None, {}
     for lam in values:
         model = clone(estimator).set_params(regularization=lam)
         t0 = time.perf_counter()
@@ -392,8 +398,10 @@ def select_regularization(
         table.append({"regularization": lam, "score": score, "E_val": emax, "rms_val": rms, "n_centers": model.n_centers_,
                       "stop_reason": model.history_.stop_reason, "fit_s": time.perf_counter() - t0})
         logger.info(f"regularization {lam:.3g}: {metric} validation residual {score:.4e} ({model.n_centers_} centres)")
+        if keep_models:
+            models[lam] = model
         if np.isfinite(score) and (best is None or score < best[1]):
             best = (lam, score, model)
     if best is None:
         raise ValueError("no regularization produced a finite validation score")
-    return RegularizationResult(best[0], best[1], table, best[2])
+    return RegularizationResult(best[0], best[1], table, best[2], models)
