@@ -91,6 +91,8 @@ def _encode_param(value):
         return {"trainer": value.spec}
     if value is None or isinstance(value, (bool, int, float, str)):
         return value
+    if isinstance(value, (tuple, list)) and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
+        return {"tuple" if isinstance(value, tuple) else "list": [float(v) for v in value]}
     raise ValueError(f"cannot store the parameter value {value!r} in a model file")
 
 
@@ -99,6 +101,10 @@ def _decode_param(value):
         return kernel_from_spec(value["kernel"])
     if isinstance(value, dict) and "trainer" in value:
         return trainer_from_spec(value["trainer"])
+    if isinstance(value, dict) and set(value) == {"tuple"}:
+        return tuple(value["tuple"])
+    if isinstance(value, dict) and set(value) == {"list"}:
+        return list(value["list"])
     return value
 
 
@@ -484,6 +490,15 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         step its generating function exists for ``theta < pi`` where the type-II
         form degenerates at ``pi/2``.  NumPy solver only so far (``backend='auto'``
         uses it; ``'numba'`` is refused).
+    state_scaling
+        ``None`` or ``n`` positive factors ``a_i``: the model works in the
+        coordinates ``(a_i q_i, p_i / a_i)`` (a diagonal *symplectic* map, so
+        both updates and both Newton backends stay exactly as they are): the
+        isotropic state kernel of shape ``eps`` then has the per-coordinate
+        shapes ``eps a_i`` in ``q_i`` and ``eps / a_i`` in ``p_i``.  With the
+        global ``eps`` this gives every conjugate pair its own ratio of shapes
+        (on the pendulum, ``2n = 2``: both shapes free).  Predictions,
+        Jacobians and gradients are returned in the original coordinates.
 
     Attributes
     ----------
@@ -530,6 +545,7 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         trainer: Optional[Trainer] = None,
         regularization: float = 0.0,
         update: str = "symplectic_euler",
+        state_scaling=None,
     ):
         self.state_kernel = state_kernel
         self.mu_kernel = mu_kernel
@@ -540,6 +556,7 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         self.power_tol = power_tol
         self.newton_max_iter = newton_max_iter
         self.update = update
+        self.state_scaling = state_scaling
         self.memory_limit = memory_limit
         self.backend = backend
         self.trainer = trainer
@@ -580,12 +597,13 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         data, validation = self._fit_data(x0, x1, mu, dt, validation)
         if data.x0.shape[1] % 2:
             raise ValueError(f"states must have an even dimension 2n (q, p), got {data.x0.shape[1]}")
-        xi, y = update_variables(self.update, data.x0, data.x1, data.dt)
+        scale = self._scale_vector(data.x0.shape[1])
+        xi, y = update_variables(self.update, data.x0 * scale, data.x1 * scale, data.dt)
         self._check_duplicates(xi, data)
         kernel = self._product_kernel(xi)
         val = None
         if validation is not None:
-            vxi, vy = update_variables(self.update, validation.x0, validation.x1, validation.dt)
+            vxi, vy = update_variables(self.update, validation.x0 * scale, validation.x1 * scale, validation.dt)
             val = (HBFunctionals(kernel, vxi, validation.mu, validation.dt), vy.reshape(-1))
         points, comps = self._train(trainer, kernel, xi, y.reshape(-1), data, val)
         self.surrogate_ = HBSurrogate(kernel, xi[points], data.mu[points], data.dt[points], comps, self.greedy_result_.coef)
@@ -672,14 +690,38 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
             return True
         raise ValueError(f"backend must be 'auto', 'numpy' or 'numba', got {self.backend!r}")
 
+    def _scale_vector(self, dim: int) -> np.ndarray:
+        """``(a, 1/a)`` of ``state_scaling`` (ones without it), shape (2n,); checks the setting."""
+        if self.state_scaling is None:
+            return np.ones(dim)
+        try:
+            a = np.asarray(self.state_scaling, dtype=float)
+        except (TypeError, ValueError):
+            a = None
+        if a is None or a.shape != (dim // 2,) or not np.all(np.isfinite(a) & (a > 0)):
+            raise ValueError(f"state_scaling must be None or {dim // 2} positive finite factors (one per q_i), "
+                             f"got {self.state_scaling!r}")
+        return np.concatenate([a, 1.0 / a])
+
     def _rollout(self, x, weights, dt, n_steps: int) -> np.ndarray:
+        scale = self._scale_vector(self.dim_)
+        xs = x * scale
         if self._compiled():
-            return rollout_compiled(self.surrogate_, x, weights, dt, n_steps,
+            traj = rollout_compiled(self.surrogate_, xs, weights, dt, n_steps,
                                     as_positive_int(self.newton_max_iter, "newton_max_iter"))
-        return super()._rollout(x, weights, dt, n_steps)
+        else:
+            traj = rollout_numpy(lambda state: self._solve_scaled(state, weights, dt), xs, n_steps)
+        return traj if self.state_scaling is None else traj / scale
 
     def _solve_step(self, x: np.ndarray, weights: np.ndarray, dt: np.ndarray) -> np.ndarray:
-        """One implicit step for a validated batch, on the configured backend (:mod:`sympredict.newton`)."""
+        """One implicit step for a validated batch in the original coordinates (``state_scaling`` applied)."""
+        if self.state_scaling is None:
+            return self._solve_scaled(x, weights, dt)
+        scale = self._scale_vector(self.dim_)
+        return self._solve_scaled(x * scale, weights, dt) / scale
+
+    def _solve_scaled(self, x: np.ndarray, weights: np.ndarray, dt: np.ndarray) -> np.ndarray:
+        """One implicit step in the model's coordinates, on the configured backend (:mod:`sympredict.newton`)."""
         max_iter = as_positive_int(self.newton_max_iter, "newton_max_iter")
         if self._compiled():
             return rollout_compiled(self.surrogate_, x, weights, dt, 1, max_iter, step_index=False)[:, 1]
@@ -753,6 +795,7 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
 
     def _solvability(self, x, weights, dt):
         n = self.dim_ // 2
+        x = x * self._scale_vector(self.dim_)
         _, hess = self.surrogate_.gradient_hessian(x, weights)
         if self.update == "midpoint":  # z -> x0 + dT/2 J grad s(z) contracts where dT/2 |Hess s| < 1
             return 0.5 * dt * np.linalg.norm(hess, ord=2, axis=(1, 2))
@@ -790,11 +833,18 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         """
         x, single, mu, dt = self._query(x, mu, dt)
         weights = self.surrogate_.weights(mu, dt)
-        x1 = self._solve_step(x, weights, dt)
+        scale = self._scale_vector(self.dim_)
+        jac = self._scaled_jacobian(x * scale, weights, dt)
+        if self.state_scaling is not None:  # D Phi = S^{-1} D Phi_scaled S
+            jac = jac * scale[None, None, :] / scale[None, :, None]
+        return jac[0] if single else jac
+
+    def _scaled_jacobian(self, x, weights, dt):
+        """``D Phi`` in the model's coordinates (B, 2n, 2n)."""
+        x1 = self._solve_scaled(x, weights, dt)
         if self.update == "midpoint":
             _, S = self.surrogate_.gradient_hessian(0.5 * (x + x1), weights)
-            jac = midpoint_jacobian(S, dt)
-            return jac[0] if single else jac
+            return midpoint_jacobian(S, dt)
         n = self.dim_ // 2
         xi = np.concatenate([x[:, :n], x1[:, n:]], axis=1)
         _, S = self.surrogate_.gradient_hessian(xi, weights)
@@ -806,13 +856,14 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         dp_dp = Minv
         dq_dq = eye + h * Spq + h * (Spp @ dp_dq)
         dq_dp = h * (Spp @ Minv)
-        jac = np.block([[dq_dq, dq_dp], [dp_dq, dp_dp]])
-        return jac[0] if single else jac
+        return np.block([[dq_dq, dq_dp], [dp_dq, dp_dp]])
 
     def surrogate_gradient(self, xi, mu=None, dt=None) -> np.ndarray:
         """``grad_xi s(xi, mu, dT)`` at mixed states ``xi = (q0, p1)`` (midpoints for ``update='midpoint'``), shape (B, 2n)."""
         xi, single, mu, dt = self._query(xi, mu, dt, name="xi")
-        g = self.surrogate_.gradient(xi, self.surrogate_.weights(mu, dt))
+        scale = self._scale_vector(self.dim_)
+        # s(xi) = s_model(S xi) with S = diag(scale): grad s = S grad s_model
+        g = self.surrogate_.gradient(xi * scale, self.surrogate_.weights(mu, dt)) * scale
         return g[0] if single else g
 
     # ----------------------------------------------------------------- files
