@@ -227,7 +227,7 @@ def _build(cache: bool):  # noqa: C901 - the compiled definitions
         return _EPS * floor
 
     @_jit
-    def _solve_one(x, w, h, cT, seg, factors, eps, max_iter, out, sc, grad, hqp, jac, delta, p, xi):
+    def _solve_one(x, w, h, cT, seg, factors, eps, max_iter, out, sc, grad, hqp, jac, delta, p, xi, warm):
         """One implicit step for one instance: ``out <- Phi(x)``.  Returns ``(code, residual, iteration)``.
 
         The iteration and stopping rule of the NumPy reference
@@ -236,9 +236,12 @@ def _build(cache: bool):  # noqa: C901 - the compiled definitions
         dif, r2, dmax, fA, fB, fC = sc
         dim = x.shape[0]
         n = dim // 2
-        _terms(x, w, cT, seg, factors, eps, n, False, dif, r2, dmax, fA, fB, fC, grad, hqp)
+        if not warm:  # explicit guess p1 ~ p0 - dT d_q s(q0, p0): one pass over the centres
+            _terms(x, w, cT, seg, factors, eps, n, False, dif, r2, dmax, fA, fB, fC, grad, hqp)
+            for k in range(n):
+                p[k] = x[n + k] - h * grad[k]
+        # warm: p holds the caller's guess (the previous step's increment added to p0)
         for k in range(n):
-            p[k] = x[n + k] - h * grad[k]
             xi[k] = x[k]
         last = np.inf
         f_norm = np.inf
@@ -288,7 +291,8 @@ def _build(cache: bool):  # noqa: C901 - the compiled definitions
         return 3, f_norm, max_iter
 
     @_jit
-    def _rollout_one(i, x0, W, h, cT, seg, factors, eps, max_iter, chunk, traj, codes, fail_step, fail_iter, resid, passes):
+    def _rollout_one(i, x0, W, h, cT, seg, factors, eps, max_iter, chunk, traj, codes, fail_step, fail_iter, resid, passes,
+                     warm_start):
         dim = x0.shape[1]
         n = dim // 2
         sc = (np.empty((dim, chunk)), np.empty(chunk), np.empty(chunk), np.empty(chunk), np.empty(chunk), np.empty(chunk))
@@ -306,8 +310,13 @@ def _build(cache: bool):  # noqa: C901 - the compiled definitions
         fail_iter[i] = -1
         resid[i] = 0.0
         for k in range(n_steps):
-            code, r, it = _solve_one(traj[i, k], W[i], h[i], cT, seg, factors, eps, max_iter, traj[i, k + 1], sc, grad, hqp, jac, delta, p, xi)
-            passes[i] += it + 2  # the explicit guess's gradient pass and it + 1 Newton passes
+            warm = warm_start and k > 0
+            if warm:  # the previous step's increment of p: saves the explicit guess's pass
+                for a in range(n):
+                    p[a] = 2.0 * traj[i, k, n + a] - traj[i, k - 1, n + a]
+            code, r, it = _solve_one(traj[i, k], W[i], h[i], cT, seg, factors, eps, max_iter, traj[i, k + 1], sc, grad, hqp,
+                                     jac, delta, p, xi, warm)
+            passes[i] += it + (1 if warm else 2)  # (the explicit guess's gradient pass and) it + 1 Newton passes
             if code != 0:
                 codes[i] = code
                 fail_step[i] = k
@@ -319,14 +328,18 @@ def _build(cache: bool):  # noqa: C901 - the compiled definitions
                 return
 
     @_pjit
-    def _rollout_parallel(x0, W, h, cT, seg, factors, eps, max_iter, chunk, traj, codes, fail_step, fail_iter, resid, passes):
+    def _rollout_parallel(x0, W, h, cT, seg, factors, eps, max_iter, chunk, traj, codes, fail_step, fail_iter, resid, passes,
+                          warm_start):
         for i in numba.prange(x0.shape[0]):
-            _rollout_one(i, x0, W, h, cT, seg, factors, eps, max_iter, chunk, traj, codes, fail_step, fail_iter, resid, passes)
+            _rollout_one(i, x0, W, h, cT, seg, factors, eps, max_iter, chunk, traj, codes, fail_step, fail_iter, resid, passes,
+                         warm_start)
 
     @_jit
-    def _rollout_serial(x0, W, h, cT, seg, factors, eps, max_iter, chunk, traj, codes, fail_step, fail_iter, resid, passes):
+    def _rollout_serial(x0, W, h, cT, seg, factors, eps, max_iter, chunk, traj, codes, fail_step, fail_iter, resid, passes,
+                        warm_start):
         for i in range(x0.shape[0]):
-            _rollout_one(i, x0, W, h, cT, seg, factors, eps, max_iter, chunk, traj, codes, fail_step, fail_iter, resid, passes)
+            _rollout_one(i, x0, W, h, cT, seg, factors, eps, max_iter, chunk, traj, codes, fail_step, fail_iter, resid, passes,
+                         warm_start)
 
 
     @_pjit
@@ -551,7 +564,8 @@ CHUNK = 256
 
 
 def newton_rollout(x0, weights, dt, layout: CenterLayout, kernel, max_iter: int, n_steps: int,
-                   *, weights_ordered: bool = False, parallel=None, stats: Optional[dict] = None):
+                   *, weights_ordered: bool = False, parallel=None, stats: Optional[dict] = None,
+                   warm_start: bool = False):
     """``n_steps`` implicit symplectic-Euler steps for every instance, in compiled code.
 
     Parameters
@@ -576,6 +590,13 @@ def newton_rollout(x0, weights, dt, layout: CenterLayout, kernel, max_iter: int,
     stats
         If a dict, ``stats['passes']`` receives the passes over the centres per
         instance (one per gradient or Newton evaluation), shape (B,).
+    warm_start
+        From the second step on, start Newton from ``p0`` plus the previous
+        step's increment of ``p`` instead of the explicit guess
+        ``p0 - dT d_q s(q0, p0)``: saves that guess's pass over the centres
+        (both guesses are ``O(dT^2)`` accurate; the converged result satisfies
+        the same stopping rule).  Each instance stops iterating on its own
+        (converged instances are dropped by construction: one loop per instance).
 
     Returns
     -------
@@ -612,7 +633,7 @@ def newton_rollout(x0, weights, dt, layout: CenterLayout, kernel, max_iter: int,
     fn = ns._rollout_parallel if parallel else ns._rollout_serial
     passes = np.zeros(b, dtype=np.int64)
     fn(x0, weights, dt, layout.cT, layout.seg, compiled_formulas(type(kernel))[2], float(kernel.eps), int(max_iter), CHUNK,
-       traj, codes, fail_step, fail_iter, resid, passes)
+       traj, codes, fail_step, fail_iter, resid, passes, bool(warm_start))
     if stats is not None:
         stats["passes"] = passes
     return traj, codes, fail_step, fail_iter, resid

@@ -1,0 +1,34 @@
+"""Warm-started compiled Newton rollout: the previous step's increment as the first guess."""
+
+import numpy as np
+import pytest
+
+from sympredict import _fastkernels
+from sympredict.experiments.pendulum import paper_test_instances
+
+pytestmark = pytest.mark.skipif(not _fastkernels.HAVE_NUMBA, reason="the compiled rollout needs numba (optional extra)")
+
+
+def test_warm_start_saves_passes_and_solves_the_same_equation(small_pendulum_model):
+    model = small_pendulum_model
+    sur = model.surrogate_
+    x0, lengths = paper_test_instances(0)
+    dt = np.full(len(x0), 0.05)
+    w = sur.weights(lengths[:, None], dt)
+    runs = {}
+    for warm in (False, True):
+        stats = {}
+        traj, codes, *_ = _fastkernels.newton_rollout(x0, w, dt, sur.layout(), sur.kernel.state, 50, 200, stats=stats,
+                                                      warm_start=warm)
+        assert np.all(codes == 0)
+        runs[warm] = (traj, stats["passes"])
+    (cold, p_cold), (warm, p_warm) = runs[False], runs[True]
+    np.testing.assert_array_equal(cold[:, :2], warm[:, :2])  # the first step has no previous increment
+    assert p_warm.sum() < 0.9 * p_cold.sum()
+    # every warm step solves the implicit equation p1 = p0 - dT d_q s(q0, p1) (NumPy gradient as the oracle)
+    a, b = warm[:, :-1].reshape(-1, 2), warm[:, 1:].reshape(-1, 2)
+    ww = np.repeat(w, 200, axis=0)
+    g = sur.gradient(np.column_stack([a[:, 0], b[:, 1]]), ww)
+    np.testing.assert_allclose(b[:, 1], a[:, 1] - 0.05 * g[:, 0], atol=1e-10)
+    np.testing.assert_allclose(b[:, 0], a[:, 0] + 0.05 * g[:, 1], atol=1e-10)
+    np.testing.assert_allclose(warm, cold, atol=1e-6)
