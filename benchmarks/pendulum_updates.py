@@ -1,0 +1,56 @@
+"""Pendulum scenario A, quick data: the paper's symplectic-Euler update against the midpoint update (and state scalings).
+
+Both trained on the quick data (50 x 50 energy-bounded grid, 5 lengths x 3 steps),
+IMQ (0.2, 1.5, 3.0), 1500 centres; the paper's test protocol on test seed 0
+(5 q0 x 5 lengths, T = 20), median over time of the instance-mean relative
+error per test step, and the max relative energy error.  NumPy Newton solver
+for both (the midpoint update has no compiled solver yet).  ``--scalings``
+adds symplectic-Euler models with ``state_scaling=(a,)``.
+
+Run:  python benchmarks/pendulum_updates.py [--scalings 0.5 2] [--json out.json]
+"""
+
+import argparse
+import json
+
+import numpy as np
+from threadpoolctl import threadpool_limits
+
+from sympredict import SymplecticKernelPredictor
+from sympredict.experiments.pendulum import paper_test_instances
+from sympredict.kernels import IMQ
+from sympredict.metrics import relative_hamiltonian_error, relative_trajectory_error
+from sympredict.systems.pendulum import DT_TEST, Pendulum, flow_map_data
+
+parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+parser.add_argument("--scalings", type=float, nargs="*", default=[])
+parser.add_argument("--max-centers", type=int, default=1500)
+parser.add_argument("--json", default=None)
+args = parser.parse_args()
+
+with threadpool_limits(1):
+    system = Pendulum()
+    data = flow_map_data(system, n_grid=50)
+    x0, lengths = paper_test_instances(0)
+    configs = [("symplectic_euler", None), ("midpoint", None)] + [("symplectic_euler", (a,)) for a in args.scalings]
+    rows = []
+    for update, scaling in configs:
+        model = SymplecticKernelPredictor(IMQ(0.2), IMQ(1.5), IMQ(3.0), max_centers=args.max_centers, tol=1e-10,
+                                          update=update, state_scaling=scaling, backend="numpy")
+        model.fit(data.x0, data.x1, mu=data.mu, dt=data.dt)
+        row = {"update": update, "state_scaling": scaling, "n_centers": model.n_centers_,
+               "E_train": float(model.history_.train_max_residual[-1]), "per_dt": {}}
+        for dt in DT_TEST:
+            n_steps = int(np.floor(20.0 / dt + 1e-9))
+            ref = system.trajectory(x0, lengths, dt, n_steps)
+            pred = model.rollout(x0, n_steps, mu=lengths, dt=dt)
+            err = relative_trajectory_error(pred, ref).mean(axis=0)
+            energy = relative_hamiltonian_error(system, pred, lengths[:, None]).max()
+            row["per_dt"][dt] = {"median_err": float(np.median(err[1:])), "max_energy_err": float(energy)}
+        rows.append(row)
+        print(f"{update:17s} scaling={scaling}: {model.n_centers_} centres, E_train {row['E_train']:.2e}; "
+              + "  ".join(f"dT={dt}: {v['median_err']:.2e} (energy {v['max_energy_err']:.1e})" for dt, v in row["per_dt"].items()),
+              flush=True)
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump(rows, f, indent=1, default=str)
