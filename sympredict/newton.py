@@ -199,15 +199,18 @@ def rollout_numpy(advance, x: np.ndarray, n_steps: int) -> np.ndarray:
     return traj
 
 
-def rollout_compiled(sur: HBSurrogate, x, weights, dt, n_steps: int, max_iter: int, step_index: bool = True):
+def rollout_compiled(sur: HBSurrogate, x, weights, dt, n_steps: int, max_iter: int, step_index: bool = True,
+                     warm_start: bool = False):
     """``n_steps`` steps in compiled code (:func:`sympredict._fastkernels.newton_rollout`); failures raise as the NumPy path's.
+
+    ``warm_start``: Newton starts from the previous step's increment (from the second step on).
 
     Returns
     -------
     ndarray of shape (B, K+1, 2n)
     """
     traj, codes, fail_step, fail_iter, resid = _fastkernels.newton_rollout(
-        x, weights, dt, sur.layout(), sur.kernel.state, max_iter, n_steps
+        x, weights, dt, sur.layout(), sur.kernel.state, max_iter, n_steps, warm_start=warm_start
     )
     failed = codes != 0
     if np.any(failed):

@@ -499,6 +499,12 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         global ``eps`` this gives every conjugate pair its own ratio of shapes
         (on the pendulum, ``2n = 2``: both shapes free).  Predictions,
         Jacobians and gradients are returned in the original coordinates.
+    newton_warm_start
+        Compiled rollouts only: from the second macro step on, Newton starts
+        from ``p0`` plus the previous step's increment instead of the explicit
+        guess, saving that guess's pass over the centres (on the pendulum
+        3.0 -> 2.5 passes per step, trajectories equal to ~1e-6 after 400
+        steps: both stop by the same rule).  Default ``False``.
 
     Attributes
     ----------
@@ -546,6 +552,7 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         regularization: float = 0.0,
         update: str = "symplectic_euler",
         state_scaling=None,
+        newton_warm_start: bool = False,
     ):
         self.state_kernel = state_kernel
         self.mu_kernel = mu_kernel
@@ -557,6 +564,7 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         self.newton_max_iter = newton_max_iter
         self.update = update
         self.state_scaling = state_scaling
+        self.newton_warm_start = newton_warm_start
         self.memory_limit = memory_limit
         self.backend = backend
         self.trainer = trainer
@@ -590,6 +598,8 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         as_positive_int(self.newton_max_iter, "newton_max_iter")
         if self.backend not in _BACKENDS:
             raise ValueError(f"backend must be 'auto', 'numpy' or 'numba', got {self.backend!r}")
+        if not isinstance(self.newton_warm_start, (bool, np.bool_)):
+            raise ValueError(f"newton_warm_start must be True or False, got {self.newton_warm_start!r}")
         if self.update not in UPDATES:
             raise ValueError(f"update must be one of {UPDATES}, got {self.update!r}")
         if self.update == "midpoint" and self.backend == "numba":
@@ -708,7 +718,8 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         xs = x * scale
         if self._compiled():
             traj = rollout_compiled(self.surrogate_, xs, weights, dt, n_steps,
-                                    as_positive_int(self.newton_max_iter, "newton_max_iter"))
+                                    as_positive_int(self.newton_max_iter, "newton_max_iter"),
+                                    warm_start=bool(self.newton_warm_start))
         else:
             traj = rollout_numpy(lambda state: self._solve_scaled(state, weights, dt), xs, n_steps)
         return traj if self.state_scaling is None else traj / scale

@@ -32,3 +32,22 @@ def test_warm_start_saves_passes_and_solves_the_same_equation(small_pendulum_mod
     np.testing.assert_allclose(b[:, 1], a[:, 1] - 0.05 * g[:, 0], atol=1e-10)
     np.testing.assert_allclose(b[:, 0], a[:, 0] + 0.05 * g[:, 1], atol=1e-10)
     np.testing.assert_allclose(warm, cold, atol=1e-6)
+
+
+def test_estimator_option(small_pendulum_model, tmp_path):
+    from sympredict.base import clone
+    from sympredict.io import load_model, save_model
+
+    model = small_pendulum_model
+    warm = clone(model).set_params(newton_warm_start=True)
+    for name in ("surrogate_", "kernel_", "history_", "greedy_result_", "dim_", "n_mu_", "dt_fixed_", "domain_"):
+        setattr(warm, name, getattr(model, name))
+    x0, lengths = paper_test_instances(0)
+    a = model.rollout(x0, 100, mu=lengths, dt=0.05)
+    b = warm.rollout(x0, 100, mu=lengths, dt=0.05)
+    np.testing.assert_allclose(b, a, atol=1e-7)
+    assert not np.array_equal(a, b)  # the option is used
+    save_model(warm, tmp_path / "w.h5")
+    assert load_model(tmp_path / "w.h5").newton_warm_start is True
+    with pytest.raises(ValueError, match="newton_warm_start"):
+        clone(model).set_params(newton_warm_start="yes", max_centers=5).fit(x0, x0, mu=lengths, dt=0.05)
