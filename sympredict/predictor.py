@@ -45,7 +45,7 @@ from sympredict.kernels import IMQ, ProductKernel, RadialKernel, kernel_from_spe
 from sympredict.newton import midpoint_jacobian, rollout_compiled, rollout_numpy, solve_midpoint_numpy, solve_step_numpy
 from sympredict.surrogate import HBSurrogate, ValueSurrogate
 
-__all__ = ["SymplecticKernelPredictor", "DirectKernelPredictor", "MODEL_FORMAT"]
+__all__ = ["SymplecticKernelPredictor", "DirectKernelPredictor", "MODEL_FORMAT", "UPDATES", "update_variables"]
 
 #: ``format`` attribute of model files (:mod:`sympredict.container`).
 MODEL_FORMAT = "sympredict-model"
