@@ -20,6 +20,8 @@ import numpy as np
 from pymor.core.logger import getLogger
 
 from sympredict.integrators import implicit_midpoint_step, integrate, stormer_verlet_step
+from sympredict.integrators_compiled import EXPLICIT_SCHEMES, rollout
+from sympredict.experiments.speed import SpeedTable, add_classical, deliberate_threads
 from sympredict.kernels import IMQ, RadialKernel
 from sympredict.metrics import relative_hamiltonian_error, relative_trajectory_error
 from sympredict.exceptions import ExtrapolationWarning, NewtonConvergenceError, SolvabilityError
@@ -378,70 +380,66 @@ def run_speed_accuracy(
     seed: int = 0,
     dt: float = DT_TEST[0],
     centers=(100, 200, 400, 800, 1500),
-    refinements=(1, 2, 4, 8, 16),
+    refinements=(1, 2, 4, 8),
     repeats: int = 3,
     targets=(1e-3, 1e-4),
+    direct: Optional[DirectKernelPredictor] = None,
+    vkoga=None,
+    threads: int = 1,
 ) -> dict:
     """Online wall time per trajectory against error, all methods timed side by side in this process.
 
     On the scenario-A test set (25 trajectories, ``T = preset.horizon``) at
-    macro step ``dt``: the kernel predictor truncated to each number of
-    ``centers`` (prefixes of one fit, :meth:`SymplecticKernelPredictor.truncated`),
-    implicit midpoint and Störmer–Verlet with ``dt / r`` for each refinement
-    ``r`` (states compared at the macro grid), and the micro-step reference.
-    Times are medians over ``repeats`` runs of the whole batch, divided by the
-    batch size.
+    macro step ``dt``, with :mod:`sympredict.experiments.speed` (one warm-up
+    run, median of ``repeats``, ``threads`` BLAS and numba threads):
 
-    For each validation ``target`` the smallest model with ``E_val <= target``
-    (:meth:`SymplecticKernelPredictor.smallest`) is measured too (method
-    ``"smallest kernel, E_val <= target"``); unreachable targets are listed in
-    ``unreached``.
+    * only data: the kernel predictor truncated to each number of ``centers``
+      (prefixes of one fit, :meth:`SymplecticKernelPredictor.truncated`), the
+      smallest model per validation ``target``, the ``direct`` kernel model and
+      the ``vkoga`` flow map (:class:`~sympredict.experiments.peers.VKOGAFlowMap`) when given;
+    * the equations: the compiled Störmer–Verlet, Yoshida-4, Kahan–Li-6 and
+      implicit midpoint at ``dt / r`` for each refinement ``r`` (states compared
+      at the macro grid), and the micro-step reference (implicit midpoint, ``h <= 1e-3``).
+
+    Errors are measured against Kahan–Li-6 with ``dt / 128`` (compiled): more
+    accurate than every method here, the micro-step reference included.
 
     Returns
     -------
     dict
-        ``rows``: one dict per method and size (``method``, ``size``,
+        ``rows``: one dict per method and size (``method``, ``size``, ``tag``, ``needs``,
         ``time_per_trajectory_s``, ``median_err``, ``max_err``); ``reference_time_s``; ``unreached``.
     """
     system = Pendulum()
     x0, lengths = paper_test_instances(seed)
     n_steps = int(np.floor(preset.horizon / dt + 1e-9))
-
-    def timed(run):
-        times, out = [], None
-        for _ in range(repeats):
-            t0 = time.perf_counter()
-            out = run()
-            times.append(time.perf_counter() - t0)
-        return float(np.median(times)) / len(x0), out
-
-    t_ref, ref = timed(lambda: system.trajectory(x0, lengths, dt, n_steps))
-    rows = []
-
-    def record(method, size, seconds, traj):
-        err = relative_trajectory_error(traj, ref).mean(axis=0)[1:]
-        rows.append({"method": method, "size": size, "time_per_trajectory_s": seconds,
-                     "median_err": float(np.median(err)), "max_err": float(err.max())})
-
-    for m in [c for c in centers if c <= model.n_centers_]:
-        small = model.truncated(m)
-        seconds, traj = timed(lambda: small.rollout(x0, n_steps, mu=lengths, dt=dt))
-        record("kernel predictor", m, seconds, traj)
     unreached = []
-    for target in targets:
-        try:
-            small = model.smallest(target)
-        except ValueError as exc:
-            unreached.append(f"E_val <= {target:g}: {exc}")
-            continue
-        seconds, traj = timed(lambda: small.rollout(x0, n_steps, mu=lengths, dt=dt))
-        record(f"smallest kernel, E_val <= {target:g}", small.n_centers_, seconds, traj)
-    for name, scheme in (("implicit midpoint", implicit_midpoint_step), ("Stormer-Verlet", stormer_verlet_step)):
-        for r in refinements:
-            seconds, traj = timed(lambda: integrate(scheme, system, x0, lengths[:, None], dt / r, n_steps * r)[:, ::r])
-            record(name, r, seconds, traj)
-    return {"dt": dt, "n_trajectories": len(x0), "n_steps": n_steps, "repeats": repeats, "reference_time_s": t_ref,
-            "rows": rows, "unreached": unreached}
+    with deliberate_threads(threads):
+        exact = rollout(system, x0, lengths, dt, n_steps, scheme="kahan_li6", substeps=128)
+        table = SpeedTable(exact, repeats)
+        ref_row = table.add("micro-step reference (implicit midpoint, h<=1e-3)", 0, "h<=1e-3", "equations",
+                            lambda: system.trajectory(x0, lengths, dt, n_steps))
+        for m in [c for c in centers if c <= model.n_centers_]:
+            small = model.truncated(m)
+            table.add("kernel predictor", m, f"m={m}", "data", lambda: small.rollout(x0, n_steps, mu=lengths, dt=dt))
+        for target in targets:
+            try:
+                small = model.smallest(target)
+            except ValueError as exc:
+                unreached.append(f"E_val <= {target:g}: {exc}")
+                continue
+            table.add(f"smallest kernel, E_val <= {target:g}", small.n_centers_, f"m={small.n_centers_}", "data",
+                      lambda: small.rollout(x0, n_steps, mu=lengths, dt=dt))
+        if direct is not None:
+            table.add("direct kernel model (NumPy)", direct.n_centers_, f"m={direct.n_centers_}", "data",
+                      lambda: direct.rollout(x0, n_steps, mu=lengths, dt=dt))
+        if vkoga is not None:
+            table.add("pyMOR VKOGA flow map (NumPy)", vkoga.n_centers_, f"m={vkoga.n_centers_}", "data",
+                      lambda: vkoga.rollout(x0, n_steps, mu=lengths, dt=dt))
+        add_classical(table, system, x0, lengths, dt, n_steps, refinements, (*EXPLICIT_SCHEMES, "implicit_midpoint"))
+    return {"dt": dt, "n_trajectories": len(x0), "n_steps": n_steps, "repeats": repeats, "threads": threads,
+            "reference_time_s": ref_row["time_per_trajectory_s"], "error_reference": "Kahan-Li-6, dT/128 (compiled)",
+            "rows": table.rows, "unreached": unreached}
 
 
 def _upward_crossings(t, q):
