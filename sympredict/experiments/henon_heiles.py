@@ -18,7 +18,7 @@ import numpy as np
 from pymor.core.logger import getLogger
 
 from sympredict.data import FlowMapData
-from sympredict.experiments.peers import VKOGAFlowMap
+from sympredict.experiments.peers import VKOGAFlowMap, select_vkoga_length_scale
 from sympredict.experiments.speed import SpeedTable, add_classical, deliberate_threads
 from sympredict.integrators_compiled import EXPLICIT_SCHEMES, rollout
 from sympredict.metrics import relative_hamiltonian_error
@@ -49,8 +49,9 @@ class HenonHeilesPreset:
         Greedy budget; model sizes (prefixes) in the chart.
     state_eps, mu_eps, m_star
         Validation grid of IMQ shapes (state, ``lambda``) compared at ``m_star`` centres.
-    vkoga_centers, vkoga_length_scale
-        VKOGA's budget and Gaussian length scale (inputs scaled to the unit box).
+    vkoga_centers, vkoga_length_scales
+        VKOGA's budget and the Gaussian length scales (inputs scaled to the unit box) it chooses from on
+        the validation data (:func:`~sympredict.experiments.peers.select_vkoga_length_scale`, 50 centres).
     n_test, horizon
         Test states per ``lambda`` and ``lambda`` values (``n_test^2`` trajectories); final time.
     refinements, repeats, threads
@@ -63,11 +64,11 @@ class HenonHeilesPreset:
     energy_max: float = 1.0 / 12.0
     max_centers: int = 500
     centers: tuple = (100, 200, 500)
-    state_eps: tuple = (0.5, 1.0, 2.0)
-    mu_eps: tuple = (1.0, 3.0)
+    state_eps: tuple = (0.25, 0.5, 1.0)
+    mu_eps: tuple = (0.3, 1.0, 3.0)
     m_star: int = 200
     vkoga_centers: int = 200
-    vkoga_length_scale: float = 0.3
+    vkoga_length_scales: tuple = (0.1, 0.3, 1.0, 3.0)
     n_test: int = 5
     horizon: float = 50.0
     refinements: tuple = (1, 2, 4, 8)
@@ -125,10 +126,11 @@ def run_henon_heiles(preset: HenonHeilesPreset, seed: int = 0) -> dict:
     sel = select_kernels(data, val, kernel_grid(("imq",), preset.state_eps), kernel_grid(("imq",), preset.mu_eps), (None,),
                          m_star=preset.m_star)
     t_sel = time.perf_counter() - t0
+    vsel = select_vkoga_length_scale(data, val, preset.vkoga_length_scales, m_star=min(50, preset.vkoga_centers))
     models, fit_time = {}, {}
     for name, make in (("symplectic", lambda: SymplecticKernelPredictor(sel.state, sel.mu, None, max_centers=preset.max_centers, tol=1e-10)),
                        ("direct", lambda: DirectKernelPredictor(sel.state, sel.mu, None, max_centers=preset.max_centers, tol=1e-10)),
-                       ("vkoga", lambda: VKOGAFlowMap(max_centers=preset.vkoga_centers, length_scale=preset.vkoga_length_scale))):
+                       ("vkoga", lambda: VKOGAFlowMap(max_centers=preset.vkoga_centers, length_scale=vsel["length_scale"]))):
         t0 = time.perf_counter()
         with logger.block(f"Hénon–Heiles: {name} model on {len(data)} samples"):
             extra = {"validation": val} if name == "symplectic" else {}
@@ -175,6 +177,7 @@ def run_henon_heiles(preset: HenonHeilesPreset, seed: int = 0) -> dict:
         "E_val": float(model.history_.val_max_residual[-1]) if model.history_.val_max_residual is not None else None,
         "n_centers_direct": direct.n_centers_,
         "n_centers_vkoga": vkoga.n_centers_,
+        "vkoga_selection": {k: v for k, v in vsel.items()},
         "time_data_s": t_data,
         "time_selection_s": t_sel,
         **{f"time_fit_{k}_s": v for k, v in fit_time.items()},

@@ -21,6 +21,7 @@ from pymor.core.logger import getLogger
 
 from sympredict.integrators import implicit_midpoint_step, integrate, stormer_verlet_step
 from sympredict.integrators_compiled import EXPLICIT_SCHEMES, rollout
+from sympredict.experiments.peers import VKOGAFlowMap, select_vkoga_length_scale
 from sympredict.experiments.speed import SpeedTable, add_classical, deliberate_threads
 from sympredict.kernels import IMQ, RadialKernel
 from sympredict.metrics import relative_hamiltonian_error, relative_trajectory_error
@@ -29,7 +30,7 @@ from sympredict.predictor import DirectKernelPredictor, SymplecticKernelPredicto
 from sympredict.selection import kernel_grid, refine_kernel_shapes, select_kernels
 from sympredict.systems.pendulum import DT_TEST, DT_TRAIN, MU_TRAIN, Pendulum, flow_map_data, random_flow_map_data
 
-__all__ = ["PendulumPreset", "PRESETS", "select_pendulum_kernels", "run_scenario_a", "run_scenario_b", "run_speed_accuracy", "run_stability", "paper_test_instances", "MU_EXTRAPOLATION", "DT_EXTRAPOLATION"]
+__all__ = ["PendulumPreset", "PRESETS", "select_pendulum_kernels", "run_scenario_a", "run_scenario_b", "run_speed_accuracy", "train_peers", "run_stability", "paper_test_instances", "MU_EXTRAPOLATION", "DT_EXTRAPOLATION"]
 
 #: The paper's extrapolation case of scenario B.
 MU_EXTRAPOLATION = 0.825
@@ -72,6 +73,12 @@ class PendulumPreset:
         ``(state, mu, dT)``, and the centres ``m*`` at which candidates are compared.
     select_m_refine, select_sweeps
         ``m*`` and the most sweeps of the coordinate refinement of the screening winner's shapes.
+    vkoga_centers, vkoga_length_scales
+        Budget of pyMOR's VKOGA in the speed-against-accuracy chart (its greedy costs ``O(M m^2)``: 80 s
+        for 300 centres on the quick data) and the Gaussian length scales (unit-box inputs) it chooses from
+        on validation data (:func:`~sympredict.experiments.peers.select_vkoga_length_scale`).
+    speed_threads
+        BLAS and numba threads of the speed-against-accuracy timings.
     """
 
     n_grid: int
@@ -91,18 +98,22 @@ class PendulumPreset:
     select_m_screen: int = 300
     select_m_refine: int = 1000
     select_sweeps: int = 2
+    vkoga_centers: int = 150
+    vkoga_length_scales: tuple = (0.1, 0.3, 1.0, 3.0)
+    speed_threads: int = 1
 
 
 PRESETS = {
     # seconds: for tests of the pipeline itself, not of accuracy
     "smoke": PendulumPreset(n_grid=14, max_centers=150, n_val=200, horizon=2.0, n_grid_b=12, max_centers_b=100, stability_periods=5,
                             select_n_grid=10, select_n_val=200, select_eps=((0.2, 0.4), (1.5,), (3.0,)),
-                            select_m_screen=30, select_m_refine=60),
+                            select_m_screen=30, select_m_refine=60, vkoga_centers=30),
     # about a minute on 2 cores: already meets the paper's accuracy
     "quick": PendulumPreset(n_grid=50, max_centers=1500, n_val=2000, horizon=20.0),
     # the paper's data size: 688,464 candidate functionals
     "paper": PendulumPreset(
-        n_grid=200, max_centers=1500, n_val=20000, horizon=20.0, n_grid_b=100, max_centers_b=1500, stability_periods=1000
+        n_grid=200, max_centers=1500, n_val=20000, horizon=20.0, n_grid_b=100, max_centers_b=1500, stability_periods=1000,
+        vkoga_centers=300,
     ),
 }
 
@@ -374,6 +385,30 @@ def run_scenario_b(preset: PendulumPreset, seed: int = 0, kernels=None) -> dict:
     return {"summary": summary, "per_dt": per_dt, "example": example, "energy": energy, "energy_err": energy_err, "models": models}
 
 
+def train_peers(model: SymplecticKernelPredictor, preset: PendulumPreset, seed: int = 0) -> dict:
+    """The data-driven peers on scenario A's training data: the direct kernel model (same kernel and budget as
+    ``model``) and pyMOR's VKOGA (:class:`~sympredict.experiments.peers.VKOGAFlowMap`, ``preset.vkoga_*``).
+
+    Returns
+    -------
+    dict
+        ``direct``, ``vkoga``, ``time_fit_direct_s``, ``time_fit_vkoga_s``.
+    """
+    data = flow_map_data(Pendulum(), n_grid=preset.n_grid)
+    k = model.kernel_
+    t0 = time.perf_counter()
+    with logger.block("peers: direct kernel model on the scenario-A data"):
+        direct = DirectKernelPredictor(k.state, k.mu, k.dt, max_centers=model.max_centers).fit(data.x0, data.x1, mu=data.mu, dt=data.dt)
+    t_direct = time.perf_counter() - t0
+    with logger.block(f"peers: pyMOR VKOGA ({preset.vkoga_centers} centres) on the scenario-A data"):
+        val = random_flow_map_data(Pendulum(), preset.select_n_val, seed=seed + 2)
+        vsel = select_vkoga_length_scale(data, val, preset.vkoga_length_scales, m_star=min(50, preset.vkoga_centers))
+        vkoga = VKOGAFlowMap(max_centers=preset.vkoga_centers, length_scale=vsel["length_scale"]).fit(
+            data.x0, data.x1, mu=data.mu, dt=data.dt)
+    return {"direct": direct, "vkoga": vkoga, "time_fit_direct_s": t_direct, "time_fit_vkoga_s": vkoga.fit_time_s_,
+            "vkoga_selection": vsel}
+
+
 def run_speed_accuracy(
     model: SymplecticKernelPredictor,
     preset: PendulumPreset,
@@ -385,7 +420,7 @@ def run_speed_accuracy(
     targets=(1e-3, 1e-4),
     direct: Optional[DirectKernelPredictor] = None,
     vkoga=None,
-    threads: int = 1,
+    threads: Optional[int] = None,
 ) -> dict:
     """Online wall time per trajectory against error, all methods timed side by side in this process.
 
@@ -414,6 +449,7 @@ def run_speed_accuracy(
     x0, lengths = paper_test_instances(seed)
     n_steps = int(np.floor(preset.horizon / dt + 1e-9))
     unreached = []
+    threads = preset.speed_threads if threads is None else threads
     with deliberate_threads(threads):
         exact = rollout(system, x0, lengths, dt, n_steps, scheme="kahan_li6", substeps=128)
         table = SpeedTable(exact, repeats)
