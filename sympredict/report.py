@@ -97,8 +97,9 @@ def speed_accuracy_markdown(sa: dict, note: str) -> list[str]:
         lines += ["", (f"At the cost of the largest kernel model (m={k['size']}, {k['time_per_trajectory_s'] * 1e3:.3g} ms, "
                        f"median error {k['median_err']:.2e}), the most accurate method with the equations is "
                        f"{c['method']} at {plotting.point_tag(c)} ({c['time_per_trajectory_s'] * 1e3:.3g} ms, "
-                       f"{c['median_err']:.2e}): the kernel is {ratio(eq['error_ratio'])} "
-                       + ("more accurate." if eq["error_ratio"] >= 1 else f"less accurate ({ratio(1 / eq['error_ratio'])} worse).")
+                       f"{c['median_err']:.2e}): the kernel is "
+                       + (f"{ratio(eq['error_ratio'])} more accurate." if eq["error_ratio"] >= 1
+                          else f"{ratio(1 / eq['error_ratio'])} less accurate.")
                        if c else f"No method with the equations is as cheap as the largest kernel model (m={k['size']}).")]
     return lines
 
