@@ -9,6 +9,7 @@ one thread), median / max over time of the mean relative trajectory error over t
 largest relative energy error over a long horizon (10x the test horizon).
 
     python benchmarks/data_driven.py --out data_driven.json [--cases pendulum_fixed,pendulum_full,henon_heiles]
+                                     [--neural-epochs 60] [--neural-only]
 """
 
 from __future__ import annotations
@@ -66,7 +67,7 @@ def _case(name):
                 kernels=(IMQ(0.5), IMQ(1.0), None), centers=500, with_dt=False)
 
 
-def run_case(name, neural_epochs):
+def run_case(name, neural_epochs, neural_only=False):
     c = _case(name)
     system, data, x0, mu, dt = c["system"], c["data"], c["x0"], c["mu"], c["dt"]
     n_steps = int(np.floor(c["horizon"] / dt + 1e-9))
@@ -77,17 +78,21 @@ def run_case(name, neural_epochs):
     nn_mu = np.column_stack([data.mu[:, 0], data.dt]) if c["with_dt"] else data.mu
     nn_q = np.column_stack([mu, dts]) if c["with_dt"] else mu
     models = {}
+    if neural_only:
+        if MLPFlowMap is None:
+            raise SystemExit("--neural-only needs PyTorch: pip install 'sympredict[bench]'")
     t0 = time.perf_counter()
-    m = SymplecticKernelPredictor(*c["kernels"], max_centers=c["centers"], tol=1e-10).fit(data.x0, data.x1, mu=data.mu, dt=data.dt)
-    models["sympredict (symplectic kernel)"] = (m, time.perf_counter() - t0, lambda k: m.rollout(x0, k, mu=mu, dt=dt), m.n_centers_)
-    t0 = time.perf_counter()
-    d = DirectKernelPredictor(*c["kernels"], max_centers=c["centers"], tol=1e-10).fit(data.x0, data.x1, mu=data.mu, dt=data.dt)
-    models["direct kernel model"] = (d, time.perf_counter() - t0, lambda k: d.rollout(x0, k, mu=mu, dt=dt), d.n_centers_)
-    t0 = time.perf_counter()
-    sel = select_vkoga_length_scale(data, c["val"], m_star=50)
-    v = VKOGAFlowMap(max_centers=150, length_scale=sel["length_scale"]).fit(data.x0, data.x1, mu=data.mu, dt=data.dt)
-    models[f"pyMOR VKOGA (length scale {sel['length_scale']:g})"] = (v, time.perf_counter() - t0,
-                                                                     lambda k: v.rollout(x0, k, mu=mu, dt=dt), v.n_centers_)
+    m = None if neural_only else SymplecticKernelPredictor(*c["kernels"], max_centers=c["centers"], tol=1e-10).fit(data.x0, data.x1, mu=data.mu, dt=data.dt)
+    if not neural_only:
+        models["sympredict (symplectic kernel)"] = (m, time.perf_counter() - t0, lambda k: m.rollout(x0, k, mu=mu, dt=dt), m.n_centers_)
+        t0 = time.perf_counter()
+        d = DirectKernelPredictor(*c["kernels"], max_centers=c["centers"], tol=1e-10).fit(data.x0, data.x1, mu=data.mu, dt=data.dt)
+        models["direct kernel model"] = (d, time.perf_counter() - t0, lambda k: d.rollout(x0, k, mu=mu, dt=dt), d.n_centers_)
+        t0 = time.perf_counter()
+        sel = select_vkoga_length_scale(data, c["val"], m_star=50)
+        v = VKOGAFlowMap(max_centers=150, length_scale=sel["length_scale"]).fit(data.x0, data.x1, mu=data.mu, dt=data.dt)
+        models[f"pyMOR VKOGA (length scale {sel['length_scale']:g})"] = (v, time.perf_counter() - t0,
+                                                                         lambda k: v.rollout(x0, k, mu=mu, dt=dt), v.n_centers_)
     if MLPFlowMap is not None:
         for label, cls, arch in (("MLP flow map (PyTorch, 3x64)", MLPFlowMap, {"width": 64, "depth": 3}),
                                  ("G-SympNet (PyTorch, 6 modules x 32)", GSympNet, {"width": 32, "n_modules": 6})):
@@ -116,6 +121,7 @@ def main():
     parser.add_argument("--out", required=True)
     parser.add_argument("--cases", default="pendulum_fixed,pendulum_full,henon_heiles")
     parser.add_argument("--neural-epochs", type=int, default=60)
+    parser.add_argument("--neural-only", action="store_true", help="only the PyTorch peers (e.g. with more epochs)")
     args = parser.parse_args()
     set_log_levels({"sympredict": "WARN", "pymor": "WARN"})
     if GSympNet is not None:
@@ -123,7 +129,7 @@ def main():
 
         torch.set_num_threads(1)
     with deliberate_threads(1):
-        results = [run_case(name, args.neural_epochs) for name in args.cases.split(",")]
+        results = [run_case(name, args.neural_epochs, args.neural_only) for name in args.cases.split(",")]
     with open(args.out, "w") as f:
         json.dump({"command": "python benchmarks/data_driven.py " + " ".join(f"--{k.replace('_', '-')} {v}" for k, v in vars(args).items()),
                    "results": results}, f, indent=2)
