@@ -77,8 +77,8 @@ class PendulumPreset:
         Budget of pyMOR's VKOGA in the speed-against-accuracy chart (its greedy costs ``O(M m^2)``: 80 s
         for 300 centres on the quick data) and the Gaussian length scales (unit-box inputs) it chooses from
         on validation data (:func:`~sympredict.experiments.peers.select_vkoga_length_scale`).
-    speed_threads
-        BLAS and numba threads of the speed-against-accuracy timings.
+    speed_threads, speed_centers
+        BLAS and numba threads of the speed-against-accuracy timings; model sizes (prefixes) in that chart.
     """
 
     n_grid: int
@@ -101,13 +101,14 @@ class PendulumPreset:
     vkoga_centers: int = 150
     vkoga_length_scales: tuple = (0.1, 0.3, 1.0, 3.0)
     speed_threads: int = 1
+    speed_centers: tuple = (100, 200, 400, 800, 1500)
 
 
 PRESETS = {
     # seconds: for tests of the pipeline itself, not of accuracy
     "smoke": PendulumPreset(n_grid=14, max_centers=150, n_val=200, horizon=2.0, n_grid_b=12, max_centers_b=100, stability_periods=5,
                             select_n_grid=10, select_n_val=200, select_eps=((0.2, 0.4), (1.5,), (3.0,)),
-                            select_m_screen=30, select_m_refine=60, vkoga_centers=30),
+                            select_m_screen=30, select_m_refine=60, vkoga_centers=30, speed_centers=(30, 60, 150)),
     # about a minute on 2 cores: already meets the paper's accuracy
     "quick": PendulumPreset(n_grid=50, max_centers=1500, n_val=2000, horizon=20.0),
     # the paper's data size: 688,464 candidate functionals
@@ -414,7 +415,7 @@ def run_speed_accuracy(
     preset: PendulumPreset,
     seed: int = 0,
     dt: float = DT_TEST[0],
-    centers=(100, 200, 400, 800, 1500),
+    centers=None,
     refinements=(1, 2, 4, 8),
     repeats: int = 3,
     targets=(1e-3, 1e-4),
@@ -428,7 +429,7 @@ def run_speed_accuracy(
     macro step ``dt``, with :mod:`sympredict.experiments.speed` (one warm-up
     run, median of ``repeats``, ``threads`` BLAS and numba threads):
 
-    * only data: the kernel predictor truncated to each number of ``centers``
+    * only data: the kernel predictor truncated to each number of ``centers`` (default ``preset.speed_centers``)
       (prefixes of one fit, :meth:`SymplecticKernelPredictor.truncated`), the
       smallest model per validation ``target``, the ``direct`` kernel model and
       the ``vkoga`` flow map (:class:`~sympredict.experiments.peers.VKOGAFlowMap`) when given;
@@ -450,6 +451,7 @@ def run_speed_accuracy(
     n_steps = int(np.floor(preset.horizon / dt + 1e-9))
     unreached = []
     threads = preset.speed_threads if threads is None else threads
+    centers = preset.speed_centers if centers is None else centers
     with deliberate_threads(threads):
         exact = rollout(system, x0, lengths, dt, n_steps, scheme="kahan_li6", substeps=128)
         table = SpeedTable(exact, repeats)
