@@ -70,7 +70,7 @@ def equal_cost(sa: dict, method: str = "kernel predictor") -> dict:
         median error: above 1 the kernel is more accurate at equal cost).
     """
     kernel = max((r for r in sa["rows"] if r["method"] == method), key=lambda r: r["size"])
-    cheaper = [r for r in sa["rows"] if r.get("needs", "").startswith("equations") and r["size"] != 0
+    cheaper = [r for r in sa["rows"] if r.get("needs", "").startswith("equations")
                and r["time_per_trajectory_s"] <= kernel["time_per_trajectory_s"]]
     best = min(cheaper, key=lambda r: r["median_err"]) if cheaper else None
     return {"kernel": kernel, "classical": best, "error_ratio": best["median_err"] / kernel["median_err"] if best else None}

@@ -133,9 +133,16 @@ def test_equal_cost_picks_the_most_accurate_classical_run_at_no_more_cost():
     for r in sa["rows"]:
         r["max_err"] = 2 * r["median_err"]
     eq_cost = report.equal_cost(sa)
-    assert eq_cost["kernel"]["size"] == 500 and eq_cost["classical"]["method"] == "Yoshida-4 (compiled)"
-    assert eq_cost["error_ratio"] == pytest.approx(1e-2)
+    # the micro-step reference needs the equations too, and here it is cheaper than the kernel
+    assert eq_cost["kernel"]["size"] == 500 and eq_cost["classical"]["method"] == "micro-step reference"
+    assert eq_cost["error_ratio"] == pytest.approx(1e-10)
+    sa["rows"] = [r for r in sa["rows"] if r["method"] != "micro-step reference"]
+    eq_cost = report.equal_cost(sa)
+    assert eq_cost["classical"]["method"] == "Yoshida-4 (compiled)" and eq_cost["error_ratio"] == pytest.approx(1e-2)
     assert any("the kernel is 100x less accurate" in line for line in report.speed_accuracy_markdown(sa, ""))
+    sa["rows"] = [r for r in sa["rows"] if r["method"] == "kernel predictor"] + [dict(sa["rows"][-1], time_per_trajectory_s=9.0)]
+    assert report.equal_cost(sa)["classical"] is None
+    assert any("No method with the equations is as cheap" in line for line in report.speed_accuracy_markdown(sa, ""))
 
 
 def test_vkoga_flow_map_interpolates_its_training_data():
