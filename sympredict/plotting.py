@@ -179,6 +179,12 @@ def speed_accuracy(rows, reference_time: float, title: str):
             tag = point_tag(r)
             ax.annotate(tag, (r["time_per_trajectory_s"], r["median_err"]), fontsize=6, xytext=(3, 3), textcoords="offset points")
     ax.axvline(reference_time, color="k", ls=":", label="micro-step reference (time)")
+    # a relative error above 10 is a blown-up run (CFL): keep the axis on the runs that work, say so on the chart
+    blown = [r for r in rows if not r["median_err"] <= 10]
+    if blown:
+        ax.set_ylim(top=30)
+        ax.text(0.01, 0.99, "off the chart (error > 10, unstable): " + ", ".join(f"{r['method']} {point_tag(r)}" for r in blown),
+                transform=ax.transAxes, fontsize=6, va="top", wrap=True)
     _decorate(ax, "wall time per trajectory [s]", "median over time of the mean relative error",
               title + "\n(o: only data, open square: equations, ^: reduced operator)", legend_outside=True)
     return fig
