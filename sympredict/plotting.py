@@ -164,18 +164,29 @@ def speed_accuracy(rows, reference_time: float, title: str):
     reference_time
         Wall time per trajectory of the micro-step reference (a vertical line).
     """
-    fig, ax = plt.subplots(figsize=(6.5, 4.5))
+    fig, ax = plt.subplots(figsize=(8.5, 5.0))
     methods = list(dict.fromkeys(r["method"] for r in rows))
     for i, method in enumerate(methods):
         pts = [r for r in rows if r["method"] == method]
         t = [r["time_per_trajectory_s"] for r in pts]
         e = [r["median_err"] for r in pts]
-        ax.loglog(t, e, "o-" if len(pts) > 1 else "s", color=_COLORS[i], label=method, ms=5 if len(pts) > 1 else 8)
+        # the marker says what the method needs: circles only data, squares the equations, triangles a reduced operator
+        needs = pts[0].get("needs", "")
+        marker = "o" if needs.startswith("only data") else "^" if needs.startswith("reduced") else "s"
+        ax.loglog(t, e, marker + ("-" if len(pts) > 1 else ""), color=_COLORS[i % len(_COLORS)], label=method,
+                  ms=5 if len(pts) > 1 else 8, mfc="none" if marker == "s" else None)
         for r in pts:
             tag = point_tag(r)
-            ax.annotate(tag, (r["time_per_trajectory_s"], r["median_err"]), fontsize=7, xytext=(3, 3), textcoords="offset points")
-    ax.axvline(reference_time, color="k", ls=":", label="micro-step reference (h <= 1e-3)")
-    _decorate(ax, "wall time per trajectory [s]", "median over time of the mean relative error", title)
+            ax.annotate(tag, (r["time_per_trajectory_s"], r["median_err"]), fontsize=6, xytext=(3, 3), textcoords="offset points")
+    ax.axvline(reference_time, color="k", ls=":", label="micro-step reference (time)")
+    # a relative error above 10 is a blown-up run (CFL): keep the axis on the runs that work, say so on the chart
+    blown = [r for r in rows if not r["median_err"] <= 10]
+    if blown:
+        ax.set_ylim(top=30)
+        ax.text(0.01, 0.99, "off the chart (error > 10, unstable): " + ", ".join(f"{r['method']} {point_tag(r)}" for r in blown),
+                transform=ax.transAxes, fontsize=6, va="top", wrap=True)
+    _decorate(ax, "wall time per trajectory [s]", "median over time of the mean relative error",
+              title + "\n(o: only data, open square: equations, ^: reduced operator)", legend_outside=True)
     return fig
 
 

@@ -22,6 +22,8 @@ __all__ = [
     "save_figures",
     "speed_accuracy_figure",
     "speed_accuracy_markdown",
+    "equal_cost",
+    "henon_heiles_markdown",
     "pendulum_a_figures",
     "pendulum_a_markdown",
     "pendulum_b_figures",
@@ -61,19 +63,70 @@ def speed_accuracy_figure(sa: dict, name: str, title: str) -> dict:
     return {name: plotting.speed_accuracy(sa["rows"], sa["reference_time_s"], title)}
 
 
+def equal_cost(sa: dict, method: str = "kernel predictor") -> dict:
+    """The largest model of ``method`` against the most accurate method that needs the equations at no more cost.
+
+    Returns
+    -------
+    dict
+        ``kernel`` (its row), ``classical`` (the row, or ``None`` when no classical
+        run is as cheap) and ``error_ratio`` (classical median error / kernel
+        median error: above 1 the kernel is more accurate at equal cost).
+    """
+    kernel = max((r for r in sa["rows"] if r["method"] == method), key=lambda r: r["size"])
+    cheaper = [r for r in sa["rows"] if r.get("needs", "").startswith("equations")
+               and r["time_per_trajectory_s"] <= kernel["time_per_trajectory_s"]]
+    best = min(cheaper, key=lambda r: r["median_err"]) if cheaper else None
+    return {"kernel": kernel, "classical": best, "error_ratio": best["median_err"] / kernel["median_err"] if best else None}
+
+
 def speed_accuracy_markdown(sa: dict, note: str) -> list[str]:
-    """Markdown table of a speed-against-accuracy run (pendulum or wave)."""
-    return [
+    """Markdown table of a speed-against-accuracy run (pendulum, wave or Hénon–Heiles), with what each method needs."""
+    threads = f", {sa['threads']} BLAS/numba thread(s)" if "threads" in sa else ""
+    lines = [
         "",
         f"### Speed against accuracy (dT = {sa['dt']}, {sa['n_trajectories']} trajectories x {sa['n_steps']} steps, "
-        f"medians of {sa['repeats']} timed runs, side by side in one process)",
+        f"one warm-up run then medians of {sa['repeats']} timed runs, side by side in one process{threads})",
         "",
         note,
         "",
-        "| method | size | ms per trajectory | median error | max error |",
-        "|---|---|---|---|---|",
-        *[f"| {r['method']} | {plotting.point_tag(r)} | {r['time_per_trajectory_s'] * 1e3:.3g} | {r['median_err']:.2e} | "
-          f"{r['max_err']:.2e} |" for r in sa["rows"]],
+        "| method | needs | size | ms per trajectory | median error | max error |",
+        "|---|---|---|---|---|---|",
+        *[f"| {r['method']} | {r.get('needs', '')} | {plotting.point_tag(r)} | {r['time_per_trajectory_s'] * 1e3:.3g} | "
+          f"{r['median_err']:.2e} | {r['max_err']:.2e} |" for r in sa["rows"]],
+    ]
+    if any(r["method"] == "kernel predictor" for r in sa["rows"]) and any(r.get("needs", "").startswith("equations") for r in sa["rows"]):
+        eq = equal_cost(sa)
+        k, c = eq["kernel"], eq["classical"]
+        lines += ["", (f"At the cost of the largest kernel model (m={k['size']}, {k['time_per_trajectory_s'] * 1e3:.3g} ms, "
+                       f"median error {k['median_err']:.2e}), the most accurate method with the equations is "
+                       f"{c['method']} at {plotting.point_tag(c)} ({c['time_per_trajectory_s'] * 1e3:.3g} ms, "
+                       f"{c['median_err']:.2e}): the kernel is "
+                       + (f"{ratio(eq['error_ratio'])} more accurate." if eq["error_ratio"] >= 1
+                          else f"{ratio(1 / eq['error_ratio'])} less accurate.")
+                       if c else f"No method with the equations is as cheap as the largest kernel model (m={k['size']}).")]
+    return lines
+
+
+def henon_heiles_markdown(s: dict) -> list[str]:
+    """Hénon–Heiles section of ``summary.md`` from its JSON summary ``s``."""
+    p = s["preset"]
+    sa = s["speed_accuracy"]
+    e = s["max_rel_energy_err"]
+    return [
+        "## Hénon–Heiles: speed against accuracy (lambda in [0.8, 1.0], dT = 0.5)",
+        "",
+        f"- training data: {s['n_samples']} flow-map samples ({p['n_lambda']} values of lambda x {p['n_per_lambda']} states "
+        f"with H <= {p['energy_max']:.4g}); {s['n_val_samples']} validation samples at random lambda",
+        f"- kernel {' x '.join(s['kernel'])} chosen on validation (E_val at {p['m_star']} centres {s['selection_E_val']:.2e}); "
+        f"{s['n_centers']} centres ({s['stop_reason']}), E_val {s['E_val']:.2e}",
+        f"- same data: direct kernel model {s['n_centers_direct']} centres, pyMOR VKOGA {s['n_centers_vkoga']} centres",
+        f"- time: data {s['time_data_s']:.1f} s, selection {s['time_selection_s']:.1f} s, training symplectic "
+        f"{s['time_fit_symplectic_s']:.1f} s / direct {s['time_fit_direct_s']:.1f} s / VKOGA {s['time_fit_vkoga_s']:.1f} s",
+        f"- max relative energy error over the test set: kernel {e['kernel predictor']:.1e}, direct {e['direct kernel model']:.1e}, "
+        f"VKOGA {e['pyMOR VKOGA']:.1e}",
+        *speed_accuracy_markdown(sa, f"Errors against {sa['error_reference']}; test: {p['n_test']} random lambda x {p['n_test']} "
+                                     f"states with H <= {0.9 * p['energy_max']:.3g}, T = {p['horizon']}."),
     ]
 
 

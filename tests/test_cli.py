@@ -36,14 +36,16 @@ def test_run_all_smoke_writes_everything(smoke_run):
     assert isinstance(sv_large, str) or sv_large > 100 * sv_small
     rows = pendulum["speed_accuracy"]["rows"]
     methods = {r["method"] for r in rows}
-    assert {"kernel predictor", "implicit midpoint", "Stormer-Verlet"} <= methods
+    assert {"kernel predictor", "implicit midpoint (compiled)", "Stormer-Verlet (compiled)", "Yoshida-4 (compiled)",
+            "Kahan-Li-6 (compiled)"} <= methods
     # smallest models for the validation targets: measured, or listed as unreached (smoke is tiny)
     smallest = [m for m in methods if m.startswith("smallest kernel")]
     assert len(smallest) + len(pendulum["speed_accuracy"]["unreached"]) == 2
     assert all(r["time_per_trajectory_s"] > 0 and r["median_err"] > 0 for r in rows)
     # finer steps are more accurate: the chart shows real convergence, not noise
-    im = [r["median_err"] for r in rows if r["method"] == "implicit midpoint"]
-    assert all(a > b for a, b in zip(im, im[1:]))
+    for method in ("implicit midpoint (compiled)", "Stormer-Verlet (compiled)", "Yoshida-4 (compiled)", "Kahan-Li-6 (compiled)"):
+        errs = [r["median_err"] for r in rows if r["method"] == method]
+        assert len(errs) >= 3 and all(a > b for a, b in zip(errs, errs[1:])), (method, errs)
     b = pendulum["scenario_b"]
     assert b["mu"] == 0.825 and len(b["per_dt"]) == 3 and b["n_centers_direct"] > 0
     text = (tmp_path / "summary.md").read_text()

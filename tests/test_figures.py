@@ -88,7 +88,8 @@ def test_speed_accuracy_figures_show_the_table_rows(smoke_run):
             np.testing.assert_allclose(t, [r["time_per_trajectory_s"] for r in rows], rtol=1e-12)
             np.testing.assert_allclose(e, [r["median_err"] for r in rows], rtol=1e-12)
     wave_methods = {r["method"] for r in results["results"]["wave"]["speed_accuracy"]["rows"]}
-    assert {"FOM micro-step reference", "FOM implicit midpoint", "ROM implicit midpoint", "ROM + kernel predictor"} <= wave_methods
+    assert {"FOM micro-step reference", "FOM implicit midpoint", "ROM implicit midpoint (compiled)", "ROM exact propagator (expm)",
+            "ROM + kernel predictor"} <= wave_methods
 
 
 def test_scenario_b_figures(smoke_run):

@@ -143,6 +143,9 @@ FAULTS = [
     Fault("E6", "experiments", P + "experiments/wave.py", '"im_red": relative_trajectory_error(im, ref).mean(axis=0),',
           '"im_red": relative_trajectory_error(pred, ref).mean(axis=0),', ("tests/test_wave.py",),
           "wave: implicit-midpoint error computed from the kernel's prediction"),
+    Fault("E7", "experiments", P + "experiments/speed.py", '"median_err": float(np.median(err)), "max_err": float(err.max())}',
+          '"median_err": float(np.min(err)), "max_err": float(err.max())}', ("tests/test_speed_accuracy.py",),
+          "speed-against-accuracy rows: the best time step's error published as the median"),
     # ----------------------------------------------------------------- figures and report
     Fault("F1", "figures", P + "report.py", '"kernel predictor": ex["kernel"], "implicit midpoint, macro step": ex["im"]',
           '"kernel predictor": ex["ref"], "implicit midpoint, macro step": ex["im"]', ("tests/test_published_numbers.py",),

@@ -20,6 +20,9 @@ import numpy as np
 from pymor.core.logger import getLogger
 
 from sympredict.integrators import implicit_midpoint_step, integrate, stormer_verlet_step
+from sympredict.integrators_compiled import EXPLICIT_SCHEMES, rollout
+from sympredict.experiments.peers import VKOGAFlowMap, select_vkoga_length_scale
+from sympredict.experiments.speed import SpeedTable, add_classical, deliberate_threads
 from sympredict.kernels import IMQ, RadialKernel
 from sympredict.metrics import relative_hamiltonian_error, relative_trajectory_error
 from sympredict.exceptions import ExtrapolationWarning, NewtonConvergenceError, SolvabilityError, extrapolation_expected
@@ -27,7 +30,7 @@ from sympredict.predictor import DirectKernelPredictor, SymplecticKernelPredicto
 from sympredict.selection import kernel_grid, refine_kernel_shapes, select_kernels
 from sympredict.systems.pendulum import DT_TEST, DT_TRAIN, MU_TRAIN, Pendulum, flow_map_data, random_flow_map_data
 
-__all__ = ["PendulumPreset", "PRESETS", "select_pendulum_kernels", "run_scenario_a", "run_scenario_b", "run_speed_accuracy", "run_stability", "paper_test_instances", "MU_EXTRAPOLATION", "DT_EXTRAPOLATION"]
+__all__ = ["PendulumPreset", "PRESETS", "select_pendulum_kernels", "run_scenario_a", "run_scenario_b", "run_speed_accuracy", "train_peers", "run_stability", "paper_test_instances", "MU_EXTRAPOLATION", "DT_EXTRAPOLATION"]
 
 #: The paper's extrapolation case of scenario B.
 MU_EXTRAPOLATION = 0.825
@@ -70,6 +73,12 @@ class PendulumPreset:
         ``(state, mu, dT)``, and the centres ``m*`` at which candidates are compared.
     select_m_refine, select_sweeps
         ``m*`` and the most sweeps of the coordinate refinement of the screening winner's shapes.
+    vkoga_centers, vkoga_length_scales
+        Budget of pyMOR's VKOGA in the speed-against-accuracy chart (its greedy costs ``O(M m^2)``: 80 s
+        for 300 centres on the quick data) and the Gaussian length scales (unit-box inputs) it chooses from
+        on validation data (:func:`~sympredict.experiments.peers.select_vkoga_length_scale`).
+    speed_threads, speed_centers
+        BLAS and numba threads of the speed-against-accuracy timings; model sizes (prefixes) in that chart.
     """
 
     n_grid: int
@@ -89,18 +98,23 @@ class PendulumPreset:
     select_m_screen: int = 300
     select_m_refine: int = 1000
     select_sweeps: int = 2
+    vkoga_centers: int = 150
+    vkoga_length_scales: tuple = (0.1, 0.3, 1.0, 3.0)
+    speed_threads: int = 1
+    speed_centers: tuple = (100, 200, 400, 800, 1500)
 
 
 PRESETS = {
     # seconds: for tests of the pipeline itself, not of accuracy
     "smoke": PendulumPreset(n_grid=14, max_centers=150, n_val=200, horizon=2.0, n_grid_b=12, max_centers_b=100, stability_periods=5,
                             select_n_grid=10, select_n_val=200, select_eps=((0.2, 0.4), (1.5,), (3.0,)),
-                            select_m_screen=30, select_m_refine=60),
+                            select_m_screen=30, select_m_refine=60, vkoga_centers=30, speed_centers=(30, 60, 150)),
     # about a minute on 2 cores: already meets the paper's accuracy
     "quick": PendulumPreset(n_grid=50, max_centers=1500, n_val=2000, horizon=20.0),
     # the paper's data size: 688,464 candidate functionals
     "paper": PendulumPreset(
-        n_grid=200, max_centers=1500, n_val=20000, horizon=20.0, n_grid_b=100, max_centers_b=1500, stability_periods=1000
+        n_grid=200, max_centers=1500, n_val=20000, horizon=20.0, n_grid_b=100, max_centers_b=1500, stability_periods=1000,
+        vkoga_centers=300,
     ),
 }
 
@@ -372,78 +386,99 @@ def run_scenario_b(preset: PendulumPreset, seed: int = 0, kernels=None) -> dict:
     return {"summary": summary, "per_dt": per_dt, "example": example, "energy": energy, "energy_err": energy_err, "models": models}
 
 
+def train_peers(model: SymplecticKernelPredictor, preset: PendulumPreset, seed: int = 0) -> dict:
+    """The data-driven peers on scenario A's training data: the direct kernel model (same kernel and budget as
+    ``model``) and pyMOR's VKOGA (:class:`~sympredict.experiments.peers.VKOGAFlowMap`, ``preset.vkoga_*``).
+
+    Returns
+    -------
+    dict
+        ``direct``, ``vkoga``, ``time_fit_direct_s``, ``time_fit_vkoga_s``.
+    """
+    data = flow_map_data(Pendulum(), n_grid=preset.n_grid)
+    k = model.kernel_
+    t0 = time.perf_counter()
+    with logger.block("peers: direct kernel model on the scenario-A data"):
+        direct = DirectKernelPredictor(k.state, k.mu, k.dt, max_centers=model.max_centers).fit(data.x0, data.x1, mu=data.mu, dt=data.dt)
+    t_direct = time.perf_counter() - t0
+    with logger.block(f"peers: pyMOR VKOGA ({preset.vkoga_centers} centres) on the scenario-A data"):
+        val = random_flow_map_data(Pendulum(), preset.select_n_val, seed=seed + 2)
+        vsel = select_vkoga_length_scale(data, val, preset.vkoga_length_scales, m_star=min(50, preset.vkoga_centers))
+        vkoga = VKOGAFlowMap(max_centers=preset.vkoga_centers, length_scale=vsel["length_scale"]).fit(
+            data.x0, data.x1, mu=data.mu, dt=data.dt)
+    return {"direct": direct, "vkoga": vkoga, "time_fit_direct_s": t_direct, "time_fit_vkoga_s": vkoga.fit_time_s_,
+            "vkoga_selection": vsel}
+
+
 def run_speed_accuracy(
     model: SymplecticKernelPredictor,
     preset: PendulumPreset,
     seed: int = 0,
     dt: float = DT_TEST[0],
-    centers=(100, 200, 400, 800, 1500),
-    refinements=(1, 2, 4, 8, 16),
+    centers=None,
+    refinements=(1, 2, 4, 8),
     repeats: int = 3,
     targets=(1e-3, 1e-4),
+    direct: Optional[DirectKernelPredictor] = None,
+    vkoga=None,
+    threads: Optional[int] = None,
 ) -> dict:
     """Online wall time per trajectory against error, all methods timed side by side in this process.
 
     On the scenario-A test set (25 trajectories, ``T = preset.horizon``) at
-    macro step ``dt``: the kernel predictor truncated to each number of
-    ``centers`` (prefixes of one fit, :meth:`SymplecticKernelPredictor.truncated`),
-    implicit midpoint and Störmer–Verlet with ``dt / r`` for each refinement
-    ``r`` (states compared at the macro grid), and the micro-step reference.
-    Times are medians over ``repeats`` runs of the whole batch, divided by the
-    batch size.
+    macro step ``dt``, with :mod:`sympredict.experiments.speed` (one warm-up
+    run, median of ``repeats``, ``threads`` BLAS and numba threads):
 
-    For each validation ``target`` the smallest model with ``E_val <= target``
-    (:meth:`SymplecticKernelPredictor.smallest`) is measured too (method
-    ``"smallest kernel, E_val <= target"``); unreachable targets are listed in
-    ``unreached``.
+    * only data: the kernel predictor truncated to each number of ``centers`` (default ``preset.speed_centers``)
+      (prefixes of one fit, :meth:`SymplecticKernelPredictor.truncated`), the
+      smallest model per validation ``target``, the ``direct`` kernel model and
+      the ``vkoga`` flow map (:class:`~sympredict.experiments.peers.VKOGAFlowMap`) when given;
+    * the equations: the compiled Störmer–Verlet, Yoshida-4, Kahan–Li-6 and
+      implicit midpoint at ``dt / r`` for each refinement ``r`` (states compared
+      at the macro grid), and the micro-step reference (implicit midpoint, ``h <= 1e-3``).
+
+    Errors are measured against Kahan–Li-6 with ``dt / 128`` (compiled): more
+    accurate than every method here, the micro-step reference included.
 
     Returns
     -------
     dict
-        ``rows``: one dict per method and size (``method``, ``size``,
+        ``rows``: one dict per method and size (``method``, ``size``, ``tag``, ``needs``,
         ``time_per_trajectory_s``, ``median_err``, ``max_err``); ``reference_time_s``; ``unreached``.
     """
     system = Pendulum()
     x0, lengths = paper_test_instances(seed)
     n_steps = int(np.floor(preset.horizon / dt + 1e-9))
-
-    def timed(run):
-        times, out = [], None
-        for _ in range(repeats):
-            t0 = time.perf_counter()
-            out = run()
-            times.append(time.perf_counter() - t0)
-        return float(np.median(times)) / len(x0), out
-
-    t_ref, ref = timed(lambda: system.trajectory(x0, lengths, dt, n_steps))
-    rows = []
-
-    def record(method, size, seconds, traj):
-        err = relative_trajectory_error(traj, ref).mean(axis=0)[1:]
-        rows.append({"method": method, "size": size, "time_per_trajectory_s": seconds,
-                     "median_err": float(np.median(err)), "max_err": float(err.max())})
-
-    for m in [c for c in centers if c <= model.n_centers_]:
-        small = model.truncated(m)
-        with extrapolation_expected():  # a small model may wander off the training states: its error says so
-            seconds, traj = timed(lambda: small.rollout(x0, n_steps, mu=lengths, dt=dt))
-        record("kernel predictor", m, seconds, traj)
     unreached = []
-    for target in targets:
-        try:
-            small = model.smallest(target)
-        except ValueError as exc:
-            unreached.append(f"E_val <= {target:g}: {exc}")
-            continue
-        with extrapolation_expected():
-            seconds, traj = timed(lambda: small.rollout(x0, n_steps, mu=lengths, dt=dt))
-        record(f"smallest kernel, E_val <= {target:g}", small.n_centers_, seconds, traj)
-    for name, scheme in (("implicit midpoint", implicit_midpoint_step), ("Stormer-Verlet", stormer_verlet_step)):
-        for r in refinements:
-            seconds, traj = timed(lambda: integrate(scheme, system, x0, lengths[:, None], dt / r, n_steps * r)[:, ::r])
-            record(name, r, seconds, traj)
-    return {"dt": dt, "n_trajectories": len(x0), "n_steps": n_steps, "repeats": repeats, "reference_time_s": t_ref,
-            "rows": rows, "unreached": unreached}
+    threads = preset.speed_threads if threads is None else threads
+    centers = preset.speed_centers if centers is None else centers
+    # small models may wander off the training states: the chart's errors say so, no warning per rollout
+    with deliberate_threads(threads), extrapolation_expected():
+        exact = rollout(system, x0, lengths, dt, n_steps, scheme="kahan_li6", substeps=128)
+        table = SpeedTable(exact, repeats)
+        ref_row = table.add("micro-step reference (implicit midpoint, h<=1e-3)", 0, "h<=1e-3", "equations",
+                            lambda: system.trajectory(x0, lengths, dt, n_steps))
+        for m in [c for c in centers if c <= model.n_centers_]:
+            small = model.truncated(m)
+            table.add("kernel predictor", m, f"m={m}", "data", lambda: small.rollout(x0, n_steps, mu=lengths, dt=dt))
+        for target in targets:
+            try:
+                small = model.smallest(target)
+            except ValueError as exc:
+                unreached.append(f"E_val <= {target:g}: {exc}")
+                continue
+            table.add(f"smallest kernel, E_val <= {target:g}", small.n_centers_, f"m={small.n_centers_}", "data",
+                      lambda: small.rollout(x0, n_steps, mu=lengths, dt=dt))
+        if direct is not None:
+            table.add("direct kernel model (NumPy)", direct.n_centers_, f"m={direct.n_centers_}", "data",
+                      lambda: direct.rollout(x0, n_steps, mu=lengths, dt=dt))
+        if vkoga is not None:
+            table.add("pyMOR VKOGA flow map (NumPy)", vkoga.n_centers_, f"m={vkoga.n_centers_}", "data",
+                      lambda: vkoga.rollout(x0, n_steps, mu=lengths, dt=dt))
+        add_classical(table, system, x0, lengths, dt, n_steps, refinements, (*EXPLICIT_SCHEMES, "implicit_midpoint"))
+    return {"dt": dt, "n_trajectories": len(x0), "n_steps": n_steps, "repeats": repeats, "threads": threads,
+            "reference_time_s": ref_row["time_per_trajectory_s"], "error_reference": "Kahan-Li-6, dT/128 (compiled)",
+            "rows": table.rows, "unreached": unreached}
 
 
 def _upward_crossings(t, q):

@@ -31,7 +31,10 @@ from sympredict.exceptions import extrapolation_expected
 from sympredict.flowmaps import flow_map_data, mus_to_matrix, random_parameters, sample_energy_ellipsoid
 from sympredict.metrics import relative_trajectory_error
 from sympredict.parallel import pool_flow, pool_map_instances
-from sympredict.predictor import SymplecticKernelPredictor
+from sympredict.experiments.peers import VKOGAFlowMap, select_vkoga_length_scale
+from sympredict.experiments.speed import SpeedTable, add_classical, deliberate_threads
+from sympredict.integrators_compiled import EXPLICIT_SCHEMES, rollout
+from sympredict.predictor import DirectKernelPredictor, SymplecticKernelPredictor
 from sympredict.reduction import SymplecticROM, complex_svd_basis, symplecticity_of_basis
 from sympredict.selection import kernel_grid, select_kernels
 from sympredict.systems.wave import C_REF, C_TRAIN, DT_WAVE, WaveFOM
@@ -67,8 +70,16 @@ class WavePreset:
     state_eps, mu_eps, families, m_star
         Validation grid: state-kernel families and shapes, IMQ shapes of the ``mu`` factor,
         and the number of centres at which candidates are compared.
-    speed_centers, speed_repeats
-        Model sizes and timing repeats of the speed-against-accuracy comparison (first ``dT``).
+    speed_centers, speed_repeats, speed_refinements, speed_threads
+        Model sizes, timing repeats, step refinements of the implicit schemes and BLAS/numba threads of the
+        speed-against-accuracy comparison (first ``dT``).
+    fom_explicit_refinements
+        Step refinements of the explicit FOM schemes: they are stable only below the CFL limit
+        ``h < 2 / (c omega_max)``, ``omega_max ~ 2 (N + 1)`` (``h < 3.3e-3`` at ``N = 1000``, ``c = 0.3``);
+        ``dT/1`` is kept to show the instability.
+    vkoga_centers, vkoga_length_scales
+        pyMOR VKOGA's budget on the same reduced data and its Gaussian length scales (unit-box inputs), one
+        chosen on the validation data.
     target_accuracy
         Target of :func:`smallest_wave_model` (validation error of full-space trajectories, first ``dT``).
     """
@@ -91,6 +102,11 @@ class WavePreset:
     m_star: int = 300
     speed_centers: tuple = (50, 100, 200, 400, 800, 1500)
     speed_repeats: int = 3
+    speed_refinements: tuple = (1, 2, 4, 8)
+    fom_explicit_refinements: tuple = (1, 32, 64)
+    speed_threads: int = 1
+    vkoga_centers: int = 150
+    vkoga_length_scales: tuple = (0.1, 0.3, 1.0, 3.0)
     target_accuracy: float = 1e-4
 
 
@@ -98,7 +114,8 @@ PRESETS = {
     "smoke": WavePreset(
         n_points=200, n_snapshot_states=4, samples_per_speed=150, val_per_speed=40, max_centers=150, dts=(0.1,),
         n_test_speeds=2, n_test_ics=2, horizon=1.0, state_eps=(3e-3, 1e-2), mu_eps=(10.0,), families=("imq",), m_star=60,
-        speed_centers=(20, 50, 150), speed_repeats=1, target_accuracy=1e-2,
+        speed_centers=(20, 50, 150), speed_repeats=1, target_accuracy=1e-2, speed_refinements=(1, 2, 4), vkoga_centers=30,
+        fom_explicit_refinements=(1, 8, 16),
     ),
     "quick": WavePreset(),
     "paper": WavePreset(samples_per_speed=20000, val_per_speed=2000),
@@ -219,7 +236,7 @@ def train_wave_predictor(rom: SymplecticROM, preset: WavePreset, dt: float, ener
     Returns
     -------
     dict
-        ``model`` (fitted, with ``E_val`` history), ``selection``, ``n_samples``,
+        ``model`` (fitted, with ``E_val`` history), ``selection``, ``n_samples``, ``data`` and ``validation`` (the samples),
         ``time_data_s``, ``time_selection_s``, ``time_fit_s``.
     """
     with logger.block(f"dT = {dt}, 2n = {rom.dim}: data, kernel selection, training"):
@@ -236,7 +253,7 @@ def train_wave_predictor(rom: SymplecticROM, preset: WavePreset, dt: float, ener
         t0 = time.perf_counter()
         model.fit(data.x0, data.x1, mu=data.mu, dt=dt, validation=val)
         t_fit = time.perf_counter() - t0
-    return {"model": model, "selection": sel, "n_samples": len(data),
+    return {"model": model, "selection": sel, "n_samples": len(data), "data": data, "validation": val,
             "time_data_s": t_data, "time_selection_s": t_sel, "time_fit_s": t_fit}
 
 
@@ -278,8 +295,21 @@ def run_wave(preset: WavePreset, seed: int = 0, **overrides) -> dict:
 
     x0_all = np.concatenate([test_x0[c] for c in test_speeds])
     mu_all = np.repeat(test_speeds**2, preset.n_test_ics)
-    speed = run_wave_speed_accuracy(fom, rom, per_dt[0]["model"], x0_all, mu_all, preset.dts[0], preset.horizon,
-                                    centers=preset.speed_centers, repeats=preset.speed_repeats)
+    first = per_dt[0]
+    k = first["model"].kernel_
+    d = first["data"]
+    t0 = time.perf_counter()
+    with logger.block("wave peers: direct kernel model and pyMOR VKOGA on the same reduced data"):
+        direct = DirectKernelPredictor(k.state, k.mu, None, max_centers=preset.max_centers, tol=1e-10).fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
+        t_direct = time.perf_counter() - t0
+        vsel = select_vkoga_length_scale(d, first["validation"], preset.vkoga_length_scales, m_star=min(50, preset.vkoga_centers))
+        vkoga = VKOGAFlowMap(max_centers=preset.vkoga_centers, length_scale=vsel["length_scale"]).fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
+    speed = run_wave_speed_accuracy(fom, rom, first["model"], x0_all, mu_all, preset.dts[0], preset.horizon,
+                                    centers=preset.speed_centers, refinements=preset.speed_refinements,
+                                    repeats=preset.speed_repeats, direct=direct, vkoga=vkoga, threads=preset.speed_threads,
+                                    explicit_refinements=preset.fom_explicit_refinements)
+    speed["time_fit_direct_s"], speed["time_fit_vkoga_s"] = t_direct, vkoga.fit_time_s_
+    speed["vkoga_selection"] = vsel
     sizing = smallest_wave_model(preset, preset.target_accuracy, preset.dts[0], seed=seed, trained=per_dt[0])
 
     summary = {
@@ -319,16 +349,6 @@ def run_wave(preset: WavePreset, seed: int = 0, **overrides) -> dict:
     return {"summary": summary, "per_dt": per_dt, "fom": fom, "rom": rom, "speed_accuracy": speed, "smallest": sizing}
 
 
-def _timed(run, repeats: int, batch: int):
-    """Median wall time over ``repeats`` runs divided by ``batch``, and the last output."""
-    times, out = [], None
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        out = run()
-        times.append(time.perf_counter() - t0)
-    return float(np.median(times)) / batch, out
-
-
 def run_wave_speed_accuracy(
     fom: WaveFOM,
     rom: SymplecticROM,
@@ -338,20 +358,29 @@ def run_wave_speed_accuracy(
     dt: float,
     horizon: float,
     centers=(50, 100, 200, 400, 800, 1500),
-    refinements=(1, 2, 4, 8, 16),
+    refinements=(1, 2, 4, 8),
     repeats: int = 3,
+    direct: Optional[DirectKernelPredictor] = None,
+    vkoga=None,
+    threads: int = 1,
+    explicit_refinements=None,
 ) -> dict:
-    """Online wall time per trajectory against accuracy: FOM vs ROM vs ROM + kernel, timed side by side.
+    """Online wall time per trajectory against accuracy: FOM vs ROM vs ROM + data-driven maps, timed side by side.
 
     Every method starts from the same full states ``V x0_red`` and returns full
     states on the macro grid ``t_k = k dt``; errors are relative to the FOM's
     exact solution (sine transform), so the FOM's own time-stepping error is
-    measured too.  Methods: the FOM micro-step reference (implicit midpoint,
-    ``h <= 1e-3``, sparse LU), FOM implicit midpoint at ``dt / r``, ROM implicit
-    midpoint at ``dt / r`` and the exact ROM flow (the reduction's error floor),
-    each reconstructed with ``V``; and ROM + kernel at each number of ``centers``
-    (prefixes of ``model``, :meth:`SymplecticKernelPredictor.truncated`),
-    including ``V+`` projection and reconstruction.
+    measured too.  Timing by :mod:`sympredict.experiments.speed` (warm-up, medians, ``threads``).
+
+    * the equations (FOM): the micro-step reference (implicit midpoint, ``h <= 1e-3``,
+      sparse LU), implicit midpoint (sparse LU) and the compiled Störmer–Verlet,
+      Yoshida-4 and Kahan–Li-6 at ``dt / r`` for each ``r`` in ``explicit_refinements``
+      (default ``refinements``; the explicit schemes are stable only below the CFL limit);
+    * the reduced operator (intrusive ROM): compiled implicit midpoint at ``dt / r`` and
+      the exact propagator (matrix exponential, the reduction's error floor),
+      with projection and reconstruction;
+    * only data (and the basis ``V`` for projection and reconstruction): ROM + kernel at each
+      number of ``centers`` (prefixes of ``model``), ROM + ``direct`` model and ROM + ``vkoga``.
 
     Parameters
     ----------
@@ -363,9 +392,9 @@ def run_wave_speed_accuracy(
     Returns
     -------
     dict
-        ``rows`` (``method``, ``size``, ``tag``, ``time_per_trajectory_s``,
+        ``rows`` (``method``, ``size``, ``tag``, ``needs``, ``time_per_trajectory_s``,
         ``median_err``, ``max_err``), ``reference_time_s``, ``dt``, ``n_steps``,
-        ``n_trajectories``, ``repeats``.
+        ``n_trajectories``, ``repeats``, ``threads``.
     """
     x0_red = np.asarray(x0_red, dtype=float)
     mu = np.asarray(mu, dtype=float)
@@ -373,33 +402,36 @@ def run_wave_speed_accuracy(
     n_steps = int(np.floor(horizon / dt + 1e-9))
     x0_full = rom.reconstruct(x0_red)
     exact = fom.exact_trajectory(x0_full, mu, dt, n_steps)
-    rows = []
 
-    def record(method, size, tag, seconds, traj):
-        err = relative_trajectory_error(traj, exact).mean(axis=0)[1:]
-        rows.append({"method": method, "size": size, "tag": tag, "time_per_trajectory_s": seconds,
-                     "median_err": float(np.median(err)), "max_err": float(err.max())})
+    def reduced(run):  # projection before, reconstruction after: part of the timed work
+        return lambda: rom.reconstruct(run(rom.project(x0_full)))
 
-    with logger.block(f"wave speed against accuracy: {batch} trajectories x {n_steps} steps of dT = {dt}, {repeats} repeats"):
-        t_ref, traj = _timed(lambda: fom.trajectory(x0_full, mu, dt, n_steps), repeats, batch)
-        record("FOM micro-step reference", 0, "h<=1e-3", t_ref, traj)
+    # small models may wander off the training states: the chart's errors say so, no warning per rollout
+    with logger.block(f"wave speed against accuracy: {batch} trajectories x {n_steps} steps of dT = {dt}, {repeats} repeats"), \
+            deliberate_threads(threads), extrapolation_expected():
+        table = SpeedTable(exact, repeats)
+        ref_row = table.add("FOM micro-step reference", 0, "h<=1e-3", "equations", lambda: fom.trajectory(x0_full, mu, dt, n_steps))
         for r in refinements:
-            seconds, traj = _timed(lambda: fom.trajectory(x0_full, mu, dt, n_steps, h_max=dt / r), repeats, batch)
-            record("FOM implicit midpoint", r, f"dT/{r}", seconds, traj)
+            table.add("FOM implicit midpoint", r, f"dT/{r}", "equations", lambda r=r: fom.trajectory(x0_full, mu, dt, n_steps, h_max=dt / r))
+        add_classical(table, fom, x0_full, mu, dt, n_steps, refinements if explicit_refinements is None else explicit_refinements,
+                      EXPLICIT_SCHEMES)
         for r in refinements:
-            seconds, traj = _timed(lambda: rom.reconstruct(rom.system.trajectory(rom.project(x0_full), mu, dt, n_steps, h_max=dt / r)),
-                                   repeats, batch)
-            record("ROM implicit midpoint", r, f"dT/{r}", seconds, traj)
-        seconds, traj = _timed(lambda: rom.reconstruct(rom.system.trajectory(rom.project(x0_full), mu, dt, n_steps, exact=True)),
-                               repeats, batch)
-        record("ROM exact flow (reduction error)", 0, "exact", seconds, traj)
+            table.add("ROM implicit midpoint (compiled)", r, f"dT/{r}", "reduced operator",
+                      reduced(lambda x, r=r: rollout(rom.system, x, mu, dt, n_steps, scheme="implicit_midpoint", substeps=r)))
+        table.add("ROM exact propagator (expm)", 0, "exact", "reduced operator",
+                  reduced(lambda x: rom.system.trajectory(x, mu, dt, n_steps, exact=True)))
         for m in [c for c in centers if c <= model.n_centers_]:
             small = model.truncated(m)
-            with extrapolation_expected():  # a small model may wander off the training states: its error says so
-                seconds, traj = _timed(lambda: rom.reconstruct(small.rollout(rom.project(x0_full), n_steps, mu=mu)),
-                                       repeats, batch)
-            record("ROM + kernel predictor", m, f"m={m}", seconds, traj)
-    return {"dt": dt, "n_steps": n_steps, "n_trajectories": batch, "repeats": repeats, "reference_time_s": t_ref, "rows": rows}
+            table.add("ROM + kernel predictor", m, f"m={m}", "data", reduced(lambda x, small=small: small.rollout(x, n_steps, mu=mu)))
+        if direct is not None:
+            table.add("ROM + direct kernel model (NumPy)", direct.n_centers_, f"m={direct.n_centers_}", "data",
+                      reduced(lambda x: direct.rollout(x, n_steps, mu=mu)))
+        if vkoga is not None:
+            table.add("ROM + pyMOR VKOGA (NumPy)", vkoga.n_centers_, f"m={vkoga.n_centers_}", "data",
+                      reduced(lambda x: vkoga.rollout(x, n_steps, mu=mu, dt=dt)))
+    return {"dt": dt, "n_steps": n_steps, "n_trajectories": batch, "repeats": repeats, "threads": threads,
+            "reference_time_s": ref_row["time_per_trajectory_s"], "error_reference": "the FOM's exact solution (sine transform)",
+            "rows": table.rows}
 
 
 def _full_space_error(rom: SymplecticROM, traj_red: np.ndarray, exact: np.ndarray) -> float:
