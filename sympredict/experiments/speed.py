@@ -25,7 +25,8 @@ if HAVE_NUMBA:  # pragma: no branch
     import numba
 from sympredict.metrics import relative_trajectory_error
 
-__all__ = ["NEEDS", "SCHEME_LABELS", "deliberate_threads", "time_median", "SpeedTable", "add_classical"]
+__all__ = [
+    "model_sizes","NEEDS", "SCHEME_LABELS", "deliberate_threads", "time_median", "SpeedTable", "add_classical"]
 
 #: What a method needs, by key.
 NEEDS = {"equations": "equations (grad H)", "reduced operator": "reduced operator (intrusive ROM)", "data": "only data"}
@@ -59,6 +60,14 @@ def time_median(run, repeats: int, batch: int):
         out = run()
         times.append(time.perf_counter() - t0)
     return float(np.median(times)) / batch, out
+
+
+def model_sizes(sizes, n_centers: int) -> list:
+    """The chart's kernel sizes: those of ``sizes`` below the fitted model's ``n_centers``, and the model itself.
+
+    A greedy that stopped early (power breakdown) still gives the chart its largest model.
+    """
+    return sorted({int(c) for c in sizes if c < n_centers} | {int(n_centers)})
 
 
 class SpeedTable:
