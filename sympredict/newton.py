@@ -39,6 +39,28 @@ def _j_times(v: np.ndarray) -> np.ndarray:
     return np.concatenate([v[..., n:], -v[..., :n]], axis=-1)
 
 
+def _newton_update(active, F, jac, f_floor, scale, last_update, reasons):
+    """One batched Newton update of both NumPy solvers: residual check, solve, stopping rule.
+
+    ``F`` (B_active, k) and ``jac`` (B_active, k, k) at the active instances
+    ``active``; raises :class:`NewtonConvergenceError` for a non-finite residual
+    or a singular Jacobian (``reasons[1]``, ``reasons[2]``), naming the
+    instances.  Returns the update ``delta``, its norm, which instances are
+    done (:func:`~sympredict.newton_rule.converged`) and ``|F|_inf``.
+    """
+    f_norm = np.abs(F).max(axis=1)
+    bad = ~np.isfinite(f_norm)
+    if np.any(bad):
+        raise NewtonConvergenceError(active[bad], f_norm[bad], reason=reasons[1])
+    try:
+        delta = np.linalg.solve(jac, F[:, :, None])[:, :, 0]
+    except np.linalg.LinAlgError:
+        singular = np.abs(np.linalg.det(jac)) <= EPS
+        raise NewtonConvergenceError(active[singular], f_norm[singular], reason=reasons[2]) from None
+    d_norm = np.abs(delta).max(axis=1)
+    return delta, d_norm, converged(f_norm, f_floor, d_norm, last_update[active], scale), f_norm
+
+
 def solve_midpoint_numpy(sur: HBSurrogate, x: np.ndarray, weights: np.ndarray, dt: np.ndarray,
                          max_iter: int) -> np.ndarray:
     """One step of the symmetric (midpoint) generating-function update (NumPy reference).
@@ -88,20 +110,10 @@ def solve_midpoint_numpy(sur: HBSurrogate, x: np.ndarray, weights: np.ndarray, d
         ha = half[active]
         jg = _j_times(g)
         F = z[active] - x[active] - ha * jg
-        f_norm = np.abs(F).max(axis=1)
         scale = np.maximum(np.abs(z[active]).max(axis=1), np.abs(x[active]).max(axis=1))
         f_floor = residual_floor(scale, floor, np.abs(ha[:, 0]))
-        bad = ~np.isfinite(f_norm)
-        if np.any(bad):
-            raise NewtonConvergenceError(active[bad], f_norm[bad], reason=MIDPOINT_FAILURE_REASONS[1])
         jac = eye - ha[:, :, None] * _j_times(hess.transpose(0, 2, 1)).transpose(0, 2, 1)
-        try:
-            delta = np.linalg.solve(jac, F[:, :, None])[:, :, 0]
-        except np.linalg.LinAlgError:
-            singular = np.abs(np.linalg.det(jac)) <= EPS
-            raise NewtonConvergenceError(active[singular], f_norm[singular], reason=MIDPOINT_FAILURE_REASONS[2]) from None
-        d_norm = np.abs(delta).max(axis=1)
-        done = converged(f_norm, f_floor, d_norm, last_update[active], scale)
+        delta, d_norm, done, f_norm = _newton_update(active, F, jac, f_floor, scale, last_update, MIDPOINT_FAILURE_REASONS)
         idx = active[done]
         out[idx] = x[idx] + 2.0 * ha[done] * jg[done]
         keep = ~done
@@ -161,20 +173,10 @@ def solve_step_numpy(sur: HBSurrogate, x: np.ndarray, weights: np.ndarray, dt: n
         g, hess_qp, floor = sur.newton_terms(xi, weights[active])
         ha = h[active]
         F = p[active] - p0[active] + ha * g[:, :n]
-        f_norm = np.abs(F).max(axis=1)
         scale = np.maximum(np.abs(p[active]).max(axis=1), np.abs(p0[active]).max(axis=1))
         f_floor = residual_floor(scale, floor, ha[:, 0])
-        bad = ~np.isfinite(f_norm)
-        if np.any(bad):
-            raise NewtonConvergenceError(active[bad], f_norm[bad], reason=FAILURE_REASONS[1])
         jac = eye + ha[:, :, None] * hess_qp
-        try:
-            delta = np.linalg.solve(jac, F[:, :, None])[:, :, 0]
-        except np.linalg.LinAlgError:
-            singular = np.abs(np.linalg.det(jac)) <= EPS
-            raise NewtonConvergenceError(active[singular], f_norm[singular], reason=FAILURE_REASONS[2]) from None
-        d_norm = np.abs(delta).max(axis=1)
-        done = converged(f_norm, f_floor, d_norm, last_update[active], scale)
+        delta, d_norm, done, f_norm = _newton_update(active, F, jac, f_floor, scale, last_update, FAILURE_REASONS)
         idx = active[done]
         out[idx, :n] = q0[idx] + ha[done] * g[done, n:]
         out[idx, n:] = p[idx]
