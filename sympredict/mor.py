@@ -19,7 +19,8 @@ Data (:mod:`sympredict.flowmaps`):
   not be affine) gives the exact reduced flow; samples lie in a neighbourhood
   (relative radius ``radius``) of the reduced trajectories from the FOM's
   initial data, plus the trajectory points;
-* ``data="projected"`` (non-intrusive): only ``fom.solve`` is called; FOM
+* ``data="projected"`` (non-intrusive, any time-dependent pyMOR model, linear
+  or not, e.g. an ``InstationaryModel`` with a nonlinear operator): only ``fom.solve`` is called; FOM
   trajectories are projected with the symplectic inverse ``V+ = J_2n^T V^T J_2N``
   and consecutive states ``dt`` apart become the samples (``dt`` a multiple of
   the FOM's output step).
@@ -165,13 +166,33 @@ class SymplecticKernelModel(Model):
         super()._compute(quantities, data, mu)
 
 
+def _check_fom(fom, data: str) -> None:
+    """``data='reduced'`` needs the Galerkin ROM of a quadratic Hamiltonian model; ``'projected'`` any time-dependent model."""
+    if data == "reduced":
+        if not isinstance(fom, QuadraticHamiltonianModel):
+            raise ValueError(f"data='reduced' needs the exact reduced flow of a pyMOR QuadraticHamiltonianModel, got "
+                             f"{type(fom).__name__}: for any other pyMOR model use data='projected' (only fom.solve "
+                             f"is called)")
+        return
+    missing = [a for a in ("solve", "solution_space", "initial_data", "T", "parameters") if not hasattr(fom, a)]
+    if not isinstance(fom, Model) or missing:
+        raise ValueError(f"fom must be a time-dependent pyMOR Model (e.g. an InstationaryModel) with solve, "
+                         f"solution_space, initial_data, T and parameters; {type(fom).__name__} "
+                         + (f"lacks {', '.join(missing)}" if missing else "is not a pyMOR Model"))
+
+
 class SymplecticKernelReductor(BasicObject):
     """Learn a symplectic reduced flow map of a pyMOR Hamiltonian model.
 
     Parameters
     ----------
-    fom : pymor.models.symplectic.QuadraticHamiltonianModel
-        Any parameters (names, dimensions) or none; identity mass.
+    fom : pymor.models.interface.Model
+        ``data="reduced"``: a ``QuadraticHamiltonianModel`` (its Galerkin ROM gives the
+        exact reduced flow).  ``data="projected"``: any time-dependent pyMOR model with
+        ``solve``, ``solution_space``, ``initial_data`` and ``T`` (e.g. an
+        ``InstationaryModel`` with a nonlinear operator); only ``solve`` is called, and the
+        FOM's trajectories are assumed Hamiltonian (the ROM's steps are symplectic whatever
+        the data).  Any parameters (names, dimensions) or none.
     RB : pymor.algorithms.symplectic.SymplecticBasis
         Symplectic basis of ``fom.solution_space`` (``V^T J V = J`` checked).
     training_parameters : sequence of pyMOR Mu
@@ -210,11 +231,10 @@ class SymplecticKernelReductor(BasicObject):
     def __init__(self, fom, RB, training_parameters, dt, predictor=None, data="reduced", *, parameter_space=None,
                  n_samples: int = 400, radius: float = 0.05, n_validation: int = 3, horizon: Optional[float] = None,
                  state_scaling: str = "diag", max_centers: int = 1000, check_existence: bool = True, seed: int = 0):
-        if not isinstance(fom, QuadraticHamiltonianModel):
-            raise ValueError(f"fom must be a pyMOR QuadraticHamiltonianModel (a Hamiltonian model), got {type(fom).__name__}")
-        check_symplectic_basis(RB, fom.solution_space)
         if data not in ("reduced", "projected"):
             raise ValueError(f"data must be 'reduced' or 'projected', got {data!r}")
+        _check_fom(fom, data)
+        check_symplectic_basis(RB, fom.solution_space)
         if state_scaling == "williamson" and data != "reduced":
             raise ValueError("state_scaling='williamson' needs the reduced operator: use data='reduced' or 'diag'")
         if not (np.isfinite(dt) and dt > 0):
@@ -231,7 +251,8 @@ class SymplecticKernelReductor(BasicObject):
         self.V = basis_matrix(RB)  # (2N, 2n)
         self.V_plus_array = RB.transposed_symplectic_inverse().to_array()
         self.dim = 2 * len(RB)
-        if data == "projected" and fom.num_values is None and getattr(fom.time_stepper, "nt", None):
+        if data == "projected" and getattr(fom, "num_values", None) is None and getattr(
+                getattr(fom, "time_stepper", None), "nt", None):  # an InstationaryModel's output grid, known up front
             self._check_stride(fom.T / fom.time_stepper.nt)
         self.mu_lo, self.mu_hi = parameter_box(self.training_parameters, fom.parameters, parameter_space)
 
@@ -309,7 +330,8 @@ class SymplecticKernelReductor(BasicObject):
 
     def _check_existence_projected(self, data):
         """Type-II check from the data alone: per parameter a least-squares linear map ``x1 ~ M x0``
-        (exact for a linear FOM), its generator ``log(M) / dt`` for the largest admissible step."""
+        (exact for a linear FOM, the best linear fit of a nonlinear one), its generator ``log(M) / dt``
+        for the largest admissible step."""
         worst, generators = (np.inf, None), []
         for row in np.unique(data.mu, axis=0):
             sel = np.all(data.mu == row, axis=1)
