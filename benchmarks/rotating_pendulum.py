@@ -1,0 +1,169 @@
+"""Rotating pendulum orbits: energy error over 1,000 macro steps with and without the periodic kernel factor.
+
+One length ``l`` and one macro step ``dT``.  Training data: flow-map samples
+from a ``n_q x n_p`` grid on ``[-pi, pi) x [-p_max, p_max]`` (librating *and*
+rotating states; energies above the separatrix ``2 g l`` included), angles of
+``x0`` in ``[-pi, pi)`` and ``x1 = Phi(x0)`` the true (unwrapped) image.
+Three ways to roll out rotating orbits (energies ``H / (2 g l)`` in
+``ratio_range``, both senses of rotation):
+
+* ``periodic``: ``SymplecticKernelPredictor(periodic=(0,))``; ``q`` grows
+  without bound, no wrapping;
+* ``plain_wrapped``: the same estimator without the periodic factor, ``q``
+  wrapped into ``[-pi, pi)`` after every step (a symplectic map on the
+  cylinder, but ``s`` is not periodic: it jumps where ``q`` wraps);
+* ``plain``: the same model as ``plain_wrapped``, no wrapping (``q`` leaves
+  the training states after about one turn: extrapolation).
+
+Score per orbit: ``max_k |H(x_k) - H(x_0)| / H(x_0)`` over the ``n_steps``
+macro steps with the exact Hamiltonian (a failed Newton solve counts as
+``inf``).  The state shape ``eps`` of each variant is chosen on validation
+orbits (their own seed) by the median score; the test orbits (another seed)
+are used for nothing else.  NumPy Newton solver for all (the periodic factor
+has no compiled solver).
+
+Run:  python benchmarks/rotating_pendulum.py [--update midpoint] [--json out.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+import warnings
+
+import numpy as np
+from threadpoolctl import threadpool_limits
+
+from sympredict import SymplecticKernelPredictor
+from sympredict.exceptions import ExtrapolationWarning, NewtonConvergenceError
+from sympredict.kernels import IMQ
+from sympredict.systems.pendulum import Pendulum
+
+VARIANTS = ("periodic", "plain_wrapped", "plain")
+
+
+def training_data(system: Pendulum, length: float, dt: float, n_q: int, n_p: int, p_max: float):
+    """Samples ``(x0, x1)`` on the grid ``[-pi, pi) x [-p_max, p_max]`` (q endpoint excluded: one period)."""
+    q, p = np.meshgrid(np.linspace(-np.pi, np.pi, n_q, endpoint=False), np.linspace(-p_max, p_max, n_p), indexing="ij")
+    x0 = np.column_stack([q.ravel(), p.ravel()])
+    return x0, system.flow(x0, length, dt)
+
+
+def rotating_orbits(system: Pendulum, length: float, n: int, seed: int, ratio_range=(1.1, 1.5)) -> np.ndarray:
+    """``n`` rotating initial states: ``q0`` uniform in ``[-pi, pi)``, ``H / (2 m g l)`` uniform in ``ratio_range``, random sense."""
+    rng = np.random.default_rng(seed)
+    q0 = rng.uniform(-np.pi, np.pi, n)
+    energy = rng.uniform(*ratio_range, n) * 2 * system.mass * system.g * length
+    potential = system.mass * system.g * length * (1 - np.cos(q0))
+    p0 = rng.choice([-1.0, 1.0], n) * length * np.sqrt(2 * system.mass * (energy - potential))
+    return np.column_stack([q0, p0])
+
+
+def wrap(q):
+    return np.mod(q + np.pi, 2 * np.pi) - np.pi
+
+
+def rollout(model, x0: np.ndarray, n_steps: int, variant: str) -> np.ndarray:
+    """Trajectories (B, K+1, 2) of one variant; ``NewtonConvergenceError`` propagates."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ExtrapolationWarning)  # 'plain' leaves the training states by design
+        if variant != "plain_wrapped":
+            return model.rollout(x0, n_steps)
+        traj = np.empty((len(x0), n_steps + 1, 2))
+        traj[:, 0] = x0
+        x = x0.copy()
+        for k in range(n_steps):
+            x = model.step(x)
+            x[:, 0] = wrap(x[:, 0])
+            traj[:, k + 1] = x
+        return traj
+
+
+def energy_errors(system: Pendulum, model, x0, length: float, n_steps: int, variant: str) -> np.ndarray:
+    """Per orbit ``max_k |H_k - H_0| / H_0`` (shape (B,)); instances whose Newton solve fails get ``inf``.
+
+    Orbits are rolled out one batch at a time; on a failure the batch is split so
+    that only the failing orbits count as failed.
+    """
+    try:
+        traj = rollout(model, x0, n_steps, variant)
+    except NewtonConvergenceError:
+        if len(x0) == 1:
+            return np.array([np.inf])
+        half = len(x0) // 2
+        return np.concatenate([energy_errors(system, model, x0[:half], length, n_steps, variant),
+                               energy_errors(system, model, x0[half:], length, n_steps, variant)])
+    h = system.hamiltonian(traj.reshape(-1, 2), np.full(traj.shape[0] * traj.shape[1], length)).reshape(traj.shape[:2])
+    err = np.abs(h - h[:, :1]).max(axis=1) / h[:, 0]
+    return np.where(np.isfinite(err), err, np.inf)
+
+
+def run(*, length=0.75, dt=0.05, n_q=48, n_p=48, p_max=5.5, eps_grid=(0.3, 0.5, 0.8), max_centers=1500, tol=1e-10,
+        n_val=20, n_test=40, n_steps=1000, val_steps=None, update="symplectic_euler", val_seed=1, test_seed=2,
+        ratio_range=(1.1, 1.5), variants=VARIANTS, log=print) -> dict:
+    """Fit, choose ``eps`` per variant on validation orbits, score on test orbits; returns a JSON-friendly dict."""
+    system = Pendulum()
+    x0, x1 = training_data(system, length, dt, n_q, n_p, p_max)
+    x_val = rotating_orbits(system, length, n_val, val_seed, ratio_range)
+    x_test = rotating_orbits(system, length, n_test, test_seed, ratio_range)
+    val_steps = n_steps if val_steps is None else val_steps
+    models = {}
+    for periodic in sorted({v == "periodic" for v in variants}):
+        for eps in eps_grid:
+            t0 = time.perf_counter()
+            model = SymplecticKernelPredictor(IMQ(eps), max_centers=max_centers, tol=tol, update=update, backend="numpy",
+                                              periodic=(0,) if periodic else None)
+            model.fit(x0, x1, dt=dt)
+            models[periodic, eps] = (model, time.perf_counter() - t0)
+    out = {"setup": {"length": length, "dt": dt, "n_samples": len(x0), "grid": [n_q, n_p], "p_max": p_max,
+                     "eps_grid": list(eps_grid), "max_centers": max_centers, "tol": tol, "update": update,
+                     "n_val": n_val, "n_test": n_test, "n_steps": n_steps, "val_steps": val_steps,
+                     "ratio_range": list(ratio_range), "val_seed": val_seed, "test_seed": test_seed},
+           "variants": {}}
+    for variant in variants:
+        periodic = variant == "periodic"
+        scores = {}
+        for eps in eps_grid:
+            model, fit_s = models[periodic, eps]
+            val = energy_errors(system, model, x_val, length, val_steps, variant)
+            scores[eps] = {"val_median": float(np.median(val)), "val_max": float(val.max()), "n_centers": model.n_centers_,
+                           "E_train": float(model.history_.train_max_residual[-1]), "fit_s": fit_s}
+            log(f"{variant:13s} eps={eps}: {model.n_centers_} centres, E_train {scores[eps]['E_train']:.1e}, "
+                f"validation energy error median {scores[eps]['val_median']:.2e}, max {scores[eps]['val_max']:.2e}")
+        best = min(eps_grid, key=lambda e: (scores[e]["val_median"], scores[e]["val_max"]))
+        t0 = time.perf_counter()
+        test = energy_errors(system, models[periodic, best][0], x_test, length, n_steps, variant)
+        res = {"eps": best, "test_median": float(np.median(test)), "test_max": float(test.max()),
+               "test_failed": int(np.sum(~np.isfinite(test))), "rollout_s": time.perf_counter() - t0,
+               "validation": {str(k): v for k, v in scores.items()}}
+        out["variants"][variant] = res
+        log(f"{variant:13s} chosen eps={best}: test energy error over {n_steps} steps: median {res['test_median']:.2e}, "
+            f"max {res['test_max']:.2e} ({res['test_failed']} of {n_test} failed)")
+    return out
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--update", default="symplectic_euler", choices=["symplectic_euler", "midpoint"])
+    parser.add_argument("--grid", type=int, nargs=2, default=[48, 48], metavar=("N_Q", "N_P"))
+    parser.add_argument("--p-max", type=float, default=5.5)
+    parser.add_argument("--eps", type=float, nargs="+", default=[0.3, 0.5, 0.8])
+    parser.add_argument("--max-centers", type=int, default=1500)
+    parser.add_argument("--n-val", type=int, default=20)
+    parser.add_argument("--n-test", type=int, default=40)
+    parser.add_argument("--steps", type=int, default=1000)
+    parser.add_argument("--val-steps", type=int, default=None)
+    parser.add_argument("--json", default=None)
+    args = parser.parse_args(argv)
+    with threadpool_limits(1):
+        out = run(n_q=args.grid[0], n_p=args.grid[1], p_max=args.p_max, eps_grid=tuple(args.eps),
+                  max_centers=args.max_centers, n_val=args.n_val, n_test=args.n_test, n_steps=args.steps,
+                  val_steps=args.val_steps, update=args.update, log=lambda s: print(s, flush=True))
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump(out, f, indent=1)
+
+
+if __name__ == "__main__":
+    main()
