@@ -43,11 +43,11 @@ from sympredict.systems.pendulum import Pendulum
 VARIANTS = ("periodic", "plain_wrapped", "plain")
 
 
-def training_data(system: Pendulum, length: float, dt: float, n_q: int, n_p: int, p_max: float):
+def training_data(system: Pendulum, length: float, dt: float, n_q: int, n_p: int, p_max: float, h_max: float):
     """Samples ``(x0, x1)`` on the grid ``[-pi, pi) x [-p_max, p_max]`` (q endpoint excluded: one period)."""
     q, p = np.meshgrid(np.linspace(-np.pi, np.pi, n_q, endpoint=False), np.linspace(-p_max, p_max, n_p), indexing="ij")
     x0 = np.column_stack([q.ravel(), p.ravel()])
-    return x0, system.flow(x0, length, dt)
+    return x0, system.flow(x0, length, dt, h_max)
 
 
 def rotating_orbits(system: Pendulum, length: float, n: int, seed: int, ratio_range=(1.1, 1.5)) -> np.ndarray:
@@ -80,6 +80,13 @@ def rollout(model, x0: np.ndarray, n_steps: int, variant: str) -> np.ndarray:
         return traj
 
 
+def relative_energy_error(system: Pendulum, traj: np.ndarray, length: float) -> np.ndarray:
+    """Per trajectory ``max_k |H_k - H_0| / H_0`` of ``traj`` (B, K+1, 2)."""
+    h = system.hamiltonian(traj.reshape(-1, 2), np.full(traj.shape[0] * traj.shape[1], length)).reshape(traj.shape[:2])
+    err = np.abs(h - h[:, :1]).max(axis=1) / h[:, 0]
+    return np.where(np.isfinite(err), err, np.inf)
+
+
 def energy_errors(system: Pendulum, model, x0, length: float, n_steps: int, variant: str) -> np.ndarray:
     """Per orbit ``max_k |H_k - H_0| / H_0`` (shape (B,)); instances whose Newton solve fails get ``inf``.
 
@@ -94,17 +101,20 @@ def energy_errors(system: Pendulum, model, x0, length: float, n_steps: int, vari
         half = len(x0) // 2
         return np.concatenate([energy_errors(system, model, x0[:half], length, n_steps, variant),
                                energy_errors(system, model, x0[half:], length, n_steps, variant)])
-    h = system.hamiltonian(traj.reshape(-1, 2), np.full(traj.shape[0] * traj.shape[1], length)).reshape(traj.shape[:2])
-    err = np.abs(h - h[:, :1]).max(axis=1) / h[:, 0]
-    return np.where(np.isfinite(err), err, np.inf)
+    return relative_energy_error(system, traj, length)
 
 
 def run(*, length=0.75, dt=0.05, n_q=48, n_p=48, p_max=5.5, eps_grid=(0.3, 0.5, 0.8), max_centers=1500, tol=1e-10,
         n_val=20, n_test=40, n_steps=1000, val_steps=None, update="symplectic_euler", val_seed=1, test_seed=2,
-        ratio_range=(1.1, 1.5), variants=VARIANTS, log=print) -> dict:
-    """Fit, choose ``eps`` per variant on validation orbits, score on test orbits; returns a JSON-friendly dict."""
+        ratio_range=(1.1, 1.5), variants=VARIANTS, h_max=1e-3, reference_floor=False, log=print) -> dict:
+    """Fit, choose ``eps`` per variant on validation orbits, score on test orbits; returns a JSON-friendly dict.
+
+    ``h_max``: micro step of the training data's reference flow (implicit
+    midpoint); ``reference_floor``: also report the energy error of that
+    reference integrator itself on the test orbits (the data's own floor).
+    """
     system = Pendulum()
-    x0, x1 = training_data(system, length, dt, n_q, n_p, p_max)
+    x0, x1 = training_data(system, length, dt, n_q, n_p, p_max, h_max)
     x_val = rotating_orbits(system, length, n_val, val_seed, ratio_range)
     x_test = rotating_orbits(system, length, n_test, test_seed, ratio_range)
     val_steps = n_steps if val_steps is None else val_steps
@@ -119,8 +129,13 @@ def run(*, length=0.75, dt=0.05, n_q=48, n_p=48, p_max=5.5, eps_grid=(0.3, 0.5, 
     out = {"setup": {"length": length, "dt": dt, "n_samples": len(x0), "grid": [n_q, n_p], "p_max": p_max,
                      "eps_grid": list(eps_grid), "max_centers": max_centers, "tol": tol, "update": update,
                      "n_val": n_val, "n_test": n_test, "n_steps": n_steps, "val_steps": val_steps,
-                     "ratio_range": list(ratio_range), "val_seed": val_seed, "test_seed": test_seed},
+                     "ratio_range": list(ratio_range), "val_seed": val_seed, "test_seed": test_seed, "h_max": h_max},
            "variants": {}}
+    if reference_floor:
+        ref = relative_energy_error(system, system.trajectory(x_test, length, dt, n_steps, h_max), length)
+        out["reference"] = {"test_median": float(np.median(ref)), "test_max": float(ref.max())}
+        log(f"reference flow (implicit midpoint, micro step <= {h_max:g}) on the test orbits: energy error median "
+            f"{out['reference']['test_median']:.2e}, max {out['reference']['test_max']:.2e}")
     for variant in variants:
         periodic = variant == "periodic"
         scores = {}
@@ -128,7 +143,8 @@ def run(*, length=0.75, dt=0.05, n_q=48, n_p=48, p_max=5.5, eps_grid=(0.3, 0.5, 
             model, fit_s = models[periodic, eps]
             val = energy_errors(system, model, x_val, length, val_steps, variant)
             scores[eps] = {"val_median": float(np.median(val)), "val_max": float(val.max()), "n_centers": model.n_centers_,
-                           "E_train": float(model.history_.train_max_residual[-1]), "fit_s": fit_s}
+                           "E_train": float(model.history_.train_max_residual[-1]), "fit_s": fit_s,
+                           "stop_reason": model.history_.stop_reason}
             log(f"{variant:13s} eps={eps}: {model.n_centers_} centres, E_train {scores[eps]['E_train']:.1e}, "
                 f"validation energy error median {scores[eps]['val_median']:.2e}, max {scores[eps]['val_max']:.2e}")
         best = min(eps_grid, key=lambda e: (scores[e]["val_median"], scores[e]["val_max"]))
@@ -154,12 +170,16 @@ def main(argv=None):
     parser.add_argument("--n-test", type=int, default=40)
     parser.add_argument("--steps", type=int, default=1000)
     parser.add_argument("--val-steps", type=int, default=None)
+    parser.add_argument("--h-max", type=float, default=1e-3, help="micro step of the training data's reference flow")
+    parser.add_argument("--reference-floor", action="store_true",
+                        help="also report the reference integrator's own energy error on the test orbits")
     parser.add_argument("--json", default=None)
     args = parser.parse_args(argv)
     with threadpool_limits(1):
         out = run(n_q=args.grid[0], n_p=args.grid[1], p_max=args.p_max, eps_grid=tuple(args.eps),
                   max_centers=args.max_centers, n_val=args.n_val, n_test=args.n_test, n_steps=args.steps,
-                  val_steps=args.val_steps, update=args.update, log=lambda s: print(s, flush=True))
+                  val_steps=args.val_steps, update=args.update, h_max=args.h_max,
+                  reference_floor=args.reference_floor, log=lambda s: print(s, flush=True))
     if args.json:
         with open(args.json, "w") as f:
             json.dump(out, f, indent=1)
