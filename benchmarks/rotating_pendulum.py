@@ -59,18 +59,23 @@ def training_data(system: Pendulum, lengths, dts, n_q: int, n_p: int, p_max: flo
 
 
 def rotating_orbits(system: Pendulum, n: int, seed: int, ratio_range=(1.1, 1.5), length_range=(0.75, 0.75),
-                    dt_values=(0.05,)):
+                    dt_values=(0.05,), length_values=None):
     """``n`` rotating initial states and their ``(l, dT)``.
 
     ``q0`` uniform in ``[-pi, pi)``, ``H / (2 m g l)`` uniform in ``ratio_range``,
-    random sense of rotation; ``l`` uniform in ``length_range`` and ``dT`` from
-    ``dt_values`` (drawn only when they vary).  Returns ``x0`` (n, 2), ``l`` (n,), ``dT`` (n,).
+    random sense of rotation; ``l`` uniform in ``length_range`` (or from
+    ``length_values``) and ``dT`` from ``dt_values`` (drawn only when they vary).  Returns ``x0`` (n, 2), ``l`` (n,), ``dT`` (n,).
     """
     rng = np.random.default_rng(seed)
     q0 = rng.uniform(-np.pi, np.pi, n)
     ratio = rng.uniform(*ratio_range, n)
     sense = rng.choice([-1.0, 1.0], n)
-    length = np.full(n, float(length_range[0])) if length_range[0] == length_range[1] else rng.uniform(*length_range, n)
+    if length_values is not None:
+        length = rng.choice(np.asarray(length_values, dtype=float), n)
+    elif length_range[0] == length_range[1]:
+        length = np.full(n, float(length_range[0]))
+    else:
+        length = rng.uniform(*length_range, n)
     dt = np.full(n, float(dt_values[0])) if len(dt_values) == 1 else rng.choice(np.asarray(dt_values, dtype=float), n)
     energy = ratio * 2 * system.mass * system.g * length
     potential = system.mass * system.g * length * (1 - np.cos(q0))
@@ -128,7 +133,7 @@ def energy_errors(system: Pendulum, model, orbits, n_steps: int, variant: str) -
 def run(*, lengths=(0.75,), dts=(0.05,), test_dts=None, mu_eps=1.5, dt_eps=3.0, n_q=48, n_p=48, p_max=5.5,
         eps_grid=(0.3, 0.5, 0.8), max_centers=1500, tol=1e-10, n_val=20, n_test=40, n_steps=1000, val_steps=None,
         update="symplectic_euler", val_seed=1, test_seed=2, ratio_range=(1.1, 1.5), variants=VARIANTS, h_max=1e-3,
-        reference_floor=False, log=print) -> dict:
+        reference_floor=False, on_grid_test=False, log=print) -> dict:
     """Fit, choose ``eps`` per variant on validation orbits, score on test orbits; returns a JSON-friendly dict.
 
     ``lengths`` x ``dts``: the training ``(l, dT)``; with several of either the
@@ -137,7 +142,8 @@ def run(*, lengths=(0.75,), dts=(0.05,), test_dts=None, mu_eps=1.5, dt_eps=3.0, 
     ``test_dts`` (default ``dts``).  ``h_max``: micro step of the training
     data's reference flow (implicit midpoint); ``reference_floor``: also report
     the energy error of that reference integrator itself on the test orbits
-    (the data's own floor).
+    (the data's own floor); ``on_grid_test``: also score the chosen models on
+    test orbits at the training lengths and steps (``test_on_grid_*``).
     """
     system = Pendulum()
     x0, x1, mu, dt = training_data(system, lengths, dts, n_q, n_p, p_max, h_max)
@@ -145,6 +151,7 @@ def run(*, lengths=(0.75,), dts=(0.05,), test_dts=None, mu_eps=1.5, dt_eps=3.0, 
     draw = {"ratio_range": ratio_range, "length_range": (min(lengths), max(lengths)), "dt_values": test_dts}
     val_orbits = rotating_orbits(system, n_val, val_seed, **draw)
     test_orbits = rotating_orbits(system, n_test, test_seed, **draw)
+    on_grid_orbits = rotating_orbits(system, n_test, test_seed, ratio_range, dt_values=tuple(dts), length_values=lengths)
     val_steps = n_steps if val_steps is None else val_steps
     mu_kernel = IMQ(mu_eps) if len(lengths) > 1 else None
     dt_kernel = IMQ(dt_eps) if len(dts) > 1 else None
@@ -186,6 +193,12 @@ def run(*, lengths=(0.75,), dts=(0.05,), test_dts=None, mu_eps=1.5, dt_eps=3.0, 
         res = {"eps": best, "test_median": float(np.median(test)), "test_max": float(test.max()),
                "test_failed": int(np.sum(~np.isfinite(test))), "rollout_s": time.perf_counter() - t0,
                "validation": {str(k): v for k, v in scores.items()}}
+        if on_grid_test:
+            on = energy_errors(system, models[periodic, best][0], on_grid_orbits, n_steps, variant)
+            res.update({"test_on_grid_median": float(np.median(on)), "test_on_grid_max": float(on.max()),
+                        "test_on_grid_failed": int(np.sum(~np.isfinite(on)))})
+            log(f"{variant:13s} chosen eps={best}: on-grid test orbits (training l and dT): median "
+                f"{res['test_on_grid_median']:.2e}, max {res['test_on_grid_max']:.2e}")
         out["variants"][variant] = res
         log(f"{variant:13s} chosen eps={best}: test energy error over {n_steps} steps: median {res['test_median']:.2e}, "
             f"max {res['test_max']:.2e} ({res['test_failed']} of {n_test} failed)")
@@ -211,6 +224,9 @@ def main(argv=None):
     parser.add_argument("--h-max", type=float, default=1e-3, help="micro step of the training data's reference flow")
     parser.add_argument("--reference-floor", action="store_true",
                         help="also report the reference integrator's own energy error on the test orbits")
+    parser.add_argument("--on-grid-test", action="store_true",
+                        help="also score test orbits at the training lengths and steps")
+    parser.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
     parser.add_argument("--json", default=None)
     args = parser.parse_args(argv)
     with threadpool_limits(1):
@@ -218,7 +234,7 @@ def main(argv=None):
                   dt_eps=args.dt_eps, n_q=args.grid[0], n_p=args.grid[1], p_max=args.p_max, eps_grid=tuple(args.eps),
                   max_centers=args.max_centers, n_val=args.n_val, n_test=args.n_test, n_steps=args.steps,
                   val_steps=args.val_steps, update=args.update, h_max=args.h_max,
-                  reference_floor=args.reference_floor, log=lambda s: print(s, flush=True))
+                  reference_floor=args.reference_floor, on_grid_test=args.on_grid_test, variants=tuple(args.variants), log=lambda s: print(s, flush=True))
     if args.json:
         with open(args.json, "w") as f:
             json.dump(out, f, indent=1)
