@@ -84,7 +84,10 @@ class HBFunctionals(_AugmentedPoints):
         self.n_functionals = len(self.points) * self.dim
         self._parameter_groups = None  # distinct (mu, dT) and each point's group, made on first use
         # compiled column where it is bit-identical to the NumPy one (2n = 2, IMQ factors)
-        self._compiled_column = _fastkernels.hb_column_supported(kernel, self.dim, self.mu.shape[1])
+        # (the compiled kernels know no periodic coordinates)
+        self._compiled_column = kernel.periodic is None and _fastkernels.hb_column_supported(kernel, self.dim, self.mu.shape[1])
+        if kernel.periodic is not None:
+            kernel.periodic.check_dim(self.dim)
 
     def diagonal(self) -> np.ndarray:
         # r = 0: d/dx_a d/dy_a k = -A(0); the parameter factors are 1 on the diagonal
@@ -98,19 +101,26 @@ class HBFunctionals(_AugmentedPoints):
     def column(self, representer, out: np.ndarray) -> np.ndarray:
         """Gramian column ``w_p (-B d_pa d_pb - A delta_ab)``, ``d_p = xi_p - xi_q``.
 
+        With periodic coordinates ``w_p (-B g_pa g_pb - A g'_pb delta_ab)``
+        (:class:`~sympredict.kernels.PeriodicCoordinates`).
         ``out`` has shape (N,) and is filled in chunks of points.
         """
         if self._compiled_column:
             return _fastkernels.hb_column(self.kernel, self.points, self.mu, self.dt, representer, out)
         xi_q, mu_q, dt_q, b = representer
         out2 = out.reshape(-1, self.dim)
+        periodic = self.kernel.periodic
         for sl in self._chunks():
             diff = self.points[sl] - xi_q
-            A, B = self.kernel.state.factors(np.sqrt(np.einsum("pa,pa->p", diff, diff)), order=2)
+            if periodic is None:
+                r, g1 = np.sqrt(np.einsum("pa,pa->p", diff, diff)), None
+            else:
+                r, diff, g1 = periodic.terms(diff, order=2)
+            A, B = self.kernel.state.factors(r, order=2)
             w = self._parameter_factor(sl, mu_q, dt_q)
             blk = out2[sl]
             np.multiply(diff, (-(w * B) * diff[:, b])[:, None], out=blk)
-            blk[:, b] -= w * A
+            blk[:, b] -= w * A if g1 is None else w * A * g1[:, b]
         return out
 
 
@@ -140,11 +150,15 @@ class HBFunctionals(_AugmentedPoints):
         for start in range(0, len(self.points), step):
             sl = slice(start, start + step)
             diff = self.points[None, sl, :] - xq[:, None, :]
-            A, B = self.kernel.state.factors(np.sqrt(np.einsum("kpa,kpa->kp", diff, diff)), order=2)
+            if self.kernel.periodic is None:
+                r, g1 = np.sqrt(np.einsum("kpa,kpa->kp", diff, diff)), None
+            else:
+                r, diff, g1 = self.kernel.periodic.terms(diff, order=2)
+            A, B = self.kernel.state.factors(r, order=2)
             w = self.kernel.parameter_factor(mq, dq, self.mu[sl], self.dt[sl])
             blk = out3[:, sl]
             np.multiply(diff, (-(w * B) * diff[rows, :, comps])[:, :, None], out=blk)
-            blk[rows, :, comps] -= w * A
+            blk[rows, :, comps] -= w * A if g1 is None else w * A * g1[rows, :, comps]
         return out
 
 
@@ -177,7 +191,9 @@ class ValueFunctionals(_AugmentedPoints):
         x_q, mu_q, dt_q = representer
         for sl in self._chunks():
             diff = self.points[sl] - x_q
-            out[sl] = self._parameter_factor(sl, mu_q, dt_q) * self.kernel.state.phi(np.sqrt(np.einsum("pa,pa->p", diff, diff)))
+            periodic = self.kernel.periodic
+            r = np.sqrt(np.einsum("pa,pa->p", diff, diff)) if periodic is None else periodic.distances(diff)
+            out[sl] = self._parameter_factor(sl, mu_q, dt_q) * self.kernel.state.phi(r)
         return out
 
 
@@ -203,7 +219,8 @@ def functional_residuals(
     points : ndarray of shape (P,), int, optional
         Evaluate at these points only (all their ``2n`` functionals).
     compiled
-        Use the compiled evaluation (default: when numba is installed); both agree to round-off.
+        Use the compiled evaluation (default: when numba is installed and the kernel has no periodic
+        coordinates, which only the NumPy evaluation supports); both agree to round-off.
 
     Returns
     -------
@@ -225,7 +242,10 @@ def functional_residuals(
     y = np.asarray(targets, dtype=float).reshape(len(functionals.points), dim)[idx]
     if len(selected) == 0:
         return y.reshape(-1).copy()
-    if _fastkernels.HAVE_NUMBA if compiled is None else compiled:
+    if compiled and functionals.kernel.periodic is not None:
+        raise ValueError("functional_residuals: the compiled evaluation does not support periodic coordinates "
+                         "(periodic=...): pass compiled=False or None")
+    if functionals.kernel.periodic is None and (_fastkernels.HAVE_NUMBA if compiled is None else compiled):
         groups = functionals._parameter_groups
         if groups is None:  # computed once per set (a sort of M rows)
             uniq, group = np.unique(np.column_stack([functionals.mu, functionals.dt]), axis=0, return_inverse=True)

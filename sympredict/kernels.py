@@ -44,7 +44,8 @@ from sympredict.base import Parametrized
 
 
 __all__ = [
-    "RadialKernel", "IMQ", "Matern32", "Matern52", "ProductKernel", "KERNEL_FAMILIES", "register_family", "kernel_from_spec",
+    "RadialKernel", "IMQ", "Matern32", "Matern52", "ProductKernel", "PeriodicCoordinates", "KERNEL_FAMILIES",
+    "register_family", "kernel_from_spec",
 ]
 
 #: Shape parameters are limited to [1e-50, 1e50]: the derivative factors contain
@@ -341,6 +342,133 @@ def kernel_from_spec(spec: Optional[dict]) -> Optional[RadialKernel]:
 
 
 @dataclass(frozen=True)
+class PeriodicCoordinates:
+    """State coordinates that are angles: the periodic factor of the state kernel.
+
+    For a coordinate ``i`` of period ``P`` the squared distance of the radial
+    state kernel uses, instead of ``d_i^2`` (``d = x - y``), the squared chord
+
+        ``u(d_i)^2 = (P / pi)^2 sin^2(pi d_i / P)``
+
+    (the distance of the two angles embedded on a circle of circumference
+    ``P``), so ``k`` is ``P``-periodic in ``x_i`` and in ``y_i``, equals the
+    plain kernel to ``O(d^4)`` near the diagonal, and stays positive definite
+    (a radial kernel restricted to the embedded circle).  Every derivative of
+    ``k`` is the plain one with ``d_i`` replaced by ``g(d_i) = d(u^2 / 2)/d d_i``
+    and the identity by ``diag(g'(d_i))`` (see :meth:`terms`):
+
+    * ``d/dy_b k = -A g_b``,
+    * ``d/dx_a d/dy_b k = -B g_a g_b - A g'_a delta_ab``,
+    * ``d/dx_c d/dx_a d/dy_b k = -C g_a g_b g_c
+      - B (g'_a g_b delta_ac + g'_b g_a delta_bc + g'_a g_c delta_ab) - A g''_a delta_ab delta_ac``,
+
+    with ``g(d) = (P / 2 pi) sin(2 pi d / P)``, ``g' = cos(2 pi d / P)``,
+    ``g'' = -(2 pi / P) sin(2 pi d / P)``; on the other coordinates ``g = d``,
+    ``g' = 1``, ``g'' = 0`` gives the plain formulas back.
+
+    Parameters
+    ----------
+    coordinates : tuple of int
+        Distinct state indices (in ``0 .. 2n-1``) that are angles.
+    periods : tuple of float
+        Their periods, positive and finite, one per coordinate.
+    """
+
+    coordinates: tuple
+    periods: tuple
+
+    def __post_init__(self):
+        coords, periods = tuple(self.coordinates), tuple(self.periods)
+        if not coords or len(coords) != len(periods) or len(set(coords)) != len(coords) \
+                or not all(isinstance(c, (int, np.integer)) and not isinstance(c, bool) and c >= 0 for c in coords):
+            raise ValueError(f"periodic coordinates must be distinct non-negative integers, one period each; "
+                             f"got coordinates {self.coordinates!r}, periods {self.periods!r}")
+        if not all(isinstance(p, (int, float, np.number)) and not isinstance(p, bool) and np.isfinite(p) and p > 0
+                   for p in periods):
+            raise ValueError(f"periods must be positive finite numbers, got {self.periods!r}")
+        object.__setattr__(self, "coordinates", tuple(int(c) for c in coords))
+        object.__setattr__(self, "periods", tuple(float(p) for p in periods))
+
+    @property
+    def spec(self) -> dict:
+        return {"coordinates": list(self.coordinates), "periods": list(self.periods)}
+
+    @classmethod
+    def from_spec(cls, spec) -> Optional["PeriodicCoordinates"]:
+        """Rebuild from :attr:`spec` (``None`` stays ``None``); ``ValueError`` for a malformed spec."""
+        if spec is None:
+            return None
+        if not isinstance(spec, dict) or set(spec) != {"coordinates", "periods"} \
+                or not all(isinstance(spec[k], list) for k in spec):
+            raise ValueError(f"malformed periodic-coordinates spec {spec!r}")
+        return cls(tuple(spec["coordinates"]), tuple(spec["periods"]))
+
+    def check_dim(self, dim: int) -> None:
+        """``ValueError`` unless every coordinate is an index of a ``dim``-dimensional state."""
+        if max(self.coordinates) >= dim:
+            raise ValueError(f"periodic coordinates {self.coordinates} do not fit states of dimension {dim}")
+
+    @staticmethod
+    def formulas(d, period):
+        """``(u, g, g', g'')`` of the differences ``d`` of one coordinate of period ``period`` (elementwise).
+
+        ``u = (P / pi) sin(t)``, ``g = u cos(t)``, ``g' = cos(2 t)``,
+        ``g'' = -(4 pi / P) sin(t) cos(t)`` with ``t = pi d / P``: the one
+        definition of the periodic factor's formulas.
+        """
+        t = (np.pi / period) * d
+        s, c = np.sin(t), np.cos(t)
+        u = (period / np.pi) * s
+        return u, u * c, c * c - s * s, (-4.0 * np.pi / period) * (s * c)
+
+    def terms(self, diff: np.ndarray, order: int = 2):
+        """Distances and the periodic replacements of the differences, for raw differences ``diff = x - y``.
+
+        Parameters
+        ----------
+        diff : ndarray of shape (..., D)
+        order
+            1: ``(r, G)``; 2: ``(r, G, G1)``; 3: ``(r, G, G1, G2)``.
+
+        Returns
+        -------
+        r : ndarray of shape (...)
+            ``sqrt(sum_i u_i^2)`` (``u_i = d_i`` on the other coordinates).
+        G, G1, G2 : ndarray of shape (..., D)
+            ``g(d_i)``, ``g'(d_i)``, ``g''(d_i)`` (``d_i``, 1, 0 on the other coordinates).
+
+        Notes
+        -----
+        ``O(size of diff)``; only the periodic columns call the trigonometric functions.
+        """
+        U = diff.copy()
+        G = diff.copy()
+        G1 = np.ones_like(diff) if order >= 2 else None
+        G2 = np.zeros_like(diff) if order >= 3 else None
+        for i, period in zip(self.coordinates, self.periods):
+            u, g, g1, g2 = self.formulas(diff[..., i], period)
+            U[..., i] = u
+            G[..., i] = g
+            if order >= 2:
+                G1[..., i] = g1
+            if order >= 3:
+                G2[..., i] = g2
+        r = np.sqrt(np.einsum("...a,...a->...", U, U))
+        return (r, G) if order == 1 else (r, G, G1) if order == 2 else (r, G, G1, G2)
+
+    def distances(self, diff: np.ndarray) -> np.ndarray:
+        """``r`` of :meth:`terms` only, shape ``diff.shape[:-1]``."""
+        return self.terms(diff, order=1)[0]
+
+    def wrap(self, x: np.ndarray) -> np.ndarray:
+        """``x`` with each periodic coordinate reduced to ``[-P/2, P/2)`` (a copy; the kernel cannot tell them apart)."""
+        x = np.array(x, dtype=float)
+        for i, period in zip(self.coordinates, self.periods):
+            x[..., i] = np.mod(x[..., i] + 0.5 * period, period) - 0.5 * period
+        return x
+
+
+@dataclass(frozen=True)
 class ProductKernel:
     """Product kernel ``k = k_xi(xi, xi') * k_mu(mu, mu') * k_dT(dT, dT')``.
 
@@ -348,11 +476,14 @@ class ProductKernel:
     of ``k`` is the corresponding derivative of ``k_xi`` times the parameter
     factor ``k_mu * k_dT`` (see :meth:`parameter_factor`).  A factor set to
     ``None`` is dropped (constant 1): a fixed parameter or a fixed step.
+    ``periodic`` makes the state kernel periodic in some coordinates
+    (:class:`PeriodicCoordinates`); ``None``: the plain radial kernel.
     """
 
     state: RadialKernel
     mu: Optional[RadialKernel] = None
     dt: Optional[RadialKernel] = None
+    periodic: Optional[PeriodicCoordinates] = None
 
     def __post_init__(self):
         for name, k in (("state_kernel", self.state), ("mu_kernel", self.mu), ("dt_kernel", self.dt)):
@@ -362,6 +493,8 @@ class ProductKernel:
                 raise ValueError(
                     f"{name} must be a sympredict.kernels kernel (IMQ, Matern32, Matern52) or None, got {k!r}"
                 )
+        if self.periodic is not None and not isinstance(self.periodic, PeriodicCoordinates):
+            raise ValueError(f"periodic must be a PeriodicCoordinates or None, got {self.periodic!r}")
 
     def parameter_factor(self, mu_a, dt_a, mu_b, dt_b) -> np.ndarray:
         """``k_mu(mu_a_i, mu_b_j) * k_dT(dt_a_i, dt_b_j)``.
@@ -390,8 +523,18 @@ class ProductKernel:
 
     @property
     def spec(self) -> dict:
-        return {
+        """``{'state', 'mu', 'dt'}`` kernel specs, and ``'periodic'`` only when set (older files lack it)."""
+        spec = {
             "state": self.state.spec,
             "mu": None if self.mu is None else self.mu.spec,
             "dt": None if self.dt is None else self.dt.spec,
         }
+        if self.periodic is not None:
+            spec["periodic"] = self.periodic.spec
+        return spec
+
+    @classmethod
+    def from_spec(cls, spec: dict) -> "ProductKernel":
+        """Rebuild from :attr:`spec`; ``ValueError``/``KeyError`` for a malformed one."""
+        return cls(kernel_from_spec(spec["state"]), kernel_from_spec(spec["mu"]), kernel_from_spec(spec["dt"]),
+                   PeriodicCoordinates.from_spec(spec.get("periodic")))

@@ -41,7 +41,7 @@ from sympredict.exceptions import ExtrapolationWarning, ModelFileError, NotFitte
 from sympredict.functionals import HBFunctionals, ValueFunctionals
 from sympredict.greedy import GreedyHistory, Trainer, trainer_from_spec
 from sympredict.greedy.trainers import ExactGreedy
-from sympredict.kernels import IMQ, ProductKernel, RadialKernel, kernel_from_spec
+from sympredict.kernels import IMQ, PeriodicCoordinates, ProductKernel, RadialKernel, kernel_from_spec
 from sympredict.newton import midpoint_jacobian, rollout_compiled, rollout_numpy, solve_midpoint_numpy, solve_step_numpy
 from sympredict.surrogate import HBSurrogate, ValueSurrogate
 
@@ -55,6 +55,9 @@ MODEL_FORMAT = "sympredict-model"
 MODEL_LAYOUT = 2
 
 _BACKENDS = ("auto", "numpy", "numba")
+
+_PERIODIC_NOT_COMPILED = ("periodic coordinates (periodic=...) have no compiled solver yet: "
+                          "use backend='numpy' or 'auto' (which then uses NumPy)")
 
 #: The generating-function updates of :class:`SymplecticKernelPredictor` (``update``).
 UPDATES = ("symplectic_euler", "midpoint")
@@ -91,8 +94,11 @@ def _encode_param(value):
         return {"trainer": value.spec}
     if value is None or isinstance(value, (bool, int, float, str)):
         return value
-    if isinstance(value, (tuple, list)) and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
-        return {"tuple" if isinstance(value, tuple) else "list": [float(v) for v in value]}
+    if isinstance(value, (tuple, list)) and all(isinstance(v, (int, float, np.integer)) and not isinstance(v, bool)
+                                                for v in value):
+        # integers stay integers (indices such as ``periodic``), everything else is a float
+        return {"tuple" if isinstance(value, tuple) else "list":
+                [int(v) if isinstance(v, (int, np.integer)) else float(v) for v in value]}
     raise ValueError(f"cannot store the parameter value {value!r} in a model file")
 
 
@@ -218,20 +224,30 @@ class _FlowMapKernelModel(Parametrized):
         return data, validation
 
     @staticmethod
-    def _check_duplicates(points, data):
+    def _check_duplicates(points, data, periodic: Optional[PeriodicCoordinates] = None):
+        if periodic is not None:  # angles one period apart are the same point for the kernel
+            points = periodic.wrap(points)
         if len(np.unique(np.column_stack([points, data.mu, data.dt]), axis=0)) < len(points):
             raise ValueError(
                 "the training data contain duplicated samples (same state, mu and dt): remove them, "
                 "the interpolation conditions would be contradictory or redundant"
             )
 
-    def _product_kernel(self, points) -> ProductKernel:
+    def _product_kernel(self, points, periodic: Optional[PeriodicCoordinates] = None) -> ProductKernel:
         """The kernel used; a missing state kernel becomes ``IMQ(1 / diameter of the points)``."""
         state_kernel = self.state_kernel
         if state_kernel is None:
             diameter = float(np.linalg.norm(np.ptp(points, axis=0)))
             state_kernel = IMQ(1.0 / diameter if diameter > 0 else 1.0)
-        return ProductKernel(state_kernel, self.mu_kernel, self.dt_kernel)
+        return ProductKernel(state_kernel, self.mu_kernel, self.dt_kernel, periodic)
+
+    def _model_periodic(self, dim: int) -> Optional[PeriodicCoordinates]:
+        """The periodic coordinates of the model's kernel for states of dimension ``dim`` (none here)."""
+        return None
+
+    def _original_periods(self, dim: int):
+        """``(coordinates, periods)`` of angle coordinates in the original state coordinates (none here)."""
+        return (), ()
 
     def _train(self, trainer: Trainer, kernel: ProductKernel, points, targets, data: FlowMapData, validation):
         """Run the strategy on the functionals at ``points``; sets ``kernel_``, ``history_``, ``greedy_result_``.
@@ -300,6 +316,11 @@ class _FlowMapKernelModel(Parametrized):
         """
         lo, hi = self.domain_["x_min"], self.domain_["x_max"]
         margin = 1e-9 * (hi - lo + 1.0)
+        coords, periods = self._original_periods(len(lo))
+        if coords:  # an angle is inside when one of its representatives is
+            x = np.array(x, dtype=float)
+            for i, period in zip(coords, periods):
+                x[..., i] = lo[i] + np.mod(x[..., i] - lo[i], period)
         return np.any((x < lo - margin) | (x > hi + margin), axis=-1)
 
     def _warn_if_trajectory_leaves(self, traj: np.ndarray) -> None:
@@ -384,9 +405,11 @@ class _FlowMapKernelModel(Parametrized):
             raise ModelFileError(f"{str(path)!r} holds a {found!r}, not a {cls.__name__}")
         try:
             model = cls(**{k: _decode_param(v) for k, v in settings["params"].items()})
-            spec = settings["kernel"]
-            kernel = ProductKernel(kernel_from_spec(spec["state"]), kernel_from_spec(spec["mu"]), kernel_from_spec(spec["dt"]))
+            kernel = ProductKernel.from_spec(settings["kernel"])
             model._set_shape_info(settings["dim"], settings["n_mu"], settings["dt_fixed"])
+            if kernel.periodic != model._model_periodic(model.dim_):
+                raise ModelFileError(f"the file's periodic coordinates {kernel.periodic!r} disagree with its settings "
+                                     f"periodic={model.get_params().get('periodic')!r}, period={model.get_params().get('period')!r}")
             arrays.pop("elapsed", None)  # layout 1 stored the greedy's timings
             model._check_file_arrays(kernel, arrays)
             model.kernel_ = kernel
@@ -505,6 +528,21 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         guess, saving that guess's pass over the centres (on the pendulum
         3.0 -> 2.5 passes per step, trajectories equal to ~1e-6 after 400
         steps: both stop by the same rule).  Default ``False``.
+    periodic
+        ``None`` or a tuple of state indices (in ``0 .. 2n-1``, usually angles
+        ``q_i``) in which the state kernel is periodic: the squared distance
+        uses ``(P/pi)^2 sin^2(pi d_i / P)`` instead of ``d_i^2``
+        (:class:`~sympredict.kernels.PeriodicCoordinates`).  The learned ``s``
+        is then exactly ``P``-periodic in these coordinates, so the step
+        commutes with ``q_i -> q_i + P`` and rotating orbits need no wrapping
+        (``q_i`` may grow without bound).  The training data need not span more
+        than one period, but ``x1 - x0`` must be the true increment (not wrapped
+        separately).  NumPy solver only (``backend='auto'`` uses it; ``'numba'``
+        is refused).
+    period
+        The period ``P`` of the ``periodic`` coordinates (default ``2 pi``), or
+        one per coordinate, in the original coordinates (``state_scaling``
+        scales it with its coordinate).
 
     Attributes
     ----------
@@ -553,6 +591,8 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         update: str = "symplectic_euler",
         state_scaling=None,
         newton_warm_start: bool = False,
+        periodic=None,
+        period=2 * np.pi,
     ):
         self.state_kernel = state_kernel
         self.mu_kernel = mu_kernel
@@ -565,6 +605,8 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         self.update = update
         self.state_scaling = state_scaling
         self.newton_warm_start = newton_warm_start
+        self.periodic = periodic
+        self.period = period
         self.memory_limit = memory_limit
         self.backend = backend
         self.trainer = trainer
@@ -604,13 +646,16 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
             raise ValueError(f"update must be one of {UPDATES}, got {self.update!r}")
         if self.update == "midpoint" and self.backend == "numba":
             raise ValueError("update='midpoint' has no compiled solver yet: use backend='numpy' or 'auto'")
+        if self.periodic is not None and self.backend == "numba":
+            raise ValueError(_PERIODIC_NOT_COMPILED)
         data, validation = self._fit_data(x0, x1, mu, dt, validation)
         if data.x0.shape[1] % 2:
             raise ValueError(f"states must have an even dimension 2n (q, p), got {data.x0.shape[1]}")
         scale = self._scale_vector(data.x0.shape[1])
+        periodic = self._model_periodic(data.x0.shape[1])
         xi, y = update_variables(self.update, data.x0 * scale, data.x1 * scale, data.dt)
-        self._check_duplicates(xi, data)
-        kernel = self._product_kernel(xi)
+        self._check_duplicates(xi, data, periodic)
+        kernel = self._product_kernel(xi, periodic)
         val = None
         if validation is not None:
             vxi, vy = update_variables(self.update, validation.x0 * scale, validation.x1 * scale, validation.dt)
@@ -686,6 +731,10 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
     # ------------------------------------------------------- Newton backends
     def _compiled(self) -> bool:
         """Whether :meth:`step` / :meth:`rollout` use the compiled solver (resolves ``backend``)."""
+        if self.periodic is not None:
+            if self.backend == "numba":
+                raise ValueError(_PERIODIC_NOT_COMPILED)
+            return False
         if self.update == "midpoint":
             if self.backend == "numba":
                 raise ValueError("update='midpoint' has no compiled solver yet: use backend='numpy' or 'auto'")
@@ -712,6 +761,33 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
             raise ValueError(f"state_scaling must be None or {dim // 2} positive finite factors (one per q_i), "
                              f"got {self.state_scaling!r}")
         return np.concatenate([a, 1.0 / a])
+
+    def _original_periods(self, dim: int):
+        """``(coordinates, periods)`` of the ``periodic`` setting in the original coordinates; checks it."""
+        if self.periodic is None:
+            return (), ()
+        coords = self.periodic
+        if not isinstance(coords, (tuple, list)) or not coords \
+                or not all(isinstance(c, (int, np.integer)) and not isinstance(c, bool) for c in coords) \
+                or len(set(int(c) for c in coords)) != len(coords) or not all(0 <= c < dim for c in coords):
+            raise ValueError(f"periodic must be None or a tuple of distinct state indices in 0..{dim - 1} "
+                             f"(the angle coordinates), got {self.periodic!r}")
+        period = self.period
+        periods = tuple(period) if isinstance(period, (tuple, list)) else (period,) * len(coords)
+        if len(periods) != len(coords) or not all(
+                isinstance(p, (int, float, np.number)) and not isinstance(p, bool) and np.isfinite(p) and p > 0
+                for p in periods):
+            raise ValueError(f"period must be a positive finite number or one per periodic coordinate "
+                             f"({len(coords)}), got {self.period!r}")
+        return tuple(int(c) for c in coords), tuple(float(p) for p in periods)
+
+    def _model_periodic(self, dim: int) -> Optional[PeriodicCoordinates]:
+        """The kernel's periodic coordinates in the model's coordinates (periods times ``state_scaling``)."""
+        coords, periods = self._original_periods(dim)
+        if not coords:
+            return None
+        scale = self._scale_vector(dim)
+        return PeriodicCoordinates(coords, tuple(p * float(scale[c]) for c, p in zip(coords, periods)))
 
     def _rollout(self, x, weights, dt, n_steps: int) -> np.ndarray:
         scale = self._scale_vector(self.dim_)

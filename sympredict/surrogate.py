@@ -138,13 +138,35 @@ class HBSurrogate:
         for start in range(0, n_queries, step):
             yield slice(start, min(n_queries, start + step))
 
-    def _differences(self, xi):
+    def _differences(self, xi, order: int = 1):
+        """Differences, distances and, with periodic coordinates, their derivative terms.
+
+        Returns ``(diff, r, g)`` and, for ``order >= 2``, ``G1`` and the gather
+        ``g1 = G1[..., l_j]`` (``order == 3``: also ``g2 = G2[..., l_j]``).
+        ``diff`` (chunk, m, 2n) is ``x - x_j``, or ``G = g(x - x_j)`` with
+        periodic coordinates (:meth:`sympredict.kernels.PeriodicCoordinates.terms`);
+        ``G1``, ``g1``, ``g2`` are ``None`` without periodic coordinates (``g' = 1``,
+        ``g'' = 0``: the plain formulas).
+        """
         diff = xi[:, None, :] - self.centers_xi[None, :, :]
-        r = np.sqrt(np.einsum("bma,bma->bm", diff, diff))
+        periodic = self.kernel.periodic
+        G1 = g1 = g2 = None
+        if periodic is None:
+            r = np.sqrt(np.einsum("bma,bma->bm", diff, diff))
+        elif order == 1:
+            r, diff = periodic.terms(diff, order=1)
+        else:
+            terms = periodic.terms(diff, order=order)
+            r, diff, G1 = terms[:3]
+            g1 = np.take(G1.reshape(len(xi), -1), self._flat_components, axis=1)
+            if order == 3:
+                g2 = np.take(terms[3].reshape(len(xi), -1), self._flat_components, axis=1)
         # g_bj = d_{b j l_j}: the difference in the centre's differentiated component
         # (one flat gather: faster than fancy indexing with two index arrays)
         g = np.take(diff.reshape(len(xi), -1), self._flat_components, axis=1)
-        return diff, r, g
+        if order == 1:
+            return diff, r, g
+        return diff, r, g, G1, g1, g2
 
     @staticmethod
     def _abs_max_last(diff):
@@ -156,6 +178,9 @@ class HBSurrogate:
 
     def layout(self):
         """The centres arranged for the compiled kernels (:class:`sympredict._fastkernels.CenterLayout`), cached."""
+        if self.kernel.periodic is not None:
+            raise ValueError("the compiled kernels do not support periodic state coordinates (periodic=...): "
+                             "use the NumPy evaluation (backend='numpy' or 'auto')")
         if self._layout is None:
             self._layout = CenterLayout(self.centers_xi, self.components)
         return self._layout
@@ -194,10 +219,11 @@ class HBSurrogate:
         """
         out = np.empty(xi.shape)
         for sl in self._chunks(len(xi)):
-            diff, r, g = self._differences(xi[sl])
+            diff, r, g, _, g1, _ = self._differences(xi[sl], order=2)
             A, B = self.kernel.state.factors(r, order=2)
             w = weights[sl]
-            out[sl] = -np.matmul((w * B * g)[:, None, :], diff)[:, 0, :] - (w * A) @ self._onehot
+            wA = w * A if g1 is None else w * A * g1  # periodic: -A g'_l delta_al
+            out[sl] = -np.matmul((w * B * g)[:, None, :], diff)[:, 0, :] - wA @ self._onehot
         return out
 
     def gradient_hessian(self, xi: np.ndarray, weights: np.ndarray, with_floor: bool = False):
@@ -209,6 +235,11 @@ class HBSurrogate:
 
         ``H_ac = -sum_j w_j C_j g_j d_ja d_jc - delta_ac sum_j w_j B_j g_j - M_ac - M_ca``,
         ``M_ac = sum_j w_j B_j d_ja [l_j = c]``.
+
+        With periodic coordinates (:class:`~sympredict.kernels.PeriodicCoordinates`)
+        ``d`` becomes ``G = g(d)``, ``w_j B_j`` in ``M`` becomes ``w_j B_j g'_{j l_j}``,
+        the ``delta_ac`` term becomes ``delta_ac sum_j w_j B_j g_j g'_ja``, and
+        ``-delta_ac sum_j w_j A_j g''_{j l_j} [l_j = a]`` is added.
 
         Parameters
         ----------
@@ -233,16 +264,23 @@ class HBSurrogate:
         floor = np.empty(n_q) if with_floor else None
         eye = np.eye(dim)
         for sl in self._chunks(n_q):
-            diff, r, g = self._differences(xi[sl])
+            diff, r, g, G1, g1, g2 = self._differences(xi[sl], order=3)
             A, B, C = self.kernel.state.factors(r, order=3)
             w = weights[sl]
             wA = w * A
             wB = w * B
             wBg = wB * g
+            if g1 is not None:  # periodic: the identity terms carry g' (and g'')
+                wA = wA * g1
+                wB = wB * g1
             grad[sl] = -np.matmul(wBg[:, None, :], diff)[:, 0, :] - wA @ self._onehot
             wCg_diff = diff * (w * C * g)[:, :, None]
             h = -np.matmul(wCg_diff.transpose(0, 2, 1), diff)
-            h -= wBg.sum(axis=1)[:, None, None] * eye
+            if G1 is None:
+                h -= wBg.sum(axis=1)[:, None, None] * eye
+            else:
+                diag = np.matmul(wBg[:, None, :], G1)[:, 0, :] + (w * A * g2) @ self._onehot
+                h -= diag[:, :, None] * eye
             M = np.matmul((diff * wB[:, :, None]).transpose(0, 2, 1), self._onehot)
             h -= M
             h -= M.transpose(0, 2, 1)
@@ -263,7 +301,8 @@ class HBSurrogate:
         Off the diagonal blocks ``delta_ac = 0``, so with ``g_j = d_{j l_j}``
 
         ``H_ac = -sum_j w_j C_j g_j d_ja d_jc - M_ac - M_ca``,  ``a < n <= c``,
-        ``M_ac = sum_j w_j B_j d_ja [l_j = c]``.
+        ``M_ac = sum_j w_j B_j d_ja [l_j = c]`` (periodic coordinates as in
+        :meth:`gradient_hessian`: no ``delta_ac`` terms here).
 
         Parameters
         ----------
@@ -289,12 +328,15 @@ class HBSurrogate:
         onehot_p = self._onehot[:, n:]
         onehot_q = self._onehot[:, :n]
         for sl in self._chunks(n_q):
-            diff, r, g = self._differences(xi[sl])
+            diff, r, g, _, g1, _ = self._differences(xi[sl], order=2)
             A, B, C = self.kernel.state.factors(r, order=3)
             w = weights[sl]
             wA = w * A
             wB = w * B
             wBg = wB * g
+            if g1 is not None:  # periodic: the identity terms carry g' (see gradient_hessian)
+                wA = wA * g1
+                wB = wB * g1
             grad[sl] = -np.matmul(wBg[:, None, :], diff)[:, 0, :] - wA @ self._onehot
             dq = diff[:, :, :n]
             dp = diff[:, :, n:]
@@ -352,6 +394,8 @@ class ValueSurrogate:
         for start in range(0, len(x), step):
             sl = slice(start, start + step)
             diff = x[sl, None, :] - self.centers_x[None, :, :]
-            k = self.kernel.state.phi(np.sqrt(np.einsum("bma,bma->bm", diff, diff)))
+            periodic = self.kernel.periodic
+            r = np.sqrt(np.einsum("bma,bma->bm", diff, diff)) if periodic is None else periodic.distances(diff)
+            k = self.kernel.state.phi(r)
             out[sl] = (k * weights[sl]) @ self.coef
         return out
