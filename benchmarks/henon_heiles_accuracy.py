@@ -63,6 +63,8 @@ parser.add_argument("--n-state", type=int, default=8)
 parser.add_argument("--horizon", type=float, default=10.0)
 parser.add_argument("--val-seeds", type=int, nargs="+", default=[100, 101])
 parser.add_argument("--test-seed", type=int, default=0)
+parser.add_argument("--sizes", type=int, nargs="*", default=[250, 500],
+                    help="also report the test errors of the chosen model truncated to these sizes (no choice made on them)")
 parser.add_argument("--json", default=None)
 parser.add_argument("--quick", action="store_true", help="tiny sizes, one sweep: checks that the script runs")
 args = parser.parse_args()
@@ -172,12 +174,19 @@ with threadpool_limits(1):
             if not improved:
                 log_f /= 2
     model = fit(best, datasets[sampling])
-    at_t, over_t = errors(model, instances(args.test_seed))
+    test_inst = instances(args.test_seed)
+    at_t, over_t = errors(model, test_inst)
     test = {"median_at_T": float(np.median(at_t)), "median_over_time": float(np.median(over_t)),
             "max_at_T": float(np.max(at_t))}
+    by_size = {}
+    for m in (m for m in args.sizes if m < model.n_centers_):
+        a, o = errors(model.truncated(m), test_inst)
+        by_size[m] = {"median_at_T": float(np.median(a)), "median_over_time": float(np.median(o))}
+        print(f"  truncated to {m} centres: test median at T {by_size[m]['median_at_T']:.2e}", flush=True)
     summary = {"update": args.update, "family": args.family, "sampling": sampling, "chosen": dict(zip(NAMES, best)),
                "n_centers": model.n_centers_, "E_train": float(model.history_.train_max_residual[-1]),
                "n_samples": args.n_samples, "test_seed": args.test_seed, "val_seeds": args.val_seeds, "test": test,
+               "test_truncated": by_size,
                "target": TARGET, "met": bool(test["median_at_T"] <= TARGET), "time_s": time.perf_counter() - t_start,
                "candidates": rows}
     print(f"chosen {sampling} {summary['chosen']} ({model.n_centers_} centres): test seed {args.test_seed}: median at T "
