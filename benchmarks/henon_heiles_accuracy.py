@@ -19,7 +19,7 @@ over trajectories of the median over its steps.  Validation seeds (default 100,
 state, ``lambda`` and ``dT`` factors (each parameter times / divided by the
 factor per sweep; the factor's exponent halves after a sweep without
 improvement); the score is the largest median over the validation seeds.  The
-test seed (default 0) is evaluated once, with the chosen model.
+test seeds (default 0) are evaluated once each, with the chosen model.
 
 Run:  python benchmarks/henon_heiles_accuracy.py [--update midpoint] [--json out.json]
       python benchmarks/henon_heiles_accuracy.py --fixed 0.5 1 1 --sampling grid 5 5   # no search
@@ -62,7 +62,7 @@ parser.add_argument("--n-lam", type=int, default=8)
 parser.add_argument("--n-state", type=int, default=8)
 parser.add_argument("--horizon", type=float, default=10.0)
 parser.add_argument("--val-seeds", type=int, nargs="+", default=[100, 101])
-parser.add_argument("--test-seed", type=int, default=0)
+parser.add_argument("--test-seeds", type=int, nargs="+", default=[0], help="evaluated once each, with the chosen model")
 parser.add_argument("--sizes", type=int, nargs="*", default=[250, 500],
                     help="also report the test errors of the chosen model truncated to these sizes (no choice made on them)")
 parser.add_argument("--json", default=None)
@@ -71,7 +71,7 @@ args = parser.parse_args()
 if args.quick:
     args.n_samples, args.max_centers, args.n_lam, args.n_state, args.horizon = 300, 40, 2, 2, 2.0
     args.sweeps, args.val_seeds, args.search, args.samplings = 1, [100], ["state"], ["grid:2:2", "random"]
-assert args.test_seed not in args.val_seeds, "the test seed must not be a validation seed"
+assert not set(args.test_seeds) & set(args.val_seeds), "the test seed must not be a validation seed"
 
 system = HenonHeiles()
 family = KERNEL_FAMILIES[args.family]
@@ -174,23 +174,26 @@ with threadpool_limits(1):
             if not improved:
                 log_f /= 2
     model = fit(best, datasets[sampling])
-    test_inst = instances(args.test_seed)
-    at_t, over_t = errors(model, test_inst)
-    test = {"median_at_T": float(np.median(at_t)), "median_over_time": float(np.median(over_t)),
-            "max_at_T": float(np.max(at_t))}
-    by_size = {}
-    for m in (m for m in args.sizes if m < model.n_centers_):
-        a, o = errors(model.truncated(m), test_inst)
-        by_size[m] = {"median_at_T": float(np.median(a)), "median_over_time": float(np.median(o))}
-        print(f"  truncated to {m} centres: test median at T {by_size[m]['median_at_T']:.2e}", flush=True)
+    test, by_size = {}, {}
+    for seed in args.test_seeds:
+        test_inst = instances(seed)
+        at_t, over_t = errors(model, test_inst)
+        test[seed] = {"median_at_T": float(np.median(at_t)), "median_over_time": float(np.median(over_t)),
+                      "max_at_T": float(np.max(at_t))}
+        print(f"  test seed {seed}: median at T {test[seed]['median_at_T']:.2e}, median over time "
+              f"{test[seed]['median_over_time']:.2e}, max at T {test[seed]['max_at_T']:.2e}", flush=True)
+        by_size[seed] = {}
+        for m in (m for m in args.sizes if m < model.n_centers_):
+            a, o = errors(model.truncated(m), test_inst)
+            by_size[seed][m] = {"median_at_T": float(np.median(a)), "median_over_time": float(np.median(o))}
+            print(f"    truncated to {m} centres: median at T {by_size[seed][m]['median_at_T']:.2e}", flush=True)
+    worst = max(t["median_at_T"] for t in test.values())
     summary = {"update": args.update, "family": args.family, "sampling": sampling, "chosen": dict(zip(NAMES, best)),
                "n_centers": model.n_centers_, "E_train": float(model.history_.train_max_residual[-1]),
-               "n_samples": args.n_samples, "test_seed": args.test_seed, "val_seeds": args.val_seeds, "test": test,
-               "test_truncated": by_size,
-               "target": TARGET, "met": bool(test["median_at_T"] <= TARGET), "time_s": time.perf_counter() - t_start,
-               "candidates": rows}
-    print(f"chosen {sampling} {summary['chosen']} ({model.n_centers_} centres): test seed {args.test_seed}: median at T "
-          f"{test['median_at_T']:.2e}, median over time {test['median_over_time']:.2e}, max at T {test['max_at_T']:.2e} "
+               "n_samples": args.n_samples, "test_seeds": args.test_seeds, "val_seeds": args.val_seeds, "test": test,
+               "test_truncated": by_size, "target": TARGET, "met": bool(worst <= TARGET),
+               "time_s": time.perf_counter() - t_start, "candidates": rows}
+    print(f"chosen {sampling} {summary['chosen']} ({model.n_centers_} centres): worst test median at T {worst:.2e} "
           f"-> target {TARGET:g} {'met' if summary['met'] else 'NOT met'}", flush=True)
     if args.json:
         with open(args.json, "w") as f:
