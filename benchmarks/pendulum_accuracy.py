@@ -35,7 +35,7 @@ from sympredict import SymplecticKernelPredictor
 from sympredict.experiments.pendulum import paper_test_instances
 from sympredict.kernels import KERNEL_FAMILIES
 from sympredict.metrics import relative_trajectory_error
-from sympredict.systems.pendulum import DT_TEST, Pendulum, flow_map_data
+from sympredict.systems.pendulum import DT_TEST, DT_TRAIN, MU_TRAIN, Pendulum, flow_map_data
 
 TARGET = 2e-5
 NAMES = ("state", "mu", "dt", "scaling")
@@ -56,11 +56,14 @@ parser.add_argument("--horizon", type=float, default=20.0)
 parser.add_argument("--criterion", default="f", choices=["f", "p"], help="f-greedy or P-greedy centre selection")
 parser.add_argument("--reg-rel", type=float, default=0.0,
                     help="ridge term relative to the Gramian diagonal eps_state^2 (a tiny one keeps flat kernels from breaking down)")
+parser.add_argument("--diagnose", action="store_true",
+                    help="where the error comes from, on the first validation seed: lengths on the training grid, per-q0 errors")
 parser.add_argument("--json", default=None)
 parser.add_argument("--quick", action="store_true", help="tiny sizes, one sweep: checks that the script runs")
 args = parser.parse_args()
 if args.quick:
     args.n_grid, args.max_centers, args.horizon, args.sweeps, args.val_seeds = 12, 60, 1.0, 1, [100]
+    args.diagnose = True
     args.search = ["state"]
 assert not set(args.test_seeds) & set(args.val_seeds), "the test seed must not be a validation seed"
 
@@ -154,6 +157,25 @@ with threadpool_limits(1):
     for seed, d in test.items():
         print(f"  test seed {seed}: " + " / ".join(f"dT={dt}: {v:.2e}" for dt, v in d.items()), flush=True)
     print(f"worst test median {worst:.2e} -> target {TARGET:g} {'met' if summary['met'] else 'NOT met'}", flush=True)
+    if args.diagnose:
+        # first validation seed: the same states with the lengths moved onto the training grid (no interpolation in l),
+        # at a training step (0.05) and at the test steps; and the median over time per q0 (mean over the 5 lengths)
+        seed = args.val_seeds[0]
+        x0, lengths = paper_test_instances(seed)
+        on_grid = np.array(MU_TRAIN)[np.arange(len(x0)) % len(MU_TRAIN)]
+        diag = {"seed": seed, "on_grid_lengths": {}, "off_grid": {}, "per_q0": {}}
+        for dt in (DT_TRAIN[1],) + tuple(DT_TEST):
+            n_steps = int(np.floor(args.horizon / dt + 1e-9))
+            for key, ls in (("on_grid_lengths", on_grid), ("off_grid", lengths)):
+                err = relative_trajectory_error(model.rollout(x0, n_steps, mu=ls, dt=dt), system.trajectory(x0, ls, dt, n_steps))
+                diag[key][dt] = float(np.median(err.mean(axis=0)[1:]))
+                if key == "off_grid":
+                    diag["per_q0"][dt] = {f"{q:.3f}": float(np.median(err[x0[:, 0] == q].mean(axis=0)[1:])) for q in np.unique(x0[:, 0])}
+        summary["diagnosis"] = diag
+        print(f"diagnosis (validation seed {seed}): median error with lengths on / off the training grid:", flush=True)
+        for dt in diag["off_grid"]:
+            print(f"  dT={dt}: {diag['on_grid_lengths'][dt]:.2e} / {diag['off_grid'][dt]:.2e}; per q0: "
+                  + ", ".join(f"{q}: {v:.1e}" for q, v in diag["per_q0"][dt].items()), flush=True)
     if args.json:
         with open(args.json, "w") as f:
             json.dump(summary, f, indent=1, default=str)
