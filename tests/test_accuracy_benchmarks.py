@@ -1,0 +1,44 @@
+"""The issue-14 accuracy benchmarks run (``--quick``) and report what they chose on validation data only."""
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _run(script, tmp_path):
+    out = tmp_path / "out.json"
+    env = dict(os.environ, NUMBA_NUM_THREADS="1", OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1")
+    proc = subprocess.run([sys.executable, str(ROOT / "benchmarks" / script), "--quick", "--json", str(out)],
+                          capture_output=True, text=True, env=env, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert "chosen" in proc.stdout
+    return json.loads(out.read_text())
+
+
+def _check_choice(summary):
+    assert not set(summary["test_seeds"]) & set(summary["val_seeds"])
+    scores = [c["score"] for c in summary["candidates"]]
+    assert len(scores) >= 3 and all(np.isfinite(scores))
+    best = min(summary["candidates"], key=lambda c: c["score"])
+    assert best["params"] == summary["chosen"]  # the validation minimum is the chosen candidate
+
+
+@pytest.mark.parametrize("script", ["pendulum_accuracy.py", "henon_heiles_accuracy.py"])
+def test_accuracy_benchmark_quick(script, tmp_path):
+    summary = _run(script, tmp_path)
+    _check_choice(summary)
+    if script.startswith("pendulum"):
+        values = [v for d in summary["test_medians"].values() for v in d.values()]
+        assert len(values) == 3 * len(summary["test_seeds"])
+    else:
+        assert summary["sampling"] == min(summary["candidates"], key=lambda c: c["score"])["sampling"]
+        values = [t["median_at_T"] for t in summary["test"].values()]
+    assert all(np.isfinite(values))
+    assert summary["met"] == (max(values) <= summary["target"])
