@@ -49,7 +49,8 @@ parser.add_argument("--search", nargs="+", default=list(NAMES), choices=NAMES, h
 parser.add_argument("--factor", type=float, default=2.0)
 parser.add_argument("--sweeps", type=int, default=3)
 parser.add_argument("--val-seeds", type=int, nargs="+", default=[100, 101])
-parser.add_argument("--test-seeds", type=int, nargs="+", default=[0], help="evaluated once each, with the chosen model")
+parser.add_argument("--test-seeds", type=int, nargs="*", default=[0],
+                    help="evaluated once each, with the chosen model (none: validation only)")
 parser.add_argument("--n-grid", type=int, default=50)
 parser.add_argument("--max-centers", type=int, default=1500)
 parser.add_argument("--horizon", type=float, default=20.0)
@@ -146,8 +147,8 @@ with threadpool_limits(1):
             if not improved:
                 log_f /= 2
     model = fit(best)
-    test = medians(model, cases(args.test_seeds), args.test_seeds)
-    worst = max(v for d in test.values() for v in d.values())
+    test = medians(model, cases(args.test_seeds), args.test_seeds) if args.test_seeds else {}
+    worst = max((v for d in test.values() for v in d.values()), default=np.inf)
     summary = {"update": args.update, "family": args.family, "reg_rel": args.reg_rel, "criterion": args.criterion,
                "chosen": dict(zip(NAMES, best)), "n_centers": model.n_centers_,
                "E_train": float(model.history_.train_max_residual[-1]), "test_seeds": args.test_seeds,
