@@ -488,8 +488,9 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         ``s`` (a Cayley transform) and time-symmetric (with the same ``s``,
         ``-dT`` inverts the step); on a linear mode turning by ``theta`` per
         step its generating function exists for ``theta < pi`` where the type-II
-        form degenerates at ``pi/2``.  NumPy solver only so far (``backend='auto'``
-        uses it; ``'numba'`` is refused).
+        form degenerates at ``pi/2``.  Both Newton backends: the compiled rollout
+        (:func:`~sympredict._fastkernels.newton_rollout` with ``update='midpoint'``,
+        full Hessian in the same fused pass) and the NumPy reference.
     state_scaling
         ``None`` or ``n`` positive factors ``a_i``: the model works in the
         coordinates ``(a_i q_i, p_i / a_i)`` (a diagonal *symplectic* map, so
@@ -504,7 +505,8 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         from ``p0`` plus the previous step's increment instead of the explicit
         guess, saving that guess's pass over the centres (on the pendulum
         3.0 -> 2.5 passes per step, trajectories equal to ~1e-6 after 400
-        steps: both stop by the same rule).  Default ``False``.
+        steps: both stop by the same rule; with ``update='midpoint'`` the
+        midpoint ``x_k + (x_k - x_{k-1}) / 2``).  Default ``False``.
 
     Attributes
     ----------
@@ -602,8 +604,6 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
             raise ValueError(f"newton_warm_start must be True or False, got {self.newton_warm_start!r}")
         if self.update not in UPDATES:
             raise ValueError(f"update must be one of {UPDATES}, got {self.update!r}")
-        if self.update == "midpoint" and self.backend == "numba":
-            raise ValueError("update='midpoint' has no compiled solver yet: use backend='numpy' or 'auto'")
         data, validation = self._fit_data(x0, x1, mu, dt, validation)
         if data.x0.shape[1] % 2:
             raise ValueError(f"states must have an even dimension 2n (q, p), got {data.x0.shape[1]}")
@@ -686,10 +686,6 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
     # ------------------------------------------------------- Newton backends
     def _compiled(self) -> bool:
         """Whether :meth:`step` / :meth:`rollout` use the compiled solver (resolves ``backend``)."""
-        if self.update == "midpoint":
-            if self.backend == "numba":
-                raise ValueError("update='midpoint' has no compiled solver yet: use backend='numpy' or 'auto'")
-            return False
         if self.backend == "numpy":
             return False
         if self.backend == "auto":
@@ -719,7 +715,7 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         if self._compiled():
             traj = rollout_compiled(self.surrogate_, xs, weights, dt, n_steps,
                                     as_positive_int(self.newton_max_iter, "newton_max_iter"),
-                                    warm_start=bool(self.newton_warm_start))
+                                    warm_start=bool(self.newton_warm_start), update=self.update)
         else:
             traj = rollout_numpy(lambda state: self._solve_scaled(state, weights, dt), xs, n_steps)
         return traj if self.state_scaling is None else traj / scale
@@ -735,7 +731,7 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         """One implicit step in the model's coordinates, on the configured backend (:mod:`sympredict.newton`)."""
         max_iter = as_positive_int(self.newton_max_iter, "newton_max_iter")
         if self._compiled():
-            return rollout_compiled(self.surrogate_, x, weights, dt, 1, max_iter, step_index=False)[:, 1]
+            return rollout_compiled(self.surrogate_, x, weights, dt, 1, max_iter, step_index=False, update=self.update)[:, 1]
         if self.update == "midpoint":
             return solve_midpoint_numpy(self.surrogate_, x, weights, dt, max_iter)
         return solve_step_numpy(self.surrogate_, x, weights, dt, max_iter)

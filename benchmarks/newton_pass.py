@@ -1,0 +1,173 @@
+"""The compiled Newton pass against the kernel-factor cost, and rollout throughput: this tree against a revision, side by side.
+
+One command (from the repository root, the project's virtual environment)::
+
+    .venv/bin/python benchmarks/newton_pass.py --against 75d2b66 --threads 2
+
+The model is the benchmark suite's (``benchmarks/suite.py``: pendulum quick data,
+50 x 50 grid, IMQ (0.15, 2, 5), exact f-greedy to 1,500 centres); the batch its
+1,000 instances (``q0`` in [0, pi/2], ``p0 = 0``, ``l`` in [0.7, 0.8], ``dT`` in
+[0.045, 0.055]).  ``--against REV`` loads that revision's
+``sympredict/_fastkernels.py`` as a second module into this process (compiled
+without numba's disk cache), so both implementations run on the same model,
+the same inputs and the same machine state, interleaved.
+
+Measured per implementation (and per start: ``cold`` = explicit guess, ``warm`` =
+previous step's increment, where the implementation has it):
+
+* passes over the centres per macro step (deterministic counts);
+* ns per centre visit of the serial rollout on one thread: the minimum over
+  ``--samples`` short runs (10 instances x 20 steps, a few ms each), so that
+  other processes on the machine stretch no sample that counts;
+* the kernel-factor cost: the family's ``(A, B, C)`` loop alone
+  (``_chunk_factors``) on a chunk of 256 distances in L1, minimum over as many
+  short runs, and :func:`sympredict._fastkernels.factor_throughput` (median over
+  a 1M-element array, the suite's older probe) for reference;
+* ``ratio`` = ns per centre visit / factor ns (L1 probe);
+* trajectory-steps per second of the full batch (1,000 x 20 steps) on
+  ``--threads`` numba threads, the best of ``--repeats`` runs.
+
+Writes ``--json`` if given and prints a table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+from pymor.core.logger import set_log_levels  # noqa: E402
+from threadpoolctl import threadpool_limits  # noqa: E402
+
+from sympredict import _fastkernels  # noqa: E402
+from sympredict.kernels import IMQ  # noqa: E402
+
+
+def load_revision(rev: str, where: Path):
+    """``sympredict/_fastkernels.py`` of ``rev`` as a module (numba's disk cache off for it)."""
+    src = subprocess.run(["git", "-C", str(ROOT), "show", f"{rev}:sympredict/_fastkernels.py"], capture_output=True,
+                         text=True, check=True).stdout
+    src = src.replace("_build(cache)", "_build(False)")
+    path = where / f"_fastkernels_{rev.replace('/', '_')}.py"
+    path.write_text(src)
+    spec = importlib.util.spec_from_file_location(path.stem, path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def tmin(fn, samples: int) -> float:
+    best = np.inf
+    for _ in range(samples):
+        t0 = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - t0)
+    return best
+
+
+def factor_chunk_seconds(module, samples: int, chunk: int = 256, reps: int = 2000) -> float:
+    """Seconds per factor evaluation of the family's loop alone on ``chunk`` distances in L1 (minimum of short runs)."""
+    factors = module.compiled_formulas(IMQ)[2]
+    r2 = np.random.default_rng(0).uniform(0.0, 4.0, chunk)
+    fa, fb, fc = np.empty(chunk), np.empty(chunk), np.empty(chunk)
+    cf = module._kernels(IMQ)._chunk_factors
+
+    def run():
+        for _ in range(reps):
+            cf(factors, 0.15, r2, fa, fb, fc, chunk)
+
+    run()
+    return tmin(run, samples) / (reps * chunk)
+
+
+def measure(module, sur, x0, w, dt, *, steps: int, samples: int, repeats: int, warm: bool) -> dict:
+    layout = module.CenterLayout(sur.centers_xi, sur.components)
+    kernel = sur.kernel.state
+    kw = {"warm_start": True} if warm else {}
+    sub = slice(0, 10)
+    stats = {}
+    module.newton_rollout(x0[sub], w[sub], dt[sub], layout, kernel, 50, steps, parallel=False, stats=stats, **kw)
+    passes = float(stats["passes"].sum())
+    t1 = tmin(lambda: module.newton_rollout(x0[sub], w[sub], dt[sub], layout, kernel, 50, steps, parallel=False, **kw),
+              samples)
+    stats = {}
+    module.newton_rollout(x0, w, dt, layout, kernel, 50, steps, stats=stats, **kw)
+    tb = tmin(lambda: module.newton_rollout(x0, w, dt, layout, kernel, 50, steps, **kw), repeats)
+    return {
+        "passes_per_step": passes / (10 * steps),
+        "passes_per_step_batch": float(stats["passes"].sum()) / (len(x0) * steps),
+        "ns_per_centre_visit_1_thread": 1e9 * t1 / (passes * sur.n_centers),
+        "traj_steps_per_s": len(x0) * steps / tb,
+    }
+
+
+def main(argv=None) -> dict:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--against", default=None, help="git revision to compare with (its _fastkernels.py)")
+    parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--batch", type=int, default=1000)
+    parser.add_argument("--steps", type=int, default=20)
+    parser.add_argument("--samples", type=int, default=60, help="short runs per single-thread timing (minimum taken)")
+    parser.add_argument("--repeats", type=int, default=7, help="full-batch runs (best taken)")
+    parser.add_argument("--json", default=None)
+    args = parser.parse_args(argv)
+    set_log_levels({"sympredict": "WARNING", "pymor": "WARN"})
+    import suite  # the suite's model and inputs
+
+    _fastkernels.set_num_threads(min(args.threads, os.cpu_count()))
+    with threadpool_limits(1), tempfile.TemporaryDirectory() as tmp:
+        print("pendulum model (quick data, 1500 centres) ...", flush=True)
+        model, _ = suite.pendulum_model()
+        sur = model.surrogate_
+        x0, mu, dt = suite._rollout_inputs(args.batch)
+        w = sur.weights(mu[:, None], dt)
+        modules = {"this tree": _fastkernels}
+        if args.against:
+            modules[args.against] = load_revision(args.against, Path(tmp))
+        results = {}
+        for label, module in modules.items():  # compile and warm up
+            module.newton_rollout(x0[:16], w[:16], dt[:16], module.CenterLayout(sur.centers_xi, sur.components),
+                                  sur.kernel.state, 50, 2)
+            results[label] = {}
+        for label, module in modules.items():
+            for start in ("cold", "warm"):
+                if start == "warm" and "warm_start" not in module.newton_rollout.__code__.co_varnames:
+                    continue
+                results[label][start] = measure(module, sur, x0, w, dt, steps=args.steps, samples=args.samples,
+                                                repeats=args.repeats, warm=start == "warm")
+            results[label]["factor_ns_l1"] = 1e9 * factor_chunk_seconds(module, args.samples)
+            results[label]["factor_ns_1M_median"] = 1e9 * module.factor_throughput()
+    lines = [f"{model.n_centers_} centres, batch {args.batch}, {args.steps} steps; {args.threads} numba thread(s) for the "
+             f"batch, 1 for the pass", "",
+             "| implementation | start | passes/step | ns per centre visit (1 thread) | factor ns (L1 / 1M) | pass / factor "
+             "| traj-steps/s |", "|---|---|---|---|---|---|---|"]
+    for label, r in results.items():
+        for start in ("cold", "warm"):
+            if start not in r:
+                continue
+            m = r[start]
+            m["ratio"] = m["ns_per_centre_visit_1_thread"] / r["factor_ns_l1"]
+            lines.append(f"| {label} | {start} | {m['passes_per_step']:.2f} | {m['ns_per_centre_visit_1_thread']:.2f} | "
+                         f"{r['factor_ns_l1']:.2f} / {r['factor_ns_1M_median']:.2f} | {m['ratio']:.2f} | "
+                         f"{m['traj_steps_per_s']:,.0f} |")
+    print("\n".join(lines))
+    out = {"args": vars(args), "results": results}
+    if args.json:
+        Path(args.json).write_text(json.dumps(out, indent=1, default=float))
+    return out
+
+
+if __name__ == "__main__":
+    main()
