@@ -383,12 +383,16 @@ def _build(cache: bool):  # noqa: C901 - the compiled definitions
         resid[i] = 0.0
         for k in range(n_steps):
             warm = warm_start and k > 0
-            if warm:  # extrapolate the previous step: saves the explicit guess's pass
+            if warm:  # extrapolate the previous steps: saves the explicit guess's pass
+                off = 0 if mid else n
                 for a in range(k_unknown):
-                    if mid:  # z = (x_k + x_k+1) / 2 ~ x_k + (x_k - x_k-1) / 2
-                        u[a] = traj[i, k, a] + 0.5 * (traj[i, k, a] - traj[i, k - 1, a])
-                    else:  # p_k+1 ~ p_k + (p_k - p_k-1)
-                        u[a] = 2.0 * traj[i, k, n + a] - traj[i, k - 1, n + a]
+                    x_k = traj[i, k, off + a]
+                    x_1 = traj[i, k - 1, off + a]
+                    if k >= 2:  # x_k+1 ~ 3 x_k - 3 x_k-1 + x_k-2 (error O(dT^3))
+                        nxt = 3.0 * (x_k - x_1) + traj[i, k - 2, off + a]
+                    else:  # x_k+1 ~ 2 x_k - x_k-1 (error O(dT^2))
+                        nxt = 2.0 * x_k - x_1
+                    u[a] = 0.5 * (x_k + nxt) if mid else nxt  # midpoint: z = (x_k + x_k+1) / 2
             code, r, it = _solve_one(traj[i, k], W[i], h[i], cT, seg, factors, eps, max_iter, traj[i, k + 1], sc, grad, hess,
                                      jac, delta, u, xi, warm, mid)
             passes[i] += it + (1 if warm else 2)  # (the explicit guess's gradient pass and) it + 1 Newton passes
@@ -671,14 +675,15 @@ def newton_rollout(x0, weights, dt, layout: CenterLayout, kernel, max_iter: int,
         If a dict, ``stats['passes']`` receives the passes over the centres per
         instance (one per gradient or Newton evaluation), shape (B,).
     warm_start
-        From the second step on, start Newton from ``p0`` plus the previous
-        step's increment of ``p`` instead of the explicit guess
-        ``p0 - dT d_q s(q0, p0)``: saves that guess's pass over the centres
-        (both guesses are ``O(dT^2)`` accurate; the converged result satisfies
-        the same stopping rule).  Each instance stops iterating on its own
-        (converged instances are dropped by construction: one loop per instance).
-        For ``update='midpoint'`` the guess is ``z = x_k + (x_k - x_{k-1}) / 2``
-        instead of ``x0 + dT/2 J grad s(x0)``.
+        From the second step on, start Newton from an extrapolation of the
+        previous steps instead of the explicit guess ``p0 - dT d_q s(q0, p0)``:
+        saves that guess's pass over the centres.  ``p_k+1 ~ 3 p_k - 3 p_k-1 + p_k-2``
+        (error ``O(dT^3)``; ``2 p_k - p_k-1`` at the second step), against the
+        explicit guess's ``O(dT^2)``; for ``update='midpoint'`` the midpoint
+        ``z = (x_k + x_k+1) / 2`` with the same extrapolation of ``x_k+1``.  The
+        converged result satisfies the same stopping rule.  Each instance stops
+        iterating on its own (converged instances are dropped by construction:
+        one loop per instance).
     update
         ``'symplectic_euler'``: ``F(p1) = p1 - p0 + dT d_q s(q0, p1)``, Jacobian
         ``I + dT d_p d_q s`` (``n`` unknowns, the Hessian block only);
