@@ -19,10 +19,11 @@ previous step's increment, where the implementation has it):
 * ns per centre visit of the serial rollout on one thread: the minimum over
   ``--samples`` short runs (10 instances x 20 steps, a few ms each), so that
   other processes on the machine stretch no sample that counts;
-* the kernel-factor cost: the family's ``(A, B, C)`` loop alone
-  (``_chunk_factors``) on a chunk of 256 distances in L1, minimum over as many
-  short runs, and :func:`sympredict._fastkernels.factor_throughput` (median over
-  a 1M-element array, the suite's older probe) for reference;
+* the kernel-factor cost: the family's ``(A, B, C)`` loop alone on a chunk of
+  256 distances in L1, minimum over as many short runs
+  (:func:`sympredict._fastkernels.factor_throughput` ``in_cache=True``, this
+  tree's probe, measured next to each implementation), and the older probe
+  (one loop over 1M distances, median) for reference;
 * ``ratio`` = ns per centre visit / factor ns (L1 probe);
 * trajectory-steps per second of the full batch (1,000 x 20 steps) on
   ``--threads`` numba threads, the best of ``--repeats`` runs.
@@ -77,19 +78,10 @@ def tmin(fn, samples: int) -> float:
     return best
 
 
-def factor_chunk_seconds(module, samples: int, chunk: int = 256, reps: int = 2000) -> float:
-    """Seconds per factor evaluation of the family's loop alone on ``chunk`` distances in L1 (minimum of short runs)."""
-    factors = module.compiled_formulas(IMQ)[2]
-    r2 = np.random.default_rng(0).uniform(0.0, 4.0, chunk)
-    fa, fb, fc = np.empty(chunk), np.empty(chunk), np.empty(chunk)
-    cf = module._kernels(IMQ)._chunk_factors
-
-    def run():
-        for _ in range(reps):
-            cf(factors, 0.15, r2, fa, fb, fc, chunk)
-
-    run()
-    return tmin(run, samples) / (reps * chunk)
+def factor_chunk_seconds(samples: int) -> float:
+    """Seconds per factor evaluation of the family's loop alone on one chunk of distances in L1 (minimum of short runs;
+    :func:`sympredict._fastkernels.factor_throughput` with ``in_cache=True``, this tree's definition for both sides)."""
+    return _fastkernels.factor_throughput(n=1 << 19, eps=0.15, repeats=samples, in_cache=True)
 
 
 def measure(module, sur, x0, w, dt, *, steps: int, samples: int, repeats: int, warm: bool) -> dict:
@@ -147,7 +139,7 @@ def main(argv=None) -> dict:
                     continue
                 results[label][start] = measure(module, sur, x0, w, dt, steps=args.steps, samples=args.samples,
                                                 repeats=args.repeats, warm=start == "warm")
-            results[label]["factor_ns_l1"] = 1e9 * factor_chunk_seconds(module, args.samples)
+            results[label]["factor_ns_l1"] = 1e9 * factor_chunk_seconds(args.samples)
             results[label]["factor_ns_1M_median"] = 1e9 * module.factor_throughput()
     lines = [f"{model.n_centers_} centres, batch {args.batch}, {args.steps} steps; {args.threads} numba thread(s) for the "
              f"batch, 1 for the pass", "",

@@ -117,6 +117,12 @@ def _build(cache: bool):  # noqa: C901 - the compiled definitions
         for j in range(L):
             fA[j], fB[j], fC[j] = factors(eps, math.sqrt(r2[j]))
 
+    @_jit
+    def _chunk_factors_repeat(factors, eps, r2, fA, fB, fC, L, reps):
+        """:func:`_chunk_factors` ``reps`` times (the in-cache factor-cost probe)."""
+        for _ in range(reps):
+            _chunk_factors(factors, eps, r2, fA, fB, fC, L)
+
     @_fjit
     def _sum(x, L):
         s = 0.0
@@ -143,22 +149,28 @@ def _build(cache: bool):  # noqa: C901 - the compiled definitions
         """One chunk of :func:`_pass` (centres ``j0:j0+L``, all differentiating component ``l``); returns its floor sum."""
         dim = cT.shape[0]
         n = dim // 2
-        # differences, squared distances and (for the floor) max_a |d_ja|: one sweep per coordinate
+        # differences, squared distances and (for the floor) max_a |d_ja|: one sweep per coordinate.
+        # The chunk's rows are views indexed from 0 (an index j0 + j would be checked for wraparound
+        # per element), and the max is a select (numba's max() on floats does not vectorise).
+        wc = w[j0:j0 + L]
         for a in range(dim):
             xa = xi[a]
             row = dif[a]
+            crow = cT[a, j0:j0 + L]
             if a == 0:
                 for j in range(L):
-                    d = xa - cT[a, j0 + j]
+                    d = xa - crow[j]
                     row[j] = d
                     r2[j] = d * d
                     dmax[j] = abs(d)
             else:
                 for j in range(L):
-                    d = xa - cT[a, j0 + j]
+                    d = xa - crow[j]
                     row[j] = d
                     r2[j] += d * d
-                    dmax[j] = max(dmax[j], abs(d))
+                    ad = abs(d)
+                    m = dmax[j]
+                    dmax[j] = ad if ad > m else m
         # kernel factors and their weighted combinations; the sums of w A, w B g and the floor terms
         g_row = dif[l]
         s_a = 0.0
@@ -167,13 +179,13 @@ def _build(cache: bool):  # noqa: C901 - the compiled definitions
         if mode == 0:
             for j in range(L):
                 A, B, C = factors(eps, math.sqrt(r2[j]))
-                wj = w[j0 + j]
+                wj = wc[j]
                 s_a += wj * A
                 ubg[j] = (wj * B) * g_row[j]
         else:
             for j in range(L):
                 A, B, C = factors(eps, math.sqrt(r2[j]))
-                wj = w[j0 + j]
+                wj = wc[j]
                 g = g_row[j]
                 a_ = wj * A
                 b_ = wj * B
@@ -626,15 +638,15 @@ class CenterLayout:
 
 
 #: Centres per chunk of the compiled kernels at most (scratch ``(2n + 6) * chunk`` doubles stays in L1).
-CHUNK = 256
+CHUNK = 512
 
 #: Doubles of scratch per thread the chunk is sized for (32 KiB: in the L1 cache with the centres' chunk).
 SCRATCH_DOUBLES = 4096
 
 
 def chunk_size(dim: int) -> int:
-    """Centres per chunk for states of dimension ``dim``: :data:`CHUNK`, smaller where ``(dim + 6) * chunk``
-    doubles of scratch would leave L1 (a multiple of 8, at least 32; 2n = 40: 88).
+    """Centres per chunk for states of dimension ``dim``: ``SCRATCH_DOUBLES / (dim + 6)`` rounded down to a multiple
+    of 8, between 32 and :data:`CHUNK` (2n = 2: 512, 2n = 8: 288, 2n = 40: 88).
 
     Depends on ``dim`` only, so every instance of a model sums in the same order
     (bit-reproducible across batch sizes).
@@ -912,18 +924,36 @@ def greedy_update(row, t, inv_pj: float, b: float, res, p2, j: int, breakdown: f
     return float(max_abs), int(carg[k]), float(cbest[k])
 
 
-def factor_throughput(n: int = 1 << 20, eps: float = 0.2, repeats: int = 5) -> float:
-    """Seconds per IMQ factor evaluation ``(A, B, C)`` in the compiled loop of the Newton pass (median).
+def factor_throughput(n: int = 1 << 20, eps: float = 0.2, repeats: int = 5, in_cache: bool = False) -> float:
+    """Seconds per IMQ factor evaluation ``(A, B, C)`` in the compiled loop of the Newton pass.
 
     The floor of any evaluation of the surrogate's derivatives: a square root,
     one division, one square root and a few multiplications per centre.
     Benchmarks compare the compiled Newton pass's time per centre with it.
+
+    ``in_cache=False``: one loop over ``n`` distances (a stream through memory),
+    median of ``repeats``.  ``in_cache=True``: the loop over one chunk of
+    :data:`CHUNK` distances in L1, repeated in compiled code (``n`` evaluations
+    per sample), the minimum of ``repeats`` samples: the pass's own regime, and a
+    statistic that other processes on the machine can only raise.
     """
     _check_available()
     factors = compiled_formulas(IMQ)[2]
+    ns = _kernels(IMQ)
+    if in_cache:
+        r2 = np.random.default_rng(0).uniform(0.0, 4.0, CHUNK)
+        fA, fB, fC = np.empty(CHUNK), np.empty(CHUNK), np.empty(CHUNK)
+        reps = max(1, n // CHUNK)
+        ns._chunk_factors_repeat(factors, eps, r2, fA, fB, fC, CHUNK, 1)
+        best = np.inf
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            ns._chunk_factors_repeat(factors, eps, r2, fA, fB, fC, CHUNK, reps)
+            best = min(best, time.perf_counter() - t0)
+        return float(best) / (reps * CHUNK)
     r2 = np.random.default_rng(0).uniform(0.0, 4.0, n)
     fA, fB, fC = np.empty(n), np.empty(n), np.empty(n)
-    chunk_factors = _kernels(IMQ)._chunk_factors
+    chunk_factors = ns._chunk_factors
     chunk_factors(factors, eps, r2, fA, fB, fC, n)
     times = []
     for _ in range(repeats):

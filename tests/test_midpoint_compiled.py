@@ -142,11 +142,10 @@ def test_compiled_midpoint_reverse_step_inverts(which, pendulum_mid, chain_mid, 
 
 
 def test_compiled_midpoint_on_an_ill_conditioned_model_agrees_to_the_floor(small_pendulum_data, rng):
-    """600 centres (several chunks per component), coefficients ~1e7: agreement to the gradient floor."""
+    """600 centres, coefficients ~1e7: agreement to the gradient floor (several chunks: the 2n = 2 case below)."""
     d = small_pendulum_data
     model = SymplecticKernelPredictor(IMQ(0.15), mu_kernel=IMQ(2.0), dt_kernel=IMQ(5.0), max_centers=600, tol=1e-10,
                                       backend="numpy", update="midpoint").fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
-    assert np.diff(model.surrogate_.layout().seg).max() > _fastkernels.chunk_size(2)
     x, mu, dt = _queries(rng, 20)
     ref = model.rollout(x, 20, mu=mu, dt=dt)
     fast = _with_backend(model, "numba").rollout(x, 20, mu=mu, dt=dt)
