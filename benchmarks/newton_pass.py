@@ -53,6 +53,7 @@ from pymor.core.logger import set_log_levels  # noqa: E402
 from threadpoolctl import threadpool_limits  # noqa: E402
 
 from sympredict import _fastkernels  # noqa: E402
+from sympredict.io import load_model, save_model  # noqa: E402
 from sympredict.kernels import IMQ  # noqa: E402
 
 
@@ -84,25 +85,43 @@ def factor_chunk_seconds(samples: int) -> float:
     return _fastkernels.factor_throughput(n=1 << 19, eps=0.15, repeats=samples, in_cache=True)
 
 
-def measure(module, sur, x0, w, dt, *, steps: int, samples: int, repeats: int, warm: bool) -> dict:
-    layout = module.CenterLayout(sur.centers_xi, sur.components)
+def measure(modules: dict, sur, x0, w, dt, *, steps: int, samples: int, repeats: int) -> dict:
+    """Every (implementation, start) side by side: the samples alternate between them, each keeps its minimum."""
     kernel = sur.kernel.state
-    kw = {"warm_start": True} if warm else {}
+    cases = {}
+    for label, module in modules.items():
+        layout = module.CenterLayout(sur.centers_xi, sur.components)
+        for start in ("cold", "warm"):
+            if start == "warm" and "warm_start" not in module.newton_rollout.__code__.co_varnames:
+                continue
+            kw = {"warm_start": True} if start == "warm" else {}
+            cases[label, start] = (module, layout, kw)
     sub = slice(0, 10)
-    stats = {}
-    module.newton_rollout(x0[sub], w[sub], dt[sub], layout, kernel, 50, steps, parallel=False, stats=stats, **kw)
-    passes = float(stats["passes"].sum())
-    t1 = tmin(lambda: module.newton_rollout(x0[sub], w[sub], dt[sub], layout, kernel, 50, steps, parallel=False, **kw),
-              samples)
-    stats = {}
-    module.newton_rollout(x0, w, dt, layout, kernel, 50, steps, stats=stats, **kw)
-    tb = tmin(lambda: module.newton_rollout(x0, w, dt, layout, kernel, 50, steps, **kw), repeats)
-    return {
-        "passes_per_step": passes / (10 * steps),
-        "passes_per_step_batch": float(stats["passes"].sum()) / (len(x0) * steps),
-        "ns_per_centre_visit_1_thread": 1e9 * t1 / (passes * sur.n_centers),
-        "traj_steps_per_s": len(x0) * steps / tb,
-    }
+    out = {}
+    for key, (module, layout, kw) in cases.items():
+        stats, stats_b = {}, {}
+        module.newton_rollout(x0[sub], w[sub], dt[sub], layout, kernel, 50, steps, parallel=False, stats=stats, **kw)
+        module.newton_rollout(x0, w, dt, layout, kernel, 50, steps, stats=stats_b, **kw)
+        out[key] = {"passes": float(stats["passes"].sum()), "t1": np.inf, "tb": np.inf,
+                    "passes_per_step_batch": float(stats_b["passes"].sum()) / (len(x0) * steps)}
+    for i in range(samples):
+        for key, (module, layout, kw) in cases.items():
+            t0 = time.perf_counter()
+            module.newton_rollout(x0[sub], w[sub], dt[sub], layout, kernel, 50, steps, parallel=False, **kw)
+            out[key]["t1"] = min(out[key]["t1"], time.perf_counter() - t0)
+            if i < repeats:
+                t0 = time.perf_counter()
+                module.newton_rollout(x0, w, dt, layout, kernel, 50, steps, **kw)
+                out[key]["tb"] = min(out[key]["tb"], time.perf_counter() - t0)
+    results = {}
+    for (label, start), o in out.items():
+        results.setdefault(label, {})[start] = {
+            "passes_per_step": o["passes"] / (10 * steps),
+            "passes_per_step_batch": o["passes_per_step_batch"],
+            "ns_per_centre_visit_1_thread": 1e9 * o["t1"] / (o["passes"] * sur.n_centers),
+            "traj_steps_per_s": len(x0) * steps / o["tb"],
+        }
+    return results
 
 
 def main(argv=None) -> dict:
@@ -112,8 +131,9 @@ def main(argv=None) -> dict:
     parser.add_argument("--batch", type=int, default=1000)
     parser.add_argument("--steps", type=int, default=20)
     parser.add_argument("--samples", type=int, default=60, help="short runs per single-thread timing (minimum taken)")
-    parser.add_argument("--repeats", type=int, default=7, help="full-batch runs (best taken)")
+    parser.add_argument("--repeats", type=int, default=10, help="full-batch runs (best taken)")
     parser.add_argument("--json", default=None)
+    parser.add_argument("--model", default=None, help="model file: loaded if it exists, else the fitted model is saved there")
     args = parser.parse_args(argv)
     set_log_levels({"sympredict": "WARNING", "pymor": "WARN"})
     import suite  # the suite's model and inputs
@@ -121,25 +141,25 @@ def main(argv=None) -> dict:
     _fastkernels.set_num_threads(min(args.threads, os.cpu_count()))
     with threadpool_limits(1), tempfile.TemporaryDirectory() as tmp:
         print("pendulum model (quick data, 1500 centres) ...", flush=True)
-        model, _ = suite.pendulum_model()
+        if args.model and Path(args.model).exists():
+            model = load_model(args.model)
+        else:
+            model, _ = suite.pendulum_model()
+            if args.model:
+                save_model(model, args.model)
         sur = model.surrogate_
         x0, mu, dt = suite._rollout_inputs(args.batch)
         w = sur.weights(mu[:, None], dt)
         modules = {"this tree": _fastkernels}
         if args.against:
             modules[args.against] = load_revision(args.against, Path(tmp))
-        results = {}
         for label, module in modules.items():  # compile and warm up
             module.newton_rollout(x0[:16], w[:16], dt[:16], module.CenterLayout(sur.centers_xi, sur.components),
                                   sur.kernel.state, 50, 2)
-            results[label] = {}
+        results = measure(modules, sur, x0, w, dt, steps=args.steps, samples=args.samples, repeats=args.repeats)
+        factor = 1e9 * factor_chunk_seconds(args.samples)  # one probe (this tree's) for both
         for label, module in modules.items():
-            for start in ("cold", "warm"):
-                if start == "warm" and "warm_start" not in module.newton_rollout.__code__.co_varnames:
-                    continue
-                results[label][start] = measure(module, sur, x0, w, dt, steps=args.steps, samples=args.samples,
-                                                repeats=args.repeats, warm=start == "warm")
-            results[label]["factor_ns_l1"] = 1e9 * factor_chunk_seconds(args.samples)
+            results[label]["factor_ns_l1"] = factor
             results[label]["factor_ns_1M_median"] = 1e9 * module.factor_throughput()
     lines = [f"{model.n_centers_} centres, batch {args.batch}, {args.steps} steps; {args.threads} numba thread(s) for the "
              f"batch, 1 for the pass", "",
