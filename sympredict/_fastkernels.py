@@ -225,8 +225,29 @@ def _build(cache: bool):  # noqa: C901 - the compiled definitions
                 row = dif[a]
                 for j in range(L):
                     tmp[j] = uC[j] * row[j]
-                for c in range(cs, dim):
-                    hess[a, c - c0] -= _dot(tmp, dif[c], L)
+                c = cs
+                while c + 4 <= dim:  # four columns per sweep: each load of tmp feeds four products
+                    d0 = dif[c]
+                    d1 = dif[c + 1]
+                    d2 = dif[c + 2]
+                    d3 = dif[c + 3]
+                    s0 = 0.0
+                    s1 = 0.0
+                    s2 = 0.0
+                    s3 = 0.0
+                    for j in range(L):
+                        t = tmp[j]
+                        s0 += t * d0[j]
+                        s1 += t * d1[j]
+                        s2 += t * d2[j]
+                        s3 += t * d3[j]
+                    hess[a, c - c0] -= s0
+                    hess[a, c + 1 - c0] -= s1
+                    hess[a, c + 2 - c0] -= s2
+                    hess[a, c + 3 - c0] -= s3
+                    c += 4
+                for cc in range(c, dim):
+                    hess[a, cc - c0] -= _dot(tmp, dif[cc], L)
         # M_ac + M_ca, M_ac = sum_j w_j B_j d_ja [l = c]: column l (rows a <= l) and row l (columns c >= l)
         if l >= c0:
             for a in range(min(r1, l + 1)):
