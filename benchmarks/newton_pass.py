@@ -124,6 +124,42 @@ def measure(modules: dict, sur, x0, w, dt, *, steps: int, samples: int, repeats:
     return results
 
 
+def pass_vs_dim(modules: dict, dims, samples: int, m: int = 1500, points: int = 100) -> dict:
+    """ns per centre of one pass (gradient; + Hessian block; + full Hessian) on synthetic surrogates, by 2n.
+
+    Random centres in [-1, 1]^2n with random components, IMQ(0.5); ``points`` query points per sample,
+    the minimum over ``samples``, implementations alternating.  Revisions without the full Hessian report
+    the block only.
+    """
+    from sympredict.surrogate import HBSurrogate
+    from sympredict.kernels import ProductKernel
+
+    out = {}
+    for dim in dims:
+        rng = np.random.default_rng(dim)
+        sur = HBSurrogate(ProductKernel(IMQ(0.5), IMQ(1.0), None), rng.uniform(-1, 1, (m, dim)), rng.uniform(0, 1, (m, 1)),
+                          np.ones(m), rng.integers(0, dim, m), 1e-2 * rng.standard_normal(m))
+        xi = rng.uniform(-1, 1, (points, dim))
+        w = np.ascontiguousarray(np.repeat(sur.weights(np.full((1, 1), 0.5), np.ones(1)), points, axis=0))
+        runs = {}
+        for label, module in modules.items():
+            layout = module.CenterLayout(sur.centers_xi, sur.components)
+            full = "full" in module.newton_terms.__code__.co_varnames
+            runs[label, "block"] = (lambda mod=module, lay=layout: mod.newton_terms(xi, w, lay, IMQ(0.5)))
+            if full:
+                runs[label, "full"] = (lambda mod=module, lay=layout: mod.newton_terms(xi, w, lay, IMQ(0.5), full=True))
+        best = {k: np.inf for k in runs}
+        for fn in runs.values():
+            fn()
+        for _ in range(samples):
+            for k, fn in runs.items():
+                t0 = time.perf_counter()
+                fn()
+                best[k] = min(best[k], time.perf_counter() - t0)
+        out[dim] = {f"{label} {what}": 1e9 * t / (points * m) for (label, what), t in best.items()}
+    return out
+
+
 def main(argv=None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--against", default=None, help="git revision to compare with (its _fastkernels.py)")
@@ -133,6 +169,7 @@ def main(argv=None) -> dict:
     parser.add_argument("--samples", type=int, default=60, help="short runs per single-thread timing (minimum taken)")
     parser.add_argument("--repeats", type=int, default=10, help="full-batch runs (best taken)")
     parser.add_argument("--json", default=None)
+    parser.add_argument("--dims", default="", help="also the pass cost by 2n on synthetic surrogates, e.g. 2,4,10,20,40")
     parser.add_argument("--model", default=None, help="model file: loaded if it exists, else the fitted model is saved there")
     args = parser.parse_args(argv)
     set_log_levels({"sympredict": "WARNING", "pymor": "WARN"})
@@ -157,6 +194,7 @@ def main(argv=None) -> dict:
             module.newton_rollout(x0[:16], w[:16], dt[:16], module.CenterLayout(sur.centers_xi, sur.components),
                                   sur.kernel.state, 50, 2)
         results = measure(modules, sur, x0, w, dt, steps=args.steps, samples=args.samples, repeats=args.repeats)
+        by_dim = pass_vs_dim(modules, [int(d) for d in args.dims.split(",")], max(5, args.samples // 6)) if args.dims else None
         factor = 1e9 * factor_chunk_seconds(args.samples)  # one probe (this tree's) for both
         for label, module in modules.items():
             results[label]["factor_ns_l1"] = factor
@@ -174,8 +212,15 @@ def main(argv=None) -> dict:
             lines.append(f"| {label} | {start} | {m['passes_per_step']:.2f} | {m['ns_per_centre_visit_1_thread']:.2f} | "
                          f"{r['factor_ns_l1']:.2f} / {r['factor_ns_1M_median']:.2f} | {m['ratio']:.2f} | "
                          f"{m['traj_steps_per_s']:,.0f} |")
-    print("\n".join(lines))
     out = {"args": vars(args), "results": results}
+    if by_dim:
+        out["pass_vs_dim"] = by_dim
+        keys = list(next(iter(by_dim.values())))
+        lines += ["", "ns per centre of one pass, 1,500 random centres, 1 thread:", "",
+                  "| 2n | " + " | ".join(keys) + " |", "|---|" + "---|" * len(keys)]
+        for dim, r in by_dim.items():
+            lines.append(f"| {dim} | " + " | ".join(f"{r[k]:.2f}" for k in keys) + " |")
+    print("\n".join(lines))
     if args.json:
         Path(args.json).write_text(json.dumps(out, indent=1, default=float))
     return out

@@ -2,18 +2,24 @@
 
 The implicit symplectic-Euler step solves, per instance,
 ``F(p) = p - p0 + dT d_q s(q0, p) = 0`` by Newton with Jacobian
-``I + dT d_p d_q s``.  The NumPy path (:func:`sympredict.newton.solve_step_numpy`,
-``backend='numpy'``) is the reference; the functions here compute the same
-iteration, instance by instance, in compiled code:
+``I + dT d_p d_q s``; the symmetric (midpoint) update solves
+``F(z) = z - x0 - dT/2 J grad s(z) = 0`` for the midpoint ``z`` with Jacobian
+``I - dT/2 J Hess s(z)``.  The NumPy paths (:func:`sympredict.newton.solve_step_numpy`,
+:func:`sympredict.newton.solve_midpoint_numpy`, ``backend='numpy'``) are the
+references; the functions here compute the same iterations, instance by
+instance, in compiled code (one solver, the update a flag):
 
 * one fused pass over the ``m`` centres per Newton iteration computes the
-  gradient of ``s`` (all ``2n`` components), the ``n x n`` block
-  ``d_p d_q s`` of its Hessian that the Jacobian needs, and the round-off
-  floor of the gradient (no ``(B, m, (2n)^2)`` or even ``(B, m, 2n)``
-  temporaries: ``O((2n + 5) * CHUNK)`` scratch per thread; the centres are
-  grouped by differentiated component, :class:`CenterLayout`, and visited in
-  chunks that stay in L1, each sum a reduction with four fixed partial sums so
-  that results are bit-reproducible);
+  gradient of ``s`` (all ``2n`` components), the part of its Hessian the
+  Jacobian needs (the ``n x n`` block ``d_p d_q s``, or for the midpoint update
+  the upper triangle of the full ``2n x 2n`` Hessian) and the round-off floor of
+  the gradient (no ``(B, m, (2n)^2)`` or even ``(B, m, 2n)`` temporaries:
+  ``O((2n + 6) * chunk)`` scratch per thread, the chunk sized by
+  :func:`chunk_size` to stay in L1; the centres are grouped by differentiated
+  component, :class:`CenterLayout`).  The reductions over a chunk may be
+  reassociated so that they vectorise; their order then depends only on the
+  chunk's length, so results stay bit-reproducible run to run, across batch
+  sizes and threads (tested);
 * every instance iterates only until it has converged, with the stopping rule
   of the reference (:mod:`sympredict.newton_rule`: the same function);
 * a whole rollout of ``K`` steps runs in one call, instances in parallel
