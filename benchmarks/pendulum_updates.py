@@ -4,14 +4,19 @@ Both trained on the quick data (50 x 50 energy-bounded grid, 5 lengths x 3 steps
 IMQ (0.2, 1.5, 3.0), 1500 centres; the paper's test protocol on test seed 0
 (5 q0 x 5 lengths, T = 20), median over time of the instance-mean relative
 error per test step, and the max relative energy error.  NumPy Newton solver
-for both (the midpoint update has no compiled solver yet).  ``--scalings``
+for both (the reference; the compiled solvers agree to round-off, tests/test_midpoint_compiled.py).  ``--scalings``
 adds symplectic-Euler models with ``state_scaling=(a,)``.
 
-Run:  python benchmarks/pendulum_updates.py [--scalings 0.5 2] [--json out.json]
+``--updates midpoint --compare-backends`` also rolls every test case out on the
+compiled solver and reports the largest difference and both rollout times.
+
+Run:  python benchmarks/pendulum_updates.py [--scalings 0.5 2] [--updates midpoint] [--compare-backends] [--json out.json]
 """
 
 import argparse
+import copy
 import json
+import time
 
 import numpy as np
 from threadpoolctl import threadpool_limits
@@ -26,13 +31,15 @@ parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
 parser.add_argument("--scalings", type=float, nargs="*", default=[])
 parser.add_argument("--max-centers", type=int, default=1500)
 parser.add_argument("--json", default=None)
+parser.add_argument("--updates", nargs="*", default=["symplectic_euler", "midpoint"])
+parser.add_argument("--compare-backends", action="store_true", help="also the compiled solver: max difference, times")
 args = parser.parse_args()
 
 with threadpool_limits(1):
     system = Pendulum()
     data = flow_map_data(system, n_grid=50)
     x0, lengths = paper_test_instances(0)
-    configs = [("symplectic_euler", None), ("midpoint", None)] + [("symplectic_euler", (a,)) for a in args.scalings]
+    configs = [(u, None) for u in args.updates] + [("symplectic_euler", (a,)) for a in args.scalings]
     rows = []
     for update, scaling in configs:
         model = SymplecticKernelPredictor(IMQ(0.2), IMQ(1.5), IMQ(3.0), max_centers=args.max_centers, tol=1e-10,
@@ -43,10 +50,25 @@ with threadpool_limits(1):
         for dt in DT_TEST:
             n_steps = int(np.floor(20.0 / dt + 1e-9))
             ref = system.trajectory(x0, lengths, dt, n_steps)
+            t0 = time.perf_counter()
             pred = model.rollout(x0, n_steps, mu=lengths, dt=dt)
+            t_numpy = time.perf_counter() - t0
             err = relative_trajectory_error(pred, ref).mean(axis=0)
             energy = relative_hamiltonian_error(system, pred, lengths[:, None]).max()
             row["per_dt"][dt] = {"median_err": float(np.median(err[1:])), "max_energy_err": float(energy)}
+            if args.compare_backends:
+                fast = copy.copy(model).set_params(backend="numba")
+                fast.rollout(x0, 2, mu=lengths, dt=dt)  # compile (the batch path)
+                t0 = time.perf_counter()
+                pred_fast = fast.rollout(x0, n_steps, mu=lengths, dt=dt)
+                t_fast = time.perf_counter() - t0
+                err_fast = relative_trajectory_error(pred_fast, ref).mean(axis=0)
+                row["per_dt"][dt].update({"numba_median_err": float(np.median(err_fast[1:])),
+                                          "max_abs_numba_minus_numpy": float(np.abs(pred_fast - pred).max()),
+                                          "rollout_s_numpy": t_numpy, "rollout_s_numba": t_fast})
+                print(f"  dT={dt}: numba median error {np.median(err_fast[1:]):.3e}, max |numba - numpy| "
+                      f"{np.abs(pred_fast - pred).max():.1e}, rollout {t_numpy:.2f} s (NumPy) / {t_fast:.3f} s (numba)",
+                      flush=True)
         rows.append(row)
         print(f"{update:17s} scaling={scaling}: {model.n_centers_} centres, E_train {row['E_train']:.2e}; "
               + "  ".join(f"dT={dt}: {v['median_err']:.2e} (energy {v['max_energy_err']:.1e})" for dt, v in row["per_dt"].items()),

@@ -1,4 +1,4 @@
-"""Newton solvers of the implicit symplectic-Euler step: the NumPy reference and the compiled rollout.
+"""Newton solvers of the implicit steps (symplectic Euler, midpoint): the NumPy references and the compiled rollout.
 
 Per instance, ``F(p1) = p1 - p0 + dT d_q s(q0, p1) = 0`` with Jacobian
 ``I + dT d_p d_q s``; then ``q1 = q0 + dT d_p s(q0, p1)``.  Both solvers start
@@ -202,18 +202,21 @@ def rollout_numpy(advance, x: np.ndarray, n_steps: int) -> np.ndarray:
 
 
 def rollout_compiled(sur: HBSurrogate, x, weights, dt, n_steps: int, max_iter: int, step_index: bool = True,
-                     warm_start: bool = False):
+                     warm_start: bool = False, update: str = "symplectic_euler"):
     """``n_steps`` steps in compiled code (:func:`sympredict._fastkernels.newton_rollout`); failures raise as the NumPy path's.
 
     ``warm_start``: Newton starts from the previous step's increment (from the second step on).
+    ``update``: ``'symplectic_euler'`` (as :func:`solve_step_numpy`) or ``'midpoint'``
+    (as :func:`solve_midpoint_numpy`).
 
     Returns
     -------
     ndarray of shape (B, K+1, 2n)
     """
     traj, codes, fail_step, fail_iter, resid = _fastkernels.newton_rollout(
-        x, weights, dt, sur.layout(), sur.kernel.state, max_iter, n_steps, warm_start=warm_start
+        x, weights, dt, sur.layout(), sur.kernel.state, max_iter, n_steps, warm_start=warm_start, update=update
     )
+    reasons = MIDPOINT_FAILURE_REASONS if update == "midpoint" else FAILURE_REASONS
     failed = codes != 0
     if np.any(failed):
         k = fail_step[failed].min()
@@ -222,6 +225,6 @@ def rollout_compiled(sur: HBSurrogate, x, weights, dt, n_steps: int, max_iter: i
         for code in (1, 2, 3):
             hit = sel & (codes == code)
             if np.any(hit):
-                err = NewtonConvergenceError(np.flatnonzero(hit), resid[hit], reason=FAILURE_REASONS[code].format(max_iter=max_iter))
+                err = NewtonConvergenceError(np.flatnonzero(hit), resid[hit], reason=reasons[code].format(max_iter=max_iter))
                 raise (err.at_step(int(k)) if step_index else err)
     return traj

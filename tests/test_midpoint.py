@@ -57,7 +57,8 @@ def test_type_ii_form_fails_at_a_quarter_turn():
 def pendulum_midpoint(small_pendulum_data):
     d = small_pendulum_data
     idx = np.random.default_rng(0).choice(len(d), 1500, replace=False)
-    model = SymplecticKernelPredictor(IMQ(0.2), IMQ(1.5), IMQ(3.0), max_centers=400, update="midpoint")
+    # the NumPy reference solver (the compiled one is checked against it in test_midpoint_compiled.py)
+    model = SymplecticKernelPredictor(IMQ(0.2), IMQ(1.5), IMQ(3.0), max_centers=400, update="midpoint", backend="numpy")
     return model.fit(d.x0[idx], d.x1[idx], mu=d.mu[idx], dt=d.dt[idx]), d
 
 
@@ -102,6 +103,6 @@ def test_accuracy_on_the_pendulum_and_settings(pendulum_midpoint, pendulum, tmp_
     loaded = load_model(tmp_path / "mid.h5")
     assert loaded.update == "midpoint"
     np.testing.assert_array_equal(loaded.rollout(x, 5, mu=mu, dt=dt), model.rollout(x, 5, mu=mu, dt=dt))
-    for kw, match in [({"update": "leapfrog"}, "update must be"), ({"update": "midpoint", "backend": "numba"}, "compiled")]:
-        with pytest.raises(ValueError, match=match):
-            SymplecticKernelPredictor(IMQ(0.2), IMQ(1.5), IMQ(3.0), **kw).fit(d.x0[:50], d.x1[:50], mu=d.mu[:50], dt=d.dt[:50])
+    with pytest.raises(ValueError, match="update must be"):
+        SymplecticKernelPredictor(IMQ(0.2), IMQ(1.5), IMQ(3.0), update="leapfrog").fit(d.x0[:50], d.x1[:50], mu=d.mu[:50],
+                                                                                       dt=d.dt[:50])
