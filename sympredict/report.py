@@ -529,6 +529,12 @@ def sine_gordon_claims(s: dict) -> list[dict]:
     else:
         out.append({"claim": f"sine-Gordon: kernel ROM >= 10x cheaper than the Galerkin ROM at N = {big} for the smallest model "
                              "meeting the 2x condition", "holds": False, "evidence": "no 2n met the 2x condition"})
+    flat = s.get("break_even", {})
+    out.append({"claim": "sine-Gordon: kernel ROM online cost (reduced coordinates) flat in N: <= 1.2x from the smallest "
+                         "to the largest N, each N with its own ROM", "holds": bool(flat) and all(
+                             b["flat_ratio"] is not None and b["flat_ratio"] <= 1.2 for b in flat.values()),
+                "evidence": "; ".join(f"2n={d}: " + ("failed" if b["flat_ratio"] is None else f"ratio {b['flat_ratio']:.2f}")
+                                      for d, b in flat.items()) or "not measured"})
     # the DEIM ROM on the same footing: where it is as accurate and faster, say so
     ev, faster = [], []
     for d in dims:
@@ -569,13 +575,30 @@ def sine_gordon_markdown(s: dict) -> list[str]:
                      f"{kr['energy_error_long'] if kr['energy_error_long'] is None else format(kr['energy_error_long'], '.1e')} |")
     lines += ["", "Errors: median over the test parameters of the mean over time of |V y(t) - x(t)| / |x(t)|. "
               "The DEIM ROM is not Hamiltonian (its reduced Jacobian is not symmetric), so it is not symplectic.", "",
-              "| N | 2n | Galerkin RK4, r sub-steps [ms] | Galerkin RK4 at DT [ms] | DEIM RK4 [ms] | kernel [ms] | reconstruction V y [ms] |",
-              "|---|---|---|---|---|---|---|"]
+              "| N | 2n | Galerkin RK4, r sub-steps [ms] | Galerkin RK4 at DT [ms] | Galerkin IM [ms] | DEIM RK4 [ms] | "
+              "kernel, Galerkin data [ms] | kernel, FOM data [ms] | reconstruction V y [ms] | errors Galerkin / DEIM / kernel / kernel FOM data |",
+              "|---|---|---|---|---|---|---|---|---|---|"]
+
+    def ms(v):
+        return "failed" if v is None else f"{v * 1e3:.2f}"
+
+    def e(v):
+        return "-" if v is None else f"{v:.2e}"
+
     for row in s["cost_vs_N"]:
-        k = row["kernel"]
-        lines.append(f"| {row['N']} | {row['dim']} | {row['galerkin_rk4'] * 1e3:.2f} | {row['galerkin_rk4_at_DT'] * 1e3:.2f} | "
-                     f"{row['deim_rk4'] * 1e3:.2f} | "
-                     f"{'-' if k is None else format(k * 1e3, '.2f')} | {row['reconstruction'] * 1e3:.3f} |")
-    lines += ["", "Kernel and DEIM costs in reduced coordinates do not depend on N (the same computation for every N; "
-              "timed once); the Galerkin ROM's cost is timed per N with a random orthosymplectic basis of that size."]
+        lines.append(f"| {row['N']} | {row['dim']} | {ms(row['galerkin_rk4'])} | {ms(row['galerkin_rk4_at_DT'])} | "
+                     f"{ms(row.get('galerkin_im'))} | {ms(row['deim_rk4'])} | {ms(row['kernel'])} | {ms(row['kernel_projected'])} | "
+                     f"{row['reconstruction'] * 1e3:.3f} | {e(row.get('galerkin_error'))} / {e(row.get('deim_error'))} / "
+                     f"{e(row.get('kernel_error'))} / {e(row.get('kernel_projected_error'))} |")
+    lines += ["", "Every ROM is built again at each N (basis from the N = n_points FOM trajectories interpolated onto that grid, "
+              "Galerkin, DEIM, both kernel ROMs fitted there) and timed there; errors against the interpolated FOM test "
+              "trajectories (median over the test parameters)."]
+    for dim, b in s.get("break_even", {}).items():
+        if b["flat_ratio"] is None:
+            lines.append(f"- 2n={dim}: kernel ROM failed at some N, no break-even")
+            continue
+        lines.append(f"- 2n={dim}: kernel cost ratio N = {b['N'][-1]:.0f} / N = {b['N'][0]:.0f}: {b['flat_ratio']:.2f}; "
+                     f"break-even N against the Galerkin ROM ({b['galerkin_variant']}, fitted a + b N): "
+                     f"{'-' if b['N_star'] is None else format(b['N_star'], '.0f')}; speed-up at N = {b['N'][-1]:.0f}: "
+                     f"{b['speedup_at_largest_N']:.1f}x")
     return lines

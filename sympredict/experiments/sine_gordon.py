@@ -17,10 +17,11 @@
   midpoint on the Galerkin ROM at the same ``DT`` (one step per output);
 * online wall times per trajectory (medians of ``repeats``, same process,
   BLAS on one thread): kernel rollout, Galerkin and DEIM ROMs at their
-  accurate step, FOM; the Galerkin ROM's cost for each ``N`` of ``cost_N``
-  (its arithmetic does not depend on the basis, so a random orthosymplectic
-  basis of that size is timed), the kernel's reduced cost (independent of ``N``)
-  and the reconstruction ``V y`` per ``N`` separately.
+  accurate step, FOM; and the cost against ``N`` (:func:`_cost_vs_N`): for
+  each ``N`` of ``cost_N`` every ROM is built again at that ``N`` (basis,
+  Galerkin, DEIM, both kernel ROMs) and timed, the reconstruction ``V y``
+  separately; :func:`break_even` gives the kernel's flatness in ``N`` and the
+  break-even ``N`` against the compiled Galerkin ROM per ``2n``.
 
 The learned ROMs use the estimator directly: ``sympredict.mor.SymplecticKernelReductor``
 takes a ``QuadraticHamiltonianModel`` FOM only (see the issue-15 report).
@@ -34,12 +35,14 @@ from dataclasses import asdict, dataclass, field, replace
 import numpy as np
 from pymor.core.logger import getLogger
 
+from sympredict.data import FlowMapData
 from sympredict.kernels import IMQ
 from sympredict.metrics import canonical_J, relative_trajectory_error
 from sympredict.nonlinear_mor import ReducedSineGordon, nonlinear_snapshots
 from sympredict.predictor import SymplecticKernelPredictor
 from sympredict.reduction import complex_svd_basis, symplecticity_of_basis
 from sympredict.scaling import BoxScaling, NormalizedFlowMap, SymplecticScaling
+from sympredict.selection import select_regularization
 from sympredict.systems.sine_gordon import SineGordonFOM
 
 __all__ = ["SineGordonPreset", "PRESETS", "run_sine_gordon"]
@@ -68,6 +71,9 @@ class SineGordonPreset:
     state_eps: float = None  # None: IMQ(1 / diameter of the training xi), the estimator's default
     mu_eps: float = 1.0  # on c scaled to [0, 1]
     state_scaling: str = "diag"
+    #: ridge terms tried on held-out training trajectories (plus 0, the exact fit); () for the exact fit only
+    regularizations: tuple = (1e-8, 1e-6, 1e-4)
+    validation_every: int = 4
     ref_tol: float = 1e-7
     cost_N: tuple = (1000, 4000, 16000)
     repeats: int = 5
@@ -83,18 +89,14 @@ PRESETS = {
 
 
 def _median_time(fn, repeats):
+    """Median wall time of ``repeats`` calls after one untimed call (compilation, caches: the same for every method)."""
+    fn()
     times = []
     for _ in range(repeats):
         t = time.perf_counter()
         fn()
         times.append(time.perf_counter() - t)
     return float(np.median(times))
-
-
-def _random_orthosymplectic(N, n, rng):
-    A = rng.normal(size=(N, n)) + 1j * rng.normal(size=(N, n))
-    U, _ = np.linalg.qr(A)
-    return np.block([[U.real, -U.imag], [U.imag, U.real]])
 
 
 def run_sine_gordon(preset: SineGordonPreset = PRESETS["quick"], **overrides) -> dict:
@@ -124,7 +126,8 @@ def run_sine_gordon(preset: SineGordonPreset = PRESETS["quick"], **overrides) ->
         snaps = X_tr.reshape(-1, fom.dim)
         for dim in p.dims:
             out["dims"][dim] = _one_dimension(fom, p, dim // 2, snaps, X_tr, c_tr, a_tr, X_te, c_te, a_te, K)
-        out["cost_vs_N"] = _cost_vs_N(fom, p, rng, out)
+        out["cost_vs_N"] = _cost_vs_N(fom, p, out, X_tr, c_tr, x_te, c_te)
+        out["break_even"] = break_even(out["cost_vs_N"], {d: r["DT_omega_max"] for d, r in out["dims"].items()})
     return out
 
 
@@ -183,21 +186,9 @@ def _one_dimension(fom, p, n, snaps, X_tr, c_tr, a_tr, X_te, c_te, a_te, K):
     Yg_tr = gal.solve(gal.project(X_tr[:, 0]), c_tr, p.DT, K, substeps=p.substeps)
     Yp_tr = gal.project(X_tr)
     for data, Ytr in (("reduced", Yg_tr), ("projected", Yp_tr)):
-        x0 = Ytr[:, :-1].reshape(-1, gal.dim)
-        x1 = Ytr[:, 1:].reshape(-1, gal.dim)
-        mu = np.repeat(c_tr, K)[:, None]
-        # scaled coordinates (sympredict.scaling, as the reductor does): conformally symplectic state map, c onto
-        # [0, 1], time unit DT; the learned step stays symplectic in the original coordinates
-        st = SymplecticScaling(p.state_scaling).fit(np.concatenate([x0, x1]))
-        ms = BoxScaling().fit(mu, np.array([p.c_range[0]]), np.array([p.c_range[1]]))
-        model = SymplecticKernelPredictor(None if p.state_eps is None else IMQ(p.state_eps), mu_kernel=IMQ(p.mu_eps),
-                                          max_centers=p.max_centers, tol=1e-9)
-        t0 = time.perf_counter()
-        model.fit(st.transform(x0), st.transform(x1), mu=ms.transform(mu), dt=1.0)
-        fit_time = time.perf_counter() - t0
-        flow = NormalizedFlowMap(model, st, ms, p.DT)
+        flow, model, fit_time, reg = _fit_kernel(p, Ytr, c_tr, K)
         hist = model.history_.train_max_residual
-        entry = {"fit_time": fit_time, "centers": int(model.surrogate_.n_centers),
+        entry = {"fit_time": fit_time, "regularization": reg, "centers": int(model.surrogate_.n_centers),
                  "train_residual": [float(v) for v in hist], "error": None, "energy_error_long": None,
                  "time_per_trajectory": None, "failure": None}
         try:
@@ -223,6 +214,41 @@ def _one_dimension(fom, p, n, snaps, X_tr, c_tr, a_tr, X_te, c_te, a_te, K):
     res["deim_rk4_time_per_trajectory"] = _median_time(
         lambda: deim.solve(y0[:1], c_te[:1], p.DT, K, scheme="rk4", substeps=p.substeps), p.repeats)
     return res
+
+
+def _fit_kernel(p, Ytr, c_tr, K, regularization=None):
+    """A kernel flow map at the macro step ``DT`` from reduced trajectories (P, K+1, 2n) at wave speeds ``c_tr``.
+
+    Scaled coordinates (:mod:`sympredict.scaling`, as the reductor does): conformally symplectic state map, ``c``
+    onto ``[0, 1]``, time unit ``DT``; the learned step stays symplectic in the original coordinates.  With
+    ``p.regularizations``, the ridge term is chosen by :func:`~sympredict.selection.select_regularization` on
+    the training trajectories ``1, 1 + validation_every, ...`` held out (training data only: never the test
+    parameters), then the model is refitted on all trajectories with it; a given ``regularization`` skips the choice.
+    Returns the flow map (original coordinates), the fitted predictor, the fit's wall time (selection
+    included) and the chosen ridge term.
+    """
+    P, dim = Ytr.shape[0], Ytr.shape[-1]
+    x0 = Ytr[:, :-1].reshape(-1, dim)
+    x1 = Ytr[:, 1:].reshape(-1, dim)
+    mu = np.repeat(c_tr, K)[:, None]
+    st = SymplecticScaling(p.state_scaling).fit(np.concatenate([x0, x1]))
+    ms = BoxScaling().fit(mu, np.array([p.c_range[0]]), np.array([p.c_range[1]]))
+    x0s, x1s, mus = st.transform(x0), st.transform(x1), ms.transform(mu)
+    model = SymplecticKernelPredictor(None if p.state_eps is None else IMQ(p.state_eps), mu_kernel=IMQ(p.mu_eps),
+                                      max_centers=p.max_centers, tol=1e-9)
+    t0 = time.perf_counter()
+    reg = 0.0 if regularization is None else float(regularization)
+    if regularization is None and p.regularizations and P > 2:
+        held = np.zeros(P, dtype=bool)
+        held[1::p.validation_every] = True
+        rows = np.repeat(held, K)
+        choice = select_regularization(FlowMapData(x0s[~rows], x1s[~rows], mus[~rows], np.ones((~rows).sum())),
+                                       FlowMapData(x0s[rows], x1s[rows], mus[rows], np.ones(rows.sum())),
+                                       p.regularizations, model)
+        reg = choice.regularization
+    model.set_params(regularization=reg)
+    model.fit(x0s, x1s, mu=mus, dt=1.0)
+    return NormalizedFlowMap(model, st, ms, p.DT), model, time.perf_counter() - t0, reg
 
 
 def _data_driven(fom, p, Yp_tr, c_tr, a_tr, c_te, a_te, gal, x_te, K, curves):
@@ -252,25 +278,117 @@ def _jg(rom, y, c):
     return canonical_J(rom.dim) @ rom.jacobian(y, c)
 
 
-def _cost_vs_N(fom, p, rng, out):
-    """Galerkin RK4 cost per trajectory and reconstruction cost for each N (random orthosymplectic bases)."""
+def _interpolation_matrix(x_from, x_to, length):
+    """Linear interpolation between Dirichlet grids (zero at ``0`` and ``L``), sparse (len(x_to), len(x_from))."""
+    import scipy.sparse as sps
+
+    xf = np.concatenate([[0.0], x_from, [length]])
+    j = np.clip(np.searchsorted(xf, x_to, side="right") - 1, 0, len(xf) - 2)
+    w = (x_to - xf[j]) / (xf[j + 1] - xf[j])
+    rows = np.concatenate([np.arange(len(x_to))] * 2)
+    cols = np.concatenate([j, j + 1]) - 1  # the boundary nodes (columns -1 and len(x_from)) carry zeros
+    vals = np.concatenate([1.0 - w, w])
+    keep = (cols >= 0) & (cols < len(x_from))
+    return sps.csr_matrix((vals[keep], (rows[keep], cols[keep])), shape=(len(x_to), len(x_from)))
+
+
+def _to_grid(X, M):
+    """States (..., 2N0) interpolated onto another grid by ``M`` (N, N0), (q, p) separately -> (..., 2N)."""
+    n0 = M.shape[1]
+    flat = X.reshape(-1, 2 * n0)
+    return np.hstack([(M @ flat[:, :n0].T).T, (M @ flat[:, n0:].T).T]).reshape(*X.shape[:-1], 2 * M.shape[0])
+
+
+def _truncate(V, n):
+    """The first ``n`` complex modes of a complex-SVD basis ``[[Re U, -Im U], [Im U, Re U]]`` (2N, 2n_max)."""
+    m = V.shape[1] // 2
+    return np.hstack([V[:, :n], V[:, m: m + n]])
+
+
+def _cost_vs_N(fom, p, out, X_tr, c_tr, x_te, c_te):
+    """Every method's online cost at each ``N`` of ``cost_N``, each with its own ROMs built at that ``N``.
+
+    Per ``N``: a FOM of that size; its training snapshots are the ``N = n_points`` FOM trajectories
+    interpolated linearly onto its grid (a reference FOM at ``N = 16,000`` costs ``O(N^2)`` per trajectory:
+    ``N`` per step, ``N`` steps by the CFL bound); from them a complex-SVD basis, the Galerkin and DEIM ROMs,
+    Galerkin training trajectories and the kernel ROMs (Galerkin data and projected data), fitted exactly as
+    at ``N = n_points``.  Timed per trajectory (medians of ``repeats``, same process): Galerkin RK4 with
+    ``substeps`` sub-steps and with one step per ``DT``, Galerkin implicit midpoint, DEIM RK4, the kernel
+    rollouts in reduced coordinates, the reconstruction ``V y`` alone.  Errors against the interpolated
+    FOM test trajectories (the interpolation and the grid change are far below the ROM errors) make the
+    equal-accuracy comparison per ``N``.
+    """
     K = int(round(p.T / p.DT))
     rows = []
+    n_max = max(p.dims) // 2
     for N in p.cost_N:
-        f = SineGordonFOM(n_points=N, length=p.length, c_range=p.c_range, T=p.T, nt=K)
+        f = SineGordonFOM(n_points=N, length=p.length, c_range=p.c_range, amplitude_range=p.amplitude_range, T=p.T, nt=K)
+        M = _interpolation_matrix(fom.x, f.x, p.length)
+        Xn = _to_grid(X_tr, M)
+        xn_te = _to_grid(x_te, M)
+        V_all = complex_svd_basis(Xn.reshape(-1, f.dim), n=n_max, layout="rows").V
+        nonlin = nonlinear_snapshots(f, Xn)
         for dim in p.dims:
-            V = _random_orthosymplectic(N, dim // 2, rng)
+            V = _truncate(V_all, dim // 2)
             gal = ReducedSineGordon.galerkin(f, V)
-            y0 = 0.1 * rng.normal(size=(1, dim))
-            t_rk4 = _median_time(lambda: gal.solve(y0, 1.0, p.DT, K, scheme="rk4", substeps=p.substeps), p.repeats)
+            deim = ReducedSineGordon.deim(f, V, nonlin, p.deim_factor * dim)
+            y0 = gal.project(xn_te[:, 0])
+            row = {"N": N, "dim": dim}
+            Yg = gal.solve(y0, c_te, p.DT, K, substeps=p.substeps)
+            row["galerkin_error"] = float(np.median(_err(gal, Yg, xn_te)))
+            row["galerkin_rk4"] = _median_time(lambda: gal.solve(y0[:1], c_te[:1], p.DT, K, scheme="rk4", substeps=p.substeps),
+                                               p.repeats)
             # one RK4 step per DT: as accurate as the sub-stepped ROM where DT omega_max is small (see the results)
-            t_rk4_dt = _median_time(lambda: gal.solve(y0, 1.0, p.DT, K, scheme="rk4", substeps=1), p.repeats)
-            Y = gal.solve(y0, 1.0, p.DT, K, scheme="rk4", substeps=p.substeps)
-            t_rec = _median_time(lambda: gal.reconstruct(Y[0]), p.repeats)
-            d = out["dims"].get(dim, {})
-            # DEIM and kernel costs in reduced coordinates do not depend on N: the same numbers for every N
-            rows.append({"N": N, "dim": dim, "galerkin_rk4": t_rk4, "galerkin_rk4_at_DT": t_rk4_dt, "reconstruction": t_rec,
-                         "kernel": d.get("kernel_reduced", {}).get("time_per_trajectory"),
-                         "kernel_projected": d.get("kernel_projected", {}).get("time_per_trajectory"),
-                         "deim_rk4": d.get("deim_rk4_time_per_trajectory")})
+            row["galerkin_rk4_at_DT"] = _median_time(lambda: gal.solve(y0[:1], c_te[:1], p.DT, K, scheme="rk4"), p.repeats)
+            row["galerkin_im"] = _median_time(lambda: gal.solve(y0[:1], c_te[:1], p.DT, K, substeps=p.substeps), p.repeats)
+            row["deim_rk4"] = _median_time(lambda: deim.solve(y0[:1], c_te[:1], p.DT, K, scheme="rk4", substeps=p.substeps),
+                                           p.repeats)
+            row["deim_error"] = float(np.median(_err(deim, deim.solve(y0, c_te, p.DT, K, substeps=p.substeps), xn_te)))
+            row["reconstruction"] = _median_time(lambda: gal.reconstruct(Yg[0]), p.repeats)
+            Yg_tr = gal.solve(gal.project(Xn[:, 0]), c_tr, p.DT, K, substeps=p.substeps)
+            for key, Ytr in (("kernel", Yg_tr), ("kernel_projected", gal.project(Xn))):
+                row[key] = row[f"{key}_error"] = row[f"{key}_centers"] = None
+                # the ridge term chosen at N = n_points (a setting of the model, not chosen again per N)
+                lam = out["dims"][dim]["kernel_reduced" if key == "kernel" else "kernel_projected"]["regularization"]
+                flow, model, _, row[f"{key}_regularization"] = _fit_kernel(p, Ytr, c_tr, K, lam)
+                row[f"{key}_centers"] = int(model.surrogate_.n_centers)
+                try:
+                    row[f"{key}_error"] = float(np.median(_err(gal, flow.rollout(y0, K, mu=c_te[:, None], dt=p.DT), xn_te)))
+                    row[key] = _median_time(lambda: flow.rollout(y0[:1], K, mu=c_te[:1, None], dt=p.DT), p.repeats)
+                except Exception as exc:  # a failed rollout is a result: no time
+                    row[f"{key}_failure"] = f"{type(exc).__name__}: {exc}"[:200]
+            rows.append(row)
+            logger.info(f"cost at N = {N}, 2n = {dim}: " + ", ".join(
+                f"{k} {v * 1e3:.2f} ms" for k, v in row.items() if k in _TIMED and v is not None))
     return rows
+
+
+_TIMED = ("galerkin_rk4", "galerkin_rk4_at_DT", "galerkin_im", "deim_rk4", "reconstruction", "kernel", "kernel_projected")
+
+
+def break_even(rows, dims_info) -> dict:
+    """Per ``2n``: the kernel ROM's cost ratio from the smallest to the largest ``N`` (flatness), and the ``N``
+    at which the compiled Galerkin ROM (RK4, at its accurate step: one step per ``DT`` where
+    ``DT omega_max < 1``, else ``substeps``) costs as much as the kernel ROM (Galerkin data).
+
+    The Galerkin cost is fitted as ``a + b N`` (least squares over the measured ``N``), the kernel's cost is
+    its median over ``N``; ``N* = (t_kernel - a) / b`` (an extrapolation where it falls outside the
+    measured range; ``None`` where the kernel failed).  ``dims_info`` maps ``2n`` to its ``DT_omega_max``.
+    """
+    out = {}
+    for dim, wom in dims_info.items():
+        rs = sorted((r for r in rows if r["dim"] == int(dim)), key=lambda r: r["N"])
+        key = "galerkin_rk4_at_DT" if wom < 1 else "galerkin_rk4"
+        Ns = np.array([r["N"] for r in rs], dtype=float)
+        tg = np.array([r[key] for r in rs])
+        entry = {"galerkin_variant": key, "N": Ns.tolist(), "galerkin_time": tg.tolist(),
+                 "kernel_time": [r["kernel"] for r in rs], "flat_ratio": None, "N_star": None}
+        if all(r["kernel"] is not None for r in rs) and len(rs) >= 2:
+            tk = np.array([r["kernel"] for r in rs])
+            entry["flat_ratio"] = float(tk[-1] / tk[0])
+            b, a = np.polyfit(Ns, tg, 1)
+            entry["galerkin_fit"] = [float(a), float(b)]
+            entry["N_star"] = float((np.median(tk) - a) / b) if b > 0 else None
+            entry["speedup_at_largest_N"] = float(tg[-1] / tk[-1])
+        out[int(dim)] = entry
+    return out
