@@ -41,6 +41,13 @@ def test_smoke_run_is_consistent(smoke):
         assert all(row[k] > 0 for k in ("galerkin_rk4", "galerkin_rk4_at_DT", "galerkin_im", "deim_rk4", "reconstruction"))
     at_n0 = next(row for row in r["cost_vs_N"] if row["N"] == PRESETS["smoke"].n_points and row["dim"] == 4)
     assert np.isclose(at_n0["galerkin_error"], np.median(res["galerkin_error"]), rtol=1e-6)
+    ls = res["large_step"]  # one step per DT_large: errors on that grid, the projection error is the floor of every ROM
+    assert ls["DT"] == pytest.approx(PRESETS["smoke"].large_step * PRESETS["smoke"].DT) and len(ls["projection_error"]) == 2
+    k = ls["kernel_projected_midpoint"]
+    assert (k["failure"] is None) == isinstance(k["error"], list)
+    if k["failure"] is None:  # no ROM in this basis beats the snapshot projection (up to the grid's round-off)
+        assert all(e >= 0.999 * f for e, f in zip(k["error"], ls["projection_error"]))
+    assert all(e >= 0.999 * f for e, f in zip(ls["galerkin_error"], ls["projection_error"]))
     dd = res["data_driven"]  # pyMOR's DataDrivenReductor runs on the same projected data
     assert dd["failure"] is None, dd["failure"]
     assert len(dd["error"]) == PRESETS["smoke"].n_test and np.isclose(np.mean(res["curves"]["data_driven"]), np.mean(dd["error"]))
@@ -72,6 +79,10 @@ def test_figures_show_the_results(smoke):
         assert np.isclose(be["flat_ratio"], ts[-1] / ts[0])
     sn = plotting.figure_data(figs["sine_gordon_snapshots"])
     assert np.allclose(sn["axes"][1]["lines"][0]["y"], res["snapshots"]["fom"][1])
+    ls = res["large_step"]
+    if ls["kernel_projected_midpoint"]["failure"] is None:  # the claim's evidence shows the results' numbers
+        big = next(c for c in report.sine_gordon_claims(smoke) if "large-step" in c["claim"])
+        assert f"{ls['kernel_projected_midpoint']['error'][0]:.3f}" in big["evidence"]
     claims = report.sine_gordon_claims(smoke)
     assert len(claims) == 6 and all(isinstance(c["holds"], bool) for c in claims)
     md = "\n".join(report.sine_gordon_markdown(smoke))
