@@ -30,6 +30,7 @@ takes a ``QuadraticHamiltonianModel`` FOM only (see the issue-15 report).
 from __future__ import annotations
 
 import time
+from functools import partial
 from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
@@ -357,12 +358,13 @@ def _cost_vs_N(fom, p, out, X_tr, c_tr, x_te, c_te):
     Galerkin training trajectories and the kernel ROMs (Galerkin data and projected data), fitted exactly as
     at ``N = n_points``.  Timed per trajectory (medians of ``repeats``, same process): Galerkin RK4 with
     ``substeps`` sub-steps and with one step per ``DT``, Galerkin implicit midpoint, DEIM RK4, the kernel
-    rollouts in reduced coordinates, the reconstruction ``V y`` alone.  Errors against the interpolated
+    rollouts in reduced coordinates, the reconstruction ``V y`` alone; the repeats run interleaved over all
+    ``N`` (one round times every call once), so a changing load hits every ``N`` alike.  Errors against the interpolated
     FOM test trajectories (the interpolation and the grid change are far below the ROM errors) make the
     equal-accuracy comparison per ``N``.
     """
     K = int(round(p.T / p.DT))
-    rows = []
+    rows, calls = [], []
     n_max = max(p.dims) // 2
     for N in p.cost_N:
         f = SineGordonFOM(n_points=N, length=p.length, c_range=p.c_range, amplitude_range=p.amplitude_range, T=p.T, nt=K)
@@ -379,31 +381,49 @@ def _cost_vs_N(fom, p, out, X_tr, c_tr, x_te, c_te):
             row = {"N": N, "dim": dim}
             Yg = gal.solve(y0, c_te, p.DT, K, substeps=p.substeps)
             row["galerkin_error"] = float(np.median(_err(gal, Yg, xn_te)))
-            row["galerkin_rk4"] = _median_time(lambda: gal.solve(y0[:1], c_te[:1], p.DT, K, scheme="rk4", substeps=p.substeps),
-                                               p.repeats)
-            # one RK4 step per DT: as accurate as the sub-stepped ROM where DT omega_max is small (see the results)
-            row["galerkin_rk4_at_DT"] = _median_time(lambda: gal.solve(y0[:1], c_te[:1], p.DT, K, scheme="rk4"), p.repeats)
-            row["galerkin_im"] = _median_time(lambda: gal.solve(y0[:1], c_te[:1], p.DT, K, substeps=p.substeps), p.repeats)
-            row["deim_rk4"] = _median_time(lambda: deim.solve(y0[:1], c_te[:1], p.DT, K, scheme="rk4", substeps=p.substeps),
-                                           p.repeats)
             row["deim_error"] = float(np.median(_err(deim, deim.solve(y0, c_te, p.DT, K, substeps=p.substeps), xn_te)))
-            row["reconstruction"] = _median_time(lambda: gal.reconstruct(Yg[0]), p.repeats)
+            fns = _cost_calls(p, gal, deim, y0[:1], c_te[:1], Yg[0], K)
             Yg_tr = gal.solve(gal.project(Xn[:, 0]), c_tr, p.DT, K, substeps=p.substeps)
             for key, Ytr in (("kernel", Yg_tr), ("kernel_projected", gal.project(Xn))):
-                row[key] = row[f"{key}_error"] = row[f"{key}_centers"] = None
+                row[key] = row[f"{key}_error"] = None
                 # the ridge term chosen at N = n_points (a setting of the model, not chosen again per N)
                 lam = out["dims"][dim]["kernel_reduced" if key == "kernel" else "kernel_projected"]["regularization"]
                 flow, model, _, row[f"{key}_regularization"] = _fit_kernel(p, Ytr[:, :-1], Ytr[:, 1:], c_tr, p.DT, lam)
                 row[f"{key}_centers"] = int(model.surrogate_.n_centers)
                 try:
                     row[f"{key}_error"] = float(np.median(_err(gal, flow.rollout(y0, K, mu=c_te[:, None], dt=p.DT), xn_te)))
-                    row[key] = _median_time(lambda: flow.rollout(y0[:1], K, mu=c_te[:1, None], dt=p.DT), p.repeats)
+                    fns[key] = partial(flow.rollout, y0[:1], K, mu=c_te[:1, None], dt=p.DT)
                 except Exception as exc:  # a failed rollout is a result: no time
                     row[f"{key}_failure"] = f"{type(exc).__name__}: {exc}"[:200]
             rows.append(row)
-            logger.info(f"cost at N = {N}, 2n = {dim}: " + ", ".join(
-                f"{k} {v * 1e3:.2f} ms" for k, v in row.items() if k in _TIMED and v is not None))
+            calls.append(fns)
+    # interleaved: repeat r times every call of every N, so that a changing load on the shared machine hits all N alike
+    times = [{k: [] for k in fns} for fns in calls]
+    for fns in calls:  # warm-up (compilation, caches)
+        for fn in fns.values():
+            fn()
+    for _ in range(p.repeats):
+        for fns, tm in zip(calls, times):
+            for k, fn in fns.items():
+                t0 = time.perf_counter()
+                fn()
+                tm[k].append(time.perf_counter() - t0)
+    for row, tm in zip(rows, times):
+        row.update({k: float(np.median(v)) for k, v in tm.items()})
+        logger.info(f"cost at N = {row['N']}, 2n = {row['dim']}: " + ", ".join(
+            f"{k} {v * 1e3:.2f} ms" for k, v in row.items() if k in _TIMED and v is not None))
     return rows
+
+
+def _cost_calls(p, gal, deim, y0, c, Y, K):
+    """The timed calls of one ``(N, 2n)``: Galerkin RK4 (``substeps`` and one step per ``DT``), Galerkin implicit
+    midpoint, DEIM RK4, reconstruction ``V y`` of one trajectory."""
+    return {"galerkin_rk4": partial(gal.solve, y0, c, p.DT, K, scheme="rk4", substeps=p.substeps),
+            # one RK4 step per DT: as accurate as the sub-stepped ROM where DT omega_max is small (see the results)
+            "galerkin_rk4_at_DT": partial(gal.solve, y0, c, p.DT, K, scheme="rk4"),
+            "galerkin_im": partial(gal.solve, y0, c, p.DT, K, substeps=p.substeps),
+            "deim_rk4": partial(deim.solve, y0, c, p.DT, K, scheme="rk4", substeps=p.substeps),
+            "reconstruction": partial(gal.reconstruct, Y)}
 
 
 _TIMED = ("galerkin_rk4", "galerkin_rk4_at_DT", "galerkin_im", "deim_rk4", "reconstruction", "kernel", "kernel_projected")
