@@ -73,10 +73,11 @@ def test_figures_show_the_results(smoke):
     krows = sorted((r["N"], r["kernel"]) for r in smoke["cost_vs_N"] if r["dim"] == 4 and r["kernel"] is not None)
     if krows:
         assert np.allclose(cost["kernel, Galerkin data, 2n=4"]["y"], [t for _, t in krows])
-    be = smoke["break_even"]["4"]
+    be = smoke["break_even"]["4"]["kernel"]
     if be["flat_ratio"] is not None:
         ts = [t for _, t in krows]
         assert np.isclose(be["flat_ratio"], ts[-1] / ts[0])
+        assert be["error"] == [r["kernel_error"] for r in sorted(smoke["cost_vs_N"], key=lambda r: r["N"]) if r["dim"] == 4]
     sn = plotting.figure_data(figs["sine_gordon_snapshots"])
     assert np.allclose(sn["axes"][1]["lines"][0]["y"], res["snapshots"]["fom"][1])
     ls = res["large_step"]

@@ -430,28 +430,33 @@ _TIMED = ("galerkin_rk4", "galerkin_rk4_at_DT", "galerkin_im", "deim_rk4", "reco
 
 
 def break_even(rows, dims_info) -> dict:
-    """Per ``2n``: the kernel ROM's cost ratio from the smallest to the largest ``N`` (flatness), and the ``N``
-    at which the compiled Galerkin ROM (RK4, at its accurate step: one step per ``DT`` where
-    ``DT omega_max < 1``, else ``substeps``) costs as much as the kernel ROM (Galerkin data).
+    """Per ``2n`` and kernel ROM (``'kernel'``: Galerkin data; ``'kernel_projected'``: FOM data): its cost ratio from
+    the smallest to the largest ``N`` (flatness), its errors per ``N``, and the ``N`` at which the compiled Galerkin
+    ROM (RK4 at its accurate step: one step per ``DT`` where ``DT omega_max < 1``, else ``substeps``) costs as much.
 
     The Galerkin cost is fitted as ``a + b N`` (least squares over the measured ``N``), the kernel's cost is
     its median over ``N``; ``N* = (t_kernel - a) / b`` (an extrapolation where it falls outside the
-    measured range; ``None`` where the kernel failed).  ``dims_info`` maps ``2n`` to its ``DT_omega_max``.
+    measured range; ``None`` where the kernel failed at some ``N``).  Whether the two are of equal accuracy is
+    read from the errors stored alongside (``galerkin_error``, ``error``).  ``dims_info`` maps ``2n`` to its
+    ``DT_omega_max``.
     """
     out = {}
     for dim, wom in dims_info.items():
         rs = sorted((r for r in rows if r["dim"] == int(dim)), key=lambda r: r["N"])
-        key = "galerkin_rk4_at_DT" if wom < 1 else "galerkin_rk4"
+        variant = "galerkin_rk4_at_DT" if wom < 1 else "galerkin_rk4"
         Ns = np.array([r["N"] for r in rs], dtype=float)
-        tg = np.array([r[key] for r in rs])
-        entry = {"galerkin_variant": key, "N": Ns.tolist(), "galerkin_time": tg.tolist(),
-                 "kernel_time": [r["kernel"] for r in rs], "flat_ratio": None, "N_star": None}
-        if all(r["kernel"] is not None for r in rs) and len(rs) >= 2:
-            tk = np.array([r["kernel"] for r in rs])
-            entry["flat_ratio"] = float(tk[-1] / tk[0])
-            b, a = np.polyfit(Ns, tg, 1)
-            entry["galerkin_fit"] = [float(a), float(b)]
-            entry["N_star"] = float((np.median(tk) - a) / b) if b > 0 else None
-            entry["speedup_at_largest_N"] = float(tg[-1] / tk[-1])
+        tg = np.array([r[variant] for r in rs])
+        b, a = np.polyfit(Ns, tg, 1) if len(rs) >= 2 else (np.nan, np.nan)
+        entry = {"galerkin_variant": variant, "N": Ns.tolist(), "galerkin_time": tg.tolist(), "galerkin_fit": [float(a), float(b)],
+                 "galerkin_error": [r["galerkin_error"] for r in rs]}
+        for key in ("kernel", "kernel_projected"):
+            k = {"time": [r[key] for r in rs], "error": [r[f"{key}_error"] for r in rs], "flat_ratio": None, "N_star": None,
+                 "speedup_at_largest_N": None}
+            if len(rs) >= 2 and all(t is not None for t in k["time"]):
+                tk = np.array(k["time"])
+                k["flat_ratio"] = float(tk[-1] / tk[0])
+                k["N_star"] = float((np.median(tk) - a) / b) if b > 0 else None
+                k["speedup_at_largest_N"] = float(tg[-1] / tk[-1])
+            entry[key] = k
         out[int(dim)] = entry
     return out
