@@ -549,16 +549,17 @@ def sine_gordon_claims(s: dict) -> list[dict]:
                 "holds": bool(measured) and all(r <= 1.2 for _, _, r in measured),
                 "evidence": "; ".join(f"2n={d} {'Galerkin' if key == 'kernel' else 'FOM'} data: ratio {r:.2f}"
                                       for d, key, r in measured) or "no kernel ROM ran at every N"})
-    # the DEIM ROM on the same footing: where it is as accurate and faster, say so
+    # the DEIM ROM on the same footing: where it is as accurate and faster than a kernel ROM, say so
     ev, faster = [], []
     for d in dims:
         r = s["dims"][d]
-        k, t_k = r["kernel_reduced"]["error"], r["kernel_reduced"]["time_per_trajectory"]
         e_d, t_d = _median(r["deim_error"]), r["deim_rk4_time_per_trajectory"]
-        if isinstance(k, list) and t_k:
-            faster.append(e_d <= 2 * _median(k) and t_d < t_k)  # DEIM as accurate (the 2x band) and faster
-            ev.append(f"2n={d}: DEIM {e_d:.2e} in {t_d * 1e3:.2f} ms, kernel {_median(k):.2e} in {t_k * 1e3:.2f} ms")
-    out.append({"claim": "sine-Gordon: no DEIM ROM is both faster than the kernel ROM and within 2x of its error",
+        for key, label in (("kernel_reduced", "kernel (Galerkin data)"), ("kernel_projected", "kernel (FOM data)")):
+            k, t_k = r[key]["error"], r[key]["time_per_trajectory"]
+            if isinstance(k, list) and t_k:
+                faster.append(e_d <= 2 * _median(k) and t_d < t_k)  # DEIM as accurate (the 2x band) and faster
+                ev.append(f"2n={d}: DEIM {e_d:.2e} in {t_d * 1e3:.2f} ms, {label} {_median(k):.2e} in {t_k * 1e3:.2f} ms")
+    out.append({"claim": "sine-Gordon: no DEIM ROM is both faster than a kernel ROM and within 2x of its error",
                 "holds": bool(faster) and not any(faster),
                 "evidence": ("; ".join(ev) or "no kernel ROM ran") + " (DEIM: RK4 with r sub-steps per DT; a DEIM ROM that is "
                             "as accurate and faster wins)"})
