@@ -104,3 +104,23 @@ def test_cli_smoke_run(tmp_path):
     lines = {ln["label"]: ln for ln in fig["axes"][0]["lines"]}
     assert np.allclose(lines["Galerkin ROM (implicit midpoint, DT/r)"]["y"], s["dims"]["4"]["curves"]["galerkin"][1:])
     assert any("sine-Gordon" in c["claim"] for c in results["claims"])
+
+
+def test_grid_interpolation_and_break_even_oracles():
+    from sympredict.experiments.sine_gordon import _interpolation_matrix, break_even
+
+    x0 = 20.0 * np.arange(1, 50) / 50  # Dirichlet grid of N = 49 on (0, 20)
+    assert np.allclose(_interpolation_matrix(x0, x0, 20.0).toarray(), np.eye(49))
+    x1 = 20.0 * np.arange(1, 200) / 200
+    f = lambda x: x * (20.0 - x)  # zero at both ends; piecewise-linear interpolation errs by at most dx^2 / 4 * max|f''| / 2
+    err = np.abs(_interpolation_matrix(x0, x1, 20.0) @ f(x0) - f(x1)).max()
+    assert 0 < err <= (20.0 / 50) ** 2 / 4 + 1e-12
+    lin = lambda x: np.minimum(x, 20.0 - x)  # exact where the kinks are grid points
+    assert np.allclose(_interpolation_matrix(x0, x1, 20.0) @ lin(x0), lin(x1))
+    # break-even of a Galerkin cost exactly a + b N against a flat kernel cost: N* = (t_k - a) / b
+    rows = [{"N": N, "dim": 4, "galerkin_rk4_at_DT": 1e-3 + 2e-6 * N, "galerkin_rk4": 0.0, "galerkin_error": 0.1,
+             "kernel": 5e-3, "kernel_error": 0.1, "kernel_projected": None, "kernel_projected_error": None} for N in (100, 400, 1600)]
+    b = break_even(rows, {4: 0.5})[4]
+    assert b["galerkin_variant"] == "galerkin_rk4_at_DT"
+    assert np.isclose(b["kernel"]["N_star"], 2000.0) and np.isclose(b["kernel"]["flat_ratio"], 1.0)
+    assert b["kernel_projected"]["N_star"] is None
