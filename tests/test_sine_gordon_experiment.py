@@ -112,7 +112,7 @@ def test_grid_interpolation_and_break_even_oracles():
     x0 = 20.0 * np.arange(1, 50) / 50  # Dirichlet grid of N = 49 on (0, 20)
     assert np.allclose(_interpolation_matrix(x0, x0, 20.0).toarray(), np.eye(49))
     x1 = 20.0 * np.arange(1, 200) / 200
-    f = lambda x: x * (20.0 - x)  # zero at both ends; piecewise-linear interpolation errs by at most dx^2 / 4 * max|f''| / 2
+    f = lambda x: x * (20.0 - x)  # zero at both ends; linear interpolation errs by at most h^2 / 8 max|f''| = h^2 / 4
     err = np.abs(_interpolation_matrix(x0, x1, 20.0) @ f(x0) - f(x1)).max()
     assert 0 < err <= (20.0 / 50) ** 2 / 4 + 1e-12
     lin = lambda x: np.minimum(x, 20.0 - x)  # exact where the kinks are grid points
