@@ -17,10 +17,11 @@
   midpoint on the Galerkin ROM at the same ``DT`` (one step per output);
 * online wall times per trajectory (medians of ``repeats``, same process,
   BLAS on one thread): kernel rollout, Galerkin and DEIM ROMs at their
-  accurate step, FOM; the Galerkin ROM's cost for each ``N`` of ``cost_N``
-  (its arithmetic does not depend on the basis, so a random orthosymplectic
-  basis of that size is timed), the kernel's reduced cost (independent of ``N``)
-  and the reconstruction ``V y`` per ``N`` separately.
+  accurate step, FOM; and the cost against ``N`` (:func:`_cost_vs_N`): for
+  each ``N`` of ``cost_N`` every ROM is built again at that ``N`` (basis,
+  Galerkin, DEIM, both kernel ROMs) and timed, the reconstruction ``V y``
+  separately; :func:`break_even` gives the kernel's flatness in ``N`` and the
+  break-even ``N`` against the compiled Galerkin ROM per ``2n``.
 
 The learned ROMs use the estimator directly: ``sympredict.mor.SymplecticKernelReductor``
 takes a ``QuadraticHamiltonianModel`` FOM only (see the issue-15 report).
@@ -29,6 +30,8 @@ takes a ``QuadraticHamiltonianModel`` FOM only (see the issue-15 report).
 from __future__ import annotations
 
 import time
+import warnings
+from functools import partial
 from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
@@ -68,6 +71,11 @@ class SineGordonPreset:
     state_eps: float = None  # None: IMQ(1 / diameter of the training xi), the estimator's default
     mu_eps: float = 1.0  # on c scaled to [0, 1]
     state_scaling: str = "diag"
+    #: ridge terms tried on held-out training trajectories (plus 0, the exact fit); () for the exact fit only
+    regularizations: tuple = (1e-8, 1e-6, 1e-4)
+    validation_every: int = 4
+    #: the large-step regime: macro step large_step * DT (0: not run)
+    large_step: int = 10
     ref_tol: float = 1e-7
     cost_N: tuple = (1000, 4000, 16000)
     repeats: int = 5
@@ -78,23 +86,19 @@ PRESETS = {
     "quick": SineGordonPreset(),
     "paper": SineGordonPreset(n_c=5, n_amplitude=6, n_test=5, dims=(8, 12, 16), max_centers=3000, repeats=11),
     "smoke": SineGordonPreset(n_points=60, length=12.0, n_c=2, n_amplitude=2, n_test=2, T=2.0, dims=(4,),
-                             max_centers=60, cost_N=(60, 120), repeats=2, long_factor=2),
+                             max_centers=60, cost_N=(60, 120), repeats=2, long_factor=2, large_step=5),
 }
 
 
 def _median_time(fn, repeats):
+    """Median wall time of ``repeats`` calls after one untimed call (compilation, caches: the same for every method)."""
+    fn()
     times = []
     for _ in range(repeats):
         t = time.perf_counter()
         fn()
         times.append(time.perf_counter() - t)
     return float(np.median(times))
-
-
-def _random_orthosymplectic(N, n, rng):
-    A = rng.normal(size=(N, n)) + 1j * rng.normal(size=(N, n))
-    U, _ = np.linalg.qr(A)
-    return np.block([[U.real, -U.imag], [U.imag, U.real]])
 
 
 def run_sine_gordon(preset: SineGordonPreset = PRESETS["quick"], **overrides) -> dict:
@@ -124,7 +128,8 @@ def run_sine_gordon(preset: SineGordonPreset = PRESETS["quick"], **overrides) ->
         snaps = X_tr.reshape(-1, fom.dim)
         for dim in p.dims:
             out["dims"][dim] = _one_dimension(fom, p, dim // 2, snaps, X_tr, c_tr, a_tr, X_te, c_te, a_te, K)
-        out["cost_vs_N"] = _cost_vs_N(fom, p, rng, out)
+        out["cost_vs_N"] = _cost_vs_N(fom, p, out, X_tr, c_tr, x_te, c_te)
+        out["break_even"] = break_even(out["cost_vs_N"], {d: r["DT_omega_max"] for d, r in out["dims"].items()})
     return out
 
 
@@ -183,22 +188,10 @@ def _one_dimension(fom, p, n, snaps, X_tr, c_tr, a_tr, X_te, c_te, a_te, K):
     Yg_tr = gal.solve(gal.project(X_tr[:, 0]), c_tr, p.DT, K, substeps=p.substeps)
     Yp_tr = gal.project(X_tr)
     for data, Ytr in (("reduced", Yg_tr), ("projected", Yp_tr)):
-        x0 = Ytr[:, :-1].reshape(-1, gal.dim)
-        x1 = Ytr[:, 1:].reshape(-1, gal.dim)
-        mu = np.repeat(c_tr, K)[:, None]
-        # scaled coordinates (sympredict.scaling, as the reductor does): conformally symplectic state map, c onto
-        # [0, 1], time unit DT; the learned step stays symplectic in the original coordinates
-        st = SymplecticScaling(p.state_scaling).fit(np.concatenate([x0, x1]))
-        ms = BoxScaling().fit(mu, np.array([p.c_range[0]]), np.array([p.c_range[1]]))
-        model = SymplecticKernelPredictor(None if p.state_eps is None else IMQ(p.state_eps), mu_kernel=IMQ(p.mu_eps),
-                                          max_centers=p.max_centers, tol=1e-9)
-        t0 = time.perf_counter()
-        model.fit(st.transform(x0), st.transform(x1), mu=ms.transform(mu), dt=1.0)
-        fit_time = time.perf_counter() - t0
-        flow = NormalizedFlowMap(model, st, ms, p.DT)
+        flow, model, fit_time, reg, table = _fit_kernel(p, Ytr[:, :-1], Ytr[:, 1:], c_tr, p.DT)
         hist = model.history_.train_max_residual
-        entry = {"fit_time": fit_time, "centers": int(model.surrogate_.n_centers),
-                 "train_residual": [float(v) for v in hist], "error": None, "energy_error_long": None,
+        entry = {"fit_time": fit_time, "regularization": reg, "regularization_table": table,
+                 "centers": int(model.surrogate_.n_centers), "train_residual": [float(v) for v in hist], "error": None, "energy_error_long": None,
                  "time_per_trajectory": None, "failure": None}
         try:
             Yk = flow.rollout(y0, p.long_factor * K, mu=c_te[:, None], dt=p.DT)
@@ -214,6 +207,8 @@ def _one_dimension(fom, p, n, snaps, X_tr, c_tr, a_tr, X_te, c_te, a_te, K):
         res[f"kernel_{data}"] = entry
     # pyMOR's DataDrivenReductor (VKOGA regressor, inputs scaled to the box): (c, amplitude) -> reduced trajectory,
     # trained on the same projected FOM trajectories (non-intrusive); it predicts on the training horizon only
+    if p.large_step:
+        res["large_step"] = _large_step(p, gal, X_tr, c_tr, X_te, c_te, K)
     res["data_driven"] = _data_driven(fom, p, Yp_tr, c_tr, a_tr, c_te, a_te, gal, x_te, K, curves)
     res["curves"], res["energy"], res["snapshots"] = curves, energy, snapshots
     res["galerkin_time_per_trajectory"] = _median_time(lambda: gal.solve(y0[:1], c_te[:1], p.DT, K, substeps=p.substeps), p.repeats)
@@ -223,6 +218,102 @@ def _one_dimension(fom, p, n, snaps, X_tr, c_tr, a_tr, X_te, c_te, a_te, K):
     res["deim_rk4_time_per_trajectory"] = _median_time(
         lambda: deim.solve(y0[:1], c_te[:1], p.DT, K, scheme="rk4", substeps=p.substeps), p.repeats)
     return res
+
+
+def _fit_kernel(p, Y0, Y1, c_tr, dt, regularization=None, update="symplectic_euler", stride=1):
+    """A kernel flow map at the macro step ``dt`` from pairs of reduced states ``Y1 = Phi^dt(Y0)`` (P, k, 2n)
+    of ``P`` training trajectories at wave speeds ``c_tr`` (P,).
+
+    Scaled coordinates (:mod:`sympredict.scaling`, as the reductor does): conformally symplectic state map, ``c``
+    onto ``[0, 1]``, time unit ``dt``; the learned step stays symplectic in the original coordinates.
+
+    With ``p.regularizations`` and no ``regularization`` given, the ridge term is chosen among ``0`` and
+    ``p.regularizations`` by **rollout on held-out training trajectories** (``1, 1 + validation_every, ...``;
+    training data only, never the test parameters): each candidate is fitted on the other trajectories and
+    rolled out from the held-out initial states ``Y0[:, 0]``; its score is the mean relative error against
+    ``Y1[:, ::stride]`` (``stride`` pairs per macro step when the pairs start at every output, as in the
+    large-step regime), a failed or non-finite rollout scoring ``inf``; ties go to the smaller term.  The
+    one-step gradient residual (:func:`~sympredict.selection.select_regularization`) does not predict
+    whether a rollout stays in the data (measured: it chose ``1e-8`` at ``2n = 12`` where the rollout blows up
+    and ``1e-6`` works).  The model is then refitted on all trajectories with the chosen term.
+
+    Returns the flow map (original coordinates), the fitted predictor, the fit's wall time (selection
+    included), the chosen ridge term and the selection table (``[(lambda, score), ...]``).
+    """
+    P, k, dim = Y0.shape
+    t0 = time.perf_counter()
+    table = []
+    reg = 0.0 if regularization is None else float(regularization)
+    if regularization is None and p.regularizations and P > 2:
+        held = np.zeros(P, dtype=bool)
+        held[1::p.validation_every] = True
+        ref = Y1[held, ::stride]
+        for lam in sorted({0.0, *map(float, p.regularizations)}):
+            flow, _ = _fit_scaled(p, Y0[~held], Y1[~held], c_tr[~held], dt, lam, update)
+            try:
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore")
+                    Y = flow.rollout(Y0[held, 0], ref.shape[1], mu=c_tr[held, None], dt=dt)[:, 1:]
+                score = float(np.mean(np.linalg.norm(Y - ref, axis=-1) / np.linalg.norm(ref, axis=-1)))
+            except Exception:  # a failed rollout scores inf
+                score = np.inf
+            table.append((lam, score if np.isfinite(score) else None))
+        scored = [(sc, lam) for lam, sc in table if sc is not None]
+        reg = min(scored)[1] if scored else 0.0  # smallest score; on a tie the smaller term (tuples compare in order)
+    flow, model = _fit_scaled(p, Y0, Y1, c_tr, dt, reg, update)
+    return flow, model, time.perf_counter() - t0, reg, table
+
+
+def _fit_scaled(p, Y0, Y1, c_tr, dt, regularization, update):
+    """One fit of :func:`_fit_kernel` (scaled coordinates); returns the flow map and the predictor."""
+    dim = Y0.shape[-1]
+    x0, x1 = Y0.reshape(-1, dim), Y1.reshape(-1, dim)
+    mu = np.repeat(c_tr, Y0.shape[1])[:, None]
+    st = SymplecticScaling(p.state_scaling).fit(np.concatenate([x0, x1]))
+    ms = BoxScaling().fit(mu, np.array([p.c_range[0]]), np.array([p.c_range[1]]))
+    model = SymplecticKernelPredictor(None if p.state_eps is None else IMQ(p.state_eps), mu_kernel=IMQ(p.mu_eps),
+                                      max_centers=p.max_centers, tol=1e-9, update=update, regularization=regularization)
+    model.fit(st.transform(x0), st.transform(x1), mu=ms.transform(mu), dt=1.0)
+    return NormalizedFlowMap(model, st, ms, dt), model
+
+
+def _large_step(p, gal, X_tr, c_tr, X_te, c_te, K):
+    """The large-step regime at ``DT_large = large_step * DT`` (one output per macro step, horizon ``T``).
+
+    Classical schemes on the Galerkin ROM with one step per ``DT_large`` (implicit midpoint, RK4; Yoshida does
+    not apply, the reduced ``H`` is not separable) against the kernel ROM learned from projected FOM
+    trajectories (non-intrusive) with the symmetric update (``update='midpoint'``, whose generating function
+    exists up to a half turn per step where the symplectic-Euler form fails at a quarter turn), trained on
+    every pair ``(x(t), x(t + DT_large))`` of the training trajectories' output grid.  Errors against the FOM
+    on the ``DT_large`` grid, per test parameter; the snapshot projection error there is the floor of any
+    ROM in this basis.
+    """
+    s = int(p.large_step)
+    dt = s * p.DT
+    Kl = K // s
+    x_te = X_te[:, : Kl * s + 1: s]
+    y0 = gal.project(x_te[:, 0])
+    out = {"DT": dt, "steps": Kl, "projection_error": _err(gal, gal.project(x_te), x_te).tolist(),
+           "DT_omega_max": float(dt * np.abs(np.linalg.eigvals(_jg(gal, y0[0], float(p.c_range[1])))).max())}
+    out["galerkin_error"] = _err(gal, gal.solve(y0, c_te, dt, Kl, substeps=s * p.substeps), x_te).tolist()
+    for scheme in ("implicit_midpoint", "rk4"):
+        try:
+            out[f"{scheme}_at_DT_error"] = _err(gal, gal.solve(y0, c_te, dt, Kl, scheme=scheme), x_te).tolist()
+        except Exception as exc:  # a Newton failure is a result here
+            out[f"{scheme}_at_DT_error"] = f"failed: {type(exc).__name__}"
+    out["implicit_midpoint_time_per_trajectory"] = _median_time(lambda: gal.solve(y0[:1], c_te[:1], dt, Kl), p.repeats)
+    Yp = gal.project(X_tr)
+    flow, model, fit_time, reg, table = _fit_kernel(p, Yp[:, :-s], Yp[:, s:], c_tr, dt, update="midpoint", stride=s)
+    entry = {"fit_time": fit_time, "regularization": reg, "regularization_table": table, "centers": int(model.surrogate_.n_centers),
+             "train_residual": [float(v) for v in model.history_.train_max_residual], "error": None,
+             "time_per_trajectory": None, "failure": None}
+    try:
+        entry["error"] = _err(gal, flow.rollout(y0, Kl, mu=c_te[:, None], dt=dt), x_te).tolist()
+        entry["time_per_trajectory"] = _median_time(lambda: flow.rollout(y0[:1], Kl, mu=c_te[:1, None], dt=dt), p.repeats)
+    except Exception as exc:  # a failed rollout is a result, reported as such
+        entry["failure"] = f"{type(exc).__name__}: {exc}"[:300]
+    out["kernel_projected_midpoint"] = entry
+    return out
 
 
 def _data_driven(fom, p, Yp_tr, c_tr, a_tr, c_te, a_te, gal, x_te, K, curves):
@@ -252,25 +343,141 @@ def _jg(rom, y, c):
     return canonical_J(rom.dim) @ rom.jacobian(y, c)
 
 
-def _cost_vs_N(fom, p, rng, out):
-    """Galerkin RK4 cost per trajectory and reconstruction cost for each N (random orthosymplectic bases)."""
+def _interpolation_matrix(x_from, x_to, length):
+    """Linear interpolation between Dirichlet grids (zero at ``0`` and ``L``), sparse (len(x_to), len(x_from))."""
+    import scipy.sparse as sps
+
+    xf = np.concatenate([[0.0], x_from, [length]])
+    j = np.clip(np.searchsorted(xf, x_to, side="right") - 1, 0, len(xf) - 2)
+    w = (x_to - xf[j]) / (xf[j + 1] - xf[j])
+    rows = np.concatenate([np.arange(len(x_to))] * 2)
+    cols = np.concatenate([j, j + 1]) - 1  # the boundary nodes (columns -1 and len(x_from)) carry zeros
+    vals = np.concatenate([1.0 - w, w])
+    keep = (cols >= 0) & (cols < len(x_from))
+    return sps.csr_matrix((vals[keep], (rows[keep], cols[keep])), shape=(len(x_to), len(x_from)))
+
+
+def _to_grid(X, M):
+    """States (..., 2N0) interpolated onto another grid by ``M`` (N, N0), (q, p) separately -> (..., 2N)."""
+    n0 = M.shape[1]
+    flat = X.reshape(-1, 2 * n0)
+    return np.hstack([(M @ flat[:, :n0].T).T, (M @ flat[:, n0:].T).T]).reshape(*X.shape[:-1], 2 * M.shape[0])
+
+
+def _truncate(V, n):
+    """The first ``n`` complex modes of a complex-SVD basis ``[[Re U, -Im U], [Im U, Re U]]`` (2N, 2n_max)."""
+    m = V.shape[1] // 2
+    return np.hstack([V[:, :n], V[:, m: m + n]])
+
+
+def _cost_vs_N(fom, p, out, X_tr, c_tr, x_te, c_te):
+    """Every method's online cost at each ``N`` of ``cost_N``, each with its own ROMs built at that ``N``.
+
+    Per ``N``: a FOM of that size; its training snapshots are the ``N = n_points`` FOM trajectories
+    interpolated linearly onto its grid (a reference FOM at ``N = 16,000`` costs ``O(N^2)`` per trajectory:
+    ``N`` per step, ``N`` steps by the CFL bound); from them a complex-SVD basis, the Galerkin and DEIM ROMs,
+    Galerkin training trajectories and the kernel ROMs (Galerkin data and projected data), fitted exactly as
+    at ``N = n_points``.  Timed per trajectory (medians of ``repeats``, same process): Galerkin RK4 with
+    ``substeps`` sub-steps and with one step per ``DT``, Galerkin implicit midpoint, DEIM RK4, the kernel
+    rollouts in reduced coordinates, the reconstruction ``V y`` alone; the repeats run interleaved over all
+    ``N`` (one round times every call once), so a changing load hits every ``N`` alike.  Errors against the interpolated
+    FOM test trajectories (the interpolation and the grid change are far below the ROM errors) make the
+    equal-accuracy comparison per ``N``.
+    """
     K = int(round(p.T / p.DT))
-    rows = []
+    rows, calls = [], []
+    n_max = max(p.dims) // 2
     for N in p.cost_N:
-        f = SineGordonFOM(n_points=N, length=p.length, c_range=p.c_range, T=p.T, nt=K)
+        f = SineGordonFOM(n_points=N, length=p.length, c_range=p.c_range, amplitude_range=p.amplitude_range, T=p.T, nt=K)
+        M = _interpolation_matrix(fom.x, f.x, p.length)
+        Xn = _to_grid(X_tr, M)
+        xn_te = _to_grid(x_te, M)
+        V_all = complex_svd_basis(Xn.reshape(-1, f.dim), n=n_max, layout="rows").V
+        nonlin = nonlinear_snapshots(f, Xn)
         for dim in p.dims:
-            V = _random_orthosymplectic(N, dim // 2, rng)
+            V = _truncate(V_all, dim // 2)
             gal = ReducedSineGordon.galerkin(f, V)
-            y0 = 0.1 * rng.normal(size=(1, dim))
-            t_rk4 = _median_time(lambda: gal.solve(y0, 1.0, p.DT, K, scheme="rk4", substeps=p.substeps), p.repeats)
-            # one RK4 step per DT: as accurate as the sub-stepped ROM where DT omega_max is small (see the results)
-            t_rk4_dt = _median_time(lambda: gal.solve(y0, 1.0, p.DT, K, scheme="rk4", substeps=1), p.repeats)
-            Y = gal.solve(y0, 1.0, p.DT, K, scheme="rk4", substeps=p.substeps)
-            t_rec = _median_time(lambda: gal.reconstruct(Y[0]), p.repeats)
-            d = out["dims"].get(dim, {})
-            # DEIM and kernel costs in reduced coordinates do not depend on N: the same numbers for every N
-            rows.append({"N": N, "dim": dim, "galerkin_rk4": t_rk4, "galerkin_rk4_at_DT": t_rk4_dt, "reconstruction": t_rec,
-                         "kernel": d.get("kernel_reduced", {}).get("time_per_trajectory"),
-                         "kernel_projected": d.get("kernel_projected", {}).get("time_per_trajectory"),
-                         "deim_rk4": d.get("deim_rk4_time_per_trajectory")})
+            deim = ReducedSineGordon.deim(f, V, nonlin, p.deim_factor * dim)
+            y0 = gal.project(xn_te[:, 0])
+            row = {"N": N, "dim": dim}
+            Yg = gal.solve(y0, c_te, p.DT, K, substeps=p.substeps)
+            row["galerkin_error"] = float(np.median(_err(gal, Yg, xn_te)))
+            row["deim_error"] = float(np.median(_err(deim, deim.solve(y0, c_te, p.DT, K, substeps=p.substeps), xn_te)))
+            fns = _cost_calls(p, gal, deim, y0[:1], c_te[:1], Yg[0], K)
+            Yg_tr = gal.solve(gal.project(Xn[:, 0]), c_tr, p.DT, K, substeps=p.substeps)
+            for key, Ytr in (("kernel", Yg_tr), ("kernel_projected", gal.project(Xn))):
+                row[key] = row[f"{key}_error"] = None
+                # the ridge term chosen at N = n_points (a setting of the model, not chosen again per N)
+                lam = out["dims"][dim]["kernel_reduced" if key == "kernel" else "kernel_projected"]["regularization"]
+                flow, model, _, row[f"{key}_regularization"], _ = _fit_kernel(p, Ytr[:, :-1], Ytr[:, 1:], c_tr, p.DT, lam)
+                row[f"{key}_centers"] = int(model.surrogate_.n_centers)
+                try:
+                    row[f"{key}_error"] = float(np.median(_err(gal, flow.rollout(y0, K, mu=c_te[:, None], dt=p.DT), xn_te)))
+                    fns[key] = partial(flow.rollout, y0[:1], K, mu=c_te[:1, None], dt=p.DT)
+                except Exception as exc:  # a failed rollout is a result: no time
+                    row[f"{key}_failure"] = f"{type(exc).__name__}: {exc}"[:200]
+            rows.append(row)
+            calls.append(fns)
+    # interleaved: repeat r times every call of every N, so that a changing load on the shared machine hits all N alike
+    times = [{k: [] for k in fns} for fns in calls]
+    for fns in calls:  # warm-up (compilation, caches)
+        for fn in fns.values():
+            fn()
+    for _ in range(p.repeats):
+        for fns, tm in zip(calls, times):
+            for k, fn in fns.items():
+                t0 = time.perf_counter()
+                fn()
+                tm[k].append(time.perf_counter() - t0)
+    for row, tm in zip(rows, times):
+        row.update({k: float(np.median(v)) for k, v in tm.items()})
+        logger.info(f"cost at N = {row['N']}, 2n = {row['dim']}: " + ", ".join(
+            f"{k} {v * 1e3:.2f} ms" for k, v in row.items() if k in _TIMED and v is not None))
     return rows
+
+
+def _cost_calls(p, gal, deim, y0, c, Y, K):
+    """The timed calls of one ``(N, 2n)``: Galerkin RK4 (``substeps`` and one step per ``DT``), Galerkin implicit
+    midpoint, DEIM RK4, reconstruction ``V y`` of one trajectory."""
+    return {"galerkin_rk4": partial(gal.solve, y0, c, p.DT, K, scheme="rk4", substeps=p.substeps),
+            # one RK4 step per DT: as accurate as the sub-stepped ROM where DT omega_max is small (see the results)
+            "galerkin_rk4_at_DT": partial(gal.solve, y0, c, p.DT, K, scheme="rk4"),
+            "galerkin_im": partial(gal.solve, y0, c, p.DT, K, substeps=p.substeps),
+            "deim_rk4": partial(deim.solve, y0, c, p.DT, K, scheme="rk4", substeps=p.substeps),
+            "reconstruction": partial(gal.reconstruct, Y)}
+
+
+_TIMED = ("galerkin_rk4", "galerkin_rk4_at_DT", "galerkin_im", "deim_rk4", "reconstruction", "kernel", "kernel_projected")
+
+
+def break_even(rows, dims_info) -> dict:
+    """Per ``2n`` and kernel ROM (``'kernel'``: Galerkin data; ``'kernel_projected'``: FOM data): its cost ratio from
+    the smallest to the largest ``N`` (flatness), its errors per ``N``, and the ``N`` at which the compiled Galerkin
+    ROM (RK4 at its accurate step: one step per ``DT`` where ``DT omega_max < 1``, else ``substeps``) costs as much.
+
+    The Galerkin cost is fitted as ``a + b N`` (least squares over the measured ``N``), the kernel's cost is
+    its median over ``N``; ``N* = (t_kernel - a) / b`` (an extrapolation where it falls outside the
+    measured range; ``None`` where the kernel failed at some ``N``).  Whether the two are of equal accuracy is
+    read from the errors stored alongside (``galerkin_error``, ``error``).  ``dims_info`` maps ``2n`` to its
+    ``DT_omega_max``.
+    """
+    out = {}
+    for dim, wom in dims_info.items():
+        rs = sorted((r for r in rows if r["dim"] == int(dim)), key=lambda r: r["N"])
+        variant = "galerkin_rk4_at_DT" if wom < 1 else "galerkin_rk4"
+        Ns = np.array([r["N"] for r in rs], dtype=float)
+        tg = np.array([r[variant] for r in rs])
+        b, a = np.polyfit(Ns, tg, 1) if len(rs) >= 2 else (np.nan, np.nan)
+        entry = {"galerkin_variant": variant, "N": Ns.tolist(), "galerkin_time": tg.tolist(), "galerkin_fit": [float(a), float(b)],
+                 "galerkin_error": [r["galerkin_error"] for r in rs]}
+        for key in ("kernel", "kernel_projected"):
+            k = {"time": [r[key] for r in rs], "error": [r[f"{key}_error"] for r in rs], "flat_ratio": None, "N_star": None,
+                 "speedup_at_largest_N": None}
+            if len(rs) >= 2 and all(t is not None for t in k["time"]):
+                tk = np.array(k["time"])
+                k["flat_ratio"] = float(tk[-1] / tk[0])
+                k["N_star"] = float((np.median(tk) - a) / b) if b > 0 else None
+                k["speedup_at_largest_N"] = float(tg[-1] / tk[-1])
+            entry[key] = k
+        out[int(dim)] = entry
+    return out
