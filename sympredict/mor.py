@@ -352,8 +352,24 @@ class SymplecticKernelReductor(BasicObject):
         self.selection_ = sel
         return SymplecticKernelPredictor(sel.state, sel.mu, None, max_centers=self.max_centers, tol=1e-12)
 
-    def reduce(self, T: Optional[float] = None) -> SymplecticKernelModel:
-        """Sample data, fit the predictor, return the ROM (horizon ``T``, default ``fom.T``)."""
+    def scaled_training_data(self):
+        """Training and validation data in the predictor's coordinates, and the scalings that map to them.
+
+        Samples the data (:meth:`training_data`, kept as ``train_data_`` and
+        ``validation_data_``), fits the state scaling (``state_scaling``) and,
+        when the parameters vary, the box scaling of the parameters; the step
+        becomes the time unit.  :meth:`reduce` fits its predictor on exactly
+        these data, so a kernel search run on them (e.g.
+        :func:`~sympredict.selection.select_kernels` with another update) chooses
+        for the model that :meth:`reduce` trains.
+
+        Returns
+        -------
+        s_train, s_val : FlowMapData
+            Scaled states, parameters in ``[0, 1]^d`` (``None`` when they do not vary), ``dt = 1``.
+        state_scaling : SymplecticScaling
+        mu_scaling : BoxScaling or None
+        """
         with self.logger.block(f"flow-map data ({self.data}), 2n = {self.dim}, dt = {self.dt:g}"):
             train, val = self.training_data()
         self.train_data_, self.validation_data_ = train, val
@@ -371,7 +387,13 @@ class SymplecticKernelReductor(BasicObject):
             return FlowMapData(state_scaling.transform(d.x0), state_scaling.transform(d.x1),
                                mu_scaling.transform(d.mu) if vary_mu else None, np.ones(len(d)))  # time unit dt
 
-        s_train, s_val = scaled(train), scaled(val)
+        return scaled(train), scaled(val), state_scaling, mu_scaling
+
+    def reduce(self, T: Optional[float] = None) -> SymplecticKernelModel:
+        """Sample data, fit the predictor, return the ROM (horizon ``T``, default ``fom.T``)."""
+        s_train, s_val, state_scaling, mu_scaling = self.scaled_training_data()
+        train = self.train_data_
+        vary_mu = mu_scaling is not None
         if self.predictor is None:
             predictor = self._default_predictor(s_train, s_val, vary_mu)
         else:
