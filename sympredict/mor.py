@@ -27,7 +27,8 @@ Data (:mod:`sympredict.flowmaps`):
 Validation data come from parameters drawn at random in the parameter box
 (``parameter_space`` or the box of the training parameters), never from the
 training parameters.  Before training, :func:`~sympredict.flowmaps.check_generating_function`
-checks that the type-II generating function exists at ``dt`` (fails with the
+checks that the predictor's generating function exists at ``dt`` (type II, or
+the midpoint form for a predictor with ``update="midpoint"``; fails with the
 largest admissible ``dt``).  The predictor is trained in scaled coordinates
 (:mod:`sympredict.scaling`): parameters mapped to ``[0, 1]^d``, ``dt`` to 1,
 states by a conformally symplectic diagonal map, so the ROM's step stays symplectic.
@@ -61,6 +62,7 @@ from sympredict.flowmaps import (
     first_singular_step,
     check_generating_function,
     linear_system_from_pymor,
+    midpoint_sigma_min,
     mu_to_vector,
     mus_to_matrix,
     parameter_box,
@@ -203,7 +205,9 @@ class SymplecticKernelReductor(BasicObject):
     max_centers : int
         Budget of the default predictor.
     check_existence : bool
-        Run :func:`~sympredict.flowmaps.check_generating_function` on the data.
+        Run :func:`~sympredict.flowmaps.check_generating_function` on the data, for
+        the predictor's ``update`` (type II by default; ``"midpoint"``: the
+        symmetric form, which holds up to half a turn per step).
     seed : int
     """
 
@@ -307,6 +311,10 @@ class SymplecticKernelReductor(BasicObject):
                              f"(T / nt), got dt = {self.dt:.6g}: use dt = k * {h:.6g}")
         return stride
 
+    def _update(self) -> str:
+        """The generating-function update of the predictor (the existence check depends on it)."""
+        return getattr(self.predictor, "update", "symplectic_euler") if self.predictor is not None else "symplectic_euler"
+
     def _check_existence_projected(self, data):
         """Type-II check from the data alone: per parameter a least-squares linear map ``x1 ~ M x0``
         (exact for a linear FOM), its generator ``log(M) / dt`` for the largest admissible step."""
@@ -319,13 +327,14 @@ class SymplecticKernelReductor(BasicObject):
                                  f"of {self.dim} dimensions")
                 continue
             M = M.T
-            sigma = float(type2_sigma_min(M[None])[0])
+            sigma = float((midpoint_sigma_min if self._update() == "midpoint" else type2_sigma_min)(M[None])[0])
             generators.append(np.real(logm(M)) / self.dt)
             if sigma < worst[0]:
                 worst = (sigma, row)
         if worst[1] is None:
             return {}
-        return _report_existence(worst[0], worst[1], self.dt, first_singular_step(generators), 1e-2, 0.1)
+        update = self._update()
+        return _report_existence(worst[0], worst[1], self.dt, first_singular_step(generators, update=update), 1e-2, 0.1, update)
 
     def training_data(self):
         """Training and validation :class:`~sympredict.data.FlowMapData` in original reduced coordinates."""
@@ -334,7 +343,7 @@ class SymplecticKernelReductor(BasicObject):
             train, system = self._reduced_data(self.training_parameters, self.n_samples, self.seed)
             val, _ = self._reduced_data(val_mus, max(50, self.n_samples // 4), self.seed + 1)
             if self.check_existence:
-                self.existence_ = check_generating_function(system, train)
+                self.existence_ = check_generating_function(system, train, update=self._update())
         else:
             train = self._projected_data(self.training_parameters)
             val = self._projected_data(val_mus)
