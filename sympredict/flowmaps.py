@@ -33,6 +33,9 @@ symplectic predictor learns the type-II form ``s(q0, p1)``, which exists only
 while ``p1`` determines ``p0``, i.e. ``dp1/dp0`` is invertible along the data.
 For a linear mode of frequency ``omega`` the flow is a rotation by ``omega dT``
 and ``dp1/dp0 = cos(omega dT)``: the form breaks at ``omega dT = pi/2``.
+The symmetric (midpoint) update's ``s((x0 + x1) / 2)`` exists while the
+midpoint determines ``x0``, i.e. ``(I + D Phi) / 2`` is invertible: ``|cos(omega dT / 2)|``
+for a linear mode, so it breaks at half a turn (``update="midpoint"``).
 """
 
 from __future__ import annotations
@@ -70,6 +73,7 @@ __all__ = [
     "sampled_flow_map_data",
     "trajectory_pairs",
     "type2_sigma_min",
+    "midpoint_sigma_min",
     "check_generating_function",
     "first_singular_step",
 ]
@@ -621,9 +625,27 @@ def type2_sigma_min(jacobians: np.ndarray) -> np.ndarray:
     return np.linalg.svd(jac[..., n:, n:], compute_uv=False)[..., -1]
 
 
+def midpoint_sigma_min(jacobians: np.ndarray) -> np.ndarray:
+    """Smallest singular value of ``(I + D Phi) / 2``, the Jacobian of ``x0 -> (x0 + x1) / 2``, shape (B,).
+
+    The symmetric update's generating function is a function of the midpoint: it
+    exists while this is nonzero; ``|cos(theta / 2)|`` for a mode turning by ``theta``.
+    """
+    jac = np.asarray(jacobians, dtype=float)
+    return np.linalg.svd(0.5 * (np.eye(jac.shape[-1]) + jac), compute_uv=False)[..., -1]
+
+
+_SIGMA = {"symplectic_euler": type2_sigma_min, "midpoint": midpoint_sigma_min}
+
+
 def check_generating_function(system, data: FlowMapData, fail_below: float = 1e-2, warn_below: float = 0.1,
-                              max_points: int = 200, seed: int = 0) -> dict:
+                              max_points: int = 200, seed: int = 0, update: str = "symplectic_euler") -> dict:
     """Check that the type-II generating function ``s(q0, p1)`` exists on the data; fail or warn if not.
+
+    With ``update="midpoint"`` the symmetric update's ``s((x0 + x1) / 2)`` is
+    checked instead: ``sigma`` is then the smallest singular value of
+    ``(I + D Phi) / 2`` (:func:`midpoint_sigma_min`, ``|cos(omega dT / 2)|`` for a
+    linear mode: it fails at half a turn per step, ``omega dT = pi``).
 
     ``s(q0, p1)`` exists while ``p1`` determines ``p0``: ``dp1/dp0`` invertible.
     Its smallest singular value ``sigma`` is computed at (up to ``max_points``
@@ -657,26 +679,34 @@ def check_generating_function(system, data: FlowMapData, fail_below: float = 1e-
     GeneratingFunctionWarning
         If ``fail_below <= min sigma < warn_below``.
     """
+    if update not in _SIGMA:
+        raise ValueError(f"update must be one of {tuple(_SIGMA)}, got {update!r}")
     rng = np.random.default_rng(seed)
     idx = np.sort(rng.choice(len(data), size=min(len(data), max_points), replace=False))
     x0, mu, dt = data.x0[idx], data.mu[idx], data.dt[idx]
-    sigma = type2_sigma_min(system.flow_jacobian(x0, mu, dt))
+    sigma = _SIGMA[update](system.flow_jacobian(x0, mu, dt))
     worst = int(np.argmin(sigma))
-    dt_max = _largest_admissible_dt(system, x0, mu, dt, fail_below)
+    dt_max = _largest_admissible_dt(system, x0, mu, dt, fail_below, update)
     if dt.max() >= dt_max:  # past the first singularity, even where dp1/dp0 has recovered
         worst = int(np.argmax(dt))
-    info = _report_existence(float(sigma[worst]), mu[worst], float(dt[worst]), dt_max, fail_below, warn_below)
+    info = _report_existence(float(sigma[worst]), mu[worst], float(dt[worst]), dt_max, fail_below, warn_below, update)
     info["points"] = len(idx)
     return info
 
 
-def _report_existence(s_min: float, mu_worst, dt_worst: float, dt_max: float, fail_below: float, warn_below: float) -> dict:
+def _report_existence(s_min: float, mu_worst, dt_worst: float, dt_max: float, fail_below: float, warn_below: float,
+                      update: str = "symplectic_euler") -> dict:
     """Raise / warn / log for the existence check (one message for every data source)."""
     mu_worst = np.ravel(mu_worst)
     where = f"mu = {mu_worst.tolist() if mu_worst.size else '(none)'}, dT = {dt_worst:.4g}"
-    cause = (f"the type-II generating function s(q0, p1) needs dp1/dp0 invertible, but its smallest singular value "
-             f"is {s_min:.2e} at {where} (a linear mode of frequency omega has dp1/dp0 = cos(omega dT): "
-             f"it fails at omega dT = pi/2); the largest admissible dT here is about {dt_max:.4g}")
+    if update == "midpoint":
+        cause = (f"the midpoint generating function s((x0 + x1)/2) needs (I + DPhi)/2 invertible, but its smallest singular "
+                 f"value is {s_min:.2e} at {where} (a linear mode of frequency omega has |cos(omega dT / 2)|: "
+                 f"it fails at omega dT = pi, half a turn per step); the largest admissible dT here is about {dt_max:.4g}")
+    else:
+        cause = (f"the type-II generating function s(q0, p1) needs dp1/dp0 invertible, but its smallest singular value "
+                 f"is {s_min:.2e} at {where} (a linear mode of frequency omega has dp1/dp0 = cos(omega dT): "
+                 f"it fails at omega dT = pi/2); the largest admissible dT here is about {dt_max:.4g}")
     if dt_worst >= dt_max:
         raise ValueError(cause.replace("but its smallest singular value", "and dT = %.4g lies past the first step where it "
                                        "is singular (smallest singular value here" % dt_worst, 1).replace(" at mu", ") at mu", 1)
@@ -686,48 +716,56 @@ def _report_existence(s_min: float, mu_worst, dt_worst: float, dt_max: float, fa
     if s_min < warn_below:
         warnings.warn(cause + ": the macro step is close to it, expect a hard interpolation problem",
                       GeneratingFunctionWarning, stacklevel=3)
-    logger.info(f"type-II generating function exists on the data: min sigma(dp1/dp0) = {s_min:.3f}, "
-                f"largest admissible dT ~ {dt_max:.4g}")
+    logger.info(f"{'midpoint' if update == 'midpoint' else 'type-II'} generating function exists on the data: "
+                f"min sigma = {s_min:.3f}, largest admissible dT ~ {dt_max:.4g}")
     return {"sigma_min": s_min, "dt_max": dt_max}
 
 
-def _broken(jac: np.ndarray, threshold: float) -> bool:
-    """``dp1/dp0`` singular or past a singularity: ``sigma_min < threshold`` or ``det <= 0`` (it is ``+1`` at ``dT = 0``)."""
-    n = jac.shape[-1] // 2
-    block = jac[..., n:, n:]
-    return bool(np.any(type2_sigma_min(jac) < threshold) or np.any(np.linalg.det(block) <= 0))
+def _broken(jac: np.ndarray, threshold: float, update: str = "symplectic_euler") -> bool:
+    """The form's Jacobian (``dp1/dp0``, or ``(I + D Phi)/2`` for the midpoint form) singular or past a singularity:
+    ``sigma_min < threshold`` or ``det <= 0`` (it is ``+1`` at ``dT = 0``)."""
+    if update == "midpoint":
+        block = 0.5 * (np.eye(jac.shape[-1]) + jac)
+    else:
+        n = jac.shape[-1] // 2
+        block = jac[..., n:, n:]
+    return bool(np.any(_SIGMA[update](jac) < threshold) or np.any(np.linalg.det(block) <= 0))
 
 
-def first_singular_step(generators, threshold: float = 1e-2, n_grid: int = 800) -> float:
-    """First ``t`` where ``dp1/dp0`` of ``expm(t A)`` becomes (nearly) singular, over linear generators ``A = J H``.
+def first_singular_step(generators, threshold: float = 1e-2, n_grid: int = 800, update: str = "symplectic_euler") -> float:
+    """First ``t`` where the form's Jacobian of ``expm(t A)`` becomes (nearly) singular, over linear generators ``A = J H``.
 
     Scans ``(0, 2 pi / omega_max]`` on ``n_grid`` points (``omega_max`` the largest
-    ``|Im|`` eigenvalue); returns ``pi / (2 omega_max)`` if no point breaks, ``inf``
-    for ``omega_max = 0``.  Cost ``O(n_grid * len(generators))`` matrix exponentials.
+    ``|Im|`` eigenvalue); returns ``pi / (2 omega_max)`` (``pi / omega_max`` for
+    ``update="midpoint"``) if no point breaks, ``inf`` for ``omega_max = 0``.
+    Cost ``O(n_grid * len(generators))`` matrix exponentials.
     """
     om = max(float(np.abs(np.linalg.eigvals(A).imag).max()) for A in generators)
     if om == 0:
         return np.inf
     for t in np.linspace(0, 2 * np.pi / om, n_grid + 1)[1:]:
-        if any(_broken(expm(t * A), threshold) for A in generators):
+        if any(_broken(expm(t * A), threshold, update) for A in generators):
             return float(t)
-    return float(np.pi / (2 * om))
+    return float(np.pi / ((1 if update == "midpoint" else 2) * om))
 
 
-def _largest_admissible_dt(system, x0, mu, dt, threshold: float) -> float:
+def _largest_admissible_dt(system, x0, mu, dt, threshold: float, update: str = "symplectic_euler") -> float:
     """The first ``dT`` of a scan where ``dp1/dp0`` becomes (nearly) singular at some point (:func:`_broken`).
 
     Linear systems: exact propagators on a grid of ``(0, 2 pi / omega_max]``
     (800 steps; modes coupled through ``H`` may break before ``pi / (2 omega_max)``);
     otherwise finite-difference Jacobians of the reference flow at up to 10 of the
     points on ``(0, 4 max dT]`` (40 steps).  A sign change of ``det(dp1/dp0)``
-    between grid points counts, so a coarse grid cannot step over the singularity.
+    between grid points counts, so a coarse grid cannot step over the singularity
+    (the midpoint form's ``det((I + D Phi)/2)`` only touches 0 at a half turn,
+    ``cos^2(theta/2)`` per mode: there the scan relies on the threshold, which
+    the linear grid resolves, ``|theta - pi| / 2 <= pi / 800`` at the fastest mode).
     """
     if isinstance(system, LinearHamiltonianSystem):
-        return first_singular_step([system.J @ system.matrix(m) for m in np.unique(mu, axis=0)], threshold)
+        return first_singular_step([system.J @ system.matrix(m) for m in np.unique(mu, axis=0)], threshold, update=update)
     sub = slice(0, min(10, len(x0)))
     grid = np.linspace(0, 4 * float(dt.max()), 41)[1:]
     for t in grid:
-        if _broken(system.flow_jacobian(x0[sub], mu[sub], np.full(len(x0[sub]), t)), threshold):
+        if _broken(system.flow_jacobian(x0[sub], mu[sub], np.full(len(x0[sub]), t)), threshold, update):
             return float(t)
     return float(grid[-1])  # admissible at least up to here

@@ -28,7 +28,8 @@ Data (:mod:`sympredict.flowmaps`):
 Validation data come from parameters drawn at random in the parameter box
 (``parameter_space`` or the box of the training parameters), never from the
 training parameters.  Before training, :func:`~sympredict.flowmaps.check_generating_function`
-checks that the type-II generating function exists at ``dt`` (fails with the
+checks that the predictor's generating function exists at ``dt`` (type II, or
+the midpoint form for a predictor with ``update="midpoint"``; fails with the
 largest admissible ``dt``).  The predictor is trained in scaled coordinates
 (:mod:`sympredict.scaling`): parameters mapped to ``[0, 1]^d``, ``dt`` to 1,
 states by a conformally symplectic diagonal map, so the ROM's step stays symplectic.
@@ -62,6 +63,7 @@ from sympredict.flowmaps import (
     first_singular_step,
     check_generating_function,
     linear_system_from_pymor,
+    midpoint_sigma_min,
     mu_to_vector,
     mus_to_matrix,
     parameter_box,
@@ -224,7 +226,9 @@ class SymplecticKernelReductor(BasicObject):
     max_centers : int
         Budget of the default predictor.
     check_existence : bool
-        Run :func:`~sympredict.flowmaps.check_generating_function` on the data.
+        Run :func:`~sympredict.flowmaps.check_generating_function` on the data, for
+        the predictor's ``update`` (type II by default; ``"midpoint"``: the
+        symmetric form, which holds up to half a turn per step).
     seed : int
     """
 
@@ -328,6 +332,10 @@ class SymplecticKernelReductor(BasicObject):
                              f"(T / nt), got dt = {self.dt:.6g}: use dt = k * {h:.6g}")
         return stride
 
+    def _update(self) -> str:
+        """The generating-function update of the predictor (the existence check depends on it)."""
+        return getattr(self.predictor, "update", "symplectic_euler") if self.predictor is not None else "symplectic_euler"
+
     def _check_existence_projected(self, data):
         """Type-II check from the data alone: per parameter a least-squares linear map ``x1 ~ M x0``
         (exact for a linear FOM, the best linear fit of a nonlinear one), its generator ``log(M) / dt``
@@ -341,13 +349,14 @@ class SymplecticKernelReductor(BasicObject):
                                  f"of {self.dim} dimensions")
                 continue
             M = M.T
-            sigma = float(type2_sigma_min(M[None])[0])
+            sigma = float((midpoint_sigma_min if self._update() == "midpoint" else type2_sigma_min)(M[None])[0])
             generators.append(np.real(logm(M)) / self.dt)
             if sigma < worst[0]:
                 worst = (sigma, row)
         if worst[1] is None:
             return {}
-        return _report_existence(worst[0], worst[1], self.dt, first_singular_step(generators), 1e-2, 0.1)
+        update = self._update()
+        return _report_existence(worst[0], worst[1], self.dt, first_singular_step(generators, update=update), 1e-2, 0.1, update)
 
     def training_data(self):
         """Training and validation :class:`~sympredict.data.FlowMapData` in original reduced coordinates."""
@@ -356,7 +365,7 @@ class SymplecticKernelReductor(BasicObject):
             train, system = self._reduced_data(self.training_parameters, self.n_samples, self.seed)
             val, _ = self._reduced_data(val_mus, max(50, self.n_samples // 4), self.seed + 1)
             if self.check_existence:
-                self.existence_ = check_generating_function(system, train)
+                self.existence_ = check_generating_function(system, train, update=self._update())
         else:
             train = self._projected_data(self.training_parameters)
             val = self._projected_data(val_mus)
@@ -374,8 +383,24 @@ class SymplecticKernelReductor(BasicObject):
         self.selection_ = sel
         return SymplecticKernelPredictor(sel.state, sel.mu, None, max_centers=self.max_centers, tol=1e-12)
 
-    def reduce(self, T: Optional[float] = None) -> SymplecticKernelModel:
-        """Sample data, fit the predictor, return the ROM (horizon ``T``, default ``fom.T``)."""
+    def scaled_training_data(self):
+        """Training and validation data in the predictor's coordinates, and the scalings that map to them.
+
+        Samples the data (:meth:`training_data`, kept as ``train_data_`` and
+        ``validation_data_``), fits the state scaling (``state_scaling``) and,
+        when the parameters vary, the box scaling of the parameters; the step
+        becomes the time unit.  :meth:`reduce` fits its predictor on exactly
+        these data, so a kernel search run on them (e.g.
+        :func:`~sympredict.selection.select_kernels` with another update) chooses
+        for the model that :meth:`reduce` trains.
+
+        Returns
+        -------
+        s_train, s_val : FlowMapData
+            Scaled states, parameters in ``[0, 1]^d`` (``None`` when they do not vary), ``dt = 1``.
+        state_scaling : SymplecticScaling
+        mu_scaling : BoxScaling or None
+        """
         with self.logger.block(f"flow-map data ({self.data}), 2n = {self.dim}, dt = {self.dt:g}"):
             train, val = self.training_data()
         self.train_data_, self.validation_data_ = train, val
@@ -393,7 +418,13 @@ class SymplecticKernelReductor(BasicObject):
             return FlowMapData(state_scaling.transform(d.x0), state_scaling.transform(d.x1),
                                mu_scaling.transform(d.mu) if vary_mu else None, np.ones(len(d)))  # time unit dt
 
-        s_train, s_val = scaled(train), scaled(val)
+        return scaled(train), scaled(val), state_scaling, mu_scaling
+
+    def reduce(self, T: Optional[float] = None) -> SymplecticKernelModel:
+        """Sample data, fit the predictor, return the ROM (horizon ``T``, default ``fom.T``)."""
+        s_train, s_val, state_scaling, mu_scaling = self.scaled_training_data()
+        train = self.train_data_
+        vary_mu = mu_scaling is not None
         if self.predictor is None:
             predictor = self._default_predictor(s_train, s_val, vary_mu)
         else:

@@ -146,6 +146,45 @@ def test_generating_function_check_names_cause_and_largest_step():
         check_generating_function(pend, flow_map_data(pend, small, None, 1.6), max_points=5)
 
 
+def test_midpoint_existence_check_holds_to_a_half_turn():
+    osc = LinearHamiltonianSystem(lambda mu: np.eye(2), 2, 0)  # a rotation by dT: (I + DPhi)/2 has sigma |cos(dT/2)|
+    x0 = np.random.default_rng(1).normal(size=(20, 2))
+    for dT in (1.0, 2.0, 2.5):  # past the type-II limit pi/2, below the half turn
+        info = check_generating_function(osc, flow_map_data(osc, x0, None, dT), update="midpoint")
+        assert info["sigma_min"] == pytest.approx(np.cos(dT / 2), rel=1e-10)
+        assert info["dt_max"] == pytest.approx(2 * np.arccos(1e-2), abs=0.01)
+    with pytest.raises(ValueError, match="dp1/dp0"):
+        check_generating_function(osc, flow_map_data(osc, x0, None, 2.0))
+    with pytest.warns(GeneratingFunctionWarning, match="half a turn"):
+        check_generating_function(osc, flow_map_data(osc, x0, None, 3.0), update="midpoint")
+    with pytest.raises(ValueError, match=r"\(I \+ DPhi\)/2.*half a turn"):
+        check_generating_function(osc, flow_map_data(osc, x0, None, np.pi), update="midpoint")
+    with pytest.raises(ValueError, match="past the first step"):  # 1.2 turns: sigma recovered, the branch broke
+        check_generating_function(osc, flow_map_data(osc, x0, None, 1.2 * np.pi), update="midpoint")
+    with pytest.raises(ValueError, match="update must be"):
+        check_generating_function(osc, flow_map_data(osc, x0, None, 1.0), update="leapfrog")
+
+
+def test_reductor_checks_the_existence_of_its_predictors_update(wave):
+    fom, train, RB, dt = wave
+    red = SymplecticKernelReductor(fom, RB, train, dt, n_samples=30, n_validation=1)
+    red.training_data()
+    limit = red.existence_["dt_max"]
+    big = 1.5 * limit  # past the type-II limit, below the midpoint form's (twice as long)
+    with pytest.raises(ValueError, match="dp1/dp0"):
+        SymplecticKernelReductor(fom, RB, train, big, n_samples=30, n_validation=1).training_data()
+    mid = SymplecticKernelReductor(fom, RB, train, big, SymplecticKernelPredictor(update="midpoint"),
+                                   n_samples=30, n_validation=1)
+    mid_train, _ = mid.training_data()
+    # coordinate-free: the first half turn of the fastest reduced mode (type II depends on the coordinates)
+    om = max(mid.reduced_system.frequencies(m).max() for m in np.unique(mid_train.mu, axis=0))
+    assert mid.existence_["dt_max"] == pytest.approx(2 * np.arccos(1e-2) / om, rel=0.01)
+    assert mid.existence_["dt_max"] > big
+    with pytest.raises(ValueError, match="half a turn"):
+        SymplecticKernelReductor(fom, RB, train, 2.5 * limit, SymplecticKernelPredictor(update="midpoint"),
+                                 n_samples=30, n_validation=1).training_data()
+
+
 # ---------------------------------------------------------------- scaling
 def test_scaled_predictor_step_is_symplectic():
     rng = np.random.default_rng(2)
