@@ -4,7 +4,7 @@ Run:  python docs/mor_comparison.py [--T 10] [--repeats 7] [--json out.json]
 
 Setup (issue 12): ``pymordemos.symplectic_wave_equation.discretize_fom`` with the
 stiffness block scaled by ``c^2 / 0.1^2``, ``c in [0.08, 0.12]``; 5 training speeds
-(uniform), symplectic basis ``psd_complex_svd`` of their FOM trajectories, 2n = 8;
+(uniform), symplectic basis ``psd_complex_svd`` of their FOM trajectories, 2n = 4 (``psd_complex_svd(U, 4)``: 4 modes);
 macro step dt = 10 FOM steps; 5 test speeds drawn at random in the range (seeded).
 Errors: ``sqrt(sum_k |u_fom(t_k) - V u_rom(t_k)|^2 / sum_k |u_fom(t_k)|^2)`` on
 ``t_k = k dt`` over ``[0, T]`` and, past the training horizon, over ``(T, 2T]``.

@@ -4,7 +4,7 @@ Run:  python examples/pymor_wave_reductor.py [--T 5] [--data projected|reduced] 
 
 The user code (marked) is what a pyMOR user writes: the demo model with its stiffness block
 scaled by c^2 / 0.1^2 (the demo has c = 0.1), snapshots at 5 training speeds, a symplectic
-basis (2n = 8), the reductor with dt = 10 FOM steps.  The rest compares with the FOM and with
+basis (2n = 4: ``psd_complex_svd(U, 4)`` has 4 modes), the reductor with dt = 10 FOM steps.  The rest compares with the FOM and with
 pyMOR's symplectic Galerkin ROM at speeds not trained on.
 """
 
