@@ -34,6 +34,8 @@ import time
 import numpy as np
 from threadpoolctl import threadpool_limits
 
+from _coordinate_search import coordinate_search  # benchmarks/ (the script's folder is on sys.path)
+
 from sympredict import SymplecticKernelPredictor
 from sympredict.data import FlowMapData
 from sympredict.exceptions import extrapolation_expected
@@ -158,21 +160,9 @@ with threadpool_limits(1):
         scores = {s: evaluate(best, s, datasets[s], vals) for s in args.samplings}
         sampling = min(scores, key=scores.get)
         best_score = scores[sampling]
-        log_f = np.log(args.factor)
-        for sweep in range(args.sweeps):
-            improved = False
-            for name in args.search:
-                i = NAMES.index(name)
-                for sign in (1, -1):
-                    cand = list(best)
-                    cand[i] = float(best[i] * np.exp(sign * log_f))
-                    score = evaluate(cand, sampling, datasets[sampling], vals)
-                    if score < best_score:
-                        best, best_score, improved = cand, score, True
-            print(f"sweep {sweep}: best {sampling} {dict(zip(NAMES, best))}, score {best_score:.3e} "
-                  f"(factor {np.exp(log_f):.3f})", flush=True)
-            if not improved:
-                log_f /= 2
+        best, best_score = coordinate_search(lambda cand: evaluate(cand, sampling, datasets[sampling], vals), best,
+                                             NAMES, args.search, args.factor, args.sweeps, start_score=best_score,
+                                             label=f"{sampling} ")
     model = fit(best, datasets[sampling])
     test, by_size = {}, {}
     for seed in args.test_seeds:

@@ -31,6 +31,8 @@ import time
 import numpy as np
 from threadpoolctl import threadpool_limits
 
+from _coordinate_search import coordinate_search  # benchmarks/ (the script's folder is on sys.path)
+
 from sympredict import SymplecticKernelPredictor
 from sympredict.data import FlowMapData
 from sympredict.experiments.pendulum import paper_test_instances
@@ -139,21 +141,8 @@ with threadpool_limits(1):
     else:
         val = cases(args.val_seeds)
         best = list(args.start)
-        best_score = evaluate(best, val)
-        log_f = np.log(args.factor)
-        for sweep in range(args.sweeps):
-            improved = False
-            for name in args.search:
-                i = NAMES.index(name)
-                for sign in (1, -1):
-                    cand = list(best)
-                    cand[i] = float(best[i] * np.exp(sign * log_f))
-                    score = evaluate(cand, val)
-                    if score < best_score:
-                        best, best_score, improved = cand, score, True
-            print(f"sweep {sweep}: best {dict(zip(NAMES, best))}, score {best_score:.3e} (factor {np.exp(log_f):.3f})", flush=True)
-            if not improved:
-                log_f /= 2
+        best, best_score = coordinate_search(lambda cand: evaluate(cand, val), best, NAMES, args.search, args.factor,
+                                             args.sweeps)
     model = fit(best)
     test = medians(model, cases(args.test_seeds), args.test_seeds) if args.test_seeds else {}
     worst = max((v for d in test.values() for v in d.values()), default=np.inf)
