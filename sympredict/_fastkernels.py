@@ -637,8 +637,10 @@ def compiled_formulas(family: type):
     out = _COMPILED_FORMULAS.get(family)
     if out is None:
         cache = family.__module__.startswith("sympredict.")  # see _build: other families' types stay out of the cache
+        # fastmath=False explicitly: numba compiles a callee that leaves it unset with its caller's flags, and the
+        # fused Newton pass (reassoc, contract) would then compile, and cache on disk, contracted formulas for everyone
         out = _COMPILED_FORMULAS[family] = tuple(
-            numba.njit(getattr(family, name), cache=cache, nogil=True, error_model="numpy")
+            numba.njit(getattr(family, name), cache=cache, nogil=True, fastmath=False, error_model="numpy")
             for name in ("profile", "first_factors", "all_factors")
         )
     return out

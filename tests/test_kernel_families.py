@@ -87,6 +87,31 @@ def test_compiled_formulas_are_the_numpy_formulas(name, rng):
 
 @needs_numba
 @pytest.mark.parametrize("name", FAMILIES)
+def test_compiled_formulas_stay_exact_after_the_fastmath_pass_compiles(name, rng):
+    """The fused Newton pass is compiled with fastmath (reassoc, contract); the formulas it calls must not inherit it.
+
+    numba compiles a callee that leaves ``fastmath`` unset with its caller's flags, once per signature, and caches
+    that on disk: the formulas then differ from NumPy by an ulp for every later caller and process (seen in CI).
+    """
+    family = KERNEL_FAMILIES[name]
+    for formula in _fastkernels.compiled_formulas(family):
+        assert formula.targetoptions.get("fastmath") is False
+    kernel = family(0.7)
+    x0 = rng.uniform(-1, 1, (40, 2))
+    model = SymplecticKernelPredictor(kernel, None, None, max_centers=10, backend="numba")
+    model.fit(x0, x0 + 0.01 * rng.standard_normal((40, 2)), dt=0.1)
+    with extrapolation_expected():
+        model.rollout(x0[:4], 2, dt=0.1)  # compiles the fastmath pass with this family's formulas
+    r = rng.uniform(0, 6, 100)
+    third = _fastkernels.compiled_formulas(family)[2]
+    check = np.testing.assert_array_equal if family.exact_arithmetic else (
+        lambda a, b: np.testing.assert_allclose(a, b, rtol=1e-14, atol=1e-300))
+    for got, want in zip(zip(*[third(0.7, v) for v in r]), family.all_factors(0.7, r)):
+        check(np.array(got), want)
+
+
+@needs_numba
+@pytest.mark.parametrize("name", FAMILIES)
 def test_compiled_gradient_and_hessian_equal_numpy(name, rng):
     """The compiled Newton pass (gradient, d_p d_q s, floor) against the NumPy surrogate, 2n = 4, random centres."""
     kernel = KERNEL_FAMILIES[name](0.6)
