@@ -337,7 +337,8 @@ class SymplecticKernelReductor(BasicObject):
         return getattr(self.predictor, "update", "symplectic_euler") if self.predictor is not None else "symplectic_euler"
 
     def _check_existence_projected(self, data):
-        """Type-II check from the data alone: per parameter a least-squares linear map ``x1 ~ M x0``
+        """Existence check (type II, or the midpoint form for the predictor's update) from the data alone:
+        per parameter a least-squares linear map ``x1 ~ M x0``
         (exact for a linear FOM, the best linear fit of a nonlinear one), its generator ``log(M) / dt``
         for the largest admissible step."""
         worst, generators = (np.inf, None), []
