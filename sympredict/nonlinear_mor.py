@@ -37,7 +37,7 @@ import numpy as np
 
 from sympredict._checks import as_positive_int, as_states, as_steps
 from sympredict.integrators_compiled import HAVE_NUMBA, PointwiseHamiltonian, jit_pointwise, rollout
-from sympredict.metrics import canonical_J
+from sympredict.reduction import symplectic_inverse
 
 try:  # pragma: no cover - with numba
     import numba
@@ -238,9 +238,7 @@ class ReducedSineGordon:
 
     def project(self, x) -> np.ndarray:
         """``V+ x = J^T V^T J x`` of full states (..., 2N) -> (..., 2n)."""
-        N2 = self.V.shape[0]
-        Vplus = canonical_J(self.dim).T @ self.V.T @ canonical_J(N2)
-        return np.asarray(x) @ Vplus.T
+        return np.asarray(x) @ symplectic_inverse(self.V).T
 
     def reconstruct(self, y) -> np.ndarray:
         """``V y`` (..., 2n) -> (..., 2N)."""

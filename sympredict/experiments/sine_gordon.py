@@ -37,6 +37,7 @@ from dataclasses import asdict, dataclass, field, replace
 import numpy as np
 from pymor.core.logger import getLogger
 
+from sympredict.flowmaps import midpoint_sigma_min
 from sympredict.kernels import IMQ
 from sympredict.metrics import canonical_J, relative_trajectory_error
 from sympredict.nonlinear_mor import ReducedSineGordon, nonlinear_snapshots
@@ -74,8 +75,20 @@ class SineGordonPreset:
     #: ridge terms tried on held-out training trajectories (plus 0, the exact fit); () for the exact fit only
     regularizations: tuple = (1e-8, 1e-6, 1e-4)
     validation_every: int = 4
+    #: extra pairs for the Galerkin-data kernel: 'energy' (EnergySamples: states with H <= max training energy,
+    #: stepped by the Galerkin ROM), 'energy-box', 'symmetry' (u -> -u) or 'none'; for the FOM-data kernel
+    #: 'symmetry' or 'none' (non-intrusive: no new FOM data)
+    reduced_augment: str = "energy"
+    projected_augment: str = "none"
+    energy_samples_per_pair: float = 1.0
     #: the large-step regime: macro step large_step * DT (0: not run)
     large_step: int = 10
+    #: further large steps tried by choose_large_step (on the training trajectories; () : large_step only)
+    large_step_candidates: tuple = (15, 20)
+    #: choose_large_step: the classical/floor ratio wanted on the training trajectories (10x plus 20 % for the
+    #: kernel's distance above the floor) and the smallest admissible sigma_min((I + M) / 2)
+    large_step_margin: float = 12.0
+    large_step_sigma_min: float = 0.1
     ref_tol: float = 1e-7
     cost_N: tuple = (1000, 4000, 16000)
     repeats: int = 5
@@ -86,7 +99,8 @@ PRESETS = {
     "quick": SineGordonPreset(),
     "paper": SineGordonPreset(n_c=5, n_amplitude=6, n_test=5, dims=(8, 12, 16), max_centers=3000, repeats=11),
     "smoke": SineGordonPreset(n_points=60, length=12.0, n_c=2, n_amplitude=2, n_test=2, T=2.0, dims=(4,),
-                             max_centers=60, cost_N=(60, 120), repeats=2, long_factor=2, large_step=5),
+                             max_centers=60, cost_N=(60, 120), repeats=2, long_factor=2, large_step=5,
+                             large_step_candidates=()),
 }
 
 
@@ -143,10 +157,59 @@ def _err(rom, Y, X):
     return relative_trajectory_error(rom.reconstruct(Y), X).mean(axis=1)
 
 
-def _energy_curve(rom, Y, c):
-    """Max over the test trajectories of ``|E(t) - E(0)| / |E(0)|``, ``E = dx H(V y)``, over time (K+1,)."""
+def _energy_errors(rom, Y, c):
+    """``|E(t) - E(0)| / |E(0)|``, ``E = dx H(V y)``, per test trajectory over time (B, K+1)."""
     E = rom.reduced_energy(Y.reshape(-1, rom.dim), np.repeat(c, Y.shape[1])).reshape(len(c), -1)
-    return np.max(np.abs(E - E[:, :1]) / np.abs(E[:, :1]), axis=0)
+    return np.abs(E - E[:, :1]) / np.abs(E[:, :1])
+
+
+#: "bounded over 10 T" (issue 15, :func:`energy_boundedness`): the max energy error over (T, 10 T] at most this
+#: multiple of its max over [0, T] (fixed before the runs; a symplectic map's energy error oscillates at a level
+#: set by its step, which [0, T] samples already)
+ENERGY_BOUND_RATIO = 3.0
+
+
+def energy_boundedness(err, n_train: int, ratio: float = ENERGY_BOUND_RATIO) -> dict:
+    """Whether energy-error series stay bounded beyond the training horizon, per series.
+
+    ``err`` (B, L+1) or (L+1,): ``|E(t_k) - E(0)| / |E(0)|`` on a uniform grid whose first ``n_train`` steps are
+    the training horizon ``[0, T]``.  With ``m0`` the max over ``[0, T]`` (at least ``1e-14``, round-off) and the
+    windows of ``n_train`` steps after ``T``, a series is **bounded** iff
+
+    0. ``m0 < 1`` (a ROM whose energy error already reaches 100 % on ``[0, T]`` has blown up there), and
+    1. ``max over (T, t_L] <= ratio * m0`` (the later error stays at the level seen on the training horizon), and
+    2. no secular growth: the least-squares line through the window maxima (against the window ends) rises
+       by at most ``m0`` from the first to the last window (a slow drift that has not yet crossed 1. fails).
+
+    A non-finite value fails.  Returns per series ``m0``, ``max_after`` (the max over ``(T, t_L]``), ``ratio``
+    (``max_after / m0``), ``rise`` (of the fitted envelope, in units of ``m0``; ``None`` with fewer than two
+    windows) and ``bounded``, plus ``all_bounded``.  ``O(L)`` per series.
+    """
+    e = np.atleast_2d(np.asarray(err, dtype=float))
+    n_train = int(n_train)
+    if n_train < 1 or e.shape[1] <= n_train + 1:
+        raise ValueError(f"need n_train >= 1 and a series longer than n_train + 1 points, got n_train = {n_train}, "
+                         f"length {e.shape[1]}")
+    out = {"m0": [], "max_after": [], "ratio": [], "rise": [], "bounded": []}
+    for row in e:
+        finite = bool(np.all(np.isfinite(row)))
+        m0 = max(float(np.max(row[: n_train + 1])) if finite else np.inf, 1e-14)
+        after = row[n_train + 1:]
+        n_w = len(after) // n_train
+        wmax = [float(np.max(after[w * n_train: (w + 1) * n_train])) for w in range(n_w)] if finite else []
+        rise = None
+        if len(wmax) >= 2:
+            ends = n_train * (np.arange(len(wmax)) + 2.0)
+            slope = np.polyfit(ends, wmax, 1)[0]
+            rise = float(slope * (ends[-1] - ends[0]) / m0)
+        m_after = float(np.max(after)) if finite else np.inf
+        out["m0"].append(m0)
+        out["max_after"].append(m_after)
+        out["ratio"].append(m_after / m0)
+        out["rise"].append(rise)
+        out["bounded"].append(bool(finite and m0 < 1.0 and m_after <= ratio * m0 and (rise is None or rise <= 1.0)))
+    out["all_bounded"] = all(out["bounded"])
+    return out
 
 
 def _one_dimension(fom, p, n, snaps, X_tr, c_tr, a_tr, X_te, c_te, a_te, K):
@@ -166,7 +229,12 @@ def _one_dimension(fom, p, n, snaps, X_tr, c_tr, a_tr, X_te, c_te, a_te, K):
     Yg = gal.solve(y0, c_te, p.DT, p.long_factor * K, substeps=p.substeps)
     res["galerkin_error"] = _err(gal, Yg[:, : K + 1], x_te).tolist()
     curves["galerkin"] = _curve(gal, Yg[:, : K + 1], x_te).tolist()
-    energy["galerkin"] = _energy_curve(gal, Yg, c_te).tolist()
+    # energy errors per test trajectory over 10 T (the boundedness claim, energy_boundedness) and their max (figure)
+    energy_per_test = {"galerkin": _energy_errors(gal, Yg, c_te)}
+    # the projected FOM test trajectories' own energy drift (diagnostic, never a choice): the FOM-data kernel learns
+    # the map between projected states, so this is the energy error of an exact such map over 10 T
+    energy_per_test["projected_fom"] = _energy_errors(gal, gal.project(X_te), c_te)
+    energy["galerkin"] = energy_per_test["galerkin"].max(axis=0).tolist()
     res["galerkin_energy_error_long"] = max(energy["galerkin"])
     snapshots["galerkin"] = gal.reconstruct(Yg[0, snap_k])[:, : fom.n_points].tolist()
     Yd = deim.solve(y0, c_te, p.DT, K, substeps=p.substeps)
@@ -188,7 +256,8 @@ def _one_dimension(fom, p, n, snaps, X_tr, c_tr, a_tr, X_te, c_te, a_te, K):
     Yg_tr = gal.solve(gal.project(X_tr[:, 0]), c_tr, p.DT, K, substeps=p.substeps)
     Yp_tr = gal.project(X_tr)
     for data, Ytr in (("reduced", Yg_tr), ("projected", Yp_tr)):
-        flow, model, fit_time, reg, table = _fit_kernel(p, Ytr[:, :-1], Ytr[:, 1:], c_tr, p.DT)
+        flow, model, fit_time, reg, table = _fit_kernel(p, Ytr[:, :-1], Ytr[:, 1:], c_tr, p.DT,
+                                                        augment=_augmentation(p, data, gal))
         hist = model.history_.train_max_residual
         entry = {"fit_time": fit_time, "regularization": reg, "regularization_table": table,
                  "centers": int(model.surrogate_.n_centers), "train_residual": [float(v) for v in hist], "error": None, "energy_error_long": None,
@@ -197,7 +266,8 @@ def _one_dimension(fom, p, n, snaps, X_tr, c_tr, a_tr, X_te, c_te, a_te, K):
             Yk = flow.rollout(y0, p.long_factor * K, mu=c_te[:, None], dt=p.DT)
             entry["error"] = _err(gal, Yk[:, : K + 1], x_te).tolist()
             curves[f"kernel_{data}"] = _curve(gal, Yk[:, : K + 1], x_te).tolist()
-            energy[f"kernel_{data}"] = _energy_curve(gal, Yk, c_te).tolist()
+            energy_per_test[f"kernel_{data}"] = _energy_errors(gal, Yk, c_te)
+            energy[f"kernel_{data}"] = energy_per_test[f"kernel_{data}"].max(axis=0).tolist()
             entry["energy_error_long"] = max(energy[f"kernel_{data}"])
             snapshots[f"kernel_{data}"] = gal.reconstruct(Yk[0, snap_k])[:, : fom.n_points].tolist()
             entry["time_per_trajectory"] = _median_time(lambda: flow.rollout(y0[:1], K, mu=c_te[:1, None], dt=p.DT),
@@ -211,6 +281,8 @@ def _one_dimension(fom, p, n, snaps, X_tr, c_tr, a_tr, X_te, c_te, a_te, K):
         res["large_step"] = _large_step(p, gal, X_tr, c_tr, X_te, c_te, K)
     res["data_driven"] = _data_driven(fom, p, Yp_tr, c_tr, a_tr, c_te, a_te, gal, x_te, K, curves)
     res["curves"], res["energy"], res["snapshots"] = curves, energy, snapshots
+    res["energy_per_test"] = {k: v.tolist() for k, v in energy_per_test.items()}
+    res["energy_bounded"] = {k: energy_boundedness(v, K) for k, v in energy_per_test.items()}
     res["galerkin_time_per_trajectory"] = _median_time(lambda: gal.solve(y0[:1], c_te[:1], p.DT, K, substeps=p.substeps), p.repeats)
     res["galerkin_rk4_time_per_trajectory"] = _median_time(
         lambda: gal.solve(y0[:1], c_te[:1], p.DT, K, scheme="rk4", substeps=p.substeps), p.repeats)
@@ -220,20 +292,121 @@ def _one_dimension(fom, p, n, snaps, X_tr, c_tr, a_tr, X_te, c_te, a_te, K):
     return res
 
 
-def _fit_kernel(p, Y0, Y1, c_tr, dt, regularization=None, update="symplectic_euler", stride=1):
+def _pairs(Y0, Y1, c):
+    """Flat pairs ``(x0, x1, mu)`` of ``P`` trajectories' pairs ``Y0, Y1`` (P, k, 2n) at wave speeds ``c`` (P,)."""
+    dim = Y0.shape[-1]
+    return Y0.reshape(-1, dim), Y1.reshape(-1, dim), np.repeat(np.asarray(c, dtype=float), Y0.shape[1])[:, None]
+
+
+def no_augmentation(Y0, Y1, c):
+    """The training pairs as they are: flat ``(x0, x1, mu)`` (``P k`` rows)."""
+    return _pairs(Y0, Y1, c)
+
+
+def sign_symmetry(Y0, Y1, c):
+    """The pairs and their images under ``u -> -u`` (flat, ``2 P k`` rows).
+
+    ``sin`` is odd, so ``x(t) -> -x(t)`` maps solutions of sine-Gordon to solutions at the same ``c``; the basis
+    is linear (``V+ (-x) = -V+ x``), so the projected pairs ``(-y0, -y1)`` are exact samples of the same
+    (projected) flow map: data only, no FOM evaluation and nothing beyond the training horizon.
+    """
+    x0, x1, mu = _pairs(Y0, Y1, c)
+    return np.concatenate([x0, -x0]), np.concatenate([x1, -x1]), np.concatenate([mu, mu])
+
+
+@dataclass
+class EnergySamples:
+    """Extra pairs of the Galerkin ROM (``data='reduced'``, intrusive): random reduced states ``y`` with
+    ``dx H(V y; c) <= E_max`` (the largest energy of the training states), ``c`` uniform in ``c_range``, each
+    stepped by the Galerkin ROM over ``DT`` (``substeps`` implicit-midpoint sub-steps).
+
+    ``region='sublevel'`` (default): a direction ``d`` Gaussian in the coordinates where the quadratic part of
+    ``H`` (``y^T (c^2 A1 + A2) y / 2``) is the Euclidean norm, scaled by bisection until ``dx H(r d) = U E_max``
+    with ``U`` uniform in ``(0, 1]`` (``H`` grows along the ray while ``|V_q r d| < pi``; the bisection stays
+    there): energy levels uniform up to ``E_max``.  ``region='box'``: uniform in the training states' bounding
+    box, rejected where ``dx H > E_max``.
+
+    Why: the Galerkin flow conserves ``H``, so the long-time reduced states of training-like initial states lie
+    in ``{H <= E_max}``; the training trajectories over ``[0, T]`` cover a thin part of it, and the reduced
+    dynamics leaves their box after ``T`` (mode amplitudes up to 1.5x the training maximum at ``2n = 8``,
+    ``benchmarks/sine_gordon_long_time.py``).  Uses the training states and energies only (no test data, no
+    time beyond ``T``).  Cost: ``n_per_pair * P k`` Galerkin steps and ``O(60)`` energy evaluations per sample
+    (``O(N n)`` each).  Returns the original pairs plus ``round(n_per_pair * P k)`` sampled ones, flat.
+    """
+
+    gal: object
+    c_range: tuple
+    dt: float
+    substeps: int = 4
+    n_per_pair: float = 1.0
+    region: str = "sublevel"
+    seed: int = 0
+
+    def __call__(self, Y0, Y1, c):
+        x0, x1, mu = _pairs(Y0, Y1, c)
+        rng = np.random.default_rng(self.seed)
+        states = np.concatenate([x0, x1])
+        e_max = float(self.gal.reduced_energy(states, np.concatenate([mu[:, 0], mu[:, 0]])).max())
+        m = int(round(self.n_per_pair * len(x0)))
+        cc = rng.uniform(*self.c_range, m)
+        if self.region == "box":
+            lo, hi = states.min(axis=0), states.max(axis=0)
+            ys, c_s = [], []
+            while sum(len(y) for y in ys) < m:
+                y = rng.uniform(lo, hi, size=(4 * m, len(lo)))
+                cb = rng.uniform(*self.c_range, len(y))
+                keep = self.gal.reduced_energy(y, cb) <= e_max
+                ys.append(y[keep])
+                c_s.append(cb[keep])
+            y, cc = np.concatenate(ys)[:m], np.concatenate(c_s)[:m]
+        elif self.region == "sublevel":
+            Q = 0.5 * (self.gal.A1 + self.gal.A1.T) * np.mean(self.c_range) ** 2 + 0.5 * (self.gal.A2 + self.gal.A2.T)
+            d = np.linalg.solve(np.linalg.cholesky(Q).T, rng.normal(size=(len(Q), m))).T  # |d|_Q Gaussian
+            target = rng.uniform(0.0, 1.0, m) * e_max
+            Vq = self.gal.V[: self.gal.fom.n_points]
+            lo, hi = np.zeros(m), np.pi / np.abs(d @ Vq.T).max(axis=1)  # |q| <= pi along the ray
+            for _ in range(50):  # vectorized bisection on the energy along each ray
+                mid = 0.5 * (lo + hi)
+                below = self.gal.reduced_energy(mid[:, None] * d, cc) < target
+                lo, hi = np.where(below, mid, lo), np.where(below, hi, mid)
+            y = lo[:, None] * d
+        else:
+            raise ValueError(f"region must be 'sublevel' or 'box', got {self.region!r}")
+        y1 = self.gal.solve(y, cc, self.dt, 1, substeps=self.substeps)[:, 1]
+        return np.concatenate([x0, y]), np.concatenate([x1, y1]), np.concatenate([mu, cc[:, None]])
+
+
+def _augmentation(p, data: str, gal):
+    """The pair augmentation of the preset for ``data`` (``'reduced'``: ``p.reduced_augment``, ``'projected'``:
+    ``p.projected_augment``); ``gal`` is the Galerkin ROM that steps the energy samples (intrusive data only)."""
+    kind = p.reduced_augment if data == "reduced" else p.projected_augment
+    if kind == "none":
+        return no_augmentation
+    if kind == "symmetry":
+        return sign_symmetry
+    if kind in ("energy", "energy-box") and data == "reduced":
+        return EnergySamples(gal, p.c_range, p.DT, p.substeps, p.energy_samples_per_pair,
+                             "sublevel" if kind == "energy" else "box", p.seed)
+    raise ValueError(f"augmentation {kind!r} is not available for data={data!r} (energy samples need the Galerkin ROM)")
+
+
+def _fit_kernel(p, Y0, Y1, c_tr, dt, regularization=None, update="symplectic_euler", stride=1, augment=no_augmentation):
     """A kernel flow map at the macro step ``dt`` from pairs of reduced states ``Y1 = Phi^dt(Y0)`` (P, k, 2n)
     of ``P`` training trajectories at wave speeds ``c_tr`` (P,).
 
     Scaled coordinates (:mod:`sympredict.scaling`, as the reductor does): conformally symplectic state map, ``c``
     onto ``[0, 1]``, time unit ``dt``; the learned step stays symplectic in the original coordinates.
+    ``augment`` (a strategy: :func:`no_augmentation`, :func:`sign_symmetry`, :class:`EnergySamples`) turns
+    the pairs of the trajectories a fit uses into the flat pairs it fits; it sees only those trajectories (a
+    held-out trajectory's images are not in the fit that is scored on it).
 
     With ``p.regularizations`` and no ``regularization`` given, the ridge term is chosen among ``0`` and
     ``p.regularizations`` by **rollout on held-out training trajectories** (``1, 1 + validation_every, ...``;
     training data only, never the test parameters): each candidate is fitted on the other trajectories and
     rolled out from the held-out initial states ``Y0[:, 0]``; its score is the mean relative error against
     ``Y1[:, ::stride]`` (``stride`` pairs per macro step when the pairs start at every output, as in the
-    large-step regime), a failed or non-finite rollout scoring ``inf``; ties go to the smaller term.  The
-    one-step gradient residual (:func:`~sympredict.selection.select_regularization`) does not predict
+    large-step regime), a failed or non-finite rollout scoring ``inf``; ties go to the smaller term.  The one-step gradient residual
+    (:func:`~sympredict.selection.select_regularization`) does not predict
     whether a rollout stays in the data (measured: it chose ``1e-8`` at ``2n = 12`` where the rollout blows up
     and ``1e-6`` works).  The model is then refitted on all trajectories with the chosen term.
 
@@ -249,7 +422,7 @@ def _fit_kernel(p, Y0, Y1, c_tr, dt, regularization=None, update="symplectic_eul
         held[1::p.validation_every] = True
         ref = Y1[held, ::stride]
         for lam in sorted({0.0, *map(float, p.regularizations)}):
-            flow, _ = _fit_scaled(p, Y0[~held], Y1[~held], c_tr[~held], dt, lam, update)
+            flow, _ = _fit_scaled(p, *augment(Y0[~held], Y1[~held], c_tr[~held]), dt, lam, update)
             try:
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore")
@@ -260,21 +433,69 @@ def _fit_kernel(p, Y0, Y1, c_tr, dt, regularization=None, update="symplectic_eul
             table.append((lam, score if np.isfinite(score) else None))
         scored = [(sc, lam) for lam, sc in table if sc is not None]
         reg = min(scored)[1] if scored else 0.0  # smallest score; on a tie the smaller term (tuples compare in order)
-    flow, model = _fit_scaled(p, Y0, Y1, c_tr, dt, reg, update)
+    flow, model = _fit_scaled(p, *augment(Y0, Y1, c_tr), dt, reg, update)
     return flow, model, time.perf_counter() - t0, reg, table
 
 
-def _fit_scaled(p, Y0, Y1, c_tr, dt, regularization, update):
-    """One fit of :func:`_fit_kernel` (scaled coordinates); returns the flow map and the predictor."""
-    dim = Y0.shape[-1]
-    x0, x1 = Y0.reshape(-1, dim), Y1.reshape(-1, dim)
-    mu = np.repeat(c_tr, Y0.shape[1])[:, None]
+def _fit_scaled(p, x0, x1, mu, dt, regularization, update):
+    """One fit of :func:`_fit_kernel` (scaled coordinates) on flat pairs ``x0, x1`` (m, 2n) at ``mu`` (m, 1);
+    returns the flow map and the predictor."""
     st = SymplecticScaling(p.state_scaling).fit(np.concatenate([x0, x1]))
     ms = BoxScaling().fit(mu, np.array([p.c_range[0]]), np.array([p.c_range[1]]))
     model = SymplecticKernelPredictor(None if p.state_eps is None else IMQ(p.state_eps), mu_kernel=IMQ(p.mu_eps),
                                       max_centers=p.max_centers, tol=1e-9, update=update, regularization=regularization)
     model.fit(st.transform(x0), st.transform(x1), mu=ms.transform(mu), dt=1.0)
     return NormalizedFlowMap(model, st, ms, dt), model
+
+
+def choose_large_step(p, gal, X_tr, c_tr, K) -> dict:
+    """The large step ``s`` (``DT_large = s DT``) among ``p.large_step`` and ``p.large_step_candidates``, by a rule
+    on the **training** trajectories ``X_tr`` (P, K+1, 2N) only (never the test parameters):
+
+    * admissible: the symmetric update's generating function exists on the data: per training ``c`` the
+      least-squares linear map ``M`` of the projected pairs ``(y(t), y(t + DT_large))`` has
+      ``sigma_min((I + M) / 2) >= p.large_step_sigma_min`` (:func:`~sympredict.flowmaps.midpoint_sigma_min`,
+      ``|cos(omega DT / 2)|`` for a mode turning by ``omega DT``: it fails at half a turn per step);
+    * margin: ``r = min over training trajectories of (best classical error) / (projection floor)`` on the
+      ``DT_large`` grid (best of implicit midpoint and RK4 on the Galerkin ROM from the training initial states;
+      the floor ``|V V+ x - x|``, below which no ROM in this basis goes): a kernel ROM at the floor is ``r``
+      times more accurate than the classical schemes;
+    * the smallest admissible ``s`` with ``r >= p.large_step_margin``; if none reaches it, the admissible ``s``
+      with the largest ``r``; if none is admissible, ``p.large_step``.
+
+    Returns ``{"large_step": s, "table": [{"large_step", "DT", "sigma_min", "admissible", "ratio"}, ...]}``.
+    Cost: per candidate one implicit-midpoint and one RK4 solve of the ``P`` training trajectories and ``P``
+    least-squares fits of size ``2n``.
+    """
+    table = []
+    for s in sorted({int(p.large_step), *map(int, p.large_step_candidates)}):
+        dt, Kl = s * p.DT, K // s
+        x = X_tr[:, : Kl * s + 1: s]
+        Y = gal.project(X_tr)
+        sig = np.inf
+        for c in np.unique(c_tr):
+            sel = c_tr == c
+            y0, y1 = Y[sel, :-s].reshape(-1, gal.dim), Y[sel, s:].reshape(-1, gal.dim)
+            M = np.linalg.lstsq(y0, y1, rcond=None)[0].T
+            sig = min(sig, float(midpoint_sigma_min(M[None])[0]))
+        floor = _err(gal, gal.project(x), x)
+        errs = []
+        for scheme in ("implicit_midpoint", "rk4"):
+            try:
+                with np.errstate(all="ignore"):
+                    e = _err(gal, gal.solve(gal.project(x[:, 0]), c_tr, dt, Kl, scheme=scheme), x)
+                errs.append(np.where(np.isfinite(e), e, np.inf))
+            except Exception:  # a failed classical scheme is absent
+                pass
+        best = np.min(errs, axis=0) if errs else np.full(len(x), np.inf)
+        table.append({"large_step": s, "DT": dt, "sigma_min": sig, "admissible": bool(sig >= p.large_step_sigma_min),
+                      "ratio": float(np.min(best / floor))})
+    ok = [r for r in table if r["admissible"]]
+    if not ok:
+        return {"large_step": int(p.large_step), "table": table}
+    meet = [r for r in ok if r["ratio"] >= p.large_step_margin]
+    pick = meet[0] if meet else max(ok, key=lambda r: r["ratio"])
+    return {"large_step": pick["large_step"], "table": table}
 
 
 def _large_step(p, gal, X_tr, c_tr, X_te, c_te, K):
@@ -286,14 +507,15 @@ def _large_step(p, gal, X_tr, c_tr, X_te, c_te, K):
     exists up to a half turn per step where the symplectic-Euler form fails at a quarter turn), trained on
     every pair ``(x(t), x(t + DT_large))`` of the training trajectories' output grid.  Errors against the FOM
     on the ``DT_large`` grid, per test parameter; the snapshot projection error there is the floor of any
-    ROM in this basis.
+    ROM in this basis.  ``DT_large`` is chosen by :func:`choose_large_step` on the training trajectories.
     """
-    s = int(p.large_step)
+    choice = choose_large_step(p, gal, X_tr, c_tr, K)
+    s = choice["large_step"]
     dt = s * p.DT
     Kl = K // s
     x_te = X_te[:, : Kl * s + 1: s]
     y0 = gal.project(x_te[:, 0])
-    out = {"DT": dt, "steps": Kl, "projection_error": _err(gal, gal.project(x_te), x_te).tolist(),
+    out = {"DT": dt, "steps": Kl, "choice": choice, "projection_error": _err(gal, gal.project(x_te), x_te).tolist(),
            "DT_omega_max": float(dt * np.abs(np.linalg.eigvals(_jg(gal, y0[0], float(p.c_range[1])))).max())}
     out["galerkin_error"] = _err(gal, gal.solve(y0, c_te, dt, Kl, substeps=s * p.substeps), x_te).tolist()
     for scheme in ("implicit_midpoint", "rk4"):
@@ -409,7 +631,8 @@ def _cost_vs_N(fom, p, out, X_tr, c_tr, x_te, c_te):
                 row[key] = row[f"{key}_error"] = None
                 # the ridge term chosen at N = n_points (a setting of the model, not chosen again per N)
                 lam = out["dims"][dim]["kernel_reduced" if key == "kernel" else "kernel_projected"]["regularization"]
-                flow, model, _, row[f"{key}_regularization"], _ = _fit_kernel(p, Ytr[:, :-1], Ytr[:, 1:], c_tr, p.DT, lam)
+                flow, model, _, row[f"{key}_regularization"], _ = _fit_kernel(
+                    p, Ytr[:, :-1], Ytr[:, 1:], c_tr, p.DT, lam, augment=_augmentation(p, "reduced" if key == "kernel" else "projected", gal))
                 row[f"{key}_centers"] = int(model.surrogate_.n_centers)
                 try:
                     row[f"{key}_error"] = float(np.median(_err(gal, flow.rollout(y0, K, mu=c_te[:, None], dt=p.DT), xn_te)))
