@@ -85,7 +85,7 @@ def test_figures_show_the_results(smoke):
         big = next(c for c in report.sine_gordon_claims(smoke) if "large-step" in c["claim"])
         assert f"{ls['kernel_projected_midpoint']['error'][0]:.3f}" in big["evidence"]
     claims = report.sine_gordon_claims(smoke)
-    assert len(claims) == 6 and all(isinstance(c["holds"], bool) for c in claims)
+    assert len(claims) == 7 and all(isinstance(c["holds"], bool) for c in claims)
     md = "\n".join(report.sine_gordon_markdown(smoke))
     assert f"{np.median(res['galerkin_error']):.2e}" in md
     for f in figs.values():
@@ -124,3 +124,18 @@ def test_grid_interpolation_and_break_even_oracles():
     assert b["galerkin_variant"] == "galerkin_rk4_at_DT"
     assert np.isclose(b["kernel"]["N_star"], 2000.0) and np.isclose(b["kernel"]["flat_ratio"], 1.0)
     assert b["kernel_projected"]["N_star"] is None
+
+
+def test_energy_claim_applies_the_boundedness_criterion(smoke):
+    from sympredict.experiments.sine_gordon import energy_boundedness
+
+    K = int(round(PRESETS["smoke"].T / PRESETS["smoke"].DT))
+    res = smoke["dims"]["4"]
+    per = res["energy_per_test"]
+    assert len(per["galerkin"]) == PRESETS["smoke"].n_test and len(per["galerkin"][0]) == len(res["energy"]["t"])
+    assert np.allclose(np.max(per["galerkin"], axis=0), res["energy"]["galerkin"])  # the figure shows the max over tests
+    assert energy_boundedness(per["galerkin"], K)["all_bounded"]  # the Galerkin ROM conserves H up to its step error
+    claim = next(c for c in report.sine_gordon_claims(smoke) if "energy error of the kernel ROMs" in c["claim"])
+    kernels = [energy_boundedness(per[k], K)["all_bounded"] if k in per else False for k in ("kernel_reduced", "kernel_projected")]
+    assert claim["holds"] == all(kernels)
+    assert res["energy_bounded"]["galerkin"]["all_bounded"]
