@@ -519,7 +519,7 @@ def _energy_claim(s: dict, dims: list) -> dict:
     factor = s["preset"].get("long_factor", 10)
     return {"claim": f"sine-Gordon: energy error of the kernel ROMs (both data) bounded over {factor}x the training horizon T "
                      f"at every test parameter: max over (T, {factor}T] <= {ENERGY_BOUND_RATIO:g}x the max over [0, T] < 1, and "
-                     "the least-squares line through the per-T window maxima rises by at most the [0, T] max",
+                     f"the least-squares line through the per-T window maxima rises by at most {ENERGY_BOUND_RATIO - 1:g}x the [0, T] max",
             "holds": bool(oks) and all(oks), "evidence": "; ".join(ev)}
 
 
