@@ -59,6 +59,12 @@ def test_energy_boundedness_rejects_jumps_blowups_and_nan():
     jump[6 * K:] *= 10  # bounded after the jump, but 10x the training level
     assert not energy_boundedness(jump, K)["all_bounded"]
     assert energy_boundedness(jump, K)["ratio"][0] > 3.0
+    # below the floor (0.1 %) the level counts as conserved: a tiny error that grows 5x is still bounded, the same
+    # shape at a higher level is not
+    tiny = 1e-5 * np.abs(np.sin(7.0 * t)) * np.where(t > 1, 5.0, 1.0)
+    assert energy_boundedness(tiny, K)["all_bounded"]
+    assert not energy_boundedness(tiny * 1e3, K)["all_bounded"]
+    assert not energy_boundedness(tiny, K, floor=0.0)["all_bounded"]
     blown = 5.0 + e  # already 500 % on [0, T]: not bounded, even though it is flat
     assert not energy_boundedness(blown, K)["all_bounded"]
     bad = e.copy()
