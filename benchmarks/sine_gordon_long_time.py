@@ -21,6 +21,7 @@ Run:  python benchmarks/sine_gordon_long_time.py [--dim 8] [--data reduced proje
 import argparse
 import os
 import warnings
+from dataclasses import replace
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -36,6 +37,8 @@ parser.add_argument("--dim", type=int, default=8)
 parser.add_argument("--data", nargs="*", default=["reduced", "projected"])
 parser.add_argument("--augment", nargs="*", default=["none"], help="none, symmetry, energy (reduced data only)")
 parser.add_argument("--lambdas", type=float, nargs="*", default=None, help="fixed ridge terms (default: the rollout choice)")
+parser.add_argument("--state-eps", type=float, nargs="*", default=[None],
+                    help="IMQ shape parameters of the state kernel in the scaled coordinates (default: the estimator's)")
 parser.add_argument("--cache", default="/tmp/sine_gordon_long_time.npz")
 args = parser.parse_args()
 warnings.simplefilter("ignore")
@@ -93,10 +96,10 @@ with threadpool_limits(1):
             strategy = {"none": no_augmentation, "symmetry": sign_symmetry,
                         "energy": EnergySamples(gal, p.c_range, p.DT, p.substeps),
                         "energy-box": EnergySamples(gal, p.c_range, p.DT, p.substeps, region="box")}[aug]
-            for lam in (args.lambdas or [None]):
-                flow, model, fit_time, reg, table = _fit_kernel(p, Y0, Y1,
+            for lam, eps in [(lam, eps) for lam in (args.lambdas or [None]) for eps in args.state_eps]:
+                flow, model, fit_time, reg, table = _fit_kernel(replace(p, state_eps=eps), Y0, Y1,
                                                                 c_tr, p.DT, regularization=lam, augment=strategy)
-                head = (f"{kind:9s} augment={aug:8s} lambda={reg:g} (table {table}, fit pairs {len(strategy(Y0, Y1, c_tr)[0])}, "
+                head = (f"{kind:9s} augment={aug:8s} state_eps={eps} lambda={reg:g} (table {table}, fit pairs {len(strategy(Y0, Y1, c_tr)[0])}, "
                         f"fit {fit_time:.0f} s)")
                 Yk, failed = None, None
                 try:
