@@ -487,10 +487,10 @@ def choose_large_step(p, gal, X_tr, c_tr, K) -> dict:
     least-squares fits of size ``2n``.
     """
     table = []
+    Y = gal.project(X_tr)
     for s in sorted({int(p.large_step), *map(int, p.large_step_candidates)}):
         dt, Kl = s * p.DT, K // s
         x = X_tr[:, : Kl * s + 1: s]
-        Y = gal.project(X_tr)
         sig = np.inf
         for c in np.unique(c_tr):
             sel = c_tr == c
