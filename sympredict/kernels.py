@@ -692,6 +692,8 @@ class StateSymmetry:
             zs.append(z[keep])
             cs.append(np.full(len(keep), c, dtype=np.int64))
             ws.append(w[keep])
+        if not owner:  # no points
+            return np.zeros(0, dtype=np.int64), np.zeros((0, self.dim)), np.zeros(0, dtype=np.int64), np.zeros(0)
         owner = np.concatenate(owner)
         order = np.argsort(owner, kind="stable")
         return owner[order], np.concatenate(zs)[order], np.concatenate(cs)[order], np.concatenate(ws)[order]
