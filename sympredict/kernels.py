@@ -30,6 +30,11 @@ it always multiplies enough powers of ``d`` for the product to vanish there
 (Matérn 5/2 is ``C^4``); we return 0 for ``r`` below a tiny threshold.  Matérn
 3/2 is only ``C^2``: its third derivatives are bounded but not continuous at
 the centres, and the value returned there (0) is one admissible choice.
+
+Two modifications of the state kernel live here too, each defined once:
+:class:`PeriodicCoordinates` (a periodic factor for angles) and
+:class:`StateSymmetry` (the group average ``sum_g k(x, g y)`` over a finite
+orthogonal group, whose derivatives are weighted sums of the plain ones).
 """
 
 from __future__ import annotations

@@ -90,7 +90,12 @@ class HBSurrogate:
     -----
     Every evaluation costs ``O(B m 2n)`` (value, gradient) or
     ``O(B m (2n)^2)`` (Hessian) flops for ``B`` queries and is chunked over
-    the queries so that temporaries stay near 1 MB (in cache).
+    the queries so that temporaries stay near 1 MB (in cache).  With a state
+    symmetry (``kernel.symmetry``, :class:`~sympredict.kernels.StateSymmetry`)
+    the evaluation runs the same code over the ``K`` plain functionals of
+    :meth:`~sympredict.kernels.StateSymmetry.expand` (``K = |G| m`` for signed
+    permutations): ``|G|`` times the cost; the centres, components and
+    coefficients stay those of the ``m`` centres.
     """
 
     def __init__(self, kernel: ProductKernel, centers_xi, centers_mu, centers_dt, components, coef):

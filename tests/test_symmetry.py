@@ -215,6 +215,17 @@ def test_active_set_trainer_and_truncation(data):
     assert small.kernel_.symmetry == StateSymmetry.from_signs(KLEIN) and small.n_centers_ == 60
 
 
+def test_sharded_trainer_selects_the_exact_greedys_centres(data):
+    from sympredict.greedy import ShardedGreedy
+
+    x0, x1 = data[0][:200], data[1][:200]
+    exact = _model(max_centers=60).fit(x0, x1, dt=DT)
+    sharded = _model(max_centers=60, trainer=ShardedGreedy(n_shards=2)).fit(x0, x1, dt=DT)
+    np.testing.assert_array_equal(sharded.greedy_result_.selected, exact.greedy_result_.selected)
+    np.testing.assert_allclose(sharded.surrogate_.coef, exact.surrogate_.coef, rtol=0,
+                               atol=1e-10 * np.abs(exact.surrogate_.coef).max())
+
+
 def test_estimator_contract(data):
     model = _model()
     params = model.get_params()
