@@ -70,6 +70,8 @@ parser.add_argument("--diagnose", action="store_true",
 parser.add_argument("--json", default=None)
 parser.add_argument("--quick", action="store_true", help="tiny sizes, one sweep: checks that the script runs")
 args = parser.parse_args()
+if args.symmetry == "klein" and args.update != "midpoint":
+    parser.error("--symmetry klein needs --update midpoint (the type-II s(q0, p1) is not invariant under q -> -q, p -> -p)")
 SYMMETRY = {"none": None, "klein": [(1, 1), (-1, -1), (1, -1), (-1, 1)]}[args.symmetry]
 if args.quick:
     args.n_grid, args.max_centers, args.horizon, args.sweeps, args.val_seeds = 12, 60, 1.0, 1, [100]
