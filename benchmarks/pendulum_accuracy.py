@@ -57,6 +57,8 @@ parser.add_argument("--test-seeds", type=int, nargs="*", default=[0],
 parser.add_argument("--n-grid", type=int, default=50)
 parser.add_argument("--max-centers", type=int, default=1500)
 parser.add_argument("--horizon", type=float, default=20.0)
+parser.add_argument("--power-tol", type=float, default=1e-12,
+                    help="the greedy's breakdown guard relative to the Gramian diagonal (the estimator's power_tol)")
 parser.add_argument("--criterion", default="f", choices=["f", "p"], help="f-greedy or P-greedy centre selection")
 parser.add_argument("--reg-rel", type=float, default=0.0,
                     help="ridge term relative to the Gramian diagonal eps_state^2 (a tiny one keeps flat kernels from breaking down)")
@@ -104,7 +106,7 @@ def fit(p):
     model = SymplecticKernelPredictor(family(p[0]), family(p[1]), family(p[2]), max_centers=args.max_centers, tol=1e-10,
                                       update=args.update, state_scaling=None if p[3] == 1.0 else (p[3],), backend="numpy",
                                       regularization=args.reg_rel * p[0] ** 2, criterion=args.criterion,
-                                      symmetry=SYMMETRY)
+                                      symmetry=SYMMETRY, power_tol=args.power_tol)
     return model.fit(data.x0, data.x1, mu=data.mu, dt=data.dt)
 
 
@@ -153,7 +155,7 @@ with threadpool_limits(1):
     model = fit(best)
     test = medians(model, cases(args.test_seeds), args.test_seeds) if args.test_seeds else {}
     worst = max((v for d in test.values() for v in d.values()), default=np.inf)
-    summary = {"update": args.update, "symmetry": args.symmetry, "family": args.family, "reg_rel": args.reg_rel, "criterion": args.criterion, "augment_reversal": args.augment_reversal,
+    summary = {"update": args.update, "symmetry": args.symmetry, "power_tol": args.power_tol, "family": args.family, "reg_rel": args.reg_rel, "criterion": args.criterion, "augment_reversal": args.augment_reversal,
                "chosen": dict(zip(NAMES, best)), "n_centers": model.n_centers_,
                "E_train": float(model.history_.train_max_residual[-1]), "test_seeds": args.test_seeds,
                "val_seeds": args.val_seeds, "test_medians": test, "target": TARGET, "met": bool(worst <= TARGET),
