@@ -18,7 +18,7 @@ improvement.  Then the chosen model is evaluated once on each test seed
 Reference: the library's micro-step flow (implicit midpoint, micro step
 ``dT / ceil(dT / 1e-3)``), the same integrator that generated the training data.
 
-Run:  python benchmarks/pendulum_accuracy.py [--update midpoint] [--json out.json]
+Run:  python benchmarks/pendulum_accuracy.py [--update midpoint] [--symmetry klein] [--json out.json]
       python benchmarks/pendulum_accuracy.py --fixed 0.2 1.5 3.0 1.0   # no search
       python benchmarks/pendulum_accuracy.py --quick                    # seconds: checks the script
 One BLAS/numba thread (set NUMBA_NUM_THREADS=1 too: numba reads it at import).
@@ -57,16 +57,24 @@ parser.add_argument("--test-seeds", type=int, nargs="*", default=[0],
 parser.add_argument("--n-grid", type=int, default=50)
 parser.add_argument("--max-centers", type=int, default=1500)
 parser.add_argument("--horizon", type=float, default=20.0)
+parser.add_argument("--power-tol", type=float, default=1e-12,
+                    help="the greedy's breakdown guard relative to the Gramian diagonal (the estimator's power_tol)")
 parser.add_argument("--criterion", default="f", choices=["f", "p"], help="f-greedy or P-greedy centre selection")
 parser.add_argument("--reg-rel", type=float, default=0.0,
                     help="ridge term relative to the Gramian diagonal eps_state^2 (a tiny one keeps flat kernels from breaking down)")
 parser.add_argument("--augment-reversal", action="store_true",
                     help="add the time-reversed pair (R x1 -> R x0), R(q, p) = (q, -p), of every sample (more than the quick data)")
+parser.add_argument("--symmetry", default="none", choices=["none", "klein"],
+                    help="klein: a state kernel invariant under the sign flips (q, p) -> (+-q, +-p) (symmetry=...; "
+                         "valid for the midpoint update only: the pendulum is even in q and in p)")
 parser.add_argument("--diagnose", action="store_true",
                     help="where the error comes from, on the first validation seed: lengths on the training grid, per-q0 errors")
 parser.add_argument("--json", default=None)
 parser.add_argument("--quick", action="store_true", help="tiny sizes, one sweep: checks that the script runs")
 args = parser.parse_args()
+if args.symmetry == "klein" and args.update != "midpoint":
+    parser.error("--symmetry klein needs --update midpoint (the type-II s(q0, p1) is not invariant under q -> -q, p -> -p)")
+SYMMETRY = {"none": None, "klein": [(1, 1), (-1, -1), (1, -1), (-1, 1)]}[args.symmetry]
 if args.quick:
     args.n_grid, args.max_centers, args.horizon, args.sweeps, args.val_seeds = 12, 60, 1.0, 1, [100]
     args.diagnose = True
@@ -97,7 +105,8 @@ def cases(seeds):
 def fit(p):
     model = SymplecticKernelPredictor(family(p[0]), family(p[1]), family(p[2]), max_centers=args.max_centers, tol=1e-10,
                                       update=args.update, state_scaling=None if p[3] == 1.0 else (p[3],), backend="numpy",
-                                      regularization=args.reg_rel * p[0] ** 2, criterion=args.criterion)
+                                      regularization=args.reg_rel * p[0] ** 2, criterion=args.criterion,
+                                      symmetry=SYMMETRY, power_tol=args.power_tol)
     return model.fit(data.x0, data.x1, mu=data.mu, dt=data.dt)
 
 
@@ -146,7 +155,7 @@ with threadpool_limits(1):
     model = fit(best)
     test = medians(model, cases(args.test_seeds), args.test_seeds) if args.test_seeds else {}
     worst = max((v for d in test.values() for v in d.values()), default=np.inf)
-    summary = {"update": args.update, "family": args.family, "reg_rel": args.reg_rel, "criterion": args.criterion, "augment_reversal": args.augment_reversal,
+    summary = {"update": args.update, "symmetry": args.symmetry, "power_tol": args.power_tol, "family": args.family, "reg_rel": args.reg_rel, "criterion": args.criterion, "augment_reversal": args.augment_reversal,
                "chosen": dict(zip(NAMES, best)), "n_centers": model.n_centers_,
                "E_train": float(model.history_.train_max_residual[-1]), "test_seeds": args.test_seeds,
                "val_seeds": args.val_seeds, "test_medians": test, "target": TARGET, "met": bool(worst <= TARGET),

@@ -88,8 +88,14 @@ class HBFunctionals(_AugmentedPoints):
         self._compiled_column = kernel.periodic is None and _fastkernels.hb_column_supported(kernel, self.dim, self.mu.shape[1])
         if kernel.periodic is not None:
             kernel.periodic.check_dim(self.dim)
+        if kernel.symmetry is not None:
+            kernel.symmetry.check_dim(self.dim)
 
     def diagonal(self) -> np.ndarray:
+        symmetry = self.kernel.symmetry
+        if symmetry is not None:  # depends on the point: k_G(x, x) sums over the images g x
+            pts = np.repeat(self.points, self.dim, axis=0)
+            return symmetry.hb_diagonal(self.kernel.state, pts, np.tile(np.arange(self.dim), len(self.points)))
         # r = 0: d/dx_a d/dy_a k = -A(0); the parameter factors are 1 on the diagonal
         A0, _ = self.kernel.state.factors(np.zeros(1), order=2)
         return np.full(self.n_functionals, -A0[0])
@@ -103,8 +109,22 @@ class HBFunctionals(_AugmentedPoints):
 
         With periodic coordinates ``w_p (-B g_pa g_pb - A g'_pb delta_ab)``
         (:class:`~sympredict.kernels.PeriodicCoordinates`).
+        With a state symmetry (:class:`~sympredict.kernels.StateSymmetry`) the
+        weighted sum of these plain columns over its :meth:`~sympredict.kernels.StateSymmetry.terms`.
         ``out`` has shape (N,) and is filled in chunks of points.
         """
+        symmetry = self.kernel.symmetry
+        if symmetry is None:
+            return self._plain_column(representer, out)
+        xi_q, mu_q, dt_q, b = representer
+        out[:] = 0.0
+        tmp = np.empty_like(out)
+        for z, c, w in symmetry.terms(np.asarray(xi_q, dtype=float)[None, :], np.array([b])):
+            out += w[0] * self._plain_column((z[0], mu_q, dt_q, c), tmp)
+        return out
+
+    def _plain_column(self, representer, out: np.ndarray) -> np.ndarray:
+        """The column of the plain (not group-averaged) state kernel (see :meth:`column`)."""
         if self._compiled_column:
             return _fastkernels.hb_column(self.kernel, self.points, self.mu, self.dt, representer, out)
         xi_q, mu_q, dt_q, b = representer
@@ -144,8 +164,22 @@ class HBFunctionals(_AugmentedPoints):
         """
         pts, comps = np.divmod(np.asarray(indices, dtype=np.int64), self.dim)
         xq, mq, dq = others.points[pts], others.mu[pts], others.dt[pts]
-        out3 = out.reshape(len(pts), -1, self.dim)
-        rows = np.arange(len(pts))
+        symmetry = self.kernel.symmetry
+        if symmetry is None:
+            return self._plain_rows(xq, mq, dq, comps, out)
+        # group-averaged kernel: the weighted plain rows of the terms (StateSymmetry.terms)
+        out[:] = 0.0
+        tmp = np.empty_like(out)
+        for z, c, w in symmetry.terms(xq, comps):
+            self._plain_rows(z, mq, dq, np.full(len(pts), c), tmp)
+            tmp *= w[:, None]
+            out += tmp
+        return out
+
+    def _plain_rows(self, xq, mq, dq, comps, out: np.ndarray) -> np.ndarray:
+        """:meth:`gram_rows` of the plain state kernel for query points ``xq`` (K, 2n) and components ``comps`` (K,)."""
+        out3 = out.reshape(len(xq), -1, self.dim)
+        rows = np.arange(len(xq))
         step = 1024
         for start in range(0, len(self.points), step):
             sl = slice(start, start + step)
@@ -178,6 +212,8 @@ class ValueFunctionals(_AugmentedPoints):
     """
 
     def __init__(self, kernel: ProductKernel, x, mu, dt):
+        if kernel.symmetry is not None:
+            raise ValueError("point-evaluation functionals (the direct model) do not support a state symmetry")
         super().__init__(kernel, x, mu, dt)
         self.n_functionals = len(self.points)
 
@@ -220,7 +256,7 @@ def functional_residuals(
         Evaluate at these points only (all their ``2n`` functionals).
     compiled
         Use the compiled evaluation (default: when numba is installed and the kernel has no periodic
-        coordinates, which only the NumPy evaluation supports); both agree to round-off.
+        coordinates or state symmetry, which only the NumPy evaluation supports); both agree to round-off.
 
     Returns
     -------
@@ -245,7 +281,11 @@ def functional_residuals(
     if compiled and functionals.kernel.periodic is not None:
         raise ValueError("functional_residuals: the compiled evaluation does not support periodic coordinates "
                          "(periodic=...): pass compiled=False or None")
-    if functionals.kernel.periodic is None and (_fastkernels.HAVE_NUMBA if compiled is None else compiled):
+    if compiled and functionals.kernel.symmetry is not None:
+        raise ValueError("functional_residuals: the compiled evaluation does not support a state symmetry "
+                         "(symmetry=...): pass compiled=False or None")
+    plain = functionals.kernel.periodic is None and functionals.kernel.symmetry is None
+    if plain and (_fastkernels.HAVE_NUMBA if compiled is None else compiled):
         groups = functionals._parameter_groups
         if groups is None:  # computed once per set (a sort of M rows)
             uniq, group = np.unique(np.column_stack([functionals.mu, functionals.dt]), axis=0, return_inverse=True)

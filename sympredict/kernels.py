@@ -30,6 +30,11 @@ it always multiplies enough powers of ``d`` for the product to vanish there
 (Matérn 5/2 is ``C^4``); we return 0 for ``r`` below a tiny threshold.  Matérn
 3/2 is only ``C^2``: its third derivatives are bounded but not continuous at
 the centres, and the value returned there (0) is one admissible choice.
+
+Two modifications of the state kernel live here too, each defined once:
+:class:`PeriodicCoordinates` (a periodic factor for angles) and
+:class:`StateSymmetry` (the group average ``sum_g k(x, g y)`` over a finite
+orthogonal group, whose derivatives are weighted sums of the plain ones).
 """
 
 from __future__ import annotations
@@ -44,7 +49,7 @@ from sympredict.base import Parametrized
 
 
 __all__ = [
-    "RadialKernel", "IMQ", "Matern32", "Matern52", "ProductKernel", "PeriodicCoordinates", "KERNEL_FAMILIES",
+    "RadialKernel", "IMQ", "Matern32", "Matern52", "ProductKernel", "PeriodicCoordinates", "StateSymmetry", "KERNEL_FAMILIES",
     "register_family", "kernel_from_spec",
 ]
 
@@ -468,6 +473,261 @@ class PeriodicCoordinates:
         return x
 
 
+#: Tolerance of the orthogonality and closure checks of :class:`StateSymmetry` (entries are O(1)).
+_GROUP_TOL = 1e-12
+
+
+@dataclass(frozen=True, eq=False)
+class StateSymmetry:
+    """A finite group ``G`` of orthogonal maps of the state: the group-averaged (invariant) state kernel.
+
+    The state kernel becomes
+
+        ``k_G(x, y) = sum_{g in G} k(x, g y)``
+
+    (``k`` radial, so ``k(x, g y) = k(g^T x, y)``; as ``G`` is closed under
+    ``g -> g^T = g^-1``, ``k_G`` is symmetric and ``k_G(h x, y) = k_G(x, y)`` for
+    every ``h in G``).  ``k_G`` is positive semi-definite (the kernel of the
+    feature map ``x -> sum_g Phi(g x)``), and every function in its native space
+    is ``G``-invariant: an interpolant ``s`` built from it satisfies
+    ``s(g x) = s(x)`` exactly, so one centre acts for its ``|G|`` images.
+
+    Hermite-Birkhoff functionals transform with the group: the derivative in
+    ``y_b`` is
+
+        ``d/dy_b k(x, g y) = sum_c g_cb (d/dz_c k)(x, z)|_{z = g y}``,
+
+    a plain state-derivative functional of ``k`` at the image ``g y`` in the
+    direction ``g e_b`` (column ``b`` of ``g``).  :meth:`terms` lists these
+    images, components ``c`` and weights ``g_cb`` (nonzero only): the one
+    definition that the Gramian columns (:mod:`sympredict.functionals`), the
+    surrogate and its Hessian (:mod:`sympredict.surrogate`) use, so every
+    derivative of ``k_G`` is a weighted sum of the plain formulas of the module
+    docstring.  Signed permutations (e.g. sign flips ``diag(+-1)``) give one
+    term per group element; a general orthogonal ``g`` up to ``2n``.
+
+    At a point fixed by some ``g`` the functionals that ``g`` negates vanish
+    in the invariant space (e.g. ``d/dq`` at ``q = 0`` for ``q -> -q``): their
+    Gramian diagonal is 0, which the greedy's power guard skips.
+
+    Parameters
+    ----------
+    matrices : sequence of array_like of shape (D, D)
+        All elements of the group (the identity included), each orthogonal
+        (``g^T g = I`` to ``1e-12``), distinct, closed under products.  Checked
+        here; ``ValueError`` otherwise.  :meth:`from_signs` builds diagonal
+        ones from sign patterns.
+    """
+
+    matrices: tuple
+
+    def __post_init__(self):
+        try:
+            mats = np.array([np.asarray(g, dtype=float) for g in self.matrices])
+        except (TypeError, ValueError):
+            raise ValueError(f"symmetry: the group elements must be square numeric matrices of one size, "
+                             f"got {self.matrices!r}") from None
+        if mats.ndim != 3 or len(mats) == 0 or mats.shape[1] != mats.shape[2] or mats.shape[1] == 0:
+            raise ValueError(f"symmetry: the group elements must be square matrices (D, D) of one size, "
+                             f"got an array of shape {mats.shape}")
+        if not np.all(np.isfinite(mats)):
+            raise ValueError("symmetry: the group elements must be finite")
+        dim = mats.shape[1]
+        eye = np.eye(dim)
+        bad = [i for i, g in enumerate(mats) if np.abs(g.T @ g - eye).max() > _GROUP_TOL]
+        if bad:
+            raise ValueError(f"symmetry: element(s) {bad} are not orthogonal (g^T g != I): the group-averaged "
+                             "radial kernel needs orthogonal maps (|g x - g y| = |x - y|)")
+
+        def find(h):
+            hits = np.flatnonzero(np.abs(mats - h).reshape(len(mats), -1).max(axis=1) <= _GROUP_TOL)
+            return hits[0] if hits.size else -1
+
+        if len({find(g) for g in mats}) != len(mats):
+            raise ValueError("symmetry: the group elements must be distinct")
+        if find(eye) < 0:
+            raise ValueError("symmetry: not a group: the identity is missing (list every element of the group)")
+        for i, g in enumerate(mats):
+            for j, h in enumerate(mats):
+                if find(g @ h) < 0:
+                    raise ValueError(f"symmetry: not a group: the product of elements {i} and {j} is not in the "
+                                     "list (list every element of the group, closed under products)")
+        # rounded to the exact group elements (entries within 1e-12 of them)
+        object.__setattr__(self, "matrices", tuple(tuple(tuple(float(v) for v in row) for row in g) for g in mats))
+        object.__setattr__(self, "_mats", mats)
+
+    @classmethod
+    def from_signs(cls, patterns) -> "StateSymmetry":
+        """The group of the diagonal matrices ``diag(s)`` for sign patterns ``s`` (entries +1 or -1).
+
+        E.g. ``[(1, 1), (-1, -1), (1, -1), (-1, 1)]``: the Klein four-group of
+        the sign flips of ``(q, p)`` (the pendulum's symmetries).
+        """
+        try:
+            arr = np.array(patterns, dtype=float)
+        except (TypeError, ValueError):
+            raise ValueError(f"symmetry: sign patterns must be sequences of +1/-1 of one length, got {patterns!r}") from None
+        if arr.ndim != 2 or not np.all(np.abs(arr) == 1):
+            raise ValueError(f"symmetry: sign patterns must be sequences of +1/-1 of one length, got {patterns!r}")
+        return cls(tuple(np.diag(s) for s in arr))
+
+    @classmethod
+    def coerce(cls, value) -> Optional["StateSymmetry"]:
+        """``None``, a :class:`StateSymmetry`, sign patterns (a 2-D array of +-1) or matrices (3-D), as a group."""
+        if value is None or isinstance(value, StateSymmetry):
+            return value
+        if isinstance(value, (str, bytes, dict)):
+            raise ValueError(f"symmetry must be None, a StateSymmetry, sign patterns or a list of matrices, got {value!r}")
+        try:
+            ndim = np.asarray(value, dtype=float).ndim
+        except (TypeError, ValueError):
+            raise ValueError(f"symmetry must be None, a StateSymmetry, sign patterns (n_elements, D) or matrices "
+                             f"(n_elements, D, D) of one size, got {value!r}") from None
+        if ndim == 2:
+            return cls.from_signs(value)
+        if ndim == 3:
+            return cls(tuple(value))
+        raise ValueError(f"symmetry must be sign patterns (n_elements, D) or matrices (n_elements, D, D), got {value!r}")
+
+    def __eq__(self, other) -> bool:
+        return isinstance(other, StateSymmetry) and self.matrices == other.matrices
+
+    def __hash__(self) -> int:
+        return hash(self.matrices)
+
+    def __repr__(self) -> str:
+        if np.all(self._mats == np.eye(self.dim) * np.einsum("gii->gi", self._mats)[:, None, :]):
+            return f"StateSymmetry.from_signs({np.einsum('gii->gi', self._mats).astype(int).tolist()})"
+        return f"StateSymmetry({np.round(self._mats, 15).tolist()})"
+
+    @property
+    def dim(self) -> int:
+        return self._mats.shape[1]
+
+    @property
+    def order(self) -> int:
+        """``|G|``."""
+        return len(self._mats)
+
+    @property
+    def array(self) -> np.ndarray:
+        """The elements as an array (|G|, D, D) (a copy)."""
+        return self._mats.copy()
+
+    @property
+    def spec(self) -> dict:
+        return {"matrices": [[list(row) for row in g] for g in self.matrices]}
+
+    @classmethod
+    def from_spec(cls, spec) -> Optional["StateSymmetry"]:
+        """Rebuild from :attr:`spec` (``None`` stays ``None``); ``ValueError`` for a malformed one (re-checked)."""
+        if spec is None:
+            return None
+        if not isinstance(spec, dict) or set(spec) != {"matrices"} or not isinstance(spec["matrices"], list):
+            raise ValueError(f"malformed state-symmetry spec {spec!r}")
+        return cls(tuple(spec["matrices"]))
+
+    def check_dim(self, dim: int) -> None:
+        """``ValueError`` unless the matrices act on states of dimension ``dim``."""
+        if self.dim != dim:
+            raise ValueError(f"symmetry: the group's matrices are {self.dim} x {self.dim}, the states have dimension {dim}")
+
+    def conjugated(self, scale: np.ndarray) -> "StateSymmetry":
+        """The group in the coordinates ``x~ = diag(scale) x``: ``diag(scale) g diag(scale)^-1``.
+
+        ``ValueError`` where such a map is not orthogonal (the scaling does not commute with the group).
+        """
+        scale = np.asarray(scale, dtype=float)
+        mats = scale[None, :, None] * self._mats / scale[None, None, :]
+        try:
+            return StateSymmetry(tuple(mats))
+        except ValueError:
+            raise ValueError("symmetry: the group is not orthogonal in the scaled coordinates (state_scaling does "
+                             "not commute with it); use state_scaling=None or sign flips") from None
+
+    def terms(self, y: np.ndarray, b: np.ndarray):
+        """The plain HB functionals that make up ``d/dy_b`` of ``k_G`` at the points ``y``.
+
+        ``d/dy_b k_G(., y) = sum_t w_t (d/dz_{c_t} k)(., z_t)`` with, for each
+        group element ``g`` and component ``c`` with some ``g_cb != 0``:
+
+        Parameters
+        ----------
+        y : ndarray of shape (K, D)
+        b : ndarray of shape (K,), int
+
+        Yields
+        ------
+        z : ndarray of shape (K, D)
+            The images ``g y``.
+        c : int
+            The plain functional's component.
+        w : ndarray of shape (K,)
+            The weights ``g_{c b_k}`` (0 where that functional does not enter).
+
+        Notes
+        -----
+        At most ``|G| D`` terms (``|G|`` for signed permutations), each ``O(K D)``.
+        """
+        b = np.asarray(b, dtype=np.int64)
+        for g in self._mats:
+            z = y @ g.T
+            for c in range(self.dim):
+                w = g[c, b]
+                if np.any(w != 0.0):
+                    yield z, c, w
+
+    def expand(self, y: np.ndarray, b: np.ndarray):
+        """:meth:`terms` flattened into plain functionals: ``(owner, z, c, w)``, zero weights dropped.
+
+        Returns
+        -------
+        owner : ndarray of shape (T,), int64
+            Index into ``y`` of each plain functional (sorted, stable).
+        z : ndarray of shape (T, D)
+        c : ndarray of shape (T,), int64
+        w : ndarray of shape (T,)
+        """
+        y = np.asarray(y, dtype=float).reshape(-1, self.dim)
+        b = np.asarray(b, dtype=np.int64).reshape(-1)
+        owner, zs, cs, ws = [], [], [], []
+        for z, c, w in self.terms(y, b):
+            keep = np.flatnonzero(w != 0.0)
+            owner.append(keep)
+            zs.append(z[keep])
+            cs.append(np.full(len(keep), c, dtype=np.int64))
+            ws.append(w[keep])
+        if not owner:  # no points
+            return np.zeros(0, dtype=np.int64), np.zeros((0, self.dim)), np.zeros(0, dtype=np.int64), np.zeros(0)
+        owner = np.concatenate(owner)
+        order = np.argsort(owner, kind="stable")
+        return owner[order], np.concatenate(zs)[order], np.concatenate(cs)[order], np.concatenate(ws)[order]
+
+    def hb_diagonal(self, state: RadialKernel, x: np.ndarray, a: np.ndarray) -> np.ndarray:
+        """Gramian diagonal ``d/dx_a d/dy_a k_G(x, y)`` at ``y = x`` (the parameter factors are 1 there).
+
+        ``sum_t w_t (-B d_a d_c - A delta_ac)``, ``d = x - z_t`` (:meth:`terms`).
+
+        Parameters
+        ----------
+        x : ndarray of shape (K, D)
+        a : ndarray of shape (K,), int
+
+        Returns
+        -------
+        ndarray of shape (K,)
+        """
+        x = np.asarray(x, dtype=float)
+        a = np.asarray(a, dtype=np.int64)
+        rows = np.arange(len(x))
+        out = np.zeros(len(x))
+        for z, c, w in self.terms(x, a):
+            d = x - z
+            A, B = state.factors(np.sqrt(np.einsum("ka,ka->k", d, d)), order=2)
+            out += w * (-B * d[rows, a] * d[:, c] - A * (a == c))
+        return out
+
+
 @dataclass(frozen=True)
 class ProductKernel:
     """Product kernel ``k = k_xi(xi, xi') * k_mu(mu, mu') * k_dT(dT, dT')``.
@@ -477,13 +737,16 @@ class ProductKernel:
     factor ``k_mu * k_dT`` (see :meth:`parameter_factor`).  A factor set to
     ``None`` is dropped (constant 1): a fixed parameter or a fixed step.
     ``periodic`` makes the state kernel periodic in some coordinates
-    (:class:`PeriodicCoordinates`); ``None``: the plain radial kernel.
+    (:class:`PeriodicCoordinates`); ``symmetry`` makes it invariant under a
+    finite orthogonal group (:class:`StateSymmetry`); ``None``: the plain
+    radial kernel.  The two cannot be combined (not implemented).
     """
 
     state: RadialKernel
     mu: Optional[RadialKernel] = None
     dt: Optional[RadialKernel] = None
     periodic: Optional[PeriodicCoordinates] = None
+    symmetry: Optional[StateSymmetry] = None
 
     def __post_init__(self):
         for name, k in (("state_kernel", self.state), ("mu_kernel", self.mu), ("dt_kernel", self.dt)):
@@ -495,6 +758,11 @@ class ProductKernel:
                 )
         if self.periodic is not None and not isinstance(self.periodic, PeriodicCoordinates):
             raise ValueError(f"periodic must be a PeriodicCoordinates or None, got {self.periodic!r}")
+        if self.symmetry is not None and not isinstance(self.symmetry, StateSymmetry):
+            raise ValueError(f"symmetry must be a StateSymmetry or None, got {self.symmetry!r}")
+        if self.symmetry is not None and self.periodic is not None:
+            raise ValueError("a state kernel both periodic and group-invariant is not implemented: "
+                             "pass periodic=None or symmetry=None")
 
     def parameter_factor(self, mu_a, dt_a, mu_b, dt_b) -> np.ndarray:
         """``k_mu(mu_a_i, mu_b_j) * k_dT(dt_a_i, dt_b_j)``.
@@ -523,7 +791,7 @@ class ProductKernel:
 
     @property
     def spec(self) -> dict:
-        """``{'state', 'mu', 'dt'}`` kernel specs, and ``'periodic'`` only when set (older files lack it)."""
+        """``{'state', 'mu', 'dt'}`` kernel specs, and ``'periodic'``, ``'symmetry'`` only when set (older files lack them)."""
         spec = {
             "state": self.state.spec,
             "mu": None if self.mu is None else self.mu.spec,
@@ -531,10 +799,12 @@ class ProductKernel:
         }
         if self.periodic is not None:
             spec["periodic"] = self.periodic.spec
+        if self.symmetry is not None:
+            spec["symmetry"] = self.symmetry.spec
         return spec
 
     @classmethod
     def from_spec(cls, spec: dict) -> "ProductKernel":
         """Rebuild from :attr:`spec`; ``ValueError``/``KeyError`` for a malformed one."""
         return cls(kernel_from_spec(spec["state"]), kernel_from_spec(spec["mu"]), kernel_from_spec(spec["dt"]),
-                   PeriodicCoordinates.from_spec(spec.get("periodic")))
+                   PeriodicCoordinates.from_spec(spec.get("periodic")), StateSymmetry.from_spec(spec.get("symmetry")))

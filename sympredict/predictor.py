@@ -41,7 +41,7 @@ from sympredict.exceptions import ExtrapolationWarning, ModelFileError, NotFitte
 from sympredict.functionals import HBFunctionals, ValueFunctionals
 from sympredict.greedy import GreedyHistory, Trainer, trainer_from_spec
 from sympredict.greedy.trainers import ExactGreedy
-from sympredict.kernels import IMQ, PeriodicCoordinates, ProductKernel, RadialKernel, kernel_from_spec
+from sympredict.kernels import IMQ, PeriodicCoordinates, ProductKernel, RadialKernel, StateSymmetry, kernel_from_spec
 from sympredict.newton import midpoint_jacobian, rollout_compiled, rollout_numpy, solve_midpoint_numpy, solve_step_numpy
 from sympredict.surrogate import HBSurrogate, ValueSurrogate
 
@@ -57,6 +57,9 @@ MODEL_LAYOUT = 2
 _BACKENDS = ("auto", "numpy", "numba")
 
 _PERIODIC_NOT_COMPILED = ("periodic coordinates (periodic=...) have no compiled solver yet: "
+                          "use backend='numpy' or 'auto' (which then uses NumPy)")
+
+_SYMMETRY_NOT_COMPILED = ("a state symmetry (symmetry=...) has no compiled solver yet: "
                           "use backend='numpy' or 'auto' (which then uses NumPy)")
 
 #: The generating-function updates of :class:`SymplecticKernelPredictor` (``update``).
@@ -92,8 +95,15 @@ def _encode_param(value):
         return {"kernel": value.spec}
     if isinstance(value, Trainer):
         return {"trainer": value.spec}
+    if isinstance(value, StateSymmetry):
+        return {"symmetry": value.spec}
     if value is None or isinstance(value, (bool, int, float, str)):
         return value
+    if isinstance(value, np.ndarray) and value.dtype.kind in "if" and value.ndim >= 2:
+        value = value.tolist()  # stored as nested lists (loaded back as lists)
+    if isinstance(value, (tuple, list)) and value and all(isinstance(v, (tuple, list, np.ndarray)) for v in value):
+        # nested sequences of numbers (sign patterns or matrices of ``symmetry``), tuples and lists kept apart
+        return {"tuple" if isinstance(value, tuple) else "list": [_encode_param(v) for v in value]}
     if isinstance(value, (tuple, list)) and all(isinstance(v, (int, float, np.integer)) and not isinstance(v, bool)
                                                 for v in value):
         # integers stay integers (indices such as ``periodic``), everything else is a float
@@ -107,10 +117,12 @@ def _decode_param(value):
         return kernel_from_spec(value["kernel"])
     if isinstance(value, dict) and "trainer" in value:
         return trainer_from_spec(value["trainer"])
-    if isinstance(value, dict) and set(value) == {"tuple"}:
-        return tuple(value["tuple"])
-    if isinstance(value, dict) and set(value) == {"list"}:
-        return list(value["list"])
+    if isinstance(value, dict) and "symmetry" in value:
+        return StateSymmetry.from_spec(value["symmetry"])
+    if isinstance(value, dict) and set(value) == {"tuple"} and isinstance(value["tuple"], list):
+        return tuple(_decode_param(v) for v in value["tuple"])
+    if isinstance(value, dict) and set(value) == {"list"} and isinstance(value["list"], list):
+        return [_decode_param(v) for v in value["list"]]
     return value
 
 
@@ -233,16 +245,21 @@ class _FlowMapKernelModel(Parametrized):
                 "the interpolation conditions would be contradictory or redundant"
             )
 
-    def _product_kernel(self, points, periodic: Optional[PeriodicCoordinates] = None) -> ProductKernel:
+    def _product_kernel(self, points, periodic: Optional[PeriodicCoordinates] = None,
+                        symmetry: Optional[StateSymmetry] = None) -> ProductKernel:
         """The kernel used; a missing state kernel becomes ``IMQ(1 / diameter of the points)``."""
         state_kernel = self.state_kernel
         if state_kernel is None:
             diameter = float(np.linalg.norm(np.ptp(points, axis=0)))
             state_kernel = IMQ(1.0 / diameter if diameter > 0 else 1.0)
-        return ProductKernel(state_kernel, self.mu_kernel, self.dt_kernel, periodic)
+        return ProductKernel(state_kernel, self.mu_kernel, self.dt_kernel, periodic, symmetry)
 
     def _model_periodic(self, dim: int) -> Optional[PeriodicCoordinates]:
         """The periodic coordinates of the model's kernel for states of dimension ``dim`` (none here)."""
+        return None
+
+    def _model_symmetry(self, dim: int) -> Optional[StateSymmetry]:
+        """The state symmetry of the model's kernel for states of dimension ``dim`` (none here)."""
         return None
 
     def _original_periods(self, dim: int):
@@ -410,6 +427,9 @@ class _FlowMapKernelModel(Parametrized):
             if kernel.periodic != model._model_periodic(model.dim_):
                 raise ModelFileError(f"the file's periodic coordinates {kernel.periodic!r} disagree with its settings "
                                      f"periodic={model.get_params().get('periodic')!r}, period={model.get_params().get('period')!r}")
+            if kernel.symmetry != model._model_symmetry(model.dim_):
+                raise ModelFileError(f"the file's state symmetry {kernel.symmetry!r} disagrees with its settings "
+                                     f"symmetry={model.get_params().get('symmetry')!r}")
             arrays.pop("elapsed", None)  # layout 1 stored the greedy's timings
             model._check_file_arrays(kernel, arrays)
             model.kernel_ = kernel
@@ -546,6 +566,27 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         The period ``P`` of the ``periodic`` coordinates (default ``2 pi``), or
         one per coordinate, in the original coordinates (``state_scaling``
         scales it with its coordinate).
+    symmetry
+        ``None``, or the elements of a finite group ``G`` of orthogonal maps of
+        the state that leave the generating function invariant: a
+        :class:`~sympredict.kernels.StateSymmetry`, sign patterns
+        (``[(1, 1), (-1, -1), (1, -1), (-1, 1)]``: the maps ``diag(s)``) or
+        matrices ``(|G|, 2n, 2n)``, every element listed (identity included).
+        The state kernel becomes ``k_G(x, y) = sum_g k(x, g y)``, so ``s`` is
+        exactly ``G``-invariant and each centre acts for its images.  Which
+        groups are valid depends on the update (checked at fit time):
+        ``'midpoint'``: each ``g`` symplectic (``g^T J g = J``, a symmetry of
+        the flow: ``Phi(g x) = g Phi(x)``) or anti-symplectic (``g^T J g = -J``,
+        a reversing symmetry: ``Phi(g Phi(x)) = g x``); both give
+        ``grad s(g z) = g grad s(z)`` for the midpoint ``s``.  ``'symplectic_euler'``:
+        only ``g = diag(A, A)`` with ``A`` orthogonal (symplectic and keeping
+        ``q`` and ``p`` apart): a reversing symmetry maps ``(q0, p1)`` to
+        ``(q1, p0)``, not to an image of ``(q0, p1)``, so e.g. the pendulum's
+        ``q -> -q`` is not a symmetry of its type-II ``s`` (only ``x -> -x`` is).
+        The user asserts that the system has the symmetry; the data are not
+        checked against it.  NumPy solver only (``backend='auto'`` uses it;
+        ``'numba'`` is refused); not combined with ``periodic``;
+        ``state_scaling`` must commute with ``G`` (sign flips do).
 
     Attributes
     ----------
@@ -596,6 +637,7 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         newton_warm_start: bool = False,
         periodic=None,
         period=2 * np.pi,
+        symmetry=None,
     ):
         self.state_kernel = state_kernel
         self.mu_kernel = mu_kernel
@@ -610,6 +652,7 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         self.newton_warm_start = newton_warm_start
         self.periodic = periodic
         self.period = period
+        self.symmetry = symmetry
         self.memory_limit = memory_limit
         self.backend = backend
         self.trainer = trainer
@@ -649,14 +692,17 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
             raise ValueError(f"update must be one of {UPDATES}, got {self.update!r}")
         if self.periodic is not None and self.backend == "numba":
             raise ValueError(_PERIODIC_NOT_COMPILED)
+        if self.symmetry is not None and self.backend == "numba":
+            raise ValueError(_SYMMETRY_NOT_COMPILED)
         data, validation = self._fit_data(x0, x1, mu, dt, validation)
         if data.x0.shape[1] % 2:
             raise ValueError(f"states must have an even dimension 2n (q, p), got {data.x0.shape[1]}")
         scale = self._scale_vector(data.x0.shape[1])
         periodic = self._model_periodic(data.x0.shape[1])
+        symmetry = self._model_symmetry(data.x0.shape[1])
         xi, y = update_variables(self.update, data.x0 * scale, data.x1 * scale, data.dt)
         self._check_duplicates(xi, data, periodic)
-        kernel = self._product_kernel(xi, periodic)
+        kernel = self._product_kernel(xi, periodic, symmetry)
         val = None
         if validation is not None:
             vxi, vy = update_variables(self.update, validation.x0 * scale, validation.x1 * scale, validation.dt)
@@ -736,6 +782,10 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
             if self.backend == "numba":
                 raise ValueError(_PERIODIC_NOT_COMPILED)
             return False
+        if self.symmetry is not None:
+            if self.backend == "numba":
+                raise ValueError(_SYMMETRY_NOT_COMPILED)
+            return False
         if self.backend == "numpy":
             return False
         if self.backend == "auto":
@@ -785,6 +835,33 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
             return None
         scale = self._scale_vector(dim)
         return PeriodicCoordinates(coords, tuple(p * float(scale[c]) for c, p in zip(coords, periods)))
+
+    def _model_symmetry(self, dim: int) -> Optional[StateSymmetry]:
+        """The ``symmetry`` setting as a group in the model's coordinates (conjugated by ``state_scaling``); checks it.
+
+        ``ValueError`` for a malformed group, a wrong dimension, elements the
+        update cannot use (see the class docstring), ``periodic`` set too, or a
+        scaling that does not commute with the group.
+        """
+        group = StateSymmetry.coerce(self.symmetry)
+        if group is None:
+            return None
+        group.check_dim(dim)
+        if self.periodic is not None:
+            raise ValueError("symmetry and periodic cannot be combined (not implemented): pass one of them")
+        n = dim // 2
+        jmat = np.block([[np.zeros((n, n)), np.eye(n)], [-np.eye(n), np.zeros((n, n))]])
+        for i, g in enumerate(group.array):
+            if self.update == "midpoint":
+                sigma = g.T @ jmat @ g
+                if not (np.allclose(sigma, jmat, atol=1e-12) or np.allclose(sigma, -jmat, atol=1e-12)):
+                    raise ValueError(f"symmetry: element {i} is neither symplectic (g^T J g = J) nor anti-symplectic "
+                                     "(g^T J g = -J): no symmetry of a Hamiltonian flow makes the midpoint s invariant under it")
+            elif np.abs(g[:n, n:]).max() > 0 or np.abs(g[n:, :n]).max() > 0 or np.abs(g[:n, :n] - g[n:, n:]).max() > 1e-12:
+                raise ValueError(f"symmetry: element {i} is not of the form diag(A, A): with update='symplectic_euler' "
+                                 "the type-II s(q0, p1) is invariant only under such maps (a reversing symmetry such as "
+                                 "q -> -q maps (q0, p1) to (q1, p0)); use update='midpoint'")
+        return group.conjugated(self._scale_vector(dim)) if self.state_scaling is not None else group
 
     def _rollout(self, x, weights, dt, n_steps: int) -> np.ndarray:
         scale = self._scale_vector(self.dim_)

@@ -90,7 +90,12 @@ class HBSurrogate:
     -----
     Every evaluation costs ``O(B m 2n)`` (value, gradient) or
     ``O(B m (2n)^2)`` (Hessian) flops for ``B`` queries and is chunked over
-    the queries so that temporaries stay near 1 MB (in cache).
+    the queries so that temporaries stay near 1 MB (in cache).  With a state
+    symmetry (``kernel.symmetry``, :class:`~sympredict.kernels.StateSymmetry`)
+    the evaluation runs the same code over the ``K`` plain functionals of
+    :meth:`~sympredict.kernels.StateSymmetry.expand` (``K = |G| m`` for signed
+    permutations): ``|G|`` times the cost; the centres, components and
+    coefficients stay those of the ``m`` centres.
     """
 
     def __init__(self, kernel: ProductKernel, centers_xi, centers_mu, centers_dt, components, coef):
@@ -101,11 +106,22 @@ class HBSurrogate:
         self.centers_dt = np.asarray(centers_dt, dtype=float).reshape(m)
         self.components = np.asarray(components, dtype=np.int64).reshape(m)
         self.coef = np.asarray(coef, dtype=float).reshape(m)
-        # one-hot (m, 2n) matrix of the differentiated components: turns the
+        # the plain functionals the evaluation sums over: the centres themselves, or with a state
+        # symmetry their images g xi_j in the directions g e_{l_j} (StateSymmetry.expand), each
+        # weighted by its g_{c l_j} and owned by its centre
+        symmetry = kernel.symmetry
+        if symmetry is None:
+            self._owner, self._xi_eval, self._comp_eval, self._coef_eval = None, self.centers_xi, self.components, self.coef
+        else:
+            symmetry.check_dim(dim)
+            self._owner, self._xi_eval, self._comp_eval, w = symmetry.expand(self.centers_xi, self.components)
+            self._coef_eval = w * self.coef[self._owner]
+        k = len(self._xi_eval)
+        # one-hot (K, 2n) matrix of the differentiated components: turns the
         # ``delta_{a l_j}`` terms into a small matrix product
-        self._onehot = np.zeros((m, dim))
-        self._onehot[np.arange(m), self.components] = 1.0
-        self._flat_components = np.arange(m) * dim + self.components
+        self._onehot = np.zeros((k, dim))
+        self._onehot[np.arange(k), self._comp_eval] = 1.0
+        self._flat_components = np.arange(k) * dim + self._comp_eval
         self._layout = None  # the compiled kernels' arrangement, made on first use
 
     @property
@@ -120,6 +136,10 @@ class HBSurrogate:
     def weights(self, mu: np.ndarray, dt: np.ndarray) -> np.ndarray:
         """Per-query centre weights ``w_bj = c_j k_mu(mu_b, mu_j) k_dT(dT_b, dT_j)``.
 
+        With a state symmetry, one column per plain functional of the
+        group-averaged kernel (:meth:`sympredict.kernels.StateSymmetry.expand`):
+        ``c_j g_{c l_j} k_mu k_dT`` of its owning centre ``j``.
+
         Parameters
         ----------
         mu : ndarray of shape (B, d_mu)
@@ -127,14 +147,16 @@ class HBSurrogate:
 
         Returns
         -------
-        ndarray of shape (B, m)
+        ndarray of shape (B, m), or (B, K) with a symmetry (``K = |G| m`` for signed permutations)
         """
         factor = _parameter_factor(self.kernel, mu, dt, self.centers_mu, self.centers_dt)
-        factor *= self.coef
+        if self._owner is not None:
+            factor = factor[:, self._owner]
+        factor *= self._coef_eval
         return factor
 
     def _chunks(self, n_queries: int):
-        step = max(1, _CHUNK_ENTRIES // max(1, self.n_centers * self.dim))
+        step = max(1, _CHUNK_ENTRIES // max(1, len(self._xi_eval) * self.dim))
         for start in range(0, n_queries, step):
             yield slice(start, min(n_queries, start + step))
 
@@ -148,7 +170,7 @@ class HBSurrogate:
         ``G1``, ``g1``, ``g2`` are ``None`` without periodic coordinates (``g' = 1``,
         ``g'' = 0``: the plain formulas).
         """
-        diff = xi[:, None, :] - self.centers_xi[None, :, :]
+        diff = xi[:, None, :] - self._xi_eval[None, :, :]
         periodic = self.kernel.periodic
         G1 = g1 = g2 = None
         if periodic is None:
@@ -180,6 +202,9 @@ class HBSurrogate:
         """The centres arranged for the compiled kernels (:class:`sympredict._fastkernels.CenterLayout`), cached."""
         if self.kernel.periodic is not None:
             raise ValueError("the compiled kernels do not support periodic state coordinates (periodic=...): "
+                             "use the NumPy evaluation (backend='numpy' or 'auto')")
+        if self.kernel.symmetry is not None:
+            raise ValueError("the compiled kernels do not support a state symmetry (symmetry=...): "
                              "use the NumPy evaluation (backend='numpy' or 'auto')")
         if self._layout is None:
             self._layout = CenterLayout(self.centers_xi, self.components)

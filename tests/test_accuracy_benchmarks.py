@@ -12,10 +12,10 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def _run(script, tmp_path):
+def _run(script, tmp_path, *extra):
     out = tmp_path / "out.json"
     env = dict(os.environ, NUMBA_NUM_THREADS="1", OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1")
-    proc = subprocess.run([sys.executable, str(ROOT / "benchmarks" / script), "--quick", "--json", str(out)],
+    proc = subprocess.run([sys.executable, str(ROOT / "benchmarks" / script), "--quick", "--json", str(out), *extra],
                           capture_output=True, text=True, env=env, timeout=600)
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert "chosen" in proc.stdout
@@ -41,4 +41,14 @@ def test_accuracy_benchmark_quick(script, tmp_path):
         assert summary["sampling"] == min(summary["candidates"], key=lambda c: c["score"])["sampling"]
         values = [t["median_at_T"] for t in summary["test"].values()]
     assert all(np.isfinite(values))
+    assert summary["met"] == (max(values) <= summary["target"])
+
+
+def test_pendulum_accuracy_quick_with_symmetry(tmp_path):
+    """The group-invariant kernel (``--symmetry klein``) through the same protocol."""
+    summary = _run("pendulum_accuracy.py", tmp_path, "--symmetry", "klein")
+    _check_choice(summary)
+    assert summary["symmetry"] == "klein" and summary["update"] == "midpoint"
+    values = [v for d in summary["test_medians"].values() for v in d.values()]
+    assert len(values) == 3 * len(summary["test_seeds"]) and all(np.isfinite(values))
     assert summary["met"] == (max(values) <= summary["target"])

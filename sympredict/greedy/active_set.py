@@ -109,8 +109,9 @@ class ActiveSetStore(BaseStore):
         pts = np.sort(self.rng.choice(self.n_points, size=min(self.n_points, self.initial_points), replace=False))
         cap_points = min(self.n_points, len(pts) + 4 * self.max_new_points)
         check_memory(self.max_centers, cap_points * dim, self.n_val, self.memory_limit)
-        self.diag0 = float(f.diagonal()[0])
-        self.breakdown = self.power_tol * self.diag0
+        # the Gramian diagonal per functional (constant for a radial kernel, not for a group-averaged one)
+        self.diag = f.diagonal()
+        self.breakdown = self.power_tol * float(self.diag.max())
         self.in_active = np.zeros(self.n_points, dtype=bool)
         self.in_active[pts] = True
         self.pts = pts
@@ -119,7 +120,7 @@ class ActiveSetStore(BaseStore):
         self.basis = np.empty((self.max_centers, cap_points * dim))
         self.vbasis = np.empty((self.max_centers, self.n_val)) if self.n_val else None
         self.res = self.targets[self.cand].copy()
-        self.p2 = np.full(len(self.cand), self.diag0)
+        self.p2 = self.diag[self.cand].astype(float)
         self.res_abs = np.abs(self.res)
         self.since_refresh = 0
         self.full_at = -1  # number of centres at the last evaluation of the full residual
@@ -233,7 +234,7 @@ class ActiveSetStore(BaseStore):
             self.basis = grown
         self.basis[:m, n_s : n_s + n_new] = vals
         self.res = np.concatenate([self.res, self.targets[new_cand] - e.beta[:m, 0] @ vals])
-        self.p2 = np.concatenate([self.p2, self.diag0 - np.einsum("ki,ki->i", vals, vals)])
+        self.p2 = np.concatenate([self.p2, self.diag[new_cand] - np.einsum("ki,ki->i", vals, vals)])
         self.res_abs = np.abs(self.res)
         self.cand = np.concatenate([self.cand, new_cand])
         self.in_active[new] = True
