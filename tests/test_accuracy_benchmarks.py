@@ -37,6 +37,10 @@ def test_accuracy_benchmark_quick(script, tmp_path):
     if script.startswith("pendulum"):
         values = [v for d in summary["test_medians"].values() for v in d.values()]
         assert len(values) == 3 * len(summary["test_seeds"])
+        if len(summary["test_seeds"]) == 1:  # one draw: pooling over the seeds changes nothing
+            (per_seed,) = summary["test_medians"].values()
+            assert summary["test_medians_pooled"] == per_seed
+        assert summary["met_pooled"] == (max(summary["test_medians_pooled"].values()) <= summary["target"])
     else:
         assert summary["sampling"] == min(summary["candidates"], key=lambda c: c["score"])["sampling"]
         values = [t["median_at_T"] for t in summary["test"].values()]

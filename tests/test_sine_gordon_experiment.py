@@ -139,3 +139,14 @@ def test_energy_claim_applies_the_boundedness_criterion(smoke):
     kernels = [energy_boundedness(per[k], K)["all_bounded"] if k in per else False for k in ("kernel_reduced", "kernel_projected")]
     assert claim["holds"] == all(kernels)
     assert res["energy_bounded"]["galerkin"]["all_bounded"]
+
+
+@pytest.mark.filterwarnings("ignore::sympredict.exceptions.ExtrapolationWarning")  # the 10 T rollout leaves the data
+def test_kernel_update_reaches_both_kernel_roms():
+    """``kernel_update`` switches the learned maps at ``DT`` to the symmetric form (the fitted models say so),
+    and the smoke case still tracks the Galerkin ROM's reduction error with it."""
+    r = run_sine_gordon(PRESETS["smoke"], kernel_update="midpoint", large_step=0)
+    for res in r["dims"].values():
+        for key in ("kernel_reduced", "kernel_projected"):
+            assert res[key]["update"] == "midpoint"
+            assert res[key]["failure"] is None and np.all(np.isfinite(res[key]["error"]))
