@@ -5,6 +5,9 @@ centres; the tuple with the smallest validation residual ``E_val(m_star)``
 wins.  Shape parameters are searched on logarithmic grids (:func:`log_grid`)
 because useful values span decades (reduced wave coordinates are of size ~20,
 so state shapes ~5e-3 fit there, pendulum states are of size ~5).
+Where the ranking at ``m_star`` does not carry over to the final size,
+:func:`select_by_score` ranks the final models (every budget a greedy prefix)
+by a score the caller computes on validation data, e.g. rollout errors.
 """
 
 from __future__ import annotations
