@@ -1,7 +1,9 @@
 """Kernel ROM against implicit midpoint at large macro steps on pyMOR's parametric demo wave (issue 14).
 
 Run:  python benchmarks/reduced_wave_large_step.py [--json out.json]      (2n = 20, steps 10x and 50x the FOM's)
-      python benchmarks/reduced_wave_large_step.py --quick                (seconds: T = 1, 2n = 8, few centres)
+      python benchmarks/reduced_wave_large_step.py --quick                (seconds: T = 1, 2n = 6, few centres)
+      python benchmarks/reduced_wave_large_step.py --search rollout --factors 10 --updates midpoint \
+          --test-seeds 12 31                                              (shapes, ridge and budget by validation rollout)
 
 Setup: ``pymordemos.symplectic_wave_equation.discretize_fom(T)`` with its stiffness
 block scaled by ``c^2 / 0.1^2``, ``c in [0.08, 0.12]``; ``--n-train`` training speeds
@@ -22,8 +24,22 @@ speed, over ``K = round(T / dT)`` macro steps from the FOM's initial data:
   with the paper's update (``symplectic_euler``, type II) and the symmetric one
   (``midpoint``), both on the NumPy Newton solver; states in the Williamson
   coordinates of ``H_red`` at the box centre (symplectic: each mode a rotation),
-  IMQ shapes of the state and speed factors chosen per update by
-  :func:`~sympredict.selection.select_kernels` on the validation speeds.
+  IMQ shapes of the state and speed factors chosen per update on the validation
+  speeds, by one of two searches (``--search``):
+
+  - ``residual`` (default): :func:`~sympredict.selection.select_kernels`, the greedy's
+    validation residual at ``m* = --m-star`` centres, then one fit to ``--centers``;
+  - ``rollout``: :func:`~sympredict.selection.select_by_score` over every
+    (state shape, speed shape, ridge) in ``--state-eps x --mu-eps x --ridges``, each
+    fitted once to ``max(--budgets)`` centres and scored at every budget (greedy
+    prefixes) by its rollout on the validation speeds: the largest ratio, over those
+    speeds, of its error against the Galerkin flow to implicit midpoint's (the
+    quantity of the target).  Nothing of the test speeds enters: the chosen settings
+    do not depend on ``--test-seeds`` (tested).
+
+Test speeds: ``--n-test`` per seed in ``--test-seeds``, each seed's speeds reported
+with it, so a model chosen once is evaluated on fresh seeds and on earlier ones in
+the same run.
 
 Errors ``sqrt(sum_k |x(t_k) - x_ref(t_k)|^2 / sum_k |x_ref(t_k)|^2)`` in reduced
 coordinates (the basis is orthonormal, so this is the error of ``V x`` too), and for
@@ -52,14 +68,22 @@ parser.add_argument("--updates", nargs="+", default=["symplectic_euler", "midpoi
 parser.add_argument("--n-train", type=int, default=9, help="training speeds (uniform in the range)")
 parser.add_argument("--n-val", type=int, default=3, help="validation speeds (random, for the kernel choice)")
 parser.add_argument("--n-test", type=int, default=5)
-parser.add_argument("--test-seed", type=int, default=12)
+parser.add_argument("--test-seeds", "--test-seed", dest="test_seeds", type=int, nargs="+", default=[12],
+                    help="seeds of the test speeds (--n-test each); used for nothing but the reported errors")
 parser.add_argument("--seed", type=int, default=0, help="data and validation seed of the reductor")
 parser.add_argument("--samples", type=int, default=400, help="flow-map samples per training speed")
 parser.add_argument("--radius", type=float, default=0.05)
 parser.add_argument("--centers", type=int, default=1500)
 parser.add_argument("--m-star", type=int, default=300)
-parser.add_argument("--state-eps", type=float, nargs="+", default=[0.01, 0.03, 0.1, 0.3])
-parser.add_argument("--mu-eps", type=float, nargs="+", default=[0.3, 1.0, 3.0])
+parser.add_argument("--search", choices=["residual", "rollout"], default="residual",
+                    help="kernel choice on the validation speeds: greedy residual at --m-star, or rollout error of final models")
+parser.add_argument("--state-eps", type=float, nargs="+", default=None,
+                    help="state shapes (default residual: 0.01 0.03 0.1 0.3; rollout: 0.001 0.003 0.01 0.03)")
+parser.add_argument("--mu-eps", type=float, nargs="+", default=None,
+                    help="speed shapes (default residual: 0.3 1 3; rollout: 0.3 1)")
+parser.add_argument("--ridges", type=float, nargs="+", default=[0.0], help="--search rollout: ridge candidates")
+parser.add_argument("--budgets", type=int, nargs="+", default=[1000, 1500, 2000, 3000],
+                    help="--search rollout: centre budgets compared (greedy prefixes of one fit to the largest)")
 parser.add_argument("--scaling", default="williamson", choices=["williamson", "diag"])
 parser.add_argument("--train-past-existence", nargs="*", default=["midpoint"],
                     help="updates trained even where their existence check fails (the others are reported as refused)")
@@ -67,8 +91,12 @@ parser.add_argument("--json", default=None)
 args = parser.parse_args()
 if args.quick:
     args.T, args.dim, args.n_train, args.n_val, args.n_test = 1.0, 6, 4, 2, 2
-    args.samples, args.centers, args.m_star = 60, 60, 30
-    args.state_eps, args.mu_eps = [0.1, 0.3], [1.0]
+    args.samples, args.centers, args.m_star, args.budgets = 60, 60, 30, [30, 60]
+    args.state_eps, args.mu_eps = args.state_eps or [0.1, 0.3], args.mu_eps or [1.0]
+if args.search == "residual":
+    args.state_eps, args.mu_eps = args.state_eps or [0.01, 0.03, 0.1, 0.3], args.mu_eps or [0.3, 1.0, 3.0]
+else:
+    args.state_eps, args.mu_eps = args.state_eps or [0.001, 0.003, 0.01, 0.03], args.mu_eps or [0.3, 1.0]
 
 from pymor.algorithms.symplectic import psd_complex_svd  # noqa: E402
 from pymor.core.logger import set_log_levels  # noqa: E402
@@ -85,9 +113,10 @@ from sympredict.flowmaps import (check_generating_function, linear_system_from_p
 from sympredict.integrators import implicit_midpoint_step, integrate  # noqa: E402
 from sympredict.kernels import IMQ  # noqa: E402
 from sympredict.mor import SymplecticKernelReductor  # noqa: E402
-from sympredict.selection import select_kernels  # noqa: E402
+from sympredict.scaling import NormalizedFlowMap  # noqa: E402
+from sympredict.selection import select_by_score, select_kernels  # noqa: E402
 
-set_log_levels({"pymor": "ERROR", "sympredict": "WARNING"})
+set_log_levels({"pymor": "ERROR", "sympredict": "WARNING", "sympredict.selection": "INFO"})  # progress of the searches
 threadpool_limits(1)
 
 LO, HI = 0.08, 0.12
@@ -105,7 +134,11 @@ fom = fom.with_(H_op=BlockDiagonalOperator(
 h = fom.T / fom.time_stepper.nt
 space = fom.parameters.space(LO, HI)
 train = space.sample_uniformly(args.n_train)
-test = random_parameters(fom.parameters, [LO], [HI], args.n_test, seed=args.test_seed)
+test, test_seed = [], []  # test speeds, and the seed each was drawn with
+for sd in args.test_seeds:
+    drawn = random_parameters(fom.parameters, [LO], [HI], args.n_test, seed=sd)
+    test += drawn
+    test_seed += [sd] * len(drawn)
 U = fom.solution_space.empty()
 for mu in train:
     U.append(fom.solve(mu))
@@ -127,7 +160,27 @@ print(f"FOM: N = {fom.solution_space.dim}, h = {h:.6g}, T = {fom.T}; 2n = {args.
 
 results = {"setup": {k: v for k, v in vars(args).items() if k != "json"} | {
     "N": fom.solution_space.dim, "h": h, "omega_max": omega_max, "basis_orthogonality": orth,
-    "train": [float(m["c"][0]) for m in train], "test": [float(m["c"][0]) for m in test]}, "factors": []}
+    "train": [float(m["c"][0]) for m in train], "test": [float(m["c"][0]) for m in test], "test_seed": test_seed},
+    "factors": []}
+
+
+def validation_rollout_score(flow_map_of, x0, mus, refs, imp_errors, K, dT, log):
+    """Score of a fitted model for select_by_score: the largest ratio, over the validation speeds, of its rollout
+    error against the Galerkin flow to implicit midpoint's; inf on a Newton failure. Appends the errors to log."""
+    def score(model):
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                x = flow_map_of(model).rollout(x0, K, mu=mus, dt=dT)
+        except (NewtonConvergenceError, np.linalg.LinAlgError) as exc:
+            log.append({"newton_failure": str(exc)[:200]})
+            return np.inf
+        errors = [rel_error(x[i], refs[i]) for i in range(len(x0))]
+        log.append({"errors": errors})
+        ratio = max(e / i for e, i in zip(errors, imp_errors))
+        return ratio if np.isfinite(ratio) else np.inf
+    return score
+
 
 scan = np.linspace(LO, HI, 401)
 for f in args.factors:
@@ -147,7 +200,7 @@ for f in args.factors:
         imp = integrate(implicit_midpoint_step, lin, x0, m[None], dT, K)[0]
         U_fom = fom_traj[key][::f][: K + 1]
         sig = float(midpoint_sigma_min(lin.propagator(m, dT)[None, :args.dim, :args.dim])[0])
-        entry["tests"].append({"c": float(m[0]), "midpoint_sigma": sig,
+        entry["tests"].append({"c": float(m[0]), "seed": test_seed[len(entry["tests"])], "midpoint_sigma": sig,
                                "reduction_error": rel_error(V.lincomb(ref.T).to_numpy(), U_fom.to_numpy()),
                                "implicit_midpoint": {"error": rel_error(imp, ref),
                                                      "error_fom": rel_error(V.lincomb(imp.T).to_numpy(), U_fom.to_numpy())}})
@@ -157,7 +210,7 @@ for f in args.factors:
                                        radius=args.radius, n_validation=args.n_val, state_scaling=args.scaling,
                                        max_centers=args.centers, check_existence=False, seed=args.seed)
         t0 = time.perf_counter()
-        s_train, s_val, _, _ = red.scaled_training_data()
+        s_train, s_val, state_scaling, mu_scaling = red.scaled_training_data()
         train_data = red.train_data_
         rec["validation_speeds"] = [float(m["c"][0]) for m in red.validation_parameters()]
         rec["samples"] = len(train_data)
@@ -178,18 +231,52 @@ for f in args.factors:
                 entry["kernels"][update] = rec
                 continue
         base = SymplecticKernelPredictor(update=update, backend="numpy")
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            sel = select_kernels(s_train, s_val, [IMQ(e) for e in args.state_eps], [IMQ(e) for e in args.mu_eps],
-                                 m_star=args.m_star, estimator=base)
-        rec["selection"] = [{k: v for k, v in r.items() if k in ("kernels", "E_val", "E_train", "centres", "complete", "error")}
-                            for r in sel.table]
-        rec["kernel"] = {"state": sel.state.eps, "mu": sel.mu.eps}
-        red.predictor = base.set_params(state_kernel=sel.state, mu_kernel=sel.mu, max_centers=args.centers, tol=1e-12)
-        red.reduce()
+        if args.search == "residual":
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                sel = select_kernels(s_train, s_val, [IMQ(e) for e in args.state_eps], [IMQ(e) for e in args.mu_eps],
+                                     m_star=args.m_star, estimator=base)
+            rec["selection"] = [{k: v for k, v in r.items() if k in ("kernels", "E_val", "E_train", "centres", "complete", "error")}
+                                for r in sel.table]
+            rec["kernel"] = {"state": sel.state.eps, "mu": sel.mu.eps}
+            red.predictor = base.set_params(state_kernel=sel.state, mu_kernel=sel.mu, max_centers=args.centers, tol=1e-12)
+            red.reduce()
+            flow_map, predictor = red.flow_map_, red.predictor_
+        else:
+            # validation speeds only (the reductor's, seed + 7): their Galerkin flow and implicit midpoint's errors
+            val_mus = red.validation_parameters()
+            vm = np.array([mu_to_vector(mu, fom.parameters) for mu in val_mus])
+            vx0 = np.array([V_plus.inner(fom.initial_data.as_range_array(mu))[:, 0] for mu in val_mus])
+            vref = lin.trajectory(vx0, vm, dT, K)
+            vimp = [rel_error(integrate(implicit_midpoint_step, lin, vx0[i:i + 1], vm[i:i + 1], dT, K)[0], vref[i])
+                    for i in range(len(val_mus))]
+            log = []
+            score = validation_rollout_score(lambda model: NormalizedFlowMap(model, state_scaling, mu_scaling, dT),
+                                             vx0, vm, vref, vimp, K, dT, log)
+            candidates = [{"state_kernel": IMQ(se), "mu_kernel": IMQ(me), "regularization": lam}
+                          for se in args.state_eps for me in args.mu_eps for lam in args.ridges]
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                sel = select_by_score(s_train, s_val, candidates, args.budgets, score,
+                                      estimator=base.set_params(tol=1e-12))
+            scored = [r for r in sel.table if r["budget"] is not None]
+            assert len(scored) == len(log)
+            for r, extra in zip(scored, log):
+                r.update(validation_errors=extra.get("errors"), newton_failure=extra.get("newton_failure"))
+            rec["validation_implicit_midpoint"] = vimp
+            rec["selection"] = sel.table
+            rec["kernel"] = {"state": sel.params["state_kernel"].eps, "mu": sel.params["mu_kernel"].eps,
+                             "ridge": sel.params["regularization"], "centres": sel.n_centers, "score": sel.score}
+            rec["on_grid_edge"] = {
+                name: len(grid) > 1 and value in (min(grid), max(grid))
+                for name, value, grid in (("state", rec["kernel"]["state"], args.state_eps), ("mu", rec["kernel"]["mu"], args.mu_eps),
+                                          ("ridge", rec["kernel"]["ridge"], args.ridges),
+                                          ("centres", sel.n_centers, [min(b, sel.n_centers) for b in args.budgets]))}
+            predictor = sel.model
+            flow_map = NormalizedFlowMap(predictor, state_scaling, mu_scaling, dT)
         rec["offline_s"] = time.perf_counter() - t0
-        rec["centres"] = red.predictor_.n_centers_
-        rec["stop_reason"] = red.predictor_.history_.stop_reason
+        rec["centres"] = predictor.n_centers_
+        rec["stop_reason"] = predictor.history_.stop_reason
         rec["per_test"] = []
         for mu in test:
             key = str(mu)
@@ -197,7 +284,7 @@ for f in args.factors:
             try:
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore")  # extrapolation warnings: the errors say it
-                    x = red.flow_map_.rollout(x_init[key][None], K, mu=mu_vec[key], dt=dT)[0]
+                    x = flow_map.rollout(x_init[key][None], K, mu=mu_vec[key], dt=dT)[0]
                 row = {"c": float(mu_vec[key][0]), "error": rel_error(x, refs[key]),
                        "error_fom": rel_error(V.lincomb(x.T).to_numpy(), fom_traj[key][::f][: K + 1].to_numpy()),
                        "online_s": time.perf_counter() - t1}
@@ -205,19 +292,30 @@ for f in args.factors:
                 row = {"c": float(mu_vec[key][0]), "error": None, "newton_failure": str(exc)}
             rec["per_test"].append(row)
         entry["kernels"][update] = rec
-        print(f"f = {f}, {update}: kernel IMQ({sel.state.eps:g}) x IMQ({sel.mu.eps:g}), {rec['centres']} centres "
+        ridge = f", ridge {rec['kernel']['ridge']:g}" if rec["kernel"].get("ridge") else ""
+        print(f"f = {f}, {update}: kernel IMQ({rec['kernel']['state']:g}) x IMQ({rec['kernel']['mu']:g}){ridge}, {rec['centres']} centres "
               f"({rec['stop_reason']}), offline {rec['offline_s']:.0f} s; existence check of its form on the training data: "
               f"{'ok' if rec[f'check_{update}']['ok'] else 'FAILS'}")
+    if args.search == "rollout":  # the update, too, is chosen on the validation speeds (smallest selection score)
+        scores = {u: k["kernel"]["score"] for u, k in entry["kernels"].items() if "kernel" in k}
+        entry["chosen_update"] = min(scores, key=scores.get) if scores else None
+        for u, k in entry["kernels"].items():
+            if "selection" in k:
+                print(f"  {u}: validation scores (max over validation speeds of kernel / implicit midpoint error):")
+                for r in k["selection"]:
+                    print(f"    {r['params']}, {r['n_centers']} centres: "
+                          + (f"{r['score']:.3g}" if r.get("budget") is not None else f"fit failed: {r.get('error', '')[:100]}"))
     results["factors"].append(entry)
 
     print(f"\n### {f}x the FOM step (dT = {dT:.4g}, {K} macro steps, largest turn per step {omega_max * dT:.2f} rad; "
           f"midpoint sigma over c in [{LO}, {HI}]: min {entry['midpoint_sigma_scan_min']:.2e} at c = {entry['midpoint_sigma_scan_argmin']:.4f})\n")
-    head = ["c", "Galerkin vs FOM", "implicit midpoint vs Galerkin"] + [f"kernel ({u}) vs Galerkin" for u in args.updates] \
-        + ["best kernel / implicit midpoint", "midpoint sigma"]
+    head = ["test seed", "c", "Galerkin vs FOM", "implicit midpoint vs Galerkin"] + [f"kernel ({u}) vs Galerkin" for u in args.updates] \
+        + (["chosen kernel / implicit midpoint"] if args.search == "rollout" else ["best kernel / implicit midpoint"]) \
+        + ["midpoint sigma"]
     print("| " + " | ".join(head) + " |")
     print("|" + "---|" * len(head))
     for i, t in enumerate(entry["tests"]):
-        cells = [f"{t['c']:.4f}", f"{t['reduction_error']:.2e}", f"{t['implicit_midpoint']['error']:.2e}"]
+        cells = [str(t["seed"]), f"{t['c']:.4f}", f"{t['reduction_error']:.2e}", f"{t['implicit_midpoint']['error']:.2e}"]
         best = np.inf
         for u in args.updates:
             k = entry["kernels"].get(u, {})
@@ -229,6 +327,9 @@ for f in args.factors:
                 e = k["per_test"][i]["error"]
                 best = min(best, e)
                 cells.append(f"{e:.2e}")
+        if args.search == "rollout":  # the validation-chosen update's ratio, not the best on the test speeds
+            chosen = entry["kernels"].get(entry["chosen_update"], {}).get("per_test", [{}] * (i + 1))[i].get("error")
+            best = np.inf if chosen is None else chosen
         cells.append(f"{best / t['implicit_midpoint']['error']:.3f}" if np.isfinite(best) else "-")
         cells.append(f"{t['midpoint_sigma']:.3f}")
         print("| " + " | ".join(cells) + " |")

@@ -14,14 +14,25 @@ pytest.importorskip("pymordemos.symplectic_wave_equation")
 SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "reduced_wave_large_step.py"
 
 
-@pytest.fixture(scope="module")
-def quick(tmp_path_factory):
-    out = tmp_path_factory.mktemp("large_step") / "quick.json"
+def run_quick(out, *extra):
     env = dict(os.environ, OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", NUMBA_NUM_THREADS="1")
-    proc = subprocess.run([sys.executable, str(SCRIPT), "--quick", "--json", str(out)], capture_output=True, text=True,
-                          env=env, timeout=600)
+    proc = subprocess.run([sys.executable, str(SCRIPT), "--quick", "--json", str(out), *extra], capture_output=True,
+                          text=True, env=env, timeout=600)
     assert proc.returncode == 0, proc.stderr[-3000:]
     return json.loads(out.read_text()), proc.stdout
+
+
+@pytest.fixture(scope="module")
+def quick(tmp_path_factory):
+    return run_quick(tmp_path_factory.mktemp("large_step") / "quick.json")
+
+
+@pytest.fixture(scope="module")
+def rollout_runs(tmp_path_factory):
+    """The rollout search twice, with disjoint test seeds (one of them two seeds)."""
+    tmp = tmp_path_factory.mktemp("large_step_rollout")
+    return (run_quick(tmp / "a.json", "--search", "rollout", "--test-seeds", "12"),
+            run_quick(tmp / "b.json", "--search", "rollout", "--test-seeds", "5", "6"))
 
 
 def test_results_file_structure(quick):
@@ -64,3 +75,44 @@ def test_midpoint_form_exists_at_50x_where_type_two_does_not(quick):
     assert all(r["error"] is not None for r in mid["per_test"])  # no Newton failure
     # a learned step, not the identity: its error is far below the size of the motion
     assert all(r["error"] < 0.1 for r in mid["per_test"])
+
+
+def _choice(res):
+    """Everything the rollout search decided, per step factor and update (timings left out)."""
+    out = {}
+    for entry in res["factors"]:
+        out[entry["factor"]] = {"chosen_update": entry["chosen_update"]}
+        for update, rec in entry["kernels"].items():
+            if "selection" in rec:
+                out[entry["factor"]][update] = (rec["kernel"], rec["validation_speeds"], rec["validation_implicit_midpoint"],
+                                                [{k: v for k, v in r.items() if not k.endswith("_s")} for r in rec["selection"]])
+    return out
+
+
+def test_rollout_search_never_sees_the_test_speeds(rollout_runs):
+    """The chosen shapes, budget and update, and every validation score, are the same whatever the test seeds:
+    the search uses the validation speeds only.  The chosen model is the best-scored (candidate, budget)."""
+    (a, out_a), (b, out_b) = rollout_runs
+    assert a["setup"]["test_seeds"] == [12] and b["setup"]["test_seeds"] == [5, 6]
+    assert not set(a["setup"]["test"]) & set(b["setup"]["test"])
+    assert b["setup"]["test_seed"] == [5] * b["setup"]["n_test"] + [6] * b["setup"]["n_test"]
+    assert _choice(a) == _choice(b)
+    for res in (a, b):
+        for entry in res["factors"]:
+            assert [t["seed"] for t in entry["tests"]] == res["setup"]["test_seed"]
+            scores = {}
+            for update, rec in entry["kernels"].items():
+                if "selection" not in rec:
+                    continue
+                rows = [r for r in rec["selection"] if r["budget"] is not None]
+                best = min(rows, key=lambda r: r["score"])
+                assert rec["kernel"]["score"] == best["score"] and rec["centres"] == best["n_centers"]
+                assert {r["n_centers"] for r in rows} <= set(res["setup"]["budgets"])
+                for r in rows:  # the score is the worst validation speed's ratio to implicit midpoint
+                    if r["validation_errors"] is not None:
+                        ratio = max(e / i for e, i in zip(r["validation_errors"], rec["validation_implicit_midpoint"]))
+                        assert r["score"] == pytest.approx(ratio)
+                assert len(rec["per_test"]) == len(res["setup"]["test"])
+                scores[update] = rec["kernel"]["score"]
+            assert entry["chosen_update"] == min(scores, key=scores.get)
+    assert "chosen kernel / implicit midpoint" in out_a and "| 6 |" in out_b
