@@ -186,7 +186,21 @@ FAULTS = [
     Fault("X1", "estimators", P + "predictor.py", "        self._warn_if_trajectory_leaves(traj)\n        return traj[0] if single else traj\n\n    def _solvability",
           "        return traj[0] if single else traj\n\n    def _solvability",
           ("tests/test_no_silent_numerics.py",), "a symplectic rollout leaving the training states does not warn"),
+    # ----------------------------------------------------------------- later additions (symmetry, selection, sine-Gordon)
+    Fault("Y1", "symmetry", P + "kernels.py", "                w = g[c, b]\n", "                w = np.abs(g[c, b])\n",
+          ("tests/test_symmetry.py",), "group-averaged kernel: the derivative functionals lose the sign of g"),
+    Fault("Y2", "symmetry", P + "kernels.py", "out += w * (-B * d[rows, a] * d[:, c] - A * (a == c))",
+          "out += w * (-B * d[rows, a] * d[:, c] + A * (a == c))",
+          ("tests/test_symmetry.py",), "group-averaged Gramian diagonal with the wrong sign of the A term"),
+    Fault("S3", "selection", P + "selection.py", "if np.isfinite(value) and (best is None or value < best[2]):",
+          "if np.isfinite(value) and (best is None or value > best[2]):",
+          ("tests/test_select_by_score.py",), "select_by_score keeps the worst candidate"),
+    Fault("SG1", "sine-Gordon", P + "experiments/sine_gordon.py", "m_after <= ratio * m and (rise is None or rise <= ratio - 1.0)",
+          "m_after <= ratio * m",
+          ("tests/test_sine_gordon_long_time.py",), "energy boundedness ignores a secular drift below the ratio bound"),
 ]
+_duplicate_ids = sorted({f.id for f in FAULTS if sum(g.id == f.id for g in FAULTS) > 1})
+assert not _duplicate_ids, f"fault ids must be unique (--only selects by id): {_duplicate_ids}"
 
 
 def _copy_tree(dst: Path):
