@@ -4,6 +4,7 @@ interpolation, symplecticity, exact periodicity of the learned s, backends, mode
 import importlib.util
 import pathlib
 import warnings
+from functools import partial
 
 import numpy as np
 import pytest
@@ -16,6 +17,8 @@ from sympredict.io import load_model, save_model
 from sympredict.kernels import IMQ, Matern52, PeriodicCoordinates, ProductKernel
 from sympredict.predictor import update_variables
 from sympredict.surrogate import HBSurrogate
+
+from _surrogate_oracles import check_gramian_by_finite_differences, check_surrogate_by_finite_differences  # tests/ (on sys.path under pytest)
 
 J = np.array([[0.0, 1.0], [-1.0, 0.0]])
 LENGTH, DT = 0.75, 0.05
@@ -70,26 +73,8 @@ def test_gramian_entries_match_mixed_finite_differences(dim, periodic, state, rn
     pts = rng.normal(size=(5, dim)) * 3.0  # spread over more than one period
     mu = rng.normal(size=(5, 1))
     fun = HBFunctionals(kernel, pts, mu, np.full(5, 0.05))
+    gram = check_gramian_by_finite_differences(fun, partial(_kernel_value, kernel), pts, mu, rtol=1e-14, atol=1e-16)
     n = fun.n_functionals
-    gram = np.empty((n, n))
-    for j in range(n):
-        fun.column(fun.representer(j), out=gram[:, j])
-    rows = fun.gram_rows(fun, np.arange(n), out=np.empty((n, n)))
-    np.testing.assert_allclose(rows, gram.T, rtol=1e-14, atol=1e-16)
-    np.testing.assert_allclose(gram, gram.T, atol=1e-14)
-    assert np.linalg.eigvalsh(gram).min() > 0
-    np.testing.assert_allclose(np.diag(gram), fun.diagonal(), rtol=1e-14)
-    h = 1e-4
-    eye = np.eye(dim) * h
-    fd = np.empty((n, n))
-    for i in range(n):
-        p, a = divmod(i, dim)
-        for j in range(n):
-            q, b = divmod(j, dim)
-            x, y, mx, my = pts[p], pts[q], mu[p, 0], mu[q, 0]
-            fd[i, j] = (_kernel_value(kernel, x + eye[a], y + eye[b], mx, my) - _kernel_value(kernel, x + eye[a], y - eye[b], mx, my)
-                        - _kernel_value(kernel, x - eye[a], y + eye[b], mx, my) + _kernel_value(kernel, x - eye[a], y - eye[b], mx, my)) / (4 * h * h)
-    np.testing.assert_allclose(gram, fd, atol=1e-6 * np.abs(gram).max())
     # a point one period away is the same functional: identical Gramian column
     moved = HBFunctionals(kernel, pts + _shift(periodic, dim, 3), mu, np.full(5, 0.05))
     col = fun.column(moved.representer(3), out=np.empty(n))
@@ -105,26 +90,9 @@ def test_surrogate_value_gradient_hessian_by_finite_differences(dim, periodic, s
     comps, coef = rng.integers(0, dim, m), rng.normal(size=m)
     sur = HBSurrogate(kernel, centers, cmu, np.full(m, 0.05), comps, coef)
     xi, qmu = rng.normal(size=(4, dim)) * 3.0, rng.normal(size=(4, 1))
-    w = sur.weights(qmu, np.full(4, 0.05))
-    # value = sum_j c_j k_mu d/dy_l k(xi, y)|_{y = x_j}, the y-derivative by differences of the kernel value
-    h = 1e-5
-    eye = np.eye(dim) * h
-    expected = np.array([sum(coef[j] * (_kernel_value(kernel, x, centers[j] + eye[comps[j]], mu[0], cmu[j, 0])
-                                        - _kernel_value(kernel, x, centers[j] - eye[comps[j]], mu[0], cmu[j, 0])) / (2 * h)
-                             for j in range(m)) for x, mu in zip(xi, qmu)])
-    np.testing.assert_allclose(sur.value(xi, w), expected, atol=1e-8 * np.abs(expected).max())
-    grad, hess, floor = sur.gradient_hessian(xi, w, with_floor=True)
-    np.testing.assert_array_equal(grad, sur.gradient(xi, w))
-    fd_grad = np.column_stack([(sur.value(xi + eye[a], w) - sur.value(xi - eye[a], w)) / (2 * h) for a in range(dim)])
-    np.testing.assert_allclose(grad, fd_grad, atol=1e-8 * np.abs(grad).max())
-    fd_hess = np.stack([(sur.gradient(xi + eye[c], w) - sur.gradient(xi - eye[c], w)) / (2 * h) for c in range(dim)], axis=2)
-    np.testing.assert_allclose(hess, fd_hess, atol=1e-7 * np.abs(hess).max())
+    w, grad, hess, floor = check_surrogate_by_finite_differences(sur, partial(_kernel_value, kernel), centers, cmu, comps,
+                                                                 coef, xi, qmu)
     np.testing.assert_allclose(hess, hess.transpose(0, 2, 1), atol=1e-13 * np.abs(hess).max())
-    g2, hqp, floor2 = sur.newton_terms(xi, w)
-    n = dim // 2
-    np.testing.assert_array_equal(g2, grad)
-    np.testing.assert_allclose(hqp, hess[:, :n, n:], atol=1e-14 * np.abs(hess).max())
-    np.testing.assert_array_equal(floor2, floor)
     # exactly periodic: value, gradient and Hessian at xi + k P
     for k in (1, -4, 50):
         s = _shift(periodic, dim, k)

@@ -3,6 +3,7 @@ finite differences, exact invariance of s, exact interpolation, symplecticity an
 the estimator contract, model files and refused input."""
 
 import warnings
+from functools import partial
 
 import numpy as np
 import pytest
@@ -16,6 +17,8 @@ from sympredict.io import load_model, save_model
 from sympredict.kernels import IMQ, Matern52, PeriodicCoordinates, ProductKernel, StateSymmetry
 from sympredict.predictor import update_variables
 from sympredict.surrogate import HBSurrogate
+
+from _surrogate_oracles import check_gramian_by_finite_differences, check_surrogate_by_finite_differences  # tests/ (on sys.path under pytest)
 
 J = np.array([[0.0, 1.0], [-1.0, 0.0]])
 LENGTH, DT = 0.75, 0.05
@@ -48,26 +51,8 @@ def test_gramian_entries_match_mixed_finite_differences(dim, group, state, rng):
     kernel = ProductKernel(state, IMQ(1.5), None, symmetry=group)
     pts, mu = rng.normal(size=(5, dim)), rng.normal(size=(5, 1))
     fun = HBFunctionals(kernel, pts, mu, np.full(5, 0.05))
+    gram = check_gramian_by_finite_differences(fun, partial(_kernel_value, kernel), pts, mu)
     n = fun.n_functionals
-    gram = np.empty((n, n))
-    for j in range(n):
-        fun.column(fun.representer(j), out=gram[:, j])
-    rows = fun.gram_rows(fun, np.arange(n), out=np.empty((n, n)))
-    np.testing.assert_allclose(rows, gram.T, rtol=1e-13, atol=1e-15)
-    np.testing.assert_allclose(gram, gram.T, atol=1e-14)
-    assert np.linalg.eigvalsh(gram).min() > 0  # points in general position: positive definite
-    np.testing.assert_allclose(fun.diagonal(), np.diag(gram), rtol=1e-13)
-    h = 1e-4
-    eye = np.eye(dim) * h
-    fd = np.empty((n, n))
-    for i in range(n):
-        p, a = divmod(i, dim)
-        for j in range(n):
-            q, b = divmod(j, dim)
-            x, y, mx, my = pts[p], pts[q], mu[p, 0], mu[q, 0]
-            fd[i, j] = (_kernel_value(kernel, x + eye[a], y + eye[b], mx, my) - _kernel_value(kernel, x + eye[a], y - eye[b], mx, my)
-                        - _kernel_value(kernel, x - eye[a], y + eye[b], mx, my) + _kernel_value(kernel, x - eye[a], y - eye[b], mx, my)) / (4 * h * h)
-    np.testing.assert_allclose(gram, fd, atol=1e-6 * np.abs(gram).max())
     # an image g x_q of a point is the functional in the direction g e_b: column(g x_q, b) = sum_c g_cb column(x_q, c)
     for g in group.array[1:]:
         moved = HBFunctionals(kernel, pts @ g.T, mu, np.full(5, 0.05))
@@ -95,24 +80,8 @@ def test_surrogate_value_gradient_hessian_by_finite_differences(dim, group, stat
     sur = HBSurrogate(kernel, centers, cmu, np.full(m, 0.05), comps, coef)
     assert sur.n_centers == m
     xi, qmu = rng.normal(size=(4, dim)), rng.normal(size=(4, 1))
-    w = sur.weights(qmu, np.full(4, 0.05))
-    h = 1e-5
-    eye = np.eye(dim) * h
-    expected = np.array([sum(coef[j] * (_kernel_value(kernel, x, centers[j] + eye[comps[j]], mu[0], cmu[j, 0])
-                                        - _kernel_value(kernel, x, centers[j] - eye[comps[j]], mu[0], cmu[j, 0])) / (2 * h)
-                             for j in range(m)) for x, mu in zip(xi, qmu)])
-    np.testing.assert_allclose(sur.value(xi, w), expected, atol=1e-8 * np.abs(expected).max())
-    grad, hess, floor = sur.gradient_hessian(xi, w, with_floor=True)
-    np.testing.assert_array_equal(grad, sur.gradient(xi, w))
-    fd_grad = np.column_stack([(sur.value(xi + eye[a], w) - sur.value(xi - eye[a], w)) / (2 * h) for a in range(dim)])
-    np.testing.assert_allclose(grad, fd_grad, atol=1e-8 * np.abs(grad).max())
-    fd_hess = np.stack([(sur.gradient(xi + eye[c], w) - sur.gradient(xi - eye[c], w)) / (2 * h) for c in range(dim)], axis=2)
-    np.testing.assert_allclose(hess, fd_hess, atol=1e-7 * np.abs(hess).max())
-    g2, hqp, floor2 = sur.newton_terms(xi, w)
-    n = dim // 2
-    np.testing.assert_array_equal(g2, grad)
-    np.testing.assert_allclose(hqp, hess[:, :n, n:], atol=1e-14 * np.abs(hess).max())
-    np.testing.assert_array_equal(floor2, floor)
+    kernel_value = partial(_kernel_value, kernel)
+    w, grad, hess, floor = check_surrogate_by_finite_differences(sur, kernel_value, centers, cmu, comps, coef, xi, qmu)
     # exactly invariant: s(g x) = s(x), grad s(g x) = g grad s(x), Hess s(g x) = g Hess s(x) g^T (to round-off)
     for g in group.array:
         gx = xi @ g.T

@@ -1,0 +1,65 @@
+"""Shared oracle of the modified state kernels' tests (periodic factor, group average): the surrogate's value,
+gradient, Hessian and Newton terms against finite differences of the kernel's *value* only."""
+
+import numpy as np
+
+
+def check_surrogate_by_finite_differences(sur, kernel_value, centers, cmu, comps, coef, xi, qmu, h=1e-5):
+    """Assert that ``sur`` (an :class:`~sympredict.surrogate.HBSurrogate` with centres ``centers`` (m, D) at
+    ``cmu`` (m, 1), differentiated components ``comps`` and coefficients ``coef``) evaluates
+
+    * ``s(x) = sum_j c_j d/dy_{l_j} k((x, mu), (y, mu_j))|_{y = x_j}``, the derivative in ``y`` taken by central
+      differences of ``kernel_value(x, y, mu_x, mu_y)`` (the oracle: the profile and the distance only);
+    * its gradient and Hessian as central differences of ``value`` and ``gradient``;
+    * ``newton_terms`` as the gradient, the ``(q, p)`` block of the Hessian and the same floor.
+
+    Returns ``(w, grad, hess, floor)`` at the query points ``xi`` (B, D), ``qmu`` (B, 1) (``dT`` 0.05).
+    """
+    dim = xi.shape[1]
+    w = sur.weights(qmu, np.full(len(xi), 0.05))
+    eye = np.eye(dim) * h
+    expected = np.array([sum(coef[j] * (kernel_value(x, centers[j] + eye[comps[j]], mu[0], cmu[j, 0])
+                                        - kernel_value(x, centers[j] - eye[comps[j]], mu[0], cmu[j, 0])) / (2 * h)
+                             for j in range(len(coef))) for x, mu in zip(xi, qmu)])
+    np.testing.assert_allclose(sur.value(xi, w), expected, atol=1e-8 * np.abs(expected).max())
+    grad, hess, floor = sur.gradient_hessian(xi, w, with_floor=True)
+    np.testing.assert_array_equal(grad, sur.gradient(xi, w))
+    fd_grad = np.column_stack([(sur.value(xi + eye[a], w) - sur.value(xi - eye[a], w)) / (2 * h) for a in range(dim)])
+    np.testing.assert_allclose(grad, fd_grad, atol=1e-8 * np.abs(grad).max())
+    fd_hess = np.stack([(sur.gradient(xi + eye[c], w) - sur.gradient(xi - eye[c], w)) / (2 * h) for c in range(dim)],
+                       axis=2)
+    np.testing.assert_allclose(hess, fd_hess, atol=1e-7 * np.abs(hess).max())
+    g2, hqp, floor2 = sur.newton_terms(xi, w)
+    n = dim // 2
+    np.testing.assert_array_equal(g2, grad)
+    np.testing.assert_allclose(hqp, hess[:, :n, n:], atol=1e-14 * np.abs(hess).max())
+    np.testing.assert_array_equal(floor2, floor)
+    return w, grad, hess, floor
+
+
+def check_gramian_by_finite_differences(fun, kernel_value, pts, mu, rtol=1e-13, atol=1e-15, h=1e-4):
+    """Assert that the Hermite-Birkhoff Gramian of ``fun`` (an :class:`~sympredict.functionals.HBFunctionals` at
+    ``pts`` (P, D), ``mu`` (P, 1), every state derivative of every point) is consistent (columns, rows and
+    diagonal agree, symmetric, positive definite for points in general position) and equals the mixed central
+    differences ``d/dx_a d/dy_b`` of ``kernel_value(x, y, mu_x, mu_y)``.  Returns the Gramian (P D, P D)."""
+    dim = pts.shape[1]
+    n = fun.n_functionals
+    gram = np.empty((n, n))
+    for j in range(n):
+        fun.column(fun.representer(j), out=gram[:, j])
+    rows = fun.gram_rows(fun, np.arange(n), out=np.empty((n, n)))
+    np.testing.assert_allclose(rows, gram.T, rtol=rtol, atol=atol)
+    np.testing.assert_allclose(gram, gram.T, atol=1e-14)
+    assert np.linalg.eigvalsh(gram).min() > 0
+    np.testing.assert_allclose(fun.diagonal(), np.diag(gram), rtol=rtol)
+    eye = np.eye(dim) * h
+    fd = np.empty((n, n))
+    for i in range(n):
+        p, a = divmod(i, dim)
+        for j in range(n):
+            q, b = divmod(j, dim)
+            x, y, mx, my = pts[p], pts[q], mu[p, 0], mu[q, 0]
+            fd[i, j] = (kernel_value(x + eye[a], y + eye[b], mx, my) - kernel_value(x + eye[a], y - eye[b], mx, my)
+                        - kernel_value(x - eye[a], y + eye[b], mx, my) + kernel_value(x - eye[a], y - eye[b], mx, my)) / (4 * h * h)
+    np.testing.assert_allclose(gram, fd, atol=1e-6 * np.abs(gram).max())
+    return gram
