@@ -128,7 +128,7 @@ PRESETS = {
 #: with T doubled.  Nothing here was chosen on test errors.
 PRESETS["breather"] = SineGordonPreset(initial="breather", length=30.0, T=10.5, n_c=3, n_amplitude=3, max_centers=600)
 #: a seconds-sized breather case for the tests
-PRESETS["smoke-breather"] = replace(PRESETS["smoke"], initial="breather", n_points=80, length=16.0, T=7.0,
+PRESETS["smoke-breather"] = replace(PRESETS["smoke"], initial="breather", n_points=80, length=16.0, T=8.0,
                                     omega_range=(0.8, 0.9))
 
 
