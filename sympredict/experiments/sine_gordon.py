@@ -55,8 +55,8 @@ from sympredict.reduction import complex_svd_basis, symplecticity_of_basis
 from sympredict.scaling import BoxScaling, NormalizedFlowMap, SymplecticScaling
 from sympredict.systems.sine_gordon import SineGordonFOM
 
-__all__ = ["SineGordonPreset", "PRESETS", "run_sine_gordon", "initial_states", "second_parameter", "energy_boundedness", "ENERGY_BOUND_RATIO", "ENERGY_BOUND_FLOOR",
-           "EnergySamples", "sign_symmetry", "no_augmentation", "choose_large_step"]
+__all__ = ["SineGordonPreset", "PRESETS", "run_sine_gordon", "initial_states", "second_parameter", "energy_boundedness",
+           "ENERGY_BOUND_RATIO", "ENERGY_BOUND_FLOOR", "EnergySamples", "sign_symmetry", "no_augmentation", "choose_large_step"]
 
 logger = getLogger("sympredict.experiments.sine_gordon")
 
