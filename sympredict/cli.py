@@ -206,6 +206,12 @@ def _cmd_run(args) -> int:
     from threadpoolctl import threadpool_limits
 
     preset_name = args.preset or ("paper" if args.paper else "quick")
+    if args.initial == "breather":  # the sine-Gordon breather scenario has its own presets
+        breather_presets = {"quick": "breather", "smoke": "smoke-breather"}
+        if args.system != "sine-gordon" or preset_name not in breather_presets:
+            print("sympredict: --initial breather needs `run sine-gordon` with --quick or --preset smoke", file=sys.stderr)
+            return 2
+        preset_name = breather_presets[preset_name]
     systems = ALL_SYSTEMS if args.system == "all" else (args.system,)
     out = Path(args.out)
     if out.is_symlink() and out.is_dir():  # write into the folder the link names; the link stays
@@ -412,6 +418,8 @@ def build_parser() -> argparse.ArgumentParser:
     size.add_argument("--quick", action="store_true", help="small data (default): pendulum ~30 s, wave ~2 min on 2 cores")
     size.add_argument("--paper", action="store_true", help="the paper's data sizes: minutes, ~10 GiB")
     size.add_argument("--preset", choices=["smoke", "quick", "paper"], help="a preset by name ('smoke': seconds, for testing)")
+    run.add_argument("--initial", choices=["sech_cos", "breather"], default="sech_cos",
+                     help="sine-Gordon only: initial-data family ('breather': the breather presets, --quick or --preset smoke)")
     run.add_argument("--seed", type=_int_at_least(0), default=0, help="seed of the validation and test draws (default 0)")
     run.add_argument("--threads", type=_int_at_least(1), default=os.cpu_count() or 1, help="BLAS threads (default: all cores)")
     run.set_defaults(func=_cmd_run)

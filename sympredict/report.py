@@ -604,7 +604,10 @@ def sine_gordon_markdown(s: dict) -> list[str]:
     p = s["preset"]
     lines = ["## Sine-Gordon (issue 15)", "",
              f"FOM: u_tt = c^2 u_xx - sin u on (0, {p['length']}), Dirichlet, N = {p['n_points']}, c in {p['c_range']}, "
-             f"initial states amplitude * sech(x/2) cos(x) with amplitude in {p['amplitude_range']}; {p['n_c'] * p['n_amplitude']} "
+             + (f"initial states breathers at (c, omega), omega in {p['omega_range']} (period 2 pi / omega); "
+                if p.get("initial", "sech_cos") == "breather" else
+                f"initial states amplitude * sech(x/2) cos(x) with amplitude in {p['amplitude_range']}; ")
+             + f"{p['n_c'] * p['n_amplitude']} "
              f"training trajectories over T = {p['T']}, {len(s['test_c'])} random test parameters; reference Kahan-Li-6 with step "
              f"halving (estimate {s['fom_step_halving_estimate']:.1e}), {s['fom_time_per_trajectory'] * 1e3:.1f} ms per trajectory. "
              f"DT = {p['DT']}. Timings: medians of {p['repeats']} runs in one process on a shared 2-core machine, BLAS on one thread.",

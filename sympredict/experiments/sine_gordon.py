@@ -3,8 +3,12 @@
 :func:`run_sine_gordon` returns results (numbers and arrays), no figures:
 
 * FOM trajectories (compiled Kahan–Li-6, step halving to ``ref_tol``) at a grid
-  of training parameters ``(c, amplitude)`` and at random test parameters
-  (never trained on), initial states ``amplitude * sech(x/w) cos(k x)``;
+  of training parameters and at random test parameters (never trained on); the
+  initial-data family is the preset's ``initial`` (:func:`initial_states`):
+  ``'sech_cos'`` (default): ``amplitude * sech(x/2) cos(x)``, parameters ``(c, amplitude)``;
+  ``'breather'``: the breather of frequency ``omega`` at wave speed ``c`` at its zero
+  crossing, parameters ``(c, omega)`` (time-periodic and localized: with ``T`` at least one
+  period ``2 pi / omega`` the training snapshots hold the long-time states);
 * a complex-SVD symplectic basis per ``2n`` from the training snapshots;
 * per ``2n``: the errors against the FOM (mean over time of the relative
   error of the reconstructed state) of the Galerkin ROM (implicit midpoint with
@@ -51,8 +55,8 @@ from sympredict.reduction import complex_svd_basis, symplecticity_of_basis
 from sympredict.scaling import BoxScaling, NormalizedFlowMap, SymplecticScaling
 from sympredict.systems.sine_gordon import SineGordonFOM
 
-__all__ = ["SineGordonPreset", "PRESETS", "run_sine_gordon", "energy_boundedness", "ENERGY_BOUND_RATIO", "ENERGY_BOUND_FLOOR",
-           "EnergySamples", "sign_symmetry", "no_augmentation", "choose_large_step"]
+__all__ = ["SineGordonPreset", "PRESETS", "run_sine_gordon", "initial_states", "second_parameter", "energy_boundedness",
+           "ENERGY_BOUND_RATIO", "ENERGY_BOUND_FLOOR", "EnergySamples", "sign_symmetry", "no_augmentation", "choose_large_step"]
 
 logger = getLogger("sympredict.experiments.sine_gordon")
 
@@ -66,7 +70,12 @@ class SineGordonPreset:
     c_range: tuple = (0.8, 1.2)
     amplitude_range: tuple = (0.5, 1.5)
     n_c: int = 4  # 4 x 4 training trajectories and 1,000 centres: the largest measured size within the --quick budget
+    #: training values of the second parameter (amplitude for 'sech_cos', omega for 'breather')
     n_amplitude: int = 4
+    #: initial-data family (initial_states): 'sech_cos' (parameters c, amplitude) or 'breather' (c, omega)
+    initial: str = "sech_cos"
+    #: breather frequencies (units of sqrt(s) = 1): period 2 pi / omega, amplitude max |u| = 4 arctan(sqrt(1 - w^2) / w)
+    omega_range: tuple = (0.6, 0.9)
     n_test: int = 3
     T: float = 5.0
     DT: float = 0.1
@@ -110,6 +119,41 @@ PRESETS = {
                              max_centers=60, cost_N=(60, 120), repeats=2, long_factor=2, large_step=5,
                              large_step_candidates=()),
 }
+#: breathers (issue 15 allows them as the initial family): c in [0.8, 1.2], omega in [0.6, 0.9].
+#: Physics: T = 10.5 >= 2 pi / 0.6 = 10.47, one period of the slowest breather (the training snapshots then hold
+#: every phase of the time-periodic states); L = 30: the widest breather (c = 1.2, omega = 0.9, width
+#: c / sqrt(1 - omega^2) = 2.75) has decayed to 0.9 % of its peak at the Dirichlet boundary (L = 20: 5 %).
+#: Budget: the --quick sizes (4 x 4 trajectories, 1,000 centres): measured 8 min 41 s wall on the shared 2-core
+#: machine (run I in docs/sine_gordon.md); the first choice, 3 x 3 and 600 centres (run H, 3 min 56 s), left half
+#: the budget unused.  Both runs' test errors were seen before the change; no choice here uses them.
+PRESETS["breather"] = SineGordonPreset(initial="breather", length=30.0, T=10.5)
+#: a seconds-sized breather case for the tests
+PRESETS["smoke-breather"] = replace(PRESETS["smoke"], initial="breather", n_points=80, length=16.0, T=8.0,
+                                    omega_range=(0.8, 0.9))
+
+
+def second_parameter(p: SineGordonPreset) -> tuple:
+    """Name and range of the initial family's parameter besides ``c``: ``('amplitude', amplitude_range)`` for
+    ``'sech_cos'``, ``('omega', omega_range)`` for ``'breather'``."""
+    if p.initial == "sech_cos":
+        return "amplitude", tuple(p.amplitude_range)
+    if p.initial == "breather":
+        return "omega", tuple(p.omega_range)
+    raise ValueError(f"initial must be 'sech_cos' or 'breather', got {p.initial!r}")
+
+
+def initial_states(fom, p: SineGordonPreset, c, s) -> np.ndarray:
+    """Initial states (B, 2N) of the preset's family at wave speeds ``c`` (B,) and second parameters ``s`` (B,).
+
+    ``'sech_cos'``: ``s * sech(x/2) cos(x)``, ``p = 0`` (the same shape for every ``c``); ``'breather'``:
+    :meth:`~sympredict.systems.sine_gordon.SineGordonFOM.breather` at ``(c, omega = s)`` (``q = 0``, the exact
+    breather's velocity at its zero crossing, width ``c / sqrt(1 - omega^2)``, centred).  ``O(B N)``.
+    """
+    c, s = np.atleast_1d(np.asarray(c, dtype=float)), np.atleast_1d(np.asarray(s, dtype=float))
+    second_parameter(p)  # validates p.initial
+    if p.initial == "breather":
+        return np.stack([fom.breather(ci, si) for ci, si in zip(c, s)])
+    return s[:, None] * fom.sech_cos(2.0, 1.0)[None, :]
 
 
 def _median_time(fn, repeats):
@@ -131,22 +175,26 @@ def run_sine_gordon(preset: SineGordonPreset = PRESETS["quick"], **overrides) ->
     rng = np.random.default_rng(p.seed)
     fom = SineGordonFOM(n_points=p.n_points, length=p.length, c_range=p.c_range, amplitude_range=p.amplitude_range,
                         T=p.T, nt=int(round(p.T / p.DT)))
-    u0 = fom.sech_cos(2.0, 1.0)
     K = int(round(p.T / p.DT))
+    name2, range2 = second_parameter(p)
+    # a_tr, a_te: the second parameter (amplitude or omega)
     c_tr = np.repeat(np.linspace(*p.c_range, p.n_c), p.n_amplitude)
-    a_tr = np.tile(np.linspace(*p.amplitude_range, p.n_amplitude), p.n_c)
+    a_tr = np.tile(np.linspace(*range2, p.n_amplitude), p.n_c)
     c_te = rng.uniform(*p.c_range, p.n_test)
-    a_te = rng.uniform(*p.amplitude_range, p.n_test)
-    out = {"preset": asdict(p), "test_c": c_te.tolist(), "test_amplitude": a_te.tolist(), "dims": {}}
+    a_te = rng.uniform(*range2, p.n_test)
+    out = {"preset": asdict(p), "second_parameter": name2, "test_c": c_te.tolist(), f"test_{name2}": a_te.tolist(),
+           "dims": {}}
     with threadpool_limits(1):
         t = time.perf_counter()
-        X_tr, est = fom.reference_trajectory(a_tr[:, None] * u0, c_tr, p.DT, K, tol=p.ref_tol, return_error=True)
+        x0_te = initial_states(fom, p, c_te, a_te)
+        X_tr, est = fom.reference_trajectory(initial_states(fom, p, c_tr, a_tr), c_tr, p.DT, K, tol=p.ref_tol,
+                                             return_error=True)
         out["fom_train_time"] = time.perf_counter() - t
-        X_te = fom.reference_trajectory(a_te[:, None] * u0, c_te, p.DT, p.long_factor * K, tol=p.ref_tol)
+        X_te = fom.reference_trajectory(x0_te, c_te, p.DT, p.long_factor * K, tol=p.ref_tol)
         out["fom_step_halving_estimate"] = est
         x_te = X_te[:, : K + 1]
         out["fom_time_per_trajectory"] = _median_time(
-            lambda: fom.reference_trajectory(a_te[:1, None] * u0, c_te[:1], p.DT, K, tol=p.ref_tol), max(1, p.repeats // 2))
+            lambda: fom.reference_trajectory(x0_te[:1], c_te[:1], p.DT, K, tol=p.ref_tol), max(1, p.repeats // 2))
         snaps = X_tr.reshape(-1, fom.dim)
         for dim in p.dims:
             out["dims"][dim] = _one_dimension(fom, p, dim // 2, snaps, X_tr, c_tr, a_tr, X_te, c_te, a_te, K)
@@ -563,15 +611,21 @@ def _data_driven(fom, p, Yp_tr, c_tr, a_tr, c_te, a_te, gal, x_te, K, curves):
     from pymor.algorithms.ml.vkoga.regressor import VKOGARegressor
     from pymor.reductors.data_driven import DataDrivenReductor
 
-    params = fom.model.parameters
-    train = [params.parse({"c": c, "amplitude": a}) for c, a in zip(c_tr, a_tr)]
+    from pymor.parameters.base import Parameters
+
+    # the scenario's parameters (c and the initial family's second one); for 'sech_cos' these are the pyMOR
+    # model's own ({c, amplitude}); a breather's omega is not a parameter of the pyMOR model (its initial data are
+    # linear in amplitude), so the regressor's inputs are declared here
+    name2 = second_parameter(p)[0]
+    params = Parameters({"c": 1, name2: 1})
+    train = [params.parse({"c": c, name2: a}) for c, a in zip(c_tr, a_tr)]
     snaps = np.concatenate(list(Yp_tr))  # (P (K+1), 2n): DataDrivenReductor takes the rows, trajectory by trajectory
     entry = {"error": None, "time_per_trajectory": None, "fit_time": None, "failure": None}
     try:
         t0 = time.perf_counter()
         rom = DataDrivenReductor(train, snaps, regressor=VKOGARegressor(), T=p.T, input_scaler=BoxScaling()).reduce()
         entry["fit_time"] = time.perf_counter() - t0
-        mus = [params.parse({"c": c, "amplitude": a}) for c, a in zip(c_te, a_te)]
+        mus = [params.parse({"c": c, name2: a}) for c, a in zip(c_te, a_te)]
         Y = np.stack([rom.solve(mu).to_numpy().T for mu in mus])  # (B, K+1, 2n)
         entry["error"] = _err(gal, Y, x_te).tolist()
         curves["data_driven"] = _curve(gal, Y, x_te).tolist()
