@@ -611,7 +611,7 @@ class StateSymmetry:
 
     @property
     def array(self) -> np.ndarray:
-        """The elements as an array (|G|, D, D) (a copy)."""
+        """The elements as an array of shape ``(|G|, D, D)`` (a copy)."""
         return self._mats.copy()
 
     @property
