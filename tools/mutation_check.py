@@ -94,8 +94,10 @@ FAULTS = [
     Fault("N6", "Newton", P + "predictor.py", "dq_dp = h * (Spp @ Minv)", "dq_dp = h * Spp",
           ("tests/test_oracles.py",), "step Jacobian: dq1/dp0 misses M^-1"),
     # ----------------------------------------------------------------- reduction
-    Fault("R1", "reduction", P + "reduction.py", "return canonical_J(V.shape[1]).T @ V.T @ canonical_J(V.shape[0])", "return V.T",
+    Fault("R1", "reduction", P + "reduction.py", "return _J_times(_J_times(V).T)", "return V.T",
           ("tests/test_oracles.py",), "symplectic inverse V+ = V^T (coincides only for orthosymplectic V)"),
+    Fault("R9", "reduction", P + "reduction.py", "return np.concatenate([A[m:], -A[:m]])", "return np.concatenate([A[m:], A[:m]])",
+          ("tests/test_sine_gordon_long_time.py", "tests/test_oracles.py"), "J applied by block swap without the sign"),
     Fault("R2", "reduction", P + "reduction.py", "V = np.block([[Un.real, -Un.imag], [Un.imag, Un.real]])",
           "V = np.block([[Un.real, Un.imag], [Un.imag, Un.real]])", ("tests/test_wave.py",), "complex-SVD basis not symplectic"),
     Fault("R3", "reduction", P + "reduction.py", "return float(np.sqrt(max(0.0, s2[self.n :].sum()) / s2.sum()))",
