@@ -1,7 +1,21 @@
-"""Shared oracle of the modified state kernels' tests (periodic factor, group average): the surrogate's value,
-gradient, Hessian and Newton terms against finite differences of the kernel's *value* only."""
+"""Oracles shared by several test files.
+
+* the modified state kernels (periodic factor, group average): the Gramian and the surrogate's value, gradient,
+  Hessian and Newton terms against finite differences of the kernel's *value* only;
+* the compiled Newton solvers: pendulum queries, a model with another backend, and agreement of two rollouts
+  to the surrogate's gradient floor;
+* model files whose kernel entry is malformed are refused.
+"""
+
+import copy
 
 import numpy as np
+import pytest
+
+from sympredict.container import write_container
+from sympredict.exceptions import ModelFileError
+from sympredict.io import load_model
+from sympredict.predictor import MODEL_FORMAT
 
 
 def check_surrogate_by_finite_differences(sur, kernel_value, centers, cmu, comps, coef, xi, qmu, h=1e-5):
@@ -63,3 +77,40 @@ def check_gramian_by_finite_differences(fun, kernel_value, pts, mu, rtol=1e-13, 
                         - kernel_value(x - eye[a], y + eye[b], mx, my) + kernel_value(x - eye[a], y - eye[b], mx, my)) / (4 * h * h)
     np.testing.assert_allclose(gram, fd, atol=1e-6 * np.abs(gram).max())
     return gram
+
+
+def pendulum_queries(rng, n):
+    """``n`` pendulum states with ``q`` in ``[0, pi/2]``, lengths and steps inside the small training box."""
+    x = np.column_stack([rng.uniform(0.0, np.pi / 2, n), rng.uniform(-0.5, 0.5, n)])
+    return x, rng.uniform(0.71, 0.79, n), rng.uniform(0.045, 0.055, n)
+
+
+def with_backend(model, backend):
+    """The fitted model with another Newton backend (a shallow copy: the fitted state is shared)."""
+    return copy.copy(model).set_params(backend=backend)
+
+
+def check_rollouts_agree_to_the_floor(reference, fast, x, mu, dt, n_steps=20):
+    """Assert that ``fast.rollout`` equals ``reference.rollout`` to ``100 n_steps max(dT) floor`` (per step the
+    solutions may differ by ~``dT`` times the gradient floor of :meth:`HBSurrogate.gradient_hessian`) and that this
+    bound is below 1e-5 (a meaningful agreement).  Returns the reference trajectories and the bound."""
+    ref = reference.rollout(x, n_steps, mu=mu, dt=dt)
+    out = fast.rollout(x, n_steps, mu=mu, dt=dt)
+    sur = reference.surrogate_
+    _, _, floor = sur.gradient_hessian(x, sur.weights(mu[:, None], dt), with_floor=True)
+    bound = 100 * n_steps * dt.max() * floor.max()
+    assert bound < 1e-5
+    assert np.abs(out - ref).max() <= bound
+    return ref, bound
+
+
+def check_malformed_kernel_entries_refused(path, settings, arrays, key, specs):
+    """Write the model file ``path`` with ``settings["kernel"][key]`` replaced by each of ``specs`` (``None``:
+    the entry deleted) and assert that loading it raises :class:`ModelFileError`."""
+    for spec in specs:
+        bad = {**settings, "kernel": {**settings["kernel"], key: spec}}
+        if spec is None:
+            del bad["kernel"][key]
+        write_container(path, MODEL_FORMAT, bad, arrays)
+        with pytest.raises(ModelFileError):
+            load_model(path)

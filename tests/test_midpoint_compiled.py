@@ -7,8 +7,6 @@ Oracles: the NumPy solvers (:func:`~sympredict.newton.solve_midpoint_numpy`,
 itself, evaluated with the NumPy gradient.
 """
 
-import copy
-
 import numpy as np
 import pytest
 from scipy.linalg import expm
@@ -18,6 +16,8 @@ from sympredict.exceptions import extrapolation_expected
 from sympredict.kernels import IMQ, ProductKernel
 from sympredict.newton import rollout_compiled, rollout_numpy, solve_midpoint_numpy, solve_step_numpy
 from sympredict.surrogate import HBSurrogate
+
+from _surrogate_oracles import check_rollouts_agree_to_the_floor, pendulum_queries, with_backend  # tests/
 
 pytestmark = pytest.mark.skipif(not _fastkernels.HAVE_NUMBA, reason="the compiled rollout needs numba (optional extra)")
 
@@ -30,8 +30,7 @@ def _j(dim):
     return j
 
 
-def _with_backend(model, backend):
-    return copy.copy(model).set_params(backend=backend)
+_with_backend = with_backend
 
 
 @pytest.fixture(scope="module")
@@ -63,9 +62,7 @@ def chain_mid():
     return model.fit(x0, x1, dt=0.2), a
 
 
-def _queries(rng, n):
-    x = np.column_stack([rng.uniform(0.0, np.pi / 2, n), rng.uniform(-0.5, 0.5, n)])
-    return x, rng.uniform(0.71, 0.79, n), rng.uniform(0.045, 0.055, n)
+_queries = pendulum_queries
 
 
 def test_compiled_midpoint_equals_numpy_2n2(pendulum_mid, rng):
@@ -147,13 +144,7 @@ def test_compiled_midpoint_on_an_ill_conditioned_model_agrees_to_the_floor(small
     model = SymplecticKernelPredictor(IMQ(0.15), mu_kernel=IMQ(2.0), dt_kernel=IMQ(5.0), max_centers=600, tol=1e-10,
                                       backend="numpy", update="midpoint").fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
     x, mu, dt = _queries(rng, 20)
-    ref = model.rollout(x, 20, mu=mu, dt=dt)
-    fast = _with_backend(model, "numba").rollout(x, 20, mu=mu, dt=dt)
-    sur = model.surrogate_
-    _, _, floor = sur.gradient_hessian(x, sur.weights(mu[:, None], dt), with_floor=True)
-    bound = 100 * 20 * dt.max() * floor.max()
-    assert bound < 1e-5
-    assert np.abs(fast - ref).max() <= bound
+    check_rollouts_agree_to_the_floor(model, _with_backend(model, "numba"), x, mu, dt)
 
 
 def test_compiled_midpoint_warm_start(pendulum_mid, rng):

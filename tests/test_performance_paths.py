@@ -10,8 +10,6 @@ numba is an optional dependency (``sympredict[fast]``); the tests that need it
 are skipped with a reason shown by ``-ra`` when it is not installed.
 """
 
-import copy
-
 import numpy as np
 import pytest
 
@@ -24,17 +22,13 @@ from sympredict.integrators import implicit_midpoint_step, integrate
 from sympredict.kernels import IMQ, Matern32, Matern52, ProductKernel
 from sympredict.surrogate import HBSurrogate
 
+from _surrogate_oracles import check_rollouts_agree_to_the_floor, pendulum_queries, with_backend  # tests/
+
 needs_numba = pytest.mark.skipif(not _fastkernels.HAVE_NUMBA, reason="numba not installed (pip install sympredict[fast])")
 
 
-def _queries(rng, n):
-    x = np.column_stack([rng.uniform(0.0, np.pi / 2, n), rng.uniform(-0.5, 0.5, n)])
-    return x, rng.uniform(0.71, 0.79, n), rng.uniform(0.045, 0.055, n)
-
-
-def _with_backend(model, backend):
-    """The fitted model with another Newton backend (a shallow copy: the fitted state is shared)."""
-    return copy.copy(model).set_params(backend=backend)
+_queries = pendulum_queries
+_with_backend = with_backend
 
 
 @pytest.fixture(scope="module")
@@ -109,14 +103,8 @@ def test_compiled_agrees_to_the_round_off_floor_on_an_ill_conditioned_model(smal
     """600 centres, coefficients ~3e7: both paths are only defined to the gradient floor."""
     x, mu, dt = _queries(rng, 20)
     numpy_model = _with_backend(small_pendulum_model, "numpy")
-    ref = numpy_model.rollout(x, 20, mu=mu, dt=dt)
-    fast = _with_backend(small_pendulum_model, "numba").rollout(x, 20, mu=mu, dt=dt)
-    sur = small_pendulum_model.surrogate_
-    _, _, floor = sur.gradient_hessian(x, sur.weights(mu[:, None], dt), with_floor=True)
-    # per step the solutions differ by ~dT * floor; allow 20 steps' growth and a factor 100
-    bound = 100 * 20 * dt.max() * floor.max()
-    assert bound < 1e-5
-    assert np.abs(fast - ref).max() <= bound
+    # per step the solutions differ by ~dT * floor; 20 steps' growth and a factor 100 allowed
+    ref, bound = check_rollouts_agree_to_the_floor(numpy_model, _with_backend(small_pendulum_model, "numba"), x, mu, dt)
     # the NumPy reference itself differs by as much between batch compositions
     single = np.stack([numpy_model.rollout(x[i], 20, mu=mu[i], dt=dt[i]) for i in range(len(x))])
     assert np.abs(single - ref).max() <= bound

@@ -11,14 +11,15 @@ import pytest
 
 from sympredict import SymplecticKernelPredictor
 from sympredict.base import clone
-from sympredict.exceptions import ExtrapolationWarning, ModelFileError
+from sympredict.exceptions import ExtrapolationWarning
 from sympredict.functionals import HBFunctionals, functional_residuals
 from sympredict.io import load_model, save_model
 from sympredict.kernels import IMQ, Matern52, PeriodicCoordinates, ProductKernel
 from sympredict.predictor import update_variables
 from sympredict.surrogate import HBSurrogate
 
-from _surrogate_oracles import check_gramian_by_finite_differences, check_surrogate_by_finite_differences  # tests/ (on sys.path under pytest)
+from _surrogate_oracles import (check_gramian_by_finite_differences, check_malformed_kernel_entries_refused,
+                               check_surrogate_by_finite_differences)  # tests/ (on sys.path under pytest)
 
 J = np.array([[0.0, 1.0], [-1.0, 0.0]])
 LENGTH, DT = 0.75, 0.05
@@ -239,17 +240,13 @@ def test_model_files(data, tmp_path):
     assert back.kernel_ == model.kernel_ and back.kernel_.periodic == PeriodicCoordinates((0,), (2 * np.pi,))
     np.testing.assert_array_equal(back.rollout(X_FAR[:2], 5), model.rollout(X_FAR[:2], 5))
     # a file whose kernel and settings disagree is refused
-    from sympredict.container import read_container, write_container
+    from sympredict.container import read_container
     from sympredict.predictor import MODEL_FORMAT
 
     settings, arrays = read_container(tmp_path / "p.h5", MODEL_FORMAT)
-    for spec in ({"coordinates": [0], "periods": [3.0]}, None, {"coordinates": [0]}, {"coordinates": [5], "periods": [1.0]}):
-        bad = {**settings, "kernel": {**settings["kernel"], "periodic": spec}}
-        if spec is None:
-            del bad["kernel"]["periodic"]
-        write_container(tmp_path / "bad.h5", MODEL_FORMAT, bad, arrays)
-        with pytest.raises(ModelFileError):
-            load_model(tmp_path / "bad.h5")
+    check_malformed_kernel_entries_refused(tmp_path / "bad.h5", settings, arrays, "periodic",
+                                          ({"coordinates": [0], "periods": [3.0]}, None, {"coordinates": [0]},
+                                           {"coordinates": [5], "periods": [1.0]}))
     # and a plain model's file has no periodic entry (unchanged layout)
     plain = _model(periodic=None, max_centers=20).fit(x0, x1, dt=DT)
     save_model(plain, tmp_path / "plain.h5")

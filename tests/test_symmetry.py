@@ -18,7 +18,8 @@ from sympredict.kernels import IMQ, Matern52, PeriodicCoordinates, ProductKernel
 from sympredict.predictor import update_variables
 from sympredict.surrogate import HBSurrogate
 
-from _surrogate_oracles import check_gramian_by_finite_differences, check_surrogate_by_finite_differences  # tests/ (on sys.path under pytest)
+from _surrogate_oracles import (check_gramian_by_finite_differences, check_malformed_kernel_entries_refused,
+                               check_surrogate_by_finite_differences)  # tests/ (on sys.path under pytest)
 
 J = np.array([[0.0, 1.0], [-1.0, 0.0]])
 LENGTH, DT = 0.75, 0.05
@@ -241,13 +242,7 @@ def test_model_files_refused(data, tmp_path):
     eye = [[1.0, 0.0], [0.0, 1.0]]
     bad_specs = [None, {"matrices": [eye, [[-1.0, 0.0], [0.0, -1.0]]]}, {"matrices": [eye, [[2.0, 0.0], [0.0, 1.0]]]},
                  {"matrices": [eye, [[1.0, 0.0], [0.0, -1.0]], [[-1.0, 0.0], [0.0, 1.0]]]}, {"matrices": "klein"}, [1, 2]]
-    for spec in bad_specs:
-        bad = {**settings, "kernel": {**settings["kernel"], "symmetry": spec}}
-        if spec is None:
-            del bad["kernel"]["symmetry"]
-        write_container(tmp_path / "bad.h5", MODEL_FORMAT, bad, arrays)
-        with pytest.raises(ModelFileError):
-            load_model(tmp_path / "bad.h5")
+    check_malformed_kernel_entries_refused(tmp_path / "bad.h5", settings, arrays, "symmetry", bad_specs)
     # settings with a non-group symmetry are refused too
     bad = {**settings, "params": {**settings["params"], "symmetry": {"list": [{"list": [1, 1]}, {"list": [1, -1]}, {"list": [-1, 1]}]}}}
     write_container(tmp_path / "bad.h5", MODEL_FORMAT, bad, arrays)
