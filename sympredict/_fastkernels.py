@@ -266,6 +266,68 @@ def _build(cache: bool):  # noqa: C901 - the compiled definitions
                 hess[a, a] -= s_bg
         return s_fl
 
+    @_fjit
+    def _chunk2(xi, w, cT, j0, L, l, factors, eps, mode, grad, hess):
+        """:func:`_chunk` for ``2n = 2``: one loop over the chunk, every sum in a register, no scratch.
+
+        The same terms as :func:`_chunk` (``n = 1``: the block ``d_p d_q s`` is ``hess[0, 0]``; the full
+        Hessian's upper triangle ``hess[0, 0], hess[0, 1], hess[1, 1]``); only the summation order differs.
+        Why: for ``2n = 2`` storing the differences and weighted factors and reading them back costs as much
+        as the arithmetic (pendulum rollout, 1,500 centres: 1.58 -> 1.17 ns per centre visit, one thread).
+        """
+        x0 = xi[0]
+        x1 = xi[1]
+        c0 = cT[0, j0:j0 + L]
+        c1 = cT[1, j0:j0 + L]
+        cl = cT[l, j0:j0 + L]  # the differentiated coordinate: g = x_l - c_l without a select per centre
+        xl = xi[l]
+        wc = w[j0:j0 + L]
+        s_a = 0.0   # sum w A
+        s_bg = 0.0  # sum w B g
+        g0 = 0.0    # sum w B g d_0
+        g1 = 0.0    # sum w B g d_1
+        fl = 0.0    # floor terms
+        h00 = 0.0   # sum w C g d_0 d_0
+        h01 = 0.0   # sum w C g d_0 d_1
+        h11 = 0.0   # sum w C g d_1 d_1
+        m0 = 0.0    # sum w B d_0
+        m1 = 0.0    # sum w B d_1
+        for j in range(L):
+            d0 = x0 - c0[j]
+            d1 = x1 - c1[j]
+            A, B, C = factors(eps, math.sqrt(d0 * d0 + d1 * d1))
+            wj = wc[j]
+            g = xl - cl[j]
+            a_ = wj * A
+            b_ = wj * B
+            bg = b_ * g
+            s_a += a_
+            g0 += bg * d0
+            g1 += bg * d1
+            if mode != 0:
+                ad0 = abs(d0)
+                ad1 = abs(d1)
+                fl += abs(bg) * (ad0 if ad0 > ad1 else ad1) + abs(a_)
+                cg = (wj * C) * g
+                h01 += cg * d0 * d1
+                m0 += b_ * d0
+                m1 += b_ * d1
+                if mode == 2:
+                    s_bg += bg
+                    h00 += cg * d0 * d0
+                    h11 += cg * d1 * d1
+        grad[l] -= s_a
+        grad[0] -= g0
+        grad[1] -= g1
+        if mode == 1:  # the block d_p d_q s: (a, c) = (0, 1), M_01 = [l = 1] m0, M_10 = [l = 0] m1
+            hess[0, 0] -= h01 + (m0 if l == 1 else m1)
+        elif mode == 2:
+            # H_ac = -sum w C g d_a d_c - delta_ac s_bg - M_ac - M_ca, M_ac = [l = c] sum w B d_a
+            hess[0, 0] -= h00 + s_bg + (2.0 * m0 if l == 0 else 0.0)
+            hess[1, 1] -= h11 + s_bg + (2.0 * m1 if l == 1 else 0.0)
+            hess[0, 1] -= h01 + (m0 if l == 1 else m1)
+        return fl
+
     @_jit
     def _pass(xi, w, cT, seg, factors, eps, mode, sc, grad, hess):
         """One pass over the centres at the point ``xi``: gradient of ``s`` and, by ``mode``, Hessian terms and floor.
@@ -307,7 +369,10 @@ def _build(cache: bool):  # noqa: C901 - the compiled definitions
         for l in range(dim):
             for j0 in range(seg[l], seg[l + 1], ch):
                 L = min(ch, seg[l + 1] - j0)
-                floor += _chunk(xi, w, cT, j0, L, l, factors, eps, mode, dif, r2, dmax, uB, uC, ubg, tmp, grad, hess)
+                if dim == 2:
+                    floor += _chunk2(xi, w, cT, j0, L, l, factors, eps, mode, grad, hess)
+                else:
+                    floor += _chunk(xi, w, cT, j0, L, l, factors, eps, mode, dif, r2, dmax, uB, uC, ubg, tmp, grad, hess)
         if mode == 2:
             for a in range(dim):
                 for c in range(a):

@@ -111,11 +111,12 @@ def test_compiled_formulas_stay_exact_after_the_fastmath_pass_compiles(name, rng
 
 
 @needs_numba
+@pytest.mark.parametrize("dim", [2, 4])  # 2n = 2 has its own fused pass (_chunk2), 2n = 4 the generic one
 @pytest.mark.parametrize("name", FAMILIES)
-def test_compiled_gradient_and_hessian_equal_numpy(name, rng):
-    """The compiled Newton pass (gradient, d_p d_q s, floor) against the NumPy surrogate, 2n = 4, random centres."""
+def test_compiled_gradient_and_hessian_equal_numpy(name, dim, rng):
+    """The compiled Newton pass (gradient, d_p d_q s, floor) against the NumPy surrogate, random centres."""
     kernel = KERNEL_FAMILIES[name](0.6)
-    m, dim = 60, 4
+    m = 60
     sur = HBSurrogate(ProductKernel(kernel, IMQ(1.0)), rng.normal(size=(m, dim)), rng.normal(size=(m, 1)),
                       np.ones(m), rng.integers(0, dim, m), rng.normal(size=m))
     xi = rng.normal(size=(9, dim))

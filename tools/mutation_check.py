@@ -93,6 +93,12 @@ FAULTS = [
           ("tests/test_oracles.py",), "step Jacobian: wrong sign in M = I + dT S_qp"),
     Fault("N6", "Newton", P + "predictor.py", "dq_dp = h * (Spp @ Minv)", "dq_dp = h * Spp",
           ("tests/test_oracles.py",), "step Jacobian: dq1/dp0 misses M^-1"),
+    Fault("N7", "Newton", P + "_fastkernels.py", "hess[0, 0] -= h00 + s_bg + (2.0 * m0 if l == 0 else 0.0)",
+          "hess[0, 0] -= h00 + s_bg + (m0 if l == 0 else 0.0)",
+          ("tests/test_midpoint_compiled.py",), "fused 2n = 2 pass: the full Hessian misses M_ca (midpoint Jacobian)"),
+    Fault("N8", "Newton", P + "_fastkernels.py", "fl += abs(bg) * (ad0 if ad0 > ad1 else ad1) + abs(a_)",
+          "fl += abs(bg) * (ad0 if ad0 < ad1 else ad1) + abs(a_)",
+          ("tests/test_kernel_families.py",), "fused 2n = 2 pass: the floor takes min |d| instead of max"),
     # ----------------------------------------------------------------- reduction
     Fault("R1", "reduction", P + "reduction.py", "return _J_times(_J_times(V).T)", "return V.T",
           ("tests/test_oracles.py",), "symplectic inverse V+ = V^T (coincides only for orthosymplectic V)"),
