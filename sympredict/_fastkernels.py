@@ -268,7 +268,7 @@ def _build(cache: bool):  # noqa: C901 - the compiled definitions
 
     @_fjit
     def _chunk2(xi, w, cT, j0, L, l, factors, eps, mode, grad, hess):
-        """:func:`_chunk` for ``2n = 2``: one loop over the chunk, every sum in a register, no scratch.
+        """:func:`_chunk` for ``2n = 2``: one loop over centres ``j0:j0+L``, every sum in a register, no scratch.
 
         The same terms as :func:`_chunk` (``n = 1``: the block ``d_p d_q s`` is ``hess[0, 0]``; the full
         Hessian's upper triangle ``hess[0, 0], hess[0, 1], hess[1, 1]``); only the summation order differs.
@@ -367,12 +367,12 @@ def _build(cache: bool):  # noqa: C901 - the compiled definitions
                     hess[a, c] = 0.0
         floor = 0.0
         for l in range(dim):
+            if dim == 2:  # no scratch, so no chunks: one loop over the component's centres
+                floor += _chunk2(xi, w, cT, seg[l], seg[l + 1] - seg[l], l, factors, eps, mode, grad, hess)
+                continue
             for j0 in range(seg[l], seg[l + 1], ch):
                 L = min(ch, seg[l + 1] - j0)
-                if dim == 2:
-                    floor += _chunk2(xi, w, cT, j0, L, l, factors, eps, mode, grad, hess)
-                else:
-                    floor += _chunk(xi, w, cT, j0, L, l, factors, eps, mode, dif, r2, dmax, uB, uC, ubg, tmp, grad, hess)
+                floor += _chunk(xi, w, cT, j0, L, l, factors, eps, mode, dif, r2, dmax, uB, uC, ubg, tmp, grad, hess)
         if mode == 2:
             for a in range(dim):
                 for c in range(a):
