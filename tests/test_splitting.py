@@ -295,3 +295,32 @@ def test_malformed_model_files_are_refused(split_pendulum, tmp_path, edit, match
     path = _tampered(tmp_path, edit)
     with pytest.raises(ModelFileError, match=match):
         load_model(path)
+
+
+def test_parameter_free_fixed_step_model_defaults_to_its_step():
+    """No mu, one dT (dt_kernel=None): step() and rollout() use the training step; a Duffing-type oscillator
+    H = (q^2 + p^2) / 2 + q^4 / 4 split around its quadratic part, against the unsplit model's own step."""
+    rng = np.random.default_rng(2)
+    quad = QuadraticPart([np.eye(2)])
+    x0 = rng.uniform(-0.5, 0.5, (300, 2))
+
+    def flow(x, t, n_sub=200):  # a fine Stormer-Verlet reference (kick-drift-kick)
+        q, p, h = x[:, 0].copy(), x[:, 1].copy(), t / n_sub
+        for _ in range(n_sub):
+            p -= 0.5 * h * (q + q**3)
+            q += h * p
+            p -= 0.5 * h * (q + q**3)
+        return np.column_stack([q, p])
+
+    model = SplitKernelPredictor(SymplecticKernelPredictor(IMQ(1.0), max_centers=200, update="midpoint",
+                                                           backend="numpy"), quad).fit(x0, flow(x0, 0.3), dt=0.3)
+    assert model.n_mu_ == 0 and model.predictor_.dt_fixed_ == 0.3 and model.n_centers_ > 0
+    x = rng.uniform(-0.3, 0.3, (5, 2))
+    np.testing.assert_array_equal(model.step(x), model.step(x, dt=0.3))
+    assert np.abs(model.step(x) - flow(x, 0.3)).max() < 1e-6
+    with pytest.raises(ValueError, match="do not pass mu"):
+        model.step(x, mu=0.5)
+    with pytest.raises(ValueError, match="fixed step"):
+        model.step(x, dt=0.2)
+    traj = model.rollout(x, 10)
+    np.testing.assert_allclose(traj[:, 2], model.step(model.step(x)), rtol=0, atol=1e-15)
