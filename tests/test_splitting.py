@@ -159,7 +159,7 @@ def test_time_symmetry_and_reversibility_with_the_klein_kernel(split_pendulum, p
     np.testing.assert_allclose(model.step(R * x1, mu=mu, dt=dt), R * x, atol=1e-12)
 
 
-def test_exact_on_a_linear_system_with_zero_centres():
+def test_exact_on_a_linear_system_with_zero_centres(tmp_path):
     """Samples of the flow of H0 itself: the transformed pairs are fixed points of S, every target is 0 and the
     greedy stops at once (0 centres, stop reason 'tol'); the model is then the exact linear flow, both backends."""
     rng = np.random.default_rng(5)
@@ -180,6 +180,10 @@ def test_exact_on_a_linear_system_with_zero_centres():
             ref[:, k + 1] = ref[:, k] @ L.T
         np.testing.assert_allclose(model.rollout(xt, 30, mu=0.75, dt=0.05), ref, rtol=0, atol=1e-14)
         np.testing.assert_allclose(model.step_jacobian(xt, mu=0.75, dt=0.05), np.broadcast_to(L, (10, 2, 2)), atol=1e-15)
+    save_model(model, tmp_path / "zero.h5")  # a model without centres is a valid file too
+    loaded = load_model(tmp_path / "zero.h5")
+    assert loaded.n_centers_ == 0
+    np.testing.assert_array_equal(loaded.rollout(xt, 30, mu=0.75, dt=0.05), model.rollout(xt, 30, mu=0.75, dt=0.05))
 
 
 def test_rollout_agrees_with_steps_and_between_backends(split_pendulum, small_pendulum_data, pendulum):
