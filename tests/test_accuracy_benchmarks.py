@@ -56,3 +56,13 @@ def test_pendulum_accuracy_quick_with_symmetry(tmp_path):
     values = [v for d in summary["test_medians"].values() for v in d.values()]
     assert len(values) == 3 * len(summary["test_seeds"]) and all(np.isfinite(values))
     assert summary["met"] == (max(values) <= summary["target"])
+
+
+def test_pendulum_accuracy_quick_with_split(tmp_path):
+    """The exact-linear-flow splitting (``--split``, sympredict.splitting) through the same protocol."""
+    summary = _run("pendulum_accuracy.py", tmp_path, "--split", "--symmetry", "klein")
+    _check_choice(summary)
+    assert summary["split"] is True and summary["symmetry"] == "klein"
+    values = [v for d in summary["test_medians"].values() for v in d.values()]
+    assert len(values) == 3 * len(summary["test_seeds"]) and all(np.isfinite(values))
+    assert summary["met"] == (max(values) <= summary["target"])
