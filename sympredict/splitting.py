@@ -139,7 +139,7 @@ class SplitKernelPredictor(Parametrized):
         """Fit the inner step on the transformed samples ``(L_h x0, L_{-h} x1)``.
 
         Arguments as in :meth:`SymplecticKernelPredictor.fit` (``dt`` is
-        required: ``L_h`` needs it).  Cost: ``B`` propagators
+        required: ``L_h`` needs it).  Cost: ``M`` propagators
         (``O(M (2n)^3)``) plus the inner fit.
 
         Returns

@@ -328,3 +328,25 @@ def test_parameter_free_fixed_step_model_defaults_to_its_step():
         model.step(x, dt=0.2)
     traj = model.rollout(x, 10)
     np.testing.assert_allclose(traj[:, 2], model.step(model.step(x)), rtol=0, atol=1e-15)
+
+
+def test_validation_data_are_transformed_too(small_pendulum_data, pendulum):
+    """E_val(m) of the split model is the inner model's residual on the transformed validation pairs."""
+    d = small_pendulum_data
+    idx = np.random.default_rng(4).permutation(len(d))
+    tr, va = idx[:400], idx[400:600]
+    inner = SymplecticKernelPredictor(IMQ(0.4), IMQ(0.75), IMQ(1.06), max_centers=40, update="midpoint", backend="numpy")
+    quad = pendulum.quadratic_part()
+    model = SplitKernelPredictor(inner, quad).fit(d.x0[tr], d.x1[tr], mu=d.mu[tr], dt=d.dt[tr],
+                                                  validation=(d.x0[va], d.x1[va], d.mu[va], d.dt[va]))
+    val = model.history_.val_max_residual
+    assert val is not None and len(val) == model.n_centers_ + 1 and val[-1] < val[0]
+    # the same residual from the inner model's surrogate on the pairs (L_h x0, L_{-h} x1) at their midpoints
+    L = quad.propagator(d.mu[va], d.dt[va] / 2)
+    y0 = np.einsum("bij,bj->bi", L, d.x0[va])
+    y1 = np.einsum("bij,bj->bi", symplectic_inverse(L), d.x1[va])
+    target = (y1 - y0) @ J2 / d.dt[va][:, None]  # J^T (y1 - y0) / dT, row-wise
+    grad = model.predictor_.surrogate_gradient(0.5 * (y0 + y1), mu=d.mu[va], dt=d.dt[va])
+    np.testing.assert_allclose(np.abs(grad - target).max(), val[-1], rtol=1e-6)
+    with pytest.raises(ValueError, match="validation must be"):
+        SplitKernelPredictor(inner, quad).fit(d.x0[tr], d.x1[tr], mu=d.mu[tr], dt=d.dt[tr], validation=3)
