@@ -55,7 +55,7 @@ from sympredict.reduction import complex_svd_basis, symplecticity_of_basis
 from sympredict.scaling import BoxScaling, NormalizedFlowMap, SymplecticScaling
 from sympredict.systems.sine_gordon import SineGordonFOM
 
-__all__ = ["SineGordonPreset", "PRESETS", "run_sine_gordon", "initial_states", "second_parameter", "energy_boundedness",
+__all__ = ["SineGordonPreset", "PRESETS", "run_sine_gordon", "fom_data", "initial_states", "second_parameter", "energy_boundedness",
            "ENERGY_BOUND_RATIO", "ENERGY_BOUND_FLOOR", "EnergySamples", "sign_symmetry", "no_augmentation", "choose_large_step"]
 
 logger = getLogger("sympredict.experiments.sine_gordon")
@@ -167,11 +167,17 @@ def _median_time(fn, repeats):
     return float(np.median(times))
 
 
-def run_sine_gordon(preset: SineGordonPreset = PRESETS["quick"], **overrides) -> dict:
-    """Run the scenario; returns a JSON-friendly dict (lists and floats; the figures are drawn from it)."""
-    from threadpoolctl import threadpool_limits
+def fom_data(p: SineGordonPreset) -> dict:
+    """The FOM, the training and test parameters and the FOM trajectories of a run (what
+    :func:`run_sine_gordon` and the benchmarks share).
 
-    p = replace(preset, **overrides)
+    Training parameters: ``n_c x n_amplitude`` grid of ``c`` and the second parameter; test parameters:
+    ``n_test`` uniform draws (seed ``p.seed``, never trained on).  FOM trajectories by
+    :meth:`~sympredict.systems.sine_gordon.SineGordonFOM.reference_trajectory` (step halving to ``ref_tol``):
+    ``X_tr`` (P, K+1, 2N) over ``[0, T]``, ``X_te`` (B, long_factor K + 1, 2N) over ``[0, long_factor T]``.
+    Returns a dict with ``fom, K, name2, c_tr, a_tr, c_te, a_te, X_tr, X_te, step_halving_estimate,
+    train_time``.  Cost: ``(P + long_factor B) K`` FOM steps of ``O(N)`` times the sub-steps.
+    """
     rng = np.random.default_rng(p.seed)
     fom = SineGordonFOM(n_points=p.n_points, length=p.length, c_range=p.c_range, amplitude_range=p.amplitude_range,
                         T=p.T, nt=int(round(p.T / p.DT)))
@@ -182,16 +188,29 @@ def run_sine_gordon(preset: SineGordonPreset = PRESETS["quick"], **overrides) ->
     a_tr = np.tile(np.linspace(*range2, p.n_amplitude), p.n_c)
     c_te = rng.uniform(*p.c_range, p.n_test)
     a_te = rng.uniform(*range2, p.n_test)
-    out = {"preset": asdict(p), "second_parameter": name2, "test_c": c_te.tolist(), f"test_{name2}": a_te.tolist(),
-           "dims": {}}
+    t = time.perf_counter()
+    X_tr, est = fom.reference_trajectory(initial_states(fom, p, c_tr, a_tr), c_tr, p.DT, K, tol=p.ref_tol,
+                                         return_error=True)
+    train_time = time.perf_counter() - t
+    X_te = fom.reference_trajectory(initial_states(fom, p, c_te, a_te), c_te, p.DT, p.long_factor * K, tol=p.ref_tol)
+    return {"fom": fom, "K": K, "name2": name2, "c_tr": c_tr, "a_tr": a_tr, "c_te": c_te, "a_te": a_te,
+            "X_tr": X_tr, "X_te": X_te, "step_halving_estimate": est, "train_time": train_time}
+
+
+def run_sine_gordon(preset: SineGordonPreset = PRESETS["quick"], **overrides) -> dict:
+    """Run the scenario; returns a JSON-friendly dict (lists and floats; the figures are drawn from it)."""
+    from threadpoolctl import threadpool_limits
+
+    p = replace(preset, **overrides)
     with threadpool_limits(1):
-        t = time.perf_counter()
-        x0_te = initial_states(fom, p, c_te, a_te)
-        X_tr, est = fom.reference_trajectory(initial_states(fom, p, c_tr, a_tr), c_tr, p.DT, K, tol=p.ref_tol,
-                                             return_error=True)
-        out["fom_train_time"] = time.perf_counter() - t
-        X_te = fom.reference_trajectory(x0_te, c_te, p.DT, p.long_factor * K, tol=p.ref_tol)
-        out["fom_step_halving_estimate"] = est
+        d = fom_data(p)
+        fom, K, name2 = d["fom"], d["K"], d["name2"]
+        c_tr, a_tr, c_te, a_te, X_tr, X_te = (d[k] for k in ("c_tr", "a_tr", "c_te", "a_te", "X_tr", "X_te"))
+        out = {"preset": asdict(p), "second_parameter": name2, "test_c": c_te.tolist(), f"test_{name2}": a_te.tolist(),
+               "dims": {}}
+        out["fom_train_time"] = d["train_time"]
+        out["fom_step_halving_estimate"] = d["step_halving_estimate"]
+        x0_te = X_te[:, 0]
         x_te = X_te[:, : K + 1]
         out["fom_time_per_trajectory"] = _median_time(
             lambda: fom.reference_trajectory(x0_te[:1], c_te[:1], p.DT, K, tol=p.ref_tol), max(1, p.repeats // 2))
@@ -459,7 +478,8 @@ def _augmentation(p, data: str, gal):
     raise ValueError(f"augmentation {kind!r} is not available for data={data!r} (energy samples need the Galerkin ROM)")
 
 
-def _fit_kernel(p, Y0, Y1, c_tr, dt, regularization=None, update="symplectic_euler", stride=1, augment=no_augmentation):
+def _fit_kernel(p, Y0, Y1, c_tr, dt, regularization=None, update="symplectic_euler", stride=1, augment=no_augmentation,
+                splitting=None):
     """A kernel flow map at the macro step ``dt`` from pairs of reduced states ``Y1 = Phi^dt(Y0)`` (P, k, 2n)
     of ``P`` training trajectories at wave speeds ``c_tr`` (P,).
 
@@ -468,6 +488,10 @@ def _fit_kernel(p, Y0, Y1, c_tr, dt, regularization=None, update="symplectic_eul
     ``augment`` (a strategy: :func:`no_augmentation`, :func:`sign_symmetry`, :class:`EnergySamples`) turns
     the pairs of the trajectories a fit uses into the flat pairs it fits; it sees only those trajectories (a
     held-out trajectory's images are not in the fit that is scored on it).
+    ``splitting`` (optional) learns only the part of the step that a known linear flow leaves: an object with
+    ``pairs(x0, x1, mu) -> (z0, z1)`` (the flat pairs after ``augment``, mapped to the pairs of the inner map)
+    and ``wrap(flow) -> flow`` (the full step around the fitted inner map); the held-out rollouts score the
+    wrapped map.
 
     With ``p.regularizations`` and no ``regularization`` given, the ridge term is chosen among ``0`` and
     ``p.regularizations`` by **rollout on held-out training trajectories** (``1, 1 + validation_every, ...``;
@@ -491,7 +515,7 @@ def _fit_kernel(p, Y0, Y1, c_tr, dt, regularization=None, update="symplectic_eul
         held[1::p.validation_every] = True
         ref = Y1[held, ::stride]
         for lam in sorted({0.0, *map(float, p.regularizations)}):
-            flow, _ = _fit_scaled(p, *augment(Y0[~held], Y1[~held], c_tr[~held]), dt, lam, update)
+            flow, _ = _fit_split(p, augment(Y0[~held], Y1[~held], c_tr[~held]), dt, lam, update, splitting)
             try:
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore")
@@ -502,8 +526,19 @@ def _fit_kernel(p, Y0, Y1, c_tr, dt, regularization=None, update="symplectic_eul
             table.append((lam, score if np.isfinite(score) else None))
         scored = [(sc, lam) for lam, sc in table if sc is not None]
         reg = min(scored)[1] if scored else 0.0  # smallest score; on a tie the smaller term (tuples compare in order)
-    flow, model = _fit_scaled(p, *augment(Y0, Y1, c_tr), dt, reg, update)
+    flow, model = _fit_split(p, augment(Y0, Y1, c_tr), dt, reg, update, splitting)
     return flow, model, time.perf_counter() - t0, reg, table
+
+
+def _fit_split(p, pairs, dt, regularization, update, splitting):
+    """:func:`_fit_scaled` on the flat ``pairs`` ``(x0, x1, mu)``, through ``splitting`` when one is given
+    (:func:`_fit_kernel`); returns the (wrapped) flow map and the predictor."""
+    x0, x1, mu = pairs
+    if splitting is None:
+        return _fit_scaled(p, x0, x1, mu, dt, regularization, update)
+    z0, z1 = splitting.pairs(x0, x1, mu)
+    flow, model = _fit_scaled(p, z0, z1, mu, dt, regularization, update)
+    return splitting.wrap(flow), model
 
 
 def _fit_scaled(p, x0, x1, mu, dt, regularization, update):
