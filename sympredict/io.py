@@ -13,15 +13,17 @@ from sympredict.container import SCHEMA_VERSION, read_container, write_container
 from sympredict.data import FlowMapData
 from sympredict.exceptions import ModelFileError
 from sympredict.predictor import MODEL_FORMAT, DirectKernelPredictor, SymplecticKernelPredictor
+from sympredict.splitting import SplitKernelPredictor
 
 __all__ = ["SCHEMA_VERSION", "save_model", "load_model", "save_dataset", "load_dataset"]
 
 _DATA_FORMAT = "sympredict-dataset"
-_ESTIMATORS = {cls.__name__: cls for cls in (SymplecticKernelPredictor, DirectKernelPredictor)}
+_ESTIMATORS = {cls.__name__: cls for cls in (SymplecticKernelPredictor, DirectKernelPredictor, SplitKernelPredictor)}
 
 
 def save_model(model, path) -> None:
-    """Save a fitted :class:`~sympredict.SymplecticKernelPredictor` or :class:`~sympredict.DirectKernelPredictor` (atomic)."""
+    """Save a fitted :class:`~sympredict.SymplecticKernelPredictor`, :class:`~sympredict.DirectKernelPredictor` or
+    :class:`~sympredict.splitting.SplitKernelPredictor` (atomic)."""
     model.save(path)
 
 

@@ -387,6 +387,10 @@ class _FlowMapKernelModel(Parametrized):
         stored; the greedy's wall-clock timings are not (files are byte-for-byte
         reproducible), nor its Newton data (a loaded model cannot be :meth:`truncated`).
         """
+        write_container(path, MODEL_FORMAT, *self._to_container())
+
+    def _to_container(self) -> tuple:
+        """The fitted model as a container's ``(settings, arrays)`` (what :meth:`save` writes)."""
         self._check_fitted()
         sur, hist = self.surrogate_, self.history_
         settings = {
@@ -404,7 +408,7 @@ class _FlowMapKernelModel(Parametrized):
             arrays["val_max_residual"] = hist.val_max_residual
         arrays.update({f"domain_{k}": np.asarray(v) for k, v in self.domain_.items()})
         arrays.update(self._surrogate_arrays(sur))
-        write_container(path, MODEL_FORMAT, settings, arrays)
+        return settings, arrays
 
     @classmethod
     def load(cls, path):

@@ -19,6 +19,7 @@ from sympredict.exceptions import NewtonConvergenceError
 from sympredict.flowmaps import sample_energy_box
 from sympredict.integrators import micro_steps
 from sympredict.integrators_compiled import PointwiseHamiltonian, jit_pointwise
+from sympredict.linear_flow import QuadraticPart
 from sympredict.parallel import pool_flow
 
 logger = getLogger("sympredict.systems.pendulum")
@@ -111,6 +112,15 @@ class Pendulum:
             2, 1, grad_T=_grad_T, grad_V=_grad_V, grad_H=_grad_H, hess_H=_hess_H, fargs=(self.mass, self.g),
             check_mu=lambda mu: self._lengths(mu, len(mu)), name=repr(self),
         )
+
+    def quadratic_part(self) -> QuadraticPart:
+        """The Hessian of ``H`` at the equilibrium ``(0, 0)``: ``A(l) = diag(m g l, 1 / (m l^2))``.
+
+        As monomials in ``l``: ``l^1 diag(m g, 0) + l^-2 diag(0, 1/m)`` (for the
+        splitting predictor, :mod:`sympredict.splitting`); its flow is the
+        linearized pendulum, frequency ``sqrt(g / l)``.
+        """
+        return QuadraticPart([np.diag([self.mass * self.g, 0.0]), np.diag([0.0, 1.0 / self.mass])], [[1.0], [-2.0]])
 
     def hamiltonian(self, x, mu) -> np.ndarray:
         """Energy, shape (B,), for states (B, 2) and lengths (B,) or (B, 1)."""

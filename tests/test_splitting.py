@@ -1,0 +1,297 @@
+"""The exact-linear-flow splitting Phi = L_h o S o L_h (sympredict.splitting, sympredict.linear_flow).
+
+Oracles: scipy's expm one instance at a time and the closed-form rotation of a harmonic oscillator for the
+propagators; DPhi^T J DPhi = J and finite differences for the composed Jacobian; exactness on a linear system
+(the inner step has nothing to learn); the reverse step (time symmetry) and the pendulum's reversing symmetry
+q -> -q with the Klein-invariant midpoint kernel; the two Newton backends against each other; file round trips.
+"""
+
+import copy
+
+import numpy as np
+import pytest
+import sklearn.base
+from scipy.linalg import expm
+
+from sympredict import SymplecticKernelPredictor
+from sympredict.base import clone
+from sympredict.container import read_container, write_container
+from sympredict.exceptions import ExtrapolationWarning, ModelFileError, NotFittedError
+from sympredict.io import load_model, save_model
+from sympredict.kernels import IMQ
+from sympredict.linear_flow import QuadraticPart, poisson_matrix, symplectic_inverse
+from sympredict.newton import solve_midpoint_numpy
+from sympredict.predictor import MODEL_FORMAT
+from sympredict.splitting import SplitKernelPredictor
+
+J2 = poisson_matrix(2)
+KLEIN = [(1, 1), (-1, -1), (1, -1), (-1, 1)]
+
+
+def _random_quadratic(rng, dim=4, d_mu=2):
+    mats = rng.standard_normal((3, dim, dim))
+    mats = mats + np.swapaxes(mats, 1, 2)
+    return QuadraticPart(mats, [[1.0, 0.0], [0.0, 2.0], [-1.0, 0.5]][:3] if d_mu == 2 else None), mats
+
+
+# ------------------------------------------------------------------ propagators
+def test_propagators_against_expm_one_by_one(rng):
+    quad, mats = _random_quadratic(rng)
+    mu = rng.uniform(0.5, 1.5, (7, 2))
+    t = rng.uniform(-0.4, 0.4, 7)
+    L = quad.propagator(mu, t)
+    J = poisson_matrix(4)
+    for b in range(7):
+        A = mu[b, 0] * mats[0] + mu[b, 1] ** 2 * mats[1] + mu[b, 0] ** -1 * mu[b, 1] ** 0.5 * mats[2]
+        np.testing.assert_allclose(quad.hessian(mu[b:b + 1])[0], A, rtol=1e-14, atol=1e-14)
+        np.testing.assert_allclose(L[b], expm(t[b] * J @ A), rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(np.einsum("bji,jk,bkl->bil", L, J, L), np.broadcast_to(J, L.shape), atol=1e-12)
+    np.testing.assert_allclose(symplectic_inverse(L), np.linalg.inv(L), atol=1e-10)
+    np.testing.assert_allclose(quad.propagator(mu, -t), symplectic_inverse(L), atol=1e-10)
+    # one parameter vector, one time for a batch of 3
+    np.testing.assert_allclose(quad.propagator(mu[0], t[0], n=3), np.broadcast_to(L[0], (3, 4, 4)), atol=1e-14)
+
+
+def test_propagator_closed_form_of_the_harmonic_oscillator(pendulum):
+    """H0 = k q^2 / 2 + p^2 / (2 m): q(t) = q cos(w t) + p / (m w) sin(w t), w = sqrt(k / m); pendulum: w = sqrt(g / l)."""
+    k, m = 2.5, 0.4
+    w = np.sqrt(k / m)
+    t = np.array([0.1, 1.0, 7.3])
+    L = QuadraticPart([np.diag([k, 1.0 / m])]).propagator(t=t)
+    c, s = np.cos(w * t), np.sin(w * t)
+    exact = np.stack([np.stack([c, s / (m * w)], -1), np.stack([-m * w * s, c], -1)], 1)
+    np.testing.assert_allclose(L, exact, atol=1e-13)
+    lengths = np.array([0.7, 0.75, 0.8])
+    quad = pendulum.quadratic_part()
+    np.testing.assert_allclose(quad.hessian(lengths), pendulum.hessian(np.zeros((3, 2)), lengths), rtol=1e-15)
+    w = np.sqrt(pendulum.g / lengths)
+    L = quad.propagator(lengths, 0.3)
+    np.testing.assert_allclose(L[:, 0, 0], np.cos(0.3 * w), atol=1e-14)
+    np.testing.assert_allclose(L[:, 0, 1], np.sin(0.3 * w) / (lengths**2 * w), atol=1e-14)  # dq/dp0 = sin / (m l^2 w)
+
+
+@pytest.mark.parametrize("matrices, powers, match", [
+    (np.eye(2), None, "list of matrices"),
+    ([np.eye(3)], None, "even 2n"),
+    ([[[1.0, 2.0], [0.0, 1.0]]], None, "not symmetric"),
+    ([np.array([[np.nan, 0.0], [0.0, 1.0]])], None, "NaN"),
+    ([np.eye(2), np.eye(2)], [[1.0]], "one row per matrix"),
+    ([np.eye(2)], [[np.inf]], "powers contain"),
+    ("abc", None, "matrices must be"),
+])
+def test_malformed_quadratic_parts_are_refused(matrices, powers, match):
+    with pytest.raises(ValueError, match=match):
+        QuadraticPart(matrices, powers).propagator(1.0, 0.1)
+
+
+def test_undefined_coefficients_and_missing_mu_are_refused(pendulum):
+    quad = pendulum.quadratic_part()
+    with pytest.raises(ValueError, match="mu is required"):
+        quad.propagator(None, 0.1)
+    with pytest.raises(ValueError, match="undefined"):
+        quad.propagator(0.0, 0.1)  # l^-2 at l = 0
+    with pytest.raises(ValueError, match="undefined"):
+        QuadraticPart([np.eye(2)], [[0.5]]).hessian(-1.0)
+    with pytest.raises(ValueError, match="mu must have length 3"):
+        quad.propagator([0.7, 0.8], [0.1, 0.2, 0.3])
+    with pytest.raises(ValueError, match="t must be a scalar or have length 2"):
+        quad.propagator([0.7, 0.8], [0.1, 0.2, 0.3], n=2)
+    with pytest.raises(ValueError, match="t must be a scalar or have shape"):
+        quad.propagator(0.7, [[0.1]])
+
+
+# ------------------------------------------------------------------ the split predictor on the pendulum
+@pytest.fixture(scope="module")
+def split_pendulum(small_pendulum_data, pendulum):
+    d = small_pendulum_data
+    idx = np.random.default_rng(0).choice(len(d), 1200, replace=False)
+    inner = SymplecticKernelPredictor(IMQ(0.4), IMQ(0.75), IMQ(1.06), max_centers=250, update="midpoint",
+                                      backend="numpy", symmetry=KLEIN)
+    model = SplitKernelPredictor(inner, pendulum.quadratic_part())
+    return model.fit(d.x0[idx], d.x1[idx], mu=d.mu[idx], dt=d.dt[idx]), d
+
+
+def test_fit_trains_the_inner_step_on_the_transformed_pairs(split_pendulum, pendulum):
+    model, d = split_pendulum
+    assert model.n_centers_ == 250 and model.predictor_.update == "midpoint"
+    assert model.predictor is not model.predictor_ and not model.predictor.is_fitted  # fit fits a clone
+    x0, mu, dt = d.x0[:30], d.mu[:30], d.dt[:30]
+    L = pendulum.quadratic_part().propagator(mu, dt / 2)
+    inner = model.predictor_.step(np.einsum("bij,bj->bi", L, x0), mu=mu, dt=dt)
+    np.testing.assert_allclose(model.step(x0, mu=mu, dt=dt), np.einsum("bij,bj->bi", L, inner), rtol=0, atol=1e-15)
+    # accurate on training states and a little off them (coarse data, 250 centres)
+    assert np.abs(model.step(x0, mu=mu, dt=dt) - d.x1[:30]).max() < 1e-4
+    x = np.array([[0.8, 0.0], [0.3, 0.5], [0.05, 0.0]])
+    ref = pendulum.trajectory(x, np.full(3, 0.74), 0.05, 1)[:, 1]
+    assert np.abs(model.step(x, mu=0.74, dt=0.05) - ref).max() < 1e-4
+
+
+def test_composed_jacobian_is_symplectic_and_matches_finite_differences(split_pendulum):
+    model, _ = split_pendulum
+    x = np.array([[0.4, 0.3], [1.0, -0.5], [-0.7, 0.9]])
+    mu, dt = np.array([0.72, 0.75, 0.78]), np.array([0.045, 0.05, 0.055])
+    jac = model.step_jacobian(x, mu=mu, dt=dt)
+    np.testing.assert_allclose(np.einsum("bji,jk,bkl->bil", jac, J2, jac), np.broadcast_to(J2, jac.shape), atol=1e-12)
+    h = 1e-4
+    fd = np.empty_like(jac)
+    for k in range(2):
+        e = np.zeros(2)
+        e[k] = h
+        fd[:, :, k] = (model.step(x + e, mu=mu, dt=dt) - model.step(x - e, mu=mu, dt=dt)) / (2 * h)
+    np.testing.assert_allclose(fd, jac, atol=1e-7)
+    assert np.abs(jac - np.eye(2)).max() > 1e-2  # a real step, not the identity
+    np.testing.assert_allclose(model.step_jacobian(x[0], mu=mu[0], dt=dt[0]), jac[0], atol=1e-15)
+
+
+def test_time_symmetry_and_reversibility_with_the_klein_kernel(split_pendulum, pendulum):
+    """Phi_{-dT} = L_{-h} S_{-dT} L_{-h} inverts the step; and R Phi R = Phi^-1 for R(q, p) = (-q, p) (q -> -q)."""
+    model, _ = split_pendulum
+    x = np.random.default_rng(3).uniform([-1.2, -1.2], [1.2, 1.2], (20, 2))
+    mu, dt = np.full(20, 0.75), np.full(20, 0.05)
+    x1 = model.step(x, mu=mu, dt=dt)
+    assert np.abs(x1 - x).max() > 1e-2
+    Linv = pendulum.quadratic_part().propagator(mu, -dt / 2)
+    sur = model.predictor_.surrogate_
+    w = sur.weights(mu[:, None], dt)
+    back = np.einsum("bij,bj->bi", Linv, solve_midpoint_numpy(sur, np.einsum("bij,bj->bi", Linv, x1), w, -dt, 50))
+    np.testing.assert_allclose(back, x, atol=1e-13)
+    R = np.array([-1.0, 1.0])
+    np.testing.assert_allclose(model.step(R * x1, mu=mu, dt=dt), R * x, atol=1e-12)
+
+
+def test_exact_on_a_linear_system_with_zero_centres():
+    """Samples of the flow of H0 itself: the transformed pairs are fixed points of S, every target is 0 and the
+    greedy stops at once (0 centres, stop reason 'tol'); the model is then the exact linear flow, both backends."""
+    rng = np.random.default_rng(5)
+    quad = QuadraticPart([np.diag([2.0, 0.0]), np.diag([0.0, 1.0])], [[1.0], [-2.0]])  # the linearized pendulum, g = 2
+    x0 = rng.uniform(-1, 1, (200, 2))
+    mu = rng.uniform(0.7, 0.8, 200)
+    dt = rng.uniform(0.04, 0.06, 200)
+    x1 = np.einsum("bij,bj->bi", quad.propagator(mu, dt), x0)
+    xt = rng.uniform(-0.5, 0.5, (10, 2))
+    for backend in ("numpy", "numba"):
+        inner = SymplecticKernelPredictor(IMQ(1.0), IMQ(1.0), IMQ(1.0), max_centers=50, update="midpoint", backend=backend)
+        model = SplitKernelPredictor(inner, quad).fit(x0, x1, mu=mu, dt=dt)
+        assert model.n_centers_ == 0 and model.history_.stop_reason == "tol"
+        L = quad.propagator(0.75, 0.05)[0]
+        ref = np.empty((10, 31, 2))
+        ref[:, 0] = xt
+        for k in range(30):
+            ref[:, k + 1] = ref[:, k] @ L.T
+        np.testing.assert_allclose(model.rollout(xt, 30, mu=0.75, dt=0.05), ref, rtol=0, atol=1e-14)
+        np.testing.assert_allclose(model.step_jacobian(xt, mu=0.75, dt=0.05), np.broadcast_to(L, (10, 2, 2)), atol=1e-15)
+
+
+def test_rollout_agrees_with_steps_and_between_backends(split_pendulum, small_pendulum_data, pendulum):
+    model, d = split_pendulum
+    x = np.array([[0.5, 0.0], [0.05, 0.0], [1.2, 0.3]])
+    traj = model.rollout(x, 40, mu=[0.72, 0.75, 0.79], dt=0.05)
+    assert traj.shape == (3, 41, 2)
+    state = x
+    for k in range(3):
+        state = model.step(state, mu=[0.72, 0.75, 0.79], dt=0.05)
+    np.testing.assert_allclose(traj[:, 3], state, rtol=0, atol=1e-15)
+    ref = pendulum.trajectory(x, np.array([0.72, 0.75, 0.79]), 0.05, 40)
+    assert np.abs(traj - ref).max() < 5e-3  # coarse: 250 centres on 1,200 samples of the 20 x 20 grid (1.8e-3)
+    # the same fit with the compiled Newton solver (no symmetry: that one is NumPy only)
+    idx = np.random.default_rng(0).choice(len(d), 600, replace=False)
+    fits = {}
+    for backend in ("numpy", "numba"):
+        inner = SymplecticKernelPredictor(IMQ(0.4), IMQ(0.75), IMQ(1.06), max_centers=120, update="midpoint",
+                                          backend=backend)
+        fits[backend] = SplitKernelPredictor(inner, pendulum.quadratic_part()).fit(d.x0[idx], d.x1[idx], mu=d.mu[idx],
+                                                                                   dt=d.dt[idx])
+    a, b = (fits[k].rollout(x, 40, mu=0.75, dt=0.05) for k in ("numpy", "numba"))
+    np.testing.assert_allclose(a, b, rtol=0, atol=1e-11)
+    single = fits["numba"].rollout(x[0], 5, mu=0.75, dt=0.05)
+    assert single.shape == (6, 2)
+
+
+def test_settings_and_inputs_are_checked(split_pendulum, pendulum, small_pendulum_data):
+    model, d = split_pendulum
+    x0, x1, mu, dt = d.x0[:40], d.x1[:40], d.mu[:40], d.dt[:40]
+    inner = SymplecticKernelPredictor(IMQ(0.4), IMQ(0.75), IMQ(1.06), max_centers=5)
+    with pytest.raises(NotFittedError):
+        SplitKernelPredictor(inner, pendulum.quadratic_part()).step(x0)
+    with pytest.raises(ValueError, match="predictor must be"):
+        SplitKernelPredictor("imq", pendulum.quadratic_part()).fit(x0, x1, mu=mu, dt=dt)
+    with pytest.raises(ValueError, match="quadratic must be"):
+        SplitKernelPredictor(inner, np.eye(2)).fit(x0, x1, mu=mu, dt=dt)
+    with pytest.raises(ValueError, match="the states have 2n = 2"):
+        SplitKernelPredictor(inner, QuadraticPart([np.eye(4)])).fit(x0, x1, mu=mu, dt=dt)
+    with pytest.raises(ValueError, match="pass mu"):
+        SplitKernelPredictor(SymplecticKernelPredictor(IMQ(0.4), max_centers=5), pendulum.quadratic_part()).fit(
+            x0, x1, dt=0.05)
+    with pytest.raises(ValueError, match="same number of samples"):
+        SplitKernelPredictor(inner, pendulum.quadratic_part()).fit(x0, x1[:10], mu=mu, dt=dt)
+    with pytest.raises(ValueError, match="dt is required"):
+        SplitKernelPredictor(inner, pendulum.quadratic_part()).fit(x0, x1, mu=mu)
+    with pytest.raises(ValueError, match="2 state components"):
+        model.step(np.zeros((3, 4)), mu=0.75, dt=0.05)
+    with pytest.raises(ValueError, match="mu is required"):
+        model.step(x0, dt=0.05)
+    with pytest.raises(ValueError, match="dt is required"):
+        model.step(x0, mu=0.75)
+    with pytest.warns(ExtrapolationWarning):
+        model.step(x0[:2], mu=0.9, dt=0.05)
+
+
+def test_parameters_clone_and_set_params(split_pendulum, pendulum):
+    model, _ = split_pendulum
+    params = model.get_params()
+    assert set(model.get_params(deep=False)) == {"predictor", "quadratic"}
+    assert params["predictor__update"] == "midpoint" and params["predictor__state_kernel__eps"] == 0.4
+    assert {"quadratic__matrices", "quadratic__powers"} <= set(params)
+    for copy_ in (clone(model), sklearn.base.clone(model)):
+        assert not copy_.is_fitted and copy_.predictor is not model.predictor
+        assert copy_.get_params()["predictor__state_kernel__eps"] == 0.4
+    other = clone(model).set_params(predictor__max_centers=7, predictor__state_kernel__eps=0.3)
+    assert other.predictor.max_centers == 7 and other.predictor.state_kernel.eps == 0.3
+    assert model.predictor.max_centers == 250  # the original is untouched
+    with pytest.raises(ValueError, match="no parameter"):
+        clone(model).set_params(nonsense=1)
+
+
+def test_save_load_round_trip(split_pendulum, tmp_path):
+    model, _ = split_pendulum
+    x = np.array([[0.5, 0.1], [1.0, -0.2]])
+    save_model(model, tmp_path / "split.h5")
+    for loaded in (load_model(tmp_path / "split.h5"), SplitKernelPredictor.load(tmp_path / "split.h5")):
+        assert isinstance(loaded, SplitKernelPredictor) and loaded.n_centers_ == model.n_centers_
+        np.testing.assert_array_equal(loaded.rollout(x, 5, mu=0.75, dt=0.05), model.rollout(x, 5, mu=0.75, dt=0.05))
+        assert loaded.predictor.update == "midpoint" and loaded.predictor.max_centers == 250
+        np.testing.assert_array_equal(np.array(loaded.predictor.symmetry), np.array(KLEIN))
+        np.testing.assert_array_equal(loaded.quadratic_.checked()[0], model.quadratic_.checked()[0])
+        assert not loaded.predictor.is_fitted  # the template stays unfitted
+    with pytest.raises(ModelFileError, match="not a SymplecticKernelPredictor"):
+        SymplecticKernelPredictor.load(tmp_path / "split.h5")
+
+
+def _tampered(tmp_path, edit):
+    settings, arrays = read_container(tmp_path / "split.h5", MODEL_FORMAT)
+    settings, arrays = copy.deepcopy(settings), dict(arrays)
+    edit(settings, arrays)
+    write_container(tmp_path / "bad.h5", MODEL_FORMAT, settings, arrays)
+    return tmp_path / "bad.h5"
+
+
+@pytest.mark.parametrize("edit, match", [
+    (lambda s, a: a.update(quadratic_matrices=np.array([[[1.0, 2.0], [0.0, 1.0]]] * 2)), "not symmetric"),
+    (lambda s, a: a.update(quadratic_matrices=np.zeros((2, 4, 4))), "do not fit"),
+    (lambda s, a: a.update(quadratic_powers=np.zeros((2, 3))), "do not fit"),
+    (lambda s, a: a.update(quadratic_powers=np.array([[np.nan], [1.0]])), "finite floats"),
+    (lambda s, a: a.pop("quadratic_powers"), "expected the arrays"),
+    (lambda s, a: a.update(extra=np.zeros(2)), "expected the arrays"),
+    (lambda s, a: s.update(dim=3), "invalid dimensions"),
+    (lambda s, a: s.update(n_mu=0), "do not fit|disagree"),
+    (lambda s, a: s.update(hack="x"), "exactly the keys"),
+    (lambda s, a: s["inner"].update({"class": "DirectKernelPredictor"}), "inner model must be"),
+    (lambda s, a: a.update(inner_coef=a["inner_coef"][:3]), "has shape"),  # the inner model's own checks
+    (lambda s, a: s.update(layout=99), "unknown layout"),
+])
+def test_malformed_model_files_are_refused(split_pendulum, tmp_path, edit, match):
+    model, _ = split_pendulum
+    save_model(model, tmp_path / "split.h5")
+    path = _tampered(tmp_path, edit)
+    with pytest.raises(ModelFileError, match=match):
+        load_model(path)
