@@ -52,11 +52,12 @@ from sympredict.metrics import canonical_J, relative_trajectory_error
 from sympredict.nonlinear_mor import ReducedSineGordon, nonlinear_snapshots
 from sympredict.predictor import SymplecticKernelPredictor
 from sympredict.reduction import complex_svd_basis, symplecticity_of_basis
-from sympredict.scaling import BoxScaling, NormalizedFlowMap, SymplecticScaling
+from sympredict.scaling import BoxScaling, NormalizedFlowMap, SymplecticScaling, scaled_quadratic_part
+from sympredict.splitting import SplitKernelPredictor
 from sympredict.systems.sine_gordon import SineGordonFOM
 
 __all__ = ["SineGordonPreset", "PRESETS", "run_sine_gordon", "fom_data", "initial_states", "second_parameter", "energy_boundedness",
-           "ENERGY_BOUND_RATIO", "ENERGY_BOUND_FLOOR", "EnergySamples", "sign_symmetry", "no_augmentation", "choose_large_step"]
+           "ENERGY_BOUND_RATIO", "ENERGY_BOUND_FLOOR", "EnergySamples", "split_setup", "sign_symmetry", "no_augmentation", "choose_large_step"]
 
 logger = getLogger("sympredict.experiments.sine_gordon")
 
@@ -86,6 +87,12 @@ class SineGordonPreset:
     max_centers: int = 1000
     #: the learned maps' update at DT ("symplectic_euler": the paper's type-II form; "midpoint": the symmetric form)
     kernel_update: str = "symplectic_euler"
+    #: the Galerkin-data kernel as L_h o S o L_h (split_setup): "none", "quadratic" (L_h the exact flow of the reduced
+    #: quadratic part of H) or "quadratic-mass" (plus the linearised 1 - cos q: the reduced Hessian at 0)
+    kernel_split: str = "none"
+    #: with a split: the Galerkin data's implicit-midpoint sub-steps keep the phase error of the fastest linear mode
+    #: below this many radians per DT (the data must be the flow that L_h splits exactly)
+    split_phase_tol: float = 0.1
     state_eps: float = None  # None: IMQ(1 / diameter of the training xi), the estimator's default
     mu_eps: float = 1.0  # on c scaled to [0, 1]
     state_scaling: str = "diag"
@@ -341,15 +348,21 @@ def _one_dimension(fom, p, n, snaps, X_tr, c_tr, a_tr, X_te, c_te, a_te, K):
     # linearized frequencies of the reduced system at the largest c: eigenvalues i omega of J dg(y0)
     res["DT_omega_max"] = float(p.DT * np.abs(np.linalg.eigvals(_jg(gal, y0[0], float(p.c_range[1])))).max())
     # learned reduced flow maps: data from Galerkin trajectories (intrusive) or projected FOM trajectories
-    Yg_tr = gal.solve(gal.project(X_tr[:, 0]), c_tr, p.DT, K, substeps=p.substeps)
+    split = split_setup(p, gal)
+    if split["quadratic"] is not None:  # the Galerkin ROM with the data's sub-steps (the flow the split kernel learns)
+        res["galerkin_error_split_substeps"] = _err(gal, gal.solve(y0, c_te, p.DT, K, substeps=split["substeps"]), x_te).tolist()
+    Yg_tr = gal.solve(gal.project(X_tr[:, 0]), c_tr, p.DT, K, substeps=split["substeps"])
     Yp_tr = gal.project(X_tr)
     for data, Ytr in (("reduced", Yg_tr), ("projected", Yp_tr)):
+        quad = split["quadratic"] if data == "reduced" else None
         flow, model, fit_time, reg, table = _fit_kernel(p, Ytr[:, :-1], Ytr[:, 1:], c_tr, p.DT, update=p.kernel_update,
-                                                        augment=_augmentation(p, data, gal))
+                                                        augment=_augmentation(split["preset"], data, gal), quadratic=quad)
         hist = model.history_.train_max_residual
-        entry = {"fit_time": fit_time, "update": model.update, "regularization": reg, "regularization_table": table,
-                 "centers": int(model.surrogate_.n_centers), "train_residual": [float(v) for v in hist], "error": None, "energy_error_long": None,
+        entry = {"fit_time": fit_time, "update": getattr(model, "predictor_", model).update, "regularization": reg, "regularization_table": table,
+                 "centers": int(model.n_centers_), "train_residual": [float(v) for v in hist], "error": None, "energy_error_long": None,
                  "time_per_trajectory": None, "failure": None}
+        if data == "reduced":
+            entry.update(split={k: v for k, v in split.items() if k not in ("quadratic", "preset")})
         try:
             Yk = flow.rollout(y0, p.long_factor * K, mu=c_te[:, None], dt=p.DT)
             entry["error"] = _err(gal, Yk[:, : K + 1], x_te).tolist()
@@ -378,6 +391,33 @@ def _one_dimension(fom, p, n, snaps, X_tr, c_tr, a_tr, X_te, c_te, a_te, K):
     res["deim_rk4_time_per_trajectory"] = _median_time(
         lambda: deim.solve(y0[:1], c_te[:1], p.DT, K, scheme="rk4", substeps=p.substeps), p.repeats)
     return res
+
+
+def split_setup(p: SineGordonPreset, gal) -> dict:
+    """The linear flow split off the Galerkin-data kernel (``p.kernel_split``) and the sub-steps of its data.
+
+    ``'none'``: no split, the data with ``p.substeps`` implicit-midpoint sub-steps per ``DT`` (as the Galerkin
+    reference).  ``'quadratic'`` / ``'quadratic-mass'``: the kernel ROM is ``L_h o S o L_h`` with
+    ``L_h = expm(DT/2 J A(c))``, ``A(c)`` the reduced quadratic part of ``H`` without / with the linearised
+    ``1 - cos q`` (:meth:`~sympredict.nonlinear_mor.ReducedSineGordon.quadratic_part`), and ``S`` learned.
+    ``L_h`` is exact, so the data must be the Galerkin flow to an accuracy finer than the fast modes' turn: with
+    ``omega`` the largest frequency of ``J A(c)`` over the ``c`` range, implicit midpoint with ``k`` sub-steps
+    turns that mode by ``DT omega (DT omega / k)^2 / 12`` radians too little per ``DT``; ``k`` is the smallest
+    count (at least ``p.substeps``) that keeps this below ``p.split_phase_tol``.  (Measured: with the data at
+    ``p.substeps = 4`` and ``DT omega = 8.4``, the mismatch is 2.3 rad per step and the split kernel blows up;
+    ``docs/sine_gordon.md``.)  Returns ``{"kind", "quadratic" (QuadraticPart or None), "substeps",
+    "DT_omega_max_linear", "preset"}`` (``preset``: ``p`` with the data's sub-steps, for the energy samples).
+    """
+    if p.kernel_split == "none":
+        return {"kind": "none", "quadratic": None, "substeps": int(p.substeps), "DT_omega_max_linear": None, "preset": p}
+    if p.kernel_split not in ("quadratic", "quadratic-mass"):
+        raise ValueError(f"kernel_split must be 'none', 'quadratic' or 'quadratic-mass', got {p.kernel_split!r}")
+    quad = gal.quadratic_part(mass=p.kernel_split == "quadratic-mass")
+    JA = canonical_J(gal.dim) @ quad.hessian(np.asarray(p.c_range, dtype=float), 2)
+    wdt = float(p.DT * np.abs(np.linalg.eigvals(JA)).max())
+    k = max(int(p.substeps), int(np.ceil(wdt * np.sqrt(wdt / (12.0 * p.split_phase_tol)))))
+    return {"kind": p.kernel_split, "quadratic": quad, "substeps": k, "DT_omega_max_linear": wdt,
+            "preset": replace(p, substeps=k)}
 
 
 def _pairs(Y0, Y1, c):
@@ -479,7 +519,7 @@ def _augmentation(p, data: str, gal):
 
 
 def _fit_kernel(p, Y0, Y1, c_tr, dt, regularization=None, update="symplectic_euler", stride=1, augment=no_augmentation,
-                splitting=None):
+                quadratic=None):
     """A kernel flow map at the macro step ``dt`` from pairs of reduced states ``Y1 = Phi^dt(Y0)`` (P, k, 2n)
     of ``P`` training trajectories at wave speeds ``c_tr`` (P,).
 
@@ -488,10 +528,9 @@ def _fit_kernel(p, Y0, Y1, c_tr, dt, regularization=None, update="symplectic_eul
     ``augment`` (a strategy: :func:`no_augmentation`, :func:`sign_symmetry`, :class:`EnergySamples`) turns
     the pairs of the trajectories a fit uses into the flat pairs it fits; it sees only those trajectories (a
     held-out trajectory's images are not in the fit that is scored on it).
-    ``splitting`` (optional) learns only the part of the step that a known linear flow leaves: an object with
-    ``pairs(x0, x1, mu) -> (z0, z1)`` (the flat pairs after ``augment``, mapped to the pairs of the inner map)
-    and ``wrap(flow) -> flow`` (the full step around the fitted inner map); the held-out rollouts score the
-    wrapped map.
+    ``quadratic`` (a :class:`~sympredict.linear_flow.QuadraticPart` ``A(c)``, optional) splits its exact flow off:
+    the model is a :class:`~sympredict.splitting.SplitKernelPredictor` ``L_h o S o L_h``, ``L_h = expm(dt/2 J A(c))``,
+    and only ``S`` is learned (:func:`_fit_scaled`); the held-out rollouts score the whole step.
 
     With ``p.regularizations`` and no ``regularization`` given, the ridge term is chosen among ``0`` and
     ``p.regularizations`` by **rollout on held-out training trajectories** (``1, 1 + validation_every, ...``;
@@ -515,7 +554,7 @@ def _fit_kernel(p, Y0, Y1, c_tr, dt, regularization=None, update="symplectic_eul
         held[1::p.validation_every] = True
         ref = Y1[held, ::stride]
         for lam in sorted({0.0, *map(float, p.regularizations)}):
-            flow, _ = _fit_split(p, augment(Y0[~held], Y1[~held], c_tr[~held]), dt, lam, update, splitting)
+            flow, _ = _fit_scaled(p, *augment(Y0[~held], Y1[~held], c_tr[~held]), dt, lam, update, quadratic)
             try:
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore")
@@ -526,28 +565,21 @@ def _fit_kernel(p, Y0, Y1, c_tr, dt, regularization=None, update="symplectic_eul
             table.append((lam, score if np.isfinite(score) else None))
         scored = [(sc, lam) for lam, sc in table if sc is not None]
         reg = min(scored)[1] if scored else 0.0  # smallest score; on a tie the smaller term (tuples compare in order)
-    flow, model = _fit_split(p, augment(Y0, Y1, c_tr), dt, reg, update, splitting)
+    flow, model = _fit_scaled(p, *augment(Y0, Y1, c_tr), dt, reg, update, quadratic)
     return flow, model, time.perf_counter() - t0, reg, table
 
 
-def _fit_split(p, pairs, dt, regularization, update, splitting):
-    """:func:`_fit_scaled` on the flat ``pairs`` ``(x0, x1, mu)``, through ``splitting`` when one is given
-    (:func:`_fit_kernel`); returns the (wrapped) flow map and the predictor."""
-    x0, x1, mu = pairs
-    if splitting is None:
-        return _fit_scaled(p, x0, x1, mu, dt, regularization, update)
-    z0, z1 = splitting.pairs(x0, x1, mu)
-    flow, model = _fit_scaled(p, z0, z1, mu, dt, regularization, update)
-    return splitting.wrap(flow), model
-
-
-def _fit_scaled(p, x0, x1, mu, dt, regularization, update):
+def _fit_scaled(p, x0, x1, mu, dt, regularization, update, quadratic=None):
     """One fit of :func:`_fit_kernel` (scaled coordinates) on flat pairs ``x0, x1`` (m, 2n) at ``mu`` (m, 1);
-    returns the flow map and the predictor."""
+    returns the flow map and the predictor (a :class:`~sympredict.splitting.SplitKernelPredictor` around it when
+    ``quadratic`` is given: ``A(c)`` carried into the scaled coordinates by
+    :func:`~sympredict.scaling.scaled_quadratic_part`, the same exact linear flow)."""
     st = SymplecticScaling(p.state_scaling).fit(np.concatenate([x0, x1]))
     ms = BoxScaling().fit(mu, np.array([p.c_range[0]]), np.array([p.c_range[1]]))
     model = SymplecticKernelPredictor(None if p.state_eps is None else IMQ(p.state_eps), mu_kernel=IMQ(p.mu_eps),
                                       max_centers=p.max_centers, tol=1e-9, update=update, regularization=regularization)
+    if quadratic is not None:
+        model = SplitKernelPredictor(model, scaled_quadratic_part(quadratic, st, ms, dt))
     model.fit(st.transform(x0), st.transform(x1), mu=ms.transform(mu), dt=1.0)
     return NormalizedFlowMap(model, st, ms, dt), model
 
@@ -630,7 +662,7 @@ def _large_step(p, gal, X_tr, c_tr, X_te, c_te, K):
     out["implicit_midpoint_time_per_trajectory"] = _median_time(lambda: gal.solve(y0[:1], c_te[:1], dt, Kl), p.repeats)
     Yp = gal.project(X_tr)
     flow, model, fit_time, reg, table = _fit_kernel(p, Yp[:, :-s], Yp[:, s:], c_tr, dt, update="midpoint", stride=s)
-    entry = {"fit_time": fit_time, "regularization": reg, "regularization_table": table, "centers": int(model.surrogate_.n_centers),
+    entry = {"fit_time": fit_time, "regularization": reg, "regularization_table": table, "centers": int(model.n_centers_),
              "train_residual": [float(v) for v in model.history_.train_max_residual], "error": None,
              "time_per_trajectory": None, "failure": None}
     try:
@@ -736,14 +768,17 @@ def _cost_vs_N(fom, p, out, X_tr, c_tr, x_te, c_te):
             row["galerkin_error"] = float(np.median(_err(gal, Yg, xn_te)))
             row["deim_error"] = float(np.median(_err(deim, deim.solve(y0, c_te, p.DT, K, substeps=p.substeps), xn_te)))
             fns = _cost_calls(p, gal, deim, y0[:1], c_te[:1], Yg[0], K)
-            Yg_tr = gal.solve(gal.project(Xn[:, 0]), c_tr, p.DT, K, substeps=p.substeps)
+            split = split_setup(p, gal)
+            Yg_tr = gal.solve(gal.project(Xn[:, 0]), c_tr, p.DT, K, substeps=split["substeps"])
             for key, Ytr in (("kernel", Yg_tr), ("kernel_projected", gal.project(Xn))):
                 row[key] = row[f"{key}_error"] = None
                 # the ridge term chosen at N = n_points (a setting of the model, not chosen again per N)
                 lam = out["dims"][dim]["kernel_reduced" if key == "kernel" else "kernel_projected"]["regularization"]
                 flow, model, _, row[f"{key}_regularization"], _ = _fit_kernel(
-                    p, Ytr[:, :-1], Ytr[:, 1:], c_tr, p.DT, lam, update=p.kernel_update, augment=_augmentation(p, "reduced" if key == "kernel" else "projected", gal))
-                row[f"{key}_centers"] = int(model.surrogate_.n_centers)
+                    p, Ytr[:, :-1], Ytr[:, 1:], c_tr, p.DT, lam, update=p.kernel_update,
+                    augment=_augmentation(split["preset"], "reduced" if key == "kernel" else "projected", gal),
+                    quadratic=split["quadratic"] if key == "kernel" else None)
+                row[f"{key}_centers"] = int(model.n_centers_)
                 try:
                     row[f"{key}_error"] = float(np.median(_err(gal, flow.rollout(y0, K, mu=c_te[:, None], dt=p.DT), xn_te)))
                     fns[key] = partial(flow.rollout, y0[:1], K, mu=c_te[:1, None], dt=p.DT)
