@@ -24,6 +24,9 @@
   ``report.sine_gordon_claims`` checks); the Galerkin-data kernel is trained with :class:`EnergySamples`
   (extra pairs from the energy sublevel set of the training states), see ``docs/sine_gordon.md``;
 * the large-step regime at a ``DT_large`` chosen on the training trajectories (:func:`choose_large_step`);
+* optionally (``kernel_split``, :func:`split_setup`) the Galerkin-data kernel as a
+  :class:`~sympredict.splitting.SplitKernelPredictor` ``L_h o S o L_h`` with ``L_h`` the exact flow of the reduced
+  Hessian at 0: the fast linear modes of the Galerkin ROM are then rotated exactly, not interpolated;
 * online wall times per trajectory (medians of ``repeats``, same process,
   BLAS on one thread): kernel rollout, Galerkin and DEIM ROMs at their
   accurate step, FOM; and the cost against ``N`` (:func:`_cost_vs_N`): for
@@ -404,7 +407,7 @@ def split_setup(p: SineGordonPreset, gal) -> dict:
     ``omega`` the largest frequency of ``J A(c)`` over the ``c`` range, implicit midpoint with ``k`` sub-steps
     turns that mode by ``DT omega (DT omega / k)^2 / 12`` radians too little per ``DT``; ``k`` is the smallest
     count (at least ``p.substeps``) that keeps this below ``p.split_phase_tol``.  (Measured: with the data at
-    ``p.substeps = 4`` and ``DT omega = 8.4``, the mismatch is 2.3 rad per step and the split kernel blows up;
+    ``p.substeps = 4`` and ``DT omega = 8.4``, the mismatch is 1.9 rad per step and the split kernel blows up;
     ``docs/sine_gordon.md``.)  Returns ``{"kind", "quadratic" (QuadraticPart or None), "substeps",
     "DT_omega_max_linear", "preset"}`` (``preset``: ``p`` with the data's sub-steps, for the energy samples).
     """
