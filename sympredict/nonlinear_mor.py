@@ -37,6 +37,7 @@ import numpy as np
 
 from sympredict._checks import as_positive_int, as_states, as_steps
 from sympredict.integrators_compiled import HAVE_NUMBA, PointwiseHamiltonian, jit_pointwise, rollout
+from sympredict.linear_flow import QuadraticPart
 from sympredict.reduction import symplectic_inverse
 
 try:  # pragma: no cover - with numba
@@ -213,6 +214,21 @@ class ReducedSineGordon:
                                     iargs=[self.dim, self.n_interpolation],
                                     check_mu=lambda mu: self.fom.check_c(np.asarray(mu)[:, 0], len(mu)),
                                     name=f"{self.kind}ROM(2n={self.dim}, m={self.n_interpolation})")
+
+    def quadratic_part(self, mass: bool = True) -> QuadraticPart:
+        """The Hessian of the reduced Hamiltonian ``H(V y; c)`` at ``y = 0`` as a
+        :class:`~sympredict.linear_flow.QuadraticPart` in ``c``: ``A(c) = (A2 + s Vq^T Vq) + c^2 A1`` (powers 0, 2).
+
+        ``mass=False`` leaves out ``s Vq^T Vq``, the linearised ``s sum (1 - cos q)`` (then ``A`` is the quadratic
+        part of ``H`` alone).  Its flow ``expm(t J A(c))`` is the linearised ROM; the splitting predictor
+        (:mod:`sympredict.splitting`) composes it with a learned map.  Galerkin only with ``mass=True``: the DEIM
+        ROM's ``s W S`` is not symmetric (no Hamiltonian).  ``O(N n^2)``.
+        """
+        if mass and self.kind != "galerkin":
+            raise ValueError("the mass term of the reduced Hessian needs the Galerkin ROM (the DEIM ROM has no Hamiltonian)")
+        A0 = self.A2 + (self.fom.strength * (self.S.T @ self.S) if mass else 0.0)
+        sym = lambda A: 0.5 * (A + A.T)  # noqa: E731  (round-off of the products)
+        return QuadraticPart([sym(A0), sym(self.A1)], [[0.0], [2.0]])
 
     # -------------------------------------------------------------- NumPy (checks, small batches)
     def g(self, y, c) -> np.ndarray:

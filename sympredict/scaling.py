@@ -22,14 +22,17 @@
 
 from __future__ import annotations
 
+from itertools import product
+from math import comb
 from typing import Optional
 
 import numpy as np
 from scipy.linalg import schur
 
 from sympredict._checks import as_positive_int
+from sympredict.linear_flow import QuadraticPart, poisson_matrix
 
-__all__ = ["BoxScaling", "SymplecticScaling", "NormalizedFlowMap", "williamson"]
+__all__ = ["BoxScaling", "SymplecticScaling", "NormalizedFlowMap", "williamson", "scaled_quadratic_part"]
 
 
 class BoxScaling:
@@ -195,3 +198,59 @@ class NormalizedFlowMap:
         x0 = np.atleast_2d(np.asarray(x0, dtype=float))
         m, d = self._args(mu, dt, len(x0))
         return self.state_scaling.inverse_transform(self.predictor.rollout(self.state_scaling.transform(x0), n_steps, mu=m, dt=d))
+
+
+def scaled_quadratic_part(quadratic: QuadraticPart, state_scaling: SymplecticScaling, mu_scaling: Optional[BoxScaling],
+                          tau: float) -> QuadraticPart:
+    """The quadratic part ``A(mu)`` in the scaled coordinates of :class:`NormalizedFlowMap`.
+
+    With ``x~ = M x`` (``M^T J M = sigma^2 J``), ``mu = lo + width * mu~`` and ``dT~ = dT / tau``, the flow of
+    ``x' = J A(mu) x`` is ``dx~/dT~ = J A~(mu~) x~`` with ``A~ = tau J^T M J A M^-1 = tau sigma^2 M^-T A M^-1``
+    (symmetric), so ``expm(dT~ J A~(mu~)) = M expm(dT J A(mu)) M^-1``: the splitting predictor
+    (:mod:`sympredict.splitting`) fitted in the scaled coordinates has the same exact linear flow.  Each
+    monomial ``prod_i mu_i^p_i`` becomes the polynomial ``prod_i (lo_i + width_i mu~_i)^p_i``, expanded into
+    monomials of ``mu~`` (binomial terms; equal powers merged), so the powers must be non-negative integers.
+
+    Parameters
+    ----------
+    quadratic : QuadraticPart
+        ``A(mu)`` in the original coordinates and units.
+    state_scaling : SymplecticScaling
+        Fitted (``matrix_`` is ``M``).
+    mu_scaling : BoxScaling or None
+        Fitted; ``None`` for a parameter-free ``A``.
+    tau : float
+        The time unit.
+
+    Returns
+    -------
+    QuadraticPart
+        ``A~(mu~)``; ``O(K 2^d (2n)^3)`` for ``K`` terms, ``d`` parameter components.
+
+    Raises
+    ------
+    ValueError
+        A power that is not a non-negative integer while ``mu`` is scaled, or a parameter-dependent ``A``
+        without ``mu_scaling``.
+    """
+    mats, pw = quadratic.checked(dim=state_scaling.matrix_.shape[0])
+    M = state_scaling.matrix_
+    J = poisson_matrix(M.shape[0])
+    left, right = float(tau) * J.T @ M @ J, np.linalg.inv(M)
+    scaled = [left @ A @ right for A in mats]
+    scaled = [0.5 * (A + A.T) for A in scaled]  # symmetric up to round-off
+    if pw.shape[1] == 0:
+        return QuadraticPart(np.array(scaled), None)
+    if mu_scaling is None:
+        raise ValueError("scaled_quadratic_part: A(mu) depends on mu, pass the fitted mu_scaling")
+    if np.any(pw < 0) or np.any(pw != np.round(pw)):
+        raise ValueError(f"scaled_quadratic_part: an affine scaling of mu keeps A(mu) a sum of monomials only for "
+                         f"non-negative integer powers, got {pw.tolist()}")
+    lo, width = np.asarray(mu_scaling.lo_, dtype=float), np.asarray(mu_scaling.width_, dtype=float)
+    terms = {}
+    for A, p in zip(scaled, pw.astype(int)):
+        for e in product(*(range(pi + 1) for pi in p)):  # exponents of mu~ in the expansion
+            coef = np.prod([comb(pi, ei) * lo[i] ** (pi - ei) * width[i] ** ei for i, (pi, ei) in enumerate(zip(p, e))])
+            terms[e] = terms.get(e, 0.0) + coef * A
+    keys = sorted(terms)
+    return QuadraticPart(np.array([terms[k] for k in keys]), np.array(keys, dtype=float))

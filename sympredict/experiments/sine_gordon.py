@@ -24,6 +24,9 @@
   ``report.sine_gordon_claims`` checks); the Galerkin-data kernel is trained with :class:`EnergySamples`
   (extra pairs from the energy sublevel set of the training states), see ``docs/sine_gordon.md``;
 * the large-step regime at a ``DT_large`` chosen on the training trajectories (:func:`choose_large_step`);
+* optionally (``kernel_split``, :func:`split_setup`) the Galerkin-data kernel as a
+  :class:`~sympredict.splitting.SplitKernelPredictor` ``L_h o S o L_h`` with ``L_h`` the exact flow of the reduced
+  Hessian at 0: the fast linear modes of the Galerkin ROM are then rotated exactly, not interpolated;
 * online wall times per trajectory (medians of ``repeats``, same process,
   BLAS on one thread): kernel rollout, Galerkin and DEIM ROMs at their
   accurate step, FOM; and the cost against ``N`` (:func:`_cost_vs_N`): for
@@ -52,11 +55,12 @@ from sympredict.metrics import canonical_J, relative_trajectory_error
 from sympredict.nonlinear_mor import ReducedSineGordon, nonlinear_snapshots
 from sympredict.predictor import SymplecticKernelPredictor
 from sympredict.reduction import complex_svd_basis, symplecticity_of_basis
-from sympredict.scaling import BoxScaling, NormalizedFlowMap, SymplecticScaling
+from sympredict.scaling import BoxScaling, NormalizedFlowMap, SymplecticScaling, scaled_quadratic_part
+from sympredict.splitting import SplitKernelPredictor
 from sympredict.systems.sine_gordon import SineGordonFOM
 
-__all__ = ["SineGordonPreset", "PRESETS", "run_sine_gordon", "initial_states", "second_parameter", "energy_boundedness",
-           "ENERGY_BOUND_RATIO", "ENERGY_BOUND_FLOOR", "EnergySamples", "sign_symmetry", "no_augmentation", "choose_large_step"]
+__all__ = ["SineGordonPreset", "PRESETS", "run_sine_gordon", "fom_data", "initial_states", "second_parameter", "energy_boundedness",
+           "ENERGY_BOUND_RATIO", "ENERGY_BOUND_FLOOR", "EnergySamples", "split_setup", "sign_symmetry", "no_augmentation", "choose_large_step"]
 
 logger = getLogger("sympredict.experiments.sine_gordon")
 
@@ -86,6 +90,12 @@ class SineGordonPreset:
     max_centers: int = 1000
     #: the learned maps' update at DT ("symplectic_euler": the paper's type-II form; "midpoint": the symmetric form)
     kernel_update: str = "symplectic_euler"
+    #: the Galerkin-data kernel as L_h o S o L_h (split_setup): "none", "quadratic" (L_h the exact flow of the reduced
+    #: quadratic part of H) or "quadratic-mass" (plus the linearised 1 - cos q: the reduced Hessian at 0)
+    kernel_split: str = "none"
+    #: with a split: the Galerkin data's implicit-midpoint sub-steps keep the phase error of the fastest linear mode
+    #: below this many radians per DT (the data must be the flow that L_h splits exactly)
+    split_phase_tol: float = 0.1
     state_eps: float = None  # None: IMQ(1 / diameter of the training xi), the estimator's default
     mu_eps: float = 1.0  # on c scaled to [0, 1]
     state_scaling: str = "diag"
@@ -167,11 +177,17 @@ def _median_time(fn, repeats):
     return float(np.median(times))
 
 
-def run_sine_gordon(preset: SineGordonPreset = PRESETS["quick"], **overrides) -> dict:
-    """Run the scenario; returns a JSON-friendly dict (lists and floats; the figures are drawn from it)."""
-    from threadpoolctl import threadpool_limits
+def fom_data(p: SineGordonPreset) -> dict:
+    """The FOM, the training and test parameters and the FOM trajectories of a run (what
+    :func:`run_sine_gordon` and the benchmarks share).
 
-    p = replace(preset, **overrides)
+    Training parameters: ``n_c x n_amplitude`` grid of ``c`` and the second parameter; test parameters:
+    ``n_test`` uniform draws (seed ``p.seed``, never trained on).  FOM trajectories by
+    :meth:`~sympredict.systems.sine_gordon.SineGordonFOM.reference_trajectory` (step halving to ``ref_tol``):
+    ``X_tr`` (P, K+1, 2N) over ``[0, T]``, ``X_te`` (B, long_factor K + 1, 2N) over ``[0, long_factor T]``.
+    Returns a dict with ``fom, K, name2, c_tr, a_tr, c_te, a_te, X_tr, X_te, step_halving_estimate,
+    train_time``.  Cost: ``(P + long_factor B) K`` FOM steps of ``O(N)`` times the sub-steps.
+    """
     rng = np.random.default_rng(p.seed)
     fom = SineGordonFOM(n_points=p.n_points, length=p.length, c_range=p.c_range, amplitude_range=p.amplitude_range,
                         T=p.T, nt=int(round(p.T / p.DT)))
@@ -182,16 +198,29 @@ def run_sine_gordon(preset: SineGordonPreset = PRESETS["quick"], **overrides) ->
     a_tr = np.tile(np.linspace(*range2, p.n_amplitude), p.n_c)
     c_te = rng.uniform(*p.c_range, p.n_test)
     a_te = rng.uniform(*range2, p.n_test)
-    out = {"preset": asdict(p), "second_parameter": name2, "test_c": c_te.tolist(), f"test_{name2}": a_te.tolist(),
-           "dims": {}}
+    t = time.perf_counter()
+    X_tr, est = fom.reference_trajectory(initial_states(fom, p, c_tr, a_tr), c_tr, p.DT, K, tol=p.ref_tol,
+                                         return_error=True)
+    train_time = time.perf_counter() - t
+    X_te = fom.reference_trajectory(initial_states(fom, p, c_te, a_te), c_te, p.DT, p.long_factor * K, tol=p.ref_tol)
+    return {"fom": fom, "K": K, "name2": name2, "c_tr": c_tr, "a_tr": a_tr, "c_te": c_te, "a_te": a_te,
+            "X_tr": X_tr, "X_te": X_te, "step_halving_estimate": est, "train_time": train_time}
+
+
+def run_sine_gordon(preset: SineGordonPreset = PRESETS["quick"], **overrides) -> dict:
+    """Run the scenario; returns a JSON-friendly dict (lists and floats; the figures are drawn from it)."""
+    from threadpoolctl import threadpool_limits
+
+    p = replace(preset, **overrides)
     with threadpool_limits(1):
-        t = time.perf_counter()
-        x0_te = initial_states(fom, p, c_te, a_te)
-        X_tr, est = fom.reference_trajectory(initial_states(fom, p, c_tr, a_tr), c_tr, p.DT, K, tol=p.ref_tol,
-                                             return_error=True)
-        out["fom_train_time"] = time.perf_counter() - t
-        X_te = fom.reference_trajectory(x0_te, c_te, p.DT, p.long_factor * K, tol=p.ref_tol)
-        out["fom_step_halving_estimate"] = est
+        d = fom_data(p)
+        fom, K, name2 = d["fom"], d["K"], d["name2"]
+        c_tr, a_tr, c_te, a_te, X_tr, X_te = (d[k] for k in ("c_tr", "a_tr", "c_te", "a_te", "X_tr", "X_te"))
+        out = {"preset": asdict(p), "second_parameter": name2, "test_c": c_te.tolist(), f"test_{name2}": a_te.tolist(),
+               "dims": {}}
+        out["fom_train_time"] = d["train_time"]
+        out["fom_step_halving_estimate"] = d["step_halving_estimate"]
+        x0_te = X_te[:, 0]
         x_te = X_te[:, : K + 1]
         out["fom_time_per_trajectory"] = _median_time(
             lambda: fom.reference_trajectory(x0_te[:1], c_te[:1], p.DT, K, tol=p.ref_tol), max(1, p.repeats // 2))
@@ -322,15 +351,21 @@ def _one_dimension(fom, p, n, snaps, X_tr, c_tr, a_tr, X_te, c_te, a_te, K):
     # linearized frequencies of the reduced system at the largest c: eigenvalues i omega of J dg(y0)
     res["DT_omega_max"] = float(p.DT * np.abs(np.linalg.eigvals(_jg(gal, y0[0], float(p.c_range[1])))).max())
     # learned reduced flow maps: data from Galerkin trajectories (intrusive) or projected FOM trajectories
-    Yg_tr = gal.solve(gal.project(X_tr[:, 0]), c_tr, p.DT, K, substeps=p.substeps)
+    split = split_setup(p, gal)
+    if split["quadratic"] is not None:  # the Galerkin ROM with the data's sub-steps (the flow the split kernel learns)
+        res["galerkin_error_split_substeps"] = _err(gal, gal.solve(y0, c_te, p.DT, K, substeps=split["substeps"]), x_te).tolist()
+    Yg_tr = gal.solve(gal.project(X_tr[:, 0]), c_tr, p.DT, K, substeps=split["substeps"])
     Yp_tr = gal.project(X_tr)
     for data, Ytr in (("reduced", Yg_tr), ("projected", Yp_tr)):
+        quad = split["quadratic"] if data == "reduced" else None
         flow, model, fit_time, reg, table = _fit_kernel(p, Ytr[:, :-1], Ytr[:, 1:], c_tr, p.DT, update=p.kernel_update,
-                                                        augment=_augmentation(p, data, gal))
+                                                        augment=_augmentation(split["preset"], data, gal), quadratic=quad)
         hist = model.history_.train_max_residual
-        entry = {"fit_time": fit_time, "update": model.update, "regularization": reg, "regularization_table": table,
-                 "centers": int(model.surrogate_.n_centers), "train_residual": [float(v) for v in hist], "error": None, "energy_error_long": None,
+        entry = {"fit_time": fit_time, "update": getattr(model, "predictor_", model).update, "regularization": reg, "regularization_table": table,
+                 "centers": int(model.n_centers_), "train_residual": [float(v) for v in hist], "error": None, "energy_error_long": None,
                  "time_per_trajectory": None, "failure": None}
+        if data == "reduced":
+            entry.update(split={k: v for k, v in split.items() if k not in ("quadratic", "preset")})
         try:
             Yk = flow.rollout(y0, p.long_factor * K, mu=c_te[:, None], dt=p.DT)
             entry["error"] = _err(gal, Yk[:, : K + 1], x_te).tolist()
@@ -359,6 +394,33 @@ def _one_dimension(fom, p, n, snaps, X_tr, c_tr, a_tr, X_te, c_te, a_te, K):
     res["deim_rk4_time_per_trajectory"] = _median_time(
         lambda: deim.solve(y0[:1], c_te[:1], p.DT, K, scheme="rk4", substeps=p.substeps), p.repeats)
     return res
+
+
+def split_setup(p: SineGordonPreset, gal) -> dict:
+    """The linear flow split off the Galerkin-data kernel (``p.kernel_split``) and the sub-steps of its data.
+
+    ``'none'``: no split, the data with ``p.substeps`` implicit-midpoint sub-steps per ``DT`` (as the Galerkin
+    reference).  ``'quadratic'`` / ``'quadratic-mass'``: the kernel ROM is ``L_h o S o L_h`` with
+    ``L_h = expm(DT/2 J A(c))``, ``A(c)`` the reduced quadratic part of ``H`` without / with the linearised
+    ``1 - cos q`` (:meth:`~sympredict.nonlinear_mor.ReducedSineGordon.quadratic_part`), and ``S`` learned.
+    ``L_h`` is exact, so the data must be the Galerkin flow to an accuracy finer than the fast modes' turn: with
+    ``omega`` the largest frequency of ``J A(c)`` over the ``c`` range, implicit midpoint with ``k`` sub-steps
+    turns that mode by ``DT omega (DT omega / k)^2 / 12`` radians too little per ``DT``; ``k`` is the smallest
+    count (at least ``p.substeps``) that keeps this below ``p.split_phase_tol``.  (Measured: with the data at
+    ``p.substeps = 4`` and ``DT omega = 8.4``, the mismatch is 1.9 rad per step and the split kernel blows up;
+    ``docs/sine_gordon.md``.)  Returns ``{"kind", "quadratic" (QuadraticPart or None), "substeps",
+    "DT_omega_max_linear", "preset"}`` (``preset``: ``p`` with the data's sub-steps, for the energy samples).
+    """
+    if p.kernel_split == "none":
+        return {"kind": "none", "quadratic": None, "substeps": int(p.substeps), "DT_omega_max_linear": None, "preset": p}
+    if p.kernel_split not in ("quadratic", "quadratic-mass"):
+        raise ValueError(f"kernel_split must be 'none', 'quadratic' or 'quadratic-mass', got {p.kernel_split!r}")
+    quad = gal.quadratic_part(mass=p.kernel_split == "quadratic-mass")
+    JA = canonical_J(gal.dim) @ quad.hessian(np.asarray(p.c_range, dtype=float), 2)
+    wdt = float(p.DT * np.abs(np.linalg.eigvals(JA)).max())
+    k = max(int(p.substeps), int(np.ceil(wdt * np.sqrt(wdt / (12.0 * p.split_phase_tol)))))
+    return {"kind": p.kernel_split, "quadratic": quad, "substeps": k, "DT_omega_max_linear": wdt,
+            "preset": replace(p, substeps=k)}
 
 
 def _pairs(Y0, Y1, c):
@@ -459,7 +521,8 @@ def _augmentation(p, data: str, gal):
     raise ValueError(f"augmentation {kind!r} is not available for data={data!r} (energy samples need the Galerkin ROM)")
 
 
-def _fit_kernel(p, Y0, Y1, c_tr, dt, regularization=None, update="symplectic_euler", stride=1, augment=no_augmentation):
+def _fit_kernel(p, Y0, Y1, c_tr, dt, regularization=None, update="symplectic_euler", stride=1, augment=no_augmentation,
+                quadratic=None):
     """A kernel flow map at the macro step ``dt`` from pairs of reduced states ``Y1 = Phi^dt(Y0)`` (P, k, 2n)
     of ``P`` training trajectories at wave speeds ``c_tr`` (P,).
 
@@ -468,6 +531,9 @@ def _fit_kernel(p, Y0, Y1, c_tr, dt, regularization=None, update="symplectic_eul
     ``augment`` (a strategy: :func:`no_augmentation`, :func:`sign_symmetry`, :class:`EnergySamples`) turns
     the pairs of the trajectories a fit uses into the flat pairs it fits; it sees only those trajectories (a
     held-out trajectory's images are not in the fit that is scored on it).
+    ``quadratic`` (a :class:`~sympredict.linear_flow.QuadraticPart` ``A(c)``, optional) splits its exact flow off:
+    the model is a :class:`~sympredict.splitting.SplitKernelPredictor` ``L_h o S o L_h``, ``L_h = expm(dt/2 J A(c))``,
+    and only ``S`` is learned (:func:`_fit_scaled`); the held-out rollouts score the whole step.
 
     With ``p.regularizations`` and no ``regularization`` given, the ridge term is chosen among ``0`` and
     ``p.regularizations`` by **rollout on held-out training trajectories** (``1, 1 + validation_every, ...``;
@@ -491,7 +557,7 @@ def _fit_kernel(p, Y0, Y1, c_tr, dt, regularization=None, update="symplectic_eul
         held[1::p.validation_every] = True
         ref = Y1[held, ::stride]
         for lam in sorted({0.0, *map(float, p.regularizations)}):
-            flow, _ = _fit_scaled(p, *augment(Y0[~held], Y1[~held], c_tr[~held]), dt, lam, update)
+            flow, _ = _fit_scaled(p, *augment(Y0[~held], Y1[~held], c_tr[~held]), dt, lam, update, quadratic)
             try:
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore")
@@ -502,17 +568,21 @@ def _fit_kernel(p, Y0, Y1, c_tr, dt, regularization=None, update="symplectic_eul
             table.append((lam, score if np.isfinite(score) else None))
         scored = [(sc, lam) for lam, sc in table if sc is not None]
         reg = min(scored)[1] if scored else 0.0  # smallest score; on a tie the smaller term (tuples compare in order)
-    flow, model = _fit_scaled(p, *augment(Y0, Y1, c_tr), dt, reg, update)
+    flow, model = _fit_scaled(p, *augment(Y0, Y1, c_tr), dt, reg, update, quadratic)
     return flow, model, time.perf_counter() - t0, reg, table
 
 
-def _fit_scaled(p, x0, x1, mu, dt, regularization, update):
+def _fit_scaled(p, x0, x1, mu, dt, regularization, update, quadratic=None):
     """One fit of :func:`_fit_kernel` (scaled coordinates) on flat pairs ``x0, x1`` (m, 2n) at ``mu`` (m, 1);
-    returns the flow map and the predictor."""
+    returns the flow map and the predictor (a :class:`~sympredict.splitting.SplitKernelPredictor` around it when
+    ``quadratic`` is given: ``A(c)`` carried into the scaled coordinates by
+    :func:`~sympredict.scaling.scaled_quadratic_part`, the same exact linear flow)."""
     st = SymplecticScaling(p.state_scaling).fit(np.concatenate([x0, x1]))
     ms = BoxScaling().fit(mu, np.array([p.c_range[0]]), np.array([p.c_range[1]]))
     model = SymplecticKernelPredictor(None if p.state_eps is None else IMQ(p.state_eps), mu_kernel=IMQ(p.mu_eps),
                                       max_centers=p.max_centers, tol=1e-9, update=update, regularization=regularization)
+    if quadratic is not None:
+        model = SplitKernelPredictor(model, scaled_quadratic_part(quadratic, st, ms, dt))
     model.fit(st.transform(x0), st.transform(x1), mu=ms.transform(mu), dt=1.0)
     return NormalizedFlowMap(model, st, ms, dt), model
 
@@ -595,7 +665,7 @@ def _large_step(p, gal, X_tr, c_tr, X_te, c_te, K):
     out["implicit_midpoint_time_per_trajectory"] = _median_time(lambda: gal.solve(y0[:1], c_te[:1], dt, Kl), p.repeats)
     Yp = gal.project(X_tr)
     flow, model, fit_time, reg, table = _fit_kernel(p, Yp[:, :-s], Yp[:, s:], c_tr, dt, update="midpoint", stride=s)
-    entry = {"fit_time": fit_time, "regularization": reg, "regularization_table": table, "centers": int(model.surrogate_.n_centers),
+    entry = {"fit_time": fit_time, "regularization": reg, "regularization_table": table, "centers": int(model.n_centers_),
              "train_residual": [float(v) for v in model.history_.train_max_residual], "error": None,
              "time_per_trajectory": None, "failure": None}
     try:
@@ -701,14 +771,17 @@ def _cost_vs_N(fom, p, out, X_tr, c_tr, x_te, c_te):
             row["galerkin_error"] = float(np.median(_err(gal, Yg, xn_te)))
             row["deim_error"] = float(np.median(_err(deim, deim.solve(y0, c_te, p.DT, K, substeps=p.substeps), xn_te)))
             fns = _cost_calls(p, gal, deim, y0[:1], c_te[:1], Yg[0], K)
-            Yg_tr = gal.solve(gal.project(Xn[:, 0]), c_tr, p.DT, K, substeps=p.substeps)
+            split = split_setup(p, gal)
+            Yg_tr = gal.solve(gal.project(Xn[:, 0]), c_tr, p.DT, K, substeps=split["substeps"])
             for key, Ytr in (("kernel", Yg_tr), ("kernel_projected", gal.project(Xn))):
                 row[key] = row[f"{key}_error"] = None
                 # the ridge term chosen at N = n_points (a setting of the model, not chosen again per N)
                 lam = out["dims"][dim]["kernel_reduced" if key == "kernel" else "kernel_projected"]["regularization"]
                 flow, model, _, row[f"{key}_regularization"], _ = _fit_kernel(
-                    p, Ytr[:, :-1], Ytr[:, 1:], c_tr, p.DT, lam, update=p.kernel_update, augment=_augmentation(p, "reduced" if key == "kernel" else "projected", gal))
-                row[f"{key}_centers"] = int(model.surrogate_.n_centers)
+                    p, Ytr[:, :-1], Ytr[:, 1:], c_tr, p.DT, lam, update=p.kernel_update,
+                    augment=_augmentation(split["preset"], "reduced" if key == "kernel" else "projected", gal),
+                    quadratic=split["quadratic"] if key == "kernel" else None)
+                row[f"{key}_centers"] = int(model.n_centers_)
                 try:
                     row[f"{key}_error"] = float(np.median(_err(gal, flow.rollout(y0, K, mu=c_te[:, None], dt=p.DT), xn_te)))
                     fns[key] = partial(flow.rollout, y0[:1], K, mu=c_te[:1, None], dt=p.DT)
