@@ -25,18 +25,17 @@ from scipy.linalg import expm
 
 from sympredict._checks import as_parameter
 from sympredict.base import Parametrized
+from sympredict.metrics import canonical_J
 
-__all__ = ["QuadraticPart", "poisson_matrix", "symplectic_inverse"]
-
-
-def poisson_matrix(dim: int) -> np.ndarray:
-    """``J = [[0, I], [-I, 0]]`` of shape (dim, dim), ``dim = 2n``."""
-    n = dim // 2
-    return np.block([[np.zeros((n, n)), np.eye(n)], [-np.eye(n), np.zeros((n, n))]])
+__all__ = ["QuadraticPart", "inverse_symplectic_matrices"]
 
 
-def symplectic_inverse(L: np.ndarray) -> np.ndarray:
-    """``L^-1 = -J L^T J`` of symplectic matrices ``L`` (..., 2n, 2n): exact, no solve (``O((2n)^2)`` each)."""
+def inverse_symplectic_matrices(L: np.ndarray) -> np.ndarray:
+    """``L^-1 = -J L^T J`` of square symplectic matrices ``L`` (..., 2n, 2n): exact, no solve (``O((2n)^2)`` each).
+
+    (The same formula as :func:`sympredict.reduction.symplectic_inverse` of a basis ``V`` (2N, 2n); this one
+    is for stacks of square maps.)
+    """
     n = L.shape[-1] // 2
     # -J L^T J in blocks: L = [[a, b], [c, d]] -> [[d^T, -b^T], [-c^T, a^T]]
     Lt = np.swapaxes(L, -1, -2)
@@ -214,5 +213,5 @@ class QuadraticPart(Parametrized):
         A = self.hessian(mu, n)
         if t.ndim == 1 and len(t) not in (1, len(A)):
             raise ValueError(f"t must be a scalar or have length {len(A)} (one per instance), got {len(t)}")
-        gen = (poisson_matrix(A.shape[1]) @ A) * np.broadcast_to(t.reshape(-1), (len(A),))[:, None, None]
+        gen = (canonical_J(A.shape[1]) @ A) * np.broadcast_to(t.reshape(-1), (len(A),))[:, None, None]
         return expm(gen)

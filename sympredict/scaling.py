@@ -30,7 +30,8 @@ import numpy as np
 from scipy.linalg import schur
 
 from sympredict._checks import as_positive_int
-from sympredict.linear_flow import QuadraticPart, poisson_matrix
+from sympredict.linear_flow import QuadraticPart
+from sympredict.metrics import canonical_J
 
 __all__ = ["BoxScaling", "SymplecticScaling", "NormalizedFlowMap", "williamson", "scaled_quadratic_part"]
 
@@ -235,7 +236,7 @@ def scaled_quadratic_part(quadratic: QuadraticPart, state_scaling: SymplecticSca
     """
     mats, pw = quadratic.checked(dim=state_scaling.matrix_.shape[0])
     M = state_scaling.matrix_
-    J = poisson_matrix(M.shape[0])
+    J = canonical_J(M.shape[0])
     left, right = float(tau) * J.T @ M @ J, np.linalg.inv(M)
     scaled = [left @ A @ right for A in mats]
     scaled = [0.5 * (A + A.T) for A in scaled]  # symmetric up to round-off

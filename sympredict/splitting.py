@@ -39,7 +39,7 @@ from sympredict.base import Parametrized, clone
 from sympredict.container import read_container, write_container
 from sympredict.data import FlowMapData
 from sympredict.exceptions import ModelFileError, NotFittedError
-from sympredict.linear_flow import QuadraticPart, symplectic_inverse
+from sympredict.linear_flow import QuadraticPart, inverse_symplectic_matrices
 from sympredict.predictor import MODEL_FORMAT, MODEL_LAYOUT, SymplecticKernelPredictor
 
 logger = getLogger("sympredict.splitting")
@@ -133,7 +133,7 @@ class SplitKernelPredictor(Parametrized):
     def _transformed(self, quad: QuadraticPart, data: FlowMapData):
         """``(L_h x0, L_{-h} x1)``: samples of ``S``."""
         L = self._propagators(quad, data.mu, data.dt)
-        return _apply(L, data.x0), _apply(symplectic_inverse(L), data.x1)
+        return _apply(L, data.x0), _apply(inverse_symplectic_matrices(L), data.x1)
 
     def fit(self, x0, x1, mu=None, dt=None, *, validation=None) -> "SplitKernelPredictor":
         """Fit the inner step on the transformed samples ``(L_h x0, L_{-h} x1)``.

@@ -19,12 +19,13 @@ from sympredict.container import read_container, write_container
 from sympredict.exceptions import ExtrapolationWarning, ModelFileError, NotFittedError
 from sympredict.io import load_model, save_model
 from sympredict.kernels import IMQ
-from sympredict.linear_flow import QuadraticPart, poisson_matrix, symplectic_inverse
+from sympredict.linear_flow import QuadraticPart, inverse_symplectic_matrices
+from sympredict.metrics import canonical_J
 from sympredict.newton import solve_midpoint_numpy
 from sympredict.predictor import MODEL_FORMAT
 from sympredict.splitting import SplitKernelPredictor
 
-J2 = poisson_matrix(2)
+J2 = canonical_J(2)
 KLEIN = [(1, 1), (-1, -1), (1, -1), (-1, 1)]
 
 
@@ -40,14 +41,14 @@ def test_propagators_against_expm_one_by_one(rng):
     mu = rng.uniform(0.5, 1.5, (7, 2))
     t = rng.uniform(-0.4, 0.4, 7)
     L = quad.propagator(mu, t)
-    J = poisson_matrix(4)
+    J = canonical_J(4)
     for b in range(7):
         A = mu[b, 0] * mats[0] + mu[b, 1] ** 2 * mats[1] + mu[b, 0] ** -1 * mu[b, 1] ** 0.5 * mats[2]
         np.testing.assert_allclose(quad.hessian(mu[b:b + 1])[0], A, rtol=1e-14, atol=1e-14)
         np.testing.assert_allclose(L[b], expm(t[b] * J @ A), rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(np.einsum("bji,jk,bkl->bil", L, J, L), np.broadcast_to(J, L.shape), atol=1e-12)
-    np.testing.assert_allclose(symplectic_inverse(L), np.linalg.inv(L), atol=1e-10)
-    np.testing.assert_allclose(quad.propagator(mu, -t), symplectic_inverse(L), atol=1e-10)
+    np.testing.assert_allclose(inverse_symplectic_matrices(L), np.linalg.inv(L), atol=1e-10)
+    np.testing.assert_allclose(quad.propagator(mu, -t), inverse_symplectic_matrices(L), atol=1e-10)
     # one parameter vector, one time for a batch of 3
     np.testing.assert_allclose(quad.propagator(mu[0], t[0], n=3), np.broadcast_to(L[0], (3, 4, 4)), atol=1e-14)
 
@@ -344,7 +345,7 @@ def test_validation_data_are_transformed_too(small_pendulum_data, pendulum):
     # the same residual from the inner model's surrogate on the pairs (L_h x0, L_{-h} x1) at their midpoints
     L = quad.propagator(d.mu[va], d.dt[va] / 2)
     y0 = np.einsum("bij,bj->bi", L, d.x0[va])
-    y1 = np.einsum("bij,bj->bi", symplectic_inverse(L), d.x1[va])
+    y1 = np.einsum("bij,bj->bi", inverse_symplectic_matrices(L), d.x1[va])
     target = (y1 - y0) @ J2 / d.dt[va][:, None]  # J^T (y1 - y0) / dT, row-wise
     grad = model.predictor_.surrogate_gradient(0.5 * (y0 + y1), mu=d.mu[va], dt=d.dt[va])
     np.testing.assert_allclose(np.abs(grad - target).max(), val[-1], rtol=1e-6)
