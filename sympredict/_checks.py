@@ -53,6 +53,20 @@ def as_states(x, name: str, dim: Optional[int] = None, allow_single: bool = True
     return np.ascontiguousarray(arr), single
 
 
+def as_model_parameter(mu, n: int, n_mu: int) -> np.ndarray:
+    """The parameter of a query to a fitted model with ``n_mu`` components (0: trained without one); ``(n, n_mu)``.
+
+    ``ValueError`` when ``mu`` is passed to a parameter-free model or missing for a parametric one.
+    """
+    if n_mu == 0:
+        if mu is not None:
+            raise ValueError("this model was trained without a parameter (mu_kernel=None): do not pass mu")
+        return np.zeros((n, 0))
+    if mu is None:
+        raise ValueError(f"mu is required: this model was trained with {n_mu} parameter component(s)")
+    return as_parameter(mu, n, n_mu)
+
+
 def as_parameter(mu, n: int, d_mu: Optional[int], name: str = "mu") -> np.ndarray:
     """Validate parameters for ``n`` instances; returns ``(n, d_mu)``.
 

@@ -33,7 +33,7 @@ from typing import Optional
 import numpy as np
 
 from sympredict import _fastkernels
-from sympredict._checks import as_parameter, as_positive_int, as_states, as_steps
+from sympredict._checks import as_model_parameter, as_parameter, as_positive_int, as_states, as_steps
 from sympredict.base import Parametrized
 from sympredict.container import read_container, write_container
 from sympredict.data import FlowMapData, mixed_variables
@@ -304,14 +304,7 @@ class _FlowMapKernelModel(Parametrized):
         self._check_fitted()
         x, single = as_states(x, name, dim=self.dim_)
         b = len(x)
-        if self.n_mu_ == 0:
-            if mu is not None:
-                raise ValueError("this model was trained without a parameter (mu_kernel=None): do not pass mu")
-            mu_arr = np.zeros((b, 0))
-        else:
-            if mu is None:
-                raise ValueError(f"mu is required: this model was trained with {self.n_mu_} parameter component(s)")
-            mu_arr = as_parameter(mu, b, self.n_mu_)
+        mu_arr = as_model_parameter(mu, b, self.n_mu_)
         if self.dt_fixed_ is not None:
             if dt is None:
                 dt = self.dt_fixed_

@@ -34,7 +34,7 @@ from __future__ import annotations
 import numpy as np
 from pymor.core.logger import getLogger
 
-from sympredict._checks import as_parameter, as_positive_int, as_states, as_steps
+from sympredict._checks import as_model_parameter, as_positive_int, as_states, as_steps
 from sympredict.base import Parametrized, clone
 from sympredict.container import read_container, write_container
 from sympredict.data import FlowMapData
@@ -146,36 +146,24 @@ class SplitKernelPredictor(Parametrized):
         -------
         self
         """
-        x0a, _ = as_states(x0, "x0", allow_single=False)
-        x1a, _ = as_states(x1, "x1", dim=x0a.shape[1], allow_single=False)
-        if len(x0a) != len(x1a):
-            raise ValueError(f"x0 and x1 must have the same number of samples, got {len(x0a)} and {len(x1a)}")
-        m = len(x0a)
-        mu_arr = np.zeros((m, 0)) if mu is None else as_parameter(mu, m, None)
-        data = FlowMapData(x0a, x1a, mu_arr, as_steps(dt, m))
-        quad = self._check_settings(x0a.shape[1], mu_arr.shape[1])
+        if not isinstance(self.predictor, SymplecticKernelPredictor):
+            raise ValueError(f"predictor must be a SymplecticKernelPredictor (the inner symplectic step S), "
+                             f"got {self.predictor!r}")
+        # the inner model's own checks of the data (shapes, mu against its mu_kernel, dt against its dt_kernel)
+        data, validation = self.predictor._fit_data(x0, x1, mu, dt, validation)
+        dim, n_mu = data.x0.shape[1], data.mu.shape[1]
+        quad = self._check_settings(dim, n_mu)
         y0, y1 = self._transformed(quad, data)
         val = None
         if validation is not None:
-            if not isinstance(validation, FlowMapData):
-                try:
-                    vx0, vx1, vmu, vdt = validation
-                except (TypeError, ValueError):
-                    raise ValueError("validation must be a FlowMapData or a tuple (x0, x1, mu, dt)") from None
-                vx0, _ = as_states(vx0, "validation x0", dim=x0a.shape[1], allow_single=False)
-                vx1, _ = as_states(vx1, "validation x1", dim=x0a.shape[1], allow_single=False)
-                vm = np.zeros((len(vx0), 0)) if vmu is None else as_parameter(vmu, len(vx0), mu_arr.shape[1] or None)
-                validation = FlowMapData(vx0, vx1, vm, as_steps(vdt, len(vx0)))
-            if validation.x0.shape[1] != x0a.shape[1] or validation.mu.shape[1] != mu_arr.shape[1]:
-                raise ValueError("validation data must have the same state and parameter dimensions as the training data")
             v0, v1 = self._transformed(quad, validation)
-            val = (v0, v1, validation.mu if validation.mu.shape[1] else None, validation.dt)
+            val = (v0, v1, validation.mu if n_mu else None, validation.dt)
         inner = clone(self.predictor)
-        inner.fit(y0, y1, mu=mu if mu is None else mu_arr, dt=data.dt, validation=val)
+        inner.fit(y0, y1, mu=data.mu if n_mu else None, dt=data.dt, validation=val)
         logger.info(f"split predictor: inner step fitted with {inner.n_centers_} centres ({inner.history_.stop_reason})")
         self.predictor_ = inner
         self.quadratic_ = quad
-        self.dim_ = x0a.shape[1]
+        self.dim_ = dim
         self.n_mu_ = inner.n_mu_
         return self
 
@@ -185,14 +173,7 @@ class SplitKernelPredictor(Parametrized):
         self._check_fitted()
         x, single = as_states(x, name, dim=self.dim_)
         b = len(x)
-        if self.n_mu_ == 0:
-            if mu is not None:
-                raise ValueError("this model was trained without a parameter (mu_kernel=None): do not pass mu")
-            mu_arr = np.zeros((b, 0))
-        else:
-            if mu is None:
-                raise ValueError(f"mu is required: this model was trained with {self.n_mu_} parameter component(s)")
-            mu_arr = as_parameter(mu, b, self.n_mu_)
+        mu_arr = as_model_parameter(mu, b, self.n_mu_)
         if dt is None:
             dt = self.predictor_.dt_fixed_  # a fixed-step inner model's default; None raises in as_steps
         dt_arr = as_steps(dt, b)

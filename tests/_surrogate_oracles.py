@@ -4,7 +4,8 @@
   Hessian and Newton terms against finite differences of the kernel's *value* only;
 * the compiled Newton solvers: pendulum queries, a model with another backend, and agreement of two rollouts
   to the surrogate's gradient floor;
-* model files whose kernel entry is malformed are refused.
+* model files whose kernel entry is malformed are refused;
+* a predicted step's Jacobian: symplectic and equal to central differences of the step.
 """
 
 import copy
@@ -77,6 +78,23 @@ def check_gramian_by_finite_differences(fun, kernel_value, pts, mu, rtol=1e-13, 
                         - kernel_value(x - eye[a], y + eye[b], mx, my) + kernel_value(x - eye[a], y - eye[b], mx, my)) / (4 * h * h)
     np.testing.assert_allclose(gram, fd, atol=1e-6 * np.abs(gram).max())
     return gram
+
+
+def check_step_jacobian(model, x, mu, dt, fd_atol, h=1e-4):
+    """``DPhi^T J DPhi = J`` (to 1e-12) of ``model.step_jacobian`` and central differences of ``model.step``
+    (step ``h``, to ``fd_atol``: the Newton tolerance sets the floor of the differences); returns ``(jac, fd)``."""
+    dim = x.shape[1]
+    n = dim // 2
+    J = np.block([[np.zeros((n, n)), np.eye(n)], [-np.eye(n), np.zeros((n, n))]])
+    jac = model.step_jacobian(x, mu=mu, dt=dt)
+    np.testing.assert_allclose(np.einsum("bji,jk,bkl->bil", jac, J, jac), np.broadcast_to(J, jac.shape), atol=1e-12)
+    fd = np.empty_like(jac)
+    for k in range(dim):
+        e = np.zeros(dim)
+        e[k] = h
+        fd[:, :, k] = (model.step(x + e, mu=mu, dt=dt) - model.step(x - e, mu=mu, dt=dt)) / (2 * h)
+    np.testing.assert_allclose(fd, jac, atol=fd_atol)
+    return jac, fd
 
 
 def pendulum_queries(rng, n):
