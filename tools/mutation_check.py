@@ -99,6 +99,14 @@ FAULTS = [
     Fault("N8", "Newton", P + "_fastkernels.py", "fl += abs(bg) * (ad0 if ad0 > ad1 else ad1) + abs(a_)",
           "fl += abs(bg) * (ad0 if ad0 < ad1 else ad1) + abs(a_)",
           ("tests/test_kernel_families.py",), "fused 2n = 2 pass: the floor takes min |d| instead of max"),
+    # ----------------------------------------------------------------- exact-linear-flow splitting
+    Fault("SP1", "splitting", P + "splitting.py", "_apply(inverse_symplectic_matrices(L), data.x1)", "_apply(L, data.x1)",
+          ("tests/test_splitting.py",), "training pairs: x1 transformed by L_h instead of L_-h"),
+    Fault("SP2", "splitting", P + "linear_flow.py", "gen = (canonical_J(A.shape[1]) @ A)", "gen = (A @ canonical_J(A.shape[1]))",
+          ("tests/test_splitting.py",), "propagator of A J instead of J A"),
+    Fault("SP3", "splitting", P + "scaling.py", "left, right = float(tau) * J.T @ M @ J, np.linalg.inv(M)",
+          "left, right = float(tau) * M, np.linalg.inv(M)",
+          ("tests/test_sine_gordon_split.py",), "quadratic part in scaled coordinates conjugated like a map, not a form"),
     # ----------------------------------------------------------------- reduction
     Fault("R1", "reduction", P + "reduction.py", "return _J_times(_J_times(V).T)", "return V.T",
           ("tests/test_oracles.py",), "symplectic inverse V+ = V^T (coincides only for orthosymplectic V)"),
