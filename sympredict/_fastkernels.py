@@ -479,7 +479,8 @@ def _build(cache: bool):  # noqa: C901 - the compiled definitions
 
     @_jit
     def _rollout_one(i, x0, W, h, cT, seg, factors, eps, max_iter, chunk, traj, codes, fail_step, fail_iter, resid, passes,
-                     warm_start, mid):
+                     warm_start, mid, pre, post, around):
+        """One instance's rollout; with ``around``: ``x_k+1 = post[i] S(pre[i] x_k)`` (S the implicit step)."""
         dim = x0.shape[1]
         n = dim // 2
         k_unknown = dim if mid else n
@@ -490,6 +491,8 @@ def _build(cache: bool):  # noqa: C901 - the compiled definitions
         u = np.empty(k_unknown)
         delta = np.empty(k_unknown)
         xi = np.empty(dim)
+        y_in = np.empty(dim)  # around: the step's input pre x_k and output S(pre x_k)
+        y_out = np.empty(dim)
         for a in range(dim):
             traj[i, 0, a] = x0[i, a]
         n_steps = traj.shape[1] - 1
@@ -509,8 +512,22 @@ def _build(cache: bool):  # noqa: C901 - the compiled definitions
                     else:  # x_k+1 ~ 2 x_k - x_k-1 (error O(dT^2))
                         nxt = 2.0 * x_k - x_1
                     u[a] = 0.5 * (x_k + nxt) if mid else nxt  # midpoint: z = (x_k + x_k+1) / 2
-            code, r, it = _solve_one(traj[i, k], W[i], h[i], cT, seg, factors, eps, max_iter, traj[i, k + 1], sc, grad, hess,
-                                     jac, delta, u, xi, warm, mid)
+            if around:
+                for a in range(dim):
+                    acc = 0.0
+                    for c in range(dim):
+                        acc += pre[i, a, c] * traj[i, k, c]
+                    y_in[a] = acc
+                code, r, it = _solve_one(y_in, W[i], h[i], cT, seg, factors, eps, max_iter, y_out, sc, grad, hess,
+                                         jac, delta, u, xi, warm, mid)
+                for a in range(dim):
+                    acc = 0.0
+                    for c in range(dim):
+                        acc += post[i, a, c] * y_out[c]
+                    traj[i, k + 1, a] = acc
+            else:
+                code, r, it = _solve_one(traj[i, k], W[i], h[i], cT, seg, factors, eps, max_iter, traj[i, k + 1], sc, grad,
+                                         hess, jac, delta, u, xi, warm, mid)
             passes[i] += it + (1 if warm else 2)  # (the explicit guess's gradient pass and) it + 1 Newton passes
             if code != 0:
                 codes[i] = code
@@ -524,17 +541,17 @@ def _build(cache: bool):  # noqa: C901 - the compiled definitions
 
     @_pjit
     def _rollout_parallel(x0, W, h, cT, seg, factors, eps, max_iter, chunk, traj, codes, fail_step, fail_iter, resid, passes,
-                          warm_start, mid):
+                          warm_start, mid, pre, post, around):
         for i in numba.prange(x0.shape[0]):
             _rollout_one(i, x0, W, h, cT, seg, factors, eps, max_iter, chunk, traj, codes, fail_step, fail_iter, resid, passes,
-                         warm_start, mid)
+                         warm_start, mid, pre, post, around)
 
     @_jit
     def _rollout_serial(x0, W, h, cT, seg, factors, eps, max_iter, chunk, traj, codes, fail_step, fail_iter, resid, passes,
-                        warm_start, mid):
+                        warm_start, mid, pre, post, around):
         for i in range(x0.shape[0]):
             _rollout_one(i, x0, W, h, cT, seg, factors, eps, max_iter, chunk, traj, codes, fail_step, fail_iter, resid, passes,
-                         warm_start, mid)
+                         warm_start, mid, pre, post, around)
 
 
     @_pjit
@@ -767,7 +784,7 @@ UPDATES = ("symplectic_euler", "midpoint")
 
 def newton_rollout(x0, weights, dt, layout: CenterLayout, kernel, max_iter: int, n_steps: int,
                    *, weights_ordered: bool = False, parallel=None, stats: Optional[dict] = None,
-                   warm_start: bool = False, update: str = "symplectic_euler"):
+                   warm_start: bool = False, update: str = "symplectic_euler", around=None):
     """``n_steps`` implicit steps (symplectic Euler or midpoint) for every instance, in compiled code.
 
     Parameters
@@ -811,6 +828,12 @@ def newton_rollout(x0, weights, dt, layout: CenterLayout, kernel, max_iter: int,
         stopping rule (:func:`sympredict.newton_rule.converged`) for both; they equal
         :func:`sympredict.newton.solve_step_numpy` and
         :func:`sympredict.newton.solve_midpoint_numpy` to round-off.
+    around
+        ``None``, or ``(pre, post)``, two arrays (B, 2n, 2n): each macro step is then
+        ``x_k+1 = post S(pre x_k)`` with ``S`` the implicit step (the exact-linear-flow
+        splitting, :class:`sympredict.splitting.SplitKernelPredictor`); ``traj`` holds the
+        ``x_k``.  Not combined with ``warm_start`` (its extrapolation would mix the
+        coordinates of ``x_k`` and of the step's input).  ``+ O(K B (2n)^2)`` flops.
 
     Returns
     -------
@@ -845,11 +868,20 @@ def newton_rollout(x0, weights, dt, layout: CenterLayout, kernel, max_iter: int,
     resid = np.zeros(b)
     if parallel is None:
         parallel = b >= PARALLEL_MIN_BATCH
+    if around is None:
+        pre = post = np.empty((0, dim, dim))
+    else:
+        if warm_start:
+            raise ValueError("newton_rollout: warm_start cannot be combined with around (pre, post maps)")
+        pre, post = (np.ascontiguousarray(a, dtype=np.float64) for a in around)
+        if pre.shape != (b, dim, dim) or post.shape != (b, dim, dim):
+            raise ValueError(f"around: pre and post must have shape {(b, dim, dim)}, got {pre.shape} and {post.shape}")
     ns = _kernels(type(kernel))
     fn = ns._rollout_parallel if parallel else ns._rollout_serial
     passes = np.zeros(b, dtype=np.int64)
     fn(x0, weights, dt, layout.cT, layout.seg, compiled_formulas(type(kernel))[2], float(kernel.eps), int(max_iter),
-       chunk_size(dim), traj, codes, fail_step, fail_iter, resid, passes, bool(warm_start), update == "midpoint")
+       chunk_size(dim), traj, codes, fail_step, fail_iter, resid, passes, bool(warm_start), update == "midpoint",
+       pre, post, around is not None)
     if stats is not None:
         stats["passes"] = passes
     return traj, codes, fail_step, fail_iter, resid

@@ -202,20 +202,21 @@ def rollout_numpy(advance, x: np.ndarray, n_steps: int) -> np.ndarray:
 
 
 def rollout_compiled(sur: HBSurrogate, x, weights, dt, n_steps: int, max_iter: int, step_index: bool = True,
-                     warm_start: bool = False, update: str = "symplectic_euler"):
+                     warm_start: bool = False, update: str = "symplectic_euler", around=None):
     """``n_steps`` steps in compiled code (:func:`sympredict._fastkernels.newton_rollout`); failures raise as the NumPy path's.
 
     ``warm_start``: Newton starts from the previous step's increment (from the second step on).
     ``update``: ``'symplectic_euler'`` (as :func:`solve_step_numpy`) or ``'midpoint'``
     (as :func:`solve_midpoint_numpy`).
+    ``around``: ``None`` or ``(pre, post)`` (B, 2n, 2n): steps ``x_k+1 = post S(pre x_k)``.
 
     Returns
     -------
     ndarray of shape (B, K+1, 2n)
     """
     traj, codes, fail_step, fail_iter, resid = _fastkernels.newton_rollout(
-        x, weights, dt, sur.layout(), sur.kernel.state, max_iter, n_steps, warm_start=warm_start, update=update
-    )
+        x, weights, dt, sur.layout(), sur.kernel.state, max_iter, n_steps, warm_start=warm_start, update=update,
+        around=around)
     reasons = MIDPOINT_FAILURE_REASONS if update == "midpoint" else FAILURE_REASONS
     failed = codes != 0
     if np.any(failed):

@@ -860,8 +860,19 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
                                  "q -> -q maps (q0, p1) to (q1, p0)); use update='midpoint'")
         return group.conjugated(self._scale_vector(dim)) if self.state_scaling is not None else group
 
-    def _rollout(self, x, weights, dt, n_steps: int) -> np.ndarray:
+    def _rollout(self, x, weights, dt, n_steps: int, around=None) -> np.ndarray:
+        """Trajectories (B, K+1, 2n) of a validated batch; ``around = (pre, post)`` (B, 2n, 2n): steps
+        ``x_k+1 = post Phi(pre x_k)`` in the original coordinates (the splitting predictor's composition)."""
         scale = self._scale_vector(self.dim_)
+        if around is not None:  # Phi = D^-1 Phi_scaled D: pre becomes D pre, post becomes post D^-1
+            pre, post = around
+            pre, post = pre * scale[None, :, None], post / scale[None, None, :]
+            if self._compiled():  # no warm start here: its extrapolation would mix x_k and pre x_k
+                return rollout_compiled(self.surrogate_, x, weights, dt, n_steps,
+                                        as_positive_int(self.newton_max_iter, "newton_max_iter"),
+                                        update=self.update, around=(pre, post))
+            return rollout_numpy(lambda state: np.einsum("bij,bj->bi", post, self._solve_scaled(
+                np.einsum("bij,bj->bi", pre, state), weights, dt)), x, n_steps)
         xs = x * scale
         if self._compiled():
             traj = rollout_compiled(self.surrogate_, xs, weights, dt, n_steps,

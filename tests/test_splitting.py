@@ -205,6 +205,29 @@ def test_rollout_agrees_with_steps_and_between_backends(split_pendulum, small_pe
     assert single.shape == (6, 2)
 
 
+@pytest.mark.parametrize("update", ["symplectic_euler", "midpoint"])
+def test_compiled_split_rollout_equals_the_numpy_one_and_repeated_steps(small_pendulum_data, pendulum, update):
+    """The compiled rollout takes L_h before and after every step (one call for all steps); with a state scaling,
+    both updates, a batch large enough for the parallel kernel: equal to the NumPy loop and to repeated step()."""
+    d = small_pendulum_data
+    idx = np.random.default_rng(1).choice(len(d), 600, replace=False)
+    inner = SymplecticKernelPredictor(IMQ(0.4), IMQ(0.75), IMQ(1.06), max_centers=120, update=update,
+                                      state_scaling=(1.3,), backend="numba")
+    model = SplitKernelPredictor(inner, pendulum.quadratic_part()).fit(d.x0[idx], d.x1[idx], mu=d.mu[idx], dt=d.dt[idx])
+    rng = np.random.default_rng(2)
+    x = np.column_stack([rng.uniform(0.05, 1.2, 10), rng.uniform(-0.3, 0.3, 10)])
+    mu, dt = rng.uniform(0.72, 0.78, 10), rng.uniform(0.046, 0.054, 10)
+    traj = model.rollout(x, 25, mu=mu, dt=dt)
+    state = x
+    for k in range(25):
+        state = model.step(state, mu=mu, dt=dt)
+        np.testing.assert_allclose(traj[:, k + 1], state, rtol=0, atol=1e-13)
+    numpy_model = copy.copy(model)
+    numpy_model.predictor_ = copy.copy(model.predictor_).set_params(backend="numpy")
+    np.testing.assert_allclose(numpy_model.rollout(x, 25, mu=mu, dt=dt), traj, rtol=0, atol=1e-11)
+    assert np.abs(traj[:, -1] - x).max() > 0.1  # real steps (120 centres: a coarse model, not an accuracy test)
+
+
 def test_settings_and_inputs_are_checked(split_pendulum, pendulum, small_pendulum_data):
     model, d = split_pendulum
     x0, x1, mu, dt = d.x0[:40], d.x1[:40], d.mu[:40], d.dt[:40]

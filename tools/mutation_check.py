@@ -107,6 +107,11 @@ FAULTS = [
     Fault("SP3", "splitting", P + "scaling.py", "left, right = float(tau) * J.T @ M @ J, np.linalg.inv(M)",
           "left, right = float(tau) * M, np.linalg.inv(M)",
           ("tests/test_sine_gordon_split.py",), "quadratic part in scaled coordinates conjugated like a map, not a form"),
+    Fault("SP4", "splitting", P + "_fastkernels.py", "acc += post[i, a, c] * y_out[c]", "acc += pre[i, a, c] * y_out[c]",
+          ("tests/test_splitting.py",), "compiled split rollout: the map before the step applied after it too"),
+    Fault("SP5", "splitting", P + "predictor.py", "pre, post = pre * scale[None, :, None], post / scale[None, None, :]",
+          "pre, post = pre / scale[None, :, None], post * scale[None, None, :]",
+          ("tests/test_splitting.py",), "split rollout: state scaling conjugated the wrong way"),
     # ----------------------------------------------------------------- reduction
     Fault("R1", "reduction", P + "reduction.py", "return _J_times(_J_times(V).T)", "return V.T",
           ("tests/test_oracles.py",), "symplectic inverse V+ = V^T (coincides only for orthosymplectic V)"),
