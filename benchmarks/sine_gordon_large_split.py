@@ -1,0 +1,140 @@
+"""Sine-Gordon large-step regime (issue 15) with the exact linear flow split off the FOM-data kernel, measured.
+
+The target: at ``DT_large`` with ``DT_large * omega_max >= 1`` the kernel ROM is >= 10x more accurate against the
+FOM than the best classical scheme (implicit midpoint, RK4; one step per ``DT_large``) on the Galerkin ROM, at every
+test parameter.  Without a split (the experiment's ``_large_step``) the midpoint generating function stops existing
+past ``DT_large = 1``; here the FOM-data (projected) kernel is
+
+    Phi = L_h o S o L_h,    L_h(c) = expm(h J A_r(c)),    h = DT_large / 2,
+
+``A_r(c)`` the reduced Hessian at 0 (``quadratic-mass``) or the reduced quadratic part of ``H`` (``quadratic``),
+``S`` learned from the transformed pairs ``(L_h y(t), L_{-h} y(t + DT_large))`` of the projected FOM training
+trajectories.  **Not non-intrusive**: ``A_r(c) = V^T A(c) V`` needs the FOM's operators (the projected data alone
+do not give it).
+
+``DT_large`` is chosen on the training trajectories only
+(:func:`~sympredict.experiments.sine_gordon.choose_large_step` with ``quadratic``: existence of the update's
+generating function checked on ``S``'s pairs, margin of the best classical scheme over the projection floor);
+the test parameters (the preset's, seed 0) are used for the printed errors only.  For every candidate the numbers
+are printed, the chosen one is marked.
+
+Data, basis, Galerkin ROM, ridge selection (held-out training trajectories) and the scaled fit are the
+experiment's own (``fom_data``, ``choose_large_step``, ``_fit_kernel``, ``_err``).
+
+Run (one core):  OMP_NUM_THREADS=1 NUMBA_NUM_THREADS=1 python benchmarks/sine_gordon_large_split.py --dims 8 \\
+    [--steps 10 15 20 30] [--updates midpoint symplectic_euler] [--splits quadratic-mass quadratic none] [--json f]
+"""
+
+import argparse
+import json
+import os
+import time
+import warnings
+from dataclasses import replace
+
+import numpy as np
+from threadpoolctl import threadpool_limits
+
+from sympredict.experiments.sine_gordon import PRESETS, _err, _fit_kernel, _jg, choose_large_step, fom_data
+from sympredict.nonlinear_mor import ReducedSineGordon
+from sympredict.reduction import complex_svd_basis
+
+
+def _r(v, d=4):
+    return [float(f"{x:.{d}g}") for x in np.atleast_1d(v)]
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--preset", default="quick")
+    parser.add_argument("--dims", type=int, nargs="*", default=[8])
+    parser.add_argument("--steps", type=int, nargs="*", default=[10, 15, 20, 30], help="DT_large / DT candidates")
+    parser.add_argument("--updates", nargs="*", default=["midpoint", "symplectic_euler"])
+    parser.add_argument("--splits", nargs="*", default=["quadratic-mass"])
+    parser.add_argument("--margin", type=float, default=None, help="the preset's large_step_margin")
+    parser.add_argument("--cache", default=None, help="npz file for the FOM trajectories (default: per preset and sizes)")
+    parser.add_argument("--json", default=None, help="write the numbers here")
+    args = parser.parse_args()
+    warnings.simplefilter("ignore")
+    p = replace(PRESETS[args.preset], large_step=min(args.steps), large_step_candidates=tuple(args.steps),
+                **({} if args.margin is None else {"large_step_margin": args.margin}))
+    results = {"preset": args.preset, "steps": args.steps, "margin": p.large_step_margin, "rows": [], "choices": []}
+    cache = args.cache or f"/tmp/sine_gordon_split_{args.preset}_{p.n_c}x{p.n_amplitude}.npz"
+    with threadpool_limits(1):
+        t0 = time.perf_counter()
+        if os.path.exists(cache):
+            z = np.load(cache)
+            d = fom_data(replace(p, n_c=1, n_amplitude=1, n_test=1, T=p.DT, long_factor=2))  # the FOM only (cheap)
+            d = {**d, **{k: z[k] for k in ("X_tr", "X_te", "c_tr", "c_te")}}
+        else:
+            d = fom_data(p)
+            np.savez(cache, **{k: d[k] for k in ("X_tr", "X_te", "c_tr", "c_te")})
+        fom, K, c_tr, c_te, X_tr, X_te = d["fom"], int(round(p.T / p.DT)), d["c_tr"], d["c_te"], d["X_tr"], d["X_te"]
+        print(f"FOM data: {len(c_tr)} training, {len(c_te)} test trajectories ({time.perf_counter() - t0:.0f} s); "
+              f"test c = {_r(c_te)}", flush=True)
+        for dim in args.dims:
+            gal = ReducedSineGordon.galerkin(fom, complex_svd_basis(X_tr.reshape(-1, fom.dim), n=dim // 2, layout="rows").V)
+            quads = {sp: None if sp == "none" else gal.quadratic_part(mass=sp == "quadratic-mass") for sp in args.splits}
+            w = np.abs(np.linalg.eigvals(_jg(gal, gal.project(X_te[:1, 0])[0], float(p.c_range[1])))).max()
+            print(f"\n2n = {dim}: omega_max (linearised at the first test state, c = {p.c_range[1]}) {w:.3f}", flush=True)
+            # the training-only rule, per split and update
+            chosen = {}
+            for sp, quad in quads.items():
+                for update in args.updates:
+                    ch = choose_large_step(p, gal, X_tr, c_tr, K, quadratic=quad, update=update)
+                    chosen[sp, update] = ch["large_step"]
+                    results["choices"].append({"dim": dim, "split": sp, "update": update, **ch})
+                    print(f"  rule ({sp}, {update}): chooses DT = {ch['large_step'] * p.DT:g}; table "
+                          + "; ".join(f"DT {r['DT']:g}: sigma_min {r['sigma_min']:.3f}, classical/floor {r['ratio']:.2f}"
+                                      for r in ch["table"]), flush=True)
+            Yp = gal.project(X_tr)
+            for s in args.steps:
+                dt, Kl = s * p.DT, K // s
+                x_te = X_te[:, : Kl * s + 1: s]
+                y0 = gal.project(x_te[:, 0])
+                floor = _err(gal, gal.project(x_te), x_te)
+                cls = {}
+                for scheme in ("implicit_midpoint", "rk4"):
+                    try:
+                        with np.errstate(all="ignore"):
+                            e = _err(gal, gal.solve(y0, c_te, dt, Kl, scheme=scheme), x_te)
+                        cls[scheme] = np.where(np.isfinite(e), e, np.inf)
+                    except Exception as exc:  # a Newton failure is a result
+                        cls[scheme] = np.full(len(c_te), np.inf)
+                        print(f"    {scheme} fails: {type(exc).__name__}", flush=True)
+                best = np.minimum(cls["implicit_midpoint"], cls["rk4"])
+                print(f"  DT_large = {dt:g} (DT omega_max {dt * w:.2f}, {Kl} steps): floor {_r(floor)}; implicit midpoint "
+                      f"{_r(cls['implicit_midpoint'])}; RK4 {_r(cls['rk4'])}; best classical / floor {_r(best / floor, 3)}",
+                      flush=True)
+                for sp, quad in quads.items():
+                    for update in args.updates:
+                        row = {"dim": dim, "DT": dt, "split": sp, "update": update, "chosen": chosen[sp, update] == s,
+                               "floor": floor.tolist(), "implicit_midpoint": cls["implicit_midpoint"].tolist(),
+                               "rk4": cls["rk4"].tolist(), "DT_omega_max": float(dt * w)}
+                        t1 = time.perf_counter()
+                        try:
+                            flow, model, fit_time, reg, table = _fit_kernel(p, Yp[:, :-s], Yp[:, s:], c_tr, dt, update=update,
+                                                                            stride=s, quadratic=quad)
+                            row.update(regularization=reg, centers=int(model.n_centers_), fit_time=fit_time,
+                                       train_residual=float(model.history_.train_max_residual[-1]))
+                            with np.errstate(all="ignore"):
+                                e = _err(gal, flow.rollout(y0, Kl, mu=c_te[:, None], dt=dt), x_te)
+                            if not np.all(np.isfinite(e)):
+                                raise FloatingPointError("non-finite rollout")
+                            row.update(error=e.tolist(), over_floor=(e / floor).tolist(), ratio=(best / e).tolist())
+                            msg = (f"error {_r(e)} ({_r(e / floor, 3)} x floor); best classical / kernel {_r(best / e, 3)} "
+                                   f"(min {np.min(best / e):.2f})")
+                        except Exception as exc:  # a failed fit or rollout is a result
+                            row["failure"] = f"{type(exc).__name__}: {exc}"[:300]
+                            msg = f"fails: {row['failure'][:160]}"
+                        mark = " [chosen]" if row["chosen"] else ""
+                        print(f"    kernel split={sp:14s} {update:16s}{mark}: lambda={row.get('regularization')}, centres "
+                              f"{row.get('centers')}, {time.perf_counter() - t1:.0f} s: {msg}", flush=True)
+                        results["rows"].append(row)
+    if args.json:
+        with open(args.json, "w") as fh:
+            json.dump(results, fh, indent=1, default=float)
+
+
+if __name__ == "__main__":
+    main()
