@@ -51,8 +51,8 @@ def _r(v, d=4):
 def held_out_ratio(p, gal, X_tr, c_tr, K, s, quadratic, update):
     """Second training-only rule (``--rule validation``): ``min`` over the held-out training trajectories
     (``1, 1 + validation_every, ...``, as ``_fit_kernel``'s ridge selection) of best classical / kernel against the
-    FOM at ``DT_large = s DT``, the kernel fitted on the other training trajectories.  ``inf``-safe: a failed
-    rollout gives ratio 0."""
+    FOM at ``DT_large = s DT``, the kernel fitted on the other training trajectories (the basis ``gal`` is the one
+    of all training trajectories, held-out ones included).  A failed fit or rollout gives ratio 0."""
     held = np.zeros(len(c_tr), dtype=bool)
     held[1::p.validation_every] = True
     dt, Kl = s * p.DT, K // s
