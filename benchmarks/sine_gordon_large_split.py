@@ -39,6 +39,7 @@ from dataclasses import replace
 import numpy as np
 from threadpoolctl import threadpool_limits
 
+from sympredict.metrics import canonical_J
 from sympredict.experiments.sine_gordon import PRESETS, _err, _fit_kernel, _jg, choose_large_step, fom_data
 from sympredict.nonlinear_mor import ReducedSineGordon
 from sympredict.reduction import complex_svd_basis
@@ -76,6 +77,26 @@ def held_out_ratio(p, gal, X_tr, c_tr, K, s, quadratic, update):
         return 0.0
 
 
+def mode_table(gal, Y, c_tr, c, s, dt, quadratic):
+    """Why the existence check fails or passes, per eigenmode of ``J A_r(c)`` (training trajectories at ``c``):
+    its turn ``omega dt``, the angles and moduli of the eigenvalues of the least-squares linear map ``M`` of the
+    raw pairs and of ``S``'s pairs, and the mean modulus of the data's coefficient per mode (slowest first,
+    relative to the largest).  A linear map fitted to a symplectic flow has ``|eig| = 1``; ``|eig|`` far from 1
+    marks directions the least-squares fit does not determine."""
+    sel = c_tr == c
+    y0, y1 = Y[sel, :-s].reshape(-1, gal.dim), Y[sel, s:].reshape(-1, gal.dim)
+    a0, a1 = y0 @ quadratic.propagator([c], dt / 2)[0].T, y1 @ quadratic.propagator([c], -dt / 2)[0].T
+    lam, W = np.linalg.eig(canonical_J(gal.dim) @ quadratic.hessian([c], 1)[0])
+    order = np.argsort(np.abs(lam.imag))
+    coef = np.abs(np.linalg.solve(W, y0.T)).mean(axis=1)[order][::2]
+    out = {"omega_dt": np.abs(lam.imag)[order][::2] * dt, "data_weight": coef / coef.max()}
+    for name, (u, v) in (("raw", (y0, y1)), ("S", (a0, a1))):
+        ev = np.linalg.eigvals(np.linalg.lstsq(u, v, rcond=None)[0].T)
+        out[f"{name}_angles"] = np.sort(np.abs(np.angle(ev)))[::2]
+        out[f"{name}_moduli"] = np.sort(np.abs(ev))
+    return out
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--preset", default="quick")
@@ -87,6 +108,7 @@ def main():
     parser.add_argument("--rule", nargs="*", default=["existence"], choices=["existence", "validation"],
                         help="existence: choose_large_step (sigma_min of S's pairs, classical/floor margin); validation: "
                              "smallest DT with held-out training ratio >= margin (held_out_ratio)")
+    parser.add_argument("--modes", action="store_true", help="print mode_table per split and step (c = c_max)")
     parser.add_argument("--horizon", type=int, default=1, help="test horizon in units of T (<= long_factor; training: T)")
     parser.add_argument("--cache", default=None, help="npz file for the FOM trajectories (default: per preset and sizes)")
     parser.add_argument("--json", default=None, help="write the numbers here")
@@ -133,6 +155,13 @@ def main():
                               + ", ".join(f"DT {st * p.DT:g}: {v:.2f}" for st, v in val.items())
                               + f" -> DT = {chosen_val[sp, update] * p.DT:g}", flush=True)
             Yp = gal.project(X_tr)
+            if args.modes:
+                for sp, quad in quads.items():
+                    for s in args.steps if quad is not None else []:
+                        mt = mode_table(gal, Yp, c_tr, float(p.c_range[1]), s, s * p.DT, quad)
+                        print(f"  modes ({sp}, DT {s * p.DT:g}, c = {p.c_range[1]}): omega DT {_r(mt['omega_dt'], 3)}; data weight "
+                              f"{_r(mt['data_weight'], 2)}; angles raw M {_r(mt['raw_angles'], 2)}, S's M {_r(mt['S_angles'], 2)}; "
+                              f"|eig| S's M {_r(mt['S_moduli'], 2)}", flush=True)
             for s in args.steps:
                 dt, Kl = s * p.DT, (args.horizon * K) // s
                 x_te = X_te[:, : Kl * s + 1: s]
