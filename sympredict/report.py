@@ -553,7 +553,9 @@ def sine_gordon_claims(s: dict) -> list[dict]:
             ratios = [b / e for b, e in zip(best, k)]
             oks.append(r["DT_omega_max"] >= 1 and min(ratios) >= 10)
             ev.append(f"2n={d}, DT={r['DT']:g} (DT omega_max = {r['DT_omega_max']:.1f}): best classical "
-                      + ", ".join(f"{b:.3f}" for b in best) + "; kernel (FOM data, midpoint update) "
+                      + ", ".join(f"{b:.3f}" for b in best) + "; kernel (FOM data, midpoint update"
+                      + ("" if r.get("split", "none") == "none" else
+                         f", split {r['split']}: L_h o S o L_h, needs the reduced operator A_r, not non-intrusive") + ") "
                       + ", ".join(f"{e:.3f}" for e in k) + f"; smallest ratio {min(ratios):.1f}")
         out.append({"claim": "sine-Gordon large-step regime (DT omega_max >= 1): kernel ROM >= 10x more accurate against the "
                              "FOM than the best classical scheme (implicit midpoint, RK4) on the Galerkin ROM at the same DT, at "

@@ -49,7 +49,7 @@ from dataclasses import asdict, dataclass, field, replace
 import numpy as np
 from pymor.core.logger import getLogger
 
-from sympredict.flowmaps import midpoint_sigma_min
+from sympredict.flowmaps import midpoint_sigma_min, type2_sigma_min
 from sympredict.kernels import IMQ
 from sympredict.metrics import canonical_J, relative_trajectory_error
 from sympredict.nonlinear_mor import ReducedSineGordon, nonlinear_snapshots
@@ -116,6 +116,9 @@ class SineGordonPreset:
     #: kernel's distance above the floor) and the smallest admissible sigma_min((I + M) / 2)
     large_step_margin: float = 12.0
     large_step_sigma_min: float = 0.1
+    #: the large-step FOM-data kernel as L_h o S o L_h (as kernel_split: "none", "quadratic", "quadratic-mass"); a
+    #: split needs the reduced operator A_r(c) = V^T A(c) V, so the kernel is then no longer non-intrusive
+    large_step_split: str = "none"
     ref_tol: float = 1e-7
     cost_N: tuple = (1000, 4000, 16000)
     repeats: int = 5
@@ -587,7 +590,7 @@ def _fit_scaled(p, x0, x1, mu, dt, regularization, update, quadratic=None):
     return NormalizedFlowMap(model, st, ms, dt), model
 
 
-def choose_large_step(p, gal, X_tr, c_tr, K) -> dict:
+def choose_large_step(p, gal, X_tr, c_tr, K, quadratic=None, update="midpoint") -> dict:
     """The large step ``s`` (``DT_large = s DT``) among ``p.large_step`` and ``p.large_step_candidates``, by a rule
     on the **training** trajectories ``X_tr`` (P, K+1, 2N) only (never the test parameters):
 
@@ -602,6 +605,10 @@ def choose_large_step(p, gal, X_tr, c_tr, K) -> dict:
     * the smallest admissible ``s`` with ``r >= p.large_step_margin``; if none reaches it, the admissible ``s``
       with the largest ``r``; if none is admissible, ``p.large_step``.
 
+    With ``quadratic`` (a :class:`~sympredict.linear_flow.QuadraticPart` ``A(c)``: the kernel is split as
+    ``L_h o S o L_h``, ``h = DT_large / 2``) existence is checked on ``S``'s pairs ``(L_h y0, L_{-h} y1)``, the map
+    that is learned; ``update='symplectic_euler'`` checks ``sigma_min(dp1/dp0)`` (a quarter turn) instead.
+
     Returns ``{"large_step": s, "table": [{"large_step", "DT", "sigma_min", "admissible", "ratio"}, ...]}``.
     Cost: per candidate one implicit-midpoint and one RK4 solve of the ``P`` training trajectories and ``P``
     least-squares fits of size ``2n``.
@@ -615,8 +622,11 @@ def choose_large_step(p, gal, X_tr, c_tr, K) -> dict:
         for c in np.unique(c_tr):
             sel = c_tr == c
             y0, y1 = Y[sel, :-s].reshape(-1, gal.dim), Y[sel, s:].reshape(-1, gal.dim)
+            if quadratic is not None:  # S's pairs: row vectors times L^T
+                y0 = y0 @ quadratic.propagator([c], 0.5 * dt)[0].T
+                y1 = y1 @ quadratic.propagator([c], -0.5 * dt)[0].T
             M = np.linalg.lstsq(y0, y1, rcond=None)[0].T
-            sig = min(sig, float(midpoint_sigma_min(M[None])[0]))
+            sig = min(sig, float((midpoint_sigma_min if update == "midpoint" else type2_sigma_min)(M[None])[0]))
         floor = _err(gal, gal.project(x), x)
         errs = []
         for scheme in ("implicit_midpoint", "rk4"):
@@ -647,14 +657,21 @@ def _large_step(p, gal, X_tr, c_tr, X_te, c_te, K):
     every pair ``(x(t), x(t + DT_large))`` of the training trajectories' output grid.  Errors against the FOM
     on the ``DT_large`` grid, per test parameter; the snapshot projection error there is the floor of any
     ROM in this basis.  ``DT_large`` is chosen by :func:`choose_large_step` on the training trajectories.
+
+    ``p.large_step_split`` (``'quadratic'`` / ``'quadratic-mass'``, as :func:`split_setup`): the kernel is
+    ``L_h o S o L_h`` with ``L_h`` the exact flow of the reduced quadratic part over ``DT_large / 2`` (existence then
+    checked on ``S``'s pairs); ``A_r(c)`` is the reduced operator, so the kernel is then **not** non-intrusive.
     """
-    choice = choose_large_step(p, gal, X_tr, c_tr, K)
+    if p.large_step_split not in ("none", "quadratic", "quadratic-mass"):
+        raise ValueError(f"large_step_split must be 'none', 'quadratic' or 'quadratic-mass', got {p.large_step_split!r}")
+    quad = None if p.large_step_split == "none" else gal.quadratic_part(mass=p.large_step_split == "quadratic-mass")
+    choice = choose_large_step(p, gal, X_tr, c_tr, K, quadratic=quad)
     s = choice["large_step"]
     dt = s * p.DT
     Kl = K // s
     x_te = X_te[:, : Kl * s + 1: s]
     y0 = gal.project(x_te[:, 0])
-    out = {"DT": dt, "steps": Kl, "choice": choice, "projection_error": _err(gal, gal.project(x_te), x_te).tolist(),
+    out = {"DT": dt, "steps": Kl, "choice": choice, "split": p.large_step_split, "projection_error": _err(gal, gal.project(x_te), x_te).tolist(),
            "DT_omega_max": float(dt * np.abs(np.linalg.eigvals(_jg(gal, y0[0], float(p.c_range[1])))).max())}
     out["galerkin_error"] = _err(gal, gal.solve(y0, c_te, dt, Kl, substeps=s * p.substeps), x_te).tolist()
     for scheme in ("implicit_midpoint", "rk4"):
@@ -664,7 +681,8 @@ def _large_step(p, gal, X_tr, c_tr, X_te, c_te, K):
             out[f"{scheme}_at_DT_error"] = f"failed: {type(exc).__name__}"
     out["implicit_midpoint_time_per_trajectory"] = _median_time(lambda: gal.solve(y0[:1], c_te[:1], dt, Kl), p.repeats)
     Yp = gal.project(X_tr)
-    flow, model, fit_time, reg, table = _fit_kernel(p, Yp[:, :-s], Yp[:, s:], c_tr, dt, update="midpoint", stride=s)
+    flow, model, fit_time, reg, table = _fit_kernel(p, Yp[:, :-s], Yp[:, s:], c_tr, dt, update="midpoint", stride=s,
+                                                    quadratic=quad)
     entry = {"fit_time": fit_time, "regularization": reg, "regularization_table": table, "centers": int(model.n_centers_),
              "train_residual": [float(v) for v in model.history_.train_max_residual], "error": None,
              "time_per_trajectory": None, "failure": None}
