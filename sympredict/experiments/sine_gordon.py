@@ -117,7 +117,9 @@ class SineGordonPreset:
     large_step_margin: float = 12.0
     large_step_sigma_min: float = 0.1
     #: the large-step FOM-data kernel as L_h o S o L_h (as kernel_split: "none", "quadratic", "quadratic-mass"); a
-    #: split needs the reduced operator A_r(c) = V^T A(c) V, so the kernel is then no longer non-intrusive
+    #: split needs the reduced operator A_r(c) = V^T A(c) V, so the kernel is then no longer non-intrusive;
+    #: "auto": the unsplit kernel where the training-only rule finds a step with the margin, else the split one
+    #: (_choose_large_step_split)
     large_step_split: str = "none"
     ref_tol: float = 1e-7
     cost_N: tuple = (1000, 4000, 16000)
@@ -647,6 +649,25 @@ def choose_large_step(p, gal, X_tr, c_tr, K, quadratic=None, update="midpoint") 
     return {"large_step": pick["large_step"], "table": table}
 
 
+def _choose_large_step_split(p, gal, X_tr, c_tr, K):
+    """``large_step_split='auto'``: the unsplit (non-intrusive) kernel where the training-only rule of
+    :func:`choose_large_step` finds an admissible step with the wanted margin, else the split one
+    (``'quadratic-mass'``) where it does, else the unsplit rule's choice.  Training trajectories only.
+
+    Returns ``(split, choice)``: ``choice`` as :func:`choose_large_step`'s for the chosen kernel, plus ``tables``
+    (the table of every rule evaluated, by split).
+    """
+    tables = {}
+    for split in ("none", "quadratic-mass"):
+        quad = None if split == "none" else gal.quadratic_part(mass=True)
+        choice = choose_large_step(p, gal, X_tr, c_tr, K, quadratic=quad)
+        tables[split] = choice
+        row = next(r for r in choice["table"] if r["large_step"] == choice["large_step"])
+        if row["admissible"] and row["ratio"] >= p.large_step_margin:
+            return split, {**choice, "tables": {k: v["table"] for k, v in tables.items()}}
+    return "none", {**tables["none"], "tables": {k: v["table"] for k, v in tables.items()}}
+
+
 def _large_step(p, gal, X_tr, c_tr, X_te, c_te, K):
     """The large-step regime at ``DT_large = large_step * DT`` (one output per macro step, horizon ``T``).
 
@@ -662,16 +683,21 @@ def _large_step(p, gal, X_tr, c_tr, X_te, c_te, K):
     ``L_h o S o L_h`` with ``L_h`` the exact flow of the reduced quadratic part over ``DT_large / 2`` (existence then
     checked on ``S``'s pairs); ``A_r(c)`` is the reduced operator, so the kernel is then **not** non-intrusive.
     """
-    if p.large_step_split not in ("none", "quadratic", "quadratic-mass"):
-        raise ValueError(f"large_step_split must be 'none', 'quadratic' or 'quadratic-mass', got {p.large_step_split!r}")
-    quad = None if p.large_step_split == "none" else gal.quadratic_part(mass=p.large_step_split == "quadratic-mass")
-    choice = choose_large_step(p, gal, X_tr, c_tr, K, quadratic=quad)
+    if p.large_step_split not in ("none", "quadratic", "quadratic-mass", "auto"):
+        raise ValueError(f"large_step_split must be 'none', 'quadratic', 'quadratic-mass' or 'auto', "
+                         f"got {p.large_step_split!r}")
+    split = p.large_step_split
+    if split == "auto":
+        split, choice = _choose_large_step_split(p, gal, X_tr, c_tr, K)
+    quad = None if split == "none" else gal.quadratic_part(mass=split == "quadratic-mass")
+    if p.large_step_split != "auto":
+        choice = choose_large_step(p, gal, X_tr, c_tr, K, quadratic=quad)
     s = choice["large_step"]
     dt = s * p.DT
     Kl = K // s
     x_te = X_te[:, : Kl * s + 1: s]
     y0 = gal.project(x_te[:, 0])
-    out = {"DT": dt, "steps": Kl, "choice": choice, "split": p.large_step_split, "projection_error": _err(gal, gal.project(x_te), x_te).tolist(),
+    out = {"DT": dt, "steps": Kl, "choice": choice, "split": split, "split_setting": p.large_step_split, "projection_error": _err(gal, gal.project(x_te), x_te).tolist(),
            "DT_omega_max": float(dt * np.abs(np.linalg.eigvals(_jg(gal, y0[0], float(p.c_range[1])))).max())}
     out["galerkin_error"] = _err(gal, gal.solve(y0, c_te, dt, Kl, substeps=s * p.substeps), x_te).tolist()
     for scheme in ("implicit_midpoint", "rk4"):
