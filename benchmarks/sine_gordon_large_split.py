@@ -31,7 +31,6 @@ Run (one core):  OMP_NUM_THREADS=1 NUMBA_NUM_THREADS=1 python benchmarks/sine_go
 
 import argparse
 import json
-import os
 import time
 import warnings
 from dataclasses import replace
@@ -39,8 +38,10 @@ from dataclasses import replace
 import numpy as np
 from threadpoolctl import threadpool_limits
 
+from _sine_gordon_data import cached_fom_data  # benchmarks/ (the script's folder is on sys.path)
+
 from sympredict.metrics import canonical_J
-from sympredict.experiments.sine_gordon import PRESETS, _err, _fit_kernel, _jg, choose_large_step, fom_data
+from sympredict.experiments.sine_gordon import PRESETS, _err, _fit_kernel, _jg, choose_large_step
 from sympredict.nonlinear_mor import ReducedSineGordon
 from sympredict.reduction import complex_svd_basis
 
@@ -120,13 +121,7 @@ def main():
     cache = args.cache or f"/tmp/sine_gordon_split_{args.preset}_{p.n_c}x{p.n_amplitude}.npz"
     with threadpool_limits(1):
         t0 = time.perf_counter()
-        if os.path.exists(cache):
-            z = np.load(cache)
-            d = fom_data(replace(p, n_c=1, n_amplitude=1, n_test=1, T=p.DT, long_factor=2))  # the FOM only (cheap)
-            d = {**d, **{k: z[k] for k in ("X_tr", "X_te", "c_tr", "c_te")}}
-        else:
-            d = fom_data(p)
-            np.savez(cache, **{k: d[k] for k in ("X_tr", "X_te", "c_tr", "c_te")})
+        d = cached_fom_data(p, cache)
         fom, K, c_tr, c_te, X_tr, X_te = d["fom"], int(round(p.T / p.DT)), d["c_tr"], d["c_te"], d["X_tr"], d["X_te"]
         print(f"FOM data: {len(c_tr)} training, {len(c_te)} test trajectories ({time.perf_counter() - t0:.0f} s); "
               f"test c = {_r(c_te)}", flush=True)

@@ -6,7 +6,10 @@ from threadpoolctl import threadpool_limits
 
 from sympredict import SymplecticKernelPredictor
 from sympredict.kernels import IMQ
+from sympredict.nonlinear_mor import ReducedSineGordon
+from sympredict.reduction import complex_svd_basis
 from sympredict.systems.pendulum import Pendulum, flow_map_data
+from sympredict.systems.sine_gordon import SineGordonFOM
 
 # Small dense problems: one BLAS thread is fastest and avoids oversubscription on 2 cores.
 threadpool_limits(1)
@@ -66,3 +69,15 @@ def pytest_runtest_makereport(item, call):
         reason = report.longrepr[2] if isinstance(report.longrepr, tuple) else str(report.longrepr)
         report.outcome = "failed"
         report.longrepr = f"skipped in CI (CI={os.environ.get('CI')}), which must run every test: {reason}"
+
+
+@pytest.fixture(scope="session")
+def small_sine_gordon():
+    """A small sine-Gordon FOM (N = 60), a 2n = 6 basis from 4 of its trajectories, its Galerkin ROM:
+    ``(fom, gal, X (4, 21, 2N), c (4,))``."""
+    fom = SineGordonFOM(n_points=60, length=12.0, c_range=(0.8, 1.2), amplitude_range=(0.5, 1.5), T=2.0, nt=20)
+    c = np.array([0.8, 0.8, 1.2, 1.2])
+    a = np.array([0.5, 1.5, 0.5, 1.5])
+    X = fom.reference_trajectory(a[:, None] * fom.sech_cos(2.0, 1.0), c, 0.1, 20, tol=1e-8)
+    gal = ReducedSineGordon.galerkin(fom, complex_svd_basis(X.reshape(-1, fom.dim), n=3, layout="rows").V)
+    return fom, gal, X, c

@@ -16,9 +16,7 @@ from sympredict.experiments.sine_gordon import (
     sign_symmetry,
 )
 from sympredict.metrics import canonical_J
-from sympredict.nonlinear_mor import ReducedSineGordon
-from sympredict.reduction import complex_svd_basis, symplectic_inverse, symplecticity_of_basis
-from sympredict.systems.sine_gordon import SineGordonFOM
+from sympredict.reduction import symplectic_inverse, symplecticity_of_basis
 
 K = 50  # steps of the training horizon
 t = np.arange(10 * K + 1) / K  # in units of T
@@ -75,14 +73,9 @@ def test_energy_boundedness_rejects_jumps_blowups_and_nan():
 
 
 @pytest.fixture(scope="module")
-def small():
-    """A small FOM (N = 60), a 2n = 6 basis from 4 trajectories, its Galerkin ROM."""
-    fom = SineGordonFOM(n_points=60, length=12.0, c_range=(0.8, 1.2), amplitude_range=(0.5, 1.5), T=2.0, nt=20)
-    c = np.array([0.8, 0.8, 1.2, 1.2])
-    a = np.array([0.5, 1.5, 0.5, 1.5])
-    X = fom.reference_trajectory(a[:, None] * fom.sech_cos(2.0, 1.0), c, 0.1, 20, tol=1e-8)
-    gal = ReducedSineGordon.galerkin(fom, complex_svd_basis(X.reshape(-1, fom.dim), n=3, layout="rows").V)
-    return fom, gal, X, c
+def small(small_sine_gordon):
+    """(conftest.small_sine_gordon) a small FOM, a 2n = 6 basis from 4 trajectories, its Galerkin ROM."""
+    return small_sine_gordon
 
 
 def test_sign_symmetry_pairs_are_exact_samples(small):
