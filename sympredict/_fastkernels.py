@@ -478,6 +478,15 @@ def _build(cache: bool):  # noqa: C901 - the compiled definitions
         return 3, f_norm, max_iter
 
     @_jit
+    def _matvec_into(M, x, out):
+        """``out <- M x`` for a small square ``M`` (the split rollout's maps), ``O(dim^2)``."""
+        for a in range(M.shape[0]):
+            acc = 0.0
+            for c in range(M.shape[1]):
+                acc += M[a, c] * x[c]
+            out[a] = acc
+
+    @_jit
     def _rollout_one(i, x0, W, h, cT, seg, factors, eps, max_iter, chunk, traj, codes, fail_step, fail_iter, resid, passes,
                      warm_start, mid, pre, post, around):
         """One instance's rollout; with ``around``: ``x_k+1 = post[i] S(pre[i] x_k)`` (S the implicit step)."""
@@ -513,18 +522,10 @@ def _build(cache: bool):  # noqa: C901 - the compiled definitions
                         nxt = 2.0 * x_k - x_1
                     u[a] = 0.5 * (x_k + nxt) if mid else nxt  # midpoint: z = (x_k + x_k+1) / 2
             if around:
-                for a in range(dim):
-                    acc = 0.0
-                    for c in range(dim):
-                        acc += pre[i, a, c] * traj[i, k, c]
-                    y_in[a] = acc
+                _matvec_into(pre[i], traj[i, k], y_in)
                 code, r, it = _solve_one(y_in, W[i], h[i], cT, seg, factors, eps, max_iter, y_out, sc, grad, hess,
                                          jac, delta, u, xi, warm, mid)
-                for a in range(dim):
-                    acc = 0.0
-                    for c in range(dim):
-                        acc += post[i, a, c] * y_out[c]
-                    traj[i, k + 1, a] = acc
+                _matvec_into(post[i], y_out, traj[i, k + 1])
             else:
                 code, r, it = _solve_one(traj[i, k], W[i], h[i], cT, seg, factors, eps, max_iter, traj[i, k + 1], sc, grad,
                                          hess, jac, delta, u, xi, warm, mid)

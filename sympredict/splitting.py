@@ -114,9 +114,8 @@ class SplitKernelPredictor(Parametrized):
 
     # ------------------------------------------------------------- training
     def _check_settings(self, dim: int, n_mu: int) -> QuadraticPart:
-        if not isinstance(self.predictor, SymplecticKernelPredictor):
-            raise ValueError(f"predictor must be a SymplecticKernelPredictor (the inner symplectic step S), "
-                             f"got {self.predictor!r}")
+        """The validated quadratic part for states of ``dim`` and ``n_mu`` parameter components (the inner
+        predictor's type is checked by :meth:`fit` before the data)."""
         if not isinstance(self.quadratic, QuadraticPart):
             raise ValueError(f"quadratic must be a sympredict.linear_flow.QuadraticPart, got {self.quadratic!r}")
         mats, pw = self.quadratic.checked(dim=dim)

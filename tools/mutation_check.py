@@ -107,7 +107,7 @@ FAULTS = [
     Fault("SP3", "splitting", P + "scaling.py", "left, right = float(tau) * J.T @ M @ J, np.linalg.inv(M)",
           "left, right = float(tau) * M, np.linalg.inv(M)",
           ("tests/test_sine_gordon_split.py",), "quadratic part in scaled coordinates conjugated like a map, not a form"),
-    Fault("SP4", "splitting", P + "_fastkernels.py", "acc += post[i, a, c] * y_out[c]", "acc += pre[i, a, c] * y_out[c]",
+    Fault("SP4", "splitting", P + "_fastkernels.py", "_matvec_into(post[i], y_out, traj[i, k + 1])", "_matvec_into(pre[i], y_out, traj[i, k + 1])",
           ("tests/test_splitting.py",), "compiled split rollout: the map before the step applied after it too"),
     Fault("SP5", "splitting", P + "predictor.py", "pre, post = pre * scale[None, :, None], post / scale[None, None, :]",
           "pre, post = pre / scale[None, :, None], post * scale[None, None, :]",

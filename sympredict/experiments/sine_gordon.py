@@ -657,18 +657,17 @@ def _choose_large_step_split(p, gal, X_tr, c_tr, K):
     :func:`choose_large_step` finds an admissible step with the wanted margin, else the split one
     (``'quadratic-mass'``) where it does, else the unsplit rule's choice.  Training trajectories only.
 
-    Returns ``(split, choice)``: ``choice`` as :func:`choose_large_step`'s for the chosen kernel, plus ``tables``
-    (the table of every rule evaluated, by split).
+    Returns ``(split, quadratic, choice)``: the chosen kernel's split and quadratic part (``None`` unsplit), and
+    ``choice`` as :func:`choose_large_step`'s for it, plus ``tables`` (the table of every rule evaluated, by split).
     """
     tables = {}
-    for split in ("none", "quadratic-mass"):
-        quad = None if split == "none" else gal.quadratic_part(mass=True)
+    for split, quad in (("none", None), ("quadratic-mass", gal.quadratic_part(mass=True))):
         choice = choose_large_step(p, gal, X_tr, c_tr, K, quadratic=quad)
         tables[split] = choice
         row = next(r for r in choice["table"] if r["large_step"] == choice["large_step"])
         if row["admissible"] and row["ratio"] >= p.large_step_margin:
-            return split, {**choice, "tables": {k: v["table"] for k, v in tables.items()}}
-    return "none", {**tables["none"], "tables": {k: v["table"] for k, v in tables.items()}}
+            return split, quad, {**choice, "tables": {k: v["table"] for k, v in tables.items()}}
+    return "none", None, {**tables["none"], "tables": {k: v["table"] for k, v in tables.items()}}
 
 
 def _large_step(p, gal, X_tr, c_tr, X_te, c_te, K):
@@ -689,11 +688,11 @@ def _large_step(p, gal, X_tr, c_tr, X_te, c_te, K):
     if p.large_step_split not in ("none", "quadratic", "quadratic-mass", "auto"):
         raise ValueError(f"large_step_split must be 'none', 'quadratic', 'quadratic-mass' or 'auto', "
                          f"got {p.large_step_split!r}")
-    split = p.large_step_split
-    if split == "auto":
-        split, choice = _choose_large_step_split(p, gal, X_tr, c_tr, K)
-    quad = None if split == "none" else gal.quadratic_part(mass=split == "quadratic-mass")
-    if p.large_step_split != "auto":
+    if p.large_step_split == "auto":
+        split, quad, choice = _choose_large_step_split(p, gal, X_tr, c_tr, K)
+    else:
+        split = p.large_step_split
+        quad = None if split == "none" else gal.quadratic_part(mass=split == "quadratic-mass")
         choice = choose_large_step(p, gal, X_tr, c_tr, K, quadratic=quad)
     s = choice["large_step"]
     dt = s * p.DT
