@@ -84,8 +84,11 @@ _SYMPLECTIC_TOL = 1e-8
 
 
 def basis_matrix(RB) -> np.ndarray:
-    """The basis ``V = [E, F]`` of a pyMOR ``SymplecticBasis`` as a dense (2N, 2n) array, rows ``(q, p)``."""
-    return _to_columns(RB.to_array())
+    """The basis ``V = [E, F]`` of a pyMOR ``SymplecticBasis`` as a dense C-ordered (2N, 2n) array, rows ``(q, p)``.
+
+    pyMOR's ``to_numpy()`` is the transpose of a C array (Fortran order); fitted state keeps one layout.
+    """
+    return np.ascontiguousarray(_to_columns(RB.to_array()), dtype=float)
 
 
 def _to_columns(U) -> np.ndarray:

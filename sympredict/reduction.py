@@ -206,11 +206,13 @@ def basis_columns(V) -> np.ndarray:
         For an ndarray with fewer rows than columns (a transposed basis ``(2n, 2N)``)
         or odd dimensions.
     """
+    # C order whatever the source (a transposed VectorArray is Fortran-ordered): fitted state has
+    # one memory layout, so BLAS takes the same kernel path for every model built on the basis
     if isinstance(V, ComplexSVDBasis):
-        return V.V
+        return np.ascontiguousarray(V.V, dtype=float)
     if hasattr(V, "to_array") and hasattr(V, "phase_space"):  # pyMOR SymplecticBasis
-        return snapshot_rows(V.to_array()).T
-    V = np.asarray(V, dtype=float)
+        return np.ascontiguousarray(snapshot_rows(V.to_array()).T, dtype=float)
+    V = np.ascontiguousarray(V, dtype=float)
     if V.ndim != 2 or V.shape[0] % 2 or V.shape[1] % 2 or V.size == 0:
         raise ValueError(f"a symplectic basis must have shape (2N, 2n) with even sizes, got {np.shape(V)}")
     if V.shape[0] < V.shape[1]:

@@ -31,8 +31,12 @@ _CHUNK_ENTRIES = 1 << 17
 
 
 def _rows(values, m: int) -> np.ndarray:
-    """``values`` as a float array of ``m`` rows (a 2-D array stays as it is, so ``m = 0`` keeps its columns)."""
-    arr = np.asarray(values, dtype=float)
+    """``values`` as a C-contiguous float array of ``m`` rows (a 2-D array keeps its shape, so ``m = 0`` keeps its columns).
+
+    C order whatever produced ``values`` (a LAPACK solve returns Fortran order): BLAS takes another
+    kernel path for each layout, so a fitted and a loaded model would otherwise round differently.
+    """
+    arr = np.ascontiguousarray(values, dtype=float)
     return arr if arr.ndim == 2 else arr.reshape(m, -1)
 
 
@@ -103,9 +107,9 @@ class HBSurrogate:
         self.centers_xi = np.ascontiguousarray(centers_xi, dtype=float)
         m, dim = self.centers_xi.shape
         self.centers_mu = _rows(centers_mu, m)
-        self.centers_dt = np.asarray(centers_dt, dtype=float).reshape(m)
-        self.components = np.asarray(components, dtype=np.int64).reshape(m)
-        self.coef = np.asarray(coef, dtype=float).reshape(m)
+        self.centers_dt = np.ascontiguousarray(centers_dt, dtype=float).reshape(m)
+        self.components = np.ascontiguousarray(components, dtype=np.int64).reshape(m)
+        self.coef = np.ascontiguousarray(coef, dtype=float).reshape(m)
         # the plain functionals the evaluation sums over: the centres themselves, or with a state
         # symmetry their images g xi_j in the directions g e_{l_j} (StateSymmetry.expand), each
         # weighted by its g_{c l_j} and owned by its centre
@@ -401,7 +405,7 @@ class ValueSurrogate:
         self.centers_x = np.ascontiguousarray(centers_x, dtype=float)
         m = len(self.centers_x)
         self.centers_mu = _rows(centers_mu, m)
-        self.centers_dt = np.asarray(centers_dt, dtype=float).reshape(m)
+        self.centers_dt = np.ascontiguousarray(centers_dt, dtype=float).reshape(m)
         self.coef = _rows(coef, m)
 
     @property

@@ -170,8 +170,12 @@ def as_targets(targets, n: int) -> tuple:
 
 
 def kernel_coefficients(chol: np.ndarray, beta: np.ndarray) -> np.ndarray:
-    """Kernel-basis coefficients ``c = L^{-T} beta`` from the Newton expansion (``O(m^2)``)."""
-    return solve_triangular(chol, beta, lower=True, trans="T")
+    """Kernel-basis coefficients ``c = L^{-T} beta`` from the Newton expansion (``O(m^2)``).
+
+    Returned C-contiguous: LAPACK gives Fortran order for a 2-D ``beta``, and fitted state has one
+    memory layout whatever produced it (BLAS rounds differently on another layout).
+    """
+    return np.ascontiguousarray(solve_triangular(chol, beta, lower=True, trans="T"))
 
 
 def _finite_coefficients(coef: np.ndarray, targets_max: float) -> np.ndarray:
