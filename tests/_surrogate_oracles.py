@@ -18,6 +18,8 @@ from sympredict.exceptions import ModelFileError
 from sympredict.io import load_model
 from sympredict.predictor import MODEL_FORMAT
 
+from _tolerances import rollout_bound  # tests/
+
 
 def check_surrogate_by_finite_differences(sur, kernel_value, centers, cmu, comps, coef, xi, qmu, h=1e-5):
     """Assert that ``sur`` (an :class:`~sympredict.surrogate.HBSurrogate` with centres ``centers`` (m, D) at
@@ -109,14 +111,13 @@ def with_backend(model, backend):
 
 
 def check_rollouts_agree_to_the_floor(reference, fast, x, mu, dt, n_steps=20):
-    """Assert that ``fast.rollout`` equals ``reference.rollout`` to ``100 n_steps max(dT) floor`` (per step the
+    """Assert that ``fast.rollout`` equals ``reference.rollout`` to :func:`_tolerances.rollout_bound` (per step the
     solutions may differ by ~``dT`` times the gradient floor of :meth:`HBSurrogate.gradient_hessian`) and that this
     bound is below 1e-5 (a meaningful agreement).  Returns the reference trajectories and the bound."""
     ref = reference.rollout(x, n_steps, mu=mu, dt=dt)
     out = fast.rollout(x, n_steps, mu=mu, dt=dt)
     sur = reference.surrogate_
-    _, _, floor = sur.gradient_hessian(x, sur.weights(mu[:, None], dt), with_floor=True)
-    bound = 100 * n_steps * dt.max() * floor.max()
+    bound = rollout_bound(sur, ref, sur.weights(mu[:, None], dt), dt)
     assert bound < 1e-5
     assert np.abs(out - ref).max() <= bound
     return ref, bound

@@ -58,6 +58,23 @@ def _in_ci() -> bool:
     return os.environ.get("CI", "").strip().lower() in ("1", "true", "yes")
 
 
+#: Test modules that compare two code paths on one computation (save/load, NumPy against compiled,
+#: clones, warm starts, parallel against serial, batch sizes).  They carry the ``paths`` marker:
+#: ``.ci/run`` runs them again under other OpenBLAS kernels, one BLAS thread and compiled code built
+#: for a generic CPU, where such comparisons fail first if a tolerance is tied to one CPU.
+PATH_COMPARING_MODULES = frozenset({
+    "test_estimator_contract", "test_integrators_compiled", "test_io", "test_kernel_families", "test_memory_layout",
+    "test_midpoint", "test_midpoint_compiled", "test_parallel", "test_performance_paths", "test_splitting",
+    "test_state_scaling", "test_surrogate", "test_warm_start", "test_symmetry", "test_periodic",
+})
+
+
+def pytest_collection_modifyitems(config, items):
+    for item in items:
+        if item.module.__name__.rpartition(".")[2] in PATH_COMPARING_MODULES:
+            item.add_marker(pytest.mark.paths)
+
+
 @pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_makereport(item, call):
     """In CI (``CI=true``) a skipped test fails: the test extra installs everything, so a skip means

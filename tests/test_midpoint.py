@@ -10,6 +10,7 @@ from sympredict.exceptions import ExtrapolationWarning
 from sympredict.io import load_model, save_model
 from sympredict.kernels import IMQ
 from sympredict.newton import solve_midpoint_numpy
+from _tolerances import assert_same_predictions  # tests/
 from _surrogate_oracles import check_step_jacobian  # tests/
 
 J = np.array([[0.0, 1.0], [-1.0, 0.0]])
@@ -96,7 +97,7 @@ def test_accuracy_on_the_pendulum_and_settings(pendulum_midpoint, pendulum, tmp_
     save_model(model, tmp_path / "mid.h5")
     loaded = load_model(tmp_path / "mid.h5")
     assert loaded.update == "midpoint"
-    np.testing.assert_array_equal(loaded.rollout(x, 5, mu=mu, dt=dt), model.rollout(x, 5, mu=mu, dt=dt))
+    assert_same_predictions(loaded, model, x, 5, mu=mu, dt=dt)
     with pytest.raises(ValueError, match="update must be"):
         SymplecticKernelPredictor(IMQ(0.2), IMQ(1.5), IMQ(3.0), update="leapfrog").fit(d.x0[:50], d.x1[:50], mu=d.mu[:50],
                                                                                        dt=d.dt[:50])
