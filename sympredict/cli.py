@@ -314,7 +314,7 @@ def _cmd_train(args) -> int:
     data, meta = load_dataset(args.data)
     validation = load_dataset(args.validation)[0] if args.validation else None
     kernels = [_parse_kernel(k) for k in (args.state, args.mu, args.dt)]
-    model = SymplecticKernelPredictor(*kernels, max_centers=args.centers, tol=args.tol)
+    model = SymplecticKernelPredictor(*kernels, max_centers=args.centers, tol=args.tol, backend=args.backend)
     mu = data.mu if kernels[1] is not None else None
     if validation is not None and kernels[1] is None:
         validation = (validation.x0, validation.x1, None, validation.dt)
@@ -328,24 +328,84 @@ def _cmd_train(args) -> int:
     return 0
 
 
+class _Progress:
+    """``step k/K (p %), elapsed, left`` on one line of stderr, redrawn at most twice a second, from 1 s on.
+
+    Only on a terminal: piped or redirected output gets no progress lines.
+    """
+
+    def __init__(self, what: str, stream=None):
+        self.what, self.stream = what, stream or sys.stderr
+        self.enabled = bool(getattr(self.stream, "isatty", lambda: False)())
+        self.start = self.last = time.perf_counter()
+        self.shown = False
+
+    def __call__(self, done: int, total: int) -> None:
+        now = time.perf_counter()
+        if not self.enabled or now - self.start < 1.0 or (now - self.last < 0.5 and done < total):
+            return
+        self.last, elapsed = now, now - self.start
+        left = elapsed * (total - done) / done if done else float("inf")
+        self.stream.write(f"\r{self.what}: step {done:,}/{total:,} ({100 * done / total:.1f} %), "
+                          f"{_duration(elapsed)} elapsed, about {_duration(left)} left   ")
+        self.stream.flush()
+        self.shown = True
+
+    def close(self) -> None:
+        if self.shown:
+            self.stream.write("\n")
+            self.stream.flush()
+
+
+def _duration(seconds: float) -> str:
+    if not math.isfinite(seconds):
+        return "?"
+    if seconds < 60:
+        return f"{seconds:.0f} s"
+    if seconds < 3600:
+        return f"{seconds // 60:.0f} min {seconds % 60:02.0f} s"
+    return f"{seconds // 3600:.0f} h {seconds % 3600 // 60:02.0f} min"
+
+
+def _set_backend(model, backend: str):
+    """The Newton backend of a loaded model (the inner predictor's for a split model)."""
+    inner = getattr(model, "predictor_", model)
+    if "backend" in inner.get_params(deep=False):
+        inner.set_params(backend=backend)
+    return model
+
+
 def _cmd_predict(args) -> int:
     import numpy as np
 
-    from sympredict import SymplecticKernelPredictor
+    from sympredict.exceptions import RolloutMemoryError
+    from sympredict.io import load_model
 
     if args.out:
         _check_output_file(args.out, args.model)
-    model = SymplecticKernelPredictor.load(args.model)
+    model = _set_backend(load_model(args.model), args.backend)
     try:
         x0 = np.array([[float(v) for v in state.split(",")] for state in args.x0])
     except ValueError:
         raise ValueError(f"--x0 takes comma-separated numbers per state, e.g. --x0 1.0,0.0; got {args.x0}") from None
-    traj = model.rollout(x0, args.steps, mu=args.mu, dt=args.dt, check_solvability=args.check)
+    # without --out only the final states are printed: keep the first and last state (memory O(batch))
+    stride = args.stride if args.out else max(1, args.steps)
+    progress = _Progress("predict")
+    kwargs = {"check_solvability": args.check} if args.check else {}
+    try:
+        traj = model.rollout(x0, args.steps, mu=args.mu, dt=args.dt, stride=stride, progress=progress, **kwargs)
+    except RolloutMemoryError as exc:
+        raise ValueError(f"--steps {args.steps} with --stride {stride}: {exc.needed / 2**30:.3g} GiB of states, more than "
+                         f"the {exc.available / 2**30:.3g} GiB available; keep fewer states with a larger --stride") from None
+    finally:
+        progress.close()
     if args.out:
         header = "instance,step," + ",".join(f"q{i}" for i in range(model.dim_ // 2)) + "," + ",".join(f"p{i}" for i in range(model.dim_ // 2))
-        rows = [[b, k, *traj[b, k]] for b in range(traj.shape[0]) for k in range(traj.shape[1])]
+        steps = np.arange(traj.shape[1]) * stride
+        rows = [[b, steps[k], *traj[b, k]] for b in range(traj.shape[0]) for k in range(traj.shape[1])]
         np.savetxt(args.out, np.array(rows), delimiter=",", header=header, comments="", fmt=["%d", "%d"] + ["%.17g"] * model.dim_)
-        print(f"wrote {traj.shape[0]} trajectories of {args.steps} steps to {args.out}")
+        print(f"wrote {traj.shape[0]} trajectories of {args.steps} steps"
+              + (f" (every {stride}th state)" if stride > 1 else "") + f" to {args.out}")
     else:
         for b in range(traj.shape[0]):
             print(f"instance {b}: x({args.steps} steps) = {', '.join(f'{v:.12g}' for v in traj[b, -1])}")
@@ -442,6 +502,8 @@ def build_parser() -> argparse.ArgumentParser:
     train.add_argument("--centers", type=_int_at_least(1), default=1500, help="maximal number of centres (default 1500)")
     train.add_argument("--tol", type=_finite_float(nonnegative=True), default=1e-10, help="greedy residual tolerance (default 1e-10)")
     train.add_argument("--threads", type=_int_at_least(1), default=os.cpu_count() or 1)
+    train.add_argument("--backend", choices=["auto", "numpy", "numba"], default="auto",
+                       help="the saved model's Newton solver: NumPy or compiled (numba); 'auto' (default) picks by the size of the work")
     train.set_defaults(func=_cmd_train)
 
     predict = sub.add_parser("predict", help="roll a saved model out from given initial states")
@@ -452,6 +514,10 @@ def build_parser() -> argparse.ArgumentParser:
     predict.add_argument("--steps", type=_int_at_least(0), required=True, help="number of macro steps")
     predict.add_argument("--check", action="store_true", help="refuse to start where dT * L_S >= 1")
     predict.add_argument("--out", help="CSV file for the trajectories (default: print the final states)")
+    predict.add_argument("--stride", type=_int_at_least(1), default=1,
+                         help="with --out, write every k-th state only (default 1: all); memory is that of the states written")
+    predict.add_argument("--backend", choices=["auto", "numpy", "numba"], default="auto",
+                         help="Newton solver: NumPy or compiled (numba); 'auto' (default) picks by the size of the work")
     predict.set_defaults(func=_cmd_predict)
 
     describe = sub.add_parser("report", help="describe a saved model: kernel, centres, residuals, training box")

@@ -17,6 +17,7 @@ __all__ = [
     "SolvabilityError",
     "ModelFileError",
     "NotFittedError",
+    "RolloutMemoryError",
     "ExtrapolationWarning",
     "GeneratingFunctionWarning",
     "extrapolation_expected",
@@ -65,6 +66,23 @@ class NewtonConvergenceError(SympredictError):
     def at_step(self, step: int) -> "NewtonConvergenceError":
         """The same error, annotated with the rollout step."""
         return NewtonConvergenceError(self.instances, self.residuals, self.reason, step)
+
+
+class RolloutMemoryError(SympredictError, MemoryError):
+    """The states a rollout would keep do not fit in the memory available; raised before any work.
+
+    Attributes
+    ----------
+    needed, available : int
+        Bytes the kept states need and bytes the system reports available.
+    """
+
+    def __init__(self, needed: int, available: int, shape: tuple):
+        self.needed, self.available, self.shape = int(needed), int(available), tuple(shape)
+        super().__init__(
+            f"keeping the states of this rollout ({shape[0]} trajectories x {shape[1]} kept states x {shape[2]} "
+            f"components, float64) needs {needed / 2**30:.3g} GiB, more than the {available / 2**30:.3g} GiB available: "
+            "keep every k-th state only (rollout(..., stride=k); the command line's --stride), or roll out fewer steps")
 
 
 class SolvabilityError(SympredictError):

@@ -14,13 +14,17 @@ from __future__ import annotations
 
 import numpy as np
 
+import os
+import time
+from typing import Callable, Optional
+
 from sympredict import _fastkernels
-from sympredict.exceptions import NewtonConvergenceError
+from sympredict.exceptions import NewtonConvergenceError, RolloutMemoryError
 from sympredict.newton_rule import EPS, converged, residual_floor
 from sympredict.surrogate import HBSurrogate
 
 __all__ = ["solve_step_numpy", "solve_midpoint_numpy", "midpoint_jacobian", "rollout_numpy", "rollout_compiled",
-           "FAILURE_REASONS", "MIDPOINT_FAILURE_REASONS"]
+           "rollout_in_chunks", "available_memory", "FAILURE_REASONS", "MIDPOINT_FAILURE_REASONS"]
 
 #: Failure codes of the compiled solver and the reason each names.
 FAILURE_REASONS = {
@@ -199,6 +203,100 @@ def rollout_numpy(advance, x: np.ndarray, n_steps: int) -> np.ndarray:
         except NewtonConvergenceError as err:
             raise err.at_step(k) from None
     return traj
+
+
+#: A chunk of a long rollout aims at this wall time (seconds): between chunks Python runs, so Ctrl-C
+#: (KeyboardInterrupt) and progress reports are served at least this often, also on the compiled path.
+CHUNK_SECONDS = 0.2
+#: ... and its trajectory holds at most this many bytes (the rollout keeps only the strided states).
+CHUNK_BYTES = 32 * 2**20
+#: The first chunk's steps: short rollouts run in one call, longer ones learn the time per step from it.
+FIRST_CHUNK_STEPS = 64
+
+
+def available_memory() -> Optional[int]:
+    """Bytes of memory the system reports available (Linux ``MemAvailable``; ``None`` where unknown)."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        return int(os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def rollout_in_chunks(run: Callable[[np.ndarray, int], np.ndarray], x: np.ndarray, n_steps: int, *, stride: int = 1,
+                      progress: Optional[Callable[[int, int], None]] = None) -> np.ndarray:
+    """A rollout of ``n_steps`` in chunks, keeping every ``stride``-th state: ``traj[:, ::stride]`` of the full one.
+
+    Parameters
+    ----------
+    run
+        ``run(state, k)`` returns the trajectory (B, k+1, 2n) of ``k >= 1`` steps from ``state`` (B, 2n)
+        (one call of a model's NumPy or compiled rollout).
+    x : ndarray of shape (B, 2n)
+        Initial states.
+    n_steps
+        ``K >= 0``.
+    stride
+        Keep the states at steps ``0, stride, 2 stride, ... <= K``.
+    progress
+        Called as ``progress(steps_done, n_steps)`` after each chunk.
+
+    Returns
+    -------
+    ndarray of shape (B, K // stride + 1, 2n)
+
+    Raises
+    ------
+    RolloutMemoryError
+        Before any work, when the kept states need more memory than the system has available.
+    NewtonConvergenceError
+        As the chunk's rollout raises it, with the macro step counted from the rollout's start.
+
+    Notes
+    -----
+    Memory ``O(B (K / stride + chunk) 2n)``.  Chunks are timed and sized to take about
+    :data:`CHUNK_SECONDS` (at most :data:`CHUNK_BYTES` of states), so Ctrl-C interrupts a compiled
+    rollout within about that time.  Each step depends only on the state before it, so the result
+    equals the unchunked rollout bit for bit, except for a Newton warm start, which restarts from the
+    explicit guess at each chunk's first step (equal to the solver's stopping rule).
+    """
+    b, dim = x.shape
+    n_kept = n_steps // stride + 1
+    needed = b * n_kept * dim * 8
+    available = available_memory()
+    if available is not None and needed > available:
+        raise RolloutMemoryError(needed, available, (b, n_kept, dim))
+    out = np.empty((b, n_kept, dim))
+    out[:, 0] = x
+    state, done = x, 0
+    max_chunk = max(1, CHUNK_BYTES // (8 * max(1, b * dim)))
+    chunk = min(FIRST_CHUNK_STEPS, max_chunk)
+    while done < n_steps:
+        k = min(chunk, n_steps - done)
+        start = time.perf_counter()
+        try:
+            traj = run(state, k)
+        except NewtonConvergenceError as err:
+            raise (err.at_step(done + err.step) if err.step is not None else err) from None
+        elapsed = time.perf_counter() - start
+        first = -(-(done + 1) // stride) * stride  # the first kept step after `done`
+        kept = np.arange(first, done + k + 1, stride)
+        if kept.size:
+            out[:, kept // stride] = traj[:, kept - done]
+        state = np.ascontiguousarray(traj[:, -1])
+        done += k
+        if progress is not None:
+            progress(done, n_steps)
+        # the next chunk: about CHUNK_SECONDS at the speed just measured, at most doubling
+        per_step = elapsed / k
+        chunk = int(min(max_chunk, 2 * k, max(1.0, CHUNK_SECONDS / per_step) if per_step > 0 else 2 * k))
+    return out
 
 
 def rollout_compiled(sur: HBSurrogate, x, weights, dt, n_steps: int, max_iter: int, step_index: bool = True,

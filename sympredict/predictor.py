@@ -42,7 +42,9 @@ from sympredict.functionals import HBFunctionals, ValueFunctionals
 from sympredict.greedy import GreedyHistory, Trainer, trainer_from_spec
 from sympredict.greedy.trainers import ExactGreedy
 from sympredict.kernels import IMQ, PeriodicCoordinates, ProductKernel, RadialKernel, StateSymmetry, kernel_from_spec
-from sympredict.newton import midpoint_jacobian, rollout_compiled, rollout_numpy, solve_midpoint_numpy, solve_step_numpy
+from sympredict.newton import (
+    midpoint_jacobian, rollout_compiled, rollout_in_chunks, rollout_numpy, solve_midpoint_numpy, solve_step_numpy,
+)
 from sympredict.surrogate import HBSurrogate, ValueSurrogate
 
 __all__ = ["SymplecticKernelPredictor", "DirectKernelPredictor", "MODEL_FORMAT", "UPDATES", "update_variables"]
@@ -333,15 +335,16 @@ class _FlowMapKernelModel(Parametrized):
                 x[..., i] = lo[i] + np.mod(x[..., i] - lo[i], period)
         return np.any((x < lo - margin) | (x > hi + margin), axis=-1)
 
-    def _warn_if_trajectory_leaves(self, traj: np.ndarray) -> None:
+    def _warn_if_trajectory_leaves(self, traj: np.ndarray, stride: int = 1) -> None:
         """Warn when a rollout that starts inside the training states leaves them (it extrapolates from there on).
 
-        One pass of comparisons over ``traj`` (B, K+1, 2n): ``O(B K 2n)``, small next to the rollout.
+        One pass of comparisons over ``traj`` (B, K/stride+1, 2n), the states kept every ``stride`` steps:
+        ``O(B K 2n / stride)``, small next to the rollout.
         """
         outside = self._outside_states(traj)
         left = outside[:, 1:].any(axis=1) & ~outside[:, 0]
         if np.any(left):
-            first = np.argmax(outside[left, 1:], axis=1) + 1
+            first = (np.argmax(outside[left, 1:], axis=1) + 1) * stride
             warnings.warn(
                 f"extrapolation: {int(left.sum())} of {len(traj)} trajectories leave the training states "
                 f"{_fmt(self.domain_['x_min'])}..{_fmt(self.domain_['x_max'])} (instances {np.flatnonzero(left)[:5].tolist()}"
@@ -369,8 +372,10 @@ class _FlowMapKernelModel(Parametrized):
         if outside:
             warnings.warn("extrapolation: " + "; ".join(outside), ExtrapolationWarning, stacklevel=4)
 
-    def _rollout(self, x, weights, dt, n_steps: int) -> np.ndarray:
-        return rollout_numpy(lambda state: self._advance(state, weights, dt), x, n_steps)
+    def _rollout(self, x, weights, dt, n_steps: int, *, stride: int = 1, progress=None) -> np.ndarray:
+        """Kept states (B, K/stride+1, 2n) of a validated batch, in chunks (:func:`~sympredict.newton.rollout_in_chunks`)."""
+        return rollout_in_chunks(lambda state, k: rollout_numpy(lambda s: self._advance(s, weights, dt), state, k),
+                                 x, n_steps, stride=stride, progress=progress)
 
     # ----------------------------------------------------------------- files
     def save(self, path) -> None:
@@ -860,26 +865,37 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
                                  "q -> -q maps (q0, p1) to (q1, p0)); use update='midpoint'")
         return group.conjugated(self._scale_vector(dim)) if self.state_scaling is not None else group
 
-    def _rollout(self, x, weights, dt, n_steps: int, around=None) -> np.ndarray:
-        """Trajectories (B, K+1, 2n) of a validated batch; ``around = (pre, post)`` (B, 2n, 2n): steps
-        ``x_k+1 = post Phi(pre x_k)`` in the original coordinates (the splitting predictor's composition)."""
+    def _rollout(self, x, weights, dt, n_steps: int, around=None, *, stride: int = 1, progress=None) -> np.ndarray:
+        """Kept states (B, K/stride+1, 2n) of a validated batch; ``around = (pre, post)`` (B, 2n, 2n): steps
+        ``x_k+1 = post Phi(pre x_k)`` in the original coordinates (the splitting predictor's composition).
+
+        Runs in chunks (:func:`~sympredict.newton.rollout_in_chunks`: Ctrl-C and progress between them),
+        each chunk one NumPy loop or one compiled call; without ``around`` the chunks work in the model's
+        (scaled) coordinates, so chunking does not change the result.
+        """
         scale = self._scale_vector(self.dim_)
+        max_iter = as_positive_int(self.newton_max_iter, "newton_max_iter")
+        compiled = self._compiled()
         if around is not None:  # Phi = D^-1 Phi_scaled D: pre becomes D pre, post becomes post D^-1
             pre, post = around
             pre, post = pre * scale[None, :, None], post / scale[None, None, :]
-            if self._compiled():  # no warm start here: its extrapolation would mix x_k and pre x_k
-                return rollout_compiled(self.surrogate_, x, weights, dt, n_steps,
-                                        as_positive_int(self.newton_max_iter, "newton_max_iter"),
-                                        update=self.update, around=(pre, post))
-            return rollout_numpy(lambda state: np.einsum("bij,bj->bi", post, self._solve_scaled(
-                np.einsum("bij,bj->bi", pre, state), weights, dt)), x, n_steps)
-        xs = x * scale
-        if self._compiled():
-            traj = rollout_compiled(self.surrogate_, xs, weights, dt, n_steps,
-                                    as_positive_int(self.newton_max_iter, "newton_max_iter"),
-                                    warm_start=bool(self.newton_warm_start), update=self.update)
+            if compiled:  # no warm start here: its extrapolation would mix x_k and pre x_k
+                def run(state, k):
+                    return rollout_compiled(self.surrogate_, state, weights, dt, k, max_iter, update=self.update,
+                                            around=(pre, post))
+            else:
+                def run(state, k):
+                    return rollout_numpy(lambda s: np.einsum("bij,bj->bi", post, self._solve_scaled(
+                        np.einsum("bij,bj->bi", pre, s), weights, dt)), state, k)
+            return rollout_in_chunks(run, x, n_steps, stride=stride, progress=progress)
+        if compiled:
+            def run(state, k):
+                return rollout_compiled(self.surrogate_, state, weights, dt, k, max_iter,
+                                        warm_start=bool(self.newton_warm_start), update=self.update)
         else:
-            traj = rollout_numpy(lambda state: self._solve_scaled(state, weights, dt), xs, n_steps)
+            def run(state, k):
+                return rollout_numpy(lambda s: self._solve_scaled(s, weights, dt), state, k)
+        traj = rollout_in_chunks(run, x * scale, n_steps, stride=stride, progress=progress)
         return traj if self.state_scaling is None else traj / scale
 
     def _solve_step(self, x: np.ndarray, weights: np.ndarray, dt: np.ndarray) -> np.ndarray:
@@ -925,7 +941,8 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         out = self._solve_step(x, self.surrogate_.weights(mu, dt), dt)
         return out[0] if single else out
 
-    def rollout(self, x0, n_steps: int, mu=None, dt=None, *, check_solvability: bool = False) -> np.ndarray:
+    def rollout(self, x0, n_steps: int, mu=None, dt=None, *, stride: int = 1, progress=None,
+                check_solvability: bool = False) -> np.ndarray:
         """Trajectories of ``n_steps`` predicted macro steps.
 
         Parameters
@@ -935,6 +952,11 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
             Number of macro steps ``K >= 0``.
         mu, dt
             As in :meth:`step`; fixed per instance along the trajectory.
+        stride : int, optional
+            Keep the state of every ``stride``-th step only (``traj[:, ::stride]`` of the full
+            trajectories, with memory for those alone); ``stride = K`` keeps the first and last states.
+        progress : callable, optional
+            ``progress(steps_done, n_steps)``, called between the chunks of a long rollout.
         check_solvability
             Before stepping, estimate ``dT * L_S`` at the initial states
             (:meth:`solvability`) and raise :class:`SolvabilityError` naming the
@@ -942,15 +964,23 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
 
         Returns
         -------
-        ndarray of shape (B, K+1, 2n) (or (K+1, 2n) for a single state)
-            ``traj[:, k]`` is the state at ``t = k dT``.
+        ndarray of shape (B, K // stride + 1, 2n) (or (K // stride + 1, 2n) for a single state)
+            ``traj[:, j]`` is the state at ``t = j stride dT``.
+
+        Raises
+        ------
+        RolloutMemoryError
+            Before any step, when the kept states do not fit in the available memory.
 
         Notes
         -----
         All instances advance together; the ``(B, m)`` parameter weights are
-        formed once.  Cost ``O(K B m (2n)^2 n_newton)``.
+        formed once.  Cost ``O(K B m (2n)^2 n_newton)``, memory ``O(B (K / stride) 2n)``.
+        The steps run in chunks of about 0.2 s, between which Ctrl-C interrupts the rollout
+        (:func:`~sympredict.newton.rollout_in_chunks`).
         """
         n_steps = as_positive_int(n_steps, "n_steps", minimum=0)
+        stride = as_positive_int(stride, "stride")
         x, single, mu, dt = self._query(x0, mu, dt, name="x0")
         weights = self.surrogate_.weights(mu, dt)
         if check_solvability:
@@ -958,8 +988,8 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
             bad = np.flatnonzero(~(margin < 1.0))
             if bad.size:
                 raise SolvabilityError(bad, margin[bad])
-        traj = self._rollout(x, weights, dt, n_steps)
-        self._warn_if_trajectory_leaves(traj)
+        traj = self._rollout(x, weights, dt, n_steps, stride=stride, progress=progress)
+        self._warn_if_trajectory_leaves(traj, stride)
         return traj[0] if single else traj
 
     def _solvability(self, x, weights, dt):
@@ -1123,12 +1153,16 @@ class DirectKernelPredictor(_FlowMapKernelModel):
         out = self._advance(x, self.surrogate_.weights(mu, dt), dt)
         return out[0] if single else out
 
-    def rollout(self, x0, n_steps: int, mu=None, dt=None) -> np.ndarray:
-        """Trajectories (B, K+1, 2n) of ``n_steps`` explicit steps; ``O(K B m 2n)``."""
+    def rollout(self, x0, n_steps: int, mu=None, dt=None, *, stride: int = 1, progress=None) -> np.ndarray:
+        """Trajectories (B, K // stride + 1, 2n) of ``n_steps`` explicit steps, every ``stride``-th state kept.
+
+        ``stride`` and ``progress`` as in :meth:`SymplecticKernelPredictor.rollout`; ``O(K B m 2n)``.
+        """
         n_steps = as_positive_int(n_steps, "n_steps", minimum=0)
+        stride = as_positive_int(stride, "stride")
         x, single, mu, dt = self._query(x0, mu, dt, name="x0")
-        traj = self._rollout(x, self.surrogate_.weights(mu, dt), dt, n_steps)
-        self._warn_if_trajectory_leaves(traj)
+        traj = self._rollout(x, self.surrogate_.weights(mu, dt), dt, n_steps, stride=stride, progress=progress)
+        self._warn_if_trajectory_leaves(traj, stride)
         return traj[0] if single else traj
 
     # ----------------------------------------------------------------- files

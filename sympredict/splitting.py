@@ -190,8 +190,10 @@ class SplitKernelPredictor(Parametrized):
         out = _apply(L, self.predictor_.step(_apply(L, x), mu=self._inner_mu(mu), dt=dt))
         return out[0] if single else out
 
-    def rollout(self, x0, n_steps: int, mu=None, dt=None) -> np.ndarray:
-        """Trajectories (B, K+1, 2n) (or (K+1, 2n)) of ``n_steps`` predicted steps.
+    def rollout(self, x0, n_steps: int, mu=None, dt=None, *, stride: int = 1, progress=None) -> np.ndarray:
+        """Trajectories (B, K // stride + 1, 2n) (or (K // stride + 1, 2n)) of ``n_steps`` predicted steps.
+
+        ``stride`` and ``progress`` as in :meth:`SymplecticKernelPredictor.rollout` (chunked, Ctrl-C between chunks).
 
         Notes
         -----
@@ -205,14 +207,15 @@ class SplitKernelPredictor(Parametrized):
         guess.  Extrapolation warnings are about the inner coordinates ``L_h x``.
         """
         n_steps = as_positive_int(n_steps, "n_steps", minimum=0)
+        stride = as_positive_int(stride, "stride")
         x, single, mu, dt, L = self._query(x0, mu, dt, name="x0")
         inner = self.predictor_
         # the inner model validates its query (warns if mu, dt or L_h x0 are outside its training box) ...
         _, _, inner_mu, inner_dt = inner._query(_apply(L, x), self._inner_mu(mu), dt, name="x0")
         weights = inner.surrogate_.weights(inner_mu, inner_dt)
-        traj = inner._rollout(x, weights, inner_dt, n_steps, around=(L, L))
+        traj = inner._rollout(x, weights, inner_dt, n_steps, around=(L, L), stride=stride, progress=progress)
         seen = np.einsum("bij,bkj->bki", L, traj)  # the inner model's inputs L_h x_k
-        inner._warn_if_trajectory_leaves(seen)  # ... and if the trajectories leave it
+        inner._warn_if_trajectory_leaves(seen, stride)  # ... and if the trajectories leave it
         return traj[0] if single else traj
 
     def step_jacobian(self, x, mu=None, dt=None) -> np.ndarray:
