@@ -167,13 +167,17 @@ def _compiled(flags: dict):
     return decorate
 
 
-def _from_cache_module(exc: BaseException) -> bool:
-    """Whether ``exc`` was raised inside numba's caching code (an unreadable or unwritable cache)."""
-    tb = exc.__traceback__
-    while tb is not None:
-        if tb.tb_frame.f_code.co_filename.replace("\\", "/").endswith("numba/core/caching.py"):
-            return True
-        tb = tb.tb_next
+def _from_cache_module(exc: Optional[BaseException]) -> bool:
+    """Whether ``exc`` (or an exception it was raised from) came from numba's caching code: an unusable cache."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        seen.add(id(exc))
+        tb = exc.__traceback__
+        while tb is not None:
+            if tb.tb_frame.f_code.co_filename.replace("\\", "/").endswith("numba/core/caching.py"):
+                return True
+            tb = tb.tb_next
+        exc = exc.__cause__ or exc.__context__
     return False
 
 
