@@ -224,9 +224,15 @@ if HAVE_NUMBA:
     from numba.core import types as _nbtypes
     from numba.extending import typeof_impl
 
+    _LITERALS: dict = {}
+
     @typeof_impl.register(FamilyCode)
     def _typeof_family_code(value, context):
-        return _nbtypes.literal(int(value))
+        # called on every call of a kernel from Python: the literal type is built once per code
+        try:
+            return _LITERALS[value]
+        except KeyError:
+            return _LITERALS.setdefault(value, _nbtypes.literal(int(value)))
 
 
 #: The package's kernel families and their codes (the ``family`` argument of the compiled kernels).
