@@ -58,7 +58,8 @@ from sympredict.kernels import IMQ  # noqa: E402
 
 
 def load_revision(rev: str, where: Path):
-    """``sympredict/_fastkernels.py`` of ``rev`` as a module (numba's disk cache off for it)."""
+    """``sympredict/_fastkernels.py`` of ``rev`` as a module (older revisions: numba's disk cache off for it; newer:
+    cached next to the copy in ``where``)."""
     src = subprocess.run(["git", "-C", str(ROOT), "show", f"{rev}:sympredict/_fastkernels.py"], capture_output=True,
                          text=True, check=True).stdout
     src = src.replace("_build(cache)", "_build(False)")

@@ -32,10 +32,16 @@ well-conditioned model and to the gradient's round-off floor on an
 ill-conditioned one, where NumPy does not agree with itself across batch sizes
 either.
 
-Kernel formulas are not written here: :func:`compiled_formulas` compiles a
-family's own static methods (:class:`sympredict.kernels.RadialKernel`), so
-every registered family runs compiled, and the compiled functions take them
-as arguments (numba specialises once per family).
+Kernel formulas are not written here: the compiled code calls the families'
+own static methods (:class:`sympredict.kernels.RadialKernel`), compiled from
+the same Python functions (:func:`compiled_formulas`).  Every compiled kernel
+is a top-level function that takes the kernel family as an integer code and
+reaches the formulas through :func:`_profile`, :func:`_first_factors` and
+:func:`_all_factors` (one branch per family of the package).  A family
+registered from outside the package (:func:`sympredict.kernels.register_family`)
+has no code: for it the same functions are compiled once more per process,
+bound to dispatchers that know its formulas, and not cached on disk
+(:func:`_kernels`).
 
 For the exact f-greedy (:mod:`sympredict.greedy`): :func:`greedy_update` (the
 vector work of a step after the matrix-vector product, one pass) and
@@ -46,7 +52,19 @@ all training points, for the active-set greedy's refreshes) are not meant to be.
 
 numba is optional (``pip install sympredict[fast]``): :data:`HAVE_NUMBA` says
 whether it is importable, and nothing here is compiled before first use.
-Compiled functions are cached on disk (``cache=True``).
+
+Compiled code is cached on disk, once per machine (numba's ``cache=True``):
+the first process that uses a kernel compiles it (seconds), later processes
+load it.  The cache lives where numba puts it: the ``__pycache__`` folder next
+to this module when that is writable, else numba's per-user cache folder, or
+the folder named by the environment variable ``NUMBA_CACHE_DIR`` (set before
+numba is imported).  It holds one index per compiled function, with one entry
+per argument types and CPU, so it does not grow with the number of processes.
+A cache that cannot be read or written costs compilation in every process, not
+an error: the kernels then run uncached, with one logged warning.  numba checks
+the cache against the date of this file only: after editing a formula in
+:mod:`sympredict.kernels`, :mod:`sympredict.newton_rule` or
+:mod:`sympredict._numeric`, delete the cache folder.
 
 Failure codes returned per instance: 0 converged, 1 non-finite residual,
 2 singular Jacobian (exact zero pivot), 3 no convergence in ``max_iter``
@@ -55,6 +73,7 @@ iterations.
 
 from __future__ import annotations
 
+import logging
 import math
 import time
 import types
@@ -71,13 +90,15 @@ except ImportError:  # pragma: no cover
     HAVE_NUMBA = False
 
 from sympredict._numeric import lu_solve_inplace
-from sympredict.kernels import IMQ
+from sympredict.kernels import IMQ, Matern32, Matern52
 from sympredict.newton_rule import converged, residual_floor
 
 __all__ = [
     "HAVE_NUMBA", "compiled_formulas", "CenterLayout", "newton_solve", "newton_rollout", "matvec_t", "set_num_threads",
     "get_num_threads",
 ]
+
+logger = logging.getLogger(__name__)
 
 #: Batches below this size are solved on one thread (thread start-up costs more).
 PARALLEL_MIN_BATCH = 8
@@ -96,637 +117,854 @@ def set_num_threads(n: int) -> None:
         numba.set_num_threads(int(n))
 
 
-def _build(cache: bool):  # noqa: C901 - the compiled definitions
-    """Compile-on-first-call definitions of every compiled kernel, as one namespace.
+# --------------------------------------------------------------------------- compilation and the disk cache
+#: Flags of the kernels.  _JIT: plain IEEE arithmetic.  _FJIT: the Newton pass's loops over a chunk of centres,
+#: whose reductions may be reassociated (so that they vectorise) and products fused (FMA); the summation order
+#: then depends only on the chunk's length (LLVM's vectoriser does not peel for alignment, and the pass's
+#: reductions store nothing that could alias), so results stay bit-reproducible run to run, across batch sizes
+#: and threads.  The formulas are compiled with _EXACT (fastmath off explicitly: numba compiles a callee that
+#: leaves it unset with its caller's flags) and keep it when inlined.  _PJIT: the parallel loops.
+_JIT = dict(nogil=True, fastmath=False, error_model="numpy")
+_EXACT = _JIT
+_FJIT = dict(nogil=True, fastmath={"reassoc", "contract"}, error_model="numpy")
+_PJIT = dict(nogil=True, parallel=True)
 
-    Built twice: cached on disk (``cache=True``) for the package's own kernel
-    families, and not cached for families defined elsewhere.  numba's cache
-    index of a function lists every type it was compiled for; a family class
-    from a script or a test module in that list would make the index
-    unreadable to any process that cannot import that module.  The functions
-    of one namespace call each other (closures), so the two never mix.
+#: ``(name, Python function, flags)`` of every compiled kernel below (:func:`_user_namespace` compiles them again).
+_DEFINITIONS: list = []
+
+#: The disk-cached dispatchers (for :func:`_disable_disk_cache`).
+_CACHED: list = []
+
+_CACHE_WARNED = False
+
+
+def _warn_cache(exc: BaseException) -> None:
+    """Log, once per process, that the disk cache is unusable (compilation then happens in every process)."""
+    global _CACHE_WARNED
+    if not _CACHE_WARNED:
+        _CACHE_WARNED = True
+        logger.warning("numba's disk cache of sympredict's compiled kernels is unusable (%s: %s); compiling them in "
+                       "this process instead.  Delete the cache folder (sympredict/__pycache__, or NUMBA_CACHE_DIR) "
+                       "or make it writable.", type(exc).__name__, exc)
+
+
+def _jit_cached(function, flags: dict):
+    """``numba.njit(function, cache=True, **flags)``; a cache folder that cannot be used leaves it uncached."""
+    dispatcher = numba.njit(**flags)(function)
+    try:  # what cache=True does; it raises if no cache folder is writable (a read-only install, no home folder)
+        dispatcher.enable_caching()
+    except Exception as exc:  # noqa: BLE001 - any failure of the cache only costs compile time
+        _warn_cache(exc)
+    _CACHED.append(dispatcher)
+    return dispatcher
+
+
+def _compiled(flags: dict):
+    """Decorator: a top-level compiled kernel, cached on disk (the Python function stays listed for other families)."""
+    def decorate(function):
+        _DEFINITIONS.append((function.__name__, function, flags))
+        return _jit_cached(function, flags) if HAVE_NUMBA else function
+    return decorate
+
+
+def _from_cache_module(exc: Optional[BaseException]) -> bool:
+    """Whether ``exc`` (or an exception it was raised from) came from numba's caching code: an unusable cache."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        seen.add(id(exc))
+        tb = exc.__traceback__
+        while tb is not None:
+            if tb.tb_frame.f_code.co_filename.replace("\\", "/").endswith("numba/core/caching.py"):
+                return True
+            tb = tb.tb_next
+        exc = exc.__cause__ or exc.__context__
+    return False
+
+
+def _disable_disk_cache(exc: BaseException) -> None:
+    """Stop reading and writing the disk cache in this process (after ``exc`` from it); logs one warning."""
+    _warn_cache(exc)
+    for dispatcher in _CACHED:
+        dispatcher._cache.disable()  # the dispatcher's FunctionCache; loads and saves become no-ops
+
+
+def _call(kernel, *args):
+    """``kernel(*args)``, surviving a corrupt or unwritable disk cache (compiles without it, warns once).
+
+    A cache error is raised while numba loads or saves compiled code, before the
+    kernel runs, so the call can be repeated.
     """
-    _jit = numba.njit(cache=cache, nogil=True, fastmath=False, error_model="numpy")
-    _pjit = numba.njit(cache=cache, nogil=True, parallel=True)
-    # The Newton pass's loops over a chunk of centres: reductions may be reassociated (so that
-    # they vectorise) and products fused (FMA).  The summation order then depends only on the
-    # chunk's length (LLVM's vectoriser does not peel for alignment, and the pass's reductions
-    # store nothing that could alias), so results stay bit-reproducible run to run, across batch
-    # sizes and threads.  The family's formulas are compiled separately (compiled_formulas)
-    # without these flags and keep them when inlined.
-    _fjit = numba.njit(cache=cache, nogil=True, fastmath={"reassoc", "contract"}, error_model="numpy")
-
-    @_jit
-    def _chunk_factors(factors, eps, r2, fA, fB, fC, L):
-        """The family's ``(A, B, C)`` (``factors``: its compiled :meth:`~sympredict.kernels.RadialKernel.all_factors`)
-        at the distances ``sqrt(r2[j])``, ``j < L``: the factor-cost probe (:func:`factor_throughput`)."""
-        for j in range(L):
-            fA[j], fB[j], fC[j] = factors(eps, math.sqrt(r2[j]))
-
-    @_jit
-    def _chunk_factors_repeat(factors, eps, r2, fA, fB, fC, L, reps):
-        """:func:`_chunk_factors` ``reps`` times (the in-cache factor-cost probe)."""
-        for _ in range(reps):
-            _chunk_factors(factors, eps, r2, fA, fB, fC, L)
-
-    @_fjit
-    def _sum(x, L):
-        s = 0.0
-        for j in range(L):
-            s += x[j]
-        return s
-
-    @_fjit
-    def _dot(x, y, L):
-        s = 0.0
-        for j in range(L):
-            s += x[j] * y[j]
-        return s
-
-    @_fjit
-    def _dot3(x, y, z, L):
-        s = 0.0
-        for j in range(L):
-            s += x[j] * y[j] * z[j]
-        return s
-
-    @_fjit
-    def _chunk(xi, w, cT, j0, L, l, factors, eps, mode, dif, r2, dmax, uB, uC, ubg, tmp, grad, hess):
-        """One chunk of :func:`_pass` (centres ``j0:j0+L``, all differentiating component ``l``); returns its floor sum."""
-        dim = cT.shape[0]
-        n = dim // 2
-        # differences, squared distances and (for the floor) max_a |d_ja|: one sweep per pair of
-        # coordinates (2n is even), which halves the traffic of r2 and dmax.  The chunk's rows are
-        # views indexed from 0 (an index j0 + j would be checked for wraparound per element), and
-        # the max is a select (numba's max() on floats does not vectorise).
-        wc = w[j0:j0 + L]
-        for a in range(0, dim, 2):
-            xa = xi[a]
-            xb = xi[a + 1]
-            row_a = dif[a]
-            row_b = dif[a + 1]
-            ca = cT[a, j0:j0 + L]
-            cb = cT[a + 1, j0:j0 + L]
-            if a == 0:
-                for j in range(L):
-                    da = xa - ca[j]
-                    db = xb - cb[j]
-                    row_a[j] = da
-                    row_b[j] = db
-                    r2[j] = da * da + db * db
-                    ada = abs(da)
-                    adb = abs(db)
-                    dmax[j] = ada if ada > adb else adb
-            else:
-                for j in range(L):
-                    da = xa - ca[j]
-                    db = xb - cb[j]
-                    row_a[j] = da
-                    row_b[j] = db
-                    r2[j] += da * da + db * db
-                    ada = abs(da)
-                    adb = abs(db)
-                    m = dmax[j]
-                    m = ada if ada > m else m
-                    dmax[j] = adb if adb > m else m
-        # kernel factors and their weighted combinations; the sums of w A, w B g and the floor terms
-        g_row = dif[l]
-        s_a = 0.0
-        s_bg = 0.0
-        s_fl = 0.0
-        if mode == 0:
-            for j in range(L):
-                A, B, C = factors(eps, math.sqrt(r2[j]))
-                wj = wc[j]
-                s_a += wj * A
-                ubg[j] = (wj * B) * g_row[j]
-        else:
-            for j in range(L):
-                A, B, C = factors(eps, math.sqrt(r2[j]))
-                wj = wc[j]
-                g = g_row[j]
-                a_ = wj * A
-                b_ = wj * B
-                bg = b_ * g
-                s_a += a_
-                s_bg += bg
-                s_fl += abs(bg) * dmax[j] + abs(a_)
-                ubg[j] = bg
-                uB[j] = b_
-                uC[j] = (wj * C) * g
-        grad[l] -= s_a
-        for a in range(dim):
-            grad[a] -= _dot(ubg, dif[a], L)
-        if mode == 0:
-            return 0.0
-        # Hessian entries (a, c) with r0 <= a < r1, max(c0, a) <= c < c1, stored at hess[a - r0, c - c0]:
-        # mode 1 the block d_p d_q s (rows q, columns p), mode 2 the upper triangle of the full Hessian
-        c0 = n if mode == 1 else 0
-        r1 = n if mode == 1 else dim
-        for a in range(r1):
-            cs = max(c0, a)
-            if dim - cs == 1:
-                hess[a, cs - c0] -= _dot3(uC, dif[a], dif[cs], L)
-            else:
-                row = dif[a]
-                for j in range(L):
-                    tmp[j] = uC[j] * row[j]
-                c = cs
-                while c + 4 <= dim:  # four columns per sweep: each load of tmp feeds four products
-                    d0 = dif[c]
-                    d1 = dif[c + 1]
-                    d2 = dif[c + 2]
-                    d3 = dif[c + 3]
-                    s0 = 0.0
-                    s1 = 0.0
-                    s2 = 0.0
-                    s3 = 0.0
-                    for j in range(L):
-                        t = tmp[j]
-                        s0 += t * d0[j]
-                        s1 += t * d1[j]
-                        s2 += t * d2[j]
-                        s3 += t * d3[j]
-                    hess[a, c - c0] -= s0
-                    hess[a, c + 1 - c0] -= s1
-                    hess[a, c + 2 - c0] -= s2
-                    hess[a, c + 3 - c0] -= s3
-                    c += 4
-                for cc in range(c, dim):
-                    hess[a, cc - c0] -= _dot(tmp, dif[cc], L)
-        # M_ac + M_ca, M_ac = sum_j w_j B_j d_ja [l = c]: column l (rows a <= l) and row l (columns c >= l)
-        if l >= c0:
-            for a in range(min(r1, l + 1)):
-                hess[a, l - c0] -= _dot(uB, dif[a], L)
-        if l < r1:
-            for c in range(max(c0, l), dim):
-                hess[l, c - c0] -= _dot(uB, dif[c], L)
-        if mode == 2:  # delta_ac sum_j w_j B_j g_j
-            for a in range(dim):
-                hess[a, a] -= s_bg
-        return s_fl
-
-    @_fjit
-    def _chunk2(xi, w, cT, j0, L, l, factors, eps, mode, grad, hess):
-        """:func:`_chunk` for ``2n = 2``: one loop over centres ``j0:j0+L``, every sum in a register, no scratch.
-
-        The same terms as :func:`_chunk` (``n = 1``: the block ``d_p d_q s`` is ``hess[0, 0]``; the full
-        Hessian's upper triangle ``hess[0, 0], hess[0, 1], hess[1, 1]``); only the summation order differs.
-        Why: for ``2n = 2`` storing the differences and weighted factors and reading them back costs as much
-        as the arithmetic (pendulum rollout, 1,500 centres: 1.58 -> 1.17 ns per centre visit, one thread).
-        """
-        x0 = xi[0]
-        x1 = xi[1]
-        c0 = cT[0, j0:j0 + L]
-        c1 = cT[1, j0:j0 + L]
-        cl = cT[l, j0:j0 + L]  # the differentiated coordinate: g = x_l - c_l without a select per centre
-        xl = xi[l]
-        wc = w[j0:j0 + L]
-        s_a = 0.0   # sum w A
-        s_bg = 0.0  # sum w B g
-        g0 = 0.0    # sum w B g d_0
-        g1 = 0.0    # sum w B g d_1
-        fl = 0.0    # floor terms
-        h00 = 0.0   # sum w C g d_0 d_0
-        h01 = 0.0   # sum w C g d_0 d_1
-        h11 = 0.0   # sum w C g d_1 d_1
-        m0 = 0.0    # sum w B d_0
-        m1 = 0.0    # sum w B d_1
-        for j in range(L):
-            d0 = x0 - c0[j]
-            d1 = x1 - c1[j]
-            A, B, C = factors(eps, math.sqrt(d0 * d0 + d1 * d1))
-            wj = wc[j]
-            g = xl - cl[j]
-            a_ = wj * A
-            b_ = wj * B
-            bg = b_ * g
-            s_a += a_
-            g0 += bg * d0
-            g1 += bg * d1
-            if mode != 0:
-                ad0 = abs(d0)
-                ad1 = abs(d1)
-                fl += abs(bg) * (ad0 if ad0 > ad1 else ad1) + abs(a_)
-                cg = (wj * C) * g
-                h01 += cg * d0 * d1
-                m0 += b_ * d0
-                m1 += b_ * d1
-                if mode == 2:
-                    s_bg += bg
-                    h00 += cg * d0 * d0
-                    h11 += cg * d1 * d1
-        grad[l] -= s_a
-        grad[0] -= g0
-        grad[1] -= g1
-        if mode == 1:  # the block d_p d_q s: (a, c) = (0, 1), M_01 = [l = 1] m0, M_10 = [l = 0] m1
-            hess[0, 0] -= h01 + (m0 if l == 1 else m1)
-        elif mode == 2:
-            # H_ac = -sum w C g d_a d_c - delta_ac s_bg - M_ac - M_ca, M_ac = [l = c] sum w B d_a
-            hess[0, 0] -= h00 + s_bg + (2.0 * m0 if l == 0 else 0.0)
-            hess[1, 1] -= h11 + s_bg + (2.0 * m1 if l == 1 else 0.0)
-            hess[0, 1] -= h01 + (m0 if l == 1 else m1)
-        return fl
-
-    @_jit
-    def _pass(xi, w, cT, seg, factors, eps, mode, sc, grad, hess):
-        """One pass over the centres at the point ``xi``: gradient of ``s`` and, by ``mode``, Hessian terms and floor.
-
-        ``mode`` 0: the gradient only; 1: also the block ``d_p d_q s`` (``hess[:n, :n]``,
-        rows ``q``, columns ``p``; the symplectic-Euler Jacobian); 2: also the full
-        Hessian (``hess`` (2n, 2n); the midpoint Jacobian).  Centres are grouped by
-        differentiated component: ``cT`` (2n, m) holds them column-wise, centres
-        ``seg[l]:seg[l+1]`` differentiate component ``l``.  Per component the
-        centres are processed in chunks of ``sc[0].shape[1]`` that stay in L1:
-        differences, kernel factors, then each sum over the chunk as one
-        vectorised reduction.  With ``g_j = d_{j l}``:
-
-        ``grad_a = -sum_j w_j B_j g_j d_ja - [a = l] sum_j w_j A_j``,
-        ``H_ac = -sum_j w_j C_j g_j d_ja d_jc - delta_ac sum_j w_j B_j g_j - M_ac - M_ca``,
-        ``M_ac = sum_j w_j B_j d_ja [l = c]``
-        (:meth:`sympredict.surrogate.HBSurrogate.gradient_hessian`).
-
-        ``O(m 2n)`` flops for the gradient, ``+ O(m n^2)`` for the block, ``+ O(m (2n)^2 / 2)``
-        for the full Hessian (its upper triangle, mirrored); ``O((2n + 6) chunk)``
-        scratch.  Returns the floor ``eps (sum_j |w_j B_j g_j| max_a |d_ja| + sum_j |w_j A_j|)``
-        (0 in mode 0).
-        """
-        dif, r2, dmax, uB, uC, ubg, tmp = sc
-        dim = cT.shape[0]
-        n = dim // 2
-        ch = dif.shape[1]
-        for a in range(dim):
-            grad[a] = 0.0
-        if mode == 1:
-            for a in range(n):
-                for c in range(n):
-                    hess[a, c] = 0.0
-        elif mode == 2:
-            for a in range(dim):
-                for c in range(dim):
-                    hess[a, c] = 0.0
-        floor = 0.0
-        for l in range(dim):
-            if dim == 2:  # no scratch, so no chunks: one loop over the component's centres
-                floor += _chunk2(xi, w, cT, seg[l], seg[l + 1] - seg[l], l, factors, eps, mode, grad, hess)
-                continue
-            for j0 in range(seg[l], seg[l + 1], ch):
-                L = min(ch, seg[l + 1] - j0)
-                floor += _chunk(xi, w, cT, j0, L, l, factors, eps, mode, dif, r2, dmax, uB, uC, ubg, tmp, grad, hess)
-        if mode == 2:
-            for a in range(dim):
-                for c in range(a):
-                    hess[a, c] = hess[c, a]
-        return _EPS * floor
-
-    @_jit
-    def _scratch(dim, chunk):
-        """The pass's scratch (:func:`_pass` ``sc``): differences (2n, chunk) and six chunk vectors."""
-        return (np.empty((dim, chunk)), np.empty(chunk), np.empty(chunk), np.empty(chunk), np.empty(chunk),
-                np.empty(chunk), np.empty(chunk))
-
-    @_jit
-    def _solve_one(x, w, h, cT, seg, factors, eps, max_iter, out, sc, grad, hess, jac, delta, u, xi, warm, mid):
-        """One implicit step for one instance: ``out <- Phi(x)``.  Returns ``(code, residual, iteration)``.
-
-        The iteration and stopping rule of the NumPy references, for one instance:
-        symplectic Euler (``mid`` False, :func:`sympredict.newton.solve_step_numpy`):
-        unknowns ``u = p1``, ``F = p1 - p0 + dT d_q s(q0, p1)``, Jacobian ``I + dT d_p d_q s``;
-        midpoint (``mid`` True, :func:`sympredict.newton.solve_midpoint_numpy`):
-        unknowns ``u = z = (x0 + x1) / 2``, ``F = z - x0 - dT/2 J grad s(z)``, Jacobian
-        ``I - dT/2 J Hess s(z)``.  ``u`` holds the first guess when ``warm``.
-        """
-        dim = x.shape[0]
-        n = dim // 2
-        k = u.shape[0]  # unknowns: n (symplectic Euler) or 2n (midpoint)
-        hh = 0.5 * h if mid else h  # the step in the residual
-        if not warm:  # explicit guess from the gradient at x0: one pass over the centres
-            _pass(x, w, cT, seg, factors, eps, 0, sc, grad, hess)
-            if mid:  # z ~ x0 + dT/2 J grad s(x0)
-                for a in range(n):
-                    u[a] = x[a] + hh * grad[n + a]
-                    u[n + a] = x[n + a] + hh * -grad[a]
-            else:  # p1 ~ p0 - dT d_q s(q0, p0)
-                for a in range(n):
-                    u[a] = x[n + a] - h * grad[a]
-        if not mid:
-            for a in range(n):
-                xi[a] = x[a]
-        last = np.inf
-        f_norm = np.inf
-        for it in range(max_iter):
-            for a in range(k):
-                xi[dim - k + a] = u[a]
-            floor = _pass(xi, w, cT, seg, factors, eps, 2 if mid else 1, sc, grad, hess)
-            f_norm = 0.0
-            scale = 0.0
-            finite = True
-            for a in range(k):
-                if mid:
-                    jg = grad[n + a] if a < n else -grad[a - n]
-                    fk = u[a] - x[a] - hh * jg
-                    x_ref = x[a]
-                else:
-                    fk = u[a] - x[n + a] + h * grad[a]
-                    x_ref = x[n + a]
-                delta[a] = fk
-                if not math.isfinite(fk):
-                    finite = False
-                af = abs(fk)
-                if af > f_norm:
-                    f_norm = af
-                ap = abs(u[a])
-                if ap > scale:
-                    scale = ap
-                ap = abs(x_ref)
-                if ap > scale:
-                    scale = ap
-            if not finite:
-                return 1, np.nan if f_norm == f_norm else f_norm, it
-            f_floor = residual_floor(scale, floor, abs(hh) if mid else h)
-            if mid:  # I - dT/2 J H: rows of J H are (H[n + a], -H[a])
-                for a in range(n):
-                    for c in range(dim):
-                        jac[a, c] = -(hh * hess[n + a, c])
-                        jac[n + a, c] = hh * hess[a, c]
-            else:
-                for a in range(n):
-                    for c in range(n):
-                        jac[a, c] = h * hess[a, c]
-            for a in range(k):
-                jac[a, a] += 1.0
-            if not lu_solve_inplace(jac, delta):  # the residual becomes the Newton update
-                return 2, f_norm, it
-            d_norm = 0.0
-            for a in range(k):
-                v = abs(delta[a])
-                if v > d_norm or v != v:
-                    d_norm = v
-            if converged(f_norm, f_floor, d_norm, last, scale):
-                if mid:  # x1 = x0 + dT J grad s(z)
-                    for a in range(n):
-                        out[a] = x[a] + h * grad[n + a]
-                        out[n + a] = x[n + a] + h * -grad[a]
-                else:
-                    for a in range(n):
-                        out[a] = x[a] + h * grad[n + a]
-                        out[n + a] = u[a]
-                return 0, f_norm, it
-            last = d_norm
-            for a in range(k):
-                u[a] -= delta[a]
-        return 3, f_norm, max_iter
-
-    @_jit
-    def _matvec_into(M, x, out):
-        """``out <- M x`` for a small square ``M`` (the split rollout's maps), ``O(dim^2)``."""
-        for a in range(M.shape[0]):
-            acc = 0.0
-            for c in range(M.shape[1]):
-                acc += M[a, c] * x[c]
-            out[a] = acc
-
-    @_jit
-    def _rollout_one(i, x0, W, h, cT, seg, factors, eps, max_iter, chunk, traj, codes, fail_step, fail_iter, resid, passes,
-                     warm_start, mid, pre, post, around):
-        """One instance's rollout; with ``around``: ``x_k+1 = post[i] S(pre[i] x_k)`` (S the implicit step)."""
-        dim = x0.shape[1]
-        n = dim // 2
-        k_unknown = dim if mid else n
-        sc = _scratch(dim, chunk)
-        grad = np.empty(dim)
-        hess = np.empty((dim, dim))
-        jac = np.empty((k_unknown, k_unknown))
-        u = np.empty(k_unknown)
-        delta = np.empty(k_unknown)
-        xi = np.empty(dim)
-        y_in = np.empty(dim)  # around: the step's input pre x_k and output S(pre x_k)
-        y_out = np.empty(dim)
-        for a in range(dim):
-            traj[i, 0, a] = x0[i, a]
-        n_steps = traj.shape[1] - 1
-        codes[i] = 0
-        fail_step[i] = -1
-        fail_iter[i] = -1
-        resid[i] = 0.0
-        for k in range(n_steps):
-            warm = warm_start and k > 0
-            if warm:  # extrapolate the previous steps: saves the explicit guess's pass
-                off = 0 if mid else n
-                for a in range(k_unknown):
-                    x_k = traj[i, k, off + a]
-                    x_1 = traj[i, k - 1, off + a]
-                    if k >= 2:  # x_k+1 ~ 3 x_k - 3 x_k-1 + x_k-2 (error O(dT^3))
-                        nxt = 3.0 * (x_k - x_1) + traj[i, k - 2, off + a]
-                    else:  # x_k+1 ~ 2 x_k - x_k-1 (error O(dT^2))
-                        nxt = 2.0 * x_k - x_1
-                    u[a] = 0.5 * (x_k + nxt) if mid else nxt  # midpoint: z = (x_k + x_k+1) / 2
-            if around:
-                _matvec_into(pre[i], traj[i, k], y_in)
-                code, r, it = _solve_one(y_in, W[i], h[i], cT, seg, factors, eps, max_iter, y_out, sc, grad, hess,
-                                         jac, delta, u, xi, warm, mid)
-                _matvec_into(post[i], y_out, traj[i, k + 1])
-            else:
-                code, r, it = _solve_one(traj[i, k], W[i], h[i], cT, seg, factors, eps, max_iter, traj[i, k + 1], sc, grad,
-                                         hess, jac, delta, u, xi, warm, mid)
-            passes[i] += it + (1 if warm else 2)  # (the explicit guess's gradient pass and) it + 1 Newton passes
-            if code != 0:
-                codes[i] = code
-                fail_step[i] = k
-                fail_iter[i] = it
-                resid[i] = r
-                for kk in range(k + 1, n_steps + 1):
-                    for a in range(dim):
-                        traj[i, kk, a] = np.nan
-                return
-
-    @_pjit
-    def _rollout_parallel(x0, W, h, cT, seg, factors, eps, max_iter, chunk, traj, codes, fail_step, fail_iter, resid, passes,
-                          warm_start, mid, pre, post, around):
-        for i in numba.prange(x0.shape[0]):
-            _rollout_one(i, x0, W, h, cT, seg, factors, eps, max_iter, chunk, traj, codes, fail_step, fail_iter, resid, passes,
-                         warm_start, mid, pre, post, around)
-
-    @_jit
-    def _rollout_serial(x0, W, h, cT, seg, factors, eps, max_iter, chunk, traj, codes, fail_step, fail_iter, resid, passes,
-                        warm_start, mid, pre, post, around):
-        for i in range(x0.shape[0]):
-            _rollout_one(i, x0, W, h, cT, seg, factors, eps, max_iter, chunk, traj, codes, fail_step, fail_iter, resid, passes,
-                         warm_start, mid, pre, post, around)
+    try:
+        return kernel(*args)
+    except Exception as exc:
+        if not _from_cache_module(exc):
+            raise
+        _disable_disk_cache(exc)
+        return kernel(*args)
 
 
-    @_pjit
-    def _matvec_t_kernel(basis, m, c, out, chunk):
-        """Column chunks in parallel; four rows per sweep over a chunk's float64 sums."""
-        n = basis.shape[1]
-        n_chunks = (n + chunk - 1) // chunk
-        for ch in numba.prange(n_chunks):
-            i0 = ch * chunk
-            i1 = min(n, i0 + chunk)
-            L = i1 - i0
-            acc = np.zeros(L)
-            k = 0
-            while k + 4 <= m:
-                c0 = c[k]
-                c1 = c[k + 1]
-                c2 = c[k + 2]
-                c3 = c[k + 3]
-                r0 = basis[k, i0:i1]
-                r1 = basis[k + 1, i0:i1]
-                r2 = basis[k + 2, i0:i1]
-                r3 = basis[k + 3, i0:i1]
-                for i in range(L):
-                    acc[i] += (c0 * r0[i] + c1 * r1[i]) + (c2 * r2[i] + c3 * r3[i])
-                k += 4
-            while k < m:
-                ck = c[k]
-                r0 = basis[k, i0:i1]
-                for i in range(L):
-                    acc[i] += ck * r0[i]
-                k += 1
-            out[i0:i1] = acc
+# --------------------------------------------------------------------------- the families' formulas
+class FamilyCode(int):
+    """A kernel family's code as the compiled kernels take it: an ``int`` that numba types as a literal.
+
+    The kernels are then compiled once per family with the code a constant, so
+    the family dispatch (:func:`_all_factors`) folds to a direct call of the
+    family's formula, inlined into the loops over the centres as a function
+    argument would be; a plain ``int`` would leave a branch in those loops,
+    which stops them from vectorising (slower, and other round-off).  Python
+    ints are typed ``int64`` by numba; this subclass is typed
+    ``Literal[int](code)`` (unboxed as an ``int``), and the cache index holds
+    only numba's own types.
+    """
+
+    __slots__ = ()
 
 
-    @_pjit
-    def _gradients_kernel(xi, group, Wg, cT, seg, factors, eps, chunk, out):
-        dim = xi.shape[1]
-        n_pts = xi.shape[0]
-        block = 256  # points per task: the scratch is allocated once per block
-        for blk in numba.prange((n_pts + block - 1) // block):
-            sc = _scratch(dim, chunk)
-            hess = np.empty((dim, dim))
-            for i in range(blk * block, min(n_pts, (blk + 1) * block)):
-                _pass(xi[i], Wg[group[i]], cT, seg, factors, eps, 0, sc, out[i], hess)
+if HAVE_NUMBA:
+    from numba.core import types as _nbtypes
+    from numba.extending import typeof_impl
 
-    @_jit
-    def _terms_kernel(xi, W, cT, seg, factors, eps, chunk, mode, grad, hess, floor):
-        dim = xi.shape[1]
-        sc = _scratch(dim, chunk)
-        for i in range(xi.shape[0]):
-            floor[i] = _pass(xi[i], W[i], cT, seg, factors, eps, mode, sc, grad[i], hess[i])
+    _LITERALS: dict = {}
 
-    @_jit
-    def _greedy_update_chunk(ch, row, t, inv_pj, b, res, p2, j, breakdown, chunk, cmax, carg, cbest):
-        """One chunk of :func:`greedy_update`: its max ``|r|`` and its best selectable candidate."""
-        n = row.shape[0]
-        i0 = ch * chunk
-        i1 = min(n, i0 + chunk)
-        mx = 0.0
-        best = -np.inf
-        arg = -1
-        for i in range(i0, i1):
-            v = (row[i] - t[i]) * inv_pj
-            row[i] = v
-            if i == j:
-                r = 0.0
-                q = 0.0
-            else:
-                r = res[i] - b * v
-                q = p2[i] - v * v
-            res[i] = r
-            p2[i] = q
-            a = abs(r)
-            if a > mx or a != a:
-                mx = a if (mx == mx) else mx
-            if q > breakdown and (a > best or (a != a and best == best)):
-                best = a
-                arg = i
-        cmax[ch] = mx
-        carg[ch] = arg
-        cbest[ch] = best
-
-    @_pjit
-    def _greedy_update_parallel(row, t, inv_pj, b, res, p2, j, breakdown, chunk, cmax, carg, cbest):
-        for ch in numba.prange(cmax.shape[0]):
-            _greedy_update_chunk(ch, row, t, inv_pj, b, res, p2, j, breakdown, chunk, cmax, carg, cbest)
-
-    @_jit
-    def _greedy_update_serial(row, t, inv_pj, b, res, p2, j, breakdown, chunk, cmax, carg, cbest):
-        for ch in range(cmax.shape[0]):
-            _greedy_update_chunk(ch, row, t, inv_pj, b, res, p2, j, breakdown, chunk, cmax, carg, cbest)
+    @typeof_impl.register(FamilyCode)
+    def _typeof_family_code(value, context):
+        # called on every call of a kernel from Python: the literal type is built once per code
+        try:
+            return _LITERALS[value]
+        except KeyError:
+            return _LITERALS.setdefault(value, _nbtypes.literal(int(value)))
 
 
-    @_jit
-    def _hb_column2_range(p0, p1, points, mu, dt, xq, muq, dtq, b, e, first_factors, emu, mu_profile, edt, dt_profile,
-                          has_mu, has_dt, out):
-        """Column entries of points ``p0:p1`` (``2n = 2``), the operations of the NumPy column in its order."""
-        d_mu = mu.shape[1]
-        for p in range(p0, p1):
-            d0 = points[p, 0] - xq[0]
-            d1 = points[p, 1] - xq[1]
-            A, B = first_factors(e, math.sqrt(d0 * d0 + d1 * d1))
-            w = 1.0
-            if has_mu:
-                m2 = 0.0
-                for a in range(d_mu):
-                    dm = mu[p, a] - muq[a]
-                    m2 = dm * dm if a == 0 else m2 + dm * dm
-                w = mu_profile(emu, math.sqrt(m2))
-            if has_dt:
-                dd = dt[p] - dtq
-                kd = dt_profile(edt, math.sqrt(dd * dd))
-                w = w * kd if has_mu else kd
-            g = (-(w * B)) * (d1 if b == 1 else d0)
-            v0 = d0 * g
-            v1 = d1 * g
-            if b == 0:
-                v0 -= w * A
-            else:
-                v1 -= w * A
-            out[2 * p] = v0
-            out[2 * p + 1] = v1
+#: The package's kernel families and their codes (the ``family`` argument of the compiled kernels).
+FAMILY_CODES = {IMQ: FamilyCode(0), Matern52: FamilyCode(1), Matern32: FamilyCode(2)}
 
-    @_jit
-    def _hb_column2_serial(points, mu, dt, xq, muq, dtq, b, e, first_factors, emu, mu_profile, edt, dt_profile,
-                           has_mu, has_dt, out):
-        _hb_column2_range(0, points.shape[0], points, mu, dt, xq, muq, dtq, b, e, first_factors, emu, mu_profile, edt,
-                          dt_profile, has_mu, has_dt, out)
-
-    @_pjit
-    def _hb_column2_parallel(points, mu, dt, xq, muq, dtq, b, e, first_factors, emu, mu_profile, edt, dt_profile,
-                             has_mu, has_dt, out):
-        n_pts = points.shape[0]
-        block = 32768
-        for k in numba.prange((n_pts + block - 1) // block):
-            _hb_column2_range(k * block, min(n_pts, (k + 1) * block), points, mu, dt, xq, muq, dtq, b, e, first_factors,
-                              emu, mu_profile, edt, dt_profile, has_mu, has_dt, out)
-
-    return types.SimpleNamespace(**{k: v for k, v in locals().items() if k not in ("cache", "_jit", "_pjit")})
+_FORMULA_NAMES = ("profile", "first_factors", "all_factors")
 
 
-_NAMESPACES: dict = {}
+def _compile_formulas(family: type, cache: bool) -> tuple:
+    """A family's ``(profile, first_factors, all_factors)``, compiled from its own static methods."""
+    if cache:
+        return tuple(_jit_cached(getattr(family, name), _EXACT) for name in _FORMULA_NAMES)
+    return tuple(numba.njit(getattr(family, name), **_EXACT) for name in _FORMULA_NAMES)
 
 
-def _kernels(*families) -> types.SimpleNamespace:
-    """The compiled kernels for these kernel families: cached on disk only if all are the package's own."""
-    _check_available()
-    cache = all(f.__module__.startswith("sympredict.") for f in families)
-    ns = _NAMESPACES.get(cache)
-    if ns is None:
-        ns = _NAMESPACES[cache] = _build(cache)
-    return ns
+if HAVE_NUMBA:
+    _imq_profile, _imq_first, _imq_all = _compile_formulas(IMQ, True)
+    _m52_profile, _m52_first, _m52_all = _compile_formulas(Matern52, True)
+    _m32_profile, _m32_first, _m32_all = _compile_formulas(Matern32, True)
+
+
+def _formula(flags: dict):
+    """Decorator of the family dispatchers: compiled with the formulas' exact flags, cached on disk."""
+    def decorate(function):
+        return _jit_cached(function, flags) if HAVE_NUMBA else function
+    return decorate
+
+
+@_formula(_EXACT)
+def _profile(family, e, r):
+    """``phi(r)`` of the family with code ``family`` (:data:`FAMILY_CODES`)."""
+    if family == 0:
+        return _imq_profile(e, r)
+    elif family == 1:
+        return _m52_profile(e, r)
+    return _m32_profile(e, r)
+
+
+@_formula(_EXACT)
+def _first_factors(family, e, r):
+    """``(A, B)`` of the family with code ``family``."""
+    if family == 0:
+        return _imq_first(e, r)
+    elif family == 1:
+        return _m52_first(e, r)
+    return _m32_first(e, r)
+
+
+@_formula(_EXACT)
+def _all_factors(family, e, r):
+    """``(A, B, C)`` of the family with code ``family``."""
+    if family == 0:
+        return _imq_all(e, r)
+    elif family == 1:
+        return _m52_all(e, r)
+    return _m32_all(e, r)
+
+
+def _user_formula(family, e, r):
+    """The template of a dispatcher for families from outside the package: codes -1, -2, -3, then the package's."""
+    if family == -1:
+        return _U0(e, r)  # noqa: F821 - bound by _user_namespace
+    elif family == -2:
+        return _U1(e, r)  # noqa: F821
+    elif family == -3:
+        return _U2(e, r)  # noqa: F821
+    return _PACKAGE(family, e, r)  # noqa: F821
 
 
 _COMPILED_FORMULAS: dict = {}
 
 
 def compiled_formulas(family: type):
-    """The compiled ``(profile, first_factors, all_factors)`` of a kernel family (compiled once, cached on disk).
+    """The compiled ``(profile, first_factors, all_factors)`` of a kernel family.
 
     The same Python functions as the NumPy path (:class:`sympredict.kernels.RadialKernel`):
-    a family's formulas are written once.
+    a family's formulas are written once.  Cached on disk for the package's
+    families; a family defined elsewhere is compiled in every process (numba's
+    cache index of a function lists the types it was compiled for, and one
+    from a script or a test module would make it unreadable elsewhere).
     """
     _check_available()
     out = _COMPILED_FORMULAS.get(family)
     if out is None:
-        cache = family.__module__.startswith("sympredict.")  # see _build: other families' types stay out of the cache
-        # fastmath=False explicitly: numba compiles a callee that leaves it unset with its caller's flags, and the
-        # fused Newton pass (reassoc, contract) would then compile, and cache on disk, contracted formulas for everyone
-        out = _COMPILED_FORMULAS[family] = tuple(
-            numba.njit(getattr(family, name), cache=cache, nogil=True, fastmath=False, error_model="numpy")
-            for name in ("profile", "first_factors", "all_factors")
-        )
+        if family in FAMILY_CODES:
+            out = {IMQ: (_imq_profile, _imq_first, _imq_all), Matern52: (_m52_profile, _m52_first, _m52_all),
+                   Matern32: (_m32_profile, _m32_first, _m32_all)}[family]
+        else:
+            out = _compile_formulas(family, False)
+        _COMPILED_FORMULAS[family] = out
     return out
+
+
+# --------------------------------------------------------------------------- the compiled kernels
+@_compiled(_JIT)
+def _chunk_factors(family, eps, r2, fA, fB, fC, L):
+    """The ``(A, B, C)`` of family ``family`` (its code, :func:`_all_factors`)
+    at the distances ``sqrt(r2[j])``, ``j < L``: the factor-cost probe (:func:`factor_throughput`)."""
+    for j in range(L):
+        fA[j], fB[j], fC[j] = _all_factors(family, eps, math.sqrt(r2[j]))
+
+
+@_compiled(_JIT)
+def _chunk_factors_repeat(family, eps, r2, fA, fB, fC, L, reps):
+    """:func:`_chunk_factors` ``reps`` times (the in-cache factor-cost probe)."""
+    for _ in range(reps):
+        _chunk_factors(family, eps, r2, fA, fB, fC, L)
+
+
+@_compiled(_FJIT)
+def _dot(x, y, L):
+    s = 0.0
+    for j in range(L):
+        s += x[j] * y[j]
+    return s
+
+
+@_compiled(_FJIT)
+def _dot3(x, y, z, L):
+    s = 0.0
+    for j in range(L):
+        s += x[j] * y[j] * z[j]
+    return s
+
+
+@_compiled(_FJIT)
+def _chunk(xi, w, cT, j0, L, l, family, eps, mode, dif, r2, dmax, uB, uC, ubg, tmp, grad, hess):
+    """One chunk of :func:`_pass` (centres ``j0:j0+L``, all differentiating component ``l``); returns its floor sum."""
+    dim = cT.shape[0]
+    n = dim // 2
+    # differences, squared distances and (for the floor) max_a |d_ja|: one sweep per pair of
+    # coordinates (2n is even), which halves the traffic of r2 and dmax.  The chunk's rows are
+    # views indexed from 0 (an index j0 + j would be checked for wraparound per element), and
+    # the max is a select (numba's max() on floats does not vectorise).
+    wc = w[j0:j0 + L]
+    for a in range(0, dim, 2):
+        xa = xi[a]
+        xb = xi[a + 1]
+        row_a = dif[a]
+        row_b = dif[a + 1]
+        ca = cT[a, j0:j0 + L]
+        cb = cT[a + 1, j0:j0 + L]
+        if a == 0:
+            for j in range(L):
+                da = xa - ca[j]
+                db = xb - cb[j]
+                row_a[j] = da
+                row_b[j] = db
+                r2[j] = da * da + db * db
+                ada = abs(da)
+                adb = abs(db)
+                dmax[j] = ada if ada > adb else adb
+        else:
+            for j in range(L):
+                da = xa - ca[j]
+                db = xb - cb[j]
+                row_a[j] = da
+                row_b[j] = db
+                r2[j] += da * da + db * db
+                ada = abs(da)
+                adb = abs(db)
+                m = dmax[j]
+                m = ada if ada > m else m
+                dmax[j] = adb if adb > m else m
+    # kernel factors and their weighted combinations; the sums of w A, w B g and the floor terms
+    g_row = dif[l]
+    s_a = 0.0
+    s_bg = 0.0
+    s_fl = 0.0
+    if mode == 0:
+        for j in range(L):
+            A, B, C = _all_factors(family, eps, math.sqrt(r2[j]))
+            wj = wc[j]
+            s_a += wj * A
+            ubg[j] = (wj * B) * g_row[j]
+    else:
+        for j in range(L):
+            A, B, C = _all_factors(family, eps, math.sqrt(r2[j]))
+            wj = wc[j]
+            g = g_row[j]
+            a_ = wj * A
+            b_ = wj * B
+            bg = b_ * g
+            s_a += a_
+            s_bg += bg
+            s_fl += abs(bg) * dmax[j] + abs(a_)
+            ubg[j] = bg
+            uB[j] = b_
+            uC[j] = (wj * C) * g
+    grad[l] -= s_a
+    for a in range(dim):
+        grad[a] -= _dot(ubg, dif[a], L)
+    if mode == 0:
+        return 0.0
+    # Hessian entries (a, c) with r0 <= a < r1, max(c0, a) <= c < c1, stored at hess[a - r0, c - c0]:
+    # mode 1 the block d_p d_q s (rows q, columns p), mode 2 the upper triangle of the full Hessian
+    c0 = n if mode == 1 else 0
+    r1 = n if mode == 1 else dim
+    for a in range(r1):
+        cs = max(c0, a)
+        if dim - cs == 1:
+            hess[a, cs - c0] -= _dot3(uC, dif[a], dif[cs], L)
+        else:
+            row = dif[a]
+            for j in range(L):
+                tmp[j] = uC[j] * row[j]
+            c = cs
+            while c + 4 <= dim:  # four columns per sweep: each load of tmp feeds four products
+                d0 = dif[c]
+                d1 = dif[c + 1]
+                d2 = dif[c + 2]
+                d3 = dif[c + 3]
+                s0 = 0.0
+                s1 = 0.0
+                s2 = 0.0
+                s3 = 0.0
+                for j in range(L):
+                    t = tmp[j]
+                    s0 += t * d0[j]
+                    s1 += t * d1[j]
+                    s2 += t * d2[j]
+                    s3 += t * d3[j]
+                hess[a, c - c0] -= s0
+                hess[a, c + 1 - c0] -= s1
+                hess[a, c + 2 - c0] -= s2
+                hess[a, c + 3 - c0] -= s3
+                c += 4
+            for cc in range(c, dim):
+                hess[a, cc - c0] -= _dot(tmp, dif[cc], L)
+    # M_ac + M_ca, M_ac = sum_j w_j B_j d_ja [l = c]: column l (rows a <= l) and row l (columns c >= l)
+    if l >= c0:
+        for a in range(min(r1, l + 1)):
+            hess[a, l - c0] -= _dot(uB, dif[a], L)
+    if l < r1:
+        for c in range(max(c0, l), dim):
+            hess[l, c - c0] -= _dot(uB, dif[c], L)
+    if mode == 2:  # delta_ac sum_j w_j B_j g_j
+        for a in range(dim):
+            hess[a, a] -= s_bg
+    return s_fl
+
+
+@_compiled(_FJIT)
+def _chunk2(xi, w, cT, j0, L, l, family, eps, mode, grad, hess):
+    """:func:`_chunk` for ``2n = 2``: one loop over centres ``j0:j0+L``, every sum in a register, no scratch.
+
+    The same terms as :func:`_chunk` (``n = 1``: the block ``d_p d_q s`` is ``hess[0, 0]``; the full
+    Hessian's upper triangle ``hess[0, 0], hess[0, 1], hess[1, 1]``); only the summation order differs.
+    Why: for ``2n = 2`` storing the differences and weighted factors and reading them back costs as much
+    as the arithmetic (pendulum rollout, 1,500 centres: 1.58 -> 1.17 ns per centre visit, one thread).
+    """
+    x0 = xi[0]
+    x1 = xi[1]
+    c0 = cT[0, j0:j0 + L]
+    c1 = cT[1, j0:j0 + L]
+    cl = cT[l, j0:j0 + L]  # the differentiated coordinate: g = x_l - c_l without a select per centre
+    xl = xi[l]
+    wc = w[j0:j0 + L]
+    s_a = 0.0   # sum w A
+    s_bg = 0.0  # sum w B g
+    g0 = 0.0    # sum w B g d_0
+    g1 = 0.0    # sum w B g d_1
+    fl = 0.0    # floor terms
+    h00 = 0.0   # sum w C g d_0 d_0
+    h01 = 0.0   # sum w C g d_0 d_1
+    h11 = 0.0   # sum w C g d_1 d_1
+    m0 = 0.0    # sum w B d_0
+    m1 = 0.0    # sum w B d_1
+    for j in range(L):
+        d0 = x0 - c0[j]
+        d1 = x1 - c1[j]
+        A, B, C = _all_factors(family, eps, math.sqrt(d0 * d0 + d1 * d1))
+        wj = wc[j]
+        g = xl - cl[j]
+        a_ = wj * A
+        b_ = wj * B
+        bg = b_ * g
+        s_a += a_
+        g0 += bg * d0
+        g1 += bg * d1
+        if mode != 0:
+            ad0 = abs(d0)
+            ad1 = abs(d1)
+            fl += abs(bg) * (ad0 if ad0 > ad1 else ad1) + abs(a_)
+            cg = (wj * C) * g
+            h01 += cg * d0 * d1
+            m0 += b_ * d0
+            m1 += b_ * d1
+            if mode == 2:
+                s_bg += bg
+                h00 += cg * d0 * d0
+                h11 += cg * d1 * d1
+    grad[l] -= s_a
+    grad[0] -= g0
+    grad[1] -= g1
+    if mode == 1:  # the block d_p d_q s: (a, c) = (0, 1), M_01 = [l = 1] m0, M_10 = [l = 0] m1
+        hess[0, 0] -= h01 + (m0 if l == 1 else m1)
+    elif mode == 2:
+        # H_ac = -sum w C g d_a d_c - delta_ac s_bg - M_ac - M_ca, M_ac = [l = c] sum w B d_a
+        hess[0, 0] -= h00 + s_bg + (2.0 * m0 if l == 0 else 0.0)
+        hess[1, 1] -= h11 + s_bg + (2.0 * m1 if l == 1 else 0.0)
+        hess[0, 1] -= h01 + (m0 if l == 1 else m1)
+    return fl
+
+
+@_compiled(_JIT)
+def _pass(xi, w, cT, seg, family, eps, mode, sc, grad, hess):
+    """One pass over the centres at the point ``xi``: gradient of ``s`` and, by ``mode``, Hessian terms and floor.
+
+    ``mode`` 0: the gradient only; 1: also the block ``d_p d_q s`` (``hess[:n, :n]``,
+    rows ``q``, columns ``p``; the symplectic-Euler Jacobian); 2: also the full
+    Hessian (``hess`` (2n, 2n); the midpoint Jacobian).  Centres are grouped by
+    differentiated component: ``cT`` (2n, m) holds them column-wise, centres
+    ``seg[l]:seg[l+1]`` differentiate component ``l``.  Per component the
+    centres are processed in chunks of ``sc[0].shape[1]`` that stay in L1:
+    differences, kernel factors, then each sum over the chunk as one
+    vectorised reduction.  With ``g_j = d_{j l}``:
+
+    ``grad_a = -sum_j w_j B_j g_j d_ja - [a = l] sum_j w_j A_j``,
+    ``H_ac = -sum_j w_j C_j g_j d_ja d_jc - delta_ac sum_j w_j B_j g_j - M_ac - M_ca``,
+    ``M_ac = sum_j w_j B_j d_ja [l = c]``
+    (:meth:`sympredict.surrogate.HBSurrogate.gradient_hessian`).
+
+    ``O(m 2n)`` flops for the gradient, ``+ O(m n^2)`` for the block, ``+ O(m (2n)^2 / 2)``
+    for the full Hessian (its upper triangle, mirrored); ``O((2n + 6) chunk)``
+    scratch.  Returns the floor ``eps (sum_j |w_j B_j g_j| max_a |d_ja| + sum_j |w_j A_j|)``
+    (0 in mode 0).
+    """
+    dif, r2, dmax, uB, uC, ubg, tmp = sc
+    dim = cT.shape[0]
+    n = dim // 2
+    ch = dif.shape[1]
+    for a in range(dim):
+        grad[a] = 0.0
+    if mode == 1:
+        for a in range(n):
+            for c in range(n):
+                hess[a, c] = 0.0
+    elif mode == 2:
+        for a in range(dim):
+            for c in range(dim):
+                hess[a, c] = 0.0
+    floor = 0.0
+    for l in range(dim):
+        if dim == 2:  # no scratch, so no chunks: one loop over the component's centres
+            floor += _chunk2(xi, w, cT, seg[l], seg[l + 1] - seg[l], l, family, eps, mode, grad, hess)
+            continue
+        for j0 in range(seg[l], seg[l + 1], ch):
+            L = min(ch, seg[l + 1] - j0)
+            floor += _chunk(xi, w, cT, j0, L, l, family, eps, mode, dif, r2, dmax, uB, uC, ubg, tmp, grad, hess)
+    if mode == 2:
+        for a in range(dim):
+            for c in range(a):
+                hess[a, c] = hess[c, a]
+    return _EPS * floor
+
+
+@_compiled(_JIT)
+def _scratch(dim, chunk):
+    """The pass's scratch (:func:`_pass` ``sc``): differences (2n, chunk) and six chunk vectors."""
+    return (np.empty((dim, chunk)), np.empty(chunk), np.empty(chunk), np.empty(chunk), np.empty(chunk),
+            np.empty(chunk), np.empty(chunk))
+
+
+@_compiled(_JIT)
+def _solve_one(x, w, h, cT, seg, family, eps, max_iter, out, sc, grad, hess, jac, delta, u, xi, warm, mid):
+    """One implicit step for one instance: ``out <- Phi(x)``.  Returns ``(code, residual, iteration)``.
+
+    The iteration and stopping rule of the NumPy references, for one instance:
+    symplectic Euler (``mid`` False, :func:`sympredict.newton.solve_step_numpy`):
+    unknowns ``u = p1``, ``F = p1 - p0 + dT d_q s(q0, p1)``, Jacobian ``I + dT d_p d_q s``;
+    midpoint (``mid`` True, :func:`sympredict.newton.solve_midpoint_numpy`):
+    unknowns ``u = z = (x0 + x1) / 2``, ``F = z - x0 - dT/2 J grad s(z)``, Jacobian
+    ``I - dT/2 J Hess s(z)``.  ``u`` holds the first guess when ``warm``.
+    """
+    dim = x.shape[0]
+    n = dim // 2
+    k = u.shape[0]  # unknowns: n (symplectic Euler) or 2n (midpoint)
+    hh = 0.5 * h if mid else h  # the step in the residual
+    if not warm:  # explicit guess from the gradient at x0: one pass over the centres
+        _pass(x, w, cT, seg, family, eps, 0, sc, grad, hess)
+        if mid:  # z ~ x0 + dT/2 J grad s(x0)
+            for a in range(n):
+                u[a] = x[a] + hh * grad[n + a]
+                u[n + a] = x[n + a] + hh * -grad[a]
+        else:  # p1 ~ p0 - dT d_q s(q0, p0)
+            for a in range(n):
+                u[a] = x[n + a] - h * grad[a]
+    if not mid:
+        for a in range(n):
+            xi[a] = x[a]
+    last = np.inf
+    f_norm = np.inf
+    for it in range(max_iter):
+        for a in range(k):
+            xi[dim - k + a] = u[a]
+        floor = _pass(xi, w, cT, seg, family, eps, 2 if mid else 1, sc, grad, hess)
+        f_norm = 0.0
+        scale = 0.0
+        finite = True
+        for a in range(k):
+            if mid:
+                jg = grad[n + a] if a < n else -grad[a - n]
+                fk = u[a] - x[a] - hh * jg
+                x_ref = x[a]
+            else:
+                fk = u[a] - x[n + a] + h * grad[a]
+                x_ref = x[n + a]
+            delta[a] = fk
+            if not math.isfinite(fk):
+                finite = False
+            af = abs(fk)
+            if af > f_norm:
+                f_norm = af
+            ap = abs(u[a])
+            if ap > scale:
+                scale = ap
+            ap = abs(x_ref)
+            if ap > scale:
+                scale = ap
+        if not finite:
+            return 1, np.nan if f_norm == f_norm else f_norm, it
+        f_floor = residual_floor(scale, floor, abs(hh) if mid else h)
+        if mid:  # I - dT/2 J H: rows of J H are (H[n + a], -H[a])
+            for a in range(n):
+                for c in range(dim):
+                    jac[a, c] = -(hh * hess[n + a, c])
+                    jac[n + a, c] = hh * hess[a, c]
+        else:
+            for a in range(n):
+                for c in range(n):
+                    jac[a, c] = h * hess[a, c]
+        for a in range(k):
+            jac[a, a] += 1.0
+        if not lu_solve_inplace(jac, delta):  # the residual becomes the Newton update
+            return 2, f_norm, it
+        d_norm = 0.0
+        for a in range(k):
+            v = abs(delta[a])
+            if v > d_norm or v != v:
+                d_norm = v
+        if converged(f_norm, f_floor, d_norm, last, scale):
+            if mid:  # x1 = x0 + dT J grad s(z)
+                for a in range(n):
+                    out[a] = x[a] + h * grad[n + a]
+                    out[n + a] = x[n + a] + h * -grad[a]
+            else:
+                for a in range(n):
+                    out[a] = x[a] + h * grad[n + a]
+                    out[n + a] = u[a]
+            return 0, f_norm, it
+        last = d_norm
+        for a in range(k):
+            u[a] -= delta[a]
+    return 3, f_norm, max_iter
+
+
+@_compiled(_JIT)
+def _matvec_into(M, x, out):
+    """``out <- M x`` for a small square ``M`` (the split rollout's maps), ``O(dim^2)``."""
+    for a in range(M.shape[0]):
+        acc = 0.0
+        for c in range(M.shape[1]):
+            acc += M[a, c] * x[c]
+        out[a] = acc
+
+
+@_compiled(_JIT)
+def _rollout_one(i, x0, W, h, cT, seg, family, eps, max_iter, chunk, traj, codes, fail_step, fail_iter, resid, passes,
+                 warm_start, mid, pre, post, around):
+    """One instance's rollout; with ``around``: ``x_k+1 = post[i] S(pre[i] x_k)`` (S the implicit step)."""
+    dim = x0.shape[1]
+    n = dim // 2
+    k_unknown = dim if mid else n
+    sc = _scratch(dim, chunk)
+    grad = np.empty(dim)
+    hess = np.empty((dim, dim))
+    jac = np.empty((k_unknown, k_unknown))
+    u = np.empty(k_unknown)
+    delta = np.empty(k_unknown)
+    xi = np.empty(dim)
+    y_in = np.empty(dim)  # around: the step's input pre x_k and output S(pre x_k)
+    y_out = np.empty(dim)
+    for a in range(dim):
+        traj[i, 0, a] = x0[i, a]
+    n_steps = traj.shape[1] - 1
+    codes[i] = 0
+    fail_step[i] = -1
+    fail_iter[i] = -1
+    resid[i] = 0.0
+    for k in range(n_steps):
+        warm = warm_start and k > 0
+        if warm:  # extrapolate the previous steps: saves the explicit guess's pass
+            off = 0 if mid else n
+            for a in range(k_unknown):
+                x_k = traj[i, k, off + a]
+                x_1 = traj[i, k - 1, off + a]
+                if k >= 2:  # x_k+1 ~ 3 x_k - 3 x_k-1 + x_k-2 (error O(dT^3))
+                    nxt = 3.0 * (x_k - x_1) + traj[i, k - 2, off + a]
+                else:  # x_k+1 ~ 2 x_k - x_k-1 (error O(dT^2))
+                    nxt = 2.0 * x_k - x_1
+                u[a] = 0.5 * (x_k + nxt) if mid else nxt  # midpoint: z = (x_k + x_k+1) / 2
+        if around:
+            _matvec_into(pre[i], traj[i, k], y_in)
+            code, r, it = _solve_one(y_in, W[i], h[i], cT, seg, family, eps, max_iter, y_out, sc, grad, hess,
+                                     jac, delta, u, xi, warm, mid)
+            _matvec_into(post[i], y_out, traj[i, k + 1])
+        else:
+            code, r, it = _solve_one(traj[i, k], W[i], h[i], cT, seg, family, eps, max_iter, traj[i, k + 1], sc, grad,
+                                     hess, jac, delta, u, xi, warm, mid)
+        passes[i] += it + (1 if warm else 2)  # (the explicit guess's gradient pass and) it + 1 Newton passes
+        if code != 0:
+            codes[i] = code
+            fail_step[i] = k
+            fail_iter[i] = it
+            resid[i] = r
+            for kk in range(k + 1, n_steps + 1):
+                for a in range(dim):
+                    traj[i, kk, a] = np.nan
+            return
+
+
+@_compiled(_PJIT)
+def _rollout_parallel(x0, W, h, cT, seg, family, eps, max_iter, chunk, traj, codes, fail_step, fail_iter, resid, passes,
+                      warm_start, mid, pre, post, around):
+    for i in numba.prange(x0.shape[0]):
+        _rollout_one(i, x0, W, h, cT, seg, family, eps, max_iter, chunk, traj, codes, fail_step, fail_iter,
+                     resid, passes, warm_start, mid, pre, post, around)
+
+
+@_compiled(_JIT)
+def _rollout_serial(x0, W, h, cT, seg, family, eps, max_iter, chunk, traj, codes, fail_step, fail_iter, resid, passes,
+                    warm_start, mid, pre, post, around):
+    for i in range(x0.shape[0]):
+        _rollout_one(i, x0, W, h, cT, seg, family, eps, max_iter, chunk, traj, codes, fail_step, fail_iter,
+                     resid, passes, warm_start, mid, pre, post, around)
+
+
+@_compiled(_PJIT)
+def _matvec_t_kernel(basis, m, c, out, chunk):
+    """Column chunks in parallel; four rows per sweep over a chunk's float64 sums."""
+    n = basis.shape[1]
+    n_chunks = (n + chunk - 1) // chunk
+    for ch in numba.prange(n_chunks):
+        i0 = ch * chunk
+        i1 = min(n, i0 + chunk)
+        L = i1 - i0
+        acc = np.zeros(L)
+        k = 0
+        while k + 4 <= m:
+            c0 = c[k]
+            c1 = c[k + 1]
+            c2 = c[k + 2]
+            c3 = c[k + 3]
+            r0 = basis[k, i0:i1]
+            r1 = basis[k + 1, i0:i1]
+            r2 = basis[k + 2, i0:i1]
+            r3 = basis[k + 3, i0:i1]
+            for i in range(L):
+                acc[i] += (c0 * r0[i] + c1 * r1[i]) + (c2 * r2[i] + c3 * r3[i])
+            k += 4
+        while k < m:
+            ck = c[k]
+            r0 = basis[k, i0:i1]
+            for i in range(L):
+                acc[i] += ck * r0[i]
+            k += 1
+        out[i0:i1] = acc
+
+
+@_compiled(_PJIT)
+def _gradients_kernel(xi, group, Wg, cT, seg, family, eps, chunk, out):
+    dim = xi.shape[1]
+    n_pts = xi.shape[0]
+    block = 256  # points per task: the scratch is allocated once per block
+    for blk in numba.prange((n_pts + block - 1) // block):
+        sc = _scratch(dim, chunk)
+        hess = np.empty((dim, dim))
+        for i in range(blk * block, min(n_pts, (blk + 1) * block)):
+            _pass(xi[i], Wg[group[i]], cT, seg, family, eps, 0, sc, out[i], hess)
+
+
+@_compiled(_JIT)
+def _terms_kernel(xi, W, cT, seg, family, eps, chunk, mode, grad, hess, floor):
+    dim = xi.shape[1]
+    sc = _scratch(dim, chunk)
+    for i in range(xi.shape[0]):
+        floor[i] = _pass(xi[i], W[i], cT, seg, family, eps, mode, sc, grad[i], hess[i])
+
+
+@_compiled(_JIT)
+def _greedy_update_chunk(ch, row, t, inv_pj, b, res, p2, j, breakdown, chunk, cmax, carg, cbest):
+    """One chunk of :func:`greedy_update`: its max ``|r|`` and its best selectable candidate."""
+    n = row.shape[0]
+    i0 = ch * chunk
+    i1 = min(n, i0 + chunk)
+    mx = 0.0
+    best = -np.inf
+    arg = -1
+    for i in range(i0, i1):
+        v = (row[i] - t[i]) * inv_pj
+        row[i] = v
+        if i == j:
+            r = 0.0
+            q = 0.0
+        else:
+            r = res[i] - b * v
+            q = p2[i] - v * v
+        res[i] = r
+        p2[i] = q
+        a = abs(r)
+        if a > mx or a != a:
+            mx = a if (mx == mx) else mx
+        if q > breakdown and (a > best or (a != a and best == best)):
+            best = a
+            arg = i
+    cmax[ch] = mx
+    carg[ch] = arg
+    cbest[ch] = best
+
+
+@_compiled(_PJIT)
+def _greedy_update_parallel(row, t, inv_pj, b, res, p2, j, breakdown, chunk, cmax, carg, cbest):
+    for ch in numba.prange(cmax.shape[0]):
+        _greedy_update_chunk(ch, row, t, inv_pj, b, res, p2, j, breakdown, chunk, cmax, carg, cbest)
+
+
+@_compiled(_JIT)
+def _greedy_update_serial(row, t, inv_pj, b, res, p2, j, breakdown, chunk, cmax, carg, cbest):
+    for ch in range(cmax.shape[0]):
+        _greedy_update_chunk(ch, row, t, inv_pj, b, res, p2, j, breakdown, chunk, cmax, carg, cbest)
+
+
+@_compiled(_JIT)
+def _hb_column2_range(p0, p1, points, mu, dt, xq, muq, dtq, b, e, first_family, emu, mu_family, edt, dt_family,
+                      has_mu, has_dt, out):
+    """Column entries of points ``p0:p1`` (``2n = 2``), the operations of the NumPy column in its order."""
+    d_mu = mu.shape[1]
+    for p in range(p0, p1):
+        d0 = points[p, 0] - xq[0]
+        d1 = points[p, 1] - xq[1]
+        A, B = _first_factors(first_family, e, math.sqrt(d0 * d0 + d1 * d1))
+        w = 1.0
+        if has_mu:
+            m2 = 0.0
+            for a in range(d_mu):
+                dm = mu[p, a] - muq[a]
+                m2 = dm * dm if a == 0 else m2 + dm * dm
+            w = _profile(mu_family, emu, math.sqrt(m2))
+        if has_dt:
+            dd = dt[p] - dtq
+            kd = _profile(dt_family, edt, math.sqrt(dd * dd))
+            w = w * kd if has_mu else kd
+        g = (-(w * B)) * (d1 if b == 1 else d0)
+        v0 = d0 * g
+        v1 = d1 * g
+        if b == 0:
+            v0 -= w * A
+        else:
+            v1 -= w * A
+        out[2 * p] = v0
+        out[2 * p + 1] = v1
+
+
+@_compiled(_JIT)
+def _hb_column2_serial(points, mu, dt, xq, muq, dtq, b, e, first_family, emu, mu_family, edt, dt_family,
+                       has_mu, has_dt, out):
+    _hb_column2_range(0, points.shape[0], points, mu, dt, xq, muq, dtq, b, e, first_family, emu,
+                      mu_family, edt, dt_family, has_mu, has_dt, out)
+
+
+@_compiled(_PJIT)
+def _hb_column2_parallel(points, mu, dt, xq, muq, dtq, b, e, first_family, emu, mu_family, edt, dt_family,
+                         has_mu, has_dt, out):
+    n_pts = points.shape[0]
+    block = 32768
+    for k in numba.prange((n_pts + block - 1) // block):
+        _hb_column2_range(k * block, min(n_pts, (k + 1) * block), points, mu, dt, xq, muq, dtq, b, e, first_family,
+                          emu, mu_family, edt, dt_family, has_mu, has_dt, out)
+
+
+# --------------------------------------------------------------------------- kernels by family
+_NAMESPACES: dict = {}
+
+
+def _package_namespace() -> types.SimpleNamespace:
+    """The disk-cached top-level kernels, by name."""
+    return types.SimpleNamespace(**{name: globals()[name] for name, _, _ in _DEFINITIONS})
+
+
+def _user_namespace(outside: tuple) -> types.SimpleNamespace:
+    """The kernels compiled again for kernel families from outside the package (at most three), not cached on disk.
+
+    Each kernel's Python function is rebound to a private copy of this module's
+    globals in which the family dispatchers also know the families ``outside``
+    (codes ``-1, -2, -3``) and the kernels call each other's copies: the same
+    source, no closures.  Not cached: a family's type in numba's cache index
+    would make it unreadable to any process that cannot import that family.
+    """
+    if len(outside) > 3:
+        raise ValueError(f"at most three kernel families from outside the package per call, got {len(outside)}")
+    scope = dict(globals())
+    formulas = [compiled_formulas(f) for f in outside]
+    for k, package in enumerate((_profile, _first_factors, _all_factors)):
+        bound = {"_U0": formulas[0][k], "_U1": formulas[min(1, len(outside) - 1)][k],
+                 "_U2": formulas[-1][k], "_PACKAGE": package}
+        dispatcher = types.FunctionType(_user_formula.__code__, bound, package.__name__)
+        scope[package.__name__] = numba.njit(dispatcher, **_EXACT)
+    for name, function, flags in _DEFINITIONS:
+        scope[name] = numba.njit(types.FunctionType(function.__code__, scope, name, function.__defaults__), **flags)
+    return types.SimpleNamespace(**{name: scope[name] for name, _, _ in _DEFINITIONS})
+
+
+def _kernels(*families):
+    """The compiled kernels for these kernel families and each family's code.
+
+    Returns
+    -------
+    namespace : SimpleNamespace
+        The kernels by name: the disk-cached ones when every family is the
+        package's own (:data:`FAMILY_CODES`), else their uncached copies
+        (:func:`_user_namespace`).
+    codes : tuple of FamilyCode
+        The ``family`` argument of the kernels for each of ``families``.
+    """
+    _check_available()
+    outside = tuple(dict.fromkeys(f for f in families if f not in FAMILY_CODES))
+    ns = _NAMESPACES.get(outside)
+    if ns is None:
+        ns = _NAMESPACES[outside] = _package_namespace() if not outside else _user_namespace(outside)
+    codes = tuple(FAMILY_CODES[f] if f in FAMILY_CODES else FamilyCode(-1 - outside.index(f)) for f in families)
+    return ns, codes
 
 
 def _check_available():
@@ -877,12 +1115,12 @@ def newton_rollout(x0, weights, dt, layout: CenterLayout, kernel, max_iter: int,
         pre, post = (np.ascontiguousarray(a, dtype=np.float64) for a in around)
         if pre.shape != (b, dim, dim) or post.shape != (b, dim, dim):
             raise ValueError(f"around: pre and post must have shape {(b, dim, dim)}, got {pre.shape} and {post.shape}")
-    ns = _kernels(type(kernel))
+    ns, (family,) = _kernels(type(kernel))
     fn = ns._rollout_parallel if parallel else ns._rollout_serial
     passes = np.zeros(b, dtype=np.int64)
-    fn(x0, weights, dt, layout.cT, layout.seg, compiled_formulas(type(kernel))[2], float(kernel.eps), int(max_iter),
-       chunk_size(dim), traj, codes, fail_step, fail_iter, resid, passes, bool(warm_start), update == "midpoint",
-       pre, post, around is not None)
+    _call(fn, x0, weights, dt, layout.cT, layout.seg, family, float(kernel.eps), int(max_iter), chunk_size(dim), traj,
+          codes, fail_step, fail_iter, resid, passes, bool(warm_start), update == "midpoint", pre, post,
+          around is not None)
     if stats is not None:
         stats["passes"] = passes
     return traj, codes, fail_step, fail_iter, resid
@@ -927,7 +1165,7 @@ def matvec_t(basis: np.ndarray, m: int, c: np.ndarray) -> np.ndarray:
     """
     _check_available()
     out = np.empty(basis.shape[1])
-    _kernels()._matvec_t_kernel(basis, int(m), np.ascontiguousarray(c, dtype=np.float64), out, MATVEC_CHUNK)
+    _call(_kernels()[0]._matvec_t_kernel, basis, int(m), np.ascontiguousarray(c, dtype=np.float64), out, MATVEC_CHUNK)
     return out
 
 
@@ -960,9 +1198,9 @@ def gradients(xi, group, group_weights, layout: CenterLayout, kernel) -> np.ndar
     xi = np.ascontiguousarray(xi, dtype=np.float64)
     out = np.empty_like(xi)
     wg = np.ascontiguousarray(np.asarray(group_weights, dtype=np.float64)[:, layout.order])
-    _kernels(type(kernel))._gradients_kernel(xi, np.ascontiguousarray(group, dtype=np.int64), wg, layout.cT,
-                                             layout.seg, compiled_formulas(type(kernel))[2], float(kernel.eps),
-                                             chunk_size(xi.shape[1]), out)
+    ns, (family,) = _kernels(type(kernel))
+    _call(ns._gradients_kernel, xi, np.ascontiguousarray(group, dtype=np.int64), wg, layout.cT, layout.seg, family,
+          float(kernel.eps), chunk_size(xi.shape[1]), out)
     return out
 
 
@@ -999,8 +1237,9 @@ def newton_terms(xi, weights, layout: CenterLayout, kernel, full: bool = False):
     b, dim = xi.shape
     grad, hess, floor = np.empty((b, dim)), np.empty((b, dim, dim)), np.empty(b)
     w = np.ascontiguousarray(np.asarray(weights, dtype=np.float64)[:, layout.order])
-    _kernels(type(kernel))._terms_kernel(xi, w, layout.cT, layout.seg, compiled_formulas(type(kernel))[2],
-                                         float(kernel.eps), chunk_size(dim), 2 if full else 1, grad, hess, floor)
+    ns, (family,) = _kernels(type(kernel))
+    _call(ns._terms_kernel, xi, w, layout.cT, layout.seg, family, float(kernel.eps), chunk_size(dim), 2 if full else 1,
+          grad, hess, floor)
     return grad, (hess if full else np.ascontiguousarray(hess[:, : dim // 2, : dim // 2])), floor
 
 
@@ -1055,9 +1294,9 @@ def greedy_update(row, t, inv_pj: float, b: float, res, p2, j: int, breakdown: f
     cmax = np.empty(n_chunks)
     carg = np.empty(n_chunks, dtype=np.int64)
     cbest = np.empty(n_chunks)
-    ns = _kernels()
+    ns = _kernels()[0]
     kernel = ns._greedy_update_parallel if (parallel and n_chunks > 1) else ns._greedy_update_serial
-    kernel(row, t, float(inv_pj), float(b), res, p2, int(j), float(breakdown), UPDATE_CHUNK, cmax, carg, cbest)
+    _call(kernel, row, t, float(inv_pj), float(b), res, p2, int(j), float(breakdown), UPDATE_CHUNK, cmax, carg, cbest)
     max_abs = cmax.max() if not np.isnan(cmax).any() else np.nan
     k = int(np.argmax(cbest))  # first chunk with the best score: first index overall
     return float(max_abs), int(carg[k]), float(cbest[k])
@@ -1077,27 +1316,26 @@ def factor_throughput(n: int = 1 << 20, eps: float = 0.2, repeats: int = 5, in_c
     statistic that other processes on the machine can only raise.
     """
     _check_available()
-    factors = compiled_formulas(IMQ)[2]
-    ns = _kernels(IMQ)
+    ns, (family,) = _kernels(IMQ)
     if in_cache:
         r2 = np.random.default_rng(0).uniform(0.0, 4.0, CHUNK)
         fA, fB, fC = np.empty(CHUNK), np.empty(CHUNK), np.empty(CHUNK)
         reps = max(1, n // CHUNK)
-        ns._chunk_factors_repeat(factors, eps, r2, fA, fB, fC, CHUNK, 1)
+        _call(ns._chunk_factors_repeat, family, eps, r2, fA, fB, fC, CHUNK, 1)
         best = np.inf
         for _ in range(repeats):
             t0 = time.perf_counter()
-            ns._chunk_factors_repeat(factors, eps, r2, fA, fB, fC, CHUNK, reps)
+            ns._chunk_factors_repeat(family, eps, r2, fA, fB, fC, CHUNK, reps)
             best = min(best, time.perf_counter() - t0)
         return float(best) / (reps * CHUNK)
     r2 = np.random.default_rng(0).uniform(0.0, 4.0, n)
     fA, fB, fC = np.empty(n), np.empty(n), np.empty(n)
     chunk_factors = ns._chunk_factors
-    chunk_factors(factors, eps, r2, fA, fB, fC, n)
+    _call(chunk_factors, family, eps, r2, fA, fB, fC, n)
     times = []
     for _ in range(repeats):
         t0 = time.perf_counter()
-        chunk_factors(factors, eps, r2, fA, fB, fC, n)
+        chunk_factors(family, eps, r2, fA, fB, fC, n)
         times.append(time.perf_counter() - t0)
     return float(np.median(times)) / n
 
@@ -1124,15 +1362,13 @@ def hb_column(kernel, points, mu, dt, representer, out: np.ndarray) -> np.ndarra
     ``O(N)``; bit-identical to :meth:`sympredict.functionals.HBFunctionals.column`.
     """
     xq, muq, dtq, b = representer
-    first_factors = compiled_formulas(type(kernel.state))[1]
-    # a dropped factor still needs a compiled profile in its argument slot (never called)
-    mu_profile = compiled_formulas(type(kernel.mu if kernel.mu is not None else kernel.state))[0]
-    dt_profile = compiled_formulas(type(kernel.dt if kernel.dt is not None else kernel.state))[0]
+    # a dropped factor's family code is the state's (never used)
+    state, mu_k, dt_k = (k if k is not None else kernel.state for k in (kernel.state, kernel.mu, kernel.dt))
+    ns, (state_family, mu_family, dt_family) = _kernels(type(state), type(mu_k), type(dt_k))
     emu = kernel.mu.eps if kernel.mu is not None else 0.0
     edt = kernel.dt.eps if kernel.dt is not None else 0.0
-    ns = _kernels(*(type(k) for k in (kernel.state, kernel.mu, kernel.dt) if k is not None))
     fn = ns._hb_column2_parallel if (GREEDY_PARALLEL and len(points) > 65536) else ns._hb_column2_serial
-    fn(points, mu, dt, np.ascontiguousarray(xq, dtype=np.float64), np.ascontiguousarray(muq, dtype=np.float64),
-       float(dtq), int(b), float(kernel.state.eps), first_factors, emu, mu_profile, edt, dt_profile,
-       kernel.mu is not None, kernel.dt is not None, out)
+    _call(fn, points, mu, dt, np.ascontiguousarray(xq, dtype=np.float64), np.ascontiguousarray(muq, dtype=np.float64),
+          float(dtq), int(b), float(kernel.state.eps), state_family, emu, mu_family, edt, dt_family,
+          kernel.mu is not None, kernel.dt is not None, out)
     return out

@@ -81,8 +81,8 @@ FAULTS = [
     # ----------------------------------------------------------------- Newton and the step (predictor.py, _fastkernels.py: lead's files)
     Fault("N1", "Newton", P + "_fastkernels.py", "u[a] = x[n + a] - h * grad[a]", "u[a] = x[n + a] + h * grad[a]",
           ("tests/test_oracles.py",), "compiled Newton: wrong sign of the explicit initial guess (same result, more iterations)"),
-    Fault("N2", "Newton", P + "_fastkernels.py", "out[a] = x[a] + h * grad[n + a]\n                        out[n + a] = u[a]",
-          "out[a] = x[a] - h * grad[n + a]\n                        out[n + a] = u[a]",
+    Fault("N2", "Newton", P + "_fastkernels.py", "out[a] = x[a] + h * grad[n + a]\n                    out[n + a] = u[a]",
+          "out[a] = x[a] - h * grad[n + a]\n                    out[n + a] = u[a]",
           ("tests/test_predictor.py",), "compiled step: q1 = q0 - dT d_p s"),
     Fault("N3", "Newton", P + "newton.py", "out[idx, :n] = q0[idx] + ha[done] * g[done, n:]", "out[idx, :n] = q0[idx] - ha[done] * g[done, n:]",
           ("tests/test_performance_paths.py",), "NumPy reference step: q1 = q0 - dT d_p s"),
@@ -244,7 +244,10 @@ def run_fault(fault: Fault, workdir: Path, timeout: float) -> dict:
         return result
     target.write_text(pristine.replace(fault.snippet, fault.replacement))
     env = {**os.environ, "PYTHONPATH": str(workdir), "PYTHONDONTWRITEBYTECODE": "1", "OMP_NUM_THREADS": "1",
-           "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "NUMBA_NUM_THREADS": "1"}
+           "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "NUMBA_NUM_THREADS": "1",
+           # a fresh compiled-code cache per fault: numba checks a cached kernel against its own file's date only,
+           # so kernels cached under another fault would hide (or fake) a fault in a formula they inline
+           "NUMBA_CACHE_DIR": str(workdir / ".numba_cache" / fault.id)}
     cmd = [sys.executable, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider", *fault.tests]
     t0 = time.perf_counter()
     try:

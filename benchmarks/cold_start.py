@@ -1,0 +1,115 @@
+"""Cold start of a fresh process: ``import`` + ``load`` + the first ``rollout``, per backend.
+
+Fits a 200-centre pendulum model once (scenario A data, IMQ kernels) and
+saves it, then launches fresh Python processes that each import sympredict,
+load the model and time its first rollout (20 trajectories x 100 macro steps).
+numba's on-disk cache is pointed at a fresh folder (``NUMBA_CACHE_DIR``) for
+the whole run, so the numba backend's first process compiles everything and
+the ``--repeats`` processes after it show what every later process on the
+machine pays.  The NumPy backend needs no compilation: its first rollout is the
+floor a compiled first rollout is compared with.
+
+Reported per backend: the first process (``first_*``) and the medians over the
+later processes (``import_s``, ``load_s``, ``first_rollout_s``, ``total_s``);
+``numba_cached_rollout_over_numpy_s`` is the later numba processes' first
+rollout minus NumPy's (target: at most 1 s).
+
+Run:  python benchmarks/cold_start.py [--repeats 3] [--threads 1] [--json out.json]
+"""
+
+import argparse
+import json
+import os
+import platform
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+#: What each fresh process runs: times import, load and the first rollout; prints one JSON line.
+CHILD = r"""
+import json, sys, time
+t0 = time.perf_counter()
+import numpy as np
+from sympredict import SymplecticKernelPredictor
+t1 = time.perf_counter()
+model = SymplecticKernelPredictor.load(sys.argv[1])
+model.backend = sys.argv[2]
+x0 = np.load(sys.argv[3])
+t2 = time.perf_counter()
+traj = model.rollout(x0, int(sys.argv[4]), mu=float(sys.argv[5]), dt=float(sys.argv[6]))
+t3 = time.perf_counter()
+assert np.isfinite(traj).all()
+print(json.dumps({"import_s": t1 - t0, "load_s": t2 - t1, "first_rollout_s": t3 - t2, "total_s": t3 - t0}))
+"""
+
+
+def fit_model(path: Path, centers: int) -> None:
+    """The pendulum model of the benchmark (``centers`` centres), saved to ``path``."""
+    from sympredict import SymplecticKernelPredictor
+    from sympredict.kernels import IMQ
+    from sympredict.systems.pendulum import Pendulum, flow_map_data
+
+    d = flow_map_data(Pendulum(), n_grid=20)
+    model = SymplecticKernelPredictor(IMQ(0.15), mu_kernel=IMQ(2.0), dt_kernel=IMQ(5.0), max_centers=centers,
+                                      tol=1e-12, backend="numpy")
+    model.fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
+    model.save(path)
+    return model, d
+
+
+def run_child(args: list, env: dict) -> dict:
+    out = subprocess.run([sys.executable, "-c", CHILD, *args], env=env, capture_output=True, text=True, check=True)
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def main(argv=None) -> dict:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--centers", type=int, default=200)
+    parser.add_argument("--trajectories", type=int, default=20)
+    parser.add_argument("--steps", type=int, default=100)
+    parser.add_argument("--repeats", type=int, default=3, help="fresh processes per backend after the first")
+    parser.add_argument("--threads", type=int, default=1, help="numba and BLAS threads of the child processes")
+    parser.add_argument("--json", default=None, help="also write the results as JSON")
+    args = parser.parse_args(argv)
+
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        model, d = fit_model(tmp / "model.h5", args.centers)
+        rng = np.random.default_rng(0)
+        x0 = d.x0[rng.choice(len(d.x0), args.trajectories, replace=False)]
+        np.save(tmp / "x0.npy", x0)
+        mu, dt = float(d.mu[0, 0]), float(d.dt[0])
+        env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp / "numba_cache"), NUMBA_NUM_THREADS=str(args.threads),
+                   OPENBLAS_NUM_THREADS=str(args.threads), OMP_NUM_THREADS=str(args.threads))
+        child_args = [str(tmp / "model.h5"), None, str(tmp / "x0.npy"), str(args.steps), repr(mu), repr(dt)]
+        result = {"centers": int(len(model.surrogate_.centers_xi)), "trajectories": args.trajectories, "steps": args.steps,
+                  "repeats": args.repeats, "threads": args.threads, "python": platform.python_version(),
+                  "machine": platform.processor() or platform.machine(), "backends": {}}
+        for backend in ("numpy", "numba"):
+            child_args[1] = backend
+            first = run_child(child_args, env)  # numba: compiles and fills the fresh cache
+            later = [run_child(child_args, env) for _ in range(args.repeats)]
+            row = {f"first_{k}": v for k, v in first.items()}
+            row.update({k: float(np.median([r[k] for r in later])) for k in first})
+            row["runs"] = later
+            result["backends"][backend] = row
+        cache = tmp / "numba_cache"
+        result["cache_files"] = sum(1 for p in cache.rglob("*") if p.is_file()) if cache.exists() else 0
+    b = result["backends"]
+    result["numba_cached_rollout_over_numpy_s"] = b["numba"]["first_rollout_s"] - b["numpy"]["first_rollout_s"]
+    for name, row in b.items():
+        print(f"{name:6s} first process: rollout {row['first_first_rollout_s']:.3f} s, total {row['first_total_s']:.3f} s; "
+              f"later (median of {args.repeats}): import {row['import_s']:.3f} s, load {row['load_s']:.3f} s, "
+              f"rollout {row['first_rollout_s']:.3f} s, total {row['total_s']:.3f} s")
+    print(f"numba cache files: {result['cache_files']}; later numba rollout - numpy rollout: "
+          f"{result['numba_cached_rollout_over_numpy_s']:.3f} s")
+    if args.json:
+        Path(args.json).write_text(json.dumps(result, indent=1))
+    return result
+
+
+if __name__ == "__main__":
+    main()
