@@ -94,6 +94,7 @@ from sympredict.kernels import IMQ, Matern32, Matern52
 from sympredict.newton_rule import converged, residual_floor
 
 __all__ = [
+    "rollout_loaded",
     "HAVE_NUMBA", "compiled_formulas", "CenterLayout", "newton_solve", "newton_rollout", "matvec_t", "set_num_threads",
     "get_num_threads",
 ]
@@ -201,6 +202,11 @@ def _call(kernel, *args):
             raise
         _disable_disk_cache(exc)
         return kernel(*args)
+
+
+def rollout_loaded() -> bool:
+    """Whether this process has the compiled Newton rollout loaded already (compiled or read from the cache)."""
+    return HAVE_NUMBA and bool(_rollout_serial.signatures or _rollout_parallel.signatures)
 
 
 # --------------------------------------------------------------------------- the families' formulas

@@ -27,6 +27,7 @@ the rollout loop and their file format (:class:`_FlowMapKernelModel`).
 from __future__ import annotations
 
 import copy
+import logging
 import warnings
 from typing import Optional
 
@@ -56,7 +57,26 @@ MODEL_FORMAT = "sympredict-model"
 #: files without the key (sympredict 0.1) are read as layout 1.
 MODEL_LAYOUT = 2
 
+logger = logging.getLogger(__name__)
+
 _BACKENDS = ("auto", "numpy", "numba")
+
+#: backend='auto' runs the NumPy solver where it is estimated to take less than this many seconds ...
+AUTO_NUMPY_SECONDS = 0.5
+#: ... by NumPy's cost per macro step (both measured on a 2-core x86-64 machine, pendulum models):
+#: a fixed cost (a few batched Newton iterations, Python overhead) ...
+NUMPY_STEP_SECONDS = 4e-4
+#: ... plus this much per instance, centre and Hessian entry ``(2n)^2``.
+NUMPY_TERM_SECONDS = 6e-8
+
+
+def numpy_seconds(n_instances: int, n_steps: int, n_centers: int, dim: int) -> float:
+    """Estimated wall time of ``n_steps`` NumPy macro steps of ``n_instances`` states (the ``auto`` rule's cost model).
+
+    ``n_steps (NUMPY_STEP_SECONDS + NUMPY_TERM_SECONDS B m (2n)^2)``: a few Newton iterations per
+    step, each a pass over the ``m`` centres with the ``(2n)^2`` Hessian entries per instance.
+    """
+    return n_steps * (NUMPY_STEP_SECONDS + NUMPY_TERM_SECONDS * n_instances * n_centers * dim * dim)
 
 _PERIODIC_NOT_COMPILED = ("periodic coordinates (periodic=...) have no compiled solver yet: "
                           "use backend='numpy' or 'auto' (which then uses NumPy)")
@@ -500,9 +520,10 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         ``'numpy'`` (the reference, batched over instances), ``'numba'``
         (compiled, :mod:`sympredict._fastkernels`: one fused pass over the
         centres per iteration, a whole rollout in one call, instances in
-        parallel; needs ``pip install sympredict[fast]``) or ``'auto'`` (numba
-        when importable).  Both agree to round-off (the gradient's floor, see
-        :meth:`HBSurrogate.gradient_hessian`).
+        parallel; needs ``pip install sympredict[fast]``) or ``'auto'``: by the
+        size of the work (:meth:`backend_for`), NumPy for small calls (no compiled
+        code to load), compiled for large ones.  Both agree to round-off (the
+        gradient's floor, see :meth:`HBSurrogate.gradient_hessian`).
     trainer
         The training strategy (:mod:`sympredict.greedy.trainers`): ``None`` or
         :class:`~sympredict.greedy.ExactGreedy` (default: the exact f-greedy
@@ -778,8 +799,28 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         return self.truncated(int(hits[0]) + 1)
 
     # ------------------------------------------------------- Newton backends
-    def _compiled(self) -> bool:
-        """Whether :meth:`step` / :meth:`rollout` use the compiled solver (resolves ``backend``)."""
+    def backend_for(self, n_instances: int = 1, n_steps: int = 1) -> str:
+        """The Newton solver :meth:`step` / :meth:`rollout` use for this much work: ``'numpy'`` or ``'numba'``.
+
+        ``backend='numpy'`` or ``'numba'`` decide alone.  ``backend='auto'``:
+
+        * ``'numpy'`` without numba, with periodic coordinates or a state symmetry
+          (NumPy-only settings), or when :func:`numpy_seconds` estimates the call at
+          under :data:`AUTO_NUMPY_SECONDS` (loading compiled code costs a fresh
+          process ~0.1-0.3 s from numba's disk cache, and compiling it ~20 s the
+          first time on a machine) and this process has not loaded the compiled
+          rollout yet;
+        * ``'numba'`` otherwise.
+
+        Each call logs its choice at DEBUG level (logger ``sympredict.predictor``).
+        """
+        self._check_fitted()
+        if not self._compiled(int(n_instances), int(n_steps)):
+            return "numpy"
+        return "numba"
+
+    def _compiled(self, n_instances: Optional[int] = None, n_steps: int = 1) -> bool:
+        """Whether :meth:`step` / :meth:`rollout` use the compiled solver (resolves ``backend``; see :meth:`backend_for`)."""
         if self.periodic is not None:
             if self.backend == "numba":
                 raise ValueError(_PERIODIC_NOT_COMPILED)
@@ -791,7 +832,15 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         if self.backend == "numpy":
             return False
         if self.backend == "auto":
-            return _fastkernels.HAVE_NUMBA
+            if not _fastkernels.HAVE_NUMBA:
+                return False
+            if n_instances is None or _fastkernels.rollout_loaded():
+                return True
+            estimate = numpy_seconds(n_instances, n_steps, self.surrogate_.n_centers, self.dim_)
+            compiled = estimate >= AUTO_NUMPY_SECONDS
+            logger.debug("backend='auto': %s (NumPy estimated at %.2g s for %d instances x %d steps, %d centres)",
+                         "compiled" if compiled else "NumPy", estimate, n_instances, n_steps, self.surrogate_.n_centers)
+            return compiled
         if self.backend == "numba":
             if not _fastkernels.HAVE_NUMBA:
                 raise ImportError("backend='numba' needs numba: pip install 'sympredict[fast]' (or use backend='numpy')")
@@ -875,7 +924,7 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         """
         scale = self._scale_vector(self.dim_)
         max_iter = as_positive_int(self.newton_max_iter, "newton_max_iter")
-        compiled = self._compiled()
+        compiled = self._compiled(len(x), n_steps)
         if around is not None:  # Phi = D^-1 Phi_scaled D: pre becomes D pre, post becomes post D^-1
             pre, post = around
             pre, post = pre * scale[None, :, None], post / scale[None, None, :]
@@ -908,7 +957,7 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
     def _solve_scaled(self, x: np.ndarray, weights: np.ndarray, dt: np.ndarray) -> np.ndarray:
         """One implicit step in the model's coordinates, on the configured backend (:mod:`sympredict.newton`)."""
         max_iter = as_positive_int(self.newton_max_iter, "newton_max_iter")
-        if self._compiled():
+        if self._compiled(len(x), 1):
             return rollout_compiled(self.surrogate_, x, weights, dt, 1, max_iter, step_index=False, update=self.update)[:, 1]
         if self.update == "midpoint":
             return solve_midpoint_numpy(self.surrogate_, x, weights, dt, max_iter)
