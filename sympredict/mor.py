@@ -368,8 +368,8 @@ class SymplecticKernelReductor(BasicObject):
     def _check_stride(self, h: float) -> int:
         stride = int(round(self.dt / h))
         if stride < 1 or not np.isclose(stride * h, self.dt, rtol=1e-9, atol=0):
-            raise ValueError(f"data='projected' needs dt to be a multiple of the FOM's output step {h:.6g} "
-                             f"(T / nt), got dt = {self.dt:.6g}: use dt = k * {h:.6g}")
+            raise ValueError(f"data='projected' needs dt to be a multiple of the FOM's output step {h!r} "
+                             f"(T / nt), got dt = {self.dt!r}: use dt = k * {h!r}")
         return stride
 
     def _update(self) -> str:
@@ -442,7 +442,7 @@ class SymplecticKernelReductor(BasicObject):
         state_scaling : SymplecticScaling
         mu_scaling : BoxScaling or None
         """
-        with self.logger.block(f"flow-map data ({self.data}), 2n = {self.dim}, dt = {self.dt:g}"):
+        with self.logger.block(f"flow-map data ({self.data}), 2n = {self.dim}, dt = {self.dt!r}"):
             train, val = self.training_data()
         self.train_data_, self.validation_data_ = train, val
         vary_mu = train.mu.shape[1] > 0 and bool(np.any(np.ptp(train.mu, axis=0) > 0))

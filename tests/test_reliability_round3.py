@@ -452,6 +452,18 @@ def test_fixed_step_message_tells_two_close_steps_apart(model, data):
     assert repr(DT) in str(info.value) and repr(other) in str(info.value)
 
 
+def test_projected_stride_message_tells_the_steps_apart(wave_parts):
+    """dt a hair off a multiple of the FOM's output step: both printed with ``:.6g`` looked equal."""
+    from sympredict.mor import SymplecticKernelReductor
+
+    fom, RB = wave_parts
+    h = fom.T / fom.time_stepper.nt
+    dt = 10 * h * (1 + 1e-8)
+    with pytest.raises(ValueError, match="multiple of the FOM's output step") as info:
+        SymplecticKernelReductor(fom, RB, None, dt, data="projected")
+    assert repr(dt) in str(info.value) and repr(h) in str(info.value)
+
+
 def test_normalized_flow_map_warns_in_the_users_units():
     from sympredict.scaling import BoxScaling, NormalizedFlowMap, SymplecticScaling
 
