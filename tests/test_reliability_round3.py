@@ -385,6 +385,13 @@ def test_bad_mplbackend_does_not_break_predict(model_file):
     assert "instance 0" in proc.stdout
 
 
+def test_bad_mplbackend_does_not_break_plotting():
+    proc = _python("import sympredict.plotting as p, matplotlib, os\n"
+                   "assert matplotlib.get_backend().lower() == 'agg' and os.environ['MPLBACKEND'] == 'no-such-backend'\n",
+                   MPLBACKEND="no-such-backend", NUMBA_NUM_THREADS="1")
+    assert proc.returncode == 0, proc.stderr
+
+
 # ------------------------------------------------------------------ the reductor's arguments
 @pytest.fixture(scope="module")
 def wave_parts():
