@@ -289,6 +289,8 @@ class SymplecticKernelReductor(BasicObject):
             raise ValueError(f"the FOM has parameters {dict(fom.parameters)}: give training_parameters (pyMOR Mu)")
         self.__auto_init(locals())
         self.training_parameters = [parse_mu(m, fom.parameters) for m in training_parameters]
+        if isinstance(predictor, SymplecticKernelPredictor):
+            predictor._check_params()  # its settings, before any FOM solve (fit would check them after all samples)
         self.dt = float(dt)
         self.horizon = float(fom.T if horizon is None else horizon)
         self.RB = RB
@@ -463,6 +465,11 @@ class SymplecticKernelReductor(BasicObject):
 
     def reduce(self, T: Optional[float] = None) -> SymplecticKernelModel:
         """Sample data, fit the predictor, return the ROM (horizon ``T``, default ``fom.T``)."""
+        rows = self._mu_rows(self.training_parameters)
+        if len(np.unique(rows, axis=0)) > 1 and getattr(self.predictor, "mu_kernel", True) is None:
+            # before any FOM solve (reduce() would find it after sampling)
+            raise ValueError("the parameters vary across training_parameters but the predictor has mu_kernel=None: "
+                             "give it a mu_kernel, or train at one parameter value")
         s_train, s_val, state_scaling, mu_scaling = self.scaled_training_data()
         train = self.train_data_
         vary_mu = mu_scaling is not None

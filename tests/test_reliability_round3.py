@@ -431,6 +431,32 @@ def test_reductor_checks_its_arguments_up_front(wave_parts, monkeypatch, kwargs,
         SymplecticKernelReductor(fom, RB, None, dt, **args)
 
 
+def test_reductor_checks_its_predictors_settings_before_sampling(monkeypatch):
+    """A predictor with an unknown update, or without mu_kernel for varying parameters, was refused only after
+    every FOM sample (in fit / reduce)."""
+    pymordemos = pytest.importorskip("pymordemos.symplectic_wave_equation")
+    from pymor.algorithms.symplectic import psd_complex_svd
+
+    from sympredict.mor import SymplecticKernelReductor
+
+    from pymor.operators.block import BlockDiagonalOperator
+    from pymor.operators.constructions import LincombOperator
+    from pymor.parameters.functionals import ExpressionParameterFunctional
+
+    demo = pymordemos.discretize_fom(T=0.5)  # its stiffness scaled by c^2 / 0.01, as in test_mor.py
+    blocks = demo.H_op.blocks
+    fom = demo.with_(H_op=BlockDiagonalOperator([
+        LincombOperator([blocks[0, 0]], [ExpressionParameterFunctional("c[0]**2/0.01", {"c": 1})]), blocks[1, 1]]))
+    RB = psd_complex_svd(fom.solve(fom.parameters.parse(0.1)), 2)
+    train = fom.parameters.space(0.08, 0.12).sample_uniformly(2)
+    monkeypatch.setattr(type(fom), "solve", lambda *a, **k: (_ for _ in ()).throw(AssertionError("FOM solved")))
+    with pytest.raises(ValueError, match="update must be one of"):
+        SymplecticKernelReductor(fom, RB, train, 0.05, SymplecticKernelPredictor(update="leapfrog"))
+    reductor = SymplecticKernelReductor(fom, RB, train, 0.05, SymplecticKernelPredictor(IMQ(1.0)))
+    with pytest.raises(ValueError, match="mu_kernel=None"):
+        reductor.reduce()
+
+
 def test_reductor_refuses_a_parameter_space_of_other_parameters(wave_parts):
     from pymor.parameters.base import Parameters
 
