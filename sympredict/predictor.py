@@ -530,12 +530,13 @@ class _FlowMapKernelModel(Parametrized):
     def _to_container(self) -> tuple:
         """The fitted model as a container's ``(settings, arrays)`` (what :meth:`save` writes)."""
         self._check_fitted()
-        self._check_runtime_settings()  # a file that load() would refuse is never written
+        params = self._saved_params()
+        type(self)(**params)._check_params()  # the checks load() runs: a file it would refuse is never written
         sur, hist = self.surrogate_, self.history_
         settings = {
             "layout": MODEL_LAYOUT,
             "class": type(self).__name__,
-            "params": {k: _encode_param(v) for k, v in self._saved_params().items()},
+            "params": {k: _encode_param(v) for k, v in params.items()},
             "kernel": self.kernel_.spec,
             "dim": self.dim_,
             "n_mu": self.n_mu_,
@@ -654,8 +655,9 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         ``tol * min(1, max|x| / min dT)`` (``max|x|`` over the training states):
         ``tol`` is absolute for data in units of order one and above, and
         relative to the data's scale for data in small units (so a fit never
-        stops before learning only because the states are small).  A fit that selects no centre (or does not lower
-        the residual) although the data move the states warns
+        stops before learning only because the states are small).  A fit that
+        selects no centre, or reproduces less than a tenth of its largest
+        training increments, although the data move the states, warns
         (:class:`~sympredict.exceptions.UnderfitWarning`).
     criterion
         ``'f'`` (f-greedy, default) or ``'p'`` (P-greedy).

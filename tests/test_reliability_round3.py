@@ -255,6 +255,18 @@ def test_save_refuses_a_solver_setting_load_would_refuse(model, tmp_path):
     assert not (tmp_path / "x.h5").exists()
 
 
+def test_save_refuses_a_backend_the_fitted_periodic_model_cannot_use(data, tmp_path):
+    """Fitted with periodic coordinates, then backend='numba': load would refuse that pair, so save does."""
+    m = SymplecticKernelPredictor(IMQ(0.3), max_centers=10, periodic=(0,), backend="numpy").fit(data.x0, data.x1, dt=DT)
+    m.set_params(backend="numba")
+    with pytest.raises(ValueError, match="periodic"):
+        m.save(tmp_path / "p.h5")
+    assert not (tmp_path / "p.h5").exists()
+    m.set_params(backend="auto")
+    m.save(tmp_path / "p.h5")
+    assert SymplecticKernelPredictor.load(tmp_path / "p.h5").periodic == (0,)
+
+
 def test_endless_newton_setting_refused_at_prediction(model, data):
     import copy
 
