@@ -32,9 +32,16 @@ import sys
 import time
 from pathlib import Path
 
-from sympredict import report
-
 __all__ = ["main"]
+
+
+def __getattr__(name):
+    """``sympredict.cli.report``, imported on first use: matplotlib loads only for the commands that plot."""
+    if name == "report":
+        from sympredict import report
+
+        return report
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 SYSTEMS = ("pendulum", "wave", "henon-heiles")
 #: What ``run all`` runs: Hénon–Heiles (about 2 min more on 2 shared cores) is run on its own, ``run henon-heiles``.
@@ -46,6 +53,7 @@ _RUN_OUTPUT_SUFFIXES = (".png", ".pdf", ".json", ".h5", ".md")
 
 def _run_pendulum(preset_name: str, seed: int, out: Path):
     """Pendulum scenarios A and B and the stability study: returns (JSON summary, figure files, Markdown lines)."""
+    from sympredict import report
     from sympredict.experiments.pendulum import PRESETS, run_scenario_a, run_scenario_b, run_speed_accuracy, run_stability, train_peers
 
     preset = PRESETS[preset_name]
@@ -87,6 +95,7 @@ def _run_pendulum(preset_name: str, seed: int, out: Path):
 
 def _run_wave(preset_name: str, seed: int, out: Path):
     """Wave MOR pipeline: returns (JSON summary, figure files, Markdown lines)."""
+    from sympredict import report
     from sympredict.experiments.wave import PRESETS, run_wave
 
     results = run_wave(PRESETS[preset_name], seed=seed)
@@ -114,6 +123,7 @@ def _run_wave(preset_name: str, seed: int, out: Path):
 
 def _run_sine_gordon(preset_name: str, seed: int, out: Path):
     """Sine-Gordon MOR (issue 15): returns (JSON summary, figure files, Markdown lines)."""
+    from sympredict import report
     from sympredict.experiments.sine_gordon import PRESETS, run_sine_gordon
 
     s = run_sine_gordon(PRESETS[preset_name], seed=seed)
@@ -127,6 +137,7 @@ def _run_sine_gordon(preset_name: str, seed: int, out: Path):
 
 def _run_henon_heiles(preset_name: str, seed: int, out: Path):
     """Hénon–Heiles speed against accuracy: returns (JSON summary, figure files, Markdown lines)."""
+    from sympredict import report
     from sympredict.experiments.henon_heiles import PRESETS, run_henon_heiles
 
     results = run_henon_heiles(PRESETS[preset_name], seed=seed)
@@ -203,6 +214,7 @@ def _publish_run(staging: Path, out: Path) -> None:
 
 
 def _cmd_run(args) -> int:
+    from sympredict import report
     from threadpoolctl import threadpool_limits
 
     preset_name = args.preset or ("paper" if args.paper else "quick")
@@ -252,17 +264,42 @@ def _cmd_run(args) -> int:
     return 0
 
 
-def _check_output_file(out, *inputs, option: str = "--out") -> None:
-    """Refuse an output file that is a directory or special file, lacks its folder, or is one of the inputs."""
+def _check_output_file(out, *inputs, option: str = "--out", force=None) -> None:
+    """Refuse an output file that is a directory or special file, lacks its folder (or write permission there),
+    has a name longer than the file system takes, or is one of the inputs; with ``force`` given (the command's
+    ``--force``), also an existing file unless it is true."""
     from sympredict.container import check_save_path
 
     try:
-        check_save_path(out)
+        check_save_path(out, writable=True)
     except ValueError as exc:
         raise ValueError(f"{option}: {exc}") from None
     for given in inputs:
         if given is not None and _same_file(out, given):
             raise ValueError(f"{option} {str(out)!r} is also an input ({str(given)!r}): refusing to overwrite an input")
+    if force is False and (os.path.exists(out) or os.path.islink(out)):
+        raise ValueError(f"{option} {str(out)!r} exists: pass --force to replace it, or give another name")
+
+
+def _save_model_or_keep(model, out) -> None:
+    """``model.save(out)``; if that fails after training, save it beside ``out`` (or in the temp folder) and say where."""
+    try:
+        model.save(out)
+        return
+    except OSError as exc:
+        failure = exc
+    import tempfile
+
+    name = f"sympredict-model-{os.getpid()}-{secrets.token_hex(4)}.h5"
+    for folder in (Path(out).parent, Path(tempfile.gettempdir())):
+        try:
+            model.save(folder / name)
+        except (OSError, ValueError):
+            continue
+        raise OSError(failure.errno, f"{failure.strerror or failure}; the trained model was kept in {str(folder / name)!r}: "
+                                     f"move it where you want it")
+    raise OSError(failure.errno, f"{failure.strerror or failure}; the trained model could not be kept anywhere "
+                                 f"(also tried {str(Path(out).parent)!r} and {tempfile.gettempdir()!r})")
 
 
 def _same_file(a, b) -> bool:
@@ -310,7 +347,7 @@ def _cmd_train(args) -> int:
     from sympredict import SymplecticKernelPredictor
     from sympredict.io import load_dataset
 
-    _check_output_file(args.out, args.data, args.validation)
+    _check_output_file(args.out, args.data, args.validation, force=args.force)
     data, meta = load_dataset(args.data)
     validation = load_dataset(args.validation)[0] if args.validation else None
     kernels = [_parse_kernel(k) for k in (args.state, args.mu, args.dt)]
@@ -320,7 +357,7 @@ def _cmd_train(args) -> int:
         validation = (validation.x0, validation.x1, None, validation.dt)
     with threadpool_limits(limits=args.threads):
         model.fit(data.x0, data.x1, mu=mu, dt=data.dt, validation=validation)
-    model.save(args.out)
+    _save_model_or_keep(model, args.out)
     h = model.history_
     print(f"trained {model.n_centers_} centres ({h.stop_reason}) on {len(data)} samples of {meta.get('system', 'unknown system')}: "
           f"E_train {h.train_max_residual[-1]:.2e}" + (f", E_val {h.val_max_residual[-1]:.2e}" if h.val_max_residual is not None else "")
@@ -382,7 +419,7 @@ def _cmd_predict(args) -> int:
     from sympredict.io import load_model
 
     if args.out:
-        _check_output_file(args.out, args.model)
+        _check_output_file(args.out, args.model, force=args.force)
     model = _set_backend(load_model(args.model), args.backend)
     try:
         x0 = np.array([[float(v) for v in state.split(",")] for state in args.x0])
@@ -405,7 +442,7 @@ def _cmd_predict(args) -> int:
         rows = [[b, steps[k], *traj[b, k]] for b in range(traj.shape[0]) for k in range(traj.shape[1])]
         np.savetxt(args.out, np.array(rows), delimiter=",", header=header, comments="", fmt=["%d", "%d"] + ["%.17g"] * model.dim_)
         print(f"wrote {traj.shape[0]} trajectories of {args.steps} steps"
-              + (f" (every {stride}th state)" if stride > 1 else "") + f" to {args.out}")
+              + (f" (one state every {stride} steps)" if stride > 1 else "") + f" to {args.out}")
     else:
         for b in range(traj.shape[0]):
             print(f"instance {b}: x({args.steps} steps) = {', '.join(f'{v:.12g}' for v in traj[b, -1])}")
@@ -504,6 +541,7 @@ def build_parser() -> argparse.ArgumentParser:
     train.add_argument("--threads", type=_int_at_least(1), default=os.cpu_count() or 1)
     train.add_argument("--backend", choices=["auto", "numpy", "numba"], default="auto",
                        help="the saved model's Newton solver: NumPy or compiled (numba); 'auto' (default) picks by the size of the work")
+    train.add_argument("--force", action="store_true", help="replace an existing --out file")
     train.set_defaults(func=_cmd_train)
 
     predict = sub.add_parser("predict", help="roll a saved model out from given initial states")
@@ -518,6 +556,7 @@ def build_parser() -> argparse.ArgumentParser:
                          help="with --out, write every k-th state only (default 1: all); memory is that of the states written")
     predict.add_argument("--backend", choices=["auto", "numpy", "numba"], default="auto",
                          help="Newton solver: NumPy or compiled (numba); 'auto' (default) picks by the size of the work")
+    predict.add_argument("--force", action="store_true", help="replace an existing --out file")
     predict.set_defaults(func=_cmd_predict)
 
     describe = sub.add_parser("report", help="describe a saved model: kernel, centres, residuals, training box")

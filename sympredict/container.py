@@ -19,7 +19,9 @@ Writing (:func:`write_container`)
     The whole HDF5 image is built in memory (``io.BytesIO``; no timestamps, so
     the same settings and arrays give the same bytes), then written with
     ``os.write`` + ``fsync`` to a hidden temporary sibling
-    ``.NAME.PID-XXXXXXXX.tmp`` and renamed over the target.  A failed write
+    ``.NAME.PID-XXXXXXXX.tmp`` (``.sp-HASH.PID-XXXXXXXX.tmp``, ``HASH`` 16 hex
+    digits of the name's SHA-256, when that would exceed the file system's
+    name limit: every valid name can be saved) and renamed over the target.  A failed write
     (disk full, quota, I/O error) raises one :class:`OSError` and leaves the
     previous file untouched; the temporary file is removed on every exit path
     Python sees (exceptions, Ctrl-C).  A kill -9 can still leave one: the next
@@ -199,16 +201,49 @@ def _target(path: Path) -> tuple[Path, os.stat_result | None]:
     return real, st
 
 
-def check_save_path(path) -> Path:
+def check_save_path(path, *, writable: bool = False) -> Path:
     """Check that ``path`` can take a saved file, before any work; returns it with symlinks resolved.
+
+    Parameters
+    ----------
+    writable
+        Also check that the folder can take new files (``os.access``; the
+        temporary sibling is created there).
 
     Raises
     ------
     ValueError
         ``path`` is a directory, FIFO, device or socket, an unresolvable
-        symlink, or its directory does not exist.
+        symlink, its directory does not exist (or is not writable), or its
+        name is longer than the file system allows.
     """
-    return _target(Path(path))[0]
+    path = Path(path)
+    parent = path.parent if path.parent.is_dir() else Path(".")
+    limit, size = _name_max(parent), len(os.fsencode(path.name))
+    if size > limit:
+        raise ValueError(f"the file name {path.name[:40]!r}... is {size} bytes long; the file system allows {limit}: "
+                         "give a shorter name")
+    target = _target(path)[0]
+    directory = target.parent if str(target.parent) else Path(".")
+    if writable and not os.access(directory, os.W_OK | os.X_OK):
+        raise ValueError(f"no permission to create files in {str(directory)!r}")
+    return target
+
+
+def _name_max(directory: Path) -> int:
+    """The longest file name (bytes) the file system of ``directory`` takes (255 where it cannot be asked)."""
+    try:
+        return int(os.pathconf(directory if str(directory) else ".", "PC_NAME_MAX"))
+    except (OSError, ValueError, AttributeError):
+        return 255
+
+
+def _temp_stem(directory: Path, name: str) -> str:
+    """The part of the temporary file name that names the target: the name, or a hash where it would not fit."""
+    longest = len(os.fsencode(f".{name}.")) + 10 + 1 + 8 + len(".tmp")  # pid up to 10 digits
+    if longest <= _name_max(directory):
+        return name
+    return "sp-" + hashlib.sha256(os.fsencode(name)).hexdigest()[:16]
 
 
 def _kind(mode: int) -> str:
@@ -250,7 +285,7 @@ def is_stale(pid, mtime: float, now: float | None = None) -> bool:
 
 def _remove_stale_temps(directory: Path, name: str) -> None:
     """Remove our own temporary files of ``name`` left by killed saves (see the module docstring)."""
-    pattern = _temp_pattern(name)
+    pattern = _temp_pattern(_temp_stem(directory, name))
     now = time.time()
     try:
         entries = list(os.scandir(directory))
@@ -323,7 +358,7 @@ def write_container(path, fmt: str, settings: dict, arrays: dict) -> None:
     target, st = _target(path)
     image = _image(fmt, settings_json, arrays)
     _remove_stale_temps(target.parent, target.name)
-    tmp = target.parent / f".{target.name}.{os.getpid()}-{secrets.token_hex(4)}.tmp"
+    tmp = target.parent / f".{_temp_stem(target.parent, target.name)}.{os.getpid()}-{secrets.token_hex(4)}.tmp"
     fd = -1
     try:
         fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_CLOEXEC", 0), 0o666)

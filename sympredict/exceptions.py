@@ -18,8 +18,10 @@ __all__ = [
     "ModelFileError",
     "NotFittedError",
     "RolloutMemoryError",
+    "NonFinitePredictionError",
     "ExtrapolationWarning",
     "GeneratingFunctionWarning",
+    "UnderfitWarning",
     "extrapolation_expected",
 ]
 
@@ -107,6 +109,27 @@ class SolvabilityError(SympredictError):
         )
 
 
+class NonFinitePredictionError(SympredictError, ArithmeticError):
+    """A prediction overflowed or turned NaN (never returned silently).
+
+    Attributes
+    ----------
+    instances : ndarray of int
+        Indices (into the batch passed by the caller) of the instances with non-finite values.
+    """
+
+    def __init__(self, instances, model: str = "the model", step=None):
+        self.instances = np.asarray(instances, dtype=int)
+        self.step = step
+        shown = ", ".join(str(i) for i in self.instances[:10]) + (" ..." if len(self.instances) > 10 else "")
+        where = f" at macro step {step}" if step is not None else ""
+        super().__init__(
+            f"{model} predicted non-finite states (overflow or NaN){where} for {len(self.instances)} instance(s): "
+            f"{shown}. The model's coefficients or the query are far outside what it was trained on: check the "
+            f"model file and that the states lie in the training box."
+        )
+
+
 class ExtrapolationWarning(UserWarning):
     """A query lies outside the box spanned by the training data (extrapolation is allowed)."""
 
@@ -114,6 +137,11 @@ class ExtrapolationWarning(UserWarning):
 class GeneratingFunctionWarning(UserWarning):
     """The type-II generating function ``s(q0, p1)`` is close to not existing on the data
     (``dp1/dp0`` nearly singular): the macro step is close to its largest admissible value."""
+
+
+class UnderfitWarning(UserWarning):
+    """A fit learned (almost) nothing: no centre selected, or the training residual did not go down,
+    although the data move the states; the model is (close to) the identity map."""
 
 
 @contextlib.contextmanager

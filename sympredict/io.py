@@ -31,7 +31,7 @@ def load_model(path):
     """Load a model written by :func:`save_model`, whichever estimator it holds; :class:`ModelFileError` if unusable."""
     settings, arrays = read_container(path, MODEL_FORMAT)
     name = settings.get("class", "SymplecticKernelPredictor") if isinstance(settings, dict) else None
-    cls = _ESTIMATORS.get(name)
+    cls = _ESTIMATORS.get(name) if isinstance(name, str) else None
     if cls is None:
         raise ModelFileError(f"{str(path)!r} holds an unknown estimator {name!r}; known: {sorted(_ESTIMATORS)}")
     return cls._from_container(settings, arrays, path)

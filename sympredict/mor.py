@@ -55,6 +55,7 @@ from pymor.reductors.symplectic import QuadraticHamiltonianRBReductor
 from pymor.models.interface import Model
 from pymor.vectorarrays.numpy import NumpyVectorSpace
 
+from sympredict._checks import as_positive_int, as_real
 from sympredict.base import clone
 from sympredict.data import FlowMapData
 from sympredict.exceptions import ExtrapolationWarning
@@ -186,6 +187,39 @@ def _check_fom(fom, data: str) -> None:
                          + (f"lacks {', '.join(missing)}" if missing else "is not a pyMOR Model"))
 
 
+_STATE_SCALINGS = ("diag", "uniform", "williamson", "none")
+
+
+def _check_reductor_settings(fom, dt, predictor, parameter_space, n_samples, radius, n_validation, horizon,
+                             max_centers, check_existence, seed) -> None:
+    """The reductor's settings, checked before any FOM solve (``ValueError`` naming the argument and the value given)."""
+    as_positive_int(n_samples, "n_samples", minimum=2)  # a fifth on the trajectory, the rest around it: at least 2
+    as_positive_int(n_validation, "n_validation")
+    as_positive_int(max_centers, "max_centers")
+    as_positive_int(seed, "seed", minimum=0)
+    as_real(radius, "radius", nonnegative=True)
+    if horizon is not None:
+        as_real(horizon, "horizon", positive=True)
+    if not isinstance(check_existence, (bool, np.bool_)):
+        raise ValueError(f"check_existence must be True or False, got {check_existence!r}")
+    if predictor is not None:
+        missing = [a for a in ("fit", "step", "rollout", "step_jacobian", "get_params")
+                   if not callable(getattr(predictor, a, None))]
+        if isinstance(predictor, type) or missing:
+            raise ValueError(f"predictor must be an estimator instance (e.g. SymplecticKernelPredictor(...)) with fit, step, "
+                             f"rollout, step_jacobian and get_params, got {predictor!r}"
+                             + (f" (lacks {', '.join(missing)})" if missing and not isinstance(predictor, type) else ""))
+    if parameter_space is not None:
+        from pymor.parameters.base import ParameterSpace
+
+        if not isinstance(parameter_space, ParameterSpace):
+            raise ValueError(f"parameter_space must be a pyMOR ParameterSpace (e.g. fom.parameters.space(lo, hi)) or None, "
+                             f"got {type(parameter_space).__name__}")
+        if dict(parameter_space.parameters) != dict(fom.parameters):
+            raise ValueError(f"parameter_space has the parameters {dict(parameter_space.parameters)}, the FOM has "
+                             f"{dict(fom.parameters)}: names and dimensions must agree")
+
+
 class SymplecticKernelReductor(BasicObject):
     """Learn a symplectic reduced flow map of a pyMOR Hamiltonian model.
 
@@ -238,20 +272,25 @@ class SymplecticKernelReductor(BasicObject):
     def __init__(self, fom, RB, training_parameters, dt, predictor=None, data="reduced", *, parameter_space=None,
                  n_samples: int = 400, radius: float = 0.05, n_validation: int = 3, horizon: Optional[float] = None,
                  state_scaling: str = "diag", max_centers: int = 1000, check_existence: bool = True, seed: int = 0):
-        if data not in ("reduced", "projected"):
+        if not isinstance(data, str) or data not in ("reduced", "projected"):
             raise ValueError(f"data must be 'reduced' or 'projected', got {data!r}")
         _check_fom(fom, data)
         check_symplectic_basis(RB, fom.solution_space)
+        if not isinstance(state_scaling, str) or state_scaling not in _STATE_SCALINGS:
+            raise ValueError(f"state_scaling must be one of {_STATE_SCALINGS}, got {state_scaling!r}")
         if state_scaling == "williamson" and data != "reduced":
             raise ValueError("state_scaling='williamson' needs the reduced operator: use data='reduced' or 'diag'")
-        if not (np.isfinite(dt) and dt > 0):
-            raise ValueError(f"dt must be a positive float, got {dt!r}")
+        dt = as_real(dt, "dt", positive=True)
+        _check_reductor_settings(fom, dt, predictor, parameter_space, n_samples, radius, n_validation, horizon,
+                                 max_centers, check_existence, seed)
         if not fom.parameters:
             training_parameters = [None]
         elif training_parameters is None or len(training_parameters) == 0:
             raise ValueError(f"the FOM has parameters {dict(fom.parameters)}: give training_parameters (pyMOR Mu)")
         self.__auto_init(locals())
         self.training_parameters = [parse_mu(m, fom.parameters) for m in training_parameters]
+        if isinstance(predictor, SymplecticKernelPredictor):
+            predictor._check_params()  # its settings, before any FOM solve (fit would check them after all samples)
         self.dt = float(dt)
         self.horizon = float(fom.T if horizon is None else horizon)
         self.RB = RB
@@ -331,8 +370,8 @@ class SymplecticKernelReductor(BasicObject):
     def _check_stride(self, h: float) -> int:
         stride = int(round(self.dt / h))
         if stride < 1 or not np.isclose(stride * h, self.dt, rtol=1e-9, atol=0):
-            raise ValueError(f"data='projected' needs dt to be a multiple of the FOM's output step {h:.6g} "
-                             f"(T / nt), got dt = {self.dt:.6g}: use dt = k * {h:.6g}")
+            raise ValueError(f"data='projected' needs dt to be a multiple of the FOM's output step {h!r} "
+                             f"(T / nt), got dt = {self.dt!r}: use dt = k * {h!r}")
         return stride
 
     def _update(self) -> str:
@@ -405,7 +444,7 @@ class SymplecticKernelReductor(BasicObject):
         state_scaling : SymplecticScaling
         mu_scaling : BoxScaling or None
         """
-        with self.logger.block(f"flow-map data ({self.data}), 2n = {self.dim}, dt = {self.dt:g}"):
+        with self.logger.block(f"flow-map data ({self.data}), 2n = {self.dim}, dt = {self.dt!r}"):
             train, val = self.training_data()
         self.train_data_, self.validation_data_ = train, val
         vary_mu = train.mu.shape[1] > 0 and bool(np.any(np.ptp(train.mu, axis=0) > 0))
@@ -426,6 +465,11 @@ class SymplecticKernelReductor(BasicObject):
 
     def reduce(self, T: Optional[float] = None) -> SymplecticKernelModel:
         """Sample data, fit the predictor, return the ROM (horizon ``T``, default ``fom.T``)."""
+        rows = self._mu_rows(self.training_parameters)
+        if len(np.unique(rows, axis=0)) > 1 and getattr(self.predictor, "mu_kernel", True) is None:
+            # before any FOM solve (reduce() would find it after sampling)
+            raise ValueError("the parameters vary across training_parameters but the predictor has mu_kernel=None: "
+                             "give it a mu_kernel, or train at one parameter value")
         s_train, s_val, state_scaling, mu_scaling = self.scaled_training_data()
         train = self.train_data_
         vary_mu = mu_scaling is not None

@@ -4,9 +4,18 @@ from __future__ import annotations
 
 import json
 import math
+import os
 from pathlib import Path
 
-import matplotlib
+# the figures are drawn with Agg whatever MPLBACKEND says: an invalid value there must not break the import
+_MPLBACKEND = os.environ.get("MPLBACKEND")
+if _MPLBACKEND is not None:
+    os.environ["MPLBACKEND"] = "agg"
+try:
+    import matplotlib
+finally:
+    if _MPLBACKEND is not None:
+        os.environ["MPLBACKEND"] = _MPLBACKEND
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402

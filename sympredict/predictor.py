@@ -26,6 +26,7 @@ the rollout loop and their file format (:class:`_FlowMapKernelModel`).
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import logging
 import warnings
@@ -38,7 +39,14 @@ from sympredict._checks import as_model_parameter, as_parameter, as_positive_int
 from sympredict.base import Parametrized
 from sympredict.container import read_container, write_container
 from sympredict.data import FlowMapData, mixed_variables
-from sympredict.exceptions import ExtrapolationWarning, ModelFileError, NotFittedError, SolvabilityError
+from sympredict.exceptions import (
+    ExtrapolationWarning,
+    ModelFileError,
+    NonFinitePredictionError,
+    NotFittedError,
+    SolvabilityError,
+    UnderfitWarning,
+)
 from sympredict.functionals import HBFunctionals, ValueFunctionals
 from sympredict.greedy import GreedyHistory, Trainer, trainer_from_spec
 from sympredict.greedy.trainers import ExactGreedy
@@ -77,6 +85,10 @@ def numpy_seconds(n_instances: int, n_steps: int, n_centers: int, dim: int) -> f
     step, each a pass over the ``m`` centres with the ``(2n)^2`` Hessian entries per instance.
     """
     return n_steps * (NUMPY_STEP_SECONDS + NUMPY_TERM_SECONDS * n_instances * n_centers * dim * dim)
+
+#: Largest ``newton_max_iter`` accepted (constructor and model files): Newton converges in a handful of
+#: iterations or not at all, and a file must not be able to make prediction run without end.
+MAX_NEWTON_ITER = 10_000
 
 _PERIODIC_NOT_COMPILED = ("periodic coordinates (periodic=...) have no compiled solver yet: "
                           "use backend='numpy' or 'auto' (which then uses NumPy)")
@@ -163,6 +175,39 @@ def _settings_from_layout_1(settings: dict) -> dict:
     return {**settings, "layout": 1, "class": "SymplecticKernelPredictor", "params": params}
 
 
+def _is_int(value) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _check_file_shape_info(settings: dict, path) -> None:
+    """A model file's ``dim``, ``n_mu``, ``dt_fixed`` and ``stop_reason`` settings: types and bounds."""
+    dim, n_mu, dt_fixed = settings["dim"], settings["n_mu"], settings["dt_fixed"]
+    if not _is_int(dim) or not _is_int(n_mu) or dim < 1 or n_mu < 0:
+        raise ModelFileError(f"{str(path)!r}: invalid dimensions in its settings: dim={dim!r}, n_mu={n_mu!r} "
+                             "(integers >= 1 and >= 0 expected)")
+    if dt_fixed is not None and (isinstance(dt_fixed, bool) or not isinstance(dt_fixed, (int, float))
+                                 or not (np.isfinite(dt_fixed) and dt_fixed > 0)):
+        raise ModelFileError(f"{str(path)!r}: its setting dt_fixed={dt_fixed!r} must be null or a positive finite step")
+    if not isinstance(settings["stop_reason"], str):
+        raise ModelFileError(f"{str(path)!r}: its setting stop_reason={settings['stop_reason']!r} must be a string")
+
+
+def _check_file_history(model, path) -> None:
+    """A model file's residual history fits its centres: ``m + 1`` residuals, ``m`` powers; the training box is ordered."""
+    m, h = model.surrogate_.n_centers, model.history_
+    for name, arr, length in (("train_max_residual", h.train_max_residual, m + 1),
+                              ("val_max_residual", h.val_max_residual, m + 1), ("selected_power", h.selected_power, m)):
+        if arr is not None and (arr.ndim != 1 or len(arr) != length or arr.dtype.kind != "f"):
+            raise ModelFileError(f"{str(path)!r}: its array {name!r} has shape {arr.shape} (dtype {arr.dtype}), "
+                                 f"expected ({length},) floats for {m} centres")
+    d = model.domain_
+    for lo, hi in (("x_min", "x_max"), ("mu_min", "mu_max"), ("dt_min", "dt_max")):
+        if np.any(d[lo] > d[hi]):
+            raise ModelFileError(f"{str(path)!r}: its training box has domain_{lo} > domain_{hi}")
+    if not d["dt_min"] > 0:
+        raise ModelFileError(f"{str(path)!r}: its training box has a non-positive step domain_dt_min={float(d['dt_min'])!r}")
+
+
 class _FlowMapKernelModel(Parametrized):
     """What the kernel flow-map models share: settings checks, input validation, training box, rollouts, files.
 
@@ -223,6 +268,56 @@ class _FlowMapKernelModel(Parametrized):
                              f"or None, got {self.trainer!r}")
         return trainer
 
+    # ------------------------------------------------ fitted settings
+    #: Parameters that define the fitted model: predictions use their values at fit time, stored as
+    #: ``name_`` (a later ``set_params`` takes effect at the next fit, scikit-learn's semantics).
+    _fitted_settings: tuple = ()
+    #: Solver settings read at prediction time (they change how, not what, is predicted; checked when used).
+    _runtime_settings: tuple = ()
+
+    def __getattr__(self, name: str):
+        # ``name_`` of a fitted setting missing (a fitted state assembled by hand, or an object pickled before
+        # these attributes existed): the current setting
+        if name.endswith("_") and name[:-1] in type(self)._fitted_settings:
+            return getattr(self, name[:-1])
+        raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
+
+    def _store_fitted_settings(self, params: dict) -> None:
+        """Keep ``params`` (``get_params(deep=False)`` at fit or load time) as ``fitted_params_`` and ``name_``."""
+        self.fitted_params_ = dict(params)
+        for name in self._fitted_settings:
+            setattr(self, name + "_", params[name])
+
+    @contextlib.contextmanager
+    def _fitting(self):
+        """The body of ``fit``: the current parameters become the fitted ones; a failed fit restores the previous."""
+        names = ["fitted_params_", *(name + "_" for name in self._fitted_settings)]
+        saved = {name: self.__dict__[name] for name in names if name in self.__dict__}
+        self._store_fitted_settings(self.get_params(deep=False))
+        try:
+            yield
+        except BaseException:
+            for name in names:
+                self.__dict__.pop(name, None)
+            self.__dict__.update(saved)
+            raise
+
+    def _saved_params(self) -> dict:
+        """The parameters a model file stores: the fitted ones, with the current (checked) solver settings."""
+        params = dict(self.get_params(deep=False))
+        fitted = getattr(self, "fitted_params_", None)
+        if fitted is not None:
+            params.update({k: v for k, v in fitted.items() if k not in self._runtime_settings})
+        return params
+
+    def _check_finite(self, out: np.ndarray, what: str = "") -> np.ndarray:
+        """``out`` (B, ...) if finite; :class:`NonFinitePredictionError` naming the instances otherwise."""
+        finite = np.isfinite(out)
+        if not finite.all():
+            bad = np.flatnonzero(~finite.reshape(len(out), -1).all(axis=1))
+            raise NonFinitePredictionError(bad, f"this {type(self).__name__}{what}")
+        return out
+
     def _as_data(self, x0, x1, mu, dt, what: str) -> FlowMapData:
         if mu is not None and self.mu_kernel is None:
             raise ValueError(
@@ -269,11 +364,22 @@ class _FlowMapKernelModel(Parametrized):
 
     def _product_kernel(self, points, periodic: Optional[PeriodicCoordinates] = None,
                         symmetry: Optional[StateSymmetry] = None) -> ProductKernel:
-        """The kernel used; a missing state kernel becomes ``IMQ(1 / diameter of the points)``."""
+        """The kernel used; a missing state kernel becomes ``IMQ(1 / diameter of the points)``.
+
+        The diameter is computed without underflow (states in any units); points that all coincide
+        get ``IMQ(1)``; a diameter so small that its inverse overflows is refused (rescale the states).
+        """
         state_kernel = self.state_kernel
         if state_kernel is None:
-            diameter = float(np.linalg.norm(np.ptp(points, axis=0)))
-            state_kernel = IMQ(1.0 / diameter if diameter > 0 else 1.0)
+            spread = np.ptp(points, axis=0)
+            largest = float(spread.max()) if spread.size else 0.0
+            diameter = largest * float(np.linalg.norm(spread / largest)) if largest > 0 else 0.0
+            try:
+                state_kernel = IMQ(1.0 / diameter if diameter > 0 else 1.0)
+            except (ValueError, ZeroDivisionError, OverflowError):
+                raise ValueError(f"the training states span a diameter of {diameter!r}: too small or too large for the "
+                                 "default state kernel IMQ(1 / diameter); rescale the states to units of order one, "
+                                 "or pass a state_kernel") from None
         return ProductKernel(state_kernel, self.mu_kernel, self.dt_kernel, periodic, symmetry)
 
     def _model_periodic(self, dim: int) -> Optional[PeriodicCoordinates]:
@@ -294,7 +400,9 @@ class _FlowMapKernelModel(Parametrized):
         Returns the selected point indices and components (``divmod`` of the flat indices).
         """
         functionals = self._functionals(kernel, points, data.mu, data.dt)
-        result = trainer.run(functionals, targets, max_centers=self.max_centers, tol=self.tol, criterion=self.criterion,
+        ref = self._data_scale(data)
+        tol = float(self.tol) * min(1.0, ref)  # see the class docstring: never looser than tol relative to the data
+        result = trainer.run(functionals, targets, max_centers=self.max_centers, tol=tol, criterion=self.criterion,
                              power_tol=self.power_tol, validation=validation, memory_limit=self.memory_limit,
                              regularization=float(self.regularization))
         self.kernel_ = kernel
@@ -302,6 +410,43 @@ class _FlowMapKernelModel(Parametrized):
         self.greedy_result_ = result
         self._set_fitted_state(data)
         return np.divmod(result.selected, functionals.n_functionals // len(points))
+
+    def _data_scale(self, data: FlowMapData) -> float:
+        """The size of a target that moves the states by their own size: ``max |x| / min dT`` for the symplectic
+        model's ``J^T (x1 - x0) / dT`` (``max |x|`` for increments, :class:`DirectKernelPredictor`)."""
+        size = float(max(np.abs(data.x0).max(), np.abs(data.x1).max()))
+        return size / float(data.dt.min()) if self._functionals is HBFunctionals else size
+
+    def _warn_if_underfit(self, data: FlowMapData, targets: np.ndarray, predicted) -> None:
+        """:class:`UnderfitWarning` when the data move the states but the model does not (an identity model).
+
+        ``targets`` (M, q) of the training samples, ``predicted(rows)`` the model's values at those rows.
+        Targets at round-off level (``1e3 eps`` of :meth:`_data_scale`) are no movement.  Otherwise the fit
+        warns if it selected no centre, or if on the (up to) 256 samples with the largest targets the model
+        reproduces less than a tenth of them (``|pred - y| > 0.9 |y|``).  ``O(256 m 2n)``.
+        """
+        largest = float(np.abs(targets).max()) if targets.size else 0.0
+        if not largest > 1e3 * np.finfo(float).eps * self._data_scale(data):
+            return  # the data do not move the states: the identity is the right model
+        m, h = self.surrogate_.n_centers, self.history_
+        if m:
+            norms = np.linalg.norm(targets, axis=1)
+            rows = np.argsort(norms)[-256:]
+            miss = float(np.linalg.norm(predicted(rows) - targets[rows]))
+            if miss <= 0.9 * float(np.linalg.norm(targets[rows])):
+                return
+        advice = {
+            "tol": f"tol={self.tol!r} stops it at once: lower tol",
+            "power": (f"no candidate's power function exceeds power_tol={self.power_tol!r} times the Gramian diagonal: "
+                      "the state kernel's shape does not fit the data's scale (pass state_kernel=None, or a shape of about "
+                      "1 / the spread of the states) or lower power_tol"),
+        }.get(h.stop_reason, "the state kernel's shape does not fit the data's scale: pass state_kernel=None, or a shape "
+                             "of about 1 / the spread of the states, or allow more centres (max_centers)")
+        what = "selected no centre" if m == 0 else f"reproduces less than a tenth of the training increments with {m} centre(s)"
+        warnings.warn(
+            f"{type(self).__name__}.fit {what} (greedy stop: {h.stop_reason}) although the data move the states "
+            f"(largest target {largest:.3g}): the model is (close to) the identity map. {advice}.",
+            UnderfitWarning, stacklevel=4)
 
     def _set_fitted_state(self, data: FlowMapData):
         self._set_shape_info(data.x0.shape[1], data.mu.shape[1], data.dt[0] if self.dt_kernel is None else None)
@@ -333,8 +478,8 @@ class _FlowMapKernelModel(Parametrized):
             dt_arr = as_steps(dt, b)
             if np.any(dt_arr != self.dt_fixed_):
                 raise ValueError(
-                    f"this model was trained for the fixed step dt={self.dt_fixed_} (dt_kernel=None); "
-                    f"got dt={np.unique(dt_arr)[:5]}"
+                    f"this model was trained for the fixed step dt={self.dt_fixed_!r} (dt_kernel=None); "
+                    f"got dt={[float(v) for v in np.unique(dt_arr)[:5]]}"
                 )
         else:
             dt_arr = as_steps(dt, b)
@@ -410,11 +555,13 @@ class _FlowMapKernelModel(Parametrized):
     def _to_container(self) -> tuple:
         """The fitted model as a container's ``(settings, arrays)`` (what :meth:`save` writes)."""
         self._check_fitted()
+        params = self._saved_params()
+        type(self)(**params)._check_params()  # the checks load() runs: a file it would refuse is never written
         sur, hist = self.surrogate_, self.history_
         settings = {
             "layout": MODEL_LAYOUT,
             "class": type(self).__name__,
-            "params": {k: _encode_param(v) for k, v in self.get_params(deep=False).items()},
+            "params": {k: _encode_param(v) for k, v in params.items()},
             "kernel": self.kernel_.spec,
             "dim": self.dim_,
             "n_mu": self.n_mu_,
@@ -442,10 +589,26 @@ class _FlowMapKernelModel(Parametrized):
         found = settings.get("class") if isinstance(settings, dict) else None
         if found != cls.__name__:
             raise ModelFileError(f"{str(path)!r} holds a {found!r}, not a {cls.__name__}")
+        if settings.get("layout") not in (1, MODEL_LAYOUT):
+            raise ModelFileError(f"{str(path)!r} has an unknown model layout {settings.get('layout')!r} "
+                                 f"(this sympredict reads 1..{MODEL_LAYOUT})")
         try:
-            model = cls(**{k: _decode_param(v) for k, v in settings["params"].items()})
+            params = settings["params"]
+            if not isinstance(params, dict):
+                raise ModelFileError(f"{str(path)!r}: its setting 'params' is not a JSON object")
+            model = cls(**{k: _decode_param(v) for k, v in params.items()})
+            try:  # the settings pass the checks of fit (one schema for constructors and files)
+                model._check_params()
+            except ValueError as exc:
+                raise ModelFileError(f"{str(path)!r} has an invalid setting: {exc}") from None
+            model._store_fitted_settings(model.get_params(deep=False))
             kernel = ProductKernel.from_spec(settings["kernel"])
+            _check_file_shape_info(settings, path)
             model._set_shape_info(settings["dim"], settings["n_mu"], settings["dt_fixed"])
+            try:
+                model._check_dim_settings(model.dim_)
+            except ValueError as exc:
+                raise ModelFileError(f"{str(path)!r} has an invalid setting for states of dimension {model.dim_}: {exc}") from None
             if kernel.periodic != model._model_periodic(model.dim_):
                 raise ModelFileError(f"the file's periodic coordinates {kernel.periodic!r} disagree with its settings "
                                      f"periodic={model.get_params().get('periodic')!r}, period={model.get_params().get('period')!r}")
@@ -466,11 +629,18 @@ class _FlowMapKernelModel(Parametrized):
             )
             model.greedy_result_ = None
             model.domain_ = {k: arrays[f"domain_{k}"] for k in ("x_min", "x_max", "mu_min", "mu_max", "dt_min", "dt_max")}
+            _check_file_history(model, path)
         except ModelFileError:
             raise
-        except (KeyError, TypeError, ValueError, AttributeError, IndexError) as exc:
+        except (KeyError, TypeError, ValueError, AttributeError, IndexError, OverflowError, RecursionError) as exc:
             raise ModelFileError(f"{str(path)!r} is an incomplete or inconsistent sympredict model file: {exc!r}") from None
         return model
+
+    def _check_runtime_settings(self) -> None:
+        """Check the solver settings read at prediction time (none here); ``ValueError`` naming the setting."""
+
+    def _check_dim_settings(self, dim: int) -> None:
+        """Check the settings that depend on the state dimension (none here); ``ValueError`` naming the setting."""
 
     def _check_file_arrays(self, kernel: ProductKernel, arrays: dict) -> None:
         """Consistency of a model file's arrays with its settings (files are hostile input)."""
@@ -506,7 +676,14 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
     max_centers
         Maximal number of selected functionals (centres).
     tol
-        Greedy stops when the max training residual is at or below ``tol``.
+        Greedy stops when the max training residual is at or below
+        ``tol * min(1, max|x| / min dT)`` (``max|x|`` over the training states):
+        ``tol`` is absolute for data in units of order one and above, and
+        relative to the data's scale for data in small units (so a fit never
+        stops before learning only because the states are small).  A fit that
+        selects no centre, or reproduces less than a tenth of its largest
+        training increments, although the data move the states, warns
+        (:class:`~sympredict.exceptions.UnderfitWarning`).
     criterion
         ``'f'`` (f-greedy, default) or ``'p'`` (P-greedy).
     power_tol
@@ -629,6 +806,13 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         The training step when ``dt_kernel is None``.
     domain_ : dict
         Training box: ``x_min``, ``x_max`` (states ``x0`` and ``x1``), ``mu_min``, ``mu_max``, ``dt_min``, ``dt_max``.
+    fitted_params_ : dict
+        The parameters at fit (or load) time; what :meth:`save` writes (with the current solver settings).
+    update_, state_scaling_, periodic_, period_, symmetry_
+        The settings that define the fitted model, as they were at fit time: predictions use these, so a
+        parameter changed by ``set_params`` after the fit takes effect at the next fit (scikit-learn's
+        semantics).  The solver settings ``backend``, ``newton_max_iter`` (at most :data:`MAX_NEWTON_ITER`)
+        and ``newton_warm_start`` are read when predicting and checked there.
 
     Examples
     --------
@@ -639,6 +823,8 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
     """
 
     _functionals = HBFunctionals
+    _fitted_settings = ("update", "state_scaling", "periodic", "period", "symmetry")
+    _runtime_settings = ("backend", "newton_max_iter", "newton_warm_start")
 
     def __init__(
         self,
@@ -706,17 +892,10 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         functionals, ``m`` centres.
         """
         trainer = self._check_params()
-        as_positive_int(self.newton_max_iter, "newton_max_iter")
-        if self.backend not in _BACKENDS:
-            raise ValueError(f"backend must be 'auto', 'numpy' or 'numba', got {self.backend!r}")
-        if not isinstance(self.newton_warm_start, (bool, np.bool_)):
-            raise ValueError(f"newton_warm_start must be True or False, got {self.newton_warm_start!r}")
-        if self.update not in UPDATES:
-            raise ValueError(f"update must be one of {UPDATES}, got {self.update!r}")
-        if self.periodic is not None and self.backend == "numba":
-            raise ValueError(_PERIODIC_NOT_COMPILED)
-        if self.symmetry is not None and self.backend == "numba":
-            raise ValueError(_SYMMETRY_NOT_COMPILED)
+        with self._fitting():
+            return self._fit(trainer, x0, x1, mu, dt, validation)
+
+    def _fit(self, trainer, x0, x1, mu, dt, validation) -> "SymplecticKernelPredictor":
         data, validation = self._fit_data(x0, x1, mu, dt, validation)
         if data.x0.shape[1] % 2:
             raise ValueError(f"states must have an even dimension 2n (q, p), got {data.x0.shape[1]}")
@@ -732,6 +911,8 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
             val = (HBFunctionals(kernel, vxi, validation.mu, validation.dt), vy.reshape(-1))
         points, comps = self._train(trainer, kernel, xi, y.reshape(-1), data, val)
         self.surrogate_ = HBSurrogate(kernel, xi[points], data.mu[points], data.dt[points], comps, self.greedy_result_.coef)
+        self._warn_if_underfit(data, y, lambda rows: self.surrogate_.gradient(
+            xi[rows], self.surrogate_.weights(data.mu[rows], data.dt[rows])))
         return self
 
     def truncated(self, n_centers: int) -> "SymplecticKernelPredictor":
@@ -757,6 +938,7 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         sur = self.surrogate_
         small = copy.copy(self)
         small.max_centers = n_centers
+        small.fitted_params_ = {**getattr(self, "fitted_params_", self.get_params(deep=False)), "max_centers": n_centers}
         small.surrogate_ = HBSurrogate(
             sur.kernel, sur.centers_xi[:n_centers], sur.centers_mu[:n_centers], sur.centers_dt[:n_centers],
             sur.components[:n_centers], result.coef_prefix(n_centers),
@@ -798,6 +980,42 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
             )
         return self.truncated(int(hits[0]) + 1)
 
+    # ------------------------------------------------------- settings
+    def _check_params(self) -> Trainer:
+        trainer = super()._check_params()
+        self._check_runtime_settings()
+        if self.update not in UPDATES:
+            raise ValueError(f"update must be one of {UPDATES}, got {self.update!r}")
+        if self.periodic is not None and self.backend == "numba":
+            raise ValueError(_PERIODIC_NOT_COMPILED)
+        if self.symmetry is not None and self.backend == "numba":
+            raise ValueError(_SYMMETRY_NOT_COMPILED)
+        return trainer
+
+    def _check_runtime_settings(self) -> None:
+        """The solver settings read at prediction time (``backend``, ``newton_max_iter``, ``newton_warm_start``)."""
+        self._newton_iterations()
+        if not isinstance(self.backend, str) or self.backend not in _BACKENDS:
+            raise ValueError(f"backend must be 'auto', 'numpy' or 'numba', got {self.backend!r}")
+        if not isinstance(self.newton_warm_start, (bool, np.bool_)):
+            raise ValueError(f"newton_warm_start must be True or False, got {self.newton_warm_start!r}")
+
+    def _newton_iterations(self) -> int:
+        """``newton_max_iter``, checked: an integer in ``1..MAX_NEWTON_ITER``."""
+        max_iter = as_positive_int(self.newton_max_iter, "newton_max_iter")
+        if max_iter > MAX_NEWTON_ITER:
+            raise ValueError(f"newton_max_iter must be at most {MAX_NEWTON_ITER} (Newton converges in a few iterations "
+                             f"or not at all), got {max_iter}")
+        return max_iter
+
+    def _check_dim_settings(self, dim: int) -> None:
+        """The fitted ``state_scaling``, ``periodic``/``period`` and ``symmetry`` for states of dimension ``dim``."""
+        if dim % 2:
+            raise ValueError(f"states must have an even dimension 2n (q, p), got {dim}")
+        self._scale_vector(dim)
+        self._model_periodic(dim)
+        self._model_symmetry(dim)
+
     # ------------------------------------------------------- Newton backends
     def backend_for(self, n_instances: int = 1, n_steps: int = 1) -> str:
         """The Newton solver :meth:`step` / :meth:`rollout` use for this much work: ``'numpy'`` or ``'numba'``.
@@ -821,11 +1039,11 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
 
     def _compiled(self, n_instances: Optional[int] = None, n_steps: int = 1) -> bool:
         """Whether :meth:`step` / :meth:`rollout` use the compiled solver (resolves ``backend``; see :meth:`backend_for`)."""
-        if self.periodic is not None:
+        if self.periodic_ is not None:
             if self.backend == "numba":
                 raise ValueError(_PERIODIC_NOT_COMPILED)
             return False
-        if self.symmetry is not None:
+        if self.symmetry_ is not None:
             if self.backend == "numba":
                 raise ValueError(_SYMMETRY_NOT_COMPILED)
             return False
@@ -848,35 +1066,35 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         raise ValueError(f"backend must be 'auto', 'numpy' or 'numba', got {self.backend!r}")
 
     def _scale_vector(self, dim: int) -> np.ndarray:
-        """``(a, 1/a)`` of ``state_scaling`` (ones without it), shape (2n,); checks the setting."""
-        if self.state_scaling is None:
+        """``(a, 1/a)`` of the fitted ``state_scaling`` (ones without it), shape (2n,); checks the setting."""
+        if self.state_scaling_ is None:
             return np.ones(dim)
         try:
-            a = np.asarray(self.state_scaling, dtype=float)
+            a = np.asarray(self.state_scaling_, dtype=float)
         except (TypeError, ValueError):
             a = None
         if a is None or a.shape != (dim // 2,) or not np.all(np.isfinite(a) & (a > 0)):
             raise ValueError(f"state_scaling must be None or {dim // 2} positive finite factors (one per q_i), "
-                             f"got {self.state_scaling!r}")
+                             f"got {self.state_scaling_!r}")
         return np.concatenate([a, 1.0 / a])
 
     def _original_periods(self, dim: int):
         """``(coordinates, periods)`` of the ``periodic`` setting in the original coordinates; checks it."""
-        if self.periodic is None:
+        if self.periodic_ is None:
             return (), ()
-        coords = self.periodic
+        coords = self.periodic_
         if not isinstance(coords, (tuple, list)) or not coords \
                 or not all(isinstance(c, (int, np.integer)) and not isinstance(c, bool) for c in coords) \
                 or len(set(int(c) for c in coords)) != len(coords) or not all(0 <= c < dim for c in coords):
             raise ValueError(f"periodic must be None or a tuple of distinct state indices in 0..{dim - 1} "
-                             f"(the angle coordinates), got {self.periodic!r}")
-        period = self.period
+                             f"(the angle coordinates), got {self.periodic_!r}")
+        period = self.period_
         periods = tuple(period) if isinstance(period, (tuple, list)) else (period,) * len(coords)
         if len(periods) != len(coords) or not all(
                 isinstance(p, (int, float, np.number)) and not isinstance(p, bool) and np.isfinite(p) and p > 0
                 for p in periods):
             raise ValueError(f"period must be a positive finite number or one per periodic coordinate "
-                             f"({len(coords)}), got {self.period!r}")
+                             f"({len(coords)}), got {self.period_!r}")
         return tuple(int(c) for c in coords), tuple(float(p) for p in periods)
 
     def _model_periodic(self, dim: int) -> Optional[PeriodicCoordinates]:
@@ -894,16 +1112,16 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         update cannot use (see the class docstring), ``periodic`` set too, or a
         scaling that does not commute with the group.
         """
-        group = StateSymmetry.coerce(self.symmetry)
+        group = StateSymmetry.coerce(self.symmetry_)
         if group is None:
             return None
         group.check_dim(dim)
-        if self.periodic is not None:
+        if self.periodic_ is not None:
             raise ValueError("symmetry and periodic cannot be combined (not implemented): pass one of them")
         n = dim // 2
         jmat = np.block([[np.zeros((n, n)), np.eye(n)], [-np.eye(n), np.zeros((n, n))]])
         for i, g in enumerate(group.array):
-            if self.update == "midpoint":
+            if self.update_ == "midpoint":
                 sigma = g.T @ jmat @ g
                 if not (np.allclose(sigma, jmat, atol=1e-12) or np.allclose(sigma, -jmat, atol=1e-12)):
                     raise ValueError(f"symmetry: element {i} is neither symplectic (g^T J g = J) nor anti-symplectic "
@@ -912,7 +1130,7 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
                 raise ValueError(f"symmetry: element {i} is not of the form diag(A, A): with update='symplectic_euler' "
                                  "the type-II s(q0, p1) is invariant only under such maps (a reversing symmetry such as "
                                  "q -> -q maps (q0, p1) to (q1, p0)); use update='midpoint'")
-        return group.conjugated(self._scale_vector(dim)) if self.state_scaling is not None else group
+        return group.conjugated(self._scale_vector(dim)) if self.state_scaling_ is not None else group
 
     def _rollout(self, x, weights, dt, n_steps: int, around=None, *, stride: int = 1, progress=None) -> np.ndarray:
         """Kept states (B, K/stride+1, 2n) of a validated batch; ``around = (pre, post)`` (B, 2n, 2n): steps
@@ -930,7 +1148,7 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
             pre, post = pre * scale[None, :, None], post / scale[None, None, :]
             if compiled:  # no warm start here: its extrapolation would mix x_k and pre x_k
                 def run(state, k):
-                    return rollout_compiled(self.surrogate_, state, weights, dt, k, max_iter, update=self.update,
+                    return rollout_compiled(self.surrogate_, state, weights, dt, k, max_iter, update=self.update_,
                                             around=(pre, post))
             else:
                 def run(state, k):
@@ -940,26 +1158,26 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         if compiled:
             def run(state, k):
                 return rollout_compiled(self.surrogate_, state, weights, dt, k, max_iter,
-                                        warm_start=bool(self.newton_warm_start), update=self.update)
+                                        warm_start=bool(self.newton_warm_start), update=self.update_)
         else:
             def run(state, k):
                 return rollout_numpy(lambda s: self._solve_scaled(s, weights, dt), state, k)
         traj = rollout_in_chunks(run, x * scale, n_steps, stride=stride, progress=progress)
-        return traj if self.state_scaling is None else traj / scale
+        return traj if self.state_scaling_ is None else traj / scale
 
     def _solve_step(self, x: np.ndarray, weights: np.ndarray, dt: np.ndarray) -> np.ndarray:
         """One implicit step for a validated batch in the original coordinates (``state_scaling`` applied)."""
-        if self.state_scaling is None:
+        if self.state_scaling_ is None:
             return self._solve_scaled(x, weights, dt)
         scale = self._scale_vector(self.dim_)
         return self._solve_scaled(x * scale, weights, dt) / scale
 
     def _solve_scaled(self, x: np.ndarray, weights: np.ndarray, dt: np.ndarray) -> np.ndarray:
         """One implicit step in the model's coordinates, on the configured backend (:mod:`sympredict.newton`)."""
-        max_iter = as_positive_int(self.newton_max_iter, "newton_max_iter")
+        max_iter = self._newton_iterations()
         if self._compiled(len(x), 1):
-            return rollout_compiled(self.surrogate_, x, weights, dt, 1, max_iter, step_index=False, update=self.update)[:, 1]
-        if self.update == "midpoint":
+            return rollout_compiled(self.surrogate_, x, weights, dt, 1, max_iter, step_index=False, update=self.update_)[:, 1]
+        if self.update_ == "midpoint":
             return solve_midpoint_numpy(self.surrogate_, x, weights, dt, max_iter)
         return solve_step_numpy(self.surrogate_, x, weights, dt, max_iter)
 
@@ -987,7 +1205,7 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
             (the error names them); never returns NaN silently.
         """
         x, single, mu, dt = self._query(x, mu, dt)
-        out = self._solve_step(x, self.surrogate_.weights(mu, dt), dt)
+        out = self._check_finite(self._solve_step(x, self.surrogate_.weights(mu, dt), dt))
         return out[0] if single else out
 
     def rollout(self, x0, n_steps: int, mu=None, dt=None, *, stride: int = 1, progress=None,
@@ -1037,7 +1255,7 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
             bad = np.flatnonzero(~(margin < 1.0))
             if bad.size:
                 raise SolvabilityError(bad, margin[bad])
-        traj = self._rollout(x, weights, dt, n_steps, stride=stride, progress=progress)
+        traj = self._check_finite(self._rollout(x, weights, dt, n_steps, stride=stride, progress=progress))
         self._warn_if_trajectory_leaves(traj, stride)
         return traj[0] if single else traj
 
@@ -1045,7 +1263,7 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         n = self.dim_ // 2
         x = x * self._scale_vector(self.dim_)
         _, hess = self.surrogate_.gradient_hessian(x, weights)
-        if self.update == "midpoint":  # z -> x0 + dT/2 J grad s(z) contracts where dT/2 |Hess s| < 1
+        if self.update_ == "midpoint":  # z -> x0 + dT/2 J grad s(z) contracts where dT/2 |Hess s| < 1
             return 0.5 * dt * np.linalg.norm(hess, ord=2, axis=(1, 2))
         return dt * np.linalg.norm(hess[:, :, n:], ord=2, axis=(1, 2))
 
@@ -1083,14 +1301,14 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         weights = self.surrogate_.weights(mu, dt)
         scale = self._scale_vector(self.dim_)
         jac = self._scaled_jacobian(x * scale, weights, dt)
-        if self.state_scaling is not None:  # D Phi = S^{-1} D Phi_scaled S
+        if self.state_scaling_ is not None:  # D Phi = S^{-1} D Phi_scaled S
             jac = jac * scale[None, None, :] / scale[None, :, None]
         return jac[0] if single else jac
 
     def _scaled_jacobian(self, x, weights, dt):
         """``D Phi`` in the model's coordinates (B, 2n, 2n)."""
         x1 = self._solve_scaled(x, weights, dt)
-        if self.update == "midpoint":
+        if self.update_ == "midpoint":
             _, S = self.surrogate_.gradient_hessian(0.5 * (x + x1), weights)
             return midpoint_jacobian(S, dt)
         n = self.dim_ // 2
@@ -1183,6 +1401,10 @@ class DirectKernelPredictor(_FlowMapKernelModel):
     def fit(self, x0, x1, mu=None, dt=None, *, validation=None) -> "DirectKernelPredictor":
         """Train on flow-map samples (same arguments as :meth:`SymplecticKernelPredictor.fit`)."""
         trainer = self._check_params()
+        with self._fitting():
+            return self._fit(trainer, x0, x1, mu, dt, validation)
+
+    def _fit(self, trainer, x0, x1, mu, dt, validation) -> "DirectKernelPredictor":
         data, validation = self._fit_data(x0, x1, mu, dt, validation)
         self._check_duplicates(data.x0, data)
         kernel = self._product_kernel(data.x0)
@@ -1191,6 +1413,8 @@ class DirectKernelPredictor(_FlowMapKernelModel):
             val = (ValueFunctionals(kernel, validation.x0, validation.mu, validation.dt), validation.x1 - validation.x0)
         points, _ = self._train(trainer, kernel, data.x0, data.x1 - data.x0, data, val)
         self.surrogate_ = ValueSurrogate(kernel, data.x0[points], data.mu[points], data.dt[points], self.greedy_result_.coef)
+        self._warn_if_underfit(data, data.x1 - data.x0, lambda rows: self.surrogate_.value(
+            data.x0[rows], self.surrogate_.weights(data.mu[rows], data.dt[rows])))
         return self
 
     def _advance(self, x, weights, dt):
@@ -1199,7 +1423,7 @@ class DirectKernelPredictor(_FlowMapKernelModel):
     def step(self, x, mu=None, dt=None) -> np.ndarray:
         """One explicit predicted step, shape of ``x`` ((B, 2n) or (2n,))."""
         x, single, mu, dt = self._query(x, mu, dt)
-        out = self._advance(x, self.surrogate_.weights(mu, dt), dt)
+        out = self._check_finite(self._advance(x, self.surrogate_.weights(mu, dt), dt))
         return out[0] if single else out
 
     def rollout(self, x0, n_steps: int, mu=None, dt=None, *, stride: int = 1, progress=None) -> np.ndarray:
@@ -1210,7 +1434,8 @@ class DirectKernelPredictor(_FlowMapKernelModel):
         n_steps = as_positive_int(n_steps, "n_steps", minimum=0)
         stride = as_positive_int(stride, "stride")
         x, single, mu, dt = self._query(x0, mu, dt, name="x0")
-        traj = self._rollout(x, self.surrogate_.weights(mu, dt), dt, n_steps, stride=stride, progress=progress)
+        traj = self._check_finite(self._rollout(x, self.surrogate_.weights(mu, dt), dt, n_steps, stride=stride,
+                                                progress=progress))
         self._warn_if_trajectory_leaves(traj, stride)
         return traj[0] if single else traj
 

@@ -22,9 +22,12 @@
 
 from __future__ import annotations
 
+import warnings
 from itertools import product
 from math import comb
 from typing import Optional
+
+from sympredict.exceptions import ExtrapolationWarning
 
 import numpy as np
 from scipy.linalg import schur
@@ -180,11 +183,41 @@ class NormalizedFlowMap:
             m = self.mu_scaling.transform(mu)
         return m, None if dt is None else np.asarray(dt, dtype=float) / self.tau
 
+    def _in_user_units(self, call, mu, dt):
+        """``call()``, with the predictor's :class:`ExtrapolationWarning` (about scaled values) said again in the
+        caller's units: parameters, steps, and the states' box mapped back."""
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", ExtrapolationWarning)
+            out = call()
+        for w in caught:
+            if not issubclass(w.category, ExtrapolationWarning):
+                warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+                continue
+            warnings.warn(self._user_message(mu, dt), ExtrapolationWarning, stacklevel=3)
+        return out
+
+    def _user_message(self, mu, dt) -> str:
+        """The extrapolation note in original units (the predictor's training box mapped back)."""
+        parts = []
+        domain = getattr(self.predictor, "domain_", None)
+        if domain is not None and self.mu_scaling is not None and mu is not None:
+            lo = self.mu_scaling.inverse_transform(np.asarray(domain["mu_min"])[None])[0]
+            hi = self.mu_scaling.inverse_transform(np.asarray(domain["mu_max"])[None])[0]
+            given = np.asarray(mu, dtype=float).reshape(-1, len(lo))
+            parts.append(f"mu spans {given.min(axis=0).tolist()}..{given.max(axis=0).tolist()}, "
+                         f"training box {lo.tolist()}..{hi.tolist()}")
+        if domain is not None and dt is not None:
+            parts.append(f"dt = {np.unique(np.asarray(dt, dtype=float))[:5].tolist()}, training steps "
+                         f"{float(domain['dt_min']) * self.tau!r}..{float(domain['dt_max']) * self.tau!r}")
+        return ("extrapolation: the query (or its trajectory) leaves the training data of the flow map; in the caller's "
+                "units: " + ("; ".join(parts) if parts else "the states leave the box of the training states"))
+
     def step(self, x, mu=None, dt=None) -> np.ndarray:
         """One step of states (B, 2n); ``mu`` (d,) or (B, d) in original units."""
         x = np.atleast_2d(np.asarray(x, dtype=float))
         m, d = self._args(mu, dt, len(x))
-        return self.state_scaling.inverse_transform(self.predictor.step(self.state_scaling.transform(x), mu=m, dt=d))
+        return self.state_scaling.inverse_transform(self._in_user_units(
+            lambda: self.predictor.step(self.state_scaling.transform(x), mu=m, dt=d), mu, dt))
 
     def step_jacobian(self, x, mu=None, dt=None) -> np.ndarray:
         """``D Phi = T^-1 D Phi~ T``, shape (B, 2n, 2n)."""
@@ -198,7 +231,8 @@ class NormalizedFlowMap:
         n_steps = as_positive_int(n_steps, "n_steps", minimum=0)
         x0 = np.atleast_2d(np.asarray(x0, dtype=float))
         m, d = self._args(mu, dt, len(x0))
-        return self.state_scaling.inverse_transform(self.predictor.rollout(self.state_scaling.transform(x0), n_steps, mu=m, dt=d))
+        return self.state_scaling.inverse_transform(self._in_user_units(
+            lambda: self.predictor.rollout(self.state_scaling.transform(x0), n_steps, mu=m, dt=d), mu, dt))
 
 
 def scaled_quadratic_part(quadratic: QuadraticPart, state_scaling: SymplecticScaling, mu_scaling: Optional[BoxScaling],

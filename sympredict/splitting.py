@@ -38,7 +38,7 @@ from sympredict._checks import as_model_parameter, as_positive_int, as_states, a
 from sympredict.base import Parametrized, clone
 from sympredict.container import read_container, write_container
 from sympredict.data import FlowMapData
-from sympredict.exceptions import ModelFileError, NotFittedError
+from sympredict.exceptions import ModelFileError, NonFinitePredictionError, NotFittedError
 from sympredict.linear_flow import QuadraticPart, inverse_symplectic_matrices
 from sympredict.predictor import MODEL_FORMAT, MODEL_LAYOUT, SymplecticKernelPredictor
 
@@ -176,7 +176,14 @@ class SplitKernelPredictor(Parametrized):
         if dt is None:
             dt = self.predictor_.dt_fixed_  # a fixed-step inner model's default; None raises in as_steps
         dt_arr = as_steps(dt, b)
-        return x, single, mu_arr, dt_arr, self._propagators(self.quadratic_, mu_arr, dt_arr)
+        try:  # mu and dt are valid here: a failure is the quadratic part's overflow at this query
+            L = self._propagators(self.quadratic_, mu_arr, dt_arr)
+        except ValueError:
+            L = np.full((b, self.dim_, self.dim_), np.nan)
+        finite = np.isfinite(L).all(axis=(1, 2))
+        if not finite.all():  # the exact linear flow overflowed (a quadratic part far too stiff for dt)
+            raise NonFinitePredictionError(np.flatnonzero(~finite), "the quadratic part's flow L_h of this SplitKernelPredictor")
+        return x, single, mu_arr, dt_arr, L
 
     def _inner_mu(self, mu_arr):
         return mu_arr if self.n_mu_ else None
@@ -188,6 +195,7 @@ class SplitKernelPredictor(Parametrized):
         """
         x, single, mu, dt, L = self._query(x, mu, dt)
         out = _apply(L, self.predictor_.step(_apply(L, x), mu=self._inner_mu(mu), dt=dt))
+        out = self.predictor_._check_finite(out, " (inside a SplitKernelPredictor)")
         return out[0] if single else out
 
     def rollout(self, x0, n_steps: int, mu=None, dt=None, *, stride: int = 1, progress=None) -> np.ndarray:
@@ -213,7 +221,8 @@ class SplitKernelPredictor(Parametrized):
         # the inner model validates its query (warns if mu, dt or L_h x0 are outside its training box) ...
         _, _, inner_mu, inner_dt = inner._query(_apply(L, x), self._inner_mu(mu), dt, name="x0")
         weights = inner.surrogate_.weights(inner_mu, inner_dt)
-        traj = inner._rollout(x, weights, inner_dt, n_steps, around=(L, L), stride=stride, progress=progress)
+        traj = inner._check_finite(inner._rollout(x, weights, inner_dt, n_steps, around=(L, L), stride=stride,
+                                                  progress=progress), " (inside a SplitKernelPredictor)")
         seen = np.einsum("bij,bkj->bki", L, traj)  # the inner model's inputs L_h x_k
         inner._warn_if_trajectory_leaves(seen, stride)  # ... and if the trajectories leave it
         return traj[0] if single else traj
@@ -283,6 +292,15 @@ class SplitKernelPredictor(Parametrized):
                                  f"the file's ({dim}, {n_mu})")
         if pw.shape[1] and not n_mu:
             raise ModelFileError(f"{where}: the quadratic part needs a parameter the model does not have")
+        box = inner.domain_
+        corners_mu = np.stack([box["mu_min"], box["mu_max"]]) if n_mu else np.zeros((2, 0))
+        corners_dt = np.array([float(box["dt_min"]), float(box["dt_max"])])
+        try:
+            finite = np.isfinite(quad.propagator(corners_mu if n_mu else None, 0.5 * corners_dt, n=2)).all()
+        except (ValueError, FloatingPointError, np.linalg.LinAlgError):
+            finite = False
+        if not finite:
+            raise ModelFileError(f"{where}: the flow of its quadratic part is not finite over its training box")
         template = SymplecticKernelPredictor(**inner.get_params(deep=False))
         model = cls(predictor=template, quadratic=quad)
         model.predictor_, model.quadratic_, model.dim_, model.n_mu_ = inner, quad, dim, n_mu

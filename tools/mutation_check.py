@@ -83,7 +83,7 @@ FAULTS = [
           ("tests/test_oracles.py",), "compiled Newton: wrong sign of the explicit initial guess (same result, more iterations)"),
     Fault("N2", "Newton", P + "_fastkernels.py", "out[a] = x[a] + h * grad[n + a]\n                    out[n + a] = u[a]",
           "out[a] = x[a] - h * grad[n + a]\n                    out[n + a] = u[a]",
-          ("tests/test_predictor.py",), "compiled step: q1 = q0 - dT d_p s"),
+          ("tests/test_performance_paths.py",), "compiled step: q1 = q0 - dT d_p s"),
     Fault("N3", "Newton", P + "newton.py", "out[idx, :n] = q0[idx] + ha[done] * g[done, n:]", "out[idx, :n] = q0[idx] - ha[done] * g[done, n:]",
           ("tests/test_performance_paths.py",), "NumPy reference step: q1 = q0 - dT d_p s"),
     Fault("N4", "Newton", P + "predictor.py", "return dt * np.linalg.norm(hess[:, :, n:], ord=2, axis=(1, 2))",

@@ -204,7 +204,7 @@ def check_memory(
     if need > limit:
         fit_centers = int(limit // (itemsize * n_all))
         fit_candidates = int(limit // (itemsize * max_centers)) - n_val
-        offers = [f"use max_centers <= {fit_centers}"]
+        offers = [f"use max_centers <= {fit_centers}"] if fit_centers >= 1 else []
         if fit_candidates > 0:
             offers.append(f"use at most {fit_candidates} training functionals (a subset of the samples)")
         else:
