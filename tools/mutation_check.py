@@ -204,7 +204,7 @@ FAULTS = [
           ("tests/test_performance_paths.py",), "the active set stops before the full residual reaches tol"),
     Fault("B1", "contract", P + "base.py", "        return type(obj)(**params)", "        return obj",
           ("tests/test_estimator_contract.py",), "clone returns the object itself"),
-    Fault("X1", "estimators", P + "predictor.py", "        self._warn_if_trajectory_leaves(traj)\n        return traj[0] if single else traj\n\n    def _solvability",
+    Fault("X1", "estimators", P + "predictor.py", "        self._warn_if_trajectory_leaves(traj, stride)\n        return traj[0] if single else traj\n\n    def _solvability",
           "        return traj[0] if single else traj\n\n    def _solvability",
           ("tests/test_no_silent_numerics.py",), "a symplectic rollout leaving the training states does not warn"),
     # ----------------------------------------------------------------- later additions (symmetry, selection, sine-Gordon)
