@@ -14,6 +14,12 @@ later processes (``import_s``, ``load_s``, ``first_rollout_s``, ``total_s``);
 ``numba_cached_rollout_over_numpy_s`` is the later numba processes' first
 rollout minus NumPy's (target: at most 1 s).
 
+The command line, in the same cache: ``sympredict predict`` of ``--cli-steps``
+(400) steps of one state per backend (wall time of the whole command, median
+of ``--repeats`` fresh processes), and how long a 10^9-step ``predict`` takes
+to exit after SIGINT (``interrupt_s``; it is sent once the process has run for
+``--interrupt-after`` seconds, and its peak resident memory is recorded).
+
 Run:  python benchmarks/cold_start.py [--repeats 3] [--threads 1] [--json out.json]
 """
 
@@ -21,9 +27,11 @@ import argparse
 import json
 import os
 import platform
+import signal
 import subprocess
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 import numpy as np
@@ -65,6 +73,44 @@ def run_child(args: list, env: dict) -> dict:
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
+def _predict_command(model: Path, steps: int, backend: str, x0, mu: float, dt: float) -> list:
+    return [sys.executable, "-m", "sympredict.cli", "predict", str(model), "--x0", ",".join(repr(float(v)) for v in x0),
+            "--mu", repr(mu), "--dt", repr(dt), "--steps", str(steps), "--backend", backend]
+
+
+def time_cli(command: list, env: dict) -> float:
+    """Wall time of one fresh ``sympredict`` process, start to exit."""
+    t0 = time.perf_counter()
+    subprocess.run(command, env=env, capture_output=True, text=True, check=True)
+    return time.perf_counter() - t0
+
+
+def time_interrupt(command: list, env: dict, after: float) -> dict:
+    """Seconds from SIGINT to the exit of a running ``sympredict predict``, its exit code and peak memory (MiB)."""
+    proc = subprocess.Popen(command, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    time.sleep(after)
+    if proc.poll() is not None:
+        raise RuntimeError(f"predict ended before the interrupt: {proc.communicate()}")
+    peak = _peak_rss_mib(proc.pid)  # after `after` seconds of stepping: memory does not grow with the steps
+    t0 = time.perf_counter()
+    proc.send_signal(signal.SIGINT)
+    proc.communicate(timeout=120)
+    return {"interrupt_s": time.perf_counter() - t0, "returncode": proc.returncode, "peak_rss_mib": peak}
+
+
+def _peak_rss_mib(pid: int):
+    """A running process's peak resident memory (Linux ``VmHWM``), MiB; ``None`` where unknown."""
+    try:
+        with open(f"/proc/{pid}/status") as f:
+            for line in f:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) / 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    return None
+
+
 def main(argv=None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--centers", type=int, default=200)
@@ -72,6 +118,8 @@ def main(argv=None) -> dict:
     parser.add_argument("--steps", type=int, default=100)
     parser.add_argument("--repeats", type=int, default=3, help="fresh processes per backend after the first")
     parser.add_argument("--threads", type=int, default=1, help="numba and BLAS threads of the child processes")
+    parser.add_argument("--cli-steps", type=int, default=400, help="steps of the timed `sympredict predict`")
+    parser.add_argument("--interrupt-after", type=float, default=5.0, help="seconds before SIGINT to a 10^9-step predict")
     parser.add_argument("--json", default=None, help="also write the results as JSON")
     args = parser.parse_args(argv)
 
@@ -88,7 +136,7 @@ def main(argv=None) -> dict:
         result = {"centers": int(len(model.surrogate_.centers_xi)), "trajectories": args.trajectories, "steps": args.steps,
                   "repeats": args.repeats, "threads": args.threads, "python": platform.python_version(),
                   "machine": platform.processor() or platform.machine(), "backends": {}}
-        for backend in ("numpy", "numba"):
+        for backend in ("numpy", "numba", "auto"):  # 'auto', the default, after numba has filled the cache
             child_args[1] = backend
             first = run_child(child_args, env)  # numba: compiles and fills the fresh cache
             later = [run_child(child_args, env) for _ in range(args.repeats)]
@@ -96,6 +144,15 @@ def main(argv=None) -> dict:
             row.update({k: float(np.median([r[k] for r in later])) for k in first})
             row["runs"] = later
             result["backends"][backend] = row
+        result["cli"] = {}
+        for backend in ("auto", "numpy", "numba"):
+            command = _predict_command(tmp / "model.h5", args.cli_steps, backend, x0[0], mu, dt)
+            times = [time_cli(command, env) for _ in range(args.repeats)]
+            stops = [time_interrupt(_predict_command(tmp / "model.h5", 10**9, backend, x0[0], mu, dt), env,
+                                    args.interrupt_after) for _ in range(args.repeats)]
+            result["cli"][backend] = {"predict_s": float(np.median(times)), "predict_runs_s": times,
+                                      "interrupt_s": float(np.median([r["interrupt_s"] for r in stops])),
+                                      "interrupt_runs": stops}
         cache = tmp / "numba_cache"
         result["cache_files"] = sum(1 for p in cache.rglob("*") if p.is_file()) if cache.exists() else 0
     b = result["backends"]
@@ -106,6 +163,10 @@ def main(argv=None) -> dict:
               f"rollout {row['first_rollout_s']:.3f} s, total {row['total_s']:.3f} s")
     print(f"numba cache files: {result['cache_files']}; later numba rollout - numpy rollout: "
           f"{result['numba_cached_rollout_over_numpy_s']:.3f} s")
+    for name, row in result["cli"].items():
+        print(f"sympredict predict --backend {name}: {args.cli_steps} steps in {row['predict_s']:.2f} s (median); "
+              f"10^9 steps stop {row['interrupt_s']:.2f} s after SIGINT (exit codes "
+              f"{sorted({r['returncode'] for r in row['interrupt_runs']})})")
     if args.json:
         Path(args.json).write_text(json.dumps(result, indent=1))
     return result

@@ -505,7 +505,10 @@ def _finite_float(positive: bool = False, nonnegative: bool = False):
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from sympredict._version import __version__
+
     parser = _Parser(prog="sympredict", description="Symplectic large-step kernel predictors for Hamiltonian systems.")
+    parser.add_argument("--version", action="version", version=f"sympredict {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
     run = sub.add_parser("run", help="train, evaluate and write figures and a summary")
     run.add_argument("system", choices=[*SYSTEMS, "sine-gordon", "all"],
@@ -565,14 +568,43 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _use_color(stream) -> bool:
+    """Colour only on a terminal, and never with ``NO_COLOR`` set (https://no-color.org)."""
+    return bool(getattr(stream, "isatty", lambda: False)()) and not os.environ.get("NO_COLOR")
+
+
+def _plain_log_output() -> None:
+    """pyMOR's log formatter colours by the terminal type, not by where the output goes: decide here."""
+    import logging
+
+    from pymor.core.logger import ColoredFormatter
+
+    color = _use_color(sys.stderr)
+    loggers = [logging.getLogger()] + [lg for lg in logging.Logger.manager.loggerDict.values() if isinstance(lg, logging.Logger)]
+    for lg in loggers:
+        for handler in lg.handlers:
+            if isinstance(handler.formatter, ColoredFormatter):
+                handler.formatter.use_color = color
+
+
+def _one_line_warning(message, category, filename, lineno, line=None) -> str:
+    """A warning as one line: ``sympredict: warning: Category: message`` (no source line, no path)."""
+    return f"sympredict: warning: {category.__name__}: {' '.join(str(message).split())}\n"
+
+
 def main(argv=None) -> int:
     """Entry point; user errors end with one line on stderr and exit code 1, never a traceback."""
+    import warnings
+
     from pymor.core.logger import set_log_levels
 
     from sympredict.exceptions import SympredictError
 
     args = build_parser().parse_args(argv)
     set_log_levels({"sympredict": "INFO", "pymor": "WARN"})
+    _plain_log_output()
+    formatwarning = warnings.formatwarning
+    warnings.formatwarning = _one_line_warning
     try:
         return args.func(args)
     except (ValueError, SympredictError, OSError) as exc:
@@ -582,6 +614,8 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         print("sympredict: interrupted", file=sys.stderr)
         return 130
+    finally:
+        warnings.formatwarning = formatwarning  # main() may be called from Python (tests): leave it as found
 
 
 if __name__ == "__main__":

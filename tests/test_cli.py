@@ -129,3 +129,27 @@ def test_data_train_predict_report_workflow(tmp_path, capsys):
     assert main(["train", data, "--state", "gauss:1", "--out", str(tmp_path / "x.h5")]) == 1
     err = capsys.readouterr().err
     assert err.count("sympredict: error:") == 3 and "Traceback" not in err
+
+
+def test_version_plain_piped_output_and_one_line_warnings(tmp_path):
+    """--version; no ANSI colour codes when stderr is not a terminal (even where TERM has colours) or with
+    NO_COLOR; a Python warning is one readable line."""
+    from sympredict import __version__
+
+    sym = [sys.executable, "-m", "sympredict.cli"]
+    out = subprocess.run([*sym, "--version"], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0 and out.stdout.strip() == f"sympredict {__version__}"
+    env = {**__import__("os").environ, "TERM": "xterm-256color", "OPENBLAS_NUM_THREADS": "1"}
+    data, model = tmp_path / "d.h5", tmp_path / "m.h5"
+    assert subprocess.run([*sym, "data", "--out", str(data), "--n-grid", "8"], capture_output=True, env=env,
+                          timeout=120).returncode == 0
+    train = subprocess.run([*sym, "train", str(data), "--out", str(model), "--centers", "30", "--threads", "1"],
+                           capture_output=True, text=True, env=env, timeout=300)
+    assert train.returncode == 0, train.stderr
+    assert "greedy" in train.stderr and "\x1b[" not in train.stderr  # the log is there, without escape codes
+    # a start far outside the training states: the extrapolation warning, on one line
+    pred = subprocess.run([*sym, "predict", str(model), "--x0", "40,0", "--mu", "0.75", "--dt", "0.05", "--steps", "2",
+                           "--backend", "numpy"], capture_output=True, text=True, env=env, timeout=120)
+    warned = [line for line in pred.stderr.splitlines() if "warning" in line]
+    assert warned and all(line.startswith("sympredict: warning: ExtrapolationWarning: extrapolation") for line in warned), pred.stderr
+    assert len(pred.stderr.splitlines()) == len(warned), pred.stderr
