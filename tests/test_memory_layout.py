@@ -12,7 +12,6 @@ import copy
 
 import numpy as np
 import pytest
-from pymor.algorithms.symplectic import psd_complex_svd
 
 from sympredict import DirectKernelPredictor, SymplecticKernelPredictor
 from sympredict.container import read_container
@@ -22,7 +21,7 @@ from sympredict.mor import SymplecticKernelReductor
 from sympredict.predictor import MODEL_FORMAT
 from sympredict.scaling import SymplecticScaling
 from sympredict.splitting import SplitKernelPredictor
-from test_mor import parametric_wave  # tests/: the demo wave with a parameter
+from test_mor import wave  # noqa: F401 - tests/: the parametric demo wave, its snapshots' basis (a fixture)
 
 
 def fitted_arrays(obj, path="model", seen=None, out=None):
@@ -113,14 +112,8 @@ def test_warm_started_and_cloned_fits_keep_the_layout(small_pendulum_data):
     np.testing.assert_array_equal(refit.surrogate_.coef, model.surrogate_.coef)
 
 
-def test_scaling_and_reduced_model_keep_the_layout():
-    fom = parametric_wave(T=1.0)
-    train = fom.parameters.space(0.08, 0.12).sample_uniformly(3)
-    U = fom.solution_space.empty()
-    for m in train:
-        U.append(fom.solve(m))
-    RB = psd_complex_svd(U, 4)
-    dt = 10 * fom.T / fom.time_stepper.nt
+def test_scaling_and_reduced_model_keep_the_layout(wave):
+    fom, train, RB, dt = wave
     red = SymplecticKernelReductor(fom, RB, train, dt, n_samples=60, n_validation=1, max_centers=40)
     rom = red.reduce()
     assert_canonical_layout(red, "reductor after reduce")
