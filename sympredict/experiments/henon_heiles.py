@@ -20,7 +20,7 @@ from pymor.core.logger import getLogger
 from sympredict.exceptions import extrapolation_expected
 from sympredict.data import FlowMapData
 from sympredict.experiments.peers import VKOGAFlowMap, select_vkoga_length_scale
-from sympredict.experiments.speed import SpeedTable, add_classical, deliberate_threads, model_sizes
+from sympredict.experiments.speed import SpeedTable, add_classical, deliberate_threads, model_sizes, timed
 from sympredict.integrators_compiled import EXPLICIT_SCHEMES, rollout
 from sympredict.metrics import relative_hamiltonian_error
 from sympredict.predictor import DirectKernelPredictor, SymplecticKernelPredictor
@@ -150,7 +150,7 @@ def run_henon_heiles(preset: HenonHeilesPreset, seed: int = 0) -> dict:
                             lambda: system.trajectory(x0, lam_test, DT_HH, n_steps))
         trajectories = {}
         for m in model_sizes(preset.centers, model.n_centers_):
-            small = model.truncated(m)
+            small = timed(model.truncated(m))
             table.add("kernel predictor", m, f"m={m}", "data", lambda: small.rollout(x0, n_steps, mu=lam_test))
         trajectories["kernel predictor"] = model.rollout(x0, n_steps, mu=lam_test)
         table.add("direct kernel model (NumPy)", direct.n_centers_, f"m={direct.n_centers_}", "data",

@@ -22,7 +22,7 @@ from pymor.core.logger import getLogger
 from sympredict.integrators import implicit_midpoint_step, integrate, stormer_verlet_step
 from sympredict.integrators_compiled import EXPLICIT_SCHEMES, rollout
 from sympredict.experiments.peers import VKOGAFlowMap, select_vkoga_length_scale
-from sympredict.experiments.speed import SpeedTable, add_classical, deliberate_threads, model_sizes
+from sympredict.experiments.speed import SpeedTable, add_classical, deliberate_threads, model_sizes, timed
 from sympredict.kernels import IMQ, RadialKernel
 from sympredict.metrics import relative_hamiltonian_error, relative_trajectory_error
 from sympredict.exceptions import ExtrapolationWarning, NewtonConvergenceError, SolvabilityError, extrapolation_expected
@@ -459,11 +459,11 @@ def run_speed_accuracy(
         ref_row = table.add("micro-step reference (implicit midpoint, h<=1e-3)", 0, "h<=1e-3", "equations",
                             lambda: system.trajectory(x0, lengths, dt, n_steps))
         for m in model_sizes(centers, model.n_centers_):
-            small = model.truncated(m)
+            small = timed(model.truncated(m))
             table.add("kernel predictor", m, f"m={m}", "data", lambda: small.rollout(x0, n_steps, mu=lengths, dt=dt))
         for target in targets:
             try:
-                small = model.smallest(target)
+                small = timed(model.smallest(target))
             except ValueError as exc:
                 unreached.append(f"E_val <= {target:g}: {exc}")
                 continue

@@ -32,7 +32,7 @@ from sympredict.flowmaps import flow_map_data, mus_to_matrix, random_parameters,
 from sympredict.metrics import relative_trajectory_error
 from sympredict.parallel import pool_flow, pool_map_instances
 from sympredict.experiments.peers import VKOGAFlowMap, select_vkoga_length_scale
-from sympredict.experiments.speed import SpeedTable, add_classical, deliberate_threads, model_sizes
+from sympredict.experiments.speed import SpeedTable, add_classical, deliberate_threads, model_sizes, timed
 from sympredict.integrators_compiled import EXPLICIT_SCHEMES, rollout
 from sympredict.predictor import DirectKernelPredictor, SymplecticKernelPredictor
 from sympredict.reduction import SymplecticROM, complex_svd_basis, symplecticity_of_basis
@@ -421,7 +421,7 @@ def run_wave_speed_accuracy(
         table.add("ROM exact propagator (expm)", 0, "exact", "reduced operator",
                   reduced(lambda x: rom.system.trajectory(x, mu, dt, n_steps, exact=True)))
         for m in model_sizes(centers, model.n_centers_):
-            small = model.truncated(m)
+            small = timed(model.truncated(m))
             table.add("ROM + kernel predictor", m, f"m={m}", "data", reduced(lambda x, small=small: small.rollout(x, n_steps, mu=mu)))
         if direct is not None:
             table.add("ROM + direct kernel model (NumPy)", direct.n_centers_, f"m={direct.n_centers_}", "data",
