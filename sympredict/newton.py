@@ -12,11 +12,11 @@ before no convergence): the same report from both backends.
 
 from __future__ import annotations
 
-import numpy as np
-
 import os
 import time
 from typing import Callable, Optional
+
+import numpy as np
 
 from sympredict import _fastkernels
 from sympredict.exceptions import NewtonConvergenceError, RolloutMemoryError
@@ -24,7 +24,7 @@ from sympredict.newton_rule import EPS, converged, residual_floor
 from sympredict.surrogate import HBSurrogate
 
 __all__ = ["solve_step_numpy", "solve_midpoint_numpy", "midpoint_jacobian", "rollout_numpy", "rollout_compiled",
-           "rollout_in_chunks", "available_memory", "FAILURE_REASONS", "MIDPOINT_FAILURE_REASONS"]
+           "rollout_in_chunks", "ordered_weights", "available_memory", "FAILURE_REASONS", "MIDPOINT_FAILURE_REASONS"]
 
 #: Failure codes of the compiled solver and the reason each names.
 FAILURE_REASONS = {
@@ -299,10 +299,18 @@ def rollout_in_chunks(run: Callable[[np.ndarray, int], np.ndarray], x: np.ndarra
     return out
 
 
+def ordered_weights(sur: HBSurrogate, weights: np.ndarray) -> np.ndarray:
+    """``weights`` (B, m) in the compiled layout's centre order, C-contiguous float64 (one copy, ``O(B m)``)."""
+    return np.ascontiguousarray(np.asarray(weights, dtype=np.float64)[:, sur.layout().order])
+
+
 def rollout_compiled(sur: HBSurrogate, x, weights, dt, n_steps: int, max_iter: int, step_index: bool = True,
-                     warm_start: bool = False, update: str = "symplectic_euler", around=None):
+                     warm_start: bool = False, update: str = "symplectic_euler", around=None,
+                     weights_ordered: bool = False):
     """``n_steps`` steps in compiled code (:func:`sympredict._fastkernels.newton_rollout`); failures raise as the NumPy path's.
 
+    ``weights_ordered``: ``weights`` are already in the compiled layout's centre order
+    (:func:`ordered_weights`; a chunked rollout orders them once, not per chunk).
     ``warm_start``: Newton starts from the previous step's increment (from the second step on).
     ``update``: ``'symplectic_euler'`` (as :func:`solve_step_numpy`) or ``'midpoint'``
     (as :func:`solve_midpoint_numpy`).
@@ -314,7 +322,7 @@ def rollout_compiled(sur: HBSurrogate, x, weights, dt, n_steps: int, max_iter: i
     """
     traj, codes, fail_step, fail_iter, resid = _fastkernels.newton_rollout(
         x, weights, dt, sur.layout(), sur.kernel.state, max_iter, n_steps, warm_start=warm_start, update=update,
-        around=around)
+        around=around, weights_ordered=weights_ordered)
     reasons = MIDPOINT_FAILURE_REASONS if update == "midpoint" else FAILURE_REASONS
     failed = codes != 0
     if np.any(failed):

@@ -52,7 +52,8 @@ from sympredict.greedy import GreedyHistory, Trainer, trainer_from_spec
 from sympredict.greedy.trainers import ExactGreedy
 from sympredict.kernels import IMQ, PeriodicCoordinates, ProductKernel, RadialKernel, StateSymmetry, kernel_from_spec
 from sympredict.newton import (
-    midpoint_jacobian, rollout_compiled, rollout_in_chunks, rollout_numpy, solve_midpoint_numpy, solve_step_numpy,
+    midpoint_jacobian, ordered_weights, rollout_compiled, rollout_in_chunks, rollout_numpy, solve_midpoint_numpy,
+    solve_step_numpy,
 )
 from sympredict.surrogate import HBSurrogate, ValueSurrogate
 
@@ -1143,13 +1144,15 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         scale = self._scale_vector(self.dim_)
         max_iter = as_positive_int(self.newton_max_iter, "newton_max_iter")
         compiled = self._compiled(len(x), n_steps)
+        if compiled:  # the chunks share the weights in the compiled centre order: permuted once
+            ordered = ordered_weights(self.surrogate_, weights)
         if around is not None:  # Phi = D^-1 Phi_scaled D: pre becomes D pre, post becomes post D^-1
             pre, post = around
             pre, post = pre * scale[None, :, None], post / scale[None, None, :]
             if compiled:  # no warm start here: its extrapolation would mix x_k and pre x_k
                 def run(state, k):
-                    return rollout_compiled(self.surrogate_, state, weights, dt, k, max_iter, update=self.update_,
-                                            around=(pre, post))
+                    return rollout_compiled(self.surrogate_, state, ordered, dt, k, max_iter, update=self.update_,
+                                            around=(pre, post), weights_ordered=True)
             else:
                 def run(state, k):
                     return rollout_numpy(lambda s: np.einsum("bij,bj->bi", post, self._solve_scaled(
@@ -1157,8 +1160,9 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
             return rollout_in_chunks(run, x, n_steps, stride=stride, progress=progress)
         if compiled:
             def run(state, k):
-                return rollout_compiled(self.surrogate_, state, weights, dt, k, max_iter,
-                                        warm_start=bool(self.newton_warm_start), update=self.update_)
+                return rollout_compiled(self.surrogate_, state, ordered, dt, k, max_iter,
+                                        warm_start=bool(self.newton_warm_start), update=self.update_,
+                                        weights_ordered=True)
         else:
             def run(state, k):
                 return rollout_numpy(lambda s: self._solve_scaled(s, weights, dt), state, k)
