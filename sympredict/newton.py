@@ -269,7 +269,7 @@ def rollout_in_chunks(run: Callable[[np.ndarray, int], np.ndarray], x: np.ndarra
     b, dim = x.shape
     n_kept = n_steps // stride + 1
     needed = b * n_kept * dim * 8
-    available = available_memory()
+    available = available_memory() if needed > CHUNK_BYTES else None  # small rollouts skip reading /proc
     if available is not None and needed > available:
         raise RolloutMemoryError(needed, available, (b, n_kept, dim))
     out = np.empty((b, n_kept, dim))

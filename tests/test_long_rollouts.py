@@ -77,11 +77,11 @@ def test_memory_is_checked_before_any_step(monkeypatch):
     monkeypatch.setattr(newton, "available_memory", lambda: 10**6)
     calls = []
     with pytest.raises(RolloutMemoryError, match=r"stride=k.*--stride") as info:
-        rollout_in_chunks(_toy_run(calls), np.zeros((10, 4)), 10**5)
-    assert calls == [] and info.value.needed == 10 * (10**5 + 1) * 4 * 8 and isinstance(info.value, MemoryError)
-    # the same rollout keeping every 1000th state fits
-    out = rollout_in_chunks(_toy_run(calls), np.zeros((10, 4)), 10**5, stride=1000)
-    assert out.shape == (10, 101, 4) and out[0, -1, 0] == 10**5
+        rollout_in_chunks(_toy_run(calls), np.zeros((10, 4)), 10**6)
+    assert calls == [] and info.value.needed == 10 * (10**6 + 1) * 4 * 8 and isinstance(info.value, MemoryError)
+    # the same rollout keeping every 10,000th state fits
+    out = rollout_in_chunks(_toy_run(calls), np.zeros((10, 4)), 10**6, stride=10**4)
+    assert out.shape == (10, 101, 4) and out[0, -1, 0] == 10**6
 
 
 # ------------------------------------------------------------------ every model class, both backends
