@@ -212,6 +212,8 @@ CHUNK_SECONDS = 0.2
 CHUNK_BYTES = 32 * 2**20
 #: The first chunk's steps: short rollouts run in one call, longer ones learn the time per step from it.
 FIRST_CHUNK_STEPS = 64
+#: A chunk is at most this many times the previous one (the time per step of a short chunk is a noisy estimate).
+CHUNK_GROWTH = 8
 
 
 def available_memory() -> Optional[int]:
@@ -293,9 +295,10 @@ def rollout_in_chunks(run: Callable[[np.ndarray, int], np.ndarray], x: np.ndarra
         done += k
         if progress is not None:
             progress(done, n_steps)
-        # the next chunk: about CHUNK_SECONDS at the speed just measured, at most doubling
+        # the next chunk: about CHUNK_SECONDS at the speed just measured, at most CHUNK_GROWTH times this one
         per_step = elapsed / k
-        chunk = int(min(max_chunk, 2 * k, max(1.0, CHUNK_SECONDS / per_step) if per_step > 0 else 2 * k))
+        grown = CHUNK_GROWTH * k
+        chunk = int(min(max_chunk, grown, max(1.0, CHUNK_SECONDS / per_step) if per_step > 0 else grown))
     return out
 
 

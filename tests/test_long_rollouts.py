@@ -43,7 +43,7 @@ def test_chunks_keep_exactly_the_strided_states(monkeypatch, n_steps, stride):
     assert sum(calls) == n_steps and all(k >= 1 for k in calls)
     assert [d for d, _ in seen] == list(np.cumsum(calls)) and all(t == n_steps for _, t in seen)
     if n_steps >= 100:
-        assert len(calls) > 1 and max(calls) <= 2 * max(calls[:-1] or [3])  # chunks grow at most twofold
+        assert len(calls) > 1 and all(b <= newton.CHUNK_GROWTH * a for a, b in zip(calls, calls[1:]))  # bounded growth
 
 
 def test_chunks_are_sized_by_time(monkeypatch):
