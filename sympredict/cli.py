@@ -405,9 +405,11 @@ def _duration(seconds: float) -> str:
 
 
 def _set_backend(model, backend: str):
-    """The Newton backend of a loaded model (the inner predictor's for a split model)."""
-    inner = getattr(model, "predictor_", model)
-    if "backend" in inner.get_params(deep=False):
+    """The Newton backend of a loaded model (the inner predictor's for a split model; none for the direct model)."""
+    from sympredict.predictor import newton_predictor
+
+    inner = newton_predictor(model)
+    if inner is not None:
         inner.set_params(backend=backend)
     return model
 
@@ -415,6 +417,7 @@ def _set_backend(model, backend: str):
 def _cmd_predict(args) -> int:
     import numpy as np
 
+    from sympredict import SymplecticKernelPredictor
     from sympredict.exceptions import RolloutMemoryError
     from sympredict.io import load_model
 
@@ -428,7 +431,10 @@ def _cmd_predict(args) -> int:
     # without --out only the final states are printed: keep the first and last state (memory O(batch))
     stride = args.stride if args.out else max(1, args.steps)
     progress = _Progress("predict")
-    kwargs = {"check_solvability": args.check} if args.check else {}
+    if args.check and not isinstance(model, SymplecticKernelPredictor):
+        raise ValueError(f"--check estimates dT * L_S of a SymplecticKernelPredictor; {args.model!r} holds a "
+                         f"{type(model).__name__}: leave out --check")
+    kwargs = {"check_solvability": True} if args.check else {}
     try:
         traj = model.rollout(x0, args.steps, mu=args.mu, dt=args.dt, stride=stride, progress=progress, **kwargs)
     except RolloutMemoryError as exc:

@@ -79,6 +79,17 @@ NUMPY_STEP_SECONDS = 4e-4
 NUMPY_TERM_SECONDS = 6e-8
 
 
+def newton_predictor(model):
+    """The :class:`SymplecticKernelPredictor` that solves ``model``'s implicit steps, or ``None``.
+
+    ``model`` itself, or the predictor inside a wrapper (``predictor_`` of a split model,
+    ``predictor`` of a normalised flow map), followed as deep as wrappers nest.
+    """
+    while model is not None and not isinstance(model, SymplecticKernelPredictor):
+        model = getattr(model, "predictor_", None) or getattr(model, "predictor", None)
+    return model
+
+
 def numpy_seconds(n_instances: int, n_steps: int, n_centers: int, dim: int) -> float:
     """Estimated wall time of ``n_steps`` NumPy macro steps of ``n_instances`` states (the ``auto`` rule's cost model).
 

@@ -229,3 +229,13 @@ def test_predict_refuses_an_output_that_cannot_fit_before_stepping(model_file, t
                           capture_output=True, text=True, timeout=120)
     rows = np.loadtxt(tmp_path / "s.csv", delimiter=",", skiprows=1)
     assert proc.returncode == 0 and rows[:, 1].tolist() == [0, 5, 10, 15, 20], proc.stderr
+
+
+def test_predict_on_a_direct_model_with_check_is_refused_in_one_line(small_pendulum_data, tmp_path):
+    x0, x1, mu, dt = _data(small_pendulum_data)
+    path = tmp_path / "direct.h5"
+    DirectKernelPredictor(IMQ(0.3), IMQ(1.5), IMQ(3.0), max_centers=20).fit(x0, x1, mu=mu, dt=dt).save(path)
+    ok = subprocess.run(_predict(path, 5, "numba"), capture_output=True, text=True, timeout=120)
+    assert ok.returncode == 0 and ok.stdout.startswith("instance 0: x(5 steps) = "), ok.stderr  # no Newton solver to set
+    proc = subprocess.run(_predict(path, 5, "auto", "--check"), capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 1 and "--check" in proc.stderr and "Traceback" not in proc.stderr, proc.stderr

@@ -24,6 +24,7 @@ from sympredict.integrators_compiled import EXPLICIT_SCHEMES, HAVE_NUMBA, rollou
 if HAVE_NUMBA:  # pragma: no branch
     import numba
 from sympredict.metrics import relative_trajectory_error
+from sympredict.predictor import newton_predictor
 
 __all__ = [
     "model_sizes","NEEDS", "SCHEME_LABELS", "deliberate_threads", "time_median", "SpeedTable", "add_classical"]
@@ -69,12 +70,8 @@ def timed(model):
     compares warm, compiled methods, so the kernel predictor is pinned to the compiled solver
     like its compiled peers.  Returns ``model`` (changed in place).
     """
-    inner = model
-    while not hasattr(inner, "backend_for"):  # wrappers (split model, normalised flow map) hold the Newton predictor
-        inner = getattr(inner, "predictor_", None) or getattr(inner, "predictor", None)
-        if inner is None:
-            return model
-    if inner.get_params(deep=False).get("backend") == "auto" and inner.backend_for(10**6, 10**6) == "numba":
+    inner = newton_predictor(model)
+    if inner is not None and inner.backend == "auto" and inner.backend_for(10**6, 10**6) == "numba":
         inner.set_params(backend="numba")
     return model
 
