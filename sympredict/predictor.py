@@ -36,9 +36,9 @@ import numpy as np
 
 from sympredict import _fastkernels
 from sympredict._checks import as_model_parameter, as_parameter, as_positive_int, as_states, as_steps
-from sympredict.base import Parametrized
+from sympredict.base import Parametrized, clone
 from sympredict.container import read_container, write_container
-from sympredict.data import FlowMapData, mixed_variables
+from sympredict.data import FlowMapData
 from sympredict.exceptions import (
     ExtrapolationWarning,
     ModelFileError,
@@ -51,33 +51,26 @@ from sympredict.functionals import HBFunctionals, ValueFunctionals
 from sympredict.greedy import GreedyHistory, Trainer, trainer_from_spec
 from sympredict.greedy.trainers import ExactGreedy
 from sympredict.kernels import IMQ, PeriodicCoordinates, ProductKernel, RadialKernel, StateSymmetry, kernel_from_spec
-from sympredict.newton import (
-    midpoint_jacobian, ordered_weights, rollout_compiled, rollout_in_chunks, rollout_numpy, solve_midpoint_numpy,
-    solve_step_numpy,
-)
+from sympredict.newton import ordered_weights, rollout_compiled, rollout_in_chunks, rollout_numpy
+from sympredict.solvers import AUTO_NUMPY_SECONDS, MAX_NEWTON_ITER, NewtonSolver, numpy_seconds
 from sympredict.surrogate import HBSurrogate, ValueSurrogate
+from sympredict.transforms import (
+    KernelTransform, StateKernelParts, compose_state_kernel, lower_state_kernel, transform_from_spec,
+)
+from sympredict.updates import UPDATE_RULES, UpdateRule, as_update
 
-__all__ = ["SymplecticKernelPredictor", "DirectKernelPredictor", "MODEL_FORMAT", "UPDATES", "update_variables"]
+__all__ = ["SymplecticKernelPredictor", "DirectKernelPredictor", "MODEL_FORMAT", "UPDATES", "update_variables",
+           "NUMPY_ONLY", "MOVED_OPTIONS", "numpy_seconds", "AUTO_NUMPY_SECONDS", "MAX_NEWTON_ITER"]
 
 #: ``format`` attribute of model files (:mod:`sympredict.container`).
 MODEL_FORMAT = "sympredict-model"
 
-#: Layout of a model file's settings: 2 stores every parameter (``get_params``);
-#: files without the key (sympredict 0.1) are read as layout 1.
-MODEL_LAYOUT = 2
+#: Layout of a model file's settings: 3 stores the parameters of the composed estimator (kernels and their
+#: transforms, update rule, trainer, solver); 2 stored the flat options of sympredict 0.1 (read through
+#: :data:`MOVED_OPTIONS`); files without the key (the first files) are read as layout 1.
+MODEL_LAYOUT = 3
 
 logger = logging.getLogger(__name__)
-
-_BACKENDS = ("auto", "numpy", "numba")
-
-#: backend='auto' runs the NumPy solver where it is estimated to take less than this many seconds ...
-AUTO_NUMPY_SECONDS = 0.5
-#: ... by NumPy's cost per macro step (both measured on a 2-core x86-64 machine, pendulum models):
-#: a fixed cost (a few batched Newton iterations, Python overhead) ...
-NUMPY_STEP_SECONDS = 4e-4
-#: ... plus this much per instance, centre and Hessian entry ``(2n)^2``.
-NUMPY_TERM_SECONDS = 6e-8
-
 
 def newton_predictor(model):
     """The :class:`SymplecticKernelPredictor` that solves ``model``'s implicit steps, or ``None``.
@@ -90,26 +83,83 @@ def newton_predictor(model):
     return model
 
 
-def numpy_seconds(n_instances: int, n_steps: int, n_centers: int, dim: int) -> float:
-    """Estimated wall time of ``n_steps`` NumPy macro steps of ``n_instances`` states (the ``auto`` rule's cost model).
+#: The generating-function updates of :class:`SymplecticKernelPredictor` (``update``), by name.
+UPDATES = tuple(UPDATE_RULES)
 
-    ``n_steps (NUMPY_STEP_SECONDS + NUMPY_TERM_SECONDS B m (2n)^2)``: a few Newton iterations per
-    step, each a pass over the ``m`` centres with the ``(2n)^2`` Hessian entries per instance.
-    """
-    return n_steps * (NUMPY_STEP_SECONDS + NUMPY_TERM_SECONDS * n_instances * n_centers * dim * dim)
+#: Model features that only the NumPy solver runs: ``(test of the flattened state kernel, reason)``.  The one
+#: place that says which combination runs on which backend: ``NewtonSolver(backend='numba')`` is refused for
+#: them at fit (naming the fix), ``'auto'`` uses NumPy and the fitted model says so (``numpy_only_``).
+NUMPY_ONLY = (
+    (lambda parts: parts.periodic is not None, "periodic coordinates (Periodic) have no compiled solver yet"),
+    (lambda parts: parts.symmetry is not None, "a state symmetry (Symmetric) has no compiled solver yet"),
+)
 
-#: Largest ``newton_max_iter`` accepted (constructor and model files): Newton converges in a handful of
-#: iterations or not at all, and a file must not be able to make prediction run without end.
-MAX_NEWTON_ITER = 10_000
+#: Options of sympredict 0.1's estimators that moved into their parts: ``old name -> (part, its parameter)``.
+#: Passing one (constructor, ``set_params``, a layout-2 model file) still works, with a FutureWarning naming
+#: the replacement.
+MOVED_OPTIONS = {
+    "tol": ("trainer", "tol"),
+    "criterion": ("trainer", "criterion"),
+    "power_tol": ("trainer", "power_tol"),
+    "memory_limit": ("trainer", "memory_limit"),
+    "regularization": ("trainer", "regularization"),
+    "backend": ("solver", "backend"),
+    "newton_max_iter": ("solver", "max_iter"),
+    "newton_warm_start": ("solver", "warm_start"),
+    "state_scaling": ("state_kernel", "Scaled(kernel, factors=...)"),
+    "periodic": ("state_kernel", "Periodic(kernel, coordinates=...)"),
+    "period": ("state_kernel", "Periodic(kernel, coordinates=..., period=...)"),
+    "symmetry": ("state_kernel", "Symmetric(kernel, group=...)"),
+}
 
-_PERIODIC_NOT_COMPILED = ("periodic coordinates (periodic=...) have no compiled solver yet: "
-                          "use backend='numpy' or 'auto' (which then uses NumPy)")
+_NEUTRAL = {"criterion": "f", "regularization": 0.0, "memory_limit": None}
 
-_SYMMETRY_NOT_COMPILED = ("a state symmetry (symmetry=...) has no compiled solver yet: "
-                          "use backend='numpy' or 'auto' (which then uses NumPy)")
 
-#: The generating-function updates of :class:`SymplecticKernelPredictor` (``update``).
-UPDATES = ("symplectic_euler", "midpoint")
+def _replacement(cls_name: str, name: str) -> str:
+    part, inner = MOVED_OPTIONS[name]
+    if part == "trainer":
+        return f"trainer=ExactGreedy({inner}=...) (or the {inner} of your training strategy)"
+    if part == "solver":
+        return f"solver=NewtonSolver({inner}=...)"
+    return f"state_kernel={inner}"
+
+
+def _apply_moved(model, moved: dict, warn: bool = True) -> None:
+    """Fold options of sympredict 0.1 (:data:`MOVED_OPTIONS`) into ``model``'s parts (new objects, never the
+    caller's); a FutureWarning names each replacement."""
+    from_base = type(model)._moved_options
+    unknown = sorted(set(moved) - set(from_base))
+    if unknown:
+        raise TypeError(f"{type(model).__name__}() got unexpected keyword argument(s) {unknown}; "
+                        f"its parameters are {type(model)._param_names()}")
+    if warn:
+        for name in moved:
+            warnings.warn(f"{type(model).__name__}({name}=...) is deprecated: pass {_replacement(type(model).__name__, name)}",
+                          FutureWarning, stacklevel=4)
+    trainer_opts = {MOVED_OPTIONS[k][1]: v for k, v in moved.items() if MOVED_OPTIONS[k][0] == "trainer"}
+    if trainer_opts:
+        trainer = ExactGreedy() if model.trainer is None else clone(model.trainer)
+        valid = trainer._param_names() if isinstance(trainer, Trainer) else []
+        for name, value in trainer_opts.items():
+            if name in valid:
+                setattr(trainer, name, value)
+            elif not (value is _NEUTRAL.get(name, object()) or (name in _NEUTRAL and value == _NEUTRAL[name])):
+                raise ValueError(f"the training strategy {type(trainer).__name__} has no setting {name} "
+                                 f"(got {name}={value!r}): use ExactGreedy({name}=...) or ShardedGreedy({name}=...)")
+        model.trainer = trainer
+    solver_opts = {MOVED_OPTIONS[k][1]: v for k, v in moved.items() if MOVED_OPTIONS[k][0] == "solver"}
+    if solver_opts:
+        solver = NewtonSolver() if model.solver is None else clone(model.solver)
+        for name, value in solver_opts.items():
+            setattr(solver, name, value)
+        model.solver = solver
+    kernel_opts = {k: v for k, v in moved.items() if MOVED_OPTIONS[k][0] == "state_kernel"}
+    if kernel_opts:
+        parts = lower_state_kernel(model.state_kernel)
+        periodic = kernel_opts.get("periodic", parts.periodic)
+        model.state_kernel = compose_state_kernel(
+            parts.radial, scaling=kernel_opts.get("state_scaling", parts.scaling), periodic=periodic,
+            period=kernel_opts.get("period", parts.period), symmetry=kernel_opts.get("symmetry", parts.symmetry))
 
 
 def update_variables(update: str, x0: np.ndarray, x1: np.ndarray, dt: np.ndarray):
@@ -123,10 +173,7 @@ def update_variables(update: str, x0: np.ndarray, x1: np.ndarray, dt: np.ndarray
     -------
     xi, y : ndarray of shape (M, 2n)
     """
-    xi, y = mixed_variables(x0, x1, dt)
-    if update == "midpoint":
-        xi = 0.5 * (x0 + x1)
-    return xi, y
+    return as_update(update).variables(x0, x1, dt)
 
 
 def _fmt(v) -> str:
@@ -139,6 +186,12 @@ def _encode_param(value):
     """A parameter value as JSON: kernels and training strategies by their specs."""
     if isinstance(value, RadialKernel):
         return {"kernel": value.spec}
+    if isinstance(value, KernelTransform):
+        return value.spec
+    if isinstance(value, UpdateRule):
+        return value.name
+    if isinstance(value, NewtonSolver):
+        return {"solver": value.get_params(deep=False)}
     if isinstance(value, Trainer):
         return {"trainer": value.spec}
     if isinstance(value, StateSymmetry):
@@ -163,6 +216,10 @@ def _decode_param(value):
         return kernel_from_spec(value["kernel"])
     if isinstance(value, dict) and "trainer" in value:
         return trainer_from_spec(value["trainer"])
+    if isinstance(value, dict) and "transform" in value:
+        return transform_from_spec(value)
+    if isinstance(value, dict) and set(value) == {"solver"} and isinstance(value["solver"], dict):
+        return NewtonSolver(**value["solver"])
     if isinstance(value, dict) and "symmetry" in value:
         return StateSymmetry.from_spec(value["symmetry"])
     if isinstance(value, dict) and set(value) == {"tuple"} and isinstance(value["tuple"], list):
@@ -254,31 +311,40 @@ class _FlowMapKernelModel(Parametrized):
     def _check_params(self) -> Trainer:
         """Validate the settings (at fit time, scikit-learn's convention); returns the training strategy."""
         as_positive_int(self.max_centers, "max_centers")
-        for name in ("tol", "power_tol"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)) \
-                    or not (np.isfinite(value) and value >= 0):
-                raise ValueError(f"{name} must be a finite non-negative float, got {value!r}")
-        reg = self.regularization
-        if isinstance(reg, bool) or not isinstance(reg, (int, float, np.floating, np.integer)) \
-                or not (np.isfinite(reg) and reg >= 0):
-            raise ValueError(f"regularization must be a finite non-negative float, got {reg!r}")
-        if not self.power_tol < 1:
-            raise ValueError(f"power_tol must be below 1 (relative to the Gramian diagonal), got {self.power_tol!r}")
-        if self.criterion not in ("f", "p"):
-            raise ValueError(f"criterion must be 'f' (f-greedy) or 'p' (P-greedy), got {self.criterion!r}")
-        if self.memory_limit is not None and not (isinstance(self.memory_limit, (int, float, np.number))
-                                                  and np.isfinite(self.memory_limit) and self.memory_limit > 0):
-            raise ValueError(f"memory_limit must be None or a positive number of bytes, got {self.memory_limit!r}")
-        for name in ("state_kernel", "mu_kernel", "dt_kernel"):
+        for name in ("mu_kernel", "dt_kernel"):
             k = getattr(self, name)
             if k is not None and not isinstance(k, RadialKernel):
                 raise ValueError(f"{name} must be a sympredict.kernels kernel (IMQ, Matern32, Matern52, ...) or None, got {k!r}")
-        trainer = ExactGreedy() if self.trainer is None else self.trainer
+        self._state_parts()
+        trainer = self._trainer()
         if not isinstance(trainer, Trainer):
             raise ValueError(f"trainer must be a training strategy (ExactGreedy(), ActiveSetGreedy(), ShardedGreedy(pool)) "
                              f"or None, got {self.trainer!r}")
-        return trainer
+        return trainer.check()
+
+    def _trainer(self) -> Trainer:
+        """The training strategy (``trainer``, or the default :class:`~sympredict.greedy.ExactGreedy`)."""
+        return ExactGreedy() if self.trainer is None else self.trainer
+
+    def _state_parts(self):
+        """The state kernel, flattened (:func:`~sympredict.transforms.lower_state_kernel`); checks it."""
+        kernel = self.state_kernel
+        if kernel is not None and not isinstance(kernel, (RadialKernel, KernelTransform)):
+            raise ValueError(f"state_kernel must be a sympredict.kernels kernel (IMQ, Matern32, Matern52, ...), a "
+                             f"transform of one (Scaled, Periodic, Symmetric) or None, got {kernel!r}")
+        return lower_state_kernel(kernel)
+
+    #: The options of sympredict 0.1 this class still takes (:data:`MOVED_OPTIONS`).
+    _moved_options: tuple = ("tol", "criterion", "power_tol", "memory_limit", "regularization")
+
+    def set_params(self, **params):
+        """Set parameters (nested ones as ``name__sub``); returns ``self``.  Options that moved into the parts
+        (:data:`MOVED_OPTIONS`) are still accepted, with a FutureWarning naming the replacement."""
+        moved = {k: params.pop(k) for k in list(params) if k in MOVED_OPTIONS and k not in self._param_names()}
+        super().set_params(**params)
+        if moved:
+            _apply_moved(self, moved)
+        return self
 
     # ------------------------------------------------ fitted settings
     #: Parameters that define the fitted model: predictions use their values at fit time, stored as
@@ -290,9 +356,20 @@ class _FlowMapKernelModel(Parametrized):
     def __getattr__(self, name: str):
         # ``name_`` of a fitted setting missing (a fitted state assembled by hand, or an object pickled before
         # these attributes existed): the current setting
-        if name.endswith("_") and name[:-1] in type(self)._fitted_settings:
+        if name.endswith("_") and name[:-1] in type(self)._fitted_settings and name[:-1] not in MOVED_OPTIONS:
             return getattr(self, name[:-1])
+        if name in type(self)._moved_options and not name.startswith("_"):
+            warnings.warn(f"{type(self).__name__}.{name} is deprecated: read it from the part that owns it "
+                          f"({_replacement(type(self).__name__, name)})", FutureWarning, stacklevel=2)
+            return self._moved_value(name)
         raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
+
+    def _moved_value(self, name: str):
+        """The current value of an option that moved into a part (:data:`MOVED_OPTIONS`)."""
+        part, inner = MOVED_OPTIONS[name]
+        if part == "trainer":
+            return getattr(self._trainer(), inner, _NEUTRAL.get(inner))
+        raise AttributeError(name)
 
     def _store_fitted_settings(self, params: dict) -> None:
         """Keep ``params`` (``get_params(deep=False)`` at fit or load time) as ``fitted_params_`` and ``name_``."""
@@ -381,7 +458,7 @@ class _FlowMapKernelModel(Parametrized):
         The diameter is computed without underflow (states in any units); points that all coincide
         get ``IMQ(1)``; a diameter so small that its inverse overflows is refused (rescale the states).
         """
-        state_kernel = self.state_kernel
+        state_kernel = self._state_parts().radial
         if state_kernel is None:
             spread = np.ptp(points, axis=0)
             largest = float(spread.max()) if spread.size else 0.0
@@ -412,11 +489,9 @@ class _FlowMapKernelModel(Parametrized):
         Returns the selected point indices and components (``divmod`` of the flat indices).
         """
         functionals = self._functionals(kernel, points, data.mu, data.dt)
-        ref = self._data_scale(data)
-        tol = float(self.tol) * min(1.0, ref)  # see the class docstring: never looser than tol relative to the data
-        result = trainer.run(functionals, targets, max_centers=self.max_centers, tol=tol, criterion=self.criterion,
-                             power_tol=self.power_tol, validation=validation, memory_limit=self.memory_limit,
-                             regularization=float(self.regularization))
+        # tol is never looser than itself relative to the data (see fit): data in small units still train
+        result = trainer.run(functionals, targets, max_centers=self.max_centers, validation=validation,
+                             tol_scale=min(1.0, self._data_scale(data)))
         self.kernel_ = kernel
         self.history_ = result.history
         self.greedy_result_ = result
@@ -447,9 +522,10 @@ class _FlowMapKernelModel(Parametrized):
             miss = float(np.linalg.norm(predicted(rows) - targets[rows]))
             if miss <= 0.9 * float(np.linalg.norm(targets[rows])):
                 return
+        trainer = self._trainer()
         advice = {
-            "tol": f"tol={self.tol!r} stops it at once: lower tol",
-            "power": (f"no candidate's power function exceeds power_tol={self.power_tol!r} times the Gramian diagonal: "
+            "tol": f"the trainer's tol={trainer.tol!r} stops it at once: lower tol",
+            "power": (f"no candidate's power function exceeds power_tol={trainer.power_tol!r} times the Gramian diagonal: "
                       "the state kernel's shape does not fit the data's scale (pass state_kernel=None, or a shape of about "
                       "1 / the spread of the states) or lower power_tol"),
         }.get(h.stop_reason, "the state kernel's shape does not fit the data's scale: pass state_kernel=None, or a shape "
@@ -601,14 +677,20 @@ class _FlowMapKernelModel(Parametrized):
         found = settings.get("class") if isinstance(settings, dict) else None
         if found != cls.__name__:
             raise ModelFileError(f"{str(path)!r} holds a {found!r}, not a {cls.__name__}")
-        if settings.get("layout") not in (1, MODEL_LAYOUT):
+        if settings.get("layout") not in (1, 2, MODEL_LAYOUT):
             raise ModelFileError(f"{str(path)!r} has an unknown model layout {settings.get('layout')!r} "
                                  f"(this sympredict reads 1..{MODEL_LAYOUT})")
         try:
             params = settings["params"]
             if not isinstance(params, dict):
                 raise ModelFileError(f"{str(path)!r}: its setting 'params' is not a JSON object")
-            model = cls(**{k: _decode_param(v) for k, v in params.items()})
+            decoded = {k: _decode_param(v) for k, v in params.items()}
+            moved = {k: decoded.pop(k) for k in list(decoded) if k in MOVED_OPTIONS and settings["layout"] < 3}
+            unknown = sorted(set(decoded) - set(cls._param_names()))
+            if unknown:
+                raise ModelFileError(f"{str(path)!r} has unknown setting(s) {unknown} for a {cls.__name__}")
+            model = cls(**decoded)
+            _apply_moved(model, moved, warn=False)  # older layouts: the flat options folded into the parts
             try:  # the settings pass the checks of fit (one schema for constructors and files)
                 model._check_params()
             except ValueError as exc:
@@ -622,11 +704,11 @@ class _FlowMapKernelModel(Parametrized):
             except ValueError as exc:
                 raise ModelFileError(f"{str(path)!r} has an invalid setting for states of dimension {model.dim_}: {exc}") from None
             if kernel.periodic != model._model_periodic(model.dim_):
-                raise ModelFileError(f"the file's periodic coordinates {kernel.periodic!r} disagree with its settings "
-                                     f"periodic={model.get_params().get('periodic')!r}, period={model.get_params().get('period')!r}")
+                raise ModelFileError(f"the file's periodic coordinates {kernel.periodic!r} disagree with its setting "
+                                     f"state_kernel={model.state_kernel!r}")
             if kernel.symmetry != model._model_symmetry(model.dim_):
-                raise ModelFileError(f"the file's state symmetry {kernel.symmetry!r} disagrees with its settings "
-                                     f"symmetry={model.get_params().get('symmetry')!r}")
+                raise ModelFileError(f"the file's state symmetry {kernel.symmetry!r} disagrees with its setting "
+                                     f"state_kernel={model.state_kernel!r}")
             arrays.pop("elapsed", None)  # layout 1 stored the greedy's timings
             model._check_file_arrays(kernel, arrays)
             model.kernel_ = kernel
@@ -674,11 +756,28 @@ class _FlowMapKernelModel(Parametrized):
 class SymplecticKernelPredictor(_FlowMapKernelModel):
     """Large-step symplectic flow-map predictor ``(x, mu, dT) -> x1``.
 
+    The estimator composes a few parts, each owning its settings::
+
+        SymplecticKernelPredictor(
+            Periodic(IMQ(0.5), coordinates=(0,)),   # state kernel, with transforms (sympredict.transforms)
+            mu_kernel=IMQ(2.0), dt_kernel=IMQ(5.0),
+            max_centers=1500,
+            update="midpoint",                       # update rule (sympredict.updates)
+            trainer=ExactGreedy(tol=1e-8),           # training strategy (sympredict.greedy.trainers)
+            solver=NewtonSolver(backend="numba"),    # Newton solver (sympredict.solvers)
+        )
+
     Parameters
     ----------
     state_kernel
-        Radial kernel on the mixed state ``xi = (q0, p1)``.  ``None`` picks
-        ``IMQ(1 / diameter of the training xi)`` at fit time.
+        Kernel on the mixed state ``xi = (q0, p1)`` (the midpoint for
+        ``update='midpoint'``): a radial kernel (``IMQ``, ``Matern52``,
+        ``Matern32``), a transform of one (:class:`~sympredict.transforms.Scaled`:
+        a symplectic scaling ``(a_i q_i, p_i / a_i)``;
+        :class:`~sympredict.transforms.Periodic`: angle coordinates;
+        :class:`~sympredict.transforms.Symmetric`: a symmetry group), or ``None``:
+        ``IMQ(1 / diameter of the training xi)`` picked at fit time (also inside a
+        transform: ``Periodic(None, coordinates=(0,))``).
     mu_kernel
         Radial kernel on the parameter; ``None`` drops the factor (a model for
         one fixed parameter; then ``mu`` must not be passed).
@@ -686,119 +785,40 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         Radial kernel on the macro step; ``None`` drops the factor (a model for
         one fixed ``dT``, which :meth:`step` then uses by default).
     max_centers
-        Maximal number of selected functionals (centres).
-    tol
-        Greedy stops when the max training residual is at or below
-        ``tol * min(1, max|x| / min dT)`` (``max|x|`` over the training states):
-        ``tol`` is absolute for data in units of order one and above, and
-        relative to the data's scale for data in small units (so a fit never
-        stops before learning only because the states are small).  A fit that
-        selects no centre, or reproduces less than a tenth of its largest
-        training increments, although the data move the states, warns
-        (:class:`~sympredict.exceptions.UnderfitWarning`).
-    criterion
-        ``'f'`` (f-greedy, default) or ``'p'`` (P-greedy).
-    power_tol
-        Breakdown guard of the greedy, relative to the Gramian diagonal.
-    newton_max_iter
-        Maximal Newton iterations per implicit step.
-    memory_limit
-        Bytes the greedy's Newton basis may use (default: 90% of available memory).
-    backend
-        Newton solver of :meth:`step` / :meth:`rollout` (:mod:`sympredict.newton`):
-        ``'numpy'`` (the reference, batched over instances), ``'numba'``
-        (compiled, :mod:`sympredict._fastkernels`: one fused pass over the
-        centres per iteration, a whole rollout in one call, instances in
-        parallel; needs ``pip install sympredict[fast]``) or ``'auto'``: by the
-        size of the work (:meth:`backend_for`), NumPy for small calls (no compiled
-        code to load), compiled for large ones.  Both agree to round-off (the
-        gradient's floor, see :meth:`HBSurrogate.gradient_hessian`).
-    trainer
-        The training strategy (:mod:`sympredict.greedy.trainers`): ``None`` or
-        :class:`~sympredict.greedy.ExactGreedy` (default: the exact f-greedy
-        over all candidates; ``ExactGreedy('float32')`` halves the basis
-        memory), :class:`~sympredict.greedy.ActiveSetGreedy` (an active subset
-        refreshed against the full residual: stops when the max residual over
-        *all* functionals reaches ``tol``) or
-        :class:`~sympredict.greedy.ShardedGreedy` (a pyMOR worker pool, the
-        exact greedy's centres).
-    regularization
-        Ridge term ``lambda >= 0`` for noisy data: the greedy builds the Newton
-        basis of ``G + lambda I`` (:class:`~sympredict.greedy.dense.DenseStore`;
-        ``ExactGreedy`` and ``ShardedGreedy``), so the coefficients solve
-        ``(G_sel + lambda I) c = y_sel`` on the selected centres instead of
-        interpolating them.  ``0`` (default) is the exact interpolation, run by
-        the same code as before this option existed.  Choose it on validation
-        data with :func:`sympredict.selection.select_regularization`.  The
-        training residuals in ``history_`` are those of the augmented kernel
-        (0 at the centres), the validation residuals those of the model.
+        Maximal number of selected functionals (centres): the model's size.
     update
-        The generating-function update.  ``'symplectic_euler'`` (default, the
-        paper's): ``s(q0, p1)`` of type II, the implicit symplectic-Euler step
-        above.  ``'midpoint'``: the symmetric (Poincare-type) update
-        ``x1 = x0 + dT J grad s((x0 + x1) / 2, mu, dT)``, trained on
-        ``y = J^T (x1 - x0) / dT`` at the midpoints and solved by Newton on all
-        ``2n`` unknowns (Jacobian ``I - dT/2 J Hess s``,
-        :func:`~sympredict.newton.solve_midpoint_numpy`).  Symplectic for every
-        ``s`` (a Cayley transform) and time-symmetric (with the same ``s``,
-        ``-dT`` inverts the step); on a linear mode turning by ``theta`` per
-        step its generating function exists for ``theta < pi`` where the type-II
-        form degenerates at ``pi/2``.  Both Newton backends: the compiled rollout
-        (:func:`~sympredict._fastkernels.newton_rollout` with ``update='midpoint'``,
-        full Hessian in the same fused pass) and the NumPy reference.
-    state_scaling
-        ``None`` or ``n`` positive factors ``a_i``: the model works in the
-        coordinates ``(a_i q_i, p_i / a_i)`` (a diagonal *symplectic* map, so
-        both updates and both Newton backends stay exactly as they are): the
-        isotropic state kernel of shape ``eps`` then has the per-coordinate
-        shapes ``eps a_i`` in ``q_i`` and ``eps / a_i`` in ``p_i``.  With the
-        global ``eps`` this gives every conjugate pair its own ratio of shapes
-        (on the pendulum, ``2n = 2``: both shapes free).  Predictions,
-        Jacobians and gradients are returned in the original coordinates.
-    newton_warm_start
-        Compiled rollouts only: from the second macro step on, Newton starts
-        from a quadratic extrapolation through the previous three steps (``3 p_k - 3 p_k-1 + p_k-2``;
-        with ``update='midpoint'`` the midpoint of ``x_k`` and that extrapolation
-        of ``x_k+1``) instead of the explicit guess, saving that guess's pass over
-        the centres (pendulum, 1,500 centres: 3.0 -> 2.0 passes per step, the
-        same trajectory errors against the reference; both stop by the same
-        rule, so trajectories differ within its tolerance).  Default ``False``.
-    periodic
-        ``None`` or a tuple of state indices (in ``0 .. 2n-1``, usually angles
-        ``q_i``) in which the state kernel is periodic: the squared distance
-        uses ``(P/pi)^2 sin^2(pi d_i / P)`` instead of ``d_i^2``
-        (:class:`~sympredict.kernels.PeriodicCoordinates`).  The learned ``s``
-        is then exactly ``P``-periodic in these coordinates, so the step
-        commutes with ``q_i -> q_i + P`` and rotating orbits need no wrapping
-        (``q_i`` may grow without bound).  The training data need not span more
-        than one period, but ``x1 - x0`` must be the true increment (not wrapped
-        separately).  NumPy solver only (``backend='auto'`` uses it; ``'numba'``
-        is refused).
-    period
-        The period ``P`` of the ``periodic`` coordinates (default ``2 pi``), or
-        one per coordinate, in the original coordinates (``state_scaling``
-        scales it with its coordinate).
-    symmetry
-        ``None``, or the elements of a finite group ``G`` of orthogonal maps of
-        the state that leave the generating function invariant: a
-        :class:`~sympredict.kernels.StateSymmetry`, sign patterns
-        (``[(1, 1), (-1, -1), (1, -1), (-1, 1)]``: the maps ``diag(s)``) or
-        matrices ``(|G|, 2n, 2n)``, every element listed (identity included).
-        The state kernel becomes ``k_G(x, y) = sum_g k(x, g y)``, so ``s`` is
-        exactly ``G``-invariant and each centre acts for its images.  Which
-        groups are valid depends on the update (checked at fit time):
-        ``'midpoint'``: each ``g`` symplectic (``g^T J g = J``, a symmetry of
-        the flow: ``Phi(g x) = g Phi(x)``) or anti-symplectic (``g^T J g = -J``,
-        a reversing symmetry: ``Phi(g Phi(x)) = g x``); both give
-        ``grad s(g z) = g grad s(z)`` for the midpoint ``s``.  ``'symplectic_euler'``:
-        only ``g = diag(A, A)`` with ``A`` orthogonal (symplectic and keeping
-        ``q`` and ``p`` apart): a reversing symmetry maps ``(q0, p1)`` to
-        ``(q1, p0)``, not to an image of ``(q0, p1)``, so e.g. the pendulum's
-        ``q -> -q`` is not a symmetry of its type-II ``s`` (only ``x -> -x`` is).
-        The user asserts that the system has the symmetry; the data are not
-        checked against it.  NumPy solver only (``backend='auto'`` uses it;
-        ``'numba'`` is refused); not combined with ``periodic``;
-        ``state_scaling`` must commute with ``G`` (sign flips do).
+        The generating-function update (:mod:`sympredict.updates`), by name or
+        as an object: ``'symplectic_euler'`` (default, the paper's type-II
+        ``s(q0, p1)``) or ``'midpoint'`` (``x1 = x0 + dT J grad s((x0 + x1)/2)``:
+        symmetric, and its ``s`` exists up to twice the type-II step on
+        oscillatory modes).
+    trainer
+        The training strategy and its settings (:mod:`sympredict.greedy.trainers`):
+        ``None`` for ``ExactGreedy()`` (the exact f-greedy over all candidates;
+        ``tol``, ``criterion``, ``power_tol``, ``memory_limit``,
+        ``regularization``, ``basis_dtype``), ``ActiveSetGreedy(...)`` (an
+        active subset refreshed against the full residual) or
+        ``ShardedGreedy(pool)`` (a pyMOR worker pool, the exact greedy's
+        centres).  The greedy stops when the max training residual is at or
+        below ``tol * min(1, max|x| / min dT)`` (``max|x|`` over the training
+        states): ``tol`` is absolute for data in units of order one and above,
+        relative to the data's scale for data in small units.  A fit that
+        selects no centre, or reproduces less than a tenth of its largest
+        training increments, warns (:class:`~sympredict.exceptions.UnderfitWarning`).
+    solver
+        The Newton solver of :meth:`step` / :meth:`rollout`
+        (:class:`~sympredict.solvers.NewtonSolver`: ``max_iter``,
+        ``warm_start``, ``backend``); ``None`` for ``NewtonSolver()``
+        (``backend='auto'``: NumPy for small calls, compiled for large ones,
+        :meth:`backend_for`).  Features without a compiled solver are listed in
+        :data:`NUMPY_ONLY`: ``backend='numba'`` is refused for them at fit,
+        ``'auto'`` uses NumPy and ``numpy_only_`` says why.
+
+    The options of sympredict 0.1 (``tol``, ``criterion``, ``power_tol``,
+    ``memory_limit``, ``regularization``, ``backend``, ``newton_max_iter``,
+    ``newton_warm_start``, ``state_scaling``, ``periodic``, ``period``,
+    ``symmetry``) are still accepted with a FutureWarning naming their
+    replacement (:data:`MOVED_OPTIONS`).
 
     Attributes
     ----------
@@ -821,10 +841,12 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
     fitted_params_ : dict
         The parameters at fit (or load) time; what :meth:`save` writes (with the current solver settings).
     update_, state_scaling_, periodic_, period_, symmetry_
-        The settings that define the fitted model, as they were at fit time: predictions use these, so a
-        parameter changed by ``set_params`` after the fit takes effect at the next fit (scikit-learn's
-        semantics).  The solver settings ``backend``, ``newton_max_iter`` (at most :data:`MAX_NEWTON_ITER`)
-        and ``newton_warm_start`` are read when predicting and checked there.
+        The settings that define the fitted model, as they were at fit time (the update, and the state
+        kernel's transforms flattened: scaling factors, periodic coordinates and periods, symmetry group):
+        predictions use these, so a parameter changed by ``set_params`` after the fit takes effect at the next
+        fit (scikit-learn's semantics).  The ``solver`` is read when predicting and checked there.
+    numpy_only_ : str or None
+        Why this model has no compiled solver (a feature of :data:`NUMPY_ONLY`), or ``None``.
 
     Examples
     --------
@@ -836,48 +858,30 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
 
     _functionals = HBFunctionals
     _fitted_settings = ("update", "state_scaling", "periodic", "period", "symmetry")
-    _runtime_settings = ("backend", "newton_max_iter", "newton_warm_start")
+    _runtime_settings = ("solver",)
+    _moved_options = tuple(MOVED_OPTIONS)
 
     def __init__(
         self,
-        state_kernel: Optional[RadialKernel] = None,
+        state_kernel=None,
         mu_kernel: Optional[RadialKernel] = None,
         dt_kernel: Optional[RadialKernel] = None,
         *,
         max_centers: int = 1000,
-        tol: float = 1e-10,
-        criterion: str = "f",
-        power_tol: float = 1e-12,
-        newton_max_iter: int = 50,
-        memory_limit: Optional[float] = None,
-        backend: str = "auto",
+        update="symplectic_euler",
         trainer: Optional[Trainer] = None,
-        regularization: float = 0.0,
-        update: str = "symplectic_euler",
-        state_scaling=None,
-        newton_warm_start: bool = False,
-        periodic=None,
-        period=2 * np.pi,
-        symmetry=None,
+        solver: Optional[NewtonSolver] = None,
+        **deprecated,
     ):
         self.state_kernel = state_kernel
         self.mu_kernel = mu_kernel
         self.dt_kernel = dt_kernel
         self.max_centers = max_centers
-        self.tol = tol
-        self.criterion = criterion
-        self.power_tol = power_tol
-        self.newton_max_iter = newton_max_iter
         self.update = update
-        self.state_scaling = state_scaling
-        self.newton_warm_start = newton_warm_start
-        self.periodic = periodic
-        self.period = period
-        self.symmetry = symmetry
-        self.memory_limit = memory_limit
-        self.backend = backend
         self.trainer = trainer
-        self.regularization = regularization
+        self.solver = solver
+        if deprecated:
+            _apply_moved(self, deprecated)
 
     def fit(self, x0, x1, mu=None, dt=None, *, validation=None) -> "SymplecticKernelPredictor":
         """Train the surrogate on flow-map samples.
@@ -914,12 +918,13 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         scale = self._scale_vector(data.x0.shape[1])
         periodic = self._model_periodic(data.x0.shape[1])
         symmetry = self._model_symmetry(data.x0.shape[1])
-        xi, y = update_variables(self.update, data.x0 * scale, data.x1 * scale, data.dt)
+        rule = as_update(self.update_)
+        xi, y = rule.variables(data.x0 * scale, data.x1 * scale, data.dt)
         self._check_duplicates(xi, data, periodic)
         kernel = self._product_kernel(xi, periodic, symmetry)
         val = None
         if validation is not None:
-            vxi, vy = update_variables(self.update, validation.x0 * scale, validation.x1 * scale, validation.dt)
+            vxi, vy = rule.variables(validation.x0 * scale, validation.x1 * scale, validation.dt)
             val = (HBFunctionals(kernel, vxi, validation.mu, validation.dt), vy.reshape(-1))
         points, comps = self._train(trainer, kernel, xi, y.reshape(-1), data, val)
         self.surrogate_ = HBSurrogate(kernel, xi[points], data.mu[points], data.dt[points], comps, self.greedy_result_.coef)
@@ -995,33 +1000,60 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
     # ------------------------------------------------------- settings
     def _check_params(self) -> Trainer:
         trainer = super()._check_params()
-        self._check_runtime_settings()
-        if self.update not in UPDATES:
-            raise ValueError(f"update must be one of {UPDATES}, got {self.update!r}")
-        if self.periodic is not None and self.backend == "numba":
-            raise ValueError(_PERIODIC_NOT_COMPILED)
-        if self.symmetry is not None and self.backend == "numba":
-            raise ValueError(_SYMMETRY_NOT_COMPILED)
+        as_update(self.update)
+        solver = self._check_runtime_settings()
+        parts = self._state_parts()
+        for applies, reason in NUMPY_ONLY:  # the one declarative check of part against backend
+            if applies(parts) and solver.backend == "numba":
+                raise ValueError(f"{reason}: use NewtonSolver(backend='numpy') or 'auto' (which then uses NumPy)")
         return trainer
 
-    def _check_runtime_settings(self) -> None:
-        """The solver settings read at prediction time (``backend``, ``newton_max_iter``, ``newton_warm_start``)."""
-        self._newton_iterations()
-        if not isinstance(self.backend, str) or self.backend not in _BACKENDS:
-            raise ValueError(f"backend must be 'auto', 'numpy' or 'numba', got {self.backend!r}")
-        if not isinstance(self.newton_warm_start, (bool, np.bool_)):
-            raise ValueError(f"newton_warm_start must be True or False, got {self.newton_warm_start!r}")
+    def _solver(self) -> NewtonSolver:
+        """The Newton solver (``solver``, or the default :class:`~sympredict.solvers.NewtonSolver`)."""
+        return NewtonSolver() if self.solver is None else self.solver
+
+    def _check_runtime_settings(self) -> NewtonSolver:
+        """The solver settings read at prediction time (``solver``); ``ValueError`` naming a malformed one."""
+        solver = self._solver()
+        if not isinstance(solver, NewtonSolver):
+            raise ValueError(f"solver must be a NewtonSolver (e.g. NewtonSolver(backend='numba')) or None, got {solver!r}")
+        return solver.check()
 
     def _newton_iterations(self) -> int:
-        """``newton_max_iter``, checked: an integer in ``1..MAX_NEWTON_ITER``."""
-        max_iter = as_positive_int(self.newton_max_iter, "newton_max_iter")
-        if max_iter > MAX_NEWTON_ITER:
-            raise ValueError(f"newton_max_iter must be at most {MAX_NEWTON_ITER} (Newton converges in a few iterations "
-                             f"or not at all), got {max_iter}")
-        return max_iter
+        """The solver's ``max_iter``, checked: an integer in ``1..MAX_NEWTON_ITER``."""
+        return self._check_runtime_settings().iterations()
+
+    def _moved_value(self, name: str):
+        part, inner = MOVED_OPTIONS[name]
+        if part == "solver":
+            return getattr(self._solver(), inner)
+        if part == "state_kernel":
+            parts = self._state_parts()
+            return {"state_scaling": parts.scaling, "periodic": parts.periodic, "period": parts.period,
+                    "symmetry": parts.symmetry}[name]
+        return super()._moved_value(name)
+
+    def _store_fitted_settings(self, params: dict) -> None:
+        """``fitted_params_``, ``update_`` and the state kernel's transforms, flattened (``state_scaling_``, ...)."""
+        self.fitted_params_ = dict(params)
+        parts = lower_state_kernel(params["state_kernel"])
+        self.update_ = params["update"]
+        self.state_scaling_ = parts.scaling
+        self.periodic_ = parts.periodic
+        self.period_ = parts.period
+        self.symmetry_ = parts.symmetry
+
+    @property
+    def numpy_only_(self) -> Optional[str]:
+        """Why the fitted model has no compiled solver (:data:`NUMPY_ONLY`), or ``None``."""
+        self._check_fitted()
+        parts = StateKernelParts(scaling=self.state_scaling_, periodic=self.periodic_, period=self.period_,
+                                 symmetry=self.symmetry_)
+        reasons = [reason for applies, reason in NUMPY_ONLY if applies(parts)]
+        return "; ".join(reasons) if reasons else None
 
     def _check_dim_settings(self, dim: int) -> None:
-        """The fitted ``state_scaling``, ``periodic``/``period`` and ``symmetry`` for states of dimension ``dim``."""
+        """The fitted state kernel's transforms for states of dimension ``dim``."""
         if dim % 2:
             raise ValueError(f"states must have an even dimension 2n (q, p), got {dim}")
         self._scale_vector(dim)
@@ -1030,52 +1062,21 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
 
     # ------------------------------------------------------- Newton backends
     def backend_for(self, n_instances: int = 1, n_steps: int = 1) -> str:
-        """The Newton solver :meth:`step` / :meth:`rollout` use for this much work: ``'numpy'`` or ``'numba'``.
+        """The code :meth:`step` / :meth:`rollout` run for this much work: ``'numpy'`` or ``'numba'``.
 
-        ``backend='numpy'`` or ``'numba'`` decide alone.  ``backend='auto'``:
-
-        * ``'numpy'`` without numba, with periodic coordinates or a state symmetry
-          (NumPy-only settings), or when :func:`numpy_seconds` estimates the call at
-          under :data:`AUTO_NUMPY_SECONDS` (loading compiled code costs a fresh
-          process ~0.1-0.3 s from numba's disk cache, and compiling it ~20 s the
-          first time on a machine) and this process has not loaded the compiled
-          rollout yet;
-        * ``'numba'`` otherwise.
-
-        Each call logs its choice at DEBUG level (logger ``sympredict.predictor``).
+        The solver's rule (:meth:`~sympredict.solvers.NewtonSolver.backend_for`): ``'numpy'`` or
+        ``'numba'`` decide alone; ``'auto'`` uses NumPy without numba, for a model with a NumPy-only
+        feature (``numpy_only_``), or when NumPy is estimated at under
+        :data:`~sympredict.solvers.AUTO_NUMPY_SECONDS` and this process has not loaded the compiled
+        rollout yet; compiled code otherwise.  Each call logs its choice at DEBUG level
+        (logger ``sympredict.predictor``).
         """
         self._check_fitted()
-        if not self._compiled(int(n_instances), int(n_steps)):
-            return "numpy"
-        return "numba"
+        return "numba" if self._compiled(int(n_instances), int(n_steps)) else "numpy"
 
     def _compiled(self, n_instances: Optional[int] = None, n_steps: int = 1) -> bool:
-        """Whether :meth:`step` / :meth:`rollout` use the compiled solver (resolves ``backend``; see :meth:`backend_for`)."""
-        if self.periodic_ is not None:
-            if self.backend == "numba":
-                raise ValueError(_PERIODIC_NOT_COMPILED)
-            return False
-        if self.symmetry_ is not None:
-            if self.backend == "numba":
-                raise ValueError(_SYMMETRY_NOT_COMPILED)
-            return False
-        if self.backend == "numpy":
-            return False
-        if self.backend == "auto":
-            if not _fastkernels.HAVE_NUMBA:
-                return False
-            if n_instances is None or _fastkernels.rollout_loaded():
-                return True
-            estimate = numpy_seconds(n_instances, n_steps, self.surrogate_.n_centers, self.dim_)
-            compiled = estimate >= AUTO_NUMPY_SECONDS
-            logger.debug("backend='auto': %s (NumPy estimated at %.2g s for %d instances x %d steps, %d centres)",
-                         "compiled" if compiled else "NumPy", estimate, n_instances, n_steps, self.surrogate_.n_centers)
-            return compiled
-        if self.backend == "numba":
-            if not _fastkernels.HAVE_NUMBA:
-                raise ImportError("backend='numba' needs numba: pip install 'sympredict[fast]' (or use backend='numpy')")
-            return True
-        raise ValueError(f"backend must be 'auto', 'numpy' or 'numba', got {self.backend!r}")
+        """Whether :meth:`step` / :meth:`rollout` use the compiled solver (resolves the solver's ``backend``)."""
+        return self._solver().compiled(n_instances, n_steps, self.surrogate_.n_centers, self.dim_, self.numpy_only_)
 
     def _scale_vector(self, dim: int) -> np.ndarray:
         """``(a, 1/a)`` of the fitted ``state_scaling`` (ones without it), shape (2n,); checks the setting."""
@@ -1129,19 +1130,8 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
             return None
         group.check_dim(dim)
         if self.periodic_ is not None:
-            raise ValueError("symmetry and periodic cannot be combined (not implemented): pass one of them")
-        n = dim // 2
-        jmat = np.block([[np.zeros((n, n)), np.eye(n)], [-np.eye(n), np.zeros((n, n))]])
-        for i, g in enumerate(group.array):
-            if self.update_ == "midpoint":
-                sigma = g.T @ jmat @ g
-                if not (np.allclose(sigma, jmat, atol=1e-12) or np.allclose(sigma, -jmat, atol=1e-12)):
-                    raise ValueError(f"symmetry: element {i} is neither symplectic (g^T J g = J) nor anti-symplectic "
-                                     "(g^T J g = -J): no symmetry of a Hamiltonian flow makes the midpoint s invariant under it")
-            elif np.abs(g[:n, n:]).max() > 0 or np.abs(g[n:, :n]).max() > 0 or np.abs(g[:n, :n] - g[n:, n:]).max() > 1e-12:
-                raise ValueError(f"symmetry: element {i} is not of the form diag(A, A): with update='symplectic_euler' "
-                                 "the type-II s(q0, p1) is invariant only under such maps (a reversing symmetry such as "
-                                 "q -> -q maps (q0, p1) to (q1, p0)); use update='midpoint'")
+            raise ValueError("a state kernel both Periodic and Symmetric is not implemented: use one of them")
+        as_update(self.update_).check_symmetry(group.array)
         return group.conjugated(self._scale_vector(dim)) if self.state_scaling_ is not None else group
 
     def _rollout(self, x, weights, dt, n_steps: int, around=None, *, stride: int = 1, progress=None) -> np.ndarray:
@@ -1153,7 +1143,8 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         (scaled) coordinates, so chunking does not change the result.
         """
         scale = self._scale_vector(self.dim_)
-        max_iter = as_positive_int(self.newton_max_iter, "newton_max_iter")
+        solver, update = self._solver(), as_update(self.update_).name
+        max_iter = solver.iterations()
         compiled = self._compiled(len(x), n_steps)
         if compiled:  # the chunks share the weights in the compiled centre order: permuted once
             ordered = ordered_weights(self.surrogate_, weights)
@@ -1162,7 +1153,7 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
             pre, post = pre * scale[None, :, None], post / scale[None, None, :]
             if compiled:  # no warm start here: its extrapolation would mix x_k and pre x_k
                 def run(state, k):
-                    return rollout_compiled(self.surrogate_, state, ordered, dt, k, max_iter, update=self.update_,
+                    return rollout_compiled(self.surrogate_, state, ordered, dt, k, max_iter, update=update,
                                             around=(pre, post), weights_ordered=True)
             else:
                 def run(state, k):
@@ -1172,8 +1163,7 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         if compiled:
             def run(state, k):
                 return rollout_compiled(self.surrogate_, state, ordered, dt, k, max_iter,
-                                        warm_start=bool(self.newton_warm_start), update=self.update_,
-                                        weights_ordered=True)
+                                        warm_start=bool(solver.warm_start), update=update, weights_ordered=True)
         else:
             def run(state, k):
                 return rollout_numpy(lambda s: self._solve_scaled(s, weights, dt), state, k)
@@ -1190,11 +1180,10 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
     def _solve_scaled(self, x: np.ndarray, weights: np.ndarray, dt: np.ndarray) -> np.ndarray:
         """One implicit step in the model's coordinates, on the configured backend (:mod:`sympredict.newton`)."""
         max_iter = self._newton_iterations()
+        rule = as_update(self.update_)
         if self._compiled(len(x), 1):
-            return rollout_compiled(self.surrogate_, x, weights, dt, 1, max_iter, step_index=False, update=self.update_)[:, 1]
-        if self.update_ == "midpoint":
-            return solve_midpoint_numpy(self.surrogate_, x, weights, dt, max_iter)
-        return solve_step_numpy(self.surrogate_, x, weights, dt, max_iter)
+            return rollout_compiled(self.surrogate_, x, weights, dt, 1, max_iter, step_index=False, update=rule.name)[:, 1]
+        return rule.solve(self.surrogate_, x, weights, dt, max_iter)
 
     _advance = _solve_step
 
@@ -1275,12 +1264,7 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         return traj[0] if single else traj
 
     def _solvability(self, x, weights, dt):
-        n = self.dim_ // 2
-        x = x * self._scale_vector(self.dim_)
-        _, hess = self.surrogate_.gradient_hessian(x, weights)
-        if self.update_ == "midpoint":  # z -> x0 + dT/2 J grad s(z) contracts where dT/2 |Hess s| < 1
-            return 0.5 * dt * np.linalg.norm(hess, ord=2, axis=(1, 2))
-        return dt * np.linalg.norm(hess[:, :, n:], ord=2, axis=(1, 2))
+        return as_update(self.update_).contraction(self.surrogate_, x * self._scale_vector(self.dim_), weights, dt)
 
     def solvability(self, x, mu=None, dt=None) -> np.ndarray:
         """``dT * L_S`` estimated at the states ``x``: the implicit step is a contraction where it is < 1.
@@ -1323,21 +1307,7 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
     def _scaled_jacobian(self, x, weights, dt):
         """``D Phi`` in the model's coordinates (B, 2n, 2n)."""
         x1 = self._solve_scaled(x, weights, dt)
-        if self.update_ == "midpoint":
-            _, S = self.surrogate_.gradient_hessian(0.5 * (x + x1), weights)
-            return midpoint_jacobian(S, dt)
-        n = self.dim_ // 2
-        xi = np.concatenate([x[:, :n], x1[:, n:]], axis=1)
-        _, S = self.surrogate_.gradient_hessian(xi, weights)
-        h = dt[:, None, None]
-        eye = np.eye(n)
-        Sqq, Sqp, Spq, Spp = S[:, :n, :n], S[:, :n, n:], S[:, n:, :n], S[:, n:, n:]
-        Minv = np.linalg.inv(eye + h * Sqp)
-        dp_dq = -h * (Minv @ Sqq)
-        dp_dp = Minv
-        dq_dq = eye + h * Spq + h * (Spp @ dp_dq)
-        dq_dp = h * (Spp @ Minv)
-        return np.block([[dq_dq, dq_dp], [dp_dq, dp_dp]])
+        return as_update(self.update_).jacobian(self.surrogate_, x, x1, weights, dt)
 
     def surrogate_gradient(self, xi, mu=None, dt=None) -> np.ndarray:
         """``grad_xi s(xi, mu, dT)`` at mixed states ``xi = (q0, p1)`` (midpoints for ``update='midpoint'``), shape (B, 2n)."""
@@ -1377,8 +1347,9 @@ class DirectKernelPredictor(_FlowMapKernelModel):
     baseline that drifts in energy.
 
     Parameters are those of :class:`SymplecticKernelPredictor` without the
-    Newton solver's (``newton_max_iter``, ``backend``); the training strategy
-    must handle several outputs (:class:`~sympredict.greedy.ExactGreedy` or
+    update rule and the Newton solver (the step is explicit), and with a plain
+    radial state kernel; the training strategy must handle several outputs
+    (:class:`~sympredict.greedy.ExactGreedy` or
     :class:`~sympredict.greedy.ShardedGreedy`).
 
     Attributes
@@ -1395,23 +1366,23 @@ class DirectKernelPredictor(_FlowMapKernelModel):
         dt_kernel: Optional[RadialKernel] = None,
         *,
         max_centers: int = 1000,
-        tol: float = 1e-10,
-        criterion: str = "f",
-        power_tol: float = 1e-12,
-        memory_limit: Optional[float] = None,
         trainer: Optional[Trainer] = None,
-        regularization: float = 0.0,
+        **deprecated,
     ):
         self.state_kernel = state_kernel
         self.mu_kernel = mu_kernel
         self.dt_kernel = dt_kernel
         self.max_centers = max_centers
-        self.tol = tol
-        self.criterion = criterion
-        self.power_tol = power_tol
-        self.memory_limit = memory_limit
         self.trainer = trainer
-        self.regularization = regularization
+        if deprecated:
+            _apply_moved(self, deprecated)
+
+    def _check_params(self) -> Trainer:
+        trainer = super()._check_params()
+        if not (self.state_kernel is None or isinstance(self.state_kernel, RadialKernel)):
+            raise ValueError(f"the direct model takes a radial state kernel (IMQ, Matern52, Matern32) or None, "
+                             f"got {self.state_kernel!r}: kernel transforms shape the symplectic model's s")
+        return trainer
 
     def fit(self, x0, x1, mu=None, dt=None, *, validation=None) -> "DirectKernelPredictor":
         """Train on flow-map samples (same arguments as :meth:`SymplecticKernelPredictor.fit`)."""

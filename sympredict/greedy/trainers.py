@@ -25,6 +25,8 @@ from __future__ import annotations
 
 from typing import Optional
 
+import numpy as np
+
 from pymor.core.logger import getLogger
 
 from sympredict.base import Parametrized
@@ -49,35 +51,56 @@ def register_trainer(cls):
 
 
 class Trainer(Parametrized):
-    """A training strategy: builds the store the greedy loop runs on."""
+    """A training strategy: owns the greedy's settings and builds the store the greedy loop runs on.
 
-    def store(self, functionals, targets, *, criterion: str, power_tol: float, tol: float,
-              validation: Optional[tuple], memory_limit: Optional[float], regularization: float = 0.0):
-        """The :class:`~sympredict.greedy.loop.NewtonBasisStore` for these candidates and settings.
+    Every strategy has ``tol`` (stop when the max training residual is at or
+    below it; the estimator makes it relative to the data's scale for data in
+    small units) and ``power_tol`` (the breakdown guard, relative to the Gramian
+    diagonal); strategies that can, also ``criterion`` (``'f'``: f-greedy,
+    ``'p'``: P-greedy), ``memory_limit`` (bytes for the Newton basis) and
+    ``regularization`` (the ridge term ``lambda``).  A strategy lacks a setting it
+    cannot run, so a combination it cannot run cannot be written.
+    """
 
-        ``regularization`` is the ridge term ``lambda`` (the Newton basis of
-        ``G + lambda I``, :class:`~sympredict.greedy.dense.DenseStore`); a
-        strategy that has no regularized store raises ``ValueError`` for
-        ``lambda > 0``; :meth:`run` passes the keyword only when ``lambda > 0``.
-        """
+    tol: float = 1e-10
+    power_tol: float = 1e-12
+    criterion: str = "f"
+    memory_limit: Optional[float] = None
+    regularization: float = 0.0
+
+    def check(self) -> "Trainer":
+        """``ValueError`` naming the setting that is malformed; returns ``self``."""
+        for name in ("tol", "power_tol", "regularization"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)) \
+                    or not (np.isfinite(value) and value >= 0):
+                raise ValueError(f"{name} must be a finite non-negative float, got {value!r}")
+        if not self.power_tol < 1:
+            raise ValueError(f"power_tol must be below 1 (relative to the Gramian diagonal), got {self.power_tol!r}")
+        if self.criterion not in ("f", "p"):
+            raise ValueError(f"criterion must be 'f' (f-greedy) or 'p' (P-greedy), got {self.criterion!r}")
+        limit = self.memory_limit
+        if limit is not None and (isinstance(limit, bool) or not isinstance(limit, (int, float, np.number))
+                                  or not (np.isfinite(limit) and limit > 0)):
+            raise ValueError(f"memory_limit must be None or a positive number of bytes, got {limit!r}")
+        return self
+
+    def store(self, functionals, targets, *, tol: float, validation: Optional[tuple]):
+        """The :class:`~sympredict.greedy.loop.NewtonBasisStore` for these candidates (this strategy's settings)."""
         raise NotImplementedError
 
-    def run(self, functionals, targets, *, max_centers: int, tol: float = 1e-10, criterion: str = "f",
-            power_tol: float = 1e-12, validation: Optional[tuple] = None, memory_limit: Optional[float] = None,
-            divergence_factor: float = 100.0, log_every: int = 100, callback=None,
-            regularization: float = 0.0) -> GreedyResult:
-        """Greedy selection over ``functionals`` with this strategy's store (:func:`run_greedy`)."""
-        # passed only when set: strategies written before the option (store without the keyword) keep working
-        extra = {"regularization": regularization} if regularization else {}
-        try:
-            store = self.store(functionals, targets, criterion=criterion, power_tol=power_tol, tol=tol,
-                               validation=validation, memory_limit=memory_limit, **extra)
-        except TypeError as exc:
-            if extra and "regularization" in str(exc):
-                raise ValueError(f"the training strategy {type(self).__name__} does not support regularization > 0") from None
-            raise
+    def run(self, functionals, targets, *, max_centers: int, validation: Optional[tuple] = None,
+            tol_scale: float = 1.0, divergence_factor: float = 100.0, log_every: int = 100,
+            callback=None) -> GreedyResult:
+        """Greedy selection over ``functionals`` with this strategy's store (:func:`run_greedy`).
+
+        ``tol_scale`` multiplies ``tol`` (the estimator's rule for data in small units).
+        """
+        self.check()
+        tol = float(self.tol) * float(tol_scale)
+        store = self.store(functionals, targets, tol=tol, validation=validation)
         with logger.block(f"{store.label} over {functionals.n_functionals} functionals"):
-            return run_greedy(store, max_centers=max_centers, tol=tol, criterion=criterion,
+            return run_greedy(store, max_centers=max_centers, tol=tol, criterion=self.criterion,
                               divergence_factor=divergence_factor, log_every=log_every, callback=callback)
 
     @property
@@ -97,14 +120,36 @@ class ExactGreedy(Trainer):
         memory and memory traffic; each stored row carries a relative error of
         ``~6e-8`` (on the pendulum with IMQ 0.15 the float32 basis loses the
         power function after ~300 centres and the run stops as ``'diverged'``).
+    tol
+        Stop when the max training residual is at or below ``tol`` (the
+        estimator scales it down for data in small units, see its ``fit``).
+    criterion
+        ``'f'`` (f-greedy, default) or ``'p'`` (P-greedy).
+    power_tol
+        Breakdown guard, relative to the Gramian diagonal.
+    memory_limit
+        Bytes the Newton basis may use (default: 90% of the available memory).
+    regularization
+        Ridge term ``lambda >= 0`` for noisy data: the Newton basis of
+        ``G + lambda I``, so the coefficients solve ``(G_sel + lambda I) c = y_sel``
+        on the selected centres instead of interpolating them.  ``0`` (default):
+        exact interpolation.  Choose it on validation data
+        (:func:`sympredict.selection.select_regularization`).
     """
 
-    def __init__(self, basis_dtype: str = "float64"):
+    def __init__(self, basis_dtype: str = "float64", *, tol: float = 1e-10, criterion: str = "f",
+                 power_tol: float = 1e-12, memory_limit: Optional[float] = None, regularization: float = 0.0):
+        self.tol = tol
+        self.criterion = criterion
+        self.power_tol = power_tol
+        self.memory_limit = memory_limit
+        self.regularization = regularization
         self.basis_dtype = basis_dtype
 
-    def store(self, functionals, targets, *, criterion, power_tol, tol, validation, memory_limit, regularization=0.0):
-        return DenseStore(functionals, targets, criterion=criterion, power_tol=power_tol, validation=validation,
-                          memory_limit=memory_limit, basis_dtype=self.basis_dtype, regularization=regularization)
+    def store(self, functionals, targets, *, tol, validation):
+        return DenseStore(functionals, targets, criterion=self.criterion, power_tol=self.power_tol, validation=validation,
+                          memory_limit=self.memory_limit, basis_dtype=self.basis_dtype,
+                          regularization=float(self.regularization))
 
 
 @register_trainer
@@ -112,14 +157,20 @@ class ActiveSetGreedy(Trainer):
     """f-greedy on an active subset of the samples, refreshed against the full residual.
 
     (:class:`~sympredict.greedy.active_set.ActiveSetStore`, whose docstring
-    describes the parameters.)  The run stops when the max residual over *all*
+    describes the parameters; ``tol``, ``power_tol`` and ``memory_limit`` as for
+    :class:`ExactGreedy`.  An f-greedy without regularization: it has neither
+    ``criterion`` nor ``regularization``.)  The run stops when the max residual over *all*
     functionals reaches ``tol`` (or at ``max_centers``); memory ``O(m N_active)``
     instead of ``O(m N)``.  Scenario A (688,464 functionals, ``tol=1e-5``)
     trains in a fraction of the exact greedy's time (``docs/performance.md``).
     """
 
     def __init__(self, initial_points: int = 8192, refresh_every: int = 200, max_new_points: int = 4096,
-                 margin: float = 0.7, refresh_fraction: float = 0.25, seed: int = 0):
+                 margin: float = 0.7, refresh_fraction: float = 0.25, seed: int = 0, *, tol: float = 1e-10,
+                 power_tol: float = 1e-12, memory_limit: Optional[float] = None):
+        self.tol = tol
+        self.power_tol = power_tol
+        self.memory_limit = memory_limit
         self.initial_points = initial_points
         self.refresh_every = refresh_every
         self.max_new_points = max_new_points
@@ -127,17 +178,13 @@ class ActiveSetGreedy(Trainer):
         self.refresh_fraction = refresh_fraction
         self.seed = seed
 
-    def store(self, functionals, targets, *, criterion, power_tol, tol, validation, memory_limit, regularization=0.0):
-        if regularization:
-            raise ValueError("ActiveSetGreedy has no regularized store: use ExactGreedy() or ShardedGreedy() "
-                             "with regularization > 0")
-        if criterion != "f":
-            raise ValueError(f"ActiveSetGreedy is an f-greedy: use criterion='f' (got {criterion!r}) or ExactGreedy()")
+    def store(self, functionals, targets, *, tol, validation):
         if not isinstance(functionals, HBFunctionals):
             raise ValueError("ActiveSetGreedy needs state-derivative functionals (the symplectic predictor): "
                              "use ExactGreedy() or ShardedGreedy() for the direct model")
-        return ActiveSetStore(functionals, targets, tol=tol, power_tol=power_tol, validation=validation,
-                              memory_limit=memory_limit, **self.get_params(deep=False))
+        own = {k: v for k, v in self.get_params(deep=False).items() if k not in ("tol", "power_tol", "memory_limit")}
+        return ActiveSetStore(functionals, targets, tol=tol, power_tol=self.power_tol, validation=validation,
+                              memory_limit=self.memory_limit, **own)
 
 
 @register_trainer
@@ -158,14 +205,20 @@ class ShardedGreedy(Trainer):
 
     Notes
     -----
-    The estimator's ``memory_limit`` does not apply (each worker checks
+    ``tol``, ``criterion``, ``power_tol``, ``regularization``: as for
+    :class:`ExactGreedy`; there is no ``memory_limit`` (each worker checks
     ``memory_limit_per_rank``).  The last run's pool timings are in the
     result's store statistics (``model.greedy_result_.stats``).
     """
 
     def __init__(self, pool=None, n_shards: Optional[int] = None, memory_limit_per_rank: Optional[float] = None,
-                 timeout: Optional[float] = 60.0):
+                 timeout: Optional[float] = 60.0, *, tol: float = 1e-10, criterion: str = "f",
+                 power_tol: float = 1e-12, regularization: float = 0.0):
         self.pool = pool
+        self.tol = tol
+        self.criterion = criterion
+        self.power_tol = power_tol
+        self.regularization = regularization
         self.n_shards = n_shards
         self.memory_limit_per_rank = memory_limit_per_rank
         self.timeout = timeout
@@ -174,10 +227,11 @@ class ShardedGreedy(Trainer):
         params = self.get_params(deep=False)
         return type(self)(**params)  # the same pool object: a pool is a connection, not a setting
 
-    def store(self, functionals, targets, *, criterion, power_tol, tol, validation, memory_limit, regularization=0.0):
-        return ShardedStore(functionals, targets, criterion=criterion, power_tol=power_tol, validation=validation,
-                            pool=self.pool, n_shards=self.n_shards, memory_limit_per_rank=self.memory_limit_per_rank,
-                            timeout=self.timeout, regularization=regularization)
+    def store(self, functionals, targets, *, tol, validation):
+        return ShardedStore(functionals, targets, criterion=self.criterion, power_tol=self.power_tol,
+                            validation=validation, pool=self.pool, n_shards=self.n_shards,
+                            memory_limit_per_rank=self.memory_limit_per_rank, timeout=self.timeout,
+                            regularization=float(self.regularization))
 
     @property
     def spec(self) -> dict:
