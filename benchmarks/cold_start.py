@@ -35,6 +35,8 @@ import time
 from pathlib import Path
 
 import numpy as np
+from sympredict.greedy import ExactGreedy
+from sympredict.solvers import NewtonSolver
 
 #: What each fresh process runs: times import, load and the first rollout; prints one JSON line.
 CHILD = r"""
@@ -62,7 +64,7 @@ def fit_model(path: Path, centers: int) -> None:
 
     d = flow_map_data(Pendulum(), n_grid=20)
     model = SymplecticKernelPredictor(IMQ(0.15), mu_kernel=IMQ(2.0), dt_kernel=IMQ(5.0), max_centers=centers,
-                                      tol=1e-12, backend="numpy")
+                                      trainer=ExactGreedy(tol=1e-12), solver=NewtonSolver(backend="numpy"))
     model.fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
     model.save(path)
     return model, d

@@ -32,6 +32,7 @@ from sympredict.metrics import relative_hamiltonian_error, relative_trajectory_e
 from sympredict.systems.henon_heiles import LAMBDA_RANGE, HenonHeiles, energy_bounded_states
 from sympredict.data import FlowMapData
 from sympredict.systems.pendulum import DT_TEST, MU_TRAIN, Pendulum, flow_map_data, random_flow_map_data
+from sympredict.greedy import ExactGreedy
 
 try:
     from neural_peers import GSympNet, MLPFlowMap
@@ -82,11 +83,12 @@ def run_case(name, neural_epochs, neural_only=False):
         if MLPFlowMap is None:
             raise SystemExit("--neural-only needs PyTorch: pip install 'sympredict[bench]'")
     t0 = time.perf_counter()
-    m = None if neural_only else SymplecticKernelPredictor(*c["kernels"], max_centers=c["centers"], tol=1e-10).fit(data.x0, data.x1, mu=data.mu, dt=data.dt)
+    m = None if neural_only else SymplecticKernelPredictor(*c["kernels"], max_centers=c["centers"],
+                                                           trainer=ExactGreedy(tol=1e-10)).fit(data.x0, data.x1, mu=data.mu, dt=data.dt)
     if not neural_only:
         models["sympredict (symplectic kernel)"] = (m, time.perf_counter() - t0, lambda k: m.rollout(x0, k, mu=mu, dt=dt), m.n_centers_)
         t0 = time.perf_counter()
-        d = DirectKernelPredictor(*c["kernels"], max_centers=c["centers"], tol=1e-10).fit(data.x0, data.x1, mu=data.mu, dt=data.dt)
+        d = DirectKernelPredictor(*c["kernels"], max_centers=c["centers"], trainer=ExactGreedy(tol=1e-10)).fit(data.x0, data.x1, mu=data.mu, dt=data.dt)
         models["direct kernel model"] = (d, time.perf_counter() - t0, lambda k: d.rollout(x0, k, mu=mu, dt=dt), d.n_centers_)
         t0 = time.perf_counter()
         sel = select_vkoga_length_scale(data, c["val"], m_star=50)

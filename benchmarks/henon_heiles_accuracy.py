@@ -42,6 +42,8 @@ from sympredict.exceptions import extrapolation_expected
 from sympredict.kernels import KERNEL_FAMILIES
 from sympredict.metrics import relative_trajectory_error
 from sympredict.systems.henon_heiles import LAMBDA_RANGE, HenonHeiles, energy_bounded_states
+from sympredict.greedy import ExactGreedy
+from sympredict.solvers import NewtonSolver
 
 TARGET = 2e-4
 DT_RANGE = (0.4, 0.6)
@@ -120,8 +122,9 @@ def errors(model, inst) -> tuple[np.ndarray, np.ndarray]:
 
 
 def fit(p, data):
-    model = SymplecticKernelPredictor(family(p[0]), family(p[1]), family(p[2]), max_centers=args.max_centers, tol=1e-10,
-                                      update=args.update, backend="numpy" if args.update == "midpoint" else "auto")
+    model = SymplecticKernelPredictor(family(p[0]), family(p[1]), family(p[2]), max_centers=args.max_centers,
+                                      update=args.update, trainer=ExactGreedy(tol=1e-10),
+                                      solver=NewtonSolver(backend="numpy" if args.update == "midpoint" else "auto"))
     return model.fit(data.x0, data.x1, mu=data.mu, dt=data.dt)
 
 

@@ -66,7 +66,7 @@ def main(argv=None) -> int:
     threadpool_limits(limits=args.threads)
 
     from sympredict import SymplecticKernelPredictor, parallel as par
-    from sympredict.greedy import ShardedGreedy
+    from sympredict.greedy import ExactGreedy, ShardedGreedy
     from sympredict.experiments.pendulum import PRESETS
     from sympredict.kernels import IMQ
     from sympredict.systems.pendulum import DT_TRAIN, MU_TRAIN, Pendulum, flow_map_data, random_flow_map_data
@@ -111,8 +111,8 @@ def main(argv=None) -> int:
     out["n_val_functionals"] = 2 * len(val)
 
     eps = preset.eps
-    model = SymplecticKernelPredictor(IMQ(eps[0]), IMQ(eps[1]), IMQ(eps[2]), max_centers=max_centers, tol=1e-10,
-                                      trainer=ShardedGreedy(pool) if sharded else None)
+    model = SymplecticKernelPredictor(IMQ(eps[0]), IMQ(eps[1]), IMQ(eps[2]), max_centers=max_centers,
+                                      trainer=ShardedGreedy(pool, tol=1e-10) if sharded else ExactGreedy(tol=1e-10))
     t0 = time.perf_counter()
     model.fit(data.x0, data.x1, mu=data.mu, dt=data.dt, validation=val)
     stats = model.greedy_result_.stats

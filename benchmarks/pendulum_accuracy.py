@@ -44,6 +44,9 @@ from sympredict.kernels import KERNEL_FAMILIES
 from sympredict.metrics import relative_trajectory_error
 from sympredict.splitting import SplitKernelPredictor
 from sympredict.systems.pendulum import DT_TEST, DT_TRAIN, MU_TRAIN, Pendulum, flow_map_data
+from sympredict.greedy import ExactGreedy
+from sympredict.solvers import NewtonSolver
+from sympredict.transforms import Scaled, Symmetric
 
 TARGET = 2e-5
 NAMES = ("state", "mu", "dt", "scaling")
@@ -112,10 +115,10 @@ def cases(seeds):
 
 
 def fit(p):
-    model = SymplecticKernelPredictor(family(p[0]), family(p[1]), family(p[2]), max_centers=args.max_centers, tol=1e-10,
-                                      update=args.update, state_scaling=None if p[3] == 1.0 else (p[3],), backend="numpy",
-                                      regularization=args.reg_rel * p[0] ** 2, criterion=args.criterion,
-                                      symmetry=SYMMETRY, power_tol=args.power_tol)
+    model = SymplecticKernelPredictor(Symmetric(Scaled(family(p[0]), factors=None if p[3] == 1.0 else (p[3],)), group=SYMMETRY),
+                                      family(p[1]), family(p[2]), max_centers=args.max_centers, update=args.update,
+                                      trainer=ExactGreedy(tol=1e-10, regularization=args.reg_rel * p[0] ** 2, criterion=args.criterion, power_tol=args.power_tol),
+                                      solver=NewtonSolver(backend="numpy"))
     if args.split:
         model = SplitKernelPredictor(model, system.quadratic_part())
     return model.fit(data.x0, data.x1, mu=data.mu, dt=data.dt)

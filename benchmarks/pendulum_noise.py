@@ -33,6 +33,7 @@ from sympredict.kernels import IMQ
 from sympredict.metrics import relative_trajectory_error
 from sympredict.selection import select_regularization
 from sympredict.systems.pendulum import DT_TEST, DT_TRAIN, MU_TRAIN, Pendulum, flow_map_data, random_flow_map_data
+from sympredict.greedy import ExactGreedy
 
 parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
 parser.add_argument("--noise", type=float, nargs="+", default=[1e-5, 1e-4, 1e-3])
@@ -67,7 +68,8 @@ with threadpool_limits(args.threads):
     clean_val = random_flow_map_data(system, args.n_val, seed=1, mu_values=MU_TRAIN, dt_values=DT_TRAIN)
     x0, lengths = paper_test_instances(0)
     refs = {dt: system.trajectory(x0, lengths, dt, int(np.floor(args.horizon / dt + 1e-9))) for dt in DT_TEST}
-    estimator = SymplecticKernelPredictor(IMQ(0.2), IMQ(1.5), IMQ(3.0), max_centers=args.max_centers, tol=1e-10)
+    estimator = SymplecticKernelPredictor(IMQ(0.2), IMQ(1.5), IMQ(3.0), max_centers=args.max_centers,
+                                          trainer=ExactGreedy(tol=1e-10))
     rows = []
     for sigma in args.noise:
         train, val = noisy(clean, sigma, seed=10), noisy(clean_val, sigma, seed=11)

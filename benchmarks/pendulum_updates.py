@@ -26,6 +26,9 @@ from sympredict.experiments.pendulum import paper_test_instances
 from sympredict.kernels import IMQ
 from sympredict.metrics import relative_hamiltonian_error, relative_trajectory_error
 from sympredict.systems.pendulum import DT_TEST, Pendulum, flow_map_data
+from sympredict.greedy import ExactGreedy
+from sympredict.solvers import NewtonSolver
+from sympredict.transforms import Scaled
 
 parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
 parser.add_argument("--scalings", type=float, nargs="*", default=[])
@@ -42,8 +45,9 @@ with threadpool_limits(1):
     configs = [(u, None) for u in args.updates] + [("symplectic_euler", (a,)) for a in args.scalings]
     rows = []
     for update, scaling in configs:
-        model = SymplecticKernelPredictor(IMQ(0.2), IMQ(1.5), IMQ(3.0), max_centers=args.max_centers, tol=1e-10,
-                                          update=update, state_scaling=scaling, backend="numpy")
+        model = SymplecticKernelPredictor(Scaled(IMQ(0.2), factors=scaling), IMQ(1.5), IMQ(3.0),
+                                          max_centers=args.max_centers, update=update,
+                                          trainer=ExactGreedy(tol=1e-10), solver=NewtonSolver(backend="numpy"))
         model.fit(data.x0, data.x1, mu=data.mu, dt=data.dt)
         row = {"update": update, "state_scaling": scaling, "n_centers": model.n_centers_,
                "E_train": float(model.history_.train_max_residual[-1]), "per_dt": {}}
@@ -57,7 +61,7 @@ with threadpool_limits(1):
             energy = relative_hamiltonian_error(system, pred, lengths[:, None]).max()
             row["per_dt"][dt] = {"median_err": float(np.median(err[1:])), "max_energy_err": float(energy)}
             if args.compare_backends:
-                fast = copy.copy(model).set_params(backend="numba")
+                fast = copy.copy(model).set_params(solver__backend="numba")
                 fast.rollout(x0, 2, mu=lengths, dt=dt)  # compile (the batch path)
                 t0 = time.perf_counter()
                 pred_fast = fast.rollout(x0, n_steps, mu=lengths, dt=dt)

@@ -115,6 +115,7 @@ from sympredict.kernels import IMQ  # noqa: E402
 from sympredict.mor import SymplecticKernelReductor  # noqa: E402
 from sympredict.scaling import NormalizedFlowMap  # noqa: E402
 from sympredict.selection import select_by_score, select_kernels  # noqa: E402
+from sympredict.solvers import NewtonSolver
 
 set_log_levels({"pymor": "ERROR", "sympredict": "WARNING", "sympredict.selection": "INFO"})  # progress of the searches
 threadpool_limits(1)
@@ -230,7 +231,7 @@ for f in args.factors:
                 rec["status"] = "not trained: its generating function does not exist at this step (existence check)"
                 entry["kernels"][update] = rec
                 continue
-        base = SymplecticKernelPredictor(update=update, backend="numpy")
+        base = SymplecticKernelPredictor(update=update, solver=NewtonSolver(backend="numpy"))
         if args.search == "residual":
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
@@ -239,7 +240,7 @@ for f in args.factors:
             rec["selection"] = [{k: v for k, v in r.items() if k in ("kernels", "E_val", "E_train", "centres", "complete", "error")}
                                 for r in sel.table]
             rec["kernel"] = {"state": sel.state.eps, "mu": sel.mu.eps}
-            red.predictor = base.set_params(state_kernel=sel.state, mu_kernel=sel.mu, max_centers=args.centers, tol=1e-12)
+            red.predictor = base.set_params(state_kernel=sel.state, mu_kernel=sel.mu, max_centers=args.centers, trainer__tol=1e-12)
             red.reduce()
             flow_map, predictor = red.flow_map_, red.predictor_
         else:
@@ -258,7 +259,7 @@ for f in args.factors:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 sel = select_by_score(s_train, s_val, candidates, args.budgets, score,
-                                      estimator=base.set_params(tol=1e-12))
+                                      estimator=base.set_params(trainer__tol=1e-12))
             scored = [r for r in sel.table if r["budget"] is not None]
             assert len(scored) == len(log)
             for r, extra in zip(scored, log):

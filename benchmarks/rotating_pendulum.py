@@ -41,6 +41,9 @@ from sympredict import SymplecticKernelPredictor
 from sympredict.exceptions import ExtrapolationWarning, NewtonConvergenceError
 from sympredict.kernels import IMQ
 from sympredict.systems.pendulum import Pendulum
+from sympredict.greedy import ExactGreedy
+from sympredict.solvers import NewtonSolver
+from sympredict.transforms import Periodic
 
 VARIANTS = ("periodic", "plain_wrapped", "plain")
 
@@ -159,8 +162,9 @@ def run(*, lengths=(0.75,), dts=(0.05,), test_dts=None, mu_eps=1.5, dt_eps=3.0, 
     for periodic in sorted({v == "periodic" for v in variants}):
         for eps in eps_grid:
             t0 = time.perf_counter()
-            model = SymplecticKernelPredictor(IMQ(eps), mu_kernel, dt_kernel, max_centers=max_centers, tol=tol,
-                                              update=update, backend="numpy", periodic=(0,) if periodic else None)
+            model = SymplecticKernelPredictor(Periodic(IMQ(eps), coordinates=(0,) if periodic else None),
+                                              mu_kernel, dt_kernel, max_centers=max_centers, update=update,
+                                              trainer=ExactGreedy(tol=tol), solver=NewtonSolver(backend="numpy"))
             model.fit(x0, x1, mu=mu if mu_kernel is not None else None, dt=dt if dt_kernel is not None else dt[0])
             models[periodic, eps] = (model, time.perf_counter() - t0)
     out = {"setup": {"lengths": list(lengths), "dts": list(dts), "test_dts": list(test_dts),

@@ -345,13 +345,16 @@ def _cmd_train(args) -> int:
     from threadpoolctl import threadpool_limits
 
     from sympredict import SymplecticKernelPredictor
+    from sympredict.greedy import ExactGreedy
     from sympredict.io import load_dataset
+    from sympredict.solvers import NewtonSolver
 
     _check_output_file(args.out, args.data, args.validation, force=args.force)
     data, meta = load_dataset(args.data)
     validation = load_dataset(args.validation)[0] if args.validation else None
     kernels = [_parse_kernel(k) for k in (args.state, args.mu, args.dt)]
-    model = SymplecticKernelPredictor(*kernels, max_centers=args.centers, tol=args.tol, backend=args.backend)
+    model = SymplecticKernelPredictor(*kernels, max_centers=args.centers, trainer=ExactGreedy(tol=args.tol),
+                                      solver=NewtonSolver(backend=args.backend))
     mu = data.mu if kernels[1] is not None else None
     if validation is not None and kernels[1] is None:
         validation = (validation.x0, validation.x1, None, validation.dt)
@@ -410,7 +413,7 @@ def _set_backend(model, backend: str):
 
     inner = newton_predictor(model)
     if inner is not None:
-        inner.set_params(backend=backend)
+        inner.set_params(solver__backend=backend)
     return model
 
 

@@ -78,6 +78,7 @@ from sympredict.kernels import IMQ
 from sympredict.predictor import SymplecticKernelPredictor
 from sympredict.scaling import BoxScaling, NormalizedFlowMap, SymplecticScaling
 from sympredict.selection import log_grid, select_kernels
+from sympredict.greedy import ExactGreedy
 
 __all__ = ["SymplecticKernelReductor", "SymplecticKernelModel", "check_symplectic_basis", "basis_matrix"]
 
@@ -424,7 +425,8 @@ class SymplecticKernelReductor(BasicObject):
         with self.logger.block(f"kernel shapes on validation data ({len(states) * len(mus)} candidates, m* = {m_star})"):
             sel = select_kernels(train, val, [IMQ(float(e)) for e in states], mus, [None], m_star=m_star)
         self.selection_ = sel
-        return SymplecticKernelPredictor(sel.state, sel.mu, None, max_centers=self.max_centers, tol=1e-12)
+        return SymplecticKernelPredictor(sel.state, sel.mu, None, max_centers=self.max_centers,
+                                         trainer=ExactGreedy(tol=1e-12))
 
     def scaled_training_data(self):
         """Training and validation data in the predictor's coordinates, and the scalings that map to them.

@@ -338,9 +338,18 @@ class _FlowMapKernelModel(Parametrized):
     _moved_options: tuple = ("tol", "criterion", "power_tol", "memory_limit", "regularization")
 
     def set_params(self, **params):
-        """Set parameters (nested ones as ``name__sub``); returns ``self``.  Options that moved into the parts
-        (:data:`MOVED_OPTIONS`) are still accepted, with a FutureWarning naming the replacement."""
+        """Set parameters (nested ones as ``name__sub``); returns ``self``.
+
+        ``trainer__tol=...`` or ``solver__backend=...`` set a setting of a copy of the part (the default part
+        where it is ``None``), never of an object another model may share.  Options that moved into the parts
+        (:data:`MOVED_OPTIONS`) are still accepted, with a FutureWarning naming the replacement.
+        """
         moved = {k: params.pop(k) for k in list(params) if k in MOVED_OPTIONS and k not in self._param_names()}
+        for part, default in (("trainer", ExactGreedy), ("solver", NewtonSolver)):
+            if part in self._param_names() and any(k.startswith(part + "__") for k in params):
+                # nested settings change a copy: a part may be shared (copy.copy of a model, the caller's object)
+                current = getattr(self, part)
+                setattr(self, part, default() if current is None else clone(current))
         super().set_params(**params)
         if moved:
             _apply_moved(self, moved)
@@ -356,8 +365,8 @@ class _FlowMapKernelModel(Parametrized):
     def __getattr__(self, name: str):
         # ``name_`` of a fitted setting missing (a fitted state assembled by hand, or an object pickled before
         # these attributes existed): the current setting
-        if name.endswith("_") and name[:-1] in type(self)._fitted_settings and name[:-1] not in MOVED_OPTIONS:
-            return getattr(self, name[:-1])
+        if name.endswith("_") and name[:-1] in type(self)._fitted_settings:
+            return self._moved_value(name[:-1]) if name[:-1] in MOVED_OPTIONS else getattr(self, name[:-1])
         if name in type(self)._moved_options and not name.startswith("_"):
             warnings.warn(f"{type(self).__name__}.{name} is deprecated: read it from the part that owns it "
                           f"({_replacement(type(self).__name__, name)})", FutureWarning, stacklevel=2)

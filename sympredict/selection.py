@@ -176,7 +176,7 @@ def select_kernels(
 
     def score(tup, widened=False) -> SelectionResult:
         state, mu_k, dt_k = tup
-        model = clone(base).set_params(state_kernel=state, mu_kernel=mu_k, dt_kernel=dt_k, max_centers=m_star, tol=0.0)
+        model = clone(base).set_params(state_kernel=state, mu_kernel=mu_k, dt_kernel=dt_k, max_centers=m_star, trainer__tol=0.0)
         label = " x ".join(repr(k) for k in tup if k is not None)
         row = {"state": _spec(state), "mu": _spec(mu_k), "dt": _spec(dt_k), "kernels": label, "widened": widened}
         t0 = time.perf_counter()
@@ -348,7 +348,7 @@ def select_regularization(
     """The ridge term ``lambda`` of the greedy (noisy data) chosen on validation data.
 
     Every ``lambda`` in ``lambdas``, and always ``0`` (the exact fit), is
-    trained as ``clone(estimator).set_params(regularization=lambda)`` and
+    trained as ``clone(estimator).set_params(trainer__regularization=lambda)`` and
     scored on the validation samples by the residual of the learned gradient,
     ``grad s(xi_v) - y_v`` (the validation targets carry the same noise as the
     training targets).  Since the exact fit is a candidate, the chosen
@@ -388,7 +388,7 @@ def select_regularization(
     vxi, vy = update_variables(getattr(estimator, "update", "symplectic_euler"), validation.x0, validation.x1, validation.dt)
     table, best, models = [], None, {}
     for lam in values:
-        model = clone(estimator).set_params(regularization=lam)
+        model = clone(estimator).set_params(trainer__regularization=lam)
         t0 = time.perf_counter()
         with _quiet("sympredict.greedy", "sympredict.predictor"):
             model.fit(data.x0, data.x1, mu=mu, dt=data.dt if estimator.dt_kernel is not None else data.dt[0])

@@ -79,6 +79,11 @@ class NewtonSolver(Parametrized):
         self.warm_start = warm_start
         self.backend = backend
 
+    def __eq__(self, other) -> bool:  # a setting is a value: equal settings are equal solvers
+        return type(self) is type(other) and self.get_params(deep=False) == other.get_params(deep=False)
+
+    __hash__ = None  # mutable (set_params)
+
     def check(self) -> "NewtonSolver":
         """``ValueError`` naming the setting that is malformed; returns ``self``."""
         self.iterations()

@@ -18,7 +18,8 @@ transform                   the state kernel becomes
                             group (:class:`~sympredict.kernels.StateSymmetry`)
 ==========================  ====================================================================
 
-Each transform may appear once in a chain, in any order: coordinates, periods
+A transform whose defining setting is ``None`` (``factors``, ``coordinates``,
+``group``) is the identity.  Each transform may appear once in a chain, in any order: coordinates, periods
 and group elements are always given in the user's (unscaled) coordinates.
 :func:`lower_state_kernel` turns a chain into the flat description the
 estimator trains with (:class:`StateKernelParts`); which combinations a solver
@@ -88,6 +89,22 @@ class KernelTransform(Parametrized):
             values["kernel"] = values["kernel"].set_params(**inner)
         return type(self)(**values)
 
+    #: The parameter whose ``None`` makes the transform the identity (``Scaled(k, factors=None)`` is ``k``).
+    _key: str = ""
+
+    @property
+    def is_identity(self) -> bool:
+        """Whether the transform changes nothing (its key setting is ``None``)."""
+        return getattr(self, self._key) is None
+
+    @property
+    def eps(self) -> float:
+        """The shape of the radial kernel inside (what model selection varies)."""
+        radial = self.radial
+        if radial is None:
+            raise AttributeError(f"{type(self).__name__} wraps the default state kernel (None), which has no eps yet")
+        return radial.eps
+
     @property
     def radial(self) -> Optional[RadialKernel]:
         """The radial kernel at the bottom of the chain (``None``: the default chosen at fit time)."""
@@ -125,6 +142,7 @@ class Scaled(KernelTransform):
     """
 
     name = "scaled"
+    _key = "factors"
 
     def __init__(self, kernel=None, factors=(1.0,)):
         self.kernel = kernel
@@ -155,6 +173,7 @@ class Periodic(KernelTransform):
     """
 
     name = "periodic"
+    _key = "coordinates"
 
     def __init__(self, kernel=None, coordinates=(0,), period=2 * np.pi):
         self.kernel = kernel
@@ -167,8 +186,8 @@ class Periodic(KernelTransform):
         if not isinstance(coords, (tuple, list)) or not coords \
                 or not all(isinstance(c, (int, np.integer)) and not isinstance(c, bool) and c >= 0 for c in coords) \
                 or len(set(int(c) for c in coords)) != len(coords):
-            raise ValueError(f"Periodic: coordinates must be a tuple of distinct state indices (the angle "
-                             f"coordinates), got {coords!r}")
+            raise ValueError(f"Periodic: coordinates must be a tuple of distinct state indices (the periodic "
+                             f"coordinates, e.g. angles), got {coords!r}")
         periods = self.periods
         if len(periods) != len(coords) or not all(
                 isinstance(p, (int, float, np.number)) and not isinstance(p, bool) and np.isfinite(p) and p > 0
@@ -203,6 +222,7 @@ class Symmetric(KernelTransform):
     """
 
     name = "symmetric"
+    _key = "group"
 
     def __init__(self, kernel=None, group=None):
         self.kernel = kernel
@@ -210,8 +230,6 @@ class Symmetric(KernelTransform):
 
     def _check(self) -> None:
         super()._check()
-        if self.group is None:
-            raise ValueError("Symmetric: group is required (sign patterns, matrices or a StateSymmetry)")
         StateSymmetry.coerce(self.group)
 
 
@@ -243,10 +261,11 @@ def lower_state_kernel(kernel) -> StateKernelParts:
     found: dict = {}
     node = kernel
     while isinstance(node, KernelTransform):
-        node._check()
-        if type(node) in found:
-            raise ValueError(f"the state kernel {kernel!r} applies {type(node).__name__} twice: use it once")
-        found[type(node)] = node
+        if not node.is_identity:
+            node._check()
+            if type(node) in found:
+                raise ValueError(f"the state kernel {kernel!r} applies {type(node).__name__} twice: use it once")
+            found[type(node)] = node
         node = node.kernel
     if node is not None and not isinstance(node, RadialKernel):
         raise ValueError(f"state_kernel must be a radial kernel (IMQ, Matern52, Matern32), a transform of one "

@@ -107,7 +107,7 @@ def pendulum_queries(rng, n):
 
 def with_backend(model, backend):
     """The fitted model with another Newton backend (a shallow copy: the fitted state is shared)."""
-    return copy.copy(model).set_params(backend=backend)
+    return copy.copy(model).set_params(solver__backend=backend)
 
 
 def check_rollouts_agree_to_the_floor(reference, fast, x, mu, dt, n_steps=20):

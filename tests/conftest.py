@@ -10,6 +10,7 @@ from sympredict.nonlinear_mor import ReducedSineGordon
 from sympredict.reduction import complex_svd_basis
 from sympredict.systems.pendulum import Pendulum, flow_map_data
 from sympredict.systems.sine_gordon import SineGordonFOM
+from sympredict.greedy import ExactGreedy
 
 # Small dense problems: one BLAS thread is fastest and avoids oversubscription on 2 cores.
 threadpool_limits(1)
@@ -29,7 +30,8 @@ def small_pendulum_data(pendulum):
 @pytest.fixture(scope="session")
 def small_pendulum_model(small_pendulum_data):
     d = small_pendulum_data
-    model = SymplecticKernelPredictor(IMQ(0.15), mu_kernel=IMQ(2.0), dt_kernel=IMQ(5.0), max_centers=600, tol=1e-10)
+    model = SymplecticKernelPredictor(IMQ(0.15), mu_kernel=IMQ(2.0), dt_kernel=IMQ(5.0), max_centers=600,
+                                      trainer=ExactGreedy(tol=1e-10))
     return model.fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
 
 

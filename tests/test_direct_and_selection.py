@@ -11,6 +11,7 @@ from sympredict.functionals import ValueFunctionals, dense_interpolation
 from sympredict.greedy import greedy_interpolation
 from sympredict.kernels import IMQ, Matern52, ProductKernel, kernel_from_spec
 from sympredict.selection import SelectionResult, kernel_grid, log_grid, refine_kernel_shapes, select_kernels
+from sympredict.greedy import ExactGreedy
 
 
 def test_value_greedy_to_exhaustion_equals_dense_solve(rng):
@@ -27,7 +28,8 @@ def test_value_greedy_to_exhaustion_equals_dense_solve(rng):
 
 def test_direct_model_interpolates_the_step(pendulum, small_pendulum_data, rng):
     d = small_pendulum_data.subset(slice(0, 60))
-    model = DirectKernelPredictor(IMQ(0.3), IMQ(2.0), IMQ(5.0), max_centers=60, tol=0.0, power_tol=0.0)
+    model = DirectKernelPredictor(IMQ(0.3), IMQ(2.0), IMQ(5.0), max_centers=60,
+                                  trainer=ExactGreedy(tol=0.0, power_tol=0.0))
     model.fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
     assert model.n_centers_ == 60
     np.testing.assert_allclose(model.step(d.x0, mu=d.mu, dt=d.dt), d.x1, atol=1e-8)

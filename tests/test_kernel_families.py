@@ -12,6 +12,7 @@ from sympredict.exceptions import extrapolation_expected
 from sympredict import SymplecticKernelPredictor, _fastkernels
 from sympredict.kernels import IMQ, KERNEL_FAMILIES, ProductKernel, RadialKernel, register_family
 from sympredict.surrogate import HBSurrogate
+from sympredict.solvers import NewtonSolver
 
 needs_numba = pytest.mark.skipif(not _fastkernels.HAVE_NUMBA, reason="numba not installed (pip install sympredict[fast])")
 
@@ -98,7 +99,7 @@ def test_compiled_formulas_stay_exact_after_the_fastmath_pass_compiles(name, rng
         assert formula.targetoptions.get("fastmath") is False
     kernel = family(0.7)
     x0 = rng.uniform(-1, 1, (40, 2))
-    model = SymplecticKernelPredictor(kernel, None, None, max_centers=10, backend="numba")
+    model = SymplecticKernelPredictor(kernel, None, None, max_centers=10, solver=NewtonSolver(backend="numba"))
     model.fit(x0, x0 + 0.01 * rng.standard_normal((40, 2)), dt=0.1)
     with extrapolation_expected():
         model.rollout(x0[:4], 2, dt=0.1)  # compiles the fastmath pass with this family's formulas
@@ -137,13 +138,14 @@ def test_a_new_family_trains_and_rolls_out_compiled(small_pendulum_data, rng):
     """One class, registered: fit, file round trip and the compiled rollout work with no other change."""
     d = small_pendulum_data
     idx = rng.choice(len(d), 500, replace=False)
-    model = SymplecticKernelPredictor(Gaussian(0.3), IMQ(2.0), IMQ(5.0), max_centers=80, backend="numba")
+    model = SymplecticKernelPredictor(Gaussian(0.3), IMQ(2.0), IMQ(5.0), max_centers=80,
+                                      solver=NewtonSolver(backend="numba"))
     model.fit(d.x0[idx], d.x1[idx], mu=d.mu[idx], dt=d.dt[idx])
     x = d.x0[idx[:6]]
     mu, dt = d.mu[idx[:6], 0], d.dt[idx[:6]]
     with extrapolation_expected():  # backends compared, not accuracy: a trajectory may leave the training states
         fast = model.rollout(x, 10, mu=mu, dt=dt)
-        ref = model.set_params(backend="numpy").rollout(x, 10, mu=mu, dt=dt)
+        ref = model.set_params(solver__backend="numpy").rollout(x, 10, mu=mu, dt=dt)
     np.testing.assert_allclose(fast, ref, rtol=0, atol=1e-9)
     assert model.history_.train_max_residual[-1] < 0.1 * model.history_.train_max_residual[0]
 
@@ -157,7 +159,8 @@ def test_a_foreign_family_leaves_the_disk_cache_readable(small_pendulum_data, rn
 
     d = small_pendulum_data
     idx = rng.choice(len(d), 300, replace=False)
-    model = SymplecticKernelPredictor(Gaussian(0.3), IMQ(2.0), IMQ(5.0), max_centers=30, backend="numba")
+    model = SymplecticKernelPredictor(Gaussian(0.3), IMQ(2.0), IMQ(5.0), max_centers=30,
+                                      solver=NewtonSolver(backend="numba"))
     model.fit(d.x0[idx], d.x1[idx], mu=d.mu[idx], dt=d.dt[idx]).rollout(d.x0[idx[:9]], 3, mu=0.75, dt=0.05)
     code = ("import numpy as np; from sympredict import SymplecticKernelPredictor; from sympredict.kernels import IMQ; "
             "from sympredict.systems.pendulum import Pendulum, flow_map_data; d = flow_map_data(Pendulum(), n_grid=8); "

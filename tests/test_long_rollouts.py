@@ -16,6 +16,8 @@ from sympredict.exceptions import NewtonConvergenceError, RolloutMemoryError
 from sympredict.kernels import IMQ
 from sympredict.newton import rollout_in_chunks
 from sympredict.splitting import SplitKernelPredictor
+from sympredict.solvers import NewtonSolver
+from sympredict.transforms import Scaled
 
 
 def _data(d, n=400):
@@ -89,10 +91,13 @@ def _fitted(name, pendulum, d, backend):
     kernels = (IMQ(0.3), IMQ(1.5), IMQ(3.0))
     x0, x1, mu, dt = _data(d)
     model = {
-        "symplectic_euler": lambda: SymplecticKernelPredictor(*kernels, max_centers=40, backend=backend, state_scaling=[1.3]),
-        "midpoint": lambda: SymplecticKernelPredictor(*kernels, max_centers=40, update="midpoint", backend=backend),
+        "symplectic_euler": lambda: SymplecticKernelPredictor(Scaled(*kernels, factors=[1.3]), max_centers=40,
+                                                              solver=NewtonSolver(backend=backend)),
+        "midpoint": lambda: SymplecticKernelPredictor(*kernels, max_centers=40, update="midpoint",
+                                                      solver=NewtonSolver(backend=backend)),
         "direct": lambda: DirectKernelPredictor(*kernels, max_centers=40),
-        "split": lambda: SplitKernelPredictor(SymplecticKernelPredictor(*kernels, max_centers=40, backend=backend),
+        "split": lambda: SplitKernelPredictor(SymplecticKernelPredictor(*kernels, max_centers=40,
+                                                                        solver=NewtonSolver(backend=backend)),
                                               pendulum.quadratic_part()),
     }[name]()
     return model.fit(x0, x1, mu=mu, dt=dt)
@@ -121,7 +126,7 @@ def test_warm_started_chunks_solve_the_same_steps(small_pendulum_model, monkeypa
     """A warm start restarts from the explicit guess at each chunk: the same equation, within the stopping rule."""
     from _tolerances import rollout_bound  # tests/
 
-    warm = copy.copy(small_pendulum_model).set_params(newton_warm_start=True, backend="numba")
+    warm = copy.copy(small_pendulum_model).set_params(solver__warm_start=True, solver__backend="numba")
     x, mu, dt = np.array([[0.3, 0.1], [0.8, -0.2]]), np.array([0.75, 0.78]), np.array([0.05, 0.05])
     monkeypatch.setattr(newton, "FIRST_CHUNK_STEPS", 10**9)
     whole = warm.rollout(x, 40, mu=mu, dt=dt)
@@ -136,7 +141,7 @@ def test_warm_started_chunks_solve_the_same_steps(small_pendulum_model, monkeypa
 def test_auto_picks_numpy_for_small_work_and_compiled_for_large(small_pendulum_model, monkeypatch, caplog):
     from sympredict import predictor
 
-    model = copy.copy(small_pendulum_model).set_params(backend="auto")
+    model = copy.copy(small_pendulum_model).set_params(solver__backend="auto")
     m, dim = model.n_centers_, model.dim_
     monkeypatch.setattr(_fastkernels, "rollout_loaded", lambda: False)  # a fresh process
     assert predictor.numpy_seconds(20, 100, m, dim) < predictor.AUTO_NUMPY_SECONDS
@@ -148,14 +153,14 @@ def test_auto_picks_numpy_for_small_work_and_compiled_for_large(small_pendulum_m
     monkeypatch.setattr(_fastkernels, "rollout_loaded", lambda: True)
     assert model.backend_for(1, 1) == "numba"
     # the named backends decide alone; NumPy-only settings keep 'auto' on NumPy
-    assert copy.copy(model).set_params(backend="numpy").backend_for(10**6, 10**6) == "numpy"
-    assert copy.copy(model).set_params(backend="numba").backend_for(1, 1) == "numba"
+    assert copy.copy(model).set_params(solver__backend="numpy").backend_for(10**6, 10**6) == "numpy"
+    assert copy.copy(model).set_params(solver__backend="numba").backend_for(1, 1) == "numba"
     monkeypatch.setattr(_fastkernels, "HAVE_NUMBA", False)
     assert model.backend_for(10**6, 10**6) == "numpy"
 
 
 def test_auto_runs_what_it_reports(small_pendulum_model, monkeypatch):
-    model = copy.copy(small_pendulum_model).set_params(backend="auto")
+    model = copy.copy(small_pendulum_model).set_params(solver__backend="auto")
     ran = []
     monkeypatch.setattr(_fastkernels, "rollout_loaded", lambda: False)
     import sympredict.predictor as predictor

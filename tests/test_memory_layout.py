@@ -21,6 +21,8 @@ from sympredict.mor import SymplecticKernelReductor
 from sympredict.predictor import MODEL_FORMAT
 from sympredict.scaling import SymplecticScaling
 from sympredict.splitting import SplitKernelPredictor
+from sympredict.solvers import NewtonSolver
+from sympredict.transforms import Scaled
 from test_mor import wave  # noqa: F401 - tests/: the parametric demo wave, its snapshots' basis (a fixture)
 
 
@@ -65,7 +67,7 @@ def _models(pendulum):
     return {
         "symplectic_euler": SymplecticKernelPredictor(*kernels, max_centers=30),
         "midpoint": SymplecticKernelPredictor(*kernels, max_centers=30, update="midpoint"),
-        "state_scaling": SymplecticKernelPredictor(*kernels, max_centers=30, state_scaling=[2.0]),
+        "state_scaling": SymplecticKernelPredictor(Scaled(*kernels, factors=[2.0]), max_centers=30),
         "direct": DirectKernelPredictor(*kernels, max_centers=30),
         "split": SplitKernelPredictor(SymplecticKernelPredictor(*kernels, max_centers=30), pendulum.quadratic_part()),
     }
@@ -102,7 +104,8 @@ def test_warm_started_and_cloned_fits_keep_the_layout(small_pendulum_data):
     from sympredict.base import clone
 
     x0, x1, mu, dt = _data(small_pendulum_data)
-    model = SymplecticKernelPredictor(IMQ(0.2), IMQ(1.5), IMQ(3.0), max_centers=30, newton_warm_start=True).fit(
+    model = SymplecticKernelPredictor(IMQ(0.2), IMQ(1.5), IMQ(3.0), max_centers=30,
+                                      solver=NewtonSolver(warm_start=True)).fit(
         x0, x1, mu=mu, dt=dt)
     model.rollout(x0[:3], 3, mu=mu[:3], dt=dt[:3])  # a warm start stores its last solution
     assert_canonical_layout(model, "warm-started model after a rollout")

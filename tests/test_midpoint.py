@@ -10,6 +10,7 @@ from sympredict.exceptions import ExtrapolationWarning
 from sympredict.io import load_model, save_model
 from sympredict.kernels import IMQ
 from sympredict.newton import solve_midpoint_numpy
+from sympredict.solvers import NewtonSolver
 from _tolerances import assert_same_predictions  # tests/
 from _surrogate_oracles import check_step_jacobian  # tests/
 
@@ -24,7 +25,8 @@ def _rotation(x, theta):
 
 def _oscillator_model(theta, update, n=300):
     x0 = np.random.default_rng(0).uniform(-1, 1, (n, 2))
-    model = SymplecticKernelPredictor(IMQ(0.5), max_centers=2 * n, update=update, backend="numpy")
+    model = SymplecticKernelPredictor(IMQ(0.5), max_centers=2 * n, update=update,
+                                      solver=NewtonSolver(backend="numpy"))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ExtrapolationWarning)
         return model.fit(x0, _rotation(x0, theta), dt=theta)
@@ -60,7 +62,8 @@ def pendulum_midpoint(small_pendulum_data):
     d = small_pendulum_data
     idx = np.random.default_rng(0).choice(len(d), 1500, replace=False)
     # the NumPy reference solver (the compiled one is checked against it in test_midpoint_compiled.py)
-    model = SymplecticKernelPredictor(IMQ(0.2), IMQ(1.5), IMQ(3.0), max_centers=400, update="midpoint", backend="numpy")
+    model = SymplecticKernelPredictor(IMQ(0.2), IMQ(1.5), IMQ(3.0), max_centers=400, update="midpoint",
+                                      solver=NewtonSolver(backend="numpy"))
     return model.fit(d.x0[idx], d.x1[idx], mu=d.mu[idx], dt=d.dt[idx]), d
 
 

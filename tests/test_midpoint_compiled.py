@@ -16,6 +16,8 @@ from sympredict.exceptions import extrapolation_expected
 from sympredict.kernels import IMQ, ProductKernel
 from sympredict.newton import rollout_compiled, rollout_numpy, solve_midpoint_numpy, solve_step_numpy
 from sympredict.surrogate import HBSurrogate
+from sympredict.greedy import ExactGreedy
+from sympredict.solvers import NewtonSolver
 
 from _surrogate_oracles import check_rollouts_agree_to_the_floor, pendulum_queries, with_backend  # tests/
 
@@ -37,8 +39,8 @@ _with_backend = with_backend
 def pendulum_mid(small_pendulum_data):
     """2n = 2, 50 centres: coefficients ~1e4, gradient floor ~1e-12 (as the symplectic-Euler 1e-12 test)."""
     d = small_pendulum_data
-    model = SymplecticKernelPredictor(IMQ(0.15), mu_kernel=IMQ(2.0), dt_kernel=IMQ(5.0), max_centers=50, backend="numpy",
-                                      update="midpoint")
+    model = SymplecticKernelPredictor(IMQ(0.15), mu_kernel=IMQ(2.0), dt_kernel=IMQ(5.0), max_centers=50,
+                                      update="midpoint", solver=NewtonSolver(backend="numpy"))
     return model.fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
 
 
@@ -58,7 +60,8 @@ def chain_mid():
     a = _chain_system(4)
     x0 = rng.uniform(-1, 1, (400, 8))
     x1 = x0 @ expm(0.2 * a).T
-    model = SymplecticKernelPredictor(IMQ(0.3), max_centers=120, backend="numpy", update="midpoint")
+    model = SymplecticKernelPredictor(IMQ(0.3), max_centers=120, update="midpoint",
+                                      solver=NewtonSolver(backend="numpy"))
     return model.fit(x0, x1, dt=0.2), a
 
 
@@ -141,8 +144,9 @@ def test_compiled_midpoint_reverse_step_inverts(which, pendulum_mid, chain_mid, 
 def test_compiled_midpoint_on_an_ill_conditioned_model_agrees_to_the_floor(small_pendulum_data, rng):
     """600 centres, coefficients ~1e7: agreement to the gradient floor (several chunks: the 2n = 2 case below)."""
     d = small_pendulum_data
-    model = SymplecticKernelPredictor(IMQ(0.15), mu_kernel=IMQ(2.0), dt_kernel=IMQ(5.0), max_centers=600, tol=1e-10,
-                                      backend="numpy", update="midpoint").fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
+    model = SymplecticKernelPredictor(IMQ(0.15), mu_kernel=IMQ(2.0), dt_kernel=IMQ(5.0), max_centers=600,
+                                      update="midpoint", trainer=ExactGreedy(tol=1e-10),
+                                      solver=NewtonSolver(backend="numpy")).fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
     x, mu, dt = _queries(rng, 20)
     check_rollouts_agree_to_the_floor(model, _with_backend(model, "numba"), x, mu, dt)
 

@@ -5,6 +5,8 @@ import pytest
 
 from sympredict import DirectKernelPredictor, ExtrapolationWarning, SymplecticKernelPredictor
 from sympredict.kernels import IMQ
+from sympredict.greedy import ExactGreedy
+from sympredict.solvers import NewtonSolver
 
 
 def _oscillator(n=60, seed=0, dt=0.3):
@@ -40,7 +42,7 @@ def test_a_rollout_inside_does_not_warn():
 def test_a_fit_that_selects_nothing_is_the_zero_surrogate(backend, tmp_path):
     """Zero increments: the greedy stops at 0 centres ('tol'); the model is the identity map, saved and loaded."""
     x0 = np.random.default_rng(1).uniform(-1, 1, (30, 2))
-    model = SymplecticKernelPredictor(IMQ(0.5), tol=0.0, backend=backend).fit(x0, x0.copy(), dt=0.1)
+    model = SymplecticKernelPredictor(IMQ(0.5), trainer=ExactGreedy(tol=0.0), solver=NewtonSolver(backend=backend)).fit(x0, x0.copy(), dt=0.1)
     assert model.n_centers_ == 0 and model.history_.stop_reason == "tol"
     x = x0[:4] * 0.5
     np.testing.assert_array_equal(model.rollout(x, 5)[:, -1], x)
@@ -48,6 +50,6 @@ def test_a_fit_that_selects_nothing_is_the_zero_surrogate(backend, tmp_path):
     model.save(tmp_path / "zero.h5")
     back = SymplecticKernelPredictor.load(tmp_path / "zero.h5")
     np.testing.assert_array_equal(back.step(x), x)
-    direct = DirectKernelPredictor(IMQ(0.5), tol=0.0).fit(x0, x0.copy(), dt=0.1)
+    direct = DirectKernelPredictor(IMQ(0.5), trainer=ExactGreedy(tol=0.0)).fit(x0, x0.copy(), dt=0.1)
     assert direct.n_centers_ == 0
     np.testing.assert_array_equal(direct.rollout(x, 3)[:, -1], x)

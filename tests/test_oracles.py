@@ -15,6 +15,7 @@ from sympredict.kernels import IMQ
 from sympredict.metrics import canonical_J, symplecticity_defect
 from sympredict.reduction import complex_svd_basis, symplectic_inverse, symplecticity_of_basis
 from sympredict.systems.pendulum import Pendulum, flow_map_data
+from sympredict.greedy import ExactGreedy
 
 
 # ------------------------------------------------------------------ pendulum constants and mass
@@ -159,7 +160,8 @@ def test_four_dimensional_step_jacobian_is_the_derivative_of_step(rng):
     x0 = rng.uniform(-1, 1, size=(60, 4))
     mu = rng.uniform(0.5, 1.0, size=(60, 1))
     x1 = integrate(implicit_midpoint_step, system, x0, mu, 0.01, 10)[:, -1]
-    model = SymplecticKernelPredictor(IMQ(0.5), mu_kernel=IMQ(1.0), max_centers=150, tol=1e-10).fit(x0, x1, mu=mu, dt=0.1)
+    model = SymplecticKernelPredictor(IMQ(0.5), mu_kernel=IMQ(1.0), max_centers=150,
+                                      trainer=ExactGreedy(tol=1e-10)).fit(x0, x1, mu=mu, dt=0.1)
     xq = rng.uniform(-0.7, 0.7, size=(8, 4))
     muq = rng.uniform(0.55, 0.95, 8)
     jac = model.step_jacobian(xq, mu=muq)

@@ -16,7 +16,9 @@ from sympredict.functionals import HBFunctionals, functional_residuals
 from sympredict.io import load_model, save_model
 from sympredict.kernels import IMQ, Matern52, PeriodicCoordinates, ProductKernel
 from sympredict.predictor import update_variables
+from sympredict.solvers import NewtonSolver
 from sympredict.surrogate import HBSurrogate
+from sympredict.transforms import Periodic, Scaled
 
 from _surrogate_oracles import (check_gramian_by_finite_differences, check_malformed_kernel_entries_refused,
                                check_surrogate_by_finite_differences)  # tests/ (on sys.path under pytest)
@@ -119,9 +121,10 @@ def data():
     return _data()
 
 
-def _model(update="symplectic_euler", **kw):
-    kw = {"max_centers": 400, "backend": "numpy", "periodic": (0,), **kw}
-    return SymplecticKernelPredictor(IMQ(0.5), update=update, **kw)
+def _model(update="symplectic_euler", periodic=(0,), period=2 * np.pi, backend="numpy", state_scaling=None, **kw):
+    kw = {"max_centers": 400, **kw}
+    kernel = Periodic(Scaled(IMQ(0.5), factors=state_scaling), coordinates=periodic, period=period)
+    return SymplecticKernelPredictor(kernel, update=update, solver=NewtonSolver(backend=backend), **kw)
 
 
 @pytest.fixture(scope="module", params=["symplectic_euler", "midpoint"])
@@ -198,7 +201,7 @@ def test_backends_and_settings(data):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ExtrapolationWarning)  # 60 samples: a rollout soon leaves them
         np.testing.assert_array_equal(model.rollout(x0[:3], 5), ref.rollout(x0[:3], 5))
-    model.set_params(backend="numba")
+    model.set_params(solver__backend="numba")
     with pytest.raises(ValueError, match="periodic"):
         model.step(x0[:2])
     for bad in ((2,), (0, 0), (-1,), "0", (0.0,), (True,)):
@@ -213,7 +216,7 @@ def test_backends_and_settings(data):
         _model(period=4.0).fit(xa, xa + 0.01, dt=DT)
     _model(period=2 * np.pi, max_centers=4).fit(xa, xa + 0.01, dt=DT)  # not duplicates for another period
     params = _model(period=3.0).get_params()
-    assert params["periodic"] == (0,) and params["period"] == 3.0
+    assert params["state_kernel"].coordinates == (0,) and params["state_kernel"].period == 3.0
     assert clone(_model(period=3.0)).get_params() == params
 
 
@@ -236,7 +239,7 @@ def test_model_files(data, tmp_path):
     model = _model(max_centers=80, period=2 * np.pi).fit(x0, x1, dt=DT)
     save_model(model, tmp_path / "p.h5")
     back = load_model(tmp_path / "p.h5")
-    assert back.get_params() == model.get_params() and type(back.periodic[0]) is int
+    assert back.get_params() == model.get_params() and type(back.periodic_[0]) is int
     assert back.kernel_ == model.kernel_ and back.kernel_.periodic == PeriodicCoordinates((0,), (2 * np.pi,))
     np.testing.assert_array_equal(back.rollout(X_FAR[:2], 5), model.rollout(X_FAR[:2], 5))
     # a file whose kernel and settings disagree is refused

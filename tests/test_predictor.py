@@ -17,6 +17,7 @@ from sympredict import (
 from sympredict.integrators import implicit_midpoint_step, integrate
 from sympredict.kernels import IMQ, Matern32, Matern52
 from sympredict.metrics import relative_trajectory_error, symplecticity_defect
+from sympredict.greedy import ExactGreedy
 
 
 class CoupledOscillators:
@@ -65,7 +66,8 @@ def test_four_dimensional_system_symplectic_and_exact(state_kernel, rng):
     x0 = rng.uniform(-1, 1, size=(25, 4))
     mu = rng.uniform(1.0, 2.0, size=(25, 1))
     x1 = integrate(implicit_midpoint_step, system, x0, mu, 0.01, 10)[:, -1]  # dT = 0.1
-    model = SymplecticKernelPredictor(state_kernel, mu_kernel=IMQ(1.0), max_centers=100, tol=0.0, power_tol=0.0)
+    model = SymplecticKernelPredictor(state_kernel, mu_kernel=IMQ(1.0), max_centers=100,
+                                      trainer=ExactGreedy(tol=0.0, power_tol=0.0))
     model.fit(x0, x1, mu=mu, dt=0.1)
     assert model.n_centers_ == 100 and model.history_.stop_reason == "exhausted"
     # all functionals selected: the step reproduces every training sample
@@ -201,7 +203,7 @@ def test_fixed_step_parameter_free_model(pendulum, rng):
 
 def test_newton_failure_names_instances(small_pendulum_model, rng):
     x, mu, dt = _random_queries(rng, 6)
-    strict = copy.copy(small_pendulum_model).set_params(newton_max_iter=1)  # the fitted model, one Newton iteration
+    strict = copy.copy(small_pendulum_model).set_params(solver__max_iter=1)  # the fitted model, one Newton iteration
     with pytest.raises(NewtonConvergenceError) as info:
         strict.rollout(x, 2, mu=mu, dt=dt)
     err = info.value

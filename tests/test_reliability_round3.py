@@ -23,6 +23,9 @@ from sympredict.io import load_model
 from sympredict.kernels import IMQ
 from sympredict.predictor import MAX_NEWTON_ITER, MODEL_FORMAT
 from sympredict.systems.pendulum import Pendulum, flow_map_data
+from sympredict.greedy import ExactGreedy
+from sympredict.solvers import NewtonSolver
+from sympredict.transforms import Periodic, Scaled
 
 ROOT = Path(__file__).resolve().parents[1]
 DT = 0.1
@@ -35,7 +38,7 @@ def data():
 
 @pytest.fixture(scope="module")
 def model(data):
-    return SymplecticKernelPredictor(IMQ(0.3), max_centers=30, backend="numpy").fit(data.x0, data.x1, dt=DT)
+    return SymplecticKernelPredictor(IMQ(0.3), max_centers=30, solver=NewtonSolver(backend="numpy")).fit(data.x0, data.x1, dt=DT)
 
 
 @pytest.fixture(scope="module")
@@ -66,8 +69,8 @@ def _param(name, value):
 def test_small_units_fit_learns(data):
     """States x 1e-11 with the shape scaled to match: before, tol (absolute) stopped at 0 centres (identity)."""
     s = 1e-11
-    m = SymplecticKernelPredictor(IMQ(0.3 / s), max_centers=30, backend="numpy").fit(data.x0 * s, data.x1 * s, dt=DT)
-    ref = SymplecticKernelPredictor(IMQ(0.3), max_centers=30, backend="numpy").fit(data.x0, data.x1, dt=DT)
+    m = SymplecticKernelPredictor(IMQ(0.3 / s), max_centers=30, solver=NewtonSolver(backend="numpy")).fit(data.x0 * s, data.x1 * s, dt=DT)
+    ref = SymplecticKernelPredictor(IMQ(0.3), max_centers=30, solver=NewtonSolver(backend="numpy")).fit(data.x0, data.x1, dt=DT)
     assert m.n_centers_ == ref.n_centers_ == 30
     x, x1 = data.x0, data.x1
     err, err_ref, moved = (np.abs(m.step(x * s) / s - x1).max(), np.abs(ref.step(x) - x1).max(), np.abs(x1 - x).max())
@@ -77,7 +80,7 @@ def test_small_units_fit_learns(data):
 def test_small_units_default_kernel_learns(data):
     """``state_kernel=None`` on states x 1e-11: the default shape follows the data and the fit learns."""
     s = 1e-11
-    m = SymplecticKernelPredictor(max_centers=30, backend="numpy").fit(data.x0 * s, data.x1 * s, dt=DT)
+    m = SymplecticKernelPredictor(max_centers=30, solver=NewtonSolver(backend="numpy")).fit(data.x0 * s, data.x1 * s, dt=DT)
     assert m.n_centers_ == 30
     err = np.abs(m.step(data.x0[:4] * s) - data.x1[:4] * s).max() / s
     assert err < 0.1 * np.abs(data.x1 - data.x0).max()
@@ -91,19 +94,19 @@ def test_default_kernel_on_states_too_small_is_refused(data):
 
 def test_fit_selecting_no_centre_warns(data):
     with pytest.warns(UnderfitWarning, match="selected no centre.*lower tol"):
-        m = SymplecticKernelPredictor(IMQ(0.3), max_centers=30, tol=100.0).fit(data.x0, data.x1, dt=DT)
+        m = SymplecticKernelPredictor(IMQ(0.3), max_centers=30, trainer=ExactGreedy(tol=100.0)).fit(data.x0, data.x1, dt=DT)
     assert m.n_centers_ == 0
 
 
 def test_direct_fit_selecting_no_centre_warns(data):
     with pytest.warns(UnderfitWarning, match="DirectKernelPredictor.fit selected no centre"):
-        DirectKernelPredictor(IMQ(0.3), max_centers=30, tol=100.0).fit(data.x0, data.x1, dt=DT)
+        DirectKernelPredictor(IMQ(0.3), max_centers=30, trainer=ExactGreedy(tol=100.0)).fit(data.x0, data.x1, dt=DT)
 
 
 def test_fit_with_a_kernel_far_too_narrow_warns(data):
     """A shape 10^4 times too large: the model moves only its few centres, i.e. barely moves the data."""
     with pytest.warns(UnderfitWarning, match="less than a tenth"):
-        SymplecticKernelPredictor(IMQ(3e4), max_centers=3, backend="numpy").fit(data.x0, data.x1, dt=DT)
+        SymplecticKernelPredictor(IMQ(3e4), max_centers=3, solver=NewtonSolver(backend="numpy")).fit(data.x0, data.x1, dt=DT)
 
 
 def test_data_that_do_not_move_give_the_identity_without_warning(data):
@@ -115,17 +118,23 @@ def test_data_that_do_not_move_give_the_identity_without_warning(data):
 
 # ------------------------------------------------------------------ model files: one schema of settings
 @pytest.mark.parametrize("name, value, match", [
-    ("newton_max_iter", 10 ** 15, "newton_max_iter must be at most"),
-    ("newton_max_iter", 0, "newton_max_iter"),
-    ("newton_max_iter", 2.5, "newton_max_iter"),
-    ("backend", "cuda", "backend"),
+    ("solver", {"solver": {"max_iter": 10 ** 15, "warm_start": False, "backend": "auto"}}, "max_iter must be at most"),
+    ("solver", {"solver": {"max_iter": 0, "warm_start": False, "backend": "auto"}}, "max_iter"),
+    ("solver", {"solver": {"max_iter": 2.5, "warm_start": False, "backend": "auto"}}, "max_iter"),
+    ("solver", {"solver": {"max_iter": 50, "warm_start": False, "backend": "cuda"}}, "backend"),
+    ("solver", {"solver": {"max_iter": 50, "warm_start": "yes", "backend": "auto"}}, "warm_start"),
+    ("solver", {"solver": {"max_iter": 50, "gpu": True}}, "gpu"),
     ("update", "leapfrog", "update"),
-    ("newton_warm_start", "yes", "newton_warm_start"),
-    ("tol", -1.0, "tol"),
+    ("trainer", {"trainer": {"name": "ExactGreedy", "params": {"tol": -1.0}}}, "tol"),
+    ("newton_max_iter", 50, "unknown setting.*newton_max_iter"),  # a layout-3 file has no flat options
     ("max_centers", -3, "max_centers"),
-    ("state_scaling", {"list": [1.0, 2.0]}, "state_scaling"),
-    ("periodic", {"tuple": [5]}, "periodic"),
-    ("symmetry", {"list": [{"tuple": [1, 1]}, {"tuple": [1, -1]}]}, "symmetry"),
+    ("state_kernel", {"transform": "scaled", "params": {"kernel": {"kernel": {"family": "imq", "eps": 0.3}},
+                                                        "factors": {"list": [1.0, 2.0]}}}, "factors"),
+    ("state_kernel", {"transform": "periodic", "params": {"kernel": None, "coordinates": {"tuple": [5]},
+                                                          "period": 6.0}}, "periodic"),
+    ("state_kernel", {"transform": "symmetric", "params": {"kernel": None, "group": {"list": [{"tuple": [1, 1]},
+                                                                                              {"tuple": [1, -1]}]}}},
+     "symmetry"),
 ])
 def test_invalid_setting_in_a_file_is_refused_naming_it(model_file, tmp_path, name, value, match):
     path = _rewrite(model_file, tmp_path / "bad.h5", settings=_param(name, value))
@@ -169,11 +178,12 @@ def test_inconsistent_arrays_in_a_file_are_refused(model_file, tmp_path, name, v
 
 
 def test_file_asking_for_endless_newton_never_hangs(model_file, tmp_path):
-    """newton_max_iter = 10**15 loaded and made `sympredict predict` run without end; now the file is refused."""
-    path = _rewrite(model_file, tmp_path / "hang.h5", settings=_param("newton_max_iter", 10 ** 15))
+    """A solver with max_iter = 10**15 loaded would make `sympredict predict` run without end: the file is refused."""
+    path = _rewrite(model_file, tmp_path / "hang.h5",
+                    settings=_param("solver", {"solver": {"max_iter": 10 ** 15, "warm_start": False, "backend": "auto"}}))
     proc = subprocess.run([sys.executable, "-m", "sympredict.cli", "predict", str(path), "--x0", "0.5,0.1", "--steps", "3"],
                           capture_output=True, text=True, timeout=120, env={**os.environ, "NUMBA_NUM_THREADS": "1"})
-    assert proc.returncode == 1 and "newton_max_iter" in proc.stderr and "Traceback" not in proc.stderr
+    assert proc.returncode == 1 and "max_iter" in proc.stderr and "Traceback" not in proc.stderr
 
 
 def test_direct_model_with_huge_coefficients_raises_instead_of_inf(data, tmp_path):
@@ -204,7 +214,7 @@ def test_split_model_with_huge_coefficients_raises(data, tmp_path):
 
     quad = Pendulum().quadratic_part()
     mu = np.full(len(data.x0), 0.75)
-    inner = SymplecticKernelPredictor(IMQ(0.5), IMQ(1.0), max_centers=10, backend="numpy")
+    inner = SymplecticKernelPredictor(IMQ(0.5), IMQ(1.0), max_centers=10, solver=NewtonSolver(backend="numpy"))
     split = SplitKernelPredictor(inner, quad).fit(data.x0, data.x1, mu=mu, dt=DT)
     split.predictor_.surrogate_.coef[:] = 1e308
     x = data.x0[:3]
@@ -216,7 +226,7 @@ def test_split_model_with_huge_coefficients_raises(data, tmp_path):
 
 # ------------------------------------------------------------------ fitted state is what predicts
 def test_set_params_after_fit_does_not_change_predictions(data, tmp_path):
-    m = SymplecticKernelPredictor(IMQ(0.3), max_centers=20, backend="numpy").fit(data.x0, data.x1, dt=DT)
+    m = SymplecticKernelPredictor(IMQ(0.3), max_centers=20, solver=NewtonSolver(backend="numpy")).fit(data.x0, data.x1, dt=DT)
     x = data.x0[:4]
     before = m.step(x)
     for change in ({"update": "midpoint"}, {"state_scaling": (2.0,)}, {"periodic": (0,)}):
@@ -229,16 +239,16 @@ def test_set_params_after_fit_does_not_change_predictions(data, tmp_path):
 
 
 def test_a_changed_parameter_takes_effect_at_the_next_fit(data):
-    m = SymplecticKernelPredictor(IMQ(0.3), max_centers=20, backend="numpy").fit(data.x0, data.x1, dt=DT)
+    m = SymplecticKernelPredictor(IMQ(0.3), max_centers=20, solver=NewtonSolver(backend="numpy")).fit(data.x0, data.x1, dt=DT)
     m.set_params(update="midpoint").fit(data.x0, data.x1, dt=DT)
     assert m.update_ == "midpoint" and m.fitted_params_["update"] == "midpoint"
 
 
 def test_failed_refit_keeps_the_fitted_settings(data):
-    m = SymplecticKernelPredictor(IMQ(0.3), max_centers=20, backend="numpy").fit(data.x0, data.x1, dt=DT)
+    m = SymplecticKernelPredictor(IMQ(0.3), max_centers=20, solver=NewtonSolver(backend="numpy")).fit(data.x0, data.x1, dt=DT)
     x = data.x0[:4]
     before = m.step(x)
-    m.set_params(state_scaling=(2.0,))
+    m.set_params(state_kernel=Scaled(IMQ(0.3), factors=(2.0,)))
     with pytest.raises(ValueError):
         m.fit(data.x0, data.x1[:5], dt=DT)
     assert m.state_scaling_ is None
@@ -249,7 +259,7 @@ def test_save_refuses_a_solver_setting_load_would_refuse(model, tmp_path):
     import copy
 
     m = copy.copy(model)
-    m.set_params(backend="gpu")
+    m.set_params(solver__backend="gpu")
     with pytest.raises(ValueError, match="backend"):
         m.save(tmp_path / "x.h5")
     assert not (tmp_path / "x.h5").exists()
@@ -257,25 +267,26 @@ def test_save_refuses_a_solver_setting_load_would_refuse(model, tmp_path):
 
 def test_save_refuses_a_backend_the_fitted_periodic_model_cannot_use(data, tmp_path):
     """Fitted with periodic coordinates, then backend='numba': load would refuse that pair, so save does."""
-    m = SymplecticKernelPredictor(IMQ(0.3), max_centers=10, periodic=(0,), backend="numpy").fit(data.x0, data.x1, dt=DT)
-    m.set_params(backend="numba")
+    m = SymplecticKernelPredictor(Periodic(IMQ(0.3), coordinates=(0,)), max_centers=10,
+                                  solver=NewtonSolver(backend="numpy")).fit(data.x0, data.x1, dt=DT)
+    m.set_params(solver__backend="numba")
     with pytest.raises(ValueError, match="periodic"):
         m.save(tmp_path / "p.h5")
     assert not (tmp_path / "p.h5").exists()
-    m.set_params(backend="auto")
+    m.set_params(solver__backend="auto")
     m.save(tmp_path / "p.h5")
-    assert SymplecticKernelPredictor.load(tmp_path / "p.h5").periodic == (0,)
+    assert SymplecticKernelPredictor.load(tmp_path / "p.h5").periodic_ == (0,)
 
 
 def test_endless_newton_setting_refused_at_prediction(model, data):
     import copy
 
     m = copy.copy(model)
-    m.set_params(newton_max_iter=10 ** 15)
-    with pytest.raises(ValueError, match="newton_max_iter must be at most"):
+    m.set_params(solver__max_iter=10 ** 15)
+    with pytest.raises(ValueError, match="max_iter must be at most"):
         m.step(data.x0[:2])
     with pytest.raises(ValueError, match=str(MAX_NEWTON_ITER)):
-        SymplecticKernelPredictor(IMQ(0.3), newton_max_iter=MAX_NEWTON_ITER + 1).fit(data.x0, data.x1, dt=DT)
+        SymplecticKernelPredictor(IMQ(0.3), solver=NewtonSolver(max_iter=MAX_NEWTON_ITER + 1)).fit(data.x0, data.x1, dt=DT)
 
 
 # ------------------------------------------------------------------ lost work: output paths
@@ -517,7 +528,7 @@ def test_normalized_flow_map_warns_in_the_users_units():
     mu = rng.uniform(10.0, 20.0, 40)
     scaling = SymplecticScaling("none").fit(x)
     box = BoxScaling().fit(mu[:, None])
-    inner = SymplecticKernelPredictor(IMQ(0.5), IMQ(1.0), max_centers=10, backend="numpy")
+    inner = SymplecticKernelPredictor(IMQ(0.5), IMQ(1.0), max_centers=10, solver=NewtonSolver(backend="numpy"))
     inner.fit(x, x + 0.01 * x[:, ::-1], mu=box.transform(mu[:, None]), dt=np.ones(40))
     flow = NormalizedFlowMap(inner, scaling, box, tau=0.25)
     with pytest.warns(ExtrapolationWarning) as caught:
@@ -618,7 +629,7 @@ def other_model_files(data, tmp_path_factory):
 
     folder = tmp_path_factory.mktemp("others")
     DirectKernelPredictor(IMQ(0.3), max_centers=20).fit(data.x0, data.x1, dt=DT).save(folder / "direct.h5")
-    inner = SymplecticKernelPredictor(IMQ(0.5), IMQ(1.0), max_centers=15, backend="numpy")
+    inner = SymplecticKernelPredictor(IMQ(0.5), IMQ(1.0), max_centers=15, solver=NewtonSolver(backend="numpy"))
     SplitKernelPredictor(inner, Pendulum().quadratic_part()).fit(
         data.x0, data.x1, mu=np.full(len(data.x0), 0.75), dt=DT).save(folder / "split.h5")
     return {"direct": folder / "direct.h5", "split": folder / "split.h5"}

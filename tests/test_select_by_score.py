@@ -6,6 +6,8 @@ import pytest
 from sympredict import SymplecticKernelPredictor
 from sympredict.kernels import IMQ
 from sympredict.selection import select_by_score
+from sympredict.greedy import ExactGreedy
+from sympredict.solvers import NewtonSolver
 
 
 @pytest.fixture(scope="module")
@@ -28,9 +30,10 @@ def test_chosen_model_is_the_best_scored_prefix_and_equals_a_refit(split):
         seen.append(model.n_centers_)
         return step_error(val)(model)
 
-    base = SymplecticKernelPredictor(mu_kernel=IMQ(2.0), dt_kernel=IMQ(5.0), tol=0.0, backend="numpy")
+    base = SymplecticKernelPredictor(mu_kernel=IMQ(2.0), dt_kernel=IMQ(5.0), trainer=ExactGreedy(tol=0.0),
+                                     solver=NewtonSolver(backend="numpy"))
     cands = [{"state_kernel": IMQ(0.15)}, {"state_kernel": IMQ(0.6)},
-             {"state_kernel": IMQ(0.3), "tol": 3.0}]  # the last stops early (tolerance)
+             {"state_kernel": IMQ(0.3), "trainer__tol": 3.0}]  # the last stops early (tolerance)
     res = select_by_score(data, val, cands, [20, 60, 40], score, estimator=base)
     rows = [r for r in res.table if r["budget"] is not None]
     # each full candidate scored at every budget (ascending), the early stop once, at its own size
@@ -51,7 +54,8 @@ def test_chosen_model_is_the_best_scored_prefix_and_equals_a_refit(split):
 
 def test_failed_fits_and_non_finite_scores_never_win(split):
     data, val = split
-    base = SymplecticKernelPredictor(mu_kernel=IMQ(2.0), dt_kernel=IMQ(5.0), tol=0.0, backend="numpy")
+    base = SymplecticKernelPredictor(mu_kernel=IMQ(2.0), dt_kernel=IMQ(5.0), trainer=ExactGreedy(tol=0.0),
+                                     solver=NewtonSolver(backend="numpy"))
     cands = [{"state_kernel": IMQ(0.15), "update": "no such update"}, {"state_kernel": IMQ(0.15)},
              {"state_kernel": IMQ(0.3)}]
 

@@ -26,6 +26,8 @@ from sympredict.metrics import canonical_J
 from sympredict.newton import solve_midpoint_numpy
 from sympredict.predictor import MODEL_FORMAT
 from sympredict.splitting import SplitKernelPredictor
+from sympredict.solvers import NewtonSolver
+from sympredict.transforms import Scaled, Symmetric
 
 J2 = canonical_J(2)
 KLEIN = [(1, 1), (-1, -1), (1, -1), (-1, 1)]
@@ -108,8 +110,8 @@ def test_undefined_coefficients_and_missing_mu_are_refused(pendulum):
 def split_pendulum(small_pendulum_data, pendulum):
     d = small_pendulum_data
     idx = np.random.default_rng(0).choice(len(d), 1200, replace=False)
-    inner = SymplecticKernelPredictor(IMQ(0.4), IMQ(0.75), IMQ(1.06), max_centers=250, update="midpoint",
-                                      backend="numpy", symmetry=KLEIN)
+    inner = SymplecticKernelPredictor(Symmetric(IMQ(0.4), group=KLEIN), IMQ(0.75), IMQ(1.06), max_centers=250,
+                                      update="midpoint", solver=NewtonSolver(backend="numpy"))
     model = SplitKernelPredictor(inner, pendulum.quadratic_part())
     return model.fit(d.x0[idx], d.x1[idx], mu=d.mu[idx], dt=d.dt[idx]), d
 
@@ -165,7 +167,8 @@ def test_exact_on_a_linear_system_with_zero_centres(tmp_path):
     x1 = np.einsum("bij,bj->bi", quad.propagator(mu, dt), x0)
     xt = rng.uniform(-0.5, 0.5, (10, 2))
     for backend in ("numpy", "numba"):
-        inner = SymplecticKernelPredictor(IMQ(1.0), IMQ(1.0), IMQ(1.0), max_centers=50, update="midpoint", backend=backend)
+        inner = SymplecticKernelPredictor(IMQ(1.0), IMQ(1.0), IMQ(1.0), max_centers=50, update="midpoint",
+                                          solver=NewtonSolver(backend=backend))
         model = SplitKernelPredictor(inner, quad).fit(x0, x1, mu=mu, dt=dt)
         assert model.n_centers_ == 0 and model.history_.stop_reason == "tol"
         L = quad.propagator(0.75, 0.05)[0]
@@ -197,7 +200,7 @@ def test_rollout_agrees_with_steps_and_between_backends(split_pendulum, small_pe
     fits = {}
     for backend in ("numpy", "numba"):
         inner = SymplecticKernelPredictor(IMQ(0.4), IMQ(0.75), IMQ(1.06), max_centers=120, update="midpoint",
-                                          backend=backend)
+                                          solver=NewtonSolver(backend=backend))
         fits[backend] = SplitKernelPredictor(inner, pendulum.quadratic_part()).fit(d.x0[idx], d.x1[idx], mu=d.mu[idx],
                                                                                    dt=d.dt[idx])
     a, b = (fits[k].rollout(x, 40, mu=0.75, dt=0.05) for k in ("numpy", "numba"))
@@ -212,8 +215,8 @@ def test_compiled_split_rollout_equals_the_numpy_one_and_repeated_steps(small_pe
     both updates, a batch large enough for the parallel kernel: equal to the NumPy loop and to repeated step()."""
     d = small_pendulum_data
     idx = np.random.default_rng(1).choice(len(d), 600, replace=False)
-    inner = SymplecticKernelPredictor(IMQ(0.4), IMQ(0.75), IMQ(1.06), max_centers=120, update=update,
-                                      state_scaling=(1.3,), backend="numba")
+    inner = SymplecticKernelPredictor(Scaled(IMQ(0.4), factors=(1.3,)), IMQ(0.75), IMQ(1.06), max_centers=120,
+                                      update=update, solver=NewtonSolver(backend="numba"))
     model = SplitKernelPredictor(inner, pendulum.quadratic_part()).fit(d.x0[idx], d.x1[idx], mu=d.mu[idx], dt=d.dt[idx])
     rng = np.random.default_rng(2)
     x = np.column_stack([rng.uniform(0.05, 1.2, 10), rng.uniform(-0.3, 0.3, 10)])
@@ -233,7 +236,7 @@ def test_compiled_split_rollout_equals_the_numpy_one_and_repeated_steps(small_pe
         state = model.step(state, mu=mu, dt=dt)
         np.testing.assert_allclose(traj[:, k + 1], state, rtol=0, atol=bound * (k + 1) / 25)
     numpy_model = copy.copy(model)
-    numpy_model.predictor_ = copy.copy(model.predictor_).set_params(backend="numpy")
+    numpy_model.predictor_ = copy.copy(model.predictor_).set_params(solver__backend="numpy")
     np.testing.assert_allclose(numpy_model.rollout(x, 25, mu=mu, dt=dt), traj, rtol=0, atol=bound)
     assert np.abs(traj[:, -1] - x).max() > 0.1  # real steps (120 centres: a coarse model, not an accuracy test)
 
@@ -344,7 +347,7 @@ def test_parameter_free_fixed_step_model_defaults_to_its_step():
         return np.column_stack([q, p])
 
     model = SplitKernelPredictor(SymplecticKernelPredictor(IMQ(1.0), max_centers=200, update="midpoint",
-                                                           backend="numpy"), quad).fit(x0, flow(x0, 0.3), dt=0.3)
+                                                           solver=NewtonSolver(backend="numpy")), quad).fit(x0, flow(x0, 0.3), dt=0.3)
     assert model.n_mu_ == 0 and model.predictor_.dt_fixed_ == 0.3 and model.n_centers_ > 0
     x = rng.uniform(-0.3, 0.3, (5, 2))
     np.testing.assert_array_equal(model.step(x), model.step(x, dt=0.3))
@@ -362,7 +365,8 @@ def test_validation_data_are_transformed_too(small_pendulum_data, pendulum):
     d = small_pendulum_data
     idx = np.random.default_rng(4).permutation(len(d))
     tr, va = idx[:400], idx[400:600]
-    inner = SymplecticKernelPredictor(IMQ(0.4), IMQ(0.75), IMQ(1.06), max_centers=40, update="midpoint", backend="numpy")
+    inner = SymplecticKernelPredictor(IMQ(0.4), IMQ(0.75), IMQ(1.06), max_centers=40, update="midpoint",
+                                      solver=NewtonSolver(backend="numpy"))
     quad = pendulum.quadratic_part()
     model = SplitKernelPredictor(inner, quad).fit(d.x0[tr], d.x1[tr], mu=d.mu[tr], dt=d.dt[tr],
                                                   validation=(d.x0[va], d.x1[va], d.mu[va], d.dt[va]))

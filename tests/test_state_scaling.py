@@ -11,6 +11,8 @@ from sympredict.exceptions import ExtrapolationWarning
 from sympredict.io import load_model, save_model
 from sympredict.kernels import IMQ
 from sympredict.selection import select_kernels
+from sympredict.solvers import NewtonSolver
+from sympredict.transforms import Scaled
 from _surrogate_oracles import check_step_jacobian  # tests/
 
 
@@ -22,8 +24,8 @@ def data(small_pendulum_data):
 
 
 def _model(update="symplectic_euler", scaling=(2.0,), backend="numpy", max_centers=300):
-    return SymplecticKernelPredictor(IMQ(0.2), IMQ(1.5), IMQ(3.0), max_centers=max_centers, update=update,
-                                     state_scaling=scaling, backend=backend)
+    return SymplecticKernelPredictor(Scaled(IMQ(0.2), factors=scaling), IMQ(1.5), IMQ(3.0),
+                                     max_centers=max_centers, update=update, solver=NewtonSolver(backend=backend))
 
 
 @pytest.mark.parametrize("update", ["symplectic_euler", "midpoint"])

@@ -12,11 +12,13 @@ from sympredict import DirectKernelPredictor, SymplecticKernelPredictor
 from sympredict.base import clone
 from sympredict.exceptions import ExtrapolationWarning, ModelFileError
 from sympredict.functionals import HBFunctionals, ValueFunctionals, dense_interpolation, functional_residuals
-from sympredict.greedy import ActiveSetGreedy
+from sympredict.greedy import ActiveSetGreedy, ExactGreedy
 from sympredict.io import load_model, save_model
 from sympredict.kernels import IMQ, Matern52, PeriodicCoordinates, ProductKernel, StateSymmetry
 from sympredict.predictor import update_variables
+from sympredict.solvers import NewtonSolver
 from sympredict.surrogate import HBSurrogate
+from sympredict.transforms import Periodic, Scaled, Symmetric
 
 from _surrogate_oracles import (check_gramian_by_finite_differences, check_malformed_kernel_entries_refused,
                                check_surrogate_by_finite_differences)  # tests/ (on sys.path under pytest)
@@ -124,9 +126,12 @@ def data():
     return _data()
 
 
-def _model(**kw):
-    kw = {"max_centers": 300, "backend": "numpy", "update": "midpoint", "symmetry": KLEIN, **kw}
-    return SymplecticKernelPredictor(IMQ(0.5), **kw)
+def _model(symmetry=KLEIN, backend="numpy", tol=None, trainer=None, state_scaling=None, periodic=None, **kw):
+    kw = {"max_centers": 300, "update": "midpoint", **kw}
+    kernel = Symmetric(Periodic(Scaled(IMQ(0.5), factors=state_scaling), coordinates=periodic), group=symmetry)
+    if tol is not None:
+        trainer = (ExactGreedy() if trainer is None else trainer).set_params(tol=tol)
+    return SymplecticKernelPredictor(kernel, trainer=trainer, solver=NewtonSolver(backend=backend), **kw)
 
 
 @pytest.fixture(scope="module")
@@ -199,11 +204,11 @@ def test_sharded_trainer_selects_the_exact_greedys_centres(data):
 def test_estimator_contract(data):
     model = _model()
     params = model.get_params()
-    assert params["symmetry"] == KLEIN
+    assert params["state_kernel"] == Symmetric(IMQ(0.5), group=KLEIN)
     copy = clone(model)
-    assert copy.get_params() == params and not copy.is_fitted
-    copy.set_params(symmetry=None, update="symplectic_euler")
-    assert copy.symmetry is None and model.symmetry == KLEIN
+    assert repr(copy.get_params()) == repr(params) and not copy.is_fitted
+    copy.set_params(state_kernel=IMQ(0.5), update="symplectic_euler")
+    assert copy.state_kernel == IMQ(0.5) and model.state_kernel.group == KLEIN
     x0, x1 = data[0][:100], data[1][:100]
     as_group = _model(symmetry=StateSymmetry.from_signs(KLEIN), max_centers=40).fit(x0, x1, dt=DT)
     as_list = _model(max_centers=40).fit(x0, x1, dt=DT)
@@ -225,7 +230,7 @@ def test_model_files_round_trip(data, tmp_path, matrices):
     model = _model(symmetry=matrices(), max_centers=60).fit(x0, x1, dt=DT)
     save_model(model, tmp_path / "s.h5")
     back = load_model(tmp_path / "s.h5")
-    assert back.get_params() == model.get_params() and type(back.symmetry) is type(model.symmetry)
+    assert back.get_params() == model.get_params() and type(back.state_kernel.group) is type(model.state_kernel.group)
     assert back.kernel_ == model.kernel_ and back.kernel_.symmetry == StateSymmetry.from_signs(KLEIN)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ExtrapolationWarning)  # 200 samples: a rollout may leave them
@@ -292,7 +297,7 @@ def test_refused_input(data):
     with pytest.raises(ValueError, match="direct model"):
         ValueFunctionals(ProductKernel(IMQ(1.0), symmetry=StateSymmetry.from_signs(KLEIN)), x0, np.zeros((60, 0)), np.full(60, DT))
     model = _model(max_centers=20).fit(x0, x1, dt=DT)
-    model.set_params(backend="numba")
+    model.set_params(solver__backend="numba")
     with pytest.raises(ValueError, match="symmetry"):
         model.step(x0[:2])
     assert "symmetry" not in DirectKernelPredictor().get_params()

@@ -45,7 +45,7 @@ def test_estimator_option(small_pendulum_model, tmp_path):
     from sympredict.io import load_model, save_model
 
     model = small_pendulum_model
-    warm = clone(model).set_params(newton_warm_start=True)
+    warm = clone(model).set_params(solver__warm_start=True)
     for name in ("surrogate_", "kernel_", "history_", "greedy_result_", "dim_", "n_mu_", "dt_fixed_", "domain_"):
         setattr(warm, name, getattr(model, name))
     x0, lengths = paper_test_instances(0)
@@ -56,4 +56,4 @@ def test_estimator_option(small_pendulum_model, tmp_path):
     save_model(warm, tmp_path / "w.h5")
     assert load_model(tmp_path / "w.h5").newton_warm_start is True
     with pytest.raises(ValueError, match="newton_warm_start"):
-        clone(model).set_params(newton_warm_start="yes", max_centers=5).fit(x0, x0, mu=lengths, dt=0.05)
+        clone(model).set_params(solver__warm_start="yes", max_centers=5).fit(x0, x0, mu=lengths, dt=0.05)

@@ -26,6 +26,7 @@ from sympredict.metrics import relative_hamiltonian_error
 from sympredict.predictor import DirectKernelPredictor, SymplecticKernelPredictor
 from sympredict.selection import kernel_grid, select_kernels
 from sympredict.systems.henon_heiles import LAMBDA_RANGE, HenonHeiles, energy_bounded_states
+from sympredict.greedy import ExactGreedy
 
 __all__ = ["HenonHeilesPreset", "PRESETS", "DT_HH", "henon_heiles_data", "henon_heiles_test_instances", "run_henon_heiles"]
 
@@ -129,8 +130,12 @@ def run_henon_heiles(preset: HenonHeilesPreset, seed: int = 0) -> dict:
     t_sel = time.perf_counter() - t0
     vsel = select_vkoga_length_scale(data, val, preset.vkoga_length_scales, m_star=min(50, preset.vkoga_centers))
     models, fit_time = {}, {}
-    for name, make in (("symplectic", lambda: SymplecticKernelPredictor(sel.state, sel.mu, None, max_centers=preset.max_centers, tol=1e-10)),
-                       ("direct", lambda: DirectKernelPredictor(sel.state, sel.mu, None, max_centers=preset.max_centers, tol=1e-10)),
+    for name, make in (("symplectic", lambda: SymplecticKernelPredictor(sel.state, sel.mu, None,
+                                                                        max_centers=preset.max_centers,
+                                                                        trainer=ExactGreedy(tol=1e-10))),
+                       ("direct", lambda: DirectKernelPredictor(sel.state, sel.mu, None,
+                                                                max_centers=preset.max_centers,
+                                                                trainer=ExactGreedy(tol=1e-10))),
                        ("vkoga", lambda: VKOGAFlowMap(max_centers=preset.vkoga_centers, length_scale=vsel["length_scale"]))):
         t0 = time.perf_counter()
         with logger.block(f"Hénon–Heiles: {name} model on {len(data)} samples"):

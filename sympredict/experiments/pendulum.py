@@ -29,6 +29,7 @@ from sympredict.exceptions import ExtrapolationWarning, NewtonConvergenceError, 
 from sympredict.predictor import DirectKernelPredictor, SymplecticKernelPredictor
 from sympredict.selection import kernel_grid, refine_kernel_shapes, select_kernels
 from sympredict.systems.pendulum import DT_TEST, DT_TRAIN, MU_TRAIN, Pendulum, flow_map_data, random_flow_map_data
+from sympredict.greedy import ExactGreedy
 
 __all__ = ["PendulumPreset", "PRESETS", "select_pendulum_kernels", "run_scenario_a", "run_scenario_b", "run_speed_accuracy", "train_peers", "run_stability", "paper_test_instances", "MU_EXTRAPOLATION", "DT_EXTRAPOLATION"]
 
@@ -234,7 +235,8 @@ def run_scenario_a(preset: PendulumPreset, seed: int = 0, model_path=None) -> di
 
     selection = select_pendulum_kernels(preset, seed) if preset.select else None
     state_k, mu_k, dt_k = selection["kernels"] if selection else _kernels(preset.eps)
-    model = SymplecticKernelPredictor(state_k, mu_k, dt_k, max_centers=preset.max_centers, tol=1e-10)
+    model = SymplecticKernelPredictor(state_k, mu_k, dt_k, max_centers=preset.max_centers,
+                                      trainer=ExactGreedy(tol=1e-10))
     t0 = time.perf_counter()
     model.fit(data.x0, data.x1, mu=data.mu, dt=data.dt, validation=val)
     t_fit = time.perf_counter() - t0

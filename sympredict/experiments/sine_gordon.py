@@ -58,6 +58,7 @@ from sympredict.reduction import complex_svd_basis, symplecticity_of_basis
 from sympredict.scaling import BoxScaling, NormalizedFlowMap, SymplecticScaling, scaled_quadratic_part
 from sympredict.splitting import SplitKernelPredictor
 from sympredict.systems.sine_gordon import SineGordonFOM
+from sympredict.greedy import ExactGreedy
 
 __all__ = ["SineGordonPreset", "PRESETS", "run_sine_gordon", "fom_data", "initial_states", "second_parameter", "energy_boundedness",
            "ENERGY_BOUND_RATIO", "ENERGY_BOUND_FLOOR", "EnergySamples", "split_setup", "sign_symmetry", "no_augmentation", "choose_large_step"]
@@ -588,7 +589,8 @@ def _fit_scaled(p, x0, x1, mu, dt, regularization, update, quadratic=None):
     st = SymplecticScaling(p.state_scaling).fit(np.concatenate([x0, x1]))
     ms = BoxScaling().fit(mu, np.array([p.c_range[0]]), np.array([p.c_range[1]]))
     model = SymplecticKernelPredictor(None if p.state_eps is None else IMQ(p.state_eps), mu_kernel=IMQ(p.mu_eps),
-                                      max_centers=p.max_centers, tol=1e-9, update=update, regularization=regularization)
+                                      max_centers=p.max_centers, update=update,
+                                      trainer=ExactGreedy(tol=1e-9, regularization=regularization))
     if quadratic is not None:
         model = SplitKernelPredictor(model, scaled_quadratic_part(quadratic, st, ms, dt))
     model.fit(st.transform(x0), st.transform(x1), mu=ms.transform(mu), dt=1.0)

@@ -71,8 +71,8 @@ def timed(model):
     like its compiled peers.  Returns ``model`` (changed in place).
     """
     inner = newton_predictor(model)
-    if inner is not None and inner.backend == "auto" and inner.backend_for(10**6, 10**6) == "numba":
-        inner.set_params(backend="numba")
+    if inner is not None and getattr(inner.solver, "backend", "auto") == "auto" and inner.backend_for(10**6, 10**6) == "numba":
+        inner.set_params(solver__backend="numba")
     return model
 
 

@@ -38,6 +38,7 @@ from sympredict.predictor import DirectKernelPredictor, SymplecticKernelPredicto
 from sympredict.reduction import SymplecticROM, complex_svd_basis, symplecticity_of_basis
 from sympredict.selection import kernel_grid, select_kernels
 from sympredict.systems.wave import C_REF, C_TRAIN, DT_WAVE, WaveFOM
+from sympredict.greedy import ExactGreedy
 
 __all__ = ["WavePreset", "PRESETS", "fom_snapshots", "build_rom", "reduced_flow_map_data", "validation_speeds", "train_wave_predictor", "run_wave",
            "run_wave_speed_accuracy", "smallest_wave_model"]
@@ -249,7 +250,8 @@ def train_wave_predictor(rom: SymplecticROM, preset: WavePreset, dt: float, ener
         sel = select_kernels(data, val, kernel_grid(preset.families, preset.state_eps), kernel_grid(("imq",), preset.mu_eps),
                              m_star=min(preset.m_star, preset.max_centers))
         t_sel = time.perf_counter() - t0
-        model = SymplecticKernelPredictor(sel.state, sel.mu, None, max_centers=preset.max_centers, tol=1e-10)
+        model = SymplecticKernelPredictor(sel.state, sel.mu, None, max_centers=preset.max_centers,
+                                          trainer=ExactGreedy(tol=1e-10))
         t0 = time.perf_counter()
         model.fit(data.x0, data.x1, mu=data.mu, dt=dt, validation=val)
         t_fit = time.perf_counter() - t0
@@ -300,7 +302,8 @@ def run_wave(preset: WavePreset, seed: int = 0, **overrides) -> dict:
     d = first["data"]
     t0 = time.perf_counter()
     with logger.block("wave peers: direct kernel model and pyMOR VKOGA on the same reduced data"):
-        direct = DirectKernelPredictor(k.state, k.mu, None, max_centers=preset.max_centers, tol=1e-10).fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
+        direct = DirectKernelPredictor(k.state, k.mu, None, max_centers=preset.max_centers,
+                                       trainer=ExactGreedy(tol=1e-10)).fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
         t_direct = time.perf_counter() - t0
         vsel = select_vkoga_length_scale(d, first["validation"], preset.vkoga_length_scales, m_star=min(50, preset.vkoga_centers))
         vkoga = VKOGAFlowMap(max_centers=preset.vkoga_centers, length_scale=vsel["length_scale"]).fit(d.x0, d.x1, mu=d.mu, dt=d.dt)

@@ -23,6 +23,8 @@ with :func:`register_trainer` so that model files can name it.
 
 from __future__ import annotations
 
+import inspect
+import warnings
 from typing import Optional
 
 import numpy as np
@@ -68,6 +70,11 @@ class Trainer(Parametrized):
     memory_limit: Optional[float] = None
     regularization: float = 0.0
 
+    def __eq__(self, other) -> bool:  # settings are values: equal settings (and the same pool) are equal strategies
+        return type(self) is type(other) and self.get_params(deep=False) == other.get_params(deep=False)
+
+    __hash__ = None  # mutable (set_params)
+
     def check(self) -> "Trainer":
         """``ValueError`` naming the setting that is malformed; returns ``self``."""
         for name in ("tol", "power_tol", "regularization"):
@@ -98,7 +105,16 @@ class Trainer(Parametrized):
         """
         self.check()
         tol = float(self.tol) * float(tol_scale)
-        store = self.store(functionals, targets, tol=tol, validation=validation)
+        if "criterion" in inspect.signature(self.store).parameters:  # a strategy written for sympredict 0.1
+            warnings.warn(f"{type(self).__name__}.store(functionals, targets, *, criterion, power_tol, tol, validation, "
+                          "memory_limit) is the signature of sympredict 0.1: define store(functionals, targets, *, tol, "
+                          "validation) and read the settings from self", FutureWarning, stacklevel=3)
+            if self.regularization:
+                raise ValueError(f"the training strategy {type(self).__name__} does not support regularization > 0")
+            store = self.store(functionals, targets, criterion=self.criterion, power_tol=self.power_tol, tol=tol,
+                               validation=validation, memory_limit=self.memory_limit)
+        else:
+            store = self.store(functionals, targets, tol=tol, validation=validation)
         with logger.block(f"{store.label} over {functionals.n_functionals} functionals"):
             return run_greedy(store, max_centers=max_centers, tol=tol, criterion=self.criterion,
                               divergence_factor=divergence_factor, log_every=log_every, callback=callback)
