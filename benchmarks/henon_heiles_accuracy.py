@@ -40,7 +40,7 @@ from sympredict import SymplecticKernelPredictor
 from sympredict.data import FlowMapData
 from sympredict.exceptions import extrapolation_expected
 from sympredict.kernels import KERNEL_FAMILIES
-from sympredict.metrics import relative_trajectory_error
+from sympredict.symplectic.metrics import relative_trajectory_error
 from sympredict.systems.henon_heiles import LAMBDA_RANGE, HenonHeiles, energy_bounded_states
 
 TARGET = 2e-4

@@ -34,7 +34,7 @@ from sympredict.exceptions import (
     SolvabilityError,
     SympredictError,
 )  # noqa: E402
-from sympredict.predictor import DirectKernelPredictor, SymplecticKernelPredictor
+from sympredict.estimators.predictor import DirectKernelPredictor, SymplecticKernelPredictor
 
 from sympredict._version import __version__
 

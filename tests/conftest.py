@@ -6,8 +6,8 @@ from threadpoolctl import threadpool_limits
 
 from sympredict import SymplecticKernelPredictor
 from sympredict.kernels import IMQ
-from sympredict.nonlinear_mor import ReducedSineGordon
-from sympredict.reduction import complex_svd_basis
+from sympredict.mor.nonlinear import ReducedSineGordon
+from sympredict.mor.basis import complex_svd_basis
 from sympredict.systems.pendulum import Pendulum, flow_map_data
 from sympredict.systems.sine_gordon import SineGordonFOM
 

@@ -26,11 +26,11 @@ from hypothesis.extra import numpy as hnp
 from sympredict.exceptions import extrapolation_expected
 from sympredict import ExtrapolationWarning, NewtonConvergenceError, SolvabilityError, SymplecticKernelPredictor, SympredictError
 from sympredict.data import FlowMapData
-from sympredict.functionals import HBFunctionals
-from sympredict.greedy import greedy_interpolation
+from sympredict.interpolation.functionals import HBFunctionals
+from sympredict.interpolation.greedy import greedy_interpolation
 from sympredict.kernels import IMQ, KERNEL_FAMILIES, Matern52, ProductKernel
-from sympredict.metrics import relative_hamiltonian_error
-from sympredict.reduction import complex_svd_basis
+from sympredict.symplectic.metrics import relative_hamiltonian_error
+from sympredict.mor.basis import complex_svd_basis
 from sympredict.systems.pendulum import Pendulum, flow_map_data, random_flow_map_data
 
 EXPECTED = (ValueError, SympredictError)

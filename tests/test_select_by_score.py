@@ -5,7 +5,7 @@ import pytest
 
 from sympredict import SymplecticKernelPredictor
 from sympredict.kernels import IMQ
-from sympredict.selection import select_by_score
+from sympredict.estimators.selection import select_by_score
 
 
 @pytest.fixture(scope="module")

@@ -10,7 +10,7 @@ from sympredict.data import FlowMapData, mixed_variables
 from sympredict.exceptions import ExtrapolationWarning
 from sympredict.io import load_model, save_model
 from sympredict.kernels import IMQ
-from sympredict.selection import select_kernels
+from sympredict.estimators.selection import select_kernels
 from _surrogate_oracles import check_step_jacobian  # tests/
 
 
