@@ -35,8 +35,8 @@ import time
 from pathlib import Path
 
 import numpy as np
-from sympredict.greedy import ExactGreedy
-from sympredict.solvers import NewtonSolver
+from sympredict.interpolation.greedy import ExactGreedy
+from sympredict.symplectic.solvers import NewtonSolver
 
 #: What each fresh process runs: times import, load and the first rollout; prints one JSON line.
 CHILD = r"""

@@ -22,17 +22,17 @@ import numpy as np
 from pymor.core.logger import set_log_levels
 
 from sympredict import DirectKernelPredictor, SymplecticKernelPredictor
-from sympredict.experiments.henon_heiles import DT_HH, PRESETS as HH_PRESETS, henon_heiles_data, henon_heiles_test_instances
-from sympredict.experiments.pendulum import paper_test_instances
-from sympredict.experiments.peers import VKOGAFlowMap, select_vkoga_length_scale
-from sympredict.experiments.speed import deliberate_threads, time_median
-from sympredict.integrators_compiled import rollout
+from sympredict.paper.henon_heiles import DT_HH, PRESETS as HH_PRESETS, henon_heiles_data, henon_heiles_test_instances
+from sympredict.paper.pendulum import paper_test_instances
+from sympredict.paper.peers import VKOGAFlowMap, select_vkoga_length_scale
+from sympredict.paper.speed import deliberate_threads, time_median
+from sympredict.symplectic.integrators_compiled import rollout
 from sympredict.kernels import IMQ
-from sympredict.metrics import relative_hamiltonian_error, relative_trajectory_error
+from sympredict.symplectic.metrics import relative_hamiltonian_error, relative_trajectory_error
 from sympredict.systems.henon_heiles import LAMBDA_RANGE, HenonHeiles, energy_bounded_states
 from sympredict.data import FlowMapData
 from sympredict.systems.pendulum import DT_TEST, MU_TRAIN, Pendulum, flow_map_data, random_flow_map_data
-from sympredict.greedy import ExactGreedy
+from sympredict.interpolation.greedy import ExactGreedy
 
 try:
     from neural_peers import GSympNet, MLPFlowMap

@@ -40,10 +40,10 @@ from sympredict import SymplecticKernelPredictor
 from sympredict.data import FlowMapData
 from sympredict.exceptions import extrapolation_expected
 from sympredict.kernels import KERNEL_FAMILIES
-from sympredict.metrics import relative_trajectory_error
+from sympredict.symplectic.metrics import relative_trajectory_error
 from sympredict.systems.henon_heiles import LAMBDA_RANGE, HenonHeiles, energy_bounded_states
-from sympredict.greedy import ExactGreedy
-from sympredict.solvers import NewtonSolver
+from sympredict.interpolation.greedy import ExactGreedy
+from sympredict.symplectic.solvers import NewtonSolver
 
 TARGET = 2e-4
 DT_RANGE = (0.4, 0.6)

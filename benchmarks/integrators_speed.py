@@ -20,7 +20,7 @@ import numba
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from sympredict.integrators_compiled import rollout
+from sympredict.symplectic.integrators_compiled import rollout
 from sympredict.systems.pendulum import Pendulum
 
 

@@ -66,8 +66,8 @@ def main(argv=None) -> int:
     threadpool_limits(limits=args.threads)
 
     from sympredict import SymplecticKernelPredictor, parallel as par
-    from sympredict.greedy import ExactGreedy, ShardedGreedy
-    from sympredict.experiments.pendulum import PRESETS
+    from sympredict.interpolation.greedy import ExactGreedy, ShardedGreedy
+    from sympredict.paper.pendulum import PRESETS
     from sympredict.kernels import IMQ
     from sympredict.systems.pendulum import DT_TRAIN, MU_TRAIN, Pendulum, flow_map_data, random_flow_map_data
 

@@ -132,7 +132,7 @@ def pass_vs_dim(modules: dict, dims, samples: int, m: int = 1500, points: int = 
     the minimum over ``samples``, implementations alternating.  Revisions without the full Hessian report
     the block only.
     """
-    from sympredict.surrogate import HBSurrogate
+    from sympredict.interpolation.surrogate import HBSurrogate
     from sympredict.kernels import ProductKernel
 
     out = {}

@@ -16,7 +16,7 @@ from threadpoolctl import threadpool_limits
 
 from sympredict import SymplecticKernelPredictor
 from sympredict.kernels import IMQ
-from sympredict.solvers import NewtonSolver
+from sympredict.symplectic.solvers import NewtonSolver
 
 
 def rotation(x, theta):

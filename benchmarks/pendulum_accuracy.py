@@ -19,7 +19,7 @@ Reference: the library's micro-step flow (implicit midpoint, micro step
 ``dT / ceil(dT / 1e-3)``), the same integrator that generated the training data.
 
 ``--split``: the exact-linear-flow splitting ``Phi = L_h o S o L_h`` with the
-pendulum's quadratic part ``A(l) = diag(g l, 1/l^2)`` (:mod:`sympredict.splitting`):
+pendulum's quadratic part ``A(l) = diag(g l, 1/l^2)`` (:mod:`sympredict.flowmap.splitting`):
 the searched shapes and scaling are those of the inner step ``S``.
 
 Run:  python benchmarks/pendulum_accuracy.py [--update midpoint] [--symmetry klein] [--split] [--json out.json]
@@ -39,14 +39,14 @@ from _coordinate_search import coordinate_search  # benchmarks/ (the script's fo
 
 from sympredict import SymplecticKernelPredictor
 from sympredict.data import FlowMapData
-from sympredict.experiments.pendulum import paper_test_instances
+from sympredict.paper.pendulum import paper_test_instances
 from sympredict.kernels import KERNEL_FAMILIES
-from sympredict.metrics import relative_trajectory_error
-from sympredict.splitting import SplitKernelPredictor
+from sympredict.symplectic.metrics import relative_trajectory_error
+from sympredict.flowmap.splitting import SplitKernelPredictor
 from sympredict.systems.pendulum import DT_TEST, DT_TRAIN, MU_TRAIN, Pendulum, flow_map_data
-from sympredict.greedy import ExactGreedy
-from sympredict.solvers import NewtonSolver
-from sympredict.transforms import Scaled, Symmetric
+from sympredict.interpolation.greedy import ExactGreedy
+from sympredict.symplectic.solvers import NewtonSolver
+from sympredict.kernels.transforms import Scaled, Symmetric
 
 TARGET = 2e-5
 NAMES = ("state", "mu", "dt", "scaling")
@@ -77,7 +77,7 @@ parser.add_argument("--symmetry", default="none", choices=["none", "klein"],
                          "valid for the midpoint update only: the pendulum is even in q and in p)")
 parser.add_argument("--split", action="store_true",
                     help="L_h o S o L_h: the exact flow of the quadratic part A(l) = diag(g l, 1/l^2) over dT/2 around "
-                         "the learned step S (sympredict.splitting); the shapes and scaling are S's")
+                         "the learned step S (sympredict.flowmap.splitting); the shapes and scaling are S's")
 parser.add_argument("--diagnose", action="store_true",
                     help="where the error comes from, on the first validation seed: lengths on the training grid, per-q0 errors")
 parser.add_argument("--json", default=None)

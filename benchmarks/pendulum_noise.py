@@ -6,7 +6,7 @@ increment ``x1 - x0`` (so each component of ``y = J^T (x1 - x0) / dT``) is
 multiplied by ``1 + sigma N(0, 1)``.  The validation samples (random states on
 the training ``(mu, dT)`` grid, seed 1) carry the same noise.  For every
 ``sigma`` the exact fit (``regularization=0``) and the ridge term chosen by
-:func:`sympredict.selection.select_regularization` (RMS of the validation
+:func:`sympredict.estimators.selection.select_regularization` (RMS of the validation
 gradient residual over a log grid of ``lambda``, the exact fit a candidate) are
 compared on
 
@@ -28,12 +28,12 @@ from threadpoolctl import threadpool_limits
 
 from sympredict import SymplecticKernelPredictor
 from sympredict.data import FlowMapData
-from sympredict.experiments.pendulum import paper_test_instances
+from sympredict.paper.pendulum import paper_test_instances
 from sympredict.kernels import IMQ
-from sympredict.metrics import relative_trajectory_error
-from sympredict.selection import select_regularization
+from sympredict.symplectic.metrics import relative_trajectory_error
+from sympredict.estimators.selection import select_regularization
 from sympredict.systems.pendulum import DT_TEST, DT_TRAIN, MU_TRAIN, Pendulum, flow_map_data, random_flow_map_data
-from sympredict.greedy import ExactGreedy
+from sympredict.interpolation.greedy import ExactGreedy
 
 parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
 parser.add_argument("--noise", type=float, nargs="+", default=[1e-5, 1e-4, 1e-3])

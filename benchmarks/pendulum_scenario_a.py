@@ -19,7 +19,7 @@ import numpy as np
 from pymor.core.logger import set_log_levels
 from threadpoolctl import threadpool_info, threadpool_limits
 
-from sympredict.experiments.pendulum import PRESETS, run_scenario_a
+from sympredict.paper.pendulum import PRESETS, run_scenario_a
 
 parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
 parser.add_argument("--preset", choices=sorted(PRESETS), default="quick")

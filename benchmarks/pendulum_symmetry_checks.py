@@ -20,9 +20,9 @@ from scipy.linalg import cho_factor, cho_solve, eigvalsh
 from scipy.optimize import brentq
 from threadpoolctl import threadpool_limits
 
-from sympredict.functionals import HBFunctionals
+from sympredict.interpolation.functionals import HBFunctionals
 from sympredict.kernels import IMQ, ProductKernel, StateSymmetry
-from sympredict.predictor import update_variables
+from sympredict.estimators.predictor import update_variables
 from sympredict.systems.pendulum import Pendulum
 
 parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])

@@ -19,9 +19,9 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from sympredict import SymplecticKernelPredictor
-from sympredict.experiments.pendulum import paper_test_instances
+from sympredict.paper.pendulum import paper_test_instances
 from sympredict.kernels import IMQ
-from sympredict.metrics import relative_trajectory_error
+from sympredict.symplectic.metrics import relative_trajectory_error
 from sympredict.systems.pendulum import DT_TEST, Pendulum, flow_map_data
 
 parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])

@@ -22,13 +22,13 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from sympredict import SymplecticKernelPredictor
-from sympredict.experiments.pendulum import paper_test_instances
+from sympredict.paper.pendulum import paper_test_instances
 from sympredict.kernels import IMQ
-from sympredict.metrics import relative_hamiltonian_error, relative_trajectory_error
+from sympredict.symplectic.metrics import relative_hamiltonian_error, relative_trajectory_error
 from sympredict.systems.pendulum import DT_TEST, Pendulum, flow_map_data
-from sympredict.greedy import ExactGreedy
-from sympredict.solvers import NewtonSolver
-from sympredict.transforms import Scaled
+from sympredict.interpolation.greedy import ExactGreedy
+from sympredict.symplectic.solvers import NewtonSolver
+from sympredict.kernels.transforms import Scaled
 
 parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
 parser.add_argument("--scalings", type=float, nargs="*", default=[])

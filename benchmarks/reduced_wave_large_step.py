@@ -27,9 +27,9 @@ speed, over ``K = round(T / dT)`` macro steps from the FOM's initial data:
   IMQ shapes of the state and speed factors chosen per update on the validation
   speeds, by one of two searches (``--search``):
 
-  - ``residual`` (default): :func:`~sympredict.selection.select_kernels`, the greedy's
+  - ``residual`` (default): :func:`~sympredict.estimators.selection.select_kernels`, the greedy's
     validation residual at ``m* = --m-star`` centres, then one fit to ``--centers``;
-  - ``rollout``: :func:`~sympredict.selection.select_by_score` over every
+  - ``rollout``: :func:`~sympredict.estimators.selection.select_by_score` over every
     (state shape, speed shape, ridge) in ``--state-eps x --mu-eps x --ridges``, each
     fitted once to ``max(--budgets)`` centres and scored at every budget (greedy
     prefixes) by its rollout on the validation speeds: the largest ratio, over those
@@ -44,7 +44,7 @@ the same run.
 Errors ``sqrt(sum_k |x(t_k) - x_ref(t_k)|^2 / sum_k |x_ref(t_k)|^2)`` in reduced
 coordinates (the basis is orthonormal, so this is the error of ``V x`` too), and for
 context the error of ``V x`` against the FOM on the same grid.  Existence is reported,
-not hidden: the type-II check (:func:`~sympredict.flowmaps.check_generating_function`)
+not hidden: the type-II check (:func:`~sympredict.systems.flowmaps.check_generating_function`)
 on the training data, the midpoint form's ``min sigma((I + D Phi)/2)`` (it vanishes
 where a mode turns by half a turn per step: the form ``x1 = x0 + dT J grad s((x0+x1)/2)``
 cannot represent the map there) on the training, test and a scan of speeds, and every
@@ -108,16 +108,16 @@ from pymordemos.symplectic_wave_equation import discretize_fom  # noqa: E402
 
 from sympredict import SymplecticKernelPredictor  # noqa: E402
 from sympredict.exceptions import NewtonConvergenceError  # noqa: E402
-from sympredict.flowmaps import (check_generating_function, linear_system_from_pymor, midpoint_sigma_min,  # noqa: E402
+from sympredict.systems.flowmaps import (check_generating_function, linear_system_from_pymor, midpoint_sigma_min,  # noqa: E402
                                  mu_to_vector, random_parameters)
-from sympredict.integrators import implicit_midpoint_step, integrate  # noqa: E402
+from sympredict.symplectic.integrators import implicit_midpoint_step, integrate  # noqa: E402
 from sympredict.kernels import IMQ  # noqa: E402
 from sympredict.mor import SymplecticKernelReductor  # noqa: E402
-from sympredict.scaling import NormalizedFlowMap  # noqa: E402
-from sympredict.selection import select_by_score, select_kernels  # noqa: E402
-from sympredict.solvers import NewtonSolver
+from sympredict.flowmap.scaling import NormalizedFlowMap  # noqa: E402
+from sympredict.estimators.selection import select_by_score, select_kernels  # noqa: E402
+from sympredict.symplectic.solvers import NewtonSolver
 
-set_log_levels({"pymor": "ERROR", "sympredict": "WARNING", "sympredict.selection": "INFO"})  # progress of the searches
+set_log_levels({"pymor": "ERROR", "sympredict": "WARNING", "sympredict.estimators.selection": "INFO"})  # progress of the searches
 threadpool_limits(1)
 
 LO, HI = 0.08, 0.12
@@ -215,7 +215,7 @@ for f in args.factors:
         train_data = red.train_data_
         rec["validation_speeds"] = [float(m["c"][0]) for m in red.validation_parameters()]
         rec["samples"] = len(train_data)
-        # existence on the training data (sympredict.flowmaps.check_generating_function), for both forms
+        # existence on the training data (sympredict.systems.flowmaps.check_generating_function), for both forms
         for form in ("symplectic_euler", "midpoint"):
             try:
                 with warnings.catch_warnings(record=True) as caught:

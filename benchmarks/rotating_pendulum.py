@@ -41,9 +41,9 @@ from sympredict import SymplecticKernelPredictor
 from sympredict.exceptions import ExtrapolationWarning, NewtonConvergenceError
 from sympredict.kernels import IMQ
 from sympredict.systems.pendulum import Pendulum
-from sympredict.greedy import ExactGreedy
-from sympredict.solvers import NewtonSolver
-from sympredict.transforms import Periodic
+from sympredict.interpolation.greedy import ExactGreedy
+from sympredict.symplectic.solvers import NewtonSolver
+from sympredict.kernels.transforms import Periodic
 
 VARIANTS = ("periodic", "plain_wrapped", "plain")
 

@@ -13,7 +13,7 @@ trajectories.  **Not non-intrusive**: ``A_r(c) = V^T A(c) V`` needs the FOM's op
 do not give it).
 
 ``DT_large`` is chosen on the training trajectories only
-(:func:`~sympredict.experiments.sine_gordon.choose_large_step` with ``quadratic``: existence of the update's
+(:func:`~sympredict.paper.sine_gordon.choose_large_step` with ``quadratic``: existence of the update's
 generating function checked on ``S``'s pairs, margin of the best classical scheme over the projection floor);
 the test parameters (the preset's, seed 0) are used for the printed errors only.  For every candidate the numbers
 are printed, the chosen one is marked.  ``--rule validation`` adds a second training-only rule
@@ -40,10 +40,10 @@ from threadpoolctl import threadpool_limits
 
 from _sine_gordon_data import cached_fom_data  # benchmarks/ (the script's folder is on sys.path)
 
-from sympredict.metrics import canonical_J
-from sympredict.experiments.sine_gordon import PRESETS, _err, _fit_kernel, _jg, choose_large_step
-from sympredict.nonlinear_mor import ReducedSineGordon
-from sympredict.reduction import complex_svd_basis
+from sympredict.symplectic.metrics import canonical_J
+from sympredict.paper.sine_gordon import PRESETS, _err, _fit_kernel, _jg, choose_large_step
+from sympredict.mor.nonlinear import ReducedSineGordon
+from sympredict.mor.basis import complex_svd_basis
 
 
 def _r(v, d=4):

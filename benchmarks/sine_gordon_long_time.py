@@ -27,9 +27,9 @@ import numpy as np
 from scipy.spatial import cKDTree
 from threadpoolctl import threadpool_limits
 
-from sympredict.experiments.sine_gordon import PRESETS, _fit_kernel, sign_symmetry, EnergySamples, no_augmentation
-from sympredict.nonlinear_mor import ReducedSineGordon
-from sympredict.reduction import complex_svd_basis
+from sympredict.paper.sine_gordon import PRESETS, _fit_kernel, sign_symmetry, EnergySamples, no_augmentation
+from sympredict.mor.nonlinear import ReducedSineGordon
+from sympredict.mor.basis import complex_svd_basis
 from sympredict.systems.sine_gordon import SineGordonFOM
 
 parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])

@@ -10,17 +10,17 @@ with ``A_r(c)`` the Hessian of the reduced Hamiltonian at ``0``: ``c^2 A1 + A2``
 quadratic part of ``H`` only) or ``c^2 A1 + A2 + s Vq^T Vq`` (``--split quadratic-mass``: plus the linearised
 ``1 - cos q``).  ``S`` is a :class:`~sympredict.SymplecticKernelPredictor` fitted on the transformed pairs
 ``(L_h y0, L_{-h} y1)``: it carries only the nonlinear coupling, the fast linear rotation is exact.  ``Phi`` is
-symplectic (a composition of symplectic maps).  The model is :class:`~sympredict.splitting.SplitKernelPredictor`
-(the experiment's ``kernel_split`` option, :func:`~sympredict.experiments.sine_gordon.split_setup`); the Galerkin
+symplectic (a composition of symplectic maps).  The model is :class:`~sympredict.flowmap.splitting.SplitKernelPredictor`
+(the experiment's ``kernel_split`` option, :func:`~sympredict.paper.sine_gordon.split_setup`); the Galerkin
 training data then have enough implicit-midpoint sub-steps that the fastest linear mode's phase error stays below
 ``split_phase_tol`` per ``DT`` (``L_h`` is exact, the data must be too).
 
 Data, basis, Galerkin ROM, energy samples, ridge selection and the scaled fit are the experiment's own
-(:func:`~sympredict.experiments.sine_gordon.fom_data`, ``split_setup``, ``_fit_kernel``, ``_augmentation``); the test parameters
+(:func:`~sympredict.paper.sine_gordon.fom_data`, ``split_setup``, ``_fit_kernel``, ``_augmentation``); the test parameters
 are the preset's (seed 0), used for the reported errors only, never for a choice.  Printed per ``2n``, update and
 split: the kernel ROM's error against the FOM per test parameter (mean over ``[0, T]``), its ratio to the Galerkin
 ROM's, its distance to the trajectory of the Galerkin ROM it learns (with the data's sub-steps; mean relative error
-over ``[0, T]``; the linearised flow ``L_h L_h`` alone for comparison), and :func:`~sympredict.experiments.sine_gordon.energy_boundedness` over ``long_factor * T``.
+over ``[0, T]``; the linearised flow ``L_h L_h`` alone for comparison), and :func:`~sympredict.paper.sine_gordon.energy_boundedness` over ``long_factor * T``.
 
 Run (one core):  OMP_NUM_THREADS=1 NUMBA_NUM_THREADS=1 python benchmarks/sine_gordon_split.py --dims 12 \\
     [--n-c 4 --n-amplitude 4 --max-centers 1000] [--updates symplectic_euler midpoint] [--splits none quadratic quadratic-mass]
@@ -37,11 +37,11 @@ from threadpoolctl import threadpool_limits
 
 from _sine_gordon_data import cached_fom_data  # benchmarks/ (the script's folder is on sys.path)
 
-from sympredict.experiments.sine_gordon import PRESETS, _augmentation, _err, _energy_errors, _fit_kernel, _jg, \
+from sympredict.paper.sine_gordon import PRESETS, _augmentation, _err, _energy_errors, _fit_kernel, _jg, \
     energy_boundedness, split_setup
-from sympredict.metrics import relative_trajectory_error
-from sympredict.nonlinear_mor import ReducedSineGordon
-from sympredict.reduction import complex_svd_basis
+from sympredict.symplectic.metrics import relative_trajectory_error
+from sympredict.mor.nonlinear import ReducedSineGordon
+from sympredict.mor.basis import complex_svd_basis
 
 
 def main():

@@ -29,7 +29,7 @@ Sections (``--sections``, comma separated; default all but ``scenario_a``):
     Costs against centres ``m``, candidates ``N``, batch size and state
     dimension ``2n``, with fitted log-log exponents.
 ``wave``
-    The MOR pipeline (``sympredict.experiments.wave``, quick preset, 2n = 4,
+    The MOR pipeline (``sympredict.paper.wave``, quick preset, 2n = 4,
     dT = 0.1): basis, data, kernel selection, training, online step, each
     timed, with the accuracy of each stage's product.
 ``scenario_a``
@@ -61,11 +61,11 @@ from threadpoolctl import threadpool_info, threadpool_limits  # noqa: E402
 
 from sympredict import SymplecticKernelPredictor, _fastkernels  # noqa: E402
 from sympredict.data import mixed_variables  # noqa: E402
-from sympredict.functionals import HBFunctionals, functional_residuals  # noqa: E402
-from sympredict.greedy import GreedyHistory, active_set_greedy, greedy_interpolation  # noqa: E402
+from sympredict.interpolation.functionals import HBFunctionals, functional_residuals  # noqa: E402
+from sympredict.interpolation.greedy import GreedyHistory, active_set_greedy, greedy_interpolation  # noqa: E402
 from sympredict.kernels import IMQ, ProductKernel  # noqa: E402
-from sympredict.metrics import relative_trajectory_error  # noqa: E402
-from sympredict.surrogate import HBSurrogate  # noqa: E402
+from sympredict.symplectic.metrics import relative_trajectory_error  # noqa: E402
+from sympredict.interpolation.surrogate import HBSurrogate  # noqa: E402
 from sympredict.systems.pendulum import DT_TEST, Pendulum, flow_map_data  # noqa: E402
 
 #: The issue's kernel for scenario A (IMQ shapes of state, length, step).
@@ -140,7 +140,7 @@ def model_from_greedy(data, functionals: HBFunctionals, result, eps=EPS_A) -> Sy
 
 def paper_protocol_errors(model, seed: int = 0, horizon: float = 20.0) -> list:
     """Scenario A test protocol: 5 x 5 random ``q0`` and lengths, relative error over time per test step."""
-    from sympredict.experiments.pendulum import paper_test_instances
+    from sympredict.paper.pendulum import paper_test_instances
 
     system = Pendulum()
     x0, lengths = paper_test_instances(seed)
@@ -452,7 +452,7 @@ def scaling_figure(scaling: dict, path: Path) -> None:
 
 # --------------------------------------------------------------------------- wave
 def section_wave(seed: int = 0, basis_blas_threads: int = 1) -> dict:
-    from sympredict.experiments.wave import PRESETS, build_rom, train_wave_predictor
+    from sympredict.paper.wave import PRESETS, build_rom, train_wave_predictor
 
     preset = PRESETS["quick"]
     dt = 0.1

@@ -21,7 +21,7 @@ import numpy as np
 from pymor.core.logger import set_log_levels
 from threadpoolctl import threadpool_limits
 
-from sympredict.experiments.wave import PRESETS, run_wave
+from sympredict.paper.wave import PRESETS, run_wave
 
 parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
 parser.add_argument("--preset", choices=sorted(PRESETS), default="quick")
@@ -31,7 +31,7 @@ parser.add_argument("--seed", type=int, default=0)
 parser.add_argument("--out", default="benchmarks/results")
 args = parser.parse_args()
 
-set_log_levels({"sympredict": "INFO", "sympredict.greedy": "WARNING", "sympredict.selection": "WARNING", "pymor": "WARN"})
+set_log_levels({"sympredict": "INFO", "sympredict.interpolation.greedy": "WARNING", "sympredict.estimators.selection": "WARNING", "pymor": "WARN"})
 out = Path(args.out)
 out.mkdir(parents=True, exist_ok=True)
 rows = []

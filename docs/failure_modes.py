@@ -8,9 +8,9 @@ from sympredict import *
 from sympredict.kernels import IMQ
 from sympredict.systems.pendulum import Pendulum, flow_map_data
 from sympredict.systems.wave import WaveFOM
-from sympredict.reduction import complex_svd_basis, SymplecticROM
-from sympredict.functionals import HBFunctionals
-from sympredict.greedy import greedy_interpolation
+from sympredict.mor.basis import complex_svd_basis, SymplecticROM
+from sympredict.interpolation.functionals import HBFunctionals
+from sympredict.interpolation.greedy import greedy_interpolation
 from sympredict.kernels import ProductKernel
 d = flow_map_data(Pendulum(), mus=(0.7, 0.8), dts=(0.04, 0.06), n_grid=8)
 m = SymplecticKernelPredictor(IMQ(0.3), IMQ(2.0), IMQ(5.0), max_centers=40).fit(d.x0, d.x1, mu=d.mu, dt=d.dt)

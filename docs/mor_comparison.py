@@ -40,9 +40,9 @@ from pymor.reductors.data_driven import DataDrivenReductor  # noqa: E402
 from pymor.reductors.symplectic import QuadraticHamiltonianRBReductor  # noqa: E402
 from pymordemos.symplectic_wave_equation import discretize_fom  # noqa: E402
 
-from sympredict.flowmaps import random_parameters  # noqa: E402
+from sympredict.systems.flowmaps import random_parameters  # noqa: E402
 from sympredict.mor import SymplecticKernelReductor  # noqa: E402
-from sympredict.scaling import BoxScaling  # noqa: E402
+from sympredict.flowmap.scaling import BoxScaling  # noqa: E402
 
 set_log_levels({"pymor": "ERROR", "sympredict": "WARNING"})
 
@@ -102,7 +102,7 @@ rows.append({"method": "Galerkin ROM (pyMOR QuadraticHamiltonianRBReductor)", "n
 # the same Galerkin ROM stepped in NumPy with its exact propagator at dt, assembled online per mu
 from scipy.linalg import expm  # noqa: E402
 
-from sympredict.flowmaps import linear_system_from_pymor, mu_to_vector  # noqa: E402
+from sympredict.systems.flowmaps import linear_system_from_pymor, mu_to_vector  # noqa: E402
 
 lin = linear_system_from_pymor(grom)
 V_plus_arr = RB.transposed_symplectic_inverse().to_array()

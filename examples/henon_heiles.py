@@ -19,7 +19,7 @@ args = parser.parse_args()
 
 # ---- user code: 15 lines ------------------------------------------------------------------------
 from sympredict import SymplecticKernelPredictor
-from sympredict.flowmaps import HamiltonianSystem, check_generating_function, sample_energy_box, sampled_flow_map_data
+from sympredict.systems.flowmaps import HamiltonianSystem, check_generating_function, sample_energy_box, sampled_flow_map_data
 from sympredict.kernels import IMQ
 
 H = lambda x, mu: 0.5 * (x**2).sum(axis=1) + mu[:, 0] * (x[:, 0] ** 2 * x[:, 1] - x[:, 1] ** 3 / 3)

@@ -18,9 +18,9 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from sympredict import SymplecticKernelPredictor
-from sympredict.integrators import implicit_midpoint_step, integrate
+from sympredict.symplectic.integrators import implicit_midpoint_step, integrate
 from sympredict.kernels import IMQ
-from sympredict.metrics import relative_hamiltonian_error, relative_trajectory_error
+from sympredict.symplectic.metrics import relative_hamiltonian_error, relative_trajectory_error
 from sympredict.systems.pendulum import Pendulum, flow_map_data
 
 parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])

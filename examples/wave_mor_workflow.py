@@ -14,10 +14,10 @@ import argparse
 import numpy as np
 
 from sympredict import SymplecticKernelPredictor
-from sympredict.experiments.wave import reduced_flow_map_data
+from sympredict.paper.wave import reduced_flow_map_data
 from sympredict.kernels import IMQ
-from sympredict.metrics import relative_trajectory_error
-from sympredict.reduction import SymplecticROM, complex_svd_basis, symplecticity_of_basis
+from sympredict.symplectic.metrics import relative_trajectory_error
+from sympredict.mor.basis import SymplecticROM, complex_svd_basis, symplecticity_of_basis
 from sympredict.systems.wave import C_REF, C_TRAIN, WaveFOM
 
 parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])

@@ -4,8 +4,8 @@ The implicit symplectic-Euler step solves, per instance,
 ``F(p) = p - p0 + dT d_q s(q0, p) = 0`` by Newton with Jacobian
 ``I + dT d_p d_q s``; the symmetric (midpoint) update solves
 ``F(z) = z - x0 - dT/2 J grad s(z) = 0`` for the midpoint ``z`` with Jacobian
-``I - dT/2 J Hess s(z)``.  The NumPy paths (:func:`sympredict.newton.solve_step_numpy`,
-:func:`sympredict.newton.solve_midpoint_numpy`, ``backend='numpy'``) are the
+``I - dT/2 J Hess s(z)``.  The NumPy paths (:func:`sympredict.symplectic.newton.solve_step_numpy`,
+:func:`sympredict.symplectic.newton.solve_midpoint_numpy`, ``backend='numpy'``) are the
 references; the functions here compute the same iterations, instance by
 instance, in compiled code (one solver, the update a flag):
 
@@ -43,7 +43,7 @@ has no code: for it the same functions are compiled once more per process,
 bound to dispatchers that know its formulas, and not cached on disk
 (:func:`_kernels`).
 
-For the exact f-greedy (:mod:`sympredict.greedy`): :func:`greedy_update` (the
+For the exact f-greedy (:mod:`sympredict.interpolation.greedy`): :func:`greedy_update` (the
 vector work of a step after the matrix-vector product, one pass) and
 :func:`hb_column` (the Gramian column for ``2n = 2`` and exact-arithmetic families) are
 bit-identical to the NumPy code they replace; :func:`matvec_t` (float64
@@ -560,7 +560,7 @@ def _pass(xi, w, cT, seg, family, eps, mode, sc, grad, hess):
     ``grad_a = -sum_j w_j B_j g_j d_ja - [a = l] sum_j w_j A_j``,
     ``H_ac = -sum_j w_j C_j g_j d_ja d_jc - delta_ac sum_j w_j B_j g_j - M_ac - M_ca``,
     ``M_ac = sum_j w_j B_j d_ja [l = c]``
-    (:meth:`sympredict.surrogate.HBSurrogate.gradient_hessian`).
+    (:meth:`sympredict.interpolation.surrogate.HBSurrogate.gradient_hessian`).
 
     ``O(m 2n)`` flops for the gradient, ``+ O(m n^2)`` for the block, ``+ O(m (2n)^2 / 2)``
     for the full Hessian (its upper triangle, mirrored); ``O((2n + 6) chunk)``
@@ -608,9 +608,9 @@ def _solve_one(x, w, h, cT, seg, family, eps, max_iter, out, sc, grad, hess, jac
     """One implicit step for one instance: ``out <- Phi(x)``.  Returns ``(code, residual, iteration)``.
 
     The iteration and stopping rule of the NumPy references, for one instance:
-    symplectic Euler (``mid`` False, :func:`sympredict.newton.solve_step_numpy`):
+    symplectic Euler (``mid`` False, :func:`sympredict.symplectic.newton.solve_step_numpy`):
     unknowns ``u = p1``, ``F = p1 - p0 + dT d_q s(q0, p1)``, Jacobian ``I + dT d_p d_q s``;
-    midpoint (``mid`` True, :func:`sympredict.newton.solve_midpoint_numpy`):
+    midpoint (``mid`` True, :func:`sympredict.symplectic.newton.solve_midpoint_numpy`):
     unknowns ``u = z = (x0 + x1) / 2``, ``F = z - x0 - dT/2 J grad s(z)``, Jacobian
     ``I - dT/2 J Hess s(z)``.  ``u`` holds the first guess when ``warm``.
     """
@@ -1071,12 +1071,12 @@ def newton_rollout(x0, weights, dt, layout: CenterLayout, kernel, max_iter: int,
         midpoint ``z`` (``2n`` unknowns) with Jacobian ``I - dT/2 J Hess s(z)``
         (the full Hessian, its upper triangle computed).  The same pass, solver and
         stopping rule (:func:`sympredict.newton_rule.converged`) for both; they equal
-        :func:`sympredict.newton.solve_step_numpy` and
-        :func:`sympredict.newton.solve_midpoint_numpy` to round-off.
+        :func:`sympredict.symplectic.newton.solve_step_numpy` and
+        :func:`sympredict.symplectic.newton.solve_midpoint_numpy` to round-off.
     around
         ``None``, or ``(pre, post)``, two arrays (B, 2n, 2n): each macro step is then
         ``x_k+1 = post S(pre x_k)`` with ``S`` the implicit step (the exact-linear-flow
-        splitting, :class:`sympredict.splitting.SplitKernelPredictor`); ``traj`` holds the
+        splitting, :class:`sympredict.flowmap.splitting.SplitKernelPredictor`); ``traj`` holds the
         ``x_k``.  Not combined with ``warm_start`` (its extrapolation would mix the
         coordinates of ``x_k`` and of the step's input).  ``+ O(K B (2n)^2)`` flops.
 
@@ -1213,9 +1213,9 @@ def gradients(xi, group, group_weights, layout: CenterLayout, kernel) -> np.ndar
 def newton_terms(xi, weights, layout: CenterLayout, kernel, full: bool = False):
     """What one compiled Newton iteration computes at each point: gradient, Hessian terms, gradient floor.
 
-    The compiled twin of :meth:`sympredict.surrogate.HBSurrogate.newton_terms`
+    The compiled twin of :meth:`sympredict.interpolation.surrogate.HBSurrogate.newton_terms`
     (``full=False``: the ``d_p d_q s`` block the symplectic-Euler step needs) and
-    of :meth:`~sympredict.surrogate.HBSurrogate.gradient_hessian` (``full=True``:
+    of :meth:`~sympredict.interpolation.surrogate.HBSurrogate.gradient_hessian` (``full=True``:
     the full Hessian of the midpoint step), same outputs, another summation
     order, for checking the compiled pass family by family and dimension by
     dimension; serial, ``O(B m (2n + n^2))`` (full: ``O(B m (2n)^2)``).
@@ -1260,7 +1260,7 @@ def greedy_update(row, t, inv_pj: float, b: float, res, p2, j: int, breakdown: f
     """The f-greedy step's vector work after the matrix-vector product, in one pass.
 
     Elementwise, with the same operations in the same order as the NumPy code
-    of :func:`sympredict.greedy.greedy_interpolation` (bit-identical results):
+    of :func:`sympredict.interpolation.greedy.greedy_interpolation` (bit-identical results):
     ``v = (row - t) / sqrt(P2_j)`` into ``row``, ``r -= beta v``, ``P2 -= v^2``
     (both 0 at ``j``), then ``max |r|`` over all candidates and the next
     selection ``argmax |r|`` over the candidates with ``P2 > breakdown``
@@ -1365,7 +1365,7 @@ def hb_column(kernel, points, mu, dt, representer, out: np.ndarray) -> np.ndarra
 
     ``out[2 p + a] = w_p (-B d_pa d_pb - A delta_ab)`` with ``d_p = xi_p - xi_q``,
     ``w_p = k_mu(mu_p, mu_q) k_dT(dT_p, dT_q)``; one pass, no temporaries.
-    ``O(N)``; bit-identical to :meth:`sympredict.functionals.HBFunctionals.column`.
+    ``O(N)``; bit-identical to :meth:`sympredict.interpolation.functionals.HBFunctionals.column`.
     """
     xq, muq, dtq, b = representer
     # a dropped factor's family code is the state's (never used)

@@ -38,7 +38,7 @@ __all__ = ["main"]
 def __getattr__(name):
     """``sympredict.cli.report``, imported on first use: matplotlib loads only for the commands that plot."""
     if name == "report":
-        from sympredict import report
+        from sympredict.paper import report
 
         return report
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
@@ -53,8 +53,8 @@ _RUN_OUTPUT_SUFFIXES = (".png", ".pdf", ".json", ".h5", ".md")
 
 def _run_pendulum(preset_name: str, seed: int, out: Path):
     """Pendulum scenarios A and B and the stability study: returns (JSON summary, figure files, Markdown lines)."""
-    from sympredict import report
-    from sympredict.experiments.pendulum import PRESETS, run_scenario_a, run_scenario_b, run_speed_accuracy, run_stability, train_peers
+    from sympredict.paper import report
+    from sympredict.paper.pendulum import PRESETS, run_scenario_a, run_scenario_b, run_speed_accuracy, run_stability, train_peers
 
     preset = PRESETS[preset_name]
     results = run_scenario_a(preset, seed=seed, model_path=out / "pendulum_model.h5")
@@ -95,8 +95,8 @@ def _run_pendulum(preset_name: str, seed: int, out: Path):
 
 def _run_wave(preset_name: str, seed: int, out: Path):
     """Wave MOR pipeline: returns (JSON summary, figure files, Markdown lines)."""
-    from sympredict import report
-    from sympredict.experiments.wave import PRESETS, run_wave
+    from sympredict.paper import report
+    from sympredict.paper.wave import PRESETS, run_wave
 
     results = run_wave(PRESETS[preset_name], seed=seed)
     for r in results["per_dt"]:
@@ -123,8 +123,8 @@ def _run_wave(preset_name: str, seed: int, out: Path):
 
 def _run_sine_gordon(preset_name: str, seed: int, out: Path):
     """Sine-Gordon MOR (issue 15): returns (JSON summary, figure files, Markdown lines)."""
-    from sympredict import report
-    from sympredict.experiments.sine_gordon import PRESETS, run_sine_gordon
+    from sympredict.paper import report
+    from sympredict.paper.sine_gordon import PRESETS, run_sine_gordon
 
     s = run_sine_gordon(PRESETS[preset_name], seed=seed)
     figures = report.save_figures(report.sine_gordon_figures(s), out)
@@ -137,8 +137,8 @@ def _run_sine_gordon(preset_name: str, seed: int, out: Path):
 
 def _run_henon_heiles(preset_name: str, seed: int, out: Path):
     """Hénon–Heiles speed against accuracy: returns (JSON summary, figure files, Markdown lines)."""
-    from sympredict import report
-    from sympredict.experiments.henon_heiles import PRESETS, run_henon_heiles
+    from sympredict.paper import report
+    from sympredict.paper.henon_heiles import PRESETS, run_henon_heiles
 
     results = run_henon_heiles(PRESETS[preset_name], seed=seed)
     results["model"].save(out / "henon_heiles_model.h5")
@@ -214,7 +214,7 @@ def _publish_run(staging: Path, out: Path) -> None:
 
 
 def _cmd_run(args) -> int:
-    from sympredict import report
+    from sympredict.paper import report
     from threadpoolctl import threadpool_limits
 
     preset_name = args.preset or ("paper" if args.paper else "quick")
@@ -345,9 +345,9 @@ def _cmd_train(args) -> int:
     from threadpoolctl import threadpool_limits
 
     from sympredict import SymplecticKernelPredictor
-    from sympredict.greedy import ExactGreedy
+    from sympredict.interpolation.greedy import ExactGreedy
     from sympredict.io import load_dataset
-    from sympredict.solvers import NewtonSolver
+    from sympredict.symplectic.solvers import NewtonSolver
 
     _check_output_file(args.out, args.data, args.validation, force=args.force)
     data, meta = load_dataset(args.data)
@@ -409,7 +409,7 @@ def _duration(seconds: float) -> str:
 
 def _set_backend(model, backend: str):
     """The Newton backend of a loaded model (the inner predictor's for a split model; none for the direct model)."""
-    from sympredict.predictor import newton_predictor
+    from sympredict.estimators.predictor import newton_predictor
 
     inner = newton_predictor(model)
     if inner is not None:

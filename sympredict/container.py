@@ -50,7 +50,7 @@ Reading (:func:`read_container`)
     raw h5py, NumPy or Python error.
 
 This module knows nothing of models: the estimators turn themselves into
-``(settings, arrays)`` and back (:mod:`sympredict.predictor`), and
+``(settings, arrays)`` and back (:mod:`sympredict.estimators.predictor`), and
 :mod:`sympredict.io` names the formats.
 """
 

@@ -6,7 +6,7 @@ the update stagnates within ``STALL_FLOOR_FACTOR`` of the floor:
 
 * ``f_floor = FLOOR_FACTOR (eps |p| + dT floor_grad) + tiny``, where
   ``floor_grad`` is the round-off bound of the surrogate gradient
-  (:meth:`sympredict.surrogate.HBSurrogate.gradient_hessian`) and ``|p|`` the
+  (:meth:`sympredict.interpolation.surrogate.HBSurrogate.gradient_hessian`) and ``|p|`` the
   larger of ``|p0|_inf`` and ``|p1|_inf``;
 * ``|delta|_inf <= UPDATE_FACTOR eps |p|``;
 * ``|delta|_inf >= STALL_RATIO * previous |delta|_inf`` and ``|F| <= STALL_FLOOR_FACTOR f_floor``.

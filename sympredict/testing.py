@@ -27,8 +27,8 @@ import warnings
 import numpy as np
 
 from sympredict.exceptions import ExtrapolationWarning
-from sympredict.metrics import canonical_J
-from sympredict.reduction import symplecticity_of_basis
+from sympredict.symplectic.metrics import canonical_J
+from sympredict.mor.basis import symplecticity_of_basis
 
 __all__ = ["assert_symplectic_step", "assert_energy_bounded", "assert_rom_matches_fom", "assert_symplectic_basis",
            "finite_difference_jacobian"]

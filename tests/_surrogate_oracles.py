@@ -16,13 +16,13 @@ import pytest
 from sympredict.container import write_container
 from sympredict.exceptions import ModelFileError
 from sympredict.io import load_model
-from sympredict.predictor import MODEL_FORMAT
+from sympredict.estimators.predictor import MODEL_FORMAT
 
 from _tolerances import rollout_bound  # tests/
 
 
 def check_surrogate_by_finite_differences(sur, kernel_value, centers, cmu, comps, coef, xi, qmu, h=1e-5):
-    """Assert that ``sur`` (an :class:`~sympredict.surrogate.HBSurrogate` with centres ``centers`` (m, D) at
+    """Assert that ``sur`` (an :class:`~sympredict.interpolation.surrogate.HBSurrogate` with centres ``centers`` (m, D) at
     ``cmu`` (m, 1), differentiated components ``comps`` and coefficients ``coef``) evaluates
 
     * ``s(x) = sum_j c_j d/dy_{l_j} k((x, mu), (y, mu_j))|_{y = x_j}``, the derivative in ``y`` taken by central
@@ -55,7 +55,7 @@ def check_surrogate_by_finite_differences(sur, kernel_value, centers, cmu, comps
 
 
 def check_gramian_by_finite_differences(fun, kernel_value, pts, mu, rtol=1e-13, atol=1e-15, h=1e-4):
-    """Assert that the Hermite-Birkhoff Gramian of ``fun`` (an :class:`~sympredict.functionals.HBFunctionals` at
+    """Assert that the Hermite-Birkhoff Gramian of ``fun`` (an :class:`~sympredict.interpolation.functionals.HBFunctionals` at
     ``pts`` (P, D), ``mu`` (P, 1), every state derivative of every point) is consistent (columns, rows and
     diagonal agree, symmetric, positive definite for points in general position) and equals the mixed central
     differences ``d/dx_a d/dy_b`` of ``kernel_value(x, y, mu_x, mu_y)``.  Returns the Gramian (P D, P D)."""

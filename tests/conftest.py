@@ -6,11 +6,11 @@ from threadpoolctl import threadpool_limits
 
 from sympredict import SymplecticKernelPredictor
 from sympredict.kernels import IMQ
-from sympredict.nonlinear_mor import ReducedSineGordon
-from sympredict.reduction import complex_svd_basis
+from sympredict.mor.nonlinear import ReducedSineGordon
+from sympredict.mor.basis import complex_svd_basis
 from sympredict.systems.pendulum import Pendulum, flow_map_data
 from sympredict.systems.sine_gordon import SineGordonFOM
-from sympredict.greedy import ExactGreedy
+from sympredict.interpolation.greedy import ExactGreedy
 
 # Small dense problems: one BLAS thread is fastest and avoids oversubscription on 2 cores.
 threadpool_limits(1)

@@ -59,7 +59,7 @@ def test_pendulum_accuracy_quick_with_symmetry(tmp_path):
 
 
 def test_pendulum_accuracy_quick_with_split(tmp_path):
-    """The exact-linear-flow splitting (``--split``, sympredict.splitting) through the same protocol."""
+    """The exact-linear-flow splitting (``--split``, sympredict.flowmap.splitting) through the same protocol."""
     summary = _run("pendulum_accuracy.py", tmp_path, "--split", "--symmetry", "klein")
     _check_choice(summary)
     assert summary["split"] is True and summary["symmetry"] == "klein"

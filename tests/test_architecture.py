@@ -1,38 +1,33 @@
 """The package's import rule: dependencies point one way, layer by layer, with no cycles and nothing hidden.
 
-Walks the import statements of every module (function bodies included) with
-``ast``.  ``from sympredict import name`` counts as an import of the submodule
-``name`` when there is one, else of the package namespace (which imports the
-estimators).  A module missing from ``LAYERS`` fails the test: a new module
-gets a place in the layering when it is added (docs/architecture.md).
+The layers of the role folders are import-linter contracts in ``pyproject.toml``
+(``[tool.importlinter]``): :func:`test_import_contracts` runs them, so plain
+pytest fails on an upward import, on a library module importing the paper's
+code, or on a module that has no layer (the layers contract is exhaustive: a
+new module gets its place in the contracts, docs/architecture.md).
+
+What import-linter does not check is checked here by walking the import
+statements of every module (function bodies included) with ``ast``: no
+function-level imports of the package outside the command line, no cycles
+between modules.  ``from sympredict import name`` counts as an import of the
+submodule ``name`` when there is one, else of the package namespace.
 """
 
 import ast
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
 
-PACKAGE = Path(__file__).resolve().parents[1] / "sympredict"
-
-#: Lowest first.  A module may import modules of its own layer or below, never above.
-LAYERS = [
-    ("foundations", ["_version", "_numeric", "exceptions", "base", "_checks", "metrics", "data", "newton_rule", "container"]),
-    ("pool plumbing", ["parallel"]),
-    ("kernels", ["kernels", "_fastkernels"]),
-    ("functionals", ["functionals"]),
-    ("greedy", ["greedy"]),
-    ("surrogate, Newton solvers, integrators", ["surrogate", "newton", "integrators", "integrators_compiled"]),
-    ("systems", ["systems", "flowmaps", "linear_flow"]),
-    ("estimators", ["predictor", "sympredict"]),
-    ("selection, io, mor", ["selection", "io", "reduction", "mor", "scaling", "testing", "nonlinear_mor", "splitting"]),
-    ("experiments", ["experiments"]),
-    ("report", ["report", "plotting"]),
-    ("cli", ["cli"]),
-]
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGE = ROOT / "sympredict"
 
 #: The command line imports its subcommands when they run (start-up time); it is the top layer, so a
 #: function-level import there cannot hide a cycle.
 LAZY_IMPORTS_ALLOWED = {"sympredict.cli"}
+
+_LINT_IMPORTS = "import sys; from importlinter.cli import lint_imports_command; sys.exit(lint_imports_command())"
 
 
 def _modules() -> dict:
@@ -41,16 +36,6 @@ def _modules() -> dict:
         name = ".".join(("sympredict",) + path.relative_to(PACKAGE).with_suffix("").parts)
         mods[name[: -len(".__init__")] if name.endswith(".__init__") else name] = path
     return mods
-
-
-def _layer(module: str) -> int:
-    short = module[len("sympredict.") :] if module != "sympredict" else "sympredict"
-    top = short.split(".")[0]
-    for rank, (_, members) in enumerate(LAYERS):
-        if top in members:
-            return rank
-    raise AssertionError(f"module {module} has no layer: add it to LAYERS in tests/test_architecture.py "
-                         "and to docs/architecture.md")
 
 
 def _imports(mods: dict):
@@ -83,19 +68,38 @@ def _imports(mods: dict):
     return out
 
 
-def test_every_module_has_a_layer():
-    for name in _modules():
-        _layer(name)
+def _lint_imports(*args: str, cwd: Path = ROOT) -> subprocess.CompletedProcess:
+    pytest.importorskip("importlinter")
+    return subprocess.run([sys.executable, "-c", _LINT_IMPORTS, "--no-cache", "--no-logo", *args], cwd=cwd,
+                          capture_output=True, text=True, timeout=300)
 
 
-def test_dependencies_point_down():
+def test_import_contracts():
+    """The contracts of pyproject.toml hold (what ``lint-imports`` checks in .ci/run)."""
+    proc = _lint_imports("--config", str(ROOT / "pyproject.toml"))
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert "0 broken" in proc.stdout
+
+
+def test_the_contracts_can_fail(tmp_path):
+    """The check is not vacuous: a layering the code breaks (kernels above the estimators) is reported broken."""
+    config = tmp_path / "upside_down.ini"
+    config.write_text("[importlinter]\nroot_package = sympredict\n\n"
+                      "[importlinter:contract:upside-down]\nname = kernels above the estimators\ntype = layers\n"
+                      "layers =\n    sympredict.kernels\n    sympredict.estimators\n")
+    proc = _lint_imports("--config", str(config))
+    assert proc.returncode == 1, proc.stdout + proc.stderr
+    assert "sympredict.estimators is not allowed to import sympredict.kernels" in proc.stdout
+
+
+def test_only_the_command_line_imports_the_paper():
+    """The paper's code is apart from the library; the package namespace included (the contracts see its children)."""
     mods = _modules()
-    wrong = []
-    for name, imports in _imports(mods).items():
-        for target, line, _ in imports:
-            if _layer(target) > _layer(name):
-                wrong.append(f"{name}:{line} imports {target} ({LAYERS[_layer(name)][0]} -> {LAYERS[_layer(target)][0]})")
-    assert not wrong, "imports that point up the layers:\n" + "\n".join(wrong)
+    assert "sympredict.paper" in mods
+    wrong = [f"{name}:{line} imports {target}" for name, imports in _imports(mods).items()
+             if name != "sympredict.cli" and not name.startswith("sympredict.paper")
+             for target, line, _ in imports if target == "sympredict.paper" or target.startswith("sympredict.paper.")]
+    assert not wrong, "\n".join(wrong)
 
 
 def test_no_import_cycles():
@@ -126,10 +130,3 @@ def test_no_function_level_imports_of_the_package():
               for name, imports in _imports(mods).items() if name not in LAZY_IMPORTS_ALLOWED
               for target, line, inside in imports if inside]
     assert not hidden, "\n".join(hidden)
-
-
-@pytest.mark.parametrize("source,target,expected", [("sympredict.greedy.loop", "sympredict.predictor", True),
-                                                     ("sympredict.cli", "sympredict.kernels", False)])
-def test_the_rule_itself_can_fail(source, target, expected):
-    """The checks are not vacuous: an upward import is recognised as one."""
-    assert (_layer(target) > _layer(source)) is expected

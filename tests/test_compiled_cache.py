@@ -35,7 +35,7 @@ class Keep(logging.Handler):
 logging.getLogger("sympredict").addHandler(Keep())
 from sympredict import _fastkernels as fk
 from sympredict.kernels import IMQ, ProductKernel
-from sympredict.surrogate import HBSurrogate
+from sympredict.interpolation.surrogate import HBSurrogate
 
 if sys.argv[1] == "unwritable":  # after import (numba has chosen the folder): a file where the folder was
     cache = os.environ["NUMBA_CACHE_DIR"]

@@ -7,11 +7,11 @@ from sympredict import ExtrapolationWarning
 
 from sympredict import DirectKernelPredictor, SymplecticKernelPredictor
 from sympredict.data import FlowMapData
-from sympredict.functionals import ValueFunctionals, dense_interpolation
-from sympredict.greedy import greedy_interpolation
+from sympredict.interpolation.functionals import ValueFunctionals, dense_interpolation
+from sympredict.interpolation.greedy import greedy_interpolation
 from sympredict.kernels import IMQ, Matern52, ProductKernel, kernel_from_spec
-from sympredict.selection import SelectionResult, kernel_grid, log_grid, refine_kernel_shapes, select_kernels
-from sympredict.greedy import ExactGreedy
+from sympredict.estimators.selection import SelectionResult, kernel_grid, log_grid, refine_kernel_shapes, select_kernels
+from sympredict.interpolation.greedy import ExactGreedy
 
 
 def test_value_greedy_to_exhaustion_equals_dense_solve(rng):
@@ -43,7 +43,7 @@ def test_direct_model_interpolates_the_step(pendulum, small_pendulum_data, rng):
 
 def test_direct_model_drifts_in_energy_where_the_symplectic_one_does_not(pendulum):
     """The paper's qualitative claim, on a small case: same data, same kernel, long rollout."""
-    from sympredict.metrics import relative_hamiltonian_error
+    from sympredict.symplectic.metrics import relative_hamiltonian_error
     from sympredict.systems.pendulum import flow_map_data
 
     d = flow_map_data(pendulum, n_grid=16, p_nonpositive=True)
@@ -131,7 +131,7 @@ def test_selection_survives_failing_candidates_and_widens_its_grid(small_pendulu
                 raise ValueError("the kernel coefficients overflow (test)")
             return super().fit(*args, **kwargs)
 
-    caplog.set_level(logging.INFO, logger="sympredict.selection")
+    caplog.set_level(logging.INFO, logger="sympredict.estimators.selection")
     result = select_kernels(data, val, [IMQ(0.5), IMQ(1.2), IMQ(2.4)], [IMQ(2.0)], [IMQ(5.0)], m_star=60,
                             estimator=FailsAtHalf(), widen=0)
     failed = [row for row in result.table if "error" in row]

@@ -10,11 +10,11 @@ from pymor.parallel.dummy import dummy_pool
 
 from sympredict import DirectKernelPredictor, ModelFileError, SymplecticKernelPredictor
 from sympredict.base import Parametrized, clone
-from sympredict.greedy import TRAINERS, ActiveSetGreedy, ExactGreedy, ShardedGreedy
+from sympredict.interpolation.greedy import TRAINERS, ActiveSetGreedy, ExactGreedy, ShardedGreedy
 from sympredict.io import load_model, save_model
 from sympredict.kernels import IMQ, Matern32, Matern52
-from sympredict.solvers import NewtonSolver
-from sympredict.transforms import Periodic
+from sympredict.symplectic.solvers import NewtonSolver
+from sympredict.kernels.transforms import Periodic
 from _tolerances import assert_same_predictions, value_rollout_bound  # tests/
 
 
@@ -134,7 +134,7 @@ def test_direct_model_files_and_io_dispatch(small_pendulum_data, tmp_path):
 def test_layout_1_files_still_load(small_pendulum_data, tmp_path):
     """A model file of sympredict 0.1 (settings without 'layout', timings in the arrays) loads as before."""
     from sympredict.container import write_container
-    from sympredict.predictor import MODEL_FORMAT
+    from sympredict.estimators.predictor import MODEL_FORMAT
 
     x0, x1, mu, dt = _data(small_pendulum_data)
     model = SymplecticKernelPredictor(IMQ(0.2), IMQ(1.5), IMQ(3.0), max_centers=30).fit(x0, x1, mu=mu, dt=dt)
@@ -154,7 +154,7 @@ def test_layout_1_files_still_load(small_pendulum_data, tmp_path):
 
 def test_inconsistent_model_files_are_refused(small_pendulum_data, tmp_path):
     from sympredict.container import read_container, write_container
-    from sympredict.predictor import MODEL_FORMAT
+    from sympredict.estimators.predictor import MODEL_FORMAT
 
     x0, x1, mu, dt = _data(small_pendulum_data)
     SymplecticKernelPredictor(IMQ(0.2), IMQ(1.5), IMQ(3.0), max_centers=30).fit(x0, x1, mu=mu, dt=dt).save(tmp_path / "m.h5")
@@ -174,7 +174,7 @@ def test_inconsistent_model_files_are_refused(small_pendulum_data, tmp_path):
 
 def test_trainers_registry_and_a_new_strategy(small_pendulum_data):
     """A new training strategy is a Trainer subclass with a store method (docs/architecture.md)."""
-    from sympredict.greedy import DenseStore, Trainer
+    from sympredict.interpolation.greedy import DenseStore, Trainer
 
     assert set(TRAINERS) >= {"ExactGreedy", "ActiveSetGreedy", "ShardedGreedy"}
 

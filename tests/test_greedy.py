@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 from sympredict.data import mixed_variables
-from sympredict.functionals import HBFunctionals, dense_interpolation
-from sympredict.greedy import greedy_interpolation
+from sympredict.interpolation.functionals import HBFunctionals, dense_interpolation
+from sympredict.interpolation.greedy import greedy_interpolation
 from sympredict.kernels import IMQ, Matern32, Matern52, ProductKernel
-from sympredict.surrogate import HBSurrogate
+from sympredict.interpolation.surrogate import HBSurrogate
 
 
 def _problem(rng, kernel, m_points=30, dim=2):

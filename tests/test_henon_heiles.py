@@ -5,7 +5,7 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from sympredict.exceptions import SympredictError
-from sympredict.integrators import apply_J
+from sympredict.symplectic.integrators import apply_J
 from sympredict.systems.henon_heiles import HenonHeiles, _well_radius, energy_bounded_states, escape_energy
 
 

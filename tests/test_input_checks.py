@@ -5,8 +5,8 @@ import time
 import numpy as np
 import pytest
 
-from sympredict.integrators import micro_steps
-from sympredict.reduction import complex_svd_basis
+from sympredict.symplectic.integrators import micro_steps
+from sympredict.mor.basis import complex_svd_basis
 from sympredict.systems.pendulum import Pendulum, energy_bounded_grid, flow_map_data, random_flow_map_data
 from sympredict.systems.quadratic import QuadraticHamiltonian
 from sympredict.systems.wave import WaveFOM, fd_laplacian

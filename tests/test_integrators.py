@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from sympredict.integrators import implicit_midpoint_step, integrate, stormer_verlet_step, symplectic_euler_step
-from sympredict.metrics import relative_hamiltonian_error
+from sympredict.symplectic.integrators import implicit_midpoint_step, integrate, stormer_verlet_step, symplectic_euler_step
+from sympredict.symplectic.metrics import relative_hamiltonian_error
 from sympredict.systems.pendulum import (
     MU_TRAIN,
     DT_TRAIN,
@@ -12,7 +12,7 @@ from sympredict.systems.pendulum import (
     flow_map_data,
     random_flow_map_data,
 )
-from sympredict.integrators import micro_steps
+from sympredict.symplectic.integrators import micro_steps
 
 
 def _states(rng, n=6):
@@ -89,7 +89,7 @@ def test_flow_map_data_and_scenario_b(pendulum):
 
 def test_pendulum_period_formula_matches_the_reference_flow(pendulum):
     """4 sqrt(l/g) K(sin^2(q0/2)) (used by the stability study) against zero crossings of the reference."""
-    from sympredict.experiments.pendulum import _complete_elliptic_k, _upward_crossings
+    from sympredict.paper.pendulum import _complete_elliptic_k, _upward_crossings
 
     q0, length = 1.2, 0.75
     traj = pendulum.trajectory(np.array([[q0, 0.0]]), length, 0.01, 1000)[0]  # t in [0, 10]
@@ -100,7 +100,7 @@ def test_pendulum_period_formula_matches_the_reference_flow(pendulum):
 
 
 def test_phase_error_of_shifted_sinusoids():
-    from sympredict.experiments.pendulum import _phase_error, _upward_crossings
+    from sympredict.paper.pendulum import _phase_error, _upward_crossings
 
     t = np.linspace(0, 50, 20001)
     ref = np.sin(2 * np.pi * t / 2.0)

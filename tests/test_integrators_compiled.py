@@ -7,9 +7,9 @@ from scipy.integrate import solve_ivp
 from scipy.stats import linregress
 
 from sympredict.exceptions import NewtonConvergenceError
-from sympredict.integrators import COMPOSITIONS, SCHEME_ORDERS, SCHEMES, apply_J
-from sympredict.integrators_compiled import HAVE_NUMBA, PointwiseHamiltonian, jit_pointwise, rollout
-from sympredict.metrics import canonical_J
+from sympredict.symplectic.integrators import COMPOSITIONS, SCHEME_ORDERS, SCHEMES, apply_J
+from sympredict.symplectic.integrators_compiled import HAVE_NUMBA, PointwiseHamiltonian, jit_pointwise, rollout
+from sympredict.symplectic.metrics import canonical_J
 from sympredict.systems.henon_heiles import HenonHeiles, energy_bounded_states
 from sympredict.systems.pendulum import Pendulum
 from sympredict.systems.quadratic import QuadraticHamiltonian
@@ -294,7 +294,7 @@ def test_system_specific_domain_and_separability_checks():
 
 
 def test_without_numba_the_numpy_reference_runs(monkeypatch):
-    import sympredict.integrators_compiled as ic
+    import sympredict.symplectic.integrators_compiled as ic
 
     system, x, mu = _case("henon_heiles", b=3)
     compiled = rollout(system, x, mu, 0.1, 5, scheme="yoshida4")

@@ -11,8 +11,8 @@ import pytest
 from sympredict.exceptions import extrapolation_expected
 from sympredict import SymplecticKernelPredictor, _fastkernels
 from sympredict.kernels import IMQ, KERNEL_FAMILIES, ProductKernel, RadialKernel, register_family
-from sympredict.surrogate import HBSurrogate
-from sympredict.solvers import NewtonSolver
+from sympredict.interpolation.surrogate import HBSurrogate
+from sympredict.symplectic.solvers import NewtonSolver
 
 needs_numba = pytest.mark.skipif(not _fastkernels.HAVE_NUMBA, reason="numba not installed (pip install sympredict[fast])")
 

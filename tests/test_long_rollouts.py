@@ -14,10 +14,10 @@ import pytest
 from sympredict import DirectKernelPredictor, SymplecticKernelPredictor, _fastkernels, newton
 from sympredict.exceptions import NewtonConvergenceError, RolloutMemoryError
 from sympredict.kernels import IMQ
-from sympredict.newton import rollout_in_chunks
-from sympredict.splitting import SplitKernelPredictor
-from sympredict.solvers import NewtonSolver
-from sympredict.transforms import Scaled
+from sympredict.symplectic.newton import rollout_in_chunks
+from sympredict.flowmap.splitting import SplitKernelPredictor
+from sympredict.symplectic.solvers import NewtonSolver
+from sympredict.kernels.transforms import Scaled
 
 
 def _data(d, n=400):
@@ -139,13 +139,13 @@ def test_warm_started_chunks_solve_the_same_steps(small_pendulum_model, monkeypa
 
 # ------------------------------------------------------------------ backend='auto'
 def test_auto_picks_numpy_for_small_work_and_compiled_for_large(small_pendulum_model, monkeypatch, caplog):
-    from sympredict import predictor
+    from sympredict.estimators import predictor
 
     model = copy.copy(small_pendulum_model).set_params(solver__backend="auto")
     m, dim = model.n_centers_, model.dim_
     monkeypatch.setattr(_fastkernels, "rollout_loaded", lambda: False)  # a fresh process
     assert predictor.numpy_seconds(20, 100, m, dim) < predictor.AUTO_NUMPY_SECONDS
-    with caplog.at_level(logging.DEBUG, logger="sympredict.predictor"):
+    with caplog.at_level(logging.DEBUG, logger="sympredict.estimators.predictor"):
         assert model.backend_for(20, 100) == "numpy"
     assert "backend='auto': NumPy" in caplog.text
     assert model.backend_for(1000, 1000) == "numba"
@@ -163,7 +163,7 @@ def test_auto_runs_what_it_reports(small_pendulum_model, monkeypatch):
     model = copy.copy(small_pendulum_model).set_params(solver__backend="auto")
     ran = []
     monkeypatch.setattr(_fastkernels, "rollout_loaded", lambda: False)
-    import sympredict.predictor as predictor
+    import sympredict.estimators.predictor as predictor
 
     real = predictor.rollout_compiled
     monkeypatch.setattr(predictor, "rollout_compiled", lambda *a, **k: ran.append("numba") or real(*a, **k))

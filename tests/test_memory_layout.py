@@ -18,11 +18,11 @@ from sympredict.container import read_container
 from sympredict.io import load_model, save_model
 from sympredict.kernels import IMQ
 from sympredict.mor import SymplecticKernelReductor
-from sympredict.predictor import MODEL_FORMAT
-from sympredict.scaling import SymplecticScaling
-from sympredict.splitting import SplitKernelPredictor
-from sympredict.solvers import NewtonSolver
-from sympredict.transforms import Scaled
+from sympredict.estimators.predictor import MODEL_FORMAT
+from sympredict.flowmap.scaling import SymplecticScaling
+from sympredict.flowmap.splitting import SplitKernelPredictor
+from sympredict.symplectic.solvers import NewtonSolver
+from sympredict.kernels.transforms import Scaled
 from test_mor import wave  # noqa: F401 - tests/: the parametric demo wave, its snapshots' basis (a fixture)
 
 

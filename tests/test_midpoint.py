@@ -9,8 +9,8 @@ from sympredict import SymplecticKernelPredictor
 from sympredict.exceptions import ExtrapolationWarning
 from sympredict.io import load_model, save_model
 from sympredict.kernels import IMQ
-from sympredict.newton import solve_midpoint_numpy
-from sympredict.solvers import NewtonSolver
+from sympredict.symplectic.newton import solve_midpoint_numpy
+from sympredict.symplectic.solvers import NewtonSolver
 from _tolerances import assert_same_predictions  # tests/
 from _surrogate_oracles import check_step_jacobian  # tests/
 

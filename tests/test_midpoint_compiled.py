@@ -1,7 +1,7 @@
 """The compiled midpoint solver against the NumPy reference, and the compiled Newton pass for 2n up to 40.
 
-Oracles: the NumPy solvers (:func:`~sympredict.newton.solve_midpoint_numpy`,
-:func:`~sympredict.newton.solve_step_numpy`) and the NumPy Hessian
+Oracles: the NumPy solvers (:func:`~sympredict.symplectic.newton.solve_midpoint_numpy`,
+:func:`~sympredict.symplectic.newton.solve_step_numpy`) and the NumPy Hessian
 (:meth:`HBSurrogate.gradient_hessian`); finite differences of the compiled step
 (``DPhi^T J DPhi = J``); the reverse step (time symmetry); the midpoint equation
 itself, evaluated with the NumPy gradient.
@@ -14,10 +14,10 @@ from scipy.linalg import expm
 from sympredict import NewtonConvergenceError, SymplecticKernelPredictor, _fastkernels
 from sympredict.exceptions import extrapolation_expected
 from sympredict.kernels import IMQ, ProductKernel
-from sympredict.newton import rollout_compiled, rollout_numpy, solve_midpoint_numpy, solve_step_numpy
-from sympredict.surrogate import HBSurrogate
-from sympredict.greedy import ExactGreedy
-from sympredict.solvers import NewtonSolver
+from sympredict.symplectic.newton import rollout_compiled, rollout_numpy, solve_midpoint_numpy, solve_step_numpy
+from sympredict.interpolation.surrogate import HBSurrogate
+from sympredict.interpolation.greedy import ExactGreedy
+from sympredict.symplectic.solvers import NewtonSolver
 
 from _surrogate_oracles import check_rollouts_agree_to_the_floor, pendulum_queries, with_backend  # tests/
 

@@ -16,7 +16,7 @@ from pymor.reductors.symplectic import QuadraticHamiltonianRBReductor
 
 from sympredict import SymplecticKernelPredictor
 from sympredict.exceptions import GeneratingFunctionWarning
-from sympredict.flowmaps import (
+from sympredict.systems.flowmaps import (
     HamiltonianSystem,
     LinearHamiltonianSystem,
     check_generating_function,
@@ -28,8 +28,8 @@ from sympredict.flowmaps import (
 )
 from sympredict.kernels import IMQ
 from sympredict.mor import SymplecticKernelReductor
-from sympredict.reduction import SymplecticROM, complex_svd_basis, symplecticity_of_basis
-from sympredict.scaling import BoxScaling, NormalizedFlowMap, SymplecticScaling
+from sympredict.mor.basis import SymplecticROM, complex_svd_basis, symplecticity_of_basis
+from sympredict.flowmap.scaling import BoxScaling, NormalizedFlowMap, SymplecticScaling
 from sympredict.testing import (
     assert_energy_bounded,
     assert_rom_matches_fom,
@@ -96,7 +96,7 @@ def test_rk4_reference_flow_is_accurate_and_fourth_order():
     # observed order of the RK4 core: halve the step, error / 16
     from scipy.stats import linregress
 
-    from sympredict.flowmaps import rk4_flow
+    from sympredict.systems.flowmaps import rk4_flow
 
     errs = [np.abs(rk4_flow(grad, x0, w[:, None], t, rtol=np.inf, min_steps=s // 2) - exact).max() for s in (16, 32, 64, 128)]
     slope = linregress(np.log([16, 32, 64, 128]), np.log(errs)).slope
@@ -208,7 +208,7 @@ def test_scaled_predictor_step_is_symplectic():
 
 
 def test_williamson_form_is_symplectic_and_diagonalizes():
-    from sympredict.scaling import williamson
+    from sympredict.flowmap.scaling import williamson
 
     rng = np.random.default_rng(3)
     A = rng.normal(size=(6, 6))

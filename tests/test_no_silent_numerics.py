@@ -5,8 +5,8 @@ import pytest
 
 from sympredict import DirectKernelPredictor, ExtrapolationWarning, SymplecticKernelPredictor
 from sympredict.kernels import IMQ
-from sympredict.greedy import ExactGreedy
-from sympredict.solvers import NewtonSolver
+from sympredict.interpolation.greedy import ExactGreedy
+from sympredict.symplectic.solvers import NewtonSolver
 
 
 def _oscillator(n=60, seed=0, dt=0.3):

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 from scipy.stats import linregress
 
-from sympredict.integrators_compiled import rollout
-from sympredict.metrics import canonical_J
-from sympredict.nonlinear_mor import ReducedSineGordon, nonlinear_snapshots, rk4_rollout
-from sympredict.reduction import complex_svd_basis, symplecticity_of_basis
+from sympredict.symplectic.integrators_compiled import rollout
+from sympredict.symplectic.metrics import canonical_J
+from sympredict.mor.nonlinear import ReducedSineGordon, nonlinear_snapshots, rk4_rollout
+from sympredict.mor.basis import complex_svd_basis, symplecticity_of_basis
 from sympredict.systems.sine_gordon import SineGordonFOM
 
 

@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 
 from sympredict import SymplecticKernelPredictor
-from sympredict.integrators import implicit_midpoint_step, integrate
+from sympredict.symplectic.integrators import implicit_midpoint_step, integrate
 from sympredict.kernels import IMQ
-from sympredict.metrics import canonical_J, symplecticity_defect
-from sympredict.reduction import complex_svd_basis, symplectic_inverse, symplecticity_of_basis
+from sympredict.symplectic.metrics import canonical_J, symplecticity_defect
+from sympredict.mor.basis import complex_svd_basis, symplectic_inverse, symplecticity_of_basis
 from sympredict.systems.pendulum import Pendulum, flow_map_data
-from sympredict.greedy import ExactGreedy
+from sympredict.interpolation.greedy import ExactGreedy
 
 
 # ------------------------------------------------------------------ pendulum constants and mass

@@ -10,14 +10,14 @@ import pytest
 from pymor.parallel.dummy import dummy_pool
 
 from sympredict import SymplecticKernelPredictor
-from sympredict.greedy import ShardedGreedy, greedy_interpolation, sharded_greedy
-from sympredict.greedy import sharded as sharded_module
+from sympredict.interpolation.greedy import ShardedGreedy, greedy_interpolation, sharded_greedy
+from sympredict.interpolation.greedy import sharded as sharded_module
 from sympredict.parallel import WorkerError, checked, guarded, pool_flow, pool_map_instances
 from sympredict.data import mixed_variables
-from sympredict.experiments import wave
-from sympredict.functionals import HBFunctionals, ValueFunctionals
+from sympredict.paper import wave
+from sympredict.interpolation.functionals import HBFunctionals, ValueFunctionals
 from sympredict.kernels import IMQ, ProductKernel
-from sympredict.predictor import DirectKernelPredictor
+from sympredict.estimators.predictor import DirectKernelPredictor
 from sympredict.systems.pendulum import flow_map_data, random_flow_map_data
 
 _spec = importlib.util.spec_from_file_location("sympredict_tests_mpi_launch", Path(__file__).parent / "mpi" / "launch.py")

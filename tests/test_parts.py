@@ -14,13 +14,13 @@ import pytest
 
 from sympredict import DirectKernelPredictor, SymplecticKernelPredictor
 from sympredict.base import clone
-from sympredict.greedy import ActiveSetGreedy, ExactGreedy, ShardedGreedy
+from sympredict.interpolation.greedy import ActiveSetGreedy, ExactGreedy, ShardedGreedy
 from sympredict.io import load_model
 from sympredict.kernels import IMQ, Matern52
-from sympredict.predictor import MOVED_OPTIONS, NUMPY_ONLY
-from sympredict.solvers import NewtonSolver
-from sympredict.transforms import Periodic, Scaled, Symmetric, lower_state_kernel, transform_from_spec
-from sympredict.updates import Midpoint, SymplecticEuler, as_update
+from sympredict.estimators.predictor import MOVED_OPTIONS, NUMPY_ONLY
+from sympredict.symplectic.solvers import NewtonSolver
+from sympredict.kernels.transforms import Periodic, Scaled, Symmetric, lower_state_kernel, transform_from_spec
+from sympredict.symplectic.updates import Midpoint, SymplecticEuler, as_update
 from _tolerances import rollout_bound, value_rollout_bound  # tests/
 
 LAYOUT2 = Path(__file__).parent / "data" / "layout2"

@@ -16,12 +16,12 @@ import pytest
 from sympredict.exceptions import extrapolation_expected
 from sympredict import NewtonConvergenceError, SymplecticKernelPredictor
 from sympredict import _fastkernels
-from sympredict.functionals import HBFunctionals
-from sympredict.greedy import ActiveSetGreedy, DenseStore, ExactGreedy, greedy_interpolation, run_greedy
-from sympredict.integrators import implicit_midpoint_step, integrate
+from sympredict.interpolation.functionals import HBFunctionals
+from sympredict.interpolation.greedy import ActiveSetGreedy, DenseStore, ExactGreedy, greedy_interpolation, run_greedy
+from sympredict.symplectic.integrators import implicit_midpoint_step, integrate
 from sympredict.kernels import IMQ, Matern32, Matern52, ProductKernel
-from sympredict.surrogate import HBSurrogate
-from sympredict.solvers import NewtonSolver
+from sympredict.interpolation.surrogate import HBSurrogate
+from sympredict.symplectic.solvers import NewtonSolver
 
 from _surrogate_oracles import check_rollouts_agree_to_the_floor, pendulum_queries, with_backend  # tests/
 
@@ -176,7 +176,7 @@ def _pendulum_functionals(data, kernel=None):
 
 
 def test_functional_residuals_match_the_greedy_residual(small_pendulum_data):
-    from sympredict.functionals import functional_residuals
+    from sympredict.interpolation.functionals import functional_residuals
 
     fun, y = _pendulum_functionals(small_pendulum_data)
     res = greedy_interpolation(fun, y, max_centers=200, tol=0.0)
@@ -215,7 +215,7 @@ def test_keep_basis_and_memory_message_offers_float32(small_pendulum_data):
 
 def test_float32_basis_against_float64(small_pendulum_data):
     """Half the memory; accurate while the power function stays well above float32 round-off."""
-    from sympredict.functionals import functional_residuals
+    from sympredict.interpolation.functionals import functional_residuals
 
     fun, y = _pendulum_functionals(small_pendulum_data)
     r64 = greedy_interpolation(fun, y, max_centers=60, tol=0.0)
@@ -229,7 +229,7 @@ def test_float32_basis_against_float64(small_pendulum_data):
 
 
 def test_active_set_on_all_points_is_the_exact_greedy(small_pendulum_data):
-    from sympredict.greedy import active_set_greedy
+    from sympredict.interpolation.greedy import active_set_greedy
 
     fun, y = _pendulum_functionals(small_pendulum_data)
     n_points = len(fun.points)
@@ -241,8 +241,8 @@ def test_active_set_on_all_points_is_the_exact_greedy(small_pendulum_data):
 
 
 def test_active_set_reaches_tol_over_all_functionals(small_pendulum_data):
-    from sympredict.functionals import functional_residuals
-    from sympredict.greedy import active_set_greedy
+    from sympredict.interpolation.functionals import functional_residuals
+    from sympredict.interpolation.greedy import active_set_greedy
 
     fun, y = _pendulum_functionals(small_pendulum_data)
     tol = 1e-3
@@ -357,7 +357,7 @@ def test_overflowing_coefficients_raise(rng):
 
 
 def test_short_parameter_factor_is_bit_identical(rng):
-    from sympredict.surrogate import _parameter_factor
+    from sympredict.interpolation.surrogate import _parameter_factor
 
     cm, cd = rng.uniform(0.7, 0.8, (300, 1)), rng.choice([0.04, 0.05, 0.06], 300)
     for kernel in (ProductKernel(IMQ(0.2), IMQ(1.5), IMQ(3.0)), ProductKernel(IMQ(0.2), Matern52(2.0), None),

@@ -12,13 +12,13 @@ import pytest
 from sympredict import SymplecticKernelPredictor
 from sympredict.base import clone
 from sympredict.exceptions import ExtrapolationWarning
-from sympredict.functionals import HBFunctionals, functional_residuals
+from sympredict.interpolation.functionals import HBFunctionals, functional_residuals
 from sympredict.io import load_model, save_model
 from sympredict.kernels import IMQ, Matern52, PeriodicCoordinates, ProductKernel
-from sympredict.predictor import update_variables
-from sympredict.solvers import NewtonSolver
-from sympredict.surrogate import HBSurrogate
-from sympredict.transforms import Periodic, Scaled
+from sympredict.estimators.predictor import update_variables
+from sympredict.symplectic.solvers import NewtonSolver
+from sympredict.interpolation.surrogate import HBSurrogate
+from sympredict.kernels.transforms import Periodic, Scaled
 
 from _surrogate_oracles import (check_gramian_by_finite_differences, check_malformed_kernel_entries_refused,
                                check_surrogate_by_finite_differences)  # tests/ (on sys.path under pytest)
@@ -244,7 +244,7 @@ def test_model_files(data, tmp_path):
     np.testing.assert_array_equal(back.rollout(X_FAR[:2], 5), model.rollout(X_FAR[:2], 5))
     # a file whose kernel and settings disagree is refused
     from sympredict.container import read_container
-    from sympredict.predictor import MODEL_FORMAT
+    from sympredict.estimators.predictor import MODEL_FORMAT
 
     settings, arrays = read_container(tmp_path / "p.h5", MODEL_FORMAT)
     check_malformed_kernel_entries_refused(tmp_path / "bad.h5", settings, arrays, "periodic",

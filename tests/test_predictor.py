@@ -14,10 +14,10 @@ from sympredict import (
     NotFittedError,
     SymplecticKernelPredictor,
 )
-from sympredict.integrators import implicit_midpoint_step, integrate
+from sympredict.symplectic.integrators import implicit_midpoint_step, integrate
 from sympredict.kernels import IMQ, Matern32, Matern52
-from sympredict.metrics import relative_trajectory_error, symplecticity_defect
-from sympredict.greedy import ExactGreedy
+from sympredict.symplectic.metrics import relative_trajectory_error, symplecticity_defect
+from sympredict.interpolation.greedy import ExactGreedy
 
 
 class CoupledOscillators:

@@ -11,11 +11,11 @@ from sympredict._fastkernels import HAVE_NUMBA
 from sympredict.exceptions import ExtrapolationWarning
 from sympredict.base import clone
 from sympredict.data import FlowMapData, mixed_variables
-from sympredict.functionals import HBFunctionals
-from sympredict.greedy import ActiveSetGreedy, DenseStore, ExactGreedy, ShardedGreedy, greedy_interpolation, run_greedy
+from sympredict.interpolation.functionals import HBFunctionals
+from sympredict.interpolation.greedy import ActiveSetGreedy, DenseStore, ExactGreedy, ShardedGreedy, greedy_interpolation, run_greedy
 from sympredict.io import load_model, save_model
 from sympredict.kernels import IMQ, ProductKernel
-from sympredict.selection import select_regularization
+from sympredict.estimators.selection import select_regularization
 
 
 def _subset(d, n, seed=0):
@@ -102,7 +102,7 @@ def test_sharded_and_float32_stores_regularize_like_the_dense_one(small_pendulum
     f, y = _functionals(d)
     lam = 1e-3
     dense = greedy_interpolation(f, y, max_centers=80, tol=0.0, regularization=lam)
-    from sympredict.greedy import sharded_greedy
+    from sympredict.interpolation.greedy import sharded_greedy
 
     sharded = sharded_greedy(f, y, max_centers=80, tol=0.0, pool=dummy_pool, n_shards=3, regularization=lam)
     assert np.array_equal(dense.selected, sharded.selected)
@@ -157,7 +157,7 @@ def test_lambda_chosen_on_noisy_validation_data_beats_the_exact_fit(small_pendul
 
 
 def test_a_strategy_without_the_option_refuses_a_positive_lambda(small_pendulum_data):
-    from sympredict.greedy import Trainer
+    from sympredict.interpolation.greedy import Trainer
 
     class Plain(Trainer):  # written before the option existed
         def store(self, functionals, targets, *, criterion, power_tol, tol, validation, memory_limit):

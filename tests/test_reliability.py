@@ -26,15 +26,15 @@ from hypothesis.extra import numpy as hnp
 from sympredict.exceptions import extrapolation_expected
 from sympredict import ExtrapolationWarning, NewtonConvergenceError, SolvabilityError, SymplecticKernelPredictor, SympredictError
 from sympredict.data import FlowMapData
-from sympredict.functionals import HBFunctionals
-from sympredict.greedy import greedy_interpolation
+from sympredict.interpolation.functionals import HBFunctionals
+from sympredict.interpolation.greedy import greedy_interpolation
 from sympredict.kernels import IMQ, KERNEL_FAMILIES, Matern52, ProductKernel
-from sympredict.metrics import relative_hamiltonian_error
-from sympredict.predictor import update_variables
-from sympredict.reduction import complex_svd_basis
+from sympredict.symplectic.metrics import relative_hamiltonian_error
+from sympredict.estimators.predictor import update_variables
+from sympredict.mor.basis import complex_svd_basis
 from sympredict.systems.pendulum import Pendulum, flow_map_data, random_flow_map_data
-from sympredict.greedy import ExactGreedy
-from sympredict.solvers import NewtonSolver
+from sympredict.interpolation.greedy import ExactGreedy
+from sympredict.symplectic.solvers import NewtonSolver
 
 EXPECTED = (ValueError, SympredictError)
 # derandomized: CI sees the same examples every run (seeded, reproducible)

@@ -21,11 +21,11 @@ from sympredict.container import check_save_path, read_container, write_containe
 from sympredict.exceptions import ExtrapolationWarning, NonFinitePredictionError, UnderfitWarning, extrapolation_expected
 from sympredict.io import load_model
 from sympredict.kernels import IMQ
-from sympredict.predictor import MAX_NEWTON_ITER, MODEL_FORMAT
+from sympredict.estimators.predictor import MAX_NEWTON_ITER, MODEL_FORMAT
 from sympredict.systems.pendulum import Pendulum, flow_map_data
-from sympredict.greedy import ExactGreedy
-from sympredict.solvers import NewtonSolver
-from sympredict.transforms import Periodic, Scaled
+from sympredict.interpolation.greedy import ExactGreedy
+from sympredict.symplectic.solvers import NewtonSolver
+from sympredict.kernels.transforms import Periodic, Scaled
 
 ROOT = Path(__file__).resolve().parents[1]
 DT = 0.1
@@ -210,7 +210,7 @@ def test_symplectic_model_with_huge_coefficients_raises(model_file, data, tmp_pa
 
 
 def test_split_model_with_huge_coefficients_raises(data, tmp_path):
-    from sympredict.splitting import SplitKernelPredictor
+    from sympredict.flowmap.splitting import SplitKernelPredictor
 
     quad = Pendulum().quadratic_part()
     mu = np.full(len(data.x0), 0.75)
@@ -409,7 +409,7 @@ def test_bad_mplbackend_does_not_break_predict(model_file):
 
 
 def test_bad_mplbackend_does_not_break_plotting():
-    proc = _python("import sympredict.plotting as p, matplotlib, os\n"
+    proc = _python("import sympredict.paper.plotting as p, matplotlib, os\n"
                    "assert matplotlib.get_backend().lower() == 'agg' and os.environ['MPLBACKEND'] == 'no-such-backend'\n",
                    MPLBACKEND="no-such-backend", NUMBA_NUM_THREADS="1")
     assert proc.returncode == 0, proc.stderr
@@ -494,7 +494,7 @@ def test_reductor_refuses_a_parameter_space_of_other_parameters(wave_parts):
 
 # ------------------------------------------------------------------ messages
 def test_memory_advice_never_suggests_an_invalid_max_centers():
-    from sympredict.greedy.loop import check_memory
+    from sympredict.interpolation.greedy.loop import check_memory
 
     with pytest.raises(ValueError) as info:
         check_memory(100, 10 ** 6, 0, memory_limit=1000.0)
@@ -521,7 +521,7 @@ def test_projected_stride_message_tells_the_steps_apart(wave_parts):
 
 
 def test_normalized_flow_map_warns_in_the_users_units():
-    from sympredict.scaling import BoxScaling, NormalizedFlowMap, SymplecticScaling
+    from sympredict.flowmap.scaling import BoxScaling, NormalizedFlowMap, SymplecticScaling
 
     rng = np.random.default_rng(0)
     x = rng.uniform(-1, 1, (40, 2))
@@ -625,7 +625,7 @@ def _fuzz(model_file, tmp_path, n, seed, mu=None):
 @pytest.fixture(scope="module")
 def other_model_files(data, tmp_path_factory):
     """A DirectKernelPredictor's and a SplitKernelPredictor's files (the symplectic one is ``model_file``)."""
-    from sympredict.splitting import SplitKernelPredictor
+    from sympredict.flowmap.splitting import SplitKernelPredictor
 
     folder = tmp_path_factory.mktemp("others")
     DirectKernelPredictor(IMQ(0.3), max_centers=20).fit(data.x0, data.x1, dt=DT).save(folder / "direct.h5")

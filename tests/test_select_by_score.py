@@ -5,9 +5,9 @@ import pytest
 
 from sympredict import SymplecticKernelPredictor
 from sympredict.kernels import IMQ
-from sympredict.selection import select_by_score
-from sympredict.greedy import ExactGreedy
-from sympredict.solvers import NewtonSolver
+from sympredict.estimators.selection import select_by_score
+from sympredict.interpolation.greedy import ExactGreedy
+from sympredict.symplectic.solvers import NewtonSolver
 
 
 @pytest.fixture(scope="module")

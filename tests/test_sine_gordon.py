@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from scipy.stats import linregress
 
-from sympredict.integrators_compiled import rollout
+from sympredict.symplectic.integrators_compiled import rollout
 from sympredict.systems.sine_gordon import SineGordonFOM, fd_laplacian_1d
 
 

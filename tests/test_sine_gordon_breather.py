@@ -6,8 +6,8 @@ import json
 import numpy as np
 import pytest
 
-from sympredict import report
-from sympredict.experiments.sine_gordon import PRESETS, initial_states, run_sine_gordon, second_parameter
+from sympredict.paper import report
+from sympredict.paper.sine_gordon import PRESETS, initial_states, run_sine_gordon, second_parameter
 from sympredict.systems.sine_gordon import SineGordonFOM
 
 

@@ -7,7 +7,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from sympredict.experiments.sine_gordon import (
+from sympredict.paper.sine_gordon import (
     PRESETS,
     EnergySamples,
     choose_large_step,
@@ -15,8 +15,8 @@ from sympredict.experiments.sine_gordon import (
     no_augmentation,
     sign_symmetry,
 )
-from sympredict.metrics import canonical_J
-from sympredict.reduction import symplectic_inverse, symplecticity_of_basis
+from sympredict.symplectic.metrics import canonical_J
+from sympredict.mor.basis import symplectic_inverse, symplecticity_of_basis
 
 K = 50  # steps of the training horizon
 t = np.arange(10 * K + 1) / K  # in units of T

@@ -7,12 +7,12 @@ import numpy as np
 import pytest
 from scipy.linalg import expm
 
-from sympredict.experiments.sine_gordon import PRESETS, _fit_kernel, run_sine_gordon, split_setup
-from sympredict.linear_flow import QuadraticPart
-from sympredict.metrics import canonical_J
-from sympredict.nonlinear_mor import ReducedSineGordon
-from sympredict.reduction import complex_svd_basis
-from sympredict.scaling import BoxScaling, SymplecticScaling, scaled_quadratic_part
+from sympredict.paper.sine_gordon import PRESETS, _fit_kernel, run_sine_gordon, split_setup
+from sympredict.systems.linear_flow import QuadraticPart
+from sympredict.symplectic.metrics import canonical_J
+from sympredict.mor.nonlinear import ReducedSineGordon
+from sympredict.mor.basis import complex_svd_basis
+from sympredict.flowmap.scaling import BoxScaling, SymplecticScaling, scaled_quadratic_part
 from sympredict.systems.sine_gordon import SineGordonFOM
 
 

@@ -10,11 +10,11 @@ import json
 import numpy as np
 import pytest
 
-from sympredict import report
-from sympredict.experiments import speed
-from sympredict.experiments.peers import VKOGAFlowMap
-from sympredict.integrators_compiled import HAVE_NUMBA, rollout
-from sympredict.metrics import relative_trajectory_error
+from sympredict.paper import report
+from sympredict.paper import speed
+from sympredict.paper.peers import VKOGAFlowMap
+from sympredict.symplectic.integrators_compiled import HAVE_NUMBA, rollout
+from sympredict.symplectic.metrics import relative_trajectory_error
 
 CLASSICAL = ("Stormer-Verlet (compiled)", "Yoshida-4 (compiled)", "Kahan-Li-6 (compiled)")
 
@@ -82,7 +82,7 @@ def test_summary_table_lists_every_row_with_what_it_needs(hh_run):
 def test_henon_heiles_classical_errors_recomputed_against_the_step_halving_reference(hh_run):
     """The table's errors of the compiled schemes, recomputed against a different reference (the system's
     step-halving Kahan–Li-6 to 1e-11, not the chart's fixed dT/256 run)."""
-    from sympredict.experiments.henon_heiles import DT_HH, PRESETS, henon_heiles_test_instances
+    from sympredict.paper.henon_heiles import DT_HH, PRESETS, henon_heiles_test_instances
     from sympredict.systems.henon_heiles import HenonHeiles
 
     _, results = hh_run

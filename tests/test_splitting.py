@@ -1,4 +1,4 @@
-"""The exact-linear-flow splitting Phi = L_h o S o L_h (sympredict.splitting, sympredict.linear_flow).
+"""The exact-linear-flow splitting Phi = L_h o S o L_h (sympredict.flowmap.splitting, sympredict.systems.linear_flow).
 
 Oracles: scipy's expm one instance at a time and the closed-form rotation of a harmonic oscillator for the
 propagators; DPhi^T J DPhi = J and finite differences for the composed Jacobian; exactness on a linear system
@@ -19,15 +19,15 @@ from sympredict.container import read_container, write_container
 from sympredict.exceptions import ExtrapolationWarning, ModelFileError, NotFittedError
 from sympredict.io import load_model, save_model
 from sympredict.kernels import IMQ
-from sympredict.linear_flow import QuadraticPart, inverse_symplectic_matrices
+from sympredict.systems.linear_flow import QuadraticPart, inverse_symplectic_matrices
 from _surrogate_oracles import check_step_jacobian  # tests/
 from _tolerances import rollout_bound  # tests/
-from sympredict.metrics import canonical_J
-from sympredict.newton import solve_midpoint_numpy
-from sympredict.predictor import MODEL_FORMAT
-from sympredict.splitting import SplitKernelPredictor
-from sympredict.solvers import NewtonSolver
-from sympredict.transforms import Scaled, Symmetric
+from sympredict.symplectic.metrics import canonical_J
+from sympredict.symplectic.newton import solve_midpoint_numpy
+from sympredict.estimators.predictor import MODEL_FORMAT
+from sympredict.flowmap.splitting import SplitKernelPredictor
+from sympredict.symplectic.solvers import NewtonSolver
+from sympredict.kernels.transforms import Scaled, Symmetric
 
 J2 = canonical_J(2)
 KLEIN = [(1, 1), (-1, -1), (1, -1), (-1, 1)]

@@ -10,9 +10,9 @@ from sympredict.data import FlowMapData, mixed_variables
 from sympredict.exceptions import ExtrapolationWarning
 from sympredict.io import load_model, save_model
 from sympredict.kernels import IMQ
-from sympredict.selection import select_kernels
-from sympredict.solvers import NewtonSolver
-from sympredict.transforms import Scaled
+from sympredict.estimators.selection import select_kernels
+from sympredict.symplectic.solvers import NewtonSolver
+from sympredict.kernels.transforms import Scaled
 from _surrogate_oracles import check_step_jacobian  # tests/
 
 

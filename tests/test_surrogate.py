@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from sympredict.kernels import IMQ, Matern32, Matern52, ProductKernel
-from sympredict.surrogate import HBSurrogate
+from sympredict.interpolation.surrogate import HBSurrogate
 
 
 def random_surrogate(rng, state_kernel, dim=4, m=25, with_params=True):
@@ -39,7 +39,7 @@ def test_gradient_and_hessian_match_finite_differences(state_kernel, dim, rng):
 
 
 def test_weights_and_chunking_consistent(rng, monkeypatch):
-    import sympredict.surrogate as surrogate_module
+    import sympredict.interpolation.surrogate as surrogate_module
 
     sur = random_surrogate(rng, IMQ(1.0), dim=2, m=40)
     xi = rng.normal(size=(37, 2))

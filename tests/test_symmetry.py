@@ -11,14 +11,14 @@ import pytest
 from sympredict import DirectKernelPredictor, SymplecticKernelPredictor
 from sympredict.base import clone
 from sympredict.exceptions import ExtrapolationWarning, ModelFileError
-from sympredict.functionals import HBFunctionals, ValueFunctionals, dense_interpolation, functional_residuals
-from sympredict.greedy import ActiveSetGreedy, ExactGreedy
+from sympredict.interpolation.functionals import HBFunctionals, ValueFunctionals, dense_interpolation, functional_residuals
+from sympredict.interpolation.greedy import ActiveSetGreedy, ExactGreedy
 from sympredict.io import load_model, save_model
 from sympredict.kernels import IMQ, Matern52, PeriodicCoordinates, ProductKernel, StateSymmetry
-from sympredict.predictor import update_variables
-from sympredict.solvers import NewtonSolver
-from sympredict.surrogate import HBSurrogate
-from sympredict.transforms import Periodic, Scaled, Symmetric
+from sympredict.estimators.predictor import update_variables
+from sympredict.symplectic.solvers import NewtonSolver
+from sympredict.interpolation.surrogate import HBSurrogate
+from sympredict.kernels.transforms import Periodic, Scaled, Symmetric
 
 from _surrogate_oracles import (check_gramian_by_finite_differences, check_malformed_kernel_entries_refused,
                                check_surrogate_by_finite_differences)  # tests/ (on sys.path under pytest)
@@ -191,7 +191,7 @@ def test_active_set_trainer_and_truncation(data):
 
 
 def test_sharded_trainer_selects_the_exact_greedys_centres(data):
-    from sympredict.greedy import ShardedGreedy
+    from sympredict.interpolation.greedy import ShardedGreedy
 
     x0, x1 = data[0][:200], data[1][:200]
     exact = _model(max_centers=60).fit(x0, x1, dt=DT)
@@ -239,7 +239,7 @@ def test_model_files_round_trip(data, tmp_path, matrices):
 
 def test_model_files_refused(data, tmp_path):
     from sympredict.container import read_container, write_container
-    from sympredict.predictor import MODEL_FORMAT
+    from sympredict.estimators.predictor import MODEL_FORMAT
 
     model = _model(max_centers=30).fit(data[0][:100], data[1][:100], dt=DT)
     save_model(model, tmp_path / "s.h5")

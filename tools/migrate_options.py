@@ -23,8 +23,8 @@ TRAINER = {"tol": "tol", "criterion": "criterion", "power_tol": "power_tol", "me
 SOLVER = {"backend": "backend", "newton_max_iter": "max_iter", "newton_warm_start": "warm_start"}
 KERNEL = {"state_scaling", "periodic", "period", "symmetry"}
 NEUTRAL_FOR_ACTIVE_SET = {"criterion": "'f'", "regularization": "0.0"}
-IMPORTS = {"ExactGreedy": "sympredict.greedy", "NewtonSolver": "sympredict.solvers", "Scaled": "sympredict.transforms",
-           "Periodic": "sympredict.transforms", "Symmetric": "sympredict.transforms"}
+IMPORTS = {"ExactGreedy": "sympredict.interpolation.greedy", "NewtonSolver": "sympredict.symplectic.solvers", "Scaled": "sympredict.kernels.transforms",
+           "Periodic": "sympredict.kernels.transforms", "Symmetric": "sympredict.kernels.transforms"}
 
 
 def _name(func) -> str:

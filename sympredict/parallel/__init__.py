@@ -10,7 +10,7 @@
 Nothing here knows a system or the greedy: data generation over a pool lives
 with each system (``pool=`` arguments in :mod:`sympredict.systems` and the
 experiments), the sharded f-greedy with the greedy
-(:class:`sympredict.greedy.ShardedGreedy`).
+(:class:`sympredict.interpolation.greedy.ShardedGreedy`).
 """
 
 from sympredict.parallel.pool import pool_flow, pool_map_instances

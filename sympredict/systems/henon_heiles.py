@@ -3,7 +3,7 @@
 ``H(q, p; lambda) = 1/2 (p1^2 + p2^2 + q1^2 + q2^2) + lambda (q1^2 q2 - q2^3 / 3)``,
 state ``x = (q1, q2, p1, p2)``, parameter ``mu = lambda``.  Separable
 (``T = |p|^2 / 2``, ``V(q; lambda)``), so every scheme of
-:mod:`sympredict.integrators_compiled` applies.
+:mod:`sympredict.symplectic.integrators_compiled` applies.
 
 In polar coordinates ``V = r^2 / 2 + lambda (r^3 / 3) sin(3 theta)``; for
 ``lambda != 0`` the three saddles at ``r = 1 / |lambda|`` have the escape
@@ -27,8 +27,8 @@ from scipy.optimize import brentq
 
 from sympredict._checks import as_parameter, as_positive_int, as_states, as_steps
 from sympredict.exceptions import SympredictError
-from sympredict.integrators import micro_steps
-from sympredict.integrators_compiled import PointwiseHamiltonian, jit_pointwise, rollout
+from sympredict.symplectic.integrators import micro_steps
+from sympredict.symplectic.integrators_compiled import PointwiseHamiltonian, jit_pointwise, rollout
 
 __all__ = ["HenonHeiles", "LAMBDA_RANGE", "escape_energy", "energy_bounded_states"]
 
@@ -36,7 +36,7 @@ __all__ = ["HenonHeiles", "LAMBDA_RANGE", "escape_energy", "energy_bounded_state
 LAMBDA_RANGE = (0.8, 1.0)
 
 
-# Per-instance gradients for the compiled integrators (sympredict.integrators_compiled): mu = (lambda,).
+# Per-instance gradients for the compiled integrators (sympredict.symplectic.integrators_compiled): mu = (lambda,).
 @jit_pointwise
 def _grad_V(q, mu, fargs, iargs, out):
     """``dV/dq = (q1 + 2 lambda q1 q2, q2 + lambda (q1^2 - q2^2))``."""
@@ -122,7 +122,7 @@ class HenonHeiles:
         return hess
 
     def pointwise(self) -> PointwiseHamiltonian:
-        """Per-instance gradients and Hessian for :func:`sympredict.integrators_compiled.rollout` (compiled with numba)."""
+        """Per-instance gradients and Hessian for :func:`sympredict.symplectic.integrators_compiled.rollout` (compiled with numba)."""
         return PointwiseHamiltonian(4, 1, grad_T=_grad_T, grad_V=_grad_V, grad_H=_grad_H, hess_H=_hess_H,
                                     name=repr(self))
 

@@ -16,10 +16,10 @@ from pymor.core.logger import getLogger
 from sympredict._checks import as_parameter, as_positive_int, as_real, as_states, as_steps
 from sympredict.data import FlowMapData
 from sympredict.exceptions import NewtonConvergenceError
-from sympredict.flowmaps import sample_energy_box
-from sympredict.integrators import micro_steps
-from sympredict.integrators_compiled import PointwiseHamiltonian, jit_pointwise
-from sympredict.linear_flow import QuadraticPart
+from sympredict.systems.flowmaps import sample_energy_box
+from sympredict.symplectic.integrators import micro_steps
+from sympredict.symplectic.integrators_compiled import PointwiseHamiltonian, jit_pointwise
+from sympredict.systems.linear_flow import QuadraticPart
 from sympredict.parallel import pool_flow
 
 logger = getLogger("sympredict.systems.pendulum")
@@ -45,7 +45,7 @@ _EPS = np.finfo(float).eps
 MAX_DRAW_ROUNDS = 50
 
 
-# Per-instance gradients for the compiled integrators (sympredict.integrators_compiled):
+# Per-instance gradients for the compiled integrators (sympredict.symplectic.integrators_compiled):
 # mu = (l,), fargs = (m, g); the arithmetic is that of Pendulum.gradient / hessian.
 @jit_pointwise
 def _grad_V(q, mu, fargs, iargs, out):
@@ -103,7 +103,7 @@ class Pendulum:
         return length
 
     def pointwise(self) -> PointwiseHamiltonian:
-        """Per-instance gradients and Hessian for :func:`sympredict.integrators_compiled.rollout` (compiled with numba).
+        """Per-instance gradients and Hessian for :func:`sympredict.symplectic.integrators_compiled.rollout` (compiled with numba).
 
         ``H`` is separable (``T = p^2 / (2 m l^2)``, ``V = m g l (1 - cos q)``):
         every scheme applies.
@@ -117,7 +117,7 @@ class Pendulum:
         """The Hessian of ``H`` at the equilibrium ``(0, 0)``: ``A(l) = diag(m g l, 1 / (m l^2))``.
 
         As monomials in ``l``: ``l^1 diag(m g, 0) + l^-2 diag(0, 1/m)`` (for the
-        splitting predictor, :mod:`sympredict.splitting`); its flow is the
+        splitting predictor, :mod:`sympredict.flowmap.splitting`); its flow is the
         linearized pendulum, frequency ``sqrt(g / l)``.
         """
         return QuadraticPart([np.diag([self.mass * self.g, 0.0]), np.diag([0.0, 1.0 / self.mass])], [[1.0], [-2.0]])

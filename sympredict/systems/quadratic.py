@@ -16,14 +16,14 @@ import numpy as np
 from scipy.linalg import expm, solve
 
 from sympredict._checks import as_parameter, as_positive_int, as_real, as_real_array, as_states, as_steps
-from sympredict.metrics import canonical_J
-from sympredict.integrators import micro_steps
-from sympredict.integrators_compiled import PointwiseHamiltonian, jit_pointwise
+from sympredict.symplectic.metrics import canonical_J
+from sympredict.symplectic.integrators import micro_steps
+from sympredict.symplectic.integrators_compiled import PointwiseHamiltonian, jit_pointwise
 
 __all__ = ["QuadraticHamiltonian"]
 
 
-# Per-instance gradients for the compiled integrators (sympredict.integrators_compiled):
+# Per-instance gradients for the compiled integrators (sympredict.symplectic.integrators_compiled):
 # fargs = (H0.ravel(), H1.ravel()) of the 2n x 2n matrices, iargs = (2n,), mu = (mu,);
 # out = H0 z + mu H1 z on the block that z belongs to (the diagonal blocks for a separable H).
 @jit_pointwise
@@ -117,7 +117,7 @@ class QuadraticHamiltonian:
         return not (np.any(self.H0[:n, n:]) or np.any(self.H1[:n, n:]))
 
     def pointwise(self) -> PointwiseHamiltonian:
-        """Per-instance gradients and Hessian for :func:`sympredict.integrators_compiled.rollout` (compiled with numba).
+        """Per-instance gradients and Hessian for :func:`sympredict.symplectic.integrators_compiled.rollout` (compiled with numba).
 
         ``grad_T`` / ``grad_V`` (the diagonal blocks) only when :attr:`separable`;
         ``grad_H`` / ``hess_H`` always.  ``O((2n)^2)`` per evaluation.

@@ -22,7 +22,7 @@ The pyMOR model (:attr:`SineGordonFOM.model`) is an ``InstationaryModel``
 ``(q, p)``, parameters ``c`` and ``amplitude`` (the initial state is
 ``amplitude * u0``, ``u0`` one member of the initial-data families below), and
 a compiled symplectic time stepper (:class:`CompiledSymplecticTimeStepper`:
-Kahan–Li order 6 from :mod:`sympredict.integrators_compiled`, sub-steps chosen
+Kahan–Li order 6 from :mod:`sympredict.symplectic.integrators_compiled`, sub-steps chosen
 so that ``h omega_max <= 0.5``).  pyMOR 2026.1 has Hamiltonian models only
 for quadratic ``H`` (``QuadraticHamiltonianModel``); the nonlinear one is a
 generic ``InstationaryModel``.
@@ -45,7 +45,7 @@ from pymor.algorithms.timestepping import TimeStepper
 from pymor.operators.interface import Operator
 
 from sympredict._checks import as_positive_int, as_real, as_states, as_steps
-from sympredict.integrators_compiled import PointwiseHamiltonian, jit_pointwise, rollout
+from sympredict.symplectic.integrators_compiled import PointwiseHamiltonian, jit_pointwise, rollout
 
 __all__ = ["fd_laplacian_1d", "laplacian_max_eigenvalue", "SineGordonFOM", "SineGordonOperator",
            "CompiledSymplecticTimeStepper", "INITIAL_FAMILIES"]
@@ -257,7 +257,7 @@ class SineGordonFOM:
         return np.stack([self.hessian_sparse(xi, ci).toarray() for xi, ci in zip(x, c)])
 
     def pointwise(self) -> PointwiseHamiltonian:
-        """Per-instance compiled gradients for :func:`sympredict.integrators_compiled.rollout` (``mu = (c,)``).
+        """Per-instance compiled gradients for :func:`sympredict.symplectic.integrators_compiled.rollout` (``mu = (c,)``).
 
         Separable: every scheme applies; ``grad V`` costs ``O(nnz(D)) = O(N)``.
         Implicit midpoint uses a dense Jacobian (``O(N^3)`` per Newton iteration): small ``N`` only.

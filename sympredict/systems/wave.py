@@ -25,8 +25,8 @@ import scipy.sparse as sps
 from scipy.sparse.linalg import splu
 
 from sympredict._checks import as_parameter, as_positive_int, as_real, as_states, as_steps
-from sympredict.integrators import micro_steps
-from sympredict.integrators_compiled import PointwiseHamiltonian, jit_pointwise
+from sympredict.symplectic.integrators import micro_steps
+from sympredict.symplectic.integrators_compiled import PointwiseHamiltonian, jit_pointwise
 
 __all__ = ["C_TRAIN", "C_REF", "DT_WAVE", "fd_laplacian", "laplacian_eigenvalues", "sine_modes", "WaveFOM"]
 
@@ -73,7 +73,7 @@ def sine_modes(n_points: int, modes) -> np.ndarray:
     return np.sqrt(2.0 / (n_points + 1)) * np.sin(np.pi * np.outer(j, k) / (n_points + 1))
 
 
-# Per-instance gradients for the compiled integrators (sympredict.integrators_compiled):
+# Per-instance gradients for the compiled integrators (sympredict.symplectic.integrators_compiled):
 # mu = (c^2,), fargs = D.data and iargs = (D.indptr, D.indices) of D in CSR; O(nnz(D)) per gradient.
 @jit_pointwise
 def _csr_matvec_scaled(q, scale, data, iargs, out):
@@ -234,7 +234,7 @@ class WaveFOM:
         return hess
 
     def pointwise(self) -> PointwiseHamiltonian:
-        """Per-instance gradients for :func:`sympredict.integrators_compiled.rollout` (compiled with numba).
+        """Per-instance gradients for :func:`sympredict.symplectic.integrators_compiled.rollout` (compiled with numba).
 
         Separable (``T = p^T p / 2``, ``V = mu q^T D q / 2``): every scheme
         applies; ``grad V`` is a CSR matrix-vector product, ``O(nnz(D))``.

@@ -19,7 +19,7 @@ timeout (3 s) must end the job the same way.
 
 Only rank 0 runs this file (the other ranks run pyMOR's event loop), so
 every function sent to the workers lives in the package (``sympredict.parallel``,
-``sympredict.greedy.sharded``).
+``sympredict.interpolation.greedy.sharded``).
 """
 
 import os
@@ -32,11 +32,11 @@ from pymor.parallel.default import new_parallel_pool
 
 from sympredict import SymplecticKernelPredictor
 from sympredict import parallel as par
-from sympredict.greedy import ShardedGreedy, greedy_interpolation, sharded_greedy
-from sympredict.greedy import sharded as sharded_module
+from sympredict.interpolation.greedy import ShardedGreedy, greedy_interpolation, sharded_greedy
+from sympredict.interpolation.greedy import sharded as sharded_module
 from sympredict.data import mixed_variables
-from sympredict.experiments import wave
-from sympredict.functionals import HBFunctionals, ValueFunctionals
+from sympredict.paper import wave
+from sympredict.interpolation.functionals import HBFunctionals, ValueFunctionals
 from sympredict.kernels import IMQ, ProductKernel
 from sympredict.systems.pendulum import Pendulum, flow_map_data, random_flow_map_data
 

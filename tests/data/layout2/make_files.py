@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from sympredict import DirectKernelPredictor, SymplecticKernelPredictor
-from sympredict.greedy import ActiveSetGreedy, ExactGreedy
+from sympredict.interpolation.greedy import ActiveSetGreedy, ExactGreedy
 from sympredict.kernels import IMQ, Matern52
 from sympredict.systems.pendulum import Pendulum, flow_map_data
 

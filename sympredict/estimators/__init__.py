@@ -1,0 +1,10 @@
+"""The estimators and their selection.
+
+* :mod:`~sympredict.estimators.predictor`: :class:`~sympredict.SymplecticKernelPredictor`
+  and the direct baseline :class:`~sympredict.DirectKernelPredictor` (both also
+  in the package namespace);
+* :mod:`~sympredict.estimators.selection`: kernel families, shapes and
+  regularization chosen on validation data.
+
+Import from the modules; this package namespace imports nothing.
+"""

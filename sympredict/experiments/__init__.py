@@ -1,1 +1,0 @@
-"""The paper's scenarios as functions returning results (numbers and arrays, no figures)."""

@@ -1,0 +1,11 @@
+"""Files of trained models and data sets.
+
+:mod:`~sympredict.io.formats` names the two formats, ``'sympredict-model'`` and
+``'sympredict-dataset'``, and maps them to objects; the container they are
+written in (layout, checksum, atomic save, checked load) is
+:mod:`sympredict.container`, which the estimators use to save themselves.
+"""
+
+from sympredict.io.formats import SCHEMA_VERSION, load_dataset, load_model, save_dataset, save_model
+
+__all__ = ["SCHEMA_VERSION", "save_model", "load_model", "save_dataset", "load_dataset"]

@@ -1,0 +1,84 @@
+"""HDF5 files of trained models and data sets.
+
+The container (layout, checksum, atomic save, checked load) is
+:mod:`sympredict.container`; this module names the two formats,
+``'sympredict-model'`` and ``'sympredict-dataset'``, and maps them to objects.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from sympredict.container import SCHEMA_VERSION, read_container, write_container
+from sympredict.data import FlowMapData
+from sympredict.exceptions import ModelFileError
+from sympredict.estimators.predictor import MODEL_FORMAT, DirectKernelPredictor, SymplecticKernelPredictor
+from sympredict.flowmap.splitting import SplitKernelPredictor
+
+__all__ = ["SCHEMA_VERSION", "save_model", "load_model", "save_dataset", "load_dataset"]
+
+_DATA_FORMAT = "sympredict-dataset"
+_ESTIMATORS = {cls.__name__: cls for cls in (SymplecticKernelPredictor, DirectKernelPredictor, SplitKernelPredictor)}
+
+
+def save_model(model, path) -> None:
+    """Save a fitted :class:`~sympredict.SymplecticKernelPredictor`, :class:`~sympredict.DirectKernelPredictor` or
+    :class:`~sympredict.flowmap.splitting.SplitKernelPredictor` (atomic)."""
+    model.save(path)
+
+
+def load_model(path):
+    """Load a model written by :func:`save_model`, whichever estimator it holds; :class:`ModelFileError` if unusable."""
+    settings, arrays = read_container(path, MODEL_FORMAT)
+    name = settings.get("class", "SymplecticKernelPredictor") if isinstance(settings, dict) else None
+    cls = _ESTIMATORS.get(name) if isinstance(name, str) else None
+    if cls is None:
+        raise ModelFileError(f"{str(path)!r} holds an unknown estimator {name!r}; known: {sorted(_ESTIMATORS)}")
+    return cls._from_container(settings, arrays, path)
+
+
+def save_dataset(data, path, **metadata) -> None:
+    """Save a :class:`~sympredict.data.FlowMapData` (atomic); ``metadata`` must be JSON-serializable."""
+    arrays = {"x0": data.x0, "x1": data.x1, "mu": data.mu, "dt": data.dt}
+    write_container(path, _DATA_FORMAT, {"metadata": metadata}, arrays)
+
+
+def load_dataset(path):
+    """Load a data set written by :func:`save_dataset`; returns ``(FlowMapData, metadata)``.
+
+    Besides the container's checks, the arrays must be consistent: ``x0`` and
+    ``x1`` of one shape ``(M, 2n)``, ``mu`` of shape ``(M, d_mu)``, ``dt`` of
+    shape ``(M,)`` and positive, all finite; anything else raises
+    :class:`ModelFileError` naming the problem.
+    """
+    settings, arrays = read_container(path, _DATA_FORMAT)
+    where = f"{str(path)!r} is not a valid sympredict data set"
+    expected = {"x0", "x1", "mu", "dt"}
+    if set(arrays) != expected:
+        missing, extra = sorted(expected - set(arrays)), sorted(set(arrays) - expected)
+        raise ModelFileError(f"{where}: " + (f"missing arrays {missing}" if missing else f"unexpected arrays {extra}"))
+    x0, x1, mu, dt = (np.asarray(arrays[k]) for k in ("x0", "x1", "mu", "dt"))
+    for name, arr in (("x0", x0), ("x1", x1), ("mu", mu), ("dt", dt)):
+        if arr.dtype.kind not in "fiu":
+            raise ModelFileError(f"{where}: {name} has dtype {arr.dtype}, expected floats")
+        if not np.all(np.isfinite(arr)):
+            raise ModelFileError(f"{where}: {name} contains NaN or Inf")
+    if x0.ndim != 2 or x0.shape[0] == 0 or x0.shape[1] == 0 or x0.shape[1] % 2:
+        raise ModelFileError(f"{where}: x0 must have shape (M, 2n) with M >= 1, got {x0.shape}")
+    m = x0.shape[0]
+    if x1.shape != x0.shape:
+        raise ModelFileError(f"{where}: x1 has shape {x1.shape}, x0 has {x0.shape}")
+    if mu.ndim != 2 or mu.shape[0] != m:
+        raise ModelFileError(f"{where}: mu must have shape ({m}, d_mu), got {mu.shape}")
+    if dt.shape != (m,):
+        raise ModelFileError(f"{where}: dt must have shape ({m},), got {dt.shape}")
+    if np.any(dt <= 0):
+        raise ModelFileError(f"{where}: dt must be positive, min is {float(dt.min())!r}")
+    metadata = settings.get("metadata", {})
+    if set(settings) != {"metadata"} or not isinstance(metadata, dict):
+        raise ModelFileError(f"{where}: its settings must be {{'metadata': {{...}}}}")
+    try:
+        data = FlowMapData(x0, x1, mu, dt)
+    except ValueError as exc:
+        raise ModelFileError(f"{where}: {exc}") from None
+    return data, metadata

@@ -1,0 +1,526 @@
+"""Symplectic kernel reductor: ``fom -> reductor.reduce() -> rom -> reductor.reconstruct()`` on pyMOR.
+
+The flow-map sibling of pyMOR's ``DataDrivenReductor``: instead of a regressor
+``mu -> trajectory`` it learns the reduced flow map ``x_red(t) -> x_red(t + dt)``
+with a :class:`~sympredict.SymplecticKernelPredictor` (every step symplectic),
+so the ROM runs past the training horizon and for any initial reduced state.
+
+::
+
+    reductor = SymplecticKernelReductor(fom, RB, training_parameters, dt, data="reduced")
+    rom = reductor.reduce()           # a pyMOR Model, rom.parameters == fom.parameters
+    U_red = rom.solve(mu)             # reduced states at t_k = k dt, k = 0..round(fom.T / dt)
+    U = reductor.reconstruct(U_red)   # VectorArray in fom.solution_space
+
+Data (:mod:`sympredict.systems.flowmaps`):
+
+* ``data="reduced"`` (intrusive): the symplectic Galerkin ROM (pyMOR's
+  ``QuadraticHamiltonianRBReductor``; ``H_op`` assembled per ``mu``, so it need
+  not be affine) gives the exact reduced flow; samples lie in a neighbourhood
+  (relative radius ``radius``) of the reduced trajectories from the FOM's
+  initial data, plus the trajectory points;
+* ``data="projected"`` (non-intrusive, any time-dependent pyMOR model, linear
+  or not, e.g. an ``InstationaryModel`` with a nonlinear operator): only ``fom.solve`` is called; FOM
+  trajectories are projected with the symplectic inverse ``V+ = J_2n^T V^T J_2N``
+  and consecutive states ``dt`` apart become the samples (``dt`` a multiple of
+  the FOM's output step).
+
+Validation data come from parameters drawn at random in the parameter box
+(``parameter_space`` or the box of the training parameters), never from the
+training parameters.  Before training, :func:`~sympredict.systems.flowmaps.check_generating_function`
+checks that the predictor's generating function exists at ``dt`` (type II, or
+the midpoint form for a predictor with ``update="midpoint"``; fails with the
+largest admissible ``dt``).  The predictor is trained in scaled coordinates
+(:mod:`sympredict.flowmap.scaling`): parameters mapped to ``[0, 1]^d``, ``dt`` to 1,
+states by a conformally symplectic diagonal map, so the ROM's step stays symplectic.
+
+Parameter vectors: :func:`~sympredict.systems.flowmaps.mu_to_vector` (values sorted by
+parameter name, each flattened: ``Mu.to_numpy``'s order).
+"""
+
+from __future__ import annotations
+
+from typing import Optional, Sequence
+
+import warnings
+
+import numpy as np
+from scipy.linalg import logm
+from pymor.algorithms.projection import project
+from pymor.algorithms.symplectic import SymplecticBasis
+from pymor.core.base import BasicObject
+from pymor.models.symplectic import QuadraticHamiltonianModel
+from pymor.operators.symplectic import CanonicalSymplecticFormOperator
+from pymor.reductors.symplectic import QuadraticHamiltonianRBReductor
+from pymor.models.interface import Model
+from pymor.vectorarrays.numpy import NumpyVectorSpace
+
+from sympredict._checks import as_positive_int, as_real
+from sympredict.base import clone
+from sympredict.data import FlowMapData
+from sympredict.exceptions import ExtrapolationWarning
+from sympredict.systems.flowmaps import (
+    _report_existence,
+    first_singular_step,
+    check_generating_function,
+    linear_system_from_pymor,
+    midpoint_sigma_min,
+    mu_to_vector,
+    mus_to_matrix,
+    parameter_box,
+    parse_mu,
+    random_parameters,
+    sample_trajectory_neighbourhood,
+    trajectory_pairs,
+    type2_sigma_min,
+)
+from sympredict.kernels import IMQ
+from sympredict.estimators.predictor import SymplecticKernelPredictor
+from sympredict.flowmap.scaling import BoxScaling, NormalizedFlowMap, SymplecticScaling
+from sympredict.estimators.selection import log_grid, select_kernels
+from sympredict.interpolation.greedy import ExactGreedy
+
+__all__ = ["SymplecticKernelReductor", "SymplecticKernelModel", "check_symplectic_basis", "basis_matrix"]
+
+_SYMPLECTIC_TOL = 1e-8
+
+
+def basis_matrix(RB) -> np.ndarray:
+    """The basis ``V = [E, F]`` of a pyMOR ``SymplecticBasis`` as a dense C-ordered (2N, 2n) array, rows ``(q, p)``.
+
+    pyMOR's ``to_numpy()`` is the transpose of a C array (Fortran order); fitted state keeps one layout.
+    """
+    return np.ascontiguousarray(_to_columns(RB.to_array()), dtype=float)
+
+
+def _to_columns(U) -> np.ndarray:
+    """A VectorArray of length K in a (blocked) phase space as a (dim, K) array (blocks stacked)."""
+    if hasattr(U, "blocks"):
+        return np.vstack([b.to_numpy() for b in U.blocks])
+    return U.to_numpy()
+
+
+def check_symplectic_basis(RB, phase_space=None, tol: float = _SYMPLECTIC_TOL) -> float:
+    """``max |V^T J_2N V - J_2n|`` of a pyMOR ``SymplecticBasis``; ``ValueError`` if not one, or above ``tol``."""
+
+    if not isinstance(RB, SymplecticBasis):
+        raise ValueError(f"RB must be a pyMOR SymplecticBasis (e.g. sympredict.mor.basis.complex_svd_basis(...).to_pymor(...)), "
+                         f"got {type(RB).__name__}")
+    if phase_space is not None and RB.phase_space != phase_space:
+        raise ValueError(f"RB lives in {RB.phase_space}, but the FOM's solution space is {phase_space}: mismatched spaces")
+    if len(RB) == 0:
+        raise ValueError("RB is empty")
+    V = RB.to_array()
+    J = CanonicalSymplecticFormOperator(RB.phase_space)
+    n = len(RB)
+    Jn = np.block([[np.zeros((n, n)), np.eye(n)], [-np.eye(n), np.zeros((n, n))]])
+    defect = float(np.abs(V.inner(J.apply(V)) - Jn).max())
+    if not defect <= tol:
+        raise ValueError(f"RB is not symplectic: max |V^T J V - J| = {defect:.2e} > {tol:.0e}")
+    return defect
+
+
+class SymplecticKernelModel(Model):
+    """A pyMOR model stepping a learned symplectic flow map in reduced coordinates.
+
+    ``solve(mu)`` returns the reduced states at ``t_k = k dt``, ``k = 0..round(T / dt)``;
+    ``rom.with_(T=...)`` solves over a longer horizon (a flow map runs past the
+    training horizon).  Online cost: one ``(2n,)`` projection of the initial data
+    and ``round(T/dt)`` predictor steps, ``O(K m (2n)^2)`` for ``m`` centres.
+
+    Parameters
+    ----------
+    flow_map : NormalizedFlowMap
+        The fitted predictor and its scalings.
+    initial_data : pyMOR Operator
+        Reduced initial data ``V+ u_0(mu)`` (a vector-like operator).
+    T, dt : float
+    parameters : pyMOR Parameters
+        Those of the FOM.
+    """
+
+    def __init__(self, flow_map, initial_data, T, dt, parameters, name=None):
+        super().__init__(name=name)
+        self.__auto_init(locals())
+        self.solution_space = NumpyVectorSpace(initial_data.range.dim)
+        self.parameters_own = parameters
+        self.n_steps = int(round(T / dt))
+
+    def solve(self, mu=None, input=None, return_error_estimate=False):
+        """Reduced states at ``t_k = k dt`` (a VectorArray of length ``round(T/dt) + 1``).
+
+        Raises
+        ------
+        ValueError
+            If ``mu`` does not match the FOM's parameters.
+        """
+        return super().solve(parse_mu(mu, self.parameters), input, return_error_estimate)
+
+    def _compute(self, quantities, data, mu):
+        if "solution" in quantities:
+            x0 = self.initial_data.as_range_array(mu).to_numpy().reshape(1, -1)
+            vec = mu_to_vector(mu, self.parameters)
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always", ExtrapolationWarning)
+                traj = self.flow_map.rollout(x0, self.n_steps, mu=vec if vec.size else None, dt=self.dt)[0]
+            for w in caught:  # logged, not raised: a ROM run past T or near the data's edge extrapolates by design
+                if issubclass(w.category, ExtrapolationWarning):
+                    self.logger.warning(str(w.message))
+                else:
+                    warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+            data["solution"] = self.solution_space.from_numpy(traj.T)
+            quantities.remove("solution")
+        super()._compute(quantities, data, mu)
+
+
+def _check_fom(fom, data: str) -> None:
+    """``data='reduced'`` needs the Galerkin ROM of a quadratic Hamiltonian model; ``'projected'`` any time-dependent model."""
+    if data == "reduced":
+        if not isinstance(fom, QuadraticHamiltonianModel):
+            raise ValueError(f"data='reduced' needs the exact reduced flow of a pyMOR QuadraticHamiltonianModel, got "
+                             f"{type(fom).__name__}: for any other pyMOR model use data='projected' (only fom.solve "
+                             f"is called)")
+        return
+    missing = [a for a in ("solve", "solution_space", "initial_data", "T", "parameters") if not hasattr(fom, a)]
+    if not isinstance(fom, Model) or missing:
+        raise ValueError(f"fom must be a time-dependent pyMOR Model (e.g. an InstationaryModel) with solve, "
+                         f"solution_space, initial_data, T and parameters; {type(fom).__name__} "
+                         + (f"lacks {', '.join(missing)}" if missing else "is not a pyMOR Model"))
+
+
+_STATE_SCALINGS = ("diag", "uniform", "williamson", "none")
+
+
+def _check_reductor_settings(fom, dt, predictor, parameter_space, n_samples, radius, n_validation, horizon,
+                             max_centers, check_existence, seed) -> None:
+    """The reductor's settings, checked before any FOM solve (``ValueError`` naming the argument and the value given)."""
+    as_positive_int(n_samples, "n_samples", minimum=2)  # a fifth on the trajectory, the rest around it: at least 2
+    as_positive_int(n_validation, "n_validation")
+    as_positive_int(max_centers, "max_centers")
+    as_positive_int(seed, "seed", minimum=0)
+    as_real(radius, "radius", nonnegative=True)
+    if horizon is not None:
+        as_real(horizon, "horizon", positive=True)
+    if not isinstance(check_existence, (bool, np.bool_)):
+        raise ValueError(f"check_existence must be True or False, got {check_existence!r}")
+    if predictor is not None:
+        missing = [a for a in ("fit", "step", "rollout", "step_jacobian", "get_params")
+                   if not callable(getattr(predictor, a, None))]
+        if isinstance(predictor, type) or missing:
+            raise ValueError(f"predictor must be an estimator instance (e.g. SymplecticKernelPredictor(...)) with fit, step, "
+                             f"rollout, step_jacobian and get_params, got {predictor!r}"
+                             + (f" (lacks {', '.join(missing)})" if missing and not isinstance(predictor, type) else ""))
+    if parameter_space is not None:
+        from pymor.parameters.base import ParameterSpace
+
+        if not isinstance(parameter_space, ParameterSpace):
+            raise ValueError(f"parameter_space must be a pyMOR ParameterSpace (e.g. fom.parameters.space(lo, hi)) or None, "
+                             f"got {type(parameter_space).__name__}")
+        if dict(parameter_space.parameters) != dict(fom.parameters):
+            raise ValueError(f"parameter_space has the parameters {dict(parameter_space.parameters)}, the FOM has "
+                             f"{dict(fom.parameters)}: names and dimensions must agree")
+
+
+class SymplecticKernelReductor(BasicObject):
+    """Learn a symplectic reduced flow map of a pyMOR Hamiltonian model.
+
+    Parameters
+    ----------
+    fom : pymor.models.interface.Model
+        ``data="reduced"``: a ``QuadraticHamiltonianModel`` (its Galerkin ROM gives the
+        exact reduced flow).  ``data="projected"``: any time-dependent pyMOR model with
+        ``solve``, ``solution_space``, ``initial_data`` and ``T`` (e.g. an
+        ``InstationaryModel`` with a nonlinear operator); only ``solve`` is called, and the
+        FOM's trajectories are assumed Hamiltonian (the ROM's steps are symplectic whatever
+        the data).  Any parameters (names, dimensions) or none.
+    RB : pymor.algorithms.symplectic.SymplecticBasis
+        Symplectic basis of ``fom.solution_space`` (``V^T J V = J`` checked).
+    training_parameters : sequence of pyMOR Mu
+        E.g. ``fom.parameters.space(...).sample_randomly(n)``; ``None`` or ``[]``
+        for a parameter-free model.
+    dt : float
+        Macro step of the ROM.
+    predictor : estimator, optional
+        An unfitted estimator with ``fit``/``rollout``/``step``/``step_jacobian``
+        (cloned, never modified).  Default: a :class:`SymplecticKernelPredictor`
+        with IMQ kernels on the scaled states and parameters whose shapes are
+        chosen on the validation data from a small log grid.
+    data : {"reduced", "projected"}
+        Intrusive Galerkin-flow samples or non-intrusive projected FOM trajectories.
+    parameter_space : pyMOR ParameterSpace, optional
+        Box for the parameter scaling and the validation parameters (default: box of the training ones).
+    n_samples : int
+        ``data="reduced"``: flow-map samples per training parameter.
+    radius : float
+        ``data="reduced"``: relative radius of the trajectory neighbourhood.
+    n_validation : int
+        Number of validation parameters (random in the box).
+    horizon : float, optional
+        Time span of the trajectories sampled (default ``fom.T``).
+    state_scaling : {"diag", "uniform", "williamson", "none"}
+        :class:`~sympredict.flowmap.scaling.SymplecticScaling` mode; ``"williamson"``
+        (``data="reduced"`` only) uses the Williamson form of ``V^T H(mu) V`` at
+        the centre of the parameter box.
+    max_centers : int
+        Budget of the default predictor.
+    check_existence : bool
+        Run :func:`~sympredict.systems.flowmaps.check_generating_function` on the data, for
+        the predictor's ``update`` (type II by default; ``"midpoint"``: the
+        symmetric form, which holds up to half a turn per step).
+    seed : int
+    """
+
+    def __init__(self, fom, RB, training_parameters, dt, predictor=None, data="reduced", *, parameter_space=None,
+                 n_samples: int = 400, radius: float = 0.05, n_validation: int = 3, horizon: Optional[float] = None,
+                 state_scaling: str = "diag", max_centers: int = 1000, check_existence: bool = True, seed: int = 0):
+        if not isinstance(data, str) or data not in ("reduced", "projected"):
+            raise ValueError(f"data must be 'reduced' or 'projected', got {data!r}")
+        _check_fom(fom, data)
+        check_symplectic_basis(RB, fom.solution_space)
+        if not isinstance(state_scaling, str) or state_scaling not in _STATE_SCALINGS:
+            raise ValueError(f"state_scaling must be one of {_STATE_SCALINGS}, got {state_scaling!r}")
+        if state_scaling == "williamson" and data != "reduced":
+            raise ValueError("state_scaling='williamson' needs the reduced operator: use data='reduced' or 'diag'")
+        dt = as_real(dt, "dt", positive=True)
+        _check_reductor_settings(fom, dt, predictor, parameter_space, n_samples, radius, n_validation, horizon,
+                                 max_centers, check_existence, seed)
+        if not fom.parameters:
+            training_parameters = [None]
+        elif training_parameters is None or len(training_parameters) == 0:
+            raise ValueError(f"the FOM has parameters {dict(fom.parameters)}: give training_parameters (pyMOR Mu)")
+        self.__auto_init(locals())
+        self.training_parameters = [parse_mu(m, fom.parameters) for m in training_parameters]
+        if isinstance(predictor, SymplecticKernelPredictor):
+            predictor._check_params()  # its settings, before any FOM solve (fit would check them after all samples)
+        self.dt = float(dt)
+        self.horizon = float(fom.T if horizon is None else horizon)
+        self.RB = RB
+        self.V = basis_matrix(RB)  # (2N, 2n)
+        self.V_plus_array = RB.transposed_symplectic_inverse().to_array()
+        self.dim = 2 * len(RB)
+        if data == "projected" and getattr(fom, "num_values", None) is None and getattr(
+                getattr(fom, "time_stepper", None), "nt", None):  # an InstationaryModel's output grid, known up front
+            self._check_stride(fom.T / fom.time_stepper.nt)
+        self.mu_lo, self.mu_hi = parameter_box(self.training_parameters, fom.parameters, parameter_space)
+
+    # ------------------------------------------------------------ projection
+    def project(self, U) -> np.ndarray:
+        """Reduced coordinates ``V+ U`` of a VectorArray in ``fom.solution_space``, shape (len(U), 2n)."""
+        if U.space != self.fom.solution_space:
+            raise ValueError(f"U must lie in the FOM's solution space {self.fom.solution_space}, got {U.space}")
+        return self.V_plus_array.inner(U).T
+
+    def reconstruct(self, U_red):
+        """``V U_red``: a VectorArray in ``fom.solution_space``."""
+        if U_red.space.dim != self.dim:
+            raise ValueError(f"U_red must have dimension 2n = {self.dim}, got {U_red.space.dim}")
+        return self.RB.to_array().lincomb(U_red.to_numpy())  # pyMOR: coefficients (2n, len)
+
+    def _reduced_initial_data(self):
+        return project(self.fom.initial_data, self.V_plus_array, None)
+
+    def _initial_state(self, mu) -> np.ndarray:
+        return self.project(self.fom.initial_data.as_range_array(mu))[0]
+
+    # ------------------------------------------------------------ data
+    def _mu_rows(self, mus) -> np.ndarray:
+        return mus_to_matrix(mus, self.fom.parameters) if self.fom.parameters else np.zeros((len(mus), 0))
+
+    def validation_parameters(self) -> list:
+        """``n_validation`` parameters uniform in the box (seeded), not the training ones."""
+        if not self.fom.parameters:
+            return [None]
+        return random_parameters(self.fom.parameters, self.mu_lo, self.mu_hi, self.n_validation, seed=self.seed + 7)
+
+    def _reduced_data(self, mus, n_per_mu, seed):
+        if not hasattr(self, "galerkin_rom"):
+            with self.logger.block("symplectic Galerkin projection (pyMOR QuadraticHamiltonianRBReductor)"):
+                self.galerkin_rom = QuadraticHamiltonianRBReductor(self.fom, self.RB).reduce()
+            self.reduced_system = linear_system_from_pymor(self.galerkin_rom)
+        system = self.reduced_system
+        rng = np.random.default_rng(seed)
+        rows = self._mu_rows(mus)
+        n_fine = int(np.ceil(self.horizon / self.dt)) * 4
+        parts = []
+        for mu, row in zip(mus, rows):
+            x0 = self._initial_state(mu)
+            traj = system.trajectory(x0[None], row[None] if row.size else None, self.dt / 4, n_fine)[0]
+            n_on = max(1, n_per_mu // 5)  # a fifth on the trajectory itself
+            states = np.concatenate([sample_trajectory_neighbourhood(traj, n_per_mu - n_on, self.radius, rng),
+                                     sample_trajectory_neighbourhood(traj, n_on, 0.0, rng)])
+            mrow = np.repeat(row[None], len(states), axis=0)
+            parts.append(FlowMapData(states, system.flow(states, mrow, self.dt), mrow if row.size else None,
+                                     np.full(len(states), self.dt)))
+        return _concat(parts), system
+
+    def _projected_data(self, mus):
+        trajs, rows = [], self._mu_rows(mus)
+        h = None
+        for mu in mus:
+            U = self.fom.solve(mu)
+            h_mu = self.fom.T / (len(U) - 1)
+            if h is not None and not np.isclose(h, h_mu):
+                raise ValueError("the FOM's output grid changes with mu")
+            h = h_mu
+            trajs.append(self.project(U))
+        stride = self._check_stride(h)
+        k = int(round(self.horizon / h)) + 1
+        # dt exactly: the predictor is a fixed-step model and the ROM queries self.dt
+        return trajectory_pairs(np.stack([t[:k] for t in trajs]), rows, self.dt / stride, stride)
+
+    def _check_stride(self, h: float) -> int:
+        stride = int(round(self.dt / h))
+        if stride < 1 or not np.isclose(stride * h, self.dt, rtol=1e-9, atol=0):
+            raise ValueError(f"data='projected' needs dt to be a multiple of the FOM's output step {h!r} "
+                             f"(T / nt), got dt = {self.dt!r}: use dt = k * {h!r}")
+        return stride
+
+    def _update(self) -> str:
+        """The generating-function update of the predictor (the existence check depends on it)."""
+        return getattr(self.predictor, "update", "symplectic_euler") if self.predictor is not None else "symplectic_euler"
+
+    def _check_existence_projected(self, data):
+        """Existence check (type II, or the midpoint form for the predictor's update) from the data alone:
+        per parameter a least-squares linear map ``x1 ~ M x0``
+        (exact for a linear FOM, the best linear fit of a nonlinear one), its generator ``log(M) / dt``
+        for the largest admissible step."""
+        worst, generators = (np.inf, None), []
+        for row in np.unique(data.mu, axis=0):
+            sel = np.all(data.mu == row, axis=1)
+            M, _, rank, _ = np.linalg.lstsq(data.x0[sel], data.x1[sel], rcond=None)
+            if rank < self.dim:
+                self.logger.info(f"existence check skipped at mu = {row}: the projected trajectory spans only {rank} "
+                                 f"of {self.dim} dimensions")
+                continue
+            M = M.T
+            sigma = float((midpoint_sigma_min if self._update() == "midpoint" else type2_sigma_min)(M[None])[0])
+            generators.append(np.real(logm(M)) / self.dt)
+            if sigma < worst[0]:
+                worst = (sigma, row)
+        if worst[1] is None:
+            return {}
+        update = self._update()
+        return _report_existence(worst[0], worst[1], self.dt, first_singular_step(generators, update=update), 1e-2, 0.1, update)
+
+    def training_data(self):
+        """Training and validation :class:`~sympredict.data.FlowMapData` in original reduced coordinates."""
+        val_mus = self.validation_parameters()
+        if self.data == "reduced":
+            train, system = self._reduced_data(self.training_parameters, self.n_samples, self.seed)
+            val, _ = self._reduced_data(val_mus, max(50, self.n_samples // 4), self.seed + 1)
+            if self.check_existence:
+                self.existence_ = check_generating_function(system, train, update=self._update())
+        else:
+            train = self._projected_data(self.training_parameters)
+            val = self._projected_data(val_mus)
+            if self.check_existence:
+                self.existence_ = self._check_existence_projected(train)
+        return train, val
+
+    # ------------------------------------------------------------ reduce
+    def _default_predictor(self, train, val, vary_mu):
+        m_star = min(300, self.max_centers)
+        states = log_grid(0.01, 1.0, 2)
+        mus = [IMQ(float(e)) for e in log_grid(0.3, 3.0, 2)] if vary_mu else [None]
+        with self.logger.block(f"kernel shapes on validation data ({len(states) * len(mus)} candidates, m* = {m_star})"):
+            sel = select_kernels(train, val, [IMQ(float(e)) for e in states], mus, [None], m_star=m_star)
+        self.selection_ = sel
+        return SymplecticKernelPredictor(sel.state, sel.mu, None, max_centers=self.max_centers,
+                                         trainer=ExactGreedy(tol=1e-12))
+
+    def scaled_training_data(self):
+        """Training and validation data in the predictor's coordinates, and the scalings that map to them.
+
+        Samples the data (:meth:`training_data`, kept as ``train_data_`` and
+        ``validation_data_``), fits the state scaling (``state_scaling``) and,
+        when the parameters vary, the box scaling of the parameters; the step
+        becomes the time unit.  :meth:`reduce` fits its predictor on exactly
+        these data, so a kernel search run on them (e.g.
+        :func:`~sympredict.estimators.selection.select_kernels` with another update) chooses
+        for the model that :meth:`reduce` trains.
+
+        Returns
+        -------
+        s_train, s_val : FlowMapData
+            Scaled states, parameters in ``[0, 1]^d`` (``None`` when they do not vary), ``dt = 1``.
+        state_scaling : SymplecticScaling
+        mu_scaling : BoxScaling or None
+        """
+        with self.logger.block(f"flow-map data ({self.data}), 2n = {self.dim}, dt = {self.dt!r}"):
+            train, val = self.training_data()
+        self.train_data_, self.validation_data_ = train, val
+        vary_mu = train.mu.shape[1] > 0 and bool(np.any(np.ptp(train.mu, axis=0) > 0))
+        reference = None
+        if self.state_scaling == "williamson":
+            centre = 0.5 * (self.mu_lo + self.mu_hi)
+            reference = self.reduced_system.matrix(centre)
+        state_scaling = SymplecticScaling(self.state_scaling, reference).fit(np.concatenate([train.x0, train.x1]))
+        mu_scaling = BoxScaling().fit(train.mu, self.mu_lo, self.mu_hi) if vary_mu else None
+
+        assert np.allclose(train.dt, self.dt) and np.allclose(val.dt, self.dt)
+
+        def scaled(d):
+            return FlowMapData(state_scaling.transform(d.x0), state_scaling.transform(d.x1),
+                               mu_scaling.transform(d.mu) if vary_mu else None, np.ones(len(d)))  # time unit dt
+
+        return scaled(train), scaled(val), state_scaling, mu_scaling
+
+    def reduce(self, T: Optional[float] = None) -> SymplecticKernelModel:
+        """Sample data, fit the predictor, return the ROM (horizon ``T``, default ``fom.T``)."""
+        rows = self._mu_rows(self.training_parameters)
+        if len(np.unique(rows, axis=0)) > 1 and getattr(self.predictor, "mu_kernel", True) is None:
+            # before any FOM solve (reduce() would find it after sampling)
+            raise ValueError("the parameters vary across training_parameters but the predictor has mu_kernel=None: "
+                             "give it a mu_kernel, or train at one parameter value")
+        s_train, s_val, state_scaling, mu_scaling = self.scaled_training_data()
+        train = self.train_data_
+        vary_mu = mu_scaling is not None
+        if self.predictor is None:
+            predictor = self._default_predictor(s_train, s_val, vary_mu)
+        else:
+            predictor = clone(self.predictor)
+            if vary_mu and getattr(predictor, "mu_kernel", True) is None:
+                raise ValueError("the parameters vary across training_parameters but the predictor has mu_kernel=None")
+        with self.logger.block(f"fitting {type(predictor).__name__} on {len(train)} samples"):
+            predictor.fit(s_train.x0, s_train.x1, mu=s_train.mu if vary_mu else None, dt=s_train.dt,
+                          validation=(s_val.x0, s_val.x1, s_val.mu if vary_mu else None, s_val.dt))
+        self.predictor_ = predictor
+        if not vary_mu and self.fom.parameters:
+            # one training parameter: the predictor has no mu input, the ROM accepts only that mu
+            flow_map = _FixedMuFlowMap(NormalizedFlowMap(predictor, state_scaling, None, self.dt), train.mu[0])
+        else:
+            flow_map = NormalizedFlowMap(predictor, state_scaling, mu_scaling, self.dt)
+        self.flow_map_ = flow_map
+        name = None if self.fom.name is None else "kernel_" + self.fom.name
+        return SymplecticKernelModel(flow_map, self._reduced_initial_data(), self.fom.T if T is None else T, self.dt,
+                                     self.fom.parameters, name=name)
+
+
+class _FixedMuFlowMap:
+    """A flow map trained at one parameter value: refuses others (no parameter input to learn from)."""
+
+    def __init__(self, flow_map: NormalizedFlowMap, mu: np.ndarray):
+        self.flow_map, self.mu = flow_map, np.asarray(mu, float)
+
+    def _check(self, mu):
+        if mu is not None and not np.allclose(np.ravel(mu), self.mu):
+            raise ValueError(f"this ROM was trained at the single parameter {self.mu.tolist()}: it cannot predict at {np.ravel(mu).tolist()}")
+
+    def rollout(self, x0, n_steps, mu=None, dt=None):
+        self._check(mu)
+        return self.flow_map.rollout(x0, n_steps, None, dt)
+
+    def step(self, x, mu=None, dt=None):
+        self._check(mu)
+        return self.flow_map.step(x, None, dt)
+
+    def step_jacobian(self, x, mu=None, dt=None):
+        self._check(mu)
+        return self.flow_map.step_jacobian(x, None, dt)
+
+
+def _concat(parts: Sequence[FlowMapData]) -> FlowMapData:
+    out = parts[0]
+    for p in parts[1:]:
+        out = out.concatenate(p)
+    return out

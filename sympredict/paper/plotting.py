@@ -1,0 +1,250 @@
+"""Matplotlib figures of experiment results (no computation here)."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from pathlib import Path
+
+# the figures are drawn with Agg whatever MPLBACKEND says: an invalid value there must not break the import
+_MPLBACKEND = os.environ.get("MPLBACKEND")
+if _MPLBACKEND is not None:
+    os.environ["MPLBACKEND"] = "agg"
+try:
+    import matplotlib
+finally:
+    if _MPLBACKEND is not None:
+        os.environ["MPLBACKEND"] = _MPLBACKEND
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+
+__all__ = ["greedy_residuals", "error_over_time", "phase_portrait", "energy_error", "trajectories_over_time", "hamiltonian_over_time", "speed_accuracy", "stability_sweeps", "point_tag", "figure_data", "save"]
+
+_COLORS = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+
+
+def _decorate(ax, xlabel: str, ylabel: str, title: str, legend_outside: bool = False):
+    """Labels, title, grid and legend: the same on every figure."""
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.set_title(title)
+    ax.grid(True, which="both", alpha=0.3)
+    if legend_outside:
+        ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    else:
+        ax.legend(fontsize=8)
+
+
+def _finite_or_none(values) -> list:
+    return [float(v) if math.isfinite(float(v)) else None for v in values]
+
+
+def figure_data(fig) -> dict:
+    """The data a figure shows, as plain lists: per panel its title, axis labels and scales, and every labelled line.
+
+    Returns
+    -------
+    dict
+        ``{"axes": [{"title", "xlabel", "ylabel", "xscale", "yscale", "lines": [{"label", "x", "y"}]}]}``;
+        non-finite values become ``None``.  Lines whose label starts with ``_``
+        (matplotlib's unlabelled artists) are left out.
+    """
+    axes = []
+    for ax in fig.axes:
+        lines = [
+            {"label": line.get_label(), "x": _finite_or_none(line.get_xdata()), "y": _finite_or_none(line.get_ydata())}
+            for line in ax.get_lines()
+            if not line.get_label().startswith("_")
+        ]
+        axes.append({"title": ax.get_title(), "xlabel": ax.get_xlabel(), "ylabel": ax.get_ylabel(),
+                     "xscale": ax.get_xscale(), "yscale": ax.get_yscale(), "lines": lines})
+    return {"axes": axes}
+
+
+def save(fig, out_dir, name: str) -> list[str]:
+    """Write ``name.png`` and ``name.pdf`` into ``out_dir``, and the data shown in ``name.json``.
+
+    The JSON file (:func:`figure_data`) lets tests and readers check what a
+    figure shows without parsing the image.  Returns the names of the PNG and PDF files.
+    """
+    out_dir = Path(out_dir)
+    names = []
+    for ext in ("png", "pdf"):
+        fig.savefig(out_dir / f"{name}.{ext}", dpi=150, bbox_inches="tight")
+        names.append(f"{name}.{ext}")
+    with open(out_dir / f"{name}.json", "w") as f:
+        json.dump(figure_data(fig), f)
+    plt.close(fig)
+    return names
+
+
+def greedy_residuals(histories, title: str):
+    """``E_train(m)`` (solid) and ``E_val(m)`` (dashed) against the number of centres, log-log.
+
+    Parameters
+    ----------
+    histories : dict
+        Label -> :class:`~sympredict.interpolation.greedy.GreedyHistory` (one colour each).
+    """
+    fig, ax = plt.subplots(figsize=(5.5, 4))
+    for i, (label, history) in enumerate(histories.items()):
+        m = history.n_centers
+        color = _COLORS[i % len(_COLORS)]
+        ax.loglog(m[1:], history.train_max_residual[1:], "-", color=color, label=f"training{label}")
+        if history.val_max_residual is not None:
+            ax.loglog(m[1:], history.val_max_residual[1:], "--", color=color, label=f"validation{label}")
+    _decorate(ax, "number of selected centres $m$", r"max state-gradient residual $\max|\partial_{\xi_l} e_m|$", title)
+    return fig
+
+
+def error_over_time(curves, title: str, ylabel: str = "mean relative error $e_{rel}(t)$"):
+    """Error curves over time, log scale.
+
+    Parameters
+    ----------
+    curves : list of dict
+        Each with ``t``, ``values``, ``label``, ``style`` (``'-'`` or ``'--'``) and ``color`` index.
+    """
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for c in curves:
+        ax.semilogy(c["t"][1:], c["values"][1:], c.get("style", "-"), color=_COLORS[c.get("color", 0) % len(_COLORS)], label=c["label"], lw=1.2)
+    _decorate(ax, "time $t$", ylabel, title, legend_outside=True)
+    return fig
+
+
+def phase_portrait(trajectories, title: str):
+    """``(q, p)`` curves; ``trajectories`` maps a label to an array of shape (K+1, 2)."""
+    fig, ax = plt.subplots(figsize=(5, 4.5))
+    for i, (label, traj) in enumerate(trajectories.items()):
+        ax.plot(traj[:, 0], traj[:, 1], "-" if i == 0 else "--", color=_COLORS[i], label=label, lw=1.0)
+    _decorate(ax, "angle $q$ [rad]", "angular momentum $p$", title)
+    return fig
+
+
+def energy_error(t, curves, title: str):
+    """Relative Hamiltonian error ``|H(x_k) - H(x_0)| / |H(x_0)|`` over time; ``curves`` maps label -> values."""
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for i, (label, values) in enumerate(curves.items()):
+        ax.semilogy(t[1:], values[1:], color=_COLORS[i], label=label, lw=1.0)
+    _decorate(ax, "time $t$", "relative Hamiltonian error", title)
+    return fig
+
+
+def trajectories_over_time(t, trajectories, title: str):
+    """``q(t)`` and ``p(t)`` in two panels; ``trajectories`` maps a label to an array (K+1, 2)."""
+    fig, axes = plt.subplots(2, 1, figsize=(7, 5), sharex=True)
+    for i, (label, traj) in enumerate(trajectories.items()):
+        for ax, comp in zip(axes, (0, 1)):
+            ax.plot(t, traj[:, comp], "-" if i == 0 else "--", color=_COLORS[i], label=label, lw=1.5 if i == 0 else 1.0)
+    axes[0].set_ylabel("angle $q(t)$ [rad]")
+    axes[1].set_ylabel("angular momentum $p(t)$")
+    axes[1].set_xlabel("time $t$")
+    axes[0].set_title(title)
+    for ax in axes:
+        ax.grid(True, alpha=0.3)
+    axes[0].legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    return fig
+
+
+def hamiltonian_over_time(t, energies, title: str):
+    """``H(x(t))`` along trajectories; ``energies`` maps a label to values (K+1,)."""
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for i, (label, values) in enumerate(energies.items()):
+        ax.plot(t, values, "-" if i == 0 else "--", color=_COLORS[i], label=label, lw=1.5 if i == 0 else 1.0)
+    _decorate(ax, "time $t$", "Hamiltonian $H(q, p; l)$", title)
+    return fig
+
+
+def point_tag(row: dict) -> str:
+    """Label of a speed-accuracy point: its ``tag``, else ``m=size`` for kernel methods and ``dT/size`` otherwise."""
+    return row.get("tag") or (f"m={row['size']}" if "kernel" in row["method"] else f"dT/{row['size']}")
+
+
+def speed_accuracy(rows, reference_time: float, title: str):
+    """Median error over time against wall time per trajectory, one line per method, log-log.
+
+    Parameters
+    ----------
+    rows : list of dict
+        ``method``, ``size`` (centres or step refinement), ``time_per_trajectory_s``, ``median_err``,
+        optionally ``tag`` (the point's annotation; default ``m=size`` for kernel methods, ``dT/size`` otherwise).
+    reference_time
+        Wall time per trajectory of the micro-step reference (a vertical line).
+    """
+    fig, ax = plt.subplots(figsize=(8.5, 5.0))
+    methods = list(dict.fromkeys(r["method"] for r in rows))
+    for i, method in enumerate(methods):
+        pts = [r for r in rows if r["method"] == method]
+        t = [r["time_per_trajectory_s"] for r in pts]
+        e = [r["median_err"] for r in pts]
+        # the marker says what the method needs: circles only data, squares the equations, triangles a reduced operator
+        needs = pts[0].get("needs", "")
+        marker = "o" if needs.startswith("only data") else "^" if needs.startswith("reduced") else "s"
+        ax.loglog(t, e, marker + ("-" if len(pts) > 1 else ""), color=_COLORS[i % len(_COLORS)], label=method,
+                  ms=5 if len(pts) > 1 else 8, mfc="none" if marker == "s" else None)
+        for r in pts:
+            tag = point_tag(r)
+            ax.annotate(tag, (r["time_per_trajectory_s"], r["median_err"]), fontsize=6, xytext=(3, 3), textcoords="offset points")
+    ax.axvline(reference_time, color="k", ls=":", label="micro-step reference (time)")
+    # a relative error above 10 is a blown-up run (CFL): keep the axis on the runs that work, say so on the chart
+    blown = [r for r in rows if not r["median_err"] <= 10]
+    if blown:
+        ax.set_ylim(top=30)
+        ax.text(0.01, 0.99, "off the chart (error > 10, unstable): " + ", ".join(f"{r['method']} {point_tag(r)}" for r in blown),
+                transform=ax.transAxes, fontsize=6, va="top", wrap=True)
+    _decorate(ax, "wall time per trajectory [s]", "median over time of the mean relative error",
+              title + "\n(o: only data, open square: equations, ^: reduced operator)", legend_outside=True)
+    return fig
+
+
+def stability_sweeps(dt_rows, mu_rows, dt_train, mu_train, title: str):
+    """Two panels: mean relative error against ``dT`` and against ``mu`` (log scale).
+
+    Rows hold a float error per method or a string when the method failed; failures
+    are drawn as crosses on the top edge.  The training ranges are shaded.
+    """
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    for ax, rows, key, train, xlabel in ((axes[0], dt_rows, "dt", dt_train, "macro step $\\Delta T$"),
+                                         (axes[1], mu_rows, "mu", mu_train, "pendulum length $l$")):
+        methods = [k for k in rows[0] if k not in (key, "solvability", "inside_training_box")]
+        ax.axvspan(*train, color="0.9", label="training range")
+        for i, method in enumerate(methods):
+            ok = [(r[key], r[method]) for r in rows if isinstance(r[method], float)]
+            bad = [r[key] for r in rows if not isinstance(r[method], float)]
+            if ok:
+                ax.semilogy(*zip(*ok), "o-", color=_COLORS[i], label=method, ms=4)
+            if bad:
+                # staggered per method so that failures at the same step stay visible
+                ax.plot(bad, [1e1 * 2.0**i] * len(bad), "x", color=_COLORS[i], ms=9, mew=2, label=f"{method}: failed")
+        ax.set_xscale("log" if key == "dt" else "linear")
+        _decorate(ax, xlabel, "mean relative error over $[0, T]$", title if key == "dt" else "extrapolation in the length")
+    return fig
+
+
+def solution_snapshots(x, times, solutions, title: str):
+    """``u(x, t)`` at a few times, one panel per time; ``solutions`` maps a label to rows (len(times), N)."""
+    fig, axes = plt.subplots(1, len(times), figsize=(4 * len(times), 3.5), sharey=True)
+    axes = list(axes) if len(times) > 1 else [axes]
+    for k, (ax, t) in enumerate(zip(axes, times)):
+        for i, (label, rows) in enumerate(solutions.items()):
+            ax.plot(x, rows[k], "-" if i == 0 else "--", color=_COLORS[i % len(_COLORS)], label=label, lw=1.5 if i == 0 else 1.0)
+        ax.set_title(f"{title}, t = {t:g}")
+        ax.set_xlabel("x")
+        ax.grid(True, alpha=0.3)
+    axes[0].set_ylabel("u(x, t)")
+    axes[-1].legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    return fig
+
+
+def cost_against_n(rows, title: str):
+    """Online wall time per trajectory against ``N``, log-log; ``rows``: ``N``, ``label``, ``time`` (one line per label)."""
+    fig, ax = plt.subplots(figsize=(6, 4))
+    labels = list(dict.fromkeys(r["label"] for r in rows))
+    for i, label in enumerate(labels):
+        pts = sorted((r["N"], r["time"]) for r in rows if r["label"] == label and r["time"] is not None)
+        if pts:
+            ax.loglog(*zip(*pts), "o-", color=_COLORS[i % len(_COLORS)], label=label, ms=4)
+    _decorate(ax, "full dimension N (grid points)", "wall time per trajectory [s]", title, legend_outside=True)
+    return fig
