@@ -11,7 +11,8 @@ import time
 import numpy as np
 import pytest
 
-from sympredict import DirectKernelPredictor, SymplecticKernelPredictor, _fastkernels, newton
+from sympredict import DirectKernelPredictor, SymplecticKernelPredictor, _fastkernels
+from sympredict.symplectic import newton
 from sympredict.exceptions import NewtonConvergenceError, RolloutMemoryError
 from sympredict.kernels import IMQ
 from sympredict.symplectic.newton import rollout_in_chunks
@@ -91,7 +92,7 @@ def _fitted(name, pendulum, d, backend):
     kernels = (IMQ(0.3), IMQ(1.5), IMQ(3.0))
     x0, x1, mu, dt = _data(d)
     model = {
-        "symplectic_euler": lambda: SymplecticKernelPredictor(Scaled(*kernels, factors=[1.3]), max_centers=40,
+        "symplectic_euler": lambda: SymplecticKernelPredictor(Scaled(kernels[0], factors=[1.3]), *kernels[1:], max_centers=40,
                                                               solver=NewtonSolver(backend=backend)),
         "midpoint": lambda: SymplecticKernelPredictor(*kernels, max_centers=40, update="midpoint",
                                                       solver=NewtonSolver(backend=backend)),
@@ -164,12 +165,13 @@ def test_auto_runs_what_it_reports(small_pendulum_model, monkeypatch):
     ran = []
     monkeypatch.setattr(_fastkernels, "rollout_loaded", lambda: False)
     import sympredict.estimators.predictor as predictor
+    import sympredict.symplectic.solvers as solvers
 
     real = predictor.rollout_compiled
     monkeypatch.setattr(predictor, "rollout_compiled", lambda *a, **k: ran.append("numba") or real(*a, **k))
     model.rollout(np.array([[0.3, 0.1]]), 5, mu=0.75, dt=0.05)
     assert ran == [] and model.backend_for(1, 5) == "numpy"
-    monkeypatch.setattr(predictor, "AUTO_NUMPY_SECONDS", 0.0)
+    monkeypatch.setattr(solvers, "AUTO_NUMPY_SECONDS", 0.0)  # the solver owns the auto rule
     model.rollout(np.array([[0.3, 0.1]]), 5, mu=0.75, dt=0.05)
     assert ran and model.backend_for(1, 5) == "numba"
 

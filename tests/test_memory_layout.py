@@ -67,7 +67,7 @@ def _models(pendulum):
     return {
         "symplectic_euler": SymplecticKernelPredictor(*kernels, max_centers=30),
         "midpoint": SymplecticKernelPredictor(*kernels, max_centers=30, update="midpoint"),
-        "state_scaling": SymplecticKernelPredictor(Scaled(*kernels, factors=[2.0]), max_centers=30),
+        "state_scaling": SymplecticKernelPredictor(Scaled(kernels[0], factors=[2.0]), *kernels[1:], max_centers=30),
         "direct": DirectKernelPredictor(*kernels, max_centers=30),
         "split": SplitKernelPredictor(SymplecticKernelPredictor(*kernels, max_centers=30), pendulum.quadratic_part()),
     }

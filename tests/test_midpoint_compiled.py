@@ -179,7 +179,7 @@ def test_compiled_midpoint_failure_reported_like_numpy(pendulum_mid, rng):
     errors = {}
     for backend in ("numpy", "numba"):
         strict = _with_backend(pendulum_mid, backend)
-        strict.newton_max_iter = 1
+        strict.set_params(solver__max_iter=1)
         with pytest.raises(NewtonConvergenceError) as info:
             strict.rollout(x, 3, mu=mu, dt=dt)
         errors[backend] = info.value

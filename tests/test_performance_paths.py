@@ -133,11 +133,11 @@ def test_compiled_rollout_is_bit_reproducible_across_batches_and_threads(small_p
 def test_newton_failure_reported_alike(small_pendulum_model, rng, backend):
     x, mu, dt = _queries(rng, 10)
     strict = _with_backend(small_pendulum_model, backend)
-    strict.newton_max_iter = 1
+    strict.set_params(solver__max_iter=1)
     with pytest.raises(NewtonConvergenceError) as info:
         strict.rollout(x, 3, mu=mu, dt=dt)
     reference = _with_backend(small_pendulum_model, "numpy")
-    reference.newton_max_iter = 1
+    reference.set_params(solver__max_iter=1)
     with pytest.raises(NewtonConvergenceError) as ref_info:
         reference.rollout(x, 3, mu=mu, dt=dt)
     assert info.value.step == ref_info.value.step == 0

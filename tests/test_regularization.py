@@ -125,8 +125,7 @@ def test_estimator_parameter_checked_stored_and_refused_where_unsupported(small_
     assert loaded.trainer.regularization == 2.5e-4
     x = d.x0[:5]
     np.testing.assert_array_equal(loaded.step(x, mu=d.mu[:5], dt=d.dt[:5]), model.step(x, mu=d.mu[:5], dt=d.dt[:5]))
-    assert ExactGreedy().store(*_functionals(d), criterion="f", power_tol=1e-12, tol=0.0, validation=None,
-                               memory_limit=None, regularization=0.1).regularization == 0.1
+    assert ExactGreedy(regularization=0.1).store(*_functionals(d), tol=0.0, validation=None).regularization == 0.1
 
 
 def test_lambda_chosen_on_noisy_validation_data_beats_the_exact_fit(small_pendulum_data):

@@ -65,11 +65,11 @@ def test_stored_checked_and_searchable(data, tmp_path, pendulum):
     model = _model(scaling=(1.5,), max_centers=60).fit(data.x0, data.x1, mu=data.mu, dt=data.dt)
     save_model(model, tmp_path / "s.h5")
     back = load_model(tmp_path / "s.h5")
-    assert back.state_scaling == (1.5,)
+    assert back.state_kernel == Scaled(IMQ(0.2), factors=(1.5,)) and back.state_scaling_ == (1.5,)
     x = data.x0[:4]
     np.testing.assert_array_equal(back.step(x, mu=data.mu[:4], dt=data.dt[:4]), model.step(x, mu=data.mu[:4], dt=data.dt[:4]))
     for bad in ((0.0,), (1.0, 2.0), "2", (float("inf"),)):
-        with pytest.raises(ValueError, match="state_scaling"):
+        with pytest.raises(ValueError, match="Scaled.*factors"):
             _model(scaling=bad).fit(data.x0[:40], data.x1[:40], mu=data.mu[:40], dt=data.dt[:40])
     # the validation search takes it through the estimator: scalings compared at the same m*
     train, val = data.subset(np.arange(900)), data.subset(np.arange(900, 1200))

@@ -128,7 +128,12 @@ def data():
 
 def _model(symmetry=KLEIN, backend="numpy", tol=None, trainer=None, state_scaling=None, periodic=None, **kw):
     kw = {"max_centers": 300, "update": "midpoint", **kw}
-    kernel = Symmetric(Periodic(Scaled(IMQ(0.5), factors=state_scaling), coordinates=periodic), group=symmetry)
+    kernel = IMQ(0.5)
+    if state_scaling is not None:
+        kernel = Scaled(kernel, factors=state_scaling)
+    if periodic is not None:
+        kernel = Periodic(kernel, coordinates=periodic)
+    kernel = Symmetric(kernel, group=symmetry)
     if tol is not None:
         trainer = (ExactGreedy() if trainer is None else trainer).set_params(tol=tol)
     return SymplecticKernelPredictor(kernel, trainer=trainer, solver=NewtonSolver(backend=backend), **kw)
@@ -290,7 +295,7 @@ def test_refused_input(data):
     _model(symmetry=_mode_swap(), state_scaling=(2.0, 2.0), max_centers=10).fit(x4, x4 + 0.01, dt=DT)
     with pytest.raises(ValueError, match="symmetry"):
         _model(backend="numba").fit(x0, x1, dt=DT)
-    with pytest.raises(ValueError, match="periodic"):
+    with pytest.raises(ValueError, match="both Periodic and Symmetric"):
         _model(periodic=(0,)).fit(x0, x1, dt=DT)
     with pytest.raises(ValueError, match="periodic"):
         ProductKernel(IMQ(1.0), periodic=PeriodicCoordinates((0,), (1.0,)), symmetry=StateSymmetry.from_signs(KLEIN))

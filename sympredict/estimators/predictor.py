@@ -373,6 +373,18 @@ class _FlowMapKernelModel(Parametrized):
             return self._moved_value(name)
         raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
 
+    def __setattr__(self, name: str, value) -> None:
+        # ``model.backend = 'numba'`` (sympredict 0.1) must not set a plain attribute that nothing reads
+        if name in type(self)._moved_options:
+            warnings.warn(f"setting {type(self).__name__}.{name} is deprecated: use "
+                          f"set_params({MOVED_OPTIONS[name][0]}__{MOVED_OPTIONS[name][1]}=...)"
+                          if MOVED_OPTIONS[name][0] != "state_kernel" else
+                          f"setting {type(self).__name__}.{name} is deprecated: pass "
+                          f"{_replacement(type(self).__name__, name)}", FutureWarning, stacklevel=2)
+            _apply_moved(self, {name: value}, warn=False)
+            return
+        super().__setattr__(name, value)
+
     def _moved_value(self, name: str):
         """The current value of an option that moved into a part (:data:`MOVED_OPTIONS`)."""
         part, inner = MOVED_OPTIONS[name]
@@ -1096,8 +1108,8 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         except (TypeError, ValueError):
             a = None
         if a is None or a.shape != (dim // 2,) or not np.all(np.isfinite(a) & (a > 0)):
-            raise ValueError(f"state_scaling must be None or {dim // 2} positive finite factors (one per q_i), "
-                             f"got {self.state_scaling_!r}")
+            raise ValueError(f"the state kernel's Scaled factors must be {dim // 2} positive finite numbers (one per "
+                             f"q_i), got {self.state_scaling_!r}")
         return np.concatenate([a, 1.0 / a])
 
     def _original_periods(self, dim: int):

@@ -27,6 +27,7 @@ from sympredict.base import clone
 from sympredict.data import FlowMapData
 from sympredict.exceptions import ExtrapolationWarning
 from sympredict.kernels import KERNEL_FAMILIES, RadialKernel
+from sympredict.kernels.transforms import KernelTransform
 from sympredict.estimators.predictor import SymplecticKernelPredictor, update_variables
 
 __all__ = ["log_grid", "kernel_grid", "SelectionResult", "select_kernels", "refine_kernel_shapes",
@@ -136,8 +137,9 @@ def select_kernels(
     estimator
         The (unfitted) estimator whose settings every candidate shares; each
         candidate is ``clone(estimator).set_params(state_kernel=..., mu_kernel=...,
-        dt_kernel=..., max_centers=m_star, tol=0)``.  Default
-        ``SymplecticKernelPredictor()``.
+        dt_kernel=..., max_centers=m_star, trainer__tol=0)``; where the estimator's
+        state kernel is a transform (``Scaled``, ``Periodic``, ``Symmetric``), the
+        candidate state kernels go inside it.  Default ``SymplecticKernelPredictor()``.
     widen
         When the winner's shape lies on the edge of its grid (a family with at
         least two shapes), try one more grid step beyond that edge (the grid's
@@ -176,7 +178,9 @@ def select_kernels(
 
     def score(tup, widened=False) -> SelectionResult:
         state, mu_k, dt_k = tup
-        model = clone(base).set_params(state_kernel=state, mu_kernel=mu_k, dt_kernel=dt_k, max_centers=m_star, trainer__tol=0.0)
+        inside = base.state_kernel.with_radial(state) if isinstance(base.state_kernel, KernelTransform) else state
+        model = clone(base).set_params(state_kernel=inside, mu_kernel=mu_k, dt_kernel=dt_k, max_centers=m_star,
+                                       trainer__tol=0.0)
         label = " x ".join(repr(k) for k in tup if k is not None)
         row = {"state": _spec(state), "mu": _spec(mu_k), "dt": _spec(dt_k), "kernels": label, "widened": widened}
         t0 = time.perf_counter()

@@ -111,6 +111,11 @@ class KernelTransform(Parametrized):
         inner = self.kernel
         return inner.radial if isinstance(inner, KernelTransform) else inner
 
+    def with_radial(self, radial: Optional[RadialKernel]) -> "KernelTransform":
+        """The same chain around another radial kernel (model selection: candidates inside the transforms)."""
+        inner = self.kernel.with_radial(radial) if isinstance(self.kernel, KernelTransform) else radial
+        return type(self)(**{**self.get_params(deep=False), "kernel": inner})
+
     @property
     def spec(self) -> dict:
         params = {k: _encode(v) for k, v in self.get_params(deep=False).items()}
@@ -354,7 +359,7 @@ def _same(a, b) -> bool:
 
 def _positive_vector(value, what: str) -> np.ndarray:
     try:
-        arr = np.atleast_1d(np.asarray(value, dtype=float))
+        arr = None if isinstance(value, (str, bytes)) else np.atleast_1d(np.asarray(value, dtype=float))
     except (TypeError, ValueError):
         arr = None
     if arr is None or arr.ndim != 1 or arr.size == 0 or not np.all(np.isfinite(arr) & (arr > 0)):
