@@ -214,3 +214,54 @@ def test_each_trainer_owns_only_the_settings_it_can_run():
         NewtonSolver(max_iter=0).check()
     with pytest.raises(ValueError, match="backend must be"):
         NewtonSolver(backend="gpu").check()
+
+
+# ------------------------------------------------------------------ the flow-map protocol and the wrappers' hook
+def test_predictors_and_wrappers_are_flow_maps(small_pendulum_data):
+    from sympredict.flowmap.protocol import FlowMap, SymplecticFlowMap
+    from sympredict.flowmap.splitting import SplitKernelPredictor
+    from sympredict.systems.linear_flow import QuadraticPart
+
+    x0, x1, mu, dt = _data(small_pendulum_data)
+    sym = SymplecticKernelPredictor(IMQ(0.3), IMQ(1.5), IMQ(3.0), max_centers=20).fit(x0, x1, mu=mu, dt=dt)
+    direct = DirectKernelPredictor(IMQ(0.3), IMQ(1.5), IMQ(3.0), max_centers=20).fit(x0, x1, mu=mu, dt=dt)
+    split = SplitKernelPredictor(SymplecticKernelPredictor(IMQ(0.3), IMQ(1.5), IMQ(3.0), max_centers=20),
+                                 QuadraticPart(np.eye(2)[None], np.zeros((1, 1)))).fit(x0, x1, mu=mu, dt=dt)
+    for model in (sym, split):
+        assert isinstance(model, SymplecticFlowMap) and model.dim_ == 2 and model.n_mu_ == 1
+    assert isinstance(direct, FlowMap) and not isinstance(direct, SymplecticFlowMap)
+
+
+@pytest.mark.parametrize("backend", ["numpy", "numba"])
+def test_the_around_hook_is_the_composed_step_on_the_same_solver(small_pendulum_data, backend, monkeypatch):
+    import sympredict.estimators.predictor as predictor
+    from _tolerances import rollout_bound
+
+    x0, x1, mu, dt = _data(small_pendulum_data)
+    model = SymplecticKernelPredictor(IMQ(0.3), IMQ(1.5), IMQ(3.0), max_centers=40,
+                                      solver=NewtonSolver(backend=backend)).fit(x0, x1, mu=mu, dt=dt)
+    theta = 0.05
+    rot = np.array([[np.cos(theta), np.sin(theta)], [-np.sin(theta), np.cos(theta)]])  # symplectic (det 1, 2-D)
+    x = x0[:3] * 0.5
+    calls = []
+    real = predictor.rollout_compiled
+    monkeypatch.setattr(predictor, "rollout_compiled", lambda *a, **k: calls.append(1) or real(*a, **k))
+    traj = model.rollout(x, 4, mu=mu[:3], dt=dt[:3], around=(rot, rot.T))
+    assert bool(calls) == (backend == "numba")  # a wrapped rollout stays on the model's solver
+    expected = [x]
+    for _ in range(4):
+        expected.append(expected[-1] @ rot.T)  # pre x
+        expected[-1] = model.step(expected[-1], mu=mu[:3], dt=dt[:3]) @ rot  # post Phi(pre x)
+    expected = np.stack(expected, axis=1)
+    sur = model.surrogate_
+    bound = rollout_bound(sur, expected, sur.weights(mu[:3].reshape(3, -1), dt[:3]), dt[:3])
+    np.testing.assert_allclose(traj, expected, rtol=0, atol=bound)
+    with pytest.raises(ValueError, match="around: pre must be finite matrices"):
+        model.rollout(x, 2, mu=mu[:3], dt=dt[:3], around=(np.eye(3), np.eye(2)))
+
+
+def test_an_old_option_set_as_an_attribute_lands_in_its_part():
+    model = SymplecticKernelPredictor(IMQ(0.3))
+    with pytest.warns(FutureWarning, match=r"set_params\(solver__backend=\.\.\.\)"):
+        model.backend = "numpy"
+    assert model.solver == NewtonSolver(backend="numpy") and "backend" not in model.__dict__

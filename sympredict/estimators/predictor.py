@@ -1234,7 +1234,7 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         return out[0] if single else out
 
     def rollout(self, x0, n_steps: int, mu=None, dt=None, *, stride: int = 1, progress=None,
-                check_solvability: bool = False) -> np.ndarray:
+                check_solvability: bool = False, around=None) -> np.ndarray:
         """Trajectories of ``n_steps`` predicted macro steps.
 
         Parameters
@@ -1253,6 +1253,11 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
             Before stepping, estimate ``dT * L_S`` at the initial states
             (:meth:`solvability`) and raise :class:`SolvabilityError` naming the
             instances where it is ``>= 1``.
+        around : tuple ``(pre, post)`` of arrays of shape (B, 2n, 2n) or (2n, 2n), optional
+            The wrappers' hook: step ``x_k+1 = post Phi(pre x_k)`` instead of ``Phi(x_k)``
+            (e.g. the exact linear flow ``L_h`` on both sides, :class:`~sympredict.flowmap.splitting.SplitKernelPredictor`),
+            on the same solver as a plain rollout (compiled where that is).  The query
+            checks and extrapolation warnings are about the model's inputs ``pre x_k``.
 
         Returns
         -------
@@ -1273,16 +1278,41 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         """
         n_steps = as_positive_int(n_steps, "n_steps", minimum=0)
         stride = as_positive_int(stride, "stride")
-        x, single, mu, dt = self._query(x0, mu, dt, name="x0")
+        if around is None:
+            x, single, mu, dt = self._query(x0, mu, dt, name="x0")
+        else:
+            self._check_fitted()
+            x, single = as_states(x0, "x0", dim=self.dim_)
+            around = self._check_around(around, len(x))
+            _, _, mu, dt = self._query(np.einsum("bij,bj->bi", around[0], x), mu, dt, name="pre x0")
         weights = self.surrogate_.weights(mu, dt)
         if check_solvability:
-            margin = self._solvability(x, weights, dt)
+            seen = x if around is None else np.einsum("bij,bj->bi", around[0], x)
+            margin = self._solvability(seen, weights, dt)
             bad = np.flatnonzero(~(margin < 1.0))
             if bad.size:
                 raise SolvabilityError(bad, margin[bad])
-        traj = self._check_finite(self._rollout(x, weights, dt, n_steps, stride=stride, progress=progress))
-        self._warn_if_trajectory_leaves(traj, stride)
+        traj = self._check_finite(self._rollout(x, weights, dt, n_steps, around=around, stride=stride,
+                                                progress=progress))
+        self._warn_if_trajectory_leaves(traj if around is None else np.einsum("bij,bkj->bki", around[0], traj), stride)
         return traj[0] if single else traj
+
+    def _check_around(self, around, b: int) -> tuple:
+        """``(pre, post)`` as finite C-contiguous float64 arrays (B, 2n, 2n); ``ValueError`` naming the problem."""
+        try:
+            pre, post = around
+        except (TypeError, ValueError):
+            raise ValueError("around must be a pair (pre, post) of matrices (B, 2n, 2n) or (2n, 2n)") from None
+        out = []
+        for name, m in (("pre", pre), ("post", post)):
+            m = np.asarray(m, dtype=float)
+            if m.ndim == 2:
+                m = np.broadcast_to(m, (b, *m.shape))
+            if m.shape != (b, self.dim_, self.dim_) or not np.all(np.isfinite(m)):
+                raise ValueError(f"around: {name} must be finite matrices of shape ({b}, {self.dim_}, {self.dim_}) or "
+                                 f"({self.dim_}, {self.dim_}), got shape {m.shape}")
+            out.append(np.ascontiguousarray(m))
+        return tuple(out)
 
     def _solvability(self, x, weights, dt):
         return as_update(self.update_).contraction(self.surrogate_, x * self._scale_vector(self.dim_), weights, dt)

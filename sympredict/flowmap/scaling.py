@@ -212,6 +212,16 @@ class NormalizedFlowMap:
         return ("extrapolation: the query (or its trajectory) leaves the training data of the flow map; in the caller's "
                 "units: " + ("; ".join(parts) if parts else "the states leave the box of the training states"))
 
+    @property
+    def dim_(self) -> int:
+        """State dimension ``2n`` (the flow-map protocol, :mod:`sympredict.flowmap.protocol`)."""
+        return self.predictor.dim_
+
+    @property
+    def n_mu_(self) -> int:
+        """Parameter dimension."""
+        return self.predictor.n_mu_
+
     def step(self, x, mu=None, dt=None) -> np.ndarray:
         """One step of states (B, 2n); ``mu`` (d,) or (B, d) in original units."""
         x = np.atleast_2d(np.asarray(x, dtype=float))

@@ -217,14 +217,9 @@ class SplitKernelPredictor(Parametrized):
         n_steps = as_positive_int(n_steps, "n_steps", minimum=0)
         stride = as_positive_int(stride, "stride")
         x, single, mu, dt, L = self._query(x0, mu, dt, name="x0")
-        inner = self.predictor_
-        # the inner model validates its query (warns if mu, dt or L_h x0 are outside its training box) ...
-        _, _, inner_mu, inner_dt = inner._query(_apply(L, x), self._inner_mu(mu), dt, name="x0")
-        weights = inner.surrogate_.weights(inner_mu, inner_dt)
-        traj = inner._check_finite(inner._rollout(x, weights, inner_dt, n_steps, around=(L, L), stride=stride,
-                                                  progress=progress), " (inside a SplitKernelPredictor)")
-        seen = np.einsum("bij,bkj->bki", L, traj)  # the inner model's inputs L_h x_k
-        inner._warn_if_trajectory_leaves(seen, stride)  # ... and if the trajectories leave it
+        # the inner model's public hook: x_k+1 = L_h S(L_h x_k) on its solver; it checks its inputs L_h x_k
+        traj = self.predictor_.rollout(x, n_steps, mu=self._inner_mu(mu), dt=dt, stride=stride, progress=progress,
+                                       around=(L, L))
         return traj[0] if single else traj
 
     def step_jacobian(self, x, mu=None, dt=None) -> np.ndarray:
@@ -261,7 +256,7 @@ class SplitKernelPredictor(Parametrized):
         if set(settings) != expected:
             raise ModelFileError(f"{where}: its settings must have exactly the keys {sorted(expected)}, "
                                  f"got {sorted(settings)}")
-        if settings["layout"] != MODEL_LAYOUT:
+        if settings["layout"] not in (2, MODEL_LAYOUT):  # layout 2: the inner model's flat options, read as parts
             raise ModelFileError(f"{where}: unknown layout {settings['layout']!r}")
         dim, n_mu = settings["dim"], settings["n_mu"]
         if not all(isinstance(v, int) and not isinstance(v, bool) for v in (dim, n_mu)) or dim < 2 or dim % 2 or n_mu < 0:

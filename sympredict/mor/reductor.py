@@ -501,6 +501,7 @@ class _FixedMuFlowMap:
 
     def __init__(self, flow_map: NormalizedFlowMap, mu: np.ndarray):
         self.flow_map, self.mu = flow_map, np.asarray(mu, float)
+        self.dim_, self.n_mu_ = flow_map.dim_, self.mu.size  # the flow-map protocol (its one mu is accepted)
 
     def _check(self, mu):
         if mu is not None and not np.allclose(np.ravel(mu), self.mu):
