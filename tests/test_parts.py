@@ -145,7 +145,7 @@ def test_numpy_only_features_are_declared_once_refused_for_numba_and_said_under_
     x0, x1, mu, dt = _data(small_pendulum_data)
     for kernel in (Periodic(IMQ(0.3), coordinates=(0,)), Symmetric(IMQ(0.3), group=[(1, 1), (-1, -1)])):
         parts = lower_state_kernel(kernel)
-        reasons = [reason for applies, reason in NUMPY_ONLY if applies(parts)]
+        reasons = [reason for applies, reason in NUMPY_ONLY if applies(parts, Midpoint())]
         assert len(reasons) == 1
         numba = SymplecticKernelPredictor(kernel, IMQ(1.5), IMQ(3.0), max_centers=10, update="midpoint",
                                           solver=NewtonSolver(backend="numba"))

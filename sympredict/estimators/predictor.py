@@ -86,12 +86,13 @@ def newton_predictor(model):
 #: The generating-function updates of :class:`SymplecticKernelPredictor` (``update``), by name.
 UPDATES = tuple(UPDATE_RULES)
 
-#: Model features that only the NumPy solver runs: ``(test of the flattened state kernel, reason)``.  The one
-#: place that says which combination runs on which backend: ``NewtonSolver(backend='numba')`` is refused for
-#: them at fit (naming the fix), ``'auto'`` uses NumPy and the fitted model says so (``numpy_only_``).
+#: Model features that only the NumPy solver runs: ``(test of the flattened state kernel and the update rule,
+#: reason)``.  The one place that says which combination runs on which backend: ``NewtonSolver(backend='numba')``
+#: is refused for them at fit (naming the fix), ``'auto'`` uses NumPy and the fitted model says so (``numpy_only_``).
 NUMPY_ONLY = (
-    (lambda parts: parts.periodic is not None, "periodic coordinates (Periodic) have no compiled solver yet"),
-    (lambda parts: parts.symmetry is not None, "a state symmetry (Symmetric) has no compiled solver yet"),
+    (lambda parts, rule: parts.periodic is not None, "periodic coordinates (Periodic) have no compiled solver yet"),
+    (lambda parts, rule: parts.symmetry is not None, "a state symmetry (Symmetric) has no compiled solver yet"),
+    (lambda parts, rule: not rule.compiled, "this update rule has no compiled solver yet"),
 )
 
 #: Options of sympredict 0.1's estimators that moved into their parts: ``old name -> (part, its parameter)``.
@@ -1024,8 +1025,9 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         as_update(self.update)
         solver = self._check_runtime_settings()
         parts = self._state_parts()
+        rule = as_update(self.update)
         for applies, reason in NUMPY_ONLY:  # the one declarative check of part against backend
-            if applies(parts) and solver.backend == "numba":
+            if applies(parts, rule) and solver.backend == "numba":
                 raise ValueError(f"{reason}: use NewtonSolver(backend='numpy') or 'auto' (which then uses NumPy)")
         return trainer
 
@@ -1070,7 +1072,8 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         self._check_fitted()
         parts = StateKernelParts(scaling=self.state_scaling_, periodic=self.periodic_, period=self.period_,
                                  symmetry=self.symmetry_)
-        reasons = [reason for applies, reason in NUMPY_ONLY if applies(parts)]
+        rule = as_update(self.update_)
+        reasons = [reason for applies, reason in NUMPY_ONLY if applies(parts, rule)]
         return "; ".join(reasons) if reasons else None
 
     def _check_dim_settings(self, dim: int) -> None:

@@ -47,6 +47,9 @@ class UpdateRule(Parametrized):
     breaking_angle: float = np.nan
     #: The failure reasons of the Newton solve (codes of :mod:`sympredict.symplectic.newton`).
     failure_reasons: dict = FAILURE_REASONS
+    #: Whether the compiled solver has a kernel for this rule (dispatched on :attr:`name`); a rule without one
+    #: is NumPy-only (:data:`sympredict.estimators.predictor.NUMPY_ONLY`).
+    compiled: bool = True
 
     def __eq__(self, other) -> bool:
         return type(self) is type(other) or (isinstance(other, str) and other == self.name)
