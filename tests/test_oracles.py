@@ -187,7 +187,7 @@ def compiled_newton_passes(model, x, mu, dt, n_steps):
     dt = np.full(len(x), float(dt))
     weights = sur.weights(np.full((len(x), 1), float(mu)), dt)
     stats = {}
-    _fastkernels.newton_rollout(x, weights, dt, sur.layout(), sur.kernel.state, model.newton_max_iter, n_steps,
+    _fastkernels.newton_rollout(x, weights, dt, sur.layout(), sur.kernel.state, model._newton_iterations(), n_steps,
                                 stats=stats)
     return stats["passes"]
 

@@ -229,7 +229,8 @@ def test_set_params_after_fit_does_not_change_predictions(data, tmp_path):
     m = SymplecticKernelPredictor(IMQ(0.3), max_centers=20, solver=NewtonSolver(backend="numpy")).fit(data.x0, data.x1, dt=DT)
     x = data.x0[:4]
     before = m.step(x)
-    for change in ({"update": "midpoint"}, {"state_scaling": (2.0,)}, {"periodic": (0,)}):
+    for change in ({"update": "midpoint"}, {"state_kernel": Scaled(IMQ(0.3), factors=(2.0,))},
+                   {"state_kernel": Periodic(IMQ(0.3), coordinates=(0,))}):
         m.set_params(**change)
         np.testing.assert_array_equal(m.step(x), before)
     m.save(tmp_path / "m.h5")  # before: periodic=(0,) was written and load refused the file

@@ -294,7 +294,7 @@ def test_save_load_round_trip(split_pendulum, tmp_path):
         assert isinstance(loaded, SplitKernelPredictor) and loaded.n_centers_ == model.n_centers_
         np.testing.assert_array_equal(loaded.rollout(x, 5, mu=0.75, dt=0.05), model.rollout(x, 5, mu=0.75, dt=0.05))
         assert loaded.predictor.update == "midpoint" and loaded.predictor.max_centers == 250
-        np.testing.assert_array_equal(np.array(loaded.predictor.symmetry), np.array(KLEIN))
+        np.testing.assert_array_equal(np.array(loaded.predictor.state_kernel.group), np.array(KLEIN))
         np.testing.assert_array_equal(loaded.quadratic_.checked()[0], model.quadratic_.checked()[0])
         assert not loaded.predictor.is_fitted  # the template stays unfitted
     with pytest.raises(ModelFileError, match="not a SymplecticKernelPredictor"):

@@ -54,6 +54,6 @@ def test_estimator_option(small_pendulum_model, tmp_path):
     np.testing.assert_allclose(b, a, atol=1e-7)
     assert not np.array_equal(a, b)  # the option is used
     save_model(warm, tmp_path / "w.h5")
-    assert load_model(tmp_path / "w.h5").newton_warm_start is True
+    assert load_model(tmp_path / "w.h5").solver.warm_start is True
     with pytest.raises(ValueError, match="warm_start"):
         clone(model).set_params(solver__warm_start="yes", max_centers=5).fit(x0, x0, mu=lengths, dt=0.05)

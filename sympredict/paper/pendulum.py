@@ -336,7 +336,7 @@ def run_scenario_b(preset: PendulumPreset, seed: int = 0, kernels=None) -> dict:
     models = {}
     fit_time = {}
     for name, cls in (("symplectic", SymplecticKernelPredictor), ("direct", DirectKernelPredictor)):
-        model = cls(state_k, mu_k, dt_k, max_centers=preset.max_centers_b, tol=1e-10)
+        model = cls(state_k, mu_k, dt_k, max_centers=preset.max_centers_b, trainer=ExactGreedy(tol=1e-10))
         t0 = time.perf_counter()
         with logger.block(f"scenario B: {name} model"):
             model.fit(data.x0, data.x1, mu=data.mu, dt=data.dt)
