@@ -22,6 +22,7 @@ from threadpoolctl import threadpool_limits
 
 from sympredict.functionals import HBFunctionals
 from sympredict.kernels import IMQ, ProductKernel, StateSymmetry
+from sympredict.metrics import canonical_J
 from sympredict.predictor import update_variables
 from sympredict.systems.pendulum import Pendulum
 
@@ -29,7 +30,7 @@ parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
 parser.add_argument("--part", default="both", choices=["invariance", "design", "both"])
 args = parser.parse_args()
 
-J = np.array([[0.0, 1.0], [-1.0, 0.0]])
+J = canonical_J(2)
 KLEIN = [(1, 1), (-1, -1), (1, -1), (-1, 1)]
 L, DT = 0.75, 0.05
 system = Pendulum()

@@ -53,7 +53,7 @@ from scipy.linalg import expm
 from sympredict._checks import as_positive_int, as_states, as_steps
 from sympredict.data import FlowMapData
 from sympredict.exceptions import GeneratingFunctionWarning
-from sympredict.metrics import canonical_J
+from sympredict.metrics import canonical_J, j_times
 
 __all__ = [
     "mu_to_vector",
@@ -193,11 +193,8 @@ def rk4_flow(gradient: Callable, x0: np.ndarray, mu: np.ndarray, t: np.ndarray, 
     -----
     Cost ``O(B * 4 * steps)`` gradient evaluations, batched over ``B``.
     """
-    n = x0.shape[1] // 2
-
     def rhs(x):
-        g = gradient(x, mu)
-        return np.concatenate([g[:, n:], -g[:, :n]], axis=1)
+        return j_times(gradient(x, mu))
 
     def integrate(steps):
         h = (t / steps)[:, None]

@@ -51,6 +51,7 @@ from sympredict.functionals import HBFunctionals, ValueFunctionals
 from sympredict.greedy import GreedyHistory, Trainer, trainer_from_spec
 from sympredict.greedy.trainers import ExactGreedy
 from sympredict.kernels import IMQ, PeriodicCoordinates, ProductKernel, RadialKernel, StateSymmetry, kernel_from_spec
+from sympredict.metrics import canonical_J
 from sympredict.newton import (
     midpoint_jacobian, ordered_weights, rollout_compiled, rollout_in_chunks, rollout_numpy, solve_midpoint_numpy,
     solve_step_numpy,
@@ -1131,7 +1132,7 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         if self.periodic_ is not None:
             raise ValueError("symmetry and periodic cannot be combined (not implemented): pass one of them")
         n = dim // 2
-        jmat = np.block([[np.zeros((n, n)), np.eye(n)], [-np.eye(n), np.zeros((n, n))]])
+        jmat = canonical_J(dim)
         for i, g in enumerate(group.array):
             if self.update_ == "midpoint":
                 sigma = g.T @ jmat @ g

@@ -113,7 +113,7 @@ FAULTS = [
           "pre, post = pre / scale[None, :, None], post * scale[None, None, :]",
           ("tests/test_splitting.py",), "split rollout: state scaling conjugated the wrong way"),
     # ----------------------------------------------------------------- reduction
-    Fault("R1", "reduction", P + "reduction.py", "return _J_times(_J_times(V).T)", "return V.T",
+    Fault("R1", "reduction", P + "reduction.py", "return j_times(j_times(V, axis=0).T, axis=0)", "return V.T",
           ("tests/test_oracles.py",), "symplectic inverse V+ = V^T (coincides only for orthosymplectic V)"),
     Fault("R9", "reduction", P + "reduction.py", "return np.concatenate([A[m:], -A[:m]])", "return np.concatenate([A[m:], A[:m]])",
           ("tests/test_sine_gordon_long_time.py", "tests/test_oracles.py"), "J applied by block swap without the sign"),

@@ -45,6 +45,7 @@ from pymor.algorithms.timestepping import TimeStepper
 from pymor.operators.interface import Operator
 
 from sympredict._checks import as_positive_int, as_real, as_states, as_steps
+from sympredict.metrics import j_times
 from sympredict.integrators_compiled import PointwiseHamiltonian, jit_pointwise, rollout
 
 __all__ = ["fd_laplacian_1d", "laplacian_max_eigenvalue", "SineGordonFOM", "SineGordonOperator",
@@ -466,8 +467,7 @@ class SineGordonOperator(Operator):
         c = self.c_of(mu)
         x = self.fom.from_pymor(U)
         g = self.fom.gradient(x, np.full(len(x), c)) if len(x) else x
-        n = self.fom.n_points
-        return self.fom.to_pymor(-np.hstack([g[:, n:], -g[:, :n]])) if len(x) else self.range.zeros(0)
+        return self.fom.to_pymor(-j_times(g)) if len(x) else self.range.zeros(0)
 
     def jacobian(self, U, mu=None):
         from pymor.operators.block import BlockOperator
