@@ -102,8 +102,8 @@ FAULTS = [
     # ----------------------------------------------------------------- exact-linear-flow splitting
     Fault("SP1", "splitting", P + "splitting.py", "_apply(inverse_symplectic_matrices(L), data.x1)", "_apply(L, data.x1)",
           ("tests/test_splitting.py",), "training pairs: x1 transformed by L_h instead of L_-h"),
-    Fault("SP2", "splitting", P + "linear_flow.py", "gen = (canonical_J(A.shape[1]) @ A)", "gen = (A @ canonical_J(A.shape[1]))",
-          ("tests/test_splitting.py",), "propagator of A J instead of J A"),
+    Fault("SP2", "splitting", P + "linear_flow.py", "gen = j_times(H, axis=-2)", "gen = j_times(H.swapaxes(-1, -2), axis=-1)",
+          ("tests/test_splitting.py",), "propagator of -A J instead of J A"),
     Fault("SP3", "splitting", P + "scaling.py", "left, right = float(tau) * J.T @ M @ J, np.linalg.inv(M)",
           "left, right = float(tau) * M, np.linalg.inv(M)",
           ("tests/test_sine_gordon_split.py",), "quadratic part in scaled coordinates conjugated like a map, not a form"),

@@ -7,18 +7,23 @@ stepping costs ~40 µs of overhead per step, more than a 4x4 step itself).
 
 Since the system is linear, every flow is a matrix: the implicit-midpoint
 step is the Cayley transform ``(I - h/2 A)^{-1} (I + h/2 A)`` of
-``A = J H(mu)``, and the exact flow is ``expm(t A)``.
+``A = J H(mu)``, and the exact flow is ``expm(t A)``.  ``H(mu)`` and the exact
+flow belong to a :class:`~sympredict.linear_flow.QuadraticPart` with the
+matrices ``(H0, H1)`` and the powers ``(0, 1)`` (:meth:`QuadraticHamiltonian.quadratic_part`):
+this class adds the system's interface (energies, gradients, compiled
+pointwise evaluation, reference and exact trajectories).
 """
 
 from __future__ import annotations
 
 import numpy as np
-from scipy.linalg import expm, solve
+from scipy.linalg import solve
 
 from sympredict._checks import as_parameter, as_positive_int, as_real, as_real_array, as_states, as_steps
 from sympredict.metrics import canonical_J
 from sympredict.integrators import micro_steps
 from sympredict.integrators_compiled import PointwiseHamiltonian, jit_pointwise
+from sympredict.linear_flow import QuadraticPart
 
 __all__ = ["QuadraticHamiltonian"]
 
@@ -128,9 +133,18 @@ class QuadraticHamiltonian:
             hess_H=_hess_H, fargs=np.concatenate([self.H0.ravel(), self.H1.ravel()]), iargs=(self.dim,), name=f"QuadraticHamiltonian(2n={self.dim})",
         )
 
+    def quadratic_part(self) -> QuadraticPart:
+        """``H(mu) = H0 + mu H1`` as a :class:`~sympredict.linear_flow.QuadraticPart` (powers 0 and 1).
+
+        It owns ``H(mu)`` and the exact flow ``expm(t J H(mu))`` (batched over
+        ``mu`` and ``t``); :meth:`matrix` and :meth:`exact_propagator` use it.
+        Built from the current ``H0``, ``H1`` on each call (it stores them, ``O((2n)^2)``).
+        """
+        return QuadraticPart(np.stack([self.H0, self.H1]), [[0.0], [1.0]])
+
     def matrix(self, mu: float) -> np.ndarray:
         """``H0 + mu H1``, shape (2n, 2n)."""
-        return self.H0 + as_real(mu, "mu") * self.H1
+        return self.quadratic_part().hessian(as_real(mu, "mu"))[0]
 
     def hamiltonian(self, x, mu) -> np.ndarray:
         """Energies, shape (B,), for states (B, 2n) and parameters (B,) / (B, 1)."""
@@ -181,8 +195,8 @@ class QuadraticHamiltonian:
         return np.linalg.matrix_power(step, int(n_steps))
 
     def exact_propagator(self, mu: float, t: float) -> np.ndarray:
-        """``expm(t J H(mu))``."""
-        return expm(as_real(t, "t") * (self.J @ self.matrix(mu)))
+        """``expm(t J H(mu))``, shape (2n, 2n) (:meth:`QuadraticPart.propagator <sympredict.linear_flow.QuadraticPart.propagator>`)."""
+        return self.quadratic_part().propagator(as_real(mu, "mu"), as_real(t, "t"))[0]
 
     def _grouped(self, x0, mu, t, propagator):
         x0, single = as_states(x0, "x0", dim=self.dim)
