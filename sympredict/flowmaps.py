@@ -470,6 +470,8 @@ def sample_energy_ellipsoid(system: LinearHamiltonianSystem, n: int, mu, energy:
     """States uniform in ``{x : 1/2 x^T H(mu) x <= energy}`` (``H(mu)`` SPD), shape (n, 2n).
 
     ``x = sqrt(2 energy) L^{-T} z``, ``H = L L^T``, ``z`` uniform in the unit ball: exact, rejection-free.
+    ``system``: anything with ``matrix(mu)`` and ``dim`` (:class:`LinearHamiltonianSystem`,
+    :class:`~sympredict.systems.quadratic.QuadraticHamiltonian`).
     """
     n = as_positive_int(n, "n")
     if not (np.isfinite(energy) and energy > 0):

@@ -23,6 +23,7 @@ from sympredict._checks import as_parameter, as_positive_int, as_real, as_real_a
 from sympredict.metrics import canonical_J
 from sympredict.integrators import micro_steps
 from sympredict.integrators_compiled import PointwiseHamiltonian, jit_pointwise
+from sympredict.flowmaps import sample_energy_ellipsoid
 from sympredict.linear_flow import QuadraticPart
 
 __all__ = ["QuadraticHamiltonian"]
@@ -167,23 +168,15 @@ class QuadraticHamiltonian:
 
         ``x = sqrt(2 energy) L^{-T} z`` with ``H(mu) = L L^T`` and ``z`` uniform
         in the unit ball (normal direction, radius ``U^(1/2n)``): exact and
-        rejection-free in any dimension.
+        rejection-free in any dimension (:func:`sympredict.flowmaps.sample_energy_ellipsoid`
+        with ``numpy.random.default_rng(seed)``).
 
         Returns
         -------
         ndarray of shape (n_samples, 2n)
         """
         n_samples = as_positive_int(n_samples, "n_samples")
-        if not (np.isfinite(energy) and energy > 0):
-            raise ValueError(f"energy must be positive, got {energy!r}")
-        try:
-            L = np.linalg.cholesky(self.matrix(mu))
-        except np.linalg.LinAlgError:
-            raise ValueError(f"H(mu={mu}) is not positive definite: the energy sub-level set is unbounded") from None
-        rng = np.random.default_rng(seed)
-        z = rng.normal(size=(n_samples, self.dim))
-        z *= rng.uniform(size=(n_samples, 1)) ** (1.0 / self.dim) / np.linalg.norm(z, axis=1, keepdims=True)
-        return np.sqrt(2.0 * energy) * solve(L.T, z.T).T
+        return sample_energy_ellipsoid(self, n_samples, mu, energy, np.random.default_rng(seed))
 
     def midpoint_propagator(self, mu: float, h: float, n_steps: int = 1) -> np.ndarray:
         """Matrix of ``n_steps`` implicit-midpoint steps of size ``h``: ``((I - h/2 A)^{-1}(I + h/2 A))^n``."""
