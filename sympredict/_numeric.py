@@ -3,11 +3,13 @@
 :func:`compilable` marks a plain function as callable from compiled code
 (numba's ``register_jitable``) while it stays an ordinary Python function;
 without numba it is the identity.  The kernel families' formula helpers,
-Newton's stopping rule and the dense solves of the compiled Newton
-iterations use it.
+Newton's stopping rule, the dense solves of the compiled Newton
+iterations and the marking of a failed instance's trajectory use it.
 """
 
 from __future__ import annotations
+
+import math
 
 try:  # numba is optional: without it nothing is compiled and these stay plain functions
     from numba.extending import register_jitable as compilable
@@ -17,7 +19,7 @@ except ImportError:  # pragma: no cover
         return function
 
 
-__all__ = ["compilable", "lu_solve_inplace"]
+__all__ = ["compilable", "lu_solve_inplace", "fill_nan_after"]
 
 
 @compilable
@@ -55,3 +57,11 @@ def lu_solve_inplace(a, b) -> bool:
             s -= a[r, j] * b[j]
         b[r] = s / a[r, r]
     return True
+
+
+@compilable
+def fill_nan_after(traj, i, k) -> None:
+    """``traj[i, k+1:] = NaN``: the states after a failed step ``k`` of instance ``i`` (traj (B, K+1, 2n))."""
+    for kk in range(k + 1, traj.shape[1]):
+        for j in range(traj.shape[2]):
+            traj[i, kk, j] = math.nan

@@ -46,7 +46,7 @@ from pymor.operators.interface import Operator
 
 from sympredict._checks import as_positive_int, as_real, as_states, as_steps
 from sympredict.metrics import j_times
-from sympredict.integrators_compiled import PointwiseHamiltonian, jit_pointwise, rollout
+from sympredict.integrators_compiled import PointwiseHamiltonian, jit_pointwise, rollout, unit_mass_grad_T
 
 __all__ = ["fd_laplacian_1d", "laplacian_max_eigenvalue", "SineGordonFOM", "SineGordonOperator",
            "CompiledSymplecticTimeStepper", "INITIAL_FAMILIES"]
@@ -100,11 +100,7 @@ def _grad_V(q, mu, fargs, iargs, out):
         out[j] = c2 * acc + s * np.sin(q[j])
 
 
-@jit_pointwise
-def _grad_T(p, mu, fargs, iargs, out):
-    """``p``."""
-    for j in range(p.shape[0]):
-        out[j] = p[j]
+_grad_T = unit_mass_grad_T  # dT/dp = p
 
 
 @jit_pointwise
@@ -112,8 +108,7 @@ def _grad_H(x, mu, fargs, iargs, out):
     """``(c^2 D q + s sin q, p)``."""
     n = x.shape[0] // 2
     _grad_V(x[:n], mu, fargs, iargs, out[:n])
-    for j in range(n):
-        out[n + j] = x[n + j]
+    unit_mass_grad_T(x[n:], mu, fargs, iargs, out[n:])
 
 
 @jit_pointwise
