@@ -117,6 +117,7 @@ def implicit_midpoint_step(system, x, mu, h, *, max_iter: int = 50) -> np.ndarra
     Returns
     -------
     ndarray of shape (B, 2n)
+        The states ``x1`` after one step.
 
     Raises
     ------

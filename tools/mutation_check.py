@@ -69,7 +69,7 @@ FAULTS = [
     Fault("S1", "surrogate", P + "surrogate.py", "out[sl] = -np.matmul((w * B * g)[:, None, :], diff)[:, 0, :] - wA @ self._onehot",
           "out[sl] = -np.matmul((w * B * g)[:, None, :], diff)[:, 0, :] + wA @ self._onehot",
           ("tests/test_surrogate.py", "tests/test_greedy.py"), "sign of the A term in the surrogate gradient"),
-    Fault("D1", "data", P + "data.py", "y = np.concatenate([-inc[:, n:], inc[:, :n]], axis=1)", "y = np.concatenate([inc[:, n:], inc[:, :n]], axis=1)",
+    Fault("D1", "data", P + "data.py", "y = -j_times(inc)", "y = j_times(inc)",
           ("tests/test_predictor.py",), "gradient targets J^T (x1 - x0) / dT with the wrong sign"),
     Fault("D2", "data", P + "data.py", "xi = np.concatenate([x0[:, :n], x1[:, n:]], axis=1)", "xi = np.concatenate([x0[:, :n], x0[:, n:]], axis=1)",
           ("tests/test_predictor.py",), "mixed variables (q0, p0) instead of (q0, p1)"),
@@ -115,7 +115,8 @@ FAULTS = [
     # ----------------------------------------------------------------- reduction
     Fault("R1", "reduction", P + "reduction.py", "return j_times(j_times(V, axis=0).T, axis=0)", "return V.T",
           ("tests/test_oracles.py",), "symplectic inverse V+ = V^T (coincides only for orthosymplectic V)"),
-    Fault("R9", "reduction", P + "reduction.py", "return np.concatenate([A[m:], -A[:m]])", "return np.concatenate([A[m:], A[:m]])",
+    Fault("R9", "reduction", P + "metrics.py", "return np.concatenate([v[tuple(hi)], -v[tuple(lo)]], axis=axis)",
+          "return np.concatenate([v[tuple(hi)], v[tuple(lo)]], axis=axis)",
           ("tests/test_sine_gordon_long_time.py", "tests/test_oracles.py"), "J applied by block swap without the sign"),
     Fault("R2", "reduction", P + "reduction.py", "V = np.block([[Un.real, -Un.imag], [Un.imag, Un.real]])",
           "V = np.block([[Un.real, Un.imag], [Un.imag, Un.real]])", ("tests/test_wave.py",), "complex-SVD basis not symplectic"),
