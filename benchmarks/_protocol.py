@@ -28,6 +28,7 @@ Command-line options come from :func:`add_arguments`.
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import platform
@@ -60,13 +61,17 @@ DEFAULT_BLAS_THREADS = 1
 
 # --------------------------------------------------------------------------- command line
 def add_arguments(parser, *, threads: Optional[int] = None, threads_help: str = "numba threads of the compiled code",
-                  repeats: Optional[int] = None, json_option: bool = True) -> None:
+                  repeats: Optional[int] = None, json_option: bool = True, blas_alias: Optional[str] = None) -> None:
     """The protocol's options: ``--blas-threads``, and where asked ``--threads``, ``--repeats``, ``--json``.
 
     ``threads`` / ``repeats``: the script's defaults (``None``: the script has no such option).
+    ``blas_alias``: an older name of ``--blas-threads`` that command lines in the docs use (e.g. ``"--threads"``).
     """
     parser.add_argument("--blas-threads", type=int, default=DEFAULT_BLAS_THREADS,
                         help=f"BLAS/OpenMP threads via threadpoolctl (default {DEFAULT_BLAS_THREADS})")
+    if blas_alias:
+        parser.add_argument(blas_alias, dest="blas_threads", type=int, default=argparse.SUPPRESS,
+                            help="the same as --blas-threads (this script's older name)")
     if threads is not None:
         parser.add_argument("--threads", type=int, default=threads, help=f"{threads_help} (default {threads})")
     if repeats is not None:

@@ -44,8 +44,7 @@ parser.add_argument("--n-grid", type=int, default=50)
 parser.add_argument("--n-val", type=int, default=2000)
 parser.add_argument("--max-centers", type=int, default=1500)
 parser.add_argument("--horizon", type=float, default=20.0)
-_protocol.add_arguments(parser)
-parser.add_argument("--threads", dest="blas_threads", type=int, default=argparse.SUPPRESS, help="the same as --blas-threads (this script's older name)")
+_protocol.add_arguments(parser, blas_alias="--threads")
 args = parser.parse_args()
 
 
