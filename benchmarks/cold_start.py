@@ -20,6 +20,10 @@ of ``--repeats`` fresh processes), and how long a 10^9-step ``predict`` takes
 to exit after SIGINT (``interrupt_s``; it is sent once the process has run for
 ``--interrupt-after`` seconds, and its peak resident memory is recorded).
 
+The children get ``--threads`` numba and ``--blas-threads`` BLAS/OpenMP threads
+through their environment; medians and the JSON record follow
+``benchmarks/_protocol.py`` (the first process of a backend is its warm-up).
+
 Run:  python benchmarks/cold_start.py [--repeats 3] [--threads 1] [--json out.json]
 """
 
@@ -37,6 +41,9 @@ from pathlib import Path
 import numpy as np
 from sympredict.interpolation.greedy import ExactGreedy
 from sympredict.symplectic.solvers import NewtonSolver
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import _protocol  # noqa: E402  (benchmarks/_protocol.py)
 
 #: What each fresh process runs: times import, load and the first rollout; prints one JSON line.
 CHILD = r"""
@@ -119,13 +126,12 @@ def main(argv=None) -> dict:
     parser.add_argument("--trajectories", type=int, default=20)
     parser.add_argument("--steps", type=int, default=100)
     parser.add_argument("--repeats", type=int, default=3, help="fresh processes per backend after the first")
-    parser.add_argument("--threads", type=int, default=1, help="numba and BLAS threads of the child processes")
+    _protocol.add_arguments(parser, threads=1, threads_help="numba threads of the child processes")
     parser.add_argument("--cli-steps", type=int, default=400, help="steps of the timed `sympredict predict`")
     parser.add_argument("--interrupt-after", type=float, default=5.0, help="seconds before SIGINT to a 10^9-step predict")
-    parser.add_argument("--json", default=None, help="also write the results as JSON")
     args = parser.parse_args(argv)
 
-    with tempfile.TemporaryDirectory() as tmp:
+    with tempfile.TemporaryDirectory() as tmp, _protocol.limits(args.blas_threads):
         tmp = Path(tmp)
         model, d = fit_model(tmp / "model.h5", args.centers)
         rng = np.random.default_rng(0)
@@ -133,7 +139,7 @@ def main(argv=None) -> dict:
         np.save(tmp / "x0.npy", x0)
         mu, dt = float(d.mu[0, 0]), float(d.dt[0])
         env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp / "numba_cache"), NUMBA_NUM_THREADS=str(args.threads),
-                   OPENBLAS_NUM_THREADS=str(args.threads), OMP_NUM_THREADS=str(args.threads))
+                   OPENBLAS_NUM_THREADS=str(args.blas_threads), OMP_NUM_THREADS=str(args.blas_threads))
         child_args = [str(tmp / "model.h5"), None, str(tmp / "x0.npy"), str(args.steps), repr(mu), repr(dt)]
         result = {"centers": int(len(model.surrogate_.centers_xi)), "trajectories": args.trajectories, "steps": args.steps,
                   "repeats": args.repeats, "threads": args.threads, "python": platform.python_version(),
@@ -143,7 +149,7 @@ def main(argv=None) -> dict:
             first = run_child(child_args, env)  # numba: compiles and fills the fresh cache
             later = [run_child(child_args, env) for _ in range(args.repeats)]
             row = {f"first_{k}": v for k, v in first.items()}
-            row.update({k: float(np.median([r[k] for r in later])) for k in first})
+            row.update({k: _protocol.summary([r[k] for r in later])["median_s"] for k in first})
             row["runs"] = later
             result["backends"][backend] = row
         result["cli"] = {}
@@ -152,11 +158,13 @@ def main(argv=None) -> dict:
             times = [time_cli(command, env) for _ in range(args.repeats)]
             stops = [time_interrupt(_predict_command(tmp / "model.h5", 10**9, backend, x0[0], mu, dt), env,
                                     args.interrupt_after) for _ in range(args.repeats)]
-            result["cli"][backend] = {"predict_s": float(np.median(times)), "predict_runs_s": times,
-                                      "interrupt_s": float(np.median([r["interrupt_s"] for r in stops])),
+            result["cli"][backend] = {"predict_s": _protocol.summary(times)["median_s"], "predict_runs_s": times,
+                                      "interrupt_s": _protocol.summary([r["interrupt_s"] for r in stops])["median_s"],
                                       "interrupt_runs": stops}
         cache = tmp / "numba_cache"
         result["cache_files"] = sum(1 for p in cache.rglob("*") if p.is_file()) if cache.exists() else 0
+        protocol = _protocol.record(blas_threads=args.blas_threads, numba_threads=args.threads, repeats=args.repeats,
+                                    warmup=1, notes="fresh child processes; the first per backend compiles (its own keys)")
     b = result["backends"]
     result["numba_cached_rollout_over_numpy_s"] = b["numba"]["first_rollout_s"] - b["numpy"]["first_rollout_s"]
     for name, row in b.items():
@@ -170,7 +178,7 @@ def main(argv=None) -> dict:
               f"10^9 steps stop {row['interrupt_s']:.2f} s after SIGINT (exit codes "
               f"{sorted({r['returncode'] for r in row['interrupt_runs']})})")
     if args.json:
-        Path(args.json).write_text(json.dumps(result, indent=1))
+        _protocol.write_json(args.json, result, protocol)
     return result
 
 

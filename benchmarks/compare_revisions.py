@@ -10,11 +10,16 @@ commit).  Each is checked out into a temporary worktree; its own
 puts that worktree's ``sympredict`` first (the child prints which package it
 imported, and the driver checks it).  Runs alternate ``BEFORE, AFTER, BEFORE,
 AFTER, ...`` so that a change of machine load hits both; the table gives
-each metric's median over the repeats and the ratio AFTER / BEFORE.  The
-suite's own thread settings apply (``--threads``).
+each metric's median over the repeats and the ratio AFTER / BEFORE
+(``benchmarks/_protocol.py``).  Both suites get the same threads: ``--threads``
+numba threads and ``--blas-threads`` BLAS threads (default: as many as
+``--threads``, since a suite from before the protocol sets both with
+``--threads``; a smaller value needs two revisions whose suites take
+``--blas-threads``).
 
-Writes ``<out>/compare.json`` (every run's suite results) and
-``<out>/compare.md`` (the table), and prints the table.
+Writes ``<out>/compare.json`` (every run's suite results, and the protocol
+record: command line, threads, machine) and ``<out>/compare.md`` (the table),
+and prints the table.
 """
 
 from __future__ import annotations
@@ -28,6 +33,9 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import _protocol  # noqa: E402  (benchmarks/_protocol.py)
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -61,7 +69,12 @@ def _worktree(rev: str, where: Path) -> Path:
     return where
 
 
-def _run_suite(tree: Path, sections: str, threads: int, extra: list, out: Path) -> dict:
+def _takes_blas_threads(tree: Path) -> bool:
+    """Whether the revision's suite sets BLAS threads apart from numba's (``--blas-threads``, the protocol's)."""
+    return "import _protocol" in (tree / "benchmarks" / "suite.py").read_text()
+
+
+def _run_suite(tree: Path, sections: str, threads: int, blas_threads: int, extra: list, out: Path) -> dict:
     env = dict(os.environ, PYTHONPATH=str(tree))
     check = subprocess.run([sys.executable, "-c", "import sympredict, sys; print(sympredict.__file__)"], env=env,
                            cwd=tree, capture_output=True, text=True, check=True)
@@ -69,6 +82,11 @@ def _run_suite(tree: Path, sections: str, threads: int, extra: list, out: Path) 
         raise RuntimeError(f"the child imported {check.stdout.strip()}, not the worktree {tree}")
     cmd = [sys.executable, "benchmarks/suite.py", "--sections", sections, "--threads", str(threads), "--out", str(out),
            "--figure", ""] + extra
+    if _takes_blas_threads(tree):
+        cmd += ["--blas-threads", str(blas_threads)]
+    elif blas_threads != threads:
+        raise SystemExit(f"the suite of {tree.name} sets BLAS threads = --threads ({threads}); it cannot run with "
+                         f"--blas-threads {blas_threads}: compare with the same count for both")
     subprocess.run(cmd, env=env, cwd=tree, check=True)
     return json.loads((out / "suite.json").read_text())
 
@@ -79,9 +97,12 @@ def main(argv=None) -> dict:
     parser.add_argument("after")
     parser.add_argument("--sections", default="greedy,rollout")
     parser.add_argument("--repeats", type=int, default=2)
-    parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--threads", type=int, default=2, help="numba threads of both suites (default 2)")
+    parser.add_argument("--blas-threads", type=int, default=None,
+                        help="BLAS threads of both suites (default: --threads, as a suite from before the protocol sets)")
     parser.add_argument("--out", default="benchmarks/results/compare")
     args, extra = parser.parse_known_args(argv)
+    blas_threads = args.threads if args.blas_threads is None else args.blas_threads
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     runs = {"before": [], "after": []}
@@ -91,7 +112,7 @@ def main(argv=None) -> dict:
             for rep in range(args.repeats):
                 for label in ("before", "after"):
                     print(f"--- {label} ({getattr(args, label)}), repeat {rep + 1}/{args.repeats}", flush=True)
-                    res = _run_suite(trees[label], args.sections, args.threads, extra, Path(tmp) / f"{label}{rep}")
+                    res = _run_suite(trees[label], args.sections, args.threads, blas_threads, extra, Path(tmp) / f"{label}{rep}")
                     runs[label].append(res)
         finally:
             for tree in trees.values():
@@ -109,8 +130,9 @@ def main(argv=None) -> dict:
         lines.append(f"| {label} | {mb:.3g} | {ma:.3g} | {ma / mb:.2f} |")
     md = "\n".join(lines) + "\n"
     (out / "compare.md").write_text(md)
-    (out / "compare.json").write_text(json.dumps({"args": vars(args), "extra": extra, "table": table, "runs": runs},
-                                                 indent=1, default=float))
+    protocol = _protocol.record(blas_threads=blas_threads, numba_threads=args.threads, repeats=args.repeats,
+                                statistic="median over the repeats of each metric (runs alternating before/after)")
+    _protocol.write_json(out / "compare.json", {"args": vars(args), "extra": extra, "table": table, "runs": runs}, protocol)
     print(md)
     return {"table": table}
 

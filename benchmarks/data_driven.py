@@ -5,7 +5,7 @@ Hénon–Heiles (lambda in [0.8, 1.0], dT = 0.5).  Models: the symplectic kernel
 model (same kernel and budget), pyMOR's VKOGA (length scale chosen on validation data) and, when PyTorch is
 installed (``pip install 'sympredict[bench]'``), a residual MLP and a parameter-conditioned G-SympNet
 (benchmarks/neural_peers.py).  Per model: training time, online time per trajectory (one warm-up, median of 3,
-one thread), median / max over time of the mean relative trajectory error over the test horizon, and the
+one thread: benchmarks/_protocol.py, whose record the JSON carries), median / max over time of the mean relative trajectory error over the test horizon, and the
 largest relative energy error over a long horizon (10x the test horizon).
 
     python benchmarks/data_driven.py --out data_driven.json [--cases pendulum_fixed,pendulum_full,henon_heiles]
@@ -15,18 +15,19 @@ largest relative energy error over a long horizon (10x the test horizon).
 from __future__ import annotations
 
 import argparse
-import json
 import time
 
 import numpy as np
 from pymor.core.logger import set_log_levels
 
+import _protocol  # benchmarks/ (the script's folder is on sys.path)
+
 from sympredict import DirectKernelPredictor, SymplecticKernelPredictor
 from sympredict.paper.henon_heiles import DT_HH, PRESETS as HH_PRESETS, henon_heiles_data, henon_heiles_test_instances
 from sympredict.paper.pendulum import paper_test_instances
 from sympredict.paper.peers import VKOGAFlowMap, select_vkoga_length_scale
-from sympredict.paper.speed import deliberate_threads, time_median
 from sympredict.symplectic.integrators_compiled import rollout
+from sympredict.paper.speed import deliberate_threads, time_median
 from sympredict.kernels import IMQ
 from sympredict.symplectic.metrics import relative_hamiltonian_error, relative_trajectory_error
 from sympredict.systems.henon_heiles import LAMBDA_RANGE, HenonHeiles, energy_bounded_states
@@ -105,7 +106,9 @@ def run_case(name, neural_epochs, neural_only=False):
                              sum(p.numel() for p in net.net.parameters()))
     rows = []
     for label, (model, t_fit, run, size) in models.items():
-        seconds, traj = time_median(lambda: run(n_steps), 3, len(x0))
+        last = {}
+        timing = _protocol.measure(lambda: last.__setitem__("traj", run(n_steps)), repeats=3, warmup=1)
+        seconds, traj = timing["median_s"] / len(x0), last["traj"]
         with np.errstate(all="ignore"):
             err = relative_trajectory_error(np.nan_to_num(traj, nan=1e3, posinf=1e3, neginf=-1e3), exact).mean(axis=0)[1:]
             long = np.nan_to_num(run(n_long), nan=1e3, posinf=1e3, neginf=-1e3)
@@ -124,17 +127,19 @@ def main():
     parser.add_argument("--cases", default="pendulum_fixed,pendulum_full,henon_heiles")
     parser.add_argument("--neural-epochs", type=int, default=60)
     parser.add_argument("--neural-only", action="store_true", help="only the PyTorch peers (e.g. with more epochs)")
+    _protocol.add_arguments(parser, json_option=False)
     args = parser.parse_args()
     set_log_levels({"sympredict": "WARN", "pymor": "WARN"})
     if GSympNet is not None:
         import torch
 
         torch.set_num_threads(1)
-    with deliberate_threads(1):
+    with _protocol.limits(args.blas_threads, numba_threads=1):
         results = [run_case(name, args.neural_epochs, args.neural_only) for name in args.cases.split(",")]
-    with open(args.out, "w") as f:
-        json.dump({"command": "python benchmarks/data_driven.py " + " ".join(f"--{k.replace('_', '-')} {v}" for k, v in vars(args).items()),
-                   "results": results}, f, indent=2)
+        protocol = _protocol.record(blas_threads=args.blas_threads, numba_threads=1, repeats=3, warmup=1,
+                                    statistic="median online time per trajectory; one timed fit per model")
+    _protocol.write_json(args.out, {"command": "python benchmarks/data_driven.py " + " ".join(
+        f"--{k.replace('_', '-')} {v}" for k, v in vars(args).items()), "results": results}, protocol, indent=2)
 
 
 if __name__ == "__main__":

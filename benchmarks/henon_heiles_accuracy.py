@@ -24,17 +24,17 @@ test seeds (default 0) are evaluated once each, with the chosen model.
 Run:  python benchmarks/henon_heiles_accuracy.py [--update midpoint] [--json out.json]
       python benchmarks/henon_heiles_accuracy.py --fixed 0.5 1 1 --sampling grid 5 5   # no search
       python benchmarks/henon_heiles_accuracy.py --quick                               # seconds
-One BLAS/numba thread (set NUMBA_NUM_THREADS=1 too: numba reads it at import).
+One BLAS thread (``--blas-threads``) and one numba thread (set NUMBA_NUM_THREADS=1 too: numba reads it at import);
+the JSON carries the record of ``benchmarks/_protocol.py``.
 """
 
 import argparse
-import json
 import time
 
 import numpy as np
-from threadpoolctl import threadpool_limits
 
-from _coordinate_search import coordinate_search  # benchmarks/ (the script's folder is on sys.path)
+import _protocol  # benchmarks/ (the script's folder is on sys.path)
+from _coordinate_search import coordinate_search  # benchmarks/
 
 from sympredict import SymplecticKernelPredictor
 from sympredict.data import FlowMapData
@@ -69,7 +69,7 @@ parser.add_argument("--val-seeds", type=int, nargs="+", default=[100, 101])
 parser.add_argument("--test-seeds", type=int, nargs="+", default=[0], help="evaluated once each, with the chosen model")
 parser.add_argument("--sizes", type=int, nargs="*", default=[250, 500],
                     help="also report the test errors of the chosen model truncated to these sizes (no choice made on them)")
-parser.add_argument("--json", default=None)
+_protocol.add_arguments(parser)
 parser.add_argument("--quick", action="store_true", help="tiny sizes, one sweep: checks that the script runs")
 args = parser.parse_args()
 if args.quick:
@@ -152,7 +152,7 @@ def evaluate(p, sampling, data, vals):
     return row["score"]
 
 
-with threadpool_limits(1):
+with _protocol.limits(args.blas_threads, numba_threads=1):
     t_start = time.perf_counter()
     datasets = {s: training_data(s) for s in args.samplings}
     if args.fixed is not None:
@@ -189,5 +189,5 @@ with threadpool_limits(1):
     print(f"chosen {sampling} {summary['chosen']} ({model.n_centers_} centres): worst test median at T {worst:.2e} "
           f"-> target {TARGET:g} {'met' if summary['met'] else 'NOT met'}", flush=True)
     if args.json:
-        with open(args.json, "w") as f:
-            json.dump(summary, f, indent=1, default=str)
+        _protocol.write_json(args.json, summary, _protocol.record(blas_threads=args.blas_threads, numba_threads=1,
+                                                                  statistic="medians over test instances (no timing)"))

@@ -2,26 +2,27 @@
 
 Both integrate the pendulum ``H = p^2/(2 m l^2) + m g l (1 - cos q)`` for a batch
 of ``B`` instances (own length each) over ``K`` steps and return the whole
-trajectory ``(B, K+1, 2)``, in the same process, with the same numba and BLAS
-threads (``numba.set_num_threads``, ``threadpoolctl``); the times are medians of
-``--repeats`` calls after one warm-up call (compilation excluded).  The library
-call includes its input checks and allocation.  The NumPy reference
-(``backend='numpy'``) is timed too, with fewer repeats.
+trajectory ``(B, K+1, 2)``, side by side in one process with the same numba and
+BLAS threads (``benchmarks/_protocol.py``: medians of ``--repeats`` interleaved
+calls after one warm-up call, compilation excluded).  The library call includes
+its input checks and allocation.  The NumPy reference (``backend='numpy'``) is
+timed too, with fewer repeats.
 
 Run:  python benchmarks/integrators_speed.py [--batch 1000] [--steps 1000] [--threads 1] [--json out.json]
 """
 
 import argparse
-import json
-import platform
-import time
+import sys
+from pathlib import Path
 
 import numba
 import numpy as np
-from threadpoolctl import threadpool_limits
 
-from sympredict.symplectic.integrators_compiled import rollout
-from sympredict.systems.pendulum import Pendulum
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import _protocol  # noqa: E402  (benchmarks/_protocol.py)
+
+from sympredict.symplectic.integrators_compiled import rollout  # noqa: E402
+from sympredict.systems.pendulum import Pendulum  # noqa: E402
 
 
 @numba.njit(parallel=True, cache=True)
@@ -37,28 +38,15 @@ def hand_written_sv(x0, length, dt, n_steps, m, g, traj):
             traj[i, k + 1, 0], traj[i, k + 1, 1] = q, p
 
 
-def median_seconds(fn, repeats):
-    fn()  # warm-up (compilation, caches)
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return float(np.median(times)), times
-
-
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--batch", type=int, default=1000)
     parser.add_argument("--steps", type=int, default=1000)
     parser.add_argument("--dt", type=float, default=0.01)
-    parser.add_argument("--repeats", type=int, default=21)
     parser.add_argument("--numpy-repeats", type=int, default=3)
-    parser.add_argument("--threads", type=int, default=1, help="numba and BLAS threads")
-    parser.add_argument("--json", default=None, help="also write the results as JSON")
+    _protocol.add_arguments(parser, threads=1, repeats=21)
     args = parser.parse_args()
 
-    numba.set_num_threads(args.threads)
     system = Pendulum()
     rng = np.random.default_rng(0)
     b, k = args.batch, args.steps
@@ -67,12 +55,18 @@ def main():
     dt = np.full(b, args.dt)
     traj_hand = np.empty((b, k + 1, 2))
 
-    with threadpool_limits(limits=args.threads):
-        t_lib, _ = median_seconds(lambda: rollout(system, x0, length, dt, k, scheme="stormer_verlet"), args.repeats)
-        t_hand, _ = median_seconds(lambda: hand_written_sv(x0, length, dt, k, system.mass, system.g, traj_hand), args.repeats)
-        t_np, _ = median_seconds(lambda: rollout(system, x0, length, dt, k, scheme="stormer_verlet", backend="numpy"),
-                                 args.numpy_repeats)
+    with _protocol.limits(args.blas_threads, numba_threads=args.threads):
+        compiled = _protocol.side_by_side({
+            "hand_written_numba": lambda: hand_written_sv(x0, length, dt, k, system.mass, system.g, traj_hand),
+            "library_compiled": lambda: rollout(system, x0, length, dt, k, scheme="stormer_verlet"),
+        }, repeats=args.repeats)
+        numpy_ref = _protocol.measure(lambda: rollout(system, x0, length, dt, k, scheme="stormer_verlet", backend="numpy"),
+                                      args.numpy_repeats)
         lib = rollout(system, x0, length, dt, k, scheme="stormer_verlet")
+        protocol = _protocol.record(blas_threads=args.blas_threads, numba_threads=args.threads, repeats=args.repeats, warmup=1)
+    t_hand = compiled["methods"]["hand_written_numba"]["median_s"]
+    t_lib = compiled["methods"]["library_compiled"]["median_s"]
+    t_np = numpy_ref["median_s"]
     diff = float(np.abs(lib - traj_hand).max())
     result = {
         "batch": b, "steps": k, "dt": args.dt, "threads": args.threads, "repeats": args.repeats,
@@ -80,7 +74,8 @@ def main():
         "ratio_library_over_hand": t_lib / t_hand, "ratio_numpy_over_hand": t_np / t_hand,
         "ns_per_instance_step_library": 1e9 * t_lib / (b * k), "ns_per_instance_step_hand": 1e9 * t_hand / (b * k),
         "max_abs_difference": diff, "numba": numba.__version__, "numpy": np.__version__,
-        "machine": platform.machine(), "processor": platform.processor(),
+        "machine": protocol["machine"]["machine"], "processor": protocol["machine"]["cpu_model"],
+        "timings": {"compiled": compiled, "numpy": numpy_ref},
     }
     print(f"pendulum Störmer–Verlet, batch {b}, {k} steps, {args.threads} thread(s), medians of {args.repeats}:")
     print(f"  hand-written numba loop : {t_hand * 1e3:9.2f} ms  ({result['ns_per_instance_step_hand']:.1f} ns per instance-step)")
@@ -90,8 +85,7 @@ def main():
           f"(median of {args.numpy_repeats})")
     print(f"  max |library - hand-written| = {diff:.1e}")
     if args.json:
-        with open(args.json, "w") as fh:
-            json.dump(result, fh, indent=2)
+        _protocol.write_json(args.json, result, protocol, indent=2)
 
 
 if __name__ == "__main__":

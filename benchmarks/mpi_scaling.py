@@ -28,8 +28,13 @@ import json
 import resource
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
+
+# this file's folder, benchmarks/ (under `python -m pymor.tools.mpi` the script is exec'd: __file__ is pymor's)
+sys.path.insert(0, str(Path(sys._getframe().f_code.co_filename).resolve().parent))
+import _protocol  # noqa: E402  (benchmarks/_protocol.py)
 
 
 def _peak_rss_bytes() -> int:
@@ -47,7 +52,7 @@ def _step_profile(step_seconds: np.ndarray, n_functionals: int) -> dict:
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--preset", default="quick", choices=["smoke", "quick", "paper"])
-    parser.add_argument("--threads", type=int, default=1, help="BLAS threads per process (threadpoolctl)")
+    _protocol.add_arguments(parser, json_option=False, blas_alias="--threads")  # BLAS threads per process
     parser.add_argument("--max-centers", type=int, default=None, help="override the preset's greedy budget")
     parser.add_argument("--out", default=None, help="JSON file to write")
     parser.add_argument("--compare", nargs="+", default=None, help="JSON files to tabulate (no run)")
@@ -61,9 +66,12 @@ def main(argv=None) -> int:
         return project(args.project, args.latency_us)
 
     from pymor.tools import mpi
-    from threadpoolctl import threadpool_limits
 
-    threadpool_limits(limits=args.threads)
+    with _protocol.limits(args.blas_threads):
+        return _run(args, mpi)
+
+
+def _run(args, mpi) -> int:
 
     from sympredict import SymplecticKernelPredictor, parallel as par
     from sympredict.interpolation.greedy import ExactGreedy, ShardedGreedy
@@ -75,13 +83,13 @@ def main(argv=None) -> int:
     max_centers = args.max_centers or preset.max_centers
     sharded = mpi.parallel
     pool = None
-    out = {"preset": args.preset, "threads_per_rank": args.threads, "max_centers": max_centers}
+    out = {"preset": args.preset, "threads_per_rank": args.blas_threads, "max_centers": max_centers}
     if sharded:
         from pymor.parallel.default import new_parallel_pool
 
         pool = new_parallel_pool()
-        par.set_blas_threads(pool, args.threads)
-        out["mode"] = f"sharded, {len(pool)} MPI ranks x {args.threads} BLAS thread(s)"
+        par.set_blas_threads(pool, args.blas_threads)
+        out["mode"] = f"sharded, {len(pool)} MPI ranks x {args.blas_threads} BLAS thread(s)"
         out["ranks"] = len(pool)
         # latency of an empty round trip through the pool (what every greedy step pays twice)
         lat = {}
@@ -93,7 +101,7 @@ def main(argv=None) -> int:
             lat[name + "_us"] = (time.perf_counter() - t0) / 300 * 1e6
         out["pool_call_latency"] = lat
     else:
-        out["mode"] = f"serial greedy, 1 process x {args.threads} BLAS thread(s)"
+        out["mode"] = f"serial greedy, 1 process x {args.blas_threads} BLAS thread(s)"
         out["ranks"] = 1
 
     system = Pendulum()
@@ -122,7 +130,7 @@ def main(argv=None) -> int:
     out["stop_reason"] = hist.stop_reason
     out["E_train"] = float(hist.train_max_residual[-1])
     out["E_val"] = float(hist.val_max_residual[-1])
-    sel = np.asarray(model._greedy_result.selected)
+    sel = np.asarray(model.greedy_result_.selected)
     out["selected_sha1"] = hashlib.sha1(sel.astype(np.int64).tobytes()).hexdigest()
     out["selected_first"] = sel[:20].tolist()
     out["coef_abs_sum"] = float(np.abs(model.surrogate_.coef).sum())
@@ -147,6 +155,7 @@ def main(argv=None) -> int:
         }
     else:
         out["peak_rss_bytes_per_rank"] = [_peak_rss_bytes()]
+    out["protocol"] = _protocol.record(blas_threads=args.blas_threads, repeats=1, statistic="one fit; pool latency: mean of 300 calls")
     text = json.dumps(out, indent=1)
     print(text, flush=True)
     if args.out:

@@ -28,19 +28,19 @@ previous step's increment, where the implementation has it):
 * trajectory-steps per second of the full batch (1,000 x 20 steps) on
   ``--threads`` numba threads, the best of ``--repeats`` runs.
 
-Writes ``--json`` if given and prints a table.
+All cases run side by side, interleaved, after a warm-up (``benchmarks/_protocol.py``;
+this script reports minima, not medians: the statistic is stated in the JSON).
+Writes ``--json`` if given (with the protocol record) and prints a table.
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib.util
-import json
 import os
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
@@ -50,8 +50,8 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from pymor.core.logger import set_log_levels  # noqa: E402
-from threadpoolctl import threadpool_limits  # noqa: E402
 
+import _protocol  # noqa: E402  (benchmarks/_protocol.py)
 from sympredict import _fastkernels  # noqa: E402
 from sympredict.io import load_model, save_model  # noqa: E402
 from sympredict.kernels import IMQ  # noqa: E402
@@ -69,15 +69,6 @@ def load_revision(rev: str, where: Path):
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
-
-
-def tmin(fn, samples: int) -> float:
-    best = np.inf
-    for _ in range(samples):
-        t0 = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t0)
-    return best
 
 
 def factor_chunk_seconds(samples: int) -> float:
@@ -103,17 +94,18 @@ def measure(modules: dict, sur, x0, w, dt, *, steps: int, samples: int, repeats:
         stats, stats_b = {}, {}
         module.newton_rollout(x0[sub], w[sub], dt[sub], layout, kernel, 50, steps, parallel=False, stats=stats, **kw)
         module.newton_rollout(x0, w, dt, layout, kernel, 50, steps, stats=stats_b, **kw)
-        out[key] = {"passes": float(stats["passes"].sum()), "t1": np.inf, "tb": np.inf,
+        out[key] = {"passes": float(stats["passes"].sum()),
                     "passes_per_step_batch": float(stats_b["passes"].sum()) / (len(x0) * steps)}
-    for i in range(samples):
-        for key, (module, layout, kw) in cases.items():
-            t0 = time.perf_counter()
-            module.newton_rollout(x0[sub], w[sub], dt[sub], layout, kernel, 50, steps, parallel=False, **kw)
-            out[key]["t1"] = min(out[key]["t1"], time.perf_counter() - t0)
-            if i < repeats:
-                t0 = time.perf_counter()
-                module.newton_rollout(x0, w, dt, layout, kernel, 50, steps, **kw)
-                out[key]["tb"] = min(out[key]["tb"], time.perf_counter() - t0)
+    single = _protocol.side_by_side(
+        {key: (lambda m=module, lay=layout, kw=kw: m.newton_rollout(x0[sub], w[sub], dt[sub], lay, kernel, 50, steps,
+                                                                    parallel=False, **kw))
+         for key, (module, layout, kw) in cases.items()}, repeats=samples, statistic="min_s")
+    batch = _protocol.side_by_side(
+        {key: (lambda m=module, lay=layout, kw=kw: m.newton_rollout(x0, w, dt, lay, kernel, 50, steps, **kw))
+         for key, (module, layout, kw) in cases.items()}, repeats=repeats, statistic="min_s")
+    for key in cases:
+        out[key]["t1"] = single["methods"][key]["min_s"]
+        out[key]["tb"] = batch["methods"][key]["min_s"]
     results = {}
     for (label, start), o in out.items():
         results.setdefault(label, {})[start] = {
@@ -146,38 +138,30 @@ def pass_vs_dim(modules: dict, dims, samples: int, m: int = 1500, points: int = 
         for label, module in modules.items():
             layout = module.CenterLayout(sur.centers_xi, sur.components)
             full = "full" in module.newton_terms.__code__.co_varnames
-            runs[label, "block"] = (lambda mod=module, lay=layout: mod.newton_terms(xi, w, lay, IMQ(0.5)))
+            runs[f"{label} block"] = (lambda mod=module, lay=layout: mod.newton_terms(xi, w, lay, IMQ(0.5)))
             if full:
-                runs[label, "full"] = (lambda mod=module, lay=layout: mod.newton_terms(xi, w, lay, IMQ(0.5), full=True))
-        best = {k: np.inf for k in runs}
-        for fn in runs.values():
-            fn()
-        for _ in range(samples):
-            for k, fn in runs.items():
-                t0 = time.perf_counter()
-                fn()
-                best[k] = min(best[k], time.perf_counter() - t0)
-        out[dim] = {f"{label} {what}": 1e9 * t / (points * m) for (label, what), t in best.items()}
+                runs[f"{label} full"] = (lambda mod=module, lay=layout: mod.newton_terms(xi, w, lay, IMQ(0.5), full=True))
+        best = _protocol.side_by_side(runs, repeats=samples, statistic="min_s")["methods"]
+        out[dim] = {key: 1e9 * t["min_s"] / (points * m) for key, t in best.items()}
     return out
 
 
 def main(argv=None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--against", default=None, help="git revision to compare with (its _fastkernels.py)")
-    parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--batch", type=int, default=1000)
     parser.add_argument("--steps", type=int, default=20)
     parser.add_argument("--samples", type=int, default=60, help="short runs per single-thread timing (minimum taken)")
+    _protocol.add_arguments(parser, threads=2, threads_help="numba threads of the full-batch rollout")
     parser.add_argument("--repeats", type=int, default=10, help="full-batch runs (best taken)")
-    parser.add_argument("--json", default=None)
     parser.add_argument("--dims", default="", help="also the pass cost by 2n on synthetic surrogates, e.g. 2,4,10,20,40")
     parser.add_argument("--model", default=None, help="model file: loaded if it exists, else the fitted model is saved there")
     args = parser.parse_args(argv)
     set_log_levels({"sympredict": "WARNING", "pymor": "WARN"})
     import suite  # the suite's model and inputs
 
-    _fastkernels.set_num_threads(min(args.threads, os.cpu_count()))
-    with threadpool_limits(1), tempfile.TemporaryDirectory() as tmp:
+    threads = min(args.threads, os.cpu_count())
+    with _protocol.limits(args.blas_threads, numba_threads=threads), tempfile.TemporaryDirectory() as tmp:
         print("pendulum model (quick data, 1500 centres) ...", flush=True)
         if args.model and Path(args.model).exists():
             model = load_model(args.model)
@@ -200,6 +184,8 @@ def main(argv=None) -> dict:
         for label, module in modules.items():
             results[label]["factor_ns_l1"] = factor
             results[label]["factor_ns_1M_median"] = 1e9 * module.factor_throughput()
+        protocol = _protocol.record(blas_threads=args.blas_threads, numba_threads=threads, repeats=args.samples, warmup=1,
+                                    statistic="min (single-thread samples and full-batch repeats, interleaved)")
     lines = [f"{model.n_centers_} centres, batch {args.batch}, {args.steps} steps; {args.threads} numba thread(s) for the "
              f"batch, 1 for the pass", "",
              "| implementation | start | passes/step | ns per centre visit (1 thread) | factor ns (L1 / 1M) | pass / factor "
@@ -223,7 +209,7 @@ def main(argv=None) -> dict:
             lines.append(f"| {dim} | " + " | ".join(f"{r[k]:.2f}" for k in keys) + " |")
     print("\n".join(lines))
     if args.json:
-        Path(args.json).write_text(json.dumps(out, indent=1, default=float))
+        _protocol.write_json(args.json, out, protocol)
     return out
 
 

@@ -6,13 +6,15 @@ offered) and tested on 40 states in [-0.5, 0.5]^2: max abs error of one step.
 The midpoint form's s exists for theta < pi (S = 2/dT tan(theta/2) I); the
 type-II s(q0, p1) degenerates at theta = pi/2.
 
-Run:  python benchmarks/oscillator_existence.py
+Run:  python benchmarks/oscillator_existence.py [--blas-threads 1]
 """
 
+import argparse
 import warnings
 
 import numpy as np
-from threadpoolctl import threadpool_limits
+
+import _protocol  # benchmarks/ (the script's folder is on sys.path)
 
 from sympredict import SymplecticKernelPredictor
 from sympredict.kernels import IMQ
@@ -24,11 +26,14 @@ def rotation(x, theta):
     return np.column_stack([c * x[:, 0] + s * x[:, 1], -s * x[:, 0] + c * x[:, 1]])
 
 
+parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+_protocol.add_arguments(parser, json_option=False)
+args = parser.parse_args()
 rng = np.random.default_rng(0)
 x0 = rng.uniform(-1, 1, (300, 2))
 xt = 0.5 * np.random.default_rng(1).uniform(-1, 1, (40, 2))
 print(f"{'theta':>7} {'symplectic_euler':>18} {'midpoint':>10}")
-with threadpool_limits(1), warnings.catch_warnings():
+with _protocol.limits(args.blas_threads), warnings.catch_warnings():
     warnings.simplefilter("ignore")
     for theta in [0.5, 1.2, 1.5, np.pi / 2, 1.7, 2.5, 3.0]:
         errs = []

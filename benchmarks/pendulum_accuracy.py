@@ -25,17 +25,17 @@ the searched shapes and scaling are those of the inner step ``S``.
 Run:  python benchmarks/pendulum_accuracy.py [--update midpoint] [--symmetry klein] [--split] [--json out.json]
       python benchmarks/pendulum_accuracy.py --fixed 0.2 1.5 3.0 1.0   # no search
       python benchmarks/pendulum_accuracy.py --quick                    # seconds: checks the script
-One BLAS/numba thread (set NUMBA_NUM_THREADS=1 too: numba reads it at import).
+One BLAS thread (``--blas-threads``) and one numba thread (set NUMBA_NUM_THREADS=1 too: numba reads it at import);
+the JSON carries the record of ``benchmarks/_protocol.py``.
 """
 
 import argparse
-import json
 import time
 
 import numpy as np
-from threadpoolctl import threadpool_limits
 
-from _coordinate_search import coordinate_search  # benchmarks/ (the script's folder is on sys.path)
+import _protocol  # benchmarks/ (the script's folder is on sys.path)
+from _coordinate_search import coordinate_search  # benchmarks/
 
 from sympredict import SymplecticKernelPredictor
 from sympredict.data import FlowMapData
@@ -80,7 +80,7 @@ parser.add_argument("--split", action="store_true",
                          "the learned step S (sympredict.flowmap.splitting); the shapes and scaling are S's")
 parser.add_argument("--diagnose", action="store_true",
                     help="where the error comes from, on the first validation seed: lengths on the training grid, per-q0 errors")
-parser.add_argument("--json", default=None)
+_protocol.add_arguments(parser)
 parser.add_argument("--quick", action="store_true", help="tiny sizes, one sweep: checks that the script runs")
 args = parser.parse_args()
 if args.symmetry == "klein" and args.update != "midpoint":
@@ -162,7 +162,7 @@ def evaluate(p, val):
     return row["score"]
 
 
-with threadpool_limits(1):
+with _protocol.limits(args.blas_threads, numba_threads=1):
     t_start = time.perf_counter()
     if args.fixed is not None:
         best = list(args.fixed)
@@ -209,5 +209,5 @@ with threadpool_limits(1):
             print(f"  dT={dt}: {diag['on_grid_lengths'][dt]:.2e} / {diag['off_grid'][dt]:.2e}; per q0: "
                   + ", ".join(f"{q}: {v:.1e}" for q, v in diag["per_q0"][dt].items()), flush=True)
     if args.json:
-        with open(args.json, "w") as f:
-            json.dump(summary, f, indent=1, default=str)
+        _protocol.write_json(args.json, summary, _protocol.record(blas_threads=args.blas_threads, numba_threads=1,
+                                                                  statistic="medians over test instances (no timing)"))

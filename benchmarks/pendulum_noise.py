@@ -20,20 +20,23 @@ Threads: one BLAS/numba thread per process (``--threads``).
 """
 
 import argparse
-import json
+import sys
 import time
+from pathlib import Path
 
 import numpy as np
-from threadpoolctl import threadpool_limits
 
-from sympredict import SymplecticKernelPredictor
-from sympredict.data import FlowMapData
-from sympredict.paper.pendulum import paper_test_instances
-from sympredict.kernels import IMQ
-from sympredict.symplectic.metrics import relative_trajectory_error
-from sympredict.estimators.selection import select_regularization
-from sympredict.systems.pendulum import DT_TEST, DT_TRAIN, MU_TRAIN, Pendulum, flow_map_data, random_flow_map_data
-from sympredict.interpolation.greedy import ExactGreedy
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import _protocol  # noqa: E402  (benchmarks/_protocol.py)
+
+from sympredict import SymplecticKernelPredictor  # noqa: E402
+from sympredict.data import FlowMapData  # noqa: E402
+from sympredict.paper.pendulum import paper_test_instances  # noqa: E402
+from sympredict.kernels import IMQ  # noqa: E402
+from sympredict.symplectic.metrics import relative_trajectory_error  # noqa: E402
+from sympredict.estimators.selection import select_regularization  # noqa: E402
+from sympredict.systems.pendulum import DT_TEST, DT_TRAIN, MU_TRAIN, Pendulum, flow_map_data, random_flow_map_data  # noqa: E402
+from sympredict.interpolation.greedy import ExactGreedy  # noqa: E402
 
 parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
 parser.add_argument("--noise", type=float, nargs="+", default=[1e-5, 1e-4, 1e-3])
@@ -42,8 +45,7 @@ parser.add_argument("--n-grid", type=int, default=50)
 parser.add_argument("--n-val", type=int, default=2000)
 parser.add_argument("--max-centers", type=int, default=1500)
 parser.add_argument("--horizon", type=float, default=20.0)
-parser.add_argument("--threads", type=int, default=1)
-parser.add_argument("--json", default=None)
+_protocol.add_arguments(parser, blas_alias="--threads")
 args = parser.parse_args()
 
 
@@ -62,7 +64,7 @@ def trajectory_errors(model, system, x0, lengths, refs):
     return out
 
 
-with threadpool_limits(args.threads):
+with _protocol.limits(args.blas_threads):
     system = Pendulum()
     clean = flow_map_data(system, n_grid=args.n_grid)
     clean_val = random_flow_map_data(system, args.n_val, seed=1, mu_values=MU_TRAIN, dt_values=DT_TRAIN)
@@ -87,5 +89,5 @@ with threadpool_limits(args.threads):
         print(f"sigma={sigma:.0e}: lambda={sel.regularization:.0e}  val RMS exact {exact_row['score']:.3e} reg {sel.score:.3e}  "
               + "  ".join(f"dT={dt}: exact {err_exact[dt]:.2e} reg {err_reg[dt]:.2e}" for dt in DT_TEST), flush=True)
     if args.json:
-        with open(args.json, "w") as f:
-            json.dump({"args": vars(args), "rows": rows}, f, indent=1, default=str)
+        _protocol.write_json(args.json, {"args": vars(args), "rows": rows},
+                             _protocol.record(blas_threads=args.blas_threads, repeats=1, statistic="one timed selection"))

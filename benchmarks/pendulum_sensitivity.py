@@ -12,26 +12,27 @@ Run:  python benchmarks/pendulum_sensitivity.py [--eps 0.15,2,5 --eps 0.15,1,2 .
 """
 
 import argparse
-import json
-import os
+import sys
+from pathlib import Path
 
 import numpy as np
-from threadpoolctl import threadpool_limits
 
-from sympredict import SymplecticKernelPredictor
-from sympredict.data import mixed_variables
-from sympredict.paper.pendulum import paper_test_instances
-from sympredict.kernels import IMQ
-from sympredict.symplectic.metrics import relative_trajectory_error
-from sympredict.systems.pendulum import DT_TEST, DT_TRAIN, MU_TRAIN, Pendulum, flow_map_data, random_flow_map_data
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import _protocol  # noqa: E402  (benchmarks/_protocol.py)
+
+from sympredict import SymplecticKernelPredictor  # noqa: E402
+from sympredict.data import mixed_variables  # noqa: E402
+from sympredict.paper.pendulum import paper_test_instances  # noqa: E402
+from sympredict.kernels import IMQ  # noqa: E402
+from sympredict.symplectic.metrics import relative_trajectory_error  # noqa: E402
+from sympredict.systems.pendulum import DT_TEST, DT_TRAIN, MU_TRAIN, Pendulum, flow_map_data, random_flow_map_data  # noqa: E402
 
 parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
 parser.add_argument("--eps", action="append", help="state,mu,dt shape triple (repeatable)")
 parser.add_argument("--seeds", type=int, default=4)
 parser.add_argument("--n-grid", type=int, default=50)
 parser.add_argument("--centers", type=int, default=1500)
-parser.add_argument("--threads", type=int, default=os.cpu_count())
-parser.add_argument("--json", default=None, help="also write the table as JSON")
+_protocol.add_arguments(parser, blas_alias="--threads")
 args = parser.parse_args()
 triples = [tuple(float(v) for v in e.split(",")) for e in (args.eps or ["0.15,2,5", "0.15,1,2", "0.2,1.5,3"])]
 
@@ -55,7 +56,7 @@ def gradient_residual(model, val):
 
 rows = []
 for eps in triples:
-    with threadpool_limits(limits=args.threads):
+    with _protocol.limits(args.blas_threads):
         model = SymplecticKernelPredictor(IMQ(eps[0]), IMQ(eps[1]), IMQ(eps[2]), max_centers=args.centers)
         model.fit(data.x0, data.x1, mu=data.mu, dt=data.dt)
     medians = {}
@@ -78,5 +79,5 @@ for eps in triples:
     for seed, meds in medians.items():
         print(f"   test seed {seed}: median error at dT={DT_TEST}: " + ", ".join(f"{m:.2e}" for m in meds), flush=True)
 if args.json:
-    with open(args.json, "w") as f:
-        json.dump(rows, f, indent=2)
+    with _protocol.limits(args.blas_threads):
+        _protocol.write_json(args.json, {"rows": rows}, _protocol.record(blas_threads=args.blas_threads), indent=2)

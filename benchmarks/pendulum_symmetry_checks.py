@@ -18,18 +18,21 @@ import numpy as np
 from scipy.integrate import solve_ivp
 from scipy.linalg import cho_factor, cho_solve, eigvalsh
 from scipy.optimize import brentq
-from threadpoolctl import threadpool_limits
+
+import _protocol  # benchmarks/ (the script's folder is on sys.path)
 
 from sympredict.interpolation.functionals import HBFunctionals
 from sympredict.kernels import IMQ, ProductKernel, StateSymmetry
+from sympredict.symplectic.metrics import canonical_J
 from sympredict.estimators.predictor import update_variables
 from sympredict.systems.pendulum import Pendulum
 
 parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
 parser.add_argument("--part", default="both", choices=["invariance", "design", "both"])
+_protocol.add_arguments(parser, json_option=False)
 args = parser.parse_args()
 
-J = np.array([[0.0, 1.0], [-1.0, 0.0]])
+J = canonical_J(2)
 KLEIN = [(1, 1), (-1, -1), (1, -1), (-1, 1)]
 L, DT = 0.75, 0.05
 system = Pendulum()
@@ -113,7 +116,7 @@ def design():
         print(f"{name}: chosen eps {best[0]}, validation {best[1]:.2e}, test {best[2]:.2e}")
 
 
-with threadpool_limits(1):
+with _protocol.limits(args.blas_threads):
     if args.part in ("invariance", "both"):
         invariance()
     if args.part in ("design", "both"):

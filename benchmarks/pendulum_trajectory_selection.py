@@ -12,25 +12,26 @@ Run:  python benchmarks/pendulum_trajectory_selection.py [--seeds 4] [--json out
 
 import argparse
 import itertools
-import json
-import os
+import sys
+from pathlib import Path
 
 import numpy as np
-from threadpoolctl import threadpool_limits
 
-from sympredict import SymplecticKernelPredictor
-from sympredict.paper.pendulum import paper_test_instances
-from sympredict.kernels import IMQ
-from sympredict.symplectic.metrics import relative_trajectory_error
-from sympredict.systems.pendulum import DT_TEST, Pendulum, flow_map_data
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import _protocol  # noqa: E402  (benchmarks/_protocol.py)
+
+from sympredict import SymplecticKernelPredictor  # noqa: E402
+from sympredict.paper.pendulum import paper_test_instances  # noqa: E402
+from sympredict.kernels import IMQ  # noqa: E402
+from sympredict.symplectic.metrics import relative_trajectory_error  # noqa: E402
+from sympredict.systems.pendulum import DT_TEST, Pendulum, flow_map_data  # noqa: E402
 
 parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
 parser.add_argument("--seeds", type=int, default=4)
 parser.add_argument("--state", type=float, nargs="+", default=[0.15, 0.2])
 parser.add_argument("--mu", type=float, nargs="+", default=[1.5, 2.0])
 parser.add_argument("--dt", type=float, nargs="+", default=[3.0, 5.0])
-parser.add_argument("--threads", type=int, default=os.cpu_count())
-parser.add_argument("--json", default=None)
+_protocol.add_arguments(parser, blas_alias="--threads")
 args = parser.parse_args()
 
 pendulum = Pendulum()
@@ -44,7 +45,7 @@ for seed in range(100, 100 + args.seeds):
 
 rows = []
 for eps in itertools.product(args.state, args.mu, args.dt):
-    with threadpool_limits(limits=args.threads):
+    with _protocol.limits(args.blas_threads):
         model = SymplecticKernelPredictor(IMQ(eps[0]), IMQ(eps[1]), IMQ(eps[2]), max_centers=1500).fit(data.x0, data.x1, mu=data.mu, dt=data.dt)
     worst = {}
     for seed, dt, x0, lengths, n_steps, ref in cases:
@@ -57,5 +58,6 @@ for eps in itertools.product(args.state, args.mu, args.dt):
 best = min(rows, key=lambda r: r["score"])
 print(f"chosen: eps = {best['eps']} (score {best['score']:.3e})")
 if args.json:
-    with open(args.json, "w") as f:
-        json.dump({"rows": rows, "chosen": best["eps"]}, f, indent=2)
+    with _protocol.limits(args.blas_threads):
+        _protocol.write_json(args.json, {"rows": rows, "chosen": best["eps"]}, _protocol.record(blas_threads=args.blas_threads),
+                             indent=2)

@@ -15,30 +15,33 @@ Run:  python benchmarks/pendulum_updates.py [--scalings 0.5 2] [--updates midpoi
 
 import argparse
 import copy
-import json
+import sys
 import time
+from pathlib import Path
 
 import numpy as np
-from threadpoolctl import threadpool_limits
 
-from sympredict import SymplecticKernelPredictor
-from sympredict.paper.pendulum import paper_test_instances
-from sympredict.kernels import IMQ
-from sympredict.symplectic.metrics import relative_hamiltonian_error, relative_trajectory_error
-from sympredict.systems.pendulum import DT_TEST, Pendulum, flow_map_data
-from sympredict.interpolation.greedy import ExactGreedy
-from sympredict.symplectic.solvers import NewtonSolver
-from sympredict.kernels.transforms import Scaled
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import _protocol  # noqa: E402  (benchmarks/_protocol.py)
+
+from sympredict import SymplecticKernelPredictor  # noqa: E402
+from sympredict.paper.pendulum import paper_test_instances  # noqa: E402
+from sympredict.kernels import IMQ  # noqa: E402
+from sympredict.symplectic.metrics import relative_hamiltonian_error, relative_trajectory_error  # noqa: E402
+from sympredict.systems.pendulum import DT_TEST, Pendulum, flow_map_data  # noqa: E402
+from sympredict.interpolation.greedy import ExactGreedy  # noqa: E402
+from sympredict.symplectic.solvers import NewtonSolver  # noqa: E402
+from sympredict.kernels.transforms import Scaled  # noqa: E402
 
 parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
 parser.add_argument("--scalings", type=float, nargs="*", default=[])
 parser.add_argument("--max-centers", type=int, default=1500)
-parser.add_argument("--json", default=None)
+_protocol.add_arguments(parser, threads=1)
 parser.add_argument("--updates", nargs="*", default=["symplectic_euler", "midpoint"])
 parser.add_argument("--compare-backends", action="store_true", help="also the compiled solver: max difference, times")
 args = parser.parse_args()
 
-with threadpool_limits(1):
+with _protocol.limits(args.blas_threads, numba_threads=args.threads):
     system = Pendulum()
     data = flow_map_data(system, n_grid=50)
     x0, lengths = paper_test_instances(0)
@@ -78,5 +81,6 @@ with threadpool_limits(1):
               + "  ".join(f"dT={dt}: {v['median_err']:.2e} (energy {v['max_energy_err']:.1e})" for dt, v in row["per_dt"].items()),
               flush=True)
     if args.json:
-        with open(args.json, "w") as f:
-            json.dump(rows, f, indent=1, default=str)
+        _protocol.write_json(args.json, {"rows": rows}, _protocol.record(
+            blas_threads=args.blas_threads, numba_threads=args.threads, repeats=1, warmup=1,
+            statistic="one timed rollout per backend (numba: after a compiling call)"))

@@ -48,16 +48,20 @@ not hidden: the type-II check (:func:`~sympredict.systems.flowmaps.check_generat
 on the training data, the midpoint form's ``min sigma((I + D Phi)/2)`` (it vanishes
 where a mode turns by half a turn per step: the form ``x1 = x0 + dT J grad s((x0+x1)/2)``
 cannot represent the map there) on the training, test and a scan of speeds, and every
-Newton failure of a kernel rollout.
+Newton failure of a kernel rollout.  One BLAS thread by default (``--blas-threads``);
+the JSON carries the record of ``benchmarks/_protocol.py``.
 """
 
 import argparse
-import json
+import sys
 import time
 import warnings
+from pathlib import Path
 
 import numpy as np
-from threadpoolctl import threadpool_limits
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import _protocol  # noqa: E402  (benchmarks/_protocol.py)
 
 parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
 parser.add_argument("--quick", action="store_true", help="small case for the tests (T = 1, 2n = 8, few centres)")
@@ -87,7 +91,7 @@ parser.add_argument("--budgets", type=int, nargs="+", default=[1000, 1500, 2000,
 parser.add_argument("--scaling", default="williamson", choices=["williamson", "diag"])
 parser.add_argument("--train-past-existence", nargs="*", default=["midpoint"],
                     help="updates trained even where their existence check fails (the others are reported as refused)")
-parser.add_argument("--json", default=None)
+_protocol.add_arguments(parser)
 args = parser.parse_args()
 if args.quick:
     args.T, args.dim, args.n_train, args.n_val, args.n_test = 1.0, 6, 4, 2, 2
@@ -118,7 +122,8 @@ from sympredict.estimators.selection import select_by_score, select_kernels  # n
 from sympredict.symplectic.solvers import NewtonSolver
 
 set_log_levels({"pymor": "ERROR", "sympredict": "WARNING", "sympredict.estimators.selection": "INFO"})  # progress of the searches
-threadpool_limits(1)
+_limits = _protocol.limits(args.blas_threads)
+_limits.__enter__()  # for the whole script (module level, like the computation below)
 
 LO, HI = 0.08, 0.12
 
@@ -339,5 +344,5 @@ for f in args.factors:
 results["wall_s"] = time.perf_counter() - t_start
 print(f"total {results['wall_s']:.0f} s")
 if args.json:
-    with open(args.json, "w") as fh:
-        json.dump(results, fh, indent=1)
+    _protocol.write_json(args.json, results, _protocol.record(blas_threads=args.blas_threads, repeats=1,
+                                                              statistic="one run per fit and rollout"))

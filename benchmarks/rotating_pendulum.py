@@ -30,20 +30,23 @@ Run:  python benchmarks/rotating_pendulum.py [--update midpoint] [--json out.jso
 from __future__ import annotations
 
 import argparse
-import json
+import sys
 import time
 import warnings
+from pathlib import Path
 
 import numpy as np
-from threadpoolctl import threadpool_limits
 
-from sympredict import SymplecticKernelPredictor
-from sympredict.exceptions import ExtrapolationWarning, NewtonConvergenceError
-from sympredict.kernels import IMQ
-from sympredict.systems.pendulum import Pendulum
-from sympredict.interpolation.greedy import ExactGreedy
-from sympredict.symplectic.solvers import NewtonSolver
-from sympredict.kernels.transforms import Periodic
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import _protocol  # noqa: E402  (benchmarks/_protocol.py)
+
+from sympredict import SymplecticKernelPredictor  # noqa: E402
+from sympredict.exceptions import ExtrapolationWarning, NewtonConvergenceError  # noqa: E402
+from sympredict.kernels import IMQ  # noqa: E402
+from sympredict.systems.pendulum import Pendulum  # noqa: E402
+from sympredict.interpolation.greedy import ExactGreedy  # noqa: E402
+from sympredict.symplectic.solvers import NewtonSolver  # noqa: E402
+from sympredict.kernels.transforms import Periodic  # noqa: E402
 
 VARIANTS = ("periodic", "plain_wrapped", "plain")
 
@@ -231,17 +234,17 @@ def main(argv=None):
     parser.add_argument("--on-grid-test", action="store_true",
                         help="also score test orbits at the training lengths and steps")
     parser.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
-    parser.add_argument("--json", default=None)
+    _protocol.add_arguments(parser)
     args = parser.parse_args(argv)
-    with threadpool_limits(1):
+    with _protocol.limits(args.blas_threads):
         out = run(lengths=tuple(args.lengths), dts=tuple(args.dts), test_dts=args.test_dts, mu_eps=args.mu_eps,
                   dt_eps=args.dt_eps, n_q=args.grid[0], n_p=args.grid[1], p_max=args.p_max, eps_grid=tuple(args.eps),
                   max_centers=args.max_centers, n_val=args.n_val, n_test=args.n_test, n_steps=args.steps,
                   val_steps=args.val_steps, update=args.update, h_max=args.h_max,
                   reference_floor=args.reference_floor, on_grid_test=args.on_grid_test, variants=tuple(args.variants), log=lambda s: print(s, flush=True))
+        protocol = _protocol.record(blas_threads=args.blas_threads, repeats=1, statistic="one run per fit and rollout")
     if args.json:
-        with open(args.json, "w") as f:
-            json.dump(out, f, indent=1)
+        _protocol.write_json(args.json, out, protocol)
 
 
 if __name__ == "__main__":

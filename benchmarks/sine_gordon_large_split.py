@@ -30,15 +30,14 @@ Run (one core):  OMP_NUM_THREADS=1 NUMBA_NUM_THREADS=1 python benchmarks/sine_go
 """
 
 import argparse
-import json
 import time
 import warnings
 from dataclasses import replace
 
 import numpy as np
-from threadpoolctl import threadpool_limits
 
-from _sine_gordon_data import cached_fom_data  # benchmarks/ (the script's folder is on sys.path)
+import _protocol  # benchmarks/ (the script's folder is on sys.path)
+from _sine_gordon_data import cached_fom_data  # benchmarks/
 
 from sympredict.symplectic.metrics import canonical_J
 from sympredict.paper.sine_gordon import PRESETS, _err, _fit_kernel, _jg, choose_large_step
@@ -112,14 +111,15 @@ def main():
     parser.add_argument("--modes", action="store_true", help="print mode_table per split and step (c = c_max)")
     parser.add_argument("--horizon", type=int, default=1, help="test horizon in units of T (<= long_factor; training: T)")
     parser.add_argument("--cache", default=None, help="npz file for the FOM trajectories (default: per preset and sizes)")
-    parser.add_argument("--json", default=None, help="write the numbers here")
+    _protocol.add_arguments(parser)
     args = parser.parse_args()
     warnings.simplefilter("ignore")
     p = replace(PRESETS[args.preset], large_step=min(args.steps), large_step_candidates=tuple(args.steps),
                 **({} if args.margin is None else {"large_step_margin": args.margin}))
     results = {"preset": args.preset, "steps": args.steps, "horizon": args.horizon, "margin": p.large_step_margin, "rows": [], "choices": []}
     cache = args.cache or f"/tmp/sine_gordon_split_{args.preset}_{p.n_c}x{p.n_amplitude}.npz"
-    with threadpool_limits(1):
+    with _protocol.limits(args.blas_threads):
+        protocol = _protocol.record(blas_threads=args.blas_threads, repeats=1, statistic="one run per fit and rollout")
         t0 = time.perf_counter()
         d = cached_fom_data(p, cache)
         fom, K, c_tr, c_te, X_tr, X_te = d["fom"], int(round(p.T / p.DT)), d["c_tr"], d["c_te"], d["X_tr"], d["X_te"]
@@ -202,8 +202,7 @@ def main():
                               f"{row.get('centers')}, {time.perf_counter() - t1:.0f} s: {msg}", flush=True)
                         results["rows"].append(row)
     if args.json:
-        with open(args.json, "w") as fh:
-            json.dump(results, fh, indent=1, default=float)
+        _protocol.write_json(args.json, results, protocol)
 
 
 if __name__ == "__main__":

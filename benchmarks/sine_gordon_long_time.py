@@ -25,7 +25,8 @@ from dataclasses import replace
 
 import numpy as np
 from scipy.spatial import cKDTree
-from threadpoolctl import threadpool_limits
+
+import _protocol  # benchmarks/ (the script's folder is on sys.path)
 
 from sympredict.paper.sine_gordon import PRESETS, _fit_kernel, sign_symmetry, EnergySamples, no_augmentation
 from sympredict.mor.nonlinear import ReducedSineGordon
@@ -40,6 +41,7 @@ parser.add_argument("--lambdas", type=float, nargs="*", default=None, help="fixe
 parser.add_argument("--state-eps", type=float, nargs="*", default=[None],
                     help="IMQ shape parameters of the state kernel in the scaled coordinates (default: the estimator's)")
 parser.add_argument("--cache", default="/tmp/sine_gordon_long_time.npz")
+_protocol.add_arguments(parser, json_option=False)
 args = parser.parse_args()
 warnings.simplefilter("ignore")
 
@@ -52,7 +54,7 @@ c_tr = np.repeat(np.linspace(*p.c_range, p.n_c), p.n_amplitude)
 a_tr = np.tile(np.linspace(*p.amplitude_range, p.n_amplitude), p.n_c)
 rng = np.random.default_rng(p.seed)
 c_te, a_te = rng.uniform(*p.c_range, p.n_test), rng.uniform(*p.amplitude_range, p.n_test)
-with threadpool_limits(1):
+with _protocol.limits(args.blas_threads):
     if os.path.exists(args.cache):
         z = np.load(args.cache)
         X_tr, X_te = z["X_tr"], z["X_te"]

@@ -18,7 +18,8 @@ import warnings
 from dataclasses import replace
 
 import numpy as np
-from threadpoolctl import threadpool_limits
+
+import _protocol  # benchmarks/ (the script's folder is on sys.path)
 
 from sympredict.paper.sine_gordon import PRESETS, _fit_kernel
 from sympredict.mor.nonlinear import ReducedSineGordon
@@ -29,6 +30,7 @@ parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
 parser.add_argument("--dims", type=int, nargs="*", default=[8, 12])
 parser.add_argument("--lambdas", type=float, nargs="*", default=[0.0, 1e-6])
 parser.add_argument("--max-centers", type=int, default=1500)
+_protocol.add_arguments(parser, json_option=False)
 args = parser.parse_args()
 warnings.simplefilter("ignore")
 
@@ -37,7 +39,7 @@ K = int(round(p.T / p.DT))
 fom = SineGordonFOM(n_points=p.n_points, length=p.length, T=p.T, nt=K)
 c_tr = np.repeat(np.linspace(*p.c_range, 5), 4)
 a_tr = np.tile(np.linspace(*p.amplitude_range, 4), 5)
-with threadpool_limits(1):
+with _protocol.limits(args.blas_threads):
     X = fom.reference_trajectory(a_tr[:, None] * fom.sech_cos(2.0, 1.0), c_tr, p.DT, K, tol=p.ref_tol)
     for dim in args.dims:
         gal = ReducedSineGordon.galerkin(fom, complex_svd_basis(X.reshape(-1, fom.dim), n=dim // 2, layout="rows").V)

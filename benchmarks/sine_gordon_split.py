@@ -27,15 +27,14 @@ Run (one core):  OMP_NUM_THREADS=1 NUMBA_NUM_THREADS=1 python benchmarks/sine_go
 """
 
 import argparse
-import json
 import time
 import warnings
 from dataclasses import replace
 
 import numpy as np
-from threadpoolctl import threadpool_limits
 
-from _sine_gordon_data import cached_fom_data  # benchmarks/ (the script's folder is on sys.path)
+import _protocol  # benchmarks/ (the script's folder is on sys.path)
+from _sine_gordon_data import cached_fom_data  # benchmarks/
 
 from sympredict.paper.sine_gordon import PRESETS, _augmentation, _err, _energy_errors, _fit_kernel, _jg, \
     energy_boundedness, split_setup
@@ -55,7 +54,7 @@ def main():
     parser.add_argument("--splits", nargs="*", default=["none", "quadratic", "quadratic-mass"])
     parser.add_argument("--split-phase-tol", type=float, default=None, help="the preset's split_phase_tol (radians per DT)")
     parser.add_argument("--cache", default=None, help="npz file for the FOM trajectories (default: per preset and sizes)")
-    parser.add_argument("--json", default=None, help="write the numbers here")
+    _protocol.add_arguments(parser)
     args = parser.parse_args()
     warnings.simplefilter("ignore")
     over = {k: v for k, v in (("n_c", args.n_c), ("n_amplitude", args.n_amplitude), ("max_centers", args.max_centers),
@@ -63,7 +62,8 @@ def main():
     p = replace(PRESETS[args.preset], **over)
     results = {"preset": args.preset, "overrides": over, "rows": []}
     cache = args.cache or f"/tmp/sine_gordon_split_{args.preset}_{p.n_c}x{p.n_amplitude}.npz"
-    with threadpool_limits(1):
+    with _protocol.limits(args.blas_threads):
+        protocol = _protocol.record(blas_threads=args.blas_threads, repeats=1, statistic="one run per fit and rollout")
         t0 = time.perf_counter()
         d = cached_fom_data(p, cache)
         fom, K, c_tr, c_te, X_tr, X_te = d["fom"], int(round(p.T / p.DT)), d["c_tr"], d["c_te"], d["X_tr"], d["X_te"]
@@ -135,8 +135,7 @@ def main():
                           f"\n    {msg}", flush=True)
                     results["rows"].append(row)
     if args.json:
-        with open(args.json, "w") as fh:
-            json.dump(results, fh, indent=1, default=float)
+        _protocol.write_json(args.json, results, protocol)
 
 
 if __name__ == "__main__":

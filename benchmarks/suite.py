@@ -5,12 +5,15 @@ One command (not part of the test run):
     python benchmarks/suite.py --out benchmarks/results              # ~5 minutes on 2 cores
     python benchmarks/suite.py --scenario-a --out benchmarks/results # + full scenario A, exact and fast (~6 min more, 9 GiB)
 
-Writes ``<out>/suite.json`` (every number), ``<out>/suite.md`` (a short table)
+Writes ``<out>/suite.json`` (every number, and the protocol record: command line,
+revision, threads, machine), ``<out>/suite.md`` (a short table)
 and, with ``scaling``, ``docs/figures/performance_scaling.png`` (``--figure``).
 Every timing is measured in this process (or, for peak memory, in a spawned
-child per training run) with the thread settings stated in the output:
-BLAS threads through threadpoolctl, numba threads through ``numba.set_num_threads``.
-Ratios are taken side by side in one process; repeated timings are medians.
+child per training run) by the protocol of ``benchmarks/_protocol.py``, with the
+thread settings stated in the output: BLAS threads through threadpoolctl
+(``--blas-threads``, default 1), numba threads through ``numba.set_num_threads``
+(``--threads``, default all cores).  Ratios are taken side by side in one
+process; repeated timings are medians after a warm-up call.
 
 Sections (``--sections``, comma separated; default all but ``scenario_a``):
 
@@ -45,7 +48,6 @@ import argparse
 import json
 import multiprocessing as mp
 import os
-import platform
 import resource
 import sys
 import tempfile
@@ -57,7 +59,9 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from pymor.core.logger import set_log_levels  # noqa: E402
-from threadpoolctl import threadpool_info, threadpool_limits  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import _protocol  # noqa: E402  (benchmarks/_protocol.py)
 
 from sympredict import SymplecticKernelPredictor, _fastkernels  # noqa: E402
 from sympredict.data import mixed_variables  # noqa: E402
@@ -74,14 +78,9 @@ SECTIONS = ("greedy", "rollout", "scaling", "wave", "scenario_a")
 
 
 # --------------------------------------------------------------------------- helpers
-def median_time(fn, repeats: int = 3) -> float:
-    """Median wall time of ``repeats`` calls of ``fn`` (seconds)."""
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return float(np.median(times))
+def median_time(fn, repeats: int = 3, warmup: int = 1) -> float:
+    """Median wall time of ``repeats`` calls of ``fn`` after ``warmup`` untimed ones (seconds; :func:`_protocol.measure`)."""
+    return _protocol.measure(fn, repeats, warmup)["median_s"]
 
 
 def touch_memory(nbytes: float) -> float:
@@ -154,28 +153,10 @@ def paper_protocol_errors(model, seed: int = 0, horizon: float = 20.0) -> list:
     return rows
 
 
-def environment(threads: int) -> dict:
-    blas = [
-        {k: d.get(k) for k in ("user_api", "internal_api", "num_threads", "version", "threading_layer")}
-        for d in threadpool_info()
-    ]
-    env = {
-        "cpus": os.cpu_count(),
-        "platform": platform.platform(),
-        "python": platform.python_version(),
-        "numpy": np.__version__,
-        "blas_threads_requested": threads,
-        "threadpools": blas,
-        "numba": None,
-    }
-    if _fastkernels.HAVE_NUMBA:
-        import numba
-
-        env["numba"] = {"version": numba.__version__, "threads": numba.get_num_threads(), "threading_layer": None}
-        try:
-            env["numba"]["threading_layer"] = numba.threading_layer()
-        except ValueError:
-            pass  # no parallel region run yet
+def environment(blas_threads: int) -> dict:
+    """The machine (:func:`_protocol.machine_info`) with the requested BLAS threads (``blas_threads_requested``)."""
+    env = _protocol.machine_info()
+    env["blas_threads_requested"] = blas_threads
     return env
 
 
@@ -294,19 +275,19 @@ def section_rollout(model, batch: int = 1000, steps_fast: int = 100, steps_numpy
         layout = sur.layout()
         cases = {"cold": {}, "warm": {"warm_start": True}, "midpoint_cold": {"update": "midpoint"},
                  "midpoint_warm": {"update": "midpoint", "warm_start": True}}
-        passes, t1 = {}, {k: np.inf for k in cases}
+        passes = {}
         for key, kw in cases.items():
             stats = {}
             _fastkernels.newton_rollout(x0[sub], w[sub], dt[sub], layout, sur.kernel.state, 50, 20, parallel=False,
                                         stats=stats, **kw)
             passes[key] = float(stats["passes"].sum())
-        t_factor = np.inf
-        for _ in range(30):
-            for key, kw in cases.items():
-                t0 = time.perf_counter()
-                _fastkernels.newton_rollout(x0[sub], w[sub], dt[sub], layout, sur.kernel.state, 50, 20, parallel=False, **kw)
-                t1[key] = min(t1[key], time.perf_counter() - t0)
-            t_factor = min(t_factor, _fastkernels.factor_throughput(n=1 << 18, repeats=1, in_cache=True))
+        factor_samples = []  # the factor probe times itself; it runs interleaved with the passes
+        runs = {key: (lambda kw=kw: _fastkernels.newton_rollout(x0[sub], w[sub], dt[sub], layout, sur.kernel.state, 50, 20,
+                                                                 parallel=False, **kw)) for key, kw in cases.items()}
+        runs["factor"] = lambda: factor_samples.append(_fastkernels.factor_throughput(n=1 << 18, repeats=1, in_cache=True))
+        timed = _protocol.side_by_side(runs, repeats=30, warmup=0, statistic="min_s")["methods"]
+        t1 = {key: timed[key]["min_s"] for key in cases}
+        t_factor = min(factor_samples)
         cb = {}
         for key in cases:
             ns_visit = 1e9 * t1[key] / (passes[key] * sur.n_centers)
@@ -459,7 +440,7 @@ def section_wave(seed: int = 0, basis_blas_threads: int = 1) -> dict:
     t0 = time.perf_counter()
     # the dense complex SVD of the snapshot matrix: one BLAS thread (measured 2-3x faster than
     # two on this 2-core machine when anything else runs; DESIGN.md's oversubscription pitfall)
-    with threadpool_limits(limits=basis_blas_threads):
+    with _protocol.limits(basis_blas_threads):
         fom, rom, energy, info = build_rom(preset, seed)
     t_rom = time.perf_counter() - t0
     trained = train_wave_predictor(rom, preset, dt, energy, seed=seed)
@@ -494,7 +475,7 @@ def section_wave(seed: int = 0, basis_blas_threads: int = 1) -> dict:
             "ms_per_step_single_call": 1e3 * t1,
             "mean_rel_err": float(relative_trajectory_error(pred, ref)[:, 1:].mean()),
         }
-    t_fom = median_time(lambda: fom.trajectory(rom.reconstruct(x0), c**2, dt, n_steps), 1)
+    t_fom = median_time(lambda: fom.trajectory(rom.reconstruct(x0), c**2, dt, n_steps), 1, warmup=0)
     out["online"]["fom_reference_s_per_step_batch"] = t_fom / n_steps
     return out
 
@@ -502,7 +483,7 @@ def section_wave(seed: int = 0, basis_blas_threads: int = 1) -> dict:
 # --------------------------------------------------------------------------- scenario A (child processes)
 def _scenario_a_child(kind: str, out_path: str, threads: int, n_grid: int = 200) -> None:
     set_log_levels({"sympredict": "INFO"})
-    with threadpool_limits(limits=threads):
+    with _protocol.limits(threads):
         t0 = time.perf_counter()
         data, fun, y = pendulum_functionals(n_grid)
         t_data = time.perf_counter() - t0
@@ -659,7 +640,7 @@ def main(argv=None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sections", default=",".join(SECTIONS[:-1]), help=f"comma separated subset of {SECTIONS}")
     parser.add_argument("--scenario-a", action="store_true", help="add the full scenario A section (minutes, ~9 GiB)")
-    parser.add_argument("--threads", type=int, default=os.cpu_count(), help="BLAS and numba threads")
+    _protocol.add_arguments(parser, threads=os.cpu_count(), json_option=False)
     parser.add_argument("--greedy-grid", type=int, default=100, help="pendulum grid of the greedy section (N ~ 17 grid^2)")
     parser.add_argument("--greedy-centers", type=int, default=600)
     parser.add_argument("--scenario-a-grid", type=int, default=200, help="grid of scenario A (200: the paper's 688,464 functionals)")
@@ -674,12 +655,12 @@ def main(argv=None) -> dict:
     if unknown:
         parser.error(f"unknown sections {sorted(unknown)}; choose from {SECTIONS}")
     set_log_levels({"sympredict": "WARNING", "pymor": "WARN"})
-    _fastkernels.set_num_threads(min(args.threads, os.cpu_count()))
+    numba_threads = min(args.threads, os.cpu_count())
     out_dir = Path(args.out)
     out_dir.mkdir(parents=True, exist_ok=True)
     results = {"started": time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime()), "argv": sys.argv[1:]}
-    with threadpool_limits(limits=args.threads):
-        results["environment"] = environment(args.threads)
+    with _protocol.limits(args.blas_threads, numba_threads=numba_threads):
+        results["environment"] = environment(args.blas_threads)
         model = None
         if "greedy" in sections:
             print("greedy ...", flush=True)
@@ -699,12 +680,14 @@ def main(argv=None) -> dict:
         if "wave" in sections:
             print("wave ...", flush=True)
             results["wave"] = section_wave(basis_blas_threads=args.wave_basis_threads)
-        results["environment"] = environment(args.threads)  # numba's threading layer is known now
+        results["environment"] = environment(args.blas_threads)  # numba's threading layer is known now
+        protocol = _protocol.record(blas_threads=args.blas_threads, numba_threads=numba_threads, repeats=None, warmup=1,
+                                    notes="repeats per measurement as stated next to it; scenario A in spawned children")
     if "scenario_a" in sections:
         print("scenario A (children) ...", flush=True)
-        results["scenario_a"] = section_scenario_a(args.threads, args.scenario_a_grid)
+        results["scenario_a"] = section_scenario_a(args.blas_threads, args.scenario_a_grid)
     results["finished"] = time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime())
-    (out_dir / "suite.json").write_text(json.dumps(results, indent=2, default=float))
+    _protocol.write_json(out_dir / "suite.json", results, protocol, indent=2)
     table = markdown(results)
     (out_dir / "suite.md").write_text(table)
     print(table)

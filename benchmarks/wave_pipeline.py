@@ -9,24 +9,27 @@ states for larger ``n``).  Reports basis construction time and symplecticity,
 data / selection / training times, time-averaged errors of the kernel
 predictor and implicit midpoint per ``(dT, c_test)``, and the online wall
 time of ROM + kernel against the FOM micro-step reference over the same
-horizon, all measured in one process.
+horizon, all measured in one process.  ``--threads`` / ``--blas-threads``: BLAS
+threads (default 1, ``benchmarks/_protocol.py``; its record is in the JSON, whose
+rows are under ``"rows"``).
 """
 
 import argparse
-import json
-import os
+import sys
 from pathlib import Path
 
 import numpy as np
 from pymor.core.logger import set_log_levels
-from threadpoolctl import threadpool_limits
 
-from sympredict.paper.wave import PRESETS, run_wave
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import _protocol  # noqa: E402  (benchmarks/_protocol.py)
+
+from sympredict.paper.wave import PRESETS, run_wave  # noqa: E402
 
 parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
 parser.add_argument("--preset", choices=sorted(PRESETS), default="quick")
 parser.add_argument("--n", type=int, action="append", help="complex modes n (repeatable; default 2)")
-parser.add_argument("--threads", type=int, default=os.cpu_count())
+_protocol.add_arguments(parser, json_option=False, blas_alias="--threads")
 parser.add_argument("--seed", type=int, default=0)
 parser.add_argument("--out", default="benchmarks/results")
 args = parser.parse_args()
@@ -36,7 +39,7 @@ out = Path(args.out)
 out.mkdir(parents=True, exist_ok=True)
 rows = []
 for n in args.n or [2]:
-    with threadpool_limits(limits=args.threads):
+    with _protocol.limits(args.blas_threads):
         summary = run_wave(PRESETS[args.preset], seed=args.seed, n_reduced=n, n_modes=n)["summary"]
     rows.append(summary)
     b = summary["basis"]
@@ -53,5 +56,6 @@ for n in args.n or [2]:
               f"{r['time_selection_s']:>8.1f} {r['time_fit_s']:>6.1f} {k.max():>10.2e} {im.min():>9.2e} {(im / k).min():>9.0f} "
               f"{tk:>9.3f} {tf:>7.2f} {tf / tk:>7.0f}x")
 path = out / f"wave_pipeline_{args.preset}.json"
-path.write_text(json.dumps(rows, indent=2))
+with _protocol.limits(args.blas_threads):
+    _protocol.write_json(path, {"rows": rows}, _protocol.record(blas_threads=args.blas_threads, repeats=1), indent=2)
 print(f"written to {path}")

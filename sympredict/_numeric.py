@@ -3,11 +3,19 @@
 :func:`compilable` marks a plain function as callable from compiled code
 (numba's ``register_jitable``) while it stays an ordinary Python function;
 without numba it is the identity.  The kernel families' formula helpers,
-Newton's stopping rule and the dense solves of the compiled Newton
-iterations use it.
+Newton's stopping rule, the dense solves of the compiled Newton
+iterations and the marking of a failed instance's trajectory use it.
+
+The canonical ``J`` is defined here, once (:func:`canonical_J`, and
+:func:`j_times` to apply it without forming it), so that every layer may use
+it; :mod:`sympredict.symplectic.metrics` re-exports both.
 """
 
 from __future__ import annotations
+
+import math
+
+import numpy as np
 
 try:  # numba is optional: without it nothing is compiled and these stay plain functions
     from numba.extending import register_jitable as compilable
@@ -17,7 +25,7 @@ except ImportError:  # pragma: no cover
         return function
 
 
-__all__ = ["compilable", "lu_solve_inplace"]
+__all__ = ["compilable", "lu_solve_inplace", "fill_nan_after", "canonical_J", "j_times"]
 
 
 @compilable
@@ -55,3 +63,39 @@ def lu_solve_inplace(a, b) -> bool:
             s -= a[r, j] * b[j]
         b[r] = s / a[r, r]
     return True
+
+
+@compilable
+def fill_nan_after(traj, i, k) -> None:
+    """``traj[i, k+1:] = NaN``: the states after a failed step ``k`` of instance ``i`` (traj (B, K+1, 2n))."""
+    for kk in range(k + 1, traj.shape[1]):
+        for j in range(traj.shape[2]):
+            traj[i, kk, j] = math.nan
+
+
+def canonical_J(dim: int) -> np.ndarray:
+    """The Poisson matrix ``J = [[0, I], [-I, 0]]`` of size ``dim = 2n`` (``J^T = -J = J^-1``).
+
+    The one construction of ``J`` in the package; :func:`j_times` applies it
+    without forming it (use that for large ``2n`` or batches).
+    """
+    n = dim // 2
+    return np.block([[np.zeros((n, n)), np.eye(n)], [-np.eye(n), np.zeros((n, n))]])
+
+
+def j_times(v: np.ndarray, axis: int = -1) -> np.ndarray:
+    """``J v`` along ``axis`` of ``v`` (even length ``2n`` there): ``(v_q, v_p) -> (v_p, -v_q)``, ``J`` never formed.
+
+    ``O(size of v)``; a dense ``J_2N`` at ``N = 16,000`` would be 8 GB.  Equals
+    ``canonical_J(2n) @ v`` for ``axis=0`` of a matrix, ``v @ canonical_J(2n).T``
+    for the last axis of a batch of states, and ``J A`` of a stack of matrices
+    ``A`` (..., 2n, 2n) for ``axis=-2``.  ``J^T v = -J v``.
+    """
+    n = v.shape[axis] // 2
+    if axis == -1:  # the common case, kept lean (Newton iterations call it)
+        return np.concatenate([v[..., n:], -v[..., :n]], axis=-1)
+    hi = [slice(None)] * v.ndim
+    lo = [slice(None)] * v.ndim
+    hi[axis] = slice(n, None)
+    lo[axis] = slice(None, n)
+    return np.concatenate([v[tuple(hi)], -v[tuple(lo)]], axis=axis)

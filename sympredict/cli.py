@@ -181,16 +181,11 @@ def _check_run_folder(out: Path) -> None:
 
 def _remove_stale_staging(parent: Path, name: str) -> None:
     """Remove staging folders of ``name`` left by killed runs (same rule as the container's temp files)."""
-    from sympredict.container import is_stale
+    from sympredict.container import entries_matching, is_stale
 
     pattern = re.compile(r"\." + re.escape(name) + r"\.(?:partial|old)-(\d+)-[0-9a-f]{8}")
-    try:
-        entries = list(os.scandir(parent))
-    except OSError:
-        return
-    for entry in entries:
-        match = pattern.fullmatch(entry.name)
-        if match and entry.is_dir(follow_symlinks=False) and is_stale(int(match.group(1)), entry.stat(follow_symlinks=False).st_mtime):
+    for entry, match in entries_matching(parent, pattern):
+        if entry.is_dir(follow_symlinks=False) and is_stale(int(match.group(1)), entry.stat(follow_symlinks=False).st_mtime):
             shutil.rmtree(entry.path, ignore_errors=True)
 
 
@@ -513,6 +508,13 @@ def _finite_float(positive: bool = False, nonnegative: bool = False):
     return parse
 
 
+def _add_backend_and_force(parser: argparse.ArgumentParser, solver: str) -> None:
+    """``--backend`` (``solver``: what it sets) and ``--force`` (replace an existing ``--out``) of train and predict."""
+    parser.add_argument("--backend", choices=["auto", "numpy", "numba"], default="auto",
+                        help=f"{solver}: NumPy or compiled (numba); 'auto' (default) picks by the size of the work")
+    parser.add_argument("--force", action="store_true", help="replace an existing --out file")
+
+
 def build_parser() -> argparse.ArgumentParser:
     from sympredict._version import __version__
 
@@ -551,9 +553,7 @@ def build_parser() -> argparse.ArgumentParser:
     train.add_argument("--centers", type=_int_at_least(1), default=1500, help="maximal number of centres (default 1500)")
     train.add_argument("--tol", type=_finite_float(nonnegative=True), default=1e-10, help="greedy residual tolerance (default 1e-10)")
     train.add_argument("--threads", type=_int_at_least(1), default=os.cpu_count() or 1)
-    train.add_argument("--backend", choices=["auto", "numpy", "numba"], default="auto",
-                       help="the saved model's Newton solver: NumPy or compiled (numba); 'auto' (default) picks by the size of the work")
-    train.add_argument("--force", action="store_true", help="replace an existing --out file")
+    _add_backend_and_force(train, "the saved model's Newton solver")
     train.set_defaults(func=_cmd_train)
 
     predict = sub.add_parser("predict", help="roll a saved model out from given initial states")
@@ -566,9 +566,7 @@ def build_parser() -> argparse.ArgumentParser:
     predict.add_argument("--out", help="CSV file for the trajectories (default: print the final states)")
     predict.add_argument("--stride", type=_int_at_least(1), default=1,
                          help="with --out, write every k-th state only (default 1: all); memory is that of the states written")
-    predict.add_argument("--backend", choices=["auto", "numpy", "numba"], default="auto",
-                         help="Newton solver: NumPy or compiled (numba); 'auto' (default) picks by the size of the work")
-    predict.add_argument("--force", action="store_true", help="replace an existing --out file")
+    _add_backend_and_force(predict, "Newton solver")
     predict.set_defaults(func=_cmd_predict)
 
     describe = sub.add_parser("report", help="describe a saved model: kernel, centres, residuals, training box")

@@ -83,6 +83,7 @@ __all__ = [
     "read_container",
     "check_save_path",
     "is_stale",
+    "entries_matching",
 ]
 
 logger = getLogger("sympredict.container")
@@ -283,18 +284,20 @@ def is_stale(pid, mtime: float, now: float | None = None) -> bool:
     return age >= STALE_MAX_AGE_S or (dead and age >= STALE_GRACE_S)
 
 
+def entries_matching(directory, pattern: re.Pattern) -> list:
+    """``(entry, match)`` for the entries of ``directory`` whose whole name matches ``pattern``; none if it cannot be listed."""
+    try:
+        entries = list(os.scandir(directory))
+    except OSError:
+        return []
+    return [(entry, match) for entry in entries if (match := pattern.fullmatch(entry.name)) is not None]
+
+
 def _remove_stale_temps(directory: Path, name: str) -> None:
     """Remove our own temporary files of ``name`` left by killed saves (see the module docstring)."""
     pattern = _temp_pattern(_temp_stem(directory, name))
     now = time.time()
-    try:
-        entries = list(os.scandir(directory))
-    except OSError:
-        return
-    for entry in entries:
-        match = pattern.fullmatch(entry.name)
-        if match is None:
-            continue
+    for entry, match in entries_matching(directory, pattern):
         try:
             st = entry.stat(follow_symlinks=False)
         except OSError:

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sympredict._checks import as_parameter, as_states, as_steps
+from sympredict._numeric import j_times
 
 __all__ = ["FlowMapData", "mixed_variables"]
 
@@ -39,7 +40,7 @@ def mixed_variables(x0: np.ndarray, x1: np.ndarray, dt: np.ndarray):
     n = x0.shape[1] // 2
     xi = np.concatenate([x0[:, :n], x1[:, n:]], axis=1)
     inc = (x1 - x0) / dt[:, None]
-    y = np.concatenate([-inc[:, n:], inc[:, :n]], axis=1)
+    y = -j_times(inc)  # J^T = -J
     return xi, y
 
 

@@ -16,6 +16,7 @@ import pytest
 from sympredict.container import write_container
 from sympredict.exceptions import ModelFileError
 from sympredict.io import load_model
+from sympredict.symplectic.metrics import canonical_J
 from sympredict.estimators.predictor import MODEL_FORMAT
 
 from _tolerances import rollout_bound  # tests/
@@ -86,8 +87,7 @@ def check_step_jacobian(model, x, mu, dt, fd_atol, h=1e-4):
     """``DPhi^T J DPhi = J`` (to 1e-12) of ``model.step_jacobian`` and central differences of ``model.step``
     (step ``h``, to ``fd_atol``: the Newton tolerance sets the floor of the differences); returns ``(jac, fd)``."""
     dim = x.shape[1]
-    n = dim // 2
-    J = np.block([[np.zeros((n, n)), np.eye(n)], [-np.eye(n), np.zeros((n, n))]])
+    J = canonical_J(dim)
     jac = model.step_jacobian(x, mu=mu, dt=dt)
     np.testing.assert_allclose(np.einsum("bji,jk,bkl->bil", jac, J, jac), np.broadcast_to(J, jac.shape), atol=1e-12)
     fd = np.empty_like(jac)

@@ -9,12 +9,13 @@ from sympredict import SymplecticKernelPredictor
 from sympredict.exceptions import ExtrapolationWarning
 from sympredict.io import load_model, save_model
 from sympredict.kernels import IMQ
+from sympredict.symplectic.metrics import canonical_J
 from sympredict.symplectic.newton import solve_midpoint_numpy
 from sympredict.symplectic.solvers import NewtonSolver
 from _tolerances import assert_same_predictions  # tests/
 from _surrogate_oracles import check_step_jacobian  # tests/
 
-J = np.array([[0.0, 1.0], [-1.0, 0.0]])
+J = canonical_J(2)
 
 
 def _rotation(x, theta):

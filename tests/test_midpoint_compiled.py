@@ -14,6 +14,7 @@ from scipy.linalg import expm
 from sympredict import NewtonConvergenceError, SymplecticKernelPredictor, _fastkernels
 from sympredict.exceptions import extrapolation_expected
 from sympredict.kernels import IMQ, ProductKernel
+from sympredict.symplectic.metrics import canonical_J
 from sympredict.symplectic.newton import rollout_compiled, rollout_numpy, solve_midpoint_numpy, solve_step_numpy
 from sympredict.interpolation.surrogate import HBSurrogate
 from sympredict.interpolation.greedy import ExactGreedy
@@ -22,14 +23,6 @@ from sympredict.symplectic.solvers import NewtonSolver
 from _surrogate_oracles import check_rollouts_agree_to_the_floor, pendulum_queries, with_backend  # tests/
 
 pytestmark = pytest.mark.skipif(not _fastkernels.HAVE_NUMBA, reason="the compiled rollout needs numba (optional extra)")
-
-
-def _j(dim):
-    n = dim // 2
-    j = np.zeros((dim, dim))
-    j[:n, n:] = np.eye(n)
-    j[n:, :n] = -np.eye(n)
-    return j
 
 
 _with_backend = with_backend
@@ -115,7 +108,7 @@ def test_compiled_midpoint_step_is_symplectic_by_finite_differences(which, pendu
             e[k] = h
             fd[:, :, k] = (model.step(x + e, **kw) - model.step(x - e, **kw)) / (2 * h)
         jac = model.step_jacobian(x, **kw)
-    j = _j(dim)
+    j = canonical_J(dim)
     np.testing.assert_allclose(np.einsum("bji,jk,bkl->bil", fd, j, fd), np.broadcast_to(j, fd.shape), atol=1e-7)
     np.testing.assert_allclose(fd, jac, atol=1e-7)
     assert np.abs(fd - np.eye(dim)).max() > 1e-2  # not the identity

@@ -27,6 +27,7 @@ from sympredict.systems.flowmaps import (
     sample_trajectory_neighbourhood,
 )
 from sympredict.kernels import IMQ
+from sympredict.symplectic.metrics import canonical_J
 from sympredict.mor import SymplecticKernelReductor
 from sympredict.mor.basis import SymplecticROM, complex_svd_basis, symplecticity_of_basis
 from sympredict.flowmap.scaling import BoxScaling, NormalizedFlowMap, SymplecticScaling
@@ -194,7 +195,7 @@ def test_scaled_predictor_step_is_symplectic():
     data = flow_map_data(lin, x0, mu, 0.05)
     S = SymplecticScaling("diag").fit(np.concatenate([data.x0, data.x1]))
     Sm = S.matrix_
-    J = np.block([[np.zeros((2, 2)), np.eye(2)], [-np.eye(2), np.zeros((2, 2))]])
+    J = canonical_J(4)
     sigma2 = (Sm.T @ J @ Sm)[0, 2]
     np.testing.assert_allclose(Sm.T @ J @ Sm, sigma2 * J, atol=1e-12)  # conformally symplectic
     mu_s = BoxScaling().fit(data.mu)
@@ -214,7 +215,7 @@ def test_williamson_form_is_symplectic_and_diagonalizes():
     A = rng.normal(size=(6, 6))
     H = A @ A.T + 0.5 * np.eye(6)
     S, d = williamson(H)
-    J = np.block([[np.zeros((3, 3)), np.eye(3)], [-np.eye(3), np.zeros((3, 3))]])
+    J = canonical_J(6)
     np.testing.assert_allclose(S.T @ J @ S, J, atol=1e-10)
     np.testing.assert_allclose(S.T @ H @ S, np.diag(np.concatenate([d, d])), atol=1e-10 * np.abs(H).max())
     # symplectic eigenvalues = |eigenvalues of J H| (the modal frequencies)

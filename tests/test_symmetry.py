@@ -15,15 +15,16 @@ from sympredict.interpolation.functionals import HBFunctionals, ValueFunctionals
 from sympredict.interpolation.greedy import ActiveSetGreedy, ExactGreedy
 from sympredict.io import load_model, save_model
 from sympredict.kernels import IMQ, Matern52, PeriodicCoordinates, ProductKernel, StateSymmetry
+from sympredict.symplectic.metrics import canonical_J
 from sympredict.estimators.predictor import update_variables
-from sympredict.symplectic.solvers import NewtonSolver
 from sympredict.interpolation.surrogate import HBSurrogate
+from sympredict.symplectic.solvers import NewtonSolver
 from sympredict.kernels.transforms import Periodic, Scaled, Symmetric
 
 from _surrogate_oracles import (check_gramian_by_finite_differences, check_malformed_kernel_entries_refused,
                                check_surrogate_by_finite_differences)  # tests/ (on sys.path under pytest)
 
-J = np.array([[0.0, 1.0], [-1.0, 0.0]])
+J = canonical_J(2)
 LENGTH, DT = 0.75, 0.05
 KLEIN = [(1, 1), (-1, -1), (1, -1), (-1, 1)]
 

@@ -85,7 +85,7 @@ def williamson(H: np.ndarray) -> tuple:
     if lam.min() <= 0:
         raise ValueError(f"the Williamson form needs an SPD Hamiltonian matrix; smallest eigenvalue {lam.min():.3e}")
     h_inv_sqrt = (U / np.sqrt(lam)) @ U.T
-    J = np.block([[np.zeros((n, n)), np.eye(n)], [-np.eye(n), np.zeros((n, n))]])
+    J = canonical_J(dim)
     A = h_inv_sqrt @ J @ h_inv_sqrt
     T, Q = schur(0.5 * (A - A.T), output="real")
     b = np.empty(n)

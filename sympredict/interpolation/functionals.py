@@ -74,6 +74,7 @@ class HBFunctionals(_AugmentedPoints):
     kernel
         Product kernel on ``(xi, mu, dT)``.
     xi : ndarray of shape (M, 2n)
+        The points' state variables: mixed ``(q0, p1)`` or midpoints ``(x0 + x1) / 2`` (the update's).
     mu : ndarray of shape (M, d_mu)
     dt : ndarray of shape (M,)
     """

@@ -294,16 +294,9 @@ class HBSurrogate:
         eye = np.eye(dim)
         for sl in self._chunks(n_q):
             diff, r, g, G1, g1, g2 = self._differences(xi[sl], order=3)
-            A, B, C = self.kernel.state.factors(r, order=3)
             w = weights[sl]
-            wA = w * A
-            wB = w * B
-            wBg = wB * g
-            if g1 is not None:  # periodic: the identity terms carry g' (and g'')
-                wA = wA * g1
-                wB = wB * g1
-            grad[sl] = -np.matmul(wBg[:, None, :], diff)[:, 0, :] - wA @ self._onehot
-            wCg_diff = diff * (w * C * g)[:, :, None]
+            grad[sl], A, wA, wB, wBg, wCg = self._gradient_chunk(diff, r, g, g1, w)
+            wCg_diff = diff * wCg[:, :, None]
             h = -np.matmul(wCg_diff.transpose(0, 2, 1), diff)
             if G1 is None:
                 h -= wBg.sum(axis=1)[:, None, None] * eye
@@ -315,9 +308,7 @@ class HBSurrogate:
             h -= M.transpose(0, 2, 1)
             hess[sl] = h
             if with_floor:
-                floor[sl] = np.finfo(float).eps * (
-                    np.einsum("bm,bm->b", np.abs(wBg), self._abs_max_last(diff)) + np.abs(wA).sum(axis=1)
-                )
+                floor[sl] = self._gradient_floor(diff, wA, wBg)
         if with_floor:
             return grad, hess, floor
         return grad, hess
@@ -336,6 +327,7 @@ class HBSurrogate:
         Parameters
         ----------
         xi : ndarray of shape (B, 2n)
+            The Newton iterate's mixed variables ``(q0, p1)``.
         weights : ndarray of shape (B, m)
 
         Returns
@@ -358,27 +350,37 @@ class HBSurrogate:
         onehot_q = self._onehot[:, :n]
         for sl in self._chunks(n_q):
             diff, r, g, _, g1, _ = self._differences(xi[sl], order=2)
-            A, B, C = self.kernel.state.factors(r, order=3)
-            w = weights[sl]
-            wA = w * A
-            wB = w * B
-            wBg = wB * g
-            if g1 is not None:  # periodic: the identity terms carry g' (see gradient_hessian)
-                wA = wA * g1
-                wB = wB * g1
-            grad[sl] = -np.matmul(wBg[:, None, :], diff)[:, 0, :] - wA @ self._onehot
+            grad[sl], _, wA, wB, wBg, wCg = self._gradient_chunk(diff, r, g, g1, weights[sl])
             dq = diff[:, :, :n]
             dp = diff[:, :, n:]
-            h = -np.matmul((dq * (w * C * g)[:, :, None]).transpose(0, 2, 1), dp)
+            h = -np.matmul((dq * wCg[:, :, None]).transpose(0, 2, 1), dp)
             # M_ac for a in q, c in p and M_ca (c in p, a in q): both (chunk, n, n)
             wBdq = (dq * wB[:, :, None]).transpose(0, 2, 1)
             h -= np.matmul(wBdq, onehot_p)
             h -= np.matmul((dp * wB[:, :, None]).transpose(0, 2, 1), onehot_q).transpose(0, 2, 1)
             hqp[sl] = h
-            floor[sl] = np.finfo(float).eps * (
-                np.einsum("bm,bm->b", np.abs(wBg), self._abs_max_last(diff)) + np.abs(wA).sum(axis=1)
-            )
+            floor[sl] = self._gradient_floor(diff, wA, wBg)
         return grad, hqp, floor
+
+    def _gradient_chunk(self, diff, r, g, g1, w):
+        """A chunk's gradient rows and the weighted factors the Hessians reuse (:meth:`gradient_hessian`, :meth:`newton_terms`).
+
+        Returns ``grad`` (chunk, 2n), ``A``, ``wA = w A`` and ``wB = w B`` (both times ``g'``
+        for periodic coordinates: the identity terms carry it), ``wBg = w B g`` and ``wCg = w C g``.
+        """
+        A, B, C = self.kernel.state.factors(r, order=3)
+        wA = w * A
+        wB = w * B
+        wBg = wB * g
+        if g1 is not None:  # periodic: the identity terms carry g' (and g'')
+            wA = wA * g1
+            wB = wB * g1
+        grad = -np.matmul(wBg[:, None, :], diff)[:, 0, :] - wA @ self._onehot
+        return grad, A, wA, wB, wBg, w * C * g
+
+    def _gradient_floor(self, diff, wA, wBg) -> np.ndarray:
+        """``eps_mach`` times the sum of the absolute values of a chunk's gradient terms, shape (chunk,)."""
+        return np.finfo(float).eps * (np.einsum("bm,bm->b", np.abs(wBg), self._abs_max_last(diff)) + np.abs(wA).sum(axis=1))
 
 
 class ValueSurrogate:
@@ -391,6 +393,7 @@ class ValueSurrogate:
     kernel
         The product kernel.
     centers_x : ndarray of shape (m, 2n)
+        State parts of the centres (the direct model's points are the initial states ``x0``).
     centers_mu : ndarray of shape (m, d_mu)
     centers_dt : ndarray of shape (m,)
     coef : ndarray of shape (m, q)

@@ -182,8 +182,7 @@ class RadialKernel(Parametrized):
 
         Parameters
         ----------
-        x : ndarray of shape (Nx, d)
-        y : ndarray of shape (Ny, d)
+        x, y : ndarray of shapes (Nx, d) and (Ny, d)
 
         Returns
         -------

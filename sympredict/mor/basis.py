@@ -29,7 +29,7 @@ from scipy.linalg import svd
 
 from sympredict._checks import as_real_array
 from sympredict.systems.flowmaps import linear_system_from_pymor
-from sympredict.symplectic.metrics import canonical_J
+from sympredict.symplectic.metrics import canonical_J, j_times
 from sympredict.systems.quadratic import QuadraticHamiltonian
 
 __all__ = ["ComplexSVDBasis", "snapshot_rows", "basis_columns", "complex_svd_basis", "symplectic_inverse", "symplecticity_of_basis", "SymplecticROM"]
@@ -184,17 +184,10 @@ def complex_svd_basis(snapshots, n: Optional[int] = None, tol: Optional[float] =
     return ComplexSVDBasis(V=V, singular_values=s, n=int(n))
 
 
-def _J_times(A: np.ndarray) -> np.ndarray:
-    """``J A = [A_2; -A_1]`` for ``A = [A_1; A_2]`` with an even number of rows, without forming ``J``
-    (``O(size of A)``; a dense ``J_2N`` at ``N = 16,000`` is 8 GB)."""
-    m = A.shape[0] // 2
-    return np.concatenate([A[m:], -A[:m]])
-
-
 def symplectic_inverse(V: np.ndarray) -> np.ndarray:
     """``V+ = J_2n^T V^T J_2N``, shape (2n, 2N); ``O(N n)`` time and memory (``J`` is never formed)."""
     # V^T J_2N = (J_2N^T V)^T = -(J_2N V)^T and J_2n^T B = -J_2n B
-    return _J_times(_J_times(V).T)
+    return j_times(j_times(V, axis=0).T, axis=0)
 
 
 def basis_columns(V) -> np.ndarray:
@@ -232,7 +225,7 @@ def symplecticity_of_basis(V) -> float:
         For a transposed ndarray basis (:func:`basis_columns`).
     """
     V = basis_columns(V)
-    return float(np.abs(V.T @ _J_times(V) - canonical_J(V.shape[1])).max())  # O(N n^2), J_2N never formed
+    return float(np.abs(V.T @ j_times(V, axis=0) - canonical_J(V.shape[1])).max())  # O(N n^2), J_2N never formed
 
 
 class SymplecticROM:

@@ -36,6 +36,7 @@ from __future__ import annotations
 import numpy as np
 
 from sympredict._checks import as_positive_int, as_states, as_steps
+from sympredict._numeric import compilable
 from sympredict.symplectic.integrators_compiled import HAVE_NUMBA, PointwiseHamiltonian, jit_pointwise, rollout
 from sympredict.systems.linear_flow import QuadraticPart
 from sympredict.mor.basis import symplectic_inverse
@@ -49,23 +50,33 @@ __all__ = ["ReducedSineGordon", "rk4_rollout", "nonlinear_snapshots"]
 
 
 # fargs = (s, A1 (r*r), A2 (r*r), S (m*r), W (r*m)); iargs = (r, m); mu = (c,).
+@compilable
+def _packed(mu, fargs, iargs):
+    """``(r, m, c^2, s)`` and the offsets ``(a1, a2, so, wo)`` of ``A1, A2, S, W`` in ``fargs``."""
+    r, m = iargs[0], iargs[1]
+    return r, m, mu[0] * mu[0], fargs[0], 1, 1 + r * r, 1 + 2 * r * r, 1 + 2 * r * r + m * r
+
+
+@compilable
+def _sine_argument(y, fargs, so, r, k):
+    """``(S y)_k``; ``O(r)``."""
+    z = 0.0
+    for j in range(r):
+        z += fargs[so + k * r + j] * y[j]
+    return z
+
+
 @jit_pointwise
 def _g(y, mu, fargs, iargs, out):
     """``g(y) = (c^2 A1 + A2) y + s W sin(S y)``; ``O(r^2 + m r)``."""
-    r, m = iargs[0], iargs[1]
-    c2 = mu[0] * mu[0]
-    s = fargs[0]
-    a1, a2, so, wo = 1, 1 + r * r, 1 + 2 * r * r, 1 + 2 * r * r + m * r
+    r, m, c2, s, a1, a2, so, wo = _packed(mu, fargs, iargs)
     for i in range(r):
         acc = 0.0
         for j in range(r):
             acc += (c2 * fargs[a1 + i * r + j] + fargs[a2 + i * r + j]) * y[j]
         out[i] = acc
     for k in range(m):
-        z = 0.0
-        for j in range(r):
-            z += fargs[so + k * r + j] * y[j]
-        sk = s * np.sin(z)
+        sk = s * np.sin(_sine_argument(y, fargs, so, r, k))
         for i in range(r):
             out[i] += fargs[wo + i * m + k] * sk
 
@@ -73,18 +84,12 @@ def _g(y, mu, fargs, iargs, out):
 @jit_pointwise
 def _dg(y, mu, fargs, iargs, out):
     """Jacobian ``c^2 A1 + A2 + s W diag(cos(S y)) S`` (r, r); ``O(r^2 m)``."""
-    r, m = iargs[0], iargs[1]
-    c2 = mu[0] * mu[0]
-    s = fargs[0]
-    a1, a2, so, wo = 1, 1 + r * r, 1 + 2 * r * r, 1 + 2 * r * r + m * r
+    r, m, c2, s, a1, a2, so, wo = _packed(mu, fargs, iargs)
     for i in range(r):
         for j in range(r):
             out[i, j] = c2 * fargs[a1 + i * r + j] + fargs[a2 + i * r + j]
     for k in range(m):
-        z = 0.0
-        for j in range(r):
-            z += fargs[so + k * r + j] * y[j]
-        ck = s * np.cos(z)
+        ck = s * np.cos(_sine_argument(y, fargs, so, r, k))
         for i in range(r):
             wik = fargs[wo + i * m + k] * ck
             for j in range(r):

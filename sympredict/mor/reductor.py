@@ -75,6 +75,7 @@ from sympredict.systems.flowmaps import (
     type2_sigma_min,
 )
 from sympredict.kernels import IMQ
+from sympredict.symplectic.metrics import canonical_J
 from sympredict.estimators.predictor import SymplecticKernelPredictor
 from sympredict.flowmap.scaling import BoxScaling, NormalizedFlowMap, SymplecticScaling
 from sympredict.estimators.selection import log_grid, select_kernels
@@ -113,7 +114,7 @@ def check_symplectic_basis(RB, phase_space=None, tol: float = _SYMPLECTIC_TOL) -
     V = RB.to_array()
     J = CanonicalSymplecticFormOperator(RB.phase_space)
     n = len(RB)
-    Jn = np.block([[np.zeros((n, n)), np.eye(n)], [-np.eye(n), np.zeros((n, n))]])
+    Jn = canonical_J(2 * n)
     defect = float(np.abs(V.inner(J.apply(V)) - Jn).max())
     if not defect <= tol:
         raise ValueError(f"RB is not symplectic: max |V^T J V - J| = {defect:.2e} > {tol:.0e}")

@@ -21,7 +21,7 @@ import numpy as np
 
 from sympredict._checks import as_real
 from sympredict.exceptions import NewtonConvergenceError
-from sympredict.symplectic.metrics import canonical_J
+from sympredict.symplectic.metrics import canonical_J, j_times
 
 __all__ = [
     "micro_steps",
@@ -89,10 +89,8 @@ def micro_steps(t, h_max: float) -> np.ndarray:
     return np.maximum(1, np.ceil(ratio).astype(np.int64))
 
 
-def apply_J(v: np.ndarray) -> np.ndarray:
-    """``J v`` for ``v = (v_q, v_p)`` along the last axis: ``(v_p, -v_q)``."""
-    n = v.shape[-1] // 2
-    return np.concatenate([v[..., n:], -v[..., :n]], axis=-1)
+#: ``J v`` for ``v = (v_q, v_p)`` along the last axis: ``(v_p, -v_q)`` (:func:`sympredict.symplectic.metrics.j_times`).
+apply_J = j_times
 
 
 def _as_h(h, b):
@@ -119,6 +117,7 @@ def implicit_midpoint_step(system, x, mu, h, *, max_iter: int = 50) -> np.ndarra
     Returns
     -------
     ndarray of shape (B, 2n)
+        The states ``x1`` after one step.
 
     Raises
     ------

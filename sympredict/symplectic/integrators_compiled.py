@@ -57,7 +57,7 @@ import math
 
 import numpy as np
 
-from sympredict._numeric import lu_solve_inplace
+from sympredict._numeric import fill_nan_after, lu_solve_inplace
 from sympredict._checks import as_parameter, as_positive_int, as_states, as_steps
 from sympredict.exceptions import NewtonConvergenceError
 from sympredict.symplectic.integrators import COMPOSITIONS, SCHEMES, integrate
@@ -80,6 +80,7 @@ __all__ = [
     "PointwiseHamiltonian",
     "jit_pointwise",
     "rollout",
+    "unit_mass_grad_T",
 ]
 
 #: The schemes that need a separable Hamiltonian (compositions of Störmer–Verlet).
@@ -110,6 +111,13 @@ def jit_pointwise(fn):
     if not HAVE_NUMBA:  # pragma: no cover
         return fn
     return numba.njit(cache=True, nogil=True, error_model="numpy")(fn)
+
+
+@jit_pointwise
+def unit_mass_grad_T(p, mu, fargs, iargs, out):
+    """``dT/dp = p`` of the unit-mass kinetic energy ``T = |p|^2 / 2`` (a per-instance gradient; any length)."""
+    for j in range(p.shape[0]):
+        out[j] = p[j]
 
 
 def _is_numba(fn) -> bool:
@@ -325,9 +333,7 @@ def _midpoint_instance(i, grad_H, hess_H, fargs, iargs, x0, mu, h, n_steps, subs
                 codes[i] = code
                 fail_step[i] = k
                 resid[i] = last
-                for kk in range(k + 1, n_steps + 1):
-                    for j in range(dim):
-                        traj[i, kk, j] = np.nan
+                fill_nan_after(traj, i, k)
                 return
             for j in range(dim):
                 x[j] = x1[j]

@@ -1,16 +1,16 @@
-"""Error measures: trajectory error, Hamiltonian error, symplecticity defect."""
+"""Error measures (trajectory error, Hamiltonian error, symplecticity defect) and the canonical ``J``.
+
+``J = [[0, I], [-I, 0]]`` is defined here once: :func:`canonical_J` forms it,
+:func:`j_times` applies it along an axis without forming it.
+"""
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["relative_trajectory_error", "relative_hamiltonian_error", "symplecticity_defect", "canonical_J"]
+from sympredict._numeric import canonical_J, j_times  # J is defined once, in the foundation layer
 
-
-def canonical_J(dim: int) -> np.ndarray:
-    """The Poisson matrix ``J = [[0, I], [-I, 0]]`` of size ``dim = 2n``."""
-    n = dim // 2
-    return np.block([[np.zeros((n, n)), np.eye(n)], [-np.eye(n), np.zeros((n, n))]])
+__all__ = ["relative_trajectory_error", "relative_hamiltonian_error", "symplecticity_defect", "canonical_J", "j_times"]
 
 
 def relative_trajectory_error(pred: np.ndarray, ref: np.ndarray) -> np.ndarray:

@@ -20,6 +20,7 @@ import numpy as np
 
 from sympredict import _fastkernels
 from sympredict.exceptions import NewtonConvergenceError, RolloutMemoryError
+from sympredict.symplectic.metrics import j_times
 from sympredict.newton_rule import EPS, converged, residual_floor
 from sympredict.interpolation.surrogate import HBSurrogate
 
@@ -37,10 +38,7 @@ FAILURE_REASONS = {
 MIDPOINT_FAILURE_REASONS = {**FAILURE_REASONS, 2: "hit a singular Jacobian I - dT/2 J Hess s"}
 
 
-def _j_times(v: np.ndarray) -> np.ndarray:
-    """``J v`` for ``J = [[0, I], [-I, 0]]`` on the last axis (``(a_q, a_p) -> (a_p, -a_q)``)."""
-    n = v.shape[-1] // 2
-    return np.concatenate([v[..., n:], -v[..., :n]], axis=-1)
+_j_times = j_times  # ``J v`` on the last axis (sympredict.symplectic.metrics)
 
 
 def _newton_update(active, F, jac, f_floor, scale, last_update, reasons):

@@ -8,7 +8,8 @@ A *system* is anything with ``flow(x0, mu, t) -> x1`` for batches ``x0 (B, 2n)``
   halving until two successive results agree to ``rtol`` (Richardson estimate
   ``|x_h - x_{h/2}| / 15``), so the reference is accurate, not merely symplectic;
 * :class:`LinearHamiltonianSystem`: ``H(x; mu) = 1/2 x^T H(mu) x + x^T h(mu)``
-  with an assembled ``H(mu)`` per parameter; exact flow ``expm``;
+  with an assembled ``H(mu)`` per parameter; exact flow ``expm``
+  (:func:`sympredict.systems.linear_flow.exact_propagators`, as for every quadratic Hamiltonian);
   :func:`linear_system_from_pymor` builds one from a (reduced) pyMOR
   ``QuadraticHamiltonianModel``, assembling ``H_op`` per ``mu`` (no affine
   decomposition needed);
@@ -48,12 +49,12 @@ from pymor.algorithms.to_matrix import to_matrix
 from pymor.core.logger import getLogger
 from pymor.models.symplectic import BaseQuadraticHamiltonianModel
 from pymor.parameters.base import Mu, Parameters
-from scipy.linalg import expm
 
 from sympredict._checks import as_positive_int, as_states, as_steps
 from sympredict.data import FlowMapData
 from sympredict.exceptions import GeneratingFunctionWarning
-from sympredict.symplectic.metrics import canonical_J
+from sympredict.systems.linear_flow import exact_propagators, generator_propagators
+from sympredict.symplectic.metrics import canonical_J, j_times
 
 __all__ = [
     "mu_to_vector",
@@ -193,11 +194,8 @@ def rk4_flow(gradient: Callable, x0: np.ndarray, mu: np.ndarray, t: np.ndarray, 
     -----
     Cost ``O(B * 4 * steps)`` gradient evaluations, batched over ``B``.
     """
-    n = x0.shape[1] // 2
-
     def rhs(x):
-        g = gradient(x, mu)
-        return np.concatenate([g[:, n:], -g[:, :n]], axis=1)
+        return j_times(gradient(x, mu))
 
     def integrate(steps):
         h = (t / steps)[:, None]
@@ -387,10 +385,7 @@ class LinearHamiltonianSystem(_System):
         """Affine flow as a ``(2n+1, 2n+1)`` matrix ``expm(t [[J H, J h], [0, 0]])`` (last row ``e``)."""
         key = ("P", np.asarray(mu, float).tobytes(), float(t))
         if key not in self._cache:
-            A = np.zeros((self.dim + 1, self.dim + 1))
-            A[: self.dim, : self.dim] = self.J @ self.matrix(mu)
-            A[: self.dim, self.dim] = self.J @ self.linear_term(mu)
-            self._cache[key] = expm(float(t) * A)
+            self._cache[key] = exact_propagators(self.matrix(mu), float(t), linear=self.linear_term(mu))
         return self._cache[key]
 
     def flow(self, x0, mu=None, t=None) -> np.ndarray:
@@ -475,6 +470,8 @@ def sample_energy_ellipsoid(system: LinearHamiltonianSystem, n: int, mu, energy:
     """States uniform in ``{x : 1/2 x^T H(mu) x <= energy}`` (``H(mu)`` SPD), shape (n, 2n).
 
     ``x = sqrt(2 energy) L^{-T} z``, ``H = L L^T``, ``z`` uniform in the unit ball: exact, rejection-free.
+    ``system``: anything with ``matrix(mu)`` and ``dim`` (:class:`LinearHamiltonianSystem`,
+    :class:`~sympredict.systems.quadratic.QuadraticHamiltonian`).
     """
     n = as_positive_int(n, "n")
     if not (np.isfinite(energy) and energy > 0):
@@ -744,7 +741,7 @@ def first_singular_step(generators, threshold: float = 1e-2, n_grid: int = 800, 
     if om == 0:
         return np.inf
     for t in np.linspace(0, 2 * np.pi / om, n_grid + 1)[1:]:
-        if any(_broken(expm(t * A), threshold, update) for A in generators):
+        if any(_broken(generator_propagators(A, t), threshold, update) for A in generators):
             return float(t)
     return float(np.pi / ((1 if update == "midpoint" else 2) * om))
 

@@ -10,7 +10,12 @@ The flow of ``x' = J grad H0 = J A(mu) x`` over a time ``t`` is the linear map
 ``L = expm(t J A(mu))``, symplectic for every ``t`` and ``mu``
 (``L^T J L = J``, since ``J A`` is Hamiltonian), with the inverse
 ``L^-1 = expm(-t J A) = -J L^T J``.  :class:`QuadraticPart` evaluates ``A(mu)``
-and these propagators for batches of ``(mu, t)``; the splitting predictor
+and these propagators for batches of ``(mu, t)``; it is the package's one class
+for a parametrised quadratic Hamiltonian, and :func:`exact_propagators` its one
+matrix exponential: :class:`sympredict.systems.quadratic.QuadraticHamiltonian`
+(``H0 + mu H1``) holds a ``QuadraticPart``, and
+:class:`sympredict.systems.flowmaps.LinearHamiltonianSystem` (``H(mu)`` from a callable,
+plus a linear term) steps through :func:`exact_propagators` too.  The splitting predictor
 (:mod:`sympredict.flowmap.splitting`) composes them with a learned map, and systems
 provide their quadratic part at the equilibrium
 (:meth:`sympredict.systems.pendulum.Pendulum.quadratic_part`).
@@ -25,9 +30,9 @@ from scipy.linalg import expm
 
 from sympredict._checks import as_parameter
 from sympredict.base import Parametrized
-from sympredict.symplectic.metrics import canonical_J
+from sympredict.symplectic.metrics import canonical_J, j_times
 
-__all__ = ["QuadraticPart", "inverse_symplectic_matrices"]
+__all__ = ["QuadraticPart", "exact_propagators", "generator_propagators", "inverse_symplectic_matrices"]
 
 
 def inverse_symplectic_matrices(L: np.ndarray) -> np.ndarray:
@@ -45,6 +50,50 @@ def inverse_symplectic_matrices(L: np.ndarray) -> np.ndarray:
     out[..., n:, :n] = -Lt[..., :n, n:]
     out[..., n:, n:] = Lt[..., :n, :n]
     return out
+
+
+def generator_propagators(generators: np.ndarray, t=1.0) -> np.ndarray:
+    """``expm(t A)`` of linear generators ``A`` (..., m, m), ``t`` a scalar or of shape ``A.shape[:-2]``.
+
+    The package's one call of ``scipy.linalg.expm`` (scaling and squaring with a
+    Pade approximant, one stacked call: each matrix of the stack goes through
+    the same algorithm as a single one, so batching does not change results).
+    ``O(m^3 (13 + log2 ||t A||))`` flops per matrix.
+    """
+    t = np.asarray(t, dtype=float)
+    return expm(generators * t[..., None, None])
+
+
+def exact_propagators(H: np.ndarray, t=1.0, linear=None) -> np.ndarray:
+    """Exact flow of ``H(x) = 1/2 x^T H x (+ x^T h)`` over ``t``: ``expm(t J H)`` for a stack of assembled Hessians.
+
+    Parameters
+    ----------
+    H : ndarray of shape (..., 2n, 2n)
+        Symmetric Hessians (not checked here: :meth:`QuadraticPart.checked` does).
+    t : float or ndarray of shape ``H.shape[:-2]``
+        Times (any sign: ``t < 0`` gives the inverse flow).
+    linear : ndarray of shape (..., 2n), optional
+        A linear term ``h``: the flow is then affine, ``x -> L x + c``, returned as
+        the ``(2n+1, 2n+1)`` matrices ``expm(t [[J H, J h], [0, 0]])`` (last row ``e``).
+
+    Returns
+    -------
+    ndarray of shape (..., 2n, 2n), or (..., 2n+1, 2n+1) with ``linear``
+
+    Notes
+    -----
+    ``J H`` is formed by :func:`~sympredict.symplectic.metrics.j_times` (a row permutation
+    with signs, exact), then :func:`generator_propagators`.
+    """
+    gen = j_times(H, axis=-2)
+    if linear is not None:
+        m = H.shape[-1]
+        aug = np.zeros(H.shape[:-2] + (m + 1, m + 1))
+        aug[..., :m, :m] = gen
+        aug[..., :m, m] = j_times(np.asarray(linear, dtype=float))
+        gen = aug
+    return generator_propagators(gen, t)
 
 
 class QuadraticPart(Parametrized):
@@ -198,9 +247,8 @@ class QuadraticPart(Parametrized):
 
         Notes
         -----
-        One stacked call of ``scipy.linalg.expm`` (scaling and squaring with
-        a Pade approximant): ``O(B (2n)^3 (13 + log2 ||t J A||))`` flops, no
-        Python loop over the batch.  Exact up to round-off for any ``t``
+        One stacked call of ``scipy.linalg.expm`` (:func:`exact_propagators`):
+        ``O(B (2n)^3 (13 + log2 ||t J A||))`` flops, no Python loop over the batch.  Exact up to round-off for any ``t``
         (no step-size restriction): symplectic to ``~1e-15``.
         """
         t = np.asarray(t, dtype=float)
@@ -213,5 +261,4 @@ class QuadraticPart(Parametrized):
         A = self.hessian(mu, n)
         if t.ndim == 1 and len(t) not in (1, len(A)):
             raise ValueError(f"t must be a scalar or have length {len(A)} (one per instance), got {len(t)}")
-        gen = (canonical_J(A.shape[1]) @ A) * np.broadcast_to(t.reshape(-1), (len(A),))[:, None, None]
-        return expm(gen)
+        return exact_propagators(A, np.broadcast_to(t.reshape(-1), (len(A),)))

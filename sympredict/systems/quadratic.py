@@ -7,18 +7,24 @@ stepping costs ~40 µs of overhead per step, more than a 4x4 step itself).
 
 Since the system is linear, every flow is a matrix: the implicit-midpoint
 step is the Cayley transform ``(I - h/2 A)^{-1} (I + h/2 A)`` of
-``A = J H(mu)``, and the exact flow is ``expm(t A)``.
+``A = J H(mu)``, and the exact flow is ``expm(t A)``.  ``H(mu)`` and the exact
+flow belong to a :class:`~sympredict.systems.linear_flow.QuadraticPart` with the
+matrices ``(H0, H1)`` and the powers ``(0, 1)`` (:meth:`QuadraticHamiltonian.quadratic_part`):
+this class adds the system's interface (energies, gradients, compiled
+pointwise evaluation, reference and exact trajectories).
 """
 
 from __future__ import annotations
 
 import numpy as np
-from scipy.linalg import expm, solve
+from scipy.linalg import solve
 
 from sympredict._checks import as_parameter, as_positive_int, as_real, as_real_array, as_states, as_steps
 from sympredict.symplectic.metrics import canonical_J
 from sympredict.symplectic.integrators import micro_steps
 from sympredict.symplectic.integrators_compiled import PointwiseHamiltonian, jit_pointwise
+from sympredict.systems.flowmaps import sample_energy_ellipsoid
+from sympredict.systems.linear_flow import QuadraticPart
 
 __all__ = ["QuadraticHamiltonian"]
 
@@ -128,9 +134,18 @@ class QuadraticHamiltonian:
             hess_H=_hess_H, fargs=np.concatenate([self.H0.ravel(), self.H1.ravel()]), iargs=(self.dim,), name=f"QuadraticHamiltonian(2n={self.dim})",
         )
 
+    def quadratic_part(self) -> QuadraticPart:
+        """``H(mu) = H0 + mu H1`` as a :class:`~sympredict.systems.linear_flow.QuadraticPart` (powers 0 and 1).
+
+        It owns ``H(mu)`` and the exact flow ``expm(t J H(mu))`` (batched over
+        ``mu`` and ``t``); :meth:`matrix` and :meth:`exact_propagator` use it.
+        Built from the current ``H0``, ``H1`` on each call (it stores them, ``O((2n)^2)``).
+        """
+        return QuadraticPart(np.stack([self.H0, self.H1]), [[0.0], [1.0]])
+
     def matrix(self, mu: float) -> np.ndarray:
         """``H0 + mu H1``, shape (2n, 2n)."""
-        return self.H0 + as_real(mu, "mu") * self.H1
+        return self.quadratic_part().hessian(as_real(mu, "mu"))[0]
 
     def hamiltonian(self, x, mu) -> np.ndarray:
         """Energies, shape (B,), for states (B, 2n) and parameters (B,) / (B, 1)."""
@@ -153,23 +168,15 @@ class QuadraticHamiltonian:
 
         ``x = sqrt(2 energy) L^{-T} z`` with ``H(mu) = L L^T`` and ``z`` uniform
         in the unit ball (normal direction, radius ``U^(1/2n)``): exact and
-        rejection-free in any dimension.
+        rejection-free in any dimension (:func:`sympredict.systems.flowmaps.sample_energy_ellipsoid`
+        with ``numpy.random.default_rng(seed)``).
 
         Returns
         -------
         ndarray of shape (n_samples, 2n)
         """
         n_samples = as_positive_int(n_samples, "n_samples")
-        if not (np.isfinite(energy) and energy > 0):
-            raise ValueError(f"energy must be positive, got {energy!r}")
-        try:
-            L = np.linalg.cholesky(self.matrix(mu))
-        except np.linalg.LinAlgError:
-            raise ValueError(f"H(mu={mu}) is not positive definite: the energy sub-level set is unbounded") from None
-        rng = np.random.default_rng(seed)
-        z = rng.normal(size=(n_samples, self.dim))
-        z *= rng.uniform(size=(n_samples, 1)) ** (1.0 / self.dim) / np.linalg.norm(z, axis=1, keepdims=True)
-        return np.sqrt(2.0 * energy) * solve(L.T, z.T).T
+        return sample_energy_ellipsoid(self, n_samples, mu, energy, np.random.default_rng(seed))
 
     def midpoint_propagator(self, mu: float, h: float, n_steps: int = 1) -> np.ndarray:
         """Matrix of ``n_steps`` implicit-midpoint steps of size ``h``: ``((I - h/2 A)^{-1}(I + h/2 A))^n``."""
@@ -181,8 +188,8 @@ class QuadraticHamiltonian:
         return np.linalg.matrix_power(step, int(n_steps))
 
     def exact_propagator(self, mu: float, t: float) -> np.ndarray:
-        """``expm(t J H(mu))``."""
-        return expm(as_real(t, "t") * (self.J @ self.matrix(mu)))
+        """``expm(t J H(mu))``, shape (2n, 2n) (:meth:`QuadraticPart.propagator <sympredict.systems.linear_flow.QuadraticPart.propagator>`)."""
+        return self.quadratic_part().propagator(as_real(mu, "mu"), as_real(t, "t"))[0]
 
     def _grouped(self, x0, mu, t, propagator):
         x0, single = as_states(x0, "x0", dim=self.dim)

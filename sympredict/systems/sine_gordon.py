@@ -45,7 +45,8 @@ from pymor.algorithms.timestepping import TimeStepper
 from pymor.operators.interface import Operator
 
 from sympredict._checks import as_positive_int, as_real, as_states, as_steps
-from sympredict.symplectic.integrators_compiled import PointwiseHamiltonian, jit_pointwise, rollout
+from sympredict.symplectic.metrics import j_times
+from sympredict.symplectic.integrators_compiled import PointwiseHamiltonian, jit_pointwise, rollout, unit_mass_grad_T
 
 __all__ = ["fd_laplacian_1d", "laplacian_max_eigenvalue", "SineGordonFOM", "SineGordonOperator",
            "CompiledSymplecticTimeStepper", "INITIAL_FAMILIES"]
@@ -99,11 +100,7 @@ def _grad_V(q, mu, fargs, iargs, out):
         out[j] = c2 * acc + s * np.sin(q[j])
 
 
-@jit_pointwise
-def _grad_T(p, mu, fargs, iargs, out):
-    """``p``."""
-    for j in range(p.shape[0]):
-        out[j] = p[j]
+_grad_T = unit_mass_grad_T  # dT/dp = p
 
 
 @jit_pointwise
@@ -111,8 +108,7 @@ def _grad_H(x, mu, fargs, iargs, out):
     """``(c^2 D q + s sin q, p)``."""
     n = x.shape[0] // 2
     _grad_V(x[:n], mu, fargs, iargs, out[:n])
-    for j in range(n):
-        out[n + j] = x[n + j]
+    unit_mass_grad_T(x[n:], mu, fargs, iargs, out[n:])
 
 
 @jit_pointwise
@@ -466,8 +462,7 @@ class SineGordonOperator(Operator):
         c = self.c_of(mu)
         x = self.fom.from_pymor(U)
         g = self.fom.gradient(x, np.full(len(x), c)) if len(x) else x
-        n = self.fom.n_points
-        return self.fom.to_pymor(-np.hstack([g[:, n:], -g[:, :n]])) if len(x) else self.range.zeros(0)
+        return self.fom.to_pymor(-j_times(g)) if len(x) else self.range.zeros(0)
 
     def jacobian(self, U, mu=None):
         from pymor.operators.block import BlockOperator

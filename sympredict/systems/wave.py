@@ -26,7 +26,7 @@ from scipy.sparse.linalg import splu
 
 from sympredict._checks import as_parameter, as_positive_int, as_real, as_states, as_steps
 from sympredict.symplectic.integrators import micro_steps
-from sympredict.symplectic.integrators_compiled import PointwiseHamiltonian, jit_pointwise
+from sympredict.symplectic.integrators_compiled import PointwiseHamiltonian, jit_pointwise, unit_mass_grad_T
 
 __all__ = ["C_TRAIN", "C_REF", "DT_WAVE", "fd_laplacian", "laplacian_eigenvalues", "sine_modes", "WaveFOM"]
 
@@ -92,11 +92,7 @@ def _grad_V(q, mu, fargs, iargs, out):
     _csr_matvec_scaled(q, mu[0], fargs, iargs, out)
 
 
-@jit_pointwise
-def _grad_T(p, mu, fargs, iargs, out):
-    """``dT/dp = p``."""
-    for j in range(p.shape[0]):
-        out[j] = p[j]
+_grad_T = unit_mass_grad_T  # dT/dp = p
 
 
 @jit_pointwise
@@ -104,8 +100,7 @@ def _grad_H(x, mu, fargs, iargs, out):
     """``(mu D q, p)``."""
     n = x.shape[0] // 2
     _csr_matvec_scaled(x[:n], mu[0], fargs, iargs, out[:n])
-    for j in range(n):
-        out[n + j] = x[n + j]
+    unit_mass_grad_T(x[n:], mu, fargs, iargs, out[n:])
 
 
 @jit_pointwise
