@@ -28,17 +28,17 @@ from __future__ import annotations
 
 import contextlib
 import copy
-import logging
 import warnings
 from typing import Optional
 
 import numpy as np
 
-from sympredict import _fastkernels
 from sympredict._checks import as_model_parameter, as_parameter, as_positive_int, as_states, as_steps
 from sympredict.base import Parametrized, clone
-from sympredict.container import read_container, write_container
 from sympredict.data import FlowMapData
+from sympredict.estimators import model_files
+from sympredict.estimators._compat import _NEUTRAL, MOVED_OPTIONS, apply_moved, replacement
+from sympredict.estimators.model_files import MODEL_FORMAT, MODEL_LAYOUT
 from sympredict.exceptions import (
     ExtrapolationWarning,
     ModelFileError,
@@ -48,29 +48,17 @@ from sympredict.exceptions import (
     UnderfitWarning,
 )
 from sympredict.interpolation.functionals import HBFunctionals, ValueFunctionals
-from sympredict.interpolation.greedy import GreedyHistory, Trainer, trainer_from_spec
+from sympredict.interpolation.greedy import GreedyHistory, Trainer
 from sympredict.interpolation.greedy.trainers import ExactGreedy
-from sympredict.kernels import IMQ, PeriodicCoordinates, ProductKernel, RadialKernel, StateSymmetry, kernel_from_spec
+from sympredict.kernels import IMQ, PeriodicCoordinates, ProductKernel, RadialKernel, StateSymmetry
 from sympredict.symplectic.newton import ordered_weights, rollout_compiled, rollout_in_chunks, rollout_numpy
 from sympredict.symplectic.solvers import AUTO_NUMPY_SECONDS, MAX_NEWTON_ITER, NewtonSolver, numpy_seconds
 from sympredict.interpolation.surrogate import HBSurrogate, ValueSurrogate
-from sympredict.kernels.transforms import (
-    KernelTransform, StateKernelParts, compose_state_kernel, lower_state_kernel, transform_from_spec,
-)
-from sympredict.symplectic.updates import UPDATE_RULES, UpdateRule, as_update
+from sympredict.kernels.transforms import KernelTransform, StateKernelParts, lower_state_kernel
+from sympredict.symplectic.updates import UPDATE_RULES, as_update
 
-__all__ = ["SymplecticKernelPredictor", "DirectKernelPredictor", "MODEL_FORMAT", "UPDATES", "update_variables",
-           "NUMPY_ONLY", "MOVED_OPTIONS", "numpy_seconds", "AUTO_NUMPY_SECONDS", "MAX_NEWTON_ITER"]
-
-#: ``format`` attribute of model files (:mod:`sympredict.container`).
-MODEL_FORMAT = "sympredict-model"
-
-#: Layout of a model file's settings: 3 stores the parameters of the composed estimator (kernels and their
-#: transforms, update rule, trainer, solver); 2 stored the flat options of sympredict 0.1 (read through
-#: :data:`MOVED_OPTIONS`); files without the key (the first files) are read as layout 1.
-MODEL_LAYOUT = 3
-
-logger = logging.getLogger(__name__)
+__all__ = ["SymplecticKernelPredictor", "DirectKernelPredictor", "MODEL_FORMAT", "MODEL_LAYOUT", "UPDATES",
+           "update_variables", "NUMPY_ONLY", "MOVED_OPTIONS", "numpy_seconds", "AUTO_NUMPY_SECONDS", "MAX_NEWTON_ITER"]
 
 def newton_predictor(model):
     """The :class:`SymplecticKernelPredictor` that solves ``model``'s implicit steps, or ``None``.
@@ -95,74 +83,6 @@ NUMPY_ONLY = (
     (lambda parts, rule: not rule.compiled, "this update rule has no compiled solver yet"),
 )
 
-#: Options of sympredict 0.1's estimators that moved into their parts: ``old name -> (part, its parameter)``.
-#: Passing one (constructor, ``set_params``, a layout-2 model file) still works, with a FutureWarning naming
-#: the replacement.
-MOVED_OPTIONS = {
-    "tol": ("trainer", "tol"),
-    "criterion": ("trainer", "criterion"),
-    "power_tol": ("trainer", "power_tol"),
-    "memory_limit": ("trainer", "memory_limit"),
-    "regularization": ("trainer", "regularization"),
-    "backend": ("solver", "backend"),
-    "newton_max_iter": ("solver", "max_iter"),
-    "newton_warm_start": ("solver", "warm_start"),
-    "state_scaling": ("state_kernel", "Scaled(kernel, factors=...)"),
-    "periodic": ("state_kernel", "Periodic(kernel, coordinates=...)"),
-    "period": ("state_kernel", "Periodic(kernel, coordinates=..., period=...)"),
-    "symmetry": ("state_kernel", "Symmetric(kernel, group=...)"),
-}
-
-_NEUTRAL = {"criterion": "f", "regularization": 0.0, "memory_limit": None}
-
-
-def _replacement(cls_name: str, name: str) -> str:
-    part, inner = MOVED_OPTIONS[name]
-    if part == "trainer":
-        return f"trainer=ExactGreedy({inner}=...) (or the {inner} of your training strategy)"
-    if part == "solver":
-        return f"solver=NewtonSolver({inner}=...)"
-    return f"state_kernel={inner}"
-
-
-def _apply_moved(model, moved: dict, warn: bool = True) -> None:
-    """Fold options of sympredict 0.1 (:data:`MOVED_OPTIONS`) into ``model``'s parts (new objects, never the
-    caller's); a FutureWarning names each replacement."""
-    from_base = type(model)._moved_options
-    unknown = sorted(set(moved) - set(from_base))
-    if unknown:
-        raise TypeError(f"{type(model).__name__}() got unexpected keyword argument(s) {unknown}; "
-                        f"its parameters are {type(model)._param_names()}")
-    if warn:
-        for name in moved:
-            warnings.warn(f"{type(model).__name__}({name}=...) is deprecated: pass {_replacement(type(model).__name__, name)}",
-                          FutureWarning, stacklevel=4)
-    trainer_opts = {MOVED_OPTIONS[k][1]: v for k, v in moved.items() if MOVED_OPTIONS[k][0] == "trainer"}
-    if trainer_opts:
-        trainer = ExactGreedy() if model.trainer is None else clone(model.trainer)
-        valid = trainer._param_names() if isinstance(trainer, Trainer) else []
-        for name, value in trainer_opts.items():
-            if name in valid:
-                setattr(trainer, name, value)
-            elif not (value is _NEUTRAL.get(name, object()) or (name in _NEUTRAL and value == _NEUTRAL[name])):
-                raise ValueError(f"the training strategy {type(trainer).__name__} has no setting {name} "
-                                 f"(got {name}={value!r}): use ExactGreedy({name}=...) or ShardedGreedy({name}=...)")
-        model.trainer = trainer
-    solver_opts = {MOVED_OPTIONS[k][1]: v for k, v in moved.items() if MOVED_OPTIONS[k][0] == "solver"}
-    if solver_opts:
-        solver = NewtonSolver() if model.solver is None else clone(model.solver)
-        for name, value in solver_opts.items():
-            setattr(solver, name, value)
-        model.solver = solver
-    kernel_opts = {k: v for k, v in moved.items() if MOVED_OPTIONS[k][0] == "state_kernel"}
-    if kernel_opts:
-        parts = lower_state_kernel(model.state_kernel)
-        periodic = kernel_opts.get("periodic", parts.periodic)
-        model.state_kernel = compose_state_kernel(
-            parts.radial, scaling=kernel_opts.get("state_scaling", parts.scaling), periodic=periodic,
-            period=kernel_opts.get("period", parts.period), symmetry=kernel_opts.get("symmetry", parts.symmetry))
-
-
 def update_variables(update: str, x0: np.ndarray, x1: np.ndarray, dt: np.ndarray):
     """Interpolation points and gradient targets of flow-map samples for an update.
 
@@ -181,101 +101,6 @@ def _fmt(v) -> str:
     """A short component-wise rendering of a parameter vector."""
     v = np.atleast_1d(v)
     return f"{v[0]:.6g}" if v.size == 1 else "(" + ", ".join(f"{a:.6g}" for a in v) + ")"
-
-
-def _encode_param(value):
-    """A parameter value as JSON: kernels and training strategies by their specs."""
-    if isinstance(value, RadialKernel):
-        return {"kernel": value.spec}
-    if isinstance(value, KernelTransform):
-        return value.spec
-    if isinstance(value, UpdateRule):
-        return value.name
-    if isinstance(value, NewtonSolver):
-        return {"solver": value.get_params(deep=False)}
-    if isinstance(value, Trainer):
-        return {"trainer": value.spec}
-    if isinstance(value, StateSymmetry):
-        return {"symmetry": value.spec}
-    if value is None or isinstance(value, (bool, int, float, str)):
-        return value
-    if isinstance(value, np.ndarray) and value.dtype.kind in "if" and value.ndim >= 2:
-        value = value.tolist()  # stored as nested lists (loaded back as lists)
-    if isinstance(value, (tuple, list)) and value and all(isinstance(v, (tuple, list, np.ndarray)) for v in value):
-        # nested sequences of numbers (sign patterns or matrices of ``symmetry``), tuples and lists kept apart
-        return {"tuple" if isinstance(value, tuple) else "list": [_encode_param(v) for v in value]}
-    if isinstance(value, (tuple, list)) and all(isinstance(v, (int, float, np.integer)) and not isinstance(v, bool)
-                                                for v in value):
-        # integers stay integers (indices such as ``periodic``), everything else is a float
-        return {"tuple" if isinstance(value, tuple) else "list":
-                [int(v) if isinstance(v, (int, np.integer)) else float(v) for v in value]}
-    raise ValueError(f"cannot store the parameter value {value!r} in a model file")
-
-
-def _decode_param(value):
-    if isinstance(value, dict) and "kernel" in value:
-        return kernel_from_spec(value["kernel"])
-    if isinstance(value, dict) and "trainer" in value:
-        return trainer_from_spec(value["trainer"])
-    if isinstance(value, dict) and "transform" in value:
-        return transform_from_spec(value)
-    if isinstance(value, dict) and set(value) == {"solver"} and isinstance(value["solver"], dict):
-        return NewtonSolver(**value["solver"])
-    if isinstance(value, dict) and "symmetry" in value:
-        return StateSymmetry.from_spec(value["symmetry"])
-    if isinstance(value, dict) and set(value) == {"tuple"} and isinstance(value["tuple"], list):
-        return tuple(_decode_param(v) for v in value["tuple"])
-    if isinstance(value, dict) and set(value) == {"list"} and isinstance(value["list"], list):
-        return [_decode_param(v) for v in value["list"]]
-    return value
-
-
-def _settings_from_layout_1(settings: dict) -> dict:
-    """Settings of a sympredict 0.1 model file (a SymplecticKernelPredictor) in today's layout."""
-    try:
-        spec = settings["kernel"]
-        params = {
-            "state_kernel": {"kernel": spec["state"]} if settings["state_kernel_given"] else None,
-            "mu_kernel": None if spec["mu"] is None else {"kernel": spec["mu"]},
-            "dt_kernel": None if spec["dt"] is None else {"kernel": spec["dt"]},
-            **{k: settings[k] for k in ("max_centers", "tol", "criterion", "power_tol", "newton_max_iter", "memory_limit")},
-        }
-    except (KeyError, TypeError) as exc:
-        raise ModelFileError(f"incomplete sympredict model file (layout 1): missing {exc}") from None
-    return {**settings, "layout": 1, "class": "SymplecticKernelPredictor", "params": params}
-
-
-def _is_int(value) -> bool:
-    return isinstance(value, int) and not isinstance(value, bool)
-
-
-def _check_file_shape_info(settings: dict, path) -> None:
-    """A model file's ``dim``, ``n_mu``, ``dt_fixed`` and ``stop_reason`` settings: types and bounds."""
-    dim, n_mu, dt_fixed = settings["dim"], settings["n_mu"], settings["dt_fixed"]
-    if not _is_int(dim) or not _is_int(n_mu) or dim < 1 or n_mu < 0:
-        raise ModelFileError(f"{str(path)!r}: invalid dimensions in its settings: dim={dim!r}, n_mu={n_mu!r} "
-                             "(integers >= 1 and >= 0 expected)")
-    if dt_fixed is not None and (isinstance(dt_fixed, bool) or not isinstance(dt_fixed, (int, float))
-                                 or not (np.isfinite(dt_fixed) and dt_fixed > 0)):
-        raise ModelFileError(f"{str(path)!r}: its setting dt_fixed={dt_fixed!r} must be null or a positive finite step")
-    if not isinstance(settings["stop_reason"], str):
-        raise ModelFileError(f"{str(path)!r}: its setting stop_reason={settings['stop_reason']!r} must be a string")
-
-
-def _check_file_history(model, path) -> None:
-    """A model file's residual history fits its centres: ``m + 1`` residuals, ``m`` powers; the training box is ordered."""
-    m, h = model.surrogate_.n_centers, model.history_
-    for name, arr, length in (("train_max_residual", h.train_max_residual, m + 1),
-                              ("val_max_residual", h.val_max_residual, m + 1), ("selected_power", h.selected_power, m)):
-        if arr is not None and (arr.ndim != 1 or len(arr) != length or arr.dtype.kind != "f"):
-            raise ModelFileError(f"{str(path)!r}: its array {name!r} has shape {arr.shape} (dtype {arr.dtype}), "
-                                 f"expected ({length},) floats for {m} centres")
-    d = model.domain_
-    for lo, hi in (("x_min", "x_max"), ("mu_min", "mu_max"), ("dt_min", "dt_max")):
-        if np.any(d[lo] > d[hi]):
-            raise ModelFileError(f"{str(path)!r}: its training box has domain_{lo} > domain_{hi}")
-    if not d["dt_min"] > 0:
-        raise ModelFileError(f"{str(path)!r}: its training box has a non-positive step domain_dt_min={float(d['dt_min'])!r}")
 
 
 class _FlowMapKernelModel(Parametrized):
@@ -353,7 +178,7 @@ class _FlowMapKernelModel(Parametrized):
                 setattr(self, part, default() if current is None else clone(current))
         super().set_params(**params)
         if moved:
-            _apply_moved(self, moved)
+            apply_moved(self, moved)
         return self
 
     # ------------------------------------------------ fitted settings
@@ -370,7 +195,7 @@ class _FlowMapKernelModel(Parametrized):
             return self._moved_value(name[:-1]) if name[:-1] in MOVED_OPTIONS else getattr(self, name[:-1])
         if name in type(self)._moved_options and not name.startswith("_"):
             warnings.warn(f"{type(self).__name__}.{name} is deprecated: read it from the part that owns it "
-                          f"({_replacement(type(self).__name__, name)})", FutureWarning, stacklevel=2)
+                          f"({replacement(type(self).__name__, name)})", FutureWarning, stacklevel=2)
             return self._moved_value(name)
         raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
 
@@ -381,8 +206,8 @@ class _FlowMapKernelModel(Parametrized):
                           f"set_params({MOVED_OPTIONS[name][0]}__{MOVED_OPTIONS[name][1]}=...)"
                           if MOVED_OPTIONS[name][0] != "state_kernel" else
                           f"setting {type(self).__name__}.{name} is deprecated: pass "
-                          f"{_replacement(type(self).__name__, name)}", FutureWarning, stacklevel=2)
-            _apply_moved(self, {name: value}, warn=False)
+                          f"{replacement(type(self).__name__, name)}", FutureWarning, stacklevel=2)
+            apply_moved(self, {name: value}, warn=False)
             return
         super().__setattr__(name, value)
 
@@ -654,126 +479,33 @@ class _FlowMapKernelModel(Parametrized):
 
     # ----------------------------------------------------------------- files
     def save(self, path) -> None:
-        """Save the fitted model to an HDF5 file (atomically; :mod:`sympredict.container`).
+        """Save the fitted model to an HDF5 file (atomically; :mod:`sympredict.estimators.model_files`).
 
-        Every parameter (kernels, strategy, backend, ...) and the fitted state are
+        Every parameter (kernels and transforms, update, trainer, solver) and the fitted state are
         stored; the greedy's wall-clock timings are not (files are byte-for-byte
         reproducible), nor its Newton data (a loaded model cannot be :meth:`truncated`).
         """
-        write_container(path, MODEL_FORMAT, *self._to_container())
-
-    def _to_container(self) -> tuple:
-        """The fitted model as a container's ``(settings, arrays)`` (what :meth:`save` writes)."""
-        self._check_fitted()
-        params = self._saved_params()
-        type(self)(**params)._check_params()  # the checks load() runs: a file it would refuse is never written
-        sur, hist = self.surrogate_, self.history_
-        settings = {
-            "layout": MODEL_LAYOUT,
-            "class": type(self).__name__,
-            "params": {k: _encode_param(v) for k, v in params.items()},
-            "kernel": self.kernel_.spec,
-            "dim": self.dim_,
-            "n_mu": self.n_mu_,
-            "dt_fixed": self.dt_fixed_,
-            "stop_reason": hist.stop_reason,
-        }
-        arrays = {"train_max_residual": hist.train_max_residual, "selected_power": hist.selected_power}
-        if hist.val_max_residual is not None:
-            arrays["val_max_residual"] = hist.val_max_residual
-        arrays.update({f"domain_{k}": np.asarray(v) for k, v in self.domain_.items()})
-        arrays.update(self._surrogate_arrays(sur))
-        return settings, arrays
+        model_files.save(self, path)
 
     @classmethod
     def load(cls, path):
         """Load a model saved by :meth:`save` (of this class); raises :class:`ModelFileError` for unusable files."""
-        settings, arrays = read_container(path, MODEL_FORMAT)
-        return cls._from_container(settings, arrays, path)
+        return model_files.load(cls, path)
+
+    def _to_container(self) -> tuple:
+        """The fitted model as a container's ``(settings, arrays)`` (what :meth:`save` writes)."""
+        return model_files.to_container(self)
 
     @classmethod
     def _from_container(cls, settings, arrays: dict, path):
         """The model of a file's ``(settings, arrays)`` (:func:`~sympredict.container.read_container`)."""
-        if isinstance(settings, dict) and "layout" not in settings:
-            settings = _settings_from_layout_1(settings)
-        found = settings.get("class") if isinstance(settings, dict) else None
-        if found != cls.__name__:
-            raise ModelFileError(f"{str(path)!r} holds a {found!r}, not a {cls.__name__}")
-        if settings.get("layout") not in (1, 2, MODEL_LAYOUT):
-            raise ModelFileError(f"{str(path)!r} has an unknown model layout {settings.get('layout')!r} "
-                                 f"(this sympredict reads 1..{MODEL_LAYOUT})")
-        try:
-            params = settings["params"]
-            if not isinstance(params, dict):
-                raise ModelFileError(f"{str(path)!r}: its setting 'params' is not a JSON object")
-            decoded = {k: _decode_param(v) for k, v in params.items()}
-            moved = {k: decoded.pop(k) for k in list(decoded) if k in MOVED_OPTIONS and settings["layout"] < 3}
-            unknown = sorted(set(decoded) - set(cls._param_names()))
-            if unknown:
-                raise ModelFileError(f"{str(path)!r} has unknown setting(s) {unknown} for a {cls.__name__}")
-            model = cls(**decoded)
-            _apply_moved(model, moved, warn=False)  # older layouts: the flat options folded into the parts
-            try:  # the settings pass the checks of fit (one schema for constructors and files)
-                model._check_params()
-            except ValueError as exc:
-                raise ModelFileError(f"{str(path)!r} has an invalid setting: {exc}") from None
-            model._store_fitted_settings(model.get_params(deep=False))
-            kernel = ProductKernel.from_spec(settings["kernel"])
-            _check_file_shape_info(settings, path)
-            model._set_shape_info(settings["dim"], settings["n_mu"], settings["dt_fixed"])
-            try:
-                model._check_dim_settings(model.dim_)
-            except ValueError as exc:
-                raise ModelFileError(f"{str(path)!r} has an invalid setting for states of dimension {model.dim_}: {exc}") from None
-            if kernel.periodic != model._model_periodic(model.dim_):
-                raise ModelFileError(f"the file's periodic coordinates {kernel.periodic!r} disagree with its setting "
-                                     f"state_kernel={model.state_kernel!r}")
-            if kernel.symmetry != model._model_symmetry(model.dim_):
-                raise ModelFileError(f"the file's state symmetry {kernel.symmetry!r} disagrees with its setting "
-                                     f"state_kernel={model.state_kernel!r}")
-            arrays.pop("elapsed", None)  # layout 1 stored the greedy's timings
-            model._check_file_arrays(kernel, arrays)
-            model.kernel_ = kernel
-            model.surrogate_ = model._surrogate_from(kernel, arrays)
-            n = len(arrays["selected_power"])
-            model.history_ = GreedyHistory(
-                train_max_residual=arrays["train_max_residual"],
-                val_max_residual=arrays.get("val_max_residual"),
-                selected_power=arrays["selected_power"],
-                elapsed=np.full(n, np.nan),  # timings are not stored
-                stop_reason=settings["stop_reason"],
-            )
-            model.greedy_result_ = None
-            model.domain_ = {k: arrays[f"domain_{k}"] for k in ("x_min", "x_max", "mu_min", "mu_max", "dt_min", "dt_max")}
-            _check_file_history(model, path)
-        except ModelFileError:
-            raise
-        except (KeyError, TypeError, ValueError, AttributeError, IndexError, OverflowError, RecursionError) as exc:
-            raise ModelFileError(f"{str(path)!r} is an incomplete or inconsistent sympredict model file: {exc!r}") from None
-        return model
+        return model_files.from_container(cls, settings, arrays, path)
 
     def _check_runtime_settings(self) -> None:
         """Check the solver settings read at prediction time (none here); ``ValueError`` naming the setting."""
 
     def _check_dim_settings(self, dim: int) -> None:
         """Check the settings that depend on the state dimension (none here); ``ValueError`` naming the setting."""
-
-    def _check_file_arrays(self, kernel: ProductKernel, arrays: dict) -> None:
-        """Consistency of a model file's arrays with its settings (files are hostile input)."""
-        dim, n_mu = self.dim_, self.n_mu_
-        if dim < 1 or n_mu < 0 or (self._functionals is HBFunctionals and dim % 2):
-            raise ModelFileError(f"invalid dimensions in the file: dim={dim}, n_mu={n_mu}")
-        if (kernel.mu is None) != (n_mu == 0):
-            raise ModelFileError("the file's mu kernel and parameter dimension disagree")
-        for name, shape in (("domain_x_min", (dim,)), ("domain_x_max", (dim,)), ("domain_mu_min", (n_mu,)),
-                            ("domain_mu_max", (n_mu,)), ("domain_dt_min", ()), ("domain_dt_max", ())):
-            arr = arrays.get(name)
-            if arr is None or arr.shape != shape or not np.all(np.isfinite(arr)):
-                raise ModelFileError(f"the file's training box {name!r} is missing, of the wrong shape or not finite")
-        for name, arr in arrays.items():
-            if arr.dtype.kind not in "fi" or not np.all(np.isfinite(arr)):
-                raise ModelFileError(f"the file's array {name!r} is not a finite numeric array")
-
 
 class SymplecticKernelPredictor(_FlowMapKernelModel):
     """Large-step symplectic flow-map predictor ``(x, mu, dT) -> x1``.
@@ -903,7 +635,7 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         self.trainer = trainer
         self.solver = solver
         if deprecated:
-            _apply_moved(self, deprecated)
+            apply_moved(self, deprecated)
 
     def fit(self, x0, x1, mu=None, dt=None, *, validation=None) -> "SymplecticKernelPredictor":
         """Train the surrogate on flow-map samples.
@@ -1102,61 +834,22 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         """Whether :meth:`step` / :meth:`rollout` use the compiled solver (resolves the solver's ``backend``)."""
         return self._solver().compiled(n_instances, n_steps, self.surrogate_.n_centers, self.dim_, self.numpy_only_)
 
+    def _fitted_parts(self) -> StateKernelParts:
+        """The fitted state-kernel transforms, flattened (what the fitted arrays were trained with)."""
+        return StateKernelParts(scaling=self.state_scaling_, periodic=self.periodic_, period=self.period_,
+                                symmetry=self.symmetry_)
+
     def _scale_vector(self, dim: int) -> np.ndarray:
-        """``(a, 1/a)`` of the fitted ``state_scaling`` (ones without it), shape (2n,); checks the setting."""
-        if self.state_scaling_ is None:
-            return np.ones(dim)
-        try:
-            a = np.asarray(self.state_scaling_, dtype=float)
-        except (TypeError, ValueError):
-            a = None
-        if a is None or a.shape != (dim // 2,) or not np.all(np.isfinite(a) & (a > 0)):
-            raise ValueError(f"the state kernel's Scaled factors must be {dim // 2} positive finite numbers (one per "
-                             f"q_i), got {self.state_scaling_!r}")
-        return np.concatenate([a, 1.0 / a])
+        return self._fitted_parts().scale_vector(dim)
 
     def _original_periods(self, dim: int):
-        """``(coordinates, periods)`` of the ``periodic`` setting in the original coordinates; checks it."""
-        if self.periodic_ is None:
-            return (), ()
-        coords = self.periodic_
-        if not isinstance(coords, (tuple, list)) or not coords \
-                or not all(isinstance(c, (int, np.integer)) and not isinstance(c, bool) for c in coords) \
-                or len(set(int(c) for c in coords)) != len(coords) or not all(0 <= c < dim for c in coords):
-            raise ValueError(f"periodic must be None or a tuple of distinct state indices in 0..{dim - 1} "
-                             f"(the angle coordinates), got {self.periodic_!r}")
-        period = self.period_
-        periods = tuple(period) if isinstance(period, (tuple, list)) else (period,) * len(coords)
-        if len(periods) != len(coords) or not all(
-                isinstance(p, (int, float, np.number)) and not isinstance(p, bool) and np.isfinite(p) and p > 0
-                for p in periods):
-            raise ValueError(f"period must be a positive finite number or one per periodic coordinate "
-                             f"({len(coords)}), got {self.period_!r}")
-        return tuple(int(c) for c in coords), tuple(float(p) for p in periods)
+        return self._fitted_parts().original_periods(dim)
 
     def _model_periodic(self, dim: int) -> Optional[PeriodicCoordinates]:
-        """The kernel's periodic coordinates in the model's coordinates (periods times ``state_scaling``)."""
-        coords, periods = self._original_periods(dim)
-        if not coords:
-            return None
-        scale = self._scale_vector(dim)
-        return PeriodicCoordinates(coords, tuple(p * float(scale[c]) for c, p in zip(coords, periods)))
+        return self._fitted_parts().model_periodic(dim)
 
     def _model_symmetry(self, dim: int) -> Optional[StateSymmetry]:
-        """The ``symmetry`` setting as a group in the model's coordinates (conjugated by ``state_scaling``); checks it.
-
-        ``ValueError`` for a malformed group, a wrong dimension, elements the
-        update cannot use (see the class docstring), ``periodic`` set too, or a
-        scaling that does not commute with the group.
-        """
-        group = StateSymmetry.coerce(self.symmetry_)
-        if group is None:
-            return None
-        group.check_dim(dim)
-        if self.periodic_ is not None:
-            raise ValueError("a state kernel both Periodic and Symmetric is not implemented: use one of them")
-        as_update(self.update_).check_symmetry(group.array)
-        return group.conjugated(self._scale_vector(dim)) if self.state_scaling_ is not None else group
+        return self._fitted_parts().model_symmetry(dim, as_update(self.update_))
 
     def _rollout(self, x, weights, dt, n_steps: int, around=None, *, stride: int = 1, progress=None) -> np.ndarray:
         """Kept states (B, K/stride+1, 2n) of a validated batch; ``around = (pre, post)`` (B, 2n, 2n): steps
@@ -1429,7 +1122,7 @@ class DirectKernelPredictor(_FlowMapKernelModel):
         self.max_centers = max_centers
         self.trainer = trainer
         if deprecated:
-            _apply_moved(self, deprecated)
+            apply_moved(self, deprecated)
 
     def _check_params(self) -> Trainer:
         trainer = super()._check_params()

@@ -39,7 +39,7 @@ from typing import Optional
 import numpy as np
 
 from sympredict.base import Parametrized
-from sympredict.kernels import RadialKernel, StateSymmetry, kernel_from_spec
+from sympredict.kernels.radial import PeriodicCoordinates, RadialKernel, StateSymmetry, kernel_from_spec
 
 __all__ = ["KernelTransform", "Scaled", "Periodic", "Symmetric", "StateKernelParts", "lower_state_kernel",
            "transform_from_spec"]
@@ -253,6 +253,59 @@ class StateKernelParts:
     periodic: Optional[tuple] = None
     period: object = 2 * np.pi
     symmetry: object = None
+
+    def scale_vector(self, dim: int) -> np.ndarray:
+        """``(a, 1/a)`` of the scaling (ones without it), shape (2n,); ``ValueError`` for a malformed one."""
+        if self.scaling is None:
+            return np.ones(dim)
+        try:
+            a = None if isinstance(self.scaling, (str, bytes)) else np.asarray(self.scaling, dtype=float)
+        except (TypeError, ValueError):
+            a = None
+        if a is None or a.shape != (dim // 2,) or not np.all(np.isfinite(a) & (a > 0)):
+            raise ValueError(f"the state kernel's Scaled factors must be {dim // 2} positive finite numbers (one per "
+                             f"q_i), got {self.scaling!r}")
+        return np.concatenate([a, 1.0 / a])
+
+    def original_periods(self, dim: int) -> tuple:
+        """``(coordinates, periods)`` of the periodic coordinates in the user's coordinates; checks them."""
+        if self.periodic is None:
+            return (), ()
+        coords = self.periodic
+        if not isinstance(coords, (tuple, list)) or not coords \
+                or not all(isinstance(c, (int, np.integer)) and not isinstance(c, bool) for c in coords) \
+                or len(set(int(c) for c in coords)) != len(coords) or not all(0 <= c < dim for c in coords):
+            raise ValueError(f"periodic coordinates must be a tuple of distinct state indices in 0..{dim - 1} "
+                             f"(e.g. angles), got {self.periodic!r}")
+        period = self.period
+        periods = tuple(period) if isinstance(period, (tuple, list)) else (period,) * len(coords)
+        if len(periods) != len(coords) or not all(
+                isinstance(p, (int, float, np.number)) and not isinstance(p, bool) and np.isfinite(p) and p > 0
+                for p in periods):
+            raise ValueError(f"period must be a positive finite number or one per periodic coordinate "
+                             f"({len(coords)}), got {self.period!r}")
+        return tuple(int(c) for c in coords), tuple(float(p) for p in periods)
+
+    def model_periodic(self, dim: int) -> Optional[PeriodicCoordinates]:
+        """The kernel's periodic coordinates in the trained (scaled) coordinates: periods times the scaling."""
+        coords, periods = self.original_periods(dim)
+        if not coords:
+            return None
+        scale = self.scale_vector(dim)
+        return PeriodicCoordinates(coords, tuple(p * float(scale[c]) for c, p in zip(coords, periods)))
+
+    def model_symmetry(self, dim: int, rule) -> Optional[StateSymmetry]:
+        """The group in the trained coordinates (conjugated by the scaling); ``ValueError`` for a malformed group,
+        a wrong dimension, elements the update ``rule`` cannot use, periodic coordinates as well, or a scaling that
+        does not commute with the group."""
+        group = StateSymmetry.coerce(self.symmetry)
+        if group is None:
+            return None
+        group.check_dim(dim)
+        if self.periodic is not None:
+            raise ValueError("a state kernel both Periodic and Symmetric is not implemented: use one of them")
+        rule.check_symmetry(group.array)
+        return group.conjugated(self.scale_vector(dim)) if self.scaling is not None else group
 
 
 def lower_state_kernel(kernel) -> StateKernelParts:

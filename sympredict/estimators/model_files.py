@@ -1,0 +1,245 @@
+"""Model files of the kernel estimators: settings as JSON, fitted arrays, checked on the way in.
+
+A model file is a :mod:`sympredict.container` of format :data:`MODEL_FORMAT`:
+``settings`` (the layout, the class, its parameters encoded by
+:func:`encode_param`, the product kernel's spec, the shapes) and the fitted
+arrays (centres, coefficients, residual history, training box).  Files are
+hostile input: :func:`from_container` checks every setting against the
+estimator's own checks (one schema for constructors and files) and every
+array against the settings, and raises :class:`~sympredict.exceptions.ModelFileError`
+naming what is wrong.  Layouts 1 and 2 (the flat options of sympredict 0.1)
+load through :mod:`sympredict.estimators._compat`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from sympredict.container import read_container, write_container
+from sympredict.estimators._compat import MOVED_OPTIONS, apply_moved
+from sympredict.exceptions import ModelFileError
+from sympredict.interpolation.functionals import HBFunctionals
+from sympredict.interpolation.greedy import GreedyHistory, Trainer, trainer_from_spec
+from sympredict.kernels import ProductKernel, RadialKernel, StateSymmetry, kernel_from_spec
+from sympredict.kernels.transforms import KernelTransform, transform_from_spec
+from sympredict.symplectic.solvers import NewtonSolver
+from sympredict.symplectic.updates import UpdateRule
+
+__all__ = ["MODEL_FORMAT", "MODEL_LAYOUT", "save", "load", "to_container", "from_container", "encode_param",
+           "decode_param"]
+
+#: ``format`` attribute of model files (:mod:`sympredict.container`).
+MODEL_FORMAT = "sympredict-model"
+
+#: Layout of a model file's settings: 3 stores the parameters of the composed estimator (kernels and their
+#: transforms, update rule, trainer, solver); 2 stored the flat options of sympredict 0.1 (read through
+#: :data:`MOVED_OPTIONS`); files without the key (the first files) are read as layout 1.
+MODEL_LAYOUT = 3
+
+
+def save(model, path) -> None:
+    """Write ``model`` to ``path`` atomically (:func:`to_container`)."""
+    write_container(path, MODEL_FORMAT, *to_container(model))
+
+
+def load(cls, path):
+    """The ``cls`` model in the file ``path`` (:func:`from_container`)."""
+    settings, arrays = read_container(path, MODEL_FORMAT)
+    return from_container(cls, settings, arrays, path)
+
+
+def encode_param(value):
+    """A parameter value as JSON: kernels and training strategies by their specs."""
+    if isinstance(value, RadialKernel):
+        return {"kernel": value.spec}
+    if isinstance(value, KernelTransform):
+        return value.spec
+    if isinstance(value, UpdateRule):
+        return value.name
+    if isinstance(value, NewtonSolver):
+        return {"solver": value.get_params(deep=False)}
+    if isinstance(value, Trainer):
+        return {"trainer": value.spec}
+    if isinstance(value, StateSymmetry):
+        return {"symmetry": value.spec}
+    if value is None or isinstance(value, (bool, int, float, str)):
+        return value
+    if isinstance(value, np.ndarray) and value.dtype.kind in "if" and value.ndim >= 2:
+        value = value.tolist()  # stored as nested lists (loaded back as lists)
+    if isinstance(value, (tuple, list)) and value and all(isinstance(v, (tuple, list, np.ndarray)) for v in value):
+        # nested sequences of numbers (sign patterns or matrices of ``symmetry``), tuples and lists kept apart
+        return {"tuple" if isinstance(value, tuple) else "list": [encode_param(v) for v in value]}
+    if isinstance(value, (tuple, list)) and all(isinstance(v, (int, float, np.integer)) and not isinstance(v, bool)
+                                                for v in value):
+        # integers stay integers (indices such as ``periodic``), everything else is a float
+        return {"tuple" if isinstance(value, tuple) else "list":
+                [int(v) if isinstance(v, (int, np.integer)) else float(v) for v in value]}
+    raise ValueError(f"cannot store the parameter value {value!r} in a model file")
+
+
+def decode_param(value):
+    if isinstance(value, dict) and "kernel" in value:
+        return kernel_from_spec(value["kernel"])
+    if isinstance(value, dict) and "trainer" in value:
+        return trainer_from_spec(value["trainer"])
+    if isinstance(value, dict) and "transform" in value:
+        return transform_from_spec(value)
+    if isinstance(value, dict) and set(value) == {"solver"} and isinstance(value["solver"], dict):
+        return NewtonSolver(**value["solver"])
+    if isinstance(value, dict) and "symmetry" in value:
+        return StateSymmetry.from_spec(value["symmetry"])
+    if isinstance(value, dict) and set(value) == {"tuple"} and isinstance(value["tuple"], list):
+        return tuple(decode_param(v) for v in value["tuple"])
+    if isinstance(value, dict) and set(value) == {"list"} and isinstance(value["list"], list):
+        return [decode_param(v) for v in value["list"]]
+    return value
+
+
+def _settings_from_layout_1(settings: dict) -> dict:
+    """Settings of a sympredict 0.1 model file (a SymplecticKernelPredictor) in today's layout."""
+    try:
+        spec = settings["kernel"]
+        params = {
+            "state_kernel": {"kernel": spec["state"]} if settings["state_kernel_given"] else None,
+            "mu_kernel": None if spec["mu"] is None else {"kernel": spec["mu"]},
+            "dt_kernel": None if spec["dt"] is None else {"kernel": spec["dt"]},
+            **{k: settings[k] for k in ("max_centers", "tol", "criterion", "power_tol", "newton_max_iter", "memory_limit")},
+        }
+    except (KeyError, TypeError) as exc:
+        raise ModelFileError(f"incomplete sympredict model file (layout 1): missing {exc}") from None
+    return {**settings, "layout": 1, "class": "SymplecticKernelPredictor", "params": params}
+
+
+def _is_int(value) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _check_file_shape_info(settings: dict, path) -> None:
+    """A model file's ``dim``, ``n_mu``, ``dt_fixed`` and ``stop_reason`` settings: types and bounds."""
+    dim, n_mu, dt_fixed = settings["dim"], settings["n_mu"], settings["dt_fixed"]
+    if not _is_int(dim) or not _is_int(n_mu) or dim < 1 or n_mu < 0:
+        raise ModelFileError(f"{str(path)!r}: invalid dimensions in its settings: dim={dim!r}, n_mu={n_mu!r} "
+                             "(integers >= 1 and >= 0 expected)")
+    if dt_fixed is not None and (isinstance(dt_fixed, bool) or not isinstance(dt_fixed, (int, float))
+                                 or not (np.isfinite(dt_fixed) and dt_fixed > 0)):
+        raise ModelFileError(f"{str(path)!r}: its setting dt_fixed={dt_fixed!r} must be null or a positive finite step")
+    if not isinstance(settings["stop_reason"], str):
+        raise ModelFileError(f"{str(path)!r}: its setting stop_reason={settings['stop_reason']!r} must be a string")
+
+
+def _check_file_history(model, path) -> None:
+    """A model file's residual history fits its centres: ``m + 1`` residuals, ``m`` powers; the training box is ordered."""
+    m, h = model.surrogate_.n_centers, model.history_
+    for name, arr, length in (("train_max_residual", h.train_max_residual, m + 1),
+                              ("val_max_residual", h.val_max_residual, m + 1), ("selected_power", h.selected_power, m)):
+        if arr is not None and (arr.ndim != 1 or len(arr) != length or arr.dtype.kind != "f"):
+            raise ModelFileError(f"{str(path)!r}: its array {name!r} has shape {arr.shape} (dtype {arr.dtype}), "
+                                 f"expected ({length},) floats for {m} centres")
+    d = model.domain_
+    for lo, hi in (("x_min", "x_max"), ("mu_min", "mu_max"), ("dt_min", "dt_max")):
+        if np.any(d[lo] > d[hi]):
+            raise ModelFileError(f"{str(path)!r}: its training box has domain_{lo} > domain_{hi}")
+    if not d["dt_min"] > 0:
+        raise ModelFileError(f"{str(path)!r}: its training box has a non-positive step domain_dt_min={float(d['dt_min'])!r}")
+
+
+def to_container(model) -> tuple:
+    """The fitted model as a container's ``(settings, arrays)`` (what :meth:`save` writes)."""
+    model._check_fitted()
+    params = model._saved_params()
+    type(model)(**params)._check_params()  # the checks load() runs: a file it would refuse is never written
+    sur, hist = model.surrogate_, model.history_
+    settings = {
+        "layout": MODEL_LAYOUT,
+        "class": type(model).__name__,
+        "params": {k: encode_param(v) for k, v in params.items()},
+        "kernel": model.kernel_.spec,
+        "dim": model.dim_,
+        "n_mu": model.n_mu_,
+        "dt_fixed": model.dt_fixed_,
+        "stop_reason": hist.stop_reason,
+    }
+    arrays = {"train_max_residual": hist.train_max_residual, "selected_power": hist.selected_power}
+    if hist.val_max_residual is not None:
+        arrays["val_max_residual"] = hist.val_max_residual
+    arrays.update({f"domain_{k}": np.asarray(v) for k, v in model.domain_.items()})
+    arrays.update(model._surrogate_arrays(sur))
+    return settings, arrays
+
+
+def from_container(cls, settings, arrays: dict, path):
+    """The model of a file's ``(settings, arrays)`` (:func:`~sympredict.container.read_container`)."""
+    if isinstance(settings, dict) and "layout" not in settings:
+        settings = _settings_from_layout_1(settings)
+    found = settings.get("class") if isinstance(settings, dict) else None
+    if found != cls.__name__:
+        raise ModelFileError(f"{str(path)!r} holds a {found!r}, not a {cls.__name__}")
+    if settings.get("layout") not in (1, 2, MODEL_LAYOUT):
+        raise ModelFileError(f"{str(path)!r} has an unknown model layout {settings.get('layout')!r} "
+                             f"(this sympredict reads 1..{MODEL_LAYOUT})")
+    try:
+        params = settings["params"]
+        if not isinstance(params, dict):
+            raise ModelFileError(f"{str(path)!r}: its setting 'params' is not a JSON object")
+        decoded = {k: decode_param(v) for k, v in params.items()}
+        moved = {k: decoded.pop(k) for k in list(decoded) if k in MOVED_OPTIONS and settings["layout"] < 3}
+        unknown = sorted(set(decoded) - set(cls._param_names()))
+        if unknown:
+            raise ModelFileError(f"{str(path)!r} has unknown setting(s) {unknown} for a {cls.__name__}")
+        model = cls(**decoded)
+        apply_moved(model, moved, warn=False)  # older layouts: the flat options folded into the parts
+        try:  # the settings pass the checks of fit (one schema for constructors and files)
+            model._check_params()
+        except ValueError as exc:
+            raise ModelFileError(f"{str(path)!r} has an invalid setting: {exc}") from None
+        model._store_fitted_settings(model.get_params(deep=False))
+        kernel = ProductKernel.from_spec(settings["kernel"])
+        _check_file_shape_info(settings, path)
+        model._set_shape_info(settings["dim"], settings["n_mu"], settings["dt_fixed"])
+        try:
+            model._check_dim_settings(model.dim_)
+        except ValueError as exc:
+            raise ModelFileError(f"{str(path)!r} has an invalid setting for states of dimension {model.dim_}: {exc}") from None
+        if kernel.periodic != model._model_periodic(model.dim_):
+            raise ModelFileError(f"the file's periodic coordinates {kernel.periodic!r} disagree with its setting "
+                                 f"state_kernel={model.state_kernel!r}")
+        if kernel.symmetry != model._model_symmetry(model.dim_):
+            raise ModelFileError(f"the file's state symmetry {kernel.symmetry!r} disagrees with its setting "
+                                 f"state_kernel={model.state_kernel!r}")
+        arrays.pop("elapsed", None)  # layout 1 stored the greedy's timings
+        check_file_arrays(model, kernel, arrays)
+        model.kernel_ = kernel
+        model.surrogate_ = model._surrogate_from(kernel, arrays)
+        n = len(arrays["selected_power"])
+        model.history_ = GreedyHistory(
+            train_max_residual=arrays["train_max_residual"],
+            val_max_residual=arrays.get("val_max_residual"),
+            selected_power=arrays["selected_power"],
+            elapsed=np.full(n, np.nan),  # timings are not stored
+            stop_reason=settings["stop_reason"],
+        )
+        model.greedy_result_ = None
+        model.domain_ = {k: arrays[f"domain_{k}"] for k in ("x_min", "x_max", "mu_min", "mu_max", "dt_min", "dt_max")}
+        _check_file_history(model, path)
+    except ModelFileError:
+        raise
+    except (KeyError, TypeError, ValueError, AttributeError, IndexError, OverflowError, RecursionError) as exc:
+        raise ModelFileError(f"{str(path)!r} is an incomplete or inconsistent sympredict model file: {exc!r}") from None
+    return model
+
+
+def check_file_arrays(model, kernel: ProductKernel, arrays: dict) -> None:
+    """Consistency of a model file's arrays with its settings (files are hostile input)."""
+    dim, n_mu = model.dim_, model.n_mu_
+    if dim < 1 or n_mu < 0 or (model._functionals is HBFunctionals and dim % 2):
+        raise ModelFileError(f"invalid dimensions in the file: dim={dim}, n_mu={n_mu}")
+    if (kernel.mu is None) != (n_mu == 0):
+        raise ModelFileError("the file's mu kernel and parameter dimension disagree")
+    for name, shape in (("domain_x_min", (dim,)), ("domain_x_max", (dim,)), ("domain_mu_min", (n_mu,)),
+                        ("domain_mu_max", (n_mu,)), ("domain_dt_min", ()), ("domain_dt_max", ())):
+        arr = arrays.get(name)
+        if arr is None or arr.shape != shape or not np.all(np.isfinite(arr)):
+            raise ModelFileError(f"the file's training box {name!r} is missing, of the wrong shape or not finite")
+    for name, arr in arrays.items():
+        if arr.dtype.kind not in "fi" or not np.all(np.isfinite(arr)):
+            raise ModelFileError(f"the file's array {name!r} is not a finite numeric array")
