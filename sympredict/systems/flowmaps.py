@@ -42,7 +42,7 @@ for a linear mode, so it breaks at half a turn (``update="midpoint"``).
 from __future__ import annotations
 
 import warnings
-from typing import Callable, Optional, Sequence
+from typing import Callable, Optional
 
 import numpy as np
 from pymor.algorithms.to_matrix import to_matrix

@@ -30,7 +30,7 @@ from scipy.linalg import expm
 
 from sympredict._checks import as_parameter
 from sympredict.base import Parametrized
-from sympredict.symplectic.metrics import canonical_J, j_times
+from sympredict.symplectic.metrics import j_times
 
 __all__ = ["QuadraticPart", "exact_propagators", "generator_propagators", "inverse_symplectic_matrices"]
 
