@@ -25,18 +25,12 @@ __all__ = ["MOVED_OPTIONS", "apply_moved", "replacement"]
 #: Passing one (constructor, ``set_params``, a layout-2 model file) still works, with a FutureWarning naming
 #: the replacement.
 MOVED_OPTIONS = {
-    "tol": ("trainer", "tol"),
-    "criterion": ("trainer", "criterion"),
-    "power_tol": ("trainer", "power_tol"),
-    "memory_limit": ("trainer", "memory_limit"),
-    "regularization": ("trainer", "regularization"),
-    "backend": ("solver", "backend"),
-    "newton_max_iter": ("solver", "max_iter"),
-    "newton_warm_start": ("solver", "warm_start"),
-    "state_scaling": ("state_kernel", "Scaled(kernel, factors=...)"),
-    "periodic": ("state_kernel", "Periodic(kernel, coordinates=...)"),
-    "period": ("state_kernel", "Periodic(kernel, coordinates=..., period=...)"),
-    "symmetry": ("state_kernel", "Symmetric(kernel, group=...)"),
+    **{name: ("trainer", name) for name in ("tol", "criterion", "power_tol", "memory_limit", "regularization")},
+    **{old: ("solver", new) for old, new in (("backend", "backend"), ("newton_max_iter", "max_iter"),
+                                              ("newton_warm_start", "warm_start"))},
+    **{old: ("state_kernel", spelling) for old, spelling in (
+        ("state_scaling", "Scaled(kernel, factors=...)"), ("periodic", "Periodic(kernel, coordinates=...)"),
+        ("period", "Periodic(kernel, coordinates=..., period=...)"), ("symmetry", "Symmetric(kernel, group=...)"))},
 }
 
 _NEUTRAL = {"criterion": "f", "regularization": 0.0, "memory_limit": None}

@@ -20,8 +20,8 @@ from sympredict.estimators._compat import MOVED_OPTIONS, apply_moved
 from sympredict.exceptions import ModelFileError
 from sympredict.interpolation.functionals import HBFunctionals
 from sympredict.interpolation.greedy import GreedyHistory, Trainer, trainer_from_spec
-from sympredict.kernels import ProductKernel, RadialKernel, StateSymmetry, kernel_from_spec
-from sympredict.kernels.transforms import KernelTransform, transform_from_spec
+from sympredict.kernels import ProductKernel
+from sympredict.kernels.transforms import decode_value, encode_value
 from sympredict.symplectic.solvers import NewtonSolver
 from sympredict.symplectic.updates import UpdateRule
 
@@ -49,50 +49,27 @@ def load(cls, path):
 
 
 def encode_param(value):
-    """A parameter value as JSON: kernels and training strategies by their specs."""
-    if isinstance(value, RadialKernel):
-        return {"kernel": value.spec}
-    if isinstance(value, KernelTransform):
-        return value.spec
+    """A parameter value as JSON: the parts by their specs (update rules by name), kernel-valued settings by
+    :func:`~sympredict.kernels.transforms.encode_value`."""
     if isinstance(value, UpdateRule):
         return value.name
     if isinstance(value, NewtonSolver):
         return {"solver": value.get_params(deep=False)}
     if isinstance(value, Trainer):
         return {"trainer": value.spec}
-    if isinstance(value, StateSymmetry):
-        return {"symmetry": value.spec}
-    if value is None or isinstance(value, (bool, int, float, str)):
-        return value
-    if isinstance(value, np.ndarray) and value.dtype.kind in "if" and value.ndim >= 2:
-        value = value.tolist()  # stored as nested lists (loaded back as lists)
-    if isinstance(value, (tuple, list)) and value and all(isinstance(v, (tuple, list, np.ndarray)) for v in value):
-        # nested sequences of numbers (sign patterns or matrices of ``symmetry``), tuples and lists kept apart
-        return {"tuple" if isinstance(value, tuple) else "list": [encode_param(v) for v in value]}
-    if isinstance(value, (tuple, list)) and all(isinstance(v, (int, float, np.integer)) and not isinstance(v, bool)
-                                                for v in value):
-        # integers stay integers (indices such as ``periodic``), everything else is a float
-        return {"tuple" if isinstance(value, tuple) else "list":
-                [int(v) if isinstance(v, (int, np.integer)) else float(v) for v in value]}
-    raise ValueError(f"cannot store the parameter value {value!r} in a model file")
+    try:
+        return encode_value(value)
+    except ValueError:
+        raise ValueError(f"cannot store the parameter value {value!r} in a model file") from None
 
 
 def decode_param(value):
-    if isinstance(value, dict) and "kernel" in value:
-        return kernel_from_spec(value["kernel"])
+    """The parameter value :func:`encode_param` wrote."""
     if isinstance(value, dict) and "trainer" in value:
         return trainer_from_spec(value["trainer"])
-    if isinstance(value, dict) and "transform" in value:
-        return transform_from_spec(value)
     if isinstance(value, dict) and set(value) == {"solver"} and isinstance(value["solver"], dict):
         return NewtonSolver(**value["solver"])
-    if isinstance(value, dict) and "symmetry" in value:
-        return StateSymmetry.from_spec(value["symmetry"])
-    if isinstance(value, dict) and set(value) == {"tuple"} and isinstance(value["tuple"], list):
-        return tuple(decode_param(v) for v in value["tuple"])
-    if isinstance(value, dict) and set(value) == {"list"} and isinstance(value["list"], list):
-        return [decode_param(v) for v in value["list"]]
-    return value
+    return decode_value(value)
 
 
 def _settings_from_layout_1(settings: dict) -> dict:

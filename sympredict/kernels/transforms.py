@@ -42,7 +42,7 @@ from sympredict.base import Parametrized
 from sympredict.kernels.radial import PeriodicCoordinates, RadialKernel, StateSymmetry, kernel_from_spec
 
 __all__ = ["KernelTransform", "Scaled", "Periodic", "Symmetric", "StateKernelParts", "lower_state_kernel",
-           "transform_from_spec"]
+           "compose_state_kernel", "transform_from_spec", "encode_value", "decode_value"]
 
 
 class KernelTransform(Parametrized):
@@ -118,7 +118,7 @@ class KernelTransform(Parametrized):
 
     @property
     def spec(self) -> dict:
-        params = {k: _encode(v) for k, v in self.get_params(deep=False).items()}
+        params = {k: encode_value(v) for k, v in self.get_params(deep=False).items()}
         return {"transform": self.name, "params": params}
 
     def _check(self) -> None:
@@ -359,43 +359,52 @@ def transform_from_spec(spec: dict) -> KernelTransform:
     """Rebuild a transform chain from :attr:`KernelTransform.spec`; ``ValueError`` for a malformed one."""
     try:
         cls = _TRANSFORMS[spec["transform"]]
-        params = {k: _decode(v) for k, v in spec["params"].items()}
+        params = {k: decode_value(v) for k, v in spec["params"].items()}
         return cls(**params)
     except (KeyError, TypeError, AttributeError) as exc:
         raise ValueError(f"malformed kernel-transform spec {spec!r} ({exc!r}); known: {sorted(_TRANSFORMS)}") from None
 
 
-def _encode(value):
+def encode_value(value):
+    """A kernel-valued setting as JSON (model files): kernels, transforms and groups by their specs, tuples
+    and lists kept apart (a loaded setting repeats the given one), integers as integers.
+
+    ``ValueError`` for a value that has no JSON form.
+    """
     if isinstance(value, KernelTransform):
         return value.spec
     if isinstance(value, RadialKernel):
         return {"kernel": value.spec}
     if isinstance(value, StateSymmetry):
         return {"symmetry": value.spec}
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, (tuple, list)):  # kept apart, so that a loaded transform repeats the given one
-        return {"tuple" if isinstance(value, tuple) else "list": [_encode(v) for v in value]}
-    if isinstance(value, (np.integer,)):
+    if value is None or isinstance(value, (bool, str)):
+        return value
+    if isinstance(value, (int, np.integer)):
         return int(value)
-    if isinstance(value, (np.floating,)):
+    if isinstance(value, (float, np.floating)):
         return float(value)
-    return value
+    if isinstance(value, np.ndarray) and value.dtype.kind in "if":
+        value = value.tolist()  # stored as nested lists (loaded back as lists)
+    if isinstance(value, (tuple, list)):
+        return {"tuple" if isinstance(value, tuple) else "list": [encode_value(v) for v in value]}
+    raise ValueError(f"cannot store the value {value!r} in a model file")
 
 
-def _decode(value):
-    if isinstance(value, dict) and "transform" in value:
-        return transform_from_spec(value)
-    if isinstance(value, dict) and "kernel" in value:
-        return kernel_from_spec(value["kernel"])
-    if isinstance(value, dict) and "symmetry" in value:
-        return StateSymmetry.from_spec(value["symmetry"])
-    if isinstance(value, dict) and set(value) == {"tuple"} and isinstance(value["tuple"], list):
-        return tuple(_decode(v) for v in value["tuple"])
-    if isinstance(value, dict) and set(value) == {"list"} and isinstance(value["list"], list):
-        return [_decode(v) for v in value["list"]]
+def decode_value(value):
+    """The setting :func:`encode_value` wrote (specs are checked by the classes they rebuild)."""
+    if isinstance(value, dict):
+        if "transform" in value:
+            return transform_from_spec(value)
+        if "kernel" in value:
+            return kernel_from_spec(value["kernel"])
+        if "symmetry" in value:
+            return StateSymmetry.from_spec(value["symmetry"])
+        if set(value) == {"tuple"} and isinstance(value["tuple"], list):
+            return tuple(decode_value(v) for v in value["tuple"])
+        if set(value) == {"list"} and isinstance(value["list"], list):
+            return [decode_value(v) for v in value["list"]]
     if isinstance(value, list):
-        return [_decode(v) for v in value]
+        return [decode_value(v) for v in value]
     return value
 
 
