@@ -52,8 +52,8 @@ from sympredict.greedy import GreedyHistory, Trainer, trainer_from_spec
 from sympredict.greedy.trainers import ExactGreedy
 from sympredict.kernels import IMQ, PeriodicCoordinates, ProductKernel, RadialKernel, StateSymmetry, kernel_from_spec
 from sympredict.newton import (
-    midpoint_jacobian, ordered_weights, rollout_compiled, rollout_in_chunks, rollout_numpy, solve_midpoint_numpy,
-    solve_step_numpy,
+    WARM_HISTORY, midpoint_jacobian, ordered_weights, rollout_compiled, rollout_in_chunks, rollout_numpy,
+    rollout_reference, solve_midpoint_numpy, solve_step_numpy,
 )
 from sympredict.surrogate import HBSurrogate, ValueSurrogate
 
@@ -756,7 +756,7 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         (on the pendulum, ``2n = 2``: both shapes free).  Predictions,
         Jacobians and gradients are returned in the original coordinates.
     newton_warm_start
-        Compiled rollouts only: from the second macro step on, Newton starts
+        Rollouts, on both backends: from the second macro step on, Newton starts
         from a quadratic extrapolation through the previous three steps (``3 p_k - 3 p_k-1 + p_k-2``;
         with ``update='midpoint'`` the midpoint of ``x_k`` and that extrapolation
         of ``x_k+1``) instead of the explicit guess, saving that guess's pass over
@@ -1166,18 +1166,20 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
                                             around=(pre, post), weights_ordered=True)
             else:
                 def run(state, k):
-                    return rollout_numpy(lambda s: np.einsum("bij,bj->bi", post, self._solve_scaled(
-                        np.einsum("bij,bj->bi", pre, s), weights, dt)), state, k)
+                    return rollout_reference(self.surrogate_, state, weights, dt, k, max_iter, update=self.update_,
+                                             around=(pre, post))
             return rollout_in_chunks(run, x, n_steps, stride=stride, progress=progress)
+        warm = bool(self.newton_warm_start)
         if compiled:
-            def run(state, k):
-                return rollout_compiled(self.surrogate_, state, ordered, dt, k, max_iter,
-                                        warm_start=bool(self.newton_warm_start), update=self.update_,
-                                        weights_ordered=True)
+            def run(state, k, previous=None):
+                return rollout_compiled(self.surrogate_, state, ordered, dt, k, max_iter, warm_start=warm,
+                                        update=self.update_, weights_ordered=True, previous=previous)
         else:
-            def run(state, k):
-                return rollout_numpy(lambda s: self._solve_scaled(s, weights, dt), state, k)
-        traj = rollout_in_chunks(run, x * scale, n_steps, stride=stride, progress=progress)
+            def run(state, k, previous=None):
+                return rollout_reference(self.surrogate_, state, weights, dt, k, max_iter, warm_start=warm,
+                                         update=self.update_, previous=previous)
+        traj = rollout_in_chunks(run, x * scale, n_steps, stride=stride, progress=progress,
+                                 history=WARM_HISTORY if warm else 0)
         return traj if self.state_scaling_ is None else traj / scale
 
     def _solve_step(self, x: np.ndarray, weights: np.ndarray, dt: np.ndarray) -> np.ndarray:
