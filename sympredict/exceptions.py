@@ -63,16 +63,16 @@ class NewtonConvergenceError(SympredictError):
         self.contraction = None if contraction is None else np.asarray(contraction, dtype=float)
         if self.contraction is None:
             shown = ", ".join(f"{i} (residual {r:.2e})" for i, r in zip(self.instances[:10], self.residuals[:10]))
+            causes = "(dT * L_S >= 1)"
         else:
-            shown = ", ".join(f"{i} (residual {r:.2e}, dT*L_S {c:.3g})"
+            shown = ", ".join(f"{i} (residual {r:.2e}, dT*L_S {c:.3g} at the start guess)"
                               for i, r, c in zip(self.instances[:10], self.residuals[:10], self.contraction[:10]))
+            causes = "(dT*L_S < 1 makes the fixed-point iteration contract; Newton often converges beyond it)"
         more = f" and {len(self.instances) - 10} more" if len(self.instances) > 10 else ""
         where = f" at macro step {step}" if step is not None else ""
-        estimate = ("; dT*L_S is the contraction estimate at Newton's start guess (below 1 the fixed-point iteration "
-                    "contracts there, Newton often converges beyond)" if self.contraction is not None else "")
         super().__init__(
             f"Newton solve of the implicit step {reason}{where} for {len(self.instances)} instance(s): "
-            f"{shown}{more}{estimate}. A step that is too large for the surrogate (dT * L_S >= 1) or a state far "
+            f"{shown}{more}. A step that is too large for the surrogate {causes} or a state far "
             f"outside the training domain are the usual causes."
         )
 
