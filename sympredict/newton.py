@@ -574,8 +574,10 @@ def rollout_in_chunks(run: Callable[..., np.ndarray], x: np.ndarray, n_steps: in
             out[:, kept // stride] = traj[:, kept - done]
         state = np.ascontiguousarray(traj[:, -1])
         if history > 0:  # the states before the next chunk's first, oldest first
-            before = traj[:, :-1] if previous is None else np.concatenate([previous, traj[:, :-1]], axis=1)
-            previous = np.ascontiguousarray(before[:, -history:])
+            before = traj[:, max(0, k - history):k]
+            if previous is not None and before.shape[1] < history:
+                before = np.concatenate([previous, before], axis=1)[:, -history:]
+            previous = np.ascontiguousarray(before)
         done += k
         if progress is not None:
             progress(done, n_steps)

@@ -152,6 +152,27 @@ def test_a_warm_start_goes_on_across_chunks(small_pendulum_model, monkeypatch, b
     assert len(calls) == 40  # one step per chunk: every step but the first starts from the carried states
 
 
+def test_chunks_receive_the_states_before_them(monkeypatch):
+    """``rollout_in_chunks(history=2)`` hands each chunk the last two states before its first (toy map x -> x + 1)."""
+    monkeypatch.setattr(newton, "FIRST_CHUNK_STEPS", 1)
+    x = np.array([[0.0, 10.0], [5.0, -1.0]])
+    full = x[:, None, :] + np.arange(101)[None, :, None]
+    seen = []
+
+    def run(state, k, previous):
+        start = int(state[0, 0])
+        expected = full[:, max(0, start - 2):start]
+        if start == 0:
+            assert previous is None
+        else:
+            np.testing.assert_array_equal(previous, expected)
+        seen.append(start)
+        return state[:, None, :] + np.arange(k + 1)[None, :, None]
+
+    np.testing.assert_array_equal(newton.rollout_in_chunks(run, x, 100, history=2), full)
+    assert len(seen) > 3 and seen[1] == 1
+
+
 def test_warm_start_on_numpy_saves_the_guess_pass(small_pendulum_model):
     """The NumPy reference counts passes as the compiled rollout: the warm start saves a pass per step."""
     sur = small_pendulum_model.surrogate_
