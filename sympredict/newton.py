@@ -224,7 +224,6 @@ def _newton(sur: HBSurrogate, x: np.ndarray, u: np.ndarray, weights: np.ndarray,
     for it in range(max_iter):
         ua, ha = u[active], h[active]
         g, hess, floor = _hessian_part(sur, x[active], ua, weights[active], midpoint)
-        iterations[active] += 1
         if midpoint:
             jg = _j_times(g)
             F = ua - x[active] - ha[:, None] * jg
@@ -236,23 +235,25 @@ def _newton(sur: HBSurrogate, x: np.ndarray, u: np.ndarray, weights: np.ndarray,
         finite = np.isfinite(f_norm)
         scale = np.maximum(np.abs(ua).max(axis=1), np.abs(x_ref[active]).max(axis=1))
         f_floor = residual_floor(scale, floor, np.abs(ha))
-        if np.all(finite):
+        if finite.all():
             delta, singular = _solve_linear(jac, F)
         else:  # no solve for a non-finite residual (the failure comes first)
             delta = np.zeros_like(F)
             singular = np.zeros(len(active), dtype=bool)
-            if np.any(finite):
+            if finite.any():
                 delta[finite], singular[finite] = _solve_linear(jac[finite], F[finite])
         d_norm = np.abs(delta).max(axis=1)
         failed = ~finite | singular
         done = ~failed & converged(f_norm, f_floor, d_norm, last[active], scale)
         idx = active[done]
+        iterations[idx] = it + 1
         if midpoint:  # x1 = x0 + dT J grad s(z)
             out[idx] = x[idx] + dt[idx, None] * jg[done]
         else:
             out[idx, :n] = x[idx, :n] + dt[idx, None] * g[done, n:]
             out[idx, n:] = ua[done]
-        if np.any(failed):
+        if failed.any():
+            iterations[active[~done]] = it + 1  # the others' outcomes are left open
             bad = active[failed]
             codes[bad] = np.where(finite[failed], 2, 1)
             fail_iter[bad] = it
@@ -267,6 +268,7 @@ def _newton(sur: HBSurrogate, x: np.ndarray, u: np.ndarray, weights: np.ndarray,
     codes[active] = 3
     fail_iter[active] = max_iter
     resid[active] = f_norm[keep]
+    iterations[active] = max_iter
     return out, codes, fail_iter, resid, iterations
 
 
@@ -298,11 +300,10 @@ def _solve_numpy(sur, x, weights, dt, max_iter: int, midpoint: bool) -> np.ndarr
     u = start_guess(sur, x[:, None], weights, dt, midpoint, False)
     u0 = u.copy()
     x1, codes, fail_iter, resid, _ = _newton(sur, x, u, weights, dt, max_iter, midpoint)
-    err = failure_error(codes, np.where(codes != 0, 0, -1), fail_iter, resid, max_iter, midpoint,
-                        lambda i, k: contraction_estimate(sur, x[i], u0[i], weights[i], dt[i], midpoint),
-                        step_index=False)
-    if err is not None:
-        raise err
+    if codes.any():
+        raise failure_error(codes, np.where(codes != 0, 0, -1), fail_iter, resid, max_iter, midpoint,
+                            lambda i, k: contraction_estimate(sur, x[i], u0[i], weights[i], dt[i], midpoint),
+                            step_index=False)
     return x1
 
 
@@ -456,13 +457,12 @@ def rollout_reference(sur: HBSurrogate, x, weights, dt, n_steps: int, max_iter: 
         y = window[:, -1]
         x1, codes, fail_iter, resid, iterations = _newton(sur, y, u, weights, dt, max_iter, midpoint)
         passes += iterations
-        err = failure_error(codes, np.where(codes != 0, k, -1), fail_iter, resid, max_iter, midpoint,
-                            lambda i, kk: contraction_estimate(sur, y[i], u0[i], weights[i], dt[i], midpoint),
-                            step_index)
-        if err is not None:
+        if codes.any():
             if stats is not None:
                 stats["passes"] = passes
-            raise err
+            raise failure_error(codes, np.where(codes != 0, k, -1), fail_iter, resid, max_iter, midpoint,
+                                lambda i, kk: contraction_estimate(sur, y[i], u0[i], weights[i], dt[i], midpoint),
+                                step_index)
         traj[:, k + 1] = x1 if maps is None else np.einsum("bij,bj->bi", maps[1], x1)
     if stats is not None:
         stats["passes"] = passes
