@@ -1153,7 +1153,7 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         (scaled) coordinates, so chunking does not change the result.
         """
         scale = self._scale_vector(self.dim_)
-        max_iter = as_positive_int(self.newton_max_iter, "newton_max_iter")
+        max_iter = self._newton_iterations()
         compiled = self._compiled(len(x), n_steps)
         if compiled:  # the chunks share the weights in the compiled centre order: permuted once
             ordered = ordered_weights(self.surrogate_, weights)
