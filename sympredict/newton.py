@@ -199,8 +199,10 @@ def _newton(sur: HBSurrogate, x: np.ndarray, u: np.ndarray, weights: np.ndarray,
     -------
     x1 : ndarray of shape (B, 2n)
         Rows of instances that did not finish are NaN.
-    codes, fail_iter, residual, iterations : ndarray of shape (B,)
-        Failure code (0: converged or not finished), iteration of the failure, ``|F|_inf`` there, and
+    failure : None or tuple of three ndarray of shape (B,)
+        ``None`` when every instance converged, else per instance the failure code (0: converged or
+        not finished), the iteration of the failure and ``|F|_inf`` there.
+    iterations : ndarray of shape (B,)
         Newton iterations (passes at iterates) made.
 
     Notes
@@ -214,10 +216,8 @@ def _newton(sur: HBSurrogate, x: np.ndarray, u: np.ndarray, weights: np.ndarray,
     h = dt if not midpoint else 0.5 * dt  # the step in the residual
     x_ref = x if midpoint else x[:, n:]
     out = np.full_like(x, np.nan)
-    codes = np.zeros(b, dtype=np.int64)
-    fail_iter = np.full(b, -1, dtype=np.int64)
-    resid = np.zeros(b)
     iterations = np.zeros(b, dtype=np.int64)
+    codes = np.zeros(b, dtype=np.int64)
     active = np.arange(b)
     last = np.full(b, np.inf)
     eye = np.eye(k)
@@ -256,20 +256,25 @@ def _newton(sur: HBSurrogate, x: np.ndarray, u: np.ndarray, weights: np.ndarray,
             iterations[active[~done]] = it + 1  # the others' outcomes are left open
             bad = active[failed]
             codes[bad] = np.where(finite[failed], 2, 1)
-            fail_iter[bad] = it
-            resid[bad] = f_norm[failed]
-            return out, codes, fail_iter, resid, iterations
+            return out, _failure(codes, bad, it, f_norm[failed]), iterations
         keep = ~done
         active = active[keep]
         last[active] = d_norm[keep]
         u[active] = ua[keep] - delta[keep]
         if active.size == 0:
-            return out, codes, fail_iter, resid, iterations
+            return out, None, iterations
     codes[active] = 3
-    fail_iter[active] = max_iter
-    resid[active] = f_norm[keep]
     iterations[active] = max_iter
-    return out, codes, fail_iter, resid, iterations
+    return out, _failure(codes, active, max_iter, f_norm[keep]), iterations
+
+
+def _failure(codes: np.ndarray, bad: np.ndarray, it: int, f_norm: np.ndarray):
+    """``(codes, fail_iter, resid)`` (B,) of a batch whose instances ``bad`` failed at iteration ``it``."""
+    fail_iter = np.full(len(codes), -1, dtype=np.int64)
+    resid = np.zeros(len(codes))
+    fail_iter[bad] = it
+    resid[bad] = f_norm
+    return codes, fail_iter, resid
 
 
 def failure_error(codes, fail_step, fail_iter, resid, max_iter: int, midpoint: bool, contraction: Callable,
@@ -298,12 +303,13 @@ def _solve_numpy(sur, x, weights, dt, max_iter: int, midpoint: bool) -> np.ndarr
     x = np.asarray(x, dtype=float)
     dt = np.asarray(dt, dtype=float)
     u = start_guess(sur, x[:, None], weights, dt, midpoint, False)
-    u0 = u.copy()
-    x1, codes, fail_iter, resid, _ = _newton(sur, x, u, weights, dt, max_iter, midpoint)
-    if codes.any():
+    x1, failure, _ = _newton(sur, x, u, weights, dt, max_iter, midpoint)
+    if failure is not None:
+        codes, fail_iter, resid = failure
         raise failure_error(codes, np.where(codes != 0, 0, -1), fail_iter, resid, max_iter, midpoint,
-                            lambda i, k: contraction_estimate(sur, x[i], u0[i], weights[i], dt[i], midpoint),
-                            step_index=False)
+                            lambda i, k: contraction_estimate(
+                                sur, x[i], start_guess(sur, x[i, None], weights[i], dt[i], midpoint, False),
+                                weights[i], dt[i], midpoint), step_index=False)
     return x1
 
 
@@ -452,17 +458,18 @@ def rollout_reference(sur: HBSurrogate, x, weights, dt, n_steps: int, max_iter: 
             window = np.einsum("bij,bj->bi", maps[0], traj[:, k])[:, None]
         warm = warm_start and window.shape[1] >= 2
         u = start_guess(sur, window, weights, dt, midpoint, warm)
-        u0 = u.copy()
         passes += 0 if warm else 1
         y = window[:, -1]
-        x1, codes, fail_iter, resid, iterations = _newton(sur, y, u, weights, dt, max_iter, midpoint)
+        x1, failure, iterations = _newton(sur, y, u, weights, dt, max_iter, midpoint)
         passes += iterations
-        if codes.any():
+        if failure is not None:
             if stats is not None:
                 stats["passes"] = passes
+            codes, fail_iter, resid = failure
             raise failure_error(codes, np.where(codes != 0, k, -1), fail_iter, resid, max_iter, midpoint,
-                                lambda i, kk: contraction_estimate(sur, y[i], u0[i], weights[i], dt[i], midpoint),
-                                step_index)
+                                lambda i, kk: contraction_estimate(
+                                    sur, y[i], start_guess(sur, window[i], weights[i], dt[i], midpoint, warm),
+                                    weights[i], dt[i], midpoint), step_index)
         traj[:, k + 1] = x1 if maps is None else np.einsum("bij,bj->bi", maps[1], x1)
     if stats is not None:
         stats["passes"] = passes
@@ -630,7 +637,6 @@ def rollout_compiled(sur: HBSurrogate, x, weights, dt, n_steps: int, max_iter: i
         warm = warm_start and window.shape[1] >= 2
         return contraction_estimate(sur, window[:, -1], start_guess(sur, window, w, h, midpoint, warm), w, h, midpoint)
 
-    err = failure_error(codes, fail_step, fail_iter, resid, max_iter, midpoint, contraction, step_index)
-    if err is not None:
-        raise err
+    if codes.any():
+        raise failure_error(codes, fail_step, fail_iter, resid, max_iter, midpoint, contraction, step_index)
     return traj
