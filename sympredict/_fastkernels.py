@@ -607,12 +607,14 @@ def _scratch(dim, chunk):
 def _solve_one(x, w, h, cT, seg, family, eps, max_iter, out, sc, grad, hess, jac, delta, u, xi, warm, mid):
     """One implicit step for one instance: ``out <- Phi(x)``.  Returns ``(code, residual, iteration)``.
 
-    The iteration and stopping rule of the NumPy references, for one instance:
-    symplectic Euler (``mid`` False, :func:`sympredict.symplectic.newton.solve_step_numpy`):
-    unknowns ``u = p1``, ``F = p1 - p0 + dT d_q s(q0, p1)``, Jacobian ``I + dT d_p d_q s``;
-    midpoint (``mid`` True, :func:`sympredict.symplectic.newton.solve_midpoint_numpy`):
-    unknowns ``u = z = (x0 + x1) / 2``, ``F = z - x0 - dT/2 J grad s(z)``, Jacobian
-    ``I - dT/2 J Hess s(z)``.  ``u`` holds the first guess when ``warm``.
+    The algorithm of :mod:`sympredict.symplectic.newton` (its module docstring; the NumPy
+    reference :func:`sympredict.symplectic.newton.rollout_reference`), for one instance:
+    symplectic Euler (``mid`` False): unknowns ``u = p1``,
+    ``F = p1 - p0 + dT d_q s(q0, p1)``, Jacobian ``I + dT d_p d_q s``; midpoint
+    (``mid`` True): unknowns ``u = z = (x0 + x1) / 2``, ``F = z - x0 - dT/2 J grad s(z)``,
+    Jacobian ``I - dT/2 J Hess s(z)``.  ``u`` holds the first guess when ``warm``.
+    The iteration count returned is that of the failure (``max_iter`` for code 3)
+    or of the converged iterate.
     """
     dim = x.shape[0]
     n = dim // 2
@@ -651,7 +653,7 @@ def _solve_one(x, w, h, cT, seg, family, eps, max_iter, out, sc, grad, hess, jac
             if not math.isfinite(fk):
                 finite = False
             af = abs(fk)
-            if af > f_norm:
+            if af > f_norm or af != af:  # NaN propagates, as NumPy's max
                 f_norm = af
             ap = abs(u[a])
             if ap > scale:
@@ -660,8 +662,8 @@ def _solve_one(x, w, h, cT, seg, family, eps, max_iter, out, sc, grad, hess, jac
             if ap > scale:
                 scale = ap
         if not finite:
-            return 1, np.nan if f_norm == f_norm else f_norm, it
-        f_floor = residual_floor(scale, floor, abs(hh) if mid else h)
+            return 1, f_norm, it
+        f_floor = residual_floor(scale, floor, abs(hh))
         if mid:  # I - dT/2 J H: rows of J H are (H[n + a], -H[a])
             for a in range(n):
                 for c in range(dim):
@@ -707,9 +709,20 @@ def _matvec_into(M, x, out):
 
 
 @_compiled(_JIT)
+def _state(traj, prev, i, j, c):
+    """Component ``c`` of instance ``i``'s state ``j`` of the rollout; ``j < 0``: the states before it (``prev``)."""
+    if j >= 0:
+        return traj[i, j, c]
+    return prev[i, prev.shape[1] + j, c]
+
+
+@_compiled(_JIT)
 def _rollout_one(i, x0, W, h, cT, seg, family, eps, max_iter, chunk, traj, codes, fail_step, fail_iter, resid, passes,
-                 warm_start, mid, pre, post, around):
-    """One instance's rollout; with ``around``: ``x_k+1 = post[i] S(pre[i] x_k)`` (S the implicit step)."""
+                 warm_start, mid, pre, post, around, prev):
+    """One instance's rollout; with ``around``: ``x_k+1 = post[i] S(pre[i] x_k)`` (S the implicit step).
+
+    ``prev`` (B, j, 2n): the rollout's states before ``x0`` (oldest first), which a warm start extrapolates from.
+    """
     dim = x0.shape[1]
     n = dim // 2
     k_unknown = dim if mid else n
@@ -729,15 +742,17 @@ def _rollout_one(i, x0, W, h, cT, seg, family, eps, max_iter, chunk, traj, codes
     fail_step[i] = -1
     fail_iter[i] = -1
     resid[i] = 0.0
+    n_prev = prev.shape[1]
     for k in range(n_steps):
-        warm = warm_start and k > 0
+        before = k + n_prev  # states before x_k
+        warm = warm_start and before > 0
         if warm:  # extrapolate the previous steps: saves the explicit guess's pass
             off = 0 if mid else n
             for a in range(k_unknown):
                 x_k = traj[i, k, off + a]
-                x_1 = traj[i, k - 1, off + a]
-                if k >= 2:  # x_k+1 ~ 3 x_k - 3 x_k-1 + x_k-2 (error O(dT^3))
-                    nxt = 3.0 * (x_k - x_1) + traj[i, k - 2, off + a]
+                x_1 = _state(traj, prev, i, k - 1, off + a)
+                if before >= 2:  # x_k+1 ~ 3 x_k - 3 x_k-1 + x_k-2 (error O(dT^3))
+                    nxt = 3.0 * (x_k - x_1) + _state(traj, prev, i, k - 2, off + a)
                 else:  # x_k+1 ~ 2 x_k - x_k-1 (error O(dT^2))
                     nxt = 2.0 * x_k - x_1
                 u[a] = 0.5 * (x_k + nxt) if mid else nxt  # midpoint: z = (x_k + x_k+1) / 2
@@ -749,7 +764,8 @@ def _rollout_one(i, x0, W, h, cT, seg, family, eps, max_iter, chunk, traj, codes
         else:
             code, r, it = _solve_one(traj[i, k], W[i], h[i], cT, seg, family, eps, max_iter, traj[i, k + 1], sc, grad,
                                      hess, jac, delta, u, xi, warm, mid)
-        passes[i] += it + (1 if warm else 2)  # (the explicit guess's gradient pass and) it + 1 Newton passes
+        # (the explicit guess's gradient pass and) the Newton passes: it + 1, or max_iter without convergence
+        passes[i] += (max_iter if code == 3 else it + 1) + (0 if warm else 1)
         if code != 0:
             codes[i] = code
             fail_step[i] = k
@@ -763,18 +779,18 @@ def _rollout_one(i, x0, W, h, cT, seg, family, eps, max_iter, chunk, traj, codes
 
 @_compiled(_PJIT)
 def _rollout_parallel(x0, W, h, cT, seg, family, eps, max_iter, chunk, traj, codes, fail_step, fail_iter, resid, passes,
-                      warm_start, mid, pre, post, around):
+                      warm_start, mid, pre, post, around, prev):
     for i in numba.prange(x0.shape[0]):
         _rollout_one(i, x0, W, h, cT, seg, family, eps, max_iter, chunk, traj, codes, fail_step, fail_iter,
-                     resid, passes, warm_start, mid, pre, post, around)
+                     resid, passes, warm_start, mid, pre, post, around, prev)
 
 
 @_compiled(_JIT)
 def _rollout_serial(x0, W, h, cT, seg, family, eps, max_iter, chunk, traj, codes, fail_step, fail_iter, resid, passes,
-                    warm_start, mid, pre, post, around):
+                    warm_start, mid, pre, post, around, prev):
     for i in range(x0.shape[0]):
         _rollout_one(i, x0, W, h, cT, seg, family, eps, max_iter, chunk, traj, codes, fail_step, fail_iter,
-                     resid, passes, warm_start, mid, pre, post, around)
+                     resid, passes, warm_start, mid, pre, post, around, prev)
 
 
 @_compiled(_PJIT)
@@ -1026,10 +1042,39 @@ def chunk_size(dim: int) -> int:
 #: The updates the compiled rollout solves (``mid`` flag of the compiled solver).
 UPDATES = ("symplectic_euler", "midpoint")
 
+#: Previous states a warm start extrapolates from.
+WARM_HISTORY = 2
+
+
+def check_around(around, b: int, dim: int, warm_start: bool):
+    """``(pre, post)`` of a split rollout as C-contiguous float arrays (B, 2n, 2n), or ``None``; checked.
+
+    Shared by the compiled rollout and the NumPy reference (:func:`sympredict.symplectic.newton.rollout_reference`).
+    """
+    if around is None:
+        return None
+    if warm_start:
+        raise ValueError("newton_rollout: warm_start cannot be combined with around (pre, post maps)")
+    pre, post = (np.ascontiguousarray(a, dtype=np.float64) for a in around)
+    if pre.shape != (b, dim, dim) or post.shape != (b, dim, dim):
+        raise ValueError(f"around: pre and post must have shape {(b, dim, dim)}, got {pre.shape} and {post.shape}")
+    return pre, post
+
+
+def previous_states(previous, b: int, dim: int) -> np.ndarray:
+    """The states before a rollout's first, (B, j, 2n) with ``j <= WARM_HISTORY``, oldest first, C-contiguous
+    (``None``: ``j = 0``); shared by both rollouts."""
+    if previous is None:
+        return np.empty((b, 0, dim))
+    previous = np.asarray(previous, dtype=np.float64)
+    if previous.ndim != 3 or previous.shape[0] != b or previous.shape[2] != dim:
+        raise ValueError(f"previous must have shape (B, j, 2n) = ({b}, j, {dim}), got {previous.shape}")
+    return np.ascontiguousarray(previous[:, max(0, previous.shape[1] - WARM_HISTORY):])
+
 
 def newton_rollout(x0, weights, dt, layout: CenterLayout, kernel, max_iter: int, n_steps: int,
                    *, weights_ordered: bool = False, parallel=None, stats: Optional[dict] = None,
-                   warm_start: bool = False, update: str = "symplectic_euler", around=None):
+                   warm_start: bool = False, update: str = "symplectic_euler", around=None, previous=None):
     """``n_steps`` implicit steps (symplectic Euler or midpoint) for every instance, in compiled code.
 
     Parameters
@@ -1055,15 +1100,18 @@ def newton_rollout(x0, weights, dt, layout: CenterLayout, kernel, max_iter: int,
         If a dict, ``stats['passes']`` receives the passes over the centres per
         instance (one per gradient or Newton evaluation), shape (B,).
     warm_start
-        From the second step on, start Newton from an extrapolation of the
-        previous steps instead of the explicit guess ``p0 - dT d_q s(q0, p0)``:
-        saves that guess's pass over the centres.  ``p_k+1 ~ 3 p_k - 3 p_k-1 + p_k-2``
-        (error ``O(dT^3)``; ``2 p_k - p_k-1`` at the second step), against the
-        explicit guess's ``O(dT^2)``; for ``update='midpoint'`` the midpoint
-        ``z = (x_k + x_k+1) / 2`` with the same extrapolation of ``x_k+1``.  The
-        converged result satisfies the same stopping rule.  Each instance stops
-        iterating on its own (converged instances are dropped by construction:
-        one loop per instance).
+        From the second state of the rollout on (counting ``previous``), start
+        Newton from an extrapolation of the previous states instead of the
+        explicit guess ``p0 - dT d_q s(q0, p0)``: saves that guess's pass over the
+        centres.  ``p_k+1 ~ 3 p_k - 3 p_k-1 + p_k-2`` (error ``O(dT^3)``;
+        ``2 p_k - p_k-1`` with one previous state), against the explicit guess's
+        ``O(dT^2)``; for ``update='midpoint'`` the midpoint ``z = (x_k + x_k+1) / 2``
+        with the same extrapolation of ``x_k+1``.  The converged result satisfies
+        the same stopping rule.  Each instance stops iterating on its own
+        (converged instances are dropped by construction: one loop per instance).
+    previous : ndarray of shape (B, j, 2n), optional
+        The rollout's states before ``x0``, oldest first (the last two are used): a
+        warm start goes on from them (a chunked rollout's next chunk).
     update
         ``'symplectic_euler'``: ``F(p1) = p1 - p0 + dT d_q s(q0, p1)``, Jacobian
         ``I + dT d_p d_q s`` (``n`` unknowns, the Hessian block only);
@@ -1113,20 +1161,15 @@ def newton_rollout(x0, weights, dt, layout: CenterLayout, kernel, max_iter: int,
     resid = np.zeros(b)
     if parallel is None:
         parallel = b >= PARALLEL_MIN_BATCH
-    if around is None:
-        pre = post = np.empty((0, dim, dim))
-    else:
-        if warm_start:
-            raise ValueError("newton_rollout: warm_start cannot be combined with around (pre, post maps)")
-        pre, post = (np.ascontiguousarray(a, dtype=np.float64) for a in around)
-        if pre.shape != (b, dim, dim) or post.shape != (b, dim, dim):
-            raise ValueError(f"around: pre and post must have shape {(b, dim, dim)}, got {pre.shape} and {post.shape}")
+    maps = check_around(around, b, dim, warm_start)
+    pre, post = maps if maps is not None else (np.empty((0, dim, dim)), np.empty((0, dim, dim)))
+    prev = previous_states(previous, b, dim)
     ns, (family,) = _kernels(type(kernel))
     fn = ns._rollout_parallel if parallel else ns._rollout_serial
     passes = np.zeros(b, dtype=np.int64)
     _call(fn, x0, weights, dt, layout.cT, layout.seg, family, float(kernel.eps), int(max_iter), chunk_size(dim), traj,
           codes, fail_step, fail_iter, resid, passes, bool(warm_start), update == "midpoint", pre, post,
-          around is not None)
+          around is not None, prev)
     if stats is not None:
         stats["passes"] = passes
     return traj, codes, fail_step, fail_iter, resid

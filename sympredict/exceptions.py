@@ -49,25 +49,36 @@ class NewtonConvergenceError(SympredictError):
         Their last residual norms (``inf``/``nan`` for non-finite iterates).
     step : int or None
         Index of the macro step within a rollout, if any.
+    contraction : ndarray of float or None
+        Their contraction estimates ``dT * L_S`` at Newton's start guess
+        (:func:`sympredict.symplectic.newton.contraction_estimate`; ``nan`` where the
+        Hessian there is not finite), if known.
     """
 
-    def __init__(self, instances, residuals, reason: str = "did not converge", step=None):
+    def __init__(self, instances, residuals, reason: str = "did not converge", step=None, contraction=None):
         self.instances = np.asarray(instances, dtype=int)
         self.residuals = np.asarray(residuals, dtype=float)
         self.reason = reason
         self.step = step
-        shown = ", ".join(f"{i} (residual {r:.2e})" for i, r in zip(self.instances[:10], self.residuals[:10]))
+        self.contraction = None if contraction is None else np.asarray(contraction, dtype=float)
+        if self.contraction is None:
+            shown = ", ".join(f"{i} (residual {r:.2e})" for i, r in zip(self.instances[:10], self.residuals[:10]))
+            causes = "(dT * L_S >= 1)"
+        else:
+            shown = ", ".join(f"{i} (residual {r:.2e}, dT*L_S {c:.3g} at the start guess)"
+                              for i, r, c in zip(self.instances[:10], self.residuals[:10], self.contraction[:10]))
+            causes = "(dT*L_S < 1 makes the fixed-point iteration contract; Newton often converges beyond it)"
         more = f" and {len(self.instances) - 10} more" if len(self.instances) > 10 else ""
         where = f" at macro step {step}" if step is not None else ""
         super().__init__(
             f"Newton solve of the implicit step {reason}{where} for {len(self.instances)} instance(s): "
-            f"{shown}{more}. A step that is too large for the surrogate (dT * L_S >= 1) or a state far "
+            f"{shown}{more}. A step that is too large for the surrogate {causes} or a state far "
             f"outside the training domain are the usual causes."
         )
 
     def at_step(self, step: int) -> "NewtonConvergenceError":
         """The same error, annotated with the rollout step."""
-        return NewtonConvergenceError(self.instances, self.residuals, self.reason, step)
+        return NewtonConvergenceError(self.instances, self.residuals, self.reason, step, self.contraction)
 
 
 class RolloutMemoryError(SympredictError, MemoryError):

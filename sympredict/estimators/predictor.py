@@ -51,7 +51,9 @@ from sympredict.interpolation.functionals import HBFunctionals, ValueFunctionals
 from sympredict.interpolation.greedy import GreedyHistory, Trainer
 from sympredict.interpolation.greedy.trainers import ExactGreedy
 from sympredict.kernels import IMQ, PeriodicCoordinates, ProductKernel, RadialKernel, StateSymmetry
-from sympredict.symplectic.newton import ordered_weights, rollout_compiled, rollout_in_chunks, rollout_numpy
+from sympredict.symplectic.newton import (
+    WARM_HISTORY, ordered_weights, rollout_compiled, rollout_in_chunks, rollout_numpy, rollout_reference,
+)
 from sympredict.symplectic.solvers import AUTO_NUMPY_SECONDS, MAX_NEWTON_ITER, NewtonSolver, numpy_seconds
 from sympredict.interpolation.surrogate import HBSurrogate, ValueSurrogate
 from sympredict.kernels.transforms import KernelTransform, StateKernelParts, lower_state_kernel
@@ -874,17 +876,20 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
                                             around=(pre, post), weights_ordered=True)
             else:
                 def run(state, k):
-                    return rollout_numpy(lambda s: np.einsum("bij,bj->bi", post, self._solve_scaled(
-                        np.einsum("bij,bj->bi", pre, s), weights, dt)), state, k)
+                    return rollout_reference(self.surrogate_, state, weights, dt, k, max_iter, update=update,
+                                             around=(pre, post))
             return rollout_in_chunks(run, x, n_steps, stride=stride, progress=progress)
+        warm = bool(solver.warm_start)
         if compiled:
-            def run(state, k):
-                return rollout_compiled(self.surrogate_, state, ordered, dt, k, max_iter,
-                                        warm_start=bool(solver.warm_start), update=update, weights_ordered=True)
+            def run(state, k, previous=None):
+                return rollout_compiled(self.surrogate_, state, ordered, dt, k, max_iter, warm_start=warm,
+                                        update=update, weights_ordered=True, previous=previous)
         else:
-            def run(state, k):
-                return rollout_numpy(lambda s: self._solve_scaled(s, weights, dt), state, k)
-        traj = rollout_in_chunks(run, x * scale, n_steps, stride=stride, progress=progress)
+            def run(state, k, previous=None):
+                return rollout_reference(self.surrogate_, state, weights, dt, k, max_iter, warm_start=warm,
+                                         update=update, previous=previous)
+        traj = rollout_in_chunks(run, x * scale, n_steps, stride=stride, progress=progress,
+                                 history=WARM_HISTORY if warm else 0)
         return traj if self.state_scaling_ is None else traj / scale
 
     def _solve_step(self, x: np.ndarray, weights: np.ndarray, dt: np.ndarray) -> np.ndarray:
