@@ -10,7 +10,7 @@ from sympredict.systems.pendulum import Pendulum, flow_map_data
 from sympredict.systems.wave import WaveFOM
 from sympredict.mor.basis import complex_svd_basis, SymplecticROM
 from sympredict.interpolation.functionals import HBFunctionals
-from sympredict.interpolation.greedy import greedy_interpolation
+from sympredict.interpolation.greedy import ExactGreedy, greedy_interpolation
 from sympredict.kernels import ProductKernel
 d = flow_map_data(Pendulum(), mus=(0.7, 0.8), dts=(0.04, 0.06), n_grid=8)
 m = SymplecticKernelPredictor(IMQ(0.3), IMQ(2.0), IMQ(5.0), max_centers=40).fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
@@ -43,7 +43,7 @@ show("max_centers = 0", lambda: SymplecticKernelPredictor(IMQ(1.0), max_centers=
 show("kernel shape out of range", lambda: IMQ(0.0))
 show("kernel shape too large", lambda: IMQ(1e60))
 show("unfitted model", lambda: SymplecticKernelPredictor(IMQ(1.0)).step(x, dt=0.1))
-strict = SymplecticKernelPredictor.__new__(SymplecticKernelPredictor); strict.__dict__.update(m.__dict__); strict.newton_max_iter = 1
+strict = SymplecticKernelPredictor.__new__(SymplecticKernelPredictor); strict.__dict__.update(m.__dict__); strict.set_params(solver__max_iter=1)
 show("Newton does not converge", lambda: strict.rollout(x, 3, mu=0.75, dt=0.05))
 rng = np.random.default_rng(3); P = Pendulum()
 x0 = np.column_stack([rng.uniform(-1, 1, 80), rng.uniform(-2, 2, 80)])
@@ -55,7 +55,7 @@ show("state outside the training box", lambda: m.step([[0.0, 30.0]], mu=0.75, dt
 xi = np.array([[0.0, 0.0], [0.0, 0.0], [1.0, 0.5]])
 res = greedy_interpolation(HBFunctionals(ProductKernel(IMQ(1.0)), xi, np.zeros((3, 0)), np.full(3, 0.1)), np.array([1.0, 0.0, 2.0, 0.5, -1.0, 0.3]), max_centers=6, tol=0.0)
 print(f"| duplicate candidates with contradictory data | greedy stops, history_.stop_reason = {res.history.stop_reason!r}, {len(res.selected)} centres, finite coefficients |")
-show("Newton basis larger than memory", lambda: SymplecticKernelPredictor(IMQ(1.0), IMQ(1.0), IMQ(1.0), max_centers=1000, memory_limit=1e5).fit(d.x0, d.x1, mu=d.mu, dt=d.dt))
+show("Newton basis larger than memory", lambda: SymplecticKernelPredictor(IMQ(1.0), IMQ(1.0), IMQ(1.0), max_centers=1000, trainer=ExactGreedy(memory_limit=1e5)).fit(d.x0, d.x1, mu=d.mu, dt=d.dt))
 show("load: missing file", lambda: SymplecticKernelPredictor.load(os.path.join(tmp, "none.h5")))
 open(os.path.join(tmp, "t.h5"), "w").write("text")
 show("load: not HDF5", lambda: SymplecticKernelPredictor.load(os.path.join(tmp, "t.h5")))

@@ -570,12 +570,6 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         :data:`NUMPY_ONLY`: ``backend='numba'`` is refused for them at fit,
         ``'auto'`` uses NumPy and ``numpy_only_`` says why.
 
-    The options of sympredict 0.1 (``tol``, ``criterion``, ``power_tol``,
-    ``memory_limit``, ``regularization``, ``backend``, ``newton_max_iter``,
-    ``newton_warm_start``, ``state_scaling``, ``periodic``, ``period``,
-    ``symmetry``) are still accepted with a FutureWarning naming their
-    replacement (:data:`MOVED_OPTIONS`).
-
     Attributes
     ----------
     kernel_ : ProductKernel
@@ -603,6 +597,14 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         fit (scikit-learn's semantics).  The ``solver`` is read when predicting and checked there.
     numpy_only_ : str or None
         Why this model has no compiled solver (a feature of :data:`NUMPY_ONLY`), or ``None``.
+
+    Notes
+    -----
+    The options of sympredict 0.1 (``tol``, ``criterion``, ``power_tol``,
+    ``memory_limit``, ``regularization``, ``backend``, ``newton_max_iter``,
+    ``newton_warm_start``, ``state_scaling``, ``periodic``, ``period``,
+    ``symmetry``) are still accepted with a FutureWarning naming their
+    replacement (:data:`MOVED_OPTIONS`).
 
     Examples
     --------

@@ -74,8 +74,10 @@ class SplitKernelPredictor(Parametrized):
         ``L_h x``).
     quadratic_ : QuadraticPart
         The validated quadratic part (float arrays).
-    dim_, n_mu_ : int
-        State and parameter dimensions.
+    dim_ : int
+        State dimension.
+    n_mu_ : int
+        Parameter dimension.
 
     Examples
     --------

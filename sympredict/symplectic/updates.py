@@ -11,7 +11,7 @@ same equations (:func:`sympredict.symplectic.newton.rollout_compiled`, selected 
 ==========================  =========================================================  ===================
 rule                        step                                                       exists while
 ==========================  =========================================================  ===================
-:class:`SymplecticEuler`    ``p1 = p0 - dT d_q s(q0, p1)``, ``q1 = q0 + dT d_p s``      ``dp1/dp0``
+:class:`SymplecticEuler`    ``p1 = p0 - dT d_q s(q0, p1)``, ``q1 = q0 + dT d_p s``     ``dp1/dp0``
                             (type II, the paper's)                                     invertible
                                                                                        (``omega dT < pi/2``)
 :class:`Midpoint`           ``x1 = x0 + dT J grad s((x0 + x1) / 2)``                   ``(I + D Phi)/2``
@@ -85,7 +85,8 @@ class UpdateRule(Parametrized):
         raise NotImplementedError
 
     def check_symmetry(self, group: np.ndarray) -> None:
-        """``ValueError`` naming the first group element (|G|, 2n, 2n) under which this rule's ``s`` is not invariant."""
+        """``ValueError`` naming the first element of ``group`` (shape ``(|G|, 2n, 2n)``) under which this
+        rule's ``s`` is not invariant."""
         raise NotImplementedError
 
 
