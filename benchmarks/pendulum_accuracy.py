@@ -73,7 +73,7 @@ parser.add_argument("--reg-rel", type=float, default=0.0,
 parser.add_argument("--augment-reversal", action="store_true",
                     help="add the time-reversed pair (R x1 -> R x0), R(q, p) = (q, -p), of every sample (more than the quick data)")
 parser.add_argument("--symmetry", default="none", choices=["none", "klein"],
-                    help="klein: a state kernel invariant under the sign flips (q, p) -> (+-q, +-p) (symmetry=...; "
+                    help="klein: a state kernel invariant under the sign flips (q, p) -> (+-q, +-p) (Symmetric(kernel, group=...); "
                          "valid for the midpoint update only: the pendulum is even in q and in p)")
 parser.add_argument("--split", action="store_true",
                     help="L_h o S o L_h: the exact flow of the quadratic part A(l) = diag(g l, 1/l^2) over dT/2 around "

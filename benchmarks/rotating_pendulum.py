@@ -9,7 +9,7 @@ rotating states; energies above the separatrix ``2 g l`` included), angles of
 Three ways to roll out rotating orbits (energies ``H / (2 g l)`` in
 ``ratio_range``, both senses of rotation):
 
-* ``periodic``: ``SymplecticKernelPredictor(periodic=(0,))``; ``q`` grows
+* ``periodic``: ``SymplecticKernelPredictor(Periodic(kernel, coordinates=(0,)))``; ``q`` grows
   without bound, no wrapping;
 * ``plain_wrapped``: the same estimator without the periodic factor, ``q``
   wrapped into ``[-pi, pi)`` after every step (a symplectic map on the

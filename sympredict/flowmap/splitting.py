@@ -61,7 +61,8 @@ class SplitKernelPredictor(Parametrized):
     ----------
     predictor : SymplecticKernelPredictor
         The inner model ``S`` (unfitted template; :meth:`fit` fits a clone,
-        ``predictor_``).  Any update, backend, symmetry or state scaling.
+        ``predictor_``).  Any update, solver, or state-kernel transform (``Scaled``,
+        ``Symmetric``; ``Periodic`` too).
         Its ``mu_kernel`` decides whether the model takes a parameter.
     quadratic : QuadraticPart
         ``A(mu)``; its powers use either no parameter component or all
