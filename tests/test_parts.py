@@ -258,6 +258,9 @@ def test_the_around_hook_is_the_composed_step_on_the_same_solver(small_pendulum_
     np.testing.assert_allclose(traj, expected, rtol=0, atol=bound)
     with pytest.raises(ValueError, match="around: pre must be finite matrices"):
         model.rollout(x, 2, mu=mu[:3], dt=dt[:3], around=(np.eye(3), np.eye(2)))
+    model.set_params(solver__warm_start=True)  # not run inside a wrapped rollout: said, not silently dropped
+    with pytest.warns(UserWarning, match="warm_start does not apply to a wrapped rollout"):
+        model.rollout(x, 2, mu=mu[:3], dt=dt[:3], around=(rot, rot.T))
 
 
 def test_an_old_option_set_as_an_attribute_lands_in_its_part():

@@ -987,6 +987,11 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
             self._check_fitted()
             x, single = as_states(x0, "x0", dim=self.dim_)
             around = self._check_around(around, len(x))
+            if self._solver().warm_start:  # said, not silently dropped
+                warnings.warn("the solver's warm_start does not apply to a wrapped rollout (around=...): its "
+                              "extrapolation would mix the states x_k and pre x_k; every step starts from the explicit "
+                              "guess (pass NewtonSolver(warm_start=False) to the inner model to silence this)",
+                              UserWarning, stacklevel=2)
             _, _, mu, dt = self._query(np.einsum("bij,bj->bi", around[0], x), mu, dt, name="pre x0")
         weights = self.surrogate_.weights(mu, dt)
         if check_solvability:

@@ -213,7 +213,7 @@ class SplitKernelPredictor(Parametrized):
         the two maps and does all ``K`` steps in one call (instances in
         parallel), the NumPy one loops over the steps with the batch
         vectorised.  Cost ``O(K B (m (2n)^2 n_newton + (2n)^2))``.  The inner
-        model's ``newton_warm_start`` does not apply here (its extrapolation
+        model's warm start does not apply here (it warns; its extrapolation
         would mix ``x_k`` and ``L_h x_k``): every step starts from the explicit
         guess.  Extrapolation warnings are about the inner coordinates ``L_h x``.
         """
