@@ -250,6 +250,8 @@ class SymplecticROM:
 
     Attributes
     ----------
+    RB : pymor.algorithms.symplectic.SymplecticBasis
+        The basis in the FOM's phase space (what :class:`~sympredict.mor.SymplecticKernelReductor` takes).
     reductor : pymor.reductors.symplectic.QuadraticHamiltonianRBReductor
     rom : pyMOR reduced model (``V^T H(mu) V``)
     system : QuadraticHamiltonian or sympredict.systems.flowmaps.LinearHamiltonianSystem
@@ -284,6 +286,7 @@ class SymplecticROM:
         self.V = V
         self.V_plus = symplectic_inverse(V)
         rb = basis if isinstance(basis, SymplecticBasis) else basis.to_pymor(phase_space)
+        self.RB = rb
         with logger.block(f"symplectic Galerkin projection onto 2n = {V.shape[1]}"):
             self.reductor = QuadraticHamiltonianRBReductor(model, rb)
             self.rom = self.reductor.reduce()
