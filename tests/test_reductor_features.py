@@ -159,3 +159,164 @@ def test_given_data_and_scaling_settings_are_checked(wave_rom):
         given(rom, train, None, p, state_kernels=[IMQ(0.1)]).reduce()
     with pytest.raises(ValueError, match="needs validation data"):
         given(rom, train, None, None).reduce()  # the default predictor chooses its kernels
+
+
+# ---------------------------------------------------------------- flow parameters, regularization, split
+@pytest.fixture(scope="module")
+def sine_gordon(small_sine_gordon):
+    """The small sine-Gordon case (conftest): its pyMOR model, basis and projected trajectories (4, 21, 6) at c."""
+    from sympredict.mor.basis import pymor_basis
+
+    fom, gal, X, c = small_sine_gordon
+    return fom, gal, pymor_basis(gal.V, fom.phase_space), gal.project(X), c
+
+
+def sg_reductor(sine_gordon, pairs, predictor, **kw):
+    fom, gal, RB, Y, c = sine_gordon
+    space = fom.model.parameters.space({"amplitude": (0.5, 1.5), "c": (0.8, 1.2)})
+    return SymplecticKernelReductor(fom.model, RB, None, 0.1, predictor, data=pairs, parameter_space=space,
+                                    flow_parameters=("c",), **kw)
+
+
+def trajectory_pairs_of(Y, c):
+    return FlowMapData(Y[:, :-1].reshape(-1, Y.shape[-1]), Y[:, 1:].reshape(-1, Y.shape[-1]),
+                       np.repeat(c, Y.shape[1] - 1)[:, None], 0.1)
+
+
+def test_trajectory_data_pairs_are_the_consecutive_states():
+    from sympredict.data import TrajectoryData
+
+    Y = np.arange(2 * 4 * 2, dtype=float).reshape(2, 4, 2)
+    t = TrajectoryData(Y, [0.5, 0.7], 0.2)
+    d = t.pairs()
+    assert len(t) == 2 and t.mu.shape == (2, 1) and len(d) == 6
+    np.testing.assert_array_equal(d.x0[3], Y[1, 0]) and np.testing.assert_array_equal(d.x1[3], Y[1, 1])
+    np.testing.assert_array_equal(d.mu[:, 0], [0.5] * 3 + [0.7] * 3)
+    with pytest.raises(ValueError, match=r"\(P, K\+1, 2n\)"):
+        TrajectoryData(Y[:, :1], [0.5, 0.7], 0.2)
+
+
+@pytest.mark.filterwarnings("ignore::sympredict.exceptions.ExtrapolationWarning")  # the rollout nears the data's edge
+def test_flow_parameters_leave_out_the_initial_datas_parameters(sine_gordon):
+    fom, gal, RB, Y, c = sine_gordon
+    p = SymplecticKernelPredictor(IMQ(0.3), IMQ(1.0), max_centers=60)
+    red = sg_reductor(sine_gordon, trajectory_pairs_of(Y, c), p)
+    rom = red.reduce()
+    assert red.flow_map_.n_mu_ == 1 and red.flow_parameters == {"c": 1}
+    assert red.flow_lo.tolist() == [0.8] and red.flow_hi.tolist() == [1.2]  # c's part of the box
+    # the ROM takes the FOM's parameters; its flow map sees c alone
+    mu = fom.model.parameters.parse({"amplitude": 1.5, "c": 1.2})
+    U = rom.solve(mu).to_numpy().T
+    np.testing.assert_allclose(U, red.flow_map_.rollout(U[:1], len(U) - 1, mu=[[1.2]], dt=0.1)[0], rtol=0, atol=1e-12)
+    # near the projected FOM trajectory it was trained on (initial data at amplitude 1.5, c = 1.2)
+    assert np.abs(U - Y[3]).max() < 0.1 * np.abs(Y[3]).max()
+    assert_symplectic_step(red.flow_map_, Y[3, 3:5], mu=[[1.2]], dt=0.1, atol=1e-8, fd_h=1e-3, fd_atol=1e-3)
+    with pytest.raises(ValueError, match=r"depends on \['c'\].*leaves out \['c'\]"):
+        SymplecticKernelReductor(fom.model, RB, None, 0.1, p, data=trajectory_pairs_of(Y, c), flow_parameters=("amplitude",))
+    with pytest.raises(ValueError, match="not parameters of the FOM"):
+        SymplecticKernelReductor(fom.model, RB, None, 0.1, p, data=trajectory_pairs_of(Y, c), flow_parameters=("k",))
+    with pytest.raises(ValueError, match="parameter vectors of dimension 1, the flow map's parameters have dimension 2"):
+        SymplecticKernelReductor(fom.model, RB, None, 0.1, p, data=trajectory_pairs_of(Y, c))
+
+
+def hand_made_flow(pairs, lam, dt=0.1, quadratic=None):
+    """The fit the sine-Gordon experiment composed by hand before it used the reductor (one candidate)."""
+    from sympredict.flowmap.scaling import BoxScaling, NormalizedFlowMap, SymplecticScaling, scaled_quadratic_part
+    from sympredict.flowmap.splitting import SplitKernelPredictor
+
+    st = SymplecticScaling("diag").fit(np.concatenate([pairs.x0, pairs.x1]))
+    ms = BoxScaling().fit(pairs.mu, np.array([0.8]), np.array([1.2]))
+    model = SymplecticKernelPredictor(None, mu_kernel=IMQ(1.0), max_centers=50, trainer=ExactGreedy(tol=1e-9, regularization=lam))
+    if quadratic is not None:
+        model = SplitKernelPredictor(model, scaled_quadratic_part(quadratic, st, ms, dt))
+    model.fit(st.transform(pairs.x0), st.transform(pairs.x1), mu=ms.transform(pairs.mu), dt=1.0)
+    return NormalizedFlowMap(model, st, ms, dt)
+
+
+@pytest.mark.filterwarnings("ignore::sympredict.exceptions.ExtrapolationWarning")
+def test_regularization_chosen_by_rollouts_on_validation_trajectories(sine_gordon):
+    """regularizations + TrajectoryData: the table and the choice of the hand-made held-out rollouts."""
+    from sympredict.data import TrajectoryData
+
+    fom, gal, RB, Y, c = sine_gordon
+    held = np.array([False, True, False, False])
+    train, val = trajectory_pairs_of(Y[~held], c[~held]), TrajectoryData(Y[held], c[held, None], 0.1)
+    lams = (1e-8, 1e-4, 1e-1)
+    red = sg_reductor(sine_gordon, train, SymplecticKernelPredictor(None, IMQ(1.0), max_centers=50,
+                                                                      trainer=ExactGreedy(tol=1e-9)),
+                      validation_data=val, regularizations=lams)
+    red.reduce()
+    table = []
+    for lam in (0.0, *lams):
+        flow = hand_made_flow(train, lam)
+        pred = flow.rollout(Y[held, 0], 20, mu=c[held, None], dt=0.1)[:, 1:]
+        table.append((lam, float(np.mean(np.linalg.norm(pred - Y[held, 1:], axis=-1) / np.linalg.norm(Y[held, 1:], axis=-1)))))
+    assert [(r["regularization"], r["score"]) for r in red.regularization_table_] == table
+    assert red.regularization_ == min((s, lam) for lam, s in table)[1]
+    assert red.predictor_.trainer.regularization == red.regularization_
+    assert red.validation_score(red.flow_map_) == min(s for _, s in table)
+    # validation samples: the one-step error
+    pairs = val.pairs()
+    one_step = np.mean(np.linalg.norm(red.flow_map_.step(pairs.x0, mu=pairs.mu, dt=0.1) - pairs.x1, axis=-1)
+                       / np.linalg.norm(pairs.x1, axis=-1))
+    assert red.validation_score(red.flow_map_, pairs) == pytest.approx(one_step, rel=1e-12)
+    with pytest.raises(ValueError, match="regularization needs validation data"):
+        sg_reductor(sine_gordon, train, SymplecticKernelPredictor(None, IMQ(1.0)), regularizations=lams).reduce()
+    with pytest.raises(ValueError, match="regularizations must be >= 0"):
+        sg_reductor(sine_gordon, train, None, regularizations=(-1.0,))
+    with pytest.raises(ValueError, match="trajectories of dimension 4"):
+        sg_reductor(sine_gordon, train, None, validation_data=TrajectoryData(Y[held, :, :4], c[held, None], 0.1))
+
+
+@pytest.mark.filterwarnings("ignore::sympredict.exceptions.ExtrapolationWarning")
+def test_split_is_the_hand_made_split_predictor_and_symplectic(sine_gordon):
+    fom, gal, RB, Y, c = sine_gordon
+    quad = gal.quadratic_part(mass=True)
+    train = trajectory_pairs_of(Y, c)
+    red = sg_reductor(sine_gordon, train, SymplecticKernelPredictor(None, IMQ(1.0), max_centers=50,
+                                                                      trainer=ExactGreedy(tol=1e-9)), split=quad)
+    red.reduce()
+    assert type(red.predictor_).__name__ == "SplitKernelPredictor"
+    by_hand = hand_made_flow(train, 0.0, quadratic=quad)
+    x = Y[:, 5]
+    np.testing.assert_array_equal(red.flow_map_.step(x, mu=c[:, None], dt=0.1), by_hand.step(x, mu=c[:, None], dt=0.1))
+    D = red.flow_map_.step_jacobian(x, mu=c[:, None], dt=0.1)
+    J = np.block([[np.zeros((3, 3)), np.eye(3)], [-np.eye(3), np.zeros((3, 3))]])
+    assert np.abs(np.swapaxes(D, 1, 2) @ J @ D - J).max() < 1e-8  # DPhi^T J DPhi = J
+    # the existence check saw S's pairs (L_h x0, L_-h x1): per c the least-squares linear map of those pairs
+    from scipy.linalg import expm
+
+    sigmas = []
+    for cc in np.unique(c):
+        L = expm(0.05 * J @ quad.hessian(cc)[0])
+        sel = train.mu[:, 0] == cc
+        M = np.linalg.lstsq(train.x0[sel] @ L.T, train.x1[sel] @ np.linalg.inv(L).T, rcond=None)[0].T
+        sigmas.append(np.linalg.svd(M[3:, 3:], compute_uv=False)[-1])  # dp1/dp0 of S
+    assert red.existence_["sigma_min"] == pytest.approx(min(sigmas), rel=1e-8)
+    with pytest.raises(ValueError, match="split must be a sympredict.systems.linear_flow.QuadraticPart"):
+        sg_reductor(sine_gordon, train, None, split=np.eye(6))
+    with pytest.raises(ValueError, match="inner SymplecticKernelPredictor as predictor"):
+        from sympredict.flowmap.splitting import SplitKernelPredictor
+
+        sg_reductor(sine_gordon, train, SplitKernelPredictor(SymplecticKernelPredictor(), quad), split=quad)
+
+
+def test_split_of_the_whole_quadratic_hamiltonian_is_its_exact_flow(wave_rom):
+    """On a linear ROM with split = its whole Hamiltonian, S is the identity: the learned step is expm(dt J H(mu)),
+    also at a speed between the training ones and with the kernels chosen on S's pairs."""
+    from scipy.linalg import expm
+
+    from sympredict.systems.linear_flow import QuadraticPart
+
+    fom, rom, _, _ = wave_rom
+    mus = [fom.model.parameters.parse(c**2) for c in (0.2, 0.25, 0.3)]
+    H0, H1 = rom.system.H0, rom.system.H1  # H(mu) = H0 + mu H1
+    red = SymplecticKernelReductor(fom.model, rom.RB, mus, 0.1, SymplecticKernelPredictor(max_centers=30),
+                                   n_samples=40, n_validation=2, split=QuadraticPart([H0, H1], [[0.0], [1.0]]),
+                                   state_kernels=[IMQ(0.1), IMQ(1.0)], mu_kernels=[IMQ(1.0)], m_star=10)
+    red.reduce()
+    assert hasattr(red, "selection_")
+    x = red.validation_data_.x0[:5]
+    for mu in (0.05, 0.0784):
+        exact = x @ expm(0.1 * rom.system.J @ (H0 + mu * H1)).T
+        np.testing.assert_allclose(red.flow_map_.step(x, mu=[[mu]], dt=0.1), exact, rtol=0, atol=1e-9 * np.abs(x).max())

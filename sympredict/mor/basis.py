@@ -32,7 +32,8 @@ from sympredict.systems.flowmaps import linear_system_from_pymor
 from sympredict.symplectic.metrics import canonical_J
 from sympredict.systems.quadratic import QuadraticHamiltonian
 
-__all__ = ["ComplexSVDBasis", "snapshot_rows", "basis_columns", "complex_svd_basis", "symplectic_inverse", "symplecticity_of_basis", "SymplecticROM"]
+__all__ = ["ComplexSVDBasis", "snapshot_rows", "basis_columns", "complex_svd_basis", "pymor_basis", "symplectic_inverse",
+           "symplecticity_of_basis", "SymplecticROM"]
 
 logger = getLogger("sympredict.mor.basis")
 
@@ -66,13 +67,22 @@ class ComplexSVDBasis:
 
     def to_pymor(self, phase_space):
         """The basis as pyMOR ``SymplecticBasis`` in ``phase_space`` (a 2-block ``BlockVectorSpace``)."""
-        from pymor.algorithms.symplectic import SymplecticBasis
+        return pymor_basis(self.V, phase_space)
 
-        big_n = self.V.shape[0] // 2
-        q_space, p_space = phase_space.subspaces
-        E = phase_space.make_array([q_space.from_numpy(self.V[:big_n, : self.n]), p_space.from_numpy(self.V[big_n:, : self.n])])
-        F = phase_space.make_array([q_space.from_numpy(self.V[:big_n, self.n :]), p_space.from_numpy(self.V[big_n:, self.n :])])
-        return SymplecticBasis(E, F)
+
+def pymor_basis(V, phase_space):
+    """A basis ``V = [E, F]`` (2N, 2n), rows ``(q, p)``, as a pyMOR ``SymplecticBasis`` in ``phase_space``
+    (a 2-block ``BlockVectorSpace``); the values are copied, not computed."""
+    from pymor.algorithms.symplectic import SymplecticBasis
+
+    V = basis_columns(V)
+    big_n, n = V.shape[0] // 2, V.shape[1] // 2
+    if V.shape[0] != phase_space.dim:
+        raise ValueError(f"the basis has {V.shape[0]} rows, the phase space has dimension {phase_space.dim}")
+    q_space, p_space = phase_space.subspaces
+    E = phase_space.make_array([q_space.from_numpy(V[:big_n, :n]), p_space.from_numpy(V[big_n:, :n])])
+    F = phase_space.make_array([q_space.from_numpy(V[:big_n, n:]), p_space.from_numpy(V[big_n:, n:])])
+    return SymplecticBasis(E, F)
 
 
 def snapshot_rows(snapshots, layout: Optional[str] = None) -> np.ndarray:

@@ -68,8 +68,9 @@ from pymor.vectorarrays.numpy import NumpyVectorSpace
 
 from sympredict._checks import as_positive_int, as_real
 from sympredict.base import clone
-from sympredict.data import FlowMapData
+from sympredict.data import FlowMapData, TrajectoryData
 from sympredict.exceptions import ExtrapolationWarning
+from sympredict.systems.linear_flow import QuadraticPart, inverse_symplectic_matrices
 from sympredict.systems.flowmaps import (
     _report_existence,
     first_singular_step,
@@ -88,7 +89,8 @@ from sympredict.systems.flowmaps import (
 from sympredict.kernels import IMQ, RadialKernel
 from sympredict.kernels.transforms import KernelTransform
 from sympredict.estimators.predictor import SymplecticKernelPredictor
-from sympredict.flowmap.scaling import BoxScaling, NormalizedFlowMap, SymplecticScaling
+from sympredict.flowmap.scaling import BoxScaling, NormalizedFlowMap, SymplecticScaling, scaled_quadratic_part
+from sympredict.flowmap.splitting import SplitKernelPredictor
 from sympredict.estimators.selection import log_grid, select_kernels
 from sympredict.interpolation.greedy import ExactGreedy
 
@@ -149,9 +151,11 @@ class SymplecticKernelModel(Model):
     T, dt : float
     parameters : pyMOR Parameters
         Those of the FOM.
+    flow_parameters : pyMOR Parameters, optional
+        Those the flow map takes (default ``parameters``); the others enter the initial data only.
     """
 
-    def __init__(self, flow_map, initial_data, T, dt, parameters, name=None):
+    def __init__(self, flow_map, initial_data, T, dt, parameters, name=None, flow_parameters=None):
         super().__init__(name=name)
         self.__auto_init(locals())
         self.solution_space = NumpyVectorSpace(initial_data.range.dim)
@@ -172,6 +176,8 @@ class SymplecticKernelModel(Model):
         if "solution" in quantities:
             x0 = self.initial_data.as_range_array(mu).to_numpy().reshape(1, -1)
             vec = mu_to_vector(mu, self.parameters)
+            if self.flow_parameters is not None:
+                vec = _subvector(vec, self.parameters, self.flow_parameters)
             with warnings.catch_warnings(record=True) as caught:
                 warnings.simplefilter("always", ExtrapolationWarning)
                 traj = self.flow_map.rollout(x0, self.n_steps, mu=vec if vec.size else None, dt=self.dt)[0]
@@ -239,6 +245,49 @@ def _check_reductor_settings(fom, dt, predictor, parameter_space, n_samples, rad
                              f"{dict(fom.parameters)}: names and dimensions must agree")
 
 
+def _subvector(vec: np.ndarray, parameters, sub) -> np.ndarray:
+    """The components of a parameter vector of ``parameters`` (:func:`mu_to_vector` order) that belong to ``sub``."""
+    return np.asarray(vec, dtype=float)[..., _sub_index(parameters, sub)]
+
+
+def _sub_index(parameters, sub) -> np.ndarray:
+    """Indices of the parameters ``sub`` in the vectors of ``parameters`` (both sorted by name)."""
+    offsets, i = {}, 0
+    for k in sorted(parameters):
+        offsets[k] = i
+        i += parameters[k]
+    return np.array([offsets[k] + j for k in sorted(sub) for j in range(sub[k])], dtype=int)
+
+
+def _operator_parameters(fom) -> set:
+    """Names of the parameters the FOM's evolution depends on (its operators other than the initial data)."""
+    names = set()
+    for attr in ("operator", "H_op", "h", "mass", "rhs"):
+        op = getattr(fom, attr, None)
+        if op is not None and hasattr(op, "parameters"):
+            names |= set(op.parameters)
+    return names
+
+
+def _flow_parameters(fom, flow_parameters):
+    """``fom.parameters`` restricted to the names ``flow_parameters`` (``None``: all), checked."""
+    from pymor.parameters.base import Parameters
+
+    if flow_parameters is None:
+        return fom.parameters
+    if isinstance(flow_parameters, str) or not all(isinstance(k, str) for k in flow_parameters):
+        raise ValueError(f"flow_parameters must be a sequence of parameter names (e.g. ('c',)), got {flow_parameters!r}")
+    names = set(flow_parameters)
+    unknown = names - set(fom.parameters)
+    if unknown:
+        raise ValueError(f"flow_parameters {sorted(unknown)} are not parameters of the FOM ({dict(fom.parameters)})")
+    needed = _operator_parameters(fom) & set(fom.parameters)
+    if needed - names:
+        raise ValueError(f"the FOM's evolution depends on {sorted(needed)}: flow_parameters={sorted(names)} leaves out "
+                         f"{sorted(needed - names)} (only parameters of the initial data may be left out)")
+    return Parameters({k: fom.parameters[k] for k in names})
+
+
 def _check_choice(value, name: str, choices: tuple) -> str:
     if not isinstance(value, str) or value not in choices:
         raise ValueError(f"{name} must be one of {choices}, got {value!r}")
@@ -260,19 +309,31 @@ def _check_kernels(kernels, name: str, allow_none: bool) -> Optional[list]:
 
 
 def _check_given_data(data, validation_data, dim: int, n_mu: int, dt: float) -> None:
-    """The caller's training and validation samples: reduced states of dimension ``2n``, parameter vectors of the
-    FOM's dimension, all at the reductor's ``dt``."""
+    """The caller's training samples and validation samples (or trajectories): reduced states of dimension ``2n``,
+    parameter vectors of the flow parameters' dimension, all at the reductor's ``dt``."""
     for name, d in (("data", data), ("validation_data", validation_data)):
         if d is None:
             continue
+        if isinstance(d, TrajectoryData) and name == "validation_data":
+            if d.states.shape[2] != dim:
+                raise ValueError(f"validation_data has trajectories of dimension {d.states.shape[2]}, the basis has "
+                                 f"2n = {dim}: give reduced coordinates")
+            if d.mu.shape[1] != n_mu:
+                raise ValueError(f"validation_data has parameter vectors of dimension {d.mu.shape[1]}, the flow map's "
+                                 f"parameters have dimension {n_mu}")
+            if not np.isclose(d.dt, dt, rtol=1e-12, atol=0):
+                raise ValueError(f"validation_data has the step {d.dt!r}, the reductor's dt is {dt!r}")
+            continue
         if not isinstance(d, FlowMapData):
-            raise ValueError(f"{name} must be a sympredict.data.FlowMapData of reduced samples, got {type(d).__name__}")
+            raise ValueError(f"{name} must be a sympredict.data.FlowMapData of reduced samples"
+                             + (" or a TrajectoryData" if name == "validation_data" else "")
+                             + f", got {type(d).__name__}")
         if d.x0.shape[1] != dim:
             raise ValueError(f"{name} has states of dimension {d.x0.shape[1]}, the basis has 2n = {dim}: give reduced "
                              f"coordinates (reductor.project(U) of full states)")
         if d.mu.shape[1] != n_mu:
-            raise ValueError(f"{name} has parameter vectors of dimension {d.mu.shape[1]}, the FOM's parameters have "
-                             f"dimension {n_mu} (mu_to_vector order: values sorted by parameter name)")
+            raise ValueError(f"{name} has parameter vectors of dimension {d.mu.shape[1]}, the flow map's parameters "
+                             f"have dimension {n_mu} (mu_to_vector order: values sorted by parameter name)")
         if not np.allclose(d.dt, dt, rtol=1e-12, atol=0):
             raise ValueError(f"{name} has steps {np.unique(d.dt)[:5].tolist()}, the reductor's dt is {dt!r}: a reductor "
                              f"learns one macro step")
@@ -350,13 +411,33 @@ class SymplecticKernelReductor(BasicObject):
         (no search unless one of them is given).
     m_star : int
         Centres at which the kernel candidates are compared (at most the budget).
+    regularizations : sequence of float, optional
+        Ridge terms (``trainer__regularization``) tried besides ``0`` (the exact fit): each
+        candidate is trained on the training data and scored on the validation data, in
+        reduced coordinates; the smallest score wins, ties to the smaller term.  Validation
+        samples (``FlowMapData``) score the mean relative error of one step; validation
+        trajectories (``TrajectoryData``) the mean relative error of the rollouts from their
+        first states over all their steps (a failed or non-finite rollout scores ``inf``).
+    split : QuadraticPart, optional
+        The quadratic part ``A(mu)`` of the reduced Hamiltonian (in reduced coordinates, a
+        function of the flow parameters): the learned step becomes ``L_h o S o L_h``
+        (:class:`~sympredict.flowmap.splitting.SplitKernelPredictor`, ``L_h = expm(dt/2 J A)``,
+        carried into the scaled coordinates by :func:`~sympredict.flowmap.scaling.scaled_quadratic_part`),
+        so the linear part of the flow is exact and only ``S`` is learned.  The existence check and
+        the kernel search then see ``S``'s pairs ``(L_h x0, L_{-h} x1)``.
+    flow_parameters : sequence of str, optional
+        The parameters the flow map takes (default: all of the FOM's).  Parameters that enter only
+        the initial data (checked: the FOM's other operators must not depend on them) are left out,
+        so the kernel interpolates in the others only; data, ``parameter_space`` box and
+        ``split`` use the flow parameters' vectors.
     """
 
     def __init__(self, fom, RB, training_parameters, dt, predictor=None, data="reduced", *, parameter_space=None,
                  n_samples: int = 400, radius: float = 0.05, n_validation: int = 3, horizon: Optional[float] = None,
                  state_scaling: str = "diag", max_centers: int = 1000, check_existence: bool = True, seed: int = 0,
-                 validation_data: Optional[FlowMapData] = None, parameter_scaling: str = "box",
-                 time_scaling: str = "step", state_kernels=None, mu_kernels=None, m_star: int = 300):
+                 validation_data=None, parameter_scaling: str = "box", time_scaling: str = "step",
+                 state_kernels=None, mu_kernels=None, m_star: int = 300, regularizations=None,
+                 split: Optional[QuadraticPart] = None, flow_parameters=None):
         if isinstance(data, FlowMapData):
             mode = "given"
         elif isinstance(data, str) and data in ("reduced", "projected"):
@@ -378,18 +459,39 @@ class SymplecticKernelReductor(BasicObject):
                                  max_centers, check_existence, seed, m_star)
         state_kernels = _check_kernels(state_kernels, "state_kernels", allow_none=False)
         mu_kernels = _check_kernels(mu_kernels, "mu_kernels", allow_none=True)
+        flow = _flow_parameters(fom, flow_parameters)
+        if regularizations is not None:
+            regularizations = [float(as_real(v, "regularizations", nonnegative=True))
+                               for v in np.atleast_1d(np.asarray(regularizations, dtype=object))]
+        if split is not None:
+            if not isinstance(split, QuadraticPart):
+                raise ValueError(f"split must be a sympredict.systems.linear_flow.QuadraticPart (the quadratic part "
+                                 f"A(mu) of the reduced Hamiltonian), got {split!r}")
+            split.checked(dim=2 * len(RB))
+            if split.checked()[1].shape[1] not in (0, flow.dim):
+                raise ValueError(f"split depends on {split.checked()[1].shape[1]} parameter component(s), the flow map "
+                                 f"takes {flow.dim}")
+            if isinstance(predictor, SplitKernelPredictor):
+                raise ValueError("give the inner SymplecticKernelPredictor as predictor and the quadratic part as split: "
+                                 "the reductor builds the SplitKernelPredictor in its scaled coordinates")
         if mode == "given":
-            _check_given_data(data, validation_data, 2 * len(RB), fom.parameters.dim, float(dt))
-            if fom.parameters and (training_parameters is None or len(training_parameters) == 0):
+            _check_given_data(data, validation_data, 2 * len(RB), flow.dim, float(dt))
+            if (fom.parameters and flow == fom.parameters
+                    and (training_parameters is None or len(training_parameters) == 0)):
                 training_parameters = [fom.parameters.parse(row) for row in np.unique(data.mu, axis=0)]
         if not fom.parameters:
             training_parameters = [None]
-        elif training_parameters is None or len(training_parameters) == 0:
+        elif (training_parameters is None or len(training_parameters) == 0) and mode != "given":
             raise ValueError(f"the FOM has parameters {dict(fom.parameters)}: give training_parameters (pyMOR Mu)")
         self.__auto_init(locals())
         self.mode = mode
         self.state_kernels, self.mu_kernels = state_kernels, mu_kernels
-        self.training_parameters = [parse_mu(m, fom.parameters) for m in training_parameters]
+        self.regularizations = regularizations
+        self.flow_parameters = flow
+        self._flow_index = _sub_index(fom.parameters, flow)
+        self._flow_subset = flow != fom.parameters
+        self.training_parameters = None if training_parameters is None or len(training_parameters) == 0 else \
+            [parse_mu(m, fom.parameters) for m in training_parameters]
         if isinstance(predictor, SymplecticKernelPredictor):
             predictor._check_params()  # its settings, before any FOM solve (fit would check them after all samples)
         self.dt = float(dt)
@@ -401,7 +503,13 @@ class SymplecticKernelReductor(BasicObject):
         if mode == "projected" and getattr(fom, "num_values", None) is None and getattr(
                 getattr(fom, "time_stepper", None), "nt", None):  # an InstationaryModel's output grid, known up front
             self._check_stride(fom.T / fom.time_stepper.nt)
-        self.mu_lo, self.mu_hi = parameter_box(self.training_parameters, fom.parameters, parameter_space)
+        if self.training_parameters is not None or parameter_space is not None:
+            # the FOM's parameter box (validation draws), and the flow parameters' part of it (their scaling)
+            self.mu_lo, self.mu_hi = parameter_box(self.training_parameters, fom.parameters, parameter_space)
+            self.flow_lo, self.flow_hi = self.mu_lo[self._flow_index], self.mu_hi[self._flow_index]
+        else:  # the caller's data without training parameters: the box of its samples
+            self.mu_lo = self.mu_hi = None
+            self.flow_lo, self.flow_hi = data.mu.min(axis=0), data.mu.max(axis=0)
 
     # ------------------------------------------------------------ projection
     def project(self, U) -> np.ndarray:
@@ -511,28 +619,56 @@ class SymplecticKernelReductor(BasicObject):
         if worst[1] is None:
             return {}
         update = self._update()
-        return _report_existence(worst[0], worst[1], self.dt, first_singular_step(generators, update=update), 1e-2, 0.1, update)
+        om = max(float(np.abs(np.linalg.eigvals(A).imag).max()) for A in generators)
+        if om * self.dt < 1e-6:  # no rotation to speak of (e.g. the remainder S of a split): no singular step ahead
+            dt_max = np.inf
+        else:
+            try:
+                with np.errstate(all="ignore"):
+                    dt_max = first_singular_step(generators, update=update)
+            except np.linalg.LinAlgError:  # the scan ran into the non-symplectic round-off of the fitted maps
+                dt_max = np.inf
+        return _report_existence(worst[0], worst[1], self.dt, dt_max, 1e-2, 0.1, update)
 
     _check_existence_projected = _check_existence_from_data  # the name of earlier versions
 
+    def _to_flow(self, d: FlowMapData) -> FlowMapData:
+        """Samples with the FOM's parameter vectors -> with the flow parameters' vectors."""
+        if not self._flow_subset:
+            return d
+        return FlowMapData(d.x0, d.x1, d.mu[:, self._flow_index] if self.flow_parameters else None, d.dt)
+
+    def split_pairs(self, data: FlowMapData) -> FlowMapData:
+        """``S``'s samples ``(L_h x0, L_{-h} x1)``, ``L_h = expm(dt/2 J A(mu))``, of samples ``x1 = Phi(x0)``
+        (the identity without ``split``), in reduced coordinates."""
+        if self.split is None:
+            return data
+        L = self.split.propagator(data.mu if data.mu.shape[1] else None, 0.5 * data.dt, n=len(data))
+        return FlowMapData(np.einsum("bij,bj->bi", L, data.x0),
+                           np.einsum("bij,bj->bi", inverse_symplectic_matrices(L), data.x1),
+                           data.mu if data.mu.shape[1] else None, data.dt)
+
     def training_data(self):
-        """Training and validation :class:`~sympredict.data.FlowMapData` in original reduced coordinates."""
+        """Training and validation data in original reduced coordinates, parameter vectors of the flow parameters.
+
+        Returns ``(train, val)``: :class:`~sympredict.data.FlowMapData`, and for the caller's data its
+        ``validation_data`` as given (``FlowMapData``, :class:`~sympredict.data.TrajectoryData` or ``None``).
+        """
         if self.mode == "given":
             train, val = self.data, self.validation_data
-            if self.check_existence:
-                self.existence_ = self._check_existence_from_data(train)
-            return train, val
-        val_mus = self.validation_parameters()
-        if self.mode == "reduced":
-            train, system = self._reduced_data(self.training_parameters, self.n_samples, self.seed)
-            val, _ = self._reduced_data(val_mus, max(50, self.n_samples // 4), self.seed + 1)
-            if self.check_existence:
-                self.existence_ = check_generating_function(system, train, update=self._update())
         else:
-            train = self._projected_data(self.training_parameters)
-            val = self._projected_data(val_mus)
-            if self.check_existence:
-                self.existence_ = self._check_existence_from_data(train)
+            val_mus = self.validation_parameters()
+            if self.mode == "reduced":
+                train, system = self._reduced_data(self.training_parameters, self.n_samples, self.seed)
+                val, _ = self._reduced_data(val_mus, max(50, self.n_samples // 4), self.seed + 1)
+                if self.check_existence and self.split is None:
+                    self.existence_ = check_generating_function(system, train, update=self._update())
+            else:
+                train = self._projected_data(self.training_parameters)
+                val = self._projected_data(val_mus)
+            train, val = self._to_flow(train), self._to_flow(val)
+        if self.check_existence and not (self.mode == "reduced" and self.split is None):
+            self.existence_ = self._check_existence_from_data(self.split_pairs(train))
         return train, val
 
     # ------------------------------------------------------------ reduce
@@ -583,13 +719,16 @@ class SymplecticKernelReductor(BasicObject):
         -------
         s_train, s_val : FlowMapData
             Scaled states, parameters in ``[0, 1]^d`` (``None`` when they do not vary), ``dt = 1``
-            (each as given where the scaling is ``"none"``); ``s_val`` is ``None`` without validation data.
+            (each as given where the scaling is ``"none"``); ``s_val`` is ``None`` without validation data,
+            the consecutive states of validation trajectories.
         state_scaling : SymplecticScaling
         mu_scaling : BoxScaling or None
         """
         with self.logger.block(f"flow-map data ({self.mode}), 2n = {self.dim}, dt = {self.dt!r}"):
             train, val = self.training_data()
         self.train_data_, self.validation_data_ = train, val
+        if isinstance(val, TrajectoryData):  # validation trajectories: their consecutive states for the greedy's E_val
+            val = val.pairs()
         vary_mu = train.mu.shape[1] > 0 and bool(np.any(np.ptp(train.mu, axis=0) > 0))
         reference = None
         if self.state_scaling == "williamson":
@@ -600,7 +739,7 @@ class SymplecticKernelReductor(BasicObject):
         if vary_mu:
             d = train.mu.shape[1]
             # "none": the identity map (lo = 0, width = 1), so the predictor sees the parameter vectors unchanged
-            mu_scaling = BoxScaling().fit(train.mu, self.mu_lo, self.mu_hi) if self.parameter_scaling == "box" else \
+            mu_scaling = BoxScaling().fit(train.mu, self.flow_lo, self.flow_hi) if self.parameter_scaling == "box" else \
                 BoxScaling().fit(train.mu, np.zeros(d), np.ones(d))
         self.tau_ = self.dt if self.time_scaling == "step" else 1.0
 
@@ -615,49 +754,130 @@ class SymplecticKernelReductor(BasicObject):
 
         return scaled(train), scaled(val), state_scaling, mu_scaling
 
+    def _fit(self, predictor, s_train, s_val, vary_mu, state_scaling, mu_scaling):
+        """Fit ``predictor`` (inside the split, if any) on the scaled data; the flow map in reduced coordinates."""
+        model = predictor
+        if self.split is not None:
+            quad = self.split
+            if not vary_mu and quad.checked()[1].shape[1]:  # one training parameter: A at that parameter
+                quad = QuadraticPart(quad.hessian(self.train_data_.mu[:1], 1))
+            model = SplitKernelPredictor(predictor, scaled_quadratic_part(quad, state_scaling, mu_scaling, self.tau_))
+        model.fit(s_train.x0, s_train.x1, mu=s_train.mu if vary_mu else None, dt=s_train.dt,
+                  validation=None if s_val is None else (s_val.x0, s_val.x1, s_val.mu if vary_mu else None, s_val.dt))
+        flow_map = NormalizedFlowMap(model, state_scaling, mu_scaling if vary_mu else None, self.tau_)
+        if not vary_mu and self.flow_parameters:
+            # one training parameter: the predictor has no mu input, the ROM accepts only that mu
+            flow_map = _FixedMuFlowMap(flow_map, self.train_data_.mu[0])
+        return model, flow_map
+
+    def validation_score(self, flow_map, validation=None) -> float:
+        """Mean relative error of ``flow_map`` (reduced coordinates) on validation data (default ``validation_data_``).
+
+        ``TrajectoryData``: rollouts from the first states over all steps, ``mean |x_k - X_k| / |X_k|`` over
+        trajectories and ``k >= 1``; ``FlowMapData``: one step from each ``x0`` against ``x1``.  ``inf`` for a failed
+        or non-finite prediction.
+        """
+        val = self.validation_data_ if validation is None else validation
+        try:
+            with warnings.catch_warnings():  # a candidate may extrapolate or fail: its score says so
+                warnings.simplefilter("ignore")
+                if isinstance(val, TrajectoryData):
+                    ref = val.states[:, 1:]
+                    pred = flow_map.rollout(val.states[:, 0], ref.shape[1], mu=val.mu if val.mu.shape[1] else None,
+                                            dt=self.dt)[:, 1:]
+                else:
+                    ref = val.x1
+                    pred = flow_map.step(val.x0, mu=val.mu if val.mu.shape[1] else None, dt=self.dt)
+                score = float(np.mean(np.linalg.norm(pred - ref, axis=-1) / np.linalg.norm(ref, axis=-1)))
+        except Exception as exc:  # a Newton failure, a non-finite prediction: this candidate cannot be used
+            self.logger.info(f"validation rollout failed: {type(exc).__name__}: {exc}")
+            return np.inf
+        return score if np.isfinite(score) else np.inf
+
     def reduce(self, T: Optional[float] = None) -> SymplecticKernelModel:
         """Sample data, fit the predictor, return the ROM (horizon ``T``, default ``fom.T``).
 
-        Sets ``predictor_`` (the fitted predictor, in the scaled coordinates), ``flow_map_`` (the ROM's
-        flow map in reduced coordinates), ``selection_`` (where kernels were chosen) and ``timings_``
-        (seconds of ``data``, ``selection`` and ``fit``).
+        Sets ``predictor_`` (the fitted predictor, in the scaled coordinates; a
+        :class:`~sympredict.flowmap.splitting.SplitKernelPredictor` with ``split``), ``flow_map_`` (the ROM's
+        flow map in reduced coordinates), ``selection_`` (where kernels were chosen), ``regularization_`` and
+        ``regularization_table_`` (with ``regularizations``: the chosen term and ``[{"regularization", "score"}]``,
+        ``score`` ``None`` where not finite) and ``timings_`` (seconds of ``data``, ``selection`` and ``fit``).
         """
-        rows = self._mu_rows(self.training_parameters)
+        if self.mode == "given":
+            rows = self.data.mu
+        else:
+            rows = self._mu_rows(self.training_parameters)[:, self._flow_index]
         if len(np.unique(rows, axis=0)) > 1 and getattr(self.predictor, "mu_kernel", True) is None \
                 and self.mu_kernels is None:
             # before any FOM solve (reduce() would find it after sampling)
             raise ValueError("the parameters vary across training_parameters but the predictor has mu_kernel=None: "
                              "give it a mu_kernel, or train at one parameter value")
+        if self.regularizations is not None and self.validation_data is None and self.mode == "given":
+            raise ValueError("choosing the regularization needs validation data: give validation_data (samples or "
+                             "trajectories) with the caller's data")
         t0 = time.perf_counter()
         s_train, s_val, state_scaling, mu_scaling = self.scaled_training_data()
         timings = {"data": time.perf_counter() - t0}
         train = self.train_data_
         vary_mu = mu_scaling is not None
         t0 = time.perf_counter()
+        if self.split is None:
+            search = (s_train, s_val)
+        else:  # the kernels of S, compared on S's samples
+            search = tuple(None if d is None else self._scaled_split_pairs(d, state_scaling, mu_scaling, vary_mu)
+                           for d in (s_train, s_val))
         if self.predictor is None:
-            predictor = self._default_predictor(s_train, s_val, vary_mu)
+            predictor = self._default_predictor(*search, vary_mu)
         else:
-            predictor = self._search_kernels(clone(self.predictor), s_train, s_val, vary_mu) or clone(self.predictor)
+            predictor = self._search_kernels(clone(self.predictor), *search, vary_mu) or clone(self.predictor)
             if vary_mu and getattr(predictor, "mu_kernel", True) is None:
                 raise ValueError("the parameters vary across training_parameters but the predictor has mu_kernel=None")
         timings["selection"] = time.perf_counter() - t0
         t0 = time.perf_counter()
-        with self.logger.block(f"fitting {type(predictor).__name__} on {len(train)} samples"):
-            predictor.fit(s_train.x0, s_train.x1, mu=s_train.mu if vary_mu else None, dt=s_train.dt,
-                          validation=None if s_val is None else
-                          (s_val.x0, s_val.x1, s_val.mu if vary_mu else None, s_val.dt))
+        with self.logger.block(f"fitting {type(predictor).__name__} on {len(train)} samples"
+                               + ("" if self.split is None else " (inside the split)")):
+            if self.regularizations is None:
+                model, flow_map = self._fit(predictor, s_train, s_val, vary_mu, state_scaling, mu_scaling)
+            else:
+                model, flow_map = self._choose_regularization(predictor, s_train, s_val, vary_mu, state_scaling,
+                                                              mu_scaling)
         timings["fit"] = time.perf_counter() - t0
         self.timings_ = timings
-        self.predictor_ = predictor
-        if not vary_mu and self.fom.parameters:
-            # one training parameter: the predictor has no mu input, the ROM accepts only that mu
-            flow_map = _FixedMuFlowMap(NormalizedFlowMap(predictor, state_scaling, None, self.tau_), train.mu[0])
-        else:
-            flow_map = NormalizedFlowMap(predictor, state_scaling, mu_scaling, self.tau_)
+        self.predictor_ = model
         self.flow_map_ = flow_map
         name = None if self.fom.name is None else "kernel_" + self.fom.name
         return SymplecticKernelModel(flow_map, self._reduced_initial_data(), self.fom.T if T is None else T, self.dt,
-                                     self.fom.parameters, name=name)
+                                     self.fom.parameters, name=name,
+                                     flow_parameters=self.flow_parameters if self._flow_subset else None)
+
+    def _scaled_split_pairs(self, d, state_scaling, mu_scaling, vary_mu):
+        """``S``'s samples in the predictor's coordinates (what the kernel search compares candidates on)."""
+        quad = self.split
+        if not vary_mu and quad.checked()[1].shape[1]:
+            quad = QuadraticPart(quad.hessian(self.train_data_.mu[:1], 1))
+        quad = scaled_quadratic_part(quad, state_scaling, mu_scaling if vary_mu else None, self.tau_)
+        L = quad.propagator(d.mu if d.mu.shape[1] else None, 0.5 * d.dt, n=len(d))
+        return FlowMapData(np.einsum("bij,bj->bi", L, d.x0), np.einsum("bij,bj->bi", inverse_symplectic_matrices(L), d.x1),
+                           d.mu if d.mu.shape[1] else None, d.dt)
+
+    def _choose_regularization(self, predictor, s_train, s_val, vary_mu, state_scaling, mu_scaling):
+        """Every ridge term of ``{0} | regularizations`` fitted and scored by :meth:`validation_score`; the best."""
+        table, best = [], None
+        for lam in sorted({0.0, *self.regularizations}):
+            candidate = clone(predictor).set_params(trainer__regularization=lam)
+            model, flow_map = self._fit(candidate, s_train, s_val, vary_mu, state_scaling, mu_scaling)
+            score = self.validation_score(flow_map)
+            table.append({"regularization": lam, "score": score if np.isfinite(score) else None})
+            self.logger.info(f"regularization {lam:.3g}: validation score {score:.4e} ({model.n_centers_} centres)")
+            if np.isfinite(score) and (best is None or score < best[0]):  # ties: the smaller term (tried first)
+                best = (score, lam, model, flow_map)
+            elif best is None and lam == 0.0:
+                zero = (np.inf, lam, model, flow_map)
+        if best is None:
+            self.logger.warning("no regularization gave a finite validation score: the exact fit (0) is kept")
+            best = zero
+        self.regularization_, self.regularization_table_ = best[1], table
+        return best[2], best[3]
 
 
 class _FixedMuFlowMap:
