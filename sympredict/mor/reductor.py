@@ -62,7 +62,6 @@ from pymor.algorithms.symplectic import SymplecticBasis
 from pymor.core.base import BasicObject
 from pymor.models.symplectic import QuadraticHamiltonianModel
 from pymor.operators.symplectic import CanonicalSymplecticFormOperator
-from pymor.reductors.symplectic import QuadraticHamiltonianRBReductor
 from pymor.models.interface import Model
 from pymor.vectorarrays.numpy import NumpyVectorSpace
 
@@ -89,6 +88,7 @@ from sympredict.systems.flowmaps import (
 from sympredict.kernels import IMQ, RadialKernel
 from sympredict.kernels.transforms import KernelTransform
 from sympredict.estimators.predictor import SymplecticKernelPredictor
+from sympredict.mor.basis import SymplecticROM
 from sympredict.flowmap.scaling import BoxScaling, NormalizedFlowMap, SymplecticScaling, scaled_quadratic_part
 from sympredict.flowmap.splitting import SplitKernelPredictor
 from sympredict.estimators.selection import log_grid, select_kernels
@@ -541,10 +541,12 @@ class SymplecticKernelReductor(BasicObject):
         return random_parameters(self.fom.parameters, self.mu_lo, self.mu_hi, self.n_validation, seed=self.seed + 7)
 
     def _galerkin(self):
-        """pyMOR's symplectic Galerkin ROM of the FOM and its reduced quadratic Hamiltonian (exact flows), built once."""
+        """The symplectic Galerkin ROM of the FOM (:class:`~sympredict.mor.basis.SymplecticROM`: pyMOR's
+        ``QuadraticHamiltonianRBReductor``) and its reduced quadratic Hamiltonian with exact flows, built once:
+        ``galerkin`` (the ROM), ``galerkin_rom`` (its pyMOR model), ``reduced_system``."""
         if not hasattr(self, "galerkin_rom"):
-            with self.logger.block("symplectic Galerkin projection (pyMOR QuadraticHamiltonianRBReductor)"):
-                self.galerkin_rom = QuadraticHamiltonianRBReductor(self.fom, self.RB).reduce()
+            self.galerkin = SymplecticROM(self.fom, self.RB, symplectic_tol=_SYMPLECTIC_TOL)
+            self.galerkin_rom = self.galerkin.rom
             self.reduced_system = linear_system_from_pymor(self.galerkin_rom)
         return self.reduced_system
 
