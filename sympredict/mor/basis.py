@@ -294,7 +294,7 @@ class SymplecticROM:
         self.model = model
         self.basis = basis
         self.V = V
-        self.V_plus = symplectic_inverse(V)
+        self.V_plus = np.ascontiguousarray(symplectic_inverse(V))  # one layout for fitted state (BLAS kernel paths)
         rb = basis if isinstance(basis, SymplecticBasis) else basis.to_pymor(phase_space)
         self.RB = rb
         with logger.block(f"symplectic Galerkin projection onto 2n = {V.shape[1]}"):
