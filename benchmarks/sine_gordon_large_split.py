@@ -69,7 +69,8 @@ def held_out_ratio(p, gal, X_tr, c_tr, K, s, quadratic, update):
         except Exception:  # a failed classical scheme is absent
             pass
     try:
-        flow = _fit_kernel(p, Yp[:, :-s], Yp[:, s:], c_tr[~held], dt, update=update, stride=s, quadratic=quadratic)[0]
+        flow = _fit_kernel(p, Yp[:, :-s], Yp[:, s:], c_tr[~held], dt, update=update, stride=s, quadratic=quadratic,
+                           gal=gal)[0]
         with np.errstate(all="ignore"):
             e = _err(gal, flow.rollout(y0, Kl, mu=c_tr[held, None], dt=dt), x)
         return float(np.min(best / e)) if np.all(np.isfinite(e)) else 0.0
@@ -184,7 +185,7 @@ def main():
                         t1 = time.perf_counter()
                         try:
                             flow, model, fit_time, reg, table = _fit_kernel(p, Yp[:, :-s], Yp[:, s:], c_tr, dt, update=update,
-                                                                            stride=s, quadratic=quad)
+                                                                            stride=s, quadratic=quad, gal=gal)
                             row.update(regularization=reg, centers=int(model.n_centers_), fit_time=fit_time,
                                        train_residual=float(model.history_.train_max_residual[-1]))
                             with np.errstate(all="ignore"):

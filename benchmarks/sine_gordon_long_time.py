@@ -100,7 +100,7 @@ with _protocol.limits(args.blas_threads):
                         "energy-box": EnergySamples(gal, p.c_range, p.DT, p.substeps, region="box")}[aug]
             for lam, eps in [(lam, eps) for lam in (args.lambdas or [None]) for eps in args.state_eps]:
                 flow, model, fit_time, reg, table = _fit_kernel(replace(p, state_eps=eps), Y0, Y1,
-                                                                c_tr, p.DT, regularization=lam, augment=strategy)
+                                                                c_tr, p.DT, regularization=lam, augment=strategy, gal=gal)
                 head = (f"{kind:9s} augment={aug:8s} state_eps={eps} lambda={reg:g} (table {table}, fit pairs {len(strategy(Y0, Y1, c_tr)[0])}, "
                         f"fit {fit_time:.0f} s)")
                 Yk, failed = None, None

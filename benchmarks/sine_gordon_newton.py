@@ -46,7 +46,7 @@ with _protocol.limits(args.blas_threads):
         data = {"reduced": gal.solve(gal.project(X[:, 0]), c_tr, p.DT, K, substeps=p.substeps), "projected": gal.project(X)}
         for kind, Y in data.items():
             for lam in args.lambdas:
-                flow, model, *_ = _fit_kernel(replace(p, max_centers=args.max_centers), Y[:, :-1], Y[:, 1:], c_tr, p.DT, regularization=lam)
+                flow, model, *_ = _fit_kernel(replace(p, max_centers=args.max_centers), Y[:, :-1], Y[:, 1:], c_tr, p.DT, regularization=lam, gal=gal)
                 xs = flow.state_scaling.transform(Y[:, :-1].reshape(-1, dim))
                 ms = flow.mu_scaling.transform(np.repeat(c_tr, K)[:, None])
                 at = model.solvability(xs, mu=ms, dt=1.0)

@@ -112,7 +112,7 @@ def main():
                     t1 = time.perf_counter()
                     flow, model, fit_time, reg, table = _fit_kernel(pr, Ytr[:, :-1], Ytr[:, 1:], c_tr, p.DT, update=update,
                                                                     augment=_augmentation(sp["preset"], "reduced", gal),
-                                                                    quadratic=sp["quadratic"])
+                                                                    quadratic=sp["quadratic"], gal=gal)
                     row.update(regularization=reg, table=table, fit_time=fit_time, centers=int(model.n_centers_),
                                train_residual=float(model.history_.train_max_residual[-1]))
                     try:

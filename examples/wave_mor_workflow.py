@@ -5,7 +5,8 @@ Run:  python examples/wave_mor_workflow.py [--n-points 1000] [--samples 2000] [-
 1. the finite-difference wave FOM, a pyMOR ``QuadraticHamiltonianModel`` with parameter mu = c^2;
 2. snapshots at c_ref = 0.3 from low-frequency states, complex-SVD symplectic basis (2n = 4);
 3. pyMOR's symplectic reductor: reduced Hamiltonian V^T H(mu) V, stepped in NumPy;
-4. flow-map data in reduced coordinates over the six training speeds, one predictor for dT = 0.1;
+4. flow-map data in reduced coordinates over the six training speeds, and sympredict's reductor on
+   them: one predictor for dT = 0.1, trained in the reduced coordinates as they are, and its pyMOR ROM;
 5. prediction at an unseen speed, reconstructed in the full space and compared with the FOM.
 """
 
@@ -16,6 +17,7 @@ import numpy as np
 from sympredict import SymplecticKernelPredictor
 from sympredict.paper.wave import reduced_flow_map_data
 from sympredict.kernels import IMQ
+from sympredict.mor import SymplecticKernelReductor
 from sympredict.symplectic.metrics import relative_trajectory_error
 from sympredict.mor.basis import SymplecticROM, complex_svd_basis, symplecticity_of_basis
 from sympredict.systems.wave import C_REF, C_TRAIN, WaveFOM
@@ -42,18 +44,23 @@ print(f"singular values {basis.singular_values[:4]}, V^T J V - J: {symplecticity
 rom = SymplecticROM(fom, basis)
 print(f"reduced model: {rom.rom.H_op.name} of dimension {rom.dim}")
 
-# 4. data and predictor for dT = 0.1, no dT factor (one model per step)
+# 4. data and the reductor for dT = 0.1, no dT factor (one model per step); no scaling: the kernel shapes are
+#    in the reduced coordinates and in mu = c^2
 dt = 0.1
 data = reduced_flow_map_data(rom, C_TRAIN, dt, args.samples, energy, seed=1)
-model = SymplecticKernelPredictor(IMQ(1e-3), mu_kernel=IMQ(3.0), max_centers=args.centers)
-model.fit(data.x0, data.x1, mu=data.mu, dt=dt)
-print(f"{model.n_centers_} centres ({model.history_.stop_reason}), max training residual {model.history_.train_max_residual[-1]:.1e}")
+reductor = SymplecticKernelReductor(fom.model, rom.RB, None, dt,
+                                    SymplecticKernelPredictor(IMQ(1e-3), mu_kernel=IMQ(3.0), max_centers=args.centers),
+                                    data=data, state_scaling="none", parameter_scaling="none", time_scaling="none")
+kernel_rom = reductor.reduce()                              # a pyMOR model: kernel_rom.solve(mu) from the FOM's initial data
+model = reductor.flow_map_                                  # the learned step in reduced coordinates
+fitted = reductor.predictor_
+print(f"{fitted.n_centers_} centres ({fitted.history_.stop_reason}), max training residual {fitted.history_.train_max_residual[-1]:.1e}")
 
 # 5. an unseen speed: predict in reduced coordinates, reconstruct, compare with the FOM
 c = 0.257
 x_red = rom.system.sample_energy_ellipsoid(3, c**2, energy, seed=7)
 n_steps = 60                                                # T = 6
-pred = model.rollout(x_red, n_steps, mu=c**2)               # (3, 61, 4), dt defaults to the training step
+pred = model.rollout(x_red, n_steps, mu=c**2, dt=dt)         # (3, 61, 4)
 fom_ref = fom.trajectory(rom.reconstruct(x_red), c**2, dt, n_steps)
 im = rom.system.trajectory(x_red, c**2, dt, n_steps, h_max=dt)
 for name, traj in (("ROM + kernel predictor", pred), ("ROM + implicit midpoint", im)):

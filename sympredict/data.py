@@ -19,7 +19,7 @@ import numpy as np
 from sympredict._checks import as_parameter, as_states, as_steps
 from sympredict._numeric import j_times
 
-__all__ = ["FlowMapData", "mixed_variables"]
+__all__ = ["FlowMapData", "TrajectoryData", "mixed_variables"]
 
 
 def mixed_variables(x0: np.ndarray, x1: np.ndarray, dt: np.ndarray):
@@ -104,3 +104,45 @@ class FlowMapData:
             np.concatenate([self.mu, other.mu]),
             np.concatenate([self.dt, other.dt]),
         )
+
+
+@dataclass
+class TrajectoryData:
+    """Trajectories on a uniform macro grid ``t_k = k dt``, one parameter vector each.
+
+    Validation data that score whole rollouts (e.g. the reductor's choice of a ridge term):
+    a model is rolled out from ``states[:, 0]`` for ``K`` steps and compared with ``states[:, 1:]``.
+
+    Attributes
+    ----------
+    states : ndarray of shape (P, K+1, 2n)
+    mu : ndarray of shape (P, d_mu)
+        Parameters (``d_mu = 0`` for a parameter-free system).
+    dt : float
+        The macro step between consecutive states.
+    """
+
+    states: np.ndarray
+    mu: np.ndarray
+    dt: float
+
+    def __post_init__(self):
+        states = np.asarray(self.states, dtype=float)
+        if states.ndim != 3 or states.shape[1] < 2 or states.shape[2] == 0 or states.shape[2] % 2:
+            raise ValueError(f"states must have shape (P, K+1, 2n) with K >= 1 and an even 2n, got {states.shape}")
+        if not np.all(np.isfinite(states)):
+            raise ValueError("states contain NaN or Inf")
+        self.states = states
+        p = len(states)
+        self.mu = np.zeros((p, 0)) if self.mu is None or np.size(self.mu) == 0 else as_parameter(self.mu, p, None)
+        self.dt = float(as_steps(self.dt, 1)[0])
+
+    def __len__(self) -> int:
+        return len(self.states)
+
+    def pairs(self) -> FlowMapData:
+        """Consecutive states as flow-map samples ``(x(t_k), x(t_{k+1}))``, ``P K`` rows (trajectory by trajectory)."""
+        p, k1, dim = self.states.shape
+        return FlowMapData(self.states[:, :-1].reshape(-1, dim), self.states[:, 1:].reshape(-1, dim),
+                           np.repeat(self.mu, k1 - 1, axis=0) if self.mu.shape[1] else None,
+                           np.full(p * (k1 - 1), self.dt))

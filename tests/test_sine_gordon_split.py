@@ -92,7 +92,7 @@ def test_split_kernel_step_is_symplectic_in_original_coordinates(gal):
     rng = np.random.default_rng(3)
     c = np.repeat([0.85, 1.15], 3)
     Y = gal.solve(0.1 * rng.normal(size=(6, gal.dim)), c, p.DT, 6, substeps=sp["substeps"])
-    flow, model, *_ = _fit_kernel(p, Y[:, :-1], Y[:, 1:], c, p.DT, quadratic=sp["quadratic"])
+    flow, model, *_ = _fit_kernel(p, Y[:, :-1], Y[:, 1:], c, p.DT, quadratic=sp["quadratic"], gal=gal)
     assert type(model).__name__ == "SplitKernelPredictor" and 0 < model.n_centers_ <= 40
     x = Y[:2, 2]
     D = flow.step_jacobian(x, mu=c[:2, None], dt=p.DT)

@@ -32,7 +32,8 @@ from sympredict.systems.flowmaps import linear_system_from_pymor
 from sympredict.symplectic.metrics import canonical_J, j_times
 from sympredict.systems.quadratic import QuadraticHamiltonian
 
-__all__ = ["ComplexSVDBasis", "snapshot_rows", "basis_columns", "complex_svd_basis", "symplectic_inverse", "symplecticity_of_basis", "SymplecticROM"]
+__all__ = ["ComplexSVDBasis", "snapshot_rows", "basis_columns", "complex_svd_basis", "pymor_basis", "symplectic_inverse",
+           "symplecticity_of_basis", "SymplecticROM"]
 
 logger = getLogger("sympredict.mor.basis")
 
@@ -66,13 +67,22 @@ class ComplexSVDBasis:
 
     def to_pymor(self, phase_space):
         """The basis as pyMOR ``SymplecticBasis`` in ``phase_space`` (a 2-block ``BlockVectorSpace``)."""
-        from pymor.algorithms.symplectic import SymplecticBasis
+        return pymor_basis(self.V, phase_space)
 
-        big_n = self.V.shape[0] // 2
-        q_space, p_space = phase_space.subspaces
-        E = phase_space.make_array([q_space.from_numpy(self.V[:big_n, : self.n]), p_space.from_numpy(self.V[big_n:, : self.n])])
-        F = phase_space.make_array([q_space.from_numpy(self.V[:big_n, self.n :]), p_space.from_numpy(self.V[big_n:, self.n :])])
-        return SymplecticBasis(E, F)
+
+def pymor_basis(V, phase_space):
+    """A basis ``V = [E, F]`` (2N, 2n), rows ``(q, p)``, as a pyMOR ``SymplecticBasis`` in ``phase_space``
+    (a 2-block ``BlockVectorSpace``); the values are copied, not computed."""
+    from pymor.algorithms.symplectic import SymplecticBasis
+
+    V = basis_columns(V)
+    big_n, n = V.shape[0] // 2, V.shape[1] // 2
+    if V.shape[0] != phase_space.dim:
+        raise ValueError(f"the basis has {V.shape[0]} rows, the phase space has dimension {phase_space.dim}")
+    q_space, p_space = phase_space.subspaces
+    E = phase_space.make_array([q_space.from_numpy(V[:big_n, :n]), p_space.from_numpy(V[big_n:, :n])])
+    F = phase_space.make_array([q_space.from_numpy(V[:big_n, n:]), p_space.from_numpy(V[big_n:, n:])])
+    return SymplecticBasis(E, F)
 
 
 def snapshot_rows(snapshots, layout: Optional[str] = None) -> np.ndarray:
@@ -243,6 +253,8 @@ class SymplecticROM:
 
     Attributes
     ----------
+    RB : pymor.algorithms.symplectic.SymplecticBasis
+        The basis in the FOM's phase space (what :class:`~sympredict.mor.SymplecticKernelReductor` takes).
     reductor : pymor.reductors.symplectic.QuadraticHamiltonianRBReductor
     rom : pyMOR reduced model (``V^T H(mu) V``)
     system : QuadraticHamiltonian or sympredict.systems.flowmaps.LinearHamiltonianSystem
@@ -275,8 +287,9 @@ class SymplecticROM:
         self.model = model
         self.basis = basis
         self.V = V
-        self.V_plus = symplectic_inverse(V)
+        self.V_plus = np.ascontiguousarray(symplectic_inverse(V))  # one layout for fitted state (BLAS kernel paths)
         rb = basis if isinstance(basis, SymplecticBasis) else basis.to_pymor(phase_space)
+        self.RB = rb
         with logger.block(f"symplectic Galerkin projection onto 2n = {V.shape[1]}"):
             self.reductor = QuadraticHamiltonianRBReductor(model, rb)
             self.rom = self.reductor.reduce()

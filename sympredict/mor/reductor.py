@@ -23,16 +23,27 @@ Data (:mod:`sympredict.systems.flowmaps`):
   or not, e.g. an ``InstationaryModel`` with a nonlinear operator): only ``fom.solve`` is called; FOM
   trajectories are projected with the symplectic inverse ``V+ = J_2n^T V^T J_2N``
   and consecutive states ``dt`` apart become the samples (``dt`` a multiple of
-  the FOM's output step).
+  the FOM's output step);
+* ``data=FlowMapData(...)`` (the caller's samples): flow-map pairs in reduced
+  coordinates that the caller already has (its own sampling design, projected
+  trajectories of its own solver, augmented pairs); ``validation_data`` gives
+  the validation samples, or validation trajectories on the macro grid.
 
 Validation data come from parameters drawn at random in the parameter box
 (``parameter_space`` or the box of the training parameters), never from the
-training parameters.  Before training, :func:`~sympredict.systems.flowmaps.check_generating_function`
+training parameters.  On them the reductor can choose the state and parameter
+kernels (``state_kernels``, ``mu_kernels``; always for the default predictor)
+and the ridge term (``regularizations``).  With ``split`` (the quadratic part
+``A(mu)`` of the reduced Hamiltonian) the learned step is
+``L_h o S o L_h`` (:class:`~sympredict.flowmap.splitting.SplitKernelPredictor`),
+``L_h`` the exact flow of ``A`` over half a step, and only ``S`` is learned.  Before training, :func:`~sympredict.systems.flowmaps.check_generating_function`
 checks that the predictor's generating function exists at ``dt`` (type II, or
 the midpoint form for a predictor with ``update="midpoint"``; fails with the
 largest admissible ``dt``).  The predictor is trained in scaled coordinates
 (:mod:`sympredict.flowmap.scaling`): parameters mapped to ``[0, 1]^d``, ``dt`` to 1,
-states by a conformally symplectic diagonal map, so the ROM's step stays symplectic.
+states by a conformally symplectic diagonal map, so the ROM's step stays symplectic
+(``state_scaling``, ``parameter_scaling``, ``time_scaling``; ``"none"`` trains in the
+caller's units, where kernel shapes chosen in those units apply unchanged).
 
 Parameter vectors: :func:`~sympredict.systems.flowmaps.mu_to_vector` (values sorted by
 parameter name, each flattened: ``Mu.to_numpy``'s order).
@@ -40,9 +51,9 @@ parameter name, each flattened: ``Mu.to_numpy``'s order).
 
 from __future__ import annotations
 
-from typing import Optional, Sequence
-
+import time
 import warnings
+from typing import Optional, Sequence
 
 import numpy as np
 from scipy.linalg import logm
@@ -51,14 +62,14 @@ from pymor.algorithms.symplectic import SymplecticBasis
 from pymor.core.base import BasicObject
 from pymor.models.symplectic import QuadraticHamiltonianModel
 from pymor.operators.symplectic import CanonicalSymplecticFormOperator
-from pymor.reductors.symplectic import QuadraticHamiltonianRBReductor
 from pymor.models.interface import Model
 from pymor.vectorarrays.numpy import NumpyVectorSpace
 
 from sympredict._checks import as_positive_int, as_real
 from sympredict.base import clone
-from sympredict.data import FlowMapData
+from sympredict.data import FlowMapData, TrajectoryData
 from sympredict.exceptions import ExtrapolationWarning
+from sympredict.systems.linear_flow import QuadraticPart, inverse_symplectic_matrices
 from sympredict.systems.flowmaps import (
     _report_existence,
     first_singular_step,
@@ -74,10 +85,13 @@ from sympredict.systems.flowmaps import (
     trajectory_pairs,
     type2_sigma_min,
 )
-from sympredict.kernels import IMQ
+from sympredict.kernels import IMQ, RadialKernel
+from sympredict.kernels.transforms import KernelTransform
 from sympredict.symplectic.metrics import canonical_J
 from sympredict.estimators.predictor import SymplecticKernelPredictor
-from sympredict.flowmap.scaling import BoxScaling, NormalizedFlowMap, SymplecticScaling
+from sympredict.mor.basis import SymplecticROM
+from sympredict.flowmap.scaling import BoxScaling, NormalizedFlowMap, SymplecticScaling, scaled_quadratic_part
+from sympredict.flowmap.splitting import SplitKernelPredictor
 from sympredict.estimators.selection import log_grid, select_kernels
 from sympredict.interpolation.greedy import ExactGreedy
 
@@ -138,9 +152,11 @@ class SymplecticKernelModel(Model):
     T, dt : float
     parameters : pyMOR Parameters
         Those of the FOM.
+    flow_parameters : pyMOR Parameters, optional
+        Those the flow map takes (default ``parameters``); the others enter the initial data only.
     """
 
-    def __init__(self, flow_map, initial_data, T, dt, parameters, name=None):
+    def __init__(self, flow_map, initial_data, T, dt, parameters, name=None, flow_parameters=None):
         super().__init__(name=name)
         self.__auto_init(locals())
         self.solution_space = NumpyVectorSpace(initial_data.range.dim)
@@ -161,6 +177,8 @@ class SymplecticKernelModel(Model):
         if "solution" in quantities:
             x0 = self.initial_data.as_range_array(mu).to_numpy().reshape(1, -1)
             vec = mu_to_vector(mu, self.parameters)
+            if self.flow_parameters is not None:
+                vec = _subvector(vec, self.parameters, self.flow_parameters)
             with warnings.catch_warnings(record=True) as caught:
                 warnings.simplefilter("always", ExtrapolationWarning)
                 traj = self.flow_map.rollout(x0, self.n_steps, mu=vec if vec.size else None, dt=self.dt)[0]
@@ -175,29 +193,35 @@ class SymplecticKernelModel(Model):
 
 
 def _check_fom(fom, data: str) -> None:
-    """``data='reduced'`` needs the Galerkin ROM of a quadratic Hamiltonian model; ``'projected'`` any time-dependent model."""
+    """``data='reduced'`` needs the Galerkin ROM of a quadratic Hamiltonian model; ``'projected'`` any time-dependent
+    model; the caller's data (``'given'``) a model with a solution space, initial data and ``T`` (for the ROM)."""
     if data == "reduced":
         if not isinstance(fom, QuadraticHamiltonianModel):
             raise ValueError(f"data='reduced' needs the exact reduced flow of a pyMOR QuadraticHamiltonianModel, got "
                              f"{type(fom).__name__}: for any other pyMOR model use data='projected' (only fom.solve "
                              f"is called)")
         return
-    missing = [a for a in ("solve", "solution_space", "initial_data", "T", "parameters") if not hasattr(fom, a)]
+    needed = ("solve", "solution_space", "initial_data", "T", "parameters") if data == "projected" else \
+        ("solution_space", "initial_data", "T", "parameters")
+    missing = [a for a in needed if not hasattr(fom, a)]
     if not isinstance(fom, Model) or missing:
-        raise ValueError(f"fom must be a time-dependent pyMOR Model (e.g. an InstationaryModel) with solve, "
-                         f"solution_space, initial_data, T and parameters; {type(fom).__name__} "
+        raise ValueError(f"fom must be a time-dependent pyMOR Model (e.g. an InstationaryModel) with "
+                         f"{', '.join(needed[:-1])} and {needed[-1]}; {type(fom).__name__} "
                          + (f"lacks {', '.join(missing)}" if missing else "is not a pyMOR Model"))
 
 
 _STATE_SCALINGS = ("diag", "uniform", "williamson", "none")
+_PARAMETER_SCALINGS = ("box", "none")
+_TIME_SCALINGS = ("step", "none")
 
 
 def _check_reductor_settings(fom, dt, predictor, parameter_space, n_samples, radius, n_validation, horizon,
-                             max_centers, check_existence, seed) -> None:
+                             max_centers, check_existence, seed, m_star=300) -> None:
     """The reductor's settings, checked before any FOM solve (``ValueError`` naming the argument and the value given)."""
     as_positive_int(n_samples, "n_samples", minimum=2)  # a fifth on the trajectory, the rest around it: at least 2
     as_positive_int(n_validation, "n_validation")
     as_positive_int(max_centers, "max_centers")
+    as_positive_int(m_star, "m_star")
     as_positive_int(seed, "seed", minimum=0)
     as_real(radius, "radius", nonnegative=True)
     if horizon is not None:
@@ -222,6 +246,100 @@ def _check_reductor_settings(fom, dt, predictor, parameter_space, n_samples, rad
                              f"{dict(fom.parameters)}: names and dimensions must agree")
 
 
+def _subvector(vec: np.ndarray, parameters, sub) -> np.ndarray:
+    """The components of a parameter vector of ``parameters`` (:func:`mu_to_vector` order) that belong to ``sub``."""
+    return np.asarray(vec, dtype=float)[..., _sub_index(parameters, sub)]
+
+
+def _sub_index(parameters, sub) -> np.ndarray:
+    """Indices of the parameters ``sub`` in the vectors of ``parameters`` (both sorted by name)."""
+    offsets, i = {}, 0
+    for k in sorted(parameters):
+        offsets[k] = i
+        i += parameters[k]
+    return np.array([offsets[k] + j for k in sorted(sub) for j in range(sub[k])], dtype=int)
+
+
+def _operator_parameters(fom) -> set:
+    """Names of the parameters the FOM's evolution depends on (its operators other than the initial data)."""
+    names = set()
+    for attr in ("operator", "H_op", "h", "mass", "rhs"):
+        op = getattr(fom, attr, None)
+        if op is not None and hasattr(op, "parameters"):
+            names |= set(op.parameters)
+    return names
+
+
+def _flow_parameters(fom, flow_parameters):
+    """``fom.parameters`` restricted to the names ``flow_parameters`` (``None``: all), checked."""
+    from pymor.parameters.base import Parameters
+
+    if flow_parameters is None:
+        return fom.parameters
+    if isinstance(flow_parameters, str) or not all(isinstance(k, str) for k in flow_parameters):
+        raise ValueError(f"flow_parameters must be a sequence of parameter names (e.g. ('c',)), got {flow_parameters!r}")
+    names = set(flow_parameters)
+    unknown = names - set(fom.parameters)
+    if unknown:
+        raise ValueError(f"flow_parameters {sorted(unknown)} are not parameters of the FOM ({dict(fom.parameters)})")
+    needed = _operator_parameters(fom) & set(fom.parameters)
+    if needed - names:
+        raise ValueError(f"the FOM's evolution depends on {sorted(needed)}: flow_parameters={sorted(names)} leaves out "
+                         f"{sorted(needed - names)} (only parameters of the initial data may be left out)")
+    return Parameters({k: fom.parameters[k] for k in names})
+
+
+def _check_choice(value, name: str, choices: tuple) -> str:
+    if not isinstance(value, str) or value not in choices:
+        raise ValueError(f"{name} must be one of {choices}, got {value!r}")
+    return value
+
+
+def _check_kernels(kernels, name: str, allow_none: bool) -> Optional[list]:
+    """A non-empty list of radial kernels (``None`` entries where ``allow_none``: the factor dropped), or ``None``."""
+    if kernels is None:
+        return None
+    if isinstance(kernels, RadialKernel) or isinstance(kernels, str):
+        raise ValueError(f"{name} must be a sequence of kernels (e.g. [IMQ(0.01), IMQ(0.1)]), got {kernels!r}")
+    kernels = list(kernels)
+    bad = [k for k in kernels if not (isinstance(k, RadialKernel) or (allow_none and k is None))]
+    if not kernels or bad:
+        raise ValueError(f"{name} must be a non-empty sequence of radial kernels (IMQ, Matern52, Matern32)"
+                         + (" or None" if allow_none else "") + f", got {kernels!r}")
+    return kernels
+
+
+def _check_given_data(data, validation_data, dim: int, n_mu: int, dt: float) -> None:
+    """The caller's training samples and validation samples (or trajectories): reduced states of dimension ``2n``,
+    parameter vectors of the flow parameters' dimension, all at the reductor's ``dt``."""
+    for name, d in (("data", data), ("validation_data", validation_data)):
+        if d is None:
+            continue
+        if isinstance(d, TrajectoryData) and name == "validation_data":
+            if d.states.shape[2] != dim:
+                raise ValueError(f"validation_data has trajectories of dimension {d.states.shape[2]}, the basis has "
+                                 f"2n = {dim}: give reduced coordinates")
+            if d.mu.shape[1] != n_mu:
+                raise ValueError(f"validation_data has parameter vectors of dimension {d.mu.shape[1]}, the flow map's "
+                                 f"parameters have dimension {n_mu}")
+            if not np.isclose(d.dt, dt, rtol=1e-12, atol=0):
+                raise ValueError(f"validation_data has the step {d.dt!r}, the reductor's dt is {dt!r}")
+            continue
+        if not isinstance(d, FlowMapData):
+            raise ValueError(f"{name} must be a sympredict.data.FlowMapData of reduced samples"
+                             + (" or a TrajectoryData" if name == "validation_data" else "")
+                             + f", got {type(d).__name__}")
+        if d.x0.shape[1] != dim:
+            raise ValueError(f"{name} has states of dimension {d.x0.shape[1]}, the basis has 2n = {dim}: give reduced "
+                             f"coordinates (reductor.project(U) of full states)")
+        if d.mu.shape[1] != n_mu:
+            raise ValueError(f"{name} has parameter vectors of dimension {d.mu.shape[1]}, the flow map's parameters "
+                             f"have dimension {n_mu} (mu_to_vector order: values sorted by parameter name)")
+        if not np.allclose(d.dt, dt, rtol=1e-12, atol=0):
+            raise ValueError(f"{name} has steps {np.unique(d.dt)[:5].tolist()}, the reductor's dt is {dt!r}: a reductor "
+                             f"learns one macro step")
+
+
 class SymplecticKernelReductor(BasicObject):
     """Learn a symplectic reduced flow map of a pyMOR Hamiltonian model.
 
@@ -233,21 +351,28 @@ class SymplecticKernelReductor(BasicObject):
         ``solve``, ``solution_space``, ``initial_data`` and ``T`` (e.g. an
         ``InstationaryModel`` with a nonlinear operator); only ``solve`` is called, and the
         FOM's trajectories are assumed Hamiltonian (the ROM's steps are symplectic whatever
-        the data).  Any parameters (names, dimensions) or none.
+        the data).  With the caller's data: any time-dependent model with
+        ``solution_space``, ``initial_data`` and ``T`` (the ROM starts from its initial data).
+        Any parameters (names, dimensions) or none.
     RB : pymor.algorithms.symplectic.SymplecticBasis
         Symplectic basis of ``fom.solution_space`` (``V^T J V = J`` checked).
     training_parameters : sequence of pyMOR Mu
-        E.g. ``fom.parameters.space(...).sample_randomly(n)``; ``None`` or ``[]``
-        for a parameter-free model.
+        E.g. ``fom.parameters.space(...).sample_uniformly(n)``; ``None`` or ``[]``
+        for a parameter-free model, or with the caller's ``data`` (then those of its samples).
     dt : float
         Macro step of the ROM.
     predictor : estimator, optional
         An unfitted estimator with ``fit``/``rollout``/``step``/``step_jacobian``
-        (cloned, never modified).  Default: a :class:`SymplecticKernelPredictor`
+        (cloned, never modified), with all its parts (kernels, ``update``,
+        ``trainer``, ``solver``).  Default: a :class:`SymplecticKernelPredictor`
         with IMQ kernels on the scaled states and parameters whose shapes are
-        chosen on the validation data from a small log grid.
-    data : {"reduced", "projected"}
-        Intrusive Galerkin-flow samples or non-intrusive projected FOM trajectories.
+        chosen on the validation data from a small log grid (``state_kernels``,
+        ``mu_kernels`` replace the grid).
+    data : {"reduced", "projected"} or FlowMapData
+        Intrusive Galerkin-flow samples, non-intrusive projected FOM trajectories,
+        or the caller's flow-map samples in reduced coordinates (``x1 = Phi(x0)``
+        over ``dt``; parameter vectors in :func:`~sympredict.systems.flowmaps.mu_to_vector`
+        order), e.g. from its own sampling design or its own solver.
     parameter_space : pyMOR ParameterSpace, optional
         Box for the parameter scaling and the validation parameters (default: box of the training ones).
     n_samples : int
@@ -267,30 +392,107 @@ class SymplecticKernelReductor(BasicObject):
     check_existence : bool
         Run :func:`~sympredict.systems.flowmaps.check_generating_function` on the data, for
         the predictor's ``update`` (type II by default; ``"midpoint"``: the
-        symmetric form, which holds up to half a turn per step).
+        symmetric form, which holds up to half a turn per step).  On the caller's data the
+        check uses a least-squares linear map per parameter, as for ``data="projected"``.
     seed : int
+    validation_data : FlowMapData, optional
+        With the caller's ``data``: its validation samples (needed to choose kernels).
+    parameter_scaling : {"box", "none"}
+        ``"box"``: parameters mapped from the box onto ``[0, 1]^d``; ``"none"``: the
+        predictor sees the parameter vectors as they are.
+    time_scaling : {"step", "none"}
+        ``"step"``: the macro step becomes the time unit (the predictor sees ``dt = 1``);
+        ``"none"``: it sees ``dt``.
+    state_kernels, mu_kernels : sequence of RadialKernel, optional
+        Candidate kernels chosen on the validation data
+        (:func:`~sympredict.estimators.selection.select_kernels`: each trained to ``m_star``
+        centres with the predictor's other settings; the smallest validation residual wins),
+        in the predictor's coordinates.  Default for the default predictor: IMQ log grids
+        (states ``0.01..1``, parameters ``0.3..3``); for a given predictor: its own kernels
+        (no search unless one of them is given).
+    m_star : int
+        Centres at which the kernel candidates are compared (at most the budget).
+    regularizations : sequence of float, optional
+        Ridge terms (``trainer__regularization``) tried besides ``0`` (the exact fit): each
+        candidate is trained on the training data and scored on the validation data, in
+        reduced coordinates; the smallest score wins, ties to the smaller term.  Validation
+        samples (``FlowMapData``) score the mean relative error of one step; validation
+        trajectories (``TrajectoryData``) the mean relative error of the rollouts from their
+        first states over all their steps (a failed or non-finite rollout scores ``inf``).
+    split : QuadraticPart, optional
+        The quadratic part ``A(mu)`` of the reduced Hamiltonian (in reduced coordinates, a
+        function of the flow parameters): the learned step becomes ``L_h o S o L_h``
+        (:class:`~sympredict.flowmap.splitting.SplitKernelPredictor`, ``L_h = expm(dt/2 J A)``,
+        carried into the scaled coordinates by :func:`~sympredict.flowmap.scaling.scaled_quadratic_part`),
+        so the linear part of the flow is exact and only ``S`` is learned.  The existence check and
+        the kernel search then see ``S``'s pairs ``(L_h x0, L_{-h} x1)``.
+    flow_parameters : sequence of str, optional
+        The parameters the flow map takes (default: all of the FOM's).  Parameters that enter only
+        the initial data (checked: the FOM's other operators must not depend on them) are left out,
+        so the kernel interpolates in the others only; data, ``parameter_space`` box and
+        ``split`` use the flow parameters' vectors.
     """
 
     def __init__(self, fom, RB, training_parameters, dt, predictor=None, data="reduced", *, parameter_space=None,
                  n_samples: int = 400, radius: float = 0.05, n_validation: int = 3, horizon: Optional[float] = None,
-                 state_scaling: str = "diag", max_centers: int = 1000, check_existence: bool = True, seed: int = 0):
-        if not isinstance(data, str) or data not in ("reduced", "projected"):
-            raise ValueError(f"data must be 'reduced' or 'projected', got {data!r}")
-        _check_fom(fom, data)
+                 state_scaling: str = "diag", max_centers: int = 1000, check_existence: bool = True, seed: int = 0,
+                 validation_data=None, parameter_scaling: str = "box", time_scaling: str = "step",
+                 state_kernels=None, mu_kernels=None, m_star: int = 300, regularizations=None,
+                 split: Optional[QuadraticPart] = None, flow_parameters=None):
+        if isinstance(data, FlowMapData):
+            mode = "given"
+        elif isinstance(data, str) and data in ("reduced", "projected"):
+            mode = data
+        else:
+            raise ValueError(f"data must be 'reduced', 'projected' or a FlowMapData of reduced samples, got {data!r}")
+        if validation_data is not None and mode != "given":
+            raise ValueError(f"validation_data goes with the caller's data (data=FlowMapData(...)); data={data!r} "
+                             f"samples its own validation data")
+        _check_fom(fom, mode)
         check_symplectic_basis(RB, fom.solution_space)
-        if not isinstance(state_scaling, str) or state_scaling not in _STATE_SCALINGS:
-            raise ValueError(f"state_scaling must be one of {_STATE_SCALINGS}, got {state_scaling!r}")
-        if state_scaling == "williamson" and data != "reduced":
+        _check_choice(state_scaling, "state_scaling", _STATE_SCALINGS)
+        _check_choice(parameter_scaling, "parameter_scaling", _PARAMETER_SCALINGS)
+        _check_choice(time_scaling, "time_scaling", _TIME_SCALINGS)
+        if state_scaling == "williamson" and mode != "reduced":
             raise ValueError("state_scaling='williamson' needs the reduced operator: use data='reduced' or 'diag'")
         dt = as_real(dt, "dt", positive=True)
         _check_reductor_settings(fom, dt, predictor, parameter_space, n_samples, radius, n_validation, horizon,
-                                 max_centers, check_existence, seed)
+                                 max_centers, check_existence, seed, m_star)
+        state_kernels = _check_kernels(state_kernels, "state_kernels", allow_none=False)
+        mu_kernels = _check_kernels(mu_kernels, "mu_kernels", allow_none=True)
+        flow = _flow_parameters(fom, flow_parameters)
+        if regularizations is not None:
+            regularizations = [float(as_real(v, "regularizations", nonnegative=True))
+                               for v in np.atleast_1d(np.asarray(regularizations, dtype=object))]
+        if split is not None:
+            if not isinstance(split, QuadraticPart):
+                raise ValueError(f"split must be a sympredict.systems.linear_flow.QuadraticPart (the quadratic part "
+                                 f"A(mu) of the reduced Hamiltonian), got {split!r}")
+            split.checked(dim=2 * len(RB))
+            if split.checked()[1].shape[1] not in (0, flow.dim):
+                raise ValueError(f"split depends on {split.checked()[1].shape[1]} parameter component(s), the flow map "
+                                 f"takes {flow.dim}")
+            if isinstance(predictor, SplitKernelPredictor):
+                raise ValueError("give the inner SymplecticKernelPredictor as predictor and the quadratic part as split: "
+                                 "the reductor builds the SplitKernelPredictor in its scaled coordinates")
+        if mode == "given":
+            _check_given_data(data, validation_data, 2 * len(RB), flow.dim, float(dt))
+            if (fom.parameters and flow == fom.parameters
+                    and (training_parameters is None or len(training_parameters) == 0)):
+                training_parameters = [fom.parameters.parse(row) for row in np.unique(data.mu, axis=0)]
         if not fom.parameters:
             training_parameters = [None]
-        elif training_parameters is None or len(training_parameters) == 0:
+        elif (training_parameters is None or len(training_parameters) == 0) and mode != "given":
             raise ValueError(f"the FOM has parameters {dict(fom.parameters)}: give training_parameters (pyMOR Mu)")
         self.__auto_init(locals())
-        self.training_parameters = [parse_mu(m, fom.parameters) for m in training_parameters]
+        self.mode = mode
+        self.state_kernels, self.mu_kernels = state_kernels, mu_kernels
+        self.regularizations = regularizations
+        self.flow_parameters = flow
+        self._flow_index = _sub_index(fom.parameters, flow)
+        self._flow_subset = flow != fom.parameters
+        self.training_parameters = None if training_parameters is None or len(training_parameters) == 0 else \
+            [parse_mu(m, fom.parameters) for m in training_parameters]
         if isinstance(predictor, SymplecticKernelPredictor):
             predictor._check_params()  # its settings, before any FOM solve (fit would check them after all samples)
         self.dt = float(dt)
@@ -299,10 +501,16 @@ class SymplecticKernelReductor(BasicObject):
         self.V = basis_matrix(RB)  # (2N, 2n)
         self.V_plus_array = RB.transposed_symplectic_inverse().to_array()
         self.dim = 2 * len(RB)
-        if data == "projected" and getattr(fom, "num_values", None) is None and getattr(
+        if mode == "projected" and getattr(fom, "num_values", None) is None and getattr(
                 getattr(fom, "time_stepper", None), "nt", None):  # an InstationaryModel's output grid, known up front
             self._check_stride(fom.T / fom.time_stepper.nt)
-        self.mu_lo, self.mu_hi = parameter_box(self.training_parameters, fom.parameters, parameter_space)
+        if self.training_parameters is not None or parameter_space is not None:
+            # the FOM's parameter box (validation draws), and the flow parameters' part of it (their scaling)
+            self.mu_lo, self.mu_hi = parameter_box(self.training_parameters, fom.parameters, parameter_space)
+            self.flow_lo, self.flow_hi = self.mu_lo[self._flow_index], self.mu_hi[self._flow_index]
+        else:  # the caller's data without training parameters: the box of its samples
+            self.mu_lo = self.mu_hi = None
+            self.flow_lo, self.flow_hi = data.mu.min(axis=0), data.mu.max(axis=0)
 
     # ------------------------------------------------------------ projection
     def project(self, U) -> np.ndarray:
@@ -333,12 +541,18 @@ class SymplecticKernelReductor(BasicObject):
             return [None]
         return random_parameters(self.fom.parameters, self.mu_lo, self.mu_hi, self.n_validation, seed=self.seed + 7)
 
-    def _reduced_data(self, mus, n_per_mu, seed):
+    def _galerkin(self):
+        """The symplectic Galerkin ROM of the FOM (:class:`~sympredict.mor.basis.SymplecticROM`: pyMOR's
+        ``QuadraticHamiltonianRBReductor``) and its reduced quadratic Hamiltonian with exact flows, built once:
+        ``galerkin`` (the ROM), ``galerkin_rom`` (its pyMOR model), ``reduced_system``."""
         if not hasattr(self, "galerkin_rom"):
-            with self.logger.block("symplectic Galerkin projection (pyMOR QuadraticHamiltonianRBReductor)"):
-                self.galerkin_rom = QuadraticHamiltonianRBReductor(self.fom, self.RB).reduce()
+            self.galerkin = SymplecticROM(self.fom, self.RB, symplectic_tol=_SYMPLECTIC_TOL)
+            self.galerkin_rom = self.galerkin.rom
             self.reduced_system = linear_system_from_pymor(self.galerkin_rom)
-        system = self.reduced_system
+        return self.reduced_system
+
+    def _reduced_data(self, mus, n_per_mu, seed):
+        system = self._galerkin()
         rng = np.random.default_rng(seed)
         rows = self._mu_rows(mus)
         n_fine = int(np.ceil(self.horizon / self.dt)) * 4
@@ -380,14 +594,18 @@ class SymplecticKernelReductor(BasicObject):
         """The generating-function update of the predictor (the existence check depends on it)."""
         return getattr(self.predictor, "update", "symplectic_euler") if self.predictor is not None else "symplectic_euler"
 
-    def _check_existence_projected(self, data):
+    def _check_existence_from_data(self, data):
         """Existence check (type II, or the midpoint form for the predictor's update) from the data alone:
         per parameter a least-squares linear map ``x1 ~ M x0``
         (exact for a linear FOM, the best linear fit of a nonlinear one), its generator ``log(M) / dt``
-        for the largest admissible step."""
-        worst, generators = (np.inf, None), []
+        for the largest admissible step.  Parameters with fewer than ``2n`` samples (or samples spanning fewer
+        dimensions) are skipped, with one log line."""
+        worst, generators, skipped = (np.inf, None), [], 0
         for row in np.unique(data.mu, axis=0):
             sel = np.all(data.mu == row, axis=1)
+            if sel.sum() < self.dim:
+                skipped += 1
+                continue
             M, _, rank, _ = np.linalg.lstsq(data.x0[sel], data.x1[sel], rcond=None)
             if rank < self.dim:
                 self.logger.info(f"existence check skipped at mu = {row}: the projected trajectory spans only {rank} "
@@ -398,44 +616,104 @@ class SymplecticKernelReductor(BasicObject):
             generators.append(np.real(logm(M)) / self.dt)
             if sigma < worst[0]:
                 worst = (sigma, row)
+        if skipped:
+            self.logger.info(f"existence check: {skipped} parameter value(s) with fewer than 2n = {self.dim} samples "
+                             f"skipped")
         if worst[1] is None:
             return {}
         update = self._update()
-        return _report_existence(worst[0], worst[1], self.dt, first_singular_step(generators, update=update), 1e-2, 0.1, update)
+        om = max(float(np.abs(np.linalg.eigvals(A).imag).max()) for A in generators)
+        if om * self.dt < 1e-6:  # no rotation to speak of (e.g. the remainder S of a split): no singular step ahead
+            dt_max = np.inf
+        else:
+            try:
+                with np.errstate(all="ignore"):
+                    dt_max = first_singular_step(generators, update=update)
+            except np.linalg.LinAlgError:  # the scan ran into the non-symplectic round-off of the fitted maps
+                dt_max = np.inf
+        return _report_existence(worst[0], worst[1], self.dt, dt_max, 1e-2, 0.1, update)
+
+    _check_existence_projected = _check_existence_from_data  # the name of earlier versions
+
+    def _to_flow(self, d: FlowMapData) -> FlowMapData:
+        """Samples with the FOM's parameter vectors -> with the flow parameters' vectors."""
+        if not self._flow_subset:
+            return d
+        return FlowMapData(d.x0, d.x1, d.mu[:, self._flow_index] if self.flow_parameters else None, d.dt)
+
+    def split_pairs(self, data: FlowMapData) -> FlowMapData:
+        """``S``'s samples ``(L_h x0, L_{-h} x1)``, ``L_h = expm(dt/2 J A(mu))``, of samples ``x1 = Phi(x0)``
+        (the identity without ``split``), in reduced coordinates."""
+        if self.split is None:
+            return data
+        L = self.split.propagator(data.mu if data.mu.shape[1] else None, 0.5 * data.dt, n=len(data))
+        return FlowMapData(np.einsum("bij,bj->bi", L, data.x0),
+                           np.einsum("bij,bj->bi", inverse_symplectic_matrices(L), data.x1),
+                           data.mu if data.mu.shape[1] else None, data.dt)
 
     def training_data(self):
-        """Training and validation :class:`~sympredict.data.FlowMapData` in original reduced coordinates."""
-        val_mus = self.validation_parameters()
-        if self.data == "reduced":
-            train, system = self._reduced_data(self.training_parameters, self.n_samples, self.seed)
-            val, _ = self._reduced_data(val_mus, max(50, self.n_samples // 4), self.seed + 1)
-            if self.check_existence:
-                self.existence_ = check_generating_function(system, train, update=self._update())
+        """Training and validation data in original reduced coordinates, parameter vectors of the flow parameters.
+
+        Returns ``(train, val)``: :class:`~sympredict.data.FlowMapData`, and for the caller's data its
+        ``validation_data`` as given (``FlowMapData``, :class:`~sympredict.data.TrajectoryData` or ``None``).
+        """
+        if self.mode == "given":
+            train, val = self.data, self.validation_data
         else:
-            train = self._projected_data(self.training_parameters)
-            val = self._projected_data(val_mus)
-            if self.check_existence:
-                self.existence_ = self._check_existence_projected(train)
+            val_mus = self.validation_parameters()
+            if self.mode == "reduced":
+                train, system = self._reduced_data(self.training_parameters, self.n_samples, self.seed)
+                val, _ = self._reduced_data(val_mus, max(50, self.n_samples // 4), self.seed + 1)
+                if self.check_existence and self.split is None:
+                    self.existence_ = check_generating_function(system, train, update=self._update())
+            else:
+                train = self._projected_data(self.training_parameters)
+                val = self._projected_data(val_mus)
+            train, val = self._to_flow(train), self._to_flow(val)
+        if self.check_existence and not (self.mode == "reduced" and self.split is None):
+            self.existence_ = self._check_existence_from_data(self.split_pairs(train))
         return train, val
 
     # ------------------------------------------------------------ reduce
-    def _default_predictor(self, train, val, vary_mu):
-        m_star = min(300, self.max_centers)
-        states = log_grid(0.01, 1.0, 2)
-        mus = [IMQ(float(e)) for e in log_grid(0.3, 3.0, 2)] if vary_mu else [None]
+    def _search_kernels(self, base, train, val, vary_mu):
+        """``clone(base)`` with the state and parameter kernels chosen on ``val`` among the candidates
+        (:func:`~sympredict.estimators.selection.select_kernels`), or ``None`` when there is nothing to choose."""
+        default = self.predictor is None
+        if not default and self.state_kernels is None and self.mu_kernels is None:
+            return None
+        if val is None:
+            raise ValueError("choosing kernels (state_kernels, mu_kernels or the default predictor) needs validation "
+                             "data: give validation_data with the caller's data")
+        inner = base.state_kernel.radial if isinstance(base.state_kernel, KernelTransform) else base.state_kernel
+        if self.state_kernels is not None:
+            states = self.state_kernels
+        else:
+            states = [IMQ(float(e)) for e in log_grid(0.01, 1.0, 2)] if default else [inner]
+        if not vary_mu:
+            mus = [None]
+        elif self.mu_kernels is not None:
+            mus = self.mu_kernels
+        else:
+            mus = [IMQ(float(e)) for e in log_grid(0.3, 3.0, 2)] if default else [base.mu_kernel]
+        m_star = min(self.m_star, int(getattr(base, "max_centers", self.m_star)))
         with self.logger.block(f"kernel shapes on validation data ({len(states) * len(mus)} candidates, m* = {m_star})"):
-            sel = select_kernels(train, val, [IMQ(float(e)) for e in states], mus, [None], m_star=m_star)
+            sel = select_kernels(train, val, states, mus, [base.dt_kernel], m_star=m_star, estimator=base)
         self.selection_ = sel
-        return SymplecticKernelPredictor(sel.state, sel.mu, None, max_centers=self.max_centers,
-                                         trainer=ExactGreedy(tol=1e-12))
+        state = base.state_kernel.with_radial(sel.state) if isinstance(base.state_kernel, KernelTransform) else sel.state
+        return clone(base).set_params(state_kernel=state, mu_kernel=sel.mu)
+
+    def _default_predictor(self, train, val, vary_mu):
+        base = SymplecticKernelPredictor(None, None, None, max_centers=self.max_centers, trainer=ExactGreedy(tol=1e-12))
+        return self._search_kernels(base, train, val, vary_mu)
 
     def scaled_training_data(self):
         """Training and validation data in the predictor's coordinates, and the scalings that map to them.
 
         Samples the data (:meth:`training_data`, kept as ``train_data_`` and
         ``validation_data_``), fits the state scaling (``state_scaling``) and,
-        when the parameters vary, the box scaling of the parameters; the step
-        becomes the time unit.  :meth:`reduce` fits its predictor on exactly
+        when the parameters vary, the box scaling of the parameters
+        (``parameter_scaling``); the step becomes the time unit (``time_scaling``).
+        :meth:`reduce` fits its predictor on exactly
         these data, so a kernel search run on them (e.g.
         :func:`~sympredict.estimators.selection.select_kernels` with another update) chooses
         for the model that :meth:`reduce` trains.
@@ -443,58 +721,166 @@ class SymplecticKernelReductor(BasicObject):
         Returns
         -------
         s_train, s_val : FlowMapData
-            Scaled states, parameters in ``[0, 1]^d`` (``None`` when they do not vary), ``dt = 1``.
+            Scaled states, parameters in ``[0, 1]^d`` (``None`` when they do not vary), ``dt = 1``
+            (each as given where the scaling is ``"none"``); ``s_val`` is ``None`` without validation data,
+            the consecutive states of validation trajectories.
         state_scaling : SymplecticScaling
         mu_scaling : BoxScaling or None
         """
-        with self.logger.block(f"flow-map data ({self.data}), 2n = {self.dim}, dt = {self.dt!r}"):
+        with self.logger.block(f"flow-map data ({self.mode}), 2n = {self.dim}, dt = {self.dt!r}"):
             train, val = self.training_data()
         self.train_data_, self.validation_data_ = train, val
+        if isinstance(val, TrajectoryData):  # validation trajectories: their consecutive states for the greedy's E_val
+            val = val.pairs()
         vary_mu = train.mu.shape[1] > 0 and bool(np.any(np.ptp(train.mu, axis=0) > 0))
         reference = None
         if self.state_scaling == "williamson":
             centre = 0.5 * (self.mu_lo + self.mu_hi)
-            reference = self.reduced_system.matrix(centre)
+            reference = self._galerkin().matrix(centre)
         state_scaling = SymplecticScaling(self.state_scaling, reference).fit(np.concatenate([train.x0, train.x1]))
-        mu_scaling = BoxScaling().fit(train.mu, self.mu_lo, self.mu_hi) if vary_mu else None
+        mu_scaling = None
+        if vary_mu:
+            d = train.mu.shape[1]
+            # "none": the identity map (lo = 0, width = 1), so the predictor sees the parameter vectors unchanged
+            mu_scaling = BoxScaling().fit(train.mu, self.flow_lo, self.flow_hi) if self.parameter_scaling == "box" else \
+                BoxScaling().fit(train.mu, np.zeros(d), np.ones(d))
+        self.tau_ = self.dt if self.time_scaling == "step" else 1.0
 
-        assert np.allclose(train.dt, self.dt) and np.allclose(val.dt, self.dt)
+        assert np.allclose(train.dt, self.dt) and (val is None or np.allclose(val.dt, self.dt))
 
         def scaled(d):
+            if d is None:
+                return None
             return FlowMapData(state_scaling.transform(d.x0), state_scaling.transform(d.x1),
-                               mu_scaling.transform(d.mu) if vary_mu else None, np.ones(len(d)))  # time unit dt
+                               mu_scaling.transform(d.mu) if vary_mu else None,
+                               np.ones(len(d)) if self.time_scaling == "step" else d.dt)  # time unit dt
 
         return scaled(train), scaled(val), state_scaling, mu_scaling
 
+    def _fit(self, predictor, s_train, s_val, vary_mu, state_scaling, mu_scaling):
+        """Fit ``predictor`` (inside the split, if any) on the scaled data; the flow map in reduced coordinates."""
+        model = predictor
+        if self.split is not None:
+            quad = self.split
+            if not vary_mu and quad.checked()[1].shape[1]:  # one training parameter: A at that parameter
+                quad = QuadraticPart(quad.hessian(self.train_data_.mu[:1], 1))
+            model = SplitKernelPredictor(predictor, scaled_quadratic_part(quad, state_scaling, mu_scaling, self.tau_))
+        model.fit(s_train.x0, s_train.x1, mu=s_train.mu if vary_mu else None, dt=s_train.dt,
+                  validation=None if s_val is None else (s_val.x0, s_val.x1, s_val.mu if vary_mu else None, s_val.dt))
+        flow_map = NormalizedFlowMap(model, state_scaling, mu_scaling if vary_mu else None, self.tau_)
+        if not vary_mu and self.flow_parameters:
+            # one training parameter: the predictor has no mu input, the ROM accepts only that mu
+            flow_map = _FixedMuFlowMap(flow_map, self.train_data_.mu[0])
+        return model, flow_map
+
+    def validation_score(self, flow_map, validation=None) -> float:
+        """Mean relative error of ``flow_map`` (reduced coordinates) on validation data (default ``validation_data_``).
+
+        ``TrajectoryData``: rollouts from the first states over all steps, ``mean |x_k - X_k| / |X_k|`` over
+        trajectories and ``k >= 1``; ``FlowMapData``: one step from each ``x0`` against ``x1``.  ``inf`` for a failed
+        or non-finite prediction.
+        """
+        val = self.validation_data_ if validation is None else validation
+        try:
+            with warnings.catch_warnings():  # a candidate may extrapolate or fail: its score says so
+                warnings.simplefilter("ignore")
+                if isinstance(val, TrajectoryData):
+                    ref = val.states[:, 1:]
+                    pred = flow_map.rollout(val.states[:, 0], ref.shape[1], mu=val.mu if val.mu.shape[1] else None,
+                                            dt=self.dt)[:, 1:]
+                else:
+                    ref = val.x1
+                    pred = flow_map.step(val.x0, mu=val.mu if val.mu.shape[1] else None, dt=self.dt)
+                score = float(np.mean(np.linalg.norm(pred - ref, axis=-1) / np.linalg.norm(ref, axis=-1)))
+        except Exception as exc:  # a Newton failure, a non-finite prediction: this candidate cannot be used
+            self.logger.info(f"validation rollout failed: {type(exc).__name__}: {exc}")
+            return np.inf
+        return score if np.isfinite(score) else np.inf
+
     def reduce(self, T: Optional[float] = None) -> SymplecticKernelModel:
-        """Sample data, fit the predictor, return the ROM (horizon ``T``, default ``fom.T``)."""
-        rows = self._mu_rows(self.training_parameters)
-        if len(np.unique(rows, axis=0)) > 1 and getattr(self.predictor, "mu_kernel", True) is None:
+        """Sample data, fit the predictor, return the ROM (horizon ``T``, default ``fom.T``).
+
+        Sets ``predictor_`` (the fitted predictor, in the scaled coordinates; a
+        :class:`~sympredict.flowmap.splitting.SplitKernelPredictor` with ``split``), ``flow_map_`` (the ROM's
+        flow map in reduced coordinates), ``selection_`` (where kernels were chosen), ``regularization_`` and
+        ``regularization_table_`` (with ``regularizations``: the chosen term and ``[{"regularization", "score"}]``,
+        ``score`` ``None`` where not finite) and ``timings_`` (seconds of ``data``, ``selection`` and ``fit``).
+        """
+        if self.mode == "given":
+            rows = self.data.mu
+        else:
+            rows = self._mu_rows(self.training_parameters)[:, self._flow_index]
+        if len(np.unique(rows, axis=0)) > 1 and getattr(self.predictor, "mu_kernel", True) is None \
+                and self.mu_kernels is None:
             # before any FOM solve (reduce() would find it after sampling)
             raise ValueError("the parameters vary across training_parameters but the predictor has mu_kernel=None: "
                              "give it a mu_kernel, or train at one parameter value")
+        if self.regularizations is not None and self.validation_data is None and self.mode == "given":
+            raise ValueError("choosing the regularization needs validation data: give validation_data (samples or "
+                             "trajectories) with the caller's data")
+        t0 = time.perf_counter()
         s_train, s_val, state_scaling, mu_scaling = self.scaled_training_data()
+        timings = {"data": time.perf_counter() - t0}
         train = self.train_data_
         vary_mu = mu_scaling is not None
+        t0 = time.perf_counter()
+        if self.split is None:
+            search = (s_train, s_val)
+        else:  # the kernels of S, compared on S's samples
+            search = tuple(None if d is None else self._scaled_split_pairs(d, state_scaling, mu_scaling, vary_mu)
+                           for d in (s_train, s_val))
         if self.predictor is None:
-            predictor = self._default_predictor(s_train, s_val, vary_mu)
+            predictor = self._default_predictor(*search, vary_mu)
         else:
-            predictor = clone(self.predictor)
+            predictor = self._search_kernels(clone(self.predictor), *search, vary_mu) or clone(self.predictor)
             if vary_mu and getattr(predictor, "mu_kernel", True) is None:
                 raise ValueError("the parameters vary across training_parameters but the predictor has mu_kernel=None")
-        with self.logger.block(f"fitting {type(predictor).__name__} on {len(train)} samples"):
-            predictor.fit(s_train.x0, s_train.x1, mu=s_train.mu if vary_mu else None, dt=s_train.dt,
-                          validation=(s_val.x0, s_val.x1, s_val.mu if vary_mu else None, s_val.dt))
-        self.predictor_ = predictor
-        if not vary_mu and self.fom.parameters:
-            # one training parameter: the predictor has no mu input, the ROM accepts only that mu
-            flow_map = _FixedMuFlowMap(NormalizedFlowMap(predictor, state_scaling, None, self.dt), train.mu[0])
-        else:
-            flow_map = NormalizedFlowMap(predictor, state_scaling, mu_scaling, self.dt)
+        timings["selection"] = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        with self.logger.block(f"fitting {type(predictor).__name__} on {len(train)} samples"
+                               + ("" if self.split is None else " (inside the split)")):
+            if self.regularizations is None:
+                model, flow_map = self._fit(predictor, s_train, s_val, vary_mu, state_scaling, mu_scaling)
+            else:
+                model, flow_map = self._choose_regularization(predictor, s_train, s_val, vary_mu, state_scaling,
+                                                              mu_scaling)
+        timings["fit"] = time.perf_counter() - t0
+        self.timings_ = timings
+        self.predictor_ = model
         self.flow_map_ = flow_map
         name = None if self.fom.name is None else "kernel_" + self.fom.name
         return SymplecticKernelModel(flow_map, self._reduced_initial_data(), self.fom.T if T is None else T, self.dt,
-                                     self.fom.parameters, name=name)
+                                     self.fom.parameters, name=name,
+                                     flow_parameters=self.flow_parameters if self._flow_subset else None)
+
+    def _scaled_split_pairs(self, d, state_scaling, mu_scaling, vary_mu):
+        """``S``'s samples in the predictor's coordinates (what the kernel search compares candidates on)."""
+        quad = self.split
+        if not vary_mu and quad.checked()[1].shape[1]:
+            quad = QuadraticPart(quad.hessian(self.train_data_.mu[:1], 1))
+        quad = scaled_quadratic_part(quad, state_scaling, mu_scaling if vary_mu else None, self.tau_)
+        L = quad.propagator(d.mu if d.mu.shape[1] else None, 0.5 * d.dt, n=len(d))
+        return FlowMapData(np.einsum("bij,bj->bi", L, d.x0), np.einsum("bij,bj->bi", inverse_symplectic_matrices(L), d.x1),
+                           d.mu if d.mu.shape[1] else None, d.dt)
+
+    def _choose_regularization(self, predictor, s_train, s_val, vary_mu, state_scaling, mu_scaling):
+        """Every ridge term of ``{0} | regularizations`` fitted and scored by :meth:`validation_score`; the best."""
+        table, best = [], None
+        for lam in sorted({0.0, *self.regularizations}):
+            candidate = clone(predictor).set_params(trainer__regularization=lam)
+            model, flow_map = self._fit(candidate, s_train, s_val, vary_mu, state_scaling, mu_scaling)
+            score = self.validation_score(flow_map)
+            table.append({"regularization": lam, "score": score if np.isfinite(score) else None})
+            self.logger.info(f"regularization {lam:.3g}: validation score {score:.4e} ({model.n_centers_} centres)")
+            if np.isfinite(score) and (best is None or score < best[0]):  # ties: the smaller term (tried first)
+                best = (score, lam, model, flow_map)
+            elif best is None and lam == 0.0:
+                zero = (np.inf, lam, model, flow_map)
+        if best is None:
+            self.logger.warning("no regularization gave a finite validation score: the exact fit (0) is kept")
+            best = zero
+        self.regularization_, self.regularization_table_ = best[1], table
+        return best[2], best[3]
 
 
 class _FixedMuFlowMap:

@@ -16,8 +16,8 @@
   (``m = deim_factor * 2n`` points), the kernel ROM learned from Galerkin
   trajectories (``'reduced'``) and from projected FOM trajectories
   (``'projected'``, non-intrusive), each a :class:`~sympredict.SymplecticKernelPredictor`
-  with a kernel on ``c`` at the fixed macro step ``DT``, trained in the scaled coordinates of
-  :mod:`sympredict.flowmap.scaling` (as ``SymplecticKernelReductor`` does), and RK4 / implicit
+  with a kernel on ``c`` at the fixed macro step ``DT``, trained by ``SymplecticKernelReductor`` in the scaled
+  coordinates of :mod:`sympredict.flowmap.scaling`, and RK4 / implicit
   midpoint on the Galerkin ROM at the same ``DT`` (one step per output);
 * the energy error ``dx H(V y)`` of every ROM over ``long_factor * T`` per test parameter, with the projected
   FOM trajectories' own as a reference, and :func:`energy_boundedness` (the definition of "bounded" that
@@ -35,14 +35,15 @@
   separately; :func:`break_even` gives the kernel's flatness in ``N`` and the
   break-even ``N`` against the compiled Galerkin ROM per ``2n``.
 
-The learned ROMs use the estimator directly: ``sympredict.mor.SymplecticKernelReductor``
-takes a ``QuadraticHamiltonianModel`` FOM only (see the issue-15 report).
+The learned ROMs go through the library's ``sympredict.mor.SymplecticKernelReductor``
+(:func:`sine_gordon_reductor`): the FOM's pyMOR model and the basis, the experiment's reduced pairs
+as ``data``, the flow map taking ``c`` only, the split as ``split``, and the ridge term chosen by
+rollouts on held-out training trajectories (``regularizations``, ``validation_data``).
 """
 
 from __future__ import annotations
 
 import time
-import warnings
 from functools import partial
 from dataclasses import asdict, dataclass, field, replace
 
@@ -53,15 +54,17 @@ from sympredict.systems.flowmaps import midpoint_sigma_min, type2_sigma_min
 from sympredict.kernels import IMQ
 from sympredict.symplectic.metrics import canonical_J, relative_trajectory_error
 from sympredict.mor.nonlinear import ReducedSineGordon, nonlinear_snapshots
+from sympredict.data import FlowMapData, TrajectoryData
 from sympredict.estimators.predictor import SymplecticKernelPredictor
-from sympredict.mor.basis import complex_svd_basis, symplecticity_of_basis
-from sympredict.flowmap.scaling import BoxScaling, NormalizedFlowMap, SymplecticScaling, scaled_quadratic_part
-from sympredict.flowmap.splitting import SplitKernelPredictor
+from sympredict.mor.basis import complex_svd_basis, pymor_basis, symplecticity_of_basis
+from sympredict.mor.reductor import SymplecticKernelReductor
+from sympredict.flowmap.scaling import BoxScaling
 from sympredict.systems.sine_gordon import SineGordonFOM
 from sympredict.interpolation.greedy import ExactGreedy
 
 __all__ = ["SineGordonPreset", "PRESETS", "run_sine_gordon", "fom_data", "initial_states", "second_parameter", "energy_boundedness",
-           "ENERGY_BOUND_RATIO", "ENERGY_BOUND_FLOOR", "EnergySamples", "split_setup", "sign_symmetry", "no_augmentation", "choose_large_step"]
+           "ENERGY_BOUND_RATIO", "ENERGY_BOUND_FLOOR", "EnergySamples", "split_setup", "sign_symmetry", "no_augmentation", "choose_large_step",
+           "sine_gordon_reductor"]
 
 logger = getLogger("sympredict.paper.sine_gordon")
 
@@ -368,7 +371,8 @@ def _one_dimension(fom, p, n, snaps, X_tr, c_tr, a_tr, X_te, c_te, a_te, K):
     for data, Ytr in (("reduced", Yg_tr), ("projected", Yp_tr)):
         quad = split["quadratic"] if data == "reduced" else None
         flow, model, fit_time, reg, table = _fit_kernel(p, Ytr[:, :-1], Ytr[:, 1:], c_tr, p.DT, update=p.kernel_update,
-                                                        augment=_augmentation(split["preset"], data, gal), quadratic=quad)
+                                                        augment=_augmentation(split["preset"], data, gal), quadratic=quad,
+                                                        gal=gal)
         hist = model.history_.train_max_residual
         entry = {"fit_time": fit_time, "update": getattr(model, "predictor_", model).update, "regularization": reg, "regularization_table": table,
                  "centers": int(model.n_centers_), "train_residual": [float(v) for v in hist], "error": None, "energy_error_long": None,
@@ -530,26 +534,59 @@ def _augmentation(p, data: str, gal):
     raise ValueError(f"augmentation {kind!r} is not available for data={data!r} (energy samples need the Galerkin ROM)")
 
 
-def _fit_kernel(p, Y0, Y1, c_tr, dt, regularization=None, update="symplectic_euler", stride=1, augment=no_augmentation,
-                quadratic=None):
-    """A kernel flow map at the macro step ``dt`` from pairs of reduced states ``Y1 = Phi^dt(Y0)`` (P, k, 2n)
-    of ``P`` training trajectories at wave speeds ``c_tr`` (P,).
+def sine_gordon_reductor(p, gal, pairs, dt, regularization=0.0, update="symplectic_euler", quadratic=None,
+                         validation=None, regularizations=None) -> SymplecticKernelReductor:
+    """The library's reductor set up as the experiment's kernel ROMs, on reduced pairs it is given.
 
-    Scaled coordinates (:mod:`sympredict.flowmap.scaling`, as the reductor does): conformally symplectic state map, ``c``
+    :class:`~sympredict.mor.SymplecticKernelReductor` on the FOM's pyMOR model and the Galerkin ROM's basis,
+    with the flat pairs ``(x0, x1, mu)`` (``mu = c``, shape (m, 1): the flow map takes the wave speed only,
+    ``flow_parameters=('c',)``; the second parameter enters the initial data alone), scaled coordinates
+    (``p.state_scaling``, ``c`` mapped from ``p.c_range`` onto ``[0, 1]``, time unit ``dt``), the predictor
+    ``IMQ(p.state_eps)`` (``None``: the estimator's default) x ``IMQ(p.mu_eps)`` with ``update`` and the f-greedy
+    (``tol = 1e-9``, ridge ``regularization``) to ``p.max_centers``, and ``split=quadratic`` (a
+    :class:`~sympredict.systems.linear_flow.QuadraticPart` ``A(c)``: ``L_h o S o L_h``, only ``S`` learned).
+    With ``validation`` (a :class:`~sympredict.data.TrajectoryData`) and ``regularizations`` the reductor chooses
+    the ridge term by the rollouts on those trajectories.  The reductor's existence check is off here: the
+    experiment chooses its large step by its own rule on the training trajectories (:func:`choose_large_step`,
+    which checks the generating function on ``S``'s pairs), and reports a kernel past the limit as a failed or
+    inaccurate rollout (a result of the comparison) rather than refusing to train it.
+    """
+    fom = gal.fom
+    space = fom.model.parameters.space({"amplitude": tuple(fom.parameter_space.ranges["amplitude"]),
+                                        "c": tuple(map(float, p.c_range))})
+    predictor = SymplecticKernelPredictor(None if p.state_eps is None else IMQ(p.state_eps), mu_kernel=IMQ(p.mu_eps),
+                                          max_centers=p.max_centers, update=update,
+                                          trainer=ExactGreedy(tol=1e-9, regularization=float(regularization)))
+    x0, x1, mu = pairs
+    return SymplecticKernelReductor(fom.model, pymor_basis(gal.V, fom.phase_space), None, dt, predictor,
+                                    data=FlowMapData(x0, x1, mu, np.full(len(x0), float(dt))),
+                                    validation_data=validation, parameter_space=space, state_scaling=p.state_scaling,
+                                    regularizations=regularizations, split=quadratic, flow_parameters=("c",),
+                                    check_existence=False)
+
+
+def _fit_kernel(p, Y0, Y1, c_tr, dt, regularization=None, update="symplectic_euler", stride=1, augment=no_augmentation,
+                quadratic=None, gal=None):
+    """A kernel flow map at the macro step ``dt`` from pairs of reduced states ``Y1 = Phi^dt(Y0)`` (P, k, 2n)
+    of ``P`` training trajectories at wave speeds ``c_tr`` (P,), through the reductor
+    (:func:`sine_gordon_reductor` on the Galerkin ROM ``gal``'s basis).
+
+    Scaled coordinates (:mod:`sympredict.flowmap.scaling`): conformally symplectic state map, ``c``
     onto ``[0, 1]``, time unit ``dt``; the learned step stays symplectic in the original coordinates.
     ``augment`` (a strategy: :func:`no_augmentation`, :func:`sign_symmetry`, :class:`EnergySamples`) turns
     the pairs of the trajectories a fit uses into the flat pairs it fits; it sees only those trajectories (a
     held-out trajectory's images are not in the fit that is scored on it).
     ``quadratic`` (a :class:`~sympredict.systems.linear_flow.QuadraticPart` ``A(c)``, optional) splits its exact flow off:
     the model is a :class:`~sympredict.flowmap.splitting.SplitKernelPredictor` ``L_h o S o L_h``, ``L_h = expm(dt/2 J A(c))``,
-    and only ``S`` is learned (:func:`_fit_scaled`); the held-out rollouts score the whole step.
+    and only ``S`` is learned (the reductor's ``split``); the held-out rollouts score the whole step.
 
     With ``p.regularizations`` and no ``regularization`` given, the ridge term is chosen among ``0`` and
     ``p.regularizations`` by **rollout on held-out training trajectories** (``1, 1 + validation_every, ...``;
-    training data only, never the test parameters): each candidate is fitted on the other trajectories and
-    rolled out from the held-out initial states ``Y0[:, 0]``; its score is the mean relative error against
-    ``Y1[:, ::stride]`` (``stride`` pairs per macro step when the pairs start at every output, as in the
-    large-step regime), a failed or non-finite rollout scoring ``inf``; ties go to the smaller term.  The one-step gradient residual
+    training data only, never the test parameters): the reductor fits each candidate on the other trajectories
+    and rolls it out from the held-out initial states ``Y0[:, 0]`` (validation trajectories ``Y0[:, 0]``,
+    ``Y1[:, ::stride]``: ``stride`` pairs per macro step when the pairs start at every output, as in the
+    large-step regime); its score is the mean relative error, a failed or non-finite rollout scoring ``inf``;
+    ties go to the smaller term.  The one-step gradient residual
     (:func:`~sympredict.estimators.selection.select_regularization`) does not predict
     whether a rollout stays in the data (measured: it chose ``1e-8`` at ``2n = 12`` where the rollout blows up
     and ``1e-6`` works).  The model is then refitted on all trajectories with the chosen term.
@@ -557,6 +594,8 @@ def _fit_kernel(p, Y0, Y1, c_tr, dt, regularization=None, update="symplectic_eul
     Returns the flow map (original coordinates), the fitted predictor, the fit's wall time (selection
     included), the chosen ridge term and the selection table (``[(lambda, score), ...]``).
     """
+    if gal is None:
+        raise ValueError("_fit_kernel needs the Galerkin ROM (gal=...): its basis and FOM make the reductor")
     P, k, dim = Y0.shape
     t0 = time.perf_counter()
     table = []
@@ -564,37 +603,15 @@ def _fit_kernel(p, Y0, Y1, c_tr, dt, regularization=None, update="symplectic_eul
     if regularization is None and p.regularizations and P > 2:
         held = np.zeros(P, dtype=bool)
         held[1::p.validation_every] = True
-        ref = Y1[held, ::stride]
-        for lam in sorted({0.0, *map(float, p.regularizations)}):
-            flow, _ = _fit_scaled(p, *augment(Y0[~held], Y1[~held], c_tr[~held]), dt, lam, update, quadratic)
-            try:
-                with warnings.catch_warnings():
-                    warnings.simplefilter("ignore")
-                    Y = flow.rollout(Y0[held, 0], ref.shape[1], mu=c_tr[held, None], dt=dt)[:, 1:]
-                score = float(np.mean(np.linalg.norm(Y - ref, axis=-1) / np.linalg.norm(ref, axis=-1)))
-            except Exception:  # a failed rollout scores inf
-                score = np.inf
-            table.append((lam, score if np.isfinite(score) else None))
-        scored = [(sc, lam) for lam, sc in table if sc is not None]
-        reg = min(scored)[1] if scored else 0.0  # smallest score; on a tie the smaller term (tuples compare in order)
-    flow, model = _fit_scaled(p, *augment(Y0, Y1, c_tr), dt, reg, update, quadratic)
-    return flow, model, time.perf_counter() - t0, reg, table
-
-
-def _fit_scaled(p, x0, x1, mu, dt, regularization, update, quadratic=None):
-    """One fit of :func:`_fit_kernel` (scaled coordinates) on flat pairs ``x0, x1`` (m, 2n) at ``mu`` (m, 1);
-    returns the flow map and the predictor (a :class:`~sympredict.flowmap.splitting.SplitKernelPredictor` around it when
-    ``quadratic`` is given: ``A(c)`` carried into the scaled coordinates by
-    :func:`~sympredict.flowmap.scaling.scaled_quadratic_part`, the same exact linear flow)."""
-    st = SymplecticScaling(p.state_scaling).fit(np.concatenate([x0, x1]))
-    ms = BoxScaling().fit(mu, np.array([p.c_range[0]]), np.array([p.c_range[1]]))
-    model = SymplecticKernelPredictor(None if p.state_eps is None else IMQ(p.state_eps), mu_kernel=IMQ(p.mu_eps),
-                                      max_centers=p.max_centers, update=update,
-                                      trainer=ExactGreedy(tol=1e-9, regularization=regularization))
-    if quadratic is not None:
-        model = SplitKernelPredictor(model, scaled_quadratic_part(quadratic, st, ms, dt))
-    model.fit(st.transform(x0), st.transform(x1), mu=ms.transform(mu), dt=1.0)
-    return NormalizedFlowMap(model, st, ms, dt), model
+        val = TrajectoryData(np.concatenate([Y0[held, :1], Y1[held, ::stride]], axis=1), c_tr[held, None], dt)
+        chooser = sine_gordon_reductor(p, gal, augment(Y0[~held], Y1[~held], c_tr[~held]), dt, update=update,
+                                       quadratic=quadratic, validation=val, regularizations=p.regularizations)
+        chooser.reduce()
+        reg = chooser.regularization_
+        table = [(row["regularization"], row["score"]) for row in chooser.regularization_table_]
+    reductor = sine_gordon_reductor(p, gal, augment(Y0, Y1, c_tr), dt, reg, update, quadratic)
+    reductor.reduce()
+    return reductor.flow_map_, reductor.predictor_, time.perf_counter() - t0, reg, table
 
 
 def choose_large_step(p, gal, X_tr, c_tr, K, quadratic=None, update="midpoint") -> dict:
@@ -712,7 +729,7 @@ def _large_step(p, gal, X_tr, c_tr, X_te, c_te, K):
     out["implicit_midpoint_time_per_trajectory"] = _median_time(lambda: gal.solve(y0[:1], c_te[:1], dt, Kl), p.repeats)
     Yp = gal.project(X_tr)
     flow, model, fit_time, reg, table = _fit_kernel(p, Yp[:, :-s], Yp[:, s:], c_tr, dt, update="midpoint", stride=s,
-                                                    quadratic=quad)
+                                                    quadratic=quad, gal=gal)
     entry = {"fit_time": fit_time, "regularization": reg, "regularization_table": table, "centers": int(model.n_centers_),
              "train_residual": [float(v) for v in model.history_.train_max_residual], "error": None,
              "time_per_trajectory": None, "failure": None}
@@ -828,7 +845,7 @@ def _cost_vs_N(fom, p, out, X_tr, c_tr, x_te, c_te):
                 flow, model, _, row[f"{key}_regularization"], _ = _fit_kernel(
                     p, Ytr[:, :-1], Ytr[:, 1:], c_tr, p.DT, lam, update=p.kernel_update,
                     augment=_augmentation(split["preset"], "reduced" if key == "kernel" else "projected", gal),
-                    quadratic=split["quadratic"] if key == "kernel" else None)
+                    quadratic=split["quadratic"] if key == "kernel" else None, gal=gal)
                 row[f"{key}_centers"] = int(model.n_centers_)
                 try:
                     row[f"{key}_error"] = float(np.median(_err(gal, flow.rollout(y0, K, mu=c_te[:, None], dt=p.DT), xn_te)))

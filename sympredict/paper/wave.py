@@ -1,7 +1,10 @@
 """The MOR pipeline on the parametric wave equation (paper section 4.1).
 
 ``fom -> snapshots at c_ref -> complex-SVD symplectic basis -> rom -> reduced
-flow-map data -> one SymplecticKernelPredictor per macro step -> evaluation``.
+flow-map data -> one SymplecticKernelReductor per macro step (kernel selection,
+training, the kernel ROM) -> evaluation``.  The Galerkin ROM (:class:`SymplecticROM`)
+stays for the intrusive comparisons: its reference flows, implicit midpoint and
+exact propagator.
 
 :func:`run_wave` returns results (numbers and arrays), no figures:
 
@@ -36,11 +39,13 @@ from sympredict.paper.speed import SpeedTable, add_classical, deliberate_threads
 from sympredict.symplectic.integrators_compiled import EXPLICIT_SCHEMES, rollout
 from sympredict.estimators.predictor import DirectKernelPredictor, SymplecticKernelPredictor
 from sympredict.mor.basis import SymplecticROM, complex_svd_basis, symplecticity_of_basis
-from sympredict.estimators.selection import kernel_grid, select_kernels
+from sympredict.estimators.selection import kernel_grid
+from sympredict.mor.reductor import SymplecticKernelReductor
 from sympredict.systems.wave import C_REF, C_TRAIN, DT_WAVE, WaveFOM
 from sympredict.interpolation.greedy import ExactGreedy
 
-__all__ = ["WavePreset", "PRESETS", "fom_snapshots", "build_rom", "reduced_flow_map_data", "validation_speeds", "train_wave_predictor", "run_wave",
+__all__ = ["WavePreset", "PRESETS", "fom_snapshots", "build_rom", "reduced_flow_map_data", "validation_speeds", "wave_reductor",
+           "train_wave_predictor", "run_wave",
            "run_wave_speed_accuracy", "smallest_wave_model"]
 
 logger = getLogger("sympredict.paper.wave")
@@ -225,19 +230,40 @@ def validation_speeds(fom: WaveFOM, n: int, seed: int) -> np.ndarray:
     return np.sqrt(mus_to_matrix(mus, fom.model.parameters)[:, 0])
 
 
+def wave_reductor(rom: SymplecticROM, preset: WavePreset, dt: float, data: FlowMapData,
+                  validation: FlowMapData) -> SymplecticKernelReductor:
+    """The library's reductor set up as the paper's wave experiment, on samples it is given.
+
+    :class:`~sympredict.mor.SymplecticKernelReductor` on the FOM's pyMOR model and the
+    ROM's basis, with the experiment's samples (``data``, ``validation``: reduced states in
+    the energy ellipsoid, :func:`reduced_flow_map_data`), trained in the reduced coordinates
+    and units as they are (no state, parameter or time scaling: the preset's kernel shapes are
+    in these units), the kernel tuple chosen on the validation samples from the preset's grid
+    at ``m_star`` centres, then trained by f-greedy (``tol = 1e-10``) to ``max_centers``.
+    """
+    return SymplecticKernelReductor(
+        rom.model, rom.RB, None, dt,
+        SymplecticKernelPredictor(max_centers=preset.max_centers, trainer=ExactGreedy(tol=1e-10)),
+        data=data, validation_data=validation, state_scaling="none", parameter_scaling="none", time_scaling="none",
+        state_kernels=kernel_grid(preset.families, preset.state_eps), mu_kernels=kernel_grid(("imq",), preset.mu_eps),
+        m_star=preset.m_star)
+
+
 def train_wave_predictor(rom: SymplecticROM, preset: WavePreset, dt: float, energy: float, seed: int = 0) -> dict:
-    """Reduced flow-map data at one macro step, kernel chosen on validation data, f-greedy fit.
+    """Reduced flow-map data at one macro step, then the reductor: kernel chosen on validation data, f-greedy fit.
 
     Training states are drawn per training speed (``C_TRAIN``), validation states
     per speed drawn in the declared range (:func:`validation_speeds`), uniformly in
-    the reduced energy ellipsoid; the kernel tuple minimizing
-    ``E_val(m_star)`` over the preset's grid (:func:`select_kernels`) is then
-    trained to ``preset.max_centers`` centres.
+    the reduced energy ellipsoid; :func:`wave_reductor` then chooses the kernel tuple
+    minimizing ``E_val(m_star)`` over the preset's grid (:func:`~sympredict.estimators.selection.select_kernels`) and
+    trains it to ``preset.max_centers`` centres.
 
     Returns
     -------
     dict
-        ``model`` (fitted, with ``E_val`` history), ``selection``, ``n_samples``, ``data`` and ``validation`` (the samples),
+        ``model`` (the fitted predictor, with ``E_val`` history: with no scaling it is the ROM's
+        flow map in reduced coordinates), ``selection``, ``n_samples``, ``data`` and ``validation``
+        (the samples), ``reductor`` and ``kernel_rom`` (the pyMOR model it returned),
         ``time_data_s``, ``time_selection_s``, ``time_fit_s``.
     """
     with logger.block(f"dT = {dt}, 2n = {rom.dim}: data, kernel selection, training"):
@@ -246,17 +272,11 @@ def train_wave_predictor(rom: SymplecticROM, preset: WavePreset, dt: float, ener
         val = reduced_flow_map_data(rom, validation_speeds(rom.fom, len(C_TRAIN), seed + 500), dt, preset.val_per_speed,
                                     energy, seed=seed + 500)
         t_data = time.perf_counter() - t0
-        t0 = time.perf_counter()
-        sel = select_kernels(data, val, kernel_grid(preset.families, preset.state_eps), kernel_grid(("imq",), preset.mu_eps),
-                             m_star=min(preset.m_star, preset.max_centers))
-        t_sel = time.perf_counter() - t0
-        model = SymplecticKernelPredictor(sel.state, sel.mu, None, max_centers=preset.max_centers,
-                                          trainer=ExactGreedy(tol=1e-10))
-        t0 = time.perf_counter()
-        model.fit(data.x0, data.x1, mu=data.mu, dt=dt, validation=val)
-        t_fit = time.perf_counter() - t0
-    return {"model": model, "selection": sel, "n_samples": len(data), "data": data, "validation": val,
-            "time_data_s": t_data, "time_selection_s": t_sel, "time_fit_s": t_fit}
+        reductor = wave_reductor(rom, preset, dt, data, val)
+        kernel_rom = reductor.reduce()
+    return {"model": reductor.predictor_, "selection": reductor.selection_, "n_samples": len(data), "data": data,
+            "validation": val, "reductor": reductor, "kernel_rom": kernel_rom, "time_data_s": t_data,
+            "time_selection_s": reductor.timings_["selection"], "time_fit_s": reductor.timings_["fit"]}
 
 
 def run_wave(preset: WavePreset, seed: int = 0, **overrides) -> dict:
