@@ -309,6 +309,16 @@ def _check_kernels(kernels, name: str, allow_none: bool) -> Optional[list]:
     return kernels
 
 
+
+def _check_sizes(name: str, what: str, dim_given: int, dim: int, n_mu_given: int, n_mu: int) -> None:
+    """``ValueError`` naming ``name`` when its state or parameter dimension does not fit the reductor's."""
+    if dim_given != dim:
+        raise ValueError(f"{name} has {what} of dimension {dim_given}, the basis has 2n = {dim}: give reduced "
+                         f"coordinates (reductor.project(U) of full states)")
+    if n_mu_given != n_mu:
+        raise ValueError(f"{name} has parameter vectors of dimension {n_mu_given}, the flow map's parameters have "
+                         f"dimension {n_mu} (mu_to_vector order: values sorted by parameter name)")
+
 def _check_given_data(data, validation_data, dim: int, n_mu: int, dt: float) -> None:
     """The caller's training samples and validation samples (or trajectories): reduced states of dimension ``2n``,
     parameter vectors of the flow parameters' dimension, all at the reductor's ``dt``."""
@@ -316,12 +326,7 @@ def _check_given_data(data, validation_data, dim: int, n_mu: int, dt: float) -> 
         if d is None:
             continue
         if isinstance(d, TrajectoryData) and name == "validation_data":
-            if d.states.shape[2] != dim:
-                raise ValueError(f"validation_data has trajectories of dimension {d.states.shape[2]}, the basis has "
-                                 f"2n = {dim}: give reduced coordinates")
-            if d.mu.shape[1] != n_mu:
-                raise ValueError(f"validation_data has parameter vectors of dimension {d.mu.shape[1]}, the flow map's "
-                                 f"parameters have dimension {n_mu}")
+            _check_sizes(name, "trajectories", d.states.shape[2], dim, d.mu.shape[1], n_mu)
             if not np.isclose(d.dt, dt, rtol=1e-12, atol=0):
                 raise ValueError(f"validation_data has the step {d.dt!r}, the reductor's dt is {dt!r}")
             continue
@@ -329,12 +334,7 @@ def _check_given_data(data, validation_data, dim: int, n_mu: int, dt: float) -> 
             raise ValueError(f"{name} must be a sympredict.data.FlowMapData of reduced samples"
                              + (" or a TrajectoryData" if name == "validation_data" else "")
                              + f", got {type(d).__name__}")
-        if d.x0.shape[1] != dim:
-            raise ValueError(f"{name} has states of dimension {d.x0.shape[1]}, the basis has 2n = {dim}: give reduced "
-                             f"coordinates (reductor.project(U) of full states)")
-        if d.mu.shape[1] != n_mu:
-            raise ValueError(f"{name} has parameter vectors of dimension {d.mu.shape[1]}, the flow map's parameters "
-                             f"have dimension {n_mu} (mu_to_vector order: values sorted by parameter name)")
+        _check_sizes(name, "states", d.x0.shape[1], dim, d.mu.shape[1], n_mu)
         if not np.allclose(d.dt, dt, rtol=1e-12, atol=0):
             raise ValueError(f"{name} has steps {np.unique(d.dt)[:5].tolist()}, the reductor's dt is {dt!r}: a reductor "
                              f"learns one macro step")

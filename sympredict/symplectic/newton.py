@@ -320,25 +320,8 @@ def solve_midpoint_numpy(sur: HBSurrogate, x: np.ndarray, weights: np.ndarray, d
     explicit guess).  ``dt`` may be negative: with the same ``s`` (the same
     ``weights``) the step with ``-dT`` inverts the step with ``dT``.
 
-    Parameters
-    ----------
-    sur
-        The fitted surrogate (trained on midpoints, see
-        :class:`~sympredict.estimators.predictor.SymplecticKernelPredictor` ``update``).
-    x : ndarray of shape (B, 2n)
-    weights : ndarray of shape (B, m)
-    dt : ndarray of shape (B,)
-    max_iter
-        Newton iterations at most.
-
-    Returns
-    -------
-    ndarray of shape (B, 2n)
-
-    Raises
-    ------
-    NewtonConvergenceError
-        Naming the instances (module docstring).
+    Arguments, result and failure report as :func:`solve_step_numpy` (``sur`` trained on
+    midpoints, see :class:`~sympredict.estimators.predictor.SymplecticKernelPredictor` ``update``).
 
     Notes
     -----
