@@ -651,3 +651,11 @@ def test_fuzzed_model_files_long(model_file, other_model_files, tmp_path):
         _fuzz(model_file, tmp_path, 1000, seed=100 + seed)
         for kind, path in other_model_files.items():
             _fuzz(path, tmp_path, 500, seed=200 + seed, mu=0.75)
+
+
+@pytest.mark.parametrize("key", ["dim", "n_mu"])
+def test_a_file_with_huge_sizes_is_refused_before_allocating(model_file, tmp_path, key):
+    """A file's dim or n_mu of 10**15 must be refused by its arrays' shapes, not by a failed allocation."""
+    path = _rewrite(model_file, tmp_path / "huge.h5", settings=lambda s: s.__setitem__(key, 10 ** 15))
+    with pytest.raises(ModelFileError, match=f"{key}=1000000000000000 disagrees with its training box"):
+        SymplecticKernelPredictor.load(path)

@@ -172,6 +172,11 @@ def from_container(cls, settings, arrays: dict, path):
         model._store_fitted_settings(model.get_params(deep=False))
         kernel = ProductKernel.from_spec(settings["kernel"])
         _check_file_shape_info(settings, path)
+        for name, size, key in (("domain_x_min", settings["dim"], "dim"), ("domain_mu_min", settings["n_mu"], "n_mu")):
+            box = arrays.get(name)  # before anything is allocated by the file's sizes
+            if box is None or box.ndim != 1 or box.shape[0] != size:
+                raise ModelFileError(f"{str(path)!r}: its setting {key}={size!r} disagrees with its training box "
+                                     f"{name!r} of shape {None if box is None else box.shape}")
         model._set_shape_info(settings["dim"], settings["n_mu"], settings["dt_fixed"])
         try:
             model._check_dim_settings(model.dim_)
