@@ -3,8 +3,9 @@
 An update rule owns everything that depends on the form of the step: where
 the training targets ``y = J^T (x1 - x0) / dT`` are interpolated, the implicit
 equation and its NumPy Newton solver, the step's Jacobian, the contraction
-estimate ``dT L_S``, the existence measure of its generating function, and
-which state symmetries leave its ``s`` invariant.  The compiled solver runs the
+estimate ``dT L_S``, and which state symmetries leave its ``s`` invariant
+(the existence of ``s`` on data is checked by
+:func:`sympredict.systems.flowmaps.check_generating_function`).  The compiled solver runs the
 same equations (:func:`sympredict.symplectic.newton.rollout_compiled`, selected by
 :attr:`UpdateRule.name`).
 
@@ -32,8 +33,7 @@ import numpy as np
 from sympredict.base import Parametrized
 from sympredict.data import mixed_variables
 from sympredict.symplectic.metrics import canonical_J
-from sympredict.symplectic.newton import FAILURE_REASONS, MIDPOINT_FAILURE_REASONS, midpoint_jacobian, solve_midpoint_numpy, \
-    solve_step_numpy
+from sympredict.symplectic.newton import midpoint_jacobian, solve_midpoint_numpy, solve_step_numpy
 
 __all__ = ["UpdateRule", "SymplecticEuler", "Midpoint", "UPDATE_RULES", "as_update"]
 
@@ -43,10 +43,6 @@ class UpdateRule(Parametrized):
 
     #: Name in model files, in the compiled solver and as the estimator's ``update`` string.
     name: str = ""
-    #: The rotation per step of a linear mode at which the generating function ceases to exist.
-    breaking_angle: float = np.nan
-    #: The failure reasons of the Newton solve (codes of :mod:`sympredict.symplectic.newton`).
-    failure_reasons: dict = FAILURE_REASONS
     #: Whether the compiled solver has a kernel for this rule (dispatched on :attr:`name`); a rule without one
     #: is NumPy-only (:data:`sympredict.estimators.predictor.NUMPY_ONLY`).
     compiled: bool = True
@@ -76,14 +72,6 @@ class UpdateRule(Parametrized):
         """``dT L_S`` (B,) at the states ``x``: the fixed-point form of the step contracts where it is < 1."""
         raise NotImplementedError
 
-    def existence_margin(self, jacobians: np.ndarray) -> np.ndarray:
-        """Smallest singular value (B,) of the matrix that must stay invertible for ``s`` to exist, from ``D Phi``."""
-        raise NotImplementedError
-
-    def existence_block(self, jacobians: np.ndarray) -> np.ndarray:
-        """That matrix itself (B, k, k) (its determinant is ``+1`` at ``dT = 0``)."""
-        raise NotImplementedError
-
     def check_symmetry(self, group: np.ndarray) -> None:
         """``ValueError`` naming the first element of ``group`` (shape ``(|G|, 2n, 2n)``) under which this
         rule's ``s`` is not invariant."""
@@ -98,7 +86,6 @@ class SymplecticEuler(UpdateRule):
     """
 
     name = "symplectic_euler"
-    breaking_angle = np.pi / 2
 
     def variables(self, x0, x1, dt):
         return mixed_variables(x0, x1, dt)
@@ -127,15 +114,6 @@ class SymplecticEuler(UpdateRule):
         _, hess = sur.gradient_hessian(x, weights)
         return dt * np.linalg.norm(hess[:, :, n:], ord=2, axis=(1, 2))
 
-    def existence_block(self, jacobians):
-        jac = np.asarray(jacobians, dtype=float)
-        n = jac.shape[-1] // 2
-        return jac[..., n:, n:]
-
-    def existence_margin(self, jacobians):
-        """Smallest singular value of ``dp1/dp0`` (``|cos(omega dT)|`` for a linear mode)."""
-        return np.linalg.svd(self.existence_block(jacobians), compute_uv=False)[..., -1]
-
     def check_symmetry(self, group):
         n = group.shape[1] // 2
         for i, g in enumerate(group):
@@ -155,8 +133,6 @@ class Midpoint(UpdateRule):
     """
 
     name = "midpoint"
-    breaking_angle = np.pi
-    failure_reasons = MIDPOINT_FAILURE_REASONS
 
     def variables(self, x0, x1, dt):
         _, y = mixed_variables(x0, x1, dt)
@@ -174,14 +150,6 @@ class Midpoint(UpdateRule):
         """``dT/2 ||Hess s||_2``: ``z -> x0 + dT/2 J grad s(z)`` contracts where it is < 1."""
         _, hess = sur.gradient_hessian(x, weights)
         return 0.5 * dt * np.linalg.norm(hess, ord=2, axis=(1, 2))
-
-    def existence_block(self, jacobians):
-        jac = np.asarray(jacobians, dtype=float)
-        return 0.5 * (np.eye(jac.shape[-1]) + jac)
-
-    def existence_margin(self, jacobians):
-        """Smallest singular value of ``(I + D Phi) / 2`` (``|cos(theta / 2)|`` for a mode turning by ``theta``)."""
-        return np.linalg.svd(self.existence_block(jacobians), compute_uv=False)[..., -1]
 
     def check_symmetry(self, group):
         jmat = canonical_J(group.shape[1])
