@@ -758,7 +758,6 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
     # ------------------------------------------------------- settings
     def _check_params(self) -> Trainer:
         trainer = super()._check_params()
-        as_update(self.update)
         solver = self._check_runtime_settings()
         parts = self._state_parts()
         rule = as_update(self.update)
