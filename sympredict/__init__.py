@@ -39,12 +39,14 @@ from sympredict.exceptions import (
     SympredictError,
 )  # noqa: E402
 from sympredict.estimators.predictor import DirectKernelPredictor, SymplecticKernelPredictor
+from sympredict.estimators.auto import KernelSearch
 
 from sympredict._version import __version__
 
 __all__ = [
     "SymplecticKernelPredictor",
     "DirectKernelPredictor",
+    "KernelSearch",
     "SympredictError",
     "NewtonConvergenceError",
     "SolvabilityError",

@@ -36,7 +36,7 @@ def test_the_estimators_keep_at_most_eight_options():
     assert len(SymplecticKernelPredictor._param_names()) <= 8, SymplecticKernelPredictor._param_names()
     assert len(DirectKernelPredictor._param_names()) <= 8
     assert set(SymplecticKernelPredictor._param_names()) == {
-        "state_kernel", "mu_kernel", "dt_kernel", "max_centers", "update", "trainer", "solver"}
+        "state_kernel", "mu_kernel", "dt_kernel", "max_centers", "update", "trainer", "solver", "search"}
 
 
 # ------------------------------------------------------------------ old options

@@ -12,6 +12,7 @@ from sympredict import (
     ModelFileError,
     NewtonConvergenceError,
     NotFittedError,
+    DirectKernelPredictor,
     SymplecticKernelPredictor,
 )
 from sympredict.symplectic.integrators import implicit_midpoint_step, integrate
@@ -179,10 +180,11 @@ def test_bad_input_gets_clear_errors(small_pendulum_model, small_pendulum_data):
         fresh.fit(np.vstack([d.x0[:3], d.x0[:1]]), np.vstack([d.x1[:3], d.x1[:1]]), mu=np.r_[d.mu[:3, 0], d.mu[0]], dt=0.05)
     with pytest.raises(ValueError, match="max_centers"):
         SymplecticKernelPredictor(IMQ(1.0), max_centers=0).fit(d.x0, d.x1, dt=0.05)
-    no_mu = SymplecticKernelPredictor(IMQ(1.0), dt_kernel=IMQ(5.0), max_centers=10)
+    # the symplectic predictor chooses a missing mu or dt kernel (tests/test_auto_defaults.py); the direct one refuses
+    no_mu = DirectKernelPredictor(IMQ(1.0), dt_kernel=IMQ(5.0), max_centers=10)
     with pytest.raises(ValueError, match="mu_kernel=None"):
         no_mu.fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
-    fixed = SymplecticKernelPredictor(IMQ(1.0), max_centers=10)
+    fixed = DirectKernelPredictor(IMQ(1.0), max_centers=10)
     with pytest.raises(ValueError, match="fixed-step"):
         fixed.fit(d.x0, d.x1, dt=d.dt)
 
@@ -191,9 +193,11 @@ def test_fixed_step_parameter_free_model(pendulum, rng):
     x0 = np.column_stack([rng.uniform(-1, 1, 60), rng.uniform(-3, 3, 60)])
     x1 = pendulum.flow(x0, 0.75, 0.05)
     model = SymplecticKernelPredictor(max_centers=80).fit(x0, x1, dt=0.05)
-    # default state kernel IMQ(1 / diameter of the training xi = (q0, p1)), as documented
-    xi = np.column_stack([x0[:, 0], x1[:, 1]])
-    assert model.kernel_.state.eps == pytest.approx(1.0 / np.linalg.norm(np.ptp(xi, axis=0)), rel=1e-12)
+    # default state kernel: chosen inside the symplectic scaling (a q, p / a), a = sqrt(std p / std q), as documented
+    x = np.vstack([x0, x1])
+    chosen = model.choice_["state_kernel"]
+    assert chosen.factors[0] == pytest.approx(np.sqrt(x[:, 1].std() / x[:, 0].std()), rel=1e-12)
+    assert model.kernel_.state == chosen.kernel and model.state_kernel is None
     assert model.step(x0[:3]).shape == (3, 2)
     with pytest.raises(ValueError, match="fixed step"):
         model.step(x0[:3], dt=0.1)

@@ -3,6 +3,9 @@
 * :mod:`~sympredict.estimators.predictor`: :class:`~sympredict.SymplecticKernelPredictor`
   and the direct baseline :class:`~sympredict.DirectKernelPredictor` (both also
   in the package namespace);
+* :mod:`~sympredict.estimators.auto`: :class:`~sympredict.KernelSearch`, how an
+  estimator chooses the kernels, shapes and update it leaves open, and the fit's
+  diagnostics;
 * :mod:`~sympredict.estimators.selection`: kernel families, shapes and
   regularization chosen on validation data.
 

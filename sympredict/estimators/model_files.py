@@ -16,6 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from sympredict.container import read_container, write_container
+from sympredict.estimators.auto import KernelSearch
 from sympredict.estimators._compat import MOVED_OPTIONS, apply_moved
 from sympredict.exceptions import ModelFileError
 from sympredict.interpolation.functionals import HBFunctionals
@@ -57,6 +58,8 @@ def encode_param(value):
         return {"solver": value.get_params(deep=False)}
     if isinstance(value, Trainer):
         return {"trainer": value.spec}
+    if isinstance(value, KernelSearch):
+        return {"search": {k: list(v) if isinstance(v, tuple) else v for k, v in value.get_params(deep=False).items()}}
     try:
         return encode_value(value)
     except ValueError:
@@ -69,6 +72,11 @@ def decode_param(value):
         return trainer_from_spec(value["trainer"])
     if isinstance(value, dict) and set(value) == {"solver"} and isinstance(value["solver"], dict):
         return NewtonSolver(**value["solver"])
+    if isinstance(value, dict) and set(value) == {"search"} and isinstance(value["search"], dict):
+        unknown = sorted(set(value["search"]) - set(KernelSearch._param_names()))
+        if unknown:
+            raise ValueError(f"unknown KernelSearch setting(s) {unknown}")
+        return KernelSearch(**{k: tuple(v) if isinstance(v, list) else v for k, v in value["search"].items()})
     return decode_value(value)
 
 
@@ -135,6 +143,7 @@ def to_container(model) -> tuple:
         "n_mu": model.n_mu_,
         "dt_fixed": model.dt_fixed_,
         "stop_reason": hist.stop_reason,
+        "choice": {k: encode_param(v) for k, v in getattr(model, "choice_", {}).items()},
     }
     arrays = {"train_max_residual": hist.train_max_residual, "selected_power": hist.selected_power}
     if hist.val_max_residual is not None:
@@ -163,14 +172,25 @@ def from_container(cls, settings, arrays: dict, path):
         unknown = sorted(set(decoded) - set(cls._param_names()))
         if unknown:
             raise ModelFileError(f"{str(path)!r} has unknown setting(s) {unknown} for a {cls.__name__}")
+        if settings["layout"] < 3 and "update" in cls._param_names():
+            decoded.setdefault("update", "symplectic_euler")  # the only update of those versions
         model = cls(**decoded)
         apply_moved(model, moved, warn=False)  # older layouts: the flat options folded into the parts
         try:  # the settings pass the checks of fit (one schema for constructors and files)
             model._check_params()
         except ValueError as exc:
             raise ModelFileError(f"{str(path)!r} has an invalid setting: {exc}") from None
-        model._store_fitted_settings(model.get_params(deep=False))
+        choice = _file_choice(settings.get("choice", {}), path)
+        if choice:
+            try:  # the chosen settings pass the same checks
+                type(model)(**{**model.get_params(deep=False), **choice})._check_params()
+            except ValueError as exc:
+                raise ModelFileError(f"{str(path)!r} has an invalid chosen setting: {exc}") from None
+        model._store_fitted_settings({**model.get_params(deep=False), **choice})
+        model.fitted_params_ = dict(model.get_params(deep=False))
+        model.choice_, model.search_, model.diagnostics_ = choice, None, None
         kernel = ProductKernel.from_spec(settings["kernel"])
+        _check_choice_matches_kernel(choice, kernel, path)
         _check_file_shape_info(settings, path)
         for name, size, key in (("domain_x_min", settings["dim"], "dim"), ("domain_mu_min", settings["n_mu"], "n_mu")):
             box = arrays.get(name)  # before anything is allocated by the file's sizes
@@ -208,6 +228,31 @@ def from_container(cls, settings, arrays: dict, path):
     except (KeyError, TypeError, ValueError, AttributeError, IndexError, OverflowError, RecursionError) as exc:
         raise ModelFileError(f"{str(path)!r} is an incomplete or inconsistent sympredict model file: {exc!r}") from None
     return model
+
+
+#: What a fit may choose (:class:`~sympredict.estimators.auto.KernelSearch`), stored as the file's ``choice``.
+CHOSEN_SETTINGS = ("state_kernel", "mu_kernel", "dt_kernel", "update")
+
+
+def _file_choice(raw, path) -> dict:
+    """The decoded ``choice`` of a model file: only settings a fit chooses."""
+    if not isinstance(raw, dict):
+        raise ModelFileError(f"{str(path)!r}: its setting 'choice' is not a JSON object")
+    unknown = sorted(set(raw) - set(CHOSEN_SETTINGS))
+    if unknown:
+        raise ModelFileError(f"{str(path)!r}: its 'choice' holds settings a fit does not choose: {unknown}")
+    return {k: decode_param(v) for k, v in raw.items()}
+
+
+def _check_choice_matches_kernel(choice: dict, kernel: ProductKernel, path) -> None:
+    """The chosen kernels are the file's product kernel (the kernel predictions use)."""
+    from sympredict.kernels.transforms import lower_state_kernel
+
+    pairs = [("state_kernel", lower_state_kernel(choice["state_kernel"]).radial if "state_kernel" in choice else None,
+              kernel.state), ("mu_kernel", choice.get("mu_kernel"), kernel.mu), ("dt_kernel", choice.get("dt_kernel"), kernel.dt)]
+    for name, chosen, used in pairs:
+        if name in choice and chosen != used:
+            raise ModelFileError(f"{str(path)!r}: its chosen {name} {chosen!r} disagrees with its kernel {used!r}")
 
 
 def check_file_arrays(model, kernel: ProductKernel, arrays: dict) -> None:

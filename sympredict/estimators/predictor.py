@@ -31,12 +31,15 @@ import copy
 import warnings
 from typing import Optional
 
+import logging
+
 import numpy as np
 
 from sympredict._checks import as_model_parameter, as_parameter, as_positive_int, as_states, as_steps
 from sympredict.base import Parametrized, clone
 from sympredict.data import FlowMapData
 from sympredict.estimators import model_files
+from sympredict.estimators.auto import FitDiagnostics, KernelSearch, SearchResult, diagnose
 from sympredict.estimators._compat import _NEUTRAL, MOVED_OPTIONS, apply_moved, replacement
 from sympredict.estimators.model_files import MODEL_FORMAT, MODEL_LAYOUT
 from sympredict.exceptions import (
@@ -58,6 +61,8 @@ from sympredict.symplectic.solvers import AUTO_NUMPY_SECONDS, MAX_NEWTON_ITER, N
 from sympredict.interpolation.surrogate import HBSurrogate, ValueSurrogate
 from sympredict.kernels.transforms import KernelTransform, StateKernelParts, lower_state_kernel
 from sympredict.symplectic.updates import UPDATE_RULES, as_update
+
+logger = logging.getLogger("sympredict.estimators.predictor")
 
 __all__ = ["SymplecticKernelPredictor", "DirectKernelPredictor", "MODEL_FORMAT", "MODEL_LAYOUT", "UPDATES",
            "update_variables", "NUMPY_ONLY", "MOVED_OPTIONS", "numpy_seconds", "AUTO_NUMPY_SECONDS", "MAX_NEWTON_ITER"]
@@ -84,6 +89,16 @@ NUMPY_ONLY = (
     (lambda parts, rule: parts.symmetry is not None, "a state symmetry (Symmetric) has no compiled solver yet"),
     (lambda parts, rule: not rule.compiled, "this update rule has no compiled solver yet"),
 )
+
+def _holdout_split(data: FlowMapData, seed: int, fraction: float = 0.1, largest: int = 2000):
+    """``(train, holdout)``: a random tenth of the samples (at most ``largest``, none below 20 samples) held out."""
+    m = len(data)
+    n_out = min(largest, int(fraction * m)) if m >= 20 else 0
+    if n_out == 0:
+        return data, None
+    rows = np.random.default_rng(seed).permutation(m)
+    return data.subset(np.sort(rows[n_out:])), data.subset(np.sort(rows[:n_out]))
+
 
 def update_variables(update: str, x0: np.ndarray, x1: np.ndarray, dt: np.ndarray):
     """Interpolation points and gradient targets of flow-map samples for an update.
@@ -114,6 +129,8 @@ class _FlowMapKernelModel(Parametrized):
 
     #: The class of the subclass's candidate functionals (:mod:`sympredict.interpolation.functionals`).
     _functionals = None
+    #: Whether ``fit`` chooses the kernels the data need but the estimator leaves ``None`` (else it refuses them).
+    _chooses_open_factors = False
 
     def __repr__(self) -> str:
         fitted = f", {self.surrogate_.n_centers} centres" if self.is_fitted else ", unfitted"
@@ -257,7 +274,7 @@ class _FlowMapKernelModel(Parametrized):
         return out
 
     def _as_data(self, x0, x1, mu, dt, what: str) -> FlowMapData:
-        if mu is not None and self.mu_kernel is None:
+        if mu is not None and self.mu_kernel is None and not self._chooses_open_factors:
             raise ValueError(
                 f"{what}: mu was given but mu_kernel=None; pass a mu_kernel to learn the parameter "
                 "dependence, or omit mu for a fixed-parameter model"
@@ -274,7 +291,7 @@ class _FlowMapKernelModel(Parametrized):
     def _fit_data(self, x0, x1, mu, dt, validation):
         """Validated training (and validation) data."""
         data = self._as_data(x0, x1, mu, dt, "fit")
-        if self.dt_kernel is None and np.ptp(data.dt) > 0:
+        if self.dt_kernel is None and np.ptp(data.dt) > 0 and not self._chooses_open_factors:
             raise ValueError(
                 "dt_kernel=None trains a fixed-step model, but dt takes several values "
                 f"({np.unique(data.dt)[:5]}...); pass a dt_kernel or one dt"
@@ -615,6 +632,7 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
     """
 
     _functionals = HBFunctionals
+    _chooses_open_factors = True
     _fitted_settings = ("update", "state_scaling", "periodic", "period", "symmetry")
     _runtime_settings = ("solver",)
     _moved_options = tuple(MOVED_OPTIONS)
@@ -626,9 +644,10 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         dt_kernel: Optional[RadialKernel] = None,
         *,
         max_centers: int = 1000,
-        update="symplectic_euler",
+        update=None,
         trainer: Optional[Trainer] = None,
         solver: Optional[NewtonSolver] = None,
+        search: Optional[KernelSearch] = None,
         **deprecated,
     ):
         self.state_kernel = state_kernel
@@ -638,6 +657,7 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         self.update = update
         self.trainer = trainer
         self.solver = solver
+        self.search = search
         if deprecated:
             apply_moved(self, deprecated)
 
@@ -666,11 +686,60 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         functionals, ``m`` centres.
         """
         trainer = self._check_params()
-        with self._fitting():
-            return self._fit(trainer, x0, x1, mu, dt, validation)
-
-    def _fit(self, trainer, x0, x1, mu, dt, validation) -> "SymplecticKernelPredictor":
         data, validation = self._fit_data(x0, x1, mu, dt, validation)
+        if data.x0.shape[1] % 2:
+            raise ValueError(f"states must have an even dimension 2n (q, p), got {data.x0.shape[1]}")
+        return self._fit_resolved(trainer, data, validation, self._open_factors(data))
+
+    def _open_factors(self, data: FlowMapData) -> dict:
+        """What this fit must choose: a factor the data need that the estimator leaves ``None``, and the update."""
+        return {"state": self._state_parts().radial is None,
+                "mu": data.mu.shape[1] > 0 and self.mu_kernel is None,
+                "dt": bool(np.ptp(data.dt) > 0) and self.dt_kernel is None,
+                "update": self.update is None}
+
+    def _fit_resolved(self, trainer, data: FlowMapData, validation, open_factors: dict) -> "SymplecticKernelPredictor":
+        """Fit with the open settings chosen (:class:`~sympredict.estimators.auto.KernelSearch`), then diagnose.
+
+        With nothing to choose but the update, the update is ``'symplectic_euler'`` and every sample is trained
+        on.  Otherwise, without ``validation``, a tenth of the samples (at most 2,000) is held out of the final
+        fit to score it (``diagnostics_``); the search runs on a subsample of the rest.
+        """
+        search = None
+        if not any(open_factors.values()):
+            params = {}
+            train, holdout = data, validation
+        elif not any(v for k, v in open_factors.items() if k != "update"):
+            params = {"update": "symplectic_euler"}
+            train, holdout = data, validation
+            logger.info("update=None with every kernel given: the update is 'symplectic_euler'")
+        else:
+            if validation is None:
+                train, holdout = _holdout_split(data, self._search().seed)
+            else:
+                train, holdout = data, validation
+            search = self._search().choose(self, train, open_factors)
+            params = search.params
+        model = clone(self).set_params(**params) if params else self
+        with model._fitting():
+            model._fit(trainer, train, holdout)
+        if model is not self:  # the fitted state (names ending in '_') of the resolved copy
+            for name in [k for k in self.__dict__ if k.endswith("_")]:
+                del self.__dict__[name]
+            self.__dict__.update({k: v for k, v in model.__dict__.items() if k.endswith("_")})
+            self.fitted_params_ = dict(self.get_params(deep=False))  # the caller's settings; the choice is apart
+        self.search_ = search
+        self.choice_ = dict(params)
+        self.diagnostics_ = diagnose(self, train, holdout)
+        if search is not None or self.diagnostics_.advice:
+            logger.info(f"{type(self).__name__}.fit: {self.diagnostics_.summary()}")
+        return self
+
+    def _search(self) -> KernelSearch:
+        """The kernel search (``search``, or the default :class:`~sympredict.estimators.auto.KernelSearch`)."""
+        return KernelSearch() if self.search is None else self.search
+
+    def _fit(self, trainer, data: FlowMapData, validation) -> "SymplecticKernelPredictor":
         if data.x0.shape[1] % 2:
             raise ValueError(f"states must have an even dimension 2n (q, p), got {data.x0.shape[1]}")
         scale = self._scale_vector(data.x0.shape[1])
@@ -760,11 +829,20 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         trainer = super()._check_params()
         solver = self._check_runtime_settings()
         parts = self._state_parts()
-        rule = as_update(self.update)
+        if self.search is not None and not isinstance(self.search, KernelSearch):
+            raise ValueError(f"search must be a KernelSearch (e.g. KernelSearch(m_star=500)) or None, got {self.search!r}")
+        self._search().check()
+        updates = [self.update] if self.update is not None else list(self._search().updates)
+        for rule in map(as_update, updates):
+            self._check_backend(parts, rule, solver)
+        return trainer
+
+    @staticmethod
+    def _check_backend(parts, rule, solver) -> None:
+        """The one declarative check of the parts against the solver's backend (:data:`NUMPY_ONLY`)."""
         for applies, reason in NUMPY_ONLY:  # the one declarative check of part against backend
             if applies(parts, rule) and solver.backend == "numba":
                 raise ValueError(f"{reason}: use NewtonSolver(backend='numpy') or 'auto' (which then uses NumPy)")
-        return trainer
 
     def _solver(self) -> NewtonSolver:
         """The Newton solver (``solver``, or the default :class:`~sympredict.symplectic.solvers.NewtonSolver`)."""

@@ -263,6 +263,7 @@ def refine_kernel_shapes(
     max_sweeps: int = 3,
     prefer_complete: bool = False,
     estimator: Optional[SymplecticKernelPredictor] = None,
+    refine: Sequence[bool] = (True, True, True),
 ) -> SelectionResult:
     """Coordinate search of the shape parameters around ``start`` at a larger ``m_star``.
 
@@ -273,6 +274,9 @@ def refine_kernel_shapes(
     that ranks better (:meth:`SelectionResult.rank`: lower ``E_val(m_star)``,
     with ``prefer_complete`` complete runs first); it stops after a sweep without improvement
     or after ``max_sweeps`` sweeps.
+
+    refine : (bool, bool, bool)
+        Which shapes are searched: state, parameter, step (the others are kept).
 
     Returns
     -------
@@ -300,7 +304,7 @@ def refine_kernel_shapes(
         improved = False
         for i in range(3):
             current = (best.state, best.mu, best.dt)
-            if current[i] is None:
+            if current[i] is None or not refine[i]:
                 continue
             for f in (1 / factor, factor):
                 tup = list(current)

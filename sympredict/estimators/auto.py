@@ -1,0 +1,444 @@
+"""The automatic choice of what an estimator leaves open: kernels, their shapes, the update rule.
+
+:class:`KernelSearch` is the part a :class:`~sympredict.estimators.predictor.SymplecticKernelPredictor`
+stores as ``search``.  At ``fit`` it chooses every factor the data need but the estimator leaves
+``None`` (as scikit-learn's ``GaussianProcessRegressor`` fits its kernel's hyperparameters by default):
+
+* the **state kernel** (``state_kernel=None``): the states are normalised symplectically,
+  ``(a_i q_i, p_i / a_i)`` with ``a_i = sqrt(std(p_i) / std(q_i))`` (a
+  :class:`~sympredict.kernels.transforms.Scaled` transform: symplectic, so the learned step stays
+  symplectic; the conformal factor that makes the spread 1 is the shape's unit), and a kernel family and
+  shape are searched in units of the spread of the mixed variable ``xi``;
+* the **parameter kernel** (``mu`` given, ``mu_kernel=None``): a shape in units of the parameter box's width
+  (the box mapped onto ``[0, 1]``);
+* the **step kernel** (several ``dt``, ``dt_kernel=None``): a shape in units of the width of the steps;
+* the **update** (``update=None``): ``'symplectic_euler'`` and ``'midpoint'`` compete.
+
+Criterion: the paper's validation residual ``E_val(m_star)`` (:func:`~sympredict.estimators.selection.select_kernels`),
+the maximal error of the learned gradient ``grad s`` on held-out samples after ``m_star`` greedy steps.  Both
+updates learn the same targets ``y = J^T (x1 - x0) / dT`` (at different points), so their residuals compare in
+the same units.  It is the cheap criterion: one greedy fit to ``m_star`` centres per candidate on a subsample,
+no rollouts; its ranking at ``m_star`` may differ from the ranking at the final size, so the winner's shapes are
+refined by a coordinate search (factor 2) and a shape on the edge of its grid widens the grid.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+from typing import Optional, Sequence
+
+import numpy as np
+
+from sympredict.base import Parametrized
+from sympredict.data import FlowMapData
+
+__all__ = ["KernelSearch", "SearchResult", "FitDiagnostics"]
+
+logger = logging.getLogger("sympredict.estimators.auto")
+
+_FAMILIES = ("imq", "matern52", "matern32")
+
+
+@dataclass
+class SearchResult:
+    """What :meth:`KernelSearch.choose` chose.
+
+    Attributes
+    ----------
+    params : dict
+        Estimator parameters that replace the open ones: ``state_kernel``, ``mu_kernel``, ``dt_kernel``, ``update``
+        (only the keys that were open).
+    score : float
+        The winner's ``E_val(m_star)``.
+    m_star : int
+        Centres at which the candidates were compared.
+    n_train, n_validation : int
+        Samples of the search's training and validation subsets.
+    seconds : float
+        Wall time of the search.
+    table : list of dict
+        Every candidate fitted: its kernels, update, ``E_val``, ``E_train``, centres, fit time (and ``error``).
+    """
+
+    params: dict
+    score: float
+    m_star: int
+    n_train: int
+    n_validation: int
+    seconds: float
+    table: list = field(default_factory=list, repr=False)
+
+    def summary(self) -> str:
+        """One line: what was chosen and how."""
+        chosen = ", ".join(f"{k}={v!r}" for k, v in self.params.items())
+        return (f"chose {chosen} (E_val({self.m_star}) = {self.score:.3e} over {len(self.table)} candidates, "
+                f"{self.n_train} + {self.n_validation} samples, {self.seconds:.1f} s)")
+
+
+class KernelSearch(Parametrized):
+    """How an estimator chooses the kernels, shapes and update it leaves open (``None``).
+
+    Parameters
+    ----------
+    families : sequence of str
+        State-kernel families tried (``'imq'``, ``'matern52'``, ``'matern32'``).  The first is searched over
+        every update; the others compete at the winner's update and shape.
+    shapes : sequence of float
+        Multiples of the unit shape tried first for the state kernel (unit: ``1 / spread`` of the normalised
+        mixed variable ``xi``, the root of the summed variances of its components).
+    parameter_shapes : sequence of float
+        Multiples of the unit shape tried for the parameter and step kernels (unit: ``1 / width`` of the
+        parameter box, per component the same after the box is mapped to ``[0, 1]``; ``1 / width`` of the steps).
+    updates : sequence of str
+        Update rules that compete when the estimator's ``update`` is ``None``.
+    m_star : int or None
+        Centres at which candidates are compared; ``None``: ``min(max_centers, 300)``.
+    max_samples : int
+        Samples of the subsample the candidates are fitted to (the rest of the data is not used by the search).
+    validation_fraction : float
+        Part of that subsample held out to score the candidates.
+    refine_sweeps : int
+        Sweeps of the coordinate search (each shape times 1/2 and 2) after the grid.
+    seed : int
+        Seed of the subsample and the split.
+
+    Notes
+    -----
+    Cost: about ``2 len(shapes) + 3 (len(families) - 1) + 6 refine_sweeps`` greedy fits to ``m_star`` centres on
+    ``max_samples`` samples, each ``O(m_star^2 2n max_samples)``; a few seconds per fit for 2n = 4.
+    """
+
+    def __init__(self, families: Sequence[str] = ("imq", "matern52"), shapes: Sequence[float] = (0.125, 0.25, 0.5, 1.0, 2.0),
+                 parameter_shapes: Sequence[float] = (0.1, 0.5, 2.5), updates: Sequence[str] = ("symplectic_euler", "midpoint"),
+                 m_star: Optional[int] = None, max_samples: int = 3000, validation_fraction: float = 0.25,
+                 refine_sweeps: int = 2, seed: int = 0):
+        self.families = families
+        self.shapes = shapes
+        self.parameter_shapes = parameter_shapes
+        self.updates = updates
+        self.m_star = m_star
+        self.max_samples = max_samples
+        self.validation_fraction = validation_fraction
+        self.refine_sweeps = refine_sweeps
+        self.seed = seed
+
+    def __eq__(self, other) -> bool:  # a setting is a value: equal settings are equal searches
+        return type(self) is type(other) and self.get_params(deep=False) == other.get_params(deep=False)
+
+    __hash__ = None  # mutable (set_params)
+
+    def check(self) -> "KernelSearch":
+        """Validate the settings; ``ValueError`` naming the bad one."""
+        from sympredict.symplectic.updates import UPDATE_RULES
+
+        fams = list(self.families) if not isinstance(self.families, str) else None
+        if not fams or any(f not in _FAMILIES for f in fams):
+            raise ValueError(f"KernelSearch: families must be a non-empty sequence of {_FAMILIES}, got {self.families!r}")
+        for name in ("shapes", "parameter_shapes"):
+            values = np.atleast_1d(np.asarray(getattr(self, name), dtype=float)) if not isinstance(
+                getattr(self, name), str) else np.array([np.nan])
+            if values.size == 0 or not np.all(np.isfinite(values) & (values > 0)):
+                raise ValueError(f"KernelSearch: {name} must be a non-empty sequence of positive floats, "
+                                 f"got {getattr(self, name)!r}")
+        ups = list(self.updates) if not isinstance(self.updates, str) else None
+        if not ups or any(u not in UPDATE_RULES for u in ups):
+            raise ValueError(f"KernelSearch: updates must be a non-empty sequence of {tuple(UPDATE_RULES)}, "
+                             f"got {self.updates!r}")
+        for name, lo in (("max_samples", 10), ("refine_sweeps", 0), ("seed", 0)):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
+                raise ValueError(f"KernelSearch: {name} must be an integer >= {lo}, got {v!r}")
+        if self.m_star is not None and (isinstance(self.m_star, bool) or not isinstance(self.m_star, (int, np.integer))
+                                        or self.m_star < 1):
+            raise ValueError(f"KernelSearch: m_star must be a positive integer or None, got {self.m_star!r}")
+        if not (isinstance(self.validation_fraction, (int, float)) and 0 < self.validation_fraction < 1):
+            raise ValueError(f"KernelSearch: validation_fraction must lie in (0, 1), got {self.validation_fraction!r}")
+        return self
+
+    # ------------------------------------------------------------------ the search
+    def choose(self, estimator, data: FlowMapData, open_factors: dict) -> SearchResult:
+        """Choose the open settings of ``estimator`` for ``data``.
+
+        Parameters
+        ----------
+        estimator : SymplecticKernelPredictor
+            Unfitted; its given settings are kept.
+        data : FlowMapData
+            The training data.
+        open_factors : dict
+            ``{'state': bool, 'mu': bool, 'dt': bool, 'update': bool}``: what to choose.
+
+        Returns
+        -------
+        SearchResult
+        """
+        from sympredict.base import clone
+        from sympredict.estimators.selection import refine_kernel_shapes, select_kernels
+        from sympredict.kernels import IMQ, KERNEL_FAMILIES
+        from sympredict.kernels.transforms import KernelTransform, Scaled
+
+        self.check()
+        t0 = time.perf_counter()
+        m_star = int(self.m_star) if self.m_star is not None else min(int(estimator.max_centers), 300)
+        train, val = self._subsets(data)
+        params = {}
+
+        # the state transform: the user's (its radial kernel searched inside it), or the symplectic normalisation
+        if open_factors["state"] and estimator.state_kernel is None:
+            params["state_kernel"] = Scaled(None, factors=tuple(float(a) for a in pair_factors(data)))
+        state_template = params.get("state_kernel", estimator.state_kernel)
+        updates = list(self.updates) if open_factors["update"] else [estimator.update]
+
+        def template(update):
+            return clone(estimator).set_params(state_kernel=state_template, update=update)
+
+        if open_factors["state"]:
+            unit = 1.0 / _spread(template(updates[0]), train)
+            fam0 = KERNEL_FAMILIES[self.families[0]]
+            state_grid = [fam0(_clip(unit * s)) for s in self.shapes]
+        else:
+            radial = (estimator.state_kernel.radial if isinstance(estimator.state_kernel, KernelTransform)
+                      else estimator.state_kernel)
+            state_grid = [radial]
+        if open_factors["mu"]:
+            width = float(np.mean(_widths(data.mu)))
+            mu_grid = [IMQ(_clip(s / width)) for s in self.parameter_shapes]
+        else:
+            mu_grid = [estimator.mu_kernel] if data.mu.shape[1] else [None]
+        if open_factors["dt"]:
+            width = float(_widths(data.dt[:, None])[0])
+            dt_grid = [IMQ(_clip(s / width)) for s in self.parameter_shapes]
+        else:
+            dt_grid = [estimator.dt_kernel]
+
+        table, best, best_update = [], None, None
+        for update in updates:
+            result = select_kernels(train, val, state_grid, mu_grid, dt_grid, m_star=m_star, estimator=template(update))
+            table += [{**row, "update": update} for row in result.table]
+            logger.info(f"kernel search, update {update!r}: best {result.state!r}, {result.mu!r}, {result.dt!r}: "
+                        f"E_val({m_star}) = {result.score:.3e}")
+            if best is None or result.rank() < best.rank():
+                best, best_update = result, update
+        if open_factors["state"]:  # the other families at the winner's shape
+            for family in self.families[1:]:
+                eps = best.state.eps
+                grid = [KERNEL_FAMILIES[family](_clip(eps * f)) for f in (0.5, 1.0, 2.0)]
+                result = select_kernels(train, val, grid, [best.mu], [best.dt], m_star=m_star,
+                                        estimator=template(best_update))
+                table += [{**row, "update": best_update} for row in result.table]
+                if result.rank() < best.rank():
+                    best = result
+        if self.refine_sweeps:
+            refine = (open_factors["state"], open_factors["mu"], open_factors["dt"])
+            if any(refine):
+                result = refine_kernel_shapes(train, val, best, m_star=m_star, max_sweeps=self.refine_sweeps,
+                                              estimator=template(best_update), refine=refine)
+                table += [{**row, "update": best_update} for row in result.table]
+                if result.rank() <= best.rank():
+                    best = result
+        if not np.isfinite(best.score):
+            raise ValueError("the kernel search found no candidate that trains on these data (every fit failed); "
+                             "see the log, or pass a state_kernel")
+        if open_factors["state"]:
+            inner = best.state
+            params["state_kernel"] = (state_template.with_radial(inner) if isinstance(state_template, KernelTransform)
+                                      else inner)
+        if open_factors["mu"]:
+            params["mu_kernel"] = best.mu
+        if open_factors["dt"]:
+            params["dt_kernel"] = best.dt
+        if open_factors["update"]:
+            params["update"] = best_update
+        out = SearchResult(params, float(best.score), m_star, len(train), len(val), time.perf_counter() - t0, table)
+        logger.info("kernel search: " + out.summary())
+        return out
+
+    def _subsets(self, data: FlowMapData):
+        """A random subsample of at most ``max_samples`` samples, split into search training and validation parts."""
+        rng = np.random.default_rng(self.seed)
+        m = len(data)
+        if m < 8:
+            raise ValueError(f"the kernel search needs at least 8 samples to hold some out, got {m}: pass the kernels "
+                             "(state_kernel, mu_kernel, dt_kernel) and update explicitly for so few samples")
+        rows = rng.permutation(m)[: min(m, int(self.max_samples))]
+        n_val = max(2, int(round(self.validation_fraction * len(rows))))
+        return data.subset(np.sort(rows[n_val:])), data.subset(np.sort(rows[:n_val]))
+
+
+def pair_factors(data: FlowMapData) -> np.ndarray:
+    """``a_i = sqrt(std(p_i) / std(q_i))`` over the states ``x0`` and ``x1``: the symplectic scaling
+    ``(a_i q_i, p_i / a_i)`` that gives each conjugate pair equal spreads (``1`` where a spread is zero).
+
+    Returns
+    -------
+    ndarray of shape (n,)
+    """
+    x = np.concatenate([data.x0, data.x1])
+    n = x.shape[1] // 2
+    # a spread far below the other is round-off: the ratio of two stds each scaled to their maximum (no underflow)
+    sq, sp = _std(x[:, :n]), _std(x[:, n:])
+    a = np.ones(n)
+    ok = (sq > 0) & (sp > 0)
+    a[ok] = np.sqrt(sp[ok] / sq[ok])
+    return np.clip(a, 1e-6, 1e6)
+
+
+def _std(x: np.ndarray) -> np.ndarray:
+    """Column standard deviations without overflow or underflow (values scaled by their largest magnitude)."""
+    big = np.abs(x).max(axis=0)
+    big = np.where(big > 0, big, 1.0)
+    return (x / big).std(axis=0) * big
+
+
+def _widths(values: np.ndarray) -> np.ndarray:
+    """Per column: the width of the values' range (the largest magnitude where they are all equal, else 1)."""
+    width = np.ptp(values, axis=0).astype(float)
+    mag = np.abs(values).max(axis=0)
+    return np.where(width > 0, width, np.where(mag > 0, mag, 1.0))
+
+
+def _spread(template, data: FlowMapData) -> float:
+    """Root of the summed variances of the mixed variable ``xi`` in the template's normalised coordinates."""
+    from sympredict.symplectic.updates import as_update
+
+    scale = template._state_parts().scale_vector(data.x0.shape[1])
+    xi, _ = as_update(template.update).variables(data.x0 * scale, data.x1 * scale, data.dt)
+    from sympredict.kernels.radial import _EPS_RANGE
+
+    stds = _std(xi)
+    big = float(stds.max()) if stds.size else 0.0
+    spread = big * float(np.linalg.norm(stds / big)) if big > 0 else 0.0  # no underflow of the squares
+    if not (np.isfinite(spread) and _EPS_RANGE[0] * 1e3 * spread < 1.0 < _EPS_RANGE[1] * 1e-3 * spread):
+        raise ValueError(f"the training states' mixed variables spread over {spread!r}: no kernel shape fits that "
+                         "scale (or the states do not vary); rescale the states to units nearer one, or pass a state_kernel")
+    return spread
+
+
+def _clip(eps: float) -> float:
+    """A shape inside the kernels' accepted range."""
+    from sympredict.kernels.radial import _EPS_RANGE
+
+    return float(np.clip(eps, *_EPS_RANGE))
+
+
+@dataclass
+class FitDiagnostics:
+    """How well a fit went, and what to try next.
+
+    Attributes
+    ----------
+    n_train, n_holdout : int
+        Samples trained on, and held out of the fit to score it.
+    n_centers, max_centers : int
+    stop_reason : str
+        Why the greedy stopped: ``'tol'`` (converged), ``'max_centers'``, ``'power'`` (numerically singular), ...
+    converged : bool
+        Whether the greedy reached its residual tolerance.
+    train_residual, holdout_residual : float
+        Maximal residual of the learned gradient on the training and hold-out samples, relative to the largest
+        target (``nan`` for the hold-out without hold-out samples).
+    holdout_step_error : float
+        Median relative one-step error ``|Phi(x0) - x1| / |x1 - x0|`` on (up to 500) hold-out samples (``nan``
+        without them, ``inf`` if Newton failed on one).
+    advice : list of str
+        What to try next (empty when nothing stands out).
+    """
+
+    n_train: int
+    n_holdout: int
+    n_centers: int
+    max_centers: int
+    stop_reason: str
+    converged: bool
+    train_residual: float
+    holdout_residual: float
+    holdout_step_error: float
+    advice: list = field(default_factory=list)
+
+    def summary(self) -> str:
+        """A few lines for a log or a terminal."""
+        lines = [f"{self.n_centers} of {self.max_centers} centres, greedy stop: {self.stop_reason}"
+                 f" ({'converged' if self.converged else 'not converged'}); relative gradient residual "
+                 f"{self.train_residual:.2e} on {self.n_train} training samples, {self.holdout_residual:.2e} on "
+                 f"{self.n_holdout} held-out samples; median one-step error on held-out samples "
+                 f"{self.holdout_step_error:.2e}"]
+        lines += [f"  try: {a}" for a in self.advice]
+        return "\n".join(lines)
+
+
+def diagnose(model, train: FlowMapData, holdout: Optional[FlowMapData]) -> FitDiagnostics:
+    """:class:`FitDiagnostics` of a fitted :class:`SymplecticKernelPredictor` (history, hold-out steps).
+
+    ``O(500 m (2n)^2)`` for the hold-out steps (NumPy Newton) besides the greedy's recorded residuals.
+    """
+    import warnings
+
+    from sympredict.exceptions import ExtrapolationWarning, NewtonConvergenceError, NonFinitePredictionError
+
+    h = model.history_
+    m = model.n_centers_
+    train_abs = float(h.train_max_residual[-1])
+    train_start = float(h.train_max_residual[0])
+    rel = train_start if train_start > 0 else 1.0  # E_train(0) is the largest target
+    val_curve = h.val_max_residual
+    holdout_res = float(val_curve[-1]) / rel if val_curve is not None and holdout is not None else float("nan")
+    step_err = float("nan")
+    if holdout is not None and len(holdout):
+        rows = np.arange(len(holdout))[: 500]
+        sub = holdout.subset(rows)
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", ExtrapolationWarning)
+                pred = model.step(sub.x0, mu=sub.mu if model.n_mu_ else None,
+                                  dt=sub.dt if model.dt_fixed_ is None else None)
+            inc = np.linalg.norm(sub.x1 - sub.x0, axis=1)
+            ok = inc > 0
+            step_err = float(np.median(np.linalg.norm(pred - sub.x1, axis=1)[ok] / inc[ok])) if ok.any() else 0.0
+        except (NewtonConvergenceError, NonFinitePredictionError):
+            step_err = float("inf")
+    converged = h.stop_reason == "tol"
+    advice = []
+    if not converged and h.stop_reason == "max_centers" and val_curve is not None and m >= 10:
+        tail = val_curve[-max(2, m // 5):]
+        if tail[-1] < 0.8 * tail[0]:
+            advice.append(f"more centres: the hold-out residual still fell by {1 - tail[-1] / tail[0]:.0%} over the "
+                          f"last fifth of the {m} centres (raise max_centers)")
+    if h.stop_reason == "power":
+        advice.append("the kernel matrix became numerically singular before max_centers: more data (more distinct "
+                      "samples) or a narrower state kernel (larger shape) let the greedy use more centres")
+    if np.isfinite(holdout_res) and train_abs > 0 and holdout_res * rel > 10 * train_abs:
+        advice.append(f"more data: the hold-out residual is {holdout_res * rel / train_abs:.0f}x the training residual, "
+                      "the samples do not resolve the map between them")
+    if holdout is not None and model.n_mu_ and len(holdout) >= 20:
+        advice += _edge_advice(model, holdout)
+    if np.isinf(step_err):
+        advice.append("Newton failed on a held-out sample: a smaller dt, the 'midpoint' update, or more centres")
+    return FitDiagnostics(len(train), 0 if holdout is None else len(holdout), m, int(model.max_centers),
+                          str(h.stop_reason), converged, train_abs / rel, holdout_res, step_err, advice)
+
+
+def _edge_advice(model, holdout: FlowMapData) -> list:
+    """Advice when the gradient residual on hold-out samples near the parameter box's faces is much larger."""
+    import warnings
+
+    from sympredict.exceptions import ExtrapolationWarning
+    from sympredict.symplectic.updates import as_update
+
+    lo, hi = model.domain_["mu_min"], model.domain_["mu_max"]
+    width = np.where(hi > lo, hi - lo, 1.0)
+    u = (holdout.mu - lo) / width
+    edge = np.any((u < 0.1) | (u > 0.9), axis=1)
+    if edge.sum() < 5 or (~edge).sum() < 5:
+        return []
+    scale = model._scale_vector(model.dim_)
+    xi, y = as_update(model.update_).variables(holdout.x0 * scale, holdout.x1 * scale, holdout.dt)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ExtrapolationWarning)
+        res = np.linalg.norm(model.surrogate_.gradient(xi, model.surrogate_.weights(holdout.mu, holdout.dt)) - y, axis=1)
+    inner, outer = float(np.median(res[~edge])), float(np.median(res[edge]))
+    if inner > 0 and outer > 3 * inner:
+        return [f"a wider parameter box: the residual near the box's faces is {outer / inner:.1f}x the interior's, "
+                "so sample parameters beyond the range you will query"]
+    return []

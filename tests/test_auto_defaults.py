@@ -1,0 +1,213 @@
+"""The default estimator on a user's data: what it chooses, that it learns, and what it reports.
+
+``SymplecticKernelPredictor()`` with no kernels normalises the states symplectically, chooses kernel
+family, shapes and update on held-out samples (:class:`sympredict.KernelSearch`), learns a parameter or
+several steps without being given their kernels, and reports the fit (``diagnostics_``).
+"""
+
+import logging
+
+import numpy as np
+import pytest
+
+from sympredict import KernelSearch, ModelFileError, SymplecticKernelPredictor
+from sympredict.base import clone
+from sympredict.container import read_container, write_container
+from sympredict.estimators.auto import FitDiagnostics, pair_factors
+from sympredict.estimators.model_files import MODEL_FORMAT
+from sympredict.interpolation.greedy import ExactGreedy
+from sympredict.kernels import IMQ
+from sympredict.data import FlowMapData
+from sympredict.symplectic.metrics import symplecticity_defect
+
+SMALL = KernelSearch(m_star=40, max_samples=400, refine_sweeps=1)
+
+
+def _pendulum_samples(pendulum, n, seed, dt=0.1, mu_range=(0.6, 1.0)):
+    rng = np.random.default_rng(seed)
+    x0 = np.column_stack([rng.uniform(-1.5, 1.5, n), rng.uniform(-2.0, 2.0, n)])
+    mu = rng.uniform(*mu_range, n)
+    dt = np.broadcast_to(np.asarray(dt, dtype=float), (n,)) if np.ndim(dt) == 0 else np.asarray(dt)
+    x1 = np.vstack([pendulum.flow(x0[i:i + 1], mu[i], dt[i]) for i in range(n)]) if np.ptp(dt) > 0 or np.ptp(mu) > 0 \
+        else pendulum.flow(x0, mu[0], dt[0])
+    return x0, x1, mu, dt
+
+
+@pytest.fixture(scope="module")
+def param_data(pendulum):
+    return _pendulum_samples(pendulum, 500, 0)
+
+
+@pytest.fixture(scope="module")
+def auto_model(param_data):
+    x0, x1, mu, dt = param_data
+    return SymplecticKernelPredictor(max_centers=120, search=SMALL).fit(x0, x1, mu=mu, dt=0.1)
+
+
+def _step_error(model, pendulum, seed, mu_range=(0.65, 0.95), scale=1.0):
+    """Median one-step error relative to the step's increment on fresh states inside the training box."""
+    x0, x1, mu, _ = _pendulum_samples(pendulum, 60, seed, mu_range=mu_range)
+    pred = model.step(x0 * scale, mu=mu[:, None], dt=0.1) / scale
+    return float(np.median(np.linalg.norm(pred - x1, axis=1) / np.linalg.norm(x1 - x0, axis=1)))
+
+
+def test_a_parameter_without_a_mu_kernel_is_learned(auto_model, pendulum):
+    m = auto_model
+    assert m.mu_kernel is None and m.state_kernel is None and m.update is None  # the caller's settings stay
+    assert m.n_mu_ == 1 and m.kernel_.mu == m.choice_["mu_kernel"] is not None
+    assert m.choice_["update"] in ("symplectic_euler", "midpoint") and m.update_ == m.choice_["update"]
+    # learned: the parameter dependence matters (mu 0.6 vs 1.0 moves the states differently) and is reproduced
+    assert _step_error(m, pendulum, 7) < 2e-2
+    x = np.array([[1.0, 0.5]])
+    far_apart = np.abs(m.step(x, mu=0.65, dt=0.1) - m.step(x, mu=0.95, dt=0.1)).max()
+    exact = np.abs(pendulum.flow(x, 0.65, 0.1) - pendulum.flow(x, 0.95, 0.1)).max()
+    assert far_apart == pytest.approx(exact, rel=0.1)
+
+
+def test_the_default_step_is_symplectic(auto_model):
+    x = np.array([[0.4, -0.3], [-1.0, 1.2]])
+    jac = auto_model.step_jacobian(x, mu=np.array([[0.7], [0.9]]), dt=0.1)
+    assert np.max(symplecticity_defect(jac)) < 1e-9
+
+
+def test_the_state_normalisation_is_the_documented_symplectic_scaling(auto_model, param_data):
+    x0, x1, _, _ = param_data
+    chosen = auto_model.choice_["state_kernel"]
+    x = np.vstack([x0, x1])
+    # independent oracle: a = sqrt(std(p) / std(q)) over the states trained on (all but the held-out tenth)
+    assert chosen.factors[0] == pytest.approx(np.sqrt(x[:, 1].std() / x[:, 0].std()), rel=0.05)
+    assert chosen.kernel == auto_model.kernel_.state
+    data = FlowMapData(x0, x1, None, np.full(len(x0), 0.1))
+    a = pair_factors(data)
+    assert a[0] == pytest.approx(np.sqrt(x[:, 1].std() / x[:, 0].std()), rel=1e-12)
+
+
+def test_physical_units_learn_as_well_as_units_of_order_one(pendulum, param_data):
+    """States in small units (x 1e-4, a conformal scaling: the flow stays Hamiltonian) and a shifted parameter: the
+    defaults learn as well as in units of order one, where a fixed default kernel would not fit the data's scale."""
+    x0, x1, mu, _ = param_data
+    s = 1e-4
+    ref = SymplecticKernelPredictor(max_centers=120, search=SMALL).fit(x0, x1, mu=mu, dt=0.1)
+    small = SymplecticKernelPredictor(max_centers=120, search=SMALL).fit(x0 * s, x1 * s, mu=mu, dt=0.1)
+    e_ref, e_small = _step_error(ref, pendulum, 11), _step_error(small, pendulum, 11, scale=s)
+    assert e_small < 2e-2 and e_small < 3 * e_ref
+    # the shapes follow the units: the chosen state shape of the small-unit model is 1/s times larger
+    ratio = small.kernel_.state.eps / ref.kernel_.state.eps
+    assert 0.2 / s < ratio < 5 / s
+
+
+def test_several_steps_without_a_dt_kernel_choose_one(pendulum):
+    x0, x1, mu, dt = _pendulum_samples(pendulum, 400, 3, dt=np.random.default_rng(3).choice([0.05, 0.1], 400),
+                                       mu_range=(0.8, 0.8))
+    m = SymplecticKernelPredictor(max_centers=100, search=SMALL).fit(x0, x1, dt=dt)
+    assert m.dt_fixed_ is None and m.kernel_.dt is not None and m.kernel_.dt == m.choice_["dt_kernel"]
+    assert "mu_kernel" not in m.choice_ and m.n_mu_ == 0
+    x = np.array([[0.5, 0.5]])
+    for step in (0.05, 0.1):
+        assert np.abs(m.step(x, dt=step) - pendulum.flow(x, 0.8, step)).max() < 0.02 * step
+
+
+def test_given_kernels_are_kept_and_no_search_runs(param_data):
+    x0, x1, mu, _ = param_data
+    explicit = SymplecticKernelPredictor(IMQ(0.3), mu_kernel=IMQ(1.0), max_centers=60, update="symplectic_euler")
+    default_update = SymplecticKernelPredictor(IMQ(0.3), mu_kernel=IMQ(1.0), max_centers=60)
+    explicit.fit(x0, x1, mu=mu, dt=0.1)
+    default_update.fit(x0, x1, mu=mu, dt=0.1)
+    assert default_update.search_ is None and default_update.choice_ == {"update": "symplectic_euler"}
+    assert explicit.choice_ == {} and explicit.search_ is None
+    # the same code path on the same arrays: the same model
+    np.testing.assert_array_equal(explicit.surrogate_.coef, default_update.surrogate_.coef)
+
+
+def test_only_the_open_factors_are_searched(param_data):
+    x0, x1, mu, _ = param_data
+    m = SymplecticKernelPredictor(IMQ(0.3), max_centers=60, update="midpoint", search=SMALL).fit(x0, x1, mu=mu, dt=0.1)
+    assert set(m.choice_) == {"mu_kernel"} and m.kernel_.state == IMQ(0.3) and m.update_ == "midpoint"
+    assert {row["state"]["eps"] for row in m.search_.table} == {0.3}
+
+
+def test_the_search_logs_its_choice(param_data, caplog):
+    x0, x1, mu, _ = param_data
+    with caplog.at_level(logging.INFO, logger="sympredict.estimators"):
+        m = SymplecticKernelPredictor(max_centers=60, search=SMALL).fit(x0, x1, mu=mu, dt=0.1)
+    text = caplog.text
+    assert "kernel search: chose" in text and repr(m.choice_["mu_kernel"]) in text
+    assert "held-out samples" in text  # the diagnostics
+    assert m.search_.n_train + m.search_.n_validation <= SMALL.max_samples
+    assert len(m.search_.table) >= 2 * len(SMALL.shapes)
+
+
+def test_diagnostics_report_the_fit_and_advise(param_data):
+    x0, x1, mu, _ = param_data
+    few = SymplecticKernelPredictor(max_centers=15, search=KernelSearch(m_star=15, max_samples=300, refine_sweeps=0))
+    few.fit(x0, x1, mu=mu, dt=0.1)
+    d = few.diagnostics_
+    assert isinstance(d, FitDiagnostics)
+    assert d.n_train + d.n_holdout == len(x0) and d.n_holdout == 50
+    assert d.n_centers == 15 and not d.converged and d.stop_reason == "max_centers"
+    assert np.isfinite(d.train_residual) and np.isfinite(d.holdout_residual) and 0 < d.holdout_step_error < 1
+    assert any(a.startswith("more centres") for a in d.advice), d.advice
+    assert "try: more centres" in d.summary()
+
+
+def test_a_converged_fit_says_so(param_data):
+    x0, x1, mu, _ = param_data
+    m = SymplecticKernelPredictor(max_centers=400, trainer=ExactGreedy(tol=1e-2), search=SMALL).fit(x0, x1, mu=mu, dt=0.1)
+    assert m.diagnostics_.converged and m.diagnostics_.stop_reason == "tol" and m.n_centers_ < 400
+
+
+def test_files_keep_the_settings_and_the_choice(auto_model, tmp_path):
+    path = tmp_path / "auto.h5"
+    auto_model.save(path)
+    back = SymplecticKernelPredictor.load(path)
+    assert back.get_params(deep=False).keys() == auto_model.get_params(deep=False).keys()
+    assert back.state_kernel is None and back.mu_kernel is None and back.update is None
+    assert back.choice_ == auto_model.choice_ and back.update_ == auto_model.update_
+    assert back.search == auto_model.search
+    x = np.array([[0.3, 0.2], [-0.5, 1.0]])
+    np.testing.assert_array_equal(back.step(x, mu=0.8, dt=0.1), auto_model.step(x, mu=0.8, dt=0.1))
+
+
+def test_a_file_whose_choice_is_tampered_with_is_refused(auto_model, tmp_path):
+    path = tmp_path / "auto.h5"
+    auto_model.save(path)
+    settings, arrays = read_container(path, MODEL_FORMAT)
+    for bad, match in ((dict(settings, choice={"max_centers": 3}), "does not choose"),
+                       (dict(settings, choice={**settings["choice"], "mu_kernel": {"kernel": {"family": "imq", "eps": 9.0}}}),
+                        "disagrees with its kernel"),
+                       (dict(settings, choice=[1]), "not a JSON object")):
+        write_container(tmp_path / "bad.h5", MODEL_FORMAT, bad, arrays)
+        with pytest.raises(ModelFileError, match=match):
+            SymplecticKernelPredictor.load(tmp_path / "bad.h5")
+
+
+def test_the_estimator_contract_holds(param_data):
+    x0, x1, mu, _ = param_data
+    m = SymplecticKernelPredictor(max_centers=40, search=SMALL)
+    c = clone(m)
+    assert c.get_params(deep=False) == m.get_params(deep=False) and c.search is not m.search
+    assert m.fit(x0, x1, mu=mu, dt=0.1) is m
+    assert not hasattr(c, "choice_") and m.get_params(deep=False)["state_kernel"] is None
+
+
+@pytest.mark.parametrize("bad, match", [
+    (dict(families=("rbf",)), "families"),
+    (dict(shapes=()), "shapes"),
+    (dict(parameter_shapes=(1.0, -2.0)), "parameter_shapes"),
+    (dict(updates=("leapfrog",)), "updates"),
+    (dict(m_star=0), "m_star"),
+    (dict(max_samples=5), "max_samples"),
+    (dict(validation_fraction=1.0), "validation_fraction"),
+])
+def test_bad_search_settings_are_named(bad, match, param_data):
+    x0, x1, mu, _ = param_data
+    with pytest.raises(ValueError, match=match):
+        SymplecticKernelPredictor(search=KernelSearch(**bad)).fit(x0, x1, mu=mu, dt=0.1)
+    with pytest.raises(ValueError, match="search must be a KernelSearch"):
+        SymplecticKernelPredictor(search="auto").fit(x0, x1, mu=mu, dt=0.1)
+
+
+def test_too_few_samples_for_a_search_name_the_fix(param_data):
+    x0, x1, _, _ = param_data
+    with pytest.raises(ValueError, match="pass the kernels"):
+        SymplecticKernelPredictor().fit(x0[:6], x1[:6], dt=0.1)
