@@ -65,7 +65,7 @@ from pymor.operators.symplectic import CanonicalSymplecticFormOperator
 from pymor.models.interface import Model
 from pymor.vectorarrays.numpy import NumpyVectorSpace
 
-from sympredict._checks import as_positive_int, as_real
+from sympredict._checks import as_parameter, as_positive_int, as_real
 from sympredict.base import clone
 from sympredict.data import FlowMapData, TrajectoryData
 from sympredict.exceptions import ExtrapolationWarning
@@ -767,10 +767,11 @@ class SymplecticKernelReductor(BasicObject):
             model = SplitKernelPredictor(predictor, scaled_quadratic_part(quad, state_scaling, mu_scaling, self.tau_))
         model.fit(s_train.x0, s_train.x1, mu=s_train.mu if vary_mu else None, dt=s_train.dt,
                   validation=None if s_val is None else (s_val.x0, s_val.x1, s_val.mu if vary_mu else None, s_val.dt))
-        flow_map = NormalizedFlowMap(model, state_scaling, mu_scaling if vary_mu else None, self.tau_)
+        flow_map = NormalizedFlowMap(model, state_scaling, mu_scaling if vary_mu else None, self.tau_,
+                                     parameters=self.flow_parameters)
         if not vary_mu and self.flow_parameters:
             # one training parameter: the predictor has no mu input, the ROM accepts only that mu
-            flow_map = _FixedMuFlowMap(flow_map, self.train_data_.mu[0])
+            flow_map = _FixedMuFlowMap(flow_map, self.train_data_.mu[0], parameters=self.flow_parameters)
         return model, flow_map
 
     def validation_score(self, flow_map, validation=None) -> float:
@@ -886,11 +887,14 @@ class SymplecticKernelReductor(BasicObject):
 class _FixedMuFlowMap:
     """A flow map trained at one parameter value: refuses others (no parameter input to learn from)."""
 
-    def __init__(self, flow_map: NormalizedFlowMap, mu: np.ndarray):
+    def __init__(self, flow_map: NormalizedFlowMap, mu: np.ndarray, parameters=None):
         self.flow_map, self.mu = flow_map, np.asarray(mu, float)
+        self.parameters = parameters
         self.dim_, self.n_mu_ = flow_map.dim_, self.mu.size  # the flow-map protocol (its one mu is accepted)
 
     def _check(self, mu):
+        if mu is not None:
+            mu = as_parameter(mu, 1, self.mu.size, parameters=getattr(self, "parameters", None))
         if mu is not None and not np.allclose(np.ravel(mu), self.mu):
             raise ValueError(f"this ROM was trained at the single parameter {self.mu.tolist()}: it cannot predict at {np.ravel(mu).tolist()}")
 

@@ -1,0 +1,109 @@
+"""The pyMOR user's rough edges of the reductor, and finite-element models with a mass matrix."""
+
+import numpy as np
+import pytest
+from pymor.parameters.base import Mu, Parameters
+
+from sympredict._checks import as_parameter
+from sympredict.mor import SymplecticKernelReductor
+from sympredict.mor.basis import complex_svd_basis
+from sympredict.mor.mass import MassMatrixCoordinates
+from sympredict.symplectic.metrics import canonical_J
+from sympredict.testing import fe_wave_matrices, fe_wave_model
+
+
+@pytest.fixture(scope="module")
+def small_fe():
+    """A small FE wave model (2N = 30), its training speeds and a 2n = 8 basis of their trajectories."""
+    fom, coords, space = fe_wave_model(n_elements=16, T=0.5, nt=100)
+    train = space.sample_uniformly(3)
+    S = fom.solution_space.empty()
+    for mu in train:
+        S.append(fom.solve(mu))
+    RB = complex_svd_basis(S, n=4).to_pymor(fom.solution_space)
+    return fom, coords, space, train, RB
+
+
+@pytest.fixture(scope="module")
+def small_rom(small_fe):
+    fom, coords, space, train, RB = small_fe
+    h = fom.T / fom.time_stepper.nt
+    red = SymplecticKernelReductor(fom, RB, train, 4 * h, data="projected", parameter_space=space, max_centers=200,
+                                   n_validation=1)
+    return red, red.reduce()
+
+
+# ------------------------------------------------------------------ a. Mu and dicts wherever a mu is accepted
+def test_as_parameter_reads_mu_and_dicts_in_parameter_order():
+    params = Parameters({"b": 2, "a": 1})
+    want = np.array([[3.0, 1.0, 2.0]] * 2)  # sorted by name: a, then b
+    np.testing.assert_array_equal(as_parameter(Mu({"b": [1, 2], "a": 3}), 2, 3), want)
+    np.testing.assert_array_equal(as_parameter({"b": [1, 2], "a": 3}, 2, 3, parameters=params), want)
+    np.testing.assert_array_equal(as_parameter({"c": 0.9}, 3, 1), np.full((3, 1), 0.9))
+    np.testing.assert_array_equal(as_parameter([{"c": 1.0}, {"c": 2.0}], 2, 1), [[1.0], [2.0]])
+    with pytest.raises(ValueError, match=r"ambiguous.*\['a', 'b'\]|\['a', 'b'\].*ambiguous"):
+        as_parameter({"b": [1, 2], "a": 3}, 2, 3)
+    with pytest.raises(ValueError, match=r"names \['a', 'b'\].*'c'"):
+        as_parameter({"b": [1, 2], "a": 3}, 2, 3, parameters={"a": 1, "c": 2})
+    with pytest.raises(ValueError, match=r"mu\['b'\] has 1 component"):
+        as_parameter({"b": 1.0, "a": 3}, 2, 2, parameters={"a": 1, "b": 2})
+
+
+def test_rom_flow_map_takes_pymor_mu_and_dict(small_fe, small_rom):
+    fom = small_fe[0]
+    red, rom = small_rom
+    x = red.project(fom.initial_data.as_range_array(fom.parameters.parse(0.93)))
+    ref = rom.flow_map.step(x, mu=0.93, dt=red.dt)
+    np.testing.assert_array_equal(rom.flow_map.step(x, mu=fom.parameters.parse(0.93), dt=red.dt), ref)
+    np.testing.assert_array_equal(rom.flow_map.step(x, mu={"c": 0.93}, dt=red.dt), ref)
+    np.testing.assert_array_equal(rom.flow_map.rollout(x, 3, mu=Mu({"c": 0.93}), dt=red.dt)[:, 1], ref)
+    with pytest.raises(ValueError, match="'c'"):
+        rom.flow_map.step(x, mu={"speed": 0.93}, dt=red.dt)
+
+
+# ------------------------------------------------------------------ 6. mass matrices
+def test_mass_coordinates_are_symplectic_and_carry_the_energy():
+    M, K, _ = fe_wave_matrices(12)
+    rng = np.random.default_rng(0)
+    q, p = rng.standard_normal((2, 5, 11))
+    for lumped in (False, True):
+        co = MassMatrixCoordinates(M, lumped=lumped)
+        Mm = co.L @ co.L.T
+        if not lumped:
+            np.testing.assert_allclose(Mm, M.toarray(), rtol=0, atol=1e-14)
+        T = co.matrix()
+        J = canonical_J(22)
+        assert np.abs(T.T @ J @ T - J).max() <= 1e-13
+        qt, pt = co.to_canonical(q, p)
+        np.testing.assert_allclose(np.concatenate([qt, pt], axis=1), np.concatenate([q, p], axis=1) @ T.T, atol=1e-13)
+        q2, p2 = co.from_canonical(qt, pt)
+        np.testing.assert_allclose(q2, q, atol=1e-12)
+        np.testing.assert_allclose(p2, p, atol=1e-12)
+        A = co.canonical_stiffness(K)
+        Kd = K.toarray()
+        H = 0.5 * np.einsum("bi,ij,bj->b", p, np.linalg.inv(Mm), p) + 0.5 * np.einsum("bi,ij,bj->b", q, Kd, q)
+        Ht = 0.5 * (pt ** 2).sum(1) + 0.5 * np.einsum("bi,ij,bj->b", qt, A, qt)
+        np.testing.assert_allclose(Ht, H, rtol=1e-12)
+        np.testing.assert_allclose(co.velocity(pt), p @ np.linalg.inv(Mm), atol=1e-11)
+
+
+def test_mass_coordinates_refuse_bad_matrices():
+    with pytest.raises(ValueError, match="not positive definite"):
+        MassMatrixCoordinates(-np.eye(3))
+    with pytest.raises(ValueError, match="not symmetric"):
+        MassMatrixCoordinates(np.array([[1.0, 0.5], [0.0, 1.0]]))
+    with pytest.raises(ValueError, match="NaN"):
+        MassMatrixCoordinates(np.array([[np.nan, 0.0], [0.0, 1.0]]))
+    with pytest.raises(ValueError, match="square"):
+        MassMatrixCoordinates(np.ones((2, 3)))
+
+
+def test_fe_wave_fom_conserves_the_mass_matrix_energy(small_fe):
+    fom, coords, *_ = small_fe
+    M, K, _ = fe_wave_matrices(16)
+    U = fom.solve(fom.parameters.parse(1.1))
+    X = np.vstack([b.to_numpy() for b in U.blocks]).T  # (K+1, 2N) canonical
+    q, p = coords.from_canonical(X[:, : coords.N], X[:, coords.N:])
+    E = 0.5 * np.einsum("ki,ij,kj->k", p, np.linalg.inv(M.toarray()), p) + 0.5 * 1.1 ** 2 * np.einsum(
+        "ki,ij,kj->k", q, K.toarray(), q)
+    np.testing.assert_allclose(E, E[0], rtol=1e-9)  # implicit midpoint conserves quadratic invariants
