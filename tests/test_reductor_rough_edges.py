@@ -107,3 +107,34 @@ def test_fe_wave_fom_conserves_the_mass_matrix_energy(small_fe):
     E = 0.5 * np.einsum("ki,ij,kj->k", p, np.linalg.inv(M.toarray()), p) + 0.5 * 1.1 ** 2 * np.einsum(
         "ki,ij,kj->k", q, K.toarray(), q)
     np.testing.assert_allclose(E, E[0], rtol=1e-9)  # implicit midpoint conserves quadratic invariants
+
+
+# ------------------------------------------------------------------ b. assert_symplectic_step on a valid ROM
+def test_assert_symplectic_step_passes_a_valid_rom_and_says_what_it_used(small_fe, small_rom):
+    from sympredict.testing import assert_symplectic_step
+
+    fom, *_, train, _ = small_fe
+    red, rom = small_rom
+    X = red.project(fom.solve(train[1]))[::10]  # reduced states of very different component sizes
+    res = assert_symplectic_step(rom.flow_map, X, mu=0.9, dt=red.dt)  # failed on finite-difference noise before
+    assert res["method"] == "analytic+finite_differences" and res["analytic"] <= 1e-8
+
+
+def test_assert_symplectic_step_finite_differences_tolerate_noise_and_catch_stretches():
+    from sympredict.testing import assert_symplectic_step
+
+    class NoisyRotation:  # symplectic, evaluated to ~1e-10 (like an implicit step's Newton tolerance)
+        def step(self, x, mu=None, dt=None):
+            c, s = np.cos(0.3), np.sin(0.3)
+            y = x @ np.array([[c, -s], [s, c]]).T
+            return y + 1e-10 * np.sin(1e7 * x)
+
+    res = assert_symplectic_step(NoisyRotation(), np.array([[1.0, 1e-3], [0.5, -2.0]]))
+    assert res["method"] == "finite_differences" and res["fd_error"] > 0
+
+    class Stretch:
+        def step(self, x, mu=None, dt=None):
+            return x * [1.001, 1.0]
+
+    with pytest.raises(AssertionError, match=r"not symplectic.*finite-difference Jacobian: central differences, step"):
+        assert_symplectic_step(Stretch(), np.ones((3, 2)))
