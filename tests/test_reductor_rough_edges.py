@@ -138,3 +138,21 @@ def test_assert_symplectic_step_finite_differences_tolerate_noise_and_catch_stre
 
     with pytest.raises(AssertionError, match=r"not symplectic.*finite-difference Jacobian: central differences, step"):
         assert_symplectic_step(Stretch(), np.ones((3, 2)))
+
+
+# ------------------------------------------------------------------ d. dt, T and nt checked before any FOM solve
+def test_projected_step_checked_before_any_solve_with_exact_numbers(small_fe):
+    fom, coords, space, train, RB = small_fe
+
+    class NoSolve(type(fom)):
+        def solve(self, *args, **kwargs):  # pragma: no cover - reached only if the check comes too late
+            raise AssertionError("the FOM was solved before dt was checked")
+
+    bare = fom.with_(new_type=NoSolve)
+    with pytest.raises(ValueError, match=r"h = T / nt = 0\.5 / 100 = 0\.005; dt = 0\.012 is 2\.4 output steps: use "
+                                         r"dt = k \* h, e\.g\. 0\.01 or 0\.015"):
+        SymplecticKernelReductor(bare, RB, train, 0.012, data="projected")
+    with pytest.raises(ValueError, match=r"horizon = 0\.75 is past the FOM's final time T = 0\.5"):
+        SymplecticKernelReductor(bare, RB, train, 0.01, data="projected", horizon=0.75)
+    with pytest.raises(ValueError, match=r"dt = 0\.6 is longer than the sampled time span"):
+        SymplecticKernelReductor(bare, RB, train, 0.6, data="reduced")

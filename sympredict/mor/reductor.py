@@ -503,7 +503,13 @@ class SymplecticKernelReductor(BasicObject):
         self.dim = 2 * len(RB)
         if mode == "projected" and getattr(fom, "num_values", None) is None and getattr(
                 getattr(fom, "time_stepper", None), "nt", None):  # an InstationaryModel's output grid, known up front
-            self._check_stride(fom.T / fom.time_stepper.nt)
+            self._check_stride(fom.T / fom.time_stepper.nt, fom.time_stepper.nt)
+        if mode != "given" and not self.dt <= self.horizon * (1 + 1e-12):
+            raise ValueError(f"dt = {self.dt!r} is longer than the sampled time span (horizon = {self.horizon!r}, "
+                             f"fom.T = {fom.T!r}): no flow-map pair fits; use a smaller dt or a longer horizon")
+        if mode == "projected" and self.horizon > fom.T * (1 + 1e-12):
+            raise ValueError(f"horizon = {self.horizon!r} is past the FOM's final time T = {fom.T!r}: its trajectories "
+                             f"end at T (data='projected'); use horizon <= T or fom.with_(T=...)")
         if self.training_parameters is not None or parameter_space is not None:
             # the FOM's parameter box (validation draws), and the flow parameters' part of it (their scaling)
             self.mu_lo, self.mu_hi = parameter_box(self.training_parameters, fom.parameters, parameter_space)
@@ -583,11 +589,18 @@ class SymplecticKernelReductor(BasicObject):
         # dt exactly: the predictor is a fixed-step model and the ROM queries self.dt
         return trajectory_pairs(np.stack([t[:k] for t in trajs]), rows, self.dt / stride, stride)
 
-    def _check_stride(self, h: float) -> int:
-        stride = int(round(self.dt / h))
+    def _check_stride(self, h: float, n_out: Optional[int] = None) -> int:
+        """The number of FOM output steps ``h = T / n_out`` in one macro step ``dt``; ``ValueError`` with the exact
+        numbers (``T``, ``n_out``, ``h``, ``dt / h`` and the nearest admissible steps) when ``dt`` is not a multiple."""
+        ratio = self.dt / h
+        stride = int(round(ratio))
         if stride < 1 or not np.isclose(stride * h, self.dt, rtol=1e-9, atol=0):
-            raise ValueError(f"data='projected' needs dt to be a multiple of the FOM's output step {h!r} "
-                             f"(T / nt), got dt = {self.dt!r}: use dt = k * {h!r}")
+            n_out = int(round(self.fom.T / h)) if n_out is None else int(n_out)
+            lower, upper = max(1, int(np.floor(ratio))), max(1, int(np.ceil(ratio)))
+            near = sorted({lower * h, upper * h})
+            raise ValueError(f"data='projected' needs dt to be a multiple of the FOM's output step h = T / nt = "
+                             f"{self.fom.T!r} / {n_out} = {h!r}; dt = {self.dt!r} is {ratio:.6g} output steps: use "
+                             f"dt = k * h, e.g. " + " or ".join(f"{v!r}" for v in near))
         return stride
 
     def _update(self) -> str:
