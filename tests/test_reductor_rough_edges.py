@@ -156,3 +156,14 @@ def test_projected_step_checked_before_any_solve_with_exact_numbers(small_fe):
         SymplecticKernelReductor(bare, RB, train, 0.01, data="projected", horizon=0.75)
     with pytest.raises(ValueError, match=r"dt = 0\.6 is longer than the sampled time span"):
         SymplecticKernelReductor(bare, RB, train, 0.6, data="reduced")
+
+
+# ------------------------------------------------------------------ j. log messages say what happened
+def test_greedy_divergence_message_does_not_claim_truncating_to_zero_centres():
+    from sympredict.interpolation.greedy.loop import _divergence_message
+
+    zero = _divergence_message("greedy", 1, 0, 5.0, 1.0)
+    assert "truncating to 0" not in zero and "keeps no centres" in zero and "duplicate samples" in zero
+    assert "round-off" not in zero  # one centre has no Newton-basis round-off to blame
+    some = _divergence_message("greedy", 40, 37, 5.0, 1e-6)
+    assert "keeping the first 37 centres" in some and "power_tol" in some
