@@ -167,3 +167,18 @@ def test_greedy_divergence_message_does_not_claim_truncating_to_zero_centres():
     assert "round-off" not in zero  # one centre has no Newton-basis round-off to blame
     some = _divergence_message("greedy", 40, 37, 5.0, 1e-6)
     assert "keeping the first 37 centres" in some and "power_tol" in some
+
+
+def test_finite_element_howto_runs():
+    """The how-to's code blocks, run in order as a user would (its ROM error is small)."""
+    import re
+    from pathlib import Path
+
+    text = (Path(__file__).resolve().parents[1] / "docs" / "howto" / "finite_element_models.md").read_text()
+    blocks = re.findall(r"```python\n(.*?)```", text, flags=re.S)
+    assert len(blocks) == 2
+    namespace = {}
+    for code in blocks:
+        exec(compile(code, "finite_element_models.md", "exec"), namespace)
+    assert namespace["error"] < 0.1
+    assert namespace["q"].shape == (len(namespace["U"]), namespace["coords"].N)
