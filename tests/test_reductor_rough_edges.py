@@ -182,3 +182,27 @@ def test_finite_element_howto_runs():
         exec(compile(code, "finite_element_models.md", "exec"), namespace)
     assert namespace["error"] < 0.1
     assert namespace["q"].shape == (len(namespace["U"]), namespace["coords"].N)
+
+
+# ------------------------------------------------------------------ g. a Newton failure keeps the trajectory so far
+def test_newton_failure_in_rom_solve_carries_the_trajectory_so_far(small_fe, small_rom):
+    from sympredict.exceptions import NewtonConvergenceError
+
+    fom = small_fe[0]
+    red, rom = small_rom
+    inner = rom.flow_map
+
+    class FailsAtStep5:  # the learned map, whose Newton solve fails at macro step index 5
+        def rollout(self, x0, n_steps, mu=None, dt=None):
+            if n_steps > 5:
+                raise NewtonConvergenceError([0], [1.0], step=5)
+            return inner.rollout(x0, n_steps, mu=mu, dt=dt)
+
+    failing = rom.with_(flow_map=FailsAtStep5())
+    mu = fom.parameters.parse(0.9)
+    with pytest.raises(NewtonConvergenceError) as info:
+        failing.solve(mu)
+    exc = info.value
+    assert exc.completed_steps == 5 and exc.trajectory_kind == "reduced" and len(exc.trajectory) == 6
+    np.testing.assert_array_equal(exc.trajectory.to_numpy(), rom.solve(mu).to_numpy()[:, :6])
+    assert red.reconstruct(exc.trajectory).space == fom.solution_space

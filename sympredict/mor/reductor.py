@@ -68,7 +68,7 @@ from pymor.vectorarrays.numpy import NumpyVectorSpace
 from sympredict._checks import as_parameter, as_positive_int, as_real
 from sympredict.base import clone
 from sympredict.data import FlowMapData, TrajectoryData
-from sympredict.exceptions import ExtrapolationWarning
+from sympredict.exceptions import ExtrapolationWarning, NewtonConvergenceError
 from sympredict.systems.linear_flow import QuadraticPart, inverse_symplectic_matrices
 from sympredict.systems.flowmaps import (
     _report_existence,
@@ -170,8 +170,26 @@ class SymplecticKernelModel(Model):
         ------
         ValueError
             If ``mu`` does not match the FOM's parameters.
+        NewtonConvergenceError
+            If an implicit step fails; it carries the states computed before the failure:
+            ``trajectory`` (a VectorArray in ``solution_space``: reduced coordinates, ``k + 1`` states;
+            ``reductor.reconstruct(exc.trajectory)`` gives full states), ``completed_steps`` (``k``) and
+            ``trajectory_kind`` (``"reduced"``).
         """
         return super().solve(parse_mu(mu, self.parameters), input, return_error_estimate)
+
+    def _attach_partial_trajectory(self, exc, x0, mu_arg, mu) -> None:
+        """Give a Newton failure the reduced trajectory up to the failed step (the rollout is deterministic, so
+        rerunning its first ``exc.step`` steps reproduces those states): ``exc.trajectory`` (a VectorArray in
+        ``solution_space``, reduced coordinates), ``exc.completed_steps``, ``exc.trajectory_kind = "reduced"``."""
+        k = exc.step if exc.step is not None else 0
+        partial = x0 if k == 0 else self.flow_map.rollout(x0, int(k), mu=mu_arg, dt=self.dt)[0]
+        exc.trajectory = self.solution_space.from_numpy(np.atleast_2d(partial).T)
+        exc.completed_steps = int(k)
+        exc.trajectory_kind = "reduced"
+        self.logger.error(f"Newton failed at macro step {k + 1} of {self.n_steps} (mu = {mu}): the exception carries "
+                          f"the reduced trajectory of the {k} completed steps (exc.trajectory; "
+                          f"reductor.reconstruct(exc.trajectory) for full states)")
 
     def _compute(self, quantities, data, mu):
         if "solution" in quantities:
@@ -179,9 +197,14 @@ class SymplecticKernelModel(Model):
             vec = mu_to_vector(mu, self.parameters)
             if self.flow_parameters is not None:
                 vec = _subvector(vec, self.parameters, self.flow_parameters)
+            mu_arg = vec if vec.size else None
             with warnings.catch_warnings(record=True) as caught:
                 warnings.simplefilter("always", ExtrapolationWarning)
-                traj = self.flow_map.rollout(x0, self.n_steps, mu=vec if vec.size else None, dt=self.dt)[0]
+                try:
+                    traj = self.flow_map.rollout(x0, self.n_steps, mu=mu_arg, dt=self.dt)[0]
+                except NewtonConvergenceError as exc:
+                    self._attach_partial_trajectory(exc, x0, mu_arg, mu)
+                    raise
             for w in caught:  # logged, not raised: a ROM run past T or near the data's edge extrapolates by design
                 if issubclass(w.category, ExtrapolationWarning):
                     self.logger.warning(str(w.message))
