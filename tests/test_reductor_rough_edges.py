@@ -155,7 +155,7 @@ def test_projected_step_checked_before_any_solve_with_exact_numbers(small_fe):
     with pytest.raises(ValueError, match=r"horizon = 0\.75 is past the FOM's final time T = 0\.5"):
         SymplecticKernelReductor(bare, RB, train, 0.01, data="projected", horizon=0.75)
     with pytest.raises(ValueError, match=r"dt = 0\.6 is longer than the sampled time span"):
-        SymplecticKernelReductor(bare, RB, train, 0.6, data="reduced")
+        SymplecticKernelReductor(bare, RB, train, 0.6, data="projected")
 
 
 # ------------------------------------------------------------------ j. log messages say what happened
@@ -206,3 +206,40 @@ def test_newton_failure_in_rom_solve_carries_the_trajectory_so_far(small_fe, sma
     assert exc.completed_steps == 5 and exc.trajectory_kind == "reduced" and len(exc.trajectory) == 6
     np.testing.assert_array_equal(exc.trajectory.to_numpy(), rom.solve(mu).to_numpy()[:, :6])
     assert red.reconstruct(exc.trajectory).space == fom.solution_space
+
+
+# ------------------------------------------------------------------ e/f. a generating function that exists; no unusable ROM
+def test_default_predictor_switches_to_midpoint_where_type_ii_does_not_exist(small_fe):
+    fom, coords, space, train, RB = small_fe
+    red = SymplecticKernelReductor(fom, RB, train, 0.06, n_samples=40, n_validation=1, max_centers=100,
+                                   parameter_space=space)
+    rom = red.reduce()
+    assert red.choice_["update"] == "midpoint" and "type II does not exist" in red.choice_["reason"]
+    assert red.predictor_.update == "midpoint"
+    assert np.all(np.isfinite(rom.solve(fom.parameters.parse(0.9)).to_numpy()))
+    with pytest.raises(ValueError, match="neither generating function exists at dt = 0.25"):
+        SymplecticKernelReductor(fom, RB, train, 0.25, n_samples=40, n_validation=1, max_centers=100,
+                                 parameter_space=space).reduce()
+    ok = SymplecticKernelReductor(fom, RB, train, 0.01, n_samples=40, n_validation=1, max_centers=100,
+                                  parameter_space=space)
+    ok.training_data()
+    assert ok.choice_["update"] == "symplectic_euler"
+
+
+def test_reduce_never_returns_a_rom_that_cannot_step(small_fe, small_rom):
+    from sympredict.exceptions import NewtonConvergenceError
+
+    red, _ = small_rom
+
+    class Fails:
+        def step(self, x, mu=None, dt=None):
+            raise NewtonConvergenceError([0], [1.0])
+
+    class NotFinite:
+        def step(self, x, mu=None, dt=None):
+            return np.full_like(np.atleast_2d(x), np.nan)
+
+    for bad, why in ((Fails(), "Newton's method failed"), (NotFinite(), "not finite")):
+        with pytest.raises(ValueError, match=f"cannot take one step.*{why}.*update='midpoint'.*smaller dt"):
+            red._check_one_step(bad)
+    red._check_one_step(red.flow_map_)  # the fitted map passes

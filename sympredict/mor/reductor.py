@@ -527,7 +527,7 @@ class SymplecticKernelReductor(BasicObject):
         if mode == "projected" and getattr(fom, "num_values", None) is None and getattr(
                 getattr(fom, "time_stepper", None), "nt", None):  # an InstationaryModel's output grid, known up front
             self._check_stride(fom.T / fom.time_stepper.nt, fom.time_stepper.nt)
-        if mode != "given" and not self.dt <= self.horizon * (1 + 1e-12):
+        if mode == "projected" and not self.dt <= self.horizon * (1 + 1e-12):
             raise ValueError(f"dt = {self.dt!r} is longer than the sampled time span (horizon = {self.horizon!r}, "
                              f"fom.T = {fom.T!r}): no flow-map pair fits; use a smaller dt or a longer horizon")
         if mode == "projected" and self.horizon > fom.T * (1 + 1e-12):
@@ -627,8 +627,33 @@ class SymplecticKernelReductor(BasicObject):
         return stride
 
     def _update(self) -> str:
-        """The generating-function update of the predictor (the existence check depends on it)."""
-        return getattr(self.predictor, "update", "symplectic_euler") if self.predictor is not None else "symplectic_euler"
+        """The generating-function update of the predictor (the existence check depends on it): the given
+        predictor's, else the one chosen for the default predictor (``choice_["update"]``)."""
+        if self.predictor is not None:
+            return getattr(self.predictor, "update", "symplectic_euler")
+        return getattr(self, "choice_", {}).get("update", "symplectic_euler")
+
+    def _checked_existence(self, check):
+        """``check()`` (an existence check for :meth:`_update`); for the default predictor, when the type II
+        generating function does not exist at ``dt`` (a mode turns past a quarter turn per step), the midpoint
+        form (up to half a turn) is chosen instead, logged and kept in ``choice_``."""
+        self.choice_ = {"update": "symplectic_euler", "reason": "type II generating function exists at dt"} \
+            if self.predictor is None else {"update": self._update(), "reason": "the given predictor's update"}
+        try:
+            return check()
+        except ValueError as exc:
+            if self.predictor is not None or self.split is not None:
+                raise
+            first = str(exc)
+        self.choice_ = {"update": "midpoint", "reason": f"type II does not exist at dt = {self.dt!r}: {first}"}
+        try:
+            out = check()
+        except ValueError as exc:
+            raise ValueError(f"neither generating function exists at dt = {self.dt!r}: midpoint: {exc}; type II: "
+                             f"{first}") from None
+        self.logger.info(f"update='midpoint' chosen: the type II generating function does not exist at dt = "
+                         f"{self.dt!r} ({first}); the midpoint form does")
+        return out
 
     def _check_existence_from_data(self, data):
         """Existence check (type II, or the midpoint form for the predictor's update) from the data alone:
@@ -701,13 +726,15 @@ class SymplecticKernelReductor(BasicObject):
                 train, system = self._reduced_data(self.training_parameters, self.n_samples, self.seed)
                 val, _ = self._reduced_data(val_mus, max(50, self.n_samples // 4), self.seed + 1)
                 if self.check_existence and self.split is None:
-                    self.existence_ = check_generating_function(system, train, update=self._update())
+                    self.existence_ = self._checked_existence(
+                        lambda: check_generating_function(system, train, update=self._update()))
             else:
                 train = self._projected_data(self.training_parameters)
                 val = self._projected_data(val_mus)
             train, val = self._to_flow(train), self._to_flow(val)
         if self.check_existence and not (self.mode == "reduced" and self.split is None):
-            self.existence_ = self._check_existence_from_data(self.split_pairs(train))
+            self.existence_ = self._checked_existence(
+                lambda: self._check_existence_from_data(self.split_pairs(train)))
         return train, val
 
     # ------------------------------------------------------------ reduce
@@ -739,7 +766,8 @@ class SymplecticKernelReductor(BasicObject):
         return clone(base).set_params(state_kernel=state, mu_kernel=sel.mu)
 
     def _default_predictor(self, train, val, vary_mu):
-        base = SymplecticKernelPredictor(None, None, None, max_centers=self.max_centers, trainer=ExactGreedy(tol=1e-12))
+        base = SymplecticKernelPredictor(None, None, None, max_centers=self.max_centers, trainer=ExactGreedy(tol=1e-12),
+                                         update=self._update())
         return self._search_kernels(base, train, val, vary_mu)
 
     def scaled_training_data(self):
@@ -885,10 +913,33 @@ class SymplecticKernelReductor(BasicObject):
         self.timings_ = timings
         self.predictor_ = model
         self.flow_map_ = flow_map
+        if not hasattr(self, "choice_"):
+            self.choice_ = {"update": self._update(), "reason": "no existence check (check_existence=False)"}
+        self._check_one_step(flow_map)
         name = None if self.fom.name is None else "kernel_" + self.fom.name
         return SymplecticKernelModel(flow_map, self._reduced_initial_data(), self.fom.T if T is None else T, self.dt,
                                      self.fom.parameters, name=name,
                                      flow_parameters=self.flow_parameters if self._flow_subset else None)
+
+    def _check_one_step(self, flow_map) -> None:
+        """One step of the fitted flow map from the training data's first states, per training parameter;
+        ``ValueError`` with the reason and the settings to change when it fails or is not finite (a ROM that
+        cannot take one step is never returned)."""
+        train = self.train_data_
+        rows, first = np.unique(train.mu, axis=0, return_index=True)
+        x = train.x0[first]
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", ExtrapolationWarning)
+                y = flow_map.step(x, mu=train.mu[first] if train.mu.shape[1] else None, dt=self.dt)
+            reason = None if np.all(np.isfinite(y)) else "the step is not finite"
+        except NewtonConvergenceError as exc:
+            reason = f"Newton's method failed: {exc}"
+        if reason is not None:
+            raise ValueError(f"the fitted ROM cannot take one step of dt = {self.dt!r} from the training data "
+                             f"({reason}; update = {self._update()!r}): use update='midpoint' (a predictor "
+                             f"SymplecticKernelPredictor(update='midpoint')), a smaller dt, or a larger basis or "
+                             f"budget (max_centers)")
 
     def _scaled_split_pairs(self, d, state_scaling, mu_scaling, vary_mu):
         """``S``'s samples in the predictor's coordinates (what the kernel search compares candidates on)."""
