@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import Optional
 
 import numpy as np
@@ -53,7 +54,53 @@ def as_states(x, name: str, dim: Optional[int] = None, allow_single: bool = True
     return np.ascontiguousarray(arr), single
 
 
-def as_model_parameter(mu, n: int, n_mu: int) -> np.ndarray:
+def _is_mapping(mu) -> bool:
+    """A pyMOR ``Mu`` or any mapping of parameter names to values (duck-typed: no pyMOR import here)."""
+    return isinstance(mu, Mapping) or (callable(getattr(mu, "keys", None)) and callable(getattr(mu, "to_numpy", None))
+                                       and hasattr(mu, "__getitem__"))
+
+
+def _mapping_to_vector(mu, d_mu: Optional[int], parameters, name: str) -> np.ndarray:
+    """The parameter vector of one mapping ``name -> value`` (a pyMOR ``Mu`` or a dict).
+
+    With ``parameters`` (a mapping ``name -> dimension``, e.g. pyMOR ``Parameters``): the values sorted by name,
+    each flattened (pyMOR's ``Mu.to_numpy`` order), names and dimensions checked.  Without: a ``Mu``'s
+    ``to_numpy()``, or the value of a dict with exactly one key.
+    """
+    keys = sorted(str(k) for k in mu.keys())
+    if parameters is not None:
+        wanted = {str(k): int(v) for k, v in dict(parameters).items()}
+        if set(keys) != set(wanted):
+            raise ValueError(f"{name} has the parameter names {keys}, the model's parameters are "
+                             f"{dict(sorted(wanted.items()))}: give exactly these names")
+        parts = []
+        for k in sorted(wanted):
+            v = _as_float_array(mu[k], f"{name}[{k!r}]").ravel()
+            if v.size != wanted[k]:
+                raise ValueError(f"{name}[{k!r}] has {v.size} component(s), the model's parameter {k!r} has "
+                                 f"{wanted[k]}")
+            parts.append(v)
+        return np.concatenate(parts) if parts else np.zeros(0)
+    if callable(getattr(mu, "to_numpy", None)):  # a pyMOR Mu: its values sorted by name, each flattened
+        return _as_float_array(mu.to_numpy(), name).ravel()
+    if len(keys) != 1:
+        raise ValueError(f"{name} is a dict with the keys {keys}: their order is ambiguous for a model that takes a "
+                         f"parameter vector; give a vector (values in the training order), a dict with one key, or "
+                         f"a pyMOR Mu (values sorted by name)")
+    return _as_float_array(next(iter(mu.values())), f"{name}[{keys[0]!r}]").ravel()
+
+
+def _mappings_to_array(mu, d_mu: Optional[int], parameters, name: str):
+    """A mapping (one parameter for all instances) or a list of mappings (one per instance) as an array; other
+    inputs unchanged."""
+    if _is_mapping(mu):
+        return _mapping_to_vector(mu, d_mu, parameters, name)[None, :]
+    if isinstance(mu, (list, tuple)) and mu and all(_is_mapping(m) for m in mu):
+        return np.stack([_mapping_to_vector(m, d_mu, parameters, f"{name}[{i}]") for i, m in enumerate(mu)])
+    return mu
+
+
+def as_model_parameter(mu, n: int, n_mu: int, parameters=None) -> np.ndarray:
     """The parameter of a query to a fitted model with ``n_mu`` components (0: trained without one); ``(n, n_mu)``.
 
     ``ValueError`` when ``mu`` is passed to a parameter-free model or missing for a parametric one.
@@ -64,16 +111,28 @@ def as_model_parameter(mu, n: int, n_mu: int) -> np.ndarray:
         return np.zeros((n, 0))
     if mu is None:
         raise ValueError(f"mu is required: this model was trained with {n_mu} parameter component(s)")
-    return as_parameter(mu, n, n_mu)
+    return as_parameter(mu, n, n_mu, parameters=parameters)
 
 
-def as_parameter(mu, n: int, d_mu: Optional[int], name: str = "mu") -> np.ndarray:
+def as_parameter(mu, n: int, d_mu: Optional[int], name: str = "mu", parameters=None) -> np.ndarray:
     """Validate parameters for ``n`` instances; returns ``(n, d_mu)``.
 
     Accepted: a scalar (``d_mu = 1``), ``(n,)`` (``d_mu = 1``), ``(d_mu,)``
-    (one vector for all instances, ``d_mu > 1``), ``(n, d_mu)`` or ``(1, d_mu)``.
-    With ``d_mu=None`` (fit), the dimension is taken from the input.
+    (one vector for all instances, ``d_mu > 1``), ``(n, d_mu)`` or ``(1, d_mu)``;
+    a pyMOR ``Mu`` or a dict ``name -> value`` (one parameter for all instances),
+    or a list of them (one per instance).  With ``parameters`` (a mapping
+    ``name -> dimension`` such as pyMOR ``Parameters``), a ``Mu``/dict must
+    have exactly these names and dimensions and becomes the values sorted by
+    name, each flattened (``Mu.to_numpy`` order); without, a ``Mu`` becomes
+    ``Mu.to_numpy()`` and a dict must have one key (several keys are ambiguous:
+    ``ValueError`` naming them).  With ``d_mu=None`` (fit), the dimension is
+    taken from the input.
+
+    Returns
+    -------
+    ndarray of shape (n, d_mu)
     """
+    mu = _mappings_to_array(mu, d_mu, parameters, name)
     arr = _as_float_array(mu, name)
     if arr.ndim == 0:
         arr = np.full((n, 1), float(arr))

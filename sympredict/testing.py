@@ -31,6 +31,7 @@ from sympredict.symplectic.metrics import canonical_J
 from sympredict.mor.basis import symplecticity_of_basis
 
 __all__ = ["assert_symplectic_step", "assert_energy_bounded", "assert_rom_matches_fom", "assert_symplectic_basis",
+           "fe_wave_matrices", "fe_wave_model",
            "finite_difference_jacobian"]
 
 
@@ -61,27 +62,64 @@ def _defect(jac: np.ndarray) -> np.ndarray:
     return np.abs(np.swapaxes(jac, -1, -2) @ J @ jac - J).max(axis=(-2, -1))
 
 
+def _scaled_finite_differences(step: Callable, x: np.ndarray, h: float):
+    """Central differences with one step per state scaled to its size, ``h * max(|x|_inf, tiny)``.
+
+    Returns the Richardson-extrapolated Jacobian ``(4 D(h/2) - D(h)) / 3`` (B, 2n, 2n), the error estimate
+    ``max |D(h/2) - D(h)|`` per state (B,) (truncation and the map's own noise, e.g. a Newton tolerance,
+    both show in it) and the steps (B,).
+    """
+    b, d = x.shape
+    steps = h * np.maximum(np.abs(x).max(axis=1), np.finfo(float).tiny ** 0.25)
+
+    def central(hh):
+        cols = []
+        for i in range(d):
+            e = np.zeros((b, d))
+            e[:, i] = hh
+            cols.append((step(x + e) - step(x - e)) / (2 * hh[:, None]))
+        return np.stack(cols, axis=2)
+
+    full, half = central(steps), central(steps / 2)
+    return (4 * half - full) / 3, np.abs(half - full).max(axis=(1, 2)), steps
+
+
 def assert_symplectic_step(model, x, mu=None, dt=None, atol: float = 1e-8, fd: bool = True, fd_h: float = 1e-4,
-                           fd_atol: float = 1e-5) -> dict:
+                           fd_atol: Optional[float] = None) -> dict:
     """Assert ``D Phi^T J D Phi = J`` for the learned step at the states ``x``.
 
-    Checks the analytic Jacobian (``model.step_jacobian``, if the model has
-    one) to ``atol`` (max-norm), and, with ``fd``, an independent
-    central-difference Jacobian of ``model.step`` to ``fd_atol`` (its own error
-    is ``O(fd_h^2)`` plus round-off over ``fd_h``, and the defect is quadratic in
-    ``D Phi``: the bound is ``fd_atol * max(1, max|D Phi|^2)``); the two Jacobians
-    must agree to ``fd_atol * max(1, max|D Phi|)``.
+    With an analytic Jacobian (``model.step_jacobian``, e.g. a fitted predictor or ``rom.flow_map``) the
+    verdict is on it, to ``atol`` (max-norm); with ``fd`` a central-difference Jacobian of ``model.step``
+    must then agree with it (a wrong ``step_jacobian`` fails).  Without one, the finite-difference Jacobian
+    itself is checked.  Finite differences: one step per state, ``fd_h * max|x|`` (scaled to the state's
+    size), Richardson-extrapolated; their error is estimated from the two step sizes (it includes the
+    map's own noise, e.g. an implicit step's Newton tolerance), and the tolerance follows from it
+    (``4 * estimate + 100 eps max(1, |D Phi|)`` on the Jacobian; on the defect
+    ``2n (2 |D Phi| tol + tol^2) + atol``), unless ``fd_atol`` fixes it (then ``fd_atol * max(1, |D Phi|)``).
+    A failure message says which Jacobian failed and, for finite differences, the step and error estimate.
 
     Parameters
     ----------
+    model
+        Has ``step(x, mu=, dt=)``; optionally ``step_jacobian(x, mu=, dt=)``.
     x : array_like of shape (B, 2n)
     mu, dt
         As the model's ``step`` takes them (fixed for the batch).
+    atol : float
+        Bound on the analytic Jacobian's defect.
+    fd : bool
+        Compute the finite-difference Jacobian (always, when the model has no ``step_jacobian``).
+    fd_h : float
+        Relative finite-difference step.
+    fd_atol : float, optional
+        A fixed tolerance on the finite-difference Jacobian instead of the derived one.
 
     Returns
     -------
     dict
-        ``analytic`` and ``finite_differences``: max defects.
+        ``analytic`` (max defect of ``step_jacobian``, if any), ``finite_differences`` (max defect of the
+        finite-difference Jacobian), ``fd_error`` (largest error estimate), ``method`` (``"analytic"``,
+        ``"analytic+finite_differences"`` or ``"finite_differences"``).
 
     ``ExtrapolationWarning`` is silenced here: the perturbed states may leave
     the training box by ``fd_h``.
@@ -96,31 +134,37 @@ def assert_symplectic_step(model, x, mu=None, dt=None, atol: float = 1e-8, fd: b
 def _symplectic_step(model, x, mu, dt, atol, fd, fd_h, fd_atol) -> dict:
     out = {}
     jac = None
-    if hasattr(model, "step_jacobian"):
+    if callable(getattr(model, "step_jacobian", None)):
         jac = np.asarray(model.step_jacobian(x, mu=mu, dt=dt)).reshape(len(x), x.shape[1], x.shape[1])
         d = _defect(jac)
         i = int(np.argmax(d))
-        out["analytic"] = float(d[i])
+        out["analytic"], out["method"] = float(d[i]), "analytic"
         if not d[i] <= atol:
             raise AssertionError(f"the step is not symplectic: max |DPhi^T J DPhi - J| = {d[i]:.3e} > atol = {atol:.1e} "
-                                 f"(analytic Jacobian) at state #{i} {x[i].tolist()}")
-    if fd:
-        fdj = finite_difference_jacobian(lambda z: np.asarray(model.step(z, mu=mu, dt=dt)), x, fd_h)
-        # the defect is quadratic in DPhi: its FD error scales with max(1, |DPhi|^2)
-        scale = np.maximum(1.0, np.abs(fdj).max(axis=(1, 2)) ** 2)
+                                 f"(analytic Jacobian, model.step_jacobian) at state #{i} {x[i].tolist()}")
+    if not fd and jac is not None:
+        return out
+    fdj, err, steps = _scaled_finite_differences(lambda z: np.asarray(model.step(z, mu=mu, dt=dt)), x, fd_h)
+    size = np.maximum(1.0, np.abs(fdj).max(axis=(1, 2)))
+    tol = fd_atol * size if fd_atol is not None else 4 * err + 100 * np.finfo(float).eps * size
+    how = ("finite-difference Jacobian: central differences, step {h:.2e} (= fd_h * max|x|), estimated error "
+           "{e:.2e}, tolerance {t:.2e}" + (" (fd_atol)" if fd_atol is not None else " (from the error estimate)"))
+    out["fd_error"] = float(err.max())
+    if jac is None:
         d = _defect(fdj)
-        i = int(np.argmax(d / scale))
-        out["finite_differences"] = float(d[i])
-        if not d[i] <= fd_atol * scale[i]:
-            raise AssertionError(f"the step is not symplectic: max |DPhi^T J DPhi - J| = {d[i]:.3e} > fd_atol * "
-                                 f"max(1, |DPhi|^2) = {fd_atol * scale[i]:.1e} (finite-difference Jacobian, h = {fd_h:g}) "
-                                 f"at state #{i} {x[i].tolist()}")
-        if jac is not None:
-            gap = np.abs(fdj - jac).max(axis=(1, 2))
-            i = int(np.argmax(gap))
-            if not gap[i] <= fd_atol * max(1.0, np.abs(jac[i]).max()):
-                raise AssertionError(f"step_jacobian disagrees with finite differences of step by {gap[i]:.3e} "
-                                     f"(> {fd_atol:.1e}) at state #{i} {x[i].tolist()}")
+        bound = x.shape[1] * (2 * size * tol + tol ** 2) + atol
+        i = int(np.argmax(d / bound))
+        out["finite_differences"], out["method"] = float(d[i]), "finite_differences"
+        if not d[i] <= bound[i]:
+            raise AssertionError(f"the step is not symplectic: max |DPhi^T J DPhi - J| = {d[i]:.3e} > {bound[i]:.2e} ("
+                                 + how.format(h=steps[i], e=err[i], t=tol[i]) + f") at state #{i} {x[i].tolist()}")
+        return out
+    out["finite_differences"], out["method"] = float(_defect(fdj).max()), "analytic+finite_differences"
+    gap = np.abs(fdj - jac).max(axis=(1, 2))
+    i = int(np.argmax(gap / tol))
+    if not gap[i] <= tol[i]:
+        raise AssertionError(f"step_jacobian disagrees with the finite-difference Jacobian of step by {gap[i]:.3e} ("
+                             + how.format(h=steps[i], e=err[i], t=tol[i]) + f") at state #{i} {x[i].tolist()}")
     return out
 
 
@@ -217,3 +261,70 @@ def assert_symplectic_basis(V, atol: float = 1e-10) -> float:
     if not defect <= atol:
         raise AssertionError(f"the basis is not symplectic: max |V^T J V - J| = {defect:.3e} > atol = {atol:.1e}")
     return defect
+
+
+def fe_wave_matrices(n_elements: int = 64, length: float = 1.0):
+    """P1 finite-element mass and stiffness matrices of ``u_tt = c^2 u_xx`` on ``(0, length)``, ``u = 0`` at both ends.
+
+    Linear elements on a uniform mesh of ``n_elements`` cells; the ``N = n_elements - 1`` interior nodes
+    are the unknowns.  Consistent mass ``M = h/6 tridiag(1, 4, 1)``, stiffness ``K = 1/h tridiag(-1, 2, -1)``.
+
+    Returns
+    -------
+    M, K : scipy.sparse.csr_matrix of shape (N, N)
+        Symmetric positive definite.
+    nodes : ndarray of shape (N,)
+        Coordinates of the interior nodes.
+    """
+    import scipy.sparse
+
+    n_elements = int(n_elements)
+    if n_elements < 2:
+        raise ValueError(f"n_elements must be >= 2 (one interior node), got {n_elements}")
+    h = float(length) / n_elements
+    N = n_elements - 1
+    ones = np.ones(N - 1)
+    M = scipy.sparse.diags([ones, np.full(N, 4.0), ones], [-1, 0, 1]).tocsr() * (h / 6)
+    K = scipy.sparse.diags([-ones, np.full(N, 2.0), -ones], [-1, 0, 1]).tocsr() / h
+    return M, K, np.linspace(h, length - h, N)
+
+
+def fe_wave_model(n_elements: int = 64, T: float = 2.0, nt: int = 400, lumped: bool = False, c_range=(0.8, 1.2)):
+    """A parametric finite-element wave model with a mass matrix, as a pyMOR model in canonical coordinates.
+
+    ``M q'' = -c^2 K q`` (:func:`fe_wave_matrices`), ``p = M q'``, ``c`` (the wave speed, parameter ``"c"``)
+    in ``c_range``; initial data a smooth bump ``q(0)`` (centre 0.4, half-width 0.35), ``q'(0) = 0``.  The model is a pyMOR
+    ``QuadraticHamiltonianModel`` in the coordinates ``q~ = L^T q``, ``p~ = L^-1 p``
+    (:class:`~sympredict.mor.mass.MassMatrixCoordinates`), ``H = blockdiag(c^2 L^-1 K L^-T, I)``,
+    stepped by pyMOR's implicit midpoint rule with ``nt`` steps over ``T``.
+
+    Returns
+    -------
+    fom : pymor.models.symplectic.QuadraticHamiltonianModel
+        Solution space: two blocks ``(q~, p~)`` of dimension ``N = n_elements - 1``.
+    coords : MassMatrixCoordinates
+        ``coords.from_canonical(q~, p~)`` gives the physical ``(q, p)``.
+    parameter_space : pyMOR ParameterSpace
+        ``c`` in ``c_range``.
+    """
+    from pymor.models.symplectic import QuadraticHamiltonianModel
+    from pymor.operators.block import BlockDiagonalOperator
+    from pymor.operators.constructions import IdentityOperator, LincombOperator
+    from pymor.operators.numpy import NumpyMatrixOperator
+    from pymor.parameters.functionals import ExpressionParameterFunctional
+    from pymor.vectorarrays.numpy import NumpyVectorSpace
+
+    from sympredict.mor.mass import MassMatrixCoordinates
+
+    M, K, nodes = fe_wave_matrices(n_elements)
+    coords = MassMatrixCoordinates(M, lumped=lumped)
+    space = NumpyVectorSpace(coords.N)
+    stiff = LincombOperator([NumpyMatrixOperator(coords.canonical_stiffness(K))],
+                            [ExpressionParameterFunctional("c[0]**2", {"c": 1})])
+    H_op = BlockDiagonalOperator([stiff, IdentityOperator(space)])
+    s = np.clip(np.abs(nodes - 0.4) / 0.35, 0.0, 1.0)
+    q0 = (1 - s) ** 3 * (1 + 3 * s)  # a C^2 bump of half-width 0.35
+    qt, pt = coords.to_canonical(q0, np.zeros_like(q0))
+    initial = H_op.source.make_array([space.make_array(qt), space.make_array(pt)])
+    fom = QuadraticHamiltonianModel(T, initial, H_op, nt=nt, name="fe_wave")
+    return fom, coords, fom.parameters.space(*c_range)

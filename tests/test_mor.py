@@ -172,8 +172,12 @@ def test_reductor_checks_the_existence_of_its_predictors_update(wave):
     red.training_data()
     limit = red.existence_["dt_max"]
     big = 1.5 * limit  # past the type-II limit, below the midpoint form's (twice as long)
-    with pytest.raises(ValueError, match="dp1/dp0"):
-        SymplecticKernelReductor(fom, RB, train, big, n_samples=30, n_validation=1).training_data()
+    with pytest.raises(ValueError, match="dp1/dp0"):  # a type-II predictor is refused
+        SymplecticKernelReductor(fom, RB, train, big, SymplecticKernelPredictor(), n_samples=30,
+                                 n_validation=1).training_data()
+    auto = SymplecticKernelReductor(fom, RB, train, big, n_samples=30, n_validation=1)
+    auto.training_data()  # the default predictor takes the midpoint form, which exists here
+    assert auto.choice_["update"] == "midpoint" and "dp1/dp0" in auto.choice_["reason"]
     mid = SymplecticKernelReductor(fom, RB, train, big, SymplecticKernelPredictor(update="midpoint"),
                                    n_samples=30, n_validation=1)
     mid_train, _ = mid.training_data()

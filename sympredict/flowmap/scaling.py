@@ -32,7 +32,7 @@ from sympredict.exceptions import ExtrapolationWarning
 import numpy as np
 from scipy.linalg import schur
 
-from sympredict._checks import as_positive_int
+from sympredict._checks import as_parameter, as_positive_int
 from sympredict.systems.linear_flow import QuadraticPart
 from sympredict.symplectic.metrics import canonical_J
 
@@ -161,19 +161,31 @@ class NormalizedFlowMap:
         ``None`` for a parameter-free predictor.
     tau : float
         Time unit: the predictor sees ``dT / tau``.
+    parameters : mapping of str to int, optional
+        Names and dimensions of the parameters (e.g. pyMOR ``Parameters``): a pyMOR ``Mu`` or a dict
+        passed as ``mu`` is read in this order (values sorted by name, each flattened).  Without it a
+        ``Mu`` is read by ``Mu.to_numpy()`` and a dict must have one key.
     """
 
-    def __init__(self, predictor, state_scaling: SymplecticScaling, mu_scaling: Optional[BoxScaling], tau: float):
+    def __init__(self, predictor, state_scaling: SymplecticScaling, mu_scaling: Optional[BoxScaling], tau: float,
+                 parameters=None):
         self.predictor = predictor
         self.state_scaling = state_scaling
         self.mu_scaling = mu_scaling
         self.tau = float(tau)
+        self.parameters = None if parameters is None else {str(k): int(v) for k, v in dict(parameters).items()}
+
+    def _mu(self, mu, b):
+        """``mu`` as given, or a pyMOR ``Mu``/dict (or a list of them) as an array ``(B, d)``."""
+        if mu is None or self.mu_scaling is None:
+            return mu
+        return as_parameter(mu, b, len(self.mu_scaling.lo_), parameters=getattr(self, "parameters", None))
 
     def _args(self, mu, dt, b):
         m = None
         if self.mu_scaling is not None:
             d = len(self.mu_scaling.lo_)
-            mu = np.asarray(mu, dtype=float)
+            mu = np.asarray(self._mu(mu, b), dtype=float)
             if mu.ndim == 2:
                 mu = np.broadcast_to(mu, (b, d))
             elif d == 1 and mu.size == b:
@@ -225,6 +237,7 @@ class NormalizedFlowMap:
     def step(self, x, mu=None, dt=None) -> np.ndarray:
         """One step of states (B, 2n); ``mu`` (d,) or (B, d) in original units."""
         x = np.atleast_2d(np.asarray(x, dtype=float))
+        mu = self._mu(mu, len(x))
         m, d = self._args(mu, dt, len(x))
         return self.state_scaling.inverse_transform(self._in_user_units(
             lambda: self.predictor.step(self.state_scaling.transform(x), mu=m, dt=d), mu, dt))
@@ -232,6 +245,7 @@ class NormalizedFlowMap:
     def step_jacobian(self, x, mu=None, dt=None) -> np.ndarray:
         """``D Phi = T^-1 D Phi~ T``, shape (B, 2n, 2n)."""
         x = np.atleast_2d(np.asarray(x, dtype=float))
+        mu = self._mu(mu, len(x))
         m, d = self._args(mu, dt, len(x))
         jac = self.predictor.step_jacobian(self.state_scaling.transform(x), mu=m, dt=d)
         return self.state_scaling.inverse_ @ jac @ self.state_scaling.matrix_
@@ -240,6 +254,7 @@ class NormalizedFlowMap:
         """Trajectories (B, K+1, 2n) of ``n_steps`` steps."""
         n_steps = as_positive_int(n_steps, "n_steps", minimum=0)
         x0 = np.atleast_2d(np.asarray(x0, dtype=float))
+        mu = self._mu(mu, len(x0))
         m, d = self._args(mu, dt, len(x0))
         return self.state_scaling.inverse_transform(self._in_user_units(
             lambda: self.predictor.rollout(self.state_scaling.transform(x0), n_steps, mu=m, dt=d), mu, dt))

@@ -65,10 +65,10 @@ from pymor.operators.symplectic import CanonicalSymplecticFormOperator
 from pymor.models.interface import Model
 from pymor.vectorarrays.numpy import NumpyVectorSpace
 
-from sympredict._checks import as_positive_int, as_real
+from sympredict._checks import as_parameter, as_positive_int, as_real
 from sympredict.base import clone
 from sympredict.data import FlowMapData, TrajectoryData
-from sympredict.exceptions import ExtrapolationWarning
+from sympredict.exceptions import ExtrapolationWarning, NewtonConvergenceError
 from sympredict.systems.linear_flow import QuadraticPart, inverse_symplectic_matrices
 from sympredict.systems.flowmaps import (
     _report_existence,
@@ -170,8 +170,26 @@ class SymplecticKernelModel(Model):
         ------
         ValueError
             If ``mu`` does not match the FOM's parameters.
+        NewtonConvergenceError
+            If an implicit step fails; it carries the states computed before the failure:
+            ``trajectory`` (a VectorArray in ``solution_space``: reduced coordinates, ``k + 1`` states;
+            ``reductor.reconstruct(exc.trajectory)`` gives full states), ``completed_steps`` (``k``) and
+            ``trajectory_kind`` (``"reduced"``).
         """
         return super().solve(parse_mu(mu, self.parameters), input, return_error_estimate)
+
+    def _attach_partial_trajectory(self, exc, x0, mu_arg, mu) -> None:
+        """Give a Newton failure the reduced trajectory up to the failed step (the rollout is deterministic, so
+        rerunning its first ``exc.step`` steps reproduces those states): ``exc.trajectory`` (a VectorArray in
+        ``solution_space``, reduced coordinates), ``exc.completed_steps``, ``exc.trajectory_kind = "reduced"``."""
+        k = exc.step if exc.step is not None else 0
+        partial = x0 if k == 0 else self.flow_map.rollout(x0, int(k), mu=mu_arg, dt=self.dt)[0]
+        exc.trajectory = self.solution_space.from_numpy(np.atleast_2d(partial).T)
+        exc.completed_steps = int(k)
+        exc.trajectory_kind = "reduced"
+        self.logger.error(f"Newton failed at macro step {k + 1} of {self.n_steps} (mu = {mu}): the exception carries "
+                          f"the reduced trajectory of the {k} completed steps (exc.trajectory; "
+                          f"reductor.reconstruct(exc.trajectory) for full states)")
 
     def _compute(self, quantities, data, mu):
         if "solution" in quantities:
@@ -179,9 +197,14 @@ class SymplecticKernelModel(Model):
             vec = mu_to_vector(mu, self.parameters)
             if self.flow_parameters is not None:
                 vec = _subvector(vec, self.parameters, self.flow_parameters)
+            mu_arg = vec if vec.size else None
             with warnings.catch_warnings(record=True) as caught:
                 warnings.simplefilter("always", ExtrapolationWarning)
-                traj = self.flow_map.rollout(x0, self.n_steps, mu=vec if vec.size else None, dt=self.dt)[0]
+                try:
+                    traj = self.flow_map.rollout(x0, self.n_steps, mu=mu_arg, dt=self.dt)[0]
+                except NewtonConvergenceError as exc:
+                    self._attach_partial_trajectory(exc, x0, mu_arg, mu)
+                    raise
             for w in caught:  # logged, not raised: a ROM run past T or near the data's edge extrapolates by design
                 if issubclass(w.category, ExtrapolationWarning):
                     self.logger.warning(str(w.message))
@@ -503,7 +526,13 @@ class SymplecticKernelReductor(BasicObject):
         self.dim = 2 * len(RB)
         if mode == "projected" and getattr(fom, "num_values", None) is None and getattr(
                 getattr(fom, "time_stepper", None), "nt", None):  # an InstationaryModel's output grid, known up front
-            self._check_stride(fom.T / fom.time_stepper.nt)
+            self._check_stride(fom.T / fom.time_stepper.nt, fom.time_stepper.nt)
+        if mode == "projected" and not self.dt <= self.horizon * (1 + 1e-12):
+            raise ValueError(f"dt = {self.dt!r} is longer than the sampled time span (horizon = {self.horizon!r}, "
+                             f"fom.T = {fom.T!r}): no flow-map pair fits; use a smaller dt or a longer horizon")
+        if mode == "projected" and self.horizon > fom.T * (1 + 1e-12):
+            raise ValueError(f"horizon = {self.horizon!r} is past the FOM's final time T = {fom.T!r}: its trajectories "
+                             f"end at T (data='projected'); use horizon <= T or fom.with_(T=...)")
         if self.training_parameters is not None or parameter_space is not None:
             # the FOM's parameter box (validation draws), and the flow parameters' part of it (their scaling)
             self.mu_lo, self.mu_hi = parameter_box(self.training_parameters, fom.parameters, parameter_space)
@@ -583,16 +612,48 @@ class SymplecticKernelReductor(BasicObject):
         # dt exactly: the predictor is a fixed-step model and the ROM queries self.dt
         return trajectory_pairs(np.stack([t[:k] for t in trajs]), rows, self.dt / stride, stride)
 
-    def _check_stride(self, h: float) -> int:
-        stride = int(round(self.dt / h))
+    def _check_stride(self, h: float, n_out: Optional[int] = None) -> int:
+        """The number of FOM output steps ``h = T / n_out`` in one macro step ``dt``; ``ValueError`` with the exact
+        numbers (``T``, ``n_out``, ``h``, ``dt / h`` and the nearest admissible steps) when ``dt`` is not a multiple."""
+        ratio = self.dt / h
+        stride = int(round(ratio))
         if stride < 1 or not np.isclose(stride * h, self.dt, rtol=1e-9, atol=0):
-            raise ValueError(f"data='projected' needs dt to be a multiple of the FOM's output step {h!r} "
-                             f"(T / nt), got dt = {self.dt!r}: use dt = k * {h!r}")
+            n_out = int(round(self.fom.T / h)) if n_out is None else int(n_out)
+            lower, upper = max(1, int(np.floor(ratio))), max(1, int(np.ceil(ratio)))
+            near = sorted({lower * h, upper * h})
+            raise ValueError(f"data='projected' needs dt to be a multiple of the FOM's output step h = T / nt = "
+                             f"{self.fom.T!r} / {n_out} = {h!r}; dt = {self.dt!r} is {ratio:.6g} output steps: use "
+                             f"dt = k * h, e.g. " + " or ".join(f"{v!r}" for v in near))
         return stride
 
     def _update(self) -> str:
-        """The generating-function update of the predictor (the existence check depends on it)."""
-        return getattr(self.predictor, "update", "symplectic_euler") if self.predictor is not None else "symplectic_euler"
+        """The generating-function update of the predictor (the existence check depends on it): the given
+        predictor's, else the one chosen for the default predictor (``choice_["update"]``)."""
+        if self.predictor is not None:
+            return getattr(self.predictor, "update", "symplectic_euler")
+        return getattr(self, "choice_", {}).get("update", "symplectic_euler")
+
+    def _checked_existence(self, check):
+        """``check()`` (an existence check for :meth:`_update`); for the default predictor, when the type II
+        generating function does not exist at ``dt`` (a mode turns past a quarter turn per step), the midpoint
+        form (up to half a turn) is chosen instead, logged and kept in ``choice_``."""
+        self.choice_ = {"update": "symplectic_euler", "reason": "type II generating function exists at dt"} \
+            if self.predictor is None else {"update": self._update(), "reason": "the given predictor's update"}
+        try:
+            return check()
+        except ValueError as exc:
+            if self.predictor is not None or self.split is not None:
+                raise
+            first = str(exc)
+        self.choice_ = {"update": "midpoint", "reason": f"type II does not exist at dt = {self.dt!r}: {first}"}
+        try:
+            out = check()
+        except ValueError as exc:
+            raise ValueError(f"neither generating function exists at dt = {self.dt!r}: midpoint: {exc}; type II: "
+                             f"{first}") from None
+        self.logger.info(f"update='midpoint' chosen: the type II generating function does not exist at dt = "
+                         f"{self.dt!r} ({first}); the midpoint form does")
+        return out
 
     def _check_existence_from_data(self, data):
         """Existence check (type II, or the midpoint form for the predictor's update) from the data alone:
@@ -665,13 +726,15 @@ class SymplecticKernelReductor(BasicObject):
                 train, system = self._reduced_data(self.training_parameters, self.n_samples, self.seed)
                 val, _ = self._reduced_data(val_mus, max(50, self.n_samples // 4), self.seed + 1)
                 if self.check_existence and self.split is None:
-                    self.existence_ = check_generating_function(system, train, update=self._update())
+                    self.existence_ = self._checked_existence(
+                        lambda: check_generating_function(system, train, update=self._update()))
             else:
                 train = self._projected_data(self.training_parameters)
                 val = self._projected_data(val_mus)
             train, val = self._to_flow(train), self._to_flow(val)
         if self.check_existence and not (self.mode == "reduced" and self.split is None):
-            self.existence_ = self._check_existence_from_data(self.split_pairs(train))
+            self.existence_ = self._checked_existence(
+                lambda: self._check_existence_from_data(self.split_pairs(train)))
         return train, val
 
     # ------------------------------------------------------------ reduce
@@ -703,7 +766,8 @@ class SymplecticKernelReductor(BasicObject):
         return clone(base).set_params(state_kernel=state, mu_kernel=sel.mu)
 
     def _default_predictor(self, train, val, vary_mu):
-        base = SymplecticKernelPredictor(None, None, None, max_centers=self.max_centers, trainer=ExactGreedy(tol=1e-12))
+        base = SymplecticKernelPredictor(None, None, None, max_centers=self.max_centers, trainer=ExactGreedy(tol=1e-12),
+                                         update=self._update())
         return self._search_kernels(base, train, val, vary_mu)
 
     def scaled_training_data(self):
@@ -767,10 +831,11 @@ class SymplecticKernelReductor(BasicObject):
             model = SplitKernelPredictor(predictor, scaled_quadratic_part(quad, state_scaling, mu_scaling, self.tau_))
         model.fit(s_train.x0, s_train.x1, mu=s_train.mu if vary_mu else None, dt=s_train.dt,
                   validation=None if s_val is None else (s_val.x0, s_val.x1, s_val.mu if vary_mu else None, s_val.dt))
-        flow_map = NormalizedFlowMap(model, state_scaling, mu_scaling if vary_mu else None, self.tau_)
+        flow_map = NormalizedFlowMap(model, state_scaling, mu_scaling if vary_mu else None, self.tau_,
+                                     parameters=self.flow_parameters)
         if not vary_mu and self.flow_parameters:
             # one training parameter: the predictor has no mu input, the ROM accepts only that mu
-            flow_map = _FixedMuFlowMap(flow_map, self.train_data_.mu[0])
+            flow_map = _FixedMuFlowMap(flow_map, self.train_data_.mu[0], parameters=self.flow_parameters)
         return model, flow_map
 
     def validation_score(self, flow_map, validation=None) -> float:
@@ -848,10 +913,33 @@ class SymplecticKernelReductor(BasicObject):
         self.timings_ = timings
         self.predictor_ = model
         self.flow_map_ = flow_map
+        if not hasattr(self, "choice_"):
+            self.choice_ = {"update": self._update(), "reason": "no existence check (check_existence=False)"}
+        self._check_one_step(flow_map)
         name = None if self.fom.name is None else "kernel_" + self.fom.name
         return SymplecticKernelModel(flow_map, self._reduced_initial_data(), self.fom.T if T is None else T, self.dt,
                                      self.fom.parameters, name=name,
                                      flow_parameters=self.flow_parameters if self._flow_subset else None)
+
+    def _check_one_step(self, flow_map) -> None:
+        """One step of the fitted flow map from the training data's first states, per training parameter;
+        ``ValueError`` with the reason and the settings to change when it fails or is not finite (a ROM that
+        cannot take one step is never returned)."""
+        train = self.train_data_
+        rows, first = np.unique(train.mu, axis=0, return_index=True)
+        x = train.x0[first]
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", ExtrapolationWarning)
+                y = flow_map.step(x, mu=train.mu[first] if train.mu.shape[1] else None, dt=self.dt)
+            reason = None if np.all(np.isfinite(y)) else "the step is not finite"
+        except NewtonConvergenceError as exc:
+            reason = f"Newton's method failed: {exc}"
+        if reason is not None:
+            raise ValueError(f"the fitted ROM cannot take one step of dt = {self.dt!r} from the training data "
+                             f"({reason}; update = {self._update()!r}): use update='midpoint' (a predictor "
+                             f"SymplecticKernelPredictor(update='midpoint')), a smaller dt, or a larger basis or "
+                             f"budget (max_centers)")
 
     def _scaled_split_pairs(self, d, state_scaling, mu_scaling, vary_mu):
         """``S``'s samples in the predictor's coordinates (what the kernel search compares candidates on)."""
@@ -886,11 +974,14 @@ class SymplecticKernelReductor(BasicObject):
 class _FixedMuFlowMap:
     """A flow map trained at one parameter value: refuses others (no parameter input to learn from)."""
 
-    def __init__(self, flow_map: NormalizedFlowMap, mu: np.ndarray):
+    def __init__(self, flow_map: NormalizedFlowMap, mu: np.ndarray, parameters=None):
         self.flow_map, self.mu = flow_map, np.asarray(mu, float)
+        self.parameters = parameters
         self.dim_, self.n_mu_ = flow_map.dim_, self.mu.size  # the flow-map protocol (its one mu is accepted)
 
     def _check(self, mu):
+        if mu is not None:
+            mu = as_parameter(mu, 1, self.mu.size, parameters=getattr(self, "parameters", None))
         if mu is not None and not np.allclose(np.ravel(mu), self.mu):
             raise ValueError(f"this ROM was trained at the single parameter {self.mu.tolist()}: it cannot predict at {np.ravel(mu).tolist()}")
 

@@ -439,10 +439,7 @@ def run_greedy(
             if train_max / divergence_factor > best_train:
                 stop_reason = "diverged"
                 m_best = int(np.argmin(train_hist))
-                logger.warning(
-                    f"{store.label} residual blew up at {m} centres ({train_max:.2e} vs best {best_train:.2e}): "
-                    f"round-off in the Newton basis; truncating to {m_best} centres (raise power_tol to avoid)"
-                )
+                logger.warning(_divergence_message(store.label, m, m_best, train_max, best_train))
                 m = m_best
                 del train_hist[m + 1 :]
                 if val_hist is not None:
@@ -477,3 +474,14 @@ def run_greedy(
         selected=expansion.selected[:m].copy(), coef=coef, newton_coef=newton, history=history,
         chol=expansion.chol[:m, :m].copy(), stats=dict(store.stats),
     )
+
+
+def _divergence_message(label: str, m: int, m_best: int, train_max: float, best_train: float) -> str:
+    """What the greedy logs when its training residual blows up at ``m`` centres and it keeps the best ``m_best``."""
+    if m_best == 0:
+        return (f"{label} residual grew from {best_train:.2e} (no centres) to {train_max:.2e} with {m} centre(s): no "
+                f"centre reduced it, so the fit keeps no centres (the zero correction); the data are inconsistent "
+                f"(equal states with different targets: remove duplicate samples) or the kernel shapes do not "
+                f"fit the data's scale (choose other shapes)")
+    return (f"{label} residual blew up at {m} centres ({train_max:.2e} vs best {best_train:.2e} at {m_best} centres): "
+            f"round-off in the Newton basis; keeping the first {m_best} centres (a larger power_tol stops before it)")
