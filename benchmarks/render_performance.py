@@ -1,4 +1,4 @@
-"""Render docs/performance.md from suite runs (the first is the full run; the others repeat sections).
+"""Render docs/explanation/performance.md from suite runs (the first is the full run; the others repeat sections).
 
     python benchmarks/render_performance.py benchmarks/results/suite.json [more suite.json ...]
 
@@ -117,7 +117,7 @@ def main(paths):
     text = (ROOT / "benchmarks" / "performance_doc_template.md").read_text()
     text = (text.replace("@@TABLE@@", table + "\n\n" + repeated).replace("@@TARGETS@@", targets)
             .replace("@@SCALING@@", scaling).replace("@@NOISE@@", noise))
-    (ROOT / "docs" / "performance.md").write_text(text)
+    (ROOT / "docs" / "explanation" / "performance.md").write_text(text)
     print(text)
 
 
