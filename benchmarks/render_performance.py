@@ -111,7 +111,7 @@ def main(paths):
                      "(tends to 1 as the matrix-vector product dominates the `O(N)` per-step work)")
     scaling = "\n".join(lines)
 
-    noise = (f"the final runs started at {full['started']} ({len(runs)} run(s) of the repeated sections), "
+    noise = (f"{len(runs)} run(s) of the repeated sections, "
              f"with {env['blas_threads_requested']} BLAS threads and {get(env, 'numba', 'threads')} numba threads "
              f"({get(env, 'numba', 'threading_layer')} layer).")
     text = (ROOT / "benchmarks" / "performance_doc_template.md").read_text()
