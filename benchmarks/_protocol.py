@@ -1,6 +1,6 @@
 """The benchmarks' one timing protocol: threads, warm-up, repeats, statistics, side-by-side ratios, machine, JSON.
 
-Every script in ``benchmarks/`` measures the same way (``docs/performance.md``):
+Every script in ``benchmarks/`` measures the same way (``docs/explanation/performance.md``):
 
 * **threads** set deliberately, for the whole measurement: BLAS and OpenMP
   through ``threadpoolctl`` (``--blas-threads``, default :data:`DEFAULT_BLAS_THREADS`

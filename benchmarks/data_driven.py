@@ -1,4 +1,4 @@
-"""Data-driven comparison (issue 13, docs/data_driven.md): the same flow-map samples given to every model.
+"""Data-driven comparison (issue 13, docs/explanation/data_driven.md): the same flow-map samples given to every model.
 
 Cases: pendulum at a fixed step (dT = 0.05, l in [0.7, 0.8]), pendulum over (l, dT) (scenario A's data),
 Hénon–Heiles (lambda in [0.8, 1.0], dT = 0.5).  Models: the symplectic kernel predictor, the direct kernel

@@ -1,4 +1,4 @@
-"""Two checks behind ``symmetry=`` on the pendulum (docs/beyond.md, "State symmetries").
+"""Two checks behind ``symmetry=`` on the pendulum (docs/explanation/beyond.md, "State symmetries").
 
 1. ``--part invariance``: on the exact flow (SciPy DOP853, rtol 1e-13), whether the gradient data of the
    midpoint ``s((x0 + x1)/2)`` and of the type-II ``s(q0, p1)`` transform with the sign flips ``g``

@@ -1,7 +1,7 @@
 """Choose the pendulum's IMQ shapes by *trajectory* validation (seeds disjoint from the test seed).
 
 The gradient residual on validation samples does not rank the trajectory errors
-(docs/results.md), so this script validates what the method is used for: for
+(docs/explanation/results.md), so this script validates what the method is used for: for
 each candidate (state, mu, dT) shape triple it trains on the quick data and
 rolls out the paper's protocol (5 q0 x 5 lengths, the three test steps, T = 20)
 for validation seeds 100..100+n-1, never the test seed 0. The score is the

@@ -1,4 +1,4 @@
-"""Render docs/performance.md from suite runs (the first is the full run; the others repeat sections).
+"""Render docs/explanation/performance.md from suite runs (the first is the full run; the others repeat sections).
 
     python benchmarks/render_performance.py benchmarks/results/suite.json [more suite.json ...]
 
@@ -111,13 +111,13 @@ def main(paths):
                      "(tends to 1 as the matrix-vector product dominates the `O(N)` per-step work)")
     scaling = "\n".join(lines)
 
-    noise = (f"the final runs started at {full['started']} ({len(runs)} run(s) of the repeated sections), "
+    noise = (f"{len(runs)} run(s) of the repeated sections, "
              f"with {env['blas_threads_requested']} BLAS threads and {get(env, 'numba', 'threads')} numba threads "
              f"({get(env, 'numba', 'threading_layer')} layer).")
     text = (ROOT / "benchmarks" / "performance_doc_template.md").read_text()
     text = (text.replace("@@TABLE@@", table + "\n\n" + repeated).replace("@@TARGETS@@", targets)
             .replace("@@SCALING@@", scaling).replace("@@NOISE@@", noise))
-    (ROOT / "docs" / "performance.md").write_text(text)
+    (ROOT / "docs" / "explanation" / "performance.md").write_text(text)
     print(text)
 
 

@@ -19,7 +19,7 @@ the test parameters (the preset's, seed 0) are used for the printed errors only.
 are printed, the chosen one is marked.  ``--rule validation`` adds a second training-only rule
 (:func:`held_out_ratio`: the smallest candidate whose ratio best classical / kernel against the FOM on the held-out
 training trajectories reaches the margin, the kernel fitted on the others).  It was added after the first rule's
-test numbers at ``2n = 12`` had been seen (docs/sine_gordon.md says so); it is printed, not used by the experiment.
+test numbers at ``2n = 12`` had been seen (docs/explanation/sine_gordon.md says so); it is printed, not used by the experiment.
 
 Data, basis, Galerkin ROM, ridge selection (held-out training trajectories) and the scaled fit are the
 experiment's own (``fom_data``, ``choose_large_step``, ``_fit_kernel``, ``_err``).

@@ -2,7 +2,7 @@
 
 The Galerkin ROM ``y' = J g(y)`` of the complex-SVD basis has fast modes (``DT omega_max`` 5 – 100 at
 ``2n = 12, 16``, ``DT = 0.1``): its exact step turns them past a quarter turn, and the kernel learned from its
-trajectories misses the 2x target there (docs/sine_gordon.md).  Here the step is split as
+trajectories misses the 2x target there (docs/explanation/sine_gordon.md).  Here the step is split as
 
     Phi = L_h o S o L_h,    L_h(c) = expm(h J A_r(c)),    h = DT / 2,
 

@@ -4,7 +4,7 @@ Run, after ``sympredict run all --quick --out DIR``::
 
     python docs/collect_figures.py DIR
 
-The figures to copy are those that ``docs/figures.md`` shows (every
+The figures to copy are those that ``docs/explanation/figures.md`` shows (every
 ``figures/NAME.png`` in it), so that page is the one list.  Each PNG is stored
 with a 256-colour palette (line plots look the same at a third of the size;
 ``--no-shrink`` copies the files unchanged).  ``docs/figures/source.txt``
@@ -27,7 +27,7 @@ import sys
 from pathlib import Path
 
 DOCS = Path(__file__).resolve().parent
-PAGE = DOCS / "figures.md"
+PAGE = DOCS / "explanation" / "figures.md"
 TARGET = DOCS / "figures"
 
 
@@ -85,7 +85,7 @@ def main(argv: list[str] | None = None) -> int:
     names = shown_figures()
     missing = [n for n in names if not (results / n).is_file()]
     if missing:
-        print(f"error: {results} lacks {len(missing)} figure(s) that docs/figures.md shows: {', '.join(missing)}", file=sys.stderr)
+        print(f"error: {results} lacks {len(missing)} figure(s) that docs/explanation/figures.md shows: {', '.join(missing)}", file=sys.stderr)
         print("run `sympredict run all --quick --out DIR` with the current code, then try again", file=sys.stderr)
         return 1
 
@@ -107,7 +107,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"note: docs/figures/ also holds PNGs the page no longer shows (remove them?): {', '.join(stale)}")
     extra = sorted(p.name for p in results.glob("*.png") if p.name not in names)
     if extra:
-        print(f"note: {results} has PNGs that docs/figures.md does not show (add them to the page to publish them): {', '.join(extra)}")
+        print(f"note: {results} has PNGs that docs/explanation/figures.md does not show (add them to the page to publish them): {', '.join(extra)}")
     return 0
 
 

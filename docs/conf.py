@@ -6,8 +6,8 @@ Build (warnings are errors, as in CI)::
     python -m sphinx -W --keep-going -b html docs docs/_build/html
 
 The pages are the Markdown files in this folder (parsed by MyST) plus the API
-reference (``api.rst``, autodoc + napoleon over the NumPy-style docstrings).
-The figures page (``figures.md``) shows the PNGs in ``docs/figures/``, copied
+reference (``reference/api.rst``, autodoc + napoleon over the NumPy-style docstrings).
+The figures page (``explanation/figures.md``) shows the PNGs in ``docs/figures/``, copied
 there from a ``sympredict run all --quick`` output folder by
 ``python docs/collect_figures.py DIR``; they are committed, and a build
 without them fails under -W (image file not readable).
@@ -42,7 +42,7 @@ extensions = [
 
 source_suffix = {".rst": "restructuredtext", ".md": "markdown"}
 root_doc = "index"
-# failure_modes.py generates reliability.md; collect_figures.py fills figures/.
+# failure_modes.py generates reference/errors.md; collect_figures.py fills figures/.
 # Neither is a page.  _build is the output folder.
 exclude_patterns = ["_build", "failure_modes.py", "collect_figures.py", "Thumbs.db", ".DS_Store"]
 

@@ -1,4 +1,4 @@
-"""Print the failure-mode table of docs/reliability.md: every row is a real call and the answer it gets.
+"""Print the failure-mode table of docs/reference/errors.md: every row is a real call and the answer it gets.
 
 Run:  python docs/failure_modes.py
 """

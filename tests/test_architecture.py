@@ -4,7 +4,7 @@ The layers of the role folders are import-linter contracts in ``pyproject.toml``
 (``[tool.importlinter]``): :func:`test_import_contracts` runs them, so plain
 pytest fails on an upward import, on a library module importing the paper's
 code, or on a module that has no layer (the layers contract is exhaustive: a
-new module gets its place in the contracts, docs/architecture.md).
+new module gets its place in the contracts, docs/explanation/architecture.md).
 
 What import-linter does not check is checked here by walking the import
 statements of every module (function bodies included) with ``ast``: no

@@ -174,7 +174,7 @@ def test_inconsistent_model_files_are_refused(small_pendulum_data, tmp_path):
 
 
 def test_trainers_registry_and_a_new_strategy(small_pendulum_data):
-    """A new training strategy is a Trainer subclass with a store method (docs/architecture.md)."""
+    """A new training strategy is a Trainer subclass with a store method (docs/explanation/architecture.md)."""
     from sympredict.interpolation.greedy import DenseStore, Trainer
 
     assert set(TRAINERS) >= {"ExactGreedy", "ActiveSetGreedy", "ShardedGreedy"}

@@ -234,7 +234,7 @@ def test_damaged_bytes_give_model_file_error_or_the_original_content(tmp_path):
     """Bytes zeroed or flipped, truncations: ModelFileError or the exact original, nothing else, no hang.
 
     (A denser sweep, every byte of a schema-2 and a schema-1 file set to 0x00, 0xFF and a
-    random value, 25,000 loads, ran clean by hand; see docs/reliability.md.)
+    random value, 25,000 loads, ran clean by hand; see docs/reference/errors.md.)
     """
     path = good(tmp_path)
     original = path.read_bytes()
@@ -496,7 +496,7 @@ def test_unsavable_content_is_refused_before_touching_the_disk(tmp_path):
 @pytest.mark.slow
 @pytest.mark.parametrize("schema", [2, 1])
 def test_every_byte_damaged(tmp_path, schema):
-    """The full byte sweep of docs/reliability.md: every byte set to 0x00, 0xFF and a random value (minutes)."""
+    """The full byte sweep of docs/reference/errors.md: every byte set to 0x00, 0xFF and a random value (minutes)."""
     path = good(tmp_path) if schema == 2 else write_v1(tmp_path / "v1.h5")
     original = path.read_bytes()
     damaged = tmp_path / "damaged.h5"

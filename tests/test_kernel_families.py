@@ -18,7 +18,7 @@ needs_numba = pytest.mark.skipif(not _fastkernels.HAVE_NUMBA, reason="numba not 
 
 
 class Gaussian(RadialKernel):
-    """The docs' example of a new family (docs/architecture.md): ``phi(r) = exp(-(eps r)^2)``.
+    """The docs' example of a new family (docs/explanation/architecture.md): ``phi(r) = exp(-(eps r)^2)``.
 
     ``A = phi'/r = -2 e^2 E``, ``B = 2 dA/d(r^2) = 4 e^4 E``, ``C = 2 dB/d(r^2) = -8 e^6 E``, ``E = exp(-(e r)^2)``.
     """

@@ -22,7 +22,7 @@
 * the energy error ``dx H(V y)`` of every ROM over ``long_factor * T`` per test parameter, with the projected
   FOM trajectories' own as a reference, and :func:`energy_boundedness` (the definition of "bounded" that
   ``report.sine_gordon_claims`` checks); the Galerkin-data kernel is trained with :class:`EnergySamples`
-  (extra pairs from the energy sublevel set of the training states), see ``docs/sine_gordon.md``;
+  (extra pairs from the energy sublevel set of the training states), see ``docs/explanation/sine_gordon.md``;
 * the large-step regime at a ``DT_large`` chosen on the training trajectories (:func:`choose_large_step`);
 * optionally (``kernel_split``, :func:`split_setup`) the Galerkin-data kernel as a
   :class:`~sympredict.flowmap.splitting.SplitKernelPredictor` ``L_h o S o L_h`` with ``L_h`` the exact flow of the reduced
@@ -132,7 +132,7 @@ class SineGordonPreset:
 
 
 #: quick and paper split the reduced quadratic flow off the Galerkin-data kernel and let the training-only rule pick
-#: the large-step kernel (run K in docs/sine_gordon.md: the 2x and large-step claims hold with them, not without)
+#: the large-step kernel (run K in docs/explanation/sine_gordon.md: the 2x and large-step claims hold with them, not without)
 PRESETS = {
     "quick": SineGordonPreset(kernel_split="quadratic-mass", large_step_split="auto"),
     "paper": SineGordonPreset(n_c=5, n_amplitude=6, n_test=5, dims=(8, 12, 16), max_centers=3000, repeats=11,
@@ -146,7 +146,7 @@ PRESETS = {
 #: every phase of the time-periodic states); L = 30: the widest breather (c = 1.2, omega = 0.9, width
 #: c / sqrt(1 - omega^2) = 2.75) has decayed to 0.9 % of its peak at the Dirichlet boundary (L = 20: 5 %).
 #: Budget: the --quick sizes (4 x 4 trajectories, 1,000 centres): measured 8 min 41 s wall on the shared 2-core
-#: machine (run I in docs/sine_gordon.md); the first choice, 3 x 3 and 600 centres (run H, 3 min 56 s), left half
+#: machine (run I in docs/explanation/sine_gordon.md); the first choice, 3 x 3 and 600 centres (run H, 3 min 56 s), left half
 #: the budget unused.  Both runs' test errors were seen before the change; no choice here uses them.
 PRESETS["breather"] = SineGordonPreset(initial="breather", length=30.0, T=10.5)
 #: a seconds-sized breather case for the tests
@@ -421,7 +421,7 @@ def split_setup(p: SineGordonPreset, gal) -> dict:
     turns that mode by ``DT omega (DT omega / k)^2 / 12`` radians too little per ``DT``; ``k`` is the smallest
     count (at least ``p.substeps``) that keeps this below ``p.split_phase_tol``.  (Measured: with the data at
     ``p.substeps = 4`` and ``DT omega = 8.4``, the mismatch is 1.9 rad per step and the split kernel blows up;
-    ``docs/sine_gordon.md``.)  Returns ``{"kind", "quadratic" (QuadraticPart or None), "substeps",
+    ``docs/explanation/sine_gordon.md``.)  Returns ``{"kind", "quadratic" (QuadraticPart or None), "substeps",
     "DT_omega_max_linear", "preset"}`` (``preset``: ``p`` with the data's sub-steps, for the energy samples).
     """
     if p.kernel_split == "none":

@@ -4,7 +4,7 @@ A worker that *dies* (killed, ``os._exit``, segfault) is found by a watchdog
 thread on the driver (process liveness for ranks on the driver's host, MPI
 heartbeats for all ranks); it logs ``worker rank k ... died`` and aborts the
 MPI job (``MPI_Abort``) instead of waiting forever in a collective.  See
-``docs/parallel.md`` for what each case looks like.
+``docs/howto/mpi.md`` for what each case looks like.
 """
 
 from __future__ import annotations

@@ -178,7 +178,7 @@ class ActiveSetGreedy(Trainer):
     ``criterion`` nor ``regularization``.)  The run stops when the max residual over *all*
     functionals reaches ``tol`` (or at ``max_centers``); memory ``O(m N_active)``
     instead of ``O(m N)``.  Scenario A (688,464 functionals, ``tol=1e-5``)
-    trains in a fraction of the exact greedy's time (``docs/performance.md``).
+    trains in a fraction of the exact greedy's time (``docs/explanation/performance.md``).
     """
 
     def __init__(self, initial_points: int = 8192, refresh_every: int = 200, max_new_points: int = 4096,
