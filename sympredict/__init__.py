@@ -39,6 +39,8 @@ from sympredict.exceptions import (
     SympredictError,
 )  # noqa: E402
 from sympredict.estimators.predictor import DirectKernelPredictor, SymplecticKernelPredictor
+from sympredict.data import FlowMapData, TrajectoryData
+from sympredict.io import read_trajectories
 
 from sympredict._version import __version__
 
@@ -51,6 +53,9 @@ __all__ = [
     "ModelFileError",
     "NotFittedError",
     "ExtrapolationWarning",
+    "FlowMapData",
+    "TrajectoryData",
+    "read_trajectories",
     "__version__",
 ]
 
