@@ -248,7 +248,7 @@ class TrajectoryData:
                              f"t[{k}] = {float(times[bad[0], k])!r} >= t[{k + 1}] = {float(times[bad[0], k + 1])!r}"
                              + (f" ({len(bad)} trajectories are affected)" if len(bad) > 1 else ""))
         self.times = times
-        h = float(np.median(steps))
+        h = float((times[0, -1] - times[0, 0]) / (k1 - 1))  # the mean step: more accurate than any one difference
         tol = 64 * np.finfo(float).eps * float(np.abs(times).max())
         self.dt = h if np.abs(steps - h).max() <= tol else None
 

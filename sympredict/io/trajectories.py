@@ -19,7 +19,7 @@ import numpy as np
 from sympredict.data import FlowMapData, TrajectoryData
 from sympredict.io.formats import load_dataset
 
-__all__ = ["read_trajectories", "LAYOUT", "MAX_BYTES"]
+__all__ = ["read_trajectories", "write_trajectories", "read_states", "LAYOUT", "MAX_BYTES"]
 
 #: The layouts :func:`read_trajectories` accepts (quoted in its error messages).
 LAYOUT = (
@@ -365,3 +365,133 @@ def _read_csv(path: Path, max_bytes: int) -> TrajectoryData:
             raise ValueError(f"{str(path)!r}: the parameter columns must be constant within a trajectory; trajectory "
                              f"{traj_ids[varying[0]]!r} has several values")
     return TrajectoryData(states, mu[:, 0] if d else None, times=times)
+
+
+# --------------------------------------------------------------------------- writing, initial states
+def write_trajectories(data: TrajectoryData, path) -> None:
+    """Write trajectories in the layout :func:`read_trajectories` reads (format by suffix).
+
+    Parameters
+    ----------
+    data : TrajectoryData
+        ``P`` trajectories of shape ``(K+1, 2n)``.
+    path : str or path-like
+        ``.npz`` (keys ``states``, ``dt`` for times ``k dt`` or else ``times``, and ``mu`` when there are
+        parameters), ``.h5``/``.hdf5``
+        (the same datasets) or ``.csv`` (columns ``traj`` (0..P-1), ``t``, ``q1..qn``, ``p1..pn``, then
+        ``mu1..mud``; numbers written to round-trip exactly).
+    """
+    path = Path(path)
+    kind = _SUFFIXES.get(path.suffix.lower())
+    if kind is None:
+        raise ValueError(f"{str(path)!r}: unknown data file type {path.suffix!r}; use .npz, .h5/.hdf5 or .csv")
+    uniform = data.dt is not None and np.array_equal(data.times, np.broadcast_to(np.arange(data.states.shape[1]) * data.dt,
+                                                                                 data.times.shape))
+    arrays = {"states": data.states}
+    arrays.update({"dt": np.float64(data.dt)} if uniform else {"times": np.ascontiguousarray(data.times)})
+    if data.mu.shape[1]:
+        arrays["mu"] = data.mu
+    if kind == "npz":
+        with open(path, "wb") as fh:  # np.savez would append .npz to other names
+            np.savez(fh, **arrays)
+    elif kind == "hdf5":
+        import h5py
+
+        with h5py.File(path, "w") as f:
+            for key, value in arrays.items():
+                f[key] = value
+    else:
+        p, k1, dim = data.states.shape
+        n, d = dim // 2, data.mu.shape[1]
+        header = ["traj", "t", *(f"q{i}" for i in range(1, n + 1)), *(f"p{i}" for i in range(1, n + 1)),
+                  *(f"mu{i}" for i in range(1, d + 1))]
+        table = np.concatenate([np.broadcast_to(np.arange(p)[:, None, None], (p, k1, 1)), data.times[:, :, None],
+                                data.states, np.broadcast_to(data.mu[:, None, :], (p, k1, d))], axis=2).reshape(p * k1, -1)
+        np.savetxt(path, table, delimiter=",", header=",".join(header), comments="",
+                   fmt=["%d"] + ["%.17g"] * (table.shape[1] - 1))
+
+
+def read_states(path, dim: int, *, max_bytes: int = MAX_BYTES):
+    """Initial states (and optional parameters) for a rollout from a ``.npz`` or ``.csv`` file.
+
+    ``.npz``: key ``x0`` of shape ``(B, 2n)`` or ``(2n,)``, optional ``mu`` ``(B,)`` or ``(B, d)``.
+    ``.csv``: a header row with ``q1..qn, p1..pn`` (``q``, ``p`` for ``n = 1``) and optional ``mu`` or
+    ``mu1..mud`` columns, one state per row.
+
+    Parameters
+    ----------
+    path : str or path-like
+    dim : int
+        The model's state dimension ``2n``.
+    max_bytes : int
+        Largest size (float64 bytes) of the numbers read.
+
+    Returns
+    -------
+    x0 : ndarray of shape (B, 2n)
+    mu : ndarray of shape (B, d) or None
+    """
+    path = Path(path)
+    suffix = path.suffix.lower()
+    layout = (f"expected .npz with 'x0' (B, {dim}) [optional 'mu' (B,) or (B, d)], or .csv with the columns "
+              f"{', '.join(_state_names(dim))} [optional mu or mu1..mud]")
+    if not path.is_file():
+        raise ValueError(f"{str(path)!r} does not exist or is not a regular file")
+    if suffix == ".npz":
+        with _NpzArrays(path, max_bytes) as arrays:
+            if "x0" not in arrays.keys():
+                raise ValueError(f"{str(path)!r} has no key 'x0' (found {sorted(arrays.keys())[:10]}); {layout}")
+            x0 = _real(path, "x0", arrays.get("x0"))
+            mu = _real(path, "mu", arrays.get("mu")) if "mu" in arrays.keys() else None
+    elif suffix == ".csv":
+        size = os.path.getsize(path)
+        if size > max_bytes:
+            raise ValueError(f"{str(path)!r} has {size} bytes, more than max_bytes = {max_bytes}")
+        rows = list(csv.reader(io.StringIO(path.read_text(encoding="utf-8-sig"))))
+        if not rows:
+            raise ValueError(f"{str(path)!r} is empty; {layout}")
+        header = [h.strip() for h in rows[0]]
+        names = ["q1", "p1"] if dim == 2 and "q1" in header else _state_names(dim)
+        missing = [c for c in names if c not in header]
+        if missing:
+            raise ValueError(f"{str(path)!r}: the header lacks the column(s) {missing}; {layout}")
+        mu_names = ["mu"] if "mu" in header else [c for c in header if re.fullmatch(r"mu[1-9][0-9]*", c)]
+        unknown = [c for c in header if c not in names and c not in mu_names]
+        if unknown:
+            raise ValueError(f"{str(path)!r}: unexpected column(s) {unknown[:5]}; {layout}")
+        columns = [header.index(c) for c in [*names, *mu_names]]
+        values = []
+        for line, row in enumerate(rows[1:], start=2):
+            if not row or all(not c.strip() for c in row):
+                continue
+            if len(row) != len(header):
+                raise ValueError(f"{str(path)!r}, row {line}: {len(row)} cells, the header has {len(header)} columns")
+            numbers = []
+            for c in columns:
+                try:
+                    value = float(row[c])
+                except ValueError:
+                    raise ValueError(f"{str(path)!r}, row {line}, column {header[c]!r}: {row[c].strip()[:40]!r} is "
+                                     "not a number") from None
+                if not np.isfinite(value):
+                    raise ValueError(f"{str(path)!r}, row {line}, column {header[c]!r}: {row[c].strip()[:40]!r} is not finite")
+                numbers.append(value)
+            values.append(numbers)
+        if not values:
+            raise ValueError(f"{str(path)!r} has a header but no data rows; {layout}")
+        table = np.array(values)
+        x0, mu = table[:, :dim], (table[:, dim:] if mu_names else None)
+    else:
+        raise ValueError(f"{str(path)!r}: initial states are read from .npz or .csv files, got {path.suffix!r}; {layout}")
+    if x0.ndim == 1:
+        x0 = x0[None]
+    if x0.ndim != 2 or x0.shape[1] != dim or len(x0) == 0:
+        raise ValueError(f"{_where(path, 'x0')} must have shape (B, {dim}) (the model's 2n = {dim}), got {x0.shape}")
+    return x0, mu
+
+
+def _state_names(dim: int) -> list:
+    n = dim // 2
+    if n == 1:
+        return ["q", "p"]
+    return [f"q{i}" for i in range(1, n + 1)] + [f"p{i}" for i in range(1, n + 1)]
