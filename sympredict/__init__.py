@@ -40,6 +40,8 @@ from sympredict.exceptions import (
 )  # noqa: E402
 from sympredict.estimators.predictor import DirectKernelPredictor, SymplecticKernelPredictor
 from sympredict.estimators.auto import KernelSearch
+from sympredict.data import FlowMapData, TrajectoryData
+from sympredict.io import read_trajectories
 
 from sympredict._version import __version__
 
@@ -53,6 +55,9 @@ __all__ = [
     "ModelFileError",
     "NotFittedError",
     "ExtrapolationWarning",
+    "FlowMapData",
+    "TrajectoryData",
+    "read_trajectories",
     "__version__",
 ]
 

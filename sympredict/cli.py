@@ -255,7 +255,7 @@ def _cmd_run(args) -> int:
     finally:
         if staging.exists():  # failed or interrupted: nothing half-written survives
             shutil.rmtree(staging, ignore_errors=True)
-    print(f"done in {time.perf_counter() - t0:.0f} s; summary: {out / 'summary.md'}")
+    print(f"done in {_duration(time.perf_counter() - t0)}; summary: {out / 'summary.md'}")
     return 0
 
 
@@ -319,11 +319,61 @@ def _parse_kernel(spec: str):
         raise ValueError(f"kernel spec {spec!r}: {exc}") from None
 
 
+#: ``sympredict data --system NAME``: the shipped systems that write trajectories, with their defaults
+#: (macro step, parameter range, and for the PDEs the number of grid points).
+DATA_SYSTEMS = {
+    "henon-heiles": {"dt": 0.1, "mu": (0.8, 1.0)},
+    "wave": {"dt": 0.1, "mu": (0.2**2, 0.3**2)},
+    "sine-gordon": {"dt": 0.1, "mu": (0.8, 1.2)},
+}
+
+
+def _system_trajectories(name: str, n_traj: int, n_steps: int, dt: float, n_points: int, seed: int):
+    """Reference trajectories of a shipped system: (states (P, K+1, 2n), mu (P,))."""
+    import numpy as np
+
+    lo, hi = DATA_SYSTEMS[name]["mu"]
+    mu = np.random.default_rng(seed).uniform(lo, hi, n_traj)
+    if name == "henon-heiles":
+        from sympredict.systems.henon_heiles import HenonHeiles, energy_bounded_states
+
+        system = HenonHeiles()
+        x0 = np.vstack([energy_bounded_states(system, lam, 1, seed=seed + i) for i, lam in enumerate(mu)])
+        return system.trajectory(x0, mu, dt, n_steps), mu
+    if name == "wave":
+        from sympredict.systems.wave import WaveFOM
+
+        fom = WaveFOM(n_points=n_points)
+        x0 = np.vstack([fom.low_frequency_states(1, min(4, n_points), m, fom.reference_energy(m), seed=seed + i)
+                        for i, m in enumerate(mu)])
+        return fom.trajectory(x0, mu, dt, n_steps), mu
+    from sympredict.systems.sine_gordon import SineGordonFOM
+
+    fom = SineGordonFOM(n_points=n_points)
+    x0 = np.vstack([fom.energy_bounded_states(1, 1.0, c=c, n_modes=min(8, n_points), seed=seed + i)
+                    for i, c in enumerate(mu)])
+    return fom.reference_trajectory(x0, mu, dt, n_steps), mu
+
+
 def _cmd_data(args) -> int:
     from sympredict.io import save_dataset
+
+    _check_output_file(args.out, force=args.force)
+    system = args.system.replace("_", "-")
+    if system != "pendulum":
+        from sympredict.data import TrajectoryData
+        from sympredict.io.trajectories import write_trajectories
+
+        dt = args.dt if args.dt is not None else DATA_SYSTEMS[system]["dt"]
+        states, mu = _system_trajectories(system, args.trajectories, args.steps, dt, args.n_points, args.seed)
+        write_trajectories(TrajectoryData(states, mu, dt), args.out)
+        print(f"wrote {states.shape[0]} {system} trajectories of {args.steps} steps (dt = {dt}, 2n = {states.shape[2]}, "
+              f"one parameter each) to {args.out}")
+        return 0
     from sympredict.systems.pendulum import DT_TRAIN, MU_TRAIN, Pendulum, flow_map_data, random_flow_map_data
 
-    _check_output_file(args.out)
+    if not str(args.out).lower().endswith((".h5", ".hdf5")):
+        raise ValueError(f"--out {args.out!r}: the pendulum data set is an HDF5 file; name it .h5")
     pendulum = Pendulum()
     if args.random:
         data = random_flow_map_data(pendulum, args.random, seed=args.seed)
@@ -336,6 +386,62 @@ def _cmd_data(args) -> int:
     return 0
 
 
+def _is_own_dataset(path) -> bool:
+    """Whether ``path`` is a data set written by ``sympredict data`` / :func:`sympredict.io.save_dataset`."""
+    import h5py
+
+    if not str(path).lower().endswith((".h5", ".hdf5")) or not os.path.isfile(path):
+        return False
+    try:
+        with h5py.File(path, "r") as f:
+            return "format" in f.attrs and "arrays" in f
+    except OSError:
+        return False
+
+
+def _describe(data) -> str:
+    """What was read: trajectories or pairs, dimensions."""
+    from sympredict.data import TrajectoryData
+
+    d_mu = data.mu.shape[1]
+    if isinstance(data, TrajectoryData):
+        p, k1, dim = data.states.shape
+        return (f"{p} trajectories of {k1} states (2n = {dim}, {d_mu} parameter(s), "
+                + (f"dt = {data.dt:.6g}" if data.dt is not None else "non-uniform times") + f"), {p * (k1 - 1)} pairs")
+    return f"{len(data)} pairs (2n = {data.x0.shape[1]}, {d_mu} parameter(s))"
+
+
+def _cmd_train_user_data(args) -> int:
+    """``sympredict train`` on the user's trajectories or pairs (.npz, .h5, .csv): the estimator's defaults."""
+    from threadpoolctl import threadpool_limits
+
+    from sympredict import SymplecticKernelPredictor
+    from sympredict.interpolation.greedy import ExactGreedy
+    from sympredict.io import read_trajectories
+    from sympredict.symplectic.solvers import NewtonSolver
+
+    data = read_trajectories(args.data)
+    print(f"read {args.data}: {_describe(data)}")
+    validation = read_trajectories(args.validation) if args.validation else None
+    options = {"max_centers": args.centers}
+    for name, spec in (("state_kernel", args.state), ("mu_kernel", args.mu), ("dt_kernel", args.dt)):
+        if spec is not None:
+            options[name] = _parse_kernel(spec)
+    if args.tol is not None:
+        options["trainer"] = ExactGreedy(tol=args.tol)
+    if args.backend != "auto":
+        options["solver"] = NewtonSolver(backend=args.backend)
+    model = SymplecticKernelPredictor(**options)
+    with threadpool_limits(limits=args.threads):
+        model.fit(data, validation=validation)
+    _save_model_or_keep(model, args.out)
+    h = model.history_
+    print(f"trained {model.n_centers_} centres ({h.stop_reason}): E_train {h.train_max_residual[-1]:.2e}"
+          + (f", E_val {h.val_max_residual[-1]:.2e}" if h.val_max_residual is not None else "")
+          + f"; saved to {args.out}")
+    return 0
+
+
 def _cmd_train(args) -> int:
     from threadpoolctl import threadpool_limits
 
@@ -345,10 +451,15 @@ def _cmd_train(args) -> int:
     from sympredict.symplectic.solvers import NewtonSolver
 
     _check_output_file(args.out, args.data, args.validation, force=args.force)
+    if not _is_own_dataset(args.data) and str(args.data).lower().endswith((".npz", ".csv", ".h5", ".hdf5")):
+        return _cmd_train_user_data(args)
     data, meta = load_dataset(args.data)
+    print(f"read {args.data}: {_describe(data)}")
     validation = load_dataset(args.validation)[0] if args.validation else None
-    kernels = [_parse_kernel(k) for k in (args.state, args.mu, args.dt)]
-    model = SymplecticKernelPredictor(*kernels, max_centers=args.centers, trainer=ExactGreedy(tol=args.tol),
+    kernels = [_parse_kernel(k if k is not None else default) for k, default in
+               ((args.state, "imq:0.15"), (args.mu, "imq:2.0"), (args.dt, "imq:5.0"))]
+    model = SymplecticKernelPredictor(*kernels, max_centers=args.centers or 1500,
+                                      trainer=ExactGreedy(tol=1e-10 if args.tol is None else args.tol),
                                       solver=NewtonSolver(backend=args.backend))
     mu = data.mu if kernels[1] is not None else None
     if validation is not None and kernels[1] is None:
@@ -412,20 +523,55 @@ def _set_backend(model, backend: str):
     return model
 
 
+def _parse_numbers(text: str, option: str):
+    """``"1.0,0.5"`` -> array; an error naming the option and the bad entry."""
+    import numpy as np
+
+    values = []
+    for i, part in enumerate(text.split(","), start=1):
+        try:
+            value = float(part)
+        except ValueError:
+            raise ValueError(f"{option} takes comma-separated numbers, e.g. {option} 1.0,0.0; entry {i} of {text!r} "
+                             f"is {part.strip()!r}") from None
+        if not math.isfinite(value):
+            raise ValueError(f"{option}: entry {i} of {text!r} is not finite")
+        values.append(value)
+    return np.array(values)
+
+
 def _cmd_predict(args) -> int:
     import numpy as np
 
     from sympredict import SymplecticKernelPredictor
+    from sympredict.estimators.predictor import newton_predictor
     from sympredict.exceptions import RolloutMemoryError
     from sympredict.io import load_model
 
     if args.out:
-        _check_output_file(args.out, args.model, force=args.force)
+        _check_output_file(args.out, args.model, args.x0_file, force=args.force)
+        if not args.out.lower().endswith((".npz", ".csv")):
+            raise ValueError(f"--out {args.out!r}: trajectories are written as .npz or .csv; name the file so")
     model = _set_backend(load_model(args.model), args.backend)
-    try:
-        x0 = np.array([[float(v) for v in state.split(",")] for state in args.x0])
-    except ValueError:
-        raise ValueError(f"--x0 takes comma-separated numbers per state, e.g. --x0 1.0,0.0; got {args.x0}") from None
+    mu = None if args.mu is None else _parse_numbers(args.mu, "--mu")
+    if args.x0_file:
+        from sympredict.io.trajectories import read_states
+
+        x0, file_mu = read_states(args.x0_file, model.dim_)
+        if file_mu is not None:
+            if mu is not None:
+                raise ValueError(f"--mu and the mu column(s) of --x0-file {args.x0_file!r}: give the parameters once")
+            mu = file_mu
+        print(f"read {args.x0_file}: {len(x0)} initial state(s) (2n = {x0.shape[1]})")
+    else:
+        x0 = np.array([_parse_numbers(state, "--x0") for state in args.x0]) if args.x0 else None
+        if x0 is None or len({len(v) for v in x0}) != 1:
+            raise ValueError("give --x0 (comma-separated q1,...,qn,p1,...,pn per state) or --x0-file")
+        if x0.shape[1] != model.dim_:
+            raise ValueError(f"--x0 has {x0.shape[1]} numbers per state; the model's states have 2n = {model.dim_} "
+                             "(q1,...,qn,p1,...,pn)")
+    if mu is not None and mu.ndim == 1 and getattr(model, "n_mu_", 1) > 1 and len(mu) == model.n_mu_:
+        mu = mu[None]  # one parameter vector for every state
     # without --out only the final states are printed: keep the first and last state (memory O(batch))
     stride = args.stride if args.out else max(1, args.steps)
     progress = _Progress("predict")
@@ -434,19 +580,26 @@ def _cmd_predict(args) -> int:
                          f"{type(model).__name__}: leave out --check")
     kwargs = {"check_solvability": True} if args.check else {}
     try:
-        traj = model.rollout(x0, args.steps, mu=args.mu, dt=args.dt, stride=stride, progress=progress, **kwargs)
+        traj = model.rollout(x0, args.steps, mu=mu, dt=args.dt, stride=stride, progress=progress, **kwargs)
     except RolloutMemoryError as exc:
         raise ValueError(f"--steps {args.steps} with --stride {stride}: {exc.needed / 2**30:.3g} GiB of states, more than "
                          f"the {exc.available / 2**30:.3g} GiB available; keep fewer states with a larger --stride") from None
     finally:
         progress.close()
     if args.out:
-        header = "instance,step," + ",".join(f"q{i}" for i in range(model.dim_ // 2)) + "," + ",".join(f"p{i}" for i in range(model.dim_ // 2))
-        steps = np.arange(traj.shape[1]) * stride
-        rows = [[b, steps[k], *traj[b, k]] for b in range(traj.shape[0]) for k in range(traj.shape[1])]
-        np.savetxt(args.out, np.array(rows), delimiter=",", header=header, comments="", fmt=["%d", "%d"] + ["%.17g"] * model.dim_)
+        from sympredict.data import TrajectoryData
+        from sympredict.io.trajectories import write_trajectories
+
+        step = args.dt if args.dt is not None else getattr(newton_predictor(model) or model, "dt_fixed_", None)
+        kept = np.arange(traj.shape[1]) * stride
+        times = kept * step if step is not None else kept.astype(float)
+        mu_out = None if mu is None else np.broadcast_to(np.asarray(mu, dtype=float).reshape(len(mu), -1)
+                                                         if np.ndim(mu) else np.full((1, 1), float(mu)),
+                                                         (traj.shape[0], max(1, model.n_mu_)))
+        write_trajectories(TrajectoryData(traj, mu_out, times=times), args.out)
         print(f"wrote {traj.shape[0]} trajectories of {args.steps} steps"
-              + (f" (one state every {stride} steps)" if stride > 1 else "") + f" to {args.out}")
+              + (f" (one state every {stride} steps)" if stride > 1 else "") + f" to {args.out}"
+              + ("" if step is not None else " (t counts steps: the model takes dt per query)"))
     else:
         for b in range(traj.shape[0]):
             print(f"instance {b}: x({args.steps} steps) = {', '.join(f'{v:.12g}' for v in traj[b, -1])}")
@@ -508,6 +661,15 @@ def _finite_float(positive: bool = False, nonnegative: bool = False):
     return parse
 
 
+def _number_list(text: str) -> str:
+    """An argparse type: comma-separated finite numbers, kept as text (parsed by :func:`_parse_numbers`)."""
+    try:
+        _parse_numbers(text, "")
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated finite numbers, got {text!r}") from None
+    return text
+
+
 def _add_backend_and_force(parser: argparse.ArgumentParser, solver: str) -> None:
     """``--backend`` (``solver``: what it sets) and ``--force`` (replace an existing ``--out``) of train and predict."""
     parser.add_argument("--backend", choices=["auto", "numpy", "numba"], default="auto",
@@ -526,7 +688,7 @@ def build_parser() -> argparse.ArgumentParser:
                      help="the scenario to run ('all': pendulum and wave; sine-Gordon runs alone)")
     run.add_argument("--out", required=True, help="output folder (created if missing)")
     size = run.add_mutually_exclusive_group()
-    size.add_argument("--quick", action="store_true", help="small data (default): pendulum ~30 s, wave ~2 min on 2 cores")
+    size.add_argument("--quick", action="store_true", help="small data (default): 'all' about 4.5 min on 2 cores (259 s measured), henon-heiles about 2 min (127 s)")
     size.add_argument("--paper", action="store_true", help="the paper's data sizes: minutes, ~10 GiB")
     size.add_argument("--preset", choices=["smoke", "quick", "paper"], help="a preset by name ('smoke': seconds, for testing)")
     run.add_argument("--initial", choices=["sech_cos", "breather"], default="sech_cos",
@@ -535,35 +697,54 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--threads", type=_int_at_least(1), default=os.cpu_count() or 1, help="BLAS threads (default: all cores)")
     run.set_defaults(func=_cmd_run)
 
-    data = sub.add_parser("data", help="write a pendulum flow-map data set (HDF5)")
-    data.add_argument("--out", required=True, help="data file (.h5)")
-    data.add_argument("--n-grid", type=_int_at_least(2), default=50, help="energy-bounded grid points per axis (default 50; paper 200)")
-    data.add_argument("--p-nonpositive", action="store_true", help="keep only states with p <= 0 (scenario B)")
-    data.add_argument("--random", type=_int_at_least(0), default=0, metavar="N", help="N random samples instead of the grid (validation data)")
+    data = sub.add_parser("data", help="write a data set of a shipped system that 'sympredict train' reads")
+    data.add_argument("--system", choices=["pendulum", *DATA_SYSTEMS], default="pendulum",
+                      help="pendulum (default): flow-map samples (HDF5); the others: reference trajectories "
+                           "(.npz, .h5 or .csv by the --out suffix) with one parameter each")
+    data.add_argument("--out", required=True, help="data file (.h5 for the pendulum; .npz, .h5 or .csv otherwise)")
+    data.add_argument("--n-grid", type=_int_at_least(2), default=50, help="pendulum: energy-bounded grid points per axis (default 50; paper 200)")
+    data.add_argument("--p-nonpositive", action="store_true", help="pendulum: keep only states with p <= 0 (scenario B)")
+    data.add_argument("--random", type=_int_at_least(0), default=0, metavar="N", help="pendulum: N random samples instead of the grid (validation data)")
+    data.add_argument("--trajectories", type=_int_at_least(1), default=20, metavar="P",
+                      help="other systems: number of trajectories (default 20), parameters drawn uniformly from the system's range")
+    data.add_argument("--steps", type=_int_at_least(1), default=20, metavar="K", help="other systems: macro steps per trajectory (default 20)")
+    data.add_argument("--dt", type=_finite_float(positive=True), help="other systems: macro step (default 0.1)")
+    data.add_argument("--n-points", type=_int_at_least(3), default=16, metavar="N",
+                      help="wave and sine-gordon: interior grid points, states of dimension 2N (default 16)")
     data.add_argument("--seed", type=_int_at_least(0), default=0)
+    data.add_argument("--force", action="store_true", help="replace an existing --out file")
     data.set_defaults(func=_cmd_data)
 
-    train = sub.add_parser("train", help="train a symplectic predictor on a data set and save it (HDF5)")
-    train.add_argument("data", help="data set written by 'sympredict data' or sympredict.io.save_dataset")
+    train = sub.add_parser("train", help="train a symplectic predictor on a data set or the user's trajectories and save it (HDF5)")
+    train.add_argument("data", help="a data set written by 'sympredict data' or sympredict.io.save_dataset, or trajectories "
+                                    "or pairs in a .npz, .h5 or .csv file (layout: sympredict.io.read_trajectories)")
     train.add_argument("--out", required=True, help="model file (.h5)")
-    train.add_argument("--validation", help="validation data set (records E_val)")
-    train.add_argument("--state", default="imq:0.15", help="state kernel FAMILY:EPS (default imq:0.15)")
-    train.add_argument("--mu", default="imq:2.0", help="parameter kernel FAMILY:EPS or 'none' (default imq:2.0)")
-    train.add_argument("--dt", default="imq:5.0", help="step kernel FAMILY:EPS or 'none' (default imq:5.0)")
-    train.add_argument("--centers", type=_int_at_least(1), default=1500, help="maximal number of centres (default 1500)")
-    train.add_argument("--tol", type=_finite_float(nonnegative=True), default=1e-10, help="greedy residual tolerance (default 1e-10)")
+    train.add_argument("--validation", help="validation data, same kinds of file (records E_val)")
+    train.add_argument("--state", help="state kernel FAMILY:EPS (default: imq:0.15 for a sympredict data set, the "
+                                       "estimator's default otherwise)")
+    train.add_argument("--mu", help="parameter kernel FAMILY:EPS or 'none' (default: imq:2.0 for a sympredict data set, "
+                                    "the estimator's default otherwise)")
+    train.add_argument("--dt", help="step kernel FAMILY:EPS or 'none' (default: imq:5.0 for a sympredict data set, the "
+                                    "estimator's default otherwise)")
+    train.add_argument("--max-centers", "--centers", dest="centers", type=_int_at_least(1),
+                       help="maximal number of centres (default: 1500 for a sympredict data set, the estimator's default otherwise)")
+    train.add_argument("--tol", type=_finite_float(nonnegative=True), help="greedy residual tolerance (default 1e-10)")
     train.add_argument("--threads", type=_int_at_least(1), default=os.cpu_count() or 1)
     _add_backend_and_force(train, "the saved model's Newton solver")
     train.set_defaults(func=_cmd_train)
 
     predict = sub.add_parser("predict", help="roll a saved model out from given initial states")
     predict.add_argument("model", help="model file")
-    predict.add_argument("--x0", required=True, nargs="+", help="initial states, each comma-separated (q..., p...)")
-    predict.add_argument("--mu", type=_finite_float(), help="parameter (models with one parameter)")
+    states = predict.add_mutually_exclusive_group(required=True)
+    states.add_argument("--x0", nargs="+", help="initial states, each comma-separated (q1,...,qn,p1,...,pn)")
+    states.add_argument("--x0-file", help="initial states from a .npz (key x0 (B, 2n), optional mu) or .csv "
+                                          "(columns q1..qn, p1..pn, optional mu or mu1..mud) file")
+    predict.add_argument("--mu", type=_number_list, help="parameter, comma-separated for several components")
     predict.add_argument("--dt", type=_finite_float(positive=True), help="macro step (default: the training step of a fixed-step model)")
     predict.add_argument("--steps", type=_int_at_least(0), required=True, help="number of macro steps")
     predict.add_argument("--check", action="store_true", help="refuse to start where dT * L_S >= 1")
-    predict.add_argument("--out", help="CSV file for the trajectories (default: print the final states)")
+    predict.add_argument("--out", help="trajectories file, .npz or .csv (the layout sympredict.io.read_trajectories "
+                                       "reads; default: print the final states)")
     predict.add_argument("--stride", type=_int_at_least(1), default=1,
                          help="with --out, write every k-th state only (default 1: all); memory is that of the states written")
     _add_backend_and_force(predict, "Newton solver")

@@ -22,6 +22,7 @@ __all__ = [
     "ExtrapolationWarning",
     "GeneratingFunctionWarning",
     "UnderfitWarning",
+    "DuplicateSamplesWarning",
     "extrapolation_expected",
 ]
 
@@ -153,6 +154,11 @@ class GeneratingFunctionWarning(UserWarning):
 class UnderfitWarning(UserWarning):
     """A fit learned (almost) nothing: no centre selected, or the training residual did not go down,
     although the data move the states; the model is (close to) the identity map."""
+
+
+class DuplicateSamplesWarning(UserWarning):
+    """Repeated training samples (same ``x0``, ``x1``, ``mu`` and ``dt``) were dropped before a fit;
+    overlapping trajectory windows produce them.  The message says how many."""
 
 
 @contextlib.contextmanager

@@ -114,12 +114,16 @@ def test_data_train_predict_report_workflow(tmp_path, capsys):
     assert main(["data", "--random", "50", "--out", val]) == 0
     assert main(["train", data, "--validation", val, "--centers", "60", "--out", model, "--threads", "1"]) == 0
     assert main(["predict", model, "--x0", "1.0,0.0", "0.5,0.2", "--mu", "0.75", "--dt", "0.05", "--steps", "5", "--out", csv]) == 0
-    rows = np.loadtxt(csv, delimiter=",", skiprows=1)
-    assert rows.shape == (2 * 6, 4) and np.all(np.isfinite(rows))
-    from sympredict import SymplecticKernelPredictor
+    rows = np.loadtxt(csv, delimiter=",", skiprows=1)  # traj, t, q1, p1, mu1
+    assert rows.shape == (2 * 6, 5) and np.all(np.isfinite(rows))
+    from sympredict import SymplecticKernelPredictor, read_trajectories
 
     expected = SymplecticKernelPredictor.load(model).rollout(np.array([[1.0, 0.0], [0.5, 0.2]]), 5, mu=0.75, dt=0.05)
-    np.testing.assert_array_equal(rows[:, 2:], expected.reshape(-1, 2))
+    np.testing.assert_array_equal(rows[:, 2:4], expected.reshape(-1, 2))
+    back = read_trajectories(csv)  # the written trajectories are data again
+    np.testing.assert_array_equal(back.states, expected)
+    np.testing.assert_array_equal(back.mu, [[0.75], [0.75]])
+    np.testing.assert_allclose(back.times[0], np.arange(6) * 0.05, rtol=0, atol=1e-15)
     assert main(["report", model]) == 0
     out = capsys.readouterr().out
     assert "60 centres" in out and "training box" in out

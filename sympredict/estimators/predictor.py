@@ -35,9 +35,9 @@ import logging
 
 import numpy as np
 
-from sympredict._checks import as_model_parameter, as_parameter, as_positive_int, as_states, as_steps
+from sympredict._checks import as_model_parameter, as_positive_int, as_states, as_steps
 from sympredict.base import Parametrized, clone
-from sympredict.data import FlowMapData
+from sympredict.data import FlowMapData, TrajectoryData, _drop_duplicate_samples, as_flowmap_data, unique_samples
 from sympredict.estimators import model_files
 from sympredict.estimators.auto import FitDiagnostics, KernelSearch, SearchResult, diagnose
 from sympredict.estimators._compat import _NEUTRAL, MOVED_OPTIONS, apply_moved, replacement
@@ -274,6 +274,8 @@ class _FlowMapKernelModel(Parametrized):
         return out
 
     def _as_data(self, x0, x1, mu, dt, what: str) -> FlowMapData:
+        data = as_flowmap_data(x0, x1, mu, dt, what)
+        mu = data.mu if data.mu.shape[1] else None
         if mu is not None and self.mu_kernel is None and not self._chooses_open_factors:
             raise ValueError(
                 f"{what}: mu was given but mu_kernel=None; pass a mu_kernel to learn the parameter "
@@ -281,27 +283,26 @@ class _FlowMapKernelModel(Parametrized):
             )
         if mu is None and self.mu_kernel is not None:
             raise ValueError(f"{what}: mu_kernel is set, so mu is required (shape (M,) or (M, d_mu))")
-        x0, _ = as_states(x0, "x0", allow_single=False)
-        x1, _ = as_states(x1, "x1", dim=x0.shape[1], allow_single=False)
-        if len(x0) != len(x1):
-            raise ValueError(f"x0 and x1 must have the same number of samples, got {len(x0)} and {len(x1)}")
-        mu_arr = None if mu is None else as_parameter(mu, len(x0), None)
-        return FlowMapData(x0, x1, mu_arr, as_steps(dt, len(x0)))
+        return data
 
     def _fit_data(self, x0, x1, mu, dt, validation):
-        """Validated training (and validation) data."""
+        """Validated training (and validation) data; repeated training samples dropped with a warning."""
         data = self._as_data(x0, x1, mu, dt, "fit")
         if self.dt_kernel is None and np.ptp(data.dt) > 0 and not self._chooses_open_factors:
             raise ValueError(
                 "dt_kernel=None trains a fixed-step model, but dt takes several values "
                 f"({np.unique(data.dt)[:5]}...); pass a dt_kernel or one dt"
             )
+        data = _drop_duplicate_samples(data, stacklevel=5)
         if validation is not None:
-            if not isinstance(validation, FlowMapData):
+            if isinstance(validation, TrajectoryData):
+                validation = validation.pairs()
+            elif not isinstance(validation, FlowMapData):
                 try:
                     vx0, vx1, vmu, vdt = validation
                 except (TypeError, ValueError):
-                    raise ValueError("validation must be a FlowMapData or a tuple (x0, x1, mu, dt)") from None
+                    raise ValueError("validation must be a FlowMapData, a TrajectoryData or a tuple (x0, x1, mu, dt)"
+                                     ) from None
                 validation = self._as_data(vx0, vx1, vmu, vdt, "validation")
             if validation.x0.shape[1] != data.x0.shape[1] or validation.mu.shape[1] != data.mu.shape[1]:
                 raise ValueError("validation data must have the same state and parameter dimensions as the training data")
@@ -309,13 +310,13 @@ class _FlowMapKernelModel(Parametrized):
 
     @staticmethod
     def _check_duplicates(points, data, periodic: Optional[PeriodicCoordinates] = None):
+        """Refuse samples the kernel cannot tell apart (equal ``points``, ``mu`` and ``dt``) whose ``(x0, x1)`` differ:
+        their targets contradict each other (exact repeats were dropped before)."""
         if periodic is not None:  # angles one period apart are the same point for the kernel
             points = periodic.wrap(points)
-        if len(np.unique(np.column_stack([points, data.mu, data.dt]), axis=0)) < len(points):
-            raise ValueError(
-                "the training data contain duplicated samples (same state, mu and dt): remove them, "
-                "the interpolation conditions would be contradictory or redundant"
-            )
+        unique_samples(points, np.column_stack([data.x0, data.x1]), data.mu, data.dt,
+                       key_name="point seen by the kernel (after the update rule's change of variables)",
+                       target_name="(x0, x1)")
 
     def _product_kernel(self, points, periodic: Optional[PeriodicCoordinates] = None,
                         symmetry: Optional[StateSymmetry] = None) -> ProductKernel:
@@ -661,18 +662,24 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         if deprecated:
             apply_moved(self, deprecated)
 
-    def fit(self, x0, x1, mu=None, dt=None, *, validation=None) -> "SymplecticKernelPredictor":
+    def fit(self, x0, x1=None, mu=None, dt=None, *, validation=None) -> "SymplecticKernelPredictor":
         """Train the surrogate on flow-map samples.
 
         Parameters
         ----------
         x0, x1 : array_like of shape (M, 2n)
-            Samples ``x1 = Phi_mu^dt(x0)``, states ordered ``(q, p)``.
+            Samples ``x1 = Phi_mu^dt(x0)``, states ordered ``(q, p)``.  Or ``x0`` alone a
+            :class:`~sympredict.data.FlowMapData`, or a :class:`~sympredict.data.TrajectoryData`
+            (trained on its consecutive pairs; ``data.pairs(strides)`` for more strides), and
+            ``x1``, ``mu``, ``dt`` omitted.  Repeated samples (same ``x0``, ``x1``, ``mu``, ``dt``)
+            are dropped with one :class:`~sympredict.exceptions.DuplicateSamplesWarning`;
+            contradictory ones (the same point for the kernel, different targets) raise
+            ``ValueError`` naming the rows.
         mu : array_like of shape (M,) or (M, d_mu), optional
             Parameters; required exactly when ``mu_kernel`` is set.
         dt : float or array_like of shape (M,)
             Macro steps (positive).  Must be one value when ``dt_kernel is None``.
-        validation : FlowMapData or tuple ``(x0, x1, mu, dt)``, optional
+        validation : FlowMapData, TrajectoryData or tuple ``(x0, x1, mu, dt)``, optional
             Validation samples; ``E_val(m)`` is then recorded in ``history_``.
 
         Returns
@@ -1220,7 +1227,7 @@ class DirectKernelPredictor(_FlowMapKernelModel):
                              f"got {self.state_kernel!r}: kernel transforms shape the symplectic model's s")
         return trainer
 
-    def fit(self, x0, x1, mu=None, dt=None, *, validation=None) -> "DirectKernelPredictor":
+    def fit(self, x0, x1=None, mu=None, dt=None, *, validation=None) -> "DirectKernelPredictor":
         """Train on flow-map samples (same arguments as :meth:`SymplecticKernelPredictor.fit`)."""
         trainer = self._check_params()
         with self._fitting():

@@ -350,6 +350,9 @@ def _check_given_data(data, validation_data, dim: int, n_mu: int, dt: float) -> 
             continue
         if isinstance(d, TrajectoryData) and name == "validation_data":
             _check_sizes(name, "trajectories", d.states.shape[2], dim, d.mu.shape[1], n_mu)
+            if d.dt is None:
+                raise ValueError("validation_data has non-uniform times; the reductor's validation rollouts take "
+                                 f"uniform steps of its dt = {dt!r}")
             if not np.isclose(d.dt, dt, rtol=1e-12, atol=0):
                 raise ValueError(f"validation_data has the step {d.dt!r}, the reductor's dt is {dt!r}")
             continue
