@@ -267,6 +267,16 @@ class KernelSearch(Parametrized):
         return data.subset(np.sort(rows[n_val:])), data.subset(np.sort(rows[:n_val]))
 
 
+def _holdout_split(data: FlowMapData, seed: int, fraction: float = 0.1, largest: int = 2000):
+    """``(train, holdout)``: a random tenth of the samples (at most ``largest``, none below 20 samples) held out."""
+    m = len(data)
+    n_out = min(largest, int(fraction * m)) if m >= 20 else 0
+    if n_out == 0:
+        return data, None
+    rows = np.random.default_rng(seed).permutation(m)
+    return data.subset(np.sort(rows[n_out:])), data.subset(np.sort(rows[:n_out]))
+
+
 def pair_factors(data: FlowMapData) -> np.ndarray:
     """``a_i = sqrt(std(p_i) / std(q_i))`` over the states ``x0`` and ``x1``: the symplectic scaling
     ``(a_i q_i, p_i / a_i)`` that gives each conjugate pair equal spreads (``1`` where a spread is zero).

@@ -28,10 +28,9 @@ from __future__ import annotations
 
 import contextlib
 import copy
+import logging
 import warnings
 from typing import Optional
-
-import logging
 
 import numpy as np
 
@@ -39,7 +38,7 @@ from sympredict._checks import as_model_parameter, as_positive_int, as_states, a
 from sympredict.base import Parametrized, clone
 from sympredict.data import FlowMapData, TrajectoryData, _drop_duplicate_samples, as_flowmap_data, unique_samples
 from sympredict.estimators import model_files
-from sympredict.estimators.auto import FitDiagnostics, KernelSearch, SearchResult, diagnose
+from sympredict.estimators.auto import KernelSearch, _holdout_split, diagnose
 from sympredict.estimators._compat import _NEUTRAL, MOVED_OPTIONS, apply_moved, replacement
 from sympredict.estimators.model_files import MODEL_FORMAT, MODEL_LAYOUT
 from sympredict.exceptions import (
@@ -89,16 +88,6 @@ NUMPY_ONLY = (
     (lambda parts, rule: parts.symmetry is not None, "a state symmetry (Symmetric) has no compiled solver yet"),
     (lambda parts, rule: not rule.compiled, "this update rule has no compiled solver yet"),
 )
-
-def _holdout_split(data: FlowMapData, seed: int, fraction: float = 0.1, largest: int = 2000):
-    """``(train, holdout)``: a random tenth of the samples (at most ``largest``, none below 20 samples) held out."""
-    m = len(data)
-    n_out = min(largest, int(fraction * m)) if m >= 20 else 0
-    if n_out == 0:
-        return data, None
-    rows = np.random.default_rng(seed).permutation(m)
-    return data.subset(np.sort(rows[n_out:])), data.subset(np.sort(rows[:n_out]))
-
 
 def update_variables(update: str, x0: np.ndarray, x1: np.ndarray, dt: np.ndarray):
     """Interpolation points and gradient targets of flow-map samples for an update.
@@ -293,7 +282,7 @@ class _FlowMapKernelModel(Parametrized):
                 "dt_kernel=None trains a fixed-step model, but dt takes several values "
                 f"({np.unique(data.dt)[:5]}...); pass a dt_kernel or one dt"
             )
-        data = _drop_duplicate_samples(data, stacklevel=5)
+        data = _drop_duplicate_samples(data, stacklevel=4)  # the caller of fit
         if validation is not None:
             if isinstance(validation, TrajectoryData):
                 validation = validation.pairs()
@@ -549,23 +538,26 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         ``Matern32``), a transform of one (:class:`~sympredict.kernels.transforms.Scaled`:
         a symplectic scaling ``(a_i q_i, p_i / a_i)``;
         :class:`~sympredict.kernels.transforms.Periodic`: angle coordinates;
-        :class:`~sympredict.kernels.transforms.Symmetric`: a symmetry group), or ``None``:
-        ``IMQ(1 / diameter of the training xi)`` picked at fit time (also inside a
-        transform: ``Periodic(None, coordinates=(0,))``).
+        :class:`~sympredict.kernels.transforms.Symmetric`: a symmetry group), or ``None``
+        (default): chosen at fit time by ``search`` inside the symplectic normalisation
+        ``Scaled(..., factors=a)``, ``a_i = sqrt(std(p_i) / std(q_i))`` (inside a transform
+        such as ``Periodic(None, coordinates=(0,))``: the radial kernel chosen inside it).
     mu_kernel
-        Radial kernel on the parameter; ``None`` drops the factor (a model for
-        one fixed parameter; then ``mu`` must not be passed).
+        Radial kernel on the parameter.  ``None`` (default): chosen at fit time when
+        ``mu`` is passed (a shape in units of the parameter box), dropped otherwise
+        (a model for one fixed parameter).
     dt_kernel
-        Radial kernel on the macro step; ``None`` drops the factor (a model for
-        one fixed ``dT``, which :meth:`step` then uses by default).
+        Radial kernel on the macro step.  ``None`` (default): chosen at fit time when
+        ``dt`` takes several values, dropped for one ``dT`` (which :meth:`step` then uses by default).
     max_centers
         Maximal number of selected functionals (centres): the model's size.
     update
         The generating-function update (:mod:`sympredict.symplectic.updates`), by name or
-        as an object: ``'symplectic_euler'`` (default, the paper's type-II
-        ``s(q0, p1)``) or ``'midpoint'`` (``x1 = x0 + dT J grad s((x0 + x1)/2)``:
-        symmetric, and its ``s`` exists up to twice the type-II step on
-        oscillatory modes).
+        as an object: ``'symplectic_euler'`` (the paper's type-II ``s(q0, p1)``) or
+        ``'midpoint'`` (``x1 = x0 + dT J grad s((x0 + x1)/2)``: symmetric, and its ``s``
+        exists up to twice the type-II step on oscillatory modes).  ``None`` (default):
+        chosen by ``search`` together with the kernels when any kernel is chosen,
+        ``'symplectic_euler'`` when every kernel is given.
     trainer
         The training strategy and its settings (:mod:`sympredict.interpolation.greedy.trainers`):
         ``None`` for ``ExactGreedy()`` (the exact f-greedy over all candidates;
@@ -587,6 +579,10 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         :meth:`backend_for`).  Features without a compiled solver are listed in
         :data:`NUMPY_ONLY`: ``backend='numba'`` is refused for them at fit,
         ``'auto'`` uses NumPy and ``numpy_only_`` says why.
+    search
+        How the open settings are chosen (:class:`~sympredict.estimators.auto.KernelSearch`:
+        candidate families and shapes, ``m_star``, subsample size); ``None`` for ``KernelSearch()``.
+        Used only when a kernel or the update is left ``None``.
 
     Attributes
     ----------
@@ -615,6 +611,14 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         fit (scikit-learn's semantics).  The ``solver`` is read when predicting and checked there.
     numpy_only_ : str or None
         Why this model has no compiled solver (a feature of :data:`NUMPY_ONLY`), or ``None``.
+    choice_ : dict
+        The settings this fit chose for those left ``None`` (``state_kernel``, ``mu_kernel``,
+        ``dt_kernel``, ``update``); empty when everything was given.  Kept in model files.
+    search_ : SearchResult or None
+        The kernel search's candidates and scores (``None`` without a search, and after :meth:`load`).
+    diagnostics_ : FitDiagnostics or None
+        Residuals on training and held-out samples, convergence, and advice on what to try next
+        (``None`` after :meth:`load`).
 
     Notes
     -----
@@ -626,6 +630,8 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
 
     Examples
     --------
+    >>> model = SymplecticKernelPredictor(max_centers=1500).fit(x0, x1, mu=mu, dt=dt)  # doctest: +SKIP
+    >>> model.choice_, print(model.diagnostics_.summary())           # doctest: +SKIP
     >>> model = SymplecticKernelPredictor(IMQ(0.15), mu_kernel=IMQ(2.0), dt_kernel=IMQ(5.0),
     ...                                   max_centers=1500)          # doctest: +SKIP
     >>> model.fit(x0, x1, mu=mu, dt=dt)                               # doctest: +SKIP
@@ -676,11 +682,14 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
             contradictory ones (the same point for the kernel, different targets) raise
             ``ValueError`` naming the rows.
         mu : array_like of shape (M,) or (M, d_mu), optional
-            Parameters; required exactly when ``mu_kernel`` is set.
+            Parameters (arrays, dicts or pyMOR ``Mu``); required when ``mu_kernel`` is set, and
+            with ``mu_kernel=None`` learned with a chosen parameter kernel.
         dt : float or array_like of shape (M,)
-            Macro steps (positive).  Must be one value when ``dt_kernel is None``.
+            Macro steps (positive).  Several values with ``dt_kernel=None``: a step kernel is chosen.
         validation : FlowMapData, TrajectoryData or tuple ``(x0, x1, mu, dt)``, optional
-            Validation samples; ``E_val(m)`` is then recorded in ``history_``.
+            Validation samples; ``E_val(m)`` is then recorded in ``history_``, and they score the fit
+            (``diagnostics_``).  Without them, a fit that chooses kernels holds a tenth of the samples
+            (at most 2,000) out of the final fit to score it.
 
         Returns
         -------
@@ -690,7 +699,9 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         -----
         With the exact greedy: time ``O(m^2 (N + N_val))``, memory
         ``8 m (N + N_val)`` bytes for the Newton basis, ``N = 2n M`` candidate
-        functionals, ``m`` centres.
+        functionals, ``m`` centres.  A kernel search (:class:`~sympredict.estimators.auto.KernelSearch`)
+        adds about 30 greedy fits to ``m_star`` centres on a subsample; it and the greedy log their
+        progress (logger ``sympredict``, level INFO).
         """
         trainer = self._check_params()
         data, validation = self._fit_data(x0, x1, mu, dt, validation)
@@ -1230,11 +1241,11 @@ class DirectKernelPredictor(_FlowMapKernelModel):
     def fit(self, x0, x1=None, mu=None, dt=None, *, validation=None) -> "DirectKernelPredictor":
         """Train on flow-map samples (same arguments as :meth:`SymplecticKernelPredictor.fit`)."""
         trainer = self._check_params()
-        with self._fitting():
-            return self._fit(trainer, x0, x1, mu, dt, validation)
-
-    def _fit(self, trainer, x0, x1, mu, dt, validation) -> "DirectKernelPredictor":
         data, validation = self._fit_data(x0, x1, mu, dt, validation)
+        with self._fitting():
+            return self._fit(trainer, data, validation)
+
+    def _fit(self, trainer, data: FlowMapData, validation) -> "DirectKernelPredictor":
         self._check_duplicates(data.x0, data)
         kernel = self._product_kernel(data.x0)
         val = None
