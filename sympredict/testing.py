@@ -29,6 +29,7 @@ import numpy as np
 from sympredict.exceptions import ExtrapolationWarning
 from sympredict.symplectic.metrics import canonical_J
 from sympredict.mor.basis import symplecticity_of_basis
+from sympredict.mor.mass import MassMatrixCoordinates
 
 __all__ = ["assert_symplectic_step", "assert_energy_bounded", "assert_rom_matches_fom", "assert_symplectic_basis",
            "fe_wave_matrices", "fe_wave_model",
@@ -313,8 +314,6 @@ def fe_wave_model(n_elements: int = 64, T: float = 2.0, nt: int = 400, lumped: b
     from pymor.operators.numpy import NumpyMatrixOperator
     from pymor.parameters.functionals import ExpressionParameterFunctional
     from pymor.vectorarrays.numpy import NumpyVectorSpace
-
-    from sympredict.mor.mass import MassMatrixCoordinates
 
     M, K, nodes = fe_wave_matrices(n_elements)
     coords = MassMatrixCoordinates(M, lumped=lumped)

@@ -26,13 +26,20 @@ from __future__ import annotations
 
 import logging
 import time
+import warnings
 from dataclasses import dataclass, field
 from typing import Optional, Sequence
 
 import numpy as np
 
-from sympredict.base import Parametrized
+from sympredict.base import Parametrized, clone
 from sympredict.data import FlowMapData
+from sympredict.estimators.grid import refine_kernel_shapes, select_kernels
+from sympredict.exceptions import ExtrapolationWarning, NewtonConvergenceError, NonFinitePredictionError
+from sympredict.kernels import IMQ, KERNEL_FAMILIES
+from sympredict.kernels.radial import _EPS_RANGE
+from sympredict.kernels.transforms import KernelTransform, Scaled
+from sympredict.symplectic.updates import UPDATE_RULES, as_update
 
 __all__ = ["KernelSearch", "SearchResult", "FitDiagnostics"]
 
@@ -131,7 +138,6 @@ class KernelSearch(Parametrized):
 
     def check(self) -> "KernelSearch":
         """Validate the settings; ``ValueError`` naming the bad one."""
-        from sympredict.symplectic.updates import UPDATE_RULES
 
         fams = list(self.families) if not isinstance(self.families, str) else None
         if not fams or any(f not in _FAMILIES for f in fams):
@@ -174,11 +180,6 @@ class KernelSearch(Parametrized):
         -------
         SearchResult
         """
-        from sympredict.base import clone
-        from sympredict.estimators.selection import refine_kernel_shapes, select_kernels
-        from sympredict.kernels import IMQ, KERNEL_FAMILIES
-        from sympredict.kernels.transforms import KernelTransform, Scaled
-
         self.check()
         t0 = time.perf_counter()
         m_star = int(self.m_star) if self.m_star is not None else min(int(estimator.max_centers), 300)
@@ -311,11 +312,9 @@ def _widths(values: np.ndarray) -> np.ndarray:
 
 def _spread(template, data: FlowMapData) -> float:
     """Root of the summed variances of the mixed variable ``xi`` in the template's normalised coordinates."""
-    from sympredict.symplectic.updates import as_update
 
     scale = template._state_parts().scale_vector(data.x0.shape[1])
     xi, _ = as_update(template.update).variables(data.x0 * scale, data.x1 * scale, data.dt)
-    from sympredict.kernels.radial import _EPS_RANGE
 
     stds = _std(xi)
     big = float(stds.max()) if stds.size else 0.0
@@ -328,7 +327,6 @@ def _spread(template, data: FlowMapData) -> float:
 
 def _clip(eps: float) -> float:
     """A shape inside the kernels' accepted range."""
-    from sympredict.kernels.radial import _EPS_RANGE
 
     return float(np.clip(eps, *_EPS_RANGE))
 
@@ -383,9 +381,7 @@ def diagnose(model, train: FlowMapData, holdout: Optional[FlowMapData]) -> FitDi
 
     ``O(500 m (2n)^2)`` for the hold-out steps (NumPy Newton) besides the greedy's recorded residuals.
     """
-    import warnings
 
-    from sympredict.exceptions import ExtrapolationWarning, NewtonConvergenceError, NonFinitePredictionError
 
     h = model.history_
     m = model.n_centers_
@@ -431,10 +427,7 @@ def diagnose(model, train: FlowMapData, holdout: Optional[FlowMapData]) -> FitDi
 
 def _edge_advice(model, holdout: FlowMapData) -> list:
     """Advice when the gradient residual on hold-out samples near the parameter box's faces is much larger."""
-    import warnings
 
-    from sympredict.exceptions import ExtrapolationWarning
-    from sympredict.symplectic.updates import as_update
 
     lo, hi = model.domain_["mu_min"], model.domain_["mu_max"]
     width = np.where(hi > lo, hi - lo, 1.0)

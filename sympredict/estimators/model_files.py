@@ -22,7 +22,7 @@ from sympredict.exceptions import ModelFileError
 from sympredict.interpolation.functionals import HBFunctionals
 from sympredict.interpolation.greedy import GreedyHistory, Trainer, trainer_from_spec
 from sympredict.kernels import ProductKernel
-from sympredict.kernels.transforms import decode_value, encode_value
+from sympredict.kernels.transforms import decode_value, encode_value, lower_state_kernel
 from sympredict.symplectic.solvers import NewtonSolver
 from sympredict.symplectic.updates import UpdateRule
 
@@ -246,8 +246,6 @@ def _file_choice(raw, path) -> dict:
 
 def _check_choice_matches_kernel(choice: dict, kernel: ProductKernel, path) -> None:
     """The chosen kernels are the file's product kernel (the kernel predictions use)."""
-    from sympredict.kernels.transforms import lower_state_kernel
-
     pairs = [("state_kernel", lower_state_kernel(choice["state_kernel"]).radial if "state_kernel" in choice else None,
               kernel.state), ("mu_kernel", choice.get("mu_kernel"), kernel.mu), ("dt_kernel", choice.get("dt_kernel"), kernel.dt)]
     for name, chosen, used in pairs:
