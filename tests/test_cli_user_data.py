@@ -60,6 +60,7 @@ def test_predict_errors_name_the_option_and_shape(tmp_path, capsys):
     write_trajectories(oscillator(), tmp_path / "t.npz")
     model = str(tmp_path / "m.h5")
     assert main(["train", str(tmp_path / "t.npz"), "--out", model, "--max-centers", "5", "--threads", "1"]) == 0
+    capsys.readouterr()  # what training printed and logged
     (tmp_path / "bad.csv").write_text("q1,q2,p1,p2\n1,2,3,4\n")
     (tmp_path / "cell.csv").write_text("q,p\n1,x\n")
     cases = [
@@ -78,15 +79,15 @@ def test_predict_errors_name_the_option_and_shape(tmp_path, capsys):
 @pytest.mark.parametrize("system, dim", [("henon-heiles", 4), ("wave", 8), ("sine-gordon", 8)])
 def test_data_for_every_shipped_system_is_read_by_train(tmp_path, capsys, system, dim):
     out = tmp_path / f"{system}.npz"
-    assert main(["data", "--system", system, "--trajectories", "2", "--steps", "3", "--n-points", "4",
+    assert main(["data", "--system", system, "--trajectories", "3", "--steps", "4", "--n-points", "4",
                  "--out", str(out)]) == 0
-    assert f"wrote 2 {system} trajectories of 3 steps" in capsys.readouterr().out
+    assert f"wrote 3 {system} trajectories of 4 steps" in capsys.readouterr().out
     data = read_trajectories(out)
-    assert data.states.shape == (2, 4, dim) and data.mu.shape == (2, 1) and data.dt == 0.1
-    # the file is what train reads (the model choice for mu is the estimator's: here the test passes a kernel)
-    assert main(["train", str(out), "--out", str(tmp_path / "m.h5"), "--mu", "imq:1.0", "--max-centers", "5",
-                 "--threads", "1"]) == 0
-    assert f"2 trajectories of 4 states (2n = {dim}, 1 parameter(s)" in capsys.readouterr().out
+    assert data.states.shape == (3, 5, dim) and data.mu.shape == (3, 1) and data.dt == 0.1
+    # the file is what train reads, with the estimator's defaults (kernels and update chosen, mu learned)
+    assert main(["train", str(out), "--out", str(tmp_path / "m.h5"), "--max-centers", "5", "--threads", "1"]) == 0
+    assert f"3 trajectories of 5 states (2n = {dim}, 1 parameter(s)" in capsys.readouterr().out
+    assert SymplecticKernelPredictor.load(tmp_path / "m.h5").kernel_.mu is not None
 
 
 def test_data_keeps_the_pendulum_default(tmp_path, capsys):

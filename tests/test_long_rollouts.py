@@ -235,7 +235,8 @@ def test_predict_refuses_an_output_that_cannot_fit_before_stepping(model_file, t
     proc = subprocess.run(_predict(model_file, 20, "numpy", "--out", str(tmp_path / "s.csv"), "--stride", "5"),
                           capture_output=True, text=True, timeout=120)
     rows = np.loadtxt(tmp_path / "s.csv", delimiter=",", skiprows=1)
-    assert proc.returncode == 0 and rows[:, 1].tolist() == [0, 5, 10, 15, 20], proc.stderr
+    # the time column: every 5th step of dt = 0.05
+    assert proc.returncode == 0 and rows[:, 1] == pytest.approx([0, 0.25, 0.5, 0.75, 1.0], rel=1e-12), proc.stderr
 
 
 def test_predict_on_a_direct_model_with_check_is_refused_in_one_line(small_pendulum_data, tmp_path):

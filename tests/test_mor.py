@@ -173,8 +173,12 @@ def test_reductor_checks_the_existence_of_its_predictors_update(wave):
     limit = red.existence_["dt_max"]
     big = 1.5 * limit  # past the type-II limit, below the midpoint form's (twice as long)
     with pytest.raises(ValueError, match="dp1/dp0"):  # a type-II predictor is refused
-        SymplecticKernelReductor(fom, RB, train, big, SymplecticKernelPredictor(), n_samples=30,
+        SymplecticKernelReductor(fom, RB, train, big, SymplecticKernelPredictor(update="symplectic_euler"), n_samples=30,
                                  n_validation=1).training_data()
+    # a predictor that leaves its update open (update=None, the default) gets the form that exists
+    open_update = SymplecticKernelReductor(fom, RB, train, big, SymplecticKernelPredictor(), n_samples=30, n_validation=1)
+    open_update.training_data()
+    assert open_update.choice_["update"] == "midpoint"
     auto = SymplecticKernelReductor(fom, RB, train, big, n_samples=30, n_validation=1)
     auto.training_data()  # the default predictor takes the midpoint form, which exists here
     assert auto.choice_["update"] == "midpoint" and "dp1/dp0" in auto.choice_["reason"]
@@ -411,7 +415,10 @@ def test_reductor_bad_input(wave):
     with pytest.raises(ValueError, match="multiple of the FOM's output step"):
         SymplecticKernelReductor(fom, RB, train, 1.55 * dt, data="projected")
     with pytest.raises(ValueError, match=r"past the first step where it is singular.*largest admissible dT here is about 1\.[34]"):
-        SymplecticKernelReductor(fom, RB, train, 20 * dt, n_samples=50).training_data()  # omega_max dT > pi/2
+        SymplecticKernelReductor(fom, RB, train, 20 * dt, SymplecticKernelPredictor(update="symplectic_euler"),
+                                 n_samples=50).training_data()  # omega_max dT > pi/2
+    with pytest.raises(ValueError, match="neither generating function exists"):  # omega_max dT > pi: no form exists
+        SymplecticKernelReductor(fom, RB, train, 40 * dt, n_samples=50).training_data()
     reductor = SymplecticKernelReductor(fom, RB, train, dt, n_samples=100, max_centers=100)
     rom = reductor.reduce()
     with pytest.raises(ValueError, match="does not match"):
@@ -458,5 +465,8 @@ def test_reductor_clones_the_given_predictor(wave):
     assert not given.is_fitted and reductor.predictor_.is_fitted and reductor.predictor_ is not given
     assert reductor.predictor_.get_params()["state_kernel"] == IMQ(0.05)
     assert len(rom.solve(fom.parameters.parse(0.1))) == round(fom.T / dt) + 1
-    with pytest.raises(ValueError, match="mu_kernel=None"):
-        SymplecticKernelReductor(fom, RB, train, dt, predictor=SymplecticKernelPredictor(IMQ(0.05)), n_samples=80).reduce()
+    # a parameter kernel left out is chosen by the predictor on the reductor's data
+    open_mu = SymplecticKernelReductor(fom, RB, train, dt, n_samples=80,
+                                       predictor=SymplecticKernelPredictor(IMQ(0.05), max_centers=60, update="midpoint"))
+    open_mu.reduce()
+    assert open_mu.predictor_.kernel_.mu is not None and set(open_mu.predictor_.choice_) == {"mu_kernel"}

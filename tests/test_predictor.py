@@ -192,8 +192,11 @@ def test_bad_input_gets_clear_errors(small_pendulum_model, small_pendulum_data):
 def test_fixed_step_parameter_free_model(pendulum, rng):
     x0 = np.column_stack([rng.uniform(-1, 1, 60), rng.uniform(-3, 3, 60)])
     x1 = pendulum.flow(x0, 0.75, 0.05)
-    model = SymplecticKernelPredictor(max_centers=80).fit(x0, x1, dt=0.05)
-    # default state kernel: chosen inside the symplectic scaling (a q, p / a), a = sqrt(std p / std q), as documented
+    xv = np.column_stack([rng.uniform(-1, 1, 20), rng.uniform(-3, 3, 20)])
+    model = SymplecticKernelPredictor(max_centers=80).fit(x0, x1, dt=0.05,
+                                                         validation=(xv, pendulum.flow(xv, 0.75, 0.05), None, 0.05))
+    # default state kernel: chosen inside the symplectic scaling (a q, p / a), a = sqrt(std p / std q) over the
+    # training states (all of them: with validation data nothing is held out), as documented
     x = np.vstack([x0, x1])
     chosen = model.choice_["state_kernel"]
     assert chosen.factors[0] == pytest.approx(np.sqrt(x[:, 1].std() / x[:, 0].std()), rel=1e-12)

@@ -236,7 +236,8 @@ def test_set_params_after_fit_does_not_change_predictions(data, tmp_path):
     m.save(tmp_path / "m.h5")  # the fitted settings are written (a later periodic kernel would not fit the arrays)
     back = SymplecticKernelPredictor.load(tmp_path / "m.h5")
     np.testing.assert_array_equal(back.step(x), before)
-    assert back.update == "symplectic_euler" and back.state_kernel == IMQ(0.3)  # the fitted settings, not the later ones
+    # the fitted settings, not the later ones (update=None at fit: 'symplectic_euler' with the kernel given)
+    assert back.update is None and back.update_ == "symplectic_euler" and back.state_kernel == IMQ(0.3)
 
 
 def test_a_changed_parameter_takes_effect_at_the_next_fit(data):
@@ -340,7 +341,7 @@ def test_cli_predict_out_refuses_an_existing_file(model_file, tmp_path, capsys):
     args = ["predict", str(model_file), "--x0", "0.5,0.1", "--steps", "2", "--out", str(out)]
     assert main(args) == 1 and out.read_text() == "keep"
     assert "--force" in capsys.readouterr().err
-    assert main(args + ["--force"]) == 0 and out.read_text().startswith("instance,step")
+    assert main(args + ["--force"]) == 0 and out.read_text().startswith("traj,t")
 
 
 def test_cli_train_refuses_a_read_only_folder_before_training(data_file, tmp_path, capsys, monkeypatch):
@@ -476,9 +477,12 @@ def test_reductor_checks_its_predictors_settings_before_sampling(monkeypatch):
     monkeypatch.setattr(type(fom), "solve", lambda *a, **k: (_ for _ in ()).throw(AssertionError("FOM solved")))
     with pytest.raises(ValueError, match="update must be one of"):
         SymplecticKernelReductor(fom, RB, train, 0.05, SymplecticKernelPredictor(update="leapfrog"))
-    reductor = SymplecticKernelReductor(fom, RB, train, 0.05, SymplecticKernelPredictor(IMQ(1.0)))
-    with pytest.raises(ValueError, match="mu_kernel=None"):
-        reductor.reduce()
+    # a predictor without mu_kernel is no longer refused: it chooses its parameter kernel at fit
+    reductor = SymplecticKernelReductor(fom, RB, train, 0.05,
+                                        SymplecticKernelPredictor(IMQ(1.0), max_centers=40, update="midpoint"),
+                                        n_samples=60)
+    reductor.reduce()
+    assert reductor.predictor_.kernel_.mu is not None and set(reductor.predictor_.choice_) == {"mu_kernel"}
 
 
 def test_reductor_refuses_a_parameter_space_of_other_parameters(wave_parts):

@@ -143,7 +143,7 @@ def to_container(model) -> tuple:
         "n_mu": model.n_mu_,
         "dt_fixed": model.dt_fixed_,
         "stop_reason": hist.stop_reason,
-        "choice": {k: encode_param(v) for k, v in getattr(model, "choice_", {}).items()},
+        "choice": {k: encode_param(v) for k, v in _file_choice_of(model, params).items()},
     }
     arrays = {"train_max_residual": hist.train_max_residual, "selected_power": hist.selected_power}
     if hist.val_max_residual is not None:
@@ -228,6 +228,15 @@ def from_container(cls, settings, arrays: dict, path):
     except (KeyError, TypeError, ValueError, AttributeError, IndexError, OverflowError, RecursionError) as exc:
         raise ModelFileError(f"{str(path)!r} is an incomplete or inconsistent sympredict model file: {exc!r}") from None
     return model
+
+
+def _file_choice_of(model, params: dict) -> dict:
+    """What the file keeps as ``choice``: the fit's ``choice_``, and the fitted update where ``update=None`` (a
+    fitted state assembled by hand has no ``choice_``)."""
+    choice = dict(getattr(model, "choice_", None) or {})
+    if "update" in params and params["update"] is None and "update" not in choice:
+        choice["update"] = model.update_
+    return choice
 
 
 #: What a fit may choose (:class:`~sympredict.estimators.auto.KernelSearch`), stored as the file's ``choice``.

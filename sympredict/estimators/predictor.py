@@ -200,6 +200,8 @@ class _FlowMapKernelModel(Parametrized):
         # ``name_`` of a fitted setting missing (a fitted state assembled by hand, or an object pickled before
         # these attributes existed): the current setting
         if name.endswith("_") and name[:-1] in type(self)._fitted_settings:
+            if name == "update_" and getattr(self, "update") is None:
+                return "symplectic_euler"  # what update=None is with every kernel given (fit)
             return self._moved_value(name[:-1]) if name[:-1] in MOVED_OPTIONS else getattr(self, name[:-1])
         if name in type(self)._moved_options and not name.startswith("_"):
             warnings.warn(f"{type(self).__name__}.{name} is deprecated: read it from the part that owns it "

@@ -131,7 +131,7 @@ def select_regularization(
         raise ValueError(f"lambdas must be finite non-negative floats, got {lambdas!r}")
     mu = None if data.mu.shape[1] == 0 else data.mu
     vmu = None if validation.mu.shape[1] == 0 else validation.mu
-    vxi, vy = update_variables(getattr(estimator, "update", "symplectic_euler"), validation.x0, validation.x1, validation.dt)
+    vxi, vy = update_variables(getattr(estimator, "update", None) or "symplectic_euler", validation.x0, validation.x1, validation.dt)
     table, best, models = [], None, {}
     for lam in values:
         model = clone(estimator).set_params(trainer__regularization=lam)

@@ -632,20 +632,24 @@ class SymplecticKernelReductor(BasicObject):
     def _update(self) -> str:
         """The generating-function update of the predictor (the existence check depends on it): the given
         predictor's, else the one chosen for the default predictor (``choice_["update"]``)."""
-        if self.predictor is not None:
+        if not self._chooses_update():
             return getattr(self.predictor, "update", "symplectic_euler")
         return getattr(self, "choice_", {}).get("update", "symplectic_euler")
+
+    def _chooses_update(self) -> bool:
+        """Whether the update is the reductor's choice: the default predictor, or a given one with ``update=None``."""
+        return self.predictor is None or getattr(self.predictor, "update", "symplectic_euler") is None
 
     def _checked_existence(self, check):
         """``check()`` (an existence check for :meth:`_update`); for the default predictor, when the type II
         generating function does not exist at ``dt`` (a mode turns past a quarter turn per step), the midpoint
         form (up to half a turn) is chosen instead, logged and kept in ``choice_``."""
         self.choice_ = {"update": "symplectic_euler", "reason": "type II generating function exists at dt"} \
-            if self.predictor is None else {"update": self._update(), "reason": "the given predictor's update"}
+            if self._chooses_update() else {"update": self._update(), "reason": "the given predictor's update"}
         try:
             return check()
         except ValueError as exc:
-            if self.predictor is not None or self.split is not None:
+            if not self._chooses_update() or self.split is not None:
                 raise
             first = str(exc)
         self.choice_ = {"update": "midpoint", "reason": f"type II does not exist at dt = {self.dt!r}: {first}"}
@@ -879,7 +883,7 @@ class SymplecticKernelReductor(BasicObject):
         else:
             rows = self._mu_rows(self.training_parameters)[:, self._flow_index]
         if len(np.unique(rows, axis=0)) > 1 and getattr(self.predictor, "mu_kernel", True) is None \
-                and self.mu_kernels is None:
+                and self.mu_kernels is None and not getattr(self.predictor, "_chooses_open_factors", False):
             # before any FOM solve (reduce() would find it after sampling)
             raise ValueError("the parameters vary across training_parameters but the predictor has mu_kernel=None: "
                              "give it a mu_kernel, or train at one parameter value")
@@ -900,8 +904,12 @@ class SymplecticKernelReductor(BasicObject):
         if self.predictor is None:
             predictor = self._default_predictor(*search, vary_mu)
         else:
-            predictor = self._search_kernels(clone(self.predictor), *search, vary_mu) or clone(self.predictor)
-            if vary_mu and getattr(predictor, "mu_kernel", True) is None:
+            given = clone(self.predictor)
+            if self._chooses_update():  # update=None: the form the existence check chose
+                given.set_params(update=self._update())
+            predictor = self._search_kernels(given, *search, vary_mu) or given
+            if vary_mu and getattr(predictor, "mu_kernel", True) is None and \
+                    not getattr(predictor, "_chooses_open_factors", False):
                 raise ValueError("the parameters vary across training_parameters but the predictor has mu_kernel=None")
         timings["selection"] = time.perf_counter() - t0
         t0 = time.perf_counter()
