@@ -219,17 +219,21 @@ def test_flow_parameters_leave_out_the_initial_datas_parameters(sine_gordon):
         SymplecticKernelReductor(fom.model, RB, None, 0.1, p, data=trajectory_pairs_of(Y, c))
 
 
-def hand_made_flow(pairs, lam, dt=0.1, quadratic=None):
-    """The fit the sine-Gordon experiment composed by hand before it used the reductor (one candidate)."""
+def hand_made_flow(pairs, lam, dt=0.1, quadratic=None, validation=None):
+    """The fit the sine-Gordon experiment composed by hand before it used the reductor (one candidate); with
+    ``validation`` (pairs) the fit is scored on them, as the reductor's fit on its validation data."""
     from sympredict.flowmap.scaling import BoxScaling, NormalizedFlowMap, SymplecticScaling, scaled_quadratic_part
     from sympredict.flowmap.splitting import SplitKernelPredictor
 
     st = SymplecticScaling("diag").fit(np.concatenate([pairs.x0, pairs.x1]))
     ms = BoxScaling().fit(pairs.mu, np.array([0.8]), np.array([1.2]))
-    model = SymplecticKernelPredictor(None, mu_kernel=IMQ(1.0), max_centers=50, trainer=ExactGreedy(tol=1e-9, regularization=lam))
+    model = SymplecticKernelPredictor(None, mu_kernel=IMQ(1.0), max_centers=50, update="symplectic_euler",  # the reductor's choice
+                                      trainer=ExactGreedy(tol=1e-9, regularization=lam))
     if quadratic is not None:
         model = SplitKernelPredictor(model, scaled_quadratic_part(quadratic, st, ms, dt))
-    model.fit(st.transform(pairs.x0), st.transform(pairs.x1), mu=ms.transform(pairs.mu), dt=1.0)
+    val = None if validation is None else (st.transform(validation.x0), st.transform(validation.x1),
+                                           ms.transform(validation.mu), 1.0)
+    model.fit(st.transform(pairs.x0), st.transform(pairs.x1), mu=ms.transform(pairs.mu), dt=1.0, validation=val)
     return NormalizedFlowMap(model, st, ms, dt)
 
 
@@ -248,7 +252,7 @@ def test_regularization_chosen_by_rollouts_on_validation_trajectories(sine_gordo
     red.reduce()
     table = []
     for lam in (0.0, *lams):
-        flow = hand_made_flow(train, lam)
+        flow = hand_made_flow(train, lam, validation=val.pairs())  # the reductor fits with its validation data
         pred = flow.rollout(Y[held, 0], 20, mu=c[held, None], dt=0.1)[:, 1:]
         table.append((lam, float(np.mean(np.linalg.norm(pred - Y[held, 1:], axis=-1) / np.linalg.norm(Y[held, 1:], axis=-1)))))
     assert [(r["regularization"], r["score"]) for r in red.regularization_table_] == table
