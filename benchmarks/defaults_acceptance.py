@@ -272,15 +272,27 @@ def make_benchmarks() -> dict:
 
 
 # --------------------------------------------------------------------------- hand settings
-#: The best hand settings found by ``--search`` (validation split only) and the search that found them.
-#: ``factors`` are the Scaled transform's ``a_i`` = ratio * sqrt(std p_i / std q_i) of the training data.
+#: The best hand settings found by ``--search`` (validation split only) and the searches that found them
+#: (each round: family x update at the start, then a coordinate search over eps_state, eps_mu, ratio by factors
+#: of 2, 3 sweeps; cost on the shared 2-core machine, 1 BLAS and 1 numba thread).
+#: ``factors`` are the Scaled transform's ``a_i`` = ratio * sqrt(std p_i / std q_i) of the training data;
+#: ``eps_state`` is in units of 1 / spread (``spread``), ``eps_mu`` in 1 / (the parameter's unit).
 HAND: dict = {
-    "coupled_pendulums": {"family": "imq", "update": "midpoint", "eps_state": 0.5, "eps_mu": 1.0, "ratio": 1.0,
-                          "search": None},
-    "fpu_chain": {"family": "imq", "update": "midpoint", "eps_state": 0.5, "eps_mu": 5e-4, "ratio": 1.0,
-                  "search": None},
-    "kepler": {"family": "imq", "update": "midpoint", "eps_state": 0.5, "eps_mu": 0.025, "ratio": 1.0,
-               "search": None},
+    "coupled_pendulums": {"family": "matern52", "update": "symplectic_euler", "eps_state": 0.0625, "eps_mu": 0.25,
+                          "ratio": 1.0, "search": {
+                              "rounds": [{"start": "imq, midpoint, eps_state 0.5, eps_mu 1.0, ratio 1.0",
+                                          "evaluations": 21, "cost_s": 182, "best_validation": 1.21e-4}],
+                              "samples": 5000, "max_centers": 1000}},
+    "fpu_chain": {"family": "matern52", "update": "midpoint", "eps_state": 0.0625, "eps_mu": 0.001, "ratio": 2.0,
+                  "search": {
+                      "rounds": [{"start": "imq, midpoint, eps_state 0.5, eps_mu 5e-4, ratio 1.0",
+                                  "evaluations": 19, "cost_s": 203, "best_validation": 1.80e-3}],
+                      "samples": 5000, "max_centers": 1000}},
+    "kepler": {"family": "matern52", "update": "symplectic_euler", "eps_state": 0.5, "eps_mu": 0.0253, "ratio": 2.0,
+               "search": {
+                   "rounds": [{"start": "imq, midpoint, eps_state 0.5, eps_mu 0.0253, ratio 1.0",
+                               "evaluations": 15, "cost_s": 108, "best_validation": 1.23e-3}],
+                   "samples": 5000, "max_centers": 1000}},
 }
 
 
