@@ -285,17 +285,21 @@ HAND: dict = {
                                          {"start": "round 1's best (matern52, symplectic_euler, 0.0625, 0.25, 1.0)",
                                           "evaluations": 13, "cost_s": 50, "best_validation": 3.05e-7}],
                               "samples": 5000, "max_centers": 1000}},
-    "fpu_chain": {"family": "matern52", "update": "midpoint", "eps_state": 0.015625, "eps_mu": 0.0005, "ratio": 2.0,
+    "fpu_chain": {"family": "imq", "update": "midpoint", "eps_state": 0.015625, "eps_mu": 0.000125, "ratio": 2.0,
                   "search": {
                       "rounds": [{"start": "imq, midpoint, eps_state 0.5, eps_mu 5e-4, ratio 1.0",
                                   "evaluations": 19, "cost_s": 203, "best_validation": 1.80e-3},
                                  {"start": "round 1's best (matern52, midpoint, 0.0625, 0.001, 2.0)",
-                                  "evaluations": 16, "cost_s": 118, "best_validation": 9.11e-4}],
+                                  "evaluations": 16, "cost_s": 118, "best_validation": 9.11e-4},
+                                 {"start": "round 2's best (matern52, midpoint, 0.015625, 5e-4, 2.0)",
+                                  "evaluations": 14, "cost_s": 78, "best_validation": 1.27e-4}],
                       "samples": 5000, "max_centers": 1000}},
-    "kepler": {"family": "matern52", "update": "symplectic_euler", "eps_state": 0.5, "eps_mu": 0.0253, "ratio": 2.0,
+    "kepler": {"family": "matern52", "update": "symplectic_euler", "eps_state": 0.125, "eps_mu": 0.0253, "ratio": 2.0,
                "search": {
                    "rounds": [{"start": "imq, midpoint, eps_state 0.5, eps_mu 0.0253, ratio 1.0",
-                               "evaluations": 15, "cost_s": 108, "best_validation": 1.23e-3}],
+                               "evaluations": 15, "cost_s": 108, "best_validation": 1.23e-3},
+                              {"start": "round 1's best with eps_state 0.0625 (matern52, symplectic_euler, ratio 2.0)",
+                               "evaluations": 10, "cost_s": 37, "best_validation": 1.15e-3}],
                    "samples": 5000, "max_centers": 1000}},
 }
 
