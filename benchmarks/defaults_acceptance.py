@@ -54,7 +54,7 @@ result: the row records it.  Goal: defaults within 1.5x of the hand tuning.
 
 Run:  python benchmarks/defaults_acceptance.py                          # 5,000 samples, 1,000 centres, recorded hand settings
       python benchmarks/defaults_acceptance.py --search                 # redo the hand search (validation split only)
-      python benchmarks/defaults_acceptance.py --big                    # the user story: coupled pendulums, 30,000 / 4,000
+      python benchmarks/defaults_acceptance.py --big                    # the user story: coupled pendulums, 30,000 / 4,000, progress shown
       python benchmarks/defaults_acceptance.py --quick --systems kepler --configs hand   # seconds
 One BLAS thread (``--blas-threads``) and one numba thread (``--threads``; set NUMBA_NUM_THREADS too);
 writes ``benchmarks/results/defaults_acceptance.json`` (``--json``) with the record of ``benchmarks/_protocol.py``.
