@@ -143,7 +143,8 @@ def main(argv=None) -> dict:
         child_args = [str(tmp / "model.h5"), None, str(tmp / "x0.npy"), str(args.steps), repr(mu), repr(dt)]
         result = {"centers": int(len(model.surrogate_.centers_xi)), "trajectories": args.trajectories, "steps": args.steps,
                   "repeats": args.repeats, "threads": args.threads, "python": platform.python_version(),
-                  "machine": platform.processor() or platform.machine(), "backends": {}}
+                  "machine": f"{os.cpu_count()} CPUs, {platform.processor() or platform.machine()}, {platform.platform()}",
+                  "backends": {}}
         for backend in ("numpy", "numba", "auto"):  # 'auto', the default, after numba has filled the cache
             child_args[1] = backend
             first = run_child(child_args, env)  # numba: compiles and fills the fresh cache
@@ -165,6 +166,7 @@ def main(argv=None) -> dict:
         result["cache_files"] = sum(1 for p in cache.rglob("*") if p.is_file()) if cache.exists() else 0
         protocol = _protocol.record(blas_threads=args.blas_threads, numba_threads=args.threads, repeats=args.repeats,
                                     warmup=1, notes="fresh child processes; the first per backend compiles (its own keys)")
+    result = {"command": protocol["command"], **result}  # the docs print command and machine under their tables
     b = result["backends"]
     result["numba_cached_rollout_over_numpy_s"] = b["numba"]["first_rollout_s"] - b["numpy"]["first_rollout_s"]
     for name, row in b.items():

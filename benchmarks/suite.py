@@ -392,40 +392,69 @@ def section_scaling(model, repeats: int = 3) -> dict:
     return out
 
 
-def scaling_figure(scaling: dict, path: Path) -> None:
+def draw_scaling(scaling: dict):
+    """The scaling figure of a ``scaling`` section: one log-log panel per measurement, two rows of three.
+
+    Each panel has a title saying what is measured, axis labels with units and its
+    fitted slopes in the legend; sized to stay readable at the page width of the docs.
+    Returns the matplotlib Figure.
+    """
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    import matplotlib.ticker  # noqa: F401
+    import matplotlib.ticker
 
     panels = []
     if "rollout_vs_centers" in scaling:
         r = scaling["rollout_vs_centers"]
-        panels.append(("centres m", r["m"], {"rollout (numba)": r["s_per_traj_step"]}, "s per trajectory-step", r["exponent"]))
+        panels.append(("rollout against centres", "centres $m$", r["m"], {"numba rollout": r["s_per_traj_step"]},
+                       "time per trajectory-step [s]"))
         r = scaling["rollout_vs_batch"]
-        panels.append(("batch B", r["batch"], {"rollout (numba)": r["s_per_traj_step"]}, "s per trajectory-step", r["exponent_total_time"] - 1))
+        panels.append(("rollout against batch size", "batch size $B$ [trajectories]", r["batch"],
+                       {"numba rollout": r["s_per_traj_step"]}, "time per trajectory-step [s]"))
         r = scaling["newton_vs_dim"]
-        panels.append(("state dimension 2n", r["dim"], {"numba implicit step": r["numba_implicit_step_s"],
-                                                         "numba gradient": r["numba_gradient_s_per_point"],
-                                                         "NumPy grad + Hessian block": r["numpy_newton_terms_s_per_point"]},
-                       "s per point (m = 1500)", None))
+        panels.append(("Newton terms against $2n$ ($m$ = 1500)", "state dimension $2n$", r["dim"],
+                       {"numba implicit step": r["numba_implicit_step_s"], "numba gradient": r["numba_gradient_s_per_point"],
+                        "NumPy grad + Hessian block": r["numpy_newton_terms_s_per_point"]}, "time per state [s]"))
     r = scaling["greedy_step_vs_N"]
-    panels.append(("candidates N", r["N"], {f"greedy step, m = {r['m']}": r["s_per_step"]}, "s per centre", r["exponent"]))
+    panels.append((f"greedy step against candidates ($m$ = {r['m']})", "candidates $N$ [functionals]", r["N"],
+                   {"greedy step": r["s_per_step"]}, "time per greedy step [s]"))
     r = scaling["greedy_step_vs_m"]
-    panels.append(("centres m", r["m"], {f"greedy step, N = {r['N']}": r["s_per_step"]}, "s per centre", r["exponent"]))
-    fig, axes = plt.subplots(1, len(panels), figsize=(3.4 * len(panels), 3.2), constrained_layout=True)
-    for ax, (xlabel, x, curves, ylabel, expo) in zip(np.atleast_1d(axes), panels):
-        for label, yv in curves.items():
-            e = fit_exponent(x, yv)
-            ax.loglog(x, yv, "o-", label=f"{label} (slope {e:.2f})")
-        ax.set_xlabel(xlabel)
-        ax.set_ylabel(ylabel)
-        ax.grid(True, which="both", alpha=0.3)
-        ax.set_xticks(x)
-        ax.set_xticklabels([f"{v:g}" if v < 1e4 else f"{v:.0e}" for v in x], fontsize=7)
-        ax.xaxis.set_minor_locator(matplotlib.ticker.NullLocator())
-        ax.legend(fontsize=7)
+    panels.append((f"greedy step against centres ($N$ = {r['N']:,})", "centres $m$", r["m"], {"greedy step": r["s_per_step"]},
+                   "time per greedy step [s]"))
+    ncols = min(3, len(panels))
+    nrows = -(-len(panels) // ncols)
+    with plt.rc_context({"font.size": 10, "axes.titlesize": 10, "axes.labelsize": 10, "legend.fontsize": 8.5,
+                         "xtick.labelsize": 9, "ytick.labelsize": 9}):
+        fig, axes = plt.subplots(nrows, ncols, figsize=(3.3 * ncols, 3.1 * nrows), constrained_layout=True, squeeze=False)
+        for ax, (title, xlabel, x, curves, ylabel) in zip(axes.flat, panels):
+            for label, yv in curves.items():
+                e = fit_exponent(x, yv)
+                ax.loglog(x, yv, "o-", ms=4, label=f"{label}, slope {e:.2f}")
+            ax.set_title(title)
+            ax.set_xlabel(xlabel)
+            ax.set_ylabel(ylabel)
+            ax.grid(True, which="major", alpha=0.3)
+            # a tick label only where it does not run into the previous one (log spacing >= 1.6x)
+            ticks = [x[0]]
+            for v in x[1:]:
+                if v >= 1.6 * ticks[-1]:
+                    ticks.append(v)
+            ax.set_xticks(ticks)
+            ax.set_xticklabels([f"{v:g}" if v < 1e4 else f"{v / 1e3:.0f}k" for v in ticks])
+            ax.xaxis.set_minor_locator(matplotlib.ticker.NullLocator())
+            ax.legend(loc="upper left")
+        for ax in list(axes.flat)[len(panels):]:
+            ax.set_visible(False)
+    return fig
+
+
+def scaling_figure(scaling: dict, path: Path) -> None:
+    """Draw :func:`draw_scaling` into ``path`` (PNG)."""
+    import matplotlib.pyplot as plt
+
+    fig = draw_scaling(scaling)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=130)
     plt.close(fig)

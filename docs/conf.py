@@ -11,6 +11,11 @@ The figures page (``explanation/figures.md``) shows the PNGs in ``docs/figures/`
 there from a ``sympredict run all --quick`` output folder by
 ``python docs/collect_figures.py DIR``; they are committed, and a build
 without them fails under -W (image file not readable).
+
+Measured numbers and their tables are read at build time from the JSON files in
+``docs/data/`` (``docs/_ext/jsondata.py``: the ``json-table`` and ``json-source``
+directives and the ``json`` role); a reference that does not resolve, or a typed
+number that disagrees with its source, fails the build under -W.
 """
 
 import os
@@ -21,6 +26,8 @@ from pathlib import Path
 # build from a bare checkout import the same sources.
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+# docs/_ext: this documentation's own Sphinx extensions (jsondata: numbers rendered from JSON at build time)
+sys.path.insert(0, str(Path(__file__).resolve().parent / "_ext"))
 # plotting imports pyplot: never open a window while importing it for autodoc.
 os.environ.setdefault("MPLBACKEND", "Agg")
 
@@ -38,13 +45,14 @@ extensions = [
     "sphinx.ext.mathjax",
     "sphinx.ext.viewcode",
     "myst_parser",
+    "jsondata",
 ]
 
 source_suffix = {".rst": "restructuredtext", ".md": "markdown"}
 root_doc = "index"
 # failure_modes.py generates reference/errors.md; collect_figures.py fills figures/.
-# Neither is a page.  _build is the output folder.
-exclude_patterns = ["_build", "failure_modes.py", "collect_figures.py", "Thumbs.db", ".DS_Store"]
+# Neither is a page, nor is anything in _ext.  _build is the output folder.
+exclude_patterns = ["_build", "_ext", "failure_modes.py", "collect_figures.py", "Thumbs.db", ".DS_Store"]
 
 # -- MyST ---------------------------------------------------------------------
 # The pages write formulas as Unicode in code spans and indented blocks, with no

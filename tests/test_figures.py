@@ -149,3 +149,167 @@ def test_wave_error_figures_average_the_reported_cases(smoke_run):
             _, im = _line(ax, f"implicit midpoint, dT={r['dt']}")
             assert kernel.mean() == pytest.approx(np.mean([c[f"mean_kernel_{space}"] for c in r["cases"]]), rel=1e-9)
             assert im.mean() == pytest.approx(np.mean([c[f"mean_im_{space}"] for c in r["cases"]]), rel=1e-9)
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# Readability of the figures, from small synthetic results (no run): what is drawn on top, the axis limits, labels.
+
+from pathlib import Path  # noqa: E402
+from types import SimpleNamespace  # noqa: E402
+
+import matplotlib  # noqa: E402
+
+matplotlib.use("Agg")
+
+
+def _render(fig):
+    """Draw the figure with Agg into PNG bytes (layout computed as in the docs) and close it."""
+    import io
+
+    import matplotlib.pyplot as plt
+
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=60)
+    plt.close(fig)
+    assert buf.getvalue()[:4] == b"\x89PNG"
+
+
+def _history(n=300, seed=0, with_val=True):
+    rng = np.random.default_rng(seed)
+    m = np.arange(n + 1)
+    train = 10.0 * (m + 1.0) ** -2 * np.exp(0.1 * rng.standard_normal(n + 1))
+    val = train * 1.05 if with_val else None
+    return SimpleNamespace(n_centers=m, train_max_residual=train, val_max_residual=val)
+
+
+@pytest.mark.parametrize("n_histories", [1, 3])
+def test_greedy_residuals_draw_the_validation_line_on_top_and_visible(n_histories):
+    from sympredict.paper import plotting
+
+    labels = [""] if n_histories == 1 else [f", dT={dt}" for dt in (0.1, 0.05, 0.025)]
+    fig = plotting.greedy_residuals({lab: _history(seed=i) for i, lab in enumerate(labels)}, "greedy")
+    (ax,) = fig.axes
+    lines = {line.get_label(): line for line in ax.get_lines()}
+    ylo, yhi = ax.get_ylim()
+    for lab in labels:
+        train, val = lines[f"training{lab}"], lines[f"validation{lab}"]
+        assert val.get_zorder() > max(line.get_zorder() for line in ax.get_lines() if line.get_label().startswith("training"))
+        assert val.get_visible() and val.get_alpha() in (None, 1.0) and val.get_linewidth() > train.get_linewidth()
+        assert val.get_linestyle() != train.get_linestyle()
+        y = val.get_ydata()
+        assert ylo <= y.min() and y.max() <= yhi  # inside the axes, not clipped away
+        if n_histories == 1:
+            assert val.get_color() != train.get_color()
+    assert ax.get_xlabel() and ax.get_ylabel() and ax.get_title() == "greedy"
+    _render(fig)
+
+
+def test_greedy_residuals_without_validation_draw_only_training():
+    from sympredict.paper import plotting
+
+    fig = plotting.greedy_residuals({"": _history(with_val=False)}, "greedy")
+    assert [line.get_label() for line in fig.axes[0].get_lines()] == ["training"]
+    _render(fig)
+
+
+def test_error_over_time_y_axis_stops_at_a_floor_above_round_off():
+    """One round-off value (1e-17) must not pull the log axis down to 1e-16: the bulk decides, above a floor."""
+    from sympredict.paper import plotting
+
+    t = np.linspace(0, 6, 121)
+    kernel = 1e-6 * (1 + t)
+    kernel[5] = 1e-17  # a single step that happens to hit the reference
+    im = 1e-3 * (1 + t)
+    curves = [{"t": t, "values": kernel, "label": "kernel, dT=0.05", "style": "-", "color": 0},
+              {"t": t, "values": im, "label": "implicit midpoint, dT=0.05", "style": "--", "color": 0}]
+    fig = plotting.error_over_time(curves, "wave")
+    (ax,) = fig.axes
+    lo, hi = ax.get_ylim()
+    assert ax.get_yscale() == "log"
+    assert lo >= plotting.ERROR_FLOOR and lo <= 1e-6 and hi >= im.max()
+    assert 1e-7 < lo  # the bulk of the kernel curve (>= 1e-6) sets the bottom, not the dip
+    assert ax.get_xlabel() and ax.get_ylabel() and ax.get_title() == "wave"
+    _render(fig)
+    # every value at round-off: then that is what the figure shows, inside the axes
+    flat = [{"t": t, "values": np.full_like(t, 1e-17), "label": "exact", "style": "-", "color": 0}]
+    fig = plotting.error_over_time(flat, "exact")
+    lo, hi = fig.axes[0].get_ylim()
+    assert lo < 1e-17 < hi
+    _render(fig)
+
+
+def test_phase_portrait_tells_the_methods_apart_at_a_glance():
+    from sympredict.paper import plotting
+
+    t = np.linspace(0.0, 20.0, 401)
+    ref = np.column_stack([np.cos(2 * t), -2 * np.sin(2 * t)])
+    kernel = ref + 1e-4 * np.column_stack([np.sin(t), np.cos(t)])
+    im = np.column_stack([np.cos(2.01 * t), -2.01 * np.sin(2.01 * t)])
+    trajs = {"reference": ref, "kernel predictor": kernel, "implicit midpoint, macro step": im}
+    fig = plotting.phase_portrait(trajs, "Phase portrait, l=0.794", t=t)
+    plane, dist = fig.axes
+    lines = {line.get_label(): line for line in plane.get_lines()}
+    assert [lab for lab in lines if not lab.startswith("_")] == list(trajs)  # the phase plane: one line per method
+    ref_line = lines["reference"]
+    # the reference is a wide band under the methods, which are drawn on top with markers
+    for lab in ("kernel predictor", "implicit midpoint, macro step"):
+        assert lines[lab].get_zorder() > ref_line.get_zorder() and lines[lab].get_marker() not in (None, "None", "")
+        assert ref_line.get_linewidth() >= 3 * lines[lab].get_linewidth()
+    np.testing.assert_array_equal(lines["kernel predictor"].get_xdata(), kernel[:, 0])
+    assert "[rad]" in plane.get_xlabel() and "[" in plane.get_ylabel() and "l=0.794" in plane.get_title()
+    # the second panel: distance to the reference, which separates 1e-4 from 1e-1 at once
+    assert dist.get_yscale() == "log" and "[s]" in dist.get_xlabel() and dist.get_ylabel() and dist.get_title()
+    d = {line.get_label(): line.get_ydata() for line in dist.get_lines()}
+    assert set(d) == {"kernel predictor", "implicit midpoint, macro step"}
+    np.testing.assert_allclose(d["kernel predictor"], np.linalg.norm(kernel - ref, axis=1)[1:], rtol=1e-12)
+    assert np.median(d["implicit midpoint, macro step"]) > 100 * np.median(d["kernel predictor"])
+    lo, hi = dist.get_ylim()
+    assert lo <= d["kernel predictor"].min() * 1.01 and hi >= d["implicit midpoint, macro step"].max()
+    _render(fig)
+
+
+def test_phase_portrait_without_times_is_one_panel():
+    from sympredict.paper import plotting
+
+    ref = np.column_stack([np.cos(np.linspace(0, 6, 50)), np.sin(np.linspace(0, 6, 50))])
+    fig = plotting.phase_portrait({"reference": ref, "kernel": ref * 1.01}, "pp")
+    assert len(fig.axes) == 1
+    _render(fig)
+
+
+def _suite():
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("suite_for_tests", Path(__file__).resolve().parents[1] / "benchmarks" / "suite.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_performance_scaling_figure_is_readable_at_page_width():
+    suite = _suite()
+    ms = [100, 200, 400, 800, 1500]
+    scaling = {
+        "rollout_vs_centers": {"m": ms, "s_per_traj_step": [3e-6 * (m / 100) ** 0.8 for m in ms], "exponent": 0.8},
+        "rollout_vs_batch": {"batch": [1, 10, 100, 1000], "s_per_traj_step": [3.6e-5, 2.4e-5, 2.5e-5, 2.7e-5],
+                             "exponent_total_time": 0.96},
+        "newton_vs_dim": {"dim": [2, 4, 10, 20, 40], "numba_implicit_step_s": [2e-5, 4e-5, 1e-4, 3e-4, 1e-3],
+                          "numba_gradient_s_per_point": [2e-5, 2e-5, 4e-5, 6e-5, 1e-4],
+                          "numpy_newton_terms_s_per_point": [5e-5, 9e-5, 1.3e-4, 2.2e-4, 4e-4]},
+        "greedy_step_vs_N": {"N": [30000, 60000, 120000, 289704], "m": 300, "s_per_step": [8e-3, 9e-3, 2e-2, 5e-2], "exponent": 0.8},
+        "greedy_step_vs_m": {"N": 289704, "m": [50, 100, 200, 400, 600, 800], "s_per_step": [0.015, 0.02, 0.04, 0.07, 0.09, 0.13],
+                             "exponent": 0.79},
+    }
+    fig = suite.draw_scaling(scaling)
+    visible = [ax for ax in fig.axes if ax.get_visible()]
+    assert len(visible) == 5
+    width, height = fig.get_size_inches()
+    assert width <= 10.5  # shown at the page width: a wider figure shrinks its text below reading size
+    rows = {round(ax.get_position().y0, 2) for ax in visible}
+    assert len(rows) == 2  # two rows of panels, not one strip
+    for ax in visible:
+        assert ax.get_title() and ax.get_xlabel() and "[s]" in ax.get_ylabel()
+        assert ax.get_xscale() == ax.get_yscale() == "log"
+        assert min(label.get_fontsize() for label in ax.get_xticklabels()) >= 8
+        assert all("slope" in text.get_text() for text in ax.get_legend().get_texts())
+    _render(fig)

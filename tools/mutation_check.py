@@ -29,6 +29,8 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import platform
+import shlex
 import shutil
 import subprocess
 import sys
@@ -294,6 +296,17 @@ def _check_import_path(workdir: Path):
         raise SystemExit(f"mutation_check: the tests would import sympredict from {got}, not from the copy {workdir}")
 
 
+def summary_by_area(results: list[dict]) -> list[dict]:
+    """Per area, in order of first appearance: ``area``, ``faults``, ``caught`` (``CAUGHT`` or ``TIMEOUT``) and the ``ids``."""
+    areas: dict = {}
+    for r in results:
+        a = areas.setdefault(r["area"], {"area": r["area"], "faults": 0, "caught": 0, "ids": []})
+        a["faults"] += 1
+        a["caught"] += r["outcome"] in ("CAUGHT", "TIMEOUT")
+        a["ids"].append(r["id"])
+    return list(areas.values())
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--only", nargs="+", metavar="ID", help="run these faults only")
@@ -334,7 +347,11 @@ def main(argv=None) -> int:
     counts = {k: sum(r["outcome"] == k for r in results) for k in ("CAUGHT", "TIMEOUT", "SURVIVED", "ERROR")}
     print(f"{len(results)} faults in {total:.0f} s: " + ", ".join(f"{v} {k.lower()}" for k, v in counts.items()))
     if args.json:
-        Path(args.json).write_text(json.dumps({"total_seconds": total, "counts": counts, "results": results}, indent=1))
+        # command and machine: the documentation prints them under the tables it renders from this file
+        record = {"command": shlex.join(getattr(sys, "orig_argv", [sys.executable, *sys.argv])),
+                  "machine": f"{os.cpu_count()} CPUs, {platform.platform()}",
+                  "total_seconds": total, "counts": counts, "areas": summary_by_area(results), "results": results}
+        Path(args.json).write_text(json.dumps(record, indent=1))
     return 0 if counts["SURVIVED"] == counts["ERROR"] == 0 else 1
 
 

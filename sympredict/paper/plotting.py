@@ -37,6 +37,29 @@ def _decorate(ax, xlabel: str, ylabel: str, title: str, legend_outside: bool = F
         ax.legend(fontsize=8)
 
 
+#: Lowest y-limit of the error plots: relative errors below it are round-off, and a log axis that runs
+#: down to 1e-16 for one such value squeezes the curves that matter into a strip.
+ERROR_FLOOR = 1e-12
+
+
+def _log_limits(ax, curves, floor: float = ERROR_FLOOR, decades: float = 9.0) -> None:
+    """y-limits of a log axis from the data of ``curves`` (arrays): the bulk of the values, not single dips.
+
+    The bottom is the largest of ``floor``, a third of the 1st percentile of the positive
+    finite values, and ``decades`` decades below the top (three times the largest value).
+    Values below the bottom are cut off.
+    """
+    import numpy as np
+
+    vals = np.concatenate([np.asarray(c, dtype=float).ravel() for c in curves]) if curves else np.empty(0)
+    vals = vals[np.isfinite(vals) & (vals > 0)]
+    if vals.size == 0:
+        return
+    top = 3.0 * vals.max()
+    bottom = max(floor, np.percentile(vals, 1) / 3.0, top * 10.0 ** (-decades))
+    ax.set_ylim(min(bottom, top / 10.0), top)
+
+
 def _finite_or_none(values) -> list:
     return [float(v) if math.isfinite(float(v)) else None for v in values]
 
@@ -81,45 +104,91 @@ def save(fig, out_dir, name: str) -> list[str]:
 
 
 def greedy_residuals(histories, title: str):
-    """``E_train(m)`` (solid) and ``E_val(m)`` (dashed) against the number of centres, log-log.
+    """``E_train(m)`` (solid) and ``E_val(m)`` (dashed, drawn on top) against the number of centres, log-log.
+
+    The validation residual follows the training one closely on a good model, so it is
+    drawn above it (higher ``zorder``), thicker and dashed; with one history it also
+    gets its own colour.
 
     Parameters
     ----------
     histories : dict
         Label -> :class:`~sympredict.interpolation.greedy.GreedyHistory` (one colour each).
     """
-    fig, ax = plt.subplots(figsize=(5.5, 4))
+    fig, ax = plt.subplots(figsize=(6, 4.2))
+    single = len(histories) == 1
     for i, (label, history) in enumerate(histories.items()):
         m = history.n_centers
         color = _COLORS[i % len(_COLORS)]
-        ax.loglog(m[1:], history.train_max_residual[1:], "-", color=color, label=f"training{label}")
+        ax.loglog(m[1:], history.train_max_residual[1:], "-", color=color, label=f"training{label}", lw=1.2, zorder=2)
         if history.val_max_residual is not None:
-            ax.loglog(m[1:], history.val_max_residual[1:], "--", color=color, label=f"validation{label}")
+            ax.loglog(m[1:], history.val_max_residual[1:], color=_COLORS[1] if single else color, ls=(0, (4, 2)),
+                      label=f"validation{label}", lw=2.0, zorder=3)
     _decorate(ax, "number of selected centres $m$", r"max state-gradient residual $\max|\partial_{\xi_l} e_m|$", title)
     return fig
 
 
-def error_over_time(curves, title: str, ylabel: str = "mean relative error $e_{rel}(t)$"):
-    """Error curves over time, log scale.
+def error_over_time(curves, title: str, ylabel: str = "mean relative error $e_{rel}(t)$", floor: float = ERROR_FLOOR):
+    """Error curves over time, log scale, the y-axis bounded below by the data's bulk and ``floor``.
 
     Parameters
     ----------
     curves : list of dict
         Each with ``t``, ``values``, ``label``, ``style`` (``'-'`` or ``'--'``) and ``color`` index.
+    floor : float
+        Lowest y-limit (:func:`_log_limits`); values below it are round-off.
     """
-    fig, ax = plt.subplots(figsize=(6, 4))
+    fig, ax = plt.subplots(figsize=(7, 4))
     for c in curves:
         ax.semilogy(c["t"][1:], c["values"][1:], c.get("style", "-"), color=_COLORS[c.get("color", 0) % len(_COLORS)], label=c["label"], lw=1.2)
+    _log_limits(ax, [c["values"][1:] for c in curves], floor)
     _decorate(ax, "time $t$", ylabel, title, legend_outside=True)
     return fig
 
 
-def phase_portrait(trajectories, title: str):
-    """``(q, p)`` curves; ``trajectories`` maps a label to an array of shape (K+1, 2)."""
-    fig, ax = plt.subplots(figsize=(5, 4.5))
-    for i, (label, traj) in enumerate(trajectories.items()):
-        ax.plot(traj[:, 0], traj[:, 1], "-" if i == 0 else "--", color=_COLORS[i], label=label, lw=1.0)
-    _decorate(ax, "angle $q$ [rad]", "angular momentum $p$", title)
+def phase_portrait(trajectories, title: str, t=None):
+    """Phase plane of a few trajectories and, given ``t``, their distance to the first one over time.
+
+    Left: the ``(q, p)`` curves, the first (the reference) as a wide pale band under
+    the others, which are drawn thin with a marker every few steps; a black dot marks
+    the initial state.  Right (with ``t``): ``|x(t) - x_ref(t)|`` per method on a log
+    axis, where curves that coincide in the phase plane are told apart at a glance.
+
+    Parameters
+    ----------
+    trajectories : dict
+        Label -> array (K+1, 2) of ``(q, p)``; the first entry is the reference.
+    title : str
+        Title of the phase-plane panel.
+    t : array (K+1,), optional
+        Times of the states; without it only the phase plane is drawn.
+    """
+    import numpy as np
+
+    items = list(trajectories.items())
+    fig, axes = plt.subplots(1, 2 if t is not None else 1, figsize=(11, 4.5) if t is not None else (5.5, 4.8),
+                             constrained_layout=True, squeeze=False)
+    ax = axes[0, 0]
+    n = len(items[0][1])
+    for i, (label, traj) in enumerate(items):
+        style = dict(color="0.75", lw=6, solid_capstyle="round", zorder=1) if i == 0 else dict(
+            ls="-" if i == 1 else "--", color=_COLORS[i], lw=1.2, marker="os^v"[i % 4], ms=3.5, markevery=max(1, n // 25),
+            zorder=2 + i)
+        ax.plot(traj[:, 0], traj[:, 1], label=label, **style)
+    q0 = items[0][1][0]
+    ax.plot([q0[0]], [q0[1]], "o", color="k", ms=6, zorder=10, label="_initial state")
+    _decorate(ax, "angle $q$ [rad]", "angular momentum $p$ [kg m$^2$/s]", title)
+    if t is not None:
+        ax = axes[0, 1]
+        ref = np.asarray(items[0][1], dtype=float)
+        dists = []
+        for i, (label, traj) in enumerate(items[1:], start=1):
+            d = np.linalg.norm(np.asarray(traj, dtype=float) - ref, axis=1)
+            ax.semilogy(t[1:], d[1:], "-" if i == 1 else "--", color=_COLORS[i], label=label, lw=1.2)
+            dists.append(d[1:])
+        _log_limits(ax, dists)
+        _decorate(ax, "time $t$ [s]", "distance to the reference $|x(t) - x_{ref}(t)|$",
+                  "distance to the reference in the phase plane")
     return fig
 
 

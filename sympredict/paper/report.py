@@ -144,7 +144,7 @@ def pendulum_a_figures(results: dict) -> dict:
     ex = r0["example"]
     figures["pendulum_phase_portrait"] = plotting.phase_portrait(
         {"reference (implicit midpoint, h<=1e-3)": ex["ref"], "kernel predictor": ex["kernel"], "implicit midpoint, macro step": ex["im"]},
-        f"Phase portrait, l={ex['mu']:.3f}, dT={r0['dt']}",
+        f"Phase portrait, l={ex['mu']:.3f}, dT={r0['dt']}", t=r0["dt"] * np.arange(len(ex["ref"])),
     )
     figures["pendulum_energy_error"] = plotting.energy_error(
         r0["t"],
@@ -211,7 +211,7 @@ def pendulum_b_figures(b: dict) -> dict:
     ex = b["example"]
     labelled = {"reference": ex["reference"], "symplectic kernel": ex["symplectic"], "direct kernel": ex["direct"]}
     figures["pendulum_b_trajectories"] = plotting.trajectories_over_time(ex["t"], labelled, f"Scenario B trajectory, {where}")
-    figures["pendulum_b_phase_portrait"] = plotting.phase_portrait(labelled, f"Scenario B phase portrait, {where}")
+    figures["pendulum_b_phase_portrait"] = plotting.phase_portrait(labelled, f"Scenario B phase portrait, {where}", t=ex["t"])
     energies = {"reference": b["energy"]["reference"], "symplectic kernel": b["energy"]["symplectic"], "direct kernel": b["energy"]["direct"]}
     figures["pendulum_b_hamiltonian"] = plotting.hamiltonian_over_time(ex["t"], energies, f"Scenario B Hamiltonian, {where}")
     figures["pendulum_b_energy_error"] = plotting.energy_error(
