@@ -255,7 +255,7 @@ def _check_reductor_settings(fom, dt, predictor, parameter_space, n_samples, rad
         missing = [a for a in ("fit", "step", "rollout", "step_jacobian", "get_params")
                    if not callable(getattr(predictor, a, None))]
         if isinstance(predictor, type) or missing:
-            raise ValueError(f"predictor must be an estimator instance (e.g. SymplecticKernelPredictor(...)) with fit, step, "
+            raise ValueError(f"estimator must be an estimator instance (e.g. SymplecticKernelPredictor(...)) with fit, step, "
                              f"rollout, step_jacobian and get_params, got {predictor!r}"
                              + (f" (lacks {', '.join(missing)})" if missing and not isinstance(predictor, type) else ""))
     if parameter_space is not None:
@@ -456,12 +456,25 @@ class SymplecticKernelReductor(BasicObject):
         ``split`` use the flow parameters' vectors.
     """
 
-    def __init__(self, fom, RB, training_parameters, dt, predictor=None, data="reduced", *, parameter_space=None,
+    def __init__(self, fom, RB, training_parameters, dt, estimator=None, data="reduced", *, parameter_space=None,
                  n_samples: int = 400, radius: float = 0.05, n_validation: int = 3, horizon: Optional[float] = None,
-                 state_scaling: str = "diag", max_centers: int = 1000, check_existence: bool = True, seed: int = 0,
-                 validation_data=None, parameter_scaling: str = "box", time_scaling: str = "step",
+                 state_scaling: str = "diag", max_centers: Optional[int] = None, check_existence: bool = True,
+                 seed: int = 0, validation_data=None, parameter_scaling: str = "box", time_scaling: str = "step",
                  state_kernels=None, mu_kernels=None, m_star: int = 300, regularizations=None,
-                 split: Optional[QuadraticPart] = None, flow_parameters=None):
+                 split: Optional[QuadraticPart] = None, flow_parameters=None, predictor=None):
+        if predictor is not None:
+            if estimator is not None:
+                raise ValueError("give the estimator once: estimator=... (predictor= is its old name), not both")
+            warnings.warn("SymplecticKernelReductor(predictor=...) is deprecated: pass the same object as "
+                          "estimator=... (e.g. estimator=SymplecticKernelPredictor(max_centers=500))", FutureWarning,
+                          stacklevel=2)
+            estimator = predictor
+        if estimator is not None and max_centers is not None:
+            raise ValueError(f"max_centers={max_centers!r} is the budget of the default estimator; the given estimator "
+                             f"has its own: set it there (estimator=SymplecticKernelPredictor(max_centers="
+                             f"{max_centers!r}, ...)) and leave max_centers out")
+        predictor = estimator  # the internal name
+        max_centers = 1000 if max_centers is None else max_centers
         if isinstance(data, FlowMapData):
             mode = "given"
         elif isinstance(data, str) and data in ("reduced", "projected"):
@@ -496,7 +509,7 @@ class SymplecticKernelReductor(BasicObject):
                 raise ValueError(f"split depends on {split.checked()[1].shape[1]} parameter component(s), the flow map "
                                  f"takes {flow.dim}")
             if isinstance(predictor, SplitKernelPredictor):
-                raise ValueError("give the inner SymplecticKernelPredictor as predictor and the quadratic part as split: "
+                raise ValueError("give the inner SymplecticKernelPredictor as estimator and the quadratic part as split: "
                                  "the reductor builds the SplitKernelPredictor in its scaled coordinates")
         if mode == "given":
             _check_given_data(data, validation_data, 2 * len(RB), flow.dim, float(dt))
@@ -508,6 +521,7 @@ class SymplecticKernelReductor(BasicObject):
         elif (training_parameters is None or len(training_parameters) == 0) and mode != "given":
             raise ValueError(f"the FOM has parameters {dict(fom.parameters)}: give training_parameters (pyMOR Mu)")
         self.__auto_init(locals())
+        self.estimator = predictor
         self.mode = mode
         self.state_kernels, self.mu_kernels = state_kernels, mu_kernels
         self.regularizations = regularizations
@@ -626,25 +640,56 @@ class SymplecticKernelReductor(BasicObject):
                              f"dt = k * h, e.g. " + " or ".join(f"{v!r}" for v in near))
         return stride
 
-    def _update(self) -> str:
-        """The generating-function update of the predictor (the existence check depends on it): the given
-        predictor's, else the one chosen for the default predictor (``choice_["update"]``)."""
-        if self.predictor is not None:
-            return getattr(self.predictor, "update", "symplectic_euler")
-        return getattr(self, "choice_", {}).get("update", "symplectic_euler")
+    def _given_update(self) -> Optional[str]:
+        """The update the caller fixed (the given estimator's, by name), or ``None`` where the reductor chooses."""
+        update = getattr(self.predictor, "update", None) if self.predictor is not None else None
+        return update if update is None or isinstance(update, str) else getattr(update, "name", update)
+
+    def _update(self) -> Optional[str]:
+        """The generating-function update checked and trained: the given estimator's, else the one chosen for
+        it (``choice_["update"]``; ``None``: left to the estimator, both forms exist at ``dt``)."""
+        given = self._given_update()
+        if given is not None:
+            return given
+        default = "symplectic_euler" if self.predictor is None else None
+        return getattr(self, "choice_", {}).get("update", default)
+
+    def _checked_update(self) -> str:
+        """:meth:`_update` for the existence check (type II where the choice is left to the estimator)."""
+        return self._update() or "symplectic_euler"
 
     def _checked_existence(self, check):
-        """``check()`` (an existence check for :meth:`_update`); for the default predictor, when the type II
-        generating function does not exist at ``dt`` (a mode turns past a quarter turn per step), the midpoint
-        form (up to half a turn) is chosen instead, logged and kept in ``choice_``."""
-        self.choice_ = {"update": "symplectic_euler", "reason": "type II generating function exists at dt"} \
-            if self.predictor is None else {"update": self._update(), "reason": "the given predictor's update"}
+        """``check()`` (an existence check for :meth:`_checked_update`).  Where the caller left the update open
+        (the default estimator, or an estimator with ``update=None``): when the type II generating function does
+        not exist at ``dt`` (a mode turns past a quarter turn per step), the midpoint form (up to half a turn) is
+        chosen instead, logged and kept in ``choice_``; for an estimator with ``update=None`` the choice stays
+        with it (``choice_["update"] = None``) where both forms exist."""
+        given = self._given_update()
+        if given is not None:
+            self.choice_ = {"update": given, "reason": "the given estimator's update"}
+        else:
+            self.choice_ = {"update": "symplectic_euler", "reason": "type II generating function exists at dt"}
         try:
-            return check()
+            out = check()
         except ValueError as exc:
-            if self.predictor is not None or self.split is not None:
+            if given is not None or self.split is not None:
                 raise
             first = str(exc)
+        else:
+            if given is None and self.predictor is not None:  # the estimator chooses, where both forms exist
+                self.choice_ = {"update": "midpoint", "reason": "probe"}
+                try:
+                    with warnings.catch_warnings():  # a probe: its warnings are not the caller's
+                        warnings.simplefilter("ignore")
+                        check()
+                except ValueError as exc:
+                    self.choice_ = {"update": "symplectic_euler", "reason": f"the midpoint form does not exist at "
+                                    f"dt = {self.dt!r} ({exc}); the type II form does"}
+                    self.logger.info(f"update='symplectic_euler' set on the estimator: {self.choice_['reason']}")
+                else:
+                    self.choice_ = {"update": None, "reason": "both generating functions exist at dt: the "
+                                    "estimator's search chooses (update=None)"}
+            return out
         self.choice_ = {"update": "midpoint", "reason": f"type II does not exist at dt = {self.dt!r}: {first}"}
         try:
             out = check()
@@ -673,7 +718,7 @@ class SymplecticKernelReductor(BasicObject):
                                  f"of {self.dim} dimensions")
                 continue
             M = M.T
-            sigma = float((midpoint_sigma_min if self._update() == "midpoint" else type2_sigma_min)(M[None])[0])
+            sigma = float((midpoint_sigma_min if self._checked_update() == "midpoint" else type2_sigma_min)(M[None])[0])
             generators.append(np.real(logm(M)) / self.dt)
             if sigma < worst[0]:
                 worst = (sigma, row)
@@ -682,7 +727,7 @@ class SymplecticKernelReductor(BasicObject):
                              f"skipped")
         if worst[1] is None:
             return {}
-        update = self._update()
+        update = self._checked_update()
         om = max(float(np.abs(np.linalg.eigvals(A).imag).max()) for A in generators)
         if om * self.dt < 1e-6:  # no rotation to speak of (e.g. the remainder S of a split): no singular step ahead
             dt_max = np.inf
@@ -727,7 +772,7 @@ class SymplecticKernelReductor(BasicObject):
                 val, _ = self._reduced_data(val_mus, max(50, self.n_samples // 4), self.seed + 1)
                 if self.check_existence and self.split is None:
                     self.existence_ = self._checked_existence(
-                        lambda: check_generating_function(system, train, update=self._update()))
+                        lambda: check_generating_function(system, train, update=self._checked_update()))
             else:
                 train = self._projected_data(self.training_parameters)
                 val = self._projected_data(val_mus)
@@ -875,11 +920,10 @@ class SymplecticKernelReductor(BasicObject):
             rows = self.data.mu
         else:
             rows = self._mu_rows(self.training_parameters)[:, self._flow_index]
-        if len(np.unique(rows, axis=0)) > 1 and getattr(self.predictor, "mu_kernel", True) is None \
-                and self.mu_kernels is None:
+        if len(np.unique(rows, axis=0)) > 1 and self._lacks_mu_kernel(self.predictor) and self.mu_kernels is None:
             # before any FOM solve (reduce() would find it after sampling)
-            raise ValueError("the parameters vary across training_parameters but the predictor has mu_kernel=None: "
-                             "give it a mu_kernel, or train at one parameter value")
+            raise ValueError("the parameters vary across training_parameters but the estimator has mu_kernel=None and "
+                             "does not choose one: give it a mu_kernel, or train at one parameter value")
         if self.regularizations is not None and self.validation_data is None and self.mode == "given":
             raise ValueError("choosing the regularization needs validation data: give validation_data (samples or "
                              "trajectories) with the caller's data")
@@ -897,9 +941,13 @@ class SymplecticKernelReductor(BasicObject):
         if self.predictor is None:
             predictor = self._default_predictor(*search, vary_mu)
         else:
-            predictor = self._search_kernels(clone(self.predictor), *search, vary_mu) or clone(self.predictor)
-            if vary_mu and getattr(predictor, "mu_kernel", True) is None:
-                raise ValueError("the parameters vary across training_parameters but the predictor has mu_kernel=None")
+            given = clone(self.predictor)
+            if self._given_update() is None and self._update() is not None:  # the update the existence check chose
+                given = given.set_params(update=self._update())
+            predictor = self._search_kernels(clone(given), *search, vary_mu) or given
+            if vary_mu and self._lacks_mu_kernel(predictor):
+                raise ValueError("the parameters vary across training_parameters but the estimator has mu_kernel=None "
+                                 "and does not choose one: give it a mu_kernel")
         timings["selection"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         with self.logger.block(f"fitting {type(predictor).__name__} on {len(train)} samples"
@@ -915,11 +963,26 @@ class SymplecticKernelReductor(BasicObject):
         self.flow_map_ = flow_map
         if not hasattr(self, "choice_"):
             self.choice_ = {"update": self._update(), "reason": "no existence check (check_existence=False)"}
+        inner = getattr(model, "predictor_", model)  # inside a split: the kernel part
+        if getattr(inner, "choice_", None):  # what the estimator's own search chose (KernelSearch)
+            self.choice_["estimator"] = dict(inner.choice_)
         self._check_one_step(flow_map)
         name = None if self.fom.name is None else "kernel_" + self.fom.name
         return SymplecticKernelModel(flow_map, self._reduced_initial_data(), self.fom.T if T is None else T, self.dt,
                                      self.fom.parameters, name=name,
                                      flow_parameters=self.flow_parameters if self._flow_subset else None)
+
+    @staticmethod
+    def _lacks_mu_kernel(estimator) -> bool:
+        """An estimator with ``mu_kernel=None`` that does not choose one itself (a
+        :class:`SymplecticKernelPredictor` chooses an open ``mu_kernel`` at fit: ``_chooses_open_factors``)."""
+        return getattr(estimator, "mu_kernel", True) is None and not getattr(estimator, "_chooses_open_factors", False)
+
+    def _fitted_update(self):
+        """The update of the fitted kernel part (``update_``; inside a split its predictor's), by name."""
+        inner = getattr(self.predictor_, "predictor_", self.predictor_)
+        update = getattr(inner, "update_", None) or self._update()
+        return update if update is None or isinstance(update, str) else getattr(update, "name", update)
 
     def _check_one_step(self, flow_map) -> None:
         """One step of the fitted flow map from the training data's first states, per training parameter;
@@ -937,9 +1000,9 @@ class SymplecticKernelReductor(BasicObject):
             reason = f"Newton's method failed: {exc}"
         if reason is not None:
             raise ValueError(f"the fitted ROM cannot take one step of dt = {self.dt!r} from the training data "
-                             f"({reason}; update = {self._update()!r}): use update='midpoint' (a predictor "
-                             f"SymplecticKernelPredictor(update='midpoint')), a smaller dt, or a larger basis or "
-                             f"budget (max_centers)")
+                             f"({reason}; update = {self._fitted_update()!r}): "
+                             f"use update='midpoint' (estimator=SymplecticKernelPredictor(update='midpoint')), a "
+                             f"smaller dt, or a larger basis or budget (the estimator's max_centers)")
 
     def _scaled_split_pairs(self, d, state_scaling, mu_scaling, vary_mu):
         """``S``'s samples in the predictor's coordinates (what the kernel search compares candidates on)."""
