@@ -2,6 +2,7 @@
 
 import warnings
 
+import numpy as np
 import pytest
 
 from sympredict import SymplecticKernelPredictor
@@ -65,3 +66,65 @@ def test_estimator_knobs_reach_the_fit_and_its_search_choice_is_recorded(small_f
     assert set(chosen) == {"state_kernel", "mu_kernel"}  # chosen by the estimator's search, not the reductor's grid
     assert fitted.search_ is not None and fitted.search_.m_star == 20
     assert red.choice_["update"] == "midpoint"
+
+
+# ------------------------------------------------------------------ the existence check in the trained coordinates
+def sheared_oscillators(c=-2.0, w=(1.0, 0.7)):
+    """Two oscillators of frequencies ``w`` seen through the symplectic shear ``p -> p + c q``: ``H = S^-T W S^-1``.
+
+    In these coordinates ``dp1/dp0 = cos(w t) + c sin(w t)``: singular at ``tan(w t) = -1/c`` (``w t = 0.464`` for
+    ``c = -2``), long before a quarter turn; the Williamson coordinates undo the shear (``dp1/dp0 = cos(w t)``).
+    The basis is the identity (2n = 2N = 4), so the reduced coordinates are these.
+    """
+    from pymor.algorithms.symplectic import SymplecticBasis
+    from pymor.models.symplectic import QuadraticHamiltonianModel
+    from pymor.operators.numpy import NumpyMatrixOperator
+
+    n = len(w)
+    S = np.block([[np.eye(n), np.zeros((n, n))], [c * np.eye(n), np.eye(n)]])
+    Si = np.linalg.inv(S)
+    H = Si.T @ np.diag(np.concatenate([w, w])) @ Si
+    op = NumpyMatrixOperator(0.5 * (H + H.T))
+    fom = QuadraticHamiltonianModel(10.0, op.source.from_numpy(np.array([[1.0], [0.5], [0.0], [0.2]])), op, nt=100)
+    space = fom.solution_space
+    RB = SymplecticBasis(space.from_numpy(np.eye(2 * n)[:, :n]), space.from_numpy(np.eye(2 * n)[:, n:]), space)
+    return fom, RB
+
+
+def _type2(scaling, dt):
+    fom, RB = sheared_oscillators()
+    red = SymplecticKernelReductor(fom, RB, None, dt, SymplecticKernelPredictor(update="symplectic_euler"),
+                                   state_scaling=scaling, n_samples=40, n_validation=1)
+    red.training_data()
+    return red
+
+
+def test_williamson_scaling_checks_existence_where_it_trains():
+    # trained in Williamson coordinates the type II form exists at w dt = 0.8 (it was refused from the sheared ones)
+    red = _type2("williamson", 0.8)
+    assert red.existence_["sigma_min"] == pytest.approx(np.cos(0.8), rel=1e-8)  # the fastest mode, cos(w dt)
+    assert red.existence_["dt_max"] == pytest.approx(np.arccos(1e-2), rel=0.01)  # sigma = 1e-2 of the fastest mode
+    assert "williamson" in red.existence_["coordinates"]
+    # trained in the sheared coordinates themselves it does not exist: refused
+    with pytest.raises(ValueError, match=r"past the first step where it is singular"):
+        _type2("none", 0.8)
+    # past a quarter turn it does not exist in any coordinates: still refused in the Williamson ones
+    with pytest.raises(ValueError, match=r"dp1/dp0.*largest admissible dT here is about 1\.5"):
+        _type2("williamson", 1.7)
+
+
+def test_conjugated_system_has_the_conjugated_flow_jacobian():
+    from sympredict.mor.reductor import _conjugated_system
+    from sympredict.symplectic.metrics import canonical_J
+    from sympredict.systems.flowmaps import linear_system_from_pymor
+
+    fom, RB = sheared_oscillators()
+    system = linear_system_from_pymor(fom)
+    J = canonical_J(4)
+    M = 1.7 * np.array([[2.0, 0, 0.3, 0], [0, 0.5, 0, 0], [0, 0, 0.5, 0], [0, 0, 0, 2.0]])
+    M[:, 2] += 0.3 * M[:, 0]  # a shear: M^T J M = 1.7^2 J still
+    assert np.abs(M.T @ J @ M - 1.7 ** 2 * J).max() < 1e-12
+    x = np.ones((1, 4))
+    D = system.flow_jacobian(x, None, 0.9)[0]
+    D_scaled = _conjugated_system(system, M).flow_jacobian(x, None, 0.9)[0]
+    np.testing.assert_allclose(D_scaled, M @ D @ np.linalg.inv(M), rtol=0, atol=1e-12)

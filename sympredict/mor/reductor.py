@@ -71,6 +71,7 @@ from sympredict.data import FlowMapData, TrajectoryData
 from sympredict.exceptions import ExtrapolationWarning, NewtonConvergenceError
 from sympredict.systems.linear_flow import QuadraticPart, inverse_symplectic_matrices
 from sympredict.systems.flowmaps import (
+    LinearHamiltonianSystem,
     _report_existence,
     first_singular_step,
     check_generating_function,
@@ -281,6 +282,18 @@ def _sub_index(parameters, sub) -> np.ndarray:
         offsets[k] = i
         i += parameters[k]
     return np.array([offsets[k] + j for k in sorted(sub) for j in range(sub[k])], dtype=int)
+
+
+def _conjugated_system(system: LinearHamiltonianSystem, M: np.ndarray) -> LinearHamiltonianSystem:
+    """``system`` in the coordinates ``x~ = M x`` (``M^T J M = s^2 J``, conformally symplectic): ``H~ = s^2 M^-T H M^-1``
+    and ``h~ = s^2 M^-T h``, so that ``J H~ = M J H M^-1`` and the flow Jacobian is ``M D Phi M^-1``."""
+    M = np.asarray(M, dtype=float)
+    dim = M.shape[0]
+    J = canonical_J(dim)
+    s2 = float((M.T @ J @ M)[0, dim // 2] / J[0, dim // 2])
+    Minv = np.linalg.inv(M)
+    return LinearHamiltonianSystem(lambda mu: s2 * Minv.T @ system.matrix(mu) @ Minv, dim, system.n_mu,
+                                   lambda mu: s2 * Minv.T @ system.linear_term(mu))
 
 
 def _operator_parameters(fom) -> set:
@@ -771,16 +784,35 @@ class SymplecticKernelReductor(BasicObject):
                 train, system = self._reduced_data(self.training_parameters, self.n_samples, self.seed)
                 val, _ = self._reduced_data(val_mus, max(50, self.n_samples // 4), self.seed + 1)
                 if self.check_existence and self.split is None:
+                    # in the coordinates the predictor is trained in: x~ = T x, D Phi~ = T D Phi T^-1
+                    scaling = self._fit_state_scaling(train)
+                    scaled_system = _conjugated_system(system, scaling.matrix_)
+                    scaled = self._scaled_states(train, scaling)
                     self.existence_ = self._checked_existence(
-                        lambda: check_generating_function(system, train, update=self._checked_update()))
+                        lambda: check_generating_function(scaled_system, scaled, update=self._checked_update()))
             else:
                 train = self._projected_data(self.training_parameters)
                 val = self._projected_data(val_mus)
             train, val = self._to_flow(train), self._to_flow(val)
         if self.check_existence and not (self.mode == "reduced" and self.split is None):
-            self.existence_ = self._checked_existence(
-                lambda: self._check_existence_from_data(self.split_pairs(train)))
+            scaled = self._scaled_states(self.split_pairs(train), self._fit_state_scaling(train))
+            self.existence_ = self._checked_existence(lambda: self._check_existence_from_data(scaled))
+        if self.check_existence:
+            self.existence_["coordinates"] = f"trained (state_scaling={self.state_scaling!r})"
         return train, val
+
+    def _fit_state_scaling(self, train: FlowMapData) -> SymplecticScaling:
+        """The state scaling of the predictor's coordinates (``state_scaling``), fitted on the training states."""
+        reference = None
+        if self.state_scaling == "williamson":
+            centre = 0.5 * (self.mu_lo + self.mu_hi)
+            reference = self._galerkin().matrix(centre)
+        return SymplecticScaling(self.state_scaling, reference).fit(np.concatenate([train.x0, train.x1]))
+
+    @staticmethod
+    def _scaled_states(d: FlowMapData, scaling: SymplecticScaling) -> FlowMapData:
+        """Samples with their states in the scaled coordinates (parameters and steps as given)."""
+        return FlowMapData(scaling.transform(d.x0), scaling.transform(d.x1), d.mu if d.mu.shape[1] else None, d.dt)
 
     # ------------------------------------------------------------ reduce
     def _search_kernels(self, base, train, val, vary_mu):
@@ -842,11 +874,7 @@ class SymplecticKernelReductor(BasicObject):
         if isinstance(val, TrajectoryData):  # validation trajectories: their consecutive states for the greedy's E_val
             val = val.pairs()
         vary_mu = train.mu.shape[1] > 0 and bool(np.any(np.ptp(train.mu, axis=0) > 0))
-        reference = None
-        if self.state_scaling == "williamson":
-            centre = 0.5 * (self.mu_lo + self.mu_hi)
-            reference = self._galerkin().matrix(centre)
-        state_scaling = SymplecticScaling(self.state_scaling, reference).fit(np.concatenate([train.x0, train.x1]))
+        state_scaling = self._fit_state_scaling(train)
         mu_scaling = None
         if vary_mu:
             d = train.mu.shape[1]
