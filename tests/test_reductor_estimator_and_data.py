@@ -128,3 +128,59 @@ def test_conjugated_system_has_the_conjugated_flow_jacobian():
     D = system.flow_jacobian(x, None, 0.9)[0]
     D_scaled = _conjugated_system(system, M).flow_jacobian(x, None, 0.9)[0]
     np.testing.assert_allclose(D_scaled, M @ D @ np.linalg.inv(M), rtol=0, atol=1e-12)
+
+
+# ------------------------------------------------------------------ the caller's FOM trajectories
+def test_given_trajectories_give_the_rom_of_the_fom_solving_path(small_fe, monkeypatch):
+    fom, space, train, RB = small_fe
+    dt = 4 * fom.T / fom.time_stepper.nt
+    kw = dict(parameter_space=space, max_centers=60, n_validation=1)
+    solved = SymplecticKernelReductor(fom, RB, train, dt, data="projected", **kw)
+    rom = solved.reduce()
+    val_mus = solved.validation_parameters()
+    U = [fom.solve(mu) for mu in train]
+    U_val = [fom.solve(mu) for mu in val_mus]
+    test_mu = fom.parameters.parse(0.93)
+    ref = rom.solve(test_mu).to_numpy()
+    monkeypatch.setattr(type(fom), "solve", lambda *a, **k: (_ for _ in ()).throw(AssertionError("FOM solved")))
+    arrays = np.stack([u.to_numpy().T for u in U])  # (P, K+1, N)
+    for trajectories in ((U, train), (arrays, [{"c": float(m["c"][0])} for m in train])):
+        given = SymplecticKernelReductor(fom, RB, None, dt, trajectories=trajectories,
+                                         validation_trajectories=(U_val, val_mus), **kw)
+        out = given.reduce().solve(test_mu).to_numpy()
+        assert given.mode == "projected" and len(given.train_data_) == len(solved.train_data_)
+        np.testing.assert_allclose(out, ref, rtol=0, atol=1e-12 * np.abs(ref).max())
+    # without validation trajectories an estimator that holds out its own samples still trains
+    SymplecticKernelReductor(fom, RB, None, dt, trajectories=(U, train), parameter_space=space,
+                             estimator=SymplecticKernelPredictor(max_centers=20, update="symplectic_euler",
+                                                                 search=_small_search())).reduce()
+
+
+def test_given_trajectories_are_checked(small_fe):
+    from pymor.vectorarrays.numpy import NumpyVectorSpace
+
+    fom, space, train, RB = small_fe
+    dt = 4 * fom.T / fom.time_stepper.nt
+    U = [fom.solve(mu) for mu in train]
+    arrays = np.stack([u.to_numpy().T for u in U])
+    cases = [
+        ((arrays[:, :, :-1], train), r"shape \(P, K\+1, N\).*N = 30"),
+        ((np.where(np.arange(30) == 3, np.nan, arrays), train), "finite"),
+        (([U[0], U[1][:50]], train[:2]), "same number K \\+ 1"),
+        ((U, train[:2]), "one parameter value per trajectory \\(3\\)"),
+        ((U, [0.9, 1.0, "x"]), "cannot read 'x'"),
+        (([u[::3] for u in U], train), "nt = 100 steps, not a multiple of 33"),
+        (([NumpyVectorSpace(30).zeros(101)], train[:1]), r"solution space .*entry 0 is a NumpyVectorArray"),
+        ((U,), "pair \\(U, mus\\)"),
+    ]
+    for trajectories, match in cases:
+        with pytest.raises(ValueError, match=match):
+            SymplecticKernelReductor(fom, RB, None, dt, trajectories=trajectories)
+    with pytest.raises(ValueError, match="multiple of the FOM's output step"):
+        SymplecticKernelReductor(fom, RB, None, 1.5 * fom.T / fom.time_stepper.nt, trajectories=(U, train))
+    with pytest.raises(ValueError, match="leave training_parameters out"):
+        SymplecticKernelReductor(fom, RB, train, dt, trajectories=(U, train))
+    with pytest.raises(ValueError, match="does not use them"):
+        SymplecticKernelReductor(fom, RB, None, dt, data="reduced", trajectories=(U, train))
+    with pytest.raises(ValueError, match="validation_trajectories with trajectories"):
+        SymplecticKernelReductor(fom, RB, None, dt, trajectories=(U, train), max_centers=20).reduce()

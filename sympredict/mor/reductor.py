@@ -284,6 +284,50 @@ def _sub_index(parameters, sub) -> np.ndarray:
     return np.array([offsets[k] + j for k in sorted(sub) for j in range(sub[k])], dtype=int)
 
 
+def _as_trajectories(given, fom, name: str) -> tuple:
+    """The caller's FOM trajectories ``(U, mus)`` as ``(list of VectorArrays in fom.solution_space, list of Mu)``.
+
+    ``U``: a sequence of ``P`` VectorArrays (each ``K + 1`` states, as ``fom.solve`` returns) or an array
+    ``(P, K + 1, N)`` of full states (``N = fom.solution_space.dim``, blocks stacked as the solution space orders
+    them); ``mus``: ``P`` parameter values (pyMOR ``Mu``, dicts, numbers; ``None`` or ``P`` Nones for a parameter-free
+    FOM).  Shapes, spaces, lengths and finiteness are checked before anything is copied (``ValueError`` naming
+    ``name``).
+    """
+    if not isinstance(given, (tuple, list)) or len(given) != 2:
+        raise ValueError(f"{name} must be a pair (U, mus): U a list of VectorArrays (or an array (P, K+1, N)) of FOM "
+                         f"trajectories, mus their parameter values, got {type(given).__name__}")
+    U, mus = given
+    space = fom.solution_space
+    if isinstance(U, np.ndarray):
+        if U.ndim != 3 or U.shape[2] != space.dim or U.shape[0] == 0 or U.shape[1] < 2:
+            raise ValueError(f"{name}: an array of trajectories must have shape (P, K+1, N) with P >= 1, K + 1 >= 2 and "
+                             f"N = {space.dim} (the FOM's solution space), got {U.shape}")
+        if not np.issubdtype(U.dtype, np.number) or np.iscomplexobj(U) or not np.all(np.isfinite(U)):
+            raise ValueError(f"{name}: the trajectories must be finite real numbers (NaN, Inf or dtype {U.dtype} found)")
+        U = [space.from_numpy(np.array(u, dtype=float).T) for u in U]  # pyMOR: columns are vectors
+    else:
+        U = list(U) if isinstance(U, (list, tuple)) else [U]
+        bad = [i for i, u in enumerate(U) if getattr(u, "space", None) != space]
+        if not U or bad:
+            raise ValueError(f"{name}: U must hold VectorArrays in the FOM's solution space {space}" +
+                             (f"; entry {bad[0]} is a {type(U[bad[0]]).__name__}" + (
+                                 f" in {U[bad[0]].space}" if hasattr(U[bad[0]], "space") else "") if bad else
+                              ", got none"))
+        for i, u in enumerate(U):
+            if not np.all(np.isfinite(u.norm())):
+                raise ValueError(f"{name}: trajectory {i} has NaN or Inf states")
+    lengths = sorted({len(u) for u in U})
+    if len(lengths) > 1 or lengths[0] < 2:
+        raise ValueError(f"{name}: every trajectory must have the same number K + 1 >= 2 of states (t_k = k T / K), "
+                         f"got lengths {lengths}")
+    if not fom.parameters and mus is None:
+        return U, [None] * len(U)
+    if mus is None or isinstance(mus, (str, dict)) or len(mus) != len(U):
+        raise ValueError(f"{name}: give one parameter value per trajectory ({len(U)}), got "
+                         f"{'none' if mus is None else mus!r}")
+    return U, [parse_mu(m, fom.parameters) for m in mus]
+
+
 def _conjugated_system(system: LinearHamiltonianSystem, M: np.ndarray) -> LinearHamiltonianSystem:
     """``system`` in the coordinates ``x~ = M x`` (``M^T J M = s^2 J``, conformally symplectic): ``H~ = s^2 M^-T H M^-1``
     and ``h~ = s^2 M^-T h``, so that ``J H~ = M J H M^-1`` and the flow Jacobian is ``M D Phi M^-1``."""
@@ -469,12 +513,13 @@ class SymplecticKernelReductor(BasicObject):
         ``split`` use the flow parameters' vectors.
     """
 
-    def __init__(self, fom, RB, training_parameters, dt, estimator=None, data="reduced", *, parameter_space=None,
+    def __init__(self, fom, RB, training_parameters, dt, estimator=None, data=None, *, parameter_space=None,
                  n_samples: int = 400, radius: float = 0.05, n_validation: int = 3, horizon: Optional[float] = None,
                  state_scaling: str = "diag", max_centers: Optional[int] = None, check_existence: bool = True,
                  seed: int = 0, validation_data=None, parameter_scaling: str = "box", time_scaling: str = "step",
                  state_kernels=None, mu_kernels=None, m_star: int = 300, regularizations=None,
-                 split: Optional[QuadraticPart] = None, flow_parameters=None, predictor=None):
+                 split: Optional[QuadraticPart] = None, flow_parameters=None, trajectories=None,
+                 validation_trajectories=None, predictor=None):
         if predictor is not None:
             if estimator is not None:
                 raise ValueError("give the estimator once: estimator=... (predictor= is its old name), not both")
@@ -488,6 +533,13 @@ class SymplecticKernelReductor(BasicObject):
                              f"{max_centers!r}, ...)) and leave max_centers out")
         predictor = estimator  # the internal name
         max_centers = 1000 if max_centers is None else max_centers
+        if trajectories is None and validation_trajectories is not None:
+            raise ValueError("validation_trajectories go with trajectories=(U, mus): give the training trajectories too")
+        if trajectories is not None and data not in (None, "projected"):
+            raise ValueError(f"trajectories=(U, mus) are the FOM trajectories that data='projected' would compute; "
+                             f"data={data!r} does not use them: leave data out (or data='projected')")
+        if data is None:
+            data = "projected" if trajectories is not None else "reduced"
         if isinstance(data, FlowMapData):
             mode = "given"
         elif isinstance(data, str) and data in ("reduced", "projected"):
@@ -497,7 +549,7 @@ class SymplecticKernelReductor(BasicObject):
         if validation_data is not None and mode != "given":
             raise ValueError(f"validation_data goes with the caller's data (data=FlowMapData(...)); data={data!r} "
                              f"samples its own validation data")
-        _check_fom(fom, mode)
+        _check_fom(fom, "given" if trajectories is not None else mode)  # given trajectories: no FOM solve
         check_symplectic_basis(RB, fom.solution_space)
         _check_choice(state_scaling, "state_scaling", _STATE_SCALINGS)
         _check_choice(parameter_scaling, "parameter_scaling", _PARAMETER_SCALINGS)
@@ -529,6 +581,14 @@ class SymplecticKernelReductor(BasicObject):
             if (fom.parameters and flow == fom.parameters
                     and (training_parameters is None or len(training_parameters) == 0)):
                 training_parameters = [fom.parameters.parse(row) for row in np.unique(data.mu, axis=0)]
+        if trajectories is not None:
+            if training_parameters is not None and len(training_parameters) > 0:
+                raise ValueError("with trajectories=(U, mus) the training parameters are their mus: leave "
+                                 "training_parameters out (None)")
+            trajectories = _as_trajectories(trajectories, fom, "trajectories")
+            training_parameters = trajectories[1] if fom.parameters else None
+        if validation_trajectories is not None:
+            validation_trajectories = _as_trajectories(validation_trajectories, fom, "validation_trajectories")
         if not fom.parameters:
             training_parameters = [None]
         elif (training_parameters is None or len(training_parameters) == 0) and mode != "given":
@@ -551,7 +611,10 @@ class SymplecticKernelReductor(BasicObject):
         self.V = basis_matrix(RB)  # (2N, 2n)
         self.V_plus_array = RB.transposed_symplectic_inverse().to_array()
         self.dim = 2 * len(RB)
-        if mode == "projected" and getattr(fom, "num_values", None) is None and getattr(
+        for given in (trajectories, validation_trajectories):
+            if given is not None:
+                self._check_given_grid(given[0][0])
+        if mode == "projected" and trajectories is None and getattr(fom, "num_values", None) is None and getattr(
                 getattr(fom, "time_stepper", None), "nt", None):  # an InstationaryModel's output grid, known up front
             self._check_stride(fom.T / fom.time_stepper.nt, fom.time_stepper.nt)
         if mode == "projected" and not self.dt <= self.horizon * (1 + 1e-12):
@@ -591,8 +654,14 @@ class SymplecticKernelReductor(BasicObject):
     def _mu_rows(self, mus) -> np.ndarray:
         return mus_to_matrix(mus, self.fom.parameters) if self.fom.parameters else np.zeros((len(mus), 0))
 
+    def _given_mus(self, given) -> list:
+        return given[1] if self.fom.parameters else [None] * len(given[0])
+
     def validation_parameters(self) -> list:
-        """``n_validation`` parameters uniform in the box (seeded), not the training ones."""
+        """``n_validation`` parameters uniform in the box (seeded), not the training ones (with
+        ``validation_trajectories``: theirs)."""
+        if self.validation_trajectories is not None:
+            return self._given_mus(self.validation_trajectories)
         if not self.fom.parameters:
             return [None]
         return random_parameters(self.fom.parameters, self.mu_lo, self.mu_hi, self.n_validation, seed=self.seed + 7)
@@ -624,11 +693,24 @@ class SymplecticKernelReductor(BasicObject):
                                      np.full(len(states), self.dt)))
         return _concat(parts), system
 
-    def _projected_data(self, mus):
+    def _check_given_grid(self, U) -> None:
+        """The caller's trajectories (``K + 1`` states at ``t_k = k T / K``): on the FOM's time grid (``nt`` a
+        multiple of ``K`` where the FOM has a time stepper) and ``dt`` a multiple of their step ``T / K``."""
+        k = len(U) - 1
+        nt = getattr(getattr(self.fom, "time_stepper", None), "nt", None)
+        if nt and int(nt) % k:
+            raise ValueError(f"the given trajectories have {k + 1} states, read as t_k = k T / {k} (T = {self.fom.T!r}); "
+                             f"the FOM's time grid has nt = {nt} steps, not a multiple of {k}: give states at every "
+                             f"output step of fom.solve (nt + 1 = {int(nt) + 1} states) or at every m-th, m dividing nt")
+        self._check_stride(self.fom.T / k, k)
+
+    def _projected_data(self, mus, given=None):
+        """Flow-map pairs ``dt`` apart of the projected FOM trajectories at ``mus`` (``fom.solve``, or ``given``:
+        VectorArrays of the caller's trajectories at those parameters)."""
         trajs, rows = [], self._mu_rows(mus)
         h = None
-        for mu in mus:
-            U = self.fom.solve(mu)
+        for i, mu in enumerate(mus):
+            U = self.fom.solve(mu) if given is None else given[i]
             h_mu = self.fom.T / (len(U) - 1)
             if h is not None and not np.isclose(h, h_mu):
                 raise ValueError("the FOM's output grid changes with mu")
@@ -790,10 +872,14 @@ class SymplecticKernelReductor(BasicObject):
                     scaled = self._scaled_states(train, scaling)
                     self.existence_ = self._checked_existence(
                         lambda: check_generating_function(scaled_system, scaled, update=self._checked_update()))
+            elif self.trajectories is not None:  # the caller's FOM trajectories: no FOM solve
+                train = self._projected_data(self.training_parameters, self.trajectories[0])
+                val = None if self.validation_trajectories is None else \
+                    self._projected_data(self._given_mus(self.validation_trajectories), self.validation_trajectories[0])
             else:
                 train = self._projected_data(self.training_parameters)
                 val = self._projected_data(val_mus)
-            train, val = self._to_flow(train), self._to_flow(val)
+            train, val = self._to_flow(train), None if val is None else self._to_flow(val)
         if self.check_existence and not (self.mode == "reduced" and self.split is None):
             scaled = self._scaled_states(self.split_pairs(train), self._fit_state_scaling(train))
             self.existence_ = self._checked_existence(lambda: self._check_existence_from_data(scaled))
@@ -822,8 +908,10 @@ class SymplecticKernelReductor(BasicObject):
         if not default and self.state_kernels is None and self.mu_kernels is None:
             return None
         if val is None:
-            raise ValueError("choosing kernels (state_kernels, mu_kernels or the default predictor) needs validation "
-                             "data: give validation_data with the caller's data")
+            raise ValueError("choosing kernels (state_kernels, mu_kernels or the default estimator) needs validation "
+                             "data: give validation_data with the caller's data, validation_trajectories with "
+                             "trajectories, or an estimator that chooses its kernels on held-out training samples "
+                             "(estimator=SymplecticKernelPredictor(), no kernels given)")
         inner = base.state_kernel.radial if isinstance(base.state_kernel, KernelTransform) else base.state_kernel
         if self.state_kernels is not None:
             states = self.state_kernels
@@ -955,6 +1043,9 @@ class SymplecticKernelReductor(BasicObject):
         if self.regularizations is not None and self.validation_data is None and self.mode == "given":
             raise ValueError("choosing the regularization needs validation data: give validation_data (samples or "
                              "trajectories) with the caller's data")
+        if self.regularizations is not None and self.trajectories is not None and self.validation_trajectories is None:
+            raise ValueError("choosing the regularization needs validation data: give validation_trajectories with "
+                             "trajectories")
         t0 = time.perf_counter()
         s_train, s_val, state_scaling, mu_scaling = self.scaled_training_data()
         timings = {"data": time.perf_counter() - t0}
