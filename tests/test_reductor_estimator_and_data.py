@@ -1,5 +1,6 @@
 """The reductor's estimator argument, the caller's FOM trajectories, the existence check in the trained coordinates."""
 
+import logging
 import warnings
 
 import numpy as np
@@ -184,3 +185,22 @@ def test_given_trajectories_are_checked(small_fe):
         SymplecticKernelReductor(fom, RB, None, dt, data="reduced", trajectories=(U, train))
     with pytest.raises(ValueError, match="validation_trajectories with trajectories"):
         SymplecticKernelReductor(fom, RB, None, dt, trajectories=(U, train), max_centers=20).reduce()
+
+
+# ------------------------------------------------------------------ log messages
+def test_existence_check_that_could_not_run_says_so(small_fe, caplog):
+    """Given samples too few per parameter to fit a linear map: the log and choice_ say the check was not done (it
+    used to record 'type II generating function exists at dt')."""
+    from sympredict.data import FlowMapData
+
+    fom, space, train, RB = small_fe
+    dt = 4 * fom.T / fom.time_stepper.nt
+    full = SymplecticKernelReductor(fom, RB, train, dt, data="projected", n_validation=1, check_existence=False)
+    pairs = full.training_data()[0]
+    rows = np.concatenate([np.flatnonzero(pairs.mu[:, 0] == m)[:5] for m in np.unique(pairs.mu[:, 0])])  # 5 < 2n = 8
+    few = FlowMapData(pairs.x0[rows], pairs.x1[rows], pairs.mu[rows], pairs.dt[rows])
+    red = SymplecticKernelReductor(fom, RB, None, dt, data=few, parameter_space=space)
+    with caplog.at_level(logging.WARNING):
+        red.training_data()
+    assert "existence check not done" in caplog.text
+    assert red.choice_["reason"].startswith("not checked") and red.existence_["not_checked"]

@@ -771,6 +771,9 @@ class SymplecticKernelReductor(BasicObject):
                 raise
             first = str(exc)
         else:
+            if isinstance(out, dict) and out.get("not_checked"):
+                self.choice_["reason"] = "not checked: too few samples per parameter (see the log)"
+                return out
             if given is None and self.predictor is not None:  # the estimator chooses, where both forms exist
                 self.choice_ = {"update": "midpoint", "reason": "probe"}
                 try:
@@ -809,8 +812,8 @@ class SymplecticKernelReductor(BasicObject):
                 continue
             M, _, rank, _ = np.linalg.lstsq(data.x0[sel], data.x1[sel], rcond=None)
             if rank < self.dim:
-                self.logger.info(f"existence check skipped at mu = {row}: the projected trajectory spans only {rank} "
-                                 f"of {self.dim} dimensions")
+                self.logger.info(f"existence check skipped at mu = {row.tolist()}: its samples span only {rank} of "
+                                 f"the {self.dim} reduced dimensions (no linear map to fit)")
                 continue
             M = M.T
             sigma = float((midpoint_sigma_min if self._checked_update() == "midpoint" else type2_sigma_min)(M[None])[0])
@@ -821,7 +824,11 @@ class SymplecticKernelReductor(BasicObject):
             self.logger.info(f"existence check: {skipped} parameter value(s) with fewer than 2n = {self.dim} samples "
                              f"skipped")
         if worst[1] is None:
-            return {}
+            self.logger.warning(f"existence check not done: no parameter value has samples spanning all 2n = "
+                                f"{self.dim} reduced dimensions, so nothing says whether the generating function "
+                                f"exists at dt = {self.dt!r} (more samples per parameter, or check_existence=False "
+                                f"to say so)")
+            return {"not_checked": True}
         update = self._checked_update()
         om = max(float(np.abs(np.linalg.eigvals(A).imag).max()) for A in generators)
         if om * self.dt < 1e-6:  # no rotation to speak of (e.g. the remainder S of a split): no singular step ahead
