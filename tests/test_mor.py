@@ -1,7 +1,5 @@
 """SymplecticKernelReductor on pyMOR models, model-agnostic flow-map data, scaling, pyMOR interop, sympredict.testing."""
 
-import warnings
-
 import numpy as np
 import pytest
 from pymor.algorithms.symplectic import SymplecticBasis, psd_complex_svd

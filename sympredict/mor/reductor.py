@@ -7,7 +7,8 @@ so the ROM runs past the training horizon and for any initial reduced state.
 
 ::
 
-    reductor = SymplecticKernelReductor(fom, RB, training_parameters, dt, data="reduced")
+    reductor = SymplecticKernelReductor(fom, RB, training_parameters, dt, data="reduced",
+                                        estimator=SymplecticKernelPredictor(max_centers=500))
     rom = reductor.reduce()           # a pyMOR Model, rom.parameters == fom.parameters
     U_red = rom.solve(mu)             # reduced states at t_k = k dt, k = 0..round(fom.T / dt)
     U = reductor.reconstruct(U_red)   # VectorArray in fom.solution_space
@@ -24,6 +25,8 @@ Data (:mod:`sympredict.systems.flowmaps`):
   trajectories are projected with the symplectic inverse ``V+ = J_2n^T V^T J_2N``
   and consecutive states ``dt`` apart become the samples (``dt`` a multiple of
   the FOM's output step);
+* ``trajectories=(U, mus)`` (the caller's FOM trajectories): as ``data="projected"``,
+  without solving the FOM;
 * ``data=FlowMapData(...)`` (the caller's samples): flow-map pairs in reduced
   coordinates that the caller already has (its own sampling design, projected
   trajectories of its own solver, augmented pairs); ``validation_data`` gives
@@ -32,14 +35,14 @@ Data (:mod:`sympredict.systems.flowmaps`):
 Validation data come from parameters drawn at random in the parameter box
 (``parameter_space`` or the box of the training parameters), never from the
 training parameters.  On them the reductor can choose the state and parameter
-kernels (``state_kernels``, ``mu_kernels``; always for the default predictor)
+kernels (``state_kernels``, ``mu_kernels``; always for the default estimator)
 and the ridge term (``regularizations``).  With ``split`` (the quadratic part
 ``A(mu)`` of the reduced Hamiltonian) the learned step is
 ``L_h o S o L_h`` (:class:`~sympredict.flowmap.splitting.SplitKernelPredictor`),
 ``L_h`` the exact flow of ``A`` over half a step, and only ``S`` is learned.  Before training, :func:`~sympredict.systems.flowmaps.check_generating_function`
-checks that the predictor's generating function exists at ``dt`` (type II, or
-the midpoint form for a predictor with ``update="midpoint"``; fails with the
-largest admissible ``dt``).  The predictor is trained in scaled coordinates
+checks, in the coordinates the estimator is trained in, that its generating function exists at ``dt``
+(type II, or the midpoint form for an estimator with ``update="midpoint"``; fails with the
+largest admissible ``dt``).  The estimator is trained in scaled coordinates
 (:mod:`sympredict.flowmap.scaling`): parameters mapped to ``[0, 1]^d``, ``dt`` to 1,
 states by a conformally symplectic diagonal map, so the ROM's step stays symplectic
 (``state_scaling``, ``parameter_scaling``, ``time_scaling``; ``"none"`` trains in the
@@ -441,17 +444,22 @@ class SymplecticKernelReductor(BasicObject):
         for a parameter-free model, or with the caller's ``data`` (then those of its samples).
     dt : float
         Macro step of the ROM.
-    predictor : estimator, optional
-        An unfitted estimator with ``fit``/``rollout``/``step``/``step_jacobian``
-        (cloned, never modified), with all its parts (kernels, ``update``,
-        ``trainer``, ``solver``).  Default: a :class:`SymplecticKernelPredictor`
-        with IMQ kernels on the scaled states and parameters whose shapes are
-        chosen on the validation data from a small log grid (``state_kernels``,
-        ``mu_kernels`` replace the grid).
-    data : {"reduced", "projected"} or FlowMapData
-        Intrusive Galerkin-flow samples, non-intrusive projected FOM trajectories,
-        or the caller's flow-map samples in reduced coordinates (``x1 = Phi(x0)``
-        over ``dt``; parameter vectors in :func:`~sympredict.systems.flowmaps.mu_to_vector`
+    estimator : estimator, optional
+        The one place for every setting of the learned step: an unfitted estimator with
+        ``fit``/``rollout``/``step``/``step_jacobian`` (cloned, never modified), with all its parts
+        (kernels, ``max_centers``, ``update``, ``trainer`` with ``tol``/``power_tol``/``regularization``,
+        ``solver``, ``search``).  A :class:`SymplecticKernelPredictor` with kernels left ``None`` chooses
+        them itself on held-out samples (its ``search=KernelSearch(...)``: families, shapes, ``m_star``);
+        with ``update=None`` the reductor sets the form that exists at ``dt`` (type II or midpoint) or, where
+        both do, leaves the choice to it; what it chose is ``choice_["estimator"]``.  Default: a
+        :class:`SymplecticKernelPredictor` (``max_centers``, ``ExactGreedy(tol=1e-12)``) with IMQ kernels on
+        the scaled states and parameters whose shapes are chosen on the validation data from a small log grid
+        (``state_kernels``, ``mu_kernels`` replace the grid).  ``predictor=`` is its former name (a
+        FutureWarning).
+    data : {"reduced", "projected"} or FlowMapData, optional
+        Intrusive Galerkin-flow samples (the default), non-intrusive projected FOM trajectories
+        (the default with ``trajectories``), or the caller's flow-map samples in reduced coordinates
+        (``x1 = Phi(x0)`` over ``dt``; parameter vectors in :func:`~sympredict.systems.flowmaps.mu_to_vector`
         order), e.g. from its own sampling design or its own solver.
     parameter_space : pyMOR ParameterSpace, optional
         Box for the parameter scaling and the validation parameters (default: box of the training ones).
@@ -467,13 +475,17 @@ class SymplecticKernelReductor(BasicObject):
         :class:`~sympredict.flowmap.scaling.SymplecticScaling` mode; ``"williamson"``
         (``data="reduced"`` only) uses the Williamson form of ``V^T H(mu) V`` at
         the centre of the parameter box.
-    max_centers : int
-        Budget of the default predictor.
+    max_centers : int, optional
+        Budget of the default estimator (1000); a given estimator has its own (refused here).
     check_existence : bool
         Run :func:`~sympredict.systems.flowmaps.check_generating_function` on the data, for
-        the predictor's ``update`` (type II by default; ``"midpoint"``: the
-        symmetric form, which holds up to half a turn per step).  On the caller's data the
-        check uses a least-squares linear map per parameter, as for ``data="projected"``.
+        the estimator's ``update`` (type II by default; ``"midpoint"``: the
+        symmetric form, which holds up to half a turn per step), in the coordinates the estimator
+        is trained in (after ``state_scaling``: the Jacobian there is ``T D Phi T^-1``, and a scaling
+        that mixes ``q`` and ``p``, such as ``"williamson"``, changes where the type II form exists).
+        On the caller's data the check uses a least-squares linear map per parameter, as for
+        ``data="projected"``; a check that cannot run (fewer samples per parameter than ``2n``) is
+        logged as not done.
     seed : int
     validation_data : FlowMapData, optional
         With the caller's ``data``: its validation samples (needed to choose kernels).
@@ -511,6 +523,18 @@ class SymplecticKernelReductor(BasicObject):
         the initial data (checked: the FOM's other operators must not depend on them) are left out,
         so the kernel interpolates in the others only; data, ``parameter_space`` box and
         ``split`` use the flow parameters' vectors.
+    trajectories : tuple (U, mus), optional
+        FOM trajectories the caller already has, used instead of ``fom.solve`` (``data="projected"``
+        without solving the FOM; ``training_parameters`` are then ``mus``): ``U`` a sequence of ``P``
+        VectorArrays in ``fom.solution_space`` (as ``fom.solve`` returns them) or an array
+        ``(P, K + 1, N)`` of full states, each trajectory ``K + 1`` states at ``t_k = k T / K``
+        (``T = fom.T``; ``K`` divides the FOM's ``nt`` where it has a time stepper, and ``dt`` is a multiple
+        of ``T / K``); ``mus`` ``P`` parameter values (pyMOR ``Mu``, dicts or numbers; ``None`` for a
+        parameter-free FOM).  Checked before anything is trained.
+    validation_trajectories : tuple (U, mus), optional
+        With ``trajectories``: the validation trajectories, same form (the validation parameters are their
+        ``mus``).  Without them no validation data exist: give an estimator that chooses its kernels on
+        held-out training samples, or its kernels.
     """
 
     def __init__(self, fom, RB, training_parameters, dt, estimator=None, data=None, *, parameter_space=None,
