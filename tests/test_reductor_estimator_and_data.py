@@ -204,3 +204,37 @@ def test_existence_check_that_could_not_run_says_so(small_fe, caplog):
         red.training_data()
     assert "existence check not done" in caplog.text
     assert red.choice_["reason"].startswith("not checked") and red.existence_["not_checked"]
+
+
+# ------------------------------------------------------------------ the exact linear flow split off as a fallback
+def test_split_fallback_where_no_generating_function_exists_without_it():
+    """Past half a turn per step (w dt = 3.5) neither form exists; with the quadratic part known (here the whole
+    reduced Hamiltonian, so S is the identity) the reductor splits its exact flow off and the ROM's step is the
+    exact propagator.  A quadratic part that leaves S turning past half a turn is still refused."""
+    from scipy.linalg import expm
+
+    from sympredict.symplectic.metrics import canonical_J
+    from sympredict.systems.flowmaps import linear_system_from_pymor
+    from sympredict.systems.linear_flow import QuadraticPart
+
+    fom, RB = sheared_oscillators()
+    H = linear_system_from_pymor(fom).matrix(np.zeros(0))
+    dt = 3.5
+    est = SymplecticKernelPredictor(IMQ(1.0), max_centers=10, update="symplectic_euler")
+    kw = dict(state_scaling="none", n_samples=40, n_validation=1)
+    with pytest.raises(ValueError, match="dp1/dp0"):
+        SymplecticKernelReductor(fom, RB, None, dt, est, **kw).training_data()
+    with pytest.raises(ValueError, match="neither generating function exists"):
+        SymplecticKernelReductor(fom, RB, None, dt, **kw).training_data()
+    red = SymplecticKernelReductor(fom, RB, None, dt, est, split_fallback=QuadraticPart([H]), **kw)
+    rom = red.reduce()
+    assert red.choice_["split"] == "split_fallback" and "without a split" in red.choice_["reason"]
+    assert type(red.predictor_).__name__ == "SplitKernelPredictor"
+    x = red.train_data_.x0[:5]
+    exact = x @ expm(dt * canonical_J(4) @ H).T
+    np.testing.assert_allclose(red.flow_map_.step(x, dt=dt), exact, rtol=0, atol=1e-10 * np.abs(exact).max())
+    assert len(rom.solve()) == round(fom.T / dt) + 1
+    with pytest.raises(ValueError, match="nor for the remainder S"):
+        SymplecticKernelReductor(fom, RB, None, dt, est, split_fallback=QuadraticPart([0.05 * H]), **kw).training_data()
+    with pytest.raises(ValueError, match="not both"):
+        SymplecticKernelReductor(fom, RB, None, dt, est, split=QuadraticPart([H]), split_fallback=QuadraticPart([H]))

@@ -518,6 +518,12 @@ class SymplecticKernelReductor(BasicObject):
         carried into the scaled coordinates by :func:`~sympredict.flowmap.scaling.scaled_quadratic_part`),
         so the linear part of the flow is exact and only ``S`` is learned.  The existence check and
         the kernel search then see ``S``'s pairs ``(L_h x0, L_{-h} x1)``.
+    split_fallback : QuadraticPart, optional
+        The known quadratic part ``A(mu)`` of the reduced Hamiltonian (as for ``split``), split off only
+        where the existence check finds no generating function at ``dt`` without it (after the midpoint
+        form, where the update is left open): the kernel then learns the remainder ``S``, whose flow is
+        close to the identity.  Logged; ``choice_["split"] = "split_fallback"`` and ``choice_["reason"]``
+        say why.  Needs ``check_existence=True``.
     flow_parameters : sequence of str, optional
         The parameters the flow map takes (default: all of the FOM's).  Parameters that enter only
         the initial data (checked: the FOM's other operators must not depend on them) are left out,
@@ -542,7 +548,8 @@ class SymplecticKernelReductor(BasicObject):
                  state_scaling: str = "diag", max_centers: Optional[int] = None, check_existence: bool = True,
                  seed: int = 0, validation_data=None, parameter_scaling: str = "box", time_scaling: str = "step",
                  state_kernels=None, mu_kernels=None, m_star: int = 300, regularizations=None,
-                 split: Optional[QuadraticPart] = None, flow_parameters=None, trajectories=None,
+                 split: Optional[QuadraticPart] = None, split_fallback: Optional[QuadraticPart] = None,
+                 flow_parameters=None, trajectories=None,
                  validation_trajectories=None, predictor=None):
         if predictor is not None:
             if estimator is not None:
@@ -589,13 +596,18 @@ class SymplecticKernelReductor(BasicObject):
         if regularizations is not None:
             regularizations = [float(as_real(v, "regularizations", nonnegative=True))
                                for v in np.atleast_1d(np.asarray(regularizations, dtype=object))]
-        if split is not None:
-            if not isinstance(split, QuadraticPart):
-                raise ValueError(f"split must be a sympredict.systems.linear_flow.QuadraticPart (the quadratic part "
-                                 f"A(mu) of the reduced Hamiltonian), got {split!r}")
-            split.checked(dim=2 * len(RB))
-            if split.checked()[1].shape[1] not in (0, flow.dim):
-                raise ValueError(f"split depends on {split.checked()[1].shape[1]} parameter component(s), the flow map "
+        if split is not None and split_fallback is not None:
+            raise ValueError("give the quadratic part once: split= (always split off) or split_fallback= (split off "
+                             "only where no generating function exists at dt without it), not both")
+        for qname, quad in (("split", split), ("split_fallback", split_fallback)):
+            if quad is None:
+                continue
+            if not isinstance(quad, QuadraticPart):
+                raise ValueError(f"{qname} must be a sympredict.systems.linear_flow.QuadraticPart (the quadratic part "
+                                 f"A(mu) of the reduced Hamiltonian), got {quad!r}")
+            quad.checked(dim=2 * len(RB))
+            if quad.checked()[1].shape[1] not in (0, flow.dim):
+                raise ValueError(f"{qname} depends on {quad.checked()[1].shape[1]} parameter component(s), the flow map "
                                  f"takes {flow.dim}")
             if isinstance(predictor, SplitKernelPredictor):
                 raise ValueError("give the inner SymplecticKernelPredictor as estimator and the quadratic part as split: "
@@ -619,6 +631,7 @@ class SymplecticKernelReductor(BasicObject):
             raise ValueError(f"the FOM has parameters {dict(fom.parameters)}: give training_parameters (pyMOR Mu)")
         self.__auto_init(locals())
         self.estimator = predictor
+        self._split = split  # the split in use: split, or split_fallback where the existence check needs it
         self.mode = mode
         self.state_kernels, self.mu_kernels = state_kernels, mu_kernels
         self.regularizations = regularizations
@@ -791,7 +804,7 @@ class SymplecticKernelReductor(BasicObject):
         try:
             out = check()
         except ValueError as exc:
-            if given is not None or self.split is not None:
+            if given is not None or self._split is not None:
                 raise
             first = str(exc)
         else:
@@ -876,9 +889,9 @@ class SymplecticKernelReductor(BasicObject):
     def split_pairs(self, data: FlowMapData) -> FlowMapData:
         """``S``'s samples ``(L_h x0, L_{-h} x1)``, ``L_h = expm(dt/2 J A(mu))``, of samples ``x1 = Phi(x0)``
         (the identity without ``split``), in reduced coordinates."""
-        if self.split is None:
+        if self._split is None:
             return data
-        L = self.split.propagator(data.mu if data.mu.shape[1] else None, 0.5 * data.dt, n=len(data))
+        L = self._split.propagator(data.mu if data.mu.shape[1] else None, 0.5 * data.dt, n=len(data))
         return FlowMapData(np.einsum("bij,bj->bi", L, data.x0),
                            np.einsum("bij,bj->bi", inverse_symplectic_matrices(L), data.x1),
                            data.mu if data.mu.shape[1] else None, data.dt)
@@ -889,6 +902,7 @@ class SymplecticKernelReductor(BasicObject):
         Returns ``(train, val)``: :class:`~sympredict.data.FlowMapData`, and for the caller's data its
         ``validation_data`` as given (``FlowMapData``, :class:`~sympredict.data.TrajectoryData` or ``None``).
         """
+        reference = None
         if self.mode == "given":
             train, val = self.data, self.validation_data
         else:
@@ -896,13 +910,7 @@ class SymplecticKernelReductor(BasicObject):
             if self.mode == "reduced":
                 train, system = self._reduced_data(self.training_parameters, self.n_samples, self.seed)
                 val, _ = self._reduced_data(val_mus, max(50, self.n_samples // 4), self.seed + 1)
-                if self.check_existence and self.split is None:
-                    # in the coordinates the predictor is trained in: x~ = T x, D Phi~ = T D Phi T^-1
-                    scaling = self._fit_state_scaling(train)
-                    scaled_system = _conjugated_system(system, scaling.matrix_)
-                    scaled = self._scaled_states(train, scaling)
-                    self.existence_ = self._checked_existence(
-                        lambda: check_generating_function(scaled_system, scaled, update=self._checked_update()))
+                reference = (system, train)  # the exact Jacobians, with the FOM's parameter vectors
             elif self.trajectories is not None:  # the caller's FOM trajectories: no FOM solve
                 train = self._projected_data(self.training_parameters, self.trajectories[0])
                 val = None if self.validation_trajectories is None else \
@@ -911,12 +919,49 @@ class SymplecticKernelReductor(BasicObject):
                 train = self._projected_data(self.training_parameters)
                 val = self._projected_data(val_mus)
             train, val = self._to_flow(train), None if val is None else self._to_flow(val)
-        if self.check_existence and not (self.mode == "reduced" and self.split is None):
-            scaled = self._scaled_states(self.split_pairs(train), self._fit_state_scaling(train))
-            self.existence_ = self._checked_existence(lambda: self._check_existence_from_data(scaled))
+        self._split = self.split
+        if self.check_existence:
+            self.existence_ = self._existence(train, reference)
         if self.check_existence:
             self.existence_["coordinates"] = f"trained (state_scaling={self.state_scaling!r})"
         return train, val
+
+    def _existence(self, train: FlowMapData, reference) -> dict:
+        """The existence check in the trained coordinates (``x~ = T x``, ``D Phi~ = T D Phi T^-1``): exact Jacobians
+        of the reduced system (``reference = (system, samples)``, ``data="reduced"`` without a split), else the
+        least-squares linear maps of the samples (``S``'s pairs with a split).  With ``split_fallback``, where no
+        generating function exists at ``dt`` without it, the exact linear flow of the quadratic part is split off
+        (the kernel learns the remainder ``S``), logged and recorded in ``choice_["split"]``."""
+        scaling = self._fit_state_scaling(train)
+
+        def check():
+            if reference is not None and self._split is None:
+                system, full = reference
+                return check_generating_function(_conjugated_system(system, scaling.matrix_),
+                                                 self._scaled_states(full, scaling), update=self._checked_update())
+            return self._check_existence_from_data(self._scaled_states(self.split_pairs(train), scaling))
+
+        try:
+            return self._checked_existence(check)
+        except ValueError as exc:
+            if self.split_fallback is None:
+                raise
+            first = str(exc)
+        self._split = self.split_fallback
+        try:
+            out = self._checked_existence(check)
+        except ValueError as exc:
+            self._split = None
+            raise ValueError(f"no generating function exists at dt = {self.dt!r}, neither without a split ({first}) "
+                             f"nor for the remainder S once the exact linear flow of split_fallback is split off "
+                             f"({exc}): use a smaller macro step") from None
+        self.choice_["split"] = "split_fallback"
+        self.choice_["reason"] = (f"no generating function exists at dt = {self.dt!r} without a split ({first}); with "
+                                  f"the exact linear flow of split_fallback split off, the remainder's "
+                                  f"({self.choice_['reason']})")
+        self.logger.info(f"split_fallback used: the step is L_h o S o L_h with the exact linear flow L_h of the "
+                         f"quadratic part; {self.choice_['reason']}")
+        return out
 
     def _fit_state_scaling(self, train: FlowMapData) -> SymplecticScaling:
         """The state scaling of the predictor's coordinates (``state_scaling``), fitted on the training states."""
@@ -1016,8 +1061,8 @@ class SymplecticKernelReductor(BasicObject):
     def _fit(self, predictor, s_train, s_val, vary_mu, state_scaling, mu_scaling):
         """Fit ``predictor`` (inside the split, if any) on the scaled data; the flow map in reduced coordinates."""
         model = predictor
-        if self.split is not None:
-            quad = self.split
+        if self._split is not None:
+            quad = self._split
             if not vary_mu and quad.checked()[1].shape[1]:  # one training parameter: A at that parameter
                 quad = QuadraticPart(quad.hessian(self.train_data_.mu[:1], 1))
             model = SplitKernelPredictor(predictor, scaled_quadratic_part(quad, state_scaling, mu_scaling, self.tau_))
@@ -1083,7 +1128,7 @@ class SymplecticKernelReductor(BasicObject):
         train = self.train_data_
         vary_mu = mu_scaling is not None
         t0 = time.perf_counter()
-        if self.split is None:
+        if self._split is None:
             search = (s_train, s_val)
         else:  # the kernels of S, compared on S's samples
             search = tuple(None if d is None else self._scaled_split_pairs(d, state_scaling, mu_scaling, vary_mu)
@@ -1101,7 +1146,7 @@ class SymplecticKernelReductor(BasicObject):
         timings["selection"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         with self.logger.block(f"fitting {type(predictor).__name__} on {len(train)} samples"
-                               + ("" if self.split is None else " (inside the split)")):
+                               + ("" if self._split is None else " (inside the split)")):
             if self.regularizations is None:
                 model, flow_map = self._fit(predictor, s_train, s_val, vary_mu, state_scaling, mu_scaling)
             else:
@@ -1156,7 +1201,7 @@ class SymplecticKernelReductor(BasicObject):
 
     def _scaled_split_pairs(self, d, state_scaling, mu_scaling, vary_mu):
         """``S``'s samples in the predictor's coordinates (what the kernel search compares candidates on)."""
-        quad = self.split
+        quad = self._split
         if not vary_mu and quad.checked()[1].shape[1]:
             quad = QuadraticPart(quad.hessian(self.train_data_.mu[:1], 1))
         quad = scaled_quadratic_part(quad, state_scaling, mu_scaling if vary_mu else None, self.tau_)
