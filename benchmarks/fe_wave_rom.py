@@ -44,9 +44,11 @@ def run(args) -> dict:
     RB = complex_svd_basis(S, n=args.dim // 2).to_pymor(fom.solution_space)
     h = fom.T / fom.time_stepper.nt
     dt = args.stride * h
-    predictor = None if args.update == "default" else SymplecticKernelPredictor(update=args.update)
-    reductor = SymplecticKernelReductor(fom, RB, train, dt, predictor, data="projected", parameter_space=space,
-                                        max_centers=args.max_centers, n_validation=3)
+    budget = {"max_centers": args.max_centers} if args.update == "default" else {}
+    estimator = None if args.update == "default" else SymplecticKernelPredictor(update=args.update,
+                                                                                 max_centers=args.max_centers)
+    reductor = SymplecticKernelReductor(fom, RB, train, dt, estimator, data="projected", parameter_space=space,
+                                        n_validation=3, **budget)
     rom = reductor.reduce()
     gal = QuadraticHamiltonianRBReductor(fom, RB)
     gal_rom = gal.reduce()

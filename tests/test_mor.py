@@ -1,7 +1,5 @@
 """SymplecticKernelReductor on pyMOR models, model-agnostic flow-map data, scaling, pyMOR interop, sympredict.testing."""
 
-import warnings
-
 import numpy as np
 import pytest
 from pymor.algorithms.symplectic import SymplecticBasis, psd_complex_svd
@@ -173,12 +171,16 @@ def test_reductor_checks_the_existence_of_its_predictors_update(wave):
     limit = red.existence_["dt_max"]
     big = 1.5 * limit  # past the type-II limit, below the midpoint form's (twice as long)
     with pytest.raises(ValueError, match="dp1/dp0"):  # a type-II predictor is refused
-        SymplecticKernelReductor(fom, RB, train, big, SymplecticKernelPredictor(update="symplectic_euler"), n_samples=30,
-                                 n_validation=1).training_data()
-    # a predictor that leaves its update open (update=None, the default) gets the form that exists
-    open_update = SymplecticKernelReductor(fom, RB, train, big, SymplecticKernelPredictor(), n_samples=30, n_validation=1)
-    open_update.training_data()
-    assert open_update.choice_["update"] == "midpoint"
+        SymplecticKernelReductor(fom, RB, train, big, SymplecticKernelPredictor(update="symplectic_euler"),
+                                 n_samples=30, n_validation=1).training_data()
+    open_update = SymplecticKernelReductor(fom, RB, train, big, SymplecticKernelPredictor(), n_samples=30,
+                                           n_validation=1)
+    open_update.training_data()  # an estimator with update=None gets the form that exists
+    assert open_update.choice_["update"] == "midpoint" and "dp1/dp0" in open_update.choice_["reason"]
+    both = SymplecticKernelReductor(fom, RB, train, 0.5 * limit, SymplecticKernelPredictor(), n_samples=30,
+                                    n_validation=1)
+    both.training_data()  # both forms exist: the estimator's search keeps the choice
+    assert both.choice_["update"] is None
     auto = SymplecticKernelReductor(fom, RB, train, big, n_samples=30, n_validation=1)
     auto.training_data()  # the default predictor takes the midpoint form, which exists here
     assert auto.choice_["update"] == "midpoint" and "dp1/dp0" in auto.choice_["reason"]
@@ -417,8 +419,6 @@ def test_reductor_bad_input(wave):
     with pytest.raises(ValueError, match=r"past the first step where it is singular.*largest admissible dT here is about 1\.[34]"):
         SymplecticKernelReductor(fom, RB, train, 20 * dt, SymplecticKernelPredictor(update="symplectic_euler"),
                                  n_samples=50).training_data()  # omega_max dT > pi/2
-    with pytest.raises(ValueError, match="neither generating function exists"):  # omega_max dT > pi: no form exists
-        SymplecticKernelReductor(fom, RB, train, 40 * dt, n_samples=50).training_data()
     reductor = SymplecticKernelReductor(fom, RB, train, dt, n_samples=100, max_centers=100)
     rom = reductor.reduce()
     with pytest.raises(ValueError, match="does not match"):
@@ -460,13 +460,16 @@ def test_example_henon_heiles():
 def test_reductor_clones_the_given_predictor(wave):
     fom, train, RB, dt = wave
     given = SymplecticKernelPredictor(IMQ(0.05), IMQ(0.5), None, max_centers=120)
-    reductor = SymplecticKernelReductor(fom, RB, train, dt, predictor=given, n_samples=80)
+    reductor = SymplecticKernelReductor(fom, RB, train, dt, estimator=given, n_samples=80)
     rom = reductor.reduce()
     assert not given.is_fitted and reductor.predictor_.is_fitted and reductor.predictor_ is not given
     assert reductor.predictor_.get_params()["state_kernel"] == IMQ(0.05)
     assert len(rom.solve(fom.parameters.parse(0.1))) == round(fom.T / dt) + 1
-    # a parameter kernel left out is chosen by the predictor on the reductor's data
-    open_mu = SymplecticKernelReductor(fom, RB, train, dt, n_samples=80,
-                                       predictor=SymplecticKernelPredictor(IMQ(0.05), max_centers=60, update="midpoint"))
-    open_mu.reduce()
-    assert open_mu.predictor_.kernel_.mu is not None and set(open_mu.predictor_.choice_) == {"mu_kernel"}
+    from sympredict.estimators.auto import KernelSearch
+
+    # mu_kernel=None with varying parameters: the estimator chooses one (its KernelSearch), the reductor records it
+    search = KernelSearch(families=("imq",), parameter_shapes=(0.5, 2.5), m_star=20, refine_sweeps=0, max_samples=200)
+    chooses = SymplecticKernelReductor(fom, RB, train, dt, estimator=SymplecticKernelPredictor(
+        IMQ(0.05), max_centers=40, update="symplectic_euler", search=search), n_samples=80)
+    chooses.reduce()
+    assert list(chooses.choice_["estimator"]) == ["mu_kernel"] and chooses.predictor_.kernel_.mu is not None

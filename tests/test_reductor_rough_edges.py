@@ -176,12 +176,13 @@ def test_finite_element_howto_runs():
 
     text = (Path(__file__).resolve().parents[1] / "docs" / "howto" / "finite_element_models.md").read_text()
     blocks = re.findall(r"```python\n(.*?)```", text, flags=re.S)
-    assert len(blocks) == 2
+    assert len(blocks) == 3
     namespace = {}
     for code in blocks:
         exec(compile(code, "finite_element_models.md", "exec"), namespace)
     assert namespace["error"] < 0.1
     assert namespace["q"].shape == (len(namespace["U"]), namespace["coords"].N)
+    assert namespace["reductor"].mode == "projected" and namespace["rom_from_saved"].solve(0.95) is not None
 
 
 # ------------------------------------------------------------------ g. a Newton failure keeps the trajectory so far

@@ -440,8 +440,8 @@ def wave_parts():
     ({"horizon": -1.0}, r"horizon must be positive, got -1.0"),
     ({"horizon": "1"}, r"horizon must be a real number"),
     ({"max_centers": 0}, r"max_centers must be >= 1, got 0"),
-    ({"predictor": "imq"}, r"predictor must be an estimator"),
-    ({"predictor": SymplecticKernelPredictor}, r"predictor must be an estimator"),
+    ({"estimator": "imq"}, r"estimator must be an estimator"),
+    ({"estimator": SymplecticKernelPredictor}, r"estimator must be an estimator"),
     ({"state_scaling": "log"}, r"state_scaling must be one of"),
     ({"check_existence": "no"}, r"check_existence must be True or False"),
 ])
@@ -477,12 +477,12 @@ def test_reductor_checks_its_predictors_settings_before_sampling(monkeypatch):
     monkeypatch.setattr(type(fom), "solve", lambda *a, **k: (_ for _ in ()).throw(AssertionError("FOM solved")))
     with pytest.raises(ValueError, match="update must be one of"):
         SymplecticKernelReductor(fom, RB, train, 0.05, SymplecticKernelPredictor(update="leapfrog"))
-    # a predictor without mu_kernel is no longer refused: it chooses its parameter kernel at fit
-    reductor = SymplecticKernelReductor(fom, RB, train, 0.05,
-                                        SymplecticKernelPredictor(IMQ(1.0), max_centers=40, update="midpoint"),
-                                        n_samples=60)
-    reductor.reduce()
-    assert reductor.predictor_.kernel_.mu is not None and set(reductor.predictor_.choice_) == {"mu_kernel"}
+    class NoChoice(SymplecticKernelPredictor):  # an estimator that does not choose an open mu_kernel itself
+        _chooses_open_factors = False
+
+    reductor = SymplecticKernelReductor(fom, RB, train, 0.05, NoChoice(IMQ(1.0)))
+    with pytest.raises(ValueError, match="mu_kernel=None"):
+        reductor.reduce()
 
 
 def test_reductor_refuses_a_parameter_space_of_other_parameters(wave_parts):

@@ -7,7 +7,8 @@ so the ROM runs past the training horizon and for any initial reduced state.
 
 ::
 
-    reductor = SymplecticKernelReductor(fom, RB, training_parameters, dt, data="reduced")
+    reductor = SymplecticKernelReductor(fom, RB, training_parameters, dt, data="reduced",
+                                        estimator=SymplecticKernelPredictor(max_centers=500))
     rom = reductor.reduce()           # a pyMOR Model, rom.parameters == fom.parameters
     U_red = rom.solve(mu)             # reduced states at t_k = k dt, k = 0..round(fom.T / dt)
     U = reductor.reconstruct(U_red)   # VectorArray in fom.solution_space
@@ -24,6 +25,8 @@ Data (:mod:`sympredict.systems.flowmaps`):
   trajectories are projected with the symplectic inverse ``V+ = J_2n^T V^T J_2N``
   and consecutive states ``dt`` apart become the samples (``dt`` a multiple of
   the FOM's output step);
+* ``trajectories=(U, mus)`` (the caller's FOM trajectories): as ``data="projected"``,
+  without solving the FOM;
 * ``data=FlowMapData(...)`` (the caller's samples): flow-map pairs in reduced
   coordinates that the caller already has (its own sampling design, projected
   trajectories of its own solver, augmented pairs); ``validation_data`` gives
@@ -32,14 +35,14 @@ Data (:mod:`sympredict.systems.flowmaps`):
 Validation data come from parameters drawn at random in the parameter box
 (``parameter_space`` or the box of the training parameters), never from the
 training parameters.  On them the reductor can choose the state and parameter
-kernels (``state_kernels``, ``mu_kernels``; always for the default predictor)
+kernels (``state_kernels``, ``mu_kernels``; always for the default estimator)
 and the ridge term (``regularizations``).  With ``split`` (the quadratic part
 ``A(mu)`` of the reduced Hamiltonian) the learned step is
 ``L_h o S o L_h`` (:class:`~sympredict.flowmap.splitting.SplitKernelPredictor`),
 ``L_h`` the exact flow of ``A`` over half a step, and only ``S`` is learned.  Before training, :func:`~sympredict.systems.flowmaps.check_generating_function`
-checks that the predictor's generating function exists at ``dt`` (type II, or
-the midpoint form for a predictor with ``update="midpoint"``; fails with the
-largest admissible ``dt``).  The predictor is trained in scaled coordinates
+checks, in the coordinates the estimator is trained in, that its generating function exists at ``dt``
+(type II, or the midpoint form for an estimator with ``update="midpoint"``; fails with the
+largest admissible ``dt``).  The estimator is trained in scaled coordinates
 (:mod:`sympredict.flowmap.scaling`): parameters mapped to ``[0, 1]^d``, ``dt`` to 1,
 states by a conformally symplectic diagonal map, so the ROM's step stays symplectic
 (``state_scaling``, ``parameter_scaling``, ``time_scaling``; ``"none"`` trains in the
@@ -71,6 +74,7 @@ from sympredict.data import FlowMapData, TrajectoryData
 from sympredict.exceptions import ExtrapolationWarning, NewtonConvergenceError
 from sympredict.systems.linear_flow import QuadraticPart, inverse_symplectic_matrices
 from sympredict.systems.flowmaps import (
+    LinearHamiltonianSystem,
     _report_existence,
     first_singular_step,
     check_generating_function,
@@ -255,7 +259,7 @@ def _check_reductor_settings(fom, dt, predictor, parameter_space, n_samples, rad
         missing = [a for a in ("fit", "step", "rollout", "step_jacobian", "get_params")
                    if not callable(getattr(predictor, a, None))]
         if isinstance(predictor, type) or missing:
-            raise ValueError(f"predictor must be an estimator instance (e.g. SymplecticKernelPredictor(...)) with fit, step, "
+            raise ValueError(f"estimator must be an estimator instance (e.g. SymplecticKernelPredictor(...)) with fit, step, "
                              f"rollout, step_jacobian and get_params, got {predictor!r}"
                              + (f" (lacks {', '.join(missing)})" if missing and not isinstance(predictor, type) else ""))
     if parameter_space is not None:
@@ -281,6 +285,62 @@ def _sub_index(parameters, sub) -> np.ndarray:
         offsets[k] = i
         i += parameters[k]
     return np.array([offsets[k] + j for k in sorted(sub) for j in range(sub[k])], dtype=int)
+
+
+def _as_trajectories(given, fom, name: str) -> tuple:
+    """The caller's FOM trajectories ``(U, mus)`` as ``(list of VectorArrays in fom.solution_space, list of Mu)``.
+
+    ``U``: a sequence of ``P`` VectorArrays (each ``K + 1`` states, as ``fom.solve`` returns) or an array
+    ``(P, K + 1, N)`` of full states (``N = fom.solution_space.dim``, blocks stacked as the solution space orders
+    them); ``mus``: ``P`` parameter values (pyMOR ``Mu``, dicts, numbers; ``None`` or ``P`` Nones for a parameter-free
+    FOM).  Shapes, spaces, lengths and finiteness are checked before anything is copied (``ValueError`` naming
+    ``name``).
+    """
+    if not isinstance(given, (tuple, list)) or len(given) != 2:
+        raise ValueError(f"{name} must be a pair (U, mus): U a list of VectorArrays (or an array (P, K+1, N)) of FOM "
+                         f"trajectories, mus their parameter values, got {type(given).__name__}")
+    U, mus = given
+    space = fom.solution_space
+    if isinstance(U, np.ndarray):
+        if U.ndim != 3 or U.shape[2] != space.dim or U.shape[0] == 0 or U.shape[1] < 2:
+            raise ValueError(f"{name}: an array of trajectories must have shape (P, K+1, N) with P >= 1, K + 1 >= 2 and "
+                             f"N = {space.dim} (the FOM's solution space), got {U.shape}")
+        if not np.issubdtype(U.dtype, np.number) or np.iscomplexobj(U) or not np.all(np.isfinite(U)):
+            raise ValueError(f"{name}: the trajectories must be finite real numbers (NaN, Inf or dtype {U.dtype} found)")
+        U = [space.from_numpy(np.array(u, dtype=float).T) for u in U]  # pyMOR: columns are vectors
+    else:
+        U = list(U) if isinstance(U, (list, tuple)) else [U]
+        bad = [i for i, u in enumerate(U) if getattr(u, "space", None) != space]
+        if not U or bad:
+            raise ValueError(f"{name}: U must hold VectorArrays in the FOM's solution space {space}" +
+                             (f"; entry {bad[0]} is a {type(U[bad[0]]).__name__}" + (
+                                 f" in {U[bad[0]].space}" if hasattr(U[bad[0]], "space") else "") if bad else
+                              ", got none"))
+        for i, u in enumerate(U):
+            if not np.all(np.isfinite(u.norm())):
+                raise ValueError(f"{name}: trajectory {i} has NaN or Inf states")
+    lengths = sorted({len(u) for u in U})
+    if len(lengths) > 1 or lengths[0] < 2:
+        raise ValueError(f"{name}: every trajectory must have the same number K + 1 >= 2 of states (t_k = k T / K), "
+                         f"got lengths {lengths}")
+    if not fom.parameters and mus is None:
+        return U, [None] * len(U)
+    if mus is None or isinstance(mus, (str, dict)) or len(mus) != len(U):
+        raise ValueError(f"{name}: give one parameter value per trajectory ({len(U)}), got "
+                         f"{'none' if mus is None else mus!r}")
+    return U, [parse_mu(m, fom.parameters) for m in mus]
+
+
+def _conjugated_system(system: LinearHamiltonianSystem, M: np.ndarray) -> LinearHamiltonianSystem:
+    """``system`` in the coordinates ``x~ = M x`` (``M^T J M = s^2 J``, conformally symplectic): ``H~ = s^2 M^-T H M^-1``
+    and ``h~ = s^2 M^-T h``, so that ``J H~ = M J H M^-1`` and the flow Jacobian is ``M D Phi M^-1``."""
+    M = np.asarray(M, dtype=float)
+    dim = M.shape[0]
+    J = canonical_J(dim)
+    s2 = float((M.T @ J @ M)[0, dim // 2] / J[0, dim // 2])
+    Minv = np.linalg.inv(M)
+    return LinearHamiltonianSystem(lambda mu: s2 * Minv.T @ system.matrix(mu) @ Minv, dim, system.n_mu,
+                                   lambda mu: s2 * Minv.T @ system.linear_term(mu))
 
 
 def _operator_parameters(fom) -> set:
@@ -387,17 +447,22 @@ class SymplecticKernelReductor(BasicObject):
         for a parameter-free model, or with the caller's ``data`` (then those of its samples).
     dt : float
         Macro step of the ROM.
-    predictor : estimator, optional
-        An unfitted estimator with ``fit``/``rollout``/``step``/``step_jacobian``
-        (cloned, never modified), with all its parts (kernels, ``update``,
-        ``trainer``, ``solver``).  Default: a :class:`SymplecticKernelPredictor`
-        with IMQ kernels on the scaled states and parameters whose shapes are
-        chosen on the validation data from a small log grid (``state_kernels``,
-        ``mu_kernels`` replace the grid).
-    data : {"reduced", "projected"} or FlowMapData
-        Intrusive Galerkin-flow samples, non-intrusive projected FOM trajectories,
-        or the caller's flow-map samples in reduced coordinates (``x1 = Phi(x0)``
-        over ``dt``; parameter vectors in :func:`~sympredict.systems.flowmaps.mu_to_vector`
+    estimator : estimator, optional
+        The one place for every setting of the learned step: an unfitted estimator with
+        ``fit``/``rollout``/``step``/``step_jacobian`` (cloned, never modified), with all its parts
+        (kernels, ``max_centers``, ``update``, ``trainer`` with ``tol``/``power_tol``/``regularization``,
+        ``solver``, ``search``).  A :class:`SymplecticKernelPredictor` with kernels left ``None`` chooses
+        them itself on held-out samples (its ``search=KernelSearch(...)``: families, shapes, ``m_star``);
+        with ``update=None`` the reductor sets the form that exists at ``dt`` (type II or midpoint) or, where
+        both do, leaves the choice to it; what it chose is ``choice_["estimator"]``.  Default: a
+        :class:`SymplecticKernelPredictor` (``max_centers``, ``ExactGreedy(tol=1e-12)``) with IMQ kernels on
+        the scaled states and parameters whose shapes are chosen on the validation data from a small log grid
+        (``state_kernels``, ``mu_kernels`` replace the grid).  ``predictor=`` is its former name (a
+        FutureWarning).
+    data : {"reduced", "projected"} or FlowMapData, optional
+        Intrusive Galerkin-flow samples (the default), non-intrusive projected FOM trajectories
+        (the default with ``trajectories``), or the caller's flow-map samples in reduced coordinates
+        (``x1 = Phi(x0)`` over ``dt``; parameter vectors in :func:`~sympredict.systems.flowmaps.mu_to_vector`
         order), e.g. from its own sampling design or its own solver.
     parameter_space : pyMOR ParameterSpace, optional
         Box for the parameter scaling and the validation parameters (default: box of the training ones).
@@ -413,13 +478,17 @@ class SymplecticKernelReductor(BasicObject):
         :class:`~sympredict.flowmap.scaling.SymplecticScaling` mode; ``"williamson"``
         (``data="reduced"`` only) uses the Williamson form of ``V^T H(mu) V`` at
         the centre of the parameter box.
-    max_centers : int
-        Budget of the default predictor.
+    max_centers : int, optional
+        Budget of the default estimator (1000); a given estimator has its own (refused here).
     check_existence : bool
         Run :func:`~sympredict.systems.flowmaps.check_generating_function` on the data, for
-        the predictor's ``update`` (type II by default; ``"midpoint"``: the
-        symmetric form, which holds up to half a turn per step).  On the caller's data the
-        check uses a least-squares linear map per parameter, as for ``data="projected"``.
+        the estimator's ``update`` (type II by default; ``"midpoint"``: the
+        symmetric form, which holds up to half a turn per step), in the coordinates the estimator
+        is trained in (after ``state_scaling``: the Jacobian there is ``T D Phi T^-1``, and a scaling
+        that mixes ``q`` and ``p``, such as ``"williamson"``, changes where the type II form exists).
+        On the caller's data the check uses a least-squares linear map per parameter, as for
+        ``data="projected"``; a check that cannot run (fewer samples per parameter than ``2n``) is
+        logged as not done.
     seed : int
     validation_data : FlowMapData, optional
         With the caller's ``data``: its validation samples (needed to choose kernels).
@@ -452,19 +521,59 @@ class SymplecticKernelReductor(BasicObject):
         carried into the scaled coordinates by :func:`~sympredict.flowmap.scaling.scaled_quadratic_part`),
         so the linear part of the flow is exact and only ``S`` is learned.  The existence check and
         the kernel search then see ``S``'s pairs ``(L_h x0, L_{-h} x1)``.
+    split_fallback : QuadraticPart, optional
+        The known quadratic part ``A(mu)`` of the reduced Hamiltonian (as for ``split``), split off only
+        where the existence check finds no generating function at ``dt`` without it (after the midpoint
+        form, where the update is left open): the kernel then learns the remainder ``S``, whose flow is
+        close to the identity.  Logged; ``choice_["split"] = "split_fallback"`` and ``choice_["reason"]``
+        say why.  Needs ``check_existence=True``.
     flow_parameters : sequence of str, optional
         The parameters the flow map takes (default: all of the FOM's).  Parameters that enter only
         the initial data (checked: the FOM's other operators must not depend on them) are left out,
         so the kernel interpolates in the others only; data, ``parameter_space`` box and
         ``split`` use the flow parameters' vectors.
+    trajectories : tuple (U, mus), optional
+        FOM trajectories the caller already has, used instead of ``fom.solve`` (``data="projected"``
+        without solving the FOM; ``training_parameters`` are then ``mus``): ``U`` a sequence of ``P``
+        VectorArrays in ``fom.solution_space`` (as ``fom.solve`` returns them) or an array
+        ``(P, K + 1, N)`` of full states, each trajectory ``K + 1`` states at ``t_k = k T / K``
+        (``T = fom.T``; ``K`` divides the FOM's ``nt`` where it has a time stepper, and ``dt`` is a multiple
+        of ``T / K``); ``mus`` ``P`` parameter values (pyMOR ``Mu``, dicts or numbers; ``None`` for a
+        parameter-free FOM).  Checked before anything is trained.
+    validation_trajectories : tuple (U, mus), optional
+        With ``trajectories``: the validation trajectories, same form (the validation parameters are their
+        ``mus``).  Without them no validation data exist: give an estimator that chooses its kernels on
+        held-out training samples, or its kernels.
     """
 
-    def __init__(self, fom, RB, training_parameters, dt, predictor=None, data="reduced", *, parameter_space=None,
+    def __init__(self, fom, RB, training_parameters, dt, estimator=None, data=None, *, parameter_space=None,
                  n_samples: int = 400, radius: float = 0.05, n_validation: int = 3, horizon: Optional[float] = None,
-                 state_scaling: str = "diag", max_centers: int = 1000, check_existence: bool = True, seed: int = 0,
-                 validation_data=None, parameter_scaling: str = "box", time_scaling: str = "step",
+                 state_scaling: str = "diag", max_centers: Optional[int] = None, check_existence: bool = True,
+                 seed: int = 0, validation_data=None, parameter_scaling: str = "box", time_scaling: str = "step",
                  state_kernels=None, mu_kernels=None, m_star: int = 300, regularizations=None,
-                 split: Optional[QuadraticPart] = None, flow_parameters=None):
+                 split: Optional[QuadraticPart] = None, split_fallback: Optional[QuadraticPart] = None,
+                 flow_parameters=None, trajectories=None,
+                 validation_trajectories=None, predictor=None):
+        if predictor is not None:
+            if estimator is not None:
+                raise ValueError("give the estimator once: estimator=... (predictor= is its old name), not both")
+            warnings.warn("SymplecticKernelReductor(predictor=...) is deprecated: pass the same object as "
+                          "estimator=... (e.g. estimator=SymplecticKernelPredictor(max_centers=500))", FutureWarning,
+                          stacklevel=2)
+            estimator = predictor
+        if estimator is not None and max_centers is not None:
+            raise ValueError(f"max_centers={max_centers!r} is the budget of the default estimator; the given estimator "
+                             f"has its own: set it there (estimator=SymplecticKernelPredictor(max_centers="
+                             f"{max_centers!r}, ...)) and leave max_centers out")
+        predictor = estimator  # the internal name
+        max_centers = 1000 if max_centers is None else max_centers
+        if trajectories is None and validation_trajectories is not None:
+            raise ValueError("validation_trajectories go with trajectories=(U, mus): give the training trajectories too")
+        if trajectories is not None and data not in (None, "projected"):
+            raise ValueError(f"trajectories=(U, mus) are the FOM trajectories that data='projected' would compute; "
+                             f"data={data!r} does not use them: leave data out (or data='projected')")
+        if data is None:
+            data = "projected" if trajectories is not None else "reduced"
         if isinstance(data, FlowMapData):
             mode = "given"
         elif isinstance(data, str) and data in ("reduced", "projected"):
@@ -474,7 +583,7 @@ class SymplecticKernelReductor(BasicObject):
         if validation_data is not None and mode != "given":
             raise ValueError(f"validation_data goes with the caller's data (data=FlowMapData(...)); data={data!r} "
                              f"samples its own validation data")
-        _check_fom(fom, mode)
+        _check_fom(fom, "given" if trajectories is not None else mode)  # given trajectories: no FOM solve
         check_symplectic_basis(RB, fom.solution_space)
         _check_choice(state_scaling, "state_scaling", _STATE_SCALINGS)
         _check_choice(parameter_scaling, "parameter_scaling", _PARAMETER_SCALINGS)
@@ -490,27 +599,42 @@ class SymplecticKernelReductor(BasicObject):
         if regularizations is not None:
             regularizations = [float(as_real(v, "regularizations", nonnegative=True))
                                for v in np.atleast_1d(np.asarray(regularizations, dtype=object))]
-        if split is not None:
-            if not isinstance(split, QuadraticPart):
-                raise ValueError(f"split must be a sympredict.systems.linear_flow.QuadraticPart (the quadratic part "
-                                 f"A(mu) of the reduced Hamiltonian), got {split!r}")
-            split.checked(dim=2 * len(RB))
-            if split.checked()[1].shape[1] not in (0, flow.dim):
-                raise ValueError(f"split depends on {split.checked()[1].shape[1]} parameter component(s), the flow map "
+        if split is not None and split_fallback is not None:
+            raise ValueError("give the quadratic part once: split= (always split off) or split_fallback= (split off "
+                             "only where no generating function exists at dt without it), not both")
+        for qname, quad in (("split", split), ("split_fallback", split_fallback)):
+            if quad is None:
+                continue
+            if not isinstance(quad, QuadraticPart):
+                raise ValueError(f"{qname} must be a sympredict.systems.linear_flow.QuadraticPart (the quadratic part "
+                                 f"A(mu) of the reduced Hamiltonian), got {quad!r}")
+            quad.checked(dim=2 * len(RB))
+            if quad.checked()[1].shape[1] not in (0, flow.dim):
+                raise ValueError(f"{qname} depends on {quad.checked()[1].shape[1]} parameter component(s), the flow map "
                                  f"takes {flow.dim}")
             if isinstance(predictor, SplitKernelPredictor):
-                raise ValueError("give the inner SymplecticKernelPredictor as predictor and the quadratic part as split: "
+                raise ValueError("give the inner SymplecticKernelPredictor as estimator and the quadratic part as split: "
                                  "the reductor builds the SplitKernelPredictor in its scaled coordinates")
         if mode == "given":
             _check_given_data(data, validation_data, 2 * len(RB), flow.dim, float(dt))
             if (fom.parameters and flow == fom.parameters
                     and (training_parameters is None or len(training_parameters) == 0)):
                 training_parameters = [fom.parameters.parse(row) for row in np.unique(data.mu, axis=0)]
+        if trajectories is not None:
+            if training_parameters is not None and len(training_parameters) > 0:
+                raise ValueError("with trajectories=(U, mus) the training parameters are their mus: leave "
+                                 "training_parameters out (None)")
+            trajectories = _as_trajectories(trajectories, fom, "trajectories")
+            training_parameters = trajectories[1] if fom.parameters else None
+        if validation_trajectories is not None:
+            validation_trajectories = _as_trajectories(validation_trajectories, fom, "validation_trajectories")
         if not fom.parameters:
             training_parameters = [None]
         elif (training_parameters is None or len(training_parameters) == 0) and mode != "given":
             raise ValueError(f"the FOM has parameters {dict(fom.parameters)}: give training_parameters (pyMOR Mu)")
         self.__auto_init(locals())
+        self.estimator = predictor
+        self._split = split  # the split in use: split, or split_fallback where the existence check needs it
         self.mode = mode
         self.state_kernels, self.mu_kernels = state_kernels, mu_kernels
         self.regularizations = regularizations
@@ -527,7 +651,10 @@ class SymplecticKernelReductor(BasicObject):
         self.V = basis_matrix(RB)  # (2N, 2n)
         self.V_plus_array = RB.transposed_symplectic_inverse().to_array()
         self.dim = 2 * len(RB)
-        if mode == "projected" and getattr(fom, "num_values", None) is None and getattr(
+        for given in (trajectories, validation_trajectories):
+            if given is not None:
+                self._check_given_grid(given[0][0])
+        if mode == "projected" and trajectories is None and getattr(fom, "num_values", None) is None and getattr(
                 getattr(fom, "time_stepper", None), "nt", None):  # an InstationaryModel's output grid, known up front
             self._check_stride(fom.T / fom.time_stepper.nt, fom.time_stepper.nt)
         if mode == "projected" and not self.dt <= self.horizon * (1 + 1e-12):
@@ -567,8 +694,14 @@ class SymplecticKernelReductor(BasicObject):
     def _mu_rows(self, mus) -> np.ndarray:
         return mus_to_matrix(mus, self.fom.parameters) if self.fom.parameters else np.zeros((len(mus), 0))
 
+    def _given_mus(self, given) -> list:
+        return given[1] if self.fom.parameters else [None] * len(given[0])
+
     def validation_parameters(self) -> list:
-        """``n_validation`` parameters uniform in the box (seeded), not the training ones."""
+        """``n_validation`` parameters uniform in the box (seeded), not the training ones (with
+        ``validation_trajectories``: theirs)."""
+        if self.validation_trajectories is not None:
+            return self._given_mus(self.validation_trajectories)
         if not self.fom.parameters:
             return [None]
         return random_parameters(self.fom.parameters, self.mu_lo, self.mu_hi, self.n_validation, seed=self.seed + 7)
@@ -600,11 +733,24 @@ class SymplecticKernelReductor(BasicObject):
                                      np.full(len(states), self.dt)))
         return _concat(parts), system
 
-    def _projected_data(self, mus):
+    def _check_given_grid(self, U) -> None:
+        """The caller's trajectories (``K + 1`` states at ``t_k = k T / K``): on the FOM's time grid (``nt`` a
+        multiple of ``K`` where the FOM has a time stepper) and ``dt`` a multiple of their step ``T / K``."""
+        k = len(U) - 1
+        nt = getattr(getattr(self.fom, "time_stepper", None), "nt", None)
+        if nt and int(nt) % k:
+            raise ValueError(f"the given trajectories have {k + 1} states, read as t_k = k T / {k} (T = {self.fom.T!r}); "
+                             f"the FOM's time grid has nt = {nt} steps, not a multiple of {k}: give states at every "
+                             f"output step of fom.solve (nt + 1 = {int(nt) + 1} states) or at every m-th, m dividing nt")
+        self._check_stride(self.fom.T / k, k)
+
+    def _projected_data(self, mus, given=None):
+        """Flow-map pairs ``dt`` apart of the projected FOM trajectories at ``mus`` (``fom.solve``, or ``given``:
+        VectorArrays of the caller's trajectories at those parameters)."""
         trajs, rows = [], self._mu_rows(mus)
         h = None
-        for mu in mus:
-            U = self.fom.solve(mu)
+        for i, mu in enumerate(mus):
+            U = self.fom.solve(mu) if given is None else given[i]
             h_mu = self.fom.T / (len(U) - 1)
             if h is not None and not np.isclose(h, h_mu):
                 raise ValueError("the FOM's output grid changes with mu")
@@ -629,29 +775,59 @@ class SymplecticKernelReductor(BasicObject):
                              f"dt = k * h, e.g. " + " or ".join(f"{v!r}" for v in near))
         return stride
 
-    def _update(self) -> str:
-        """The generating-function update of the predictor (the existence check depends on it): the given
-        predictor's, else the one chosen for the default predictor (``choice_["update"]``)."""
-        if not self._chooses_update():
-            return getattr(self.predictor, "update", "symplectic_euler")
-        return getattr(self, "choice_", {}).get("update", "symplectic_euler")
+    def _given_update(self) -> Optional[str]:
+        """The update the caller fixed (the given estimator's, by name), or ``None`` where the reductor chooses."""
+        update = getattr(self.predictor, "update", None) if self.predictor is not None else None
+        return update if update is None or isinstance(update, str) else getattr(update, "name", update)
 
-    def _chooses_update(self) -> bool:
-        """Whether the update is the reductor's choice: the default predictor, or a given one with ``update=None``."""
-        return self.predictor is None or getattr(self.predictor, "update", "symplectic_euler") is None
+    def _update(self) -> Optional[str]:
+        """The generating-function update checked and trained: the given estimator's, else the one chosen for
+        it (``choice_["update"]``; ``None``: left to the estimator, both forms exist at ``dt``)."""
+        given = self._given_update()
+        if given is not None:
+            return given
+        default = "symplectic_euler" if self.predictor is None else None
+        return getattr(self, "choice_", {}).get("update", default)
+
+    def _checked_update(self) -> str:
+        """:meth:`_update` for the existence check (type II where the choice is left to the estimator)."""
+        return self._update() or "symplectic_euler"
 
     def _checked_existence(self, check):
-        """``check()`` (an existence check for :meth:`_update`); for the default predictor, when the type II
-        generating function does not exist at ``dt`` (a mode turns past a quarter turn per step), the midpoint
-        form (up to half a turn) is chosen instead, logged and kept in ``choice_``."""
-        self.choice_ = {"update": "symplectic_euler", "reason": "type II generating function exists at dt"} \
-            if self._chooses_update() else {"update": self._update(), "reason": "the given predictor's update"}
+        """``check()`` (an existence check for :meth:`_checked_update`).  Where the caller left the update open
+        (the default estimator, or an estimator with ``update=None``): when the type II generating function does
+        not exist at ``dt`` (a mode turns past a quarter turn per step), the midpoint form (up to half a turn) is
+        chosen instead, logged and kept in ``choice_``; for an estimator with ``update=None`` the choice stays
+        with it (``choice_["update"] = None``) where both forms exist."""
+        given = self._given_update()
+        if given is not None:
+            self.choice_ = {"update": given, "reason": "the given estimator's update"}
+        else:
+            self.choice_ = {"update": "symplectic_euler", "reason": "type II generating function exists at dt"}
         try:
-            return check()
+            out = check()
         except ValueError as exc:
-            if not self._chooses_update() or self.split is not None:
+            if given is not None or self._split is not None:
                 raise
             first = str(exc)
+        else:
+            if isinstance(out, dict) and out.get("not_checked"):
+                self.choice_["reason"] = "not checked: too few samples per parameter (see the log)"
+                return out
+            if given is None and self.predictor is not None:  # the estimator chooses, where both forms exist
+                self.choice_ = {"update": "midpoint", "reason": "probe"}
+                try:
+                    with warnings.catch_warnings():  # a probe: its warnings are not the caller's
+                        warnings.simplefilter("ignore")
+                        check()
+                except ValueError as exc:
+                    self.choice_ = {"update": "symplectic_euler", "reason": f"the midpoint form does not exist at "
+                                    f"dt = {self.dt!r} ({exc}); the type II form does"}
+                    self.logger.info(f"update='symplectic_euler' set on the estimator: {self.choice_['reason']}")
+                else:
+                    self.choice_ = {"update": None, "reason": "both generating functions exist at dt: the "
+                                    "estimator's search chooses (update=None)"}
+            return out
         self.choice_ = {"update": "midpoint", "reason": f"type II does not exist at dt = {self.dt!r}: {first}"}
         try:
             out = check()
@@ -676,11 +852,11 @@ class SymplecticKernelReductor(BasicObject):
                 continue
             M, _, rank, _ = np.linalg.lstsq(data.x0[sel], data.x1[sel], rcond=None)
             if rank < self.dim:
-                self.logger.info(f"existence check skipped at mu = {row}: the projected trajectory spans only {rank} "
-                                 f"of {self.dim} dimensions")
+                self.logger.info(f"existence check skipped at mu = {row.tolist()}: its samples span only {rank} of "
+                                 f"the {self.dim} reduced dimensions (no linear map to fit)")
                 continue
             M = M.T
-            sigma = float((midpoint_sigma_min if self._update() == "midpoint" else type2_sigma_min)(M[None])[0])
+            sigma = float((midpoint_sigma_min if self._checked_update() == "midpoint" else type2_sigma_min)(M[None])[0])
             generators.append(np.real(logm(M)) / self.dt)
             if sigma < worst[0]:
                 worst = (sigma, row)
@@ -688,8 +864,12 @@ class SymplecticKernelReductor(BasicObject):
             self.logger.info(f"existence check: {skipped} parameter value(s) with fewer than 2n = {self.dim} samples "
                              f"skipped")
         if worst[1] is None:
-            return {}
-        update = self._update()
+            self.logger.warning(f"existence check not done: no parameter value has samples spanning all 2n = "
+                                f"{self.dim} reduced dimensions, so nothing says whether the generating function "
+                                f"exists at dt = {self.dt!r} (more samples per parameter, or check_existence=False "
+                                f"to say so)")
+            return {"not_checked": True}
+        update = self._checked_update()
         om = max(float(np.abs(np.linalg.eigvals(A).imag).max()) for A in generators)
         if om * self.dt < 1e-6:  # no rotation to speak of (e.g. the remainder S of a split): no singular step ahead
             dt_max = np.inf
@@ -712,9 +892,9 @@ class SymplecticKernelReductor(BasicObject):
     def split_pairs(self, data: FlowMapData) -> FlowMapData:
         """``S``'s samples ``(L_h x0, L_{-h} x1)``, ``L_h = expm(dt/2 J A(mu))``, of samples ``x1 = Phi(x0)``
         (the identity without ``split``), in reduced coordinates."""
-        if self.split is None:
+        if self._split is None:
             return data
-        L = self.split.propagator(data.mu if data.mu.shape[1] else None, 0.5 * data.dt, n=len(data))
+        L = self._split.propagator(data.mu if data.mu.shape[1] else None, 0.5 * data.dt, n=len(data))
         return FlowMapData(np.einsum("bij,bj->bi", L, data.x0),
                            np.einsum("bij,bj->bi", inverse_symplectic_matrices(L), data.x1),
                            data.mu if data.mu.shape[1] else None, data.dt)
@@ -725,6 +905,7 @@ class SymplecticKernelReductor(BasicObject):
         Returns ``(train, val)``: :class:`~sympredict.data.FlowMapData`, and for the caller's data its
         ``validation_data`` as given (``FlowMapData``, :class:`~sympredict.data.TrajectoryData` or ``None``).
         """
+        reference = None
         if self.mode == "given":
             train, val = self.data, self.validation_data
         else:
@@ -732,17 +913,71 @@ class SymplecticKernelReductor(BasicObject):
             if self.mode == "reduced":
                 train, system = self._reduced_data(self.training_parameters, self.n_samples, self.seed)
                 val, _ = self._reduced_data(val_mus, max(50, self.n_samples // 4), self.seed + 1)
-                if self.check_existence and self.split is None:
-                    self.existence_ = self._checked_existence(
-                        lambda: check_generating_function(system, train, update=self._update()))
+                reference = (system, train)  # the exact Jacobians, with the FOM's parameter vectors
+            elif self.trajectories is not None:  # the caller's FOM trajectories: no FOM solve
+                train = self._projected_data(self.training_parameters, self.trajectories[0])
+                val = None if self.validation_trajectories is None else \
+                    self._projected_data(self._given_mus(self.validation_trajectories), self.validation_trajectories[0])
             else:
                 train = self._projected_data(self.training_parameters)
                 val = self._projected_data(val_mus)
-            train, val = self._to_flow(train), self._to_flow(val)
-        if self.check_existence and not (self.mode == "reduced" and self.split is None):
-            self.existence_ = self._checked_existence(
-                lambda: self._check_existence_from_data(self.split_pairs(train)))
+            train, val = self._to_flow(train), None if val is None else self._to_flow(val)
+        self._split = self.split
+        if self.check_existence:
+            self.existence_ = self._existence(train, reference)
+        if self.check_existence:
+            self.existence_["coordinates"] = f"trained (state_scaling={self.state_scaling!r})"
         return train, val
+
+    def _existence(self, train: FlowMapData, reference) -> dict:
+        """The existence check in the trained coordinates (``x~ = T x``, ``D Phi~ = T D Phi T^-1``): exact Jacobians
+        of the reduced system (``reference = (system, samples)``, ``data="reduced"`` without a split), else the
+        least-squares linear maps of the samples (``S``'s pairs with a split).  With ``split_fallback``, where no
+        generating function exists at ``dt`` without it, the exact linear flow of the quadratic part is split off
+        (the kernel learns the remainder ``S``), logged and recorded in ``choice_["split"]``."""
+        scaling = self._fit_state_scaling(train)
+
+        def check():
+            if reference is not None and self._split is None:
+                system, full = reference
+                return check_generating_function(_conjugated_system(system, scaling.matrix_),
+                                                 self._scaled_states(full, scaling), update=self._checked_update())
+            return self._check_existence_from_data(self._scaled_states(self.split_pairs(train), scaling))
+
+        try:
+            return self._checked_existence(check)
+        except ValueError as exc:
+            if self.split_fallback is None:
+                raise
+            first = str(exc)
+        self._split = self.split_fallback
+        try:
+            out = self._checked_existence(check)
+        except ValueError as exc:
+            self._split = None
+            raise ValueError(f"no generating function exists at dt = {self.dt!r}, neither without a split ({first}) "
+                             f"nor for the remainder S once the exact linear flow of split_fallback is split off "
+                             f"({exc}): use a smaller macro step") from None
+        self.choice_["split"] = "split_fallback"
+        self.choice_["reason"] = (f"no generating function exists at dt = {self.dt!r} without a split ({first}); with "
+                                  f"the exact linear flow of split_fallback split off, the remainder's "
+                                  f"({self.choice_['reason']})")
+        self.logger.info(f"split_fallback used: the step is L_h o S o L_h with the exact linear flow L_h of the "
+                         f"quadratic part; {self.choice_['reason']}")
+        return out
+
+    def _fit_state_scaling(self, train: FlowMapData) -> SymplecticScaling:
+        """The state scaling of the predictor's coordinates (``state_scaling``), fitted on the training states."""
+        reference = None
+        if self.state_scaling == "williamson":
+            centre = 0.5 * (self.mu_lo + self.mu_hi)
+            reference = self._galerkin().matrix(centre)
+        return SymplecticScaling(self.state_scaling, reference).fit(np.concatenate([train.x0, train.x1]))
+
+    @staticmethod
+    def _scaled_states(d: FlowMapData, scaling: SymplecticScaling) -> FlowMapData:
+        """Samples with their states in the scaled coordinates (parameters and steps as given)."""
+        return FlowMapData(scaling.transform(d.x0), scaling.transform(d.x1), d.mu if d.mu.shape[1] else None, d.dt)
 
     # ------------------------------------------------------------ reduce
     def _search_kernels(self, base, train, val, vary_mu):
@@ -752,8 +987,10 @@ class SymplecticKernelReductor(BasicObject):
         if not default and self.state_kernels is None and self.mu_kernels is None:
             return None
         if val is None:
-            raise ValueError("choosing kernels (state_kernels, mu_kernels or the default predictor) needs validation "
-                             "data: give validation_data with the caller's data")
+            raise ValueError("choosing kernels (state_kernels, mu_kernels or the default estimator) needs validation "
+                             "data: give validation_data with the caller's data, validation_trajectories with "
+                             "trajectories, or an estimator that chooses its kernels on held-out training samples "
+                             "(estimator=SymplecticKernelPredictor(), no kernels given)")
         inner = base.state_kernel.radial if isinstance(base.state_kernel, KernelTransform) else base.state_kernel
         if self.state_kernels is not None:
             states = self.state_kernels
@@ -804,11 +1041,7 @@ class SymplecticKernelReductor(BasicObject):
         if isinstance(val, TrajectoryData):  # validation trajectories: their consecutive states for the greedy's E_val
             val = val.pairs()
         vary_mu = train.mu.shape[1] > 0 and bool(np.any(np.ptp(train.mu, axis=0) > 0))
-        reference = None
-        if self.state_scaling == "williamson":
-            centre = 0.5 * (self.mu_lo + self.mu_hi)
-            reference = self._galerkin().matrix(centre)
-        state_scaling = SymplecticScaling(self.state_scaling, reference).fit(np.concatenate([train.x0, train.x1]))
+        state_scaling = self._fit_state_scaling(train)
         mu_scaling = None
         if vary_mu:
             d = train.mu.shape[1]
@@ -831,8 +1064,8 @@ class SymplecticKernelReductor(BasicObject):
     def _fit(self, predictor, s_train, s_val, vary_mu, state_scaling, mu_scaling):
         """Fit ``predictor`` (inside the split, if any) on the scaled data; the flow map in reduced coordinates."""
         model = predictor
-        if self.split is not None:
-            quad = self.split
+        if self._split is not None:
+            quad = self._split
             if not vary_mu and quad.checked()[1].shape[1]:  # one training parameter: A at that parameter
                 quad = QuadraticPart(quad.hessian(self.train_data_.mu[:1], 1))
             model = SplitKernelPredictor(predictor, scaled_quadratic_part(quad, state_scaling, mu_scaling, self.tau_))
@@ -882,21 +1115,23 @@ class SymplecticKernelReductor(BasicObject):
             rows = self.data.mu
         else:
             rows = self._mu_rows(self.training_parameters)[:, self._flow_index]
-        if len(np.unique(rows, axis=0)) > 1 and getattr(self.predictor, "mu_kernel", True) is None \
-                and self.mu_kernels is None and not getattr(self.predictor, "_chooses_open_factors", False):
+        if len(np.unique(rows, axis=0)) > 1 and self._lacks_mu_kernel(self.predictor) and self.mu_kernels is None:
             # before any FOM solve (reduce() would find it after sampling)
-            raise ValueError("the parameters vary across training_parameters but the predictor has mu_kernel=None: "
-                             "give it a mu_kernel, or train at one parameter value")
+            raise ValueError("the parameters vary across training_parameters but the estimator has mu_kernel=None and "
+                             "does not choose one: give it a mu_kernel, or train at one parameter value")
         if self.regularizations is not None and self.validation_data is None and self.mode == "given":
             raise ValueError("choosing the regularization needs validation data: give validation_data (samples or "
                              "trajectories) with the caller's data")
+        if self.regularizations is not None and self.trajectories is not None and self.validation_trajectories is None:
+            raise ValueError("choosing the regularization needs validation data: give validation_trajectories with "
+                             "trajectories")
         t0 = time.perf_counter()
         s_train, s_val, state_scaling, mu_scaling = self.scaled_training_data()
         timings = {"data": time.perf_counter() - t0}
         train = self.train_data_
         vary_mu = mu_scaling is not None
         t0 = time.perf_counter()
-        if self.split is None:
+        if self._split is None:
             search = (s_train, s_val)
         else:  # the kernels of S, compared on S's samples
             search = tuple(None if d is None else self._scaled_split_pairs(d, state_scaling, mu_scaling, vary_mu)
@@ -905,16 +1140,16 @@ class SymplecticKernelReductor(BasicObject):
             predictor = self._default_predictor(*search, vary_mu)
         else:
             given = clone(self.predictor)
-            if self._chooses_update():  # update=None: the form the existence check chose
-                given.set_params(update=self._update())
-            predictor = self._search_kernels(given, *search, vary_mu) or given
-            if vary_mu and getattr(predictor, "mu_kernel", True) is None and \
-                    not getattr(predictor, "_chooses_open_factors", False):
-                raise ValueError("the parameters vary across training_parameters but the predictor has mu_kernel=None")
+            if self._given_update() is None and self._update() is not None:  # the update the existence check chose
+                given = given.set_params(update=self._update())
+            predictor = self._search_kernels(clone(given), *search, vary_mu) or given
+            if vary_mu and self._lacks_mu_kernel(predictor):
+                raise ValueError("the parameters vary across training_parameters but the estimator has mu_kernel=None "
+                                 "and does not choose one: give it a mu_kernel")
         timings["selection"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         with self.logger.block(f"fitting {type(predictor).__name__} on {len(train)} samples"
-                               + ("" if self.split is None else " (inside the split)")):
+                               + ("" if self._split is None else " (inside the split)")):
             if self.regularizations is None:
                 model, flow_map = self._fit(predictor, s_train, s_val, vary_mu, state_scaling, mu_scaling)
             else:
@@ -926,11 +1161,26 @@ class SymplecticKernelReductor(BasicObject):
         self.flow_map_ = flow_map
         if not hasattr(self, "choice_"):
             self.choice_ = {"update": self._update(), "reason": "no existence check (check_existence=False)"}
+        inner = getattr(model, "predictor_", model)  # inside a split: the kernel part
+        if getattr(inner, "choice_", None):  # what the estimator's own search chose (KernelSearch)
+            self.choice_["estimator"] = dict(inner.choice_)
         self._check_one_step(flow_map)
         name = None if self.fom.name is None else "kernel_" + self.fom.name
         return SymplecticKernelModel(flow_map, self._reduced_initial_data(), self.fom.T if T is None else T, self.dt,
                                      self.fom.parameters, name=name,
                                      flow_parameters=self.flow_parameters if self._flow_subset else None)
+
+    @staticmethod
+    def _lacks_mu_kernel(estimator) -> bool:
+        """An estimator with ``mu_kernel=None`` that does not choose one itself (a
+        :class:`SymplecticKernelPredictor` chooses an open ``mu_kernel`` at fit: ``_chooses_open_factors``)."""
+        return getattr(estimator, "mu_kernel", True) is None and not getattr(estimator, "_chooses_open_factors", False)
+
+    def _fitted_update(self):
+        """The update of the fitted kernel part (``update_``; inside a split its predictor's), by name."""
+        inner = getattr(self.predictor_, "predictor_", self.predictor_)
+        update = getattr(inner, "update_", None) or self._update()
+        return update if update is None or isinstance(update, str) else getattr(update, "name", update)
 
     def _check_one_step(self, flow_map) -> None:
         """One step of the fitted flow map from the training data's first states, per training parameter;
@@ -948,13 +1198,13 @@ class SymplecticKernelReductor(BasicObject):
             reason = f"Newton's method failed: {exc}"
         if reason is not None:
             raise ValueError(f"the fitted ROM cannot take one step of dt = {self.dt!r} from the training data "
-                             f"({reason}; update = {self._update()!r}): use update='midpoint' (a predictor "
-                             f"SymplecticKernelPredictor(update='midpoint')), a smaller dt, or a larger basis or "
-                             f"budget (max_centers)")
+                             f"({reason}; update = {self._fitted_update()!r}): "
+                             f"use update='midpoint' (estimator=SymplecticKernelPredictor(update='midpoint')), a "
+                             f"smaller dt, or a larger basis or budget (the estimator's max_centers)")
 
     def _scaled_split_pairs(self, d, state_scaling, mu_scaling, vary_mu):
         """``S``'s samples in the predictor's coordinates (what the kernel search compares candidates on)."""
-        quad = self.split
+        quad = self._split
         if not vary_mu and quad.checked()[1].shape[1]:
             quad = QuadraticPart(quad.hessian(self.train_data_.mu[:1], 1))
         quad = scaled_quadratic_part(quad, state_scaling, mu_scaling if vary_mu else None, self.tau_)

@@ -649,9 +649,11 @@ def check_generating_function(system, data: FlowMapData, fail_below: float = 1e-
     random) samples from the system's flow Jacobian (exact for a
     :class:`LinearHamiltonianSystem`, central differences of the reference flow
     otherwise).  For a linear mode ``sigma = |cos(omega dT)|``: it vanishes at
-    ``omega dT = pi/2``.  A symplectic conjugation ``q -> A q, p -> A^{-T} p``
-    (state normalization) does not change invertibility, so the check is done
-    in the original coordinates.
+    ``omega dT = pi/2``.  A block-diagonal symplectic conjugation ``q -> A q, p -> A^{-T} p``
+    (a diagonal state normalization) does not change invertibility, only ``sigma``; one
+    that mixes ``q`` and ``p`` (e.g. Williamson coordinates) does, so pass the system and
+    the data in the coordinates the predictor is trained in (the Jacobian there is
+    ``T D Phi T^-1``; :class:`~sympredict.mor.SymplecticKernelReductor` does).
 
     Parameters
     ----------
