@@ -228,7 +228,7 @@ def hand_made_flow(pairs, lam, dt=0.1, quadratic=None, validation=None):
 
     st = SymplecticScaling("diag").fit(np.concatenate([pairs.x0, pairs.x1]))
     ms = BoxScaling().fit(pairs.mu, np.array([0.8]), np.array([1.2]))
-    model = SymplecticKernelPredictor(None, mu_kernel=IMQ(1.0), max_centers=50, update="symplectic_euler",  # the reductor's choice
+    model = SymplecticKernelPredictor(None, mu_kernel=IMQ(1.0), max_centers=50,
                                       trainer=ExactGreedy(tol=1e-9, regularization=lam))
     if quadratic is not None:
         model = SplitKernelPredictor(model, scaled_quadratic_part(quadratic, st, ms, dt))
