@@ -123,7 +123,9 @@ def test_only_the_open_factors_are_searched(param_data):
     x0, x1, mu, _ = param_data
     m = SymplecticKernelPredictor(IMQ(0.3), max_centers=60, update="midpoint", search=SMALL).fit(x0, x1, mu=mu, dt=0.1)
     assert set(m.choice_) == {"mu_kernel"} and m.kernel_.state == IMQ(0.3) and m.update_ == "midpoint"
-    assert {row["state"]["eps"] for row in m.search_.table} == {0.3}
+    assert {row["state"]["eps"] for row in m.search_.table if row["stage"] == 1} == {0.3}
+    assert all(row["kernels"].startswith("IMQ(0.3) x") for row in m.search_.table if row["stage"] == 2)
+    assert {row["update"] for row in m.search_.table} == {"midpoint"}
 
 
 def test_the_search_logs_its_choice(param_data, caplog):
@@ -134,7 +136,10 @@ def test_the_search_logs_its_choice(param_data, caplog):
     assert "kernel search: chose" in text and repr(m.choice_["mu_kernel"]) in text
     assert "held-out samples" in text  # the diagnostics
     assert m.search_.n_train + m.search_.n_validation <= SMALL.max_samples
-    assert len(m.search_.table) >= 2 * len(SMALL.shapes)
+    assert len([r for r in m.search_.table if r["stage"] == 1]) >= 2 * len(SMALL.shapes)
+    stage2 = [r for r in m.search_.table if r["stage"] == 2]
+    assert m.search_.m_final == 60 and len(stage2) >= 2 * len(SMALL.families)
+    assert m.search_.score == min(r["score"] for r in stage2)  # the winner has the smallest one-step error
 
 
 def test_diagnostics_report_the_fit_and_advise(param_data):
@@ -196,6 +201,7 @@ def test_the_estimator_contract_holds(param_data):
     (dict(parameter_shapes=(1.0, -2.0)), "parameter_shapes"),
     (dict(updates=("leapfrog",)), "updates"),
     (dict(m_star=0), "m_star"),
+    (dict(final_centers=0), "final_centers"),
     (dict(max_samples=5), "max_samples"),
     (dict(validation_fraction=1.0), "validation_fraction"),
 ])
@@ -211,3 +217,24 @@ def test_too_few_samples_for_a_search_name_the_fix(param_data):
     x0, x1, _, _ = param_data
     with pytest.raises(ValueError, match="pass the kernels"):
         SymplecticKernelPredictor().fit(x0[:6], x1[:6], dt=0.1)
+
+
+def test_the_second_stage_scores_the_one_step_error_on_held_out_samples(param_data):
+    """The stage-2 score is the mean of |Phi(x0) - x1| / |x1 - x0| over the held-out samples (independent
+    recomputation with the same fit), and a Newton failure scores inf instead of stopping the search."""
+    from sympredict.estimators.auto import _one_step_score
+    from sympredict.symplectic.solvers import NewtonSolver
+
+    x0, x1, mu, _ = param_data
+    data = FlowMapData(x0, x1, mu, np.full(len(x0), 0.1))
+    train, val = data.subset(np.arange(400)), data.subset(np.arange(400, 500))
+    params = {"state_kernel": IMQ(0.3), "mu_kernel": IMQ(1.0), "dt_kernel": None, "update": "midpoint"}
+    base = SymplecticKernelPredictor()
+    value, n, _, err = _one_step_score(base, params, 50, train, val)
+    ref = clone(base).set_params(**params, max_centers=50).fit(train.x0, train.x1, mu=train.mu, dt=0.1)
+    pred = ref.step(val.x0, mu=val.mu)
+    expected = np.mean(np.linalg.norm(pred - val.x1, axis=1) / np.linalg.norm(val.x1 - val.x0, axis=1))
+    assert err is None and n == 50 and value == pytest.approx(expected, rel=1e-12)
+    strict = SymplecticKernelPredictor(solver=NewtonSolver(max_iter=1, backend="numpy"))
+    value, _, _, err = _one_step_score(strict, params, 50, train, val)
+    assert value == np.inf and "NewtonConvergenceError" in err

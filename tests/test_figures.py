@@ -70,9 +70,11 @@ def test_pendulum_error_and_energy_figures_show_the_reported_errors(smoke_run):
     _, im = _line(ax, "implicit midpoint, macro step")
     assert kernel.max() == pytest.approx(p["per_dt"][0]["kernel_max_energy_err"], rel=1e-12)
     assert im.max() == pytest.approx(p["per_dt"][0]["im_max_energy_err"], rel=1e-12)
-    (ax,) = _figure(out, "pendulum_phase_portrait")
-    starts = [(line["x"][0], line["y"][0]) for line in ax["lines"]]
+    plane, distance = _figure(out, "pendulum_phase_portrait")  # the phase plane, and each method's distance to the reference
+    methods = [line for line in plane["lines"] if not line["label"].startswith("_")]  # '_initial state': the marker
+    starts = [(line["x"][0], line["y"][0]) for line in methods]
     assert len(starts) == 3 and len(set(starts)) == 1 and starts[0][1] == 0.0  # one initial state (q0, 0) for all
+    assert distance["yscale"] == "log" and len(distance["lines"]) == 2
 
 
 def test_speed_accuracy_figures_show_the_table_rows(smoke_run):
@@ -107,8 +109,10 @@ def test_scenario_b_figures(smoke_run):
         np.testing.assert_allclose(np.diff(t), b["dt_example"], rtol=1e-9)
     _, q_ref = _line(q_ax, "reference")
     assert q_ref[0] == pytest.approx(b["q0_example"])
-    (ax,) = _figure(out, "pendulum_b_phase_portrait")
-    assert {line["label"] for line in ax["lines"]} == {"reference", "symplectic kernel", "direct kernel"}
+    plane, distance = _figure(out, "pendulum_b_phase_portrait")
+    assert {line["label"] for line in plane["lines"] if not line["label"].startswith("_")} == {
+        "reference", "symplectic kernel", "direct kernel"}
+    assert {line["label"] for line in distance["lines"]} == {"symplectic kernel", "direct kernel"}
     (ax,) = _figure(out, "pendulum_b_hamiltonian")
     _, h_ref = _line(ax, "reference")
     _, h_sym = _line(ax, "symplectic kernel")
