@@ -37,7 +37,7 @@ import numpy as np
 
 from sympredict.base import Parametrized, clone
 from sympredict.data import FlowMapData
-from sympredict.estimators.grid import select_kernels
+from sympredict.estimators.grid import _quiet, select_kernels
 from sympredict.exceptions import ExtrapolationWarning, NewtonConvergenceError, NonFinitePredictionError
 from sympredict.kernels import IMQ, KERNEL_FAMILIES
 from sympredict.kernels.radial import _EPS_RANGE
@@ -238,19 +238,8 @@ class KernelSearch(Parametrized):
             dt_grid = [estimator.dt_kernel]
 
         # stage 1, cheap: kernel family, update and shapes ranked by E_val(m_star), the greedy's validation residual
-        table, finalists = [], []
-        fam0 = self.families[0]
-        for update in updates:
-            result = select_kernels(train, val, state_grid, mu_grid, dt_grid, m_star=m_star, estimator=template(update))
-            table += [{**row, "stage": 1, "update": update} for row in result.table]
-            finalists.append((result, update))
-            if open_factors["state"]:  # the other families around this update's shape, with its mu and dt kernels
-                for family in self.families[1:]:
-                    grid = [KERNEL_FAMILIES[family](_clip(result.state.eps * f)) for f in (0.5, 1.0, 2.0)]
-                    other = select_kernels(train, val, grid, [result.mu], [result.dt], m_star=m_star,
-                                           estimator=template(update))
-                    table += [{**row, "stage": 1, "update": update} for row in other.table]
-                    finalists.append((other, update))
+        table, finalists = self._first_stage(train, val, (state_grid, mu_grid, dt_grid), updates, template,
+                                             open_factors["state"], m_star)
         finalists = [(r, u) for r, u in finalists if np.isfinite(r.score)]
         if not finalists:
             raise ValueError("the kernel search found no candidate that trains on these data (every fit failed); "
@@ -312,6 +301,39 @@ class KernelSearch(Parametrized):
                            m_final=m_final)
         logger.info("kernel search: " + out.summary())
         return out
+
+    def _first_stage(self, train: FlowMapData, val: FlowMapData, grids: tuple, updates: list, template,
+                     open_state: bool, m_star: int) -> tuple:
+        """``(table, finalists)``: per update, the grid search over ``grids = (state, mu, dt)`` at ``m_star`` centres
+        and, with an open state kernel, the other families around its winner's shape; ``finalists`` holds
+        ``(SelectionResult, update)`` per update and family.  ``template(update)`` is the estimator the candidates
+        are clones of."""
+        state_grid, mu_grid, dt_grid = grids
+        table, finalists = [], []
+        # the grid search's own notes (a winner on a grid's edge, m_star too small) are what stage 2 resolves
+        with _quiet("sympredict.estimators.selection", level=logging.ERROR):
+            for update in updates:
+                try:
+                    result = select_kernels(train, val, state_grid, mu_grid, dt_grid, m_star=m_star,
+                                            estimator=template(update))
+                except ValueError as exc:  # no candidate of this update trains: the other update may
+                    logger.info(f"kernel search, stage 1 ({update}): no candidate trains ({exc})")
+                    table.append({"stage": 1, "update": update, "E_val": np.inf, "error": str(exc)})
+                    continue
+                table += [{**row, "stage": 1, "update": update} for row in result.table]
+                finalists.append((result, update))
+                if open_state:  # the other families around this update's shape, with its mu and dt kernels
+                    for family in self.families[1:]:
+                        grid = [KERNEL_FAMILIES[family](_clip(result.state.eps * f)) for f in (0.5, 1.0, 2.0)]
+                        try:
+                            other = select_kernels(train, val, grid, [result.mu], [result.dt], m_star=m_star,
+                                                   estimator=template(update))
+                        except ValueError as exc:
+                            table.append({"stage": 1, "update": update, "E_val": np.inf, "error": str(exc)})
+                            continue
+                        table += [{**row, "stage": 1, "update": update} for row in other.table]
+                        finalists.append((other, update))
+        return table, finalists
 
     def _subsets(self, data: FlowMapData):
         """A random subsample of at most ``max_samples`` samples, split into search training and validation parts."""

@@ -31,12 +31,12 @@ __all__ = ["log_grid", "kernel_grid", "SelectionResult", "select_kernels", "refi
 
 logger = getLogger("sympredict.estimators.selection")
 @contextlib.contextmanager
-def _quiet(*names):
-    """Raise the given loggers to WARNING for the duration (candidate fits are logged as one line each)."""
+def _quiet(*names, level: int = logging.WARNING):
+    """Raise the given loggers to ``level`` for the duration (candidate fits are logged as one line each)."""
     loggers = [logging.getLogger(n) for n in names]
     levels = [lg.level for lg in loggers]
     for lg in loggers:
-        lg.setLevel(max(lg.getEffectiveLevel(), logging.WARNING))
+        lg.setLevel(max(lg.getEffectiveLevel(), level))
     try:
         yield
     finally:
