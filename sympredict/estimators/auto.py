@@ -127,7 +127,8 @@ class KernelSearch(Parametrized):
     -----
     Two stages.  The first fits every update and family on the shape grids to ``m_star`` centres and keeps, per
     update and family, the tuple with the smallest validation residual ``E_val(m_star)`` (cheap, but at a small
-    ``m_star`` flat kernels win that break down before the final size).  The second fits those finalists, then the
+    ``m_star`` flat kernels win that break down before the final size).  The second fits those finalists (a
+    finalist that stops early also with its open shapes doubled, up to three times), then the
     coordinate search's candidates, to ``m_final = min(max_centers, final_centers)`` centres and ranks them by the
     mean relative one-step error ``|Phi(x0) - x1| / |x1 - x0|`` on the held-out samples (a Newton failure scores
     ``inf``): the error a rollout compounds, at the size the model will have.
@@ -254,6 +255,7 @@ class KernelSearch(Parametrized):
         m_final = min(int(estimator.max_centers), int(self.final_centers))
         scaled = open_factors["state"] and estimator.state_kernel is None
         factors = np.asarray(params["state_kernel"].factors) if scaled else None
+        opened = {i for i, key in ((0, "state"), (2, "mu"), (3, "dt")) if open_factors[key]}  # shapes to search
         scores = {}
 
         def params_of(cand):
@@ -275,7 +277,18 @@ class KernelSearch(Parametrized):
                             else "") + f": one-step error {sc:.3e} with {n} centres")
             return scores[cand][0]
 
-        best = min(((r.state, 1.0, r.mu, r.dt, u) for r, u in finalists), key=score)
+        starts = [(r.state, 1.0, r.mu, r.dt, u) for r, u in finalists]
+        for cand in list(starts):
+            # a finalist that stops before m_final (numerically singular: too flat for the final size, which the
+            # small-m ranking favours) competes with its open shapes narrowed, up to three doublings
+            for _ in range(3):
+                score(cand)
+                if scores[cand][1] >= m_final or scores[cand][3] is not None:
+                    break
+                cand = tuple(k.set_params(eps=_clip(k.eps * 2.0)) if i in opened and k is not None else k
+                             for i, k in enumerate(cand))
+                starts.append(cand)
+        best = min(starts, key=score)
         steps = [(0, open_factors["state"]), (1, scaled), (2, open_factors["mu"]), (3, open_factors["dt"])]
         for sweep in range(self.refine_sweeps):
             improved = False
@@ -515,7 +528,8 @@ def diagnose(model, train: FlowMapData, holdout: Optional[FlowMapData]) -> FitDi
                           f"last fifth of the {m} centres (raise max_centers)")
     if h.stop_reason == "power":
         advice.append("the kernel matrix became numerically singular before max_centers: more data (more distinct "
-                      "samples) or a narrower state kernel (larger shape) let the greedy use more centres")
+                      "samples), or narrower kernels (the state or parameter kernel of model.choice_ with a larger "
+                      "shape eps, passed to the estimator) let the greedy use more centres")
     if np.isfinite(holdout_res) and train_abs > 0 and holdout_res * rel > 10 * train_abs:
         advice.append(f"more data: the hold-out residual is {holdout_res * rel / train_abs:.0f}x the training residual, "
                       "the samples do not resolve the map between them")
