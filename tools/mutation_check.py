@@ -238,6 +238,19 @@ FAULTS = [
           ("tests/test_parts.py",), "the around hook applies the transposed maps"),
     Fault("C6", "parts", P + "estimators/predictor.py", "(lambda parts, rule: parts.periodic is not None,",
           "(lambda parts, rule: False,", ("tests/test_parts.py",), "periodic coordinates not declared NumPy-only"),
+    # the defaults' kernel search and diagnostics
+    Fault("A1", "defaults", P + "estimators/auto.py", "a[ok] = np.sqrt(sp[ok] / sq[ok])", "a[ok] = np.sqrt(sq[ok] / sp[ok])",
+          ("tests/test_auto_defaults.py",), "the symplectic normalisation inverted: q and p spreads pulled apart"),
+    Fault("A2", "defaults", P + "estimators/auto.py", "sub = val.subset(np.arange(min(len(val), largest)))",
+          "sub = train.subset(np.arange(min(len(train), largest)))",
+          ("tests/test_auto_defaults.py",), "the second stage scores candidates on their training samples"),
+    Fault("A3", "defaults", P + "estimators/auto.py",
+          "return data.subset(np.sort(rows[n_out:])), data.subset(np.sort(rows[:n_out]))",
+          "return data, data.subset(np.sort(rows[:n_out]))",
+          ("tests/test_auto_defaults.py",), "the held-out samples of the diagnostics are also trained on"),
+    Fault("A4", "defaults", P + "estimators/model_files.py",
+          '"choice": {k: encode_param(v) for k, v in _file_choice_of(model, params).items()},', '"choice": {},',
+          ("tests/test_auto_defaults.py",), "a model file loses what the fit chose"),
 ]
 _duplicate_ids = sorted({f.id for f in FAULTS if sum(g.id == f.id for g in FAULTS) > 1})
 assert not _duplicate_ids, f"fault ids must be unique (--only selects by id): {_duplicate_ids}"
