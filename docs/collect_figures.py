@@ -58,7 +58,7 @@ def _commit() -> str:
         return "unknown"
 
 
-def _source_text(folders: list[tuple[Path, str, list[str]]]) -> str:
+def _source_text(folders: list[tuple[Path, str, list[str]]], checkout: str) -> str:
     """The lines of ``source.txt``: per folder its command, file dates and figures; the commit at collection time."""
     lines = []
     for results, _given, names in folders:
@@ -73,7 +73,7 @@ def _source_text(folders: list[tuple[Path, str, list[str]]]) -> str:
         written = _dt.datetime.fromtimestamp(max(times), _dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC") if times else "unknown"
         lines += [f"command:   {command}", f"written:   {written}", f"figures:   {', '.join(names)}", ""]
     given = " ".join(g for _, g, _ in folders)
-    lines.append(f"collected: python docs/collect_figures.py {given} (checkout {_commit()})")
+    lines.append(f"collected: python docs/collect_figures.py {given} (checkout {checkout})")
     return "\n".join(lines) + "\n"
 
 
@@ -98,6 +98,7 @@ def main(argv: list[str] | None = None) -> int:
               "current code, then give both folders", file=sys.stderr)
         return 1
 
+    checkout = _commit()  # before the copies change the checkout
     TARGET.mkdir(exist_ok=True)
     total = 0
     for name in names:
@@ -109,7 +110,7 @@ def main(argv: list[str] | None = None) -> int:
         total += dst.stat().st_size
         print(f"{name}: {src.stat().st_size // 1024} KiB -> {dst.stat().st_size // 1024} KiB")
     used = [(r.resolve(), str(r), [n for n in names if origin[n] == r]) for r in args.results]
-    (TARGET / "source.txt").write_text(_source_text([u for u in used if u[2]]), encoding="utf-8")
+    (TARGET / "source.txt").write_text(_source_text([u for u in used if u[2]], checkout), encoding="utf-8")
     print(f"{len(names)} figures, {total // 1024} KiB in {TARGET}")
 
     stale = sorted(p.name for p in TARGET.glob("*.png") if p.name not in names)
