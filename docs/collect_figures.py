@@ -1,18 +1,22 @@
 """Copy the figures shown in the documentation from a results folder into docs/figures/.
 
-Run, after ``sympredict run all --quick --out DIR``::
+Run, after ``sympredict run all --quick --out DIR`` and
+``sympredict run henon-heiles --quick --out HH`` (``run all`` does not run
+Hénon–Heiles)::
 
-    python docs/collect_figures.py DIR
+    python docs/collect_figures.py DIR HH
 
+Each figure is taken from the first folder that has it.
 The figures to copy are those that ``docs/explanation/figures.md`` shows (every
 ``figures/NAME.png`` in it), so that page is the one list.  Each PNG is stored
 with a 256-colour palette (line plots look the same at a third of the size;
 ``--no-shrink`` copies the files unchanged).  ``docs/figures/source.txt``
-records the command of the run (from ``DIR/results.json``), when its files
-were written, and the commit checked out when the figures were collected.
+records, per folder, the command of the run (from its ``results.json``), when
+its files were written and which figures came from it, and the commit checked
+out when the figures were collected.
 
-Exit status 1 if a figure the page shows is missing from ``DIR`` (nothing is
-copied then); PNGs in ``DIR`` that the page does not show are listed, not copied.
+Exit status 1 if a figure the page shows is in none of the folders (nothing is
+copied then); PNGs in the folders that the page does not show are listed, not copied.
 """
 
 from __future__ import annotations
@@ -54,60 +58,67 @@ def _commit() -> str:
         return "unknown"
 
 
-def _source_text(results: Path, given: str) -> str:
-    """The lines of ``source.txt``: command, file dates, commit at collection time."""
-    command = "unknown (no results.json in the results folder)"
-    info = results / "results.json"
-    if info.is_file():
-        try:
-            command = json.loads(info.read_text(encoding="utf-8")).get("command", command)
-        except (OSError, ValueError):
-            pass
-    times = [p.stat().st_mtime for p in results.glob("*.png")]
-    written = _dt.datetime.fromtimestamp(max(times), _dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC") if times else "unknown"
-    return (
-        f"command:   {command}\n"
-        f"written:   {written}\n"
-        f"collected: python docs/collect_figures.py {given} (checkout {_commit()})\n"
-    )
+def _source_text(folders: list[tuple[Path, str, list[str]]], checkout: str) -> str:
+    """The lines of ``source.txt``: per folder its command, file dates and figures; the commit at collection time."""
+    lines = []
+    for results, _given, names in folders:
+        command = "unknown (no results.json in the results folder)"
+        info = results / "results.json"
+        if info.is_file():
+            try:
+                command = json.loads(info.read_text(encoding="utf-8")).get("command", command)
+            except (OSError, ValueError):
+                pass
+        times = [p.stat().st_mtime for p in results.glob("*.png")]
+        written = _dt.datetime.fromtimestamp(max(times), _dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC") if times else "unknown"
+        lines += [f"command:   {command}", f"written:   {written}", f"figures:   {', '.join(names)}", ""]
+    given = " ".join(g for _, g, _ in folders)
+    lines.append(f"collected: python docs/collect_figures.py {given} (checkout {checkout})")
+    return "\n".join(lines) + "\n"
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("results", type=Path, help="output folder of `sympredict run all --quick --out DIR`")
+    parser.add_argument("results", type=Path, nargs="+",
+                        help="output folder(s) of `sympredict run ... --quick --out DIR`; each figure from the first that has it")
     parser.add_argument("--no-shrink", action="store_true", help="copy the PNGs unchanged instead of re-encoding them with a palette")
     args = parser.parse_args(argv)
 
-    results = args.results
-    if not results.is_dir():
-        print(f"error: {results} is not a folder", file=sys.stderr)
-        return 1
+    for results in args.results:
+        if not results.is_dir():
+            print(f"error: {results} is not a folder", file=sys.stderr)
+            return 1
     names = shown_figures()
-    missing = [n for n in names if not (results / n).is_file()]
+    origin = {n: next((r for r in args.results if (r / n).is_file()), None) for n in names}
+    missing = [n for n, r in origin.items() if r is None]
     if missing:
-        print(f"error: {results} lacks {len(missing)} figure(s) that docs/explanation/figures.md shows: {', '.join(missing)}", file=sys.stderr)
-        print("run `sympredict run all --quick --out DIR` with the current code, then try again", file=sys.stderr)
+        print(f"error: {', '.join(map(str, args.results))} lack(s) {len(missing)} figure(s) that docs/explanation/figures.md "
+              f"shows: {', '.join(missing)}", file=sys.stderr)
+        print("run `sympredict run all --quick --out DIR` and `sympredict run henon-heiles --quick --out HH` with the "
+              "current code, then give both folders", file=sys.stderr)
         return 1
 
+    checkout = _commit()  # before the copies change the checkout
     TARGET.mkdir(exist_ok=True)
     total = 0
     for name in names:
-        src, dst = results / name, TARGET / name
+        src, dst = origin[name] / name, TARGET / name
         if args.no_shrink:
             shutil.copyfile(src, dst)
         else:
             _shrink(src, dst)
         total += dst.stat().st_size
         print(f"{name}: {src.stat().st_size // 1024} KiB -> {dst.stat().st_size // 1024} KiB")
-    (TARGET / "source.txt").write_text(_source_text(results.resolve(), str(results)), encoding="utf-8")
+    used = [(r.resolve(), str(r), [n for n in names if origin[n] == r]) for r in args.results]
+    (TARGET / "source.txt").write_text(_source_text([u for u in used if u[2]], checkout), encoding="utf-8")
     print(f"{len(names)} figures, {total // 1024} KiB in {TARGET}")
 
     stale = sorted(p.name for p in TARGET.glob("*.png") if p.name not in names)
     if stale:
         print(f"note: docs/figures/ also holds PNGs the page no longer shows (remove them?): {', '.join(stale)}")
-    extra = sorted(p.name for p in results.glob("*.png") if p.name not in names)
+    extra = sorted({p.name for r in args.results for p in r.glob("*.png") if p.name not in names})
     if extra:
-        print(f"note: {results} has PNGs that docs/explanation/figures.md does not show (add them to the page to publish them): {', '.join(extra)}")
+        print(f"note: the folders have PNGs that docs/explanation/figures.md does not show (add them to the page to publish them): {', '.join(extra)}")
     return 0
 
 
