@@ -122,7 +122,7 @@ def _run_wave(preset_name: str, seed: int, out: Path):
 
 
 def _run_sine_gordon(preset_name: str, seed: int, out: Path):
-    """Sine-Gordon MOR (issue 15): returns (JSON summary, figure files, Markdown lines)."""
+    """Sine-Gordon MOR: returns (JSON summary, figure files, Markdown lines)."""
     from sympredict.paper import report
     from sympredict.paper.sine_gordon import PRESETS, run_sine_gordon
 

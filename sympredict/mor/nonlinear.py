@@ -1,4 +1,4 @@
-"""Intrusive reduced models of the sine-Gordon FOM: symplectic Galerkin and DEIM hyper-reduction (issue 15).
+"""Intrusive reduced models of the sine-Gordon FOM: symplectic Galerkin and DEIM hyper-reduction.
 
 With a symplectic basis ``V = [Vq; Vp]`` (2N, 2n) (``V^T J V = J``, e.g.
 :func:`sympredict.mor.basis.complex_svd_basis`) and ``y`` the reduced state,

@@ -1,4 +1,4 @@
-"""Hénon–Heiles speed against accuracy (issue 13): a non-integrable system with a cheap right-hand side.
+"""Hénon–Heiles speed against accuracy: a non-integrable system with a cheap right-hand side.
 
 ``lambda`` in ``[0.8, 1.0]``, fixed macro step ``dT = 0.5``.  :func:`run_henon_heiles`
 trains the kernel predictor on flow-map samples of states in the well with

@@ -64,7 +64,7 @@ class PendulumPreset:
     n_grid_b, max_centers_b
         Scenario B (training states with ``p <= 0``, less data): grid and greedy budget.
     stability_periods
-        Horizon of the long-time test of :func:`run_stability`, in periods (issue target: 1000).
+        Horizon of the long-time test of :func:`run_stability`, in periods (1000 by default).
     select
         Choose the kernel by validation (:func:`select_pendulum_kernels`) instead of using ``eps``.
     select_n_grid, select_n_val

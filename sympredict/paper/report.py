@@ -399,7 +399,7 @@ def claims_markdown(checked: list[dict]) -> list[str]:
             *[f"- {'HOLDS' if c['holds'] else 'DOES NOT HOLD'}: {c['claim']}. {c['evidence']}." for c in checked], ""]
 
 
-# ------------------------------------------------------------------ sine-Gordon (issue 15)
+# ------------------------------------------------------------------ sine-Gordon
 _SG_METHODS = (("galerkin", "Galerkin ROM (implicit midpoint, DT/r)"), ("deim", "DEIM ROM"),
                ("galerkin_rk4_at_DT", "Galerkin ROM + RK4 at DT"), ("galerkin_implicit_midpoint_at_DT", "Galerkin ROM + IM at DT"),
                ("kernel_reduced", "kernel ROM (Galerkin data)"), ("kernel_projected", "kernel ROM (projected FOM data)"),
@@ -604,7 +604,7 @@ def sine_gordon_claims(s: dict) -> list[dict]:
 def sine_gordon_markdown(s: dict) -> list[str]:
     """Sine-Gordon section of ``summary.md`` from its JSON summary ``s``."""
     p = s["preset"]
-    lines = ["## Sine-Gordon (issue 15)", "",
+    lines = ["## Sine-Gordon", "",
              f"FOM: u_tt = c^2 u_xx - sin u on (0, {p['length']}), Dirichlet, N = {p['n_points']}, c in {p['c_range']}, "
              + (f"initial states breathers at (c, omega), omega in {p['omega_range']} (period 2 pi / omega); "
                 if p.get("initial", "sech_cos") == "breather" else

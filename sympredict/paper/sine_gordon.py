@@ -1,4 +1,4 @@
-"""Sine-Gordon MOR end to end (issue 15): FOM, symplectic Galerkin and DEIM ROMs, learned reduced flow maps.
+"""Sine-Gordon MOR end to end: FOM, symplectic Galerkin and DEIM ROMs, learned reduced flow maps.
 
 :func:`run_sine_gordon` returns results (numbers and arrays), no figures:
 
@@ -141,7 +141,7 @@ PRESETS = {
                              max_centers=60, cost_N=(60, 120), repeats=2, long_factor=2, large_step=5,
                              large_step_candidates=()),
 }
-#: breathers (issue 15 allows them as the initial family): c in [0.8, 1.2], omega in [0.6, 0.9].
+#: breathers (the other initial family): c in [0.8, 1.2], omega in [0.6, 0.9].
 #: Physics: T = 10.5 >= 2 pi / 0.6 = 10.47, one period of the slowest breather (the training snapshots then hold
 #: every phase of the time-periodic states); L = 30: the widest breather (c = 1.2, omega = 0.9, width
 #: c / sqrt(1 - omega^2) = 2.75) has decayed to 0.9 % of its peak at the Dirichlet boundary (L = 20: 5 %).
@@ -260,7 +260,7 @@ def _energy_errors(rom, Y, c):
     return np.abs(E - E[:, :1]) / np.abs(E[:, :1])
 
 
-#: "bounded over 10 T" (issue 15, :func:`energy_boundedness`): the max energy error over (T, 10 T] at most this
+#: "bounded over 10 T" (:func:`energy_boundedness`): the max energy error over (T, 10 T] at most this
 #: multiple of its max over [0, T] (fixed before the runs; a symplectic map's energy error oscillates at a level
 #: set by its step, which [0, T] samples already)
 ENERGY_BOUND_RATIO = 3.0

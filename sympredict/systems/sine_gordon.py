@@ -1,4 +1,4 @@
-"""Finite-difference 1-D sine-Gordon equation as a nonlinear pyMOR Hamiltonian model (issue 15).
+"""Finite-difference 1-D sine-Gordon equation as a nonlinear pyMOR Hamiltonian model.
 
 ``u_tt = c^2 u_xx - s sin(u)`` on ``(0, L)`` (homogeneous Dirichlet: ``N``
 interior points, ``dx = L / (N + 1)``; periodic: ``N`` points, ``dx = L / N``),
