@@ -45,7 +45,7 @@ from __future__ import annotations
 
 import time
 from functools import partial
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 from pymor.core.logger import getLogger

@@ -289,7 +289,7 @@ def run_wave(preset: WavePreset, seed: int = 0, **overrides) -> dict:
     per_dt = []
     for j, dt in enumerate(preset.dts):
         trained = train_wave_predictor(rom, preset, dt, energy, seed=seed + 10 * j)
-        model, sel = trained["model"], trained["selection"]
+        model = trained["model"]
         n_steps = int(np.floor(preset.horizon / dt + 1e-9))
         cases = []
         for c in test_speeds:
