@@ -298,7 +298,9 @@ def _state_columns(header: list, path: Path):
     return names, [names[c] for c in ["t", *q_names, *p_names, *mu_names]], len(q_names), len(mu_names)
 
 
-def _read_csv(path: Path, max_bytes: int) -> TrajectoryData:
+def _csv_rows(path: Path, max_bytes: int, layout: str):
+    """``(header, rows)`` of a CSV file: the stripped header and the non-blank rows as ``(line, cells)``, each with as
+    many cells as the header (checked, as the file's size, before anything else is read)."""
     size = os.path.getsize(path)
     if size > max_bytes:
         raise ValueError(f"{str(path)!r} has {size} bytes, more than max_bytes = {max_bytes}; pass a larger max_bytes "
@@ -307,28 +309,42 @@ def _read_csv(path: Path, max_bytes: int) -> TrajectoryData:
         text = path.read_text(encoding="utf-8-sig")
     except (UnicodeDecodeError, OSError) as exc:
         raise ValueError(f"{str(path)!r} is not a readable UTF-8 text file: {exc}") from None
-    rows = csv.reader(io.StringIO(text))
-    header = next(rows, None)
+    reader = csv.reader(io.StringIO(text))
+    header = next(reader, None)
     if not header:
-        raise ValueError(f"{str(path)!r} is empty: a header row is expected ({LAYOUT})")
+        raise ValueError(f"{str(path)!r} is empty: a header row is expected ({layout})")
     header = [h.strip() for h in header]
-    names, columns, n, d = _state_columns(header, path)
-    labels, values = [], []
-    for line, row in enumerate(rows, start=2):
+    rows = []
+    for line, row in enumerate(reader, start=2):
         if not row or all(not c.strip() for c in row):
             continue
         if len(row) != len(header):
             raise ValueError(f"{str(path)!r}, row {line}: {len(row)} cells, the header has {len(header)} columns")
-        numbers = []
-        for c in columns:
-            cell = row[c].strip()
-            try:
-                value = float(cell)
-            except ValueError:
-                raise ValueError(f"{str(path)!r}, row {line}, column {header[c]!r}: {cell[:40]!r} is not a number") from None
-            if not np.isfinite(value):
-                raise ValueError(f"{str(path)!r}, row {line}, column {header[c]!r}: {cell[:40]!r} is not finite")
-            numbers.append(value)
+        rows.append((line, row))
+    return header, rows
+
+
+def _csv_numbers(path: Path, header: list, line: int, row: list, columns: list) -> list:
+    """The cells ``columns`` of one CSV row as finite floats; ``ValueError`` naming the row and column otherwise."""
+    numbers = []
+    for c in columns:
+        cell = row[c].strip()
+        try:
+            value = float(cell)
+        except ValueError:
+            raise ValueError(f"{str(path)!r}, row {line}, column {header[c]!r}: {cell[:40]!r} is not a number") from None
+        if not np.isfinite(value):
+            raise ValueError(f"{str(path)!r}, row {line}, column {header[c]!r}: {cell[:40]!r} is not finite")
+        numbers.append(value)
+    return numbers
+
+
+def _read_csv(path: Path, max_bytes: int) -> TrajectoryData:
+    header, rows = _csv_rows(path, max_bytes, LAYOUT)
+    names, columns, n, d = _state_columns(header, path)
+    labels, values = [], []
+    for line, row in rows:
+        numbers = _csv_numbers(path, header, line, row, columns)
         label = row[names["traj"]].strip()
         if not label:
             raise ValueError(f"{str(path)!r}, row {line}, column 'traj': the trajectory label is empty")
@@ -444,13 +460,7 @@ def read_states(path, dim: int, *, max_bytes: int = MAX_BYTES):
             x0 = _real(path, "x0", arrays.get("x0"))
             mu = _real(path, "mu", arrays.get("mu")) if "mu" in arrays.keys() else None
     elif suffix == ".csv":
-        size = os.path.getsize(path)
-        if size > max_bytes:
-            raise ValueError(f"{str(path)!r} has {size} bytes, more than max_bytes = {max_bytes}")
-        rows = list(csv.reader(io.StringIO(path.read_text(encoding="utf-8-sig"))))
-        if not rows:
-            raise ValueError(f"{str(path)!r} is empty; {layout}")
-        header = [h.strip() for h in rows[0]]
+        header, rows = _csv_rows(path, max_bytes, layout)
         names = ["q1", "p1"] if dim == 2 and "q1" in header else _state_names(dim)
         missing = [c for c in names if c not in header]
         if missing:
@@ -460,23 +470,7 @@ def read_states(path, dim: int, *, max_bytes: int = MAX_BYTES):
         if unknown:
             raise ValueError(f"{str(path)!r}: unexpected column(s) {unknown[:5]}; {layout}")
         columns = [header.index(c) for c in [*names, *mu_names]]
-        values = []
-        for line, row in enumerate(rows[1:], start=2):
-            if not row or all(not c.strip() for c in row):
-                continue
-            if len(row) != len(header):
-                raise ValueError(f"{str(path)!r}, row {line}: {len(row)} cells, the header has {len(header)} columns")
-            numbers = []
-            for c in columns:
-                try:
-                    value = float(row[c])
-                except ValueError:
-                    raise ValueError(f"{str(path)!r}, row {line}, column {header[c]!r}: {row[c].strip()[:40]!r} is "
-                                     "not a number") from None
-                if not np.isfinite(value):
-                    raise ValueError(f"{str(path)!r}, row {line}, column {header[c]!r}: {row[c].strip()[:40]!r} is not finite")
-                numbers.append(value)
-            values.append(numbers)
+        values = [_csv_numbers(path, header, line, row, columns) for line, row in rows]
         if not values:
             raise ValueError(f"{str(path)!r} has a header but no data rows; {layout}")
         table = np.array(values)
