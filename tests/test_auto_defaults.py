@@ -20,6 +20,8 @@ from sympredict.kernels import IMQ
 from sympredict.data import FlowMapData
 from sympredict.symplectic.metrics import symplecticity_defect
 
+from _tolerances import assert_same_predictions
+
 SMALL = KernelSearch(m_star=40, max_samples=400, refine_sweeps=1)
 
 
@@ -170,7 +172,7 @@ def test_files_keep_the_settings_and_the_choice(auto_model, tmp_path):
     assert back.choice_ == auto_model.choice_ and back.update_ == auto_model.update_
     assert back.search == auto_model.search
     x = np.array([[0.3, 0.2], [-0.5, 1.0]])
-    np.testing.assert_array_equal(back.step(x, mu=0.8, dt=0.1), auto_model.step(x, mu=0.8, dt=0.1))
+    assert_same_predictions(back, auto_model, x, 5, mu=0.8, dt=0.1)  # to round-off: BLAS may round with alignment
 
 
 def test_a_file_whose_choice_is_tampered_with_is_refused(auto_model, tmp_path):

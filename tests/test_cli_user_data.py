@@ -9,6 +9,8 @@ from sympredict.cli import main
 from sympredict.data import TrajectoryData
 from sympredict.io.trajectories import write_trajectories
 
+from _tolerances import assert_same_predictions, rollout_bound
+
 
 def oscillator(n_traj=3, n_steps=8, dt=0.1):
     """Harmonic-oscillator trajectories (exact flow), no parameter."""
@@ -31,19 +33,29 @@ def test_train_on_user_trajectories_then_predict(tmp_path, capsys, suffix):
     reference = SymplecticKernelPredictor(max_centers=12).fit(read_trajectories(tmp_path / f"traj{suffix}"))
     probe = np.array([[0.3, -0.2], [0.0, 0.4]])
     assert fitted.n_centers_ == reference.n_centers_
-    np.testing.assert_array_equal(fitted.step(probe, dt=0.1), reference.step(probe, dt=0.1))
+    assert_same_predictions(fitted, reference, probe, 3, dt=0.1)
     # predict from --x0 and from a file; the written trajectories read back as data
     traj = str(tmp_path / "pred.npz")
     assert main(["predict", model, "--x0", "0.5,0.1", "--steps", "4", "--out", traj]) == 0
     back = read_trajectories(traj)
-    # the command's rollout may take another solver path (progress, backend 'auto'): equal to Newton's tolerance
-    np.testing.assert_allclose(back.states[0], fitted.rollout(np.array([0.5, 0.1]), 4, dt=0.1), rtol=0, atol=1e-12)
+    # the command's rollout may take another solver path (progress, backend 'auto'): equal to Newton's stopping rule
+    _same_rollout(fitted, back.states[0], np.array([0.5, 0.1]))
     np.testing.assert_allclose(back.times[0], np.arange(5) * 0.1, rtol=0, atol=1e-15)
     (tmp_path / "x0.csv").write_text("q,p\n0.5,0.1\n-0.2,0.3\n")
     assert main(["predict", model, "--x0-file", str(tmp_path / "x0.csv"), "--steps", "4", "--out", traj, "--force"]) == 0
     both = read_trajectories(traj)
-    np.testing.assert_allclose(both.states[0], back.states[0], rtol=0, atol=1e-12)
-    np.testing.assert_allclose(both.states[1], fitted.rollout(np.array([-0.2, 0.3]), 4, dt=0.1), rtol=0, atol=1e-12)
+    _same_rollout(fitted, both.states[0], np.array([0.5, 0.1]))
+    _same_rollout(fitted, both.states[1], np.array([-0.2, 0.3]))
+
+
+def _same_rollout(model, got, x0, dt=0.1):
+    """``got`` (K+1, 2n) is ``model``'s rollout from ``x0`` to the bound of two converged Newton paths
+    (``tests/_tolerances.rollout_bound``, in the surrogate's scaled coordinates)."""
+    expected = model.rollout(x0, len(got) - 1, dt=dt)
+    scale = model._scale_vector(model.dim_)
+    sur, steps = model.surrogate_, np.array([dt])
+    bound = rollout_bound(sur, expected[None] * scale, sur.weights(np.zeros((1, 0)), steps), steps)
+    np.testing.assert_allclose(got * scale, expected * scale, rtol=0, atol=bound)
 
 
 def test_nothing_is_overwritten_without_force(tmp_path, capsys):
