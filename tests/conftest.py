@@ -10,6 +10,7 @@ from sympredict.mor.nonlinear import ReducedSineGordon
 from sympredict.mor.basis import complex_svd_basis
 from sympredict.systems.pendulum import Pendulum, flow_map_data
 from sympredict.systems.sine_gordon import SineGordonFOM
+from sympredict.testing import fe_wave_model
 from sympredict.interpolation.greedy import ExactGreedy
 
 # Small dense problems: one BLAS thread is fastest and avoids oversubscription on 2 cores.
@@ -33,6 +34,19 @@ def small_pendulum_model(small_pendulum_data):
     model = SymplecticKernelPredictor(IMQ(0.15), mu_kernel=IMQ(2.0), dt_kernel=IMQ(5.0), max_centers=600,
                                       trainer=ExactGreedy(tol=1e-10))
     return model.fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
+
+
+@pytest.fixture(scope="session")
+def small_fe_wave():
+    """A small FE wave model with a mass matrix (2N = 30), its canonical coordinates, parameter space, three
+    training speeds and a 2n = 8 basis of their trajectories."""
+    fom, coords, space = fe_wave_model(n_elements=16, T=0.5, nt=100)
+    train = space.sample_uniformly(3)
+    S = fom.solution_space.empty()
+    for mu in train:
+        S.append(fom.solve(mu))
+    RB = complex_svd_basis(S, n=4).to_pymor(fom.solution_space)
+    return fom, coords, space, train, RB
 
 
 @pytest.fixture

@@ -11,19 +11,11 @@ from sympredict.estimators.auto import KernelSearch
 from sympredict.interpolation.greedy import ExactGreedy
 from sympredict.kernels import IMQ
 from sympredict.mor import SymplecticKernelReductor
-from sympredict.mor.basis import complex_svd_basis
-from sympredict.testing import fe_wave_model
 
 
 @pytest.fixture(scope="module")
-def small_fe():
-    """A small FE wave model (2N = 30), its training speeds and a 2n = 8 basis of their trajectories."""
-    fom, coords, space = fe_wave_model(n_elements=16, T=0.5, nt=100)
-    train = space.sample_uniformly(3)
-    S = fom.solution_space.empty()
-    for mu in train:
-        S.append(fom.solve(mu))
-    RB = complex_svd_basis(S, n=4).to_pymor(fom.solution_space)
+def small_fe(small_fe_wave):
+    fom, _, space, train, RB = small_fe_wave
     return fom, space, train, RB
 
 

@@ -6,22 +6,14 @@ from pymor.parameters.base import Mu, Parameters
 
 from sympredict._checks import as_parameter
 from sympredict.mor import SymplecticKernelReductor
-from sympredict.mor.basis import complex_svd_basis
 from sympredict.mor.mass import MassMatrixCoordinates
 from sympredict.symplectic.metrics import canonical_J
-from sympredict.testing import fe_wave_matrices, fe_wave_model
+from sympredict.testing import fe_wave_matrices
 
 
 @pytest.fixture(scope="module")
-def small_fe():
-    """A small FE wave model (2N = 30), its training speeds and a 2n = 8 basis of their trajectories."""
-    fom, coords, space = fe_wave_model(n_elements=16, T=0.5, nt=100)
-    train = space.sample_uniformly(3)
-    S = fom.solution_space.empty()
-    for mu in train:
-        S.append(fom.solve(mu))
-    RB = complex_svd_basis(S, n=4).to_pymor(fom.solution_space)
-    return fom, coords, space, train, RB
+def small_fe(small_fe_wave):
+    return small_fe_wave
 
 
 @pytest.fixture(scope="module")
