@@ -23,7 +23,7 @@ from __future__ import annotations
 import copy
 import inspect
 
-__all__ = ["Parametrized", "clone"]
+__all__ = ["Parametrized", "Setting", "clone"]
 
 
 class Parametrized:
@@ -87,6 +87,18 @@ class Parametrized:
 
     def __sklearn_clone__(self):
         return clone(self)
+
+
+class Setting(Parametrized):
+    """A part that is a value: equal settings are equal parts (a solver, a training strategy, a kernel search).
+
+    Mutable through ``set_params``, so not hashable.
+    """
+
+    def __eq__(self, other) -> bool:
+        return type(self) is type(other) and self.get_params(deep=False) == other.get_params(deep=False)
+
+    __hash__ = None
 
 
 def clone(obj):

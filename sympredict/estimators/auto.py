@@ -35,7 +35,7 @@ from typing import Optional, Sequence
 
 import numpy as np
 
-from sympredict.base import Parametrized, clone
+from sympredict.base import Setting, clone
 from sympredict.data import FlowMapData
 from sympredict.estimators.grid import _quiet, select_kernels
 from sympredict.exceptions import ExtrapolationWarning, NewtonConvergenceError, NonFinitePredictionError
@@ -92,7 +92,7 @@ class SearchResult:
                 f"{len(self.table)} candidates, {self.n_train} + {self.n_validation} samples, {self.seconds:.1f} s)")
 
 
-class KernelSearch(Parametrized):
+class KernelSearch(Setting):
     """How an estimator chooses the kernels, shapes and update it leaves open (``None``).
 
     Parameters
@@ -151,11 +151,6 @@ class KernelSearch(Parametrized):
         self.validation_fraction = validation_fraction
         self.refine_sweeps = refine_sweeps
         self.seed = seed
-
-    def __eq__(self, other) -> bool:  # a setting is a value: equal settings are equal searches
-        return type(self) is type(other) and self.get_params(deep=False) == other.get_params(deep=False)
-
-    __hash__ = None  # mutable (set_params)
 
     def check(self) -> "KernelSearch":
         """Validate the settings; ``ValueError`` naming the bad one."""

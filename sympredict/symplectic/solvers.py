@@ -26,7 +26,7 @@ import numpy as np
 
 from sympredict import _fastkernels
 from sympredict._checks import as_positive_int
-from sympredict.base import Parametrized
+from sympredict.base import Setting
 
 __all__ = ["NewtonSolver", "MAX_NEWTON_ITER", "AUTO_NUMPY_SECONDS", "numpy_seconds", "BACKENDS"]
 
@@ -57,7 +57,7 @@ def numpy_seconds(n_instances: int, n_steps: int, n_centers: int, dim: int) -> f
     return n_steps * (NUMPY_STEP_SECONDS + NUMPY_TERM_SECONDS * n_instances * n_centers * dim * dim)
 
 
-class NewtonSolver(Parametrized):
+class NewtonSolver(Setting):
     """How the implicit steps are solved.
 
     Parameters
@@ -78,11 +78,6 @@ class NewtonSolver(Parametrized):
         self.max_iter = max_iter
         self.warm_start = warm_start
         self.backend = backend
-
-    def __eq__(self, other) -> bool:  # a setting is a value: equal settings are equal solvers
-        return type(self) is type(other) and self.get_params(deep=False) == other.get_params(deep=False)
-
-    __hash__ = None  # mutable (set_params)
 
     def check(self) -> "NewtonSolver":
         """``ValueError`` naming the setting that is malformed; returns ``self``."""

@@ -31,7 +31,7 @@ import numpy as np
 
 from pymor.core.logger import getLogger
 
-from sympredict.base import Parametrized
+from sympredict.base import Setting
 from sympredict.interpolation.functionals import HBFunctionals
 from sympredict.interpolation.greedy.active_set import ActiveSetStore
 from sympredict.interpolation.greedy.dense import DenseStore
@@ -52,7 +52,7 @@ def register_trainer(cls):
     return cls
 
 
-class Trainer(Parametrized):
+class Trainer(Setting):
     """A training strategy: owns the greedy's settings and builds the store the greedy loop runs on.
 
     Every strategy has ``tol`` (stop when the max training residual is at or
@@ -69,11 +69,6 @@ class Trainer(Parametrized):
     criterion: str = "f"
     memory_limit: Optional[float] = None
     regularization: float = 0.0
-
-    def __eq__(self, other) -> bool:  # settings are values: equal settings (and the same pool) are equal strategies
-        return type(self) is type(other) and self.get_params(deep=False) == other.get_params(deep=False)
-
-    __hash__ = None  # mutable (set_params)
 
     def check(self) -> "Trainer":
         """``ValueError`` naming the setting that is malformed; returns ``self``."""
