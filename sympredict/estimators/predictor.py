@@ -311,7 +311,8 @@ class _FlowMapKernelModel(Parametrized):
 
     def _product_kernel(self, points, periodic: Optional[PeriodicCoordinates] = None,
                         symmetry: Optional[StateSymmetry] = None) -> ProductKernel:
-        """The kernel used; a missing state kernel becomes ``IMQ(1 / diameter of the points)``.
+        """The kernel used; a missing state kernel becomes ``IMQ(1 / diameter of the points)`` (the direct model's
+        default: the symplectic model's fit chooses its state kernel before it gets here).
 
         The diameter is computed without underflow (states in any units); points that all coincide
         get ``IMQ(1)``; a diameter so small that its inverse overflows is refused (rescale the states).
