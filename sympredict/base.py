@@ -38,8 +38,6 @@ class Parametrized:
         for p in inspect.signature(init).parameters.values():
             if p.name == "self":
                 continue
-            if p.kind == p.VAR_KEYWORD and p.name == "deprecated":
-                continue  # renamed or moved options, translated with a FutureWarning (not parameters)
             if p.kind in (p.VAR_POSITIONAL, p.VAR_KEYWORD):
                 raise TypeError(f"{cls.__name__}.__init__ must not take *args or **kwargs (estimator contract)")
             names.append(p.name)

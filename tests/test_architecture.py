@@ -130,3 +130,49 @@ def test_no_function_level_imports_of_the_package():
               for name, imports in _imports(mods).items() if name not in LAZY_IMPORTS_ALLOWED
               for target, line, inside in imports if inside]
     assert not hidden, "\n".join(hidden)
+
+
+# ------------------------------------------------------------------ the architecture page matches the code
+ARCHITECTURE = ROOT / "docs" / "explanation" / "architecture.md"
+
+
+def _layer_rows() -> list:
+    """The rows of the architecture page's layer table (``| layer | folder or module | what lives there |``)."""
+    rows, in_table = [], False
+    for line in ARCHITECTURE.read_text().splitlines():
+        if line.startswith("| layer"):
+            in_table = True
+        elif in_table and line.startswith("|"):
+            if not line.startswith("|---"):
+                rows.append(line)
+        elif in_table:
+            break
+    return rows
+
+
+def test_the_architecture_page_lists_every_module_in_its_folders_row():
+    """Each module of a role folder (``sympredict/<folder>/<module>.py``, nested packages' modules too) is named
+    in backticks in the table row of its folder: a new module is documented where it lives."""
+    rows = _layer_rows()
+    assert len(rows) >= 10, "the layer table was not found on docs/explanation/architecture.md"
+    missing = []
+    for folder in sorted(p for p in PACKAGE.iterdir() if p.is_dir() and (p / "__init__.py").exists()):
+        row = [r for r in rows if f"`{folder.name}/`" in r]
+        assert len(row) == 1, f"the layer table has {len(row)} rows for the folder {folder.name}/"
+        for path in folder.rglob("*.py"):
+            if path.name == "__init__.py":
+                continue
+            if f"`{path.stem}`" not in row[0]:
+                missing.append(str(path.relative_to(PACKAGE)))
+    assert not missing, f"docs/explanation/architecture.md does not list {missing} in its folder's row"
+
+
+def test_the_architecture_page_states_the_estimators_settings():
+    from sympredict import SymplecticKernelPredictor
+
+    text = ARCHITECTURE.read_text()
+    names = SymplecticKernelPredictor._param_names()
+    words = {7: "seven", 8: "eight", 9: "nine", 10: "ten"}
+    assert f"`SymplecticKernelPredictor` keeps {words.get(len(names), len(names))} settings" in text
+    signature = text[text.index("SymplecticKernelPredictor(state_kernel"):].split(")", 1)[0]
+    assert sorted(n.strip() for n in signature.split("(", 1)[1].split(",")) == names

@@ -45,8 +45,10 @@ def test_set_params_nested_and_checked():
     model = SymplecticKernelPredictor(IMQ(0.2), IMQ(1.5), IMQ(3.0))
     same = model.set_params(state_kernel__eps=0.4, max_centers=12, trainer=ActiveSetGreedy())
     assert same is model and model.state_kernel == IMQ(0.4) and model.max_centers == 12
+    given = model.trainer
     model.set_params(trainer__refresh_every=17)
     assert model.trainer.refresh_every == 17
+    assert given.refresh_every != 17 and model.trainer is not given  # a copy: the caller's part may be shared
     with pytest.raises(ValueError, match="no parameter 'max_center'.*valid parameters"):
         model.set_params(max_center=3)
     with pytest.raises(ValueError, match="no parameter"):
@@ -132,8 +134,8 @@ def test_direct_model_files_and_io_dispatch(small_pendulum_data, tmp_path):
         SymplecticKernelPredictor.load(tmp_path / "d.h5")
 
 
-def test_layout_1_files_still_load(small_pendulum_data, tmp_path):
-    """A model file of sympredict 0.1 (settings without 'layout', timings in the arrays) loads as before."""
+def test_layout_1_files_are_refused_with_the_advice_to_refit(small_pendulum_data, tmp_path):
+    """A model file of the first pre-release (settings without 'layout', timings in the arrays) is refused."""
     from sympredict.container import write_container
     from sympredict.estimators.predictor import MODEL_FORMAT
 
@@ -148,9 +150,8 @@ def test_layout_1_files_still_load(small_pendulum_data, tmp_path):
               "selected_power": h.selected_power, "elapsed": h.elapsed}
     arrays.update({f"domain_{k}": np.asarray(v) for k, v in model.domain_.items()})
     write_container(tmp_path / "old.h5", MODEL_FORMAT, settings, arrays)
-    back = load_model(tmp_path / "old.h5")
-    assert back.max_centers == 30 and back.state_kernel == IMQ(0.2) and back.trainer == ExactGreedy()
-    assert_same_predictions(back, model, x0[:5], 1, mu=mu[:5], dt=dt[:5])
+    with pytest.raises(ModelFileError, match=r"pre-release version .*fit the model again and save it"):
+        load_model(tmp_path / "old.h5")
 
 
 def test_inconsistent_model_files_are_refused(small_pendulum_data, tmp_path):

@@ -1,8 +1,9 @@
 """The estimator composed of parts: kernel transforms, update rules, trainers, the Newton solver.
 
-Each part owns its settings; the estimator keeps at most eight; the options of sympredict 0.1 still work
-with a FutureWarning naming the replacement, and model files of layout 2 (committed, written by the code of
-that version: ``tests/data/layout2/make_files.py``) load into the new composition and predict as they did.
+Each part owns its settings; the estimator keeps at most eight.  The flat options of the pre-release
+versions are not parameters (a TypeError names the estimator's parameters), and their model files (layout 2,
+committed, written by the code of that version: ``tests/data/layout2/make_files.py``) are refused with the
+advice to refit.
 """
 
 import json
@@ -17,7 +18,8 @@ from sympredict.base import clone
 from sympredict.interpolation.greedy import ActiveSetGreedy, ExactGreedy, ShardedGreedy
 from sympredict.io import load_model
 from sympredict.kernels import IMQ, Matern52
-from sympredict.estimators.predictor import MOVED_OPTIONS, NUMPY_ONLY
+from sympredict.estimators.predictor import NUMPY_ONLY
+from sympredict.exceptions import ModelFileError
 from sympredict.symplectic.solvers import NewtonSolver
 from sympredict.kernels.transforms import Periodic, Scaled, Symmetric, lower_state_kernel, transform_from_spec
 from sympredict.symplectic.updates import Midpoint, SymplecticEuler, as_update
@@ -39,60 +41,25 @@ def test_the_estimators_keep_at_most_eight_options():
         "state_kernel", "mu_kernel", "dt_kernel", "max_centers", "update", "trainer", "solver", "search"}
 
 
-# ------------------------------------------------------------------ old options
-@pytest.mark.parametrize("name, value, check", [
-    ("tol", 1e-9, lambda m: m.trainer == ExactGreedy(tol=1e-9) or m.trainer.tol == 1e-9),
-    ("criterion", "p", lambda m: m.trainer.criterion == "p"),
-    ("power_tol", 1e-11, lambda m: m.trainer.power_tol == 1e-11),
-    ("memory_limit", 1e9, lambda m: m.trainer.memory_limit == 1e9),
-    ("regularization", 1e-6, lambda m: m.trainer.regularization == 1e-6),
-    ("backend", "numpy", lambda m: m.solver.backend == "numpy"),
-    ("newton_max_iter", 7, lambda m: m.solver.max_iter == 7),
-    ("newton_warm_start", True, lambda m: m.solver.warm_start is True),
-    ("state_scaling", [2.0], lambda m: m.state_kernel == Scaled(IMQ(0.3), factors=[2.0])),
-    ("periodic", (0,), lambda m: m.state_kernel == Periodic(IMQ(0.3), coordinates=(0,))),
-    ("symmetry", [(1, 1), (-1, -1)], lambda m: m.state_kernel == Symmetric(IMQ(0.3), group=[(1, 1), (-1, -1)])),
-])
-def test_each_old_option_warns_with_its_replacement_and_lands_in_its_part(name, value, check):
-    part = MOVED_OPTIONS[name][0]
-    with pytest.warns(FutureWarning, match=rf"{name}=\.\.\.\) is deprecated: pass {part}="):
-        model = SymplecticKernelPredictor(IMQ(0.3), max_centers=10, **{name: value})
-    assert check(model)
-    assert set(model.get_params(deep=False)) == set(SymplecticKernelPredictor._param_names())
-    with pytest.warns(FutureWarning, match="deprecated"):
-        same = SymplecticKernelPredictor(IMQ(0.3), max_centers=10).set_params(**{name: value})
-    assert repr(same.get_params(deep=False)) == repr(model.get_params(deep=False))
-    with pytest.warns(FutureWarning, match=f"read it from the part that owns it.*{part}="):
-        read = getattr(model, name)
-    assert read == value or np.array_equal(np.asarray(read, dtype=float), np.asarray(value, dtype=float))
+# ------------------------------------------------------------------ pre-release options
+PRE_RELEASE_OPTIONS = ("tol", "criterion", "power_tol", "memory_limit", "regularization", "backend",
+                       "newton_max_iter", "newton_warm_start", "state_scaling", "periodic", "period", "symmetry")
 
 
-def test_old_options_fold_into_a_given_part_without_changing_the_callers_object():
-    given = ActiveSetGreedy(initial_points=100)
-    with pytest.warns(FutureWarning):
-        model = SymplecticKernelPredictor(IMQ(0.3), trainer=given, tol=1e-7, criterion="f")
-    assert model.trainer.tol == 1e-7 and model.trainer.initial_points == 100 and given.tol == 1e-10
-    with pytest.warns(FutureWarning), pytest.raises(ValueError, match="ActiveSetGreedy has no setting criterion"):
-        SymplecticKernelPredictor(IMQ(0.3), trainer=ActiveSetGreedy(), criterion="p")
+@pytest.mark.parametrize("name", PRE_RELEASE_OPTIONS)
+def test_pre_release_options_are_not_parameters(name):
+    with pytest.raises(TypeError, match=rf"unexpected keyword argument '{name}'"):
+        SymplecticKernelPredictor(IMQ(0.3), max_centers=10, **{name: 1})
+    with pytest.raises(ValueError, match=rf"no parameter '{name}'"):
+        SymplecticKernelPredictor(IMQ(0.3), max_centers=10).set_params(**{name: 1})
+    assert not hasattr(SymplecticKernelPredictor(IMQ(0.3)), name)
+
+
+def test_unknown_options_are_type_errors():
     with pytest.raises(TypeError, match="unexpected keyword argument.*max_center"):
         SymplecticKernelPredictor(IMQ(0.3), max_center=3)
     with pytest.raises(TypeError, match="unexpected keyword argument.*backend"):
         DirectKernelPredictor(IMQ(0.3), backend="numpy")
-
-
-def test_old_and_new_spelling_fit_the_same_model(small_pendulum_data):
-    x0, x1, mu, dt = _data(small_pendulum_data)
-    new = SymplecticKernelPredictor(Scaled(IMQ(0.3), factors=[1.5]), IMQ(1.5), IMQ(3.0), max_centers=30,
-                                    update="midpoint", trainer=ExactGreedy(tol=1e-9, power_tol=1e-11),
-                                    solver=NewtonSolver(backend="numpy", max_iter=20)).fit(x0, x1, mu=mu, dt=dt)
-    with pytest.warns(FutureWarning):
-        old = SymplecticKernelPredictor(IMQ(0.3), IMQ(1.5), IMQ(3.0), max_centers=30, update="midpoint", tol=1e-9,
-                                        power_tol=1e-11, backend="numpy", newton_max_iter=20, state_scaling=[1.5])
-    old.fit(x0, x1, mu=mu, dt=dt)
-    # the same settings through the same code on the same arrays: the same fit, bit for bit
-    np.testing.assert_array_equal(old.surrogate_.coef, new.surrogate_.coef)
-    np.testing.assert_array_equal(old.step(x0[:4], mu=mu[:4], dt=dt[:4]), new.step(x0[:4], mu=mu[:4], dt=dt[:4]))
-    assert new.state_scaling_ == (1.5,) and new.update_ == "midpoint" and new.numpy_only_ is None
 
 
 # ------------------------------------------------------------------ files
@@ -101,43 +68,9 @@ def _expected():
 
 
 @pytest.mark.parametrize("name", sorted(_expected()["models"]))
-def test_layout_2_files_load_into_the_parts_and_predict_as_when_written(name, tmp_path):
-    exp = _expected()
-    with warnings.catch_warnings():
-        warnings.simplefilter("error", FutureWarning)  # a file is not the user's spelling: no deprecation noise
-        model = load_model(LAYOUT2 / f"{name}.h5")
-    start, mu, dt = (np.array(exp[k]) for k in ("start", "mu", "dt"))
-    expected = np.array(exp["models"][name])
-    got = model.rollout(start, 3, mu=mu, dt=dt)
-    sur = model.surrogate_
-    if isinstance(model, DirectKernelPredictor):
-        bound = value_rollout_bound(sur.coef, expected, dt)
-    else:
-        bound = rollout_bound(sur, expected, sur.weights(mu.reshape(len(mu), -1), dt), dt)
-    np.testing.assert_allclose(got, expected, rtol=0, atol=bound)
-    assert bound < 1e-8
-    # written again, the file is layout 3 and loads to the same parameters
-    model.save(tmp_path / "again.h5")
-    back = load_model(tmp_path / "again.h5")
-    assert repr(back.get_params(deep=False)) == repr(model.get_params(deep=False))
-
-
-def test_layout_2_settings_become_parts():
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", UserWarning)
-        models = {name: load_model(LAYOUT2 / f"{name}.h5") for name in _expected()["models"]}
-    m = models["solver_and_greedy"]
-    assert m.state_kernel == Matern52(0.4)
-    assert m.trainer.get_params() == ExactGreedy(tol=1e-9, criterion="p", power_tol=1e-11,
-                                                 regularization=1e-10).get_params()
-    assert m.solver.get_params() == NewtonSolver(max_iter=30, warm_start=True, backend="numpy").get_params()
-    assert models["midpoint_scaled"].state_kernel == Scaled(IMQ(0.3), factors=[1.5])
-    assert models["midpoint_scaled"].update_ == "midpoint"
-    assert models["periodic"].state_kernel == Periodic(IMQ(0.3), coordinates=(0,), period=2 * np.pi)
-    assert models["symmetric"].state_kernel == Symmetric(IMQ(0.3), group=[(1, 1), (-1, -1)])
-    assert models["active_set"].trainer.tol == 1e-8 and models["active_set"].trainer.initial_points == 200
-    assert models["float32"].trainer.basis_dtype == "float32"
-    assert models["direct"].trainer.get_params() == ExactGreedy(tol=1e-9, power_tol=1e-11).get_params()
+def test_pre_release_model_files_are_refused_with_the_advice_to_refit(name):
+    with pytest.raises(ModelFileError, match=r"pre-release version of sympredict .*fit the model again and save it"):
+        load_model(LAYOUT2 / f"{name}.h5")
 
 
 # ------------------------------------------------------------------ backends
@@ -261,10 +194,3 @@ def test_the_around_hook_is_the_composed_step_on_the_same_solver(small_pendulum_
     model.set_params(solver__warm_start=True)  # not run inside a wrapped rollout: said, not silently dropped
     with pytest.warns(UserWarning, match="warm_start does not apply to a wrapped rollout"):
         model.rollout(x, 2, mu=mu[:3], dt=dt[:3], around=(rot, rot.T))
-
-
-def test_an_old_option_set_as_an_attribute_lands_in_its_part():
-    model = SymplecticKernelPredictor(IMQ(0.3))
-    with pytest.warns(FutureWarning, match=r"set_params\(solver__backend=\.\.\.\)"):
-        model.backend = "numpy"
-    assert model.solver == NewtonSolver(backend="numpy") and "backend" not in model.__dict__

@@ -25,20 +25,18 @@ def _small_search():
 
 
 # ------------------------------------------------------------------ the estimator as one argument
-def test_predictor_keyword_warns_and_means_estimator(small_fe):
+def test_the_estimator_is_one_argument(small_fe):
     fom, space, train, RB = small_fe
     h = fom.T / fom.time_stepper.nt
     est = SymplecticKernelPredictor(IMQ(0.5), IMQ(0.5), max_centers=30, update="symplectic_euler")
-    with pytest.warns(FutureWarning, match=r"estimator="):
-        old = SymplecticKernelReductor(fom, RB, train, 4 * h, data="projected", predictor=est, n_validation=1)
-    assert old.estimator is est
-    with pytest.raises(ValueError, match="not both"):
-        SymplecticKernelReductor(fom, RB, train, 4 * h, est, data="projected", predictor=est)
+    with pytest.raises(TypeError, match="unexpected keyword argument 'predictor'"):  # its pre-release name
+        SymplecticKernelReductor(fom, RB, train, 4 * h, data="projected", predictor=est, n_validation=1)
     with pytest.raises(ValueError, match=r"max_centers=50.*SymplecticKernelPredictor\(max_centers=50"):
         SymplecticKernelReductor(fom, RB, train, 4 * h, est, data="projected", max_centers=50)
     with warnings.catch_warnings():
-        warnings.simplefilter("error", FutureWarning)  # the new spelling is silent
-        SymplecticKernelReductor(fom, RB, train, 4 * h, data="projected", estimator=est, n_validation=1)
+        warnings.simplefilter("error", FutureWarning)  # silent
+        assert SymplecticKernelReductor(fom, RB, train, 4 * h, data="projected", estimator=est,
+                                        n_validation=1).estimator is est
 
 
 def test_estimator_knobs_reach_the_fit_and_its_search_choice_is_recorded(small_fe):

@@ -153,20 +153,3 @@ def test_lambda_chosen_on_noisy_validation_data_beats_the_exact_fit(small_pendul
     assert err[1] < err[0]
     with pytest.raises(ValueError, match="metric"):
         select_regularization(train, val, [1e-3], est, metric="mean")
-
-
-def test_a_strategy_without_the_option_refuses_a_positive_lambda(small_pendulum_data):
-    from sympredict.interpolation.greedy import Trainer
-
-    class Plain(Trainer):  # written before the option existed
-        def store(self, functionals, targets, *, criterion, power_tol, tol, validation, memory_limit):
-            return DenseStore(functionals, targets, criterion=criterion, power_tol=power_tol, validation=validation,
-                              memory_limit=memory_limit)
-
-    d = _subset(small_pendulum_data, 60)
-    with pytest.warns(FutureWarning, match="signature of sympredict 0.1"):  # still runs, with the old arguments
-        SymplecticKernelPredictor(IMQ(0.3), IMQ(2.0), IMQ(5.0), max_centers=10, trainer=Plain()).fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
-    plain = Plain()
-    plain.regularization = 1e-3  # a strategy of sympredict 0.1 has no such setting; forced, it is refused
-    with pytest.warns(FutureWarning), pytest.raises(ValueError, match="Plain does not support regularization"):
-        SymplecticKernelPredictor(IMQ(0.3), IMQ(2.0), IMQ(5.0), max_centers=10, trainer=plain).fit(d.x0, d.x1, mu=d.mu, dt=d.dt)

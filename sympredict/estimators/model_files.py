@@ -7,8 +7,8 @@ arrays (centres, coefficients, residual history, training box).  Files are
 hostile input: :func:`from_container` checks every setting against the
 estimator's own checks (one schema for constructors and files) and every
 array against the settings, and raises :class:`~sympredict.exceptions.ModelFileError`
-naming what is wrong.  Layouts 1 and 2 (the flat options of sympredict 0.1)
-load through :mod:`sympredict.estimators._compat`.
+naming what is wrong.  Only files of layout :data:`MODEL_LAYOUT` are read; files of the earlier,
+pre-release layouts are refused with the advice to refit.
 """
 
 from __future__ import annotations
@@ -17,7 +17,6 @@ import numpy as np
 
 from sympredict.container import read_container, write_container
 from sympredict.estimators.auto import KernelSearch
-from sympredict.estimators._compat import MOVED_OPTIONS, apply_moved
 from sympredict.exceptions import ModelFileError
 from sympredict.interpolation.functionals import HBFunctionals
 from sympredict.interpolation.greedy import GreedyHistory, Trainer, trainer_from_spec
@@ -32,10 +31,16 @@ __all__ = ["MODEL_FORMAT", "MODEL_LAYOUT", "save", "load", "to_container", "from
 #: ``format`` attribute of model files (:mod:`sympredict.container`).
 MODEL_FORMAT = "sympredict-model"
 
-#: Layout of a model file's settings: 3 stores the parameters of the composed estimator (kernels and their
-#: transforms, update rule, trainer, solver); 2 stored the flat options of sympredict 0.1 (read through
-#: :data:`MOVED_OPTIONS`); files without the key (the first files) are read as layout 1.
+#: Layout of a model file's settings: the parameters of the composed estimator (kernels and their
+#: transforms, update rule, trainer, solver).  Layouts 1 and 2 were written by pre-release versions and are
+#: not read.
 MODEL_LAYOUT = 3
+
+
+def pre_release_layout(path) -> ModelFileError:
+    """The error for a model file of a pre-release layout (1 or 2), which this version does not read."""
+    return ModelFileError(f"{str(path)!r} was written by a pre-release version of sympredict (model layout 1 or 2), "
+                          f"which this version does not read: fit the model again and save it (layout {MODEL_LAYOUT})")
 
 
 def save(model, path) -> None:
@@ -78,21 +83,6 @@ def decode_param(value):
             raise ValueError(f"unknown KernelSearch setting(s) {unknown}")
         return KernelSearch(**{k: tuple(v) if isinstance(v, list) else v for k, v in value["search"].items()})
     return decode_value(value)
-
-
-def _settings_from_layout_1(settings: dict) -> dict:
-    """Settings of a sympredict 0.1 model file (a SymplecticKernelPredictor) in today's layout."""
-    try:
-        spec = settings["kernel"]
-        params = {
-            "state_kernel": {"kernel": spec["state"]} if settings["state_kernel_given"] else None,
-            "mu_kernel": None if spec["mu"] is None else {"kernel": spec["mu"]},
-            "dt_kernel": None if spec["dt"] is None else {"kernel": spec["dt"]},
-            **{k: settings[k] for k in ("max_centers", "tol", "criterion", "power_tol", "newton_max_iter", "memory_limit")},
-        }
-    except (KeyError, TypeError) as exc:
-        raise ModelFileError(f"incomplete sympredict model file (layout 1): missing {exc}") from None
-    return {**settings, "layout": 1, "class": "SymplecticKernelPredictor", "params": params}
 
 
 def _is_int(value) -> bool:
@@ -155,27 +145,23 @@ def to_container(model) -> tuple:
 
 def from_container(cls, settings, arrays: dict, path):
     """The model of a file's ``(settings, arrays)`` (:func:`~sympredict.container.read_container`)."""
-    if isinstance(settings, dict) and "layout" not in settings:
-        settings = _settings_from_layout_1(settings)
+    if isinstance(settings, dict) and settings.get("layout", 1) in (1, 2):
+        raise pre_release_layout(path)
     found = settings.get("class") if isinstance(settings, dict) else None
     if found != cls.__name__:
         raise ModelFileError(f"{str(path)!r} holds a {found!r}, not a {cls.__name__}")
-    if settings.get("layout") not in (1, 2, MODEL_LAYOUT):
+    if settings.get("layout") != MODEL_LAYOUT:
         raise ModelFileError(f"{str(path)!r} has an unknown model layout {settings.get('layout')!r} "
-                             f"(this sympredict reads 1..{MODEL_LAYOUT})")
+                             f"(this sympredict reads layout {MODEL_LAYOUT})")
     try:
         params = settings["params"]
         if not isinstance(params, dict):
             raise ModelFileError(f"{str(path)!r}: its setting 'params' is not a JSON object")
         decoded = {k: decode_param(v) for k, v in params.items()}
-        moved = {k: decoded.pop(k) for k in list(decoded) if k in MOVED_OPTIONS and settings["layout"] < 3}
         unknown = sorted(set(decoded) - set(cls._param_names()))
         if unknown:
             raise ModelFileError(f"{str(path)!r} has unknown setting(s) {unknown} for a {cls.__name__}")
-        if settings["layout"] < 3 and "update" in cls._param_names():
-            decoded.setdefault("update", "symplectic_euler")  # the only update of those versions
         model = cls(**decoded)
-        apply_moved(model, moved, warn=False)  # older layouts: the flat options folded into the parts
         try:  # the settings pass the checks of fit (one schema for constructors and files)
             model._check_params()
         except ValueError as exc:
@@ -208,7 +194,6 @@ def from_container(cls, settings, arrays: dict, path):
         if kernel.symmetry != model._model_symmetry(model.dim_):
             raise ModelFileError(f"the file's state symmetry {kernel.symmetry!r} disagrees with its setting "
                                  f"state_kernel={model.state_kernel!r}")
-        arrays.pop("elapsed", None)  # layout 1 stored the greedy's timings
         check_file_arrays(model, kernel, arrays)
         model.kernel_ = kernel
         model.surrogate_ = model._surrogate_from(kernel, arrays)

@@ -39,7 +39,6 @@ from sympredict.base import Parametrized, clone
 from sympredict.data import FlowMapData, TrajectoryData, _drop_duplicate_samples, as_flowmap_data, unique_samples
 from sympredict.estimators import model_files
 from sympredict.estimators.auto import KernelSearch, _holdout_split, diagnose
-from sympredict.estimators._compat import _NEUTRAL, MOVED_OPTIONS, apply_moved, replacement
 from sympredict.estimators.model_files import MODEL_FORMAT, MODEL_LAYOUT
 from sympredict.exceptions import (
     ExtrapolationWarning,
@@ -64,7 +63,7 @@ from sympredict.symplectic.updates import UPDATE_RULES, as_update
 logger = logging.getLogger("sympredict.estimators.predictor")
 
 __all__ = ["SymplecticKernelPredictor", "DirectKernelPredictor", "MODEL_FORMAT", "MODEL_LAYOUT", "UPDATES",
-           "update_variables", "NUMPY_ONLY", "MOVED_OPTIONS", "numpy_seconds", "AUTO_NUMPY_SECONDS", "MAX_NEWTON_ITER"]
+           "update_variables", "NUMPY_ONLY", "numpy_seconds", "AUTO_NUMPY_SECONDS", "MAX_NEWTON_ITER"]
 
 def newton_predictor(model):
     """The :class:`SymplecticKernelPredictor` that solves ``model``'s implicit steps, or ``None``.
@@ -168,25 +167,18 @@ class _FlowMapKernelModel(Parametrized):
                              f"transform of one (Scaled, Periodic, Symmetric) or None, got {kernel!r}")
         return lower_state_kernel(kernel)
 
-    #: The options of sympredict 0.1 this class still takes (:data:`MOVED_OPTIONS`).
-    _moved_options: tuple = ("tol", "criterion", "power_tol", "memory_limit", "regularization")
-
     def set_params(self, **params):
         """Set parameters (nested ones as ``name__sub``); returns ``self``.
 
         ``trainer__tol=...`` or ``solver__backend=...`` set a setting of a copy of the part (the default part
-        where it is ``None``), never of an object another model may share.  Options that moved into the parts
-        (:data:`MOVED_OPTIONS`) are still accepted, with a FutureWarning naming the replacement.
+        where it is ``None``), never of an object another model may share.
         """
-        moved = {k: params.pop(k) for k in list(params) if k in MOVED_OPTIONS and k not in self._param_names()}
         for part, default in (("trainer", ExactGreedy), ("solver", NewtonSolver)):
             if part in self._param_names() and any(k.startswith(part + "__") for k in params):
                 # nested settings change a copy: a part may be shared (copy.copy of a model, the caller's object)
                 current = getattr(self, part)
                 setattr(self, part, default() if current is None else clone(current))
         super().set_params(**params)
-        if moved:
-            apply_moved(self, moved)
         return self
 
     # ------------------------------------------------ fitted settings
@@ -195,38 +187,6 @@ class _FlowMapKernelModel(Parametrized):
     _fitted_settings: tuple = ()
     #: Solver settings read at prediction time (they change how, not what, is predicted; checked when used).
     _runtime_settings: tuple = ()
-
-    def __getattr__(self, name: str):
-        # ``name_`` of a fitted setting missing (a fitted state assembled by hand, or an object pickled before
-        # these attributes existed): the current setting
-        if name.endswith("_") and name[:-1] in type(self)._fitted_settings:
-            if name == "update_" and getattr(self, "update") is None:
-                return "symplectic_euler"  # what update=None is with every kernel given (fit)
-            return self._moved_value(name[:-1]) if name[:-1] in MOVED_OPTIONS else getattr(self, name[:-1])
-        if name in type(self)._moved_options and not name.startswith("_"):
-            warnings.warn(f"{type(self).__name__}.{name} is deprecated: read it from the part that owns it "
-                          f"({replacement(type(self).__name__, name)})", FutureWarning, stacklevel=2)
-            return self._moved_value(name)
-        raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
-
-    def __setattr__(self, name: str, value) -> None:
-        # ``model.backend = 'numba'`` (sympredict 0.1) must not set a plain attribute that nothing reads
-        if name in type(self)._moved_options:
-            warnings.warn(f"setting {type(self).__name__}.{name} is deprecated: use "
-                          f"set_params({MOVED_OPTIONS[name][0]}__{MOVED_OPTIONS[name][1]}=...)"
-                          if MOVED_OPTIONS[name][0] != "state_kernel" else
-                          f"setting {type(self).__name__}.{name} is deprecated: pass "
-                          f"{replacement(type(self).__name__, name)}", FutureWarning, stacklevel=2)
-            apply_moved(self, {name: value}, warn=False)
-            return
-        super().__setattr__(name, value)
-
-    def _moved_value(self, name: str):
-        """The current value of an option that moved into a part (:data:`MOVED_OPTIONS`)."""
-        part, inner = MOVED_OPTIONS[name]
-        if part == "trainer":
-            return getattr(self._trainer(), inner, _NEUTRAL.get(inner))
-        raise AttributeError(name)
 
     def _store_fitted_settings(self, params: dict) -> None:
         """Keep ``params`` (``get_params(deep=False)`` at fit or load time) as ``fitted_params_`` and ``name_``."""
@@ -623,14 +583,6 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         Residuals on training and held-out samples, convergence, and advice on what to try next
         (``None`` after :meth:`load`).
 
-    Notes
-    -----
-    The options of sympredict 0.1 (``tol``, ``criterion``, ``power_tol``,
-    ``memory_limit``, ``regularization``, ``backend``, ``newton_max_iter``,
-    ``newton_warm_start``, ``state_scaling``, ``periodic``, ``period``,
-    ``symmetry``) are still accepted with a FutureWarning naming their
-    replacement (:data:`MOVED_OPTIONS`).
-
     Examples
     --------
     >>> model = SymplecticKernelPredictor(max_centers=1500).fit(x0, x1, mu=mu, dt=dt)  # doctest: +SKIP
@@ -645,7 +597,6 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
     _chooses_open_factors = True
     _fitted_settings = ("update", "state_scaling", "periodic", "period", "symmetry")
     _runtime_settings = ("solver",)
-    _moved_options = tuple(MOVED_OPTIONS)
 
     def __init__(
         self,
@@ -658,7 +609,6 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         trainer: Optional[Trainer] = None,
         solver: Optional[NewtonSolver] = None,
         search: Optional[KernelSearch] = None,
-        **deprecated,
     ):
         self.state_kernel = state_kernel
         self.mu_kernel = mu_kernel
@@ -668,8 +618,6 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         self.trainer = trainer
         self.solver = solver
         self.search = search
-        if deprecated:
-            apply_moved(self, deprecated)
 
     def fit(self, x0, x1=None, mu=None, dt=None, *, validation=None) -> "SymplecticKernelPredictor":
         """Train the surrogate on flow-map samples.
@@ -879,16 +827,6 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
     def _newton_iterations(self) -> int:
         """The solver's ``max_iter``, checked: an integer in ``1..MAX_NEWTON_ITER``."""
         return self._check_runtime_settings().iterations()
-
-    def _moved_value(self, name: str):
-        part, inner = MOVED_OPTIONS[name]
-        if part == "solver":
-            return getattr(self._solver(), inner)
-        if part == "state_kernel":
-            parts = self._state_parts()
-            return {"state_scaling": parts.scaling, "periodic": parts.periodic, "period": parts.period,
-                    "symmetry": parts.symmetry}[name]
-        return super()._moved_value(name)
 
     def _store_fitted_settings(self, params: dict) -> None:
         """``fitted_params_``, ``update_`` and the state kernel's transforms, flattened (``state_scaling_``, ...)."""
@@ -1224,15 +1162,12 @@ class DirectKernelPredictor(_FlowMapKernelModel):
         *,
         max_centers: int = 1000,
         trainer: Optional[Trainer] = None,
-        **deprecated,
     ):
         self.state_kernel = state_kernel
         self.mu_kernel = mu_kernel
         self.dt_kernel = dt_kernel
         self.max_centers = max_centers
         self.trainer = trainer
-        if deprecated:
-            apply_moved(self, deprecated)
 
     def _check_params(self) -> Trainer:
         trainer = super()._check_params()

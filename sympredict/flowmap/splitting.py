@@ -40,6 +40,7 @@ from sympredict.container import read_container, write_container
 from sympredict.data import FlowMapData
 from sympredict.exceptions import ModelFileError, NonFinitePredictionError, NotFittedError
 from sympredict.systems.linear_flow import QuadraticPart, inverse_symplectic_matrices
+from sympredict.estimators.model_files import pre_release_layout
 from sympredict.estimators.predictor import MODEL_FORMAT, MODEL_LAYOUT, SymplecticKernelPredictor
 
 logger = getLogger("sympredict.flowmap.splitting")
@@ -259,7 +260,9 @@ class SplitKernelPredictor(Parametrized):
         if set(settings) != expected:
             raise ModelFileError(f"{where}: its settings must have exactly the keys {sorted(expected)}, "
                                  f"got {sorted(settings)}")
-        if settings["layout"] not in (2, MODEL_LAYOUT):  # layout 2: the inner model's flat options, read as parts
+        if settings["layout"] == 2:
+            raise pre_release_layout(path)
+        if settings["layout"] != MODEL_LAYOUT:
             raise ModelFileError(f"{where}: unknown layout {settings['layout']!r}")
         dim, n_mu = settings["dim"], settings["n_mu"]
         if not all(isinstance(v, int) and not isinstance(v, bool) for v in (dim, n_mu)) or dim < 2 or dim % 2 or n_mu < 0:

@@ -457,8 +457,7 @@ class SymplecticKernelReductor(BasicObject):
         both do, leaves the choice to it; what it chose is ``choice_["estimator"]``.  Default: a
         :class:`SymplecticKernelPredictor` (``max_centers``, ``ExactGreedy(tol=1e-12)``) with IMQ kernels on
         the scaled states and parameters whose shapes are chosen on the validation data from a small log grid
-        (``state_kernels``, ``mu_kernels`` replace the grid).  ``predictor=`` is its former name (a
-        FutureWarning).
+        (``state_kernels``, ``mu_kernels`` replace the grid).
     data : {"reduced", "projected"} or FlowMapData, optional
         Intrusive Galerkin-flow samples (the default), non-intrusive projected FOM trajectories
         (the default with ``trajectories``), or the caller's flow-map samples in reduced coordinates
@@ -553,14 +552,7 @@ class SymplecticKernelReductor(BasicObject):
                  state_kernels=None, mu_kernels=None, m_star: int = 300, regularizations=None,
                  split: Optional[QuadraticPart] = None, split_fallback: Optional[QuadraticPart] = None,
                  flow_parameters=None, trajectories=None,
-                 validation_trajectories=None, predictor=None):
-        if predictor is not None:
-            if estimator is not None:
-                raise ValueError("give the estimator once: estimator=... (predictor= is its old name), not both")
-            warnings.warn("SymplecticKernelReductor(predictor=...) is deprecated: pass the same object as "
-                          "estimator=... (e.g. estimator=SymplecticKernelPredictor(max_centers=500))", FutureWarning,
-                          stacklevel=2)
-            estimator = predictor
+                 validation_trajectories=None):
         if estimator is not None and max_centers is not None:
             raise ValueError(f"max_centers={max_centers!r} is the budget of the default estimator; the given estimator "
                              f"has its own: set it there (estimator=SymplecticKernelPredictor(max_centers="
@@ -777,7 +769,7 @@ class SymplecticKernelReductor(BasicObject):
 
     def _given_update(self) -> Optional[str]:
         """The update the caller fixed (the given estimator's, by name), or ``None`` where the reductor chooses."""
-        update = getattr(self.predictor, "update", None) if self.predictor is not None else None
+        update = getattr(self.estimator, "update", None) if self.estimator is not None else None
         return update if update is None or isinstance(update, str) else getattr(update, "name", update)
 
     def _update(self) -> Optional[str]:
@@ -786,7 +778,7 @@ class SymplecticKernelReductor(BasicObject):
         given = self._given_update()
         if given is not None:
             return given
-        default = "symplectic_euler" if self.predictor is None else None
+        default = "symplectic_euler" if self.estimator is None else None
         return getattr(self, "choice_", {}).get("update", default)
 
     def _checked_update(self) -> str:
@@ -814,7 +806,7 @@ class SymplecticKernelReductor(BasicObject):
             if isinstance(out, dict) and out.get("not_checked"):
                 self.choice_["reason"] = "not checked: too few samples per parameter (see the log)"
                 return out
-            if given is None and self.predictor is not None:  # the estimator chooses, where both forms exist
+            if given is None and self.estimator is not None:  # the estimator chooses, where both forms exist
                 self.choice_ = {"update": "midpoint", "reason": "probe"}
                 try:
                     with warnings.catch_warnings():  # a probe: its warnings are not the caller's
@@ -983,7 +975,7 @@ class SymplecticKernelReductor(BasicObject):
     def _search_kernels(self, base, train, val, vary_mu):
         """``clone(base)`` with the state and parameter kernels chosen on ``val`` among the candidates
         (:func:`~sympredict.estimators.selection.select_kernels`), or ``None`` when there is nothing to choose."""
-        default = self.predictor is None
+        default = self.estimator is None
         if not default and self.state_kernels is None and self.mu_kernels is None:
             return None
         if val is None:
@@ -1115,7 +1107,7 @@ class SymplecticKernelReductor(BasicObject):
             rows = self.data.mu
         else:
             rows = self._mu_rows(self.training_parameters)[:, self._flow_index]
-        if len(np.unique(rows, axis=0)) > 1 and self._lacks_mu_kernel(self.predictor) and self.mu_kernels is None:
+        if len(np.unique(rows, axis=0)) > 1 and self._lacks_mu_kernel(self.estimator) and self.mu_kernels is None:
             # before any FOM solve (reduce() would find it after sampling)
             raise ValueError("the parameters vary across training_parameters but the estimator has mu_kernel=None and "
                              "does not choose one: give it a mu_kernel, or train at one parameter value")
@@ -1136,10 +1128,10 @@ class SymplecticKernelReductor(BasicObject):
         else:  # the kernels of S, compared on S's samples
             search = tuple(None if d is None else self._scaled_split_pairs(d, state_scaling, mu_scaling, vary_mu)
                            for d in (s_train, s_val))
-        if self.predictor is None:
+        if self.estimator is None:
             predictor = self._default_predictor(*search, vary_mu)
         else:
-            given = clone(self.predictor)
+            given = clone(self.estimator)
             if self._given_update() is None and self._update() is not None:  # the update the existence check chose
                 given = given.set_params(update=self._update())
             predictor = self._search_kernels(clone(given), *search, vary_mu) or given

@@ -23,8 +23,6 @@ with :func:`register_trainer` so that model files can name it.
 
 from __future__ import annotations
 
-import inspect
-import warnings
 from typing import Optional
 
 import numpy as np
@@ -100,16 +98,7 @@ class Trainer(Setting):
         """
         self.check()
         tol = float(self.tol) * float(tol_scale)
-        if "criterion" in inspect.signature(self.store).parameters:  # a strategy written for sympredict 0.1
-            warnings.warn(f"{type(self).__name__}.store(functionals, targets, *, criterion, power_tol, tol, validation, "
-                          "memory_limit) is the signature of sympredict 0.1: define store(functionals, targets, *, tol, "
-                          "validation) and read the settings from self", FutureWarning, stacklevel=3)
-            if self.regularization:
-                raise ValueError(f"the training strategy {type(self).__name__} does not support regularization > 0")
-            store = self.store(functionals, targets, criterion=self.criterion, power_tol=self.power_tol, tol=tol,
-                               validation=validation, memory_limit=self.memory_limit)
-        else:
-            store = self.store(functionals, targets, tol=tol, validation=validation)
+        store = self.store(functionals, targets, tol=tol, validation=validation)
         with logger.block(f"{store.label} over {functionals.n_functionals} functionals"):
             return run_greedy(store, max_centers=max_centers, tol=tol, criterion=self.criterion,
                               divergence_factor=divergence_factor, log_every=log_every, callback=callback)
