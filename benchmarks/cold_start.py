@@ -53,7 +53,7 @@ import numpy as np
 from sympredict import SymplecticKernelPredictor
 t1 = time.perf_counter()
 model = SymplecticKernelPredictor.load(sys.argv[1])
-model.backend = sys.argv[2]
+model.set_params(solver__backend=sys.argv[2])
 x0 = np.load(sys.argv[3])
 t2 = time.perf_counter()
 traj = model.rollout(x0, int(sys.argv[4]), mu=float(sys.argv[5]), dt=float(sys.argv[6]))

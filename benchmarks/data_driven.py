@@ -27,7 +27,6 @@ from sympredict.paper.henon_heiles import DT_HH, PRESETS as HH_PRESETS, henon_he
 from sympredict.paper.pendulum import paper_test_instances
 from sympredict.paper.peers import VKOGAFlowMap, select_vkoga_length_scale
 from sympredict.symplectic.integrators_compiled import rollout
-from sympredict.paper.speed import deliberate_threads, time_median
 from sympredict.kernels import IMQ
 from sympredict.symplectic.metrics import relative_hamiltonian_error, relative_trajectory_error
 from sympredict.systems.henon_heiles import LAMBDA_RANGE, HenonHeiles, energy_bounded_states

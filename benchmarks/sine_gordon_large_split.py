@@ -147,7 +147,7 @@ def main():
                         chosen_val[sp, update] = meet[0] if meet else max(val, key=val.get)
                         results["choices"][-1]["validation"] = {"ratios": {str(k): v for k, v in val.items()},
                                                                 "large_step": chosen_val[sp, update]}
-                        print(f"    validation rule: held-out training ratio "
+                        print("    validation rule: held-out training ratio "
                               + ", ".join(f"DT {st * p.DT:g}: {v:.2f}" for st, v in val.items())
                               + f" -> DT = {chosen_val[sp, update] * p.DT:g}", flush=True)
             Yp = gal.project(X_tr)

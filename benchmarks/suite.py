@@ -239,7 +239,7 @@ def section_rollout(model, batch: int = 1000, steps_fast: int = 100, steps_numpy
         if backend == "numba" and not _fastkernels.HAVE_NUMBA:
             out[backend] = None
             continue
-        model.backend = backend
+        model.set_params(solver__backend=backend)
         model.rollout(x0[:16], 2, mu=mu[:16], dt=dt[:16])  # compile / warm up
         model.rollout(x0[0], 2, mu=mu[0], dt=dt[0])
         t = median_time(lambda: model.rollout(x0, steps, mu=mu, dt=dt), repeats)
@@ -255,12 +255,12 @@ def section_rollout(model, batch: int = 1000, steps_fast: int = 100, steps_numpy
     # agreement: compiled vs NumPy reference on the same batch, and the reference against itself
     k = 20
     sub = slice(0, 200)
-    model.backend = "numpy"
+    model.set_params(solver__backend="numpy")
     ref = model.rollout(x0[sub], k, mu=mu[sub], dt=dt[sub])
     single = np.stack([model.rollout(x0[i], k, mu=mu[i], dt=dt[i]) for i in range(20)])
     out["numpy_batch_vs_single_max_diff"] = float(np.abs(single - ref[:20]).max())
     if _fastkernels.HAVE_NUMBA:
-        model.backend = "numba"
+        model.set_params(solver__backend="numba")
         fast = model.rollout(x0[sub], k, mu=mu[sub], dt=dt[sub])
         out["numba_vs_numpy_max_diff"] = float(np.abs(fast - ref).max())
         out["speedup_batch"] = out["numba"]["traj_steps_per_s"] / out["numpy"]["traj_steps_per_s"]
@@ -303,16 +303,16 @@ def section_rollout(model, batch: int = 1000, steps_fast: int = 100, steps_numpy
             "midpoint_cost": {"cold": cb["midpoint_cold"], "warm": cb["midpoint_warm"]},
         }
         # throughput of the batch with the warm start (newton_warm_start=True)
-        model.backend = "numba"
-        model.newton_warm_start = True
+        model.set_params(solver__backend="numba")
+        model.set_params(solver__warm_start=True)
         model.rollout(x0[:16], 3, mu=mu[:16], dt=dt[:16])
         t = median_time(lambda: model.rollout(x0, steps_fast, mu=mu, dt=dt), repeats)
         out["numba"]["traj_steps_per_s_warm_start"] = batch * steps_fast / t
-        model.newton_warm_start = False
+        model.set_params(solver__warm_start=False)
     _, _, floor = sur.gradient_hessian(x0[sub], sur.weights(mu[sub, None], dt[sub]), with_floor=True)
     out["gradient_roundoff_floor"] = float(floor.max())
     out["max_abs_coef"] = float(np.abs(sur.coef).max())
-    model.backend = "auto"
+    model.set_params(solver__backend="auto")
     return out
 
 
@@ -333,23 +333,23 @@ def section_scaling(model, repeats: int = 3) -> dict:
         t_m = []
         for m in ms:
             small = model.truncated(m)
-            small.backend = "numba"
+            small.set_params(solver__backend="numba")
             small.rollout(x0[:16], 1, mu=mu[:16], dt=dt[:16])
             t_m.append(median_time(lambda: small.rollout(x0[:500], 20, mu=mu[:500], dt=dt[:500]), repeats) / (500 * 20))
         out["rollout_vs_centers"] = {"m": ms, "s_per_traj_step": t_m, "exponent": fit_exponent(ms, t_m)}
         bs = [1, 10, 100, 1000]
         t_b = []
-        model.backend = "numba"
+        model.set_params(solver__backend="numba")
         for b in bs:
             k = max(20, 2000 // b)
             t_b.append(median_time(lambda: model.rollout(x0[:b], k, mu=mu[:b], dt=dt[:b]), repeats) / (b * k))
         out["rollout_vs_batch"] = {"batch": bs, "s_per_traj_step": t_b, "exponent_total_time": fit_exponent(bs, np.array(t_b) * bs)}
-        model.backend = "auto"
+        model.set_params(solver__backend="auto")
         # Newton-iteration work vs state dimension: one gradient+Hessian-block pass per point
         # (synthetic surrogates, m = 1500, coefficients 1e-3: Newton converges in the same few
         # iterations at every dimension, so the step time follows the per-iteration work)
         dims = [2, 4, 10, 20, 40]
-        t_d, t_s, t_dn, iters = [], [], [], []
+        t_d, t_s, t_dn = [], [], []
         for dim in dims:
             sur = synthetic_surrogate(1500, dim)
             lay = sur.layout()
@@ -494,7 +494,7 @@ def section_wave(seed: int = 0, basis_blas_threads: int = 1) -> dict:
     for backend in ("numba", "numpy"):
         if backend == "numba" and not _fastkernels.HAVE_NUMBA:
             continue
-        model.backend = backend
+        model.set_params(solver__backend=backend)
         model.rollout(x0[:2], 1, mu=c**2)
         t = median_time(lambda: model.rollout(x0, n_steps, mu=c**2), 3)
         pred = model.rollout(x0, n_steps, mu=c**2)

@@ -22,11 +22,6 @@ from sympredict.kernels import IMQ  # noqa: E402
 from sympredict.symplectic.metrics import relative_trajectory_error  # noqa: E402
 from sympredict.systems.pendulum import Pendulum, flow_map_data  # noqa: E402
 
-from sympredict import SymplecticKernelPredictor, _fastkernels  # noqa: E402
-from sympredict.paper.pendulum import paper_test_instances  # noqa: E402
-from sympredict.kernels import IMQ  # noqa: E402
-from sympredict.symplectic.metrics import relative_trajectory_error  # noqa: E402
-from sympredict.systems.pendulum import Pendulum, flow_map_data  # noqa: E402
 
 
 def main(argv=None) -> dict:

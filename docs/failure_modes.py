@@ -3,8 +3,8 @@
 Run:  python docs/failure_modes.py
 """
 
-import numpy as np, warnings, tempfile, os, h5py, errno, json, stat, subprocess, sys
-from sympredict import *
+import numpy as np, warnings, tempfile, os, h5py, errno, stat
+from sympredict import SymplecticKernelPredictor
 from sympredict.kernels import IMQ
 from sympredict.systems.pendulum import Pendulum, flow_map_data
 from sympredict.systems.wave import WaveFOM
@@ -78,12 +78,11 @@ show("basis of another dimension", lambda: SymplecticROM(WaveFOM(30), b))
 show("wave parameter outside the declared range", lambda: fom.trajectory(snap[:1], 0.5, 0.1, 1))
 
 # --- issue 16: files are hostile input, saving never damages what is there, no silent numerics
-from sympredict.container import read_container, write_container, _checksum_v1
+from sympredict.container import write_container
 from sympredict.io import save_dataset, load_dataset
 import sympredict.container as container
 from sympredict.cli import main as cli_main
 from sympredict.systems.pendulum import random_flow_map_data
-from sympredict.systems.wave import WaveFOM as _Wave
 def hostile(label, attack):
     path = os.path.join(tmp, "h.h5"); m.save(path)
     with h5py.File(path, "r+") as f: attack(f)

@@ -12,7 +12,6 @@ Run:  python examples/wave_mor_workflow.py [--n-points 1000] [--samples 2000] [-
 
 import argparse
 
-import numpy as np
 
 from sympredict import SymplecticKernelPredictor
 from sympredict.paper.wave import reduced_flow_map_data

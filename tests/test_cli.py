@@ -1,6 +1,5 @@
 """The command line and the example run end to end (smallest sizes)."""
 
-import json
 import subprocess
 import sys
 from pathlib import Path

@@ -115,7 +115,7 @@ def test_warm_started_and_cloned_fits_keep_the_layout(small_pendulum_data):
     np.testing.assert_array_equal(refit.surrogate_.coef, model.surrogate_.coef)
 
 
-def test_scaling_and_reduced_model_keep_the_layout(wave):
+def test_scaling_and_reduced_model_keep_the_layout(wave):  # noqa: F811 - the fixture imported above
     fom, train, RB, dt = wave
     red = SymplecticKernelReductor(fom, RB, train, dt, n_samples=60, n_validation=1, max_centers=40)
     rom = red.reduce()

@@ -7,7 +7,6 @@ advice to refit.
 """
 
 import json
-import warnings
 from pathlib import Path
 
 import numpy as np
@@ -17,13 +16,13 @@ from sympredict import DirectKernelPredictor, SymplecticKernelPredictor
 from sympredict.base import clone
 from sympredict.interpolation.greedy import ActiveSetGreedy, ExactGreedy, ShardedGreedy
 from sympredict.io import load_model
-from sympredict.kernels import IMQ, Matern52
+from sympredict.kernels import IMQ
 from sympredict.estimators.predictor import NUMPY_ONLY
 from sympredict.exceptions import ModelFileError
 from sympredict.symplectic.solvers import NewtonSolver
 from sympredict.kernels.transforms import Periodic, Scaled, Symmetric, lower_state_kernel, transform_from_spec
 from sympredict.symplectic.updates import Midpoint, SymplecticEuler, as_update
-from _tolerances import rollout_bound, value_rollout_bound  # tests/
+from _tolerances import rollout_bound  # tests/
 
 LAYOUT2 = Path(__file__).parent / "data" / "layout2"
 
@@ -168,7 +167,6 @@ def test_predictors_and_wrappers_are_flow_maps(small_pendulum_data):
 @pytest.mark.parametrize("backend", ["numpy", "numba"])
 def test_the_around_hook_is_the_composed_step_on_the_same_solver(small_pendulum_data, backend, monkeypatch):
     import sympredict.estimators.predictor as predictor
-    from _tolerances import rollout_bound
 
     x0, x1, mu, dt = _data(small_pendulum_data)
     model = SymplecticKernelPredictor(IMQ(0.3), IMQ(1.5), IMQ(3.0), max_centers=40,

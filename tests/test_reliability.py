@@ -24,11 +24,11 @@ from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
 from sympredict.exceptions import extrapolation_expected
-from sympredict import ExtrapolationWarning, NewtonConvergenceError, SolvabilityError, SymplecticKernelPredictor, SympredictError
+from sympredict import ExtrapolationWarning, SolvabilityError, SymplecticKernelPredictor, SympredictError
 from sympredict.data import FlowMapData
 from sympredict.interpolation.functionals import HBFunctionals
 from sympredict.interpolation.greedy import greedy_interpolation
-from sympredict.kernels import IMQ, KERNEL_FAMILIES, Matern52, ProductKernel
+from sympredict.kernels import IMQ, KERNEL_FAMILIES, ProductKernel
 from sympredict.symplectic.metrics import relative_hamiltonian_error
 from sympredict.estimators.predictor import update_variables
 from sympredict.mor.basis import complex_svd_basis

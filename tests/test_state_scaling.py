@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from sympredict import SymplecticKernelPredictor
-from sympredict.data import FlowMapData, mixed_variables
+from sympredict.data import mixed_variables
 from sympredict.exceptions import ExtrapolationWarning
 from sympredict.io import load_model, save_model
 from sympredict.kernels import IMQ

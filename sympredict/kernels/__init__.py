@@ -25,5 +25,5 @@ from sympredict.kernels.radial import (
 
 __all__ = [
     "RadialKernel", "IMQ", "Matern32", "Matern52", "ProductKernel", "PeriodicCoordinates", "StateSymmetry", "KERNEL_FAMILIES",
-    "register_family", "kernel_from_spec",
+    "register_family", "kernel_from_spec", "pairwise_distances",
 ]
