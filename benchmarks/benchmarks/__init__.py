@@ -1,0 +1,8 @@
+"""The asv benchmark suite of sympredict (``benchmarks/asv.conf.json``).
+
+Timings (``time_*``), peak memory (``peakmem_*``) and accuracy (``track_*``) of the
+library's main paths on small, fixed problems, so that ``asv continuous`` can compare
+two revisions.  Threads are set deliberately (one BLAS thread, see :mod:`._common`).
+The studies that are experiments rather than timings stay as scripts beside this
+folder (``benchmarks/*.py``).
+"""
