@@ -4,7 +4,7 @@ Both trained on the quick data (50 x 50 energy-bounded grid, 5 lengths x 3 steps
 IMQ (0.2, 1.5, 3.0), 1500 centres; the paper's test protocol on test seed 0
 (5 q0 x 5 lengths, T = 20), median over time of the instance-mean relative
 error per test step, and the max relative energy error.  NumPy Newton solver
-for both (the reference; the compiled solvers agree to round-off, tests/test_midpoint_compiled.py).  ``--scalings``
+for both (the reference; the compiled solvers agree to round-off, tests/symplectic/test_midpoint_compiled.py).  ``--scalings``
 adds symplectic-Euler models with ``state_scaling=(a,)``.
 
 ``--updates midpoint --compare-backends`` also rolls every test case out on the

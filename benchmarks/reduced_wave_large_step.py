@@ -259,7 +259,7 @@ for f in args.factors:
             log = []
             score = validation_rollout_score(lambda model: NormalizedFlowMap(model, state_scaling, mu_scaling, dT),
                                              vx0, vm, vref, vimp, K, dT, log)
-            candidates = [{"state_kernel": IMQ(se), "mu_kernel": IMQ(me), "regularization": lam}
+            candidates = [{"state_kernel": IMQ(se), "mu_kernel": IMQ(me), "trainer__regularization": lam}
                           for se in args.state_eps for me in args.mu_eps for lam in args.ridges]
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
@@ -272,7 +272,7 @@ for f in args.factors:
             rec["validation_implicit_midpoint"] = vimp
             rec["selection"] = sel.table
             rec["kernel"] = {"state": sel.params["state_kernel"].eps, "mu": sel.params["mu_kernel"].eps,
-                             "ridge": sel.params["regularization"], "centres": sel.n_centers, "score": sel.score}
+                             "ridge": sel.params["trainer__regularization"], "centres": sel.n_centers, "score": sel.score}
             rec["on_grid_edge"] = {
                 name: len(grid) > 1 and value in (min(grid), max(grid))
                 for name, value, grid in (("state", rec["kernel"]["state"], args.state_eps), ("mu", rec["kernel"]["mu"], args.mu_eps),

@@ -27,7 +27,7 @@ instance, in compiled code (one solver, the update a flag):
   trajectory (latency).
 
 Results agree with the NumPy reference to round-off (summation order differs):
-``tests/test_performance_paths.py`` checks trajectories to ``1e-12`` on a
+``tests/estimators/test_performance_paths.py`` checks trajectories to ``1e-12`` on a
 well-conditioned model and to the gradient's round-off floor on an
 ill-conditioned one, where NumPy does not agree with itself across batch sizes
 either.

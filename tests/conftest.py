@@ -36,6 +36,23 @@ def small_pendulum_model(small_pendulum_data):
     return model.fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
 
 
+@pytest.fixture(scope="module")
+def wave():
+    """The demo wave at four speeds c in [0.08, 0.12]: ``(fom, training parameters, 2n = 8 basis, dt)``."""
+    from pymor.algorithms.symplectic import psd_complex_svd
+
+    from _pymor_wave import parametric_wave  # tests/
+
+    fom = parametric_wave(T=1.0)
+    train = fom.parameters.space(0.08, 0.12).sample_uniformly(4)
+    U = fom.solution_space.empty()
+    for mu in train:
+        U.append(fom.solve(mu))
+    RB = psd_complex_svd(U, 4)
+    dt = 10 * fom.T / fom.time_stepper.nt
+    return fom, train, RB, dt
+
+
 @pytest.fixture(scope="session")
 def small_fe_wave():
     """A small FE wave model with a mass matrix (2N = 30), its canonical coordinates, parameter space, three

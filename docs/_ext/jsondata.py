@@ -40,7 +40,7 @@ Every JSON file read must say where it comes from: top-level ``command`` and
 protocol record writes them).  A missing file, key, provenance, a value that
 cannot be formatted, or a typed number that disagrees is an error: with
 ``sphinx -W`` the build fails.  The functions below are plain Python so that
-``tests/test_docs_numbers.py`` checks every reference in the pages without a build.
+``tests/docs/test_docs_numbers.py`` checks every reference in the pages without a build.
 """
 
 from __future__ import annotations

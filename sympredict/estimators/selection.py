@@ -212,7 +212,7 @@ def select_by_score(
         Validation samples for the greedy's ``E_val(m)`` (recorded in the table, not scored).
     candidates : sequence of dict
         Settings ``clone(estimator).set_params(**candidate)``, e.g.
-        ``{"state_kernel": IMQ(0.003), "mu_kernel": IMQ(0.3), "regularization": 0.0}``.
+        ``{"state_kernel": IMQ(0.003), "mu_kernel": IMQ(0.3), "trainer__regularization": 0.0}``.
     budgets : sequence of int
         Numbers of centres compared (the largest is the fit's ``max_centers``).
         A fit that stops early (power breakdown, tolerance) is scored once at its size

@@ -9,7 +9,7 @@ Strang-type composition
 
 with ``S`` a :class:`~sympredict.SymplecticKernelPredictor` fitted on the
 transformed samples ``(L_h x0, L_{-h} x1)``.  Properties (verified in
-``tests/test_splitting.py``):
+``tests/flowmap/test_splitting.py``):
 
 * symplectic: a composition of symplectic maps, ``DPhi = L_h DS L_h`` and
   ``DPhi^T J DPhi = J`` whenever ``DS^T J DS = J``;

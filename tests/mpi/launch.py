@@ -17,7 +17,7 @@ Runs (each under a time limit, so a hang is a failure, never a stuck CI job):
    (no hang) with a non-zero code and a report naming rank 1: ours
    (``worker rank 1``) or the launcher's ``BAD TERMINATION ... PID <pid of rank 1>``.
 
-Used by ``tests/test_parallel.py`` and runnable on its own (CI step).
+Used by ``tests/parallel/test_parallel.py`` and runnable on its own (CI step).
 """
 
 from __future__ import annotations

@@ -6,7 +6,7 @@ Run once with the code of commit 98cca6a (the last to write layout 2), from any 
     PYTHONPATH=/tmp/old python tests/data/layout2/make_files.py tests/data/layout2
 
 Each model is small (pendulum, 40 centres); ``expected.json`` holds the states each model predicted
-when it was written (rollouts of 3 steps), which ``tests/test_parts.py`` compares the loaded models with.
+when it was written (rollouts of 3 steps), which ``tests/estimators/test_parts.py`` compares the loaded models with.
 """
 
 import json

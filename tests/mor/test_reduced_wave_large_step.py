@@ -11,7 +11,7 @@ import pytest
 
 pytest.importorskip("pymordemos.symplectic_wave_equation")
 
-SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "reduced_wave_large_step.py"
+SCRIPT = Path(__file__).resolve().parents[2] / "benchmarks" / "reduced_wave_large_step.py"
 
 
 def run_quick(out, *extra):

@@ -19,7 +19,7 @@ import pytest
 from sympredict.symplectic.metrics import canonical_J
 from sympredict.systems.flowmaps import HamiltonianSystem
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture(scope="module")

@@ -6,10 +6,8 @@ from pymor.algorithms.symplectic import SymplecticBasis, psd_complex_svd
 from pymor.core.logger import set_log_levels
 from pymor.models.basic import StationaryModel
 from pymor.operators.block import BlockDiagonalOperator
-from pymor.operators.constructions import LincombOperator
 from pymor.operators.numpy import NumpyMatrixOperator
 from pymor.parameters.base import Mu
-from pymor.parameters.functionals import ExpressionParameterFunctional
 from pymor.reductors.symplectic import QuadraticHamiltonianRBReductor
 
 from sympredict import SymplecticKernelPredictor
@@ -36,30 +34,13 @@ from sympredict.testing import (
     assert_symplectic_step,
 )
 
+from _pymor_wave import parametric_wave  # tests/; the wave fixture is in tests/conftest.py
+
 set_log_levels({"pymor": "ERROR", "sympredict": "WARNING"})
 
 pymordemos = pytest.importorskip("pymordemos.symplectic_wave_equation")
 
 
-def parametric_wave(T=1.0, H_expr="c[0]**2/0.01", params=None):
-    """pyMOR's demo wave with the stiffness block scaled by a parameter functional (c = 0.1 is the demo)."""
-    fom = pymordemos.discretize_fom(T=T)
-    blocks = fom.H_op.blocks
-    H_op = BlockDiagonalOperator([LincombOperator([blocks[0, 0]], [ExpressionParameterFunctional(H_expr, params or {"c": 1})]),
-                                  blocks[1, 1]])
-    return fom.with_(H_op=H_op, name="wave_c")
-
-
-@pytest.fixture(scope="module")
-def wave():
-    fom = parametric_wave(T=1.0)
-    train = fom.parameters.space(0.08, 0.12).sample_uniformly(4)
-    U = fom.solution_space.empty()
-    for mu in train:
-        U.append(fom.solve(mu))
-    RB = psd_complex_svd(U, 4)
-    dt = 10 * fom.T / fom.time_stepper.nt
-    return fom, train, RB, dt
 
 
 def relative_error(fom, U_red_full, mu, stride=10):
@@ -431,7 +412,7 @@ def _run_example(name, *args):
     import sys
     from pathlib import Path
 
-    root = Path(__file__).resolve().parents[1]
+    root = Path(__file__).resolve().parents[2]
     out = subprocess.run([sys.executable, str(root / "examples" / name), *args], capture_output=True, text=True, timeout=600)
     assert out.returncode == 0, out.stderr[-3000:]
     return out.stdout

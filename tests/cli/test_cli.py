@@ -8,7 +8,7 @@ import numpy as np
 
 from sympredict.cli import main
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def test_run_all_smoke_writes_everything(smoke_run):

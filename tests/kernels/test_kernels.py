@@ -8,7 +8,7 @@ from sympredict.kernels import IMQ, KERNEL_FAMILIES, Matern32, Matern52, Product
 KERNELS = [IMQ(0.4), IMQ(1.7), Matern32(0.5), Matern32(1.3), Matern52(0.6), Matern52(2.0)]
 
 
-# factors against finite differences of the profile: tests/test_kernel_families.py (every registered family)
+# factors against finite differences of the profile: tests/kernels/test_kernel_families.py (every registered family)
 
 
 @pytest.mark.parametrize("kernel", KERNELS, ids=repr)

@@ -284,7 +284,7 @@ def test_phase_portrait_without_times_is_one_panel():
 def _suite():
     import importlib.util
 
-    spec = importlib.util.spec_from_file_location("suite_for_tests", Path(__file__).resolve().parents[1] / "benchmarks" / "suite.py")
+    spec = importlib.util.spec_from_file_location("suite_for_tests", Path(__file__).resolve().parents[2] / "benchmarks" / "suite.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module

@@ -180,7 +180,7 @@ def test_bad_input_gets_clear_errors(small_pendulum_model, small_pendulum_data):
         fresh.fit(np.vstack([d.x0[:3], d.x0[:1]]), np.vstack([d.x1[:3], d.x1[1:2]]), mu=np.r_[d.mu[:3, 0], d.mu[0]], dt=0.05)
     with pytest.raises(ValueError, match="max_centers"):
         SymplecticKernelPredictor(IMQ(1.0), max_centers=0).fit(d.x0, d.x1, dt=0.05)
-    # the symplectic predictor chooses a missing mu or dt kernel (tests/test_auto_defaults.py); the direct one refuses
+    # the symplectic predictor chooses a missing mu or dt kernel (tests/estimators/test_auto_defaults.py); the direct one refuses
     no_mu = DirectKernelPredictor(IMQ(1.0), dt_kernel=IMQ(5.0), max_centers=10)
     with pytest.raises(ValueError, match="mu_kernel=None"):
         no_mu.fit(d.x0, d.x1, mu=d.mu, dt=d.dt)

@@ -24,7 +24,7 @@ from sympredict.kernels.transforms import Periodic, Scaled, Symmetric, lower_sta
 from sympredict.symplectic.updates import Midpoint, SymplecticEuler, as_update
 from _tolerances import rollout_bound  # tests/
 
-LAYOUT2 = Path(__file__).parent / "data" / "layout2"
+LAYOUT2 = Path(__file__).resolve().parents[1] / "data" / "layout2"
 
 
 def _data(d, n=300):

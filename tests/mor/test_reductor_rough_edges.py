@@ -166,7 +166,7 @@ def test_finite_element_howto_runs():
     import re
     from pathlib import Path
 
-    text = (Path(__file__).resolve().parents[1] / "docs" / "howto" / "finite_element_models.md").read_text()
+    text = (Path(__file__).resolve().parents[2] / "docs" / "howto" / "finite_element_models.md").read_text()
     blocks = re.findall(r"```python\n(.*?)```", text, flags=re.S)
     assert len(blocks) == 3
     namespace = {}

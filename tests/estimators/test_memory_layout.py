@@ -23,7 +23,6 @@ from sympredict.flowmap.scaling import SymplecticScaling
 from sympredict.flowmap.splitting import SplitKernelPredictor
 from sympredict.symplectic.solvers import NewtonSolver
 from sympredict.kernels.transforms import Scaled
-from test_mor import wave  # noqa: F401 - tests/: the parametric demo wave, its snapshots' basis (a fixture)
 
 
 def fitted_arrays(obj, path="model", seen=None, out=None):
@@ -115,7 +114,7 @@ def test_warm_started_and_cloned_fits_keep_the_layout(small_pendulum_data):
     np.testing.assert_array_equal(refit.surrogate_.coef, model.surrogate_.coef)
 
 
-def test_scaling_and_reduced_model_keep_the_layout(wave):  # noqa: F811 - the fixture imported above
+def test_scaling_and_reduced_model_keep_the_layout(wave):
     fom, train, RB, dt = wave
     red = SymplecticKernelReductor(fom, RB, train, dt, n_samples=60, n_validation=1, max_centers=40)
     rom = red.reduce()

@@ -259,7 +259,7 @@ def test_model_files(data, tmp_path):
 
 
 def _benchmark():
-    path = pathlib.Path(__file__).resolve().parents[1] / "benchmarks" / "rotating_pendulum.py"
+    path = pathlib.Path(__file__).resolve().parents[2] / "benchmarks" / "rotating_pendulum.py"
     spec = importlib.util.spec_from_file_location("rotating_pendulum_benchmark", path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)

@@ -124,7 +124,7 @@ def test_direct_model_files_and_io_dispatch(small_pendulum_data, tmp_path):
     back = load_model(tmp_path / "d.h5")
     assert type(back) is DirectKernelPredictor
     np.testing.assert_array_equal(back.surrogate_.coef, model.surrogate_.coef)  # the stored arrays: bit for bit
-    # the same arrays in the same layout (tests/test_memory_layout.py) through the same code; still only to
+    # the same arrays in the same layout (tests/estimators/test_memory_layout.py) through the same code; still only to
     # round-off, since AVX-512 BLAS kernels may round with the arrays' memory alignment, which NumPy never fixes
     expected = model.rollout(x0[:3], 4, mu=mu[:3], dt=dt[:3])
     bound = value_rollout_bound(model.surrogate_.coef, expected, dt[:3])

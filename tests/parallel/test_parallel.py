@@ -20,7 +20,7 @@ from sympredict.kernels import IMQ, ProductKernel
 from sympredict.estimators.predictor import DirectKernelPredictor
 from sympredict.systems.pendulum import flow_map_data, random_flow_map_data
 
-_spec = importlib.util.spec_from_file_location("sympredict_tests_mpi_launch", Path(__file__).parent / "mpi" / "launch.py")
+_spec = importlib.util.spec_from_file_location("sympredict_tests_mpi_launch", Path(__file__).resolve().parents[1] / "mpi" / "launch.py")
 launch = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(launch)
 
