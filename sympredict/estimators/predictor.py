@@ -83,9 +83,11 @@ UPDATES = tuple(UPDATE_RULES)
 #: Model features that only the NumPy solver runs: ``(test of the flattened state kernel and the update rule,
 #: reason)``.  The one place that says which combination runs on which backend: ``NewtonSolver(backend='numba')``
 #: is refused for them at fit (naming the fix), ``'auto'`` uses NumPy and the fitted model says so (``numpy_only_``).
+#: Every transform (:class:`~sympredict.kernels.transforms.Scaled`, ``Periodic``, ``Symmetric``) and both updates
+#: run compiled; what remains is an update rule added from outside whose compiled kernel does not exist
+#: (:attr:`~sympredict.symplectic.updates.UpdateRule.compiled` false): the compiled solver dispatches on the
+#: package's rules only.
 NUMPY_ONLY = (
-    (lambda parts, rule: parts.periodic is not None, "periodic coordinates (Periodic) have no compiled solver yet"),
-    (lambda parts, rule: parts.symmetry is not None, "a state symmetry (Symmetric) has no compiled solver yet"),
     (lambda parts, rule: not rule.compiled, "this update rule has no compiled solver yet"),
 )
 
