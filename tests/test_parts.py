@@ -168,9 +168,9 @@ def test_numpy_only_features_are_declared_once_refused_for_numba_and_said_under_
 
 # ------------------------------------------------------------------ transforms
 def test_transforms_pass_shapes_through_and_refuse_bad_chains():
-    k = Symmetric(Periodic(IMQ(0.3), coordinates=(0,)), group=[(1, 1), (-1, -1)])
-    with pytest.raises(ValueError, match="both Periodic and Symmetric"):
-        lower_state_kernel(k)
+    k = Symmetric(Periodic(IMQ(0.3), coordinates=(0,)), group=[(1, 1), (-1, -1)])  # both: sign flips respect periods
+    parts = lower_state_kernel(k)
+    assert parts.periodic == (0,) and parts.symmetry == [(1, 1), (-1, -1)]
     with pytest.raises(ValueError, match="applies Scaled twice"):
         lower_state_kernel(Scaled(Scaled(IMQ(1.0), factors=[2.0]), factors=[3.0]))
     with pytest.raises(ValueError, match="coordinates must be a tuple of distinct"):

@@ -301,10 +301,13 @@ def test_refused_input(data):
     _model(symmetry=_mode_swap(), state_scaling=(2.0, 2.0), max_centers=10).fit(x4, x4 + 0.01, dt=DT)
     if _fastkernels.HAVE_NUMBA:  # a symmetric model runs compiled (tests/test_transforms_compiled.py)
         assert _model(backend="numba", max_centers=20).fit(x0, x1, dt=DT).numpy_only_ is None
-    with pytest.raises(ValueError, match="both Periodic and Symmetric"):
-        _model(periodic=(0,)).fit(x0, x1, dt=DT)
-    with pytest.raises(ValueError, match="periodic"):
-        ProductKernel(IMQ(1.0), periodic=PeriodicCoordinates((0,), (1.0,)), symmetry=StateSymmetry.from_signs(KLEIN))
+    # Periodic with Symmetric: the group must map periodic coordinates onto ones of the same period
+    with pytest.raises(ValueError, match="same period"):
+        _model(symmetry=_mode_swap(), periodic=(0,)).fit(x4, x4 + 0.01, dt=DT)
+    with pytest.raises(ValueError, match="same period"):
+        ProductKernel(IMQ(1.0), periodic=PeriodicCoordinates((0,), (1.0,)), symmetry=StateSymmetry(tuple(_mode_swap())))
+    ProductKernel(IMQ(1.0), periodic=PeriodicCoordinates((0,), (1.0,)), symmetry=StateSymmetry.from_signs(KLEIN))
+    ProductKernel(IMQ(1.0), periodic=PeriodicCoordinates((0, 1), (1.0, 1.0)), symmetry=StateSymmetry(tuple(_mode_swap())))
     with pytest.raises(ValueError, match="direct model"):
         ValueFunctionals(ProductKernel(IMQ(1.0), symmetry=StateSymmetry.from_signs(KLEIN)), x0, np.zeros((60, 0)), np.full(60, DT))
     model = _model(max_centers=20).fit(x0, x1, dt=DT)

@@ -191,3 +191,57 @@ def test_numpy_only_table_holds_only_what_cannot_be_compiled(small_pendulum_data
     assert model.numpy_only_ is None and model.backend_for(100, 100) == "numba"
     auto = copy.copy(model).set_params(solver__backend="auto")
     assert auto.backend_for(10_000, 10_000) == "numba"
+
+
+# ------------------------------------------------------------------ Periodic and Symmetric together
+def _both_value(kernel, x, y, mu_x, mu_y):
+    """``sum_g phi(r_P(x - g y)) k_mu``: the profile and the periodic distance only (the derivatives' oracle)."""
+    return sum(kernel.state.phi(kernel.periodic.distances((x - g @ y)[None])[0]) for g in kernel.symmetry.array) \
+        * kernel.mu.phi(abs(mu_x - mu_y))
+
+
+@pytest.mark.parametrize("dim", [2, 4])
+def test_periodic_symmetric_kernel_by_finite_differences_and_compiled(dim, rng):
+    """The group-averaged periodic kernel: Gramian and surrogate against finite differences of its value, exactly
+    periodic and invariant, and the compiled pass equal to the NumPy one."""
+    from functools import partial
+
+    from sympredict.interpolation.functionals import HBFunctionals
+
+    from _surrogate_oracles import check_gramian_by_finite_differences, check_surrogate_by_finite_differences
+
+    signs = [np.ones(dim), -np.ones(dim)] + ([np.r_[1.0, -1.0] , np.r_[-1.0, 1.0]] if dim == 2 else [])
+    kernel = ProductKernel(IMQ(0.7), IMQ(1.5), periodic=PeriodicCoordinates((0,), (2.5,)),
+                           symmetry=StateSymmetry.from_signs(signs))
+    value = partial(_both_value, kernel)
+    pts, mu = rng.normal(size=(4, dim)) * 2.0, rng.normal(size=(4, 1))
+    check_gramian_by_finite_differences(HBFunctionals(kernel, pts, mu, np.full(4, 0.05)), value, pts, mu)
+    m = 20
+    centers, cmu = rng.normal(size=(m, dim)) * 2.0, rng.normal(size=(m, 1))
+    comps, coef = rng.integers(0, dim, m), rng.normal(size=m)
+    sur = HBSurrogate(kernel, centers, cmu, np.full(m, 0.05), comps, coef)
+    xi, qmu = rng.normal(size=(4, dim)) * 2.0, rng.normal(size=(4, 1))
+    w, grad, hess, floor = check_surrogate_by_finite_differences(sur, value, centers, cmu, comps, coef, xi, qmu)
+    shift = np.zeros(dim)
+    shift[0] = 2.5
+    np.testing.assert_allclose(sur.gradient(xi + 3 * shift, w), grad, atol=1e-12 * np.abs(coef).sum())
+    np.testing.assert_allclose(sur.value(-xi, w), sur.value(xi, w), atol=1e-13 * np.abs(coef).sum())
+    g_c, h_c, f_c = _fastkernels.newton_terms(xi, w, sur.layout(), kernel.state, full=True)
+    np.testing.assert_allclose(g_c, grad, rtol=0, atol=1e-13 * np.abs(w).sum(axis=1).max())
+    np.testing.assert_allclose(h_c, hess, rtol=0, atol=1e-13 * np.abs(w).sum(axis=1).max())
+    np.testing.assert_allclose(f_c, floor, rtol=1e-12)
+
+
+def test_periodic_symmetric_pendulum_compiled_equals_numpy(small_pendulum_data, rng):
+    """The pendulum's angle with its Klein group (sign flips respect the period): fitted, and rolled out on both
+    solvers to the stopping rule's bound."""
+    d = small_pendulum_data
+    kernel = Symmetric(Periodic(Scaled(IMQ(0.3), factors=(1.2,)), coordinates=(0,), period=8.0), group=KLEIN)
+    ref_model = SymplecticKernelPredictor(kernel, mu_kernel=IMQ(2.0), dt_kernel=IMQ(5.0), max_centers=80,
+                                          update="midpoint", solver=NewtonSolver(backend="numpy"))
+    ref_model.fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
+    assert ref_model.periodic_ == (0,) and ref_model.symmetry_ == KLEIN
+    x, mu, dt = pendulum_queries(rng, 8)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ExtrapolationWarning)
+        check_rollouts_agree_to_the_floor(ref_model, with_backend(ref_model, "numba"), x, mu, dt, n_steps=20)
