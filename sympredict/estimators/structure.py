@@ -40,13 +40,18 @@ from __future__ import annotations
 
 import itertools
 import logging
+import warnings
 from dataclasses import dataclass
 from typing import Optional
 
 import numpy as np
 
+from sympredict.base import clone
 from sympredict.data import FlowMapData
+from sympredict.exceptions import (NewtonConvergenceError, NonFinitePredictionError, WrappedAnglesWarning,
+                                   extrapolation_expected)
 from sympredict.kernels import StateSymmetry
+from sympredict.kernels.transforms import Symmetric, lower_state_kernel
 
 __all__ = ["StructureFinding", "sign_flip_candidates", "check_sign_flip", "check_group", "compete", "validation_error", "wrapped_coordinates", "group_of",
            "QUICK_CENTERS", "HOLD_FACTOR", "HOLD_CEILING", "MIN_TESTED"]
@@ -143,8 +148,6 @@ def _kind_of(g: np.ndarray) -> Optional[str]:
 def _relative_errors(model, x_in: np.ndarray, x_out: np.ndarray, data: FlowMapData, uses_mu: bool,
                      uses_dt: bool) -> np.ndarray:
     """``|Phi(x_in) - x_out| / |x_out - x_in|`` per pair (inf where Newton fails)."""
-    from sympredict.exceptions import NewtonConvergenceError, NonFinitePredictionError, extrapolation_expected
-
     inc = np.linalg.norm(x_out - x_in, axis=1)
     failures = (ArithmeticError, NewtonConvergenceError, NonFinitePredictionError, ValueError)
 
@@ -321,13 +324,6 @@ def compete(estimator, chosen: dict, chosen_score: float, m_final: int, train: F
     then one fit to ``m_final`` centres per group that holds (at most one more per holding flip).  ``O(M 2n)``
     for the wrapped-angle check.
     """
-    from sympredict.base import clone
-    from sympredict.kernels.transforms import Symmetric, lower_state_kernel
-
-    import warnings
-
-    from sympredict.exceptions import WrappedAnglesWarning
-
     findings = wrapped_coordinates(train)
     for f in findings:
         logger.warning("structure: coordinate %d looks like a wrapped angle: %s", f.coordinate, f.reason)
