@@ -21,8 +21,8 @@ Score per orbit: ``max_k |H(x_k) - H(x_0)| / H(x_0)`` over the ``n_steps``
 macro steps with the exact Hamiltonian (a failed Newton solve counts as
 ``inf``).  The state shape ``eps`` of each variant is chosen on validation
 orbits (their own seed) by the median score; the test orbits (another seed)
-are used for nothing else.  NumPy Newton solver for all (the periodic factor
-has no compiled solver).
+are used for nothing else.  NumPy Newton solver for all (the same solver for every
+variant).
 
 Run:  python benchmarks/rotating_pendulum.py [--update midpoint] [--json out.json]
 """

@@ -90,7 +90,7 @@ except ImportError:  # pragma: no cover
     HAVE_NUMBA = False
 
 from sympredict._numeric import lu_solve_inplace
-from sympredict.kernels import IMQ, Matern32, Matern52
+from sympredict.kernels import IMQ, Matern32, Matern52, PeriodicCoordinates
 from sympredict.newton_rule import converged, residual_floor
 
 __all__ = [
@@ -258,6 +258,11 @@ if HAVE_NUMBA:
     _imq_profile, _imq_first, _imq_all = _compile_formulas(IMQ, True)
     _m52_profile, _m52_first, _m52_all = _compile_formulas(Matern52, True)
     _m32_profile, _m32_first, _m32_all = _compile_formulas(Matern32, True)
+    #: The periodic factor's ``(u, g, g', g'')`` (:meth:`sympredict.kernels.PeriodicCoordinates.formulas`, the same
+    #: Python function, compiled for scalars).
+    _periodic_formulas = _jit_cached(PeriodicCoordinates.formulas, _EXACT)
+else:  # pragma: no cover
+    _periodic_formulas = PeriodicCoordinates.formulas
 
 
 def _formula(flags: dict):
@@ -545,7 +550,97 @@ def _chunk2(xi, w, cT, j0, L, l, family, eps, mode, grad, hess):
 
 
 @_compiled(_JIT)
-def _pass(xi, w, cT, seg, family, eps, mode, sc, grad, hess):
+def _chunk_periodic(xi, w, cT, j0, L, l, family, eps, mode, per, dif, g1r, r2, dmax, uB, uC, ubg, g2l, grad, hess):
+    """:func:`_chunk` with periodic coordinates (``per[a] > 0``: the period of coordinate ``a``; any ``2n``).
+
+    The differences ``d`` become ``G = g(d)`` and the squared distance sums ``u(d)^2`` in those coordinates
+    (:meth:`sympredict.kernels.PeriodicCoordinates.formulas`, compiled from the same function); the identity
+    terms carry ``g'`` and the Hessian's diagonal ``g''``, as in
+    :meth:`sympredict.interpolation.surrogate.HBSurrogate.gradient_hessian`:
+
+    ``grad_a = -sum_j w_j B_j g_j G_ja - [a = l] sum_j w_j A_j g'_jl``,
+    ``H_ac = -sum_j w_j C_j g_j G_ja G_jc - delta_ac (sum_j w_j B_j g_j g'_ja + [a = l] sum_j w_j A_j g''_jl)
+    - M_ac - M_ca``, ``M_ac = sum_j w_j B_j g'_jl G_ja [l = c]``, with ``g_j = G_jl``.
+
+    ``g1r`` (2n, chunk) holds ``g'`` (1 in the plain coordinates), ``g2l`` (chunk) ``g''`` of coordinate ``l``.
+    Plain loops (no pairing of coordinates): the periodic models' pass, ``O(L 2n)`` sines and cosines more.
+    """
+    dim = cT.shape[0]
+    n = dim // 2
+    wc = w[j0:j0 + L]
+    for a in range(dim):
+        xa = xi[a]
+        ca = cT[a, j0:j0 + L]
+        row = dif[a]
+        row1 = g1r[a]
+        period = per[a]
+        for j in range(L):
+            d = xa - ca[j]
+            if period > 0.0:
+                u, g, g1, g2 = _periodic_formulas(d, period)
+                row[j] = g
+                row1[j] = g1
+                if a == l:
+                    g2l[j] = g2
+                uu = u * u
+            else:
+                row[j] = d
+                row1[j] = 1.0
+                uu = d * d
+            ag = abs(row[j])
+            if a == 0:
+                r2[j] = uu
+                dmax[j] = ag
+            else:
+                r2[j] += uu
+                if ag > dmax[j]:
+                    dmax[j] = ag
+    periodic_l = per[l] > 0.0
+    g_row = dif[l]
+    g1_row = g1r[l]
+    s_a = 0.0
+    s_ag2 = 0.0
+    s_fl = 0.0
+    for j in range(L):
+        A, B, C = _all_factors(family, eps, math.sqrt(r2[j]))
+        wj = wc[j]
+        g = g_row[j]
+        g1 = g1_row[j]
+        a_ = wj * A * g1 if periodic_l else wj * A
+        bg = (wj * B) * g
+        s_a += a_
+        ubg[j] = bg
+        if mode != 0:
+            s_fl += abs(bg) * dmax[j] + abs(a_)
+            uB[j] = wj * B * g1 if periodic_l else wj * B
+            uC[j] = (wj * C) * g
+            if periodic_l:
+                s_ag2 += wj * A * g2l[j]
+    grad[l] -= s_a
+    for a in range(dim):
+        grad[a] -= _dot(ubg, dif[a], L)
+    if mode == 0:
+        return 0.0
+    c0 = n if mode == 1 else 0
+    r1 = n if mode == 1 else dim
+    for a in range(r1):
+        for c in range(max(c0, a), dim):
+            hess[a, c - c0] -= _dot3(uC, dif[a], dif[c], L)
+    if l >= c0:
+        for a in range(min(r1, l + 1)):
+            hess[a, l - c0] -= _dot(uB, dif[a], L)
+    if l < r1:
+        for c in range(max(c0, l), dim):
+            hess[l, c - c0] -= _dot(uB, dif[c], L)
+    if mode == 2:  # delta_ac (sum_j w_j B_j g_j g'_ja + [a = l] sum_j w_j A_j g''_jl)
+        for a in range(dim):
+            hess[a, a] -= _dot(ubg, g1r[a], L)
+        hess[l, l] -= s_ag2
+    return s_fl
+
+
+@_compiled(_JIT)
+def _pass(xi, w, cT, seg, family, eps, mode, per, sc, grad, hess):
     """One pass over the centres at the point ``xi``: gradient of ``s`` and, by ``mode``, Hessian terms and floor.
 
     ``mode`` 0: the gradient only; 1: also the block ``d_p d_q s`` (``hess[:n, :n]``,
@@ -561,14 +656,17 @@ def _pass(xi, w, cT, seg, family, eps, mode, sc, grad, hess):
     ``H_ac = -sum_j w_j C_j g_j d_ja d_jc - delta_ac sum_j w_j B_j g_j - M_ac - M_ca``,
     ``M_ac = sum_j w_j B_j d_ja [l = c]``
     (:meth:`sympredict.interpolation.surrogate.HBSurrogate.gradient_hessian`).
+    ``per`` (2n,): the period of each coordinate, 0 where it is not periodic (no periodic
+    coordinates: an empty array); with periodic coordinates :func:`_chunk_periodic` does the chunks.
 
     ``O(m 2n)`` flops for the gradient, ``+ O(m n^2)`` for the block, ``+ O(m (2n)^2 / 2)``
     for the full Hessian (its upper triangle, mirrored); ``O((2n + 6) chunk)``
     scratch.  Returns the floor ``eps (sum_j |w_j B_j g_j| max_a |d_ja| + sum_j |w_j A_j|)``
     (0 in mode 0).
     """
-    dif, r2, dmax, uB, uC, ubg, tmp = sc
+    dif, r2, dmax, uB, uC, ubg, tmp, g1r = sc
     dim = cT.shape[0]
+    periodic = per.shape[0] > 0
     n = dim // 2
     ch = dif.shape[1]
     for a in range(dim):
@@ -583,6 +681,12 @@ def _pass(xi, w, cT, seg, family, eps, mode, sc, grad, hess):
                 hess[a, c] = 0.0
     floor = 0.0
     for l in range(dim):
+        if periodic:  # tmp holds g'' of the differentiated coordinate
+            for j0 in range(seg[l], seg[l + 1], ch):
+                L = min(ch, seg[l + 1] - j0)
+                floor += _chunk_periodic(xi, w, cT, j0, L, l, family, eps, mode, per, dif, g1r, r2, dmax, uB, uC,
+                                         ubg, tmp, grad, hess)
+            continue
         if dim == 2:  # no scratch, so no chunks: one loop over the component's centres
             floor += _chunk2(xi, w, cT, seg[l], seg[l + 1] - seg[l], l, family, eps, mode, grad, hess)
             continue
@@ -597,14 +701,15 @@ def _pass(xi, w, cT, seg, family, eps, mode, sc, grad, hess):
 
 
 @_compiled(_JIT)
-def _scratch(dim, chunk):
-    """The pass's scratch (:func:`_pass` ``sc``): differences (2n, chunk) and six chunk vectors."""
+def _scratch(dim, chunk, periodic):
+    """The pass's scratch (:func:`_pass` ``sc``): differences (2n, chunk), six chunk vectors and, with periodic
+    coordinates, ``g'`` (2n, chunk) (else a placeholder)."""
     return (np.empty((dim, chunk)), np.empty(chunk), np.empty(chunk), np.empty(chunk), np.empty(chunk),
-            np.empty(chunk), np.empty(chunk))
+            np.empty(chunk), np.empty(chunk), np.empty((dim if periodic else 1, chunk if periodic else 1)))
 
 
 @_compiled(_JIT)
-def _solve_one(x, w, h, cT, seg, family, eps, max_iter, out, sc, grad, hess, jac, delta, u, xi, warm, mid):
+def _solve_one(x, w, h, cT, seg, family, eps, per, max_iter, out, sc, grad, hess, jac, delta, u, xi, warm, mid):
     """One implicit step for one instance: ``out <- Phi(x)``.  Returns ``(code, residual, iteration)``.
 
     The algorithm of :mod:`sympredict.symplectic.newton` (its module docstring; the NumPy
@@ -621,7 +726,7 @@ def _solve_one(x, w, h, cT, seg, family, eps, max_iter, out, sc, grad, hess, jac
     k = u.shape[0]  # unknowns: n (symplectic Euler) or 2n (midpoint)
     hh = 0.5 * h if mid else h  # the step in the residual
     if not warm:  # explicit guess from the gradient at x0: one pass over the centres
-        _pass(x, w, cT, seg, family, eps, 0, sc, grad, hess)
+        _pass(x, w, cT, seg, family, eps, 0, per, sc, grad, hess)
         if mid:  # z ~ x0 + dT/2 J grad s(x0)
             for a in range(n):
                 u[a] = x[a] + hh * grad[n + a]
@@ -637,7 +742,7 @@ def _solve_one(x, w, h, cT, seg, family, eps, max_iter, out, sc, grad, hess, jac
     for it in range(max_iter):
         for a in range(k):
             xi[dim - k + a] = u[a]
-        floor = _pass(xi, w, cT, seg, family, eps, 2 if mid else 1, sc, grad, hess)
+        floor = _pass(xi, w, cT, seg, family, eps, 2 if mid else 1, per, sc, grad, hess)
         f_norm = 0.0
         scale = 0.0
         finite = True
@@ -717,7 +822,7 @@ def _state(traj, prev, i, j, c):
 
 
 @_compiled(_JIT)
-def _rollout_one(i, x0, W, h, cT, seg, family, eps, max_iter, chunk, traj, codes, fail_step, fail_iter, resid, passes,
+def _rollout_one(i, x0, W, h, cT, seg, family, eps, per, max_iter, chunk, traj, codes, fail_step, fail_iter, resid, passes,
                  warm_start, mid, pre, post, around, prev):
     """One instance's rollout; with ``around``: ``x_k+1 = post[i] S(pre[i] x_k)`` (S the implicit step).
 
@@ -726,7 +831,7 @@ def _rollout_one(i, x0, W, h, cT, seg, family, eps, max_iter, chunk, traj, codes
     dim = x0.shape[1]
     n = dim // 2
     k_unknown = dim if mid else n
-    sc = _scratch(dim, chunk)
+    sc = _scratch(dim, chunk, per.shape[0] > 0)
     grad = np.empty(dim)
     hess = np.empty((dim, dim))
     jac = np.empty((k_unknown, k_unknown))
@@ -758,11 +863,11 @@ def _rollout_one(i, x0, W, h, cT, seg, family, eps, max_iter, chunk, traj, codes
                 u[a] = 0.5 * (x_k + nxt) if mid else nxt  # midpoint: z = (x_k + x_k+1) / 2
         if around:
             _matvec_into(pre[i], traj[i, k], y_in)
-            code, r, it = _solve_one(y_in, W[i], h[i], cT, seg, family, eps, max_iter, y_out, sc, grad, hess,
+            code, r, it = _solve_one(y_in, W[i], h[i], cT, seg, family, eps, per, max_iter, y_out, sc, grad, hess,
                                      jac, delta, u, xi, warm, mid)
             _matvec_into(post[i], y_out, traj[i, k + 1])
         else:
-            code, r, it = _solve_one(traj[i, k], W[i], h[i], cT, seg, family, eps, max_iter, traj[i, k + 1], sc, grad,
+            code, r, it = _solve_one(traj[i, k], W[i], h[i], cT, seg, family, eps, per, max_iter, traj[i, k + 1], sc, grad,
                                      hess, jac, delta, u, xi, warm, mid)
         # (the explicit guess's gradient pass and) the Newton passes: it + 1, or max_iter without convergence
         passes[i] += (max_iter if code == 3 else it + 1) + (0 if warm else 1)
@@ -778,18 +883,18 @@ def _rollout_one(i, x0, W, h, cT, seg, family, eps, max_iter, chunk, traj, codes
 
 
 @_compiled(_PJIT)
-def _rollout_parallel(x0, W, h, cT, seg, family, eps, max_iter, chunk, traj, codes, fail_step, fail_iter, resid, passes,
+def _rollout_parallel(x0, W, h, cT, seg, family, eps, per, max_iter, chunk, traj, codes, fail_step, fail_iter, resid, passes,
                       warm_start, mid, pre, post, around, prev):
     for i in numba.prange(x0.shape[0]):
-        _rollout_one(i, x0, W, h, cT, seg, family, eps, max_iter, chunk, traj, codes, fail_step, fail_iter,
+        _rollout_one(i, x0, W, h, cT, seg, family, eps, per, max_iter, chunk, traj, codes, fail_step, fail_iter,
                      resid, passes, warm_start, mid, pre, post, around, prev)
 
 
 @_compiled(_JIT)
-def _rollout_serial(x0, W, h, cT, seg, family, eps, max_iter, chunk, traj, codes, fail_step, fail_iter, resid, passes,
+def _rollout_serial(x0, W, h, cT, seg, family, eps, per, max_iter, chunk, traj, codes, fail_step, fail_iter, resid, passes,
                     warm_start, mid, pre, post, around, prev):
     for i in range(x0.shape[0]):
-        _rollout_one(i, x0, W, h, cT, seg, family, eps, max_iter, chunk, traj, codes, fail_step, fail_iter,
+        _rollout_one(i, x0, W, h, cT, seg, family, eps, per, max_iter, chunk, traj, codes, fail_step, fail_iter,
                      resid, passes, warm_start, mid, pre, post, around, prev)
 
 
@@ -826,23 +931,23 @@ def _matvec_t_kernel(basis, m, c, out, chunk):
 
 
 @_compiled(_PJIT)
-def _gradients_kernel(xi, group, Wg, cT, seg, family, eps, chunk, out):
+def _gradients_kernel(xi, group, Wg, cT, seg, family, eps, per, chunk, out):
     dim = xi.shape[1]
     n_pts = xi.shape[0]
     block = 256  # points per task: the scratch is allocated once per block
     for blk in numba.prange((n_pts + block - 1) // block):
-        sc = _scratch(dim, chunk)
+        sc = _scratch(dim, chunk, per.shape[0] > 0)
         hess = np.empty((dim, dim))
         for i in range(blk * block, min(n_pts, (blk + 1) * block)):
-            _pass(xi[i], Wg[group[i]], cT, seg, family, eps, 0, sc, out[i], hess)
+            _pass(xi[i], Wg[group[i]], cT, seg, family, eps, 0, per, sc, out[i], hess)
 
 
 @_compiled(_JIT)
-def _terms_kernel(xi, W, cT, seg, family, eps, chunk, mode, grad, hess, floor):
+def _terms_kernel(xi, W, cT, seg, family, eps, per, chunk, mode, grad, hess, floor):
     dim = xi.shape[1]
-    sc = _scratch(dim, chunk)
+    sc = _scratch(dim, chunk, per.shape[0] > 0)
     for i in range(xi.shape[0]):
-        floor[i] = _pass(xi[i], W[i], cT, seg, family, eps, mode, sc, grad[i], hess[i])
+        floor[i] = _pass(xi[i], W[i], cT, seg, family, eps, mode, per, sc, grad[i], hess[i])
 
 
 @_compiled(_JIT)
@@ -1002,6 +1107,10 @@ class CenterLayout:
     centers : ndarray of shape (m, 2n)
     components : ndarray of shape (m,), int
 
+    periodic : PeriodicCoordinates, optional
+        The state kernel's periodic coordinates (:class:`sympredict.kernels.PeriodicCoordinates`), in the
+        coordinates of ``centers``.
+
     Attributes
     ----------
     order : ndarray of shape (m,), int64
@@ -1010,15 +1119,28 @@ class CenterLayout:
         ``centers[order].T``, contiguous.
     seg : ndarray of shape (2n + 1,), int64
         Centres ``seg[l]:seg[l+1]`` (in the new order) differentiate component ``l``.
+    per : ndarray of shape (2n,) or (0,)
+        The period of each coordinate (0: not periodic); empty without periodic coordinates.
+
+    Notes
+    -----
+    A group-averaged (symmetric) kernel is laid out by its plain functionals
+    (:meth:`sympredict.kernels.StateSymmetry.expand`): ``centers`` are then the images ``g x_j``, and the
+    compiled pass sums over them with the plain formulas (:meth:`HBSurrogate.layout`).
     """
 
-    def __init__(self, centers, components):
+    def __init__(self, centers, components, periodic=None):
         centers = np.asarray(centers, dtype=np.float64)
         components = np.asarray(components, dtype=np.int64)
         dim = centers.shape[1]
         self.order = np.argsort(components, kind="stable")
         self.cT = np.ascontiguousarray(centers[self.order].T)
         self.seg = np.searchsorted(components[self.order], np.arange(dim + 1)).astype(np.int64)
+        self.per = np.zeros(0)
+        if periodic is not None:
+            periodic.check_dim(dim)
+            self.per = np.zeros(dim)
+            self.per[list(periodic.coordinates)] = periodic.periods
 
 
 #: Centres per chunk of the compiled kernels at most (scratch ``(2n + 6) * chunk`` doubles stays in L1).
@@ -1167,7 +1289,8 @@ def newton_rollout(x0, weights, dt, layout: CenterLayout, kernel, max_iter: int,
     ns, (family,) = _kernels(type(kernel))
     fn = ns._rollout_parallel if parallel else ns._rollout_serial
     passes = np.zeros(b, dtype=np.int64)
-    _call(fn, x0, weights, dt, layout.cT, layout.seg, family, float(kernel.eps), int(max_iter), chunk_size(dim), traj,
+    _call(fn, x0, weights, dt, layout.cT, layout.seg, family, float(kernel.eps), layout.per, int(max_iter),
+          chunk_size(dim), traj,
           codes, fail_step, fail_iter, resid, passes, bool(warm_start), update == "midpoint", pre, post,
           around is not None, prev)
     if stats is not None:
@@ -1249,7 +1372,7 @@ def gradients(xi, group, group_weights, layout: CenterLayout, kernel) -> np.ndar
     wg = np.ascontiguousarray(np.asarray(group_weights, dtype=np.float64)[:, layout.order])
     ns, (family,) = _kernels(type(kernel))
     _call(ns._gradients_kernel, xi, np.ascontiguousarray(group, dtype=np.int64), wg, layout.cT, layout.seg, family,
-          float(kernel.eps), chunk_size(xi.shape[1]), out)
+          float(kernel.eps), layout.per, chunk_size(xi.shape[1]), out)
     return out
 
 
@@ -1287,8 +1410,8 @@ def newton_terms(xi, weights, layout: CenterLayout, kernel, full: bool = False):
     grad, hess, floor = np.empty((b, dim)), np.empty((b, dim, dim)), np.empty(b)
     w = np.ascontiguousarray(np.asarray(weights, dtype=np.float64)[:, layout.order])
     ns, (family,) = _kernels(type(kernel))
-    _call(ns._terms_kernel, xi, w, layout.cT, layout.seg, family, float(kernel.eps), chunk_size(dim), 2 if full else 1,
-          grad, hess, floor)
+    _call(ns._terms_kernel, xi, w, layout.cT, layout.seg, family, float(kernel.eps), layout.per, chunk_size(dim),
+          2 if full else 1, grad, hess, floor)
     return grad, (hess if full else np.ascontiguousarray(hess[:, : dim // 2, : dim // 2])), floor
 
 

@@ -156,6 +156,12 @@ class UnderfitWarning(UserWarning):
     although the data move the states; the model is (close to) the identity map."""
 
 
+class WrappedAnglesWarning(UserWarning):
+    """A state coordinate looks like an angle reduced to one period: some samples jump by about a period between
+    consecutive states (:func:`sympredict.estimators.structure.wrapped_coordinates`).  The message names the
+    coordinate and the fix (unwrap the samples, and a ``Periodic`` state kernel)."""
+
+
 class DuplicateSamplesWarning(UserWarning):
     """Repeated training samples (same ``x0``, ``x1``, ``mu`` and ``dt``) were dropped before a fit;
     overlapping trajectory windows produce them.  The message says how many."""

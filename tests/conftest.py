@@ -100,7 +100,7 @@ PATH_COMPARING_MODULES = frozenset({
     "test_midpoint", "test_midpoint_compiled", "test_parallel", "test_performance_paths", "test_splitting",
     "test_state_scaling", "test_surrogate", "test_warm_start", "test_symmetry", "test_periodic",
     "test_newton_agreement", "test_auto_defaults", "test_user_data", "test_cli_user_data",
-    "test_reductor_estimator_and_data",
+    "test_reductor_estimator_and_data", "test_transforms_compiled",
 })
 
 

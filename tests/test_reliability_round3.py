@@ -267,14 +267,15 @@ def test_save_refuses_a_solver_setting_load_would_refuse(model, tmp_path):
     assert not (tmp_path / "x.h5").exists()
 
 
-def test_save_refuses_a_backend_the_fitted_periodic_model_cannot_use(data, tmp_path):
-    """Fitted with periodic coordinates, then backend='numba': load would refuse that pair, so save does."""
+def test_a_fitted_periodic_model_saves_with_the_compiled_backend(data, tmp_path):
+    """Periodic coordinates run compiled now: backend='numba' is a valid pair, saved and loaded back (a pair load
+    would refuse is refused at save: test_save_refuses_a_solver_setting_load_would_refuse)."""
     m = SymplecticKernelPredictor(Periodic(IMQ(0.3), coordinates=(0,)), max_centers=10,
                                   solver=NewtonSolver(backend="numpy")).fit(data.x0, data.x1, dt=DT)
     m.set_params(solver__backend="numba")
-    with pytest.raises(ValueError, match="periodic"):
-        m.save(tmp_path / "p.h5")
-    assert not (tmp_path / "p.h5").exists()
+    m.save(tmp_path / "n.h5")
+    loaded = SymplecticKernelPredictor.load(tmp_path / "n.h5")
+    assert loaded.periodic_ == (0,) and loaded.solver.backend == "numba"
     m.set_params(solver__backend="auto")
     m.save(tmp_path / "p.h5")
     assert SymplecticKernelPredictor.load(tmp_path / "p.h5").periodic_ == (0,)

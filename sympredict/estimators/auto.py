@@ -38,6 +38,7 @@ import numpy as np
 from sympredict.base import Setting, clone
 from sympredict.data import FlowMapData
 from sympredict.estimators.grid import _quiet, select_kernels
+from sympredict.estimators.structure import compete as _structure_stage
 from sympredict.exceptions import ExtrapolationWarning, NewtonConvergenceError, NonFinitePredictionError
 from sympredict.kernels import IMQ, KERNEL_FAMILIES
 from sympredict.kernels.radial import _EPS_RANGE
@@ -84,12 +85,16 @@ class SearchResult:
     seconds: float
     table: list = field(default_factory=list, repr=False)
     m_final: int = 0
+    #: What the structure stage tested and found (:class:`~sympredict.estimators.structure.StructureFinding`).
+    structure: list = field(default_factory=list, repr=False)
 
     def summary(self) -> str:
         """One line: what was chosen and how."""
         chosen = ", ".join(f"{k}={v!r}" for k, v in self.params.items())
+        found = [f.summary() for f in self.structure if f.verdict == "holds"]
         return (f"chose {chosen} (one-step error {self.score:.3e} on held-out samples with {self.m_final} centres; "
-                f"{len(self.table)} candidates, {self.n_train} + {self.n_validation} samples, {self.seconds:.1f} s)")
+                f"{len(self.table)} candidates, {self.n_train} + {self.n_validation} samples, {self.seconds:.1f} s)"
+                + (f"; structure found: {'; '.join(found)}" if found else ""))
 
 
 class KernelSearch(Setting):
@@ -122,6 +127,10 @@ class KernelSearch(Setting):
         shapes, times 1/2 and 2); it stops after a sweep without improvement.
     seed : int
         Seed of the subsample and the split.
+    structure : bool
+        Test the data for symmetries, reversing symmetries and wrapped angles and let the symmetries that hold
+        compete (:mod:`sympredict.estimators.structure`): one quick fit, then one fit to ``m_final`` centres per
+        group that holds.
 
     Notes
     -----
@@ -140,7 +149,7 @@ class KernelSearch(Setting):
     def __init__(self, families: Sequence[str] = ("imq", "matern52"), shapes: Sequence[float] = (0.125, 0.25, 0.5, 1.0, 2.0),
                  parameter_shapes: Sequence[float] = (0.1, 0.5, 2.5), updates: Sequence[str] = ("symplectic_euler", "midpoint"),
                  m_star: Optional[int] = None, final_centers: int = 1000, max_samples: int = 3000,
-                 validation_fraction: float = 0.25, refine_sweeps: int = 2, seed: int = 0):
+                 validation_fraction: float = 0.25, refine_sweeps: int = 2, seed: int = 0, structure: bool = True):
         self.families = families
         self.shapes = shapes
         self.parameter_shapes = parameter_shapes
@@ -151,6 +160,7 @@ class KernelSearch(Setting):
         self.validation_fraction = validation_fraction
         self.refine_sweeps = refine_sweeps
         self.seed = seed
+        self.structure = structure
 
     def check(self) -> "KernelSearch":
         """Validate the settings; ``ValueError`` naming the bad one."""
@@ -178,6 +188,8 @@ class KernelSearch(Setting):
         if self.m_star is not None and (isinstance(self.m_star, bool) or not isinstance(self.m_star, (int, np.integer))
                                         or self.m_star < 1):
             raise ValueError(f"KernelSearch: m_star must be a positive integer or None, got {self.m_star!r}")
+        if not isinstance(self.structure, (bool, np.bool_)):
+            raise ValueError(f"KernelSearch: structure must be True or False, got {self.structure!r}")
         if not (isinstance(self.validation_fraction, (int, float)) and 0 < self.validation_fraction < 1):
             raise ValueError(f"KernelSearch: validation_fraction must lie in (0, 1), got {self.validation_fraction!r}")
         return self
@@ -301,12 +313,22 @@ class KernelSearch(Setting):
         if not np.isfinite(score(best)):
             raise ValueError(f"the kernel search found no candidate that predicts the held-out samples with {m_final} "
                              "centres (every fit or Newton solve failed); see the log, or pass the kernels and update")
-        chosen = params_of(best)
+        chosen, best_score, structure = params_of(best), float(score(best)), []
+        if self.structure:  # symmetries the data show compete at m_final (sympredict.estimators.structure)
+            def score_params(p):
+                sc, n, secs, err = _one_step_score(estimator, p, m_final, train, val)
+                table.append({"stage": 3, "kernels": repr(p["state_kernel"]), "update": p["update"], "score": sc,
+                              "n_centers": n, "fit_s": secs, **({"error": err} if err else {})})
+                return sc
+            by_update = {c[4]: params_of(min((k for k in scores if k[4] == c[4]), key=score)) for c in scores}
+            chosen, best_score, structure = _structure_stage(estimator, chosen, best_score, m_final, train, val,
+                                                             score_params, open_factors["state"], open_factors["update"],
+                                                             by_update)
         for key, factor in (("state_kernel", "state"), ("mu_kernel", "mu"), ("dt_kernel", "dt"), ("update", "update")):
             if open_factors[factor]:
                 params[key] = chosen[key]
-        out = SearchResult(params, float(score(best)), m_star, len(train), len(val), time.perf_counter() - t0, table,
-                           m_final=m_final)
+        out = SearchResult(params, best_score, m_star, len(train), len(val), time.perf_counter() - t0, table,
+                           m_final=m_final, structure=structure)
         logger.info("kernel search: " + out.summary())
         return out
 

@@ -63,7 +63,8 @@ from sympredict.symplectic.updates import UPDATE_RULES, as_update
 logger = logging.getLogger("sympredict.estimators.predictor")
 
 __all__ = ["SymplecticKernelPredictor", "DirectKernelPredictor", "MODEL_FORMAT", "MODEL_LAYOUT", "UPDATES",
-           "update_variables", "NUMPY_ONLY", "numpy_seconds", "AUTO_NUMPY_SECONDS", "MAX_NEWTON_ITER"]
+           "update_variables", "NUMPY_ONLY", "EXTRAPOLATION_TOLERANCE", "numpy_seconds", "AUTO_NUMPY_SECONDS",
+           "MAX_NEWTON_ITER"]
 
 def newton_predictor(model):
     """The :class:`SymplecticKernelPredictor` that solves ``model``'s implicit steps, or ``None``.
@@ -82,9 +83,11 @@ UPDATES = tuple(UPDATE_RULES)
 #: Model features that only the NumPy solver runs: ``(test of the flattened state kernel and the update rule,
 #: reason)``.  The one place that says which combination runs on which backend: ``NewtonSolver(backend='numba')``
 #: is refused for them at fit (naming the fix), ``'auto'`` uses NumPy and the fitted model says so (``numpy_only_``).
+#: Every transform (:class:`~sympredict.kernels.transforms.Scaled`, ``Periodic``, ``Symmetric``) and both updates
+#: run compiled; what remains is an update rule added from outside whose compiled kernel does not exist
+#: (:attr:`~sympredict.symplectic.updates.UpdateRule.compiled` false): the compiled solver dispatches on the
+#: package's rules only.
 NUMPY_ONLY = (
-    (lambda parts, rule: parts.periodic is not None, "periodic coordinates (Periodic) have no compiled solver yet"),
-    (lambda parts, rule: parts.symmetry is not None, "a state symmetry (Symmetric) has no compiled solver yet"),
     (lambda parts, rule: not rule.compiled, "this update rule has no compiled solver yet"),
 )
 
@@ -100,6 +103,13 @@ def update_variables(update: str, x0: np.ndarray, x1: np.ndarray, dt: np.ndarray
     xi, y : ndarray of shape (M, 2n)
     """
     return as_update(update).variables(x0, x1, dt)
+
+
+#: How far (a fraction of the training box's width, per state coordinate) a state may lie outside the box of the
+#: training states before :class:`~sympredict.exceptions.ExtrapolationWarning` calls it an extrapolation: test
+#: orbits drawn like the training trajectories overshoot the box by a little (a longer orbit, a phase the data
+#: did not reach); 5 % is where the kernel's data still surround the state.
+EXTRAPOLATION_TOLERANCE = 0.05
 
 
 def _fmt(v) -> str:
@@ -393,25 +403,48 @@ class _FlowMapKernelModel(Parametrized):
         self._warn_outside(mu_arr, dt_arr, x)
         return x, single, mu_arr, dt_arr
 
-    def _outside_states(self, x: np.ndarray) -> np.ndarray:
-        """Which states lie outside the box of all training states ``x0`` and ``x1`` (what the surrogate has seen).
-
-        ``x`` of shape (..., 2n); returns a bool array of shape (...).
-        """
+    def _excess(self, x: np.ndarray) -> np.ndarray:
+        """How far each state lies outside the box of the training states ``x0`` and ``x1``, per coordinate, in
+        units of the box's width there (0 inside; an angle of ``Periodic`` is inside when one of its
+        representatives is).  ``x`` of shape (..., 2n); returns the same shape.  A coordinate the data do not
+        vary has width 0: there the unit is ``1 + |x_min|`` (any change is news)."""
         lo, hi = self.domain_["x_min"], self.domain_["x_max"]
-        margin = 1e-9 * (hi - lo + 1.0)
         coords, periods = self._original_periods(len(lo))
-        if coords:  # an angle is inside when one of its representatives is
-            x = np.array(x, dtype=float)
-            for i, period in zip(coords, periods):
-                x[..., i] = lo[i] + np.mod(x[..., i] - lo[i], period)
-        return np.any((x < lo - margin) | (x > hi + margin), axis=-1)
+        x = np.array(x, dtype=float)
+        for i, period in zip(coords, periods):
+            x[..., i] = lo[i] + np.mod(x[..., i] - lo[i], period)
+        width = hi - lo
+        unit = np.where(width > 0, width, 1.0 + np.abs(lo))
+        with np.errstate(invalid="ignore"):
+            return np.maximum(np.maximum(lo - x, x - hi), 0.0) / unit
+
+    def _outside_states(self, x: np.ndarray) -> np.ndarray:
+        """Which states lie outside the training box by more than :data:`EXTRAPOLATION_TOLERANCE` of its width in
+        some coordinate.  ``x`` of shape (..., 2n); returns a bool array of shape (...)."""
+        with np.errstate(invalid="ignore"):
+            return np.any(self._excess(x) > EXTRAPOLATION_TOLERANCE, axis=-1)
+
+    def _leaving_message(self, x: np.ndarray) -> str:
+        """``coordinate i by v (f % of the box's width)`` for the coordinate that left the box farthest among ``x``
+        (..., 2n), the training box's bounds there, and which instance."""
+        excess = np.nan_to_num(self._excess(x), nan=0.0).reshape(-1, x.shape[-1])
+        row, col = np.unravel_index(int(np.argmax(excess)), excess.shape)
+        lo, hi = self.domain_["x_min"][col], self.domain_["x_max"][col]
+        value = x.reshape(-1, x.shape[-1])[row, col]
+        beyond = value - hi if value > hi else lo - value
+        n = x.shape[-1] // 2
+        name = f"q{col + 1}" if col < n else f"p{col - n + 1}"
+        return (f"state coordinate {col} ({name}) left the box [{lo:.6g}, {hi:.6g}] by {beyond:.3g} "
+                f"({100 * excess[row, col]:.1f} % of its width)")
 
     def _warn_if_trajectory_leaves(self, traj: np.ndarray, stride: int = 1) -> None:
         """Warn when a rollout that starts inside the training states leaves them (it extrapolates from there on).
 
-        One pass of comparisons over ``traj`` (B, K/stride+1, 2n), the states kept every ``stride`` steps:
-        ``O(B K 2n / stride)``, small next to the rollout.
+        Inside means within :data:`EXTRAPOLATION_TOLERANCE` of the box's width per coordinate: a trajectory
+        drawn like the training ones may overshoot the box by a little without leaving what the model learned.
+        The message names the instances, the first step outside, and the coordinate that left farthest and by
+        how much.  One pass of comparisons over ``traj`` (B, K/stride+1, 2n), the states kept every ``stride``
+        steps: ``O(B K 2n / stride)``, small next to the rollout.
         """
         outside = self._outside_states(traj)
         left = outside[:, 1:].any(axis=1) & ~outside[:, 0]
@@ -419,8 +452,10 @@ class _FlowMapKernelModel(Parametrized):
             first = (np.argmax(outside[left, 1:], axis=1) + 1) * stride
             warnings.warn(
                 f"extrapolation: {int(left.sum())} of {len(traj)} trajectories leave the training states "
-                f"{_fmt(self.domain_['x_min'])}..{_fmt(self.domain_['x_max'])} (instances {np.flatnonzero(left)[:5].tolist()}"
-                f"{'...' if left.sum() > 5 else ''}, first at step {int(first.min())}); the prediction from there on "
+                f"{_fmt(self.domain_['x_min'])}..{_fmt(self.domain_['x_max'])} by more than "
+                f"{100 * EXTRAPOLATION_TOLERANCE:g} % of the box's width (instances {np.flatnonzero(left)[:5].tolist()}"
+                f"{'...' if left.sum() > 5 else ''}, first at step {int(first.min())}; "
+                f"{self._leaving_message(traj[left])}); the prediction from there on "
                 "is an extrapolation", ExtrapolationWarning, stacklevel=3)
 
     def _warn_outside(self, mu, dt, x):
@@ -430,7 +465,7 @@ class _FlowMapKernelModel(Parametrized):
         if np.any(self._outside_states(x)):
             outside.append(
                 f"query states span {_fmt(x.min(axis=0))}..{_fmt(x.max(axis=0))}, "
-                f"training states {_fmt(lo)}..{_fmt(hi)}"
+                f"training states {_fmt(lo)}..{_fmt(hi)} ({self._leaving_message(x)})"
             )
         if mu.shape[1] and (np.any(mu < d["mu_min"]) or np.any(mu > d["mu_max"])):
             outside.append(

@@ -96,7 +96,8 @@ class HBFunctionals(_AugmentedPoints):
         symmetry = self.kernel.symmetry
         if symmetry is not None:  # depends on the point: k_G(x, x) sums over the images g x
             pts = np.repeat(self.points, self.dim, axis=0)
-            return symmetry.hb_diagonal(self.kernel.state, pts, np.tile(np.arange(self.dim), len(self.points)))
+            return symmetry.hb_diagonal(self.kernel.state, pts, np.tile(np.arange(self.dim), len(self.points)),
+                                        self.kernel.periodic)
         # r = 0: d/dx_a d/dy_a k = -A(0); the parameter factors are 1 on the diagonal
         A0, _ = self.kernel.state.factors(np.zeros(1), order=2)
         return np.full(self.n_functionals, -A0[0])

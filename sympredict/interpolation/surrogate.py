@@ -203,15 +203,14 @@ class HBSurrogate:
         return out
 
     def layout(self):
-        """The centres arranged for the compiled kernels (:class:`sympredict._fastkernels.CenterLayout`), cached."""
-        if self.kernel.periodic is not None:
-            raise ValueError("the compiled kernels do not support periodic state coordinates (periodic=...): "
-                             "use the NumPy evaluation (backend='numpy' or 'auto')")
-        if self.kernel.symmetry is not None:
-            raise ValueError("the compiled kernels do not support a state symmetry (symmetry=...): "
-                             "use the NumPy evaluation (backend='numpy' or 'auto')")
+        """The centres arranged for the compiled kernels (:class:`sympredict._fastkernels.CenterLayout`), cached.
+
+        The plain functionals the evaluation sums over: with a state symmetry the images ``g xi_j`` and
+        their components (weights then have one column per image, :meth:`weights`), with periodic
+        coordinates their periods.  The compiled pass then runs the formulas of the NumPy evaluation.
+        """
         if self._layout is None:
-            self._layout = CenterLayout(self.centers_xi, self.components)
+            self._layout = CenterLayout(self._xi_eval, self._comp_eval, self.kernel.periodic)
         return self._layout
 
     def value(self, xi: np.ndarray, weights: np.ndarray) -> np.ndarray:

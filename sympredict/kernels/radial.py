@@ -631,6 +631,22 @@ class StateSymmetry:
         if self.dim != dim:
             raise ValueError(f"symmetry: the group's matrices are {self.dim} x {self.dim}, the states have dimension {dim}")
 
+    def check_periodic(self, periodic: "PeriodicCoordinates") -> None:
+        """``ValueError`` unless every element is a signed permutation mapping each periodic coordinate to one of
+        the same period (and the others among themselves): then ``k_P(g x, g y) = k_P(x, y)`` for the periodic
+        distance (``sin^2`` is even), and the group-averaged periodic kernel is invariant and periodic."""
+        periodic.check_dim(self.dim)
+        period = np.zeros(self.dim)
+        period[list(periodic.coordinates)] = periodic.periods
+        for i, g in enumerate(self._mats):
+            nonzero = np.abs(g) > _GROUP_TOL
+            signed_perm = np.all(nonzero.sum(axis=0) == 1) and np.all(np.abs(np.abs(g[nonzero]) - 1) <= _GROUP_TOL)
+            rows, cols = np.nonzero(nonzero)
+            if not signed_perm or np.any(np.abs(period[rows] - period[cols]) > 1e-12 * np.maximum(period[rows], 1)):
+                raise ValueError(f"symmetry: element {i} does not map the periodic coordinates {periodic.coordinates} "
+                                 "(periods " + f"{periodic.periods}) onto coordinates of the same period: a kernel both "
+                                 "Periodic and Symmetric needs signed permutations that respect the periods")
+
     def conjugated(self, scale: np.ndarray) -> "StateSymmetry":
         """The group in the coordinates ``x~ = diag(scale) x``: ``diag(scale) g diag(scale)^-1``.
 
@@ -702,10 +718,13 @@ class StateSymmetry:
         order = np.argsort(owner, kind="stable")
         return owner[order], np.concatenate(zs)[order], np.concatenate(cs)[order], np.concatenate(ws)[order]
 
-    def hb_diagonal(self, state: RadialKernel, x: np.ndarray, a: np.ndarray) -> np.ndarray:
+    def hb_diagonal(self, state: RadialKernel, x: np.ndarray, a: np.ndarray,
+                    periodic: Optional["PeriodicCoordinates"] = None) -> np.ndarray:
         """Gramian diagonal ``d/dx_a d/dy_a k_G(x, y)`` at ``y = x`` (the parameter factors are 1 there).
 
-        ``sum_t w_t (-B d_a d_c - A delta_ac)``, ``d = x - z_t`` (:meth:`terms`).
+        ``sum_t w_t (-B d_a d_c - A delta_ac)``, ``d = x - z_t`` (:meth:`terms`); with periodic
+        coordinates ``d`` becomes ``G = g(d)`` and ``delta_ac`` is ``g'(d_a) delta_ac``
+        (:meth:`PeriodicCoordinates.terms`).
 
         Parameters
         ----------
@@ -722,8 +741,13 @@ class StateSymmetry:
         out = np.zeros(len(x))
         for z, c, w in self.terms(x, a):
             d = x - z
-            A, B = state.factors(np.sqrt(np.einsum("ka,ka->k", d, d)), order=2)
-            out += w * (-B * d[rows, a] * d[:, c] - A * (a == c))
+            if periodic is None:
+                r, g1 = np.sqrt(np.einsum("ka,ka->k", d, d)), None
+            else:
+                r, d, G1 = periodic.terms(d, order=2)
+                g1 = G1[rows, a]
+            A, B = state.factors(r, order=2)
+            out += w * (-B * d[rows, a] * d[:, c] - (A if g1 is None else A * g1) * (a == c))
         return out
 
 
@@ -738,7 +762,9 @@ class ProductKernel:
     ``periodic`` makes the state kernel periodic in some coordinates
     (:class:`PeriodicCoordinates`); ``symmetry`` makes it invariant under a
     finite orthogonal group (:class:`StateSymmetry`); ``None``: the plain
-    radial kernel.  The two cannot be combined (not implemented).
+    radial kernel.  Both together: ``sum_g k_P(x, g y)`` with the periodic
+    distance, for a group of signed permutations that maps each periodic
+    coordinate to one of the same period (:meth:`StateSymmetry.check_periodic`).
     """
 
     state: RadialKernel
@@ -760,8 +786,7 @@ class ProductKernel:
         if self.symmetry is not None and not isinstance(self.symmetry, StateSymmetry):
             raise ValueError(f"symmetry must be a StateSymmetry or None, got {self.symmetry!r}")
         if self.symmetry is not None and self.periodic is not None:
-            raise ValueError("a state kernel both periodic and group-invariant is not implemented: "
-                             "pass periodic=None or symmetry=None")
+            self.symmetry.check_periodic(self.periodic)
 
     def parameter_factor(self, mu_a, dt_a, mu_b, dt_b) -> np.ndarray:
         """``k_mu(mu_a_i, mu_b_j) * k_dT(dt_a_i, dt_b_j)``.

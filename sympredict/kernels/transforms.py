@@ -296,23 +296,26 @@ class StateKernelParts:
 
     def model_symmetry(self, dim: int, rule) -> Optional[StateSymmetry]:
         """The group in the trained coordinates (conjugated by the scaling); ``ValueError`` for a malformed group,
-        a wrong dimension, elements the update ``rule`` cannot use, periodic coordinates as well, or a scaling that
-        does not commute with the group."""
+        a wrong dimension, elements the update ``rule`` cannot use, a scaling that does not commute with the group,
+        or, with periodic coordinates as well, elements that do not respect the periods
+        (:meth:`~sympredict.kernels.StateSymmetry.check_periodic`)."""
         group = StateSymmetry.coerce(self.symmetry)
         if group is None:
             return None
         group.check_dim(dim)
-        if self.periodic is not None:
-            raise ValueError("a state kernel both Periodic and Symmetric is not implemented: use one of them")
         rule.check_symmetry(group.array)
-        return group.conjugated(self.scale_vector(dim)) if self.scaling is not None else group
+        group = group.conjugated(self.scale_vector(dim)) if self.scaling is not None else group
+        periodic = self.model_periodic(dim)
+        if periodic is not None:
+            group.check_periodic(periodic)
+        return group
 
 
 def lower_state_kernel(kernel) -> StateKernelParts:
     """Flatten a state-kernel chain; ``ValueError`` naming the problem for a malformed one.
 
-    Refused: a transform twice in one chain; :class:`Periodic` together with
-    :class:`Symmetric` (their combined kernel is not implemented).
+    Refused: a transform twice in one chain.  :class:`Periodic` together with :class:`Symmetric` needs a group of
+    signed permutations that respects the periods (checked at fit, :meth:`StateKernelParts.model_symmetry`).
     """
     if kernel is None or isinstance(kernel, RadialKernel):
         return StateKernelParts(radial=kernel)
@@ -328,8 +331,6 @@ def lower_state_kernel(kernel) -> StateKernelParts:
     if node is not None and not isinstance(node, RadialKernel):
         raise ValueError(f"state_kernel must be a radial kernel (IMQ, Matern52, Matern32), a transform of one "
                          f"(Scaled, Periodic, Symmetric) or None, got {kernel!r}")
-    if Periodic in found and Symmetric in found:
-        raise ValueError("a state kernel both Periodic and Symmetric is not implemented: use one of them")
     scaled, periodic, symmetric = found.get(Scaled), found.get(Periodic), found.get(Symmetric)
     return StateKernelParts(
         radial=node,

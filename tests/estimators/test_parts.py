@@ -74,27 +74,35 @@ def test_pre_release_model_files_are_refused_with_the_advice_to_refit(name):
 
 # ------------------------------------------------------------------ backends
 def test_numpy_only_features_are_declared_once_refused_for_numba_and_said_under_auto(small_pendulum_data):
+    """The table's remaining row (an update rule without a compiled kernel) is refused for 'numba' at fit and said
+    under 'auto'; every transform compiles (``tests/test_transforms_compiled.py`` checks them against NumPy)."""
     x0, x1, mu, dt = _data(small_pendulum_data)
-    for kernel in (Periodic(IMQ(0.3), coordinates=(0,)), Symmetric(IMQ(0.3), group=[(1, 1), (-1, -1)])):
+
+    class Outside(Midpoint):  # a rule added from outside the package: no compiled kernel
+        compiled = False
+
+    reasons = [reason for applies, reason in NUMPY_ONLY if applies(lower_state_kernel(IMQ(0.3)), Outside())]
+    assert len(reasons) == 1
+    numba = SymplecticKernelPredictor(IMQ(0.3), IMQ(1.5), IMQ(3.0), max_centers=10, update=Outside(),
+                                      solver=NewtonSolver(backend="numba"))
+    with pytest.raises(ValueError, match=reasons[0] + ".*backend='numpy'"):
+        numba.fit(x0, x1, mu=mu, dt=dt)
+    for kernel in (Periodic(IMQ(0.3), coordinates=(0,), period=8.0), Symmetric(IMQ(0.3), group=[(1, 1), (-1, -1)])):
         parts = lower_state_kernel(kernel)
-        reasons = [reason for applies, reason in NUMPY_ONLY if applies(parts, Midpoint())]
-        assert len(reasons) == 1
-        numba = SymplecticKernelPredictor(kernel, IMQ(1.5), IMQ(3.0), max_centers=10, update="midpoint",
-                                          solver=NewtonSolver(backend="numba"))
-        with pytest.raises(ValueError, match=reasons[0].replace("(", r"\(").replace(")", r"\)") + ".*backend='numpy'"):
-            numba.fit(x0, x1, mu=mu, dt=dt)
-        auto = clone(numba).set_params(solver=NewtonSolver()).fit(x0, x1, mu=mu, dt=dt)
-        assert auto.numpy_only_ == reasons[0]
-        assert auto.backend_for(10_000, 10_000) == "numpy"
+        assert not [reason for applies, reason in NUMPY_ONLY if applies(parts, Midpoint())]
+        auto = SymplecticKernelPredictor(kernel, IMQ(1.5), IMQ(3.0), max_centers=10, update="midpoint",
+                                         solver=NewtonSolver()).fit(x0, x1, mu=mu, dt=dt)
+        assert auto.numpy_only_ is None
+        assert auto.backend_for(10_000, 10_000) == "numba"
     plain = SymplecticKernelPredictor(IMQ(0.3), IMQ(1.5), IMQ(3.0), max_centers=10).fit(x0, x1, mu=mu, dt=dt)
     assert plain.numpy_only_ is None
 
 
 # ------------------------------------------------------------------ transforms
 def test_transforms_pass_shapes_through_and_refuse_bad_chains():
-    k = Symmetric(Periodic(IMQ(0.3), coordinates=(0,)), group=[(1, 1), (-1, -1)])
-    with pytest.raises(ValueError, match="both Periodic and Symmetric"):
-        lower_state_kernel(k)
+    k = Symmetric(Periodic(IMQ(0.3), coordinates=(0,)), group=[(1, 1), (-1, -1)])  # both: sign flips respect periods
+    parts = lower_state_kernel(k)
+    assert parts.periodic == (0,) and parts.symmetry == [(1, 1), (-1, -1)]
     with pytest.raises(ValueError, match="applies Scaled twice"):
         lower_state_kernel(Scaled(Scaled(IMQ(1.0), factors=[2.0]), factors=[3.0]))
     with pytest.raises(ValueError, match="coordinates must be a tuple of distinct"):

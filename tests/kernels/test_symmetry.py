@@ -2,13 +2,14 @@
 finite differences, exact invariance of s, exact interpolation, symplecticity and equivariance of the step,
 the estimator contract, model files and refused input."""
 
+import copy
 import warnings
 from functools import partial
 
 import numpy as np
 import pytest
 
-from sympredict import DirectKernelPredictor, SymplecticKernelPredictor
+from sympredict import DirectKernelPredictor, SymplecticKernelPredictor, _fastkernels
 from sympredict.base import clone
 from sympredict.exceptions import ExtrapolationWarning, ModelFileError
 from sympredict.interpolation.functionals import HBFunctionals, ValueFunctionals, dense_interpolation, functional_residuals
@@ -21,6 +22,7 @@ from sympredict.interpolation.surrogate import HBSurrogate
 from sympredict.symplectic.solvers import NewtonSolver
 from sympredict.kernels.transforms import Periodic, Scaled, Symmetric
 
+from _tolerances import assert_same_predictions  # tests/
 from _surrogate_oracles import (check_gramian_by_finite_differences, check_malformed_kernel_entries_refused,
                                check_surrogate_by_finite_differences)  # tests/ (on sys.path under pytest)
 
@@ -93,8 +95,11 @@ def test_surrogate_value_gradient_hessian_by_finite_differences(dim, group, stat
         grad_g, hess_g, floor_g = sur.gradient_hessian(gx, w, with_floor=True)
         assert np.all(np.abs(grad_g - grad @ g.T).max(axis=1) <= 10 * (floor + floor_g) + 1e-15)
         np.testing.assert_allclose(hess_g, g @ hess @ g.T, atol=1e-13 * np.abs(hess).max())
-    with pytest.raises(ValueError, match="symmetry"):
-        sur.layout()
+    if _fastkernels.HAVE_NUMBA:  # the compiled pass: the same gradient, Hessian and floor (another summation order)
+        g_c, h_c, f_c = _fastkernels.newton_terms(xi, w, sur.layout(), kernel.state, full=True)
+        np.testing.assert_allclose(g_c, grad, rtol=0, atol=1e-13 * np.abs(w).sum(axis=1).max())
+        np.testing.assert_allclose(h_c, hess, rtol=0, atol=1e-13 * np.abs(w).sum(axis=1).max())
+        np.testing.assert_allclose(f_c, floor, rtol=1e-12)
 
 
 def test_dense_interpolation_is_exact_and_invariant(rng):
@@ -294,18 +299,20 @@ def test_refused_input(data):
     with pytest.raises(ValueError, match="state_scaling"):
         _model(symmetry=_mode_swap(), state_scaling=(1.0, 2.0)).fit(x4, x4 + 0.01, dt=DT)
     _model(symmetry=_mode_swap(), state_scaling=(2.0, 2.0), max_centers=10).fit(x4, x4 + 0.01, dt=DT)
-    with pytest.raises(ValueError, match="symmetry"):
-        _model(backend="numba").fit(x0, x1, dt=DT)
-    with pytest.raises(ValueError, match="both Periodic and Symmetric"):
-        _model(periodic=(0,)).fit(x0, x1, dt=DT)
-    with pytest.raises(ValueError, match="periodic"):
-        ProductKernel(IMQ(1.0), periodic=PeriodicCoordinates((0,), (1.0,)), symmetry=StateSymmetry.from_signs(KLEIN))
+    if _fastkernels.HAVE_NUMBA:  # a symmetric model runs compiled (tests/test_transforms_compiled.py)
+        assert _model(backend="numba", max_centers=20).fit(x0, x1, dt=DT).numpy_only_ is None
+    # Periodic with Symmetric: the group must map periodic coordinates onto ones of the same period
+    with pytest.raises(ValueError, match="same period"):
+        _model(symmetry=_mode_swap(), periodic=(0,)).fit(x4, x4 + 0.01, dt=DT)
+    with pytest.raises(ValueError, match="same period"):
+        ProductKernel(IMQ(1.0), periodic=PeriodicCoordinates((0,), (1.0,)), symmetry=StateSymmetry(tuple(_mode_swap())))
+    ProductKernel(IMQ(1.0), periodic=PeriodicCoordinates((0,), (1.0,)), symmetry=StateSymmetry.from_signs(KLEIN))
+    ProductKernel(IMQ(1.0), periodic=PeriodicCoordinates((0, 1), (1.0, 1.0)), symmetry=StateSymmetry(tuple(_mode_swap())))
     with pytest.raises(ValueError, match="direct model"):
         ValueFunctionals(ProductKernel(IMQ(1.0), symmetry=StateSymmetry.from_signs(KLEIN)), x0, np.zeros((60, 0)), np.full(60, DT))
     model = _model(max_centers=20).fit(x0, x1, dt=DT)
-    model.set_params(solver__backend="numba")
-    with pytest.raises(ValueError, match="symmetry"):
-        model.step(x0[:2])
+    if _fastkernels.HAVE_NUMBA:
+        assert_same_predictions(copy.copy(model).set_params(solver__backend="numba"), model, x0[:2], 3)
     assert "symmetry" not in DirectKernelPredictor().get_params()
 
 
