@@ -13,7 +13,6 @@ import numpy as np
 import pytest
 
 from sympredict import DirectKernelPredictor, SymplecticKernelPredictor
-from sympredict.base import clone
 from sympredict.interpolation.greedy import ActiveSetGreedy, ExactGreedy, ShardedGreedy
 from sympredict.io import load_model
 from sympredict.kernels import IMQ
