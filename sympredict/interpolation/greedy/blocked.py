@@ -25,10 +25,19 @@ the arithmetic rate):
    ``L_B`` the Cholesky factor of ``W^T(:, B)`` and the new rows
    ``V_B = L_B^{-1} W^T`` (one triangular solve with ``b`` right-hand sides of
    length ``N``).  The same for the validation set.
-4. **Per centre.**  The loop (:func:`~sympredict.interpolation.greedy.loop.run_greedy`)
+4. **Per centre, a weak greedy.**  The loop (:func:`~sympredict.interpolation.greedy.loop.run_greedy`)
    then takes the block's centres one by one: ``r -= beta v``, ``P2 -= v^2``
    (``O(N q)`` each), so the history (training and validation residual per
    centre) and the Newton coefficients are those of a one-at-a-time run.
+   Before each centre the full criterion is checked: the block's next
+   candidate is taken only while its criterion is at least ``1 - slack``
+   times the maximum over all candidates (a weak greedy with factor
+   ``1 - slack``, whose selections keep the greedy's convergence rates up to
+   that factor); otherwise the rest of the block is dropped and a new block
+   starts from the current leader.  ``slack = 0`` accepts only the exact
+   greedy's choice (blocks then break at the first candidate outside the pool
+   that overtakes and much of the block work is discarded); ``slack = 0.5``
+   (the trainer's default) keeps most blocks whole.
 
 Cost: ``2 m N`` flops per centre as the exact greedy, but in products of ``b``
 columns (bound by arithmetic, not bandwidth), plus ``2 b N`` for the triangular
@@ -111,19 +120,24 @@ class BlockedStore(BaseStore):
         ``b``: centres per block at most (``1``: the exact greedy's selection).
     pool_factor
         ``c``: the pool holds the ``c b`` best candidates by the criterion.
+    slack
+        A block's next candidate is taken while its criterion is at least
+        ``1 - slack`` times the maximum over all candidates (step 4 above).
 
     Notes
     -----
     Memory ``8 ((m_max + b) (N + N_val) + (c b)^2)`` bytes (:func:`blocked_memory`),
     checked before the run.  ``stats['blocks']``: the number of blocks;
-    ``stats['block_sizes']``: their sizes.
+    ``stats['block_sizes']``: their sizes; ``stats['rejected']``: block candidates dropped by the ``slack`` rule.
     """
 
     label = "blocked greedy"
 
     def __init__(self, functionals, targets, *, criterion: str = "f", power_tol: float = 1e-12,
                  validation: Optional[tuple] = None, memory_limit: Optional[float] = None,
-                 block_size: int = 64, pool_factor: int = 4):
+                 block_size: int = 64, pool_factor: int = 4, slack: float = 0.0):
+        if isinstance(slack, bool) or not isinstance(slack, (int, float, np.number)) or not 0 <= slack < 1:
+            raise ValueError(f"slack must be a float in [0, 1), got {slack!r}")
         for name, value in (("block_size", block_size), ("pool_factor", pool_factor)):
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
                 raise ValueError(f"{name} must be a positive integer, got {value!r}")
@@ -131,6 +145,7 @@ class BlockedStore(BaseStore):
         self.memory_limit = memory_limit
         self.block_size = int(block_size)
         self.pool_factor = int(pool_factor)
+        self.slack = float(slack)
         self.basis = None
 
     def open(self, expansion: Expansion):
@@ -147,7 +162,7 @@ class BlockedStore(BaseStore):
         self.basis = np.empty((max_centers + b, n))
         self.vbasis = np.empty((max_centers + b, n_val)) if n_val else None
         self.queue, self.block_start, self.block_chol, self.position = [], 0, None, 0
-        self.stats = {"blocks": 0, "block_sizes": []}
+        self.stats = {"blocks": 0, "block_sizes": [], "rejected": 0}
         abs_residual(self.res, out=self.res_abs)
         return self.res_abs.max(), (np.abs(self.vres).max() if n_val else None)
 
@@ -157,19 +172,21 @@ class BlockedStore(BaseStore):
         return score
 
     def select(self, m: int):
-        score = None
+        score = self._score()
+        best = float(score.max())
+        if self.position < len(self.queue):
+            j = self.queue[self.position]
+            if not score[j] >= (1.0 - self.slack) * best:
+                # a candidate outside the block leads now: the rest of the block is not the greedy's choice
+                self.stats["rejected"] += len(self.queue) - self.position
+                self.queue = []
         if self.position >= len(self.queue):
-            score = self._score()
             self._new_block(m, score)
             if not self.queue:
                 return -1, -np.inf, np.inf
         j = self.queue[self.position]
-        if self.criterion != "f":
-            return j, self.p2[j], np.inf
         # the tol rule's certificate: max |r| over the selectable candidates now
-        if score is None:
-            score = self._score()
-        return j, self.res_abs[j], float(score.max())
+        return j, score[j], (best if self.criterion == "f" else np.inf)
 
     def _new_block(self, m: int, score: np.ndarray) -> None:
         """Choose the next block (pool, in-pool greedy) and compute its Newton basis rows (module docstring)."""
@@ -180,7 +197,10 @@ class BlockedStore(BaseStore):
             return
         k_pool = min(self.pool_factor * b, selectable)
         if k_pool < len(score):
-            pool = np.argpartition(-score, k_pool - 1)[:k_pool]
+            # the k_pool largest, the lowest indices among ties at the threshold (np.argmax's rule)
+            threshold = score[np.argpartition(-score, k_pool - 1)[k_pool - 1]]
+            above = np.flatnonzero(score > threshold)
+            pool = np.concatenate([above, np.flatnonzero(score == threshold)[: k_pool - len(above)]])
             outside = np.ones(len(score), dtype=bool)
             outside[pool] = False
             tau = float(score[outside].max())

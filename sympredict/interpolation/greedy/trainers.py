@@ -277,7 +277,10 @@ class BlockedGreedy(Trainer):
     leader falls below the best candidate left outside it.  The block's Newton
     basis rows then come from one Gramian-rows call, one matrix product and one
     triangular solve; the history is recorded per centre as for the exact greedy.
-    ``block_size=1`` selects the exact greedy's centres (to round-off).
+    Each of the block's centres is taken only while its criterion is at least
+    ``1 - slack`` times the current maximum over all candidates (a weak greedy);
+    otherwise a new block starts.  ``block_size=1`` or ``slack=0`` selects the
+    exact greedy's centres (to round-off).
 
     Parameters
     ----------
@@ -285,6 +288,10 @@ class BlockedGreedy(Trainer):
         Centres per block at most (``b``).
     pool_factor
         The pool's size in blocks (``c``).
+    slack
+        The weak greedy's slack: ``0`` the exact greedy's selection (slow: blocks
+        break early), ``0.5`` (default) a block's centre is taken while its
+        criterion is at least half the maximum.
     tol, criterion, power_tol, memory_limit
         As for :class:`ExactGreedy` (no ``regularization``, no float32 basis).
 
@@ -295,7 +302,7 @@ class BlockedGreedy(Trainer):
     Memory ``8 ((m + b) (N + N_val) + (c b)^2)`` bytes.
     """
 
-    def __init__(self, block_size: int = 64, pool_factor: int = 4, *, tol: float = 1e-10, criterion: str = "f",
+    def __init__(self, block_size: int = 64, pool_factor: int = 4, slack: float = 0.5, *, tol: float = 1e-10, criterion: str = "f",
                  power_tol: float = 1e-12, memory_limit: Optional[float] = None):
         self.tol = tol
         self.criterion = criterion
@@ -303,11 +310,12 @@ class BlockedGreedy(Trainer):
         self.memory_limit = memory_limit
         self.block_size = block_size
         self.pool_factor = pool_factor
+        self.slack = slack
 
     def store(self, functionals, targets, *, tol, validation):
         return BlockedStore(functionals, targets, criterion=self.criterion, power_tol=self.power_tol,
                             validation=validation, memory_limit=self.memory_limit, block_size=self.block_size,
-                            pool_factor=self.pool_factor)
+                            pool_factor=self.pool_factor, slack=self.slack)
 
 
 def trainer_memory(trainer: Trainer, n_train: int, n_val: int, max_centers: int, dim: int = 1) -> float:
