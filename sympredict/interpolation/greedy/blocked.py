@@ -34,7 +34,8 @@ the arithmetic rate):
    times the maximum over all candidates (a weak greedy with factor
    ``1 - slack``, whose selections keep the greedy's convergence rates up to
    that factor); otherwise the rest of the block is dropped and a new block
-   starts from the current leader.  ``slack = 0`` accepts only the exact
+   starts from the current leader, at most twice as large as the part of the
+   last block that was kept (at least 8).  ``slack = 0`` accepts only the exact
    greedy's choice (blocks then break at the first candidate outside the pool
    that overtakes and much of the block work is discarded); ``slack = 0.5``
    (the trainer's default) keeps most blocks whole.
@@ -162,6 +163,7 @@ class BlockedStore(BaseStore):
         self.basis = np.empty((max_centers + b, n))
         self.vbasis = np.empty((max_centers + b, n_val)) if n_val else None
         self.queue, self.block_start, self.block_chol, self.position = [], 0, None, 0
+        self.next_size = self.block_size
         self.stats = {"blocks": 0, "block_sizes": [], "rejected": 0}
         abs_residual(self.res, out=self.res_abs)
         return self.res_abs.max(), (np.abs(self.vres).max() if n_val else None)
@@ -179,6 +181,8 @@ class BlockedStore(BaseStore):
             if not score[j] >= (1.0 - self.slack) * best:
                 # a candidate outside the block leads now: the rest of the block is not the greedy's choice
                 self.stats["rejected"] += len(self.queue) - self.position
+                # the next block: twice what this one kept (rows past the cut were computed in vain)
+                self.next_size = max(8, 2 * self.position)
                 self.queue = []
         if self.position >= len(self.queue):
             self._new_block(m, score)
@@ -190,11 +194,25 @@ class BlockedStore(BaseStore):
 
     def _new_block(self, m: int, score: np.ndarray) -> None:
         """Choose the next block (pool, in-pool greedy) and compute its Newton basis rows (module docstring)."""
-        b = min(self.block_size, self.max_centers - m)
-        selectable = int(np.count_nonzero(np.isfinite(score)))
+        b = min(self.next_size, self.block_size, self.max_centers - m)
+        self.next_size = self.block_size
         self.queue, self.position = [], 0
-        if selectable == 0 or b <= 0:
-            return
+        while b > 0:
+            selectable = int(np.count_nonzero(np.isfinite(score)))
+            if selectable == 0:
+                return
+            pool, order, chol = self._choose(m, score, b)
+            if len(order):
+                self._block_rows(m, pool[order], chol)
+                return
+            # the pool's own residual Gramian puts all of it at the breakdown guard (round-off apart from P2):
+            # dependent candidates, never selectable again
+            self.p2[pool] = 0.0
+            score[pool] = -np.inf
+
+    def _choose(self, m: int, score: np.ndarray, b: int):
+        """The pool (best first), the in-pool greedy's order and its Cholesky factor."""
+        selectable = int(np.count_nonzero(np.isfinite(score)))
         k_pool = min(self.pool_factor * b, selectable)
         if k_pool < len(score):
             # the k_pool largest, the lowest indices among ties at the threshold (np.argmax's rule)
@@ -209,8 +227,7 @@ class BlockedStore(BaseStore):
         # best first, the lowest index first on ties (np.argmax's rule: b = 1 selects as the exact greedy)
         pool = pool[np.lexsort((pool, -score[pool]))]
         order, chol = self._pool_greedy(m, pool, b, tau)
-        block = pool[order]
-        self._block_rows(m, block, chol)
+        return pool, order, chol
 
     def _pool_greedy(self, m: int, pool: np.ndarray, b: int, tau: float):
         """The greedy restricted to the pool, as a pivoted Cholesky of its residual Gramian: ``(order, L)``."""
