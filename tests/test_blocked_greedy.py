@@ -157,3 +157,26 @@ def test_memory_formula_bounds_the_measured_peak():
     rows_temporaries = 8 * b * 1024 * (3 * fun.dim + 8)
     assert 0.9 * formula <= peak <= formula + vectors + rows_temporaries + 8 * m * m, (peak, formula)
     assert trainer_memory(ExactGreedy(), n, 0, m) == 8 * m * n
+
+
+def test_default_trainer_picks_what_fits_the_memory_and_logs_it(caplog):
+    from sympredict.interpolation.greedy import ActiveSetGreedy, default_trainer
+
+    fun, *_ = _problem(9, m_points=1000)  # N = 4,000 functionals
+    n, m = fun.n_functionals, 500
+    exact = 8 * m * n
+    with caplog.at_level("INFO", logger="sympredict"):
+        assert type(default_trainer(fun, 0, m, memory=2 * exact)) is ExactGreedy
+        assert "ExactGreedy" in caplog.text
+    from sympredict.interpolation.greedy import trainers
+    old = trainers.BLOCKED_ABOVE_BYTES
+    trainers.BLOCKED_ABOVE_BYTES = exact // 2  # a basis above the threshold: the blocked greedy
+    try:
+        assert type(default_trainer(fun, 0, m, memory=2 * exact)) is BlockedGreedy
+    finally:
+        trainers.BLOCKED_ABOVE_BYTES = old
+    # neither full basis fits, the active set's first allocation (times three) does
+    big, *_ = _problem(9, m_points=120000)  # 480,000 functionals: the first active set is a fifth of them
+    need = trainer_memory(ActiveSetGreedy(), big.n_functionals, 0, m, dim=big.dim, initial=True)
+    assert type(default_trainer(big, 0, m, memory=3 * need)) is ActiveSetGreedy
+    assert type(default_trainer(big, 0, m, memory=need)) is ExactGreedy  # nothing fits: the exact greedy's check says so

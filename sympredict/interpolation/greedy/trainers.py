@@ -52,7 +52,7 @@ from sympredict.interpolation.greedy.dense import DenseStore
 from sympredict.interpolation.greedy.loop import GreedyResult, run_greedy
 from sympredict.interpolation.greedy.sharded import ShardedStore
 
-__all__ = ["Trainer", "ExactGreedy", "ActiveSetGreedy", "ShardedGreedy", "BlockedGreedy", "trainer_memory", "TRAINERS", "register_trainer", "trainer_from_spec"]
+__all__ = ["Trainer", "ExactGreedy", "ActiveSetGreedy", "ShardedGreedy", "BlockedGreedy", "trainer_memory", "default_trainer", "TRAINERS", "register_trainer", "trainer_from_spec"]
 
 logger = getLogger("sympredict.interpolation.greedy")
 
@@ -318,10 +318,14 @@ class BlockedGreedy(Trainer):
                             pool_factor=self.pool_factor, slack=self.slack)
 
 
-def trainer_memory(trainer: Trainer, n_train: int, n_val: int, max_centers: int, dim: int = 1) -> float:
+def trainer_memory(trainer: Trainer, n_train: int, n_val: int, max_centers: int, dim: int = 1,
+                   initial: bool = False) -> float:
     """Peak bytes of ``trainer``'s store for ``n_train`` training and ``n_val`` validation functionals (module docstring).
 
     ``dim``: functionals per point (``2n`` for the state-derivative functionals; the active set's size).
+    For :class:`ActiveSetGreedy` the bound assumes every refresh adds ``max_new_points``; ``initial=True``
+    gives its first allocation ``8 m (2n min(M, initial_points + 4 max_new_points) + N_val)`` instead (the
+    active set then grows by doubling, up to three times the grown size while it copies).
     """
     m = int(max_centers)
     if isinstance(trainer, BlockedGreedy):
@@ -330,12 +334,58 @@ def trainer_memory(trainer: Trainer, n_train: int, n_val: int, max_centers: int,
     if isinstance(trainer, ExactGreedy):
         return float(np.dtype(trainer.basis_dtype).itemsize * m * (n_train + n_val))
     if isinstance(trainer, ActiveSetGreedy):
-        active = dim * (trainer.initial_points + trainer.max_new_points * -(-m // max(int(trainer.refresh_every), 1)))
+        if initial:
+            active = dim * (trainer.initial_points + 4 * trainer.max_new_points)
+        else:
+            active = dim * (trainer.initial_points + trainer.max_new_points * -(-m // max(int(trainer.refresh_every), 1)))
         return float(8 * m * (min(active, n_train) + n_val))
     if isinstance(trainer, ShardedGreedy):
         shards = trainer.n_shards or 1
         return float(8 * m * (n_train + n_val) / shards)
     raise ValueError(f"no memory formula for the training strategy {type(trainer).__name__}")
+
+
+#: Above this size of the exact greedy's Newton basis (bytes) the default is the blocked greedy: the one-at-a-time
+#: greedy streams the whole basis once per centre and runs at memory bandwidth, the blocked one at the arithmetic rate.
+BLOCKED_ABOVE_BYTES = 2 ** 30
+
+
+def default_trainer(functionals, n_val: int, max_centers: int, memory: Optional[float] = None) -> Trainer:
+    """The training strategy a fit without ``trainer`` uses: the fastest that fits the memory, logged with the reason.
+
+    * :class:`ExactGreedy` where its Newton basis ``8 m (N + N_val)`` fits in ``memory`` and is below
+      :data:`BLOCKED_ABOVE_BYTES` (1 GiB);
+    * :class:`BlockedGreedy` where the basis is larger and ``8 ((m + b) (N + N_val) + (c b)^2)`` still fits
+      (the same selection rule up to the weak greedy's slack, several times faster);
+    * :class:`ActiveSetGreedy` (state-derivative functionals) where neither fits but its first active set
+      does with room to grow (a third of ``memory``);
+    * else :class:`ExactGreedy`, whose memory check then says what fits.
+
+    ``memory``: bytes available (default 90 % of the available memory, :func:`available_memory`).
+    """
+    from sympredict.interpolation.greedy.loop import available_memory, format_bytes
+
+    n, m = functionals.n_functionals, min(int(max_centers), functionals.n_functionals)
+    limit = 0.9 * available_memory() if memory is None else float(memory)
+    exact, blocked = ExactGreedy(), BlockedGreedy()
+    need_exact, need_blocked = trainer_memory(exact, n, n_val, m), trainer_memory(blocked, n, n_val, m)
+    if need_exact <= min(limit, BLOCKED_ABOVE_BYTES) or (need_exact <= limit < need_blocked):
+        choice, why = exact, f"its Newton basis needs {format_bytes(need_exact)} of {format_bytes(limit)}"
+    elif need_blocked <= limit:
+        choice, why = blocked, (f"the Newton basis ({format_bytes(need_blocked)} of {format_bytes(limit)}) exceeds "
+                                f"{format_bytes(BLOCKED_ABOVE_BYTES)}: blocks of centres with matrix products")
+    elif isinstance(functionals, HBFunctionals):
+        active = ActiveSetGreedy(memory_limit=limit)
+        need = trainer_memory(active, n, n_val, m, dim=functionals.dim, initial=True)
+        if 3 * need <= limit:
+            choice, why = active, (f"the full Newton basis ({format_bytes(need_exact)}) exceeds {format_bytes(limit)}; "
+                                   f"the active set starts at {format_bytes(need)}")
+        else:
+            choice, why = exact, "nothing fits: the exact greedy's memory check says what does"
+    else:
+        choice, why = exact, "nothing fits: the exact greedy's memory check says what does"
+    logger.info(f"trainer: {type(choice).__name__} ({why})")
+    return choice
 
 
 def trainer_from_spec(spec: Optional[dict]) -> Trainer:
