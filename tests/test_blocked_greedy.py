@@ -180,3 +180,22 @@ def test_default_trainer_picks_what_fits_the_memory_and_logs_it(caplog):
     need = trainer_memory(ActiveSetGreedy(), big.n_functionals, 0, m, dim=big.dim, initial=True)
     assert type(default_trainer(big, 0, m, memory=3 * need)) is ActiveSetGreedy
     assert type(default_trainer(big, 0, m, memory=need)) is ExactGreedy  # nothing fits: the exact greedy's check says so
+
+
+@pytest.mark.parametrize("dim", [2, 4, 6])
+def test_compiled_gramian_rows_match_numpy(dim):
+    from sympredict import _fastkernels
+    from sympredict.interpolation.greedy.blocked import gram_rows
+
+    for kernel in (ProductKernel(IMQ(0.5), IMQ(1.0)), ProductKernel(Matern52(0.7), Matern52(1.0), IMQ(3.0)),
+                   ProductKernel(IMQ(0.5))):
+        fun, xi, mu, dt, y = _problem(10, m_points=300, dim=dim, kernel=kernel)
+        if kernel.dt is not None:
+            fun = HBFunctionals(kernel, xi, mu, np.linspace(0.05, 0.15, len(xi)))
+        if kernel.mu is None:
+            fun = HBFunctionals(kernel, xi, np.zeros((len(xi), 0)), dt)
+        idx = np.array([0, 7, 55, fun.n_functionals - 1])
+        numpy_rows = fun.gram_rows(fun, idx, np.empty((4, fun.n_functionals)))
+        compiled = gram_rows(fun, fun, idx, np.empty((4, fun.n_functionals)), compiled=True)
+        assert _fastkernels.hb_rows_supported(kernel)
+        np.testing.assert_allclose(compiled, numpy_rows, rtol=1e-13, atol=1e-14 * np.abs(numpy_rows).max())

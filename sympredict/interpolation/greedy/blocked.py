@@ -56,6 +56,7 @@ from typing import Optional
 import numpy as np
 from scipy.linalg import blas, solve_triangular
 
+from sympredict import _fastkernels
 from sympredict.interpolation.functionals import HBFunctionals, ValueFunctionals
 from sympredict.interpolation.greedy.dense import abs_residual
 from sympredict.interpolation.greedy.loop import BaseStore, Expansion, check_memory
@@ -68,12 +69,18 @@ def blocked_memory(max_centers: int, n_train: int, n_val: int, block_size: int, 
     return 8 * ((max_centers + block_size) * (n_train + n_val) + (pool_factor * block_size) ** 2)
 
 
-def gram_rows(functionals, others, indices: np.ndarray, out: np.ndarray) -> np.ndarray:
+def gram_rows(functionals, others, indices: np.ndarray, out: np.ndarray, compiled: bool = False) -> np.ndarray:
     """Gramian rows ``lambda_{i_k}^(1) lambda^(2) k`` (``i_k`` in ``others``) against every functional of ``functionals``.
 
-    One vectorised call for the HB functionals (:meth:`HBFunctionals.gram_rows`),
-    column by column for sets that have no such method.  ``out`` has shape (K, N).
+    One call for the HB functionals: compiled (:func:`sympredict._fastkernels.hb_rows`, a plain kernel) when
+    ``compiled``, else :meth:`HBFunctionals.gram_rows`; column by column for sets that have no such method.
+    ``out`` has shape (K, N).
     """
+    if compiled and isinstance(functionals, HBFunctionals) and isinstance(others, HBFunctionals) \
+            and _fastkernels.hb_rows_supported(functionals.kernel):
+        pts, comps = np.divmod(np.asarray(indices, dtype=np.int64), others.dim)
+        return _fastkernels.hb_rows(functionals.kernel, functionals.points, functionals.mu, functionals.dt,
+                                    others.points[pts], others.mu[pts], others.dt[pts], comps, out)
     if hasattr(functionals, "gram_rows"):
         return functionals.gram_rows(others, indices, out)
     for k, i in enumerate(indices):
@@ -81,7 +88,7 @@ def gram_rows(functionals, others, indices: np.ndarray, out: np.ndarray) -> np.n
     return out
 
 
-def pool_gramian(functionals, pool: np.ndarray) -> np.ndarray:
+def pool_gramian(functionals, pool: np.ndarray, compiled: bool = False) -> np.ndarray:
     """The Gramian ``G(pool, pool)``, shape (K, K), from ``O(K^2)`` kernel entries (not ``K`` full rows).
 
     For HB functionals the rows are taken against the pool's points (all their
@@ -93,7 +100,7 @@ def pool_gramian(functionals, pool: np.ndarray) -> np.ndarray:
         pts, comps = np.divmod(pool, dim)
         uniq, inv = np.unique(pts, return_inverse=True)
         sub = HBFunctionals(functionals.kernel, functionals.points[uniq], functionals.mu[uniq], functionals.dt[uniq])
-        rows = sub.gram_rows(functionals, pool, np.empty((len(pool), len(uniq) * dim)))
+        rows = gram_rows(sub, functionals, pool, np.empty((len(pool), len(uniq) * dim)), compiled)
         return rows[:, inv * dim + comps]
     if isinstance(functionals, ValueFunctionals):
         sub = ValueFunctionals(functionals.kernel, functionals.points[pool], functionals.mu[pool], functionals.dt[pool])
@@ -102,7 +109,7 @@ def pool_gramian(functionals, pool: np.ndarray) -> np.ndarray:
             sub.column(functionals.representer(int(i)), out[k])
         return out
     out = np.empty((len(pool), functionals.n_functionals))
-    return gram_rows(functionals, functionals, pool, out)[:, pool]
+    return gram_rows(functionals, functionals, pool, out, compiled)[:, pool]
 
 
 class BlockedStore(BaseStore):
@@ -124,6 +131,10 @@ class BlockedStore(BaseStore):
     slack
         A block's next candidate is taken while its criterion is at least
         ``1 - slack`` times the maximum over all candidates (step 4 above).
+    compiled
+        The block's Gramian rows by :func:`sympredict._fastkernels.hb_rows` (state-derivative
+        functionals, a kernel without periodic coordinates or symmetry); default: when numba is
+        installed.  NumPy's :meth:`~sympredict.interpolation.functionals.HBFunctionals.gram_rows` otherwise.
 
     Notes
     -----
@@ -136,7 +147,7 @@ class BlockedStore(BaseStore):
 
     def __init__(self, functionals, targets, *, criterion: str = "f", power_tol: float = 1e-12,
                  validation: Optional[tuple] = None, memory_limit: Optional[float] = None,
-                 block_size: int = 64, pool_factor: int = 4, slack: float = 0.0):
+                 block_size: int = 64, pool_factor: int = 4, slack: float = 0.0, compiled: Optional[bool] = None):
         if isinstance(slack, bool) or not isinstance(slack, (int, float, np.number)) or not 0 <= slack < 1:
             raise ValueError(f"slack must be a float in [0, 1), got {slack!r}")
         for name, value in (("block_size", block_size), ("pool_factor", pool_factor)):
@@ -147,6 +158,9 @@ class BlockedStore(BaseStore):
         self.block_size = int(block_size)
         self.pool_factor = int(pool_factor)
         self.slack = float(slack)
+        if compiled and not _fastkernels.HAVE_NUMBA:
+            raise ImportError("compiled=True needs numba: pip install 'sympredict[fast]'")
+        self.compiled = _fastkernels.HAVE_NUMBA if compiled is None else bool(compiled)
         self.basis = None
 
     def open(self, expansion: Expansion):
@@ -231,7 +245,7 @@ class BlockedStore(BaseStore):
 
     def _pool_greedy(self, m: int, pool: np.ndarray, b: int, tau: float):
         """The greedy restricted to the pool, as a pivoted Cholesky of its residual Gramian: ``(order, L)``."""
-        gram = pool_gramian(self.functionals, pool)
+        gram = pool_gramian(self.functionals, pool, self.compiled)
         if m:
             vp = self.basis[:m, pool]
             gram -= vp.T @ vp
@@ -262,7 +276,7 @@ class BlockedStore(BaseStore):
         """``V_B = L_B^{-1} (G(B, :) - V(:, B)^T V)`` into ``basis[m:m+b]`` (and the validation basis)."""
         kb = len(block)
         rows = self.basis[m:m + kb]
-        gram_rows(self.functionals, self.functionals, block, rows)
+        gram_rows(self.functionals, self.functionals, block, rows, self.compiled)
         vt = self.basis[:m, block]  # (m, kb)
         if m:
             # rows -= vt^T basis[:m], in place: on the Fortran views, W (N, kb) -= basis[:m]^T (N, m) @ vt (m, kb)
@@ -279,7 +293,7 @@ class BlockedStore(BaseStore):
         blas.dtrsm(1.0, chol, rows.T, side=1, lower=1, trans_a=1, overwrite_b=1)
         if self.n_val:
             vrows = self.vbasis[m:m + kb]
-            gram_rows(self.val_functionals, self.functionals, block, vrows)
+            gram_rows(self.val_functionals, self.functionals, block, vrows, self.compiled)
             if m:
                 blas.dgemm(-1.0, self.vbasis[:m].T, vt, beta=1.0, c=vrows.T, overwrite_c=1)
             blas.dtrsm(1.0, chol, vrows.T, side=1, lower=1, trans_a=1, overwrite_b=1)

@@ -160,6 +160,11 @@ class ExactGreedy(Trainer):
         on the selected centres instead of interpolating them.  ``0`` (default):
         exact interpolation.  Choose it on validation data
         (:func:`sympredict.estimators.selection.select_regularization`).
+
+    Notes
+    -----
+    Peak memory ``itemsize m (N + N_val)`` bytes (``itemsize`` 8, 4 for float32; :func:`trainer_memory`),
+    checked before the run; time ``O(m^2 (N + N_val))`` at memory bandwidth.
     """
 
     def __init__(self, basis_dtype: str = "float64", *, tol: float = 1e-10, criterion: str = "f",
@@ -185,8 +190,9 @@ class ActiveSetGreedy(Trainer):
     describes the parameters; ``tol``, ``power_tol`` and ``memory_limit`` as for
     :class:`ExactGreedy`.  An f-greedy without regularization: it has neither
     ``criterion`` nor ``regularization``.)  The run stops when the max residual over *all*
-    functionals reaches ``tol`` (or at ``max_centers``); memory ``O(m N_active)``
-    instead of ``O(m N)``.  Scenario A (688,464 functionals, ``tol=1e-5``)
+    functionals reaches ``tol`` (or at ``max_centers``); memory ``8 m (N_S + N_val)`` bytes for ``N_S``
+    active functionals instead of ``8 m (N + N_val)``: first ``N_S = 2n min(M, initial_points + 4 max_new_points)``,
+    grown by doubling while points join (:func:`trainer_memory`).  Scenario A (688,464 functionals, ``tol=1e-5``)
     trains in a fraction of the exact greedy's time (``docs/explanation/performance.md``).
     """
 
@@ -217,7 +223,7 @@ class ShardedGreedy(Trainer):
     """The exact greedy with the candidates sharded over a pyMOR worker pool (:class:`~sympredict.interpolation.greedy.sharded.ShardedStore`).
 
     Selects exactly the serial greedy's centres (same coefficients bit for
-    bit); ``O(m N / P)`` work and memory per worker.
+    bit); ``O(m N / P)`` work and ``8 m (N + N_val) / P`` bytes per worker.
 
     Parameters
     ----------
