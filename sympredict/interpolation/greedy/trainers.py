@@ -49,7 +49,7 @@ from sympredict.interpolation.functionals import HBFunctionals
 from sympredict.interpolation.greedy.active_set import ActiveSetStore
 from sympredict.interpolation.greedy.blocked import BlockedStore, blocked_memory
 from sympredict.interpolation.greedy.dense import DenseStore
-from sympredict.interpolation.greedy.loop import GreedyResult, run_greedy
+from sympredict.interpolation.greedy.loop import GreedyResult, available_memory, format_bytes, run_greedy
 from sympredict.interpolation.greedy.sharded import ShardedStore
 
 __all__ = ["Trainer", "ExactGreedy", "ActiveSetGreedy", "ShardedGreedy", "BlockedGreedy", "trainer_memory", "default_trainer", "TRAINERS", "register_trainer", "trainer_from_spec"]
@@ -369,8 +369,6 @@ def default_trainer(functionals, n_val: int, max_centers: int, memory: Optional[
 
     ``memory``: bytes available (default 90 % of the available memory, :func:`available_memory`).
     """
-    from sympredict.interpolation.greedy.loop import available_memory, format_bytes
-
     n, m = functionals.n_functionals, min(int(max_centers), functionals.n_functionals)
     limit = 0.9 * available_memory() if memory is None else float(memory)
     exact, blocked = ExactGreedy(), BlockedGreedy()
