@@ -233,10 +233,15 @@ def test_the_second_stage_scores_the_one_step_error_on_held_out_samples(param_da
     params = {"state_kernel": IMQ(0.3), "mu_kernel": IMQ(1.0), "dt_kernel": None, "update": "midpoint"}
     base = SymplecticKernelPredictor()
     value, n, _, err = _one_step_score(base, params, 50, train, val)
-    ref = clone(base).set_params(**params, max_centers=50).fit(train.x0, train.x1, mu=train.mu, dt=0.1)
-    pred = ref.step(val.x0, mu=val.mu)
-    expected = np.mean(np.linalg.norm(pred - val.x1, axis=1) / np.linalg.norm(val.x1 - val.x0, axis=1))
-    assert err is None and n == 50 and value == pytest.approx(expected, rel=1e-12)
+    # without a trainer of its own the estimator's candidates are fitted by the blocked greedy; with one, by it
+    from sympredict.interpolation.greedy import BlockedGreedy, ExactGreedy
+    for own, fitted_by in ((None, BlockedGreedy()), (ExactGreedy(), ExactGreedy())):
+        value, n, _, err = _one_step_score(clone(base).set_params(trainer=own), params, 50, train, val)
+        ref = clone(base).set_params(**params, max_centers=50, trainer=fitted_by).fit(train.x0, train.x1, mu=train.mu,
+                                                                                      dt=0.1)
+        pred = ref.step(val.x0, mu=val.mu)
+        expected = np.mean(np.linalg.norm(pred - val.x1, axis=1) / np.linalg.norm(val.x1 - val.x0, axis=1))
+        assert err is None and n == 50 and value == pytest.approx(expected, rel=1e-12)
     strict = SymplecticKernelPredictor(solver=NewtonSolver(max_iter=1, backend="numpy"))
     value, _, _, err = _one_step_score(strict, params, 50, train, val)
     assert value == np.inf and "NewtonConvergenceError" in err
