@@ -199,3 +199,16 @@ def test_compiled_gramian_rows_match_numpy(dim):
         compiled = gram_rows(fun, fun, idx, np.empty((4, fun.n_functionals)), compiled=True)
         assert _fastkernels.hb_rows_supported(kernel)
         np.testing.assert_allclose(compiled, numpy_rows, rtol=1e-13, atol=1e-14 * np.abs(numpy_rows).max())
+
+
+def test_point_evaluation_functionals_block_size_one_selects_as_the_exact_greedy():
+    """The direct model's functionals (no vectorised Gramian rows: column by column) through the blocked store."""
+    fun, xi, mu, dt, _ = _problem(11, m_points=200)
+    vf = ValueFunctionals(ProductKernel(IMQ(0.5), IMQ(1.0)), xi, mu, dt)
+    y = np.cos(xi).sum(axis=1) * mu[:, 0]
+    exact = run_greedy(DenseStore(vf, y, compiled=False), max_centers=60, tol=0)
+    blocked = run_greedy(BlockedStore(vf, y, block_size=1), max_centers=60, tol=0)
+    np.testing.assert_array_equal(blocked.selected, exact.selected)
+    many = run_greedy(BlockedStore(vf, y, block_size=16, slack=0.5), max_centers=60, tol=0)
+    gram = np.array([vf.column(vf.representer(j), np.empty(200))[many.selected] for j in many.selected]).T
+    np.testing.assert_allclose(many.chol @ many.chol.T, gram, rtol=0, atol=1e-10)
