@@ -133,10 +133,10 @@ class KernelSearch(Setting):
     coordinate search's candidates, to ``m_final = min(max_centers, final_centers)`` centres and ranks them by the
     mean relative one-step error ``|Phi(x0) - x1| / |x1 - x0|`` on the held-out samples (a Newton failure scores
     ``inf``): the error a rollout compounds, at the size the model will have.
-    Both stages fit their candidates with :class:`~sympredict.interpolation.greedy.BlockedGreedy` when the
-    estimator has no ``trainer`` of its own (several times faster than the one-at-a-time greedy; the first
-    stage's ``E_val`` is the blocked greedy's validation residual per centre), with the estimator's trainer
-    otherwise.
+    The second stage fits its candidates with :class:`~sympredict.interpolation.greedy.BlockedGreedy` when the
+    estimator has no ``trainer`` of its own (faster than the one-at-a-time greedy at ``m_final`` centres), with
+    the estimator's trainer otherwise.  The first stage's small fits keep the one-at-a-time greedy: there the
+    blocked greedy's overhead is not repaid, and its ``E_val`` ranking chose other finalists.
     Cost: about ``len(updates) (len(shapes) len(parameter_shapes)^k + 3 (len(families) - 1))`` fits to ``m_star``
     centres (``k`` open parameter and step kernels), then ``len(updates) len(families) + 8 refine_sweeps`` fits to
     ``m_final`` centres, each ``O(m^2 2n max_samples)``; for 2n = 4 and 1,000 centres about a minute on 2 cores.
@@ -217,9 +217,7 @@ class KernelSearch(Setting):
         updates = list(self.updates) if open_factors["update"] else [estimator.update]
 
         def template(update):
-            model = clone(estimator).set_params(state_kernel=state_template, update=update)
-            # the candidates' fits by blocks of centres, unless the estimator has a trainer of its own
-            return model.set_params(trainer=BlockedGreedy()) if estimator.trainer is None else model
+            return clone(estimator).set_params(state_kernel=state_template, update=update)
 
         if open_factors["state"]:
             unit = 1.0 / _spread(template(updates[0]), train)
