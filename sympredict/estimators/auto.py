@@ -136,7 +136,8 @@ class KernelSearch(Setting):
     The second stage fits its candidates with :class:`~sympredict.interpolation.greedy.BlockedGreedy` when the
     estimator has no ``trainer`` of its own (faster than the one-at-a-time greedy at ``m_final`` centres), with
     the estimator's trainer otherwise.  The first stage's small fits keep the one-at-a-time greedy: there the
-    blocked greedy's overhead is not repaid, and its ``E_val`` ranking chose other finalists.
+    blocked greedy's overhead is not repaid, and with it the search chose another parameter kernel on the
+    coupled pendulums of ``benchmarks/defaults_acceptance.py``.
     Cost: about ``len(updates) (len(shapes) len(parameter_shapes)^k + 3 (len(families) - 1))`` fits to ``m_star``
     centres (``k`` open parameter and step kernels), then ``len(updates) len(families) + 8 refine_sweeps`` fits to
     ``m_final`` centres, each ``O(m^2 2n max_samples)``; for 2n = 4 and 1,000 centres about a minute on 2 cores.
