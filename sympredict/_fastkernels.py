@@ -1041,6 +1041,54 @@ def _hb_column2_parallel(points, mu, dt, xq, muq, dtq, b, e, first_family, emu, 
                           emu, mu_family, edt, dt_family, has_mu, has_dt, out)
 
 
+@_compiled(_JIT)
+def _hb_rows_range(k0, k1, points, mu, dt, xq, muq, dtq, comps, e, first_family, emu, mu_family, edt, dt_family,
+                   has_mu, has_dt, out):
+    """Gramian rows ``k0:k1`` of state-derivative functionals against every point (any ``2n``, plain kernel)."""
+    n_pts, dim = points.shape
+    d_mu = mu.shape[1]
+    diff = np.empty(dim)
+    for k in range(k0, k1):
+        b = comps[k]
+        for p in range(n_pts):
+            r2 = 0.0
+            for a in range(dim):
+                d = points[p, a] - xq[k, a]
+                diff[a] = d
+                r2 += d * d
+            A, B = _first_factors(first_family, e, math.sqrt(r2))
+            w = 1.0
+            if has_mu:
+                m2 = 0.0
+                for a in range(d_mu):
+                    dm = mu[p, a] - muq[k, a]
+                    m2 += dm * dm
+                w = _profile(mu_family, emu, math.sqrt(m2))
+            if has_dt:
+                dd = dt[p] - dtq[k]
+                w = w * _profile(dt_family, edt, math.sqrt(dd * dd))
+            g = (-(w * B)) * diff[b]
+            base = p * dim
+            for a in range(dim):
+                out[k, base + a] = diff[a] * g
+            out[k, base + b] -= w * A
+
+
+@_compiled(_JIT)
+def _hb_rows_serial(points, mu, dt, xq, muq, dtq, comps, e, first_family, emu, mu_family, edt, dt_family,
+                    has_mu, has_dt, out):
+    _hb_rows_range(0, xq.shape[0], points, mu, dt, xq, muq, dtq, comps, e, first_family, emu, mu_family, edt,
+                   dt_family, has_mu, has_dt, out)
+
+
+@_compiled(_PJIT)
+def _hb_rows_parallel(points, mu, dt, xq, muq, dtq, comps, e, first_family, emu, mu_family, edt, dt_family,
+                      has_mu, has_dt, out):
+    for k in numba.prange(xq.shape[0]):
+        _hb_rows_range(k, k + 1, points, mu, dt, xq, muq, dtq, comps, e, first_family, emu, mu_family, edt,
+                       dt_family, has_mu, has_dt, out)
+
+
 # --------------------------------------------------------------------------- kernels by family
 _NAMESPACES: dict = {}
 
@@ -1543,4 +1591,43 @@ def hb_column(kernel, points, mu, dt, representer, out: np.ndarray) -> np.ndarra
     _call(fn, points, mu, dt, np.ascontiguousarray(xq, dtype=np.float64), np.ascontiguousarray(muq, dtype=np.float64),
           float(dtq), int(b), float(kernel.state.eps), state_family, emu, mu_family, edt, dt_family,
           kernel.mu is not None, kernel.dt is not None, out)
+    return out
+
+
+def hb_rows_supported(kernel) -> bool:
+    """Whether :func:`hb_rows` applies: numba installed, a plain product kernel (no periodic coordinates, no symmetry)."""
+    return HAVE_NUMBA and kernel.periodic is None and kernel.symmetry is None
+
+
+def hb_rows(kernel, points, mu, dt, xq, muq, dtq, comps, out: np.ndarray) -> np.ndarray:
+    """Gramian rows of ``K`` state-derivative functionals against all ``N = 2n M`` of the points, compiled.
+
+    The numbers of :meth:`sympredict.interpolation.functionals.HBFunctionals.gram_rows` (the
+    formula ``w_p (-B d_pa d_pb - A delta_ab)``, ``d_p = xi_p - xi_q``) to round-off, without its
+    ``K x 1024 x 2n`` temporaries; any ``2n``.  The blocked greedy's Gramian rows for a block.
+
+    Parameters
+    ----------
+    points : ndarray of shape (M, 2n)
+    mu : ndarray of shape (M, d_mu)
+    dt : ndarray of shape (M,)
+    xq : ndarray of shape (K, 2n)
+    muq : ndarray of shape (K, d_mu)
+    dtq : ndarray of shape (K,)
+    comps : ndarray of shape (K,), int
+    out : ndarray of shape (K, N), C-contiguous
+
+    Notes
+    -----
+    ``O(K M (2n + d_mu))`` work, rows in parallel on numba's threads for ``K > 1``.
+    """
+    state, mu_k, dt_k = (k if k is not None else kernel.state for k in (kernel.state, kernel.mu, kernel.dt))
+    ns, (state_family, mu_family, dt_family) = _kernels(type(state), type(mu_k), type(dt_k))
+    emu = kernel.mu.eps if kernel.mu is not None else 0.0
+    edt = kernel.dt.eps if kernel.dt is not None else 0.0
+    fn = ns._hb_rows_parallel if (GREEDY_PARALLEL and len(xq) > 1) else ns._hb_rows_serial
+    f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)  # noqa: E731
+    _call(fn, f64(points), f64(mu), f64(dt), f64(xq), f64(muq), f64(dtq),
+          np.ascontiguousarray(comps, dtype=np.int64), float(kernel.state.eps), state_family, emu, mu_family, edt,
+          dt_family, kernel.mu is not None, kernel.dt is not None, out)
     return out

@@ -50,7 +50,7 @@ from sympredict.exceptions import (
 )
 from sympredict.interpolation.functionals import HBFunctionals, ValueFunctionals
 from sympredict.interpolation.greedy import GreedyHistory, Trainer
-from sympredict.interpolation.greedy.trainers import ExactGreedy
+from sympredict.interpolation.greedy.trainers import ExactGreedy, default_trainer
 from sympredict.kernels import IMQ, PeriodicCoordinates, ProductKernel, RadialKernel, StateSymmetry
 from sympredict.symplectic.newton import (
     WARM_HISTORY, ordered_weights, rollout_compiled, rollout_in_chunks, rollout_numpy, rollout_reference,
@@ -318,6 +318,9 @@ class _FlowMapKernelModel(Parametrized):
         Returns the selected point indices and components (``divmod`` of the flat indices).
         """
         functionals = self._functionals(kernel, points, data.mu, data.dt)
+        if self.trainer is None:  # the default: the fastest strategy that fits the memory (logged)
+            trainer = default_trainer(functionals, 0 if validation is None else validation[0].n_functionals,
+                                      self.max_centers)
         # tol is never looser than itself relative to the data (see fit): data in small units still train
         result = trainer.run(functionals, targets, max_centers=self.max_centers, validation=validation,
                              tol_scale=min(1.0, self._data_scale(data)))

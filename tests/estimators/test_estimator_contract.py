@@ -10,7 +10,7 @@ from pymor.parallel.dummy import dummy_pool
 
 from sympredict import DirectKernelPredictor, ModelFileError, SymplecticKernelPredictor
 from sympredict.base import Parametrized, clone
-from sympredict.interpolation.greedy import TRAINERS, ActiveSetGreedy, ExactGreedy, ShardedGreedy
+from sympredict.interpolation.greedy import TRAINERS, ActiveSetGreedy, BlockedGreedy, ExactGreedy, ShardedGreedy
 from sympredict.io import load_model, save_model
 from sympredict.kernels import IMQ, Matern32, Matern52
 from sympredict.symplectic.solvers import NewtonSolver
@@ -93,7 +93,7 @@ def test_sharded_strategy_keeps_its_pool_when_cloned():
 
 
 @pytest.mark.parametrize("trainer", [None, ExactGreedy(), ExactGreedy("float32"), ActiveSetGreedy(initial_points=100, seed=3),
-                                     ShardedGreedy(dummy_pool, n_shards=2, timeout=5.0)], ids=repr)
+                                     ShardedGreedy(dummy_pool, n_shards=2, timeout=5.0), BlockedGreedy(block_size=8)], ids=repr)
 def test_every_setting_round_trips_through_files(small_pendulum_data, tmp_path, trainer):
     x0, x1, mu, dt = _data(small_pendulum_data)
     settings = {"tol": 1e-9, "criterion": "f", "power_tol": 1e-11, "memory_limit": 2e9}

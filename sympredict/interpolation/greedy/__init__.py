@@ -31,15 +31,20 @@ from sympredict.interpolation.greedy.sharded import SHARD_ALIGN, ShardedStore, s
 from sympredict.interpolation.greedy.trainers import (
     TRAINERS,
     ActiveSetGreedy,
+    BlockedGreedy,
     ExactGreedy,
     ShardedGreedy,
     Trainer,
     register_trainer,
     trainer_from_spec,
+    trainer_memory,
+    default_trainer,
 )
+from sympredict.interpolation.greedy.blocked import BlockedStore
 
 __all__ = [
     "GreedyHistory", "GreedyResult", "NewtonBasisStore", "run_greedy", "DenseStore", "ActiveSetStore", "ShardedStore",
+    "BlockedStore", "BlockedGreedy", "trainer_memory", "default_trainer",
     "Trainer", "ExactGreedy", "ActiveSetGreedy", "ShardedGreedy", "TRAINERS", "register_trainer", "trainer_from_spec",
     "greedy_interpolation", "active_set_greedy", "sharded_greedy", "shard_bounds", "SHARD_ALIGN", "available_memory",
     "check_memory", "format_bytes", "kernel_coefficients",

@@ -13,7 +13,20 @@ strategy                   store                                   use it for
 :class:`ActiveSetGreedy`   an active subset, refreshed against     large data, a residual target ``tol``
                            the full residual                       (f-greedy, HB functionals)
 :class:`ShardedGreedy`     shards on a pyMOR worker pool (MPI)     data whose basis exceeds one node
+:class:`BlockedGreedy`     all candidates in memory, grown by      the f-/P-greedy at the arithmetic rate
+                           blocks of centres (matrix products)     (large ``N`` and ``m``)
 =========================  ======================================  ======================================
+
+Peak memory of the stores (bytes; ``N``, ``N_val``: training and validation
+functionals, ``m``: ``max_centers``, ``b``: block size, ``c``: pool factor, ``N_S``:
+active functionals, ``P``: shards; :func:`trainer_memory` evaluates them):
+
+* :class:`ExactGreedy`: ``itemsize m (N + N_val)`` (``itemsize`` 8, or 4 for a float32 basis);
+* :class:`BlockedGreedy`: ``8 ((m + b) (N + N_val) + (c b)^2)``;
+* :class:`ActiveSetGreedy`: ``8 m (N_S + N_val)``, ``N_S <= 2n (initial_points + max_new_points m / refresh_every)``;
+* :class:`ShardedGreedy`: ``8 m (N + N_val) / P`` per worker.
+
+Each adds ``O(m^2)`` for the Cholesky factor and ``O(N)`` vectors.
 
 A strategy that cannot combine with a setting (a P-greedy on the active set,
 a float32 basis on shards) raises ``ValueError`` when the run starts.  A new
@@ -32,11 +45,12 @@ from pymor.core.logger import getLogger
 from sympredict.base import Setting
 from sympredict.interpolation.functionals import HBFunctionals
 from sympredict.interpolation.greedy.active_set import ActiveSetStore
+from sympredict.interpolation.greedy.blocked import BlockedStore, blocked_memory
 from sympredict.interpolation.greedy.dense import DenseStore
-from sympredict.interpolation.greedy.loop import GreedyResult, run_greedy
+from sympredict.interpolation.greedy.loop import GreedyResult, available_memory, format_bytes, run_greedy
 from sympredict.interpolation.greedy.sharded import ShardedStore
 
-__all__ = ["Trainer", "ExactGreedy", "ActiveSetGreedy", "ShardedGreedy", "TRAINERS", "register_trainer", "trainer_from_spec"]
+__all__ = ["Trainer", "ExactGreedy", "ActiveSetGreedy", "ShardedGreedy", "BlockedGreedy", "trainer_memory", "default_trainer", "TRAINERS", "register_trainer", "trainer_from_spec"]
 
 logger = getLogger("sympredict.interpolation.greedy")
 
@@ -135,6 +149,11 @@ class ExactGreedy(Trainer):
         on the selected centres instead of interpolating them.  ``0`` (default):
         exact interpolation.  Choose it on validation data
         (:func:`sympredict.estimators.selection.select_regularization`).
+
+    Notes
+    -----
+    Peak memory ``itemsize m (N + N_val)`` bytes (``itemsize`` 8, 4 for float32; :func:`trainer_memory`),
+    checked before the run; time ``O(m^2 (N + N_val))`` at memory bandwidth.
     """
 
     def __init__(self, basis_dtype: str = "float64", *, tol: float = 1e-10, criterion: str = "f",
@@ -160,8 +179,9 @@ class ActiveSetGreedy(Trainer):
     describes the parameters; ``tol``, ``power_tol`` and ``memory_limit`` as for
     :class:`ExactGreedy`.  An f-greedy without regularization: it has neither
     ``criterion`` nor ``regularization``.)  The run stops when the max residual over *all*
-    functionals reaches ``tol`` (or at ``max_centers``); memory ``O(m N_active)``
-    instead of ``O(m N)``.  Scenario A (688,464 functionals, ``tol=1e-5``)
+    functionals reaches ``tol`` (or at ``max_centers``); memory ``8 m (N_S + N_val)`` bytes for ``N_S``
+    active functionals instead of ``8 m (N + N_val)``: first ``N_S = 2n min(M, initial_points + 4 max_new_points)``,
+    grown by doubling while points join (:func:`trainer_memory`).  Scenario A (688,464 functionals, ``tol=1e-5``)
     trains in a fraction of the exact greedy's time (``docs/explanation/performance.md``).
     """
 
@@ -192,7 +212,7 @@ class ShardedGreedy(Trainer):
     """The exact greedy with the candidates sharded over a pyMOR worker pool (:class:`~sympredict.interpolation.greedy.sharded.ShardedStore`).
 
     Selects exactly the serial greedy's centres (same coefficients bit for
-    bit); ``O(m N / P)`` work and memory per worker.
+    bit); ``O(m N / P)`` work and ``8 m (N + N_val) / P`` bytes per worker.
 
     Parameters
     ----------
@@ -238,6 +258,127 @@ class ShardedGreedy(Trainer):
         params = self.get_params(deep=False)
         params["pool"] = None
         return {"name": type(self).__name__, "params": params}
+
+
+@register_trainer
+class BlockedGreedy(Trainer):
+    """The f-greedy (or P-greedy) grown by blocks of centres with matrix-matrix products (:class:`~sympredict.interpolation.greedy.blocked.BlockedStore`).
+
+    How a block is chosen: the ``pool_factor * block_size`` candidates with the
+    largest criterion form a pool; the greedy runs inside the pool on its
+    residual Gramian (a pivoted Cholesky whose pivot is the pool's current
+    argmax of ``|r|``, or of ``P2`` for the P-greedy), dropping candidates that
+    became dependent, and stops after ``block_size`` centres or when the pool's
+    leader falls below the best candidate left outside it.  The block's Newton
+    basis rows then come from one Gramian-rows call, one matrix product and one
+    triangular solve; the history is recorded per centre as for the exact greedy.
+    Each of the block's centres is taken only while its criterion is at least
+    ``1 - slack`` times the current maximum over all candidates (a weak greedy);
+    otherwise a new block starts.  ``block_size=1`` or ``slack=0`` selects the
+    exact greedy's centres (to round-off).
+
+    Parameters
+    ----------
+    block_size
+        Centres per block at most (``b``).
+    pool_factor
+        The pool's size in blocks (``c``).
+    slack
+        The weak greedy's slack: ``0`` the exact greedy's selection (slow: blocks
+        break early), ``0.5`` (default) a block's centre is taken while its
+        criterion is at least half the maximum.
+    tol, criterion, power_tol, memory_limit
+        As for :class:`ExactGreedy` (no ``regularization``, no float32 basis).
+
+    Notes
+    -----
+    Time: the exact greedy's ``2 m N`` flops per centre in ``b``-column products
+    (arithmetic-bound instead of bandwidth-bound) plus ``O(N q)`` per centre.
+    Memory ``8 ((m + b) (N + N_val) + (c b)^2)`` bytes.
+    """
+
+    def __init__(self, block_size: int = 64, pool_factor: int = 4, slack: float = 0.5, *, tol: float = 1e-10, criterion: str = "f",
+                 power_tol: float = 1e-12, memory_limit: Optional[float] = None):
+        self.tol = tol
+        self.criterion = criterion
+        self.power_tol = power_tol
+        self.memory_limit = memory_limit
+        self.block_size = block_size
+        self.pool_factor = pool_factor
+        self.slack = slack
+
+    def store(self, functionals, targets, *, tol, validation):
+        return BlockedStore(functionals, targets, criterion=self.criterion, power_tol=self.power_tol,
+                            validation=validation, memory_limit=self.memory_limit, block_size=self.block_size,
+                            pool_factor=self.pool_factor, slack=self.slack)
+
+
+def trainer_memory(trainer: Trainer, n_train: int, n_val: int, max_centers: int, dim: int = 1,
+                   initial: bool = False) -> float:
+    """Peak bytes of ``trainer``'s store for ``n_train`` training and ``n_val`` validation functionals (module docstring).
+
+    ``dim``: functionals per point (``2n`` for the state-derivative functionals; the active set's size).
+    For :class:`ActiveSetGreedy` the bound assumes every refresh adds ``max_new_points``; ``initial=True``
+    gives its first allocation ``8 m (2n min(M, initial_points + 4 max_new_points) + N_val)`` instead (the
+    active set then grows by doubling, up to three times the grown size while it copies).
+    """
+    m = int(max_centers)
+    if isinstance(trainer, BlockedGreedy):
+        b = min(int(trainer.block_size), m)
+        return float(blocked_memory(m, n_train, n_val, b, int(trainer.pool_factor)))
+    if isinstance(trainer, ExactGreedy):
+        return float(np.dtype(trainer.basis_dtype).itemsize * m * (n_train + n_val))
+    if isinstance(trainer, ActiveSetGreedy):
+        if initial:
+            active = dim * (trainer.initial_points + 4 * trainer.max_new_points)
+        else:
+            active = dim * (trainer.initial_points + trainer.max_new_points * -(-m // max(int(trainer.refresh_every), 1)))
+        return float(8 * m * (min(active, n_train) + n_val))
+    if isinstance(trainer, ShardedGreedy):
+        shards = trainer.n_shards or 1
+        return float(8 * m * (n_train + n_val) / shards)
+    raise ValueError(f"no memory formula for the training strategy {type(trainer).__name__}")
+
+
+#: Above this size of the exact greedy's Newton basis (bytes) the default is the blocked greedy: the one-at-a-time
+#: greedy streams the whole basis once per centre and runs at memory bandwidth, the blocked one at the arithmetic rate.
+BLOCKED_ABOVE_BYTES = 2 ** 30
+
+
+def default_trainer(functionals, n_val: int, max_centers: int, memory: Optional[float] = None) -> Trainer:
+    """The training strategy a fit without ``trainer`` uses: the fastest that fits the memory, logged with the reason.
+
+    * :class:`ExactGreedy` where its Newton basis ``8 m (N + N_val)`` fits in ``memory`` and is below
+      :data:`BLOCKED_ABOVE_BYTES` (1 GiB);
+    * :class:`BlockedGreedy` where the basis is larger and ``8 ((m + b) (N + N_val) + (c b)^2)`` still fits
+      (the same selection rule up to the weak greedy's slack, several times faster);
+    * :class:`ActiveSetGreedy` (state-derivative functionals) where neither fits but its first active set
+      does with room to grow (a third of ``memory``);
+    * else :class:`ExactGreedy`, whose memory check then says what fits.
+
+    ``memory``: bytes available (default 90 % of the available memory, :func:`available_memory`).
+    """
+    n, m = functionals.n_functionals, min(int(max_centers), functionals.n_functionals)
+    limit = 0.9 * available_memory() if memory is None else float(memory)
+    exact, blocked = ExactGreedy(), BlockedGreedy()
+    need_exact, need_blocked = trainer_memory(exact, n, n_val, m), trainer_memory(blocked, n, n_val, m)
+    if need_exact <= min(limit, BLOCKED_ABOVE_BYTES) or (need_exact <= limit < need_blocked):
+        choice, why = exact, f"its Newton basis needs {format_bytes(need_exact)} of {format_bytes(limit)}"
+    elif need_blocked <= limit:
+        choice, why = blocked, (f"the Newton basis ({format_bytes(need_blocked)} of {format_bytes(limit)}) exceeds "
+                                f"{format_bytes(BLOCKED_ABOVE_BYTES)}: blocks of centres with matrix products")
+    elif isinstance(functionals, HBFunctionals):
+        active = ActiveSetGreedy(memory_limit=limit)
+        need = trainer_memory(active, n, n_val, m, dim=functionals.dim, initial=True)
+        if 3 * need <= limit:
+            choice, why = active, (f"the full Newton basis ({format_bytes(need_exact)}) exceeds {format_bytes(limit)}; "
+                                   f"the active set starts at {format_bytes(need)}")
+        else:
+            choice, why = exact, "nothing fits: the exact greedy's memory check says what does"
+    else:
+        choice, why = exact, "nothing fits: the exact greedy's memory check says what does"
+    logger.info(f"trainer: {type(choice).__name__} ({why})")
+    return choice
 
 
 def trainer_from_spec(spec: Optional[dict]) -> Trainer:
