@@ -75,6 +75,7 @@ from __future__ import annotations
 
 import logging
 import math
+import os
 import time
 import types
 from typing import Optional
@@ -982,11 +983,71 @@ def _kernels(*families):
     """
     _check_available()
     outside = tuple(dict.fromkeys(f for f in families if f not in FAMILY_CODES))
-    ns = _NAMESPACES.get(outside)
+    serial = not parallel_safe()
+    ns = _NAMESPACES.get((outside, serial))
     if ns is None:
-        ns = _NAMESPACES[outside] = _package_namespace() if not outside else _user_namespace(outside)
+        ns = _package_namespace() if not outside else _user_namespace(outside)
+        ns = _NAMESPACES[(outside, serial)] = _serial_namespace(ns) if serial else ns
     codes = tuple(FAMILY_CODES[f] if f in FAMILY_CODES else FamilyCode(-1 - outside.index(f)) for f in families)
     return ns, codes
+
+
+# --------------------------------------------------------------------------- fork safety
+#: Set in a process forked after numba's threading layer started (GNU OpenMP cannot run a parallel region in
+#: such a child: numba terminates it).  Such a child runs the parallel loops serially (:func:`parallel_safe`).
+_FORKED_AFTER_THREADS = False
+_FORK_WARNED = False
+
+
+def _threads_started() -> bool:
+    """Whether numba's threading layer has started in this process (its worker threads exist)."""
+    try:
+        from numba.np.ufunc import parallel as _parallel
+
+        return bool(getattr(_parallel, "_is_initialized", True))
+    except Exception:  # noqa: BLE001 - an unknown numba layout: assume started (the safe side)
+        return True
+
+
+def _after_fork_in_child() -> None:
+    global _FORKED_AFTER_THREADS, _FORK_WARNED
+    if HAVE_NUMBA and (_FORKED_AFTER_THREADS or _threads_started()):
+        _FORKED_AFTER_THREADS = True
+        _FORK_WARNED = False
+        _NAMESPACES.clear()
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_after_fork_in_child)
+
+
+def parallel_safe() -> bool:
+    """Whether numba's parallel loops may run in this process: not in a child forked after they ran.
+
+    In such a child (``os.fork``, ``multiprocessing`` with the fork start method) every compiled kernel runs
+    its loops on one thread (the same code compiled without ``parallel``), and one :class:`RuntimeWarning`
+    says so; the results are those of the serial kernels.
+    """
+    global _FORK_WARNED
+    if not _FORKED_AFTER_THREADS:
+        return True
+    if not _FORK_WARNED:
+        _FORK_WARNED = True
+        import warnings
+
+        warnings.warn("this process was forked after numba's parallel loops ran (GNU OpenMP cannot run them in a "
+                      "forked child): the compiled kernels run on one thread here; use multiprocessing's 'spawn' or "
+                      "'forkserver' start method for parallel loops in the workers", RuntimeWarning, stacklevel=3)
+    return False
+
+
+def _serial_namespace(ns: types.SimpleNamespace) -> types.SimpleNamespace:
+    """``ns`` with each parallel kernel replaced by the same function compiled without ``parallel`` (uncached)."""
+    out = types.SimpleNamespace(**vars(ns))
+    for name, _function, flags in _DEFINITIONS:
+        if flags.get("parallel"):
+            setattr(out, name, numba.njit(nogil=True)(getattr(ns, name).py_func))
+    return out
 
 
 def _check_available():
@@ -1161,6 +1222,7 @@ def newton_rollout(x0, weights, dt, layout: CenterLayout, kernel, max_iter: int,
     resid = np.zeros(b)
     if parallel is None:
         parallel = b >= PARALLEL_MIN_BATCH
+    parallel = parallel and parallel_safe()  # a child forked after the parallel loops ran: the cached serial kernel
     maps = check_around(around, b, dim, warm_start)
     pre, post = maps if maps is not None else (np.empty((0, dim, dim)), np.empty((0, dim, dim)))
     prev = previous_states(previous, b, dim)

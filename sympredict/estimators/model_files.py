@@ -38,9 +38,9 @@ MODEL_FORMAT = "sympredict-model"
 MODEL_LAYOUT = 3
 
 
-def save(model, path) -> None:
-    """Write ``model`` to ``path`` atomically (:func:`to_container`)."""
-    write_container(path, MODEL_FORMAT, *to_container(model))
+def save(model, path, *, overwrite: bool = True) -> None:
+    """Write ``model`` to ``path`` atomically (:func:`to_container`); ``overwrite=False`` refuses an existing file."""
+    write_container(path, MODEL_FORMAT, *to_container(model), overwrite=overwrite)
 
 
 def load(cls, path):

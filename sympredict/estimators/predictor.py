@@ -490,14 +490,16 @@ class _FlowMapKernelModel(Parametrized):
                                  x, n_steps, stride=stride, progress=progress)
 
     # ----------------------------------------------------------------- files
-    def save(self, path) -> None:
+    def save(self, path, *, overwrite: bool = True) -> None:
         """Save the fitted model to an HDF5 file (atomically; :mod:`sympredict.estimators.model_files`).
+
+        ``overwrite=False`` refuses an existing file (also one created while saving) with :class:`FileExistsError`.
 
         Every parameter (kernels and transforms, update, trainer, solver) and the fitted state are
         stored; the greedy's wall-clock timings are not (files are byte-for-byte
         reproducible), nor its Newton data (a loaded model cannot be :meth:`truncated`).
         """
-        model_files.save(self, path)
+        model_files.save(self, path, overwrite=overwrite)
 
     @classmethod
     def load(cls, path):
