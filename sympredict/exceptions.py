@@ -20,6 +20,8 @@ __all__ = [
     "RolloutMemoryError",
     "NonFinitePredictionError",
     "ExtrapolationWarning",
+    "ScaleWarning",
+    "WrappedAngleWarning",
     "GeneratingFunctionWarning",
     "UnderfitWarning",
     "DuplicateSamplesWarning",
@@ -149,6 +151,16 @@ class ExtrapolationWarning(UserWarning):
 class GeneratingFunctionWarning(UserWarning):
     """The type-II generating function ``s(q0, p1)`` is close to not existing on the data
     (``dp1/dp0`` nearly singular): the macro step is close to its largest admissible value."""
+
+
+class ScaleWarning(UserWarning):
+    """Coordinates (conjugate pairs) or parameter components whose spreads differ by orders of magnitude: an
+    isotropic kernel hardly sees the small ones, which are then learned badly; the message names them."""
+
+
+class WrappedAngleWarning(UserWarning):
+    """A coordinate jumps by about ``2 pi`` between consecutive states while it otherwise moves little: an angle
+    wrapped to an interval; unwrap it and make the kernel periodic in it (the message names the coordinate)."""
 
 
 class UnderfitWarning(UserWarning):

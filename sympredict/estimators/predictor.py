@@ -38,7 +38,7 @@ from sympredict._checks import as_model_parameter, as_positive_int, as_states, a
 from sympredict.base import Parametrized, clone
 from sympredict.data import FlowMapData, TrajectoryData, _drop_duplicate_samples, as_flowmap_data, unique_samples
 from sympredict.estimators import model_files
-from sympredict.estimators.auto import KernelSearch, _holdout_split, diagnose
+from sympredict.estimators.auto import KernelSearch, _holdout_split, diagnose, warn_wrapped_angles
 from sympredict.estimators._compat import _NEUTRAL, MOVED_OPTIONS, apply_moved, replacement
 from sympredict.estimators.model_files import MODEL_FORMAT, MODEL_LAYOUT
 from sympredict.exceptions import (
@@ -48,6 +48,7 @@ from sympredict.exceptions import (
     NotFittedError,
     SolvabilityError,
     UnderfitWarning,
+    WrappedAngleWarning,
 )
 from sympredict.interpolation.functionals import HBFunctionals, ValueFunctionals
 from sympredict.interpolation.greedy import GreedyHistory, Trainer
@@ -185,8 +186,8 @@ class _FlowMapKernelModel(Parametrized):
                 current = getattr(self, part)
                 setattr(self, part, default() if current is None else clone(current))
         super().set_params(**params)
-        if moved:
-            apply_moved(self, moved)
+        if moved:  # an old option and its part given in one call: refused where they differ
+            apply_moved(self, moved, check_both=bool({MOVED_OPTIONS[k][0] for k in moved} & {k.split("__")[0] for k in params}))
         return self
 
     # ------------------------------------------------ fitted settings
@@ -671,7 +672,7 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         self.solver = solver
         self.search = search
         if deprecated:
-            apply_moved(self, deprecated)
+            apply_moved(self, deprecated, check_both=True)
 
     def fit(self, x0, x1=None, mu=None, dt=None, *, validation=None) -> "SymplecticKernelPredictor":
         """Train the surrogate on flow-map samples.
@@ -729,6 +730,10 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         fit to score it (``diagnostics_``); the search runs on a subsample of the rest.
         """
         search = None
+        for name in ("diagnostics_", "search_", "choice_"):  # never the previous fit's beside a new model (Ctrl-C)
+            self.__dict__.pop(name, None)
+        if self._state_parts().periodic is None:
+            warn_wrapped_angles(data)
         if not any(open_factors.values()):
             params = {}
             train, holdout = data, validation
@@ -741,7 +746,10 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
                 train, holdout = _holdout_split(data, self._search().seed)
             else:
                 train, holdout = data, validation
-            search = self._search().choose(self, train, open_factors)
+            with warnings.catch_warnings():  # the candidates' fits: the warnings are about the final model, once
+                warnings.simplefilter("ignore", UnderfitWarning)
+                warnings.simplefilter("ignore", WrappedAngleWarning)
+                search = self._search().choose(self, train, open_factors)
             params = search.params
         model = clone(self).set_params(**params) if params else self
         with model._fitting():
@@ -1234,7 +1242,7 @@ class DirectKernelPredictor(_FlowMapKernelModel):
         self.max_centers = max_centers
         self.trainer = trainer
         if deprecated:
-            apply_moved(self, deprecated)
+            apply_moved(self, deprecated, check_both=True)
 
     def _check_params(self) -> Trainer:
         trainer = super()._check_params()

@@ -57,8 +57,7 @@ import math
 
 import numpy as np
 
-from sympredict._fastkernels import parallel_safe
-from sympredict._numeric import fill_nan_after, lu_solve_inplace
+from sympredict._numeric import fill_nan_after, lu_solve_inplace, parallel_safe
 from sympredict._checks import as_parameter, as_positive_int, as_states, as_steps
 from sympredict.exceptions import NewtonConvergenceError
 from sympredict.symplectic.integrators import COMPOSITIONS, SCHEMES, integrate
