@@ -598,6 +598,14 @@ def diagnose(model, train: FlowMapData, holdout: Optional[FlowMapData]) -> FitDi
     if np.isfinite(holdout_res) and train_abs > 0 and holdout_res * rel > 10 * train_abs:
         advice.append(f"more data: the hold-out residual is {holdout_res * rel / train_abs:.0f}x the training residual, "
                       "the samples do not resolve the map between them")
+    train_curve = np.asarray(h.train_max_residual, dtype=float)
+    if (h.stop_reason == "max_centers" and m >= 20 and train_abs / rel > 1e-3
+            and train_curve[-1] > 0.3 * train_curve[m // 4]
+            and (val_curve is None or float(val_curve[-1]) > 0.3 * float(val_curve[m // 4]))):
+        advice.append(f"noisy data? the residuals stalled at {train_abs / rel:.1e} of the largest target over the last "
+                      f"three quarters of the {m} centres, as when the centres fit noise: if the data carry noise, pass "
+                      "trainer=ExactGreedy(regularization=...) of about the noise's variance, or fewer centres "
+                      "(max_centers); more centres will not help")
     if holdout is not None and model.n_mu_ and len(holdout) >= 20:
         advice += _edge_advice(model, holdout)
     if np.isinf(step_err):

@@ -14,6 +14,8 @@ import re
 import zipfile
 from pathlib import Path
 
+import logging
+
 import numpy as np
 
 from sympredict.container import atomic_output
@@ -32,6 +34,8 @@ LAYOUT = (
 
 #: Default largest size of the numbers read from one file (bytes of float64): 4 GiB.
 MAX_BYTES = 4 * 2**30
+
+logger = logging.getLogger(__name__)
 
 _SUFFIXES = {".npz": "npz", ".h5": "hdf5", ".hdf5": "hdf5", ".csv": "csv"}
 
@@ -337,7 +341,13 @@ def _csv_lines(fh, path: Path):
         yield line
 
 
-def _csv_table(path: Path, max_bytes: int, layout: str, select):
+def _decimals(cell: str) -> int:
+    """Digits after the decimal point of a number written without an exponent (a large number otherwise)."""
+    cell = cell.strip()
+    return 99 if "e" in cell.lower() else len(cell.partition(".")[2])
+
+
+def _csv_table(path: Path, max_bytes: int, layout: str, select, decimals: list = None):
     """Stream a CSV file: its header, then every non-blank row's numbers (checked against ``max_bytes`` as parsed).
 
     Parameters
@@ -356,6 +366,8 @@ def _csv_table(path: Path, max_bytes: int, layout: str, select):
         The distinct labels in order of first appearance.
     lines : ndarray of shape (N,) of int64
         Each row's line in the file.
+
+    ``decimals``, a list ``[0]``, gets the most digits after the decimal point in the first column read.
 
     Notes
     -----
@@ -391,6 +403,8 @@ def _csv_table(path: Path, max_bytes: int, layout: str, select):
                                      f"{max_bytes} bytes; pass a larger max_bytes if the file is meant to be this large")
                 rows.append(_csv_numbers(path, header, line, row, columns))
                 lines.append(line)
+                if decimals is not None:
+                    decimals[0] = max(decimals[0], _decimals(row[columns[0]]))
                 if label_column is not None:
                     label = row[label_column].strip()
                     if not label:
@@ -443,7 +457,8 @@ def _read_csv(path: Path, max_bytes: int) -> TrajectoryData:
         picked.update(n=n, d=d)
         return columns, names["traj"]
 
-    header, table, ids, traj_ids, lines = _csv_table(path, max_bytes, LAYOUT, select)
+    decimals = [0]
+    header, table, ids, traj_ids, lines = _csv_table(path, max_bytes, LAYOUT, select, decimals)
     n, d = picked["n"], picked["d"]
     if not len(table):
         raise ValueError(f"{str(path)!r} has a header but no data rows ({LAYOUT})")
@@ -469,7 +484,31 @@ def _read_csv(path: Path, max_bytes: int) -> TrajectoryData:
         if len(varying):
             raise ValueError(f"{str(path)!r}: the parameter columns must be constant within a trajectory; trajectory "
                              f"{traj_ids[varying[0]]!r} has several values")
+    step = _rounded_uniform_step(times, decimals[0])
+    if step is not None:
+        return TrajectoryData(states, mu[:, 0] if d else None, dt=step)
     return TrajectoryData(states, mu[:, 0] if d else None, times=times)
+
+
+#: Times written with ``d`` decimals are uniform if their steps agree within ``10^-d`` (two roundings), as long as
+#: that is at most this fraction of the step.
+ROUNDED_TIMES_RTOL = 1e-3
+
+
+def _rounded_uniform_step(times: np.ndarray, decimals: int):
+    """The common step of times rounded to ``decimals`` digits in the file, or None (not uniform to that precision,
+    or uniform to round-off already: :class:`TrajectoryData` sees that itself).
+
+    The step returned is ``(t_K - t_0) / K`` of the first trajectory, whose error is ``10^-d / K``.
+    """
+    k = times.shape[1] - 1
+    h = float((times[0, -1] - times[0, 0]) / k)
+    tol = min(10.0 ** -decimals, ROUNDED_TIMES_RTOL * h) if decimals < 99 else 0.0
+    dev = float(np.abs(np.diff(times, axis=1) - h).max())
+    if dev <= 64 * np.finfo(float).eps * float(np.abs(times).max()) or dev > tol:
+        return None
+    logger.info(f"times written with {decimals} decimals: uniform within {tol:.1g} (steps {h:.12g} +- {dev:.1g})")
+    return h
 
 
 # --------------------------------------------------------------------------- writing, initial states
