@@ -91,7 +91,7 @@ except ImportError:  # pragma: no cover
 
 from sympredict._numeric import lu_solve_inplace, parallel_safe
 from sympredict.kernels import IMQ, Matern32, Matern52
-from sympredict.newton_rule import converged, residual_floor
+from sympredict.newton_rule import WATCHDOG, accepted, converged, residual_floor
 
 __all__ = [
     "rollout_loaded",
@@ -634,11 +634,18 @@ def _solve_one(x, w, h, cT, seg, family, eps, max_iter, out, sc, grad, hess, jac
             xi[a] = x[a]
     last = np.inf
     f_norm = np.inf
+    # the watchdog (sympredict.newton_rule): the best iterate, its update and |F|_2, passes since, the step fraction
+    u_best = np.empty(k)
+    d_best = np.zeros(k)
+    best = np.inf
+    since = 0
+    fraction = 1.0  # below 1: a damped trial from the best iterate
     for it in range(max_iter):
         for a in range(k):
             xi[dim - k + a] = u[a]
         floor = _pass(xi, w, cT, seg, family, eps, 2 if mid else 1, sc, grad, hess)
         f_norm = 0.0
+        merit = 0.0
         scale = 0.0
         finite = True
         for a in range(k):
@@ -650,6 +657,7 @@ def _solve_one(x, w, h, cT, seg, family, eps, max_iter, out, sc, grad, hess, jac
                 fk = u[a] - x[n + a] + h * grad[a]
                 x_ref = x[n + a]
             delta[a] = fk
+            merit += fk * fk
             if not math.isfinite(fk):
                 finite = False
             af = abs(fk)
@@ -661,9 +669,23 @@ def _solve_one(x, w, h, cT, seg, family, eps, max_iter, out, sc, grad, hess, jac
             ap = abs(x_ref)
             if ap > scale:
                 scale = ap
+        f_floor = residual_floor(scale, floor, abs(hh))
+        merit = math.sqrt(merit)
+        new_best = accepted(merit, best, fraction, f_norm, f_floor)
+        if fraction < 1.0 and not new_best:  # a damped trial rejected: halve it again
+            fraction *= 0.5
+            for a in range(k):
+                u[a] = u_best[a] - fraction * d_best[a]
+            continue
+        if fraction == 1.0 and not new_best:
+            since += 1
+            if since >= WATCHDOG or not finite:  # no progress: back to the best iterate, half its step
+                fraction = 0.5
+                for a in range(k):
+                    u[a] = u_best[a] - fraction * d_best[a]
+                continue
         if not finite:
             return 1, f_norm, it
-        f_floor = residual_floor(scale, floor, abs(hh))
         if mid:  # I - dT/2 J H: rows of J H are (H[n + a], -H[a])
             for a in range(n):
                 for c in range(dim):
@@ -693,6 +715,13 @@ def _solve_one(x, w, h, cT, seg, family, eps, max_iter, out, sc, grad, hess, jac
                     out[n + a] = u[a]
             return 0, f_norm, it
         last = d_norm
+        if new_best:
+            best = merit
+            since = 0
+            for a in range(k):
+                u_best[a] = u[a]
+                d_best[a] = delta[a]
+        fraction = 1.0
         for a in range(k):
             u[a] -= delta[a]
     return 3, f_norm, max_iter
