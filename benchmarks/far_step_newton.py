@@ -55,17 +55,18 @@ def main(argv=None):
     parser.add_argument("--steps", type=int, default=50)
     parser.add_argument("--model", choices=["small", "narrow", "default"], default="narrow")
     parser.add_argument("--no-timing", action="store_true")
+    parser.add_argument("--timing-only", action="store_true")
     args = parser.parse_args(argv)
     warnings.simplefilter("ignore", ExtrapolationWarning)
     m = model(args.model)
     x0, mu = states()
     out = {"batch": {}, "per_instance": {}, "moved": {}, "timing": {}}
-    for backend in ("numpy", "numba"):
+    for backend in () if args.timing_only else ("numpy", "numba"):
         out["batch"][backend] = outcome(m, x0, mu, 1.0, args.steps, backend)
-    dts = [float(v) for v in args.dts.split(",")]
+    dts = [] if args.timing_only else [float(v) for v in args.dts.split(",")]
     rng = np.random.default_rng(1)
     pert = x0 * (1 + 1e-11 * rng.standard_normal(x0.shape))
-    for backend in ("numpy", "numba"):
+    for backend in () if args.timing_only else ("numpy", "numba"):
         rows, moved = {}, 0
         for dt in dts:
             for i in range(len(x0)):
@@ -76,8 +77,9 @@ def main(argv=None):
                 moved += sa != sb
         out["per_instance"][backend] = rows
         out["moved"][backend] = {"moved": moved, "failures": sum(v[0] >= 0 for v in rows.values()), "cases": len(rows)}
-    agree = sum(out["per_instance"]["numpy"][k][0] == out["per_instance"]["numba"][k][0] for k in out["per_instance"]["numpy"])
-    out["backends_agree_per_instance"] = {"agree": agree, "cases": len(out["per_instance"]["numpy"])}
+    if not args.timing_only:
+        agree = sum(out["per_instance"]["numpy"][k][0] == out["per_instance"]["numba"][k][0] for k in out["per_instance"]["numpy"])
+        out["backends_agree_per_instance"] = {"agree": agree, "cases": len(out["per_instance"]["numpy"])}
     # the normal rollout (dT in the training range) side by side: median of 5
     xs, ms = states(200, seed=3)
     for backend in () if args.no_timing else ("numpy", "numba"):
@@ -93,7 +95,7 @@ def main(argv=None):
     if args.json:
         with open(args.json, "w") as f:
             f.write(text)
-    print(json.dumps({k: out[k] for k in ("batch", "moved", "backends_agree_per_instance", "timing")}, indent=1))
+    print(json.dumps({k: out.get(k) for k in ("batch", "moved", "backends_agree_per_instance", "timing")}, indent=1))
 
 
 if __name__ == "__main__":

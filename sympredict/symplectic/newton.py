@@ -238,12 +238,14 @@ def _newton(sur: HBSurrogate, x: np.ndarray, u: np.ndarray, weights: np.ndarray,
         f_floor = residual_floor(scale, floor, np.abs(ha))
         f_last[active] = f_norm
         new_best = accepted(merit, best[active], fraction[active], f_norm, f_floor)
-        damped = fraction[active] < 1.0
-        free_stalled = ~damped & ~new_best
-        since[active[free_stalled]] += 1
-        restart = free_stalled & ((since[active] >= WATCHDOG) | ~np.isfinite(f_norm))
-        back = (damped & ~new_best) | restart
-        if back.any():  # a damped trial rejected (halve it again), or no progress: back to the best iterate
+        back = None  # no instance goes back (the usual case: every iterate improves)
+        if not new_best.all():
+            damped = fraction[active] < 1.0
+            free_stalled = ~damped & ~new_best
+            since[active[free_stalled]] += 1
+            restart = free_stalled & ((since[active] >= WATCHDOG) | ~np.isfinite(f_norm))
+            back = (damped & ~new_best) | restart
+        if back is not None and back.any():  # a damped trial rejected (halve it again), or no progress: back
             rest = active[back]
             fraction[rest] = np.where(restart[back], 0.5, 0.5 * fraction[rest])
             u[rest] = u_best[rest] - fraction[rest, None] * d_best[rest]
