@@ -15,6 +15,7 @@ import warnings
 import numpy as np
 
 from sympredict import SymplecticKernelPredictor
+from sympredict.container import atomic_output
 from sympredict.exceptions import ExtrapolationWarning, NewtonConvergenceError
 from sympredict.interpolation.greedy import ExactGreedy
 from sympredict.kernels import IMQ
@@ -91,10 +92,9 @@ def main(argv=None):
             m.rollout(xs, 100, mu=ms, dt=0.05)
             t.append(time.perf_counter() - t0)
         out["timing"][backend] = float(np.median(t))
-    text = json.dumps(out, indent=1)
     if args.json:
-        with open(args.json, "w") as f:
-            f.write(text)
+        with atomic_output(args.json) as fh:
+            fh.write(json.dumps(out, indent=1).encode())
     print(json.dumps({k: out.get(k) for k in ("batch", "moved", "backends_agree_per_instance", "timing")}, indent=1))
 
 
