@@ -280,7 +280,7 @@ def _save_model_or_keep(model, out, overwrite: bool = True) -> None:
     """``model.save(out)``; if that fails after training, save it beside ``out`` (or in the temp folder) and say where.
     ``overwrite=False`` (no ``--force``): a file created at ``out`` meanwhile (another run) is not replaced."""
     try:
-        model.save(out, overwrite=overwrite)
+        model.save(out) if overwrite else model.save(out, overwrite=False)
         return
     except OSError as exc:
         failure = exc
