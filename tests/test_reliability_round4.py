@@ -529,6 +529,12 @@ def test_times_jittered_beyond_their_decimals_stay_non_uniform(tmp_path):
     assert read_trajectories(tmp_path / "t.csv").dt is None
 
 
+def test_unix_second_times_give_the_written_step(tmp_path):
+    """Times such as 1700000000.01 parse with round-off of their magnitude: the step is the written 0.01."""
+    _csv_times(tmp_path / "t.csv", [f"{1_700_000_000 + k * 0.01:.2f}" for k in range(300)])
+    assert read_trajectories(tmp_path / "t.csv").dt == 0.01
+
+
 # --------------------------------------------------------------------------- reductor inputs
 def test_reductor_trajectories_outside_parameter_space_are_refused(small_fe_wave):
     from sympredict.mor import SymplecticKernelReductor

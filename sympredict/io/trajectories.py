@@ -496,16 +496,31 @@ ROUNDED_TIMES_RTOL = 1e-3
 
 
 def _rounded_uniform_step(times: np.ndarray, decimals: int):
-    """The common step of times rounded to ``decimals`` digits in the file, or None (not uniform to that precision,
-    or uniform to round-off already: :class:`TrajectoryData` sees that itself).
+    """The common step of times written with ``decimals`` digits in the file, or None (not uniform to that
+    precision, or uniform to round-off already: :class:`TrajectoryData` sees that itself).
 
-    The step returned is ``(t_K - t_0) / K`` of the first trajectory, whose error is ``10^-d / K``.
+    Steps that are all the same whole number ``c`` of units ``10^-d`` (large times such as Unix seconds, whose
+    parsed differences carry the round-off of the times' magnitude) give exactly ``c 10^-d``.  Otherwise, steps
+    within ``min(10^-d, ROUNDED_TIMES_RTOL dT)`` of their mean give ``(t_K - t_0) / K`` of the first trajectory
+    (error ``10^-d / K``).
     """
+    if decimals >= 99:
+        return None
     k = times.shape[1] - 1
+    steps = np.diff(times, axis=1)
+    roundoff = 64 * np.finfo(float).eps * float(np.abs(times).max())
+    unit = 10.0 ** -decimals
+    if unit > 100 * np.finfo(float).eps * float(np.abs(times).max()):  # parsed steps err by a few ulps of max|t|
+        counts = np.rint(steps / unit)
+        if counts.min() == counts.max() > 0 and float(np.abs(steps - counts * unit).max()) <= 1e-2 * unit:
+            h = float(counts[0, 0]) * unit
+            if float(np.abs(steps - h).max()) > 0:
+                logger.info(f"times written with {decimals} decimals: every step is {h:.12g}")
+            return h if float(np.abs(steps - h).max()) > 0 else None
     h = float((times[0, -1] - times[0, 0]) / k)
-    tol = min(10.0 ** -decimals, ROUNDED_TIMES_RTOL * h) if decimals < 99 else 0.0
-    dev = float(np.abs(np.diff(times, axis=1) - h).max())
-    if dev <= 64 * np.finfo(float).eps * float(np.abs(times).max()) or dev > tol:
+    tol = min(unit, ROUNDED_TIMES_RTOL * h)
+    dev = float(np.abs(steps - h).max())
+    if dev <= roundoff or dev > tol:
         return None
     logger.info(f"times written with {decimals} decimals: uniform within {tol:.1g} (steps {h:.12g} +- {dev:.1g})")
     return h
