@@ -258,4 +258,7 @@ def write_json(path, result, protocol: dict, indent: int = 1) -> None:
     """Write ``result`` (a dict: its keys unchanged, ``"protocol"`` added; any other value under ``"results"``) to ``path``."""
     data = dict(result) if isinstance(result, dict) else {"results": result}
     data["protocol"] = protocol
-    Path(path).write_text(json.dumps(data, indent=indent, default=_jsonable))
+    from sympredict.container import atomic_output  # a report survives a full disk or Ctrl-C whole or not at all
+
+    with atomic_output(path) as fh:
+        fh.write(json.dumps(data, indent=indent, default=_jsonable).encode())

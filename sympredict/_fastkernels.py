@@ -89,9 +89,9 @@ except ImportError:  # pragma: no cover
     numba = None
     HAVE_NUMBA = False
 
-from sympredict._numeric import lu_solve_inplace
+from sympredict._numeric import lu_solve_inplace, parallel_safe
 from sympredict.kernels import IMQ, Matern32, Matern52, PeriodicCoordinates
-from sympredict.newton_rule import converged, residual_floor
+from sympredict.newton_rule import WATCHDOG, accepted, converged, residual_floor
 
 __all__ = [
     "rollout_loaded",
@@ -739,11 +739,18 @@ def _solve_one(x, w, h, cT, seg, family, eps, per, max_iter, out, sc, grad, hess
             xi[a] = x[a]
     last = np.inf
     f_norm = np.inf
+    # the watchdog (sympredict.newton_rule): the best iterate, its update and |F|_2, passes since, the step fraction
+    u_best = np.empty(k)
+    d_best = np.zeros(k)
+    best = np.inf
+    since = 0
+    fraction = 1.0  # below 1: a damped trial from the best iterate
     for it in range(max_iter):
         for a in range(k):
             xi[dim - k + a] = u[a]
         floor = _pass(xi, w, cT, seg, family, eps, 2 if mid else 1, per, sc, grad, hess)
         f_norm = 0.0
+        merit = 0.0
         scale = 0.0
         finite = True
         for a in range(k):
@@ -755,6 +762,7 @@ def _solve_one(x, w, h, cT, seg, family, eps, per, max_iter, out, sc, grad, hess
                 fk = u[a] - x[n + a] + h * grad[a]
                 x_ref = x[n + a]
             delta[a] = fk
+            merit += fk * fk
             if not math.isfinite(fk):
                 finite = False
             af = abs(fk)
@@ -766,9 +774,23 @@ def _solve_one(x, w, h, cT, seg, family, eps, per, max_iter, out, sc, grad, hess
             ap = abs(x_ref)
             if ap > scale:
                 scale = ap
+        f_floor = residual_floor(scale, floor, abs(hh))
+        merit = math.sqrt(merit)
+        new_best = accepted(merit, best, fraction, f_norm, f_floor)
+        if fraction < 1.0 and not new_best:  # a damped trial rejected: halve it again
+            fraction *= 0.5
+            for a in range(k):
+                u[a] = u_best[a] - fraction * d_best[a]
+            continue
+        if fraction == 1.0 and not new_best:
+            since += 1
+            if since >= WATCHDOG or not finite:  # no progress: back to the best iterate, half its step
+                fraction = 0.5
+                for a in range(k):
+                    u[a] = u_best[a] - fraction * d_best[a]
+                continue
         if not finite:
             return 1, f_norm, it
-        f_floor = residual_floor(scale, floor, abs(hh))
         if mid:  # I - dT/2 J H: rows of J H are (H[n + a], -H[a])
             for a in range(n):
                 for c in range(dim):
@@ -798,6 +820,13 @@ def _solve_one(x, w, h, cT, seg, family, eps, per, max_iter, out, sc, grad, hess
                     out[n + a] = u[a]
             return 0, f_norm, it
         last = d_norm
+        if new_best:
+            best = merit
+            since = 0
+            for a in range(k):
+                u_best[a] = u[a]
+                d_best[a] = delta[a]
+        fraction = 1.0
         for a in range(k):
             u[a] -= delta[a]
     return 3, f_norm, max_iter
@@ -1135,11 +1164,22 @@ def _kernels(*families):
     """
     _check_available()
     outside = tuple(dict.fromkeys(f for f in families if f not in FAMILY_CODES))
-    ns = _NAMESPACES.get(outside)
+    serial = not parallel_safe()
+    ns = _NAMESPACES.get((outside, serial))
     if ns is None:
-        ns = _NAMESPACES[outside] = _package_namespace() if not outside else _user_namespace(outside)
+        ns = _package_namespace() if not outside else _user_namespace(outside)
+        ns = _NAMESPACES[(outside, serial)] = _serial_namespace(ns) if serial else ns
     codes = tuple(FAMILY_CODES[f] if f in FAMILY_CODES else FamilyCode(-1 - outside.index(f)) for f in families)
     return ns, codes
+
+
+def _serial_namespace(ns: types.SimpleNamespace) -> types.SimpleNamespace:
+    """``ns`` with each parallel kernel replaced by the same function compiled without ``parallel`` (uncached)."""
+    out = types.SimpleNamespace(**vars(ns))
+    for name, _function, flags in _DEFINITIONS:
+        if flags.get("parallel"):
+            setattr(out, name, numba.njit(nogil=True)(getattr(ns, name).py_func))
+    return out
 
 
 def _check_available():
@@ -1331,6 +1371,7 @@ def newton_rollout(x0, weights, dt, layout: CenterLayout, kernel, max_iter: int,
     resid = np.zeros(b)
     if parallel is None:
         parallel = b >= PARALLEL_MIN_BATCH
+    parallel = parallel and parallel_safe()  # a child forked after the parallel loops ran: the cached serial kernel
     maps = check_around(around, b, dim, warm_start)
     pre, post = maps if maps is not None else (np.empty((0, dim, dim)), np.empty((0, dim, dim)))
     prev = previous_states(previous, b, dim)

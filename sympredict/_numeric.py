@@ -14,6 +14,8 @@ it; :mod:`sympredict.symplectic.metrics` re-exports both.
 from __future__ import annotations
 
 import math
+import os
+import sys
 
 import numpy as np
 
@@ -25,7 +27,7 @@ except ImportError:  # pragma: no cover
         return function
 
 
-__all__ = ["compilable", "lu_solve_inplace", "fill_nan_after", "canonical_J", "j_times"]
+__all__ = ["compilable", "lu_solve_inplace", "fill_nan_after", "canonical_J", "j_times", "parallel_safe"]
 
 
 @compilable
@@ -99,3 +101,51 @@ def j_times(v: np.ndarray, axis: int = -1) -> np.ndarray:
     hi[axis] = slice(n, None)
     lo[axis] = slice(None, n)
     return np.concatenate([v[tuple(hi)], -v[tuple(lo)]], axis=axis)
+
+
+# --------------------------------------------------------------------------- fork safety of numba's parallel loops
+#: Set in a process forked after numba's threading layer started (GNU OpenMP cannot run a parallel region in
+#: such a child: numba terminates it).  Such a child runs the parallel loops serially (:func:`parallel_safe`).
+_FORKED_AFTER_THREADS = False
+_FORK_WARNED = False
+
+
+def _threads_started() -> bool:
+    """Whether numba's threading layer has started in this process (its worker threads exist)."""
+    try:
+        from numba.np.ufunc import parallel as _parallel
+
+        return bool(getattr(_parallel, "_is_initialized", True))
+    except Exception:  # noqa: BLE001 - an unknown numba layout: assume started (the safe side)
+        return True
+
+
+def _after_fork_in_child() -> None:
+    global _FORKED_AFTER_THREADS, _FORK_WARNED
+    if _FORKED_AFTER_THREADS or ("numba" in sys.modules and _threads_started()):
+        _FORKED_AFTER_THREADS = True
+        _FORK_WARNED = False
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_after_fork_in_child)
+
+
+def parallel_safe() -> bool:
+    """Whether numba's parallel loops may run in this process: not in a child forked after they ran.
+
+    In such a child (``os.fork``, ``multiprocessing`` with the fork start method) every compiled kernel runs
+    its loops on one thread (the same code compiled without ``parallel``), and one :class:`RuntimeWarning`
+    says so; the results are those of the serial kernels.
+    """
+    global _FORK_WARNED
+    if not _FORKED_AFTER_THREADS:
+        return True
+    if not _FORK_WARNED:
+        _FORK_WARNED = True
+        import warnings
+
+        warnings.warn("this process was forked after numba's parallel loops ran (GNU OpenMP cannot run them in a "
+                      "forked child): the compiled kernels run on one thread here; use multiprocessing's 'spawn' or "
+                      "'forkserver' start method for parallel loops in the workers", RuntimeWarning, stacklevel=3)
+    return False

@@ -276,10 +276,11 @@ def _check_output_file(out, *inputs, option: str = "--out", force=None) -> None:
         raise ValueError(f"{option} {str(out)!r} exists: pass --force to replace it, or give another name")
 
 
-def _save_model_or_keep(model, out) -> None:
-    """``model.save(out)``; if that fails after training, save it beside ``out`` (or in the temp folder) and say where."""
+def _save_model_or_keep(model, out, overwrite: bool = True) -> None:
+    """``model.save(out)``; if that fails after training, save it beside ``out`` (or in the temp folder) and say where.
+    ``overwrite=False`` (no ``--force``): a file created at ``out`` meanwhile (another run) is not replaced."""
     try:
-        model.save(out)
+        model.save(out) if overwrite else model.save(out, overwrite=False)
         return
     except OSError as exc:
         failure = exc
@@ -366,7 +367,7 @@ def _cmd_data(args) -> int:
 
         dt = args.dt if args.dt is not None else DATA_SYSTEMS[system]["dt"]
         states, mu = _system_trajectories(system, args.trajectories, args.steps, dt, args.n_points, args.seed)
-        write_trajectories(TrajectoryData(states, mu, dt), args.out)
+        write_trajectories(TrajectoryData(states, mu, dt), args.out, overwrite=args.force)
         print(f"wrote {states.shape[0]} {system} trajectories of {args.steps} steps (dt = {dt}, 2n = {states.shape[2]}, "
               f"one parameter each) to {args.out}")
         return 0
@@ -381,7 +382,7 @@ def _cmd_data(args) -> int:
     else:
         data = flow_map_data(pendulum, MU_TRAIN, DT_TRAIN, n_grid=args.n_grid, p_nonpositive=args.p_nonpositive)
         meta = {"system": "pendulum", "kind": "grid", "n_grid": args.n_grid, "p_nonpositive": args.p_nonpositive}
-    save_dataset(data, args.out, **meta)
+    save_dataset(data, args.out, overwrite=args.force, **meta)
     print(f"wrote {len(data)} pendulum flow-map samples to {args.out}")
     return 0
 
@@ -423,7 +424,7 @@ def _cmd_train_user_data(args) -> int:
     data = read_trajectories(args.data)
     print(f"read {args.data}: {_describe(data)}")
     validation = read_trajectories(args.validation) if args.validation else None
-    options = {"max_centers": args.centers}
+    options = {} if args.centers is None else {"max_centers": args.centers}  # None: the estimator's default
     for name, spec in (("state_kernel", args.state), ("mu_kernel", args.mu), ("dt_kernel", args.dt)):
         if spec is not None:
             options[name] = _parse_kernel(spec)
@@ -434,7 +435,7 @@ def _cmd_train_user_data(args) -> int:
     model = SymplecticKernelPredictor(**options)
     with threadpool_limits(limits=args.threads):
         model.fit(data, validation=validation)
-    _save_model_or_keep(model, args.out)
+    _save_model_or_keep(model, args.out, overwrite=args.force)
     h = model.history_
     print(f"trained {model.n_centers_} centres ({h.stop_reason}): E_train {h.train_max_residual[-1]:.2e}"
           + (f", E_val {h.val_max_residual[-1]:.2e}" if h.val_max_residual is not None else "")
@@ -466,7 +467,7 @@ def _cmd_train(args) -> int:
         validation = (validation.x0, validation.x1, None, validation.dt)
     with threadpool_limits(limits=args.threads):
         model.fit(data.x0, data.x1, mu=mu, dt=data.dt, validation=validation)
-    _save_model_or_keep(model, args.out)
+    _save_model_or_keep(model, args.out, overwrite=args.force)
     h = model.history_
     print(f"trained {model.n_centers_} centres ({h.stop_reason}) on {len(data)} samples of {meta.get('system', 'unknown system')}: "
           f"E_train {h.train_max_residual[-1]:.2e}" + (f", E_val {h.val_max_residual[-1]:.2e}" if h.val_max_residual is not None else "")
@@ -596,7 +597,7 @@ def _cmd_predict(args) -> int:
         mu_out = None if mu is None else np.broadcast_to(np.asarray(mu, dtype=float).reshape(len(mu), -1)
                                                          if np.ndim(mu) else np.full((1, 1), float(mu)),
                                                          (traj.shape[0], max(1, model.n_mu_)))
-        write_trajectories(TrajectoryData(traj, mu_out, times=times), args.out)
+        write_trajectories(TrajectoryData(traj, mu_out, times=times), args.out, overwrite=bool(args.force))
         print(f"wrote {traj.shape[0]} trajectories of {args.steps} steps"
               + (f" (one state every {stride} steps)" if stride > 1 else "") + f" to {args.out}"
               + ("" if step is not None else " (t counts steps: the model takes dt per query)"))
@@ -799,8 +800,8 @@ def main(argv=None) -> int:
         message = " ".join(str(exc).split()) or type(exc).__name__
         print(f"sympredict: error: {message}", file=sys.stderr)
         return 1
-    except KeyboardInterrupt:
-        print("sympredict: interrupted", file=sys.stderr)
+    except KeyboardInterrupt as exc:
+        print("sympredict: interrupted" + (f": {exc}" if str(exc) else ""), file=sys.stderr)
         return 130
     finally:
         warnings.formatwarning = formatwarning  # main() may be called from Python (tests): leave it as found

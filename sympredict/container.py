@@ -56,6 +56,7 @@ This module knows nothing of models: the estimators turn themselves into
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import hashlib
 import io
@@ -80,6 +81,7 @@ __all__ = [
     "STALE_GRACE_S",
     "STALE_MAX_AGE_S",
     "write_container",
+    "atomic_output",
     "read_container",
     "check_save_path",
     "is_stale",
@@ -322,7 +324,106 @@ def _write_all(fd: int, data: bytes) -> None:
         view = view[written:]
 
 
-def write_container(path, fmt: str, settings: dict, arrays: dict) -> None:
+@contextlib.contextmanager
+def atomic_output(path, *, overwrite: bool = True):
+    """Write a file atomically: a binary file object on a hidden temporary sibling, renamed over ``path`` at the end.
+
+    The one way the package writes its outputs (model and data files, trajectories, reports).  On a clean exit of
+    the ``with`` block the temporary file is flushed, ``fsync``-ed and renamed over ``path`` (the folder is then
+    ``fsync``-ed); on any exception, Ctrl-C included, it is removed and ``path`` is left as it was.  The naming and
+    the clean-up of temporary files left by killed processes are those of the module docstring; a symlink is
+    written through.
+
+    Parameters
+    ----------
+    path : str or path-like
+        The target file.
+    overwrite : bool
+        ``True``: replace an existing file (the last of two concurrent writers wins, each file whole).
+        ``False``: the file must not exist, checked when it is published (a hard link, which fails if the name
+        exists): of two concurrent writers one gets :class:`FileExistsError`, never both "win".
+
+    Yields
+    ------
+    file object
+        Opened ``"wb"``; write the whole content.
+
+    Raises
+    ------
+    ValueError
+        An unusable path (directory, FIFO, device, missing folder).
+    FileExistsError
+        ``overwrite=False`` and ``path`` exists (before or after the content was written).
+    OSError
+        The write failed (disk full, file size limit, permissions, I/O error): ``could not save PATH: REASON;
+        the previous file, if any, is unchanged``.
+    KeyboardInterrupt
+        Re-raised with a message naming the file that was not written.
+    """
+    path = Path(path)
+    target, st = _target(path)
+    if not overwrite and st is not None:
+        raise FileExistsError(errno.EEXIST, f"{str(path)!r} exists: not replaced (pass overwrite=True, or --force "
+                                            f"on the command line, to replace it)")
+    _remove_stale_temps(target.parent, target.name)
+    tmp = target.parent / f".{_temp_stem(target.parent, target.name)}.{os.getpid()}-{secrets.token_hex(4)}.tmp"
+    fh = None
+    try:
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_CLOEXEC", 0), 0o666)
+        fh = os.fdopen(fd, "wb")
+        if st is not None:
+            os.fchmod(fd, stat.S_IMODE(st.st_mode))
+        yield fh
+        fh.flush()
+        os.fsync(fh.fileno())
+        fh.close()
+        if overwrite:
+            os.replace(tmp, target)
+        else:
+            _publish_new(tmp, target, path)
+    except BaseException as exc:
+        if fh is not None:
+            try:
+                fh.close()
+            except OSError:
+                pass
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+        if isinstance(exc, FileExistsError) and str(path) in str(exc):
+            raise
+        if isinstance(exc, OSError):
+            reason = exc.strerror or str(exc)
+            raise OSError(exc.errno, f"could not save {str(path)!r}: {reason}; the previous file, if any, is unchanged") from None
+        if isinstance(exc, KeyboardInterrupt):
+            raise KeyboardInterrupt(f"{str(path)!r} was not written; the previous file, if any, is unchanged") from None
+        raise
+    _fsync_directory(target.parent)
+
+
+def _publish_new(tmp: Path, target: Path, path: Path) -> None:
+    """Give the written ``tmp`` the name ``target`` only if no file has it (a hard link fails on an existing name)."""
+    try:
+        os.link(tmp, target, follow_symlinks=False)
+    except FileExistsError:
+        raise FileExistsError(errno.EEXIST, f"{str(path)!r} was created by someone else while this file was written: "
+                                            f"not replaced (pass overwrite=True, or --force, to replace it)") from None
+    except OSError as exc:
+        if exc.errno not in (errno.EPERM, errno.ENOTSUP, errno.EOPNOTSUPP, errno.EXDEV, errno.EMLINK):
+            raise
+        # a file system without hard links: claim the name first (O_EXCL), then rename over the claim
+        try:
+            os.close(os.open(target, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0), 0o666))
+        except FileExistsError:
+            raise FileExistsError(errno.EEXIST, f"{str(path)!r} was created by someone else while this file was "
+                                                f"written: not replaced (pass overwrite=True, or --force)") from None
+        os.replace(tmp, target)
+        return
+    os.unlink(tmp)
+
+
+def write_container(path, fmt: str, settings: dict, arrays: dict, *, overwrite: bool = True) -> None:
     """Write a container file atomically (see the module docstring for the guarantees).
 
     Parameters
@@ -335,6 +436,9 @@ def write_container(path, fmt: str, settings: dict, arrays: dict) -> None:
         JSON-serializable settings.
     arrays : dict of str -> ndarray
         Numeric arrays (float, int or bool), any shapes.
+    overwrite : bool
+        Replace an existing file (default); ``False`` refuses one, also one created meanwhile
+        (:func:`atomic_output`).
 
     Raises
     ------
@@ -358,35 +462,10 @@ def write_container(path, fmt: str, settings: dict, arrays: dict) -> None:
     if not isinstance(fmt, str) or not fmt.isascii() or not fmt:
         raise ValueError(f"fmt must be a non-empty ASCII string, got {fmt!r}")
     arrays = _checked_arrays(arrays)
-    target, st = _target(path)
+    _target(path)
     image = _image(fmt, settings_json, arrays)
-    _remove_stale_temps(target.parent, target.name)
-    tmp = target.parent / f".{_temp_stem(target.parent, target.name)}.{os.getpid()}-{secrets.token_hex(4)}.tmp"
-    fd = -1
-    try:
-        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_CLOEXEC", 0), 0o666)
-        if st is not None:
-            os.fchmod(fd, stat.S_IMODE(st.st_mode))
-        _write_all(fd, image)
-        os.fsync(fd)
-        os.close(fd)
-        fd = -1
-        os.replace(tmp, target)
-    except BaseException as exc:
-        if fd >= 0:
-            try:
-                os.close(fd)
-            except OSError:
-                pass
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        if isinstance(exc, OSError):
-            reason = exc.strerror or str(exc)
-            raise OSError(exc.errno, f"could not save {str(path)!r}: {reason}; the previous file, if any, is unchanged") from None
-        raise
-    _fsync_directory(target.parent)
+    with atomic_output(path, overwrite=overwrite) as fh:
+        _write_all(fh.fileno(), image)
 
 
 def _fsync_directory(directory: Path) -> None:

@@ -20,6 +20,8 @@ __all__ = [
     "RolloutMemoryError",
     "NonFinitePredictionError",
     "ExtrapolationWarning",
+    "ScaleWarning",
+    "WrappedAngleWarning",
     "GeneratingFunctionWarning",
     "UnderfitWarning",
     "DuplicateSamplesWarning",
@@ -151,15 +153,20 @@ class GeneratingFunctionWarning(UserWarning):
     (``dp1/dp0`` nearly singular): the macro step is close to its largest admissible value."""
 
 
+class ScaleWarning(UserWarning):
+    """Coordinates (conjugate pairs) or parameter components whose spreads differ by orders of magnitude: an
+    isotropic kernel hardly sees the small ones, which are then learned badly; the message names them."""
+
+
+class WrappedAngleWarning(UserWarning):
+    """A state coordinate looks like an angle reduced to one period: some samples jump by about a period between
+    consecutive states while it otherwise moves little (:func:`sympredict.estimators.structure.wrapped_coordinates`).
+    The message names the coordinate and the fix (unwrap the samples, and a ``Periodic`` state kernel)."""
+
+
 class UnderfitWarning(UserWarning):
     """A fit learned (almost) nothing: no centre selected, or the training residual did not go down,
     although the data move the states; the model is (close to) the identity map."""
-
-
-class WrappedAnglesWarning(UserWarning):
-    """A state coordinate looks like an angle reduced to one period: some samples jump by about a period between
-    consecutive states (:func:`sympredict.estimators.structure.wrapped_coordinates`).  The message names the
-    coordinate and the fix (unwrap the samples, and a ``Periodic`` state kernel)."""
 
 
 class DuplicateSamplesWarning(UserWarning):

@@ -1,5 +1,8 @@
 """Newton's stopping rule for the implicit step: defined once, used by the NumPy and the compiled solver.
 
+The iteration is Newton's method with a watchdog (:data:`WATCHDOG`, :func:`accepted`): full steps while the
+residual ``|F|_2`` improves within a few passes, else back to the best iterate and a damped step from it.
+
 An instance stops iterating when the residual ``|F|_inf`` reaches its
 round-off floor, when the Newton update no longer changes the iterate, or when
 the update stagnates within ``STALL_FLOOR_FACTOR`` of the floor:
@@ -23,10 +26,12 @@ from sympredict._numeric import compilable
 
 
 
-__all__ = ["FLOOR_FACTOR", "UPDATE_FACTOR", "STALL_RATIO", "STALL_FLOOR_FACTOR", "residual_floor", "converged"]
+__all__ = ["FLOOR_FACTOR", "UPDATE_FACTOR", "STALL_RATIO", "STALL_FLOOR_FACTOR", "DECREASE", "MIN_FRACTION", "WATCHDOG",
+           "residual_floor", "converged", "accepted"]
 
 EPS = float(np.finfo(float).eps)
 TINY = float(np.finfo(float).tiny)
+INF = float("inf")
 
 #: Multiple of the round-off of ``|F|`` (``eps |p| + dT floor_grad``) counted as converged.
 FLOOR_FACTOR = 4.0
@@ -36,6 +41,51 @@ UPDATE_FACTOR = 2.0
 STALL_RATIO = 0.5
 #: ... which ends the iteration when ``|F|`` is within this factor of its floor.
 STALL_FLOOR_FACTOR = 1e3
+
+
+#: The watchdog (a globalised Newton): Newton's full steps go on while some iterate within WATCHDOG passes improves
+#: on the best one so far (:func:`accepted` with fraction 1; Newton's own path may raise the residual for a few
+#: iterations on its way into a root's basin, so ordinary steps take exactly the plain Newton iterates).  After
+#: WATCHDOG passes without improvement (a cycle, a wandering iterate), or at a non-finite residual, the iteration
+#: goes back to the best iterate and halves its Newton step until :func:`accepted`; from the iterate so found the
+#: full steps go on.
+WATCHDOG = 8
+#: Sufficient decrease: an iterate reached with step fraction ``lam`` improves on the best one when
+#: ``|F|_2 <= (1 - DECREASE lam) |F_best|_2`` ...
+DECREASE = 1e-4
+#: ... or when its residual is within ``STALL_FLOOR_FACTOR`` of the round-off floor, or when ``lam`` has been halved
+#: down to this fraction (the damped iterate is then taken as it is).
+MIN_FRACTION = 2.0 ** -6
+
+
+@compilable
+def accepted(merit, merit_best, fraction, f_norm, f_floor):
+    """Whether an iterate improves on the best one (the watchdog's test; elementwise, scalars when compiled).
+
+    The merit is ``|F|_2``, for which the Newton direction is a descent direction (``|F|_inf`` need not
+    decrease along it).  The first iterate (``merit_best = inf``; a non-finite one then fails at once) and
+    iterates at round-off level always count as improvements.
+
+    Parameters
+    ----------
+    merit
+        ``|F|_2`` at the iterate (NaN or ``inf`` for a non-finite residual).
+    merit_best
+        ``|F|_2`` of the best iterate so far (``inf`` before the first).
+    fraction
+        The step fraction ``lam`` that reached the iterate: 1 for Newton's full step, below 1 for a damped
+        trial from the best iterate.
+    f_norm
+        ``|F|_inf`` at the iterate.
+    f_floor
+        :func:`residual_floor` at the iterate.
+    """
+    return (
+        (merit_best == INF)
+        | (merit <= (1.0 - DECREASE * fraction) * merit_best)
+        | (f_norm <= STALL_FLOOR_FACTOR * f_floor)
+        | (fraction <= MIN_FRACTION)
+    )
 
 
 @compilable

@@ -9,8 +9,10 @@ stores as ``search``.  At ``fit`` it chooses every factor the data need but the 
   :class:`~sympredict.kernels.transforms.Scaled` transform: symplectic, so the learned step stays
   symplectic; the conformal factor that makes the spread 1 is the shape's unit), and a kernel family and
   shape are searched in units of the spread of the mixed variable ``xi``;
-* the **parameter kernel** (``mu`` given, ``mu_kernel=None``): a shape in units of the parameter box's width
-  (the box mapped onto ``[0, 1]``);
+* the **parameter kernel** (``mu`` given, ``mu_kernel=None``): an isotropic kernel with a shape in units of the
+  mean width of the parameter box's components (components of very different widths draw a
+  :class:`~sympredict.exceptions.ScaleWarning` naming them; so do conjugate pairs of very different spreads,
+  which the symplectic normalisation cannot balance against each other);
 * the **step kernel** (several ``dt``, ``dt_kernel=None``): a shape in units of the width of the steps;
 * the **update** (``update=None``): ``'symplectic_euler'`` and ``'midpoint'`` compete.
 
@@ -39,7 +41,7 @@ from sympredict.base import Setting, clone
 from sympredict.data import FlowMapData
 from sympredict.estimators.grid import _quiet, select_kernels
 from sympredict.estimators.structure import compete as _structure_stage
-from sympredict.exceptions import ExtrapolationWarning, NewtonConvergenceError, NonFinitePredictionError
+from sympredict.exceptions import ExtrapolationWarning, NewtonConvergenceError, NonFinitePredictionError, ScaleWarning
 from sympredict.kernels import IMQ, KERNEL_FAMILIES
 from sympredict.kernels.radial import _EPS_RANGE
 from sympredict.kernels.transforms import KernelTransform, Scaled
@@ -109,8 +111,8 @@ class KernelSearch(Setting):
         Multiples of the unit shape tried first for the state kernel (unit: ``1 / spread`` of the normalised
         mixed variable ``xi``, the root of the summed variances of its components).
     parameter_shapes : sequence of float
-        Multiples of the unit shape tried for the parameter and step kernels (unit: ``1 / width`` of the
-        parameter box, per component the same after the box is mapped to ``[0, 1]``; ``1 / width`` of the steps).
+        Multiples of the unit shape tried for the parameter and step kernels (unit: ``1 / mean width`` of the
+        parameter box's components; ``1 / width`` of the steps).
     updates : sequence of str
         Update rules that compete when the estimator's ``update`` is ``None``.
     m_star : int or None
@@ -224,6 +226,9 @@ class KernelSearch(Setting):
         # the state transform: the user's (its radial kernel searched inside it), or the symplectic normalisation
         if open_factors["state"] and estimator.state_kernel is None:
             params["state_kernel"] = Scaled(None, factors=tuple(float(a) for a in pair_factors(data)))
+            _warn_unbalanced_pairs(data)
+        if open_factors["mu"]:
+            _warn_unbalanced_parameters(data)
         state_template = params.get("state_kernel", estimator.state_kernel)
         updates = list(self.updates) if open_factors["update"] else [estimator.update]
 
@@ -432,6 +437,43 @@ def pair_factors(data: FlowMapData) -> np.ndarray:
     return np.clip(a, 1e-6, 1e6)
 
 
+#: Spreads of pairs (or widths of parameter components) below this fraction of the largest draw a ScaleWarning.
+SCALE_RATIO = 1e-3
+
+
+def _warn_unbalanced_pairs(data: FlowMapData) -> None:
+    """:class:`ScaleWarning` naming the conjugate pairs whose spread, after the symplectic normalisation, is below
+    :data:`SCALE_RATIO` times the largest pair's (the normalisation balances ``q_i`` against ``p_i``, not pairs
+    against each other: a symplectic linear map cannot scale one pair alone)."""
+    x = np.concatenate([data.x0, data.x1])
+    n = x.shape[1] // 2
+    spread = np.sqrt(_std(x[:, :n]) * _std(x[:, n:]))  # each pair's spread after (a_i q_i, p_i / a_i)
+    big = float(spread.max()) if n else 0.0
+    small = np.flatnonzero((spread > 0) & (spread < SCALE_RATIO * big))
+    if big > 0 and small.size:
+        names = ", ".join(f"(q{i + 1}, p{i + 1}) spread {spread[i]:.2g}" for i in small[:4])
+        warnings.warn(f"the states' conjugate pairs differ in scale: {names}, against {big:.2g} for the largest; the "
+                      "state kernel hardly sees the small ones, which will be learned badly. Give the states in units of "
+                      "comparable size (divide each pair (q_i, p_i) by its amplitude), or fit the pairs apart",
+                      ScaleWarning, stacklevel=4)
+
+
+def _warn_unbalanced_parameters(data: FlowMapData) -> None:
+    """:class:`ScaleWarning` naming the parameter components whose width is below :data:`SCALE_RATIO` times the
+    widest's (the parameter kernel is isotropic: its shape comes from the mean width)."""
+    if data.mu.shape[1] < 2:
+        return
+    width = np.ptp(data.mu, axis=0).astype(float)
+    big = float(width.max())
+    small = np.flatnonzero((width > 0) & (width < SCALE_RATIO * big))
+    if big > 0 and small.size:
+        names = ", ".join(f"mu{i + 1} (width {width[i]:.2g})" for i in small[:4])
+        warnings.warn(f"the parameter components differ in width: {names}, against {big:.2g} for the widest; the "
+                      "isotropic parameter kernel hardly sees the narrow ones. Map each component onto a range of "
+                      "comparable width (e.g. (mu - lo) / (hi - lo)) before fitting and querying", ScaleWarning,
+                      stacklevel=4)
+
+
 def _std(x: np.ndarray) -> np.ndarray:
     """Column standard deviations without overflow or underflow (values scaled by their largest magnitude)."""
     big = np.abs(x).max(axis=0)
@@ -488,6 +530,11 @@ class FitDiagnostics:
         without them, ``inf`` if Newton failed on one).
     advice : list of str
         What to try next (empty when nothing stands out).
+    holdout_coordinate_error : ndarray of shape (2n,) or None
+        Per coordinate ``c``: the median of ``|Phi(x0)_c - x1_c|`` over the same hold-out samples, relative to the
+        root mean square of that coordinate's increments ``x1_c - x0_c`` (``None`` without hold-out samples or
+        where Newton failed).  A coordinate with small values is learned badly while the median over all of
+        them looks fine; the advice names it.
     """
 
     n_train: int
@@ -500,6 +547,7 @@ class FitDiagnostics:
     holdout_residual: float
     holdout_step_error: float
     advice: list = field(default_factory=list)
+    holdout_coordinate_error: Optional[np.ndarray] = None
 
     def summary(self) -> str:
         """A few lines for a log or a terminal."""
@@ -527,6 +575,7 @@ def diagnose(model, train: FlowMapData, holdout: Optional[FlowMapData]) -> FitDi
     val_curve = h.val_max_residual
     holdout_res = float(val_curve[-1]) / rel if val_curve is not None and holdout is not None else float("nan")
     step_err = float("nan")
+    coord_err = None
     if holdout is not None and len(holdout):
         rows = np.arange(len(holdout))[: 500]
         sub = holdout.subset(rows)
@@ -538,6 +587,7 @@ def diagnose(model, train: FlowMapData, holdout: Optional[FlowMapData]) -> FitDi
             inc = np.linalg.norm(sub.x1 - sub.x0, axis=1)
             ok = inc > 0
             step_err = float(np.median(np.linalg.norm(pred - sub.x1, axis=1)[ok] / inc[ok])) if ok.any() else 0.0
+            coord_err = _coordinate_errors(pred, sub)
         except (NewtonConvergenceError, NonFinitePredictionError):
             step_err = float("inf")
     converged = h.stop_reason == "tol"
@@ -554,12 +604,44 @@ def diagnose(model, train: FlowMapData, holdout: Optional[FlowMapData]) -> FitDi
     if np.isfinite(holdout_res) and train_abs > 0 and holdout_res * rel > 10 * train_abs:
         advice.append(f"more data: the hold-out residual is {holdout_res * rel / train_abs:.0f}x the training residual, "
                       "the samples do not resolve the map between them")
+    train_curve = np.asarray(h.train_max_residual, dtype=float)
+    if (h.stop_reason == "max_centers" and m >= 20 and train_abs / rel > 1e-3
+            and train_curve[-1] > 0.3 * train_curve[m // 4]
+            and (val_curve is None or float(val_curve[-1]) > 0.3 * float(val_curve[m // 4]))):
+        advice.append(f"noisy data? the residuals stalled at {train_abs / rel:.1e} of the largest target over the last "
+                      f"three quarters of the {m} centres, as when the centres fit noise: if the data carry noise, pass "
+                      "trainer=ExactGreedy(regularization=...) of about the noise's variance, or fewer centres "
+                      "(max_centers); more centres will not help")
     if holdout is not None and model.n_mu_ and len(holdout) >= 20:
         advice += _edge_advice(model, holdout)
     if np.isinf(step_err):
         advice.append("Newton failed on a held-out sample: a smaller dt, the 'midpoint' update, or more centres")
+    advice += _coordinate_advice(coord_err, step_err)
     return FitDiagnostics(len(train), 0 if holdout is None else len(holdout), m, int(model.max_centers),
-                          str(h.stop_reason), converged, train_abs / rel, holdout_res, step_err, advice)
+                          str(h.stop_reason), converged, train_abs / rel, holdout_res, step_err, advice, coord_err)
+
+
+def _coordinate_errors(pred: np.ndarray, sub: FlowMapData) -> Optional[np.ndarray]:
+    """Per coordinate: median ``|pred_c - x1_c|`` over root-mean-square ``|x1_c - x0_c|`` (nan where it does not move)."""
+    rms = np.sqrt(np.mean((sub.x1 - sub.x0) ** 2, axis=0))
+    err = np.median(np.abs(pred - sub.x1), axis=0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(rms > 0, err / np.where(rms > 0, rms, 1.0), np.nan)
+
+
+def _coordinate_advice(coord_err: Optional[np.ndarray], step_err: float) -> list:
+    """Advice naming the coordinates whose hold-out error is large where the median over all of them hides it."""
+    if coord_err is None or not np.isfinite(step_err):
+        return []
+    n = len(coord_err) // 2
+    names = [f"q{i + 1}" for i in range(n)] + [f"p{i + 1}" for i in range(n)]
+    bad = [i for i in np.flatnonzero(np.nan_to_num(coord_err, nan=0.0) > max(1e-3, 100 * step_err))]
+    if not bad:
+        return []
+    listed = ", ".join(f"{names[i]} {coord_err[i]:.2g}" for i in bad[:4])
+    return [f"the coordinates {listed} are learned badly (median one-step error relative to their increments; "
+            f"{step_err:.2g} over all): if their scale is much smaller than the others', give the states in units "
+            "of comparable size"]
 
 
 def _edge_advice(model, holdout: FlowMapData) -> list:

@@ -43,9 +43,9 @@ def pre_release_layout(path) -> ModelFileError:
                           f"which this version does not read: fit the model again and save it (layout {MODEL_LAYOUT})")
 
 
-def save(model, path) -> None:
-    """Write ``model`` to ``path`` atomically (:func:`to_container`)."""
-    write_container(path, MODEL_FORMAT, *to_container(model))
+def save(model, path, *, overwrite: bool = True) -> None:
+    """Write ``model`` to ``path`` atomically (:func:`to_container`); ``overwrite=False`` refuses an existing file."""
+    write_container(path, MODEL_FORMAT, *to_container(model), overwrite=overwrite)
 
 
 def load(cls, path):

@@ -39,6 +39,7 @@ from sympredict.base import Parametrized, clone
 from sympredict.data import FlowMapData, TrajectoryData, _drop_duplicate_samples, as_flowmap_data, unique_samples
 from sympredict.estimators import model_files
 from sympredict.estimators.auto import KernelSearch, _holdout_split, diagnose
+from sympredict.estimators.structure import warn_wrapped_angles
 from sympredict.estimators.model_files import MODEL_FORMAT, MODEL_LAYOUT
 from sympredict.exceptions import (
     ExtrapolationWarning,
@@ -47,6 +48,7 @@ from sympredict.exceptions import (
     NotFittedError,
     SolvabilityError,
     UnderfitWarning,
+    WrappedAngleWarning,
 )
 from sympredict.interpolation.functionals import HBFunctionals, ValueFunctionals
 from sympredict.interpolation.greedy import GreedyHistory, Trainer
@@ -488,14 +490,16 @@ class _FlowMapKernelModel(Parametrized):
                                  x, n_steps, stride=stride, progress=progress)
 
     # ----------------------------------------------------------------- files
-    def save(self, path) -> None:
+    def save(self, path, *, overwrite: bool = True) -> None:
         """Save the fitted model to an HDF5 file (atomically; :mod:`sympredict.estimators.model_files`).
+
+        ``overwrite=False`` refuses an existing file (also one created while saving) with :class:`FileExistsError`.
 
         Every parameter (kernels and transforms, update, trainer, solver) and the fitted state are
         stored; the greedy's wall-clock timings are not (files are byte-for-byte
         reproducible), nor its Newton data (a loaded model cannot be :meth:`truncated`).
         """
-        model_files.save(self, path)
+        model_files.save(self, path, overwrite=overwrite)
 
     @classmethod
     def load(cls, path):
@@ -713,6 +717,10 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         fit to score it (``diagnostics_``); the search runs on a subsample of the rest.
         """
         search = None
+        for name in ("diagnostics_", "search_", "choice_"):  # never the previous fit's beside a new model (Ctrl-C)
+            self.__dict__.pop(name, None)
+        if self._state_parts().periodic is None:
+            warn_wrapped_angles(data)
         if not any(open_factors.values()):
             params = {}
             train, holdout = data, validation
@@ -725,7 +733,10 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
                 train, holdout = _holdout_split(data, self._search().seed)
             else:
                 train, holdout = data, validation
-            search = self._search().choose(self, train, open_factors)
+            with warnings.catch_warnings():  # the candidates' fits: the warnings are about the final model, once
+                warnings.simplefilter("ignore", UnderfitWarning)
+                warnings.simplefilter("ignore", WrappedAngleWarning)
+                search = self._search().choose(self, train, open_factors)
             params = search.params
         model = clone(self).set_params(**params) if params else self
         with model._fitting():

@@ -32,7 +32,7 @@ noisy, or the quick model too coarse, to tell a symmetry from none).
 (median below ``P / 8``) except for some that lie within ``P / 8`` of a nonzero multiple of the period ``P``
 (default ``2 pi``), with all values in a window of about one period, is an angle reduced to one period: its
 samples must be unwrapped (the increment is the true one) before a ``Periodic`` kernel can learn it.  The
-search names such coordinates (:class:`~sympredict.exceptions.WrappedAnglesWarning`) and does not change the
+search names such coordinates (:class:`~sympredict.exceptions.WrappedAngleWarning`) and does not change the
 data.
 """
 
@@ -48,7 +48,7 @@ import numpy as np
 
 from sympredict.base import clone
 from sympredict.data import FlowMapData
-from sympredict.exceptions import (NewtonConvergenceError, NonFinitePredictionError, WrappedAnglesWarning,
+from sympredict.exceptions import (NewtonConvergenceError, NonFinitePredictionError, WrappedAngleWarning,
                                    extrapolation_expected)
 from sympredict.kernels import StateSymmetry
 from sympredict.kernels.transforms import Symmetric, lower_state_kernel
@@ -283,6 +283,16 @@ def wrapped_coordinates(data: FlowMapData, period: float = 2 * np.pi) -> list:
     return out
 
 
+def warn_wrapped_angles(data: FlowMapData) -> None:
+    """One :class:`~sympredict.exceptions.WrappedAngleWarning` per coordinate of ``data`` that looks like an angle
+    reduced to one period (:func:`wrapped_coordinates`), naming it and the fix.  ``O(M 2n)``."""
+    n = data.x0.shape[1] // 2
+    for f in wrapped_coordinates(data):
+        name = f"q{f.coordinate + 1}" if f.coordinate < n else f"p{f.coordinate - n + 1}"
+        warnings.warn(f"state coordinate {f.coordinate} ({name}) looks like a wrapped angle: {f.reason}",
+                      WrappedAngleWarning, stacklevel=5)
+
+
 def compete(estimator, chosen: dict, chosen_score: float, m_final: int, train: FlowMapData, val: FlowMapData,
             score, open_state: bool, open_update: bool, by_update: Optional[dict] = None):
     """The search's structure stage: test the candidates and let those that hold compete with ``chosen``.
@@ -324,11 +334,9 @@ def compete(estimator, chosen: dict, chosen_score: float, m_final: int, train: F
     then one fit to ``m_final`` centres per group that holds (at most one more per holding flip).  ``O(M 2n)``
     for the wrapped-angle check.
     """
-    findings = wrapped_coordinates(train)
+    findings = wrapped_coordinates(train)  # warned about once per fit, by the estimator (warn_wrapped_angles)
     for f in findings:
-        logger.warning("structure: coordinate %d looks like a wrapped angle: %s", f.coordinate, f.reason)
-        warnings.warn(f"state coordinate {f.coordinate} looks like a wrapped angle: {f.reason}", WrappedAnglesWarning,
-                      stacklevel=5)
+        logger.info("structure: coordinate %d looks like a wrapped angle: %s", f.coordinate, f.reason)
     if not open_state:
         return chosen, chosen_score, findings
     uses_mu, uses_dt = chosen.get("mu_kernel") is not None, chosen.get("dt_kernel") is not None

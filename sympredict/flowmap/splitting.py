@@ -233,8 +233,10 @@ class SplitKernelPredictor(Parametrized):
         return jac[0] if single else jac
 
     # ----------------------------------------------------------------- files
-    def save(self, path) -> None:
-        """Save to an HDF5 model file (atomic; :mod:`sympredict.container`): the inner model and ``A_k``, powers."""
+    def save(self, path, *, overwrite: bool = True) -> None:
+        """Save to an HDF5 model file (atomic; :mod:`sympredict.container`): the inner model and ``A_k``, powers.
+
+        ``overwrite=False`` refuses an existing file (also one created while saving) with :class:`FileExistsError`."""
         self._check_fitted()
         inner_settings, inner_arrays = self.predictor_._to_container()
         mats, pw = self.quadratic_.checked()
@@ -242,7 +244,7 @@ class SplitKernelPredictor(Parametrized):
                     "inner": inner_settings}
         arrays = {f"{_INNER}{k}": v for k, v in inner_arrays.items()}
         arrays.update({"quadratic_matrices": mats, "quadratic_powers": pw})
-        write_container(path, MODEL_FORMAT, settings, arrays)
+        write_container(path, MODEL_FORMAT, settings, arrays, overwrite=overwrite)
 
     @classmethod
     def load(cls, path) -> "SplitKernelPredictor":

@@ -21,10 +21,10 @@ _DATA_FORMAT = "sympredict-dataset"
 _ESTIMATORS = {cls.__name__: cls for cls in (SymplecticKernelPredictor, DirectKernelPredictor, SplitKernelPredictor)}
 
 
-def save_model(model, path) -> None:
+def save_model(model, path, *, overwrite: bool = True) -> None:
     """Save a fitted :class:`~sympredict.SymplecticKernelPredictor`, :class:`~sympredict.DirectKernelPredictor` or
-    :class:`~sympredict.flowmap.splitting.SplitKernelPredictor` (atomic)."""
-    model.save(path)
+    :class:`~sympredict.flowmap.splitting.SplitKernelPredictor` (atomic; ``overwrite=False`` refuses an existing file)."""
+    model.save(path, overwrite=overwrite)
 
 
 def load_model(path):
@@ -37,10 +37,11 @@ def load_model(path):
     return cls._from_container(settings, arrays, path)
 
 
-def save_dataset(data, path, **metadata) -> None:
-    """Save a :class:`~sympredict.data.FlowMapData` (atomic); ``metadata`` must be JSON-serializable."""
+def save_dataset(data, path, *, overwrite: bool = True, **metadata) -> None:
+    """Save a :class:`~sympredict.data.FlowMapData` (atomic; ``overwrite=False`` refuses an existing file);
+    ``metadata`` must be JSON-serializable."""
     arrays = {"x0": data.x0, "x1": data.x1, "mu": data.mu, "dt": data.dt}
-    write_container(path, _DATA_FORMAT, {"metadata": metadata}, arrays)
+    write_container(path, _DATA_FORMAT, {"metadata": metadata}, arrays, overwrite=overwrite)
 
 
 def load_dataset(path):

@@ -9,13 +9,15 @@ from __future__ import annotations
 
 import csv
 import io
-import os
 import re
 import zipfile
 from pathlib import Path
 
+import logging
+
 import numpy as np
 
+from sympredict.container import atomic_output
 from sympredict.data import FlowMapData, TrajectoryData
 from sympredict.io.formats import load_dataset
 
@@ -31,6 +33,8 @@ LAYOUT = (
 
 #: Default largest size of the numbers read from one file (bytes of float64): 4 GiB.
 MAX_BYTES = 4 * 2**30
+
+logger = logging.getLogger(__name__)
 
 _SUFFIXES = {".npz": "npz", ".h5": "hdf5", ".hdf5": "hdf5", ".csv": "csv"}
 
@@ -104,17 +108,28 @@ def _where(path: Path, key: str) -> str:
 
 
 def _check_declared(path: Path, key: str, shape, dtype, budget: list) -> None:
-    """Refuse non-numeric dtypes and sizes over the budget before reading ``key``."""
+    """Refuse non-numeric dtypes, negative, empty or overflowing shapes and sizes over the budget before reading ``key``."""
     dtype = np.dtype(dtype)
     if dtype.kind not in "fiu" or dtype.fields is not None or dtype.subdtype is not None:
         raise ValueError(f"{_where(path, key)} has dtype {dtype}; a real numeric array is expected ({LAYOUT})")
+    if not isinstance(shape, tuple) or not all(isinstance(n, (int, np.integer)) and not isinstance(n, bool) for n in shape):
+        raise ValueError(f"{_where(path, key)} declares the shape {shape!r}: a tuple of integers is expected ({LAYOUT})")
+    if any(int(n) < 0 for n in shape):
+        raise ValueError(f"{_where(path, key)} declares the shape {tuple(shape)} with a negative dimension: refused "
+                         f"(a damaged or crafted file); {LAYOUT}")
     count = 1
-    for n in shape:
+    for n in shape:  # Python integers: no overflow
         count *= int(n)
-    budget[0] -= 8 * count
+    if count == 0:
+        raise ValueError(f"{_where(path, key)} declares the shape {tuple(shape)}: it holds no numbers ({LAYOUT})")
+    budget[0] -= max(8, dtype.itemsize) * count
     if budget[0] < 0:
         raise ValueError(f"{_where(path, key)} declares shape {tuple(shape)}: the arrays exceed max_bytes; "
                          "pass a larger max_bytes if the file is meant to be this large")
+
+
+#: The compressions of ``.npz`` members read (stored, deflate, as ``np.savez``/``np.savez_compressed`` write).
+_NPZ_COMPRESSIONS = {zipfile.ZIP_STORED: "stored", zipfile.ZIP_DEFLATED: "deflate"}
 
 
 class _NpzArrays:
@@ -138,8 +153,17 @@ class _NpzArrays:
         return set(self.members)
 
     def get(self, key: str) -> np.ndarray:
+        info = self.zip.getinfo(self.members[key])
+        if info.flag_bits & 0x1:
+            raise ValueError(f"{_where(self.path, key)} is encrypted: save the arrays without a password "
+                             "(numpy.savez or numpy.savez_compressed)")
+        if info.compress_type not in _NPZ_COMPRESSIONS:
+            names = {9: "Deflate64", zipfile.ZIP_BZIP2: "bzip2", zipfile.ZIP_LZMA: "LZMA"}
+            method = names.get(info.compress_type, f"method {info.compress_type}")
+            raise ValueError(f"{_where(self.path, key)} is compressed with {method}; .npz members stored or "
+                             "deflate-compressed are read: save with numpy.savez or numpy.savez_compressed")
         try:
-            with self.zip.open(self.members[key]) as fh:
+            with self.zip.open(info) as fh:
                 version = np.lib.format.read_magic(fh)
                 if version == (1, 0):
                     shape, fortran, dtype = np.lib.format.read_array_header_1_0(fh)
@@ -154,8 +178,8 @@ class _NpzArrays:
             if str(self.path) in str(exc):
                 raise
             raise ValueError(f"{_where(self.path, key)} is not a valid .npy array: {exc}") from None
-        except (zipfile.BadZipFile, OSError, EOFError) as exc:
-            raise ValueError(f"{_where(self.path, key)} cannot be read (truncated or corrupted?): {exc}") from None
+        except (zipfile.BadZipFile, OSError, EOFError, RuntimeError, NotImplementedError, zipfile.LargeZipFile) as exc:
+            raise ValueError(f"{_where(self.path, key)} cannot be read (truncated, corrupted or unsupported?): {exc}") from None
         if len(raw) != count * dtype.itemsize:
             raise ValueError(f"{_where(self.path, key)} declares shape {shape} but holds {len(raw)} bytes")
         arr = np.frombuffer(raw, dtype=dtype, count=count)
@@ -298,30 +322,115 @@ def _state_columns(header: list, path: Path):
     return names, [names[c] for c in ["t", *q_names, *p_names, *mu_names]], len(q_names), len(mu_names)
 
 
-def _csv_rows(path: Path, max_bytes: int, layout: str):
-    """``(header, rows)`` of a CSV file: the stripped header and the non-blank rows as ``(line, cells)``, each with as
-    many cells as the header (checked, as the file's size, before anything else is read)."""
-    size = os.path.getsize(path)
-    if size > max_bytes:
-        raise ValueError(f"{str(path)!r} has {size} bytes, more than max_bytes = {max_bytes}; pass a larger max_bytes "
-                         "if the file is meant to be this large")
+#: Longest CSV line read (characters); a longer line is refused before it is split into cells.
+MAX_CSV_LINE = 1 << 20
+#: Rows parsed into one NumPy block at a time while a CSV file is streamed.
+_CSV_BLOCK = 4096
+
+
+def _csv_lines(fh, path: Path):
+    """The lines of ``fh``, each refused if longer than :data:`MAX_CSV_LINE` (memory per line stays bounded)."""
+    while True:
+        line = fh.readline(MAX_CSV_LINE + 1)
+        if not line:
+            return
+        if len(line) > MAX_CSV_LINE:
+            raise ValueError(f"{str(path)!r}: a line is longer than {MAX_CSV_LINE} characters; one row per state, "
+                             "with short cells, is expected")
+        yield line
+
+
+def _decimals(cell: str) -> int:
+    """Digits after the decimal point of a number written without an exponent (a large number otherwise)."""
+    cell = cell.strip()
+    return 99 if "e" in cell.lower() else len(cell.partition(".")[2])
+
+
+def _csv_table(path: Path, max_bytes: int, layout: str, select, decimals: list = None):
+    """Stream a CSV file: its header, then every non-blank row's numbers (checked against ``max_bytes`` as parsed).
+
+    Parameters
+    ----------
+    select : callable
+        ``select(header) -> (columns, label_column)``: the indices of the numeric columns read, and the column
+        of trajectory labels (or None).
+
+    Returns
+    -------
+    header : list of str
+    table : ndarray of shape (N, len(columns))
+    ids : ndarray of shape (N,) of int64
+        Each row's label as an index into ``labels`` (zeros without a label column).
+    labels : list of str
+        The distinct labels in order of first appearance.
+    lines : ndarray of shape (N,) of int64
+        Each row's line in the file.
+
+    ``decimals``, a list ``[0]``, gets the most digits after the decimal point in the first column read.
+
+    Notes
+    -----
+    Memory: the parsed numbers, ids and line numbers, ``8 (c + 2)`` bytes per row, counted against
+    ``max_bytes`` row by row (a file that would exceed it is refused at the row where it does), plus one line
+    (at most :data:`MAX_CSV_LINE` characters) and one block of :data:`_CSV_BLOCK` rows of Python floats.
+    """
     try:
-        text = path.read_text(encoding="utf-8-sig")
-    except (UnicodeDecodeError, OSError) as exc:
-        raise ValueError(f"{str(path)!r} is not a readable UTF-8 text file: {exc}") from None
-    reader = csv.reader(io.StringIO(text))
-    header = next(reader, None)
-    if not header:
-        raise ValueError(f"{str(path)!r} is empty: a header row is expected ({layout})")
-    header = [h.strip() for h in header]
-    rows = []
-    for line, row in enumerate(reader, start=2):
-        if not row or all(not c.strip() for c in row):
-            continue
-        if len(row) != len(header):
-            raise ValueError(f"{str(path)!r}, row {line}: {len(row)} cells, the header has {len(header)} columns")
-        rows.append((line, row))
-    return header, rows
+        fh = open(path, encoding="utf-8-sig", newline="")
+    except OSError as exc:
+        raise ValueError(f"{str(path)!r} cannot be opened: {exc.strerror or exc}") from None
+    with fh:
+        reader = csv.reader(_csv_lines(fh, path))
+        try:
+            header = next(reader, None)
+            if not header:
+                raise ValueError(f"{str(path)!r} is empty: a header row is expected ({layout})")
+            header = [h.strip() for h in header]
+            columns, label_column = select(header)
+            budget = int(max_bytes)
+            per_row = 8 * (len(columns) + 2)
+            blocks, id_blocks, line_blocks = [], [], []
+            rows, ids, lines, labels = [], [], [], {}
+            for row in reader:
+                if not row or all(not c.strip() for c in row):
+                    continue
+                line = reader.line_num
+                if len(row) != len(header):
+                    raise ValueError(f"{str(path)!r}, row {line}: {len(row)} cells, the header has {len(header)} columns")
+                budget -= per_row
+                if budget < 0:
+                    raise ValueError(f"{str(path)!r}, row {line}: the numbers read so far need more than max_bytes = "
+                                     f"{max_bytes} bytes; pass a larger max_bytes if the file is meant to be this large")
+                rows.append(_csv_numbers(path, header, line, row, columns))
+                lines.append(line)
+                if decimals is not None:
+                    decimals[0] = max(decimals[0], _decimals(row[columns[0]]))
+                if label_column is not None:
+                    label = row[label_column].strip()
+                    if not label:
+                        raise ValueError(f"{str(path)!r}, row {line}, column {header[label_column]!r}: the trajectory "
+                                         "label is empty")
+                    index = labels.get(label)
+                    if index is None:
+                        budget -= 64 + 4 * len(label)
+                        index = labels[label] = len(labels)
+                    ids.append(index)
+                if len(rows) == _CSV_BLOCK:
+                    blocks.append(np.array(rows, dtype=float).reshape(len(rows), len(columns)))
+                    line_blocks.append(np.array(lines, dtype=np.int64))
+                    id_blocks.append(np.array(ids, dtype=np.int64))
+                    rows, ids, lines = [], [], []
+        except csv.Error as exc:
+            raise ValueError(f"{str(path)!r}, row {reader.line_num}: not a valid CSV row ({exc}); {layout}") from None
+        except UnicodeDecodeError as exc:
+            raise ValueError(f"{str(path)!r} is not a readable UTF-8 text file: {exc}") from None
+        except OSError as exc:
+            raise ValueError(f"{str(path)!r} cannot be read: {exc.strerror or exc}") from None
+    blocks.append(np.array(rows, dtype=float).reshape(len(rows), len(columns)))
+    line_blocks.append(np.array(lines, dtype=np.int64))
+    id_blocks.append(np.array(ids, dtype=np.int64))
+    table, lines = np.concatenate(blocks), np.concatenate(line_blocks)
+    ids = np.concatenate(id_blocks) if label_column is not None else np.zeros(len(table), dtype=np.int64)
+    return header, table, ids, list(labels), lines
 
 
 def _csv_numbers(path: Path, header: list, line: int, row: list, columns: list) -> list:
@@ -340,52 +449,89 @@ def _csv_numbers(path: Path, header: list, line: int, row: list, columns: list) 
 
 
 def _read_csv(path: Path, max_bytes: int) -> TrajectoryData:
-    header, rows = _csv_rows(path, max_bytes, LAYOUT)
-    names, columns, n, d = _state_columns(header, path)
-    labels, values = [], []
-    for line, row in rows:
-        numbers = _csv_numbers(path, header, line, row, columns)
-        label = row[names["traj"]].strip()
-        if not label:
-            raise ValueError(f"{str(path)!r}, row {line}, column 'traj': the trajectory label is empty")
-        labels.append(label)
-        values.append(numbers)
-    if not values:
+    picked = {}
+
+    def select(header):
+        names, columns, n, d = _state_columns(header, path)
+        picked.update(n=n, d=d)
+        return columns, names["traj"]
+
+    decimals = [0]
+    header, table, ids, traj_ids, lines = _csv_table(path, max_bytes, LAYOUT, select, decimals)
+    n, d = picked["n"], picked["d"]
+    if not len(table):
         raise ValueError(f"{str(path)!r} has a header but no data rows ({LAYOUT})")
-    table = np.array(values)
-    order, index = np.unique(np.array(labels), return_index=True)
-    traj_ids = [str(label) for label in order[np.argsort(index)]]  # trajectories in order of first appearance
-    rows_of = {label: [] for label in traj_ids}
-    for i, label in enumerate(labels):
-        rows_of[label].append(i)
-    counts = {label: len(r) for label, r in rows_of.items()}
-    first = traj_ids[0]
-    for label in traj_ids:
-        if counts[label] != counts[first]:
-            raise ValueError(f"{str(path)!r}: trajectory {label!r} has {counts[label]} rows, trajectory {first!r} has "
-                             f"{counts[first]}; all trajectories need the same number of states")
-    if counts[first] < 2:
+    counts = np.bincount(ids, minlength=len(traj_ids))
+    for i, label in enumerate(traj_ids):
+        if counts[i] != counts[0]:
+            raise ValueError(f"{str(path)!r}: trajectory {label!r} has {counts[i]} rows, trajectory {traj_ids[0]!r} has "
+                             f"{counts[0]}; all trajectories need the same number of states")
+    if counts[0] < 2:
         raise ValueError(f"{str(path)!r}: every trajectory needs at least 2 states (rows), got 1")
-    block = table[np.array([rows_of[label] for label in traj_ids])]  # (P, K+1, 1 + 2n + d)
+    order = np.argsort(ids, kind="stable").reshape(len(traj_ids), counts[0])  # rows of each trajectory, in file order
+    block = table[order]  # (P, K+1, 1 + 2n + d)
     times, states, mu = block[:, :, 0], block[:, :, 1:1 + 2 * n], block[:, :, 1 + 2 * n:]
     steps = np.diff(times, axis=1)
     bad = np.flatnonzero(~(steps > 0).all(axis=1))
     if len(bad):
         label = traj_ids[bad[0]]
         k = int(np.flatnonzero(steps[bad[0]] <= 0)[0])
-        raise ValueError(f"{str(path)!r}: trajectory {label!r} is not in increasing time: row {rows_of[label][k + 1] + 2} "
+        raise ValueError(f"{str(path)!r}: trajectory {label!r} is not in increasing time: row {int(lines[order[bad[0], k + 1]])} "
                          f"has t = {float(times[bad[0], k + 1])!r} after t = {float(times[bad[0], k])!r}; sort its rows by t")
     if d:
         varying = np.flatnonzero(np.ptp(mu, axis=1).max(axis=1) > 0)
         if len(varying):
             raise ValueError(f"{str(path)!r}: the parameter columns must be constant within a trajectory; trajectory "
                              f"{traj_ids[varying[0]]!r} has several values")
+    step = _rounded_uniform_step(times, decimals[0])
+    if step is not None:
+        return TrajectoryData(states, mu[:, 0] if d else None, dt=step)
     return TrajectoryData(states, mu[:, 0] if d else None, times=times)
 
 
+#: Times written with ``d`` decimals are uniform if their steps agree within ``10^-d`` (two roundings), as long as
+#: that is at most this fraction of the step.
+ROUNDED_TIMES_RTOL = 1e-3
+
+
+def _rounded_uniform_step(times: np.ndarray, decimals: int):
+    """The common step of times written with ``decimals`` digits in the file, or None (not uniform to that
+    precision, or uniform to round-off already: :class:`TrajectoryData` sees that itself).
+
+    Steps that are all the same whole number ``c`` of units ``10^-d`` (large times such as Unix seconds, whose
+    parsed differences carry the round-off of the times' magnitude) give exactly ``c 10^-d``.  Otherwise, steps
+    within ``min(10^-d, ROUNDED_TIMES_RTOL dT)`` of their mean give ``(t_K - t_0) / K`` of the first trajectory
+    (error ``10^-d / K``).
+    """
+    if decimals >= 99:
+        return None
+    k = times.shape[1] - 1
+    steps = np.diff(times, axis=1)
+    roundoff = 64 * np.finfo(float).eps * float(np.abs(times).max())
+    unit = 10.0 ** -decimals
+    if unit > 100 * np.finfo(float).eps * float(np.abs(times).max()):  # parsed steps err by a few ulps of max|t|
+        counts = np.rint(steps / unit)
+        if counts.min() == counts.max() > 0 and float(np.abs(steps - counts * unit).max()) <= 1e-2 * unit:
+            h = float(counts[0, 0]) * unit
+            if float(np.abs(steps - h).max()) > 0:
+                logger.info(f"times written with {decimals} decimals: every step is {h:.12g}")
+            return h if float(np.abs(steps - h).max()) > 0 else None
+    h = float((times[0, -1] - times[0, 0]) / k)
+    tol = min(unit, ROUNDED_TIMES_RTOL * h)
+    dev = float(np.abs(steps - h).max())
+    if dev <= roundoff or dev > tol:
+        return None
+    logger.info(f"times written with {decimals} decimals: uniform within {tol:.1g} (steps {h:.12g} +- {dev:.1g})")
+    return h
+
+
 # --------------------------------------------------------------------------- writing, initial states
-def write_trajectories(data: TrajectoryData, path) -> None:
-    """Write trajectories in the layout :func:`read_trajectories` reads (format by suffix).
+def write_trajectories(data: TrajectoryData, path, *, overwrite: bool = True) -> None:
+    """Write trajectories in the layout :func:`read_trajectories` reads (format by suffix), atomically.
+
+    The file is written to a temporary sibling and renamed (:func:`sympredict.container.atomic_output`): a
+    failure (disk full, a file size limit) or Ctrl-C leaves the previous file as it was and the error names the
+    file that was not written.
 
     Parameters
     ----------
@@ -396,6 +542,9 @@ def write_trajectories(data: TrajectoryData, path) -> None:
         parameters), ``.h5``/``.hdf5``
         (the same datasets) or ``.csv`` (columns ``traj`` (0..P-1), ``t``, ``q1..qn``, ``p1..pn``, then
         ``mu1..mud``; numbers written to round-trip exactly).
+    overwrite : bool
+        Replace an existing file (default); ``False`` raises :class:`FileExistsError` if the file exists, also
+        if it was created while this one was written.
     """
     path = Path(path)
     kind = _SUFFIXES.get(path.suffix.lower())
@@ -408,14 +557,17 @@ def write_trajectories(data: TrajectoryData, path) -> None:
     if data.mu.shape[1]:
         arrays["mu"] = data.mu
     if kind == "npz":
-        with open(path, "wb") as fh:  # np.savez would append .npz to other names
+        with atomic_output(path, overwrite=overwrite) as fh:  # a file object: np.savez would append .npz to other names
             np.savez(fh, **arrays)
     elif kind == "hdf5":
         import h5py
 
-        with h5py.File(path, "w") as f:
+        buffer = io.BytesIO()
+        with h5py.File(buffer, "w") as f:
             for key, value in arrays.items():
                 f[key] = value
+        with atomic_output(path, overwrite=overwrite) as fh:
+            fh.write(buffer.getbuffer())
     else:
         p, k1, dim = data.states.shape
         n, d = dim // 2, data.mu.shape[1]
@@ -423,8 +575,9 @@ def write_trajectories(data: TrajectoryData, path) -> None:
                   *(f"mu{i}" for i in range(1, d + 1))]
         table = np.concatenate([np.broadcast_to(np.arange(p)[:, None, None], (p, k1, 1)), data.times[:, :, None],
                                 data.states, np.broadcast_to(data.mu[:, None, :], (p, k1, d))], axis=2).reshape(p * k1, -1)
-        np.savetxt(path, table, delimiter=",", header=",".join(header), comments="",
-                   fmt=["%d"] + ["%.17g"] * (table.shape[1] - 1))
+        with atomic_output(path, overwrite=overwrite) as fh:
+            np.savetxt(fh, table, delimiter=",", header=",".join(header), comments="",
+                       fmt=["%d"] + ["%.17g"] * (table.shape[1] - 1))
 
 
 def read_states(path, dim: int, *, max_bytes: int = MAX_BYTES):
@@ -460,21 +613,26 @@ def read_states(path, dim: int, *, max_bytes: int = MAX_BYTES):
             x0 = _real(path, "x0", arrays.get("x0"))
             mu = _real(path, "mu", arrays.get("mu")) if "mu" in arrays.keys() else None
     elif suffix == ".csv":
-        header, rows = _csv_rows(path, max_bytes, layout)
-        names = ["q1", "p1"] if dim == 2 and "q1" in header else _state_names(dim)
-        missing = [c for c in names if c not in header]
-        if missing:
-            raise ValueError(f"{str(path)!r}: the header lacks the column(s) {missing}; {layout}")
-        mu_names = ["mu"] if "mu" in header else [c for c in header if re.fullmatch(r"mu[1-9][0-9]*", c)]
-        unknown = [c for c in header if c not in names and c not in mu_names]
-        if unknown:
-            raise ValueError(f"{str(path)!r}: unexpected column(s) {unknown[:5]}; {layout}")
-        columns = [header.index(c) for c in [*names, *mu_names]]
-        values = [_csv_numbers(path, header, line, row, columns) for line, row in rows]
-        if not values:
+        picked = {}
+
+        def select(header):
+            names = ["q1", "p1"] if dim == 2 and "q1" in header else _state_names(dim)
+            missing = [c for c in names if c not in header]
+            if missing:
+                raise ValueError(f"{str(path)!r}: the header lacks the column(s) {missing}; {layout}")
+            mu_names = _parameter_names(header, path, layout)
+            unknown = [c for c in header if c not in names and c not in mu_names]
+            if unknown:
+                raise ValueError(f"{str(path)!r}: unexpected column(s) {unknown[:5]}; {layout}")
+            if len(set(header)) != len(header):
+                raise ValueError(f"{str(path)!r}: the header repeats a column name: {header[:12]}")
+            picked["mu"] = bool(mu_names)
+            return [header.index(c) for c in [*names, *mu_names]], None  # matched by name, parameters in index order
+
+        _, table, _, _, _ = _csv_table(path, max_bytes, layout, select)
+        if not len(table):
             raise ValueError(f"{str(path)!r} has a header but no data rows; {layout}")
-        table = np.array(values)
-        x0, mu = table[:, :dim], (table[:, dim:] if mu_names else None)
+        x0, mu = table[:, :dim], (table[:, dim:] if picked["mu"] else None)
     else:
         raise ValueError(f"{str(path)!r}: initial states are read from .npz or .csv files, got {path.suffix!r}; {layout}")
     if x0.ndim == 1:
@@ -482,6 +640,21 @@ def read_states(path, dim: int, *, max_bytes: int = MAX_BYTES):
     if x0.ndim != 2 or x0.shape[1] != dim or len(x0) == 0:
         raise ValueError(f"{_where(path, 'x0')} must have shape (B, {dim}) (the model's 2n = {dim}), got {x0.shape}")
     return x0, mu
+
+
+def _parameter_names(header: list, path: Path, layout: str) -> list:
+    """The parameter columns of a CSV header by name: ``["mu"]``, or ``mu1..mud`` in that order (wherever they stand)."""
+    numbered = {int(c[2:]): c for c in header if re.fullmatch(r"mu[1-9][0-9]*", c)}
+    if "mu" in header and numbered:
+        raise ValueError(f"{str(path)!r}: the header has both 'mu' and {sorted(numbered.values())[:3]}: name one parameter "
+                         f"'mu' or several mu1..mud; {layout}")
+    if "mu" in header:
+        return ["mu"]
+    d = len(numbered)
+    if sorted(numbered) != list(range(1, d + 1)):
+        raise ValueError(f"{str(path)!r}: the parameter columns {[numbered[k] for k in sorted(numbered)][:6]} must be "
+                         f"mu1..mu{d} without gaps; {layout}")
+    return [numbered[k] for k in range(1, d + 1)]
 
 
 def _state_names(dim: int) -> list:

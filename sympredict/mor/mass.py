@@ -23,6 +23,8 @@ import scipy.sparse
 
 __all__ = ["MassMatrixCoordinates"]
 
+#: Largest ratio of the largest to the smallest mass (squared diagonal of ``L``) accepted.
+MAX_MASS_RATIO = 1e12
 #: Largest dense mass matrix factored (entries); larger models use a lumped (diagonal) mass matrix.
 _MAX_DENSE = 20_000_000
 
@@ -67,7 +69,8 @@ class MassMatrixCoordinates:
     Raises
     ------
     ValueError
-        If ``mass`` is not square, symmetric, finite and positive definite (the message says which).
+        If ``mass`` is not square, symmetric, finite and positive definite (also when lumped), or its masses span
+        a ratio above :data:`MAX_MASS_RATIO` (the message says which).
     """
 
     def __init__(self, mass, lumped: bool = False):
@@ -81,6 +84,15 @@ class MassMatrixCoordinates:
             if not np.all(d > 0):
                 raise ValueError(f"the lumped mass matrix has non-positive entries (row sums, min {d.min():.3e}): "
                                  f"mass must be positive definite")
+            bad = np.flatnonzero(np.diag(M) <= 0)
+            if bad.size:  # a mass matrix has positive masses on its diagonal; row sums alone do not show it
+                raise ValueError(f"mass has non-positive diagonal entries (entry {int(bad[0])}: {M[bad[0], bad[0]]:.3e}): "
+                                 "it is not positive definite, so it is no mass matrix; check the assembly")
+            try:
+                np.linalg.cholesky(M)
+            except np.linalg.LinAlgError:
+                raise ValueError("mass is not positive definite (Cholesky failed), although its row sums are "
+                                 "positive: lumping would hide that; check the assembly") from None
             self.L = np.diag(np.sqrt(d))
         else:
             try:
@@ -88,6 +100,11 @@ class MassMatrixCoordinates:
             except np.linalg.LinAlgError:
                 raise ValueError("mass is not positive definite (Cholesky failed): check boundary conditions "
                                  "(constrained nodes removed) and the assembly") from None
+        masses = np.diag(self.L) ** 2  # a lower bound of the condition number (exact when diagonal)
+        if masses.max() > MAX_MASS_RATIO * masses.min():
+            raise ValueError(f"mass is ill-conditioned: its (lumped or pivot) masses span {masses.min():.3e} .. "
+                             f"{masses.max():.3e}, a ratio above {MAX_MASS_RATIO:.0e}; the canonical coordinates "
+                             "(q~, p~) would lose all digits. Check the units and the assembly (tiny or huge masses)")
 
     def _solve_L(self, b, trans: bool = False) -> np.ndarray:
         return scipy.linalg.solve_triangular(self.L, b, lower=True, trans="T" if trans else "N")

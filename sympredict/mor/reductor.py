@@ -659,9 +659,32 @@ class SymplecticKernelReductor(BasicObject):
             # the FOM's parameter box (validation draws), and the flow parameters' part of it (their scaling)
             self.mu_lo, self.mu_hi = parameter_box(self.training_parameters, fom.parameters, parameter_space)
             self.flow_lo, self.flow_hi = self.mu_lo[self._flow_index], self.mu_hi[self._flow_index]
+            if parameter_space is not None:
+                self._check_inside_space(trajectories, data)
         else:  # the caller's data without training parameters: the box of its samples
             self.mu_lo = self.mu_hi = None
             self.flow_lo, self.flow_hi = data.mu.min(axis=0), data.mu.max(axis=0)
+
+    def _check_inside_space(self, trajectories, data) -> None:
+        """``ValueError`` naming the first training parameter (given, of the trajectories, of the samples) outside
+        ``parameter_space``: the scaling maps the box onto [0, 1], so data outside it are extrapolation."""
+        if self.training_parameters and self.fom.parameters:
+            self._refuse_outside("training_parameters", self._mu_rows(self.training_parameters), self.mu_lo, self.mu_hi)
+        if trajectories is not None and self.fom.parameters:
+            self._refuse_outside("trajectories", self._mu_rows(self._given_mus(trajectories)), self.mu_lo, self.mu_hi)
+        if isinstance(data, FlowMapData):
+            self._refuse_outside("data", data.mu, self.flow_lo, self.flow_hi)
+
+    @staticmethod
+    def _refuse_outside(what: str, rows: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> None:
+        if not len(rows) or rows.shape[1] != len(lo):
+            return
+        tol = 1e-9 * np.maximum(np.abs(lo), np.abs(hi)) + 1e-300
+        out = np.flatnonzero(((rows < lo - tol) | (rows > hi + tol)).any(axis=1))
+        if out.size:
+            raise ValueError(f"{what}: parameter {rows[out[0]].tolist()} (and {out.size - 1} more) lies outside "
+                             f"parameter_space [{lo.tolist()}, {hi.tolist()}]: give a parameter_space that contains "
+                             "the training parameters (or leave it out: the box of the training parameters)")
 
     # ------------------------------------------------------------ projection
     def project(self, U) -> np.ndarray:

@@ -19,6 +19,7 @@ finally:
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
+from sympredict.container import atomic_output  # noqa: E402
 
 __all__ = ["greedy_residuals", "error_over_time", "phase_portrait", "energy_error", "trajectories_over_time", "hamiltonian_over_time", "speed_accuracy", "stability_sweeps", "point_tag", "figure_data", "save"]
 
@@ -95,10 +96,11 @@ def save(fig, out_dir, name: str) -> list[str]:
     out_dir = Path(out_dir)
     names = []
     for ext in ("png", "pdf"):
-        fig.savefig(out_dir / f"{name}.{ext}", dpi=150, bbox_inches="tight")
+        with atomic_output(out_dir / f"{name}.{ext}") as fh:  # whole files or none (a full disk, Ctrl-C)
+            fig.savefig(fh, format=ext, dpi=150, bbox_inches="tight")
         names.append(f"{name}.{ext}")
-    with open(out_dir / f"{name}.json", "w") as f:
-        json.dump(figure_data(fig), f)
+    with atomic_output(out_dir / f"{name}.json") as fh:
+        fh.write(json.dumps(figure_data(fig)).encode())
     plt.close(fig)
     return names
 

@@ -57,7 +57,7 @@ import math
 
 import numpy as np
 
-from sympredict._numeric import fill_nan_after, lu_solve_inplace
+from sympredict._numeric import fill_nan_after, lu_solve_inplace, parallel_safe
 from sympredict._checks import as_parameter, as_positive_int, as_states, as_steps
 from sympredict.exceptions import NewtonConvergenceError
 from sympredict.symplectic.integrators import COMPOSITIONS, SCHEMES, integrate
@@ -484,6 +484,7 @@ def rollout(system, x0, mu, dt, n_steps: int, *, scheme: str = "stormer_verlet",
     x0, mu, dt = (np.array(a, dtype=np.float64, order="C") for a in (x0, mu, dt))
     if parallel is None:
         parallel = b >= PARALLEL_MIN_BATCH
+    parallel = parallel and parallel_safe()  # not in a child forked after the parallel loops ran
     traj = np.empty((b, n_steps + 1, x0.shape[1]))
     if scheme in EXPLICIT_SCHEMES:
         _compile_pointwise(spec.grad_T, GRADIENT_SIGNATURE, "grad_T")

@@ -86,7 +86,7 @@ from sympredict import _fastkernels
 from sympredict._numeric import lu_solve_inplace
 from sympredict.exceptions import NewtonConvergenceError, RolloutMemoryError
 from sympredict.symplectic.metrics import j_times
-from sympredict.newton_rule import converged, residual_floor
+from sympredict.newton_rule import WATCHDOG, accepted, converged, residual_floor
 from sympredict.interpolation.surrogate import HBSurrogate
 
 __all__ = ["solve_step_numpy", "solve_midpoint_numpy", "midpoint_jacobian", "rollout_reference", "rollout_numpy",
@@ -218,6 +218,10 @@ def _newton(sur: HBSurrogate, x: np.ndarray, u: np.ndarray, weights: np.ndarray,
     codes = np.zeros(b, dtype=np.int64)
     active = np.arange(b)
     last = np.full(b, np.inf)
+    # the watchdog (sympredict.newton_rule): the best iterate, its update and |F|_2, passes since, the step fraction
+    u_best, d_best = u.copy(), np.zeros_like(u)
+    best, since = np.full(b, np.inf), np.zeros(b, dtype=np.int64)
+    fraction, f_last = np.ones(b), np.full(b, np.nan)  # fraction below 1: a damped trial from the best iterate
     eye = np.eye(k)
     for it in range(max_iter):
         ua, ha = u[active], h[active]
@@ -225,14 +229,39 @@ def _newton(sur: HBSurrogate, x: np.ndarray, u: np.ndarray, weights: np.ndarray,
         if midpoint:
             jg = _j_times(g)
             F = ua - x[active] - ha[:, None] * jg
-            jac = eye - ha[:, None, None] * _j_times(hess.transpose(0, 2, 1)).transpose(0, 2, 1)
         else:
             F = ua - x_ref[active] + ha[:, None] * g[:, :n]
-            jac = eye + ha[:, None, None] * hess
         f_norm = np.abs(F).max(axis=1)
-        finite = np.isfinite(f_norm)
+        with np.errstate(over="ignore", invalid="ignore"):
+            merit = np.sqrt(np.einsum("ij,ij->i", F, F))
         scale = np.maximum(np.abs(ua).max(axis=1), np.abs(x_ref[active]).max(axis=1))
         f_floor = residual_floor(scale, floor, np.abs(ha))
+        f_last[active] = f_norm
+        new_best = accepted(merit, best[active], fraction[active], f_norm, f_floor)
+        back = None  # no instance goes back (the usual case: every iterate improves)
+        if not new_best.all():
+            damped = fraction[active] < 1.0
+            free_stalled = ~damped & ~new_best
+            since[active[free_stalled]] += 1
+            restart = free_stalled & ((since[active] >= WATCHDOG) | ~np.isfinite(f_norm))
+            back = (damped & ~new_best) | restart
+        if back is not None and back.any():  # a damped trial rejected (halve it again), or no progress: back
+            rest = active[back]
+            fraction[rest] = np.where(restart[back], 0.5, 0.5 * fraction[rest])
+            u[rest] = u_best[rest] - fraction[rest, None] * d_best[rest]
+            ok = ~back
+            active, ua, ha, g, hess, F, f_norm, merit, scale, f_floor, new_best = (
+                active[ok], ua[ok], ha[ok], g[ok], hess[ok], F[ok], f_norm[ok], merit[ok], scale[ok], f_floor[ok],
+                new_best[ok])
+            if midpoint:
+                jg = jg[ok]
+        else:
+            rest = active[:0]
+        if midpoint:
+            jac = eye - ha[:, None, None] * _j_times(hess.transpose(0, 2, 1)).transpose(0, 2, 1)
+        else:
+            jac = eye + ha[:, None, None] * hess
+        finite = np.isfinite(f_norm)
         if finite.all():
             delta, singular = _solve_linear(jac, F)
         else:  # no solve for a non-finite residual (the failure comes first)
@@ -252,18 +281,25 @@ def _newton(sur: HBSurrogate, x: np.ndarray, u: np.ndarray, weights: np.ndarray,
             out[idx, n:] = ua[done]
         if failed.any():
             iterations[active[~done]] = it + 1  # the others' outcomes are left open
+            iterations[rest] = it + 1
             bad = active[failed]
             codes[bad] = np.where(finite[failed], 2, 1)
             return out, _failure(codes, bad, it, f_norm[failed]), iterations
         keep = ~done
-        active = active[keep]
-        last[active] = d_norm[keep]
-        u[active] = ua[keep] - delta[keep]
+        stepped = active[keep]
+        last[stepped] = d_norm[keep]
+        better = keep & new_best
+        improved = active[better]
+        best[improved], since[improved] = merit[better], 0
+        u_best[improved], d_best[improved] = ua[better], delta[better]
+        fraction[stepped] = 1.0
+        u[stepped] = ua[keep] - delta[keep]
+        active = np.sort(np.concatenate([stepped, rest]))
         if active.size == 0:
             return out, None, iterations
     codes[active] = 3
     iterations[active] = max_iter
-    return out, _failure(codes, active, max_iter, f_norm[keep]), iterations
+    return out, _failure(codes, active, max_iter, f_last[active]), iterations
 
 
 def _failure(codes: np.ndarray, bad: np.ndarray, it: int, f_norm: np.ndarray):

@@ -16,7 +16,7 @@ from sympredict import KernelSearch, SymplecticKernelPredictor, TrajectoryData
 from sympredict.data import FlowMapData
 from sympredict.estimators.structure import (HOLD_CEILING, check_sign_flip, group_of, sign_flip_candidates,
                                              wrapped_coordinates)
-from sympredict.exceptions import WrappedAnglesWarning
+from sympredict.exceptions import WrappedAngleWarning
 from sympredict.kernels import IMQ
 from sympredict.kernels.transforms import Symmetric, lower_state_kernel
 from sympredict.symplectic.metrics import canonical_J
@@ -135,7 +135,7 @@ def test_wrapped_angles_are_named_and_unwrapped_ones_are_not():
 def test_the_search_warns_about_wrapped_angles(caplog):
     states = _pendulum_trajectories(True, n=20, steps=20)
     search = KernelSearch(shapes=(0.5, 1.0), parameter_shapes=(0.5,), updates=("midpoint",), refine_sweeps=0)
-    with pytest.warns(WrappedAnglesWarning, match=r"state coordinate 0 looks like a wrapped angle.*Periodic"):
+    with pytest.warns(WrappedAngleWarning, match=r"state coordinate 0 \(q1\) looks like a wrapped angle.*Periodic"):
         with warnings.catch_warnings():
             warnings.filterwarnings("ignore", category=UserWarning, module="sympredict.estimators.predictor")
             SymplecticKernelPredictor(max_centers=40, search=search).fit(TrajectoryData(states, dt=DT))

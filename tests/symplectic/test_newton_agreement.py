@@ -48,16 +48,17 @@ def _fit(data, warm=False, **settings):
 
 @pytest.fixture(scope="module")
 def far_models(small_pendulum_data):
-    """Small models trained on steps 0.04..0.06, each with a query of steps 17-50 times as large.
+    """Small models trained on steps 0.04..0.06, each with a query of steps 25-75 times as large.
 
     ``update -> (model, x, mu, dT)``.  The failures below were checked not to hinge on rounding:
     the same instances and step under relative perturbations of ``x`` from 1e-14 to 1e-9, on both
-    backends and (symplectic Euler) with and without a warm start.
+    backends and (symplectic Euler) with and without a warm start.  (The damped Newton converges on the
+    midpoint model's dT = 1.0, where the undamped one failed: dT = 1.5 fails on both backends alike.)
     """
     d = small_pendulum_data
     euler = _fit(d, dt_kernel=IMQ(0.2), max_centers=60)
     midpoint = _fit(d, dt_kernel=IMQ(1.0), max_centers=150, update="midpoint")
-    return {"symplectic_euler": (euler, *_queries(1), 3.0), "midpoint": (midpoint, *_queries(2), 1.0)}
+    return {"symplectic_euler": (euler, *_queries(1), 3.0), "midpoint": (midpoint, *_queries(2), 1.5)}
 
 
 def _failure(model, backend, x, n_steps, mu, dt, warm=False):
