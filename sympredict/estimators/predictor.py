@@ -44,6 +44,7 @@ from sympredict.estimators.model_files import MODEL_FORMAT, MODEL_LAYOUT
 from sympredict.exceptions import (
     ExtrapolationWarning,
     ModelFileError,
+    NewtonConvergenceError,
     NonFinitePredictionError,
     NotFittedError,
     SolvabilityError,
@@ -751,6 +752,7 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
             self.fitted_params_ = dict(self.get_params(deep=False))  # the caller's settings; the choice is apart
         self.search_ = search
         self.choice_ = dict(params)
+        self._calibrate_error(train, holdout)
         self.diagnostics_ = diagnose(self, train, holdout)
         if search is not None or self.diagnostics_.advice:
             logger.info(f"{type(self).__name__}.fit: {self.diagnostics_.summary()}")
@@ -816,6 +818,8 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
             elapsed=h.elapsed[:n_centers],
             stop_reason=f"truncated to {n_centers} of {self.n_centers_} centres",
         )
+        samples = getattr(self, "_error_samples", None)
+        small.error_calibration_ = None if samples is None else small._error_calibration(*samples)
         return small  # keeps the full run's Newton data: it can be truncated further
 
     def smallest(self, target: float) -> "SymplecticKernelPredictor":
@@ -844,6 +848,123 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
                 f"(of {self.n_centers_}); train with more centres or more data"
             )
         return self.truncated(int(hits[0]) + 1)
+
+    # ------------------------------------------------------- error estimate
+    def _error_chol(self) -> np.ndarray:
+        """The Cholesky factor of the centres' Gramian (with the fitted trainer's ridge term), cached on the surrogate."""
+        trainer = getattr(self, "fitted_params_", {}).get("trainer") or ExactGreedy()
+        return self.surrogate_.gram_factor(float(getattr(trainer, "regularization", 0.0) or 0.0))
+
+    def _error_terms(self, xs: np.ndarray, x1s: np.ndarray, mu: np.ndarray, dt: np.ndarray, weights: np.ndarray):
+        """``(D Phi, G)`` (B, 2n, 2n) of solved steps ``xs -> x1s`` in the model's (scaled) coordinates.
+
+        ``G = (d x1 / d g) diag(P)``: the columns of the step's sensitivity to the learned gradient
+        (:meth:`~sympredict.symplectic.updates.UpdateRule.linearization`) scaled by the power function
+        ``P_a`` of each gradient component at the step's evaluation point; ``||D^-1 G||_F`` times the
+        calibrated scale is the local (one-step) error estimate.  ``O(B 2n m^2)``.
+        """
+        xi, jac, sens = as_update(self.update_).linearization(self.surrogate_, xs, x1s, weights, dt)
+        power = self.surrogate_.power_function(xi, mu, dt, self._error_chol())
+        return jac, sens * power[:, None, :]
+
+    def _check_error_estimate(self) -> float:
+        """The calibrated scale of the error estimate; ``ValueError`` naming why there is none."""
+        self._check_fitted()
+        cal = getattr(self, "error_calibration_", None)
+        if self.periodic_ is not None or self.symmetry_ is not None:
+            raise ValueError("return_error=True is not available for a model with periodic coordinates (Periodic) or a "
+                             "state symmetry (Symmetric) yet: fit the model without them to get an error estimate")
+        if not cal or not np.isfinite(cal.get("scale", np.nan)):
+            raise ValueError("return_error=True needs the error calibration of the fit (error_calibration_), which this "
+                             "model lacks (a model file written before it existed, or a fit without samples to "
+                             "calibrate on): refit the model")
+        return float(cal["scale"])
+
+    #: Quantile of the held-out ratios (true one-step error / power-function estimate) used as the scale.
+    ERROR_QUANTILE = 0.9
+    #: Samples the calibration uses at most (``O(n 2n m^2)``).
+    ERROR_SAMPLES = 500
+
+    def _calibrate_error(self, train: FlowMapData, holdout: Optional[FlowMapData]) -> None:
+        """Set ``error_calibration_`` from one-step errors on held-out samples (training samples that are not
+        centres when there are none).
+
+        ``ratio_i = |Phi(x0_i) - x1_i| / ||D^-1 G_i||_F`` (:meth:`_error_terms`); the scale is the
+        :attr:`ERROR_QUANTILE` quantile of the ratios, so that the one-step estimate covers that share of the
+        held-out errors.  The samples are kept (privately) for :meth:`truncated` to recalibrate.
+        """
+        self.error_calibration_ = None
+        if self.periodic_ is not None or self.symmetry_ is not None or self.surrogate_.n_centers == 0:
+            self._error_samples = None
+            return
+        source = "held-out samples"
+        data = holdout
+        if data is None or not len(data):
+            source = "training samples that are not centres (optimistic: pass validation data)"
+            used = np.zeros(len(train), dtype=bool)
+            used[np.asarray(self.greedy_result_.selected) // self.dim_] = True
+            data = train.subset(np.flatnonzero(~used)) if (~used).any() else None
+        if data is None or not len(data):
+            self._error_samples = None
+            return
+        if len(data) > self.ERROR_SAMPLES:
+            data = data.subset(np.random.default_rng(0).choice(len(data), self.ERROR_SAMPLES, replace=False))
+        self._error_samples = (data, source)
+        self.error_calibration_ = self._error_calibration(data, source)
+
+    def _error_calibration(self, data: FlowMapData, source: str) -> Optional[dict]:
+        """The calibration record of :meth:`_calibrate_error` on ``data``."""
+        mu = data.mu if self.n_mu_ else np.zeros((len(data), 0))
+        scale = self._scale_vector(self.dim_)
+        weights = self.surrogate_.weights(mu, data.dt)
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", ExtrapolationWarning)
+                x1s = self._solve_scaled(data.x0 * scale, weights, data.dt)
+        except (NewtonConvergenceError, NonFinitePredictionError):
+            return None
+        true = np.linalg.norm(x1s / scale - data.x1, axis=1)
+        _, g = self._error_terms(data.x0 * scale, x1s, mu, data.dt, weights)
+        unit = np.linalg.norm(g / scale[None, :, None], axis=(1, 2))
+        ok = (unit > 0) & np.isfinite(true)
+        if not ok.any():
+            return None
+        ratio = true[ok] / unit[ok]
+        c = float(np.quantile(ratio, self.ERROR_QUANTILE))
+        if not c > 0:  # every held-out step exact: fall back to the largest ratio's scale of round-off
+            c = float(np.finfo(float).eps)
+        est = c * unit[ok]
+        return {"scale": c, "quantile": self.ERROR_QUANTILE, "n_samples": int(ok.sum()), "source": source,
+                "median_effectivity": float(np.median(est / np.maximum(true[ok], np.finfo(float).tiny))),
+                "share_under_3x": float(np.mean(3 * est < true[ok])),
+                "median_step_error": float(np.median(true[ok]))}
+
+    def _rollout_error(self, traj: np.ndarray, mu: np.ndarray, dt: np.ndarray, weights: np.ndarray) -> np.ndarray:
+        """Error estimates (B, K+1) along predicted trajectories ``traj`` (B, K+1, 2n) (every step kept).
+
+        Linearised propagation ``delta_k+1 = D Phi_k delta_k + G_k z`` with one unknown ``z`` shared by all
+        steps (the gradient's error field is smooth on the kernel's scale, so consecutive steps err alike):
+        ``F_k+1 = D Phi_k F_k + G_k``, estimate ``c ||D^-1 F_k||_F``.  ``O(B K 2n m^2)`` (the power function at
+        every step), in blocks of steps (memory ``O(block m 2n)``).
+        """
+        c = self._check_error_estimate()
+        b, k1, dim = traj.shape
+        scale = self._scale_vector(dim)
+        err = np.zeros((b, k1))
+        fac = np.zeros((b, dim, dim))
+        block = max(1, 256 // b)
+        for k0 in range(0, k1 - 1, block):
+            kk = min(k1 - 1, k0 + block)
+            nk = kk - k0
+            xs = (traj[:, k0:kk] * scale).reshape(-1, dim)
+            x1s = (traj[:, k0 + 1:kk + 1] * scale).reshape(-1, dim)
+            rep = lambda a: np.repeat(a, nk, axis=0)
+            jac, g = self._error_terms(xs, x1s, rep(mu), rep(dt), rep(weights))
+            jac, g = jac.reshape(b, nk, dim, dim), g.reshape(b, nk, dim, dim)
+            for i in range(nk):
+                fac = np.matmul(jac[:, i], fac) + g[:, i]
+                err[:, k0 + i + 1] = c * np.linalg.norm(fac / scale[None, :, None], axis=(1, 2))
+        return err
 
     # ------------------------------------------------------- settings
     def _check_params(self) -> Trainer:
@@ -1009,7 +1130,7 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
 
     _advance = _solve_step
 
-    def step(self, x, mu=None, dt=None) -> np.ndarray:
+    def step(self, x, mu=None, dt=None, *, return_error: bool = False):
         """One predicted macro step for a batch of states.
 
         Parameters
@@ -1019,10 +1140,16 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
             Parameters (required iff the model has a parameter).
         dt : float or array_like of shape (B,), optional
             Macro steps; defaults to the training step of a fixed-step model.
+        return_error
+            Also return an estimate of ``|x1_predicted - x1_exact|_2`` per instance (in the states'
+            units): the power function of the learned gradient at the step's evaluation point, mapped
+            through the implicit update (``delta x1 = DF^-1 dT J delta g``) and scaled by the fit's
+            calibration on held-out samples (``error_calibration_``).  Costs ``O(B 2n m^2)`` more.
 
         Returns
         -------
         ndarray of the shape of ``x``
+            (and with ``return_error``, the estimates, shape (B,) or a float for a single state)
 
         Raises
         ------
@@ -1031,11 +1158,18 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
             (the error names them); never returns NaN silently.
         """
         x, single, mu, dt = self._query(x, mu, dt)
-        out = self._check_finite(self._solve_step(x, self.surrogate_.weights(mu, dt), dt))
-        return out[0] if single else out
+        weights = self.surrogate_.weights(mu, dt)
+        out = self._check_finite(self._solve_step(x, weights, dt))
+        if not return_error:
+            return out[0] if single else out
+        c = self._check_error_estimate()
+        scale = self._scale_vector(self.dim_)
+        _, g = self._error_terms(x * scale, out * scale, mu, dt, weights)
+        err = c * np.linalg.norm(g / scale[None, :, None], axis=(1, 2))
+        return (out[0], float(err[0])) if single else (out, err)
 
     def rollout(self, x0, n_steps: int, mu=None, dt=None, *, stride: int = 1, progress=None,
-                check_solvability: bool = False, around=None) -> np.ndarray:
+                check_solvability: bool = False, around=None, return_error: bool = False):
         """Trajectories of ``n_steps`` predicted macro steps.
 
         Parameters
@@ -1059,11 +1193,22 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
             (e.g. the exact linear flow ``L_h`` on both sides, :class:`~sympredict.flowmap.splitting.SplitKernelPredictor`),
             on the same solver as a plain rollout (compiled where that is).  The query
             checks and extrapolation warnings are about the model's inputs ``pre x_k``.
+        return_error
+            Also return ``error`` (B, K // stride + 1), an estimate of ``|x_predicted - x_exact|_2`` at the
+            kept steps, in the states' units (0 at step 0): the local error of each step (:meth:`step`'s
+            estimate) propagated through the step Jacobians, ``F_k+1 = D Phi_k F_k + G_k``,
+            ``error_k = c ||F_k||_F`` (consecutive steps' gradient errors taken as one, since the error
+            field is smooth on the kernel's scale).  It covers the model's interpolation error, not noise in
+            the training data nor states far outside the training box (see the how-to "How accurate is my
+            prediction?").  The states come from the usual solver (compiled where that is); the estimate is
+            computed afterwards in NumPy, ``O(B K 2n m^2)`` (the power function at every step: for
+            ``m = 1000`` centres about 10x to 100x the rollout itself), with every step's state kept
+            while it runs.  Not with ``around``.
 
         Returns
         -------
         ndarray of shape (B, K // stride + 1, 2n) (or (K // stride + 1, 2n) for a single state)
-            ``traj[:, j]`` is the state at ``t = j stride dT``.
+            ``traj[:, j]`` is the state at ``t = j stride dT``; with ``return_error``, ``(traj, error)``.
 
         Raises
         ------
@@ -1079,6 +1224,13 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         """
         n_steps = as_positive_int(n_steps, "n_steps", minimum=0)
         stride = as_positive_int(stride, "stride")
+        if return_error:
+            if around is not None:
+                raise ValueError("return_error=True does not apply to a wrapped rollout (around=...): the estimate "
+                                 "propagates the model's own step; estimate the inner model's rollout instead")
+            self._check_error_estimate()
+            keep = stride
+            stride = 1
         if around is None:
             x, single, mu, dt = self._query(x0, mu, dt, name="x0")
         else:
@@ -1101,6 +1253,10 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         traj = self._check_finite(self._rollout(x, weights, dt, n_steps, around=around, stride=stride,
                                                 progress=progress))
         self._warn_if_trajectory_leaves(traj if around is None else np.einsum("bij,bkj->bki", around[0], traj), stride)
+        if return_error:
+            err = self._rollout_error(traj, mu, dt, weights)[:, ::keep]
+            traj = traj[:, ::keep]
+            return (traj[0], err[0]) if single else (traj, err)
         return traj[0] if single else traj
 
     def _check_around(self, around, b: int) -> tuple:
