@@ -42,6 +42,7 @@ from sympredict.estimators.auto import KernelSearch, _holdout_split, diagnose
 from sympredict.estimators._compat import _NEUTRAL, MOVED_OPTIONS, apply_moved, replacement
 from sympredict.estimators.model_files import MODEL_FORMAT, MODEL_LAYOUT
 from sympredict.exceptions import (
+    AccuracyWarning,
     ExtrapolationWarning,
     ModelFileError,
     NewtonConvergenceError,
@@ -52,6 +53,7 @@ from sympredict.exceptions import (
 )
 from sympredict.interpolation.functionals import HBFunctionals, ValueFunctionals
 from sympredict.interpolation.greedy import GreedyHistory, Trainer
+from sympredict.interpolation.greedy.loop import checkpoint_schedule
 from sympredict.interpolation.greedy.trainers import ExactGreedy
 from sympredict.kernels import IMQ, PeriodicCoordinates, ProductKernel, RadialKernel, StateSymmetry
 from sympredict.symplectic.newton import (
@@ -343,15 +345,17 @@ class _FlowMapKernelModel(Parametrized):
         """``(coordinates, periods)`` of angle coordinates in the original state coordinates (none here)."""
         return (), ()
 
-    def _train(self, trainer: Trainer, kernel: ProductKernel, points, targets, data: FlowMapData, validation):
+    def _train(self, trainer: Trainer, kernel: ProductKernel, points, targets, data: FlowMapData, validation,
+               checkpoints=None):
         """Run the strategy on the functionals at ``points``; sets ``kernel_``, ``history_``, ``greedy_result_``.
 
         Returns the selected point indices and components (``divmod`` of the flat indices).
         """
         functionals = self._functionals(kernel, points, data.mu, data.dt)
         # tol is never looser than itself relative to the data (see fit): data in small units still train
+        extra = {} if checkpoints is None else {"checkpoints": checkpoints}
         result = trainer.run(functionals, targets, max_centers=self.max_centers, validation=validation,
-                             tol_scale=min(1.0, self._data_scale(data)))
+                             tol_scale=min(1.0, self._data_scale(data)), **extra)
         self.kernel_ = kernel
         self.history_ = result.history
         self.greedy_result_ = result
@@ -587,6 +591,17 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         How the open settings are chosen (:class:`~sympredict.estimators.auto.KernelSearch`:
         candidate families and shapes, ``m_star``, subsample size); ``None`` for ``KernelSearch()``.
         Used only when a kernel or the update is left ``None``.
+    target_error
+        Accuracy on demand: the median relative one-step error ``|Phi(x0) - x1| / |x1 - x0|`` on
+        held-out samples the model must reach.  The greedy scores its prefixes on the held-out samples
+        at geometric checkpoints (16, 20, 25, ... centres) and stops at the first that meets the target
+        (refined by bisection): the smallest model it can give that meets it.  ``max_centers`` stays the
+        cap; when the cap, the data or a numerically singular kernel matrix stop it first, one
+        :class:`~sympredict.exceptions.AccuracyWarning` names the limit and the best model found is kept.
+        ``None`` (default): no target, the size is ``max_centers``.  Either way, a fit with held-out
+        samples keeps its best-scoring prefix (growing never returns a worse model than one it passed).
+        Without ``validation``, a fit with a target holds a tenth of the samples out (as the kernel
+        search does).
 
     Attributes
     ----------
@@ -621,8 +636,16 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
     search_ : SearchResult or None
         The kernel search's candidates and scores (``None`` without a search, and after :meth:`load`).
     diagnostics_ : FitDiagnostics or None
-        Residuals on training and held-out samples, convergence, and advice on what to try next
-        (``None`` after :meth:`load`).
+        Residuals and one-step errors on training and held-out samples, the target (met or not), the
+        error estimate's calibration, and advice where the model falls short (``None`` after :meth:`load`).
+    prefix_errors_ : dict or None
+        ``{m: median relative one-step error on held-out samples}`` of the prefixes the greedy scored
+        (checkpoints, and the target's bisection); ``None`` without held-out samples.
+    error_calibration_ : dict or None
+        The scale of the error estimate (``rollout(..., return_error=True)``) and how it was obtained:
+        ``scale`` (the :attr:`ERROR_QUANTILE` quantile of true one-step error over the power-function
+        estimate on up to 500 held-out samples), ``source``, ``n_samples``, and on those samples the
+        resulting ``median_effectivity`` (estimate / true) and ``share_under_3x``.  Kept in model files.
 
     Notes
     -----
@@ -659,6 +682,7 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         trainer: Optional[Trainer] = None,
         solver: Optional[NewtonSolver] = None,
         search: Optional[KernelSearch] = None,
+        target_error: Optional[float] = None,
         **deprecated,
     ):
         self.state_kernel = state_kernel
@@ -669,6 +693,7 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         self.trainer = trainer
         self.solver = solver
         self.search = search
+        self.target_error = target_error
         if deprecated:
             apply_moved(self, deprecated)
 
@@ -742,6 +767,8 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
                 train, holdout = data, validation
             search = self._search().choose(self, train, open_factors)
             params = search.params
+        if self.target_error is not None and holdout is None:  # the target is judged on samples the fit does not see
+            train, holdout = _holdout_split(train, self._search().seed)
         model = clone(self).set_params(**params) if params else self
         with model._fitting():
             model._fit(trainer, train, holdout)
@@ -754,9 +781,31 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         self.choice_ = dict(params)
         self._calibrate_error(train, holdout)
         self.diagnostics_ = diagnose(self, train, holdout)
+        self._warn_if_target_missed()
         if search is not None or self.diagnostics_.advice:
             logger.info(f"{type(self).__name__}.fit: {self.diagnostics_.summary()}")
         return self
+
+    def _warn_if_target_missed(self) -> None:
+        """One :class:`~sympredict.exceptions.AccuracyWarning` when ``target_error`` was not met, naming the limit."""
+        d = self.diagnostics_
+        if self.target_error is None or d is None or d.target_met:
+            return
+        reason = self.history_.stop_reason
+        cap = int(self.max_centers)
+        if reason in ("max_centers",):
+            limit = (f"the centre cap: max_centers={cap} was reached (raise max_centers; the held-out error at the "
+                     f"cap is {d.holdout_step_error:.2e})")
+        elif reason in ("power", "diverged"):
+            limit = ("kernel breakdown: the kernel matrix became numerically singular at "
+                     f"{self.history_.n_centers[-1]} centres, so more centres add nothing (more distinct samples, or "
+                     "narrower kernels: a larger shape eps)")
+        else:
+            limit = ("the data: the greedy interpolates the training samples to its tolerance, and the held-out "
+                     "error stays above the target (more samples, closer together)")
+        warnings.warn(f"target_error={self.target_error:.3g} not met: the median relative one-step error on "
+                      f"{min(d.n_holdout, _HeldOutSteps.largest)} held-out samples is {d.holdout_step_error:.3g} with {self.n_centers_} centres "
+                      f"(the best model found, kept). Limit: {limit}.", AccuracyWarning, stacklevel=3)
 
     def _search(self) -> KernelSearch:
         """The kernel search (``search``, or the default :class:`~sympredict.estimators.auto.KernelSearch`)."""
@@ -772,11 +821,13 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         xi, y = rule.variables(data.x0 * scale, data.x1 * scale, data.dt)
         self._check_duplicates(xi, data, periodic)
         kernel = self._product_kernel(xi, periodic, symmetry)
-        val = None
+        val = checkpoints = None
         if validation is not None:
             vxi, vy = rule.variables(validation.x0 * scale, validation.x1 * scale, validation.dt)
             val = (HBFunctionals(kernel, vxi, validation.mu, validation.dt), vy.reshape(-1))
-        points, comps = self._train(trainer, kernel, xi, y.reshape(-1), data, val)
+            checkpoints = _HeldOutSteps(self, kernel, xi, data, validation, scale)
+        points, comps = self._train(trainer, kernel, xi, y.reshape(-1), data, val, checkpoints=checkpoints)
+        self.prefix_errors_ = None if checkpoints is None else dict(sorted(checkpoints.scores.items()))
         self.surrogate_ = HBSurrogate(kernel, xi[points], data.mu[points], data.dt[points], comps, self.greedy_result_.coef)
         self._warn_if_underfit(data, y, lambda rows: self.surrogate_.gradient(
             xi[rows], self.surrogate_.weights(data.mu[rows], data.dt[rows])))
@@ -974,6 +1025,11 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         if self.search is not None and not isinstance(self.search, KernelSearch):
             raise ValueError(f"search must be a KernelSearch (e.g. KernelSearch(m_star=500)) or None, got {self.search!r}")
         self._search().check()
+        target = self.target_error
+        if target is not None and (isinstance(target, bool) or not isinstance(target, (int, float, np.floating))
+                                   or not (np.isfinite(target) and target > 0)):
+            raise ValueError(f"target_error must be a positive float (a relative one-step error such as 1e-4) or None, "
+                             f"got {target!r}")
         updates = [self.update] if self.update is not None else list(self._search().updates)
         for rule in map(as_update, updates):
             self._check_backend(parts, rule, solver)
@@ -1347,6 +1403,57 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         if comps.dtype.kind != "i" or np.any((comps < 0) | (comps >= self.dim_)):
             raise ModelFileError(f"the file's centre components must be integers in 0..{self.dim_ - 1}")
         return HBSurrogate(kernel, arrays["centers_xi"], arrays["centers_mu"], arrays["centers_dt"], comps, arrays["coef"])
+
+
+class _HeldOutSteps:
+    """Held-out one-step errors of a greedy run's prefixes (:class:`~sympredict.interpolation.greedy.loop.Checkpoints`).
+
+    ``score(m, coef)``: the median relative one-step error ``|Phi(x0) - x1| / |x1 - x0|`` (user units) of the
+    interpolant on the first ``m`` selected centres on (up to 500) held-out samples, by the NumPy Newton
+    solver (``inf`` where it fails): ``O(500 m (2n)^2)`` per checkpoint.  ``keep(m)``: the smallest scored
+    prefix meeting the target, else the best-scoring one (the smaller on a tie).
+    """
+
+    largest = 500
+
+    def __init__(self, model, kernel, xi, data: FlowMapData, holdout: FlowMapData, scale: np.ndarray):
+        self.model, self.kernel, self.xi, self.data, self.scale = model, kernel, xi, data, scale
+        holdout = holdout.subset(np.arange(min(len(holdout), self.largest)))  # the rows diagnose() scores
+        inc = np.linalg.norm(holdout.x1 - holdout.x0, axis=1)
+        rows = inc > 0
+        self.holdout = holdout.subset(rows) if rows.any() else holdout
+        self.inc = inc[rows] if rows.any() else np.ones(len(holdout))
+        self.target = model.target_error
+        self.at = checkpoint_schedule(int(model.max_centers))
+        self.scores = {}
+
+    def score(self, m: int, selected: np.ndarray, coef: np.ndarray) -> float:
+        pts, comps = np.divmod(np.asarray(selected), self.xi.shape[1])
+        d = self.data
+        sur = HBSurrogate(self.kernel, self.xi[pts], d.mu[pts], d.dt[pts], comps, coef)
+        h = self.holdout
+        rule = as_update(self.model.update_)
+        try:
+            with np.errstate(all="ignore"):
+                x1 = rule.solve(sur, h.x0 * self.scale, sur.weights(h.mu, h.dt), h.dt, self.model._newton_iterations()) / self.scale
+            err = np.linalg.norm(x1 - h.x1, axis=1) / self.inc
+            value = float(np.median(np.where(np.isfinite(err), err, np.inf)))
+        except (NewtonConvergenceError, NonFinitePredictionError, ArithmeticError, np.linalg.LinAlgError):
+            value = float("inf")
+        self.scores[int(m)] = value
+        logger.debug(f"held-out one-step error with {m} centres: {value:.3e}")
+        return value
+
+    def keep(self, m: int) -> int:
+        scored = {k: v for k, v in self.scores.items() if k <= m}
+        if not scored:
+            return m
+        if self.target is not None:
+            hits = [k for k, v in scored.items() if v <= self.target]
+            if hits:
+                return min(hits)
+        best = min(scored.values())
+        return min(k for k, v in scored.items() if v == best) if np.isfinite(best) else m
 
 
 class DirectKernelPredictor(_FlowMapKernelModel):

@@ -93,10 +93,11 @@ class Trainer(Setting):
 
     def run(self, functionals, targets, *, max_centers: int, validation: Optional[tuple] = None,
             tol_scale: float = 1.0, divergence_factor: float = 100.0, log_every: int = 100,
-            callback=None) -> GreedyResult:
+            callback=None, checkpoints=None) -> GreedyResult:
         """Greedy selection over ``functionals`` with this strategy's store (:func:`run_greedy`).
 
-        ``tol_scale`` multiplies ``tol`` (the estimator's rule for data in small units).
+        ``tol_scale`` multiplies ``tol`` (the estimator's rule for data in small units); ``checkpoints``
+        scores prefixes (held-out errors: the target stop and the best prefix, :func:`run_greedy`).
         """
         self.check()
         tol = float(self.tol) * float(tol_scale)
@@ -112,7 +113,8 @@ class Trainer(Setting):
             store = self.store(functionals, targets, tol=tol, validation=validation)
         with logger.block(f"{store.label} over {functionals.n_functionals} functionals"):
             return run_greedy(store, max_centers=max_centers, tol=tol, criterion=self.criterion,
-                              divergence_factor=divergence_factor, log_every=log_every, callback=callback)
+                              divergence_factor=divergence_factor, log_every=log_every, callback=callback,
+                              checkpoints=checkpoints)
 
     @property
     def spec(self) -> dict:
