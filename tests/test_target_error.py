@@ -102,3 +102,35 @@ def test_readme_like_fit_summary_reports_held_out_error_without_not_converged():
     text = model.diagnostics_.summary()
     assert "not converged" not in text and "held-out samples" in text and "error estimate" in text
     assert not model.diagnostics_.advice
+
+
+def test_cli_train_target_error_and_predict_error(tmp_path, capsys, data):
+    from sympredict import TrajectoryData
+    from sympredict.cli import main
+    from sympredict.io.trajectories import write_trajectories
+
+    rng = np.random.default_rng(3)
+    x0 = np.column_stack([rng.uniform(-1.5, 1.5, 30), rng.uniform(-1.0, 1.0, 30)])
+    states = Pendulum().trajectory(x0, 0.75, dt=0.1, n_steps=20)
+    write_trajectories(TrajectoryData(states, dt=0.1), tmp_path / "t.npz")
+    model_path = str(tmp_path / "m.h5")
+    assert main(["train", str(tmp_path / "t.npz"), "--out", model_path, "--max-centers", "300", "--target-error",
+                 "1e-3", "--threads", "1"]) == 0
+    out = capsys.readouterr().out
+    assert "target error 1.00e-03: met" in out
+    model = SymplecticKernelPredictor.load(model_path)
+    assert model.target_error == 1e-3 and model.n_centers_ < 300
+    for suffix in (".npz", ".csv"):
+        path = tmp_path / f"pred{suffix}"
+        assert main(["predict", model_path, "--x0", "0.5,0.1", "0.3,0.2", "--steps", "6", "--out", str(path),
+                     "--error"]) == 0
+        traj, err = model.rollout(np.array([[0.5, 0.1], [0.3, 0.2]]), 6, dt=0.1, return_error=True)
+        if suffix == ".npz":
+            got = np.load(path)["error"]
+        else:
+            lines = path.read_text().splitlines()
+            assert lines[0].split(",")[-1] == "error"
+            got = np.array([float(r.split(",")[-1]) for r in lines[1:]]).reshape(2, 7)
+        np.testing.assert_allclose(got, err, rtol=1e-6)
+    assert main(["predict", model_path, "--x0", "0.5,0.1", "--steps", "6", "--error"]) == 0
+    assert "estimated error" in capsys.readouterr().out

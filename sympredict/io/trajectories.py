@@ -13,6 +13,7 @@ import os
 import re
 import zipfile
 from pathlib import Path
+from typing import Optional
 
 import numpy as np
 
@@ -384,7 +385,7 @@ def _read_csv(path: Path, max_bytes: int) -> TrajectoryData:
 
 
 # --------------------------------------------------------------------------- writing, initial states
-def write_trajectories(data: TrajectoryData, path) -> None:
+def write_trajectories(data: TrajectoryData, path, extra: Optional[dict] = None) -> None:
     """Write trajectories in the layout :func:`read_trajectories` reads (format by suffix).
 
     Parameters
@@ -396,6 +397,10 @@ def write_trajectories(data: TrajectoryData, path) -> None:
         parameters), ``.h5``/``.hdf5``
         (the same datasets) or ``.csv`` (columns ``traj`` (0..P-1), ``t``, ``q1..qn``, ``p1..pn``, then
         ``mu1..mud``; numbers written to round-trip exactly).
+    extra : dict of str to ndarray of shape (P, K+1), optional
+        Per-state values written beside the states (e.g. ``error``, the prediction's error estimate): a
+        key of the ``.npz``/``.h5`` file, or a last column of the ``.csv`` (such a file is an output, not
+        an input of :func:`read_trajectories`).
     """
     path = Path(path)
     kind = _SUFFIXES.get(path.suffix.lower())
@@ -407,6 +412,8 @@ def write_trajectories(data: TrajectoryData, path) -> None:
     arrays.update({"dt": np.float64(data.dt)} if uniform else {"times": np.ascontiguousarray(data.times)})
     if data.mu.shape[1]:
         arrays["mu"] = data.mu
+    extra = {k: np.broadcast_to(np.asarray(v, dtype=float), data.states.shape[:2]) for k, v in (extra or {}).items()}
+    arrays.update(extra)
     if kind == "npz":
         with open(path, "wb") as fh:  # np.savez would append .npz to other names
             np.savez(fh, **arrays)
@@ -420,9 +427,10 @@ def write_trajectories(data: TrajectoryData, path) -> None:
         p, k1, dim = data.states.shape
         n, d = dim // 2, data.mu.shape[1]
         header = ["traj", "t", *(f"q{i}" for i in range(1, n + 1)), *(f"p{i}" for i in range(1, n + 1)),
-                  *(f"mu{i}" for i in range(1, d + 1))]
+                  *(f"mu{i}" for i in range(1, d + 1)), *extra]
         table = np.concatenate([np.broadcast_to(np.arange(p)[:, None, None], (p, k1, 1)), data.times[:, :, None],
-                                data.states, np.broadcast_to(data.mu[:, None, :], (p, k1, d))], axis=2).reshape(p * k1, -1)
+                                data.states, np.broadcast_to(data.mu[:, None, :], (p, k1, d)),
+                                *(v[:, :, None] for v in extra.values())], axis=2).reshape(p * k1, -1)
         np.savetxt(path, table, delimiter=",", header=",".join(header), comments="",
                    fmt=["%d"] + ["%.17g"] * (table.shape[1] - 1))
 

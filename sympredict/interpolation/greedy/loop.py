@@ -500,7 +500,8 @@ def run_greedy(
                     lo, hi = last_mark, m  # the crossing lies in (lo, hi]: bisect on prefixes
                     while hi - lo > 1:
                         mid = (lo + hi) // 2
-                        if checkpoints.score(mid, expansion.selected[:mid], _squeezed(expansion.coef(mid), store.squeeze)) <= checkpoints.target:
+                        coef_mid = _squeezed(expansion.coef(mid), store.squeeze)
+                        if checkpoints.score(mid, expansion.selected[:mid], coef_mid) <= checkpoints.target:
                             hi = mid
                         else:
                             lo = mid
@@ -512,7 +513,8 @@ def run_greedy(
                 checkpoints.score(m, expansion.selected[:m], _squeezed(expansion.coef(m), store.squeeze))
             keep = int(checkpoints.keep(m))
             if 0 < keep < m:
-                logger.info(f"{store.label}: keeping the first {keep} of {m} centres (the best held-out prefix)")
+                logger.info(f"{store.label}: keeping the first {keep} of {m} centres ("
+                            + ("the smallest meeting the target)" if stop_reason == "target" else "the best held-out prefix)"))
                 m = keep
                 del train_hist[m + 1:]
                 if val_hist is not None:
