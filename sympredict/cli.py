@@ -423,12 +423,12 @@ def _cmd_train_user_data(args) -> int:
     data = read_trajectories(args.data)
     print(f"read {args.data}: {_describe(data)}")
     validation = read_trajectories(args.validation) if args.validation else None
-    options = {"max_centers": args.centers, "target_error": args.target_error}
+    options = {"max_centers": args.centers}
     for name, spec in (("state_kernel", args.state), ("mu_kernel", args.mu), ("dt_kernel", args.dt)):
         if spec is not None:
             options[name] = _parse_kernel(spec)
-    if args.tol is not None:
-        options["trainer"] = ExactGreedy(tol=args.tol)
+    if args.tol is not None or args.target_error is not None:
+        options["trainer"] = ExactGreedy(**({} if args.tol is None else {"tol": args.tol}), target_error=args.target_error)
     if args.backend != "auto":
         options["solver"] = NewtonSolver(backend=args.backend)
     model = SymplecticKernelPredictor(**options)
@@ -468,8 +468,9 @@ def _cmd_train(args) -> int:
     kernels = [_parse_kernel(k if k is not None else default) for k, default in
                ((args.state, "imq:0.15"), (args.mu, "imq:2.0"), (args.dt, "imq:5.0"))]
     model = SymplecticKernelPredictor(*kernels, max_centers=args.centers or 1500,
-                                      trainer=ExactGreedy(tol=1e-10 if args.tol is None else args.tol),
-                                      solver=NewtonSolver(backend=args.backend), target_error=args.target_error)
+                                      trainer=ExactGreedy(tol=1e-10 if args.tol is None else args.tol,
+                                                          target_error=args.target_error),
+                                      solver=NewtonSolver(backend=args.backend))
     mu = data.mu if kernels[1] is not None else None
     if validation is not None and kernels[1] is None:
         validation = (validation.x0, validation.x1, None, validation.dt)

@@ -9,6 +9,7 @@ from sympredict import SymplecticKernelPredictor
 from sympredict.data import FlowMapData
 from sympredict.exceptions import AccuracyWarning
 from sympredict.interpolation.greedy.loop import checkpoint_schedule
+from sympredict.interpolation.greedy.trainers import ActiveSetGreedy, ExactGreedy
 from sympredict.kernels import IMQ
 from sympredict.systems.pendulum import Pendulum
 
@@ -42,7 +43,7 @@ def test_checkpoint_schedule():
 def test_target_gives_the_smallest_model_that_meets_it(data, target):
     train, val, fresh = data
     kw = dict(mu_kernel=IMQ(2.0), max_centers=400)
-    model = SymplecticKernelPredictor(IMQ(0.5), target_error=target, **kw).fit(train, validation=val)
+    model = SymplecticKernelPredictor(IMQ(0.5), trainer=ExactGreedy(target_error=target), **kw).fit(train, validation=val)
     d = model.diagnostics_
     assert d.target_error == target and d.target_met and d.holdout_step_error <= target
     assert model.history_.stop_reason == "target" and model.n_centers_ < 400
@@ -63,7 +64,7 @@ def test_unreachable_target_warns_once_naming_the_limit_and_keeps_the_best(data)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         model = SymplecticKernelPredictor(IMQ(0.5), mu_kernel=IMQ(2.0), max_centers=30,
-                                          target_error=1e-12).fit(train, validation=val)
+                                          trainer=ExactGreedy(target_error=1e-12)).fit(train, validation=val)
     acc = [w for w in caught if issubclass(w.category, AccuracyWarning)]
     assert len(acc) == 1 and "max_centers=30" in str(acc[0].message) and "not met" in str(acc[0].message)
     d = model.diagnostics_
@@ -73,7 +74,8 @@ def test_unreachable_target_warns_once_naming_the_limit_and_keeps_the_best(data)
 
 def test_target_without_validation_holds_samples_out(data):
     train, _, _ = data
-    model = SymplecticKernelPredictor(IMQ(0.5), mu_kernel=IMQ(2.0), max_centers=300, target_error=1e-3).fit(train)
+    model = SymplecticKernelPredictor(IMQ(0.5), mu_kernel=IMQ(2.0), max_centers=300,
+                                      trainer=ExactGreedy(target_error=1e-3)).fit(train)
     assert model.diagnostics_.n_holdout == len(train) // 10 and model.diagnostics_.target_met
 
 
@@ -89,7 +91,7 @@ def test_best_prefix_is_kept(data):
 @pytest.mark.parametrize("bad", [0.0, -1e-3, float("nan"), "1e-3", True])
 def test_target_is_checked(data, bad):
     with pytest.raises(ValueError, match="target_error"):
-        SymplecticKernelPredictor(IMQ(0.5), mu_kernel=IMQ(2.0), target_error=bad).fit(data[0])
+        SymplecticKernelPredictor(IMQ(0.5), mu_kernel=IMQ(2.0), trainer=ExactGreedy(target_error=bad)).fit(data[0])
 
 
 def test_readme_like_fit_summary_reports_held_out_error_without_not_converged():
@@ -119,7 +121,7 @@ def test_cli_train_target_error_and_predict_error(tmp_path, capsys, data):
     out = capsys.readouterr().out
     assert "target error 1.00e-03: met" in out
     model = SymplecticKernelPredictor.load(model_path)
-    assert model.target_error == 1e-3 and model.n_centers_ < 300
+    assert model.target_error_ == 1e-3 and model.trainer.target_error == 1e-3 and model.n_centers_ < 300
     for suffix in (".npz", ".csv"):
         path = tmp_path / f"pred{suffix}"
         assert main(["predict", model_path, "--x0", "0.5,0.1", "0.3,0.2", "--steps", "6", "--out", str(path),
@@ -134,3 +136,13 @@ def test_cli_train_target_error_and_predict_error(tmp_path, capsys, data):
         np.testing.assert_allclose(got, err, rtol=1e-6)
     assert main(["predict", model_path, "--x0", "0.5,0.1", "--steps", "6", "--error"]) == 0
     assert "estimated error" in capsys.readouterr().out
+
+
+def test_every_strategy_takes_the_target_and_the_search_drops_it(data):
+    train, val, _ = data
+    model = SymplecticKernelPredictor(IMQ(0.5), mu_kernel=IMQ(2.0), max_centers=300,
+                                      trainer=ActiveSetGreedy(target_error=1e-2)).fit(train, validation=val)
+    assert model.history_.stop_reason == "target" and model.diagnostics_.target_met
+    from sympredict.estimators.auto import _without_target
+    est = SymplecticKernelPredictor(trainer=ExactGreedy(target_error=1e-3))
+    assert _without_target(est).trainer.target_error is None

@@ -212,7 +212,7 @@ class KernelSearch(Setting):
         updates = list(self.updates) if open_factors["update"] else [estimator.update]
 
         def template(update):
-            return clone(estimator).set_params(state_kernel=state_template, update=update, target_error=None)
+            return _without_target(clone(estimator).set_params(state_kernel=state_template, update=update))
 
         if open_factors["state"]:
             unit = 1.0 / _spread(template(updates[0]), train)
@@ -365,13 +365,20 @@ def _holdout_split(data: FlowMapData, seed: int, fraction: float = 0.1, largest:
     return data.subset(np.sort(rows[n_out:])), data.subset(np.sort(rows[:n_out]))
 
 
+def _without_target(model):
+    """``model`` with its trainer's ``target_error`` dropped (search candidates compete at their full size)."""
+    if getattr(model.trainer, "target_error", None) is not None:
+        model.set_params(trainer__target_error=None)
+    return model
+
+
 def _one_step_score(estimator, params: dict, m_final: int, train: FlowMapData, val: FlowMapData,
                     largest: int = 500) -> tuple:
     """``(score, centres, seconds, error)`` of one second-stage candidate: ``clone(estimator)`` with ``params`` fitted
     to ``m_final`` centres on ``train``, scored by the mean relative one-step error on (up to ``largest``) ``val``
     samples; ``inf`` for a failed fit or Newton solve, or a non-finite prediction."""
     t0 = time.perf_counter()
-    model = clone(estimator).set_params(**params, max_centers=m_final, target_error=None)  # the target: final fit only
+    model = _without_target(clone(estimator).set_params(**params, max_centers=m_final))  # the target: final fit only
     sub = val.subset(np.arange(min(len(val), largest)))
     inc = np.linalg.norm(sub.x1 - sub.x0, axis=1)
     rows = inc > 0
@@ -550,7 +557,7 @@ def diagnose(model, train: FlowMapData, holdout: Optional[FlowMapData]) -> FitDi
         except (NewtonConvergenceError, NonFinitePredictionError):
             step_err = float("inf")
     converged = h.stop_reason in ("tol", "target")
-    target = getattr(model, "target_error", None)
+    target = getattr(model, "target_error_", None)
     target_met = None if target is None or not np.isfinite(step_err) else bool(step_err <= target)
     # advice only where the model falls short: a missed target, or (without one) a fit the centre budget cut off
     # while it was still improving; a stop by a singular kernel matrix without a target is no shortfall (the

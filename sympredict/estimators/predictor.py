@@ -579,6 +579,16 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         relative to the data's scale for data in small units.  A fit that
         selects no centre, or reproduces less than a tenth of its largest
         training increments, warns (:class:`~sympredict.exceptions.UnderfitWarning`).
+        Accuracy on demand is the trainer's ``target_error`` (``ExactGreedy(target_error=1e-4)``):
+        the median relative one-step error ``|Phi(x0) - x1| / |x1 - x0|`` on held-out samples the
+        model must reach.  The greedy scores its prefixes on the held-out samples at geometric
+        checkpoints (16, 20, 25, ... centres) and stops at the first that meets the target (refined by
+        bisection): the smallest model it can give that meets it.  ``max_centers`` stays the cap; when
+        the cap, the data or a numerically singular kernel matrix stop it first, one
+        :class:`~sympredict.exceptions.AccuracyWarning` names the limit and the best model found is
+        kept.  Without ``validation``, a fit with a target holds a tenth of the samples out (as the
+        kernel search does).  With or without a target, a fit with held-out samples keeps its
+        best-scoring prefix (growing never returns a worse model than one it passed).
     solver
         The Newton solver of :meth:`step` / :meth:`rollout`
         (:class:`~sympredict.symplectic.solvers.NewtonSolver`: ``max_iter``,
@@ -591,18 +601,6 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         How the open settings are chosen (:class:`~sympredict.estimators.auto.KernelSearch`:
         candidate families and shapes, ``m_star``, subsample size); ``None`` for ``KernelSearch()``.
         Used only when a kernel or the update is left ``None``.
-    target_error
-        Accuracy on demand: the median relative one-step error ``|Phi(x0) - x1| / |x1 - x0|`` on
-        held-out samples the model must reach.  The greedy scores its prefixes on the held-out samples
-        at geometric checkpoints (16, 20, 25, ... centres) and stops at the first that meets the target
-        (refined by bisection): the smallest model it can give that meets it.  ``max_centers`` stays the
-        cap; when the cap, the data or a numerically singular kernel matrix stop it first, one
-        :class:`~sympredict.exceptions.AccuracyWarning` names the limit and the best model found is kept.
-        ``None`` (default): no target, the size is ``max_centers``.  Either way, a fit with held-out
-        samples keeps its best-scoring prefix (growing never returns a worse model than one it passed).
-        Without ``validation``, a fit with a target holds a tenth of the samples out (as the kernel
-        search does).
-
     Attributes
     ----------
     kernel_ : ProductKernel
@@ -682,7 +680,6 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         trainer: Optional[Trainer] = None,
         solver: Optional[NewtonSolver] = None,
         search: Optional[KernelSearch] = None,
-        target_error: Optional[float] = None,
         **deprecated,
     ):
         self.state_kernel = state_kernel
@@ -693,7 +690,6 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         self.trainer = trainer
         self.solver = solver
         self.search = search
-        self.target_error = target_error
         if deprecated:
             apply_moved(self, deprecated)
 
@@ -767,7 +763,8 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
                 train, holdout = data, validation
             search = self._search().choose(self, train, open_factors)
             params = search.params
-        if self.target_error is not None and holdout is None:  # the target is judged on samples the fit does not see
+        if getattr(trainer, "target_error", None) is not None and holdout is None:
+            # the target is judged on samples the fit does not see
             train, holdout = _holdout_split(train, self._search().seed)
         model = clone(self).set_params(**params) if params else self
         with model._fitting():
@@ -786,10 +783,17 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
             logger.info(f"{type(self).__name__}.fit: {self.diagnostics_.summary()}")
         return self
 
+    @property
+    def target_error_(self) -> Optional[float]:
+        """The trainer's ``target_error`` (of the fitted trainer once fitted): accuracy on demand, or ``None``."""
+        params = self.__dict__.get("fitted_params_")
+        trainer = params.get("trainer") if params is not None else self.trainer
+        return getattr(trainer if trainer is not None else ExactGreedy(), "target_error", None)
+
     def _warn_if_target_missed(self) -> None:
         """One :class:`~sympredict.exceptions.AccuracyWarning` when ``target_error`` was not met, naming the limit."""
         d = self.diagnostics_
-        if self.target_error is None or d is None or d.target_met:
+        if self.target_error_ is None or d is None or d.target_met:
             return
         reason = self.history_.stop_reason
         cap = int(self.max_centers)
@@ -803,7 +807,7 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         else:
             limit = ("the data: the greedy interpolates the training samples to its tolerance, and the held-out "
                      "error stays above the target (more samples, closer together)")
-        warnings.warn(f"target_error={self.target_error:.3g} not met: the median relative one-step error on "
+        warnings.warn(f"target_error={self.target_error_:.3g} not met: the median relative one-step error on "
                       f"{min(d.n_holdout, _HeldOutSteps.largest)} held-out samples is {d.holdout_step_error:.3g} with {self.n_centers_} centres "
                       f"(the best model found, kept). Limit: {limit}.", AccuracyWarning, stacklevel=3)
 
@@ -1025,11 +1029,6 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         if self.search is not None and not isinstance(self.search, KernelSearch):
             raise ValueError(f"search must be a KernelSearch (e.g. KernelSearch(m_star=500)) or None, got {self.search!r}")
         self._search().check()
-        target = self.target_error
-        if target is not None and (isinstance(target, bool) or not isinstance(target, (int, float, np.floating))
-                                   or not (np.isfinite(target) and target > 0)):
-            raise ValueError(f"target_error must be a positive float (a relative one-step error such as 1e-4) or None, "
-                             f"got {target!r}")
         updates = [self.update] if self.update is not None else list(self._search().updates)
         for rule in map(as_update, updates):
             self._check_backend(parts, rule, solver)
@@ -1423,7 +1422,7 @@ class _HeldOutSteps:
         rows = inc > 0
         self.holdout = holdout.subset(rows) if rows.any() else holdout
         self.inc = inc[rows] if rows.any() else np.ones(len(holdout))
-        self.target = model.target_error
+        self.target = model.target_error_
         self.at = checkpoint_schedule(int(model.max_centers))
         self.scores = {}
 

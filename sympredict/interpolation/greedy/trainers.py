@@ -69,6 +69,9 @@ class Trainer(Setting):
     criterion: str = "f"
     memory_limit: Optional[float] = None
     regularization: float = 0.0
+    #: Accuracy on demand: the median relative one-step error on held-out samples the estimator grows the
+    #: model to (``None``: no target, the size is ``max_centers``); read by the estimator's fit.
+    target_error: Optional[float] = None
 
     def check(self) -> "Trainer":
         """``ValueError`` naming the setting that is malformed; returns ``self``."""
@@ -81,6 +84,11 @@ class Trainer(Setting):
             raise ValueError(f"power_tol must be below 1 (relative to the Gramian diagonal), got {self.power_tol!r}")
         if self.criterion not in ("f", "p"):
             raise ValueError(f"criterion must be 'f' (f-greedy) or 'p' (P-greedy), got {self.criterion!r}")
+        target = self.target_error
+        if target is not None and (isinstance(target, bool) or not isinstance(target, (int, float, np.floating))
+                                   or not (np.isfinite(target) and target > 0)):
+            raise ValueError(f"target_error must be a positive float (a relative one-step error such as 1e-4) or None, "
+                             f"got {target!r}")
         limit = self.memory_limit
         if limit is not None and (isinstance(limit, bool) or not isinstance(limit, (int, float, np.number))
                                   or not (np.isfinite(limit) and limit > 0)):
@@ -148,10 +156,16 @@ class ExactGreedy(Trainer):
         on the selected centres instead of interpolating them.  ``0`` (default):
         exact interpolation.  Choose it on validation data
         (:func:`sympredict.estimators.selection.select_regularization`).
+    target_error
+        Accuracy on demand (read by :class:`~sympredict.SymplecticKernelPredictor`'s fit): grow the model
+        until the median relative one-step error ``|Phi(x0) - x1| / |x1 - x0|`` on held-out samples is at
+        most this, then stop (the estimator's ``max_centers`` stays the cap).  ``None`` (default): no target.
     """
 
     def __init__(self, basis_dtype: str = "float64", *, tol: float = 1e-10, criterion: str = "f",
-                 power_tol: float = 1e-12, memory_limit: Optional[float] = None, regularization: float = 0.0):
+                 power_tol: float = 1e-12, memory_limit: Optional[float] = None, regularization: float = 0.0,
+                 target_error: Optional[float] = None):
+        self.target_error = target_error
         self.tol = tol
         self.criterion = criterion
         self.power_tol = power_tol
@@ -170,7 +184,7 @@ class ActiveSetGreedy(Trainer):
     """f-greedy on an active subset of the samples, refreshed against the full residual.
 
     (:class:`~sympredict.interpolation.greedy.active_set.ActiveSetStore`, whose docstring
-    describes the parameters; ``tol``, ``power_tol`` and ``memory_limit`` as for
+    describes the parameters; ``tol``, ``power_tol``, ``memory_limit`` and ``target_error`` as for
     :class:`ExactGreedy`.  An f-greedy without regularization: it has neither
     ``criterion`` nor ``regularization``.)  The run stops when the max residual over *all*
     functionals reaches ``tol`` (or at ``max_centers``); memory ``O(m N_active)``
@@ -180,7 +194,8 @@ class ActiveSetGreedy(Trainer):
 
     def __init__(self, initial_points: int = 8192, refresh_every: int = 200, max_new_points: int = 4096,
                  margin: float = 0.7, refresh_fraction: float = 0.25, seed: int = 0, *, tol: float = 1e-10,
-                 power_tol: float = 1e-12, memory_limit: Optional[float] = None):
+                 power_tol: float = 1e-12, memory_limit: Optional[float] = None, target_error: Optional[float] = None):
+        self.target_error = target_error
         self.tol = tol
         self.power_tol = power_tol
         self.memory_limit = memory_limit
@@ -195,7 +210,8 @@ class ActiveSetGreedy(Trainer):
         if not isinstance(functionals, HBFunctionals):
             raise ValueError("ActiveSetGreedy needs state-derivative functionals (the symplectic predictor): "
                              "use ExactGreedy() or ShardedGreedy() for the direct model")
-        own = {k: v for k, v in self.get_params(deep=False).items() if k not in ("tol", "power_tol", "memory_limit")}
+        own = {k: v for k, v in self.get_params(deep=False).items()
+               if k not in ("tol", "power_tol", "memory_limit", "target_error")}
         return ActiveSetStore(functionals, targets, tol=tol, power_tol=self.power_tol, validation=validation,
                               memory_limit=self.memory_limit, **own)
 
@@ -218,7 +234,7 @@ class ShardedGreedy(Trainer):
 
     Notes
     -----
-    ``tol``, ``criterion``, ``power_tol``, ``regularization``: as for
+    ``tol``, ``criterion``, ``power_tol``, ``regularization``, ``target_error``: as for
     :class:`ExactGreedy`; there is no ``memory_limit`` (each worker checks
     ``memory_limit_per_rank``).  The last run's pool timings are in the
     result's store statistics (``model.greedy_result_.stats``).
@@ -226,7 +242,8 @@ class ShardedGreedy(Trainer):
 
     def __init__(self, pool=None, n_shards: Optional[int] = None, memory_limit_per_rank: Optional[float] = None,
                  timeout: Optional[float] = 60.0, *, tol: float = 1e-10, criterion: str = "f",
-                 power_tol: float = 1e-12, regularization: float = 0.0):
+                 power_tol: float = 1e-12, regularization: float = 0.0, target_error: Optional[float] = None):
+        self.target_error = target_error
         self.pool = pool
         self.tol = tol
         self.criterion = criterion
