@@ -5,7 +5,7 @@ import warnings
 import numpy as np
 import pytest
 
-from sympredict import SymplecticKernelPredictor
+from sympredict import KernelSearch, SymplecticKernelPredictor
 from sympredict.data import FlowMapData
 from sympredict.exceptions import AccuracyWarning
 from sympredict.interpolation.greedy.loop import checkpoint_schedule
@@ -82,10 +82,14 @@ def test_target_without_validation_holds_samples_out(data):
 def test_best_prefix_is_kept(data):
     """Growing never returns a worse model than one it passed (held-out one-step error at the checkpoints)."""
     train, val, _ = data
-    model = SymplecticKernelPredictor(IMQ(0.5), mu_kernel=IMQ(2.0), max_centers=200).fit(train, validation=val)
+    search = KernelSearch(m_star=30, max_samples=300, refine_sweeps=0)  # the fit chooses its parameter kernel
+    model = SymplecticKernelPredictor(IMQ(0.5), max_centers=200, search=search).fit(train, validation=val)
     errs = model.prefix_errors_
     assert model.n_centers_ in errs and errs[model.n_centers_] == min(errs.values())
     assert max(errs) >= model.n_centers_
+    # every setting and validation given, no target (the kernel search's candidates): no prefix scoring
+    plain = SymplecticKernelPredictor(IMQ(0.5), mu_kernel=IMQ(2.0), max_centers=50).fit(train, validation=val)
+    assert plain.prefix_errors_ is None and plain.n_centers_ == 50
 
 
 @pytest.mark.parametrize("bad", [0.0, -1e-3, float("nan"), "1e-3", True])

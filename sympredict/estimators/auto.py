@@ -475,8 +475,10 @@ class FitDiagnostics:
     target_met : bool or None
         Whether ``holdout_step_error <= target_error`` (``None`` without a target or held-out samples).
     calibration : dict or None
-        The error estimate's calibration (``error_calibration_``: scale, source, samples, median
-        effectivity and share underestimated more than 3x on those samples).
+        The error estimate's calibration (the model's ``error_calibration_``, computed on first use:
+        scale, source, samples, median effectivity and share underestimated more than 3x on those samples).
+    model
+        The fitted model these diagnostics describe.
     prefix : tuple or None
         ``(kept, scored)``: the centres kept and the largest prefix the greedy scored on held-out samples
         (``kept < scored`` when a smaller prefix was better or met the target).
@@ -494,8 +496,13 @@ class FitDiagnostics:
     advice: list = field(default_factory=list)
     target_error: Optional[float] = None
     target_met: Optional[bool] = None
-    calibration: Optional[dict] = None
     prefix: Optional[tuple] = None
+    model: object = field(default=None, repr=False, compare=False)
+
+    @property
+    def calibration(self) -> Optional[dict]:
+        """The model's ``error_calibration_`` (computed on first use: ``O(500 2n m^2)``)."""
+        return getattr(self.model, "error_calibration_", None)
 
     #: How :meth:`summary` words the greedy's stop reasons.
     STOPS = {"tol": "training residual at its tolerance", "max_centers": "centre budget used",
@@ -584,7 +591,7 @@ def diagnose(model, train: FlowMapData, holdout: Optional[FlowMapData]) -> FitDi
     prefix = (m, max(scored)) if scored else None
     return FitDiagnostics(len(train), 0 if holdout is None else len(holdout), m, int(model.max_centers),
                           str(h.stop_reason), converged, train_abs / rel, holdout_res, step_err, advice,
-                          target, target_met, getattr(model, "error_calibration_", None), prefix)
+                          target, target_met, prefix, model)
 
 
 def _edge_advice(model, holdout: FlowMapData) -> list:

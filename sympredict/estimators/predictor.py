@@ -587,7 +587,7 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         the cap, the data or a numerically singular kernel matrix stop it first, one
         :class:`~sympredict.exceptions.AccuracyWarning` names the limit and the best model found is
         kept.  Without ``validation``, a fit with a target holds a tenth of the samples out (as the
-        kernel search does).  With or without a target, a fit with held-out samples keeps its
+        kernel search does).  With a target, and in a fit that chooses settings, the fit keeps the
         best-scoring prefix (growing never returns a worse model than one it passed).
     solver
         The Newton solver of :meth:`step` / :meth:`rollout`
@@ -638,7 +638,8 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         error estimate's calibration, and advice where the model falls short (``None`` after :meth:`load`).
     prefix_errors_ : dict or None
         ``{m: median relative one-step error on held-out samples}`` of the prefixes the greedy scored
-        (checkpoints, and the target's bisection); ``None`` without held-out samples.
+        (checkpoints, and the target's bisection) in a fit with a ``target_error`` or one that chose
+        settings (the best prefix is kept); ``None`` otherwise.
     error_calibration_ : dict or None
         The scale of the error estimate (``rollout(..., return_error=True)``) and how it was obtained:
         ``scale`` (the :attr:`ERROR_QUANTILE` quantile of true one-step error over the power-function
@@ -763,12 +764,16 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
                 train, holdout = data, validation
             search = self._search().choose(self, train, open_factors)
             params = search.params
-        if getattr(trainer, "target_error", None) is not None and holdout is None:
-            # the target is judged on samples the fit does not see
+        target = getattr(trainer, "target_error", None)
+        if target is not None and holdout is None:  # the target is judged on samples the fit does not see
             train, holdout = _holdout_split(train, self._search().seed)
+        # prefixes are scored on held-out samples (the target's stop, the best prefix) in the fit a user asked
+        # for: with a target, or where this fit chose settings; not in fits with every setting and validation
+        # data given (the kernel search's candidates, compared at their full size; E_val and smallest() there)
+        score = holdout is not None and (target is not None or search is not None)
         model = clone(self).set_params(**params) if params else self
         with model._fitting():
-            model._fit(trainer, train, holdout)
+            model._fit(trainer, train, holdout, score_prefixes=score)
         if model is not self:  # the fitted state (names ending in '_') of the resolved copy
             for name in [k for k in self.__dict__ if k.endswith("_")]:
                 del self.__dict__[name]
@@ -815,7 +820,7 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         """The kernel search (``search``, or the default :class:`~sympredict.estimators.auto.KernelSearch`)."""
         return KernelSearch() if self.search is None else self.search
 
-    def _fit(self, trainer, data: FlowMapData, validation) -> "SymplecticKernelPredictor":
+    def _fit(self, trainer, data: FlowMapData, validation, score_prefixes: bool = False) -> "SymplecticKernelPredictor":
         if data.x0.shape[1] % 2:
             raise ValueError(f"states must have an even dimension 2n (q, p), got {data.x0.shape[1]}")
         scale = self._scale_vector(data.x0.shape[1])
@@ -829,7 +834,8 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         if validation is not None:
             vxi, vy = rule.variables(validation.x0 * scale, validation.x1 * scale, validation.dt)
             val = (HBFunctionals(kernel, vxi, validation.mu, validation.dt), vy.reshape(-1))
-            checkpoints = _HeldOutSteps(self, kernel, xi, data, validation, scale)
+            if score_prefixes:
+                checkpoints = _HeldOutSteps(self, kernel, xi, data, validation, scale)
         points, comps = self._train(trainer, kernel, xi, y.reshape(-1), data, val, checkpoints=checkpoints)
         self.prefix_errors_ = None if checkpoints is None else dict(sorted(checkpoints.scores.items()))
         self.surrogate_ = HBSurrogate(kernel, xi[points], data.mu[points], data.dt[points], comps, self.greedy_result_.coef)
@@ -873,8 +879,7 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
             elapsed=h.elapsed[:n_centers],
             stop_reason=f"truncated to {n_centers} of {self.n_centers_} centres",
         )
-        samples = getattr(self, "_error_samples", None)
-        small.error_calibration_ = None if samples is None else small._error_calibration(*samples)
+        small.__dict__.pop("_error_calibration", None)  # recalibrated on the same samples when used
         return small  # keeps the full run's Newton data: it can be truncated further
 
     def smallest(self, target: float) -> "SymplecticKernelPredictor":
@@ -946,9 +951,11 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
 
         ``ratio_i = |Phi(x0_i) - x1_i| / ||D^-1 G_i||_F`` (:meth:`_error_terms`); the scale is the
         :attr:`ERROR_QUANTILE` quantile of the ratios, so that the one-step estimate covers that share of the
-        held-out errors.  The samples are kept (privately) for :meth:`truncated` to recalibrate.
+        held-out errors.  Only the samples are kept here (privately): the calibration is computed on first
+        use (:attr:`error_calibration_`, ``O(500 2n m^2)``), so fits whose estimate nobody asks for (the kernel
+        search's candidates) do not pay for it, and :meth:`truncated` recalibrates on the same samples.
         """
-        self.error_calibration_ = None
+        self.__dict__.pop("_error_calibration", None)  # computed from the samples on first use
         if self.periodic_ is not None or self.symmetry_ is not None or self.surrogate_.n_centers == 0:
             self._error_samples = None
             return
@@ -965,7 +972,18 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         if len(data) > self.ERROR_SAMPLES:
             data = data.subset(np.random.default_rng(0).choice(len(data), self.ERROR_SAMPLES, replace=False))
         self._error_samples = (data, source)
-        self.error_calibration_ = self._error_calibration(data, source)
+
+    @property
+    def error_calibration_(self) -> Optional[dict]:
+        """The error estimate's calibration (see the class's Attributes), computed on first use, then kept."""
+        if "_error_calibration" not in self.__dict__:
+            samples = self.__dict__.get("_error_samples")
+            self.__dict__["_error_calibration"] = None if samples is None else self._error_calibration(*samples)
+        return self.__dict__["_error_calibration"]
+
+    @error_calibration_.setter
+    def error_calibration_(self, value: Optional[dict]) -> None:
+        self.__dict__["_error_calibration"] = value
 
     def _error_calibration(self, data: FlowMapData, source: str) -> Optional[dict]:
         """The calibration record of :meth:`_calibrate_error` on ``data``."""
