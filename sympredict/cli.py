@@ -428,7 +428,8 @@ def _cmd_train_user_data(args) -> int:
         if spec is not None:
             options[name] = _parse_kernel(spec)
     if args.tol is not None or args.target_error is not None:
-        options["trainer"] = ExactGreedy(**({} if args.tol is None else {"tol": args.tol}), target_error=args.target_error)
+        options["trainer"] = ExactGreedy(**({} if args.tol is None else {"tol": args.tol}),
+                                         target_error=args.target_error)
     if args.backend != "auto":
         options["solver"] = NewtonSolver(backend=args.backend)
     model = SymplecticKernelPredictor(**options)
@@ -751,8 +752,9 @@ def build_parser() -> argparse.ArgumentParser:
                        help="maximal number of centres (default: 1500 for a sympredict data set, the estimator's default otherwise)")
     train.add_argument("--tol", type=_finite_float(nonnegative=True), help="greedy residual tolerance (default 1e-10)")
     train.add_argument("--target-error", type=_finite_float(positive=True),
-                       help="grow the model until the median relative one-step error on held-out samples is at most "
-                            "this (e.g. 1e-4), then stop: the smallest model that meets it (--max-centers stays the cap)")
+                       help="grow the model until the median relative one-step error on held-out samples is at "
+                            "most this (e.g. 1e-4), then stop: the smallest model that meets it (--max-centers "
+                            "stays the cap)")
     train.add_argument("--threads", type=_int_at_least(1), default=os.cpu_count() or 1)
     _add_backend_and_force(train, "the saved model's Newton solver")
     train.set_defaults(func=_cmd_train)

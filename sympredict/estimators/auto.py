@@ -577,9 +577,9 @@ def diagnose(model, train: FlowMapData, holdout: Optional[FlowMapData]) -> FitDi
             advice.append(f"more centres: the hold-out residual still fell by {1 - tail[-1] / tail[0]:.0%} over the "
                           f"last fifth of the {m} centres (raise max_centers)")
     if h.stop_reason == "power" and target_met is False:
-        advice.append("the kernel matrix became numerically singular before max_centers: more data (more distinct samples), or narrower kernels (the state or "
-                      "parameter kernel of model.choice_ with a larger shape eps, passed to the estimator) let the "
-                      "greedy use more centres")
+        advice.append("the kernel matrix became numerically singular before max_centers: more data (more distinct "
+                      "samples), or narrower kernels (the state or parameter kernel of model.choice_ with a larger "
+                      "shape eps, passed to the estimator) let the greedy use more centres")
     if np.isfinite(holdout_res) and train_abs > 0 and holdout_res * rel > 10 * train_abs:
         advice.append(f"more data: the hold-out residual is {holdout_res * rel / train_abs:.0f}x the training residual, "
                       "the samples do not resolve the map between them")

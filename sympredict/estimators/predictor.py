@@ -813,7 +813,8 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
             limit = ("the data: the greedy interpolates the training samples to its tolerance, and the held-out "
                      "error stays above the target (more samples, closer together)")
         warnings.warn(f"target_error={self.target_error_:.3g} not met: the median relative one-step error on "
-                      f"{min(d.n_holdout, _HeldOutSteps.largest)} held-out samples is {d.holdout_step_error:.3g} with {self.n_centers_} centres "
+                      f"{min(d.n_holdout, _HeldOutSteps.largest)} held-out samples is {d.holdout_step_error:.3g} "
+                      f"with {self.n_centers_} centres "
                       f"(the best model found, kept). Limit: {limit}.", AccuracyWarning, stacklevel=3)
 
     def _search(self) -> KernelSearch:
@@ -911,7 +912,7 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
 
     # ------------------------------------------------------- error estimate
     def _error_chol(self) -> np.ndarray:
-        """The Cholesky factor of the centres' Gramian (with the fitted trainer's ridge term), cached on the surrogate."""
+        """The Cholesky factor of the centres' Gramian (with the fitted trainer's ridge term), cached."""
         trainer = getattr(self, "fitted_params_", {}).get("trainer") or ExactGreedy()
         return self.surrogate_.gram_factor(float(getattr(trainer, "regularization", 0.0) or 0.0))
 
@@ -1452,7 +1453,8 @@ class _HeldOutSteps:
         rule = as_update(self.model.update_)
         try:
             with np.errstate(all="ignore"):
-                x1 = rule.solve(sur, h.x0 * self.scale, sur.weights(h.mu, h.dt), h.dt, self.model._newton_iterations()) / self.scale
+                x1 = rule.solve(sur, h.x0 * self.scale, sur.weights(h.mu, h.dt), h.dt,
+                                self.model._newton_iterations()) / self.scale
             err = np.linalg.norm(x1 - h.x1, axis=1) / self.inc
             value = float(np.median(np.where(np.isfinite(err), err, np.inf)))
         except (NewtonConvergenceError, NonFinitePredictionError, ArithmeticError, np.linalg.LinAlgError):

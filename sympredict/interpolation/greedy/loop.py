@@ -275,7 +275,7 @@ class Checkpoints(Protocol):
         selected functionals, kernel coefficients ``coef`` (m,) or (m, q)."""
 
     def keep(self, m: int) -> int:
-        """Of a run with ``m`` centres, how many to keep (the best-scoring prefix, or the smallest meeting the target)."""
+        """Of a run with ``m`` centres, how many to keep (the best prefix, or the smallest meeting the target)."""
 
 
 class NewtonBasisStore(Protocol):
@@ -513,8 +513,8 @@ def run_greedy(
                 checkpoints.score(m, expansion.selected[:m], _squeezed(expansion.coef(m), store.squeeze))
             keep = int(checkpoints.keep(m))
             if 0 < keep < m:
-                logger.info(f"{store.label}: keeping the first {keep} of {m} centres ("
-                            + ("the smallest meeting the target)" if stop_reason == "target" else "the best held-out prefix)"))
+                why = "the smallest meeting the target" if stop_reason == "target" else "the best held-out prefix"
+                logger.info(f"{store.label}: keeping the first {keep} of {m} centres ({why})")
                 m = keep
                 del train_hist[m + 1:]
                 if val_hist is not None:
