@@ -428,8 +428,9 @@ def _cmd_train_user_data(args) -> int:
     for name, spec in (("state_kernel", args.state), ("mu_kernel", args.mu), ("dt_kernel", args.dt)):
         if spec is not None:
             options[name] = _parse_kernel(spec)
-    if args.tol is not None:
-        options["trainer"] = ExactGreedy(tol=args.tol)
+    if args.tol is not None or args.target_error is not None:
+        options["trainer"] = ExactGreedy(**({} if args.tol is None else {"tol": args.tol}),
+                                         target_error=args.target_error)
     if args.backend != "auto":
         options["solver"] = NewtonSolver(backend=args.backend)
     model = SymplecticKernelPredictor(**options)
@@ -440,7 +441,16 @@ def _cmd_train_user_data(args) -> int:
     print(f"trained {model.n_centers_} centres ({h.stop_reason}): E_train {h.train_max_residual[-1]:.2e}"
           + (f", E_val {h.val_max_residual[-1]:.2e}" if h.val_max_residual is not None else "")
           + f"; saved to {args.out}")
+    _print_target(model)
     return 0
+
+
+def _print_target(model) -> None:
+    """With ``--target-error``: the held-out error against the target (the fit also warns when it is missed)."""
+    d = getattr(model, "diagnostics_", None)
+    if d is not None and d.target_error is not None:
+        print(f"target error {d.target_error:.2e}: {'met' if d.target_met else 'NOT met'} "
+              f"(median one-step error {d.holdout_step_error:.2e} on held-out samples, {model.n_centers_} centres)")
 
 
 def _cmd_train(args) -> int:
@@ -460,7 +470,8 @@ def _cmd_train(args) -> int:
     kernels = [_parse_kernel(k if k is not None else default) for k, default in
                ((args.state, "imq:0.15"), (args.mu, "imq:2.0"), (args.dt, "imq:5.0"))]
     model = SymplecticKernelPredictor(*kernels, max_centers=args.centers or 1500,
-                                      trainer=ExactGreedy(tol=1e-10 if args.tol is None else args.tol),
+                                      trainer=ExactGreedy(tol=1e-10 if args.tol is None else args.tol,
+                                                          target_error=args.target_error),
                                       solver=NewtonSolver(backend=args.backend))
     mu = data.mu if kernels[1] is not None else None
     if validation is not None and kernels[1] is None:
@@ -472,6 +483,7 @@ def _cmd_train(args) -> int:
     print(f"trained {model.n_centers_} centres ({h.stop_reason}) on {len(data)} samples of {meta.get('system', 'unknown system')}: "
           f"E_train {h.train_max_residual[-1]:.2e}" + (f", E_val {h.val_max_residual[-1]:.2e}" if h.val_max_residual is not None else "")
           + f"; saved to {args.out}")
+    _print_target(model)
     return 0
 
 
@@ -580,8 +592,16 @@ def _cmd_predict(args) -> int:
         raise ValueError(f"--check estimates dT * L_S of a SymplecticKernelPredictor; {args.model!r} holds a "
                          f"{type(model).__name__}: leave out --check")
     kwargs = {"check_solvability": True} if args.check else {}
+    if args.error:
+        if not isinstance(model, SymplecticKernelPredictor):
+            raise ValueError(f"--error estimates the error of a SymplecticKernelPredictor's prediction; {args.model!r} "
+                             f"holds a {type(model).__name__}: leave out --error")
+        kwargs["return_error"] = True
+    error = None
     try:
         traj = model.rollout(x0, args.steps, mu=mu, dt=args.dt, stride=stride, progress=progress, **kwargs)
+        if args.error:
+            traj, error = traj
     except RolloutMemoryError as exc:
         raise ValueError(f"--steps {args.steps} with --stride {stride}: {exc.needed / 2**30:.3g} GiB of states, more than "
                          f"the {exc.available / 2**30:.3g} GiB available; keep fewer states with a larger --stride") from None
@@ -597,13 +617,15 @@ def _cmd_predict(args) -> int:
         mu_out = None if mu is None else np.broadcast_to(np.asarray(mu, dtype=float).reshape(len(mu), -1)
                                                          if np.ndim(mu) else np.full((1, 1), float(mu)),
                                                          (traj.shape[0], max(1, model.n_mu_)))
-        write_trajectories(TrajectoryData(traj, mu_out, times=times), args.out, overwrite=bool(args.force))
+        write_trajectories(TrajectoryData(traj, mu_out, times=times), args.out, overwrite=bool(args.force),
+                           extra=None if error is None else {"error": error})
         print(f"wrote {traj.shape[0]} trajectories of {args.steps} steps"
               + (f" (one state every {stride} steps)" if stride > 1 else "") + f" to {args.out}"
               + ("" if step is not None else " (t counts steps: the model takes dt per query)"))
     else:
         for b in range(traj.shape[0]):
-            print(f"instance {b}: x({args.steps} steps) = {', '.join(f'{v:.12g}' for v in traj[b, -1])}")
+            print(f"instance {b}: x({args.steps} steps) = {', '.join(f'{v:.12g}' for v in traj[b, -1])}"
+                  + ("" if error is None else f"  (estimated error {error[b, -1]:.2e})"))
     return 0
 
 
@@ -730,6 +752,10 @@ def build_parser() -> argparse.ArgumentParser:
     train.add_argument("--max-centers", "--centers", dest="centers", type=_int_at_least(1),
                        help="maximal number of centres (default: 1500 for a sympredict data set, the estimator's default otherwise)")
     train.add_argument("--tol", type=_finite_float(nonnegative=True), help="greedy residual tolerance (default 1e-10)")
+    train.add_argument("--target-error", type=_finite_float(positive=True),
+                       help="grow the model until the median relative one-step error on held-out samples is at "
+                            "most this (e.g. 1e-4), then stop: the smallest model that meets it (--max-centers "
+                            "stays the cap)")
     train.add_argument("--threads", type=_int_at_least(1), default=os.cpu_count() or 1)
     _add_backend_and_force(train, "the saved model's Newton solver")
     train.set_defaults(func=_cmd_train)
@@ -744,6 +770,9 @@ def build_parser() -> argparse.ArgumentParser:
     predict.add_argument("--dt", type=_finite_float(positive=True), help="macro step (default: the training step of a fixed-step model)")
     predict.add_argument("--steps", type=_int_at_least(0), required=True, help="number of macro steps")
     predict.add_argument("--check", action="store_true", help="refuse to start where dT * L_S >= 1")
+    predict.add_argument("--error", action="store_true",
+                         help="also estimate |x_predicted - x_exact| at every state written (an extra column or key "
+                              "'error'; see the how-to 'How accurate is my prediction?')")
     predict.add_argument("--out", help="trajectories file, .npz or .csv (the layout sympredict.io.read_trajectories "
                                        "reads; default: print the final states)")
     predict.add_argument("--stride", type=_int_at_least(1), default=1,

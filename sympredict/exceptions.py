@@ -25,6 +25,7 @@ __all__ = [
     "GeneratingFunctionWarning",
     "UnderfitWarning",
     "DuplicateSamplesWarning",
+    "AccuracyWarning",
     "extrapolation_expected",
 ]
 
@@ -167,6 +168,10 @@ class WrappedAngleWarning(UserWarning):
 class UnderfitWarning(UserWarning):
     """A fit learned (almost) nothing: no centre selected, or the training residual did not go down,
     although the data move the states; the model is (close to) the identity map."""
+
+
+class AccuracyWarning(UserWarning):
+    """A fit with ``target_error`` did not meet it (the message names the limit: data, centre cap, kernel breakdown)."""
 
 
 class DuplicateSamplesWarning(UserWarning):

@@ -233,7 +233,7 @@ class KernelSearch(Setting):
         updates = list(self.updates) if open_factors["update"] else [estimator.update]
 
         def template(update):
-            return clone(estimator).set_params(state_kernel=state_template, update=update)
+            return _without_target(clone(estimator).set_params(state_kernel=state_template, update=update))
 
         if open_factors["state"]:
             unit = 1.0 / _spread(template(updates[0]), train)
@@ -396,13 +396,20 @@ def _holdout_split(data: FlowMapData, seed: int, fraction: float = 0.1, largest:
     return data.subset(np.sort(rows[n_out:])), data.subset(np.sort(rows[:n_out]))
 
 
+def _without_target(model):
+    """``model`` with its trainer's ``target_error`` dropped (search candidates compete at their full size)."""
+    if getattr(model.trainer, "target_error", None) is not None:
+        model.set_params(trainer__target_error=None)
+    return model
+
+
 def _one_step_score(estimator, params: dict, m_final: int, train: FlowMapData, val: FlowMapData,
                     largest: int = 500) -> tuple:
     """``(score, centres, seconds, error)`` of one second-stage candidate: ``clone(estimator)`` with ``params`` fitted
     to ``m_final`` centres on ``train``, scored by the mean relative one-step error on (up to ``largest``) ``val``
     samples; ``inf`` for a failed fit or Newton solve, or a non-finite prediction."""
     t0 = time.perf_counter()
-    model = clone(estimator).set_params(**params, max_centers=m_final)
+    model = _without_target(clone(estimator).set_params(**params, max_centers=m_final))  # the target: final fit only
     sub = val.subset(np.arange(min(len(val), largest)))
     inc = np.linalg.norm(sub.x1 - sub.x0, axis=1)
     rows = inc > 0
@@ -529,7 +536,20 @@ class FitDiagnostics:
         Median relative one-step error ``|Phi(x0) - x1| / |x1 - x0|`` on (up to 500) hold-out samples (``nan``
         without them, ``inf`` if Newton failed on one).
     advice : list of str
-        What to try next (empty when nothing stands out).
+        What to try next, only where the model falls short (a missed target, a residual still falling at
+        the cap, hold-out far above training, the parameter box's faces, Newton failures).
+    target_error : float or None
+        The ``target_error`` of the estimator (``None``: no target).
+    target_met : bool or None
+        Whether ``holdout_step_error <= target_error`` (``None`` without a target or held-out samples).
+    calibration : dict or None
+        The error estimate's calibration (the model's ``error_calibration_``, computed on first use:
+        scale, source, samples, median effectivity and share underestimated more than 3x on those samples).
+    model
+        The fitted model these diagnostics describe.
+    prefix : tuple or None
+        ``(kept, scored)``: the centres kept and the largest prefix the greedy scored on held-out samples
+        (``kept < scored`` when a smaller prefix was better or met the target).
     holdout_coordinate_error : ndarray of shape (2n,) or None
         Per coordinate ``c``: the median of ``|Phi(x0)_c - x1_c|`` over the same hold-out samples, relative to the
         root mean square of that coordinate's increments ``x1_c - x0_c`` (``None`` without hold-out samples or
@@ -547,15 +567,44 @@ class FitDiagnostics:
     holdout_residual: float
     holdout_step_error: float
     advice: list = field(default_factory=list)
+    target_error: Optional[float] = None
+    target_met: Optional[bool] = None
+    prefix: Optional[tuple] = None
+    model: object = field(default=None, repr=False, compare=False)
     holdout_coordinate_error: Optional[np.ndarray] = None
 
+    @property
+    def calibration(self) -> Optional[dict]:
+        """The model's ``error_calibration_`` (computed on first use: ``O(500 2n m^2)``)."""
+        return getattr(self.model, "error_calibration_", None)
+
+    #: How :meth:`summary` words the greedy's stop reasons.
+    STOPS = {"tol": "training residual at its tolerance", "max_centers": "centre budget used",
+             "power": "kernel matrix numerically singular, no informative centre left",
+             "target": "target met", "diverged": "round-off, truncated to the best step",
+             "exhausted": "every candidate used"}
+
     def summary(self) -> str:
-        """A few lines for a log or a terminal."""
-        lines = [f"{self.n_centers} of {self.max_centers} centres, greedy stop: {self.stop_reason}"
-                 f" ({'converged' if self.converged else 'not converged'}); relative gradient residual "
-                 f"{self.train_residual:.2e} on {self.n_train} training samples, {self.holdout_residual:.2e} on "
-                 f"{self.n_holdout} held-out samples; median one-step error on held-out samples "
-                 f"{self.holdout_step_error:.2e}"]
+        """A few lines for a log or a terminal: size, held-out error (against the target), error estimate."""
+        stop = self.STOPS.get(self.stop_reason, self.stop_reason)
+        head = f"{self.n_centers} of {self.max_centers} centres (greedy stop: {stop}"
+        if self.prefix is not None and self.prefix[0] < self.prefix[1] and self.stop_reason != "target":
+            head += f"; best held-out prefix of {self.prefix[1]} kept"
+        lines = [head + ")"]
+        if self.n_holdout:
+            held = f"median one-step error on {self.n_holdout} held-out samples: {self.holdout_step_error:.2e}"
+            if self.target_error is not None:
+                held += f" (target {self.target_error:.2e}: {'met' if self.target_met else 'NOT met'})"
+            lines.append(held)
+        else:
+            lines.append("no held-out samples (pass validation=... to score the fit)")
+        lines.append(f"relative gradient residual {self.train_residual:.2e} on {self.n_train} training samples"
+                     + (f", {self.holdout_residual:.2e} held out" if self.n_holdout else ""))
+        cal = self.calibration
+        if cal:
+            lines.append(f"error estimate (return_error=True) calibrated on {cal['n_samples']} {cal['source']}: "
+                         f"median effectivity {cal['median_effectivity']:.2f}, "
+                         f"{cal['share_under_3x']:.0%} underestimated more than 3x")
         lines += [f"  try: {a}" for a in self.advice]
         return "\n".join(lines)
 
@@ -590,14 +639,20 @@ def diagnose(model, train: FlowMapData, holdout: Optional[FlowMapData]) -> FitDi
             coord_err = _coordinate_errors(pred, sub)
         except (NewtonConvergenceError, NonFinitePredictionError):
             step_err = float("inf")
-    converged = h.stop_reason == "tol"
+    converged = h.stop_reason in ("tol", "target")
+    target = getattr(model, "target_error_", None)
+    target_met = None if target is None or not np.isfinite(step_err) else bool(step_err <= target)
+    # advice only where the model falls short: a missed target, or (without one) a fit the centre budget cut off
+    # while it was still improving; a stop by a singular kernel matrix without a target is no shortfall (the
+    # greedy used what the kernel can resolve: only a target says whether that is enough)
+    short = target_met is not True
     advice = []
-    if not converged and h.stop_reason == "max_centers" and val_curve is not None and m >= 10:
+    if short and h.stop_reason == "max_centers" and val_curve is not None and m >= 10:
         tail = val_curve[-max(2, m // 5):]
         if tail[-1] < 0.8 * tail[0]:
             advice.append(f"more centres: the hold-out residual still fell by {1 - tail[-1] / tail[0]:.0%} over the "
                           f"last fifth of the {m} centres (raise max_centers)")
-    if h.stop_reason == "power":
+    if h.stop_reason == "power" and target_met is False:
         advice.append("the kernel matrix became numerically singular before max_centers: more data (more distinct "
                       "samples), or narrower kernels (the state or parameter kernel of model.choice_ with a larger "
                       "shape eps, passed to the estimator) let the greedy use more centres")
@@ -617,8 +672,11 @@ def diagnose(model, train: FlowMapData, holdout: Optional[FlowMapData]) -> FitDi
     if np.isinf(step_err):
         advice.append("Newton failed on a held-out sample: a smaller dt, the 'midpoint' update, or more centres")
     advice += _coordinate_advice(coord_err, step_err)
+    scored = getattr(model, "prefix_errors_", None)
+    prefix = (m, max(scored)) if scored else None
     return FitDiagnostics(len(train), 0 if holdout is None else len(holdout), m, int(model.max_centers),
-                          str(h.stop_reason), converged, train_abs / rel, holdout_res, step_err, advice, coord_err)
+                          str(h.stop_reason), converged, train_abs / rel, holdout_res, step_err, advice,
+                          target, target_met, prefix, model, coord_err)
 
 
 def _coordinate_errors(pred: np.ndarray, sub: FlowMapData) -> Optional[np.ndarray]:

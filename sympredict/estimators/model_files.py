@@ -135,6 +135,9 @@ def to_container(model) -> tuple:
         "stop_reason": hist.stop_reason,
         "choice": {k: encode_param(v) for k, v in _file_choice_of(model, params).items()},
     }
+    calibration = getattr(model, "error_calibration_", None)
+    if calibration:  # the error estimate's scale (SymplecticKernelPredictor.rollout(..., return_error=True))
+        settings["error_calibration"] = dict(calibration)
     arrays = {"train_max_residual": hist.train_max_residual, "selected_power": hist.selected_power}
     if hist.val_max_residual is not None:
         arrays["val_max_residual"] = hist.val_max_residual
@@ -206,6 +209,11 @@ def from_container(cls, settings, arrays: dict, path):
             stop_reason=settings["stop_reason"],
         )
         model.greedy_result_ = None
+        calibration = settings.get("error_calibration")
+        if calibration is not None and not (isinstance(calibration, dict) and isinstance(calibration.get("scale"), float)
+                                            and calibration["scale"] > 0):
+            raise ModelFileError(f"{str(path)!r}: its error_calibration is not a record with a positive 'scale'")
+        model.error_calibration_ = calibration
         model.domain_ = {k: arrays[f"domain_{k}"] for k in ("x_min", "x_max", "mu_min", "mu_max", "dt_min", "dt_max")}
         _check_file_history(model, path)
     except ModelFileError:

@@ -18,6 +18,8 @@ so that a rollout, where ``(mu, dT)`` is fixed per instance, forms them once.
 from __future__ import annotations
 
 import numpy as np
+from scipy import sparse
+from scipy.linalg import cholesky, solve_triangular
 
 from sympredict._fastkernels import CenterLayout
 from sympredict.kernels import ProductKernel
@@ -380,6 +382,141 @@ class HBSurrogate:
     def _gradient_floor(self, diff, wA, wBg) -> np.ndarray:
         """``eps_mach`` times the sum of the absolute values of a chunk's gradient terms, shape (chunk,)."""
         return np.finfo(float).eps * (np.einsum("bm,bm->b", np.abs(wBg), self._abs_max_last(diff)) + np.abs(wA).sum(axis=1))
+
+
+    # ------------------------------------------------ power function (error estimate)
+    def gradient_kernel_rows(self, xi: np.ndarray, factor: np.ndarray) -> np.ndarray:
+        """Gramian rows ``K_a(xi)_j = lambda_a^(1) lambda_j^(2) k`` of the gradient components at queries.
+
+        ``lambda_a`` is ``d/dxi_a`` at the query ``(xi_b, mu_b, dT_b)``, ``lambda_j`` the centre
+        functionals: ``K_a(xi)_j = f_bj (-B_bj d_ba g_bj - A_bj delta_{a l_j})`` with ``d = xi - xi_j``,
+        ``g = d_{l_j}`` (the terms :meth:`gradient` sums with the weights ``c_j f_bj``).  With a state
+        symmetry the sum over the plain functionals of each centre (its images, weighted as in
+        :meth:`weights`), with periodic coordinates the periodic differences and ``g'`` (as in
+        :meth:`gradient`): ``sum_j c_j K_a(xi)_j`` is the gradient.
+
+        Parameters
+        ----------
+        xi : ndarray of shape (B, 2n)
+        factor : ndarray of shape (B, m)
+            Parameter factors ``f_bj = k_mu(mu_b, mu_j) k_dT(dT_b, dT_j)`` (:meth:`parameter_factor`).
+
+        Returns
+        -------
+        ndarray of shape (B, 2n, m)
+        """
+        out = np.empty((len(xi), self.dim, self.n_centers))
+        if self._owner is not None:  # sums the images' rows into their centres' columns: (K, m) 0/1 matrix
+            w_img = self._image_weights()
+            gather = sparse.csr_matrix((np.ones(len(self._owner)), (np.arange(len(self._owner)), self._owner)),
+                                       shape=(len(self._owner), self.n_centers))
+        for sl in self._chunks(len(xi)):
+            diff, r, g, _, g1, _ = self._differences(xi[sl], order=2)
+            A, B = self.kernel.state.factors(r, order=2)
+            f = factor[sl] if self._owner is None else factor[sl][:, self._owner] * w_img
+            fA = f * A if g1 is None else f * A * g1  # periodic: -A g'_l delta_al, as in gradient
+            rows = -(f * B * g)[:, None, :] * diff.transpose(0, 2, 1)
+            rows -= fA[:, None, :] * self._onehot.T[None, :, :]
+            if self._owner is None:
+                out[sl] = rows
+            else:
+                out[sl] = (gather.T @ rows.reshape(-1, rows.shape[-1]).T).T.reshape(len(rows), self.dim, -1)
+        return out
+
+    def _image_weights(self) -> np.ndarray:
+        """The weight ``g_{c l_j}`` of each plain functional of a state symmetry (:meth:`StateSymmetry.expand`)."""
+        if getattr(self, "_w_img", None) is None:
+            self._w_img = self.kernel.symmetry.expand(self.centers_xi, self.components)[3]
+        return self._w_img
+
+    def diagonal(self, xi: np.ndarray) -> np.ndarray:
+        """``K_aa(z, z) = lambda_a^(1) lambda_a^(2) k`` at the queries (the parameter factors are 1 there), (B, 2n).
+
+        ``-A(0)`` for a plain kernel; with a state symmetry it depends on the point (the images ``g z``), and
+        periodic coordinates enter through ``g'`` (:meth:`HBFunctionals.diagonal`).  ``O(B 2n |G|)``.
+        """
+        xi = np.asarray(xi, dtype=float)
+        if self.kernel.symmetry is None:
+            a0, _ = self.kernel.state.factors(np.zeros(1), order=2)
+            return np.full(xi.shape, -float(a0[0]))
+        dim = self.dim
+        return self.kernel.symmetry.hb_diagonal(self.kernel.state, np.repeat(xi, dim, axis=0),
+                                                np.tile(np.arange(dim), len(xi)),
+                                                self.kernel.periodic).reshape(len(xi), dim)
+
+    def parameter_factor(self, mu: np.ndarray, dt: np.ndarray) -> np.ndarray:
+        """``k_mu(mu_b, mu_j) k_dT(dT_b, dT_j)`` (B, m): :meth:`weights` without the coefficients."""
+        return _parameter_factor(self.kernel, mu, dt, self.centers_mu, self.centers_dt)
+
+    def gram_factor(self, regularization: float = 0.0) -> np.ndarray:
+        """Lower Cholesky factor ``L`` of the centres' Gramian ``G + lambda I``, shape (m, m), cached.
+
+        ``G_ij = lambda_i^(1) lambda_j^(2) k`` of the selected functionals: the matrix whose factor the greedy
+        built column by column (its Newton basis values at the centres); recomputed here from the centres so
+        that a fitted and a loaded model use the same numbers.  ``O(m^2 2n)`` kernel terms and ``m^3 / 3``
+        flops, ``8 m^2`` bytes.  A Gramian that round-off made indefinite gets a diagonal shift of
+        ``1e-13 m G_ii`` (logged nowhere: it is far below the greedy's breakdown guard ``power_tol``).
+        """
+        key = float(regularization)
+        cached = getattr(self, "_gram_cache", None)
+        if cached is not None and cached[0] == key:
+            return cached[1]
+        m = self.n_centers
+        gram = np.empty((m, m))
+        step = max(1, _CHUNK_ENTRIES // max(1, m * self.dim))
+        for start in range(0, m, step):
+            sl = slice(start, min(m, start + step))
+            rows = self.gradient_kernel_rows(self.centers_xi[sl], self.parameter_factor(self.centers_mu[sl],
+                                                                                       self.centers_dt[sl]))
+            gram[sl] = rows[np.arange(sl.stop - sl.start), self.components[sl]]
+        gram = 0.5 * (gram + gram.T)
+        gram[np.diag_indices(m)] += key
+        diag0 = float(gram[0, 0]) if m else 1.0
+        try:
+            chol = cholesky(gram, lower=True, check_finite=False)
+        except np.linalg.LinAlgError:
+            gram[np.diag_indices(m)] += 1e-13 * m * diag0
+            chol = cholesky(gram, lower=True, check_finite=False)
+        chol = np.ascontiguousarray(chol)
+        self._gram_cache = (key, chol)
+        return chol
+
+    def power_function(self, xi: np.ndarray, mu: np.ndarray, dt: np.ndarray, chol: np.ndarray) -> np.ndarray:
+        """Power function ``P_a`` of each gradient component at queries (the GP posterior standard deviation).
+
+        ``P_a(z)^2 = K_aa(z, z) - k_a(z)^T G^-1 k_a(z)`` with ``k_a`` from :meth:`gradient_kernel_rows` and
+        ``G = L L^T`` (:meth:`gram_factor`): ``|d_a s(z) - d_a s_m(z)| <= P_a(z) ||s - s_m||_H`` for every
+        ``s`` of the native space.  Round-off can make ``P^2`` slightly negative: clipped at 0.
+
+        Parameters
+        ----------
+        xi : ndarray of shape (B, 2n)
+        mu : ndarray of shape (B, d_mu)
+        dt : ndarray of shape (B,)
+        chol : ndarray of shape (m, m)
+
+        Returns
+        -------
+        ndarray of shape (B, 2n)
+
+        Notes
+        -----
+        ``O(B 2n m^2)`` flops (a triangular solve with ``2n B`` right-hand sides, in chunks): for
+        ``m = 1000`` centres and ``2n = 4`` about ``8e6`` flops per query, far more than a Newton step.
+        """
+        b, dim, m = len(xi), self.dim, self.n_centers
+        k_diag = self.diagonal(xi)  # K_aa(z, z): the parameter factors are 1 at equal arguments
+        if m == 0:
+            return np.sqrt(k_diag)
+        out = np.empty((b, dim))
+        step = max(1, (1 << 19) // (m * dim))
+        for start in range(0, b, step):
+            sl = slice(start, min(b, start + step))
+            rows = self.gradient_kernel_rows(xi[sl], self.parameter_factor(mu[sl], dt[sl]))
+            v = solve_triangular(chol, rows.reshape(-1, m).T, lower=True, check_finite=False)
+            p2 = k_diag[sl].reshape(-1) - np.einsum("ij,ij->j", v, v)
+            out[sl] = np.sqrt(np.maximum(p2, 0.0)).reshape(-1, dim)
+        return out
 
 
 class ValueSurrogate:

@@ -12,6 +12,7 @@ import io
 import re
 import zipfile
 from pathlib import Path
+from typing import Optional
 
 import logging
 
@@ -526,7 +527,7 @@ def _rounded_uniform_step(times: np.ndarray, decimals: int):
 
 
 # --------------------------------------------------------------------------- writing, initial states
-def write_trajectories(data: TrajectoryData, path, *, overwrite: bool = True) -> None:
+def write_trajectories(data: TrajectoryData, path, extra: Optional[dict] = None, *, overwrite: bool = True) -> None:
     """Write trajectories in the layout :func:`read_trajectories` reads (format by suffix), atomically.
 
     The file is written to a temporary sibling and renamed (:func:`sympredict.container.atomic_output`): a
@@ -542,6 +543,10 @@ def write_trajectories(data: TrajectoryData, path, *, overwrite: bool = True) ->
         parameters), ``.h5``/``.hdf5``
         (the same datasets) or ``.csv`` (columns ``traj`` (0..P-1), ``t``, ``q1..qn``, ``p1..pn``, then
         ``mu1..mud``; numbers written to round-trip exactly).
+    extra : dict of str to ndarray of shape (P, K+1), optional
+        Per-state values written beside the states (e.g. ``error``, the prediction's error estimate): a
+        key of the ``.npz``/``.h5`` file, or a last column of the ``.csv`` (such a file is an output, not
+        an input of :func:`read_trajectories`).
     overwrite : bool
         Replace an existing file (default); ``False`` raises :class:`FileExistsError` if the file exists, also
         if it was created while this one was written.
@@ -556,6 +561,8 @@ def write_trajectories(data: TrajectoryData, path, *, overwrite: bool = True) ->
     arrays.update({"dt": np.float64(data.dt)} if uniform else {"times": np.ascontiguousarray(data.times)})
     if data.mu.shape[1]:
         arrays["mu"] = data.mu
+    extra = {k: np.broadcast_to(np.asarray(v, dtype=float), data.states.shape[:2]) for k, v in (extra or {}).items()}
+    arrays.update(extra)
     if kind == "npz":
         with atomic_output(path, overwrite=overwrite) as fh:  # a file object: np.savez would append .npz to other names
             np.savez(fh, **arrays)
@@ -572,9 +579,10 @@ def write_trajectories(data: TrajectoryData, path, *, overwrite: bool = True) ->
         p, k1, dim = data.states.shape
         n, d = dim // 2, data.mu.shape[1]
         header = ["traj", "t", *(f"q{i}" for i in range(1, n + 1)), *(f"p{i}" for i in range(1, n + 1)),
-                  *(f"mu{i}" for i in range(1, d + 1))]
+                  *(f"mu{i}" for i in range(1, d + 1)), *extra]
         table = np.concatenate([np.broadcast_to(np.arange(p)[:, None, None], (p, k1, 1)), data.times[:, :, None],
-                                data.states, np.broadcast_to(data.mu[:, None, :], (p, k1, d))], axis=2).reshape(p * k1, -1)
+                                data.states, np.broadcast_to(data.mu[:, None, :], (p, k1, d)),
+                                *(v[:, :, None] for v in extra.values())], axis=2).reshape(p * k1, -1)
         with atomic_output(path, overwrite=overwrite) as fh:
             np.savetxt(fh, table, delimiter=",", header=",".join(header), comments="",
                        fmt=["%d"] + ["%.17g"] * (table.shape[1] - 1))

@@ -68,6 +68,16 @@ class UpdateRule(Parametrized):
         """``D Phi`` (B, 2n, 2n) of the step ``x -> x1`` by implicit differentiation."""
         raise NotImplementedError
 
+    def linearization(self, sur, x: np.ndarray, x1: np.ndarray, weights: np.ndarray, dt: np.ndarray) -> tuple:
+        """The step's linearisation at a solved step ``x -> x1``, for error propagation.
+
+        Returns ``(xi, jac, sens)``: the evaluation point ``xi`` (B, 2n) where the step reads ``grad s``,
+        ``D Phi`` (B, 2n, 2n) (:meth:`jacobian`), and ``sens = d x1 / d g`` (B, 2n, 2n), how an error
+        ``delta g`` of the gradient at ``xi`` moves the solution: ``delta x1 = DF^-1 dT J delta g``
+        (``DF`` the implicit equation's Jacobian at the solution).  One Hessian evaluation.
+        """
+        raise NotImplementedError
+
     def contraction(self, sur, x: np.ndarray, weights: np.ndarray, dt: np.ndarray) -> np.ndarray:
         """``dT L_S`` (B,) at the states ``x``: the fixed-point form of the step contracts where it is < 1."""
         raise NotImplementedError
@@ -96,6 +106,11 @@ class SymplecticEuler(UpdateRule):
     def jacobian(self, sur, x, x1, weights, dt):
         """With ``S`` the Hessian of ``s`` at ``(q0, p1)`` and ``M = I + dT S_qp``:
         ``dp1 = M^-1 (dp0 - dT S_qq dq0)``, ``dq1 = (I + dT S_pq) dq0 + dT S_pp dp1``."""
+        return self.linearization(sur, x, x1, weights, dt)[1]
+
+    def linearization(self, sur, x, x1, weights, dt):
+        """:meth:`UpdateRule.linearization`; a gradient error ``(dg_q, dg_p)`` at ``(q0, p1)`` moves the step by
+        ``dp1 = -dT M^-1 dg_q``, ``dq1 = dT dg_p + dT S_pp dp1``."""
         n = x.shape[1] // 2
         xi = np.concatenate([x[:, :n], x1[:, n:]], axis=1)
         _, S = sur.gradient_hessian(xi, weights)
@@ -106,7 +121,10 @@ class SymplecticEuler(UpdateRule):
         dp_dq = -h * (Minv @ Sqq)
         dq_dq = eye + h * Spq + h * (Spp @ dp_dq)
         dq_dp = h * (Spp @ Minv)
-        return np.block([[dq_dq, dq_dp], [dp_dq, Minv]])
+        jac = np.block([[dq_dq, dq_dp], [dp_dq, Minv]])
+        zero = np.zeros_like(Minv)
+        sens = np.block([[-h * dq_dp, h * np.broadcast_to(eye, Minv.shape)], [-h * Minv, zero]])
+        return xi, jac, sens
 
     def contraction(self, sur, x, weights, dt):
         """``dT ||d^2 s / d xi d p||_2`` at ``xi = (q0, p0)`` (paper, Prop. 2 (ii); a local estimate)."""
@@ -145,6 +163,17 @@ class Midpoint(UpdateRule):
         """``(I - A)^-1 (I + A)``, ``A = dT/2 J Hess s(z)`` at the midpoint ``z``."""
         _, S = sur.gradient_hessian(0.5 * (x + x1), weights)
         return midpoint_jacobian(S, dt)
+
+    def linearization(self, sur, x, x1, weights, dt):
+        """:meth:`UpdateRule.linearization`: ``d x1 / d g = (I - A)^-1 dT J`` at the midpoint ``z``."""
+        z = 0.5 * (x + x1)
+        _, S = sur.gradient_hessian(z, weights)
+        dim = x.shape[1]
+        jmat = canonical_J(dim)
+        eye = np.eye(dim)
+        a = 0.5 * dt[:, None, None] * (jmat @ S)
+        inv = np.linalg.inv(eye - a)
+        return z, inv @ (eye + a), dt[:, None, None] * (inv @ jmat)
 
     def contraction(self, sur, x, weights, dt):
         """``dT/2 ||Hess s||_2``: ``z -> x0 + dT/2 J grad s(z)`` contracts where it is < 1."""

@@ -59,6 +59,8 @@ __all__ = [
     "kernel_coefficients",
     "as_targets",
     "BaseStore",
+    "Checkpoints",
+    "checkpoint_schedule",
 ]
 
 logger = getLogger("sympredict.interpolation.greedy")
@@ -244,6 +246,38 @@ class Expansion:
         return kernel_coefficients(self.chol[:m, :m], self.beta[:m])
 
 
+def checkpoint_schedule(max_centers: int, first: int = 16, factor: float = 1.25) -> list:
+    """Centre counts ``first, first * factor, ...`` (rounded, distinct) and ``max_centers``: where a run is scored.
+
+    Geometric, so scoring costs a bounded share of the run: about ``log(m / first) / log(factor)`` checkpoints
+    (25 up to 4,000 centres) whatever ``m``.
+    """
+    out, m = [], float(max(1, first))
+    while int(round(m)) < max_centers:
+        out.append(int(round(m)))
+        m *= factor
+    out.append(int(max_centers))
+    return sorted(set(out))
+
+
+class Checkpoints(Protocol):
+    """Scores of prefixes of a run (held-out errors of the interpolant on the first ``m`` centres).
+
+    :func:`run_greedy` calls :meth:`score` after the steps listed in ``at`` (and may call it at other ``m``
+    to refine a crossing of the target); :meth:`keep` chooses the prefix the run returns.
+    """
+
+    at: list
+    target: Optional[float]
+
+    def score(self, m: int, selected: np.ndarray, coef: np.ndarray) -> float:
+        """The error of the interpolant on the first ``m`` centres: flat indices ``selected`` (m,) of the
+        selected functionals, kernel coefficients ``coef`` (m,) or (m, q)."""
+
+    def keep(self, m: int) -> int:
+        """Of a run with ``m`` centres, how many to keep (the best prefix, or the smallest meeting the target)."""
+
+
 class NewtonBasisStore(Protocol):
     """What :func:`run_greedy` needs of a store of the Newton basis.
 
@@ -345,6 +379,7 @@ def run_greedy(
     divergence_factor: float = 100.0,
     log_every: int = 100,
     callback: Optional[Callable[[int, float], None]] = None,
+    checkpoints: Optional[Checkpoints] = None,
 ) -> GreedyResult:
     """The greedy loop: selection, stop rules, Newton coefficients, history.
 
@@ -367,6 +402,12 @@ def run_greedy(
         Log progress every this many steps.
     callback
         Called after each step with ``(m, E_train(m))``.
+    checkpoints
+        Scores of prefixes (:class:`Checkpoints`, e.g. held-out one-step errors) at the centre counts
+        ``checkpoints.at``.  With a ``target``, the run stops (reason ``'target'``) at the first checkpoint
+        whose score meets it, after refining by bisection between it and the previous checkpoint
+        (prefixes cost no new selection); in any case the run is cut to ``checkpoints.keep(m)`` centres at
+        the end (the best prefix: growing never returns a worse model than one it passed).
 
     Returns
     -------
@@ -410,6 +451,8 @@ def run_greedy(
         best_train = train0
         t0 = time.perf_counter()
         m = 0
+        marks = set(checkpoints.at) if checkpoints is not None else set()
+        last_mark = 0
         while m < max_centers:
             j, score, certified = store.select(m)
             if criterion == "f" and certified <= tol:
@@ -451,6 +494,31 @@ def run_greedy(
                     + (f", E_val={val_max:.3e}" if val_hist is not None else "")
                     + f", P={pj:.2e}, {elapsed[m - 1]:.1f}s"
                 )
+            if m in marks:
+                err = checkpoints.score(m, expansion.selected[:m], _squeezed(expansion.coef(m), store.squeeze))
+                if checkpoints.target is not None and err <= checkpoints.target:
+                    lo, hi = last_mark, m  # the crossing lies in (lo, hi]: bisect on prefixes
+                    while hi - lo > 1:
+                        mid = (lo + hi) // 2
+                        coef_mid = _squeezed(expansion.coef(mid), store.squeeze)
+                        if checkpoints.score(mid, expansion.selected[:mid], coef_mid) <= checkpoints.target:
+                            hi = mid
+                        else:
+                            lo = mid
+                    stop_reason = "target"
+                    break
+                last_mark = m
+        if checkpoints is not None and m:
+            if stop_reason != "target" and m not in marks:  # the final model is a candidate too
+                checkpoints.score(m, expansion.selected[:m], _squeezed(expansion.coef(m), store.squeeze))
+            keep = int(checkpoints.keep(m))
+            if 0 < keep < m:
+                why = "the smallest meeting the target" if stop_reason == "target" else "the best held-out prefix"
+                logger.info(f"{store.label}: keeping the first {keep} of {m} centres ({why})")
+                m = keep
+                del train_hist[m + 1:]
+                if val_hist is not None:
+                    del val_hist[m + 1:]
         final = store.finish(m)
     finally:
         store.close()
@@ -474,6 +542,11 @@ def run_greedy(
         selected=expansion.selected[:m].copy(), coef=coef, newton_coef=newton, history=history,
         chol=expansion.chol[:m, :m].copy(), stats=dict(store.stats),
     )
+
+
+def _squeezed(coef: np.ndarray, squeeze: bool) -> np.ndarray:
+    """Coefficients ``(m, q)`` as the result gives them: ``(m,)`` for targets given as a vector."""
+    return coef[:, 0] if squeeze else coef
 
 
 def _divergence_message(label: str, m: int, m_best: int, train_max: float, best_train: float) -> str:

@@ -81,6 +81,9 @@ class Trainer(Setting):
     criterion: str = "f"
     memory_limit: Optional[float] = None
     regularization: float = 0.0
+    #: Accuracy on demand: the median relative one-step error on held-out samples the estimator grows the
+    #: model to (``None``: no target, the size is ``max_centers``); read by the estimator's fit.
+    target_error: Optional[float] = None
 
     def check(self) -> "Trainer":
         """``ValueError`` naming the setting that is malformed; returns ``self``."""
@@ -93,6 +96,11 @@ class Trainer(Setting):
             raise ValueError(f"power_tol must be below 1 (relative to the Gramian diagonal), got {self.power_tol!r}")
         if self.criterion not in ("f", "p"):
             raise ValueError(f"criterion must be 'f' (f-greedy) or 'p' (P-greedy), got {self.criterion!r}")
+        target = self.target_error
+        if target is not None and (isinstance(target, bool) or not isinstance(target, (int, float, np.floating))
+                                   or not (np.isfinite(target) and target > 0)):
+            raise ValueError(f"target_error must be a positive float (a relative one-step error such as 1e-4) or None, "
+                             f"got {target!r}")
         limit = self.memory_limit
         if limit is not None and (isinstance(limit, bool) or not isinstance(limit, (int, float, np.number))
                                   or not (np.isfinite(limit) and limit > 0)):
@@ -105,17 +113,19 @@ class Trainer(Setting):
 
     def run(self, functionals, targets, *, max_centers: int, validation: Optional[tuple] = None,
             tol_scale: float = 1.0, divergence_factor: float = 100.0, log_every: int = 100,
-            callback=None) -> GreedyResult:
+            callback=None, checkpoints=None) -> GreedyResult:
         """Greedy selection over ``functionals`` with this strategy's store (:func:`run_greedy`).
 
-        ``tol_scale`` multiplies ``tol`` (the estimator's rule for data in small units).
+        ``tol_scale`` multiplies ``tol`` (the estimator's rule for data in small units); ``checkpoints``
+        scores prefixes (held-out errors: the target stop and the best prefix, :func:`run_greedy`).
         """
         self.check()
         tol = float(self.tol) * float(tol_scale)
         store = self.store(functionals, targets, tol=tol, validation=validation)
         with logger.block(f"{store.label} over {functionals.n_functionals} functionals"):
             return run_greedy(store, max_centers=max_centers, tol=tol, criterion=self.criterion,
-                              divergence_factor=divergence_factor, log_every=log_every, callback=callback)
+                              divergence_factor=divergence_factor, log_every=log_every, callback=callback,
+                              checkpoints=checkpoints)
 
     @property
     def spec(self) -> dict:
@@ -149,6 +159,10 @@ class ExactGreedy(Trainer):
         on the selected centres instead of interpolating them.  ``0`` (default):
         exact interpolation.  Choose it on validation data
         (:func:`sympredict.estimators.selection.select_regularization`).
+    target_error
+        Accuracy on demand (read by :class:`~sympredict.SymplecticKernelPredictor`'s fit): grow the model
+        until the median relative one-step error ``|Phi(x0) - x1| / |x1 - x0|`` on held-out samples is at
+        most this, then stop (the estimator's ``max_centers`` stays the cap).  ``None`` (default): no target.
 
     Notes
     -----
@@ -157,7 +171,9 @@ class ExactGreedy(Trainer):
     """
 
     def __init__(self, basis_dtype: str = "float64", *, tol: float = 1e-10, criterion: str = "f",
-                 power_tol: float = 1e-12, memory_limit: Optional[float] = None, regularization: float = 0.0):
+                 power_tol: float = 1e-12, memory_limit: Optional[float] = None, regularization: float = 0.0,
+                 target_error: Optional[float] = None):
+        self.target_error = target_error
         self.tol = tol
         self.criterion = criterion
         self.power_tol = power_tol
@@ -176,7 +192,7 @@ class ActiveSetGreedy(Trainer):
     """f-greedy on an active subset of the samples, refreshed against the full residual.
 
     (:class:`~sympredict.interpolation.greedy.active_set.ActiveSetStore`, whose docstring
-    describes the parameters; ``tol``, ``power_tol`` and ``memory_limit`` as for
+    describes the parameters; ``tol``, ``power_tol``, ``memory_limit`` and ``target_error`` as for
     :class:`ExactGreedy`.  An f-greedy without regularization: it has neither
     ``criterion`` nor ``regularization``.)  The run stops when the max residual over *all*
     functionals reaches ``tol`` (or at ``max_centers``); memory ``8 m (N_S + N_val)`` bytes for ``N_S``
@@ -187,7 +203,8 @@ class ActiveSetGreedy(Trainer):
 
     def __init__(self, initial_points: int = 8192, refresh_every: int = 200, max_new_points: int = 4096,
                  margin: float = 0.7, refresh_fraction: float = 0.25, seed: int = 0, *, tol: float = 1e-10,
-                 power_tol: float = 1e-12, memory_limit: Optional[float] = None):
+                 power_tol: float = 1e-12, memory_limit: Optional[float] = None, target_error: Optional[float] = None):
+        self.target_error = target_error
         self.tol = tol
         self.power_tol = power_tol
         self.memory_limit = memory_limit
@@ -202,7 +219,8 @@ class ActiveSetGreedy(Trainer):
         if not isinstance(functionals, HBFunctionals):
             raise ValueError("ActiveSetGreedy needs state-derivative functionals (the symplectic predictor): "
                              "use ExactGreedy() or ShardedGreedy() for the direct model")
-        own = {k: v for k, v in self.get_params(deep=False).items() if k not in ("tol", "power_tol", "memory_limit")}
+        own = {k: v for k, v in self.get_params(deep=False).items()
+               if k not in ("tol", "power_tol", "memory_limit", "target_error")}
         return ActiveSetStore(functionals, targets, tol=tol, power_tol=self.power_tol, validation=validation,
                               memory_limit=self.memory_limit, **own)
 
@@ -225,7 +243,7 @@ class ShardedGreedy(Trainer):
 
     Notes
     -----
-    ``tol``, ``criterion``, ``power_tol``, ``regularization``: as for
+    ``tol``, ``criterion``, ``power_tol``, ``regularization``, ``target_error``: as for
     :class:`ExactGreedy`; there is no ``memory_limit`` (each worker checks
     ``memory_limit_per_rank``).  The last run's pool timings are in the
     result's store statistics (``model.greedy_result_.stats``).
@@ -233,7 +251,8 @@ class ShardedGreedy(Trainer):
 
     def __init__(self, pool=None, n_shards: Optional[int] = None, memory_limit_per_rank: Optional[float] = None,
                  timeout: Optional[float] = 60.0, *, tol: float = 1e-10, criterion: str = "f",
-                 power_tol: float = 1e-12, regularization: float = 0.0):
+                 power_tol: float = 1e-12, regularization: float = 0.0, target_error: Optional[float] = None):
+        self.target_error = target_error
         self.pool = pool
         self.tol = tol
         self.criterion = criterion
@@ -287,7 +306,7 @@ class BlockedGreedy(Trainer):
         The weak greedy's slack: ``0`` the exact greedy's selection (slow: blocks
         break early), ``0.5`` (default) a block's centre is taken while its
         criterion is at least half the maximum.
-    tol, criterion, power_tol, memory_limit
+    tol, criterion, power_tol, memory_limit, target_error
         As for :class:`ExactGreedy` (no ``regularization``, no float32 basis).
 
     Notes
@@ -298,11 +317,12 @@ class BlockedGreedy(Trainer):
     """
 
     def __init__(self, block_size: int = 64, pool_factor: int = 4, slack: float = 0.5, *, tol: float = 1e-10, criterion: str = "f",
-                 power_tol: float = 1e-12, memory_limit: Optional[float] = None):
+                 power_tol: float = 1e-12, memory_limit: Optional[float] = None, target_error: Optional[float] = None):
         self.tol = tol
         self.criterion = criterion
         self.power_tol = power_tol
         self.memory_limit = memory_limit
+        self.target_error = target_error
         self.block_size = block_size
         self.pool_factor = pool_factor
         self.slack = slack
