@@ -83,7 +83,7 @@ def test_compiled_rollout_equals_numpy_to_1e12(well_conditioned_model, rng):
 @pytest.mark.parametrize("with_mu", [True, False])
 def test_compiled_equals_numpy_four_dimensional(state_kernel, with_mu, rng):
     """2n = 4 (Hessian block 2 x 2, pivoted LU), every kernel family, with and without a parameter."""
-    from tests.test_predictor import CoupledOscillators
+    from test_predictor import CoupledOscillators  # tests/estimators/
 
     system = CoupledOscillators()
     x0 = rng.uniform(-1, 1, size=(40, 4))

@@ -163,8 +163,9 @@ def test_a_foreign_family_leaves_the_disk_cache_readable(small_pendulum_data, rn
                                       solver=NewtonSolver(backend="numba"))
     model.fit(d.x0[idx], d.x1[idx], mu=d.mu[idx], dt=d.dt[idx]).rollout(d.x0[idx[:9]], 3, mu=0.75, dt=0.05)
     code = ("import numpy as np; from sympredict import SymplecticKernelPredictor; from sympredict.kernels import IMQ; "
+            "from sympredict.symplectic.solvers import NewtonSolver; "
             "from sympredict.systems.pendulum import Pendulum, flow_map_data; d = flow_map_data(Pendulum(), n_grid=8); "
-            "m = SymplecticKernelPredictor(IMQ(0.3), IMQ(2.0), IMQ(5.0), max_centers=20, backend='numba')"
+            "m = SymplecticKernelPredictor(IMQ(0.3), IMQ(2.0), IMQ(5.0), max_centers=20, solver=NewtonSolver(backend='numba'))"
             ".fit(d.x0, d.x1, mu=d.mu, dt=d.dt); print(m.rollout(d.x0[:9], 3, mu=0.75, dt=0.05).shape)")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr[-2000:]
