@@ -477,11 +477,11 @@ class FitDiagnostics:
 
     def summary(self) -> str:
         """A few lines for a log or a terminal."""
+        held_out = (f"{self.holdout_residual:.2e} on {self.n_holdout} held-out samples; median one-step error on "
+                    f"held-out samples {self.holdout_step_error:.2e}" if self.n_holdout else "no held-out samples")
         lines = [f"{self.n_centers} of {self.max_centers} centres, greedy stop: {self.stop_reason}"
                  f" ({'converged' if self.converged else 'not converged'}); relative gradient residual "
-                 f"{self.train_residual:.2e} on {self.n_train} training samples, {self.holdout_residual:.2e} on "
-                 f"{self.n_holdout} held-out samples; median one-step error on held-out samples "
-                 f"{self.holdout_step_error:.2e}"]
+                 f"{self.train_residual:.2e} on {self.n_train} training samples, {held_out}"]
         lines += [f"  try: {a}" for a in self.advice]
         return "\n".join(lines)
 
