@@ -259,6 +259,33 @@ def _cmd_run(args) -> int:
     return 0
 
 
+_DEMO_FILES = ("model.h5", "demo.png", "demo.pdf", "demo.json")
+
+
+def _cmd_demo(args) -> int:
+    """The README's example in one command: pendulum trajectories, a model, a rollout, a figure, one line."""
+    from threadpoolctl import threadpool_limits
+
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"--out {str(out)!r} exists and is not a directory; give a folder")
+    if out.is_dir():
+        other = sorted(e.name for e in out.iterdir() if e.name not in _DEMO_FILES)
+        if other:
+            raise ValueError(f"--out {str(out)!r} holds other files than a demo's (e.g. {other[0]!r}); give a new or "
+                             "empty folder")
+    out.mkdir(parents=True, exist_ok=True)
+    from sympredict.paper.demo import HORIZON_STEPS, DT, run_demo
+
+    t0 = time.perf_counter()
+    with threadpool_limits(limits=args.threads), _Working("sympredict demo: training on 40 pendulum trajectories"):
+        r = run_demo(out, seed=args.seed)
+    print(f"demo: {r['n_centers']} centres trained in {r['fit_s']:.0f} s; over t = {HORIZON_STEPS * DT:g} s: max state "
+          f"error {r['max_state_error']:.1e}, max relative energy drift {r['max_energy_drift']:.1e}; wrote "
+          f"{out / 'model.h5'} and {out / 'demo.png'} ({_duration(time.perf_counter() - t0)})")
+    return 0
+
+
 def _check_output_file(out, *inputs, option: str = "--out", force=None) -> None:
     """Refuse an output file that is a directory or special file, lacks its folder (or write permission there),
     has a name longer than the file system takes, or is one of the inputs; with ``force`` given (the command's
@@ -762,6 +789,14 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--threads", type=_int_at_least(1), default=os.cpu_count() or 1, help="BLAS threads (default: all cores)")
     _add_verbose(run)
     run.set_defaults(func=_cmd_run)
+
+    demo = sub.add_parser("demo", help="the README's example: train on pendulum trajectories, predict, write a model, "
+                                       "a figure and a one-line result (about a minute on 2 cores)")
+    demo.add_argument("--out", default="sympredict-demo", help="output folder (default: sympredict-demo)")
+    demo.add_argument("--seed", type=_int_at_least(0), default=0, help="seed of the training trajectories (default 0)")
+    demo.add_argument("--threads", type=_int_at_least(1), default=os.cpu_count() or 1, help="BLAS threads (default: all cores)")
+    _add_verbose(demo)
+    demo.set_defaults(func=_cmd_demo)
 
     data = sub.add_parser("data", help="write a data set of a shipped system that 'sympredict train' reads")
     data.add_argument("--system", choices=["pendulum", *DATA_SYSTEMS], default="pendulum",

@@ -20,9 +20,38 @@ finally:
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-__all__ = ["greedy_residuals", "error_over_time", "phase_portrait", "energy_error", "trajectories_over_time", "hamiltonian_over_time", "speed_accuracy", "stability_sweeps", "point_tag", "figure_data", "save"]
+__all__ = ["method_color", "decorate", "METHOD_COLORS", "greedy_residuals", "error_over_time", "phase_portrait", "energy_error", "trajectories_over_time", "hamiltonian_over_time", "speed_accuracy", "stability_sweeps", "point_tag", "figure_data", "save"]
 
 _COLORS = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+
+#: One colour per method on every figure of the package (matched by a keyword of the curve's label, first
+#: match wins): the symplectic kernel model is always orange, the reference always black/grey.
+METHOD_COLORS = (
+    (("reference", "exact", "fom", "full model", "training"), "0.15"),
+    (("direct", "non-symplectic", "kernel model of the states"), "tab:green"),
+    (("vkoga",), "tab:purple"),
+    (("rom + kernel", "kernel rom", "symplectic kernel", "kernel predictor", "kernel model", "kernel", "validation"),
+     "tab:orange"),
+    (("implicit midpoint", "midpoint", "integrator", "störmer", "stormer", "verlet"), "tab:blue"),
+    (("galerkin", "rom"), "tab:brown"),
+    (("deim",), "tab:pink"),
+    (("mlp", "sympnet", "neural"), "tab:olive"),
+)
+_OTHER_COLORS = ("tab:cyan", "tab:red", "tab:gray", "tab:olive", "tab:pink")
+
+
+def method_color(label: str, index: int = 0) -> str:
+    """The colour of a method on every figure (:data:`METHOD_COLORS`); others by ``index`` from a spare set."""
+    low = str(label).lower()
+    for keys, color in METHOD_COLORS:
+        if any(k in low for k in keys):
+            return color
+    return _OTHER_COLORS[index % len(_OTHER_COLORS)]
+
+
+def decorate(ax, xlabel: str, ylabel: str, title: str, legend_outside: bool = False):
+    """Labels (with units), title, grid and legend: the same on every figure."""
+    _decorate(ax, xlabel, ylabel, title, legend_outside)
 
 
 def _decorate(ax, xlabel: str, ylabel: str, title: str, legend_outside: bool = False):
