@@ -15,7 +15,7 @@ What is timed (wall seconds, each in a fresh process, BLAS threads = the machine
   ``psd_complex_svd``, projection error of all snapshots, principal angles between the two spans).
 * ``tests``: the default test suite (``python -m pytest -q -x``), only with ``--only tests``.
 
-The page numbers are rendered with the ``{json}`` role (``runtimes.json:pages.<page>.s``).  Set
+The page numbers are rendered with the ``{json}`` role (``runtimes.json:pages.tutorials_pymor_rom.s`` for ``docs/tutorials/pymor_rom.md``).  Set
 ``--machine`` to say where it ran (a shared machine inflates every number).
 """
 
@@ -107,17 +107,23 @@ def page_blocks(page: Path) -> list[str]:
     return blocks
 
 
+def page_key(page: Path) -> str:
+    """``docs/tutorials/pymor_rom.md`` -> ``tutorials_pymor_rom`` (a key the ``{json}`` role can name)."""
+    rel = page.relative_to(ROOT / "docs") if page.is_relative_to(ROOT / "docs") else Path(page.name.lower())
+    return rel.with_suffix("").as_posix().replace("/", "_")
+
+
 def measure_pages(work: Path) -> dict:
     pages = {}
     for page in [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]:
         blocks = page_blocks(page)
         if not blocks:
             continue
-        folder = work / page.stem
+        folder = work / page_key(page)
         folder.mkdir(exist_ok=True)
         (folder / "page.py").write_text("\n\n".join(blocks) + "\n")
-        name = page.relative_to(ROOT).as_posix()
-        pages[name] = {"s": _timed([sys.executable, "page.py"], folder, _env())}
+        name = page_key(page)
+        pages[name] = {"page": page.relative_to(ROOT).as_posix(), "s": _timed([sys.executable, "page.py"], folder, _env())}
         print(f"  {name}: {pages[name]['s']} s", flush=True)
     return pages
 
