@@ -780,7 +780,7 @@ def build_parser() -> argparse.ArgumentParser:
                      help="the scenario to run ('all': pendulum and wave; sine-Gordon runs alone)")
     run.add_argument("--out", required=True, help="output folder (created if missing)")
     size = run.add_mutually_exclusive_group()
-    size.add_argument("--quick", action="store_true", help="small data (default): 'all' about 4.5 min on 2 cores (259 s measured), henon-heiles about 2 min (127 s)")
+    size.add_argument("--quick", action="store_true", help="small data (default): minutes on 2 cores (measured times: docs/data/runtimes.json)")
     size.add_argument("--paper", action="store_true", help="the paper's data sizes: minutes, ~10 GiB")
     size.add_argument("--preset", choices=["smoke", "quick", "paper"], help="a preset by name ('smoke': seconds, for testing)")
     run.add_argument("--initial", choices=["sech_cos", "breather"], default="sech_cos",
