@@ -278,7 +278,7 @@ def _cmd_demo(args) -> int:
     from sympredict.paper.demo import HORIZON_STEPS, DT, run_demo
 
     t0 = time.perf_counter()
-    with threadpool_limits(limits=args.threads), _Working("sympredict demo: training on 40 pendulum trajectories"):
+    with threadpool_limits(limits=args.threads), _Working("sympredict demo: training on 40 pendulum trajectories", quiet=args.verbose):
         r = run_demo(out, seed=args.seed)
     print(f"demo: {r['n_centers']} centres trained in {r['fit_s']:.0f} s; over t = {HORIZON_STEPS * DT:g} s: max state "
           f"error {r['max_state_error']:.1e}, max relative energy drift {r['max_energy_drift']:.1e}; wrote "
@@ -490,7 +490,7 @@ def _cmd_train_user_data(args) -> int:
     if args.backend != "auto":
         options["solver"] = NewtonSolver(backend=args.backend)
     model = SymplecticKernelPredictor(**options)
-    with threadpool_limits(limits=args.threads), _Working(f"sympredict train: {_describe(data)}, training"):
+    with threadpool_limits(limits=args.threads), _Working(f"sympredict train: {_describe(data)}, training", quiet=args.verbose):
         model.fit(data, validation=validation)
     _save_model_or_keep(model, args.out)
     h = model.history_
@@ -515,9 +515,10 @@ def _refuse_wrong_train_options(args) -> None:
 class _Working:
     """One line on a terminal while a long call runs (``what ...``), erased when it ends; nothing when piped."""
 
-    def __init__(self, what: str, stream=None):
+    def __init__(self, what: str, stream=None, quiet: bool = False):
         self.stream = stream or sys.stderr
-        self.enabled = bool(getattr(self.stream, "isatty", lambda: False)())
+        # not with --verbose (``quiet``): the log's lines would run into it
+        self.enabled = bool(getattr(self.stream, "isatty", lambda: False)()) and not quiet
         self.what = what
 
     def __enter__(self):
@@ -556,7 +557,7 @@ def _cmd_train(args) -> int:
     mu = data.mu if kernels[1] is not None else None
     if validation is not None and kernels[1] is None:
         validation = (validation.x0, validation.x1, None, validation.dt)
-    with threadpool_limits(limits=args.threads), _Working(f"sympredict train: {_describe(data)}, training"):
+    with threadpool_limits(limits=args.threads), _Working(f"sympredict train: {_describe(data)}, training", quiet=args.verbose):
         model.fit(data.x0, data.x1, mu=mu, dt=data.dt, validation=validation)
     _save_model_or_keep(model, args.out)
     h = model.history_

@@ -140,3 +140,38 @@ def test_reductor_empty_kernel_list_and_array_reconstruct(small_fe_wave):
     np.testing.assert_allclose(reductor.project(reductor.reconstruct(x)), x, atol=1e-10 * np.abs(x).max())
     with pytest.raises(ValueError, match=r"U_red as an array must have shape \(K, 2n\)"):
         reductor.reconstruct(np.zeros((2, 4)))
+
+
+def test_the_working_line_shows_on_a_terminal_only_and_is_erased():
+    import io
+
+    from sympredict.cli import _Working
+
+    class Terminal(io.StringIO):
+        def isatty(self):
+            return True
+
+    tty, pipe, verbose = Terminal(), io.StringIO(), Terminal()
+    for stream, quiet in ((tty, False), (pipe, False), (verbose, True)):
+        with _Working("sympredict train: 30 pairs, training", stream=stream, quiet=quiet):
+            pass
+    assert tty.getvalue() == "sympredict train: 30 pairs, training ...\r\x1b[K"
+    assert pipe.getvalue() == "" and verbose.getvalue() == ""
+
+
+def test_demo_writes_a_model_a_figure_and_one_line(tmp_path, capsys, monkeypatch):
+    """``sympredict demo`` end to end, at small sizes (the command's own sizes take a minute)."""
+    from sympredict.paper import demo
+
+    monkeypatch.setattr(demo, "N_TRAJECTORIES", 8)
+    monkeypatch.setattr(demo, "MAX_CENTERS", 20)
+    monkeypatch.setattr(demo, "HORIZON_STEPS", 20)
+    out = tmp_path / "demo"
+    assert main(["demo", "--out", str(out), "--threads", "1"]) == 0
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("demo: ") and "max state error" in lines[0]
+    assert {"model.h5", "demo.png", "demo.pdf", "demo.json"} <= {p.name for p in out.iterdir()}
+    assert SymplecticKernelPredictor.load(out / "model.h5").n_centers_ <= 20
+    (out / "notes.txt").write_text("mine")
+    assert main(["demo", "--out", str(out)]) == 1
+    assert "holds other files than a demo's" in capsys.readouterr().err
