@@ -39,10 +39,8 @@ SLOW_PAGES = {"docs/tutorials/pendulum.md", "docs/tutorials/pymor_rom.md", "docs
               "docs/howto/test_your_rom.md"}
 #: the number of blocks marked skip-example, page by page
 EXPECTED_SKIPS = {
-    "docs/explanation/architecture.md": 2,
     "docs/explanation/beyond.md": 1,
     "docs/howto/mpi.md": 1,
-    "docs/tutorials/pymor_rom.md": 1,
 }
 
 
