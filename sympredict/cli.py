@@ -701,7 +701,9 @@ def _cmd_predict(args) -> int:
 
 def _cmd_report(args) -> int:
     from sympredict import SymplecticKernelPredictor
+    from sympredict.io.formats import check_model_file
 
+    check_model_file(args.model)
     model = SymplecticKernelPredictor.load(args.model)
     h, d = model.history_, model.domain_
     print(f"{args.model}: SymplecticKernelPredictor, state dimension 2n = {model.dim_}, {model.n_mu_} parameter(s)")

@@ -35,10 +35,11 @@ def test_a_file_that_is_no_model_is_refused_naming_what_a_model_is(tmp_path, cap
     assert main(["data", "--random", "20", "--out", str(dataset)]) == 0
     capsys.readouterr()
     for wrong in (text, npz, dataset):
-        assert main(["predict", str(wrong), "--x0", "1,0", "--steps", "1"]) == 1
-        err = capsys.readouterr().err
-        assert "is not a sympredict model" in err and "model.save" in err and "sympredict train" in err, err
-        assert "OSError" not in err and "corrupted" not in err
+        for argv in (["predict", str(wrong), "--x0", "1,0", "--steps", "1"], ["report", str(wrong)]):
+            assert main(argv) == 1
+            err = capsys.readouterr().err
+            assert "is not a sympredict model" in err and "model.save" in err and "sympredict train" in err, err
+            assert "OSError" not in err and "corrupted" not in err
 
 
 def test_train_kernel_options_are_named_after_the_kernel_and_dt_is_refused(tmp_path, capsys):
