@@ -40,6 +40,8 @@ def _speed_rows():
             shift = 1.3 if method.startswith("direct") else 1.0
             rows.append({"method": method, "needs": needs, "size": size, "time_per_trajectory_s": 1e-4 * (k + 1) * 2.0,
                          "median_err": shift * 10.0 ** (-2 - k)})
+    rows.append({"method": "micro-step reference (implicit midpoint, h<=1e-3)", "needs": "equations", "size": 1,
+                 "tag": "h<=1e-3", "time_per_trajectory_s": 3e-3, "median_err": 3e-5})
     return rows
 
 
@@ -124,6 +126,15 @@ def test_no_text_overlaps_another_or_leaves_the_saved_area(figure):
     overlaps = [(a.get_text(), b.get_text()) for (a, ba), (b, bb) in itertools.combinations(texts, 2)
                 if ba.overlaps(bb) and ba.intersection(ba, bb).width > 1 and ba.intersection(ba, bb).height > 1]
     assert not overlaps, overlaps
+    # nor does a text of a panel run under a legend box it does not belong to
+    for ax in figure.axes:
+        legend = ax.get_legend()
+        if legend is None:
+            continue
+        box, own = legend.get_window_extent(renderer), {id(t) for t in legend.get_texts()}
+        under = [t.get_text() for t, b in texts if id(t) not in own and t is not legend.get_title() and box.overlaps(b)
+                 and box.intersection(box, b).width > 1 and box.intersection(box, b).height > 1]
+        assert not under, under
 
 
 def test_every_axis_label_states_a_unit(figure):

@@ -31,12 +31,15 @@ METHOD_COLORS = (
     (("direct", "non-symplectic", "kernel model of the states"), "tab:green"),
     (("vkoga",), "tab:purple"),
     (("rom + kernel", "kernel rom", "symplectic kernel", "kernel predictor", "kernel model", "kernel"), "tab:orange"),
-    (("implicit midpoint", "midpoint", "integrator", "störmer", "stormer", "verlet"), "tab:blue"),
+    (("implicit midpoint", "midpoint"), "tab:blue"),
+    (("störmer", "stormer", "verlet"), "tab:cyan"),
+    (("yoshida",), "tab:gray"),
+    (("kahan",), "tab:olive"),
     (("galerkin", "rom"), "tab:brown"),
     (("deim",), "tab:pink"),
-    (("mlp", "sympnet", "neural"), "tab:olive"),
+    (("mlp", "sympnet", "neural"), "tab:red"),
 )
-_OTHER_COLORS = ("tab:cyan", "tab:red", "tab:gray", "tab:olive", "tab:pink")
+_OTHER_COLORS = ("darkgoldenrod", "teal", "indigo", "crimson", "slategray")
 
 
 def method_color(label: str, index: int = 0) -> str:
@@ -274,7 +277,8 @@ def speed_accuracy(rows, reference_time: float, title: str):
         Wall time per trajectory of the micro-step reference (a vertical line).
     """
     fig, ax = plt.subplots(figsize=(8.5, 5.0))
-    methods, used = list(dict.fromkeys(r["method"] for r in rows)), set()
+    methods, used, seen = list(dict.fromkeys(r["method"] for r in rows)), set(), {}
+    t_max = max([reference_time] + [r["time_per_trajectory_s"] for r in rows])
     for i, method in enumerate(methods):
         pts = [r for r in rows if r["method"] == method]
         t = [r["time_per_trajectory_s"] for r in pts]
@@ -283,13 +287,17 @@ def speed_accuracy(rows, reference_time: float, title: str):
         needs = pts[0].get("needs", "")
         marker = "o" if needs.startswith("only data") else "^" if needs.startswith("reduced") else "s"
         used.add(marker)
-        ax.loglog(t, e, marker + ("-" if len(pts) > 1 else ""), color=method_color(method, i), label=method,
-                  ms=5 if len(pts) > 1 else 8, mfc="none" if marker == "s" else None)
+        color = method_color(method, i)
+        repeat = seen[color] = seen.get(color, -1) + 1  # the same method again (another size): another marker face
+        ax.loglog(t, e, marker + ("-" if len(pts) > 1 else ""), color=color, label=method,
+                  ms=5 if len(pts) > 1 else 8, mfc="none" if marker == "s" or repeat % 2 else None, mew=1.5 if repeat else 1.0)
         # one tag per curve, at its most accurate point (tags at every point overlap where curves cross)
         best = min(pts, key=lambda r: r["median_err"] if r["median_err"] == r["median_err"] else float("inf"))
-        if len(pts) > 1:
-            ax.annotate(f"{point_tag(pts[0])} .. {point_tag(pts[-1])}", (best["time_per_trajectory_s"], best["median_err"]),
-                        fontsize=6, xytext=(4, -9), textcoords="offset points", color=method_color(method, i))
+        tag = f"{point_tag(pts[0])} .. {point_tag(pts[-1])}" if len(pts) > 1 else point_tag(pts[0])
+        # near the right edge of the (log) time axis the tag goes to the left of its point, inside the axes
+        left = best["time_per_trajectory_s"] > t_max / 4
+        ax.annotate(tag, (best["time_per_trajectory_s"], best["median_err"]), fontsize=6, xytext=(-4 if left else 4, -9),
+                    textcoords="offset points", color=color, ha="right" if left else "left", annotation_clip=True)
     ax.axvline(reference_time, color=method_color("reference"), ls=":", label="micro-step reference (time)")
     # a relative error above 10 is a blown-up run (CFL): keep the axis on the runs that work, say so on the chart
     blown = [r for r in rows if not r["median_err"] <= 10]
