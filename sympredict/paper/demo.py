@@ -39,7 +39,7 @@ def run_demo(out, seed: int = 0) -> dict:
 
     Notes
     -----
-    About a minute on 2 cores, of which ~20 s is the first compilation of the Newton kernels (cached after).
+    About a minute on 2 cores (docs/data/runtimes.json: demo).
     """
     from sympredict import SymplecticKernelPredictor, TrajectoryData
     from sympredict.systems.pendulum import Pendulum
