@@ -1,6 +1,6 @@
 """Time what the README and the docs ask a reader to run; write docs/data/runtimes.json.
 
-    .venv/bin/python tools/measure_runtimes.py                  # everything (about 15 min on 2 idle cores)
+    .venv/bin/python tools/measure_runtimes.py                  # all but the test suite (20 min or more on 2 cores)
     .venv/bin/python tools/measure_runtimes.py --only demo pages # a part; the other entries are kept
 
 What is timed (wall seconds, each in a fresh process, BLAS threads = the machine's cores):
@@ -182,7 +182,7 @@ def measure_tests(work: Path) -> dict:
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--only", nargs="+", choices=["demo", "quick", "pages", "basis", "tests"],
-                        default=["demo", "quick", "pages"])
+                        default=["demo", "quick", "pages", "basis"])
     parser.add_argument("--machine", default=f"{os.cpu_count()} cores, {platform.machine()} {platform.system()}",
                         help="where it ran (say 'shared' if other jobs ran beside it)")
     parser.add_argument("--out", type=Path, default=OUT)
