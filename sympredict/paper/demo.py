@@ -13,7 +13,9 @@ from pathlib import Path
 
 import numpy as np
 
+from sympredict import SymplecticKernelPredictor, TrajectoryData
 from sympredict.paper import plotting
+from sympredict.systems.pendulum import Pendulum
 
 __all__ = ["run_demo", "demo_figure"]
 
@@ -41,9 +43,6 @@ def run_demo(out, seed: int = 0) -> dict:
     -----
     About a minute on 2 cores (docs/data/runtimes.json: demo).
     """
-    from sympredict import SymplecticKernelPredictor, TrajectoryData
-    from sympredict.systems.pendulum import Pendulum
-
     out = Path(out)
     rng = np.random.default_rng(seed)
     pendulum = Pendulum()
