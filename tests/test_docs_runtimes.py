@@ -43,6 +43,6 @@ def test_the_readme_states_the_demo_times_within_the_measured_ones():
 
 
 def test_the_quick_runs_and_the_tutorials_are_timed():
-    assert RUNTIMES["quick"]["pendulum"]["s"] > 0
+    assert RUNTIMES["quick"]["pendulum"]["s"] > 0 and RUNTIMES["quick"]["wave"]["s"] > 0
     for key in ("tutorials_pendulum", "tutorials_pymor_rom", "tutorials_your_own_data"):
         assert RUNTIMES["pages"][key]["s"] > 0
