@@ -794,7 +794,7 @@ def build_parser() -> argparse.ArgumentParser:
     run.set_defaults(func=_cmd_run)
 
     demo = sub.add_parser("demo", help="the README's example: train on pendulum trajectories, predict, write a model, "
-                                       "a figure and a one-line result (about a minute on 2 cores)")
+                                       "a figure and a one-line result (seconds on 2 cores)")
     demo.add_argument("--out", default="sympredict-demo", help="output folder (default: sympredict-demo)")
     demo.add_argument("--seed", type=_int_at_least(0), default=0, help="seed of the training trajectories (default 0)")
     demo.add_argument("--threads", type=_int_at_least(1), default=os.cpu_count() or 1, help="BLAS threads (default: all cores)")

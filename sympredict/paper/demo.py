@@ -41,7 +41,7 @@ def run_demo(out, seed: int = 0) -> dict:
 
     Notes
     -----
-    About a minute on 2 cores (docs/data/runtimes.json: demo).
+    About 10 s on 2 cores (docs/data/runtimes.json: demo).
     """
     out = Path(out)
     rng = np.random.default_rng(seed)
