@@ -259,6 +259,33 @@ def _cmd_run(args) -> int:
     return 0
 
 
+_DEMO_FILES = ("model.h5", "demo.png", "demo.pdf", "demo.json")
+
+
+def _cmd_demo(args) -> int:
+    """The README's example in one command: pendulum trajectories, a model, a rollout, a figure, one line."""
+    from threadpoolctl import threadpool_limits
+
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"--out {str(out)!r} exists and is not a directory; give a folder")
+    if out.is_dir():
+        other = sorted(e.name for e in out.iterdir() if e.name not in _DEMO_FILES)
+        if other:
+            raise ValueError(f"--out {str(out)!r} holds other files than a demo's (e.g. {other[0]!r}); give a new or "
+                             "empty folder")
+    out.mkdir(parents=True, exist_ok=True)
+    from sympredict.paper.demo import HORIZON_STEPS, DT, run_demo
+
+    t0 = time.perf_counter()
+    with threadpool_limits(limits=args.threads), _Working("sympredict demo: training on 40 pendulum trajectories", quiet=args.verbose):
+        r = run_demo(out, seed=args.seed)
+    print(f"demo: {r['n_centers']} centres trained in {r['fit_s']:.0f} s; over t = {HORIZON_STEPS * DT:g} s: max state "
+          f"error {r['max_state_error']:.1e}, max relative energy drift {r['max_energy_drift']:.1e}; wrote "
+          f"{out / 'model.h5'} and {out / 'demo.png'} ({_duration(time.perf_counter() - t0)})")
+    return 0
+
+
 def _check_output_file(out, *inputs, option: str = "--out", force=None) -> None:
     """Refuse an output file that is a directory or special file, lacks its folder (or write permission there),
     has a name longer than the file system takes, or is one of the inputs; with ``force`` given (the command's
@@ -376,7 +403,9 @@ def _cmd_data(args) -> int:
     if not str(args.out).lower().endswith((".h5", ".hdf5")):
         raise ValueError(f"--out {args.out!r}: the pendulum data set is an HDF5 file; name it .h5")
     pendulum = Pendulum()
-    if args.random:
+    if args.random is None:
+        _check_grid_memory(args.n_grid, len(MU_TRAIN) * len(DT_TRAIN))
+    if args.random is not None:
         data = random_flow_map_data(pendulum, args.random, seed=args.seed)
         meta = {"system": "pendulum", "kind": "random", "n_samples": args.random, "seed": args.seed}
     else:
@@ -385,6 +414,35 @@ def _cmd_data(args) -> int:
     save_dataset(data, args.out, overwrite=args.force, **meta)
     print(f"wrote {len(data)} pendulum flow-map samples to {args.out}")
     return 0
+
+
+def _info(args, line: str) -> None:
+    """A line of what the command does: printed with ``--verbose`` only (the default output is the result line)."""
+    if getattr(args, "verbose", False):
+        print(line, file=sys.stderr)
+
+
+def _add_verbose(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("-v", "--verbose", action="store_true",
+                        help="print what is read and the training log (default: one result line)")
+
+
+#: Bytes per grid point and (length, step) pair of ``flow_map_data``: the grid and its mask (~64 B per point)
+#: and, for the ~56 % of points inside the energy bound, the samples (x0, x1, mu, dt: 48 B) about four times over
+#: (the propagated copies and the concatenation).
+_GRID_BYTES_PER_POINT, _SAMPLE_BYTES_PER_POINT = 64, 0.56 * 48 * 4
+
+
+def _check_grid_memory(n_grid: int, n_pairs: int) -> None:
+    """Refuse ``data --n-grid`` whose samples would not fit in the available memory, before allocating."""
+    from sympredict.symplectic.newton import available_memory
+
+    needed = n_grid**2 * (_GRID_BYTES_PER_POINT + n_pairs * _SAMPLE_BYTES_PER_POINT)
+    available = available_memory()
+    if available is not None and needed > available:
+        largest = int(math.sqrt(available / (_GRID_BYTES_PER_POINT + n_pairs * _SAMPLE_BYTES_PER_POINT)))
+        raise ValueError(f"--n-grid {n_grid}: the grid's samples need about {needed / 2**30:.3g} GiB, more than the "
+                         f"{available / 2**30:.3g} GiB available; give --n-grid {largest} or less (the paper's is 200)")
 
 
 def _is_own_dataset(path) -> bool:
@@ -422,10 +480,10 @@ def _cmd_train_user_data(args) -> int:
     from sympredict.symplectic.solvers import NewtonSolver
 
     data = read_trajectories(args.data)
-    print(f"read {args.data}: {_describe(data)}")
+    _info(args, f"read {args.data}: {_describe(data)}")
     validation = read_trajectories(args.validation) if args.validation else None
     options = {} if args.centers is None else {"max_centers": args.centers}  # None: the estimator's default
-    for name, spec in (("state_kernel", args.state), ("mu_kernel", args.mu), ("dt_kernel", args.dt)):
+    for name, spec in (("state_kernel", args.state_kernel), ("mu_kernel", args.mu_kernel), ("dt_kernel", args.dt_kernel)):
         if spec is not None:
             options[name] = _parse_kernel(spec)
     if args.tol is not None or args.target_error is not None:
@@ -434,11 +492,11 @@ def _cmd_train_user_data(args) -> int:
     if args.backend != "auto":
         options["solver"] = NewtonSolver(backend=args.backend)
     model = SymplecticKernelPredictor(**options)
-    with threadpool_limits(limits=args.threads):
+    with threadpool_limits(limits=args.threads), _Working(f"sympredict train: {_describe(data)}, training", quiet=args.verbose):
         model.fit(data, validation=validation)
     _save_model_or_keep(model, args.out, overwrite=args.force)
     h = model.history_
-    print(f"trained {model.n_centers_} centres ({h.stop_reason}): E_train {h.train_max_residual[-1]:.2e}"
+    print(f"trained {model.n_centers_} centres ({h.stop_reason}) on {_describe(data)}: E_train {h.train_max_residual[-1]:.2e}"
           + (f", E_val {h.val_max_residual[-1]:.2e}" if h.val_max_residual is not None else "")
           + f"; saved to {args.out}")
     _print_target(model)
@@ -453,6 +511,40 @@ def _print_target(model) -> None:
               f"(median one-step error {d.holdout_step_error:.2e} on held-out samples, {model.n_centers_} centres)")
 
 
+def _refuse_wrong_train_options(args) -> None:
+    """``train --dt/--mu/--state``: say which option was meant (``--dt`` is the step on ``predict``, a kernel here)."""
+    if args.wrong_dt is not None:
+        raise ValueError("train has no --dt: the sampling step is read from the data file ('dt' or 'times'); "
+                         "the step kernel is --dt-kernel FAMILY:EPS (e.g. --dt-kernel imq:5.0)")
+    if args.wrong_mu is not None:
+        raise ValueError("train has no --mu: the parameters are read from the data file ('mu'); "
+                         "the parameter kernel is --mu-kernel FAMILY:EPS (e.g. --mu-kernel imq:2.0) or 'none'")
+    if args.wrong_state is not None:
+        raise ValueError("train has no --state: the state kernel is --state-kernel FAMILY:EPS (e.g. --state-kernel imq:0.15)")
+
+
+class _Working:
+    """One line on a terminal while a long call runs (``what ...``), erased when it ends; nothing when piped."""
+
+    def __init__(self, what: str, stream=None, quiet: bool = False):
+        self.stream = stream or sys.stderr
+        # not with --verbose (``quiet``): the log's lines would run into it
+        self.enabled = bool(getattr(self.stream, "isatty", lambda: False)()) and not quiet
+        self.what = what
+
+    def __enter__(self):
+        if self.enabled:
+            self.stream.write(f"{self.what} ...")
+            self.stream.flush()
+        return self
+
+    def __exit__(self, *exc):
+        if self.enabled:
+            self.stream.write("\r\033[K")
+            self.stream.flush()
+        return False
+
+
 def _cmd_train(args) -> int:
     from threadpoolctl import threadpool_limits
 
@@ -461,14 +553,15 @@ def _cmd_train(args) -> int:
     from sympredict.io import load_dataset
     from sympredict.symplectic.solvers import NewtonSolver
 
+    _refuse_wrong_train_options(args)
     _check_output_file(args.out, args.data, args.validation, force=args.force)
     if not _is_own_dataset(args.data) and str(args.data).lower().endswith((".npz", ".csv", ".h5", ".hdf5")):
         return _cmd_train_user_data(args)
     data, meta = load_dataset(args.data)
-    print(f"read {args.data}: {_describe(data)}")
+    _info(args, f"read {args.data}: {_describe(data)}")
     validation = load_dataset(args.validation)[0] if args.validation else None
     kernels = [_parse_kernel(k if k is not None else default) for k, default in
-               ((args.state, "imq:0.15"), (args.mu, "imq:2.0"), (args.dt, "imq:5.0"))]
+               ((args.state_kernel, "imq:0.15"), (args.mu_kernel, "imq:2.0"), (args.dt_kernel, "imq:5.0"))]
     model = SymplecticKernelPredictor(*kernels, max_centers=args.centers or 1500,
                                       trainer=ExactGreedy(tol=1e-10 if args.tol is None else args.tol,
                                                           target_error=args.target_error),
@@ -476,7 +569,7 @@ def _cmd_train(args) -> int:
     mu = data.mu if kernels[1] is not None else None
     if validation is not None and kernels[1] is None:
         validation = (validation.x0, validation.x1, None, validation.dt)
-    with threadpool_limits(limits=args.threads):
+    with threadpool_limits(limits=args.threads), _Working(f"sympredict train: {_describe(data)}, training", quiet=args.verbose):
         model.fit(data.x0, data.x1, mu=mu, dt=data.dt, validation=validation)
     _save_model_or_keep(model, args.out, overwrite=args.force)
     h = model.history_
@@ -631,7 +724,9 @@ def _cmd_predict(args) -> int:
 
 def _cmd_report(args) -> int:
     from sympredict import SymplecticKernelPredictor
+    from sympredict.io.formats import check_model_file
 
+    check_model_file(args.model)
     model = SymplecticKernelPredictor.load(args.model)
     h, d = model.history_, model.domain_
     print(f"{args.model}: SymplecticKernelPredictor, state dimension 2n = {model.dim_}, {model.n_mu_} parameter(s)")
@@ -711,14 +806,23 @@ def build_parser() -> argparse.ArgumentParser:
                      help="the scenario to run ('all': pendulum and wave; sine-Gordon runs alone)")
     run.add_argument("--out", required=True, help="output folder (created if missing)")
     size = run.add_mutually_exclusive_group()
-    size.add_argument("--quick", action="store_true", help="small data (default): 'all' about 4.5 min on 2 cores (259 s measured), henon-heiles about 2 min (127 s)")
+    size.add_argument("--quick", action="store_true", help="small data (default): minutes on 2 cores (measured times: docs/data/runtimes.json)")
     size.add_argument("--paper", action="store_true", help="the paper's data sizes: minutes, ~10 GiB")
     size.add_argument("--preset", choices=["smoke", "quick", "paper"], help="a preset by name ('smoke': seconds, for testing)")
     run.add_argument("--initial", choices=["sech_cos", "breather"], default="sech_cos",
                      help="sine-Gordon only: initial-data family ('breather': the breather presets, --quick or --preset smoke)")
     run.add_argument("--seed", type=_int_at_least(0), default=0, help="seed of the validation and test draws (default 0)")
     run.add_argument("--threads", type=_int_at_least(1), default=os.cpu_count() or 1, help="BLAS threads (default: all cores)")
+    _add_verbose(run)
     run.set_defaults(func=_cmd_run)
+
+    demo = sub.add_parser("demo", help="the README's example: train on pendulum trajectories, predict, write a model, "
+                                       "a figure and a one-line result (seconds on 2 cores)")
+    demo.add_argument("--out", default="sympredict-demo", help="output folder (default: sympredict-demo)")
+    demo.add_argument("--seed", type=_int_at_least(0), default=0, help="seed of the training trajectories (default 0)")
+    demo.add_argument("--threads", type=_int_at_least(1), default=os.cpu_count() or 1, help="BLAS threads (default: all cores)")
+    _add_verbose(demo)
+    demo.set_defaults(func=_cmd_demo)
 
     data = sub.add_parser("data", help="write a data set of a shipped system that 'sympredict train' reads")
     data.add_argument("--system", choices=["pendulum", *DATA_SYSTEMS], default="pendulum",
@@ -727,7 +831,7 @@ def build_parser() -> argparse.ArgumentParser:
     data.add_argument("--out", required=True, help="data file (.h5 for the pendulum; .npz, .h5 or .csv otherwise)")
     data.add_argument("--n-grid", type=_int_at_least(2), default=50, help="pendulum: energy-bounded grid points per axis (default 50; paper 200)")
     data.add_argument("--p-nonpositive", action="store_true", help="pendulum: keep only states with p <= 0 (scenario B)")
-    data.add_argument("--random", type=_int_at_least(0), default=0, metavar="N", help="pendulum: N random samples instead of the grid (validation data)")
+    data.add_argument("--random", type=_int_at_least(1), metavar="N", help="pendulum: N >= 1 random samples instead of the grid (validation data)")
     data.add_argument("--trajectories", type=_int_at_least(1), default=20, metavar="P",
                       help="other systems: number of trajectories (default 20), parameters drawn uniformly from the system's range")
     data.add_argument("--steps", type=_int_at_least(1), default=20, metavar="K", help="other systems: macro steps per trajectory (default 20)")
@@ -736,6 +840,7 @@ def build_parser() -> argparse.ArgumentParser:
                       help="wave and sine-gordon: interior grid points, states of dimension 2N (default 16)")
     data.add_argument("--seed", type=_int_at_least(0), default=0)
     data.add_argument("--force", action="store_true", help="replace an existing --out file")
+    _add_verbose(data)
     data.set_defaults(func=_cmd_data)
 
     train = sub.add_parser("train", help="train a symplectic predictor on a data set or the user's trajectories and save it (HDF5)")
@@ -743,12 +848,17 @@ def build_parser() -> argparse.ArgumentParser:
                                     "or pairs in a .npz, .h5 or .csv file (layout: sympredict.io.read_trajectories)")
     train.add_argument("--out", required=True, help="model file (.h5)")
     train.add_argument("--validation", help="validation data, same kinds of file (records E_val)")
-    train.add_argument("--state", help="state kernel FAMILY:EPS (default: imq:0.15 for a sympredict data set, the "
-                                       "estimator's default otherwise)")
-    train.add_argument("--mu", help="parameter kernel FAMILY:EPS or 'none' (default: imq:2.0 for a sympredict data set, "
-                                    "the estimator's default otherwise)")
-    train.add_argument("--dt", help="step kernel FAMILY:EPS or 'none' (default: imq:5.0 for a sympredict data set, the "
-                                    "estimator's default otherwise)")
+    train.add_argument("--state-kernel", metavar="FAMILY:EPS",
+                       help="state kernel, e.g. imq:0.15 (default: imq:0.15 for a sympredict data set, chosen on "
+                            "held-out samples otherwise)")
+    train.add_argument("--mu-kernel", metavar="FAMILY:EPS",
+                       help="parameter kernel or 'none' (default: imq:2.0 for a sympredict data set, chosen otherwise)")
+    train.add_argument("--dt-kernel", metavar="FAMILY:EPS",
+                       help="step kernel or 'none' (default: imq:5.0 for a sympredict data set, chosen otherwise)")
+    # --dt, --mu and --state are no options of train (the step and parameters come from the file): named so that
+    # they are refused with the right option instead of being taken as abbreviations of the kernel options
+    for wrong in ("--dt", "--mu", "--state"):
+        train.add_argument(wrong, dest=f"wrong_{wrong[2:]}", help=argparse.SUPPRESS)
     train.add_argument("--max-centers", "--centers", dest="centers", type=_int_at_least(1),
                        help="maximal number of centres (default: 1500 for a sympredict data set, the estimator's default otherwise)")
     train.add_argument("--tol", type=_finite_float(nonnegative=True), help="greedy residual tolerance (default 1e-10)")
@@ -757,6 +867,7 @@ def build_parser() -> argparse.ArgumentParser:
                             "most this (e.g. 1e-4), then stop: the smallest model that meets it (--max-centers "
                             "stays the cap)")
     train.add_argument("--threads", type=_int_at_least(1), default=os.cpu_count() or 1)
+    _add_verbose(train)
     _add_backend_and_force(train, "the saved model's Newton solver")
     train.set_defaults(func=_cmd_train)
 
@@ -778,6 +889,7 @@ def build_parser() -> argparse.ArgumentParser:
     predict.add_argument("--stride", type=_int_at_least(1), default=1,
                          help="with --out, write every k-th state only (default 1: all); memory is that of the states written")
     _add_backend_and_force(predict, "Newton solver")
+    _add_verbose(predict)
     predict.set_defaults(func=_cmd_predict)
 
     describe = sub.add_parser("report", help="describe a saved model: kernel, centres, residuals, training box")
@@ -819,7 +931,8 @@ def main(argv=None) -> int:
     from sympredict.exceptions import SympredictError
 
     args = build_parser().parse_args(argv)
-    set_log_levels({"sympredict": "INFO", "pymor": "WARN"})
+    # quiet by default: the result line, warnings and errors; --verbose (where a command has it) adds the log
+    set_log_levels({"sympredict": "INFO" if getattr(args, "verbose", False) else "WARN", "pymor": "WARN"})
     _plain_log_output()
     formatwarning = warnings.formatwarning
     warnings.formatwarning = _one_line_warning

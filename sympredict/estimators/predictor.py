@@ -896,8 +896,9 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         val = self.history_.val_max_residual
         if val is None:
             raise ValueError("smallest() needs validation data at fit time (fit(..., validation=...))")
-        if not (np.isfinite(target) and target > 0):
-            raise ValueError(f"target must be a positive float, got {target!r}")
+        if isinstance(target, bool) or not isinstance(target, (int, float, np.integer, np.floating)) \
+                or not (np.isfinite(target) and target > 0):
+            raise ValueError(f"target must be a positive float (the largest E_val to accept, e.g. 1e-4), got {target!r}")
         hits = np.flatnonzero(val[1:] <= target)
         if hits.size == 0:
             best = int(np.argmin(val[1:])) + 1

@@ -126,6 +126,13 @@ def select_regularization(
     """
     if metric not in ("rms", "max"):
         raise ValueError(f"metric must be 'rms' or 'max', got {metric!r}")
+    for name, given in (("data", data), ("validation", validation)):
+        if not isinstance(given, FlowMapData):
+            raise ValueError(f"{name} must be a FlowMapData (sympredict.data.FlowMapData(x0, x1, mu, dt), or "
+                             f"TrajectoryData(...).pairs()), got {type(given).__name__}")
+    if not isinstance(estimator, SymplecticKernelPredictor):
+        raise ValueError(f"estimator must be a SymplecticKernelPredictor (the ridge term is its greedy's), got "
+                         f"{type(estimator).__name__}")
     values = sorted({0.0, *(float(v) for v in np.atleast_1d(lambdas))})
     if not all(np.isfinite(v) and v >= 0 for v in values):
         raise ValueError(f"lambdas must be finite non-negative floats, got {lambdas!r}")

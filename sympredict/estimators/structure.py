@@ -200,7 +200,7 @@ def check_sign_flip(model, train: FlowMapData, val: FlowMapData, signs, kind: st
     -----
     Cost: one one-step prediction of the transformed validation samples (and one of the samples themselves
     unless ``e_validation`` is given).  A transformed input in a hole of the data's box
-    is predicted poorly: the test then misses a symmetry rather than taking a false one.  Robust to noise as the module docstring says: measured in ``tests/test_structure.py``.
+    is predicted poorly: the test then misses a symmetry rather than taking a false one.  Robust to noise as the module docstring says: measured in ``tests/estimators/test_structure.py``.
     """
     g = np.asarray(signs, dtype=float)
     if kind == "symmetry":

@@ -15,7 +15,7 @@ from sympredict.exceptions import ModelFileError
 from sympredict.estimators.predictor import MODEL_FORMAT, DirectKernelPredictor, SymplecticKernelPredictor
 from sympredict.flowmap.splitting import SplitKernelPredictor
 
-__all__ = ["SCHEMA_VERSION", "save_model", "load_model", "save_dataset", "load_dataset"]
+__all__ = ["SCHEMA_VERSION", "save_model", "load_model", "check_model_file", "save_dataset", "load_dataset"]
 
 _DATA_FORMAT = "sympredict-dataset"
 _ESTIMATORS = {cls.__name__: cls for cls in (SymplecticKernelPredictor, DirectKernelPredictor, SplitKernelPredictor)}
@@ -27,8 +27,54 @@ def save_model(model, path, *, overwrite: bool = True) -> None:
     model.save(path, overwrite=overwrite)
 
 
+#: What a model file is, for the errors on other files.
+MODEL_FILES = ("a model is an HDF5 file (.h5 or .hdf5) written by model.save(path), save_model or 'sympredict train'; "
+               "trajectories (.npz, .csv, .h5) and data sets of 'sympredict data' are training data: give them to "
+               "'sympredict train'")
+_HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
+
+
+def check_model_file(path) -> None:
+    """Refuse a file that cannot be a model before reading it: not HDF5 (by its signature), or a data set.
+
+    A :class:`ModelFileError` that says what was given and which files are models (:data:`MODEL_FILES`).
+    Reads 8 bytes (and the root attributes of an HDF5 file); a missing file is left to the reader.
+    """
+    import os
+
+    if not os.path.isfile(path):
+        return
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(8)
+    except OSError:
+        return
+    if head != _HDF5_SIGNATURE:
+        kind = ("a NumPy .npz archive" if head.startswith(b"PK") else
+                f"a {os.path.splitext(str(path))[1] or 'suffix-less'} file, not HDF5")
+        raise ModelFileError(f"{str(path)!r} is not a sympredict model: it is {kind}; {MODEL_FILES}")
+    import h5py
+
+    try:
+        with h5py.File(path, "r") as f:
+            found = f.attrs.get("format")
+    except Exception:  # damaged: the container's reader says what is wrong
+        return
+    if isinstance(found, bytes):
+        found = found.decode("utf-8", "replace")
+    if found is None:
+        raise ModelFileError(f"{str(path)!r} is an HDF5 file but not a sympredict model (no 'format' attribute: "
+                             f"trajectories?); {MODEL_FILES}")
+    if found == _DATA_FORMAT:
+        raise ModelFileError(f"{str(path)!r} is not a sympredict model but a data set; {MODEL_FILES}")
+
+
 def load_model(path):
-    """Load a model written by :func:`save_model`, whichever estimator it holds; :class:`ModelFileError` if unusable."""
+    """Load a model written by :func:`save_model`, whichever estimator it holds; :class:`ModelFileError` if unusable.
+
+    A file that is not a model (not HDF5, or a data set) is refused naming the files that are (:func:`check_model_file`).
+    """
+    check_model_file(path)
     settings, arrays = read_container(path, MODEL_FORMAT)
     name = settings.get("class", "SymplecticKernelPredictor") if isinstance(settings, dict) else None
     cls = _ESTIMATORS.get(name) if isinstance(name, str) else None

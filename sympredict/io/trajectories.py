@@ -269,7 +269,11 @@ def _from_arrays(path: Path, arrays, keys: dict):
     has_dt, has_times = dt_key in present, times_key in present
     if has_dt == has_times:
         raise ValueError(f"{str(path)!r} must hold exactly one of {dt_key!r} (a uniform step) and {times_key!r} "
-                         f"((P, K+1) or (K+1,)), found {'both' if has_dt else 'neither'} ({LAYOUT})")
+                         f"((P, K+1) or (K+1,)), found {'both' if has_dt else 'neither'} ({LAYOUT})"
+                         + ("" if has_dt else
+                            f"; add the sampling step when saving, e.g. np.savez({Path(path).name!r}, {states_key}=states, "
+                            f"mu=mu, {dt_key}=0.1)" if str(path).lower().endswith(".npz") else
+                            f"; add the sampling step as a scalar data set, e.g. h5file[{dt_key!r}] = 0.1"))
     dt = _real(path, dt_key, arrays.get(dt_key)) if has_dt else None
     if dt is not None and dt.size != 1:
         raise ValueError(f"{_where(path, dt_key)} must be one positive number (uniform steps; give {times_key!r} "

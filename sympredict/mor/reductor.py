@@ -694,7 +694,20 @@ class SymplecticKernelReductor(BasicObject):
         return self.V_plus_array.inner(U).T
 
     def reconstruct(self, U_red):
-        """``V U_red``: a VectorArray in ``fom.solution_space``."""
+        """``V U_red``: a VectorArray in ``fom.solution_space``.
+
+        ``U_red``: what ``rom.solve`` returns (a VectorArray of dimension ``2n``), or an array of reduced
+        states of shape ``(K, 2n)`` (or ``(2n,)``).
+        """
+        if isinstance(U_red, np.ndarray) or isinstance(U_red, (list, tuple)):
+            arr = np.atleast_2d(np.asarray(U_red, dtype=float))
+            if arr.ndim != 2 or arr.shape[1] != self.dim:
+                raise ValueError(f"U_red as an array must have shape (K, 2n) = (K, {self.dim}) (reduced states in "
+                                 f"rows), got {np.shape(U_red)}; or give what rom.solve returns")
+            return self.RB.to_array().lincomb(arr.T)  # pyMOR: coefficients (2n, len)
+        if not hasattr(U_red, "space"):
+            raise ValueError(f"U_red must be a VectorArray of the ROM (what rom.solve returns) or an array (K, 2n), "
+                             f"got {type(U_red).__name__}")
         if U_red.space.dim != self.dim:
             raise ValueError(f"U_red must have dimension 2n = {self.dim}, got {U_red.space.dim}")
         return self.RB.to_array().lincomb(U_red.to_numpy())  # pyMOR: coefficients (2n, len)

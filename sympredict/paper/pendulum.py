@@ -110,7 +110,7 @@ PRESETS = {
     "smoke": PendulumPreset(n_grid=14, max_centers=150, n_val=200, horizon=2.0, n_grid_b=12, max_centers_b=100, stability_periods=5,
                             select_n_grid=10, select_n_val=200, select_eps=((0.2, 0.4), (1.5,), (3.0,)),
                             select_m_screen=30, select_m_refine=60, vkoga_centers=30, speed_centers=(30, 60, 150)),
-    # about a minute on 2 cores: already meets the paper's accuracy
+    # minutes on 2 cores (docs/data/runtimes.json: quick.pendulum): already meets the paper's accuracy
     "quick": PendulumPreset(n_grid=50, max_centers=1500, n_val=2000, horizon=20.0),
     # the paper's data size: 688,464 candidate functionals
     "paper": PendulumPreset(

@@ -291,10 +291,12 @@ def wave_figures(results: dict) -> dict:
             t = r["cases"][0]["t"]
             kernel = np.mean([c["err"][f"kernel_{space}"] for c in r["cases"]], axis=0)
             im = np.mean([c["err"][f"im_{space}"] for c in r["cases"]], axis=0)
-            curves.append({"t": t, "values": kernel, "label": f"kernel, dT={r['dt']}", "style": "-", "color": i})
-            curves.append({"t": t, "values": im, "label": f"implicit midpoint, dT={r['dt']}", "style": "--", "color": i})
+            # colour: the method (the same on every figure); line style and marker: the step dT
+            style, marker = ("-", "--", ":", "-.")[i % 4], "os^v"[i % 4]
+            curves.append({"t": t, "values": kernel, "label": f"kernel, dT={r['dt']}", "style": style, "marker": marker})
+            curves.append({"t": t, "values": im, "label": f"implicit midpoint, dT={r['dt']}", "style": style, "marker": marker})
         figures[f"wave_error_over_time_{space}"] = plotting.error_over_time(
-            curves, f"Wave, {title}: error vs micro-step reference (mean over test speeds)")
+            curves, f"Wave, {title}: error vs micro-step reference (mean over test speeds)", time_unit="1")
     return figures
 
 
@@ -446,11 +448,11 @@ def sine_gordon_figures(s: dict) -> dict:
         curves = [{"t": c["t"], "values": c[key], "label": label, "style": "-" if "kernel" in key else "--", "color": i}
                   for i, (key, label) in enumerate(_SG_METHODS) if key in c]
         figs[f"sine_gordon_error_over_time_2n{dim}"] = plotting.error_over_time(
-            curves, f"Sine-Gordon, 2n={dim}: error vs FOM (mean over test parameters)")
+            curves, f"Sine-Gordon, 2n={dim}: error vs FOM (mean over test parameters)", time_unit="1")
         e = r["energy"]
         figs[f"sine_gordon_energy_2n{dim}"] = plotting.energy_error(
             np.asarray(e["t"]), {k: np.asarray(v) for k, v in e.items() if k != "t"},
-            f"Sine-Gordon, 2n={dim}: energy error dx H(V y), max over tests")
+            f"Sine-Gordon, 2n={dim}: energy error dx H(V y), max over tests", time_unit="1")
     last = list(s["dims"])[-1]
     sn = s["dims"][last]["snapshots"]
     figs["sine_gordon_snapshots"] = plotting.solution_snapshots(

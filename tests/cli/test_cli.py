@@ -129,7 +129,7 @@ def test_data_train_predict_report_workflow(tmp_path, capsys):
     # wrong file kinds and bad arguments: one line, exit code 1
     assert main(["predict", data, "--x0", "1,0", "--steps", "2"]) == 1
     assert main(["train", model, "--out", str(tmp_path / "x.h5")]) == 1
-    assert main(["train", data, "--state", "gauss:1", "--out", str(tmp_path / "x.h5")]) == 1
+    assert main(["train", data, "--state-kernel", "gauss:1", "--out", str(tmp_path / "x.h5")]) == 1
     err = capsys.readouterr().err
     assert err.count("sympredict: error:") == 3 and "Traceback" not in err
 
@@ -146,7 +146,7 @@ def test_version_plain_piped_output_and_one_line_warnings(tmp_path):
     data, model = tmp_path / "d.h5", tmp_path / "m.h5"
     assert subprocess.run([*sym, "data", "--out", str(data), "--n-grid", "8"], capture_output=True, env=env,
                           timeout=120).returncode == 0
-    train = subprocess.run([*sym, "train", str(data), "--out", str(model), "--centers", "30", "--threads", "1"],
+    train = subprocess.run([*sym, "train", str(data), "--out", str(model), "--centers", "30", "--threads", "1", "--verbose"],
                            capture_output=True, text=True, env=env, timeout=300)
     assert train.returncode == 0, train.stderr
     assert "greedy" in train.stderr and "\x1b[" not in train.stderr  # the log is there, without escape codes

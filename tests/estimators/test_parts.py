@@ -74,7 +74,7 @@ def test_pre_release_model_files_are_refused_with_the_advice_to_refit(name):
 # ------------------------------------------------------------------ backends
 def test_numpy_only_features_are_declared_once_refused_for_numba_and_said_under_auto(small_pendulum_data):
     """The table's remaining row (an update rule without a compiled kernel) is refused for 'numba' at fit and said
-    under 'auto'; every transform compiles (``tests/test_transforms_compiled.py`` checks them against NumPy)."""
+    under 'auto'; every transform compiles (``tests/kernels/test_transforms_compiled.py`` checks them against NumPy)."""
     x0, x1, mu, dt = _data(small_pendulum_data)
 
     class Outside(Midpoint):  # a rule added from outside the package: no compiled kernel

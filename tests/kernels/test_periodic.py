@@ -206,7 +206,7 @@ def test_backends_and_settings(data):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ExtrapolationWarning)  # 60 samples: a rollout soon leaves them
         assert_same_predictions(model, ref, x0[:3], 5)  # auto may run compiled once this process has loaded it
-        if _fastkernels.HAVE_NUMBA:  # periodic coordinates run compiled (tests/test_transforms_compiled.py)
+        if _fastkernels.HAVE_NUMBA:  # periodic coordinates run compiled (tests/kernels/test_transforms_compiled.py)
             assert_same_predictions(copy.copy(ref).set_params(solver__backend="numba"), ref, x0[:3], 5)
     for bad in ((2,), (0, 0), (-1,), "0", (0.0,), (True,)):
         with pytest.raises(ValueError, match="periodic"):

@@ -299,7 +299,7 @@ def test_refused_input(data):
     with pytest.raises(ValueError, match="state_scaling"):
         _model(symmetry=_mode_swap(), state_scaling=(1.0, 2.0)).fit(x4, x4 + 0.01, dt=DT)
     _model(symmetry=_mode_swap(), state_scaling=(2.0, 2.0), max_centers=10).fit(x4, x4 + 0.01, dt=DT)
-    if _fastkernels.HAVE_NUMBA:  # a symmetric model runs compiled (tests/test_transforms_compiled.py)
+    if _fastkernels.HAVE_NUMBA:  # a symmetric model runs compiled (tests/kernels/test_transforms_compiled.py)
         assert _model(backend="numba", max_centers=20).fit(x0, x1, dt=DT).numpy_only_ is None
     # Periodic with Symmetric: the group must map periodic coordinates onto ones of the same period
     with pytest.raises(ValueError, match="same period"):

@@ -1,8 +1,8 @@
 """The compiled Newton solver for every state-kernel transform (Periodic, Symmetric, with Scaled) against NumPy.
 
 Oracles: the NumPy surrogate's gradient, Hessian and floor (:meth:`HBSurrogate.gradient_hessian`, itself
-checked against finite differences of the kernel's value in ``tests/test_periodic.py`` and
-``tests/test_symmetry.py``) for the compiled pass; the NumPy rollout (:func:`rollout_reference`) for the
+checked against finite differences of the kernel's value in ``tests/kernels/test_periodic.py`` and
+``tests/kernels/test_symmetry.py``) for the compiled pass; the NumPy rollout (:func:`rollout_reference`) for the
 compiled rollout, to the stopping rule's bound (``tests/_tolerances.py``); the group invariance
 ``s(g x) = s(x)`` and the period of the compiled gradient.
 """

@@ -262,6 +262,14 @@ class ShardedGreedy(Trainer):
         self.memory_limit_per_rank = memory_limit_per_rank
         self.timeout = timeout
 
+    def check(self) -> "ShardedGreedy":
+        """As :meth:`Trainer.check`, and ``pool`` must be a pyMOR worker pool (or ``None``)."""
+        super().check()
+        if self.pool is not None and not all(callable(getattr(self.pool, a, None)) for a in ("apply", "map", "push")):
+            raise ValueError(f"pool must be a pyMOR WorkerPool (e.g. pymor.parallel.mpi.MPIPool() under mpiexec) or "
+                             f"None (the in-process dummy pool), got {self.pool!r}")
+        return self
+
     def __sklearn_clone__(self):
         params = self.get_params(deep=False)
         return type(self)(**params)  # the same pool object: a pool is a connection, not a setting
