@@ -215,8 +215,9 @@ FAULTS = [
     # ----------------------------------------------------------------- later additions (symmetry, selection, sine-Gordon)
     Fault("Y1", "symmetry", P + "kernels/radial.py", "                w = g[c, b]\n", "                w = np.abs(g[c, b])\n",
           ("tests/kernels/test_symmetry.py",), "group-averaged kernel: the derivative functionals lose the sign of g"),
-    Fault("Y2", "symmetry", P + "kernels/radial.py", "out += w * (-B * d[rows, a] * d[:, c] - A * (a == c))",
-          "out += w * (-B * d[rows, a] * d[:, c] + A * (a == c))",
+    Fault("Y2", "symmetry", P + "kernels/radial.py",
+          "out += w * (-B * d[rows, a] * d[:, c] - (A if g1 is None else A * g1) * (a == c))",
+          "out += w * (-B * d[rows, a] * d[:, c] + (A if g1 is None else A * g1) * (a == c))",
           ("tests/kernels/test_symmetry.py",), "group-averaged Gramian diagonal with the wrong sign of the A term"),
     Fault("S3", "selection", P + "estimators/selection.py", "if np.isfinite(value) and (best is None or value < best[2]):",
           "if np.isfinite(value) and (best is None or value > best[2]):",
@@ -239,8 +240,9 @@ FAULTS = [
     Fault("C5", "parts", P + "estimators/predictor.py", "out.append(np.ascontiguousarray(m))",
           "out.append(np.ascontiguousarray(np.swapaxes(m, 1, 2)))",
           ("tests/estimators/test_parts.py",), "the around hook applies the transposed maps"),
-    Fault("C6", "parts", P + "estimators/predictor.py", "(lambda parts, rule: parts.periodic is not None,",
-          "(lambda parts, rule: False,", ("tests/estimators/test_parts.py",), "periodic coordinates not declared NumPy-only"),
+    Fault("C6", "parts", P + "estimators/predictor.py", "(lambda parts, rule: not rule.compiled,",
+          "(lambda parts, rule: False,", ("tests/estimators/test_parts.py",),
+          "an update rule without a compiled kernel not declared NumPy-only"),
     # the defaults' kernel search and diagnostics
     Fault("A1", "defaults", P + "estimators/auto.py", "a[ok] = np.sqrt(sp[ok] / sq[ok])", "a[ok] = np.sqrt(sq[ok] / sp[ok])",
           ("tests/estimators/test_auto_defaults.py",), "the symplectic normalisation inverted: q and p spreads pulled apart"),
