@@ -77,6 +77,16 @@ class FlowMapData:
         else:
             self.mu = as_parameter(self.mu, m, None)
         self.dt = as_steps(self.dt, m)
+        # the estimators learn (x1 - x0) / dt: a step so small that it overflows would train on infinities
+        with np.errstate(over="ignore", divide="ignore", invalid="ignore"):
+            rate = np.abs(self.x1 - self.x0).max(axis=1, initial=0.0) / self.dt
+        bad = np.flatnonzero(~np.isfinite(rate))
+        if bad.size:
+            i = int(bad[0])
+            raise ValueError(f"the increments (x1 - x0) / dt overflow for {bad.size} sample(s) (first: row {i}, "
+                             f"dt = {self.dt[i]:.3g}, |x1 - x0| = {np.abs(self.x1[i] - self.x0[i]).max():.3g}): give "
+                             f"dt and the states in units where the rate of change is a finite float (e.g. dt in "
+                             f"seconds, not in units of 1e-300 s)")
 
     def __len__(self) -> int:
         return len(self.x0)

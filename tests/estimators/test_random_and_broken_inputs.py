@@ -1,4 +1,4 @@
-"""Reliability: random input through the public entries, reproducibility, numerical failure, long runs.
+"""Random and broken input through the public entries, reproducibility, numerical failure, long runs.
 
 Two kinds of property tests:
 
@@ -320,3 +320,14 @@ def test_one_broken_argument_is_named_in_the_error(tiny_model, batch, kind, roll
             tiny_model.rollout(x, 2, mu=mu, dt=dt)
         else:
             tiny_model.step(x, mu=mu, dt=dt)
+
+
+def test_a_step_so_small_that_the_rate_overflows_is_refused_naming_dt():
+    """x1 - x0 = 0.5 over dt = 2.2e-313 (found by hypothesis): the targets (x1 - x0) / dt overflow; the fit refused
+    them, instead of returning a model of no centre for data that move."""
+    x0 = np.array([[0.0, 0.0]])
+    with pytest.raises(ValueError, match=r"\(x1 - x0\) / dt overflow .*dt = 2.2\d*e-313"):
+        SymplecticKernelPredictor(IMQ(0.5), max_centers=1).fit(x0, x0 + 0.5, dt=2.2250738585e-313)
+    # a small step that does not overflow still trains
+    model = SymplecticKernelPredictor(IMQ(0.5), max_centers=1).fit(x0, x0 + 0.5, dt=1e-200)
+    assert model.n_centers_ == 1
