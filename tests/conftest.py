@@ -53,6 +53,29 @@ def wave():
     return fom, train, RB, dt
 
 
+@pytest.fixture(scope="module")
+def coarse_pendulum_data():
+    """The pendulum at one length (0.75) and one step (0.1) on a coarse 8 x 8 grid: small fits, fast tests."""
+    return flow_map_data(Pendulum(), mus=(0.75,), dts=(0.1,), n_grid=8)
+
+
+@pytest.fixture(scope="module")
+def coarse_pendulum_model(coarse_pendulum_data):
+    """A 30-centre model of :func:`coarse_pendulum_data` on the NumPy solver."""
+    from sympredict.symplectic.solvers import NewtonSolver
+
+    d = coarse_pendulum_data
+    return SymplecticKernelPredictor(IMQ(0.3), max_centers=30, solver=NewtonSolver(backend="numpy")).fit(d.x0, d.x1, dt=0.1)
+
+
+@pytest.fixture(scope="module")
+def coarse_pendulum_model_file(coarse_pendulum_model, tmp_path_factory):
+    """:func:`coarse_pendulum_model` saved to a model file."""
+    path = tmp_path_factory.mktemp("files") / "model.h5"
+    coarse_pendulum_model.save(path)
+    return path
+
+
 @pytest.fixture(scope="session")
 def small_fe_wave():
     """A small FE wave model with a mass matrix (2N = 30), its canonical coordinates, parameter space, three

@@ -6,32 +6,9 @@ import subprocess
 import sys
 from pathlib import Path
 
-import pytest
 
-from sympredict import SymplecticKernelPredictor
-from sympredict.kernels import IMQ
-from sympredict.systems.pendulum import Pendulum, flow_map_data
-from sympredict.symplectic.solvers import NewtonSolver
 
 ROOT = Path(__file__).resolve().parents[1]
-DT = 0.1
-
-
-@pytest.fixture(scope="module")
-def data():
-    return flow_map_data(Pendulum(), mus=(0.75,), dts=(DT,), n_grid=8)
-
-
-@pytest.fixture(scope="module")
-def model(data):
-    return SymplecticKernelPredictor(IMQ(0.3), max_centers=30, solver=NewtonSolver(backend="numpy")).fit(data.x0, data.x1, dt=DT)
-
-
-@pytest.fixture(scope="module")
-def model_file(model, tmp_path_factory):
-    path = tmp_path_factory.mktemp("files") / "model.h5"
-    model.save(path)
-    return path
 
 
 def _python(code, **env):
@@ -54,9 +31,9 @@ def test_invalid_numba_thread_count_falls_back_to_numpy_with_one_warning():
     assert proc.stderr.count("RuntimeWarning") == 1 and "NUMBA_NUM_THREADS" in proc.stderr
 
 
-def test_bad_mplbackend_does_not_break_predict(model_file):
+def test_bad_mplbackend_does_not_break_predict(coarse_pendulum_model_file):
     code = ("import sys\nfrom sympredict.cli import main\n"
-            f"rc = main(['predict', {str(model_file)!r}, '--x0', '0.5,0.1', '--steps', '2'])\n"
+            f"rc = main(['predict', {str(coarse_pendulum_model_file)!r}, '--x0', '0.5,0.1', '--steps', '2'])\n"
             "assert 'matplotlib' not in sys.modules\nsys.exit(rc)\n")
     proc = _python(code, MPLBACKEND="no-such-backend", NUMBA_NUM_THREADS="1")
     assert proc.returncode == 0, proc.stderr

@@ -8,35 +8,14 @@ import pytest
 
 from sympredict import SymplecticKernelPredictor
 from sympredict.container import check_save_path
-from sympredict.kernels import IMQ
-from sympredict.systems.pendulum import Pendulum, flow_map_data
-from sympredict.symplectic.solvers import NewtonSolver
-
-DT = 0.1
 
 
-@pytest.fixture(scope="module")
-def data():
-    return flow_map_data(Pendulum(), mus=(0.75,), dts=(DT,), n_grid=8)
 
-
-@pytest.fixture(scope="module")
-def model(data):
-    return SymplecticKernelPredictor(IMQ(0.3), max_centers=30, solver=NewtonSolver(backend="numpy")).fit(data.x0, data.x1, dt=DT)
-
-
-@pytest.fixture(scope="module")
-def model_file(model, tmp_path_factory):
-    path = tmp_path_factory.mktemp("files") / "model.h5"
-    model.save(path)
-    return path
-
-
-def test_container_saves_under_the_longest_valid_name(model, tmp_path):
+def test_container_saves_under_the_longest_valid_name(coarse_pendulum_model, tmp_path):
     """A 255-byte name: the temporary sibling was longer than the limit, so the save failed after the work."""
     name = "m" * 252 + ".h5"
-    model.save(tmp_path / name)
-    assert SymplecticKernelPredictor.load(tmp_path / name).n_centers_ == model.n_centers_
+    coarse_pendulum_model.save(tmp_path / name)
+    assert SymplecticKernelPredictor.load(tmp_path / name).n_centers_ == coarse_pendulum_model.n_centers_
     assert sorted(p.name for p in tmp_path.iterdir()) == [name]
 
 
@@ -73,12 +52,12 @@ def test_cli_train_refuses_an_existing_file_before_training(data_file, tmp_path,
     assert SymplecticKernelPredictor.load(out).n_centers_ == 10
 
 
-def test_cli_predict_out_refuses_an_existing_file(model_file, tmp_path, capsys):
+def test_cli_predict_out_refuses_an_existing_file(coarse_pendulum_model_file, tmp_path, capsys):
     from sympredict.cli import main
 
     out = tmp_path / "traj.csv"
     out.write_text("keep")
-    args = ["predict", str(model_file), "--x0", "0.5,0.1", "--steps", "2", "--out", str(out)]
+    args = ["predict", str(coarse_pendulum_model_file), "--x0", "0.5,0.1", "--steps", "2", "--out", str(out)]
     assert main(args) == 1 and out.read_text() == "keep"
     assert "--force" in capsys.readouterr().err
     assert main(args + ["--force"]) == 0 and out.read_text().startswith("traj,t")
@@ -102,19 +81,19 @@ def test_cli_train_refuses_a_read_only_folder_before_training(data_file, tmp_pat
         folder.chmod(0o700)
 
 
-def test_model_kept_when_saving_fails_after_training(model, tmp_path, monkeypatch):
+def test_model_kept_when_saving_fails_after_training(coarse_pendulum_model, tmp_path, monkeypatch):
     from sympredict import cli
 
     target = tmp_path / "m.h5"
-    real_save = type(model).save
+    real_save = type(coarse_pendulum_model).save
 
     def failing_save(self, path):
         if Path(path) == target:
             raise OSError(28, "No space left on device")
         real_save(self, path)
-    monkeypatch.setattr(type(model), "save", failing_save)
+    monkeypatch.setattr(type(coarse_pendulum_model), "save", failing_save)
     with pytest.raises(OSError, match="kept in") as info:
-        cli._save_model_or_keep(model, target)
+        cli._save_model_or_keep(coarse_pendulum_model, target)
     kept = [p for p in tmp_path.iterdir() if p.name.startswith("sympredict-model-")]
     assert len(kept) == 1 and str(kept[0]) in str(info.value)
-    assert SymplecticKernelPredictor.load(kept[0]).n_centers_ == model.n_centers_
+    assert SymplecticKernelPredictor.load(kept[0]).n_centers_ == coarse_pendulum_model.n_centers_

@@ -8,26 +8,15 @@ import pytest
 from sympredict import SymplecticKernelPredictor
 from sympredict.kernels import IMQ
 from sympredict.estimators.predictor import MAX_NEWTON_ITER
-from sympredict.systems.pendulum import Pendulum, flow_map_data
 from sympredict.symplectic.solvers import NewtonSolver
 from sympredict.kernels.transforms import Periodic, Scaled
 
 DT = 0.1
 
 
-@pytest.fixture(scope="module")
-def data():
-    return flow_map_data(Pendulum(), mus=(0.75,), dts=(DT,), n_grid=8)
-
-
-@pytest.fixture(scope="module")
-def model(data):
-    return SymplecticKernelPredictor(IMQ(0.3), max_centers=30, solver=NewtonSolver(backend="numpy")).fit(data.x0, data.x1, dt=DT)
-
-
-def test_set_params_after_fit_does_not_change_predictions(data, tmp_path):
-    m = SymplecticKernelPredictor(IMQ(0.3), max_centers=20, solver=NewtonSolver(backend="numpy")).fit(data.x0, data.x1, dt=DT)
-    x = data.x0[:4]
+def test_set_params_after_fit_does_not_change_predictions(coarse_pendulum_data, tmp_path):
+    m = SymplecticKernelPredictor(IMQ(0.3), max_centers=20, solver=NewtonSolver(backend="numpy")).fit(coarse_pendulum_data.x0, coarse_pendulum_data.x1, dt=DT)
+    x = coarse_pendulum_data.x0[:4]
     before = m.step(x)
     for change in ({"update": "midpoint"}, {"state_kernel": Scaled(IMQ(0.3), factors=(2.0,))},
                    {"state_kernel": Periodic(IMQ(0.3), coordinates=(0,))}):
@@ -40,38 +29,38 @@ def test_set_params_after_fit_does_not_change_predictions(data, tmp_path):
     assert back.update is None and back.update_ == "symplectic_euler" and back.state_kernel == IMQ(0.3)
 
 
-def test_a_changed_parameter_takes_effect_at_the_next_fit(data):
-    m = SymplecticKernelPredictor(IMQ(0.3), max_centers=20, solver=NewtonSolver(backend="numpy")).fit(data.x0, data.x1, dt=DT)
-    m.set_params(update="midpoint").fit(data.x0, data.x1, dt=DT)
+def test_a_changed_parameter_takes_effect_at_the_next_fit(coarse_pendulum_data):
+    m = SymplecticKernelPredictor(IMQ(0.3), max_centers=20, solver=NewtonSolver(backend="numpy")).fit(coarse_pendulum_data.x0, coarse_pendulum_data.x1, dt=DT)
+    m.set_params(update="midpoint").fit(coarse_pendulum_data.x0, coarse_pendulum_data.x1, dt=DT)
     assert m.update_ == "midpoint" and m.fitted_params_["update"] == "midpoint"
 
 
-def test_failed_refit_keeps_the_fitted_settings(data):
-    m = SymplecticKernelPredictor(IMQ(0.3), max_centers=20, solver=NewtonSolver(backend="numpy")).fit(data.x0, data.x1, dt=DT)
-    x = data.x0[:4]
+def test_failed_refit_keeps_the_fitted_settings(coarse_pendulum_data):
+    m = SymplecticKernelPredictor(IMQ(0.3), max_centers=20, solver=NewtonSolver(backend="numpy")).fit(coarse_pendulum_data.x0, coarse_pendulum_data.x1, dt=DT)
+    x = coarse_pendulum_data.x0[:4]
     before = m.step(x)
     m.set_params(state_kernel=Scaled(IMQ(0.3), factors=(2.0,)))
     with pytest.raises(ValueError):
-        m.fit(data.x0, data.x1[:5], dt=DT)
+        m.fit(coarse_pendulum_data.x0, coarse_pendulum_data.x1[:5], dt=DT)
     assert m.state_scaling_ is None
     np.testing.assert_array_equal(m.step(x), before)
 
 
-def test_save_refuses_a_solver_setting_load_would_refuse(model, tmp_path):
+def test_save_refuses_a_solver_setting_load_would_refuse(coarse_pendulum_model, tmp_path):
     import copy
 
-    m = copy.copy(model)
+    m = copy.copy(coarse_pendulum_model)
     m.set_params(solver__backend="gpu")
     with pytest.raises(ValueError, match="backend"):
         m.save(tmp_path / "x.h5")
     assert not (tmp_path / "x.h5").exists()
 
 
-def test_a_fitted_periodic_model_saves_with_the_compiled_backend(data, tmp_path):
+def test_a_fitted_periodic_model_saves_with_the_compiled_backend(coarse_pendulum_data, tmp_path):
     """Periodic coordinates run compiled now: backend='numba' is a valid pair, saved and loaded back (a pair load
     would refuse is refused at save: test_save_refuses_a_solver_setting_load_would_refuse)."""
     m = SymplecticKernelPredictor(Periodic(IMQ(0.3), coordinates=(0,)), max_centers=10,
-                                  solver=NewtonSolver(backend="numpy")).fit(data.x0, data.x1, dt=DT)
+                                  solver=NewtonSolver(backend="numpy")).fit(coarse_pendulum_data.x0, coarse_pendulum_data.x1, dt=DT)
     m.set_params(solver__backend="numba")
     m.save(tmp_path / "n.h5")
     loaded = SymplecticKernelPredictor.load(tmp_path / "n.h5")
@@ -81,12 +70,12 @@ def test_a_fitted_periodic_model_saves_with_the_compiled_backend(data, tmp_path)
     assert SymplecticKernelPredictor.load(tmp_path / "p.h5").periodic_ == (0,)
 
 
-def test_endless_newton_setting_refused_at_prediction(model, data):
+def test_endless_newton_setting_refused_at_prediction(coarse_pendulum_model, coarse_pendulum_data):
     import copy
 
-    m = copy.copy(model)
+    m = copy.copy(coarse_pendulum_model)
     m.set_params(solver__max_iter=10 ** 15)
     with pytest.raises(ValueError, match="max_iter must be at most"):
-        m.step(data.x0[:2])
+        m.step(coarse_pendulum_data.x0[:2])
     with pytest.raises(ValueError, match=str(MAX_NEWTON_ITER)):
-        SymplecticKernelPredictor(IMQ(0.3), solver=NewtonSolver(max_iter=MAX_NEWTON_ITER + 1)).fit(data.x0, data.x1, dt=DT)
+        SymplecticKernelPredictor(IMQ(0.3), solver=NewtonSolver(max_iter=MAX_NEWTON_ITER + 1)).fit(coarse_pendulum_data.x0, coarse_pendulum_data.x1, dt=DT)

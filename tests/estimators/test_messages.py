@@ -7,20 +7,9 @@ import pytest
 from sympredict import SymplecticKernelPredictor
 from sympredict.exceptions import ExtrapolationWarning
 from sympredict.kernels import IMQ
-from sympredict.systems.pendulum import Pendulum, flow_map_data
 from sympredict.symplectic.solvers import NewtonSolver
 
 DT = 0.1
-
-
-@pytest.fixture(scope="module")
-def data():
-    return flow_map_data(Pendulum(), mus=(0.75,), dts=(DT,), n_grid=8)
-
-
-@pytest.fixture(scope="module")
-def model(data):
-    return SymplecticKernelPredictor(IMQ(0.3), max_centers=30, solver=NewtonSolver(backend="numpy")).fit(data.x0, data.x1, dt=DT)
 
 
 def test_memory_advice_never_suggests_an_invalid_max_centers():
@@ -31,10 +20,10 @@ def test_memory_advice_never_suggests_an_invalid_max_centers():
     assert "max_centers <= 0" not in str(info.value) and "memory_limit" in str(info.value)
 
 
-def test_fixed_step_message_tells_two_close_steps_apart(model, data):
+def test_fixed_step_message_tells_two_close_steps_apart(coarse_pendulum_model, coarse_pendulum_data):
     other = DT + 1e-12
     with pytest.raises(ValueError) as info:
-        model.step(data.x0[:1], dt=other)
+        coarse_pendulum_model.step(coarse_pendulum_data.x0[:1], dt=other)
     assert repr(DT) in str(info.value) and repr(other) in str(info.value)
 
 

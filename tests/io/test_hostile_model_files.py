@@ -10,6 +10,7 @@ import sys
 
 import numpy as np
 import pytest
+from _model_files import _param, _rewrite  # tests/
 
 from sympredict import DirectKernelPredictor, ModelFileError, SymplecticKernelPredictor, SympredictError
 from sympredict.container import read_container, write_container
@@ -17,44 +18,10 @@ from sympredict.exceptions import NonFinitePredictionError, extrapolation_expect
 from sympredict.io import load_model
 from sympredict.kernels import IMQ
 from sympredict.estimators.predictor import MODEL_FORMAT
-from sympredict.systems.pendulum import Pendulum, flow_map_data
+from sympredict.systems.pendulum import Pendulum
 from sympredict.symplectic.solvers import NewtonSolver
 
 DT = 0.1
-
-
-@pytest.fixture(scope="module")
-def data():
-    return flow_map_data(Pendulum(), mus=(0.75,), dts=(DT,), n_grid=8)
-
-
-@pytest.fixture(scope="module")
-def model(data):
-    return SymplecticKernelPredictor(IMQ(0.3), max_centers=30, solver=NewtonSolver(backend="numpy")).fit(data.x0, data.x1, dt=DT)
-
-
-@pytest.fixture(scope="module")
-def model_file(model, tmp_path_factory):
-    path = tmp_path_factory.mktemp("files") / "model.h5"
-    model.save(path)
-    return path
-
-
-def _rewrite(src, dst, settings=None, arrays=None):
-    """A copy of the model file ``src`` with edited settings / arrays and a valid checksum."""
-    s, a = read_container(src, MODEL_FORMAT)
-    if settings is not None:
-        settings(s)
-    if arrays is not None:
-        arrays(a)
-    write_container(dst, MODEL_FORMAT, s, a)
-    return dst
-
-
-def _param(name, value):
-    def edit(s):
-        s["params"][name] = value
-    return edit
 
 
 @pytest.mark.parametrize("name, value, match", [
@@ -76,8 +43,8 @@ def _param(name, value):
                                                                                               {"tuple": [1, -1]}]}}},
      "symmetry"),
 ])
-def test_invalid_setting_in_a_file_is_refused_naming_it(model_file, tmp_path, name, value, match):
-    path = _rewrite(model_file, tmp_path / "bad.h5", settings=_param(name, value))
+def test_invalid_setting_in_a_file_is_refused_naming_it(coarse_pendulum_model_file, tmp_path, name, value, match):
+    path = _rewrite(coarse_pendulum_model_file, tmp_path / "bad.h5", settings=_param(name, value))
     with pytest.raises(ModelFileError, match=match):
         SymplecticKernelPredictor.load(path)
     with pytest.raises(ModelFileError, match=match):
@@ -94,10 +61,10 @@ def test_invalid_setting_in_a_file_is_refused_naming_it(model_file, tmp_path, na
     ("layout", 7, "layout"),
     ("stop_reason", 3, "stop_reason"),
 ])
-def test_invalid_shape_information_in_a_file_is_refused(model_file, tmp_path, key, value, match):
+def test_invalid_shape_information_in_a_file_is_refused(coarse_pendulum_model_file, tmp_path, key, value, match):
     def edit(s):
         s[key] = value
-    path = _rewrite(model_file, tmp_path / "bad.h5", settings=edit)
+    path = _rewrite(coarse_pendulum_model_file, tmp_path / "bad.h5", settings=edit)
     with pytest.raises(ModelFileError, match=match):
         SymplecticKernelPredictor.load(path)
 
@@ -109,25 +76,25 @@ def test_invalid_shape_information_in_a_file_is_refused(model_file, tmp_path, ke
     ("domain_x_min", np.full(2, 10.0)),  # min above max
     ("domain_dt_min", np.array(-1.0)),
 ])
-def test_inconsistent_arrays_in_a_file_are_refused(model_file, tmp_path, name, value):
+def test_inconsistent_arrays_in_a_file_are_refused(coarse_pendulum_model_file, tmp_path, name, value):
     def edit(a):
         a[name] = value
-    path = _rewrite(model_file, tmp_path / "bad.h5", arrays=edit)
+    path = _rewrite(coarse_pendulum_model_file, tmp_path / "bad.h5", arrays=edit)
     with pytest.raises(ModelFileError):
         SymplecticKernelPredictor.load(path)
 
 
-def test_file_asking_for_endless_newton_never_hangs(model_file, tmp_path):
+def test_file_asking_for_endless_newton_never_hangs(coarse_pendulum_model_file, tmp_path):
     """A solver with max_iter = 10**15 loaded would make `sympredict predict` run without end: the file is refused."""
-    path = _rewrite(model_file, tmp_path / "hang.h5",
+    path = _rewrite(coarse_pendulum_model_file, tmp_path / "hang.h5",
                     settings=_param("solver", {"solver": {"max_iter": 10 ** 15, "warm_start": False, "backend": "auto"}}))
     proc = subprocess.run([sys.executable, "-m", "sympredict.cli", "predict", str(path), "--x0", "0.5,0.1", "--steps", "3"],
                           capture_output=True, text=True, timeout=120, env={**os.environ, "NUMBA_NUM_THREADS": "1"})
     assert proc.returncode == 1 and "max_iter" in proc.stderr and "Traceback" not in proc.stderr
 
 
-def test_direct_model_with_huge_coefficients_raises_instead_of_inf(data, tmp_path):
-    model = DirectKernelPredictor(IMQ(0.3), max_centers=10).fit(data.x0, data.x1, dt=DT)
+def test_direct_model_with_huge_coefficients_raises_instead_of_inf(coarse_pendulum_data, tmp_path):
+    model = DirectKernelPredictor(IMQ(0.3), max_centers=10).fit(coarse_pendulum_data.x0, coarse_pendulum_data.x1, dt=DT)
     model.save(tmp_path / "d.h5")
 
     def edit(a):
@@ -135,29 +102,29 @@ def test_direct_model_with_huge_coefficients_raises_instead_of_inf(data, tmp_pat
     path = _rewrite(tmp_path / "d.h5", tmp_path / "huge.h5", arrays=edit)
     loaded = DirectKernelPredictor.load(path)
     with pytest.raises(NonFinitePredictionError, match="non-finite"):
-        loaded.step(data.x0[:3])
+        loaded.step(coarse_pendulum_data.x0[:3])
     with pytest.raises(NonFinitePredictionError):
-        loaded.rollout(data.x0[:3], 4)
+        loaded.rollout(coarse_pendulum_data.x0[:3], 4)
 
 
-def test_symplectic_model_with_huge_coefficients_raises(model_file, data, tmp_path):
+def test_symplectic_model_with_huge_coefficients_raises(coarse_pendulum_model_file, coarse_pendulum_data, tmp_path):
     def edit(a):
         a["coef"] = np.full_like(a["coef"], 1e308)
-    loaded = SymplecticKernelPredictor.load(_rewrite(model_file, tmp_path / "huge.h5", arrays=edit))
-    for call in (lambda: loaded.step(data.x0[:3]), lambda: loaded.rollout(data.x0[:3], 3)):
+    loaded = SymplecticKernelPredictor.load(_rewrite(coarse_pendulum_model_file, tmp_path / "huge.h5", arrays=edit))
+    for call in (lambda: loaded.step(coarse_pendulum_data.x0[:3]), lambda: loaded.rollout(coarse_pendulum_data.x0[:3], 3)):
         with pytest.raises(SympredictError):
             call()
 
 
-def test_split_model_with_huge_coefficients_raises(data, tmp_path):
+def test_split_model_with_huge_coefficients_raises(coarse_pendulum_data, tmp_path):
     from sympredict.flowmap.splitting import SplitKernelPredictor
 
     quad = Pendulum().quadratic_part()
-    mu = np.full(len(data.x0), 0.75)
+    mu = np.full(len(coarse_pendulum_data.x0), 0.75)
     inner = SymplecticKernelPredictor(IMQ(0.5), IMQ(1.0), max_centers=10, solver=NewtonSolver(backend="numpy"))
-    split = SplitKernelPredictor(inner, quad).fit(data.x0, data.x1, mu=mu, dt=DT)
+    split = SplitKernelPredictor(inner, quad).fit(coarse_pendulum_data.x0, coarse_pendulum_data.x1, mu=mu, dt=DT)
     split.predictor_.surrogate_.coef[:] = 1e308
-    x = data.x0[:3]
+    x = coarse_pendulum_data.x0[:3]
     for call in (lambda: split.step(x, mu=0.75, dt=DT), lambda: split.rollout(x, 3, mu=0.75, dt=DT)):
         with pytest.raises(SympredictError):
             with extrapolation_expected():
@@ -216,8 +183,8 @@ def _mutations(settings, arrays, rng, n):
         yield s, a
 
 
-def _fuzz(model_file, tmp_path, n, seed, mu=None):
-    settings, arrays = read_container(model_file, MODEL_FORMAT)
+def _fuzz(coarse_pendulum_model_file, tmp_path, n, seed, mu=None):
+    settings, arrays = read_container(coarse_pendulum_model_file, MODEL_FORMAT)
     x = np.array([[0.4, 0.1], [-0.3, 0.2]])
     outcomes = {"refused": 0, "predicted": 0, "numerical": 0}
     path = tmp_path / "fuzz.h5"
@@ -249,20 +216,20 @@ def _fuzz(model_file, tmp_path, n, seed, mu=None):
 
 
 @pytest.fixture(scope="module")
-def other_model_files(data, tmp_path_factory):
+def other_model_files(coarse_pendulum_data, tmp_path_factory):
     """A DirectKernelPredictor's and a SplitKernelPredictor's files (the symplectic one is ``model_file``)."""
     from sympredict.flowmap.splitting import SplitKernelPredictor
 
     folder = tmp_path_factory.mktemp("others")
-    DirectKernelPredictor(IMQ(0.3), max_centers=20).fit(data.x0, data.x1, dt=DT).save(folder / "direct.h5")
+    DirectKernelPredictor(IMQ(0.3), max_centers=20).fit(coarse_pendulum_data.x0, coarse_pendulum_data.x1, dt=DT).save(folder / "direct.h5")
     inner = SymplecticKernelPredictor(IMQ(0.5), IMQ(1.0), max_centers=15, solver=NewtonSolver(backend="numpy"))
     SplitKernelPredictor(inner, Pendulum().quadratic_part()).fit(
-        data.x0, data.x1, mu=np.full(len(data.x0), 0.75), dt=DT).save(folder / "split.h5")
+        coarse_pendulum_data.x0, coarse_pendulum_data.x1, mu=np.full(len(coarse_pendulum_data.x0), 0.75), dt=DT).save(folder / "split.h5")
     return {"direct": folder / "direct.h5", "split": folder / "split.h5"}
 
 
-def test_fuzzed_model_files_load_and_predict_or_are_refused(model_file, tmp_path):
-    _fuzz(model_file, tmp_path, 300, seed=3)
+def test_fuzzed_model_files_load_and_predict_or_are_refused(coarse_pendulum_model_file, tmp_path):
+    _fuzz(coarse_pendulum_model_file, tmp_path, 300, seed=3)
 
 
 @pytest.mark.parametrize("kind", ["direct", "split"])
@@ -271,16 +238,16 @@ def test_fuzzed_files_of_the_other_models(other_model_files, tmp_path, kind):
 
 
 @pytest.mark.slow
-def test_fuzzed_model_files_long(model_file, other_model_files, tmp_path):
+def test_fuzzed_model_files_long(coarse_pendulum_model_file, other_model_files, tmp_path):
     for seed in range(6):
-        _fuzz(model_file, tmp_path, 1000, seed=100 + seed)
+        _fuzz(coarse_pendulum_model_file, tmp_path, 1000, seed=100 + seed)
         for kind, path in other_model_files.items():
             _fuzz(path, tmp_path, 500, seed=200 + seed, mu=0.75)
 
 
 @pytest.mark.parametrize("key", ["dim", "n_mu"])
-def test_a_file_with_huge_sizes_is_refused_before_allocating(model_file, tmp_path, key):
+def test_a_file_with_huge_sizes_is_refused_before_allocating(coarse_pendulum_model_file, tmp_path, key):
     """A file's dim or n_mu of 10**15 must be refused by its arrays' shapes, not by a failed allocation."""
-    path = _rewrite(model_file, tmp_path / "huge.h5", settings=lambda s: s.__setitem__(key, 10 ** 15))
+    path = _rewrite(coarse_pendulum_model_file, tmp_path / "huge.h5", settings=lambda s: s.__setitem__(key, 10 ** 15))
     with pytest.raises(ModelFileError, match=f"{key}=1000000000000000 disagrees with its training box"):
         SymplecticKernelPredictor.load(path)

@@ -6,14 +6,7 @@ import pytest
 
 from sympredict import SymplecticKernelPredictor
 from sympredict.kernels import IMQ
-from sympredict.systems.pendulum import Pendulum, flow_map_data
 
-DT = 0.1
-
-
-@pytest.fixture(scope="module")
-def data():
-    return flow_map_data(Pendulum(), mus=(0.75,), dts=(DT,), n_grid=8)
 
 
 @pytest.fixture(scope="module")
