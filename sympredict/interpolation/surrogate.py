@@ -118,10 +118,12 @@ class HBSurrogate:
         symmetry = kernel.symmetry
         if symmetry is None:
             self._owner, self._xi_eval, self._comp_eval, self._coef_eval = None, self.centers_xi, self.components, self.coef
+            self._image_weight = None
         else:
             symmetry.check_dim(dim)
-            self._owner, self._xi_eval, self._comp_eval, w = symmetry.expand(self.centers_xi, self.components)
-            self._coef_eval = w * self.coef[self._owner]
+            self._owner, self._xi_eval, self._comp_eval, self._image_weight = symmetry.expand(self.centers_xi,
+                                                                                             self.components)
+            self._coef_eval = self._image_weight * self.coef[self._owner]
         k = len(self._xi_eval)
         # one-hot (K, 2n) matrix of the differentiated components: turns the
         # ``delta_{a l_j}`` terms into a small matrix product
@@ -407,13 +409,12 @@ class HBSurrogate:
         """
         out = np.empty((len(xi), self.dim, self.n_centers))
         if self._owner is not None:  # sums the images' rows into their centres' columns: (K, m) 0/1 matrix
-            w_img = self._image_weights()
             gather = sparse.csr_matrix((np.ones(len(self._owner)), (np.arange(len(self._owner)), self._owner)),
                                        shape=(len(self._owner), self.n_centers))
         for sl in self._chunks(len(xi)):
             diff, r, g, _, g1, _ = self._differences(xi[sl], order=2)
             A, B = self.kernel.state.factors(r, order=2)
-            f = factor[sl] if self._owner is None else factor[sl][:, self._owner] * w_img
+            f = factor[sl] if self._owner is None else factor[sl][:, self._owner] * self._image_weight
             fA = f * A if g1 is None else f * A * g1  # periodic: -A g'_l delta_al, as in gradient
             rows = -(f * B * g)[:, None, :] * diff.transpose(0, 2, 1)
             rows -= fA[:, None, :] * self._onehot.T[None, :, :]
@@ -422,12 +423,6 @@ class HBSurrogate:
             else:
                 out[sl] = (gather.T @ rows.reshape(-1, rows.shape[-1]).T).T.reshape(len(rows), self.dim, -1)
         return out
-
-    def _image_weights(self) -> np.ndarray:
-        """The weight ``g_{c l_j}`` of each plain functional of a state symmetry (:meth:`StateSymmetry.expand`)."""
-        if getattr(self, "_w_img", None) is None:
-            self._w_img = self.kernel.symmetry.expand(self.centers_xi, self.components)[3]
-        return self._w_img
 
     def diagonal(self, xi: np.ndarray) -> np.ndarray:
         """``K_aa(z, z) = lambda_a^(1) lambda_a^(2) k`` at the queries (the parameter factors are 1 there), (B, 2n).
