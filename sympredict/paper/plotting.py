@@ -232,19 +232,19 @@ def energy_error(t, curves, title: str, time_unit: str = "s"):
     fig, ax = plt.subplots(figsize=(6, 4))
     for i, (label, values) in enumerate(curves.items()):
         ax.semilogy(t[1:], values[1:], color=method_color(label, i), label=label, lw=1.0)
-    _decorate(ax, f"time $t$ [{time_unit}]", "relative Hamiltonian error $|H(t) - H(0)| / |H(0)|$ [1]", title)
+    _decorate(ax, f"time $t$ [{time_unit}]", r"relative energy error $|H(t) - H(0)|\,/\,|H(0)|$ [1]", title)
     return fig
 
 
 def trajectories_over_time(t, trajectories, title: str):
     """``q(t)`` and ``p(t)`` in two panels; ``trajectories`` maps a label to an array (K+1, 2)."""
-    fig, axes = plt.subplots(2, 1, figsize=(7, 5), sharex=True)
+    fig, axes = plt.subplots(2, 1, figsize=(7, 6), sharex=True)
     for i, (label, traj) in enumerate(trajectories.items()):
         for ax, comp in zip(axes, (0, 1)):
             ax.plot(t, traj[:, comp], "-" if i == 0 else "--", color=method_color(label, i), label=label,
                     lw=1.5 if i == 0 else 1.0)
     axes[0].set_ylabel("angle $q(t)$ [rad]")
-    axes[1].set_ylabel("angular momentum $p(t)$ [kg m$^2$/s]")
+    axes[1].set_ylabel("momentum $p(t)$ [kg m$^2$/s]")
     axes[1].set_xlabel("time $t$ [s]")
     axes[0].set_title(title)
     for ax in axes:

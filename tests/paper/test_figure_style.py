@@ -16,6 +16,8 @@ from sympredict.paper import plotting  # noqa: E402
 from matplotlib.colors import to_rgba  # noqa: E402
 
 T = np.linspace(0, 20, 201)
+#: the scenario-B figures' titles as the runs write them (report.py): the longest titles the package draws
+WHERE = "l=0.825 (extrapolated), dT=0.05365"
 RNG = np.random.default_rng(0)
 
 
@@ -55,16 +57,16 @@ FIGURES = {
         "Wave, full space, after reconstruction: error vs micro-step reference (mean over test speeds)", time_unit="1"),
     "phase_portrait": lambda: plotting.phase_portrait(
         {"reference": _traj(), "symplectic kernel model": _traj(1e-3), "direct kernel model": _traj(3e-2)},
-        "Scenario B phase portrait, l = 0.825", t=T),
+        f"Scenario B phase portrait, {WHERE}", t=T),
     "energy_error": lambda: plotting.energy_error(
         T, {"symplectic kernel model": 1e-4 * (1.1 + np.sin(T)), "direct kernel model": 1e-3 * (1 + T)},
-        "Scenario B relative Hamiltonian error"),
+        f"Scenario B relative Hamiltonian error, {WHERE}"),
     "trajectories_over_time": lambda: plotting.trajectories_over_time(
         T, {"reference": _traj(), "symplectic kernel model": _traj(1e-3), "direct kernel model": _traj(3e-2)},
-        "Scenario B trajectory, l = 0.825"),
+        f"Scenario B trajectory, {WHERE}"),
     "hamiltonian_over_time": lambda: plotting.hamiltonian_over_time(
         T, {"reference": 2 + 0 * T, "symplectic kernel model": 2 + 1e-4 * np.sin(T), "direct kernel model": 2 + 1e-3 * T},
-        "Scenario B Hamiltonian, l = 0.825"),
+        f"Scenario B Hamiltonian, {WHERE}"),
     "speed_accuracy": lambda: plotting.speed_accuracy(_speed_rows(), 3e-3, "Pendulum: speed against accuracy, dT=0.05"),
     "stability_sweeps": lambda: plotting.stability_sweeps(
         [{"dt": dt, "kernel predictor": 1e-4 * dt / 0.05, "direct kernel model": 1e-3, "implicit midpoint": 1e-2}
@@ -135,6 +137,18 @@ def test_no_text_overlaps_another_or_leaves_the_saved_area(figure):
         under = [t.get_text() for t, b in texts if id(t) not in own and t is not legend.get_title() and box.overlaps(b)
                  and box.intersection(box, b).width > 1 and box.intersection(box, b).height > 1]
         assert not under, under
+
+
+def test_every_axis_label_fits_beside_its_axes(figure):
+    """An axis label longer than its axis runs past the panel into the title or off the saved image."""
+    renderer = figure.canvas.get_renderer()
+    too_long = []
+    for ax in figure.axes:
+        box = ax.get_window_extent(renderer)
+        for label, extent, room in ((ax.xaxis.label, "width", box.width), (ax.yaxis.label, "height", box.height)):
+            if label.get_text() and getattr(label.get_window_extent(renderer), extent) > room:
+                too_long.append(label.get_text())
+    assert not too_long, too_long
 
 
 def test_every_axis_label_states_a_unit(figure):
