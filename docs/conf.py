@@ -8,8 +8,8 @@ Build (warnings are errors, as in CI)::
 The pages are the Markdown files in this folder (parsed by MyST) plus the API
 reference (``reference/api.rst``, autodoc + napoleon over the NumPy-style docstrings).
 The figures page (``explanation/figures.md``) shows the PNGs in ``docs/figures/``, copied
-there from a ``sympredict run all --quick`` output folder by
-``python docs/collect_figures.py DIR``; they are committed, and a build
+there from a ``sympredict-paper run all --quick`` output folder by
+``python sympredict_paper/figures/collect_figures.py DIR``; they are committed, and a build
 without them fails under -W (image file not readable).
 
 Measured numbers and their tables are read at build time from the JSON files in

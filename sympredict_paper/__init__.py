@@ -1,6 +1,8 @@
-"""The paper's code, apart from the library: scenarios as functions returning results (numbers and arrays,
-no figures), the report and its figures.
+"""The paper's code, beside the library (as pyMOR keeps ``pymordemos``): scenarios as functions returning results
+(numbers and arrays, no figures), the report and its figures, the runner and the studies.
 
-Nothing in the library imports this package; ``sympredict run`` and ``sympredict report``
-(:mod:`sympredict.cli`) do, when they run.
+The library ``sympredict`` never imports this package (an import-linter contract).  Its command is
+``sympredict-paper`` (:mod:`sympredict_paper.cli`): ``sympredict-paper run pendulum --quick --out DIR`` runs a
+scenario, ``sympredict-paper study NAME`` a study; each scenario module has its own ``main``
+(``python -m sympredict_paper.pendulum --quick --out DIR``).
 """

@@ -6,7 +6,7 @@ trains the kernel predictor on flow-map samples of states in the well with
 ``n_lambda`` training values of ``lambda``; the direct kernel model and pyMOR's
 VKOGA get the same samples.  Test: ``n_test`` states times ``n_test`` random
 ``lambda`` (energy at most ``0.9 energy_max``), horizon ``T``; every method is
-timed side by side (:mod:`sympredict.paper.speed`).
+timed side by side (:mod:`sympredict_paper.speed`).
 """
 
 from __future__ import annotations
@@ -19,8 +19,8 @@ from pymor.core.logger import getLogger
 
 from sympredict.exceptions import extrapolation_expected
 from sympredict.data import FlowMapData
-from sympredict.paper.peers import VKOGAFlowMap, select_vkoga_length_scale
-from sympredict.paper.speed import SpeedTable, add_classical, deliberate_threads, model_sizes, timed
+from sympredict_paper.peers import VKOGAFlowMap, select_vkoga_length_scale
+from sympredict_paper.speed import SpeedTable, add_classical, deliberate_threads, model_sizes, timed
 from sympredict.symplectic.integrators_compiled import EXPLICIT_SCHEMES, rollout
 from sympredict.symplectic.metrics import relative_hamiltonian_error
 from sympredict.estimators.predictor import DirectKernelPredictor, SymplecticKernelPredictor
@@ -30,7 +30,7 @@ from sympredict.interpolation.greedy import ExactGreedy
 
 __all__ = ["HenonHeilesPreset", "PRESETS", "DT_HH", "henon_heiles_data", "henon_heiles_test_instances", "run_henon_heiles"]
 
-logger = getLogger("sympredict.paper.henon_heiles")
+logger = getLogger("sympredict_paper.henon_heiles")
 
 #: The issue's macro step.
 DT_HH = 0.5
@@ -53,7 +53,7 @@ class HenonHeilesPreset:
         Validation grid of IMQ shapes (state, ``lambda``) compared at ``m_star`` centres.
     vkoga_centers, vkoga_length_scales
         VKOGA's budget and the Gaussian length scales (inputs scaled to the unit box) it chooses from on
-        the validation data (:func:`~sympredict.paper.peers.select_vkoga_length_scale`, 50 centres).
+        the validation data (:func:`~sympredict_paper.peers.select_vkoga_length_scale`, 50 centres).
     n_test, horizon
         Test states per ``lambda`` and ``lambda`` values (``n_test^2`` trajectories); final time.
     refinements, repeats, threads
@@ -193,3 +193,16 @@ def run_henon_heiles(preset: HenonHeilesPreset, seed: int = 0) -> dict:
         "speed_accuracy": speed,
     }
     return {"summary": summary, "model": model, "direct": direct, "vkoga": vkoga}
+
+
+def main(argv=None) -> int:
+    """``sympredict-paper run henon-heiles [OPTIONS]``: this scenario's models, figures and summary (``--quick --out DIR``)."""
+    import sys
+
+    from sympredict_paper.cli import main as paper_main
+
+    return paper_main(["run", "henon-heiles", *(sys.argv[1:] if argv is None else argv)])
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

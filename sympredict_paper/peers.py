@@ -26,7 +26,7 @@ from sympredict._checks import as_positive_int
 
 __all__ = ["VKOGAFlowMap", "flow_map_inputs", "select_vkoga_length_scale"]
 
-logger = getLogger("sympredict.paper.peers")
+logger = getLogger("sympredict_paper.peers")
 
 
 def flow_map_inputs(x, mu, dt, with_mu: bool, with_dt: bool) -> np.ndarray:

@@ -21,8 +21,8 @@ from pymor.core.logger import getLogger
 
 from sympredict.symplectic.integrators import implicit_midpoint_step, integrate, stormer_verlet_step
 from sympredict.symplectic.integrators_compiled import EXPLICIT_SCHEMES, rollout
-from sympredict.paper.peers import VKOGAFlowMap, select_vkoga_length_scale
-from sympredict.paper.speed import SpeedTable, add_classical, deliberate_threads, model_sizes, timed
+from sympredict_paper.peers import VKOGAFlowMap, select_vkoga_length_scale
+from sympredict_paper.speed import SpeedTable, add_classical, deliberate_threads, model_sizes, timed
 from sympredict.kernels import IMQ, RadialKernel
 from sympredict.symplectic.metrics import relative_hamiltonian_error, relative_trajectory_error
 from sympredict.exceptions import ExtrapolationWarning, NewtonConvergenceError, SolvabilityError, extrapolation_expected
@@ -37,7 +37,7 @@ __all__ = ["PendulumPreset", "PRESETS", "select_pendulum_kernels", "run_scenario
 MU_EXTRAPOLATION = 0.825
 DT_EXTRAPOLATION = 0.05365
 
-logger = getLogger("sympredict.paper.pendulum")
+logger = getLogger("sympredict_paper.pendulum")
 
 
 @dataclass(frozen=True)
@@ -59,7 +59,7 @@ class PendulumPreset:
         (0.2, 1.5, 3.0) was chosen by trajectory validation: the paper's test
         protocol on seeds 100..103, disjoint from the test seed 0, over
         {0.15, 0.2} x {1.5, 2} x {3, 5} on the quick data
-        (``benchmarks/pendulum_trajectory_selection.py``).  The paper's own
+        (``sympredict_paper/studies/pendulum_trajectory_selection.py``).  The paper's own
         (0.15, 2, 5) scored 9.1e-5 there, this one 6.1e-5.
     n_grid_b, max_centers_b
         Scenario B (training states with ``p <= 0``, less data): grid and greedy budget.
@@ -77,7 +77,7 @@ class PendulumPreset:
     vkoga_centers, vkoga_length_scales
         Budget of pyMOR's VKOGA in the speed-against-accuracy chart (its greedy costs ``O(M m^2)``: 80 s
         for 300 centres on the quick data) and the Gaussian length scales (unit-box inputs) it chooses from
-        on validation data (:func:`~sympredict.paper.peers.select_vkoga_length_scale`).
+        on validation data (:func:`~sympredict_paper.peers.select_vkoga_length_scale`).
     speed_threads, speed_centers
         BLAS and numba threads of the speed-against-accuracy timings; model sizes (prefixes) in that chart.
     """
@@ -390,7 +390,7 @@ def run_scenario_b(preset: PendulumPreset, seed: int = 0, kernels=None) -> dict:
 
 def train_peers(model: SymplecticKernelPredictor, preset: PendulumPreset, seed: int = 0) -> dict:
     """The data-driven peers on scenario A's training data: the direct kernel model (same kernel and budget as
-    ``model``) and pyMOR's VKOGA (:class:`~sympredict.paper.peers.VKOGAFlowMap`, ``preset.vkoga_*``).
+    ``model``) and pyMOR's VKOGA (:class:`~sympredict_paper.peers.VKOGAFlowMap`, ``preset.vkoga_*``).
 
     Returns
     -------
@@ -428,13 +428,13 @@ def run_speed_accuracy(
     """Online wall time per trajectory against error, all methods timed side by side in this process.
 
     On the scenario-A test set (25 trajectories, ``T = preset.horizon``) at
-    macro step ``dt``, with :mod:`sympredict.paper.speed` (one warm-up
+    macro step ``dt``, with :mod:`sympredict_paper.speed` (one warm-up
     run, median of ``repeats``, ``threads`` BLAS and numba threads):
 
     * only data: the kernel predictor truncated to each number of ``centers`` (default ``preset.speed_centers``)
       (prefixes of one fit, :meth:`SymplecticKernelPredictor.truncated`), the
       smallest model per validation ``target``, the ``direct`` kernel model and
-      the ``vkoga`` flow map (:class:`~sympredict.paper.peers.VKOGAFlowMap`) when given;
+      the ``vkoga`` flow map (:class:`~sympredict_paper.peers.VKOGAFlowMap`) when given;
     * the equations: the compiled Störmer–Verlet, Yoshida-4, Kahan–Li-6 and
       implicit midpoint at ``dt / r`` for each refinement ``r`` (states compared
       at the macro grid), and the micro-step reference (implicit midpoint, ``h <= 1e-3``).
@@ -613,3 +613,16 @@ def _complete_elliptic_k(m: float) -> float:
     from scipy.special import ellipk
 
     return float(ellipk(m))
+
+
+def main(argv=None) -> int:
+    """``sympredict-paper run pendulum [OPTIONS]``: this scenario's models, figures and summary (``--quick --out DIR``)."""
+    import sys
+
+    from sympredict_paper.cli import main as paper_main
+
+    return paper_main(["run", "pendulum", *(sys.argv[1:] if argv is None else argv)])
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

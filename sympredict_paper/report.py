@@ -15,8 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from sympredict.paper import plotting
-from sympredict.paper.sine_gordon import ENERGY_BOUND_FLOOR, ENERGY_BOUND_RATIO, energy_boundedness
+from sympredict_paper import plotting
+from sympredict_paper.sine_gordon import ENERGY_BOUND_FLOOR, ENERGY_BOUND_RATIO, energy_boundedness
 
 __all__ = [
     "ratio",
@@ -132,7 +132,7 @@ def henon_heiles_markdown(s: dict) -> list[str]:
 
 
 def pendulum_a_figures(results: dict) -> dict:
-    """Scenario A (:func:`~sympredict.paper.pendulum.run_scenario_a`'s result): greedy residuals,
+    """Scenario A (:func:`~sympredict_paper.pendulum.run_scenario_a`'s result): greedy residuals,
     error over time, phase portrait and energy error of the first test step."""
     figures = {"pendulum_greedy_residuals": plotting.greedy_residuals({"": results["history"]}, "Pendulum scenario A: f-greedy residuals")}
     curves = []
@@ -198,7 +198,7 @@ def pendulum_a_markdown(s: dict) -> list[str]:
 
 
 def pendulum_b_figures(b: dict) -> dict:
-    """Scenario B (:func:`~sympredict.paper.pendulum.run_scenario_b`'s result): error over time,
+    """Scenario B (:func:`~sympredict_paper.pendulum.run_scenario_b`'s result): error over time,
     trajectory, phase portrait, Hamiltonian and energy error of the example trajectory."""
     sb = b["summary"]
     curves = []
@@ -243,7 +243,7 @@ def pendulum_b_markdown(sb: dict) -> list[str]:
 
 
 def stability_figures(st: dict) -> dict:
-    """Step and length sweeps of :func:`~sympredict.paper.pendulum.run_stability`."""
+    """Step and length sweeps of :func:`~sympredict_paper.pendulum.run_stability`."""
     return {"pendulum_stability": plotting.stability_sweeps(
         st["dt_sweep"], st["mu_sweep"], (0.04, 0.06), (0.7, 0.8), f"Where methods fail: step sweep, l={st['mu']}, q0={st['q0']}")}
 
@@ -281,7 +281,7 @@ def stability_markdown(st: dict, horizon: float) -> list[str]:
 
 
 def wave_figures(results: dict) -> dict:
-    """Wave pipeline (:func:`~sympredict.paper.wave.run_wave`'s result): greedy residuals per dT and
+    """Wave pipeline (:func:`~sympredict_paper.wave.run_wave`'s result): greedy residuals per dT and
     error over time (mean over the test cases) in reduced and full coordinates."""
     figures = {"wave_greedy_residuals": plotting.greedy_residuals(
         {f", dT={r['dt']}": r["model"].history_ for r in results["per_dt"]}, "Reduced wave: f-greedy residuals")}
@@ -430,7 +430,7 @@ def sine_gordon_speed_rows(s: dict) -> list[dict]:
 
 
 def sine_gordon_figures(s: dict) -> dict:
-    """Figures of :func:`~sympredict.paper.sine_gordon.run_sine_gordon`'s summary ``s``: greedy curves, error
+    """Figures of :func:`~sympredict_paper.sine_gordon.run_sine_gordon`'s summary ``s``: greedy curves, error
     over time per method and 2n, energy error over the long horizon, u(x, t) snapshots, speed against accuracy,
     online cost against N."""
     from types import SimpleNamespace
@@ -497,7 +497,7 @@ def _best_classical(r: dict):
 
 def _energy_claim(s: dict, dims: list) -> dict:
     """Energy error of the kernel ROMs bounded over the long horizon, in the sense of
-    :func:`~sympredict.paper.sine_gordon.energy_boundedness` applied to the per-test series of this run."""
+    :func:`~sympredict_paper.sine_gordon.energy_boundedness` applied to the per-test series of this run."""
     K = int(round(s["preset"]["T"] / s["preset"]["DT"]))
     oks, ev = [], []
     for d in dims:

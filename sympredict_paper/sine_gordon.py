@@ -66,7 +66,7 @@ __all__ = ["SineGordonPreset", "PRESETS", "run_sine_gordon", "fom_data", "initia
            "ENERGY_BOUND_RATIO", "ENERGY_BOUND_FLOOR", "EnergySamples", "split_setup", "sign_symmetry", "no_augmentation", "choose_large_step",
            "sine_gordon_reductor"]
 
-logger = getLogger("sympredict.paper.sine_gordon")
+logger = getLogger("sympredict_paper.sine_gordon")
 
 
 @dataclass(frozen=True)
@@ -473,7 +473,7 @@ class EnergySamples:
     Why: the Galerkin flow conserves ``H``, so the long-time reduced states of training-like initial states lie
     in ``{H <= E_max}``; the training trajectories over ``[0, T]`` cover a thin part of it, and the reduced
     dynamics leaves their box after ``T`` (mode amplitudes up to 1.5x the training maximum at ``2n = 8``,
-    ``benchmarks/sine_gordon_long_time.py``).  Uses the training states and energies only (no test data, no
+    ``sympredict_paper/studies/sine_gordon_long_time.py``).  Uses the training states and energies only (no test data, no
     time beyond ``T``).  Cost: ``n_per_pair * P k`` Galerkin steps and ``O(60)`` energy evaluations per sample
     (``O(N n)`` each).  Returns the original pairs plus ``round(n_per_pair * P k)`` sampled ones, flat.
     """
@@ -917,3 +917,16 @@ def break_even(rows, dims_info) -> dict:
             entry[key] = k
         out[int(dim)] = entry
     return out
+
+
+def main(argv=None) -> int:
+    """``sympredict-paper run sine-gordon [OPTIONS]``: this scenario's models, figures and summary (``--quick --out DIR``)."""
+    import sys
+
+    from sympredict_paper.cli import main as paper_main
+
+    return paper_main(["run", "sine-gordon", *(sys.argv[1:] if argv is None else argv)])
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -34,8 +34,8 @@ from sympredict.exceptions import extrapolation_expected
 from sympredict.systems.flowmaps import flow_map_data, mus_to_matrix, random_parameters, sample_energy_ellipsoid
 from sympredict.symplectic.metrics import relative_trajectory_error
 from sympredict.parallel import pool_flow, pool_map_instances
-from sympredict.paper.peers import VKOGAFlowMap, select_vkoga_length_scale
-from sympredict.paper.speed import SpeedTable, add_classical, deliberate_threads, model_sizes, timed
+from sympredict_paper.peers import VKOGAFlowMap, select_vkoga_length_scale
+from sympredict_paper.speed import SpeedTable, add_classical, deliberate_threads, model_sizes, timed
 from sympredict.symplectic.integrators_compiled import EXPLICIT_SCHEMES, rollout
 from sympredict.estimators.predictor import DirectKernelPredictor, SymplecticKernelPredictor
 from sympredict.mor.basis import SymplecticROM, complex_svd_basis, symplecticity_of_basis
@@ -48,7 +48,7 @@ __all__ = ["WavePreset", "PRESETS", "fom_snapshots", "build_rom", "reduced_flow_
            "train_wave_predictor", "run_wave",
            "run_wave_speed_accuracy", "smallest_wave_model"]
 
-logger = getLogger("sympredict.paper.wave")
+logger = getLogger("sympredict_paper.wave")
 
 
 @dataclass(frozen=True)
@@ -393,7 +393,7 @@ def run_wave_speed_accuracy(
     Every method starts from the same full states ``V x0_red`` and returns full
     states on the macro grid ``t_k = k dt``; errors are relative to the FOM's
     exact solution (sine transform), so the FOM's own time-stepping error is
-    measured too.  Timing by :mod:`sympredict.paper.speed` (warm-up, medians, ``threads``).
+    measured too.  Timing by :mod:`sympredict_paper.speed` (warm-up, medians, ``threads``).
 
     * the equations (FOM): the micro-step reference (implicit midpoint, ``h <= 1e-3``,
       sparse LU), implicit midpoint (sparse LU) and the compiled Störmer–Verlet,
@@ -579,3 +579,16 @@ def smallest_wave_model(
         "model": chosen if reached else model,
         "rom": rom,
     }
+
+
+def main(argv=None) -> int:
+    """``sympredict-paper run wave [OPTIONS]``: this scenario's models, figures and summary (``--quick --out DIR``)."""
+    import sys
+
+    from sympredict_paper.cli import main as paper_main
+
+    return paper_main(["run", "wave", *(sys.argv[1:] if argv is None else argv)])
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -8,16 +8,14 @@ with the exact flow.
 
 from __future__ import annotations
 
+import os
 import time
 from pathlib import Path
 
-import numpy as np
+from sympredict.cli._console import _duration, _Working
+from sympredict.cli._options import _add_verbose, _int_at_least
 
-from sympredict import SymplecticKernelPredictor, TrajectoryData
-from sympredict.paper import plotting
-from sympredict.systems.pendulum import Pendulum
-
-__all__ = ["run_demo", "demo_figure"]
+__all__ = ["add_parser", "run_demo", "demo_figure"]
 
 #: The README example's sizes.
 N_TRAJECTORIES, N_STEPS, DT, MAX_CENTERS, HORIZON_STEPS = 40, 50, 0.1, 300, 200
@@ -43,6 +41,12 @@ def run_demo(out, seed: int = 0) -> dict:
     -----
     About 10 s on 2 cores (docs/data/runtimes.json: demo).
     """
+    import numpy as np
+
+    from sympredict import SymplecticKernelPredictor, TrajectoryData
+    from sympredict.cli import _figures as plotting
+    from sympredict.systems.pendulum import Pendulum
+
     out = Path(out)
     rng = np.random.default_rng(seed)
     pendulum = Pendulum()
@@ -68,6 +72,10 @@ def run_demo(out, seed: int = 0) -> dict:
 
 def demo_figure(t, exact, pred, drift, drift_exact):
     """Left: the phase plane of the exact and the predicted trajectory; right: relative energy error over time."""
+    import numpy as np
+
+    from sympredict.cli import _figures as plotting
+
     fig, (ax, bx) = plotting.plt.subplots(1, 2, figsize=(10, 4.2), constrained_layout=True)
     ax.plot(exact[:, 0], exact[:, 1], color=plotting.method_color("exact"), lw=6, alpha=0.35, label="reference flow")
     ax.plot(pred[:, 0], pred[:, 1], "--", color=plotting.method_color("symplectic kernel model"), lw=1.2,
@@ -82,3 +90,39 @@ def demo_figure(t, exact, pred, drift, drift_exact):
     plotting.decorate(bx, "time $t$ [s]", "relative energy error $|H(t) - H(0)| / H(0)$ [1]",
                       "energy error stays bounded")
     return fig
+
+
+_DEMO_FILES = ("model.h5", "demo.png", "demo.pdf", "demo.json")
+
+
+def _cmd_demo(args) -> int:
+    """The README's example in one command: pendulum trajectories, a model, a rollout, a figure, one line."""
+    from threadpoolctl import threadpool_limits
+
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"--out {str(out)!r} exists and is not a directory; give a folder")
+    if out.is_dir():
+        other = sorted(e.name for e in out.iterdir() if e.name not in _DEMO_FILES)
+        if other:
+            raise ValueError(f"--out {str(out)!r} holds other files than a demo's (e.g. {other[0]!r}); give a new or "
+                             "empty folder")
+    out.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    with threadpool_limits(limits=args.threads), _Working("sympredict demo: training on 40 pendulum trajectories", quiet=args.verbose):
+        r = run_demo(out, seed=args.seed)
+    print(f"demo: {r['n_centers']} centres trained in {r['fit_s']:.0f} s; over t = {HORIZON_STEPS * DT:g} s: max state "
+          f"error {r['max_state_error']:.1e}, max relative energy drift {r['max_energy_drift']:.1e}; wrote "
+          f"{out / 'model.h5'} and {out / 'demo.png'} ({_duration(time.perf_counter() - t0)})")
+    return 0
+
+
+def add_parser(sub) -> None:
+    """Register ``sympredict demo`` with the subparsers ``sub``."""
+    demo = sub.add_parser("demo", help="the README's example: train on pendulum trajectories, predict, write a model, "
+                                       "a figure and a one-line result (seconds on 2 cores)")
+    demo.add_argument("--out", default="sympredict-demo", help="output folder (default: sympredict-demo)")
+    demo.add_argument("--seed", type=_int_at_least(0), default=0, help="seed of the training trajectories (default 0)")
+    demo.add_argument("--threads", type=_int_at_least(1), default=os.cpu_count() or 1, help="BLAS threads (default: all cores)")
+    _add_verbose(demo)
+    demo.set_defaults(func=_cmd_demo)

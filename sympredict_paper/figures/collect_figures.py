@@ -1,10 +1,10 @@
 """Copy the figures shown in the documentation from a results folder into docs/figures/.
 
-Run, after ``sympredict run all --quick --out DIR`` and
-``sympredict run henon-heiles --quick --out HH`` (``run all`` does not run
+Run, after ``sympredict-paper run all --quick --out DIR`` and
+``sympredict-paper run henon-heiles --quick --out HH`` (``run all`` does not run
 Hénon–Heiles)::
 
-    python docs/collect_figures.py DIR HH
+    python sympredict_paper/figures/collect_figures.py DIR HH
 
 Each figure is taken from the first folder that has it.
 The figures to copy are those that ``docs/explanation/figures.md`` shows (every
@@ -30,7 +30,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-DOCS = Path(__file__).resolve().parent
+DOCS = Path(__file__).resolve().parents[2] / "docs"
 PAGE = DOCS / "explanation" / "figures.md"
 TARGET = DOCS / "figures"
 
@@ -73,14 +73,14 @@ def _source_text(folders: list[tuple[Path, str, list[str]]], checkout: str) -> s
         written = _dt.datetime.fromtimestamp(max(times), _dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC") if times else "unknown"
         lines += [f"command:   {command}", f"written:   {written}", f"figures:   {', '.join(names)}", ""]
     given = " ".join(g for _, g, _ in folders)
-    lines.append(f"collected: python docs/collect_figures.py {given} (checkout {checkout})")
+    lines.append(f"collected: python sympredict_paper/figures/collect_figures.py {given} (checkout {checkout})")
     return "\n".join(lines) + "\n"
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("results", type=Path, nargs="+",
-                        help="output folder(s) of `sympredict run ... --quick --out DIR`; each figure from the first that has it")
+                        help="output folder(s) of `sympredict-paper run ... --quick --out DIR`; each figure from the first that has it")
     parser.add_argument("--no-shrink", action="store_true", help="copy the PNGs unchanged instead of re-encoding them with a palette")
     args = parser.parse_args(argv)
 
@@ -94,7 +94,7 @@ def main(argv: list[str] | None = None) -> int:
     if missing:
         print(f"error: {', '.join(map(str, args.results))} lack(s) {len(missing)} figure(s) that docs/explanation/figures.md "
               f"shows: {', '.join(missing)}", file=sys.stderr)
-        print("run `sympredict run all --quick --out DIR` and `sympredict run henon-heiles --quick --out HH` with the "
+        print("run `sympredict-paper run all --quick --out DIR` and `sympredict-paper run henon-heiles --quick --out HH` with the "
               "current code, then give both folders", file=sys.stderr)
         return 1
 

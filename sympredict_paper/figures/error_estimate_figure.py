@@ -1,10 +1,10 @@
 """Draw docs/figures/error_estimate_over_time.png: the error estimate against the true error over a rollout.
 
-Reads the curves that ``benchmarks/error_estimate.py`` wrote into ``docs/data/error_estimate.json``
+Reads the curves that ``sympredict_paper/studies/error_estimate.py`` wrote into ``docs/data/error_estimate.json``
 (per system: the median over the test trajectories of the estimate and of the true error at every
 kept step, and one trajectory's pair of curves); computes nothing itself.
 
-Run:  python docs/error_estimate_figure.py
+Run:  python sympredict_paper/figures/error_estimate_figure.py
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-DOCS = Path(__file__).resolve().parent
+DOCS = Path(__file__).resolve().parents[2] / "docs"
 SOURCE = DOCS / "data" / "error_estimate.json"
 TARGET = DOCS / "figures" / "error_estimate_over_time.png"
 

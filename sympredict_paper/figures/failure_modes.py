@@ -1,6 +1,6 @@
 """Print the failure-mode table of docs/reference/errors.md: every row is a real call and the answer it gets.
 
-Run:  python docs/failure_modes.py
+Run:  python sympredict_paper/figures/failure_modes.py
 """
 
 import numpy as np, warnings, tempfile, os, h5py, errno, stat
@@ -139,8 +139,8 @@ def cli(argv):
     return f"exit {code}: {err.getvalue().strip()}".replace(tmp, "/tmp/…")
 save_dataset(d, dp)
 print(f"| `sympredict train d.h5 --out d.h5` | `{cli(['train', dp, '--out', dp])}` |")
-print(f"| `sympredict run pendulum --threads 0` | `{cli(['run', 'pendulum', '--out', os.path.join(tmp, 'r'), '--threads', '0'])}` |")
-print(f"| `sympredict run` with `--out` an existing file | `{cli(['run', 'pendulum', '--out', p])}` |")
+print(f"| `sympredict-paper run pendulum --threads 0` | `{cli(['run', 'pendulum', '--out', os.path.join(tmp, 'r'), '--threads', '0'])}` |")
+print(f"| `sympredict-paper run` with `--out` an existing file | `{cli(['run', 'pendulum', '--out', p])}` |")
 print(f"| `sympredict report` of a hostile file | `{cli(['report', os.path.join(tmp, 'h.h5')])}` |")
 show("Pendulum(g=nan)", lambda: Pendulum(g=np.nan))
 show("reference flow with h_max <= 0", lambda: Pendulum().flow(x, 0.75, 0.05, h_max=0.0))

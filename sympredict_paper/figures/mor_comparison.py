@@ -1,6 +1,6 @@
 """Kernel ROM vs Galerkin ROM vs pyMOR's DataDrivenReductor on pyMOR's demo wave made parametric in c.
 
-Run:  python docs/mor_comparison.py [--T 10] [--repeats 7] [--json out.json]
+Run:  python sympredict_paper/figures/mor_comparison.py [--T 10] [--repeats 7] [--json out.json]
 
 Setup (issue 12): ``pymordemos.symplectic_wave_equation.discretize_fom`` with the
 stiffness block scaled by ``c^2 / 0.1^2``, ``c in [0.08, 0.12]``; 5 training speeds

@@ -1,6 +1,6 @@
 """The benchmarks' one timing protocol: threads, warm-up, repeats, statistics, side-by-side ratios, machine, JSON.
 
-Every script in ``benchmarks/`` measures the same way (``docs/explanation/performance.md``):
+Every study in ``sympredict_paper/studies/`` measures the same way (``docs/explanation/performance.md``):
 
 * **threads** set deliberately, for the whole measurement: BLAS and OpenMP
   through ``threadpoolctl`` (``--blas-threads``, default :data:`DEFAULT_BLAS_THREADS`
@@ -231,7 +231,7 @@ def record(*, blas_threads: int, numba_threads: Optional[int] = None, repeats: O
         "command": shlex.join(argv),
         "cwd": os.getcwd(),
         "time_utc": time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime()),
-        "git": _git(Path(__file__).resolve().parents[1]),
+        "git": _git(Path(__file__).resolve().parents[2]),
         "threads": {"blas": int(blas_threads), "numba": None if numba_threads is None else int(numba_threads)},
         "timing": {"warmup": warmup, "repeats": repeats, "statistic": statistic,
                    "clock": "time.perf_counter", "ratios": "measured side by side in one process"},

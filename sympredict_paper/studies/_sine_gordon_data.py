@@ -1,15 +1,15 @@
-"""The sine-Gordon benchmarks' FOM data, cached in an npz file between runs (benchmarks/ only)."""
+"""The sine-Gordon benchmarks' FOM data, cached in an npz file between runs (the studies only)."""
 
 import os
 from dataclasses import replace
 
 import numpy as np
 
-from sympredict.paper.sine_gordon import fom_data
+from sympredict_paper.sine_gordon import fom_data
 
 
 def cached_fom_data(p, cache: str) -> dict:
-    """:func:`~sympredict.paper.sine_gordon.fom_data` of preset ``p``, the trajectories kept in ``cache``.
+    """:func:`~sympredict_paper.sine_gordon.fom_data` of preset ``p``, the trajectories kept in ``cache``.
 
     A cached file gives the training and test trajectories and parameters; the FOM itself is rebuilt (cheap:
     one step of one trajectory).  The cache is keyed by the caller's file name only, so callers name it by

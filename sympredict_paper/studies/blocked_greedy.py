@@ -1,6 +1,6 @@
 """The blocked greedy against the exact greedy: fit time, held-out and rollout errors, and the arithmetic limit.
 
-System: the coupled pendulums of ``benchmarks/defaults_acceptance.py`` (4-D state, one parameter kappa,
+System: the coupled pendulums of ``sympredict_paper/studies/defaults_acceptance.py`` (4-D state, one parameter kappa,
 ``dT = 0.1 s``), ``--trajectories`` trajectories of ``--steps`` steps from states uniform in ``H <= 8 J``
 (300 x 60 = 18,000 one-step samples, 72,000 candidate functionals).  Kernels fixed to the recorded hand
 settings (``HAND['coupled_pendulums']``, the state shape times ``--eps-factor``, 4: the hand shape's Gramian
@@ -19,8 +19,8 @@ centre's projection), the minimum any f-greedy on the full Newton basis does; it
 rate of a matrix product (``dgemm`` of shape ``(b, m0) x (m0, N)``, the block update's shape, median of 3)
 is the limit line.  Peak memory: the trainers' formulas (:func:`sympredict.interpolation.greedy.trainer_memory`).
 
-Run:  python benchmarks/blocked_greedy.py --centers 4000 1000 2000   # 4,000 / 1,000 / 2,000 centres
-      python benchmarks/blocked_greedy.py --centers 500 --trajectories 60 --json /tmp/quick.json   # a minute
+Run:  python sympredict_paper/studies/blocked_greedy.py --centers 4000 1000 2000   # 4,000 / 1,000 / 2,000 centres
+      python sympredict_paper/studies/blocked_greedy.py --centers 500 --trajectories 60 --json /tmp/quick.json   # a minute
 One BLAS and one numba thread; writes ``docs/data/blocked_greedy.json`` (``--json``).
 """
 
@@ -31,7 +31,7 @@ import time
 
 import numpy as np
 
-import _protocol  # benchmarks/ (the script's folder is on sys.path)
+import _protocol  # sympredict_paper/studies/ (the script's folder is on sys.path)
 from defaults_acceptance import HAND, hand_model, make_benchmarks, make_test_set, trajectory_metrics
 
 from sympredict.interpolation.greedy import BlockedGreedy, ExactGreedy, trainer_memory

@@ -22,9 +22,9 @@ to exit after SIGINT (``interrupt_s``; it is sent once the process has run for
 
 The children get ``--threads`` numba and ``--blas-threads`` BLAS/OpenMP threads
 through their environment; medians and the JSON record follow
-``benchmarks/_protocol.py`` (the first process of a backend is its warm-up).
+``sympredict_paper/studies/_protocol.py`` (the first process of a backend is its warm-up).
 
-Run:  python benchmarks/cold_start.py [--repeats 3] [--threads 1] [--json out.json]
+Run:  python sympredict_paper/studies/cold_start.py [--repeats 3] [--threads 1] [--json out.json]
 """
 
 import argparse
@@ -43,7 +43,7 @@ from sympredict.interpolation.greedy import ExactGreedy
 from sympredict.symplectic.solvers import NewtonSolver
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-import _protocol  # noqa: E402  (benchmarks/_protocol.py)
+import _protocol  # noqa: E402  (sympredict_paper/studies/_protocol.py)
 
 #: What each fresh process runs: times import, load and the first rollout; prints one JSON line.
 CHILD = r"""

@@ -4,11 +4,11 @@ Cases: pendulum at a fixed step (dT = 0.05, l in [0.7, 0.8]), pendulum over (l, 
 Hénon–Heiles (lambda in [0.8, 1.0], dT = 0.5).  Models: the symplectic kernel predictor, the direct kernel
 model (same kernel and budget), pyMOR's VKOGA (length scale chosen on validation data) and, when PyTorch is
 installed (``pip install 'sympredict[bench]'``), a residual MLP and a parameter-conditioned G-SympNet
-(benchmarks/neural_peers.py).  Per model: training time, online time per trajectory (one warm-up, median of 3,
-one thread: benchmarks/_protocol.py, whose record the JSON carries), median / max over time of the mean relative trajectory error over the test horizon, and the
+(sympredict_paper/studies/neural_peers.py).  Per model: training time, online time per trajectory (one warm-up, median of 3,
+one thread: sympredict_paper/studies/_protocol.py, whose record the JSON carries), median / max over time of the mean relative trajectory error over the test horizon, and the
 largest relative energy error over a long horizon (10x the test horizon).
 
-    python benchmarks/data_driven.py --out data_driven.json [--cases pendulum_fixed,pendulum_full,henon_heiles]
+    python sympredict_paper/studies/data_driven.py --out data_driven.json [--cases pendulum_fixed,pendulum_full,henon_heiles]
                                      [--neural-epochs 60] [--neural-only]
 """
 
@@ -20,12 +20,12 @@ import time
 import numpy as np
 from pymor.core.logger import set_log_levels
 
-import _protocol  # benchmarks/ (the script's folder is on sys.path)
+import _protocol  # sympredict_paper/studies/ (the script's folder is on sys.path)
 
 from sympredict import DirectKernelPredictor, SymplecticKernelPredictor
-from sympredict.paper.henon_heiles import DT_HH, PRESETS as HH_PRESETS, henon_heiles_data, henon_heiles_test_instances
-from sympredict.paper.pendulum import paper_test_instances
-from sympredict.paper.peers import VKOGAFlowMap, select_vkoga_length_scale
+from sympredict_paper.henon_heiles import DT_HH, PRESETS as HH_PRESETS, henon_heiles_data, henon_heiles_test_instances
+from sympredict_paper.pendulum import paper_test_instances
+from sympredict_paper.peers import VKOGAFlowMap, select_vkoga_length_scale
 from sympredict.symplectic.integrators_compiled import rollout
 from sympredict.kernels import IMQ
 from sympredict.symplectic.metrics import relative_hamiltonian_error, relative_trajectory_error
@@ -63,7 +63,7 @@ def _case(name):
     vx0 = np.concatenate([energy_bounded_states(system, lam, 1, p.energy_max, seed=100 + i) for i, lam in enumerate(lv)])
     val = FlowMapData(vx0, system.flow(vx0, lv, DT_HH), lv[:, None], np.full(1000, DT_HH))
     x0, mu = henon_heiles_test_instances(system, p.n_test, p.energy_max)
-    # the kernel chosen on validation by `sympredict run henon-heiles --quick`
+    # the kernel chosen on validation by `sympredict-paper run henon-heiles --quick`
     return dict(system=system, data=data, val=val, x0=x0, mu=mu, dt=DT_HH, horizon=50.0, substeps=256,
                 kernels=(IMQ(0.5), IMQ(1.0), None), centers=500, with_dt=False)
 
@@ -137,7 +137,7 @@ def main():
         results = [run_case(name, args.neural_epochs, args.neural_only) for name in args.cases.split(",")]
         protocol = _protocol.record(blas_threads=args.blas_threads, numba_threads=1, repeats=3, warmup=1,
                                     statistic="median online time per trajectory; one timed fit per model")
-    _protocol.write_json(args.out, {"command": "python benchmarks/data_driven.py " + " ".join(
+    _protocol.write_json(args.out, {"command": "python sympredict_paper/studies/data_driven.py " + " ".join(
         f"--{k.replace('_', '-')} {v}" for k, v in vars(args).items()), "results": results}, protocol, indent=2)
 
 

@@ -52,12 +52,12 @@ trajectories of its maximum over the steps; fit wall time (median of
 ``--repeats`` fits); centres.  A Newton failure or any other exception is a
 result: the row records it.  Goal: defaults within 1.5x of the hand tuning.
 
-Run:  python benchmarks/defaults_acceptance.py                          # 5,000 samples, 1,000 centres, recorded hand settings
-      python benchmarks/defaults_acceptance.py --search                 # redo the hand search (validation split only)
-      python benchmarks/defaults_acceptance.py --big                    # the user story: coupled pendulums, 30,000 / 4,000, progress shown
-      python benchmarks/defaults_acceptance.py --quick --systems kepler --configs hand   # seconds
+Run:  python sympredict_paper/studies/defaults_acceptance.py                          # 5,000 samples, 1,000 centres, recorded hand settings
+      python sympredict_paper/studies/defaults_acceptance.py --search                 # redo the hand search (validation split only)
+      python sympredict_paper/studies/defaults_acceptance.py --big                    # the user story: coupled pendulums, 30,000 / 4,000, progress shown
+      python sympredict_paper/studies/defaults_acceptance.py --quick --systems kepler --configs hand   # seconds
 One BLAS thread (``--blas-threads``) and one numba thread (``--threads``; set NUMBA_NUM_THREADS too);
-writes ``docs/data/defaults_acceptance.json`` (``--json``) with the record of ``benchmarks/_protocol.py``.
+writes ``docs/data/defaults_acceptance.json`` (``--json``) with the record of ``sympredict_paper/studies/_protocol.py``.
 """
 
 from __future__ import annotations
@@ -71,8 +71,8 @@ from typing import Callable
 
 import numpy as np
 
-import _protocol  # benchmarks/ (the script's folder is on sys.path)
-from _coordinate_search import coordinate_search  # benchmarks/
+import _protocol  # sympredict_paper/studies/ (the script's folder is on sys.path)
+from _coordinate_search import coordinate_search  # sympredict_paper/studies/
 
 from sympredict import SymplecticKernelPredictor
 from sympredict.exceptions import ExtrapolationWarning
@@ -82,7 +82,7 @@ from sympredict.symplectic.metrics import relative_trajectory_error
 from sympredict.systems.flowmaps import FlowFunctionSystem, HamiltonianSystem
 
 GOAL = 1.5  # defaults within this factor of the hand tuning
-RESULTS = Path(__file__).resolve().parents[1] / "docs" / "data" / "defaults_acceptance.json"
+RESULTS = Path(__file__).resolve().parents[2] / "docs" / "data" / "defaults_acceptance.json"
 SEARCH_NAMES = ("eps_state", "eps_mu", "ratio")
 
 

@@ -22,7 +22,7 @@ Systems (``--systems``):
   tadpole librations near L4 (:func:`~sympredict.systems.three_body.librating_states`),
   ``dT = 0.05``, trained on trajectories (``--traj`` x ``--traj-steps``);
 * ``coupled_pendulums``, ``fpu_chain`` (held out): the physical-unit systems of
-  ``benchmarks/defaults_acceptance.py``, trained on scattered one-step samples (``--samples``);
+  ``sympredict_paper/studies/defaults_acceptance.py``, trained on scattered one-step samples (``--samples``);
 * ``pendulum`` (the system the estimate was developed on, for comparison):
   the README's pendulum, lengths in [0.7, 0.8], ``dT = 0.1``, trained on trajectories.
 
@@ -32,9 +32,9 @@ states with their own parameters (seeds disjoint from training), ``--steps``
 steps.  Goals: at most 10% of (trajectory, step) pairs underestimated by more
 than 3x, median effectivity at most 30, rank correlation at least 0.6 at the last step.
 
-Run:  python benchmarks/error_estimate.py                  # writes docs/data/error_estimate.json
-      python benchmarks/error_estimate.py --quick          # a few minutes, small sizes, no JSON
-One BLAS thread (``--blas-threads``), one numba thread (``--threads``); the record of ``benchmarks/_protocol.py``.
+Run:  python sympredict_paper/studies/error_estimate.py                  # writes docs/data/error_estimate.json
+      python sympredict_paper/studies/error_estimate.py --quick          # a few minutes, small sizes, no JSON
+One BLAS thread (``--blas-threads``), one numba thread (``--threads``); the record of ``sympredict_paper/studies/_protocol.py``.
 """
 
 from __future__ import annotations
@@ -47,8 +47,8 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import spearmanr
 
-import _protocol  # benchmarks/
-from defaults_acceptance import make_benchmarks  # benchmarks/
+import _protocol  # sympredict_paper/studies/
+from defaults_acceptance import make_benchmarks  # sympredict_paper/studies/
 
 from sympredict import SymplecticKernelPredictor
 from sympredict.data import FlowMapData
@@ -56,7 +56,7 @@ from sympredict.exceptions import ExtrapolationWarning
 from sympredict.systems.pendulum import Pendulum
 from sympredict.systems.three_body import MU_RANGE, ThreeBody, librating_states
 
-RESULTS = Path(__file__).resolve().parents[1] / "docs" / "data" / "error_estimate.json"
+RESULTS = Path(__file__).resolve().parents[2] / "docs" / "data" / "error_estimate.json"
 GOALS = {"share_under_3x_max": 0.10, "median_effectivity_max": 30.0, "rank_correlation_last_min": 0.6}
 
 

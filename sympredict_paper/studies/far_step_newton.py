@@ -3,7 +3,7 @@
 Reports, per backend, where the batch rollout fails (macro step and instances) or that it converges; per instance
 (each rolled out alone) the outcome (the failing step, or -1) at dT in ``--dts``, and how many of these outcomes
 move when the initial state is perturbed by 1e-11 (relative); and the normal rollout's time (training-range dT)
-side by side.  ``python benchmarks/far_step_newton.py --json out.json``.
+side by side.  ``python sympredict_paper/studies/far_step_newton.py --json out.json``.
 """
 
 import argparse

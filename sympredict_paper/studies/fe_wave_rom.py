@@ -1,6 +1,6 @@
 """Kernel ROM from FOM data vs symplectic Galerkin on a finite-element wave model with a mass matrix.
 
-Run:  python benchmarks/fe_wave_rom.py [--json docs/data/fe_wave_rom.json] [--stride 4] [--update midpoint]
+Run:  python sympredict_paper/studies/fe_wave_rom.py [--json docs/data/fe_wave_rom.json] [--stride 4] [--update midpoint]
 
 Setup: :func:`sympredict.testing.fe_wave_model` (P1 elements, consistent mass matrix, ``c`` in
 ``[0.8, 1.2]``, canonical coordinates ``q~ = L^T q``, ``p~ = L^-1 p`` with ``M = L L^T``), ``T = 2``,

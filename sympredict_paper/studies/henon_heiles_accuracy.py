@@ -21,11 +21,11 @@ factor per sweep; the factor's exponent halves after a sweep without
 improvement); the score is the largest median over the validation seeds.  The
 test seeds (default 0) are evaluated once each, with the chosen model.
 
-Run:  python benchmarks/henon_heiles_accuracy.py [--update midpoint] [--json out.json]
-      python benchmarks/henon_heiles_accuracy.py --fixed 0.5 1 1 --sampling grid 5 5   # no search
-      python benchmarks/henon_heiles_accuracy.py --quick                               # seconds
+Run:  python sympredict_paper/studies/henon_heiles_accuracy.py [--update midpoint] [--json out.json]
+      python sympredict_paper/studies/henon_heiles_accuracy.py --fixed 0.5 1 1 --sampling grid 5 5   # no search
+      python sympredict_paper/studies/henon_heiles_accuracy.py --quick                               # seconds
 One BLAS thread (``--blas-threads``) and one numba thread (set NUMBA_NUM_THREADS=1 too: numba reads it at import);
-the JSON carries the record of ``benchmarks/_protocol.py``.
+the JSON carries the record of ``sympredict_paper/studies/_protocol.py``.
 """
 
 import argparse
@@ -33,8 +33,8 @@ import time
 
 import numpy as np
 
-import _protocol  # benchmarks/ (the script's folder is on sys.path)
-from _coordinate_search import coordinate_search  # benchmarks/
+import _protocol  # sympredict_paper/studies/ (the script's folder is on sys.path)
+from _coordinate_search import coordinate_search  # sympredict_paper/studies/
 
 from sympredict import SymplecticKernelPredictor
 from sympredict.data import FlowMapData

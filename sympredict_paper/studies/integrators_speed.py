@@ -3,12 +3,12 @@
 Both integrate the pendulum ``H = p^2/(2 m l^2) + m g l (1 - cos q)`` for a batch
 of ``B`` instances (own length each) over ``K`` steps and return the whole
 trajectory ``(B, K+1, 2)``, side by side in one process with the same numba and
-BLAS threads (``benchmarks/_protocol.py``: medians of ``--repeats`` interleaved
+BLAS threads (``sympredict_paper/studies/_protocol.py``: medians of ``--repeats`` interleaved
 calls after one warm-up call, compilation excluded).  The library call includes
 its input checks and allocation.  The NumPy reference (``backend='numpy'``) is
 timed too, with fewer repeats.
 
-Run:  python benchmarks/integrators_speed.py [--batch 1000] [--steps 1000] [--threads 1] [--json out.json]
+Run:  python sympredict_paper/studies/integrators_speed.py [--batch 1000] [--steps 1000] [--threads 1] [--json out.json]
 """
 
 import argparse
@@ -19,7 +19,7 @@ import numba
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-import _protocol  # noqa: E402  (benchmarks/_protocol.py)
+import _protocol  # noqa: E402  (sympredict_paper/studies/_protocol.py)
 
 from sympredict.symplectic.integrators_compiled import rollout  # noqa: E402
 from sympredict.systems.pendulum import Pendulum  # noqa: E402

@@ -2,13 +2,13 @@
 
 Serial (one process, the serial greedy of ``model.fit``, BLAS threads set with threadpoolctl)::
 
-    .venv/bin/python benchmarks/mpi_scaling.py --preset quick --threads 2 --out results/mpi_a.json
-    .venv/bin/python benchmarks/mpi_scaling.py --preset quick --threads 1 --out results/mpi_b.json
+    .venv/bin/python sympredict_paper/studies/mpi_scaling.py --preset quick --threads 2 --out results/mpi_a.json
+    .venv/bin/python sympredict_paper/studies/mpi_scaling.py --preset quick --threads 1 --out results/mpi_b.json
 
 Sharded (P MPI ranks, one BLAS thread each, ``trainer=ShardedGreedy(pool)``)::
 
     .venv/bin/mpiexec -n 2 .venv/bin/python -m pymor.tools.mpi \\
-        benchmarks/mpi_scaling.py --preset quick --threads 1 --out results/mpi_c.json
+        sympredict_paper/studies/mpi_scaling.py --preset quick --threads 1 --out results/mpi_c.json
 
 Data, kernel and greedy settings are those of ``run_scenario_a`` (seed 0):
 the energy-bounded grid over ``MU_TRAIN x DT_TRAIN``, ``n_val`` validation
@@ -32,9 +32,9 @@ from pathlib import Path
 
 import numpy as np
 
-# this file's folder, benchmarks/ (under `python -m pymor.tools.mpi` the script is exec'd: __file__ is pymor's)
+# this file's folder, sympredict_paper/studies/ (under `python -m pymor.tools.mpi` the script is exec'd: __file__ is pymor's)
 sys.path.insert(0, str(Path(sys._getframe().f_code.co_filename).resolve().parent))
-import _protocol  # noqa: E402  (benchmarks/_protocol.py)
+import _protocol  # noqa: E402  (sympredict_paper/studies/_protocol.py)
 
 
 def _peak_rss_bytes() -> int:
@@ -75,7 +75,7 @@ def _run(args, mpi) -> int:
 
     from sympredict import SymplecticKernelPredictor, parallel as par
     from sympredict.interpolation.greedy import ExactGreedy, ShardedGreedy
-    from sympredict.paper.pendulum import PRESETS
+    from sympredict_paper.pendulum import PRESETS
     from sympredict.kernels import IMQ
     from sympredict.systems.pendulum import DT_TRAIN, MU_TRAIN, Pendulum, flow_map_data, random_flow_map_data
 

@@ -2,9 +2,9 @@
 
 One command (from the repository root, the project's virtual environment)::
 
-    .venv/bin/python benchmarks/newton_pass.py --against 75d2b66 --threads 2
+    .venv/bin/python sympredict_paper/studies/newton_pass.py --against 75d2b66 --threads 2
 
-The model is the benchmark suite's (``benchmarks/suite.py``: pendulum quick data,
+The model is the benchmark suite's (``sympredict_paper/studies/suite.py``: pendulum quick data,
 50 x 50 grid, IMQ (0.15, 2, 5), exact f-greedy to 1,500 centres); the batch its
 1,000 instances (``q0`` in [0, pi/2], ``p0 = 0``, ``l`` in [0.7, 0.8], ``dT`` in
 [0.045, 0.055]).  ``--against REV`` loads that revision's
@@ -28,7 +28,7 @@ previous step's increment, where the implementation has it):
 * trajectory-steps per second of the full batch (1,000 x 20 steps) on
   ``--threads`` numba threads, the best of ``--repeats`` runs.
 
-All cases run side by side, interleaved, after a warm-up (``benchmarks/_protocol.py``;
+All cases run side by side, interleaved, after a warm-up (``sympredict_paper/studies/_protocol.py``;
 this script reports minima, not medians: the statistic is stated in the JSON).
 Writes ``--json`` if given (with the protocol record) and prints a table.
 """
@@ -45,13 +45,13 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "benchmarks"))
+sys.path.insert(0, str(ROOT / "sympredict_paper" / "studies"))
 
 from pymor.core.logger import set_log_levels  # noqa: E402
 
-import _protocol  # noqa: E402  (benchmarks/_protocol.py)
+import _protocol  # noqa: E402  (sympredict_paper/studies/_protocol.py)
 from sympredict import _fastkernels  # noqa: E402
 from sympredict.io import load_model, save_model  # noqa: E402
 from sympredict.kernels import IMQ  # noqa: E402

@@ -6,7 +6,7 @@ offered) and tested on 40 states in [-0.5, 0.5]^2: max abs error of one step.
 The midpoint form's s exists for theta < pi (S = 2/dT tan(theta/2) I); the
 type-II s(q0, p1) degenerates at theta = pi/2.
 
-Run:  python benchmarks/oscillator_existence.py [--blas-threads 1]
+Run:  python sympredict_paper/studies/oscillator_existence.py [--blas-threads 1]
 """
 
 import argparse
@@ -14,7 +14,7 @@ import warnings
 
 import numpy as np
 
-import _protocol  # benchmarks/ (the script's folder is on sys.path)
+import _protocol  # sympredict_paper/studies/ (the script's folder is on sys.path)
 
 from sympredict import SymplecticKernelPredictor
 from sympredict.kernels import IMQ

@@ -22,11 +22,11 @@ Reference: the library's micro-step flow (implicit midpoint, micro step
 pendulum's quadratic part ``A(l) = diag(g l, 1/l^2)`` (:mod:`sympredict.flowmap.splitting`):
 the searched shapes and scaling are those of the inner step ``S``.
 
-Run:  python benchmarks/pendulum_accuracy.py [--update midpoint] [--symmetry klein] [--split] [--json out.json]
-      python benchmarks/pendulum_accuracy.py --fixed 0.2 1.5 3.0 1.0   # no search
-      python benchmarks/pendulum_accuracy.py --quick                    # seconds: checks the script
+Run:  python sympredict_paper/studies/pendulum_accuracy.py [--update midpoint] [--symmetry klein] [--split] [--json out.json]
+      python sympredict_paper/studies/pendulum_accuracy.py --fixed 0.2 1.5 3.0 1.0   # no search
+      python sympredict_paper/studies/pendulum_accuracy.py --quick                    # seconds: checks the script
 One BLAS thread (``--blas-threads``) and one numba thread (set NUMBA_NUM_THREADS=1 too: numba reads it at import);
-the JSON carries the record of ``benchmarks/_protocol.py``.
+the JSON carries the record of ``sympredict_paper/studies/_protocol.py``.
 """
 
 import argparse
@@ -34,12 +34,12 @@ import time
 
 import numpy as np
 
-import _protocol  # benchmarks/ (the script's folder is on sys.path)
-from _coordinate_search import coordinate_search  # benchmarks/
+import _protocol  # sympredict_paper/studies/ (the script's folder is on sys.path)
+from _coordinate_search import coordinate_search  # sympredict_paper/studies/
 
 from sympredict import SymplecticKernelPredictor
 from sympredict.data import FlowMapData
-from sympredict.paper.pendulum import paper_test_instances
+from sympredict_paper.pendulum import paper_test_instances
 from sympredict.kernels import KERNEL_FAMILIES
 from sympredict.symplectic.metrics import relative_trajectory_error
 from sympredict.flowmap.splitting import SplitKernelPredictor

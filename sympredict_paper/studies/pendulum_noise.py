@@ -15,7 +15,7 @@ compared on
   (5 q0 x 5 lengths, test seed 0, never used for a choice), median over time of
   the instance-mean relative error, per test step.
 
-Run:  python benchmarks/pendulum_noise.py [--noise 0 1e-5 1e-4 1e-3] [--json out.json]
+Run:  python sympredict_paper/studies/pendulum_noise.py [--noise 0 1e-5 1e-4 1e-3] [--json out.json]
 Threads: one BLAS/numba thread per process (``--threads``).
 """
 
@@ -27,11 +27,11 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-import _protocol  # noqa: E402  (benchmarks/_protocol.py)
+import _protocol  # noqa: E402  (sympredict_paper/studies/_protocol.py)
 
 from sympredict import SymplecticKernelPredictor  # noqa: E402
 from sympredict.data import FlowMapData  # noqa: E402
-from sympredict.paper.pendulum import paper_test_instances  # noqa: E402
+from sympredict_paper.pendulum import paper_test_instances  # noqa: E402
 from sympredict.kernels import IMQ  # noqa: E402
 from sympredict.symplectic.metrics import relative_trajectory_error  # noqa: E402
 from sympredict.estimators.selection import select_regularization  # noqa: E402

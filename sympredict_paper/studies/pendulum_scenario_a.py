@@ -2,9 +2,9 @@
 
 Run (not part of the test suite; the 'paper' preset needs ~10 GiB and minutes):
 
-    python benchmarks/pendulum_scenario_a.py --preset paper --threads 2 --out benchmarks/results
+    python sympredict_paper/studies/pendulum_scenario_a.py --preset paper --threads 2 --out benchmarks/results
 
-Writes ``<out>/pendulum_scenario_a_<preset>.json`` (with the record of ``benchmarks/_protocol.py``)
+Writes ``<out>/pendulum_scenario_a_<preset>.json`` (with the record of ``sympredict_paper/studies/_protocol.py``)
 and prints a table.  ``--threads`` / ``--blas-threads``: BLAS threads (default 1).  Run it in
 a fresh process: the peak memory is the process's maximum resident set size.
 """
@@ -20,9 +20,9 @@ import numpy as np
 from pymor.core.logger import set_log_levels
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-import _protocol  # noqa: E402  (benchmarks/_protocol.py)
+import _protocol  # noqa: E402  (sympredict_paper/studies/_protocol.py)
 
-from sympredict.paper.pendulum import PRESETS, run_scenario_a  # noqa: E402
+from sympredict_paper.pendulum import PRESETS, run_scenario_a  # noqa: E402
 
 parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
 parser.add_argument("--preset", choices=sorted(PRESETS), default="quick")

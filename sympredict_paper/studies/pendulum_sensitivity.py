@@ -8,7 +8,7 @@ For each IMQ shape triple (state, mu, dT) this trains on the quick preset's data
 * the paper protocol's median-over-time of the mean relative trajectory error
   for several test-draw seeds.
 
-Run:  python benchmarks/pendulum_sensitivity.py [--eps 0.15,2,5 --eps 0.15,1,2 ...] [--seeds 4]
+Run:  python sympredict_paper/studies/pendulum_sensitivity.py [--eps 0.15,2,5 --eps 0.15,1,2 ...] [--seeds 4]
 """
 
 import argparse
@@ -18,11 +18,11 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-import _protocol  # noqa: E402  (benchmarks/_protocol.py)
+import _protocol  # noqa: E402  (sympredict_paper/studies/_protocol.py)
 
 from sympredict import SymplecticKernelPredictor  # noqa: E402
 from sympredict.data import mixed_variables  # noqa: E402
-from sympredict.paper.pendulum import paper_test_instances  # noqa: E402
+from sympredict_paper.pendulum import paper_test_instances  # noqa: E402
 from sympredict.kernels import IMQ  # noqa: E402
 from sympredict.symplectic.metrics import relative_trajectory_error  # noqa: E402
 from sympredict.systems.pendulum import DT_TEST, DT_TRAIN, MU_TRAIN, Pendulum, flow_map_data, random_flow_map_data  # noqa: E402

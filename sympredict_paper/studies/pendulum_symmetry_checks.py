@@ -9,7 +9,7 @@
    midpoints at one ``(l, dT)``, IMQ shape chosen on 1,000 validation samples, max gradient error on
    1,000 test samples relative to the largest target.
 
-Run:  python benchmarks/pendulum_symmetry_checks.py [--part invariance|design|both]
+Run:  python sympredict_paper/studies/pendulum_symmetry_checks.py [--part invariance|design|both]
 """
 
 import argparse
@@ -19,7 +19,7 @@ from scipy.integrate import solve_ivp
 from scipy.linalg import cho_factor, cho_solve, eigvalsh
 from scipy.optimize import brentq
 
-import _protocol  # benchmarks/ (the script's folder is on sys.path)
+import _protocol  # sympredict_paper/studies/ (the script's folder is on sys.path)
 
 from sympredict.interpolation.functionals import HBFunctionals
 from sympredict.kernels import IMQ, ProductKernel, StateSymmetry

@@ -7,7 +7,7 @@ rolls out the paper's protocol (5 q0 x 5 lengths, the three test steps, T = 20)
 for validation seeds 100..100+n-1, never the test seed 0. The score is the
 mean over seeds of the worst (over dT) median-over-time error.
 
-Run:  python benchmarks/pendulum_trajectory_selection.py [--seeds 4] [--json out.json]
+Run:  python sympredict_paper/studies/pendulum_trajectory_selection.py [--seeds 4] [--json out.json]
 """
 
 import argparse
@@ -18,10 +18,10 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-import _protocol  # noqa: E402  (benchmarks/_protocol.py)
+import _protocol  # noqa: E402  (sympredict_paper/studies/_protocol.py)
 
 from sympredict import SymplecticKernelPredictor  # noqa: E402
-from sympredict.paper.pendulum import paper_test_instances  # noqa: E402
+from sympredict_paper.pendulum import paper_test_instances  # noqa: E402
 from sympredict.kernels import IMQ  # noqa: E402
 from sympredict.symplectic.metrics import relative_trajectory_error  # noqa: E402
 from sympredict.systems.pendulum import DT_TEST, Pendulum, flow_map_data  # noqa: E402

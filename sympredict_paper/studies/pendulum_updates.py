@@ -10,7 +10,7 @@ adds symplectic-Euler models with ``state_scaling=(a,)``.
 ``--updates midpoint --compare-backends`` also rolls every test case out on the
 compiled solver and reports the largest difference and both rollout times.
 
-Run:  python benchmarks/pendulum_updates.py [--scalings 0.5 2] [--updates midpoint] [--compare-backends] [--json out.json]
+Run:  python sympredict_paper/studies/pendulum_updates.py [--scalings 0.5 2] [--updates midpoint] [--compare-backends] [--json out.json]
 """
 
 import argparse
@@ -22,10 +22,10 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-import _protocol  # noqa: E402  (benchmarks/_protocol.py)
+import _protocol  # noqa: E402  (sympredict_paper/studies/_protocol.py)
 
 from sympredict import SymplecticKernelPredictor  # noqa: E402
-from sympredict.paper.pendulum import paper_test_instances  # noqa: E402
+from sympredict_paper.pendulum import paper_test_instances  # noqa: E402
 from sympredict.kernels import IMQ  # noqa: E402
 from sympredict.symplectic.metrics import relative_hamiltonian_error, relative_trajectory_error  # noqa: E402
 from sympredict.systems.pendulum import DT_TEST, Pendulum, flow_map_data  # noqa: E402

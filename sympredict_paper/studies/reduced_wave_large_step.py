@@ -1,8 +1,8 @@
 """Kernel ROM against implicit midpoint at large macro steps on pyMOR's parametric demo wave (issue 14).
 
-Run:  python benchmarks/reduced_wave_large_step.py [--json out.json]      (2n = 20, steps 10x and 50x the FOM's)
-      python benchmarks/reduced_wave_large_step.py --quick                (seconds: T = 1, 2n = 6, few centres)
-      python benchmarks/reduced_wave_large_step.py --search rollout --factors 10 --updates midpoint \
+Run:  python sympredict_paper/studies/reduced_wave_large_step.py [--json out.json]      (2n = 20, steps 10x and 50x the FOM's)
+      python sympredict_paper/studies/reduced_wave_large_step.py --quick                (seconds: T = 1, 2n = 6, few centres)
+      python sympredict_paper/studies/reduced_wave_large_step.py --search rollout --factors 10 --updates midpoint \
           --test-seeds 12 31                                              (shapes, ridge and budget by validation rollout)
 
 Setup: ``pymordemos.symplectic_wave_equation.discretize_fom(T)`` with its stiffness
@@ -49,7 +49,7 @@ on the training data, the midpoint form's ``min sigma((I + D Phi)/2)`` (it vanis
 where a mode turns by half a turn per step: the form ``x1 = x0 + dT J grad s((x0+x1)/2)``
 cannot represent the map there) on the training, test and a scan of speeds, and every
 Newton failure of a kernel rollout.  One BLAS thread by default (``--blas-threads``);
-the JSON carries the record of ``benchmarks/_protocol.py``.
+the JSON carries the record of ``sympredict_paper/studies/_protocol.py``.
 """
 
 import argparse
@@ -61,7 +61,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-import _protocol  # noqa: E402  (benchmarks/_protocol.py)
+import _protocol  # noqa: E402  (sympredict_paper/studies/_protocol.py)
 
 parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
 parser.add_argument("--quick", action="store_true", help="small case for the tests (T = 1, 2n = 8, few centres)")

@@ -1,8 +1,8 @@
 """Render docs/explanation/performance.md from suite runs (the first is the full run; the others repeat sections).
 
-    python benchmarks/render_performance.py benchmarks/results/suite.json [more suite.json ...]
+    python sympredict_paper/studies/render_performance.py benchmarks/results/suite.json [more suite.json ...]
 
-Fills the placeholders of ``benchmarks/performance_doc_template.md``: the
+Fills the placeholders of ``sympredict_paper/studies/performance_doc_template.md``: the
 measured table of the first run, medians over all runs of the repeated key
 numbers, the targets with pass/fail, and the fitted scaling exponents.
 """
@@ -18,7 +18,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from suite import markdown  # noqa: E402
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def get(d, *keys):
@@ -114,7 +114,7 @@ def main(paths):
     noise = (f"{len(runs)} run(s) of the repeated sections, "
              f"with {env['blas_threads_requested']} BLAS threads and {get(env, 'numba', 'threads')} numba threads "
              f"({get(env, 'numba', 'threading_layer')} layer).")
-    text = (ROOT / "benchmarks" / "performance_doc_template.md").read_text()
+    text = (Path(__file__).resolve().parent / "performance_doc_template.md").read_text()
     text = (text.replace("@@TABLE@@", table + "\n\n" + repeated).replace("@@TARGETS@@", targets)
             .replace("@@SCALING@@", scaling).replace("@@NOISE@@", noise))
     (ROOT / "docs" / "explanation" / "performance.md").write_text(text)

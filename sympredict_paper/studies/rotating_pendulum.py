@@ -24,7 +24,7 @@ orbits (their own seed) by the median score; the test orbits (another seed)
 are used for nothing else.  NumPy Newton solver for all (the same solver for every
 variant).
 
-Run:  python benchmarks/rotating_pendulum.py [--update midpoint] [--json out.json]
+Run:  python sympredict_paper/studies/rotating_pendulum.py [--update midpoint] [--json out.json]
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-import _protocol  # noqa: E402  (benchmarks/_protocol.py)
+import _protocol  # noqa: E402  (sympredict_paper/studies/_protocol.py)
 
 from sympredict import SymplecticKernelPredictor  # noqa: E402
 from sympredict.exceptions import ExtrapolationWarning, NewtonConvergenceError  # noqa: E402

@@ -21,8 +21,8 @@ of the ``M x M`` kernel matrix: ``O(M^3)`` time, ``O(M^2)`` memory) on ``M`` in 
 a tenth held out) on a 24 GB machine, its memory formula, and the measured peak of that trainer at ``--large-m``
 centres against the formula at that size.
 
-Run:  python benchmarks/scaling.py                 # a few minutes on 2 cores
-      python benchmarks/scaling.py --large          # adds the 100,000-sample check (minutes)
+Run:  python sympredict_paper/studies/scaling.py                 # a few minutes on 2 cores
+      python sympredict_paper/studies/scaling.py --large          # adds the 100,000-sample check (minutes)
 One BLAS and one numba thread; writes ``docs/data/scaling.json`` (``--json``).
 """
 
@@ -34,7 +34,7 @@ import tracemalloc
 
 import numpy as np
 
-import _protocol  # benchmarks/ (the script's folder is on sys.path)
+import _protocol  # sympredict_paper/studies/ (the script's folder is on sys.path)
 
 from sympredict.interpolation.functionals import HBFunctionals
 from sympredict.interpolation.greedy import BlockedGreedy, ExactGreedy, default_trainer, trainer_memory

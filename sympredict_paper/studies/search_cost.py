@@ -1,6 +1,6 @@
 """The kernel search's share of a default fit, with its fits on the exact and on the blocked greedy.
 
-Per system of ``benchmarks/defaults_acceptance.py`` (``--systems``), ``--samples`` one-step samples and
+Per system of ``sympredict_paper/studies/defaults_acceptance.py`` (``--systems``), ``--samples`` one-step samples and
 ``max_centers`` ``--centers``, in one process:
 
 * ``exact_search``: ``SymplecticKernelPredictor(max_centers=m, trainer=ExactGreedy())``: the search's fits and the
@@ -12,7 +12,7 @@ Recorded: fit wall time, the search's own time (``search_.seconds``) and its sha
 (kernels, update), the held-out one-step error of the final model and the rollout metrics of the acceptance
 benchmark (median and max over ``--n-test`` test trajectories of ``--steps`` steps).
 
-Run:  python benchmarks/search_cost.py                                  # coupled pendulums and Kepler, 5,000 / 1,000
+Run:  python sympredict_paper/studies/search_cost.py                                  # coupled pendulums and Kepler, 5,000 / 1,000
 One BLAS and one numba thread; writes ``search_cost.json`` (``--json``).
 """
 
@@ -24,7 +24,7 @@ import warnings
 
 import numpy as np
 
-import _protocol  # benchmarks/ (the script's folder is on sys.path)
+import _protocol  # sympredict_paper/studies/ (the script's folder is on sys.path)
 from defaults_acceptance import make_benchmarks, make_test_set, one_step_error, trajectory_metrics
 
 from sympredict import SymplecticKernelPredictor

@@ -13,7 +13,7 @@ trajectories.  **Not non-intrusive**: ``A_r(c) = V^T A(c) V`` needs the FOM's op
 do not give it).
 
 ``DT_large`` is chosen on the training trajectories only
-(:func:`~sympredict.paper.sine_gordon.choose_large_step` with ``quadratic``: existence of the update's
+(:func:`~sympredict_paper.sine_gordon.choose_large_step` with ``quadratic``: existence of the update's
 generating function checked on ``S``'s pairs, margin of the best classical scheme over the projection floor);
 the test parameters (the preset's, seed 0) are used for the printed errors only.  For every candidate the numbers
 are printed, the chosen one is marked.  ``--rule validation`` adds a second training-only rule
@@ -24,7 +24,7 @@ test numbers at ``2n = 12`` had been seen (docs/explanation/sine_gordon.md says 
 Data, basis, Galerkin ROM, ridge selection (held-out training trajectories) and the scaled fit are the
 experiment's own (``fom_data``, ``choose_large_step``, ``_fit_kernel``, ``_err``).
 
-Run (one core):  OMP_NUM_THREADS=1 NUMBA_NUM_THREADS=1 python benchmarks/sine_gordon_large_split.py --dims 8 \\
+Run (one core):  OMP_NUM_THREADS=1 NUMBA_NUM_THREADS=1 python sympredict_paper/studies/sine_gordon_large_split.py --dims 8 \\
     [--steps 10 15 20 30] [--updates midpoint symplectic_euler] [--splits quadratic-mass quadratic none] \\
     [--rule existence validation] [--json f]
 """
@@ -36,11 +36,11 @@ from dataclasses import replace
 
 import numpy as np
 
-import _protocol  # benchmarks/ (the script's folder is on sys.path)
-from _sine_gordon_data import cached_fom_data  # benchmarks/
+import _protocol  # sympredict_paper/studies/ (the script's folder is on sys.path)
+from _sine_gordon_data import cached_fom_data  # sympredict_paper/studies/
 
 from sympredict.symplectic.metrics import canonical_J
-from sympredict.paper.sine_gordon import PRESETS, _err, _fit_kernel, _jg, choose_large_step
+from sympredict_paper.sine_gordon import PRESETS, _err, _fit_kernel, _jg, choose_large_step
 from sympredict.mor.nonlinear import ReducedSineGordon
 from sympredict.mor.basis import complex_svd_basis
 

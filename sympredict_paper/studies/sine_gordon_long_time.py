@@ -15,7 +15,7 @@ initial states over ``long_factor * T``, printed per window of length ``T``:
 
 Choices (lambda, augmentation) are never taken from these test numbers; they are diagnostics only.
 
-Run:  python benchmarks/sine_gordon_long_time.py [--dim 8] [--data reduced projected] [--augment ...]
+Run:  python sympredict_paper/studies/sine_gordon_long_time.py [--dim 8] [--data reduced projected] [--augment ...]
 """
 
 import argparse
@@ -26,9 +26,9 @@ from dataclasses import replace
 import numpy as np
 from scipy.spatial import cKDTree
 
-import _protocol  # benchmarks/ (the script's folder is on sys.path)
+import _protocol  # sympredict_paper/studies/ (the script's folder is on sys.path)
 
-from sympredict.paper.sine_gordon import PRESETS, _fit_kernel, sign_symmetry, EnergySamples, no_augmentation
+from sympredict_paper.sine_gordon import PRESETS, _fit_kernel, sign_symmetry, EnergySamples, no_augmentation
 from sympredict.mor.nonlinear import ReducedSineGordon
 from sympredict.mor.basis import complex_svd_basis
 from sympredict.systems.sine_gordon import SineGordonFOM

@@ -10,7 +10,7 @@ where it is < 1; ``solvability``) at the training states and at midpoints of ran
 pairs of them, the largest expansion coefficient, and whether a rollout from the
 training trajectories' initial states runs (Newton failures counted).
 
-Run:  python benchmarks/sine_gordon_newton.py [--dims 8 12] [--lambdas 0 1e-6]
+Run:  python sympredict_paper/studies/sine_gordon_newton.py [--dims 8 12] [--lambdas 0 1e-6]
 """
 
 import argparse
@@ -19,9 +19,9 @@ from dataclasses import replace
 
 import numpy as np
 
-import _protocol  # benchmarks/ (the script's folder is on sys.path)
+import _protocol  # sympredict_paper/studies/ (the script's folder is on sys.path)
 
-from sympredict.paper.sine_gordon import PRESETS, _fit_kernel
+from sympredict_paper.sine_gordon import PRESETS, _fit_kernel
 from sympredict.mor.nonlinear import ReducedSineGordon
 from sympredict.mor.basis import complex_svd_basis
 from sympredict.systems.sine_gordon import SineGordonFOM

@@ -11,18 +11,18 @@ quadratic part of ``H`` only) or ``c^2 A1 + A2 + s Vq^T Vq`` (``--split quadrati
 ``1 - cos q``).  ``S`` is a :class:`~sympredict.SymplecticKernelPredictor` fitted on the transformed pairs
 ``(L_h y0, L_{-h} y1)``: it carries only the nonlinear coupling, the fast linear rotation is exact.  ``Phi`` is
 symplectic (a composition of symplectic maps).  The model is :class:`~sympredict.flowmap.splitting.SplitKernelPredictor`
-(the experiment's ``kernel_split`` option, :func:`~sympredict.paper.sine_gordon.split_setup`); the Galerkin
+(the experiment's ``kernel_split`` option, :func:`~sympredict_paper.sine_gordon.split_setup`); the Galerkin
 training data then have enough implicit-midpoint sub-steps that the fastest linear mode's phase error stays below
 ``split_phase_tol`` per ``DT`` (``L_h`` is exact, the data must be too).
 
 Data, basis, Galerkin ROM, energy samples, ridge selection and the scaled fit are the experiment's own
-(:func:`~sympredict.paper.sine_gordon.fom_data`, ``split_setup``, ``_fit_kernel``, ``_augmentation``); the test parameters
+(:func:`~sympredict_paper.sine_gordon.fom_data`, ``split_setup``, ``_fit_kernel``, ``_augmentation``); the test parameters
 are the preset's (seed 0), used for the reported errors only, never for a choice.  Printed per ``2n``, update and
 split: the kernel ROM's error against the FOM per test parameter (mean over ``[0, T]``), its ratio to the Galerkin
 ROM's, its distance to the trajectory of the Galerkin ROM it learns (with the data's sub-steps; mean relative error
-over ``[0, T]``; the linearised flow ``L_h L_h`` alone for comparison), and :func:`~sympredict.paper.sine_gordon.energy_boundedness` over ``long_factor * T``.
+over ``[0, T]``; the linearised flow ``L_h L_h`` alone for comparison), and :func:`~sympredict_paper.sine_gordon.energy_boundedness` over ``long_factor * T``.
 
-Run (one core):  OMP_NUM_THREADS=1 NUMBA_NUM_THREADS=1 python benchmarks/sine_gordon_split.py --dims 12 \\
+Run (one core):  OMP_NUM_THREADS=1 NUMBA_NUM_THREADS=1 python sympredict_paper/studies/sine_gordon_split.py --dims 12 \\
     [--n-c 4 --n-amplitude 4 --max-centers 1000] [--updates symplectic_euler midpoint] [--splits none quadratic quadratic-mass]
 """
 
@@ -33,10 +33,10 @@ from dataclasses import replace
 
 import numpy as np
 
-import _protocol  # benchmarks/ (the script's folder is on sys.path)
-from _sine_gordon_data import cached_fom_data  # benchmarks/
+import _protocol  # sympredict_paper/studies/ (the script's folder is on sys.path)
+from _sine_gordon_data import cached_fom_data  # sympredict_paper/studies/
 
-from sympredict.paper.sine_gordon import PRESETS, _augmentation, _err, _energy_errors, _fit_kernel, _jg, \
+from sympredict_paper.sine_gordon import PRESETS, _augmentation, _err, _energy_errors, _fit_kernel, _jg, \
     energy_boundedness, split_setup
 from sympredict.symplectic.metrics import relative_trajectory_error
 from sympredict.mor.nonlinear import ReducedSineGordon

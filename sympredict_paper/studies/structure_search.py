@@ -21,7 +21,7 @@ added to every state (the true reversing symmetry should hold or be untestable, 
 the rollout time of the expert's symmetric midpoint model, compiled against NumPy, side by side in this process
 (``--timing-steps`` steps of the test orbits, or ``--steps`` where an orbit's Newton solve fails before).
 
-Run:  python benchmarks/structure_search.py --trajectories 160 --steps 60 --centers 400 --json docs/data/structure_search.json
+Run:  python sympredict_paper/studies/structure_search.py --trajectories 160 --steps 60 --centers 400 --json docs/data/structure_search.json
 (the issue's experiment used 300 trajectories and 1,000 centres; the sizes here are reduced for a shared machine)
 """
 

@@ -2,14 +2,14 @@
 
 One command (not part of the test run):
 
-    python benchmarks/suite.py --out benchmarks/results              # ~5 minutes on 2 cores
-    python benchmarks/suite.py --scenario-a --out benchmarks/results # + full scenario A, exact and fast (~6 min more, 9 GiB)
+    python sympredict_paper/studies/suite.py --out benchmarks/results              # ~5 minutes on 2 cores
+    python sympredict_paper/studies/suite.py --scenario-a --out benchmarks/results # + full scenario A, exact and fast (~6 min more, 9 GiB)
 
 Writes ``<out>/suite.json`` (every number, and the protocol record: command line,
 revision, threads, machine), ``<out>/suite.md`` (a short table)
 and, with ``scaling``, ``docs/figures/performance_scaling.png`` (``--figure``).
 Every timing is measured in this process (or, for peak memory, in a spawned
-child per training run) by the protocol of ``benchmarks/_protocol.py``, with the
+child per training run) by the protocol of ``sympredict_paper/studies/_protocol.py``, with the
 thread settings stated in the output: BLAS threads through threadpoolctl
 (``--blas-threads``, default 1), numba threads through ``numba.set_num_threads``
 (``--threads``, default all cores).  Ratios are taken side by side in one
@@ -32,7 +32,7 @@ Sections (``--sections``, comma separated; default all but ``scenario_a``):
     Costs against centres ``m``, candidates ``N``, batch size and state
     dimension ``2n``, with fitted log-log exponents.
 ``wave``
-    The MOR pipeline (``sympredict.paper.wave``, quick preset, 2n = 4,
+    The MOR pipeline (``sympredict_paper.wave``, quick preset, 2n = 4,
     dT = 0.1): basis, data, kernel selection, training, online step, each
     timed, with the accuracy of each stage's product.
 ``scenario_a``
@@ -56,12 +56,12 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 from pymor.core.logger import set_log_levels  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-import _protocol  # noqa: E402  (benchmarks/_protocol.py)
+import _protocol  # noqa: E402  (sympredict_paper/studies/_protocol.py)
 
 from sympredict import SymplecticKernelPredictor, _fastkernels  # noqa: E402
 from sympredict.data import mixed_variables  # noqa: E402
@@ -139,7 +139,7 @@ def model_from_greedy(data, functionals: HBFunctionals, result, eps=EPS_A) -> Sy
 
 def paper_protocol_errors(model, seed: int = 0, horizon: float = 20.0) -> list:
     """Scenario A test protocol: 5 x 5 random ``q0`` and lengths, relative error over time per test step."""
-    from sympredict.paper.pendulum import paper_test_instances
+    from sympredict_paper.pendulum import paper_test_instances
 
     system = Pendulum()
     x0, lengths = paper_test_instances(seed)
@@ -462,7 +462,7 @@ def scaling_figure(scaling: dict, path: Path) -> None:
 
 # --------------------------------------------------------------------------- wave
 def section_wave(seed: int = 0, basis_blas_threads: int = 1) -> dict:
-    from sympredict.paper.wave import PRESETS, build_rom, train_wave_predictor
+    from sympredict_paper.wave import PRESETS, build_rom, train_wave_predictor
 
     preset = PRESETS["quick"]
     dt = 0.1

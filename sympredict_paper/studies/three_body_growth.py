@@ -18,7 +18,7 @@ one ``SymplecticKernelPredictor(max_centers=M)`` fit with the defaults.  Its pre
   drift over ``--long-steps`` steps (median, maximum);
 * the smallest Newton pivot (power function of the selected centre) up to ``m``.
 
-Run:  python benchmarks/three_body_growth.py            # writes docs/data/three_body_growth.json
+Run:  python sympredict_paper/studies/three_body_growth.py            # writes docs/data/three_body_growth.json
 """
 
 from __future__ import annotations
@@ -30,14 +30,14 @@ from pathlib import Path
 
 import numpy as np
 
-import _protocol  # benchmarks/
+import _protocol  # sympredict_paper/studies/
 
 from sympredict import SymplecticKernelPredictor
 from sympredict.data import FlowMapData
 from sympredict.exceptions import ExtrapolationWarning
 from sympredict.systems.three_body import MU_RANGE, ThreeBody, librating_states
 
-RESULTS = Path(__file__).resolve().parents[1] / "docs" / "data" / "three_body_growth.json"
+RESULTS = Path(__file__).resolve().parents[2] / "docs" / "data" / "three_body_growth.json"
 
 
 def trajectories(tb, n, seed, steps, dt):

@@ -3,9 +3,9 @@
 Pendulum, n_grid 30, IMQ (0.2, 1.5, 3.0), 1,000 centres; the paper's 25 test
 instances (seed 0), 400 steps.  Counts passes (deterministic, no timing) and
 compares both trajectories with each other and with the reference.  Threads
-and the JSON record follow ``benchmarks/_protocol.py``.
+and the JSON record follow ``sympredict_paper/studies/_protocol.py``.
 
-Run:  python benchmarks/warm_start_passes.py [--json out.json]
+Run:  python sympredict_paper/studies/warm_start_passes.py [--json out.json]
 """
 
 import argparse
@@ -15,9 +15,9 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-import _protocol  # noqa: E402  (benchmarks/_protocol.py)
+import _protocol  # noqa: E402  (sympredict_paper/studies/_protocol.py)
 from sympredict import SymplecticKernelPredictor, _fastkernels  # noqa: E402
-from sympredict.paper.pendulum import paper_test_instances  # noqa: E402
+from sympredict_paper.pendulum import paper_test_instances  # noqa: E402
 from sympredict.kernels import IMQ  # noqa: E402
 from sympredict.symplectic.metrics import relative_trajectory_error  # noqa: E402
 from sympredict.systems.pendulum import Pendulum, flow_map_data  # noqa: E402

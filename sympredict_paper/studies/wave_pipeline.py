@@ -2,7 +2,7 @@
 
 Run (not part of the tests):
 
-    python benchmarks/wave_pipeline.py --preset quick --n 2 --n 5 --n 10 --out benchmarks/results
+    python sympredict_paper/studies/wave_pipeline.py --preset quick --n 2 --n 5 --n 10 --out benchmarks/results
 
 For each ``n`` the snapshot initial states excite ``n`` sine modes (richer
 states for larger ``n``).  Reports basis construction time and symplecticity,
@@ -10,7 +10,7 @@ data / selection / training times, time-averaged errors of the kernel
 predictor and implicit midpoint per ``(dT, c_test)``, and the online wall
 time of ROM + kernel against the FOM micro-step reference over the same
 horizon, all measured in one process.  ``--threads`` / ``--blas-threads``: BLAS
-threads (default 1, ``benchmarks/_protocol.py``; its record is in the JSON, whose
+threads (default 1, ``sympredict_paper/studies/_protocol.py``; its record is in the JSON, whose
 rows are under ``"rows"``).
 """
 
@@ -22,9 +22,9 @@ import numpy as np
 from pymor.core.logger import set_log_levels
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-import _protocol  # noqa: E402  (benchmarks/_protocol.py)
+import _protocol  # noqa: E402  (sympredict_paper/studies/_protocol.py)
 
-from sympredict.paper.wave import PRESETS, run_wave  # noqa: E402
+from sympredict_paper.wave import PRESETS, run_wave  # noqa: E402
 
 parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
 parser.add_argument("--preset", choices=sorted(PRESETS), default="quick")
