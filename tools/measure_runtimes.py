@@ -37,6 +37,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "docs" / "data" / "runtimes.json"
 SYMPREDICT = [sys.executable, "-m", "sympredict.cli"]
+PAPER = [sys.executable, "-m", "sympredict_paper"]
 SKIP = re.compile(r"<!--\s*skip-example:")
 FENCE = re.compile(r"^(`{3,})\s*([\w{}-]*)")
 
@@ -87,7 +88,7 @@ def measure_quick(work: Path) -> dict:
     out = {}
     for system in ("pendulum", "wave"):
         out[system] = {"command": f"sympredict-paper run {system} --quick --out DIR",
-                       "s": _timed([*SYMPREDICT, "run", system, "--quick", "--out", f"run-{system}"], work, _env())}
+                       "s": _timed([*PAPER, "run", system, "--quick", "--out", f"run-{system}"], work, _env())}
     return out
 
 

@@ -82,6 +82,7 @@ from sympredict.container import write_container
 from sympredict.io import save_dataset, load_dataset
 import sympredict.container as container
 from sympredict.cli import main as cli_main
+from sympredict_paper.cli import main as paper_main
 from sympredict.systems.pendulum import random_flow_map_data
 def hostile(label, attack):
     path = os.path.join(tmp, "h.h5"); m.save(path)
@@ -130,17 +131,17 @@ print(f"| ... after the failed save | previous file intact: {open(p, 'rb').read(
 a, b2 = os.path.join(tmp, "a.h5"), os.path.join(tmp, "b.h5")
 import time as _time; m.save(a); _time.sleep(1.1); m.save(b2)
 print(f"| save the same model twice, 1.1 s apart | identical bytes: {open(a, 'rb').read() == open(b2, 'rb').read()} |")
-def cli(argv):
+def cli(argv, main=cli_main):
     import contextlib, io
     err = io.StringIO()
     with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
-        try: code = cli_main(argv)
+        try: code = main(argv)
         except SystemExit as e: code = e.code
     return f"exit {code}: {err.getvalue().strip()}".replace(tmp, "/tmp/…")
 save_dataset(d, dp)
 print(f"| `sympredict train d.h5 --out d.h5` | `{cli(['train', dp, '--out', dp])}` |")
-print(f"| `sympredict-paper run pendulum --threads 0` | `{cli(['run', 'pendulum', '--out', os.path.join(tmp, 'r'), '--threads', '0'])}` |")
-print(f"| `sympredict-paper run` with `--out` an existing file | `{cli(['run', 'pendulum', '--out', p])}` |")
+print(f"| `sympredict-paper run pendulum --threads 0` | `{cli(['run', 'pendulum', '--out', os.path.join(tmp, 'r'), '--threads', '0'], paper_main)}` |")
+print(f"| `sympredict-paper run` with `--out` an existing file | `{cli(['run', 'pendulum', '--out', p], paper_main)}` |")
 print(f"| `sympredict report` of a hostile file | `{cli(['report', os.path.join(tmp, 'h.h5')])}` |")
 show("Pendulum(g=nan)", lambda: Pendulum(g=np.nan))
 show("reference flow with h_max <= 0", lambda: Pendulum().flow(x, 0.75, 0.05, h_max=0.0))

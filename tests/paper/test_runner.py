@@ -171,3 +171,53 @@ def test_nonsense_numbers_are_refused_by_the_parser_in_one_line(argv, capsys):
     err = capsys.readouterr().err
     assert len(err.strip().splitlines()) == 1 and "error: argument" in err, err
 
+
+
+@pytest.mark.parametrize("module, system", [("pendulum", "pendulum"), ("wave", "wave"), ("henon_heiles", "henon-heiles"),
+                                            ("sine_gordon", "sine-gordon")])
+def test_each_scenario_has_its_own_main(module, system, tmp_path, monkeypatch, capsys):
+    """``python -m sympredict_paper.<scenario> ...`` is ``sympredict-paper run <scenario> ...``: the scenario's runner
+    writes into the folder given, and a bad option is refused by the parser (exit 2) before any work."""
+    import importlib
+
+    monkeypatch.setattr(report, "claims", lambda results: [])
+    ran = []
+
+    def fake(preset_name, seed, out):
+        ran.append((preset_name, seed))
+        return {"value": 1.0}, [], ["## fake"]
+
+    monkeypatch.setattr(runner, "_run_" + module, fake)
+    scenario = importlib.import_module(f"sympredict_paper.{module}")
+    assert scenario.main(["--preset", "smoke", "--seed", "3", "--out", str(tmp_path / "out"), "--threads", "1"]) == 0
+    assert ran == [("smoke", 3)]
+    assert json.loads((tmp_path / "out" / "results.json").read_text())["results"] == {system: {"value": 1.0}}
+    with pytest.raises(SystemExit) as info:
+        scenario.main(["--out", str(tmp_path / "x"), "--threads", "0"])
+    assert info.value.code == 2 and "sympredict-paper run: error: argument --threads" in capsys.readouterr().err
+
+
+def test_study_runs_a_script_of_the_studies_folder(capsys):
+    """``sympredict-paper study NAME ARGS`` runs ``sympredict_paper/studies/NAME.py`` with ``ARGS`` (here ``--help``:
+    the study's own usage, exit 0); an unknown study is refused by the parser; the helpers are no studies."""
+    from sympredict_paper.cli import STUDIES, study_names
+
+    names = study_names()
+    assert "pendulum_accuracy" in names and "defaults_acceptance" in names and "_protocol" not in names
+    assert sorted(names) == sorted(p.stem for p in STUDIES.glob("[!_]*.py"))
+    argv, path = list(sys.argv), list(sys.path)
+    assert main(["study", "three_body_growth", "--help"]) == 0
+    assert "usage: three_body_growth.py" in capsys.readouterr().out
+    assert sys.argv == argv and sys.path == path  # left as found
+    with pytest.raises(SystemExit) as info:
+        main(["study", "no_such_study"])
+    assert info.value.code == 2 and "invalid choice" in capsys.readouterr().err
+
+
+def test_the_paper_command_is_installed_beside_the_library_command():
+    from importlib.metadata import entry_points
+
+    scripts = {e.name: e.value for e in entry_points(group="console_scripts") if e.name.startswith("sympredict")}
+    assert scripts == {"sympredict": "sympredict.cli:main", "sympredict-paper": "sympredict_paper.cli:main"}
+    proc = subprocess.run([sys.executable, "-m", "sympredict_paper", "--help"], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0 and "{run,study}" in proc.stdout
