@@ -8,8 +8,8 @@ Build (warnings are errors, as in CI)::
 The pages are the Markdown files in this folder (parsed by MyST) plus the API
 reference (``reference/api.rst``, autodoc + napoleon over the NumPy-style docstrings).
 The figures page (``explanation/figures.md``) shows the PNGs in ``docs/figures/``, copied
-there from a ``sympredict run all --quick`` output folder by
-``python docs/collect_figures.py DIR``; they are committed, and a build
+there from a ``sympredict-paper run all --quick`` output folder by
+``python sympredict_paper/figures/collect_figures.py DIR``; they are committed, and a build
 without them fails under -W (image file not readable).
 
 Measured numbers and their tables are read at build time from the JSON files in
@@ -157,26 +157,31 @@ from sphinx.util.docutils import SphinxDirective  # noqa: E402
 
 
 class SympredictHelp(SphinxDirective):
-    """``sympredict-help`` directive: the ``--help`` text of ``sympredict`` or of one subcommand.
+    """``sympredict-help`` directive: the ``--help`` text of ``sympredict`` or of one subcommand; with the first
+    argument ``sympredict-paper``, of the paper's command (``{sympredict-help} sympredict-paper run``).
 
-    The text comes from ``sympredict.cli.build_parser()`` at build time, so the
-    page always shows the options of the code it documents.  An unknown
-    subcommand is an error.
+    The text comes from ``sympredict.cli.build_parser()`` (``sympredict_paper.cli.build_parser()``) at build
+    time, so the page always shows the options of the code it documents.  An unknown subcommand is an error.
     """
 
-    optional_arguments = 1
+    optional_arguments = 2
 
     def run(self):
         import argparse
 
         from sympredict.cli import build_parser
 
+        arguments, program = list(self.arguments), "sympredict"
+        if arguments and arguments[0] == "sympredict-paper":
+            from sympredict_paper.cli import build_parser
+
+            program = arguments.pop(0)
         parser = build_parser()
-        if self.arguments:
-            name = self.arguments[0]
+        if arguments:
+            name = arguments[0]
             sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
             if name not in sub.choices:
-                raise self.error(f"sympredict has no subcommand {name!r} (it has {', '.join(sub.choices)})")
+                raise self.error(f"{program} has no subcommand {name!r} (it has {', '.join(sub.choices)})")
             parser = sub.choices[name]
         old = os.environ.get("COLUMNS")
         os.environ["COLUMNS"] = "88"  # argparse wraps to the terminal width: fix it

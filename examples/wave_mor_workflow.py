@@ -14,7 +14,7 @@ import argparse
 
 
 from sympredict import SymplecticKernelPredictor
-from sympredict.paper.wave import reduced_flow_map_data
+from sympredict_paper.wave import reduced_flow_map_data
 from sympredict.kernels import IMQ
 from sympredict.mor import SymplecticKernelReductor
 from sympredict.symplectic.metrics import relative_trajectory_error

@@ -96,12 +96,12 @@ def rng():
 
 @pytest.fixture(scope="session")
 def smoke_run(tmp_path_factory):
-    """``sympredict run all --preset smoke`` once per session: (output folder, results.json content, stdout)."""
+    """``sympredict-paper run all --preset smoke`` once per session: (output folder, results.json content, stdout)."""
     import contextlib
     import io
     import json
 
-    from sympredict.cli import main
+    from sympredict_paper.cli import main
 
     out = tmp_path_factory.mktemp("smoke_run")
     stdout = io.StringIO()

@@ -41,7 +41,7 @@ def test_bad_mplbackend_does_not_break_predict(coarse_pendulum_model_file):
 
 
 def test_bad_mplbackend_does_not_break_plotting():
-    proc = _python("import sympredict.paper.plotting as p, matplotlib, os\n"
+    proc = _python("import sympredict_paper.plotting as p, matplotlib, os\n"
                    "assert matplotlib.get_backend().lower() == 'agg' and os.environ['MPLBACKEND'] == 'no-such-backend'\n",
                    MPLBACKEND="no-such-backend", NUMBA_NUM_THREADS="1")
     assert proc.returncode == 0, proc.stderr

@@ -8,7 +8,7 @@ What is timed (wall seconds, each in a fresh process, BLAS threads = the machine
 * ``demo``: ``sympredict demo`` (the README's first command after installing), cold (a fresh, empty
   ``NUMBA_CACHE_DIR``: the first run on a new machine, compiling the Newton kernels) and warm (the
   same cache again); ``compile_s`` is their difference.
-* ``quick``: ``sympredict run pendulum --quick`` and ``sympredict run wave --quick``.
+* ``quick``: ``sympredict-paper run pendulum --quick`` and ``sympredict-paper run wave --quick``.
 * ``pages``: every README/docs page with Python blocks: the blocks run in order in one process, as
   ``tests/docs/test_docs_examples.py`` runs them (warm compilation cache).
 * ``basis``: the pyMOR tutorial's basis from every 10th snapshot against all 5,010 (time of
@@ -37,6 +37,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "docs" / "data" / "runtimes.json"
 SYMPREDICT = [sys.executable, "-m", "sympredict.cli"]
+PAPER = [sys.executable, "-m", "sympredict_paper"]
 SKIP = re.compile(r"<!--\s*skip-example:")
 FENCE = re.compile(r"^(`{3,})\s*([\w{}-]*)")
 
@@ -86,8 +87,8 @@ def measure_demo(work: Path) -> dict:
 def measure_quick(work: Path) -> dict:
     out = {}
     for system in ("pendulum", "wave"):
-        out[system] = {"command": f"sympredict run {system} --quick --out DIR",
-                       "s": _timed([*SYMPREDICT, "run", system, "--quick", "--out", f"run-{system}"], work, _env())}
+        out[system] = {"command": f"sympredict-paper run {system} --quick --out DIR",
+                       "s": _timed([*PAPER, "run", system, "--quick", "--out", f"run-{system}"], work, _env())}
     return out
 
 

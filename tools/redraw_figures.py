@@ -4,8 +4,8 @@
 
 The speed-against-accuracy charts (pendulum, wave) and the pendulum stability sweeps are drawn
 from the summaries in ``results.json`` alone, so a change of style needs no new run; the other
-figures need the run's models and trajectories (``sympredict run all --quick``, then
-``python docs/collect_figures.py``).  Only the PNGs are written (the docs show those).
+figures need the run's models and trajectories (``sympredict-paper run all --quick``, then
+``python sympredict_paper/figures/collect_figures.py``).  Only the PNGs are written (the docs show those).
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ import json
 import sys
 from pathlib import Path
 
-from sympredict.paper import plotting, report
+from sympredict_paper import plotting, report
 
 
 def redraw(results_json, out) -> list[str]:

@@ -145,7 +145,7 @@ class KernelSearch(Setting):
     ``inf``): the error a rollout compounds, at the size the model will have.
     Both stages fit with the estimator's own ``trainer`` (the one-at-a-time greedy by default: with
     :class:`~sympredict.interpolation.greedy.BlockedGreedy` fits in the second stage the search took a half to a
-    third of its time on two acceptance systems of ``benchmarks/defaults_acceptance.py``, but chose another update
+    third of its time on two acceptance systems of ``sympredict_paper/studies/defaults_acceptance.py``, but chose another update
     and parameter kernel on the Kepler orbits, with a 1.3x larger rollout error).
     Cost: about ``len(updates) (len(shapes) len(parameter_shapes)^k + 3 (len(families) - 1))`` fits to ``m_star``
     centres (``k`` open parameter and step kernels), then ``len(updates) len(families) + 8 refine_sweeps`` fits to

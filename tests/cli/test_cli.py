@@ -66,13 +66,6 @@ def test_run_all_smoke_writes_everything(smoke_run):
     assert all(e > z["target"] for m, e in z["center_errors"].items() if int(m) < z["n_centers"])
 
 
-def test_cli_rejects_unknown_system(tmp_path):
-    proc = subprocess.run(
-        [sys.executable, "-m", "sympredict.cli", "run", "nosuchsystem", "--out", str(tmp_path)], capture_output=True, text=True
-    )
-    assert proc.returncode == 2 and "invalid choice" in proc.stderr
-
-
 def test_example_runs(tmp_path):
     out = tmp_path / "example.png"
     proc = subprocess.run(
@@ -91,20 +84,6 @@ def test_wave_example_runs():
     )
     assert proc.returncode == 0, proc.stderr
     assert "ROM + kernel predictor" in proc.stdout and "V^T J V - J" in proc.stdout
-
-
-def test_cli_user_errors_are_one_line_without_traceback(tmp_path):
-    blocker = tmp_path / "file"
-    blocker.write_text("not a folder")
-    proc = subprocess.run(
-        [sys.executable, "-m", "sympredict.cli", "run", "pendulum", "--preset", "smoke", "--out", str(blocker / "sub")],
-        capture_output=True, text=True,
-    )
-    assert proc.returncode == 1
-    assert proc.stderr.strip().startswith("sympredict: error:") and "Traceback" not in proc.stderr
-    proc = subprocess.run([sys.executable, "-m", "sympredict.cli", "run", "pendulum", "--preset", "huge", "--out", str(tmp_path)],
-                          capture_output=True, text=True)
-    assert proc.returncode == 2 and "invalid choice" in proc.stderr and "Traceback" not in proc.stderr
 
 
 def test_data_train_predict_report_workflow(tmp_path, capsys):

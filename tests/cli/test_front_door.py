@@ -145,7 +145,7 @@ def test_reductor_empty_kernel_list_and_array_reconstruct(small_fe_wave):
 def test_the_working_line_shows_on_a_terminal_only_and_is_erased():
     import io
 
-    from sympredict.cli import _Working
+    from sympredict.cli._console import _Working
 
     class Terminal(io.StringIO):
         def isatty(self):
@@ -161,7 +161,7 @@ def test_the_working_line_shows_on_a_terminal_only_and_is_erased():
 
 def test_demo_writes_a_model_a_figure_and_one_line(tmp_path, capsys, monkeypatch):
     """``sympredict demo`` end to end, at small sizes (the command's own sizes take a minute)."""
-    from sympredict.paper import demo
+    from sympredict.cli import demo
 
     monkeypatch.setattr(demo, "N_TRAJECTORIES", 8)
     monkeypatch.setattr(demo, "MAX_CENTERS", 20)

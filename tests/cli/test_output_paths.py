@@ -82,7 +82,7 @@ def test_cli_train_refuses_a_read_only_folder_before_training(data_file, tmp_pat
 
 
 def test_model_kept_when_saving_fails_after_training(coarse_pendulum_model, tmp_path, monkeypatch):
-    from sympredict import cli
+    from sympredict.cli import _files
 
     target = tmp_path / "m.h5"
     real_save = type(coarse_pendulum_model).save
@@ -93,7 +93,7 @@ def test_model_kept_when_saving_fails_after_training(coarse_pendulum_model, tmp_
         real_save(self, path)
     monkeypatch.setattr(type(coarse_pendulum_model), "save", failing_save)
     with pytest.raises(OSError, match="kept in") as info:
-        cli._save_model_or_keep(coarse_pendulum_model, target)
+        _files._save_model_or_keep(coarse_pendulum_model, target)
     kept = [p for p in tmp_path.iterdir() if p.name.startswith("sympredict-model-")]
     assert len(kept) == 1 and str(kept[0]) in str(info.value)
     assert SymplecticKernelPredictor.load(kept[0]).n_centers_ == coarse_pendulum_model.n_centers_

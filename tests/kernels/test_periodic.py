@@ -262,7 +262,7 @@ def test_model_files(data, tmp_path):
 
 
 def _benchmark():
-    path = pathlib.Path(__file__).resolve().parents[2] / "benchmarks" / "rotating_pendulum.py"
+    path = pathlib.Path(__file__).resolve().parents[2] / "sympredict_paper" / "studies" / "rotating_pendulum.py"
     spec = importlib.util.spec_from_file_location("rotating_pendulum_benchmark", path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
@@ -270,7 +270,7 @@ def _benchmark():
 
 
 def test_rotating_pendulum_benchmark_small():
-    """A small version of benchmarks/rotating_pendulum.py: the periodic model keeps the energy of rotating
+    """A small version of sympredict_paper/studies/rotating_pendulum.py: the periodic model keeps the energy of rotating
     orbits (q unwrapped) and beats the same model without the factor, unwrapped and wrapped."""
     out = _benchmark().run(n_q=24, n_p=24, eps_grid=(0.5,), max_centers=500, n_val=3, n_test=6, n_steps=300,
                            log=lambda s: None)

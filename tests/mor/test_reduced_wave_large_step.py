@@ -1,4 +1,4 @@
-"""benchmarks/reduced_wave_large_step.py --quick: its results file, and the midpoint form at 50x the FOM step."""
+"""sympredict_paper/studies/reduced_wave_large_step.py --quick: its results file, and the midpoint form at 50x the FOM step."""
 
 import json
 import os
@@ -11,7 +11,7 @@ import pytest
 
 pytest.importorskip("pymordemos.symplectic_wave_equation")
 
-SCRIPT = Path(__file__).resolve().parents[2] / "benchmarks" / "reduced_wave_large_step.py"
+SCRIPT = Path(__file__).resolve().parents[2] / "sympredict_paper" / "studies" / "reduced_wave_large_step.py"
 
 
 def run_quick(out, *extra):

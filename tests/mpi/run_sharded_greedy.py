@@ -35,7 +35,7 @@ from sympredict import parallel as par
 from sympredict.interpolation.greedy import ShardedGreedy, greedy_interpolation, sharded_greedy
 from sympredict.interpolation.greedy import sharded as sharded_module
 from sympredict.data import mixed_variables
-from sympredict.paper import wave
+from sympredict_paper import wave
 from sympredict.interpolation.functionals import HBFunctionals, ValueFunctionals
 from sympredict.kernels import IMQ, ProductKernel
 from sympredict.systems.pendulum import Pendulum, flow_map_data, random_flow_map_data

@@ -1,4 +1,4 @@
-"""The defaults-acceptance benchmark harness (benchmarks/defaults_acceptance.py): its metrics and its JSON.
+"""The defaults-acceptance benchmark harness (sympredict_paper/studies/defaults_acceptance.py): its metrics and its JSON.
 
 The metric code is checked against oracles: the exact flow scores round-off
 error and conserves energy, the flow at a 2 % wrong step scores a large error;
@@ -24,22 +24,22 @@ ROOT = Path(__file__).resolve().parents[2]
 
 @pytest.fixture(scope="module")
 def da():
-    sys.path.insert(0, str(ROOT / "benchmarks"))
+    sys.path.insert(0, str(ROOT / "sympredict_paper" / "studies"))
     try:
-        spec = importlib.util.spec_from_file_location("defaults_acceptance", ROOT / "benchmarks" / "defaults_acceptance.py")
+        spec = importlib.util.spec_from_file_location("defaults_acceptance", ROOT / "sympredict_paper" / "studies" / "defaults_acceptance.py")
         module = importlib.util.module_from_spec(spec)
         sys.modules["defaults_acceptance"] = module  # its dataclass looks its module up
         spec.loader.exec_module(module)
         yield module
     finally:
         sys.modules.pop("defaults_acceptance", None)
-        sys.path.remove(str(ROOT / "benchmarks"))
+        sys.path.remove(str(ROOT / "sympredict_paper" / "studies"))
 
 
 def test_quick_run_hand_only_writes_the_schema(tmp_path):
     out = tmp_path / "out.json"
     env = dict(os.environ, NUMBA_NUM_THREADS="1", OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1")
-    proc = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "defaults_acceptance.py"), "--quick",
+    proc = subprocess.run([sys.executable, str(ROOT / "sympredict_paper" / "studies" / "defaults_acceptance.py"), "--quick",
                            "--systems", "kepler", "--configs", "hand", "--json", str(out)],
                           capture_output=True, text=True, env=env, timeout=600)
     assert proc.returncode == 0, proc.stderr[-3000:]

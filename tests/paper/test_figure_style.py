@@ -1,4 +1,4 @@
-"""One figure style for the package's figures (sympredict.paper.plotting), checked on rendered figures.
+"""One figure style for the package's figures (sympredict_paper.plotting), checked on rendered figures.
 
 Each figure function is drawn on small synthetic data shaped like the runs' results; the test then
 renders it as ``save`` does (``bbox_inches="tight"``) and compares the extents of every piece of text:
@@ -12,7 +12,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from sympredict.paper import plotting  # noqa: E402
+from sympredict_paper import plotting  # noqa: E402
 from matplotlib.colors import to_rgba  # noqa: E402
 
 T = np.linspace(0, 20, 201)

@@ -1,4 +1,4 @@
-"""Every figure of ``sympredict run all`` exists and shows the data the results report.
+"""Every figure of ``sympredict-paper run all`` exists and shows the data the results report.
 
 ``plotting.save`` writes next to each figure the data it draws (``name.json``):
 titles, axis labels and scales, and every labelled line.  These tests read
@@ -188,7 +188,7 @@ def _history(n=300, seed=0, with_val=True):
 
 @pytest.mark.parametrize("n_histories", [1, 3])
 def test_greedy_residuals_draw_the_validation_line_on_top_and_visible(n_histories):
-    from sympredict.paper import plotting
+    from sympredict_paper import plotting
 
     labels = [""] if n_histories == 1 else [f", dT={dt}" for dt in (0.1, 0.05, 0.025)]
     fig = plotting.greedy_residuals({lab: _history(seed=i) for i, lab in enumerate(labels)}, "greedy")
@@ -209,7 +209,7 @@ def test_greedy_residuals_draw_the_validation_line_on_top_and_visible(n_historie
 
 
 def test_greedy_residuals_without_validation_draw_only_training():
-    from sympredict.paper import plotting
+    from sympredict_paper import plotting
 
     fig = plotting.greedy_residuals({"": _history(with_val=False)}, "greedy")
     assert [line.get_label() for line in fig.axes[0].get_lines()] == ["training"]
@@ -218,7 +218,7 @@ def test_greedy_residuals_without_validation_draw_only_training():
 
 def test_error_over_time_y_axis_stops_at_a_floor_above_round_off():
     """One round-off value (1e-17) must not pull the log axis down to 1e-16: the bulk decides, above a floor."""
-    from sympredict.paper import plotting
+    from sympredict_paper import plotting
 
     t = np.linspace(0, 6, 121)
     kernel = 1e-6 * (1 + t)
@@ -243,7 +243,7 @@ def test_error_over_time_y_axis_stops_at_a_floor_above_round_off():
 
 
 def test_phase_portrait_tells_the_methods_apart_at_a_glance():
-    from sympredict.paper import plotting
+    from sympredict_paper import plotting
 
     t = np.linspace(0.0, 20.0, 401)
     ref = np.column_stack([np.cos(2 * t), -2 * np.sin(2 * t)])
@@ -273,7 +273,7 @@ def test_phase_portrait_tells_the_methods_apart_at_a_glance():
 
 
 def test_phase_portrait_without_times_is_one_panel():
-    from sympredict.paper import plotting
+    from sympredict_paper import plotting
 
     ref = np.column_stack([np.cos(np.linspace(0, 6, 50)), np.sin(np.linspace(0, 6, 50))])
     fig = plotting.phase_portrait({"reference": ref, "kernel": ref * 1.01}, "pp")
@@ -284,7 +284,7 @@ def test_phase_portrait_without_times_is_one_panel():
 def _suite():
     import importlib.util
 
-    spec = importlib.util.spec_from_file_location("suite_for_tests", Path(__file__).resolve().parents[2] / "benchmarks" / "suite.py")
+    spec = importlib.util.spec_from_file_location("suite_for_tests", Path(__file__).resolve().parents[2] / "sympredict_paper" / "studies" / "suite.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module

@@ -15,8 +15,8 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from sympredict import DirectKernelPredictor, SymplecticKernelPredictor
-from sympredict.paper import report
-from sympredict.paper.pendulum import DT_EXTRAPOLATION, MU_EXTRAPOLATION, PendulumPreset, run_scenario_a, run_scenario_b
+from sympredict_paper import report
+from sympredict_paper.pendulum import DT_EXTRAPOLATION, MU_EXTRAPOLATION, PendulumPreset, run_scenario_a, run_scenario_b
 
 G = 9.81
 TINY = PendulumPreset(n_grid=12, max_centers=80, n_val=60, horizon=1.0, n_grid_b=10, max_centers_b=60, select=False)

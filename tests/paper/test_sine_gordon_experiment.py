@@ -6,8 +6,8 @@ import json
 import numpy as np
 import pytest
 
-from sympredict.paper import plotting, report
-from sympredict.paper.sine_gordon import PRESETS, run_sine_gordon
+from sympredict_paper import plotting, report
+from sympredict_paper.sine_gordon import PRESETS, run_sine_gordon
 
 
 @pytest.fixture(scope="module")
@@ -94,7 +94,7 @@ def test_figures_show_the_results(smoke):
 
 @pytest.mark.slow
 def test_cli_smoke_run(tmp_path):
-    from sympredict.cli import main
+    from sympredict_paper.cli import main
 
     assert main(["run", "sine-gordon", "--preset", "smoke", "--out", str(tmp_path / "run")]) == 0
     out = tmp_path / "run"
@@ -107,7 +107,7 @@ def test_cli_smoke_run(tmp_path):
 
 
 def test_grid_interpolation_and_break_even_oracles():
-    from sympredict.paper.sine_gordon import _interpolation_matrix, break_even
+    from sympredict_paper.sine_gordon import _interpolation_matrix, break_even
 
     x0 = 20.0 * np.arange(1, 50) / 50  # Dirichlet grid of N = 49 on (0, 20)
     assert np.allclose(_interpolation_matrix(x0, x0, 20.0).toarray(), np.eye(49))
@@ -127,7 +127,7 @@ def test_grid_interpolation_and_break_even_oracles():
 
 
 def test_energy_claim_applies_the_boundedness_criterion(smoke):
-    from sympredict.paper.sine_gordon import energy_boundedness
+    from sympredict_paper.sine_gordon import energy_boundedness
 
     K = int(round(PRESETS["smoke"].T / PRESETS["smoke"].DT))
     res = smoke["dims"]["4"]

@@ -7,8 +7,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from sympredict.paper import sine_gordon as sg
-from sympredict.paper.sine_gordon import PRESETS, choose_large_step
+from sympredict_paper import sine_gordon as sg
+from sympredict_paper.sine_gordon import PRESETS, choose_large_step
 
 
 @pytest.fixture(scope="module")

@@ -7,7 +7,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from sympredict.paper.sine_gordon import (
+from sympredict_paper.sine_gordon import (
     PRESETS,
     EnergySamples,
     choose_large_step,

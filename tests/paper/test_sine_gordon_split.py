@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from scipy.linalg import expm
 
-from sympredict.paper.sine_gordon import PRESETS, _fit_kernel, run_sine_gordon, split_setup
+from sympredict_paper.sine_gordon import PRESETS, _fit_kernel, run_sine_gordon, split_setup
 from sympredict.systems.linear_flow import QuadraticPart
 from sympredict.symplectic.metrics import canonical_J
 from sympredict.mor.nonlinear import ReducedSineGordon

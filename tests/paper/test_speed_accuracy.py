@@ -1,8 +1,8 @@
 """Speed-against-accuracy charts (issue 13): every chart holds the methods a user chooses between, the figure
 draws the results file's rows, and the rows' errors agree with an independent recomputation.
 
-The pendulum and wave charts come from the session's ``sympredict run all --preset smoke``
-(``smoke_run``); the Hénon–Heiles chart from ``sympredict run henon-heiles --preset smoke`` (about 10 s).
+The pendulum and wave charts come from the session's ``sympredict-paper run all --preset smoke``
+(``smoke_run``); the Hénon–Heiles chart from ``sympredict-paper run henon-heiles --preset smoke`` (about 10 s).
 """
 
 import json
@@ -10,9 +10,9 @@ import json
 import numpy as np
 import pytest
 
-from sympredict.paper import report
-from sympredict.paper import speed
-from sympredict.paper.peers import VKOGAFlowMap
+from sympredict_paper import report
+from sympredict_paper import speed
+from sympredict_paper.peers import VKOGAFlowMap
 from sympredict.symplectic.integrators_compiled import HAVE_NUMBA, rollout
 from sympredict.symplectic.metrics import relative_trajectory_error
 
@@ -24,7 +24,7 @@ def hh_run(tmp_path_factory):
     import contextlib
     import io
 
-    from sympredict.cli import main
+    from sympredict_paper.cli import main
 
     out = tmp_path_factory.mktemp("hh_smoke")
     with contextlib.redirect_stdout(io.StringIO()):
@@ -82,7 +82,7 @@ def test_summary_table_lists_every_row_with_what_it_needs(hh_run):
 def test_henon_heiles_classical_errors_recomputed_against_the_step_halving_reference(hh_run):
     """The table's errors of the compiled schemes, recomputed against a different reference (the system's
     step-halving Kahan–Li-6 to 1e-11, not the chart's fixed dT/256 run)."""
-    from sympredict.paper.henon_heiles import DT_HH, PRESETS, henon_heiles_test_instances
+    from sympredict_paper.henon_heiles import DT_HH, PRESETS, henon_heiles_test_instances
     from sympredict.systems.henon_heiles import HenonHeiles
 
     _, results = hh_run

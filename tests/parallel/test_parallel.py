@@ -14,7 +14,7 @@ from sympredict.interpolation.greedy import ShardedGreedy, greedy_interpolation,
 from sympredict.interpolation.greedy import sharded as sharded_module
 from sympredict.parallel import WorkerError, checked, guarded, pool_flow, pool_map_instances
 from sympredict.data import mixed_variables
-from sympredict.paper import wave
+from sympredict_paper import wave
 from sympredict.interpolation.functionals import HBFunctionals, ValueFunctionals
 from sympredict.kernels import IMQ, ProductKernel
 from sympredict.estimators.predictor import DirectKernelPredictor

@@ -89,7 +89,7 @@ def test_flow_map_data_and_scenario_b(pendulum):
 
 def test_pendulum_period_formula_matches_the_reference_flow(pendulum):
     """4 sqrt(l/g) K(sin^2(q0/2)) (used by the stability study) against zero crossings of the reference."""
-    from sympredict.paper.pendulum import _complete_elliptic_k, _upward_crossings
+    from sympredict_paper.pendulum import _complete_elliptic_k, _upward_crossings
 
     q0, length = 1.2, 0.75
     traj = pendulum.trajectory(np.array([[q0, 0.0]]), length, 0.01, 1000)[0]  # t in [0, 10]
@@ -100,7 +100,7 @@ def test_pendulum_period_formula_matches_the_reference_flow(pendulum):
 
 
 def test_phase_error_of_shifted_sinusoids():
-    from sympredict.paper.pendulum import _phase_error, _upward_crossings
+    from sympredict_paper.pendulum import _phase_error, _upward_crossings
 
     t = np.linspace(0, 50, 20001)
     ref = np.sin(2 * np.pi * t / 2.0)

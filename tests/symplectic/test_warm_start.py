@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from sympredict import _fastkernels
-from sympredict.paper.pendulum import paper_test_instances
+from sympredict_paper.pendulum import paper_test_instances
 from _tolerances import newton_step_bound  # tests/
 
 pytestmark = pytest.mark.skipif(not _fastkernels.HAVE_NUMBA, reason="the compiled rollout needs numba (optional extra)")

@@ -6,8 +6,8 @@ import json
 import numpy as np
 import pytest
 
-from sympredict.paper import report
-from sympredict.paper.sine_gordon import PRESETS, initial_states, run_sine_gordon, second_parameter
+from sympredict_paper import report
+from sympredict_paper.sine_gordon import PRESETS, initial_states, run_sine_gordon, second_parameter
 from sympredict.systems.sine_gordon import SineGordonFOM
 
 
@@ -90,7 +90,7 @@ def test_smoke_breather_run_is_consistent(smoke):
 
 
 def test_cli_rejects_breather_outside_sine_gordon(tmp_path, capsys):
-    from sympredict.cli import main
+    from sympredict_paper.cli import main
 
     assert main(["run", "pendulum", "--quick", "--initial", "breather", "--out", str(tmp_path / "x")]) == 2
     assert main(["run", "sine-gordon", "--paper", "--initial", "breather", "--out", str(tmp_path / "y")]) == 2
@@ -99,7 +99,7 @@ def test_cli_rejects_breather_outside_sine_gordon(tmp_path, capsys):
 
 @pytest.mark.slow
 def test_cli_smoke_breather_run(tmp_path):
-    from sympredict.cli import main
+    from sympredict_paper.cli import main
 
     assert main(["run", "sine-gordon", "--preset", "smoke", "--initial", "breather", "--out", str(tmp_path / "run")]) == 0
     results = json.loads((tmp_path / "run" / "results.json").read_text())

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from sympredict.paper.wave import PRESETS, run_wave
+from sympredict_paper.wave import PRESETS, run_wave
 from sympredict.mor.basis import SymplecticROM, complex_svd_basis, symplectic_inverse, symplecticity_of_basis
 from sympredict.systems.quadratic import QuadraticHamiltonian
 from sympredict.systems.wave import WaveFOM, fd_laplacian, laplacian_eigenvalues, sine_modes
@@ -131,7 +131,7 @@ def test_pipeline_kernel_beats_implicit_midpoint():
 def test_smallest_wave_model_reports_an_unreached_target_and_checks_input():
     from dataclasses import replace
 
-    from sympredict.paper.wave import PRESETS, smallest_wave_model
+    from sympredict_paper.wave import PRESETS, smallest_wave_model
 
     preset = replace(PRESETS["smoke"], max_centers=6, m_star=6)
     result = smallest_wave_model(preset, 1e-2, 0.1)

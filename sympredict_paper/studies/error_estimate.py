@@ -1,0 +1,226 @@
+"""How good is the error estimate of a prediction? Effectivities on systems the estimate was not developed on.
+
+``model.rollout(x0, K, mu=..., dt=..., return_error=True)`` returns, next to the
+states, an estimate of ``|x_predicted - x_exact|_2`` at every step (the power
+function of the learned gradient, mapped through the implicit update,
+propagated along the rollout, calibrated on the fit's held-out samples).  This
+script measures it against the true error of the reference flow:
+
+* **effectivity** ``estimate / true`` per (test trajectory, step): its median,
+  the share of pairs underestimated by more than 3x (``effectivity < 1/3``),
+  over all steps ``1..K`` and at several horizons;
+* **rank correlation** (Spearman) between estimate and true error across the
+  test trajectories at each horizon: does the estimate tell the worse
+  predictions from the better ones?
+* **cost**: rollout wall time with and without ``return_error``, side by side in
+  the same process (medians of ``--repeats``).
+
+Systems (``--systems``):
+
+* ``three_body`` (held out): the planar circular restricted three-body problem in the
+  rotating frame (:mod:`sympredict.systems.three_body`), mass ratio in [0.010, 0.014],
+  tadpole librations near L4 (:func:`~sympredict.systems.three_body.librating_states`),
+  ``dT = 0.05``, trained on trajectories (``--traj`` x ``--traj-steps``);
+* ``coupled_pendulums``, ``fpu_chain`` (held out): the physical-unit systems of
+  ``sympredict_paper/studies/defaults_acceptance.py``, trained on scattered one-step samples (``--samples``);
+* ``pendulum`` (the system the estimate was developed on, for comparison):
+  the README's pendulum, lengths in [0.7, 0.8], ``dT = 0.1``, trained on trajectories.
+
+Every model is the defaults, ``SymplecticKernelPredictor(max_centers=M).fit(...)``
+(``--max-centers``), as a new user would fit it.  Test: ``--n-test`` initial
+states with their own parameters (seeds disjoint from training), ``--steps``
+steps.  Goals: at most 10% of (trajectory, step) pairs underestimated by more
+than 3x, median effectivity at most 30, rank correlation at least 0.6 at the last step.
+
+Run:  python sympredict_paper/studies/error_estimate.py                  # writes docs/data/error_estimate.json
+      python sympredict_paper/studies/error_estimate.py --quick          # a few minutes, small sizes, no JSON
+One BLAS thread (``--blas-threads``), one numba thread (``--threads``); the record of ``sympredict_paper/studies/_protocol.py``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+from scipy.stats import spearmanr
+
+import _protocol  # sympredict_paper/studies/
+from defaults_acceptance import make_benchmarks  # sympredict_paper/studies/
+
+from sympredict import SymplecticKernelPredictor
+from sympredict.data import FlowMapData
+from sympredict.exceptions import ExtrapolationWarning
+from sympredict.systems.pendulum import Pendulum
+from sympredict.systems.three_body import MU_RANGE, ThreeBody, librating_states
+
+RESULTS = Path(__file__).resolve().parents[2] / "docs" / "data" / "error_estimate.json"
+GOALS = {"share_under_3x_max": 0.10, "median_effectivity_max": 30.0, "rank_correlation_last_min": 0.6}
+
+
+class _TrajectorySystem:
+    """A system trained on trajectories: ``sample(n, seed) -> (x0, mu)``, ``trajectory(x0, mu, dt, K)``."""
+
+    def __init__(self, name, title, system, sampler, mu_range, dt, held_out):
+        self.name, self.title, self.system, self.sampler = name, title, system, sampler
+        self.mu_range, self.dt, self.held_out = mu_range, dt, held_out
+
+    def sample(self, n, seed):
+        rng = np.random.default_rng(seed)
+        mu = rng.uniform(*self.mu_range, n)
+        return self.sampler(mu, n, seed + 1), mu
+
+    def trajectory(self, x0, mu, k):
+        return self.system.trajectory(x0, mu, self.dt, k)
+
+
+def _pendulum_states(mu, n, seed):
+    rng = np.random.default_rng(seed)
+    return np.column_stack([rng.uniform(-1.5, 1.5, n), rng.uniform(-1.0, 1.0, n)])
+
+
+def systems() -> dict:
+    out = {
+        "three_body": _TrajectorySystem(
+            "three_body", "planar circular restricted three-body problem, rotating frame, librations near L4 (4-D)",
+            ThreeBody(), lambda mu, n, seed: librating_states(mu, n, seed=seed), MU_RANGE, 0.05, True),
+        "pendulum": _TrajectorySystem(
+            "pendulum", "pendulum, lengths in [0.7, 0.8] (the system the estimate was developed on)",
+            Pendulum(), _pendulum_states, (0.7, 0.8), 0.1, False),
+    }
+    return out
+
+
+def training_data(name, args):
+    """``FlowMapData`` of the system's training set and a function ``test(n, seed, K) -> (x0, mu, ref)``."""
+    if name in ("three_body", "pendulum"):
+        sysd = systems()[name]
+        x0, mu = sysd.sample(args.traj, args.seed)
+        traj = sysd.trajectory(x0, mu, args.traj_steps)
+        data = FlowMapData(traj[:, :-1].reshape(-1, traj.shape[2]), traj[:, 1:].reshape(-1, traj.shape[2]),
+                           np.repeat(mu, args.traj_steps), np.full(args.traj * args.traj_steps, sysd.dt))
+
+        def test(n, seed, k):
+            tx0, tmu = sysd.sample(n, seed)
+            return tx0, tmu, sysd.trajectory(tx0, tmu, k)
+        return data, test, sysd.dt, sysd.title, sysd.held_out
+    bench = make_benchmarks()[name]
+    x0, mu = bench.sample(args.samples, seed=args.seed)
+    x1 = bench.system.flow(x0, mu[:, None], bench.dt)
+    data = FlowMapData(x0, x1, mu, np.full(len(x0), bench.dt))
+
+    def test(n, seed, k):
+        tx0, tmu = bench.sample(n, seed)
+        return tx0, tmu, bench.system.trajectory(tx0, tmu[:, None], bench.dt, k)
+    return data, test, bench.dt, bench.title, True
+
+
+def effectivity_metrics(est, true, horizons) -> dict:
+    """Median effectivity, share underestimated > 3x (all steps, and per horizon), Spearman per horizon."""
+    tiny = np.finfo(float).tiny
+    eff = est[:, 1:] / np.maximum(true[:, 1:], tiny)
+    out = {"all_steps": {"median_effectivity": float(np.median(eff)), "share_under_3x": float(np.mean(eff < 1 / 3)),
+                         "share_over_30x": float(np.mean(eff > 30)), "pairs": int(eff.size)}, "horizons": {}}
+    for k in horizons:
+        e = est[:, k] / np.maximum(true[:, k], tiny)
+        rho = spearmanr(est[:, k], true[:, k]).correlation if len(e) > 2 else float("nan")
+        out["horizons"][str(k)] = {
+            "median_effectivity": float(np.median(e)), "share_under_3x": float(np.mean(e < 1 / 3)),
+            "spearman": float(rho), "median_true_error": float(np.median(true[:, k])),
+            "median_estimate": float(np.median(est[:, k]))}
+    return out
+
+
+def run_system(name, args) -> dict:
+    t0 = time.perf_counter()
+    data, test, dt, title, held_out = training_data(name, args)
+    data_s = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    model = SymplecticKernelPredictor(max_centers=args.max_centers).fit(data)
+    fit_s = time.perf_counter() - t0
+    x0, mu, ref = test(args.n_test, args.seed + 1000, args.steps)
+    print(f"{name}: {len(data)} samples, fit {fit_s:.0f} s, {model.n_centers_} centres, choice {model.choice_}",
+          flush=True)
+    entry = {"title": title, "held_out": held_out, "n_samples": len(data), "max_centers": args.max_centers,
+             "n_centers": model.n_centers_, "dt": dt, "n_test": args.n_test, "steps": args.steps,
+             "fit_s": fit_s, "data_s": data_s, "choice": {k: repr(v) for k, v in model.choice_.items()},
+             "calibration": model.error_calibration_,
+             "holdout_step_error": model.diagnostics_.holdout_step_error}
+    try:
+        t0 = time.perf_counter()
+        pred, est = model.rollout(x0, args.steps, mu=mu, dt=dt, return_error=True)
+        entry["estimate_s"] = time.perf_counter() - t0
+    except Exception as exc:  # a failure is a result
+        entry["error"] = f"{type(exc).__name__}: {exc}"
+        print(f"  failed: {entry['error']}", flush=True)
+        return entry
+    true = np.linalg.norm(pred - ref, axis=2)
+    horizons = sorted({1, 10, args.steps // 4, args.steps // 2, args.steps} - {0})
+    entry.update(effectivity_metrics(est, true, horizons))
+    last = entry["horizons"][str(args.steps)]
+    entry["goals_met"] = {
+        "share_under_3x": entry["all_steps"]["share_under_3x"] <= GOALS["share_under_3x_max"],
+        "median_effectivity": entry["all_steps"]["median_effectivity"] <= GOALS["median_effectivity_max"],
+        "rank_correlation_last": last["spearman"] >= GOALS["rank_correlation_last_min"]}
+    # cost: rollout with and without the estimate, interleaved in this process
+    x_small, mu_small = x0[: args.timing_batch], mu[: args.timing_batch]
+    timing = _protocol.side_by_side({
+        "states only": lambda: model.rollout(x_small, args.timing_steps, mu=mu_small, dt=dt),
+        "states and error": lambda: model.rollout(x_small, args.timing_steps, mu=mu_small, dt=dt, return_error=True),
+    }, repeats=args.repeats, warmup=1)
+    entry["timing"] = {"batch": len(x_small), "steps": args.timing_steps, **timing}
+    # the curves for a figure: median over trajectories of estimate and true error, and one trajectory
+    stride = max(1, args.steps // 100)
+    entry["curves"] = {"step": list(range(0, args.steps + 1, stride)),
+                       "median_estimate": np.median(est, axis=0)[::stride].tolist(),
+                       "median_true": np.median(true, axis=0)[::stride].tolist(),
+                       "example_estimate": est[0, ::stride].tolist(), "example_true": true[0, ::stride].tolist()}
+    a = entry["all_steps"]
+    print(f"  all steps: median effectivity {a['median_effectivity']:.2f}, under 3x {a['share_under_3x']:.1%}; "
+          f"last step: Spearman {last['spearman']:.2f}, median effectivity {last['median_effectivity']:.2f}; "
+          f"time ratio {timing['ratios']['states and error']:.1f}x", flush=True)
+    return entry
+
+
+def parse_args(argv=None):
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--systems", nargs="+", default=["three_body", "coupled_pendulums", "fpu_chain", "pendulum"])
+    p.add_argument("--max-centers", type=int, default=500)
+    p.add_argument("--samples", type=int, default=3000, help="scattered samples (defaults_acceptance systems)")
+    p.add_argument("--traj", type=int, default=100, help="training trajectories (three_body, pendulum)")
+    p.add_argument("--traj-steps", type=int, default=30)
+    p.add_argument("--n-test", type=int, default=20)
+    p.add_argument("--steps", type=int, default=200)
+    p.add_argument("--timing-batch", type=int, default=4)
+    p.add_argument("--timing-steps", type=int, default=50)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--quick", action="store_true", help="small sizes (a smoke run)")
+    _protocol.add_arguments(p, threads=1, repeats=3)
+    args = p.parse_args(argv)
+    if args.json is None and not args.quick:
+        args.json = str(RESULTS)
+    if args.quick:
+        args.max_centers, args.samples, args.traj, args.traj_steps = 150, 800, 30, 20
+        args.n_test, args.steps, args.repeats = 8, 50, 1
+    return args
+
+
+def main(argv=None) -> dict:
+    args = parse_args(argv)
+    warnings.simplefilter("ignore", ExtrapolationWarning)
+    result = {"goals": GOALS, "settings": {k: v for k, v in vars(args).items() if k != "json"}, "systems": {}}
+    with _protocol.limits(args.blas_threads, numba_threads=args.threads):
+        for name in args.systems:
+            result["systems"][name] = run_system(name, args)
+    if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        _protocol.write_json(args.json, result, _protocol.record(
+            blas_threads=args.blas_threads, numba_threads=args.threads, repeats=args.repeats, warmup=1,
+            notes="shared 2-core machine: timings indicative, ratios side by side; errors deterministic given the seeds"))
+    return result
+
+
+if __name__ == "__main__":
+    main()

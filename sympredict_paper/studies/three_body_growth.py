@@ -1,0 +1,115 @@
+"""Does growing the model make it worse? Prefixes of one default fit on the planar restricted three-body problem.
+
+The case: planar circular restricted three-body problem in the rotating frame
+(:mod:`sympredict.systems.three_body`), mass ratio in [0.010, 0.014], tadpole
+librations near L4 (:func:`~sympredict.systems.three_body.librating_states`),
+``dT = 0.05``, ``--traj`` trajectories x ``--traj-steps`` steps of training data,
+one ``SymplecticKernelPredictor(max_centers=M)`` fit with the defaults.  Its prefixes
+(``truncated(m)``: the greedy's model after ``m`` centres, equal to a fit with
+``max_centers=m`` to round-off) are scored at each ``m`` of ``--sizes``:
+
+* **inside the data**: ``--n-val`` unseen whole trajectories from the training
+  distribution, as long as the training trajectories: median and 90th percentile of
+  the relative one-step error over all their pairs, and the error at their last step
+  (a rollout over the training horizon);
+* **beyond the data**: ``--n-test`` trajectories rolled out ``--steps`` steps (longer
+  than the training trajectories): relative error at the last step (median, maximum),
+  the share of their states outside the training box, and the relative Jacobi-constant
+  drift over ``--long-steps`` steps (median, maximum);
+* the smallest Newton pivot (power function of the selected centre) up to ``m``.
+
+Run:  python sympredict_paper/studies/three_body_growth.py            # writes docs/data/three_body_growth.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+import _protocol  # sympredict_paper/studies/
+
+from sympredict import SymplecticKernelPredictor
+from sympredict.data import FlowMapData
+from sympredict.exceptions import ExtrapolationWarning
+from sympredict.systems.three_body import MU_RANGE, ThreeBody, librating_states
+
+RESULTS = Path(__file__).resolve().parents[2] / "docs" / "data" / "three_body_growth.json"
+
+
+def trajectories(tb, n, seed, steps, dt):
+    rng = np.random.default_rng(seed)
+    mu = rng.uniform(*MU_RANGE, n)
+    return tb.trajectory(librating_states(mu, n, seed=seed + 1), mu, dt, steps), mu
+
+
+def score(model, tb, val, test, args, dt) -> dict:
+    (vt, vmu), (tt, tmu) = val, test
+    k = vt.shape[1] - 1
+    x1 = model.step(vt[:, :-1].reshape(-1, 4), mu=np.repeat(vmu, k), dt=dt)
+    inc = np.linalg.norm(vt[:, 1:] - vt[:, :-1], axis=2).reshape(-1)
+    one = np.linalg.norm(x1 - vt[:, 1:].reshape(-1, 4), axis=1) / inc
+    roll = model.rollout(vt[:, 0], k, mu=vmu, dt=dt)
+    inside = np.linalg.norm(roll[:, -1] - vt[:, -1], axis=1) / np.linalg.norm(vt[:, -1], axis=1)
+    out = {"inside_one_step_median": float(np.median(one)), "inside_one_step_p90": float(np.quantile(one, 0.9)),
+           "inside_rollout_median": float(np.median(inside)), "inside_rollout_max": float(inside.max())}
+    pred = model.rollout(tt[:, 0], args.steps, mu=tmu, dt=dt)
+    rel = np.linalg.norm(pred[:, -1] - tt[:, -1], axis=1) / np.linalg.norm(tt[:, -1], axis=1)
+    lo, hi = model.domain_["x_min"], model.domain_["x_max"]
+    out.update(beyond_median=float(np.median(rel)), beyond_max=float(rel.max()),
+               beyond_share_outside_box=float(np.mean(np.any((tt < lo) | (tt > hi), axis=2))))
+    long = model.rollout(tt[:, 0], args.long_steps, mu=tmu, dt=dt, stride=10)
+    c = tb.jacobi_constant(long.reshape(-1, 4), np.repeat(tmu, long.shape[1])).reshape(len(tmu), -1)
+    drift = np.abs(c - c[:, :1]).max(axis=1) / np.abs(c[:, 0])
+    out.update(drift_median=float(np.median(drift)), drift_max=float(drift.max()))
+    return out
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--max-centers", type=int, default=1600)
+    p.add_argument("--sizes", type=int, nargs="+", default=[200, 400, 800, 1600])
+    p.add_argument("--traj", type=int, default=100)
+    p.add_argument("--traj-steps", type=int, default=60)
+    p.add_argument("--n-val", type=int, default=20)
+    p.add_argument("--n-test", type=int, default=20)
+    p.add_argument("--steps", type=int, default=200)
+    p.add_argument("--long-steps", type=int, default=2000)
+    p.add_argument("--seed", type=int, default=0)
+    _protocol.add_arguments(p, threads=1)
+    args = p.parse_args(argv)
+    args.json = args.json or str(RESULTS)
+    warnings.simplefilter("ignore", ExtrapolationWarning)
+    tb, dt = ThreeBody(), 0.05
+    traj, mu = trajectories(tb, args.traj, args.seed, args.traj_steps, dt)
+    data = FlowMapData(traj[:, :-1].reshape(-1, 4), traj[:, 1:].reshape(-1, 4), np.repeat(mu, args.traj_steps),
+                       np.full(args.traj * args.traj_steps, dt))
+    val = trajectories(tb, args.n_val, args.seed + 500, args.traj_steps, dt)
+    test = trajectories(tb, args.n_test, args.seed + 1000, args.steps, dt)
+    out = {"settings": {k: v for k, v in vars(args).items() if k != "json"}, "n_samples": len(data), "sizes": {}}
+    with _protocol.limits(args.blas_threads, numba_threads=args.threads):
+        t0 = time.perf_counter()
+        model = SymplecticKernelPredictor(max_centers=args.max_centers).fit(data)
+        out.update(fit_s=time.perf_counter() - t0, n_centers=model.n_centers_, stop=model.history_.stop_reason,
+                   choice={k: repr(v) for k, v in model.choice_.items()},
+                   prefix_errors={str(k): v for k, v in (model.prefix_errors_ or {}).items()})
+        print(f"fit {out['fit_s']:.0f} s, {model.n_centers_} centres ({out['stop']})", flush=True)
+        for m in args.sizes:
+            if m > model.n_centers_:
+                continue
+            sub = model if m == model.n_centers_ else model.truncated(m)
+            row = score(sub, tb, val, test, args, dt)
+            row["min_pivot"] = float(model.history_.selected_power[:m].min())
+            out["sizes"][str(m)] = row
+            print(m, {k: f"{v:.2e}" for k, v in row.items()}, flush=True)
+    Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+    _protocol.write_json(args.json, out, _protocol.record(blas_threads=args.blas_threads, numba_threads=args.threads,
+                                                          repeats=1, warmup=0, notes="shared 2-core machine"))
+    return out
+
+
+if __name__ == "__main__":
+    main()
