@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 
-from sympredict.cli._figures import (  # the figure style, shared with `sympredict demo`
+from sympredict.cli.figure_style import (  # the figure style, shared with `sympredict demo`
     METHOD_COLORS, _decorate, decorate, figure_data, method_color, plt, save,
 )
 

@@ -44,7 +44,7 @@ def run_demo(out, seed: int = 0) -> dict:
     import numpy as np
 
     from sympredict import SymplecticKernelPredictor, TrajectoryData
-    from sympredict.cli import _figures as plotting
+    from sympredict.cli import figure_style as plotting
     from sympredict.systems.pendulum import Pendulum
 
     out = Path(out)
@@ -74,7 +74,7 @@ def demo_figure(t, exact, pred, drift, drift_exact):
     """Left: the phase plane of the exact and the predicted trajectory; right: relative energy error over time."""
     import numpy as np
 
-    from sympredict.cli import _figures as plotting
+    from sympredict.cli import figure_style as plotting
 
     fig, (ax, bx) = plotting.plt.subplots(1, 2, figsize=(10, 4.2), constrained_layout=True)
     ax.plot(exact[:, 0], exact[:, 1], color=plotting.method_color("exact"), lw=6, alpha=0.35, label="reference flow")
