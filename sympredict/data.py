@@ -51,7 +51,7 @@ def mixed_variables(x0: np.ndarray, x1: np.ndarray, dt: np.ndarray):
 class FlowMapData:
     """A set of flow-map samples over parameters and macro steps.
 
-    Attributes
+    Parameters
     ----------
     x0, x1 : ndarray of shape (M, 2n)
         Initial and propagated states, ``x1 = Phi_mu^dt(x0)``.
@@ -212,17 +212,17 @@ class TrajectoryData:
     term) roll a model out from ``states[:, 0]`` for ``K`` steps of ``dt`` and compare
     with ``states[:, 1:]`` (uniform steps only).
 
-    Attributes
+    Parameters
     ----------
     states : ndarray of shape (P, K+1, 2n)
         ``P`` trajectories of ``K+1`` states each, ordered ``(q, p)``.
-    mu : ndarray of shape (P, d_mu)
+    mu : ndarray of shape (P, d_mu), default=None
         Parameters (``d_mu = 0`` for a parameter-free system); given as ``None``, a scalar,
         ``(P,)`` or ``(P, d_mu)``.
-    dt : float or None
+    dt : float or None, default=None
         The uniform step between consecutive states; ``None`` when the ``times`` are not
         uniform (to round-off: ``|t_{k+1} - t_k - h| <= 64 eps max|t|`` with one ``h``).
-    times : ndarray of shape (P, K+1)
+    times : ndarray of shape (P, K+1), default=None
         Sample times, strictly increasing along each trajectory; given as ``(P, K+1)`` or
         ``(K+1,)`` (shared), or derived from ``dt`` as ``k dt``.
     """
@@ -270,7 +270,7 @@ class TrajectoryData:
 
         Parameters
         ----------
-        strides : int or sequence of int
+        strides : int or sequence of int, default=1
             Strides ``1 <= s <= K`` (distinct).  ``dt`` of a pair is ``t_{k+s} - t_k``; with a
             uniform step ``h`` (``dt`` given, or times uniform to round-off) it is exactly ``s h``,
             so that decimal times read from a file give one step per stride.

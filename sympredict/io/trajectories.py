@@ -48,9 +48,15 @@ def read_trajectories(path, *, states_key: str = "states", times_key: str = "tim
     ----------
     path : str or path-like
         The file; its suffix picks the format.
-    states_key, times_key, dt_key, mu_key : str
-        Names of the arrays in ``.npz``/HDF5 files (the pair keys are ``x0``, ``x1``).
-    max_bytes : int
+    states_key : str, default="states"
+        Name of the states array in ``.npz``/HDF5 files (the pair keys are ``x0``, ``x1``).
+    times_key : str, default="times"
+        Name of the sample times array.
+    dt_key : str, default="dt"
+        Name of the uniform step.
+    mu_key : str, default="mu"
+        Name of the parameters array.
+    max_bytes : int, default=4 * 2**30
         Largest size (float64 bytes) of the numbers read; larger declared arrays are refused before
         anything is allocated.
 
