@@ -228,7 +228,7 @@ def test_too_few_samples_for_a_search_name_the_fix(param_data):
 def test_the_second_stage_scores_the_one_step_error_on_held_out_samples(param_data):
     """The stage-2 score is the mean of |Phi(x0) - x1| / |x1 - x0| over the held-out samples (independent
     recomputation with the same fit), and a Newton failure scores inf instead of stopping the search."""
-    from sympredict.estimators.auto import _one_step_score
+    from sympredict.estimators.search import one_step_score as _one_step_score
     from sympredict.symplectic.solvers import NewtonSolver
 
     x0, x1, mu, _ = param_data
