@@ -339,7 +339,7 @@ class KernelSearch(Setting):
         state_grid, mu_grid, dt_grid = grids
         table, finalists = [], []
         # the grid search's own notes (a winner on a grid's edge, m_star too small) are what stage 2 resolves
-        with _quiet("sympredict.estimators.search", level=logging.ERROR):
+        with _quiet("sympredict.estimators.selection", level=logging.ERROR):
             for update in updates:
                 try:
                     result = grid_search(train, val, state_grid, mu_grid, dt_grid, m_star=m_star,

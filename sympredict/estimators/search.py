@@ -43,7 +43,7 @@ from sympredict.kernels.transforms import KernelTransform
 __all__ = ["log_grid", "kernel_grid", "WIDEN_LIMITS", "SelectionResult", "ScoredSelectionResult", "fit_candidate",
            "grid_search", "coordinate_search", "refine_shapes", "one_step_score", "score_search", "ridge_search"]
 
-logger = getLogger("sympredict.estimators.search")
+logger = getLogger("sympredict.estimators.selection")  # the name users configure for the selections' progress
 
 #: The loggers of a candidate's fit, quieted to one line per candidate.
 FIT_LOGGERS = ("sympredict.interpolation.greedy", "sympredict.estimators.predictor")

@@ -131,7 +131,7 @@ def test_selection_survives_failing_candidates_and_widens_its_grid(small_pendulu
                 raise ValueError("the kernel coefficients overflow (test)")
             return super().fit(*args, **kwargs)
 
-    caplog.set_level(logging.INFO, logger="sympredict.estimators.search")
+    caplog.set_level(logging.INFO, logger="sympredict.estimators.selection")
     result = select_kernels(data, val, [IMQ(0.5), IMQ(1.2), IMQ(2.4)], [IMQ(2.0)], [IMQ(5.0)], m_star=60,
                             estimator=FailsAtHalf(), widen=0)
     failed = [row for row in result.table if "error" in row]
