@@ -201,7 +201,8 @@ class KernelSearch(Setting):
         return self
 
     # ------------------------------------------------------------------ the search
-    def choose(self, estimator, data: FlowMapData, open_factors: dict) -> SearchResult:
+    def choose(self, estimator, data: FlowMapData, open_factors: dict,
+               validation: Optional[FlowMapData] = None) -> SearchResult:
         """Choose the open settings of ``estimator`` for ``data``.
 
         Parameters
@@ -212,6 +213,10 @@ class KernelSearch(Setting):
             The training data.
         open_factors : dict
             ``{'state': bool, 'mu': bool, 'dt': bool, 'update': bool}``: what to choose.
+        validation : FlowMapData, optional
+            Held-out samples the caller gives to score the candidates (all of them; the one-step error uses the
+            first 500); the candidates are then fitted to a random subsample of at most ``max_samples`` of ``data``.
+            Default: a random subsample of ``data`` split by ``validation_fraction``.
 
         Returns
         -------
@@ -220,7 +225,7 @@ class KernelSearch(Setting):
         self.check()
         t0 = time.perf_counter()
         m_star = int(self.m_star) if self.m_star is not None else min(int(estimator.max_centers), 300)
-        train, val = self._subsets(data)
+        train, val = self._subsets(data) if validation is None else (self._subsample(data), validation)
         params = {}
 
         # the state transform: the user's (its radial kernel searched inside it), or the symplectic normalisation
@@ -362,6 +367,11 @@ class KernelSearch(Setting):
                         table += [{**row, "stage": 1, "update": update} for row in other.table]
                         finalists.append((other, update))
         return table, finalists
+
+    def _subsample(self, data: FlowMapData) -> FlowMapData:
+        """A random subsample of at most ``max_samples`` samples, all of them to train (the caller holds out)."""
+        rows = np.random.default_rng(self.seed).permutation(len(data))[: min(len(data), int(self.max_samples))]
+        return data.subset(np.sort(rows))
 
     def _subsets(self, data: FlowMapData):
         """A random subsample of at most ``max_samples`` samples, split into search training and validation parts."""
