@@ -39,7 +39,8 @@ import numpy as np
 
 from sympredict.base import Setting, clone
 from sympredict.data import FlowMapData
-from sympredict.estimators.search import _quiet, coordinate_search, grid_search, one_step_score, without_target
+from sympredict.estimators.search import (SEARCH_LOGGER, coordinate_search, grid_search, one_step_score, quiet_logs,
+                                          without_target)
 from sympredict.estimators.structure import compete as _structure_stage
 from sympredict.exceptions import ExtrapolationWarning, NewtonConvergenceError, NonFinitePredictionError, ScaleWarning
 from sympredict.kernels import IMQ, KERNEL_FAMILIES
@@ -344,7 +345,7 @@ class KernelSearch(Setting):
         state_grid, mu_grid, dt_grid = grids
         table, finalists = [], []
         # the grid search's own notes (a winner on a grid's edge, m_star too small) are what stage 2 resolves
-        with _quiet("sympredict.estimators.selection", level=logging.ERROR):
+        with quiet_logs(SEARCH_LOGGER, level=logging.ERROR):
             for update in updates:
                 try:
                     result = grid_search(train, val, state_grid, mu_grid, dt_grid, m_star=m_star,

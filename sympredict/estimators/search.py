@@ -43,14 +43,16 @@ from sympredict.kernels.transforms import KernelTransform
 __all__ = ["log_grid", "kernel_grid", "WIDEN_LIMITS", "SelectionResult", "ScoredSelectionResult", "fit_candidate",
            "grid_search", "coordinate_search", "refine_shapes", "one_step_score", "score_search", "ridge_search"]
 
-logger = getLogger("sympredict.estimators.selection")  # the name users configure for the selections' progress
+#: The searches' logger: the name users configure for the selections' progress.
+SEARCH_LOGGER = "sympredict.estimators.selection"
+logger = getLogger(SEARCH_LOGGER)
 
 #: The loggers of a candidate's fit, quieted to one line per candidate.
 FIT_LOGGERS = ("sympredict.interpolation.greedy", "sympredict.estimators.predictor")
 
 
 @contextlib.contextmanager
-def _quiet(*names, level: int = logging.WARNING):
+def quiet_logs(*names, level: int = logging.WARNING):
     """Raise the given loggers to ``level`` for the duration (candidate fits are logged as one line each)."""
     loggers = [logging.getLogger(n) for n in names]
     levels = [lg.level for lg in loggers]
@@ -113,7 +115,7 @@ def fit_candidate(model, data: FlowMapData, validation: Optional[FlowMapData] = 
     mu = data.mu if uses_mu and data.mu.shape[1] else None
     val = None if validation is None else (validation.x0, validation.x1,
                                            validation.mu if uses_mu and validation.mu.shape[1] else None, validation.dt)
-    with _quiet(*FIT_LOGGERS) if quiet else contextlib.nullcontext():
+    with quiet_logs(*FIT_LOGGERS) if quiet else contextlib.nullcontext():
         return model.fit(data.x0, data.x1, mu=mu, dt=data.dt if dt is None else dt, validation=val)
 
 
