@@ -17,7 +17,7 @@ stores as ``search``.  At ``fit`` it chooses every factor the data need but the 
 * the **update** (``update=None``): ``'symplectic_euler'`` and ``'midpoint'`` compete.
 
 Criterion, in two stages on a subsample split into search training and validation parts.  First the
-paper's validation residual ``E_val(m_star)`` (:func:`~sympredict.estimators.grid.select_kernels`) at a small
+paper's validation residual ``E_val(m_star)`` (:func:`~sympredict.estimators.search.grid_search`) at a small
 ``m_star``: one greedy fit per candidate on the shape grids, for every update and family (both updates learn
 the same targets ``y = J^T (x1 - x0) / dT``, at different points, so their residuals compare in the same
 units).  A small ``m_star`` favours kernels too flat for the final size (they break down early), so the
@@ -39,7 +39,8 @@ import numpy as np
 
 from sympredict.base import Setting, clone
 from sympredict.data import FlowMapData
-from sympredict.estimators.grid import _quiet, select_kernels
+from sympredict.estimators.search import (SEARCH_LOGGER, coordinate_search, grid_search, one_step_score, quiet_logs,
+                                          without_target)
 from sympredict.estimators.structure import compete as _structure_stage
 from sympredict.exceptions import ExtrapolationWarning, NewtonConvergenceError, NonFinitePredictionError, ScaleWarning
 from sympredict.kernels import IMQ, KERNEL_FAMILIES
@@ -201,7 +202,8 @@ class KernelSearch(Setting):
         return self
 
     # ------------------------------------------------------------------ the search
-    def choose(self, estimator, data: FlowMapData, open_factors: dict) -> SearchResult:
+    def choose(self, estimator, data: FlowMapData, open_factors: dict,
+               validation: Optional[FlowMapData] = None) -> SearchResult:
         """Choose the open settings of ``estimator`` for ``data``.
 
         Parameters
@@ -212,6 +214,10 @@ class KernelSearch(Setting):
             The training data.
         open_factors : dict
             ``{'state': bool, 'mu': bool, 'dt': bool, 'update': bool}``: what to choose.
+        validation : FlowMapData, optional
+            Held-out samples the caller gives to score the candidates (all of them; the one-step error uses the
+            first 500); the candidates are then fitted to a random subsample of at most ``max_samples`` of ``data``.
+            Default: a random subsample of ``data`` split by ``validation_fraction``.
 
         Returns
         -------
@@ -220,7 +226,7 @@ class KernelSearch(Setting):
         self.check()
         t0 = time.perf_counter()
         m_star = int(self.m_star) if self.m_star is not None else min(int(estimator.max_centers), 300)
-        train, val = self._subsets(data)
+        train, val = self._subsets(data) if validation is None else (self._subsample(data), validation)
         params = {}
 
         # the state transform: the user's (its radial kernel searched inside it), or the symplectic normalisation
@@ -233,7 +239,7 @@ class KernelSearch(Setting):
         updates = list(self.updates) if open_factors["update"] else [estimator.update]
 
         def template(update):
-            return _without_target(clone(estimator).set_params(state_kernel=state_template, update=update))
+            return without_target(clone(estimator).set_params(state_kernel=state_template, update=update))
 
         if open_factors["state"]:
             unit = 1.0 / _spread(template(updates[0]), train)
@@ -284,7 +290,7 @@ class KernelSearch(Setting):
 
         def score(cand):
             if cand not in scores:
-                scores[cand] = _one_step_score(estimator, params_of(cand), m_final, train, val)
+                scores[cand] = one_step_score(estimator, params_of(cand), m_final, train, val)
                 sc, n, secs, err = scores[cand]
                 label = " x ".join(repr(k) for k in (cand[0], cand[2], cand[3]) if k is not None)
                 table.append({"stage": 2, "kernels": label, "ratio": cand[1], "update": cand[4], "score": sc,
@@ -305,27 +311,16 @@ class KernelSearch(Setting):
                              for i, k in enumerate(cand))
                 starts.append(cand)
         best = min(starts, key=score)
-        steps = [(0, open_factors["state"]), (1, scaled), (2, open_factors["mu"]), (3, open_factors["dt"])]
-        for sweep in range(self.refine_sweeps):
-            improved = False
-            for index, active in steps:
-                if not active or best[index] is None:
-                    continue
-                for f in (0.5, 2.0):
-                    cand = list(best)
-                    cand[index] = best[index] * f if index == 1 else best[index].set_params(eps=_clip(best[index].eps * f))
-                    cand = tuple(cand)
-                    if score(cand) < score(best):
-                        best, improved = cand, True
-            if not improved:
-                break
+        active = [i for i, key in ((0, "state"), (1, None), (2, "mu"), (3, "dt")) if (scaled if key is None
+                                                                                 else open_factors[key])]
+        best = coordinate_search(best, score, active, _move, factors=(0.5, 2.0), sweeps=self.refine_sweeps)
         if not np.isfinite(score(best)):
             raise ValueError(f"the kernel search found no candidate that predicts the held-out samples with {m_final} "
                              "centres (every fit or Newton solve failed); see the log, or pass the kernels and update")
         chosen, best_score, structure = params_of(best), float(score(best)), []
         if self.structure:  # symmetries the data show compete at m_final (sympredict.estimators.structure)
             def score_params(p):
-                sc, n, secs, err = _one_step_score(estimator, p, m_final, train, val)
+                sc, n, secs, err = one_step_score(estimator, p, m_final, train, val)
                 table.append({"stage": 3, "kernels": repr(p["state_kernel"]), "update": p["update"], "score": sc,
                               "n_centers": n, "fit_s": secs, **({"error": err} if err else {})})
                 return sc
@@ -350,11 +345,11 @@ class KernelSearch(Setting):
         state_grid, mu_grid, dt_grid = grids
         table, finalists = [], []
         # the grid search's own notes (a winner on a grid's edge, m_star too small) are what stage 2 resolves
-        with _quiet("sympredict.estimators.selection", level=logging.ERROR):
+        with quiet_logs(SEARCH_LOGGER, level=logging.ERROR):
             for update in updates:
                 try:
-                    result = select_kernels(train, val, state_grid, mu_grid, dt_grid, m_star=m_star,
-                                            estimator=template(update))
+                    result = grid_search(train, val, state_grid, mu_grid, dt_grid, m_star=m_star,
+                                         estimator=template(update))
                 except ValueError as exc:  # no candidate of this update trains: the other update may
                     logger.info(f"kernel search, stage 1 ({update}): no candidate trains ({exc})")
                     table.append({"stage": 1, "update": update, "E_val": np.inf, "error": str(exc)})
@@ -365,14 +360,19 @@ class KernelSearch(Setting):
                     for family in self.families[1:]:
                         grid = [KERNEL_FAMILIES[family](_clip(result.state.eps * f)) for f in (0.5, 1.0, 2.0)]
                         try:
-                            other = select_kernels(train, val, grid, [result.mu], [result.dt], m_star=m_star,
-                                                   estimator=template(update))
+                            other = grid_search(train, val, grid, [result.mu], [result.dt], m_star=m_star,
+                                                estimator=template(update))
                         except ValueError as exc:
                             table.append({"stage": 1, "update": update, "E_val": np.inf, "error": str(exc)})
                             continue
                         table += [{**row, "stage": 1, "update": update} for row in other.table]
                         finalists.append((other, update))
         return table, finalists
+
+    def _subsample(self, data: FlowMapData) -> FlowMapData:
+        """A random subsample of at most ``max_samples`` samples, all of them to train (the caller holds out)."""
+        rows = np.random.default_rng(self.seed).permutation(len(data))[: min(len(data), int(self.max_samples))]
+        return data.subset(np.sort(rows))
 
     def _subsets(self, data: FlowMapData):
         """A random subsample of at most ``max_samples`` samples, split into search training and validation parts."""
@@ -396,34 +396,10 @@ def _holdout_split(data: FlowMapData, seed: int, fraction: float = 0.1, largest:
     return data.subset(np.sort(rows[n_out:])), data.subset(np.sort(rows[:n_out]))
 
 
-def _without_target(model):
-    """``model`` with its trainer's ``target_error`` dropped (search candidates compete at their full size)."""
-    if getattr(model.trainer, "target_error", None) is not None:
-        model.set_params(trainer__target_error=None)
-    return model
-
-
-def _one_step_score(estimator, params: dict, m_final: int, train: FlowMapData, val: FlowMapData,
-                    largest: int = 500) -> tuple:
-    """``(score, centres, seconds, error)`` of one second-stage candidate: ``clone(estimator)`` with ``params`` fitted
-    to ``m_final`` centres on ``train``, scored by the mean relative one-step error on (up to ``largest``) ``val``
-    samples; ``inf`` for a failed fit or Newton solve, or a non-finite prediction."""
-    t0 = time.perf_counter()
-    model = _without_target(clone(estimator).set_params(**params, max_centers=m_final))  # the target: final fit only
-    sub = val.subset(np.arange(min(len(val), largest)))
-    inc = np.linalg.norm(sub.x1 - sub.x0, axis=1)
-    rows = inc > 0
-    try:
-        with warnings.catch_warnings():  # a candidate may underfit or extrapolate: its score says so
-            warnings.simplefilter("ignore")
-            model.fit(train.x0, train.x1, mu=train.mu if params["mu_kernel"] is not None else None, dt=train.dt)
-            pred = model.step(sub.x0, mu=sub.mu if params["mu_kernel"] is not None else None,
-                              dt=sub.dt if params["dt_kernel"] is not None else None)
-        err = np.linalg.norm(pred - sub.x1, axis=1)[rows] / inc[rows]
-        value = float(np.mean(err)) if rows.any() else float(np.mean(np.linalg.norm(pred - sub.x1, axis=1)))
-        return (value if np.isfinite(value) else np.inf), model.n_centers_, time.perf_counter() - t0, None
-    except (ValueError, ArithmeticError, NewtonConvergenceError, NonFinitePredictionError) as exc:
-        return np.inf, 0, time.perf_counter() - t0, f"{type(exc).__name__}: {exc}"
+def _move(value, index: int, factor: float):
+    """The second stage's coordinate move: the ``q``/``p`` shape ratio (coordinate 1) times ``factor``, a kernel's
+    shape times ``factor`` (kept in the accepted range)."""
+    return value * factor if index == 1 else value.set_params(eps=_clip(value.eps * factor))
 
 
 def pair_factors(data: FlowMapData) -> np.ndarray:

@@ -8,6 +8,9 @@ so state shapes ~5e-3 fit there, pendulum states are of size ~5).
 Where the ranking at ``m_star`` does not carry over to the final size,
 :func:`select_by_score` ranks the final models (every budget a greedy prefix)
 by a score the caller computes on validation data, e.g. rollout errors.
+
+These are the public entry points, with ``SymplecticKernelPredictor()`` as the default estimator; the search
+itself (grids, coordinate refinement, held-out scores, the record) is :mod:`sympredict.estimators.search`.
 """
 
 from __future__ import annotations
@@ -22,40 +25,43 @@ from pymor.core.logger import getLogger
 
 from sympredict.base import clone
 from sympredict.data import FlowMapData
-from sympredict.estimators import grid
-from sympredict.estimators.grid import WIDEN_LIMITS, SelectionResult, _quiet, kernel_grid, log_grid
+from sympredict.estimators import search
+from sympredict.estimators.predictor import SymplecticKernelPredictor, update_variables
+from sympredict.estimators.search import (WIDEN_LIMITS, ScoredSelectionResult, SelectionResult, fit_candidate,
+                                          kernel_grid, log_grid)
 from sympredict.exceptions import ExtrapolationWarning
 from sympredict.kernels import RadialKernel
-from sympredict.estimators.predictor import SymplecticKernelPredictor, update_variables
 
 __all__ = ["log_grid", "kernel_grid", "SelectionResult", "select_kernels", "refine_kernel_shapes", "WIDEN_LIMITS",
            "RegularizationResult", "select_regularization", "ScoredSelectionResult", "select_by_score"]
 
 logger = getLogger("sympredict.estimators.selection")
 
+
 def select_kernels(data: FlowMapData, validation: FlowMapData, state_kernels: Sequence[RadialKernel],
                    mu_kernels: Sequence[Optional[RadialKernel]] = (None,), dt_kernels: Sequence[Optional[RadialKernel]] = (None,),
                    m_star: int = 300, prefer_complete: bool = False,
                    estimator: Optional[SymplecticKernelPredictor] = None, widen: int = 2) -> SelectionResult:
-    return grid.select_kernels(data, validation, state_kernels, mu_kernels, dt_kernels, m_star=m_star,
-                               prefer_complete=prefer_complete,
-                               estimator=SymplecticKernelPredictor() if estimator is None else estimator, widen=widen)
+    return search.grid_search(data, validation, state_kernels, mu_kernels, dt_kernels, m_star=m_star,
+                              prefer_complete=prefer_complete,
+                              estimator=SymplecticKernelPredictor() if estimator is None else estimator, widen=widen)
 
 
 def refine_kernel_shapes(data: FlowMapData, validation: FlowMapData, start: SelectionResult, m_star: int,
                          factor: float = 2.0, max_sweeps: int = 3, prefer_complete: bool = False,
                          estimator: Optional[SymplecticKernelPredictor] = None,
                          refine: Sequence[bool] = (True, True, True)) -> SelectionResult:
-    return grid.refine_kernel_shapes(data, validation, start, m_star, factor=factor, max_sweeps=max_sweeps,
-                                     prefer_complete=prefer_complete,
-                                     estimator=SymplecticKernelPredictor() if estimator is None else estimator,
-                                     refine=refine)
+    return search.refine_shapes(data, validation, start, m_star, factor=factor, max_sweeps=max_sweeps,
+                                prefer_complete=prefer_complete,
+                                estimator=SymplecticKernelPredictor() if estimator is None else estimator,
+                                refine=refine)
 
 
-select_kernels.__doc__ = grid.select_kernels.__doc__.replace(
+select_kernels.__doc__ = search.grid_search.__doc__.replace(
     "Required here (:func:`sympredict.estimators.selection.select_kernels`\n        defaults to ``SymplecticKernelPredictor()``).",
     "Default ``SymplecticKernelPredictor()``.")
-refine_kernel_shapes.__doc__ = grid.refine_kernel_shapes.__doc__
+refine_kernel_shapes.__doc__ = search.refine_shapes.__doc__
+
 
 @dataclass
 class RegularizationResult:
@@ -133,62 +139,29 @@ def select_regularization(
     if not isinstance(estimator, SymplecticKernelPredictor):
         raise ValueError(f"estimator must be a SymplecticKernelPredictor (the ridge term is its greedy's), got "
                          f"{type(estimator).__name__}")
-    values = sorted({0.0, *(float(v) for v in np.atleast_1d(lambdas))})
-    if not all(np.isfinite(v) and v >= 0 for v in values):
-        raise ValueError(f"lambdas must be finite non-negative floats, got {lambdas!r}")
     mu = None if data.mu.shape[1] == 0 else data.mu
     vmu = None if validation.mu.shape[1] == 0 else validation.mu
     vxi, vy = update_variables(getattr(estimator, "update", None) or "symplectic_euler", validation.x0, validation.x1, validation.dt)
-    table, best, models = [], None, {}
-    for lam in values:
+    uses_dt = estimator.dt_kernel is not None
+
+    def evaluate(lam):
         model = clone(estimator).set_params(trainer__regularization=lam)
         t0 = time.perf_counter()
-        with _quiet("sympredict.interpolation.greedy", "sympredict.estimators.predictor"):
-            model.fit(data.x0, data.x1, mu=mu, dt=data.dt if estimator.dt_kernel is not None else data.dt[0])
+        fit_candidate(model, data, uses_mu=mu is not None, dt=data.dt if uses_dt else data.dt[0])
         with warnings.catch_warnings():  # validation xi = (q0, p1) may leave the box of the training states slightly
             warnings.simplefilter("ignore", ExtrapolationWarning)
-            grad = model.surrogate_gradient(vxi, mu=vmu, dt=validation.dt if estimator.dt_kernel is not None else None)
+            grad = model.surrogate_gradient(vxi, mu=vmu, dt=validation.dt if uses_dt else None)
         res = grad - vy
         rms, emax = float(np.sqrt(np.mean(res**2))), float(np.abs(res).max())
         score = rms if metric == "rms" else emax
-        table.append({"regularization": lam, "score": score, "E_val": emax, "rms_val": rms, "n_centers": model.n_centers_,
-                      "stop_reason": model.history_.stop_reason, "fit_s": time.perf_counter() - t0})
         logger.info(f"regularization {lam:.3g}: {metric} validation residual {score:.4e} ({model.n_centers_} centres)")
-        if keep_models:
-            models[lam] = model
-        if np.isfinite(score) and (best is None or score < best[1]):
-            best = (lam, score, model)
+        return score, model, {"E_val": emax, "rms_val": rms, "n_centers": model.n_centers_,
+                              "stop_reason": model.history_.stop_reason, "fit_s": time.perf_counter() - t0}
+
+    best, table, models = search.ridge_search(lambdas, evaluate, keep=keep_models, name="lambdas")
     if best is None:
         raise ValueError("no regularization produced a finite validation score")
     return RegularizationResult(best[0], best[1], table, best[2], models)
-
-
-@dataclass
-class ScoredSelectionResult:
-    """Outcome of :func:`select_by_score`.
-
-    Attributes
-    ----------
-    params : dict
-        The chosen candidate's settings (as given in ``candidates``).
-    n_centers : int
-        The chosen budget: the number of centres of :attr:`model`.
-    score : float
-        Its score.
-    model : estimator
-        The chosen candidate fitted (truncated to ``n_centers`` where it was fitted further).
-    table : list of dict
-        One row per (candidate, budget): ``candidate`` (index), ``params`` (readable),
-        ``budget``, ``n_centers``, ``score``, ``E_val`` (the greedy's validation
-        residual at ``n_centers``), ``stop_reason`` of the fit, ``fit_s``, ``score_s``;
-        a failed fit gives one row with ``error`` and ``score = inf``.
-    """
-
-    params: dict
-    n_centers: int
-    score: float
-    model: Optional[SymplecticKernelPredictor] = field(default=None, repr=False)
-    table: list = field(default_factory=list)
 
 
 def select_by_score(
@@ -241,43 +214,5 @@ def select_by_score(
     (candidate, budget).  Only the best model so far is kept in memory.  Ties go
     to the earlier candidate and the smaller budget.
     """
-    base = SymplecticKernelPredictor() if estimator is None else estimator
-    budgets = sorted({int(b) for b in budgets})
-    if not candidates or not budgets or budgets[0] < 1:
-        raise ValueError(f"need at least one candidate and positive budgets, got {len(candidates)} candidates, budgets {budgets}")
-    mu = None if data.mu.shape[1] == 0 else data.mu
-    vmu = None if validation is None or validation.mu.shape[1] == 0 else validation.mu
-    table, best = [], None
-    for i, cand in enumerate(candidates):
-        label = ", ".join(f"{k}={v!r}" for k, v in cand.items())
-        model = clone(base).set_params(**cand, max_centers=budgets[-1])
-        t0 = time.perf_counter()
-        try:
-            with _quiet("sympredict.interpolation.greedy", "sympredict.estimators.predictor"):
-                model.fit(data.x0, data.x1, mu=mu if model.mu_kernel is not None else None, dt=data.dt,
-                          validation=None if validation is None else
-                          (validation.x0, validation.x1, vmu if model.mu_kernel is not None else None, validation.dt))
-        except (ValueError, ArithmeticError) as exc:
-            table.append({"candidate": i, "params": label, "budget": None, "n_centers": 0, "score": np.inf,
-                          "error": str(exc), "fit_s": time.perf_counter() - t0})
-            logger.warning(f"{label}: fit failed, candidate skipped ({exc})")
-            continue
-        fit_s = time.perf_counter() - t0
-        val = model.history_.val_max_residual
-        for b in budgets:
-            m = min(b, model.n_centers_)
-            if table and table[-1]["candidate"] == i and table[-1]["n_centers"] == m:
-                continue  # stopped before this budget: already scored at its size
-            sized = model if m == model.n_centers_ else model.truncated(m)
-            t1 = time.perf_counter()
-            value = float(score(sized))
-            row = {"candidate": i, "params": label, "budget": b, "n_centers": m, "score": value,
-                   "E_val": None if val is None else float(val[m]), "stop_reason": model.history_.stop_reason,
-                   "fit_s": fit_s, "score_s": time.perf_counter() - t1}
-            table.append(row)
-            logger.info(f"{label}, {m} centres: score {value:.4e}")
-            if np.isfinite(value) and (best is None or value < best[2]):
-                best = (dict(cand), m, value, sized)
-    if best is None:
-        raise ValueError("no candidate produced a finite score: every fit failed or diverged (see the log)")
-    return ScoredSelectionResult(best[0], best[1], best[2], best[3], table)
+    return search.score_search(data, validation, candidates, budgets, score,
+                               SymplecticKernelPredictor() if estimator is None else estimator)

@@ -48,6 +48,7 @@ import numpy as np
 
 from sympredict.base import clone
 from sympredict.data import FlowMapData
+from sympredict.estimators.search import fit_candidate
 from sympredict.exceptions import (NewtonConvergenceError, NonFinitePredictionError, WrappedAngleWarning,
                                    extrapolation_expected)
 from sympredict.kernels import StateSymmetry
@@ -344,7 +345,7 @@ def compete(estimator, chosen: dict, chosen_score: float, m_final: int, train: F
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            quick.fit(train.x0, train.x1, mu=train.mu if uses_mu else None, dt=train.dt)
+            fit_candidate(quick, train, uses_mu=uses_mu, quiet=False)
     except (ValueError, ArithmeticError) as exc:
         logger.info("structure: the quick model did not fit (%s); no symmetry tested", exc)
         return chosen, chosen_score, findings

@@ -131,6 +131,25 @@ def test_only_the_open_factors_are_searched(param_data):
     assert {row["update"] for row in m.search_.table} == {"midpoint"}
 
 
+def test_the_search_scores_on_the_callers_held_out_samples_when_given(param_data):
+    """choose(validation=...): the candidates are scored on the caller's samples (every stage-1 E_val is the
+    greedy's residual on them, recomputed by hand for the winner) and fitted to a subsample of the data."""
+    x0, x1, mu, _ = param_data
+    data = FlowMapData(x0[:400], x1[:400], mu[:400], np.full(400, 0.1))
+    held = FlowMapData(x0[400:], x1[400:], mu[400:], np.full(100, 0.1))
+    est = SymplecticKernelPredictor(IMQ(0.3), max_centers=60, update="midpoint")
+    search = KernelSearch(m_star=30, max_samples=300, refine_sweeps=0, structure=False)
+    out = search.choose(est, data, {"state": False, "mu": True, "dt": False, "update": False}, validation=held)
+    assert (out.n_train, out.n_validation) == (300, 100)
+    stage1 = [r for r in out.table if r["stage"] == 1]
+    best = min(stage1, key=lambda r: r["E_val"])
+    train = data.subset(np.sort(np.random.default_rng(search.seed).permutation(400)[:300]))
+    by_hand = clone(est).set_params(mu_kernel=IMQ(best["mu"]["eps"]), max_centers=30, trainer__tol=0.0)
+    by_hand.fit(train.x0, train.x1, mu=train.mu, dt=train.dt, validation=(held.x0, held.x1, held.mu, held.dt))
+    assert by_hand.history_.val_max_residual[-1] == best["E_val"]  # the same fit on the same arrays
+    assert out.score == min(r["score"] for r in out.table if r["stage"] == 2)  # stage 2 on the same samples
+
+
 def test_the_search_logs_its_choice(param_data, caplog):
     x0, x1, mu, _ = param_data
     with caplog.at_level(logging.INFO, logger="sympredict.estimators"):
@@ -228,7 +247,7 @@ def test_too_few_samples_for_a_search_name_the_fix(param_data):
 def test_the_second_stage_scores_the_one_step_error_on_held_out_samples(param_data):
     """The stage-2 score is the mean of |Phi(x0) - x1| / |x1 - x0| over the held-out samples (independent
     recomputation with the same fit), and a Newton failure scores inf instead of stopping the search."""
-    from sympredict.estimators.auto import _one_step_score
+    from sympredict.estimators.search import one_step_score as _one_step_score
     from sympredict.symplectic.solvers import NewtonSolver
 
     x0, x1, mu, _ = param_data

@@ -147,7 +147,7 @@ def test_every_strategy_takes_the_target_and_the_search_drops_it(data):
     model = SymplecticKernelPredictor(IMQ(0.5), mu_kernel=IMQ(2.0), max_centers=300,
                                       trainer=ActiveSetGreedy(target_error=1e-2)).fit(train, validation=val)
     assert model.history_.stop_reason == "target" and model.diagnostics_.target_met
-    from sympredict.estimators.auto import _without_target
+    from sympredict.estimators.search import without_target as _without_target
     est = SymplecticKernelPredictor(trainer=ExactGreedy(target_error=1e-3))
     assert _without_target(est).trainer.target_error is None
 

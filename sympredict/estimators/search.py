@@ -1,0 +1,567 @@
+"""The one search over estimator settings on held-out data: candidate grids, coordinate refinement of
+shapes, held-out scores, and the record (table) of every candidate fitted.
+
+Every search of the package runs here: the public selections of :mod:`sympredict.estimators.selection`
+(:func:`~sympredict.estimators.selection.select_kernels`, ``refine_kernel_shapes``, ``select_regularization``,
+``select_by_score``) and the estimator's own :class:`~sympredict.estimators.auto.KernelSearch`.  The pieces:
+
+* **candidates**: kernels ``family(eps)`` on logarithmic grids of shapes (:func:`log_grid`, :func:`kernel_grid`),
+  because useful values span decades (reduced wave coordinates are of size ~20, so state shapes ~5e-3 fit there,
+  pendulum states are of size ~5); every candidate is ``clone(estimator).set_params(...)``
+  (:func:`fit_candidate`), so no estimator class is needed here;
+* **grid search** (:func:`grid_search`): every tuple ``(k_xi, k_mu, k_dT)`` trained by f-greedy to ``m_star``
+  centres and ranked by its validation residual ``E_val(m_star)``, a winner on a grid's edge widened beyond it;
+* **coordinate refinement** (:func:`coordinate_search`): each coordinate of a candidate (a shape, or any value a
+  caller can scale) times the given factors, one at a time, while a sweep improves the score
+  (:func:`refine_shapes` at a larger ``m_star``; the kernel search's second stage);
+* **held-out scores**: ``E_val(m_star)`` (the greedy's validation residual), the mean relative one-step error
+  (:func:`one_step_score`), or a score the caller computes on the fitted model
+  (:func:`score_search`, :func:`ridge_search`);
+* **the record**: one ``dict`` row per candidate fitted (settings, score, centres, fit time, ``error`` where the fit
+  failed), kept in the result (:class:`SelectionResult`, ``table``).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import itertools
+import logging
+import time
+import warnings
+from dataclasses import dataclass, field
+from typing import Callable, Optional, Sequence
+
+import numpy as np
+from pymor.core.logger import getLogger
+
+from sympredict.base import clone
+from sympredict.data import FlowMapData
+from sympredict.exceptions import NewtonConvergenceError, NonFinitePredictionError
+from sympredict.kernels import KERNEL_FAMILIES, RadialKernel
+from sympredict.kernels.transforms import KernelTransform
+
+__all__ = ["log_grid", "kernel_grid", "WIDEN_LIMITS", "SelectionResult", "ScoredSelectionResult", "fit_candidate",
+           "grid_search", "coordinate_search", "refine_shapes", "one_step_score", "score_search", "ridge_search"]
+
+#: The searches' logger: the name users configure for the selections' progress.
+SEARCH_LOGGER = "sympredict.estimators.selection"
+logger = getLogger(SEARCH_LOGGER)
+
+#: The loggers of a candidate's fit, quieted to one line per candidate.
+FIT_LOGGERS = ("sympredict.interpolation.greedy", "sympredict.estimators.predictor")
+
+
+@contextlib.contextmanager
+def quiet_logs(*names, level: int = logging.WARNING):
+    """Raise the given loggers to ``level`` for the duration (candidate fits are logged as one line each)."""
+    loggers = [logging.getLogger(n) for n in names]
+    levels = [lg.level for lg in loggers]
+    for lg in loggers:
+        lg.setLevel(max(lg.getEffectiveLevel(), level))
+    try:
+        yield
+    finally:
+        for lg, level in zip(loggers, levels):
+            lg.setLevel(level)
+
+
+#: Shape parameters the automatic widening of a grid may reach.
+WIDEN_LIMITS = (1e-6, 1e6)
+
+
+def _spec(kernel: Optional[RadialKernel]) -> Optional[dict]:
+    return None if kernel is None else kernel.spec
+
+
+# ------------------------------------------------------------------ candidates
+def log_grid(lo: float, hi: float, per_decade: int = 2) -> np.ndarray:
+    """Logarithmically spaced values from ``lo`` to ``hi`` with ``per_decade`` points per decade."""
+    if not (0 < lo <= hi):
+        raise ValueError(f"log_grid needs 0 < lo <= hi, got {lo!r}, {hi!r}")
+    n = max(1, int(round(np.log10(hi / lo) * per_decade)) + 1)
+    return np.geomspace(lo, hi, n)
+
+
+def kernel_grid(families: Sequence[str], eps_values) -> list[Optional[RadialKernel]]:
+    """All kernels ``family(eps)``; ``families=()`` or ``eps_values=None`` gives ``[None]`` (factor dropped)."""
+    if eps_values is None or not families:
+        return [None]
+    unknown = [f for f in families if f not in KERNEL_FAMILIES]
+    if unknown:
+        raise ValueError(f"unknown kernel families {unknown}; choose from {sorted(KERNEL_FAMILIES)}")
+    return [KERNEL_FAMILIES[f](float(e)) for f in families for e in eps_values]
+
+
+def fit_candidate(model, data: FlowMapData, validation: Optional[FlowMapData] = None, *, uses_mu: bool = True,
+                  dt=None, quiet: bool = True):
+    """Fit one candidate, ``model`` (an unfitted, configured clone), on ``data``; returns ``model``.
+
+    Parameters
+    ----------
+    model : estimator
+        ``clone(estimator).set_params(...)`` of the candidate.
+    data : FlowMapData
+        Training samples.
+    validation : FlowMapData, optional
+        Held-out samples of the greedy's ``E_val(m)`` (the fit's ``validation``).
+    uses_mu : bool, default=True
+        Pass the parameters (of ``data`` and ``validation``, where they have any); ``False`` for a candidate
+        without a parameter kernel.
+    dt : float or ndarray, optional
+        The steps passed (default ``data.dt``).
+    quiet : bool, default=True
+        The fit's own log lines (greedy, estimator) at ``WARNING`` only: a search logs one line per candidate.
+    """
+    mu = data.mu if uses_mu and data.mu.shape[1] else None
+    val = None if validation is None else (validation.x0, validation.x1,
+                                           validation.mu if uses_mu and validation.mu.shape[1] else None, validation.dt)
+    with quiet_logs(*FIT_LOGGERS) if quiet else contextlib.nullcontext():
+        return model.fit(data.x0, data.x1, mu=mu, dt=data.dt if dt is None else dt, validation=val)
+
+
+# ------------------------------------------------------------------ grid search by E_val(m_star)
+@dataclass
+class SelectionResult:
+    """Outcome of :func:`grid_search` (:func:`~sympredict.estimators.selection.select_kernels`).
+
+    Attributes
+    ----------
+    state, mu, dt
+        The chosen kernels (``None`` where the factor is dropped).
+    score : float
+        Its ``E_val(m_star)``.
+    complete : bool
+        Whether its greedy reached ``m_star`` centres (or the residual tolerance).
+    table : list of dict
+        Every candidate: its kernels' specs (``state``, ``mu``, ``dt``: ``{'family', 'eps'}``
+        or ``None``), a readable ``kernels`` label, ``E_val(m_star)``,
+        ``E_train(m_star)``, centres, ``complete``, fit time, and ``error`` for
+        a candidate whose fit failed (scored ``inf``, skipped).
+    """
+
+    state: RadialKernel
+    mu: Optional[RadialKernel]
+    dt: Optional[RadialKernel]
+    score: float
+    complete: bool = True
+    table: list = field(default_factory=list)
+
+    def rank(self, prefer_complete: bool = False) -> tuple:
+        """Sort key, smaller is better: by ``E_val``, non-finite scores last; with ``prefer_complete``,
+        candidates that reached ``m_star`` before those that stopped early."""
+        finite = bool(np.isfinite(self.score))
+        return (not finite, prefer_complete and not self.complete, self.score if finite else np.inf)
+
+
+def grid_search(
+    data: FlowMapData,
+    validation: FlowMapData,
+    state_kernels: Sequence[RadialKernel],
+    mu_kernels: Sequence[Optional[RadialKernel]] = (None,),
+    dt_kernels: Sequence[Optional[RadialKernel]] = (None,),
+    m_star: int = 300,
+    prefer_complete: bool = False,
+    estimator=None,
+    widen: int = 2,
+) -> SelectionResult:
+    """Grid search over kernel tuples by validation residual at ``m_star`` centres.
+
+    Parameters
+    ----------
+    data, validation
+        Training and validation flow-map data.
+    state_kernels, mu_kernels, dt_kernels
+        Candidates per factor (``None`` drops a factor).
+    m_star
+        Number of greedy centres at which candidates are compared.
+    prefer_complete
+        Rank candidates whose greedy stopped early (power breakdown) behind
+        those that reached ``m_star`` (:meth:`SelectionResult.rank`).  Use it
+        when ``m_star`` is close to the final budget.
+    estimator
+        The (unfitted) estimator whose settings every candidate shares; each
+        candidate is ``clone(estimator).set_params(state_kernel=..., mu_kernel=...,
+        dt_kernel=..., max_centers=m_star, trainer__tol=0)``; where the estimator's
+        state kernel is a transform (``Scaled``, ``Periodic``, ``Symmetric``), the
+        candidate state kernels go inside it.  Required here (:func:`sympredict.estimators.selection.select_kernels`
+        defaults to ``SymplecticKernelPredictor()``).
+    widen
+        When the winner's shape lies on the edge of its grid (a family with at
+        least two shapes), try one more grid step beyond that edge (the grid's
+        ratio there), at most ``widen`` times per factor and within
+        :data:`WIDEN_LIMITS`; such candidates are marked ``widened`` in the table.
+        A winner still on an edge afterwards is logged as a warning.
+
+    Returns
+    -------
+    SelectionResult
+
+    Notes
+    -----
+    Cost: one greedy to ``m_star`` per candidate, ``O(m_star^2 (N + N_val))`` each.
+    A candidate whose greedy stops early on a power breakdown (the kernel
+    matrix is numerically singular: the kernel cannot use more centres) is
+    scored at its last step.  That suits small ``m_star`` and cases where
+    every kernel breaks down early anyway (the reduced wave: the best kernel
+    stops at 273 centres, the best complete one at 383 with twice its
+    error).  Near the final budget, ``prefer_complete`` ranks it behind every
+    candidate that reached ``m_star``: on the pendulum such a kernel (IMQ
+    eps 0.1, 786 of 1000 centres) had the lowest ``E_val(1000)``, but its
+    final model stopped at 791 of 1500 centres with 8x larger trajectory
+    errors than the complete runner-up's.  Non-finite scores never win; a
+    candidate whose fit fails (``ValueError``, e.g. overflowing coefficients)
+    is scored ``inf``, logged and skipped.  When no candidate has halved its
+    validation residual at ``m_star``, a warning says that ``m_star`` is below
+    what they need (the ranking says little about the final size).
+    """
+    if estimator is None:
+        raise ValueError("grid_search of sympredict.estimators.search needs the estimator whose settings the "
+                         "candidates share (sympredict.estimators.selection.select_kernels defaults to one)")
+    base = estimator
+    dt_fixed = np.ptp(data.dt) == 0
+    table = []
+    unresolved = []  # per fitted candidate: is its validation residual at m_star still above half its start?
+
+    def score(tup, widened=False) -> SelectionResult:
+        state, mu_k, dt_k = tup
+        inside = base.state_kernel.with_radial(state) if isinstance(base.state_kernel, KernelTransform) else state
+        model = clone(base).set_params(state_kernel=inside, mu_kernel=mu_k, dt_kernel=dt_k, max_centers=m_star,
+                                       trainer__tol=0.0)
+        label = " x ".join(repr(k) for k in tup if k is not None)
+        row = {"state": _spec(state), "mu": _spec(mu_k), "dt": _spec(dt_k), "kernels": label, "widened": widened}
+        t0 = time.perf_counter()
+        try:
+            fit_candidate(model, data, validation, uses_mu=mu_k is not None)
+        except (ValueError, ArithmeticError) as exc:  # LinAlgError is a ValueError
+            # a candidate that cannot be trained (coefficients overflow, memory, ...) is scored and skipped
+            row.update(E_val=np.inf, E_train=np.inf, n_centers=0, complete=False, error=str(exc),
+                       fit_s=time.perf_counter() - t0)
+            table.append(row)
+            logger.warning(f"{label}: fit failed, candidate skipped ({exc})")
+            return SelectionResult(state, mu_k, dt_k, np.inf, False)
+        val = model.history_.val_max_residual
+        value = float(val[-1])
+        complete = model.n_centers_ >= m_star or model.history_.stop_reason == "tol"
+        if np.isfinite(value):
+            unresolved.append(value > 0.5 * float(val[0]))
+        row.update(E_val=value, E_train=float(model.history_.train_max_residual[-1]), n_centers=model.n_centers_,
+                   complete=complete, fit_s=time.perf_counter() - t0)
+        table.append(row)
+        logger.info(f"{label}: E_val({model.n_centers_}) = {value:.3e}"
+                    + ("" if complete else f" (stopped early: {model.history_.stop_reason})"))
+        return SelectionResult(state, mu_k, dt_k, value, complete)
+
+    def better(a, b) -> bool:
+        return np.isfinite(a.score) and (b is None or a.rank(prefer_complete) < b.rank(prefer_complete))
+
+    best = None
+    for tup in itertools.product(state_kernels, mu_kernels, dt_kernels):
+        if tup[2] is None and not dt_fixed:
+            raise ValueError("dt_kernels must not contain None when the data have several macro steps")
+        candidate = score(tup)
+        if better(candidate, best):
+            best = candidate
+    if best is None:
+        raise ValueError("no candidate produced a finite validation residual: every fit failed or broke down "
+                         "(see the table of the log); try other kernel families or shapes")
+    # a winner on the edge of its shape grid: extend the grid beyond that edge, one step at a time
+    grids = [sorted({k.eps for k in opts if k is not None and type(k) is type(chosen)}) if chosen is not None else []
+             for opts, chosen in ((state_kernels, best.state), (mu_kernels, best.mu), (dt_kernels, best.dt))]
+    for _ in range(widen):
+        moved = False
+        for i, grid in enumerate(grids):
+            tup = [best.state, best.mu, best.dt]
+            chosen = tup[i]
+            if chosen is None or len(grid) < 2 or chosen.eps not in (grid[0], grid[-1]):
+                continue
+            ratio = grid[0] / grid[1] if chosen.eps == grid[0] else grid[-1] / grid[-2]
+            eps = chosen.eps * ratio
+            if not WIDEN_LIMITS[0] <= eps <= WIDEN_LIMITS[1]:
+                continue
+            grid.insert(0 if ratio < 1 else len(grid), eps)
+            tup[i] = chosen.set_params(eps=eps)
+            logger.info(f"the chosen {('state', 'mu', 'dt')[i]} kernel {chosen!r} lies on the edge of its shape grid: "
+                        f"trying {tup[i]!r}")
+            candidate = score(tuple(tup), widened=True)
+            if better(candidate, best):
+                best, moved = candidate, True
+        if not moved:
+            break
+    best.table = table
+    for name, chosen, grid in zip(("state", "mu", "dt"), (best.state, best.mu, best.dt), grids):
+        if chosen is not None and len(grid) > 1 and chosen.eps in (grid[0], grid[-1]):
+            logger.warning(f"the chosen {name} kernel {chosen!r} lies on the edge of its shape grid"
+                           + (f" after widening it {widen} time(s)" if widen else "") + ": widen the grid")
+    if unresolved and all(unresolved):
+        logger.warning(f"m_star={m_star} is below what every candidate needs: no candidate has halved its validation "
+                       "residual at m_star, so the ranking says little about the final size; raise m_star")
+    return best
+
+
+# ------------------------------------------------------------------ coordinate refinement
+def coordinate_search(start: tuple, key: Callable, active: Sequence[int], move: Callable,
+                      factors: Sequence[float] = (0.5, 2.0), sweeps: int = 2, from_best: bool = True,
+                      on_sweep: Optional[Callable] = None) -> tuple:
+    """Coordinate search: each active coordinate of the best candidate moved by each factor, one at a time.
+
+    Parameters
+    ----------
+    start : tuple
+        The first candidate (hashable coordinates; ``None`` coordinates are never moved).
+    key : callable
+        ``key(candidate)``: its rank, smaller is better.  Called on every candidate tried, after ``key(start)``;
+        cache it where a candidate may recur (equal tuples are equal candidates).
+    active : sequence of int
+        The coordinates searched, in this order.
+    move : callable
+        ``move(value, index, factor)``: coordinate ``index`` of value ``value`` moved by ``factor`` (a shape
+        ``k.set_params(eps=k.eps * factor)``, a float ``value * factor``).
+    factors : sequence of float, default=(0.5, 2.0)
+        The moves tried per coordinate, in this order.
+    sweeps : int, default=2
+        At most this many sweeps over the active coordinates; the search stops after a sweep without improvement.
+    from_best : bool, default=True
+        Each move from the best candidate so far (``True``), or every factor of a coordinate from the candidate
+        that was best when that coordinate's turn began (``False``: both neighbours of it are tried).
+    on_sweep : callable, optional
+        ``on_sweep(sweep, best)`` after each sweep (e.g. a log line).
+
+    Returns
+    -------
+    tuple
+        The best candidate.
+
+    Notes
+    -----
+    Cost: at most ``1 + len(factors) len(active) sweeps`` calls of ``key``.
+    """
+    best = start
+    key(best)
+    for sweep in range(sweeps):
+        improved = False
+        for i in active:
+            anchor = best
+            if anchor[i] is None:
+                continue
+            for f in factors:
+                origin = best if from_best else anchor
+                cand = origin[:i] + (move(origin[i], i, f),) + origin[i + 1:]
+                if key(cand) < key(best):
+                    best, improved = cand, True
+        if on_sweep is not None:
+            on_sweep(sweep, best)
+        if not improved:
+            break
+    return best
+
+
+def refine_shapes(
+    data: FlowMapData,
+    validation: FlowMapData,
+    start: SelectionResult,
+    m_star: int,
+    factor: float = 2.0,
+    max_sweeps: int = 3,
+    prefer_complete: bool = False,
+    estimator=None,
+    refine: Sequence[bool] = (True, True, True),
+) -> SelectionResult:
+    """Coordinate search of the shape parameters around ``start`` at a larger ``m_star``.
+
+    A grid search at small ``m_star`` is cheap but favours flat kernels (few
+    centres resolve little); this refines the winner where the final model
+    lives.  Each sweep tries every factor's shape times ``1/factor`` and
+    ``factor`` (the family kept), one factor at a time, keeping any candidate
+    that ranks better (:meth:`SelectionResult.rank`: lower ``E_val(m_star)``,
+    with ``prefer_complete`` complete runs first); it stops after a sweep without improvement
+    or after ``max_sweeps`` sweeps (:func:`coordinate_search`, both neighbours of each shape tried).
+
+    refine : (bool, bool, bool)
+        Which shapes are searched: state, parameter, step (the others are kept).
+
+    Returns
+    -------
+    SelectionResult
+        The best tuple, scored at ``m_star``; ``table`` lists every candidate
+        evaluated here (the start re-scored first).
+
+    Notes
+    -----
+    Cost: at most ``1 + 6 max_sweeps`` greedy fits to ``m_star`` centres (fewer
+    with dropped factors); candidates already scored are not refitted.
+    """
+    if not (factor > 1):
+        raise ValueError(f"factor must be > 1, got {factor!r}")
+    scored = {}
+
+    def score(tup):
+        if tup not in scored:  # kernels are values: equal family and shape, equal key
+            scored[tup] = grid_search(data, validation, [tup[0]], [tup[1]], [tup[2]], m_star=m_star,
+                                      prefer_complete=prefer_complete, estimator=estimator, widen=0)
+        return scored[tup]
+
+    def on_sweep(sweep, tup):
+        best = scored[tup]
+        logger.info(f"shape refinement sweep {sweep + 1}: {best.state!r}, {best.mu!r}, {best.dt!r}: "
+                    f"E_val({m_star}) = {best.score:.3e}")
+
+    chosen = coordinate_search((start.state, start.mu, start.dt), lambda t: score(t).rank(prefer_complete),
+                               [i for i in range(3) if refine[i]], lambda k, i, f: k.set_params(eps=k.eps * f),
+                               factors=(1 / factor, factor), sweeps=max_sweeps, from_best=False, on_sweep=on_sweep)
+    best = scored[chosen]
+    table = [row for r in scored.values() for row in r.table]
+    return SelectionResult(best.state, best.mu, best.dt, best.score, best.complete, table)
+
+
+# ------------------------------------------------------------------ held-out scores of final-size candidates
+def one_step_score(estimator, params: dict, m_final: int, train: FlowMapData, val: FlowMapData,
+                   largest: int = 500) -> tuple:
+    """``(score, centres, seconds, error)`` of one candidate: ``clone(estimator)`` with ``params`` fitted
+    to ``m_final`` centres on ``train`` (its trainer's ``target_error`` dropped: candidates compete at their full
+    size), scored by the mean relative one-step error ``|Phi(x0) - x1| / |x1 - x0|`` on (up to ``largest``)
+    ``val`` samples; ``inf`` for a failed fit or Newton solve, or a non-finite prediction.
+
+    ``params`` holds ``state_kernel``, ``mu_kernel``, ``dt_kernel``, ``update`` and any other settings.
+    Cost: one greedy fit to ``m_final`` centres and ``largest`` implicit steps.
+    """
+    t0 = time.perf_counter()
+    model = without_target(clone(estimator).set_params(**params, max_centers=m_final))
+    sub = val.subset(np.arange(min(len(val), largest)))
+    inc = np.linalg.norm(sub.x1 - sub.x0, axis=1)
+    rows = inc > 0
+    uses_mu = params["mu_kernel"] is not None
+    try:
+        with warnings.catch_warnings():  # a candidate may underfit or extrapolate: its score says so
+            warnings.simplefilter("ignore")
+            fit_candidate(model, train, uses_mu=uses_mu, quiet=False)
+            pred = model.step(sub.x0, mu=sub.mu if uses_mu else None,
+                              dt=sub.dt if params["dt_kernel"] is not None else None)
+        err = np.linalg.norm(pred - sub.x1, axis=1)[rows] / inc[rows]
+        value = float(np.mean(err)) if rows.any() else float(np.mean(np.linalg.norm(pred - sub.x1, axis=1)))
+        return (value if np.isfinite(value) else np.inf), model.n_centers_, time.perf_counter() - t0, None
+    except (ValueError, ArithmeticError, NewtonConvergenceError, NonFinitePredictionError) as exc:
+        return np.inf, 0, time.perf_counter() - t0, f"{type(exc).__name__}: {exc}"
+
+
+def without_target(model):
+    """``model`` with its trainer's ``target_error`` dropped (search candidates compete at their full size)."""
+    if getattr(model.trainer, "target_error", None) is not None:
+        model.set_params(trainer__target_error=None)
+    return model
+
+
+@dataclass
+class ScoredSelectionResult:
+    """Outcome of :func:`score_search` (:func:`~sympredict.estimators.selection.select_by_score`).
+
+    Attributes
+    ----------
+    params : dict
+        The chosen candidate's settings (as given in ``candidates``).
+    n_centers : int
+        The chosen budget: the number of centres of :attr:`model`.
+    score : float
+        Its score.
+    model : estimator
+        The chosen candidate fitted (truncated to ``n_centers`` where it was fitted further).
+    table : list of dict
+        One row per (candidate, budget): ``candidate`` (index), ``params`` (readable),
+        ``budget``, ``n_centers``, ``score``, ``E_val`` (the greedy's validation
+        residual at ``n_centers``), ``stop_reason`` of the fit, ``fit_s``, ``score_s``;
+        a failed fit gives one row with ``error`` and ``score = inf``.
+    """
+
+    params: dict
+    n_centers: int
+    score: float
+    model: Optional[object] = field(default=None, repr=False)
+    table: list = field(default_factory=list)
+
+
+def score_search(data: FlowMapData, validation: Optional[FlowMapData], candidates: Sequence[dict],
+                 budgets: Sequence[int], score: Callable, estimator) -> ScoredSelectionResult:
+    """Settings and number of centres chosen by a caller's validation score of the fitted models.
+
+    Every candidate ``clone(estimator).set_params(**candidate, max_centers=max(budgets))`` is fitted once; smaller
+    budgets are its greedy prefixes (``truncated``), so the budget is chosen at the cost of the scores alone.
+    ``score(fitted_model) -> float``, smaller is better; non-finite scores never win; ties go to the earlier
+    candidate and the smaller budget.  A failed fit (``ValueError``, ``ArithmeticError``) is recorded and skipped.
+    The parameters of :func:`~sympredict.estimators.selection.select_by_score` (which documents them).
+
+    Cost: one greedy to ``max(budgets)`` per candidate, plus one ``score`` per (candidate, budget).  Only the best
+    model so far is kept in memory.
+    """
+    budgets = sorted({int(b) for b in budgets})
+    if not candidates or not budgets or budgets[0] < 1:
+        raise ValueError(f"need at least one candidate and positive budgets, got {len(candidates)} candidates, budgets {budgets}")
+    table, best = [], None
+    for i, cand in enumerate(candidates):
+        label = ", ".join(f"{k}={v!r}" for k, v in cand.items())
+        model = clone(estimator).set_params(**cand, max_centers=budgets[-1])
+        t0 = time.perf_counter()
+        try:
+            fit_candidate(model, data, validation, uses_mu=model.mu_kernel is not None)
+        except (ValueError, ArithmeticError) as exc:
+            table.append({"candidate": i, "params": label, "budget": None, "n_centers": 0, "score": np.inf,
+                          "error": str(exc), "fit_s": time.perf_counter() - t0})
+            logger.warning(f"{label}: fit failed, candidate skipped ({exc})")
+            continue
+        fit_s = time.perf_counter() - t0
+        val = model.history_.val_max_residual
+        for b in budgets:
+            m = min(b, model.n_centers_)
+            if table and table[-1]["candidate"] == i and table[-1]["n_centers"] == m:
+                continue  # stopped before this budget: already scored at its size
+            sized = model if m == model.n_centers_ else model.truncated(m)
+            t1 = time.perf_counter()
+            value = float(score(sized))
+            row = {"candidate": i, "params": label, "budget": b, "n_centers": m, "score": value,
+                   "E_val": None if val is None else float(val[m]), "stop_reason": model.history_.stop_reason,
+                   "fit_s": fit_s, "score_s": time.perf_counter() - t1}
+            table.append(row)
+            logger.info(f"{label}, {m} centres: score {value:.4e}")
+            if np.isfinite(value) and (best is None or value < best[2]):
+                best = (dict(cand), m, value, sized)
+    if best is None:
+        raise ValueError("no candidate produced a finite score: every fit failed or diverged (see the log)")
+    return ScoredSelectionResult(best[0], best[1], best[2], best[3], table)
+
+
+def ridge_search(regularizations, evaluate: Callable, keep: bool = False, name: str = "regularizations") -> tuple:
+    """The ridge term of the greedy chosen by a held-out score: ``0`` (the exact fit) and every given term compete.
+
+    Parameters
+    ----------
+    regularizations : sequence of float
+        Candidate terms ``lambda >= 0``; ``0`` is always added.  Tried in increasing order.
+    evaluate : callable
+        ``evaluate(lam) -> (score, fitted, row)``: the candidate with ridge term ``lam`` fitted (typically
+        ``clone(estimator).set_params(trainer__regularization=lam)``) and scored on held-out data, smaller is
+        better, with its ``row`` of the record (a ``dict``; ``regularization`` and ``score`` are added).
+
+    Returns
+    -------
+    best : tuple or None
+        ``(lam, score, fitted)`` of the best finite score (ties: the smaller term), ``None`` when no score is finite.
+    table : list of dict
+        One row per term.
+    fitted : dict
+        ``lam -> fitted`` of every term (``keep=True``; else empty).
+
+    Notes
+    -----
+    Cost: one ``evaluate`` per term.  Since the exact fit competes, the chosen term is never worse than it on the
+    score.
+    """
+    values = sorted({0.0, *(float(v) for v in np.atleast_1d(regularizations))})
+    if not all(np.isfinite(v) and v >= 0 for v in values):
+        raise ValueError(f"{name} must be finite non-negative floats, got {regularizations!r}")
+    table, best, fitted = [], None, {}
+    for lam in values:
+        value, model, row = evaluate(lam)
+        table.append({"regularization": lam, "score": value, **row})
+        if keep:
+            fitted[lam] = model
+        if np.isfinite(value) and (best is None or value < best[1]):
+            best = (lam, value, model)
+    return best, table, fitted

@@ -1,0 +1,85 @@
+"""The search engine's own pieces, on scores known in closed form (no fits): the coordinate search, the ridge
+choice, and the refusals.  The fitted searches that run on it are tested in test_direct_and_selection.py,
+test_select_by_score.py and test_auto_defaults.py."""
+
+import numpy as np
+import pytest
+
+from sympredict.data import FlowMapData
+from sympredict.estimators.search import coordinate_search, grid_search, ridge_search
+from sympredict.kernels import IMQ
+
+
+def _counted(f):
+    calls = []
+
+    def key(cand):
+        calls.append(cand)
+        return f(cand)
+
+    return key, calls
+
+
+def _scale(value, index, factor):
+    return value * factor
+
+
+def test_coordinate_search_walks_to_the_lattice_minimum_of_a_separable_score():
+    """Minimum of (log2 a - 3)^2 + (log2 b + 2)^2 on the lattice 2^k: reached from (1, 1) in factor-2 moves."""
+    key, calls = _counted(lambda c: (np.log2(c[0]) - 3) ** 2 + (np.log2(c[1]) + 2) ** 2)
+    best = coordinate_search((1.0, 1.0), key, [0, 1], _scale, sweeps=10)
+    assert best == (8.0, 0.25)
+    assert len(calls) <= 1 + 2 * 2 * 10
+
+
+def test_coordinate_search_keeps_inactive_and_none_coordinates_and_stops_after_a_sweep_without_gain():
+    key, calls = _counted(lambda c: abs(np.log2(c[0]) - 1) + (0.0 if c[2] is None else 1.0))
+    best = coordinate_search((1.0, 5.0, None), key, [0, 1, 2], lambda v, i, f: v * f if i == 0 else v + f, sweeps=5)
+    assert best[0] == 2.0 and best[2] is None
+    # coordinate 1 changes nothing in the score: never an improvement, so sweep 2 improves nothing and ends it
+    assert best[1] == 5.0
+    assert len(calls) == 1 + 2 * (2 * 2 * 2)  # the start; two sweeps of two moves on coordinates 0 and 1, each
+    assert len(set(calls)) == 6  # scoring the move and the best (a caller caches: 6 distinct candidates)
+    assert all(c[2] is None for c in calls)
+
+
+def test_from_best_moves_from_the_new_best_and_from_the_anchor_tries_both_neighbours():
+    """With the score falling towards small values, the factor 1/2 wins first; from the best, the factor 2 then
+    returns to the start (already known); from the coordinate's anchor it tries the other neighbour, 2."""
+    key, calls = _counted(lambda c: c[0])
+    coordinate_search((1.0,), key, [0], _scale, sweeps=1, from_best=True)
+    assert [c[0] for c in calls] == [1.0, 0.5, 1.0, 1.0, 0.5]  # each try: the candidate, then the best
+    key, calls = _counted(lambda c: c[0])
+    coordinate_search((1.0,), key, [0], _scale, sweeps=1, from_best=False)
+    assert [c[0] for c in calls] == [1.0, 0.5, 1.0, 2.0, 0.5]
+
+
+def test_ridge_search_always_tries_the_exact_fit_and_breaks_ties_towards_the_smaller_term():
+    seen = []
+
+    def evaluate(lam):
+        seen.append(lam)
+        return {0.0: 3.0, 1e-6: 1.0, 1e-4: 1.0, 1e-2: np.nan}[lam], f"model {lam}", {"n_centers": 7}
+
+    best, table, fitted = ridge_search([1e-2, 1e-4, 1e-6, 1e-4], evaluate)
+    assert seen == [0.0, 1e-6, 1e-4, 1e-2]
+    assert best == (1e-6, 1.0, "model 1e-06")
+    assert [row["regularization"] for row in table] == seen and table[0] == {"regularization": 0.0, "score": 3.0,
+                                                                             "n_centers": 7}
+    assert fitted == {}
+    _, _, fitted = ridge_search([1e-6], lambda lam: (1.0, lam, {}), keep=True)
+    assert fitted == {0.0: 0.0, 1e-6: 1e-6}
+
+
+def test_ridge_search_reports_no_finite_score_and_refuses_bad_terms():
+    best, table, _ = ridge_search([1e-3], lambda lam: (np.inf, None, {}))
+    assert best is None and len(table) == 2
+    with pytest.raises(ValueError, match="lambdas must be finite non-negative"):
+        ridge_search([-1.0], lambda lam: (0.0, None, {}), name="lambdas")
+
+
+def test_grid_search_needs_the_estimator_the_candidates_share():
+    x = np.zeros((4, 2))
+    data = FlowMapData(x, x, None, np.full(4, 0.1))
+    with pytest.raises(ValueError, match="needs the estimator"):
+        grid_search(data, data, [IMQ(1.0)])
