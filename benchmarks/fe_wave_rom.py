@@ -31,7 +31,7 @@ def run(args) -> dict:
     from pymor.reductors.symplectic import QuadraticHamiltonianRBReductor
 
     from sympredict import SymplecticKernelPredictor
-    from sympredict.mor import SymplecticKernelReductor
+    from sympredict.mor import DefaultEstimator, ProjectedTrajectories, SymplecticKernelReductor
     from sympredict.mor.basis import complex_svd_basis
     from sympredict.testing import fe_wave_model
 
@@ -44,11 +44,10 @@ def run(args) -> dict:
     RB = complex_svd_basis(S, n=args.dim // 2).to_pymor(fom.solution_space)
     h = fom.T / fom.time_stepper.nt
     dt = args.stride * h
-    budget = {"max_centers": args.max_centers} if args.update == "default" else {}
-    estimator = None if args.update == "default" else SymplecticKernelPredictor(update=args.update,
-                                                                                 max_centers=args.max_centers)
-    reductor = SymplecticKernelReductor(fom, RB, train, dt, estimator, data="projected", parameter_space=space,
-                                        n_validation=3, **budget)
+    estimator = DefaultEstimator(max_centers=args.max_centers) if args.update == "default" else \
+        SymplecticKernelPredictor(update=args.update, max_centers=args.max_centers)
+    reductor = SymplecticKernelReductor(fom, RB, dt, ProjectedTrajectories(train, parameter_space=space, n_validation=3),
+                                        estimator)
     rom = reductor.reduce()
     gal = QuadraticHamiltonianRBReductor(fom, RB)
     gal_rom = gal.reduce()
