@@ -6,7 +6,7 @@ Setup: :func:`sympredict.testing.fe_wave_model` (P1 elements, consistent mass ma
 ``[0.8, 1.2]``, canonical coordinates ``q~ = L^T q``, ``p~ = L^-1 p`` with ``M = L L^T``), ``T = 2``,
 ``nt = 400`` implicit-midpoint FOM steps.  Basis: complex SVD of the FOM trajectories at ``--n-train``
 uniform speeds, ``2n = --dim`` (16).  Kernel ROM: :class:`~sympredict.mor.SymplecticKernelReductor`
-with ``data="projected"`` (FOM trajectories only) at the macro step ``--stride`` FOM steps.
+with ``ProjectedTrajectories`` (FOM trajectories only) at the macro step ``--stride`` FOM steps.
 Galerkin: pyMOR's ``QuadraticHamiltonianRBReductor`` on the same basis (FOM step).  Error per test speed
 (random in the box, seeded, never used for training or selection): ``max_k |u_fom(t_k) - V u_rom(t_k)| /
 max_k |u_fom(t_k)|`` on the kernel ROM's grid; the JSON has per-speed errors and their means.

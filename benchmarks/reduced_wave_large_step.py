@@ -19,7 +19,7 @@ speed, over ``K = round(T / dT)`` macro steps from the FOM's initial data:
 * reference: the Galerkin ROM's exact flow, ``expm(dT J H_red(c))`` (the ROM is linear);
 * implicit midpoint on the Galerkin ROM at ``dT`` (one step per macro step; it needs
   the reduced operator);
-* the kernel ROM (:class:`~sympredict.mor.SymplecticKernelReductor`, ``data="reduced"``:
+* the kernel ROM (:class:`~sympredict.mor.SymplecticKernelReductor`, ``GalerkinSamples``:
   exact reduced flow samples near the reduced trajectories of the training speeds)
   with the paper's update (``symplectic_euler``, type II) and the symmetric one
   (``midpoint``), both on the NumPy Newton solver; states in the Williamson

@@ -468,7 +468,7 @@ class SymplecticKernelReductor(BasicObject):
             self.existence_, self.choice_, self._split = check_existence(
                 train, self._fit_state_scaling(train), self.dt, given_update=self._given_update(),
                 open_estimator=not self._default(), split=self.split, reference=reference, log=self.logger)
-            self.existence_["coordinates"] = f"trained (state_scaling={self.scaling.state!r})"
+            self.existence_["coordinates"] = f"trained (TrainingScaling state={self.scaling.state!r})"
         return train, val
 
     def _fit_state_scaling(self, train: FlowMapData) -> SymplecticScaling:

@@ -348,7 +348,7 @@ def test_reductor_without_parameters_and_with_a_non_affine_vector_parameter():
 
 
 def test_projected_reductor_on_a_nonlinear_pymor_model():
-    """Any time-dependent pyMOR model with data='projected': the sine-Gordon InstationaryModel (nonlinear operator)."""
+    """Any time-dependent pyMOR model with ProjectedTrajectories: the sine-Gordon InstationaryModel (nonlinear operator)."""
     from sympredict.systems.sine_gordon import SineGordonFOM
 
     sg = SineGordonFOM(n_points=60, length=20.0, T=4.0, nt=40, c_range=(0.8, 1.2))
