@@ -183,7 +183,10 @@ class _Sampled(Parametrized):
         if self.horizon is not None:
             as_real(self.horizon, "horizon", positive=True)
         _check_parameter_space(self.parameter_space, reductor.fom)
-        self.horizon_ = float(reductor.fom.T if self.horizon is None else self.horizon)
+
+    def _horizon(self, fom) -> float:
+        """The time span sampled (``horizon``, default ``fom.T``)."""
+        return float(fom.T if self.horizon is None else self.horizon)
 
     def validation_parameters(self, reductor) -> list:
         """``n_validation`` parameters uniform in the box (seeded), not the training ones."""
@@ -249,7 +252,7 @@ class GalerkinSamples(_Sampled):
         dt = reductor.dt
         rng = np.random.default_rng(seed)
         rows = reductor._mu_rows(mus)
-        n_fine = int(np.ceil(self.horizon_ / dt)) * 4
+        n_fine = int(np.ceil(self._horizon(reductor.fom) / dt)) * 4
         parts = []
         for mu, row in zip(mus, rows):
             x0 = reductor._initial_state(mu)
@@ -305,11 +308,12 @@ class ProjectedTrajectories(_Sampled):
 
     def _check_horizon(self, reductor) -> None:
         fom = reductor.fom
-        if not reductor.dt <= self.horizon_ * (1 + 1e-12):
-            raise ValueError(f"dt = {reductor.dt!r} is longer than the sampled time span (horizon = {self.horizon_!r}, "
+        horizon = self._horizon(fom)
+        if not reductor.dt <= horizon * (1 + 1e-12):
+            raise ValueError(f"dt = {reductor.dt!r} is longer than the sampled time span (horizon = {horizon!r}, "
                              f"fom.T = {fom.T!r}): no flow-map pair fits; use a smaller dt or a longer horizon")
-        if self.horizon_ > fom.T * (1 + 1e-12):
-            raise ValueError(f"horizon = {self.horizon_!r} is past the FOM's final time T = {fom.T!r}: its trajectories "
+        if horizon > fom.T * (1 + 1e-12):
+            raise ValueError(f"horizon = {horizon!r} is past the FOM's final time T = {fom.T!r}: its trajectories "
                              f"end at T; use horizon <= T or fom.with_(T=...)")
 
     def check(self, reductor) -> list:
@@ -325,8 +329,9 @@ class ProjectedTrajectories(_Sampled):
 
     def sample(self, reductor):
         """``(train, val, None)``: pairs of the projected trajectories, with the FOM's parameter vectors."""
-        train = _projected_pairs(reductor, reductor.training_parameters, self.horizon_)
-        val = _projected_pairs(reductor, self.validation_parameters(reductor), self.horizon_)
+        horizon = self._horizon(reductor.fom)
+        train = _projected_pairs(reductor, reductor.training_parameters, horizon)
+        val = _projected_pairs(reductor, self.validation_parameters(reductor), horizon)
         return train, val, None
 
 
@@ -369,29 +374,35 @@ class GivenTrajectories(ProjectedTrajectories):
         fom = reductor.fom
         self.check_model(fom)
         self._check_common(reductor)
-        self.trajectories_ = _as_trajectories(self.U, self.mus, fom, "GivenTrajectories")
-        self.validation_ = None
-        if self.validation is not None:
-            if not isinstance(self.validation, (tuple, list)) or len(self.validation) != 2:
-                raise ValueError(f"GivenTrajectories: validation must be a pair (U, mus) of validation trajectories "
-                                 f"and their parameter values, got {type(self.validation).__name__}")
-            self.validation_ = _as_trajectories(*self.validation, fom, "GivenTrajectories validation")
-        for given in (self.trajectories_, self.validation_):
+        trajectories, validation = self._trajectories(fom)
+        for given in (trajectories, validation):
             if given is not None:
                 _check_given_grid(reductor, given[0][0])
         self._check_horizon(reductor)
-        return self.trajectories_[1] if fom.parameters else [None]
+        return trajectories[1] if fom.parameters else [None]
+
+    def _trajectories(self, fom) -> tuple:
+        """The training and validation trajectories read and checked (``(VectorArrays, Mus)`` each, or ``None``)."""
+        if self.validation is not None and (not isinstance(self.validation, (tuple, list)) or len(self.validation) != 2):
+            raise ValueError(f"GivenTrajectories: validation must be a pair (U, mus) of validation trajectories "
+                             f"and their parameter values, got {type(self.validation).__name__}")
+        return (_as_trajectories(self.U, self.mus, fom, "GivenTrajectories"),
+                None if self.validation is None else
+                _as_trajectories(*self.validation, fom, "GivenTrajectories validation"))
 
     def validation_parameters(self, reductor) -> list:
         """The parameters of the validation trajectories (``[]`` without them)."""
-        if self.validation_ is None:
+        if self.validation is None:
             return []
-        return self.validation_[1] if reductor.fom.parameters else [None] * len(self.validation_[0])
+        validation = self._trajectories(reductor.fom)[1]
+        return validation[1] if reductor.fom.parameters else [None] * len(validation[0])
 
     def sample(self, reductor):
-        train = _projected_pairs(reductor, reductor.training_parameters, self.horizon_, self.trajectories_[0])
-        val = None if self.validation_ is None else \
-            _projected_pairs(reductor, self.validation_parameters(reductor), self.horizon_, self.validation_[0])
+        trajectories, validation = self._trajectories(reductor.fom)
+        horizon = self._horizon(reductor.fom)
+        train = _projected_pairs(reductor, reductor.training_parameters, horizon, trajectories[0])
+        val = None if validation is None else _projected_pairs(
+            reductor, validation[1] if reductor.fom.parameters else [None] * len(validation[0]), horizon, validation[0])
         return train, val, None
 
 
