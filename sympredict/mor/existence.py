@@ -21,6 +21,7 @@ from scipy.linalg import logm
 
 from sympredict.data import FlowMapData
 from sympredict.symplectic.metrics import canonical_J
+from sympredict.systems.linear_flow import inverse_symplectic_matrices
 from sympredict.systems.flowmaps import (
     LinearHamiltonianSystem,
     _report_existence,
@@ -209,8 +210,6 @@ def check_existence(train: FlowMapData, scaling, dt: float, *, given_update: Opt
 
 def split_pairs(data: FlowMapData, quadratic) -> FlowMapData:
     """``S``'s samples ``(L_h x0, L_{-h} x1)``, ``L_h = expm(dt/2 J A(mu))``, of samples ``x1 = Phi(x0)``."""
-    from sympredict.systems.linear_flow import inverse_symplectic_matrices
-
     L = quadratic.propagator(data.mu if data.mu.shape[1] else None, 0.5 * data.dt, n=len(data))
     return FlowMapData(np.einsum("bij,bj->bi", L, data.x0),
                        np.einsum("bij,bj->bi", inverse_symplectic_matrices(L), data.x1),

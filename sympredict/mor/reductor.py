@@ -569,10 +569,12 @@ class SymplecticKernelReductor(BasicObject):
         """Sample data, fit the predictor, return the ROM (horizon ``T``, default ``fom.T``).
 
         Sets ``predictor_`` (the fitted predictor, in the scaled coordinates; a
-        :class:`~sympredict.flowmap.splitting.SplitKernelPredictor` with ``split``), ``flow_map_`` (the ROM's
-        flow map in reduced coordinates), ``selection_`` (where kernels were chosen), ``regularization_`` and
-        ``regularization_table_`` (with ``regularizations``: the chosen term and ``[{"regularization", "score"}]``,
-        ``score`` ``None`` where not finite) and ``timings_`` (seconds of ``data``, ``selection`` and ``fit``).
+        :class:`~sympredict.flowmap.splitting.SplitKernelPredictor` where a split is in use), ``flow_map_`` (the
+        ROM's flow map in reduced coordinates), ``selection_`` (where kernels were chosen on validation data),
+        ``regularization_`` and ``regularization_table_`` (with ``ValidationSelection(regularizations=...)``: the
+        chosen term and ``[{"regularization", "score"}]``, ``score`` ``None`` where not finite), ``choice_``
+        (update, reason, split; ``choice_["estimator"]``: what the estimator's own search chose) and
+        ``timings_`` (seconds of ``data``, ``selection`` and ``fit``).
         """
         if isinstance(self.samples, GivenSamples):
             rows = self.samples.data.mu
