@@ -14,12 +14,12 @@ import numpy as np
 
 parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
 parser.add_argument("--T", type=float, default=5.0)
-parser.add_argument("--data", default="projected", choices=["projected", "reduced"])
+parser.add_argument("--data", default="projected", choices=["projected", "reduced"],
+                    help="projected FOM trajectories or samples of the Galerkin ROM's exact flow")
 parser.add_argument("--centers", type=int, default=1000)
-parser.add_argument("--samples", type=int, default=400, help="data='reduced': samples per training speed")
+parser.add_argument("--samples", type=int, default=400, help="--data reduced: samples per training speed")
 args = parser.parse_args()
 
-sizes = dict(n_samples=args.samples, max_centers=args.centers)  # CI runs it small
 
 # ---- user code: 15 lines ------------------------------------------------------------------------
 from pymor.algorithms.symplectic import psd_complex_svd
@@ -27,7 +27,7 @@ from pymor.operators.block import BlockDiagonalOperator
 from pymor.operators.constructions import LincombOperator
 from pymor.parameters.functionals import ExpressionParameterFunctional
 from pymordemos.symplectic_wave_equation import discretize_fom
-from sympredict.mor import SymplecticKernelReductor
+from sympredict.mor import DefaultEstimator, GalerkinSamples, ProjectedTrajectories, SymplecticKernelReductor
 
 fom = discretize_fom(T=args.T)
 stiffness, identity = fom.H_op.blocks[0, 0], fom.H_op.blocks[1, 1]  # the demo's wave speed is c = 0.1
@@ -36,7 +36,9 @@ train = fom.parameters.space(0.08, 0.12).sample_uniformly(5)
 U = fom.solution_space.empty()
 for mu in train:
     U.append(fom.solve(mu))
-reductor = SymplecticKernelReductor(fom, psd_complex_svd(U, 4), train, 10 * fom.T / fom.time_stepper.nt, data=args.data, **sizes)
+samples = ProjectedTrajectories(train) if args.data == "projected" else GalerkinSamples(train, n_samples=args.samples)
+reductor = SymplecticKernelReductor(fom, psd_complex_svd(U, 4), 10 * fom.T / fom.time_stepper.nt, samples,
+                                    DefaultEstimator(max_centers=args.centers))  # CI runs it small
 rom = reductor.reduce()
 # -------------------------------------------------------------------------------------------------
 

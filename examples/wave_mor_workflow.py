@@ -16,7 +16,7 @@ import argparse
 from sympredict import SymplecticKernelPredictor
 from sympredict_paper.wave import reduced_flow_map_data
 from sympredict.kernels import IMQ
-from sympredict.mor import SymplecticKernelReductor
+from sympredict.mor import GivenSamples, SymplecticKernelReductor, TrainingScaling
 from sympredict.symplectic.metrics import relative_trajectory_error
 from sympredict.mor.basis import SymplecticROM, complex_svd_basis, symplecticity_of_basis
 from sympredict.systems.wave import C_REF, C_TRAIN, WaveFOM
@@ -47,9 +47,9 @@ print(f"reduced model: {rom.rom.H_op.name} of dimension {rom.dim}")
 #    in the reduced coordinates and in mu = c^2
 dt = 0.1
 data = reduced_flow_map_data(rom, C_TRAIN, dt, args.samples, energy, seed=1)
-reductor = SymplecticKernelReductor(fom.model, rom.RB, None, dt,
+reductor = SymplecticKernelReductor(fom.model, rom.RB, dt, GivenSamples(data),
                                     SymplecticKernelPredictor(IMQ(1e-3), mu_kernel=IMQ(3.0), max_centers=args.centers),
-                                    data=data, state_scaling="none", parameter_scaling="none", time_scaling="none")
+                                    scaling=TrainingScaling("none", "none", "none"))
 kernel_rom = reductor.reduce()                              # a pyMOR model: kernel_rom.solve(mu) from the FOM's initial data
 model = reductor.flow_map_                                  # the learned step in reduced coordinates
 fitted = reductor.predictor_

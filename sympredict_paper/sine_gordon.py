@@ -57,7 +57,7 @@ from sympredict.mor.nonlinear import ReducedSineGordon, nonlinear_snapshots
 from sympredict.data import FlowMapData, TrajectoryData
 from sympredict.estimators.predictor import SymplecticKernelPredictor
 from sympredict.mor.basis import complex_svd_basis, pymor_basis, symplecticity_of_basis
-from sympredict.mor.reductor import SymplecticKernelReductor
+from sympredict.mor import GivenSamples, QuadraticSplit, SymplecticKernelReductor, TrainingScaling, ValidationSelection
 from sympredict.flowmap.scaling import BoxScaling
 from sympredict.systems.sine_gordon import SineGordonFOM
 from sympredict.interpolation.greedy import ExactGreedy
@@ -558,10 +558,13 @@ def sine_gordon_reductor(p, gal, pairs, dt, regularization=0.0, update="symplect
                                           max_centers=p.max_centers, update=update,
                                           trainer=ExactGreedy(tol=1e-9, regularization=float(regularization)))
     x0, x1, mu = pairs
-    return SymplecticKernelReductor(fom.model, pymor_basis(gal.V, fom.phase_space), None, dt, predictor,
-                                    data=FlowMapData(x0, x1, mu, np.full(len(x0), float(dt))),
-                                    validation_data=validation, parameter_space=space, state_scaling=p.state_scaling,
-                                    regularizations=regularizations, split=quadratic, flow_parameters=("c",),
+    return SymplecticKernelReductor(fom.model, pymor_basis(gal.V, fom.phase_space), dt,
+                                    GivenSamples(FlowMapData(x0, x1, mu, np.full(len(x0), float(dt))), validation,
+                                                 parameter_space=space), predictor,
+                                    selection=None if regularizations is None else ValidationSelection(
+                                        regularizations=regularizations),
+                                    split=None if quadratic is None else QuadraticSplit(quadratic),
+                                    scaling=TrainingScaling(p.state_scaling), flow_parameters=("c",),
                                     check_existence=False)
 
 

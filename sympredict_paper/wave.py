@@ -40,7 +40,7 @@ from sympredict.symplectic.integrators_compiled import EXPLICIT_SCHEMES, rollout
 from sympredict.estimators.predictor import DirectKernelPredictor, SymplecticKernelPredictor
 from sympredict.mor.basis import SymplecticROM, complex_svd_basis, symplecticity_of_basis
 from sympredict.estimators.selection import kernel_grid
-from sympredict.mor.reductor import SymplecticKernelReductor
+from sympredict.mor import GivenSamples, SymplecticKernelReductor, TrainingScaling, ValidationSelection
 from sympredict.systems.wave import C_REF, C_TRAIN, DT_WAVE, WaveFOM
 from sympredict.interpolation.greedy import ExactGreedy
 
@@ -242,11 +242,11 @@ def wave_reductor(rom: SymplecticROM, preset: WavePreset, dt: float, data: FlowM
     at ``m_star`` centres, then trained by f-greedy (``tol = 1e-10``) to ``max_centers``.
     """
     return SymplecticKernelReductor(
-        rom.model, rom.RB, None, dt,
+        rom.model, rom.RB, dt, GivenSamples(data, validation),
         SymplecticKernelPredictor(max_centers=preset.max_centers, trainer=ExactGreedy(tol=1e-10)),
-        data=data, validation_data=validation, state_scaling="none", parameter_scaling="none", time_scaling="none",
-        state_kernels=kernel_grid(preset.families, preset.state_eps), mu_kernels=kernel_grid(("imq",), preset.mu_eps),
-        m_star=preset.m_star)
+        scaling=TrainingScaling("none", "none", "none"),
+        selection=ValidationSelection(kernel_grid(preset.families, preset.state_eps),
+                                      kernel_grid(("imq",), preset.mu_eps), m_star=preset.m_star))
 
 
 def train_wave_predictor(rom: SymplecticROM, preset: WavePreset, dt: float, energy: float, seed: int = 0) -> dict:

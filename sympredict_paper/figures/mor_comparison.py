@@ -41,7 +41,7 @@ from pymor.reductors.symplectic import QuadraticHamiltonianRBReductor  # noqa: E
 from pymordemos.symplectic_wave_equation import discretize_fom  # noqa: E402
 
 from sympredict.systems.flowmaps import random_parameters  # noqa: E402
-from sympredict.mor import SymplecticKernelReductor  # noqa: E402
+from sympredict.mor import DefaultEstimator, GalerkinSamples, ProjectedTrajectories, SymplecticKernelReductor  # noqa: E402
 from sympredict.flowmap.scaling import BoxScaling  # noqa: E402
 
 set_log_levels({"pymor": "ERROR", "sympredict": "WARNING"})
@@ -126,7 +126,8 @@ rows.append({"method": "Galerkin ROM in NumPy: exact propagator expm(dt J H_red(
              "recon": lambda mu: RB.to_array().lincomb(numpy_galerkin(mu, K).T)})
 
 for data in ("reduced", "projected"):
-    red = SymplecticKernelReductor(fom, RB, train, dt, data=data, n_samples=args.samples, max_centers=args.centers)
+    samples = GalerkinSamples(train, n_samples=args.samples) if data == "reduced" else ProjectedTrajectories(train)
+    red = SymplecticKernelReductor(fom, RB, dt, samples, DefaultEstimator(max_centers=args.centers))
     t0 = time.perf_counter()
     krom = red.reduce()
     t_off = time.perf_counter() - t0

@@ -6,7 +6,7 @@ Setup: :func:`sympredict.testing.fe_wave_model` (P1 elements, consistent mass ma
 ``[0.8, 1.2]``, canonical coordinates ``q~ = L^T q``, ``p~ = L^-1 p`` with ``M = L L^T``), ``T = 2``,
 ``nt = 400`` implicit-midpoint FOM steps.  Basis: complex SVD of the FOM trajectories at ``--n-train``
 uniform speeds, ``2n = --dim`` (16).  Kernel ROM: :class:`~sympredict.mor.SymplecticKernelReductor`
-with ``data="projected"`` (FOM trajectories only) at the macro step ``--stride`` FOM steps.
+with ``ProjectedTrajectories`` (FOM trajectories only) at the macro step ``--stride`` FOM steps.
 Galerkin: pyMOR's ``QuadraticHamiltonianRBReductor`` on the same basis (FOM step).  Error per test speed
 (random in the box, seeded, never used for training or selection): ``max_k |u_fom(t_k) - V u_rom(t_k)| /
 max_k |u_fom(t_k)|`` on the kernel ROM's grid; the JSON has per-speed errors and their means.
@@ -31,7 +31,7 @@ def run(args) -> dict:
     from pymor.reductors.symplectic import QuadraticHamiltonianRBReductor
 
     from sympredict import SymplecticKernelPredictor
-    from sympredict.mor import SymplecticKernelReductor
+    from sympredict.mor import DefaultEstimator, ProjectedTrajectories, SymplecticKernelReductor
     from sympredict.mor.basis import complex_svd_basis
     from sympredict.testing import fe_wave_model
 
@@ -44,11 +44,10 @@ def run(args) -> dict:
     RB = complex_svd_basis(S, n=args.dim // 2).to_pymor(fom.solution_space)
     h = fom.T / fom.time_stepper.nt
     dt = args.stride * h
-    budget = {"max_centers": args.max_centers} if args.update == "default" else {}
-    estimator = None if args.update == "default" else SymplecticKernelPredictor(update=args.update,
-                                                                                 max_centers=args.max_centers)
-    reductor = SymplecticKernelReductor(fom, RB, train, dt, estimator, data="projected", parameter_space=space,
-                                        n_validation=3, **budget)
+    estimator = DefaultEstimator(max_centers=args.max_centers) if args.update == "default" else \
+        SymplecticKernelPredictor(update=args.update, max_centers=args.max_centers)
+    reductor = SymplecticKernelReductor(fom, RB, dt, ProjectedTrajectories(train, parameter_space=space, n_validation=3),
+                                        estimator)
     rom = reductor.reduce()
     gal = QuadraticHamiltonianRBReductor(fom, RB)
     gal_rom = gal.reduce()

@@ -19,7 +19,7 @@ speed, over ``K = round(T / dT)`` macro steps from the FOM's initial data:
 * reference: the Galerkin ROM's exact flow, ``expm(dT J H_red(c))`` (the ROM is linear);
 * implicit midpoint on the Galerkin ROM at ``dT`` (one step per macro step; it needs
   the reduced operator);
-* the kernel ROM (:class:`~sympredict.mor.SymplecticKernelReductor`, ``data="reduced"``:
+* the kernel ROM (:class:`~sympredict.mor.SymplecticKernelReductor`, ``GalerkinSamples``:
   exact reduced flow samples near the reduced trajectories of the training speeds)
   with the paper's update (``symplectic_euler``, type II) and the symmetric one
   (``midpoint``), both on the NumPy Newton solver; states in the Williamson
@@ -116,7 +116,7 @@ from sympredict.systems.flowmaps import (check_generating_function, linear_syste
                                  mu_to_vector, random_parameters)
 from sympredict.symplectic.integrators import implicit_midpoint_step, integrate  # noqa: E402
 from sympredict.kernels import IMQ  # noqa: E402
-from sympredict.mor import SymplecticKernelReductor  # noqa: E402
+from sympredict.mor import DefaultEstimator, GalerkinSamples, SymplecticKernelReductor, TrainingScaling  # noqa: E402
 from sympredict.flowmap.scaling import NormalizedFlowMap  # noqa: E402
 from sympredict.estimators.selection import select_by_score, select_kernels  # noqa: E402
 from sympredict.symplectic.solvers import NewtonSolver
@@ -212,9 +212,11 @@ for f in args.factors:
                                                      "error_fom": rel_error(V.lincomb(imp.T).to_numpy(), U_fom.to_numpy())}})
     for update in args.updates:
         rec = {"update": update}
-        red = SymplecticKernelReductor(fom, RB, train, dT, data="reduced", parameter_space=space, n_samples=args.samples,
-                                       radius=args.radius, n_validation=args.n_val, state_scaling=args.scaling,
-                                       max_centers=args.centers, check_existence=False, seed=args.seed)
+        red = SymplecticKernelReductor(fom, RB, dT, GalerkinSamples(train, n_samples=args.samples, radius=args.radius,
+                                                                    n_validation=args.n_val, parameter_space=space,
+                                                                    seed=args.seed),
+                                       DefaultEstimator(max_centers=args.centers),
+                                       scaling=TrainingScaling(args.scaling), check_existence=False)
         t0 = time.perf_counter()
         s_train, s_val, state_scaling, mu_scaling = red.scaled_training_data()
         train_data = red.train_data_

@@ -127,13 +127,13 @@ def test_sharded_greedy_names_a_pool_that_is_no_worker_pool(pendulum_pairs):
 
 
 def test_reductor_empty_kernel_list_and_array_reconstruct(small_fe_wave):
-    from sympredict.mor import SymplecticKernelReductor
+    from sympredict.mor import DefaultEstimator, ProjectedTrajectories, SymplecticKernelReductor, ValidationSelection
 
     fom, _, _, train, RB = small_fe_wave
     dt = 5 * fom.T / fom.time_stepper.nt
     with pytest.raises(ValueError, match=r"state_kernels must be a non-empty sequence"):
-        SymplecticKernelReductor(fom, RB, train, dt, data="projected", state_kernels=[])
-    reductor = SymplecticKernelReductor(fom, RB, train, dt, data="projected", max_centers=10)
+        SymplecticKernelReductor(fom, RB, dt, ProjectedTrajectories(train), selection=ValidationSelection(state_kernels=[]))
+    reductor = SymplecticKernelReductor(fom, RB, dt, ProjectedTrajectories(train), DefaultEstimator(max_centers=10))
     full = reductor.reconstruct(np.zeros((2, reductor.dim)))
     assert len(full) == 2 and full.space == fom.solution_space and full.norm().max() == 0
     x = np.arange(2.0 * reductor.dim).reshape(2, reductor.dim)

@@ -17,7 +17,7 @@ from sympredict import DirectKernelPredictor, SymplecticKernelPredictor
 from sympredict.container import read_container
 from sympredict.io import load_model, save_model
 from sympredict.kernels import IMQ
-from sympredict.mor import SymplecticKernelReductor
+from sympredict.mor import DefaultEstimator, GalerkinSamples, SymplecticKernelReductor
 from sympredict.estimators.predictor import MODEL_FORMAT
 from sympredict.flowmap.scaling import SymplecticScaling
 from sympredict.flowmap.splitting import SplitKernelPredictor
@@ -116,7 +116,8 @@ def test_warm_started_and_cloned_fits_keep_the_layout(small_pendulum_data):
 
 def test_scaling_and_reduced_model_keep_the_layout(wave):
     fom, train, RB, dt = wave
-    red = SymplecticKernelReductor(fom, RB, train, dt, n_samples=60, n_validation=1, max_centers=40)
+    red = SymplecticKernelReductor(fom, RB, dt, GalerkinSamples(train, n_samples=60, n_validation=1),
+                                   DefaultEstimator(max_centers=40))
     rom = red.reduce()
     assert_canonical_layout(red, "reductor after reduce")
     assert_canonical_layout(rom, "ROM")

@@ -29,9 +29,9 @@ def test_ill_conditioned_mass_is_refused(lumped):
 
 # --------------------------------------------------------------------------- reductor inputs
 def test_reductor_trajectories_outside_parameter_space_are_refused(small_fe_wave):
-    from sympredict.mor import SymplecticKernelReductor
+    from sympredict.mor import GalerkinSamples, SymplecticKernelReductor
 
     fom, coords, space, train, RB = small_fe_wave
     far = fom.parameters.space(5.0, 6.0)
     with pytest.raises(ValueError, match="training_parameters: parameter .* lies outside parameter_space"):
-        SymplecticKernelReductor(fom, RB, train, 0.01, parameter_space=far)
+        SymplecticKernelReductor(fom, RB, 0.01, GalerkinSamples(train, parameter_space=far))

@@ -24,7 +24,8 @@ from sympredict.systems.flowmaps import (
 )
 from sympredict.kernels import IMQ
 from sympredict.symplectic.metrics import canonical_J
-from sympredict.mor import SymplecticKernelReductor
+from sympredict.mor import (DefaultEstimator, GalerkinSamples, ProjectedTrajectories, SymplecticKernelReductor,
+                            TrainingScaling)
 from sympredict.mor.basis import SymplecticROM, complex_svd_basis, symplecticity_of_basis
 from sympredict.flowmap.scaling import BoxScaling, NormalizedFlowMap, SymplecticScaling
 from sympredict.testing import (
@@ -147,34 +148,34 @@ def test_midpoint_existence_check_holds_to_a_half_turn():
 
 def test_reductor_checks_the_existence_of_its_predictors_update(wave):
     fom, train, RB, dt = wave
-    red = SymplecticKernelReductor(fom, RB, train, dt, n_samples=30, n_validation=1)
+    red = SymplecticKernelReductor(fom, RB, dt, GalerkinSamples(train, n_samples=30, n_validation=1))
     red.training_data()
     limit = red.existence_["dt_max"]
     big = 1.5 * limit  # past the type-II limit, below the midpoint form's (twice as long)
     with pytest.raises(ValueError, match="dp1/dp0"):  # a type-II predictor is refused
-        SymplecticKernelReductor(fom, RB, train, big, SymplecticKernelPredictor(update="symplectic_euler"),
-                                 n_samples=30, n_validation=1).training_data()
-    open_update = SymplecticKernelReductor(fom, RB, train, big, SymplecticKernelPredictor(), n_samples=30,
-                                           n_validation=1)
+        SymplecticKernelReductor(fom, RB, big, GalerkinSamples(train, n_samples=30, n_validation=1),
+                                 SymplecticKernelPredictor(update="symplectic_euler")).training_data()
+    open_update = SymplecticKernelReductor(fom, RB, big, GalerkinSamples(train, n_samples=30, n_validation=1),
+                                           SymplecticKernelPredictor())
     open_update.training_data()  # an estimator with update=None gets the form that exists
     assert open_update.choice_["update"] == "midpoint" and "dp1/dp0" in open_update.choice_["reason"]
-    both = SymplecticKernelReductor(fom, RB, train, 0.5 * limit, SymplecticKernelPredictor(), n_samples=30,
-                                    n_validation=1)
+    both = SymplecticKernelReductor(fom, RB, 0.5 * limit, GalerkinSamples(train, n_samples=30, n_validation=1),
+                                    SymplecticKernelPredictor())
     both.training_data()  # both forms exist: the estimator's search keeps the choice
     assert both.choice_["update"] is None
-    auto = SymplecticKernelReductor(fom, RB, train, big, n_samples=30, n_validation=1)
+    auto = SymplecticKernelReductor(fom, RB, big, GalerkinSamples(train, n_samples=30, n_validation=1))
     auto.training_data()  # the default predictor takes the midpoint form, which exists here
     assert auto.choice_["update"] == "midpoint" and "dp1/dp0" in auto.choice_["reason"]
-    mid = SymplecticKernelReductor(fom, RB, train, big, SymplecticKernelPredictor(update="midpoint"),
-                                   n_samples=30, n_validation=1)
+    mid = SymplecticKernelReductor(fom, RB, big, GalerkinSamples(train, n_samples=30, n_validation=1),
+                                   SymplecticKernelPredictor(update="midpoint"))
     mid_train, _ = mid.training_data()
     # coordinate-free: the first half turn of the fastest reduced mode (type II depends on the coordinates)
     om = max(mid.reduced_system.frequencies(m).max() for m in np.unique(mid_train.mu, axis=0))
     assert mid.existence_["dt_max"] == pytest.approx(2 * np.arccos(1e-2) / om, rel=0.01)
     assert mid.existence_["dt_max"] > big
     with pytest.raises(ValueError, match="half a turn"):
-        SymplecticKernelReductor(fom, RB, train, 2.5 * limit, SymplecticKernelPredictor(update="midpoint"),
-                                 n_samples=30, n_validation=1).training_data()
+        SymplecticKernelReductor(fom, RB, 2.5 * limit, GalerkinSamples(train, n_samples=30, n_validation=1),
+                                 SymplecticKernelPredictor(update="midpoint")).training_data()
 
 
 # ---------------------------------------------------------------- scaling
@@ -217,7 +218,8 @@ def test_williamson_form_is_symplectic_and_diagonalizes():
 
 def test_reductor_with_williamson_scaling(wave):
     fom, train, RB, dt = wave
-    red = SymplecticKernelReductor(fom, RB, train, dt, n_samples=200, max_centers=300, state_scaling="williamson")
+    red = SymplecticKernelReductor(fom, RB, dt, GalerkinSamples(train, n_samples=200), DefaultEstimator(max_centers=300),
+                                   scaling=TrainingScaling("williamson"))
     rom = red.reduce()
     mu = fom.parameters.parse(0.111)
     gal = QuadraticHamiltonianRBReductor(fom, RB)
@@ -226,7 +228,7 @@ def test_reductor_with_williamson_scaling(wave):
     x = rom.solve(mu).to_numpy().T[:4]
     assert assert_symplectic_step(rom.flow_map, x, mu=[0.111], dt=dt, atol=1e-8, fd_h=1e-3, fd_atol=1e-3)["analytic"] < 1e-8
     with pytest.raises(ValueError, match="williamson"):
-        SymplecticKernelReductor(fom, RB, train, dt, data="projected", state_scaling="williamson")
+        SymplecticKernelReductor(fom, RB, dt, ProjectedTrajectories(train), scaling=TrainingScaling("williamson"))
 
 
 # ---------------------------------------------------------------- sympredict.testing
@@ -295,10 +297,10 @@ def test_symplectic_rom_on_a_pymor_model_matches_pymor_galerkin(wave):
 
 
 # ---------------------------------------------------------------- the reductor
-@pytest.mark.parametrize("data", ["reduced", "projected"])
-def test_reductor_on_pymor_demo_wave_matches_galerkin(wave, data):
+@pytest.mark.parametrize("samples", [GalerkinSamples, ProjectedTrajectories])
+def test_reductor_on_pymor_demo_wave_matches_galerkin(wave, samples):
     fom, train, RB, dt = wave
-    reductor = SymplecticKernelReductor(fom, RB, train, dt, data=data, n_samples=200, max_centers=300)
+    reductor = SymplecticKernelReductor(fom, RB, dt, samples(train), DefaultEstimator(max_centers=300))
     rom = reductor.reduce()
     assert rom.parameters == fom.parameters
     gal = QuadraticHamiltonianRBReductor(fom, RB)
@@ -325,7 +327,7 @@ def test_reductor_without_parameters_and_with_a_non_affine_vector_parameter():
     U = fom.solve()
     RB = psd_complex_svd(U, 2)
     dt = 5 * fom.T / fom.time_stepper.nt
-    red = SymplecticKernelReductor(fom, RB, None, dt, n_samples=100, max_centers=150)
+    red = SymplecticKernelReductor(fom, RB, dt, GalerkinSamples(n_samples=100), DefaultEstimator(max_centers=150))
     rom = red.reduce()
     assert not rom.parameters
     err = relative_error(fom, red.reconstruct(rom.solve()), None, stride=5)
@@ -337,7 +339,8 @@ def test_reductor_without_parameters_and_with_a_non_affine_vector_parameter():
     U2 = fom2.solution_space.empty()
     for mu in train:
         U2.append(fom2.solve(mu))
-    red2 = SymplecticKernelReductor(fom2, psd_complex_svd(U2, 2), train, dt, n_samples=100, max_centers=200)
+    red2 = SymplecticKernelReductor(fom2, psd_complex_svd(U2, 2), dt, GalerkinSamples(train, n_samples=100),
+                                    DefaultEstimator(max_centers=200))
     rom2 = red2.reduce()
     assert rom2.parameters == fom2.parameters
     mu = Mu({"k": np.array([0.05, 0.1])})
@@ -345,7 +348,7 @@ def test_reductor_without_parameters_and_with_a_non_affine_vector_parameter():
 
 
 def test_projected_reductor_on_a_nonlinear_pymor_model():
-    """Any time-dependent pyMOR model with data='projected': the sine-Gordon InstationaryModel (nonlinear operator)."""
+    """Any time-dependent pyMOR model with ProjectedTrajectories: the sine-Gordon InstationaryModel (nonlinear operator)."""
     from sympredict.systems.sine_gordon import SineGordonFOM
 
     sg = SineGordonFOM(n_points=60, length=20.0, T=4.0, nt=40, c_range=(0.8, 1.2))
@@ -353,9 +356,10 @@ def test_projected_reductor_on_a_nonlinear_pymor_model():
     space = fom.parameters.space({"amplitude": (0.5, 1.5), "c": (0.8, 1.2)})
     train = space.sample_uniformly(3)
     RB = complex_svd_basis(np.vstack([sg.from_pymor(fom.solve(mu)) for mu in train]), n=3).to_pymor(sg.phase_space)
-    with pytest.raises(ValueError, match="data='reduced' needs .*QuadraticHamiltonianModel.*use data='projected'"):
-        SymplecticKernelReductor(fom, RB, train, 0.2)
-    reductor = SymplecticKernelReductor(fom, RB, train, 0.2, data="projected", parameter_space=space, max_centers=200)
+    with pytest.raises(ValueError, match="GalerkinSamples needs .*QuadraticHamiltonianModel.*ProjectedTrajectories"):
+        SymplecticKernelReductor(fom, RB, 0.2, GalerkinSamples(train))
+    reductor = SymplecticKernelReductor(fom, RB, 0.2, ProjectedTrajectories(train, parameter_space=space),
+                                        DefaultEstimator(max_centers=200))
     rom = reductor.reduce()
     assert rom.parameters == fom.parameters and reductor.existence_["sigma_min"] > 0.1
     for values in ({"amplitude": 0.9, "c": 1.07}, {"amplitude": 1.3, "c": 0.85}):  # not trained on
@@ -376,13 +380,13 @@ def test_reductor_bad_input(wave):
     fom, train, RB, dt = wave
     with pytest.raises(ValueError, match="Hamiltonian"):
         SymplecticKernelReductor(StationaryModel(NumpyMatrixOperator(np.eye(4)), NumpyMatrixOperator(np.ones((4, 1)))),
-                                 RB, train, dt)
+                                 RB, dt, GalerkinSamples(train))
     with pytest.raises(ValueError, match="time-dependent pyMOR Model.*lacks initial_data, T"):
         SymplecticKernelReductor(StationaryModel(NumpyMatrixOperator(np.eye(4)), NumpyMatrixOperator(np.ones((4, 1)))),
-                                 RB, train, dt, data="projected")
+                                 RB, dt, ProjectedTrajectories(train))
     bad = SymplecticBasis(RB.E * 1.1, RB.F, check_symplecticity=False)
     with pytest.raises(ValueError, match="not symplectic"):
-        SymplecticKernelReductor(fom, bad, train, dt)
+        SymplecticKernelReductor(fom, bad, dt, GalerkinSamples(train))
     # a basis of another phase space
     from pymor.operators.constructions import IdentityOperator
     from pymor.vectorarrays.numpy import NumpyVectorSpace
@@ -392,15 +396,15 @@ def test_reductor_bad_input(wave):
     fom_small = QuadraticHamiltonianModel(1.0, BlockDiagonalOperator([IdentityOperator(sp), IdentityOperator(sp)]).source.ones(),
                                           BlockDiagonalOperator([IdentityOperator(sp), IdentityOperator(sp)]), nt=10)
     with pytest.raises(ValueError, match="mismatched spaces"):
-        SymplecticKernelReductor(fom_small, RB, None, 0.1)
+        SymplecticKernelReductor(fom_small, RB, 0.1)
     with pytest.raises(ValueError, match="does not match"):
-        SymplecticKernelReductor(fom, RB, [Mu({"d": np.array([0.1])})], dt)
+        SymplecticKernelReductor(fom, RB, dt, GalerkinSamples([Mu({"d": np.array([0.1])})]))
     with pytest.raises(ValueError, match="multiple of the FOM's output step"):
-        SymplecticKernelReductor(fom, RB, train, 1.55 * dt, data="projected")
+        SymplecticKernelReductor(fom, RB, 1.55 * dt, ProjectedTrajectories(train))
     with pytest.raises(ValueError, match=r"past the first step where it is singular.*largest admissible dT here is about 1\.[34]"):
-        SymplecticKernelReductor(fom, RB, train, 20 * dt, SymplecticKernelPredictor(update="symplectic_euler"),
-                                 n_samples=50).training_data()  # omega_max dT > pi/2
-    reductor = SymplecticKernelReductor(fom, RB, train, dt, n_samples=100, max_centers=100)
+        SymplecticKernelReductor(fom, RB, 20 * dt, GalerkinSamples(train, n_samples=50),
+                                 SymplecticKernelPredictor(update="symplectic_euler")).training_data()  # omega_max dT > pi/2
+    reductor = SymplecticKernelReductor(fom, RB, dt, GalerkinSamples(train, n_samples=100), DefaultEstimator(max_centers=100))
     rom = reductor.reduce()
     with pytest.raises(ValueError, match="does not match"):
         rom.solve(Mu({"d": np.array([0.1])}))
@@ -441,7 +445,7 @@ def test_example_henon_heiles():
 def test_reductor_clones_the_given_predictor(wave):
     fom, train, RB, dt = wave
     given = SymplecticKernelPredictor(IMQ(0.05), IMQ(0.5), None, max_centers=120)
-    reductor = SymplecticKernelReductor(fom, RB, train, dt, estimator=given, n_samples=80)
+    reductor = SymplecticKernelReductor(fom, RB, dt, GalerkinSamples(train, n_samples=80), estimator=given)
     rom = reductor.reduce()
     assert not given.is_fitted and reductor.predictor_.is_fitted and reductor.predictor_ is not given
     assert reductor.predictor_.get_params()["state_kernel"] == IMQ(0.05)
@@ -450,7 +454,7 @@ def test_reductor_clones_the_given_predictor(wave):
 
     # mu_kernel=None with varying parameters: the estimator chooses one (its KernelSearch), the reductor records it
     search = KernelSearch(families=("imq",), parameter_shapes=(0.5, 2.5), m_star=20, refine_sweeps=0, max_samples=200)
-    chooses = SymplecticKernelReductor(fom, RB, train, dt, estimator=SymplecticKernelPredictor(
-        IMQ(0.05), max_centers=40, update="symplectic_euler", search=search), n_samples=80)
+    chooses = SymplecticKernelReductor(fom, RB, dt, GalerkinSamples(train, n_samples=80), SymplecticKernelPredictor(
+        IMQ(0.05), max_centers=40, update="symplectic_euler", search=search))
     chooses.reduce()
     assert list(chooses.choice_["estimator"]) == ["mu_kernel"] and chooses.predictor_.kernel_.mu is not None

@@ -33,7 +33,9 @@ def wave_parts():
     ({"max_centers": 0}, r"max_centers must be >= 1, got 0"),
     ({"estimator": "imq"}, r"estimator must be an estimator"),
     ({"estimator": SymplecticKernelPredictor}, r"estimator must be an estimator"),
-    ({"state_scaling": "log"}, r"state_scaling must be one of"),
+    ({"state": "log"}, r"TrainingScaling state must be one of"),
+    ({"split": "A"}, r"split must be a QuadraticSplit \(e.g. split=QuadraticSplit\(A\)\) or None, got 'A'"),
+    ({"samples": "reduced"}, r"samples must be GalerkinSamples\(...\), ProjectedTrajectories\(...\)"),
     ({"check_existence": "no"}, r"check_existence must be True or False"),
 ])
 def test_reductor_checks_its_arguments_up_front(wave_parts, monkeypatch, kwargs, match):
@@ -41,10 +43,18 @@ def test_reductor_checks_its_arguments_up_front(wave_parts, monkeypatch, kwargs,
 
     fom, RB = wave_parts
     monkeypatch.setattr(type(fom), "solve", lambda *a, **k: (_ for _ in ()).throw(AssertionError("FOM solved")))
+    from sympredict.mor import DefaultEstimator, GalerkinSamples, TrainingScaling
+
     args = {"dt": 0.05, **kwargs}
     dt = args.pop("dt")
+    sampling = {k: args.pop(k) for k in ("n_samples", "n_validation", "radius", "horizon") if k in args}
+    samples = args.pop("samples", GalerkinSamples(**sampling))
+    if "max_centers" in args:
+        args["estimator"] = DefaultEstimator(args.pop("max_centers"))
+    if "state" in args:
+        args["scaling"] = TrainingScaling(args.pop("state"))
     with pytest.raises(ValueError, match=match):
-        SymplecticKernelReductor(fom, RB, None, dt, **args)
+        SymplecticKernelReductor(fom, RB, dt, samples, **args)
 
 
 def test_reductor_checks_its_predictors_settings_before_sampling(monkeypatch):
@@ -53,7 +63,7 @@ def test_reductor_checks_its_predictors_settings_before_sampling(monkeypatch):
     pymordemos = pytest.importorskip("pymordemos.symplectic_wave_equation")
     from pymor.algorithms.symplectic import psd_complex_svd
 
-    from sympredict.mor import SymplecticKernelReductor
+    from sympredict.mor import GalerkinSamples, SymplecticKernelReductor
 
     from pymor.operators.block import BlockDiagonalOperator
     from pymor.operators.constructions import LincombOperator
@@ -67,11 +77,11 @@ def test_reductor_checks_its_predictors_settings_before_sampling(monkeypatch):
     train = fom.parameters.space(0.08, 0.12).sample_uniformly(2)
     monkeypatch.setattr(type(fom), "solve", lambda *a, **k: (_ for _ in ()).throw(AssertionError("FOM solved")))
     with pytest.raises(ValueError, match="update must be one of"):
-        SymplecticKernelReductor(fom, RB, train, 0.05, SymplecticKernelPredictor(update="leapfrog"))
+        SymplecticKernelReductor(fom, RB, 0.05, GalerkinSamples(train), SymplecticKernelPredictor(update="leapfrog"))
     class NoChoice(SymplecticKernelPredictor):  # an estimator that does not choose an open mu_kernel itself
         _chooses_open_factors = False
 
-    reductor = SymplecticKernelReductor(fom, RB, train, 0.05, NoChoice(IMQ(1.0)))
+    reductor = SymplecticKernelReductor(fom, RB, 0.05, GalerkinSamples(train), NoChoice(IMQ(1.0)))
     with pytest.raises(ValueError, match="mu_kernel=None"):
         reductor.reduce()
 
@@ -79,22 +89,22 @@ def test_reductor_checks_its_predictors_settings_before_sampling(monkeypatch):
 def test_reductor_refuses_a_parameter_space_of_other_parameters(wave_parts):
     from pymor.parameters.base import Parameters
 
-    from sympredict.mor import SymplecticKernelReductor
+    from sympredict.mor import GalerkinSamples, SymplecticKernelReductor
 
     fom, RB = wave_parts
     with pytest.raises(ValueError, match="parameter_space has the parameters"):
-        SymplecticKernelReductor(fom, RB, None, 0.05, parameter_space=Parameters({"k": 2}).space(0, 1))
+        SymplecticKernelReductor(fom, RB, 0.05, GalerkinSamples(parameter_space=Parameters({"k": 2}).space(0, 1)))
     with pytest.raises(ValueError, match="parameter_space must be a pyMOR ParameterSpace"):
-        SymplecticKernelReductor(fom, RB, None, 0.05, parameter_space=(0, 1))
+        SymplecticKernelReductor(fom, RB, 0.05, GalerkinSamples(parameter_space=(0, 1)))
 
 
 def test_projected_stride_message_tells_the_steps_apart(wave_parts):
     """dt a hair off a multiple of the FOM's output step: both printed with ``:.6g`` looked equal."""
-    from sympredict.mor import SymplecticKernelReductor
+    from sympredict.mor import ProjectedTrajectories, SymplecticKernelReductor
 
     fom, RB = wave_parts
     h = fom.T / fom.time_stepper.nt
     dt = 10 * h * (1 + 1e-8)
     with pytest.raises(ValueError, match="multiple of the FOM's output step") as info:
-        SymplecticKernelReductor(fom, RB, None, dt, data="projected")
+        SymplecticKernelReductor(fom, RB, dt, ProjectedTrajectories())
     assert repr(dt) in str(info.value) and repr(h) in str(info.value)

@@ -10,7 +10,8 @@ from sympredict import SymplecticKernelPredictor
 from sympredict.estimators.auto import KernelSearch
 from sympredict.interpolation.greedy import ExactGreedy
 from sympredict.kernels import IMQ
-from sympredict.mor import SymplecticKernelReductor
+from sympredict.mor import (DefaultEstimator, GalerkinSamples, GivenSamples, GivenTrajectories, ProjectedTrajectories,
+                            QuadraticSplit, SymplecticKernelReductor, TrainingScaling)
 
 
 @pytest.fixture(scope="module")
@@ -29,14 +30,17 @@ def test_the_estimator_is_one_argument(small_fe):
     fom, space, train, RB = small_fe
     h = fom.T / fom.time_stepper.nt
     est = SymplecticKernelPredictor(IMQ(0.5), IMQ(0.5), max_centers=30, update="symplectic_euler")
-    with pytest.raises(TypeError, match="unexpected keyword argument 'predictor'"):  # its pre-release name
-        SymplecticKernelReductor(fom, RB, train, 4 * h, data="projected", predictor=est, n_validation=1)
-    with pytest.raises(ValueError, match=r"max_centers=50.*SymplecticKernelPredictor\(max_centers=50"):
-        SymplecticKernelReductor(fom, RB, train, 4 * h, est, data="projected", max_centers=50)
+    samples = ProjectedTrajectories(train, n_validation=1)
+    # pre-release names and the settings now held by the parts are gone (no shim): a budget beside the estimator
+    # cannot contradict it
+    for old in ({"predictor": est}, {"max_centers": 50}, {"data": "projected"}, {"state_kernels": [IMQ(1.0)]},
+                {"split_fallback": None}, {"trajectories": None}, {"n_samples": 10}):
+        with pytest.raises(TypeError, match=f"unexpected keyword argument '{next(iter(old))}'"):
+            SymplecticKernelReductor(fom, RB, 4 * h, samples, est, **old)
     with warnings.catch_warnings():
         warnings.simplefilter("error", FutureWarning)  # silent
-        assert SymplecticKernelReductor(fom, RB, train, 4 * h, data="projected", estimator=est,
-                                        n_validation=1).estimator is est
+        assert SymplecticKernelReductor(fom, RB, 4 * h, samples, estimator=est).estimator is est
+    assert SymplecticKernelReductor(fom, RB, 4 * h, samples).estimator == DefaultEstimator(1000)
 
 
 def test_estimator_knobs_reach_the_fit_and_its_search_choice_is_recorded(small_fe):
@@ -46,8 +50,8 @@ def test_estimator_knobs_reach_the_fit_and_its_search_choice_is_recorded(small_f
     h = fom.T / fom.time_stepper.nt
     est = SymplecticKernelPredictor(max_centers=25, update="midpoint", trainer=ExactGreedy(tol=1e-12, power_tol=1e-9),
                                     search=_small_search())
-    red = SymplecticKernelReductor(fom, RB, train, 4 * h, estimator=est, data="projected", parameter_space=space,
-                                   n_validation=1)
+    red = SymplecticKernelReductor(fom, RB, 4 * h, ProjectedTrajectories(train, parameter_space=space, n_validation=1),
+                                   estimator=est)
     red.reduce()
     fitted = red.predictor_
     assert not est.is_fitted and fitted is not est
@@ -84,8 +88,8 @@ def sheared_oscillators(c=-2.0, w=(1.0, 0.7)):
 
 def _type2(scaling, dt):
     fom, RB = sheared_oscillators()
-    red = SymplecticKernelReductor(fom, RB, None, dt, SymplecticKernelPredictor(update="symplectic_euler"),
-                                   state_scaling=scaling, n_samples=40, n_validation=1)
+    red = SymplecticKernelReductor(fom, RB, dt, GalerkinSamples(n_samples=40, n_validation=1),
+                                   SymplecticKernelPredictor(update="symplectic_euler"), scaling=TrainingScaling(scaling))
     red.training_data()
     return red
 
@@ -105,7 +109,7 @@ def test_williamson_scaling_checks_existence_where_it_trains():
 
 
 def test_conjugated_system_has_the_conjugated_flow_jacobian():
-    from sympredict.mor.reductor import _conjugated_system
+    from sympredict.mor.existence import conjugated_system as _conjugated_system
     from sympredict.symplectic.metrics import canonical_J
     from sympredict.systems.flowmaps import linear_system_from_pymor
 
@@ -125,8 +129,8 @@ def test_conjugated_system_has_the_conjugated_flow_jacobian():
 def test_given_trajectories_give_the_rom_of_the_fom_solving_path(small_fe, monkeypatch):
     fom, space, train, RB = small_fe
     dt = 4 * fom.T / fom.time_stepper.nt
-    kw = dict(parameter_space=space, max_centers=60, n_validation=1)
-    solved = SymplecticKernelReductor(fom, RB, train, dt, data="projected", **kw)
+    solved = SymplecticKernelReductor(fom, RB, dt, ProjectedTrajectories(train, parameter_space=space, n_validation=1),
+                                      DefaultEstimator(max_centers=60))
     rom = solved.reduce()
     val_mus = solved.validation_parameters()
     U = [fom.solve(mu) for mu in train]
@@ -136,13 +140,14 @@ def test_given_trajectories_give_the_rom_of_the_fom_solving_path(small_fe, monke
     monkeypatch.setattr(type(fom), "solve", lambda *a, **k: (_ for _ in ()).throw(AssertionError("FOM solved")))
     arrays = np.stack([u.to_numpy().T for u in U])  # (P, K+1, N)
     for trajectories in ((U, train), (arrays, [{"c": float(m["c"][0])} for m in train])):
-        given = SymplecticKernelReductor(fom, RB, None, dt, trajectories=trajectories,
-                                         validation_trajectories=(U_val, val_mus), **kw)
+        given = SymplecticKernelReductor(fom, RB, dt, GivenTrajectories(*trajectories, validation=(U_val, val_mus),
+                                                                        parameter_space=space),
+                                         DefaultEstimator(max_centers=60))
         out = given.reduce().solve(test_mu).to_numpy()
-        assert given.mode == "projected" and len(given.train_data_) == len(solved.train_data_)
+        assert len(given.train_data_) == len(solved.train_data_)
         np.testing.assert_allclose(out, ref, rtol=0, atol=1e-12 * np.abs(ref).max())
     # without validation trajectories an estimator that holds out its own samples still trains
-    SymplecticKernelReductor(fom, RB, None, dt, trajectories=(U, train), parameter_space=space,
+    SymplecticKernelReductor(fom, RB, dt, GivenTrajectories(U, train, parameter_space=space),
                              estimator=SymplecticKernelPredictor(max_centers=20, update="symplectic_euler",
                                                                  search=_small_search())).reduce()
 
@@ -162,19 +167,18 @@ def test_given_trajectories_are_checked(small_fe):
         ((U, [0.9, 1.0, "x"]), "cannot read 'x'"),
         (([u[::3] for u in U], train), "nt = 100 steps, not a multiple of 33"),
         (([NumpyVectorSpace(30).zeros(101)], train[:1]), r"solution space .*entry 0 is a NumpyVectorArray"),
-        ((U,), "pair \\(U, mus\\)"),
     ]
     for trajectories, match in cases:
         with pytest.raises(ValueError, match=match):
-            SymplecticKernelReductor(fom, RB, None, dt, trajectories=trajectories)
+            SymplecticKernelReductor(fom, RB, dt, GivenTrajectories(*trajectories))
+        with pytest.raises(ValueError, match=match):  # the validation trajectories are checked alike
+            SymplecticKernelReductor(fom, RB, dt, GivenTrajectories(U, train, validation=trajectories))
+    with pytest.raises(ValueError, match="validation must be a pair \\(U, mus\\)"):
+        SymplecticKernelReductor(fom, RB, dt, GivenTrajectories(U, train, validation=(U,)))
     with pytest.raises(ValueError, match="multiple of the FOM's output step"):
-        SymplecticKernelReductor(fom, RB, None, 1.5 * fom.T / fom.time_stepper.nt, trajectories=(U, train))
-    with pytest.raises(ValueError, match="leave training_parameters out"):
-        SymplecticKernelReductor(fom, RB, train, dt, trajectories=(U, train))
-    with pytest.raises(ValueError, match="does not use them"):
-        SymplecticKernelReductor(fom, RB, None, dt, data="reduced", trajectories=(U, train))
-    with pytest.raises(ValueError, match="validation_trajectories with trajectories"):
-        SymplecticKernelReductor(fom, RB, None, dt, trajectories=(U, train), max_centers=20).reduce()
+        SymplecticKernelReductor(fom, RB, 1.5 * fom.T / fom.time_stepper.nt, GivenTrajectories(U, train))
+    with pytest.raises(ValueError, match="needs validation data: give .*GivenTrajectories\\(U, mus, validation="):
+        SymplecticKernelReductor(fom, RB, dt, GivenTrajectories(U, train), DefaultEstimator(max_centers=20)).reduce()
 
 
 # ------------------------------------------------------------------ log messages
@@ -185,11 +189,11 @@ def test_existence_check_that_could_not_run_says_so(small_fe, caplog):
 
     fom, space, train, RB = small_fe
     dt = 4 * fom.T / fom.time_stepper.nt
-    full = SymplecticKernelReductor(fom, RB, train, dt, data="projected", n_validation=1, check_existence=False)
+    full = SymplecticKernelReductor(fom, RB, dt, ProjectedTrajectories(train, n_validation=1), check_existence=False)
     pairs = full.training_data()[0]
     rows = np.concatenate([np.flatnonzero(pairs.mu[:, 0] == m)[:5] for m in np.unique(pairs.mu[:, 0])])  # 5 < 2n = 8
     few = FlowMapData(pairs.x0[rows], pairs.x1[rows], pairs.mu[rows], pairs.dt[rows])
-    red = SymplecticKernelReductor(fom, RB, None, dt, data=few, parameter_space=space)
+    red = SymplecticKernelReductor(fom, RB, dt, GivenSamples(few, parameter_space=space))
     with caplog.at_level(logging.WARNING):
         red.training_data()
     assert "existence check not done" in caplog.text
@@ -211,12 +215,13 @@ def test_split_fallback_where_no_generating_function_exists_without_it():
     H = linear_system_from_pymor(fom).matrix(np.zeros(0))
     dt = 3.5
     est = SymplecticKernelPredictor(IMQ(1.0), max_centers=10, update="symplectic_euler")
-    kw = dict(state_scaling="none", n_samples=40, n_validation=1)
+    samples = GalerkinSamples(n_samples=40, n_validation=1)
+    kw = dict(scaling=TrainingScaling("none"))
     with pytest.raises(ValueError, match="dp1/dp0"):
-        SymplecticKernelReductor(fom, RB, None, dt, est, **kw).training_data()
+        SymplecticKernelReductor(fom, RB, dt, samples, est, **kw).training_data()
     with pytest.raises(ValueError, match="neither generating function exists"):
-        SymplecticKernelReductor(fom, RB, None, dt, **kw).training_data()
-    red = SymplecticKernelReductor(fom, RB, None, dt, est, split_fallback=QuadraticPart([H]), **kw)
+        SymplecticKernelReductor(fom, RB, dt, samples, **kw).training_data()
+    red = SymplecticKernelReductor(fom, RB, dt, samples, est, split=QuadraticSplit(QuadraticPart([H]), fallback=True), **kw)
     rom = red.reduce()
     assert red.choice_["split"] == "split_fallback" and "without a split" in red.choice_["reason"]
     assert type(red.predictor_).__name__ == "SplitKernelPredictor"
@@ -225,6 +230,8 @@ def test_split_fallback_where_no_generating_function_exists_without_it():
     np.testing.assert_allclose(red.flow_map_.step(x, dt=dt), exact, rtol=0, atol=1e-10 * np.abs(exact).max())
     assert len(rom.solve()) == round(fom.T / dt) + 1
     with pytest.raises(ValueError, match="nor for the remainder S"):
-        SymplecticKernelReductor(fom, RB, None, dt, est, split_fallback=QuadraticPart([0.05 * H]), **kw).training_data()
-    with pytest.raises(ValueError, match="not both"):
-        SymplecticKernelReductor(fom, RB, None, dt, est, split=QuadraticPart([H]), split_fallback=QuadraticPart([H]))
+        SymplecticKernelReductor(fom, RB, dt, samples, est, split=QuadraticSplit(QuadraticPart([0.05 * H]), fallback=True),
+                                 **kw).training_data()
+    with pytest.raises(ValueError, match="check_existence=False never checks"):  # a fallback decided by no check
+        SymplecticKernelReductor(fom, RB, dt, samples, est, split=QuadraticSplit(QuadraticPart([H]), fallback=True),
+                                 check_existence=False, **kw)

@@ -15,7 +15,8 @@ from sympredict.interpolation.greedy import ExactGreedy
 from sympredict.kernels import IMQ, Matern52
 from sympredict.kernels.transforms import Scaled
 from sympredict.flowmap.scaling import SymplecticScaling
-from sympredict.mor import SymplecticKernelReductor
+from sympredict.mor import (GalerkinSamples, GivenSamples, QuadraticSplit, SymplecticKernelReductor, TrainingScaling,
+                            ValidationSelection)
 from sympredict.mor.basis import SymplecticROM, complex_svd_basis, symplecticity_of_basis
 from sympredict.systems.flowmaps import flow_map_data, sample_energy_ellipsoid
 from sympredict.systems.wave import WaveFOM
@@ -47,7 +48,7 @@ def wave_rom():
 
 
 def given(rom, train, val, predictor, **kw):
-    return SymplecticKernelReductor(rom.model, rom.RB, None, 0.1, predictor, data=train, validation_data=val, **kw)
+    return SymplecticKernelReductor(rom.model, rom.RB, 0.1, GivenSamples(train, val), predictor, **kw)
 
 
 def test_the_basis_handed_over_is_symplectic_and_the_reductors_own(wave_rom):
@@ -64,8 +65,8 @@ def test_unscaled_kernel_search_is_the_hand_made_selection_and_fit(wave_rom):
     fom, rom, train, val = wave_rom
     states, mus = [IMQ(3e-3), IMQ(1e-2), Matern52(1e-2)], [IMQ(3.0), IMQ(10.0)]
     red = given(rom, train, val, SymplecticKernelPredictor(max_centers=60, trainer=ExactGreedy(tol=1e-10)),
-                state_scaling="none", parameter_scaling="none", time_scaling="none", state_kernels=states,
-                mu_kernels=mus, m_star=25)
+                scaling=TrainingScaling("none", "none", "none"),
+                selection=ValidationSelection(state_kernels=states, mu_kernels=mus, m_star=25))
     kernel_rom = red.reduce()
     sel = select_kernels(train, val, states, mus, m_star=25)
     assert (red.selection_.state, red.selection_.mu, red.selection_.score) == (sel.state, sel.mu, sel.score)
@@ -85,15 +86,15 @@ def test_unscaled_kernel_search_is_the_hand_made_selection_and_fit(wave_rom):
 
 
 def test_given_data_reproduce_the_reductors_own_sampling(wave_rom):
-    """data='reduced' and the same samples handed in as data=FlowMapData give the same model."""
+    """GalerkinSamples and the same samples handed in as GivenSamples give the same model."""
     fom, rom, _, _ = wave_rom
     mus = [fom.model.parameters.parse(c**2) for c in (0.2, 0.3)]
     predictor = SymplecticKernelPredictor(IMQ(0.3), IMQ(1.0), max_centers=40)
-    own = SymplecticKernelReductor(fom.model, rom.RB, mus, 0.1, predictor, n_samples=60, n_validation=2)
+    own = SymplecticKernelReductor(fom.model, rom.RB, 0.1, GalerkinSamples(mus, n_samples=60, n_validation=2), predictor)
     own.reduce()
     train, val = own.train_data_, own.validation_data_
-    handed = SymplecticKernelReductor(fom.model, rom.RB, mus, 0.1, predictor, data=train, validation_data=val,
-                                      parameter_space=fom.model.parameters.space(0.04, 0.09))
+    handed = SymplecticKernelReductor(fom.model, rom.RB, 0.1, GivenSamples(
+        train, val, parameter_space=fom.model.parameters.space(0.04, 0.09)), predictor)
     handed.reduce()
     x = val.x0[:5]
     np.testing.assert_allclose(handed.flow_map_.step(x, mu=val.mu[:5]), own.flow_map_.step(x, mu=val.mu[:5]),
@@ -106,8 +107,8 @@ def test_the_learned_step_is_symplectic_under_every_scaling(wave_rom, scaling):
     fom, rom, train, val = wave_rom
     state, param, time = scaling
     red = given(rom, train, val, SymplecticKernelPredictor(max_centers=60, trainer=ExactGreedy(tol=1e-10)),
-                state_scaling=state, parameter_scaling=param, time_scaling=time,
-                state_kernels=[IMQ(3e-3), IMQ(1e-2), IMQ(0.1), IMQ(0.3)], mu_kernels=[IMQ(1.0), IMQ(10.0)], m_star=30)
+                scaling=TrainingScaling(state, param, time),
+                selection=ValidationSelection([IMQ(3e-3), IMQ(1e-2), IMQ(0.1), IMQ(0.3)], [IMQ(1.0), IMQ(10.0)], m_star=30))
     red.reduce()
     res = assert_symplectic_step(red.flow_map_, val.x0[:4], mu=val.mu[:4], dt=0.1, atol=1e-8, fd_h=1e-3, fd_atol=1e-3)
     assert res["analytic"] < 1e-8  # DPhi^T J DPhi = J
@@ -117,7 +118,7 @@ def test_kernel_search_keeps_the_given_predictors_parts(wave_rom):
     fom, rom, train, val = wave_rom
     template = SymplecticKernelPredictor(Scaled(IMQ(1.0), factors=(2.0, 0.5)), IMQ(1.0), update="midpoint", max_centers=40,
                                          trainer=ExactGreedy(tol=1e-9))
-    red = given(rom, train, val, template, state_kernels=[IMQ(0.03), IMQ(0.3)], m_star=20)
+    red = given(rom, train, val, template, selection=ValidationSelection([IMQ(0.03), IMQ(0.3)], m_star=20))
     red.reduce()
     chosen = red.predictor_
     assert template.get_params()["state_kernel"] == Scaled(IMQ(1.0), factors=(2.0, 0.5)) and not template.is_fitted
@@ -136,28 +137,30 @@ def test_kernel_search_keeps_the_given_predictors_parts(wave_rom):
 def test_given_data_and_scaling_settings_are_checked(wave_rom):
     fom, rom, train, val = wave_rom
     p = SymplecticKernelPredictor(IMQ(0.1), IMQ(1.0), max_centers=20)
-    with pytest.raises(ValueError, match="validation_data goes with the caller's data"):
-        SymplecticKernelReductor(fom.model, rom.RB, None, 0.1, p, validation_data=val)
-    with pytest.raises(ValueError, match="data must be 'reduced', 'projected' or a FlowMapData"):
-        SymplecticKernelReductor(fom.model, rom.RB, None, 0.1, p, data=(train.x0, train.x1))
+    with pytest.raises(ValueError, match="GivenSamples: data must be a sympredict.data.FlowMapData"):
+        SymplecticKernelReductor(fom.model, rom.RB, 0.1, GivenSamples((train.x0, train.x1)), p)
     with pytest.raises(ValueError, match="dimension 6, the basis has 2n = 4"):
         given(rom, FlowMapData(np.ones((3, 6)), np.ones((3, 6)), np.ones((3, 1)), 0.1), None, p)
     with pytest.raises(ValueError, match="parameter vectors of dimension 2"):
         given(rom, FlowMapData(train.x0, train.x1, np.ones((len(train), 2)), 0.1), None, p)
-    with pytest.raises(ValueError, match="validation_data has steps .* dt is 0.1"):
+    with pytest.raises(ValueError, match="validation has steps .* dt is 0.1"):
         given(rom, train, FlowMapData(val.x0, val.x1, val.mu, 0.2), p)
-    with pytest.raises(ValueError, match="parameter_scaling must be one of"):
-        given(rom, train, val, p, parameter_scaling="unit")
-    with pytest.raises(ValueError, match="time_scaling must be one of"):
-        given(rom, train, val, p, time_scaling=1.0)
+    with pytest.raises(ValueError, match="TrainingScaling parameters must be one of"):
+        given(rom, train, val, p, scaling=TrainingScaling(parameters="unit"))
+    with pytest.raises(ValueError, match="TrainingScaling time must be one of"):
+        given(rom, train, val, p, scaling=TrainingScaling(time=1.0))
+    with pytest.raises(ValueError, match="scaling must be a TrainingScaling"):
+        given(rom, train, val, p, scaling="none")
     with pytest.raises(ValueError, match="state_kernels must be a sequence"):
-        given(rom, train, val, p, state_kernels=IMQ(0.1))
+        given(rom, train, val, p, selection=ValidationSelection(state_kernels=IMQ(0.1)))
     with pytest.raises(ValueError, match="non-empty sequence of radial kernels"):
-        given(rom, train, val, p, mu_kernels=["imq"])
+        given(rom, train, val, p, selection=ValidationSelection(mu_kernels=["imq"]))
     with pytest.raises(ValueError, match="m_star"):
-        given(rom, train, val, p, m_star=0)
+        given(rom, train, val, p, selection=ValidationSelection(m_star=0))
+    with pytest.raises(ValueError, match="selection must be a ValidationSelection"):
+        given(rom, train, val, p, selection=[IMQ(0.1)])
     with pytest.raises(ValueError, match="needs validation data"):
-        given(rom, train, None, p, state_kernels=[IMQ(0.1)]).reduce()
+        given(rom, train, None, p, selection=ValidationSelection(state_kernels=[IMQ(0.1)])).reduce()
     with pytest.raises(ValueError, match="needs validation data"):
         given(rom, train, None, None).reduce()  # the default predictor chooses its kernels
 
@@ -172,11 +175,11 @@ def sine_gordon(small_sine_gordon):
     return fom, gal, pymor_basis(gal.V, fom.phase_space), gal.project(X), c
 
 
-def sg_reductor(sine_gordon, pairs, predictor, **kw):
+def sg_reductor(sine_gordon, pairs, predictor, validation=None, **kw):
     fom, gal, RB, Y, c = sine_gordon
     space = fom.model.parameters.space({"amplitude": (0.5, 1.5), "c": (0.8, 1.2)})
-    return SymplecticKernelReductor(fom.model, RB, None, 0.1, predictor, data=pairs, parameter_space=space,
-                                    flow_parameters=("c",), **kw)
+    return SymplecticKernelReductor(fom.model, RB, 0.1, GivenSamples(pairs, validation, parameter_space=space),
+                                    predictor, flow_parameters=("c",), **kw)
 
 
 def trajectory_pairs_of(Y, c):
@@ -213,11 +216,11 @@ def test_flow_parameters_leave_out_the_initial_datas_parameters(sine_gordon):
     assert np.abs(U - Y[3]).max() < 0.1 * np.abs(Y[3]).max()
     assert_symplectic_step(red.flow_map_, Y[3, 3:5], mu=[[1.2]], dt=0.1, atol=1e-8, fd_h=1e-3, fd_atol=1e-3)
     with pytest.raises(ValueError, match=r"depends on \['c'\].*leaves out \['c'\]"):
-        SymplecticKernelReductor(fom.model, RB, None, 0.1, p, data=trajectory_pairs_of(Y, c), flow_parameters=("amplitude",))
+        SymplecticKernelReductor(fom.model, RB, 0.1, GivenSamples(trajectory_pairs_of(Y, c)), p, flow_parameters=("amplitude",))
     with pytest.raises(ValueError, match="not parameters of the FOM"):
-        SymplecticKernelReductor(fom.model, RB, None, 0.1, p, data=trajectory_pairs_of(Y, c), flow_parameters=("k",))
+        SymplecticKernelReductor(fom.model, RB, 0.1, GivenSamples(trajectory_pairs_of(Y, c)), p, flow_parameters=("k",))
     with pytest.raises(ValueError, match="parameter vectors of dimension 1, the flow map's parameters have dimension 2"):
-        SymplecticKernelReductor(fom.model, RB, None, 0.1, p, data=trajectory_pairs_of(Y, c))
+        SymplecticKernelReductor(fom.model, RB, 0.1, GivenSamples(trajectory_pairs_of(Y, c)), p)
 
 
 def hand_made_flow(pairs, lam, dt=0.1, quadratic=None, validation=None):
@@ -249,7 +252,7 @@ def test_regularization_chosen_by_rollouts_on_validation_trajectories(sine_gordo
     lams = (1e-8, 1e-4, 1e-1)
     red = sg_reductor(sine_gordon, train, SymplecticKernelPredictor(None, IMQ(1.0), max_centers=50,
                                                                       trainer=ExactGreedy(tol=1e-9)),
-                      validation_data=val, regularizations=lams)
+                      validation=val, selection=ValidationSelection(regularizations=lams))
     red.reduce()
     table = []
     for lam in (0.0, *lams):
@@ -265,12 +268,14 @@ def test_regularization_chosen_by_rollouts_on_validation_trajectories(sine_gordo
     one_step = np.mean(np.linalg.norm(red.flow_map_.step(pairs.x0, mu=pairs.mu, dt=0.1) - pairs.x1, axis=-1)
                        / np.linalg.norm(pairs.x1, axis=-1))
     assert red.validation_score(red.flow_map_, pairs) == pytest.approx(one_step, rel=1e-12)
-    with pytest.raises(ValueError, match="regularization needs validation data"):
-        sg_reductor(sine_gordon, train, SymplecticKernelPredictor(None, IMQ(1.0)), regularizations=lams).reduce()
+    with pytest.raises(ValueError, match=r"regularizations=\(1e-08, 0.0001, 0.1\)\) scores each ridge term on "
+                                         r"validation data: give GivenSamples\(..., validation=...\)"):
+        sg_reductor(sine_gordon, train, SymplecticKernelPredictor(None, IMQ(1.0)),
+                    selection=ValidationSelection(regularizations=lams))
     with pytest.raises(ValueError, match="regularizations must be >= 0"):
-        sg_reductor(sine_gordon, train, None, regularizations=(-1.0,))
+        sg_reductor(sine_gordon, train, None, selection=ValidationSelection(regularizations=(-1.0,)))
     with pytest.raises(ValueError, match="trajectories of dimension 4"):
-        sg_reductor(sine_gordon, train, None, validation_data=TrajectoryData(Y[held, :, :4], c[held, None], 0.1))
+        sg_reductor(sine_gordon, train, None, validation=TrajectoryData(Y[held, :, :4], c[held, None], 0.1))
 
 
 @pytest.mark.filterwarnings("ignore::sympredict.exceptions.ExtrapolationWarning")
@@ -279,7 +284,7 @@ def test_split_is_the_hand_made_split_predictor_and_symplectic(sine_gordon):
     quad = gal.quadratic_part(mass=True)
     train = trajectory_pairs_of(Y, c)
     red = sg_reductor(sine_gordon, train, SymplecticKernelPredictor(None, IMQ(1.0), max_centers=50,
-                                                                      trainer=ExactGreedy(tol=1e-9)), split=quad)
+                                                                      trainer=ExactGreedy(tol=1e-9)), split=QuadraticSplit(quad))
     red.reduce()
     assert type(red.predictor_).__name__ == "SplitKernelPredictor"
     by_hand = hand_made_flow(train, 0.0, quadratic=quad)
@@ -301,12 +306,14 @@ def test_split_is_the_hand_made_split_predictor_and_symplectic(sine_gordon):
         M = T @ M @ np.linalg.inv(T)
         sigmas.append(np.linalg.svd(M[3:, 3:], compute_uv=False)[-1])  # dp1/dp0 of S
     assert red.existence_["sigma_min"] == pytest.approx(min(sigmas), rel=1e-6)
-    with pytest.raises(ValueError, match="split must be a sympredict.systems.linear_flow.QuadraticPart"):
-        sg_reductor(sine_gordon, train, None, split=np.eye(6))
+    with pytest.raises(ValueError, match="QuadraticSplit needs a sympredict.systems.linear_flow.QuadraticPart"):
+        sg_reductor(sine_gordon, train, None, split=QuadraticSplit(np.eye(6)))
+    with pytest.raises(ValueError, match="split must be a QuadraticSplit"):
+        sg_reductor(sine_gordon, train, None, split=quad)
     with pytest.raises(ValueError, match="inner SymplecticKernelPredictor as estimator"):
         from sympredict.flowmap.splitting import SplitKernelPredictor
 
-        sg_reductor(sine_gordon, train, SplitKernelPredictor(SymplecticKernelPredictor(), quad), split=quad)
+        sg_reductor(sine_gordon, train, SplitKernelPredictor(SymplecticKernelPredictor(), quad), split=QuadraticSplit(quad))
 
 
 def test_split_of_the_whole_quadratic_hamiltonian_is_its_exact_flow(wave_rom):
@@ -319,9 +326,10 @@ def test_split_of_the_whole_quadratic_hamiltonian_is_its_exact_flow(wave_rom):
     fom, rom, _, _ = wave_rom
     mus = [fom.model.parameters.parse(c**2) for c in (0.2, 0.25, 0.3)]
     H0, H1 = rom.system.H0, rom.system.H1  # H(mu) = H0 + mu H1
-    red = SymplecticKernelReductor(fom.model, rom.RB, mus, 0.1, SymplecticKernelPredictor(max_centers=30),
-                                   n_samples=40, n_validation=2, split=QuadraticPart([H0, H1], [[0.0], [1.0]]),
-                                   state_kernels=[IMQ(0.1), IMQ(1.0)], mu_kernels=[IMQ(1.0)], m_star=10)
+    red = SymplecticKernelReductor(fom.model, rom.RB, 0.1, GalerkinSamples(mus, n_samples=40, n_validation=2),
+                                   SymplecticKernelPredictor(max_centers=30),
+                                   split=QuadraticSplit(QuadraticPart([H0, H1], [[0.0], [1.0]])),
+                                   selection=ValidationSelection([IMQ(0.1), IMQ(1.0)], [IMQ(1.0)], m_star=10))
     red.reduce()
     assert hasattr(red, "selection_")
     x = red.validation_data_.x0[:5]

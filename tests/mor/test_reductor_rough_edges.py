@@ -5,7 +5,7 @@ import pytest
 from pymor.parameters.base import Mu, Parameters
 
 from sympredict._checks import as_parameter
-from sympredict.mor import SymplecticKernelReductor
+from sympredict.mor import DefaultEstimator, GalerkinSamples, ProjectedTrajectories, SymplecticKernelReductor
 from sympredict.mor.mass import MassMatrixCoordinates
 from sympredict.symplectic.metrics import canonical_J
 from sympredict.testing import fe_wave_matrices
@@ -20,8 +20,8 @@ def small_fe(small_fe_wave):
 def small_rom(small_fe):
     fom, coords, space, train, RB = small_fe
     h = fom.T / fom.time_stepper.nt
-    red = SymplecticKernelReductor(fom, RB, train, 4 * h, data="projected", parameter_space=space, max_centers=200,
-                                   n_validation=1)
+    red = SymplecticKernelReductor(fom, RB, 4 * h, ProjectedTrajectories(train, parameter_space=space, n_validation=1),
+                                   DefaultEstimator(max_centers=200))
     return red, red.reduce()
 
 
@@ -143,11 +143,11 @@ def test_projected_step_checked_before_any_solve_with_exact_numbers(small_fe):
     bare = fom.with_(new_type=NoSolve)
     with pytest.raises(ValueError, match=r"h = T / nt = 0\.5 / 100 = 0\.005; dt = 0\.012 is 2\.4 output steps: use "
                                          r"dt = k \* h, e\.g\. 0\.01 or 0\.015"):
-        SymplecticKernelReductor(bare, RB, train, 0.012, data="projected")
+        SymplecticKernelReductor(bare, RB, 0.012, ProjectedTrajectories(train))
     with pytest.raises(ValueError, match=r"horizon = 0\.75 is past the FOM's final time T = 0\.5"):
-        SymplecticKernelReductor(bare, RB, train, 0.01, data="projected", horizon=0.75)
+        SymplecticKernelReductor(bare, RB, 0.01, ProjectedTrajectories(train, horizon=0.75))
     with pytest.raises(ValueError, match=r"dt = 0\.6 is longer than the sampled time span"):
-        SymplecticKernelReductor(bare, RB, train, 0.6, data="projected")
+        SymplecticKernelReductor(bare, RB, 0.6, ProjectedTrajectories(train))
 
 
 # ------------------------------------------------------------------ j. log messages say what happened
@@ -174,7 +174,8 @@ def test_finite_element_howto_runs():
         exec(compile(code, "finite_element_models.md", "exec"), namespace)
     assert namespace["error"] < 0.1
     assert namespace["q"].shape == (len(namespace["U"]), namespace["coords"].N)
-    assert namespace["reductor"].mode == "projected" and namespace["rom_from_saved"].solve(0.95) is not None
+    assert type(namespace["reductor"].samples).__name__ == "GivenTrajectories"
+    assert namespace["rom_from_saved"].solve(0.95) is not None
 
 
 # ------------------------------------------------------------------ g. a Newton failure keeps the trajectory so far
@@ -204,17 +205,15 @@ def test_newton_failure_in_rom_solve_carries_the_trajectory_so_far(small_fe, sma
 # ------------------------------------------------------------------ e/f. a generating function that exists; no unusable ROM
 def test_default_predictor_switches_to_midpoint_where_type_ii_does_not_exist(small_fe):
     fom, coords, space, train, RB = small_fe
-    red = SymplecticKernelReductor(fom, RB, train, 0.06, n_samples=40, n_validation=1, max_centers=100,
-                                   parameter_space=space)
+    samples = GalerkinSamples(train, n_samples=40, n_validation=1, parameter_space=space)
+    red = SymplecticKernelReductor(fom, RB, 0.06, samples, DefaultEstimator(max_centers=100))
     rom = red.reduce()
     assert red.choice_["update"] == "midpoint" and "type II does not exist" in red.choice_["reason"]
     assert red.predictor_.update == "midpoint"
     assert np.all(np.isfinite(rom.solve(fom.parameters.parse(0.9)).to_numpy()))
     with pytest.raises(ValueError, match="neither generating function exists at dt = 0.25"):
-        SymplecticKernelReductor(fom, RB, train, 0.25, n_samples=40, n_validation=1, max_centers=100,
-                                 parameter_space=space).reduce()
-    ok = SymplecticKernelReductor(fom, RB, train, 0.01, n_samples=40, n_validation=1, max_centers=100,
-                                  parameter_space=space)
+        SymplecticKernelReductor(fom, RB, 0.25, samples, DefaultEstimator(max_centers=100)).reduce()
+    ok = SymplecticKernelReductor(fom, RB, 0.01, samples, DefaultEstimator(max_centers=100))
     ok.training_data()
     assert ok.choice_["update"] == "symplectic_euler"
 
