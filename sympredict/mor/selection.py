@@ -12,6 +12,7 @@ recipe.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 from typing import Callable, Optional
 
@@ -20,6 +21,7 @@ import numpy as np
 from sympredict._checks import as_positive_int, as_real
 from sympredict.base import Setting, clone
 from sympredict.estimators.predictor import SymplecticKernelPredictor
+from sympredict.estimators.search import ridge_search
 from sympredict.estimators.selection import log_grid, select_kernels
 from sympredict.interpolation.greedy import ExactGreedy
 from sympredict.kernels import IMQ, RadialKernel
@@ -129,7 +131,7 @@ class ValidationSelection(Setting):
             mus = [IMQ(float(e)) for e in log_grid(0.3, 3.0, 2)] if default else [base.mu_kernel]
         m_star = min(self.m_star, int(getattr(base, "max_centers", self.m_star)))
         with log.block(f"kernel shapes on validation data ({len(states) * len(mus)} candidates, m* = {m_star})") \
-                if hasattr(log, "block") else _nothing():
+                if hasattr(log, "block") else contextlib.nullcontext():
             sel = select_kernels(train, val, states, mus, [base.dt_kernel], m_star=m_star, estimator=base)
         state = base.state_kernel.with_radial(sel.state) if isinstance(base.state_kernel, KernelTransform) else sel.state
         return clone(base).set_params(state_kernel=state, mu_kernel=sel.mu), sel
@@ -137,26 +139,21 @@ class ValidationSelection(Setting):
     def choose_regularization(self, predictor, fit: Callable, score: Callable, log=logger):
         """Every ridge term of ``{0} | regularizations`` fitted (``fit(candidate) -> (model, flow_map)``) and scored
         (``score(flow_map) -> float``); returns ``(model, flow_map, chosen term, table)``."""
-        table, best, zero = [], None, None
-        for lam in sorted({0.0, *self.regularizations_}):
-            candidate = clone(predictor).set_params(trainer__regularization=lam)
-            model, flow_map = fit(candidate)
+        exact = {}
+
+        def evaluate(lam):
+            model, flow_map = fit(clone(predictor).set_params(trainer__regularization=lam))
             value = score(flow_map)
-            table.append({"regularization": lam, "score": value if np.isfinite(value) else None})
             log.info(f"regularization {lam:.3g}: validation score {value:.4e} ({model.n_centers_} centres)")
-            if np.isfinite(value) and (best is None or value < best[0]):  # ties: the smaller term (tried first)
-                best = (value, lam, model, flow_map)
-            elif best is None and lam == 0.0:
-                zero = (np.inf, lam, model, flow_map)
+            if lam == 0.0:
+                exact["fit"] = (model, flow_map)
+            return value, (model, flow_map), {}
+
+        best, table, _ = ridge_search(self.regularizations_, evaluate, name="ValidationSelection regularizations")
+        for row in table:  # the record is JSON: a failed fit's score is None
+            row["score"] = row["score"] if np.isfinite(row["score"]) else None
         if best is None:
             log.warning("no regularization gave a finite validation score: the exact fit (0) is kept")
-            best = zero
-        return best[2], best[3], best[1], table
-
-
-class _nothing:
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        return False
+            return (*exact["fit"], 0.0, table)
+        lam, _, (model, flow_map) = best
+        return model, flow_map, lam, table
