@@ -149,3 +149,26 @@ def test_families_from_outside_the_package_stay_out_of_the_disk_cache():
         assert compiled is not cached
         assert isinstance(compiled._cache, NullCache)
     assert compiled_kernels.family_kernels(compiled_kernels.IMQ)[0]._pass is compiled_surrogate._pass
+
+
+def test_numba_is_taken_from_the_policy_module_only():
+    """One numba policy: no library module imports numba or sets numba's disk cache on its own (numba's typing
+    extension for the family codes stays with the code it types)."""
+    import ast
+    from pathlib import Path
+
+    package = Path(_numba.__file__).parent
+    allowed = {package / "_numba.py", package / "kernels" / "_compiled.py"}
+    offenders = []
+    for path in sorted(package.rglob("*.py")):
+        if path in allowed or "paper" in path.relative_to(package).parts:
+            continue
+        tree = ast.parse(path.read_text(), str(path))
+        for node in ast.walk(tree):
+            names = ([a.name for a in node.names] if isinstance(node, ast.Import) else
+                     [node.module or ""] if isinstance(node, ast.ImportFrom) else [])
+            if any(n == "numba" or n.startswith("numba.") for n in names):
+                offenders.append(f"{path.relative_to(package)}:{node.lineno} imports numba")
+            if isinstance(node, ast.keyword) and node.arg == "cache":
+                offenders.append(f"{path.relative_to(package)}:{node.lineno} sets cache=")
+    assert not offenders, offenders
