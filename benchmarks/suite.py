@@ -64,9 +64,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _protocol  # noqa: E402  (benchmarks/_protocol.py)
 
 from sympredict import SymplecticKernelPredictor  # noqa: E402
-from sympredict import _numba
-from sympredict.interpolation import _compiled as compiled_surrogate
-from sympredict.symplectic import _compiled_newton
+from sympredict import _numba  # noqa: E402
+from sympredict.interpolation import _compiled as compiled_surrogate  # noqa: E402
+from sympredict.symplectic import _compiled_newton  # noqa: E402
 from sympredict.data import mixed_variables  # noqa: E402
 from sympredict.interpolation.functionals import HBFunctionals, functional_residuals  # noqa: E402
 from sympredict.interpolation.greedy import GreedyHistory, active_set_greedy, greedy_interpolation  # noqa: E402

@@ -17,7 +17,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _protocol  # noqa: E402  (benchmarks/_protocol.py)
 from sympredict import SymplecticKernelPredictor  # noqa: E402
-from sympredict.symplectic import _compiled_newton
+from sympredict.symplectic import _compiled_newton  # noqa: E402
 from sympredict.paper.pendulum import paper_test_instances  # noqa: E402
 from sympredict.kernels import IMQ  # noqa: E402
 from sympredict.symplectic.metrics import relative_trajectory_error  # noqa: E402
