@@ -1,10 +1,8 @@
 """Small numeric helpers written once for NumPy-level Python and for numba-compiled code.
 
-:func:`compilable` marks a plain function as callable from compiled code
-(numba's ``register_jitable``) while it stays an ordinary Python function;
-without numba it is the identity.  The kernel families' formula helpers,
-Newton's stopping rule, the dense solves of the compiled Newton
-iterations and the marking of a failed instance's trajectory use it.
+:func:`sympredict._numba.compilable` marks the dense solves of the compiled
+Newton iterations and the marking of a failed instance's trajectory as
+callable from compiled code while they stay ordinary Python functions.
 
 The canonical ``J`` is defined here, once (:func:`canonical_J`, and
 :func:`j_times` to apply it without forming it), so that every layer may use
@@ -14,20 +12,13 @@ it; :mod:`sympredict.symplectic.metrics` re-exports both.
 from __future__ import annotations
 
 import math
-import os
-import sys
 
 import numpy as np
 
-try:  # numba is optional: without it nothing is compiled and these stay plain functions
-    from numba.extending import register_jitable as compilable
-except ImportError:  # pragma: no cover
-
-    def compilable(function):
-        return function
+from sympredict._numba import compilable
 
 
-__all__ = ["compilable", "lu_solve_inplace", "fill_nan_after", "canonical_J", "j_times", "parallel_safe"]
+__all__ = ["lu_solve_inplace", "fill_nan_after", "canonical_J", "j_times"]
 
 
 @compilable
@@ -101,51 +92,3 @@ def j_times(v: np.ndarray, axis: int = -1) -> np.ndarray:
     hi[axis] = slice(n, None)
     lo[axis] = slice(None, n)
     return np.concatenate([v[tuple(hi)], -v[tuple(lo)]], axis=axis)
-
-
-# --------------------------------------------------------------------------- fork safety of numba's parallel loops
-#: Set in a process forked after numba's threading layer started (GNU OpenMP cannot run a parallel region in
-#: such a child: numba terminates it).  Such a child runs the parallel loops serially (:func:`parallel_safe`).
-_FORKED_AFTER_THREADS = False
-_FORK_WARNED = False
-
-
-def _threads_started() -> bool:
-    """Whether numba's threading layer has started in this process (its worker threads exist)."""
-    try:
-        from numba.np.ufunc import parallel as _parallel
-
-        return bool(getattr(_parallel, "_is_initialized", True))
-    except Exception:  # noqa: BLE001 - an unknown numba layout: assume started (the safe side)
-        return True
-
-
-def _after_fork_in_child() -> None:
-    global _FORKED_AFTER_THREADS, _FORK_WARNED
-    if _FORKED_AFTER_THREADS or ("numba" in sys.modules and _threads_started()):
-        _FORKED_AFTER_THREADS = True
-        _FORK_WARNED = False
-
-
-if hasattr(os, "register_at_fork"):
-    os.register_at_fork(after_in_child=_after_fork_in_child)
-
-
-def parallel_safe() -> bool:
-    """Whether numba's parallel loops may run in this process: not in a child forked after they ran.
-
-    In such a child (``os.fork``, ``multiprocessing`` with the fork start method) every compiled kernel runs
-    its loops on one thread (the same code compiled without ``parallel``), and one :class:`RuntimeWarning`
-    says so; the results are those of the serial kernels.
-    """
-    global _FORK_WARNED
-    if not _FORKED_AFTER_THREADS:
-        return True
-    if not _FORK_WARNED:
-        _FORK_WARNED = True
-        import warnings
-
-        warnings.warn("this process was forked after numba's parallel loops ran (GNU OpenMP cannot run them in a "
-                      "forked child): the compiled kernels run on one thread here; use multiprocessing's 'spawn' or "
-                      "'forkserver' start method for parallel loops in the workers", RuntimeWarning, stacklevel=3)
-    return False

@@ -15,14 +15,14 @@ the update stagnates within ``STALL_FLOOR_FACTOR`` of the floor:
 * ``|delta|_inf >= STALL_RATIO * previous |delta|_inf`` and ``|F| <= STALL_FLOOR_FACTOR f_floor``.
 
 :func:`converged` works elementwise on NumPy arrays and, compiled by numba, on
-scalars (:mod:`sympredict._fastkernels`).
+scalars (:mod:`sympredict.kernels._compiled`).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from sympredict._numeric import compilable
+from sympredict._numba import compilable
 
 
 

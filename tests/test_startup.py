@@ -19,9 +19,9 @@ def _python(code, **env):
 def test_invalid_numba_thread_count_falls_back_to_numpy_with_one_warning():
     code = ("import warnings; warnings.simplefilter('always')\n"
             "import numpy as np, sympredict\n"
-            "from sympredict import _fastkernels\n"
+            "from sympredict import _numba\n"
             "from sympredict.kernels import IMQ\n"
-            "assert not _fastkernels.HAVE_NUMBA\n"
+            "assert not _numba.HAVE_NUMBA\n"
             "x0 = np.random.default_rng(0).uniform(-1, 1, (20, 2)); x1 = x0 + 0.05 * x0[:, ::-1]\n"
             "m = sympredict.SymplecticKernelPredictor(IMQ(0.5), max_centers=10).fit(x0, x1, dt=0.1)\n"
             "print(np.isfinite(m.step(x0[:2] * 0.5)).all())\n")

@@ -13,7 +13,7 @@ class Rollout:
     timeout = 300
 
     def setup(self, backend):
-        from sympredict._fastkernels import HAVE_NUMBA
+        from sympredict._numba import HAVE_NUMBA
 
         if backend == "numba" and not HAVE_NUMBA:
             raise NotImplementedError("numba is not installed")  # asv reports the benchmark as skipped

@@ -21,7 +21,8 @@ from typing import Optional, Protocol
 import numpy as np
 from scipy.linalg import cho_factor, cho_solve
 
-from sympredict import _fastkernels
+from sympredict import _numba
+from sympredict.interpolation import _compiled
 from sympredict.kernels import ProductKernel
 
 __all__ = ["FunctionalSet", "HBFunctionals", "ValueFunctionals", "functional_residuals", "dense_interpolation"]
@@ -86,7 +87,7 @@ class HBFunctionals(_AugmentedPoints):
         self._parameter_groups = None  # distinct (mu, dT) and each point's group, made on first use
         # compiled column where it is bit-identical to the NumPy one (2n = 2, IMQ factors)
         # (the compiled kernels know no periodic coordinates)
-        self._compiled_column = kernel.periodic is None and _fastkernels.hb_column_supported(kernel, self.dim, self.mu.shape[1])
+        self._compiled_column = kernel.periodic is None and _compiled.hb_column_supported(kernel, self.dim, self.mu.shape[1])
         if kernel.periodic is not None:
             kernel.periodic.check_dim(self.dim)
         if kernel.symmetry is not None:
@@ -128,7 +129,7 @@ class HBFunctionals(_AugmentedPoints):
     def _plain_column(self, representer, out: np.ndarray) -> np.ndarray:
         """The column of the plain (not group-averaged) state kernel (see :meth:`column`)."""
         if self._compiled_column:
-            return _fastkernels.hb_column(self.kernel, self.points, self.mu, self.dt, representer, out)
+            return _compiled.hb_column(self.kernel, self.points, self.mu, self.dt, representer, out)
         xi_q, mu_q, dt_q, b = representer
         out2 = out.reshape(-1, self.dim)
         periodic = self.kernel.periodic
@@ -287,7 +288,7 @@ def functional_residuals(
         raise ValueError("functional_residuals: the compiled evaluation does not support a state symmetry "
                          "(symmetry=...): pass compiled=False or None")
     plain = functionals.kernel.periodic is None and functionals.kernel.symmetry is None
-    if plain and (_fastkernels.HAVE_NUMBA if compiled is None else compiled):
+    if plain and (_numba.HAVE_NUMBA if compiled is None else compiled):
         groups = functionals._parameter_groups
         if groups is None:  # computed once per set (a sort of M rows)
             uniq, group = np.unique(np.column_stack([functionals.mu, functionals.dt]), axis=0, return_inverse=True)
@@ -295,8 +296,8 @@ def functional_residuals(
         uniq, group = groups
         kernel = functionals.kernel
         wg = kernel.parameter_factor(uniq[:, :-1], uniq[:, -1], functionals.mu[sel_pts], functionals.dt[sel_pts]) * coef
-        layout = _fastkernels.CenterLayout(functionals.points[sel_pts], comps)
-        grad = _fastkernels.gradients(functionals.points[idx], group[idx], wg, layout, kernel.state)
+        layout = _compiled.CenterLayout(functionals.points[sel_pts], comps)
+        grad = _compiled.gradients(functionals.points[idx], group[idx], wg, layout, kernel.state)
         return (y - grad).reshape(-1)
     out = np.empty(y.shape)
     step = max(1, (1 << 22) // (len(selected) * dim))  # (m, chunk 2n) Gramian rows of about 32 MB

@@ -21,7 +21,7 @@ import numpy as np
 from scipy import sparse
 from scipy.linalg import cholesky, solve_triangular
 
-from sympredict._fastkernels import CenterLayout
+from sympredict.interpolation._compiled import CenterLayout
 from sympredict.kernels import ProductKernel
 
 __all__ = ["HBSurrogate", "ValueSurrogate"]
@@ -207,7 +207,7 @@ class HBSurrogate:
         return out
 
     def layout(self):
-        """The centres arranged for the compiled kernels (:class:`sympredict._fastkernels.CenterLayout`), cached.
+        """The centres arranged for the compiled kernels (:class:`sympredict.interpolation._compiled.CenterLayout`), cached.
 
         The plain functionals the evaluation sums over: with a state symmetry the images ``g xi_j`` and
         their components (weights then have one column per image, :meth:`weights`), with periodic

@@ -6,7 +6,7 @@
   the state-kernel modifications (:class:`PeriodicCoordinates`,
   :class:`StateSymmetry`) and the :class:`ProductKernel` on ``(xi, mu, dT)``.
 
-The compiled kernels built from the families' formulas are :mod:`sympredict._fastkernels`.
+The compiled kernels built from the families' formulas are :mod:`sympredict.kernels._compiled`.
 """
 
 from sympredict.kernels.radial import (

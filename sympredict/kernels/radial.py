@@ -44,7 +44,7 @@ from typing import Optional
 
 import numpy as np
 
-from sympredict._numeric import compilable
+from sympredict._numba import compilable
 from sympredict.base import Parametrized
 
 
@@ -74,7 +74,7 @@ class RadialKernel(Parametrized):
     methods of ``(e, r)`` (shape parameter, distance) written with arithmetic,
     ``np.sqrt``, ``np.exp``, ``np.minimum`` and ``np.maximum`` only, so that
     the same function runs on NumPy arrays here and, compiled by numba, on
-    scalars in :mod:`sympredict._fastkernels`:
+    scalars in :mod:`sympredict.kernels._compiled`:
 
     * :meth:`profile`: ``phi(r)``;
     * :meth:`first_factors`: ``(A, B)``;

@@ -36,15 +36,11 @@ from __future__ import annotations
 import numpy as np
 
 from sympredict._checks import as_positive_int, as_states, as_steps
-from sympredict._numeric import compilable
+from sympredict._numba import JIT, compilable, jit_cached
 from sympredict.symplectic.integrators_compiled import HAVE_NUMBA, PointwiseHamiltonian, jit_pointwise, rollout
 from sympredict.systems.linear_flow import QuadraticPart
 from sympredict.mor.basis import symplectic_inverse
 
-try:  # pragma: no cover - with numba
-    import numba
-except ImportError:  # pragma: no cover
-    numba = None
 
 __all__ = ["ReducedSineGordon", "rk4_rollout", "nonlinear_snapshots"]
 
@@ -130,8 +126,8 @@ def _rk4_all(g, fargs, iargs, x0, mu, h, n_steps, substeps, traj):
 
 
 if HAVE_NUMBA:
-    _rk4_one = numba.njit(cache=True, nogil=True, error_model="numpy")(_rk4_instance)
-    _rk4_all = numba.njit(cache=True, nogil=True, error_model="numpy")(_rk4_all)
+    _rk4_one = jit_cached(_rk4_instance, JIT)
+    _rk4_all = jit_cached(_rk4_all, JIT)
 
 
 def rk4_rollout(system: PointwiseHamiltonian, x0, mu, dt, n_steps: int, substeps: int = 1) -> np.ndarray:

@@ -57,20 +57,14 @@ import math
 
 import numpy as np
 
-from sympredict._numeric import fill_nan_after, lu_solve_inplace, parallel_safe
+from sympredict._numeric import fill_nan_after, lu_solve_inplace
 from sympredict._checks import as_parameter, as_positive_int, as_states, as_steps
 from sympredict.exceptions import NewtonConvergenceError
 from sympredict.symplectic.integrators import COMPOSITIONS, SCHEMES, integrate
 
-try:  # pragma: no cover - exercised only where numba is installed
-    import numba
-    from numba import types as _nt
+from sympredict._numba import HAVE_NUMBA, JIT, call, jit_cached, jit_user, numba, parallel_safe
 
-    HAVE_NUMBA = True
-except ImportError:  # pragma: no cover
-    numba = None
-    _nt = None
-    HAVE_NUMBA = False
+_nt = numba.types if HAVE_NUMBA else None
 
 __all__ = [
     "HAVE_NUMBA",
@@ -110,7 +104,7 @@ def jit_pointwise(fn):
     """
     if not HAVE_NUMBA:  # pragma: no cover
         return fn
-    return numba.njit(cache=True, nogil=True, error_model="numpy")(fn)
+    return jit_user(fn)
 
 
 @jit_pointwise
@@ -356,13 +350,12 @@ def _midpoint_serial(grad_H, hess_H, fargs, iargs, x0, mu, h, n_steps, substeps,
 
 
 if HAVE_NUMBA:
-    _jit = functools.partial(numba.njit, cache=True, nogil=True, error_model="numpy")
-    _explicit_one = _jit(_explicit_instance)
-    _midpoint_one = _jit(_midpoint_instance)
-    _explicit_parallel = _jit(parallel=True)(_explicit_parallel)
-    _explicit_serial = _jit(_explicit_serial)
-    _midpoint_parallel = _jit(parallel=True)(_midpoint_parallel)
-    _midpoint_serial = _jit(_midpoint_serial)
+    _explicit_one = jit_cached(_explicit_instance, JIT)
+    _midpoint_one = jit_cached(_midpoint_instance, JIT)
+    _explicit_parallel = jit_cached(_explicit_parallel, dict(JIT, parallel=True))
+    _explicit_serial = jit_cached(_explicit_serial, JIT)
+    _midpoint_parallel = jit_cached(_midpoint_parallel, dict(JIT, parallel=True))
+    _midpoint_serial = jit_cached(_midpoint_serial, JIT)
 
 
 @functools.lru_cache(maxsize=None)
@@ -380,7 +373,7 @@ def _kernels():
         ("midpoint_parallel", _midpoint_parallel, midpoint_sig),
         ("midpoint_serial", _midpoint_serial, midpoint_sig),
     ):
-        fn.compile(sig)
+        call(fn.compile, sig)  # a corrupt or unwritable disk cache costs compilation, not an error
         fn.disable_compile()
         out[key] = fn
     return out

@@ -2,7 +2,7 @@
 
 **The algorithm** (one, written here; :func:`rollout_reference` runs it in
 NumPy, batched over the instances, :func:`rollout_compiled` in compiled code,
-one instance at a time, :mod:`sympredict._fastkernels`).  Per instance and
+one instance at a time, :mod:`sympredict.symplectic._compiled_newton`).  Per instance and
 macro step, with ``x0 = (q0, p0)`` the step's input:
 
 * *Unknowns, residual, Jacobian.*  Symplectic Euler: ``u = p1`` (``n``
@@ -82,7 +82,7 @@ from typing import Callable, Optional
 
 import numpy as np
 
-from sympredict import _fastkernels
+from sympredict.symplectic import _compiled_newton
 from sympredict._numeric import lu_solve_inplace
 from sympredict.exceptions import NewtonConvergenceError, RolloutMemoryError
 from sympredict.symplectic.metrics import j_times
@@ -104,10 +104,10 @@ FAILURE_REASONS = {
 MIDPOINT_FAILURE_REASONS = {**FAILURE_REASONS, 2: "hit a singular Jacobian I - dT/2 J Hess s"}
 
 #: The implicit updates the solvers know.
-UPDATES = _fastkernels.UPDATES
+UPDATES = _compiled_newton.UPDATES
 
 #: Previous states a warm start extrapolates from (and a chunked rollout carries to its next chunk).
-WARM_HISTORY = _fastkernels.WARM_HISTORY
+WARM_HISTORY = _compiled_newton.WARM_HISTORY
 
 
 _j_times = j_times  # ``J v`` on the last axis (sympredict.symplectic.metrics)
@@ -463,8 +463,8 @@ def rollout_reference(sur: HBSurrogate, x, weights, dt, n_steps: int, max_iter: 
     x = np.asarray(x, dtype=np.float64)
     dt = np.asarray(dt, dtype=np.float64)
     b, dim = x.shape
-    maps = _fastkernels.check_around(around, b, dim, warm_start)
-    previous = _fastkernels.previous_states(previous, b, dim)
+    maps = _compiled_newton.check_around(around, b, dim, warm_start)
+    previous = _compiled_newton.previous_states(previous, b, dim)
     traj = np.empty((b, int(n_steps) + 1, dim))
     traj[:, 0] = x
     passes = np.zeros(b, dtype=np.int64)
@@ -620,7 +620,7 @@ def ordered_weights(sur: HBSurrogate, weights: np.ndarray) -> np.ndarray:
 def rollout_compiled(sur: HBSurrogate, x, weights, dt, n_steps: int, max_iter: int, step_index: bool = True,
                      warm_start: bool = False, update: str = "symplectic_euler", around=None,
                      weights_ordered: bool = False, previous=None, stats: Optional[dict] = None):
-    """``n_steps`` steps in compiled code (:func:`sympredict._fastkernels.newton_rollout`): :func:`rollout_reference`'s
+    """``n_steps`` steps in compiled code (:func:`sympredict.symplectic._compiled_newton.newton_rollout`): :func:`rollout_reference`'s
     algorithm, arguments and failure report.
 
     ``weights_ordered``: ``weights`` are already in the compiled layout's centre order
@@ -637,7 +637,7 @@ def rollout_compiled(sur: HBSurrogate, x, weights, dt, n_steps: int, max_iter: i
     """
     midpoint = _check_update(update)
     stats = {} if stats is None else stats
-    traj, codes, fail_step, fail_iter, resid = _fastkernels.newton_rollout(
+    traj, codes, fail_step, fail_iter, resid = _compiled_newton.newton_rollout(
         x, weights, dt, sur.layout(), sur.kernel.state, max_iter, n_steps, warm_start=warm_start, update=update,
         around=around, weights_ordered=weights_ordered, previous=previous, stats=stats)
 
@@ -648,7 +648,7 @@ def rollout_compiled(sur: HBSurrogate, x, weights, dt, n_steps: int, max_iter: i
         h = np.asarray(dt, dtype=np.float64)[i]
         if around is None:
             before = None if previous is None else np.asarray(previous, dtype=np.float64)[i]
-            window = _window(traj[i], _fastkernels.previous_states(before, len(i), traj.shape[2]), k)
+            window = _window(traj[i], _compiled_newton.previous_states(before, len(i), traj.shape[2]), k)
         else:
             window = np.einsum("bij,bj->bi", np.asarray(around[0], dtype=np.float64)[i], traj[i, k])[:, None]
         warm = warm_start and window.shape[1] >= 2

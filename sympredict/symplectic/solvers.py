@@ -24,7 +24,8 @@ from typing import Optional
 
 import numpy as np
 
-from sympredict import _fastkernels
+from sympredict import _numba
+from sympredict.symplectic import _compiled_newton
 from sympredict._checks import as_positive_int
 from sympredict.base import Setting
 
@@ -107,14 +108,14 @@ class NewtonSolver(Setting):
         if self.backend == "numpy":
             return False
         if self.backend == "numba":
-            if not _fastkernels.HAVE_NUMBA:
+            if not _numba.HAVE_NUMBA:
                 raise ImportError("backend='numba' needs numba: pip install 'sympredict[fast]' (or use backend='numpy')")
             return True
         if self.backend != "auto":
             raise ValueError(f"backend must be 'auto', 'numpy' or 'numba', got {self.backend!r}")
-        if not _fastkernels.HAVE_NUMBA:
+        if not _numba.HAVE_NUMBA:
             return False
-        if n_instances is None or _fastkernels.rollout_loaded():
+        if n_instances is None or _compiled_newton.rollout_loaded():
             return True
         estimate = numpy_seconds(n_instances, n_steps, n_centers, dim)
         compiled = estimate >= AUTO_NUMPY_SECONDS

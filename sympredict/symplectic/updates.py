@@ -22,7 +22,7 @@ rule                        step                                                
 
 A new rule is a subclass defining these methods, registered in
 :data:`UPDATE_RULES`; the compiled solver needs its own kernel in
-:mod:`sympredict._fastkernels` (until then, declare it NumPy-only in the
+:mod:`sympredict.symplectic._compiled_newton` (until then, declare it NumPy-only in the
 estimator's table :data:`sympredict.estimators.predictor.NUMPY_ONLY`).
 """
 

@@ -8,9 +8,11 @@ The model is the benchmark suite's (``sympredict_paper/studies/suite.py``: pendu
 50 x 50 grid, IMQ (0.15, 2, 5), exact f-greedy to 1,500 centres); the batch its
 1,000 instances (``q0`` in [0, pi/2], ``p0 = 0``, ``l`` in [0.7, 0.8], ``dT`` in
 [0.045, 0.055]).  ``--against REV`` loads that revision's
-``sympredict/_fastkernels.py`` as a second module into this process (compiled
-without numba's disk cache), so both implementations run on the same model,
-the same inputs and the same machine state, interleaved.
+``sympredict/_fastkernels.py`` (revisions from before the compiled code moved
+beside its users) as a second module into this process (compiled without
+numba's disk cache), so both implementations run on the same model, the same
+inputs and the same machine state, interleaved.  This tree's side is
+:func:`this_tree`.
 
 Measured per implementation (and per start: ``cold`` = explicit guess, ``warm`` =
 previous step's increment, where the implementation has it):
@@ -21,7 +23,7 @@ previous step's increment, where the implementation has it):
   other processes on the machine stretch no sample that counts;
 * the kernel-factor cost: the family's ``(A, B, C)`` loop alone on a chunk of
   256 distances in L1, minimum over as many short runs
-  (:func:`sympredict._fastkernels.factor_throughput` ``in_cache=True``, this
+  (:func:`sympredict.interpolation._compiled.factor_throughput` ``in_cache=True``, this
   tree's probe, measured next to each implementation), and the older probe
   (one loop over 1M distances, median) for reference;
 * ``ratio`` = ns per centre visit / factor ns (L1 probe);
@@ -41,6 +43,7 @@ import os
 import subprocess
 import sys
 import tempfile
+import types
 from pathlib import Path
 
 import numpy as np
@@ -52,9 +55,18 @@ sys.path.insert(0, str(ROOT / "sympredict_paper" / "studies"))
 from pymor.core.logger import set_log_levels  # noqa: E402
 
 import _protocol  # noqa: E402  (sympredict_paper/studies/_protocol.py)
-from sympredict import _fastkernels  # noqa: E402
+from sympredict.interpolation import _compiled as compiled_surrogate  # noqa: E402
+from sympredict.symplectic import _compiled_newton  # noqa: E402
 from sympredict.io import load_model, save_model  # noqa: E402
 from sympredict.kernels import IMQ  # noqa: E402
+
+
+def this_tree() -> types.SimpleNamespace:
+    """This tree's compiled Newton code under the names a revision's ``_fastkernels`` module has."""
+    return types.SimpleNamespace(newton_rollout=_compiled_newton.newton_rollout,
+                                 CenterLayout=compiled_surrogate.CenterLayout,
+                                 newton_terms=compiled_surrogate.newton_terms,
+                                 factor_throughput=compiled_surrogate.factor_throughput)
 
 
 def load_revision(rev: str, where: Path):
@@ -73,8 +85,8 @@ def load_revision(rev: str, where: Path):
 
 def factor_chunk_seconds(samples: int) -> float:
     """Seconds per factor evaluation of the family's loop alone on one chunk of distances in L1 (minimum of short runs;
-    :func:`sympredict._fastkernels.factor_throughput` with ``in_cache=True``, this tree's definition for both sides)."""
-    return _fastkernels.factor_throughput(n=1 << 19, eps=0.15, repeats=samples, in_cache=True)
+    :func:`sympredict.interpolation._compiled.factor_throughput` with ``in_cache=True``, this tree's definition for both sides)."""
+    return compiled_surrogate.factor_throughput(n=1 << 19, eps=0.15, repeats=samples, in_cache=True)
 
 
 def measure(modules: dict, sur, x0, w, dt, *, steps: int, samples: int, repeats: int) -> dict:
@@ -172,7 +184,7 @@ def main(argv=None) -> dict:
         sur = model.surrogate_
         x0, mu, dt = suite._rollout_inputs(args.batch)
         w = sur.weights(mu[:, None], dt)
-        modules = {"this tree": _fastkernels}
+        modules = {"this tree": this_tree()}
         if args.against:
             modules[args.against] = load_revision(args.against, Path(tmp))
         for label, module in modules.items():  # compile and warm up

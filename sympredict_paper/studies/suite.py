@@ -63,7 +63,10 @@ from pymor.core.logger import set_log_levels  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _protocol  # noqa: E402  (sympredict_paper/studies/_protocol.py)
 
-from sympredict import SymplecticKernelPredictor, _fastkernels  # noqa: E402
+from sympredict import SymplecticKernelPredictor  # noqa: E402
+from sympredict import _numba  # noqa: E402
+from sympredict.interpolation import _compiled as compiled_surrogate  # noqa: E402
+from sympredict.symplectic import _compiled_newton  # noqa: E402
 from sympredict.data import mixed_variables  # noqa: E402
 from sympredict.interpolation.functionals import HBFunctionals, functional_residuals  # noqa: E402
 from sympredict.interpolation.greedy import GreedyHistory, active_set_greedy, greedy_interpolation  # noqa: E402
@@ -236,7 +239,7 @@ def section_rollout(model, batch: int = 1000, steps_fast: int = 100, steps_numpy
     x0, mu, dt = _rollout_inputs(batch)
     out = {"n_centers": model.n_centers_, "batch": batch}
     for backend, steps in (("numba", steps_fast), ("numpy", steps_numpy)):
-        if backend == "numba" and not _fastkernels.HAVE_NUMBA:
+        if backend == "numba" and not _numba.HAVE_NUMBA:
             out[backend] = None
             continue
         model.set_params(solver__backend=backend)
@@ -259,13 +262,13 @@ def section_rollout(model, batch: int = 1000, steps_fast: int = 100, steps_numpy
     ref = model.rollout(x0[sub], k, mu=mu[sub], dt=dt[sub])
     single = np.stack([model.rollout(x0[i], k, mu=mu[i], dt=dt[i]) for i in range(20)])
     out["numpy_batch_vs_single_max_diff"] = float(np.abs(single - ref[:20]).max())
-    if _fastkernels.HAVE_NUMBA:
+    if _numba.HAVE_NUMBA:
         model.set_params(solver__backend="numba")
         fast = model.rollout(x0[sub], k, mu=mu[sub], dt=dt[sub])
         out["numba_vs_numpy_max_diff"] = float(np.abs(fast - ref).max())
         out["speedup_batch"] = out["numba"]["traj_steps_per_s"] / out["numpy"]["traj_steps_per_s"]
     sur = model.surrogate_
-    if _fastkernels.HAVE_NUMBA:
+    if _numba.HAVE_NUMBA:
         # compute bound: passes over the centres per step, time per centre visit against the
         # kernel-factor loop alone (one division, two square roots per centre).  Both timed as the
         # minimum of short samples (10 instances x 20 steps; the factor loop on one chunk in L1),
@@ -278,13 +281,13 @@ def section_rollout(model, batch: int = 1000, steps_fast: int = 100, steps_numpy
         passes = {}
         for key, kw in cases.items():
             stats = {}
-            _fastkernels.newton_rollout(x0[sub], w[sub], dt[sub], layout, sur.kernel.state, 50, 20, parallel=False,
+            _compiled_newton.newton_rollout(x0[sub], w[sub], dt[sub], layout, sur.kernel.state, 50, 20, parallel=False,
                                         stats=stats, **kw)
             passes[key] = float(stats["passes"].sum())
         factor_samples = []  # the factor probe times itself; it runs interleaved with the passes
-        runs = {key: (lambda kw=kw: _fastkernels.newton_rollout(x0[sub], w[sub], dt[sub], layout, sur.kernel.state, 50, 20,
+        runs = {key: (lambda kw=kw: _compiled_newton.newton_rollout(x0[sub], w[sub], dt[sub], layout, sur.kernel.state, 50, 20,
                                                                  parallel=False, **kw)) for key, kw in cases.items()}
-        runs["factor"] = lambda: factor_samples.append(_fastkernels.factor_throughput(n=1 << 18, repeats=1, in_cache=True))
+        runs["factor"] = lambda: factor_samples.append(compiled_surrogate.factor_throughput(n=1 << 18, repeats=1, in_cache=True))
         timed = _protocol.side_by_side(runs, repeats=30, warmup=0, statistic="min_s")["methods"]
         t1 = {key: timed[key]["min_s"] for key in cases}
         t_factor = min(factor_samples)
@@ -296,7 +299,7 @@ def section_rollout(model, batch: int = 1000, steps_fast: int = 100, steps_numpy
         out["compute_bound"] = {
             **cb["cold"],
             "ns_per_factor_evaluation_1_thread": 1e9 * t_factor,
-            "ns_per_factor_evaluation_1M_median": 1e9 * _fastkernels.factor_throughput(),
+            "ns_per_factor_evaluation_1M_median": 1e9 * compiled_surrogate.factor_throughput(),
             "warm": cb["warm"],
             # the midpoint solver's pass (full Hessian, 2n unknowns) on the same centres: its cost, not its accuracy
             # (the model was trained for the symplectic-Euler update)
@@ -328,7 +331,7 @@ def section_scaling(model, repeats: int = 3) -> dict:
     out = {}
     # rollout cost vs centres (prefixes of one greedy run) and vs batch, compiled path
     x0, mu, dt = _rollout_inputs(1000)
-    if _fastkernels.HAVE_NUMBA:
+    if _numba.HAVE_NUMBA:
         ms = [100, 200, 400, 800, 1500]
         t_m = []
         for m in ms:
@@ -356,11 +359,11 @@ def section_scaling(model, repeats: int = 3) -> dict:
             pts = np.random.default_rng(1).uniform(-1, 1, (400, dim))
             w = sur.weights(np.full((1, 1), 0.5), np.ones(1))
             grp = np.zeros(len(pts), dtype=np.int64)
-            _fastkernels.gradients(pts[:10], grp[:10], w, lay, IMQ(0.5))
-            t_d.append(median_time(lambda: _fastkernels.gradients(pts, grp, w, lay, IMQ(0.5)), repeats) / len(pts))
+            compiled_surrogate.gradients(pts[:10], grp[:10], w, lay, IMQ(0.5))
+            t_d.append(median_time(lambda: compiled_surrogate.gradients(pts, grp, w, lay, IMQ(0.5)), repeats) / len(pts))
             wb = np.ascontiguousarray(np.repeat(w, len(pts), axis=0))
             h = np.full(len(pts), 0.01)
-            run = lambda: _fastkernels.newton_rollout(pts, wb, h, lay, IMQ(0.5), 50, 5)  # noqa: E731
+            run = lambda: _compiled_newton.newton_rollout(pts, wb, h, lay, IMQ(0.5), 50, 5)  # noqa: E731
             run()
             t_s.append(median_time(run, repeats) / (len(pts) * 5))
             t_dn.append(median_time(lambda: sur.newton_terms(pts[:200], wb[:200]), repeats) / 200)
@@ -492,7 +495,7 @@ def section_wave(seed: int = 0, basis_blas_threads: int = 1) -> dict:
         "online": {"dt": dt, "n_steps": n_steps, "batch": len(x0)},
     }
     for backend in ("numba", "numpy"):
-        if backend == "numba" and not _fastkernels.HAVE_NUMBA:
+        if backend == "numba" and not _numba.HAVE_NUMBA:
             continue
         model.set_params(solver__backend=backend)
         model.rollout(x0[:2], 1, mu=c**2)

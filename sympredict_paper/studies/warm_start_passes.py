@@ -16,7 +16,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _protocol  # noqa: E402  (sympredict_paper/studies/_protocol.py)
-from sympredict import SymplecticKernelPredictor, _fastkernels  # noqa: E402
+from sympredict import SymplecticKernelPredictor  # noqa: E402
+from sympredict.symplectic import _compiled_newton  # noqa: E402
 from sympredict_paper.pendulum import paper_test_instances  # noqa: E402
 from sympredict.kernels import IMQ  # noqa: E402
 from sympredict.symplectic.metrics import relative_trajectory_error  # noqa: E402
@@ -42,7 +43,7 @@ def main(argv=None) -> dict:
             trajs = {}
             for warm in (False, True):
                 stats = {}
-                traj, codes, *_ = _fastkernels.newton_rollout(x0, w, dts, sur.layout(), sur.kernel.state, 50, 400,
+                traj, codes, *_ = _compiled_newton.newton_rollout(x0, w, dts, sur.layout(), sur.kernel.state, 50, 400,
                                                               stats=stats, warm_start=warm)
                 trajs[warm] = traj
                 err = np.median(relative_trajectory_error(traj, ref).mean(axis=0)[1:])

@@ -178,17 +178,17 @@ def test_four_dimensional_step_jacobian_is_the_derivative_of_step(rng):
 def compiled_newton_passes(model, x, mu, dt, n_steps):
     """Passes over the centres per instance of the compiled rollout, shape (B,).
 
-    The one place that calls :func:`sympredict._fastkernels.newton_rollout` with ``stats``
+    The one place that calls :func:`sympredict.symplectic._compiled_newton.newton_rollout` with ``stats``
     (no public predictor API reports Newton iterations); adapt here when its arguments change.
     """
-    from sympredict import _fastkernels
+    from sympredict.symplectic import _compiled_newton
 
     sur = model.surrogate_
     dt = np.full(len(x), float(dt))
     weights = sur.weights(np.full((len(x), 1), float(mu)), dt)
     stats = {}
-    _fastkernels.newton_rollout(x, weights, dt, sur.layout(), sur.kernel.state, model._newton_iterations(), n_steps,
-                                stats=stats)
+    _compiled_newton.newton_rollout(x, weights, dt, sur.layout(), sur.kernel.state, model._newton_iterations(), n_steps,
+                                    stats=stats)
     return stats["passes"]
 
 
@@ -198,9 +198,9 @@ def test_compiled_newton_converges_in_three_iterations_from_the_explicit_guess(p
 
     A wrong guess (e.g. ``p0 + dT d_q s``: error O(dT)) needs 4-6 Newton passes on most instances.
     """
-    from sympredict import _fastkernels
+    from sympredict import _numba
 
-    if not _fastkernels.HAVE_NUMBA:
+    if not _numba.HAVE_NUMBA:
         pytest.fail("numba is part of the test extra: pip install -e '.[test]'")
     x = np.column_stack([rng.uniform(-1, 1, 20), rng.uniform(-2, 2, 20)])
     n_steps = 10

@@ -15,7 +15,10 @@ import pytest
 
 from sympredict.exceptions import extrapolation_expected
 from sympredict import NewtonConvergenceError, SymplecticKernelPredictor
-from sympredict import _fastkernels
+from sympredict import _numba
+from sympredict.interpolation import _compiled as compiled_surrogate
+from sympredict.interpolation.greedy import _compiled as compiled_greedy
+from sympredict.symplectic import _compiled_newton
 from sympredict.interpolation.functionals import HBFunctionals
 from sympredict.interpolation.greedy import ActiveSetGreedy, DenseStore, ExactGreedy, greedy_interpolation, run_greedy
 from sympredict.symplectic.integrators import implicit_midpoint_step, integrate
@@ -25,7 +28,7 @@ from sympredict.symplectic.solvers import NewtonSolver
 
 from _surrogate_oracles import check_rollouts_agree_to_the_floor, pendulum_queries, with_backend  # tests/
 
-needs_numba = pytest.mark.skipif(not _fastkernels.HAVE_NUMBA, reason="numba not installed (pip install sympredict[fast])")
+needs_numba = pytest.mark.skipif(not _numba.HAVE_NUMBA, reason="numba not installed (pip install sympredict[fast])")
 
 
 _queries = pendulum_queries
@@ -120,12 +123,12 @@ def test_compiled_rollout_is_bit_reproducible_across_batches_and_threads(small_p
     full = model.rollout(x, 10, mu=mu, dt=dt)
     single = np.stack([model.rollout(x[i], 10, mu=mu[i], dt=dt[i]) for i in range(len(x))])
     np.testing.assert_array_equal(full, single)
-    before = _fastkernels.get_num_threads()
+    before = _numba.get_num_threads()
     try:
-        _fastkernels.set_num_threads(1)
+        _numba.set_num_threads(1)
         np.testing.assert_array_equal(model.rollout(x, 10, mu=mu, dt=dt), full)
     finally:
-        _fastkernels.set_num_threads(before)
+        _numba.set_num_threads(before)
 
 
 @needs_numba
@@ -157,9 +160,9 @@ def test_backend_argument_checked(small_pendulum_model, small_pendulum_data, mon
             d.x0[:20], d.x1[:20], mu=d.mu[:20], dt=d.dt[:20]
         )
     auto = _with_backend(small_pendulum_model, "auto")
-    assert auto._compiled() is _fastkernels.HAVE_NUMBA  # 'auto' compiles exactly when numba is there
+    assert auto._compiled() is _numba.HAVE_NUMBA  # 'auto' compiles exactly when numba is there
     # without numba: 'numba' is refused, 'auto' takes the NumPy reference (and reports it)
-    monkeypatch.setattr(_fastkernels, "HAVE_NUMBA", False)
+    monkeypatch.setattr(_numba, "HAVE_NUMBA", False)
     with pytest.raises(ImportError, match="numba"):
         _with_backend(small_pendulum_model, "numba").step(x, mu=0.75, dt=0.05)
     assert auto._compiled() is False
@@ -309,15 +312,15 @@ def test_matvec_and_rollout_statistics(small_pendulum_model, rng):
     c = rng.standard_normal(37)
     for dtype in (np.float64, np.float32):
         b = basis.astype(dtype)
-        got = _fastkernels.matvec_t(b, 33, c)
+        got = compiled_greedy.matvec_t(b, 33, c)
         np.testing.assert_allclose(got, b[:33].astype(float).T @ c[:33], rtol=1e-12, atol=1e-12)
     sur = small_pendulum_model.surrogate_
     x, mu, dt = _queries(rng, 6)
     stats = {}
-    _fastkernels.newton_rollout(x, sur.weights(mu[:, None], dt), dt, sur.layout(), sur.kernel.state, 50, 4, stats=stats)
+    _compiled_newton.newton_rollout(x, sur.weights(mu[:, None], dt), dt, sur.layout(), sur.kernel.state, 50, 4, stats=stats)
     # per step: one gradient pass for the explicit guess, at least one Newton pass
     assert np.all(stats["passes"] >= 2 * 4) and np.all(stats["passes"] <= 4 * 51)
-    assert 0 < _fastkernels.factor_throughput(n=1 << 12, repeats=1) < 1e-6
+    assert 0 < compiled_surrogate.factor_throughput(n=1 << 12, repeats=1) < 1e-6
 
 
 @needs_numba

@@ -7,7 +7,7 @@ import pytest
 from pymor.parallel.dummy import dummy_pool
 
 from sympredict import SymplecticKernelPredictor
-from sympredict._fastkernels import HAVE_NUMBA
+from sympredict._numba import HAVE_NUMBA
 from sympredict.exceptions import ExtrapolationWarning
 from sympredict.base import clone
 from sympredict.data import FlowMapData, mixed_variables

@@ -9,12 +9,15 @@ import numpy as np
 import pytest
 
 from sympredict.exceptions import extrapolation_expected
-from sympredict import SymplecticKernelPredictor, _fastkernels
+from sympredict import SymplecticKernelPredictor
+from sympredict import _numba
+from sympredict.kernels import _compiled as compiled_kernels
+from sympredict.interpolation import _compiled as compiled_surrogate
 from sympredict.kernels import IMQ, KERNEL_FAMILIES, ProductKernel, RadialKernel, register_family
 from sympredict.interpolation.surrogate import HBSurrogate
 from sympredict.symplectic.solvers import NewtonSolver
 
-needs_numba = pytest.mark.skipif(not _fastkernels.HAVE_NUMBA, reason="numba not installed (pip install sympredict[fast])")
+needs_numba = pytest.mark.skipif(not _numba.HAVE_NUMBA, reason="numba not installed (pip install sympredict[fast])")
 
 
 class Gaussian(RadialKernel):
@@ -76,7 +79,7 @@ def test_compiled_formulas_are_the_numpy_formulas(name, rng):
     family = KERNEL_FAMILIES[name]
     e = 0.7
     r = np.concatenate([[0.0, 1e-200, 1e-120, 1e-8], rng.uniform(0, 6, 200), [1e3, 1e150]])
-    profile, first, third = _fastkernels.compiled_formulas(family)
+    profile, first, third = compiled_kernels.compiled_formulas(family)
     exact = family.exact_arithmetic  # correctly rounded operations only: bit for bit
     check = np.testing.assert_array_equal if exact else (lambda a, b: np.testing.assert_allclose(a, b, rtol=1e-14, atol=1e-300))
     check(np.array([profile(e, v) for v in r]), family.profile(e, r))
@@ -95,7 +98,7 @@ def test_compiled_formulas_stay_exact_after_the_fastmath_pass_compiles(name, rng
     that on disk: the formulas then differ from NumPy by an ulp for every later caller and process (seen in CI).
     """
     family = KERNEL_FAMILIES[name]
-    for formula in _fastkernels.compiled_formulas(family):
+    for formula in compiled_kernels.compiled_formulas(family):
         assert formula.targetoptions.get("fastmath") is False
     kernel = family(0.7)
     x0 = rng.uniform(-1, 1, (40, 2))
@@ -104,7 +107,7 @@ def test_compiled_formulas_stay_exact_after_the_fastmath_pass_compiles(name, rng
     with extrapolation_expected():
         model.rollout(x0[:4], 2, dt=0.1)  # compiles the fastmath pass with this family's formulas
     r = rng.uniform(0, 6, 100)
-    third = _fastkernels.compiled_formulas(family)[2]
+    third = compiled_kernels.compiled_formulas(family)[2]
     check = np.testing.assert_array_equal if family.exact_arithmetic else (
         lambda a, b: np.testing.assert_allclose(a, b, rtol=1e-14, atol=1e-300))
     for got, want in zip(zip(*[third(0.7, v) for v in r]), family.all_factors(0.7, r)):
@@ -123,13 +126,13 @@ def test_compiled_gradient_and_hessian_equal_numpy(name, dim, rng):
     xi = rng.normal(size=(9, dim))
     w = sur.weights(rng.normal(size=(9, 1)), np.ones(9))
     g_ref, h_ref, f_ref = sur.newton_terms(xi, w)
-    g, h, f = _fastkernels.newton_terms(xi, w, sur.layout(), kernel)
+    g, h, f = compiled_surrogate.newton_terms(xi, w, sur.layout(), kernel)
     scale = np.abs(w).sum(axis=1).max() * 10  # round-off scale of the sums
     np.testing.assert_allclose(g, g_ref, rtol=0, atol=1e-14 * scale)
     np.testing.assert_allclose(h, h_ref, rtol=0, atol=1e-14 * scale)
     np.testing.assert_allclose(f, f_ref, rtol=1e-12)
     # the gradients of all points (the active-set refreshes) too
-    grad = _fastkernels.gradients(xi, np.zeros(9, dtype=np.int64), w[:1], sur.layout(), kernel)
+    grad = compiled_surrogate.gradients(xi, np.zeros(9, dtype=np.int64), w[:1], sur.layout(), kernel)
     np.testing.assert_allclose(grad[:1], sur.gradient(xi[:1], w[:1]), rtol=0, atol=1e-14 * scale)
 
 

@@ -10,7 +10,9 @@ from functools import partial
 import numpy as np
 import pytest
 
-from sympredict import SymplecticKernelPredictor, _fastkernels
+from sympredict import SymplecticKernelPredictor
+from sympredict import _numba
+from sympredict.interpolation import _compiled as compiled_surrogate
 from sympredict.base import clone
 from sympredict.exceptions import ExtrapolationWarning
 from sympredict.interpolation.functionals import HBFunctionals, functional_residuals
@@ -106,8 +108,8 @@ def test_surrogate_value_gradient_hessian_by_finite_differences(dim, periodic, s
         g_s, h_s = sur.gradient_hessian(xi + s, w)
         np.testing.assert_allclose(g_s, grad, atol=1e-13 * (1 + abs(k)) * np.abs(coef).sum())
         np.testing.assert_allclose(h_s, hess, atol=1e-12 * (1 + abs(k)) * np.abs(coef).sum())
-    if _fastkernels.HAVE_NUMBA:  # the compiled pass: the same gradient, Hessian and floor (another summation order)
-        g_c, h_c, f_c = _fastkernels.newton_terms(xi, w, sur.layout(), kernel.state, full=True)
+    if _numba.HAVE_NUMBA:  # the compiled pass: the same gradient, Hessian and floor (another summation order)
+        g_c, h_c, f_c = compiled_surrogate.newton_terms(xi, w, sur.layout(), kernel.state, full=True)
         np.testing.assert_allclose(g_c, grad, rtol=0, atol=1e-13 * np.abs(w).sum(axis=1).max())
         np.testing.assert_allclose(h_c, hess, rtol=0, atol=1e-13 * np.abs(w).sum(axis=1).max())
         np.testing.assert_allclose(f_c, floor, rtol=1e-12)
@@ -206,7 +208,7 @@ def test_backends_and_settings(data):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ExtrapolationWarning)  # 60 samples: a rollout soon leaves them
         assert_same_predictions(model, ref, x0[:3], 5)  # auto may run compiled once this process has loaded it
-        if _fastkernels.HAVE_NUMBA:  # periodic coordinates run compiled (tests/kernels/test_transforms_compiled.py)
+        if _numba.HAVE_NUMBA:  # periodic coordinates run compiled (tests/kernels/test_transforms_compiled.py)
             assert_same_predictions(copy.copy(ref).set_params(solver__backend="numba"), ref, x0[:3], 5)
     for bad in ((2,), (0, 0), (-1,), "0", (0.0,), (True,)):
         with pytest.raises(ValueError, match="periodic"):

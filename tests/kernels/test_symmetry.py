@@ -9,7 +9,9 @@ from functools import partial
 import numpy as np
 import pytest
 
-from sympredict import DirectKernelPredictor, SymplecticKernelPredictor, _fastkernels
+from sympredict import DirectKernelPredictor, SymplecticKernelPredictor
+from sympredict import _numba
+from sympredict.interpolation import _compiled as compiled_surrogate
 from sympredict.base import clone
 from sympredict.exceptions import ExtrapolationWarning, ModelFileError
 from sympredict.interpolation.functionals import HBFunctionals, ValueFunctionals, dense_interpolation, functional_residuals
@@ -95,8 +97,8 @@ def test_surrogate_value_gradient_hessian_by_finite_differences(dim, group, stat
         grad_g, hess_g, floor_g = sur.gradient_hessian(gx, w, with_floor=True)
         assert np.all(np.abs(grad_g - grad @ g.T).max(axis=1) <= 10 * (floor + floor_g) + 1e-15)
         np.testing.assert_allclose(hess_g, g @ hess @ g.T, atol=1e-13 * np.abs(hess).max())
-    if _fastkernels.HAVE_NUMBA:  # the compiled pass: the same gradient, Hessian and floor (another summation order)
-        g_c, h_c, f_c = _fastkernels.newton_terms(xi, w, sur.layout(), kernel.state, full=True)
+    if _numba.HAVE_NUMBA:  # the compiled pass: the same gradient, Hessian and floor (another summation order)
+        g_c, h_c, f_c = compiled_surrogate.newton_terms(xi, w, sur.layout(), kernel.state, full=True)
         np.testing.assert_allclose(g_c, grad, rtol=0, atol=1e-13 * np.abs(w).sum(axis=1).max())
         np.testing.assert_allclose(h_c, hess, rtol=0, atol=1e-13 * np.abs(w).sum(axis=1).max())
         np.testing.assert_allclose(f_c, floor, rtol=1e-12)
@@ -299,7 +301,7 @@ def test_refused_input(data):
     with pytest.raises(ValueError, match="state_scaling"):
         _model(symmetry=_mode_swap(), state_scaling=(1.0, 2.0)).fit(x4, x4 + 0.01, dt=DT)
     _model(symmetry=_mode_swap(), state_scaling=(2.0, 2.0), max_centers=10).fit(x4, x4 + 0.01, dt=DT)
-    if _fastkernels.HAVE_NUMBA:  # a symmetric model runs compiled (tests/kernels/test_transforms_compiled.py)
+    if _numba.HAVE_NUMBA:  # a symmetric model runs compiled (tests/kernels/test_transforms_compiled.py)
         assert _model(backend="numba", max_centers=20).fit(x0, x1, dt=DT).numpy_only_ is None
     # Periodic with Symmetric: the group must map periodic coordinates onto ones of the same period
     with pytest.raises(ValueError, match="same period"):
@@ -311,7 +313,7 @@ def test_refused_input(data):
     with pytest.raises(ValueError, match="direct model"):
         ValueFunctionals(ProductKernel(IMQ(1.0), symmetry=StateSymmetry.from_signs(KLEIN)), x0, np.zeros((60, 0)), np.full(60, DT))
     model = _model(max_centers=20).fit(x0, x1, dt=DT)
-    if _fastkernels.HAVE_NUMBA:
+    if _numba.HAVE_NUMBA:
         assert_same_predictions(copy.copy(model).set_params(solver__backend="numba"), model, x0[:2], 3)
     assert "symmetry" not in DirectKernelPredictor().get_params()
 

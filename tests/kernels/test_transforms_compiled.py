@@ -14,7 +14,9 @@ import numpy as np
 import pytest
 from scipy.linalg import expm
 
-from sympredict import SymplecticKernelPredictor, _fastkernels
+from sympredict import SymplecticKernelPredictor
+from sympredict import _numba
+from sympredict.interpolation import _compiled as compiled_surrogate
 from sympredict.estimators.predictor import NUMPY_ONLY
 from sympredict.exceptions import ExtrapolationWarning
 from sympredict.kernels import IMQ, Matern52, PeriodicCoordinates, ProductKernel, StateSymmetry
@@ -25,7 +27,7 @@ from sympredict.symplectic.updates import Midpoint, SymplecticEuler
 
 from _surrogate_oracles import check_rollouts_agree_to_the_floor, pendulum_queries, with_backend  # tests/
 
-pytestmark = pytest.mark.skipif(not _fastkernels.HAVE_NUMBA, reason="the compiled solver needs numba (optional extra)")
+pytestmark = pytest.mark.skipif(not _numba.HAVE_NUMBA, reason="the compiled solver needs numba (optional extra)")
 
 KLEIN = [(1, 1), (-1, -1), (1, -1), (-1, 1)]
 
@@ -133,20 +135,20 @@ def test_compiled_pass_equals_numpy_for_transformed_kernels(dim, transform, rng)
                                                                                       tuple(1.5 + np.arange(dim))))
     m = 1500
     sur = _surrogate(kernel, dim, m, rng)
-    assert np.diff(sur.layout().seg).max() > _fastkernels.chunk_size(dim)
+    assert np.diff(sur.layout().seg).max() > compiled_surrogate.chunk_size(dim)
     xi = rng.uniform(-1.5, 1.5, (5, dim))
     w = sur.weights(rng.uniform(0, 1, (5, 1)), np.ones(5))
     g_ref, h_ref, f_ref = sur.gradient_hessian(xi, w, with_floor=True)
     scale = np.abs(w).sum(axis=1).max() * 10  # the terms are O(|w|): round-off of sums of ~m of them
-    g, h, f = _fastkernels.newton_terms(xi, w, sur.layout(), kernel.state, full=True)
+    g, h, f = compiled_surrogate.newton_terms(xi, w, sur.layout(), kernel.state, full=True)
     np.testing.assert_allclose(g, g_ref, rtol=0, atol=1e-14 * scale)
     np.testing.assert_allclose(h, h_ref, rtol=0, atol=1e-14 * scale)
     np.testing.assert_allclose(f, f_ref, rtol=1e-12)
     n = dim // 2
-    gb, hb, fb = _fastkernels.newton_terms(xi, w, sur.layout(), kernel.state)
+    gb, hb, fb = compiled_surrogate.newton_terms(xi, w, sur.layout(), kernel.state)
     np.testing.assert_allclose(gb, g_ref, rtol=0, atol=1e-14 * scale)
     np.testing.assert_allclose(hb, h_ref[:, :n, n:], rtol=0, atol=1e-14 * scale)
-    grad = _fastkernels.gradients(xi, np.zeros(5, dtype=np.int64), w[:1], sur.layout(), kernel.state)
+    grad = compiled_surrogate.gradients(xi, np.zeros(5, dtype=np.int64), w[:1], sur.layout(), kernel.state)
     np.testing.assert_allclose(grad[:1], g_ref[:1], rtol=0, atol=1e-14 * scale)
     assert np.abs(h_ref).max() > 1e-3 * scale / 10  # not a vanishing Hessian
 
@@ -159,15 +161,15 @@ def test_compiled_gradient_is_periodic_and_invariant(rng):
     xi = rng.uniform(-1, 1, (4, 4))
     w = sur.weights(np.full((4, 1), 0.5), np.ones(4))
     shifted = xi + np.array([0.0, 2.0, 0.0, 0.0])
-    g0, _, _ = _fastkernels.newton_terms(xi, w, sur.layout(), per.state, full=True)
-    g1, _, _ = _fastkernels.newton_terms(shifted, w, sur.layout(), per.state, full=True)
+    g0, _, _ = compiled_surrogate.newton_terms(xi, w, sur.layout(), per.state, full=True)
+    g1, _, _ = compiled_surrogate.newton_terms(shifted, w, sur.layout(), per.state, full=True)
     np.testing.assert_allclose(g1, g0, rtol=0, atol=1e-12 * np.abs(g0).max())
     flip = np.array([1.0, -1.0, 1.0, -1.0])
     sym = ProductKernel(IMQ(0.5), IMQ(1.0), symmetry=StateSymmetry.from_signs([np.ones(4), flip]))
     sur = _surrogate(sym, 4, 300, rng)
     w = sur.weights(np.full((4, 1), 0.5), np.ones(4))
-    g0, _, _ = _fastkernels.newton_terms(xi, w, sur.layout(), sym.state, full=True)
-    g1, _, _ = _fastkernels.newton_terms(xi * flip, w, sur.layout(), sym.state, full=True)
+    g0, _, _ = compiled_surrogate.newton_terms(xi, w, sur.layout(), sym.state, full=True)
+    g1, _, _ = compiled_surrogate.newton_terms(xi * flip, w, sur.layout(), sym.state, full=True)
     np.testing.assert_allclose(g1, g0 * flip, rtol=0, atol=1e-12 * np.abs(g0).max())
 
 
@@ -226,7 +228,7 @@ def test_periodic_symmetric_kernel_by_finite_differences_and_compiled(dim, rng):
     shift[0] = 2.5
     np.testing.assert_allclose(sur.gradient(xi + 3 * shift, w), grad, atol=1e-12 * np.abs(coef).sum())
     np.testing.assert_allclose(sur.value(-xi, w), sur.value(xi, w), atol=1e-13 * np.abs(coef).sum())
-    g_c, h_c, f_c = _fastkernels.newton_terms(xi, w, sur.layout(), kernel.state, full=True)
+    g_c, h_c, f_c = compiled_surrogate.newton_terms(xi, w, sur.layout(), kernel.state, full=True)
     np.testing.assert_allclose(g_c, grad, rtol=0, atol=1e-13 * np.abs(w).sum(axis=1).max())
     np.testing.assert_allclose(h_c, hess, rtol=0, atol=1e-13 * np.abs(w).sum(axis=1).max())
     np.testing.assert_allclose(f_c, floor, rtol=1e-12)

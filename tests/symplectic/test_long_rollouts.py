@@ -11,7 +11,9 @@ import time
 import numpy as np
 import pytest
 
-from sympredict import DirectKernelPredictor, SymplecticKernelPredictor, _fastkernels
+from sympredict import DirectKernelPredictor, SymplecticKernelPredictor
+from sympredict import _numba
+from sympredict.symplectic import _compiled_newton
 from sympredict.symplectic import newton
 from sympredict.exceptions import NewtonConvergenceError, RolloutMemoryError
 from sympredict.kernels import IMQ
@@ -144,26 +146,26 @@ def test_auto_picks_numpy_for_small_work_and_compiled_for_large(small_pendulum_m
 
     model = copy.copy(small_pendulum_model).set_params(solver__backend="auto")
     m, dim = model.n_centers_, model.dim_
-    monkeypatch.setattr(_fastkernels, "rollout_loaded", lambda: False)  # a fresh process
+    monkeypatch.setattr(_compiled_newton, "rollout_loaded", lambda: False)  # a fresh process
     assert predictor.numpy_seconds(20, 100, m, dim) < predictor.AUTO_NUMPY_SECONDS
     with caplog.at_level(logging.DEBUG, logger="sympredict.estimators.predictor"):
         assert model.backend_for(20, 100) == "numpy"
     assert "backend='auto': NumPy" in caplog.text
     assert model.backend_for(1000, 1000) == "numba"
     # once this process has the compiled rollout loaded, it costs nothing more: 'auto' uses it
-    monkeypatch.setattr(_fastkernels, "rollout_loaded", lambda: True)
+    monkeypatch.setattr(_compiled_newton, "rollout_loaded", lambda: True)
     assert model.backend_for(1, 1) == "numba"
     # the named backends decide alone; NumPy-only settings keep 'auto' on NumPy
     assert copy.copy(model).set_params(solver__backend="numpy").backend_for(10**6, 10**6) == "numpy"
     assert copy.copy(model).set_params(solver__backend="numba").backend_for(1, 1) == "numba"
-    monkeypatch.setattr(_fastkernels, "HAVE_NUMBA", False)
+    monkeypatch.setattr(_numba, "HAVE_NUMBA", False)
     assert model.backend_for(10**6, 10**6) == "numpy"
 
 
 def test_auto_runs_what_it_reports(small_pendulum_model, monkeypatch):
     model = copy.copy(small_pendulum_model).set_params(solver__backend="auto")
     ran = []
-    monkeypatch.setattr(_fastkernels, "rollout_loaded", lambda: False)
+    monkeypatch.setattr(_compiled_newton, "rollout_loaded", lambda: False)
     import sympredict.estimators.predictor as predictor
     import sympredict.symplectic.solvers as solvers
 

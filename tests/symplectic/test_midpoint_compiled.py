@@ -11,7 +11,10 @@ import numpy as np
 import pytest
 from scipy.linalg import expm
 
-from sympredict import NewtonConvergenceError, SymplecticKernelPredictor, _fastkernels
+from sympredict import NewtonConvergenceError, SymplecticKernelPredictor
+from sympredict import _numba
+from sympredict.interpolation import _compiled as compiled_surrogate
+from sympredict.symplectic import _compiled_newton
 from sympredict.exceptions import extrapolation_expected
 from sympredict.kernels import IMQ, ProductKernel
 from sympredict.symplectic.metrics import canonical_J
@@ -22,7 +25,7 @@ from sympredict.symplectic.solvers import NewtonSolver
 
 from _surrogate_oracles import check_rollouts_agree_to_the_floor, pendulum_queries, with_backend  # tests/
 
-pytestmark = pytest.mark.skipif(not _fastkernels.HAVE_NUMBA, reason="the compiled rollout needs numba (optional extra)")
+pytestmark = pytest.mark.skipif(not _numba.HAVE_NUMBA, reason="the compiled rollout needs numba (optional extra)")
 
 
 _with_backend = with_backend
@@ -151,7 +154,7 @@ def test_compiled_midpoint_warm_start(pendulum_mid, rng):
     runs = {}
     for warm in (False, True):
         stats = {}
-        traj, codes, *_ = _fastkernels.newton_rollout(x, w, dt, sur.layout(), sur.kernel.state, 50, 100, stats=stats,
+        traj, codes, *_ = _compiled_newton.newton_rollout(x, w, dt, sur.layout(), sur.kernel.state, 50, 100, stats=stats,
                                                       warm_start=warm, update="midpoint")
         assert np.all(codes == 0)
         runs[warm] = (traj, stats["passes"])
@@ -196,22 +199,22 @@ def test_compiled_pass_equals_numpy_gradient_hessian(dim, rng):
     """Gradient, Hessian block, full Hessian and floor of the compiled pass against NumPy; several chunks per component."""
     m = 1200
     sur = _synthetic(dim, m, rng, big_segment=400)
-    assert np.diff(sur.layout().seg).max() > _fastkernels.chunk_size(dim)
+    assert np.diff(sur.layout().seg).max() > compiled_surrogate.chunk_size(dim)
     xi = rng.uniform(-1, 1, (5, dim))
     w = sur.weights(rng.uniform(0, 1, (5, 1)), np.ones(5))
     g_ref, h_ref, f_ref = sur.gradient_hessian(xi, w, with_floor=True)
     scale = np.abs(w).sum(axis=1).max() * 10
-    g, h, f = _fastkernels.newton_terms(xi, w, sur.layout(), IMQ(0.5), full=True)
+    g, h, f = compiled_surrogate.newton_terms(xi, w, sur.layout(), IMQ(0.5), full=True)
     np.testing.assert_allclose(g, g_ref, rtol=0, atol=1e-14 * scale)
     np.testing.assert_allclose(h, h_ref, rtol=0, atol=1e-14 * scale)
     np.testing.assert_array_equal(h, h.transpose(0, 2, 1))
     np.testing.assert_allclose(f, f_ref, rtol=1e-12)
-    gb, hb, fb = _fastkernels.newton_terms(xi, w, sur.layout(), IMQ(0.5))
+    gb, hb, fb = compiled_surrogate.newton_terms(xi, w, sur.layout(), IMQ(0.5))
     n = dim // 2
     np.testing.assert_allclose(gb, g_ref, rtol=0, atol=1e-14 * scale)
     np.testing.assert_allclose(hb, h_ref[:, :n, n:], rtol=0, atol=1e-14 * scale)
     np.testing.assert_allclose(fb, f_ref, rtol=1e-12)
-    grad = _fastkernels.gradients(xi, np.zeros(5, dtype=np.int64), w[:1], sur.layout(), IMQ(0.5))
+    grad = compiled_surrogate.gradients(xi, np.zeros(5, dtype=np.int64), w[:1], sur.layout(), IMQ(0.5))
     np.testing.assert_allclose(grad[:1], g_ref[:1], rtol=0, atol=1e-14 * scale)
 
 
@@ -232,9 +235,9 @@ def test_compiled_rollouts_equal_numpy_at_2n_40(update, rng):
 
 def test_chunk_size_keeps_the_scratch_in_l1():
     for dim in (2, 4, 10, 20, 40, 80):
-        c = _fastkernels.chunk_size(dim)
-        assert c % 8 == 0 and 32 <= c <= _fastkernels.CHUNK
-        assert (dim + 6) * c <= _fastkernels.SCRATCH_DOUBLES or c == 32
-    assert _fastkernels.chunk_size(2) == _fastkernels.CHUNK
+        c = compiled_surrogate.chunk_size(dim)
+        assert c % 8 == 0 and 32 <= c <= compiled_surrogate.CHUNK
+        assert (dim + 6) * c <= compiled_surrogate.SCRATCH_DOUBLES or c == 32
+    assert compiled_surrogate.chunk_size(2) == compiled_surrogate.CHUNK
     with pytest.raises(ValueError, match="update"):
-        _fastkernels.newton_rollout(np.zeros((1, 2)), np.zeros((1, 1)), np.ones(1), None, IMQ(1.0), 5, 1, update="leapfrog")
+        _compiled_newton.newton_rollout(np.zeros((1, 2)), np.zeros((1, 1)), np.ones(1), None, IMQ(1.0), 5, 1, update="leapfrog")

@@ -19,7 +19,8 @@ import copy
 import numpy as np
 import pytest
 
-from sympredict import NewtonConvergenceError, SymplecticKernelPredictor, _fastkernels
+from sympredict import NewtonConvergenceError, SymplecticKernelPredictor
+from sympredict import _numba
 from sympredict.interpolation.greedy import ExactGreedy
 from sympredict.symplectic import newton
 from sympredict.symplectic.solvers import NewtonSolver
@@ -28,7 +29,7 @@ from sympredict.kernels import IMQ
 
 from _tolerances import rollout_bound  # tests/
 
-pytestmark = pytest.mark.skipif(not _fastkernels.HAVE_NUMBA, reason="the compiled rollout needs numba (optional extra)")
+pytestmark = pytest.mark.skipif(not _numba.HAVE_NUMBA, reason="the compiled rollout needs numba (optional extra)")
 
 BACKENDS = ("numpy", "numba")
 

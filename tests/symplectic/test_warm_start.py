@@ -5,11 +5,12 @@ import copy
 import numpy as np
 import pytest
 
-from sympredict import _fastkernels
+from sympredict import _numba
+from sympredict.symplectic import _compiled_newton
 from sympredict_paper.pendulum import paper_test_instances
 from _tolerances import newton_step_bound  # tests/
 
-pytestmark = pytest.mark.skipif(not _fastkernels.HAVE_NUMBA, reason="the compiled rollout needs numba (optional extra)")
+pytestmark = pytest.mark.skipif(not _numba.HAVE_NUMBA, reason="the compiled rollout needs numba (optional extra)")
 
 
 def test_warm_start_saves_passes_and_solves_the_same_equation(small_pendulum_model):
@@ -21,7 +22,7 @@ def test_warm_start_saves_passes_and_solves_the_same_equation(small_pendulum_mod
     runs = {}
     for warm in (False, True):
         stats = {}
-        traj, codes, *_ = _fastkernels.newton_rollout(x0, w, dt, sur.layout(), sur.kernel.state, 50, 200, stats=stats,
+        traj, codes, *_ = _compiled_newton.newton_rollout(x0, w, dt, sur.layout(), sur.kernel.state, 50, 200, stats=stats,
                                                       warm_start=warm)
         assert np.all(codes == 0)
         runs[warm] = (traj, stats["passes"])

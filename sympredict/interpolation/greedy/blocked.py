@@ -56,7 +56,8 @@ from typing import Optional
 import numpy as np
 from scipy.linalg import blas
 
-from sympredict import _fastkernels
+from sympredict import _numba
+from sympredict.interpolation.greedy import _compiled
 from sympredict.interpolation.functionals import HBFunctionals, ValueFunctionals
 from sympredict.interpolation.greedy.dense import abs_residual
 from sympredict.interpolation.greedy.loop import BaseStore, Expansion, check_memory
@@ -72,14 +73,14 @@ def blocked_memory(max_centers: int, n_train: int, n_val: int, block_size: int, 
 def gram_rows(functionals, others, indices: np.ndarray, out: np.ndarray, compiled: bool = False) -> np.ndarray:
     """Gramian rows ``lambda_{i_k}^(1) lambda^(2) k`` (``i_k`` in ``others``) against every functional of ``functionals``.
 
-    One call for the HB functionals: compiled (:func:`sympredict._fastkernels.hb_rows`, a plain kernel) when
+    One call for the HB functionals: compiled (:func:`sympredict.interpolation.greedy._compiled.hb_rows`, a plain kernel) when
     ``compiled``, else :meth:`HBFunctionals.gram_rows`; column by column for sets that have no such method.
     ``out`` has shape (K, N).
     """
     if compiled and isinstance(functionals, HBFunctionals) and isinstance(others, HBFunctionals) \
-            and _fastkernels.hb_rows_supported(functionals.kernel):
+            and _compiled.hb_rows_supported(functionals.kernel):
         pts, comps = np.divmod(np.asarray(indices, dtype=np.int64), others.dim)
-        return _fastkernels.hb_rows(functionals.kernel, functionals.points, functionals.mu, functionals.dt,
+        return _compiled.hb_rows(functionals.kernel, functionals.points, functionals.mu, functionals.dt,
                                     others.points[pts], others.mu[pts], others.dt[pts], comps, out)
     if hasattr(functionals, "gram_rows"):
         return functionals.gram_rows(others, indices, out)
@@ -132,7 +133,7 @@ class BlockedStore(BaseStore):
         A block's next candidate is taken while its criterion is at least
         ``1 - slack`` times the maximum over all candidates (step 4 above).
     compiled
-        The block's Gramian rows by :func:`sympredict._fastkernels.hb_rows` (state-derivative
+        The block's Gramian rows by :func:`sympredict.interpolation.greedy._compiled.hb_rows` (state-derivative
         functionals, a kernel without periodic coordinates or symmetry); default: when numba is
         installed.  NumPy's :meth:`~sympredict.interpolation.functionals.HBFunctionals.gram_rows` otherwise.
 
@@ -158,9 +159,9 @@ class BlockedStore(BaseStore):
         self.block_size = int(block_size)
         self.pool_factor = int(pool_factor)
         self.slack = float(slack)
-        if compiled and not _fastkernels.HAVE_NUMBA:
+        if compiled and not _numba.HAVE_NUMBA:
             raise ImportError("compiled=True needs numba: pip install 'sympredict[fast]'")
-        self.compiled = _fastkernels.HAVE_NUMBA if compiled is None else bool(compiled)
+        self.compiled = _numba.HAVE_NUMBA if compiled is None else bool(compiled)
         self.basis = None
 
     def open(self, expansion: Expansion):

@@ -19,7 +19,8 @@ from typing import Optional
 
 import numpy as np
 
-from sympredict import _fastkernels
+from sympredict import _numba
+from sympredict.interpolation.greedy import _compiled
 from sympredict.interpolation.greedy.loop import BaseStore, Expansion, check_memory
 
 __all__ = ["DenseStore", "abs_residual", "matvec_t"]
@@ -39,8 +40,8 @@ def matvec_t(basis: np.ndarray, m: int, c: np.ndarray) -> np.ndarray:
     ``basis[:m]`` once in column chunks that keep the partial sums in cache;
     else a float32 BLAS product (``m N`` flops either way, ``4 m N`` bytes read).
     """
-    if _fastkernels.HAVE_NUMBA:
-        return _fastkernels.matvec_t(basis, m, c)
+    if _numba.HAVE_NUMBA:
+        return _compiled.matvec_t(basis, m, c)
     return (basis[:m].T @ c.astype(np.float32)).astype(float)
 
 
@@ -64,7 +65,7 @@ class DenseStore(BaseStore):
     basis_dtype
         ``'float64'`` or ``'float32'``.
     compiled
-        Use the compiled fused update pass (:func:`sympredict._fastkernels.greedy_update`,
+        Use the compiled fused update pass (:func:`sympredict.interpolation.greedy._compiled.greedy_update`,
         bit-identical to the NumPy passes) for an f-greedy with one output;
         default: when numba is installed.
     diagonal_max
@@ -105,9 +106,9 @@ class DenseStore(BaseStore):
         self.dtype = np.dtype(basis_dtype)
         self.diagonal_max = diagonal_max
         self.regularization = float(regularization)
-        if compiled and not _fastkernels.HAVE_NUMBA:
+        if compiled and not _numba.HAVE_NUMBA:
             raise ImportError("compiled=True needs numba: pip install 'sympredict[fast]'")
-        self.compiled = _fastkernels.HAVE_NUMBA if compiled is None else bool(compiled)
+        self.compiled = _numba.HAVE_NUMBA if compiled is None else bool(compiled)
         self.basis = None
 
     def open(self, expansion: Expansion):
@@ -126,7 +127,7 @@ class DenseStore(BaseStore):
         self.vrow64 = np.empty(n_val) if self.single and n_val else None
         self.tmp = np.empty(n)
         # with numba the vector work after the matrix-vector product is one fused pass
-        # (_fastkernels.greedy_update, bit-identical to the NumPy code), which also finds the next selection
+        # (_compiled.greedy_update, bit-identical to the NumPy code), which also finds the next selection
         self.fused = self.compiled and self.criterion == "f" and self.n_outputs == 1
         self.zeros = np.zeros(n) if self.fused else None
         self.next_sel = None
@@ -161,8 +162,8 @@ class DenseStore(BaseStore):
                 t = basis[:m].T @ coeffs_j if m else self.zeros
             if self.regularization and j >= 0:
                 row[j] += self.regularization  # column of G + lambda I
-            max_abs, next_j, next_best = _fastkernels.greedy_update(
-                row, t, 1.0 / pj, b[0], self.res[:, 0], self.p2, j, self.breakdown, parallel=_fastkernels.GREEDY_PARALLEL
+            max_abs, next_j, next_best = _compiled.greedy_update(
+                row, t, 1.0 / pj, b[0], self.res[:, 0], self.p2, j, self.breakdown, parallel=_numba.GREEDY_PARALLEL
             )
             self.next_sel = (next_j, next_best)
             if single:

@@ -14,10 +14,12 @@ import sys
 import numpy as np
 import pytest
 
-from sympredict import _fastkernels
+from sympredict import _numba
+from sympredict.kernels import _compiled as compiled_kernels
+from sympredict.interpolation import _compiled as compiled_surrogate
 from sympredict.kernels import KERNEL_FAMILIES, RadialKernel
 
-pytestmark = pytest.mark.skipif(not _fastkernels.HAVE_NUMBA, reason="the compiled kernels need numba (optional extra)")
+pytestmark = pytest.mark.skipif(not _numba.HAVE_NUMBA, reason="the compiled kernels need numba (optional extra)")
 
 #: One serial compiled rollout (IMQ, 2n = 2) in a fresh process; prints what it compiled, loaded and logged.
 SCRIPT = r"""
@@ -33,7 +35,12 @@ class Keep(logging.Handler):
 
 
 logging.getLogger("sympredict").addHandler(Keep())
-from sympredict import _fastkernels as fk
+from sympredict import _numba
+from sympredict.symplectic import _compiled_newton as fk
+
+from sympredict import _numba
+from sympredict.kernels import _compiled as compiled_kernels
+from sympredict.interpolation import _compiled as compiled_surrogate
 from sympredict.kernels import IMQ, ProductKernel
 from sympredict.interpolation.surrogate import HBSurrogate
 
@@ -51,7 +58,7 @@ traj = fk.newton_rollout(x, w, np.full(3, 0.05), sur.layout(), IMQ(0.6), 50, 5, 
 print(json.dumps({
     "traj": traj.tolist(),
     "entry_hits": sum(fk._rollout_serial.stats.cache_hits.values()),
-    "compiled": sorted(d.py_func.__name__ for d in fk._CACHED if sum(d.stats.cache_misses.values())),
+    "compiled": sorted(d.py_func.__name__ for d in _numba.CACHED if sum(d.stats.cache_misses.values())),
     "messages": messages,
 }))
 """
@@ -109,11 +116,11 @@ def test_no_cache_folder_at_all_leaves_a_kernel_uncached_with_one_warning(monkey
     """``cache=True`` raises when no folder is usable (a read-only install); the kernel then compiles uncached."""
     scope = {}
     exec("def twice(x):\n    return 2.0 * x\n", scope)  # no source file: numba finds no cache folder for it
-    monkeypatch.setattr(_fastkernels, "_CACHE_WARNED", False)
-    monkeypatch.setattr(_fastkernels, "_CACHED", [])
+    monkeypatch.setattr(_numba, "_CACHE_WARNED", False)
+    monkeypatch.setattr(_numba, "CACHED", [])
     with caplog.at_level(logging.WARNING, logger="sympredict"):
-        twice = _fastkernels._jit_cached(scope["twice"], _fastkernels._JIT)
-        _fastkernels._jit_cached(scope["twice"], _fastkernels._JIT)
+        twice = _numba.jit_cached(scope["twice"], _numba.JIT)
+        _numba.jit_cached(scope["twice"], _numba.JIT)
     assert twice(1.5) == 3.0
     assert len(caplog.records) == 1 and "disk cache" in caplog.records[0].getMessage()
 
@@ -121,8 +128,8 @@ def test_no_cache_folder_at_all_leaves_a_kernel_uncached_with_one_warning(monkey
 def test_every_family_of_the_package_has_a_code():
     """A family of the package without a code would run on the uncached path (compiled in every process)."""
     own = {f for f in KERNEL_FAMILIES.values() if f.__module__.startswith("sympredict.")}
-    assert own == set(_fastkernels.FAMILY_CODES)
-    assert sorted(_fastkernels.FAMILY_CODES.values()) == list(range(len(own)))
+    assert own == set(compiled_kernels.FAMILY_CODES)
+    assert sorted(compiled_kernels.FAMILY_CODES.values()) == list(range(len(own)))
 
 
 def test_families_from_outside_the_package_stay_out_of_the_disk_cache():
@@ -133,12 +140,35 @@ def test_families_from_outside_the_package_stay_out_of_the_disk_cache():
         def profile(e, r):
             return 1.0 / (1.0 + (e * r) ** 2)
 
-    ns, codes = _fastkernels._kernels(Outside, _fastkernels.IMQ)
+    ns, codes = compiled_kernels.family_kernels(Outside, compiled_kernels.IMQ)
     assert codes == (-1, 0)
     from numba.core.caching import NullCache
 
-    for name, _, _ in _fastkernels._DEFINITIONS:
+    for name, _, _, cached in _numba.DEFINITIONS:
         compiled = getattr(ns, name)
-        assert compiled is not getattr(_fastkernels, name)
+        assert compiled is not cached
         assert isinstance(compiled._cache, NullCache)
-    assert _fastkernels._kernels(_fastkernels.IMQ)[0]._pass is _fastkernels._pass
+    assert compiled_kernels.family_kernels(compiled_kernels.IMQ)[0]._pass is compiled_surrogate._pass
+
+
+def test_numba_is_taken_from_the_policy_module_only():
+    """One numba policy: no library module imports numba or sets numba's disk cache on its own (numba's typing
+    extension for the family codes stays with the code it types)."""
+    import ast
+    from pathlib import Path
+
+    package = Path(_numba.__file__).parent
+    allowed = {package / "_numba.py", package / "kernels" / "_compiled.py"}
+    offenders = []
+    for path in sorted(package.rglob("*.py")):
+        if path in allowed or "paper" in path.relative_to(package).parts:
+            continue
+        tree = ast.parse(path.read_text(), str(path))
+        for node in ast.walk(tree):
+            names = ([a.name for a in node.names] if isinstance(node, ast.Import) else
+                     [node.module or ""] if isinstance(node, ast.ImportFrom) else [])
+            if any(n == "numba" or n.startswith("numba.") for n in names):
+                offenders.append(f"{path.relative_to(package)}:{node.lineno} imports numba")
+            if isinstance(node, ast.keyword) and node.arg == "cache":
+                offenders.append(f"{path.relative_to(package)}:{node.lineno} sets cache=")
+    assert not offenders, offenders
