@@ -219,7 +219,7 @@ FAULTS = [
           "out += w * (-B * d[rows, a] * d[:, c] - (A if g1 is None else A * g1) * (a == c))",
           "out += w * (-B * d[rows, a] * d[:, c] + (A if g1 is None else A * g1) * (a == c))",
           ("tests/kernels/test_symmetry.py",), "group-averaged Gramian diagonal with the wrong sign of the A term"),
-    Fault("S3", "selection", P + "estimators/selection.py", "if np.isfinite(value) and (best is None or value < best[2]):",
+    Fault("S3", "selection", P + "estimators/search.py", "if np.isfinite(value) and (best is None or value < best[2]):",
           "if np.isfinite(value) and (best is None or value > best[2]):",
           ("tests/estimators/test_select_by_score.py",), "select_by_score keeps the worst candidate"),
     Fault("SG1", "sine-Gordon", "sympredict_paper/sine_gordon.py", "m_after <= ratio * m and (rise is None or rise <= ratio - 1.0)",
@@ -246,7 +246,7 @@ FAULTS = [
     # the defaults' kernel search and diagnostics
     Fault("A1", "defaults", P + "estimators/auto.py", "a[ok] = np.sqrt(sp[ok] / sq[ok])", "a[ok] = np.sqrt(sq[ok] / sp[ok])",
           ("tests/estimators/test_auto_defaults.py",), "the symplectic normalisation inverted: q and p spreads pulled apart"),
-    Fault("A2", "defaults", P + "estimators/auto.py", "sub = val.subset(np.arange(min(len(val), largest)))",
+    Fault("A2", "defaults", P + "estimators/search.py", "sub = val.subset(np.arange(min(len(val), largest)))",
           "sub = train.subset(np.arange(min(len(train), largest)))",
           ("tests/estimators/test_auto_defaults.py",), "the second stage scores candidates on their training samples"),
     Fault("A3", "defaults", P + "estimators/auto.py",
