@@ -636,7 +636,7 @@ class SymplecticKernelReductor(BasicObject):
         self.training_parameters = None if training_parameters is None or len(training_parameters) == 0 else \
             [parse_mu(m, fom.parameters) for m in training_parameters]
         if isinstance(predictor, SymplecticKernelPredictor):
-            predictor._check_params()  # its settings, before any FOM solve (fit would check them after all samples)
+            predictor.check_params()  # its settings, before any FOM solve (fit would check them after all samples)
         self.dt = float(dt)
         self.horizon = float(fom.T if horizon is None else horizon)
         self.RB = RB
