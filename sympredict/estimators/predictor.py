@@ -155,10 +155,10 @@ class _FlowMapKernelModel(Parametrized):
 
     @property
     def n_centers_(self) -> int:
-        return self._fitted().n_centers
+        return _FlowMapKernelModel._fitted(self).n_centers
 
     def _outside_states(self, x: np.ndarray) -> np.ndarray:
-        return self._fitted().outside_states(x)
+        return _FlowMapKernelModel._fitted(self).outside_states(x)
 
     # ------------------------------------------------------------- settings
     def check_params(self) -> Trainer:
@@ -653,6 +653,8 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
     @property
     def error_calibration_(self) -> Optional[dict]:
         """The error estimate's calibration (see the class's Attributes), computed on first use, then kept."""
+        if not self.is_fitted:  # like every fitted attribute: hasattr() is False before fit
+            raise AttributeError(f"this {type(self).__name__} is not fitted: it has no error_calibration_ yet")
         return self._fitted().error_calibration
 
     @error_calibration_.setter
