@@ -19,7 +19,7 @@ from typing import Optional
 
 import numpy as np
 
-from sympredict._checks import as_model_parameter, as_positive_int, as_states, as_steps
+from sympredict._checks import as_even_dimension, as_model_parameter, as_positive_int, as_states, as_steps
 from sympredict.data import FlowMapData
 from sympredict.exceptions import (
     ExtrapolationWarning, ModelFileError, NewtonConvergenceError, NonFinitePredictionError, SolvabilityError,
@@ -90,8 +90,7 @@ def model_coordinates(parts: StateKernelParts, update, dim: int):
     """``(scale, periodic, symmetry)`` of a flattened state kernel for states of dimension ``dim``: the scaling
     vector (2n,), the model's periodic coordinates and state symmetry; ``ValueError`` naming a setting that does
     not fit ``dim`` (one check for fits and model files)."""
-    if dim % 2:
-        raise ValueError(f"states must have an even dimension 2n (q, p), got {dim}")
+    as_even_dimension(dim)
     return parts.scale_vector(dim), parts.model_periodic(dim), parts.model_symmetry(dim, as_update(update))
 
 

@@ -35,7 +35,7 @@ from typing import Optional
 
 import numpy as np
 
-from sympredict._checks import as_positive_int
+from sympredict._checks import Constraint, as_even_dimension, as_positive_int, check_settings
 from sympredict.base import Parametrized, clone
 from sympredict.data import FlowMapData, TrajectoryData, _drop_duplicate_samples, as_flowmap_data, unique_samples
 from sympredict.estimators import model_files
@@ -108,6 +108,10 @@ def _fitted_attribute(name: str):
     return property(fitted, doc=f"``model_.{name}`` (:mod:`sympredict.estimators.fitted`).")
 
 
+#: What a radial kernel setting must be (the fix its message names).
+_RADIAL = "a sympredict.kernels kernel (IMQ, Matern32, Matern52, ...) or None"
+
+
 def _documented_by(method):
     """Give the decorated estimator method the docstring of the fitted map's ``method`` it delegates to (one
     text for both)."""
@@ -161,20 +165,25 @@ class _FlowMapKernelModel(Parametrized):
         return _FlowMapKernelModel._fitted(self).outside_states(x)
 
     # ------------------------------------------------------------- settings
+    #: Every setting's constraint (type, range, the fix), in the order they are checked: the one table
+    #: :meth:`check_params` reads for ``fit``, model files (load and save) and the reductor.
+    _parameter_constraints = {
+        "max_centers": Constraint(required=True, check=as_positive_int),
+        "mu_kernel": Constraint(RadialKernel, expected=_RADIAL),
+        "dt_kernel": Constraint(RadialKernel, expected=_RADIAL),
+        "state_kernel": Constraint((RadialKernel, KernelTransform), check=lambda kernel, name: lower_state_kernel(kernel),
+                                   expected="a sympredict.kernels kernel (IMQ, Matern32, Matern52, ...), a transform of "
+                                            "one (Scaled, Periodic, Symmetric) or None"),
+        "trainer": Constraint(Trainer, check=lambda trainer, name: trainer.check(),
+                              expected="a training strategy (ExactGreedy(), ActiveSetGreedy(), ShardedGreedy(pool)) or None"),
+    }
+
     def check_params(self) -> Trainer:
-        """Validate the settings (at fit time, scikit-learn's convention; also model files and the reductor);
-        ``ValueError`` naming the setting.  Returns the training strategy."""
-        as_positive_int(self.max_centers, "max_centers")
-        for name in ("mu_kernel", "dt_kernel"):
-            k = getattr(self, name)
-            if k is not None and not isinstance(k, RadialKernel):
-                raise ValueError(f"{name} must be a sympredict.kernels kernel (IMQ, Matern32, Matern52, ...) or None, got {k!r}")
-        self._state_parts()
-        trainer = self._trainer()
-        if not isinstance(trainer, Trainer):
-            raise ValueError(f"trainer must be a training strategy (ExactGreedy(), ActiveSetGreedy(), ShardedGreedy(pool)) "
-                             f"or None, got {self.trainer!r}")
-        return trainer.check()
+        """Validate the settings against :attr:`_parameter_constraints` (at fit time, scikit-learn's convention;
+        also model files and the reductor); ``ValueError`` naming the setting, its value and the fix.
+        Returns the training strategy."""
+        check_settings(self, self._parameter_constraints)
+        return self._trainer().check()
 
     def _trainer(self) -> Trainer:
         """The training strategy (``trainer``, or the default :class:`~sympredict.interpolation.greedy.ExactGreedy`)."""
@@ -182,11 +191,8 @@ class _FlowMapKernelModel(Parametrized):
 
     def _state_parts(self):
         """The state kernel, flattened (:func:`~sympredict.kernels.transforms.lower_state_kernel`); checks it."""
-        kernel = self.state_kernel
-        if kernel is not None and not isinstance(kernel, (RadialKernel, KernelTransform)):
-            raise ValueError(f"state_kernel must be a sympredict.kernels kernel (IMQ, Matern32, Matern52, ...), a "
-                             f"transform of one (Scaled, Periodic, Symmetric) or None, got {kernel!r}")
-        return lower_state_kernel(kernel)
+        self._parameter_constraints["state_kernel"].validate("state_kernel", self.state_kernel)
+        return lower_state_kernel(self.state_kernel)
 
     def set_params(self, **params):
         """Set parameters (nested ones as ``name__sub``); returns ``self``.
@@ -544,8 +550,7 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         """
         trainer = self.check_params()
         data, validation = self.validate_data(x0, x1, mu, dt, validation)
-        if data.x0.shape[1] % 2:
-            raise ValueError(f"states must have an even dimension 2n (q, p), got {data.x0.shape[1]}")
+        as_even_dimension(data.x0.shape[1])
         open_factors = {"state": self._state_parts().radial is None,  # what this fit must choose
                         "mu": data.mu.shape[1] > 0 and self.mu_kernel is None,
                         "dt": bool(np.ptp(data.dt) > 0) and self.dt_kernel is None, "update": self.update is None}
@@ -669,14 +674,19 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         return self.model_.numpy_only
 
     # ------------------------------------------------------- settings
+    _parameter_constraints = {
+        **_FlowMapKernelModel._parameter_constraints,
+        "solver": Constraint(NewtonSolver, check=lambda solver, name: solver.check(),
+                             expected="a NewtonSolver (e.g. NewtonSolver(backend='numba')) or None"),
+        "search": Constraint(KernelSearch, check=lambda search, name: search.check(),
+                             expected="a KernelSearch (e.g. KernelSearch(m_star=500)) or None"),
+        "update": Constraint(check=lambda update, name: as_update(update)),
+    }
+
     def check_params(self) -> Trainer:
         trainer = super().check_params()
-        solver = self._check_runtime_settings()
-        parts = self._state_parts()
-        if self.search is not None and not isinstance(self.search, KernelSearch):
-            raise ValueError(f"search must be a KernelSearch (e.g. KernelSearch(m_star=500)) or None, got {self.search!r}")
-        self._search().check()
-        updates = [self.update] if self.update is not None else list(self._search().updates)
+        solver, parts = self._check_runtime_settings(), self._state_parts()
+        updates = [self.update] if self.update is not None else list(self._search().check().updates)
         for rule in map(as_update, updates):
             for applies, reason in NUMPY_ONLY:  # the one declarative check of part against backend
                 if applies(parts, rule) and solver.backend == "numba":
@@ -685,10 +695,7 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
 
     def _check_runtime_settings(self) -> NewtonSolver:
         """The solver settings read at prediction time (``solver``); ``ValueError`` naming a malformed one."""
-        solver = NewtonSolver() if self.solver is None else self.solver
-        if not isinstance(solver, NewtonSolver):
-            raise ValueError(f"solver must be a NewtonSolver (e.g. NewtonSolver(backend='numba')) or None, got {solver!r}")
-        return solver.check()
+        return self._parameter_constraints["solver"].validate("solver", self.solver) or NewtonSolver().check()
 
     def _newton_iterations(self) -> int:
         """The solver's ``max_iter``, checked: an integer in ``1..MAX_NEWTON_ITER``."""
@@ -853,12 +860,11 @@ class DirectKernelPredictor(_FlowMapKernelModel):
         self.max_centers = max_centers
         self.trainer = trainer
 
-    def check_params(self) -> Trainer:
-        trainer = super().check_params()
-        if not (self.state_kernel is None or isinstance(self.state_kernel, RadialKernel)):
-            raise ValueError(f"the direct model takes a radial state kernel (IMQ, Matern52, Matern32) or None, "
-                             f"got {self.state_kernel!r}: kernel transforms shape the symplectic model's s")
-        return trainer
+    _parameter_constraints = {
+        **_FlowMapKernelModel._parameter_constraints,
+        "state_kernel": Constraint(RadialKernel, expected="a radial state kernel (IMQ, Matern52, Matern32) or None: "
+                                                          "kernel transforms shape the symplectic model's s"),
+    }
 
     def fit(self, x0, x1=None, mu=None, dt=None, *, validation=None) -> "DirectKernelPredictor":
         """Train on flow-map samples (same arguments as :meth:`SymplecticKernelPredictor.fit`)."""
