@@ -720,7 +720,7 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         feature (``numpy_only_``), or when NumPy is estimated at under
         :data:`~sympredict.symplectic.solvers.AUTO_NUMPY_SECONDS` and this process has not loaded the compiled
         rollout yet; compiled code otherwise.  Each call logs its choice at DEBUG level
-        (logger ``sympredict.symplectic.solvers``).
+        (logger ``sympredict.estimators.predictor``).
         """
         return self._fitted().backend_for(n_instances, n_steps)
 
