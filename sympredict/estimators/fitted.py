@@ -353,17 +353,19 @@ class FittedSymplecticFlowMap(FittedFlowMap):
         scale, periodic, symmetry = model_coordinates(parts, update, self.dim)
         cache = {} if error_calibration is ... else {"calibration": error_calibration}
         self._set(update=update, rule=as_update(update), parts=parts, scale=scale, model_periodic=periodic,
-                  model_symmetry=symmetry, solver=NewtonSolver() if solver is None else solver,
+                  model_symmetry=symmetry, solver=NewtonSolver() if solver is None else solver, _solver_setting=solver,
                   regularization=float(regularization or 0.0), calibration_samples=calibration_samples, _cache=cache)
 
     def with_solver(self, solver: Optional[NewtonSolver]) -> "FittedSymplecticFlowMap":
-        """This fitted map with another Newton solver (checked); the arrays and caches are shared."""
-        solver = NewtonSolver() if solver is None else solver
-        if not isinstance(solver, NewtonSolver):
+        """This fitted map with the Newton solver ``solver`` (``None``: the default), checked; the arrays and caches
+        are shared.  The setting this map was made with returns the map itself (a prediction's per-call cost; its
+        values are checked where they are used, ``max_iter`` by every solve)."""
+        if solver is self._solver_setting:
+            return self
+        checked = NewtonSolver() if solver is None else solver
+        if not isinstance(checked, NewtonSolver):
             raise ValueError(f"solver must be a NewtonSolver (e.g. NewtonSolver(backend='numba')) or None, got {solver!r}")
-        solver.check()
-        same = solver is self.solver or solver.get_params(deep=False) == self.solver.get_params(deep=False)
-        return self if same else self._replace(solver=solver)
+        return self._replace(solver=checked.check(), _solver_setting=solver)
 
     def with_error_calibration(self, calibration: Optional[dict]) -> "FittedSymplecticFlowMap":
         """This fitted map with the error calibration ``calibration`` (``None``: no error estimate)."""

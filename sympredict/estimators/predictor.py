@@ -591,7 +591,8 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         score = holdout is not None and (target is not None or search is not None)
         resolved = clone(self).set_params(**params) if params else self
         fitted, prefix_errors = resolved._fit(trainer, train, holdout, score_prefixes=score)
-        self.model_, self.fitted_params_ = fitted, dict(self.get_params(deep=False))  # the choice is apart
+        # the caller's settings (the choice is apart); the map reads the caller's solver (a clone's is a copy)
+        self.model_, self.fitted_params_ = fitted.with_solver(self.solver), dict(self.get_params(deep=False))
         self.prefix_errors_, self.search_, self.choice_ = prefix_errors, search, dict(params)
         self.diagnostics_ = diagnose(self, train, holdout)
         _HeldOutSteps.warn_if_target_missed(self)

@@ -103,7 +103,10 @@ def test_the_solver_is_a_setting_read_when_predicting(scaled_model, coarse_pendu
     other = copy.copy(scaled_model).set_params(solver__max_iter=1)
     assert other.model_ is scaled_model.model_
     assert other._fitted().solver.max_iter == 1 and scaled_model._fitted().solver.max_iter == 50
-    assert scaled_model._fitted() is scaled_model.model_  # the same solver settings: no copy
+    assert scaled_model._fitted() is scaled_model.model_  # the solver it was fitted with: no copy per call
+    searched = SymplecticKernelPredictor(IMQ(0.3), max_centers=10, solver=NewtonSolver(backend="numpy"))
+    searched.fit(coarse_pendulum_data.x0, coarse_pendulum_data.x1, dt=DT)  # update=None: fitted on a resolved clone
+    assert searched._fitted() is searched.model_ and searched.model_.solver is searched.solver
     with_one = scaled_model.model_.with_solver(NewtonSolver(max_iter=1, backend="numpy"))
     assert with_one.surrogate is scaled_model.model_.surrogate and with_one.solver.max_iter == 1
     with pytest.raises(ValueError, match="solver must be a NewtonSolver"):
