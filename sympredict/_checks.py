@@ -7,7 +7,8 @@ from typing import Optional
 
 import numpy as np
 
-__all__ = ["as_states", "as_parameter", "as_steps", "as_positive_int", "as_real", "as_real_array"]
+__all__ = ["as_states", "as_parameter", "as_steps", "as_positive_int", "as_real", "as_real_array", "as_even_dimension",
+           "Constraint", "check_settings"]
 
 
 def _as_float_array(value, name: str) -> np.ndarray:
@@ -194,3 +195,45 @@ def as_positive_int(value, name: str, minimum: int = 1) -> int:
     if value < minimum:
         raise ValueError(f"{name} must be >= {minimum}, got {value}")
     return int(value)
+
+
+def as_even_dimension(dim, what: str = "states") -> int:
+    """``dim`` if it is even (states ``(q, p)`` of dimension ``2n``); ``ValueError`` naming it otherwise."""
+    if dim % 2:
+        raise ValueError(f"{what} must have an even dimension 2n (q, p), got {dim}")
+    return dim
+
+
+class Constraint:
+    """One setting's row in an estimator's table of settings (scikit-learn's ``_parameter_constraints``).
+
+    Parameters
+    ----------
+    types : type or tuple of types, optional
+        The accepted types (any, when empty).
+    expected : str
+        What the setting must be, with an example: the fix a message names (``"{name} must be {expected}, got
+        {value!r}"``).
+    required : bool
+        Whether ``None`` is refused (else ``None`` means the default and passes).
+    check : callable ``check(value, name)``, optional
+        The value's own check (a range, the part's ``check()``), raising ``ValueError`` naming ``name``;
+        returns the checked value.
+    """
+
+    def __init__(self, types=(), *, expected: str = "", required: bool = False, check=None):
+        self.types, self.expected, self.required, self.check = types, expected, required, check
+
+    def validate(self, name: str, value):
+        """The checked ``value`` of the setting ``name`` (``None`` passes unless required); ``ValueError`` otherwise."""
+        if value is None and not self.required:
+            return None
+        if self.types and not isinstance(value, self.types):
+            raise ValueError(f"{name} must be {self.expected}, got {value!r}")
+        return value if self.check is None else self.check(value, name)
+
+
+def check_settings(owner, table: Mapping) -> dict:
+    """``owner``'s settings checked against ``table`` (``{name: Constraint}``, in the table's order): the one
+    place an estimator's settings are validated, for ``fit``, model files and the reductor alike."""
+    return {name: rule.validate(name, getattr(owner, name)) for name, rule in table.items()}

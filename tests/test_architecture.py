@@ -140,6 +140,63 @@ def test_no_function_level_imports_of_the_package():
     assert not hidden, "\n".join(hidden)
 
 
+# ------------------------------------------------------------------ the estimators' private members stay private
+#: The estimator classes whose ``_`` members no other module may touch: other modules use their public API
+#: (settings, ``check_params``, ``validate_data``, the fitted flow map ``model_``, model files' functions).
+ESTIMATOR_CLASSES = {"sympredict.estimators.predictor": ("_FlowMapKernelModel", "SymplecticKernelPredictor",
+                                                         "DirectKernelPredictor")}
+
+
+def _private_members(path: Path, classes) -> set:
+    """The ``_name`` members (not dunders) the classes ``classes`` of the module ``path`` define or set on ``self``,
+    and those of the base classes they inherit from (``base.Parametrized``)."""
+    from sympredict.estimators import predictor
+
+    names = set()
+    for cls_name in classes:
+        for klass in getattr(predictor, cls_name).__mro__:
+            if klass.__module__.startswith("sympredict"):
+                names.update(n for n in vars(klass) if n.startswith("_") and not n.startswith("__"))
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.ClassDef) and node.name in classes:
+            names.update(sub.attr for sub in ast.walk(node) if isinstance(sub, ast.Attribute)
+                         and isinstance(sub.value, ast.Name) and sub.value.id == "self"
+                         and sub.attr.startswith("_") and not sub.attr.startswith("__"))
+    return names
+
+
+def _touches(tree, names: set) -> list:
+    """``(line, name)`` of every ``obj._name`` with ``_name`` in ``names``, except on ``self``/``cls`` inside a class
+    (a class's own members; a module-level ``cls`` variable holding an estimator class counts)."""
+    own = {id(n) for c in ast.walk(tree) if isinstance(c, ast.ClassDef) for n in ast.walk(c)}
+    return sorted((node.lineno, node.attr) for node in ast.walk(tree)
+                  if isinstance(node, ast.Attribute) and node.attr in names
+                  and not (id(node) in own and isinstance(node.value, ast.Name) and node.value.id in ("self", "cls")))
+
+
+def test_no_module_touches_the_estimators_private_members():
+    """No module of the package reads, sets or calls a ``_`` member of the estimators from outside their module
+    (``model._check_params()``, ``predictor._fit_data(...)``, ``model._surrogate_from(...)``, ...): model files,
+    wrappers, the search and the reductor go through the public API and the fitted flow map ``model_``."""
+    mods = _modules()
+    found = []
+    for owner, classes in ESTIMATOR_CLASSES.items():
+        names = _private_members(mods[owner], classes)
+        assert {"_train", "_check_fitted", "_param_names"} <= names  # the scan sees the members
+        for name, path in mods.items():
+            if name != owner:
+                found += [f"{name}:{line} touches {attr}" for line, attr in _touches(ast.parse(path.read_text()), names)]
+    assert not found, "\n".join(found)
+
+
+def test_the_private_member_scan_can_fail():
+    """The scan of :func:`test_no_module_touches_the_estimators_private_members` finds a touch where there is one."""
+    names = _private_members(_modules()["sympredict.estimators.predictor"], ESTIMATOR_CLASSES["sympredict.estimators.predictor"])
+    tree = ast.parse("def f(model, cls):\n    model._fit_resolved(1)\n    cls._train()\n    return model.fit()\n"
+                     "class A:\n    def g(self):\n        return self._train()\n")
+    assert _touches(tree, names) == [(2, "_fit_resolved"), (3, "_train")]
+
+
 # ------------------------------------------------------------------ the architecture page matches the code
 ARCHITECTURE = ROOT / "docs" / "explanation" / "architecture.md"
 

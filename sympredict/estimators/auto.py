@@ -45,7 +45,7 @@ from sympredict.estimators.structure import compete as _structure_stage
 from sympredict.exceptions import ExtrapolationWarning, NewtonConvergenceError, NonFinitePredictionError, ScaleWarning
 from sympredict.kernels import IMQ, KERNEL_FAMILIES
 from sympredict.kernels.radial import _EPS_RANGE
-from sympredict.kernels.transforms import KernelTransform, Scaled
+from sympredict.kernels.transforms import KernelTransform, Scaled, lower_state_kernel
 from sympredict.symplectic.updates import UPDATE_RULES, as_update
 
 __all__ = ["KernelSearch", "SearchResult", "FitDiagnostics"]
@@ -474,7 +474,7 @@ def _widths(values: np.ndarray) -> np.ndarray:
 def _spread(template, data: FlowMapData) -> float:
     """Root of the summed variances of the mixed variable ``xi`` in the template's normalised coordinates."""
 
-    scale = template._state_parts().scale_vector(data.x0.shape[1])
+    scale = lower_state_kernel(template.state_kernel).scale_vector(data.x0.shape[1])
     xi, _ = as_update(template.update).variables(data.x0 * scale, data.x1 * scale, data.dt)
 
     stds = _std(xi)
@@ -688,7 +688,7 @@ def _edge_advice(model, holdout: FlowMapData) -> list:
     edge = np.any((u < 0.1) | (u > 0.9), axis=1)
     if edge.sum() < 5 or (~edge).sum() < 5:
         return []
-    scale = model._scale_vector(model.dim_)
+    scale = model.model_.scale
     xi, y = as_update(model.update_).variables(holdout.x0 * scale, holdout.x1 * scale, holdout.dt)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ExtrapolationWarning)

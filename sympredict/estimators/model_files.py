@@ -18,10 +18,12 @@ import numpy as np
 from sympredict.container import read_container, write_container
 from sympredict.estimators.auto import KernelSearch
 from sympredict.exceptions import ModelFileError
-from sympredict.interpolation.functionals import HBFunctionals
+from sympredict.estimators.fitted import (
+    DOMAIN_KEYS, FittedDirectFlowMap, FittedSymplecticFlowMap, check_is_fitted, model_coordinates, trainer_regularization,
+)
 from sympredict.interpolation.greedy import GreedyHistory, Trainer, trainer_from_spec
 from sympredict.kernels import ProductKernel
-from sympredict.kernels.transforms import decode_value, encode_value, lower_state_kernel
+from sympredict.kernels.transforms import StateKernelParts, decode_value, encode_value, lower_state_kernel
 from sympredict.symplectic.solvers import NewtonSolver
 from sympredict.symplectic.updates import UpdateRule
 
@@ -78,7 +80,7 @@ def decode_param(value):
     if isinstance(value, dict) and set(value) == {"solver"} and isinstance(value["solver"], dict):
         return NewtonSolver(**value["solver"])
     if isinstance(value, dict) and set(value) == {"search"} and isinstance(value["search"], dict):
-        unknown = sorted(set(value["search"]) - set(KernelSearch._param_names()))
+        unknown = sorted(set(value["search"]) - set(KernelSearch().get_params(deep=False)))
         if unknown:
             raise ValueError(f"unknown KernelSearch setting(s) {unknown}")
         return KernelSearch(**{k: tuple(v) if isinstance(v, list) else v for k, v in value["search"].items()})
@@ -102,15 +104,14 @@ def _check_file_shape_info(settings: dict, path) -> None:
         raise ModelFileError(f"{str(path)!r}: its setting stop_reason={settings['stop_reason']!r} must be a string")
 
 
-def _check_file_history(model, path) -> None:
-    """A model file's residual history fits its centres: ``m + 1`` residuals, ``m`` powers; the training box is ordered."""
-    m, h = model.surrogate_.n_centers, model.history_
+def _check_file_history(m: int, h: GreedyHistory, d: dict, path) -> None:
+    """A model file's residual history fits its ``m`` centres: ``m + 1`` residuals, ``m`` powers; the training box
+    ``d`` is ordered."""
     for name, arr, length in (("train_max_residual", h.train_max_residual, m + 1),
                               ("val_max_residual", h.val_max_residual, m + 1), ("selected_power", h.selected_power, m)):
         if arr is not None and (arr.ndim != 1 or len(arr) != length or arr.dtype.kind != "f"):
             raise ModelFileError(f"{str(path)!r}: its array {name!r} has shape {arr.shape} (dtype {arr.dtype}), "
                                  f"expected ({length},) floats for {m} centres")
-    d = model.domain_
     for lo, hi in (("x_min", "x_max"), ("mu_min", "mu_max"), ("dt_min", "dt_max")):
         if np.any(d[lo] > d[hi]):
             raise ModelFileError(f"{str(path)!r}: its training box has domain_{lo} > domain_{hi}")
@@ -119,30 +120,33 @@ def _check_file_history(model, path) -> None:
 
 
 def to_container(model) -> tuple:
-    """The fitted model as a container's ``(settings, arrays)`` (what :meth:`save` writes)."""
-    model._check_fitted()
-    params = model._saved_params()
-    type(model)(**params)._check_params()  # the checks load() runs: a file it would refuse is never written
-    sur, hist = model.surrogate_, model.history_
+    """The fitted model as a container's ``(settings, arrays)`` (what :meth:`save` writes): its parameters at fit
+    time (with the current solver, a setting read when predicting) and its fitted flow map (``model_``)."""
+    check_is_fitted(model)
+    fitted = model.model_
+    params = dict(model.get_params(deep=False))
+    params.update({k: v for k, v in (getattr(model, "fitted_params_", None) or {}).items() if k != "solver"})
+    type(model)(**params).check_params()  # the checks load() runs: a file it would refuse is never written
+    hist = fitted.history
     settings = {
         "layout": MODEL_LAYOUT,
         "class": type(model).__name__,
         "params": {k: encode_param(v) for k, v in params.items()},
-        "kernel": model.kernel_.spec,
-        "dim": model.dim_,
-        "n_mu": model.n_mu_,
-        "dt_fixed": model.dt_fixed_,
+        "kernel": fitted.kernel.spec,
+        "dim": fitted.dim,
+        "n_mu": fitted.n_mu,
+        "dt_fixed": fitted.dt_fixed,
         "stop_reason": hist.stop_reason,
         "choice": {k: encode_param(v) for k, v in _file_choice_of(model, params).items()},
     }
-    calibration = getattr(model, "error_calibration_", None)
+    calibration = getattr(fitted, "error_calibration", None)
     if calibration:  # the error estimate's scale (SymplecticKernelPredictor.rollout(..., return_error=True))
         settings["error_calibration"] = dict(calibration)
     arrays = {"train_max_residual": hist.train_max_residual, "selected_power": hist.selected_power}
     if hist.val_max_residual is not None:
         arrays["val_max_residual"] = hist.val_max_residual
-    arrays.update({f"domain_{k}": np.asarray(v) for k, v in model.domain_.items()})
-    arrays.update(model._surrogate_arrays(sur))
+    arrays.update({f"domain_{k}": np.asarray(v) for k, v in fitted.domain.items()})
+    arrays.update(fitted.surrogate_arrays())
     return settings, arrays
 
 
@@ -161,21 +165,21 @@ def from_container(cls, settings, arrays: dict, path):
         if not isinstance(params, dict):
             raise ModelFileError(f"{str(path)!r}: its setting 'params' is not a JSON object")
         decoded = {k: decode_param(v) for k, v in params.items()}
-        unknown = sorted(set(decoded) - set(cls._param_names()))
+        unknown = sorted(set(decoded) - set(cls().get_params(deep=False)))
         if unknown:
             raise ModelFileError(f"{str(path)!r} has unknown setting(s) {unknown} for a {cls.__name__}")
         model = cls(**decoded)
         try:  # the settings pass the checks of fit (one schema for constructors and files)
-            model._check_params()
+            model.check_params()
         except ValueError as exc:
             raise ModelFileError(f"{str(path)!r} has an invalid setting: {exc}") from None
         choice = _file_choice(settings.get("choice", {}), path)
         if choice:
             try:  # the chosen settings pass the same checks
-                type(model)(**{**model.get_params(deep=False), **choice})._check_params()
+                type(model)(**{**model.get_params(deep=False), **choice}).check_params()
             except ValueError as exc:
                 raise ModelFileError(f"{str(path)!r} has an invalid chosen setting: {exc}") from None
-        model._store_fitted_settings({**model.get_params(deep=False), **choice})
+        fitted_params = {**model.get_params(deep=False), **choice}
         model.fitted_params_ = dict(model.get_params(deep=False))
         model.choice_, model.search_, model.diagnostics_ = choice, None, None
         kernel = ProductKernel.from_spec(settings["kernel"])
@@ -186,36 +190,47 @@ def from_container(cls, settings, arrays: dict, path):
             if box is None or box.ndim != 1 or box.shape[0] != size:
                 raise ModelFileError(f"{str(path)!r}: its setting {key}={size!r} disagrees with its training box "
                                      f"{name!r} of shape {None if box is None else box.shape}")
-        model._set_shape_info(settings["dim"], settings["n_mu"], settings["dt_fixed"])
-        try:
-            model._check_dim_settings(model.dim_)
-        except ValueError as exc:
-            raise ModelFileError(f"{str(path)!r} has an invalid setting for states of dimension {model.dim_}: {exc}") from None
-        if kernel.periodic != model._model_periodic(model.dim_):
+        dim, n_mu = settings["dim"], settings["n_mu"]
+        symplectic = cls.fitted_type is FittedSymplecticFlowMap
+        periodic = symmetry = None
+        if symplectic:
+            parts = lower_state_kernel(fitted_params["state_kernel"])
+            parts = StateKernelParts(scaling=parts.scaling, periodic=parts.periodic, period=parts.period,
+                                     symmetry=parts.symmetry)
+            try:
+                _, periodic, symmetry = model_coordinates(parts, fitted_params["update"], dim)
+            except ValueError as exc:
+                raise ModelFileError(f"{str(path)!r} has an invalid setting for states of dimension {dim}: {exc}") from None
+        if kernel.periodic != periodic:
             raise ModelFileError(f"the file's periodic coordinates {kernel.periodic!r} disagree with its setting "
                                  f"state_kernel={model.state_kernel!r}")
-        if kernel.symmetry != model._model_symmetry(model.dim_):
+        if kernel.symmetry != symmetry:
             raise ModelFileError(f"the file's state symmetry {kernel.symmetry!r} disagrees with its setting "
                                  f"state_kernel={model.state_kernel!r}")
-        check_file_arrays(model, kernel, arrays)
-        model.kernel_ = kernel
-        model.surrogate_ = model._surrogate_from(kernel, arrays)
+        check_file_arrays(dim, n_mu, symplectic, kernel, arrays)
+        surrogate = cls.fitted_type.surrogate_from_arrays(kernel, arrays, dim, n_mu)
         n = len(arrays["selected_power"])
-        model.history_ = GreedyHistory(
+        history = GreedyHistory(
             train_max_residual=arrays["train_max_residual"],
             val_max_residual=arrays.get("val_max_residual"),
             selected_power=arrays["selected_power"],
             elapsed=np.full(n, np.nan),  # timings are not stored
             stop_reason=settings["stop_reason"],
         )
-        model.greedy_result_ = None
         calibration = settings.get("error_calibration")
         if calibration is not None and not (isinstance(calibration, dict) and isinstance(calibration.get("scale"), float)
                                             and calibration["scale"] > 0):
             raise ModelFileError(f"{str(path)!r}: its error_calibration is not a record with a positive 'scale'")
-        model.error_calibration_ = calibration
-        model.domain_ = {k: arrays[f"domain_{k}"] for k in ("x_min", "x_max", "mu_min", "mu_max", "dt_min", "dt_max")}
-        _check_file_history(model, path)
+        domain = {k: arrays[f"domain_{k}"] for k in DOMAIN_KEYS}
+        _check_file_history(surrogate.n_centers, history, domain, path)
+        if symplectic:  # the fitted flow map, by its public constructor (as fit builds it)
+            model.model_ = FittedSymplecticFlowMap(
+                kernel, surrogate, domain=domain, history=history, dt_fixed=settings["dt_fixed"],
+                update=fitted_params["update"], parts=parts, solver=model.solver,
+                regularization=trainer_regularization(fitted_params["trainer"]), error_calibration=calibration)
+        else:
+            model.model_ = FittedDirectFlowMap(kernel, surrogate, domain=domain, history=history,
+                                               dt_fixed=settings["dt_fixed"])
     except ModelFileError:
         raise
     except (KeyError, TypeError, ValueError, AttributeError, IndexError, OverflowError, RecursionError) as exc:
@@ -255,10 +270,9 @@ def _check_choice_matches_kernel(choice: dict, kernel: ProductKernel, path) -> N
             raise ModelFileError(f"{str(path)!r}: its chosen {name} {chosen!r} disagrees with its kernel {used!r}")
 
 
-def check_file_arrays(model, kernel: ProductKernel, arrays: dict) -> None:
+def check_file_arrays(dim: int, n_mu: int, symplectic: bool, kernel: ProductKernel, arrays: dict) -> None:
     """Consistency of a model file's arrays with its settings (files are hostile input)."""
-    dim, n_mu = model.dim_, model.n_mu_
-    if dim < 1 or n_mu < 0 or (model._functionals is HBFunctionals and dim % 2):
+    if dim < 1 or n_mu < 0 or (symplectic and dim % 2):
         raise ModelFileError(f"invalid dimensions in the file: dim={dim}, n_mu={n_mu}")
     if (kernel.mu is None) != (n_mu == 0):
         raise ModelFileError("the file's mu kernel and parameter dimension disagree")

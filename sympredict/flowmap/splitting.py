@@ -40,6 +40,8 @@ from sympredict.container import read_container, write_container
 from sympredict.data import FlowMapData
 from sympredict.exceptions import ModelFileError, NonFinitePredictionError, NotFittedError
 from sympredict.systems.linear_flow import QuadraticPart, inverse_symplectic_matrices
+from sympredict.estimators import model_files
+from sympredict.estimators.fitted import check_finite
 from sympredict.estimators.model_files import pre_release_layout
 from sympredict.estimators.predictor import MODEL_FORMAT, MODEL_LAYOUT, SymplecticKernelPredictor
 
@@ -153,7 +155,7 @@ class SplitKernelPredictor(Parametrized):
             raise ValueError(f"predictor must be a SymplecticKernelPredictor (the inner symplectic step S), "
                              f"got {self.predictor!r}")
         # the inner model's own checks of the data (shapes, mu against its mu_kernel, dt against its dt_kernel)
-        data, validation = self.predictor._fit_data(x0, x1, mu, dt, validation)
+        data, validation = self.predictor.validate_data(x0, x1, mu, dt, validation)
         dim, n_mu = data.x0.shape[1], data.mu.shape[1]
         quad = self._check_settings(dim, n_mu)
         y0, y1 = self._transformed(quad, data)
@@ -199,7 +201,7 @@ class SplitKernelPredictor(Parametrized):
         """
         x, single, mu, dt, L = self._query(x, mu, dt)
         out = _apply(L, self.predictor_.step(_apply(L, x), mu=self._inner_mu(mu), dt=dt))
-        out = self.predictor_._check_finite(out, " (inside a SplitKernelPredictor)")
+        out = check_finite(out, f"this {type(self.predictor_).__name__} (inside a SplitKernelPredictor)")
         return out[0] if single else out
 
     def rollout(self, x0, n_steps: int, mu=None, dt=None, *, stride: int = 1, progress=None) -> np.ndarray:
@@ -238,7 +240,7 @@ class SplitKernelPredictor(Parametrized):
 
         ``overwrite=False`` refuses an existing file (also one created while saving) with :class:`FileExistsError`."""
         self._check_fitted()
-        inner_settings, inner_arrays = self.predictor_._to_container()
+        inner_settings, inner_arrays = model_files.to_container(self.predictor_)
         mats, pw = self.quadratic_.checked()
         settings = {"layout": MODEL_LAYOUT, "class": type(self).__name__, "dim": self.dim_, "n_mu": self.n_mu_,
                     "inner": inner_settings}
@@ -250,10 +252,11 @@ class SplitKernelPredictor(Parametrized):
     def load(cls, path) -> "SplitKernelPredictor":
         """Load a model written by :meth:`save`; :class:`ModelFileError` for anything malformed (files are hostile input)."""
         settings, arrays = read_container(path, MODEL_FORMAT)
-        return cls._from_container(settings, arrays, path)
+        return cls.from_container(settings, arrays, path)
 
     @classmethod
-    def _from_container(cls, settings, arrays: dict, path) -> "SplitKernelPredictor":
+    def from_container(cls, settings, arrays: dict, path) -> "SplitKernelPredictor":
+        """The model of a file's ``(settings, arrays)`` (:func:`~sympredict.container.read_container`)."""
         where = f"{str(path)!r} is not a valid split-predictor model file"
         if not isinstance(settings, dict) or settings.get("class") != cls.__name__:
             found = settings.get("class") if isinstance(settings, dict) else None
@@ -288,8 +291,9 @@ class SplitKernelPredictor(Parametrized):
             quad = QuadraticPart(*QuadraticPart(mats, pw).checked(dim=dim, n_mu=n_mu))
         except ValueError as exc:
             raise ModelFileError(f"{where}: {exc}") from None
-        inner = SymplecticKernelPredictor._from_container(
-            inner_settings, {k[len(_INNER):]: v for k, v in arrays.items() if k.startswith(_INNER)}, path)
+        inner = model_files.from_container(
+            SymplecticKernelPredictor, inner_settings, {k[len(_INNER):]: v for k, v in arrays.items() if k.startswith(_INNER)},
+            path)
         if inner.dim_ != dim or inner.n_mu_ != n_mu:
             raise ModelFileError(f"{where}: the inner model's dimensions ({inner.dim_}, {inner.n_mu_}) disagree with "
                                  f"the file's ({dim}, {n_mu})")

@@ -80,7 +80,7 @@ def load_model(path):
     cls = _ESTIMATORS.get(name) if isinstance(name, str) else None
     if cls is None:
         raise ModelFileError(f"{str(path)!r} holds an unknown estimator {name!r}; known: {sorted(_ESTIMATORS)}")
-    return cls._from_container(settings, arrays, path)
+    return cls.from_container(settings, arrays, path)
 
 
 def save_dataset(data, path, *, overwrite: bool = True, **metadata) -> None:

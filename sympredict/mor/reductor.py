@@ -336,7 +336,7 @@ class SymplecticKernelReductor(BasicObject):
             raise ValueError(f"TrainingScaling(state='williamson') needs the reduced operator of the Galerkin ROM: use "
                              f"samples=GalerkinSamples(...) or state='diag' (samples={type(samples).__name__})")
         if isinstance(self.estimator, SymplecticKernelPredictor):
-            self.estimator._check_params()  # its settings, before any FOM solve (fit would check them after sampling)
+            self.estimator.check_params()  # its settings, before any FOM solve (fit would check them after sampling)
         training_parameters = samples.check(self)
         self.training_parameters = None if training_parameters is None or len(training_parameters) == 0 else \
             [parse_mu(m, fom.parameters) for m in training_parameters]

@@ -68,6 +68,7 @@ from sympredict import _numba  # noqa: E402
 from sympredict.interpolation import _compiled as compiled_surrogate  # noqa: E402
 from sympredict.symplectic import _compiled_newton  # noqa: E402
 from sympredict.data import mixed_variables  # noqa: E402
+from sympredict.estimators.fitted import FittedSymplecticFlowMap, training_box  # noqa: E402
 from sympredict.interpolation.functionals import HBFunctionals, functional_residuals  # noqa: E402
 from sympredict.interpolation.greedy import GreedyHistory, active_set_greedy, greedy_interpolation  # noqa: E402
 from sympredict.kernels import IMQ, ProductKernel  # noqa: E402
@@ -132,11 +133,10 @@ def model_from_greedy(data, functionals: HBFunctionals, result, eps=EPS_A) -> Sy
     model = SymplecticKernelPredictor(IMQ(eps[0]), IMQ(eps[1]), IMQ(eps[2]), max_centers=len(result.selected))
     points, comps = np.divmod(result.selected, functionals.dim)
     k = functionals.kernel
-    model.kernel_ = k
-    model.surrogate_ = HBSurrogate(k, functionals.points[points], functionals.mu[points], functionals.dt[points], comps, result.coef)
-    model.history_ = result.history
-    model.greedy_result_ = result
-    model._set_fitted_state(data)
+    surrogate = HBSurrogate(k, functionals.points[points], functionals.mu[points], functionals.dt[points], comps, result.coef)
+    model.model_ = FittedSymplecticFlowMap(k, surrogate, domain=training_box(data), history=result.history,
+                                           greedy_result=result, update="symplectic_euler")
+    model.fitted_params_ = model.get_params(deep=False)
     return model
 
 

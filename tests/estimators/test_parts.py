@@ -173,7 +173,7 @@ def test_predictors_and_wrappers_are_flow_maps(small_pendulum_data):
 
 @pytest.mark.parametrize("backend", ["numpy", "numba"])
 def test_the_around_hook_is_the_composed_step_on_the_same_solver(small_pendulum_data, backend, monkeypatch):
-    import sympredict.estimators.predictor as predictor
+    import sympredict.estimators.fitted as fitted  # the fitted flow map runs the rollouts
 
     x0, x1, mu, dt = _data(small_pendulum_data)
     model = SymplecticKernelPredictor(IMQ(0.3), IMQ(1.5), IMQ(3.0), max_centers=40,
@@ -182,8 +182,8 @@ def test_the_around_hook_is_the_composed_step_on_the_same_solver(small_pendulum_
     rot = np.array([[np.cos(theta), np.sin(theta)], [-np.sin(theta), np.cos(theta)]])  # symplectic (det 1, 2-D)
     x = x0[:3] * 0.5
     calls = []
-    real = predictor.rollout_compiled
-    monkeypatch.setattr(predictor, "rollout_compiled", lambda *a, **k: calls.append(1) or real(*a, **k))
+    real = fitted.rollout_compiled
+    monkeypatch.setattr(fitted, "rollout_compiled", lambda *a, **k: calls.append(1) or real(*a, **k))
     traj = model.rollout(x, 4, mu=mu[:3], dt=dt[:3], around=(rot, rot.T))
     assert bool(calls) == (backend == "numba")  # a wrapped rollout stays on the model's solver
     expected = [x]

@@ -166,11 +166,11 @@ def test_auto_runs_what_it_reports(small_pendulum_model, monkeypatch):
     model = copy.copy(small_pendulum_model).set_params(solver__backend="auto")
     ran = []
     monkeypatch.setattr(_compiled_newton, "rollout_loaded", lambda: False)
-    import sympredict.estimators.predictor as predictor
+    import sympredict.estimators.fitted as fitted  # the fitted flow map runs the rollouts
     import sympredict.symplectic.solvers as solvers
 
-    real = predictor.rollout_compiled
-    monkeypatch.setattr(predictor, "rollout_compiled", lambda *a, **k: ran.append("numba") or real(*a, **k))
+    real = fitted.rollout_compiled
+    monkeypatch.setattr(fitted, "rollout_compiled", lambda *a, **k: ran.append("numba") or real(*a, **k))
     model.rollout(np.array([[0.3, 0.1]]), 5, mu=0.75, dt=0.05)
     assert ran == [] and model.backend_for(1, 5) == "numpy"
     monkeypatch.setattr(solvers, "AUTO_NUMPY_SECONDS", 0.0)  # the solver owns the auto rule

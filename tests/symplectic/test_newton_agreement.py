@@ -153,7 +153,7 @@ def test_a_warm_start_goes_on_across_chunks(small_pendulum_model, monkeypatch, b
     def counting(run, *args, **kwargs):
         return real(lambda *a: calls.append(a[1]) or run(*a), *args, **kwargs)
 
-    monkeypatch.setattr("sympredict.estimators.predictor.rollout_in_chunks", counting)
+    monkeypatch.setattr("sympredict.estimators.fitted.rollout_in_chunks", counting)
     np.testing.assert_array_equal(model.rollout(x, 40, mu=mu, dt=0.05), one_call)
     assert len(calls) == 40  # one step per chunk: every step but the first starts from the carried states
 
