@@ -448,11 +448,12 @@ class FittedSymplecticFlowMap(FittedFlowMap):
         Parameters
         ----------
         x : array_like of shape (B, 2n) or (2n,)
-        mu : float or array_like of shape (B,), (d_mu,) or (B, d_mu), optional
+            States ``(q, p)``, one per row (or a single state).
+        mu : float or array_like of shape (B,), (d_mu,) or (B, d_mu), default=None
             Parameters (required iff the model has a parameter).
-        dt : float or array_like of shape (B,), optional
-            Macro steps; defaults to the training step of a fixed-step model.
-        return_error
+        dt : float or array_like of shape (B,), default=None
+            Macro steps; ``None``: the training step of a fixed-step model (required otherwise).
+        return_error : bool, default=False
             Also return an estimate of ``|x1_predicted - x1_exact|_2`` per instance (in the states'
             units): the power function of the learned gradient at the step's evaluation point, mapped
             through the implicit update (``delta x1 = DF^-1 dT J delta g``) and scaled by the fit's
@@ -487,25 +488,29 @@ class FittedSymplecticFlowMap(FittedFlowMap):
         Parameters
         ----------
         x0 : array_like of shape (B, 2n) or (2n,)
+            Initial states ``(q, p)``, one per row (or a single state).
         n_steps : int
             Number of macro steps ``K >= 0``.
-        mu, dt
-            As in :meth:`step`; fixed per instance along the trajectory.
-        stride : int, optional
+        mu : float or array_like of shape (B,), (d_mu,) or (B, d_mu), default=None
+            Parameters (required iff the model has a parameter), fixed per instance along the trajectory.
+        dt : float or array_like of shape (B,), default=None
+            Macro steps, fixed per instance along the trajectory; ``None``: the training step of a
+            fixed-step model (required otherwise).
+        stride : int, default=1
             Keep the state of every ``stride``-th step only (``traj[:, ::stride]`` of the full
             trajectories, with memory for those alone); ``stride = K`` keeps the first and last states.
-        progress : callable, optional
+        progress : callable, default=None
             ``progress(steps_done, n_steps)``, called between the chunks of a long rollout.
-        check_solvability
+        check_solvability : bool, default=False
             Before stepping, estimate ``dT * L_S`` at the initial states
             (:meth:`solvability`) and raise :class:`SolvabilityError` naming the
             instances where it is ``>= 1``.
-        around : tuple ``(pre, post)`` of arrays of shape (B, 2n, 2n) or (2n, 2n), optional
+        around : tuple ``(pre, post)`` of arrays of shape (B, 2n, 2n) or (2n, 2n), default=None
             The wrappers' hook: step ``x_k+1 = post Phi(pre x_k)`` instead of ``Phi(x_k)``
             (e.g. the exact linear flow ``L_h`` on both sides, :class:`~sympredict.flowmap.splitting.SplitKernelPredictor`),
             on the same solver as a plain rollout (compiled where that is).  The query
             checks and extrapolation warnings are about the model's inputs ``pre x_k``.
-        return_error
+        return_error : bool, default=False
             Also return ``error`` (B, K // stride + 1), an estimate of ``|x_predicted - x_exact|_2`` at the
             kept steps, in the states' units (0 at step 0): the local error of each step (:meth:`step`'s
             estimate) propagated through the step Jacobians, ``F_k+1 = D Phi_k F_k + G_k``,
@@ -597,6 +602,15 @@ class FittedSymplecticFlowMap(FittedFlowMap):
         belonging to ``p`` (paper, Prop. 2 (ii)), evaluated at ``xi = (q0, p0)``.
         It is a local estimate, not the supremum over the domain that the theorem uses.
 
+        Parameters
+        ----------
+        x : array_like of shape (B, 2n) or (2n,)
+            States ``(q, p)``, one per row (or a single state).
+        mu : float or array_like of shape (B,), (d_mu,) or (B, d_mu), default=None
+            Parameters, as in :meth:`step`.
+        dt : float or array_like of shape (B,), default=None
+            Macro steps, as in :meth:`step`.
+
         Returns
         -------
         ndarray of shape (B,) (or a float for a single state)
@@ -615,6 +629,15 @@ class FittedSymplecticFlowMap(FittedFlowMap):
         ``dp1 = M^{-1} (dp0 - dT S_qq dq0)`` and
         ``dq1 = (I + dT S_pq) dq0 + dT S_pp dp1``.
         For every fixed ``(mu, dT)``, ``DPhi^T J DPhi = J`` (symplecticity).
+
+        Parameters
+        ----------
+        x : array_like of shape (B, 2n) or (2n,)
+            States ``(q, p)``, one per row (or a single state).
+        mu : float or array_like of shape (B,), (d_mu,) or (B, d_mu), default=None
+            Parameters, as in :meth:`step`.
+        dt : float or array_like of shape (B,), default=None
+            Macro steps, as in :meth:`step`.
 
         Returns
         -------
@@ -645,6 +668,11 @@ class FittedSymplecticFlowMap(FittedFlowMap):
         round-off.  Available on models fitted in this process (the Newton data
         are not saved to files).
 
+        Parameters
+        ----------
+        n_centers : int
+            The number of centres kept, ``1 <= n_centers <=`` the fit's number of centres.
+
         Returns
         -------
         SymplecticKernelPredictor or FittedSymplecticFlowMap
@@ -667,6 +695,17 @@ class FittedSymplecticFlowMap(FittedFlowMap):
 
         No bigger model than the case needs: ``E_val(m)`` was recorded for every
         ``m`` during the fit, so this is a look-up plus :meth:`truncated`.
+
+        Parameters
+        ----------
+        target : float
+            The largest validation residual ``E_val(m)`` to accept (positive, e.g. ``1e-4``).
+
+        Returns
+        -------
+        SymplecticKernelPredictor or FittedSymplecticFlowMap
+            A fitted copy with the first ``m`` centres (of the estimator, or of its fitted map), as
+            :meth:`truncated` gives.
 
         Raises
         ------

@@ -332,8 +332,15 @@ class _FlowMapKernelModel(Parametrized):
     def save(self, path, *, overwrite: bool = True) -> None:
         """Save the fitted model to an HDF5 file (atomically; :mod:`sympredict.estimators.model_files`).
 
-        ``overwrite=False`` refuses an existing file (also one created while saving) with :class:`FileExistsError`.
+        Parameters
+        ----------
+        path : str or path-like
+            Target file; a symlink is written through.
+        overwrite : bool, default=True
+            ``False`` refuses an existing file (also one created while saving) with :class:`FileExistsError`.
 
+        Notes
+        -----
         Every parameter (kernels and transforms, update, trainer, solver) and the fitted state are
         stored; the greedy's wall-clock timings are not (files are byte-for-byte
         reproducible), nor its Newton data (a loaded model cannot be :meth:`truncated`).
@@ -342,7 +349,23 @@ class _FlowMapKernelModel(Parametrized):
 
     @classmethod
     def load(cls, path):
-        """Load a model saved by :meth:`save` (of this class); raises :class:`ModelFileError` for unusable files."""
+        """Load a model saved by :meth:`save` (of this class).
+
+        Parameters
+        ----------
+        path : str or path-like
+            A model file written by :meth:`save` of this class.
+
+        Returns
+        -------
+        SymplecticKernelPredictor or DirectKernelPredictor
+            The fitted estimator, of the class ``load`` is called on.
+
+        Raises
+        ------
+        ModelFileError
+            For unusable files (naming what is wrong).
+        """
         return model_files.load(cls, path)
 
     @classmethod
@@ -367,7 +390,7 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
 
     Parameters
     ----------
-    state_kernel
+    state_kernel : RadialKernel, KernelTransform or None, default=None
         Kernel on the mixed state ``xi = (q0, p1)`` (the midpoint for
         ``update='midpoint'``): a radial kernel (``IMQ``, ``Matern52``,
         ``Matern32``), a transform of one (:class:`~sympredict.kernels.transforms.Scaled`:
@@ -377,30 +400,32 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         (default): chosen at fit time by ``search`` inside the symplectic normalisation
         ``Scaled(..., factors=a)``, ``a_i = sqrt(std(p_i) / std(q_i))`` (inside a transform
         such as ``Periodic(None, coordinates=(0,))``: the radial kernel chosen inside it).
-    mu_kernel
+    mu_kernel : RadialKernel or None, default=None
         Radial kernel on the parameter.  ``None`` (default): chosen at fit time when
         ``mu`` is passed (a shape in units of the parameter box), dropped otherwise
         (a model for one fixed parameter).
-    dt_kernel
+    dt_kernel : RadialKernel or None, default=None
         Radial kernel on the macro step.  ``None`` (default): chosen at fit time when
         ``dt`` takes several values, dropped for one ``dT`` (which :meth:`step` then uses by default).
-    max_centers
+    max_centers : int, default=1000
         Maximal number of selected functionals (centres): the model's size.
-    update
+    update : {'symplectic_euler', 'midpoint'}, UpdateRule or None, default=None
         The generating-function update (:mod:`sympredict.symplectic.updates`), by name or
         as an object: ``'symplectic_euler'`` (the paper's type-II ``s(q0, p1)``) or
         ``'midpoint'`` (``x1 = x0 + dT J grad s((x0 + x1)/2)``: symmetric, and its ``s``
         exists up to twice the type-II step on oscillatory modes).  ``None`` (default):
         chosen by ``search`` together with the kernels when any kernel is chosen,
         ``'symplectic_euler'`` when every kernel is given.
-    trainer
+    trainer : Trainer or None, default=None
         The training strategy and its settings (:mod:`sympredict.interpolation.greedy.trainers`):
-        ``None`` for ``ExactGreedy()`` (the exact f-greedy over all candidates;
+        ``ExactGreedy(...)`` (the exact f-greedy over all candidates;
         ``tol``, ``criterion``, ``power_tol``, ``memory_limit``,
         ``regularization``, ``basis_dtype``), ``ActiveSetGreedy(...)`` (an
         active subset refreshed against the full residual) or
         ``ShardedGreedy(pool)`` (a pyMOR worker pool, the exact greedy's
-        centres).  The greedy stops when the max training residual is at or
+        centres); ``None`` (default): the fastest strategy that fits the memory, ``ExactGreedy()`` where
+        its Newton basis does (:func:`~sympredict.interpolation.greedy.trainers.default_trainer`, logged).
+        The greedy stops when the max training residual is at or
         below ``tol * min(1, max|x| / min dT)`` (``max|x|`` over the training
         states): ``tol`` is absolute for data in units of order one and above,
         relative to the data's scale for data in small units.  A fit that
@@ -416,7 +441,7 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         kept.  Without ``validation``, a fit with a target holds a tenth of the samples out (as the
         kernel search does).  With a target, and in a fit that chooses settings, the fit keeps the
         best-scoring prefix (growing never returns a worse model than one it passed).
-    solver
+    solver : NewtonSolver or None, default=None
         The Newton solver of :meth:`step` / :meth:`rollout`
         (:class:`~sympredict.symplectic.solvers.NewtonSolver`: ``max_iter``,
         ``warm_start``, ``backend``); ``None`` for ``NewtonSolver()``
@@ -424,10 +449,11 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         :meth:`backend_for`).  Features without a compiled solver are listed in
         :data:`NUMPY_ONLY`: ``backend='numba'`` is refused for them at fit,
         ``'auto'`` uses NumPy and ``numpy_only_`` says why.
-    search
+    search : KernelSearch or None, default=None
         How the open settings are chosen (:class:`~sympredict.estimators.auto.KernelSearch`:
         candidate families and shapes, ``m_star``, subsample size); ``None`` for ``KernelSearch()``.
         Used only when a kernel or the update is left ``None``.
+
     Attributes
     ----------
     model_ : FittedSymplecticFlowMap
@@ -518,20 +544,24 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
 
         Parameters
         ----------
-        x0, x1 : array_like of shape (M, 2n)
-            Samples ``x1 = Phi_mu^dt(x0)``, states ordered ``(q, p)``.  Or ``x0`` alone a
-            :class:`~sympredict.data.FlowMapData`, or a :class:`~sympredict.data.TrajectoryData`
-            (trained on its consecutive pairs; ``data.pairs(strides)`` for more strides), and
+        x0 : array_like of shape (M, 2n), FlowMapData or TrajectoryData
+            Initial states of the samples ``x1 = Phi_mu^dt(x0)``, states ordered ``(q, p)``.  Or the whole
+            data set: a :class:`~sympredict.data.FlowMapData`, or a :class:`~sympredict.data.TrajectoryData`
+            (trained on its consecutive pairs; ``data.pairs(strides)`` for more strides), with
             ``x1``, ``mu``, ``dt`` omitted.  Repeated samples (same ``x0``, ``x1``, ``mu``, ``dt``)
             are dropped with one :class:`~sympredict.exceptions.DuplicateSamplesWarning`;
             contradictory ones (the same point for the kernel, different targets) raise
             ``ValueError`` naming the rows.
-        mu : array_like of shape (M,) or (M, d_mu), optional
+        x1 : array_like of shape (M, 2n), default=None
+            Propagated states ``Phi_mu^dt(x0)``; required with array data.
+        mu : array_like of shape (M,) or (M, d_mu), default=None
             Parameters (arrays, dicts or pyMOR ``Mu``); required when ``mu_kernel`` is set, and
-            with ``mu_kernel=None`` learned with a chosen parameter kernel.
-        dt : float or array_like of shape (M,)
-            Macro steps (positive).  Several values with ``dt_kernel=None``: a step kernel is chosen.
-        validation : FlowMapData, TrajectoryData or tuple ``(x0, x1, mu, dt)``, optional
+            with ``mu_kernel=None`` learned with a chosen parameter kernel.  ``None``: a model for one
+            fixed parameter.
+        dt : float or array_like of shape (M,), default=None
+            Macro steps (positive); required with array data.  Several values with ``dt_kernel=None``: a
+            step kernel is chosen.
+        validation : FlowMapData, TrajectoryData or tuple ``(x0, x1, mu, dt)``, default=None
             Validation samples; ``E_val(m)`` is then recorded in ``history_``, and they score the fit
             (``diagnostics_``).  Without them, a fit that chooses kernels holds a tenth of the samples
             (at most 2,000) out of the final fit to score it.
@@ -831,16 +861,41 @@ class DirectKernelPredictor(_FlowMapKernelModel):
     target.  The step is explicit and *not* symplectic: the paper's
     baseline that drifts in energy.
 
-    Parameters are those of :class:`SymplecticKernelPredictor` without the
-    update rule and the Newton solver (the step is explicit), and with a plain
-    radial state kernel; the training strategy must handle several outputs
-    (:class:`~sympredict.interpolation.greedy.ExactGreedy` or
-    :class:`~sympredict.interpolation.greedy.ShardedGreedy`).
+    The parameters are those of :class:`SymplecticKernelPredictor` without the
+    update rule, the Newton solver (the step is explicit) and the kernel search (nothing is
+    chosen at fit time).
+
+    Parameters
+    ----------
+    state_kernel : RadialKernel or None, default=None
+        Radial kernel on the state ``x0`` (``IMQ``, ``Matern52``, ``Matern32``; kernel transforms
+        shape the symplectic model's ``s`` and are refused here).  ``None`` (default):
+        ``IMQ(1 / diameter)`` of the training states.
+    mu_kernel : RadialKernel or None, default=None
+        Radial kernel on the parameter; required when ``fit`` is given ``mu``.  ``None`` (default):
+        a model for one fixed parameter.
+    dt_kernel : RadialKernel or None, default=None
+        Radial kernel on the macro step.  ``None`` (default): a fixed-step model (one ``dT`` in the
+        data, which :meth:`step` then uses by default).
+    max_centers : int, default=1000
+        Maximal number of selected centres: the model's size.
+    trainer : Trainer or None, default=None
+        The training strategy; it must handle several outputs
+        (:class:`~sympredict.interpolation.greedy.ExactGreedy` or
+        :class:`~sympredict.interpolation.greedy.ShardedGreedy`).  ``None``: the fastest strategy that fits
+        the memory (:func:`~sympredict.interpolation.greedy.trainers.default_trainer`, logged).
 
     Attributes
     ----------
-    model_ (:class:`~sympredict.estimators.fitted.FittedDirectFlowMap`), and its views kernel_, surrogate_
-    (:class:`~sympredict.interpolation.surrogate.ValueSurrogate`), history_, greedy_result_, dim_, n_mu_, dt_fixed_, domain_
+    model_ : FittedDirectFlowMap
+        The fitted flow map (:mod:`sympredict.estimators.fitted`, frozen); ``kernel_`` ... ``domain_`` are
+        views of it, as for :class:`SymplecticKernelPredictor`.
+    kernel_ : ProductKernel
+        The kernel actually used (with the resolved default state kernel).
+    surrogate_ : ValueSurrogate
+        Centres and coefficients.
+    history_, greedy_result_, dim_, n_mu_, dt_fixed_, domain_, fitted_params_
+        As for :class:`SymplecticKernelPredictor`.
     """
 
     _functionals = ValueFunctionals

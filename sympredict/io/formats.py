@@ -73,6 +73,21 @@ def load_model(path):
     """Load a model written by :func:`save_model`, whichever estimator it holds; :class:`ModelFileError` if unusable.
 
     A file that is not a model (not HDF5, or a data set) is refused naming the files that are (:func:`check_model_file`).
+
+    Parameters
+    ----------
+    path : str or path-like
+        A model file written by :func:`save_model` (or an estimator's ``save``).
+
+    Returns
+    -------
+    SymplecticKernelPredictor, DirectKernelPredictor or SplitKernelPredictor
+        The fitted estimator the file holds.
+
+    Raises
+    ------
+    ModelFileError
+        For a file that is not a model or is unusable (naming what is wrong).
     """
     check_model_file(path)
     settings, arrays = read_container(path, MODEL_FORMAT)

@@ -154,6 +154,7 @@ def check_existence(train: FlowMapData, scaling, dt: float, *, given_update: Opt
     scaling : SymplecticScaling
         The fitted state scaling ``x~ = T x`` of the trained coordinates.
     dt : float
+        The macro step the update must exist at.
     given_update : str or None
         The update the caller fixed (by name), or ``None`` where it is chosen here.
     open_estimator : bool
@@ -164,6 +165,8 @@ def check_existence(train: FlowMapData, scaling, dt: float, *, given_update: Opt
     reference : tuple (LinearHamiltonianSystem, FlowMapData) or None, default=None
         The exact reduced system and the samples with the FOM's parameter vectors (Galerkin samples): exact
         Jacobians instead of fitted linear maps, where no split is in use.
+    log : logging.Logger, default=logging.getLogger("sympredict.mor.existence")
+        Where the choices and skipped checks are logged (the reductor passes its own logger).
 
     Returns
     -------

@@ -23,6 +23,9 @@ def _choice(value, name: str, choices: tuple) -> str:
 class TrainingScaling(Setting):
     """The coordinates the estimator is trained in (:mod:`sympredict.flowmap.scaling`).
 
+    ``TrainingScaling("none", "none", "none")`` trains in the caller's units, where kernel shapes chosen in those
+    units apply unchanged.
+
     Parameters
     ----------
     state : {"diag", "uniform", "williamson", "none"}, default="diag"
@@ -33,9 +36,6 @@ class TrainingScaling(Setting):
         ``"box"``: parameters mapped from the box onto ``[0, 1]^d``; ``"none"``: as they are.
     time : {"step", "none"}, default="step"
         ``"step"``: the macro step becomes the time unit (the estimator sees ``dt = 1``); ``"none"``: it sees ``dt``.
-
-    ``TrainingScaling("none", "none", "none")`` trains in the caller's units, where kernel shapes chosen in those
-    units apply unchanged.
     """
 
     def __init__(self, state: str = "diag", parameters: str = "box", time: str = "step"):

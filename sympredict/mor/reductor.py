@@ -377,7 +377,17 @@ class SymplecticKernelReductor(BasicObject):
 
     # ------------------------------------------------------------ projection
     def project(self, U) -> np.ndarray:
-        """Reduced coordinates ``V+ U`` of a VectorArray in ``fom.solution_space``, shape (len(U), 2n)."""
+        """Reduced coordinates ``V+ U`` of a VectorArray in ``fom.solution_space``, shape (len(U), 2n).
+
+        Parameters
+        ----------
+        U : VectorArray
+            Full states in ``fom.solution_space``.
+
+        Returns
+        -------
+        ndarray of shape (len(U), 2n)
+        """
         if U.space != self.fom.solution_space:
             raise ValueError(f"U must lie in the FOM's solution space {self.fom.solution_space}, got {U.space}")
         return self.V_plus_array.inner(U).T
@@ -385,8 +395,15 @@ class SymplecticKernelReductor(BasicObject):
     def reconstruct(self, U_red):
         """``V U_red``: a VectorArray in ``fom.solution_space``.
 
-        ``U_red``: what ``rom.solve`` returns (a VectorArray of dimension ``2n``), or an array of reduced
-        states of shape ``(K, 2n)`` (or ``(2n,)``).
+        Parameters
+        ----------
+        U_red : VectorArray or array_like of shape (K, 2n) or (2n,)
+            What ``rom.solve`` returns (a VectorArray of dimension ``2n``), or reduced states in rows.
+
+        Returns
+        -------
+        VectorArray
+            ``len(U_red)`` full states in ``fom.solution_space``.
         """
         if isinstance(U_red, np.ndarray) or isinstance(U_red, (list, tuple)):
             arr = np.atleast_2d(np.asarray(U_red, dtype=float))
@@ -575,6 +592,16 @@ class SymplecticKernelReductor(BasicObject):
         chosen term and ``[{"regularization", "score"}]``, ``score`` ``None`` where not finite), ``choice_``
         (update, reason, split; ``choice_["estimator"]``: what the estimator's own search chose) and
         ``timings_`` (seconds of ``data``, ``selection`` and ``fit``).
+
+        Parameters
+        ----------
+        T : float, default=None
+            Time horizon of the ROM; ``None``: ``fom.T``.
+
+        Returns
+        -------
+        SymplecticKernelModel
+            The reduced-order model (a pyMOR model).
         """
         if isinstance(self.samples, GivenSamples):
             rows = self.samples.data.mu

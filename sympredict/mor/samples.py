@@ -338,13 +338,15 @@ class ProjectedTrajectories(_Sampled):
 class GivenTrajectories(ProjectedTrajectories):
     """Consecutive states ``dt`` apart of projected FOM trajectories the caller already has (no FOM solve).
 
+    All of it is checked (shapes, spaces, lengths, finiteness, the time grid) before anything is trained.
+
     Parameters
     ----------
     U : sequence of VectorArray or ndarray of shape (P, K + 1, N)
         ``P`` trajectories in ``fom.solution_space`` (as ``fom.solve`` returns them) or full states, each ``K + 1``
         states at ``t_k = k T / K`` (``T = fom.T``; ``K`` divides the FOM's ``nt`` where it has a time stepper,
         and ``dt`` is a multiple of ``T / K``).
-    mus : sequence of pyMOR Mu, dicts or numbers, or None
+    mus : sequence of pyMOR Mu, dicts or numbers, or None, default=None
         The ``P`` parameter values (the training parameters); ``None`` for a parameter-free FOM.
     validation : tuple (U, mus) or None, default=None
         Validation trajectories of the same form.  Without them there are no validation data: give an
@@ -353,8 +355,6 @@ class GivenTrajectories(ProjectedTrajectories):
         Box for the parameter scaling (default: box of ``mus``).
     horizon : float or None, default=None
         Time span of the trajectories used (default and at most ``fom.T``).
-
-    All of it is checked (shapes, spaces, lengths, finiteness, the time grid) before anything is trained.
     """
 
     def __init__(self, U, mus=None, validation=None, parameter_space=None, horizon: Optional[float] = None):

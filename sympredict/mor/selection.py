@@ -89,6 +89,8 @@ class ValidationSelection(Setting):
         term.  Validation samples score the mean relative error of one step; validation trajectories the mean
         relative error of the rollouts from their first states (a failed or non-finite rollout scores ``inf``).
 
+    Notes
+    -----
     Cost: one greedy fit to ``m_star`` centres per kernel pair, one full fit per ridge term.
     """
 
