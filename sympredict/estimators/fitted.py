@@ -35,7 +35,8 @@ from sympredict.symplectic.newton import (
 from sympredict.symplectic.solvers import NewtonSolver
 from sympredict.symplectic.updates import as_update
 
-__all__ = ["FittedFlowMap", "FittedSymplecticFlowMap", "FittedDirectFlowMap", "NUMPY_ONLY", "EXTRAPOLATION_TOLERANCE",
+__all__ = ["FittedFlowMap", "FittedSymplecticFlowMap", "FittedDirectFlowMap", "NUMPY_ONLY", "numpy_only_reason",
+           "EXTRAPOLATION_TOLERANCE",
            "check_finite", "check_is_fitted", "model_coordinates", "trainer_regularization", "training_box"]
 
 #: Model features that only the NumPy solver runs: ``(test of the flattened state kernel and the update rule,
@@ -48,6 +49,13 @@ __all__ = ["FittedFlowMap", "FittedSymplecticFlowMap", "FittedDirectFlowMap", "N
 NUMPY_ONLY = (
     (lambda parts, rule: not rule.compiled, "this update rule has no compiled solver yet"),
 )
+
+
+def numpy_only_reason(parts, rule) -> Optional[str]:
+    """Why a model of these state-kernel ``parts`` and update ``rule`` has no compiled solver (the features of
+    :data:`NUMPY_ONLY` it has, joined), or ``None``."""
+    reasons = [reason for applies, reason in NUMPY_ONLY if applies(parts, rule)]
+    return "; ".join(reasons) if reasons else None
 
 #: How far (a fraction of the training box's width, per state coordinate) a state may lie outside the box of the
 #: training states before :class:`~sympredict.exceptions.ExtrapolationWarning` calls it an extrapolation: test
@@ -377,8 +385,7 @@ class FittedSymplecticFlowMap(FittedFlowMap):
     @property
     def numpy_only(self) -> Optional[str]:
         """Why this model has no compiled solver (:data:`NUMPY_ONLY`), or ``None``."""
-        reasons = [reason for applies, reason in NUMPY_ONLY if applies(self.parts, self.rule)]
-        return "; ".join(reasons) if reasons else None
+        return numpy_only_reason(self.parts, self.rule)
 
     def backend_for(self, n_instances: int = 1, n_steps: int = 1) -> str:
         """The code :meth:`step` / :meth:`rollout` run for this much work: ``'numpy'`` or ``'numba'``

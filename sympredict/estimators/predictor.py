@@ -42,7 +42,7 @@ from sympredict.estimators import model_files
 from sympredict.estimators.auto import KernelSearch, _holdout_split, diagnose
 from sympredict.estimators.fitted import (
     EXTRAPOLATION_TOLERANCE, NUMPY_ONLY, FittedDirectFlowMap, FittedSymplecticFlowMap, check_is_fitted,
-    model_coordinates, trainer_regularization, training_box,
+    model_coordinates, numpy_only_reason, trainer_regularization, training_box,
 )
 from sympredict.estimators.model_files import MODEL_FORMAT, MODEL_LAYOUT
 from sympredict.estimators.structure import warn_wrapped_angles
@@ -718,10 +718,8 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         trainer = super().check_params()
         solver, parts = self._check_runtime_settings(), self._state_parts()
         updates = [self.update] if self.update is not None else list(self._search().check().updates)
-        for rule in map(as_update, updates):
-            for applies, reason in NUMPY_ONLY:  # the one declarative check of part against backend
-                if applies(parts, rule) and solver.backend == "numba":
-                    raise ValueError(f"{reason}: use NewtonSolver(backend='numpy') or 'auto' (which then uses NumPy)")
+        for rule in map(as_update, updates):  # the declarative check of part against backend, before training
+            solver.refuse_compiled(numpy_only_reason(parts, rule))
         return trainer
 
     def _check_runtime_settings(self) -> NewtonSolver:

@@ -97,13 +97,18 @@ class NewtonSolver(Setting):
                              f"or not at all), got {max_iter}")
         return max_iter
 
+    def refuse_compiled(self, numpy_only: Optional[str]) -> None:
+        """``ValueError`` where ``backend='numba'`` is asked of a model that has no compiled solver, ``numpy_only``
+        saying why (``None``: it has one); the one refusal of a part against a backend, at fit and at prediction."""
+        if numpy_only is not None and self.backend == "numba":
+            raise ValueError(f"{numpy_only}: use NewtonSolver(backend='numpy') or 'auto' (which then uses NumPy)")
+
     def compiled(self, n_instances: Optional[int], n_steps: int, n_centers: int, dim: int,
                  numpy_only: Optional[str] = None) -> bool:
         """Whether this much work runs compiled (see :meth:`backend_for`); ``numpy_only`` is the reason a model
         has no compiled solver (``None``: it has one)."""
         if numpy_only is not None:
-            if self.backend == "numba":
-                raise ValueError(f"{numpy_only}: use NewtonSolver(backend='numpy') or 'auto' (which then uses NumPy)")
+            self.refuse_compiled(numpy_only)
             return False
         if self.backend == "numpy":
             return False
