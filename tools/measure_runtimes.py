@@ -8,7 +8,8 @@ What is timed (wall seconds, each in a fresh process, BLAS threads = the machine
 * ``demo``: ``sympredict demo`` (the README's first command after installing), cold (a fresh, empty
   ``NUMBA_CACHE_DIR``: the first run on a new machine, compiling the Newton kernels) and warm (the
   same cache again); ``compile_s`` is their difference.
-* ``quick``: ``sympredict-paper run pendulum --quick`` and ``sympredict-paper run wave --quick``.
+* ``quick``: ``sympredict-paper run pendulum --quick``, ``... run wave --quick`` and ``... run henon-heiles --quick``
+  (keys ``pendulum``, ``wave``, ``henon_heiles``).
 * ``pages``: every README/docs page with Python blocks: the blocks run in order in one process, as
   ``tests/docs/test_docs_examples.py`` runs them (warm compilation cache).
 * ``basis``: the pyMOR tutorial's basis from every 10th snapshot against all 5,010 (time of
@@ -86,9 +87,10 @@ def measure_demo(work: Path) -> dict:
 
 def measure_quick(work: Path) -> dict:
     out = {}
-    for system in ("pendulum", "wave"):
-        out[system] = {"command": f"sympredict-paper run {system} --quick --out DIR",
-                       "s": _timed([*PAPER, "run", system, "--quick", "--out", f"run-{system}"], work, _env())}
+    for system in ("pendulum", "wave", "henon-heiles"):
+        out[system.replace("-", "_")] = {"command": f"sympredict-paper run {system} --quick --out DIR",
+                                         "s": _timed([*PAPER, "run", system, "--quick", "--out", f"run-{system}"], work,
+                                                     _env())}
     return out
 
 

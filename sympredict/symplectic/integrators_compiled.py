@@ -58,7 +58,7 @@ import math
 import numpy as np
 
 from sympredict._numeric import fill_nan_after, lu_solve_inplace
-from sympredict._checks import as_parameter, as_positive_int, as_states, as_steps
+from sympredict._checks import as_even_dimension, as_parameter, as_positive_int, as_states, as_steps
 from sympredict.exceptions import NewtonConvergenceError
 from sympredict.symplectic.integrators import COMPOSITIONS, SCHEMES, integrate
 
@@ -154,9 +154,7 @@ class PointwiseHamiltonian:
 
     def __init__(self, dim, n_mu, *, grad_T=None, grad_V=None, grad_H=None, hess_H=None, fargs=(), iargs=(),
                  check_mu=None, name: str = "PointwiseHamiltonian"):
-        self.dim = as_positive_int(dim, "dim", minimum=2)
-        if self.dim % 2:
-            raise ValueError(f"dim must be even (q, p), got {dim}")
+        self.dim = as_even_dimension(as_positive_int(dim, "dim", minimum=2), "dim")
         self.n_mu = as_positive_int(n_mu, "n_mu")
         for arg, fn in (("grad_T", grad_T), ("grad_V", grad_V), ("grad_H", grad_H), ("hess_H", hess_H)):
             if fn is not None and not callable(fn):

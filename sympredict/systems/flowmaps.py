@@ -50,7 +50,7 @@ from pymor.core.logger import getLogger
 from pymor.models.symplectic import BaseQuadraticHamiltonianModel
 from pymor.parameters.base import Mu, Parameters
 
-from sympredict._checks import as_positive_int, as_states, as_steps
+from sympredict._checks import as_even_dimension, as_positive_int, as_states, as_steps
 from sympredict.data import FlowMapData
 from sympredict.exceptions import GeneratingFunctionWarning
 from sympredict.systems.linear_flow import exact_propagators, generator_propagators
@@ -290,9 +290,7 @@ class HamiltonianSystem(_System):
     def __init__(self, H: Callable, grad_H: Callable, dim: int, parameters=None, rtol: float = 1e-11):
         self.H = H
         self.grad_H = grad_H
-        self.dim = as_positive_int(dim, "dim", minimum=2)
-        if self.dim % 2:
-            raise ValueError(f"dim must be even (q, p), got {dim}")
+        self.dim = as_even_dimension(as_positive_int(dim, "dim", minimum=2), "dim")
         self.parameters = Parameters(parameters or {})
         self.n_mu = self.parameters.dim
         self.rtol = float(rtol)
