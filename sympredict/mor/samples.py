@@ -382,27 +382,41 @@ class GivenTrajectories(ProjectedTrajectories):
         return trajectories[1] if fom.parameters else [None]
 
     def _trajectories(self, fom) -> tuple:
-        """The training and validation trajectories read and checked (``(VectorArrays, Mus)`` each, or ``None``)."""
+        """The training and validation trajectories read and checked (``(VectorArrays, Mus)`` each, or ``None``).
+
+        Read once per ``(fom, U, mus, validation)``: ``check``, ``validation_parameters`` and ``sample`` all need
+        them, and an array of full states is copied and scanned for NaN on every read.
+        """
+        key = (fom, self.U, self.mus, self.validation)
+        read = self.__dict__.get("_read")
+        if read is not None and all(a is b for a, b in zip(read[0], key)):
+            return read[1]
         if self.validation is not None and (not isinstance(self.validation, (tuple, list)) or len(self.validation) != 2):
             raise ValueError(f"GivenTrajectories: validation must be a pair (U, mus) of validation trajectories "
                              f"and their parameter values, got {type(self.validation).__name__}")
-        return (_as_trajectories(self.U, self.mus, fom, "GivenTrajectories"),
-                None if self.validation is None else
-                _as_trajectories(*self.validation, fom, "GivenTrajectories validation"))
+        trajectories = (_as_trajectories(self.U, self.mus, fom, "GivenTrajectories"),
+                        None if self.validation is None else
+                        _as_trajectories(*self.validation, fom, "GivenTrajectories validation"))
+        self._read = (key, trajectories)
+        return trajectories
+
+    @staticmethod
+    def _parameters(trajectories, fom) -> list:
+        """The parameter values of ``trajectories`` (``(VectorArrays, Mus)``): ``None`` each for a parameter-free FOM."""
+        return trajectories[1] if fom.parameters else [None] * len(trajectories[0])
 
     def validation_parameters(self, reductor) -> list:
         """The parameters of the validation trajectories (``[]`` without them)."""
         if self.validation is None:
             return []
-        validation = self._trajectories(reductor.fom)[1]
-        return validation[1] if reductor.fom.parameters else [None] * len(validation[0])
+        return self._parameters(self._trajectories(reductor.fom)[1], reductor.fom)
 
     def sample(self, reductor):
         trajectories, validation = self._trajectories(reductor.fom)
         horizon = self._horizon(reductor.fom)
         train = _projected_pairs(reductor, reductor.training_parameters, horizon, trajectories[0])
         val = None if validation is None else _projected_pairs(
-            reductor, validation[1] if reductor.fom.parameters else [None] * len(validation[0]), horizon, validation[0])
+            reductor, self._parameters(validation, reductor.fom), horizon, validation[0])
         return train, val, None
 
 

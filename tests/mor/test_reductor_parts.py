@@ -74,6 +74,27 @@ def test_one_samples_part_serves_several_reductors(small_fe):
     assert len(a) == 3 * (2 * nt + 1 - 4) and len(b) == 3 * (2 * nt + 1 - 8) and np.allclose(b.dt, 8 * h)
 
 
+def test_given_trajectories_are_read_once(small_fe, monkeypatch):
+    """The caller's trajectories (here an array of full states, copied and scanned for NaN on each read) are read
+    once for the reductor's check, its validation parameters and its training data; new trajectories are read anew."""
+    import sympredict.mor.samples as samples_module
+
+    fom, space, train, RB = small_fe
+    h = fom.T / fom.time_stepper.nt
+    U = np.stack([fom.solve(mu).to_numpy().T for mu in train])  # (P, K + 1, N)
+    reads = []
+    real = samples_module._as_trajectories
+    monkeypatch.setattr(samples_module, "_as_trajectories", lambda *a, **k: reads.append(a[-1]) or real(*a, **k))
+    given = GivenTrajectories(U, train, validation=(U[:1], train[:1]), parameter_space=space)
+    reductor = SymplecticKernelReductor(fom, RB, 4 * h, given, check_existence=False)
+    reductor.validation_parameters()
+    reductor.training_data()
+    assert reads == ["GivenTrajectories", "GivenTrajectories validation"]
+    given.set_params(U=U[::-1].copy())
+    reductor.training_data()
+    assert len(reads) == 4
+
+
 def test_the_default_estimator_is_estimator_none(small_fe):
     fom, space, train, RB = small_fe
     h = fom.T / fom.time_stepper.nt
