@@ -301,7 +301,7 @@ def grid_search(
 # ------------------------------------------------------------------ coordinate refinement
 def coordinate_search(start: tuple, key: Callable, active: Sequence[int], move: Callable,
                       factors: Sequence[float] = (0.5, 2.0), sweeps: int = 2, from_best: bool = True,
-                      on_sweep: Optional[Callable] = None) -> tuple:
+                      on_sweep: Optional[Callable] = None, shrink: Optional[float] = None) -> tuple:
     """Coordinate search: each active coordinate of the best candidate moved by each factor, one at a time.
 
     Parameters
@@ -325,6 +325,10 @@ def coordinate_search(start: tuple, key: Callable, active: Sequence[int], move: 
         that was best when that coordinate's turn began (``False``: both neighbours of it are tried).
     on_sweep : callable, optional
         ``on_sweep(sweep, best)`` after each sweep (e.g. a log line).
+    shrink : float, optional
+        In ``(0, 1)``: a sweep without improvement does not end the search; the following sweeps move by
+        ``exp(shrink**k log f)`` for each factor ``f`` after ``k`` such sweeps (``0.5``: ``2 -> sqrt 2 -> 2^(1/4)``),
+        and all ``sweeps`` sweeps run.  ``None`` (default): the search stops after a sweep without improvement.
 
     Returns
     -------
@@ -335,6 +339,9 @@ def coordinate_search(start: tuple, key: Callable, active: Sequence[int], move: 
     -----
     Cost: at most ``1 + len(factors) len(active) sweeps`` calls of ``key``.
     """
+    if shrink is not None and not 0 < shrink < 1:
+        raise ValueError(f"shrink must lie in (0, 1) or be None, got {shrink!r}")
+    logs, scale, moves = np.log(factors), 1.0, tuple(factors)
     best = start
     key(best)
     for sweep in range(sweeps):
@@ -343,7 +350,7 @@ def coordinate_search(start: tuple, key: Callable, active: Sequence[int], move: 
             anchor = best
             if anchor[i] is None:
                 continue
-            for f in factors:
+            for f in moves:
                 origin = best if from_best else anchor
                 cand = origin[:i] + (move(origin[i], i, f),) + origin[i + 1:]
                 if key(cand) < key(best):
@@ -351,7 +358,10 @@ def coordinate_search(start: tuple, key: Callable, active: Sequence[int], move: 
         if on_sweep is not None:
             on_sweep(sweep, best)
         if not improved:
-            break
+            if shrink is None:
+                break
+            scale *= shrink
+            moves = tuple(float(m) for m in np.exp(logs * scale))
     return best
 
 

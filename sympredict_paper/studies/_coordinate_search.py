@@ -1,9 +1,10 @@
-"""The multiplicative coordinate search the accuracy benchmarks share (a script helper, not library code).
+"""The accuracy studies' multiplicative coordinate search, run by the library's one search engine
+(:func:`sympredict.estimators.search.coordinate_search`); this module only names the coordinates and prints.
 
-Each searched parameter is multiplied and divided by ``factor`` in turn, keeping
-any candidate that lowers the score; after a sweep without improvement the
-factor's logarithm halves (``2 -> sqrt 2 -> 2^(1/4)``).  ``O(sweeps * 2 *
-len(search))`` evaluations of ``score``.
+Each searched parameter is multiplied and divided by ``factor`` in turn, from the best candidate so far, keeping
+any candidate that lowers the score; after a sweep without improvement the factor's logarithm halves
+(``2 -> sqrt 2 -> 2^(1/4)``, the engine's ``shrink=0.5``) and all ``sweeps`` sweeps run.  At most
+``1 + sweeps * 2 * len(search)`` evaluations of ``score``; a candidate that recurs is scored once.
 """
 
 from __future__ import annotations
@@ -12,26 +13,31 @@ from typing import Callable, Optional, Sequence
 
 import numpy as np
 
+from sympredict.estimators.search import coordinate_search as _engine_search
+
 
 def coordinate_search(score: Callable[[list], float], start: Sequence[float], names: Sequence[str],
                       search: Sequence[str], factor: float = 2.0, sweeps: int = 3,
                       start_score: Optional[float] = None, label: str = "") -> tuple[list, float]:
     """Return ``(best parameters, best score)``; ``start_score`` saves the start's evaluation when known."""
-    best = [float(v) for v in start]
-    best_score = score(best) if start_score is None else start_score
-    log_f = np.log(factor)
-    for sweep in range(sweeps):
-        improved = False
-        for name in search:
-            i = list(names).index(name)
-            for sign in (1, -1):
-                cand = list(best)
-                cand[i] = float(best[i] * np.exp(sign * log_f))
-                value = score(cand)
-                if value < best_score:
-                    best, best_score, improved = cand, value, True
-        print(f"sweep {sweep}: best {label}{dict(zip(names, best))}, score {best_score:.3e} "
-              f"(factor {np.exp(log_f):.3f})", flush=True)
-        if not improved:
-            log_f /= 2
-    return best, best_score
+    first = tuple(float(v) for v in start)
+    scores = {} if start_score is None else {first: start_score}
+
+    def key(cand: tuple) -> float:
+        if cand not in scores:
+            scores[cand] = score(list(cand))
+        return scores[cand]
+
+    shown = {"best": first, "log_f": np.log(factor)}
+
+    def on_sweep(sweep: int, best: tuple) -> None:
+        print(f"sweep {sweep}: best {label}{dict(zip(names, best))}, score {scores[best]:.3e} "
+              f"(factor {np.exp(shown['log_f']):.3f})", flush=True)
+        if best == shown["best"]:  # no improvement: the engine's next sweep moves by the shrunk factor
+            shown["log_f"] /= 2
+        shown["best"] = best
+
+    best = _engine_search(first, key, [list(names).index(n) for n in search], lambda v, i, f: v * f,
+                          factors=(factor, 1.0 / factor), sweeps=sweeps, from_best=True, on_sweep=on_sweep,
+                          shrink=0.5)
+    return list(best), scores[best]

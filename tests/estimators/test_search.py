@@ -83,3 +83,20 @@ def test_grid_search_needs_the_estimator_the_candidates_share():
     data = FlowMapData(x, x, None, np.full(4, 0.1))
     with pytest.raises(ValueError, match="needs the estimator"):
         grid_search(data, data, [IMQ(1.0)])
+
+
+def test_shrink_goes_on_after_a_sweep_without_gain_with_the_factors_logarithms_scaled():
+    """Minimum of (log2 a - 1.5)^2: factor 2 reaches 2 and stalls there; without ``shrink`` the search ends at 2,
+    with ``shrink=0.5`` the next sweep moves by sqrt 2 = exp(log(2) / 2) and reaches 2^1.5."""
+    score = lambda c: (np.log2(c[0]) - 1.5) ** 2  # noqa: E731
+    assert coordinate_search((1.0,), score, [0], _scale, factors=(2.0, 0.5), sweeps=3) == (2.0,)
+    key, calls = _counted(score)
+    sweeps = []
+    best = coordinate_search((1.0,), key, [0], _scale, factors=(2.0, 0.5), sweeps=3, shrink=0.5,
+                             on_sweep=lambda sweep, b: sweeps.append((sweep, b)))
+    root2 = float(np.exp(np.log(2.0) * 0.5))
+    assert best == (2.0 * root2,)
+    assert sweeps == [(0, (2.0,)), (1, (2.0,)), (2, (2.0 * root2,))]  # all three sweeps run
+    assert {c[0] for c in calls} == {1.0, 2.0, 4.0, 2.0 * root2, 2.0 * root2 * float(np.exp(-np.log(2.0) * 0.5))}
+    with pytest.raises(ValueError, match="shrink must lie in"):
+        coordinate_search((1.0,), score, [0], _scale, shrink=1.0)
