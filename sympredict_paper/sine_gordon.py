@@ -249,6 +249,11 @@ def _curve(rom, Y, X):
     return relative_trajectory_error(rom.reconstruct(Y), X).mean(axis=0)
 
 
+def failure_text(exc: BaseException) -> str:
+    """A failed fit or rollout as a result: the exception's type and message, at most 300 characters."""
+    return f"{type(exc).__name__}: {exc}"[:300]
+
+
 def _err(rom, Y, X):
     """Mean over time of the relative error of the reconstruction, per test trajectory (B,)."""
     return relative_trajectory_error(rom.reconstruct(Y), X).mean(axis=1)
@@ -390,7 +395,7 @@ def _one_dimension(fom, p, n, snaps, X_tr, c_tr, a_tr, X_te, c_te, a_te, K):
             entry["time_per_trajectory"] = _median_time(lambda: flow.rollout(y0[:1], K, mu=c_te[:1, None], dt=p.DT),
                                                         p.repeats)
         except Exception as exc:  # a failed rollout is a result, reported as such
-            entry["failure"] = f"{type(exc).__name__}: {exc}"[:300]
+            entry["failure"] = failure_text(exc)
         res[f"kernel_{data}"] = entry
     # pyMOR's DataDrivenReductor (VKOGA regressor, inputs scaled to the box): (c, amplitude) -> reduced trajectory,
     # trained on the same projected FOM trajectories (non-intrusive); it predicts on the training horizon only
@@ -740,7 +745,7 @@ def _large_step(p, gal, X_tr, c_tr, X_te, c_te, K):
         entry["error"] = _err(gal, flow.rollout(y0, Kl, mu=c_te[:, None], dt=dt), x_te).tolist()
         entry["time_per_trajectory"] = _median_time(lambda: flow.rollout(y0[:1], Kl, mu=c_te[:1, None], dt=dt), p.repeats)
     except Exception as exc:  # a failed rollout is a result, reported as such
-        entry["failure"] = f"{type(exc).__name__}: {exc}"[:300]
+        entry["failure"] = failure_text(exc)
     out["kernel_projected_midpoint"] = entry
     return out
 
@@ -769,7 +774,7 @@ def _data_driven(fom, p, Yp_tr, c_tr, a_tr, c_te, a_te, gal, x_te, K, curves):
         curves["data_driven"] = _curve(gal, Y, x_te).tolist()
         entry["time_per_trajectory"] = _median_time(lambda: rom.solve(mus[0]), p.repeats)
     except Exception as exc:  # reported, not raised
-        entry["failure"] = f"{type(exc).__name__}: {exc}"[:300]
+        entry["failure"] = failure_text(exc)
     return entry
 
 

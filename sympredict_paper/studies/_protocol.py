@@ -255,9 +255,11 @@ def _jsonable(value):
 
 
 def write_json(path, result, protocol: dict, indent: int = 1) -> None:
-    """Write ``result`` (a dict: its keys unchanged, ``"protocol"`` added; any other value under ``"results"``) to ``path``."""
+    """Write ``result`` (a dict: its keys unchanged, ``"protocol"`` added; any other value under ``"results"``) to ``path``
+    (its folder created where missing)."""
     data = dict(result) if isinstance(result, dict) else {"results": result}
     data["protocol"] = protocol
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
     from sympredict.container import atomic_output  # a report survives a full disk or Ctrl-C whole or not at all
 
     with atomic_output(path) as fh:

@@ -1,11 +1,13 @@
 """The sine-Gordon benchmarks' FOM data, cached in an npz file between runs (the studies only)."""
 
 import os
+import time
 from dataclasses import replace
+from typing import Callable, Optional
 
 import numpy as np
 
-from sympredict_paper.sine_gordon import fom_data
+from sympredict_paper.sine_gordon import failure_text, fom_data
 
 
 def cached_fom_data(p, cache: str) -> dict:
@@ -22,3 +24,29 @@ def cached_fom_data(p, cache: str) -> dict:
     d = fom_data(p)
     np.savez(cache, **{k: d[k] for k in ("X_tr", "X_te", "c_tr", "c_te")})
     return d
+
+
+def load_fom_data(p, preset: str, cache: Optional[str] = None,
+                  show: Callable = lambda c: np.round(c, 3).tolist()) -> tuple:
+    """The split studies' FOM data of preset ``p`` (named ``preset``): :func:`cached_fom_data`, by default cached
+    per preset and sizes under ``/tmp``, reported in one line (the test parameters as ``show(c_te)``).
+
+    Returns
+    -------
+    tuple
+        ``(fom, K, c_tr, c_te, X_tr, X_te)``: the FOM, the steps ``K = T / DT`` of a training trajectory, the
+        training and test parameters and trajectories.
+    """
+    cache = cache or f"/tmp/sine_gordon_split_{preset}_{p.n_c}x{p.n_amplitude}.npz"
+    t0 = time.perf_counter()
+    d = cached_fom_data(p, cache)
+    print(f"FOM data: {len(d['c_tr'])} training, {len(d['c_te'])} test trajectories ({time.perf_counter() - t0:.0f} s); "
+          f"test c = {show(d['c_te'])}", flush=True)
+    return d["fom"], int(round(p.T / p.DT)), d["c_tr"], d["c_te"], d["X_tr"], d["X_te"]
+
+
+def record_failure(row: dict, exc: BaseException, what: str = "fails") -> str:
+    """A failed fit or rollout is a result: ``row["failure"]`` (:func:`~sympredict_paper.sine_gordon.failure_text`);
+    returns the line printed for it, ``what: `` and the first 160 characters."""
+    row["failure"] = failure_text(exc)
+    return f"{what}: {row['failure'][:160]}"

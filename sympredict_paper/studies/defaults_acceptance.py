@@ -278,30 +278,27 @@ def make_benchmarks() -> dict:
 #: of 2, 3 sweeps; cost on the shared 2-core machine, 1 BLAS and 1 numba thread).
 #: ``factors`` are the Scaled transform's ``a_i`` = ratio * sqrt(std p_i / std q_i) of the training data;
 #: ``eps_state`` is in units of 1 / spread (``spread``), ``eps_mu`` in 1 / (the parameter's unit).
+def _searched(samples: int, max_centers: int, *rounds: tuple) -> dict:
+    """The record of a hand search: its data size and centre budget, and per round ``(start, evaluations,
+    cost_s, best_validation)``."""
+    keys = ("start", "evaluations", "cost_s", "best_validation")
+    return {"rounds": [dict(zip(keys, r)) for r in rounds], "samples": samples, "max_centers": max_centers}
+
+
 HAND: dict = {
-    "coupled_pendulums": {"family": "imq", "update": "midpoint", "eps_state": 0.0625, "eps_mu": 0.125,
-                          "ratio": 1.0, "search": {
-                              "rounds": [{"start": "imq, midpoint, eps_state 0.5, eps_mu 1.0, ratio 1.0",
-                                          "evaluations": 21, "cost_s": 182, "best_validation": 1.21e-4},
-                                         {"start": "round 1's best (matern52, symplectic_euler, 0.0625, 0.25, 1.0)",
-                                          "evaluations": 13, "cost_s": 50, "best_validation": 3.05e-7}],
-                              "samples": 5000, "max_centers": 1000}},
+    "coupled_pendulums": {"family": "imq", "update": "midpoint", "eps_state": 0.0625, "eps_mu": 0.125, "ratio": 1.0,
+                          "search": _searched(
+                              5000, 1000, ("imq, midpoint, eps_state 0.5, eps_mu 1.0, ratio 1.0", 21, 182, 1.21e-4),
+                              ("round 1's best (matern52, symplectic_euler, 0.0625, 0.25, 1.0)", 13, 50, 3.05e-7))},
     "fpu_chain": {"family": "imq", "update": "midpoint", "eps_state": 0.015625, "eps_mu": 0.000125, "ratio": 2.0,
-                  "search": {
-                      "rounds": [{"start": "imq, midpoint, eps_state 0.5, eps_mu 5e-4, ratio 1.0",
-                                  "evaluations": 19, "cost_s": 203, "best_validation": 1.80e-3},
-                                 {"start": "round 1's best (matern52, midpoint, 0.0625, 0.001, 2.0)",
-                                  "evaluations": 16, "cost_s": 118, "best_validation": 9.11e-4},
-                                 {"start": "round 2's best (matern52, midpoint, 0.015625, 5e-4, 2.0)",
-                                  "evaluations": 14, "cost_s": 78, "best_validation": 1.27e-4}],
-                      "samples": 5000, "max_centers": 1000}},
+                  "search": _searched(
+                      5000, 1000, ("imq, midpoint, eps_state 0.5, eps_mu 5e-4, ratio 1.0", 19, 203, 1.80e-3),
+                      ("round 1's best (matern52, midpoint, 0.0625, 0.001, 2.0)", 16, 118, 9.11e-4),
+                      ("round 2's best (matern52, midpoint, 0.015625, 5e-4, 2.0)", 14, 78, 1.27e-4))},
     "kepler": {"family": "matern52", "update": "symplectic_euler", "eps_state": 0.125, "eps_mu": 0.0253, "ratio": 2.0,
-               "search": {
-                   "rounds": [{"start": "imq, midpoint, eps_state 0.5, eps_mu 0.0253, ratio 1.0",
-                               "evaluations": 15, "cost_s": 108, "best_validation": 1.23e-3},
-                              {"start": "round 1's best with eps_state 0.0625 (matern52, symplectic_euler, ratio 2.0)",
-                               "evaluations": 10, "cost_s": 37, "best_validation": 1.15e-3}],
-                   "samples": 5000, "max_centers": 1000}},
+               "search": _searched(
+                   5000, 1000, ("imq, midpoint, eps_state 0.5, eps_mu 0.0253, ratio 1.0", 15, 108, 1.23e-3),
+                   ("round 1's best with eps_state 0.0625 (matern52, symplectic_euler, ratio 2.0)", 10, 37, 1.15e-3))},
 }
 
 
@@ -593,7 +590,6 @@ def main(argv=None) -> dict:
             result["systems"][name] = entry
         print_table(result)
         if args.json:
-            Path(args.json).parent.mkdir(parents=True, exist_ok=True)
             _protocol.write_json(args.json, result, _protocol.record(
                 blas_threads=args.blas_threads, numba_threads=args.threads, repeats=args.repeats, warmup=0,
                 notes="fit times on a shared machine are indicative only; errors are deterministic given the seeds"))

@@ -37,7 +37,7 @@ from dataclasses import replace
 import numpy as np
 
 import _protocol  # sympredict_paper/studies/ (the script's folder is on sys.path)
-from _sine_gordon_data import cached_fom_data  # sympredict_paper/studies/
+from _sine_gordon_data import load_fom_data, record_failure  # sympredict_paper/studies/
 
 from sympredict.symplectic.metrics import canonical_J
 from sympredict_paper.sine_gordon import PRESETS, _err, _fit_kernel, _jg, choose_large_step
@@ -118,14 +118,9 @@ def main():
     p = replace(PRESETS[args.preset], large_step=min(args.steps), large_step_candidates=tuple(args.steps),
                 **({} if args.margin is None else {"large_step_margin": args.margin}))
     results = {"preset": args.preset, "steps": args.steps, "horizon": args.horizon, "margin": p.large_step_margin, "rows": [], "choices": []}
-    cache = args.cache or f"/tmp/sine_gordon_split_{args.preset}_{p.n_c}x{p.n_amplitude}.npz"
     with _protocol.limits(args.blas_threads):
         protocol = _protocol.record(blas_threads=args.blas_threads, repeats=1, statistic="one run per fit and rollout")
-        t0 = time.perf_counter()
-        d = cached_fom_data(p, cache)
-        fom, K, c_tr, c_te, X_tr, X_te = d["fom"], int(round(p.T / p.DT)), d["c_tr"], d["c_te"], d["X_tr"], d["X_te"]
-        print(f"FOM data: {len(c_tr)} training, {len(c_te)} test trajectories ({time.perf_counter() - t0:.0f} s); "
-              f"test c = {_r(c_te)}", flush=True)
+        fom, K, c_tr, c_te, X_tr, X_te = load_fom_data(p, args.preset, args.cache, show=_r)
         for dim in args.dims:
             gal = ReducedSineGordon.galerkin(fom, complex_svd_basis(X_tr.reshape(-1, fom.dim), n=dim // 2, layout="rows").V)
             quads = {sp: None if sp == "none" else gal.quadratic_part(mass=sp == "quadratic-mass") for sp in args.splits}
@@ -196,8 +191,7 @@ def main():
                             msg = (f"error {_r(e)} ({_r(e / floor, 3)} x floor); best classical / kernel {_r(best / e, 3)} "
                                    f"(min {np.min(best / e):.2f})")
                         except Exception as exc:  # a failed fit or rollout is a result
-                            row["failure"] = f"{type(exc).__name__}: {exc}"[:300]
-                            msg = f"fails: {row['failure'][:160]}"
+                            msg = record_failure(row, exc)
                         mark = (" [chosen]" if row["chosen"] else "") + (" [chosen: validation]" if row["chosen_validation"] else "")
                         print(f"    kernel split={sp:14s} {update:16s}{mark}: lambda={row.get('regularization')}, centres "
                               f"{row.get('centers')}, {time.perf_counter() - t1:.0f} s: {msg}", flush=True)

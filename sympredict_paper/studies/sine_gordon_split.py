@@ -34,7 +34,7 @@ from dataclasses import replace
 import numpy as np
 
 import _protocol  # sympredict_paper/studies/ (the script's folder is on sys.path)
-from _sine_gordon_data import cached_fom_data  # sympredict_paper/studies/
+from _sine_gordon_data import load_fom_data, record_failure  # sympredict_paper/studies/
 
 from sympredict_paper.sine_gordon import PRESETS, _augmentation, _err, _energy_errors, _fit_kernel, _jg, \
     energy_boundedness, split_setup
@@ -61,15 +61,10 @@ def main():
                               ("split_phase_tol", args.split_phase_tol)) if v is not None}
     p = replace(PRESETS[args.preset], **over)
     results = {"preset": args.preset, "overrides": over, "rows": []}
-    cache = args.cache or f"/tmp/sine_gordon_split_{args.preset}_{p.n_c}x{p.n_amplitude}.npz"
     with _protocol.limits(args.blas_threads):
         protocol = _protocol.record(blas_threads=args.blas_threads, repeats=1, statistic="one run per fit and rollout")
-        t0 = time.perf_counter()
-        d = cached_fom_data(p, cache)
-        fom, K, c_tr, c_te, X_tr, X_te = d["fom"], int(round(p.T / p.DT)), d["c_tr"], d["c_te"], d["X_tr"], d["X_te"]
+        fom, K, c_tr, c_te, X_tr, X_te = load_fom_data(p, args.preset, args.cache)
         L = p.long_factor * K
-        print(f"FOM data: {len(c_tr)} training, {len(c_te)} test trajectories ({time.perf_counter() - t0:.0f} s); "
-              f"test c = {np.round(c_te, 3).tolist()}", flush=True)
         for dim in args.dims:
             gal = ReducedSineGordon.galerkin(fom, complex_svd_basis(X_tr.reshape(-1, fom.dim), n=dim // 2, layout="rows").V)
             x_te = X_te[:, : K + 1]
@@ -127,8 +122,7 @@ def main():
                                f"{np.round(eb['m0'], 4).tolist()}, ratio {np.round(eb['ratio'], 2).tolist()}, "
                                f"rise {[None if r is None else round(r, 2) for r in eb['rise']]}, bounded {eb['bounded']}")
                     except Exception as exc:  # a failed rollout is a result
-                        row["failure"] = f"{type(exc).__name__}: {exc}"[:300]
-                        msg = f"rollout fails: {row['failure'][:160]}"
+                        msg = record_failure(row, exc, "rollout fails")
                     print(f"  {update:16s} split={split:14s} data sub-steps {sp['substeps']}, lambda={reg:g} (table "
                           f"{[(lam, None if sc is None else round(sc, 4)) for lam, sc in table]}), centres {row['centers']}, "
                           f"residual {row['train_residual']:.1e}, fit {fit_time:.0f} s, total {time.perf_counter() - t1:.0f} s:"
