@@ -10,6 +10,8 @@ import pytest
 
 from sympredict.cli import main
 
+from _cli import assert_refused_in_one_line  # tests/
+
 
 def test_outputs_equal_to_inputs_and_special_outputs_are_refused(tmp_path, capsys):
     data, model = tmp_path / "d.h5", tmp_path / "m.h5"
@@ -56,11 +58,7 @@ def test_outputs_equal_to_inputs_and_special_outputs_are_refused(tmp_path, capsy
     ],
 )
 def test_nonsense_numbers_are_refused_by_the_parser_in_one_line(argv, capsys):
-    with pytest.raises(SystemExit) as info:
-        main(argv)
-    assert info.value.code == 2
-    err = capsys.readouterr().err
-    assert len(err.strip().splitlines()) == 1 and "error: argument" in err, err
+    assert_refused_in_one_line(main, argv, capsys)
 
 
 def test_hostile_files_reaching_the_cli_are_one_line(tmp_path, capfd):

@@ -14,6 +14,8 @@ from sympredict_paper import report, runner
 from sympredict_paper.cli import main
 from sympredict_paper.runner import RUN_MARKER
 
+from _cli import assert_refused_in_one_line  # tests/
+
 
 def fake_runner(fail=None):
     """A stand-in for a scenario runner: writes a file into the run folder, then returns or fails."""
@@ -165,11 +167,7 @@ def test_cli_user_errors_are_one_line_without_traceback(tmp_path):
     ],
 )
 def test_nonsense_numbers_are_refused_by_the_parser_in_one_line(argv, capsys):
-    with pytest.raises(SystemExit) as info:
-        main(argv)
-    assert info.value.code == 2
-    err = capsys.readouterr().err
-    assert len(err.strip().splitlines()) == 1 and "error: argument" in err, err
+    assert_refused_in_one_line(main, argv, capsys)
 
 
 
