@@ -50,7 +50,7 @@ from pymor.core.logger import getLogger
 from pymor.models.symplectic import BaseQuadraticHamiltonianModel
 from pymor.parameters.base import Mu, Parameters
 
-from sympredict._checks import as_even_dimension, as_positive_int, as_states, as_steps
+from sympredict._checks import as_even_dimension, as_parameter, as_positive_int, as_states, as_steps
 from sympredict.data import FlowMapData
 from sympredict.exceptions import GeneratingFunctionWarning
 from sympredict.systems.linear_flow import exact_propagators, generator_propagators
@@ -222,6 +222,37 @@ def rk4_flow(gradient: Callable, x0: np.ndarray, mu: np.ndarray, t: np.ndarray, 
             raise ValueError(f"the RK4 reference flow did not reach rtol = {rtol:.0e} with {max_steps} steps "
                              f"(estimated error {err.max():.1e}): is grad H consistent with H?")
         coarse = fine
+
+
+class _ScalarParameterSystem:
+    """Shared by the closed-form systems of one scalar parameter whose reference flow is one macro step of their
+    ``trajectory`` (:class:`~sympredict.systems.henon_heiles.HenonHeiles`,
+    :class:`~sympredict.systems.three_body.ThreeBody`): the parameter's check, ``repr`` and ``flow``."""
+
+    dim: int
+    n_mu = 1
+    #: The parameter as named in messages.
+    parameter_name = "mu"
+    #: Closed range ``(lo, hi)`` the parameter must lie in, or ``None``.
+    parameter_bounds: Optional[tuple] = None
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}()"
+
+    def _parameter(self, mu, b: int) -> np.ndarray:
+        """The parameter of each of ``b`` instances, shape (b,), checked against :attr:`parameter_bounds`."""
+        mu = as_parameter(mu, b, 1, name=self.parameter_name)[:, 0]
+        if self.parameter_bounds is not None:
+            lo, hi = self.parameter_bounds
+            if np.any((mu < lo) | (mu > hi)):
+                raise ValueError(f"{self.parameter_name} must lie in [{lo}, {hi}], got values in [{mu.min()}, {mu.max()}]")
+        return mu
+
+    def _one_step(self, x0, mu, t, **options) -> np.ndarray:
+        """``Phi_mu^t(x0)``: :meth:`trajectory` with one macro step ``t`` (and its ``options``), shape of ``x0``."""
+        x0, single = as_states(x0, "x0", dim=self.dim)
+        out = self.trajectory(x0, mu, t, 1, **options)[:, 1]
+        return out[0] if single else out
 
 
 class _System:

@@ -25,8 +25,9 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import brentq
 
-from sympredict._checks import as_parameter, as_positive_int, as_states, as_steps
+from sympredict._checks import as_positive_int, as_states, as_steps
 from sympredict.exceptions import SympredictError
+from sympredict.systems.flowmaps import _ScalarParameterSystem
 from sympredict.symplectic.integrators import micro_steps
 from sympredict.symplectic.integrators_compiled import PointwiseHamiltonian, jit_pointwise, rollout
 
@@ -83,37 +84,30 @@ def escape_energy(lam: float) -> float:
     return np.inf if lam == 0 else 1.0 / (6.0 * lam * lam)
 
 
-class HenonHeiles:
+class HenonHeiles(_ScalarParameterSystem):
     """Hénon–Heiles ``H = |p|^2/2 + |q|^2/2 + lambda (q1^2 q2 - q2^3/3)`` with ``x = (q1, q2, p1, p2)``, ``mu = lambda``."""
 
     dim = 4
-    n_mu = 1
-
-    def __repr__(self) -> str:
-        return "HenonHeiles()"
-
-    @staticmethod
-    def _lams(mu, b) -> np.ndarray:
-        return as_parameter(mu, b, 1, name="mu (Hénon–Heiles lambda)")[:, 0]
+    parameter_name = "mu (Hénon–Heiles lambda)"
 
     def hamiltonian(self, x, mu) -> np.ndarray:
         """Energies (B,) of states (B, 4) for ``lambda`` (B,) or (B, 1)."""
         x, _ = as_states(x, "x", dim=4)
-        lam = self._lams(mu, len(x))
+        lam = self._parameter(mu, len(x))
         q1, q2, p1, p2 = x.T
         return 0.5 * (p1 * p1 + p2 * p2 + q1 * q1 + q2 * q2) + lam * (q1 * q1 * q2 - q2 * q2 * q2 / 3.0)
 
     def gradient(self, x, mu) -> np.ndarray:
         """``grad H = (q1 + 2 lambda q1 q2, q2 + lambda (q1^2 - q2^2), p1, p2)``, shape (B, 4)."""
         x = np.asarray(x, dtype=float)
-        lam = self._lams(mu, len(x))
+        lam = self._parameter(mu, len(x))
         q1, q2 = x[:, 0], x[:, 1]
         return np.column_stack([q1 + 2.0 * lam * q1 * q2, q2 + lam * (q1 * q1 - q2 * q2), x[:, 2], x[:, 3]])
 
     def hessian(self, x, mu) -> np.ndarray:
         """``grad^2 H``, shape (B, 4, 4)."""
         x = np.asarray(x, dtype=float)
-        lam = self._lams(mu, len(x))
+        lam = self._parameter(mu, len(x))
         hess = np.zeros((len(x), 4, 4))
         hess[:, 0, 0] = 1.0 + 2.0 * lam * x[:, 1]
         hess[:, 0, 1] = hess[:, 1, 0] = 2.0 * lam * x[:, 0]
@@ -152,6 +146,7 @@ class HenonHeiles:
         Returns
         -------
         ndarray of shape (B, K+1, 4)
+            The finer rollout of the accepted pair (``2r`` sub-steps per macro step).
 
         Raises
         ------
@@ -165,7 +160,7 @@ class HenonHeiles:
         """
         x0, single = as_states(x0, "x0", dim=4)
         b = len(x0)
-        lam = self._lams(mu, b)
+        lam = self._parameter(mu, b)
         dt = as_steps(dt, b)
         n_steps = as_positive_int(n_steps, "n_steps", minimum=0)
         if not (np.isfinite(h_max) and h_max > 0):
@@ -188,9 +183,7 @@ class HenonHeiles:
 
     def flow(self, x0, mu, t, h_max: float = 0.02, tol: float = 1e-11) -> np.ndarray:
         """Reference flow ``Phi_lambda^t(x0)`` (:meth:`trajectory` with one macro step ``t``), shape (B, 4)."""
-        x0, single = as_states(x0, "x0", dim=4)
-        out = self.trajectory(x0, mu, t, 1, h_max=h_max, tol=tol)[:, 1]
-        return out[0] if single else out
+        return self._one_step(x0, mu, t, h_max=h_max, tol=tol)
 
 
 def _well_radius(lam: float, energy: float) -> float:

@@ -36,6 +36,7 @@ from scipy.optimize import brentq
 
 from sympredict._checks import as_parameter, as_positive_int, as_real, as_states, as_steps
 from sympredict.exceptions import SympredictError
+from sympredict.systems.flowmaps import _ScalarParameterSystem
 
 __all__ = ["ThreeBody", "MU_RANGE", "ROUTH_MU", "lagrange_points", "librating_states"]
 
@@ -46,21 +47,12 @@ MU_RANGE = (0.010, 0.014)
 ROUTH_MU = 0.5 * (1.0 - np.sqrt(69.0) / 9.0)
 
 
-class ThreeBody:
+class ThreeBody(_ScalarParameterSystem):
     """Planar circular restricted three-body problem, rotating frame, ``x = (x, y, px, py)``, ``mu`` = mass ratio."""
 
     dim = 4
-    n_mu = 1
-
-    def __repr__(self) -> str:
-        return "ThreeBody()"
-
-    @staticmethod
-    def _mus(mu, b) -> np.ndarray:
-        mu = as_parameter(mu, b, 1, name="mu (three-body mass ratio)")[:, 0]
-        if np.any((mu < 0) | (mu > 0.5)):
-            raise ValueError(f"mu (three-body mass ratio) must lie in [0, 0.5], got values in [{mu.min()}, {mu.max()}]")
-        return mu
+    parameter_name = "mu (three-body mass ratio)"
+    parameter_bounds = (0, 0.5)
 
     @staticmethod
     def _distances(x, mu):
@@ -71,10 +63,18 @@ class ThreeBody:
         r2 = np.sqrt(dx2 * dx2 + y * y)
         return dx1, dx2, y, r1, r2
 
+    def _geometry(self, x, mu):
+        """``(x, mu, (dx1, dx2, y, r1, r2, (1 - mu) / r1^3, mu / r2^3))``: the states as floats, the mass ratios,
+        the offsets and distances to the primaries and the inverse cubes the gradient and the Hessian share."""
+        x = np.asarray(x, dtype=float)
+        mu = self._parameter(mu, len(x))
+        dx1, dx2, y, r1, r2 = self._distances(x, mu)
+        return x, mu, (dx1, dx2, y, r1, r2, (1.0 - mu) / r1**3, mu / r2**3)
+
     def hamiltonian(self, x, mu) -> np.ndarray:
         """Energies (B,) of states (B, 4) for mass ratios ``mu`` (B,) or (B, 1)."""
         x, _ = as_states(x, "x", dim=4)
-        mu = self._mus(mu, len(x))
+        mu = self._parameter(mu, len(x))
         _, _, _, r1, r2 = self._distances(x, mu)
         px, py = x[:, 2], x[:, 3]
         return 0.5 * (px * px + py * py) + x[:, 1] * px - x[:, 0] * py - (1.0 - mu) / r1 - mu / r2
@@ -85,21 +85,13 @@ class ThreeBody:
 
     def gradient(self, x, mu) -> np.ndarray:
         """``grad H = (dH/dx, dH/dy, dH/dpx, dH/dpy)``, shape (B, 4)."""
-        x = np.asarray(x, dtype=float)
-        mu = self._mus(mu, len(x))
-        dx1, dx2, y, r1, r2 = self._distances(x, mu)
-        a = (1.0 - mu) / r1**3
-        c = mu / r2**3
+        x, mu, (dx1, dx2, y, r1, r2, a, c) = self._geometry(x, mu)
         px, py = x[:, 2], x[:, 3]
         return np.column_stack([-py + a * dx1 + c * dx2, px + a * y + c * y, px + y, py - x[:, 0]])
 
     def hessian(self, x, mu) -> np.ndarray:
         """``grad^2 H``, shape (B, 4, 4)."""
-        x = np.asarray(x, dtype=float)
-        mu = self._mus(mu, len(x))
-        dx1, dx2, y, r1, r2 = self._distances(x, mu)
-        a3 = (1.0 - mu) / r1**3
-        c3 = mu / r2**3
+        x, mu, (dx1, dx2, y, r1, r2, a3, c3) = self._geometry(x, mu)
         a5 = 3.0 * (1.0 - mu) / r1**5
         c5 = 3.0 * mu / r2**5
         hess = np.zeros((len(x), 4, 4))
@@ -150,7 +142,7 @@ class ThreeBody:
         """
         x0, single = as_states(x0, "x0", dim=4)
         b = len(x0)
-        mu = self._mus(mu, b)
+        mu = self._parameter(mu, b)
         dt = as_steps(dt, b)
         n_steps = as_positive_int(n_steps, "n_steps", minimum=0)
         rtol = as_real(rtol, "rtol", positive=True)
@@ -172,9 +164,7 @@ class ThreeBody:
 
     def flow(self, x0, mu, t, rtol: float = 1e-12, atol: float = 1e-13) -> np.ndarray:
         """Reference flow ``Phi_mu^t(x0)`` (:meth:`trajectory` with one macro step ``t``), shape of ``x0``."""
-        x0, single = as_states(x0, "x0", dim=4)
-        out = self.trajectory(x0, mu, t, 1, rtol=rtol, atol=atol)[:, 1]
-        return out[0] if single else out
+        return self._one_step(x0, mu, t, rtol=rtol, atol=atol)
 
 
 def lagrange_points(mu: float) -> np.ndarray:

@@ -118,12 +118,7 @@ class BlockedStore(BaseStore):
 
     Parameters
     ----------
-    functionals
-        The ``N`` candidates (:mod:`sympredict.interpolation.functionals`).
-    targets : ndarray of shape (N,) or (N, q)
-    criterion
-        ``'f'`` or ``'p'``.
-    power_tol, validation, memory_limit
+    functionals, targets, criterion, power_tol, validation, memory_limit
         As for :class:`~sympredict.interpolation.greedy.dense.DenseStore`.
     block_size
         ``b``: centres per block at most (``1``: the exact greedy's selection).
