@@ -19,6 +19,7 @@ from pymor.core.logger import getLogger
 
 from sympredict.exceptions import extrapolation_expected
 from sympredict.data import FlowMapData
+from sympredict_paper import scenario_main
 from sympredict_paper.peers import VKOGAFlowMap, select_vkoga_length_scale
 from sympredict_paper.speed import SpeedTable, add_classical, deliberate_threads, model_sizes, timed
 from sympredict.symplectic.integrators_compiled import EXPLICIT_SCHEMES, rollout
@@ -195,13 +196,8 @@ def run_henon_heiles(preset: HenonHeilesPreset, seed: int = 0) -> dict:
     return {"summary": summary, "model": model, "direct": direct, "vkoga": vkoga}
 
 
-def main(argv=None) -> int:
-    """``sympredict-paper run henon-heiles [OPTIONS]``: this scenario's models, figures and summary (``--quick --out DIR``)."""
-    import sys
-
-    from sympredict_paper.cli import main as paper_main
-
-    return paper_main(["run", "henon-heiles", *(sys.argv[1:] if argv is None else argv)])
+#: ``python -m sympredict_paper.henon_heiles [OPTIONS]``: ``sympredict-paper run henon-heiles [OPTIONS]``.
+main = scenario_main("henon-heiles")
 
 
 if __name__ == "__main__":

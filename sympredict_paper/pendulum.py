@@ -21,6 +21,7 @@ from pymor.core.logger import getLogger
 
 from sympredict.symplectic.integrators import implicit_midpoint_step, integrate, stormer_verlet_step
 from sympredict.symplectic.integrators_compiled import EXPLICIT_SCHEMES, rollout
+from sympredict_paper import scenario_main
 from sympredict_paper.peers import VKOGAFlowMap, select_vkoga_length_scale
 from sympredict_paper.speed import SpeedTable, add_classical, deliberate_threads, model_sizes, timed
 from sympredict.kernels import IMQ, RadialKernel
@@ -615,13 +616,8 @@ def _complete_elliptic_k(m: float) -> float:
     return float(ellipk(m))
 
 
-def main(argv=None) -> int:
-    """``sympredict-paper run pendulum [OPTIONS]``: this scenario's models, figures and summary (``--quick --out DIR``)."""
-    import sys
-
-    from sympredict_paper.cli import main as paper_main
-
-    return paper_main(["run", "pendulum", *(sys.argv[1:] if argv is None else argv)])
+#: ``python -m sympredict_paper.pendulum [OPTIONS]``: ``sympredict-paper run pendulum [OPTIONS]``.
+main = scenario_main("pendulum")
 
 
 if __name__ == "__main__":

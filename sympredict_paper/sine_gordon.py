@@ -50,6 +50,7 @@ from dataclasses import asdict, dataclass, replace
 import numpy as np
 from pymor.core.logger import getLogger
 
+from sympredict_paper import scenario_main
 from sympredict.systems.flowmaps import midpoint_sigma_min, type2_sigma_min
 from sympredict.kernels import IMQ
 from sympredict.symplectic.metrics import canonical_J, relative_trajectory_error
@@ -927,13 +928,8 @@ def break_even(rows, dims_info) -> dict:
     return out
 
 
-def main(argv=None) -> int:
-    """``sympredict-paper run sine-gordon [OPTIONS]``: this scenario's models, figures and summary (``--quick --out DIR``)."""
-    import sys
-
-    from sympredict_paper.cli import main as paper_main
-
-    return paper_main(["run", "sine-gordon", *(sys.argv[1:] if argv is None else argv)])
+#: ``python -m sympredict_paper.sine_gordon [OPTIONS]``: ``sympredict-paper run sine-gordon [OPTIONS]``.
+main = scenario_main("sine-gordon")
 
 
 if __name__ == "__main__":

@@ -34,6 +34,7 @@ from sympredict.exceptions import extrapolation_expected
 from sympredict.systems.flowmaps import flow_map_data, mus_to_matrix, random_parameters, sample_energy_ellipsoid
 from sympredict.symplectic.metrics import relative_trajectory_error
 from sympredict.parallel import pool_flow, pool_map_instances
+from sympredict_paper import scenario_main
 from sympredict_paper.peers import VKOGAFlowMap, select_vkoga_length_scale
 from sympredict_paper.speed import SpeedTable, add_classical, deliberate_threads, model_sizes, timed
 from sympredict.symplectic.integrators_compiled import EXPLICIT_SCHEMES, rollout
@@ -581,13 +582,8 @@ def smallest_wave_model(
     }
 
 
-def main(argv=None) -> int:
-    """``sympredict-paper run wave [OPTIONS]``: this scenario's models, figures and summary (``--quick --out DIR``)."""
-    import sys
-
-    from sympredict_paper.cli import main as paper_main
-
-    return paper_main(["run", "wave", *(sys.argv[1:] if argv is None else argv)])
+#: ``python -m sympredict_paper.wave [OPTIONS]``: ``sympredict-paper run wave [OPTIONS]``.
+main = scenario_main("wave")
 
 
 if __name__ == "__main__":

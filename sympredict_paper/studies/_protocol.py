@@ -256,7 +256,9 @@ def _jsonable(value):
 
 def write_json(path, result, protocol: dict, indent: int = 1) -> None:
     """Write ``result`` (a dict: its keys unchanged, ``"protocol"`` added; any other value under ``"results"``) to ``path``
-    (its folder created where missing)."""
+    (its folder created where missing); ``path`` ``None`` (a run without ``--json``) writes nothing."""
+    if path is None:
+        return
     data = dict(result) if isinstance(result, dict) else {"results": result}
     data["protocol"] = protocol
     Path(path).parent.mkdir(parents=True, exist_ok=True)

@@ -196,8 +196,7 @@ def main():
                         print(f"    kernel split={sp:14s} {update:16s}{mark}: lambda={row.get('regularization')}, centres "
                               f"{row.get('centers')}, {time.perf_counter() - t1:.0f} s: {msg}", flush=True)
                         results["rows"].append(row)
-    if args.json:
-        _protocol.write_json(args.json, results, protocol)
+    _protocol.write_json(args.json, results, protocol)  # nothing without --json
 
 
 if __name__ == "__main__":

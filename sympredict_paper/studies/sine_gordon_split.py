@@ -128,8 +128,7 @@ def main():
                           f"residual {row['train_residual']:.1e}, fit {fit_time:.0f} s, total {time.perf_counter() - t1:.0f} s:"
                           f"\n    {msg}", flush=True)
                     results["rows"].append(row)
-    if args.json:
-        _protocol.write_json(args.json, results, protocol)
+    _protocol.write_json(args.json, results, protocol)  # nothing without --json
 
 
 if __name__ == "__main__":

@@ -92,19 +92,14 @@ def _patch_method(path: Path, method: int = None, flag: int = None):
     path.write_bytes(bytes(raw))
 
 
-def test_npz_deflate64_member_is_a_clear_error(tmp_path):
-    path = tmp_path / "d64.npz"
+@pytest.mark.parametrize("patch, match", [({"method": 9}, "Deflate64.*numpy.savez"), ({"flag": 1}, "encrypted")],
+                         ids=["deflate64", "encrypted"])
+def test_npz_member_zipfile_cannot_read_is_a_clear_error(tmp_path, patch, match):
+    """A Deflate64-compressed or an encrypted member (the npz patched into one) is refused with a clear message."""
+    path = tmp_path / "member.npz"
     np.savez(path, states=np.ones((2, 3, 2)), dt=0.1)
-    _patch_method(path, method=9)
-    with pytest.raises(ValueError, match="Deflate64.*numpy.savez"):
-        read_trajectories(path)
-
-
-def test_npz_encrypted_member_is_a_clear_error(tmp_path):
-    path = tmp_path / "enc.npz"
-    np.savez(path, states=np.ones((2, 3, 2)), dt=0.1)
-    _patch_method(path, flag=1)
-    with pytest.raises(ValueError, match="encrypted"):
+    _patch_method(path, **patch)
+    with pytest.raises(ValueError, match=match):
         read_trajectories(path)
 
 
