@@ -138,6 +138,27 @@ def _dot3(x, y, z, L):
 
 
 @compiled(FJIT)
+def _gradient_sums(grad, l, s_a, ubg, dif, dim, L):
+    """A chunk's gradient terms (:func:`_chunk`, :func:`_chunk_periodic`): ``grad_l -= s_a`` (the identity term, sum
+    of ``w_j A_j`` (times ``g'_jl``)), ``grad_a -= sum_j ubg_j dif_ja`` (``ubg_j = w_j B_j g_j``)."""
+    grad[l] -= s_a
+    for a in range(dim):
+        grad[a] -= _dot(ubg, dif[a], L)
+
+
+@compiled(FJIT)
+def _m_terms(hess, l, c0, r1, uB, dif, dim, L):
+    """``- M_ac - M_ca``, ``M_ac = sum_j uB_j dif_ja [l = c]``, into the stored part of the Hessian (rows ``< r1``,
+    columns ``>= c0`` at ``c - c0``, upper triangle): column ``l`` (rows ``a <= l``) and row ``l`` (columns ``c >= l``)."""
+    if l >= c0:
+        for a in range(min(r1, l + 1)):
+            hess[a, l - c0] -= _dot(uB, dif[a], L)
+    if l < r1:
+        for c in range(max(c0, l), dim):
+            hess[l, c - c0] -= _dot(uB, dif[c], L)
+
+
+@compiled(FJIT)
 def _chunk(xi, w, cT, j0, L, l, family, eps, mode, dif, r2, dmax, uB, uC, ubg, tmp, grad, hess):
     """One chunk of :func:`_pass` (centres ``j0:j0+L``, all differentiating component ``l``); returns its floor sum."""
     dim = cT.shape[0]
@@ -201,15 +222,12 @@ def _chunk(xi, w, cT, j0, L, l, family, eps, mode, dif, r2, dmax, uB, uC, ubg, t
             ubg[j] = bg
             uB[j] = b_
             uC[j] = (wj * C) * g
-    grad[l] -= s_a
-    for a in range(dim):
-        grad[a] -= _dot(ubg, dif[a], L)
+    _gradient_sums(grad, l, s_a, ubg, dif, dim, L)
     if mode == 0:
         return 0.0
     # Hessian entries (a, c) with r0 <= a < r1, max(c0, a) <= c < c1, stored at hess[a - r0, c - c0]:
     # mode 1 the block d_p d_q s (rows q, columns p), mode 2 the upper triangle of the full Hessian
-    c0 = n if mode == 1 else 0
-    r1 = n if mode == 1 else dim
+    c0, r1 = (n, n) if mode == 1 else (0, dim)
     for a in range(r1):
         cs = max(c0, a)
         if dim - cs == 1:
@@ -241,13 +259,7 @@ def _chunk(xi, w, cT, j0, L, l, family, eps, mode, dif, r2, dmax, uB, uC, ubg, t
                 c += 4
             for cc in range(c, dim):
                 hess[a, cc - c0] -= _dot(tmp, dif[cc], L)
-    # M_ac + M_ca, M_ac = sum_j w_j B_j d_ja [l = c]: column l (rows a <= l) and row l (columns c >= l)
-    if l >= c0:
-        for a in range(min(r1, l + 1)):
-            hess[a, l - c0] -= _dot(uB, dif[a], L)
-    if l < r1:
-        for c in range(max(c0, l), dim):
-            hess[l, c - c0] -= _dot(uB, dif[c], L)
+    _m_terms(hess, l, c0, r1, uB, dif, dim, L)  # M_ac = sum_j w_j B_j d_ja [l = c]
     if mode == 2:  # delta_ac sum_j w_j B_j g_j
         for a in range(dim):
             hess[a, a] -= s_bg
@@ -384,22 +396,14 @@ def _chunk_periodic(xi, w, cT, j0, L, l, family, eps, mode, per, dif, g1r, r2, d
             uC[j] = (wj * C) * g
             if periodic_l:
                 s_ag2 += wj * A * g2l[j]
-    grad[l] -= s_a
-    for a in range(dim):
-        grad[a] -= _dot(ubg, dif[a], L)
+    _gradient_sums(grad, l, s_a, ubg, dif, dim, L)
     if mode == 0:
         return 0.0
-    c0 = n if mode == 1 else 0
-    r1 = n if mode == 1 else dim
+    c0, r1 = (n, n) if mode == 1 else (0, dim)
     for a in range(r1):
         for c in range(max(c0, a), dim):
             hess[a, c - c0] -= _dot3(uC, dif[a], dif[c], L)
-    if l >= c0:
-        for a in range(min(r1, l + 1)):
-            hess[a, l - c0] -= _dot(uB, dif[a], L)
-    if l < r1:
-        for c in range(max(c0, l), dim):
-            hess[l, c - c0] -= _dot(uB, dif[c], L)
+    _m_terms(hess, l, c0, r1, uB, dif, dim, L)  # M_ac = sum_j w_j B_j g'_jl G_ja [l = c]
     if mode == 2:  # delta_ac (sum_j w_j B_j g_j g'_ja + [a = l] sum_j w_j A_j g''_jl)
         for a in range(dim):
             hess[a, a] -= _dot(ubg, g1r[a], L)
