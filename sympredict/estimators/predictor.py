@@ -194,19 +194,9 @@ class _FlowMapKernelModel(Parametrized):
         self._parameter_constraints["state_kernel"].validate("state_kernel", self.state_kernel)
         return lower_state_kernel(self.state_kernel)
 
-    def set_params(self, **params):
-        """Set parameters (nested ones as ``name__sub``); returns ``self``.
-
-        ``trainer__tol=...`` or ``solver__backend=...`` set a setting of a copy of the part (the default part
-        where it is ``None``), never of an object another model may share.
-        """
-        for part, default in (("trainer", ExactGreedy), ("solver", NewtonSolver)):
-            if part in self._param_names() and any(k.startswith(part + "__") for k in params):
-                # nested settings change a copy: a part may be shared (copy.copy of a model, the caller's object)
-                current = getattr(self, part)
-                setattr(self, part, default() if current is None else clone(current))
-        super().set_params(**params)
-        return self
+    def _default_part(self, name: str):
+        """``trainer__tol=...`` or ``solver__backend=...`` on a ``None`` part set a setting of the default part."""
+        return {"trainer": ExactGreedy, "solver": NewtonSolver}.get(name, lambda: None)()
 
     # ------------------------------------------------------------- training
     def _as_data(self, x0, x1, mu, dt, what: str) -> FlowMapData:
