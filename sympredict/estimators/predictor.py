@@ -41,7 +41,7 @@ from sympredict.data import FlowMapData, TrajectoryData, _drop_duplicate_samples
 from sympredict.estimators import model_files
 from sympredict.estimators.auto import KernelSearch, _holdout_split, diagnose
 from sympredict.estimators.fitted import (
-    EXTRAPOLATION_TOLERANCE, NUMPY_ONLY, FittedDirectFlowMap, FittedSymplecticFlowMap, check_is_fitted,
+    EXTRAPOLATION_TOLERANCE, NUMPY_ONLY, SOLVER_SETTING, FittedDirectFlowMap, FittedSymplecticFlowMap, check_is_fitted,
     model_coordinates, numpy_only_reason, trainer_regularization, training_box,
 )
 from sympredict.estimators.model_files import MODEL_FORMAT, MODEL_LAYOUT
@@ -697,8 +697,7 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
     # ------------------------------------------------------- settings
     _parameter_constraints = {
         **_FlowMapKernelModel._parameter_constraints,
-        "solver": Constraint(NewtonSolver, check=lambda solver, name: solver.check(),
-                             expected="a NewtonSolver (e.g. NewtonSolver(backend='numba')) or None"),
+        "solver": SOLVER_SETTING,
         "search": Constraint(KernelSearch, check=lambda search, name: search.check(),
                              expected="a KernelSearch (e.g. KernelSearch(m_star=500)) or None"),
         "update": Constraint(check=lambda update, name: as_update(update)),
