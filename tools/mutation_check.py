@@ -228,9 +228,9 @@ FAULTS = [
     # the estimator's parts
     Fault("C1", "parts", P + "kernels/transforms.py", "return np.concatenate([a, 1.0 / a])", "return np.concatenate([a, a])",
           ("tests/kernels/test_state_scaling.py",), "Scaled: the scaling (a, a) is not symplectic"),
-    Fault("C2", "parts", P + "estimators/predictor.py",
-          "setattr(self, part, default() if current is None else clone(current))",
-          "setattr(self, part, default() if current is None else current)",
+    Fault("C2", "parts", P + "base.py",
+          "part = clone(target) if isinstance(target, Parametrized) else target",
+          "part = target",
           ("tests/estimators/test_estimator_contract.py",), "set_params(trainer__...) changes a part the caller may share"),
     Fault("C3", "parts", P + "symplectic/updates.py", "return 0.5 * (x0 + x1), y", "return x0, y",
           ("tests/symplectic/test_midpoint.py",), "midpoint rule trained at x0 instead of the midpoint"),
