@@ -1,4 +1,18 @@
-"""Input validation shared by the public entry points (messages name the argument)."""
+"""Input validation as data: one function per kind of input, one table row per setting.
+
+Every public entry point validates its inputs here, each rule written once, each message naming the
+argument, the value (its shape or first offending entry) and the fix:
+
+* states ``(B, 2n)`` or ``(2n,)``: :func:`as_states`;
+* parameters ``mu`` ``(B, d_mu)``, matched to a model's parameter count or names: :func:`as_parameter`,
+  :func:`as_model_parameter`;
+* macro steps ``dt``, scalar or one per instance: :func:`as_steps`;
+* trajectories ``(P, K+1, 2n)`` and their sample times: :func:`as_trajectories`, :func:`as_times`;
+* numbers, counts, choices and flags: :func:`as_real`, :func:`as_positive_int`, :func:`as_real_array`,
+  :func:`as_choice`, :func:`as_flag`;
+* an estimator's settings: its table ``_parameter_constraints`` of :class:`Constraint` rows, read by
+  :func:`check_settings` at ``fit``, model-file load and save, and by ``set_params``.
+"""
 
 from __future__ import annotations
 
@@ -7,8 +21,18 @@ from typing import Optional
 
 import numpy as np
 
-__all__ = ["as_states", "as_parameter", "as_steps", "as_positive_int", "as_real", "as_real_array", "as_even_dimension",
-           "Constraint", "check_settings"]
+__all__ = ["as_states", "as_parameter", "as_model_parameter", "as_steps", "as_trajectories", "as_times",
+           "as_positive_int", "as_real", "as_real_array", "as_choice", "as_flag", "as_even_dimension", "Constraint",
+           "check_settings"]
+
+
+def _first_bad(arr: np.ndarray, bad: np.ndarray) -> str:
+    """``"at index (i, j): value"`` of the first ``True`` of the mask ``bad`` (what a message shows of the value)."""
+    index = np.unravel_index(int(np.flatnonzero(bad.reshape(-1))[0]), arr.shape) if arr.ndim else ()
+    where = f"index {tuple(int(i) for i in index)}" if arr.ndim > 1 else (f"index {int(index[0])}" if arr.ndim else "")
+    value = float(arr[index]) if arr.ndim else float(arr)
+    count = int(np.count_nonzero(bad))
+    return (f"{where}: {value!r}" if where else f"{value!r}") + (f", {count} entries in all" if count > 1 else "")
 
 
 def _as_float_array(value, name: str) -> np.ndarray:
@@ -21,8 +45,9 @@ def _as_float_array(value, name: str) -> np.ndarray:
     if np.iscomplexobj(arr):
         raise ValueError(f"{name} must be real, got complex values")
     arr = arr.astype(float)
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{name} contains NaN or Inf")
+    finite = np.isfinite(arr)
+    if not np.all(finite):
+        raise ValueError(f"{name} contains NaN or Inf ({_first_bad(arr, ~finite)}): give finite numbers")
     return arr
 
 
@@ -47,11 +72,12 @@ def as_states(x, name: str, dim: Optional[int] = None, allow_single: bool = True
     if arr.ndim != 2:
         raise ValueError(f"{name} must have shape (batch, 2n){' or (2n,)' if allow_single else ''}, got {arr.shape}")
     if len(arr) == 0:
-        raise ValueError(f"{name} is empty")
+        raise ValueError(f"{name} is empty (shape {arr.shape}): give at least one state (q, p)")
     if dim is not None and arr.shape[1] != dim:
         raise ValueError(f"{name} must have {dim} state components (2n = {dim}), got {arr.shape[1]}")
     if dim is None and (arr.shape[1] == 0 or arr.shape[1] % 2):
-        raise ValueError(f"{name} must have an even, positive number of state components (q, p), got {arr.shape[1]}")
+        raise ValueError(f"{name} must have an even, positive number of state components (q, p), shape (batch, 2n), "
+                         f"got shape {arr.shape}")
     return np.ascontiguousarray(arr), single
 
 
@@ -155,7 +181,8 @@ def as_parameter(mu, n: int, d_mu: Optional[int], name: str = "mu", parameters=N
     if d_mu is not None and arr.shape[1] != d_mu:
         raise ValueError(f"{name} must have {d_mu} component(s) (as in training), got {arr.shape[1]}")
     if arr.shape[1] == 0:
-        raise ValueError(f"{name} has zero components")
+        raise ValueError(f"{name} has zero components (shape {arr.shape}): give at least one parameter value per "
+                         f"instance, or none (None) for a parameter-free model")
     return np.ascontiguousarray(arr)
 
 
@@ -169,7 +196,52 @@ def as_steps(dt, n: int, name: str = "dt") -> np.ndarray:
     elif arr.ndim != 1 or len(arr) != n:
         raise ValueError(f"{name} must be a scalar or have shape ({n},), got {arr.shape}")
     if np.any(arr <= 0):
-        raise ValueError(f"{name} must be positive, got min {float(arr.min())!r}")
+        raise ValueError(f"{name} must be positive, got min {float(arr.min())!r} ({_first_bad(arr, arr <= 0)}): "
+                         f"give the macro time step(s) > 0")
+    return arr
+
+
+def as_trajectories(states, name: str = "states", *, dim: Optional[int] = None, allow_single: bool = False):
+    """Validate trajectories ``(P, K+1, 2n)``: ``P`` trajectories of ``K + 1 >= 2`` finite states, ``2n`` even.
+
+    With ``allow_single``, one trajectory ``(K+1, 2n)`` is accepted as ``(1, K+1, 2n)``; with ``dim``, ``2n`` must
+    equal it.
+
+    Returns
+    -------
+    ndarray of shape (P, K+1, 2n)
+    """
+    arr = _as_float_array(states, name)
+    if allow_single and arr.ndim == 2:
+        arr = arr[None]
+    if arr.ndim != 3 or arr.shape[1] < 2 or arr.shape[2] == 0 or arr.shape[2] % 2:
+        raise ValueError(f"{name} must have shape (P, K+1, 2n) with K >= 1 and an even 2n"
+                         f"{' (or (K+1, 2n) for one trajectory)' if allow_single else ''}, got {arr.shape}")
+    if dim is not None and arr.shape[2] != dim:
+        raise ValueError(f"{name} must have {dim} state components (2n = {dim}), got {arr.shape[2]}")
+    return arr
+
+
+def as_times(times, p: int, k1: int, name: str = "times") -> np.ndarray:
+    """Validate the sample times of ``p`` trajectories of ``k1`` states: ``(p, k1)`` or ``(k1,)`` (shared), finite,
+    strictly increasing along each trajectory.
+
+    Returns
+    -------
+    ndarray of shape (p, k1)
+    """
+    arr = _as_float_array(times, name)
+    if arr.shape == (k1,):
+        arr = np.broadcast_to(arr, (p, k1))
+    if arr.shape != (p, k1):
+        raise ValueError(f"{name} must have shape (P, K+1) = ({p}, {k1}) or (K+1,) = ({k1},), got {arr.shape}")
+    steps = np.diff(arr, axis=1)
+    bad = np.flatnonzero(~(steps > 0).all(axis=1))
+    if len(bad):
+        k = int(np.flatnonzero(steps[bad[0]] <= 0)[0])
+        raise ValueError(f"{name} must increase strictly along each trajectory: trajectory {bad[0]} has "
+                         f"t[{k}] = {float(arr[bad[0], k])!r} >= t[{k + 1}] = {float(arr[bad[0], k + 1])!r}"
+                         + (f" ({len(bad)} trajectories are affected)" if len(bad) > 1 else ""))
     return arr
 
 
@@ -195,6 +267,21 @@ def as_positive_int(value, name: str, minimum: int = 1) -> int:
     if value < minimum:
         raise ValueError(f"{name} must be >= {minimum}, got {value}")
     return int(value)
+
+
+def as_choice(value, name: str, choices) -> str:
+    """``value`` if it is one of the strings ``choices``; ``ValueError`` naming ``name``, the value and the choices."""
+    choices = tuple(choices)
+    if not isinstance(value, str) or value not in choices:
+        raise ValueError(f"{name} must be one of {choices}, got {value!r}")
+    return value
+
+
+def as_flag(value, name: str) -> bool:
+    """``value`` as a ``bool`` if it is ``True`` or ``False`` (NumPy's too; ``1``, ``"yes"`` refused)."""
+    if not isinstance(value, (bool, np.bool_)):
+        raise ValueError(f"{name} must be True or False, got {value!r}")
+    return bool(value)
 
 
 def as_even_dimension(dim, what: str = "states") -> int:

@@ -4,11 +4,14 @@ scikit-learn's convention, without depending on scikit-learn (its
 ``sklearn.base.clone`` works on these objects too; the tests check it):
 
 * ``__init__`` stores its keyword arguments under their own names and does
-  nothing else; validation happens in ``fit`` (or wherever the value is used);
+  nothing else (so :func:`clone` always works); each value is checked against
+  the class's table of settings (``_parameter_constraints``) by
+  :meth:`Parametrized.set_params` (which stores nothing when it refuses a value)
+  and again in ``fit`` (a value assigned as an attribute is checked there);
 * :meth:`Parametrized.get_params` lists exactly the parameters of
   ``__init__`` (``deep=True`` adds ``name__sub`` entries for parameters that
   are themselves parametrized, e.g. a kernel's ``eps``);
-* :meth:`Parametrized.set_params` sets them, nested with ``__``;
+* :meth:`Parametrized.set_params` sets them, nested with ``__``, all or none;
 * :func:`clone` builds an unfitted copy with the same parameters (nested
   parametrized objects cloned too; other values deep-copied, except objects
   that define ``__sklearn_clone__``, such as a training strategy holding a
@@ -53,15 +56,30 @@ class Parametrized:
             out[name] = value
         return out
 
+    #: The table of settings (``{name: _checks.Constraint}``) that :meth:`set_params` and ``fit`` check; empty for
+    #: parts that check themselves (their ``check()``, called by their owner's table).
+    _parameter_constraints: dict = {}
+
+    def _default_part(self, name: str):
+        """The part a nested ``name__setting`` changes when the parameter ``name`` is ``None`` (none here)."""
+        return None
+
     def set_params(self, **params):
         """Set parameters (nested ones as ``name__sub``); returns ``self``.
+
+        Every value is checked against the table of settings (``_parameter_constraints``) before any is
+        stored, so a refused call leaves the object unchanged (scikit-learn's ``check_set_params``). A nested
+        ``name__sub`` changes a copy of the part (never an object another model may share), checked by the
+        part's own table and by this object's row for ``name``.
 
         Raises
         ------
         ValueError
-            For a name that is not a parameter (the message lists the valid ones).
+            For a name that is not a parameter (the message lists the valid ones), or a value its row of the
+            table refuses (the message names the setting, the value and the fix).
         """
         valid = self._param_names()
+        new: dict = {}
         nested: dict = {}
         for key, value in params.items():
             name, _, sub = key.partition("__")
@@ -70,14 +88,36 @@ class Parametrized:
             if sub:
                 nested.setdefault(name, {})[sub] = value
             else:
-                setattr(self, name, value)
+                new[name] = value
         for name, sub_params in nested.items():
-            target = getattr(self, name)
+            target = new[name] if name in new else getattr(self, name)
+            if target is None:
+                target = self._default_part(name)
             if not hasattr(target, "set_params"):
                 raise ValueError(f"{type(self).__name__}.{name} = {target!r} has no parameters to set ({sorted(sub_params)})")
-            # kernels are immutable values: set_params returns a new one
-            setattr(self, name, target.set_params(**sub_params))
+            # a mutable part is changed on a copy (kernels are immutable values: their set_params returns a new one)
+            part = clone(target) if isinstance(target, Parametrized) else target
+            try:
+                new[name] = part.set_params(**sub_params)
+            except ValueError as exc:
+                raise ValueError(f"{self._nested_call(name, sub_params)}: {exc}") from None
+        table = self._parameter_constraints
+        for name, value in new.items():  # every value checked before any is stored: a refused call changes nothing
+            if name in table:
+                try:
+                    table[name].validate(name, value)
+                except ValueError as exc:
+                    if name not in nested:
+                        raise
+                    raise ValueError(f"{self._nested_call(name, nested[name])}: {exc}") from None
+        for name, value in new.items():
+            setattr(self, name, value)
         return self
+
+    def _nested_call(self, name: str, sub_params: dict) -> str:
+        """``Owner.set_params(name__sub=value, ...)``: what a message about a nested setting names."""
+        given = ", ".join(f"{name}__{k}={v!r}" for k, v in sub_params.items())
+        return f"{type(self).__name__}.set_params({given})"
 
     def __repr__(self) -> str:
         args = ", ".join(f"{k}={v!r}" for k, v in self.get_params(deep=False).items())

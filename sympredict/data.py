@@ -18,7 +18,7 @@ from typing import Optional
 
 import numpy as np
 
-from sympredict._checks import as_parameter, as_real_array, as_states, as_steps
+from sympredict._checks import as_parameter, as_states, as_steps, as_times, as_trajectories
 from sympredict._numeric import j_times
 from sympredict.exceptions import DuplicateSamplesWarning
 
@@ -233,10 +233,7 @@ class TrajectoryData:
     times: Optional[np.ndarray] = None
 
     def __post_init__(self):
-        states = as_real_array(self.states, "states")
-        if states.ndim != 3 or states.shape[1] < 2 or states.shape[2] == 0 or states.shape[2] % 2:
-            raise ValueError(f"states must have shape (P, K+1, 2n) with K >= 1 and an even 2n, got {states.shape}")
-        self.states = states
+        states = self.states = as_trajectories(self.states, "states")
         p, k1, _ = states.shape
         self.mu = np.zeros((p, 0)) if self.mu is None or np.size(self.mu) == 0 else as_parameter(self.mu, p, None)
         if (self.dt is None) == (self.times is None):
@@ -245,18 +242,8 @@ class TrajectoryData:
             self.dt = float(as_steps(self.dt, 1)[0])
             self.times = np.broadcast_to(np.arange(k1) * self.dt, (p, k1))
             return
-        times = as_real_array(self.times, "times")
-        if times.shape == (k1,):
-            times = np.broadcast_to(times, (p, k1))
-        if times.shape != (p, k1):
-            raise ValueError(f"times must have shape (P, K+1) = ({p}, {k1}) or (K+1,) = ({k1},), got {times.shape}")
+        times = as_times(self.times, p, k1)
         steps = np.diff(times, axis=1)
-        bad = np.flatnonzero(~(steps > 0).all(axis=1))
-        if len(bad):
-            k = int(np.flatnonzero(steps[bad[0]] <= 0)[0])
-            raise ValueError(f"times must increase strictly along each trajectory: trajectory {bad[0]} has "
-                             f"t[{k}] = {float(times[bad[0], k])!r} >= t[{k + 1}] = {float(times[bad[0], k + 1])!r}"
-                             + (f" ({len(bad)} trajectories are affected)" if len(bad) > 1 else ""))
         self.times = times
         h = float((times[0, -1] - times[0, 0]) / (k1 - 1))  # the mean step: more accurate than any one difference
         tol = 64 * np.finfo(float).eps * float(np.abs(times).max())

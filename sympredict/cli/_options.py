@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 import math
 
+from sympredict._checks import as_positive_int, as_real
+
 __all__ = []  # private to the command-line packages (sympredict.cli, sympredict_paper.cli)
 
 
@@ -15,15 +17,22 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
+def _checked(rule, value, **kwargs):
+    """``rule(value, "value", ...)``, the library's one check of a number (:mod:`sympredict._checks`), its
+    ``ValueError`` an argparse type error (argparse names the option)."""
+    try:
+        return rule(value, "value", **kwargs)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc).removeprefix("value ")) from None
+
+
 def _int_at_least(minimum: int):
     def parse(text: str) -> int:
         try:
             value = int(text)
         except ValueError:
             raise argparse.ArgumentTypeError(f"expected an integer >= {minimum}, got {text!r}") from None
-        if value < minimum:
-            raise argparse.ArgumentTypeError(f"must be >= {minimum}, got {value}")
-        return value
+        return _checked(as_positive_int, value, minimum=minimum)
 
     parse.__name__ = f"integer >= {minimum}"
     return parse
@@ -35,13 +44,7 @@ def _finite_float(positive: bool = False, nonnegative: bool = False):
             value = float(text)
         except ValueError:
             raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-        if not math.isfinite(value):
-            raise argparse.ArgumentTypeError(f"must be finite, got {text!r}")
-        if positive and value <= 0:
-            raise argparse.ArgumentTypeError(f"must be positive, got {value!r}")
-        if nonnegative and value < 0:
-            raise argparse.ArgumentTypeError(f"must be >= 0, got {value!r}")
-        return value
+        return _checked(as_real, value, positive=positive, nonnegative=nonnegative)
 
     parse.__name__ = "number"
     return parse

@@ -37,6 +37,7 @@ from typing import Optional, Sequence
 
 import numpy as np
 
+from sympredict._checks import as_flag
 from sympredict.base import Setting, clone
 from sympredict.data import FlowMapData
 from sympredict.estimators.search import (SEARCH_LOGGER, coordinate_search, grid_search, one_step_score, quiet_logs,
@@ -195,8 +196,7 @@ class KernelSearch(Setting):
         if self.m_star is not None and (isinstance(self.m_star, bool) or not isinstance(self.m_star, (int, np.integer))
                                         or self.m_star < 1):
             raise ValueError(f"KernelSearch: m_star must be a positive integer or None, got {self.m_star!r}")
-        if not isinstance(self.structure, (bool, np.bool_)):
-            raise ValueError(f"KernelSearch: structure must be True or False, got {self.structure!r}")
+        as_flag(self.structure, "KernelSearch: structure")
         if not (isinstance(self.validation_fraction, (int, float)) and 0 < self.validation_fraction < 1):
             raise ValueError(f"KernelSearch: validation_fraction must lie in (0, 1), got {self.validation_fraction!r}")
         return self

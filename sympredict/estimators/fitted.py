@@ -19,7 +19,7 @@ from typing import Optional
 
 import numpy as np
 
-from sympredict._checks import as_even_dimension, as_model_parameter, as_positive_int, as_states, as_steps
+from sympredict._checks import Constraint, as_even_dimension, as_model_parameter, as_positive_int, as_states, as_steps
 from sympredict.data import FlowMapData
 from sympredict.exceptions import (
     ExtrapolationWarning, ModelFileError, NewtonConvergenceError, NonFinitePredictionError, SolvabilityError,
@@ -62,6 +62,11 @@ def numpy_only_reason(parts, rule) -> Optional[str]:
 #: orbits drawn like the training trajectories overshoot the box by a little (a longer orbit, a phase the data
 #: did not reach); 5 % is where the kernel's data still surround the state.
 EXTRAPOLATION_TOLERANCE = 0.05
+
+#: The ``solver`` setting's row of the estimator's table of settings, read here too when a prediction swaps the
+#: solver (one rule, one message).
+SOLVER_SETTING = Constraint(NewtonSolver, check=lambda solver, name: solver.check(),
+                            expected="a NewtonSolver (e.g. NewtonSolver(backend='numba')) or None")
 
 #: The keys of a training box (``domain``).
 DOMAIN_KEYS = ("x_min", "x_max", "mu_min", "mu_max", "dt_min", "dt_max")
@@ -370,10 +375,8 @@ class FittedSymplecticFlowMap(FittedFlowMap):
         values are checked where they are used, ``max_iter`` by every solve)."""
         if solver is self._solver_setting:
             return self
-        checked = NewtonSolver() if solver is None else solver
-        if not isinstance(checked, NewtonSolver):
-            raise ValueError(f"solver must be a NewtonSolver (e.g. NewtonSolver(backend='numba')) or None, got {solver!r}")
-        return self._replace(solver=checked.check(), _solver_setting=solver)
+        checked = SOLVER_SETTING.validate("solver", solver) or NewtonSolver().check()
+        return self._replace(solver=checked, _solver_setting=solver)
 
     def with_error_calibration(self, calibration: Optional[dict]) -> "FittedSymplecticFlowMap":
         """This fitted map with the error calibration ``calibration`` (``None``: no error estimate)."""

@@ -41,7 +41,7 @@ from sympredict.data import FlowMapData, TrajectoryData, _drop_duplicate_samples
 from sympredict.estimators import model_files
 from sympredict.estimators.auto import KernelSearch, _holdout_split, diagnose
 from sympredict.estimators.fitted import (
-    EXTRAPOLATION_TOLERANCE, NUMPY_ONLY, FittedDirectFlowMap, FittedSymplecticFlowMap, check_is_fitted,
+    EXTRAPOLATION_TOLERANCE, NUMPY_ONLY, SOLVER_SETTING, FittedDirectFlowMap, FittedSymplecticFlowMap, check_is_fitted,
     model_coordinates, numpy_only_reason, trainer_regularization, training_box,
 )
 from sympredict.estimators.model_files import MODEL_FORMAT, MODEL_LAYOUT
@@ -194,19 +194,9 @@ class _FlowMapKernelModel(Parametrized):
         self._parameter_constraints["state_kernel"].validate("state_kernel", self.state_kernel)
         return lower_state_kernel(self.state_kernel)
 
-    def set_params(self, **params):
-        """Set parameters (nested ones as ``name__sub``); returns ``self``.
-
-        ``trainer__tol=...`` or ``solver__backend=...`` set a setting of a copy of the part (the default part
-        where it is ``None``), never of an object another model may share.
-        """
-        for part, default in (("trainer", ExactGreedy), ("solver", NewtonSolver)):
-            if part in self._param_names() and any(k.startswith(part + "__") for k in params):
-                # nested settings change a copy: a part may be shared (copy.copy of a model, the caller's object)
-                current = getattr(self, part)
-                setattr(self, part, default() if current is None else clone(current))
-        super().set_params(**params)
-        return self
+    def _default_part(self, name: str):
+        """``trainer__tol=...`` or ``solver__backend=...`` on a ``None`` part set a setting of the default part."""
+        return {"trainer": ExactGreedy, "solver": NewtonSolver}.get(name, lambda: None)()
 
     # ------------------------------------------------------------- training
     def _as_data(self, x0, x1, mu, dt, what: str) -> FlowMapData:
@@ -707,8 +697,7 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
     # ------------------------------------------------------- settings
     _parameter_constraints = {
         **_FlowMapKernelModel._parameter_constraints,
-        "solver": Constraint(NewtonSolver, check=lambda solver, name: solver.check(),
-                             expected="a NewtonSolver (e.g. NewtonSolver(backend='numba')) or None"),
+        "solver": SOLVER_SETTING,
         "search": Constraint(KernelSearch, check=lambda search, name: search.check(),
                              expected="a KernelSearch (e.g. KernelSearch(m_star=500)) or None"),
         "update": Constraint(check=lambda update, name: as_update(update)),

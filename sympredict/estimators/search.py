@@ -507,9 +507,9 @@ def score_search(data: FlowMapData, validation: Optional[FlowMapData], candidate
     table, best = [], None
     for i, cand in enumerate(candidates):
         label = ", ".join(f"{k}={v!r}" for k, v in cand.items())
-        model = clone(estimator).set_params(**cand, max_centers=budgets[-1])
         t0 = time.perf_counter()
-        try:
+        try:  # set_params refuses a malformed setting at once (its table): the candidate failed, as a failed fit
+            model = clone(estimator).set_params(**cand, max_centers=budgets[-1])
             fit_candidate(model, data, validation, uses_mu=model.mu_kernel is not None)
         except (ValueError, ArithmeticError) as exc:
             table.append({"candidate": i, "params": label, "budget": None, "n_centers": 0, "score": np.inf,

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from sympredict._checks import as_real_array, as_steps
 from sympredict.container import SCHEMA_VERSION, read_container, write_container
 from sympredict.data import FlowMapData
 from sympredict.exceptions import ModelFileError
@@ -19,6 +20,15 @@ __all__ = ["SCHEMA_VERSION", "save_model", "load_model", "check_model_file", "sa
 
 _DATA_FORMAT = "sympredict-dataset"
 _ESTIMATORS = {cls.__name__: cls for cls in (SymplecticKernelPredictor, DirectKernelPredictor, SplitKernelPredictor)}
+
+
+def _file_rule(where: str, rule, *args):
+    """``rule(*args)`` (a :mod:`sympredict._checks` function: each rule written once), its ``ValueError`` a
+    :class:`ModelFileError` naming the file."""
+    try:
+        return rule(*args)
+    except ValueError as exc:
+        raise ModelFileError(f"{where}: {exc}") from None
 
 
 def save_model(model, path, *, overwrite: bool = True) -> None:
@@ -123,8 +133,7 @@ def load_dataset(path):
     for name, arr in (("x0", x0), ("x1", x1), ("mu", mu), ("dt", dt)):
         if arr.dtype.kind not in "fiu":
             raise ModelFileError(f"{where}: {name} has dtype {arr.dtype}, expected floats")
-        if not np.all(np.isfinite(arr)):
-            raise ModelFileError(f"{where}: {name} contains NaN or Inf")
+        _file_rule(where, as_real_array, arr, name)
     if x0.ndim != 2 or x0.shape[0] == 0 or x0.shape[1] == 0 or x0.shape[1] % 2:
         raise ModelFileError(f"{where}: x0 must have shape (M, 2n) with M >= 1, got {x0.shape}")
     m = x0.shape[0]
@@ -134,8 +143,7 @@ def load_dataset(path):
         raise ModelFileError(f"{where}: mu must have shape ({m}, d_mu), got {mu.shape}")
     if dt.shape != (m,):
         raise ModelFileError(f"{where}: dt must have shape ({m},), got {dt.shape}")
-    if np.any(dt <= 0):
-        raise ModelFileError(f"{where}: dt must be positive, min is {float(dt.min())!r}")
+    _file_rule(where, as_steps, dt, m)
     metadata = settings.get("metadata", {})
     if set(settings) != {"metadata"} or not isinstance(metadata, dict):
         raise ModelFileError(f"{where}: its settings must be {{'metadata': {{...}}}}")

@@ -18,6 +18,7 @@ import logging
 
 import numpy as np
 
+from sympredict._checks import as_real_array, as_states, as_trajectories
 from sympredict.container import atomic_output
 from sympredict.data import FlowMapData, TrajectoryData
 from sympredict.io.formats import load_dataset
@@ -241,10 +242,7 @@ class _Hdf5Arrays:
 
 
 def _real(path: Path, key: str, arr: np.ndarray) -> np.ndarray:
-    arr = np.asarray(arr, dtype=float)
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{_where(path, key)} contains NaN or Inf")
-    return arr
+    return as_real_array(arr, _where(path, key))
 
 
 def _from_arrays(path: Path, arrays, keys: dict):
@@ -259,19 +257,13 @@ def _from_arrays(path: Path, arrays, keys: dict):
             raise ValueError(f"{str(path)!r} holds pairs but lacks {missing} ({LAYOUT})")
         x0, x1, dt = (_real(path, k, arrays.get(k)) for k in ("x0", "x1", dt_key))
         for k, a in (("x0", x0), ("x1", x1)):
-            if a.ndim != 2 or a.shape[0] == 0 or a.shape[1] == 0 or a.shape[1] % 2:
-                raise ValueError(f"{_where(path, k)} must have shape (M, 2n) with M >= 1 and an even 2n, got {a.shape}")
+            as_states(a, _where(path, k), allow_single=False)
         if x1.shape != x0.shape:
             raise ValueError(f"{_where(path, 'x1')} has shape {x1.shape}, 'x0' has {x0.shape}: they must agree")
         return _named(path, lambda: FlowMapData(x0, x1, mu, dt), {"mu": mu_key, "dt": dt_key})
     if states_key not in present:
         raise ValueError(f"{str(path)!r} has no key {states_key!r} (found {sorted(present)[:10]}); {LAYOUT}")
-    states = _real(path, states_key, arrays.get(states_key))
-    if states.ndim == 2:
-        states = states[None]
-    if states.ndim != 3 or states.shape[1] < 2 or states.shape[2] == 0 or states.shape[2] % 2:
-        raise ValueError(f"{_where(path, states_key)} must have shape (P, K+1, 2n) with K >= 1 and an even 2n "
-                         f"(or (K+1, 2n) for one trajectory), got {states.shape}")
+    states = as_trajectories(arrays.get(states_key), _where(path, states_key), allow_single=True)
     has_dt, has_times = dt_key in present, times_key in present
     if has_dt == has_times:
         raise ValueError(f"{str(path)!r} must hold exactly one of {dt_key!r} (a uniform step) and {times_key!r} "
@@ -653,10 +645,7 @@ def read_states(path, dim: int, *, max_bytes: int = MAX_BYTES):
         x0, mu = table[:, :dim], (table[:, dim:] if picked["mu"] else None)
     else:
         raise ValueError(f"{str(path)!r}: initial states are read from .npz or .csv files, got {path.suffix!r}; {layout}")
-    if x0.ndim == 1:
-        x0 = x0[None]
-    if x0.ndim != 2 or x0.shape[1] != dim or len(x0) == 0:
-        raise ValueError(f"{_where(path, 'x0')} must have shape (B, {dim}) (the model's 2n = {dim}), got {x0.shape}")
+    x0, _ = as_states(x0, _where(path, "x0"), dim=dim)  # (B, 2n) or one state (2n,)
     return x0, mu
 
 

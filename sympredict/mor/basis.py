@@ -27,7 +27,7 @@ import numpy as np
 from pymor.core.logger import getLogger
 from scipy.linalg import svd
 
-from sympredict._checks import as_real_array
+from sympredict._checks import as_real, as_real_array, as_states
 from sympredict.systems.flowmaps import linear_system_from_pymor
 from sympredict.symplectic.metrics import canonical_J, j_times
 from sympredict.systems.quadratic import QuadraticHamiltonian
@@ -167,8 +167,7 @@ def complex_svd_basis(snapshots, n: Optional[int] = None, tol: Optional[float] =
     ``O(N K min(N, K))`` for the SVD; memory ``16 N K`` bytes for ``X``.
     """
     snapshots = snapshot_rows(snapshots, layout)  # complex, strings, NaN/Inf refused there
-    if snapshots.ndim != 2 or snapshots.shape[1] % 2 or snapshots.shape[1] == 0 or len(snapshots) == 0:
-        raise ValueError(f"snapshots must have shape (K, 2N) with K >= 1, got {snapshots.shape}")
+    snapshots, _ = as_states(snapshots, "snapshots", allow_single=False)  # (K, 2N), K >= 1
     if (n is None) == (tol is None):
         raise ValueError("give exactly one of n (number of modes) and tol (relative projection error)")
     big_n = snapshots.shape[1] // 2
@@ -176,8 +175,7 @@ def complex_svd_basis(snapshots, n: Optional[int] = None, tol: Optional[float] =
     U, s, _ = svd(X, full_matrices=False, lapack_driver="gesdd")
     rank = int(np.sum(s > _RANK_RTOL * s[0])) if s[0] > 0 else 0
     if tol is not None:
-        if not (np.isfinite(tol) and tol > 0):
-            raise ValueError(f"tol must be a positive float, got {tol!r}")
+        tol = as_real(tol, "tol", positive=True)
         s2 = (s / s[0]) ** 2 if s[0] > 0 else np.ones_like(s)  # normalized: no overflow for huge snapshots
         tail = np.sqrt(np.maximum(0.0, 1.0 - np.cumsum(s2) / s2.sum()))
         n = int(np.argmax(tail <= tol)) + 1 if np.any(tail <= tol) else len(s)

@@ -21,6 +21,8 @@ import numpy as np
 import scipy.linalg
 import scipy.sparse
 
+from sympredict._checks import as_flag, as_real_array
+
 __all__ = ["MassMatrixCoordinates"]
 
 #: Largest ratio of the largest to the smallest mass (squared diagonal of ``L``) accepted.
@@ -40,9 +42,7 @@ def _as_square(A, name: str) -> np.ndarray:
     dense = A.toarray() if scipy.sparse.issparse(A) else np.asarray(A)
     if dense.dtype.kind not in "iuf":
         raise ValueError(f"{name} must be a real matrix, got dtype {dense.dtype}")
-    dense = dense.astype(float)
-    if not np.all(np.isfinite(dense)):
-        raise ValueError(f"{name} contains NaN or Inf")
+    dense = as_real_array(dense, name)
     scale = max(np.abs(dense).max(), np.finfo(float).tiny)
     if np.abs(dense - dense.T).max() > 1e-12 * scale:
         raise ValueError(f"{name} is not symmetric (max |A - A^T| = {np.abs(dense - dense.T).max():.3e})")
@@ -74,8 +74,7 @@ class MassMatrixCoordinates:
     """
 
     def __init__(self, mass, lumped: bool = False):
-        if not isinstance(lumped, (bool, np.bool_)):
-            raise ValueError(f"lumped must be True or False, got {lumped!r}")
+        as_flag(lumped, "lumped")
         M = _as_square(mass, "mass")
         self.N = M.shape[0]
         self.lumped = bool(lumped)

@@ -4,6 +4,7 @@ argument, the value and the choices)."""
 
 from __future__ import annotations
 
+from sympredict._checks import as_choice, as_flag
 from sympredict.base import Setting
 from sympredict.systems.linear_flow import QuadraticPart
 
@@ -12,12 +13,6 @@ __all__ = ["TrainingScaling", "QuadraticSplit"]
 _STATE = ("diag", "uniform", "williamson", "none")
 _PARAMETERS = ("box", "none")
 _TIME = ("step", "none")
-
-
-def _choice(value, name: str, choices: tuple) -> str:
-    if not isinstance(value, str) or value not in choices:
-        raise ValueError(f"{name} must be one of {choices}, got {value!r}")
-    return value
 
 
 class TrainingScaling(Setting):
@@ -44,9 +39,9 @@ class TrainingScaling(Setting):
         self.time = time
 
     def check(self) -> "TrainingScaling":
-        _choice(self.state, "TrainingScaling state", _STATE)
-        _choice(self.parameters, "TrainingScaling parameters", _PARAMETERS)
-        _choice(self.time, "TrainingScaling time", _TIME)
+        as_choice(self.state, "TrainingScaling state", _STATE)
+        as_choice(self.parameters, "TrainingScaling parameters", _PARAMETERS)
+        as_choice(self.time, "TrainingScaling time", _TIME)
         return self
 
 
@@ -77,8 +72,7 @@ class QuadraticSplit(Setting):
         if not isinstance(self.quadratic, QuadraticPart):
             raise ValueError(f"QuadraticSplit needs a sympredict.systems.linear_flow.QuadraticPart (the quadratic part "
                              f"A(mu) of the reduced Hamiltonian), got {self.quadratic!r}")
-        if not isinstance(self.fallback, bool):
-            raise ValueError(f"QuadraticSplit fallback must be True or False, got {self.fallback!r}")
+        as_flag(self.fallback, "QuadraticSplit fallback")
         self.quadratic.checked(dim=dim)
         if self.quadratic.checked()[1].shape[1] not in (0, n_mu):
             raise ValueError(f"QuadraticSplit depends on {self.quadratic.checked()[1].shape[1]} parameter component(s), "

@@ -50,7 +50,7 @@ from pymor.operators.symplectic import CanonicalSymplecticFormOperator
 from pymor.models.interface import Model
 from pymor.vectorarrays.numpy import NumpyVectorSpace
 
-from sympredict._checks import as_parameter, as_real
+from sympredict._checks import as_flag, as_parameter, as_real
 from sympredict.base import clone
 from sympredict.data import FlowMapData, TrajectoryData
 from sympredict.exceptions import ExtrapolationWarning, NewtonConvergenceError
@@ -309,9 +309,7 @@ class SymplecticKernelReductor(BasicObject):
         self.split = None if split is None else _part(split, QuadraticSplit, "split", "QuadraticSplit(A)")
         self.scaling = (TrainingScaling() if scaling is None else
                         _part(scaling, TrainingScaling, "scaling", "TrainingScaling('diag')")).check()
-        if not isinstance(check_existence, (bool, np.bool_)):
-            raise ValueError(f"check_existence must be True or False, got {check_existence!r}")
-        self.check_existence = bool(check_existence)
+        self.check_existence = as_flag(check_existence, "check_existence")
         if isinstance(self.estimator, DefaultEstimator):
             self.estimator.check()
         else:

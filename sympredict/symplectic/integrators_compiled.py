@@ -58,7 +58,7 @@ import math
 import numpy as np
 
 from sympredict._numeric import fill_nan_after, lu_solve_inplace
-from sympredict._checks import as_even_dimension, as_parameter, as_positive_int, as_states, as_steps
+from sympredict._checks import as_choice, as_even_dimension, as_parameter, as_positive_int, as_states, as_steps
 from sympredict.exceptions import NewtonConvergenceError
 from sympredict.symplectic.integrators import COMPOSITIONS, SCHEMES, integrate
 
@@ -441,10 +441,8 @@ def rollout(system, x0, mu, dt, n_steps: int, *, scheme: str = "stormer_verlet",
     ``O(B K r s c)`` for ``s`` stages and gradient cost ``c``; implicit
     midpoint ``O(B K r n_newton (c + (2n)^3))``.  Memory ``O(B K 2n)``.
     """
-    if scheme not in SCHEMES:
-        raise ValueError(f"scheme must be one of {sorted(SCHEMES)}, got {scheme!r}")
-    if backend not in ("auto", "numba", "numpy"):
-        raise ValueError(f"backend must be 'auto', 'numba' or 'numpy', got {backend!r}")
+    as_choice(scheme, "scheme", sorted(SCHEMES))
+    as_choice(backend, "backend", ("auto", "numba", "numpy"))
     x0, single = as_states(x0, "x0", dim=getattr(system, "dim", None))
     b = len(x0)
     mu = as_parameter(mu, b, getattr(system, "n_mu", None), name="mu")

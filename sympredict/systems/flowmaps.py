@@ -50,7 +50,7 @@ from pymor.core.logger import getLogger
 from pymor.models.symplectic import BaseQuadraticHamiltonianModel
 from pymor.parameters.base import Mu, Parameters
 
-from sympredict._checks import as_even_dimension, as_parameter, as_positive_int, as_states, as_steps
+from sympredict._checks import as_choice, as_even_dimension, as_parameter, as_positive_int, as_real, as_states, as_steps
 from sympredict.data import FlowMapData
 from sympredict.exceptions import GeneratingFunctionWarning
 from sympredict.systems.linear_flow import exact_propagators, generator_propagators
@@ -156,20 +156,6 @@ def random_parameters(parameters, lo, hi, n: int, seed: int = 0) -> list:
     return out
 
 
-def _as_mu_array(mu, b: int, d: Optional[int] = None) -> np.ndarray:
-    """Parameters for ``b`` instances as (b, d): ``None`` (d = 0), a scalar, ``(b,)`` (d = 1), ``(d,)`` or ``(b, d)``."""
-    if mu is None:
-        return np.zeros((b, 0))
-    mu = np.asarray(mu, dtype=float)
-    if mu.ndim == 0:
-        return np.full((b, 1), float(mu))
-    if mu.ndim == 1:
-        if d == 1 or (d is None and len(mu) == b and b > 1):
-            return np.broadcast_to(mu.reshape(-1, 1), (b, 1)) if len(mu) in (1, b) else mu[:, None]
-        return np.broadcast_to(mu[None, :], (b, len(mu)))
-    return np.broadcast_to(mu, (b, mu.shape[1]))
-
-
 # ---------------------------------------------------------------- systems
 def rk4_flow(gradient: Callable, x0: np.ndarray, mu: np.ndarray, t: np.ndarray, rtol: float = 1e-11,
              min_steps: int = 8, max_steps: int = 2**16) -> np.ndarray:
@@ -268,7 +254,7 @@ class _System:
         b = len(x0)
         if isinstance(mu, Mu):  # a pyMOR Mu: flattened in Parameters order (mu_to_vector)
             mu = mu_to_vector(mu, self.parameters)
-        mu = _as_mu_array(mu, b, self.n_mu)
+        mu = np.zeros((b, 0)) if mu is None or np.size(mu) == 0 else as_parameter(mu, b, self.n_mu or None)
         if mu.shape[1] != self.n_mu:
             raise ValueError(f"mu must have {self.n_mu} component(s) per instance, got shape {np.shape(mu)}")
         return x0, single, np.ascontiguousarray(mu), as_steps(t, b, name="t")
@@ -503,8 +489,7 @@ def sample_energy_ellipsoid(system: LinearHamiltonianSystem, n: int, mu, energy:
     :class:`~sympredict.systems.quadratic.QuadraticHamiltonian`).
     """
     n = as_positive_int(n, "n")
-    if not (np.isfinite(energy) and energy > 0):
-        raise ValueError(f"energy must be positive, got {energy!r}")
+    energy = as_real(energy, "energy", positive=True)
     try:
         L = np.linalg.cholesky(system.matrix(mu))
     except np.linalg.LinAlgError:
@@ -584,7 +569,7 @@ def sample_trajectory_neighbourhood(trajectories: np.ndarray, n: int, radius: fl
 def flow_map_data(system, x0, mu, dt) -> FlowMapData:
     """Samples ``x1 = system.flow(x0, mu, dt)``: ``x0 (M, 2n)``, ``mu (M, d)``, ``dt (M,)`` or a float."""
     x0, _ = as_states(x0, "x0", dim=system.dim, allow_single=False)
-    mu = _as_mu_array(mu, len(x0), system.n_mu)
+    mu = np.zeros((len(x0), 0)) if mu is None or np.size(mu) == 0 else as_parameter(mu, len(x0), system.n_mu or None)
     dt = as_steps(dt, len(x0))
     return FlowMapData(x0, system.flow(x0, mu, dt), mu if mu.shape[1] else None, dt)
 
@@ -707,8 +692,7 @@ def check_generating_function(system, data: FlowMapData, fail_below: float = 1e-
     GeneratingFunctionWarning
         If ``fail_below <= min sigma < warn_below``.
     """
-    if update not in _SIGMA:
-        raise ValueError(f"update must be one of {tuple(_SIGMA)}, got {update!r}")
+    as_choice(update, "update", _SIGMA)
     rng = np.random.default_rng(seed)
     idx = np.sort(rng.choice(len(data), size=min(len(data), max_points), replace=False))
     x0, mu, dt = data.x0[idx], data.mu[idx], data.dt[idx]

@@ -25,7 +25,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import brentq
 
-from sympredict._checks import as_positive_int, as_states, as_steps
+from sympredict._checks import as_positive_int, as_real, as_states, as_steps
 from sympredict.exceptions import SympredictError
 from sympredict.systems.flowmaps import _ScalarParameterSystem
 from sympredict.symplectic.integrators import micro_steps
@@ -78,9 +78,7 @@ def _hess_H(x, mu, fargs, iargs, out):
 
 def escape_energy(lam: float) -> float:
     """Energy ``1 / (6 lambda^2)`` of the saddles (``inf`` for ``lambda = 0``: a harmonic oscillator)."""
-    lam = float(lam)
-    if not np.isfinite(lam):
-        raise ValueError(f"lam must be finite, got {lam!r}")
+    lam = as_real(lam, "lam")
     return np.inf if lam == 0 else 1.0 / (6.0 * lam * lam)
 
 
@@ -163,10 +161,7 @@ class HenonHeiles(_ScalarParameterSystem):
         lam = self._parameter(mu, b)
         dt = as_steps(dt, b)
         n_steps = as_positive_int(n_steps, "n_steps", minimum=0)
-        if not (np.isfinite(h_max) and h_max > 0):
-            raise ValueError(f"h_max must be positive, got {h_max!r}")
-        if not (np.isfinite(tol) and tol > 0):
-            raise ValueError(f"tol must be positive, got {tol!r}")
+        h_max, tol = as_real(h_max, "h_max", positive=True), as_real(tol, "tol", positive=True)
         max_halvings = as_positive_int(max_halvings, "max_halvings", minimum=0)
         r = int(micro_steps(dt, h_max).max())
         coarse = rollout(self, x0, lam, dt, n_steps, scheme="kahan_li6", substeps=r)

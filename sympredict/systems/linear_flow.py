@@ -28,7 +28,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.linalg import expm
 
-from sympredict._checks import as_parameter
+from sympredict._checks import as_parameter, as_real_array
 from sympredict.base import Parametrized
 from sympredict.symplectic.metrics import j_times
 
@@ -145,8 +145,7 @@ class QuadraticPart(Parametrized):
                 or mats.shape[1] % 2:
             raise ValueError(f"QuadraticPart: matrices must have shape (K, 2n, 2n) with K >= 1 and an even 2n, "
                              f"got {mats.shape}")
-        if not np.all(np.isfinite(mats)):
-            raise ValueError("QuadraticPart: matrices contain NaN or Inf")
+        as_real_array(mats, "QuadraticPart: matrices")
         asym = np.abs(mats - np.swapaxes(mats, 1, 2)).max(axis=(1, 2))
         scale = np.abs(mats).max(axis=(1, 2))
         bad = np.flatnonzero(asym > 1e-12 * np.maximum(scale, np.finfo(float).tiny))
@@ -167,8 +166,7 @@ class QuadraticPart(Parametrized):
             if pw.ndim != 2 or pw.shape[0] != k:
                 raise ValueError(f"QuadraticPart: powers must have shape (K, d_mu) = ({k}, d_mu), one row per matrix, "
                                  f"got {pw.shape}")
-            if not np.all(np.isfinite(pw)):
-                raise ValueError("QuadraticPart: powers contain NaN or Inf")
+            as_real_array(pw, "QuadraticPart: powers")
         if dim is not None and mats.shape[1] != dim:
             raise ValueError(f"QuadraticPart: the matrices are {mats.shape[1]} x {mats.shape[1]}, "
                              f"the states have 2n = {dim} components")
@@ -251,11 +249,9 @@ class QuadraticPart(Parametrized):
         ``O(B (2n)^3 (13 + log2 ||t J A||))`` flops, no Python loop over the batch.  Exact up to round-off for any ``t``
         (no step-size restriction): symplectic to ``~1e-15``.
         """
-        t = np.asarray(t, dtype=float)
+        t = as_real_array(t, "t")
         if t.ndim > 1:
             raise ValueError(f"t must be a scalar or have shape (B,), got {t.shape}")
-        if not np.all(np.isfinite(t)):
-            raise ValueError("t contains NaN or Inf")
         if n is None and t.ndim == 1 and len(t) > 1:
             n = len(t)
         A = self.hessian(mu, n)

@@ -44,7 +44,7 @@ import scipy.sparse as sps
 from pymor.algorithms.timestepping import TimeStepper
 from pymor.operators.interface import Operator
 
-from sympredict._checks import as_positive_int, as_real, as_states, as_steps
+from sympredict._checks import as_choice, as_parameter, as_positive_int, as_real, as_states, as_steps
 from sympredict.symplectic.metrics import j_times
 from sympredict.symplectic.integrators_compiled import PointwiseHamiltonian, jit_pointwise, rollout, unit_mass_grad_T
 
@@ -66,8 +66,7 @@ def fd_laplacian_1d(n_points: int, length: float, boundary: str = "dirichlet") -
     """
     n_points = as_positive_int(n_points, "n_points", minimum=3)
     length = as_real(length, "length", positive=True)
-    if boundary not in BOUNDARIES:
-        raise ValueError(f"boundary must be one of {BOUNDARIES}, got {boundary!r}")
+    as_choice(boundary, "boundary", BOUNDARIES)
     dx = length / (n_points + 1) if boundary == "dirichlet" else length / n_points
     off = -np.ones(n_points - 1)
     D = sps.diags([off, 2.0 * np.ones(n_points), off], [-1, 0, 1], format="lil")
@@ -178,9 +177,7 @@ class SineGordonFOM:
             self.x = self.dx * np.arange(self.n_points)
         self.c_range = self._range(c_range, "c_range")
         self.amplitude_range = self._range(amplitude_range, "amplitude_range")
-        if initial not in INITIAL_FAMILIES:
-            raise ValueError(f"initial must be one of {INITIAL_FAMILIES}, got {initial!r}")
-        self.initial = initial
+        self.initial = as_choice(initial, "initial", INITIAL_FAMILIES)
         self.initial_options = dict(initial_options or {})
         self.T = as_real(T, "T", positive=True)
         self.nt = as_positive_int(nt, "nt")
@@ -202,13 +199,9 @@ class SineGordonFOM:
 
     def check_c(self, c, b: int) -> np.ndarray:
         """Wave speeds as an array (b,); ``ValueError`` outside ``c_range``."""
-        c = np.asarray(c, dtype=float).reshape(-1)
-        if c.size == 1:
-            c = np.full(b, c[0])
-        if c.shape != (b,):
-            raise ValueError(f"c must be a float or have shape ({b},), got shape {c.shape}")
+        c = as_parameter(c, b, 1, name="c")[:, 0]  # a float or (b,), finite
         lo, hi = self.c_range
-        if not np.all(np.isfinite(c)) or np.any(c < lo * (1 - 1e-12)) or np.any(c > hi * (1 + 1e-12)):
+        if np.any(c < lo * (1 - 1e-12)) or np.any(c > hi * (1 + 1e-12)):
             raise ValueError(f"c must lie in the declared range [{lo}, {hi}], got {c}")
         return c
 

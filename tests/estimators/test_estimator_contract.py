@@ -10,6 +10,7 @@ from pymor.parallel.dummy import dummy_pool
 
 from sympredict import DirectKernelPredictor, ModelFileError, SymplecticKernelPredictor
 from sympredict.base import Parametrized, clone
+from sympredict.estimators.auto import KernelSearch
 from sympredict.interpolation.greedy import TRAINERS, ActiveSetGreedy, BlockedGreedy, ExactGreedy, ShardedGreedy
 from sympredict.io import load_model, save_model
 from sympredict.kernels import IMQ, Matern32, Matern52
@@ -56,6 +57,48 @@ def test_set_params_nested_and_checked():
     # kernels are values: set_params gives a new kernel, the old one is untouched
     k = IMQ(1.0)
     assert k.set_params(eps=2.0) == IMQ(2.0) and k == IMQ(1.0)
+
+
+def test_set_params_refuses_atomically_and_clone_still_stores():
+    """set_params checks every value against the table before storing any (scikit-learn's check_set_params: a
+    refused call leaves every parameter unchanged), nested part settings too; __init__ and clone store unchecked."""
+    trainer, solver = ExactGreedy(tol=1e-9), NewtonSolver(backend="numpy")
+    model = SymplecticKernelPredictor(IMQ(0.2), IMQ(1.5), IMQ(3.0), max_centers=20, trainer=trainer, solver=solver)
+    before = repr(model.get_params(deep=True))
+    for bad, match in [
+        ({"max_centers": 30, "trainer__tol": -1.0},
+         r"SymplecticKernelPredictor.set_params\(trainer__tol=-1.0\): tol must be a finite non-negative float, got -1.0"),
+        ({"trainer__tol": 1e-3, "solver__backend": "gpu"},
+         r"set_params\(solver__backend='gpu'\): backend must be 'auto', 'numpy' or 'numba', got 'gpu'"),
+        ({"state_kernel__eps": 0.3, "max_centers": 0}, r"max_centers must be >= 1, got 0"),
+        ({"update": "midpoint", "mu_kernel": "imq"}, r"mu_kernel must be a sympredict.kernels kernel .* got 'imq'"),
+        ({"state_kernel__eps": -1.0}, r"set_params\(state_kernel__eps=-1.0\): IMQ: eps must be a finite positive"),
+        ({"search": KernelSearch(m_star=0)}, r"m_star"),
+    ]:
+        with pytest.raises(ValueError, match=match):
+            model.set_params(**bad)
+        assert repr(model.get_params(deep=True)) == before, bad
+        assert model.trainer is trainer and model.solver is solver and trainer.tol == 1e-9 and solver.backend == "numpy"
+    # a nested setting of a part left None is checked on the default part, and stored as a copy of it
+    with pytest.raises(ValueError, match=r"set_params\(trainer__tol=nan\): tol"):
+        SymplecticKernelPredictor().set_params(trainer__tol=float("nan"))
+    assert SymplecticKernelPredictor().set_params(solver__backend="numpy").solver == NewtonSolver(backend="numpy")
+    # construction and cloning store without checks (clone works on any settings; fit refuses them)
+    odd = SymplecticKernelPredictor(max_centers=0, trainer="fast")
+    for c in (clone(odd), sklearn.base.clone(odd)):
+        assert c.max_centers == 0 and c.trainer == "fast"
+
+
+@pytest.mark.parametrize("cls", [SymplecticKernelPredictor, DirectKernelPredictor])
+def test_scikit_learns_own_set_params_check(cls):
+    """scikit-learn's estimator check: set_params may refuse a value only if it leaves every parameter unchanged."""
+    import warnings
+
+    from sklearn.utils.estimator_checks import check_set_params
+
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=".*delay parameter validation until fit", category=UserWarning)
+        check_set_params(cls.__name__, cls(IMQ(0.2), IMQ(1.0), max_centers=5, trainer=ExactGreedy()))
 
 
 def test_init_only_stores(small_pendulum_data):

@@ -50,7 +50,11 @@ def test_save_refuses_a_solver_setting_load_would_refuse(coarse_pendulum_model, 
     import copy
 
     m = copy.copy(coarse_pendulum_model)
-    m.set_params(solver__backend="gpu")
+    solver = m.solver
+    with pytest.raises(ValueError, match=r"set_params\(solver__backend='gpu'\): backend must be .*got 'gpu'"):
+        m.set_params(solver__backend="gpu")  # refused at once, and nothing changed
+    assert m.solver is solver
+    m.solver = NewtonSolver(backend="gpu")  # planted by assignment: save must refuse it
     with pytest.raises(ValueError, match="backend"):
         m.save(tmp_path / "x.h5")
     assert not (tmp_path / "x.h5").exists()
@@ -74,7 +78,11 @@ def test_endless_newton_setting_refused_at_prediction(coarse_pendulum_model, coa
     import copy
 
     m = copy.copy(coarse_pendulum_model)
-    m.set_params(solver__max_iter=10 ** 15)
+    solver = m.solver
+    with pytest.raises(ValueError, match="max_iter must be at most"):
+        m.set_params(solver__max_iter=10 ** 15)  # refused at once, and nothing changed
+    assert m.solver is solver
+    m.solver = NewtonSolver(max_iter=10 ** 15)  # set by assignment: prediction checks it
     with pytest.raises(ValueError, match="max_iter must be at most"):
         m.step(coarse_pendulum_data.x0[:2])
     with pytest.raises(ValueError, match=str(MAX_NEWTON_ITER)):

@@ -10,6 +10,8 @@ numba is an optional dependency (``sympredict[fast]``); the tests that need it
 are skipped with a reason shown by ``-ra`` when it is not installed.
 """
 
+import copy
+
 import numpy as np
 import pytest
 
@@ -150,7 +152,10 @@ def test_newton_failure_reported_alike(small_pendulum_model, rng, backend):
 
 def test_backend_argument_checked(small_pendulum_model, small_pendulum_data, monkeypatch):
     x = np.array([[0.3, 0.0]])
-    bad = _with_backend(small_pendulum_model, "fortran")
+    with pytest.raises(ValueError, match="backend"):  # set_params refuses it and changes nothing
+        _with_backend(small_pendulum_model, "fortran")
+    bad = copy.copy(small_pendulum_model)
+    bad.solver = NewtonSolver(backend="fortran")  # set by assignment: prediction refuses it
     with pytest.raises(ValueError, match="backend"):
         bad.step(x, mu=0.75, dt=0.05)
     d = small_pendulum_data

@@ -7,6 +7,7 @@ import pytest
 from sympredict import DirectKernelPredictor, SymplecticKernelPredictor
 from sympredict._checks import Constraint, as_even_dimension, as_positive_int, check_settings
 from sympredict.exceptions import ModelFileError
+from sympredict.interpolation.greedy import ExactGreedy
 from sympredict.kernels import IMQ
 from sympredict.kernels.transforms import Periodic
 
@@ -31,13 +32,23 @@ BAD = [  # (setting, value, what the message must name as the fix)
 
 @pytest.mark.parametrize("name, value, fix", BAD, ids=[f"{b[0]}={b[1]!r}" for b in BAD])
 def test_each_message_names_the_setting_the_value_and_the_fix(name, value, fix):
-    est = SymplecticKernelPredictor(IMQ(0.3)).set_params(**{name: value})
+    """set_params refuses the value at once and changes nothing (scikit-learn's check_set_params); the same value
+    set by attribute assignment is refused by fit's check with the same message."""
+    est = SymplecticKernelPredictor(IMQ(0.3), trainer=ExactGreedy(tol=1e-9))
+    before = est.get_params(deep=False)
+    with pytest.raises(ValueError) as refused:
+        valid = {"mu_kernel": IMQ(1.0)} if name == "max_centers" else {"max_centers": 7}
+        est.set_params(**valid, **{name: value})  # a valid value given with it is not stored either
+    after = est.get_params(deep=False)
+    assert after.keys() == before.keys() and all(after[k] is before[k] for k in before), (before, after)
+    setattr(est, name, value)
     with pytest.raises(ValueError) as info:
         est.check_params()
-    message = str(info.value)
-    assert name.split("_")[0] in message and fix in message, message
-    if not isinstance(value, (int, float)) or name != "max_centers":
-        assert repr(value) in message or str(value) in message, message
+    assert str(refused.value) == str(info.value)
+    for message in (str(refused.value), str(info.value)):
+        assert name.split("_")[0] in message and fix in message, message
+        if not isinstance(value, (int, float)) or name != "max_centers":
+            assert repr(value) in message or str(value) in message, message
 
 
 def test_the_direct_model_has_its_own_state_kernel_row():
