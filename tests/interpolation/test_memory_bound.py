@@ -191,3 +191,29 @@ def test_bounded_trainer_refuses_what_it_cannot_run():
         BoundedActiveSetStore(fun, y, tol=0, max_points=0)
     with pytest.raises(ValueError, match="one output"):
         BoundedActiveSetStore(fun, np.column_stack([y, y]), tol=0)
+
+
+def test_estimator_with_the_bounded_trainer_validation_and_spec_round_trip(small_pendulum_data, tmp_path):
+    from sympredict import SymplecticKernelPredictor
+    from sympredict.base import clone
+    from sympredict.interpolation.greedy import trainer_from_spec
+    from sympredict.kernels import IMQ as IMQKernel
+
+    d = small_pendulum_data
+    n_points = len(d.x0) - 40
+    n = 2 * n_points  # the pendulum's 2-D state
+    budget = bounded_memory(120, n, 80, 100 * 2, 2, 16, 3)  # 100 points in the slots
+    trainer = BoundedActiveSetGreedy(block_size=16, pool_factor=3, refresh_every=32, max_new_points=50, tol=1e-9,
+                                     memory_limit=budget)
+    assert trainer_from_spec(trainer.spec) == trainer
+    model = SymplecticKernelPredictor(IMQKernel(0.15), mu_kernel=IMQKernel(2.0), dt_kernel=IMQKernel(5.0),
+                                      max_centers=120, trainer=trainer)
+    model.fit(d.x0[:n_points], d.x1[:n_points], mu=d.mu[:n_points], dt=d.dt[:n_points],
+              validation=(d.x0[n_points:], d.x1[n_points:], d.mu[n_points:], d.dt[n_points:]))
+    stats = model.greedy_result_.stats
+    assert stats["slots"] == 200 < n and stats["refreshes"] >= 2 and model.surrogate_.n_centers == 120
+    h = model.history_
+    assert h.val_max_residual is not None and len(h.val_max_residual) == 121
+    model.save(tmp_path / "b.h5")
+    back = SymplecticKernelPredictor.load(tmp_path / "b.h5")
+    assert back.trainer == trainer and clone(back).trainer == trainer

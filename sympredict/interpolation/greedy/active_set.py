@@ -17,7 +17,12 @@ The selection differs from the exact f-greedy's (it sees the active set only
 between refreshes); the residual it certifies is the full one, by direct
 evaluation of the returned model.  Memory ``8 m_max (2n N_S + N_val)`` bytes
 for the basis; time ``O(m^2 N_S / 2)`` memory traffic plus ``O(M m 2n)`` flops
-per refresh.
+per refresh.  The active set grows while points join, so its memory is known
+only as a bound (every refresh adding ``max_new_points``).
+
+:class:`BoundedActiveSetStore` fixes the size instead: the blocked greedy on a
+fixed number of slots, sized to a memory budget, whose points are swapped at
+each refresh; its whole peak is :func:`bounded_memory`.
 """
 
 from __future__ import annotations
