@@ -22,7 +22,8 @@ the fit, the formula's peak (:func:`sympredict.interpolation.greedy.trainer_memo
 bounded / exact at equal centres.
 
 ``--project-samples/--project-centers``: the time and memory of the full size from this run's measured parts
-(blocks ``~ S m^2``, each refresh ``~ N m``) and the formula.
+(blocks ``~ S m^2`` in products and ``~ S m`` besides, each refresh's evaluation ``~ N m``, its swap
+``~ m^2`` per point swapped in) and the formula.
 
 Run:  python sympredict_paper/studies/memory_bound.py --samples 100000 --dim 8 --centers 4000 --threads 2 --json OUT
       python sympredict_paper/studies/memory_bound.py --samples 10000 --centers 500 --memory 0.2G      # a minute
@@ -258,11 +259,19 @@ def project(args, run, dim, n_fun, m, data_s) -> dict:
         t_rest = max(blocks - gemm_here, 0.0) * (s_full * m_full) / (slots * mm)
         t_blocks = t_gemm + t_rest
         out.update(gemm_gflops=rate / 1e9, blocks_gemm_projected_s=t_gemm, blocks_rest_projected_s=t_rest)
-        # refreshes: every refresh_every centres (and at the end), each N m Gramian entries
-        every = BoundedActiveSetGreedy().refresh_every
+        # refreshes: every refresh_every centres (and at the end), each N m Gramian entries; the swaps that follow
+        # them m^2 2n flops per point swapped in (bound: max_new_points at every refresh)
+        trainer = BoundedActiveSetGreedy()
+        every, new_points = trainer.refresh_every, trainer.max_new_points
+        swap = float(stats.get("swap_s", 0.0))
         work_here = n_fun * max(sum(stats["evaluated_at"]), 1)
         work_full = n_full * (every * sum(range(1, m_full // every + 1)) + m_full)
-        t_refresh = refresh * work_full / work_here
+        t_eval = (refresh - swap) * work_full / work_here
+        swap_here = sum(float(mk) ** 2 * k for mk, k in stats.get("swaps", [])) or 1.0
+        swap_full = sum(float(every * k) ** 2 * new_points for k in range(1, m_full // every + 1))
+        t_swap = swap * swap_full / swap_here
+        t_refresh = t_eval + t_swap
+        out.update(evaluation_projected_s=t_eval, swap_projected_s=t_swap)
         out.update(greedy_projected_s=t_blocks + t_refresh, blocks_projected_s=t_blocks,
                    refresh_projected_s=t_refresh,
                    fit_rest_projected_s=(run["fit_s"] - run["greedy_s"]) * n_full / n_fun,
@@ -270,7 +279,7 @@ def project(args, run, dim, n_fun, m, data_s) -> dict:
         out["total_projected_s"] = out["greedy_projected_s"] + out["fit_rest_projected_s"] + out["data_projected_s"]
         print(f"projection, {args.project_samples} samples x {m_full} centres on {mem / 2**30:.0f} GiB: "
               f"{points} points in slots, formula peak {need / 2**30:.2f} GiB; greedy ~{t_blocks + t_refresh:.0f} s "
-              f"(blocks {t_blocks:.0f} s, refreshes {t_refresh:.0f} s), run in all ~{out['total_projected_s']:.0f} s at "
+              f"(blocks {t_blocks:.0f} s, refreshes {t_eval:.0f} s, swaps {t_swap:.0f} s), run in all ~{out['total_projected_s']:.0f} s at "
               f"this run's rates", flush=True)
     else:
         print(f"projection: formula peak {need / 2**30:.2f} GiB ({points} points in slots); no time projection "

@@ -329,21 +329,23 @@ class BoundedActiveSetStore(BlockedStore):
     refresh_every
         Centres between two refreshes (at least).
     max_new_points
-        Points swapped into the slots per refresh at most.
+        Points swapped into the slots per refresh at most (each costs ``m^2 2n`` flops: at 1,024 a
+        refresh's swaps stay below the block products between refreshes for slots of more than
+        ``2n 1024 m / (2 refresh_every)`` functionals).
 
     Notes
     -----
     Memory: :func:`bounded_memory`, checked before the run.  Time: the blocked greedy's ``2 m S`` flops per
     centre (matrix products), plus per refresh ``N m`` Gramian entries (the full evaluation) and ``m^2 2n``
     flops per point swapped in.  ``stats``: the blocked store's, and ``'refreshes'``, ``'swapped'`` (points), ``'refresh_s'`` (seconds in
-    refreshes), ``'evaluated_at'`` (centre counts of the full evaluations), ``'slots'`` (``S``), ``'memory_formula'`` (bytes).
+    refreshes, of which ``'swap_s'`` in swaps), ``'swaps'`` (``[centres, points]`` per swap), ``'evaluated_at'`` (centre counts of the full evaluations), ``'slots'`` (``S``), ``'memory_formula'`` (bytes).
     """
 
     label = "bounded active-set greedy"
 
     def __init__(self, functionals, targets, *, tol: float, max_points: Optional[int] = None, power_tol: float = 1e-12,
                  validation: Optional[tuple] = None, memory_limit: Optional[float] = None, block_size: int = 64,
-                 pool_factor: int = 4, slack: float = 0.5, refresh_every: int = 256, max_new_points: int = 4096,
+                 pool_factor: int = 4, slack: float = 0.5, refresh_every: int = 256, max_new_points: int = 1024,
                  compiled: Optional[bool] = None):
         if not isinstance(functionals, HBFunctionals):
             raise ValueError("the bounded active-set greedy needs HBFunctionals (state-derivative functionals): "
@@ -416,7 +418,7 @@ class BoundedActiveSetStore(BlockedStore):
         self.queue, self.block_start, self.block_chol, self.position = [], 0, None, 0
         self.next_size = self.block_size
         self.stats = {"blocks": 0, "block_sizes": [], "rejected": 0, "refreshes": 0, "swapped": 0, "refresh_s": 0.0,
-                      "evaluated_at": [], "slots": int(len(cand)), "memory_formula": int(need)}
+                      "swap_s": 0.0, "swaps": [], "evaluated_at": [], "slots": int(len(cand)), "memory_formula": int(need)}
         self.refreshed_at, self.full_at, self.full_max = 0, 0, self.targets_max
         abs_residual(self.res, out=self.res_abs)
         return self.targets_max, (np.abs(self.vres).max() if self.n_val else None)
@@ -501,7 +503,8 @@ class BoundedActiveSetStore(BlockedStore):
         k = min(self.max_new_points, outside.size, len(self.slot_pts))
         top = outside[np.argpartition(-point_res[outside], k - 1)[:k]]
         top = top[np.argsort(-point_res[top], kind="stable")]
-        slot_res = self.res_abs.reshape(-1, self.dim).max(axis=1)
+        # a slot's worth: its selectable residual (a candidate at the breakdown guard is never selected again)
+        slot_res = np.where(self.p2 > self.breakdown, self.res_abs, 0.0).reshape(-1, self.dim).max(axis=1)
         low = np.argsort(slot_res, kind="stable")[:k]
         gain = (point_res[top] > slot_res[low]) & (point_res[top] > self.tol)
         n_swap = int(np.count_nonzero(gain))  # top falls and low rises: the swaps that gain are a prefix
@@ -509,7 +512,10 @@ class BoundedActiveSetStore(BlockedStore):
             t0 = time.perf_counter()
             self._swap(m, low[:n_swap], top[:n_swap])
             self.stats["swapped"] += n_swap
-            self.stats["refresh_s"] += time.perf_counter() - t0
+            self.stats["swaps"].append([int(m), n_swap])
+            spent = time.perf_counter() - t0
+            self.stats["refresh_s"] += spent
+            self.stats["swap_s"] += spent
 
     def _swap(self, m: int, slots: np.ndarray, new: np.ndarray) -> None:
         """Points ``new`` into ``slots``: Newton basis values ``L^{-1} K(selected, new)``, residuals, power function."""

@@ -382,7 +382,7 @@ class BoundedActiveSetGreedy(Trainer):
     """
 
     def __init__(self, block_size: int = 64, pool_factor: int = 4, slack: float = 0.5, refresh_every: int = 256,
-                 max_new_points: int = 4096, *, tol: float = 1e-10, power_tol: float = 1e-12,
+                 max_new_points: int = 1024, *, tol: float = 1e-10, power_tol: float = 1e-12,
                  memory_limit: Optional[float] = None, target_error: Optional[float] = None):
         self.tol = tol
         self.power_tol = power_tol
