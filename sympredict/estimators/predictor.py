@@ -414,7 +414,8 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         active subset refreshed against the full residual) or
         ``ShardedGreedy(pool)`` (a pyMOR worker pool, the exact greedy's
         centres); ``None`` (default): the fastest strategy that fits the memory, ``ExactGreedy()`` where
-        its Newton basis does (:func:`~sympredict.interpolation.greedy.trainers.default_trainer`, logged).
+        its Newton basis does, ``BlockedGreedy()`` or ``BoundedActiveSetGreedy()`` (slots sized to half the
+        memory) beyond (:func:`~sympredict.interpolation.greedy.trainers.default_trainer`, logged).
         The greedy stops when the max training residual is at or
         below ``tol * min(1, max|x| / min dT)`` (``max|x|`` over the training
         states): ``tol`` is absolute for data in units of order one and above,

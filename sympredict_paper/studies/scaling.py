@@ -17,12 +17,9 @@ process's ``dgemm`` rate.  Fitted exponents: least-squares slopes of ``log time`
 Peer: scikit-learn's ``GaussianProcessRegressor`` (fixed RBF kernel, ``optimizer=None``, a Cholesky factorisation
 of the ``M x M`` kernel matrix: ``O(M^3)`` time, ``O(M^2)`` memory) on ``M`` in ``--gpr-points`` point values.
 
-``--large``: the trainer a default fit chooses for 100,000 samples of an 8-D state (one parameter, 4,000 centres,
-a tenth held out) on a 24 GB machine, its memory formula, and the measured peak of that trainer at ``--large-m``
-centres against the formula at that size.
+Large data in bounded memory (100,000 samples of an 8-D state): ``memory_bound.py``.
 
 Run:  python sympredict_paper/studies/scaling.py                 # a few minutes on 2 cores
-      python sympredict_paper/studies/scaling.py --large          # adds the 100,000-sample check (minutes)
 One BLAS and one numba thread; writes ``docs/data/scaling.json`` (``--json``).
 """
 
@@ -37,7 +34,7 @@ import numpy as np
 import _protocol  # sympredict_paper/studies/ (the script's folder is on sys.path)
 
 from sympredict.interpolation.functionals import HBFunctionals
-from sympredict.interpolation.greedy import BlockedGreedy, ExactGreedy, default_trainer, trainer_memory
+from sympredict.interpolation.greedy import BlockedGreedy, ExactGreedy, trainer_memory
 from sympredict.kernels import IMQ, ProductKernel
 
 
@@ -115,34 +112,6 @@ def gpr_sweep(points) -> list:
     return rows
 
 
-def large_check(m_measured: int) -> dict:
-    n_samples, dim, m, memory = 100_000, 8, 4000, 0.9 * 24e9
-    held_out = min(2000, n_samples // 10)  # the default fit's holdout
-    n_val, n_train = held_out * dim, (n_samples - held_out) * dim
-    fun, y = problem(n_samples - held_out, dim, seed=5)
-    chosen = default_trainer(fun, n_val, m, memory=memory)
-    formula = {name: trainer_memory(t, n_train, n_val, m, dim=dim, initial=name == "ActiveSetGreedy")
-               for name, t in (("ExactGreedy", ExactGreedy()), ("BlockedGreedy", BlockedGreedy()),
-                               ("ActiveSetGreedy", chosen if type(chosen).__name__ == "ActiveSetGreedy" else None))
-               if t is not None}
-    print(f"  100,000 x 8-D, 4,000 centres: the default fit chooses {type(chosen).__name__}; formulas "
-          + ", ".join(f"{k} {v / 1e9:.1f} GB" for k, v in formula.items()), flush=True)
-    vfun, vy = problem(held_out, dim, seed=6)
-    tracemalloc.start()
-    t0 = time.perf_counter()
-    result = chosen.run(fun, y, max_centers=m_measured, validation=(vfun, vy), log_every=0)
-    seconds = time.perf_counter() - t0
-    peak = tracemalloc.get_traced_memory()[1]
-    tracemalloc.stop()
-    at_m = trainer_memory(chosen, n_train, n_val, m_measured, dim=dim, initial=True)
-    print(f"  measured at {m_measured} centres: {seconds:.1f} s, peak {peak / 1e9:.2f} GB (formula {at_m / 1e9:.2f} GB)",
-          flush=True)
-    return {"samples": n_samples, "dim": dim, "max_centers": m, "memory_limit_bytes": memory,
-            "chosen": type(chosen).__name__, "formula_bytes": formula, "measured_centers": len(result.selected),
-            "measured_m": m_measured, "measured_seconds": seconds, "measured_peak_bytes": peak,
-            "formula_at_measured_m_bytes": at_m, "stop": result.history.stop_reason}
-
-
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--points", type=int, nargs="+", default=[2000, 4000, 8000, 16000])
@@ -152,8 +121,6 @@ def main(argv=None):
     parser.add_argument("--dim-points", type=int, default=2000)
     parser.add_argument("--dims", type=int, nargs="+", default=[2, 4, 8, 16, 32])
     parser.add_argument("--gpr-points", type=int, nargs="+", default=[1000, 2000, 4000])
-    parser.add_argument("--large", action="store_true")
-    parser.add_argument("--large-m", type=int, default=200)
     _protocol.add_arguments(parser, threads=1)
     args = parser.parse_args(argv)
     args.json = args.json or "docs/data/scaling.json"
@@ -188,10 +155,6 @@ def main(argv=None):
                                                  "memory": slope([r["points"] for r in gpr],
                                                                  [r["peak_bytes"] for r in gpr])}}
         _protocol.write_json(args.json, out, protocol)
-        if args.large:
-            print("large check", flush=True)
-            out["large"] = large_check(args.large_m)
-            _protocol.write_json(args.json, out, protocol)
     print(f"wrote {args.json}")
 
 

@@ -160,7 +160,7 @@ def test_memory_formula_bounds_the_measured_peak():
 
 
 def test_default_trainer_picks_what_fits_the_memory_and_logs_it(caplog):
-    from sympredict.interpolation.greedy import ActiveSetGreedy, default_trainer
+    from sympredict.interpolation.greedy import default_trainer
 
     fun, *_ = _problem(9, m_points=1000)  # N = 4,000 functionals
     n, m = fun.n_functionals, 500
@@ -175,11 +175,26 @@ def test_default_trainer_picks_what_fits_the_memory_and_logs_it(caplog):
         assert type(default_trainer(fun, 0, m, memory=2 * exact)) is BlockedGreedy
     finally:
         trainers.BLOCKED_ABOVE_BYTES = old
-    # neither full basis fits, the active set's first allocation (times three) does
-    big, *_ = _problem(9, m_points=120000)  # 480,000 functionals: the first active set is a fifth of them
-    need = trainer_memory(ActiveSetGreedy(), big.n_functionals, 0, m, dim=big.dim, initial=True)
-    assert type(default_trainer(big, 0, m, memory=3 * need)) is ActiveSetGreedy
-    assert type(default_trainer(big, 0, m, memory=need)) is ExactGreedy  # nothing fits: the exact greedy's check says so
+    # neither full basis fits: the bounded active set, its whole peak (formula) within half of the memory
+    from sympredict.interpolation.greedy import BoundedActiveSetGreedy
+    from sympredict.interpolation.greedy.active_set import bounded_memory
+
+    big, *_ = _problem(9, m_points=120000)  # 480,000 functionals
+    n_big = big.n_functionals
+    memory = 0.5 * trainer_memory(ExactGreedy(), n_big, 0, m)
+    caplog.clear()
+    with caplog.at_level("INFO", logger="sympredict"):
+        chosen = default_trainer(big, 0, m, memory=memory)
+    assert type(chosen) is BoundedActiveSetGreedy and chosen.memory_limit == 0.5 * memory
+    points = chosen.capacity(n_big, 0, m, big.dim)
+    assert 0 < points < len(big.points)
+    need = trainer_memory(chosen, n_big, 0, m, dim=big.dim)
+    assert need == bounded_memory(m, n_big, 0, points * big.dim, big.dim) <= 0.5 * memory
+    assert bounded_memory(m, n_big, 0, (points + 1) * big.dim, big.dim) > 0.5 * memory  # the largest that fits
+    assert "trainer: BoundedActiveSetGreedy" in caplog.text and f"{points} of 120000 points" in caplog.text
+    # not even the bounded set's fixed part fits: the exact greedy, whose check says what does
+    tiny = 0.5 * bounded_memory(m, n_big, 0, 0, big.dim)
+    assert type(default_trainer(big, 0, m, memory=tiny)) is ExactGreedy
 
 
 @pytest.mark.parametrize("dim", [2, 4, 6])

@@ -3,7 +3,8 @@
 * :mod:`~sympredict.interpolation.greedy.loop`: :func:`run_greedy` (selection, stop rules,
   divergence, history: written once) and the store interface;
 * stores: :class:`DenseStore` (exact, float64/float32), :class:`ActiveSetStore`
-  (active subset, refreshed), :class:`ShardedStore` (pyMOR worker pools);
+  (active subset, refreshed), :class:`ShardedStore` (pyMOR worker pools), :class:`BlockedStore` (blocks of
+  centres), :class:`BoundedActiveSetStore` (blocks on slots sized to a memory budget);
 * :mod:`~sympredict.interpolation.greedy.trainers`: the estimators' ``trainer`` strategies
   (:class:`ExactGreedy`, :class:`ActiveSetGreedy`, :class:`ShardedGreedy`).
 
@@ -15,7 +16,7 @@ from __future__ import annotations
 
 from typing import Callable, Optional
 
-from sympredict.interpolation.greedy.active_set import ActiveSetStore
+from sympredict.interpolation.greedy.active_set import BoundedActiveSetStore, ActiveSetStore, bounded_memory
 from sympredict.interpolation.greedy.dense import DenseStore
 from sympredict.interpolation.greedy.loop import (
     GreedyHistory,
@@ -32,6 +33,7 @@ from sympredict.interpolation.greedy.trainers import (
     TRAINERS,
     ActiveSetGreedy,
     BlockedGreedy,
+    BoundedActiveSetGreedy,
     ExactGreedy,
     ShardedGreedy,
     Trainer,
@@ -39,12 +41,14 @@ from sympredict.interpolation.greedy.trainers import (
     trainer_from_spec,
     trainer_memory,
     default_trainer,
+    memory_budget,
 )
 from sympredict.interpolation.greedy.blocked import BlockedStore
 
 __all__ = [
     "GreedyHistory", "GreedyResult", "NewtonBasisStore", "run_greedy", "DenseStore", "ActiveSetStore", "ShardedStore",
-    "BlockedStore", "BlockedGreedy", "trainer_memory", "default_trainer",
+    "BlockedStore", "BlockedGreedy", "trainer_memory", "default_trainer", "BoundedActiveSetStore",
+    "BoundedActiveSetGreedy", "bounded_memory", "memory_budget",
     "Trainer", "ExactGreedy", "ActiveSetGreedy", "ShardedGreedy", "TRAINERS", "register_trainer", "trainer_from_spec",
     "greedy_interpolation", "active_set_greedy", "sharded_greedy", "shard_bounds", "SHARD_ALIGN", "available_memory",
     "check_memory", "format_bytes", "kernel_coefficients",

@@ -145,15 +145,40 @@ class GreedyResult:
 
 
 def available_memory() -> int:
-    """Bytes of physical memory currently available (``MemAvailable``), or total memory as fallback."""
+    """Bytes of memory the process may use: ``SYMPREDICT_MEMORY`` if set (bytes, or with a suffix ``K``/``M``/``G``:
+    binary units), else ``MemAvailable`` of ``/proc/meminfo`` capped by a cgroup's ``memory.max`` (a container's
+    limit), else the total memory."""
+    given = os.environ.get("SYMPREDICT_MEMORY", "").strip()
+    if given:
+        units = {"K": 2 ** 10, "M": 2 ** 20, "G": 2 ** 30, "T": 2 ** 40}
+        scale = units.get(given[-1].upper(), 1)
+        try:
+            value = float(given[:-1] if scale > 1 else given) * scale
+        except ValueError:
+            value = -1.0
+        if not (np.isfinite(value) and value > 0):
+            raise ValueError(f"SYMPREDICT_MEMORY must be a positive number of bytes such as 24e9 or 24G, got {given!r}")
+        return int(value)
+    found = None
     try:
         with open("/proc/meminfo") as f:
             for line in f:
                 if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
+                    found = int(line.split()[1]) * 1024
     except OSError:
         pass
-    return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    if found is None:
+        found = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    try:
+        with open("/sys/fs/cgroup/memory.max") as f:
+            cap = f.read().strip()
+        with open("/sys/fs/cgroup/memory.current") as f:
+            used = int(f.read().strip())
+        if cap.isdigit():
+            found = min(found, max(int(cap) - used, 0))
+    except (OSError, ValueError):
+        pass
+    return int(found)
 
 
 def format_bytes(n: float) -> str:

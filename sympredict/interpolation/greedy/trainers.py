@@ -5,17 +5,20 @@ An estimator takes a strategy as its ``trainer`` parameter
 its ``fit`` builds the candidate functionals and calls :meth:`Trainer.run`,
 which builds a store and runs :func:`~sympredict.interpolation.greedy.loop.run_greedy`.
 
-=========================  ======================================  ======================================
-strategy                   store                                   use it for
-=========================  ======================================  ======================================
-:class:`ExactGreedy`       all candidates in memory (float64 or    the exact f-/P-greedy (default)
-                           float32 basis)
-:class:`ActiveSetGreedy`   an active subset, refreshed against     large data, a residual target ``tol``
-                           the full residual                       (f-greedy, HB functionals)
-:class:`ShardedGreedy`     shards on a pyMOR worker pool (MPI)     data whose basis exceeds one node
-:class:`BlockedGreedy`     all candidates in memory, grown by      the f-/P-greedy at the arithmetic rate
-                           blocks of centres (matrix products)     (large ``N`` and ``m``)
-=========================  ======================================  ======================================
+=================================  ======================================  ======================================
+strategy                           store                                   use it for
+=================================  ======================================  ======================================
+:class:`ExactGreedy`               all candidates in memory (float64 or    the exact f-/P-greedy (default)
+                                   float32 basis)
+:class:`ActiveSetGreedy`           an active subset, refreshed against     large data, a residual target ``tol``
+                                   the full residual                       (f-greedy, HB functionals)
+:class:`ShardedGreedy`             shards on a pyMOR worker pool (MPI)     data whose basis exceeds one node
+:class:`BlockedGreedy`             all candidates in memory, grown by      the f-/P-greedy at the arithmetic rate
+                                   blocks of centres (matrix products)     (large ``N`` and ``m``)
+:class:`BoundedActiveSetGreedy`    the blocked greedy on slots sized to    a basis larger than the memory
+                                   the budget, refreshed against every     (the default there; f-greedy, HB
+                                   candidate in chunks                     functionals)
+=================================  ======================================  ======================================
 
 Peak memory of the stores (bytes; ``N``, ``N_val``: training and validation
 functionals, ``m``: ``max_centers``, ``b``: block size, ``c``: pool factor, ``N_S``:
@@ -24,9 +27,12 @@ active functionals, ``P``: shards; :func:`trainer_memory` evaluates them):
 * :class:`ExactGreedy`: ``itemsize m (N + N_val)`` (``itemsize`` 8, or 4 for a float32 basis);
 * :class:`BlockedGreedy`: ``8 ((m + b) (N + N_val) + (c b)^2)``;
 * :class:`ActiveSetGreedy`: ``8 m (N_S + N_val)``, ``N_S <= 2n (initial_points + max_new_points m / refresh_every)``;
-* :class:`ShardedGreedy`: ``8 m (N + N_val) / P`` per worker.
+* :class:`ShardedGreedy`: ``8 m (N + N_val) / P`` per worker;
+* :class:`BoundedActiveSetGreedy`: ``8 [(m + b) (S + N_val) + c b (c b (2n + 1) + m) + m K + 2 m^2 + 4 S + 6 N]``
+  for ``S`` slot functionals sized so that this is at most ``memory_limit`` (``K``: the refresh chunk,
+  ``8 m K <= 32 MiB``; this formula counts the Cholesky factor and the vectors too).
 
-Each adds ``O(m^2)`` for the Cholesky factor and ``O(N)`` vectors.
+The others add ``O(m^2)`` for the Cholesky factor and ``O(N)`` vectors.
 
 A strategy that cannot combine with a setting (a P-greedy on the active set,
 a float32 basis on shards) raises ``ValueError`` when the run starts.  A new
@@ -44,13 +50,15 @@ from pymor.core.logger import getLogger
 
 from sympredict.base import Setting
 from sympredict.interpolation.functionals import HBFunctionals
-from sympredict.interpolation.greedy.active_set import ActiveSetStore
+from sympredict.interpolation.greedy.active_set import (ActiveSetStore, BoundedActiveSetStore, bounded_capacity,
+                                                        bounded_memory)
 from sympredict.interpolation.greedy.blocked import BlockedStore, blocked_memory
 from sympredict.interpolation.greedy.dense import DenseStore
 from sympredict.interpolation.greedy.loop import GreedyResult, available_memory, format_bytes, run_greedy
 from sympredict.interpolation.greedy.sharded import ShardedStore
 
-__all__ = ["Trainer", "ExactGreedy", "ActiveSetGreedy", "ShardedGreedy", "BlockedGreedy", "trainer_memory", "default_trainer", "TRAINERS", "register_trainer", "trainer_from_spec"]
+__all__ = ["Trainer", "ExactGreedy", "ActiveSetGreedy", "ShardedGreedy", "BlockedGreedy", "BoundedActiveSetGreedy",
+           "trainer_memory", "memory_budget", "default_trainer", "TRAINERS", "register_trainer", "trainer_from_spec"]
 
 logger = getLogger("sympredict.interpolation.greedy")
 
@@ -341,6 +349,77 @@ class BlockedGreedy(Trainer):
                             pool_factor=self.pool_factor, slack=self.slack)
 
 
+@register_trainer
+class BoundedActiveSetGreedy(Trainer):
+    """The blocked f-greedy on an active set of bounded size, refreshed against every candidate (:class:`~sympredict.interpolation.greedy.active_set.BoundedActiveSetStore`).
+
+    For data whose Newton basis ``8 m N`` exceeds the memory: the basis lives on ``S = 2n P`` slots,
+    ``P`` the most points that fit the budget (:func:`~sympredict.interpolation.greedy.active_set.bounded_capacity`);
+    the blocked greedy (:class:`BlockedGreedy`'s block rule) selects on them, and every ``refresh_every``
+    centres the model is evaluated at all ``N`` candidates in chunks and the worst points outside replace the
+    best-fitted ones inside.  Where every point fits, the run is :class:`BlockedGreedy`'s.
+
+    Parameters
+    ----------
+    block_size, pool_factor, slack
+        As for :class:`BlockedGreedy`.
+    refresh_every
+        Centres between two evaluations of every candidate (at least).
+    max_new_points
+        Points swapped in per refresh at most.
+    tol, power_tol, target_error
+        As for :class:`ExactGreedy` (an f-greedy without regularization: no ``criterion``, no ``regularization``).
+    memory_limit
+        The budget in bytes for everything :func:`~sympredict.interpolation.greedy.active_set.bounded_memory`
+        counts (default :func:`memory_budget`: half the available memory); the slots are sized to it.
+
+    Notes
+    -----
+    Peak memory ``8 [(m + b) (S + N_val) + c b (c b (2n + 1) + m) + m K + 2 m^2 + 4 S + 6 N]`` bytes
+    (``K``: the refresh chunk, ``8 m K <= 32 MiB``), at most ``memory_limit`` by construction
+    (:func:`trainer_memory`); time ``2 m S`` flops per centre in matrix products plus ``N m`` Gramian entries
+    per refresh.
+    """
+
+    def __init__(self, block_size: int = 64, pool_factor: int = 4, slack: float = 0.5, refresh_every: int = 256,
+                 max_new_points: int = 1024, *, tol: float = 1e-10, power_tol: float = 1e-12,
+                 memory_limit: Optional[float] = None, target_error: Optional[float] = None):
+        self.tol = tol
+        self.power_tol = power_tol
+        self.memory_limit = memory_limit
+        self.target_error = target_error
+        self.block_size = block_size
+        self.pool_factor = pool_factor
+        self.slack = slack
+        self.refresh_every = refresh_every
+        self.max_new_points = max_new_points
+
+    def budget(self) -> float:
+        """The bytes the run may use: ``memory_limit``, or :func:`memory_budget`."""
+        return memory_budget() if self.memory_limit is None else float(self.memory_limit)
+
+    def capacity(self, n_train: int, n_val: int, max_centers: int, dim: int) -> int:
+        """Points the slots hold within :meth:`budget` (:func:`~sympredict.interpolation.greedy.active_set.bounded_capacity`)."""
+        m = min(int(max_centers), n_train)
+        return bounded_capacity(self.budget(), m, n_train, n_val, dim, min(int(self.block_size), m),
+                                int(self.pool_factor))
+
+    def store(self, functionals, targets, *, tol, validation):
+        if not isinstance(functionals, HBFunctionals):
+            raise ValueError("BoundedActiveSetGreedy needs state-derivative functionals (the symplectic predictor): "
+                             "use BlockedGreedy() for the direct model")
+        return BoundedActiveSetStore(functionals, targets, tol=tol, max_points=None, power_tol=self.power_tol,
+                                     validation=validation, memory_limit=self.budget(), block_size=self.block_size,
+                                     pool_factor=self.pool_factor, slack=self.slack, refresh_every=self.refresh_every,
+                                     max_new_points=self.max_new_points)
+
+
+def memory_budget(fraction: float = 0.5) -> float:
+    """Bytes a trainer sized to the machine may plan for: ``fraction`` of the available memory (``MemAvailable``
+    in ``/proc/meminfo``, :func:`~sympredict.interpolation.greedy.loop.available_memory`)."""
+    return fraction * available_memory()
+
+
 def trainer_memory(trainer: Trainer, n_train: int, n_val: int, max_centers: int, dim: int = 1,
                    initial: bool = False) -> float:
     """Peak bytes of ``trainer``'s store for ``n_train`` training and ``n_val`` validation functionals (module docstring).
@@ -356,6 +435,10 @@ def trainer_memory(trainer: Trainer, n_train: int, n_val: int, max_centers: int,
         return float(blocked_memory(m, n_train, n_val, b, int(trainer.pool_factor)))
     if isinstance(trainer, ExactGreedy):
         return float(np.dtype(trainer.basis_dtype).itemsize * m * (n_train + n_val))
+    if isinstance(trainer, BoundedActiveSetGreedy):
+        points = trainer.capacity(n_train, n_val, m, dim)
+        b = min(int(trainer.block_size), m)
+        return float(bounded_memory(m, n_train, n_val, points * dim, dim, b, int(trainer.pool_factor)))
     if isinstance(trainer, ActiveSetGreedy):
         if initial:
             active = dim * (trainer.initial_points + 4 * trainer.max_new_points)
@@ -376,12 +459,16 @@ BLOCKED_ABOVE_BYTES = 2 ** 30
 def default_trainer(functionals, n_val: int, max_centers: int, memory: Optional[float] = None) -> Trainer:
     """The training strategy a fit without ``trainer`` uses: the fastest that fits the memory, logged with the reason.
 
+    Each strategy's peak memory is its formula (:func:`trainer_memory`) checked against ``memory``:
+
     * :class:`ExactGreedy` where its Newton basis ``8 m (N + N_val)`` fits in ``memory`` and is below
       :data:`BLOCKED_ABOVE_BYTES` (1 GiB);
     * :class:`BlockedGreedy` where the basis is larger and ``8 ((m + b) (N + N_val) + (c b)^2)`` still fits
       (the same selection rule up to the weak greedy's slack, several times faster);
-    * :class:`ActiveSetGreedy` (state-derivative functionals) where neither fits but its first active set
-      does with room to grow (a third of ``memory``);
+    * :class:`BoundedActiveSetGreedy` (state-derivative functionals) where neither fits: its slots are sized so
+      that its whole peak (:func:`~sympredict.interpolation.greedy.active_set.bounded_memory`) is at most half
+      of ``memory`` (the slots' size sets its time, ``2 m S`` flops per centre, and the fit keeps room for
+      its data);
     * else :class:`ExactGreedy`, whose memory check then says what fits.
 
     ``memory``: bytes available (default 90 % of the available memory, :func:`available_memory`).
@@ -396,11 +483,13 @@ def default_trainer(functionals, n_val: int, max_centers: int, memory: Optional[
         choice, why = blocked, (f"the Newton basis ({format_bytes(need_blocked)} of {format_bytes(limit)}) exceeds "
                                 f"{format_bytes(BLOCKED_ABOVE_BYTES)}: blocks of centres with matrix products")
     elif isinstance(functionals, HBFunctionals):
-        active = ActiveSetGreedy(memory_limit=limit)
-        need = trainer_memory(active, n, n_val, m, dim=functionals.dim, initial=True)
-        if 3 * need <= limit:
-            choice, why = active, (f"the full Newton basis ({format_bytes(need_exact)}) exceeds {format_bytes(limit)}; "
-                                   f"the active set starts at {format_bytes(need)}")
+        bounded = BoundedActiveSetGreedy(memory_limit=0.5 * limit)
+        points = bounded.capacity(n, n_val, m, functionals.dim)
+        if points >= 1:
+            need = trainer_memory(bounded, n, n_val, m, dim=functionals.dim)
+            choice, why = bounded, (f"the full Newton basis ({format_bytes(need_exact)}) exceeds {format_bytes(limit)}; "
+                                    f"{points} of {len(functionals.points)} points in the slots, peak "
+                                    f"{format_bytes(need)} within half of it")
         else:
             choice, why = exact, "nothing fits: the exact greedy's memory check says what does"
     else:
