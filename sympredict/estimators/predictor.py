@@ -442,10 +442,11 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         kernel search does).  With a target, and in a fit that chooses settings, the fit keeps the
         best-scoring prefix (growing never returns a worse model than one it passed).  Where the data are
         trajectories (a :class:`~sympredict.data.TrajectoryData` with a uniform step, as the data or as
-        ``validation``), whole trajectories are held out, and the prefixes are scored also by rollouts of the
-        held-out trajectories from their first states (up to 50 trajectories, up to 100 steps each, on the
-        model's solver): without a target the prefix with the best rollout score is kept, since more centres
-        can fit the samples better and still extrapolate worse beyond the region the trajectories cover.
+        ``validation``), whole trajectories are held out too (:meth:`fit`), and the prefixes are scored also by
+        rollouts of the held-out trajectories from their first states (up to 50 trajectories, up to 100 steps
+        each, on the model's solver): without a target the prefix with the best rollout score is kept, since
+        more centres can fit the samples better and still extrapolate worse beyond the region the trajectories
+        cover.
     solver : NewtonSolver or None, default=None
         The Newton solver of :meth:`step` / :meth:`rollout`
         (:class:`~sympredict.symplectic.solvers.NewtonSolver`: ``max_iter``,
@@ -574,9 +575,10 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
             Validation samples; ``E_val(m)`` is then recorded in ``history_``, and they score the fit
             (``diagnostics_``).  Without them, a fit that chooses kernels holds a tenth of the samples
             (at most 2,000) out of the final fit to score it; given trajectories (``x0`` a
-            ``TrajectoryData`` with a uniform step, at least 10 trajectories), a tenth of the trajectories,
-            whole.  Trajectories (given or held out) also score the greedy's prefixes by their rollouts
-            (``prefix_rollout_errors_``; the class's ``trainer`` entry says which prefix is kept).
+            ``TrajectoryData`` with a uniform step, at least 20 trajectories), it also holds a twentieth of
+            the trajectories out whole (at least 2, at most 50).  Validation trajectories, or those held out,
+            score the greedy's prefixes by their rollouts (``prefix_rollout_errors_``; the class's ``trainer``
+            entry says which prefix is kept).
 
         Returns
         -------
@@ -591,9 +593,9 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         progress (logger ``sympredict``, level INFO).
         """
         trainer = self.check_params()
-        if validation is None and isinstance(x0, TrajectoryData) and self._holds_out(trainer, x0):
-            x0, validation = _hold_out_trajectories(x0, self._search().seed)  # whole trajectories held out
         rollouts = validation if isinstance(validation, TrajectoryData) and validation.dt is not None else None
+        if validation is None and isinstance(x0, TrajectoryData) and self._holds_out(trainer, x0):
+            x0, rollouts = _hold_out_trajectories(x0, self._search().seed)  # whole trajectories, for rollouts
         data, validation = self.validate_data(x0, x1, mu, dt, validation)
         as_even_dimension(data.x0.shape[1])
         open_factors = {"state": self._state_parts().radial is None,  # what this fit must choose
@@ -807,18 +809,19 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         return self._fitted().surrogate_gradient(xi, mu, dt)
 
 
-def _hold_out_trajectories(trajectories: TrajectoryData, seed: int, fraction: float = 0.1, largest: int = 2000):
-    """``(train, holdout)``: a random tenth of whole trajectories held out (at most ``largest`` samples, at least
-    two trajectories; ``(trajectories, None)`` below 10 trajectories, where the fit holds samples out instead).
+def _hold_out_trajectories(trajectories: TrajectoryData, seed: int, fraction: float = 0.05, largest: int = 50):
+    """``(train, held_out)``: a random twentieth of whole trajectories held out (at least 2, at most ``largest``),
+    whose rollouts score the greedy's prefixes (:class:`_HeldOutSteps`); ``(trajectories, None)`` below 20
+    trajectories.  The fit holds samples of ``train`` out as well, as it does for samples (diagnostics, target).
 
     Whole trajectories, not samples: samples held out of a trajectory lie between its other samples, so they
     cannot show how a model extrapolates beyond the region the trajectories cover; a held-out trajectory's
-    rollout can (:class:`_HeldOutSteps`).
+    rollout can.
     """
-    p, k1 = trajectories.states.shape[:2]
-    n_out = min(int(round(fraction * p)), max(2, largest // (k1 - 1)))
-    if p < 10 or n_out < 2:
+    p = len(trajectories)
+    if p < 20:
         return trajectories, None
+    n_out = min(max(2, int(round(fraction * p))), largest)
     rows = np.random.default_rng(seed).permutation(p)
 
     def part(index):

@@ -204,21 +204,17 @@ def test_validation_trajectories_score_the_prefixes_by_their_rollouts():
 
 
 def test_a_fit_from_trajectories_holds_whole_trajectories_out():
-    """A fit that chooses a kernel, given trajectories and no validation, holds a tenth of the trajectories out whole
-    (not samples scattered between the ones it trains on) and scores its prefixes by their rollouts."""
+    """A fit that chooses a kernel, given trajectories and no validation, holds a twentieth of the trajectories out
+    whole (besides the held-out samples of the others) and scores its prefixes also by their rollouts."""
     from sympredict.estimators.predictor import _hold_out_trajectories
 
     data = _trajectories(40, 0)
     search = KernelSearch(m_star=30, max_samples=300, refine_sweeps=0)
     model = SymplecticKernelPredictor(IMQ(0.5), max_centers=100, search=search).fit(data)
     d = model.diagnostics_
-    assert (d.n_train, d.n_holdout) == (36 * 20, 4 * 20)
+    assert (d.n_train, d.n_holdout) == (38 * 20 - 76, 76)  # 2 trajectories out, then a tenth of the samples
     roll = model.prefix_rollout_errors_
     assert roll is not None and model.n_centers_ == min(roll, key=lambda k: (roll[k], k))
-    # here the rollouts keep a smaller model than the one-step scores would (95 against 100 centres; the scores
-    # differ by 1.4x and 1.6x: not round-off)
-    steps = model.prefix_errors_
-    assert min(steps, key=lambda k: (steps[k], k)) > model.n_centers_
     _, held = _hold_out_trajectories(data, search.seed)
     np.testing.assert_allclose(roll[model.n_centers_], _rollout_score(model, held), rtol=1e-6)
     # none of the held-out trajectories' states is a centre
@@ -227,9 +223,10 @@ def test_a_fit_from_trajectories_holds_whole_trajectories_out():
     # the same data given as samples: samples held out, one-step scores only (as before)
     samples = SymplecticKernelPredictor(IMQ(0.5), max_centers=100, search=search).fit(data.pairs())
     assert samples.diagnostics_.n_holdout == len(data.pairs()) // 10 and samples.prefix_rollout_errors_ is None
-    # too few trajectories to hold a tenth out whole: samples are held out instead
-    few = _trajectories(8, 0)
+    # too few trajectories to hold two out of twenty: samples only
+    few = _trajectories(19, 0)
     assert _hold_out_trajectories(few, 0) == (few, None)
+    assert [len(t) for t in _hold_out_trajectories(_trajectories(300, 0, steps=2), 0)] == [285, 15]
 
 
 def test_the_rollout_rule_keeps_a_prefix_that_the_one_step_error_would_grow_past():
