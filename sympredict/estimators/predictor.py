@@ -30,6 +30,7 @@ from __future__ import annotations
 import copy
 import logging
 import operator
+import time
 import warnings
 from typing import Optional
 
@@ -700,6 +701,9 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         if checkpoints is None:
             return fitted, None, None
         rollout_errors = None if checkpoints.rollouts is None else dict(sorted(checkpoints.rollout_scores.items()))
+        if rollout_errors is not None:
+            logger.info(f"held-out rollouts scored {len(rollout_errors)} prefixes in {checkpoints.rollout_seconds:.1f} s "
+                        f"(kept {fitted.n_centers} centres)")
         return fitted, dict(sorted(checkpoints.scores.items())), rollout_errors
 
     def _with_model(self, fitted) -> "SymplecticKernelPredictor":
@@ -865,7 +869,7 @@ class _HeldOutSteps:
         self.target = getattr(model._trainer(), "target_error", None)
         self.at = checkpoint_schedule(int(model.max_centers))
         self.scores = {}
-        self.rollouts, self.rollout_scores = None, {}
+        self.rollouts, self.rollout_scores, self.rollout_seconds = None, {}, 0.0
         if rollouts is not None:
             parts = model._state_parts()
             k = min(rollouts.states.shape[1] - 1, self.horizon)
@@ -902,12 +906,15 @@ class _HeldOutSteps:
         rollout fails or is not finite."""
         states, mu, dt = self.rollouts
         fitted = FittedSymplecticFlowMap(self.kernel, sur, **self.fitted_settings)
+        t0 = time.perf_counter()
         try:
             with warnings.catch_warnings(), np.errstate(all="ignore"):
                 warnings.simplefilter("ignore")  # a prefix may extrapolate: its score says so
                 pred = fitted.rollout(states[:, 0], states.shape[1] - 1, mu=mu, dt=dt)
         except (NewtonConvergenceError, NonFinitePredictionError, ArithmeticError, np.linalg.LinAlgError):
             return float("inf")
+        finally:
+            self.rollout_seconds += time.perf_counter() - t0
         size = np.sqrt(np.mean(np.sum(states * states, axis=2), axis=1))
         err = np.linalg.norm(pred - states, axis=2).max(axis=1) / np.where(size > 0, size, 1.0)
         value = float(np.mean(err))

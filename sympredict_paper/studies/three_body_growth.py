@@ -7,9 +7,9 @@ librations near L4 (:func:`~sympredict.systems.three_body.librating_states`),
 
 Two modes:
 
-* ``--sizes M1 M2 ...`` (default): one ``SymplecticKernelPredictor(max_centers=--max-centers)`` fit with the
-  defaults, and its prefixes (``truncated(m)``: the greedy's model after ``m`` centres, equal to a fit with
-  ``max_centers=m`` to round-off) scored at each ``m``; results under ``"sizes"``.
+* ``--sizes M1 M2 ...`` (default): one ``SymplecticKernelPredictor(max_centers=--max-centers)`` fit (by default
+  on the samples), and its prefixes (``truncated(m)``: the greedy's model after ``m`` centres, equal to a fit
+  with ``max_centers=m`` and no prefix selection to round-off) scored at each ``m``; results under ``"sizes"``.
 * ``--centers C1 C2 ...``: one fit per budget ``max_centers=C`` (what a user gets asking for ``C`` centres);
   results under ``"fits"``.  ``--data trajectories`` (default) gives the fit a
   :class:`~sympredict.data.TrajectoryData`: it holds whole trajectories out and keeps the prefix whose
@@ -38,6 +38,8 @@ Run:  python sympredict_paper/studies/three_body_growth.py            # writes d
 from __future__ import annotations
 
 import argparse
+import logging
+import re
 import time
 import warnings
 from pathlib import Path
@@ -50,7 +52,7 @@ except ImportError:  # python -m sympredict_paper.studies.three_body_growth
     from sympredict_paper.studies import _protocol
 
 from sympredict import SymplecticKernelPredictor
-from sympredict.data import FlowMapData, TrajectoryData
+from sympredict.data import TrajectoryData
 from sympredict.exceptions import ExtrapolationWarning
 from sympredict.kernels import IMQ
 from sympredict.kernels.transforms import Scaled
@@ -108,6 +110,19 @@ def fit_data(args, traj, mu, dt):
     return data, val
 
 
+class _RolloutCost(logging.Handler):
+    """Collects the seconds the fit spent scoring its prefixes' rollouts (the predictor's INFO log)."""
+
+    def __init__(self):
+        super().__init__(logging.INFO)
+        self.seconds = None
+
+    def emit(self, record):
+        m = re.search(r"held-out rollouts scored \d+ prefixes in ([0-9.]+) s", record.getMessage())
+        if m:
+            self.seconds = float(m.group(1))
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--max-centers", type=int, default=1600, help="the budget of the --sizes mode's one fit")
@@ -115,8 +130,8 @@ def main(argv=None):
                    help="prefixes of one fit to score (the default mode)")
     p.add_argument("--centers", type=int, nargs="+", default=None,
                    help="one fit per budget max_centers=C instead of prefixes (results under 'fits')")
-    p.add_argument("--data", choices=("trajectories", "samples"), default="trajectories",
-                   help="--centers mode: how fit receives the data (default trajectories)")
+    p.add_argument("--data", choices=("trajectories", "samples"), default=None,
+                   help="how fit receives the data (default: trajectories with --centers, samples with --sizes)")
     p.add_argument("--state-eps", type=float, default=None, help="a given IMQ state kernel shape (no search)")
     p.add_argument("--factors", type=float, nargs="+", default=[0.8, 1.21], help="its Scaled factors")
     p.add_argument("--mu-eps", type=float, default=20.0, help="a given IMQ parameter kernel shape")
@@ -132,6 +147,7 @@ def main(argv=None):
     _protocol.add_arguments(p, threads=1)
     args = p.parse_args(argv)
     args.json = args.json or str(RESULTS)
+    args.data = args.data or ("trajectories" if args.centers else "samples")
     warnings.simplefilter("ignore", ExtrapolationWarning)
     tb, dt = ThreeBody(), 0.05
     traj, mu = trajectories(tb, args.traj, args.seed, args.traj_steps, dt)
@@ -143,9 +159,16 @@ def main(argv=None):
             out["fits"] = {}
             for cap in args.centers:
                 data, validation = fit_data(args, traj, mu, dt)
+                cost, log = _RolloutCost(), logging.getLogger("sympredict.estimators.predictor")
+                log.addHandler(cost)
+                level, log.level = log.level, logging.INFO
                 t0 = time.perf_counter()
-                model = estimator(args, cap).fit(data, validation=validation)
-                row = {"fit_s": time.perf_counter() - t0, "n_centers": model.n_centers_,
+                try:
+                    model = estimator(args, cap).fit(data, validation=validation)
+                finally:
+                    log.removeHandler(cost)
+                    log.setLevel(level)
+                row = {"fit_s": time.perf_counter() - t0, "rollout_scoring_s": cost.seconds, "n_centers": model.n_centers_,
                        "stop": model.history_.stop_reason,
                        "choice": {k: repr(v) for k, v in model.choice_.items()},
                        "prefix_errors": {str(k): v for k, v in (model.prefix_errors_ or {}).items()},
@@ -158,11 +181,10 @@ def main(argv=None):
                 out["fits"][str(cap)] = row
                 print(cap, {k: f"{v:.2e}" for k, v in row.items() if isinstance(v, float)}, flush=True)
         else:
-            data = FlowMapData(traj[:, :-1].reshape(-1, 4), traj[:, 1:].reshape(-1, 4),
-                               np.repeat(mu, args.traj_steps), np.full(args.traj * args.traj_steps, dt))
+            data, validation = fit_data(args, traj, mu, dt)
             out["sizes"] = {}
             t0 = time.perf_counter()
-            model = SymplecticKernelPredictor(max_centers=args.max_centers).fit(data)
+            model = estimator(args, args.max_centers).fit(data, validation=validation)
             out.update(fit_s=time.perf_counter() - t0, n_centers=model.n_centers_, stop=model.history_.stop_reason,
                        choice={k: repr(v) for k, v in model.choice_.items()},
                        prefix_errors={str(k): v for k, v in (model.prefix_errors_ or {}).items()})
