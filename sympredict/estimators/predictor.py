@@ -506,7 +506,8 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
     prefix_rollout_errors_ : dict or None
         ``{m: rollout score}`` of the same prefixes where held-out trajectories scored them: the mean over the
         held-out trajectories of ``max_k |x_k - X_k| / rms_k |X_k|`` along the rollout from each one's first
-        state; the kept prefix has the smallest (``None`` without held-out trajectories).
+        state; without a target the kept prefix has the smallest (prefixes that meet a target are not rolled
+        out; ``None`` without held-out trajectories).
     error_calibration_ : dict or None
         The scale of the error estimate (``rollout(..., return_error=True)``) and how it was obtained:
         ``scale`` (the :attr:`ERROR_QUANTILE` quantile of true one-step error over the power-function
@@ -895,7 +896,8 @@ class _HeldOutSteps:
             value = float("inf")
         self.scores[int(m)] = value
         logger.debug(f"held-out one-step error with {m} centres: {value:.3e}")
-        if self.rollouts is not None:
+        # a prefix meeting the target is kept by its one-step score: its rollouts would not be read (the bisection)
+        if self.rollouts is not None and not (self.target is not None and value <= self.target):
             self.rollout_scores[int(m)] = self.rollout_score(sur)
             logger.debug(f"held-out rollout error with {m} centres: {self.rollout_scores[int(m)]:.3e}")
         return value

@@ -245,3 +245,14 @@ def test_the_rollout_rule_keeps_a_prefix_that_the_one_step_error_would_grow_past
     assert rule.keep(64) == 32  # the smallest meeting the target (one-step)
     rule.target, rule.rollouts = None, None
     assert rule.keep(64) == 64  # samples only: the best one-step score
+
+
+def test_with_a_target_and_trajectories_the_smallest_prefix_meeting_it_is_kept():
+    train, val = _trajectories(40, 0), _trajectories(10, 1)
+    model = SymplecticKernelPredictor(IMQ(0.5), mu_kernel=IMQ(2.0), max_centers=400,
+                                      trainer=ExactGreedy(target_error=1e-2)).fit(train, validation=val)
+    steps, roll = model.prefix_errors_, model.prefix_rollout_errors_
+    assert model.history_.stop_reason == "target" and model.diagnostics_.target_met
+    assert steps[model.n_centers_] <= 1e-2 < steps.get(model.n_centers_ - 1, np.inf)
+    # the prefixes that missed the target were rolled out; those that met it are kept by their one-step score
+    assert roll and all(steps[k] > 1e-2 for k in roll) and model.n_centers_ not in roll
