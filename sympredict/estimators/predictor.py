@@ -30,6 +30,7 @@ from __future__ import annotations
 import copy
 import logging
 import operator
+import time
 import warnings
 from typing import Optional
 
@@ -431,7 +432,13 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         :class:`~sympredict.exceptions.AccuracyWarning` names the limit and the best model found is
         kept.  Without ``validation``, a fit with a target holds a tenth of the samples out (as the
         kernel search does).  With a target, and in a fit that chooses settings, the fit keeps the
-        best-scoring prefix (growing never returns a worse model than one it passed).
+        best-scoring prefix (growing never returns a worse model than one it passed).  Where the data are
+        trajectories (a :class:`~sympredict.data.TrajectoryData` with a uniform step, as the data or as
+        ``validation``), whole trajectories are held out too (:meth:`fit`), and the prefixes are scored also by
+        rollouts of the held-out trajectories from their first states (up to 50 trajectories, up to 100 steps
+        each, on the model's solver): without a target the prefix with the best rollout score is kept, since
+        more centres can fit the samples better and still extrapolate worse beyond the region the trajectories
+        cover.
     solver : NewtonSolver or None, default=None
         The Newton solver of :meth:`step` / :meth:`rollout`
         (:class:`~sympredict.symplectic.solvers.NewtonSolver`: ``max_iter``,
@@ -487,6 +494,11 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         ``{m: median relative one-step error on held-out samples}`` of the prefixes the greedy scored
         (checkpoints, and the target's bisection) in a fit with a ``target_error`` or one that chose
         settings (the best prefix is kept); ``None`` otherwise.
+    prefix_rollout_errors_ : dict or None
+        ``{m: rollout score}`` of the same prefixes where held-out trajectories scored them: the mean over the
+        held-out trajectories of ``max_k |x_k - X_k| / rms_k |X_k|`` along the rollout from each one's first
+        state; without a target the kept prefix has the smallest (prefixes that meet a target are not rolled
+        out; ``None`` without held-out trajectories).
     error_calibration_ : dict or None
         The scale of the error estimate (``rollout(..., return_error=True)``) and how it was obtained:
         ``scale`` (the :attr:`ERROR_QUANTILE` quantile of true one-step error over the power-function
@@ -555,7 +567,11 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         validation : FlowMapData, TrajectoryData or tuple ``(x0, x1, mu, dt)``, default=None
             Validation samples; ``E_val(m)`` is then recorded in ``history_``, and they score the fit
             (``diagnostics_``).  Without them, a fit that chooses kernels holds a tenth of the samples
-            (at most 2,000) out of the final fit to score it.
+            (at most 2,000) out of the final fit to score it; given trajectories (``x0`` a
+            ``TrajectoryData`` with a uniform step, at least 20 trajectories), it also holds a twentieth of
+            the trajectories out whole (at least 2, at most 50).  Validation trajectories, or those held out,
+            score the greedy's prefixes by their rollouts (``prefix_rollout_errors_``; the class's ``trainer``
+            entry says which prefix is kept).
 
         Returns
         -------
@@ -570,14 +586,24 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         progress (logger ``sympredict``, level INFO).
         """
         trainer = self.check_params()
+        rollouts = validation if isinstance(validation, TrajectoryData) and validation.dt is not None else None
+        if validation is None and isinstance(x0, TrajectoryData) and self._holds_out(trainer, x0):
+            x0, rollouts = _hold_out_trajectories(x0, self._search().seed)  # whole trajectories, for rollouts
         data, validation = self.validate_data(x0, x1, mu, dt, validation)
         as_even_dimension(data.x0.shape[1])
         open_factors = {"state": self._state_parts().radial is None,  # what this fit must choose
                         "mu": data.mu.shape[1] > 0 and self.mu_kernel is None,
                         "dt": bool(np.ptp(data.dt) > 0) and self.dt_kernel is None, "update": self.update is None}
-        return self._fit_resolved(trainer, data, validation, open_factors)
+        return self._fit_resolved(trainer, data, validation, open_factors, rollouts=rollouts)
 
-    def _fit_resolved(self, trainer, data: FlowMapData, validation, open_factors: dict) -> "SymplecticKernelPredictor":
+    def _holds_out(self, trainer, trajectories: TrajectoryData) -> bool:
+        """Whether a fit on ``trajectories`` without ``validation`` holds data out (a kernel to choose, or a
+        target) and can hold whole trajectories out (a uniform step)."""
+        chooses = self._state_parts().radial is None or (trajectories.mu.shape[1] > 0 and self.mu_kernel is None)
+        return trajectories.dt is not None and (chooses or getattr(trainer, "target_error", None) is not None)
+
+    def _fit_resolved(self, trainer, data: FlowMapData, validation, open_factors: dict,
+                      rollouts: Optional[TrajectoryData] = None) -> "SymplecticKernelPredictor":
         """Fit with the open settings chosen (:class:`~sympredict.estimators.auto.KernelSearch`), then diagnose.
 
         With nothing to choose but the update, the update is ``'symplectic_euler'`` and every sample is trained
@@ -585,7 +611,8 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         fit to score it (``diagnostics_``); the search runs on a subsample of the rest.
         """
         search = None
-        for name in ("diagnostics_", "search_", "choice_"):  # never the previous fit's beside a new model (Ctrl-C)
+        # never the previous fit's beside a new model (Ctrl-C)
+        for name in ("diagnostics_", "search_", "choice_", "prefix_rollout_errors_"):
             self.__dict__.pop(name, None)
         if self._state_parts().periodic is None:
             warn_wrapped_angles(data)
@@ -609,12 +636,15 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         # prefixes are scored on held-out samples (the target's stop, the best prefix) in the fit a user asked
         # for: with a target, or where this fit chose settings; not in fits with every setting and validation
         # data given (the kernel search's candidates, compared at their full size; E_val and smallest() there)
-        score = holdout is not None and (target is not None or search is not None)
+        # (and with held-out trajectories, whose rollouts score the prefixes: the user's own use of the model)
+        score = holdout is not None and (target is not None or search is not None or rollouts is not None)
         resolved = clone(self).set_params(**params) if params else self
-        fitted, prefix_errors = resolved._fit(trainer, train, holdout, score_prefixes=score)
+        fitted, prefix_errors, rollout_errors = resolved._fit(trainer, train, holdout, score_prefixes=score,
+                                                              rollouts=rollouts)
         # the caller's settings (the choice is apart); the map reads the caller's solver (a clone's is a copy)
         self.model_, self.fitted_params_ = fitted.with_solver(self.solver), dict(self.get_params(deep=False))
         self.prefix_errors_, self.search_, self.choice_ = prefix_errors, search, dict(params)
+        self.prefix_rollout_errors_ = rollout_errors
         self.diagnostics_ = diagnose(self, train, holdout)
         _HeldOutSteps.warn_if_target_missed(self)
         if search is not None or self.diagnostics_.advice:
@@ -632,8 +662,10 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         """The kernel search (``search``, or the default :class:`~sympredict.estimators.auto.KernelSearch`)."""
         return KernelSearch() if self.search is None else self.search
 
-    def _fit(self, trainer, data: FlowMapData, validation, score_prefixes: bool = False):
-        """Train with every setting given; returns the fitted flow map and the prefixes' held-out errors."""
+    def _fit(self, trainer, data: FlowMapData, validation, score_prefixes: bool = False,
+             rollouts: Optional[TrajectoryData] = None):
+        """Train with every setting given; returns the fitted flow map and the prefixes' held-out errors
+        (``rollouts``: held-out trajectories that also score the prefixes, :class:`_HeldOutSteps`)."""
         parts = self._state_parts()
         scale, periodic, symmetry = model_coordinates(parts, self.update, data.x0.shape[1])
         rule = as_update(self.update)
@@ -645,7 +677,7 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
             vxi, vy = rule.variables(validation.x0 * scale, validation.x1 * scale, validation.dt)
             val = (HBFunctionals(kernel, vxi, validation.mu, validation.dt), vy.reshape(-1))
             if score_prefixes:
-                checkpoints = _HeldOutSteps(self, rule, kernel, xi, data, validation, scale)
+                checkpoints = _HeldOutSteps(self, rule, kernel, xi, data, validation, scale, rollouts=rollouts)
         result, points, comps = self._train(trainer, kernel, xi, y.reshape(-1), data, val, checkpoints=checkpoints)
         sur = HBSurrogate(kernel, xi[points], data.mu[points], data.dt[points], comps, result.coef)
         fitted = FittedSymplecticFlowMap(
@@ -658,7 +690,13 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
                                                                           data.x0.shape[1]))
         self._warn_if_underfit(data, y, lambda rows: sur.gradient(xi[rows], sur.weights(data.mu[rows], data.dt[rows])),
                                fitted)
-        return fitted, None if checkpoints is None else dict(sorted(checkpoints.scores.items()))
+        if checkpoints is None:
+            return fitted, None, None
+        rollout_errors = None if checkpoints.rollouts is None else dict(sorted(checkpoints.rollout_scores.items()))
+        if rollout_errors is not None:
+            logger.info(f"held-out rollouts scored {len(rollout_errors)} prefixes in {checkpoints.rollout_seconds:.1f} s "
+                        f"(kept {fitted.n_centers} centres)")
+        return fitted, dict(sorted(checkpoints.scores.items())), rollout_errors
 
     def _with_model(self, fitted) -> "SymplecticKernelPredictor":
         """A shallow copy of this fitted estimator around the smaller fitted map ``fitted``."""
@@ -766,18 +804,52 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         return self._fitted().surrogate_gradient(xi, mu, dt)
 
 
+def _hold_out_trajectories(trajectories: TrajectoryData, seed: int, fraction: float = 0.05, largest: int = 50):
+    """``(train, held_out)``: a random twentieth of whole trajectories held out (at least 2, at most ``largest``),
+    whose rollouts score the greedy's prefixes (:class:`_HeldOutSteps`); ``(trajectories, None)`` below 20
+    trajectories.  The fit holds samples of ``train`` out as well, as it does for samples (diagnostics, target).
+
+    Whole trajectories, not samples: samples held out of a trajectory lie between its other samples, so they
+    cannot show how a model extrapolates beyond the region the trajectories cover; a held-out trajectory's
+    rollout can.
+    """
+    p = len(trajectories)
+    if p < 20:
+        return trajectories, None
+    n_out = min(max(2, int(round(fraction * p))), largest)
+    rows = np.random.default_rng(seed).permutation(p)
+
+    def part(index):
+        index = np.sort(index)
+        mu = trajectories.mu[index]
+        return TrajectoryData(trajectories.states[index], mu if mu.shape[1] else None, dt=trajectories.dt)
+
+    return part(rows[n_out:]), part(rows[:n_out])
+
+
 class _HeldOutSteps:
-    """Held-out one-step errors of a greedy run's prefixes (:class:`~sympredict.interpolation.greedy.loop.Checkpoints`).
+    """Held-out errors of a greedy run's prefixes (:class:`~sympredict.interpolation.greedy.loop.Checkpoints`).
 
     ``score(m, coef)``: the median relative one-step error ``|Phi(x0) - x1| / |x1 - x0|`` (user units) of the
     interpolant on the first ``m`` selected centres on (up to 500) held-out samples, by the NumPy Newton
-    solver (``inf`` where it fails): ``O(500 m (2n)^2)`` per checkpoint.  ``keep(m)``: the smallest scored
-    prefix meeting the target, else the best-scoring one (the smaller on a tie).
+    solver (``inf`` where it fails): ``O(500 m (2n)^2)`` per checkpoint.  With held-out trajectories
+    (``rollouts``: whole trajectories the fit does not see), also their rollout error
+    (:meth:`rollout_score`: up to :attr:`largest_rollouts` trajectories over their first :attr:`horizon`
+    steps, on the model's solver, compiled where it is): ``O(P K m (2n)^2)`` per checkpoint, with
+    ``P K <= 5,000`` instance-steps.  ``keep(m)``: the smallest scored prefix meeting the target; else, with
+    held-out trajectories, the prefix with the smallest rollout score (what a user of the rollouts sees:
+    growing the model beyond the data the trajectories cover can make it extrapolate worse, which held-out
+    samples from the same region do not show); else the best one-step score (the smaller on a tie).
     """
 
     largest = 500
+    #: Held-out trajectories rolled out at each checkpoint, at most.
+    largest_rollouts = 50
+    #: Steps of each held-out trajectory rolled out, at most.
+    horizon = 100
 
-    def __init__(self, model, rule, kernel, xi, data: FlowMapData, holdout: FlowMapData, scale: np.ndarray):
+    def __init__(self, model, rule, kernel, xi, data: FlowMapData, holdout: FlowMapData, scale: np.ndarray,
+                 rollouts: Optional[TrajectoryData] = None):
         self.rule, self.kernel, self.xi, self.data, self.scale = rule, kernel, xi, data, scale
         self.max_iter = model._newton_iterations()
         holdout = holdout.subset(np.arange(min(len(holdout), self.largest)))  # the rows diagnose() scores
@@ -788,6 +860,17 @@ class _HeldOutSteps:
         self.target = getattr(model._trainer(), "target_error", None)
         self.at = checkpoint_schedule(int(model.max_centers))
         self.scores = {}
+        self.rollouts, self.rollout_scores, self.rollout_seconds = None, {}, 0.0
+        if rollouts is not None:
+            parts = model._state_parts()
+            k = min(rollouts.states.shape[1] - 1, self.horizon)
+            p = min(len(rollouts), self.largest_rollouts)
+            self.rollouts = (rollouts.states[:p, : k + 1], rollouts.mu[:p] if rollouts.mu.shape[1] else None,
+                             rollouts.dt)
+            self.fitted_settings = dict(
+                domain=training_box(data), history=None, update=model.update, solver=model.solver,
+                parts=StateKernelParts(scaling=parts.scaling, periodic=parts.periodic, period=parts.period,
+                                       symmetry=parts.symmetry))
 
     def score(self, m: int, selected: np.ndarray, coef: np.ndarray) -> float:
         pts, comps = np.divmod(np.asarray(selected), self.xi.shape[1])
@@ -803,7 +886,31 @@ class _HeldOutSteps:
             value = float("inf")
         self.scores[int(m)] = value
         logger.debug(f"held-out one-step error with {m} centres: {value:.3e}")
+        # a prefix meeting the target is kept by its one-step score: its rollouts would not be read (the bisection)
+        if self.rollouts is not None and not (self.target is not None and value <= self.target):
+            self.rollout_scores[int(m)] = self.rollout_score(sur)
+            logger.debug(f"held-out rollout error with {m} centres: {self.rollout_scores[int(m)]:.3e}")
         return value
+
+    def rollout_score(self, sur: HBSurrogate) -> float:
+        """The mean over the held-out trajectories of ``max_k |x_k - X_k| / rms_k |X_k|`` (the worst relative
+        error along each rollout from its first state, ``k <= horizon``) of the model ``sur``; ``inf`` where a
+        rollout fails or is not finite."""
+        states, mu, dt = self.rollouts
+        fitted = FittedSymplecticFlowMap(self.kernel, sur, **self.fitted_settings)
+        t0 = time.perf_counter()
+        try:
+            with warnings.catch_warnings(), np.errstate(all="ignore"):
+                warnings.simplefilter("ignore")  # a prefix may extrapolate: its score says so
+                pred = fitted.rollout(states[:, 0], states.shape[1] - 1, mu=mu, dt=dt)
+        except (NewtonConvergenceError, NonFinitePredictionError, ArithmeticError, np.linalg.LinAlgError):
+            return float("inf")
+        finally:
+            self.rollout_seconds += time.perf_counter() - t0
+        size = np.sqrt(np.mean(np.sum(states * states, axis=2), axis=1))
+        err = np.linalg.norm(pred - states, axis=2).max(axis=1) / np.where(size > 0, size, 1.0)
+        value = float(np.mean(err))
+        return value if np.isfinite(value) else float("inf")
 
     def keep(self, m: int) -> int:
         scored = {k: v for k, v in self.scores.items() if k <= m}
@@ -813,6 +920,8 @@ class _HeldOutSteps:
             hits = [k for k, v in scored.items() if v <= self.target]
             if hits:
                 return min(hits)
+        if self.rollouts is not None:
+            scored = {k: v for k, v in self.rollout_scores.items() if k <= m}
         best = min(scored.values())
         return min(k for k, v in scored.items() if v == best) if np.isfinite(best) else m
 

@@ -274,7 +274,11 @@ class SymplecticKernelReductor(BasicObject):
         (its ``search``); with ``update=None`` the reductor sets the form that exists at ``dt`` (type II or
         midpoint) or, where both do, leaves the choice to it; what it chose is ``choice_["estimator"]``.
         ``None``: :class:`~sympredict.mor.selection.DefaultEstimator` (``DefaultEstimator(max_centers=...)`` for
-        another budget).
+        another budget).  Accuracy on demand goes through it too: ``DefaultEstimator(target_error=1e-3)``, or a
+        given estimator whose trainer has a ``target_error``; the learned step then stops at the smallest
+        number of centres whose median relative one-step error on the validation samples (in the trained
+        coordinates) meets the target, and warns (:class:`~sympredict.exceptions.AccuracyWarning`, naming the
+        limit) where it cannot.  The reduced dimension is ``RB``'s: the reductor does not choose it.
     selection : ValidationSelection or None, default=None
         Kernels and ridge term chosen on the validation data (:mod:`sympredict.mor.selection`); ``None``: the
         estimator is trained as given (the default estimator's kernels on its IMQ grids).

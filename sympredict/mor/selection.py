@@ -21,7 +21,7 @@ import numpy as np
 from sympredict._checks import as_positive_int, as_real
 from sympredict.base import Setting, clone
 from sympredict.estimators.predictor import SymplecticKernelPredictor
-from sympredict.estimators.search import ridge_search
+from sympredict.estimators.search import ridge_search, without_target
 from sympredict.estimators.selection import log_grid, select_kernels
 from sympredict.interpolation.greedy import ExactGreedy
 from sympredict.kernels import IMQ, RadialKernel
@@ -57,20 +57,29 @@ class DefaultEstimator(Setting):
     Parameters
     ----------
     max_centers : int, default=1000
-        The budget.
+        The budget (with ``target_error``: the cap).
+    target_error : float or None, default=None
+        Accuracy on demand (the trainer's ``ExactGreedy(target_error=...)``): the median relative one-step error
+        ``|Phi(x0) - x1| / |x1 - x0|`` on the reductor's validation samples (in the coordinates the estimator is
+        trained in) that the learned step must reach.  The greedy stops at the smallest model that meets it
+        (fewer centres than ``max_centers`` for a loose target); when the cap, the data or a numerically singular
+        kernel matrix stop it first, one :class:`~sympredict.exceptions.AccuracyWarning` names the limit and
+        the best model found is kept.  ``None``: the budget is filled.
     """
 
-    def __init__(self, max_centers: int = 1000):
+    def __init__(self, max_centers: int = 1000, target_error: Optional[float] = None):
         self.max_centers = max_centers
+        self.target_error = target_error
 
     def check(self) -> "DefaultEstimator":
         as_positive_int(self.max_centers, "DefaultEstimator max_centers")
+        ExactGreedy(target_error=self.target_error).check()  # the trainer's own check and message
         return self
 
     def estimator(self, update: Optional[str]) -> SymplecticKernelPredictor:
         """The unfitted predictor with ``update`` (kernels still open: the reductor chooses them)."""
         return SymplecticKernelPredictor(None, None, None, max_centers=self.max_centers,
-                                         trainer=ExactGreedy(tol=1e-12), update=update)
+                                         trainer=ExactGreedy(tol=1e-12, target_error=self.target_error), update=update)
 
 
 class ValidationSelection(Setting):
@@ -134,7 +143,9 @@ class ValidationSelection(Setting):
         m_star = min(self.m_star, int(getattr(base, "max_centers", self.m_star)))
         with log.block(f"kernel shapes on validation data ({len(states) * len(mus)} candidates, m* = {m_star})") \
                 if hasattr(log, "block") else contextlib.nullcontext():
-            sel = select_kernels(train, val, states, mus, [base.dt_kernel], m_star=m_star, estimator=base)
+            # the candidates compete at m_star centres: a target_error is the final fit's (as in the estimator's search)
+            sel = select_kernels(train, val, states, mus, [base.dt_kernel], m_star=m_star,
+                                 estimator=without_target(clone(base)))
         state = base.state_kernel.with_radial(sel.state) if isinstance(base.state_kernel, KernelTransform) else sel.state
         return clone(base).set_params(state_kernel=state, mu_kernel=sel.mu), sel
 

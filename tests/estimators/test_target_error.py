@@ -162,3 +162,97 @@ def test_the_blocked_greedy_meets_a_target_too(data):
     assert d.target_met and model.history_.stop_reason == "target" and model.n_centers_ < 400
     assert model.prefix_errors_[model.n_centers_] <= 1e-3 < model.prefix_errors_.get(model.n_centers_ - 1, np.inf)
     assert _median_step_error(model, fresh) <= 1.5e-3
+
+
+# ------------------------------------------------------------------ held-out trajectories score the prefixes' rollouts
+def _trajectories(n, seed, steps=20, dt=0.1):
+    from sympredict import TrajectoryData
+
+    rng = np.random.default_rng(seed)
+    mu = rng.uniform(0.7, 0.8, n)
+    x0 = np.column_stack([rng.uniform(-1.5, 1.5, n), rng.uniform(-1.0, 1.0, n)])
+    return TrajectoryData(Pendulum().trajectory(x0, mu, dt=dt, n_steps=steps), mu, dt=dt)
+
+
+def _rollout_score(model, traj):
+    """The documented score, from the fitted model's own rollouts: the mean over trajectories of
+    ``max_k |x_k - X_k| / rms_k |X_k|``."""
+    from sympredict.exceptions import ExtrapolationWarning
+
+    states = traj.states
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ExtrapolationWarning)  # held-out parameters may lie beyond the training box
+        pred = model.rollout(states[:, 0], states.shape[1] - 1, mu=traj.mu, dt=traj.dt)
+    size = np.sqrt(np.mean(np.sum(states**2, axis=2), axis=1))
+    return float(np.mean(np.linalg.norm(pred - states, axis=2).max(axis=1) / size))
+
+
+def test_validation_trajectories_score_the_prefixes_by_their_rollouts():
+    train, val = _trajectories(40, 0), _trajectories(10, 1)
+    model = SymplecticKernelPredictor(IMQ(0.5), mu_kernel=IMQ(2.0), max_centers=200).fit(train, validation=val)
+    roll = model.prefix_rollout_errors_
+    assert set(roll) == set(model.prefix_errors_) and max(roll) == 200  # every checkpoint, the full run too
+    # the kept prefix has the smallest rollout score (the smaller on a tie)
+    assert model.n_centers_ == min(roll, key=lambda k: (roll[k], k))
+    # the score is the documented one: the kept model's own rollouts over the validation trajectories
+    np.testing.assert_allclose(roll[model.n_centers_], _rollout_score(model, val), rtol=1e-6)
+    assert roll[model.n_centers_] < roll[16]
+    # the same data as samples: every setting given, no target: the plain greedy, as before
+    plain = SymplecticKernelPredictor(IMQ(0.5), mu_kernel=IMQ(2.0), max_centers=200).fit(train.pairs(),
+                                                                                          validation=val.pairs())
+    assert plain.prefix_errors_ is None and plain.prefix_rollout_errors_ is None and plain.n_centers_ == 200
+
+
+def test_a_fit_from_trajectories_holds_whole_trajectories_out():
+    """A fit that chooses a kernel, given trajectories and no validation, holds a twentieth of the trajectories out
+    whole (besides the held-out samples of the others) and scores its prefixes also by their rollouts."""
+    from sympredict.estimators.predictor import _hold_out_trajectories
+
+    data = _trajectories(40, 0)
+    search = KernelSearch(m_star=30, max_samples=300, refine_sweeps=0)
+    model = SymplecticKernelPredictor(IMQ(0.5), max_centers=100, search=search).fit(data)
+    d = model.diagnostics_
+    assert (d.n_train, d.n_holdout) == (38 * 20 - 76, 76)  # 2 trajectories out, then a tenth of the samples
+    roll = model.prefix_rollout_errors_
+    assert roll is not None and model.n_centers_ == min(roll, key=lambda k: (roll[k], k))
+    _, held = _hold_out_trajectories(data, search.seed)
+    np.testing.assert_allclose(roll[model.n_centers_], _rollout_score(model, held), rtol=1e-6)
+    # none of the held-out trajectories' states is a centre
+    centres = model.surrogate_.centers_xi[:, :1]  # q0 of the centres' samples (the state kernel's coordinates)
+    assert not np.isin(held.states[:, :-1, 0], centres).any()
+    # the same data given as samples: samples held out, one-step scores only (as before)
+    samples = SymplecticKernelPredictor(IMQ(0.5), max_centers=100, search=search).fit(data.pairs())
+    assert samples.diagnostics_.n_holdout == len(data.pairs()) // 10 and samples.prefix_rollout_errors_ is None
+    # too few trajectories to hold two out of twenty: samples only
+    few = _trajectories(19, 0)
+    assert _hold_out_trajectories(few, 0) == (few, None)
+    assert [len(t) for t in _hold_out_trajectories(_trajectories(300, 0, steps=2), 0)] == [285, 15]
+
+
+def test_the_rollout_rule_keeps_a_prefix_that_the_one_step_error_would_grow_past():
+    """``keep``: with held-out trajectories the best rollout score wins over the best one-step score (more centres
+    can fit the samples better and extrapolate worse); a target is still met by the smallest prefix."""
+    from sympredict.estimators.predictor import _HeldOutSteps
+
+    rule = _HeldOutSteps.__new__(_HeldOutSteps)
+    rule.target, rule.rollouts = None, ("held-out trajectories",)
+    rule.scores = {16: 1e-2, 32: 1e-3, 64: 1e-4}
+    rule.rollout_scores = {16: 1e-1, 32: 1e-3, 64: 5e-3}
+    assert rule.keep(64) == 32 and rule.keep(16) == 16
+    rule.rollout_scores[64] = 1e-3
+    assert rule.keep(64) == 32  # a tie: the smaller
+    rule.target = 5e-3
+    assert rule.keep(64) == 32  # the smallest meeting the target (one-step)
+    rule.target, rule.rollouts = None, None
+    assert rule.keep(64) == 64  # samples only: the best one-step score
+
+
+def test_with_a_target_and_trajectories_the_smallest_prefix_meeting_it_is_kept():
+    train, val = _trajectories(40, 0), _trajectories(10, 1)
+    model = SymplecticKernelPredictor(IMQ(0.5), mu_kernel=IMQ(2.0), max_centers=400,
+                                      trainer=ExactGreedy(target_error=1e-2)).fit(train, validation=val)
+    steps, roll = model.prefix_errors_, model.prefix_rollout_errors_
+    assert model.history_.stop_reason == "target" and model.diagnostics_.target_met
+    assert steps[model.n_centers_] <= 1e-2 < steps.get(model.n_centers_ - 1, np.inf)
+    # the prefixes that missed the target were rolled out; those that met it are kept by their one-step score
+    assert roll and all(steps[k] > 1e-2 for k in roll) and model.n_centers_ not in roll
