@@ -98,6 +98,16 @@ def check_available() -> None:
         raise ImportError(MISSING)
 
 
+def use_compiled(requested: Optional[bool], name: str = "compiled") -> bool:
+    """Whether a part runs its compiled path: ``None`` means where numba is installed.
+
+    ``True`` without numba raises ``ImportError`` naming the setting and the way out.
+    """
+    if requested and not HAVE_NUMBA:
+        raise ImportError(f"{name}=True needs numba: pip install 'sympredict[fast]' (or set {name}=None)")
+    return HAVE_NUMBA if requested is None else bool(requested)
+
+
 def get_num_threads() -> int:
     """Threads numba's parallel loops use (0 without numba)."""
     return numba.get_num_threads() if HAVE_NUMBA else 0

@@ -133,3 +133,12 @@ def check_malformed_kernel_entries_refused(path, settings, arrays, key, specs):
         write_container(path, MODEL_FORMAT, bad, arrays)
         with pytest.raises(ModelFileError):
             load_model(path)
+
+
+def gram_oracle(fun, selected):
+    """``G(selected, selected)`` column by column through ``HBFunctionals.column`` (not a trainer's rows)."""
+    out = np.empty((len(selected), len(selected)))
+    col = np.empty(fun.n_functionals)
+    for k, j in enumerate(selected):
+        out[:, k] = fun.column(fun.representer(int(j)), col)[selected]
+    return out

@@ -616,10 +616,8 @@ class FittedSymplecticFlowMap(FittedFlowMap):
         ----------
         x : array_like of shape (B, 2n) or (2n,)
             States ``(q, p)``, one per row (or a single state).
-        mu : float or array_like of shape (B,), (d_mu,) or (B, d_mu), default=None
-            Parameters, as in :meth:`step`.
-        dt : float or array_like of shape (B,), default=None
-            Macro steps, as in :meth:`step`.
+        mu, dt : float or array_like, default=None
+            Parameters and macro steps, as in :meth:`step`.
 
         Returns
         -------
@@ -644,10 +642,8 @@ class FittedSymplecticFlowMap(FittedFlowMap):
         ----------
         x : array_like of shape (B, 2n) or (2n,)
             States ``(q, p)``, one per row (or a single state).
-        mu : float or array_like of shape (B,), (d_mu,) or (B, d_mu), default=None
-            Parameters, as in :meth:`step`.
-        dt : float or array_like of shape (B,), default=None
-            Macro steps, as in :meth:`step`.
+        mu, dt : float or array_like, default=None
+            Parameters and macro steps, as in :meth:`step`.
 
         Returns
         -------

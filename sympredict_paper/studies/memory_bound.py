@@ -41,6 +41,7 @@ import time
 import numpy as np
 
 import _protocol  # sympredict_paper/studies/ (the script's folder is on sys.path)
+from blocked_greedy import gemm_rate
 from defaults_acceptance import HAND, _rejection, hand_model
 
 from sympredict.interpolation.greedy import (BlockedGreedy, BoundedActiveSetGreedy, ExactGreedy, available_memory,
@@ -213,18 +214,6 @@ def main(argv=None):
     return result
 
 
-def gemm_rate(n: int, m: int, b: int = 64, repeats: int = 3) -> float:
-    """Flops per second of ``(n, m) @ (m, b)`` (the block update's shape), median of ``repeats`` after a warm-up."""
-    rng = np.random.default_rng(0)
-    a, v = rng.normal(size=(n, m)), rng.normal(size=(m, b))
-    times = []
-    for _ in range(repeats + 1):
-        t0 = time.perf_counter()
-        a @ v
-        times.append(time.perf_counter() - t0)
-    return 2.0 * n * m * b / float(np.median(times[1:]))
-
-
 def project(args, run, dim, n_fun, m, data_s) -> dict:
     """The full size's formula memory, and its time from this run's parts: blocks ``~ S m^2``, each refresh ``~ N m``."""
     from sympredict.interpolation.greedy.loop import available_memory as _avail
@@ -252,7 +241,7 @@ def project(args, run, dim, n_fun, m, data_s) -> dict:
         mm, slots = run["centers"], stats["slots"]
         # blocks: the products (S m^2 flops at this process's dgemm rate) and the rest, ~ S m (vector passes per
         # centre, Gramian rows of the blocks)
-        rate = gemm_rate(slots, mm)
+        rate = gemm_rate(slots, m0=mm)["gflops"] * 1e9
         gemm_here = slots * mm ** 2 / rate
         s_full = points * dim
         t_gemm = s_full * m_full ** 2 / rate

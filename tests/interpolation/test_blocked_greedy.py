@@ -19,6 +19,7 @@ from sympredict.interpolation.greedy import (BlockedGreedy, BlockedStore, DenseS
 from sympredict.interpolation.greedy.blocked import blocked_memory, pool_gramian
 from sympredict.interpolation.surrogate import HBSurrogate
 from sympredict.kernels import IMQ, Matern52, ProductKernel
+from _surrogate_oracles import gram_oracle  # tests/
 
 pytestmark = pytest.mark.paths
 
@@ -32,15 +33,6 @@ def _problem(seed, m_points=400, dim=4, kernel=None):
     y = -np.sin(xi) * mu + 0.2 * xi * (xi ** 2).sum(axis=1, keepdims=True)
     kernel = kernel or ProductKernel(IMQ(0.5), IMQ(1.0))
     return HBFunctionals(kernel, xi, mu, dt), xi, mu, dt, y.ravel()
-
-
-def _gram_oracle(fun, selected):
-    """``G(selected, selected)`` column by column through ``HBFunctionals.column`` (not the blocked code's rows)."""
-    out = np.empty((len(selected), len(selected)))
-    col = np.empty(fun.n_functionals)
-    for k, j in enumerate(selected):
-        out[:, k] = fun.column(fun.representer(int(j)), col)[selected]
-    return out
 
 
 @pytest.mark.parametrize("criterion", ["f", "p"])
@@ -74,7 +66,7 @@ def test_blocked_newton_basis_interpolates_and_its_factor_is_the_gramians(block_
     m = len(res.selected)
     assert m == 200 and store.stats["blocks"] < 200 and len(set(res.selected.tolist())) == m
     # the Cholesky factor of the selected Gramian, against the Gramian built column by column
-    gram = _gram_oracle(fun, res.selected)
+    gram = gram_oracle(fun, res.selected)
     np.testing.assert_allclose(res.chol @ res.chol.T, gram, rtol=0, atol=1e-10 * np.abs(gram).max())
     assert np.allclose(res.chol, np.tril(res.chol))
     # exact interpolation at the selected functionals, re-evaluated by the surrogate
@@ -98,7 +90,7 @@ def test_blocked_newton_basis_interpolates_and_its_factor_is_the_gramians(block_
 def test_pool_gramian_matches_columns():
     fun, *_ = _problem(4, m_points=60)
     pool = np.array([5, 17, 3, 200, 201, 239])
-    np.testing.assert_allclose(pool_gramian(fun, pool), _gram_oracle(fun, pool), rtol=1e-13, atol=1e-13)
+    np.testing.assert_allclose(pool_gramian(fun, pool), gram_oracle(fun, pool), rtol=1e-13, atol=1e-13)
     vf = ValueFunctionals(ProductKernel(IMQ(0.5), IMQ(1.0)), fun.points, fun.mu, fun.dt)
     vpool = np.array([5, 17, 3, 40])
     expected = np.array([[vf.column(vf.representer(j), np.empty(60))[i] for j in vpool] for i in vpool])

@@ -19,6 +19,7 @@ from sympredict.interpolation.greedy import (ActiveSetGreedy, BlockedStore, Boun
                                              run_greedy, trainer_memory)
 from sympredict.interpolation.greedy.active_set import bounded_capacity, bounded_memory, refresh_chunk
 from sympredict.kernels import IMQ, ProductKernel
+from _surrogate_oracles import gram_oracle  # tests/
 
 
 def _problem(seed, m_points=1500, dim=8, n_mu=60):
@@ -38,14 +39,6 @@ def _peak(fn):
         return out, tracemalloc.get_traced_memory()[1]
     finally:
         tracemalloc.stop()
-
-
-def _gram_oracle(fun, selected):
-    out = np.empty((len(selected), len(selected)))
-    col = np.empty(fun.n_functionals)
-    for k, j in enumerate(selected):
-        out[:, k] = fun.column(fun.representer(int(j)), col)[selected]
-    return out
 
 
 def test_exact_greedy_peak_within_its_formula():
@@ -131,7 +124,7 @@ def test_bounded_model_interpolates_and_its_residual_is_the_direct_one():
     # exact interpolation at the selected functionals, whichever slot (and swap) they came from
     assert np.abs(r[result.selected]).max() <= 1e-8 * scale
     # the Newton values are the Cholesky factor of the selected Gramian
-    gram = _gram_oracle(fun, result.selected)
+    gram = gram_oracle(fun, result.selected)
     np.testing.assert_allclose(result.chol @ result.chol.T, gram, rtol=0, atol=1e-9 * np.abs(gram).max())
 
 

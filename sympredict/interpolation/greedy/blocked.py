@@ -154,9 +154,7 @@ class BlockedStore(BaseStore):
         self.block_size = int(block_size)
         self.pool_factor = int(pool_factor)
         self.slack = float(slack)
-        if compiled and not _numba.HAVE_NUMBA:
-            raise ImportError("compiled=True needs numba: pip install 'sympredict[fast]'")
-        self.compiled = _numba.HAVE_NUMBA if compiled is None else bool(compiled)
+        self.compiled = _numba.use_compiled(compiled)
         self.basis = None
 
     def open(self, expansion: Expansion):

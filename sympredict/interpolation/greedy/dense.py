@@ -106,9 +106,7 @@ class DenseStore(BaseStore):
         self.dtype = np.dtype(basis_dtype)
         self.diagonal_max = diagonal_max
         self.regularization = float(regularization)
-        if compiled and not _numba.HAVE_NUMBA:
-            raise ImportError("compiled=True needs numba: pip install 'sympredict[fast]'")
-        self.compiled = _numba.HAVE_NUMBA if compiled is None else bool(compiled)
+        self.compiled = _numba.use_compiled(compiled)
         self.basis = None
 
     def open(self, expansion: Expansion):
