@@ -138,7 +138,7 @@ def _solve_one(x, w, h, cT, seg, family, eps, per, max_iter, out, sc, grad, hess
             continue
         if fraction == 1.0 and not new_best:
             since += 1
-            if since >= WATCHDOG or not finite:  # no progress: back to the best iterate, half its step
+            if since >= WATCHDOG or not finite:  # no progress: back to the best iterate, a line search from it
                 fraction = 0.5
                 for a in range(k):
                     u[a] = u_best[a] - fraction * d_best[a]

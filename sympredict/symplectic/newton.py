@@ -246,6 +246,7 @@ def _newton(sur: HBSurrogate, x: np.ndarray, u: np.ndarray, weights: np.ndarray,
             restart = free_stalled & ((since[active] >= WATCHDOG) | ~np.isfinite(f_norm))
             back = (damped & ~new_best) | restart
         if back is not None and back.any():  # a damped trial rejected (halve it again), or no progress: back
+            # to the best iterate, a line search from it (sympredict.newton_rule.WATCHDOG)
             rest = active[back]
             fraction[rest] = np.where(restart[back], 0.5, 0.5 * fraction[rest])
             u[rest] = u_best[rest] - fraction[rest, None] * d_best[rest]

@@ -2,8 +2,9 @@
 
 Reports, per backend, where the batch rollout fails (macro step and instances) or that it converges; per instance
 (each rolled out alone) the outcome (the failing step, or -1) at dT in ``--dts``, and how many of these outcomes
-move when the initial state is perturbed by 1e-11 (relative); and the normal rollout's time (training-range dT)
-side by side.  ``python sympredict_paper/studies/far_step_newton.py --json out.json``.
+move when the initial state is perturbed by 1e-11 (relative); for ``--seeds`` further batches of 20 states (seeds
+0, 1, ...) at each dT whether the two backends end alike (converged, or failed at the same macro step and
+instances); and the normal rollout's time (training-range dT) side by side.  ``python sympredict_paper/studies/far_step_newton.py --json out.json``.
 """
 
 import argparse
@@ -55,6 +56,7 @@ def main(argv=None):
     parser.add_argument("--dts", default="0.8,1.0,1.2")
     parser.add_argument("--steps", type=int, default=50)
     parser.add_argument("--model", choices=["small", "narrow", "default"], default="narrow")
+    parser.add_argument("--seeds", type=int, default=12)
     parser.add_argument("--no-timing", action="store_true")
     parser.add_argument("--timing-only", action="store_true")
     args = parser.parse_args(argv)
@@ -81,6 +83,16 @@ def main(argv=None):
     if not args.timing_only:
         agree = sum(out["per_instance"]["numpy"][k][0] == out["per_instance"]["numba"][k][0] for k in out["per_instance"]["numpy"])
         out["backends_agree_per_instance"] = {"agree": agree, "cases": len(out["per_instance"]["numpy"])}
+    ends = {}  # batches of other states: do both backends end alike?
+    for seed in range(0 if args.timing_only else args.seeds):
+        xb, mb = states(seed=seed)
+        for dt in dts:
+            pair = [outcome(m, xb, mb, dt, args.steps, backend) for backend in ("numpy", "numba")]
+            ends[f"{seed}/{dt}"] = [[e.get("step", -1), e.get("instances", [])] for e in pair]
+    if ends:
+        out["batch_seeds"] = {"agree": sum(a == b for a, b in ends.values()), "cases": len(ends),
+                              "converged": sum(a[0] == b[0] == -1 for a, b in ends.values()),
+                              "disagree": {k: v for k, v in ends.items() if v[0] != v[1]}}
     # the normal rollout (dT in the training range) side by side: median of 5
     xs, ms = states(200, seed=3)
     for backend in () if args.no_timing else ("numpy", "numba"):
@@ -95,7 +107,8 @@ def main(argv=None):
     if args.json:
         with atomic_output(args.json) as fh:
             fh.write(json.dumps(out, indent=1).encode())
-    print(json.dumps({k: out.get(k) for k in ("batch", "moved", "backends_agree_per_instance", "timing")}, indent=1))
+    print(json.dumps({k: out.get(k) for k in ("batch", "moved", "backends_agree_per_instance", "batch_seeds",
+                                               "timing")}, indent=1))
 
 
 if __name__ == "__main__":
