@@ -49,11 +49,11 @@ STALL_FLOOR_FACTOR = 1e3
 #: iterations on its way into a root's basin, so ordinary steps take exactly the plain Newton iterates).  After
 #: WATCHDOG passes without improvement (a cycle, a wandering iterate), or at a non-finite residual, the iteration
 #: goes back to the best iterate and halves its Newton step until :func:`accepted` (a backtracking line search on
-#: ``|F|_2``); from the iterate so found the full steps go on.  Three passes: the fewest with which the midpoint
-#: update still converges at 3 rad per step (an oscillator, ``tests/symplectic/test_midpoint.py``); every pass more
-#: lets an iterate far from any root wander longer, and where it lands then depends on round-off (on steps far
-#: larger than the training steps, 8 passes let the two backends fail at different macro steps and instances).
-WATCHDOG = 3
+#: ``|F|_2``); from the iterate so found the full steps go on.  Eight passes: the midpoint update needs a few
+#: non-monotone passes to converge at 3 rad per step (an oscillator, ``tests/symplectic/test_midpoint.py``), and
+#: an implicit step on data with wrapped angles needs more (``tests/estimators/test_structure.py``: with 3 to 5
+#: passes every candidate of the search fails there).
+WATCHDOG = 8
 #: Sufficient decrease: an iterate reached with step fraction ``lam`` improves on the best one when
 #: ``|F|_2 <= (1 - DECREASE lam) |F_best|_2`` ...
 DECREASE = 1e-4

@@ -1,8 +1,17 @@
 """Training cost against samples, centres and state dimension: the exact and the blocked greedy, scikit-learn's GPR.
 
-Greedy runs (``trainer.run`` on the state-derivative functionals of ``M`` random points in ``[-1, 1]^{2n}``
-with one parameter in ``[0.5, 1.5]``, IMQ kernels of shape ``0.5 / sqrt(2n)`` and 1, targets the gradient of
-``mu sum cos(3 xi) + |xi|^4 / 4``; ``N = 2n M`` functionals, ``max_centers = m``), three sweeps:
+Greedy runs (``trainer.run`` on the state-derivative functionals of ``M`` one-step samples, ``N = 2n M``
+functionals, ``max_centers = m``, IMQ kernels of shape ``0.5 / sqrt(2n)`` and 1) of one of two problems
+(``--system``):
+
+* ``fpu`` (the default): the FPU-beta chain of ``n`` masses of ``memory_bound.py`` (``2n``-D state, the quartic
+  coefficient as the parameter), samples from trajectories of 20 steps at an energy of 0.0375 J per mass; the mixed variables ``(q0, p1)`` centred
+  and scaled per coordinate to the spread of ``[-1, 1]`` (the targets ``J^T (x1 - x0) / dT`` scaled with them),
+  the parameter mapped to ``[0.5, 1.5]``;
+* ``random``: random points in ``[-1, 1]^{2n}`` with one parameter in ``[0.5, 1.5]``, targets the gradient of
+  ``mu sum cos(3 xi) + |xi|^4 / 4``.
+
+Three sweeps:
 
 * samples: ``2n = 4``, ``m = --m``, ``M`` in ``--points``;
 * centres: ``2n = 4``, ``M = --m-points``, ``m`` in ``--centers``;
@@ -33,6 +42,7 @@ import numpy as np
 
 import _protocol  # sympredict_paper/studies/ (the script's folder is on sys.path)
 
+from sympredict.data import mixed_variables
 from sympredict.interpolation.functionals import HBFunctionals
 from sympredict.interpolation.greedy import BlockedGreedy, ExactGreedy, trainer_memory
 from sympredict.kernels import IMQ, ProductKernel
@@ -45,6 +55,30 @@ def problem(n_points: int, dim: int, seed: int = 0):
     y = -3 * mu * np.sin(3 * xi) + xi * (xi ** 2).sum(axis=1, keepdims=True)
     kernel = ProductKernel(IMQ(0.5 / np.sqrt(dim)), IMQ(1.0))
     return HBFunctionals(kernel, xi, mu, np.full(n_points, 0.1)), y.ravel()
+
+
+def fpu_problem(n_points: int, dim: int, seed: int = 0):
+    """One-step samples of the FPU-beta chain with ``dim / 2`` masses, as the greedy's functionals."""
+    from defaults_acceptance import _rejection
+    from memory_bound import BETA, DT, chain  # sympredict_paper/studies/
+
+    # energy per mass fixed (the chain's 4-mass level, 0.15 J / 4): a box shrunk so that its states mostly
+    # lie below it, so that rejection sampling works in 32 dimensions too
+    n, n_traj, steps = dim // 2, -(-n_points // 20), 20
+    system, rng = chain(n), np.random.default_rng(seed)
+    beta = rng.uniform(*BETA, n_traj)
+    x_start = _rejection(system.energy, beta, rng, [-0.035] * n + [-0.063] * n, [0.035] * n + [0.063] * n,
+                         0.0375 * n)
+    traj = system.trajectory(x_start, beta[:, None], DT, steps)
+    x0, x1 = traj[:, :-1].reshape(-1, dim)[:n_points], traj[:, 1:].reshape(-1, dim)[:n_points]
+    beta, dt = np.repeat(beta, steps)[:n_points], np.full(n_points, DT)
+    xi, y = mixed_variables(x0, x1, dt)
+    scale = xi.std(axis=0) / np.sqrt(1.0 / 3.0)  # the spread of uniform [-1, 1]
+    xi = (xi - xi.mean(axis=0)) / scale
+    y = y * scale  # the gradient in the scaled coordinates
+    mu = 0.5 + (beta[:, None] - BETA[0]) / (BETA[1] - BETA[0])
+    kernel = ProductKernel(IMQ(0.5 / np.sqrt(dim)), IMQ(1.0))
+    return HBFunctionals(kernel, xi, mu, dt), y.ravel()
 
 
 def greedy_run(trainer, fun, y, m, memory: bool) -> dict:
@@ -121,11 +155,12 @@ def main(argv=None):
     parser.add_argument("--dim-points", type=int, default=2000)
     parser.add_argument("--dims", type=int, nargs="+", default=[2, 4, 8, 16, 32])
     parser.add_argument("--gpr-points", type=int, nargs="+", default=[1000, 2000, 4000])
+    parser.add_argument("--system", choices=("fpu", "random"), default="fpu", help="the greedy's problem")
     _protocol.add_arguments(parser, threads=1)
     args = parser.parse_args(argv)
     args.json = args.json or "docs/data/scaling.json"
     trainers = {"exact": ExactGreedy(tol=0), "blocked": BlockedGreedy(tol=0)}
-    out = {}
+    out = {"system": args.system}
     with _protocol.limits(args.blas_threads, args.threads):
         protocol = _protocol.record(blas_threads=args.blas_threads, numba_threads=args.threads, repeats=1, warmup=0,
                                     notes="one timed and one traced run per size and trainer, in one process")
@@ -139,7 +174,7 @@ def main(argv=None):
             print(f"sweep over {name}", flush=True)
             rows = []
             for n_points, dim, m in sizes:
-                fun, y = problem(n_points, dim)
+                fun, y = (fpu_problem if args.system == "fpu" else problem)(n_points, dim)
                 rows.append(measure(fun, y, m, rate, trainers))
             key = {"samples": "N", "centers": "m", "dim": "dim"}[name]
             x = [r[key] for r in rows]
