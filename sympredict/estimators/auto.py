@@ -24,7 +24,9 @@ units).  A small ``m_star`` favours kernels too flat for the final size (they br
 finalists then compete at the final size (at most ``final_centers``) by the mean relative one-step error on
 the validation samples, the error a rollout compounds, with a coordinate search (factor 2) of their shapes and
 of the ratio of the ``q`` to the ``p`` shapes.  The data are scattered one-step samples in general, so no
-rollout can be scored; the one-step error of the whole implicit step is the closest cheap proxy.
+rollout can be scored; the one-step error of the whole implicit step is the closest cheap proxy.  Both stages
+compare candidates first at a quarter of their centres and fit only those not clearly losing there to full size
+(successive halving, ``KernelSearch(halving=True)``; the rule is in :class:`KernelSearch`'s Notes).
 """
 
 from __future__ import annotations
@@ -57,8 +59,12 @@ _FAMILIES = ("imq", "matern52", "matern32")
 #: Successive halving's rungs are never below this many centres (below it the search is cheap anyway).
 MIN_RUNG = 25
 #: Stage 2 fits a candidate to ``m_final`` centres only if its one-step error at the rung (``m_final / 4`` centres)
-#: is at most this factor times the smallest rung error so far.
-RUNG_MARGIN = 3.0
+#: is at most this factor times the smallest rung error so far.  Large on purpose: at a quarter of the centres flat
+#: kernels lead (sharper ones converge later but further), and on the three-body problem a candidate 21 times
+#: worse than the best at the rung was the best at full size; only candidates clearly losing beyond that are cut.
+RUNG_MARGIN = 30.0
+#: Stage 2's rung: ``m_final // RUNG_FRACTION`` centres.
+RUNG_FRACTION = 4
 
 
 @dataclass
@@ -172,7 +178,7 @@ class KernelSearch(Setting):
       (:func:`~sympredict.estimators.search.grid_search`'s ``rungs``);
     * stage 2 (and the structure stage) first fits every candidate to the rung ``m_final / 4`` and scores its
       one-step error there; a candidate is fitted to ``m_final`` only if that rung error is at most
-      :data:`RUNG_MARGIN` (3) times the smallest rung error so far (the starting finalists are all rung-scored
+      :data:`RUNG_MARGIN` (30) times the smallest rung error so far (the starting finalists are all rung-scored
       first); the others are recorded with ``score = inf`` and ``cut = True`` and never chosen.
 
     A fit costs about ``m^2`` times the samples, so a rung at a quarter of the centres costs a sixteenth of a
@@ -316,7 +322,7 @@ class KernelSearch(Setting):
         factors = np.asarray(params["state_kernel"].factors) if scaled else None
         opened = {i for i, key in ((0, "state"), (2, "mu"), (3, "dt")) if open_factors[key]}  # shapes to search
         scores = {}
-        rung_size = m_final // 4 if self.halving and m_final // 4 >= MIN_RUNG else None
+        rung_size = m_final // RUNG_FRACTION if self.halving and m_final // RUNG_FRACTION >= MIN_RUNG else None
         rungs = {}  # params' repr -> (rung score, centres, seconds, error): successive halving's first fit
 
         def rung_passes(p, label) -> tuple:

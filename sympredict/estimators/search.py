@@ -11,6 +11,9 @@ Every search of the package runs here: the public selections of :mod:`sympredict
   (:func:`fit_candidate`), so no estimator class is needed here;
 * **grid search** (:func:`grid_search`): every tuple ``(k_xi, k_mu, k_dT)`` trained by f-greedy to ``m_star``
   centres and ranked by its validation residual ``E_val(m_star)``, a winner on a grid's edge widened beyond it;
+* **successive halving** (:func:`halving_survivors`, ``grid_search(..., rungs=...)``): candidates compared first at a
+  fraction of the centres, only the best third (at least :data:`HALVING_KEEP`) going on to the next rung, so that
+  clearly losing candidates cost a small fraction of a full fit (a greedy fit costs ``O(m^2 N)``);
 * **coordinate refinement** (:func:`coordinate_search`): each coordinate of a candidate (a shape, or any value a
   caller can scale) times the given factors, one at a time, while a sweep improves the score
   (:func:`refine_shapes` at a larger ``m_star``; the kernel search's second stage);

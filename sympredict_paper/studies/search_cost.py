@@ -37,7 +37,7 @@ from sympredict import KernelSearch, SymplecticKernelPredictor
 from sympredict.data import FlowMapData
 
 RESULTS = Path(__file__).resolve().parents[2] / "docs" / "data" / "search_cost.json"
-SYSTEMS = ("readme_pendulum", "kepler", "three_body", "henon_heiles", "coupled_pendulums")
+SYSTEMS = ("three_body", "readme_pendulum", "kepler", "henon_heiles", "coupled_pendulums")
 
 
 def _relative_rollout(model, x0, mu, dt, ref) -> dict:

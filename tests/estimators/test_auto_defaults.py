@@ -326,3 +326,21 @@ def test_halving_is_deterministic(param_data, halved_pair):
     # the same code path on the same arrays in one process: the same scores, bit for bit
     assert [r.get("score", r.get("E_val")) for r in again.search_.table] == \
         [r.get("score", r.get("E_val")) for r in first]
+
+
+def test_the_second_stage_cuts_candidates_beyond_the_margin_at_the_rung(param_data, monkeypatch):
+    """With a margin of 1, every stage-2 candidate whose rung error is above the smallest so far is cut (score inf,
+    never chosen); the candidates fitted to full size passed their rung, and the winner is the best of them."""
+    import sympredict.estimators.auto as auto
+
+    monkeypatch.setattr(auto, "RUNG_MARGIN", 1.0)
+    x0, x1, mu, _ = param_data
+    m = SymplecticKernelPredictor(max_centers=100, search=clone(HALVED)).fit(x0, x1, mu=mu, dt=0.1)
+    stage2 = [r for r in m.search_.table if r["stage"] == 2]
+    cut = [r for r in stage2 if r.get("cut")]
+    assert cut and all(r["score"] == np.inf and r["n_centers"] <= 25 for r in cut)
+    best_rung = min(r["rung_score"] for r in stage2)
+    assert all(r["rung_score"] > best_rung for r in cut)
+    fitted = [r for r in stage2 if not r.get("cut")]
+    assert fitted and all(np.isfinite(r["score"]) for r in fitted)
+    assert m.search_.score == min(r["score"] for r in fitted)
