@@ -278,7 +278,7 @@ def test_the_fit_logs_and_records_the_search_share(param_data, caplog):
     assert len(line) == 1 and f"({s.share:.0%})" in line[0] and f"{s.fit_seconds:.1f} s" in line[0]
 
 
-HALVED = KernelSearch(m_star=100, final_centers=100, max_samples=400, refine_sweeps=1, structure=False)
+HALVED = KernelSearch(m_star=100, final_centers=100, max_samples=400, refine_sweeps=1, structure=False, halving=True)
 
 
 @pytest.fixture(scope="module")
