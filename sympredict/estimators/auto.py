@@ -63,6 +63,8 @@ MIN_RUNG = 25
 #: kernels lead (sharper ones converge later but further), and on the three-body problem a candidate 21 times
 #: worse than the best at the rung was the best at full size; only candidates clearly losing beyond that are cut.
 RUNG_MARGIN = 30.0
+#: Stage 1's rungs: ``m_star // d`` centres for each ``d`` (those of at least :data:`MIN_RUNG` centres).
+STAGE1_RUNGS = (4, 2)
 #: Stage 2's rung: ``m_final // RUNG_FRACTION`` centres.
 RUNG_FRACTION = 4
 
@@ -427,7 +429,7 @@ fit for each candidate cut at its rung (the rung fit of one that goes on adds a 
         are clones of."""
         state_grid, mu_grid, dt_grid = grids
         table, finalists = [], []
-        rungs = (m_star // 4, m_star // 2) if self.halving and m_star // 4 >= MIN_RUNG else ()
+        rungs = tuple(m_star // d for d in STAGE1_RUNGS if m_star // d >= MIN_RUNG) if self.halving else ()
         # the grid search's own notes (a winner on a grid's edge, m_star too small) are what stage 2 resolves
         with quiet_logs(SEARCH_LOGGER, level=logging.ERROR):
             for update in updates:

@@ -216,8 +216,9 @@ def grid_search(
         candidate is first trained to ``rungs[0]`` centres and ranked by ``E_val(rungs[0])``, the best third (at
         least :data:`HALVING_KEEP` of them) go on to the next rung, and those left after the last rung are trained
         to ``m_star`` and ranked as without rungs.  Empty (the default): every candidate is trained to ``m_star``.
-        Rung fits are recorded in the table with ``rung`` (their centre count) and are never the result.  With
-        rungs, a widening candidate is trained to ``m_star`` only if it ranks before the winner at the last rung.
+        Rung fits are recorded in the table with ``rung`` (their centre count) and are never the result.
+        Widening candidates are trained to ``m_star`` directly (comparing them at a rung changed the choice on
+        one acceptance system).
 
     Returns
     -------
@@ -288,11 +289,8 @@ def grid_search(
     tuples = list(itertools.product(state_kernels, mu_kernels, dt_kernels))
     if any(tup[2] is None for tup in tuples) and not dt_fixed:
         raise ValueError("dt_kernels must not contain None when the data have several macro steps")
-    rung_sizes = sorted({int(r) for r in rungs if 0 < int(r) < m_star})
-    at_rung = {}  # the last rung's result per tuple (the widening's first test)
-    for rung in rung_sizes:
+    for rung in sorted({int(r) for r in rungs if 0 < int(r) < m_star}):
         ranked = [score(tup, rung=rung) for tup in tuples]
-        at_rung = dict(zip(tuples, ranked))
         tuples = halving_survivors(tuples, [r.rank(prefer_complete) for r in ranked])
     best = None
     for tup in tuples:
@@ -320,10 +318,6 @@ def grid_search(
             tup[i] = chosen.set_params(eps=eps)
             logger.info(f"the chosen {('state', 'mu', 'dt')[i]} kernel {chosen!r} lies on the edge of its shape grid: "
                         f"trying {tup[i]!r}")
-            if rung_sizes:  # with rungs: trained to m_star only if it beats the winner at the last rung
-                at_rung[tuple(tup)] = score(tuple(tup), widened=True, rung=rung_sizes[-1])
-                if not better(at_rung[tuple(tup)], at_rung.get((best.state, best.mu, best.dt))):
-                    continue
             candidate = score(tuple(tup), widened=True)
             if better(candidate, best):
                 best, moved = candidate, True
