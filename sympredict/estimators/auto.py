@@ -181,7 +181,8 @@ class KernelSearch(Setting):
     * stage 2 (and the structure stage) first fits every candidate to the rung ``m_final / 4`` and scores its
       one-step error there; a candidate is fitted to ``m_final`` only if that rung error is at most
       :data:`RUNG_MARGIN` (30) times the smallest rung error so far (the starting finalists are all rung-scored
-      first); the others are recorded with ``score = inf`` and ``cut = True`` and never chosen.
+      first); the others are recorded with ``score = inf`` and ``cut = True`` and never chosen, unless every
+      candidate fitted to full size fails (then they are fitted to full size after all, rows ``after_cut``).
 
     A fit costs about ``m^2`` times the samples, so a rung at a quarter of the centres costs a sixteenth of a
     full fit: stage 1 fits about 4 instead of 15 full candidates per grid, stage 2 fits to full size only the
@@ -396,6 +397,15 @@ fit for each candidate cut at its rung (the rung fit of one that goes on adds a 
         active = [i for i, key in ((0, "state"), (1, None), (2, "mu"), (3, "dt")) if (scaled if key is None
                                                                                  else open_factors[key])]
         best = coordinate_search(best, score, active, _move, factors=(0.5, 2.0), sweeps=self.refine_sweeps)
+        if not np.isfinite(score(best)) and any(v[4] for v in scores.values()):
+            # every candidate fitted to full size failed: those cut at the rung are fitted after all
+            for cand in [c for c, v in scores.items() if v[4]]:
+                sc, n, secs, err = one_step_score(estimator, params_of(cand), m_final, train, val)
+                scores[cand] = (sc, n, secs, err, False)
+                table.append({"stage": 2, "kernels": label_of(cand).split(", q/p")[0], "ratio": cand[1],
+                              "update": cand[4], "score": sc, "n_centers": n, "fit_s": secs, "after_cut": True,
+                              **({"error": err} if err else {})})
+            best = min(scores, key=score)
         if not np.isfinite(score(best)):
             raise ValueError(f"the kernel search found no candidate that predicts the held-out samples with {m_final} "
                              "centres (every fit or Newton solve failed); see the log, or pass the kernels and update")
