@@ -24,7 +24,9 @@ units).  A small ``m_star`` favours kernels too flat for the final size (they br
 finalists then compete at the final size (at most ``final_centers``) by the mean relative one-step error on
 the validation samples, the error a rollout compounds, with a coordinate search (factor 2) of their shapes and
 of the ratio of the ``q`` to the ``p`` shapes.  The data are scattered one-step samples in general, so no
-rollout can be scored; the one-step error of the whole implicit step is the closest cheap proxy.
+rollout can be scored; the one-step error of the whole implicit step is the closest cheap proxy.  Both
+stages compare candidates first at a quarter of their centres and fit only those not clearly losing there to full
+size (successive halving, ``KernelSearch(halving=True)``, the default; the rule is in :class:`KernelSearch`'s Notes).
 """
 
 from __future__ import annotations
@@ -40,7 +42,7 @@ import numpy as np
 from sympredict._checks import as_flag
 from sympredict.base import Setting, clone
 from sympredict.data import FlowMapData
-from sympredict.estimators.search import (SEARCH_LOGGER, coordinate_search, grid_search, one_step_score, quiet_logs,
+from sympredict.estimators.search import (CANDIDATE_FIT, SEARCH_LOGGER, coordinate_search, grid_search, one_step_score, quiet_logs,
                                           without_target)
 from sympredict.estimators.structure import compete as _structure_stage
 from sympredict.exceptions import ExtrapolationWarning, NewtonConvergenceError, NonFinitePredictionError, ScaleWarning
@@ -54,6 +56,18 @@ __all__ = ["KernelSearch", "SearchResult", "FitDiagnostics"]
 logger = logging.getLogger("sympredict.estimators.auto")
 
 _FAMILIES = ("imq", "matern52", "matern32")
+
+#: Successive halving's rungs are never below this many centres (below it the search is cheap anyway).
+MIN_RUNG = 25
+#: Stage 2 fits a candidate to ``m_final`` centres only if its one-step error at the rung (``m_final / 4`` centres)
+#: is at most this factor times the smallest rung error so far.  Large on purpose: at a quarter of the centres flat
+#: kernels lead (sharper ones converge later but further), and on the three-body problem a candidate 21 times
+#: worse than the best at the rung was the best at full size; only candidates clearly losing beyond that are cut.
+RUNG_MARGIN = 30.0
+#: Stage 1's rungs: ``m_star // d`` centres for each ``d`` (those of at least :data:`MIN_RUNG` centres).
+STAGE1_RUNGS = (4, 2)
+#: Stage 2's rung: ``m_final // RUNG_FRACTION`` centres.
+RUNG_FRACTION = 4
 
 
 @dataclass
@@ -79,6 +93,9 @@ class SearchResult:
     m_final : int
         Centres at which the second stage compared candidates (the final budget, at most
         :attr:`KernelSearch.final_centers`).
+    fit_seconds : float or None
+        Wall time of the whole fit the search was part of (set by the estimator's ``fit``; ``None`` for a search
+        run on its own): :attr:`share` is ``seconds / fit_seconds``.
     """
 
     params: dict
@@ -91,6 +108,14 @@ class SearchResult:
     m_final: int = 0
     #: What the structure stage tested and found (:class:`~sympredict.estimators.structure.StructureFinding`).
     structure: list = field(default_factory=list, repr=False)
+    fit_seconds: Optional[float] = None
+    #: Processor time of the search (this process; less sensitive than ``seconds`` to other jobs on the machine).
+    cpu_seconds: Optional[float] = None
+
+    @property
+    def share(self) -> Optional[float]:
+        """The search's share of the fit's wall time (``None`` without :attr:`fit_seconds`)."""
+        return None if not self.fit_seconds else self.seconds / self.fit_seconds
 
     def summary(self) -> str:
         """One line: what was chosen and how."""
@@ -135,6 +160,10 @@ class KernelSearch(Setting):
         Test the data for symmetries, reversing symmetries and wrapped angles and let the symmetries that hold
         compete (:mod:`sympredict.estimators.structure`): one quick fit, then one fit to ``m_final`` centres per
         group that holds.
+    halving : bool
+        Successive halving (the default): candidates are first compared at a fraction of their centres, and only
+        those not clearly losing there are fitted to full size (see Notes); ``False``: every candidate at full
+        size (on the five systems of ``sympredict_paper/studies/search_cost.py`` both choose the same settings).
 
     Notes
     -----
@@ -145,19 +174,36 @@ class KernelSearch(Setting):
     coordinate search's candidates, to ``m_final = min(max_centers, final_centers)`` centres and ranks them by the
     mean relative one-step error ``|Phi(x0) - x1| / |x1 - x0|`` on the held-out samples (a Newton failure scores
     ``inf``): the error a rollout compounds, at the size the model will have.
+    With ``halving`` (where ``m_star >= 4 MIN_RUNG``, resp. ``m_final >= 4 MIN_RUNG``; :data:`MIN_RUNG` = 25):
+
+    * stage 1 trains each grid's candidates to ``m_star / 4`` centres, the best third of them (at least two, by
+      ``E_val``) to ``m_star / 2``, and the best third of those (at least two) to ``m_star``
+      (:func:`~sympredict.estimators.search.grid_search`'s ``rungs``);
+    * stage 2 (and the structure stage) first fits every candidate to the rung ``m_final / 4`` and scores its
+      one-step error there; a candidate is fitted to ``m_final`` only if that rung error is at most
+      :data:`RUNG_MARGIN` (30) times the smallest rung error so far (the starting finalists are all rung-scored
+      first); the others are recorded with ``score = inf`` and ``cut = True`` and never chosen, unless every
+      candidate fitted to full size fails (then they are fitted to full size after all, rows ``after_cut``).
+
+    A fit costs about ``m^2`` times the samples, so a rung at a quarter of the centres costs a sixteenth of a
+    full fit: stage 1 fits about 4 instead of 15 full candidates per grid, stage 2 fits to full size only the
+    candidates within the margin.  The rule is deterministic (ties go to the earlier candidate).
     Both stages fit with the estimator's own ``trainer`` (the one-at-a-time greedy by default: with
     :class:`~sympredict.interpolation.greedy.BlockedGreedy` fits in the second stage the search took a half to a
     third of its time on two acceptance systems of ``sympredict_paper/studies/defaults_acceptance.py``, but chose another update
     and parameter kernel on the Kepler orbits, with a 1.3x larger rollout error).
     Cost: about ``len(updates) (len(shapes) len(parameter_shapes)^k + 3 (len(families) - 1))`` fits to ``m_star``
     centres (``k`` open parameter and step kernels), then ``len(updates) len(families) + 8 refine_sweeps`` fits to
-    ``m_final`` centres, each ``O(m^2 2n max_samples)``; for 2n = 4 and 1,000 centres about a minute on 2 cores.
+    ``m_final`` centres, each ``O(m^2 2n max_samples)``, without ``halving``; with it, per grid of ``c`` candidates
+about ``c / 16 + c / 12 + 2`` fits' worth to ``m_star`` instead of ``c``, and in the second stage a sixteenth of a
+fit for each candidate cut at its rung (the rung fit of one that goes on adds a sixteenth to its full fit).
     """
 
     def __init__(self, families: Sequence[str] = ("imq", "matern52"), shapes: Sequence[float] = (0.125, 0.25, 0.5, 1.0, 2.0),
                  parameter_shapes: Sequence[float] = (0.1, 0.5, 2.5), updates: Sequence[str] = ("symplectic_euler", "midpoint"),
                  m_star: Optional[int] = None, final_centers: int = 1000, max_samples: int = 3000,
-                 validation_fraction: float = 0.25, refine_sweeps: int = 2, seed: int = 0, structure: bool = True):
+                 validation_fraction: float = 0.25, refine_sweeps: int = 2, seed: int = 0, structure: bool = True,
+                 halving: bool = True):
         self.families = families
         self.shapes = shapes
         self.parameter_shapes = parameter_shapes
@@ -169,6 +215,7 @@ class KernelSearch(Setting):
         self.refine_sweeps = refine_sweeps
         self.seed = seed
         self.structure = structure
+        self.halving = halving
 
     def check(self) -> "KernelSearch":
         """Validate the settings; ``ValueError`` naming the bad one."""
@@ -197,6 +244,7 @@ class KernelSearch(Setting):
                                         or self.m_star < 1):
             raise ValueError(f"KernelSearch: m_star must be a positive integer or None, got {self.m_star!r}")
         as_flag(self.structure, "KernelSearch: structure")
+        as_flag(self.halving, "KernelSearch: halving")
         if not (isinstance(self.validation_fraction, (int, float)) and 0 < self.validation_fraction < 1):
             raise ValueError(f"KernelSearch: validation_fraction must lie in (0, 1), got {self.validation_fraction!r}")
         return self
@@ -224,7 +272,7 @@ class KernelSearch(Setting):
         SearchResult
         """
         self.check()
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         m_star = int(self.m_star) if self.m_star is not None else min(int(estimator.max_centers), 300)
         train, val = self._subsets(data) if validation is None else (self._subsample(data), validation)
         params = {}
@@ -279,6 +327,33 @@ class KernelSearch(Setting):
         factors = np.asarray(params["state_kernel"].factors) if scaled else None
         opened = {i for i, key in ((0, "state"), (2, "mu"), (3, "dt")) if open_factors[key]}  # shapes to search
         scores = {}
+        rung_size = m_final // RUNG_FRACTION if self.halving and m_final // RUNG_FRACTION >= MIN_RUNG else None
+        rungs = {}  # params' repr -> (rung score, centres, seconds, error): successive halving's first fit
+
+        def rung_passes(p, label) -> tuple:
+            """``(passes, rung result)``: the candidate ``p`` at the rung, against the smallest rung error so far."""
+            if rung_size is None:
+                return True, None
+            key = repr(sorted(p.items(), key=lambda kv: kv[0]))
+            if key not in rungs:
+                rungs[key] = one_step_score(estimator, p, rung_size, train, val)
+                logger.info(f"kernel search, rung ({p['update']}): {label}: one-step error {rungs[key][0]:.3e} "
+                            f"with {rungs[key][1]} centres")
+            finite = [r[0] for r in rungs.values() if np.isfinite(r[0])]
+            ok = bool(finite) and rungs[key][0] <= RUNG_MARGIN * min(finite)
+            return ok, rungs[key]
+
+        def halved_score(p, label) -> tuple:
+            """``(score, centres, seconds, error, extra row)``: ``one_step_score`` at ``m_final`` of a candidate
+            that passes its rung; ``inf`` (``cut``) for one that does not."""
+            ok, rung = rung_passes(p, label)
+            if rung is None:
+                return (*one_step_score(estimator, p, m_final, train, val), {})
+            extra = {"rung_score": rung[0], "rung_centers": rung[1]}
+            if not ok:
+                return np.inf, rung[1], rung[2], rung[3], {**extra, "cut": True}
+            sc, n, secs, err = one_step_score(estimator, p, m_final, train, val)
+            return sc, n, secs + rung[2], err, extra
 
         def params_of(cand):
             radial, ratio, mu_k, dt_k, update = cand
@@ -288,24 +363,32 @@ class KernelSearch(Setting):
                 state = state_template.with_radial(radial) if isinstance(state_template, KernelTransform) else radial
             return {"state_kernel": state, "mu_kernel": mu_k, "dt_kernel": dt_k, "update": update}
 
+        def label_of(cand):
+            return " x ".join(repr(k) for k in (cand[0], cand[2], cand[3]) if k is not None) + (
+                f", q/p shape ratio {cand[1]:g}" if scaled else "")
+
         def score(cand):
             if cand not in scores:
-                scores[cand] = one_step_score(estimator, params_of(cand), m_final, train, val)
-                sc, n, secs, err = scores[cand]
-                label = " x ".join(repr(k) for k in (cand[0], cand[2], cand[3]) if k is not None)
-                table.append({"stage": 2, "kernels": label, "ratio": cand[1], "update": cand[4], "score": sc,
-                              "n_centers": n, "fit_s": secs, **({"error": err} if err else {})})
-                logger.info(f"kernel search, stage 2 ({cand[4]}): {label}" + (f", q/p shape ratio {cand[1]:g}" if scaled
-                            else "") + f": one-step error {sc:.3e} with {n} centres")
+                label = label_of(cand)
+                sc, n, secs, err, extra = halved_score(params_of(cand), label)
+                scores[cand] = (sc, n, secs, err, extra.get("cut", False))
+                table.append({"stage": 2, "kernels": label.split(", q/p")[0], "ratio": cand[1], "update": cand[4],
+                              "score": sc, "n_centers": n, "fit_s": secs, **extra, **({"error": err} if err else {})})
+                logger.info(f"kernel search, stage 2 ({cand[4]}): {label}: " + (
+                    "cut at the rung" if extra.get("cut") else f"one-step error {sc:.3e} with {n} centres"))
             return scores[cand][0]
 
         starts = [(r.state, 1.0, r.mu, r.dt, u) for r, u in finalists]
+        for cand in starts:  # every finalist at the rung first, so that the margin is judged against all of them
+            rung_passes(params_of(cand), label_of(cand))
         for cand in list(starts):
             # a finalist that stops before m_final (numerically singular: too flat for the final size, which the
-            # small-m ranking favours) competes with its open shapes narrowed, up to three doublings
+            # small-m ranking favours) competes with its open shapes narrowed, up to three doublings; one cut at the
+            # rung with the rung's centres is losing, not too flat
             for _ in range(3):
                 score(cand)
-                if scores[cand][1] >= m_final or scores[cand][3] is not None:
+                if (scores[cand][1] >= m_final or scores[cand][3] is not None
+                        or (scores[cand][4] and scores[cand][1] >= rung_size)):
                     break
                 cand = tuple(k.set_params(eps=_clip(k.eps * 2.0)) if i in opened and k is not None else k
                              for i, k in enumerate(cand))
@@ -314,15 +397,26 @@ class KernelSearch(Setting):
         active = [i for i, key in ((0, "state"), (1, None), (2, "mu"), (3, "dt")) if (scaled if key is None
                                                                                  else open_factors[key])]
         best = coordinate_search(best, score, active, _move, factors=(0.5, 2.0), sweeps=self.refine_sweeps)
+        if not np.isfinite(score(best)) and any(v[4] for v in scores.values()):
+            # every candidate fitted to full size failed: those cut at the rung are fitted after all
+            for cand in [c for c, v in scores.items() if v[4]]:
+                sc, n, secs, err = one_step_score(estimator, params_of(cand), m_final, train, val)
+                scores[cand] = (sc, n, secs, err, False)
+                table.append({"stage": 2, "kernels": label_of(cand).split(", q/p")[0], "ratio": cand[1],
+                              "update": cand[4], "score": sc, "n_centers": n, "fit_s": secs, "after_cut": True,
+                              **({"error": err} if err else {})})
+            best = min(scores, key=score)
         if not np.isfinite(score(best)):
             raise ValueError(f"the kernel search found no candidate that predicts the held-out samples with {m_final} "
                              "centres (every fit or Newton solve failed); see the log, or pass the kernels and update")
         chosen, best_score, structure = params_of(best), float(score(best)), []
         if self.structure:  # symmetries the data show compete at m_final (sympredict.estimators.structure)
             def score_params(p):
+                # at full size only: a group multiplies the centres' reach, so its error at a rung compares unevenly
                 sc, n, secs, err = one_step_score(estimator, p, m_final, train, val)
+                extra = {}
                 table.append({"stage": 3, "kernels": repr(p["state_kernel"]), "update": p["update"], "score": sc,
-                              "n_centers": n, "fit_s": secs, **({"error": err} if err else {})})
+                              "n_centers": n, "fit_s": secs, **extra, **({"error": err} if err else {})})
                 return sc
             by_update = {c[4]: params_of(min((k for k in scores if k[4] == c[4]), key=score)) for c in scores}
             chosen, best_score, structure = _structure_stage(estimator, chosen, best_score, m_final, train, val,
@@ -332,7 +426,7 @@ class KernelSearch(Setting):
             if open_factors[factor]:
                 params[key] = chosen[key]
         out = SearchResult(params, best_score, m_star, len(train), len(val), time.perf_counter() - t0, table,
-                           m_final=m_final, structure=structure)
+                           m_final=m_final, structure=structure, cpu_seconds=time.process_time() - c0)
         logger.info("kernel search: " + out.summary())
         return out
 
@@ -344,12 +438,13 @@ class KernelSearch(Setting):
         are clones of."""
         state_grid, mu_grid, dt_grid = grids
         table, finalists = [], []
+        rungs = tuple(m_star // d for d in STAGE1_RUNGS if m_star // d >= MIN_RUNG) if self.halving else ()
         # the grid search's own notes (a winner on a grid's edge, m_star too small) are what stage 2 resolves
         with quiet_logs(SEARCH_LOGGER, level=logging.ERROR):
             for update in updates:
                 try:
                     result = grid_search(train, val, state_grid, mu_grid, dt_grid, m_star=m_star,
-                                         estimator=template(update))
+                                         estimator=template(update), rungs=rungs)
                 except ValueError as exc:  # no candidate of this update trains: the other update may
                     logger.info(f"kernel search, stage 1 ({update}): no candidate trains ({exc})")
                     table.append({"stage": 1, "update": update, "E_val": np.inf, "error": str(exc)})
@@ -361,7 +456,7 @@ class KernelSearch(Setting):
                         grid = [KERNEL_FAMILIES[family](_clip(result.state.eps * f)) for f in (0.5, 1.0, 2.0)]
                         try:
                             other = grid_search(train, val, grid, [result.mu], [result.dt], m_star=m_star,
-                                                estimator=template(update))
+                                                estimator=template(update), rungs=rungs)
                         except ValueError as exc:
                             table.append({"stage": 1, "update": update, "E_val": np.inf, "error": str(exc)})
                             continue
@@ -588,7 +683,8 @@ class FitDiagnostics:
 def diagnose(model, train: FlowMapData, holdout: Optional[FlowMapData]) -> FitDiagnostics:
     """:class:`FitDiagnostics` of a fitted :class:`SymplecticKernelPredictor` (history, hold-out steps).
 
-    ``O(500 m (2n)^2)`` for the hold-out steps (NumPy Newton) besides the greedy's recorded residuals.
+    ``O(500 m (2n)^2)`` for the hold-out steps (NumPy Newton) besides the greedy's recorded residuals; a search's
+    candidate fit without a target (:data:`~sympredict.estimators.search.CANDIDATE_FIT`) skips them (``holdout_step_error`` nan).
     """
 
 
@@ -601,7 +697,9 @@ def diagnose(model, train: FlowMapData, holdout: Optional[FlowMapData]) -> FitDi
     holdout_res = float(val_curve[-1]) / rel if val_curve is not None and holdout is not None else float("nan")
     step_err = float("nan")
     coord_err = None
-    if holdout is not None and len(holdout):
+    # a search's candidate without a target is scored by the search itself: no held-out Newton steps here
+    quick = CANDIDATE_FIT.get() and getattr(model, "target_error_", None) is None
+    if holdout is not None and len(holdout) and not quick:
         rows = np.arange(len(holdout))[: 500]
         sub = holdout.subset(rows)
         try:
@@ -643,7 +741,7 @@ def diagnose(model, train: FlowMapData, holdout: Optional[FlowMapData]) -> FitDi
                       f"three quarters of the {m} centres, as when the centres fit noise: if the data carry noise, pass "
                       "trainer=ExactGreedy(regularization=...) of about the noise's variance, or fewer centres "
                       "(max_centers); more centres will not help")
-    if holdout is not None and model.n_mu_ and len(holdout) >= 20:
+    if holdout is not None and model.n_mu_ and len(holdout) >= 20 and not quick:
         advice += _edge_advice(model, holdout)
     if np.isinf(step_err):
         advice.append("Newton failed on a held-out sample: a smaller dt, the 'midpoint' update, or more centres")

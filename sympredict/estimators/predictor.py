@@ -610,7 +610,7 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         on.  Otherwise, without ``validation``, a tenth of the samples (at most 2,000) is held out of the final
         fit to score it (``diagnostics_``); the search runs on a subsample of the rest.
         """
-        search = None
+        search, t0 = None, time.perf_counter()
         # never the previous fit's beside a new model (Ctrl-C)
         for name in ("diagnostics_", "search_", "choice_", "prefix_rollout_errors_"):
             self.__dict__.pop(name, None)
@@ -647,7 +647,11 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         self.prefix_rollout_errors_ = rollout_errors
         self.diagnostics_ = diagnose(self, train, holdout)
         _HeldOutSteps.warn_if_target_missed(self)
-        if search is not None or self.diagnostics_.advice:
+        if search is not None:  # the search's share of the fit, for the log and search_.share
+            search.fit_seconds = time.perf_counter() - t0
+            logger.info(f"{type(self).__name__}.fit: the kernel search took {search.seconds:.1f} s of the fit's "
+                        f"{search.fit_seconds:.1f} s ({search.share:.0%})")
+        if (search is not None or self.diagnostics_.advice) and logger.isEnabledFor(logging.INFO):
             logger.info(f"{type(self).__name__}.fit: {self.diagnostics_.summary()}")
         return self
 

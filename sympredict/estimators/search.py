@@ -11,6 +11,9 @@ Every search of the package runs here: the public selections of :mod:`sympredict
   (:func:`fit_candidate`), so no estimator class is needed here;
 * **grid search** (:func:`grid_search`): every tuple ``(k_xi, k_mu, k_dT)`` trained by f-greedy to ``m_star``
   centres and ranked by its validation residual ``E_val(m_star)``, a winner on a grid's edge widened beyond it;
+* **successive halving** (:func:`halving_survivors`, ``grid_search(..., rungs=...)``): candidates compared first at a
+  fraction of the centres, only the best third (at least :data:`HALVING_KEEP`) going on to the next rung, so that
+  clearly losing candidates cost a small fraction of a full fit (a greedy fit costs ``O(m^2 N)``);
 * **coordinate refinement** (:func:`coordinate_search`): each coordinate of a candidate (a shape, or any value a
   caller can scale) times the given factors, one at a time, while a sweep improves the score
   (:func:`refine_shapes` at a larger ``m_star``; the kernel search's second stage);
@@ -24,6 +27,7 @@ Every search of the package runs here: the public selections of :mod:`sympredict
 from __future__ import annotations
 
 import contextlib
+import contextvars
 import itertools
 import logging
 import time
@@ -41,7 +45,7 @@ from sympredict.kernels import KERNEL_FAMILIES, RadialKernel
 from sympredict.kernels.transforms import KernelTransform
 
 __all__ = ["log_grid", "kernel_grid", "WIDEN_LIMITS", "SelectionResult", "ScoredSelectionResult", "fit_candidate",
-           "grid_search", "coordinate_search", "refine_shapes", "one_step_score", "score_search", "ridge_search"]
+           "grid_search", "halving_survivors", "coordinate_search", "refine_shapes", "one_step_score", "score_search", "ridge_search"]
 
 #: The searches' logger: the name users configure for the selections' progress.
 SEARCH_LOGGER = "sympredict.estimators.selection"
@@ -49,6 +53,11 @@ logger = getLogger(SEARCH_LOGGER)
 
 #: The loggers of a candidate's fit, quieted to one line per candidate.
 FIT_LOGGERS = ("sympredict.interpolation.greedy", "sympredict.estimators.predictor")
+
+
+#: ``True`` inside :func:`fit_candidate`: the fit is a search candidate, scored by the search itself, so its
+#: ``diagnostics_`` skip the held-out Newton steps (:func:`~sympredict.estimators.auto.diagnose`).
+CANDIDATE_FIT = contextvars.ContextVar("sympredict_candidate_fit", default=False)
 
 
 @contextlib.contextmanager
@@ -111,12 +120,22 @@ def fit_candidate(model, data: FlowMapData, validation: Optional[FlowMapData] = 
         The steps passed (default ``data.dt``).
     quiet : bool, default=True
         The fit's own log lines (greedy, estimator) at ``WARNING`` only: a search logs one line per candidate.
+
+    Notes
+    -----
+    Without a target, the candidate's ``diagnostics_`` leave out the held-out one-step error (``nan``;
+    :data:`CANDIDATE_FIT`): the
+    search scores the candidate itself, and those Newton steps would cost a fit to a few dozen centres.
     """
     mu = data.mu if uses_mu and data.mu.shape[1] else None
     val = None if validation is None else (validation.x0, validation.x1,
                                            validation.mu if uses_mu and validation.mu.shape[1] else None, validation.dt)
-    with quiet_logs(*FIT_LOGGERS) if quiet else contextlib.nullcontext():
-        return model.fit(data.x0, data.x1, mu=mu, dt=data.dt if dt is None else dt, validation=val)
+    token = CANDIDATE_FIT.set(True)
+    try:
+        with quiet_logs(*FIT_LOGGERS) if quiet else contextlib.nullcontext():
+            return model.fit(data.x0, data.x1, mu=mu, dt=data.dt if dt is None else dt, validation=val)
+    finally:
+        CANDIDATE_FIT.reset(token)
 
 
 # ------------------------------------------------------------------ grid search by E_val(m_star)
@@ -163,6 +182,7 @@ def grid_search(
     prefer_complete: bool = False,
     estimator=None,
     widen: int = 2,
+    rungs: Sequence[int] = (),
 ) -> SelectionResult:
     """Grid search over kernel tuples by validation residual at ``m_star`` centres.
 
@@ -191,6 +211,14 @@ def grid_search(
         ratio there), at most ``widen`` times per factor and within
         :data:`WIDEN_LIMITS`; such candidates are marked ``widened`` in the table.
         A winner still on an edge afterwards is logged as a warning.
+    rungs
+        Successive halving (:func:`halving_survivors`): centre counts below ``m_star``, increasing; every
+        candidate is first trained to ``rungs[0]`` centres and ranked by ``E_val(rungs[0])``, the best third (at
+        least :data:`HALVING_KEEP` of them) go on to the next rung, and those left after the last rung are trained
+        to ``m_star`` and ranked as without rungs.  Empty (the default): every candidate is trained to ``m_star``.
+        Rung fits are recorded in the table with ``rung`` (their centre count) and are never the result.
+        Widening candidates are trained to ``m_star`` directly (comparing them at a rung changed the choice on
+        one acceptance system).
 
     Returns
     -------
@@ -198,7 +226,9 @@ def grid_search(
 
     Notes
     -----
-    Cost: one greedy to ``m_star`` per candidate, ``O(m_star^2 (N + N_val))`` each.
+    Cost: one greedy to ``m_star`` per candidate, ``O(m_star^2 (N + N_val))`` each; with ``rungs``, for ``c``
+    candidates about ``c (r_1 / m_star)^2 + c/3 (r_2 / m_star)^2 + ... + max(2, c / 3^k)`` such greedies (for 15
+    candidates and rungs ``m_star / 4, m_star / 2``: 4.2 instead of 15).
     A candidate whose greedy stops early on a power breakdown (the kernel
     matrix is numerically singular: the kernel cannot use more centres) is
     scored at its last step.  That suits small ``m_star`` and cases where
@@ -222,13 +252,15 @@ def grid_search(
     table = []
     unresolved = []  # per fitted candidate: is its validation residual at m_star still above half its start?
 
-    def score(tup, widened=False) -> SelectionResult:
+    def score(tup, widened=False, rung=None) -> SelectionResult:
         state, mu_k, dt_k = tup
+        size = m_star if rung is None else rung
         inside = base.state_kernel.with_radial(state) if isinstance(base.state_kernel, KernelTransform) else state
-        model = clone(base).set_params(state_kernel=inside, mu_kernel=mu_k, dt_kernel=dt_k, max_centers=m_star,
+        model = clone(base).set_params(state_kernel=inside, mu_kernel=mu_k, dt_kernel=dt_k, max_centers=size,
                                        trainer__tol=0.0)
         label = " x ".join(repr(k) for k in tup if k is not None)
-        row = {"state": _spec(state), "mu": _spec(mu_k), "dt": _spec(dt_k), "kernels": label, "widened": widened}
+        row = {"state": _spec(state), "mu": _spec(mu_k), "dt": _spec(dt_k), "kernels": label, "widened": widened,
+               **({} if rung is None else {"rung": rung})}
         t0 = time.perf_counter()
         try:
             fit_candidate(model, data, validation, uses_mu=mu_k is not None)
@@ -241,23 +273,27 @@ def grid_search(
             return SelectionResult(state, mu_k, dt_k, np.inf, False)
         val = model.history_.val_max_residual
         value = float(val[-1])
-        complete = model.n_centers_ >= m_star or model.history_.stop_reason == "tol"
-        if np.isfinite(value):
+        complete = model.n_centers_ >= size or model.history_.stop_reason == "tol"
+        if np.isfinite(value) and rung is None:
             unresolved.append(value > 0.5 * float(val[0]))
         row.update(E_val=value, E_train=float(model.history_.train_max_residual[-1]), n_centers=model.n_centers_,
                    complete=complete, fit_s=time.perf_counter() - t0)
         table.append(row)
-        logger.info(f"{label}: E_val({model.n_centers_}) = {value:.3e}"
+        logger.info(f"{label}: E_val({model.n_centers_}) = {value:.3e}" + ("" if rung is None else " (rung)")
                     + ("" if complete else f" (stopped early: {model.history_.stop_reason})"))
         return SelectionResult(state, mu_k, dt_k, value, complete)
 
     def better(a, b) -> bool:
         return np.isfinite(a.score) and (b is None or a.rank(prefer_complete) < b.rank(prefer_complete))
 
+    tuples = list(itertools.product(state_kernels, mu_kernels, dt_kernels))
+    if any(tup[2] is None for tup in tuples) and not dt_fixed:
+        raise ValueError("dt_kernels must not contain None when the data have several macro steps")
+    for rung in sorted({int(r) for r in rungs if 0 < int(r) < m_star}):
+        ranked = [score(tup, rung=rung) for tup in tuples]
+        tuples = halving_survivors(tuples, [r.rank(prefer_complete) for r in ranked])
     best = None
-    for tup in itertools.product(state_kernels, mu_kernels, dt_kernels):
-        if tup[2] is None and not dt_fixed:
-            raise ValueError("dt_kernels must not contain None when the data have several macro steps")
+    for tup in tuples:
         candidate = score(tup)
         if better(candidate, best):
             best = candidate
@@ -296,6 +332,21 @@ def grid_search(
         logger.warning(f"m_star={m_star} is below what every candidate needs: no candidate has halved its validation "
                        "residual at m_star, so the ranking says little about the final size; raise m_star")
     return best
+
+
+#: Successive halving keeps at least this many candidates per rung.
+HALVING_KEEP = 2
+
+
+def halving_survivors(candidates: Sequence, keys: Sequence, keep: float = 1 / 3) -> list:
+    """The candidates that go on from a rung of successive halving: the best ``max(HALVING_KEEP, ceil(keep c))``
+    of the ``c`` candidates by ``keys`` (smaller is better; ties by the candidates' order, so the rule is
+    deterministic), in their given order.  Candidates whose key is not finite never go on unless fewer than
+    :data:`HALVING_KEEP` are finite."""
+    n = len(candidates)
+    k = min(n, max(HALVING_KEEP, int(np.ceil(keep * n))))
+    order = sorted(range(n), key=lambda i: (keys[i], i))
+    return [candidates[i] for i in sorted(order[:k])]
 
 
 # ------------------------------------------------------------------ coordinate refinement

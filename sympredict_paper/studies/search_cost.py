@@ -1,19 +1,24 @@
-"""The kernel search's share of a default fit, with its fits on the exact and on the blocked greedy.
+"""The kernel search's share of a default fit, with and without successive halving, and what it chooses.
 
-Per system of ``sympredict_paper/studies/defaults_acceptance.py`` (``--systems``), ``--samples`` one-step samples and
-``max_centers`` ``--centers``, in one process:
+Per system, ``SymplecticKernelPredictor(max_centers=m)`` (the defaults) is fitted twice in one process, the two
+configurations in alternating order from one system to the next (the machine may be shared; compare the ratios):
 
-* ``exact_search``: ``SymplecticKernelPredictor(max_centers=m, trainer=ExactGreedy())``: the search's fits and the
-  final fit on the one-at-a-time greedy (the search before the blocked greedy existed);
-* ``blocked``: ``SymplecticKernelPredictor(max_centers=m, trainer=BlockedGreedy())``: the search's fits and the
-  final fit on the blocked greedy (the search fits with the estimator's trainer).
+* ``full``: ``search=KernelSearch(halving=False)``: every search candidate fitted to its full size;
+* ``halving``: ``search=KernelSearch(halving=True)`` (the default): candidates compared first at a fraction of their centres, and only
+  those not clearly losing there fitted to full size (:class:`sympredict.KernelSearch`, Notes).
 
-Recorded: fit wall time, the search's own time (``search_.seconds``) and its share of the fit, the choice
-(kernels, update), the held-out one-step error of the final model and the rollout metrics of the acceptance
-benchmark (median and max over ``--n-test`` test trajectories of ``--steps`` steps).
+The systems: the coupled pendulums and the Kepler orbits of ``defaults_acceptance.py`` (``--samples`` one-step
+samples), the Hénon-Heiles system (``lambda`` in [0.8, 1.0], ``dT = 0.5``, ``--samples`` samples), the planar
+restricted three-body problem (``--traj`` trajectories x 60 steps of 0.05 near L4), all at ``max_centers``
+``--centers``, and the README's pendulum (40 trajectories x 50 steps, ``max_centers=300``, as the README fits it).
 
-Run:  python sympredict_paper/studies/search_cost.py                                  # coupled pendulums and Kepler, 5,000 / 1,000
-One BLAS and one numba thread; writes ``search_cost.json`` (``--json``).
+Recorded: fit wall time, the search's own time (``search_.seconds``) and its share of the fit (``search_.share``),
+the number of candidate fits, the choice (kernels, update), the final model's held-out one-step error (mean of
+``|step(x0) - x1| / |x1|`` over fresh samples) and rollout errors (median and max over ``--n-test`` test trajectories
+of ``--steps`` steps of the largest relative state error along each).
+
+Run:  python sympredict_paper/studies/search_cost.py        # writes docs/data/search_cost.json
+One BLAS and one numba thread.
 """
 
 from __future__ import annotations
@@ -21,73 +26,149 @@ from __future__ import annotations
 import argparse
 import time
 import warnings
+from pathlib import Path
 
 import numpy as np
 
 import _protocol  # sympredict_paper/studies/ (the script's folder is on sys.path)
 from defaults_acceptance import make_benchmarks, make_test_set, one_step_error, trajectory_metrics
 
-from sympredict import SymplecticKernelPredictor
-from sympredict.interpolation.greedy import BlockedGreedy, ExactGreedy
+from sympredict import KernelSearch, SymplecticKernelPredictor
+from sympredict.data import FlowMapData
+
+RESULTS = Path(__file__).resolve().parents[2] / "docs" / "data" / "search_cost.json"
+SYSTEMS = ("three_body", "readme_pendulum", "kepler", "henon_heiles", "coupled_pendulums")
 
 
-def run(label, make, bench, data, heldout, test, args) -> dict:
-    x0, x1, mu = data
-    model = make()
-    t0 = time.perf_counter()
+def _relative_rollout(model, x0, mu, dt, ref) -> dict:
+    """Median and max over the test trajectories of the largest relative state error along each."""
+    try:
+        pred = model.rollout(x0, ref.shape[1] - 1, mu=mu, dt=dt)
+    except Exception as exc:  # a Newton failure is a result
+        return {"traj_failure": f"{type(exc).__name__}: {exc}"}
+    err = (np.linalg.norm(pred - ref, axis=2) / np.linalg.norm(ref, axis=2))[:, 1:].max(axis=1)
+    return {"traj_error_median": float(np.median(err)), "traj_error_max": float(err.max()),
+            "traj_steps": int(ref.shape[1] - 1)}
+
+
+def make_case(name: str, args) -> dict:
+    """``{'data', 'heldout': (x0, x1, mu, dt), 'metrics': callable(model) -> dict, 'max_centers'}``."""
+    if name in ("coupled_pendulums", "kepler"):
+        bench = make_benchmarks()[name]
+        x0, mu = bench.sample(args.samples, seed=11)
+        data = FlowMapData(x0, bench.system.flow(x0, mu[:, None], bench.dt), mu[:, None], np.full(len(x0), bench.dt))
+        h0, hmu = bench.sample(1000, seed=12)
+        heldout = (h0, bench.system.flow(h0, hmu[:, None], bench.dt), hmu, bench.dt)
+        test = make_test_set(bench, args.n_test, args.steps, seed=13)
+        return {"data": data, "heldout": heldout, "max_centers": args.centers,
+                "metrics": lambda model: trajectory_metrics(model, bench, test, args.steps)}
+    if name == "henon_heiles":
+        from sympredict_paper.henon_heiles import DT_HH, henon_heiles_data, henon_heiles_test_instances
+        from sympredict.systems.henon_heiles import HenonHeiles
+
+        system, e_max = HenonHeiles(), 1.0 / 12.0
+        data = henon_heiles_data(system, np.linspace(0.8, 1.0, 5), args.samples // 5, e_max, seed=0)
+        held = henon_heiles_data(system, np.linspace(0.82, 0.98, 5), 200, e_max, seed=500)
+        x0, lam = henon_heiles_test_instances(system, int(np.ceil(np.sqrt(args.n_test))), e_max, seed=0)
+        x0, lam = x0[: args.n_test], lam[: args.n_test]
+        ref = system.trajectory(x0, lam, DT_HH, args.steps)
+        return {"data": data, "heldout": (held.x0, held.x1, held.mu, DT_HH), "max_centers": args.centers,
+                "metrics": lambda model: _relative_rollout(model, x0, lam, DT_HH, ref)}
+    if name == "three_body":
+        from sympredict.systems.three_body import MU_RANGE, ThreeBody, librating_states
+
+        tb, dt, steps = ThreeBody(), 0.05, 60
+
+        def trajectories(n, seed, k):
+            mu = np.random.default_rng(seed).uniform(*MU_RANGE, n)
+            return tb.trajectory(librating_states(mu, n, seed=seed + 1), mu, dt, k), mu
+
+        traj, mu = trajectories(args.traj, 0, steps)
+        data = FlowMapData(traj[:, :-1].reshape(-1, 4), traj[:, 1:].reshape(-1, 4), np.repeat(mu, steps),
+                           np.full(args.traj * steps, dt))
+        vt, vmu = trajectories(20, 500, steps)
+        heldout = (vt[:, :-1].reshape(-1, 4), vt[:, 1:].reshape(-1, 4), np.repeat(vmu, steps), dt)
+        tt, tmu = trajectories(args.n_test, 1000, args.steps)
+        return {"data": data, "heldout": heldout, "max_centers": args.centers,
+                "metrics": lambda model: _relative_rollout(model, tt[:, 0], tmu, dt, tt)}
+    if name == "readme_pendulum":  # the README's example, as it fits it
+        from sympredict.systems.pendulum import Pendulum
+
+        rng = np.random.default_rng(0)
+        pendulum, mu = Pendulum(), rng.uniform(0.7, 0.8, size=40)
+        x0 = np.column_stack([rng.uniform(-1.5, 1.5, 40), rng.uniform(-1.0, 1.0, 40)])
+        states = pendulum.trajectory(x0, mu, dt=0.1, n_steps=50)
+        data = FlowMapData(states[:, :-1].reshape(-1, 2), states[:, 1:].reshape(-1, 2), np.repeat(mu, 50),
+                           np.full(40 * 50, 0.1))
+        r2 = np.random.default_rng(7)
+        hmu = r2.uniform(0.7, 0.8, 500)
+        h0 = np.column_stack([r2.uniform(-1.5, 1.5, 500), r2.uniform(-1.0, 1.0, 500)])
+        h1 = np.vstack([pendulum.flow(h0[i:i + 1], hmu[i], 0.1) for i in range(500)])
+        tmu = r2.uniform(0.7, 0.8, args.n_test)
+        t0 = np.column_stack([r2.uniform(-1.5, 1.5, args.n_test), r2.uniform(-1.0, 1.0, args.n_test)])
+        ref = pendulum.trajectory(t0, tmu, dt=0.1, n_steps=args.steps)
+        return {"data": data, "heldout": (h0, h1, hmu, 0.1), "max_centers": 300,
+                "metrics": lambda model: _relative_rollout(model, t0, tmu, 0.1, ref)}
+    raise ValueError(f"unknown system {name!r}; choose from {SYSTEMS}")
+
+
+def run(label: str, case: dict) -> dict:
+    data, (h0, h1, hmu, hdt) = case["data"], case["heldout"]
+    model = SymplecticKernelPredictor(max_centers=case["max_centers"], search=KernelSearch(halving=label == "halving"))
+    t0, c0 = time.perf_counter(), time.process_time()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        model.fit(x0, x1, mu=mu, dt=bench.dt)
-    fit_s = time.perf_counter() - t0
-    search_s = float(model.search_.seconds) if model.search_ is not None else 0.0
-    out = {"config": label, "fit_s": fit_s, "search_s": search_s, "search_share": search_s / fit_s,
-           "choice": {k: repr(v) for k, v in model.choice_.items()}, "centers": int(model.n_centers_),
-           "held_out_error": one_step_error(model, heldout[0], heldout[1], heldout[2], bench.dt)}
+        model.fit(data)
+    fit_s, fit_cpu = time.perf_counter() - t0, time.process_time() - c0
+    search = model.search_
+    table = search.table
+    out = {"config": label, "fit_s": fit_s, "search_s": float(search.seconds), "search_share": search.seconds / fit_s,
+           "fit_cpu_s": fit_cpu, "search_cpu_s": float(search.cpu_seconds),
+           "search_cpu_share": search.cpu_seconds / fit_cpu,
+           "fits": len(table), "fits_full_size": sum(1 for r in table if "rung" not in r and not r.get("cut")),
+           "choice": {k: repr(v) for k, v in model.choice_.items()}, "centers": int(model.n_centers_)}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        out.update(trajectory_metrics(model, bench, test, args.steps))
-    print(f"  {label:>12s}: fit {fit_s:6.1f} s, search {search_s:6.1f} s ({100 * out['search_share']:.0f} %), "
-          f"held-out {out['held_out_error']:.3e}, rollout median {out.get('traj_error_median', np.nan):.3e}, "
-          f"choice {out['choice']}", flush=True)
+        out["held_out_error"] = one_step_error(model, h0, h1, hmu, hdt)
+        out.update(case["metrics"](model))
+    print(f"  {label:>8s}: fit {fit_s:6.1f} s, search {out['search_s']:6.1f} s ({100 * out['search_share']:.0f} %; "
+          f"processor time {100 * out['search_cpu_share']:.0f} %), "
+          f"{out['fits']} fits ({out['fits_full_size']} full size), held-out {out['held_out_error']:.3e}, rollout "
+          f"median {out.get('traj_error_median', np.nan):.3e}, choice {out['choice']}", flush=True)
     return out
 
 
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--systems", nargs="+", default=["coupled_pendulums", "kepler"],
-                        choices=["coupled_pendulums", "fpu_chain", "kepler"])
+    parser.add_argument("--systems", nargs="+", default=list(SYSTEMS), choices=SYSTEMS)
     parser.add_argument("--samples", type=int, default=5000)
+    parser.add_argument("--traj", type=int, default=100, help="three-body training trajectories (60 steps each)")
     parser.add_argument("--centers", type=int, default=1000)
     parser.add_argument("--n-test", type=int, default=20)
     parser.add_argument("--steps", type=int, default=200)
     _protocol.add_arguments(parser, threads=1)
     args = parser.parse_args(argv)
-    args.json = args.json or "search_cost.json"
-    benches = make_benchmarks()
+    args.json = args.json or str(RESULTS)
     rows = []
     with _protocol.limits(args.blas_threads, args.threads):
         protocol = _protocol.record(blas_threads=args.blas_threads, numba_threads=args.threads, repeats=1, warmup=0,
-                                    notes="one fit per configuration, side by side in one process")
-        for name in args.systems:
-            bench = benches[name]
-            x0, mu = bench.sample(args.samples, seed=11)
-            x1 = bench.system.flow(x0, mu[:, None], bench.dt)
-            h0, hmu = bench.sample(1000, seed=12)
-            heldout = (h0, bench.system.flow(h0, hmu[:, None], bench.dt), hmu)
-            test = make_test_set(bench, args.n_test, args.steps, seed=13)
-            print(f"{name}: {args.samples} samples, {args.centers} centres", flush=True)
-            row = {"system": name, "samples": args.samples, "max_centers": args.centers}
-            row["exact_search"] = run("exact_search", lambda: SymplecticKernelPredictor(
-                max_centers=args.centers, trainer=ExactGreedy()), bench, (x0, x1, mu), heldout, test, args)
-            row["blocked"] = run("blocked", lambda: SymplecticKernelPredictor(
-                max_centers=args.centers, trainer=BlockedGreedy()), bench, (x0, x1, mu), heldout, test, args)
-            e, d = row["exact_search"], row["blocked"]
-            row["ratios"] = {k: d[k] / e[k] for k in ("fit_s", "search_s", "held_out_error", "traj_error_median",
-                                                        "traj_error_max") if e.get(k) and k in d}
-            print("  ratios blocked/exact_search: " + ", ".join(f"{k} {v:.3f}" for k, v in row["ratios"].items()),
-                  flush=True)
+                                    notes="one fit per configuration, side by side in one process, the two "
+                                          "configurations in alternating order from one system to the next")
+        for i, name in enumerate(args.systems):
+            case = make_case(name, args)
+            print(f"{name}: {len(case['data'])} samples, max_centers {case['max_centers']}", flush=True)
+            row = {"system": name, "samples": len(case["data"]), "max_centers": case["max_centers"]}
+            for label in (("full", "halving") if i % 2 == 0 else ("halving", "full")):
+                row[label] = run(label, case)
+            full, new = row["full"], row["halving"]
+            row["same_choice"] = full["choice"] == new["choice"]
+            row["ratios"] = {k: new[k] / full[k] for k in ("fit_s", "search_s", "fit_cpu_s", "search_cpu_s", "held_out_error", "traj_error_median",
+                                                          "traj_error_max") if full.get(k) and k in new}
+            print("  halving / full: " + ", ".join(f"{k} {v:.3f}" for k, v in row["ratios"].items())
+                  + f", same choice: {row['same_choice']}", flush=True)
             rows.append(row)
-            _protocol.write_json(args.json, {"rows": rows}, protocol)
+            _protocol.write_json(args.json, {"settings": {k: v for k, v in vars(args).items() if k != "json"},
+                                             "rows": rows}, protocol)
     print(f"wrote {args.json}")
 
 

@@ -229,6 +229,7 @@ def test_the_estimator_contract_holds(param_data):
     (dict(final_centers=0), "final_centers"),
     (dict(max_samples=5), "max_samples"),
     (dict(validation_fraction=1.0), "validation_fraction"),
+    (dict(halving="yes"), "halving"),
 ])
 def test_bad_search_settings_are_named(bad, match, param_data):
     x0, x1, mu, _ = param_data
@@ -263,3 +264,83 @@ def test_the_second_stage_scores_the_one_step_error_on_held_out_samples(param_da
     strict = SymplecticKernelPredictor(solver=NewtonSolver(max_iter=1, backend="numpy"))
     value, _, _, err = _one_step_score(strict, params, 50, train, val)
     assert value == np.inf and "NewtonConvergenceError" in err
+
+
+def test_the_fit_logs_and_records_the_search_share(param_data, caplog):
+    """The fit's log states how much of it the search took; ``search_.share`` is that ratio."""
+    x0, x1, mu, _ = param_data
+    with caplog.at_level(logging.INFO, logger="sympredict.estimators"):
+        m = SymplecticKernelPredictor(max_centers=60, search=SMALL).fit(x0, x1, mu=mu, dt=0.1)
+    s = m.search_
+    assert s.fit_seconds is not None and 0 < s.seconds < s.fit_seconds and s.share == s.seconds / s.fit_seconds
+    assert s.cpu_seconds is not None and s.cpu_seconds > 0
+    line = [r.getMessage() for r in caplog.records if "the kernel search took" in r.getMessage()]
+    assert len(line) == 1 and f"({s.share:.0%})" in line[0] and f"{s.fit_seconds:.1f} s" in line[0]
+
+
+HALVED = KernelSearch(m_star=100, final_centers=100, max_samples=400, refine_sweeps=1, structure=False, halving=True)
+
+
+@pytest.fixture(scope="module")
+def halved_pair(param_data):
+    """The same search with and without successive halving (rungs at 25 and 50 centres, stage-2 rung at 25)."""
+    x0, x1, mu, _ = param_data
+    out = {}
+    for halving in (True, False):
+        est = SymplecticKernelPredictor(max_centers=100, search=clone(HALVED).set_params(halving=halving))
+        out[halving] = est.fit(x0, x1, mu=mu, dt=0.1)
+    return out
+
+
+def test_halving_fits_fewer_candidates_to_full_size_and_keeps_the_choice(halved_pair):
+    """On the pendulum, halving chooses what the full search chooses, with fewer fits at full size."""
+    from sympredict.estimators.auto import RUNG_MARGIN
+
+    halved, full = halved_pair[True].search_, halved_pair[False].search_
+    assert halved_pair[True].choice_ == halved_pair[False].choice_
+    assert halved.score == pytest.approx(full.score, rel=1e-9)
+
+    def full_size(table):
+        return sum(1 for r in table if "rung" not in r and not r.get("cut"))
+
+    assert full_size(halved.table) < full_size(full.table)
+    assert not any("rung" in r or "rung_score" in r for r in full.table)  # the full search has no rungs
+    stage1 = [r for r in halved.table if r["stage"] == 1]
+    assert {r["rung"] for r in stage1 if "rung" in r} == {25, 50}
+    stage2 = [r for r in halved.table if r["stage"] == 2]
+    rung_scores = [r["rung_score"] for r in stage2 if np.isfinite(r["rung_score"])]
+    for r in stage2:  # every candidate was scored at the rung first; a cut one lost there by more than the margin
+        assert r["rung_centers"] <= 25
+        if r.get("cut"):
+            assert r["score"] == np.inf and r["rung_score"] > RUNG_MARGIN * min(rung_scores)
+    assert halved.score == min(r["score"] for r in halved.table if r["stage"] == 2)
+
+
+def test_halving_is_deterministic(param_data, halved_pair):
+    x0, x1, mu, _ = param_data
+    again = SymplecticKernelPredictor(max_centers=100, search=clone(HALVED)).fit(x0, x1, mu=mu, dt=0.1)
+    first = halved_pair[True].search_.table
+    assert [(r["stage"], r["kernels"], r.get("rung"), r.get("cut")) for r in again.search_.table] == \
+        [(r["stage"], r["kernels"], r.get("rung"), r.get("cut")) for r in first]
+    assert again.choice_ == halved_pair[True].choice_
+    # the same code path on the same arrays in one process: the same scores, bit for bit
+    assert [r.get("score", r.get("E_val")) for r in again.search_.table] == \
+        [r.get("score", r.get("E_val")) for r in first]
+
+
+def test_the_second_stage_cuts_candidates_beyond_the_margin_at_the_rung(param_data, monkeypatch):
+    """With a margin of 1, every stage-2 candidate whose rung error is above the smallest so far is cut (score inf,
+    never chosen); the candidates fitted to full size passed their rung, and the winner is the best of them."""
+    import sympredict.estimators.auto as auto
+
+    monkeypatch.setattr(auto, "RUNG_MARGIN", 1.0)
+    x0, x1, mu, _ = param_data
+    m = SymplecticKernelPredictor(max_centers=100, search=clone(HALVED)).fit(x0, x1, mu=mu, dt=0.1)
+    stage2 = [r for r in m.search_.table if r["stage"] == 2]
+    cut = [r for r in stage2 if r.get("cut")]
+    assert cut and all(r["score"] == np.inf and r["n_centers"] <= 25 for r in cut)
+    best_rung = min(r["rung_score"] for r in stage2)
+    assert all(r["rung_score"] > best_rung for r in cut)
+    fitted = [r for r in stage2 if not r.get("cut")]
+    assert fitted and all(np.isfinite(r["score"]) for r in fitted)
+    assert m.search_.score == min(r["score"] for r in fitted)

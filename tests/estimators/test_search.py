@@ -1,12 +1,12 @@
 """The search engine's own pieces, on scores known in closed form (no fits): the coordinate search, the ridge
-choice, and the refusals.  The fitted searches that run on it are tested in test_direct_and_selection.py,
+choice, successive halving's survivors, and the refusals; and the grid search with rungs on a small fitted case.  The fitted searches that run on it are tested in test_direct_and_selection.py,
 test_select_by_score.py and test_auto_defaults.py."""
 
 import numpy as np
 import pytest
 
 from sympredict.data import FlowMapData
-from sympredict.estimators.search import coordinate_search, grid_search, ridge_search
+from sympredict.estimators.search import HALVING_KEEP, coordinate_search, grid_search, halving_survivors, ridge_search
 from sympredict.kernels import IMQ
 
 
@@ -100,3 +100,46 @@ def test_shrink_goes_on_after_a_sweep_without_gain_with_the_factors_logarithms_s
     assert {c[0] for c in calls} == {1.0, 2.0, 4.0, 2.0 * root2, 2.0 * root2 * float(np.exp(-np.log(2.0) * 0.5))}
     with pytest.raises(ValueError, match="shrink must lie in"):
         coordinate_search((1.0,), score, [0], _scale, shrink=1.0)
+
+
+def test_halving_keeps_the_best_third_in_order_ties_to_the_earlier_and_at_least_two():
+    cands = list("abcdefghi")
+    keys = [5.0, 1.0, 7.0, 1.0, 9.0, np.inf, 3.0, 8.0, 2.0]
+    assert halving_survivors(cands, keys) == ["b", "d", "i"]  # the three smallest, in the given order
+    assert halving_survivors(cands, [1.0] * 9) == ["a", "b", "c"]  # ties: the earlier candidates
+    assert halving_survivors(cands[:4], keys[:4]) == ["b", "d"]  # at least HALVING_KEEP of few candidates
+    assert HALVING_KEEP == 2 and halving_survivors(["x"], [1.0]) == ["x"]
+    # a non-finite key goes on only where too few are finite
+    assert halving_survivors(["p", "q", "r"], [np.inf, 2.0, np.inf]) == ["p", "q"]
+    assert halving_survivors(cands, [(False, k) for k in keys]) == ["b", "d", "i"]  # rank tuples as keys
+
+
+@pytest.fixture(scope="module")
+def rung_case(pendulum):
+    """Pendulum samples at one length: train and validation parts."""
+    rng = np.random.default_rng(3)
+    x0 = np.column_stack([rng.uniform(-1.5, 1.5, 400), rng.uniform(-2.0, 2.0, 400)])
+    x1 = pendulum.flow(x0, 0.8, 0.1)
+    data = FlowMapData(x0, x1, None, np.full(400, 0.1))
+    return data.subset(np.arange(300)), data.subset(np.arange(300, 400))
+
+
+def test_grid_search_with_rungs_keeps_the_best_candidate_at_a_fraction_of_the_fits(rung_case):
+    """Successive halving on a grid whose shapes span two decades: the same winner and score as training every
+    candidate to m_star, with only the rungs' survivors trained to m_star."""
+    from sympredict import SymplecticKernelPredictor
+
+    train, val = rung_case
+    grid = [IMQ(e) for e in (0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0)]
+    est = SymplecticKernelPredictor(update="midpoint")
+    plain = grid_search(train, val, grid, m_star=100, estimator=est, widen=0)
+    halved = grid_search(train, val, grid, m_star=100, estimator=est, widen=0, rungs=(25, 50))
+    assert halved.state == plain.state and halved.score == plain.score  # same fit of the same arrays
+    rows = {m: [r for r in halved.table if r.get("rung") == m] for m in (25, 50, None)}
+    assert len(rows[25]) == 7 and len(rows[50]) == 3 and len(rows[None]) == 2
+    # each rung passed on its best third by E_val at that rung
+    best25 = sorted(rows[25], key=lambda r: r["E_val"])[:3]
+    assert {r["kernels"] for r in rows[50]} == {r["kernels"] for r in best25}
+    again = grid_search(train, val, grid, m_star=100, estimator=est, widen=0, rungs=(25, 50))
+    assert [(r["kernels"], r.get("rung"), r["E_val"]) for r in again.table] == \
+        [(r["kernels"], r.get("rung"), r["E_val"]) for r in halved.table]
