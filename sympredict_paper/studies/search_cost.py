@@ -3,8 +3,8 @@
 Per system, ``SymplecticKernelPredictor(max_centers=m)`` (the defaults) is fitted twice in one process, the two
 configurations in alternating order from one system to the next (the machine may be shared; compare the ratios):
 
-* ``full``: ``search=KernelSearch(halving=False)``: every search candidate fitted to its full size;
-* ``halving``: ``search=KernelSearch(halving=True)`` (the default): candidates compared first at a fraction of their centres, and only
+* ``full``: ``search=KernelSearch(halving=False)``: every search candidate fitted to its full size (the default);
+* ``halving``: ``search=KernelSearch(halving=True)``: candidates compared first at a fraction of their centres, and only
   those not clearly losing there fitted to full size (:class:`sympredict.KernelSearch`, Notes).
 
 The systems: the coupled pendulums and the Kepler orbits of ``defaults_acceptance.py`` (``--samples`` one-step
