@@ -133,6 +133,15 @@ class Setting(Parametrized):
     Mutable through ``set_params``, so not hashable.
     """
 
+    def set_params(self, **params):
+        """As :meth:`Parametrized.set_params`; a part whose settings are checked together (a ``check()`` without
+        arguments) is also checked as a whole, on a copy with the new values, before any value is stored: a
+        refused call leaves the part unchanged and raises ``ValueError`` naming the setting and the value."""
+        check = getattr(type(self), "check", None)
+        if check is not None and len(inspect.signature(check).parameters) == 1:
+            Parametrized.set_params(clone(self), **params).check()
+        return super().set_params(**params)
+
     def __eq__(self, other) -> bool:
         return type(self) is type(other) and self.get_params(deep=False) == other.get_params(deep=False)
 

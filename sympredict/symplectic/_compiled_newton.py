@@ -45,6 +45,7 @@ import numpy as np
 
 from sympredict import _numba
 from sympredict._numba import JIT, PJIT, call, check_available, compiled, numba, parallel_safe
+from sympredict._checks import as_choice
 from sympredict._numeric import lu_solve_inplace
 from sympredict.interpolation._compiled import CenterLayout, _pass, _scratch, chunk_size
 from sympredict.kernels._compiled import family_kernels
@@ -388,8 +389,7 @@ def newton_rollout(x0, weights, dt, layout: CenterLayout, kernel, max_iter: int,
     ``O(K B m (2n + n^2) (1 + n_newton))`` flops (midpoint: ``O(K B m (2n)^2 / 2 (1 + n_newton))``),
     ``O(B K 2n)`` memory plus ``O((2n + 6) chunk_size(2n))`` scratch per thread; instances in parallel.
     """
-    if update not in UPDATES:
-        raise ValueError(f"update must be one of {UPDATES}, got {update!r}")
+    as_choice(update, "update", UPDATES)
     check_available()
     x0 = np.ascontiguousarray(x0, dtype=np.float64)
     weights = np.asarray(weights, dtype=np.float64)

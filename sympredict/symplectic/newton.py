@@ -83,6 +83,7 @@ from typing import Callable, Optional
 import numpy as np
 
 from sympredict.symplectic import _compiled_newton
+from sympredict._checks import as_choice
 from sympredict._numeric import lu_solve_inplace
 from sympredict.exceptions import NewtonConvergenceError, RolloutMemoryError
 from sympredict.symplectic.metrics import j_times
@@ -115,9 +116,7 @@ _j_times = j_times  # ``J v`` on the last axis (sympredict.symplectic.metrics)
 
 def _check_update(update: str) -> bool:
     """Whether ``update`` is the midpoint update (``ValueError`` for an unknown one)."""
-    if update not in UPDATES:
-        raise ValueError(f"update must be one of {UPDATES}, got {update!r}")
-    return update == "midpoint"
+    return as_choice(update, "update", UPDATES) == "midpoint"
 
 
 # --------------------------------------------------------------------------- the algorithm's pieces, in NumPy

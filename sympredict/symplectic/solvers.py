@@ -22,11 +22,10 @@ from __future__ import annotations
 import logging
 from typing import Optional
 
-import numpy as np
 
 from sympredict import _numba
 from sympredict.symplectic import _compiled_newton
-from sympredict._checks import as_positive_int
+from sympredict._checks import as_flag, as_positive_int
 from sympredict.base import Setting
 
 __all__ = ["NewtonSolver", "MAX_NEWTON_ITER", "AUTO_NUMPY_SECONDS", "numpy_seconds", "BACKENDS"]
@@ -85,8 +84,7 @@ class NewtonSolver(Setting):
         self.iterations()
         if not isinstance(self.backend, str) or self.backend not in BACKENDS:
             raise ValueError(f"backend must be 'auto', 'numpy' or 'numba', got {self.backend!r}")
-        if not isinstance(self.warm_start, (bool, np.bool_)):
-            raise ValueError(f"warm_start must be True or False, got {self.warm_start!r}")
+        as_flag(self.warm_start, "warm_start")
         return self
 
     def iterations(self) -> int:

@@ -237,3 +237,19 @@ def test_trainers_registry_and_a_new_strategy(small_pendulum_data):
     np.testing.assert_array_equal(a.surrogate_.coef, b.surrogate_.coef)
     assert isinstance(clone(a.trainer), EveryOtherCentre) and isinstance(a.trainer, Parametrized)
     assert copy.copy(a).n_centers_ == 25
+
+
+@pytest.mark.parametrize("part, good, bad, message", [
+    (ExactGreedy(), {"criterion": "p"}, {"tol": -1.0}, r"tol must be a finite non-negative float, got -1\.0"),
+    (BlockedGreedy(), {"block_size": 8}, {"target_error": 0.0}, r"target_error must be a positive float.*got 0\.0"),
+    (NewtonSolver(), {"max_iter": 10}, {"backend": "fortran"}, r"backend must be 'auto', 'numpy' or 'numba', got 'fortran'"),
+    (KernelSearch(), {"seed": 3}, {"halving": "yes"}, r"halving must be True or False.*'yes'"),
+])
+def test_a_part_on_its_own_refuses_a_bad_setting_and_stays_unchanged(part, good, bad, message):
+    """A part's set_params checks its settings as a whole (its check()) before storing any: a call with one good
+    and one bad value raises, names the setting and the value, and leaves every setting as it was."""
+    before = part.get_params(deep=False)
+    with pytest.raises(ValueError, match=message):
+        part.set_params(**good, **bad)
+    assert part.get_params(deep=False) == before
+    assert part.set_params(**good).get_params(deep=False) == {**before, **good}  # a good value alone is stored
