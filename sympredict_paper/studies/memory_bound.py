@@ -75,12 +75,15 @@ def chain(n: int) -> HamiltonianSystem:
     return system
 
 
-def samples(system, n_traj: int, steps: int, seed: int):
-    """One-step pairs ``(x0, x1, mu, dt)`` from ``n_traj`` trajectories of ``steps`` steps, each with its own beta."""
+def samples(system, n_traj: int, steps: int, seed: int, energy: float = ENERGY, box=(0.1, 0.18)):
+    """One-step pairs ``(x0, x1, mu, dt)`` from ``n_traj`` trajectories of ``steps`` steps, each with its own beta.
+
+    Start states uniform in ``H <= energy`` by rejection from the box ``|q_i| <= box[0]``, ``|p_i| <= box[1]``.
+    """
     rng = np.random.default_rng(seed)
     n = system.dim // 2
     beta = rng.uniform(*BETA, n_traj)
-    x0 = _rejection(system.energy, beta, rng, [-0.1] * n + [-0.18] * n, [0.1] * n + [0.18] * n, ENERGY)
+    x0 = _rejection(system.energy, beta, rng, [-box[0]] * n + [-box[1]] * n, [box[0]] * n + [box[1]] * n, energy)
     traj = system.trajectory(x0, beta[:, None], DT, steps)
     a, b = traj[:, :-1].reshape(-1, system.dim), traj[:, 1:].reshape(-1, system.dim)
     return a, b, np.repeat(beta, steps), np.full(len(a), DT)

@@ -59,19 +59,13 @@ def problem(n_points: int, dim: int, seed: int = 0):
 
 def fpu_problem(n_points: int, dim: int, seed: int = 0):
     """One-step samples of the FPU-beta chain with ``dim / 2`` masses, as the greedy's functionals."""
-    from defaults_acceptance import _rejection
-    from memory_bound import BETA, DT, chain  # sympredict_paper/studies/
+    from memory_bound import BETA, chain, samples  # sympredict_paper/studies/
 
-    # energy per mass fixed (the chain's 4-mass level, 0.15 J / 4): a box shrunk so that its states mostly
-    # lie below it, so that rejection sampling works in 32 dimensions too
-    n, n_traj, steps = dim // 2, -(-n_points // 20), 20
-    system, rng = chain(n), np.random.default_rng(seed)
-    beta = rng.uniform(*BETA, n_traj)
-    x_start = _rejection(system.energy, beta, rng, [-0.035] * n + [-0.063] * n, [0.035] * n + [0.063] * n,
-                         0.0375 * n)
-    traj = system.trajectory(x_start, beta[:, None], DT, steps)
-    x0, x1 = traj[:, :-1].reshape(-1, dim)[:n_points], traj[:, 1:].reshape(-1, dim)[:n_points]
-    beta, dt = np.repeat(beta, steps)[:n_points], np.full(n_points, DT)
+    # energy per mass fixed (the chain's 4-mass level, 0.15 J / 4) and a box shrunk to 0.35 of the chain's, so
+    # that its states mostly lie below it and rejection sampling works in 32 dimensions too
+    x0, x1, beta, dt = samples(chain(dim // 2), -(-n_points // 20), 20, seed, energy=0.0375 * (dim // 2),
+                               box=(0.035, 0.063))
+    x0, x1, beta, dt = x0[:n_points], x1[:n_points], beta[:n_points], dt[:n_points]
     xi, y = mixed_variables(x0, x1, dt)
     scale = xi.std(axis=0) / np.sqrt(1.0 / 3.0)  # the spread of uniform [-1, 1]
     xi = (xi - xi.mean(axis=0)) / scale
