@@ -288,7 +288,7 @@ def functional_residuals(
         raise ValueError("functional_residuals: the compiled evaluation does not support a state symmetry "
                          "(symmetry=...): pass compiled=False or None")
     plain = functionals.kernel.periodic is None and functionals.kernel.symmetry is None
-    if plain and (_numba.HAVE_NUMBA if compiled is None else compiled):
+    if plain and _numba.use_compiled(compiled):
         groups = functionals._parameter_groups
         if groups is None:  # computed once per set (a sort of M rows)
             uniq, group = np.unique(np.column_stack([functionals.mu, functionals.dt]), axis=0, return_inverse=True)
