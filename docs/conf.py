@@ -202,6 +202,7 @@ def setup(app):
     app.add_directive("sympredict-help", SympredictHelp)
     app.connect("autodoc-process-bases", _public_bases)
 
+
 # pyMOR's docstring substitutions used in sympredict.parallel (pyMOR defines them in its own docs)
 rst_epilog = """
 .. |WorkerPool| replace:: :class:`~pymor.parallel.interface.WorkerPool`

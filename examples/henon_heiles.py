@@ -19,15 +19,23 @@ args = parser.parse_args()
 
 # ---- user code: 15 lines ------------------------------------------------------------------------
 from sympredict import SymplecticKernelPredictor
-from sympredict.systems.flowmaps import HamiltonianSystem, check_generating_function, sample_energy_box, sampled_flow_map_data
+from sympredict.systems.flowmaps import (
+    HamiltonianSystem,
+    check_generating_function,
+    sample_energy_box,
+    sampled_flow_map_data,
+)
 from sympredict.kernels import IMQ
 
 H = lambda x, mu: 0.5 * (x**2).sum(axis=1) + mu[:, 0] * (x[:, 0] ** 2 * x[:, 1] - x[:, 1] ** 3 / 3)
-grad_H = lambda x, mu: np.column_stack([x[:, 0] * (1 + 2 * mu[:, 0] * x[:, 1]),
-                                        x[:, 1] + mu[:, 0] * (x[:, 0] ** 2 - x[:, 1] ** 2), x[:, 2], x[:, 3]])
+grad_H = lambda x, mu: np.column_stack(
+    [x[:, 0] * (1 + 2 * mu[:, 0] * x[:, 1]), x[:, 1] + mu[:, 0] * (x[:, 0] ** 2 - x[:, 1] ** 2), x[:, 2], x[:, 3]]
+)
 system = HamiltonianSystem(H, grad_H, dim=4, parameters={"lambda": 1})
 space = system.parameters.space(0.8, 1.2)
-sampler = lambda mu, n, rng: sample_energy_box(system, n, mu, 1 / 12, -0.7, 0.7, rng)  # bounded orbits: E < 1/(6 lambda^2)
+sampler = lambda mu, n, rng: sample_energy_box(
+    system, n, mu, 1 / 12, -0.7, 0.7, rng
+)  # bounded orbits: E < 1/(6 lambda^2)
 data = sampled_flow_map_data(system, space.sample_uniformly(5), ("range", 0.1, 0.3), sampler, args.samples, seed=0)
 val = sampled_flow_map_data(system, space.sample_randomly(3), ("range", 0.1, 0.3), sampler, args.samples // 4, seed=1)
 check_generating_function(system, data)  # fails with the largest admissible dT if dT is too large
@@ -42,8 +50,10 @@ x0 = sampler(np.array([lam]), 4, np.random.default_rng(5))
 pred = model.rollout(x0, args.steps, mu=lam, dt=dT)
 ref = system.trajectory(x0, lam, dT, args.steps)
 err = np.linalg.norm(pred - ref, axis=2) / np.linalg.norm(ref, axis=2)
-print(f"{model.n_centers_} centres; relative error after 10 steps {err[:, 10].mean():.2e}, "
-      f"after {args.steps} steps (t = {args.steps * dT:.0f}) {err[:, -1].mean():.2e}")
+print(
+    f"{model.n_centers_} centres; relative error after 10 steps {err[:, 10].mean():.2e}, "
+    f"after {args.steps} steps (t = {args.steps * dT:.0f}) {err[:, -1].mean():.2e}"
+)
 energy = assert_energy_bounded(system.hamiltonian, pred, mu=np.full((4, 1), lam), rtol=0.05)
 print(f"max relative energy error over the rollout {energy:.2e}")
 print(f"symplecticity defect {assert_symplectic_step(model, x0, mu=lam, dt=dT)['analytic']:.1e}")

@@ -34,7 +34,9 @@ pendulum = Pendulum()
 data = flow_map_data(pendulum, n_grid=args.n_grid)  # x0, x1 (M, 2); mu (M, 1); dt (M,)
 model = SymplecticKernelPredictor(IMQ(0.15), mu_kernel=IMQ(2.0), dt_kernel=IMQ(5.0), max_centers=args.centers)
 model.fit(data.x0, data.x1, mu=data.mu, dt=data.dt)
-print(f"{model.n_centers_} centres from {2 * len(data)} functionals, max training residual {model.history_.train_max_residual[-1]:.1e}")
+print(
+    f"{model.n_centers_} centres from {2 * len(data)} functionals, max training residual {model.history_.train_max_residual[-1]:.1e}"
+)
 
 x0 = np.array([[1.2, 0.0]])
 length, dt = 0.737, 0.0509  # neither in the training set
@@ -53,8 +55,14 @@ ax1.plot(pred[0, :, 0], pred[0, :, 1], "C0--", label="kernel predictor")
 ax1.plot(im[0, :, 0], im[0, :, 1], "C1:", label="implicit midpoint, macro step")
 ax1.set(xlabel="angle q [rad]", ylabel="angular momentum p", title=f"phase portrait, l={length}, dT={dt}")
 ax1.legend()
-for name, traj, style in (("kernel predictor", pred, "C0-"), ("implicit midpoint", im, "C1-"), ("reference", ref, "k-")):
-    ax2.semilogy(t[1:], relative_hamiltonian_error(pendulum, traj, np.array([[length]]))[0, 1:] + 1e-17, style, label=name, lw=1)
+for name, traj, style in (
+    ("kernel predictor", pred, "C0-"),
+    ("implicit midpoint", im, "C1-"),
+    ("reference", ref, "k-"),
+):
+    ax2.semilogy(
+        t[1:], relative_hamiltonian_error(pendulum, traj, np.array([[length]]))[0, 1:] + 1e-17, style, label=name, lw=1
+    )
 ax2.set(xlabel="time t", ylabel="relative Hamiltonian error", title="energy error (bounded: symplectic)")
 ax2.legend()
 fig.tight_layout()

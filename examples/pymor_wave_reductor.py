@@ -14,8 +14,12 @@ import numpy as np
 
 parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
 parser.add_argument("--T", type=float, default=5.0)
-parser.add_argument("--data", default="projected", choices=["projected", "reduced"],
-                    help="projected FOM trajectories or samples of the Galerkin ROM's exact flow")
+parser.add_argument(
+    "--data",
+    default="projected",
+    choices=["projected", "reduced"],
+    help="projected FOM trajectories or samples of the Galerkin ROM's exact flow",
+)
 parser.add_argument("--centers", type=int, default=1000)
 parser.add_argument("--samples", type=int, default=400, help="--data reduced: samples per training speed")
 args = parser.parse_args()
@@ -31,14 +35,19 @@ from sympredict.mor import DefaultEstimator, GalerkinSamples, ProjectedTrajector
 
 fom = discretize_fom(T=args.T)
 stiffness, identity = fom.H_op.blocks[0, 0], fom.H_op.blocks[1, 1]  # the demo's wave speed is c = 0.1
-fom = fom.with_(H_op=BlockDiagonalOperator([LincombOperator([stiffness], [ExpressionParameterFunctional("c[0]**2 / 0.1**2", {"c": 1})]), identity]))
+fom = fom.with_(
+    H_op=BlockDiagonalOperator(
+        [LincombOperator([stiffness], [ExpressionParameterFunctional("c[0]**2 / 0.1**2", {"c": 1})]), identity]
+    )
+)
 train = fom.parameters.space(0.08, 0.12).sample_uniformly(5)
 U = fom.solution_space.empty()
 for mu in train:
     U.append(fom.solve(mu))
 samples = ProjectedTrajectories(train) if args.data == "projected" else GalerkinSamples(train, n_samples=args.samples)
-reductor = SymplecticKernelReductor(fom, psd_complex_svd(U, 4), 10 * fom.T / fom.time_stepper.nt, samples,
-                                    DefaultEstimator(max_centers=args.centers))  # CI runs it small
+reductor = SymplecticKernelReductor(
+    fom, psd_complex_svd(U, 4), 10 * fom.T / fom.time_stepper.nt, samples, DefaultEstimator(max_centers=args.centers)
+)  # CI runs it small
 rom = reductor.reduce()
 # -------------------------------------------------------------------------------------------------
 
@@ -54,4 +63,6 @@ for c in (0.0853, 0.1031, 0.1168):  # not trained on
     err = lambda V: np.sqrt((U_fom - V).norm2().sum() / U_fom.norm2().sum())
     print(f"c = {c}: relative error kernel ROM {err(U_kernel):.2e}, Galerkin ROM {err(U_galerkin):.2e}")
 long = rom.with_(T=4 * fom.T).solve(fom.parameters.parse(0.1031))
-print(f"past the training horizon: {len(long)} states up to t = {4 * fom.T:g}, finite: {np.all(np.isfinite(long.to_numpy()))}")
+print(
+    f"past the training horizon: {len(long)} states up to t = {4 * fom.T:g}, finite: {np.all(np.isfinite(long.to_numpy()))}"
+)

@@ -33,7 +33,7 @@ print(fom.model)
 
 # 2. snapshots and basis
 mu_ref = C_REF**2
-energy = fom.reference_energy(mu_ref)                      # unit-amplitude fundamental mode
+energy = fom.reference_energy(mu_ref)  # unit-amplitude fundamental mode
 x0 = fom.low_frequency_states(10, 2, mu_ref, energy, seed=0)
 snapshots = fom.trajectory(x0, mu_ref, 0.02, 300).reshape(-1, fom.dim)
 basis = complex_svd_basis(snapshots, n=2, layout="rows")
@@ -47,19 +47,26 @@ print(f"reduced model: {rom.rom.H_op.name} of dimension {rom.dim}")
 #    in the reduced coordinates and in mu = c^2
 dt = 0.1
 data = reduced_flow_map_data(rom, C_TRAIN, dt, args.samples, energy, seed=1)
-reductor = SymplecticKernelReductor(fom.model, rom.RB, dt, GivenSamples(data),
-                                    SymplecticKernelPredictor(IMQ(1e-3), mu_kernel=IMQ(3.0), max_centers=args.centers),
-                                    scaling=TrainingScaling("none", "none", "none"))
-kernel_rom = reductor.reduce()                              # a pyMOR model: kernel_rom.solve(mu) from the FOM's initial data
-model = reductor.flow_map_                                  # the learned step in reduced coordinates
+reductor = SymplecticKernelReductor(
+    fom.model,
+    rom.RB,
+    dt,
+    GivenSamples(data),
+    SymplecticKernelPredictor(IMQ(1e-3), mu_kernel=IMQ(3.0), max_centers=args.centers),
+    scaling=TrainingScaling("none", "none", "none"),
+)
+kernel_rom = reductor.reduce()  # a pyMOR model: kernel_rom.solve(mu) from the FOM's initial data
+model = reductor.flow_map_  # the learned step in reduced coordinates
 fitted = reductor.predictor_
-print(f"{fitted.n_centers_} centres ({fitted.history_.stop_reason}), max training residual {fitted.history_.train_max_residual[-1]:.1e}")
+print(
+    f"{fitted.n_centers_} centres ({fitted.history_.stop_reason}), max training residual {fitted.history_.train_max_residual[-1]:.1e}"
+)
 
 # 5. an unseen speed: predict in reduced coordinates, reconstruct, compare with the FOM
 c = 0.257
 x_red = rom.system.sample_energy_ellipsoid(3, c**2, energy, seed=7)
-n_steps = 60                                                # T = 6
-pred = model.rollout(x_red, n_steps, mu=c**2, dt=dt)         # (3, 61, 4)
+n_steps = 60  # T = 6
+pred = model.rollout(x_red, n_steps, mu=c**2, dt=dt)  # (3, 61, 4)
 fom_ref = fom.trajectory(rom.reconstruct(x_red), c**2, dt, n_steps)
 im = rom.system.trajectory(x_red, c**2, dt, n_steps, h_max=dt)
 for name, traj in (("ROM + kernel predictor", pred), ("ROM + implicit midpoint", im)):

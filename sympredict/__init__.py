@@ -35,4 +35,3 @@ __all__ = [
     "read_trajectories",
     "__version__",
 ]
-

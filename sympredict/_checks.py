@@ -21,9 +21,22 @@ from typing import Optional
 
 import numpy as np
 
-__all__ = ["as_states", "as_parameter", "as_model_parameter", "as_steps", "as_trajectories", "as_times",
-           "as_positive_int", "as_real", "as_real_array", "as_choice", "as_flag", "as_even_dimension", "Constraint",
-           "check_settings"]
+__all__ = [
+    "as_states",
+    "as_parameter",
+    "as_model_parameter",
+    "as_steps",
+    "as_trajectories",
+    "as_times",
+    "as_positive_int",
+    "as_real",
+    "as_real_array",
+    "as_choice",
+    "as_flag",
+    "as_even_dimension",
+    "Constraint",
+    "check_settings",
+]
 
 
 def _first_bad(arr: np.ndarray, bad: np.ndarray) -> str:
@@ -76,15 +89,18 @@ def as_states(x, name: str, dim: Optional[int] = None, allow_single: bool = True
     if dim is not None and arr.shape[1] != dim:
         raise ValueError(f"{name} must have {dim} state components (2n = {dim}), got {arr.shape[1]}")
     if dim is None and (arr.shape[1] == 0 or arr.shape[1] % 2):
-        raise ValueError(f"{name} must have an even, positive number of state components (q, p), shape (batch, 2n), "
-                         f"got shape {arr.shape}")
+        raise ValueError(
+            f"{name} must have an even, positive number of state components (q, p), shape (batch, 2n), "
+            f"got shape {arr.shape}"
+        )
     return np.ascontiguousarray(arr), single
 
 
 def _is_mapping(mu) -> bool:
     """A pyMOR ``Mu`` or any mapping of parameter names to values (duck-typed: no pyMOR import here)."""
-    return isinstance(mu, Mapping) or (callable(getattr(mu, "keys", None)) and callable(getattr(mu, "to_numpy", None))
-                                       and hasattr(mu, "__getitem__"))
+    return isinstance(mu, Mapping) or (
+        callable(getattr(mu, "keys", None)) and callable(getattr(mu, "to_numpy", None)) and hasattr(mu, "__getitem__")
+    )
 
 
 def _mapping_to_vector(mu, d_mu: Optional[int], parameters, name: str) -> np.ndarray:
@@ -98,22 +114,27 @@ def _mapping_to_vector(mu, d_mu: Optional[int], parameters, name: str) -> np.nda
     if parameters is not None:
         wanted = {str(k): int(v) for k, v in dict(parameters).items()}
         if set(keys) != set(wanted):
-            raise ValueError(f"{name} has the parameter names {keys}, the model's parameters are "
-                             f"{dict(sorted(wanted.items()))}: give exactly these names")
+            raise ValueError(
+                f"{name} has the parameter names {keys}, the model's parameters are "
+                f"{dict(sorted(wanted.items()))}: give exactly these names"
+            )
         parts = []
         for k in sorted(wanted):
             v = _as_float_array(mu[k], f"{name}[{k!r}]").ravel()
             if v.size != wanted[k]:
-                raise ValueError(f"{name}[{k!r}] has {v.size} component(s), the model's parameter {k!r} has "
-                                 f"{wanted[k]}")
+                raise ValueError(
+                    f"{name}[{k!r}] has {v.size} component(s), the model's parameter {k!r} has {wanted[k]}"
+                )
             parts.append(v)
         return np.concatenate(parts) if parts else np.zeros(0)
     if callable(getattr(mu, "to_numpy", None)):  # a pyMOR Mu: its values sorted by name, each flattened
         return _as_float_array(mu.to_numpy(), name).ravel()
     if len(keys) != 1:
-        raise ValueError(f"{name} is a dict with the keys {keys}: their order is ambiguous for a model that takes a "
-                         f"parameter vector; give a vector (values in the training order), a dict with one key, or "
-                         f"a pyMOR Mu (values sorted by name)")
+        raise ValueError(
+            f"{name} is a dict with the keys {keys}: their order is ambiguous for a model that takes a "
+            f"parameter vector; give a vector (values in the training order), a dict with one key, or "
+            f"a pyMOR Mu (values sorted by name)"
+        )
     return _as_float_array(next(iter(mu.values())), f"{name}[{keys[0]!r}]").ravel()
 
 
@@ -170,7 +191,9 @@ def as_parameter(mu, n: int, d_mu: Optional[int], name: str = "mu", parameters=N
             arr = np.broadcast_to(arr, (n, d_mu))
         else:
             if len(arr) not in (1, n):
-                raise ValueError(f"{name} must have length {n} (one value per instance) or be a scalar, got {arr.shape}")
+                raise ValueError(
+                    f"{name} must have length {n} (one value per instance) or be a scalar, got {arr.shape}"
+                )
             arr = np.broadcast_to(arr[:, None], (n, 1))
     elif arr.ndim == 2:
         if arr.shape[0] not in (1, n):
@@ -181,8 +204,10 @@ def as_parameter(mu, n: int, d_mu: Optional[int], name: str = "mu", parameters=N
     if d_mu is not None and arr.shape[1] != d_mu:
         raise ValueError(f"{name} must have {d_mu} component(s) (as in training), got {arr.shape[1]}")
     if arr.shape[1] == 0:
-        raise ValueError(f"{name} has zero components (shape {arr.shape}): give at least one parameter value per "
-                         f"instance, or none (None) for a parameter-free model")
+        raise ValueError(
+            f"{name} has zero components (shape {arr.shape}): give at least one parameter value per "
+            f"instance, or none (None) for a parameter-free model"
+        )
     return np.ascontiguousarray(arr)
 
 
@@ -196,8 +221,10 @@ def as_steps(dt, n: int, name: str = "dt") -> np.ndarray:
     elif arr.ndim != 1 or len(arr) != n:
         raise ValueError(f"{name} must be a scalar or have shape ({n},), got {arr.shape}")
     if np.any(arr <= 0):
-        raise ValueError(f"{name} must be positive, got min {float(arr.min())!r} ({_first_bad(arr, arr <= 0)}): "
-                         f"give the macro time step(s) > 0")
+        raise ValueError(
+            f"{name} must be positive, got min {float(arr.min())!r} ({_first_bad(arr, arr <= 0)}): "
+            f"give the macro time step(s) > 0"
+        )
     return arr
 
 
@@ -215,8 +242,10 @@ def as_trajectories(states, name: str = "states", *, dim: Optional[int] = None, 
     if allow_single and arr.ndim == 2:
         arr = arr[None]
     if arr.ndim != 3 or arr.shape[1] < 2 or arr.shape[2] == 0 or arr.shape[2] % 2:
-        raise ValueError(f"{name} must have shape (P, K+1, 2n) with K >= 1 and an even 2n"
-                         f"{' (or (K+1, 2n) for one trajectory)' if allow_single else ''}, got {arr.shape}")
+        raise ValueError(
+            f"{name} must have shape (P, K+1, 2n) with K >= 1 and an even 2n"
+            f"{' (or (K+1, 2n) for one trajectory)' if allow_single else ''}, got {arr.shape}"
+        )
     if dim is not None and arr.shape[2] != dim:
         raise ValueError(f"{name} must have {dim} state components (2n = {dim}), got {arr.shape[2]}")
     return arr
@@ -239,9 +268,11 @@ def as_times(times, p: int, k1: int, name: str = "times") -> np.ndarray:
     bad = np.flatnonzero(~(steps > 0).all(axis=1))
     if len(bad):
         k = int(np.flatnonzero(steps[bad[0]] <= 0)[0])
-        raise ValueError(f"{name} must increase strictly along each trajectory: trajectory {bad[0]} has "
-                         f"t[{k}] = {float(arr[bad[0], k])!r} >= t[{k + 1}] = {float(arr[bad[0], k + 1])!r}"
-                         + (f" ({len(bad)} trajectories are affected)" if len(bad) > 1 else ""))
+        raise ValueError(
+            f"{name} must increase strictly along each trajectory: trajectory {bad[0]} has "
+            f"t[{k}] = {float(arr[bad[0], k])!r} >= t[{k + 1}] = {float(arr[bad[0], k + 1])!r}"
+            + (f" ({len(bad)} trajectories are affected)" if len(bad) > 1 else "")
+        )
     return arr
 
 

@@ -50,8 +50,21 @@ import warnings
 from typing import Optional
 
 __all__ = [
-    "HAVE_NUMBA", "numba", "JIT", "EXACT", "FJIT", "PJIT", "compiled", "jit_cached", "jit_user", "call",
-    "check_available", "get_num_threads", "set_num_threads", "compilable", "parallel_safe",
+    "HAVE_NUMBA",
+    "numba",
+    "JIT",
+    "EXACT",
+    "FJIT",
+    "PJIT",
+    "compiled",
+    "jit_cached",
+    "jit_user",
+    "call",
+    "check_available",
+    "get_num_threads",
+    "set_num_threads",
+    "compilable",
+    "parallel_safe",
 ]
 
 logger = logging.getLogger(__name__)
@@ -67,9 +80,13 @@ def _start() -> Optional[object]:
         for name in [m for m in sys.modules if m == "numba" or m.startswith("numba.")]:
             del sys.modules[name]
         sys.modules["numba"] = None  # later "import numba" raises ImportError: the NumPy fallbacks
-        warnings.warn(f"numba is installed but cannot start ({type(exc).__name__}: {exc}); sympredict runs on its "
-                      "NumPy code paths (slower). Check numba's environment variables (NUMBA_NUM_THREADS must be a "
-                      "positive integer).", RuntimeWarning, stacklevel=3)
+        warnings.warn(
+            f"numba is installed but cannot start ({type(exc).__name__}: {exc}); sympredict runs on its "
+            "NumPy code paths (slower). Check numba's environment variables (NUMBA_NUM_THREADS must be a "
+            "positive integer).",
+            RuntimeWarning,
+            stacklevel=3,
+        )
         return None
     return nb
 
@@ -154,9 +171,13 @@ def _warn_cache(exc: BaseException) -> None:
     global _CACHE_WARNED
     if not _CACHE_WARNED:
         _CACHE_WARNED = True
-        logger.warning("numba's disk cache of sympredict's compiled kernels is unusable (%s: %s); compiling them in "
-                       "this process instead.  Delete the cache folders (sympredict's __pycache__ folders, or "
-                       "NUMBA_CACHE_DIR) or make them writable.", type(exc).__name__, exc)
+        logger.warning(
+            "numba's disk cache of sympredict's compiled kernels is unusable (%s: %s); compiling them in "
+            "this process instead.  Delete the cache folders (sympredict's __pycache__ folders, or "
+            "NUMBA_CACHE_DIR) or make them writable.",
+            type(exc).__name__,
+            exc,
+        )
 
 
 def jit_cached(function, flags: dict):
@@ -173,12 +194,14 @@ def jit_cached(function, flags: dict):
 def compiled(flags: dict):
     """Decorator: a top-level compiled kernel, cached on disk and listed in :data:`DEFINITIONS` (without numba:
     the Python function)."""
+
     def decorate(function):
         if any(name == function.__name__ for name, _, _, _ in DEFINITIONS):
             raise RuntimeError(f"a compiled kernel named {function.__name__!r} exists already")
         dispatcher = jit_cached(function, flags) if HAVE_NUMBA else function
         DEFINITIONS.append((function.__name__, function, flags, dispatcher))
         return dispatcher
+
     return decorate
 
 
@@ -265,7 +288,11 @@ def parallel_safe() -> bool:
         _FORK_WARNED = True
         import warnings
 
-        warnings.warn("this process was forked after numba's parallel loops ran (GNU OpenMP cannot run them in a "
-                      "forked child): the compiled kernels run on one thread here; use multiprocessing's 'spawn' or "
-                      "'forkserver' start method for parallel loops in the workers", RuntimeWarning, stacklevel=3)
+        warnings.warn(
+            "this process was forked after numba's parallel loops ran (GNU OpenMP cannot run them in a "
+            "forked child): the compiled kernels run on one thread here; use multiprocessing's 'spawn' or "
+            "'forkserver' start method for parallel loops in the workers",
+            RuntimeWarning,
+            stacklevel=3,
+        )
     return False

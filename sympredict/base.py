@@ -94,7 +94,9 @@ class Parametrized:
             if target is None:
                 target = self._default_part(name)
             if not hasattr(target, "set_params"):
-                raise ValueError(f"{type(self).__name__}.{name} = {target!r} has no parameters to set ({sorted(sub_params)})")
+                raise ValueError(
+                    f"{type(self).__name__}.{name} = {target!r} has no parameters to set ({sorted(sub_params)})"
+                )
             # a mutable part is changed on a copy (kernels are immutable values: their set_params returns a new one)
             part = clone(target) if isinstance(target, Parametrized) else target
             try:

@@ -224,8 +224,10 @@ def check_save_path(path, *, writable: bool = False) -> Path:
     parent = path.parent if path.parent.is_dir() else Path(".")
     limit, size = _name_max(parent), len(os.fsencode(path.name))
     if size > limit:
-        raise ValueError(f"the file name {path.name[:40]!r}... is {size} bytes long; the file system allows {limit}: "
-                         "give a shorter name")
+        raise ValueError(
+            f"the file name {path.name[:40]!r}... is {size} bytes long; the file system allows {limit}: "
+            "give a shorter name"
+        )
     target = _target(path)[0]
     directory = target.parent if str(target.parent) else Path(".")
     if writable and not os.access(directory, os.W_OK | os.X_OK):
@@ -250,8 +252,13 @@ def _temp_stem(directory: Path, name: str) -> str:
 
 
 def _kind(mode: int) -> str:
-    for test, name in ((stat.S_ISFIFO, "FIFO"), (stat.S_ISCHR, "character device"), (stat.S_ISBLK, "block device"),
-                       (stat.S_ISSOCK, "socket"), (stat.S_ISDIR, "directory")):
+    for test, name in (
+        (stat.S_ISFIFO, "FIFO"),
+        (stat.S_ISCHR, "character device"),
+        (stat.S_ISBLK, "block device"),
+        (stat.S_ISSOCK, "socket"),
+        (stat.S_ISDIR, "directory"),
+    ):
         if test(mode):
             return name
     return "special file"
@@ -363,13 +370,19 @@ def atomic_output(path, *, overwrite: bool = True):
     path = Path(path)
     target, st = _target(path)
     if not overwrite and st is not None:
-        raise FileExistsError(errno.EEXIST, f"{str(path)!r} exists: not replaced (pass overwrite=True, or --force "
-                                            f"on the command line, to replace it)")
+        raise FileExistsError(
+            errno.EEXIST,
+            f"{str(path)!r} exists: not replaced (pass overwrite=True, or --force on the command line, to replace it)",
+        )
     _remove_stale_temps(target.parent, target.name)
     tmp = target.parent / f".{_temp_stem(target.parent, target.name)}.{os.getpid()}-{secrets.token_hex(4)}.tmp"
     fh = None
     try:
-        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_CLOEXEC", 0), 0o666)
+        fd = os.open(
+            tmp,
+            os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_CLOEXEC", 0),
+            0o666,
+        )
         fh = os.fdopen(fd, "wb")
         if st is not None:
             os.fchmod(fd, stat.S_IMODE(st.st_mode))
@@ -395,7 +408,9 @@ def atomic_output(path, *, overwrite: bool = True):
             raise
         if isinstance(exc, OSError):
             reason = exc.strerror or str(exc)
-            raise OSError(exc.errno, f"could not save {str(path)!r}: {reason}; the previous file, if any, is unchanged") from None
+            raise OSError(
+                exc.errno, f"could not save {str(path)!r}: {reason}; the previous file, if any, is unchanged"
+            ) from None
         if isinstance(exc, KeyboardInterrupt):
             raise KeyboardInterrupt(f"{str(path)!r} was not written; the previous file, if any, is unchanged") from None
         raise
@@ -407,8 +422,11 @@ def _publish_new(tmp: Path, target: Path, path: Path) -> None:
     try:
         os.link(tmp, target, follow_symlinks=False)
     except FileExistsError:
-        raise FileExistsError(errno.EEXIST, f"{str(path)!r} was created by someone else while this file was written: "
-                                            f"not replaced (pass overwrite=True, or --force, to replace it)") from None
+        raise FileExistsError(
+            errno.EEXIST,
+            f"{str(path)!r} was created by someone else while this file was written: "
+            f"not replaced (pass overwrite=True, or --force, to replace it)",
+        ) from None
     except OSError as exc:
         if exc.errno not in (errno.EPERM, errno.ENOTSUP, errno.EOPNOTSUPP, errno.EXDEV, errno.EMLINK):
             raise
@@ -416,8 +434,11 @@ def _publish_new(tmp: Path, target: Path, path: Path) -> None:
         try:
             os.close(os.open(target, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0), 0o666))
         except FileExistsError:
-            raise FileExistsError(errno.EEXIST, f"{str(path)!r} was created by someone else while this file was "
-                                                f"written: not replaced (pass overwrite=True, or --force)") from None
+            raise FileExistsError(
+                errno.EEXIST,
+                f"{str(path)!r} was created by someone else while this file was "
+                f"written: not replaced (pass overwrite=True, or --force)",
+            ) from None
         os.replace(tmp, target)
         return
     os.unlink(tmp)
@@ -456,9 +477,13 @@ def write_container(path, fmt: str, settings: dict, arrays: dict, *, overwrite: 
     try:
         settings_json = json.dumps(settings)  # ASCII (ensure_ascii)
     except (TypeError, ValueError) as exc:
-        raise ValueError(f"settings must be JSON-serializable (plain str, int, float, bool, list, dict): {exc}") from None
+        raise ValueError(
+            f"settings must be JSON-serializable (plain str, int, float, bool, list, dict): {exc}"
+        ) from None
     if len(settings_json) > MAX_SETTINGS_BYTES:
-        raise ValueError(f"settings take {len(settings_json)} bytes as JSON, at most {MAX_SETTINGS_BYTES} fit in the file header")
+        raise ValueError(
+            f"settings take {len(settings_json)} bytes as JSON, at most {MAX_SETTINGS_BYTES} fit in the file header"
+        )
     if not isinstance(fmt, str) or not fmt.isascii() or not fmt:
         raise ValueError(f"fmt must be a non-empty ASCII string, got {fmt!r}")
     arrays = _checked_arrays(arrays)
@@ -486,7 +511,9 @@ def _fsync_directory(directory: Path) -> None:
 def _open_regular(path: Path):
     """A binary file object of ``path`` if it is a regular file (never blocks on FIFOs); and its size."""
     try:
-        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_NOCTTY", 0) | getattr(os, "O_CLOEXEC", 0))
+        fd = os.open(
+            path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_NOCTTY", 0) | getattr(os, "O_CLOEXEC", 0)
+        )
     except FileNotFoundError:
         raise ModelFileError(f"{str(path)!r} does not exist or is not a file") from None
     except OSError as exc:
@@ -517,7 +544,9 @@ def _scalar_attr(f, name: str, path: Path, file_size: int, allow_vlen: bool = Fa
     if want is int and (info is not None or aid.dtype.kind not in "iu"):
         raise ModelFileError(f"{str(path)!r}: attribute {name!r} must be an integer, has type {aid.dtype}")
     if info is not None and info.length is None and not allow_vlen:
-        raise ModelFileError(f"{str(path)!r}: attribute {name!r} is a variable-length string, which this schema never writes")
+        raise ModelFileError(
+            f"{str(path)!r}: attribute {name!r} is a variable-length string, which this schema never writes"
+        )
     if aid.dtype.itemsize > file_size or aid.get_storage_size() > file_size:
         raise ModelFileError(f"{str(path)!r}: attribute {name!r} declares more bytes than the file has")
     value = f.attrs[name]
@@ -548,20 +577,22 @@ def _check_global_heaps(fh, file_size: int, path: Path) -> None:
         if start + 16 > len(data) or data[start + 4] != 1:
             problem = "header"
         else:
-            size = int.from_bytes(data[start + 8:start + 16], "little")
+            size = int.from_bytes(data[start + 8 : start + 16], "little")
             end = start + size
             if size < 16 or end > len(data):
                 problem = f"size {size}"
             p = start + 16
             while problem is None and p + 16 <= end:
-                index = int.from_bytes(data[p:p + 2], "little")
-                obj = int.from_bytes(data[p + 8:p + 16], "little")
+                index = int.from_bytes(data[p : p + 2], "little")
+                obj = int.from_bytes(data[p + 8 : p + 16], "little")
                 need = obj if index == 0 else 16 + (obj + 7) // 8 * 8
                 if need <= 0 or p + need > end:
                     problem = f"object {index} of size {obj}"
                 p += max(need, 1)
         if problem is not None:
-            raise ModelFileError(f"{str(path)!r} is damaged: global heap collection at byte {start} is invalid ({problem})")
+            raise ModelFileError(
+                f"{str(path)!r} is damaged: global heap collection at byte {start} is invalid ({problem})"
+            )
         start = data.find(b"GCOL", start + 1)
     fh.seek(0)
 
@@ -590,7 +621,8 @@ def _checked_datasets(f, path: Path, file_size: int) -> dict:
     if names != ["arrays"]:
         extra = sorted(set(names) - {"arrays"})
         raise ModelFileError(
-            f"{str(path)!r} contains objects the writer never writes: {extra[:5]}" if extra
+            f"{str(path)!r} contains objects the writer never writes: {extra[:5]}"
+            if extra
             else f"{str(path)!r} has no 'arrays' group"
         )
     link = f.get("arrays", getlink=True)
@@ -600,7 +632,9 @@ def _checked_datasets(f, path: Path, file_size: int) -> dict:
     if not isinstance(grp, h5py.Group):
         raise ModelFileError(f"{str(path)!r}: 'arrays' is not a group")
     if len(grp.attrs):
-        raise ModelFileError(f"{str(path)!r}: group 'arrays' has attributes the writer never writes: {list(grp.attrs)[:5]}")
+        raise ModelFileError(
+            f"{str(path)!r}: group 'arrays' has attributes the writer never writes: {list(grp.attrs)[:5]}"
+        )
     datasets, total = {}, 0
     for name in grp.keys():
         where = f"{str(path)!r}: array {name!r}"
@@ -619,13 +653,20 @@ def _checked_datasets(f, path: Path, file_size: int) -> dict:
         if dcpl.get_external_count() or ds.external:
             raise ModelFileError(f"{where} uses external storage (data in other files): refused")
         if dcpl.get_nfilters():
-            raise ModelFileError(f"{where} is compressed or filtered ({ds.compression or 'filter'}); the writer never filters: refused")
+            raise ModelFileError(
+                f"{where} is compressed or filtered ({ds.compression or 'filter'}); the writer never filters: refused"
+            )
         if layout not in (h5py.h5d.CONTIGUOUS, h5py.h5d.COMPACT):
             raise ModelFileError(f"{where} has a chunked or unknown layout; the writer writes contiguous data: refused")
         if ds.shape is None:
             raise ModelFileError(f"{where} has no dataspace")
         dtype = ds.dtype
-        if dtype.kind not in _ARRAY_KINDS or dtype.itemsize > 8 or dtype.fields is not None or dtype.subdtype is not None:
+        if (
+            dtype.kind not in _ARRAY_KINDS
+            or dtype.itemsize > 8
+            or dtype.fields is not None
+            or dtype.subdtype is not None
+        ):
             raise ModelFileError(f"{where} has dtype {dtype}; only numeric arrays are written")
         nbytes = int(np.prod([int(n) for n in ds.shape], dtype=object)) * dtype.itemsize
         storage = int(ds.id.get_storage_size())
@@ -636,12 +677,16 @@ def _checked_datasets(f, path: Path, file_size: int) -> dict:
         if layout == h5py.h5d.CONTIGUOUS and nbytes:
             offset = ds.id.get_offset()
             if offset is None or offset + nbytes > file_size:
-                raise ModelFileError(f"{where} points outside the file (offset {offset}, {nbytes} bytes, file {file_size} bytes)")
+                raise ModelFileError(
+                    f"{where} points outside the file (offset {offset}, {nbytes} bytes, file {file_size} bytes)"
+                )
         elif layout == h5py.h5d.COMPACT and nbytes > _COMPACT_MAX:
             raise ModelFileError(f"{where}: compact storage of {nbytes} bytes is impossible")
         total += nbytes
         if total > file_size:
-            raise ModelFileError(f"{str(path)!r}: its arrays declare {total} bytes, more than the file's {file_size} bytes")
+            raise ModelFileError(
+                f"{str(path)!r}: its arrays declare {total} bytes, more than the file's {file_size} bytes"
+            )
         datasets[name] = ds
     return datasets
 
@@ -685,7 +730,8 @@ def read_container(path, fmt: str):
             if names != set(_ROOT_ATTRS):
                 extra, missing = sorted(names - set(_ROOT_ATTRS)), sorted(set(_ROOT_ATTRS) - names)
                 raise ModelFileError(
-                    f"{str(path)!r} has unexpected root attributes {extra[:5]}" if extra
+                    f"{str(path)!r} has unexpected root attributes {extra[:5]}"
+                    if extra
                     else f"{str(path)!r} lacks the attributes {missing}"
                 )
             attrs = {name: _scalar_attr(f, name, path, file_size, allow_vlen=version == 1) for name in _ROOT_ATTRS}

@@ -83,10 +83,12 @@ class FlowMapData:
         bad = np.flatnonzero(~np.isfinite(rate))
         if bad.size:
             i = int(bad[0])
-            raise ValueError(f"the increments (x1 - x0) / dt overflow for {bad.size} sample(s) (first: row {i}, "
-                             f"dt = {self.dt[i]:.3g}, |x1 - x0| = {np.abs(self.x1[i] - self.x0[i]).max():.3g}): give "
-                             f"dt and the states in units where the rate of change is a finite float (e.g. dt in "
-                             f"seconds, not in units of 1e-300 s)")
+            raise ValueError(
+                f"the increments (x1 - x0) / dt overflow for {bad.size} sample(s) (first: row {i}, "
+                f"dt = {self.dt[i]:.3g}, |x1 - x0| = {np.abs(self.x1[i] - self.x0[i]).max():.3g}): give "
+                f"dt and the states in units where the rate of change is a finite float (e.g. dt in "
+                f"seconds, not in units of 1e-300 s)"
+            )
 
     def __len__(self) -> int:
         return len(self.x0)
@@ -143,7 +145,6 @@ class FlowMapData:
         )
 
 
-
 def unique_samples(points, targets, mu, dt, *, key_name: str = "x0", target_name: str = "x1") -> np.ndarray:
     """Indices of the distinct samples; an error for contradictory ones.
 
@@ -188,7 +189,8 @@ def unique_samples(points, targets, mu, dt, *, key_name: str = "x0", target_name
         more = f" and {len(bad_keys) - 5} more group(s)" if len(bad_keys) > 5 else ""
         raise ValueError(
             f"the training data contain contradictory samples: the same {key_name}, mu and dt with different "
-            f"{target_name} ({shown}{more}); remove or correct them (a flow map takes one value per state)")
+            f"{target_name} ({shown}{more}); remove or correct them (a flow map takes one value per state)"
+        )
     return np.sort(first)
 
 
@@ -196,9 +198,13 @@ def _drop_duplicate_samples(data: FlowMapData, stacklevel: int = 3) -> FlowMapDa
     """``data.drop_duplicates()`` with one :class:`DuplicateSamplesWarning` saying how many were dropped."""
     reduced, dropped = data.drop_duplicates()
     if dropped:
-        warnings.warn(DuplicateSamplesWarning(
-            f"dropped {dropped} duplicated sample(s) (same x0, x1, mu and dt as an earlier one) of {len(data)}; "
-            f"{len(reduced)} remain"), stacklevel=stacklevel)
+        warnings.warn(
+            DuplicateSamplesWarning(
+                f"dropped {dropped} duplicated sample(s) (same x0, x1, mu and dt as an earlier one) of {len(data)}; "
+                f"{len(reduced)} remain"
+            ),
+            stacklevel=stacklevel,
+        )
     return reduced
 
 
@@ -272,7 +278,9 @@ class TrajectoryData:
         if values.ndim != 1 or len(values) == 0 or values.dtype.kind not in "iu":
             raise ValueError(f"strides must be a positive integer or a non-empty sequence of them, got {strides!r}")
         if values.min() < 1 or values.max() > k1 - 1:
-            raise ValueError(f"strides must lie in 1..K = 1..{k1 - 1} (the trajectories have {k1} states), got {strides!r}")
+            raise ValueError(
+                f"strides must lie in 1..K = 1..{k1 - 1} (the trajectories have {k1} states), got {strides!r}"
+            )
         if len(np.unique(values)) < len(values):
             raise ValueError(f"strides must be distinct, got {strides!r}")
         x0, x1, mu, dt = [], [], [], []
@@ -312,12 +320,16 @@ def as_flowmap_data(x0, x1=None, mu=None, dt=None, what: str = "fit") -> FlowMap
     if isinstance(x0, (FlowMapData, TrajectoryData)):
         given = [name for name, v in (("x1", x1), ("mu", mu), ("dt", dt)) if v is not None]
         if given:
-            raise ValueError(f"{what}: the data were given as a {type(x0).__name__}, which holds the states, mu and "
-                             f"dt; do not pass {', '.join(given)} as well")
+            raise ValueError(
+                f"{what}: the data were given as a {type(x0).__name__}, which holds the states, mu and "
+                f"dt; do not pass {', '.join(given)} as well"
+            )
         return x0.pairs() if isinstance(x0, TrajectoryData) else x0
     if x1 is None:
-        raise ValueError(f"{what}: x1 is required with array data (samples x1 = Phi(x0)); or pass a FlowMapData "
-                         "or TrajectoryData as the only argument")
+        raise ValueError(
+            f"{what}: x1 is required with array data (samples x1 = Phi(x0)); or pass a FlowMapData "
+            "or TrajectoryData as the only argument"
+        )
     x0, _ = as_states(x0, "x0", allow_single=False)
     x1, _ = as_states(x1, "x1", dim=x0.shape[1], allow_single=False)
     if len(x0) != len(x1):

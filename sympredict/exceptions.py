@@ -69,8 +69,10 @@ class NewtonConvergenceError(SympredictError):
             shown = ", ".join(f"{i} (residual {r:.2e})" for i, r in zip(self.instances[:10], self.residuals[:10]))
             causes = "(dT * L_S >= 1)"
         else:
-            shown = ", ".join(f"{i} (residual {r:.2e}, dT*L_S {c:.3g} at the start guess)"
-                              for i, r, c in zip(self.instances[:10], self.residuals[:10], self.contraction[:10]))
+            shown = ", ".join(
+                f"{i} (residual {r:.2e}, dT*L_S {c:.3g} at the start guess)"
+                for i, r, c in zip(self.instances[:10], self.residuals[:10], self.contraction[:10])
+            )
             causes = "(dT*L_S < 1 makes the fixed-point iteration contract; Newton often converges beyond it)"
         more = f" and {len(self.instances) - 10} more" if len(self.instances) > 10 else ""
         where = f" at macro step {step}" if step is not None else ""
@@ -99,7 +101,8 @@ class RolloutMemoryError(SympredictError, MemoryError):
         super().__init__(
             f"keeping the states of this rollout ({shape[0]} trajectories x {shape[1]} kept states x {shape[2]} "
             f"components, float64) needs {needed / 2**30:.3g} GiB, more than the {available / 2**30:.3g} GiB available: "
-            "keep every k-th state only (rollout(..., stride=k); the command line's --stride), or roll out fewer steps")
+            "keep every k-th state only (rollout(..., stride=k); the command line's --stride), or roll out fewer steps"
+        )
 
 
 class SolvabilityError(SympredictError):

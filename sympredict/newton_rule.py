@@ -26,9 +26,18 @@ import numpy as np
 from sympredict._numba import compilable
 
 
-
-__all__ = ["FLOOR_FACTOR", "UPDATE_FACTOR", "STALL_RATIO", "STALL_FLOOR_FACTOR", "DECREASE", "MIN_FRACTION", "WATCHDOG",
-           "residual_floor", "converged", "accepted"]
+__all__ = [
+    "FLOOR_FACTOR",
+    "UPDATE_FACTOR",
+    "STALL_RATIO",
+    "STALL_FLOOR_FACTOR",
+    "DECREASE",
+    "MIN_FRACTION",
+    "WATCHDOG",
+    "residual_floor",
+    "converged",
+    "accepted",
+]
 
 EPS = float(np.finfo(float).eps)
 TINY = float(np.finfo(float).tiny)

@@ -31,9 +31,15 @@ from sympredict.symplectic.metrics import canonical_J
 from sympredict.mor.basis import symplecticity_of_basis
 from sympredict.mor.mass import MassMatrixCoordinates
 
-__all__ = ["assert_symplectic_step", "assert_energy_bounded", "assert_rom_matches_fom", "assert_symplectic_basis",
-           "fe_wave_matrices", "fe_wave_model",
-           "finite_difference_jacobian"]
+__all__ = [
+    "assert_symplectic_step",
+    "assert_energy_bounded",
+    "assert_rom_matches_fom",
+    "assert_symplectic_basis",
+    "fe_wave_matrices",
+    "fe_wave_model",
+    "finite_difference_jacobian",
+]
 
 
 def finite_difference_jacobian(step: Callable, x: np.ndarray, h: float = 1e-4) -> np.ndarray:
@@ -85,8 +91,9 @@ def _scaled_finite_differences(step: Callable, x: np.ndarray, h: float):
     return (4 * half - full) / 3, np.abs(half - full).max(axis=(1, 2)), steps
 
 
-def assert_symplectic_step(model, x, mu=None, dt=None, atol: float = 1e-8, fd: bool = True, fd_h: float = 1e-4,
-                           fd_atol: Optional[float] = None) -> dict:
+def assert_symplectic_step(
+    model, x, mu=None, dt=None, atol: float = 1e-8, fd: bool = True, fd_h: float = 1e-4, fd_atol: Optional[float] = None
+) -> dict:
     """Assert ``D Phi^T J D Phi = J`` for the learned step at the states ``x``.
 
     With an analytic Jacobian (``model.step_jacobian``, e.g. a fitted predictor or ``rom.flow_map``) the
@@ -141,31 +148,41 @@ def _symplectic_step(model, x, mu, dt, atol, fd, fd_h, fd_atol) -> dict:
         i = int(np.argmax(d))
         out["analytic"], out["method"] = float(d[i]), "analytic"
         if not d[i] <= atol:
-            raise AssertionError(f"the step is not symplectic: max |DPhi^T J DPhi - J| = {d[i]:.3e} > atol = {atol:.1e} "
-                                 f"(analytic Jacobian, model.step_jacobian) at state #{i} {x[i].tolist()}")
+            raise AssertionError(
+                f"the step is not symplectic: max |DPhi^T J DPhi - J| = {d[i]:.3e} > atol = {atol:.1e} "
+                f"(analytic Jacobian, model.step_jacobian) at state #{i} {x[i].tolist()}"
+            )
     if not fd and jac is not None:
         return out
     fdj, err, steps = _scaled_finite_differences(lambda z: np.asarray(model.step(z, mu=mu, dt=dt)), x, fd_h)
     size = np.maximum(1.0, np.abs(fdj).max(axis=(1, 2)))
     tol = fd_atol * size if fd_atol is not None else 4 * err + 100 * np.finfo(float).eps * size
-    how = ("finite-difference Jacobian: central differences, step {h:.2e} (= fd_h * max|x|), estimated error "
-           "{e:.2e}, tolerance {t:.2e}" + (" (fd_atol)" if fd_atol is not None else " (from the error estimate)"))
+    how = (
+        "finite-difference Jacobian: central differences, step {h:.2e} (= fd_h * max|x|), estimated error "
+        "{e:.2e}, tolerance {t:.2e}" + (" (fd_atol)" if fd_atol is not None else " (from the error estimate)")
+    )
     out["fd_error"] = float(err.max())
     if jac is None:
         d = _defect(fdj)
-        bound = x.shape[1] * (2 * size * tol + tol ** 2) + atol
+        bound = x.shape[1] * (2 * size * tol + tol**2) + atol
         i = int(np.argmax(d / bound))
         out["finite_differences"], out["method"] = float(d[i]), "finite_differences"
         if not d[i] <= bound[i]:
-            raise AssertionError(f"the step is not symplectic: max |DPhi^T J DPhi - J| = {d[i]:.3e} > {bound[i]:.2e} ("
-                                 + how.format(h=steps[i], e=err[i], t=tol[i]) + f") at state #{i} {x[i].tolist()}")
+            raise AssertionError(
+                f"the step is not symplectic: max |DPhi^T J DPhi - J| = {d[i]:.3e} > {bound[i]:.2e} ("
+                + how.format(h=steps[i], e=err[i], t=tol[i])
+                + f") at state #{i} {x[i].tolist()}"
+            )
         return out
     out["finite_differences"], out["method"] = float(_defect(fdj).max()), "analytic+finite_differences"
     gap = np.abs(fdj - jac).max(axis=(1, 2))
     i = int(np.argmax(gap / tol))
     if not gap[i] <= tol[i]:
-        raise AssertionError(f"step_jacobian disagrees with the finite-difference Jacobian of step by {gap[i]:.3e} ("
-                             + how.format(h=steps[i], e=err[i], t=tol[i]) + f") at state #{i} {x[i].tolist()}")
+        raise AssertionError(
+            f"step_jacobian disagrees with the finite-difference Jacobian of step by {gap[i]:.3e} ("
+            + how.format(h=steps[i], e=err[i], t=tol[i])
+            + f") at state #{i} {x[i].tolist()}"
+        )
     return out
 
 
@@ -195,21 +212,28 @@ def assert_energy_bounded(hamiltonian: Callable, trajectories, mu=None, rtol: fl
         energy = np.asarray(hamiltonian(flat)).reshape(b, k1)
     else:
         m = np.asarray(mu, dtype=float)
-        m = np.repeat(m.reshape(b, -1), k1, axis=0) if m.ndim and m.shape[0] == b and b > 1 else np.broadcast_to(m.reshape(1, -1), (b * k1, m.size))
+        m = (
+            np.repeat(m.reshape(b, -1), k1, axis=0)
+            if m.ndim and m.shape[0] == b and b > 1
+            else np.broadcast_to(m.reshape(1, -1), (b * k1, m.size))
+        )
         energy = np.asarray(hamiltonian(flat, m if m.shape[1] > 1 else m[:, 0])).reshape(b, k1)
     err = np.abs(energy - energy[:, :1])
     bound = rtol * np.abs(energy[:, :1]) + atol
     worst = np.unravel_index(np.argmax(err - bound), err.shape)
     rel = err / np.maximum(np.abs(energy[:, :1]), np.finfo(float).tiny)
     if np.any(err > bound):
-        raise AssertionError(f"energy error not bounded: |H(x_k) - H(x_0)| = {err[worst]:.3e} > "
-                             f"{bound[worst[0], 0]:.3e} (rtol {rtol:.1e}, atol {atol:.1e}) in trajectory #{worst[0]} at "
-                             f"step {worst[1]} of {k1 - 1} (H(x_0) = {energy[worst[0], 0]:.6g})")
+        raise AssertionError(
+            f"energy error not bounded: |H(x_k) - H(x_0)| = {err[worst]:.3e} > "
+            f"{bound[worst[0], 0]:.3e} (rtol {rtol:.1e}, atol {atol:.1e}) in trajectory #{worst[0]} at "
+            f"step {worst[1]} of {k1 - 1} (H(x_0) = {energy[worst[0], 0]:.6g})"
+        )
     return float(rel.max())
 
 
-def assert_rom_matches_fom(fom, rom, mus: Sequence, rtol: float, reconstruct: Optional[Callable] = None,
-                           stride: Optional[int] = None) -> list:
+def assert_rom_matches_fom(
+    fom, rom, mus: Sequence, rtol: float, reconstruct: Optional[Callable] = None, stride: Optional[int] = None
+) -> list:
     """Assert ``|u_fom(t_k) - V u_rom(t_k)| <= rtol max_k |u_fom(t_k)|`` on the ROM's time grid for each ``mu``.
 
     Parameters
@@ -245,8 +269,10 @@ def assert_rom_matches_fom(fom, rom, mus: Sequence, rtol: float, reconstruct: Op
         rel = float(err[k] / scale)
         errors.append(rel)
         if not rel <= rtol:
-            raise AssertionError(f"ROM differs from FOM at mu = {mu}, time index {k} (of {len(R) - 1}): "
-                                 f"|u_fom - V u_rom| / max|u_fom| = {rel:.3e} > rtol = {rtol:.1e}")
+            raise AssertionError(
+                f"ROM differs from FOM at mu = {mu}, time index {k} (of {len(R) - 1}): "
+                f"|u_fom - V u_rom| / max|u_fom| = {rel:.3e} > rtol = {rtol:.1e}"
+            )
     return errors
 
 
@@ -318,8 +344,9 @@ def fe_wave_model(n_elements: int = 64, T: float = 2.0, nt: int = 400, lumped: b
     M, K, nodes = fe_wave_matrices(n_elements)
     coords = MassMatrixCoordinates(M, lumped=lumped)
     space = NumpyVectorSpace(coords.N)
-    stiff = LincombOperator([NumpyMatrixOperator(coords.canonical_stiffness(K))],
-                            [ExpressionParameterFunctional("c[0]**2", {"c": 1})])
+    stiff = LincombOperator(
+        [NumpyMatrixOperator(coords.canonical_stiffness(K))], [ExpressionParameterFunctional("c[0]**2", {"c": 1})]
+    )
     H_op = BlockDiagonalOperator([stiff, IdentityOperator(space)])
     s = np.clip(np.abs(nodes - 0.4) / 0.35, 0.0, 1.0)
     q0 = (1 - s) ** 3 * (1 + 3 * s)  # a C^2 bump of half-width 0.35

@@ -22,6 +22,8 @@ def scenario_main(scenario: str) -> Callable:
 
         return paper_main(["run", scenario, *(sys.argv[1:] if argv is None else argv)])
 
-    main.__doc__ = (f"``sympredict-paper run {scenario} [OPTIONS]``: this scenario's models, figures and summary "
-                    "(``--quick --out DIR``).")
+    main.__doc__ = (
+        f"``sympredict-paper run {scenario} [OPTIONS]``: this scenario's models, figures and summary "
+        "(``--quick --out DIR``)."
+    )
     return main

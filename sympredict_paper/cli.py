@@ -47,7 +47,9 @@ def _cmd_study(args) -> int:
 def build_parser() -> argparse.ArgumentParser:
     from sympredict._version import __version__
 
-    parser = _Parser(prog="sympredict-paper", description="The paper's experiments on sympredict: scenarios and studies.")
+    parser = _Parser(
+        prog="sympredict-paper", description="The paper's experiments on sympredict: scenarios and studies."
+    )
     parser.add_argument("--version", action="version", version=f"sympredict-paper {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
     runner.add_parser(sub)

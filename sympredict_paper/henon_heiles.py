@@ -29,7 +29,14 @@ from sympredict.estimators.selection import kernel_grid, select_kernels
 from sympredict.systems.henon_heiles import LAMBDA_RANGE, HenonHeiles, energy_bounded_states
 from sympredict.interpolation.greedy import ExactGreedy
 
-__all__ = ["HenonHeilesPreset", "PRESETS", "DT_HH", "henon_heiles_data", "henon_heiles_test_instances", "run_henon_heiles"]
+__all__ = [
+    "HenonHeilesPreset",
+    "PRESETS",
+    "DT_HH",
+    "henon_heiles_data",
+    "henon_heiles_test_instances",
+    "run_henon_heiles",
+]
 
 logger = getLogger("sympredict_paper.henon_heiles")
 
@@ -80,14 +87,31 @@ class HenonHeilesPreset:
 
 
 PRESETS = {
-    "smoke": HenonHeilesPreset(n_lambda=3, n_per_lambda=150, n_val=100, max_centers=60, centers=(20, 40, 60), state_eps=(1.0,),
-                               mu_eps=(1.0,), m_star=30, vkoga_centers=30, n_test=2, horizon=5.0, refinements=(1, 2, 4), repeats=1),
+    "smoke": HenonHeilesPreset(
+        n_lambda=3,
+        n_per_lambda=150,
+        n_val=100,
+        max_centers=60,
+        centers=(20, 40, 60),
+        state_eps=(1.0,),
+        mu_eps=(1.0,),
+        m_star=30,
+        vkoga_centers=30,
+        n_test=2,
+        horizon=5.0,
+        refinements=(1, 2, 4),
+        repeats=1,
+    ),
     "quick": HenonHeilesPreset(),
-    "paper": HenonHeilesPreset(n_per_lambda=8000, n_val=4000, max_centers=1500, centers=(100, 300, 1000, 1500), vkoga_centers=500),
+    "paper": HenonHeilesPreset(
+        n_per_lambda=8000, n_val=4000, max_centers=1500, centers=(100, 300, 1000, 1500), vkoga_centers=500
+    ),
 }
 
 
-def henon_heiles_data(system: HenonHeiles, lams, n_per_lambda: int, energy_max: float, dt: float = DT_HH, seed: int = 0) -> FlowMapData:
+def henon_heiles_data(
+    system: HenonHeiles, lams, n_per_lambda: int, energy_max: float, dt: float = DT_HH, seed: int = 0
+) -> FlowMapData:
     """Flow-map samples: per ``lambda`` in ``lams``, ``n_per_lambda`` states with ``H <= energy_max`` and their flows over ``dt``."""
     parts = []
     for i, lam in enumerate(lams):
@@ -101,7 +125,12 @@ def henon_heiles_test_instances(system: HenonHeiles, n_test: int, energy_max: fl
     """``n_test`` random ``lambda`` in the range times ``n_test`` states each (``H <= 0.9 energy_max``): (x0 (B, 4), lam (B,))."""
     rng = np.random.default_rng(seed + 3000)
     lams = np.sort(rng.uniform(*LAMBDA_RANGE, n_test))
-    x0 = np.concatenate([energy_bounded_states(system, lam, n_test, 0.9 * energy_max, seed=seed + 3001 + i) for i, lam in enumerate(lams)])
+    x0 = np.concatenate(
+        [
+            energy_bounded_states(system, lam, n_test, 0.9 * energy_max, seed=seed + 3001 + i)
+            for i, lam in enumerate(lams)
+        ]
+    )
     return x0, np.repeat(lams, n_test)
 
 
@@ -122,22 +151,41 @@ def run_henon_heiles(preset: HenonHeilesPreset, seed: int = 0) -> dict:
         rng = np.random.default_rng(seed + 1)
         val_lams = rng.uniform(*LAMBDA_RANGE, preset.n_val)
         # one state per validation lambda: lambda uniform in the range, not on the training grid
-        vx0 = np.concatenate([energy_bounded_states(system, lam, 1, preset.energy_max, seed=seed + 100 + i) for i, lam in enumerate(val_lams)])
+        vx0 = np.concatenate(
+            [
+                energy_bounded_states(system, lam, 1, preset.energy_max, seed=seed + 100 + i)
+                for i, lam in enumerate(val_lams)
+            ]
+        )
         val = FlowMapData(vx0, system.flow(vx0, val_lams, DT_HH), val_lams[:, None], np.full(len(vx0), DT_HH))
     t_data = time.perf_counter() - t0
     t0 = time.perf_counter()
-    sel = select_kernels(data, val, kernel_grid(("imq",), preset.state_eps), kernel_grid(("imq",), preset.mu_eps), (None,),
-                         m_star=preset.m_star)
+    sel = select_kernels(
+        data,
+        val,
+        kernel_grid(("imq",), preset.state_eps),
+        kernel_grid(("imq",), preset.mu_eps),
+        (None,),
+        m_star=preset.m_star,
+    )
     t_sel = time.perf_counter() - t0
     vsel = select_vkoga_length_scale(data, val, preset.vkoga_length_scales, m_star=min(50, preset.vkoga_centers))
     models, fit_time = {}, {}
-    for name, make in (("symplectic", lambda: SymplecticKernelPredictor(sel.state, sel.mu, None,
-                                                                        max_centers=preset.max_centers,
-                                                                        trainer=ExactGreedy(tol=1e-10))),
-                       ("direct", lambda: DirectKernelPredictor(sel.state, sel.mu, None,
-                                                                max_centers=preset.max_centers,
-                                                                trainer=ExactGreedy(tol=1e-10))),
-                       ("vkoga", lambda: VKOGAFlowMap(max_centers=preset.vkoga_centers, length_scale=vsel["length_scale"]))):
+    for name, make in (
+        (
+            "symplectic",
+            lambda: SymplecticKernelPredictor(
+                sel.state, sel.mu, None, max_centers=preset.max_centers, trainer=ExactGreedy(tol=1e-10)
+            ),
+        ),
+        (
+            "direct",
+            lambda: DirectKernelPredictor(
+                sel.state, sel.mu, None, max_centers=preset.max_centers, trainer=ExactGreedy(tol=1e-10)
+            ),
+        ),
+        ("vkoga", lambda: VKOGAFlowMap(max_centers=preset.vkoga_centers, length_scale=vsel["length_scale"])),
+    ):
         t0 = time.perf_counter()
         with logger.block(f"Hénon–Heiles: {name} model on {len(data)} samples"):
             extra = {"validation": val} if name == "symplectic" else {}
@@ -148,32 +196,60 @@ def run_henon_heiles(preset: HenonHeilesPreset, seed: int = 0) -> dict:
     x0, lam_test = henon_heiles_test_instances(system, preset.n_test, preset.energy_max, seed)
     n_steps = int(np.floor(preset.horizon / DT_HH + 1e-9))
     # small models may wander off the training states: the chart's errors say so, no warning per rollout
-    with logger.block(f"Hénon–Heiles speed against accuracy: {len(x0)} trajectories x {n_steps} steps"), \
-            deliberate_threads(preset.threads), extrapolation_expected():
+    with (
+        logger.block(f"Hénon–Heiles speed against accuracy: {len(x0)} trajectories x {n_steps} steps"),
+        deliberate_threads(preset.threads),
+        extrapolation_expected(),
+    ):
         exact = rollout(system, x0, lam_test, DT_HH, n_steps, scheme="kahan_li6", substeps=256)
         table = SpeedTable(exact, preset.repeats)
-        ref_row = table.add("micro-step reference (Kahan-Li-6, step halving to 1e-11)", 0, "tol=1e-11", "equations",
-                            lambda: system.trajectory(x0, lam_test, DT_HH, n_steps))
+        ref_row = table.add(
+            "micro-step reference (Kahan-Li-6, step halving to 1e-11)",
+            0,
+            "tol=1e-11",
+            "equations",
+            lambda: system.trajectory(x0, lam_test, DT_HH, n_steps),
+        )
         trajectories = {}
         for m in model_sizes(preset.centers, model.n_centers_):
             small = timed(model.truncated(m))
             table.add("kernel predictor", m, f"m={m}", "data", lambda: small.rollout(x0, n_steps, mu=lam_test))
         trajectories["kernel predictor"] = model.rollout(x0, n_steps, mu=lam_test)
-        table.add("direct kernel model (NumPy)", direct.n_centers_, f"m={direct.n_centers_}", "data",
-                  lambda: direct.rollout(x0, n_steps, mu=lam_test))
+        table.add(
+            "direct kernel model (NumPy)",
+            direct.n_centers_,
+            f"m={direct.n_centers_}",
+            "data",
+            lambda: direct.rollout(x0, n_steps, mu=lam_test),
+        )
         trajectories["direct kernel model"] = direct.rollout(x0, n_steps, mu=lam_test)
-        table.add("pyMOR VKOGA flow map (NumPy)", vkoga.n_centers_, f"m={vkoga.n_centers_}", "data",
-                  lambda: vkoga.rollout(x0, n_steps, mu=lam_test, dt=DT_HH))
+        table.add(
+            "pyMOR VKOGA flow map (NumPy)",
+            vkoga.n_centers_,
+            f"m={vkoga.n_centers_}",
+            "data",
+            lambda: vkoga.rollout(x0, n_steps, mu=lam_test, dt=DT_HH),
+        )
         trajectories["pyMOR VKOGA"] = vkoga.rollout(x0, n_steps, mu=lam_test, dt=DT_HH)
         add_classical(table, system, x0, lam_test, DT_HH, n_steps, preset.refinements, EXPLICIT_SCHEMES)
     energy = {}
     for name, traj in trajectories.items():
         with np.errstate(all="ignore"):
-            e = relative_hamiltonian_error(system, np.nan_to_num(traj, nan=1e3, posinf=1e3, neginf=-1e3), lam_test[:, None])
+            e = relative_hamiltonian_error(
+                system, np.nan_to_num(traj, nan=1e3, posinf=1e3, neginf=-1e3), lam_test[:, None]
+            )
         energy[name] = float(np.max(e))
-    speed = {"dt": DT_HH, "n_trajectories": len(x0), "n_steps": n_steps, "repeats": preset.repeats, "threads": preset.threads,
-             "reference_time_s": ref_row["time_per_trajectory_s"], "error_reference": "Kahan-Li-6, dT/256 (compiled)",
-             "rows": table.rows, "unreached": []}
+    speed = {
+        "dt": DT_HH,
+        "n_trajectories": len(x0),
+        "n_steps": n_steps,
+        "repeats": preset.repeats,
+        "threads": preset.threads,
+        "reference_time_s": ref_row["time_per_trajectory_s"],
+        "error_reference": "Kahan-Li-6, dT/256 (compiled)",
+        "rows": table.rows,
+        "unreached": [],
+    }
     summary = {
         "preset": asdict(preset),
         "seed": seed,

@@ -62,8 +62,14 @@ class VKOGAFlowMap:
     fit_time_s_ : float
     """
 
-    def __init__(self, max_centers: int = 500, length_scale: float = 0.3, criterion: str = "f", tol: float = 1e-10,
-                 reg: float = 1e-12):
+    def __init__(
+        self,
+        max_centers: int = 500,
+        length_scale: float = 0.3,
+        criterion: str = "f",
+        tol: float = 1e-10,
+        reg: float = 1e-12,
+    ):
         self.max_centers = max_centers
         self.length_scale = length_scale
         self.criterion = criterion
@@ -89,8 +95,13 @@ class VKOGAFlowMap:
         self.lo_ = z.min(axis=0)
         self.span_ = np.where(np.ptp(z, axis=0) > 0, np.ptp(z, axis=0), 1.0)
         t0 = time.perf_counter()
-        self.regressor_ = VKOGARegressor(kernel=GaussianKernel(self.length_scale), criterion=self.criterion,
-                                         max_centers=as_positive_int(self.max_centers, "max_centers"), tol=self.tol, reg=self.reg)
+        self.regressor_ = VKOGARegressor(
+            kernel=GaussianKernel(self.length_scale),
+            criterion=self.criterion,
+            max_centers=as_positive_int(self.max_centers, "max_centers"),
+            tol=self.tol,
+            reg=self.reg,
+        )
         self.regressor_.fit(self._inputs(x0, mu, dt), x1 - x0)
         self.fit_time_s_ = time.perf_counter() - t0
         self.n_centers_ = len(self.regressor_._surrogate._centers)
@@ -138,5 +149,7 @@ def select_vkoga_length_scale(data, validation, length_scales=(0.1, 0.3, 1.0, 3.
         err = float(np.abs(peer.step(validation.x0, validation.mu, validation.dt) - validation.x1).max())
         table.append({"length_scale": float(ell), "max_err": err if np.isfinite(err) else float("inf")})
     best = min(table, key=lambda row: row["max_err"])
-    logger.info(f"VKOGA length scale {best['length_scale']:g} (validation max error {best['max_err']:.2e} at {m_star} centres)")
+    logger.info(
+        f"VKOGA length scale {best['length_scale']:g} (validation max error {best['max_err']:.2e} at {m_star} centres)"
+    )
     return {"length_scale": best["length_scale"], "table": table, "time_s": time.perf_counter() - t0}

@@ -32,7 +32,19 @@ from sympredict.estimators.selection import kernel_grid, refine_kernel_shapes, s
 from sympredict.systems.pendulum import DT_TEST, DT_TRAIN, MU_TRAIN, Pendulum, flow_map_data, random_flow_map_data
 from sympredict.interpolation.greedy import ExactGreedy
 
-__all__ = ["PendulumPreset", "PRESETS", "select_pendulum_kernels", "run_scenario_a", "run_scenario_b", "run_speed_accuracy", "train_peers", "run_stability", "paper_test_instances", "MU_EXTRAPOLATION", "DT_EXTRAPOLATION"]
+__all__ = [
+    "PendulumPreset",
+    "PRESETS",
+    "select_pendulum_kernels",
+    "run_scenario_a",
+    "run_scenario_b",
+    "run_speed_accuracy",
+    "train_peers",
+    "run_stability",
+    "paper_test_instances",
+    "MU_EXTRAPOLATION",
+    "DT_EXTRAPOLATION",
+]
 
 #: The paper's extrapolation case of scenario B.
 MU_EXTRAPOLATION = 0.825
@@ -108,14 +120,33 @@ class PendulumPreset:
 
 PRESETS = {
     # seconds: for tests of the pipeline itself, not of accuracy
-    "smoke": PendulumPreset(n_grid=14, max_centers=150, n_val=200, horizon=2.0, n_grid_b=12, max_centers_b=100, stability_periods=5,
-                            select_n_grid=10, select_n_val=200, select_eps=((0.2, 0.4), (1.5,), (3.0,)),
-                            select_m_screen=30, select_m_refine=60, vkoga_centers=30, speed_centers=(30, 60, 150)),
+    "smoke": PendulumPreset(
+        n_grid=14,
+        max_centers=150,
+        n_val=200,
+        horizon=2.0,
+        n_grid_b=12,
+        max_centers_b=100,
+        stability_periods=5,
+        select_n_grid=10,
+        select_n_val=200,
+        select_eps=((0.2, 0.4), (1.5,), (3.0,)),
+        select_m_screen=30,
+        select_m_refine=60,
+        vkoga_centers=30,
+        speed_centers=(30, 60, 150),
+    ),
     # minutes on 2 cores (docs/data/runtimes.json: quick.pendulum): already meets the paper's accuracy
     "quick": PendulumPreset(n_grid=50, max_centers=1500, n_val=2000, horizon=20.0),
     # the paper's data size: 688,464 candidate functionals
     "paper": PendulumPreset(
-        n_grid=200, max_centers=1500, n_val=20000, horizon=20.0, n_grid_b=100, max_centers_b=1500, stability_periods=1000,
+        n_grid=200,
+        max_centers=1500,
+        n_val=20000,
+        horizon=20.0,
+        n_grid_b=100,
+        max_centers_b=1500,
+        stability_periods=1000,
         vkoga_centers=300,
     ),
 }
@@ -174,18 +205,23 @@ def select_pendulum_kernels(preset: PendulumPreset, seed: int = 0) -> dict:
     val = random_flow_map_data(system, preset.select_n_val, seed=seed + 2)
     screen = None
     table = []
-    with logger.block(f"kernel selection: {len(preset.select_families)} families x "
-                      f"{int(np.prod([len(e) for e in preset.select_eps]))} shape tuples at m* = {preset.select_m_screen}"):
+    with logger.block(
+        f"kernel selection: {len(preset.select_families)} families x "
+        f"{int(np.prod([len(e) for e in preset.select_eps]))} shape tuples at m* = {preset.select_m_screen}"
+    ):
         for family in preset.select_families:
-            r = select_kernels(data, val, *(kernel_grid((family,), eps) for eps in preset.select_eps), m_star=preset.select_m_screen)
+            r = select_kernels(
+                data, val, *(kernel_grid((family,), eps) for eps in preset.select_eps), m_star=preset.select_m_screen
+            )
             table += r.table
             if screen is None or r.score < screen.score:
                 screen = r
         screen.table = table
     with logger.block(f"kernel selection: shape refinement at m* = {preset.select_m_refine}"):
         # m* = 1000 is near the final budget: a kernel that breaks down before it cannot use that budget
-        refine = refine_kernel_shapes(data, val, screen, m_star=preset.select_m_refine, max_sweeps=preset.select_sweeps,
-                                      prefer_complete=True)
+        refine = refine_kernel_shapes(
+            data, val, screen, m_star=preset.select_m_refine, max_sweeps=preset.select_sweeps, prefer_complete=True
+        )
     seconds = time.perf_counter() - t0
     summary = {
         "n_samples": len(data),
@@ -205,7 +241,13 @@ def select_pendulum_kernels(preset: PendulumPreset, seed: int = 0) -> dict:
         "screen_table": screen.table,
         "refine_table": refine.table,
     }
-    return {"kernels": (refine.state, refine.mu, refine.dt), "screen": screen, "refine": refine, "time_s": seconds, "summary": summary}
+    return {
+        "kernels": (refine.state, refine.mu, refine.dt),
+        "screen": screen,
+        "refine": refine,
+        "time_s": seconds,
+        "summary": summary,
+    }
 
 
 def run_scenario_a(preset: PendulumPreset, seed: int = 0, model_path=None) -> dict:
@@ -229,15 +271,18 @@ def run_scenario_a(preset: PendulumPreset, seed: int = 0, model_path=None) -> di
     """
     system = Pendulum()
     t0 = time.perf_counter()
-    with logger.block(f"scenario A data: {preset.n_grid}x{preset.n_grid} grid x {len(MU_TRAIN)} lengths x {len(DT_TRAIN)} steps"):
+    with logger.block(
+        f"scenario A data: {preset.n_grid}x{preset.n_grid} grid x {len(MU_TRAIN)} lengths x {len(DT_TRAIN)} steps"
+    ):
         data = flow_map_data(system, n_grid=preset.n_grid)
         val = random_flow_map_data(system, preset.n_val, seed=seed + 1, mu_values=MU_TRAIN, dt_values=DT_TRAIN)
     t_data = time.perf_counter() - t0
 
     selection = select_pendulum_kernels(preset, seed) if preset.select else None
     state_k, mu_k, dt_k = selection["kernels"] if selection else _kernels(preset.eps)
-    model = SymplecticKernelPredictor(state_k, mu_k, dt_k, max_centers=preset.max_centers,
-                                      trainer=ExactGreedy(tol=1e-10))
+    model = SymplecticKernelPredictor(
+        state_k, mu_k, dt_k, max_centers=preset.max_centers, trainer=ExactGreedy(tol=1e-10)
+    )
     t0 = time.perf_counter()
     model.fit(data.x0, data.x1, mu=data.mu, dt=data.dt, validation=val)
     t_fit = time.perf_counter() - t0
@@ -357,12 +402,17 @@ def run_scenario_b(preset: PendulumPreset, seed: int = 0, kernels=None) -> dict:
             ref = system.trajectory(x0, mu, dt, n_steps)
             row = {"dt": dt, "t": dt * np.arange(n_steps + 1)}
             for name, model in models.items():
-                row[f"err_{name}"] = relative_trajectory_error(model.rollout(x0, n_steps, mu=mu, dt=dt), ref).mean(axis=0)
+                row[f"err_{name}"] = relative_trajectory_error(model.rollout(x0, n_steps, mu=mu, dt=dt), ref).mean(
+                    axis=0
+                )
             per_dt.append(row)
         dt = DT_EXTRAPOLATION
         n_steps = int(np.floor(preset.horizon / dt + 1e-9))
         x_ex = x0[:1]
-        example = {"t": dt * np.arange(n_steps + 1), "reference": system.trajectory(x_ex, MU_EXTRAPOLATION, dt, n_steps)[0]}
+        example = {
+            "t": dt * np.arange(n_steps + 1),
+            "reference": system.trajectory(x_ex, MU_EXTRAPOLATION, dt, n_steps)[0],
+        }
         for name, model in models.items():
             example[name] = model.rollout(x_ex, n_steps, mu=MU_EXTRAPOLATION, dt=dt)[0]
     lengths = np.full(n_steps + 1, MU_EXTRAPOLATION)
@@ -376,8 +426,7 @@ def run_scenario_b(preset: PendulumPreset, seed: int = 0, kernels=None) -> dict:
         **{f"n_centers_{k}": m.n_centers_ for k, m in models.items()},
         **{f"time_fit_{k}_s": v for k, v in fit_time.items()},
         "per_dt": [
-            {"dt": r["dt"], **{f"{k}_median_err": float(np.median(r[f"err_{k}"][1:])) for k in models}}
-            for r in per_dt
+            {"dt": r["dt"], **{f"{k}_median_err": float(np.median(r[f"err_{k}"][1:])) for k in models}} for r in per_dt
         ],
         **{f"max_rel_energy_err_{k}": float(v.max()) for k, v in energy_err.items()},
         # energy drift: mean over the last tenth of the run minus the first tenth, relative to H(x0)
@@ -386,7 +435,14 @@ def run_scenario_b(preset: PendulumPreset, seed: int = 0, kernels=None) -> dict:
             for k, v in energy.items()
         },
     }
-    return {"summary": summary, "per_dt": per_dt, "example": example, "energy": energy, "energy_err": energy_err, "models": models}
+    return {
+        "summary": summary,
+        "per_dt": per_dt,
+        "example": example,
+        "energy": energy,
+        "energy_err": energy_err,
+        "models": models,
+    }
 
 
 def train_peers(model: SymplecticKernelPredictor, preset: PendulumPreset, seed: int = 0) -> dict:
@@ -402,15 +458,23 @@ def train_peers(model: SymplecticKernelPredictor, preset: PendulumPreset, seed: 
     k = model.kernel_
     t0 = time.perf_counter()
     with logger.block("peers: direct kernel model on the scenario-A data"):
-        direct = DirectKernelPredictor(k.state, k.mu, k.dt, max_centers=model.max_centers).fit(data.x0, data.x1, mu=data.mu, dt=data.dt)
+        direct = DirectKernelPredictor(k.state, k.mu, k.dt, max_centers=model.max_centers).fit(
+            data.x0, data.x1, mu=data.mu, dt=data.dt
+        )
     t_direct = time.perf_counter() - t0
     with logger.block(f"peers: pyMOR VKOGA ({preset.vkoga_centers} centres) on the scenario-A data"):
         val = random_flow_map_data(Pendulum(), preset.select_n_val, seed=seed + 2)
         vsel = select_vkoga_length_scale(data, val, preset.vkoga_length_scales, m_star=min(50, preset.vkoga_centers))
         vkoga = VKOGAFlowMap(max_centers=preset.vkoga_centers, length_scale=vsel["length_scale"]).fit(
-            data.x0, data.x1, mu=data.mu, dt=data.dt)
-    return {"direct": direct, "vkoga": vkoga, "time_fit_direct_s": t_direct, "time_fit_vkoga_s": vkoga.fit_time_s_,
-            "vkoga_selection": vsel}
+            data.x0, data.x1, mu=data.mu, dt=data.dt
+        )
+    return {
+        "direct": direct,
+        "vkoga": vkoga,
+        "time_fit_direct_s": t_direct,
+        "time_fit_vkoga_s": vkoga.fit_time_s_,
+        "vkoga_selection": vsel,
+    }
 
 
 def run_speed_accuracy(
@@ -459,8 +523,13 @@ def run_speed_accuracy(
     with deliberate_threads(threads), extrapolation_expected():
         exact = rollout(system, x0, lengths, dt, n_steps, scheme="kahan_li6", substeps=128)
         table = SpeedTable(exact, repeats)
-        ref_row = table.add("micro-step reference (implicit midpoint, h<=1e-3)", 0, "h<=1e-3", "equations",
-                            lambda: system.trajectory(x0, lengths, dt, n_steps))
+        ref_row = table.add(
+            "micro-step reference (implicit midpoint, h<=1e-3)",
+            0,
+            "h<=1e-3",
+            "equations",
+            lambda: system.trajectory(x0, lengths, dt, n_steps),
+        )
         for m in model_sizes(centers, model.n_centers_):
             small = timed(model.truncated(m))
             table.add("kernel predictor", m, f"m={m}", "data", lambda: small.rollout(x0, n_steps, mu=lengths, dt=dt))
@@ -470,18 +539,41 @@ def run_speed_accuracy(
             except ValueError as exc:
                 unreached.append(f"E_val <= {target:g}: {exc}")
                 continue
-            table.add(f"smallest kernel, E_val <= {target:g}", small.n_centers_, f"m={small.n_centers_}", "data",
-                      lambda: small.rollout(x0, n_steps, mu=lengths, dt=dt))
+            table.add(
+                f"smallest kernel, E_val <= {target:g}",
+                small.n_centers_,
+                f"m={small.n_centers_}",
+                "data",
+                lambda: small.rollout(x0, n_steps, mu=lengths, dt=dt),
+            )
         if direct is not None:
-            table.add("direct kernel model (NumPy)", direct.n_centers_, f"m={direct.n_centers_}", "data",
-                      lambda: direct.rollout(x0, n_steps, mu=lengths, dt=dt))
+            table.add(
+                "direct kernel model (NumPy)",
+                direct.n_centers_,
+                f"m={direct.n_centers_}",
+                "data",
+                lambda: direct.rollout(x0, n_steps, mu=lengths, dt=dt),
+            )
         if vkoga is not None:
-            table.add("pyMOR VKOGA flow map (NumPy)", vkoga.n_centers_, f"m={vkoga.n_centers_}", "data",
-                      lambda: vkoga.rollout(x0, n_steps, mu=lengths, dt=dt))
+            table.add(
+                "pyMOR VKOGA flow map (NumPy)",
+                vkoga.n_centers_,
+                f"m={vkoga.n_centers_}",
+                "data",
+                lambda: vkoga.rollout(x0, n_steps, mu=lengths, dt=dt),
+            )
         add_classical(table, system, x0, lengths, dt, n_steps, refinements, (*EXPLICIT_SCHEMES, "implicit_midpoint"))
-    return {"dt": dt, "n_trajectories": len(x0), "n_steps": n_steps, "repeats": repeats, "threads": threads,
-            "reference_time_s": ref_row["time_per_trajectory_s"], "error_reference": "Kahan-Li-6, dT/128 (compiled)",
-            "rows": table.rows, "unreached": unreached}
+    return {
+        "dt": dt,
+        "n_trajectories": len(x0),
+        "n_steps": n_steps,
+        "repeats": repeats,
+        "threads": threads,
+        "reference_time_s": ref_row["time_per_trajectory_s"],
+        "error_reference": "Kahan-Li-6, dT/128 (compiled)",
+        "rows": table.rows,
+        "unreached": unreached,
+    }
 
 
 def _upward_crossings(t, q):
@@ -541,13 +633,22 @@ def run_stability(
     system = Pendulum()
     if direct is None:
         data = flow_map_data(system, n_grid=preset.n_grid)
-        direct = DirectKernelPredictor(model.kernel_.state, model.kernel_.mu, model.kernel_.dt, max_centers=model.max_centers)
+        direct = DirectKernelPredictor(
+            model.kernel_.state, model.kernel_.mu, model.kernel_.dt, max_centers=model.max_centers
+        )
         with logger.block("stability: direct model on the scenario-A data"):
             direct.fit(data.x0, data.x1, mu=data.mu, dt=data.dt)
     x0 = np.array([[q0, 0.0]])
     period = 4 * np.sqrt(mu / system.g) * _complete_elliptic_k(np.sin(q0 / 2) ** 2)
     n_steps = int(np.ceil(preset.stability_periods * period / dt))
-    out = {"q0": q0, "mu": mu, "dt": dt, "periods": preset.stability_periods, "period": float(period), "n_steps": n_steps}
+    out = {
+        "q0": q0,
+        "mu": mu,
+        "dt": dt,
+        "periods": preset.stability_periods,
+        "period": float(period),
+        "n_steps": n_steps,
+    }
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ExtrapolationWarning)
         with logger.block(f"stability: {preset.stability_periods} periods ({n_steps} steps of {dt})"):
@@ -564,12 +665,18 @@ def run_stability(
         long = {}
         for name, traj in runs.items():
             finite = np.all(np.isfinite(traj))
-            err = np.abs(system.hamiltonian(np.nan_to_num(traj), lengths) - e0) / e0 if finite else np.full(n_steps + 1, np.inf)
+            err = (
+                np.abs(system.hamiltonian(np.nan_to_num(traj), lengths) - e0) / e0
+                if finite
+                else np.full(n_steps + 1, np.inf)
+            )
             long[name] = {
                 "energy_first": float(err[:tenth].max()),
                 "energy_last": float(err[-tenth:].max()),
                 "phase_error_rad": _phase_error(t, traj[:, 0], ref[:, 0]) if finite else float("nan"),
-                "final_rel_err": float(np.linalg.norm(traj[-1] - ref[-1]) / np.linalg.norm(ref[-1])) if finite else float("inf"),
+                "final_rel_err": float(np.linalg.norm(traj[-1] - ref[-1]) / np.linalg.norm(ref[-1]))
+                if finite
+                else float("inf"),
             }
         out["long"] = long
 
@@ -586,13 +693,18 @@ def run_stability(
             except NewtonConvergenceError as err:
                 row["kernel"] = f"Newton failed at step {err.step}"
             try:
-                row["implicit midpoint"] = float(relative_trajectory_error(
-                    integrate(implicit_midpoint_step, system, x0, np.array([[mu]]), h, k), ref_h)[0, 1:].mean())
+                row["implicit midpoint"] = float(
+                    relative_trajectory_error(
+                        integrate(implicit_midpoint_step, system, x0, np.array([[mu]]), h, k), ref_h
+                    )[0, 1:].mean()
+                )
             except NewtonConvergenceError as err:
                 row["implicit midpoint"] = f"Newton failed at step {err.step}"
             with np.errstate(all="ignore"):
                 sv = integrate(stormer_verlet_step, system, x0, np.array([[mu]]), h, k)
-            sv_err = relative_trajectory_error(np.nan_to_num(sv, nan=1e300, posinf=1e300, neginf=-1e300), ref_h)[0, 1:].mean()
+            sv_err = relative_trajectory_error(np.nan_to_num(sv, nan=1e300, posinf=1e300, neginf=-1e300), ref_h)[
+                0, 1:
+            ].mean()
             # a bounded but wrong orbit has relative error <= ~3; beyond 10 the explicit scheme has blown up
             row["Stormer-Verlet"] = float(sv_err) if np.isfinite(sv_err) and sv_err < 10 else "unstable (state grew)"
             rows.append(row)
@@ -603,8 +715,17 @@ def run_stability(
         for m in mu_sweep:
             ref_m = system.trajectory(x0, m, dt, k)
             kern = relative_trajectory_error(model.rollout(x0, k, mu=m, dt=dt), ref_m)[0, 1:].mean()
-            im = relative_trajectory_error(integrate(implicit_midpoint_step, system, x0, np.array([[m]]), dt, k), ref_m)[0, 1:].mean()
-            rows.append({"mu": m, "inside_training_box": bool(0.7 <= m <= 0.8), "kernel": float(kern), "implicit midpoint": float(im)})
+            im = relative_trajectory_error(
+                integrate(implicit_midpoint_step, system, x0, np.array([[m]]), dt, k), ref_m
+            )[0, 1:].mean()
+            rows.append(
+                {
+                    "mu": m,
+                    "inside_training_box": bool(0.7 <= m <= 0.8),
+                    "kernel": float(kern),
+                    "implicit midpoint": float(im),
+                }
+            )
         out["mu_sweep"] = rows
     return out
 

@@ -4,10 +4,31 @@ from __future__ import annotations
 
 
 from sympredict.cli.figure_style import (  # the figure style, shared with `sympredict demo`
-    METHOD_COLORS, _decorate, decorate, figure_data, method_color, plt, save,
+    METHOD_COLORS,
+    _decorate,
+    decorate,
+    figure_data,
+    method_color,
+    plt,
+    save,
 )
 
-__all__ = ["method_color", "decorate", "METHOD_COLORS", "greedy_residuals", "error_over_time", "phase_portrait", "energy_error", "trajectories_over_time", "hamiltonian_over_time", "speed_accuracy", "stability_sweeps", "point_tag", "figure_data", "save"]
+__all__ = [
+    "method_color",
+    "decorate",
+    "METHOD_COLORS",
+    "greedy_residuals",
+    "error_over_time",
+    "phase_portrait",
+    "energy_error",
+    "trajectories_over_time",
+    "hamiltonian_over_time",
+    "speed_accuracy",
+    "stability_sweeps",
+    "point_tag",
+    "figure_data",
+    "save",
+]
 
 _COLORS = plt.rcParams["axes.prop_cycle"].by_key()["color"]
 
@@ -53,14 +74,28 @@ def greedy_residuals(histories, title: str):
         color = _COLORS[i % len(_COLORS)]
         ax.loglog(m[1:], history.train_max_residual[1:], "-", color=color, label=f"training{label}", lw=1.2, zorder=2)
         if history.val_max_residual is not None:
-            ax.loglog(m[1:], history.val_max_residual[1:], color=_COLORS[1] if single else color, ls=(0, (4, 2)),
-                      label=f"validation{label}", lw=2.0, zorder=3)
-    _decorate(ax, "number of selected centres $m$ [1]", r"max state-gradient residual $\max|\partial_{\xi_l} e_m|$ [1]", title)
+            ax.loglog(
+                m[1:],
+                history.val_max_residual[1:],
+                color=_COLORS[1] if single else color,
+                ls=(0, (4, 2)),
+                label=f"validation{label}",
+                lw=2.0,
+                zorder=3,
+            )
+    _decorate(
+        ax, "number of selected centres $m$ [1]", r"max state-gradient residual $\max|\partial_{\xi_l} e_m|$ [1]", title
+    )
     return fig
 
 
-def error_over_time(curves, title: str, ylabel: str = "mean relative error $e_{rel}(t)$ [1]", floor: float = ERROR_FLOOR,
-                    time_unit: str = "s"):
+def error_over_time(
+    curves,
+    title: str,
+    ylabel: str = "mean relative error $e_{rel}(t)$ [1]",
+    floor: float = ERROR_FLOOR,
+    time_unit: str = "s",
+):
     """Error curves over time, log scale, the y-axis bounded below by the data's bulk and ``floor``.
 
     Parameters
@@ -72,8 +107,17 @@ def error_over_time(curves, title: str, ylabel: str = "mean relative error $e_{r
     """
     fig, ax = plt.subplots(figsize=(7, 4))
     for c in curves:
-        ax.semilogy(c["t"][1:], c["values"][1:], c.get("style", "-"), color=method_color(c["label"], c.get("color", 0)),
-                    label=c["label"], lw=1.2, marker=c.get("marker"), markevery=max(1, len(c["t"]) // 12), ms=4)
+        ax.semilogy(
+            c["t"][1:],
+            c["values"][1:],
+            c.get("style", "-"),
+            color=method_color(c["label"], c.get("color", 0)),
+            label=c["label"],
+            lw=1.2,
+            marker=c.get("marker"),
+            markevery=max(1, len(c["t"]) // 12),
+            ms=4,
+        )
     _log_limits(ax, [c["values"][1:] for c in curves], floor)
     _decorate(ax, f"time $t$ [{time_unit}]", ylabel, title, legend_outside=True)
     return fig
@@ -99,14 +143,29 @@ def phase_portrait(trajectories, title: str, t=None):
     import numpy as np
 
     items = list(trajectories.items())
-    fig, axes = plt.subplots(1, 2 if t is not None else 1, figsize=(11, 4.5) if t is not None else (5.5, 4.8),
-                             constrained_layout=True, squeeze=False)
+    fig, axes = plt.subplots(
+        1,
+        2 if t is not None else 1,
+        figsize=(11, 4.5) if t is not None else (5.5, 4.8),
+        constrained_layout=True,
+        squeeze=False,
+    )
     ax = axes[0, 0]
     n = len(items[0][1])
     for i, (label, traj) in enumerate(items):
-        style = dict(color=method_color(label, i), alpha=0.3, lw=6, solid_capstyle="round", zorder=1) if i == 0 else dict(
-            ls="-" if i == 1 else "--", color=method_color(label, i), lw=1.2, marker="os^v"[i % 4], ms=3.5, markevery=max(1, n // 25),
-            zorder=2 + i)
+        style = (
+            dict(color=method_color(label, i), alpha=0.3, lw=6, solid_capstyle="round", zorder=1)
+            if i == 0
+            else dict(
+                ls="-" if i == 1 else "--",
+                color=method_color(label, i),
+                lw=1.2,
+                marker="os^v"[i % 4],
+                ms=3.5,
+                markevery=max(1, n // 25),
+                zorder=2 + i,
+            )
+        )
         ax.plot(traj[:, 0], traj[:, 1], label=label, **style)
     q0 = items[0][1][0]
     ax.plot([q0[0]], [q0[1]], "o", color="k", ms=6, zorder=10, label="_initial state")
@@ -120,8 +179,12 @@ def phase_portrait(trajectories, title: str, t=None):
             ax.semilogy(t[1:], d[1:], "-" if i == 1 else "--", color=method_color(label, i), label=label, lw=1.2)
             dists.append(d[1:])
         _log_limits(ax, dists)
-        _decorate(ax, "time $t$ [s]", "distance to the reference $|x(t) - x_{ref}(t)|$ [1]",
-                  "distance to the reference in the phase plane")
+        _decorate(
+            ax,
+            "time $t$ [s]",
+            "distance to the reference $|x(t) - x_{ref}(t)|$ [1]",
+            "distance to the reference in the phase plane",
+        )
     return fig
 
 
@@ -139,8 +202,14 @@ def trajectories_over_time(t, trajectories, title: str):
     fig, axes = plt.subplots(2, 1, figsize=(7, 6), sharex=True)
     for i, (label, traj) in enumerate(trajectories.items()):
         for ax, comp in zip(axes, (0, 1)):
-            ax.plot(t, traj[:, comp], "-" if i == 0 else "--", color=method_color(label, i), label=label,
-                    lw=1.5 if i == 0 else 1.0)
+            ax.plot(
+                t,
+                traj[:, comp],
+                "-" if i == 0 else "--",
+                color=method_color(label, i),
+                label=label,
+                lw=1.5 if i == 0 else 1.0,
+            )
     axes[0].set_ylabel("angle $q(t)$ [rad]")
     axes[1].set_ylabel("momentum $p(t)$ [kg m$^2$/s]")
     axes[1].set_xlabel("time $t$ [s]")
@@ -155,7 +224,9 @@ def hamiltonian_over_time(t, energies, title: str):
     """``H(x(t))`` along trajectories; ``energies`` maps a label to values (K+1,)."""
     fig, ax = plt.subplots(figsize=(6, 4))
     for i, (label, values) in enumerate(energies.items()):
-        ax.plot(t, values, "-" if i == 0 else "--", color=method_color(label, i), label=label, lw=1.5 if i == 0 else 1.0)
+        ax.plot(
+            t, values, "-" if i == 0 else "--", color=method_color(label, i), label=label, lw=1.5 if i == 0 else 1.0
+        )
     _decorate(ax, "time $t$ [s]", "Hamiltonian $H(q, p; l)$ [J]", title)
     return fig
 
@@ -189,26 +260,57 @@ def speed_accuracy(rows, reference_time: float, title: str):
         used.add(marker)
         color = method_color(method, i)
         repeat = seen[color] = seen.get(color, -1) + 1  # the same method again (another size): another marker face
-        ax.loglog(t, e, marker + ("-" if len(pts) > 1 else ""), color=color, label=method,
-                  ms=5 if len(pts) > 1 else 8, mfc="none" if marker == "s" or repeat % 2 else None, mew=1.5 if repeat else 1.0)
+        ax.loglog(
+            t,
+            e,
+            marker + ("-" if len(pts) > 1 else ""),
+            color=color,
+            label=method,
+            ms=5 if len(pts) > 1 else 8,
+            mfc="none" if marker == "s" or repeat % 2 else None,
+            mew=1.5 if repeat else 1.0,
+        )
         # one tag per curve, at its most accurate point (tags at every point overlap where curves cross)
         best = min(pts, key=lambda r: r["median_err"] if r["median_err"] == r["median_err"] else float("inf"))
         tag = f"{point_tag(pts[0])} .. {point_tag(pts[-1])}" if len(pts) > 1 else point_tag(pts[0])
         # near the right edge of the (log) time axis the tag goes to the left of its point, inside the axes
         left = best["time_per_trajectory_s"] > t_max / 4
-        ax.annotate(tag, (best["time_per_trajectory_s"], best["median_err"]), fontsize=6, xytext=(-4 if left else 4, -9),
-                    textcoords="offset points", color=color, ha="right" if left else "left", annotation_clip=True)
+        ax.annotate(
+            tag,
+            (best["time_per_trajectory_s"], best["median_err"]),
+            fontsize=6,
+            xytext=(-4 if left else 4, -9),
+            textcoords="offset points",
+            color=color,
+            ha="right" if left else "left",
+            annotation_clip=True,
+        )
     ax.axvline(reference_time, color=method_color("reference"), ls=":", label="micro-step reference (time)")
     # a relative error above 10 is a blown-up run (CFL): keep the axis on the runs that work, say so on the chart
     blown = [r for r in rows if not r["median_err"] <= 10]
     if blown:
         ax.set_ylim(top=30)
-        ax.text(0.01, 0.99, "off the chart (error > 10, unstable): " + ", ".join(f"{r['method']} {point_tag(r)}" for r in blown),
-                transform=ax.transAxes, fontsize=6, va="top", wrap=True)
-    key = ", ".join(text for m, text in (("o", "o: only data"), ("s", "open square: equations"), ("^", "^: reduced operator"))
-                    if m in used)
-    _decorate(ax, "wall time per trajectory [s]", "median over time of the mean relative error [1]",
-              title + f"\n({key})", legend_outside=True)
+        ax.text(
+            0.01,
+            0.99,
+            "off the chart (error > 10, unstable): " + ", ".join(f"{r['method']} {point_tag(r)}" for r in blown),
+            transform=ax.transAxes,
+            fontsize=6,
+            va="top",
+            wrap=True,
+        )
+    key = ", ".join(
+        text
+        for m, text in (("o", "o: only data"), ("s", "open square: equations"), ("^", "^: reduced operator"))
+        if m in used
+    )
+    _decorate(
+        ax,
+        "wall time per trajectory [s]",
+        "median over time of the mean relative error [1]",
+        title + f"\n({key})",
+        legend_outside=True,
+    )
     return fig
 
 
@@ -219,8 +321,10 @@ def stability_sweeps(dt_rows, mu_rows, dt_train, mu_train, title: str):
     are drawn as crosses on the top edge.  The training ranges are shaded.
     """
     fig, axes = plt.subplots(1, 2, figsize=(11, 4))
-    for ax, rows, key, train, xlabel in ((axes[0], dt_rows, "dt", dt_train, "macro step $\\Delta T$ [s]"),
-                                         (axes[1], mu_rows, "mu", mu_train, "pendulum length $l$ [m]")):
+    for ax, rows, key, train, xlabel in (
+        (axes[0], dt_rows, "dt", dt_train, "macro step $\\Delta T$ [s]"),
+        (axes[1], mu_rows, "mu", mu_train, "pendulum length $l$ [m]"),
+    ):
         methods = [k for k in rows[0] if k not in (key, "solvability", "inside_training_box")]
         ax.axvspan(*train, color="0.9", label="training range")
         for i, method in enumerate(methods):
@@ -230,9 +334,19 @@ def stability_sweeps(dt_rows, mu_rows, dt_train, mu_train, title: str):
                 ax.semilogy(*zip(*ok), "o-", color=method_color(method, i), label=method, ms=4)
             if bad:
                 # staggered per method so that failures at the same step stay visible
-                ax.plot(bad, [1e1 * 2.0**i] * len(bad), "x", color=method_color(method, i), ms=9, mew=2, label=f"{method}: failed")
+                ax.plot(
+                    bad,
+                    [1e1 * 2.0**i] * len(bad),
+                    "x",
+                    color=method_color(method, i),
+                    ms=9,
+                    mew=2,
+                    label=f"{method}: failed",
+                )
         ax.set_xscale("log" if key == "dt" else "linear")
-        _decorate(ax, xlabel, "mean relative error over $[0, T]$ [1]", title if key == "dt" else "extrapolation in the length")
+        _decorate(
+            ax, xlabel, "mean relative error over $[0, T]$ [1]", title if key == "dt" else "extrapolation in the length"
+        )
     return fig
 
 
@@ -242,7 +356,14 @@ def solution_snapshots(x, times, solutions, title: str):
     axes = list(axes) if len(times) > 1 else [axes]
     for k, (ax, t) in enumerate(zip(axes, times)):
         for i, (label, rows) in enumerate(solutions.items()):
-            ax.plot(x, rows[k], "-" if i == 0 else "--", color=method_color(label, i), label=label, lw=1.5 if i == 0 else 1.0)
+            ax.plot(
+                x,
+                rows[k],
+                "-" if i == 0 else "--",
+                color=method_color(label, i),
+                label=label,
+                lw=1.5 if i == 0 else 1.0,
+            )
         ax.set_title(f"{title}, t = {t:g}")
         ax.set_xlabel("position $x$ [1]")
         ax.grid(True, alpha=0.3)
@@ -261,6 +382,8 @@ def cost_against_n(rows, title: str):
         if pts:
             color = method_color(label, i)
             repeat = seen[color] = seen.get(color, -1) + 1  # the same method at another size: another line style
-            ax.loglog(*zip(*pts), "os^v"[repeat % 4], ls=("-", "--", ":", "-.")[repeat % 4], color=color, label=label, ms=4)
+            ax.loglog(
+                *zip(*pts), "os^v"[repeat % 4], ls=("-", "--", ":", "-.")[repeat % 4], color=color, label=label, ms=4
+            )
     _decorate(ax, "full dimension $N$ (grid points) [1]", "wall time per trajectory [s]", title, legend_outside=True)
     return fig

@@ -45,7 +45,14 @@ _RUN_OUTPUT_SUFFIXES = (".png", ".pdf", ".json", ".h5", ".md")
 def _run_pendulum(preset_name: str, seed: int, out: Path):
     """Pendulum scenarios A and B and the stability study: returns (JSON summary, figure files, Markdown lines)."""
     from sympredict_paper import report
-    from sympredict_paper.pendulum import PRESETS, run_scenario_a, run_scenario_b, run_speed_accuracy, run_stability, train_peers
+    from sympredict_paper.pendulum import (
+        PRESETS,
+        run_scenario_a,
+        run_scenario_b,
+        run_speed_accuracy,
+        run_stability,
+        train_peers,
+    )
 
     preset = PRESETS[preset_name]
     results = run_scenario_a(preset, seed=seed, model_path=out / "pendulum_model.h5")
@@ -53,18 +60,25 @@ def _run_pendulum(preset_name: str, seed: int, out: Path):
     s = results["summary"]
     lines = report.pendulum_a_markdown(s)
     for r in s["per_dt"]:
-        print(f"  pendulum dT={r['dt']}: kernel median error {r['kernel_median_err']:.2e} (max {r['kernel_max_err']:.2e}), "
-              f"implicit midpoint {r['im_median_err']:.2e} (ratio {r['ratio_median']:.3g})")
+        print(
+            f"  pendulum dT={r['dt']}: kernel median error {r['kernel_median_err']:.2e} (max {r['kernel_max_err']:.2e}), "
+            f"implicit midpoint {r['im_median_err']:.2e} (ratio {r['ratio_median']:.3g})"
+        )
 
     peers = train_peers(results["model"], preset, seed=seed)
     sa = run_speed_accuracy(results["model"], preset, seed=seed, direct=peers["direct"], vkoga=peers["vkoga"])
     sa["time_fit_direct_s"], sa["time_fit_vkoga_s"] = peers["time_fit_direct_s"], peers["time_fit_vkoga_s"]
     sa["vkoga_selection"] = peers["vkoga_selection"]
-    figures += report.save_figures(report.speed_accuracy_figure(sa, "pendulum_speed_accuracy", f"Pendulum: speed against accuracy, dT={sa['dt']}"), out)
+    figures += report.save_figures(
+        report.speed_accuracy_figure(sa, "pendulum_speed_accuracy", f"Pendulum: speed against accuracy, dT={sa['dt']}"),
+        out,
+    )
     lines += report.speed_accuracy_markdown(
-        sa, f"Errors against {sa['error_reference']}. Micro-step reference (implicit midpoint, h <= 1e-3): "
+        sa,
+        f"Errors against {sa['error_reference']}. Micro-step reference (implicit midpoint, h <= 1e-3): "
         f"{sa['reference_time_s'] * 1e3:.2f} ms per trajectory. The direct model and VKOGA were trained on the same data "
-        f"({sa['time_fit_direct_s']:.0f} s and {sa['time_fit_vkoga_s']:.0f} s).")
+        f"({sa['time_fit_direct_s']:.0f} s and {sa['time_fit_vkoga_s']:.0f} s).",
+    )
     lines += ["", "Targets no model reached: " + "; ".join(sa["unreached"])] if sa["unreached"] else []
     s["speed_accuracy"] = sa
 
@@ -79,8 +93,10 @@ def _run_pendulum(preset_name: str, seed: int, out: Path):
     figures += report.save_figures(report.stability_figures(st), out)
     lines += report.stability_markdown(st, preset.horizon)
     s["stability"] = st
-    print(f"  scenario B at l={sb['mu']}: energy drift symplectic {sb['energy_drift_symplectic']:+.1e}, "
-          f"direct {sb['energy_drift_direct']:+.1e}")
+    print(
+        f"  scenario B at l={sb['mu']}: energy drift symplectic {sb['energy_drift_symplectic']:+.1e}, "
+        f"direct {sb['energy_drift_direct']:+.1e}"
+    )
     return s, figures, lines
 
 
@@ -97,18 +113,26 @@ def _run_wave(preset_name: str, seed: int, out: Path):
     lines = report.wave_markdown(s)
     for r in s["per_dt"]:
         for c in r["cases"]:
-            print(f"  wave dT={r['dt']} c={c['c']:.3f}: kernel {c['mean_kernel_red']:.2e}, implicit midpoint {c['mean_im_red']:.2e} "
-                  f"(ratio {c['ratio_red']:.3g})")
+            print(
+                f"  wave dT={r['dt']} c={c['c']:.3f}: kernel {c['mean_kernel_red']:.2e}, implicit midpoint {c['mean_im_red']:.2e} "
+                f"(ratio {c['ratio_red']:.3g})"
+            )
 
     sa = s["speed_accuracy"]
-    figures += report.save_figures(report.speed_accuracy_figure(sa, "wave_speed_accuracy", f"Wave: FOM vs ROM vs ROM + kernel, dT={sa['dt']}"), out)
+    figures += report.save_figures(
+        report.speed_accuracy_figure(sa, "wave_speed_accuracy", f"Wave: FOM vs ROM vs ROM + kernel, dT={sa['dt']}"), out
+    )
     lines += report.speed_accuracy_markdown(
-        sa, "Errors of full-space states against the FOM's exact solution (sine transform); every method starts from the same "
-        "full states and returns full states (ROM methods include projection and reconstruction).")
+        sa,
+        "Errors of full-space states against the FOM's exact solution (sine transform); every method starts from the same "
+        "full states and returns full states (ROM methods include projection and reconstruction).",
+    )
     lines += report.smallest_model_markdown(s)
     z = s["smallest"]
-    print(f"  wave smallest model for {z['target']:.0e}: 2n = {2 * z['n_reduced']}, "
-          f"{z['n_centers'] if z['reached'] else 'target not reached with all'} centres, validation error {z['validation_error']:.2e}")
+    print(
+        f"  wave smallest model for {z['target']:.0e}: 2n = {2 * z['n_reduced']}, "
+        f"{z['n_centers'] if z['reached'] else 'target not reached with all'} centres, validation error {z['validation_error']:.2e}"
+    )
     return s, figures, lines
 
 
@@ -121,8 +145,10 @@ def _run_sine_gordon(preset_name: str, seed: int, out: Path):
     figures = report.save_figures(report.sine_gordon_figures(s), out)
     for d, r in s["dims"].items():
         k = r["kernel_projected"]["error"]
-        print(f"  sine-Gordon 2n={d}: Galerkin {statistics.median(r['galerkin_error']):.2e}, DEIM {statistics.median(r['deim_error']):.2e}, "
-              f"kernel (FOM data) {'failed' if k is None else format(statistics.median(k), '.2e')}")
+        print(
+            f"  sine-Gordon 2n={d}: Galerkin {statistics.median(r['galerkin_error']):.2e}, DEIM {statistics.median(r['deim_error']):.2e}, "
+            f"kernel (FOM data) {'failed' if k is None else format(statistics.median(k), '.2e')}"
+        )
     return s, figures, report.sine_gordon_markdown(s)
 
 
@@ -135,12 +161,18 @@ def _run_henon_heiles(preset_name: str, seed: int, out: Path):
     results["model"].save(out / "henon_heiles_model.h5")
     s = results["summary"]
     sa = s["speed_accuracy"]
-    figures = report.save_figures(report.speed_accuracy_figure(
-        sa, "henon_heiles_speed_accuracy", f"Hénon–Heiles: speed against accuracy, dT={sa['dt']}"), out)
+    figures = report.save_figures(
+        report.speed_accuracy_figure(
+            sa, "henon_heiles_speed_accuracy", f"Hénon–Heiles: speed against accuracy, dT={sa['dt']}"
+        ),
+        out,
+    )
     lines = report.henon_heiles_markdown(s)
     best = min((r for r in sa["rows"] if r["method"] == "kernel predictor"), key=lambda r: r["median_err"])
-    print(f"  Hénon–Heiles: kernel m={best['size']} median error {best['median_err']:.2e} in "
-          f"{best['time_per_trajectory_s'] * 1e3:.3g} ms per trajectory")
+    print(
+        f"  Hénon–Heiles: kernel m={best['size']} median error {best['median_err']:.2e} in "
+        f"{best['time_per_trajectory_s'] * 1e3:.3g} ms per trajectory"
+    )
     return s, figures, lines
 
 
@@ -176,7 +208,9 @@ def _remove_stale_staging(parent: Path, name: str) -> None:
 
     pattern = re.compile(r"\." + re.escape(name) + r"\.(?:partial|old)-(\d+)-[0-9a-f]{8}")
     for entry, match in entries_matching(parent, pattern):
-        if entry.is_dir(follow_symlinks=False) and is_stale(int(match.group(1)), entry.stat(follow_symlinks=False).st_mtime):
+        if entry.is_dir(follow_symlinks=False) and is_stale(
+            int(match.group(1)), entry.stat(follow_symlinks=False).st_mtime
+        ):
             shutil.rmtree(entry.path, ignore_errors=True)
 
 
@@ -207,7 +241,10 @@ def _cmd_run(args) -> int:
     if args.initial == "breather":  # the sine-Gordon breather scenario has its own presets
         breather_presets = {"quick": "breather", "smoke": "smoke-breather"}
         if args.system != "sine-gordon" or preset_name not in breather_presets:
-            print("sympredict-paper: --initial breather needs `run sine-gordon` with --quick or --preset smoke", file=sys.stderr)
+            print(
+                "sympredict-paper: --initial breather needs `run sine-gordon` with --quick or --preset smoke",
+                file=sys.stderr,
+            )
             return 2
         preset_name = breather_presets[preset_name]
     systems = ALL_SYSTEMS if args.system == "all" else (args.system,)
@@ -219,13 +256,22 @@ def _cmd_run(args) -> int:
     _remove_stale_staging(out.parent, out.name)
     staging = out.parent / f".{out.name}.partial-{os.getpid()}-{secrets.token_hex(4)}"
     staging.mkdir()
-    command = "sympredict-paper " + " ".join(sys.argv[1:] if sys.argv[0].endswith("sympredict-paper") else ["run", args.system, "..."])
+    command = "sympredict-paper " + " ".join(
+        sys.argv[1:] if sys.argv[0].endswith("sympredict-paper") else ["run", args.system, "..."]
+    )
     t0 = time.perf_counter()
-    print(f"sympredict-paper: {', '.join(systems)}, preset '{preset_name}', {args.threads} BLAS thread(s), output in {out}/", flush=True)
+    print(
+        f"sympredict-paper: {', '.join(systems)}, preset '{preset_name}', {args.threads} BLAS thread(s), output in {out}/",
+        flush=True,
+    )
     try:
         results, figures, lines = {}, [], ["# sympredict results", "", f"Command: `{command}`", ""]
-        runners = {"pendulum": _run_pendulum, "wave": _run_wave, "sine-gordon": _run_sine_gordon,
-                   "henon-heiles": _run_henon_heiles}
+        runners = {
+            "pendulum": _run_pendulum,
+            "wave": _run_wave,
+            "sine-gordon": _run_sine_gordon,
+            "henon-heiles": _run_henon_heiles,
+        }
         with threadpool_limits(limits=args.threads):
             for system in systems:
                 summary, figs, md = runners[system](preset_name, args.seed, staging)
@@ -237,10 +283,19 @@ def _cmd_run(args) -> int:
         for c in claims:
             print(f"  claim {'holds' if c['holds'] else 'DOES NOT HOLD'}: {c['claim']}")
         with open(staging / "results.json", "w") as f:
-            json.dump({"command": command, "preset": preset_name, "claims": claims, "results": results, "figures": figures}, f, indent=2)
+            json.dump(
+                {"command": command, "preset": preset_name, "claims": claims, "results": results, "figures": figures},
+                f,
+                indent=2,
+            )
         (staging / "summary.md").write_text("\n".join(lines) + "\n")
-        marker = {"complete": True, "command": command, "preset": preset_name, "systems": list(systems),
-                  "files": sorted(p.name for p in staging.iterdir())}
+        marker = {
+            "complete": True,
+            "command": command,
+            "preset": preset_name,
+            "systems": list(systems),
+            "files": sorted(p.name for p in staging.iterdir()),
+        }
         (staging / RUN_MARKER).write_text(json.dumps(marker, indent=2) + "\n")
         _publish_run(staging, out)
     finally:
@@ -253,16 +308,33 @@ def _cmd_run(args) -> int:
 def add_parser(sub) -> None:
     """Register ``sympredict-paper run`` with the subparsers ``sub``."""
     run = sub.add_parser("run", help="train, evaluate and write figures and a summary")
-    run.add_argument("system", choices=[*SYSTEMS, "sine-gordon", "all"],
-                     help="the scenario to run ('all': pendulum and wave; sine-Gordon runs alone)")
+    run.add_argument(
+        "system",
+        choices=[*SYSTEMS, "sine-gordon", "all"],
+        help="the scenario to run ('all': pendulum and wave; sine-Gordon runs alone)",
+    )
     run.add_argument("--out", required=True, help="output folder (created if missing)")
     size = run.add_mutually_exclusive_group()
-    size.add_argument("--quick", action="store_true", help="small data (default): minutes on 2 cores (measured times: docs/data/runtimes.json)")
+    size.add_argument(
+        "--quick",
+        action="store_true",
+        help="small data (default): minutes on 2 cores (measured times: docs/data/runtimes.json)",
+    )
     size.add_argument("--paper", action="store_true", help="the paper's data sizes: minutes, ~10 GiB")
-    size.add_argument("--preset", choices=["smoke", "quick", "paper"], help="a preset by name ('smoke': seconds, for testing)")
-    run.add_argument("--initial", choices=["sech_cos", "breather"], default="sech_cos",
-                     help="sine-Gordon only: initial-data family ('breather': the breather presets, --quick or --preset smoke)")
-    run.add_argument("--seed", type=_int_at_least(0), default=0, help="seed of the validation and test draws (default 0)")
-    run.add_argument("--threads", type=_int_at_least(1), default=os.cpu_count() or 1, help="BLAS threads (default: all cores)")
+    size.add_argument(
+        "--preset", choices=["smoke", "quick", "paper"], help="a preset by name ('smoke': seconds, for testing)"
+    )
+    run.add_argument(
+        "--initial",
+        choices=["sech_cos", "breather"],
+        default="sech_cos",
+        help="sine-Gordon only: initial-data family ('breather': the breather presets, --quick or --preset smoke)",
+    )
+    run.add_argument(
+        "--seed", type=_int_at_least(0), default=0, help="seed of the validation and test draws (default 0)"
+    )
+    run.add_argument(
+        "--threads", type=_int_at_least(1), default=os.cpu_count() or 1, help="BLAS threads (default: all cores)"
+    )
     _add_verbose(run)
     run.set_defaults(func=_cmd_run)

@@ -63,9 +63,23 @@ from sympredict.flowmap.scaling import BoxScaling
 from sympredict.systems.sine_gordon import SineGordonFOM
 from sympredict.interpolation.greedy import ExactGreedy
 
-__all__ = ["SineGordonPreset", "PRESETS", "run_sine_gordon", "fom_data", "initial_states", "second_parameter", "energy_boundedness",
-           "ENERGY_BOUND_RATIO", "ENERGY_BOUND_FLOOR", "EnergySamples", "split_setup", "sign_symmetry", "no_augmentation", "choose_large_step",
-           "sine_gordon_reductor"]
+__all__ = [
+    "SineGordonPreset",
+    "PRESETS",
+    "run_sine_gordon",
+    "fom_data",
+    "initial_states",
+    "second_parameter",
+    "energy_boundedness",
+    "ENERGY_BOUND_RATIO",
+    "ENERGY_BOUND_FLOOR",
+    "EnergySamples",
+    "split_setup",
+    "sign_symmetry",
+    "no_augmentation",
+    "choose_large_step",
+    "sine_gordon_reductor",
+]
 
 logger = getLogger("sympredict_paper.sine_gordon")
 
@@ -136,11 +150,31 @@ class SineGordonPreset:
 #: the large-step kernel (run K in docs/explanation/sine_gordon.md: the 2x and large-step claims hold with them, not without)
 PRESETS = {
     "quick": SineGordonPreset(kernel_split="quadratic-mass", large_step_split="auto"),
-    "paper": SineGordonPreset(n_c=5, n_amplitude=6, n_test=5, dims=(8, 12, 16), max_centers=3000, repeats=11,
-                              kernel_split="quadratic-mass", large_step_split="auto"),
-    "smoke": SineGordonPreset(n_points=60, length=12.0, n_c=2, n_amplitude=2, n_test=2, T=2.0, dims=(4,),
-                             max_centers=60, cost_N=(60, 120), repeats=2, long_factor=2, large_step=5,
-                             large_step_candidates=()),
+    "paper": SineGordonPreset(
+        n_c=5,
+        n_amplitude=6,
+        n_test=5,
+        dims=(8, 12, 16),
+        max_centers=3000,
+        repeats=11,
+        kernel_split="quadratic-mass",
+        large_step_split="auto",
+    ),
+    "smoke": SineGordonPreset(
+        n_points=60,
+        length=12.0,
+        n_c=2,
+        n_amplitude=2,
+        n_test=2,
+        T=2.0,
+        dims=(4,),
+        max_centers=60,
+        cost_N=(60, 120),
+        repeats=2,
+        long_factor=2,
+        large_step=5,
+        large_step_candidates=(),
+    ),
 }
 #: breathers (the other initial family): c in [0.8, 1.2], omega in [0.6, 0.9].
 #: Physics: T = 10.5 >= 2 pi / 0.6 = 10.47, one period of the slowest breather (the training snapshots then hold
@@ -151,8 +185,9 @@ PRESETS = {
 #: the budget unused.  Both runs' test errors were seen before the change; no choice here uses them.
 PRESETS["breather"] = SineGordonPreset(initial="breather", length=30.0, T=10.5)
 #: a seconds-sized breather case for the tests
-PRESETS["smoke-breather"] = replace(PRESETS["smoke"], initial="breather", n_points=80, length=16.0, T=8.0,
-                                    omega_range=(0.8, 0.9))
+PRESETS["smoke-breather"] = replace(
+    PRESETS["smoke"], initial="breather", n_points=80, length=16.0, T=8.0, omega_range=(0.8, 0.9)
+)
 
 
 def second_parameter(p: SineGordonPreset) -> tuple:
@@ -202,8 +237,14 @@ def fom_data(p: SineGordonPreset) -> dict:
     train_time``.  Cost: ``(P + long_factor B) K`` FOM steps of ``O(N)`` times the sub-steps.
     """
     rng = np.random.default_rng(p.seed)
-    fom = SineGordonFOM(n_points=p.n_points, length=p.length, c_range=p.c_range, amplitude_range=p.amplitude_range,
-                        T=p.T, nt=int(round(p.T / p.DT)))
+    fom = SineGordonFOM(
+        n_points=p.n_points,
+        length=p.length,
+        c_range=p.c_range,
+        amplitude_range=p.amplitude_range,
+        T=p.T,
+        nt=int(round(p.T / p.DT)),
+    )
     K = int(round(p.T / p.DT))
     name2, range2 = second_parameter(p)
     # a_tr, a_te: the second parameter (amplitude or omega)
@@ -212,12 +253,24 @@ def fom_data(p: SineGordonPreset) -> dict:
     c_te = rng.uniform(*p.c_range, p.n_test)
     a_te = rng.uniform(*range2, p.n_test)
     t = time.perf_counter()
-    X_tr, est = fom.reference_trajectory(initial_states(fom, p, c_tr, a_tr), c_tr, p.DT, K, tol=p.ref_tol,
-                                         return_error=True)
+    X_tr, est = fom.reference_trajectory(
+        initial_states(fom, p, c_tr, a_tr), c_tr, p.DT, K, tol=p.ref_tol, return_error=True
+    )
     train_time = time.perf_counter() - t
     X_te = fom.reference_trajectory(initial_states(fom, p, c_te, a_te), c_te, p.DT, p.long_factor * K, tol=p.ref_tol)
-    return {"fom": fom, "K": K, "name2": name2, "c_tr": c_tr, "a_tr": a_tr, "c_te": c_te, "a_te": a_te,
-            "X_tr": X_tr, "X_te": X_te, "step_halving_estimate": est, "train_time": train_time}
+    return {
+        "fom": fom,
+        "K": K,
+        "name2": name2,
+        "c_tr": c_tr,
+        "a_tr": a_tr,
+        "c_te": c_te,
+        "a_te": a_te,
+        "X_tr": X_tr,
+        "X_te": X_te,
+        "step_halving_estimate": est,
+        "train_time": train_time,
+    }
 
 
 def run_sine_gordon(preset: SineGordonPreset = PRESETS["quick"], **overrides) -> dict:
@@ -229,14 +282,20 @@ def run_sine_gordon(preset: SineGordonPreset = PRESETS["quick"], **overrides) ->
         d = fom_data(p)
         fom, K, name2 = d["fom"], d["K"], d["name2"]
         c_tr, a_tr, c_te, a_te, X_tr, X_te = (d[k] for k in ("c_tr", "a_tr", "c_te", "a_te", "X_tr", "X_te"))
-        out = {"preset": asdict(p), "second_parameter": name2, "test_c": c_te.tolist(), f"test_{name2}": a_te.tolist(),
-               "dims": {}}
+        out = {
+            "preset": asdict(p),
+            "second_parameter": name2,
+            "test_c": c_te.tolist(),
+            f"test_{name2}": a_te.tolist(),
+            "dims": {},
+        }
         out["fom_train_time"] = d["train_time"]
         out["fom_step_halving_estimate"] = d["step_halving_estimate"]
         x0_te = X_te[:, 0]
         x_te = X_te[:, : K + 1]
         out["fom_time_per_trajectory"] = _median_time(
-            lambda: fom.reference_trajectory(x0_te[:1], c_te[:1], p.DT, K, tol=p.ref_tol), max(1, p.repeats // 2))
+            lambda: fom.reference_trajectory(x0_te[:1], c_te[:1], p.DT, K, tol=p.ref_tol), max(1, p.repeats // 2)
+        )
         snaps = X_tr.reshape(-1, fom.dim)
         for dim in p.dims:
             out["dims"][dim] = _one_dimension(fom, p, dim // 2, snaps, X_tr, c_tr, a_tr, X_te, c_te, a_te, K)
@@ -302,16 +361,18 @@ def energy_boundedness(err, n_train: int, ratio: float = ENERGY_BOUND_RATIO, flo
     e = np.atleast_2d(np.asarray(err, dtype=float))
     n_train = int(n_train)
     if n_train < 1 or e.shape[1] <= n_train + 1:
-        raise ValueError(f"need n_train >= 1 and a series longer than n_train + 1 points, got n_train = {n_train}, "
-                         f"length {e.shape[1]}")
+        raise ValueError(
+            f"need n_train >= 1 and a series longer than n_train + 1 points, got n_train = {n_train}, "
+            f"length {e.shape[1]}"
+        )
     out = {"m0": [], "max_after": [], "ratio": [], "rise": [], "bounded": []}
     for row in e:
         finite = bool(np.all(np.isfinite(row)))
         m0 = float(np.max(row[: n_train + 1])) if finite else np.inf
         m = max(m0, float(floor), 1e-300)
-        after = row[n_train + 1:]
+        after = row[n_train + 1 :]
         n_w = len(after) // n_train
-        wmax = [float(np.max(after[w * n_train: (w + 1) * n_train])) for w in range(n_w)] if finite else []
+        wmax = [float(np.max(after[w * n_train : (w + 1) * n_train])) for w in range(n_w)] if finite else []
         rise = None
         if len(wmax) >= 2:
             ends = n_train * (np.arange(len(wmax)) + 2.0)
@@ -322,7 +383,9 @@ def energy_boundedness(err, n_train: int, ratio: float = ENERGY_BOUND_RATIO, flo
         out["max_after"].append(m_after)
         out["ratio"].append(m_after / m)
         out["rise"].append(rise)
-        out["bounded"].append(bool(finite and m0 < 1.0 and m_after <= ratio * m and (rise is None or rise <= ratio - 1.0)))
+        out["bounded"].append(
+            bool(finite and m0 < 1.0 and m_after <= ratio * m and (rise is None or rise <= ratio - 1.0))
+        )
     out["all_bounded"] = all(out["bounded"])
     return out
 
@@ -339,8 +402,11 @@ def _one_dimension(fom, p, n, snaps, X_tr, c_tr, a_tr, X_te, c_te, a_te, K):
     curves = {"t": t.tolist()}
     energy = {"t": t_long.tolist()}
     snap_k = [0, K // 2, K]
-    snapshots = {"t": [float(t[k]) for k in snap_k], "x": fom.x.tolist(),
-                 "fom": x_te[0, snap_k, : fom.n_points].tolist()}
+    snapshots = {
+        "t": [float(t[k]) for k in snap_k],
+        "x": fom.x.tolist(),
+        "fom": x_te[0, snap_k, : fom.n_points].tolist(),
+    }
     Yg = gal.solve(y0, c_te, p.DT, p.long_factor * K, substeps=p.substeps)
     res["galerkin_error"] = _err(gal, Yg[:, : K + 1], x_te).tolist()
     curves["galerkin"] = _curve(gal, Yg[:, : K + 1], x_te).tolist()
@@ -371,18 +437,37 @@ def _one_dimension(fom, p, n, snaps, X_tr, c_tr, a_tr, X_te, c_te, a_te, K):
     # learned reduced flow maps: data from Galerkin trajectories (intrusive) or projected FOM trajectories
     split = split_setup(p, gal)
     if split["quadratic"] is not None:  # the Galerkin ROM with the data's sub-steps (the flow the split kernel learns)
-        res["galerkin_error_split_substeps"] = _err(gal, gal.solve(y0, c_te, p.DT, K, substeps=split["substeps"]), x_te).tolist()
+        res["galerkin_error_split_substeps"] = _err(
+            gal, gal.solve(y0, c_te, p.DT, K, substeps=split["substeps"]), x_te
+        ).tolist()
     Yg_tr = gal.solve(gal.project(X_tr[:, 0]), c_tr, p.DT, K, substeps=split["substeps"])
     Yp_tr = gal.project(X_tr)
     for data, Ytr in (("reduced", Yg_tr), ("projected", Yp_tr)):
         quad = split["quadratic"] if data == "reduced" else None
-        flow, model, fit_time, reg, table = _fit_kernel(p, Ytr[:, :-1], Ytr[:, 1:], c_tr, p.DT, update=p.kernel_update,
-                                                        augment=_augmentation(split["preset"], data, gal), quadratic=quad,
-                                                        gal=gal)
+        flow, model, fit_time, reg, table = _fit_kernel(
+            p,
+            Ytr[:, :-1],
+            Ytr[:, 1:],
+            c_tr,
+            p.DT,
+            update=p.kernel_update,
+            augment=_augmentation(split["preset"], data, gal),
+            quadratic=quad,
+            gal=gal,
+        )
         hist = model.history_.train_max_residual
-        entry = {"fit_time": fit_time, "update": getattr(model, "predictor_", model).update, "regularization": reg, "regularization_table": table,
-                 "centers": int(model.n_centers_), "train_residual": [float(v) for v in hist], "error": None, "energy_error_long": None,
-                 "time_per_trajectory": None, "failure": None}
+        entry = {
+            "fit_time": fit_time,
+            "update": getattr(model, "predictor_", model).update,
+            "regularization": reg,
+            "regularization_table": table,
+            "centers": int(model.n_centers_),
+            "train_residual": [float(v) for v in hist],
+            "error": None,
+            "energy_error_long": None,
+            "time_per_trajectory": None,
+            "failure": None,
+        }
         if data == "reduced":
             entry.update(split={k: v for k, v in split.items() if k not in ("quadratic", "preset")})
         try:
@@ -393,8 +478,9 @@ def _one_dimension(fom, p, n, snaps, X_tr, c_tr, a_tr, X_te, c_te, a_te, K):
             energy[f"kernel_{data}"] = energy_per_test[f"kernel_{data}"].max(axis=0).tolist()
             entry["energy_error_long"] = max(energy[f"kernel_{data}"])
             snapshots[f"kernel_{data}"] = gal.reconstruct(Yk[0, snap_k])[:, : fom.n_points].tolist()
-            entry["time_per_trajectory"] = _median_time(lambda: flow.rollout(y0[:1], K, mu=c_te[:1, None], dt=p.DT),
-                                                        p.repeats)
+            entry["time_per_trajectory"] = _median_time(
+                lambda: flow.rollout(y0[:1], K, mu=c_te[:1, None], dt=p.DT), p.repeats
+            )
         except Exception as exc:  # a failed rollout is a result, reported as such
             entry["failure"] = failure_text(exc)
         res[f"kernel_{data}"] = entry
@@ -406,12 +492,18 @@ def _one_dimension(fom, p, n, snaps, X_tr, c_tr, a_tr, X_te, c_te, a_te, K):
     res["curves"], res["energy"], res["snapshots"] = curves, energy, snapshots
     res["energy_per_test"] = {k: v.tolist() for k, v in energy_per_test.items()}
     res["energy_bounded"] = {k: energy_boundedness(v, K) for k, v in energy_per_test.items()}
-    res["galerkin_time_per_trajectory"] = _median_time(lambda: gal.solve(y0[:1], c_te[:1], p.DT, K, substeps=p.substeps), p.repeats)
+    res["galerkin_time_per_trajectory"] = _median_time(
+        lambda: gal.solve(y0[:1], c_te[:1], p.DT, K, substeps=p.substeps), p.repeats
+    )
     res["galerkin_rk4_time_per_trajectory"] = _median_time(
-        lambda: gal.solve(y0[:1], c_te[:1], p.DT, K, scheme="rk4", substeps=p.substeps), p.repeats)
-    res["deim_time_per_trajectory"] = _median_time(lambda: deim.solve(y0[:1], c_te[:1], p.DT, K, substeps=p.substeps), p.repeats)
+        lambda: gal.solve(y0[:1], c_te[:1], p.DT, K, scheme="rk4", substeps=p.substeps), p.repeats
+    )
+    res["deim_time_per_trajectory"] = _median_time(
+        lambda: deim.solve(y0[:1], c_te[:1], p.DT, K, substeps=p.substeps), p.repeats
+    )
     res["deim_rk4_time_per_trajectory"] = _median_time(
-        lambda: deim.solve(y0[:1], c_te[:1], p.DT, K, scheme="rk4", substeps=p.substeps), p.repeats)
+        lambda: deim.solve(y0[:1], c_te[:1], p.DT, K, scheme="rk4", substeps=p.substeps), p.repeats
+    )
     return res
 
 
@@ -431,15 +523,26 @@ def split_setup(p: SineGordonPreset, gal) -> dict:
     "DT_omega_max_linear", "preset"}`` (``preset``: ``p`` with the data's sub-steps, for the energy samples).
     """
     if p.kernel_split == "none":
-        return {"kind": "none", "quadratic": None, "substeps": int(p.substeps), "DT_omega_max_linear": None, "preset": p}
+        return {
+            "kind": "none",
+            "quadratic": None,
+            "substeps": int(p.substeps),
+            "DT_omega_max_linear": None,
+            "preset": p,
+        }
     if p.kernel_split not in ("quadratic", "quadratic-mass"):
         raise ValueError(f"kernel_split must be 'none', 'quadratic' or 'quadratic-mass', got {p.kernel_split!r}")
     quad = gal.quadratic_part(mass=p.kernel_split == "quadratic-mass")
     JA = canonical_J(gal.dim) @ quad.hessian(np.asarray(p.c_range, dtype=float), 2)
     wdt = float(p.DT * np.abs(np.linalg.eigvals(JA)).max())
     k = max(int(p.substeps), int(np.ceil(wdt * np.sqrt(wdt / (12.0 * p.split_phase_tol)))))
-    return {"kind": p.kernel_split, "quadratic": quad, "substeps": k, "DT_omega_max_linear": wdt,
-            "preset": replace(p, substeps=k)}
+    return {
+        "kind": p.kernel_split,
+        "quadratic": quad,
+        "substeps": k,
+        "DT_omega_max_linear": wdt,
+        "preset": replace(p, substeps=k),
+    }
 
 
 def _pairs(Y0, Y1, c):
@@ -535,13 +638,29 @@ def _augmentation(p, data: str, gal):
     if kind == "symmetry":
         return sign_symmetry
     if kind in ("energy", "energy-box") and data == "reduced":
-        return EnergySamples(gal, p.c_range, p.DT, p.substeps, p.energy_samples_per_pair,
-                             "sublevel" if kind == "energy" else "box", p.seed)
+        return EnergySamples(
+            gal,
+            p.c_range,
+            p.DT,
+            p.substeps,
+            p.energy_samples_per_pair,
+            "sublevel" if kind == "energy" else "box",
+            p.seed,
+        )
     raise ValueError(f"augmentation {kind!r} is not available for data={data!r} (energy samples need the Galerkin ROM)")
 
 
-def sine_gordon_reductor(p, gal, pairs, dt, regularization=0.0, update="symplectic_euler", quadratic=None,
-                         validation=None, regularizations=None) -> SymplecticKernelReductor:
+def sine_gordon_reductor(
+    p,
+    gal,
+    pairs,
+    dt,
+    regularization=0.0,
+    update="symplectic_euler",
+    quadratic=None,
+    validation=None,
+    regularizations=None,
+) -> SymplecticKernelReductor:
     """The library's reductor set up as the experiment's kernel ROMs, on reduced pairs it is given.
 
     :class:`~sympredict.mor.SymplecticKernelReductor` on the FOM's pyMOR model and the Galerkin ROM's basis,
@@ -558,24 +677,44 @@ def sine_gordon_reductor(p, gal, pairs, dt, regularization=0.0, update="symplect
     inaccurate rollout (a result of the comparison) rather than refusing to train it.
     """
     fom = gal.fom
-    space = fom.model.parameters.space({"amplitude": tuple(fom.parameter_space.ranges["amplitude"]),
-                                        "c": tuple(map(float, p.c_range))})
-    predictor = SymplecticKernelPredictor(None if p.state_eps is None else IMQ(p.state_eps), mu_kernel=IMQ(p.mu_eps),
-                                          max_centers=p.max_centers, update=update,
-                                          trainer=ExactGreedy(tol=1e-9, regularization=float(regularization)))
+    space = fom.model.parameters.space(
+        {"amplitude": tuple(fom.parameter_space.ranges["amplitude"]), "c": tuple(map(float, p.c_range))}
+    )
+    predictor = SymplecticKernelPredictor(
+        None if p.state_eps is None else IMQ(p.state_eps),
+        mu_kernel=IMQ(p.mu_eps),
+        max_centers=p.max_centers,
+        update=update,
+        trainer=ExactGreedy(tol=1e-9, regularization=float(regularization)),
+    )
     x0, x1, mu = pairs
-    return SymplecticKernelReductor(fom.model, pymor_basis(gal.V, fom.phase_space), dt,
-                                    GivenSamples(FlowMapData(x0, x1, mu, np.full(len(x0), float(dt))), validation,
-                                                 parameter_space=space), predictor,
-                                    selection=None if regularizations is None else ValidationSelection(
-                                        regularizations=regularizations),
-                                    split=None if quadratic is None else QuadraticSplit(quadratic),
-                                    scaling=TrainingScaling(p.state_scaling), flow_parameters=("c",),
-                                    check_existence=False)
+    return SymplecticKernelReductor(
+        fom.model,
+        pymor_basis(gal.V, fom.phase_space),
+        dt,
+        GivenSamples(FlowMapData(x0, x1, mu, np.full(len(x0), float(dt))), validation, parameter_space=space),
+        predictor,
+        selection=None if regularizations is None else ValidationSelection(regularizations=regularizations),
+        split=None if quadratic is None else QuadraticSplit(quadratic),
+        scaling=TrainingScaling(p.state_scaling),
+        flow_parameters=("c",),
+        check_existence=False,
+    )
 
 
-def _fit_kernel(p, Y0, Y1, c_tr, dt, regularization=None, update="symplectic_euler", stride=1, augment=no_augmentation,
-                quadratic=None, gal=None):
+def _fit_kernel(
+    p,
+    Y0,
+    Y1,
+    c_tr,
+    dt,
+    regularization=None,
+    update="symplectic_euler",
+    stride=1,
+    augment=no_augmentation,
+    quadratic=None,
+    gal=None,
+):
     """A kernel flow map at the macro step ``dt`` from pairs of reduced states ``Y1 = Phi^dt(Y0)`` (P, k, 2n)
     of ``P`` training trajectories at wave speeds ``c_tr`` (P,), through the reductor
     (:func:`sine_gordon_reductor` on the Galerkin ROM ``gal``'s basis).
@@ -611,10 +750,18 @@ def _fit_kernel(p, Y0, Y1, c_tr, dt, regularization=None, update="symplectic_eul
     reg = 0.0 if regularization is None else float(regularization)
     if regularization is None and p.regularizations and P > 2:
         held = np.zeros(P, dtype=bool)
-        held[1::p.validation_every] = True
+        held[1 :: p.validation_every] = True
         val = TrajectoryData(np.concatenate([Y0[held, :1], Y1[held, ::stride]], axis=1), c_tr[held, None], dt)
-        chooser = sine_gordon_reductor(p, gal, augment(Y0[~held], Y1[~held], c_tr[~held]), dt, update=update,
-                                       quadratic=quadratic, validation=val, regularizations=p.regularizations)
+        chooser = sine_gordon_reductor(
+            p,
+            gal,
+            augment(Y0[~held], Y1[~held], c_tr[~held]),
+            dt,
+            update=update,
+            quadratic=quadratic,
+            validation=val,
+            regularizations=p.regularizations,
+        )
         chooser.reduce()
         reg = chooser.regularization_
         table = [(row["regularization"], row["score"]) for row in chooser.regularization_table_]
@@ -650,7 +797,7 @@ def choose_large_step(p, gal, X_tr, c_tr, K, quadratic=None, update="midpoint") 
     Y = gal.project(X_tr)
     for s in sorted({int(p.large_step), *map(int, p.large_step_candidates)}):
         dt, Kl = s * p.DT, K // s
-        x = X_tr[:, : Kl * s + 1: s]
+        x = X_tr[:, : Kl * s + 1 : s]
         sig = np.inf
         for c in np.unique(c_tr):
             sel = c_tr == c
@@ -670,8 +817,15 @@ def choose_large_step(p, gal, X_tr, c_tr, K, quadratic=None, update="midpoint") 
             except Exception:  # a failed classical scheme is absent
                 pass
         best = np.min(errs, axis=0) if errs else np.full(len(x), np.inf)
-        table.append({"large_step": s, "DT": dt, "sigma_min": sig, "admissible": bool(sig >= p.large_step_sigma_min),
-                      "ratio": float(np.min(best / floor))})
+        table.append(
+            {
+                "large_step": s,
+                "DT": dt,
+                "sigma_min": sig,
+                "admissible": bool(sig >= p.large_step_sigma_min),
+                "ratio": float(np.min(best / floor)),
+            }
+        )
     ok = [r for r in table if r["admissible"]]
     if not ok:
         return {"large_step": int(p.large_step), "table": table}
@@ -714,8 +868,9 @@ def _large_step(p, gal, X_tr, c_tr, X_te, c_te, K):
     checked on ``S``'s pairs); ``A_r(c)`` is the reduced operator, so the kernel is then **not** non-intrusive.
     """
     if p.large_step_split not in ("none", "quadratic", "quadratic-mass", "auto"):
-        raise ValueError(f"large_step_split must be 'none', 'quadratic', 'quadratic-mass' or 'auto', "
-                         f"got {p.large_step_split!r}")
+        raise ValueError(
+            f"large_step_split must be 'none', 'quadratic', 'quadratic-mass' or 'auto', got {p.large_step_split!r}"
+        )
     if p.large_step_split == "auto":
         split, quad, choice = _choose_large_step_split(p, gal, X_tr, c_tr, K)
     else:
@@ -725,10 +880,17 @@ def _large_step(p, gal, X_tr, c_tr, X_te, c_te, K):
     s = choice["large_step"]
     dt = s * p.DT
     Kl = K // s
-    x_te = X_te[:, : Kl * s + 1: s]
+    x_te = X_te[:, : Kl * s + 1 : s]
     y0 = gal.project(x_te[:, 0])
-    out = {"DT": dt, "steps": Kl, "choice": choice, "split": split, "split_setting": p.large_step_split, "projection_error": _err(gal, gal.project(x_te), x_te).tolist(),
-           "DT_omega_max": float(dt * np.abs(np.linalg.eigvals(_jg(gal, y0[0], float(p.c_range[1])))).max())}
+    out = {
+        "DT": dt,
+        "steps": Kl,
+        "choice": choice,
+        "split": split,
+        "split_setting": p.large_step_split,
+        "projection_error": _err(gal, gal.project(x_te), x_te).tolist(),
+        "DT_omega_max": float(dt * np.abs(np.linalg.eigvals(_jg(gal, y0[0], float(p.c_range[1])))).max()),
+    }
     out["galerkin_error"] = _err(gal, gal.solve(y0, c_te, dt, Kl, substeps=s * p.substeps), x_te).tolist()
     for scheme in ("implicit_midpoint", "rk4"):
         try:
@@ -737,14 +899,24 @@ def _large_step(p, gal, X_tr, c_tr, X_te, c_te, K):
             out[f"{scheme}_at_DT_error"] = f"failed: {type(exc).__name__}"
     out["implicit_midpoint_time_per_trajectory"] = _median_time(lambda: gal.solve(y0[:1], c_te[:1], dt, Kl), p.repeats)
     Yp = gal.project(X_tr)
-    flow, model, fit_time, reg, table = _fit_kernel(p, Yp[:, :-s], Yp[:, s:], c_tr, dt, update="midpoint", stride=s,
-                                                    quadratic=quad, gal=gal)
-    entry = {"fit_time": fit_time, "regularization": reg, "regularization_table": table, "centers": int(model.n_centers_),
-             "train_residual": [float(v) for v in model.history_.train_max_residual], "error": None,
-             "time_per_trajectory": None, "failure": None}
+    flow, model, fit_time, reg, table = _fit_kernel(
+        p, Yp[:, :-s], Yp[:, s:], c_tr, dt, update="midpoint", stride=s, quadratic=quad, gal=gal
+    )
+    entry = {
+        "fit_time": fit_time,
+        "regularization": reg,
+        "regularization_table": table,
+        "centers": int(model.n_centers_),
+        "train_residual": [float(v) for v in model.history_.train_max_residual],
+        "error": None,
+        "time_per_trajectory": None,
+        "failure": None,
+    }
     try:
         entry["error"] = _err(gal, flow.rollout(y0, Kl, mu=c_te[:, None], dt=dt), x_te).tolist()
-        entry["time_per_trajectory"] = _median_time(lambda: flow.rollout(y0[:1], Kl, mu=c_te[:1, None], dt=dt), p.repeats)
+        entry["time_per_trajectory"] = _median_time(
+            lambda: flow.rollout(y0[:1], Kl, mu=c_te[:1, None], dt=dt), p.repeats
+        )
     except Exception as exc:  # a failed rollout is a result, reported as such
         entry["failure"] = failure_text(exc)
     out["kernel_projected_midpoint"] = entry
@@ -808,7 +980,7 @@ def _to_grid(X, M):
 def _truncate(V, n):
     """The first ``n`` complex modes of a complex-SVD basis ``[[Re U, -Im U], [Im U, Re U]]`` (2N, 2n_max)."""
     m = V.shape[1] // 2
-    return np.hstack([V[:, :n], V[:, m: m + n]])
+    return np.hstack([V[:, :n], V[:, m : m + n]])
 
 
 def _cost_vs_N(fom, p, out, X_tr, c_tr, x_te, c_te):
@@ -829,7 +1001,9 @@ def _cost_vs_N(fom, p, out, X_tr, c_tr, x_te, c_te):
     rows, calls = [], []
     n_max = max(p.dims) // 2
     for N in p.cost_N:
-        f = SineGordonFOM(n_points=N, length=p.length, c_range=p.c_range, amplitude_range=p.amplitude_range, T=p.T, nt=K)
+        f = SineGordonFOM(
+            n_points=N, length=p.length, c_range=p.c_range, amplitude_range=p.amplitude_range, T=p.T, nt=K
+        )
         M = _interpolation_matrix(fom.x, f.x, p.length)
         Xn = _to_grid(X_tr, M)
         xn_te = _to_grid(x_te, M)
@@ -852,12 +1026,22 @@ def _cost_vs_N(fom, p, out, X_tr, c_tr, x_te, c_te):
                 # the ridge term chosen at N = n_points (a setting of the model, not chosen again per N)
                 lam = out["dims"][dim]["kernel_reduced" if key == "kernel" else "kernel_projected"]["regularization"]
                 flow, model, _, row[f"{key}_regularization"], _ = _fit_kernel(
-                    p, Ytr[:, :-1], Ytr[:, 1:], c_tr, p.DT, lam, update=p.kernel_update,
+                    p,
+                    Ytr[:, :-1],
+                    Ytr[:, 1:],
+                    c_tr,
+                    p.DT,
+                    lam,
+                    update=p.kernel_update,
                     augment=_augmentation(split["preset"], "reduced" if key == "kernel" else "projected", gal),
-                    quadratic=split["quadratic"] if key == "kernel" else None, gal=gal)
+                    quadratic=split["quadratic"] if key == "kernel" else None,
+                    gal=gal,
+                )
                 row[f"{key}_centers"] = int(model.n_centers_)
                 try:
-                    row[f"{key}_error"] = float(np.median(_err(gal, flow.rollout(y0, K, mu=c_te[:, None], dt=p.DT), xn_te)))
+                    row[f"{key}_error"] = float(
+                        np.median(_err(gal, flow.rollout(y0, K, mu=c_te[:, None], dt=p.DT), xn_te))
+                    )
                     fns[key] = partial(flow.rollout, y0[:1], K, mu=c_te[:1, None], dt=p.DT)
                 except Exception as exc:  # a failed rollout is a result: no time
                     row[f"{key}_failure"] = f"{type(exc).__name__}: {exc}"[:200]
@@ -876,23 +1060,35 @@ def _cost_vs_N(fom, p, out, X_tr, c_tr, x_te, c_te):
                 tm[k].append(time.perf_counter() - t0)
     for row, tm in zip(rows, times):
         row.update({k: float(np.median(v)) for k, v in tm.items()})
-        logger.info(f"cost at N = {row['N']}, 2n = {row['dim']}: " + ", ".join(
-            f"{k} {v * 1e3:.2f} ms" for k, v in row.items() if k in _TIMED and v is not None))
+        logger.info(
+            f"cost at N = {row['N']}, 2n = {row['dim']}: "
+            + ", ".join(f"{k} {v * 1e3:.2f} ms" for k, v in row.items() if k in _TIMED and v is not None)
+        )
     return rows
 
 
 def _cost_calls(p, gal, deim, y0, c, Y, K):
     """The timed calls of one ``(N, 2n)``: Galerkin RK4 (``substeps`` and one step per ``DT``), Galerkin implicit
     midpoint, DEIM RK4, reconstruction ``V y`` of one trajectory."""
-    return {"galerkin_rk4": partial(gal.solve, y0, c, p.DT, K, scheme="rk4", substeps=p.substeps),
-            # one RK4 step per DT: as accurate as the sub-stepped ROM where DT omega_max is small (see the results)
-            "galerkin_rk4_at_DT": partial(gal.solve, y0, c, p.DT, K, scheme="rk4"),
-            "galerkin_im": partial(gal.solve, y0, c, p.DT, K, substeps=p.substeps),
-            "deim_rk4": partial(deim.solve, y0, c, p.DT, K, scheme="rk4", substeps=p.substeps),
-            "reconstruction": partial(gal.reconstruct, Y)}
+    return {
+        "galerkin_rk4": partial(gal.solve, y0, c, p.DT, K, scheme="rk4", substeps=p.substeps),
+        # one RK4 step per DT: as accurate as the sub-stepped ROM where DT omega_max is small (see the results)
+        "galerkin_rk4_at_DT": partial(gal.solve, y0, c, p.DT, K, scheme="rk4"),
+        "galerkin_im": partial(gal.solve, y0, c, p.DT, K, substeps=p.substeps),
+        "deim_rk4": partial(deim.solve, y0, c, p.DT, K, scheme="rk4", substeps=p.substeps),
+        "reconstruction": partial(gal.reconstruct, Y),
+    }
 
 
-_TIMED = ("galerkin_rk4", "galerkin_rk4_at_DT", "galerkin_im", "deim_rk4", "reconstruction", "kernel", "kernel_projected")
+_TIMED = (
+    "galerkin_rk4",
+    "galerkin_rk4_at_DT",
+    "galerkin_im",
+    "deim_rk4",
+    "reconstruction",
+    "kernel",
+    "kernel_projected",
+)
 
 
 def break_even(rows, dims_info) -> dict:
@@ -913,11 +1109,21 @@ def break_even(rows, dims_info) -> dict:
         Ns = np.array([r["N"] for r in rs], dtype=float)
         tg = np.array([r[variant] for r in rs])
         b, a = np.polyfit(Ns, tg, 1) if len(rs) >= 2 else (np.nan, np.nan)
-        entry = {"galerkin_variant": variant, "N": Ns.tolist(), "galerkin_time": tg.tolist(), "galerkin_fit": [float(a), float(b)],
-                 "galerkin_error": [r["galerkin_error"] for r in rs]}
+        entry = {
+            "galerkin_variant": variant,
+            "N": Ns.tolist(),
+            "galerkin_time": tg.tolist(),
+            "galerkin_fit": [float(a), float(b)],
+            "galerkin_error": [r["galerkin_error"] for r in rs],
+        }
         for key in ("kernel", "kernel_projected"):
-            k = {"time": [r[key] for r in rs], "error": [r[f"{key}_error"] for r in rs], "flat_ratio": None, "N_star": None,
-                 "speedup_at_largest_N": None}
+            k = {
+                "time": [r[key] for r in rs],
+                "error": [r[f"{key}_error"] for r in rs],
+                "flat_ratio": None,
+                "N_star": None,
+                "speedup_at_largest_N": None,
+            }
             if len(rs) >= 2 and all(t is not None for t in k["time"]):
                 tk = np.array(k["time"])
                 k["flat_ratio"] = float(tk[-1] / tk[0])

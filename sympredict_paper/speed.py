@@ -26,15 +26,18 @@ if HAVE_NUMBA:  # pragma: no branch
 from sympredict.symplectic.metrics import relative_trajectory_error
 from sympredict.estimators.predictor import newton_predictor
 
-__all__ = [
-    "model_sizes","NEEDS", "SCHEME_LABELS", "deliberate_threads", "time_median", "SpeedTable", "add_classical"]
+__all__ = ["model_sizes", "NEEDS", "SCHEME_LABELS", "deliberate_threads", "time_median", "SpeedTable", "add_classical"]
 
 #: What a method needs, by key.
 NEEDS = {"equations": "equations (grad H)", "reduced operator": "reduced operator (intrusive ROM)", "data": "only data"}
 
 #: Chart labels of the compiled schemes.
-SCHEME_LABELS = {"stormer_verlet": "Stormer-Verlet (compiled)", "yoshida4": "Yoshida-4 (compiled)",
-                 "kahan_li6": "Kahan-Li-6 (compiled)", "implicit_midpoint": "implicit midpoint (compiled)"}
+SCHEME_LABELS = {
+    "stormer_verlet": "Stormer-Verlet (compiled)",
+    "yoshida4": "Yoshida-4 (compiled)",
+    "kahan_li6": "Kahan-Li-6 (compiled)",
+    "implicit_midpoint": "implicit midpoint (compiled)",
+}
 
 
 @contextmanager
@@ -71,7 +74,11 @@ def timed(model):
     like its compiled peers.  Returns ``model`` (changed in place).
     """
     inner = newton_predictor(model)
-    if inner is not None and getattr(inner.solver, "backend", "auto") == "auto" and inner.backend_for(10**6, 10**6) == "numba":
+    if (
+        inner is not None
+        and getattr(inner.solver, "backend", "auto") == "auto"
+        and inner.backend_for(10**6, 10**6) == "numba"
+    ):
         inner.set_params(solver__backend="numba")
     return model
 
@@ -110,20 +117,39 @@ class SpeedTable:
         if self.transform is not None:
             traj = self.transform(traj)
         with np.errstate(all="ignore"):
-            err = relative_trajectory_error(np.nan_to_num(traj, nan=1e300, posinf=1e300, neginf=-1e300), self.reference).mean(axis=0)[1:]
-        row = {"method": method, "size": size, "tag": tag, "needs": NEEDS[needs], "time_per_trajectory_s": seconds,
-               "median_err": float(np.median(err)), "max_err": float(err.max())}
+            err = relative_trajectory_error(
+                np.nan_to_num(traj, nan=1e300, posinf=1e300, neginf=-1e300), self.reference
+            ).mean(axis=0)[1:]
+        row = {
+            "method": method,
+            "size": size,
+            "tag": tag,
+            "needs": NEEDS[needs],
+            "time_per_trajectory_s": seconds,
+            "median_err": float(np.median(err)),
+            "max_err": float(err.max()),
+        }
         self.rows.append(row)
         return row
 
 
-def add_classical(table: SpeedTable, system, x0, mu, dt, n_steps: int, refinements, schemes=EXPLICIT_SCHEMES,
-                  needs: str = "equations", wrap=None) -> None:
+def add_classical(
+    table: SpeedTable,
+    system,
+    x0,
+    mu,
+    dt,
+    n_steps: int,
+    refinements,
+    schemes=EXPLICIT_SCHEMES,
+    needs: str = "equations",
+    wrap=None,
+) -> None:
     """The compiled schemes of :func:`sympredict.symplectic.integrators_compiled.rollout` at ``dt / r`` for each refinement ``r``.
 
     ``wrap(run)`` may wrap each run (e.g. projection and reconstruction for a ROM).
     """
     for scheme in schemes:
         for r in refinements:
-            run = (lambda s=scheme, r=r: rollout(system, x0, mu, dt, n_steps, scheme=s, substeps=r))
+            run = lambda s=scheme, r=r: rollout(system, x0, mu, dt, n_steps, scheme=s, substeps=r)
             table.add(SCHEME_LABELS[scheme], r, f"dT/{r}", needs, run if wrap is None else wrap(run))

@@ -45,9 +45,19 @@ from sympredict.mor import GivenSamples, SymplecticKernelReductor, TrainingScali
 from sympredict.systems.wave import C_REF, C_TRAIN, DT_WAVE, WaveFOM
 from sympredict.interpolation.greedy import ExactGreedy
 
-__all__ = ["WavePreset", "PRESETS", "fom_snapshots", "build_rom", "reduced_flow_map_data", "validation_speeds", "wave_reductor",
-           "train_wave_predictor", "run_wave",
-           "run_wave_speed_accuracy", "smallest_wave_model"]
+__all__ = [
+    "WavePreset",
+    "PRESETS",
+    "fom_snapshots",
+    "build_rom",
+    "reduced_flow_map_data",
+    "validation_speeds",
+    "wave_reductor",
+    "train_wave_predictor",
+    "run_wave",
+    "run_wave_speed_accuracy",
+    "smallest_wave_model",
+]
 
 logger = getLogger("sympredict_paper.wave")
 
@@ -119,9 +129,24 @@ class WavePreset:
 
 PRESETS = {
     "smoke": WavePreset(
-        n_points=200, n_snapshot_states=4, samples_per_speed=150, val_per_speed=40, max_centers=150, dts=(0.1,),
-        n_test_speeds=2, n_test_ics=2, horizon=1.0, state_eps=(3e-3, 1e-2), mu_eps=(10.0,), families=("imq",), m_star=60,
-        speed_centers=(20, 50, 150), speed_repeats=1, target_accuracy=1e-2, speed_refinements=(1, 2, 4), vkoga_centers=30,
+        n_points=200,
+        n_snapshot_states=4,
+        samples_per_speed=150,
+        val_per_speed=40,
+        max_centers=150,
+        dts=(0.1,),
+        n_test_speeds=2,
+        n_test_ics=2,
+        horizon=1.0,
+        state_eps=(3e-3, 1e-2),
+        mu_eps=(10.0,),
+        families=("imq",),
+        m_star=60,
+        speed_centers=(20, 50, 150),
+        speed_repeats=1,
+        target_accuracy=1e-2,
+        speed_refinements=(1, 2, 4),
+        vkoga_centers=30,
         fom_explicit_refinements=(1, 8, 16),
     ),
     "quick": WavePreset(),
@@ -187,8 +212,17 @@ def build_rom(preset: WavePreset, seed: int = 0, pool=None):
     return fom, rom, energy, info
 
 
-def reduced_flow_map_data(rom: SymplecticROM, speeds, dt: float, n_per_speed: int, energy: float, seed: int, *,
-                          pool=None, chunk_size: Optional[int] = None) -> FlowMapData:
+def reduced_flow_map_data(
+    rom: SymplecticROM,
+    speeds,
+    dt: float,
+    n_per_speed: int,
+    energy: float,
+    seed: int,
+    *,
+    pool=None,
+    chunk_size: Optional[int] = None,
+) -> FlowMapData:
     """Reduced states uniform in ``{H_red(x; mu) <= energy}`` per speed, and their reference flows over ``dt``.
 
     The wave FOM's parameter is ``mu = c^2`` (:class:`~sympredict.systems.wave.WaveFOM`):
@@ -231,8 +265,9 @@ def validation_speeds(fom: WaveFOM, n: int, seed: int) -> np.ndarray:
     return np.sqrt(mus_to_matrix(mus, fom.model.parameters)[:, 0])
 
 
-def wave_reductor(rom: SymplecticROM, preset: WavePreset, dt: float, data: FlowMapData,
-                  validation: FlowMapData) -> SymplecticKernelReductor:
+def wave_reductor(
+    rom: SymplecticROM, preset: WavePreset, dt: float, data: FlowMapData, validation: FlowMapData
+) -> SymplecticKernelReductor:
     """The library's reductor set up as the paper's wave experiment, on samples it is given.
 
     :class:`~sympredict.mor.SymplecticKernelReductor` on the FOM's pyMOR model and the
@@ -243,11 +278,16 @@ def wave_reductor(rom: SymplecticROM, preset: WavePreset, dt: float, data: FlowM
     at ``m_star`` centres, then trained by f-greedy (``tol = 1e-10``) to ``max_centers``.
     """
     return SymplecticKernelReductor(
-        rom.model, rom.RB, dt, GivenSamples(data, validation),
+        rom.model,
+        rom.RB,
+        dt,
+        GivenSamples(data, validation),
         SymplecticKernelPredictor(max_centers=preset.max_centers, trainer=ExactGreedy(tol=1e-10)),
         scaling=TrainingScaling("none", "none", "none"),
-        selection=ValidationSelection(kernel_grid(preset.families, preset.state_eps),
-                                      kernel_grid(("imq",), preset.mu_eps), m_star=preset.m_star))
+        selection=ValidationSelection(
+            kernel_grid(preset.families, preset.state_eps), kernel_grid(("imq",), preset.mu_eps), m_star=preset.m_star
+        ),
+    )
 
 
 def train_wave_predictor(rom: SymplecticROM, preset: WavePreset, dt: float, energy: float, seed: int = 0) -> dict:
@@ -270,14 +310,24 @@ def train_wave_predictor(rom: SymplecticROM, preset: WavePreset, dt: float, ener
     with logger.block(f"dT = {dt}, 2n = {rom.dim}: data, kernel selection, training"):
         t0 = time.perf_counter()
         data = reduced_flow_map_data(rom, C_TRAIN, dt, preset.samples_per_speed, energy, seed=seed + 1)
-        val = reduced_flow_map_data(rom, validation_speeds(rom.fom, len(C_TRAIN), seed + 500), dt, preset.val_per_speed,
-                                    energy, seed=seed + 500)
+        val = reduced_flow_map_data(
+            rom, validation_speeds(rom.fom, len(C_TRAIN), seed + 500), dt, preset.val_per_speed, energy, seed=seed + 500
+        )
         t_data = time.perf_counter() - t0
         reductor = wave_reductor(rom, preset, dt, data, val)
         kernel_rom = reductor.reduce()
-    return {"model": reductor.predictor_, "selection": reductor.selection_, "n_samples": len(data), "data": data,
-            "validation": val, "reductor": reductor, "kernel_rom": kernel_rom, "time_data_s": t_data,
-            "time_selection_s": reductor.timings_["selection"], "time_fit_s": reductor.timings_["fit"]}
+    return {
+        "model": reductor.predictor_,
+        "selection": reductor.selection_,
+        "n_samples": len(data),
+        "data": data,
+        "validation": val,
+        "reductor": reductor,
+        "kernel_rom": kernel_rom,
+        "time_data_s": t_data,
+        "time_selection_s": reductor.timings_["selection"],
+        "time_fit_s": reductor.timings_["fit"],
+    }
 
 
 def run_wave(preset: WavePreset, seed: int = 0, **overrides) -> dict:
@@ -286,7 +336,10 @@ def run_wave(preset: WavePreset, seed: int = 0, **overrides) -> dict:
     fom, rom, energy, basis_info = build_rom(preset, seed)
     rng = np.random.default_rng(seed + 1000)
     test_speeds = np.sort(rng.uniform(0.2, 0.3, preset.n_test_speeds))
-    test_x0 = {c: rom.system.sample_energy_ellipsoid(preset.n_test_ics, c**2, energy, seed=seed + 2000 + i) for i, c in enumerate(test_speeds)}
+    test_x0 = {
+        c: rom.system.sample_energy_ellipsoid(preset.n_test_ics, c**2, energy, seed=seed + 2000 + i)
+        for i, c in enumerate(test_speeds)
+    }
     per_dt = []
     for j, dt in enumerate(preset.dts):
         trained = train_wave_predictor(rom, preset, dt, energy, seed=seed + 10 * j)
@@ -312,8 +365,16 @@ def run_wave(preset: WavePreset, seed: int = 0, **overrides) -> dict:
                 "kernel_full": relative_trajectory_error(rom.reconstruct(pred), ref_full).mean(axis=0),
                 "im_full": relative_trajectory_error(rom.reconstruct(im), ref_full).mean(axis=0),
             }
-            cases.append({"c": float(c), "t": dt * np.arange(n_steps + 1), "err": err,
-                          "time_kernel_s": t_kernel, "time_rom_im_s": t_im, "time_fom_ref_s": t_fom})
+            cases.append(
+                {
+                    "c": float(c),
+                    "t": dt * np.arange(n_steps + 1),
+                    "err": err,
+                    "time_kernel_s": t_kernel,
+                    "time_rom_im_s": t_im,
+                    "time_fom_ref_s": t_fom,
+                }
+            )
         per_dt.append({"dt": dt, "cases": cases, **trained})
 
     x0_all = np.concatenate([test_x0[c] for c in test_speeds])
@@ -323,15 +384,32 @@ def run_wave(preset: WavePreset, seed: int = 0, **overrides) -> dict:
     d = first["data"]
     t0 = time.perf_counter()
     with logger.block("wave peers: direct kernel model and pyMOR VKOGA on the same reduced data"):
-        direct = DirectKernelPredictor(k.state, k.mu, None, max_centers=preset.max_centers,
-                                       trainer=ExactGreedy(tol=1e-10)).fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
+        direct = DirectKernelPredictor(
+            k.state, k.mu, None, max_centers=preset.max_centers, trainer=ExactGreedy(tol=1e-10)
+        ).fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
         t_direct = time.perf_counter() - t0
-        vsel = select_vkoga_length_scale(d, first["validation"], preset.vkoga_length_scales, m_star=min(50, preset.vkoga_centers))
-        vkoga = VKOGAFlowMap(max_centers=preset.vkoga_centers, length_scale=vsel["length_scale"]).fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
-    speed = run_wave_speed_accuracy(fom, rom, first["model"], x0_all, mu_all, preset.dts[0], preset.horizon,
-                                    centers=preset.speed_centers, refinements=preset.speed_refinements,
-                                    repeats=preset.speed_repeats, direct=direct, vkoga=vkoga, threads=preset.speed_threads,
-                                    explicit_refinements=preset.fom_explicit_refinements)
+        vsel = select_vkoga_length_scale(
+            d, first["validation"], preset.vkoga_length_scales, m_star=min(50, preset.vkoga_centers)
+        )
+        vkoga = VKOGAFlowMap(max_centers=preset.vkoga_centers, length_scale=vsel["length_scale"]).fit(
+            d.x0, d.x1, mu=d.mu, dt=d.dt
+        )
+    speed = run_wave_speed_accuracy(
+        fom,
+        rom,
+        first["model"],
+        x0_all,
+        mu_all,
+        preset.dts[0],
+        preset.horizon,
+        centers=preset.speed_centers,
+        refinements=preset.speed_refinements,
+        repeats=preset.speed_repeats,
+        direct=direct,
+        vkoga=vkoga,
+        threads=preset.speed_threads,
+        explicit_refinements=preset.fom_explicit_refinements,
+    )
     speed["time_fit_direct_s"], speed["time_fit_vkoga_s"] = t_direct, vkoga.fit_time_s_
     speed["vkoga_selection"] = vsel
     sizing = smallest_wave_model(preset, preset.target_accuracy, preset.dts[0], seed=seed, trained=per_dt[0])
@@ -345,7 +423,11 @@ def run_wave(preset: WavePreset, seed: int = 0, **overrides) -> dict:
             {
                 "dt": r["dt"],
                 "n_samples": r["n_samples"],
-                "kernel": {"state": repr(r["selection"].state), "mu": repr(r["selection"].mu), "E_val_m_star": r["selection"].score},
+                "kernel": {
+                    "state": repr(r["selection"].state),
+                    "mu": repr(r["selection"].mu),
+                    "E_val_m_star": r["selection"].score,
+                },
                 "n_centers": r["model"].n_centers_,
                 "stop_reason": r["model"].history_.stop_reason,
                 "E_train": float(r["model"].history_.train_max_residual[-1]),
@@ -431,31 +513,85 @@ def run_wave_speed_accuracy(
         return lambda: rom.reconstruct(run(rom.project(x0_full)))
 
     # small models may wander off the training states: the chart's errors say so, no warning per rollout
-    with logger.block(f"wave speed against accuracy: {batch} trajectories x {n_steps} steps of dT = {dt}, {repeats} repeats"), \
-            deliberate_threads(threads), extrapolation_expected():
+    with (
+        logger.block(
+            f"wave speed against accuracy: {batch} trajectories x {n_steps} steps of dT = {dt}, {repeats} repeats"
+        ),
+        deliberate_threads(threads),
+        extrapolation_expected(),
+    ):
         table = SpeedTable(exact, repeats)
-        ref_row = table.add("FOM micro-step reference", 0, "h<=1e-3", "equations", lambda: fom.trajectory(x0_full, mu, dt, n_steps))
+        ref_row = table.add(
+            "FOM micro-step reference", 0, "h<=1e-3", "equations", lambda: fom.trajectory(x0_full, mu, dt, n_steps)
+        )
         for r in refinements:
-            table.add("FOM implicit midpoint", r, f"dT/{r}", "equations", lambda r=r: fom.trajectory(x0_full, mu, dt, n_steps, h_max=dt / r))
-        add_classical(table, fom, x0_full, mu, dt, n_steps, refinements if explicit_refinements is None else explicit_refinements,
-                      EXPLICIT_SCHEMES)
+            table.add(
+                "FOM implicit midpoint",
+                r,
+                f"dT/{r}",
+                "equations",
+                lambda r=r: fom.trajectory(x0_full, mu, dt, n_steps, h_max=dt / r),
+            )
+        add_classical(
+            table,
+            fom,
+            x0_full,
+            mu,
+            dt,
+            n_steps,
+            refinements if explicit_refinements is None else explicit_refinements,
+            EXPLICIT_SCHEMES,
+        )
         for r in refinements:
-            table.add("ROM implicit midpoint (compiled)", r, f"dT/{r}", "reduced operator",
-                      reduced(lambda x, r=r: rollout(rom.system, x, mu, dt, n_steps, scheme="implicit_midpoint", substeps=r)))
-        table.add("ROM exact propagator (expm)", 0, "exact", "reduced operator",
-                  reduced(lambda x: rom.system.trajectory(x, mu, dt, n_steps, exact=True)))
+            table.add(
+                "ROM implicit midpoint (compiled)",
+                r,
+                f"dT/{r}",
+                "reduced operator",
+                reduced(lambda x, r=r: rollout(rom.system, x, mu, dt, n_steps, scheme="implicit_midpoint", substeps=r)),
+            )
+        table.add(
+            "ROM exact propagator (expm)",
+            0,
+            "exact",
+            "reduced operator",
+            reduced(lambda x: rom.system.trajectory(x, mu, dt, n_steps, exact=True)),
+        )
         for m in model_sizes(centers, model.n_centers_):
             small = timed(model.truncated(m))
-            table.add("ROM + kernel predictor", m, f"m={m}", "data", reduced(lambda x, small=small: small.rollout(x, n_steps, mu=mu)))
+            table.add(
+                "ROM + kernel predictor",
+                m,
+                f"m={m}",
+                "data",
+                reduced(lambda x, small=small: small.rollout(x, n_steps, mu=mu)),
+            )
         if direct is not None:
-            table.add("ROM + direct kernel model (NumPy)", direct.n_centers_, f"m={direct.n_centers_}", "data",
-                      reduced(lambda x: direct.rollout(x, n_steps, mu=mu)))
+            table.add(
+                "ROM + direct kernel model (NumPy)",
+                direct.n_centers_,
+                f"m={direct.n_centers_}",
+                "data",
+                reduced(lambda x: direct.rollout(x, n_steps, mu=mu)),
+            )
         if vkoga is not None:
-            table.add("ROM + pyMOR VKOGA (NumPy)", vkoga.n_centers_, f"m={vkoga.n_centers_}", "data",
-                      reduced(lambda x: vkoga.rollout(x, n_steps, mu=mu, dt=dt)))
-    return {"dt": dt, "n_steps": n_steps, "n_trajectories": batch, "repeats": repeats, "threads": threads,
-            "reference_time_s": ref_row["time_per_trajectory_s"], "error_reference": "the FOM's exact solution (sine transform)",
-            "rows": table.rows}
+            table.add(
+                "ROM + pyMOR VKOGA (NumPy)",
+                vkoga.n_centers_,
+                f"m={vkoga.n_centers_}",
+                "data",
+                reduced(lambda x: vkoga.rollout(x, n_steps, mu=mu, dt=dt)),
+            )
+    return {
+        "dt": dt,
+        "n_steps": n_steps,
+        "n_trajectories": batch,
+        "repeats": repeats,
+        "threads": threads,
+        "reference_time_s": ref_row["time_per_trajectory_s"],
+        "error_reference": "the FOM's exact solution (sine transform)",
+        "rows": table.rows,
+    }
 
 
 def _full_space_error(rom: SymplecticROM, traj_red: np.ndarray, exact: np.ndarray) -> float:
@@ -511,7 +647,9 @@ def smallest_wave_model(
     fom, snapshots, energy, _ = fom_snapshots(preset, seed)
     rng = np.random.default_rng(seed + 7000)
     speeds = rng.uniform(0.2, 0.3, n_validation)
-    x0 = np.concatenate([fom.low_frequency_states(1, preset.n_modes, c**2, energy, seed=seed + 7001 + i) for i, c in enumerate(speeds)])
+    x0 = np.concatenate(
+        [fom.low_frequency_states(1, preset.n_modes, c**2, energy, seed=seed + 7001 + i) for i, c in enumerate(speeds)]
+    )
     mu = speeds**2
     n_steps = int(np.floor(preset.horizon / dt + 1e-9))
     exact = fom.exact_trajectory(x0, mu, dt, n_steps)
@@ -525,7 +663,9 @@ def smallest_wave_model(
             except ValueError:  # beyond the numerical rank of the snapshots
                 break
             candidate = SymplecticROM(fom, basis)
-            err = _full_space_error(candidate, candidate.system.trajectory(candidate.project(x0), mu, dt, n_steps, exact=True), exact)
+            err = _full_space_error(
+                candidate, candidate.system.trajectory(candidate.project(x0), mu, dt, n_steps, exact=True), exact
+            )
             rom_errors[n] = err
             logger.info(f"2n = {2 * n}: reduction error {err:.2e}")
             if err <= rom_share * target:
@@ -557,13 +697,22 @@ def smallest_wave_model(
     last = int(m)
     # the choice used validation data only: report its error on fresh trajectories too
     speeds_test = rng.uniform(0.2, 0.3, n_validation)
-    x0_test = np.concatenate([fom.low_frequency_states(1, preset.n_modes, c**2, energy, seed=seed + 9001 + i)
-                              for i, c in enumerate(speeds_test)])
+    x0_test = np.concatenate(
+        [
+            fom.low_frequency_states(1, preset.n_modes, c**2, energy, seed=seed + 9001 + i)
+            for i, c in enumerate(speeds_test)
+        ]
+    )
     final = chosen if reached else model
-    test_error = _full_space_error(rom, final.rollout(rom.project(x0_test), n_steps, mu=speeds_test**2),
-                                   fom.exact_trajectory(x0_test, speeds_test**2, dt, n_steps))
-    logger.info(f"smallest model: 2n = {rom.dim}, {final.n_centers_} centres, validation error {center_errors[last]:.2e}, "
-                f"test error {test_error:.2e} (target {target:.1e}{'' if reached else ', NOT reached'})")
+    test_error = _full_space_error(
+        rom,
+        final.rollout(rom.project(x0_test), n_steps, mu=speeds_test**2),
+        fom.exact_trajectory(x0_test, speeds_test**2, dt, n_steps),
+    )
+    logger.info(
+        f"smallest model: 2n = {rom.dim}, {final.n_centers_} centres, validation error {center_errors[last]:.2e}, "
+        f"test error {test_error:.2e} (target {target:.1e}{'' if reached else ', NOT reached'})"
+    )
     return {
         "target": target,
         "dt": dt,

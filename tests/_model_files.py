@@ -18,4 +18,5 @@ def _rewrite(src, dst, settings=None, arrays=None):
 def _param(name, value):
     def edit(s):
         s["params"][name] = value
+
     return edit

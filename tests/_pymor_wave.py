@@ -11,6 +11,7 @@ def parametric_wave(T=1.0, H_expr="c[0]**2/0.01", params=None):
     pymordemos = pytest.importorskip("pymordemos.symplectic_wave_equation")
     fom = pymordemos.discretize_fom(T=T)
     blocks = fom.H_op.blocks
-    H_op = BlockDiagonalOperator([LincombOperator([blocks[0, 0]], [ExpressionParameterFunctional(H_expr, params or {"c": 1})]),
-                                  blocks[1, 1]])
+    H_op = BlockDiagonalOperator(
+        [LincombOperator([blocks[0, 0]], [ExpressionParameterFunctional(H_expr, params or {"c": 1})]), blocks[1, 1]]
+    )
     return fom.with_(H_op=H_op, name="wave_c")

@@ -36,16 +36,28 @@ def check_surrogate_by_finite_differences(sur, kernel_value, centers, cmu, comps
     dim = xi.shape[1]
     w = sur.weights(qmu, np.full(len(xi), 0.05))
     eye = np.eye(dim) * h
-    expected = np.array([sum(coef[j] * (kernel_value(x, centers[j] + eye[comps[j]], mu[0], cmu[j, 0])
-                                        - kernel_value(x, centers[j] - eye[comps[j]], mu[0], cmu[j, 0])) / (2 * h)
-                             for j in range(len(coef))) for x, mu in zip(xi, qmu)])
+    expected = np.array(
+        [
+            sum(
+                coef[j]
+                * (
+                    kernel_value(x, centers[j] + eye[comps[j]], mu[0], cmu[j, 0])
+                    - kernel_value(x, centers[j] - eye[comps[j]], mu[0], cmu[j, 0])
+                )
+                / (2 * h)
+                for j in range(len(coef))
+            )
+            for x, mu in zip(xi, qmu)
+        ]
+    )
     np.testing.assert_allclose(sur.value(xi, w), expected, atol=1e-8 * np.abs(expected).max())
     grad, hess, floor = sur.gradient_hessian(xi, w, with_floor=True)
     np.testing.assert_array_equal(grad, sur.gradient(xi, w))
     fd_grad = np.column_stack([(sur.value(xi + eye[a], w) - sur.value(xi - eye[a], w)) / (2 * h) for a in range(dim)])
     np.testing.assert_allclose(grad, fd_grad, atol=1e-8 * np.abs(grad).max())
-    fd_hess = np.stack([(sur.gradient(xi + eye[c], w) - sur.gradient(xi - eye[c], w)) / (2 * h) for c in range(dim)],
-                       axis=2)
+    fd_hess = np.stack(
+        [(sur.gradient(xi + eye[c], w) - sur.gradient(xi - eye[c], w)) / (2 * h) for c in range(dim)], axis=2
+    )
     np.testing.assert_allclose(hess, fd_hess, atol=1e-7 * np.abs(hess).max())
     g2, hqp, floor2 = sur.newton_terms(xi, w)
     n = dim // 2
@@ -77,8 +89,12 @@ def check_gramian_by_finite_differences(fun, kernel_value, pts, mu, rtol=1e-13, 
         for j in range(n):
             q, b = divmod(j, dim)
             x, y, mx, my = pts[p], pts[q], mu[p, 0], mu[q, 0]
-            fd[i, j] = (kernel_value(x + eye[a], y + eye[b], mx, my) - kernel_value(x + eye[a], y - eye[b], mx, my)
-                        - kernel_value(x - eye[a], y + eye[b], mx, my) + kernel_value(x - eye[a], y - eye[b], mx, my)) / (4 * h * h)
+            fd[i, j] = (
+                kernel_value(x + eye[a], y + eye[b], mx, my)
+                - kernel_value(x + eye[a], y - eye[b], mx, my)
+                - kernel_value(x - eye[a], y + eye[b], mx, my)
+                + kernel_value(x - eye[a], y - eye[b], mx, my)
+            ) / (4 * h * h)
     np.testing.assert_allclose(gram, fd, atol=1e-6 * np.abs(gram).max())
     return gram
 

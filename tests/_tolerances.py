@@ -56,8 +56,9 @@ def rollout_bound(surrogate, states, weights, dt) -> float:
     """
     states = np.asarray(states, dtype=float)
     _, k1, dim = states.shape
-    _, _, floor = surrogate.gradient_hessian(states.reshape(-1, dim), np.repeat(np.atleast_2d(weights), k1, axis=0),
-                                             with_floor=True)
+    _, _, floor = surrogate.gradient_hessian(
+        states.reshape(-1, dim), np.repeat(np.atleast_2d(weights), k1, axis=0), with_floor=True
+    )
     return float((k1 - 1) * (ROLLOUT_FACTOR * np.abs(dt).max() * floor.max() + 4 * EPS * np.abs(states).max()))
 
 

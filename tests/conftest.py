@@ -31,8 +31,9 @@ def small_pendulum_data(pendulum):
 @pytest.fixture(scope="session")
 def small_pendulum_model(small_pendulum_data):
     d = small_pendulum_data
-    model = SymplecticKernelPredictor(IMQ(0.15), mu_kernel=IMQ(2.0), dt_kernel=IMQ(5.0), max_centers=600,
-                                      trainer=ExactGreedy(tol=1e-10))
+    model = SymplecticKernelPredictor(
+        IMQ(0.15), mu_kernel=IMQ(2.0), dt_kernel=IMQ(5.0), max_centers=600, trainer=ExactGreedy(tol=1e-10)
+    )
     return model.fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
 
 
@@ -65,7 +66,9 @@ def coarse_pendulum_model(coarse_pendulum_data):
     from sympredict.symplectic.solvers import NewtonSolver
 
     d = coarse_pendulum_data
-    return SymplecticKernelPredictor(IMQ(0.3), max_centers=30, solver=NewtonSolver(backend="numpy")).fit(d.x0, d.x1, dt=0.1)
+    return SymplecticKernelPredictor(IMQ(0.3), max_centers=30, solver=NewtonSolver(backend="numpy")).fit(
+        d.x0, d.x1, dt=0.1
+    )
 
 
 @pytest.fixture(scope="module")
@@ -118,13 +121,31 @@ def _in_ci() -> bool:
 #: clones, warm starts, parallel against serial, batch sizes).  They carry the ``paths`` marker:
 #: ``.ci/run`` runs them again under other OpenBLAS kernels, one BLAS thread and compiled code built
 #: for a generic CPU, where such comparisons fail first if a tolerance is tied to one CPU.
-PATH_COMPARING_MODULES = frozenset({
-    "test_estimator_contract", "test_integrators_compiled", "test_io", "test_kernel_families", "test_memory_layout",
-    "test_midpoint", "test_midpoint_compiled", "test_parallel", "test_performance_paths", "test_splitting",
-    "test_state_scaling", "test_surrogate", "test_warm_start", "test_symmetry", "test_periodic",
-    "test_newton_agreement", "test_auto_defaults", "test_user_data", "test_cli_user_data",
-    "test_reductor_estimator_and_data", "test_transforms_compiled",
-})
+PATH_COMPARING_MODULES = frozenset(
+    {
+        "test_estimator_contract",
+        "test_integrators_compiled",
+        "test_io",
+        "test_kernel_families",
+        "test_memory_layout",
+        "test_midpoint",
+        "test_midpoint_compiled",
+        "test_parallel",
+        "test_performance_paths",
+        "test_splitting",
+        "test_state_scaling",
+        "test_surrogate",
+        "test_warm_start",
+        "test_symmetry",
+        "test_periodic",
+        "test_newton_agreement",
+        "test_auto_defaults",
+        "test_user_data",
+        "test_cli_user_data",
+        "test_reductor_estimator_and_data",
+        "test_transforms_compiled",
+    }
+)
 
 
 def pytest_collection_modifyitems(config, items):

@@ -31,6 +31,7 @@ LAZY_IMPORTS_ALLOWED = {"sympredict.cli"}
 def _lazy_imports_allowed(name: str) -> bool:
     return any(name == m or name.startswith(m + ".") for m in LAZY_IMPORTS_ALLOWED)
 
+
 _LINT_IMPORTS = "import sys; from importlinter.cli import lint_imports_command; sys.exit(lint_imports_command())"
 
 
@@ -74,8 +75,13 @@ def _imports(mods: dict):
 
 def _lint_imports(*args: str, cwd: Path = ROOT) -> subprocess.CompletedProcess:
     pytest.importorskip("importlinter")
-    return subprocess.run([sys.executable, "-c", _LINT_IMPORTS, "--no-cache", "--no-logo", *args], cwd=cwd,
-                          capture_output=True, text=True, timeout=300)
+    return subprocess.run(
+        [sys.executable, "-c", _LINT_IMPORTS, "--no-cache", "--no-logo", *args],
+        cwd=cwd,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
 
 
 def test_import_contracts():
@@ -88,9 +94,11 @@ def test_import_contracts():
 def test_the_contracts_can_fail(tmp_path):
     """The check is not vacuous: a layering the code breaks (kernels above the estimators) is reported broken."""
     config = tmp_path / "upside_down.ini"
-    config.write_text("[importlinter]\nroot_package = sympredict\n\n"
-                      "[importlinter:contract:upside-down]\nname = kernels above the estimators\ntype = layers\n"
-                      "layers =\n    sympredict.kernels\n    sympredict.estimators\n")
+    config.write_text(
+        "[importlinter]\nroot_package = sympredict\n\n"
+        "[importlinter:contract:upside-down]\nname = kernels above the estimators\ntype = layers\n"
+        "layers =\n    sympredict.kernels\n    sympredict.estimators\n"
+    )
     proc = _lint_imports("--config", str(config))
     assert proc.returncode == 1, proc.stdout + proc.stderr
     assert "sympredict.estimators is not allowed to import sympredict.kernels" in proc.stdout
@@ -104,8 +112,11 @@ def test_the_library_never_imports_the_paper():
     wrong = []
     for name, path in _modules().items():
         for node in ast.walk(ast.parse(path.read_text(), str(path))):
-            targets = [a.name for a in node.names] if isinstance(node, ast.Import) else (
-                [node.module or ""] if isinstance(node, ast.ImportFrom) and not node.level else [])
+            targets = (
+                [a.name for a in node.names]
+                if isinstance(node, ast.Import)
+                else ([node.module or ""] if isinstance(node, ast.ImportFrom) and not node.level else [])
+            )
             wrong += [f"{name}:{node.lineno} imports {t}" for t in targets if t.split(".")[0] == "sympredict_paper"]
     assert not wrong, "\n".join(wrong)
 
@@ -120,7 +131,7 @@ def test_no_import_cycles():
         stack.append(u)
         for v in sorted(graph[u]):
             if state.get(v) == 1:
-                cycles.append(" -> ".join(stack[stack.index(v):] + [v]))
+                cycles.append(" -> ".join(stack[stack.index(v) :] + [v]))
             elif v not in state:
                 visit(v)
         stack.pop()
@@ -134,17 +145,22 @@ def test_no_import_cycles():
 
 def test_no_function_level_imports_of_the_package():
     mods = _modules()
-    hidden = [f"{name}:{line} imports {target} inside a function"
-              for name, imports in _imports(mods).items() if not _lazy_imports_allowed(name)
-              for target, line, inside in imports if inside]
+    hidden = [
+        f"{name}:{line} imports {target} inside a function"
+        for name, imports in _imports(mods).items()
+        if not _lazy_imports_allowed(name)
+        for target, line, inside in imports
+        if inside
+    ]
     assert not hidden, "\n".join(hidden)
 
 
 # ------------------------------------------------------------------ the estimators' private members stay private
 #: The estimator classes whose ``_`` members no other module may touch: other modules use their public API
 #: (settings, ``check_params``, ``validate_data``, the fitted flow map ``model_``, model files' functions).
-ESTIMATOR_CLASSES = {"sympredict.estimators.predictor": ("_FlowMapKernelModel", "SymplecticKernelPredictor",
-                                                         "DirectKernelPredictor")}
+ESTIMATOR_CLASSES = {
+    "sympredict.estimators.predictor": ("_FlowMapKernelModel", "SymplecticKernelPredictor", "DirectKernelPredictor")
+}
 
 
 def _private_members(path: Path, classes) -> set:
@@ -159,9 +175,15 @@ def _private_members(path: Path, classes) -> set:
                 names.update(n for n in vars(klass) if n.startswith("_") and not n.startswith("__"))
     for node in ast.walk(ast.parse(path.read_text())):
         if isinstance(node, ast.ClassDef) and node.name in classes:
-            names.update(sub.attr for sub in ast.walk(node) if isinstance(sub, ast.Attribute)
-                         and isinstance(sub.value, ast.Name) and sub.value.id == "self"
-                         and sub.attr.startswith("_") and not sub.attr.startswith("__"))
+            names.update(
+                sub.attr
+                for sub in ast.walk(node)
+                if isinstance(sub, ast.Attribute)
+                and isinstance(sub.value, ast.Name)
+                and sub.value.id == "self"
+                and sub.attr.startswith("_")
+                and not sub.attr.startswith("__")
+            )
     return names
 
 
@@ -169,9 +191,13 @@ def _touches(tree, names: set) -> list:
     """``(line, name)`` of every ``obj._name`` with ``_name`` in ``names``, except on ``self``/``cls`` inside a class
     (a class's own members; a module-level ``cls`` variable holding an estimator class counts)."""
     own = {id(n) for c in ast.walk(tree) if isinstance(c, ast.ClassDef) for n in ast.walk(c)}
-    return sorted((node.lineno, node.attr) for node in ast.walk(tree)
-                  if isinstance(node, ast.Attribute) and node.attr in names
-                  and not (id(node) in own and isinstance(node.value, ast.Name) and node.value.id in ("self", "cls")))
+    return sorted(
+        (node.lineno, node.attr)
+        for node in ast.walk(tree)
+        if isinstance(node, ast.Attribute)
+        and node.attr in names
+        and not (id(node) in own and isinstance(node.value, ast.Name) and node.value.id in ("self", "cls"))
+    )
 
 
 def test_no_module_touches_the_estimators_private_members():
@@ -185,15 +211,21 @@ def test_no_module_touches_the_estimators_private_members():
         assert {"_train", "_check_fitted", "_param_names"} <= names  # the scan sees the members
         for name, path in mods.items():
             if name != owner:
-                found += [f"{name}:{line} touches {attr}" for line, attr in _touches(ast.parse(path.read_text()), names)]
+                found += [
+                    f"{name}:{line} touches {attr}" for line, attr in _touches(ast.parse(path.read_text()), names)
+                ]
     assert not found, "\n".join(found)
 
 
 def test_the_private_member_scan_can_fail():
     """The scan of :func:`test_no_module_touches_the_estimators_private_members` finds a touch where there is one."""
-    names = _private_members(_modules()["sympredict.estimators.predictor"], ESTIMATOR_CLASSES["sympredict.estimators.predictor"])
-    tree = ast.parse("def f(model, cls):\n    model._fit_resolved(1)\n    cls._train()\n    return model.fit()\n"
-                     "class A:\n    def g(self):\n        return self._train()\n")
+    names = _private_members(
+        _modules()["sympredict.estimators.predictor"], ESTIMATOR_CLASSES["sympredict.estimators.predictor"]
+    )
+    tree = ast.parse(
+        "def f(model, cls):\n    model._fit_resolved(1)\n    cls._train()\n    return model.fit()\n"
+        "class A:\n    def g(self):\n        return self._train()\n"
+    )
     assert _touches(tree, names) == [(2, "_fit_resolved"), (3, "_train")]
 
 
@@ -239,5 +271,5 @@ def test_the_architecture_page_states_the_estimators_settings():
     names = SymplecticKernelPredictor._param_names()
     words = {7: "seven", 8: "eight", 9: "nine", 10: "ten"}
     assert f"`SymplecticKernelPredictor` keeps {words.get(len(names), len(names))} settings" in text
-    signature = text[text.index("SymplecticKernelPredictor(state_kernel"):].split(")", 1)[0]
+    signature = text[text.index("SymplecticKernelPredictor(state_kernel") :].split(")", 1)[0]
     assert sorted(n.strip() for n in signature.split("(", 1)[1].split(",")) == names

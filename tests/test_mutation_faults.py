@@ -19,8 +19,11 @@ def _faults():
 def test_every_fault_applies_to_the_current_code():
     faults = _faults()
     assert len(faults) >= 70
-    stale = [(f.id, f.file, (ROOT / f.file).read_text().count(f.snippet)) for f in faults
-             if (ROOT / f.file).read_text().count(f.snippet) != 1]
+    stale = [
+        (f.id, f.file, (ROOT / f.file).read_text().count(f.snippet))
+        for f in faults
+        if (ROOT / f.file).read_text().count(f.snippet) != 1
+    ]
     assert not stale, f"faults whose snippet does not stand exactly once in its file: {stale}"
     missing = [(f.id, t) for f in faults for t in f.tests if not (ROOT / t.split("::")[0]).exists()]
     assert not missing, f"faults naming test modules that do not exist: {missing}"

@@ -165,8 +165,13 @@ def test_numba_is_taken_from_the_policy_module_only():
             continue
         tree = ast.parse(path.read_text(), str(path))
         for node in ast.walk(tree):
-            names = ([a.name for a in node.names] if isinstance(node, ast.Import) else
-                     [node.module or ""] if isinstance(node, ast.ImportFrom) else [])
+            names = (
+                [a.name for a in node.names]
+                if isinstance(node, ast.Import)
+                else [node.module or ""]
+                if isinstance(node, ast.ImportFrom)
+                else []
+            )
             if any(n == "numba" or n.startswith("numba.") for n in names):
                 offenders.append(f"{path.relative_to(package)}:{node.lineno} imports numba")
             if isinstance(node, ast.keyword) and node.arg == "cache":

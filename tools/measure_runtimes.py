@@ -48,8 +48,14 @@ THREADS = os.cpu_count() or 1
 
 def _env(cache: str | None = None) -> dict:
     cores = str(THREADS)
-    env = {**os.environ, "OPENBLAS_NUM_THREADS": cores, "OMP_NUM_THREADS": cores, "MKL_NUM_THREADS": cores,
-           "NUMBA_NUM_THREADS": cores, "MPLBACKEND": "agg"}
+    env = {
+        **os.environ,
+        "OPENBLAS_NUM_THREADS": cores,
+        "OMP_NUM_THREADS": cores,
+        "MKL_NUM_THREADS": cores,
+        "NUMBA_NUM_THREADS": cores,
+        "MPLBACKEND": "agg",
+    }
     if cache is not None:
         env["NUMBA_CACHE_DIR"] = cache
     return env
@@ -88,9 +94,10 @@ def measure_demo(work: Path) -> dict:
 def measure_quick(work: Path) -> dict:
     out = {}
     for system in ("pendulum", "wave", "henon-heiles"):
-        out[system.replace("-", "_")] = {"command": f"sympredict-paper run {system} --quick --out DIR",
-                                         "s": _timed([*PAPER, "run", system, "--quick", "--out", f"run-{system}"], work,
-                                                     _env())}
+        out[system.replace("-", "_")] = {
+            "command": f"sympredict-paper run {system} --quick --out DIR",
+            "s": _timed([*PAPER, "run", system, "--quick", "--out", f"run-{system}"], work, _env()),
+        }
     return out
 
 
@@ -105,7 +112,7 @@ def page_blocks(page: Path) -> list[str]:
             continue
         end = next(j for j in range(i + 1, len(lines)) if lines[j].startswith(m.group(1)))
         if m.group(2) == "python" and not SKIP.search(last):
-            blocks.append("\n".join(lines[i + 1:end]))
+            blocks.append("\n".join(lines[i + 1 : end]))
         last, i = "", end + 1
     return blocks
 
@@ -126,7 +133,10 @@ def measure_pages(work: Path) -> dict:
         folder.mkdir(exist_ok=True)
         (folder / "page.py").write_text("\n\n".join(blocks) + "\n")
         name = page_key(page)
-        pages[name] = {"page": page.relative_to(ROOT).as_posix(), "s": _timed([sys.executable, "page.py"], folder, _env())}
+        pages[name] = {
+            "page": page.relative_to(ROOT).as_posix(),
+            "s": _timed([sys.executable, "page.py"], folder, _env()),
+        }
         print(f"  {name}: {pages[name]['s']} s", flush=True)
     return pages
 
@@ -184,21 +194,38 @@ def measure_tests(work: Path) -> dict:
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--only", nargs="+", choices=["demo", "quick", "pages", "basis", "tests"],
-                        default=["demo", "quick", "pages", "basis"])
-    parser.add_argument("--machine", default=f"{os.cpu_count()} cores, {platform.machine()} {platform.system()}",
-                        help="where it ran (say 'shared' if other jobs ran beside it)")
+    parser.add_argument(
+        "--only",
+        nargs="+",
+        choices=["demo", "quick", "pages", "basis", "tests"],
+        default=["demo", "quick", "pages", "basis"],
+    )
+    parser.add_argument(
+        "--machine",
+        default=f"{os.cpu_count()} cores, {platform.machine()} {platform.system()}",
+        help="where it ran (say 'shared' if other jobs ran beside it)",
+    )
     parser.add_argument("--out", type=Path, default=OUT)
-    parser.add_argument("--threads", type=int, default=os.cpu_count() or 1, help="BLAS/numba threads (default: all cores)")
-    parser.add_argument("--cpu-time", action="store_true",
-                        help="report CPU seconds instead of wall seconds (a shared machine; use with --threads 1)")
+    parser.add_argument(
+        "--threads", type=int, default=os.cpu_count() or 1, help="BLAS/numba threads (default: all cores)"
+    )
+    parser.add_argument(
+        "--cpu-time",
+        action="store_true",
+        help="report CPU seconds instead of wall seconds (a shared machine; use with --threads 1)",
+    )
     args = parser.parse_args(argv)
     global THREADS, CPU_TIME
     THREADS, CPU_TIME = args.threads, args.cpu_time
     data = json.loads(args.out.read_text()) if args.out.is_file() else {}
-    data.update({"command": "python tools/measure_runtimes.py " + " ".join(f"--only {' '.join(args.only)}".split()),
-                 "machine": args.machine, "threads": args.threads,
-                 "seconds": "CPU time of the process (user + system)" if args.cpu_time else "wall time"})
+    data.update(
+        {
+            "command": "python tools/measure_runtimes.py " + " ".join(f"--only {' '.join(args.only)}".split()),
+            "machine": args.machine,
+            "threads": args.threads,
+            "seconds": "CPU time of the process (user + system)" if args.cpu_time else "wall time",
+        }
+    )
     work = Path(tempfile.mkdtemp(prefix="sympredict-runtimes-"))
     try:
         for part in args.only:

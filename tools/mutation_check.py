@@ -63,7 +63,9 @@ assert not _duplicate_ids, f"fault ids must be unique (--only selects by id): {_
 
 
 def _copy_tree(dst: Path):
-    ignore = shutil.ignore_patterns(".venv", ".git", "_build", "__pycache__", "*.pyc", ".pytest_cache", ".hypothesis", "*.egg-info")
+    ignore = shutil.ignore_patterns(
+        ".venv", ".git", "_build", "__pycache__", "*.pyc", ".pytest_cache", ".hypothesis", "*.egg-info"
+    )
     shutil.copytree(ROOT, dst, ignore=ignore, dirs_exist_ok=True)
 
 
@@ -74,18 +76,27 @@ def run_fault(fault: Fault, workdir: Path, timeout: float) -> dict:
     count = pristine.count(fault.snippet)
     result = {**asdict(fault), "tests": list(fault.tests), "seconds": 0.0}  # early returns ran nothing
     if count != 1:
-        result.update(outcome="ERROR", detail=f"snippet found {count} times in {fault.file} (the code moved: re-target the fault)")
+        result.update(
+            outcome="ERROR", detail=f"snippet found {count} times in {fault.file} (the code moved: re-target the fault)"
+        )
         return result
     missing = [t for t in fault.tests if not (workdir / t).exists()]
     if missing:
         result.update(outcome="ERROR", detail=f"test files missing: {missing}")
         return result
     target.write_text(pristine.replace(fault.snippet, fault.replacement))
-    env = {**os.environ, "PYTHONPATH": str(workdir), "PYTHONDONTWRITEBYTECODE": "1", "OMP_NUM_THREADS": "1",
-           "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "NUMBA_NUM_THREADS": "1",
-           # a fresh compiled-code cache per fault: numba checks a cached kernel against its own file's date only,
-           # so kernels cached under another fault would hide (or fake) a fault in a formula they inline
-           "NUMBA_CACHE_DIR": str(workdir / ".numba_cache" / fault.id)}
+    env = {
+        **os.environ,
+        "PYTHONPATH": str(workdir),
+        "PYTHONDONTWRITEBYTECODE": "1",
+        "OMP_NUM_THREADS": "1",
+        "OPENBLAS_NUM_THREADS": "1",
+        "MKL_NUM_THREADS": "1",
+        "NUMBA_NUM_THREADS": "1",
+        # a fresh compiled-code cache per fault: numba checks a cached kernel against its own file's date only,
+        # so kernels cached under another fault would hide (or fake) a fault in a formula they inline
+        "NUMBA_CACHE_DIR": str(workdir / ".numba_cache" / fault.id),
+    }
     cmd = [sys.executable, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider", *fault.tests]
     t0 = time.perf_counter()
     try:
@@ -109,8 +120,13 @@ def run_fault(fault: Fault, workdir: Path, timeout: float) -> dict:
 def _check_import_path(workdir: Path):
     """The copy, not the installed checkout, must be what the tests import."""
     env = {**os.environ, "PYTHONPATH": str(workdir)}
-    got = subprocess.run([sys.executable, "-c", "import sympredict, os; print(os.path.dirname(sympredict.__file__))"],
-                         cwd=workdir, env=env, capture_output=True, text=True).stdout.strip()
+    got = subprocess.run(
+        [sys.executable, "-c", "import sympredict, os; print(os.path.dirname(sympredict.__file__))"],
+        cwd=workdir,
+        env=env,
+        capture_output=True,
+        text=True,
+    ).stdout.strip()
     if Path(got).resolve() != (workdir / "sympredict").resolve():
         raise SystemExit(f"mutation_check: the tests would import sympredict from {got}, not from the copy {workdir}")
 
@@ -157,8 +173,11 @@ def main(argv=None) -> int:
             for i in range(k, len(faults), len(workdirs)):
                 results[i] = run_fault(faults[i], workdirs[k], args.timeout)
                 r = results[i]
-                print(f"{r['id']:4s} {r['outcome']:8s} {r['seconds']:6.1f} s  {r['what']}" + (f"  [{r['detail']}]" if r["outcome"] != "CAUGHT" else ""),
-                      flush=True)
+                print(
+                    f"{r['id']:4s} {r['outcome']:8s} {r['seconds']:6.1f} s  {r['what']}"
+                    + (f"  [{r['detail']}]" if r["outcome"] != "CAUGHT" else ""),
+                    flush=True,
+                )
 
         with ThreadPoolExecutor(len(workdirs)) as pool:
             list(pool.map(run_chunk, range(len(workdirs))))
@@ -167,9 +186,14 @@ def main(argv=None) -> int:
     print(f"{len(results)} faults in {total:.0f} s: " + ", ".join(f"{v} {k.lower()}" for k, v in counts.items()))
     if args.json:
         # command and machine: the documentation prints them under the tables it renders from this file
-        record = {"command": shlex.join(getattr(sys, "orig_argv", [sys.executable, *sys.argv])),
-                  "machine": f"{os.cpu_count()} CPUs, {platform.platform()}",
-                  "total_seconds": total, "counts": counts, "areas": summary_by_area(results), "results": results}
+        record = {
+            "command": shlex.join(getattr(sys, "orig_argv", [sys.executable, *sys.argv])),
+            "machine": f"{os.cpu_count()} CPUs, {platform.platform()}",
+            "total_seconds": total,
+            "counts": counts,
+            "areas": summary_by_area(results),
+            "results": results,
+        }
         Path(args.json).write_text(json.dumps(record, indent=1))
     return 0 if counts["SURVIVED"] == counts["ERROR"] == 0 else 1
 

@@ -22,10 +22,14 @@ def redraw(results_json, out) -> list[str]:
     r = r.get("results", r)
     figures = {}
     sa = r["pendulum"]["speed_accuracy"]
-    figures.update(report.speed_accuracy_figure(sa, "pendulum_speed_accuracy", f"Pendulum: speed against accuracy, dT={sa['dt']}"))
+    figures.update(
+        report.speed_accuracy_figure(sa, "pendulum_speed_accuracy", f"Pendulum: speed against accuracy, dT={sa['dt']}")
+    )
     figures.update(report.stability_figures(r["pendulum"]["stability"]))
     sa = r["wave"]["speed_accuracy"]
-    figures.update(report.speed_accuracy_figure(sa, "wave_speed_accuracy", f"Wave: FOM vs ROM vs ROM + kernel, dT={sa['dt']}"))
+    figures.update(
+        report.speed_accuracy_figure(sa, "wave_speed_accuracy", f"Wave: FOM vs ROM vs ROM + kernel, dT={sa['dt']}")
+    )
     written = []
     for name, fig in figures.items():
         fig.savefig(Path(out) / f"{name}.png", dpi=150, bbox_inches="tight")

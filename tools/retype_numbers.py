@@ -43,7 +43,7 @@ def retype(typed: str, value: float) -> str:
         new = f"{value:.{decimals}f}"
     if text.startswith("−"):
         new = new.replace("-", "−")
-    return typed[:match.start()] + sign + new + typed[match.end():]
+    return typed[: match.start()] + sign + new + typed[match.end() :]
 
 
 def main(argv=None) -> int:

@@ -24,8 +24,13 @@ def pendulum_model(max_centers: int = 400, trainer=None):
     from sympredict.interpolation.greedy import ExactGreedy
     from sympredict.kernels import IMQ
 
-    return SymplecticKernelPredictor(IMQ(0.15), mu_kernel=IMQ(2.0), dt_kernel=IMQ(5.0), max_centers=max_centers,
-                                     trainer=ExactGreedy(tol=1e-10) if trainer is None else trainer)
+    return SymplecticKernelPredictor(
+        IMQ(0.15),
+        mu_kernel=IMQ(2.0),
+        dt_kernel=IMQ(5.0),
+        max_centers=max_centers,
+        trainer=ExactGreedy(tol=1e-10) if trainer is None else trainer,
+    )
 
 
 def holdout(data, n: int = 200, seed: int = 0):

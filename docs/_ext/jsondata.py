@@ -52,8 +52,18 @@ import operator
 import re
 from pathlib import Path
 
-__all__ = ["JsonDataError", "load", "provenance", "evaluate", "format_value", "check_typed", "parse_role",
-           "resolve_role", "table_rows", "setup"]
+__all__ = [
+    "JsonDataError",
+    "load",
+    "provenance",
+    "evaluate",
+    "format_value",
+    "check_typed",
+    "parse_role",
+    "resolve_role",
+    "table_rows",
+    "setup",
+]
 
 
 class JsonDataError(ValueError):
@@ -81,7 +91,9 @@ def load(path) -> dict:
         except ValueError as exc:
             raise JsonDataError(f"JSON source {path} is not valid JSON ({exc})") from None
         if not isinstance(data, dict):
-            raise JsonDataError(f"JSON source {path} holds a {type(data).__name__}, not an object: the docs read keys of an object")
+            raise JsonDataError(
+                f"JSON source {path} holds a {type(data).__name__}, not an object: the docs read keys of an object"
+            )
         provenance(data, path)
         _CACHE[key] = data
     return _CACHE[key]
@@ -110,8 +122,10 @@ def provenance(data: dict, path="<data>") -> tuple[str, str]:
                 return str(where["command"]), _describe_machine(where["machine"])
             except JsonDataError as exc:
                 raise JsonDataError(f"JSON source {path}: {exc}") from None
-    raise JsonDataError(f"JSON source {path} lacks 'command' and 'machine' keys: every source the docs read must say "
-                        "which command made it and on which machine (add them at the top level)")
+    raise JsonDataError(
+        f"JSON source {path} lacks 'command' and 'machine' keys: every source the docs read must say "
+        "which command made it and on which machine (add them at the top level)"
+    )
 
 
 _BINOPS = {ast.Add: operator.add, ast.Sub: operator.sub, ast.Mult: operator.mul, ast.Div: operator.truediv}
@@ -154,7 +168,9 @@ def evaluate(data, expr: str):
     try:
         tree = ast.parse(expr, mode="eval").body
     except SyntaxError:
-        raise JsonDataError(f"{expr!r} is not an expression: write a key path such as a.b[0].c, numbers and + - * /") from None
+        raise JsonDataError(
+            f"{expr!r} is not an expression: write a key path such as a.b[0].c, numbers and + - * /"
+        ) from None
 
     def ev(node):
         if isinstance(node, ast.Name):
@@ -165,8 +181,13 @@ def evaluate(data, expr: str):
             return _get(ev(node.value), node.slice.value, expr)
         if isinstance(node, ast.Constant) and isinstance(node.value, (int, float)) and not isinstance(node.value, bool):
             return node.value
-        if (isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id == "len"
-                and len(node.args) == 1 and not node.keywords):
+        if (
+            isinstance(node, ast.Call)
+            and isinstance(node.func, ast.Name)
+            and node.func.id == "len"
+            and len(node.args) == 1
+            and not node.keywords
+        ):
             v = ev(node.args[0])
             if not isinstance(v, (list, dict)):
                 raise JsonDataError(f"{expr!r}: len() of {v!r}, which is not a list or object")
@@ -175,7 +196,9 @@ def evaluate(data, expr: str):
             return -_number(ev(node.operand))
         if isinstance(node, ast.BinOp) and type(node.op) in _BINOPS:
             return _BINOPS[type(node.op)](_number(ev(node.left)), _number(ev(node.right)))
-        raise JsonDataError(f"{expr!r}: {ast.unparse(node)!r} is not allowed (only key paths, numbers, + - * / and len)")
+        raise JsonDataError(
+            f"{expr!r}: {ast.unparse(node)!r} is not allowed (only key paths, numbers, + - * / and len)"
+        )
 
     def _number(v):
         if isinstance(v, bool) or not isinstance(v, (int, float)):
@@ -188,7 +211,9 @@ def evaluate(data, expr: str):
 def format_value(value, fmt: str = "", where: str = "") -> str:
     """``value`` formatted with the Python format spec ``fmt``; a list becomes its items joined by ", "."""
     if isinstance(value, (dict,)) or value is None:
-        raise JsonDataError(f"{where}: the value is {_keys(value) if value is not None else 'null'}, not a number or text")
+        raise JsonDataError(
+            f"{where}: the value is {_keys(value) if value is not None else 'null'}, not a number or text"
+        )
     if isinstance(value, float) and not math.isfinite(value):
         raise JsonDataError(f"{where}: the value is {value}, not a finite number")
     if isinstance(value, list):
@@ -305,13 +330,18 @@ def setup(app):
     class JsonTable(_JsonDirective):
         """``json-table``: a table of rows from a JSON file, with the command that made it."""
 
-        option_spec = {"rows": directives.unchanged_required, "columns": directives.unchanged_required,
-                       "header": directives.unchanged}
+        option_spec = {
+            "rows": directives.unchanged_required,
+            "columns": directives.unchanged_required,
+            "header": directives.unchanged,
+        }
 
         def run(self):
             path, data = self.source()
             if "rows" not in self.options or "columns" not in self.options:
-                raise self.error("json-table needs :rows: (the list in the file) and :columns: (one expression per column)")
+                raise self.error(
+                    "json-table needs :rows: (the list in the file) and :columns: (one expression per column)"
+                )
             columns = _split(self.options["columns"])
             header = _split(self.options.get("header") or "") or [c.partition("|")[0].strip() for c in columns]
             if len(header) != len(columns):

@@ -67,4 +67,3 @@ def run_command(parser: argparse.ArgumentParser, argv=None, name: str = "sympred
         return 130
     finally:
         warnings.formatwarning = formatwarning  # main() may be called from Python (tests): leave it as found
-

@@ -56,8 +56,10 @@ class _Progress:
             return
         self.last, elapsed = now, now - self.start
         left = elapsed * (total - done) / done if done else float("inf")
-        self.stream.write(f"\r{self.what}: step {done:,}/{total:,} ({100 * done / total:.1f} %), "
-                          f"{_duration(elapsed)} elapsed, about {_duration(left)} left   ")
+        self.stream.write(
+            f"\r{self.what}: step {done:,}/{total:,} ({100 * done / total:.1f} %), "
+            f"{_duration(elapsed)} elapsed, about {_duration(left)} left   "
+        )
         self.stream.flush()
         self.shown = True
 
@@ -89,7 +91,9 @@ def _plain_log_output() -> None:
     from pymor.core.logger import ColoredFormatter
 
     color = _use_color(sys.stderr)
-    loggers = [logging.getLogger()] + [lg for lg in logging.Logger.manager.loggerDict.values() if isinstance(lg, logging.Logger)]
+    loggers = [logging.getLogger()] + [
+        lg for lg in logging.Logger.manager.loggerDict.values() if isinstance(lg, logging.Logger)
+    ]
     for lg in loggers:
         for handler in lg.handlers:
             if isinstance(handler.formatter, ColoredFormatter):

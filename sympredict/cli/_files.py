@@ -42,10 +42,16 @@ def _save_model_or_keep(model, out, overwrite: bool = True) -> None:
             model.save(folder / name)
         except (OSError, ValueError):
             continue
-        raise OSError(failure.errno, f"{failure.strerror or failure}; the trained model was kept in {str(folder / name)!r}: "
-                                     f"move it where you want it")
-    raise OSError(failure.errno, f"{failure.strerror or failure}; the trained model could not be kept anywhere "
-                                 f"(also tried {str(Path(out).parent)!r} and {tempfile.gettempdir()!r})")
+        raise OSError(
+            failure.errno,
+            f"{failure.strerror or failure}; the trained model was kept in {str(folder / name)!r}: "
+            f"move it where you want it",
+        )
+    raise OSError(
+        failure.errno,
+        f"{failure.strerror or failure}; the trained model could not be kept anywhere "
+        f"(also tried {str(Path(out).parent)!r} and {tempfile.gettempdir()!r})",
+    )
 
 
 def _same_file(a, b) -> bool:

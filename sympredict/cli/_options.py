@@ -61,14 +61,22 @@ def _number_list(text: str) -> str:
 
 def _add_backend_and_force(parser: argparse.ArgumentParser, solver: str) -> None:
     """``--backend`` (``solver``: what it sets) and ``--force`` (replace an existing ``--out``) of train and predict."""
-    parser.add_argument("--backend", choices=["auto", "numpy", "numba"], default="auto",
-                        help=f"{solver}: NumPy or compiled (numba); 'auto' (default) picks by the size of the work")
+    parser.add_argument(
+        "--backend",
+        choices=["auto", "numpy", "numba"],
+        default="auto",
+        help=f"{solver}: NumPy or compiled (numba); 'auto' (default) picks by the size of the work",
+    )
     parser.add_argument("--force", action="store_true", help="replace an existing --out file")
 
 
 def _add_verbose(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("-v", "--verbose", action="store_true",
-                        help="print what is read and the training log (default: one result line)")
+    parser.add_argument(
+        "-v",
+        "--verbose",
+        action="store_true",
+        help="print what is read and the training log (default: one result line)",
+    )
 
 
 def _parse_numbers(text: str, option: str):
@@ -80,8 +88,10 @@ def _parse_numbers(text: str, option: str):
         try:
             value = float(part)
         except ValueError:
-            raise ValueError(f"{option} takes comma-separated numbers, e.g. {option} 1.0,0.0; entry {i} of {text!r} "
-                             f"is {part.strip()!r}") from None
+            raise ValueError(
+                f"{option} takes comma-separated numbers, e.g. {option} 1.0,0.0; entry {i} of {text!r} "
+                f"is {part.strip()!r}"
+            ) from None
         if not math.isfinite(value):
             raise ValueError(f"{option}: entry {i} of {text!r} is not finite")
         values.append(value)

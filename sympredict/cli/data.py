@@ -34,14 +34,19 @@ def _system_trajectories(name: str, n_traj: int, n_steps: int, dt: float, n_poin
         from sympredict.systems.wave import WaveFOM
 
         fom = WaveFOM(n_points=n_points)
-        x0 = np.vstack([fom.low_frequency_states(1, min(4, n_points), m, fom.reference_energy(m), seed=seed + i)
-                        for i, m in enumerate(mu)])
+        x0 = np.vstack(
+            [
+                fom.low_frequency_states(1, min(4, n_points), m, fom.reference_energy(m), seed=seed + i)
+                for i, m in enumerate(mu)
+            ]
+        )
         return fom.trajectory(x0, mu, dt, n_steps), mu
     from sympredict.systems.sine_gordon import SineGordonFOM
 
     fom = SineGordonFOM(n_points=n_points)
-    x0 = np.vstack([fom.energy_bounded_states(1, 1.0, c=c, n_modes=min(8, n_points), seed=seed + i)
-                    for i, c in enumerate(mu)])
+    x0 = np.vstack(
+        [fom.energy_bounded_states(1, 1.0, c=c, n_modes=min(8, n_points), seed=seed + i) for i, c in enumerate(mu)]
+    )
     return fom.reference_trajectory(x0, mu, dt, n_steps), mu
 
 
@@ -57,8 +62,10 @@ def _cmd_data(args) -> int:
         dt = args.dt if args.dt is not None else DATA_SYSTEMS[system]["dt"]
         states, mu = _system_trajectories(system, args.trajectories, args.steps, dt, args.n_points, args.seed)
         write_trajectories(TrajectoryData(states, mu, dt), args.out, overwrite=args.force)
-        print(f"wrote {states.shape[0]} {system} trajectories of {args.steps} steps (dt = {dt}, 2n = {states.shape[2]}, "
-              f"one parameter each) to {args.out}")
+        print(
+            f"wrote {states.shape[0]} {system} trajectories of {args.steps} steps (dt = {dt}, 2n = {states.shape[2]}, "
+            f"one parameter each) to {args.out}"
+        )
         return 0
     from sympredict.systems.pendulum import DT_TRAIN, MU_TRAIN, Pendulum, flow_map_data, random_flow_map_data
 
@@ -92,26 +99,60 @@ def _check_grid_memory(n_grid: int, n_pairs: int) -> None:
     available = available_memory()
     if available is not None and needed > available:
         largest = int(math.sqrt(available / (_GRID_BYTES_PER_POINT + n_pairs * _SAMPLE_BYTES_PER_POINT)))
-        raise ValueError(f"--n-grid {n_grid}: the grid's samples need about {needed / 2**30:.3g} GiB, more than the "
-                         f"{available / 2**30:.3g} GiB available; give --n-grid {largest} or less (the paper's is 200)")
+        raise ValueError(
+            f"--n-grid {n_grid}: the grid's samples need about {needed / 2**30:.3g} GiB, more than the "
+            f"{available / 2**30:.3g} GiB available; give --n-grid {largest} or less (the paper's is 200)"
+        )
 
 
 def add_parser(sub) -> None:
     """Register ``sympredict data`` with the subparsers ``sub``."""
     data = sub.add_parser("data", help="write a data set of a shipped system that 'sympredict train' reads")
-    data.add_argument("--system", choices=["pendulum", *DATA_SYSTEMS], default="pendulum",
-                      help="pendulum (default): flow-map samples (HDF5); the others: reference trajectories "
-                           "(.npz, .h5 or .csv by the --out suffix) with one parameter each")
+    data.add_argument(
+        "--system",
+        choices=["pendulum", *DATA_SYSTEMS],
+        default="pendulum",
+        help="pendulum (default): flow-map samples (HDF5); the others: reference trajectories "
+        "(.npz, .h5 or .csv by the --out suffix) with one parameter each",
+    )
     data.add_argument("--out", required=True, help="data file (.h5 for the pendulum; .npz, .h5 or .csv otherwise)")
-    data.add_argument("--n-grid", type=_int_at_least(2), default=50, help="pendulum: energy-bounded grid points per axis (default 50; paper 200)")
-    data.add_argument("--p-nonpositive", action="store_true", help="pendulum: keep only states with p <= 0 (scenario B)")
-    data.add_argument("--random", type=_int_at_least(1), metavar="N", help="pendulum: N >= 1 random samples instead of the grid (validation data)")
-    data.add_argument("--trajectories", type=_int_at_least(1), default=20, metavar="P",
-                      help="other systems: number of trajectories (default 20), parameters drawn uniformly from the system's range")
-    data.add_argument("--steps", type=_int_at_least(1), default=20, metavar="K", help="other systems: macro steps per trajectory (default 20)")
+    data.add_argument(
+        "--n-grid",
+        type=_int_at_least(2),
+        default=50,
+        help="pendulum: energy-bounded grid points per axis (default 50; paper 200)",
+    )
+    data.add_argument(
+        "--p-nonpositive", action="store_true", help="pendulum: keep only states with p <= 0 (scenario B)"
+    )
+    data.add_argument(
+        "--random",
+        type=_int_at_least(1),
+        metavar="N",
+        help="pendulum: N >= 1 random samples instead of the grid (validation data)",
+    )
+    data.add_argument(
+        "--trajectories",
+        type=_int_at_least(1),
+        default=20,
+        metavar="P",
+        help="other systems: number of trajectories (default 20), parameters drawn uniformly from the system's range",
+    )
+    data.add_argument(
+        "--steps",
+        type=_int_at_least(1),
+        default=20,
+        metavar="K",
+        help="other systems: macro steps per trajectory (default 20)",
+    )
     data.add_argument("--dt", type=_finite_float(positive=True), help="other systems: macro step (default 0.1)")
-    data.add_argument("--n-points", type=_int_at_least(3), default=16, metavar="N",
-                      help="wave and sine-gordon: interior grid points, states of dimension 2N (default 16)")
+    data.add_argument(
+        "--n-points",
+        type=_int_at_least(3),
+        default=16,
+        metavar="N",
+        help="wave and sine-gordon: interior grid points, states of dimension 2N (default 16)",
+    )
     data.add_argument("--seed", type=_int_at_least(0), default=0)
     data.add_argument("--force", action="store_true", help="replace an existing --out file")
     _add_verbose(data)

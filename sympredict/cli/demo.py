@@ -63,11 +63,18 @@ def run_demo(out, seed: int = 0) -> dict:
     H = pendulum.hamiltonian(pred, MU_TEST)
     H_exact = pendulum.hamiltonian(exact, MU_TEST)
     t = np.arange(HORIZON_STEPS + 1) * DT
-    files = plotting.save(demo_figure(t, exact, pred, np.abs(H - H[0]) / abs(H[0]),
-                                      np.abs(H_exact - H_exact[0]) / abs(H_exact[0])), out, "demo")
-    return {"max_state_error": float(np.abs(pred - exact).max()),
-            "max_energy_drift": float(np.abs(H - H[0]).max() / abs(H[0])),
-            "n_centers": int(model.n_centers_), "fit_s": fit_s, "files": ["model.h5", *files]}
+    files = plotting.save(
+        demo_figure(t, exact, pred, np.abs(H - H[0]) / abs(H[0]), np.abs(H_exact - H_exact[0]) / abs(H_exact[0])),
+        out,
+        "demo",
+    )
+    return {
+        "max_state_error": float(np.abs(pred - exact).max()),
+        "max_energy_drift": float(np.abs(H - H[0]).max() / abs(H[0])),
+        "n_centers": int(model.n_centers_),
+        "fit_s": fit_s,
+        "files": ["model.h5", *files],
+    }
 
 
 def demo_figure(t, exact, pred, drift, drift_exact):
@@ -78,17 +85,38 @@ def demo_figure(t, exact, pred, drift, drift_exact):
 
     fig, (ax, bx) = plotting.plt.subplots(1, 2, figsize=(10, 4.2), constrained_layout=True)
     ax.plot(exact[:, 0], exact[:, 1], color=plotting.method_color("exact"), lw=6, alpha=0.35, label="reference flow")
-    ax.plot(pred[:, 0], pred[:, 1], "--", color=plotting.method_color("symplectic kernel model"), lw=1.2,
-            label="symplectic kernel model")
+    ax.plot(
+        pred[:, 0],
+        pred[:, 1],
+        "--",
+        color=plotting.method_color("symplectic kernel model"),
+        lw=1.2,
+        label="symplectic kernel model",
+    )
     ax.plot([exact[0, 0]], [exact[0, 1]], "o", color="k", ms=5, label="initial state")
-    plotting.decorate(ax, "angle $q$ [rad]", "angular momentum $p$ [kg m$^2$/s]",
-                      f"phase plane, length $l$ = {MU_TEST} m, {len(t) - 1} steps of {DT} s")
-    bx.semilogy(t[1:], np.maximum(drift[1:], 1e-17), color=plotting.method_color("symplectic kernel model"), lw=1.2,
-                label="symplectic kernel model")
-    bx.semilogy(t[1:], np.maximum(drift_exact[1:], 1e-17), color=plotting.method_color("exact"), lw=1.0,
-                label="reference flow (implicit midpoint, h = 1e-3 s)")
-    plotting.decorate(bx, "time $t$ [s]", "relative energy error $|H(t) - H(0)| / H(0)$ [1]",
-                      "energy error stays bounded")
+    plotting.decorate(
+        ax,
+        "angle $q$ [rad]",
+        "angular momentum $p$ [kg m$^2$/s]",
+        f"phase plane, length $l$ = {MU_TEST} m, {len(t) - 1} steps of {DT} s",
+    )
+    bx.semilogy(
+        t[1:],
+        np.maximum(drift[1:], 1e-17),
+        color=plotting.method_color("symplectic kernel model"),
+        lw=1.2,
+        label="symplectic kernel model",
+    )
+    bx.semilogy(
+        t[1:],
+        np.maximum(drift_exact[1:], 1e-17),
+        color=plotting.method_color("exact"),
+        lw=1.0,
+        label="reference flow (implicit midpoint, h = 1e-3 s)",
+    )
+    plotting.decorate(
+        bx, "time $t$ [s]", "relative energy error $|H(t) - H(0)| / H(0)$ [1]", "energy error stays bounded"
+    )
     return fig
 
 
@@ -105,24 +133,35 @@ def _cmd_demo(args) -> int:
     if out.is_dir():
         other = sorted(e.name for e in out.iterdir() if e.name not in _DEMO_FILES)
         if other:
-            raise ValueError(f"--out {str(out)!r} holds other files than a demo's (e.g. {other[0]!r}); give a new or "
-                             "empty folder")
+            raise ValueError(
+                f"--out {str(out)!r} holds other files than a demo's (e.g. {other[0]!r}); give a new or empty folder"
+            )
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    with threadpool_limits(limits=args.threads), _Working("sympredict demo: training on 40 pendulum trajectories", quiet=args.verbose):
+    with (
+        threadpool_limits(limits=args.threads),
+        _Working("sympredict demo: training on 40 pendulum trajectories", quiet=args.verbose),
+    ):
         r = run_demo(out, seed=args.seed)
-    print(f"demo: {r['n_centers']} centres trained in {r['fit_s']:.0f} s; over t = {HORIZON_STEPS * DT:g} s: max state "
-          f"error {r['max_state_error']:.1e}, max relative energy drift {r['max_energy_drift']:.1e}; wrote "
-          f"{out / 'model.h5'} and {out / 'demo.png'} ({_duration(time.perf_counter() - t0)})")
+    print(
+        f"demo: {r['n_centers']} centres trained in {r['fit_s']:.0f} s; over t = {HORIZON_STEPS * DT:g} s: max state "
+        f"error {r['max_state_error']:.1e}, max relative energy drift {r['max_energy_drift']:.1e}; wrote "
+        f"{out / 'model.h5'} and {out / 'demo.png'} ({_duration(time.perf_counter() - t0)})"
+    )
     return 0
 
 
 def add_parser(sub) -> None:
     """Register ``sympredict demo`` with the subparsers ``sub``."""
-    demo = sub.add_parser("demo", help="the README's example: train on pendulum trajectories, predict, write a model, "
-                                       "a figure and a one-line result (seconds on 2 cores)")
+    demo = sub.add_parser(
+        "demo",
+        help="the README's example: train on pendulum trajectories, predict, write a model, "
+        "a figure and a one-line result (seconds on 2 cores)",
+    )
     demo.add_argument("--out", default="sympredict-demo", help="output folder (default: sympredict-demo)")
     demo.add_argument("--seed", type=_int_at_least(0), default=0, help="seed of the training trajectories (default 0)")
-    demo.add_argument("--threads", type=_int_at_least(1), default=os.cpu_count() or 1, help="BLAS threads (default: all cores)")
+    demo.add_argument(
+        "--threads", type=_int_at_least(1), default=os.cpu_count() or 1, help="BLAS threads (default: all cores)"
+    )
     _add_verbose(demo)
     demo.set_defaults(func=_cmd_demo)

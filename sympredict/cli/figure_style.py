@@ -95,8 +95,16 @@ def figure_data(fig) -> dict:
             for line in ax.get_lines()
             if not line.get_label().startswith("_")
         ]
-        axes.append({"title": ax.get_title(), "xlabel": ax.get_xlabel(), "ylabel": ax.get_ylabel(),
-                     "xscale": ax.get_xscale(), "yscale": ax.get_yscale(), "lines": lines})
+        axes.append(
+            {
+                "title": ax.get_title(),
+                "xlabel": ax.get_xlabel(),
+                "ylabel": ax.get_ylabel(),
+                "xscale": ax.get_xscale(),
+                "yscale": ax.get_yscale(),
+                "lines": lines,
+            }
+        )
     return {"axes": axes}
 
 

@@ -42,8 +42,15 @@ import numpy as np
 from sympredict._checks import as_flag
 from sympredict.base import Setting, clone
 from sympredict.data import FlowMapData
-from sympredict.estimators.search import (CANDIDATE_FIT, SEARCH_LOGGER, coordinate_search, grid_search, one_step_score, quiet_logs,
-                                          without_target)
+from sympredict.estimators.search import (
+    CANDIDATE_FIT,
+    SEARCH_LOGGER,
+    coordinate_search,
+    grid_search,
+    one_step_score,
+    quiet_logs,
+    without_target,
+)
 from sympredict.estimators.structure import compete as _structure_stage
 from sympredict.exceptions import ExtrapolationWarning, NewtonConvergenceError, NonFinitePredictionError, ScaleWarning
 from sympredict.kernels import IMQ, KERNEL_FAMILIES
@@ -121,91 +128,103 @@ class SearchResult:
         """One line: what was chosen and how."""
         chosen = ", ".join(f"{k}={v!r}" for k, v in self.params.items())
         found = [f.summary() for f in self.structure if f.verdict == "holds"]
-        return (f"chose {chosen} (one-step error {self.score:.3e} on held-out samples with {self.m_final} centres; "
-                f"{len(self.table)} candidates, {self.n_train} + {self.n_validation} samples, {self.seconds:.1f} s)"
-                + (f"; structure found: {'; '.join(found)}" if found else ""))
+        return (
+            f"chose {chosen} (one-step error {self.score:.3e} on held-out samples with {self.m_final} centres; "
+            f"{len(self.table)} candidates, {self.n_train} + {self.n_validation} samples, {self.seconds:.1f} s)"
+            + (f"; structure found: {'; '.join(found)}" if found else "")
+        )
 
 
 class KernelSearch(Setting):
     """How an estimator chooses the kernels, shapes and update it leaves open (``None``).
 
-    Parameters
-    ----------
-    families : sequence of str
-        State-kernel families tried (``'imq'``, ``'matern52'``, ``'matern32'``).  The first is searched over
-        every update; the others compete at the winner's update and shape.
-    shapes : sequence of float
-        Multiples of the unit shape tried first for the state kernel (unit: ``1 / spread`` of the normalised
-        mixed variable ``xi``, the root of the summed variances of its components).
-    parameter_shapes : sequence of float
-        Multiples of the unit shape tried for the parameter and step kernels (unit: ``1 / mean width`` of the
-        parameter box's components; ``1 / width`` of the steps).
-    updates : sequence of str
-        Update rules that compete when the estimator's ``update`` is ``None``.
-    m_star : int or None
-        Centres at which the first stage compares candidates (by ``E_val(m_star)``); ``None``:
-        ``min(max_centers, 300)``.
-    final_centers : int
-        Centres at which the second stage compares its candidates: ``min(max_centers, final_centers)``.
-    max_samples : int
-        Samples of the subsample the candidates are fitted to (the rest of the data is not used by the search).
-    validation_fraction : float
-        Part of that subsample held out to score the candidates.
-    refine_sweeps : int
-        Sweeps of the second stage's coordinate search (each shape, and the ratio of the ``q`` to the ``p``
-        shapes, times 1/2 and 2); it stops after a sweep without improvement.
-    seed : int
-        Seed of the subsample and the split.
-    structure : bool
-        Test the data for symmetries, reversing symmetries and wrapped angles and let the symmetries that hold
-        compete (:mod:`sympredict.estimators.structure`): one quick fit, then one fit to ``m_final`` centres per
-        group that holds.
-    halving : bool
-        Successive halving: candidates are first compared at a fraction of their centres, and only those not
-        clearly losing there are fitted to full size (see Notes); ``False`` (the default): every candidate at full
-        size.  On the five systems of ``sympredict_paper/studies/search_cost.py`` both choose the same settings;
-        on noisy pendulum trajectories (30 x 20 steps, noise 1e-3) halving chose a wider kernel whose held-out
-        error was 1.25 times the full search's, so it is not the default.
+        Parameters
+        ----------
+        families : sequence of str
+            State-kernel families tried (``'imq'``, ``'matern52'``, ``'matern32'``).  The first is searched over
+            every update; the others compete at the winner's update and shape.
+        shapes : sequence of float
+            Multiples of the unit shape tried first for the state kernel (unit: ``1 / spread`` of the normalised
+            mixed variable ``xi``, the root of the summed variances of its components).
+        parameter_shapes : sequence of float
+            Multiples of the unit shape tried for the parameter and step kernels (unit: ``1 / mean width`` of the
+            parameter box's components; ``1 / width`` of the steps).
+        updates : sequence of str
+            Update rules that compete when the estimator's ``update`` is ``None``.
+        m_star : int or None
+            Centres at which the first stage compares candidates (by ``E_val(m_star)``); ``None``:
+            ``min(max_centers, 300)``.
+        final_centers : int
+            Centres at which the second stage compares its candidates: ``min(max_centers, final_centers)``.
+        max_samples : int
+            Samples of the subsample the candidates are fitted to (the rest of the data is not used by the search).
+        validation_fraction : float
+            Part of that subsample held out to score the candidates.
+        refine_sweeps : int
+            Sweeps of the second stage's coordinate search (each shape, and the ratio of the ``q`` to the ``p``
+            shapes, times 1/2 and 2); it stops after a sweep without improvement.
+        seed : int
+            Seed of the subsample and the split.
+        structure : bool
+            Test the data for symmetries, reversing symmetries and wrapped angles and let the symmetries that hold
+            compete (:mod:`sympredict.estimators.structure`): one quick fit, then one fit to ``m_final`` centres per
+            group that holds.
+        halving : bool
+            Successive halving: candidates are first compared at a fraction of their centres, and only those not
+            clearly losing there are fitted to full size (see Notes); ``False`` (the default): every candidate at full
+            size.  On the five systems of ``sympredict_paper/studies/search_cost.py`` both choose the same settings;
+            on noisy pendulum trajectories (30 x 20 steps, noise 1e-3) halving chose a wider kernel whose held-out
+            error was 1.25 times the full search's, so it is not the default.
 
-    Notes
-    -----
-    Two stages.  The first fits every update and family on the shape grids to ``m_star`` centres and keeps, per
-    update and family, the tuple with the smallest validation residual ``E_val(m_star)`` (cheap, but at a small
-    ``m_star`` flat kernels win that break down before the final size).  The second fits those finalists (a
-    finalist that stops early also with its open shapes doubled, up to three times), then the
-    coordinate search's candidates, to ``m_final = min(max_centers, final_centers)`` centres and ranks them by the
-    mean relative one-step error ``|Phi(x0) - x1| / |x1 - x0|`` on the held-out samples (a Newton failure scores
-    ``inf``): the error a rollout compounds, at the size the model will have.
-    With ``halving`` (where ``m_star >= 4 MIN_RUNG``, resp. ``m_final >= 4 MIN_RUNG``; :data:`MIN_RUNG` = 25):
+        Notes
+        -----
+        Two stages.  The first fits every update and family on the shape grids to ``m_star`` centres and keeps, per
+        update and family, the tuple with the smallest validation residual ``E_val(m_star)`` (cheap, but at a small
+        ``m_star`` flat kernels win that break down before the final size).  The second fits those finalists (a
+        finalist that stops early also with its open shapes doubled, up to three times), then the
+        coordinate search's candidates, to ``m_final = min(max_centers, final_centers)`` centres and ranks them by the
+        mean relative one-step error ``|Phi(x0) - x1| / |x1 - x0|`` on the held-out samples (a Newton failure scores
+        ``inf``): the error a rollout compounds, at the size the model will have.
+        With ``halving`` (where ``m_star >= 4 MIN_RUNG``, resp. ``m_final >= 4 MIN_RUNG``; :data:`MIN_RUNG` = 25):
 
-    * stage 1 trains each grid's candidates to ``m_star / 4`` centres, the best third of them (at least two, by
-      ``E_val``) to ``m_star / 2``, and the best third of those (at least two) to ``m_star``
-      (:func:`~sympredict.estimators.search.grid_search`'s ``rungs``);
-    * stage 2 (and the structure stage) first fits every candidate to the rung ``m_final / 4`` and scores its
-      one-step error there; a candidate is fitted to ``m_final`` only if that rung error is at most
-      :data:`RUNG_MARGIN` (30) times the smallest rung error so far (the starting finalists are all rung-scored
-      first); the others are recorded with ``score = inf`` and ``cut = True`` and never chosen, unless every
-      candidate fitted to full size fails (then they are fitted to full size after all, rows ``after_cut``).
+        * stage 1 trains each grid's candidates to ``m_star / 4`` centres, the best third of them (at least two, by
+          ``E_val``) to ``m_star / 2``, and the best third of those (at least two) to ``m_star``
+          (:func:`~sympredict.estimators.search.grid_search`'s ``rungs``);
+        * stage 2 (and the structure stage) first fits every candidate to the rung ``m_final / 4`` and scores its
+          one-step error there; a candidate is fitted to ``m_final`` only if that rung error is at most
+          :data:`RUNG_MARGIN` (30) times the smallest rung error so far (the starting finalists are all rung-scored
+          first); the others are recorded with ``score = inf`` and ``cut = True`` and never chosen, unless every
+          candidate fitted to full size fails (then they are fitted to full size after all, rows ``after_cut``).
 
-    A fit costs about ``m^2`` times the samples, so a rung at a quarter of the centres costs a sixteenth of a
-    full fit: stage 1 fits about 4 instead of 15 full candidates per grid, stage 2 fits to full size only the
-    candidates within the margin.  The rule is deterministic (ties go to the earlier candidate).
-    Both stages fit with the estimator's own ``trainer`` (the one-at-a-time greedy by default: with
-    :class:`~sympredict.interpolation.greedy.BlockedGreedy` fits in the second stage the search took a half to a
-    third of its time on two acceptance systems of ``sympredict_paper/studies/defaults_acceptance.py``, but chose another update
-    and parameter kernel on the Kepler orbits, with a 1.3x larger rollout error).
-    Cost: about ``len(updates) (len(shapes) len(parameter_shapes)^k + 3 (len(families) - 1))`` fits to ``m_star``
-    centres (``k`` open parameter and step kernels), then ``len(updates) len(families) + 8 refine_sweeps`` fits to
-    ``m_final`` centres, each ``O(m^2 2n max_samples)``, without ``halving``; with it, per grid of ``c`` candidates
-about ``c / 16 + c / 12 + 2`` fits' worth to ``m_star`` instead of ``c``, and in the second stage a sixteenth of a
-fit for each candidate cut at its rung (the rung fit of one that goes on adds a sixteenth to its full fit).
+        A fit costs about ``m^2`` times the samples, so a rung at a quarter of the centres costs a sixteenth of a
+        full fit: stage 1 fits about 4 instead of 15 full candidates per grid, stage 2 fits to full size only the
+        candidates within the margin.  The rule is deterministic (ties go to the earlier candidate).
+        Both stages fit with the estimator's own ``trainer`` (the one-at-a-time greedy by default: with
+        :class:`~sympredict.interpolation.greedy.BlockedGreedy` fits in the second stage the search took a half to a
+        third of its time on two acceptance systems of ``sympredict_paper/studies/defaults_acceptance.py``, but chose another update
+        and parameter kernel on the Kepler orbits, with a 1.3x larger rollout error).
+        Cost: about ``len(updates) (len(shapes) len(parameter_shapes)^k + 3 (len(families) - 1))`` fits to ``m_star``
+        centres (``k`` open parameter and step kernels), then ``len(updates) len(families) + 8 refine_sweeps`` fits to
+        ``m_final`` centres, each ``O(m^2 2n max_samples)``, without ``halving``; with it, per grid of ``c`` candidates
+    about ``c / 16 + c / 12 + 2`` fits' worth to ``m_star`` instead of ``c``, and in the second stage a sixteenth of a
+    fit for each candidate cut at its rung (the rung fit of one that goes on adds a sixteenth to its full fit).
     """
 
-    def __init__(self, families: Sequence[str] = ("imq", "matern52"), shapes: Sequence[float] = (0.125, 0.25, 0.5, 1.0, 2.0),
-                 parameter_shapes: Sequence[float] = (0.1, 0.5, 2.5), updates: Sequence[str] = ("symplectic_euler", "midpoint"),
-                 m_star: Optional[int] = None, final_centers: int = 1000, max_samples: int = 3000,
-                 validation_fraction: float = 0.25, refine_sweeps: int = 2, seed: int = 0, structure: bool = True,
-                 halving: bool = False):
+    def __init__(
+        self,
+        families: Sequence[str] = ("imq", "matern52"),
+        shapes: Sequence[float] = (0.125, 0.25, 0.5, 1.0, 2.0),
+        parameter_shapes: Sequence[float] = (0.1, 0.5, 2.5),
+        updates: Sequence[str] = ("symplectic_euler", "midpoint"),
+        m_star: Optional[int] = None,
+        final_centers: int = 1000,
+        max_samples: int = 3000,
+        validation_fraction: float = 0.25,
+        refine_sweeps: int = 2,
+        seed: int = 0,
+        structure: bool = True,
+        halving: bool = False,
+    ):
         self.families = families
         self.shapes = shapes
         self.parameter_shapes = parameter_shapes
@@ -224,17 +243,24 @@ fit for each candidate cut at its rung (the rung fit of one that goes on adds a 
 
         fams = list(self.families) if not isinstance(self.families, str) else None
         if not fams or any(f not in _FAMILIES for f in fams):
-            raise ValueError(f"KernelSearch: families must be a non-empty sequence of {_FAMILIES}, got {self.families!r}")
+            raise ValueError(
+                f"KernelSearch: families must be a non-empty sequence of {_FAMILIES}, got {self.families!r}"
+            )
         for name in ("shapes", "parameter_shapes"):
-            values = np.atleast_1d(np.asarray(getattr(self, name), dtype=float)) if not isinstance(
-                getattr(self, name), str) else np.array([np.nan])
+            values = (
+                np.atleast_1d(np.asarray(getattr(self, name), dtype=float))
+                if not isinstance(getattr(self, name), str)
+                else np.array([np.nan])
+            )
             if values.size == 0 or not np.all(np.isfinite(values) & (values > 0)):
-                raise ValueError(f"KernelSearch: {name} must be a non-empty sequence of positive floats, "
-                                 f"got {getattr(self, name)!r}")
+                raise ValueError(
+                    f"KernelSearch: {name} must be a non-empty sequence of positive floats, got {getattr(self, name)!r}"
+                )
         ups = list(self.updates) if not isinstance(self.updates, str) else None
         if not ups or any(u not in UPDATE_RULES for u in ups):
-            raise ValueError(f"KernelSearch: updates must be a non-empty sequence of {tuple(UPDATE_RULES)}, "
-                             f"got {self.updates!r}")
+            raise ValueError(
+                f"KernelSearch: updates must be a non-empty sequence of {tuple(UPDATE_RULES)}, got {self.updates!r}"
+            )
         for name, lo in (("max_samples", 10), ("refine_sweeps", 0), ("seed", 0)):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
@@ -242,8 +268,9 @@ fit for each candidate cut at its rung (the rung fit of one that goes on adds a 
         v = self.final_centers
         if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
             raise ValueError(f"KernelSearch: final_centers must be a positive integer, got {v!r}")
-        if self.m_star is not None and (isinstance(self.m_star, bool) or not isinstance(self.m_star, (int, np.integer))
-                                        or self.m_star < 1):
+        if self.m_star is not None and (
+            isinstance(self.m_star, bool) or not isinstance(self.m_star, (int, np.integer)) or self.m_star < 1
+        ):
             raise ValueError(f"KernelSearch: m_star must be a positive integer or None, got {self.m_star!r}")
         as_flag(self.structure, "KernelSearch: structure")
         as_flag(self.halving, "KernelSearch: halving")
@@ -252,8 +279,9 @@ fit for each candidate cut at its rung (the rung fit of one that goes on adds a 
         return self
 
     # ------------------------------------------------------------------ the search
-    def choose(self, estimator, data: FlowMapData, open_factors: dict,
-               validation: Optional[FlowMapData] = None) -> SearchResult:
+    def choose(
+        self, estimator, data: FlowMapData, open_factors: dict, validation: Optional[FlowMapData] = None
+    ) -> SearchResult:
         """Choose the open settings of ``estimator`` for ``data``.
 
         Parameters
@@ -296,8 +324,11 @@ fit for each candidate cut at its rung (the rung fit of one that goes on adds a 
             fam0 = KERNEL_FAMILIES[self.families[0]]
             state_grid = [fam0(_clip(unit * s)) for s in self.shapes]
         else:
-            radial = (estimator.state_kernel.radial if isinstance(estimator.state_kernel, KernelTransform)
-                      else estimator.state_kernel)
+            radial = (
+                estimator.state_kernel.radial
+                if isinstance(estimator.state_kernel, KernelTransform)
+                else estimator.state_kernel
+            )
             state_grid = [radial]
         if open_factors["mu"]:
             width = float(np.mean(_widths(data.mu)))
@@ -311,14 +342,19 @@ fit for each candidate cut at its rung (the rung fit of one that goes on adds a 
             dt_grid = [estimator.dt_kernel]
 
         # stage 1, cheap: kernel family, update and shapes ranked by E_val(m_star), the greedy's validation residual
-        table, finalists = self._first_stage(train, val, (state_grid, mu_grid, dt_grid), updates, template,
-                                             open_factors["state"], m_star)
+        table, finalists = self._first_stage(
+            train, val, (state_grid, mu_grid, dt_grid), updates, template, open_factors["state"], m_star
+        )
         finalists = [(r, u) for r, u in finalists if np.isfinite(r.score)]
         if not finalists:
-            raise ValueError("the kernel search found no candidate that trains on these data (every fit failed); "
-                             "see the log, or pass a state_kernel")
+            raise ValueError(
+                "the kernel search found no candidate that trains on these data (every fit failed); "
+                "see the log, or pass a state_kernel"
+            )
         for r, u in finalists:
-            logger.info(f"kernel search, stage 1 ({u}): {r.state!r}, {r.mu!r}, {r.dt!r}: E_val({m_star}) = {r.score:.3e}")
+            logger.info(
+                f"kernel search, stage 1 ({u}): {r.state!r}, {r.mu!r}, {r.dt!r}: E_val({m_star}) = {r.score:.3e}"
+            )
 
         # stage 2, where the final model lives: each finalist, then a coordinate search of its shapes (and of the
         # ratio of q to p shapes under the symplectic normalisation), fitted to m_final centres and scored by the
@@ -339,8 +375,10 @@ fit for each candidate cut at its rung (the rung fit of one that goes on adds a 
             key = repr(sorted(p.items(), key=lambda kv: kv[0]))
             if key not in rungs:
                 rungs[key] = one_step_score(estimator, p, rung_size, train, val)
-                logger.info(f"kernel search, rung ({p['update']}): {label}: one-step error {rungs[key][0]:.3e} "
-                            f"with {rungs[key][1]} centres")
+                logger.info(
+                    f"kernel search, rung ({p['update']}): {label}: one-step error {rungs[key][0]:.3e} "
+                    f"with {rungs[key][1]} centres"
+                )
             finite = [r[0] for r in rungs.values() if np.isfinite(r[0])]
             ok = bool(finite) and rungs[key][0] <= RUNG_MARGIN * min(finite)
             return ok, rungs[key]
@@ -367,17 +405,31 @@ fit for each candidate cut at its rung (the rung fit of one that goes on adds a 
 
         def label_of(cand):
             return " x ".join(repr(k) for k in (cand[0], cand[2], cand[3]) if k is not None) + (
-                f", q/p shape ratio {cand[1]:g}" if scaled else "")
+                f", q/p shape ratio {cand[1]:g}" if scaled else ""
+            )
 
         def score(cand):
             if cand not in scores:
                 label = label_of(cand)
                 sc, n, secs, err, extra = halved_score(params_of(cand), label)
                 scores[cand] = (sc, n, secs, err, extra.get("cut", False))
-                table.append({"stage": 2, "kernels": label.split(", q/p")[0], "ratio": cand[1], "update": cand[4],
-                              "score": sc, "n_centers": n, "fit_s": secs, **extra, **({"error": err} if err else {})})
-                logger.info(f"kernel search, stage 2 ({cand[4]}): {label}: " + (
-                    "cut at the rung" if extra.get("cut") else f"one-step error {sc:.3e} with {n} centres"))
+                table.append(
+                    {
+                        "stage": 2,
+                        "kernels": label.split(", q/p")[0],
+                        "ratio": cand[1],
+                        "update": cand[4],
+                        "score": sc,
+                        "n_centers": n,
+                        "fit_s": secs,
+                        **extra,
+                        **({"error": err} if err else {}),
+                    }
+                )
+                logger.info(
+                    f"kernel search, stage 2 ({cand[4]}): {label}: "
+                    + ("cut at the rung" if extra.get("cut") else f"one-step error {sc:.3e} with {n} centres")
+                )
             return scores[cand][0]
 
         starts = [(r.state, 1.0, r.mu, r.dt, u) for r, u in finalists]
@@ -389,51 +441,103 @@ fit for each candidate cut at its rung (the rung fit of one that goes on adds a 
             # rung with the rung's centres is losing, not too flat
             for _ in range(3):
                 score(cand)
-                if (scores[cand][1] >= m_final or scores[cand][3] is not None
-                        or (scores[cand][4] and scores[cand][1] >= rung_size)):
+                if (
+                    scores[cand][1] >= m_final
+                    or scores[cand][3] is not None
+                    or (scores[cand][4] and scores[cand][1] >= rung_size)
+                ):
                     break
-                cand = tuple(k.set_params(eps=_clip(k.eps * 2.0)) if i in opened and k is not None else k
-                             for i, k in enumerate(cand))
+                cand = tuple(
+                    k.set_params(eps=_clip(k.eps * 2.0)) if i in opened and k is not None else k
+                    for i, k in enumerate(cand)
+                )
                 starts.append(cand)
         best = min(starts, key=score)
-        active = [i for i, key in ((0, "state"), (1, None), (2, "mu"), (3, "dt")) if (scaled if key is None
-                                                                                 else open_factors[key])]
+        active = [
+            i
+            for i, key in ((0, "state"), (1, None), (2, "mu"), (3, "dt"))
+            if (scaled if key is None else open_factors[key])
+        ]
         best = coordinate_search(best, score, active, _move, factors=(0.5, 2.0), sweeps=self.refine_sweeps)
         if not np.isfinite(score(best)) and any(v[4] for v in scores.values()):
             # every candidate fitted to full size failed: those cut at the rung are fitted after all
             for cand in [c for c, v in scores.items() if v[4]]:
                 sc, n, secs, err = one_step_score(estimator, params_of(cand), m_final, train, val)
                 scores[cand] = (sc, n, secs, err, False)
-                table.append({"stage": 2, "kernels": label_of(cand).split(", q/p")[0], "ratio": cand[1],
-                              "update": cand[4], "score": sc, "n_centers": n, "fit_s": secs, "after_cut": True,
-                              **({"error": err} if err else {})})
+                table.append(
+                    {
+                        "stage": 2,
+                        "kernels": label_of(cand).split(", q/p")[0],
+                        "ratio": cand[1],
+                        "update": cand[4],
+                        "score": sc,
+                        "n_centers": n,
+                        "fit_s": secs,
+                        "after_cut": True,
+                        **({"error": err} if err else {}),
+                    }
+                )
             best = min(scores, key=score)
         if not np.isfinite(score(best)):
-            raise ValueError(f"the kernel search found no candidate that predicts the held-out samples with {m_final} "
-                             "centres (every fit or Newton solve failed); see the log, or pass the kernels and update")
+            raise ValueError(
+                f"the kernel search found no candidate that predicts the held-out samples with {m_final} "
+                "centres (every fit or Newton solve failed); see the log, or pass the kernels and update"
+            )
         chosen, best_score, structure = params_of(best), float(score(best)), []
         if self.structure:  # symmetries the data show compete at m_final (sympredict.estimators.structure)
+
             def score_params(p):
                 # at full size only: a group multiplies the centres' reach, so its error at a rung compares unevenly
                 sc, n, secs, err = one_step_score(estimator, p, m_final, train, val)
                 extra = {}
-                table.append({"stage": 3, "kernels": repr(p["state_kernel"]), "update": p["update"], "score": sc,
-                              "n_centers": n, "fit_s": secs, **extra, **({"error": err} if err else {})})
+                table.append(
+                    {
+                        "stage": 3,
+                        "kernels": repr(p["state_kernel"]),
+                        "update": p["update"],
+                        "score": sc,
+                        "n_centers": n,
+                        "fit_s": secs,
+                        **extra,
+                        **({"error": err} if err else {}),
+                    }
+                )
                 return sc
+
             by_update = {c[4]: params_of(min((k for k in scores if k[4] == c[4]), key=score)) for c in scores}
-            chosen, best_score, structure = _structure_stage(estimator, chosen, best_score, m_final, train, val,
-                                                             score_params, open_factors["state"], open_factors["update"],
-                                                             by_update)
+            chosen, best_score, structure = _structure_stage(
+                estimator,
+                chosen,
+                best_score,
+                m_final,
+                train,
+                val,
+                score_params,
+                open_factors["state"],
+                open_factors["update"],
+                by_update,
+            )
         for key, factor in (("state_kernel", "state"), ("mu_kernel", "mu"), ("dt_kernel", "dt"), ("update", "update")):
             if open_factors[factor]:
                 params[key] = chosen[key]
-        out = SearchResult(params, best_score, m_star, len(train), len(val), time.perf_counter() - t0, table,
-                           m_final=m_final, structure=structure, cpu_seconds=time.process_time() - c0)
+        out = SearchResult(
+            params,
+            best_score,
+            m_star,
+            len(train),
+            len(val),
+            time.perf_counter() - t0,
+            table,
+            m_final=m_final,
+            structure=structure,
+            cpu_seconds=time.process_time() - c0,
+        )
         logger.info("kernel search: " + out.summary())
         return out
 
-    def _first_stage(self, train: FlowMapData, val: FlowMapData, grids: tuple, updates: list, template,
-                     open_state: bool, m_star: int) -> tuple:
+    def _first_stage(
+        self, train: FlowMapData, val: FlowMapData, grids: tuple, updates: list, template, open_state: bool, m_star: int
+    ) -> tuple:
         """``(table, finalists)``: per update, the grid search over ``grids = (state, mu, dt)`` at ``m_star`` centres
         and, with an open state kernel, the other families around its winner's shape; ``finalists`` holds
         ``(SelectionResult, update)`` per update and family.  ``template(update)`` is the estimator the candidates
@@ -445,8 +549,9 @@ fit for each candidate cut at its rung (the rung fit of one that goes on adds a 
         with quiet_logs(SEARCH_LOGGER, level=logging.ERROR):
             for update in updates:
                 try:
-                    result = grid_search(train, val, state_grid, mu_grid, dt_grid, m_star=m_star,
-                                         estimator=template(update), rungs=rungs)
+                    result = grid_search(
+                        train, val, state_grid, mu_grid, dt_grid, m_star=m_star, estimator=template(update), rungs=rungs
+                    )
                 except ValueError as exc:  # no candidate of this update trains: the other update may
                     logger.info(f"kernel search, stage 1 ({update}): no candidate trains ({exc})")
                     table.append({"stage": 1, "update": update, "E_val": np.inf, "error": str(exc)})
@@ -457,8 +562,16 @@ fit for each candidate cut at its rung (the rung fit of one that goes on adds a 
                     for family in self.families[1:]:
                         grid = [KERNEL_FAMILIES[family](_clip(result.state.eps * f)) for f in (0.5, 1.0, 2.0)]
                         try:
-                            other = grid_search(train, val, grid, [result.mu], [result.dt], m_star=m_star,
-                                                estimator=template(update), rungs=rungs)
+                            other = grid_search(
+                                train,
+                                val,
+                                grid,
+                                [result.mu],
+                                [result.dt],
+                                m_star=m_star,
+                                estimator=template(update),
+                                rungs=rungs,
+                            )
                         except ValueError as exc:
                             table.append({"stage": 1, "update": update, "E_val": np.inf, "error": str(exc)})
                             continue
@@ -476,8 +589,10 @@ fit for each candidate cut at its rung (the rung fit of one that goes on adds a 
         rng = np.random.default_rng(self.seed)
         m = len(data)
         if m < 8:
-            raise ValueError(f"the kernel search needs at least 8 samples to hold some out, got {m}: pass the kernels "
-                             "(state_kernel, mu_kernel, dt_kernel) and update explicitly for so few samples")
+            raise ValueError(
+                f"the kernel search needs at least 8 samples to hold some out, got {m}: pass the kernels "
+                "(state_kernel, mu_kernel, dt_kernel) and update explicitly for so few samples"
+            )
         rows = rng.permutation(m)[: min(m, int(self.max_samples))]
         n_val = max(2, int(round(self.validation_fraction * len(rows))))
         return data.subset(np.sort(rows[n_val:])), data.subset(np.sort(rows[:n_val]))
@@ -532,10 +647,13 @@ def _warn_unbalanced_pairs(data: FlowMapData) -> None:
     small = np.flatnonzero((spread > 0) & (spread < SCALE_RATIO * big))
     if big > 0 and small.size:
         names = ", ".join(f"(q{i + 1}, p{i + 1}) spread {spread[i]:.2g}" for i in small[:4])
-        warnings.warn(f"the states' conjugate pairs differ in scale: {names}, against {big:.2g} for the largest; the "
-                      "state kernel hardly sees the small ones, which will be learned badly. Give the states in units of "
-                      "comparable size (divide each pair (q_i, p_i) by its amplitude), or fit the pairs apart",
-                      ScaleWarning, stacklevel=4)
+        warnings.warn(
+            f"the states' conjugate pairs differ in scale: {names}, against {big:.2g} for the largest; the "
+            "state kernel hardly sees the small ones, which will be learned badly. Give the states in units of "
+            "comparable size (divide each pair (q_i, p_i) by its amplitude), or fit the pairs apart",
+            ScaleWarning,
+            stacklevel=4,
+        )
 
 
 def _warn_unbalanced_parameters(data: FlowMapData) -> None:
@@ -548,10 +666,13 @@ def _warn_unbalanced_parameters(data: FlowMapData) -> None:
     small = np.flatnonzero((width > 0) & (width < SCALE_RATIO * big))
     if big > 0 and small.size:
         names = ", ".join(f"mu{i + 1} (width {width[i]:.2g})" for i in small[:4])
-        warnings.warn(f"the parameter components differ in width: {names}, against {big:.2g} for the widest; the "
-                      "isotropic parameter kernel hardly sees the narrow ones. Map each component onto a range of "
-                      "comparable width (e.g. (mu - lo) / (hi - lo)) before fitting and querying", ScaleWarning,
-                      stacklevel=4)
+        warnings.warn(
+            f"the parameter components differ in width: {names}, against {big:.2g} for the widest; the "
+            "isotropic parameter kernel hardly sees the narrow ones. Map each component onto a range of "
+            "comparable width (e.g. (mu - lo) / (hi - lo)) before fitting and querying",
+            ScaleWarning,
+            stacklevel=4,
+        )
 
 
 def _std(x: np.ndarray) -> np.ndarray:
@@ -578,8 +699,10 @@ def _spread(template, data: FlowMapData) -> float:
     big = float(stds.max()) if stds.size else 0.0
     spread = big * float(np.linalg.norm(stds / big)) if big > 0 else 0.0  # no underflow of the squares
     if not (np.isfinite(spread) and _EPS_RANGE[0] * 1e3 * spread < 1.0 < _EPS_RANGE[1] * 1e-3 * spread):
-        raise ValueError(f"the training states' mixed variables spread over {spread!r}: no kernel shape fits that "
-                         "scale (or the states do not vary); rescale the states to units nearer one, or pass a state_kernel")
+        raise ValueError(
+            f"the training states' mixed variables spread over {spread!r}: no kernel shape fits that "
+            "scale (or the states do not vary); rescale the states to units nearer one, or pass a state_kernel"
+        )
     return spread
 
 
@@ -652,10 +775,14 @@ class FitDiagnostics:
         return getattr(self.model, "error_calibration_", None)
 
     #: How :meth:`summary` words the greedy's stop reasons.
-    STOPS = {"tol": "training residual at its tolerance", "max_centers": "centre budget used",
-             "power": "kernel matrix numerically singular, no informative centre left",
-             "target": "target met", "diverged": "round-off, truncated to the best step",
-             "exhausted": "every candidate used"}
+    STOPS = {
+        "tol": "training residual at its tolerance",
+        "max_centers": "centre budget used",
+        "power": "kernel matrix numerically singular, no informative centre left",
+        "target": "target met",
+        "diverged": "round-off, truncated to the best step",
+        "exhausted": "every candidate used",
+    }
 
     def summary(self) -> str:
         """A few lines for a log or a terminal: size, held-out error (against the target), error estimate."""
@@ -671,13 +798,17 @@ class FitDiagnostics:
             lines.append(held)
         else:
             lines.append("no held-out samples (pass validation=... to score the fit)")
-        lines.append(f"relative gradient residual {self.train_residual:.2e} on {self.n_train} training samples"
-                     + (f", {self.holdout_residual:.2e} held out" if self.n_holdout else ""))
+        lines.append(
+            f"relative gradient residual {self.train_residual:.2e} on {self.n_train} training samples"
+            + (f", {self.holdout_residual:.2e} held out" if self.n_holdout else "")
+        )
         cal = self.calibration
         if cal:
-            lines.append(f"error estimate (return_error=True) calibrated on {cal['n_samples']} {cal['source']}: "
-                         f"median effectivity {cal['median_effectivity']:.2f}, "
-                         f"{cal['share_under_3x']:.0%} underestimated more than 3x")
+            lines.append(
+                f"error estimate (return_error=True) calibrated on {cal['n_samples']} {cal['source']}: "
+                f"median effectivity {cal['median_effectivity']:.2f}, "
+                f"{cal['share_under_3x']:.0%} underestimated more than 3x"
+            )
         lines += [f"  try: {a}" for a in self.advice]
         return "\n".join(lines)
 
@@ -688,7 +819,6 @@ def diagnose(model, train: FlowMapData, holdout: Optional[FlowMapData]) -> FitDi
     ``O(500 m (2n)^2)`` for the hold-out steps (NumPy Newton) besides the greedy's recorded residuals; a search's
     candidate fit without a target (:data:`~sympredict.estimators.search.CANDIDATE_FIT`) skips them (``holdout_step_error`` nan).
     """
-
 
     h = model.history_
     m = model.n_centers_
@@ -702,13 +832,14 @@ def diagnose(model, train: FlowMapData, holdout: Optional[FlowMapData]) -> FitDi
     # a search's candidate without a target is scored by the search itself: no held-out Newton steps here
     quick = CANDIDATE_FIT.get() and getattr(model, "target_error_", None) is None
     if holdout is not None and len(holdout) and not quick:
-        rows = np.arange(len(holdout))[: 500]
+        rows = np.arange(len(holdout))[:500]
         sub = holdout.subset(rows)
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", ExtrapolationWarning)
-                pred = model.step(sub.x0, mu=sub.mu if model.n_mu_ else None,
-                                  dt=sub.dt if model.dt_fixed_ is None else None)
+                pred = model.step(
+                    sub.x0, mu=sub.mu if model.n_mu_ else None, dt=sub.dt if model.dt_fixed_ is None else None
+                )
             inc = np.linalg.norm(sub.x1 - sub.x0, axis=1)
             ok = inc > 0
             step_err = float(np.median(np.linalg.norm(pred - sub.x1, axis=1)[ok] / inc[ok])) if ok.any() else 0.0
@@ -724,25 +855,37 @@ def diagnose(model, train: FlowMapData, holdout: Optional[FlowMapData]) -> FitDi
     short = target_met is not True
     advice = []
     if short and h.stop_reason == "max_centers" and val_curve is not None and m >= 10:
-        tail = val_curve[-max(2, m // 5):]
+        tail = val_curve[-max(2, m // 5) :]
         if tail[-1] < 0.8 * tail[0]:
-            advice.append(f"more centres: the hold-out residual still fell by {1 - tail[-1] / tail[0]:.0%} over the "
-                          f"last fifth of the {m} centres (raise max_centers)")
+            advice.append(
+                f"more centres: the hold-out residual still fell by {1 - tail[-1] / tail[0]:.0%} over the "
+                f"last fifth of the {m} centres (raise max_centers)"
+            )
     if h.stop_reason == "power" and target_met is False:
-        advice.append("the kernel matrix became numerically singular before max_centers: more data (more distinct "
-                      "samples), or narrower kernels (the state or parameter kernel of model.choice_ with a larger "
-                      "shape eps, passed to the estimator) let the greedy use more centres")
+        advice.append(
+            "the kernel matrix became numerically singular before max_centers: more data (more distinct "
+            "samples), or narrower kernels (the state or parameter kernel of model.choice_ with a larger "
+            "shape eps, passed to the estimator) let the greedy use more centres"
+        )
     if np.isfinite(holdout_res) and train_abs > 0 and holdout_res * rel > 10 * train_abs:
-        advice.append(f"more data: the hold-out residual is {holdout_res * rel / train_abs:.0f}x the training residual, "
-                      "the samples do not resolve the map between them")
+        advice.append(
+            f"more data: the hold-out residual is {holdout_res * rel / train_abs:.0f}x the training residual, "
+            "the samples do not resolve the map between them"
+        )
     train_curve = np.asarray(h.train_max_residual, dtype=float)
-    if (h.stop_reason == "max_centers" and m >= 20 and train_abs / rel > 1e-3
-            and train_curve[-1] > 0.3 * train_curve[m // 4]
-            and (val_curve is None or float(val_curve[-1]) > 0.3 * float(val_curve[m // 4]))):
-        advice.append(f"noisy data? the residuals stalled at {train_abs / rel:.1e} of the largest target over the last "
-                      f"three quarters of the {m} centres, as when the centres fit noise: if the data carry noise, pass "
-                      "trainer=ExactGreedy(regularization=...) of about the noise's variance, or fewer centres "
-                      "(max_centers); more centres will not help")
+    if (
+        h.stop_reason == "max_centers"
+        and m >= 20
+        and train_abs / rel > 1e-3
+        and train_curve[-1] > 0.3 * train_curve[m // 4]
+        and (val_curve is None or float(val_curve[-1]) > 0.3 * float(val_curve[m // 4]))
+    ):
+        advice.append(
+            f"noisy data? the residuals stalled at {train_abs / rel:.1e} of the largest target over the last "
+            f"three quarters of the {m} centres, as when the centres fit noise: if the data carry noise, pass "
+            "trainer=ExactGreedy(regularization=...) of about the noise's variance, or fewer centres "
+            "(max_centers); more centres will not help"
+        )
     if holdout is not None and model.n_mu_ and len(holdout) >= 20 and not quick:
         advice += _edge_advice(model, holdout)
     if np.isinf(step_err):
@@ -750,9 +893,23 @@ def diagnose(model, train: FlowMapData, holdout: Optional[FlowMapData]) -> FitDi
     advice += _coordinate_advice(coord_err, step_err)
     scored = getattr(model, "prefix_errors_", None)
     prefix = (m, max(scored)) if scored else None
-    return FitDiagnostics(len(train), 0 if holdout is None else len(holdout), m, int(model.max_centers),
-                          str(h.stop_reason), converged, train_abs / rel, holdout_res, step_err, advice,
-                          target, target_met, prefix, model, coord_err)
+    return FitDiagnostics(
+        len(train),
+        0 if holdout is None else len(holdout),
+        m,
+        int(model.max_centers),
+        str(h.stop_reason),
+        converged,
+        train_abs / rel,
+        holdout_res,
+        step_err,
+        advice,
+        target,
+        target_met,
+        prefix,
+        model,
+        coord_err,
+    )
 
 
 def _coordinate_errors(pred: np.ndarray, sub: FlowMapData) -> Optional[np.ndarray]:
@@ -773,14 +930,15 @@ def _coordinate_advice(coord_err: Optional[np.ndarray], step_err: float) -> list
     if not bad:
         return []
     listed = ", ".join(f"{names[i]} {coord_err[i]:.2g}" for i in bad[:4])
-    return [f"the coordinates {listed} are learned badly (median one-step error relative to their increments; "
-            f"{step_err:.2g} over all): if their scale is much smaller than the others', give the states in units "
-            "of comparable size"]
+    return [
+        f"the coordinates {listed} are learned badly (median one-step error relative to their increments; "
+        f"{step_err:.2g} over all): if their scale is much smaller than the others', give the states in units "
+        "of comparable size"
+    ]
 
 
 def _edge_advice(model, holdout: FlowMapData) -> list:
     """Advice when the gradient residual on hold-out samples near the parameter box's faces is much larger."""
-
 
     lo, hi = model.domain_["mu_min"], model.domain_["mu_max"]
     width = np.where(hi > lo, hi - lo, 1.0)
@@ -792,9 +950,13 @@ def _edge_advice(model, holdout: FlowMapData) -> list:
     xi, y = as_update(model.update_).variables(holdout.x0 * scale, holdout.x1 * scale, holdout.dt)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ExtrapolationWarning)
-        res = np.linalg.norm(model.surrogate_.gradient(xi, model.surrogate_.weights(holdout.mu, holdout.dt)) - y, axis=1)
+        res = np.linalg.norm(
+            model.surrogate_.gradient(xi, model.surrogate_.weights(holdout.mu, holdout.dt)) - y, axis=1
+        )
     inner, outer = float(np.median(res[~edge])), float(np.median(res[edge]))
     if inner > 0 and outer > 3 * inner:
-        return [f"a wider parameter box: the residual near the box's faces is {outer / inner:.1f}x the interior's, "
-                "so sample parameters beyond the range you will query"]
+        return [
+            f"a wider parameter box: the residual near the box's faces is {outer / inner:.1f}x the interior's, "
+            "so sample parameters beyond the range you will query"
+        ]
     return []

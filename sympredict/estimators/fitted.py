@@ -22,7 +22,11 @@ import numpy as np
 from sympredict._checks import Constraint, as_even_dimension, as_model_parameter, as_positive_int, as_states, as_steps
 from sympredict.data import FlowMapData
 from sympredict.exceptions import (
-    ExtrapolationWarning, ModelFileError, NewtonConvergenceError, NonFinitePredictionError, SolvabilityError,
+    ExtrapolationWarning,
+    ModelFileError,
+    NewtonConvergenceError,
+    NonFinitePredictionError,
+    SolvabilityError,
 )
 from sympredict.exceptions import NotFittedError
 from sympredict.interpolation.greedy import GreedyHistory
@@ -30,14 +34,29 @@ from sympredict.interpolation.greedy.trainers import ExactGreedy
 from sympredict.interpolation.surrogate import HBSurrogate, ValueSurrogate
 from sympredict.kernels.transforms import StateKernelParts
 from sympredict.symplectic.newton import (
-    WARM_HISTORY, ordered_weights, rollout_compiled, rollout_in_chunks, rollout_numpy, rollout_reference,
+    WARM_HISTORY,
+    ordered_weights,
+    rollout_compiled,
+    rollout_in_chunks,
+    rollout_numpy,
+    rollout_reference,
 )
 from sympredict.symplectic.solvers import NewtonSolver
 from sympredict.symplectic.updates import as_update
 
-__all__ = ["FittedFlowMap", "FittedSymplecticFlowMap", "FittedDirectFlowMap", "NUMPY_ONLY", "numpy_only_reason",
-           "EXTRAPOLATION_TOLERANCE",
-           "check_finite", "check_is_fitted", "model_coordinates", "trainer_regularization", "training_box"]
+__all__ = [
+    "FittedFlowMap",
+    "FittedSymplecticFlowMap",
+    "FittedDirectFlowMap",
+    "NUMPY_ONLY",
+    "numpy_only_reason",
+    "EXTRAPOLATION_TOLERANCE",
+    "check_finite",
+    "check_is_fitted",
+    "model_coordinates",
+    "trainer_regularization",
+    "training_box",
+]
 
 #: Model features that only the NumPy solver runs: ``(test of the flattened state kernel and the update rule,
 #: reason)``.  The one place that says which combination runs on which backend: ``NewtonSolver(backend='numba')``
@@ -46,9 +65,7 @@ __all__ = ["FittedFlowMap", "FittedSymplecticFlowMap", "FittedDirectFlowMap", "N
 #: run compiled; what remains is an update rule added from outside whose compiled kernel does not exist
 #: (:attr:`~sympredict.symplectic.updates.UpdateRule.compiled` false): the compiled solver dispatches on the
 #: package's rules only.
-NUMPY_ONLY = (
-    (lambda parts, rule: not rule.compiled, "this update rule has no compiled solver yet"),
-)
+NUMPY_ONLY = ((lambda parts, rule: not rule.compiled, "this update rule has no compiled solver yet"),)
 
 
 def numpy_only_reason(parts, rule) -> Optional[str]:
@@ -56,6 +73,7 @@ def numpy_only_reason(parts, rule) -> Optional[str]:
     :data:`NUMPY_ONLY` it has, joined), or ``None``."""
     reasons = [reason for applies, reason in NUMPY_ONLY if applies(parts, rule)]
     return "; ".join(reasons) if reasons else None
+
 
 #: How far (a fraction of the training box's width, per state coordinate) a state may lie outside the box of the
 #: training states before :class:`~sympredict.exceptions.ExtrapolationWarning` calls it an extrapolation: test
@@ -65,8 +83,11 @@ EXTRAPOLATION_TOLERANCE = 0.05
 
 #: The ``solver`` setting's row of the estimator's table of settings, read here too when a prediction swaps the
 #: solver (one rule, one message).
-SOLVER_SETTING = Constraint(NewtonSolver, check=lambda solver, name: solver.check(),
-                            expected="a NewtonSolver (e.g. NewtonSolver(backend='numba')) or None")
+SOLVER_SETTING = Constraint(
+    NewtonSolver,
+    check=lambda solver, name: solver.check(),
+    expected="a NewtonSolver (e.g. NewtonSolver(backend='numba')) or None",
+)
 
 #: The keys of a training box (``domain``).
 DOMAIN_KEYS = ("x_min", "x_max", "mu_min", "mu_max", "dt_min", "dt_max")
@@ -110,8 +131,14 @@ def model_coordinates(parts: StateKernelParts, update, dim: int):
 def training_box(data: FlowMapData) -> dict:
     """The training box of flow-map samples: bounds of the states ``x0`` and ``x1``, of ``mu`` and of ``dt``."""
     states = np.concatenate([data.x0, data.x1])
-    return {"x_min": states.min(axis=0), "x_max": states.max(axis=0), "mu_min": data.mu.min(axis=0),
-            "mu_max": data.mu.max(axis=0), "dt_min": np.array(data.dt.min()), "dt_max": np.array(data.dt.max())}
+    return {
+        "x_min": states.min(axis=0),
+        "x_max": states.max(axis=0),
+        "mu_min": data.mu.min(axis=0),
+        "mu_max": data.mu.max(axis=0),
+        "dt_min": np.array(data.dt.min()),
+        "dt_max": np.array(data.dt.max()),
+    }
 
 
 class FittedFlowMap:
@@ -139,17 +166,26 @@ class FittedFlowMap:
     name = "model"
 
     def __init__(self, kernel, surrogate, *, domain: dict, history: GreedyHistory, dt_fixed=None, greedy_result=None):
-        self._set(kernel=kernel, surrogate=surrogate, domain=dict(domain), history=history,
-                  dt_fixed=None if dt_fixed is None else float(dt_fixed), greedy_result=greedy_result,
-                  dim=int(len(domain["x_min"])), n_mu=int(len(domain["mu_min"])))
+        self._set(
+            kernel=kernel,
+            surrogate=surrogate,
+            domain=dict(domain),
+            history=history,
+            dt_fixed=None if dt_fixed is None else float(dt_fixed),
+            greedy_result=greedy_result,
+            dim=int(len(domain["x_min"])),
+            n_mu=int(len(domain["mu_min"])),
+        )
 
     def _set(self, **values) -> None:
         for name, value in values.items():
             object.__setattr__(self, name, value)
 
     def __setattr__(self, name, value):
-        raise AttributeError(f"a {type(self).__name__} is frozen: {name!r} is set by its constructor (fit the "
-                             "estimator again, or use with_solver / truncated for a changed copy)")
+        raise AttributeError(
+            f"a {type(self).__name__} is frozen: {name!r} is set by its constructor (fit the "
+            "estimator again, or use with_solver / truncated for a changed copy)"
+        )
 
     def _replace(self, **values):
         new = copy.copy(self)
@@ -221,8 +257,10 @@ class FittedFlowMap:
         beyond = value - hi if value > hi else lo - value
         n = x.shape[-1] // 2
         name = f"q{col + 1}" if col < n else f"p{col - n + 1}"
-        return (f"state coordinate {col} ({name}) left the box [{lo:.6g}, {hi:.6g}] by {beyond:.3g} "
-                f"({100 * excess[row, col]:.1f} % of its width)")
+        return (
+            f"state coordinate {col} ({name}) left the box [{lo:.6g}, {hi:.6g}] by {beyond:.3g} "
+            f"({100 * excess[row, col]:.1f} % of its width)"
+        )
 
     def _warn_if_trajectory_leaves(self, traj: np.ndarray, stride: int = 1) -> None:
         """Warn when a rollout that starts inside the training states leaves them (it extrapolates from there on).
@@ -243,7 +281,10 @@ class FittedFlowMap:
                 f"{100 * EXTRAPOLATION_TOLERANCE:g} % of the box's width (instances {np.flatnonzero(left)[:5].tolist()}"
                 f"{'...' if left.sum() > 5 else ''}, first at step {int(first.min())}; "
                 f"{self._leaving_message(traj[left])}); the prediction from there on "
-                "is an extrapolation", ExtrapolationWarning, stacklevel=4)
+                "is an extrapolation",
+                ExtrapolationWarning,
+                stacklevel=4,
+            )
 
     def _warn_outside(self, mu, dt, x):
         d = self.domain
@@ -308,8 +349,13 @@ class FittedDirectFlowMap(FittedFlowMap):
         stride = as_positive_int(stride, "stride")
         x, single, mu, dt = self._query(x0, mu, dt, name="x0")
         weights = self.surrogate.weights(mu, dt)
-        traj = rollout_in_chunks(lambda state, k: rollout_numpy(lambda s: self._advance(s, weights, dt), state, k),
-                                 x, n_steps, stride=stride, progress=progress)
+        traj = rollout_in_chunks(
+            lambda state, k: rollout_numpy(lambda s: self._advance(s, weights, dt), state, k),
+            x,
+            n_steps,
+            stride=stride,
+            progress=progress,
+        )
         traj = check_finite(traj, self._what())
         self._warn_if_trajectory_leaves(traj, stride)
         return traj[0] if single else traj
@@ -317,14 +363,20 @@ class FittedDirectFlowMap(FittedFlowMap):
     def surrogate_arrays(self) -> dict:
         """The surrogate's arrays as a model file stores them."""
         sur = self.surrogate
-        return {"centers_x": sur.centers_x, "centers_mu": sur.centers_mu, "centers_dt": sur.centers_dt, "coef": sur.coef}
+        return {
+            "centers_x": sur.centers_x,
+            "centers_mu": sur.centers_mu,
+            "centers_dt": sur.centers_dt,
+            "coef": sur.coef,
+        }
 
     @classmethod
     def surrogate_from_arrays(cls, kernel, arrays: dict, dim: int, n_mu: int) -> ValueSurrogate:
         """The surrogate of a model file's arrays (:meth:`surrogate_arrays`), their shapes checked."""
         m = len(arrays["coef"])
-        cls._check_array_shapes(arrays, {"centers_x": (m, dim), "centers_mu": (m, n_mu), "centers_dt": (m,),
-                                         "coef": (m, dim)})
+        cls._check_array_shapes(
+            arrays, {"centers_x": (m, dim), "centers_mu": (m, n_mu), "centers_dt": (m,), "coef": (m, dim)}
+        )
         return ValueSurrogate(kernel, arrays["centers_x"], arrays["centers_mu"], arrays["centers_dt"], arrays["coef"])
 
 
@@ -357,17 +409,40 @@ class FittedSymplecticFlowMap(FittedFlowMap):
     #: Samples the calibration uses at most (``O(n 2n m^2)``).
     ERROR_SAMPLES = 500
 
-    def __init__(self, kernel, surrogate, *, domain: dict, history: GreedyHistory, update,
-                 parts: StateKernelParts = StateKernelParts(), dt_fixed=None, greedy_result=None,
-                 solver: Optional[NewtonSolver] = None, regularization: float = 0.0,
-                 error_calibration=..., calibration_samples=None):
-        super().__init__(kernel, surrogate, domain=domain, history=history, dt_fixed=dt_fixed,
-                         greedy_result=greedy_result)
+    def __init__(
+        self,
+        kernel,
+        surrogate,
+        *,
+        domain: dict,
+        history: GreedyHistory,
+        update,
+        parts: StateKernelParts = StateKernelParts(),
+        dt_fixed=None,
+        greedy_result=None,
+        solver: Optional[NewtonSolver] = None,
+        regularization: float = 0.0,
+        error_calibration=...,
+        calibration_samples=None,
+    ):
+        super().__init__(
+            kernel, surrogate, domain=domain, history=history, dt_fixed=dt_fixed, greedy_result=greedy_result
+        )
         scale, periodic, symmetry = model_coordinates(parts, update, self.dim)
         cache = {} if error_calibration is ... else {"calibration": error_calibration}
-        self._set(update=update, rule=as_update(update), parts=parts, scale=scale, model_periodic=periodic,
-                  model_symmetry=symmetry, solver=NewtonSolver() if solver is None else solver, _solver_setting=solver,
-                  regularization=float(regularization or 0.0), calibration_samples=calibration_samples, _cache=cache)
+        self._set(
+            update=update,
+            rule=as_update(update),
+            parts=parts,
+            scale=scale,
+            model_periodic=periodic,
+            model_symmetry=symmetry,
+            solver=NewtonSolver() if solver is None else solver,
+            _solver_setting=solver,
+            regularization=float(regularization or 0.0),
+            calibration_samples=calibration_samples,
+            _cache=cache,
+        )
 
     def with_solver(self, solver: Optional[NewtonSolver]) -> "FittedSymplecticFlowMap":
         """This fitted map with the Newton solver ``solver`` (``None``: the default), checked; the arrays and caches
@@ -418,25 +493,53 @@ class FittedSymplecticFlowMap(FittedFlowMap):
             pre, post = around
             pre, post = pre * scale[None, :, None], post / scale[None, None, :]
             if compiled:  # no warm start here: its extrapolation would mix x_k and pre x_k
+
                 def run(state, k):
-                    return rollout_compiled(self.surrogate, state, ordered, dt, k, max_iter, update=update,
-                                            around=(pre, post), weights_ordered=True)
+                    return rollout_compiled(
+                        self.surrogate,
+                        state,
+                        ordered,
+                        dt,
+                        k,
+                        max_iter,
+                        update=update,
+                        around=(pre, post),
+                        weights_ordered=True,
+                    )
             else:
+
                 def run(state, k):
-                    return rollout_reference(self.surrogate, state, weights, dt, k, max_iter, update=update,
-                                             around=(pre, post))
+                    return rollout_reference(
+                        self.surrogate, state, weights, dt, k, max_iter, update=update, around=(pre, post)
+                    )
+
             return rollout_in_chunks(run, x, n_steps, stride=stride, progress=progress)
         warm = bool(solver.warm_start)
         if compiled:
+
             def run(state, k, previous=None):
-                return rollout_compiled(self.surrogate, state, ordered, dt, k, max_iter, warm_start=warm,
-                                        update=update, weights_ordered=True, previous=previous)
+                return rollout_compiled(
+                    self.surrogate,
+                    state,
+                    ordered,
+                    dt,
+                    k,
+                    max_iter,
+                    warm_start=warm,
+                    update=update,
+                    weights_ordered=True,
+                    previous=previous,
+                )
         else:
+
             def run(state, k, previous=None):
-                return rollout_reference(self.surrogate, state, weights, dt, k, max_iter, warm_start=warm,
-                                         update=update, previous=previous)
-        traj = rollout_in_chunks(run, x * scale, n_steps, stride=stride, progress=progress,
-                                 history=WARM_HISTORY if warm else 0)
+                return rollout_reference(
+                    self.surrogate, state, weights, dt, k, max_iter, warm_start=warm, update=update, previous=previous
+                )
+
+        traj = rollout_in_chunks(
+            run, x * scale, n_steps, stride=stride, progress=progress, history=WARM_HISTORY if warm else 0
+        )
         return traj if self.parts.scaling is None else traj / scale
 
     def _solve_step(self, x: np.ndarray, weights: np.ndarray, dt: np.ndarray) -> np.ndarray:
@@ -449,7 +552,9 @@ class FittedSymplecticFlowMap(FittedFlowMap):
         """One implicit step in the model's coordinates, on the configured backend (:mod:`sympredict.symplectic.newton`)."""
         max_iter = self.solver.iterations()
         if self.compiled(len(x), 1):
-            return rollout_compiled(self.surrogate, x, weights, dt, 1, max_iter, step_index=False, update=self.rule.name)[:, 1]
+            return rollout_compiled(
+                self.surrogate, x, weights, dt, 1, max_iter, step_index=False, update=self.rule.name
+            )[:, 1]
         return self.rule.solve(self.surrogate, x, weights, dt, max_iter)
 
     def step(self, x, mu=None, dt=None, *, return_error: bool = False):
@@ -491,8 +596,19 @@ class FittedSymplecticFlowMap(FittedFlowMap):
         err = c * np.linalg.norm(g / scale[None, :, None], axis=(1, 2))
         return (out[0], float(err[0])) if single else (out, err)
 
-    def rollout(self, x0, n_steps: int, mu=None, dt=None, *, stride: int = 1, progress=None,
-                check_solvability: bool = False, around=None, return_error: bool = False):
+    def rollout(
+        self,
+        x0,
+        n_steps: int,
+        mu=None,
+        dt=None,
+        *,
+        stride: int = 1,
+        progress=None,
+        check_solvability: bool = False,
+        around=None,
+        return_error: bool = False,
+    ):
         """Trajectories of ``n_steps`` predicted macro steps.
 
         Parameters
@@ -553,8 +669,10 @@ class FittedSymplecticFlowMap(FittedFlowMap):
         stride = as_positive_int(stride, "stride")
         if return_error:
             if around is not None:
-                raise ValueError("return_error=True does not apply to a wrapped rollout (around=...): the estimate "
-                                 "propagates the model's own step; estimate the inner model's rollout instead")
+                raise ValueError(
+                    "return_error=True does not apply to a wrapped rollout (around=...): the estimate "
+                    "propagates the model's own step; estimate the inner model's rollout instead"
+                )
             self._check_error_estimate()
             keep = stride
             stride = 1
@@ -564,10 +682,13 @@ class FittedSymplecticFlowMap(FittedFlowMap):
             x, single = as_states(x0, "x0", dim=self.dim)
             around = self._check_around(around, len(x))
             if self.solver.warm_start:  # said, not silently dropped
-                warnings.warn("the solver's warm_start does not apply to a wrapped rollout (around=...): its "
-                              "extrapolation would mix the states x_k and pre x_k; every step starts from the explicit "
-                              "guess (pass NewtonSolver(warm_start=False) to the inner model to silence this)",
-                              UserWarning, stacklevel=3)
+                warnings.warn(
+                    "the solver's warm_start does not apply to a wrapped rollout (around=...): its "
+                    "extrapolation would mix the states x_k and pre x_k; every step starts from the explicit "
+                    "guess (pass NewtonSolver(warm_start=False) to the inner model to silence this)",
+                    UserWarning,
+                    stacklevel=3,
+                )
             _, _, mu, dt = self._query(np.einsum("bij,bj->bi", around[0], x), mu, dt, name="pre x0")
         weights = self.surrogate.weights(mu, dt)
         if check_solvability:
@@ -576,8 +697,9 @@ class FittedSymplecticFlowMap(FittedFlowMap):
             bad = np.flatnonzero(~(margin < 1.0))
             if bad.size:
                 raise SolvabilityError(bad, margin[bad])
-        traj = check_finite(self._rollout(x, weights, dt, n_steps, around=around, stride=stride, progress=progress),
-                            self._what())
+        traj = check_finite(
+            self._rollout(x, weights, dt, n_steps, around=around, stride=stride, progress=progress), self._what()
+        )
         self._warn_if_trajectory_leaves(traj if around is None else np.einsum("bij,bkj->bki", around[0], traj), stride)
         if return_error:
             err = self._rollout_error(traj, mu, dt, weights)[:, ::keep]
@@ -597,8 +719,10 @@ class FittedSymplecticFlowMap(FittedFlowMap):
             if m.ndim == 2:
                 m = np.broadcast_to(m, (b, *m.shape))
             if m.shape != (b, self.dim, self.dim) or not np.all(np.isfinite(m)):
-                raise ValueError(f"around: {name} must be finite matrices of shape ({b}, {self.dim}, {self.dim}) or "
-                                 f"({self.dim}, {self.dim}), got shape {m.shape}")
+                raise ValueError(
+                    f"around: {name} must be finite matrices of shape ({b}, {self.dim}, {self.dim}) or "
+                    f"({self.dim}, {self.dim}), got shape {m.shape}"
+                )
             out.append(np.ascontiguousarray(m))
         return tuple(out)
 
@@ -686,13 +810,21 @@ class FittedSymplecticFlowMap(FittedFlowMap):
         """
         result = self.greedy_result
         if result is None:
-            raise ValueError("truncation needs the greedy's Newton data, which are not stored in model files: refit instead")
+            raise ValueError(
+                "truncation needs the greedy's Newton data, which are not stored in model files: refit instead"
+            )
         n_centers = as_positive_int(n_centers, "n_centers")
         if n_centers > self.n_centers:
             raise ValueError(f"n_centers must be <= {self.n_centers}, got {n_centers}")
         sur = self.surrogate
-        small = HBSurrogate(sur.kernel, sur.centers_xi[:n_centers], sur.centers_mu[:n_centers], sur.centers_dt[:n_centers],
-                            sur.components[:n_centers], result.coef_prefix(n_centers))
+        small = HBSurrogate(
+            sur.kernel,
+            sur.centers_xi[:n_centers],
+            sur.centers_mu[:n_centers],
+            sur.centers_dt[:n_centers],
+            sur.components[:n_centers],
+            result.coef_prefix(n_centers),
+        )
         # keeps the full run's Newton data (it can be truncated further); recalibrated on the same samples when used
         return self._replace(surrogate=small, history=self._history_prefix(n_centers), _cache={})
 
@@ -722,9 +854,14 @@ class FittedSymplecticFlowMap(FittedFlowMap):
         val = self.history.val_max_residual
         if val is None:
             raise ValueError("smallest() needs validation data at fit time (fit(..., validation=...))")
-        if isinstance(target, bool) or not isinstance(target, (int, float, np.integer, np.floating)) \
-                or not (np.isfinite(target) and target > 0):
-            raise ValueError(f"target must be a positive float (the largest E_val to accept, e.g. 1e-4), got {target!r}")
+        if (
+            isinstance(target, bool)
+            or not isinstance(target, (int, float, np.integer, np.floating))
+            or not (np.isfinite(target) and target > 0)
+        ):
+            raise ValueError(
+                f"target must be a positive float (the largest E_val to accept, e.g. 1e-4), got {target!r}"
+            )
         hits = np.flatnonzero(val[1:] <= target)
         if hits.size == 0:
             best = int(np.argmin(val[1:])) + 1
@@ -751,9 +888,11 @@ class FittedSymplecticFlowMap(FittedFlowMap):
         """The calibrated scale of the error estimate; ``ValueError`` naming why there is none."""
         cal = self.error_calibration
         if not cal or not np.isfinite(cal.get("scale", np.nan)):
-            raise ValueError("return_error=True needs the error calibration of the fit (error_calibration_), which this "
-                             "model lacks (a model file written before it existed, or a fit without samples to "
-                             "calibrate on): refit the model")
+            raise ValueError(
+                "return_error=True needs the error calibration of the fit (error_calibration_), which this "
+                "model lacks (a model file written before it existed, or a fit without samples to "
+                "calibrate on): refit the model"
+            )
         return float(cal["scale"])
 
     @classmethod
@@ -810,10 +949,15 @@ class FittedSymplecticFlowMap(FittedFlowMap):
         if not c > 0:  # every held-out step exact: fall back to the largest ratio's scale of round-off
             c = float(np.finfo(float).eps)
         est = c * unit[ok]
-        return {"scale": c, "quantile": self.ERROR_QUANTILE, "n_samples": int(ok.sum()), "source": source,
-                "median_effectivity": float(np.median(est / np.maximum(true[ok], np.finfo(float).tiny))),
-                "share_under_3x": float(np.mean(3 * est < true[ok])),
-                "median_step_error": float(np.median(true[ok]))}
+        return {
+            "scale": c,
+            "quantile": self.ERROR_QUANTILE,
+            "n_samples": int(ok.sum()),
+            "source": source,
+            "median_effectivity": float(np.median(est / np.maximum(true[ok], np.finfo(float).tiny))),
+            "share_under_3x": float(np.mean(3 * est < true[ok])),
+            "median_step_error": float(np.median(true[ok])),
+        }
 
     def _rollout_error(self, traj: np.ndarray, mu: np.ndarray, dt: np.ndarray, weights: np.ndarray) -> np.ndarray:
         """Error estimates (B, K+1) along predicted trajectories ``traj`` (B, K+1, 2n) (every step kept).
@@ -833,7 +977,7 @@ class FittedSymplecticFlowMap(FittedFlowMap):
             kk = min(k1 - 1, k0 + block)
             nk = kk - k0
             xs = (traj[:, k0:kk] * scale).reshape(-1, dim)
-            x1s = (traj[:, k0 + 1:kk + 1] * scale).reshape(-1, dim)
+            x1s = (traj[:, k0 + 1 : kk + 1] * scale).reshape(-1, dim)
             rep = lambda a: np.repeat(a, nk, axis=0)
             jac, g = self._error_terms(xs, x1s, rep(mu), rep(dt), rep(weights))
             jac, g = jac.reshape(b, nk, dim, dim), g.reshape(b, nk, dim, dim)
@@ -846,16 +990,25 @@ class FittedSymplecticFlowMap(FittedFlowMap):
     def surrogate_arrays(self) -> dict:
         """The surrogate's arrays as a model file stores them."""
         sur = self.surrogate
-        return {"centers_xi": sur.centers_xi, "centers_mu": sur.centers_mu, "centers_dt": sur.centers_dt,
-                "components": sur.components, "coef": sur.coef}
+        return {
+            "centers_xi": sur.centers_xi,
+            "centers_mu": sur.centers_mu,
+            "centers_dt": sur.centers_dt,
+            "components": sur.components,
+            "coef": sur.coef,
+        }
 
     @classmethod
     def surrogate_from_arrays(cls, kernel, arrays: dict, dim: int, n_mu: int) -> HBSurrogate:
         """The surrogate of a model file's arrays (:meth:`surrogate_arrays`), their shapes and components checked."""
         m = len(arrays["coef"])
-        cls._check_array_shapes(arrays, {"centers_xi": (m, dim), "centers_mu": (m, n_mu), "centers_dt": (m,),
-                                         "components": (m,), "coef": (m,)})
+        cls._check_array_shapes(
+            arrays,
+            {"centers_xi": (m, dim), "centers_mu": (m, n_mu), "centers_dt": (m,), "components": (m,), "coef": (m,)},
+        )
         comps = arrays["components"]
         if comps.dtype.kind != "i" or np.any((comps < 0) | (comps >= dim)):
             raise ModelFileError(f"the file's centre components must be integers in 0..{dim - 1}")
-        return HBSurrogate(kernel, arrays["centers_xi"], arrays["centers_mu"], arrays["centers_dt"], comps, arrays["coef"])
+        return HBSurrogate(
+            kernel, arrays["centers_xi"], arrays["centers_mu"], arrays["centers_dt"], comps, arrays["coef"]
+        )

@@ -19,7 +19,12 @@ from sympredict.container import read_container, write_container
 from sympredict.estimators.auto import KernelSearch
 from sympredict.exceptions import ModelFileError
 from sympredict.estimators.fitted import (
-    DOMAIN_KEYS, FittedDirectFlowMap, FittedSymplecticFlowMap, check_is_fitted, model_coordinates, trainer_regularization,
+    DOMAIN_KEYS,
+    FittedDirectFlowMap,
+    FittedSymplecticFlowMap,
+    check_is_fitted,
+    model_coordinates,
+    trainer_regularization,
 )
 from sympredict.interpolation.greedy import GreedyHistory, Trainer, trainer_from_spec
 from sympredict.kernels import ProductKernel
@@ -27,8 +32,16 @@ from sympredict.kernels.transforms import StateKernelParts, decode_value, encode
 from sympredict.symplectic.solvers import NewtonSolver
 from sympredict.symplectic.updates import UpdateRule
 
-__all__ = ["MODEL_FORMAT", "MODEL_LAYOUT", "save", "load", "to_container", "from_container", "encode_param",
-           "decode_param"]
+__all__ = [
+    "MODEL_FORMAT",
+    "MODEL_LAYOUT",
+    "save",
+    "load",
+    "to_container",
+    "from_container",
+    "encode_param",
+    "decode_param",
+]
 
 #: ``format`` attribute of model files (:mod:`sympredict.container`).
 MODEL_FORMAT = "sympredict-model"
@@ -41,8 +54,10 @@ MODEL_LAYOUT = 3
 
 def pre_release_layout(path) -> ModelFileError:
     """The error for a model file of a pre-release layout (1 or 2), which this version does not read."""
-    return ModelFileError(f"{str(path)!r} was written by a pre-release version of sympredict (model layout 1 or 2), "
-                          f"which this version does not read: fit the model again and save it (layout {MODEL_LAYOUT})")
+    return ModelFileError(
+        f"{str(path)!r} was written by a pre-release version of sympredict (model layout 1 or 2), "
+        f"which this version does not read: fit the model again and save it (layout {MODEL_LAYOUT})"
+    )
 
 
 def save(model, path, *, overwrite: bool = True) -> None:
@@ -95,10 +110,15 @@ def _check_file_shape_info(settings: dict, path) -> None:
     """A model file's ``dim``, ``n_mu``, ``dt_fixed`` and ``stop_reason`` settings: types and bounds."""
     dim, n_mu, dt_fixed = settings["dim"], settings["n_mu"], settings["dt_fixed"]
     if not _is_int(dim) or not _is_int(n_mu) or dim < 1 or n_mu < 0:
-        raise ModelFileError(f"{str(path)!r}: invalid dimensions in its settings: dim={dim!r}, n_mu={n_mu!r} "
-                             "(integers >= 1 and >= 0 expected)")
-    if dt_fixed is not None and (isinstance(dt_fixed, bool) or not isinstance(dt_fixed, (int, float))
-                                 or not (np.isfinite(dt_fixed) and dt_fixed > 0)):
+        raise ModelFileError(
+            f"{str(path)!r}: invalid dimensions in its settings: dim={dim!r}, n_mu={n_mu!r} "
+            "(integers >= 1 and >= 0 expected)"
+        )
+    if dt_fixed is not None and (
+        isinstance(dt_fixed, bool)
+        or not isinstance(dt_fixed, (int, float))
+        or not (np.isfinite(dt_fixed) and dt_fixed > 0)
+    ):
         raise ModelFileError(f"{str(path)!r}: its setting dt_fixed={dt_fixed!r} must be null or a positive finite step")
     if not isinstance(settings["stop_reason"], str):
         raise ModelFileError(f"{str(path)!r}: its setting stop_reason={settings['stop_reason']!r} must be a string")
@@ -107,16 +127,23 @@ def _check_file_shape_info(settings: dict, path) -> None:
 def _check_file_history(m: int, h: GreedyHistory, d: dict, path) -> None:
     """A model file's residual history fits its ``m`` centres: ``m + 1`` residuals, ``m`` powers; the training box
     ``d`` is ordered."""
-    for name, arr, length in (("train_max_residual", h.train_max_residual, m + 1),
-                              ("val_max_residual", h.val_max_residual, m + 1), ("selected_power", h.selected_power, m)):
+    for name, arr, length in (
+        ("train_max_residual", h.train_max_residual, m + 1),
+        ("val_max_residual", h.val_max_residual, m + 1),
+        ("selected_power", h.selected_power, m),
+    ):
         if arr is not None and (arr.ndim != 1 or len(arr) != length or arr.dtype.kind != "f"):
-            raise ModelFileError(f"{str(path)!r}: its array {name!r} has shape {arr.shape} (dtype {arr.dtype}), "
-                                 f"expected ({length},) floats for {m} centres")
+            raise ModelFileError(
+                f"{str(path)!r}: its array {name!r} has shape {arr.shape} (dtype {arr.dtype}), "
+                f"expected ({length},) floats for {m} centres"
+            )
     for lo, hi in (("x_min", "x_max"), ("mu_min", "mu_max"), ("dt_min", "dt_max")):
         if np.any(d[lo] > d[hi]):
             raise ModelFileError(f"{str(path)!r}: its training box has domain_{lo} > domain_{hi}")
     if not d["dt_min"] > 0:
-        raise ModelFileError(f"{str(path)!r}: its training box has a non-positive step domain_dt_min={float(d['dt_min'])!r}")
+        raise ModelFileError(
+            f"{str(path)!r}: its training box has a non-positive step domain_dt_min={float(d['dt_min'])!r}"
+        )
 
 
 def to_container(model) -> tuple:
@@ -158,8 +185,10 @@ def from_container(cls, settings, arrays: dict, path):
     if found != cls.__name__:
         raise ModelFileError(f"{str(path)!r} holds a {found!r}, not a {cls.__name__}")
     if settings.get("layout") != MODEL_LAYOUT:
-        raise ModelFileError(f"{str(path)!r} has an unknown model layout {settings.get('layout')!r} "
-                             f"(this sympredict reads layout {MODEL_LAYOUT})")
+        raise ModelFileError(
+            f"{str(path)!r} has an unknown model layout {settings.get('layout')!r} "
+            f"(this sympredict reads layout {MODEL_LAYOUT})"
+        )
     try:
         params = settings["params"]
         if not isinstance(params, dict):
@@ -188,25 +217,34 @@ def from_container(cls, settings, arrays: dict, path):
         for name, size, key in (("domain_x_min", settings["dim"], "dim"), ("domain_mu_min", settings["n_mu"], "n_mu")):
             box = arrays.get(name)  # before anything is allocated by the file's sizes
             if box is None or box.ndim != 1 or box.shape[0] != size:
-                raise ModelFileError(f"{str(path)!r}: its setting {key}={size!r} disagrees with its training box "
-                                     f"{name!r} of shape {None if box is None else box.shape}")
+                raise ModelFileError(
+                    f"{str(path)!r}: its setting {key}={size!r} disagrees with its training box "
+                    f"{name!r} of shape {None if box is None else box.shape}"
+                )
         dim, n_mu = settings["dim"], settings["n_mu"]
         symplectic = cls.fitted_type is FittedSymplecticFlowMap
         periodic = symmetry = None
         if symplectic:
             parts = lower_state_kernel(fitted_params["state_kernel"])
-            parts = StateKernelParts(scaling=parts.scaling, periodic=parts.periodic, period=parts.period,
-                                     symmetry=parts.symmetry)
+            parts = StateKernelParts(
+                scaling=parts.scaling, periodic=parts.periodic, period=parts.period, symmetry=parts.symmetry
+            )
             try:
                 _, periodic, symmetry = model_coordinates(parts, fitted_params["update"], dim)
             except ValueError as exc:
-                raise ModelFileError(f"{str(path)!r} has an invalid setting for states of dimension {dim}: {exc}") from None
+                raise ModelFileError(
+                    f"{str(path)!r} has an invalid setting for states of dimension {dim}: {exc}"
+                ) from None
         if kernel.periodic != periodic:
-            raise ModelFileError(f"the file's periodic coordinates {kernel.periodic!r} disagree with its setting "
-                                 f"state_kernel={model.state_kernel!r}")
+            raise ModelFileError(
+                f"the file's periodic coordinates {kernel.periodic!r} disagree with its setting "
+                f"state_kernel={model.state_kernel!r}"
+            )
         if kernel.symmetry != symmetry:
-            raise ModelFileError(f"the file's state symmetry {kernel.symmetry!r} disagrees with its setting "
-                                 f"state_kernel={model.state_kernel!r}")
+            raise ModelFileError(
+                f"the file's state symmetry {kernel.symmetry!r} disagrees with its setting "
+                f"state_kernel={model.state_kernel!r}"
+            )
         check_file_arrays(dim, n_mu, symplectic, kernel, arrays)
         surrogate = cls.fitted_type.surrogate_from_arrays(kernel, arrays, dim, n_mu)
         n = len(arrays["selected_power"])
@@ -218,19 +256,29 @@ def from_container(cls, settings, arrays: dict, path):
             stop_reason=settings["stop_reason"],
         )
         calibration = settings.get("error_calibration")
-        if calibration is not None and not (isinstance(calibration, dict) and isinstance(calibration.get("scale"), float)
-                                            and calibration["scale"] > 0):
+        if calibration is not None and not (
+            isinstance(calibration, dict) and isinstance(calibration.get("scale"), float) and calibration["scale"] > 0
+        ):
             raise ModelFileError(f"{str(path)!r}: its error_calibration is not a record with a positive 'scale'")
         domain = {k: arrays[f"domain_{k}"] for k in DOMAIN_KEYS}
         _check_file_history(surrogate.n_centers, history, domain, path)
         if symplectic:  # the fitted flow map, by its public constructor (as fit builds it)
             model.model_ = FittedSymplecticFlowMap(
-                kernel, surrogate, domain=domain, history=history, dt_fixed=settings["dt_fixed"],
-                update=fitted_params["update"], parts=parts, solver=model.solver,
-                regularization=trainer_regularization(fitted_params["trainer"]), error_calibration=calibration)
+                kernel,
+                surrogate,
+                domain=domain,
+                history=history,
+                dt_fixed=settings["dt_fixed"],
+                update=fitted_params["update"],
+                parts=parts,
+                solver=model.solver,
+                regularization=trainer_regularization(fitted_params["trainer"]),
+                error_calibration=calibration,
+            )
         else:
-            model.model_ = FittedDirectFlowMap(kernel, surrogate, domain=domain, history=history,
-                                               dt_fixed=settings["dt_fixed"])
+            model.model_ = FittedDirectFlowMap(
+                kernel, surrogate, domain=domain, history=history, dt_fixed=settings["dt_fixed"]
+            )
     except ModelFileError:
         raise
     except (KeyError, TypeError, ValueError, AttributeError, IndexError, OverflowError, RecursionError) as exc:
@@ -263,8 +311,15 @@ def _file_choice(raw, path) -> dict:
 
 def _check_choice_matches_kernel(choice: dict, kernel: ProductKernel, path) -> None:
     """The chosen kernels are the file's product kernel (the kernel predictions use)."""
-    pairs = [("state_kernel", lower_state_kernel(choice["state_kernel"]).radial if "state_kernel" in choice else None,
-              kernel.state), ("mu_kernel", choice.get("mu_kernel"), kernel.mu), ("dt_kernel", choice.get("dt_kernel"), kernel.dt)]
+    pairs = [
+        (
+            "state_kernel",
+            lower_state_kernel(choice["state_kernel"]).radial if "state_kernel" in choice else None,
+            kernel.state,
+        ),
+        ("mu_kernel", choice.get("mu_kernel"), kernel.mu),
+        ("dt_kernel", choice.get("dt_kernel"), kernel.dt),
+    ]
     for name, chosen, used in pairs:
         if name in choice and chosen != used:
             raise ModelFileError(f"{str(path)!r}: its chosen {name} {chosen!r} disagrees with its kernel {used!r}")
@@ -276,8 +331,14 @@ def check_file_arrays(dim: int, n_mu: int, symplectic: bool, kernel: ProductKern
         raise ModelFileError(f"invalid dimensions in the file: dim={dim}, n_mu={n_mu}")
     if (kernel.mu is None) != (n_mu == 0):
         raise ModelFileError("the file's mu kernel and parameter dimension disagree")
-    for name, shape in (("domain_x_min", (dim,)), ("domain_x_max", (dim,)), ("domain_mu_min", (n_mu,)),
-                        ("domain_mu_max", (n_mu,)), ("domain_dt_min", ()), ("domain_dt_max", ())):
+    for name, shape in (
+        ("domain_x_min", (dim,)),
+        ("domain_x_max", (dim,)),
+        ("domain_mu_min", (n_mu,)),
+        ("domain_mu_max", (n_mu,)),
+        ("domain_dt_min", ()),
+        ("domain_dt_max", ()),
+    ):
         arr = arrays.get(name)
         if arr is None or arr.shape != shape or not np.all(np.isfinite(arr)):
             raise ModelFileError(f"the file's training box {name!r} is missing, of the wrong shape or not finite")

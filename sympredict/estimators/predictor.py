@@ -42,13 +42,25 @@ from sympredict.data import FlowMapData, TrajectoryData, _drop_duplicate_samples
 from sympredict.estimators import model_files
 from sympredict.estimators.auto import KernelSearch, _holdout_split, diagnose
 from sympredict.estimators.fitted import (
-    EXTRAPOLATION_TOLERANCE, NUMPY_ONLY, SOLVER_SETTING, FittedDirectFlowMap, FittedSymplecticFlowMap, check_is_fitted,
-    model_coordinates, numpy_only_reason, trainer_regularization, training_box,
+    EXTRAPOLATION_TOLERANCE,
+    NUMPY_ONLY,
+    SOLVER_SETTING,
+    FittedDirectFlowMap,
+    FittedSymplecticFlowMap,
+    check_is_fitted,
+    model_coordinates,
+    numpy_only_reason,
+    trainer_regularization,
+    training_box,
 )
 from sympredict.estimators.model_files import MODEL_FORMAT, MODEL_LAYOUT
 from sympredict.estimators.structure import warn_wrapped_angles
 from sympredict.exceptions import (
-    AccuracyWarning, NewtonConvergenceError, NonFinitePredictionError, UnderfitWarning, WrappedAngleWarning,
+    AccuracyWarning,
+    NewtonConvergenceError,
+    NonFinitePredictionError,
+    UnderfitWarning,
+    WrappedAngleWarning,
 )
 from sympredict.interpolation.functionals import HBFunctionals, ValueFunctionals
 from sympredict.interpolation.greedy import Trainer
@@ -62,9 +74,19 @@ from sympredict.symplectic.updates import UPDATE_RULES, as_update
 
 logger = logging.getLogger("sympredict.estimators.predictor")
 
-__all__ = ["SymplecticKernelPredictor", "DirectKernelPredictor", "MODEL_FORMAT", "MODEL_LAYOUT", "UPDATES",
-           "update_variables", "NUMPY_ONLY", "EXTRAPOLATION_TOLERANCE", "numpy_seconds", "AUTO_NUMPY_SECONDS",
-           "MAX_NEWTON_ITER"]
+__all__ = [
+    "SymplecticKernelPredictor",
+    "DirectKernelPredictor",
+    "MODEL_FORMAT",
+    "MODEL_LAYOUT",
+    "UPDATES",
+    "update_variables",
+    "NUMPY_ONLY",
+    "EXTRAPOLATION_TOLERANCE",
+    "numpy_seconds",
+    "AUTO_NUMPY_SECONDS",
+    "MAX_NEWTON_ITER",
+]
 
 
 def newton_predictor(model):
@@ -106,6 +128,7 @@ def _fitted_attribute(name: str):
         if model is None:
             raise AttributeError(f"this {type(self).__name__} is not fitted: it has no fitted attributes yet")
         return get(model)
+
     return property(fitted, doc=f"``model_.{name}`` (:mod:`sympredict.estimators.fitted`).")
 
 
@@ -116,9 +139,11 @@ _RADIAL = "a sympredict.kernels kernel (IMQ, Matern32, Matern52, ...) or None"
 def _documented_by(method):
     """Give the decorated estimator method the docstring of the fitted map's ``method`` it delegates to (one
     text for both)."""
+
     def document(function):
         function.__doc__ = method.__doc__
         return function
+
     return document
 
 
@@ -135,7 +160,11 @@ class _FlowMapKernelModel(Parametrized):
     #: The fitted flow map's class (:mod:`sympredict.estimators.fitted`): what ``model_`` is and files hold.
     fitted_type = None
 
-    kernel_, surrogate_, history_ = _fitted_attribute("kernel"), _fitted_attribute("surrogate"), _fitted_attribute("history")
+    kernel_, surrogate_, history_ = (
+        _fitted_attribute("kernel"),
+        _fitted_attribute("surrogate"),
+        _fitted_attribute("history"),
+    )
     greedy_result_, domain_ = _fitted_attribute("greedy_result"), _fitted_attribute("domain")
     dim_, n_mu_, dt_fixed_ = _fitted_attribute("dim"), _fitted_attribute("n_mu"), _fitted_attribute("dt_fixed")
 
@@ -172,11 +201,17 @@ class _FlowMapKernelModel(Parametrized):
         "max_centers": Constraint(required=True, check=as_positive_int),
         "mu_kernel": Constraint(RadialKernel, expected=_RADIAL),
         "dt_kernel": Constraint(RadialKernel, expected=_RADIAL),
-        "state_kernel": Constraint((RadialKernel, KernelTransform), check=lambda kernel, name: lower_state_kernel(kernel),
-                                   expected="a sympredict.kernels kernel (IMQ, Matern32, Matern52, ...), a transform of "
-                                            "one (Scaled, Periodic, Symmetric) or None"),
-        "trainer": Constraint(Trainer, check=lambda trainer, name: trainer.check(),
-                              expected="a training strategy (ExactGreedy(), ActiveSetGreedy(), ShardedGreedy(pool)) or None"),
+        "state_kernel": Constraint(
+            (RadialKernel, KernelTransform),
+            check=lambda kernel, name: lower_state_kernel(kernel),
+            expected="a sympredict.kernels kernel (IMQ, Matern32, Matern52, ...), a transform of "
+            "one (Scaled, Periodic, Symmetric) or None",
+        ),
+        "trainer": Constraint(
+            Trainer,
+            check=lambda trainer, name: trainer.check(),
+            expected="a training strategy (ExactGreedy(), ActiveSetGreedy(), ShardedGreedy(pool)) or None",
+        ),
     }
 
     def check_params(self) -> Trainer:
@@ -229,11 +264,14 @@ class _FlowMapKernelModel(Parametrized):
                 try:
                     vx0, vx1, vmu, vdt = validation
                 except (TypeError, ValueError):
-                    raise ValueError("validation must be a FlowMapData, a TrajectoryData or a tuple (x0, x1, mu, dt)"
-                                     ) from None
+                    raise ValueError(
+                        "validation must be a FlowMapData, a TrajectoryData or a tuple (x0, x1, mu, dt)"
+                    ) from None
                 validation = self._as_data(vx0, vx1, vmu, vdt, "validation")
             if validation.x0.shape[1] != data.x0.shape[1] or validation.mu.shape[1] != data.mu.shape[1]:
-                raise ValueError("validation data must have the same state and parameter dimensions as the training data")
+                raise ValueError(
+                    "validation data must have the same state and parameter dimensions as the training data"
+                )
         return data, validation
 
     @staticmethod
@@ -242,12 +280,18 @@ class _FlowMapKernelModel(Parametrized):
         their targets contradict each other (exact repeats were dropped before)."""
         if periodic is not None:  # angles one period apart are the same point for the kernel
             points = periodic.wrap(points)
-        unique_samples(points, np.column_stack([data.x0, data.x1]), data.mu, data.dt,
-                       key_name="point seen by the kernel (after the update rule's change of variables)",
-                       target_name="(x0, x1)")
+        unique_samples(
+            points,
+            np.column_stack([data.x0, data.x1]),
+            data.mu,
+            data.dt,
+            key_name="point seen by the kernel (after the update rule's change of variables)",
+            target_name="(x0, x1)",
+        )
 
-    def _product_kernel(self, points, periodic: Optional[PeriodicCoordinates] = None,
-                        symmetry: Optional[StateSymmetry] = None) -> ProductKernel:
+    def _product_kernel(
+        self, points, periodic: Optional[PeriodicCoordinates] = None, symmetry: Optional[StateSymmetry] = None
+    ) -> ProductKernel:
         """The kernel used; a missing state kernel becomes ``IMQ(1 / diameter of the points)`` (the direct model's
         default: the symplectic model's fit chooses its state kernel before it gets here).
 
@@ -262,23 +306,33 @@ class _FlowMapKernelModel(Parametrized):
             try:
                 state_kernel = IMQ(1.0 / diameter if diameter > 0 else 1.0)
             except (ValueError, ZeroDivisionError, OverflowError):
-                raise ValueError(f"the training states span a diameter of {diameter!r}: too small or too large for the "
-                                 "default state kernel IMQ(1 / diameter); rescale the states to units of order one, "
-                                 "or pass a state_kernel") from None
+                raise ValueError(
+                    f"the training states span a diameter of {diameter!r}: too small or too large for the "
+                    "default state kernel IMQ(1 / diameter); rescale the states to units of order one, "
+                    "or pass a state_kernel"
+                ) from None
         return ProductKernel(state_kernel, self.mu_kernel, self.dt_kernel, periodic, symmetry)
 
-    def _train(self, trainer: Trainer, kernel: ProductKernel, points, targets, data: FlowMapData, validation,
-               checkpoints=None):
+    def _train(
+        self, trainer: Trainer, kernel: ProductKernel, points, targets, data: FlowMapData, validation, checkpoints=None
+    ):
         """Run the strategy on the functionals at ``points``; returns the greedy's result and the selected point
         indices and components (``divmod`` of the flat indices)."""
         functionals = self._functionals(kernel, points, data.mu, data.dt)
         if self.trainer is None:  # the default: the fastest strategy that fits the memory (logged)
-            trainer = default_trainer(functionals, 0 if validation is None else validation[0].n_functionals,
-                                      self.max_centers)
+            trainer = default_trainer(
+                functionals, 0 if validation is None else validation[0].n_functionals, self.max_centers
+            )
         # tol is never looser than itself relative to the data (see fit): data in small units still train
         extra = {} if checkpoints is None else {"checkpoints": checkpoints}
-        result = trainer.run(functionals, targets, max_centers=self.max_centers, validation=validation,
-                             tol_scale=min(1.0, self._data_scale(data)), **extra)
+        result = trainer.run(
+            functionals,
+            targets,
+            max_centers=self.max_centers,
+            validation=validation,
+            tol_scale=min(1.0, self._data_scale(data)),
+            **extra,
+        )
         return (result, *np.divmod(result.selected, functionals.n_functionals // len(points)))
 
     def _data_scale(self, data: FlowMapData) -> float:
@@ -308,16 +362,27 @@ class _FlowMapKernelModel(Parametrized):
         trainer = self._trainer()
         advice = {
             "tol": f"the trainer's tol={trainer.tol!r} stops it at once: lower tol",
-            "power": (f"no candidate's power function exceeds power_tol={trainer.power_tol!r} times the Gramian diagonal: "
-                      "the state kernel's shape does not fit the data's scale (pass state_kernel=None, or a shape of about "
-                      "1 / the spread of the states) or lower power_tol"),
-        }.get(h.stop_reason, "the state kernel's shape does not fit the data's scale: pass state_kernel=None, or a shape "
-                             "of about 1 / the spread of the states, or allow more centres (max_centers)")
-        what = "selected no centre" if m == 0 else f"reproduces less than a tenth of the training increments with {m} centre(s)"
+            "power": (
+                f"no candidate's power function exceeds power_tol={trainer.power_tol!r} times the Gramian diagonal: "
+                "the state kernel's shape does not fit the data's scale (pass state_kernel=None, or a shape of about "
+                "1 / the spread of the states) or lower power_tol"
+            ),
+        }.get(
+            h.stop_reason,
+            "the state kernel's shape does not fit the data's scale: pass state_kernel=None, or a shape "
+            "of about 1 / the spread of the states, or allow more centres (max_centers)",
+        )
+        what = (
+            "selected no centre"
+            if m == 0
+            else f"reproduces less than a tenth of the training increments with {m} centre(s)"
+        )
         warnings.warn(
             f"{type(self).__name__}.fit {what} (greedy stop: {h.stop_reason}) although the data move the states "
             f"(largest target {largest:.3g}): the model is (close to) the identity map. {advice}.",
-            UnderfitWarning, stacklevel=4)
+            UnderfitWarning,
+            stacklevel=4,
+        )
 
     # ----------------------------------------------------------------- files
     def save(self, path, *, overwrite: bool = True) -> None:
@@ -518,7 +583,11 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
     _functionals = HBFunctionals
     _chooses_open_factors = True
     fitted_type = FittedSymplecticFlowMap
-    update_, state_scaling_, periodic_ = _fitted_attribute("update"), _fitted_attribute("parts.scaling"), _fitted_attribute("parts.periodic")
+    update_, state_scaling_, periodic_ = (
+        _fitted_attribute("update"),
+        _fitted_attribute("parts.scaling"),
+        _fitted_attribute("parts.periodic"),
+    )
     period_, symmetry_ = _fitted_attribute("parts.period"), _fitted_attribute("parts.symmetry")
 
     def __init__(
@@ -591,9 +660,12 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
             x0, rollouts = _hold_out_trajectories(x0, self._search().seed)  # whole trajectories, for rollouts
         data, validation = self.validate_data(x0, x1, mu, dt, validation)
         as_even_dimension(data.x0.shape[1])
-        open_factors = {"state": self._state_parts().radial is None,  # what this fit must choose
-                        "mu": data.mu.shape[1] > 0 and self.mu_kernel is None,
-                        "dt": bool(np.ptp(data.dt) > 0) and self.dt_kernel is None, "update": self.update is None}
+        open_factors = {
+            "state": self._state_parts().radial is None,  # what this fit must choose
+            "mu": data.mu.shape[1] > 0 and self.mu_kernel is None,
+            "dt": bool(np.ptp(data.dt) > 0) and self.dt_kernel is None,
+            "update": self.update is None,
+        }
         return self._fit_resolved(trainer, data, validation, open_factors, rollouts=rollouts)
 
     def _holds_out(self, trainer, trajectories: TrajectoryData) -> bool:
@@ -602,8 +674,9 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         chooses = self._state_parts().radial is None or (trajectories.mu.shape[1] > 0 and self.mu_kernel is None)
         return trajectories.dt is not None and (chooses or getattr(trainer, "target_error", None) is not None)
 
-    def _fit_resolved(self, trainer, data: FlowMapData, validation, open_factors: dict,
-                      rollouts: Optional[TrajectoryData] = None) -> "SymplecticKernelPredictor":
+    def _fit_resolved(
+        self, trainer, data: FlowMapData, validation, open_factors: dict, rollouts: Optional[TrajectoryData] = None
+    ) -> "SymplecticKernelPredictor":
         """Fit with the open settings chosen (:class:`~sympredict.estimators.auto.KernelSearch`), then diagnose.
 
         With nothing to choose but the update, the update is ``'symplectic_euler'`` and every sample is trained
@@ -624,7 +697,7 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
             train, holdout = data, validation
             logger.info("update=None with every kernel given: the update is 'symplectic_euler'")
         else:
-            train, holdout = (_holdout_split(data, self._search().seed) if validation is None else (data, validation))
+            train, holdout = _holdout_split(data, self._search().seed) if validation is None else (data, validation)
             with warnings.catch_warnings():  # the candidates' fits: the warnings are about the final model, once
                 warnings.simplefilter("ignore", UnderfitWarning)
                 warnings.simplefilter("ignore", WrappedAngleWarning)
@@ -639,8 +712,9 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         # (and with held-out trajectories, whose rollouts score the prefixes: the user's own use of the model)
         score = holdout is not None and (target is not None or search is not None or rollouts is not None)
         resolved = clone(self).set_params(**params) if params else self
-        fitted, prefix_errors, rollout_errors = resolved._fit(trainer, train, holdout, score_prefixes=score,
-                                                              rollouts=rollouts)
+        fitted, prefix_errors, rollout_errors = resolved._fit(
+            trainer, train, holdout, score_prefixes=score, rollouts=rollouts
+        )
         # the caller's settings (the choice is apart); the map reads the caller's solver (a clone's is a copy)
         self.model_, self.fitted_params_ = fitted.with_solver(self.solver), dict(self.get_params(deep=False))
         self.prefix_errors_, self.search_, self.choice_ = prefix_errors, search, dict(params)
@@ -649,8 +723,10 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         _HeldOutSteps.warn_if_target_missed(self)
         if search is not None:  # the search's share of the fit, for the log and search_.share
             search.fit_seconds = time.perf_counter() - t0
-            logger.info(f"{type(self).__name__}.fit: the kernel search took {search.seconds:.1f} s of the fit's "
-                        f"{search.fit_seconds:.1f} s ({search.share:.0%})")
+            logger.info(
+                f"{type(self).__name__}.fit: the kernel search took {search.seconds:.1f} s of the fit's "
+                f"{search.fit_seconds:.1f} s ({search.share:.0%})"
+            )
         if (search is not None or self.diagnostics_.advice) and logger.isEnabledFor(logging.INFO):
             logger.info(f"{type(self).__name__}.fit: {self.diagnostics_.summary()}")
         return self
@@ -666,8 +742,14 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         """The kernel search (``search``, or the default :class:`~sympredict.estimators.auto.KernelSearch`)."""
         return KernelSearch() if self.search is None else self.search
 
-    def _fit(self, trainer, data: FlowMapData, validation, score_prefixes: bool = False,
-             rollouts: Optional[TrajectoryData] = None):
+    def _fit(
+        self,
+        trainer,
+        data: FlowMapData,
+        validation,
+        score_prefixes: bool = False,
+        rollouts: Optional[TrajectoryData] = None,
+    ):
         """Train with every setting given; returns the fitted flow map and the prefixes' held-out errors
         (``rollouts``: held-out trajectories that also score the prefixes, :class:`_HeldOutSteps`)."""
         parts = self._state_parts()
@@ -685,29 +767,43 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         result, points, comps = self._train(trainer, kernel, xi, y.reshape(-1), data, val, checkpoints=checkpoints)
         sur = HBSurrogate(kernel, xi[points], data.mu[points], data.dt[points], comps, result.coef)
         fitted = FittedSymplecticFlowMap(
-            kernel, sur, domain=training_box(data), history=result.history, greedy_result=result,
-            dt_fixed=data.dt[0] if self.dt_kernel is None else None, update=self.update,
-            parts=StateKernelParts(scaling=parts.scaling, periodic=parts.periodic, period=parts.period,
-                                   symmetry=parts.symmetry), solver=self.solver,
+            kernel,
+            sur,
+            domain=training_box(data),
+            history=result.history,
+            greedy_result=result,
+            dt_fixed=data.dt[0] if self.dt_kernel is None else None,
+            update=self.update,
+            parts=StateKernelParts(
+                scaling=parts.scaling, periodic=parts.periodic, period=parts.period, symmetry=parts.symmetry
+            ),
+            solver=self.solver,
             regularization=trainer_regularization(self.trainer),
-            calibration_samples=FittedSymplecticFlowMap.calibration_data(data, validation, result.selected,
-                                                                          data.x0.shape[1]))
-        self._warn_if_underfit(data, y, lambda rows: sur.gradient(xi[rows], sur.weights(data.mu[rows], data.dt[rows])),
-                               fitted)
+            calibration_samples=FittedSymplecticFlowMap.calibration_data(
+                data, validation, result.selected, data.x0.shape[1]
+            ),
+        )
+        self._warn_if_underfit(
+            data, y, lambda rows: sur.gradient(xi[rows], sur.weights(data.mu[rows], data.dt[rows])), fitted
+        )
         if checkpoints is None:
             return fitted, None, None
         rollout_errors = None if checkpoints.rollouts is None else dict(sorted(checkpoints.rollout_scores.items()))
         if rollout_errors is not None:
-            logger.info(f"held-out rollouts scored {len(rollout_errors)} prefixes in {checkpoints.rollout_seconds:.1f} s "
-                        f"(kept {fitted.n_centers} centres)")
+            logger.info(
+                f"held-out rollouts scored {len(rollout_errors)} prefixes in {checkpoints.rollout_seconds:.1f} s "
+                f"(kept {fitted.n_centers} centres)"
+            )
         return fitted, dict(sorted(checkpoints.scores.items())), rollout_errors
 
     def _with_model(self, fitted) -> "SymplecticKernelPredictor":
         """A shallow copy of this fitted estimator around the smaller fitted map ``fitted``."""
         small = copy.copy(self)
         small.max_centers = fitted.n_centers
-        small.fitted_params_ = {**getattr(self, "fitted_params_", self.get_params(deep=False)),
-                                "max_centers": fitted.n_centers}
+        small.fitted_params_ = {
+            **getattr(self, "fitted_params_", self.get_params(deep=False)),
+            "max_centers": fitted.n_centers,
+        }
         small.model_ = fitted
         return small
 
@@ -741,8 +837,11 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
     _parameter_constraints = {
         **_FlowMapKernelModel._parameter_constraints,
         "solver": SOLVER_SETTING,
-        "search": Constraint(KernelSearch, check=lambda search, name: search.check(),
-                             expected="a KernelSearch (e.g. KernelSearch(m_star=500)) or None"),
+        "search": Constraint(
+            KernelSearch,
+            check=lambda search, name: search.check(),
+            expected="a KernelSearch (e.g. KernelSearch(m_star=500)) or None",
+        ),
         "update": Constraint(check=lambda update, name: as_update(update)),
     }
 
@@ -790,10 +889,30 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         return self._fitted().step(x, mu, dt, return_error=return_error)
 
     @_documented_by(FittedSymplecticFlowMap.rollout)
-    def rollout(self, x0, n_steps: int, mu=None, dt=None, *, stride: int = 1, progress=None,
-                check_solvability: bool = False, around=None, return_error: bool = False):
-        return self._fitted().rollout(x0, n_steps, mu, dt, stride=stride, progress=progress,
-                                      check_solvability=check_solvability, around=around, return_error=return_error)
+    def rollout(
+        self,
+        x0,
+        n_steps: int,
+        mu=None,
+        dt=None,
+        *,
+        stride: int = 1,
+        progress=None,
+        check_solvability: bool = False,
+        around=None,
+        return_error: bool = False,
+    ):
+        return self._fitted().rollout(
+            x0,
+            n_steps,
+            mu,
+            dt,
+            stride=stride,
+            progress=progress,
+            check_solvability=check_solvability,
+            around=around,
+            return_error=return_error,
+        )
 
     @_documented_by(FittedSymplecticFlowMap.solvability)
     def solvability(self, x, mu=None, dt=None) -> np.ndarray:
@@ -852,8 +971,17 @@ class _HeldOutSteps:
     #: Steps of each held-out trajectory rolled out, at most.
     horizon = 100
 
-    def __init__(self, model, rule, kernel, xi, data: FlowMapData, holdout: FlowMapData, scale: np.ndarray,
-                 rollouts: Optional[TrajectoryData] = None):
+    def __init__(
+        self,
+        model,
+        rule,
+        kernel,
+        xi,
+        data: FlowMapData,
+        holdout: FlowMapData,
+        scale: np.ndarray,
+        rollouts: Optional[TrajectoryData] = None,
+    ):
         self.rule, self.kernel, self.xi, self.data, self.scale = rule, kernel, xi, data, scale
         self.max_iter = model._newton_iterations()
         holdout = holdout.subset(np.arange(min(len(holdout), self.largest)))  # the rows diagnose() scores
@@ -869,12 +997,20 @@ class _HeldOutSteps:
             parts = model._state_parts()
             k = min(rollouts.states.shape[1] - 1, self.horizon)
             p = min(len(rollouts), self.largest_rollouts)
-            self.rollouts = (rollouts.states[:p, : k + 1], rollouts.mu[:p] if rollouts.mu.shape[1] else None,
-                             rollouts.dt)
+            self.rollouts = (
+                rollouts.states[:p, : k + 1],
+                rollouts.mu[:p] if rollouts.mu.shape[1] else None,
+                rollouts.dt,
+            )
             self.fitted_settings = dict(
-                domain=training_box(data), history=None, update=model.update, solver=model.solver,
-                parts=StateKernelParts(scaling=parts.scaling, periodic=parts.periodic, period=parts.period,
-                                       symmetry=parts.symmetry))
+                domain=training_box(data),
+                history=None,
+                update=model.update,
+                solver=model.solver,
+                parts=StateKernelParts(
+                    scaling=parts.scaling, periodic=parts.periodic, period=parts.period, symmetry=parts.symmetry
+                ),
+            )
 
     def score(self, m: int, selected: np.ndarray, coef: np.ndarray) -> float:
         pts, comps = np.divmod(np.asarray(selected), self.xi.shape[1])
@@ -937,19 +1073,29 @@ class _HeldOutSteps:
             return
         reason = model.history_.stop_reason
         if reason in ("max_centers",):
-            limit = (f"the centre cap: max_centers={int(model.max_centers)} was reached (raise max_centers; the "
-                     f"held-out error at the cap is {d.holdout_step_error:.2e})")
+            limit = (
+                f"the centre cap: max_centers={int(model.max_centers)} was reached (raise max_centers; the "
+                f"held-out error at the cap is {d.holdout_step_error:.2e})"
+            )
         elif reason in ("power", "diverged"):
-            limit = ("kernel breakdown: the kernel matrix became numerically singular at "
-                     f"{model.history_.n_centers[-1]} centres, so more centres add nothing (more distinct samples, or "
-                     "narrower kernels: a larger shape eps)")
+            limit = (
+                "kernel breakdown: the kernel matrix became numerically singular at "
+                f"{model.history_.n_centers[-1]} centres, so more centres add nothing (more distinct samples, or "
+                "narrower kernels: a larger shape eps)"
+            )
         else:
-            limit = ("the data: the greedy interpolates the training samples to its tolerance, and the held-out "
-                     "error stays above the target (more samples, closer together)")
-        warnings.warn(f"target_error={model.target_error_:.3g} not met: the median relative one-step error on "
-                      f"{min(d.n_holdout, _HeldOutSteps.largest)} held-out samples is {d.holdout_step_error:.3g} "
-                      f"with {model.n_centers_} centres "
-                      f"(the best model found, kept). Limit: {limit}.", AccuracyWarning, stacklevel=3)
+            limit = (
+                "the data: the greedy interpolates the training samples to its tolerance, and the held-out "
+                "error stays above the target (more samples, closer together)"
+            )
+        warnings.warn(
+            f"target_error={model.target_error_:.3g} not met: the median relative one-step error on "
+            f"{min(d.n_holdout, _HeldOutSteps.largest)} held-out samples is {d.holdout_step_error:.3g} "
+            f"with {model.n_centers_} centres "
+            f"(the best model found, kept). Limit: {limit}.",
+            AccuracyWarning,
+            stacklevel=3,
+        )
 
 
 class DirectKernelPredictor(_FlowMapKernelModel):
@@ -1019,8 +1165,11 @@ class DirectKernelPredictor(_FlowMapKernelModel):
 
     _parameter_constraints = {
         **_FlowMapKernelModel._parameter_constraints,
-        "state_kernel": Constraint(RadialKernel, expected="a radial state kernel (IMQ, Matern52, Matern32) or None: "
-                                                          "kernel transforms shape the symplectic model's s"),
+        "state_kernel": Constraint(
+            RadialKernel,
+            expected="a radial state kernel (IMQ, Matern52, Matern32) or None: "
+            "kernel transforms shape the symplectic model's s",
+        ),
     }
 
     def fit(self, x0, x1=None, mu=None, dt=None, *, validation=None) -> "DirectKernelPredictor":
@@ -1037,10 +1186,20 @@ class DirectKernelPredictor(_FlowMapKernelModel):
             val = (ValueFunctionals(kernel, validation.x0, validation.mu, validation.dt), validation.x1 - validation.x0)
         result, points, _ = self._train(trainer, kernel, data.x0, data.x1 - data.x0, data, val)
         sur = ValueSurrogate(kernel, data.x0[points], data.mu[points], data.dt[points], result.coef)
-        fitted = FittedDirectFlowMap(kernel, sur, domain=training_box(data), history=result.history,
-                                     dt_fixed=data.dt[0] if self.dt_kernel is None else None, greedy_result=result)
-        self._warn_if_underfit(data, data.x1 - data.x0, lambda rows: sur.value(
-            data.x0[rows], sur.weights(data.mu[rows], data.dt[rows])), fitted)
+        fitted = FittedDirectFlowMap(
+            kernel,
+            sur,
+            domain=training_box(data),
+            history=result.history,
+            dt_fixed=data.dt[0] if self.dt_kernel is None else None,
+            greedy_result=result,
+        )
+        self._warn_if_underfit(
+            data,
+            data.x1 - data.x0,
+            lambda rows: sur.value(data.x0[rows], sur.weights(data.mu[rows], data.dt[rows])),
+            fitted,
+        )
         self.model_, self.fitted_params_ = fitted, dict(self.get_params(deep=False))
         return self
 

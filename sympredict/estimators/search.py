@@ -44,8 +44,21 @@ from sympredict.exceptions import NewtonConvergenceError, NonFinitePredictionErr
 from sympredict.kernels import KERNEL_FAMILIES, RadialKernel
 from sympredict.kernels.transforms import KernelTransform
 
-__all__ = ["log_grid", "kernel_grid", "WIDEN_LIMITS", "SelectionResult", "ScoredSelectionResult", "fit_candidate",
-           "grid_search", "halving_survivors", "coordinate_search", "refine_shapes", "one_step_score", "score_search", "ridge_search"]
+__all__ = [
+    "log_grid",
+    "kernel_grid",
+    "WIDEN_LIMITS",
+    "SelectionResult",
+    "ScoredSelectionResult",
+    "fit_candidate",
+    "grid_search",
+    "halving_survivors",
+    "coordinate_search",
+    "refine_shapes",
+    "one_step_score",
+    "score_search",
+    "ridge_search",
+]
 
 #: The searches' logger: the name users configure for the selections' progress.
 SEARCH_LOGGER = "sympredict.estimators.selection"
@@ -101,8 +114,15 @@ def kernel_grid(families: Sequence[str], eps_values) -> list[Optional[RadialKern
     return [KERNEL_FAMILIES[f](float(e)) for f in families for e in eps_values]
 
 
-def fit_candidate(model, data: FlowMapData, validation: Optional[FlowMapData] = None, *, uses_mu: bool = True,
-                  dt=None, quiet: bool = True):
+def fit_candidate(
+    model,
+    data: FlowMapData,
+    validation: Optional[FlowMapData] = None,
+    *,
+    uses_mu: bool = True,
+    dt=None,
+    quiet: bool = True,
+):
     """Fit one candidate, ``model`` (an unfitted, configured clone), on ``data``; returns ``model``.
 
     Parameters
@@ -128,8 +148,16 @@ def fit_candidate(model, data: FlowMapData, validation: Optional[FlowMapData] = 
     search scores the candidate itself, and those Newton steps would cost a fit to a few dozen centres.
     """
     mu = data.mu if uses_mu and data.mu.shape[1] else None
-    val = None if validation is None else (validation.x0, validation.x1,
-                                           validation.mu if uses_mu and validation.mu.shape[1] else None, validation.dt)
+    val = (
+        None
+        if validation is None
+        else (
+            validation.x0,
+            validation.x1,
+            validation.mu if uses_mu and validation.mu.shape[1] else None,
+            validation.dt,
+        )
+    )
     token = CANDIDATE_FIT.set(True)
     try:
         with quiet_logs(*FIT_LOGGERS) if quiet else contextlib.nullcontext():
@@ -245,8 +273,10 @@ def grid_search(
     what they need (the ranking says little about the final size).
     """
     if estimator is None:
-        raise ValueError("grid_search of sympredict.estimators.search needs the estimator whose settings the "
-                         "candidates share (sympredict.estimators.selection.select_kernels defaults to one)")
+        raise ValueError(
+            "grid_search of sympredict.estimators.search needs the estimator whose settings the "
+            "candidates share (sympredict.estimators.selection.select_kernels defaults to one)"
+        )
     base = estimator
     dt_fixed = np.ptp(data.dt) == 0
     table = []
@@ -256,18 +286,31 @@ def grid_search(
         state, mu_k, dt_k = tup
         size = m_star if rung is None else rung
         inside = base.state_kernel.with_radial(state) if isinstance(base.state_kernel, KernelTransform) else state
-        model = clone(base).set_params(state_kernel=inside, mu_kernel=mu_k, dt_kernel=dt_k, max_centers=size,
-                                       trainer__tol=0.0)
+        model = clone(base).set_params(
+            state_kernel=inside, mu_kernel=mu_k, dt_kernel=dt_k, max_centers=size, trainer__tol=0.0
+        )
         label = " x ".join(repr(k) for k in tup if k is not None)
-        row = {"state": _spec(state), "mu": _spec(mu_k), "dt": _spec(dt_k), "kernels": label, "widened": widened,
-               **({} if rung is None else {"rung": rung})}
+        row = {
+            "state": _spec(state),
+            "mu": _spec(mu_k),
+            "dt": _spec(dt_k),
+            "kernels": label,
+            "widened": widened,
+            **({} if rung is None else {"rung": rung}),
+        }
         t0 = time.perf_counter()
         try:
             fit_candidate(model, data, validation, uses_mu=mu_k is not None)
         except (ValueError, ArithmeticError) as exc:  # LinAlgError is a ValueError
             # a candidate that cannot be trained (coefficients overflow, memory, ...) is scored and skipped
-            row.update(E_val=np.inf, E_train=np.inf, n_centers=0, complete=False, error=str(exc),
-                       fit_s=time.perf_counter() - t0)
+            row.update(
+                E_val=np.inf,
+                E_train=np.inf,
+                n_centers=0,
+                complete=False,
+                error=str(exc),
+                fit_s=time.perf_counter() - t0,
+            )
             table.append(row)
             logger.warning(f"{label}: fit failed, candidate skipped ({exc})")
             return SelectionResult(state, mu_k, dt_k, np.inf, False)
@@ -276,11 +319,19 @@ def grid_search(
         complete = model.n_centers_ >= size or model.history_.stop_reason == "tol"
         if np.isfinite(value) and rung is None:
             unresolved.append(value > 0.5 * float(val[0]))
-        row.update(E_val=value, E_train=float(model.history_.train_max_residual[-1]), n_centers=model.n_centers_,
-                   complete=complete, fit_s=time.perf_counter() - t0)
+        row.update(
+            E_val=value,
+            E_train=float(model.history_.train_max_residual[-1]),
+            n_centers=model.n_centers_,
+            complete=complete,
+            fit_s=time.perf_counter() - t0,
+        )
         table.append(row)
-        logger.info(f"{label}: E_val({model.n_centers_}) = {value:.3e}" + ("" if rung is None else " (rung)")
-                    + ("" if complete else f" (stopped early: {model.history_.stop_reason})"))
+        logger.info(
+            f"{label}: E_val({model.n_centers_}) = {value:.3e}"
+            + ("" if rung is None else " (rung)")
+            + ("" if complete else f" (stopped early: {model.history_.stop_reason})")
+        )
         return SelectionResult(state, mu_k, dt_k, value, complete)
 
     def better(a, b) -> bool:
@@ -298,11 +349,15 @@ def grid_search(
         if better(candidate, best):
             best = candidate
     if best is None:
-        raise ValueError("no candidate produced a finite validation residual: every fit failed or broke down "
-                         "(see the table of the log); try other kernel families or shapes")
+        raise ValueError(
+            "no candidate produced a finite validation residual: every fit failed or broke down "
+            "(see the table of the log); try other kernel families or shapes"
+        )
     # a winner on the edge of its shape grid: extend the grid beyond that edge, one step at a time
-    grids = [sorted({k.eps for k in opts if k is not None and type(k) is type(chosen)}) if chosen is not None else []
-             for opts, chosen in ((state_kernels, best.state), (mu_kernels, best.mu), (dt_kernels, best.dt))]
+    grids = [
+        sorted({k.eps for k in opts if k is not None and type(k) is type(chosen)}) if chosen is not None else []
+        for opts, chosen in ((state_kernels, best.state), (mu_kernels, best.mu), (dt_kernels, best.dt))
+    ]
     for _ in range(widen):
         moved = False
         for i, grid in enumerate(grids):
@@ -316,8 +371,10 @@ def grid_search(
                 continue
             grid.insert(0 if ratio < 1 else len(grid), eps)
             tup[i] = chosen.set_params(eps=eps)
-            logger.info(f"the chosen {('state', 'mu', 'dt')[i]} kernel {chosen!r} lies on the edge of its shape grid: "
-                        f"trying {tup[i]!r}")
+            logger.info(
+                f"the chosen {('state', 'mu', 'dt')[i]} kernel {chosen!r} lies on the edge of its shape grid: "
+                f"trying {tup[i]!r}"
+            )
             candidate = score(tuple(tup), widened=True)
             if better(candidate, best):
                 best, moved = candidate, True
@@ -326,11 +383,16 @@ def grid_search(
     best.table = table
     for name, chosen, grid in zip(("state", "mu", "dt"), (best.state, best.mu, best.dt), grids):
         if chosen is not None and len(grid) > 1 and chosen.eps in (grid[0], grid[-1]):
-            logger.warning(f"the chosen {name} kernel {chosen!r} lies on the edge of its shape grid"
-                           + (f" after widening it {widen} time(s)" if widen else "") + ": widen the grid")
+            logger.warning(
+                f"the chosen {name} kernel {chosen!r} lies on the edge of its shape grid"
+                + (f" after widening it {widen} time(s)" if widen else "")
+                + ": widen the grid"
+            )
     if unresolved and all(unresolved):
-        logger.warning(f"m_star={m_star} is below what every candidate needs: no candidate has halved its validation "
-                       "residual at m_star, so the ranking says little about the final size; raise m_star")
+        logger.warning(
+            f"m_star={m_star} is below what every candidate needs: no candidate has halved its validation "
+            "residual at m_star, so the ranking says little about the final size; raise m_star"
+        )
     return best
 
 
@@ -350,9 +412,17 @@ def halving_survivors(candidates: Sequence, keys: Sequence, keep: float = 1 / 3)
 
 
 # ------------------------------------------------------------------ coordinate refinement
-def coordinate_search(start: tuple, key: Callable, active: Sequence[int], move: Callable,
-                      factors: Sequence[float] = (0.5, 2.0), sweeps: int = 2, from_best: bool = True,
-                      on_sweep: Optional[Callable] = None, shrink: Optional[float] = None) -> tuple:
+def coordinate_search(
+    start: tuple,
+    key: Callable,
+    active: Sequence[int],
+    move: Callable,
+    factors: Sequence[float] = (0.5, 2.0),
+    sweeps: int = 2,
+    from_best: bool = True,
+    on_sweep: Optional[Callable] = None,
+    shrink: Optional[float] = None,
+) -> tuple:
     """Coordinate search: each active coordinate of the best candidate moved by each factor, one at a time.
 
     Parameters
@@ -403,7 +473,7 @@ def coordinate_search(start: tuple, key: Callable, active: Sequence[int], move: 
                 continue
             for f in moves:
                 origin = best if from_best else anchor
-                cand = origin[:i] + (move(origin[i], i, f),) + origin[i + 1:]
+                cand = origin[:i] + (move(origin[i], i, f),) + origin[i + 1 :]
                 if key(cand) < key(best):
                     best, improved = cand, True
         if on_sweep is not None:
@@ -457,26 +527,45 @@ def refine_shapes(
 
     def score(tup):
         if tup not in scored:  # kernels are values: equal family and shape, equal key
-            scored[tup] = grid_search(data, validation, [tup[0]], [tup[1]], [tup[2]], m_star=m_star,
-                                      prefer_complete=prefer_complete, estimator=estimator, widen=0)
+            scored[tup] = grid_search(
+                data,
+                validation,
+                [tup[0]],
+                [tup[1]],
+                [tup[2]],
+                m_star=m_star,
+                prefer_complete=prefer_complete,
+                estimator=estimator,
+                widen=0,
+            )
         return scored[tup]
 
     def on_sweep(sweep, tup):
         best = scored[tup]
-        logger.info(f"shape refinement sweep {sweep + 1}: {best.state!r}, {best.mu!r}, {best.dt!r}: "
-                    f"E_val({m_star}) = {best.score:.3e}")
+        logger.info(
+            f"shape refinement sweep {sweep + 1}: {best.state!r}, {best.mu!r}, {best.dt!r}: "
+            f"E_val({m_star}) = {best.score:.3e}"
+        )
 
-    chosen = coordinate_search((start.state, start.mu, start.dt), lambda t: score(t).rank(prefer_complete),
-                               [i for i in range(3) if refine[i]], lambda k, i, f: k.set_params(eps=k.eps * f),
-                               factors=(1 / factor, factor), sweeps=max_sweeps, from_best=False, on_sweep=on_sweep)
+    chosen = coordinate_search(
+        (start.state, start.mu, start.dt),
+        lambda t: score(t).rank(prefer_complete),
+        [i for i in range(3) if refine[i]],
+        lambda k, i, f: k.set_params(eps=k.eps * f),
+        factors=(1 / factor, factor),
+        sweeps=max_sweeps,
+        from_best=False,
+        on_sweep=on_sweep,
+    )
     best = scored[chosen]
     table = [row for r in scored.values() for row in r.table]
     return SelectionResult(best.state, best.mu, best.dt, best.score, best.complete, table)
 
 
 # ------------------------------------------------------------------ held-out scores of final-size candidates
-def one_step_score(estimator, params: dict, m_final: int, train: FlowMapData, val: FlowMapData,
-                   largest: int = 500) -> tuple:
+def one_step_score(
+    estimator, params: dict, m_final: int, train: FlowMapData, val: FlowMapData, largest: int = 500
+) -> tuple:
     """``(score, centres, seconds, error)`` of one candidate: ``clone(estimator)`` with ``params`` fitted
     to ``m_final`` centres on ``train`` (its trainer's ``target_error`` dropped: candidates compete at their full
     size), scored by the mean relative one-step error ``|Phi(x0) - x1| / |x1 - x0|`` on (up to ``largest``)
@@ -495,8 +584,9 @@ def one_step_score(estimator, params: dict, m_final: int, train: FlowMapData, va
         with warnings.catch_warnings():  # a candidate may underfit or extrapolate: its score says so
             warnings.simplefilter("ignore")
             fit_candidate(model, train, uses_mu=uses_mu, quiet=False)
-            pred = model.step(sub.x0, mu=sub.mu if uses_mu else None,
-                              dt=sub.dt if params["dt_kernel"] is not None else None)
+            pred = model.step(
+                sub.x0, mu=sub.mu if uses_mu else None, dt=sub.dt if params["dt_kernel"] is not None else None
+            )
         err = np.linalg.norm(pred - sub.x1, axis=1)[rows] / inc[rows]
         value = float(np.mean(err)) if rows.any() else float(np.mean(np.linalg.norm(pred - sub.x1, axis=1)))
         return (value if np.isfinite(value) else np.inf), model.n_centers_, time.perf_counter() - t0, None
@@ -539,8 +629,14 @@ class ScoredSelectionResult:
     table: list = field(default_factory=list)
 
 
-def score_search(data: FlowMapData, validation: Optional[FlowMapData], candidates: Sequence[dict],
-                 budgets: Sequence[int], score: Callable, estimator) -> ScoredSelectionResult:
+def score_search(
+    data: FlowMapData,
+    validation: Optional[FlowMapData],
+    candidates: Sequence[dict],
+    budgets: Sequence[int],
+    score: Callable,
+    estimator,
+) -> ScoredSelectionResult:
     """Settings and number of centres chosen by a caller's validation score of the fitted models.
 
     Every candidate ``clone(estimator).set_params(**candidate, max_centers=max(budgets))`` is fitted once; smaller
@@ -554,7 +650,9 @@ def score_search(data: FlowMapData, validation: Optional[FlowMapData], candidate
     """
     budgets = sorted({int(b) for b in budgets})
     if not candidates or not budgets or budgets[0] < 1:
-        raise ValueError(f"need at least one candidate and positive budgets, got {len(candidates)} candidates, budgets {budgets}")
+        raise ValueError(
+            f"need at least one candidate and positive budgets, got {len(candidates)} candidates, budgets {budgets}"
+        )
     table, best = [], None
     for i, cand in enumerate(candidates):
         label = ", ".join(f"{k}={v!r}" for k, v in cand.items())
@@ -563,8 +661,17 @@ def score_search(data: FlowMapData, validation: Optional[FlowMapData], candidate
             model = clone(estimator).set_params(**cand, max_centers=budgets[-1])
             fit_candidate(model, data, validation, uses_mu=model.mu_kernel is not None)
         except (ValueError, ArithmeticError) as exc:
-            table.append({"candidate": i, "params": label, "budget": None, "n_centers": 0, "score": np.inf,
-                          "error": str(exc), "fit_s": time.perf_counter() - t0})
+            table.append(
+                {
+                    "candidate": i,
+                    "params": label,
+                    "budget": None,
+                    "n_centers": 0,
+                    "score": np.inf,
+                    "error": str(exc),
+                    "fit_s": time.perf_counter() - t0,
+                }
+            )
             logger.warning(f"{label}: fit failed, candidate skipped ({exc})")
             continue
         fit_s = time.perf_counter() - t0
@@ -576,9 +683,17 @@ def score_search(data: FlowMapData, validation: Optional[FlowMapData], candidate
             sized = model if m == model.n_centers_ else model.truncated(m)
             t1 = time.perf_counter()
             value = float(score(sized))
-            row = {"candidate": i, "params": label, "budget": b, "n_centers": m, "score": value,
-                   "E_val": None if val is None else float(val[m]), "stop_reason": model.history_.stop_reason,
-                   "fit_s": fit_s, "score_s": time.perf_counter() - t1}
+            row = {
+                "candidate": i,
+                "params": label,
+                "budget": b,
+                "n_centers": m,
+                "score": value,
+                "E_val": None if val is None else float(val[m]),
+                "stop_reason": model.history_.stop_reason,
+                "fit_s": fit_s,
+                "score_s": time.perf_counter() - t1,
+            }
             table.append(row)
             logger.info(f"{label}, {m} centres: score {value:.4e}")
             if np.isfinite(value) and (best is None or value < best[2]):

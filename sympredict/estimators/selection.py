@@ -27,39 +27,85 @@ from sympredict.base import clone
 from sympredict.data import FlowMapData
 from sympredict.estimators import search
 from sympredict.estimators.predictor import SymplecticKernelPredictor, update_variables
-from sympredict.estimators.search import (WIDEN_LIMITS, ScoredSelectionResult, SelectionResult, fit_candidate,
-                                          kernel_grid, log_grid)
+from sympredict.estimators.search import (
+    WIDEN_LIMITS,
+    ScoredSelectionResult,
+    SelectionResult,
+    fit_candidate,
+    kernel_grid,
+    log_grid,
+)
 from sympredict.exceptions import ExtrapolationWarning
 from sympredict.kernels import RadialKernel
 
-__all__ = ["log_grid", "kernel_grid", "SelectionResult", "select_kernels", "refine_kernel_shapes", "WIDEN_LIMITS",
-           "RegularizationResult", "select_regularization", "ScoredSelectionResult", "select_by_score"]
+__all__ = [
+    "log_grid",
+    "kernel_grid",
+    "SelectionResult",
+    "select_kernels",
+    "refine_kernel_shapes",
+    "WIDEN_LIMITS",
+    "RegularizationResult",
+    "select_regularization",
+    "ScoredSelectionResult",
+    "select_by_score",
+]
 
 logger = getLogger("sympredict.estimators.selection")
 
 
-def select_kernels(data: FlowMapData, validation: FlowMapData, state_kernels: Sequence[RadialKernel],
-                   mu_kernels: Sequence[Optional[RadialKernel]] = (None,), dt_kernels: Sequence[Optional[RadialKernel]] = (None,),
-                   m_star: int = 300, prefer_complete: bool = False,
-                   estimator: Optional[SymplecticKernelPredictor] = None, widen: int = 2) -> SelectionResult:
-    return search.grid_search(data, validation, state_kernels, mu_kernels, dt_kernels, m_star=m_star,
-                              prefer_complete=prefer_complete,
-                              estimator=SymplecticKernelPredictor() if estimator is None else estimator, widen=widen)
+def select_kernels(
+    data: FlowMapData,
+    validation: FlowMapData,
+    state_kernels: Sequence[RadialKernel],
+    mu_kernels: Sequence[Optional[RadialKernel]] = (None,),
+    dt_kernels: Sequence[Optional[RadialKernel]] = (None,),
+    m_star: int = 300,
+    prefer_complete: bool = False,
+    estimator: Optional[SymplecticKernelPredictor] = None,
+    widen: int = 2,
+) -> SelectionResult:
+    return search.grid_search(
+        data,
+        validation,
+        state_kernels,
+        mu_kernels,
+        dt_kernels,
+        m_star=m_star,
+        prefer_complete=prefer_complete,
+        estimator=SymplecticKernelPredictor() if estimator is None else estimator,
+        widen=widen,
+    )
 
 
-def refine_kernel_shapes(data: FlowMapData, validation: FlowMapData, start: SelectionResult, m_star: int,
-                         factor: float = 2.0, max_sweeps: int = 3, prefer_complete: bool = False,
-                         estimator: Optional[SymplecticKernelPredictor] = None,
-                         refine: Sequence[bool] = (True, True, True)) -> SelectionResult:
-    return search.refine_shapes(data, validation, start, m_star, factor=factor, max_sweeps=max_sweeps,
-                                prefer_complete=prefer_complete,
-                                estimator=SymplecticKernelPredictor() if estimator is None else estimator,
-                                refine=refine)
+def refine_kernel_shapes(
+    data: FlowMapData,
+    validation: FlowMapData,
+    start: SelectionResult,
+    m_star: int,
+    factor: float = 2.0,
+    max_sweeps: int = 3,
+    prefer_complete: bool = False,
+    estimator: Optional[SymplecticKernelPredictor] = None,
+    refine: Sequence[bool] = (True, True, True),
+) -> SelectionResult:
+    return search.refine_shapes(
+        data,
+        validation,
+        start,
+        m_star,
+        factor=factor,
+        max_sweeps=max_sweeps,
+        prefer_complete=prefer_complete,
+        estimator=SymplecticKernelPredictor() if estimator is None else estimator,
+        refine=refine,
+    )
 
 
 select_kernels.__doc__ = search.grid_search.__doc__.replace(
     "Required here (:func:`sympredict.estimators.selection.select_kernels`\n        defaults to ``SymplecticKernelPredictor()``).",
-    "Default ``SymplecticKernelPredictor()``.")
+    "Default ``SymplecticKernelPredictor()``.",
+)
 refine_kernel_shapes.__doc__ = search.refine_shapes.__doc__
 
 
@@ -134,14 +180,20 @@ def select_regularization(
         raise ValueError(f"metric must be 'rms' or 'max', got {metric!r}")
     for name, given in (("data", data), ("validation", validation)):
         if not isinstance(given, FlowMapData):
-            raise ValueError(f"{name} must be a FlowMapData (sympredict.data.FlowMapData(x0, x1, mu, dt), or "
-                             f"TrajectoryData(...).pairs()), got {type(given).__name__}")
+            raise ValueError(
+                f"{name} must be a FlowMapData (sympredict.data.FlowMapData(x0, x1, mu, dt), or "
+                f"TrajectoryData(...).pairs()), got {type(given).__name__}"
+            )
     if not isinstance(estimator, SymplecticKernelPredictor):
-        raise ValueError(f"estimator must be a SymplecticKernelPredictor (the ridge term is its greedy's), got "
-                         f"{type(estimator).__name__}")
+        raise ValueError(
+            f"estimator must be a SymplecticKernelPredictor (the ridge term is its greedy's), got "
+            f"{type(estimator).__name__}"
+        )
     mu = None if data.mu.shape[1] == 0 else data.mu
     vmu = None if validation.mu.shape[1] == 0 else validation.mu
-    vxi, vy = update_variables(getattr(estimator, "update", None) or "symplectic_euler", validation.x0, validation.x1, validation.dt)
+    vxi, vy = update_variables(
+        getattr(estimator, "update", None) or "symplectic_euler", validation.x0, validation.x1, validation.dt
+    )
     uses_dt = estimator.dt_kernel is not None
 
     def evaluate(lam):
@@ -155,8 +207,17 @@ def select_regularization(
         rms, emax = float(np.sqrt(np.mean(res**2))), float(np.abs(res).max())
         score = rms if metric == "rms" else emax
         logger.info(f"regularization {lam:.3g}: {metric} validation residual {score:.4e} ({model.n_centers_} centres)")
-        return score, model, {"E_val": emax, "rms_val": rms, "n_centers": model.n_centers_,
-                              "stop_reason": model.history_.stop_reason, "fit_s": time.perf_counter() - t0}
+        return (
+            score,
+            model,
+            {
+                "E_val": emax,
+                "rms_val": rms,
+                "n_centers": model.n_centers_,
+                "stop_reason": model.history_.stop_reason,
+                "fit_s": time.perf_counter() - t0,
+            },
+        )
 
     best, table, models = search.ridge_search(lambdas, evaluate, keep=keep_models, name="lambdas")
     if best is None:
@@ -214,5 +275,6 @@ def select_by_score(
     (candidate, budget).  Only the best model so far is kept in memory.  Ties go
     to the earlier candidate and the smaller budget.
     """
-    return search.score_search(data, validation, candidates, budgets, score,
-                               SymplecticKernelPredictor() if estimator is None else estimator)
+    return search.score_search(
+        data, validation, candidates, budgets, score, SymplecticKernelPredictor() if estimator is None else estimator
+    )

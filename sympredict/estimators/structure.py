@@ -49,13 +49,29 @@ import numpy as np
 from sympredict.base import clone
 from sympredict.data import FlowMapData
 from sympredict.estimators.search import fit_candidate
-from sympredict.exceptions import (NewtonConvergenceError, NonFinitePredictionError, WrappedAngleWarning,
-                                   extrapolation_expected)
+from sympredict.exceptions import (
+    NewtonConvergenceError,
+    NonFinitePredictionError,
+    WrappedAngleWarning,
+    extrapolation_expected,
+)
 from sympredict.kernels import StateSymmetry
 from sympredict.kernels.transforms import Symmetric, lower_state_kernel
 
-__all__ = ["StructureFinding", "sign_flip_candidates", "check_sign_flip", "check_group", "compete", "validation_error", "wrapped_coordinates", "group_of",
-           "QUICK_CENTERS", "HOLD_FACTOR", "HOLD_CEILING", "MIN_TESTED"]
+__all__ = [
+    "StructureFinding",
+    "sign_flip_candidates",
+    "check_sign_flip",
+    "check_group",
+    "compete",
+    "validation_error",
+    "wrapped_coordinates",
+    "group_of",
+    "QUICK_CENTERS",
+    "HOLD_FACTOR",
+    "HOLD_CEILING",
+    "MIN_TESTED",
+]
 
 logger = logging.getLogger("sympredict.estimators.structure")
 
@@ -107,7 +123,11 @@ class StructureFinding:
     n_tested: int = 0
 
     def summary(self) -> str:
-        what = f"{self.kind} diag{self.signs}" if self.signs is not None else f"{self.kind} in coordinate {self.coordinate}"
+        what = (
+            f"{self.kind} diag{self.signs}"
+            if self.signs is not None
+            else f"{self.kind} in coordinate {self.coordinate}"
+        )
         return f"{what}: {self.verdict} ({self.reason})"
 
 
@@ -146,8 +166,9 @@ def _kind_of(g: np.ndarray) -> Optional[str]:
     return None
 
 
-def _relative_errors(model, x_in: np.ndarray, x_out: np.ndarray, data: FlowMapData, uses_mu: bool,
-                     uses_dt: bool) -> np.ndarray:
+def _relative_errors(
+    model, x_in: np.ndarray, x_out: np.ndarray, data: FlowMapData, uses_mu: bool, uses_dt: bool
+) -> np.ndarray:
     """``|Phi(x_in) - x_out| / |x_out - x_in|`` per pair (inf where Newton fails)."""
     inc = np.linalg.norm(x_out - x_in, axis=1)
     failures = (ArithmeticError, NewtonConvergenceError, NonFinitePredictionError, ValueError)
@@ -174,8 +195,16 @@ def validation_error(model, val: FlowMapData, uses_mu: bool = True, uses_dt: boo
     return float(np.nanmedian(_relative_errors(model, val.x0, val.x1, val, uses_mu, uses_dt)))
 
 
-def check_sign_flip(model, train: FlowMapData, val: FlowMapData, signs, kind: str, uses_mu: bool = True,
-                    uses_dt: bool = True, e_validation: Optional[float] = None) -> StructureFinding:
+def check_sign_flip(
+    model,
+    train: FlowMapData,
+    val: FlowMapData,
+    signs,
+    kind: str,
+    uses_mu: bool = True,
+    uses_dt: bool = True,
+    e_validation: Optional[float] = None,
+) -> StructureFinding:
     """Whether ``diag(signs)`` is a symmetry (``kind='symmetry'``) or a reversing symmetry of the sampled flow.
 
     Parameters
@@ -213,23 +242,37 @@ def check_sign_flip(model, train: FlowMapData, val: FlowMapData, signs, kind: st
     near = np.all((a >= lo - margin) & (a <= hi + margin), axis=1)
     name = f"diag{tuple(int(v) for v in signs)}"
     if near.sum() < MIN_TESTED:
-        return StructureFinding(kind, "untestable", f"only {int(near.sum())} of {len(a)} transformed validation "
-                                f"inputs lie in the box of the training inputs (at least {MIN_TESTED} needed): {name} "
-                                "maps the data where there are none", signs=tuple(int(v) for v in signs),
-                                n_tested=int(near.sum()))
+        return StructureFinding(
+            kind,
+            "untestable",
+            f"only {int(near.sum())} of {len(a)} transformed validation "
+            f"inputs lie in the box of the training inputs (at least {MIN_TESTED} needed): {name} "
+            "maps the data where there are none",
+            signs=tuple(int(v) for v in signs),
+            n_tested=int(near.sum()),
+        )
     e0 = validation_error(model, val, uses_mu, uses_dt) if e_validation is None else float(e_validation)
     sub = val.subset(np.flatnonzero(near))
     et = float(np.nanmedian(_relative_errors(model, a[near], b[near], sub, uses_mu, uses_dt)))
     holds = et <= HOLD_FACTOR * e0 and et <= HOLD_CEILING
     pairs = "(g x0, g x1)" if kind == "symmetry" else "(g x1, g x0)"
-    reason = (f"a quick model's median relative one-step error on {int(near.sum())} pairs {pairs} is {et:.3g}, on the "
-              f"validation pairs {e0:.3g}: {'within' if holds else 'beyond'} {HOLD_FACTOR:g} x and {HOLD_CEILING:g}")
+    reason = (
+        f"a quick model's median relative one-step error on {int(near.sum())} pairs {pairs} is {et:.3g}, on the "
+        f"validation pairs {e0:.3g}: {'within' if holds else 'beyond'} {HOLD_FACTOR:g} x and {HOLD_CEILING:g}"
+    )
     verdict = "holds" if holds else "fails"
     if not holds and not e0 <= HOLD_CEILING:  # the data's own pairs are not predicted: nothing to compare with
         verdict = "untestable"
         reason += " (the validation error itself is above the ceiling: data too noisy or the model too coarse)"
-    return StructureFinding(kind, verdict, reason, signs=tuple(int(v) for v in signs),
-                            e_transformed=et, e_validation=e0, n_tested=int(near.sum()))
+    return StructureFinding(
+        kind,
+        verdict,
+        reason,
+        signs=tuple(int(v) for v in signs),
+        e_transformed=et,
+        e_validation=e0,
+        n_tested=int(near.sum()),
+    )
 
 
 def check_group(model, train, val, group, uses_mu=True, uses_dt=True) -> list:
@@ -274,13 +317,18 @@ def wrapped_coordinates(data: FlowMapData, period: float = 2 * np.pi) -> list:
         typical = float(np.median(np.abs(di[~jump])))
         span = float(np.ptp(x[:, i]))
         if typical < period / 8 and span <= 1.05 * period:
-            out.append(StructureFinding(
-                "wrapped angle", "holds",
-                f"{int(jump.sum())} of {len(di)} samples jump by about {period:.6g} (a period) between consecutive "
-                f"states while the median step is {typical:.3g}, and the values span {span:.6g}: an angle reduced to "
-                f"one period. Unwrap each trajectory (numpy.unwrap along time, or x1 = x0 + the increment reduced "
-                f"to [-P/2, P/2)) and pass Periodic(None, coordinates=({i},)) as the state kernel",
-                coordinate=i, n_tested=int(jump.sum())))
+            out.append(
+                StructureFinding(
+                    "wrapped angle",
+                    "holds",
+                    f"{int(jump.sum())} of {len(di)} samples jump by about {period:.6g} (a period) between consecutive "
+                    f"states while the median step is {typical:.3g}, and the values span {span:.6g}: an angle reduced to "
+                    f"one period. Unwrap each trajectory (numpy.unwrap along time, or x1 = x0 + the increment reduced "
+                    f"to [-P/2, P/2)) and pass Periodic(None, coordinates=({i},)) as the state kernel",
+                    coordinate=i,
+                    n_tested=int(jump.sum()),
+                )
+            )
     return out
 
 
@@ -290,12 +338,25 @@ def warn_wrapped_angles(data: FlowMapData) -> None:
     n = data.x0.shape[1] // 2
     for f in wrapped_coordinates(data):
         name = f"q{f.coordinate + 1}" if f.coordinate < n else f"p{f.coordinate - n + 1}"
-        warnings.warn(f"state coordinate {f.coordinate} ({name}) looks like a wrapped angle: {f.reason}",
-                      WrappedAngleWarning, stacklevel=5)
+        warnings.warn(
+            f"state coordinate {f.coordinate} ({name}) looks like a wrapped angle: {f.reason}",
+            WrappedAngleWarning,
+            stacklevel=5,
+        )
 
 
-def compete(estimator, chosen: dict, chosen_score: float, m_final: int, train: FlowMapData, val: FlowMapData,
-            score, open_state: bool, open_update: bool, by_update: Optional[dict] = None):
+def compete(
+    estimator,
+    chosen: dict,
+    chosen_score: float,
+    m_final: int,
+    train: FlowMapData,
+    val: FlowMapData,
+    score,
+    open_state: bool,
+    open_update: bool,
+    by_update: Optional[dict] = None,
+):
     """The search's structure stage: test the candidates and let those that hold compete with ``chosen``.
 
     Parameters
@@ -353,8 +414,7 @@ def compete(estimator, chosen: dict, chosen_score: float, m_final: int, train: F
     if declared is not None:  # the user's group: tested and reported, never replaced
         for f in check_group(quick, train, val, declared, uses_mu, uses_dt):
             findings.append(f)
-            (logger.warning if f.verdict == "fails" else logger.info)(
-                "structure (declared group): %s", f.summary())
+            (logger.warning if f.verdict == "fails" else logger.info)("structure (declared group): %s", f.summary())
         return chosen, chosen_score, findings
     holding = []
     e0 = validation_error(quick, val, uses_mu, uses_dt)
@@ -375,14 +435,22 @@ def compete(estimator, chosen: dict, chosen_score: float, m_final: int, train: F
         reversing = any(_kind_of(np.diag(np.asarray(s, dtype=float))) == "reversing symmetry" for s in group)
         update = "midpoint" if reversing else chosen["update"]
         if reversing and not open_update and str(getattr(chosen["update"], "name", chosen["update"])) != "midpoint":
-            logger.info("structure: the group %s reverses time, which only the midpoint update carries; the "
-                        "update is given, so it does not compete", group)
+            logger.info(
+                "structure: the group %s reverses time, which only the midpoint update carries; the "
+                "update is given, so it does not compete",
+                group,
+            )
             continue
         base = (by_update or {}).get(update, chosen) if update != chosen["update"] else chosen
         cand = {**base, "state_kernel": Symmetric(base["state_kernel"], group=group), "update": update}
         value = score(cand)
-        logger.info("structure: Symmetric(group=%s) with update %r: held-out one-step error %.3e (without: %.3e)",
-                    group, update, value, chosen_score)
+        logger.info(
+            "structure: Symmetric(group=%s) with update %r: held-out one-step error %.3e (without: %.3e)",
+            group,
+            update,
+            value,
+            chosen_score,
+        )
         if value < best_score:
             best, best_score = cand, value
     return best, best_score, findings

@@ -167,8 +167,9 @@ class NormalizedFlowMap:
         ``Mu`` is read by ``Mu.to_numpy()`` and a dict must have one key.
     """
 
-    def __init__(self, predictor, state_scaling: SymplecticScaling, mu_scaling: Optional[BoxScaling], tau: float,
-                 parameters=None):
+    def __init__(
+        self, predictor, state_scaling: SymplecticScaling, mu_scaling: Optional[BoxScaling], tau: float, parameters=None
+    ):
         self.predictor = predictor
         self.state_scaling = state_scaling
         self.mu_scaling = mu_scaling
@@ -216,13 +217,19 @@ class NormalizedFlowMap:
             lo = self.mu_scaling.inverse_transform(np.asarray(domain["mu_min"])[None])[0]
             hi = self.mu_scaling.inverse_transform(np.asarray(domain["mu_max"])[None])[0]
             given = np.asarray(mu, dtype=float).reshape(-1, len(lo))
-            parts.append(f"mu spans {given.min(axis=0).tolist()}..{given.max(axis=0).tolist()}, "
-                         f"training box {lo.tolist()}..{hi.tolist()}")
+            parts.append(
+                f"mu spans {given.min(axis=0).tolist()}..{given.max(axis=0).tolist()}, "
+                f"training box {lo.tolist()}..{hi.tolist()}"
+            )
         if domain is not None and dt is not None:
-            parts.append(f"dt = {np.unique(np.asarray(dt, dtype=float))[:5].tolist()}, training steps "
-                         f"{float(domain['dt_min']) * self.tau!r}..{float(domain['dt_max']) * self.tau!r}")
-        return ("extrapolation: the query (or its trajectory) leaves the training data of the flow map; in the caller's "
-                "units: " + ("; ".join(parts) if parts else "the states leave the box of the training states"))
+            parts.append(
+                f"dt = {np.unique(np.asarray(dt, dtype=float))[:5].tolist()}, training steps "
+                f"{float(domain['dt_min']) * self.tau!r}..{float(domain['dt_max']) * self.tau!r}"
+            )
+        return (
+            "extrapolation: the query (or its trajectory) leaves the training data of the flow map; in the caller's "
+            "units: " + ("; ".join(parts) if parts else "the states leave the box of the training states")
+        )
 
     @property
     def dim_(self) -> int:
@@ -239,8 +246,9 @@ class NormalizedFlowMap:
         x = np.atleast_2d(np.asarray(x, dtype=float))
         mu = self._mu(mu, len(x))
         m, d = self._args(mu, dt, len(x))
-        return self.state_scaling.inverse_transform(self._in_user_units(
-            lambda: self.predictor.step(self.state_scaling.transform(x), mu=m, dt=d), mu, dt))
+        return self.state_scaling.inverse_transform(
+            self._in_user_units(lambda: self.predictor.step(self.state_scaling.transform(x), mu=m, dt=d), mu, dt)
+        )
 
     def step_jacobian(self, x, mu=None, dt=None) -> np.ndarray:
         """``D Phi = T^-1 D Phi~ T``, shape (B, 2n, 2n)."""
@@ -256,12 +264,16 @@ class NormalizedFlowMap:
         x0 = np.atleast_2d(np.asarray(x0, dtype=float))
         mu = self._mu(mu, len(x0))
         m, d = self._args(mu, dt, len(x0))
-        return self.state_scaling.inverse_transform(self._in_user_units(
-            lambda: self.predictor.rollout(self.state_scaling.transform(x0), n_steps, mu=m, dt=d), mu, dt))
+        return self.state_scaling.inverse_transform(
+            self._in_user_units(
+                lambda: self.predictor.rollout(self.state_scaling.transform(x0), n_steps, mu=m, dt=d), mu, dt
+            )
+        )
 
 
-def scaled_quadratic_part(quadratic: QuadraticPart, state_scaling: SymplecticScaling, mu_scaling: Optional[BoxScaling],
-                          tau: float) -> QuadraticPart:
+def scaled_quadratic_part(
+    quadratic: QuadraticPart, state_scaling: SymplecticScaling, mu_scaling: Optional[BoxScaling], tau: float
+) -> QuadraticPart:
     """The quadratic part ``A(mu)`` in the scaled coordinates of :class:`NormalizedFlowMap`.
 
     With ``x~ = M x`` (``M^T J M = sigma^2 J``), ``mu = lo + width * mu~`` and ``dT~ = dT / tau``, the flow of
@@ -304,8 +316,10 @@ def scaled_quadratic_part(quadratic: QuadraticPart, state_scaling: SymplecticSca
     if mu_scaling is None:
         raise ValueError("scaled_quadratic_part: A(mu) depends on mu, pass the fitted mu_scaling")
     if np.any(pw < 0) or np.any(pw != np.round(pw)):
-        raise ValueError(f"scaled_quadratic_part: an affine scaling of mu keeps A(mu) a sum of monomials only for "
-                         f"non-negative integer powers, got {pw.tolist()}")
+        raise ValueError(
+            f"scaled_quadratic_part: an affine scaling of mu keeps A(mu) a sum of monomials only for "
+            f"non-negative integer powers, got {pw.tolist()}"
+        )
     lo, width = np.asarray(mu_scaling.lo_, dtype=float), np.asarray(mu_scaling.width_, dtype=float)
     terms = {}
     for A, p in zip(scaled, pw.astype(int)):

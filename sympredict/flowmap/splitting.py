@@ -123,11 +123,15 @@ class SplitKernelPredictor(Parametrized):
         """The validated quadratic part for states of ``dim`` and ``n_mu`` parameter components (the inner
         predictor's type is checked by :meth:`fit` before the data)."""
         if not isinstance(self.quadratic, QuadraticPart):
-            raise ValueError(f"quadratic must be a sympredict.systems.linear_flow.QuadraticPart, got {self.quadratic!r}")
+            raise ValueError(
+                f"quadratic must be a sympredict.systems.linear_flow.QuadraticPart, got {self.quadratic!r}"
+            )
         mats, pw = self.quadratic.checked(dim=dim)
         if pw.shape[1] and not n_mu:
-            raise ValueError(f"the quadratic part depends on mu ({pw.shape[1]} component(s)): pass mu (and give the "
-                             "inner predictor a mu_kernel)")
+            raise ValueError(
+                f"the quadratic part depends on mu ({pw.shape[1]} component(s)): pass mu (and give the "
+                "inner predictor a mu_kernel)"
+            )
         mats, pw = self.quadratic.checked(dim=dim, n_mu=n_mu)
         return QuadraticPart(mats, pw)
 
@@ -152,8 +156,9 @@ class SplitKernelPredictor(Parametrized):
         self
         """
         if not isinstance(self.predictor, SymplecticKernelPredictor):
-            raise ValueError(f"predictor must be a SymplecticKernelPredictor (the inner symplectic step S), "
-                             f"got {self.predictor!r}")
+            raise ValueError(
+                f"predictor must be a SymplecticKernelPredictor (the inner symplectic step S), got {self.predictor!r}"
+            )
         # the inner model's own checks of the data (shapes, mu against its mu_kernel, dt against its dt_kernel)
         data, validation = self.predictor.validate_data(x0, x1, mu, dt, validation)
         dim, n_mu = data.x0.shape[1], data.mu.shape[1]
@@ -165,7 +170,9 @@ class SplitKernelPredictor(Parametrized):
             val = (v0, v1, validation.mu if n_mu else None, validation.dt)
         inner = clone(self.predictor)
         inner.fit(y0, y1, mu=data.mu if n_mu else None, dt=data.dt, validation=val)
-        logger.info(f"split predictor: inner step fitted with {inner.n_centers_} centres ({inner.history_.stop_reason})")
+        logger.info(
+            f"split predictor: inner step fitted with {inner.n_centers_} centres ({inner.history_.stop_reason})"
+        )
         self.predictor_ = inner
         self.quadratic_ = quad
         self.dim_ = dim
@@ -188,7 +195,9 @@ class SplitKernelPredictor(Parametrized):
             L = np.full((b, self.dim_, self.dim_), np.nan)
         finite = np.isfinite(L).all(axis=(1, 2))
         if not finite.all():  # the exact linear flow overflowed (a quadratic part far too stiff for dt)
-            raise NonFinitePredictionError(np.flatnonzero(~finite), "the quadratic part's flow L_h of this SplitKernelPredictor")
+            raise NonFinitePredictionError(
+                np.flatnonzero(~finite), "the quadratic part's flow L_h of this SplitKernelPredictor"
+            )
         return x, single, mu_arr, dt_arr, L
 
     def _inner_mu(self, mu_arr):
@@ -224,8 +233,9 @@ class SplitKernelPredictor(Parametrized):
         stride = as_positive_int(stride, "stride")
         x, single, mu, dt, L = self._query(x0, mu, dt, name="x0")
         # the inner model's public hook: x_k+1 = L_h S(L_h x_k) on its solver; it checks its inputs L_h x_k
-        traj = self.predictor_.rollout(x, n_steps, mu=self._inner_mu(mu), dt=dt, stride=stride, progress=progress,
-                                       around=(L, L))
+        traj = self.predictor_.rollout(
+            x, n_steps, mu=self._inner_mu(mu), dt=dt, stride=stride, progress=progress, around=(L, L)
+        )
         return traj[0] if single else traj
 
     def step_jacobian(self, x, mu=None, dt=None) -> np.ndarray:
@@ -242,8 +252,13 @@ class SplitKernelPredictor(Parametrized):
         self._check_fitted()
         inner_settings, inner_arrays = model_files.to_container(self.predictor_)
         mats, pw = self.quadratic_.checked()
-        settings = {"layout": MODEL_LAYOUT, "class": type(self).__name__, "dim": self.dim_, "n_mu": self.n_mu_,
-                    "inner": inner_settings}
+        settings = {
+            "layout": MODEL_LAYOUT,
+            "class": type(self).__name__,
+            "dim": self.dim_,
+            "n_mu": self.n_mu_,
+            "inner": inner_settings,
+        }
         arrays = {f"{_INNER}{k}": v for k, v in inner_arrays.items()}
         arrays.update({"quadratic_matrices": mats, "quadratic_powers": pw})
         write_container(path, MODEL_FORMAT, settings, arrays, overwrite=overwrite)
@@ -263,40 +278,60 @@ class SplitKernelPredictor(Parametrized):
             raise ModelFileError(f"{str(path)!r} holds a {found!r}, not a {cls.__name__}")
         expected = {"layout", "class", "dim", "n_mu", "inner"}
         if set(settings) != expected:
-            raise ModelFileError(f"{where}: its settings must have exactly the keys {sorted(expected)}, "
-                                 f"got {sorted(settings)}")
+            raise ModelFileError(
+                f"{where}: its settings must have exactly the keys {sorted(expected)}, got {sorted(settings)}"
+            )
         if settings["layout"] == 2:
             raise pre_release_layout(path)
         if settings["layout"] != MODEL_LAYOUT:
             raise ModelFileError(f"{where}: unknown layout {settings['layout']!r}")
         dim, n_mu = settings["dim"], settings["n_mu"]
-        if not all(isinstance(v, int) and not isinstance(v, bool) for v in (dim, n_mu)) or dim < 2 or dim % 2 or n_mu < 0:
+        if (
+            not all(isinstance(v, int) and not isinstance(v, bool) for v in (dim, n_mu))
+            or dim < 2
+            or dim % 2
+            or n_mu < 0
+        ):
             raise ModelFileError(f"{where}: invalid dimensions dim={dim!r}, n_mu={n_mu!r}")
         inner_settings = settings["inner"]
         if not isinstance(inner_settings, dict) or inner_settings.get("class") != SymplecticKernelPredictor.__name__:
             raise ModelFileError(f"{where}: the inner model must be a SymplecticKernelPredictor")
         if set(arrays) - {k for k in arrays if k.startswith(_INNER)} != {"quadratic_matrices", "quadratic_powers"}:
             extra = sorted(k for k in arrays if not k.startswith(_INNER))
-            raise ModelFileError(f"{where}: expected the arrays 'quadratic_matrices', 'quadratic_powers' and the inner "
-                                 f"model's, got {extra}")
+            raise ModelFileError(
+                f"{where}: expected the arrays 'quadratic_matrices', 'quadratic_powers' and the inner "
+                f"model's, got {extra}"
+            )
         mats, pw = arrays["quadratic_matrices"], arrays["quadratic_powers"]
         for name, arr in (("quadratic_matrices", mats), ("quadratic_powers", pw)):
             if arr.dtype.kind != "f" or not np.all(np.isfinite(arr)):
                 raise ModelFileError(f"{where}: {name} must be finite floats")
-        if mats.ndim != 3 or mats.shape[1:] != (dim, dim) or pw.ndim != 2 or pw.shape[0] != mats.shape[0] \
-                or pw.shape[1] not in (0, n_mu):
-            raise ModelFileError(f"{where}: quadratic_matrices {mats.shape} / quadratic_powers {pw.shape} do not fit "
-                                 f"dim={dim}, n_mu={n_mu}")
+        if (
+            mats.ndim != 3
+            or mats.shape[1:] != (dim, dim)
+            or pw.ndim != 2
+            or pw.shape[0] != mats.shape[0]
+            or pw.shape[1] not in (0, n_mu)
+        ):
+            raise ModelFileError(
+                f"{where}: quadratic_matrices {mats.shape} / quadratic_powers {pw.shape} do not fit "
+                f"dim={dim}, n_mu={n_mu}"
+            )
         try:
             quad = QuadraticPart(*QuadraticPart(mats, pw).checked(dim=dim, n_mu=n_mu))
         except ValueError as exc:
             raise ModelFileError(f"{where}: {exc}") from None
         inner = model_files.from_container(
-            SymplecticKernelPredictor, inner_settings, {k[len(_INNER):]: v for k, v in arrays.items() if k.startswith(_INNER)},
-            path)
+            SymplecticKernelPredictor,
+            inner_settings,
+            {k[len(_INNER) :]: v for k, v in arrays.items() if k.startswith(_INNER)},
+            path,
+        )
         if inner.dim_ != dim or inner.n_mu_ != n_mu:
-            raise ModelFileError(f"{where}: the inner model's dimensions ({inner.dim_}, {inner.n_mu_}) disagree with "
-                                 f"the file's ({dim}, {n_mu})")
+            raise ModelFileError(
+                f"{where}: the inner model's dimensions ({inner.dim_}, {inner.n_mu_}) disagree with "
+                f"the file's ({dim}, {n_mu})"
+            )
         if pw.shape[1] and not n_mu:
             raise ModelFileError(f"{where}: the quadratic part needs a parameter the model does not have")
         box = inner.domain_

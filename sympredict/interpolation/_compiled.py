@@ -37,8 +37,15 @@ from sympredict._numba import FJIT, JIT, PJIT, call, check_available, compiled, 
 from sympredict.kernels import IMQ
 from sympredict.kernels._compiled import _all_factors, _first_factors, _periodic_formulas, _profile, family_kernels
 
-__all__ = ["CenterLayout", "chunk_size", "gradients", "newton_terms", "factor_throughput", "hb_column",
-           "hb_column_supported"]
+__all__ = [
+    "CenterLayout",
+    "chunk_size",
+    "gradients",
+    "newton_terms",
+    "factor_throughput",
+    "hb_column",
+    "hb_column_supported",
+]
 
 _EPS = float(np.finfo(float).eps)
 
@@ -167,14 +174,14 @@ def _chunk(xi, w, cT, j0, L, l, family, eps, mode, dif, r2, dmax, uB, uC, ubg, t
     # coordinates (2n is even), which halves the traffic of r2 and dmax.  The chunk's rows are
     # views indexed from 0 (an index j0 + j would be checked for wraparound per element), and
     # the max is a select (numba's max() on floats does not vectorise).
-    wc = w[j0:j0 + L]
+    wc = w[j0 : j0 + L]
     for a in range(0, dim, 2):
         xa = xi[a]
         xb = xi[a + 1]
         row_a = dif[a]
         row_b = dif[a + 1]
-        ca = cT[a, j0:j0 + L]
-        cb = cT[a + 1, j0:j0 + L]
+        ca = cT[a, j0 : j0 + L]
+        cb = cT[a + 1, j0 : j0 + L]
         if a == 0:
             for j in range(L):
                 da = xa - ca[j]
@@ -277,21 +284,21 @@ def _chunk2(xi, w, cT, j0, L, l, family, eps, mode, grad, hess):
     """
     x0 = xi[0]
     x1 = xi[1]
-    c0 = cT[0, j0:j0 + L]
-    c1 = cT[1, j0:j0 + L]
-    cl = cT[l, j0:j0 + L]  # the differentiated coordinate: g = x_l - c_l without a select per centre
+    c0 = cT[0, j0 : j0 + L]
+    c1 = cT[1, j0 : j0 + L]
+    cl = cT[l, j0 : j0 + L]  # the differentiated coordinate: g = x_l - c_l without a select per centre
     xl = xi[l]
-    wc = w[j0:j0 + L]
-    s_a = 0.0   # sum w A
+    wc = w[j0 : j0 + L]
+    s_a = 0.0  # sum w A
     s_bg = 0.0  # sum w B g
-    g0 = 0.0    # sum w B g d_0
-    g1 = 0.0    # sum w B g d_1
-    fl = 0.0    # floor terms
-    h00 = 0.0   # sum w C g d_0 d_0
-    h01 = 0.0   # sum w C g d_0 d_1
-    h11 = 0.0   # sum w C g d_1 d_1
-    m0 = 0.0    # sum w B d_0
-    m1 = 0.0    # sum w B d_1
+    g0 = 0.0  # sum w B g d_0
+    g1 = 0.0  # sum w B g d_1
+    fl = 0.0  # floor terms
+    h00 = 0.0  # sum w C g d_0 d_0
+    h01 = 0.0  # sum w C g d_0 d_1
+    h11 = 0.0  # sum w C g d_1 d_1
+    m0 = 0.0  # sum w B d_0
+    m1 = 0.0  # sum w B d_1
     for j in range(L):
         d0 = x0 - c0[j]
         d1 = x1 - c1[j]
@@ -347,10 +354,10 @@ def _chunk_periodic(xi, w, cT, j0, L, l, family, eps, mode, per, dif, g1r, r2, d
     """
     dim = cT.shape[0]
     n = dim // 2
-    wc = w[j0:j0 + L]
+    wc = w[j0 : j0 + L]
     for a in range(dim):
         xa = xi[a]
-        ca = cT[a, j0:j0 + L]
+        ca = cT[a, j0 : j0 + L]
         row = dif[a]
         row1 = g1r[a]
         period = per[a]
@@ -456,8 +463,9 @@ def _pass(xi, w, cT, seg, family, eps, mode, per, sc, grad, hess):
         if periodic:  # tmp holds g'' of the differentiated coordinate
             for j0 in range(seg[l], seg[l + 1], ch):
                 L = min(ch, seg[l + 1] - j0)
-                floor += _chunk_periodic(xi, w, cT, j0, L, l, family, eps, mode, per, dif, g1r, r2, dmax, uB, uC,
-                                         ubg, tmp, grad, hess)
+                floor += _chunk_periodic(
+                    xi, w, cT, j0, L, l, family, eps, mode, per, dif, g1r, r2, dmax, uB, uC, ubg, tmp, grad, hess
+                )
             continue
         if dim == 2:  # no scratch, so no chunks: one loop over the component's centres
             floor += _chunk2(xi, w, cT, seg[l], seg[l + 1] - seg[l], l, family, eps, mode, grad, hess)
@@ -476,8 +484,16 @@ def _pass(xi, w, cT, seg, family, eps, mode, per, sc, grad, hess):
 def _scratch(dim, chunk, periodic):
     """The pass's scratch (:func:`_pass` ``sc``): differences (2n, chunk), six chunk vectors and, with periodic
     coordinates, ``g'`` (2n, chunk) (else a placeholder)."""
-    return (np.empty((dim, chunk)), np.empty(chunk), np.empty(chunk), np.empty(chunk), np.empty(chunk),
-            np.empty(chunk), np.empty(chunk), np.empty((dim if periodic else 1, chunk if periodic else 1)))
+    return (
+        np.empty((dim, chunk)),
+        np.empty(chunk),
+        np.empty(chunk),
+        np.empty(chunk),
+        np.empty(chunk),
+        np.empty(chunk),
+        np.empty(chunk),
+        np.empty((dim if periodic else 1, chunk if periodic else 1)),
+    )
 
 
 @compiled(PJIT)
@@ -501,8 +517,9 @@ def _terms_kernel(xi, W, cT, seg, family, eps, per, chunk, mode, grad, hess, flo
 
 
 @compiled(JIT)
-def _hb_column2_range(p0, p1, points, mu, dt, xq, muq, dtq, b, e, first_family, emu, mu_family, edt, dt_family,
-                      has_mu, has_dt, out):
+def _hb_column2_range(
+    p0, p1, points, mu, dt, xq, muq, dtq, b, e, first_family, emu, mu_family, edt, dt_family, has_mu, has_dt, out
+):
     """Column entries of points ``p0:p1`` (``2n = 2``), the operations of the NumPy column in its order."""
     d_mu = mu.shape[1]
     for p in range(p0, p1):
@@ -532,20 +549,58 @@ def _hb_column2_range(p0, p1, points, mu, dt, xq, muq, dtq, b, e, first_family, 
 
 
 @compiled(JIT)
-def _hb_column2_serial(points, mu, dt, xq, muq, dtq, b, e, first_family, emu, mu_family, edt, dt_family,
-                       has_mu, has_dt, out):
-    _hb_column2_range(0, points.shape[0], points, mu, dt, xq, muq, dtq, b, e, first_family, emu,
-                      mu_family, edt, dt_family, has_mu, has_dt, out)
+def _hb_column2_serial(
+    points, mu, dt, xq, muq, dtq, b, e, first_family, emu, mu_family, edt, dt_family, has_mu, has_dt, out
+):
+    _hb_column2_range(
+        0,
+        points.shape[0],
+        points,
+        mu,
+        dt,
+        xq,
+        muq,
+        dtq,
+        b,
+        e,
+        first_family,
+        emu,
+        mu_family,
+        edt,
+        dt_family,
+        has_mu,
+        has_dt,
+        out,
+    )
 
 
 @compiled(PJIT)
-def _hb_column2_parallel(points, mu, dt, xq, muq, dtq, b, e, first_family, emu, mu_family, edt, dt_family,
-                         has_mu, has_dt, out):
+def _hb_column2_parallel(
+    points, mu, dt, xq, muq, dtq, b, e, first_family, emu, mu_family, edt, dt_family, has_mu, has_dt, out
+):
     n_pts = points.shape[0]
     block = 32768
     for k in numba.prange((n_pts + block - 1) // block):
-        _hb_column2_range(k * block, min(n_pts, (k + 1) * block), points, mu, dt, xq, muq, dtq, b, e, first_family,
-                          emu, mu_family, edt, dt_family, has_mu, has_dt, out)
+        _hb_column2_range(
+            k * block,
+            min(n_pts, (k + 1) * block),
+            points,
+            mu,
+            dt,
+            xq,
+            muq,
+            dtq,
+            b,
+            e,
+            first_family,
+            emu,
+            mu_family,
+            edt,
+            dt_family,
+            has_mu,
+            has_dt,
+            out,
+        )
 
 
 def gradients(xi, group, group_weights, layout: CenterLayout, kernel) -> np.ndarray:
@@ -578,8 +633,19 @@ def gradients(xi, group, group_weights, layout: CenterLayout, kernel) -> np.ndar
     out = np.empty_like(xi)
     wg = np.ascontiguousarray(np.asarray(group_weights, dtype=np.float64)[:, layout.order])
     ns, (family,) = family_kernels(type(kernel))
-    call(ns._gradients_kernel, xi, np.ascontiguousarray(group, dtype=np.int64), wg, layout.cT, layout.seg, family,
-          float(kernel.eps), layout.per, chunk_size(xi.shape[1]), out)
+    call(
+        ns._gradients_kernel,
+        xi,
+        np.ascontiguousarray(group, dtype=np.int64),
+        wg,
+        layout.cT,
+        layout.seg,
+        family,
+        float(kernel.eps),
+        layout.per,
+        chunk_size(xi.shape[1]),
+        out,
+    )
     return out
 
 
@@ -617,8 +683,21 @@ def newton_terms(xi, weights, layout: CenterLayout, kernel, full: bool = False):
     grad, hess, floor = np.empty((b, dim)), np.empty((b, dim, dim)), np.empty(b)
     w = np.ascontiguousarray(np.asarray(weights, dtype=np.float64)[:, layout.order])
     ns, (family,) = family_kernels(type(kernel))
-    call(ns._terms_kernel, xi, w, layout.cT, layout.seg, family, float(kernel.eps), layout.per, chunk_size(dim),
-          2 if full else 1, grad, hess, floor)
+    call(
+        ns._terms_kernel,
+        xi,
+        w,
+        layout.cT,
+        layout.seg,
+        family,
+        float(kernel.eps),
+        layout.per,
+        chunk_size(dim),
+        2 if full else 1,
+        grad,
+        hess,
+        floor,
+    )
     return grad, (hess if full else np.ascontiguousarray(hess[:, : dim // 2, : dim // 2])), floor
 
 
@@ -688,8 +767,23 @@ def hb_column(kernel, points, mu, dt, representer, out: np.ndarray) -> np.ndarra
     emu = kernel.mu.eps if kernel.mu is not None else 0.0
     edt = kernel.dt.eps if kernel.dt is not None else 0.0
     fn = ns._hb_column2_parallel if (_numba.GREEDY_PARALLEL and len(points) > 65536) else ns._hb_column2_serial
-    call(fn, points, mu, dt, np.ascontiguousarray(xq, dtype=np.float64), np.ascontiguousarray(muq, dtype=np.float64),
-          float(dtq), int(b), float(kernel.state.eps), state_family, emu, mu_family, edt, dt_family,
-          kernel.mu is not None, kernel.dt is not None, out)
+    call(
+        fn,
+        points,
+        mu,
+        dt,
+        np.ascontiguousarray(xq, dtype=np.float64),
+        np.ascontiguousarray(muq, dtype=np.float64),
+        float(dtq),
+        int(b),
+        float(kernel.state.eps),
+        state_family,
+        emu,
+        mu_family,
+        edt,
+        dt_family,
+        kernel.mu is not None,
+        kernel.dt is not None,
+        out,
+    )
     return out
-

@@ -87,7 +87,9 @@ class HBFunctionals(_AugmentedPoints):
         self._parameter_groups = None  # distinct (mu, dT) and each point's group, made on first use
         # compiled column where it is bit-identical to the NumPy one (2n = 2, IMQ factors)
         # (the compiled kernels know no periodic coordinates)
-        self._compiled_column = kernel.periodic is None and _compiled.hb_column_supported(kernel, self.dim, self.mu.shape[1])
+        self._compiled_column = kernel.periodic is None and _compiled.hb_column_supported(
+            kernel, self.dim, self.mu.shape[1]
+        )
         if kernel.periodic is not None:
             kernel.periodic.check_dim(self.dim)
         if kernel.symmetry is not None:
@@ -97,8 +99,9 @@ class HBFunctionals(_AugmentedPoints):
         symmetry = self.kernel.symmetry
         if symmetry is not None:  # depends on the point: k_G(x, x) sums over the images g x
             pts = np.repeat(self.points, self.dim, axis=0)
-            return symmetry.hb_diagonal(self.kernel.state, pts, np.tile(np.arange(self.dim), len(self.points)),
-                                        self.kernel.periodic)
+            return symmetry.hb_diagonal(
+                self.kernel.state, pts, np.tile(np.arange(self.dim), len(self.points)), self.kernel.periodic
+            )
         # r = 0: d/dx_a d/dy_a k = -A(0); the parameter factors are 1 on the diagonal
         A0, _ = self.kernel.state.factors(np.zeros(1), order=2)
         return np.full(self.n_functionals, -A0[0])
@@ -145,7 +148,6 @@ class HBFunctionals(_AugmentedPoints):
             np.multiply(diff, (-(w * B) * diff[:, b])[:, None], out=blk)
             blk[:, b] -= w * A if g1 is None else w * A * g1[:, b]
         return out
-
 
     def gram_rows(self, others: "HBFunctionals", indices: np.ndarray, out: np.ndarray) -> np.ndarray:
         """Gramian rows ``lambda_{i_k}^(1) lambda^(2) k`` of functionals of ``others`` against all of this set.
@@ -237,8 +239,12 @@ class ValueFunctionals(_AugmentedPoints):
 
 
 def functional_residuals(
-    functionals: HBFunctionals, targets: np.ndarray, selected: np.ndarray, coef: np.ndarray,
-    points: Optional[np.ndarray] = None, compiled: Optional[bool] = None,
+    functionals: HBFunctionals,
+    targets: np.ndarray,
+    selected: np.ndarray,
+    coef: np.ndarray,
+    points: Optional[np.ndarray] = None,
+    compiled: Optional[bool] = None,
 ) -> np.ndarray:
     """Residuals ``y_i - lambda_i(s)`` of an HB interpolant at *every* candidate, by direct evaluation.
 
@@ -282,11 +288,15 @@ def functional_residuals(
     if len(selected) == 0:
         return y.reshape(-1).copy()
     if compiled and functionals.kernel.periodic is not None:
-        raise ValueError("functional_residuals: the compiled evaluation does not support periodic coordinates "
-                         "(periodic=...): pass compiled=False or None")
+        raise ValueError(
+            "functional_residuals: the compiled evaluation does not support periodic coordinates "
+            "(periodic=...): pass compiled=False or None"
+        )
     if compiled and functionals.kernel.symmetry is not None:
-        raise ValueError("functional_residuals: the compiled evaluation does not support a state symmetry "
-                         "(symmetry=...): pass compiled=False or None")
+        raise ValueError(
+            "functional_residuals: the compiled evaluation does not support a state symmetry "
+            "(symmetry=...): pass compiled=False or None"
+        )
     plain = functionals.kernel.periodic is None and functionals.kernel.symmetry is None
     if plain and _numba.use_compiled(compiled):
         groups = functionals._parameter_groups

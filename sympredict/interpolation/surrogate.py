@@ -117,12 +117,18 @@ class HBSurrogate:
         # weighted by its g_{c l_j} and owned by its centre
         symmetry = kernel.symmetry
         if symmetry is None:
-            self._owner, self._xi_eval, self._comp_eval, self._coef_eval = None, self.centers_xi, self.components, self.coef
+            self._owner, self._xi_eval, self._comp_eval, self._coef_eval = (
+                None,
+                self.centers_xi,
+                self.components,
+                self.coef,
+            )
             self._image_weight = None
         else:
             symmetry.check_dim(dim)
-            self._owner, self._xi_eval, self._comp_eval, self._image_weight = symmetry.expand(self.centers_xi,
-                                                                                             self.components)
+            self._owner, self._xi_eval, self._comp_eval, self._image_weight = symmetry.expand(
+                self.centers_xi, self.components
+            )
             self._coef_eval = self._image_weight * self.coef[self._owner]
         k = len(self._xi_eval)
         # one-hot (K, 2n) matrix of the differentiated components: turns the
@@ -383,8 +389,9 @@ class HBSurrogate:
 
     def _gradient_floor(self, diff, wA, wBg) -> np.ndarray:
         """``eps_mach`` times the sum of the absolute values of a chunk's gradient terms, shape (chunk,)."""
-        return np.finfo(float).eps * (np.einsum("bm,bm->b", np.abs(wBg), self._abs_max_last(diff)) + np.abs(wA).sum(axis=1))
-
+        return np.finfo(float).eps * (
+            np.einsum("bm,bm->b", np.abs(wBg), self._abs_max_last(diff)) + np.abs(wA).sum(axis=1)
+        )
 
     # ------------------------------------------------ power function (error estimate)
     def gradient_kernel_rows(self, xi: np.ndarray, factor: np.ndarray) -> np.ndarray:
@@ -409,8 +416,10 @@ class HBSurrogate:
         """
         out = np.empty((len(xi), self.dim, self.n_centers))
         if self._owner is not None:  # sums the images' rows into their centres' columns: (K, m) 0/1 matrix
-            gather = sparse.csr_matrix((np.ones(len(self._owner)), (np.arange(len(self._owner)), self._owner)),
-                                       shape=(len(self._owner), self.n_centers))
+            gather = sparse.csr_matrix(
+                (np.ones(len(self._owner)), (np.arange(len(self._owner)), self._owner)),
+                shape=(len(self._owner), self.n_centers),
+            )
         for sl in self._chunks(len(xi)):
             diff, r, g, _, g1, _ = self._differences(xi[sl], order=2)
             A, B = self.kernel.state.factors(r, order=2)
@@ -435,9 +444,9 @@ class HBSurrogate:
             a0, _ = self.kernel.state.factors(np.zeros(1), order=2)
             return np.full(xi.shape, -float(a0[0]))
         dim = self.dim
-        return self.kernel.symmetry.hb_diagonal(self.kernel.state, np.repeat(xi, dim, axis=0),
-                                                np.tile(np.arange(dim), len(xi)),
-                                                self.kernel.periodic).reshape(len(xi), dim)
+        return self.kernel.symmetry.hb_diagonal(
+            self.kernel.state, np.repeat(xi, dim, axis=0), np.tile(np.arange(dim), len(xi)), self.kernel.periodic
+        ).reshape(len(xi), dim)
 
     def parameter_factor(self, mu: np.ndarray, dt: np.ndarray) -> np.ndarray:
         """``k_mu(mu_b, mu_j) k_dT(dT_b, dT_j)`` (B, m): :meth:`weights` without the coefficients."""
@@ -461,8 +470,9 @@ class HBSurrogate:
         step = max(1, _CHUNK_ENTRIES // max(1, m * self.dim))
         for start in range(0, m, step):
             sl = slice(start, min(m, start + step))
-            rows = self.gradient_kernel_rows(self.centers_xi[sl], self.parameter_factor(self.centers_mu[sl],
-                                                                                       self.centers_dt[sl]))
+            rows = self.gradient_kernel_rows(
+                self.centers_xi[sl], self.parameter_factor(self.centers_mu[sl], self.centers_dt[sl])
+            )
             gram[sl] = rows[np.arange(sl.stop - sl.start), self.components[sl]]
         gram = 0.5 * (gram + gram.T)
         gram[np.diag_indices(m)] += key

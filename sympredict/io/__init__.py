@@ -11,5 +11,13 @@ trajectories or flow-map pairs from ``.npz``, HDF5 or ``.csv`` files.
 from sympredict.io.formats import SCHEMA_VERSION, load_dataset, load_model, save_dataset, save_model
 from sympredict.io.trajectories import read_states, read_trajectories, write_trajectories
 
-__all__ = ["SCHEMA_VERSION", "save_model", "load_model", "save_dataset", "load_dataset", "read_trajectories",
-           "write_trajectories", "read_states"]
+__all__ = [
+    "SCHEMA_VERSION",
+    "save_model",
+    "load_model",
+    "save_dataset",
+    "load_dataset",
+    "read_trajectories",
+    "write_trajectories",
+    "read_states",
+]

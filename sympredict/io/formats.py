@@ -38,9 +38,11 @@ def save_model(model, path, *, overwrite: bool = True) -> None:
 
 
 #: What a model file is, for the errors on other files.
-MODEL_FILES = ("a model is an HDF5 file (.h5 or .hdf5) written by model.save(path), save_model or 'sympredict train'; "
-               "trajectories (.npz, .csv, .h5) and data sets of 'sympredict data' are training data: give them to "
-               "'sympredict train'")
+MODEL_FILES = (
+    "a model is an HDF5 file (.h5 or .hdf5) written by model.save(path), save_model or 'sympredict train'; "
+    "trajectories (.npz, .csv, .h5) and data sets of 'sympredict data' are training data: give them to "
+    "'sympredict train'"
+)
 _HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
 
 
@@ -60,8 +62,11 @@ def check_model_file(path) -> None:
     except OSError:
         return
     if head != _HDF5_SIGNATURE:
-        kind = ("a NumPy .npz archive" if head.startswith(b"PK") else
-                f"a {os.path.splitext(str(path))[1] or 'suffix-less'} file, not HDF5")
+        kind = (
+            "a NumPy .npz archive"
+            if head.startswith(b"PK")
+            else f"a {os.path.splitext(str(path))[1] or 'suffix-less'} file, not HDF5"
+        )
         raise ModelFileError(f"{str(path)!r} is not a sympredict model: it is {kind}; {MODEL_FILES}")
     import h5py
 
@@ -73,8 +78,10 @@ def check_model_file(path) -> None:
     if isinstance(found, bytes):
         found = found.decode("utf-8", "replace")
     if found is None:
-        raise ModelFileError(f"{str(path)!r} is an HDF5 file but not a sympredict model (no 'format' attribute: "
-                             f"trajectories?); {MODEL_FILES}")
+        raise ModelFileError(
+            f"{str(path)!r} is an HDF5 file but not a sympredict model (no 'format' attribute: "
+            f"trajectories?); {MODEL_FILES}"
+        )
     if found == _DATA_FORMAT:
         raise ModelFileError(f"{str(path)!r} is not a sympredict model but a data set; {MODEL_FILES}")
 

@@ -41,8 +41,15 @@ logger = logging.getLogger(__name__)
 _SUFFIXES = {".npz": "npz", ".h5": "hdf5", ".hdf5": "hdf5", ".csv": "csv"}
 
 
-def read_trajectories(path, *, states_key: str = "states", times_key: str = "times", dt_key: str = "dt",
-                      mu_key: str = "mu", max_bytes: int = MAX_BYTES):
+def read_trajectories(
+    path,
+    *,
+    states_key: str = "states",
+    times_key: str = "times",
+    dt_key: str = "dt",
+    mu_key: str = "mu",
+    max_bytes: int = MAX_BYTES,
+):
     """Read trajectories (or flow-map pairs) from a ``.npz``, HDF5 (``.h5``, ``.hdf5``) or ``.csv`` file.
 
     Parameters
@@ -94,7 +101,9 @@ def read_trajectories(path, *, states_key: str = "states", times_key: str = "tim
     path = Path(path)
     kind = _SUFFIXES.get(path.suffix.lower())
     if kind is None:
-        raise ValueError(f"{str(path)!r}: unknown data file type {path.suffix!r}; use .npz, .h5/.hdf5 or .csv ({LAYOUT})")
+        raise ValueError(
+            f"{str(path)!r}: unknown data file type {path.suffix!r}; use .npz, .h5/.hdf5 or .csv ({LAYOUT})"
+        )
     if not path.is_file():
         raise ValueError(f"{str(path)!r} does not exist or is not a regular file")
     keys = {"states": states_key, "times": times_key, "dt": dt_key, "mu": mu_key}
@@ -120,11 +129,17 @@ def _check_declared(path: Path, key: str, shape, dtype, budget: list) -> None:
     dtype = np.dtype(dtype)
     if dtype.kind not in "fiu" or dtype.fields is not None or dtype.subdtype is not None:
         raise ValueError(f"{_where(path, key)} has dtype {dtype}; a real numeric array is expected ({LAYOUT})")
-    if not isinstance(shape, tuple) or not all(isinstance(n, (int, np.integer)) and not isinstance(n, bool) for n in shape):
-        raise ValueError(f"{_where(path, key)} declares the shape {shape!r}: a tuple of integers is expected ({LAYOUT})")
+    if not isinstance(shape, tuple) or not all(
+        isinstance(n, (int, np.integer)) and not isinstance(n, bool) for n in shape
+    ):
+        raise ValueError(
+            f"{_where(path, key)} declares the shape {shape!r}: a tuple of integers is expected ({LAYOUT})"
+        )
     if any(int(n) < 0 for n in shape):
-        raise ValueError(f"{_where(path, key)} declares the shape {tuple(shape)} with a negative dimension: refused "
-                         f"(a damaged or crafted file); {LAYOUT}")
+        raise ValueError(
+            f"{_where(path, key)} declares the shape {tuple(shape)} with a negative dimension: refused "
+            f"(a damaged or crafted file); {LAYOUT}"
+        )
     count = 1
     for n in shape:  # Python integers: no overflow
         count *= int(n)
@@ -132,8 +147,10 @@ def _check_declared(path: Path, key: str, shape, dtype, budget: list) -> None:
         raise ValueError(f"{_where(path, key)} declares the shape {tuple(shape)}: it holds no numbers ({LAYOUT})")
     budget[0] -= max(8, dtype.itemsize) * count
     if budget[0] < 0:
-        raise ValueError(f"{_where(path, key)} declares shape {tuple(shape)}: the arrays exceed max_bytes; "
-                         "pass a larger max_bytes if the file is meant to be this large")
+        raise ValueError(
+            f"{_where(path, key)} declares shape {tuple(shape)}: the arrays exceed max_bytes; "
+            "pass a larger max_bytes if the file is meant to be this large"
+        )
 
 
 #: The compressions of ``.npz`` members read (stored, deflate, as ``np.savez``/``np.savez_compressed`` write).
@@ -163,13 +180,17 @@ class _NpzArrays:
     def get(self, key: str) -> np.ndarray:
         info = self.zip.getinfo(self.members[key])
         if info.flag_bits & 0x1:
-            raise ValueError(f"{_where(self.path, key)} is encrypted: save the arrays without a password "
-                             "(numpy.savez or numpy.savez_compressed)")
+            raise ValueError(
+                f"{_where(self.path, key)} is encrypted: save the arrays without a password "
+                "(numpy.savez or numpy.savez_compressed)"
+            )
         if info.compress_type not in _NPZ_COMPRESSIONS:
             names = {9: "Deflate64", zipfile.ZIP_BZIP2: "bzip2", zipfile.ZIP_LZMA: "LZMA"}
             method = names.get(info.compress_type, f"method {info.compress_type}")
-            raise ValueError(f"{_where(self.path, key)} is compressed with {method}; .npz members stored or "
-                             "deflate-compressed are read: save with numpy.savez or numpy.savez_compressed")
+            raise ValueError(
+                f"{_where(self.path, key)} is compressed with {method}; .npz members stored or "
+                "deflate-compressed are read: save with numpy.savez or numpy.savez_compressed"
+            )
         try:
             with self.zip.open(info) as fh:
                 version = np.lib.format.read_magic(fh)
@@ -187,7 +208,9 @@ class _NpzArrays:
                 raise
             raise ValueError(f"{_where(self.path, key)} is not a valid .npy array: {exc}") from None
         except (zipfile.BadZipFile, OSError, EOFError, RuntimeError, NotImplementedError, zipfile.LargeZipFile) as exc:
-            raise ValueError(f"{_where(self.path, key)} cannot be read (truncated, corrupted or unsupported?): {exc}") from None
+            raise ValueError(
+                f"{_where(self.path, key)} cannot be read (truncated, corrupted or unsupported?): {exc}"
+            ) from None
         if len(raw) != count * dtype.itemsize:
             raise ValueError(f"{_where(self.path, key)} declares shape {shape} but holds {len(raw)} bytes")
         arr = np.frombuffer(raw, dtype=dtype, count=count)
@@ -266,19 +289,30 @@ def _from_arrays(path: Path, arrays, keys: dict):
     states = as_trajectories(arrays.get(states_key), _where(path, states_key), allow_single=True)
     has_dt, has_times = dt_key in present, times_key in present
     if has_dt == has_times:
-        raise ValueError(f"{str(path)!r} must hold exactly one of {dt_key!r} (a uniform step) and {times_key!r} "
-                         f"((P, K+1) or (K+1,)), found {'both' if has_dt else 'neither'} ({LAYOUT})"
-                         + ("" if has_dt else
-                            f"; add the sampling step when saving, e.g. np.savez({Path(path).name!r}, {states_key}=states, "
-                            f"mu=mu, {dt_key}=0.1)" if str(path).lower().endswith(".npz") else
-                            f"; add the sampling step as a scalar data set, e.g. h5file[{dt_key!r}] = 0.1"))
+        raise ValueError(
+            f"{str(path)!r} must hold exactly one of {dt_key!r} (a uniform step) and {times_key!r} "
+            f"((P, K+1) or (K+1,)), found {'both' if has_dt else 'neither'} ({LAYOUT})"
+            + (
+                ""
+                if has_dt
+                else f"; add the sampling step when saving, e.g. np.savez({Path(path).name!r}, {states_key}=states, "
+                f"mu=mu, {dt_key}=0.1)"
+                if str(path).lower().endswith(".npz")
+                else f"; add the sampling step as a scalar data set, e.g. h5file[{dt_key!r}] = 0.1"
+            )
+        )
     dt = _real(path, dt_key, arrays.get(dt_key)) if has_dt else None
     if dt is not None and dt.size != 1:
-        raise ValueError(f"{_where(path, dt_key)} must be one positive number (uniform steps; give {times_key!r} "
-                         f"otherwise), got shape {dt.shape}")
+        raise ValueError(
+            f"{_where(path, dt_key)} must be one positive number (uniform steps; give {times_key!r} "
+            f"otherwise), got shape {dt.shape}"
+        )
     times = _real(path, times_key, arrays.get(times_key)) if has_times else None
-    return _named(path, lambda: TrajectoryData(states, mu, None if dt is None else float(dt.reshape(-1)[0]), times),
-                  {"mu": mu_key, "dt": dt_key, "times": times_key})
+    return _named(
+        path,
+        lambda: TrajectoryData(states, mu, None if dt is None else float(dt.reshape(-1)[0]), times),
+        {"mu": mu_key, "dt": dt_key, "times": times_key},
+    )
 
 
 def _named(path: Path, build, names: dict):
@@ -306,8 +340,9 @@ def _state_columns(header: list, path: Path):
         q_names, p_names = [f"q{i}" for i in range(1, n + 1)], [f"p{i}" for i in range(1, n + 1)]
     missing = [c for c in ["traj", "t", *q_names, *p_names] if c not in names]
     if not q_names or missing:
-        raise ValueError(f"{str(path)!r}: the header lacks the column(s) {missing or ['q1', 'p1']}; got {header[:12]} "
-                         f"({LAYOUT})")
+        raise ValueError(
+            f"{str(path)!r}: the header lacks the column(s) {missing or ['q1', 'p1']}; got {header[:12]} ({LAYOUT})"
+        )
     if "mu" in names:
         mu_names = ["mu"]
     else:
@@ -318,8 +353,10 @@ def _state_columns(header: list, path: Path):
     known = {"traj", "t", *q_names, *p_names, *mu_names}
     unknown = [c for c in header if c not in known]
     if unknown:
-        raise ValueError(f"{str(path)!r}: unexpected column(s) {unknown[:5]} (for 2n = {2 * len(q_names)} states and "
-                         f"{len(mu_names)} parameter(s)); {LAYOUT}")
+        raise ValueError(
+            f"{str(path)!r}: unexpected column(s) {unknown[:5]} (for 2n = {2 * len(q_names)} states and "
+            f"{len(mu_names)} parameter(s)); {LAYOUT}"
+        )
     if len(header) != len(names):
         raise ValueError(f"{str(path)!r}: the header repeats a column name: {header[:12]}")
     return names, [names[c] for c in ["t", *q_names, *p_names, *mu_names]], len(q_names), len(mu_names)
@@ -338,8 +375,10 @@ def _csv_lines(fh, path: Path):
         if not line:
             return
         if len(line) > MAX_CSV_LINE:
-            raise ValueError(f"{str(path)!r}: a line is longer than {MAX_CSV_LINE} characters; one row per state, "
-                             "with short cells, is expected")
+            raise ValueError(
+                f"{str(path)!r}: a line is longer than {MAX_CSV_LINE} characters; one row per state, "
+                "with short cells, is expected"
+            )
         yield line
 
 
@@ -398,11 +437,15 @@ def _csv_table(path: Path, max_bytes: int, layout: str, select, decimals: list =
                     continue
                 line = reader.line_num
                 if len(row) != len(header):
-                    raise ValueError(f"{str(path)!r}, row {line}: {len(row)} cells, the header has {len(header)} columns")
+                    raise ValueError(
+                        f"{str(path)!r}, row {line}: {len(row)} cells, the header has {len(header)} columns"
+                    )
                 budget -= per_row
                 if budget < 0:
-                    raise ValueError(f"{str(path)!r}, row {line}: the numbers read so far need more than max_bytes = "
-                                     f"{max_bytes} bytes; pass a larger max_bytes if the file is meant to be this large")
+                    raise ValueError(
+                        f"{str(path)!r}, row {line}: the numbers read so far need more than max_bytes = "
+                        f"{max_bytes} bytes; pass a larger max_bytes if the file is meant to be this large"
+                    )
                 rows.append(_csv_numbers(path, header, line, row, columns))
                 lines.append(line)
                 if decimals is not None:
@@ -410,8 +453,9 @@ def _csv_table(path: Path, max_bytes: int, layout: str, select, decimals: list =
                 if label_column is not None:
                     label = row[label_column].strip()
                     if not label:
-                        raise ValueError(f"{str(path)!r}, row {line}, column {header[label_column]!r}: the trajectory "
-                                         "label is empty")
+                        raise ValueError(
+                            f"{str(path)!r}, row {line}, column {header[label_column]!r}: the trajectory label is empty"
+                        )
                     index = labels.get(label)
                     if index is None:
                         budget -= 64 + 4 * len(label)
@@ -444,7 +488,9 @@ def _csv_numbers(path: Path, header: list, line: int, row: list, columns: list) 
         try:
             value = float(cell)
         except ValueError:
-            raise ValueError(f"{str(path)!r}, row {line}, column {header[c]!r}: {cell[:40]!r} is not a number") from None
+            raise ValueError(
+                f"{str(path)!r}, row {line}, column {header[c]!r}: {cell[:40]!r} is not a number"
+            ) from None
         if not np.isfinite(value):
             raise ValueError(f"{str(path)!r}, row {line}, column {header[c]!r}: {cell[:40]!r} is not finite")
         numbers.append(value)
@@ -467,25 +513,31 @@ def _read_csv(path: Path, max_bytes: int) -> TrajectoryData:
     counts = np.bincount(ids, minlength=len(traj_ids))
     for i, label in enumerate(traj_ids):
         if counts[i] != counts[0]:
-            raise ValueError(f"{str(path)!r}: trajectory {label!r} has {counts[i]} rows, trajectory {traj_ids[0]!r} has "
-                             f"{counts[0]}; all trajectories need the same number of states")
+            raise ValueError(
+                f"{str(path)!r}: trajectory {label!r} has {counts[i]} rows, trajectory {traj_ids[0]!r} has "
+                f"{counts[0]}; all trajectories need the same number of states"
+            )
     if counts[0] < 2:
         raise ValueError(f"{str(path)!r}: every trajectory needs at least 2 states (rows), got 1")
     order = np.argsort(ids, kind="stable").reshape(len(traj_ids), counts[0])  # rows of each trajectory, in file order
     block = table[order]  # (P, K+1, 1 + 2n + d)
-    times, states, mu = block[:, :, 0], block[:, :, 1:1 + 2 * n], block[:, :, 1 + 2 * n:]
+    times, states, mu = block[:, :, 0], block[:, :, 1 : 1 + 2 * n], block[:, :, 1 + 2 * n :]
     steps = np.diff(times, axis=1)
     bad = np.flatnonzero(~(steps > 0).all(axis=1))
     if len(bad):
         label = traj_ids[bad[0]]
         k = int(np.flatnonzero(steps[bad[0]] <= 0)[0])
-        raise ValueError(f"{str(path)!r}: trajectory {label!r} is not in increasing time: row {int(lines[order[bad[0], k + 1]])} "
-                         f"has t = {float(times[bad[0], k + 1])!r} after t = {float(times[bad[0], k])!r}; sort its rows by t")
+        raise ValueError(
+            f"{str(path)!r}: trajectory {label!r} is not in increasing time: row {int(lines[order[bad[0], k + 1]])} "
+            f"has t = {float(times[bad[0], k + 1])!r} after t = {float(times[bad[0], k])!r}; sort its rows by t"
+        )
     if d:
         varying = np.flatnonzero(np.ptp(mu, axis=1).max(axis=1) > 0)
         if len(varying):
-            raise ValueError(f"{str(path)!r}: the parameter columns must be constant within a trajectory; trajectory "
-                             f"{traj_ids[varying[0]]!r} has several values")
+            raise ValueError(
+                f"{str(path)!r}: the parameter columns must be constant within a trajectory; trajectory "
+                f"{traj_ids[varying[0]]!r} has several values"
+            )
     step = _rounded_uniform_step(times, decimals[0])
     if step is not None:
         return TrajectoryData(states, mu[:, 0] if d else None, dt=step)
@@ -511,7 +563,7 @@ def _rounded_uniform_step(times: np.ndarray, decimals: int):
     k = times.shape[1] - 1
     steps = np.diff(times, axis=1)
     roundoff = 64 * np.finfo(float).eps * float(np.abs(times).max())
-    unit = 10.0 ** -decimals
+    unit = 10.0**-decimals
     if unit > 100 * np.finfo(float).eps * float(np.abs(times).max()):  # parsed steps err by a few ulps of max|t|
         counts = np.rint(steps / unit)
         if counts.min() == counts.max() > 0 and float(np.abs(steps - counts * unit).max()) <= 1e-2 * unit:
@@ -557,8 +609,9 @@ def write_trajectories(data: TrajectoryData, path, extra: Optional[dict] = None,
     kind = _SUFFIXES.get(path.suffix.lower())
     if kind is None:
         raise ValueError(f"{str(path)!r}: unknown data file type {path.suffix!r}; use .npz, .h5/.hdf5 or .csv")
-    uniform = data.dt is not None and np.array_equal(data.times, np.broadcast_to(np.arange(data.states.shape[1]) * data.dt,
-                                                                                 data.times.shape))
+    uniform = data.dt is not None and np.array_equal(
+        data.times, np.broadcast_to(np.arange(data.states.shape[1]) * data.dt, data.times.shape)
+    )
     arrays = {"states": data.states}
     arrays.update({"dt": np.float64(data.dt)} if uniform else {"times": np.ascontiguousarray(data.times)})
     if data.mu.shape[1]:
@@ -580,14 +633,33 @@ def write_trajectories(data: TrajectoryData, path, extra: Optional[dict] = None,
     else:
         p, k1, dim = data.states.shape
         n, d = dim // 2, data.mu.shape[1]
-        header = ["traj", "t", *(f"q{i}" for i in range(1, n + 1)), *(f"p{i}" for i in range(1, n + 1)),
-                  *(f"mu{i}" for i in range(1, d + 1)), *extra]
-        table = np.concatenate([np.broadcast_to(np.arange(p)[:, None, None], (p, k1, 1)), data.times[:, :, None],
-                                data.states, np.broadcast_to(data.mu[:, None, :], (p, k1, d)),
-                                *(v[:, :, None] for v in extra.values())], axis=2).reshape(p * k1, -1)
+        header = [
+            "traj",
+            "t",
+            *(f"q{i}" for i in range(1, n + 1)),
+            *(f"p{i}" for i in range(1, n + 1)),
+            *(f"mu{i}" for i in range(1, d + 1)),
+            *extra,
+        ]
+        table = np.concatenate(
+            [
+                np.broadcast_to(np.arange(p)[:, None, None], (p, k1, 1)),
+                data.times[:, :, None],
+                data.states,
+                np.broadcast_to(data.mu[:, None, :], (p, k1, d)),
+                *(v[:, :, None] for v in extra.values()),
+            ],
+            axis=2,
+        ).reshape(p * k1, -1)
         with atomic_output(path, overwrite=overwrite) as fh:
-            np.savetxt(fh, table, delimiter=",", header=",".join(header), comments="",
-                       fmt=["%d"] + ["%.17g"] * (table.shape[1] - 1))
+            np.savetxt(
+                fh,
+                table,
+                delimiter=",",
+                header=",".join(header),
+                comments="",
+                fmt=["%d"] + ["%.17g"] * (table.shape[1] - 1),
+            )
 
 
 def read_states(path, dim: int, *, max_bytes: int = MAX_BYTES):
@@ -612,8 +684,10 @@ def read_states(path, dim: int, *, max_bytes: int = MAX_BYTES):
     """
     path = Path(path)
     suffix = path.suffix.lower()
-    layout = (f"expected .npz with 'x0' (B, {dim}) [optional 'mu' (B,) or (B, d)], or .csv with the columns "
-              f"{', '.join(_state_names(dim))} [optional mu or mu1..mud]")
+    layout = (
+        f"expected .npz with 'x0' (B, {dim}) [optional 'mu' (B,) or (B, d)], or .csv with the columns "
+        f"{', '.join(_state_names(dim))} [optional mu or mu1..mud]"
+    )
     if not path.is_file():
         raise ValueError(f"{str(path)!r} does not exist or is not a regular file")
     if suffix == ".npz":
@@ -644,7 +718,9 @@ def read_states(path, dim: int, *, max_bytes: int = MAX_BYTES):
             raise ValueError(f"{str(path)!r} has a header but no data rows; {layout}")
         x0, mu = table[:, :dim], (table[:, dim:] if picked["mu"] else None)
     else:
-        raise ValueError(f"{str(path)!r}: initial states are read from .npz or .csv files, got {path.suffix!r}; {layout}")
+        raise ValueError(
+            f"{str(path)!r}: initial states are read from .npz or .csv files, got {path.suffix!r}; {layout}"
+        )
     x0, _ = as_states(x0, _where(path, "x0"), dim=dim)  # (B, 2n) or one state (2n,)
     return x0, mu
 
@@ -653,14 +729,18 @@ def _parameter_names(header: list, path: Path, layout: str) -> list:
     """The parameter columns of a CSV header by name: ``["mu"]``, or ``mu1..mud`` in that order (wherever they stand)."""
     numbered = {int(c[2:]): c for c in header if re.fullmatch(r"mu[1-9][0-9]*", c)}
     if "mu" in header and numbered:
-        raise ValueError(f"{str(path)!r}: the header has both 'mu' and {sorted(numbered.values())[:3]}: name one parameter "
-                         f"'mu' or several mu1..mud; {layout}")
+        raise ValueError(
+            f"{str(path)!r}: the header has both 'mu' and {sorted(numbered.values())[:3]}: name one parameter "
+            f"'mu' or several mu1..mud; {layout}"
+        )
     if "mu" in header:
         return ["mu"]
     d = len(numbered)
     if sorted(numbered) != list(range(1, d + 1)):
-        raise ValueError(f"{str(path)!r}: the parameter columns {[numbered[k] for k in sorted(numbered)][:6]} must be "
-                         f"mu1..mu{d} without gaps; {layout}")
+        raise ValueError(
+            f"{str(path)!r}: the parameter columns {[numbered[k] for k in sorted(numbered)][:6]} must be "
+            f"mu1..mu{d} without gaps; {layout}"
+        )
     return [numbered[k] for k in range(1, d + 1)]
 
 

@@ -24,6 +24,15 @@ from sympredict.kernels.radial import (
 )
 
 __all__ = [
-    "RadialKernel", "IMQ", "Matern32", "Matern52", "ProductKernel", "PeriodicCoordinates", "StateSymmetry", "KERNEL_FAMILIES",
-    "register_family", "kernel_from_spec", "pairwise_distances",
+    "RadialKernel",
+    "IMQ",
+    "Matern32",
+    "Matern52",
+    "ProductKernel",
+    "PeriodicCoordinates",
+    "StateSymmetry",
+    "KERNEL_FAMILIES",
+    "register_family",
+    "kernel_from_spec",
+    "pairwise_distances",
 ]

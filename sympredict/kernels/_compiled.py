@@ -86,8 +86,10 @@ else:  # pragma: no cover
 
 def _formula(flags: dict):
     """Decorator of the family dispatchers: compiled with the formulas' exact flags, cached on disk."""
+
     def decorate(function):
         return jit_cached(function, flags) if HAVE_NUMBA else function
+
     return decorate
 
 
@@ -148,8 +150,11 @@ def compiled_formulas(family: type):
     out = _COMPILED_FORMULAS.get(family)
     if out is None:
         if family in FAMILY_CODES:
-            out = {IMQ: (_imq_profile, _imq_first, _imq_all), Matern52: (_m52_profile, _m52_first, _m52_all),
-                   Matern32: (_m32_profile, _m32_first, _m32_all)}[family]
+            out = {
+                IMQ: (_imq_profile, _imq_first, _imq_all),
+                Matern52: (_m52_profile, _m52_first, _m52_all),
+                Matern32: (_m32_profile, _m32_first, _m32_all),
+            }[family]
         else:
             out = _compile_formulas(family, False)
         _COMPILED_FORMULAS[family] = out
@@ -173,8 +178,10 @@ def _shared_scope() -> dict:
             if used in function.__globals__:
                 value = function.__globals__[used]
                 if used in scope and scope[used] is not value and not (type(value) is float and scope[used] == value):
-                    raise RuntimeError(f"compiled kernel {name!r} uses the global {used!r}, which another compiled "
-                                       "module defines differently; give one of them another name")
+                    raise RuntimeError(
+                        f"compiled kernel {name!r} uses the global {used!r}, which another compiled "
+                        "module defines differently; give one of them another name"
+                    )
                 scope[used] = value
     return scope
 
@@ -194,8 +201,12 @@ def _user_namespace(outside: tuple) -> types.SimpleNamespace:
     scope = _shared_scope()
     formulas = [compiled_formulas(f) for f in outside]
     for k, package in enumerate((_profile, _first_factors, _all_factors)):
-        bound = {"_U0": formulas[0][k], "_U1": formulas[min(1, len(outside) - 1)][k],
-                 "_U2": formulas[-1][k], "_PACKAGE": package}
+        bound = {
+            "_U0": formulas[0][k],
+            "_U1": formulas[min(1, len(outside) - 1)][k],
+            "_U2": formulas[-1][k],
+            "_PACKAGE": package,
+        }
         dispatcher = types.FunctionType(_user_formula.__code__, bound, package.__name__)
         scope[package.__name__] = numba.njit(dispatcher, **EXACT)
     for name, function, flags, _ in DEFINITIONS:

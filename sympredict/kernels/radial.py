@@ -49,8 +49,16 @@ from sympredict.base import Parametrized
 
 
 __all__ = [
-    "RadialKernel", "IMQ", "Matern32", "Matern52", "ProductKernel", "PeriodicCoordinates", "StateSymmetry", "KERNEL_FAMILIES",
-    "register_family", "kernel_from_spec",
+    "RadialKernel",
+    "IMQ",
+    "Matern32",
+    "Matern52",
+    "ProductKernel",
+    "PeriodicCoordinates",
+    "StateSymmetry",
+    "KERNEL_FAMILIES",
+    "register_family",
+    "kernel_from_spec",
 ]
 
 #: Shape parameters are limited to [1e-50, 1e50]: the derivative factors contain
@@ -244,7 +252,9 @@ KERNEL_FAMILIES: dict = {}
 def register_family(cls):
     """Class decorator: make a :class:`RadialKernel` subclass available by its ``name``."""
     if not (isinstance(cls, type) and issubclass(cls, RadialKernel)) or cls.name in KERNEL_FAMILIES:
-        raise ValueError(f"cannot register {cls!r}: not a RadialKernel subclass, or the name {getattr(cls, 'name', None)!r} is taken")
+        raise ValueError(
+            f"cannot register {cls!r}: not a RadialKernel subclass, or the name {getattr(cls, 'name', None)!r} is taken"
+        )
     KERNEL_FAMILIES[cls.name] = cls
     return cls
 
@@ -383,12 +393,20 @@ class PeriodicCoordinates:
 
     def __post_init__(self):
         coords, periods = tuple(self.coordinates), tuple(self.periods)
-        if not coords or len(coords) != len(periods) or len(set(coords)) != len(coords) \
-                or not all(isinstance(c, (int, np.integer)) and not isinstance(c, bool) and c >= 0 for c in coords):
-            raise ValueError(f"periodic coordinates must be distinct non-negative integers, one period each; "
-                             f"got coordinates {self.coordinates!r}, periods {self.periods!r}")
-        if not all(isinstance(p, (int, float, np.number)) and not isinstance(p, bool) and np.isfinite(p) and p > 0
-                   for p in periods):
+        if (
+            not coords
+            or len(coords) != len(periods)
+            or len(set(coords)) != len(coords)
+            or not all(isinstance(c, (int, np.integer)) and not isinstance(c, bool) and c >= 0 for c in coords)
+        ):
+            raise ValueError(
+                f"periodic coordinates must be distinct non-negative integers, one period each; "
+                f"got coordinates {self.coordinates!r}, periods {self.periods!r}"
+            )
+        if not all(
+            isinstance(p, (int, float, np.number)) and not isinstance(p, bool) and np.isfinite(p) and p > 0
+            for p in periods
+        ):
             raise ValueError(f"periods must be positive finite numbers, got {self.periods!r}")
         object.__setattr__(self, "coordinates", tuple(int(c) for c in coords))
         object.__setattr__(self, "periods", tuple(float(p) for p in periods))
@@ -402,8 +420,11 @@ class PeriodicCoordinates:
         """Rebuild from :attr:`spec` (``None`` stays ``None``); ``ValueError`` for a malformed spec."""
         if spec is None:
             return None
-        if not isinstance(spec, dict) or set(spec) != {"coordinates", "periods"} \
-                or not all(isinstance(spec[k], list) for k in spec):
+        if (
+            not isinstance(spec, dict)
+            or set(spec) != {"coordinates", "periods"}
+            or not all(isinstance(spec[k], list) for k in spec)
+        ):
             raise ValueError(f"malformed periodic-coordinates spec {spec!r}")
         return cls(tuple(spec["coordinates"]), tuple(spec["periods"]))
 
@@ -524,19 +545,24 @@ class StateSymmetry:
         try:
             mats = np.array([np.asarray(g, dtype=float) for g in self.matrices])
         except (TypeError, ValueError):
-            raise ValueError(f"symmetry: the group elements must be square numeric matrices of one size, "
-                             f"got {self.matrices!r}") from None
+            raise ValueError(
+                f"symmetry: the group elements must be square numeric matrices of one size, got {self.matrices!r}"
+            ) from None
         if mats.ndim != 3 or len(mats) == 0 or mats.shape[1] != mats.shape[2] or mats.shape[1] == 0:
-            raise ValueError(f"symmetry: the group elements must be square matrices (D, D) of one size, "
-                             f"got an array of shape {mats.shape}")
+            raise ValueError(
+                f"symmetry: the group elements must be square matrices (D, D) of one size, "
+                f"got an array of shape {mats.shape}"
+            )
         if not np.all(np.isfinite(mats)):
             raise ValueError("symmetry: the group elements must be finite")
         dim = mats.shape[1]
         eye = np.eye(dim)
         bad = [i for i, g in enumerate(mats) if np.abs(g.T @ g - eye).max() > _GROUP_TOL]
         if bad:
-            raise ValueError(f"symmetry: element(s) {bad} are not orthogonal (g^T g != I): the group-averaged "
-                             "radial kernel needs orthogonal maps (|g x - g y| = |x - y|)")
+            raise ValueError(
+                f"symmetry: element(s) {bad} are not orthogonal (g^T g != I): the group-averaged "
+                "radial kernel needs orthogonal maps (|g x - g y| = |x - y|)"
+            )
 
         def find(h):
             hits = np.flatnonzero(np.abs(mats - h).reshape(len(mats), -1).max(axis=1) <= _GROUP_TOL)
@@ -549,8 +575,10 @@ class StateSymmetry:
         for i, g in enumerate(mats):
             for j, h in enumerate(mats):
                 if find(g @ h) < 0:
-                    raise ValueError(f"symmetry: not a group: the product of elements {i} and {j} is not in the "
-                                     "list (list every element of the group, closed under products)")
+                    raise ValueError(
+                        f"symmetry: not a group: the product of elements {i} and {j} is not in the "
+                        "list (list every element of the group, closed under products)"
+                    )
         # rounded to the exact group elements (entries within 1e-12 of them)
         object.__setattr__(self, "matrices", tuple(tuple(tuple(float(v) for v in row) for row in g) for g in mats))
         object.__setattr__(self, "_mats", mats)
@@ -565,7 +593,9 @@ class StateSymmetry:
         try:
             arr = np.array(patterns, dtype=float)
         except (TypeError, ValueError):
-            raise ValueError(f"symmetry: sign patterns must be sequences of +1/-1 of one length, got {patterns!r}") from None
+            raise ValueError(
+                f"symmetry: sign patterns must be sequences of +1/-1 of one length, got {patterns!r}"
+            ) from None
         if arr.ndim != 2 or not np.all(np.abs(arr) == 1):
             raise ValueError(f"symmetry: sign patterns must be sequences of +1/-1 of one length, got {patterns!r}")
         return cls(tuple(np.diag(s) for s in arr))
@@ -576,17 +606,23 @@ class StateSymmetry:
         if value is None or isinstance(value, StateSymmetry):
             return value
         if isinstance(value, (str, bytes, dict)):
-            raise ValueError(f"symmetry must be None, a StateSymmetry, sign patterns or a list of matrices, got {value!r}")
+            raise ValueError(
+                f"symmetry must be None, a StateSymmetry, sign patterns or a list of matrices, got {value!r}"
+            )
         try:
             ndim = np.asarray(value, dtype=float).ndim
         except (TypeError, ValueError):
-            raise ValueError(f"symmetry must be None, a StateSymmetry, sign patterns (n_elements, D) or matrices "
-                             f"(n_elements, D, D) of one size, got {value!r}") from None
+            raise ValueError(
+                f"symmetry must be None, a StateSymmetry, sign patterns (n_elements, D) or matrices "
+                f"(n_elements, D, D) of one size, got {value!r}"
+            ) from None
         if ndim == 2:
             return cls.from_signs(value)
         if ndim == 3:
             return cls(tuple(value))
-        raise ValueError(f"symmetry must be sign patterns (n_elements, D) or matrices (n_elements, D, D), got {value!r}")
+        raise ValueError(
+            f"symmetry must be sign patterns (n_elements, D) or matrices (n_elements, D, D), got {value!r}"
+        )
 
     def __eq__(self, other) -> bool:
         return isinstance(other, StateSymmetry) and self.matrices == other.matrices
@@ -629,7 +665,9 @@ class StateSymmetry:
     def check_dim(self, dim: int) -> None:
         """``ValueError`` unless the matrices act on states of dimension ``dim``."""
         if self.dim != dim:
-            raise ValueError(f"symmetry: the group's matrices are {self.dim} x {self.dim}, the states have dimension {dim}")
+            raise ValueError(
+                f"symmetry: the group's matrices are {self.dim} x {self.dim}, the states have dimension {dim}"
+            )
 
     def check_periodic(self, periodic: "PeriodicCoordinates") -> None:
         """``ValueError`` unless every element is a signed permutation mapping each periodic coordinate to one of
@@ -643,9 +681,11 @@ class StateSymmetry:
             signed_perm = np.all(nonzero.sum(axis=0) == 1) and np.all(np.abs(np.abs(g[nonzero]) - 1) <= _GROUP_TOL)
             rows, cols = np.nonzero(nonzero)
             if not signed_perm or np.any(np.abs(period[rows] - period[cols]) > 1e-12 * np.maximum(period[rows], 1)):
-                raise ValueError(f"symmetry: element {i} does not map the periodic coordinates {periodic.coordinates} "
-                                 "(periods " + f"{periodic.periods}) onto coordinates of the same period: a kernel both "
-                                 "Periodic and Symmetric needs signed permutations that respect the periods")
+                raise ValueError(
+                    f"symmetry: element {i} does not map the periodic coordinates {periodic.coordinates} "
+                    "(periods " + f"{periodic.periods}) onto coordinates of the same period: a kernel both "
+                    "Periodic and Symmetric needs signed permutations that respect the periods"
+                )
 
     def conjugated(self, scale: np.ndarray) -> "StateSymmetry":
         """The group in the coordinates ``x~ = diag(scale) x``: ``diag(scale) g diag(scale)^-1``.
@@ -657,8 +697,10 @@ class StateSymmetry:
         try:
             return StateSymmetry(tuple(mats))
         except ValueError:
-            raise ValueError("symmetry: the group is not orthogonal in the scaled coordinates (state_scaling does "
-                             "not commute with it); use state_scaling=None or sign flips") from None
+            raise ValueError(
+                "symmetry: the group is not orthogonal in the scaled coordinates (state_scaling does "
+                "not commute with it); use state_scaling=None or sign flips"
+            ) from None
 
     def terms(self, y: np.ndarray, b: np.ndarray):
         """The plain HB functionals that make up ``d/dy_b`` of ``k_G`` at the points ``y``.
@@ -718,8 +760,9 @@ class StateSymmetry:
         order = np.argsort(owner, kind="stable")
         return owner[order], np.concatenate(zs)[order], np.concatenate(cs)[order], np.concatenate(ws)[order]
 
-    def hb_diagonal(self, state: RadialKernel, x: np.ndarray, a: np.ndarray,
-                    periodic: Optional["PeriodicCoordinates"] = None) -> np.ndarray:
+    def hb_diagonal(
+        self, state: RadialKernel, x: np.ndarray, a: np.ndarray, periodic: Optional["PeriodicCoordinates"] = None
+    ) -> np.ndarray:
         """Gramian diagonal ``d/dx_a d/dy_a k_G(x, y)`` at ``y = x`` (the parameter factors are 1 there).
 
         ``sum_t w_t (-B d_a d_c - A delta_ac)``, ``d = x - z_t`` (:meth:`terms`); with periodic
@@ -830,5 +873,10 @@ class ProductKernel:
     @classmethod
     def from_spec(cls, spec: dict) -> "ProductKernel":
         """Rebuild from :attr:`spec`; ``ValueError``/``KeyError`` for a malformed one."""
-        return cls(kernel_from_spec(spec["state"]), kernel_from_spec(spec["mu"]), kernel_from_spec(spec["dt"]),
-                   PeriodicCoordinates.from_spec(spec.get("periodic")), StateSymmetry.from_spec(spec.get("symmetry")))
+        return cls(
+            kernel_from_spec(spec["state"]),
+            kernel_from_spec(spec["mu"]),
+            kernel_from_spec(spec["dt"]),
+            PeriodicCoordinates.from_spec(spec.get("periodic")),
+            StateSymmetry.from_spec(spec.get("symmetry")),
+        )

@@ -41,8 +41,18 @@ import numpy as np
 from sympredict.base import Parametrized
 from sympredict.kernels.radial import PeriodicCoordinates, RadialKernel, StateSymmetry, kernel_from_spec
 
-__all__ = ["KernelTransform", "Scaled", "Periodic", "Symmetric", "StateKernelParts", "lower_state_kernel",
-           "compose_state_kernel", "transform_from_spec", "encode_value", "decode_value"]
+__all__ = [
+    "KernelTransform",
+    "Scaled",
+    "Periodic",
+    "Symmetric",
+    "StateKernelParts",
+    "lower_state_kernel",
+    "compose_state_kernel",
+    "transform_from_spec",
+    "encode_value",
+    "decode_value",
+]
 
 
 class KernelTransform(Parametrized):
@@ -84,8 +94,10 @@ class KernelTransform(Parametrized):
             values[name] = values[name].set_params(**sub)
         if inner:
             if values["kernel"] is None:
-                raise ValueError(f"{type(self).__name__} wraps the default state kernel (None): it has no parameters "
-                                 f"{sorted(inner)}; wrap a kernel (e.g. IMQ(1.0)) to set them")
+                raise ValueError(
+                    f"{type(self).__name__} wraps the default state kernel (None): it has no parameters "
+                    f"{sorted(inner)}; wrap a kernel (e.g. IMQ(1.0)) to set them"
+                )
             values["kernel"] = values["kernel"].set_params(**inner)
         return type(self)(**values)
 
@@ -125,8 +137,10 @@ class KernelTransform(Parametrized):
         """``ValueError`` for a malformed setting (run at fit and load, scikit-learn's convention)."""
         inner = self.kernel
         if inner is not None and not isinstance(inner, (RadialKernel, KernelTransform)):
-            raise ValueError(f"{type(self).__name__}: kernel must be a radial kernel (IMQ, Matern52, ...), a transform "
-                             f"or None, got {inner!r}")
+            raise ValueError(
+                f"{type(self).__name__}: kernel must be a radial kernel (IMQ, Matern52, ...), a transform "
+                f"or None, got {inner!r}"
+            )
 
 
 class Scaled(KernelTransform):
@@ -188,17 +202,25 @@ class Periodic(KernelTransform):
     def _check(self) -> None:
         super()._check()
         coords = self.coordinates
-        if not isinstance(coords, (tuple, list)) or not coords \
-                or not all(isinstance(c, (int, np.integer)) and not isinstance(c, bool) and c >= 0 for c in coords) \
-                or len(set(int(c) for c in coords)) != len(coords):
-            raise ValueError(f"Periodic: coordinates must be a tuple of distinct state indices (the periodic "
-                             f"coordinates, e.g. angles), got {coords!r}")
+        if (
+            not isinstance(coords, (tuple, list))
+            or not coords
+            or not all(isinstance(c, (int, np.integer)) and not isinstance(c, bool) and c >= 0 for c in coords)
+            or len(set(int(c) for c in coords)) != len(coords)
+        ):
+            raise ValueError(
+                f"Periodic: coordinates must be a tuple of distinct state indices (the periodic "
+                f"coordinates, e.g. angles), got {coords!r}"
+            )
         periods = self.periods
         if len(periods) != len(coords) or not all(
-                isinstance(p, (int, float, np.number)) and not isinstance(p, bool) and np.isfinite(p) and p > 0
-                for p in periods):
-            raise ValueError(f"Periodic: period must be a positive finite number or one per coordinate "
-                             f"({len(coords)}), got {self.period!r}")
+            isinstance(p, (int, float, np.number)) and not isinstance(p, bool) and np.isfinite(p) and p > 0
+            for p in periods
+        ):
+            raise ValueError(
+                f"Periodic: period must be a positive finite number or one per coordinate "
+                f"({len(coords)}), got {self.period!r}"
+            )
 
     @property
     def periods(self) -> tuple:
@@ -263,8 +285,10 @@ class StateKernelParts:
         except (TypeError, ValueError):
             a = None
         if a is None or a.shape != (dim // 2,) or not np.all(np.isfinite(a) & (a > 0)):
-            raise ValueError(f"the state kernel's Scaled factors must be {dim // 2} positive finite numbers (one per "
-                             f"q_i), got {self.scaling!r}")
+            raise ValueError(
+                f"the state kernel's Scaled factors must be {dim // 2} positive finite numbers (one per "
+                f"q_i), got {self.scaling!r}"
+            )
         return np.concatenate([a, 1.0 / a])
 
     def original_periods(self, dim: int) -> tuple:
@@ -272,18 +296,27 @@ class StateKernelParts:
         if self.periodic is None:
             return (), ()
         coords = self.periodic
-        if not isinstance(coords, (tuple, list)) or not coords \
-                or not all(isinstance(c, (int, np.integer)) and not isinstance(c, bool) for c in coords) \
-                or len(set(int(c) for c in coords)) != len(coords) or not all(0 <= c < dim for c in coords):
-            raise ValueError(f"periodic coordinates must be a tuple of distinct state indices in 0..{dim - 1} "
-                             f"(e.g. angles), got {self.periodic!r}")
+        if (
+            not isinstance(coords, (tuple, list))
+            or not coords
+            or not all(isinstance(c, (int, np.integer)) and not isinstance(c, bool) for c in coords)
+            or len(set(int(c) for c in coords)) != len(coords)
+            or not all(0 <= c < dim for c in coords)
+        ):
+            raise ValueError(
+                f"periodic coordinates must be a tuple of distinct state indices in 0..{dim - 1} "
+                f"(e.g. angles), got {self.periodic!r}"
+            )
         period = self.period
         periods = tuple(period) if isinstance(period, (tuple, list)) else (period,) * len(coords)
         if len(periods) != len(coords) or not all(
-                isinstance(p, (int, float, np.number)) and not isinstance(p, bool) and np.isfinite(p) and p > 0
-                for p in periods):
-            raise ValueError(f"period must be a positive finite number or one per periodic coordinate "
-                             f"({len(coords)}), got {self.period!r}")
+            isinstance(p, (int, float, np.number)) and not isinstance(p, bool) and np.isfinite(p) and p > 0
+            for p in periods
+        ):
+            raise ValueError(
+                f"period must be a positive finite number or one per periodic coordinate "
+                f"({len(coords)}), got {self.period!r}"
+            )
         return tuple(int(c) for c in coords), tuple(float(p) for p in periods)
 
     def model_periodic(self, dim: int) -> Optional[PeriodicCoordinates]:
@@ -329,8 +362,10 @@ def lower_state_kernel(kernel) -> StateKernelParts:
             found[type(node)] = node
         node = node.kernel
     if node is not None and not isinstance(node, RadialKernel):
-        raise ValueError(f"state_kernel must be a radial kernel (IMQ, Matern52, Matern32), a transform of one "
-                         f"(Scaled, Periodic, Symmetric) or None, got {kernel!r}")
+        raise ValueError(
+            f"state_kernel must be a radial kernel (IMQ, Matern52, Matern32), a transform of one "
+            f"(Scaled, Periodic, Symmetric) or None, got {kernel!r}"
+        )
     scaled, periodic, symmetric = found.get(Scaled), found.get(Periodic), found.get(Symmetric)
     return StateKernelParts(
         radial=node,

@@ -14,10 +14,26 @@
 """
 
 from sympredict.mor.parts import QuadraticSplit, TrainingScaling
-from sympredict.mor.reductor import SymplecticKernelModel, SymplecticKernelReductor, basis_matrix, check_symplectic_basis
+from sympredict.mor.reductor import (
+    SymplecticKernelModel,
+    SymplecticKernelReductor,
+    basis_matrix,
+    check_symplectic_basis,
+)
 from sympredict.mor.samples import GalerkinSamples, GivenSamples, GivenTrajectories, ProjectedTrajectories
 from sympredict.mor.selection import DefaultEstimator, ValidationSelection
 
-__all__ = ["SymplecticKernelReductor", "SymplecticKernelModel", "check_symplectic_basis", "basis_matrix",
-           "GalerkinSamples", "ProjectedTrajectories", "GivenTrajectories", "GivenSamples", "ValidationSelection",
-           "DefaultEstimator", "QuadraticSplit", "TrainingScaling"]
+__all__ = [
+    "SymplecticKernelReductor",
+    "SymplecticKernelModel",
+    "check_symplectic_basis",
+    "basis_matrix",
+    "GalerkinSamples",
+    "ProjectedTrajectories",
+    "GivenTrajectories",
+    "GivenSamples",
+    "ValidationSelection",
+    "DefaultEstimator",
+    "QuadraticSplit",
+    "TrainingScaling",
+]

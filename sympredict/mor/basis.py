@@ -32,8 +32,16 @@ from sympredict.systems.flowmaps import linear_system_from_pymor
 from sympredict.symplectic.metrics import canonical_J, j_times
 from sympredict.systems.quadratic import QuadraticHamiltonian
 
-__all__ = ["ComplexSVDBasis", "snapshot_rows", "basis_columns", "complex_svd_basis", "pymor_basis", "symplectic_inverse",
-           "symplecticity_of_basis", "SymplecticROM"]
+__all__ = [
+    "ComplexSVDBasis",
+    "snapshot_rows",
+    "basis_columns",
+    "complex_svd_basis",
+    "pymor_basis",
+    "symplectic_inverse",
+    "symplecticity_of_basis",
+    "SymplecticROM",
+]
 
 logger = getLogger("sympredict.mor.basis")
 
@@ -108,7 +116,11 @@ def snapshot_rows(snapshots, layout: Optional[str] = None) -> np.ndarray:
     if hasattr(snapshots, "space") and hasattr(snapshots, "to_numpy"):
         if layout is not None:
             raise ValueError("layout applies to ndarrays only: a VectorArray knows its orientation")
-        cols = np.vstack([b.to_numpy() for b in snapshots.blocks]) if hasattr(snapshots, "blocks") else snapshots.to_numpy()
+        cols = (
+            np.vstack([b.to_numpy() for b in snapshots.blocks])
+            if hasattr(snapshots, "blocks")
+            else snapshots.to_numpy()
+        )
         return np.ascontiguousarray(as_real_array(cols, "snapshots").T)
     arr = as_real_array(snapshots, "snapshots")  # complex, strings, NaN/Inf refused
     if arr.ndim != 2 or arr.size == 0:
@@ -133,8 +145,9 @@ def snapshot_rows(snapshots, layout: Optional[str] = None) -> np.ndarray:
     return arr
 
 
-def complex_svd_basis(snapshots, n: Optional[int] = None, tol: Optional[float] = None, *,
-                      layout: Optional[str] = None) -> ComplexSVDBasis:
+def complex_svd_basis(
+    snapshots, n: Optional[int] = None, tol: Optional[float] = None, *, layout: Optional[str] = None
+) -> ComplexSVDBasis:
     """PSD complex-SVD symplectic basis from phase-space snapshots.
 
     Parameters

@@ -44,8 +44,12 @@ def conjugated_system(system: LinearHamiltonianSystem, M: np.ndarray) -> LinearH
     J = canonical_J(dim)
     s2 = float((M.T @ J @ M)[0, dim // 2] / J[0, dim // 2])
     Minv = np.linalg.inv(M)
-    return LinearHamiltonianSystem(lambda mu: s2 * Minv.T @ system.matrix(mu) @ Minv, dim, system.n_mu,
-                                   lambda mu: s2 * Minv.T @ system.linear_term(mu))
+    return LinearHamiltonianSystem(
+        lambda mu: s2 * Minv.T @ system.matrix(mu) @ Minv,
+        dim,
+        system.n_mu,
+        lambda mu: s2 * Minv.T @ system.linear_term(mu),
+    )
 
 
 def check_from_data(data: FlowMapData, dt: float, update: str, log=logger) -> dict:
@@ -66,8 +70,10 @@ def check_from_data(data: FlowMapData, dt: float, update: str, log=logger) -> di
             continue
         M, _, rank, _ = np.linalg.lstsq(data.x0[sel], data.x1[sel], rcond=None)
         if rank < dim:
-            log.info(f"existence check skipped at mu = {row.tolist()}: its samples span only {rank} of "
-                     f"the {dim} reduced dimensions (no linear map to fit)")
+            log.info(
+                f"existence check skipped at mu = {row.tolist()}: its samples span only {rank} of "
+                f"the {dim} reduced dimensions (no linear map to fit)"
+            )
             continue
         M = M.T
         sigma = float((midpoint_sigma_min if update == "midpoint" else type2_sigma_min)(M[None])[0])
@@ -77,9 +83,11 @@ def check_from_data(data: FlowMapData, dt: float, update: str, log=logger) -> di
     if skipped:
         log.info(f"existence check: {skipped} parameter value(s) with fewer than 2n = {dim} samples skipped")
     if worst[1] is None:
-        log.warning(f"existence check not done: no parameter value has samples spanning all 2n = {dim} reduced "
-                    f"dimensions, so nothing says whether the generating function exists at dt = {dt!r} (more "
-                    f"samples per parameter, or check_existence=False to say so)")
+        log.warning(
+            f"existence check not done: no parameter value has samples spanning all 2n = {dim} reduced "
+            f"dimensions, so nothing says whether the generating function exists at dt = {dt!r} (more "
+            f"samples per parameter, or check_existence=False to say so)"
+        )
         return {"not_checked": True}
     om = max(float(np.abs(np.linalg.eigvals(A).imag).max()) for A in generators)
     if om * dt < 1e-6:  # no rotation to speak of (e.g. the remainder S of a split): no singular step ahead
@@ -98,8 +106,9 @@ def _scaled_states(d: FlowMapData, scaling) -> FlowMapData:
     return FlowMapData(scaling.transform(d.x0), scaling.transform(d.x1), d.mu if d.mu.shape[1] else None, d.dt)
 
 
-def _choose_update(check: Callable[[str], dict], given: Optional[str], open_estimator: bool, split_in_use: bool,
-                   dt: float, log) -> tuple:
+def _choose_update(
+    check: Callable[[str], dict], given: Optional[str], open_estimator: bool, split_in_use: bool, dt: float, log
+) -> tuple:
     """``check(update)`` for the update to train.  Where the caller left the update open (the default estimator,
     or an estimator with ``update=None``, ``open_estimator``): when the type II generating function does not exist
     at ``dt`` (a mode turns past a quarter turn per step), the midpoint form (up to half a turn) is chosen instead;
@@ -107,8 +116,11 @@ def _choose_update(check: Callable[[str], dict], given: Optional[str], open_esti
 
     Returns ``(report, choice)``, ``choice = {"update", "reason"}``.
     """
-    choice = {"update": given, "reason": "the given estimator's update"} if given is not None else \
-        {"update": "symplectic_euler", "reason": "type II generating function exists at dt"}
+    choice = (
+        {"update": given, "reason": "the given estimator's update"}
+        if given is not None
+        else {"update": "symplectic_euler", "reason": "type II generating function exists at dt"}
+    )
     try:
         out = check(choice["update"])
     except ValueError as exc:
@@ -125,26 +137,42 @@ def _choose_update(check: Callable[[str], dict], given: Optional[str], open_esti
                     warnings.simplefilter("ignore")
                     check("midpoint")
             except ValueError as exc:
-                choice = {"update": "symplectic_euler", "reason": f"the midpoint form does not exist at "
-                          f"dt = {dt!r} ({exc}); the type II form does"}
+                choice = {
+                    "update": "symplectic_euler",
+                    "reason": f"the midpoint form does not exist at dt = {dt!r} ({exc}); the type II form does",
+                }
                 log.info(f"update='symplectic_euler' set on the estimator: {choice['reason']}")
             else:
-                choice = {"update": None, "reason": "both generating functions exist at dt: the "
-                          "estimator's search chooses (update=None)"}
+                choice = {
+                    "update": None,
+                    "reason": "both generating functions exist at dt: the estimator's search chooses (update=None)",
+                }
         return out, choice
     choice = {"update": "midpoint", "reason": f"type II does not exist at dt = {dt!r}: {first}"}
     try:
         out = check("midpoint")
     except ValueError as exc:
-        raise ValueError(f"neither generating function exists at dt = {dt!r}: midpoint: {exc}; type II: "
-                         f"{first}") from None
-    log.info(f"update='midpoint' chosen: the type II generating function does not exist at dt = "
-             f"{dt!r} ({first}); the midpoint form does")
+        raise ValueError(
+            f"neither generating function exists at dt = {dt!r}: midpoint: {exc}; type II: {first}"
+        ) from None
+    log.info(
+        f"update='midpoint' chosen: the type II generating function does not exist at dt = "
+        f"{dt!r} ({first}); the midpoint form does"
+    )
     return out, choice
 
 
-def check_existence(train: FlowMapData, scaling, dt: float, *, given_update: Optional[str], open_estimator: bool,
-                    split=None, reference=None, log=logger) -> tuple:
+def check_existence(
+    train: FlowMapData,
+    scaling,
+    dt: float,
+    *,
+    given_update: Optional[str],
+    open_estimator: bool,
+    split=None,
+    reference=None,
+    log=logger,
+) -> tuple:
     """The existence check in the trained coordinates, with the choice of the update and of the fallback split.
 
     Parameters
@@ -183,10 +211,12 @@ def check_existence(train: FlowMapData, scaling, dt: float, *, given_update: Opt
         def check(update):
             if reference is not None and quadratic is None:
                 system, full = reference
-                return check_generating_function(conjugated_system(system, scaling.matrix_),
-                                                 _scaled_states(full, scaling), update=update)
+                return check_generating_function(
+                    conjugated_system(system, scaling.matrix_), _scaled_states(full, scaling), update=update
+                )
             pairs = train if quadratic is None else split_pairs(train, quadratic)
             return check_from_data(_scaled_states(pairs, scaling), dt, update, log)
+
         return check
 
     try:
@@ -199,21 +229,30 @@ def check_existence(train: FlowMapData, scaling, dt: float, *, given_update: Opt
     try:
         out, choice = _choose_update(checker(split.quadratic), given_update, open_estimator, True, dt, log)
     except ValueError as exc:
-        raise ValueError(f"no generating function exists at dt = {dt!r}, neither without a split ({first}) "
-                         f"nor for the remainder S once the exact linear flow of the fallback split is split off "
-                         f"({exc}): use a smaller macro step") from None
+        raise ValueError(
+            f"no generating function exists at dt = {dt!r}, neither without a split ({first}) "
+            f"nor for the remainder S once the exact linear flow of the fallback split is split off "
+            f"({exc}): use a smaller macro step"
+        ) from None
     choice["split"] = "split_fallback"
-    choice["reason"] = (f"no generating function exists at dt = {dt!r} without a split ({first}); with "
-                        f"the exact linear flow of the fallback split split off, the remainder's "
-                        f"({choice['reason']})")
-    log.info(f"fallback split used: the step is L_h o S o L_h with the exact linear flow L_h of the "
-             f"quadratic part; {choice['reason']}")
+    choice["reason"] = (
+        f"no generating function exists at dt = {dt!r} without a split ({first}); with "
+        f"the exact linear flow of the fallback split split off, the remainder's "
+        f"({choice['reason']})"
+    )
+    log.info(
+        f"fallback split used: the step is L_h o S o L_h with the exact linear flow L_h of the "
+        f"quadratic part; {choice['reason']}"
+    )
     return out, choice, split.quadratic
 
 
 def split_pairs(data: FlowMapData, quadratic) -> FlowMapData:
     """``S``'s samples ``(L_h x0, L_{-h} x1)``, ``L_h = expm(dt/2 J A(mu))``, of samples ``x1 = Phi(x0)``."""
     L = quadratic.propagator(data.mu if data.mu.shape[1] else None, 0.5 * data.dt, n=len(data))
-    return FlowMapData(np.einsum("bij,bj->bi", L, data.x0),
-                       np.einsum("bij,bj->bi", inverse_symplectic_matrices(L), data.x1),
-                       data.mu if data.mu.shape[1] else None, data.dt)
+    return FlowMapData(
+        np.einsum("bij,bj->bi", L, data.x0),
+        np.einsum("bij,bj->bi", inverse_symplectic_matrices(L), data.x1),
+        data.mu if data.mu.shape[1] else None,
+        data.dt,
+    )

@@ -37,8 +37,10 @@ def _as_square(A, name: str) -> np.ndarray:
     if shape is None or len(shape) != 2 or shape[0] != shape[1] or shape[0] == 0:
         raise ValueError(f"{name} must be a square (N, N) matrix (numpy or scipy.sparse), got shape {shape}")
     if shape[0] * shape[1] > _MAX_DENSE:
-        raise ValueError(f"{name} is {shape[0]} x {shape[1]}: too large to factor densely (> {_MAX_DENSE} entries); "
-                         f"use lumped=True (a diagonal mass matrix)")
+        raise ValueError(
+            f"{name} is {shape[0]} x {shape[1]}: too large to factor densely (> {_MAX_DENSE} entries); "
+            f"use lumped=True (a diagonal mass matrix)"
+        )
     dense = A.toarray() if scipy.sparse.issparse(A) else np.asarray(A)
     if dense.dtype.kind not in "iuf":
         raise ValueError(f"{name} must be a real matrix, got dtype {dense.dtype}")
@@ -81,29 +83,39 @@ class MassMatrixCoordinates:
         if lumped:
             d = M.sum(axis=1)
             if not np.all(d > 0):
-                raise ValueError(f"the lumped mass matrix has non-positive entries (row sums, min {d.min():.3e}): "
-                                 f"mass must be positive definite")
+                raise ValueError(
+                    f"the lumped mass matrix has non-positive entries (row sums, min {d.min():.3e}): "
+                    f"mass must be positive definite"
+                )
             bad = np.flatnonzero(np.diag(M) <= 0)
             if bad.size:  # a mass matrix has positive masses on its diagonal; row sums alone do not show it
-                raise ValueError(f"mass has non-positive diagonal entries (entry {int(bad[0])}: {M[bad[0], bad[0]]:.3e}): "
-                                 "it is not positive definite, so it is no mass matrix; check the assembly")
+                raise ValueError(
+                    f"mass has non-positive diagonal entries (entry {int(bad[0])}: {M[bad[0], bad[0]]:.3e}): "
+                    "it is not positive definite, so it is no mass matrix; check the assembly"
+                )
             try:
                 np.linalg.cholesky(M)
             except np.linalg.LinAlgError:
-                raise ValueError("mass is not positive definite (Cholesky failed), although its row sums are "
-                                 "positive: lumping would hide that; check the assembly") from None
+                raise ValueError(
+                    "mass is not positive definite (Cholesky failed), although its row sums are "
+                    "positive: lumping would hide that; check the assembly"
+                ) from None
             self.L = np.diag(np.sqrt(d))
         else:
             try:
                 self.L = np.linalg.cholesky(M)
             except np.linalg.LinAlgError:
-                raise ValueError("mass is not positive definite (Cholesky failed): check boundary conditions "
-                                 "(constrained nodes removed) and the assembly") from None
+                raise ValueError(
+                    "mass is not positive definite (Cholesky failed): check boundary conditions "
+                    "(constrained nodes removed) and the assembly"
+                ) from None
         masses = np.diag(self.L) ** 2  # a lower bound of the condition number (exact when diagonal)
         if masses.max() > MAX_MASS_RATIO * masses.min():
-            raise ValueError(f"mass is ill-conditioned: its (lumped or pivot) masses span {masses.min():.3e} .. "
-                             f"{masses.max():.3e}, a ratio above {MAX_MASS_RATIO:.0e}; the canonical coordinates "
-                             "(q~, p~) would lose all digits. Check the units and the assembly (tiny or huge masses)")
+            raise ValueError(
+                f"mass is ill-conditioned: its (lumped or pivot) masses span {masses.min():.3e} .. "
+                f"{masses.max():.3e}, a ratio above {MAX_MASS_RATIO:.0e}; the canonical coordinates "
+                "(q~, p~) would lose all digits. Check the units and the assembly (tiny or huge masses)"
+            )
 
     def _solve_L(self, b, trans: bool = False) -> np.ndarray:
         return scipy.linalg.solve_triangular(self.L, b, lower=True, trans="T" if trans else "N")
@@ -144,5 +156,5 @@ class MassMatrixCoordinates:
         """``T = diag(L^T, L^-1)`` (2N, 2N): ``x~ = T x`` for states ``x = (q, p)``; ``T^T J T = J``."""
         T = np.zeros((2 * self.N, 2 * self.N))
         T[: self.N, : self.N] = self.L.T
-        T[self.N:, self.N:] = self._solve_L(np.eye(self.N))
+        T[self.N :, self.N :] = self._solve_L(np.eye(self.N))
         return T

@@ -211,10 +211,16 @@ class ReducedSineGordon:
         """Compiled ``g`` and its Jacobian for :func:`~sympredict.symplectic.integrators_compiled.rollout`
         (``scheme='implicit_midpoint'``) and :func:`rk4_rollout`; ``mu = (c,)``."""
         fargs = np.concatenate([[self.fom.strength], self.A1.ravel(), self.A2.ravel(), self.S.ravel(), self.W.ravel()])
-        return PointwiseHamiltonian(self.dim, 1, grad_H=_g, hess_H=_dg, fargs=fargs,
-                                    iargs=[self.dim, self.n_interpolation],
-                                    check_mu=lambda mu: self.fom.check_c(np.asarray(mu)[:, 0], len(mu)),
-                                    name=f"{self.kind}ROM(2n={self.dim}, m={self.n_interpolation})")
+        return PointwiseHamiltonian(
+            self.dim,
+            1,
+            grad_H=_g,
+            hess_H=_dg,
+            fargs=fargs,
+            iargs=[self.dim, self.n_interpolation],
+            check_mu=lambda mu: self.fom.check_c(np.asarray(mu)[:, 0], len(mu)),
+            name=f"{self.kind}ROM(2n={self.dim}, m={self.n_interpolation})",
+        )
 
     def quadratic_part(self, mass: bool = True) -> QuadraticPart:
         """The Hessian of the reduced Hamiltonian ``H(V y; c)`` at ``y = 0`` as a
@@ -226,7 +232,9 @@ class ReducedSineGordon:
         ROM's ``s W S`` is not symmetric (no Hamiltonian).  ``O(N n^2)``.
         """
         if mass and self.kind != "galerkin":
-            raise ValueError("the mass term of the reduced Hessian needs the Galerkin ROM (the DEIM ROM has no Hamiltonian)")
+            raise ValueError(
+                "the mass term of the reduced Hessian needs the Galerkin ROM (the DEIM ROM has no Hamiltonian)"
+            )
         A0 = self.A2 + (self.fom.strength * (self.S.T @ self.S) if mass else 0.0)
         sym = lambda A: 0.5 * (A + A.T)  # noqa: E731  (round-off of the products)
         return QuadraticPart([sym(A0), sym(self.A1)], [[0.0], [2.0]])
@@ -270,5 +278,7 @@ class ReducedSineGordon:
         if scheme == "rk4":
             return rk4_rollout(self.pointwise(), y0, c, dt, n_steps, substeps)
         if scheme != "implicit_midpoint":
-            raise ValueError(f"scheme must be 'implicit_midpoint' or 'rk4' (the reduced H is not separable), got {scheme!r}")
+            raise ValueError(
+                f"scheme must be 'implicit_midpoint' or 'rk4' (the reduced H is not separable), got {scheme!r}"
+            )
         return rollout(self.pointwise(), y0, c, dt, n_steps, scheme=scheme, substeps=substeps)

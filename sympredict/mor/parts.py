@@ -70,11 +70,15 @@ class QuadraticSplit(Setting):
 
     def check(self, dim: int, n_mu: int) -> "QuadraticSplit":
         if not isinstance(self.quadratic, QuadraticPart):
-            raise ValueError(f"QuadraticSplit needs a sympredict.systems.linear_flow.QuadraticPart (the quadratic part "
-                             f"A(mu) of the reduced Hamiltonian), got {self.quadratic!r}")
+            raise ValueError(
+                f"QuadraticSplit needs a sympredict.systems.linear_flow.QuadraticPart (the quadratic part "
+                f"A(mu) of the reduced Hamiltonian), got {self.quadratic!r}"
+            )
         as_flag(self.fallback, "QuadraticSplit fallback")
         self.quadratic.checked(dim=dim)
         if self.quadratic.checked()[1].shape[1] not in (0, n_mu):
-            raise ValueError(f"QuadraticSplit depends on {self.quadratic.checked()[1].shape[1]} parameter component(s), "
-                             f"the flow map takes {n_mu}")
+            raise ValueError(
+                f"QuadraticSplit depends on {self.quadratic.checked()[1].shape[1]} parameter component(s), "
+                f"the flow map takes {n_mu}"
+            )
         return self

@@ -90,10 +90,14 @@ def check_symplectic_basis(RB, phase_space=None, tol: float = _SYMPLECTIC_TOL) -
     """``max |V^T J_2N V - J_2n|`` of a pyMOR ``SymplecticBasis``; ``ValueError`` if not one, or above ``tol``."""
 
     if not isinstance(RB, SymplecticBasis):
-        raise ValueError(f"RB must be a pyMOR SymplecticBasis (e.g. sympredict.mor.basis.complex_svd_basis(...).to_pymor(...)), "
-                         f"got {type(RB).__name__}")
+        raise ValueError(
+            f"RB must be a pyMOR SymplecticBasis (e.g. sympredict.mor.basis.complex_svd_basis(...).to_pymor(...)), "
+            f"got {type(RB).__name__}"
+        )
     if phase_space is not None and RB.phase_space != phase_space:
-        raise ValueError(f"RB lives in {RB.phase_space}, but the FOM's solution space is {phase_space}: mismatched spaces")
+        raise ValueError(
+            f"RB lives in {RB.phase_space}, but the FOM's solution space is {phase_space}: mismatched spaces"
+        )
     if len(RB) == 0:
         raise ValueError("RB is empty")
     V = RB.to_array()
@@ -158,9 +162,11 @@ class SymplecticKernelModel(Model):
         exc.trajectory = self.solution_space.from_numpy(np.atleast_2d(partial).T)
         exc.completed_steps = int(k)
         exc.trajectory_kind = "reduced"
-        self.logger.error(f"Newton failed at macro step {k + 1} of {self.n_steps} (mu = {mu}): the exception carries "
-                          f"the reduced trajectory of the {k} completed steps (exc.trajectory; "
-                          f"reductor.reconstruct(exc.trajectory) for full states)")
+        self.logger.error(
+            f"Newton failed at macro step {k + 1} of {self.n_steps} (mu = {mu}): the exception carries "
+            f"the reduced trajectory of the {k} completed steps (exc.trajectory; "
+            f"reductor.reconstruct(exc.trajectory) for full states)"
+        )
 
     def _compute(self, quantities, data, mu):
         if "solution" in quantities:
@@ -217,28 +223,39 @@ def _flow_parameters(fom, flow_parameters):
     if flow_parameters is None:
         return fom.parameters
     if isinstance(flow_parameters, str) or not all(isinstance(k, str) for k in flow_parameters):
-        raise ValueError(f"flow_parameters must be a sequence of parameter names (e.g. ('c',)), got {flow_parameters!r}")
+        raise ValueError(
+            f"flow_parameters must be a sequence of parameter names (e.g. ('c',)), got {flow_parameters!r}"
+        )
     names = set(flow_parameters)
     unknown = names - set(fom.parameters)
     if unknown:
         raise ValueError(f"flow_parameters {sorted(unknown)} are not parameters of the FOM ({dict(fom.parameters)})")
     needed = _operator_parameters(fom) & set(fom.parameters)
     if needed - names:
-        raise ValueError(f"the FOM's evolution depends on {sorted(needed)}: flow_parameters={sorted(names)} leaves out "
-                         f"{sorted(needed - names)} (only parameters of the initial data may be left out)")
+        raise ValueError(
+            f"the FOM's evolution depends on {sorted(needed)}: flow_parameters={sorted(names)} leaves out "
+            f"{sorted(needed - names)} (only parameters of the initial data may be left out)"
+        )
     return Parameters({k: fom.parameters[k] for k in names})
 
 
 def _check_estimator(estimator) -> None:
-    missing = [a for a in ("fit", "step", "rollout", "step_jacobian", "get_params")
-               if not callable(getattr(estimator, a, None))]
+    missing = [
+        a
+        for a in ("fit", "step", "rollout", "step_jacobian", "get_params")
+        if not callable(getattr(estimator, a, None))
+    ]
     if isinstance(estimator, type) or missing:
-        raise ValueError(f"estimator must be an estimator instance (e.g. SymplecticKernelPredictor(...)) with fit, step, "
-                         f"rollout, step_jacobian and get_params, or None (DefaultEstimator()), got {estimator!r}"
-                         + (f" (lacks {', '.join(missing)})" if missing and not isinstance(estimator, type) else ""))
+        raise ValueError(
+            f"estimator must be an estimator instance (e.g. SymplecticKernelPredictor(...)) with fit, step, "
+            f"rollout, step_jacobian and get_params, or None (DefaultEstimator()), got {estimator!r}"
+            + (f" (lacks {', '.join(missing)})" if missing and not isinstance(estimator, type) else "")
+        )
     if isinstance(estimator, SplitKernelPredictor):
-        raise ValueError("estimator=SplitKernelPredictor(...): give the inner SymplecticKernelPredictor as estimator and "
-                         "split=QuadraticSplit(A): the reductor builds the split in its scaled coordinates")
+        raise ValueError(
+            "estimator=SplitKernelPredictor(...): give the inner SymplecticKernelPredictor as estimator and "
+            "split=QuadraticSplit(A): the reductor builds the split in its scaled coordinates"
+        )
 
 
 def _part(value, cls, name: str, example: str):
@@ -298,21 +315,43 @@ class SymplecticKernelReductor(BasicObject):
         least-squares linear maps per parameter (a check that cannot run is logged as not done).
     """
 
-    def __init__(self, fom, RB, dt, samples=None, estimator=None, *, selection=None, split=None, scaling=None,
-                 flow_parameters=None, check_existence: bool = True):
+    def __init__(
+        self,
+        fom,
+        RB,
+        dt,
+        samples=None,
+        estimator=None,
+        *,
+        selection=None,
+        split=None,
+        scaling=None,
+        flow_parameters=None,
+        check_existence: bool = True,
+    ):
         samples = GalerkinSamples() if samples is None else samples
         if not all(callable(getattr(samples, a, None)) for a in ("check_model", "check", "sample")):
-            raise ValueError(f"samples must be GalerkinSamples(...), ProjectedTrajectories(...), "
-                             f"GivenTrajectories(U, mus) or GivenSamples(data) (sympredict.mor.samples), got {samples!r}")
+            raise ValueError(
+                f"samples must be GalerkinSamples(...), ProjectedTrajectories(...), "
+                f"GivenTrajectories(U, mus) or GivenSamples(data) (sympredict.mor.samples), got {samples!r}"
+            )
         if not isinstance(fom, Model):
             raise ValueError(f"fom must be a time-dependent pyMOR Model, got {type(fom).__name__}")
         self.fom, self.samples = fom, samples
         self.estimator = DefaultEstimator() if estimator is None else estimator
-        self.selection = None if selection is None else _part(selection, ValidationSelection, "selection",
-                                                              "ValidationSelection(state_kernels=[IMQ(0.1)])").check()
+        self.selection = (
+            None
+            if selection is None
+            else _part(
+                selection, ValidationSelection, "selection", "ValidationSelection(state_kernels=[IMQ(0.1)])"
+            ).check()
+        )
         self.split = None if split is None else _part(split, QuadraticSplit, "split", "QuadraticSplit(A)")
-        self.scaling = (TrainingScaling() if scaling is None else
-                        _part(scaling, TrainingScaling, "scaling", "TrainingScaling('diag')")).check()
+        self.scaling = (
+            TrainingScaling()
+            if scaling is None
+            else _part(scaling, TrainingScaling, "scaling", "TrainingScaling('diag')")
+        ).check()
         self.check_existence = as_flag(check_existence, "check_existence")
         if isinstance(self.estimator, DefaultEstimator):
             self.estimator.check()
@@ -331,17 +370,24 @@ class SymplecticKernelReductor(BasicObject):
         if self.split is not None:
             self.split.check(self.dim, self.flow_parameters.dim)
             if self.split.fallback and not self.check_existence:
-                raise ValueError("split=QuadraticSplit(A, fallback=True) is split off where the existence check finds "
-                                 "no generating function without it; check_existence=False never checks: give "
-                                 "QuadraticSplit(A) to always split, or check_existence=True")
+                raise ValueError(
+                    "split=QuadraticSplit(A, fallback=True) is split off where the existence check finds "
+                    "no generating function without it; check_existence=False never checks: give "
+                    "QuadraticSplit(A) to always split, or check_existence=True"
+                )
         if self.scaling.state == "williamson" and not samples.exact_flow:
-            raise ValueError(f"TrainingScaling(state='williamson') needs the reduced operator of the Galerkin ROM: use "
-                             f"samples=GalerkinSamples(...) or state='diag' (samples={type(samples).__name__})")
+            raise ValueError(
+                f"TrainingScaling(state='williamson') needs the reduced operator of the Galerkin ROM: use "
+                f"samples=GalerkinSamples(...) or state='diag' (samples={type(samples).__name__})"
+            )
         if isinstance(self.estimator, SymplecticKernelPredictor):
             self.estimator.check_params()  # its settings, before any FOM solve (fit would check them after sampling)
         training_parameters = samples.check(self)
-        self.training_parameters = None if training_parameters is None or len(training_parameters) == 0 else \
-            [parse_mu(m, fom.parameters) for m in training_parameters]
+        self.training_parameters = (
+            None
+            if training_parameters is None or len(training_parameters) == 0
+            else [parse_mu(m, fom.parameters) for m in training_parameters]
+        )
         parameter_space = samples.parameter_space
         if self.training_parameters is not None or parameter_space is not None:
             # the FOM's parameter box (validation draws), and the flow parameters' part of it (their scaling)
@@ -353,10 +399,15 @@ class SymplecticKernelReductor(BasicObject):
             self.mu_lo = self.mu_hi = None
             self.flow_lo, self.flow_hi = samples.data.mu.min(axis=0), samples.data.mu.max(axis=0)
         regularizations = None if self.selection is None else self.selection.regularizations_
-        if regularizations is not None and isinstance(samples, (GivenSamples, GivenTrajectories)) \
-                and samples.validation is None:
-            raise ValueError(f"ValidationSelection(regularizations={self.selection.regularizations!r}) scores each "
-                             f"ridge term on validation data: give {type(samples).__name__}(..., validation=...)")
+        if (
+            regularizations is not None
+            and isinstance(samples, (GivenSamples, GivenTrajectories))
+            and samples.validation is None
+        ):
+            raise ValueError(
+                f"ValidationSelection(regularizations={self.selection.regularizations!r}) scores each "
+                f"ridge term on validation data: give {type(samples).__name__}(..., validation=...)"
+            )
 
     def _check_inside_space(self) -> None:
         """``ValueError`` naming the first training parameter (given, of the trajectories, of the samples) outside
@@ -373,9 +424,11 @@ class SymplecticKernelReductor(BasicObject):
         tol = 1e-9 * np.maximum(np.abs(lo), np.abs(hi)) + 1e-300
         out = np.flatnonzero(((rows < lo - tol) | (rows > hi + tol)).any(axis=1))
         if out.size:
-            raise ValueError(f"{what}: parameter {rows[out[0]].tolist()} (and {out.size - 1} more) lies outside "
-                             f"parameter_space [{lo.tolist()}, {hi.tolist()}]: give a parameter_space that contains "
-                             "the training parameters (or leave it out: the box of the training parameters)")
+            raise ValueError(
+                f"{what}: parameter {rows[out[0]].tolist()} (and {out.size - 1} more) lies outside "
+                f"parameter_space [{lo.tolist()}, {hi.tolist()}]: give a parameter_space that contains "
+                "the training parameters (or leave it out: the box of the training parameters)"
+            )
 
     # ------------------------------------------------------------ projection
     def project(self, U) -> np.ndarray:
@@ -410,12 +463,16 @@ class SymplecticKernelReductor(BasicObject):
         if isinstance(U_red, np.ndarray) or isinstance(U_red, (list, tuple)):
             arr = np.atleast_2d(np.asarray(U_red, dtype=float))
             if arr.ndim != 2 or arr.shape[1] != self.dim:
-                raise ValueError(f"U_red as an array must have shape (K, 2n) = (K, {self.dim}) (reduced states in "
-                                 f"rows), got {np.shape(U_red)}; or give what rom.solve returns")
+                raise ValueError(
+                    f"U_red as an array must have shape (K, 2n) = (K, {self.dim}) (reduced states in "
+                    f"rows), got {np.shape(U_red)}; or give what rom.solve returns"
+                )
             return self.RB.to_array().lincomb(arr.T)  # pyMOR: coefficients (2n, len)
         if not hasattr(U_red, "space"):
-            raise ValueError(f"U_red must be a VectorArray of the ROM (what rom.solve returns) or an array (K, 2n), "
-                             f"got {type(U_red).__name__}")
+            raise ValueError(
+                f"U_red must be a VectorArray of the ROM (what rom.solve returns) or an array (K, 2n), "
+                f"got {type(U_red).__name__}"
+            )
         if U_red.space.dim != self.dim:
             raise ValueError(f"U_red must have dimension 2n = {self.dim}, got {U_red.space.dim}")
         return self.RB.to_array().lincomb(U_red.to_numpy())  # pyMOR: coefficients (2n, len)
@@ -485,8 +542,15 @@ class SymplecticKernelReductor(BasicObject):
         self._split = None if self.split is None or self.split.fallback else self.split.quadratic
         if self.check_existence:
             self.existence_, self.choice_, self._split = check_existence(
-                train, self._fit_state_scaling(train), self.dt, given_update=self._given_update(),
-                open_estimator=not self._default(), split=self.split, reference=reference, log=self.logger)
+                train,
+                self._fit_state_scaling(train),
+                self.dt,
+                given_update=self._given_update(),
+                open_estimator=not self._default(),
+                split=self.split,
+                reference=reference,
+                log=self.logger,
+            )
             self.existence_["coordinates"] = f"trained (TrainingScaling state={self.scaling.state!r})"
         return train, val
 
@@ -528,8 +592,11 @@ class SymplecticKernelReductor(BasicObject):
         if vary_mu:
             d = train.mu.shape[1]
             # "none": the identity map (lo = 0, width = 1), so the predictor sees the parameter vectors unchanged
-            mu_scaling = BoxScaling().fit(train.mu, self.flow_lo, self.flow_hi) if self.scaling.parameters == "box" \
+            mu_scaling = (
+                BoxScaling().fit(train.mu, self.flow_lo, self.flow_hi)
+                if self.scaling.parameters == "box"
                 else BoxScaling().fit(train.mu, np.zeros(d), np.ones(d))
+            )
         self.tau_ = self.dt if self.scaling.time == "step" else 1.0
 
         assert np.allclose(train.dt, self.dt) and (val is None or np.allclose(val.dt, self.dt))
@@ -537,9 +604,12 @@ class SymplecticKernelReductor(BasicObject):
         def scaled(d):
             if d is None:
                 return None
-            return FlowMapData(state_scaling.transform(d.x0), state_scaling.transform(d.x1),
-                               mu_scaling.transform(d.mu) if vary_mu else None,
-                               np.ones(len(d)) if self.scaling.time == "step" else d.dt)  # time unit dt
+            return FlowMapData(
+                state_scaling.transform(d.x0),
+                state_scaling.transform(d.x1),
+                mu_scaling.transform(d.mu) if vary_mu else None,
+                np.ones(len(d)) if self.scaling.time == "step" else d.dt,
+            )  # time unit dt
 
         return scaled(train), scaled(val), state_scaling, mu_scaling
 
@@ -551,10 +621,16 @@ class SymplecticKernelReductor(BasicObject):
             if not vary_mu and quad.checked()[1].shape[1]:  # one training parameter: A at that parameter
                 quad = QuadraticPart(quad.hessian(self.train_data_.mu[:1], 1))
             model = SplitKernelPredictor(predictor, scaled_quadratic_part(quad, state_scaling, mu_scaling, self.tau_))
-        model.fit(s_train.x0, s_train.x1, mu=s_train.mu if vary_mu else None, dt=s_train.dt,
-                  validation=None if s_val is None else (s_val.x0, s_val.x1, s_val.mu if vary_mu else None, s_val.dt))
-        flow_map = NormalizedFlowMap(model, state_scaling, mu_scaling if vary_mu else None, self.tau_,
-                                     parameters=self.flow_parameters)
+        model.fit(
+            s_train.x0,
+            s_train.x1,
+            mu=s_train.mu if vary_mu else None,
+            dt=s_train.dt,
+            validation=None if s_val is None else (s_val.x0, s_val.x1, s_val.mu if vary_mu else None, s_val.dt),
+        )
+        flow_map = NormalizedFlowMap(
+            model, state_scaling, mu_scaling if vary_mu else None, self.tau_, parameters=self.flow_parameters
+        )
         if not vary_mu and self.flow_parameters:
             # one training parameter: the predictor has no mu input, the ROM accepts only that mu
             flow_map = _FixedMuFlowMap(flow_map, self.train_data_.mu[0], parameters=self.flow_parameters)
@@ -573,8 +649,9 @@ class SymplecticKernelReductor(BasicObject):
                 warnings.simplefilter("ignore")
                 if isinstance(val, TrajectoryData):
                     ref = val.states[:, 1:]
-                    pred = flow_map.rollout(val.states[:, 0], ref.shape[1], mu=val.mu if val.mu.shape[1] else None,
-                                            dt=self.dt)[:, 1:]
+                    pred = flow_map.rollout(
+                        val.states[:, 0], ref.shape[1], mu=val.mu if val.mu.shape[1] else None, dt=self.dt
+                    )[:, 1:]
                 else:
                     ref = val.x1
                     pred = flow_map.step(val.x0, mu=val.mu if val.mu.shape[1] else None, dt=self.dt)
@@ -612,8 +689,10 @@ class SymplecticKernelReductor(BasicObject):
         chooses_mu = self.selection is not None and self.selection.mu_kernels is not None
         if len(np.unique(rows, axis=0)) > 1 and self._lacks_mu_kernel(self.estimator) and not chooses_mu:
             # before any FOM solve (reduce() would find it after sampling)
-            raise ValueError("the parameters vary across the training parameters but the estimator has mu_kernel=None "
-                             "and does not choose one: give it a mu_kernel, or train at one parameter value")
+            raise ValueError(
+                "the parameters vary across the training parameters but the estimator has mu_kernel=None "
+                "and does not choose one: give it a mu_kernel, or train at one parameter value"
+            )
         t0 = time.perf_counter()
         s_train, s_val, state_scaling, mu_scaling = self.scaled_training_data()
         timings = {"data": time.perf_counter() - t0}
@@ -623,8 +702,10 @@ class SymplecticKernelReductor(BasicObject):
         if self._split is None:
             search = (s_train, s_val)
         else:  # the kernels of S, compared on S's samples
-            search = tuple(None if d is None else self._scaled_split_pairs(d, state_scaling, mu_scaling, vary_mu)
-                           for d in (s_train, s_val))
+            search = tuple(
+                None if d is None else self._scaled_split_pairs(d, state_scaling, mu_scaling, vary_mu)
+                for d in (s_train, s_val)
+            )
         selection = self.selection or ValidationSelection().check()
         if self._default():
             base = self.estimator.estimator(self._update())
@@ -636,20 +717,27 @@ class SymplecticKernelReductor(BasicObject):
             predictor, sel = selection.choose_kernels(clone(given), *search, vary_mu, default=False, log=self.logger)
             predictor = predictor or given
             if vary_mu and self._lacks_mu_kernel(predictor):
-                raise ValueError("the parameters vary across the training parameters but the estimator has "
-                                 "mu_kernel=None and does not choose one: give it a mu_kernel")
+                raise ValueError(
+                    "the parameters vary across the training parameters but the estimator has "
+                    "mu_kernel=None and does not choose one: give it a mu_kernel"
+                )
         if sel is not None:
             self.selection_ = sel
         timings["selection"] = time.perf_counter() - t0
         t0 = time.perf_counter()
-        with self.logger.block(f"fitting {type(predictor).__name__} on {len(train)} samples"
-                               + ("" if self._split is None else " (inside the split)")):
+        with self.logger.block(
+            f"fitting {type(predictor).__name__} on {len(train)} samples"
+            + ("" if self._split is None else " (inside the split)")
+        ):
             if selection.regularizations_ is None:
                 model, flow_map = self._fit(predictor, s_train, s_val, vary_mu, state_scaling, mu_scaling)
             else:
                 model, flow_map, self.regularization_, self.regularization_table_ = selection.choose_regularization(
-                    predictor, lambda c: self._fit(c, s_train, s_val, vary_mu, state_scaling, mu_scaling),
-                    self.validation_score, log=self.logger)
+                    predictor,
+                    lambda c: self._fit(c, s_train, s_val, vary_mu, state_scaling, mu_scaling),
+                    self.validation_score,
+                    log=self.logger,
+                )
         timings["fit"] = time.perf_counter() - t0
         self.timings_ = timings
         self.predictor_ = model
@@ -661,9 +749,15 @@ class SymplecticKernelReductor(BasicObject):
             self.choice_["estimator"] = dict(inner.choice_)
         self._check_one_step(flow_map)
         name = None if self.fom.name is None else "kernel_" + self.fom.name
-        return SymplecticKernelModel(flow_map, self._reduced_initial_data(), self.fom.T if T is None else T, self.dt,
-                                     self.fom.parameters, name=name,
-                                     flow_parameters=self.flow_parameters if self._flow_subset else None)
+        return SymplecticKernelModel(
+            flow_map,
+            self._reduced_initial_data(),
+            self.fom.T if T is None else T,
+            self.dt,
+            self.fom.parameters,
+            name=name,
+            flow_parameters=self.flow_parameters if self._flow_subset else None,
+        )
 
     @staticmethod
     def _lacks_mu_kernel(estimator) -> bool:
@@ -692,10 +786,12 @@ class SymplecticKernelReductor(BasicObject):
         except NewtonConvergenceError as exc:
             reason = f"Newton's method failed: {exc}"
         if reason is not None:
-            raise ValueError(f"the fitted ROM cannot take one step of dt = {self.dt!r} from the training data "
-                             f"({reason}; update = {self._fitted_update()!r}): "
-                             f"use update='midpoint' (estimator=SymplecticKernelPredictor(update='midpoint')), a "
-                             f"smaller dt, or a larger basis or budget (the estimator's max_centers)")
+            raise ValueError(
+                f"the fitted ROM cannot take one step of dt = {self.dt!r} from the training data "
+                f"({reason}; update = {self._fitted_update()!r}): "
+                f"use update='midpoint' (estimator=SymplecticKernelPredictor(update='midpoint')), a "
+                f"smaller dt, or a larger basis or budget (the estimator's max_centers)"
+            )
 
     def _scaled_split_pairs(self, d, state_scaling, mu_scaling, vary_mu):
         """``S``'s samples in the predictor's coordinates (what the kernel search compares candidates on)."""
@@ -718,7 +814,9 @@ class _FixedMuFlowMap:
         if mu is not None:
             mu = as_parameter(mu, 1, self.mu.size, parameters=getattr(self, "parameters", None))
         if mu is not None and not np.allclose(np.ravel(mu), self.mu):
-            raise ValueError(f"this ROM was trained at the single parameter {self.mu.tolist()}: it cannot predict at {np.ravel(mu).tolist()}")
+            raise ValueError(
+                f"this ROM was trained at the single parameter {self.mu.tolist()}: it cannot predict at {np.ravel(mu).tolist()}"
+            )
 
     def rollout(self, x0, n_steps, mu=None, dt=None):
         self._check(mu)

@@ -49,9 +49,11 @@ def _check_fom(fom, needed: tuple, what: str) -> None:
     """``ValueError`` unless ``fom`` is a pyMOR Model with the attributes ``needed``."""
     missing = [a for a in needed if not hasattr(fom, a)]
     if not isinstance(fom, Model) or missing:
-        raise ValueError(f"{what} needs a time-dependent pyMOR Model (e.g. an InstationaryModel) with "
-                         f"{', '.join(needed[:-1])} and {needed[-1]}; {type(fom).__name__} "
-                         + (f"lacks {', '.join(missing)}" if missing else "is not a pyMOR Model"))
+        raise ValueError(
+            f"{what} needs a time-dependent pyMOR Model (e.g. an InstationaryModel) with "
+            f"{', '.join(needed[:-1])} and {needed[-1]}; {type(fom).__name__} "
+            + (f"lacks {', '.join(missing)}" if missing else "is not a pyMOR Model")
+        )
 
 
 def _check_parameter_space(parameter_space, fom) -> None:
@@ -60,11 +62,15 @@ def _check_parameter_space(parameter_space, fom) -> None:
     from pymor.parameters.base import ParameterSpace
 
     if not isinstance(parameter_space, ParameterSpace):
-        raise ValueError(f"parameter_space must be a pyMOR ParameterSpace (e.g. fom.parameters.space(lo, hi)) or None, "
-                         f"got {type(parameter_space).__name__}")
+        raise ValueError(
+            f"parameter_space must be a pyMOR ParameterSpace (e.g. fom.parameters.space(lo, hi)) or None, "
+            f"got {type(parameter_space).__name__}"
+        )
     if dict(parameter_space.parameters) != dict(fom.parameters):
-        raise ValueError(f"parameter_space has the parameters {dict(parameter_space.parameters)}, the FOM has "
-                         f"{dict(fom.parameters)}: names and dimensions must agree")
+        raise ValueError(
+            f"parameter_space has the parameters {dict(parameter_space.parameters)}, the FOM has "
+            f"{dict(fom.parameters)}: names and dimensions must agree"
+        )
 
 
 def _parsed(training_parameters, fom, what: str) -> Optional[list]:
@@ -72,8 +78,10 @@ def _parsed(training_parameters, fom, what: str) -> Optional[list]:
     if not fom.parameters:
         return [None]
     if training_parameters is None or len(training_parameters) == 0:
-        raise ValueError(f"the FOM has parameters {dict(fom.parameters)}: give {what} its training parameters "
-                         f"(pyMOR Mu, e.g. fom.parameters.space(lo, hi).sample_uniformly(5))")
+        raise ValueError(
+            f"the FOM has parameters {dict(fom.parameters)}: give {what} its training parameters "
+            f"(pyMOR Mu, e.g. fom.parameters.space(lo, hi).sample_uniformly(5))"
+        )
     return [parse_mu(m, fom.parameters) for m in training_parameters]
 
 
@@ -96,31 +104,43 @@ def _as_trajectories(U, mus, fom, name: str) -> tuple:
     space = fom.solution_space
     if isinstance(U, np.ndarray):
         if U.ndim != 3 or U.shape[2] != space.dim or U.shape[0] == 0 or U.shape[1] < 2:
-            raise ValueError(f"{name}: an array of trajectories must have shape (P, K+1, N) with P >= 1, K + 1 >= 2 and "
-                             f"N = {space.dim} (the FOM's solution space), got {U.shape}")
+            raise ValueError(
+                f"{name}: an array of trajectories must have shape (P, K+1, N) with P >= 1, K + 1 >= 2 and "
+                f"N = {space.dim} (the FOM's solution space), got {U.shape}"
+            )
         if not np.issubdtype(U.dtype, np.number) or np.iscomplexobj(U) or not np.all(np.isfinite(U)):
-            raise ValueError(f"{name}: the trajectories must be finite real numbers (NaN, Inf or dtype {U.dtype} found)")
+            raise ValueError(
+                f"{name}: the trajectories must be finite real numbers (NaN, Inf or dtype {U.dtype} found)"
+            )
         U = [space.from_numpy(np.array(u, dtype=float).T) for u in U]  # pyMOR: columns are vectors
     else:
         U = list(U) if isinstance(U, (list, tuple)) else [U]
         bad = [i for i, u in enumerate(U) if getattr(u, "space", None) != space]
         if not U or bad:
-            raise ValueError(f"{name}: U must hold VectorArrays in the FOM's solution space {space}" +
-                             (f"; entry {bad[0]} is a {type(U[bad[0]]).__name__}" + (
-                                 f" in {U[bad[0]].space}" if hasattr(U[bad[0]], "space") else "") if bad else
-                              ", got none"))
+            raise ValueError(
+                f"{name}: U must hold VectorArrays in the FOM's solution space {space}"
+                + (
+                    f"; entry {bad[0]} is a {type(U[bad[0]]).__name__}"
+                    + (f" in {U[bad[0]].space}" if hasattr(U[bad[0]], "space") else "")
+                    if bad
+                    else ", got none"
+                )
+            )
         for i, u in enumerate(U):
             if not np.all(np.isfinite(u.norm())):
                 raise ValueError(f"{name}: trajectory {i} has NaN or Inf states")
     lengths = sorted({len(u) for u in U})
     if len(lengths) > 1 or lengths[0] < 2:
-        raise ValueError(f"{name}: every trajectory must have the same number K + 1 >= 2 of states (t_k = k T / K), "
-                         f"got lengths {lengths}")
+        raise ValueError(
+            f"{name}: every trajectory must have the same number K + 1 >= 2 of states (t_k = k T / K), "
+            f"got lengths {lengths}"
+        )
     if not fom.parameters and mus is None:
         return U, [None] * len(U)
     if mus is None or isinstance(mus, (str, dict)) or len(mus) != len(U):
-        raise ValueError(f"{name}: give one parameter value per trajectory ({len(U)}), got "
-                         f"{'none' if mus is None else mus!r}")
+        raise ValueError(
+            f"{name}: give one parameter value per trajectory ({len(U)}), got {'none' if mus is None else mus!r}"
+        )
     return U, [parse_mu(m, fom.parameters) for m in mus]
 
 
@@ -134,9 +154,11 @@ def _check_stride(reductor, h: float, n_out: Optional[int] = None) -> int:
         n_out = int(round(T / h)) if n_out is None else int(n_out)
         lower, upper = max(1, int(np.floor(ratio))), max(1, int(np.ceil(ratio)))
         near = sorted({lower * h, upper * h})
-        raise ValueError(f"projected trajectories need dt to be a multiple of the FOM's output step h = T / nt = "
-                         f"{T!r} / {n_out} = {h!r}; dt = {dt!r} is {ratio:.6g} output steps: use "
-                         f"dt = k * h, e.g. " + " or ".join(f"{v!r}" for v in near))
+        raise ValueError(
+            f"projected trajectories need dt to be a multiple of the FOM's output step h = T / nt = "
+            f"{T!r} / {n_out} = {h!r}; dt = {dt!r} is {ratio:.6g} output steps: use "
+            f"dt = k * h, e.g. " + " or ".join(f"{v!r}" for v in near)
+        )
     return stride
 
 
@@ -147,9 +169,11 @@ def _check_given_grid(reductor, U) -> None:
     k = len(U) - 1
     nt = getattr(getattr(fom, "time_stepper", None), "nt", None)
     if nt and int(nt) % k:
-        raise ValueError(f"the given trajectories have {k + 1} states, read as t_k = k T / {k} (T = {fom.T!r}); "
-                         f"the FOM's time grid has nt = {nt} steps, not a multiple of {k}: give states at every "
-                         f"output step of fom.solve (nt + 1 = {int(nt) + 1} states) or at every m-th, m dividing nt")
+        raise ValueError(
+            f"the given trajectories have {k + 1} states, read as t_k = k T / {k} (T = {fom.T!r}); "
+            f"the FOM's time grid has nt = {nt} steps, not a multiple of {k}: give states at every "
+            f"output step of fom.solve (nt + 1 = {int(nt) + 1} states) or at every m-th, m dividing nt"
+        )
     _check_stride(reductor, fom.T / k, k)
 
 
@@ -192,8 +216,9 @@ class _Sampled(Parametrized):
         """``n_validation`` parameters uniform in the box (seeded), not the training ones."""
         if not reductor.fom.parameters:
             return [None]
-        return random_parameters(reductor.fom.parameters, reductor.mu_lo, reductor.mu_hi, self.n_validation,
-                                 seed=self.seed + 7)
+        return random_parameters(
+            reductor.fom.parameters, reductor.mu_lo, reductor.mu_hi, self.n_validation, seed=self.seed + 7
+        )
 
 
 class GalerkinSamples(_Sampled):
@@ -225,12 +250,22 @@ class GalerkinSamples(_Sampled):
     @staticmethod
     def check_model(fom) -> None:
         if not isinstance(fom, QuadraticHamiltonianModel):
-            raise ValueError(f"GalerkinSamples needs the exact reduced flow of a pyMOR QuadraticHamiltonianModel, got "
-                             f"{type(fom).__name__}: for any other pyMOR model use "
-                             f"samples=ProjectedTrajectories(...) (only fom.solve is called)")
+            raise ValueError(
+                f"GalerkinSamples needs the exact reduced flow of a pyMOR QuadraticHamiltonianModel, got "
+                f"{type(fom).__name__}: for any other pyMOR model use "
+                f"samples=ProjectedTrajectories(...) (only fom.solve is called)"
+            )
 
-    def __init__(self, training_parameters=None, n_samples: int = 400, radius: float = 0.05, n_validation: int = 3,
-                 parameter_space=None, horizon: Optional[float] = None, seed: int = 0):
+    def __init__(
+        self,
+        training_parameters=None,
+        n_samples: int = 400,
+        radius: float = 0.05,
+        n_validation: int = 3,
+        parameter_space=None,
+        horizon: Optional[float] = None,
+        seed: int = 0,
+    ):
         self.training_parameters = training_parameters
         self.n_samples = n_samples
         self.radius = radius
@@ -258,19 +293,25 @@ class GalerkinSamples(_Sampled):
             x0 = reductor._initial_state(mu)
             traj = system.trajectory(x0[None], row[None] if row.size else None, dt / 4, n_fine)[0]
             n_on = max(1, n_per_mu // 5)  # a fifth on the trajectory itself
-            states = np.concatenate([sample_trajectory_neighbourhood(traj, n_per_mu - n_on, self.radius, rng),
-                                     sample_trajectory_neighbourhood(traj, n_on, 0.0, rng)])
+            states = np.concatenate(
+                [
+                    sample_trajectory_neighbourhood(traj, n_per_mu - n_on, self.radius, rng),
+                    sample_trajectory_neighbourhood(traj, n_on, 0.0, rng),
+                ]
+            )
             mrow = np.repeat(row[None], len(states), axis=0)
-            parts.append(FlowMapData(states, system.flow(states, mrow, dt), mrow if row.size else None,
-                                     np.full(len(states), dt)))
+            parts.append(
+                FlowMapData(states, system.flow(states, mrow, dt), mrow if row.size else None, np.full(len(states), dt))
+            )
         return _concat(parts), system
 
     def sample(self, reductor):
         """``(train, val, reference)``: samples with the FOM's parameter vectors and ``(system, train)`` (the exact
         reduced system, for the existence check)."""
         train, system = self._samples(reductor, reductor.training_parameters, self.n_samples, self.seed)
-        val, _ = self._samples(reductor, self.validation_parameters(reductor), max(50, self.n_samples // 4),
-                               self.seed + 1)
+        val, _ = self._samples(
+            reductor, self.validation_parameters(reductor), max(50, self.n_samples // 4), self.seed + 1
+        )
         return train, val, (system, train)
 
 
@@ -294,8 +335,14 @@ class ProjectedTrajectories(_Sampled):
     seed : int, default=0
     """
 
-    def __init__(self, training_parameters=None, n_validation: int = 3, parameter_space=None,
-                 horizon: Optional[float] = None, seed: int = 0):
+    def __init__(
+        self,
+        training_parameters=None,
+        n_validation: int = 3,
+        parameter_space=None,
+        horizon: Optional[float] = None,
+        seed: int = 0,
+    ):
         self.training_parameters = training_parameters
         self.n_validation = n_validation
         self.parameter_space = parameter_space
@@ -310,11 +357,15 @@ class ProjectedTrajectories(_Sampled):
         fom = reductor.fom
         horizon = self._horizon(fom)
         if not reductor.dt <= horizon * (1 + 1e-12):
-            raise ValueError(f"dt = {reductor.dt!r} is longer than the sampled time span (horizon = {horizon!r}, "
-                             f"fom.T = {fom.T!r}): no flow-map pair fits; use a smaller dt or a longer horizon")
+            raise ValueError(
+                f"dt = {reductor.dt!r} is longer than the sampled time span (horizon = {horizon!r}, "
+                f"fom.T = {fom.T!r}): no flow-map pair fits; use a smaller dt or a longer horizon"
+            )
         if horizon > fom.T * (1 + 1e-12):
-            raise ValueError(f"horizon = {horizon!r} is past the FOM's final time T = {fom.T!r}: its trajectories "
-                             f"end at T; use horizon <= T or fom.with_(T=...)")
+            raise ValueError(
+                f"horizon = {horizon!r} is past the FOM's final time T = {fom.T!r}: its trajectories "
+                f"end at T; use horizon <= T or fom.with_(T=...)"
+            )
 
     def check(self, reductor) -> list:
         """Settings, FOM and the FOM's output grid checked; returns the training parameters."""
@@ -391,12 +442,19 @@ class GivenTrajectories(ProjectedTrajectories):
         read = self.__dict__.get("_read")
         if read is not None and all(a is b for a, b in zip(read[0], key)):
             return read[1]
-        if self.validation is not None and (not isinstance(self.validation, (tuple, list)) or len(self.validation) != 2):
-            raise ValueError(f"GivenTrajectories: validation must be a pair (U, mus) of validation trajectories "
-                             f"and their parameter values, got {type(self.validation).__name__}")
-        trajectories = (_as_trajectories(self.U, self.mus, fom, "GivenTrajectories"),
-                        None if self.validation is None else
-                        _as_trajectories(*self.validation, fom, "GivenTrajectories validation"))
+        if self.validation is not None and (
+            not isinstance(self.validation, (tuple, list)) or len(self.validation) != 2
+        ):
+            raise ValueError(
+                f"GivenTrajectories: validation must be a pair (U, mus) of validation trajectories "
+                f"and their parameter values, got {type(self.validation).__name__}"
+            )
+        trajectories = (
+            _as_trajectories(self.U, self.mus, fom, "GivenTrajectories"),
+            None
+            if self.validation is None
+            else _as_trajectories(*self.validation, fom, "GivenTrajectories validation"),
+        )
         self._read = (key, trajectories)
         return trajectories
 
@@ -415,19 +473,26 @@ class GivenTrajectories(ProjectedTrajectories):
         trajectories, validation = self._trajectories(reductor.fom)
         horizon = self._horizon(reductor.fom)
         train = _projected_pairs(reductor, reductor.training_parameters, horizon, trajectories[0])
-        val = None if validation is None else _projected_pairs(
-            reductor, self._parameters(validation, reductor.fom), horizon, validation[0])
+        val = (
+            None
+            if validation is None
+            else _projected_pairs(reductor, self._parameters(validation, reductor.fom), horizon, validation[0])
+        )
         return train, val, None
 
 
 def _check_sizes(name: str, what: str, dim_given: int, dim: int, n_mu_given: int, n_mu: int) -> None:
     """``ValueError`` naming ``name`` when its state or parameter dimension does not fit the reductor's."""
     if dim_given != dim:
-        raise ValueError(f"{name} has {what} of dimension {dim_given}, the basis has 2n = {dim}: give reduced "
-                         f"coordinates (reductor.project(U) of full states)")
+        raise ValueError(
+            f"{name} has {what} of dimension {dim_given}, the basis has 2n = {dim}: give reduced "
+            f"coordinates (reductor.project(U) of full states)"
+        )
     if n_mu_given != n_mu:
-        raise ValueError(f"{name} has parameter vectors of dimension {n_mu_given}, the flow map's parameters have "
-                         f"dimension {n_mu} (mu_to_vector order: values sorted by parameter name)")
+        raise ValueError(
+            f"{name} has parameter vectors of dimension {n_mu_given}, the flow map's parameters have "
+            f"dimension {n_mu} (mu_to_vector order: values sorted by parameter name)"
+        )
 
 
 class GivenSamples(Parametrized):
@@ -468,19 +533,25 @@ class GivenSamples(Parametrized):
             if isinstance(d, TrajectoryData) and name == "validation":
                 _check_sizes(name, "trajectories", d.states.shape[2], dim, d.mu.shape[1], n_mu)
                 if d.dt is None:
-                    raise ValueError("validation has non-uniform times; the reductor's validation rollouts take "
-                                     f"uniform steps of its dt = {dt!r}")
+                    raise ValueError(
+                        "validation has non-uniform times; the reductor's validation rollouts take "
+                        f"uniform steps of its dt = {dt!r}"
+                    )
                 if not np.isclose(d.dt, dt, rtol=1e-12, atol=0):
                     raise ValueError(f"validation has the step {d.dt!r}, the reductor's dt is {dt!r}")
                 continue
             if not isinstance(d, FlowMapData):
-                raise ValueError(f"GivenSamples: {name} must be a sympredict.data.FlowMapData of reduced samples"
-                                 + (" or a TrajectoryData" if name == "validation" else "")
-                                 + f", got {type(d).__name__}")
+                raise ValueError(
+                    f"GivenSamples: {name} must be a sympredict.data.FlowMapData of reduced samples"
+                    + (" or a TrajectoryData" if name == "validation" else "")
+                    + f", got {type(d).__name__}"
+                )
             _check_sizes(name, "states", d.x0.shape[1], dim, d.mu.shape[1], n_mu)
             if not np.allclose(d.dt, dt, rtol=1e-12, atol=0):
-                raise ValueError(f"{name} has steps {np.unique(d.dt)[:5].tolist()}, the reductor's dt is {dt!r}: a "
-                                 f"reductor learns one macro step")
+                raise ValueError(
+                    f"{name} has steps {np.unique(d.dt)[:5].tolist()}, the reductor's dt is {dt!r}: a "
+                    f"reductor learns one macro step"
+                )
         if not fom.parameters:
             return [None]
         if reductor.flow_parameters == fom.parameters:

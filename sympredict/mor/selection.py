@@ -41,8 +41,11 @@ def _check_kernels(kernels, name: str, allow_none: bool) -> Optional[list]:
     kernels = list(kernels)
     bad = [k for k in kernels if not (isinstance(k, RadialKernel) or (allow_none and k is None))]
     if not kernels or bad:
-        raise ValueError(f"{name} must be a non-empty sequence of radial kernels (IMQ, Matern52, Matern32)"
-                         + (" or None" if allow_none else "") + f", got {kernels!r}")
+        raise ValueError(
+            f"{name} must be a non-empty sequence of radial kernels (IMQ, Matern52, Matern32)"
+            + (" or None" if allow_none else "")
+            + f", got {kernels!r}"
+        )
     return kernels
 
 
@@ -78,8 +81,14 @@ class DefaultEstimator(Setting):
 
     def estimator(self, update: Optional[str]) -> SymplecticKernelPredictor:
         """The unfitted predictor with ``update`` (kernels still open: the reductor chooses them)."""
-        return SymplecticKernelPredictor(None, None, None, max_centers=self.max_centers,
-                                         trainer=ExactGreedy(tol=1e-12, target_error=self.target_error), update=update)
+        return SymplecticKernelPredictor(
+            None,
+            None,
+            None,
+            max_centers=self.max_centers,
+            trainer=ExactGreedy(tol=1e-12, target_error=self.target_error),
+            update=update,
+        )
 
 
 class ValidationSelection(Setting):
@@ -113,9 +122,14 @@ class ValidationSelection(Setting):
         _check_kernels(self.state_kernels, "ValidationSelection state_kernels", allow_none=False)
         _check_kernels(self.mu_kernels, "ValidationSelection mu_kernels", allow_none=True)
         as_positive_int(self.m_star, "ValidationSelection m_star")
-        self.regularizations_ = None if self.regularizations is None else \
-            [float(as_real(v, "ValidationSelection regularizations", nonnegative=True))
-             for v in np.atleast_1d(np.asarray(self.regularizations, dtype=object))]
+        self.regularizations_ = (
+            None
+            if self.regularizations is None
+            else [
+                float(as_real(v, "ValidationSelection regularizations", nonnegative=True))
+                for v in np.atleast_1d(np.asarray(self.regularizations, dtype=object))
+            ]
+        )
         return self
 
     def choose_kernels(self, base, train, val, vary_mu: bool, default: bool, log=logger):
@@ -125,10 +139,12 @@ class ValidationSelection(Setting):
         if not default and state_kernels is None and mu_kernels is None:
             return None, None
         if val is None:
-            raise ValueError("choosing kernels on validation data (ValidationSelection kernels, or the default "
-                             "estimator) needs validation data: give GivenSamples(data, validation) or "
-                             "GivenTrajectories(U, mus, validation=...), or an estimator that chooses its kernels "
-                             "on held-out training samples (estimator=SymplecticKernelPredictor(), no kernels given)")
+            raise ValueError(
+                "choosing kernels on validation data (ValidationSelection kernels, or the default "
+                "estimator) needs validation data: give GivenSamples(data, validation) or "
+                "GivenTrajectories(U, mus, validation=...), or an estimator that chooses its kernels "
+                "on held-out training samples (estimator=SymplecticKernelPredictor(), no kernels given)"
+            )
         inner = base.state_kernel.radial if isinstance(base.state_kernel, KernelTransform) else base.state_kernel
         if state_kernels is not None:
             states = state_kernels
@@ -141,12 +157,18 @@ class ValidationSelection(Setting):
         else:
             mus = [IMQ(float(e)) for e in log_grid(0.3, 3.0, 2)] if default else [base.mu_kernel]
         m_star = min(self.m_star, int(getattr(base, "max_centers", self.m_star)))
-        with log.block(f"kernel shapes on validation data ({len(states) * len(mus)} candidates, m* = {m_star})") \
-                if hasattr(log, "block") else contextlib.nullcontext():
+        with (
+            log.block(f"kernel shapes on validation data ({len(states) * len(mus)} candidates, m* = {m_star})")
+            if hasattr(log, "block")
+            else contextlib.nullcontext()
+        ):
             # the candidates compete at m_star centres: a target_error is the final fit's (as in the estimator's search)
-            sel = select_kernels(train, val, states, mus, [base.dt_kernel], m_star=m_star,
-                                 estimator=without_target(clone(base)))
-        state = base.state_kernel.with_radial(sel.state) if isinstance(base.state_kernel, KernelTransform) else sel.state
+            sel = select_kernels(
+                train, val, states, mus, [base.dt_kernel], m_star=m_star, estimator=without_target(clone(base))
+            )
+        state = (
+            base.state_kernel.with_radial(sel.state) if isinstance(base.state_kernel, KernelTransform) else sel.state
+        )
         return clone(base).set_params(state_kernel=state, mu_kernel=sel.mu), sel
 
     def choose_regularization(self, predictor, fit: Callable, score: Callable, log=logger):

@@ -18,6 +18,14 @@ from sympredict.parallel.watchdog import ABORT_CODE, Watchdog
 from sympredict.parallel.workers import WorkerError, checked, guarded, set_blas_threads, whoami, worker_info
 
 __all__ = [
-    "WorkerError", "worker_info", "set_blas_threads", "pool_flow", "pool_map_instances", "Watchdog", "ABORT_CODE",
-    "guarded", "checked", "whoami",
+    "WorkerError",
+    "worker_info",
+    "set_blas_threads",
+    "pool_flow",
+    "pool_map_instances",
+    "Watchdog",
+    "ABORT_CODE",
+    "guarded",
+    "checked",
+    "whoami",
 ]

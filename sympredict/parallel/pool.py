@@ -35,8 +35,9 @@ def _w_call(method, x0, args, kwargs, obj=None):
     return getattr(obj, method)(x0, *args, **kwargs)
 
 
-def pool_map_instances(obj, method: str, x0, *args, pool=None, chunk_size: Optional[int] = None,
-                       timeout: Optional[float] = 60.0, **kwargs) -> np.ndarray:
+def pool_map_instances(
+    obj, method: str, x0, *args, pool=None, chunk_size: Optional[int] = None, timeout: Optional[float] = 60.0, **kwargs
+) -> np.ndarray:
     """``getattr(obj, method)(x0, *args, **kwargs)`` evaluated over ``pool`` in chunks of instances.
 
     Parameters
@@ -69,8 +70,14 @@ def pool_map_instances(obj, method: str, x0, *args, pool=None, chunk_size: Optio
     if int(chunk_size) != chunk_size or chunk_size < 1:
         raise ValueError(f"chunk_size must be a positive integer, got {chunk_size!r}")
     chunk_size = int(chunk_size)
-    tasks = [(x0[s : s + chunk_size], tuple(_cut(a, slice(s, s + chunk_size), n) for a in args),
-              {k: _cut(v, slice(s, s + chunk_size), n) for k, v in kwargs.items()}) for s in range(0, n, chunk_size)]
+    tasks = [
+        (
+            x0[s : s + chunk_size],
+            tuple(_cut(a, slice(s, s + chunk_size), n) for a in args),
+            {k: _cut(v, slice(s, s + chunk_size), n) for k, v in kwargs.items()},
+        )
+        for s in range(0, n, chunk_size)
+    ]
     with Watchdog(pool, worker_info(pool), timeout), pool.push(obj) as remote:
         results = checked(pool.map(_w_call, [method] * len(tasks), *map(list, zip(*tasks)), obj=remote))
     return np.concatenate(results) if len(results) > 1 else results[0]

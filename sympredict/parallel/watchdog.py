@@ -98,7 +98,9 @@ def _w_heartbeat_start(interval: float, timeout: float, driver: tuple):
             if local_driver and not _alive(driver[2]):
                 _abort(f"rank {comm.Get_rank()}: the driver (rank 0, pid {driver[2]} on {driver[1]}) died")
             if time.monotonic() - last > timeout:
-                _abort(f"rank {comm.Get_rank()}: no heartbeat from the driver (rank 0 on {driver[1]}) for {timeout:.0f} s")
+                _abort(
+                    f"rank {comm.Get_rank()}: no heartbeat from the driver (rank 0 on {driver[1]}) for {timeout:.0f} s"
+                )
         comm.send(None, dest=0, tag=_HB_BYE)
 
     thread = threading.Thread(target=beat, name="sympredict-heartbeat", daemon=True)
@@ -224,8 +226,10 @@ class Watchdog:
                 for r, t in last.items():
                     if now - t > self.timeout:
                         where = next(h for rr, h, _ in self.workers if rr == r)
-                        _abort(f"worker rank {r} on {where} sent no heartbeat for {now - t:.1f} s (timeout "
-                               f"{self.timeout:.0f} s): dead, hung or unreachable; aborting the MPI job")
+                        _abort(
+                            f"worker rank {r} on {where} sent no heartbeat for {now - t:.1f} s (timeout "
+                            f"{self.timeout:.0f} s): dead, hung or unreachable; aborting the MPI job"
+                        )
         finally:
             for fd in by_fd:
                 os.close(fd)

@@ -44,7 +44,9 @@ class WorkerError(SympredictError, RuntimeError):
         self.host = host
         self.remote_type = remote_type
         self.remote_traceback = remote_traceback
-        super().__init__(f"worker rank {rank} on {host} raised {remote_type}: {message}\n--- remote traceback ---\n{remote_traceback}")
+        super().__init__(
+            f"worker rank {rank} on {host} raised {remote_type}: {message}\n--- remote traceback ---\n{remote_traceback}"
+        )
 
 
 def whoami() -> tuple:

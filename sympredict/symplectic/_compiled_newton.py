@@ -51,8 +51,15 @@ from sympredict.interpolation._compiled import CenterLayout, _pass, _scratch, ch
 from sympredict.kernels._compiled import family_kernels
 from sympredict.newton_rule import WATCHDOG, accepted, converged, residual_floor
 
-__all__ = ["rollout_loaded", "newton_rollout", "newton_solve", "check_around", "previous_states", "UPDATES",
-           "WARM_HISTORY"]
+__all__ = [
+    "rollout_loaded",
+    "newton_rollout",
+    "newton_solve",
+    "check_around",
+    "previous_states",
+    "UPDATES",
+    "WARM_HISTORY",
+]
 
 #: Batches below this size are solved on one thread (thread start-up costs more).
 PARALLEL_MIN_BATCH = 8
@@ -206,8 +213,31 @@ def _state(traj, prev, i, j, c):
 
 
 @compiled(JIT)
-def _rollout_one(i, x0, W, h, cT, seg, family, eps, per, max_iter, chunk, traj, codes, fail_step, fail_iter, resid, passes,
-                 warm_start, mid, pre, post, around, prev):
+def _rollout_one(
+    i,
+    x0,
+    W,
+    h,
+    cT,
+    seg,
+    family,
+    eps,
+    per,
+    max_iter,
+    chunk,
+    traj,
+    codes,
+    fail_step,
+    fail_iter,
+    resid,
+    passes,
+    warm_start,
+    mid,
+    pre,
+    post,
+    around,
+    prev,
+):
     """One instance's rollout; with ``around``: ``x_k+1 = post[i] S(pre[i] x_k)`` (S the implicit step).
 
     ``prev`` (B, j, 2n): the rollout's states before ``x0`` (oldest first), which a warm start extrapolates from.
@@ -247,12 +277,50 @@ def _rollout_one(i, x0, W, h, cT, seg, family, eps, per, max_iter, chunk, traj, 
                 u[a] = 0.5 * (x_k + nxt) if mid else nxt  # midpoint: z = (x_k + x_k+1) / 2
         if around:
             _matvec_into(pre[i], traj[i, k], y_in)
-            code, r, it = _solve_one(y_in, W[i], h[i], cT, seg, family, eps, per, max_iter, y_out, sc, grad, hess,
-                                     jac, delta, u, xi, warm, mid)
+            code, r, it = _solve_one(
+                y_in,
+                W[i],
+                h[i],
+                cT,
+                seg,
+                family,
+                eps,
+                per,
+                max_iter,
+                y_out,
+                sc,
+                grad,
+                hess,
+                jac,
+                delta,
+                u,
+                xi,
+                warm,
+                mid,
+            )
             _matvec_into(post[i], y_out, traj[i, k + 1])
         else:
-            code, r, it = _solve_one(traj[i, k], W[i], h[i], cT, seg, family, eps, per, max_iter, traj[i, k + 1], sc, grad,
-                                     hess, jac, delta, u, xi, warm, mid)
+            code, r, it = _solve_one(
+                traj[i, k],
+                W[i],
+                h[i],
+                cT,
+                seg,
+                family,
+                eps,
+                per,
+                max_iter,
+                traj[i, k + 1],
+                sc,
+                grad,
+                hess,
+                jac,
+                delta,
+                u,
+                xi,
+                warm,
+                mid,
+            )
         # (the explicit guess's gradient pass and) the Newton passes: it + 1, or max_iter without convergence
         passes[i] += (max_iter if code == 3 else it + 1) + (0 if warm else 1)
         if code != 0:
@@ -267,19 +335,109 @@ def _rollout_one(i, x0, W, h, cT, seg, family, eps, per, max_iter, chunk, traj, 
 
 
 @compiled(PJIT)
-def _rollout_parallel(x0, W, h, cT, seg, family, eps, per, max_iter, chunk, traj, codes, fail_step, fail_iter, resid, passes,
-                      warm_start, mid, pre, post, around, prev):
+def _rollout_parallel(
+    x0,
+    W,
+    h,
+    cT,
+    seg,
+    family,
+    eps,
+    per,
+    max_iter,
+    chunk,
+    traj,
+    codes,
+    fail_step,
+    fail_iter,
+    resid,
+    passes,
+    warm_start,
+    mid,
+    pre,
+    post,
+    around,
+    prev,
+):
     for i in numba.prange(x0.shape[0]):
-        _rollout_one(i, x0, W, h, cT, seg, family, eps, per, max_iter, chunk, traj, codes, fail_step, fail_iter,
-                     resid, passes, warm_start, mid, pre, post, around, prev)
+        _rollout_one(
+            i,
+            x0,
+            W,
+            h,
+            cT,
+            seg,
+            family,
+            eps,
+            per,
+            max_iter,
+            chunk,
+            traj,
+            codes,
+            fail_step,
+            fail_iter,
+            resid,
+            passes,
+            warm_start,
+            mid,
+            pre,
+            post,
+            around,
+            prev,
+        )
 
 
 @compiled(JIT)
-def _rollout_serial(x0, W, h, cT, seg, family, eps, per, max_iter, chunk, traj, codes, fail_step, fail_iter, resid, passes,
-                    warm_start, mid, pre, post, around, prev):
+def _rollout_serial(
+    x0,
+    W,
+    h,
+    cT,
+    seg,
+    family,
+    eps,
+    per,
+    max_iter,
+    chunk,
+    traj,
+    codes,
+    fail_step,
+    fail_iter,
+    resid,
+    passes,
+    warm_start,
+    mid,
+    pre,
+    post,
+    around,
+    prev,
+):
     for i in range(x0.shape[0]):
-        _rollout_one(i, x0, W, h, cT, seg, family, eps, per, max_iter, chunk, traj, codes, fail_step, fail_iter,
-                     resid, passes, warm_start, mid, pre, post, around, prev)
+        _rollout_one(
+            i,
+            x0,
+            W,
+            h,
+            cT,
+            seg,
+            family,
+            eps,
+            per,
+            max_iter,
+            chunk,
+            traj,
+            codes,
+            fail_step,
+            fail_iter,
+            resid,
+            passes,
+            warm_start,
+            mid,
+            pre,
+            post,
+            around,
+            prev,
+        )
 
 
 #: The updates the compiled rollout solves (``mid`` flag of the compiled solver).
@@ -312,12 +470,26 @@ def previous_states(previous, b: int, dim: int) -> np.ndarray:
     previous = np.asarray(previous, dtype=np.float64)
     if previous.ndim != 3 or previous.shape[0] != b or previous.shape[2] != dim:
         raise ValueError(f"previous must have shape (B, j, 2n) = ({b}, j, {dim}), got {previous.shape}")
-    return np.ascontiguousarray(previous[:, max(0, previous.shape[1] - WARM_HISTORY):])
+    return np.ascontiguousarray(previous[:, max(0, previous.shape[1] - WARM_HISTORY) :])
 
 
-def newton_rollout(x0, weights, dt, layout: CenterLayout, kernel, max_iter: int, n_steps: int,
-                   *, weights_ordered: bool = False, parallel=None, stats: Optional[dict] = None,
-                   warm_start: bool = False, update: str = "symplectic_euler", around=None, previous=None):
+def newton_rollout(
+    x0,
+    weights,
+    dt,
+    layout: CenterLayout,
+    kernel,
+    max_iter: int,
+    n_steps: int,
+    *,
+    weights_ordered: bool = False,
+    parallel=None,
+    stats: Optional[dict] = None,
+    warm_start: bool = False,
+    update: str = "symplectic_euler",
+    around=None,
+    previous=None,
+):
     """``n_steps`` implicit steps (symplectic Euler or midpoint) for every instance, in compiled code.
 
     Parameters
@@ -410,10 +582,31 @@ def newton_rollout(x0, weights, dt, layout: CenterLayout, kernel, max_iter: int,
     ns, (family,) = family_kernels(type(kernel))
     fn = ns._rollout_parallel if parallel else ns._rollout_serial
     passes = np.zeros(b, dtype=np.int64)
-    call(fn, x0, weights, dt, layout.cT, layout.seg, family, float(kernel.eps), layout.per, int(max_iter),
-          chunk_size(dim), traj,
-          codes, fail_step, fail_iter, resid, passes, bool(warm_start), update == "midpoint", pre, post,
-          around is not None, prev)
+    call(
+        fn,
+        x0,
+        weights,
+        dt,
+        layout.cT,
+        layout.seg,
+        family,
+        float(kernel.eps),
+        layout.per,
+        int(max_iter),
+        chunk_size(dim),
+        traj,
+        codes,
+        fail_step,
+        fail_iter,
+        resid,
+        passes,
+        bool(warm_start),
+        update == "midpoint",
+        pre,
+        post,
+        around is not None,
+        prev,
+    )
     if stats is not None:
         stats["passes"] = passes
     return traj, codes, fail_step, fail_iter, resid

@@ -82,10 +82,14 @@ def micro_steps(t, h_max: float) -> np.ndarray:
     h_max = as_real(h_max, "h_max", positive=True)
     t = np.asarray(t, dtype=float)
     if not np.all(np.isfinite(t)) or np.any(t < 0):
-        raise ValueError(f"times must be finite and >= 0, got {t.min() if t.size else t!r}..{t.max() if t.size else t!r}")
+        raise ValueError(
+            f"times must be finite and >= 0, got {t.min() if t.size else t!r}..{t.max() if t.size else t!r}"
+        )
     ratio = np.round(t / h_max, 9)
     if np.any(ratio > 1e12):
-        raise ValueError(f"t / h_max = {float(ratio.max()):.3g} micro steps: too many (h_max = {h_max!r} too small for t)")
+        raise ValueError(
+            f"t / h_max = {float(ratio.max()):.3g} micro steps: too many (h_max = {h_max!r} too small for t)"
+        )
     return np.maximum(1, np.ceil(ratio).astype(np.int64))
 
 
@@ -141,7 +145,9 @@ def implicit_midpoint_step(system, x, mu, h, *, max_iter: int = 50) -> np.ndarra
         d_norm = np.abs(delta).max(axis=1)
         if not np.all(np.isfinite(d_norm)):
             bad = ~np.isfinite(d_norm)
-            raise NewtonConvergenceError(active[bad], d_norm[bad], reason="(implicit midpoint) produced a non-finite iterate")
+            raise NewtonConvergenceError(
+                active[bad], d_norm[bad], reason="(implicit midpoint) produced a non-finite iterate"
+            )
         x1[active] = x1a - delta
         scale = np.abs(x1[active]).max(axis=1) + 1.0
         done = (d_norm <= 4 * _EPS * scale) | ((d_norm >= 0.5 * last[active]) & (d_norm <= 1e3 * _EPS * scale))
@@ -149,7 +155,9 @@ def implicit_midpoint_step(system, x, mu, h, *, max_iter: int = 50) -> np.ndarra
         active = active[~done]
         if active.size == 0:
             return x1
-    raise NewtonConvergenceError(active, last[active], reason=f"(implicit midpoint) did not converge in {max_iter} iterations")
+    raise NewtonConvergenceError(
+        active, last[active], reason=f"(implicit midpoint) did not converge in {max_iter} iterations"
+    )
 
 
 def symplectic_euler_step(system, x, mu, h, *, max_iter: int = 50) -> np.ndarray:

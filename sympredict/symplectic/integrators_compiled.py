@@ -87,9 +87,13 @@ _EPS = float(np.finfo(float).eps)
 
 if HAVE_NUMBA:
     #: numba signature of the per-instance gradients: ``(z, mu, fargs, iargs, out) -> None``.
-    GRADIENT_SIGNATURE = _nt.void(_nt.float64[::1], _nt.float64[::1], _nt.float64[::1], _nt.int64[::1], _nt.float64[::1])
+    GRADIENT_SIGNATURE = _nt.void(
+        _nt.float64[::1], _nt.float64[::1], _nt.float64[::1], _nt.int64[::1], _nt.float64[::1]
+    )
     #: numba signature of the per-instance Hessian: ``(x, mu, fargs, iargs, out) -> None``, ``out`` 2-D.
-    HESSIAN_SIGNATURE = _nt.void(_nt.float64[::1], _nt.float64[::1], _nt.float64[::1], _nt.int64[::1], _nt.float64[:, ::1])
+    HESSIAN_SIGNATURE = _nt.void(
+        _nt.float64[::1], _nt.float64[::1], _nt.float64[::1], _nt.int64[::1], _nt.float64[:, ::1]
+    )
 else:  # pragma: no cover
     GRADIENT_SIGNATURE = None
     HESSIAN_SIGNATURE = None
@@ -152,8 +156,20 @@ class PointwiseHamiltonian:
     correct).
     """
 
-    def __init__(self, dim, n_mu, *, grad_T=None, grad_V=None, grad_H=None, hess_H=None, fargs=(), iargs=(),
-                 check_mu=None, name: str = "PointwiseHamiltonian"):
+    def __init__(
+        self,
+        dim,
+        n_mu,
+        *,
+        grad_T=None,
+        grad_V=None,
+        grad_H=None,
+        hess_H=None,
+        fargs=(),
+        iargs=(),
+        check_mu=None,
+        name: str = "PointwiseHamiltonian",
+    ):
         self.dim = as_even_dimension(as_positive_int(dim, "dim", minimum=2), "dim")
         self.n_mu = as_positive_int(n_mu, "n_mu")
         for arg, fn in (("grad_T", grad_T), ("grad_V", grad_V), ("grad_H", grad_H), ("hess_H", hess_H)):
@@ -265,8 +281,9 @@ def _explicit_serial(grad_T, grad_V, fargs, iargs, x0, mu, h, n_steps, substeps,
         _explicit_one(i, grad_T, grad_V, fargs, iargs, x0, mu, h, n_steps, substeps, fractions, traj)
 
 
-def _midpoint_instance(i, grad_H, hess_H, fargs, iargs, x0, mu, h, n_steps, substeps, max_iter, traj, codes,
-                       fail_step, resid):
+def _midpoint_instance(
+    i, grad_H, hess_H, fargs, iargs, x0, mu, h, n_steps, substeps, max_iter, traj, codes, fail_step, resid
+):
     """One instance of the implicit-midpoint rollout (Newton, stopping rule of the NumPy reference)."""
     dim = x0.shape[1]
     n = dim // 2
@@ -333,18 +350,22 @@ def _midpoint_instance(i, grad_H, hess_H, fargs, iargs, x0, mu, h, n_steps, subs
             traj[i, k + 1, j] = x[j]
 
 
-def _midpoint_parallel(grad_H, hess_H, fargs, iargs, x0, mu, h, n_steps, substeps, max_iter, traj, codes, fail_step,
-                       resid):
+def _midpoint_parallel(
+    grad_H, hess_H, fargs, iargs, x0, mu, h, n_steps, substeps, max_iter, traj, codes, fail_step, resid
+):
     for i in numba.prange(x0.shape[0]):
-        _midpoint_one(i, grad_H, hess_H, fargs, iargs, x0, mu, h, n_steps, substeps, max_iter, traj, codes, fail_step,
-                      resid)
+        _midpoint_one(
+            i, grad_H, hess_H, fargs, iargs, x0, mu, h, n_steps, substeps, max_iter, traj, codes, fail_step, resid
+        )
 
 
-def _midpoint_serial(grad_H, hess_H, fargs, iargs, x0, mu, h, n_steps, substeps, max_iter, traj, codes, fail_step,
-                     resid):
+def _midpoint_serial(
+    grad_H, hess_H, fargs, iargs, x0, mu, h, n_steps, substeps, max_iter, traj, codes, fail_step, resid
+):
     for i in range(x0.shape[0]):
-        _midpoint_one(i, grad_H, hess_H, fargs, iargs, x0, mu, h, n_steps, substeps, max_iter, traj, codes, fail_step,
-                      resid)
+        _midpoint_one(
+            i, grad_H, hess_H, fargs, iargs, x0, mu, h, n_steps, substeps, max_iter, traj, codes, fail_step, resid
+        )
 
 
 if HAVE_NUMBA:
@@ -390,8 +411,19 @@ def _compile_pointwise(fn, signature, arg: str):
         ) from None
 
 
-def rollout(system, x0, mu, dt, n_steps: int, *, scheme: str = "stormer_verlet", substeps: int = 1,
-            backend: str = "auto", max_iter: int = 50, parallel=None) -> np.ndarray:
+def rollout(
+    system,
+    x0,
+    mu,
+    dt,
+    n_steps: int,
+    *,
+    scheme: str = "stormer_verlet",
+    substeps: int = 1,
+    backend: str = "auto",
+    max_iter: int = 50,
+    parallel=None,
+) -> np.ndarray:
     """Trajectories of a classical symplectic scheme, ``K`` macro steps of ``r`` sub-steps each.
 
     Parameters
@@ -460,9 +492,13 @@ def rollout(system, x0, mu, dt, n_steps: int, *, scheme: str = "stormer_verlet",
             )
     compiled = backend != "numpy" and HAVE_NUMBA and spec is not None and spec.compiled_for(scheme)
     if backend == "numba" and not compiled:
-        why = ("numba is not installed" if not HAVE_NUMBA else
-               "the system has no pointwise() description" if spec is None else
-               "its functions for this scheme are not numba-jitted")
+        why = (
+            "numba is not installed"
+            if not HAVE_NUMBA
+            else "the system has no pointwise() description"
+            if spec is None
+            else "its functions for this scheme are not numba-jitted"
+        )
         raise ValueError(f"backend='numba' is not possible for scheme {scheme!r}: {why}")
     if not compiled:
         traj = integrate(SCHEMES[scheme], system, x0, mu, dt / substeps, n_steps, substeps)
@@ -479,8 +515,19 @@ def rollout(system, x0, mu, dt, n_steps: int, *, scheme: str = "stormer_verlet",
         _compile_pointwise(spec.grad_T, GRADIENT_SIGNATURE, "grad_T")
         _compile_pointwise(spec.grad_V, GRADIENT_SIGNATURE, "grad_V")
         fn = kernels["explicit_parallel" if parallel else "explicit_serial"]
-        fn(spec.grad_T, spec.grad_V, spec.fargs, spec.iargs, x0, mu, dt, n_steps, substeps,
-           np.asarray(COMPOSITIONS[scheme], dtype=np.float64), traj)
+        fn(
+            spec.grad_T,
+            spec.grad_V,
+            spec.fargs,
+            spec.iargs,
+            x0,
+            mu,
+            dt,
+            n_steps,
+            substeps,
+            np.asarray(COMPOSITIONS[scheme], dtype=np.float64),
+            traj,
+        )
     else:
         _compile_pointwise(spec.grad_H, GRADIENT_SIGNATURE, "grad_H")
         _compile_pointwise(spec.hess_H, HESSIAN_SIGNATURE, "hess_H")
@@ -488,12 +535,29 @@ def rollout(system, x0, mu, dt, n_steps: int, *, scheme: str = "stormer_verlet",
         fail_step = np.full(b, -1, dtype=np.int64)
         resid = np.zeros(b)
         fn = kernels["midpoint_parallel" if parallel else "midpoint_serial"]
-        fn(spec.grad_H, spec.hess_H, spec.fargs, spec.iargs, x0, mu, dt, n_steps, substeps, max_iter, traj, codes,
-           fail_step, resid)
+        fn(
+            spec.grad_H,
+            spec.hess_H,
+            spec.fargs,
+            spec.iargs,
+            x0,
+            mu,
+            dt,
+            n_steps,
+            substeps,
+            max_iter,
+            traj,
+            codes,
+            fail_step,
+            resid,
+        )
         bad = np.flatnonzero(codes)
         if bad.size:
-            reasons = {1: "produced a non-finite iterate", 2: "met a singular Jacobian",
-                       3: f"did not converge in {max_iter} iterations"}
+            reasons = {
+                1: "produced a non-finite iterate",
+                2: "met a singular Jacobian",
+                3: f"did not converge in {max_iter} iterations",
+            }
             reason = "(implicit midpoint, compiled) " + "; ".join(sorted({reasons[int(c)] for c in codes[bad]}))
             raise NewtonConvergenceError(bad, resid[bad], reason=reason, step=int(fail_step[bad].min()))
     return traj[0] if single else traj

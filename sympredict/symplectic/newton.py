@@ -90,9 +90,24 @@ from sympredict.symplectic.metrics import j_times
 from sympredict.newton_rule import WATCHDOG, accepted, converged, residual_floor
 from sympredict.interpolation.surrogate import HBSurrogate
 
-__all__ = ["solve_step_numpy", "solve_midpoint_numpy", "midpoint_jacobian", "rollout_reference", "rollout_numpy",
-           "rollout_compiled", "rollout_in_chunks", "ordered_weights", "available_memory", "contraction_estimate",
-           "start_guess", "failure_error", "FAILURE_REASONS", "MIDPOINT_FAILURE_REASONS", "UPDATES", "WARM_HISTORY"]
+__all__ = [
+    "solve_step_numpy",
+    "solve_midpoint_numpy",
+    "midpoint_jacobian",
+    "rollout_reference",
+    "rollout_numpy",
+    "rollout_compiled",
+    "rollout_in_chunks",
+    "ordered_weights",
+    "available_memory",
+    "contraction_estimate",
+    "start_guess",
+    "failure_error",
+    "FAILURE_REASONS",
+    "MIDPOINT_FAILURE_REASONS",
+    "UPDATES",
+    "WARM_HISTORY",
+]
 
 #: Failure codes of both solvers and the reason each names (the order of the failure report's preference).
 FAILURE_REASONS = {
@@ -120,8 +135,9 @@ def _check_update(update: str) -> bool:
 
 
 # --------------------------------------------------------------------------- the algorithm's pieces, in NumPy
-def start_guess(sur: HBSurrogate, states: np.ndarray, weights: np.ndarray, dt: np.ndarray, midpoint: bool,
-                warm: bool) -> np.ndarray:
+def start_guess(
+    sur: HBSurrogate, states: np.ndarray, weights: np.ndarray, dt: np.ndarray, midpoint: bool, warm: bool
+) -> np.ndarray:
     """Newton's start guess ``u_0`` (B, k) for the step from ``states[:, -1]`` (module docstring).
 
     ``states`` (B, j+1, 2n): the rollout's states up to the step's input, oldest first (``j <= 2`` used).
@@ -152,8 +168,9 @@ def _hessian_part(sur: HBSurrogate, x: np.ndarray, u: np.ndarray, weights: np.nd
     return sur.newton_terms(np.concatenate([x[:, :n], u], axis=1), weights)
 
 
-def contraction_estimate(sur: HBSurrogate, x: np.ndarray, u: np.ndarray, weights: np.ndarray, dt: np.ndarray,
-                         midpoint: bool) -> np.ndarray:
+def contraction_estimate(
+    sur: HBSurrogate, x: np.ndarray, u: np.ndarray, weights: np.ndarray, dt: np.ndarray, midpoint: bool
+) -> np.ndarray:
     """``dT L_S`` at the iterate ``u`` (B, k) of the step from ``x`` (B, 2n), shape (B,).
 
     Symplectic Euler: ``|dT| ||d_p d_q s(q0, u)||_2``, the Lipschitz constant of the fixed-point map
@@ -185,8 +202,9 @@ def _solve_linear(jac: np.ndarray, F: np.ndarray):
         return delta, singular
 
 
-def _newton(sur: HBSurrogate, x: np.ndarray, u: np.ndarray, weights: np.ndarray, dt: np.ndarray, max_iter: int,
-            midpoint: bool):
+def _newton(
+    sur: HBSurrogate, x: np.ndarray, u: np.ndarray, weights: np.ndarray, dt: np.ndarray, max_iter: int, midpoint: bool
+):
     """The iteration of the module docstring for a batch, from the start guesses ``u`` (B, k) (overwritten).
 
     All instances advance together; finished ones leave the active set.  Stops at the end of the
@@ -251,8 +269,18 @@ def _newton(sur: HBSurrogate, x: np.ndarray, u: np.ndarray, weights: np.ndarray,
             u[rest] = u_best[rest] - fraction[rest, None] * d_best[rest]
             ok = ~back
             active, ua, ha, g, hess, F, f_norm, merit, scale, f_floor, new_best = (
-                active[ok], ua[ok], ha[ok], g[ok], hess[ok], F[ok], f_norm[ok], merit[ok], scale[ok], f_floor[ok],
-                new_best[ok])
+                active[ok],
+                ua[ok],
+                ha[ok],
+                g[ok],
+                hess[ok],
+                F[ok],
+                f_norm[ok],
+                merit[ok],
+                scale[ok],
+                f_floor[ok],
+                new_best[ok],
+            )
             if midpoint:
                 jg = jg[ok]
         else:
@@ -311,8 +339,9 @@ def _failure(codes: np.ndarray, bad: np.ndarray, it: int, f_norm: np.ndarray):
     return codes, fail_iter, resid
 
 
-def failure_error(codes, fail_step, fail_iter, resid, max_iter: int, midpoint: bool, contraction: Callable,
-                  step_index: bool = True) -> Optional[NewtonConvergenceError]:
+def failure_error(
+    codes, fail_step, fail_iter, resid, max_iter: int, midpoint: bool, contraction: Callable, step_index: bool = True
+) -> Optional[NewtonConvergenceError]:
     """The one failure report of both paths (module docstring), or ``None`` when every instance converged.
 
     ``codes``, ``fail_step``, ``fail_iter``, ``resid`` (B,): per instance as the compiled rollout returns them
@@ -328,8 +357,13 @@ def failure_error(codes, fail_step, fail_iter, resid, max_iter: int, midpoint: b
     sel = at & (fail_iter == fail_iter[at].min())
     code = min(int(c) for c in codes[sel])
     hit = np.flatnonzero(sel & (codes == code))
-    return NewtonConvergenceError(hit, resid[hit], reason=reasons[code].format(max_iter=max_iter),
-                                  step=k if step_index else None, contraction=contraction(hit, k))
+    return NewtonConvergenceError(
+        hit,
+        resid[hit],
+        reason=reasons[code].format(max_iter=max_iter),
+        step=k if step_index else None,
+        contraction=contraction(hit, k),
+    )
 
 
 def _solve_numpy(sur, x, weights, dt, max_iter: int, midpoint: bool) -> np.ndarray:
@@ -340,15 +374,24 @@ def _solve_numpy(sur, x, weights, dt, max_iter: int, midpoint: bool) -> np.ndarr
     x1, failure, _ = _newton(sur, x, u, weights, dt, max_iter, midpoint)
     if failure is not None:
         codes, fail_iter, resid = failure
-        raise failure_error(codes, np.where(codes != 0, 0, -1), fail_iter, resid, max_iter, midpoint,
-                            lambda i, k: contraction_estimate(
-                                sur, x[i], start_guess(sur, x[i, None], weights[i], dt[i], midpoint, False),
-                                weights[i], dt[i], midpoint), step_index=False)
+        raise failure_error(
+            codes,
+            np.where(codes != 0, 0, -1),
+            fail_iter,
+            resid,
+            max_iter,
+            midpoint,
+            lambda i, k: contraction_estimate(
+                sur, x[i], start_guess(sur, x[i, None], weights[i], dt[i], midpoint, False), weights[i], dt[i], midpoint
+            ),
+            step_index=False,
+        )
     return x1
 
 
-def solve_midpoint_numpy(sur: HBSurrogate, x: np.ndarray, weights: np.ndarray, dt: np.ndarray,
-                         max_iter: int) -> np.ndarray:
+def solve_midpoint_numpy(
+    sur: HBSurrogate, x: np.ndarray, weights: np.ndarray, dt: np.ndarray, max_iter: int
+) -> np.ndarray:
     """One step of the symmetric (midpoint) generating-function update (NumPy reference).
 
     ``x1 = x0 + dT J grad s(z)`` with the midpoint ``z = (x0 + x1) / 2``, by the
@@ -413,13 +456,24 @@ def solve_step_numpy(sur: HBSurrogate, x: np.ndarray, weights: np.ndarray, dt: n
 def _window(traj: np.ndarray, previous: np.ndarray, k: int) -> np.ndarray:
     """The states up to step ``k``'s input, at most ``WARM_HISTORY`` before it (B, j+1, 2n), oldest first."""
     if k >= WARM_HISTORY or previous.shape[1] == 0:
-        return traj[:, max(0, k - WARM_HISTORY):k + 1]
-    return np.concatenate([previous, traj[:, :k + 1]], axis=1)[:, -(WARM_HISTORY + 1):]
+        return traj[:, max(0, k - WARM_HISTORY) : k + 1]
+    return np.concatenate([previous, traj[:, : k + 1]], axis=1)[:, -(WARM_HISTORY + 1) :]
 
 
-def rollout_reference(sur: HBSurrogate, x, weights, dt, n_steps: int, max_iter: int, step_index: bool = True,
-                      warm_start: bool = False, update: str = "symplectic_euler", around=None, previous=None,
-                      stats: Optional[dict] = None) -> np.ndarray:
+def rollout_reference(
+    sur: HBSurrogate,
+    x,
+    weights,
+    dt,
+    n_steps: int,
+    max_iter: int,
+    step_index: bool = True,
+    warm_start: bool = False,
+    update: str = "symplectic_euler",
+    around=None,
+    previous=None,
+    stats: Optional[dict] = None,
+) -> np.ndarray:
     """``n_steps`` implicit steps in NumPy: the reference of :func:`rollout_compiled`, the same arguments and algorithm.
 
     Parameters
@@ -483,10 +537,23 @@ def rollout_reference(sur: HBSurrogate, x, weights, dt, n_steps: int, max_iter: 
             if stats is not None:
                 stats["passes"] = passes
             codes, fail_iter, resid = failure
-            raise failure_error(codes, np.where(codes != 0, k, -1), fail_iter, resid, max_iter, midpoint,
-                                lambda i, kk: contraction_estimate(
-                                    sur, y[i], start_guess(sur, window[i], weights[i], dt[i], midpoint, warm),
-                                    weights[i], dt[i], midpoint), step_index)
+            raise failure_error(
+                codes,
+                np.where(codes != 0, k, -1),
+                fail_iter,
+                resid,
+                max_iter,
+                midpoint,
+                lambda i, kk: contraction_estimate(
+                    sur,
+                    y[i],
+                    start_guess(sur, window[i], weights[i], dt[i], midpoint, warm),
+                    weights[i],
+                    dt[i],
+                    midpoint,
+                ),
+                step_index,
+            )
         traj[:, k + 1] = x1 if maps is None else np.einsum("bij,bj->bi", maps[1], x1)
     if stats is not None:
         stats["passes"] = passes
@@ -531,8 +598,15 @@ def available_memory() -> Optional[int]:
         return None
 
 
-def rollout_in_chunks(run: Callable[..., np.ndarray], x: np.ndarray, n_steps: int, *, stride: int = 1,
-                      progress: Optional[Callable[[int, int], None]] = None, history: int = 0) -> np.ndarray:
+def rollout_in_chunks(
+    run: Callable[..., np.ndarray],
+    x: np.ndarray,
+    n_steps: int,
+    *,
+    stride: int = 1,
+    progress: Optional[Callable[[int, int], None]] = None,
+    history: int = 0,
+) -> np.ndarray:
     """A rollout of ``n_steps`` in chunks, keeping every ``stride``-th state: ``traj[:, ::stride]`` of the full one.
 
     Parameters
@@ -598,7 +672,7 @@ def rollout_in_chunks(run: Callable[..., np.ndarray], x: np.ndarray, n_steps: in
             out[:, kept // stride] = traj[:, kept - done]
         state = np.ascontiguousarray(traj[:, -1])
         if history > 0:  # the states before the next chunk's first, oldest first
-            before = traj[:, max(0, k - history):k]
+            before = traj[:, max(0, k - history) : k]
             if previous is not None and before.shape[1] < history:
                 before = np.concatenate([previous, before], axis=1)[:, -history:]
             previous = np.ascontiguousarray(before)
@@ -617,9 +691,21 @@ def ordered_weights(sur: HBSurrogate, weights: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(np.asarray(weights, dtype=np.float64)[:, sur.layout().order])
 
 
-def rollout_compiled(sur: HBSurrogate, x, weights, dt, n_steps: int, max_iter: int, step_index: bool = True,
-                     warm_start: bool = False, update: str = "symplectic_euler", around=None,
-                     weights_ordered: bool = False, previous=None, stats: Optional[dict] = None):
+def rollout_compiled(
+    sur: HBSurrogate,
+    x,
+    weights,
+    dt,
+    n_steps: int,
+    max_iter: int,
+    step_index: bool = True,
+    warm_start: bool = False,
+    update: str = "symplectic_euler",
+    around=None,
+    weights_ordered: bool = False,
+    previous=None,
+    stats: Optional[dict] = None,
+):
     """``n_steps`` steps in compiled code (:func:`sympredict.symplectic._compiled_newton.newton_rollout`): :func:`rollout_reference`'s
     algorithm, arguments and failure report.
 
@@ -638,8 +724,20 @@ def rollout_compiled(sur: HBSurrogate, x, weights, dt, n_steps: int, max_iter: i
     midpoint = _check_update(update)
     stats = {} if stats is None else stats
     traj, codes, fail_step, fail_iter, resid = _compiled_newton.newton_rollout(
-        x, weights, dt, sur.layout(), sur.kernel.state, max_iter, n_steps, warm_start=warm_start, update=update,
-        around=around, weights_ordered=weights_ordered, previous=previous, stats=stats)
+        x,
+        weights,
+        dt,
+        sur.layout(),
+        sur.kernel.state,
+        max_iter,
+        n_steps,
+        warm_start=warm_start,
+        update=update,
+        around=around,
+        weights_ordered=weights_ordered,
+        previous=previous,
+        stats=stats,
+    )
 
     def contraction(i, k):  # dT L_S at the start guesses of step k, from the states the compiled rollout kept
         w = np.asarray(weights, dtype=np.float64)[i]

@@ -91,8 +91,10 @@ class NewtonSolver(Setting):
         """``max_iter``, checked: an integer in ``1..MAX_NEWTON_ITER``."""
         max_iter = as_positive_int(self.max_iter, "max_iter (Newton iterations)")
         if max_iter > MAX_NEWTON_ITER:
-            raise ValueError(f"max_iter must be at most {MAX_NEWTON_ITER} (Newton converges in a few iterations "
-                             f"or not at all), got {max_iter}")
+            raise ValueError(
+                f"max_iter must be at most {MAX_NEWTON_ITER} (Newton converges in a few iterations "
+                f"or not at all), got {max_iter}"
+            )
         return max_iter
 
     def refuse_compiled(self, numpy_only: Optional[str]) -> None:
@@ -101,8 +103,9 @@ class NewtonSolver(Setting):
         if numpy_only is not None and self.backend == "numba":
             raise ValueError(f"{numpy_only}: use NewtonSolver(backend='numpy') or 'auto' (which then uses NumPy)")
 
-    def compiled(self, n_instances: Optional[int], n_steps: int, n_centers: int, dim: int,
-                 numpy_only: Optional[str] = None) -> bool:
+    def compiled(
+        self, n_instances: Optional[int], n_steps: int, n_centers: int, dim: int, numpy_only: Optional[str] = None
+    ) -> bool:
         """Whether this much work runs compiled (see :meth:`backend_for`); ``numpy_only`` is the reason a model
         has no compiled solver (``None``: it has one)."""
         if numpy_only is not None:
@@ -112,7 +115,9 @@ class NewtonSolver(Setting):
             return False
         if self.backend == "numba":
             if not _numba.HAVE_NUMBA:
-                raise ImportError("backend='numba' needs numba: pip install 'sympredict[fast]' (or use backend='numpy')")
+                raise ImportError(
+                    "backend='numba' needs numba: pip install 'sympredict[fast]' (or use backend='numpy')"
+                )
             return True
         if self.backend != "auto":
             raise ValueError(f"backend must be 'auto', 'numpy' or 'numba', got {self.backend!r}")
@@ -122,12 +127,19 @@ class NewtonSolver(Setting):
             return True
         estimate = numpy_seconds(n_instances, n_steps, n_centers, dim)
         compiled = estimate >= AUTO_NUMPY_SECONDS
-        logger.debug("backend='auto': %s (NumPy estimated at %.2g s for %d instances x %d steps, %d centres)",
-                     "compiled" if compiled else "NumPy", estimate, n_instances, n_steps, n_centers)
+        logger.debug(
+            "backend='auto': %s (NumPy estimated at %.2g s for %d instances x %d steps, %d centres)",
+            "compiled" if compiled else "NumPy",
+            estimate,
+            n_instances,
+            n_steps,
+            n_centers,
+        )
         return compiled
 
-    def backend_for(self, n_instances: int, n_steps: int, n_centers: int, dim: int,
-                    numpy_only: Optional[str] = None) -> str:
+    def backend_for(
+        self, n_instances: int, n_steps: int, n_centers: int, dim: int, numpy_only: Optional[str] = None
+    ) -> str:
         """``'numpy'`` or ``'numba'``: the code that runs ``n_steps`` steps of ``n_instances`` states.
 
         ``backend='numpy'`` or ``'numba'`` decide alone (``'numba'`` is refused for

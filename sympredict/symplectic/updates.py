@@ -135,10 +135,16 @@ class SymplecticEuler(UpdateRule):
     def check_symmetry(self, group):
         n = group.shape[1] // 2
         for i, g in enumerate(group):
-            if np.abs(g[:n, n:]).max() > 0 or np.abs(g[n:, :n]).max() > 0 or np.abs(g[:n, :n] - g[n:, n:]).max() > 1e-12:
-                raise ValueError(f"symmetry: element {i} is not of the form diag(A, A): with update='symplectic_euler' "
-                                 "the type-II s(q0, p1) is invariant only under such maps (a reversing symmetry such as "
-                                 "q -> -q maps (q0, p1) to (q1, p0)); use update='midpoint'")
+            if (
+                np.abs(g[:n, n:]).max() > 0
+                or np.abs(g[n:, :n]).max() > 0
+                or np.abs(g[:n, :n] - g[n:, n:]).max() > 1e-12
+            ):
+                raise ValueError(
+                    f"symmetry: element {i} is not of the form diag(A, A): with update='symplectic_euler' "
+                    "the type-II s(q0, p1) is invariant only under such maps (a reversing symmetry such as "
+                    "q -> -q maps (q0, p1) to (q1, p0)); use update='midpoint'"
+                )
 
 
 class Midpoint(UpdateRule):
@@ -185,8 +191,10 @@ class Midpoint(UpdateRule):
         for i, g in enumerate(group):
             sigma = g.T @ jmat @ g
             if not (np.allclose(sigma, jmat, atol=1e-12) or np.allclose(sigma, -jmat, atol=1e-12)):
-                raise ValueError(f"symmetry: element {i} is neither symplectic (g^T J g = J) nor anti-symplectic "
-                                 "(g^T J g = -J): no symmetry of a Hamiltonian flow makes the midpoint s invariant under it")
+                raise ValueError(
+                    f"symmetry: element {i} is neither symplectic (g^T J g = J) nor anti-symplectic "
+                    "(g^T J g = -J): no symmetry of a Hamiltonian flow makes the midpoint s invariant under it"
+                )
 
 
 #: The update rules by name.
@@ -199,5 +207,6 @@ def as_update(value) -> UpdateRule:
         return value
     if isinstance(value, str) and value in UPDATE_RULES:
         return UPDATE_RULES[value]()
-    raise ValueError(f"update must be one of {tuple(UPDATE_RULES)} or an UpdateRule (SymplecticEuler(), Midpoint()), "
-                     f"got {value!r}")
+    raise ValueError(
+        f"update must be one of {tuple(UPDATE_RULES)} or an UpdateRule (SymplecticEuler(), Midpoint()), got {value!r}"
+    )

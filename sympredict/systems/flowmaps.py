@@ -128,8 +128,16 @@ def mus_to_matrix(mus, parameters) -> np.ndarray:
 def parameter_box(mus, parameters, space=None):
     """Lower and upper bounds (d,) of the parameters: ``space.ranges`` if given, else the box of ``mus``."""
     if space is not None:
-        lo = np.concatenate([np.full(parameters[k], float(space.ranges[k][0])) for k in sorted(parameters)]) if parameters else np.zeros(0)
-        hi = np.concatenate([np.full(parameters[k], float(space.ranges[k][1])) for k in sorted(parameters)]) if parameters else np.zeros(0)
+        lo = (
+            np.concatenate([np.full(parameters[k], float(space.ranges[k][0])) for k in sorted(parameters)])
+            if parameters
+            else np.zeros(0)
+        )
+        hi = (
+            np.concatenate([np.full(parameters[k], float(space.ranges[k][1])) for k in sorted(parameters)])
+            if parameters
+            else np.zeros(0)
+        )
         return lo, hi
     mat = mus_to_matrix(mus, parameters)
     return mat.min(axis=0), mat.max(axis=0)
@@ -157,8 +165,15 @@ def random_parameters(parameters, lo, hi, n: int, seed: int = 0) -> list:
 
 
 # ---------------------------------------------------------------- systems
-def rk4_flow(gradient: Callable, x0: np.ndarray, mu: np.ndarray, t: np.ndarray, rtol: float = 1e-11,
-             min_steps: int = 8, max_steps: int = 2**16) -> np.ndarray:
+def rk4_flow(
+    gradient: Callable,
+    x0: np.ndarray,
+    mu: np.ndarray,
+    t: np.ndarray,
+    rtol: float = 1e-11,
+    min_steps: int = 8,
+    max_steps: int = 2**16,
+) -> np.ndarray:
     """Flow of ``x' = J grad H(x, mu)`` over times ``t`` by RK4 with step halving.
 
     Starts with ``min_steps`` steps per instance and doubles them until
@@ -180,6 +195,7 @@ def rk4_flow(gradient: Callable, x0: np.ndarray, mu: np.ndarray, t: np.ndarray, 
     -----
     Cost ``O(B * 4 * steps)`` gradient evaluations, batched over ``B``.
     """
+
     def rhs(x):
         return j_times(gradient(x, mu))
 
@@ -205,8 +221,10 @@ def rk4_flow(gradient: Callable, x0: np.ndarray, mu: np.ndarray, t: np.ndarray, 
             return fine
         steps *= 2
         if steps > max_steps:
-            raise ValueError(f"the RK4 reference flow did not reach rtol = {rtol:.0e} with {max_steps} steps "
-                             f"(estimated error {err.max():.1e}): is grad H consistent with H?")
+            raise ValueError(
+                f"the RK4 reference flow did not reach rtol = {rtol:.0e} with {max_steps} steps "
+                f"(estimated error {err.max():.1e}): is grad H consistent with H?"
+            )
         coarse = fine
 
 
@@ -231,7 +249,9 @@ class _ScalarParameterSystem:
         if self.parameter_bounds is not None:
             lo, hi = self.parameter_bounds
             if np.any((mu < lo) | (mu > hi)):
-                raise ValueError(f"{self.parameter_name} must lie in [{lo}, {hi}], got values in [{mu.min()}, {mu.max()}]")
+                raise ValueError(
+                    f"{self.parameter_name} must lie in [{lo}, {hi}], got values in [{mu.min()}, {mu.max()}]"
+                )
         return mu
 
     def _one_step(self, x0, mu, t, **options) -> np.ndarray:
@@ -342,13 +362,16 @@ class LinearHamiltonianSystem(_System):
         Names and dimensions, so that methods also take a pyMOR ``Mu`` for ``mu``.
     """
 
-    def __init__(self, matrix: Callable, dim: int, n_mu: int = 0, linear_term: Optional[Callable] = None,
-                 parameters=None):
+    def __init__(
+        self, matrix: Callable, dim: int, n_mu: int = 0, linear_term: Optional[Callable] = None, parameters=None
+    ):
         self._matrix_fn = matrix
         if parameters is not None:
             self.parameters = Parameters(parameters)
             if self.parameters.dim != n_mu:
-                raise ValueError(f"parameters {dict(self.parameters)} have dimension {self.parameters.dim}, n_mu = {n_mu}")
+                raise ValueError(
+                    f"parameters {dict(self.parameters)} have dimension {self.parameters.dim}, n_mu = {n_mu}"
+                )
         self._h_fn = linear_term
         self.dim = as_positive_int(dim, "dim", minimum=2)
         self.n_mu = int(n_mu)
@@ -377,7 +400,9 @@ class LinearHamiltonianSystem(_System):
 
     def hamiltonian(self, x, mu=None) -> np.ndarray:
         x, _, mu, _ = self._inputs(x, mu, 1.0)
-        return self._grouped(x, mu, lambda m, xs: 0.5 * np.einsum("bi,ij,bj->b", xs, self.matrix(m), xs) + xs @ self.linear_term(m))
+        return self._grouped(
+            x, mu, lambda m, xs: 0.5 * np.einsum("bi,ij,bj->b", xs, self.matrix(m), xs) + xs @ self.linear_term(m)
+        )
 
     def gradient(self, x, mu=None) -> np.ndarray:
         x, _, mu, _ = self._inputs(x, mu, 1.0)
@@ -540,8 +565,9 @@ def sample_energy_box(system, n: int, mu, energy: float, lo, hi, rng, max_tries:
         if count >= n:
             x = np.concatenate(states)[:n]
             return (x, np.concatenate(params)[:n]) if per_state else x
-    raise ValueError(f"only {count} of {n} states accepted (H {'<' if strict else '<='} {energy:g}) in "
-                     f"{max_tries * 2 * n} draws")
+    raise ValueError(
+        f"only {count} of {n} states accepted (H {'<' if strict else '<='} {energy:g}) in {max_tries * 2 * n} draws"
+    )
 
 
 def sample_trajectory_neighbourhood(trajectories: np.ndarray, n: int, radius: float, rng, scale=None) -> np.ndarray:
@@ -649,8 +675,15 @@ def midpoint_sigma_min(jacobians: np.ndarray) -> np.ndarray:
 _SIGMA = {"symplectic_euler": type2_sigma_min, "midpoint": midpoint_sigma_min}
 
 
-def check_generating_function(system, data: FlowMapData, fail_below: float = 1e-2, warn_below: float = 0.1,
-                              max_points: int = 200, seed: int = 0, update: str = "symplectic_euler") -> dict:
+def check_generating_function(
+    system,
+    data: FlowMapData,
+    fail_below: float = 1e-2,
+    warn_below: float = 0.1,
+    max_points: int = 200,
+    seed: int = 0,
+    update: str = "symplectic_euler",
+) -> dict:
     """Check that the type-II generating function ``s(q0, p1)`` exists on the data; fail or warn if not.
 
     With ``update="midpoint"`` the symmetric update's ``s((x0 + x1) / 2)`` is
@@ -706,30 +739,51 @@ def check_generating_function(system, data: FlowMapData, fail_below: float = 1e-
     return info
 
 
-def _report_existence(s_min: float, mu_worst, dt_worst: float, dt_max: float, fail_below: float, warn_below: float,
-                      update: str = "symplectic_euler") -> dict:
+def _report_existence(
+    s_min: float,
+    mu_worst,
+    dt_worst: float,
+    dt_max: float,
+    fail_below: float,
+    warn_below: float,
+    update: str = "symplectic_euler",
+) -> dict:
     """Raise / warn / log for the existence check (one message for every data source)."""
     mu_worst = np.ravel(mu_worst)
     where = f"mu = {mu_worst.tolist() if mu_worst.size else '(none)'}, dT = {dt_worst:.4g}"
     if update == "midpoint":
-        cause = (f"the midpoint generating function s((x0 + x1)/2) needs (I + DPhi)/2 invertible, but its smallest singular "
-                 f"value is {s_min:.2e} at {where} (a linear mode of frequency omega has |cos(omega dT / 2)|: "
-                 f"it fails at omega dT = pi, half a turn per step); the largest admissible dT here is about {dt_max:.4g}")
+        cause = (
+            f"the midpoint generating function s((x0 + x1)/2) needs (I + DPhi)/2 invertible, but its smallest singular "
+            f"value is {s_min:.2e} at {where} (a linear mode of frequency omega has |cos(omega dT / 2)|: "
+            f"it fails at omega dT = pi, half a turn per step); the largest admissible dT here is about {dt_max:.4g}"
+        )
     else:
-        cause = (f"the type-II generating function s(q0, p1) needs dp1/dp0 invertible, but its smallest singular value "
-                 f"is {s_min:.2e} at {where} (a linear mode of frequency omega has dp1/dp0 = cos(omega dT): "
-                 f"it fails at omega dT = pi/2); the largest admissible dT here is about {dt_max:.4g}")
+        cause = (
+            f"the type-II generating function s(q0, p1) needs dp1/dp0 invertible, but its smallest singular value "
+            f"is {s_min:.2e} at {where} (a linear mode of frequency omega has dp1/dp0 = cos(omega dT): "
+            f"it fails at omega dT = pi/2); the largest admissible dT here is about {dt_max:.4g}"
+        )
     if dt_worst >= dt_max:
-        raise ValueError(cause.replace("but its smallest singular value", "and dT = %.4g lies past the first step where it "
-                                       "is singular (smallest singular value here" % dt_worst, 1).replace(" at mu", ") at mu", 1)
-                         + ": use a smaller macro step")
+        raise ValueError(
+            cause.replace(
+                "but its smallest singular value",
+                "and dT = %.4g lies past the first step where it is singular (smallest singular value here" % dt_worst,
+                1,
+            ).replace(" at mu", ") at mu", 1)
+            + ": use a smaller macro step"
+        )
     if s_min < fail_below:
         raise ValueError(cause + ": use a smaller macro step")
     if s_min < warn_below:
-        warnings.warn(cause + ": the macro step is close to it, expect a hard interpolation problem",
-                      GeneratingFunctionWarning, stacklevel=3)
-    logger.info(f"{'midpoint' if update == 'midpoint' else 'type-II'} generating function exists on the data: "
-                f"min sigma = {s_min:.3f}, largest admissible dT ~ {dt_max:.4g}")
+        warnings.warn(
+            cause + ": the macro step is close to it, expect a hard interpolation problem",
+            GeneratingFunctionWarning,
+            stacklevel=3,
+        )
+    logger.info(
+        f"{'midpoint' if update == 'midpoint' else 'type-II'} generating function exists on the data: "
+        f"min sigma = {s_min:.3f}, largest admissible dT ~ {dt_max:.4g}"
+    )
     return {"sigma_min": s_min, "dt_max": dt_max}
 
 
@@ -744,7 +798,9 @@ def _broken(jac: np.ndarray, threshold: float, update: str = "symplectic_euler")
     return bool(np.any(_SIGMA[update](jac) < threshold) or np.any(np.linalg.det(block) <= 0))
 
 
-def first_singular_step(generators, threshold: float = 1e-2, n_grid: int = 800, update: str = "symplectic_euler") -> float:
+def first_singular_step(
+    generators, threshold: float = 1e-2, n_grid: int = 800, update: str = "symplectic_euler"
+) -> float:
     """First ``t`` where the form's Jacobian of ``expm(t A)`` becomes (nearly) singular, over linear generators ``A = J H``.
 
     Scans ``(0, 2 pi / omega_max]`` on ``n_grid`` points (``omega_max`` the largest
@@ -774,7 +830,9 @@ def _largest_admissible_dt(system, x0, mu, dt, threshold: float, update: str = "
     the linear grid resolves, ``|theta - pi| / 2 <= pi / 800`` at the fastest mode).
     """
     if isinstance(system, LinearHamiltonianSystem):
-        return first_singular_step([system.J @ system.matrix(m) for m in np.unique(mu, axis=0)], threshold, update=update)
+        return first_singular_step(
+            [system.J @ system.matrix(m) for m in np.unique(mu, axis=0)], threshold, update=update
+        )
     sub = slice(0, min(10, len(x0)))
     grid = np.linspace(0, 4 * float(dt.max()), 41)[1:]
     for t in grid:

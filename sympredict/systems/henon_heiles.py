@@ -115,11 +115,13 @@ class HenonHeiles(_ScalarParameterSystem):
 
     def pointwise(self) -> PointwiseHamiltonian:
         """Per-instance gradients and Hessian for :func:`sympredict.symplectic.integrators_compiled.rollout` (compiled with numba)."""
-        return PointwiseHamiltonian(4, 1, grad_T=_grad_T, grad_V=_grad_V, grad_H=_grad_H, hess_H=_hess_H,
-                                    name=repr(self))
+        return PointwiseHamiltonian(
+            4, 1, grad_T=_grad_T, grad_V=_grad_V, grad_H=_grad_H, hess_H=_hess_H, name=repr(self)
+        )
 
-    def trajectory(self, x0, mu, dt, n_steps: int, h_max: float = 0.02, tol: float = 1e-11,
-                   max_halvings: int = 6) -> np.ndarray:
+    def trajectory(
+        self, x0, mu, dt, n_steps: int, h_max: float = 0.02, tol: float = 1e-11, max_halvings: int = 6
+    ) -> np.ndarray:
         """Reference trajectories on the macro grid ``t_k = k dt``: Kahan–Li-6 with step halving.
 
         Starting from ``r = max ceil(dt / h_max)`` sub-steps per macro step,
@@ -192,7 +194,9 @@ def _well_radius(lam: float, energy: float) -> float:
     return brentq(lambda r: 0.5 * r * r - a * r**3 / 3.0 - energy, 0.0, r_max, xtol=1e-15)
 
 
-def energy_bounded_states(system: HenonHeiles, lam: float, n_samples: int, energy_max=None, seed: int = 0) -> np.ndarray:
+def energy_bounded_states(
+    system: HenonHeiles, lam: float, n_samples: int, energy_max=None, seed: int = 0
+) -> np.ndarray:
     """States uniform (Lebesgue in phase space) in the well with ``H(x; lambda) <= energy_max``.
 
     Rejection sampling, vectorised: ``q`` uniform in ``[-r_E, r_E]^2`` (``r_E``
@@ -233,7 +237,8 @@ def energy_bounded_states(system: HenonHeiles, lam: float, n_samples: int, energ
         m = 4 * (n_samples - n_kept) + 16
         cand = np.hstack([rng.uniform(-r_q, r_q, size=(m, 2)), rng.uniform(-r_p, r_p, size=(m, 2))])
         ok = (np.einsum("ij,ij->i", cand[:, :2], cand[:, :2]) <= r_q * r_q) & (
-            system.hamiltonian(cand, np.full(m, lam)) <= energy_max)
+            system.hamiltonian(cand, np.full(m, lam)) <= energy_max
+        )
         kept.append(cand[ok])
         n_kept += int(ok.sum())
     return np.concatenate(kept)[:n_samples]

@@ -137,21 +137,33 @@ class QuadraticPart(Parametrized):
         try:
             mats = np.array(self.matrices, dtype=float)
         except (TypeError, ValueError):
-            raise ValueError(f"QuadraticPart: matrices must be an array of shape (K, 2n, 2n), got {self.matrices!r}") from None
+            raise ValueError(
+                f"QuadraticPart: matrices must be an array of shape (K, 2n, 2n), got {self.matrices!r}"
+            ) from None
         if mats.ndim == 2:
-            raise ValueError(f"QuadraticPart: matrices must have shape (K, 2n, 2n) (a list of matrices), got {mats.shape}; "
-                             "wrap a single matrix as [A]")
-        if mats.ndim != 3 or mats.shape[0] == 0 or mats.shape[1] != mats.shape[2] or mats.shape[1] == 0 \
-                or mats.shape[1] % 2:
-            raise ValueError(f"QuadraticPart: matrices must have shape (K, 2n, 2n) with K >= 1 and an even 2n, "
-                             f"got {mats.shape}")
+            raise ValueError(
+                f"QuadraticPart: matrices must have shape (K, 2n, 2n) (a list of matrices), got {mats.shape}; "
+                "wrap a single matrix as [A]"
+            )
+        if (
+            mats.ndim != 3
+            or mats.shape[0] == 0
+            or mats.shape[1] != mats.shape[2]
+            or mats.shape[1] == 0
+            or mats.shape[1] % 2
+        ):
+            raise ValueError(
+                f"QuadraticPart: matrices must have shape (K, 2n, 2n) with K >= 1 and an even 2n, got {mats.shape}"
+            )
         as_real_array(mats, "QuadraticPart: matrices")
         asym = np.abs(mats - np.swapaxes(mats, 1, 2)).max(axis=(1, 2))
         scale = np.abs(mats).max(axis=(1, 2))
         bad = np.flatnonzero(asym > 1e-12 * np.maximum(scale, np.finfo(float).tiny))
         if bad.size:
-            raise ValueError(f"QuadraticPart: matrix {int(bad[0])} is not symmetric (max |A - A^T| = {asym[bad[0]]:.3e}); "
-                             "H0 = 1/2 x^T A x needs symmetric A_k")
+            raise ValueError(
+                f"QuadraticPart: matrix {int(bad[0])} is not symmetric (max |A - A^T| = {asym[bad[0]]:.3e}); "
+                "H0 = 1/2 x^T A x needs symmetric A_k"
+            )
         mats = 0.5 * (mats + np.swapaxes(mats, 1, 2))
         k = mats.shape[0]
         if self.powers is None:
@@ -160,19 +172,25 @@ class QuadraticPart(Parametrized):
             try:
                 pw = np.array(self.powers, dtype=float)
             except (TypeError, ValueError):
-                raise ValueError(f"QuadraticPart: powers must be an array of shape (K, d_mu), got {self.powers!r}") from None
+                raise ValueError(
+                    f"QuadraticPart: powers must be an array of shape (K, d_mu), got {self.powers!r}"
+                ) from None
             if pw.ndim == 1 and len(pw) == k:  # one parameter component
                 pw = pw[:, None]
             if pw.ndim != 2 or pw.shape[0] != k:
-                raise ValueError(f"QuadraticPart: powers must have shape (K, d_mu) = ({k}, d_mu), one row per matrix, "
-                                 f"got {pw.shape}")
+                raise ValueError(
+                    f"QuadraticPart: powers must have shape (K, d_mu) = ({k}, d_mu), one row per matrix, got {pw.shape}"
+                )
             as_real_array(pw, "QuadraticPart: powers")
         if dim is not None and mats.shape[1] != dim:
-            raise ValueError(f"QuadraticPart: the matrices are {mats.shape[1]} x {mats.shape[1]}, "
-                             f"the states have 2n = {dim} components")
+            raise ValueError(
+                f"QuadraticPart: the matrices are {mats.shape[1]} x {mats.shape[1]}, "
+                f"the states have 2n = {dim} components"
+            )
         if n_mu is not None and pw.shape[1] not in (0, n_mu):
-            raise ValueError(f"QuadraticPart: the powers have {pw.shape[1]} parameter component(s), "
-                             f"the parameter has {n_mu}")
+            raise ValueError(
+                f"QuadraticPart: the powers have {pw.shape[1]} parameter component(s), the parameter has {n_mu}"
+            )
         return mats, pw
 
     @property
@@ -211,8 +229,10 @@ class QuadraticPart(Parametrized):
         base = as_parameter(mu, b, d)[:, None, :]  # (B, 1, d)
         bad = ((base < 0) & (pw[None] != np.round(pw[None]))) | ((base == 0) & (pw[None] < 0))
         if np.any(bad):
-            raise ValueError("QuadraticPart: theta_k(mu) = prod_i mu_i^p_ki is undefined here (a non-integer power of a "
-                             "negative mu_i or a negative power of mu_i = 0)")
+            raise ValueError(
+                "QuadraticPart: theta_k(mu) = prod_i mu_i^p_ki is undefined here (a non-integer power of a "
+                "negative mu_i or a negative power of mu_i = 0)"
+            )
         with np.errstate(over="ignore"):
             theta = np.prod(np.where(pw[None] == 0, 1.0, base ** pw[None]), axis=2)
         if not np.all(np.isfinite(theta)):

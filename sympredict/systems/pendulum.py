@@ -109,8 +109,15 @@ class Pendulum:
         every scheme applies.
         """
         return PointwiseHamiltonian(
-            2, 1, grad_T=_grad_T, grad_V=_grad_V, grad_H=_grad_H, hess_H=_hess_H, fargs=(self.mass, self.g),
-            check_mu=lambda mu: self._lengths(mu, len(mu)), name=repr(self),
+            2,
+            1,
+            grad_T=_grad_T,
+            grad_V=_grad_V,
+            grad_H=_grad_H,
+            hess_H=_hess_H,
+            fargs=(self.mass, self.g),
+            check_mu=lambda mu: self._lengths(mu, len(mu)),
+            name=repr(self),
         )
 
     def quadratic_part(self) -> QuadraticPart:
@@ -328,15 +335,30 @@ def random_flow_map_data(
     rng = np.random.default_rng(seed)
 
     def draw(values, bounds, size):
-        return rng.choice(np.asarray(values, dtype=float), size=size) if values is not None else rng.uniform(*bounds, size=size)
+        return (
+            rng.choice(np.asarray(values, dtype=float), size=size)
+            if values is not None
+            else rng.uniform(*bounds, size=size)
+        )
 
     pmax = 2 * np.sqrt(system.g)
     try:
-        x0, mu = sample_energy_box(system, n_samples, lambda size: draw(mu_values, mu_range, size), 2 * system.g,
-                                   [-np.pi, -pmax], [np.pi, pmax], rng, max_tries=MAX_DRAW_ROUNDS, strict=True)
+        x0, mu = sample_energy_box(
+            system,
+            n_samples,
+            lambda size: draw(mu_values, mu_range, size),
+            2 * system.g,
+            [-np.pi, -pmax],
+            [np.pi, pmax],
+            rng,
+            max_tries=MAX_DRAW_ROUNDS,
+            strict=True,
+        )
     except ValueError as exc:
-        raise ValueError(f"random_flow_map_data: {exc}; the energy bound excludes nearly the whole sampling box "
-                         f"for {system!r} and these lengths") from None
+        raise ValueError(
+            f"random_flow_map_data: {exc}; the energy bound excludes nearly the whole sampling box "
+            f"for {system!r} and these lengths"
+        ) from None
     dt = draw(dt_values, dt_range, n_samples)
     return FlowMapData(x0, _flows(system, x0, mu, dt, h_max, pool, chunk_size), mu[:, None], dt)
 
@@ -345,5 +367,7 @@ def _flows(system: Pendulum, x0, mu, dt, h_max, pool, chunk_size) -> np.ndarray:
     """Reference flows of the samples, in this process or over a worker pool (the same arrays)."""
     if pool is None and chunk_size is None:
         return system.flow(x0, mu, dt, h_max)
-    with logger.block(f"pendulum reference flows: {len(x0)} samples on {len(pool) if pool is not None else 1} worker(s)"):
+    with logger.block(
+        f"pendulum reference flows: {len(x0)} samples on {len(pool) if pool is not None else 1} worker(s)"
+    ):
         return pool_flow(system, x0, mu, dt, h_max, pool=pool, chunk_size=chunk_size)

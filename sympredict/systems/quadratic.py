@@ -130,8 +130,15 @@ class QuadraticHamiltonian:
         """
         sep = self.separable
         return PointwiseHamiltonian(
-            self.dim, 1, grad_T=_grad_T if sep else None, grad_V=_grad_V if sep else None, grad_H=_grad_H,
-            hess_H=_hess_H, fargs=np.concatenate([self.H0.ravel(), self.H1.ravel()]), iargs=(self.dim,), name=f"QuadraticHamiltonian(2n={self.dim})",
+            self.dim,
+            1,
+            grad_T=_grad_T if sep else None,
+            grad_V=_grad_V if sep else None,
+            grad_H=_grad_H,
+            hess_H=_hess_H,
+            fargs=np.concatenate([self.H0.ravel(), self.H1.ravel()]),
+            iargs=(self.dim,),
+            name=f"QuadraticHamiltonian(2n={self.dim})",
         )
 
     def quadratic_part(self) -> QuadraticPart:
@@ -209,7 +216,9 @@ class QuadraticHamiltonian:
 
         One propagator matrix per distinct ``(mu, t)``; shape (B, 2n).
         """
-        return self._grouped(x0, mu, t, lambda m, tt: self.midpoint_propagator(m, tt / micro_steps(tt, h_max), micro_steps(tt, h_max)))
+        return self._grouped(
+            x0, mu, t, lambda m, tt: self.midpoint_propagator(m, tt / micro_steps(tt, h_max), micro_steps(tt, h_max))
+        )
 
     def exact_flow(self, x0, mu, t) -> np.ndarray:
         """Exact flow ``expm(t J H(mu)) x0``, shape (B, 2n)."""

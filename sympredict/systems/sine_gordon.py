@@ -48,8 +48,14 @@ from sympredict._checks import as_choice, as_parameter, as_positive_int, as_real
 from sympredict.symplectic.metrics import j_times
 from sympredict.symplectic.integrators_compiled import PointwiseHamiltonian, jit_pointwise, rollout, unit_mass_grad_T
 
-__all__ = ["fd_laplacian_1d", "laplacian_max_eigenvalue", "SineGordonFOM", "SineGordonOperator",
-           "CompiledSymplecticTimeStepper", "INITIAL_FAMILIES"]
+__all__ = [
+    "fd_laplacian_1d",
+    "laplacian_max_eigenvalue",
+    "SineGordonFOM",
+    "SineGordonOperator",
+    "CompiledSymplecticTimeStepper",
+    "INITIAL_FAMILIES",
+]
 
 BOUNDARIES = ("dirichlet", "periodic")
 INITIAL_FAMILIES = ("breather", "kink_antikink", "sech_cos")
@@ -159,9 +165,19 @@ class SineGordonFOM:
     phase_space : pymor BlockVectorSpace (q, p)
     """
 
-    def __init__(self, n_points: int = 1000, length: float = 20.0, boundary: str = "dirichlet", strength: float = 1.0,
-                 T: float = 10.0, nt: int = 100, c_range=(0.8, 1.2), amplitude_range=(0.5, 1.5),
-                 initial: str = "sech_cos", initial_options=None):
+    def __init__(
+        self,
+        n_points: int = 1000,
+        length: float = 20.0,
+        boundary: str = "dirichlet",
+        strength: float = 1.0,
+        T: float = 10.0,
+        nt: int = 100,
+        c_range=(0.8, 1.2),
+        amplitude_range=(0.5, 1.5),
+        initial: str = "sech_cos",
+        initial_options=None,
+    ):
         self.n_points = as_positive_int(n_points, "n_points", minimum=3)
         self.length = as_real(length, "length", positive=True)
         self.strength = as_real(strength, "strength")
@@ -207,7 +223,9 @@ class SineGordonFOM:
 
     def omega_max(self, c: float) -> float:
         """Bound of the largest linearized frequency ``sqrt(c^2 lambda_max(D) + s)``."""
-        return float(np.sqrt(c * c * laplacian_max_eigenvalue(self.n_points, self.length, self.boundary) + self.strength))
+        return float(
+            np.sqrt(c * c * laplacian_max_eigenvalue(self.n_points, self.length, self.boundary) + self.strength)
+        )
 
     # ----------------------------------------------------------------- physics (NumPy, batched)
     def hamiltonian(self, x, c) -> np.ndarray:
@@ -216,8 +234,11 @@ class SineGordonFOM:
         c = self.check_c(c, len(x))
         n = self.n_points
         q, p = x[:, :n], x[:, n:]
-        return (0.5 * np.einsum("bi,bi->b", p, p) + 0.5 * c**2 * np.einsum("bi,bi->b", q, (self.D @ q.T).T)
-                + self.strength * np.sum(1.0 - np.cos(q), axis=1))
+        return (
+            0.5 * np.einsum("bi,bi->b", p, p)
+            + 0.5 * c**2 * np.einsum("bi,bi->b", q, (self.D @ q.T).T)
+            + self.strength * np.sum(1.0 - np.cos(q), axis=1)
+        )
 
     def energy(self, x, c) -> np.ndarray:
         """Continuum energy ``dx H`` (B,)."""
@@ -236,8 +257,9 @@ class SineGordonFOM:
         x = np.asarray(x, dtype=float).reshape(-1)
         n = self.n_points
         c = float(self.check_c(c, 1)[0])
-        return sps.block_diag([c * c * self.D + sps.diags(self.strength * np.cos(x[:n])), sps.identity(n)],
-                              format="csr")
+        return sps.block_diag(
+            [c * c * self.D + sps.diags(self.strength * np.cos(x[:n])), sps.identity(n)], format="csr"
+        )
 
     def hessian(self, x, c) -> np.ndarray:
         """Dense Hessians (B, 2N, 2N): for small ``N`` only."""
@@ -252,14 +274,22 @@ class SineGordonFOM:
         Implicit midpoint uses a dense Jacobian (``O(N^3)`` per Newton iteration): small ``N`` only.
         """
         return PointwiseHamiltonian(
-            self.dim, 1, grad_T=_grad_T, grad_V=_grad_V, grad_H=_grad_H, hess_H=_hess_H,
-            fargs=np.concatenate([[self.strength], self.D.data]), iargs=np.concatenate([self.D.indptr, self.D.indices]),
-            check_mu=lambda mu: self.check_c(np.asarray(mu)[:, 0], len(mu)), name=f"SineGordonFOM(N={self.n_points})",
+            self.dim,
+            1,
+            grad_T=_grad_T,
+            grad_V=_grad_V,
+            grad_H=_grad_H,
+            hess_H=_hess_H,
+            fargs=np.concatenate([[self.strength], self.D.data]),
+            iargs=np.concatenate([self.D.indptr, self.D.indices]),
+            check_mu=lambda mu: self.check_c(np.asarray(mu)[:, 0], len(mu)),
+            name=f"SineGordonFOM(N={self.n_points})",
         )
 
     # ----------------------------------------------------------------- reference flow
-    def reference_trajectory(self, x0, c, dt: float, n_steps: int, tol: float = 1e-10, max_doublings: int = 6,
-                             return_error: bool = False):
+    def reference_trajectory(
+        self, x0, c, dt: float, n_steps: int, tol: float = 1e-10, max_doublings: int = 6, return_error: bool = False
+    ):
         """Compiled Kahan–Li-6 trajectories, sub-steps doubled until two results agree to ``tol``.
 
         Starts with ``h omega_max <= 0.5``; the returned trajectory is the finer
@@ -296,7 +326,9 @@ class SineGordonFOM:
                 out = fine[0] if single else fine
                 return (out, err) if return_error else out
             coarse = fine
-        raise RuntimeError(f"reference trajectory: step halving did not reach tol = {tol:.1e} (last difference {err:.1e})")
+        raise RuntimeError(
+            f"reference trajectory: step halving did not reach tol = {tol:.1e} (last difference {err:.1e})"
+        )
 
     # ----------------------------------------------------------------- initial data (amplitude 1)
     def _scales(self, c: float):
@@ -353,8 +385,9 @@ class SineGordonFOM:
         xi = self.x - center
         return np.concatenate([np.cos(wavenumber * xi) / np.cosh(xi / width), np.zeros(self.n_points)])
 
-    def energy_bounded_states(self, n_states: int, energy: float, c: float = 1.0, n_modes: int = 8,
-                              seed: int = 0) -> np.ndarray:
+    def energy_bounded_states(
+        self, n_states: int, energy: float, c: float = 1.0, n_modes: int = 8, seed: int = 0
+    ) -> np.ndarray:
         """Random smooth states (first ``n_modes`` sine modes of ``(0, L)``) with ``dx H <= energy``; (n, 2N).
 
         A random direction (coefficients ``~ 1/k``) is scaled by bisection on
@@ -408,10 +441,15 @@ class SineGordonFOM:
         self.operator = SineGordonOperator(self)
         u0 = self.to_pymor(self.initial_state(0.5 * sum(self.c_range)))
         initial = LincombOperator([VectorOperator(u0)], [ProjectionParameterFunctional("amplitude")])
-        self.model = InstationaryModel(self.T, initial, self.operator, None,
-                                       time_stepper=CompiledSymplecticTimeStepper(self.nt), name="sine_gordon")
-        self.parameter_space = self.model.parameters.space(
-            {"amplitude": self.amplitude_range, "c": self.c_range})
+        self.model = InstationaryModel(
+            self.T,
+            initial,
+            self.operator,
+            None,
+            time_stepper=CompiledSymplecticTimeStepper(self.nt),
+            name="sine_gordon",
+        )
+        self.parameter_space = self.model.parameters.space({"amplitude": self.amplitude_range, "c": self.c_range})
 
     def to_pymor(self, x):
         """States (K, 2N) or (2N,) -> VectorArray of length K in :attr:`phase_space`."""

@@ -150,14 +150,24 @@ class ThreeBody(_ScalarParameterSystem):
         traj = np.empty((b, n_steps + 1, 4))
         traj[:, 0] = x0
         if n_steps:
+
             def rhs(_, z):
                 return (dt[:, None] * self.vector_field(z.reshape(b, 4), mu)).ravel()
 
-            sol = solve_ivp(rhs, (0.0, float(n_steps)), x0.ravel(), method="DOP853", rtol=rtol, atol=atol,
-                            t_eval=np.arange(n_steps + 1, dtype=float))
+            sol = solve_ivp(
+                rhs,
+                (0.0, float(n_steps)),
+                x0.ravel(),
+                method="DOP853",
+                rtol=rtol,
+                atol=atol,
+                t_eval=np.arange(n_steps + 1, dtype=float),
+            )
             if not sol.success or sol.y.shape[1] != n_steps + 1 or not np.all(np.isfinite(sol.y)):
-                raise SympredictError(f"three-body reference: DOP853 failed ({sol.message}); "
-                                      "an orbit may have come too close to a primary")
+                raise SympredictError(
+                    f"three-body reference: DOP853 failed ({sol.message}); "
+                    "an orbit may have come too close to a primary"
+                )
             traj[:] = sol.y.T.reshape(n_steps + 1, b, 4).transpose(1, 0, 2)
             traj[:, 0] = x0
         return traj[0] if single else traj
@@ -189,8 +199,9 @@ def lagrange_points(mu: float) -> np.ndarray:
     return np.column_stack([pos, -pos[:, 1], pos[:, 0]])
 
 
-def librating_states(mu, n_samples: int, radial: float = 0.01, angle: float = 0.15, speed: float = 0.005,
-                     seed: int = 0) -> np.ndarray:
+def librating_states(
+    mu, n_samples: int, radial: float = 0.01, angle: float = 0.15, speed: float = 0.005, seed: int = 0
+) -> np.ndarray:
     """States near ``L4`` on nearly circular orbits: tadpole librations for small amplitudes.
 
     In polar coordinates about the barycentre, ``r = 1 + dr`` and

@@ -138,7 +138,14 @@ class WaveFOM:
     D : scipy.sparse.csc_matrix of shape (N, N)
     """
 
-    def __init__(self, n_points: int = 1000, length: float = 1.0, T: float = 6.0, mu_range=(0.2**2, 0.3**2), dt_micro: float = 1e-3):
+    def __init__(
+        self,
+        n_points: int = 1000,
+        length: float = 1.0,
+        T: float = 6.0,
+        mu_range=(0.2**2, 0.3**2),
+        dt_micro: float = 1e-3,
+    ):
         from pymor.models.symplectic import QuadraticHamiltonianModel
         from pymor.operators.block import BlockDiagonalOperator
         from pymor.operators.constructions import IdentityOperator, LincombOperator
@@ -160,7 +167,8 @@ class WaveFOM:
         d_op = NumpyMatrixOperator(self.D, name="D")
         space = d_op.source
         H_op = BlockDiagonalOperator(
-            [LincombOperator([d_op], [ProjectionParameterFunctional("mu")], name="mu_D"), IdentityOperator(space)], name="H"
+            [LincombOperator([d_op], [ProjectionParameterFunctional("mu")], name="mu_D"), IdentityOperator(space)],
+            name="H",
         )
         self._space = space
         self.phase_space = H_op.source
@@ -240,8 +248,15 @@ class WaveFOM:
         D = self.D.tocsr()
         D.sort_indices()
         return PointwiseHamiltonian(
-            self.dim, 1, grad_T=_grad_T, grad_V=_grad_V, grad_H=_grad_H, hess_H=_hess_H, fargs=D.data,
-            iargs=np.concatenate([D.indptr, D.indices]), check_mu=lambda mu: self.check_mu(mu, len(mu)),
+            self.dim,
+            1,
+            grad_T=_grad_T,
+            grad_V=_grad_V,
+            grad_H=_grad_H,
+            hess_H=_hess_H,
+            fargs=D.data,
+            iargs=np.concatenate([D.indptr, D.indices]),
+            check_mu=lambda mu: self.check_mu(mu, len(mu)),
             name=f"WaveFOM(N={self.n_points})",
         )
 

@@ -46,13 +46,21 @@ def _shrink(src: Path, dst: Path) -> None:
     from PIL import Image  # a dependency of matplotlib
 
     with Image.open(src) as im:
-        im.convert("RGB").quantize(colors=256, method=Image.Quantize.MEDIANCUT, dither=Image.Dither.NONE).save(dst, optimize=True)
+        im.convert("RGB").quantize(colors=256, method=Image.Quantize.MEDIANCUT, dither=Image.Dither.NONE).save(
+            dst, optimize=True
+        )
 
 
 def _commit() -> str:
     """The checked-out commit (with ``-dirty`` for uncommitted changes), or ``unknown``."""
     try:
-        out = subprocess.run(["git", "describe", "--always", "--dirty", "--abbrev=12"], cwd=DOCS, capture_output=True, text=True, check=True)
+        out = subprocess.run(
+            ["git", "describe", "--always", "--dirty", "--abbrev=12"],
+            cwd=DOCS,
+            capture_output=True,
+            text=True,
+            check=True,
+        )
         return out.stdout.strip()
     except (OSError, subprocess.CalledProcessError):
         return "unknown"
@@ -70,7 +78,11 @@ def _source_text(folders: list[tuple[Path, str, list[str]]], checkout: str) -> s
             except (OSError, ValueError):
                 pass
         times = [p.stat().st_mtime for p in results.glob("*.png")]
-        written = _dt.datetime.fromtimestamp(max(times), _dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC") if times else "unknown"
+        written = (
+            _dt.datetime.fromtimestamp(max(times), _dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+            if times
+            else "unknown"
+        )
         lines += [f"command:   {command}", f"written:   {written}", f"figures:   {', '.join(names)}", ""]
     given = " ".join(g for _, g, _ in folders)
     lines.append(f"collected: python sympredict_paper/figures/collect_figures.py {given} (checkout {checkout})")
@@ -79,9 +91,15 @@ def _source_text(folders: list[tuple[Path, str, list[str]]], checkout: str) -> s
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("results", type=Path, nargs="+",
-                        help="output folder(s) of `sympredict-paper run ... --quick --out DIR`; each figure from the first that has it")
-    parser.add_argument("--no-shrink", action="store_true", help="copy the PNGs unchanged instead of re-encoding them with a palette")
+    parser.add_argument(
+        "results",
+        type=Path,
+        nargs="+",
+        help="output folder(s) of `sympredict-paper run ... --quick --out DIR`; each figure from the first that has it",
+    )
+    parser.add_argument(
+        "--no-shrink", action="store_true", help="copy the PNGs unchanged instead of re-encoding them with a palette"
+    )
     args = parser.parse_args(argv)
 
     for results in args.results:
@@ -92,10 +110,16 @@ def main(argv: list[str] | None = None) -> int:
     origin = {n: next((r for r in args.results if (r / n).is_file()), None) for n in names}
     missing = [n for n, r in origin.items() if r is None]
     if missing:
-        print(f"error: {', '.join(map(str, args.results))} lack(s) {len(missing)} figure(s) that docs/explanation/figures.md "
-              f"shows: {', '.join(missing)}", file=sys.stderr)
-        print("run `sympredict-paper run all --quick --out DIR` and `sympredict-paper run henon-heiles --quick --out HH` with the "
-              "current code, then give both folders", file=sys.stderr)
+        print(
+            f"error: {', '.join(map(str, args.results))} lack(s) {len(missing)} figure(s) that docs/explanation/figures.md "
+            f"shows: {', '.join(missing)}",
+            file=sys.stderr,
+        )
+        print(
+            "run `sympredict-paper run all --quick --out DIR` and `sympredict-paper run henon-heiles --quick --out HH` with the "
+            "current code, then give both folders",
+            file=sys.stderr,
+        )
         return 1
 
     checkout = _commit()  # before the copies change the checkout
@@ -118,7 +142,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"note: docs/figures/ also holds PNGs the page no longer shows (remove them?): {', '.join(stale)}")
     extra = sorted({p.name for r in args.results for p in r.glob("*.png") if p.name not in names})
     if extra:
-        print(f"note: the folders have PNGs that docs/explanation/figures.md does not show (add them to the page to publish them): {', '.join(extra)}")
+        print(
+            f"note: the folders have PNGs that docs/explanation/figures.md does not show (add them to the page to publish them): {', '.join(extra)}"
+        )
     return 0
 
 

@@ -48,8 +48,11 @@ set_log_levels({"pymor": "ERROR", "sympredict": "WARNING"})
 
 fom = discretize_fom(T=args.T)
 stiffness, identity = fom.H_op.blocks[0, 0], fom.H_op.blocks[1, 1]
-fom = fom.with_(H_op=BlockDiagonalOperator(
-    [LincombOperator([stiffness], [ExpressionParameterFunctional("c[0]**2 / 0.1**2", {"c": 1})]), identity]))
+fom = fom.with_(
+    H_op=BlockDiagonalOperator(
+        [LincombOperator([stiffness], [ExpressionParameterFunctional("c[0]**2 / 0.1**2", {"c": 1})]), identity]
+    )
+)
 nt = fom.time_stepper.nt
 dt = 10 * fom.T / nt
 K = int(round(fom.T / dt))
@@ -94,10 +97,16 @@ t0 = time.perf_counter()
 grom = galerkin.reduce()
 t_offline = time.perf_counter() - t0
 grom2 = grom.with_(T=2 * fom.T, time_stepper=grom.time_stepper.with_(nt=2 * nt), nt=2 * nt)
-rows.append({"method": "Galerkin ROM (pyMOR QuadraticHamiltonianRBReductor)", "needs": "reduced operator V^T H(mu) V",
-             "offline_s": t_offline,
-             "solve": lambda mu: grom.solve(mu), "long": lambda mu: galerkin.reconstruct(grom2.solve(mu))[::10],
-             "recon": lambda mu: galerkin.reconstruct(grom.solve(mu))[::10]})
+rows.append(
+    {
+        "method": "Galerkin ROM (pyMOR QuadraticHamiltonianRBReductor)",
+        "needs": "reduced operator V^T H(mu) V",
+        "offline_s": t_offline,
+        "solve": lambda mu: grom.solve(mu),
+        "long": lambda mu: galerkin.reconstruct(grom2.solve(mu))[::10],
+        "recon": lambda mu: galerkin.reconstruct(grom.solve(mu))[::10],
+    }
+)
 
 # the same Galerkin ROM stepped in NumPy with its exact propagator at dt, assembled online per mu
 from scipy.linalg import expm  # noqa: E402
@@ -119,11 +128,16 @@ def numpy_galerkin(mu, n_steps):
     return x
 
 
-rows.append({"method": "Galerkin ROM in NumPy: exact propagator expm(dt J H_red(mu)) at dt, assembled online",
-             "needs": "reduced operator V^T H(mu) V", "offline_s": t_offline,
-             "solve": lambda mu: numpy_galerkin(mu, K),
-             "long": lambda mu: RB.to_array().lincomb(numpy_galerkin(mu, 2 * K).T),
-             "recon": lambda mu: RB.to_array().lincomb(numpy_galerkin(mu, K).T)})
+rows.append(
+    {
+        "method": "Galerkin ROM in NumPy: exact propagator expm(dt J H_red(mu)) at dt, assembled online",
+        "needs": "reduced operator V^T H(mu) V",
+        "offline_s": t_offline,
+        "solve": lambda mu: numpy_galerkin(mu, K),
+        "long": lambda mu: RB.to_array().lincomb(numpy_galerkin(mu, 2 * K).T),
+        "recon": lambda mu: RB.to_array().lincomb(numpy_galerkin(mu, K).T),
+    }
+)
 
 for data in ("reduced", "projected"):
     samples = GalerkinSamples(train, n_samples=args.samples) if data == "reduced" else ProjectedTrajectories(train)
@@ -132,13 +146,20 @@ for data in ("reduced", "projected"):
     krom = red.reduce()
     t_off = time.perf_counter() - t0
     krom2 = krom.with_(T=2 * fom.T)
-    rows.append({"method": f"kernel ROM, data='{data}' (SymplecticKernelReductor)",
-                 "needs": "reduced operator (Galerkin flow samples)" if data == "reduced" else "FOM trajectories only (fom.solve)",
-                 "offline_s": t_off, "centres": red.predictor_.n_centers_,
-                 "kernel": f"{red.predictor_.state_kernel!r}, {red.predictor_.mu_kernel!r}",
-                 "solve": (lambda r: (lambda mu: r.solve(mu)))(krom),
-                 "long": (lambda r, k: (lambda mu: r.reconstruct(k.solve(mu))))(red, krom2),
-                 "recon": (lambda r, k: (lambda mu: r.reconstruct(k.solve(mu))))(red, krom)})
+    rows.append(
+        {
+            "method": f"kernel ROM, data='{data}' (SymplecticKernelReductor)",
+            "needs": "reduced operator (Galerkin flow samples)"
+            if data == "reduced"
+            else "FOM trajectories only (fom.solve)",
+            "offline_s": t_off,
+            "centres": red.predictor_.n_centers_,
+            "kernel": f"{red.predictor_.state_kernel!r}, {red.predictor_.mu_kernel!r}",
+            "solve": (lambda r: lambda mu: r.solve(mu))(krom),
+            "long": (lambda r, k: lambda mu: r.reconstruct(k.solve(mu)))(red, krom2),
+            "recon": (lambda r, k: lambda mu: r.reconstruct(k.solve(mu)))(red, krom),
+        }
+    )
 
 # pyMOR's DataDrivenReductor on the same data: projected FOM trajectories at the training speeds, on the macro grid
 V_plus = RB.transposed_symplectic_inverse().to_array()
@@ -159,24 +180,44 @@ def dd_recon(rom):
     return lambda mu: RB.to_array().lincomb(rom.solve(mu).to_numpy())
 
 
-for label, make in (("default VKOGARegressor()", lambda ls: (VKOGARegressor(), None)),
-                    ("VKOGA, 500 centres, scaled inputs, Gaussian width chosen on validation speeds",
-                     lambda ls: (VKOGARegressor(GaussianKernel(ls), max_centers=500, tol=1e-12), BoxScaling()))):
+for label, make in (
+    ("default VKOGARegressor()", lambda ls: (VKOGARegressor(), None)),
+    (
+        "VKOGA, 500 centres, scaled inputs, Gaussian width chosen on validation speeds",
+        lambda ls: (VKOGARegressor(GaussianKernel(ls), max_centers=500, tol=1e-12), BoxScaling()),
+    ),
+):
     best = None
-    for ls in ((1.0,) if label.startswith("default") else (0.03, 0.1, 0.3, 1.0)):
+    for ls in (1.0,) if label.startswith("default") else (0.03, 0.1, 0.3, 1.0):
         rom, t_off = data_driven(*make(ls))
         rec = dd_recon(rom)
-        v = [float(np.sqrt((fom.solve(mu)[::10][: K + 1] - rec(mu)).norm2().sum() / fom.solve(mu)[::10][: K + 1].norm2().sum()))
-             for mu in val] if not label.startswith("default") else [0.0]
+        v = (
+            [
+                float(
+                    np.sqrt(
+                        (fom.solve(mu)[::10][: K + 1] - rec(mu)).norm2().sum()
+                        / fom.solve(mu)[::10][: K + 1].norm2().sum()
+                    )
+                )
+                for mu in val
+            ]
+            if not label.startswith("default")
+            else [0.0]
+        )
         if best is None or np.mean(v) < best[0]:
             best = (np.mean(v), rom, t_off, ls)
     _, rom, t_off, ls = best
     rom2 = rom.with_(T=2 * K * dt, nt=2 * K + 1)
-    rows.append({"method": f"pyMOR DataDrivenReductor, {label}" + ("" if label.startswith("default") else f" (width {ls})"),
-                 "needs": "FOM trajectories only (same projected data)", "offline_s": t_off,
-                 "solve": (lambda r: (lambda mu: r.solve(mu)))(rom),
-                 "long": (lambda r: (lambda mu: RB.to_array().lincomb(r.solve(mu).to_numpy())))(rom2),
-                 "recon": dd_recon(rom)})
+    rows.append(
+        {
+            "method": f"pyMOR DataDrivenReductor, {label}" + ("" if label.startswith("default") else f" (width {ls})"),
+            "needs": "FOM trajectories only (same projected data)",
+            "offline_s": t_off,
+            "solve": (lambda r: lambda mu: r.solve(mu))(rom),
+            "long": (lambda r: lambda mu: RB.to_array().lincomb(r.solve(mu).to_numpy()))(rom2),
+            "recon": dd_recon(rom),
+        }
+    )
 
 results = []
 for row in rows:
@@ -187,18 +228,29 @@ for row in rows:
         errs.append(e)
         errs_long.append(el)
         times.append(timed(lambda: row["solve"](mu), args.repeats))
-    results.append({k: v for k, v in row.items() if k not in ("solve", "long", "recon")}
-                   | {"error_0_T": float(np.mean(errs)), "error_T_2T": float(np.mean(errs_long)),
-                      "online_s": float(np.median(times))})
+    results.append(
+        {k: v for k, v in row.items() if k not in ("solve", "long", "recon")}
+        | {
+            "error_0_T": float(np.mean(errs)),
+            "error_T_2T": float(np.mean(errs_long)),
+            "online_s": float(np.median(times)),
+        }
+    )
 
 gal = results[0]
-print(f"FOM: N = {fom.solution_space.dim}, nt = {nt}, T = {fom.T}, dt = {dt:.6g} ({K} macro steps); 5 training FOM solves "
-      f"{t_fom_train:.2f} s; test speeds {[round(float(m['c'][0]), 4) for m in test]}")
-print("| method | needs | error on [0, T] | ratio to Galerkin | error on (T, 2T] | online solve (median) | speed-up vs pyMOR Galerkin | offline |")
+print(
+    f"FOM: N = {fom.solution_space.dim}, nt = {nt}, T = {fom.T}, dt = {dt:.6g} ({K} macro steps); 5 training FOM solves "
+    f"{t_fom_train:.2f} s; test speeds {[round(float(m['c'][0]), 4) for m in test]}"
+)
+print(
+    "| method | needs | error on [0, T] | ratio to Galerkin | error on (T, 2T] | online solve (median) | speed-up vs pyMOR Galerkin | offline |"
+)
 print("|---|---|---|---|---|---|---|---|")
 for r in results:
-    print(f"| {r['method']} | {r['needs']} | {r['error_0_T']:.2e} | {r['error_0_T'] / gal['error_0_T']:.2f} | "
-          f"{r['error_T_2T']:.2e} | {1e3 * r['online_s']:.2f} ms | {gal['online_s'] / r['online_s']:.1f}x | {r['offline_s']:.1f} s |")
+    print(
+        f"| {r['method']} | {r['needs']} | {r['error_0_T']:.2e} | {r['error_0_T'] / gal['error_0_T']:.2f} | "
+        f"{r['error_T_2T']:.2e} | {1e3 * r['online_s']:.2f} ms | {gal['online_s'] / r['online_s']:.1f}x | {r['offline_s']:.1f} s |"
+    )
 for r in results:
     if "centres" in r:
         print(f"{r['method']}: {r['centres']} centres, kernels {r['kernel']}")

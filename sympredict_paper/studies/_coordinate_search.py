@@ -16,9 +16,16 @@ import numpy as np
 from sympredict.estimators.search import coordinate_search as _engine_search
 
 
-def coordinate_search(score: Callable[[list], float], start: Sequence[float], names: Sequence[str],
-                      search: Sequence[str], factor: float = 2.0, sweeps: int = 3,
-                      start_score: Optional[float] = None, label: str = "") -> tuple[list, float]:
+def coordinate_search(
+    score: Callable[[list], float],
+    start: Sequence[float],
+    names: Sequence[str],
+    search: Sequence[str],
+    factor: float = 2.0,
+    sweeps: int = 3,
+    start_score: Optional[float] = None,
+    label: str = "",
+) -> tuple[list, float]:
     """Return ``(best parameters, best score)``; ``start_score`` saves the start's evaluation when known."""
     first = tuple(float(v) for v in start)
     scores = {} if start_score is None else {first: start_score}
@@ -31,13 +38,24 @@ def coordinate_search(score: Callable[[list], float], start: Sequence[float], na
     shown = {"best": first, "log_f": np.log(factor)}
 
     def on_sweep(sweep: int, best: tuple) -> None:
-        print(f"sweep {sweep}: best {label}{dict(zip(names, best))}, score {scores[best]:.3e} "
-              f"(factor {np.exp(shown['log_f']):.3f})", flush=True)
+        print(
+            f"sweep {sweep}: best {label}{dict(zip(names, best))}, score {scores[best]:.3e} "
+            f"(factor {np.exp(shown['log_f']):.3f})",
+            flush=True,
+        )
         if best == shown["best"]:  # no improvement: the engine's next sweep moves by the shrunk factor
             shown["log_f"] /= 2
         shown["best"] = best
 
-    best = _engine_search(first, key, [list(names).index(n) for n in search], lambda v, i, f: v * f,
-                          factors=(factor, 1.0 / factor), sweeps=sweeps, from_best=True, on_sweep=on_sweep,
-                          shrink=0.5)
+    best = _engine_search(
+        first,
+        key,
+        [list(names).index(n) for n in search],
+        lambda v, i, f: v * f,
+        factors=(factor, 1.0 / factor),
+        sweeps=sweeps,
+        from_best=True,
+        on_sweep=on_sweep,
+        shrink=0.5,
+    )
     return list(best), scores[best]

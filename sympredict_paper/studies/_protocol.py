@@ -60,23 +60,43 @@ DEFAULT_BLAS_THREADS = 1
 
 
 # --------------------------------------------------------------------------- command line
-def add_arguments(parser, *, threads: Optional[int] = None, threads_help: str = "numba threads of the compiled code",
-                  repeats: Optional[int] = None, json_option: bool = True, blas_alias: Optional[str] = None) -> None:
+def add_arguments(
+    parser,
+    *,
+    threads: Optional[int] = None,
+    threads_help: str = "numba threads of the compiled code",
+    repeats: Optional[int] = None,
+    json_option: bool = True,
+    blas_alias: Optional[str] = None,
+) -> None:
     """The protocol's options: ``--blas-threads``, and where asked ``--threads``, ``--repeats``, ``--json``.
 
     ``threads`` / ``repeats``: the script's defaults (``None``: the script has no such option).
     ``blas_alias``: an older name of ``--blas-threads`` that command lines in the docs use (e.g. ``"--threads"``).
     """
-    parser.add_argument("--blas-threads", type=int, default=DEFAULT_BLAS_THREADS,
-                        help=f"BLAS/OpenMP threads via threadpoolctl (default {DEFAULT_BLAS_THREADS})")
+    parser.add_argument(
+        "--blas-threads",
+        type=int,
+        default=DEFAULT_BLAS_THREADS,
+        help=f"BLAS/OpenMP threads via threadpoolctl (default {DEFAULT_BLAS_THREADS})",
+    )
     if blas_alias:
-        parser.add_argument(blas_alias, dest="blas_threads", type=int, default=argparse.SUPPRESS,
-                            help="the same as --blas-threads (this script's older name)")
+        parser.add_argument(
+            blas_alias,
+            dest="blas_threads",
+            type=int,
+            default=argparse.SUPPRESS,
+            help="the same as --blas-threads (this script's older name)",
+        )
     if threads is not None:
         parser.add_argument("--threads", type=int, default=threads, help=f"{threads_help} (default {threads})")
     if repeats is not None:
-        parser.add_argument("--repeats", type=int, default=repeats,
-                            help=f"timed calls after the warm-up; their median is reported (default {repeats})")
+        parser.add_argument(
+            "--repeats",
+            type=int,
+            default=repeats,
+            help=f"timed calls after the warm-up; their median is reported (default {repeats})",
+        )
     if json_option:
         parser.add_argument("--json", default=None, help="also write the results as JSON (with the protocol record)")
 
@@ -112,8 +132,14 @@ def limits(blas_threads: int = DEFAULT_BLAS_THREADS, numba_threads: Optional[int
 def summary(samples) -> dict:
     """``median_s``, ``min_s``, ``max_s``, ``mean_s``, ``repeats`` and the ``samples_s`` of timed calls."""
     s = np.asarray(samples, dtype=float)
-    return {"median_s": float(np.median(s)), "min_s": float(s.min()), "max_s": float(s.max()), "mean_s": float(s.mean()),
-            "repeats": int(s.size), "samples_s": [float(v) for v in s]}
+    return {
+        "median_s": float(np.median(s)),
+        "min_s": float(s.min()),
+        "max_s": float(s.max()),
+        "mean_s": float(s.mean()),
+        "repeats": int(s.size),
+        "samples_s": [float(v) for v in s],
+    }
 
 
 def _timed(fn: Callable) -> float:
@@ -131,8 +157,13 @@ def measure(fn: Callable, repeats: int = 5, warmup: int = 1) -> dict:
     return out
 
 
-def side_by_side(methods: Dict[str, Callable], repeats: int = 5, warmup: int = 1, baseline: Optional[str] = None,
-                 statistic: str = "median_s") -> dict:
+def side_by_side(
+    methods: Dict[str, Callable],
+    repeats: int = 5,
+    warmup: int = 1,
+    baseline: Optional[str] = None,
+    statistic: str = "median_s",
+) -> dict:
     """Several methods measured in this process, interleaved: repeat ``r`` times every method once, in turn.
 
     Returns ``{"methods": {label: summary}, "ratios": {label: stat(label) / stat(baseline)}, "baseline",
@@ -149,8 +180,13 @@ def side_by_side(methods: Dict[str, Callable], repeats: int = 5, warmup: int = 1
             samples[label].append(_timed(fn))
     stats = {label: dict(summary(s), warmup=int(warmup)) for label, s in samples.items()}
     base = stats[baseline][statistic]
-    return {"methods": stats, "ratios": {label: stats[label][statistic] / base for label in labels},
-            "baseline": baseline, "statistic": statistic, "interleaved": True}
+    return {
+        "methods": stats,
+        "ratios": {label: stats[label][statistic] / base for label in labels},
+        "baseline": baseline,
+        "statistic": statistic,
+        "interleaved": True,
+    }
 
 
 # --------------------------------------------------------------------------- the record
@@ -168,8 +204,12 @@ def _cpu_model() -> Optional[str]:
 def _git(root: Path) -> Optional[dict]:
     try:
         rev = subprocess.run(["git", "-C", str(root), "rev-parse", "HEAD"], capture_output=True, text=True, timeout=10)
-        dirty = subprocess.run(["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no"], capture_output=True,
-                               text=True, timeout=10)
+        dirty = subprocess.run(
+            ["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no"],
+            capture_output=True,
+            text=True,
+            timeout=10,
+        )
     except (OSError, subprocess.SubprocessError):
         return None
     if rev.returncode != 0:
@@ -179,8 +219,10 @@ def _git(root: Path) -> Optional[dict]:
 
 def machine_info() -> dict:
     """CPU model and count, platform, Python / NumPy / SciPy / numba versions, thread pools and the BLAS core type."""
-    pools = [{k: d.get(k) for k in ("user_api", "internal_api", "num_threads", "version", "threading_layer", "architecture")}
-             for d in threadpool_info()]
+    pools = [
+        {k: d.get(k) for k in ("user_api", "internal_api", "num_threads", "version", "threading_layer", "architecture")}
+        for d in threadpool_info()
+    ]
     info = {
         "cpu_model": _cpu_model(),
         "cpus": os.cpu_count(),
@@ -189,11 +231,22 @@ def machine_info() -> dict:
         "python": platform.python_version(),
         "numpy": np.__version__,
         "threadpools": pools,
-        "openblas_core_types": sorted({p["architecture"] for p in pools if p.get("internal_api") == "openblas"
-                                       and p.get("architecture")}),
-        "environment": {k: os.environ[k] for k in ("OPENBLAS_CORETYPE", "OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS",
-                                                   "MKL_NUM_THREADS", "NUMBA_NUM_THREADS", "NUMBA_CPU_NAME",
-                                                   "NUMBA_THREADING_LAYER") if k in os.environ},
+        "openblas_core_types": sorted(
+            {p["architecture"] for p in pools if p.get("internal_api") == "openblas" and p.get("architecture")}
+        ),
+        "environment": {
+            k: os.environ[k]
+            for k in (
+                "OPENBLAS_CORETYPE",
+                "OPENBLAS_NUM_THREADS",
+                "OMP_NUM_THREADS",
+                "MKL_NUM_THREADS",
+                "NUMBA_NUM_THREADS",
+                "NUMBA_CPU_NAME",
+                "NUMBA_THREADING_LAYER",
+            )
+            if k in os.environ
+        },
         "numba": None,
     }
     try:
@@ -204,8 +257,13 @@ def machine_info() -> dict:
         info["scipy"] = None
     numba = _numba()
     if numba is not None:
-        nb = {"version": numba.__version__, "threads": numba.get_num_threads(), "pool_size": numba.config.NUMBA_NUM_THREADS,
-              "threading_layer": None, "cpu_name": None}
+        nb = {
+            "version": numba.__version__,
+            "threads": numba.get_num_threads(),
+            "pool_size": numba.config.NUMBA_NUM_THREADS,
+            "threading_layer": None,
+            "cpu_name": None,
+        }
         try:
             nb["threading_layer"] = numba.threading_layer()
         except ValueError:
@@ -220,8 +278,15 @@ def machine_info() -> dict:
     return info
 
 
-def record(*, blas_threads: int, numba_threads: Optional[int] = None, repeats: Optional[int] = None,
-           warmup: Optional[int] = None, statistic: str = "median", notes: Optional[str] = None) -> dict:
+def record(
+    *,
+    blas_threads: int,
+    numba_threads: Optional[int] = None,
+    repeats: Optional[int] = None,
+    warmup: Optional[int] = None,
+    statistic: str = "median",
+    notes: Optional[str] = None,
+) -> dict:
     """The protocol record of a run: command line, revision, threads, timing settings, machine (:func:`machine_info`).
 
     Call it inside :func:`limits` (the thread pools then report the limited counts).
@@ -233,8 +298,13 @@ def record(*, blas_threads: int, numba_threads: Optional[int] = None, repeats: O
         "time_utc": time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime()),
         "git": _git(Path(__file__).resolve().parents[2]),
         "threads": {"blas": int(blas_threads), "numba": None if numba_threads is None else int(numba_threads)},
-        "timing": {"warmup": warmup, "repeats": repeats, "statistic": statistic,
-                   "clock": "time.perf_counter", "ratios": "measured side by side in one process"},
+        "timing": {
+            "warmup": warmup,
+            "repeats": repeats,
+            "statistic": statistic,
+            "clock": "time.perf_counter",
+            "ratios": "measured side by side in one process",
+        },
         "machine": machine_info(),
     }
     if notes:

@@ -26,8 +26,9 @@ def cached_fom_data(p, cache: str) -> dict:
     return d
 
 
-def load_fom_data(p, preset: str, cache: Optional[str] = None,
-                  show: Callable = lambda c: np.round(c, 3).tolist()) -> tuple:
+def load_fom_data(
+    p, preset: str, cache: Optional[str] = None, show: Callable = lambda c: np.round(c, 3).tolist()
+) -> tuple:
     """The split studies' FOM data of preset ``p`` (named ``preset``): :func:`cached_fom_data`, by default cached
     per preset and sizes under ``/tmp``, reported in one line (the test parameters as ``show(c_te)``).
 
@@ -40,8 +41,11 @@ def load_fom_data(p, preset: str, cache: Optional[str] = None,
     cache = cache or f"/tmp/sine_gordon_split_{preset}_{p.n_c}x{p.n_amplitude}.npz"
     t0 = time.perf_counter()
     d = cached_fom_data(p, cache)
-    print(f"FOM data: {len(d['c_tr'])} training, {len(d['c_te'])} test trajectories ({time.perf_counter() - t0:.0f} s); "
-          f"test c = {show(d['c_te'])}", flush=True)
+    print(
+        f"FOM data: {len(d['c_tr'])} training, {len(d['c_te'])} test trajectories ({time.perf_counter() - t0:.0f} s); "
+        f"test c = {show(d['c_te'])}",
+        flush=True,
+    )
     return d["fom"], int(round(p.T / p.DT)), d["c_tr"], d["c_te"], d["X_tr"], d["X_te"]
 
 

@@ -71,18 +71,28 @@ def fit_one(label, trainer, settings, data, heldout, test, bench, m, args) -> di
     model.fit(x0, x1, mu=mu, dt=dt)
     fit_s = time.perf_counter() - t0
     h = model.history_
-    out = {"trainer": label, "spec": trainer.spec, "max_centers": m, "centers": int(model.surrogate_.n_centers),
-           "fit_s": fit_s, "greedy_s": float(h.elapsed[-1]), "stop_reason": h.stop_reason,
-           "train_max_residual": float(h.train_max_residual[-1]),
-           "held_out_error": held_out_error(model, *heldout),
-           "memory_formula_bytes": trainer_memory(trainer, 4 * len(x0), 0, m)}
+    out = {
+        "trainer": label,
+        "spec": trainer.spec,
+        "max_centers": m,
+        "centers": int(model.surrogate_.n_centers),
+        "fit_s": fit_s,
+        "greedy_s": float(h.elapsed[-1]),
+        "stop_reason": h.stop_reason,
+        "train_max_residual": float(h.train_max_residual[-1]),
+        "held_out_error": held_out_error(model, *heldout),
+        "memory_formula_bytes": trainer_memory(trainer, 4 * len(x0), 0, m),
+    }
     stats = model.greedy_result_.stats
     if "blocks" in stats:
         sizes = np.asarray(stats["block_sizes"])
         out.update(blocks=int(stats["blocks"]), mean_block=float(sizes.mean()))
     out.update(trajectory_metrics(model, bench, test, args.test_steps))
-    print(f"  {label:>8s} m={m}: fit {fit_s:7.1f} s (greedy {out['greedy_s']:7.1f} s), held-out {out['held_out_error']:.3e}, "
-          f"rollout median {out.get('traj_error_median', float('nan')):.3e}", flush=True)
+    print(
+        f"  {label:>8s} m={m}: fit {fit_s:7.1f} s (greedy {out['greedy_s']:7.1f} s), held-out {out['held_out_error']:.3e}, "
+        f"rollout median {out.get('traj_error_median', float('nan')):.3e}",
+        flush=True,
+    )
     return out
 
 
@@ -96,9 +106,13 @@ def main(argv=None):
     parser.add_argument("--test-steps", type=int, default=200)
     parser.add_argument("--block-size", type=int, default=64)
     parser.add_argument("--skip-exact", action="store_true", help="blocked only (no exact baseline)")
-    parser.add_argument("--eps-factor", type=float, default=4.0,
-                        help="state shape = this times the hand setting's (the hand kernel's Gramian turns singular "
-                             "near 1,600 centres on these data; 4: room for 4,000 centres)")
+    parser.add_argument(
+        "--eps-factor",
+        type=float,
+        default=4.0,
+        help="state shape = this times the hand setting's (the hand kernel's Gramian turns singular "
+        "near 1,600 centres on these data; 4: room for 4,000 centres)",
+    )
     _protocol.add_arguments(parser, threads=1)
     args = parser.parse_args(argv)
     args.json = args.json or "docs/data/blocked_greedy.json"
@@ -106,8 +120,13 @@ def main(argv=None):
     settings = dict(HAND["coupled_pendulums"])
     settings["eps_state"] *= args.eps_factor
     with _protocol.limits(args.blas_threads, args.threads):
-        protocol = _protocol.record(blas_threads=args.blas_threads, numba_threads=args.threads, repeats=1, warmup=0,
-                                    notes="one fit per trainer and size; exact and blocked side by side in one process")
+        protocol = _protocol.record(
+            blas_threads=args.blas_threads,
+            numba_threads=args.threads,
+            repeats=1,
+            warmup=0,
+            notes="one fit per trainer and size; exact and blocked side by side in one process",
+        )
         data = pendulum_samples(bench, args.trajectories, args.steps, seed=1)
         heldout = pendulum_samples(bench, args.holdout, args.steps, seed=2)
         test = make_test_set(bench, args.n_test, args.test_steps, seed=3)
@@ -120,18 +139,33 @@ def main(argv=None):
             row = {"max_centers": m, "flops": float(m) ** 2 * n_fun, "arithmetic_limit_s": limit_s}
             if not args.skip_exact:
                 row["exact"] = fit_one("exact", ExactGreedy(), settings, data, heldout, test, bench, m, args)
-            row["blocked"] = fit_one("blocked", BlockedGreedy(block_size=args.block_size), settings, data, heldout,
-                                     test, bench, m, args)
+            row["blocked"] = fit_one(
+                "blocked", BlockedGreedy(block_size=args.block_size), settings, data, heldout, test, bench, m, args
+            )
             if "exact" in row:
                 e, b = row["exact"], row["blocked"]
-                row["ratios"] = {k: b[k] / e[k] for k in ("fit_s", "greedy_s", "held_out_error", "traj_error_median",
-                                                            "traj_error_max") if k in e and k in b and e[k]}
-                print("  ratios blocked/exact: " + ", ".join(f"{k} {v:.3f}" for k, v in row["ratios"].items()), flush=True)
+                row["ratios"] = {
+                    k: b[k] / e[k]
+                    for k in ("fit_s", "greedy_s", "held_out_error", "traj_error_median", "traj_error_max")
+                    if k in e and k in b and e[k]
+                }
+                print(
+                    "  ratios blocked/exact: " + ", ".join(f"{k} {v:.3f}" for k, v in row["ratios"].items()), flush=True
+                )
             rows.append(row)
-            _protocol.write_json(args.json, {"system": "coupled_pendulums", "samples": len(data[0]),
-                                             "functionals": n_fun, "settings": {k: v for k, v in settings.items()
-                                                                                if k != "search"},
-                                             "block_size": args.block_size, "gemm": rate, "rows": rows}, protocol)
+            _protocol.write_json(
+                args.json,
+                {
+                    "system": "coupled_pendulums",
+                    "samples": len(data[0]),
+                    "functionals": n_fun,
+                    "settings": {k: v for k, v in settings.items() if k != "search"},
+                    "block_size": args.block_size,
+                    "gemm": rate,
+                    "rows": rows,
+                },
+                protocol,
+            )
     print(f"wrote {args.json}")
 
 

@@ -70,8 +70,14 @@ def fit_model(path: Path, centers: int) -> None:
     from sympredict.systems.pendulum import Pendulum, flow_map_data
 
     d = flow_map_data(Pendulum(), n_grid=20)
-    model = SymplecticKernelPredictor(IMQ(0.15), mu_kernel=IMQ(2.0), dt_kernel=IMQ(5.0), max_centers=centers,
-                                      trainer=ExactGreedy(tol=1e-12), solver=NewtonSolver(backend="numpy"))
+    model = SymplecticKernelPredictor(
+        IMQ(0.15),
+        mu_kernel=IMQ(2.0),
+        dt_kernel=IMQ(5.0),
+        max_centers=centers,
+        trainer=ExactGreedy(tol=1e-12),
+        solver=NewtonSolver(backend="numpy"),
+    )
     model.fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
     model.save(path)
     return model, d
@@ -83,8 +89,23 @@ def run_child(args: list, env: dict) -> dict:
 
 
 def _predict_command(model: Path, steps: int, backend: str, x0, mu: float, dt: float) -> list:
-    return [sys.executable, "-m", "sympredict.cli", "predict", str(model), "--x0", ",".join(repr(float(v)) for v in x0),
-            "--mu", repr(mu), "--dt", repr(dt), "--steps", str(steps), "--backend", backend]
+    return [
+        sys.executable,
+        "-m",
+        "sympredict.cli",
+        "predict",
+        str(model),
+        "--x0",
+        ",".join(repr(float(v)) for v in x0),
+        "--mu",
+        repr(mu),
+        "--dt",
+        repr(dt),
+        "--steps",
+        str(steps),
+        "--backend",
+        backend,
+    ]
 
 
 def time_cli(command: list, env: dict) -> float:
@@ -96,8 +117,14 @@ def time_cli(command: list, env: dict) -> float:
 
 def time_interrupt(command: list, env: dict, after: float) -> dict:
     """Seconds from SIGINT to the exit of a running ``sympredict predict``, its exit code and peak memory (MiB)."""
-    proc = subprocess.Popen(command, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    proc = subprocess.Popen(
+        command,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
     time.sleep(after)
     if proc.poll() is not None:
         raise RuntimeError(f"predict ended before the interrupt: {proc.communicate()}")
@@ -128,7 +155,9 @@ def main(argv=None) -> dict:
     parser.add_argument("--repeats", type=int, default=3, help="fresh processes per backend after the first")
     _protocol.add_arguments(parser, threads=1, threads_help="numba threads of the child processes")
     parser.add_argument("--cli-steps", type=int, default=400, help="steps of the timed `sympredict predict`")
-    parser.add_argument("--interrupt-after", type=float, default=5.0, help="seconds before SIGINT to a 10^9-step predict")
+    parser.add_argument(
+        "--interrupt-after", type=float, default=5.0, help="seconds before SIGINT to a 10^9-step predict"
+    )
     args = parser.parse_args(argv)
 
     with tempfile.TemporaryDirectory() as tmp, _protocol.limits(args.blas_threads):
@@ -138,13 +167,24 @@ def main(argv=None) -> dict:
         x0 = d.x0[rng.choice(len(d.x0), args.trajectories, replace=False)]
         np.save(tmp / "x0.npy", x0)
         mu, dt = float(d.mu[0, 0]), float(d.dt[0])
-        env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp / "numba_cache"), NUMBA_NUM_THREADS=str(args.threads),
-                   OPENBLAS_NUM_THREADS=str(args.blas_threads), OMP_NUM_THREADS=str(args.blas_threads))
+        env = dict(
+            os.environ,
+            NUMBA_CACHE_DIR=str(tmp / "numba_cache"),
+            NUMBA_NUM_THREADS=str(args.threads),
+            OPENBLAS_NUM_THREADS=str(args.blas_threads),
+            OMP_NUM_THREADS=str(args.blas_threads),
+        )
         child_args = [str(tmp / "model.h5"), None, str(tmp / "x0.npy"), str(args.steps), repr(mu), repr(dt)]
-        result = {"centers": int(len(model.surrogate_.centers_xi)), "trajectories": args.trajectories, "steps": args.steps,
-                  "repeats": args.repeats, "threads": args.threads, "python": platform.python_version(),
-                  "machine": f"{os.cpu_count()} CPUs, {platform.processor() or platform.machine()}, {platform.platform()}",
-                  "backends": {}}
+        result = {
+            "centers": int(len(model.surrogate_.centers_xi)),
+            "trajectories": args.trajectories,
+            "steps": args.steps,
+            "repeats": args.repeats,
+            "threads": args.threads,
+            "python": platform.python_version(),
+            "machine": f"{os.cpu_count()} CPUs, {platform.processor() or platform.machine()}, {platform.platform()}",
+            "backends": {},
+        }
         for backend in ("numpy", "numba", "auto"):  # 'auto', the default, after numba has filled the cache
             child_args[1] = backend
             first = run_child(child_args, env)  # numba: compiles and fills the fresh cache
@@ -157,28 +197,46 @@ def main(argv=None) -> dict:
         for backend in ("auto", "numpy", "numba"):
             command = _predict_command(tmp / "model.h5", args.cli_steps, backend, x0[0], mu, dt)
             times = [time_cli(command, env) for _ in range(args.repeats)]
-            stops = [time_interrupt(_predict_command(tmp / "model.h5", 10**9, backend, x0[0], mu, dt), env,
-                                    args.interrupt_after) for _ in range(args.repeats)]
-            result["cli"][backend] = {"predict_s": _protocol.summary(times)["median_s"], "predict_runs_s": times,
-                                      "interrupt_s": _protocol.summary([r["interrupt_s"] for r in stops])["median_s"],
-                                      "interrupt_runs": stops}
+            stops = [
+                time_interrupt(
+                    _predict_command(tmp / "model.h5", 10**9, backend, x0[0], mu, dt), env, args.interrupt_after
+                )
+                for _ in range(args.repeats)
+            ]
+            result["cli"][backend] = {
+                "predict_s": _protocol.summary(times)["median_s"],
+                "predict_runs_s": times,
+                "interrupt_s": _protocol.summary([r["interrupt_s"] for r in stops])["median_s"],
+                "interrupt_runs": stops,
+            }
         cache = tmp / "numba_cache"
         result["cache_files"] = sum(1 for p in cache.rglob("*") if p.is_file()) if cache.exists() else 0
-        protocol = _protocol.record(blas_threads=args.blas_threads, numba_threads=args.threads, repeats=args.repeats,
-                                    warmup=1, notes="fresh child processes; the first per backend compiles (its own keys)")
+        protocol = _protocol.record(
+            blas_threads=args.blas_threads,
+            numba_threads=args.threads,
+            repeats=args.repeats,
+            warmup=1,
+            notes="fresh child processes; the first per backend compiles (its own keys)",
+        )
     result = {"command": protocol["command"], **result}  # the docs print command and machine under their tables
     b = result["backends"]
     result["numba_cached_rollout_over_numpy_s"] = b["numba"]["first_rollout_s"] - b["numpy"]["first_rollout_s"]
     for name, row in b.items():
-        print(f"{name:6s} first process: rollout {row['first_first_rollout_s']:.3f} s, total {row['first_total_s']:.3f} s; "
-              f"later (median of {args.repeats}): import {row['import_s']:.3f} s, load {row['load_s']:.3f} s, "
-              f"rollout {row['first_rollout_s']:.3f} s, total {row['total_s']:.3f} s")
-    print(f"numba cache files: {result['cache_files']}; later numba rollout - numpy rollout: "
-          f"{result['numba_cached_rollout_over_numpy_s']:.3f} s")
+        print(
+            f"{name:6s} first process: rollout {row['first_first_rollout_s']:.3f} s, total {row['first_total_s']:.3f} s; "
+            f"later (median of {args.repeats}): import {row['import_s']:.3f} s, load {row['load_s']:.3f} s, "
+            f"rollout {row['first_rollout_s']:.3f} s, total {row['total_s']:.3f} s"
+        )
+    print(
+        f"numba cache files: {result['cache_files']}; later numba rollout - numpy rollout: "
+        f"{result['numba_cached_rollout_over_numpy_s']:.3f} s"
+    )
     for name, row in result["cli"].items():
-        print(f"sympredict predict --backend {name}: {args.cli_steps} steps in {row['predict_s']:.2f} s (median); "
-              f"10^9 steps stop {row['interrupt_s']:.2f} s after SIGINT (exit codes "
-              f"{sorted({r['returncode'] for r in row['interrupt_runs']})})")
+        print(
+            f"sympredict predict --backend {name}: {args.cli_steps} steps in {row['predict_s']:.2f} s (median); "
+            f"10^9 steps stop {row['interrupt_s']:.2f} s after SIGINT (exit codes "
+            f"{sorted({r['returncode'] for r in row['interrupt_runs']})})"
+        )
     if args.json:
         _protocol.write_json(args.json, result, protocol)
     return result

@@ -46,26 +46,61 @@ def _case(name):
         data = flow_map_data(system, MU_TRAIN, (0.05,), n_grid=50)
         val = random_flow_map_data(system, 1000, seed=2, dt_values=(0.05,))
         x0, mu = paper_test_instances(0)
-        return dict(system=system, data=data, val=val, x0=x0, mu=mu, dt=0.05, horizon=20.0, substeps=128,
-                    kernels=(IMQ(0.2), IMQ(1.5), None), centers=1000, with_dt=False)
+        return dict(
+            system=system,
+            data=data,
+            val=val,
+            x0=x0,
+            mu=mu,
+            dt=0.05,
+            horizon=20.0,
+            substeps=128,
+            kernels=(IMQ(0.2), IMQ(1.5), None),
+            centers=1000,
+            with_dt=False,
+        )
     if name == "pendulum_full":
         system = Pendulum()
         data = flow_map_data(system, n_grid=50)
         val = random_flow_map_data(system, 1000, seed=2)
         x0, mu = paper_test_instances(0)
-        return dict(system=system, data=data, val=val, x0=x0, mu=mu, dt=DT_TEST[0], horizon=20.0, substeps=128,
-                    kernels=(IMQ(0.2), IMQ(1.5), IMQ(3.0)), centers=1000, with_dt=True)
+        return dict(
+            system=system,
+            data=data,
+            val=val,
+            x0=x0,
+            mu=mu,
+            dt=DT_TEST[0],
+            horizon=20.0,
+            substeps=128,
+            kernels=(IMQ(0.2), IMQ(1.5), IMQ(3.0)),
+            centers=1000,
+            with_dt=True,
+        )
     system = HenonHeiles()
     p = HH_PRESETS["quick"]
     data = henon_heiles_data(system, np.linspace(*LAMBDA_RANGE, p.n_lambda), p.n_per_lambda, p.energy_max)
     rng = np.random.default_rng(1)
     lv = rng.uniform(*LAMBDA_RANGE, 1000)
-    vx0 = np.concatenate([energy_bounded_states(system, lam, 1, p.energy_max, seed=100 + i) for i, lam in enumerate(lv)])
+    vx0 = np.concatenate(
+        [energy_bounded_states(system, lam, 1, p.energy_max, seed=100 + i) for i, lam in enumerate(lv)]
+    )
     val = FlowMapData(vx0, system.flow(vx0, lv, DT_HH), lv[:, None], np.full(1000, DT_HH))
     x0, mu = henon_heiles_test_instances(system, p.n_test, p.energy_max)
     # the kernel chosen on validation by `sympredict-paper run henon-heiles --quick`
-    return dict(system=system, data=data, val=val, x0=x0, mu=mu, dt=DT_HH, horizon=50.0, substeps=256,
-                kernels=(IMQ(0.5), IMQ(1.0), None), centers=500, with_dt=False)
+    return dict(
+        system=system,
+        data=data,
+        val=val,
+        x0=x0,
+        mu=mu,
+        dt=DT_HH,
+        horizon=50.0,
+        substeps=256,
+        kernels=(IMQ(0.5), IMQ(1.0), None),
+        centers=500,
+        with_dt=False,
+    )
 
 
 def run_case(name, neural_epochs, neural_only=False):
@@ -83,40 +118,83 @@ def run_case(name, neural_epochs, neural_only=False):
         if MLPFlowMap is None:
             raise SystemExit("--neural-only needs PyTorch: pip install 'sympredict[bench]'")
     t0 = time.perf_counter()
-    m = None if neural_only else SymplecticKernelPredictor(*c["kernels"], max_centers=c["centers"],
-                                                           trainer=ExactGreedy(tol=1e-10)).fit(data.x0, data.x1, mu=data.mu, dt=data.dt)
+    m = (
+        None
+        if neural_only
+        else SymplecticKernelPredictor(*c["kernels"], max_centers=c["centers"], trainer=ExactGreedy(tol=1e-10)).fit(
+            data.x0, data.x1, mu=data.mu, dt=data.dt
+        )
+    )
     if not neural_only:
-        models["sympredict (symplectic kernel)"] = (m, time.perf_counter() - t0, lambda k: m.rollout(x0, k, mu=mu, dt=dt), m.n_centers_)
+        models["sympredict (symplectic kernel)"] = (
+            m,
+            time.perf_counter() - t0,
+            lambda k: m.rollout(x0, k, mu=mu, dt=dt),
+            m.n_centers_,
+        )
         t0 = time.perf_counter()
-        d = DirectKernelPredictor(*c["kernels"], max_centers=c["centers"], trainer=ExactGreedy(tol=1e-10)).fit(data.x0, data.x1, mu=data.mu, dt=data.dt)
-        models["direct kernel model"] = (d, time.perf_counter() - t0, lambda k: d.rollout(x0, k, mu=mu, dt=dt), d.n_centers_)
+        d = DirectKernelPredictor(*c["kernels"], max_centers=c["centers"], trainer=ExactGreedy(tol=1e-10)).fit(
+            data.x0, data.x1, mu=data.mu, dt=data.dt
+        )
+        models["direct kernel model"] = (
+            d,
+            time.perf_counter() - t0,
+            lambda k: d.rollout(x0, k, mu=mu, dt=dt),
+            d.n_centers_,
+        )
         t0 = time.perf_counter()
         sel = select_vkoga_length_scale(data, c["val"], m_star=50)
-        v = VKOGAFlowMap(max_centers=150, length_scale=sel["length_scale"]).fit(data.x0, data.x1, mu=data.mu, dt=data.dt)
-        models[f"pyMOR VKOGA (length scale {sel['length_scale']:g})"] = (v, time.perf_counter() - t0,
-                                                                         lambda k: v.rollout(x0, k, mu=mu, dt=dt), v.n_centers_)
+        v = VKOGAFlowMap(max_centers=150, length_scale=sel["length_scale"]).fit(
+            data.x0, data.x1, mu=data.mu, dt=data.dt
+        )
+        models[f"pyMOR VKOGA (length scale {sel['length_scale']:g})"] = (
+            v,
+            time.perf_counter() - t0,
+            lambda k: v.rollout(x0, k, mu=mu, dt=dt),
+            v.n_centers_,
+        )
     if MLPFlowMap is not None:
-        for label, cls, arch in (("MLP flow map (PyTorch, 3x64)", MLPFlowMap, {"width": 64, "depth": 3}),
-                                 ("G-SympNet (PyTorch, 6 modules x 32)", GSympNet, {"width": 32, "n_modules": 6})):
+        for label, cls, arch in (
+            ("MLP flow map (PyTorch, 3x64)", MLPFlowMap, {"width": 64, "depth": 3}),
+            ("G-SympNet (PyTorch, 6 modules x 32)", GSympNet, {"width": 32, "n_modules": 6}),
+        ):
             net = cls(epochs=neural_epochs, **arch)
             t0 = time.perf_counter()
             net.fit(data.x0, data.x1, nn_mu)
-            models[label] = (net, time.perf_counter() - t0, lambda k, net=net: net.rollout(x0, k, nn_q),
-                             sum(p.numel() for p in net.net.parameters()))
+            models[label] = (
+                net,
+                time.perf_counter() - t0,
+                lambda k, net=net: net.rollout(x0, k, nn_q),
+                sum(p.numel() for p in net.net.parameters()),
+            )
     rows = []
     for label, (model, t_fit, run, size) in models.items():
         last = {}
         timing = _protocol.measure(lambda: last.__setitem__("traj", run(n_steps)), repeats=3, warmup=1)
         seconds, traj = timing["median_s"] / len(x0), last["traj"]
         with np.errstate(all="ignore"):
-            err = relative_trajectory_error(np.nan_to_num(traj, nan=1e3, posinf=1e3, neginf=-1e3), exact).mean(axis=0)[1:]
+            err = relative_trajectory_error(np.nan_to_num(traj, nan=1e3, posinf=1e3, neginf=-1e3), exact).mean(axis=0)[
+                1:
+            ]
             long = np.nan_to_num(run(n_long), nan=1e3, posinf=1e3, neginf=-1e3)
             energy = relative_hamiltonian_error(system, long, np.asarray(mu)[:, None])
-        rows.append({"model": label, "size": int(size), "time_fit_s": t_fit, "ms_per_trajectory": seconds * 1e3,
-                     "median_err": float(np.median(err)), "max_err": float(err.max()),
-                     "max_energy_err_long": float(np.max(energy)), "long_steps": n_long})
-        print(f"{name}: {label}: fit {t_fit:.1f} s, {seconds * 1e3:.3g} ms/traj, median err {np.median(err):.2e}, "
-              f"max energy err over {n_long} steps {np.max(energy):.2e}", flush=True)
+        rows.append(
+            {
+                "model": label,
+                "size": int(size),
+                "time_fit_s": t_fit,
+                "ms_per_trajectory": seconds * 1e3,
+                "median_err": float(np.median(err)),
+                "max_err": float(err.max()),
+                "max_energy_err_long": float(np.max(energy)),
+                "long_steps": n_long,
+            }
+        )
+        print(
+            f"{name}: {label}: fit {t_fit:.1f} s, {seconds * 1e3:.3g} ms/traj, median err {np.median(err):.2e}, "
+            f"max energy err over {n_long} steps {np.max(energy):.2e}",
+            flush=True,
+        )
     return {"case": name, "n_samples": len(data), "dt": dt, "n_test": len(x0), "n_steps": n_steps, "rows": rows}
 
 
@@ -135,10 +213,23 @@ def main():
         torch.set_num_threads(1)
     with _protocol.limits(args.blas_threads, numba_threads=1):
         results = [run_case(name, args.neural_epochs, args.neural_only) for name in args.cases.split(",")]
-        protocol = _protocol.record(blas_threads=args.blas_threads, numba_threads=1, repeats=3, warmup=1,
-                                    statistic="median online time per trajectory; one timed fit per model")
-    _protocol.write_json(args.out, {"command": "python sympredict_paper/studies/data_driven.py " + " ".join(
-        f"--{k.replace('_', '-')} {v}" for k, v in vars(args).items()), "results": results}, protocol, indent=2)
+        protocol = _protocol.record(
+            blas_threads=args.blas_threads,
+            numba_threads=1,
+            repeats=3,
+            warmup=1,
+            statistic="median online time per trajectory; one timed fit per model",
+        )
+    _protocol.write_json(
+        args.out,
+        {
+            "command": "python sympredict_paper/studies/data_driven.py "
+            + " ".join(f"--{k.replace('_', '-')} {v}" for k, v in vars(args).items()),
+            "results": results,
+        },
+        protocol,
+        indent=2,
+    )
 
 
 if __name__ == "__main__":

@@ -133,16 +133,26 @@ PEND_M, PEND_L, PEND_G, PEND_E = 1.0, 1.0, 9.81, 8.0
 def _pend_H(x, mu):
     q1, q2, p1, p2 = x.T
     kappa = mu[:, 0]
-    return ((p1 ** 2 + p2 ** 2) / (2 * PEND_M * PEND_L ** 2) + PEND_M * PEND_G * PEND_L * (2 - np.cos(q1) - np.cos(q2))
-            + 0.5 * kappa * (q1 - q2) ** 2)
+    return (
+        (p1**2 + p2**2) / (2 * PEND_M * PEND_L**2)
+        + PEND_M * PEND_G * PEND_L * (2 - np.cos(q1) - np.cos(q2))
+        + 0.5 * kappa * (q1 - q2) ** 2
+    )
 
 
 def _pend_grad(x, mu):
     q1, q2, p1, p2 = x.T
     kappa = mu[:, 0]
     mgl = PEND_M * PEND_G * PEND_L
-    return np.stack([mgl * np.sin(q1) + kappa * (q1 - q2), mgl * np.sin(q2) - kappa * (q1 - q2),
-                     p1 / (PEND_M * PEND_L ** 2), p2 / (PEND_M * PEND_L ** 2)], axis=1)
+    return np.stack(
+        [
+            mgl * np.sin(q1) + kappa * (q1 - q2),
+            mgl * np.sin(q2) - kappa * (q1 - q2),
+            p1 / (PEND_M * PEND_L**2),
+            p2 / (PEND_M * PEND_L**2),
+        ],
+        axis=1,
+    )
 
 
 def _pend_sampler(mu, rng):
@@ -161,13 +171,13 @@ def _fpu_d(q):
 def _fpu_H(x, mu):
     q, p = x[:, :3], x[:, 3:]
     d = _fpu_d(q)
-    return (p ** 2).sum(1) / (2 * FPU_M) + (0.5 * FPU_K * d ** 2 + 0.25 * mu[:, :1] * d ** 4).sum(1)
+    return (p**2).sum(1) / (2 * FPU_M) + (0.5 * FPU_K * d**2 + 0.25 * mu[:, :1] * d**4).sum(1)
 
 
 def _fpu_grad(x, mu):
     q, p = x[:, :3], x[:, 3:]
     d = _fpu_d(q)
-    f = FPU_K * d + mu[:, :1] * d ** 3  # spring forces (B, 4); dV/dq_i = f_{i-1} - f_i
+    f = FPU_K * d + mu[:, :1] * d**3  # spring forces (B, 4); dV/dq_i = f_{i-1} - f_i
     return np.concatenate([f[:, :3] - f[:, 1:], p / FPU_M], axis=1)
 
 
@@ -176,7 +186,7 @@ def _fpu_sampler(mu, rng):
 
 
 # Kepler: q AU, p AU/yr (per unit mass), GM AU^3/yr^2
-GM_SUN = 4 * np.pi ** 2
+GM_SUN = 4 * np.pi**2
 KEPLER_E_MAX = 0.5
 
 
@@ -196,12 +206,12 @@ def kepler_flow(x0, mu, t):
     t = np.broadcast_to(np.asarray(t, float), (len(x0),))
     r0v, v0v = x0[:, :2], x0[:, 2:]
     r0 = np.hypot(r0v[:, 0], r0v[:, 1])
-    energy = 0.5 * (v0v ** 2).sum(1) - gm / r0
+    energy = 0.5 * (v0v**2).sum(1) - gm / r0
     if np.any(energy >= 0):
         raise ValueError("kepler_flow: unbound states (H >= 0) given; the benchmark samples bound orbits only")
     a = -gm / (2 * energy)
     sigma0 = (r0v * v0v).sum(1) / np.sqrt(gm)
-    n_mean = np.sqrt(gm / a ** 3)
+    n_mean = np.sqrt(gm / a**3)
     c1, c2 = sigma0 / np.sqrt(a), 1.0 - r0 / a
     target = n_mean * t
     dE = target.copy()
@@ -242,8 +252,8 @@ def _kepler_sampler(mu, rng):
         if np.all(np.abs(step) < 1e-15):
             break
     r = a * (1 - e * np.cos(ecc))
-    pos = np.stack([a * (np.cos(ecc) - e), a * np.sqrt(1 - e ** 2) * np.sin(ecc)], axis=1)
-    vel = (np.sqrt(mu * a) / r)[:, None] * np.stack([-np.sin(ecc), np.sqrt(1 - e ** 2) * np.cos(ecc)], axis=1)
+    pos = np.stack([a * (np.cos(ecc) - e), a * np.sqrt(1 - e**2) * np.sin(ecc)], axis=1)
+    vel = (np.sqrt(mu * a) / r)[:, None] * np.stack([-np.sin(ecc), np.sqrt(1 - e**2) * np.cos(ecc)], axis=1)
     rot = np.stack([np.stack([np.cos(omega), -np.sin(omega)], 1), np.stack([np.sin(omega), np.cos(omega)], 1)], 1)
     return np.concatenate([np.einsum("bij,bj->bi", rot, pos), np.einsum("bij,bj->bi", rot, vel)], axis=1)
 
@@ -252,23 +262,44 @@ def make_benchmarks() -> dict:
     """The systems by name."""
     return {
         "coupled_pendulums": Benchmark(
-            "coupled_pendulums", "two pendulums coupled by a torsion spring (the user story: 4-D, dT = 0.1 s)",
-            HamiltonianSystem(_pend_H, _pend_grad, 4, parameters={"kappa": 1}, rtol=1e-11), 4,
-            "kappa", "N m/rad", (0.5, 1.5), 0.1,
-            {"q": "rad", "p": "kg m^2/s", "t": "s", "H": "J"}, _pend_sampler,
-            notes=f"m = {PEND_M} kg, L = {PEND_L} m, g = {PEND_G} m/s^2, states uniform in H <= {PEND_E} J"),
+            "coupled_pendulums",
+            "two pendulums coupled by a torsion spring (the user story: 4-D, dT = 0.1 s)",
+            HamiltonianSystem(_pend_H, _pend_grad, 4, parameters={"kappa": 1}, rtol=1e-11),
+            4,
+            "kappa",
+            "N m/rad",
+            (0.5, 1.5),
+            0.1,
+            {"q": "rad", "p": "kg m^2/s", "t": "s", "H": "J"},
+            _pend_sampler,
+            notes=f"m = {PEND_M} kg, L = {PEND_L} m, g = {PEND_G} m/s^2, states uniform in H <= {PEND_E} J",
+        ),
         "fpu_chain": Benchmark(
-            "fpu_chain", "three-mass FPU-beta chain between fixed walls (6-D)",
-            HamiltonianSystem(_fpu_H, _fpu_grad, 6, parameters={"beta": 1}, rtol=1e-11), 6,
-            "beta", "N/m^3", (1000.0, 3000.0), 0.015,
-            {"q": "m", "p": "kg m/s", "t": "s", "H": "J"}, _fpu_sampler,
-            notes=f"m = {FPU_M} kg, k = {FPU_K} N/m, states uniform in H <= {FPU_E} J"),
+            "fpu_chain",
+            "three-mass FPU-beta chain between fixed walls (6-D)",
+            HamiltonianSystem(_fpu_H, _fpu_grad, 6, parameters={"beta": 1}, rtol=1e-11),
+            6,
+            "beta",
+            "N/m^3",
+            (1000.0, 3000.0),
+            0.015,
+            {"q": "m", "p": "kg m/s", "t": "s", "H": "J"},
+            _fpu_sampler,
+            notes=f"m = {FPU_M} kg, k = {FPU_K} N/m, states uniform in H <= {FPU_E} J",
+        ),
         "kepler": Benchmark(
-            "kepler", "planar Kepler orbits, a in [1, 2] AU, e in [0, 0.5] (4-D)",
-            FlowFunctionSystem(kepler_flow, 4, n_mu=1, H=kepler_H), 4,
-            "GM", "AU^3/yr^2", (0.5 * GM_SUN, 1.5 * GM_SUN), 0.02,
-            {"q": "AU", "p": "AU/yr", "t": "yr", "H": "AU^2/yr^2"}, _kepler_sampler,
-            notes="exact flow (Kepler's equation); prograde orbits"),
+            "kepler",
+            "planar Kepler orbits, a in [1, 2] AU, e in [0, 0.5] (4-D)",
+            FlowFunctionSystem(kepler_flow, 4, n_mu=1, H=kepler_H),
+            4,
+            "GM",
+            "AU^3/yr^2",
+            (0.5 * GM_SUN, 1.5 * GM_SUN),
+            0.02,
+            {"q": "AU", "p": "AU/yr", "t": "yr", "H": "AU^2/yr^2"},
+            _kepler_sampler,
+            notes="exact flow (Kepler's equation); prograde orbits",
+        ),
     }
 
 
@@ -286,19 +317,46 @@ def _searched(samples: int, max_centers: int, *rounds: tuple) -> dict:
 
 
 HAND: dict = {
-    "coupled_pendulums": {"family": "imq", "update": "midpoint", "eps_state": 0.0625, "eps_mu": 0.125, "ratio": 1.0,
-                          "search": _searched(
-                              5000, 1000, ("imq, midpoint, eps_state 0.5, eps_mu 1.0, ratio 1.0", 21, 182, 1.21e-4),
-                              ("round 1's best (matern52, symplectic_euler, 0.0625, 0.25, 1.0)", 13, 50, 3.05e-7))},
-    "fpu_chain": {"family": "imq", "update": "midpoint", "eps_state": 0.015625, "eps_mu": 0.000125, "ratio": 2.0,
-                  "search": _searched(
-                      5000, 1000, ("imq, midpoint, eps_state 0.5, eps_mu 5e-4, ratio 1.0", 19, 203, 1.80e-3),
-                      ("round 1's best (matern52, midpoint, 0.0625, 0.001, 2.0)", 16, 118, 9.11e-4),
-                      ("round 2's best (matern52, midpoint, 0.015625, 5e-4, 2.0)", 14, 78, 1.27e-4))},
-    "kepler": {"family": "matern52", "update": "symplectic_euler", "eps_state": 0.125, "eps_mu": 0.0253, "ratio": 2.0,
-               "search": _searched(
-                   5000, 1000, ("imq, midpoint, eps_state 0.5, eps_mu 0.0253, ratio 1.0", 15, 108, 1.23e-3),
-                   ("round 1's best with eps_state 0.0625 (matern52, symplectic_euler, ratio 2.0)", 10, 37, 1.15e-3))},
+    "coupled_pendulums": {
+        "family": "imq",
+        "update": "midpoint",
+        "eps_state": 0.0625,
+        "eps_mu": 0.125,
+        "ratio": 1.0,
+        "search": _searched(
+            5000,
+            1000,
+            ("imq, midpoint, eps_state 0.5, eps_mu 1.0, ratio 1.0", 21, 182, 1.21e-4),
+            ("round 1's best (matern52, symplectic_euler, 0.0625, 0.25, 1.0)", 13, 50, 3.05e-7),
+        ),
+    },
+    "fpu_chain": {
+        "family": "imq",
+        "update": "midpoint",
+        "eps_state": 0.015625,
+        "eps_mu": 0.000125,
+        "ratio": 2.0,
+        "search": _searched(
+            5000,
+            1000,
+            ("imq, midpoint, eps_state 0.5, eps_mu 5e-4, ratio 1.0", 19, 203, 1.80e-3),
+            ("round 1's best (matern52, midpoint, 0.0625, 0.001, 2.0)", 16, 118, 9.11e-4),
+            ("round 2's best (matern52, midpoint, 0.015625, 5e-4, 2.0)", 14, 78, 1.27e-4),
+        ),
+    },
+    "kepler": {
+        "family": "matern52",
+        "update": "symplectic_euler",
+        "eps_state": 0.125,
+        "eps_mu": 0.0253,
+        "ratio": 2.0,
+        "search": _searched(
+            5000,
+            1000,
+            ("imq, midpoint, eps_state 0.5, eps_mu 0.0253, ratio 1.0", 15, 108, 1.23e-3),
+            ("round 1's best with eps_state 0.0625 (matern52, symplectic_euler, ratio 2.0)", 10, 37, 1.15e-3),
+        ),
+    },
 }
 
 
@@ -321,8 +379,9 @@ def hand_model(settings: dict, x0: np.ndarray, max_centers: int) -> SymplecticKe
     family = KERNEL_FAMILIES[settings["family"]]
     factors = settings["ratio"] * base_factors(x0)
     state = Scaled(family(settings["eps_state"] / spread(x0)), factors=[float(f) for f in factors])
-    return SymplecticKernelPredictor(state, mu_kernel=family(settings["eps_mu"]), max_centers=max_centers,
-                                     update=settings["update"])
+    return SymplecticKernelPredictor(
+        state, mu_kernel=family(settings["eps_mu"]), max_centers=max_centers, update=settings["update"]
+    )
 
 
 # --------------------------------------------------------------------------- metrics
@@ -359,8 +418,11 @@ def trajectory_metrics(model, bench: Benchmark, test: dict, long_steps: int) -> 
     try:
         pred = model.rollout(test["x0"], test["ref"].shape[1] - 1, mu=test["mu"], dt=bench.dt)
         per_traj = relative_trajectory_error(pred, test["ref"])[:, 1:].max(axis=1)
-        out.update(traj_error_median=float(np.median(per_traj)), traj_error_max=float(np.max(per_traj)),
-                   traj_steps=int(test["ref"].shape[1] - 1))
+        out.update(
+            traj_error_median=float(np.median(per_traj)),
+            traj_error_max=float(np.max(per_traj)),
+            traj_steps=int(test["ref"].shape[1] - 1),
+        )
     except Exception as exc:  # a Newton failure is a result
         out["traj_failure"] = f"{type(exc).__name__}: {exc}"
     out["rollout_time_s"] = time.perf_counter() - t0
@@ -371,8 +433,9 @@ def trajectory_metrics(model, bench: Benchmark, test: dict, long_steps: int) -> 
         rel = (np.abs(energy - energy[:, :1]) / np.abs(energy[:, :1])).max(axis=1)
         if not np.all(np.isfinite(rel)):
             raise FloatingPointError("non-finite energy along the long rollout")
-        out.update(energy_error_median=float(np.median(rel)), energy_error_max=float(np.max(rel)),
-                   energy_steps=int(long_steps))
+        out.update(
+            energy_error_median=float(np.median(rel)), energy_error_max=float(np.max(rel)), energy_steps=int(long_steps)
+        )
     except Exception as exc:
         out["energy_failure"] = f"{type(exc).__name__}: {exc}"
     return out
@@ -412,8 +475,12 @@ def run_config(label: str, make, bench, data, test, args, settings=None) -> dict
         row.update(ok=False, error=f"fit: {type(exc).__name__}: {exc}")
         print(f"  {bench.name} {label}: fit failed: {row['error']}", flush=True)
         return row
-    row.update(fit_time_s=timing["median_s"], fit_timing=timing, n_centers=int(model.n_centers_),
-               update=getattr(model, "update_", None) or model.update)
+    row.update(
+        fit_time_s=timing["median_s"],
+        fit_timing=timing,
+        n_centers=int(model.n_centers_),
+        update=getattr(model, "update_", None) or model.update,
+    )
     hist = getattr(model, "history_", None)
     if hist is not None:
         row["train_max_residual"] = float(hist.train_max_residual[-1])
@@ -423,9 +490,12 @@ def run_config(label: str, make, bench, data, test, args, settings=None) -> dict
             row[attr.rstrip("_")] = _jsonable_attr(getattr(model, attr))
     row.update(trajectory_metrics(model, bench, test, args.long_steps))
     row["ok"] = "traj_failure" not in row and "energy_failure" not in row
-    print(f"  {bench.name} {label}: {row['n_centers']} centres, fit {row['fit_time_s']:.1f} s, traj median/max "
-          f"{row.get('traj_error_median', float('nan')):.2e}/{row.get('traj_error_max', float('nan')):.2e}, energy max "
-          f"{row.get('energy_error_max', float('nan')):.2e} {'' if row['ok'] else '(FAILURES recorded)'}", flush=True)
+    print(
+        f"  {bench.name} {label}: {row['n_centers']} centres, fit {row['fit_time_s']:.1f} s, traj median/max "
+        f"{row.get('traj_error_median', float('nan')):.2e}/{row.get('traj_error_max', float('nan')):.2e}, energy max "
+        f"{row.get('energy_error_max', float('nan')):.2e} {'' if row['ok'] else '(FAILURES recorded)'}",
+        flush=True,
+    )
     return row
 
 
@@ -475,24 +545,44 @@ def hand_search(bench, data, args) -> tuple[dict, dict]:
                 best, best_score = cand, s
     # 2. coordinate search over the shapes and the q/p ratio
     names = [n for n in SEARCH_NAMES if n in args.search_params]
-    vec, best_score = coordinate_search(lambda v: score(dict(best, **dict(zip(SEARCH_NAMES, v)))),
-                                        [best[n] for n in SEARCH_NAMES], SEARCH_NAMES, names, args.search_factor,
-                                        args.search_sweeps, start_score=best_score, label=f"{bench.name} ")
+    vec, best_score = coordinate_search(
+        lambda v: score(dict(best, **dict(zip(SEARCH_NAMES, v)))),
+        [best[n] for n in SEARCH_NAMES],
+        SEARCH_NAMES,
+        names,
+        args.search_factor,
+        args.search_sweeps,
+        start_score=best_score,
+        label=f"{bench.name} ",
+    )
     chosen = dict(best, **dict(zip(SEARCH_NAMES, vec)))
-    record = {"split": {"train": int(n_tr), "validation": int(len(va)), "seed": 7},
-              "score": "mean relative one-step error on the validation split",
-              "max_centers": args.search_centers or args.max_centers, "families": list(args.search_families),
-              "updates": list(args.search_updates), "params": names, "factor": args.search_factor,
-              "sweeps": args.search_sweeps, "start": base, "evaluations": len(rows),
-              "cost_s": time.perf_counter() - t_start, "best_score": float(best_score), "candidates": rows}
+    record = {
+        "split": {"train": int(n_tr), "validation": int(len(va)), "seed": 7},
+        "score": "mean relative one-step error on the validation split",
+        "max_centers": args.search_centers or args.max_centers,
+        "families": list(args.search_families),
+        "updates": list(args.search_updates),
+        "params": names,
+        "factor": args.search_factor,
+        "sweeps": args.search_sweeps,
+        "start": base,
+        "evaluations": len(rows),
+        "cost_s": time.perf_counter() - t_start,
+        "best_score": float(best_score),
+        "candidates": rows,
+    }
     return chosen, record
 
 
 # --------------------------------------------------------------------------- main
 def parse_args(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--systems", nargs="+", default=["coupled_pendulums", "fpu_chain", "kepler"],
-                        choices=["coupled_pendulums", "fpu_chain", "kepler"])
+    parser.add_argument(
+        "--systems",
+        nargs="+",
+        default=["coupled_pendulums", "fpu_chain", "kepler"],
+        choices=["coupled_pendulums", "fpu_chain", "kepler"],
+    )
     parser.add_argument("--configs", nargs="+", default=["defaults", "hand"], choices=["defaults", "hand"])
     parser.add_argument("--samples", type=int, default=5000, help="training samples per system (default 5000)")
     parser.add_argument("--max-centers", type=int, default=1000, help="centre budget of both configurations")
@@ -500,22 +590,37 @@ def parse_args(argv=None):
     parser.add_argument("--steps", type=int, default=200, help="test horizon in steps (default 200)")
     parser.add_argument("--long-steps", type=int, default=None, help="energy horizon (default 10 x --steps)")
     parser.add_argument("--search", action="store_true", help="redo the hand search instead of the recorded settings")
-    parser.add_argument("--search-start", choices=["recorded", "default"], default="default",
-                        help="start the search at the recorded settings or at 1/spread, 1/range (default)")
-    parser.add_argument("--search-from", nargs="*", default=[], metavar="NAME=VALUE",
-                        help="override the search start, e.g. eps_state=0.1 family=imq")
-    parser.add_argument("--search-centers", type=int, default=None, help="centre budget during the search (default: --max-centers)")
+    parser.add_argument(
+        "--search-start",
+        choices=["recorded", "default"],
+        default="default",
+        help="start the search at the recorded settings or at 1/spread, 1/range (default)",
+    )
+    parser.add_argument(
+        "--search-from",
+        nargs="*",
+        default=[],
+        metavar="NAME=VALUE",
+        help="override the search start, e.g. eps_state=0.1 family=imq",
+    )
+    parser.add_argument(
+        "--search-centers", type=int, default=None, help="centre budget during the search (default: --max-centers)"
+    )
     parser.add_argument("--search-families", nargs="+", default=["imq", "matern52"])
     parser.add_argument("--search-updates", nargs="+", default=["symplectic_euler", "midpoint"])
     parser.add_argument("--search-params", nargs="+", default=list(SEARCH_NAMES), choices=SEARCH_NAMES)
     parser.add_argument("--search-factor", type=float, default=2.0)
     parser.add_argument("--search-sweeps", type=int, default=2)
     parser.add_argument("--seed", type=int, default=0, help="training seed (test seed: seed + 1000)")
-    parser.add_argument("--big", action="store_true",
-                        help="the user story: coupled pendulums, 30,000 samples, 4,000 centres")
+    parser.add_argument(
+        "--big", action="store_true", help="the user story: coupled pendulums, 30,000 samples, 4,000 centres"
+    )
     parser.add_argument("--quick", action="store_true", help="tiny sizes: checks that the script runs (seconds)")
-    parser.add_argument("--progress", action="store_true",
-                        help="show the library's progress log (the greedy's centres and residuals; on with --big)")
+    parser.add_argument(
+        "--progress",
+        action="store_true",
+        help="show the library's progress log (the greedy's centres and residuals; on with --big)",
+    )
     _protocol.add_arguments(parser, threads=1, repeats=1, json_option=False)
     parser.add_argument("--json", default=str(RESULTS), help=f"output JSON (default {RESULTS})")
     args = parser.parse_args(argv)
@@ -524,7 +629,12 @@ def parse_args(argv=None):
     if args.quick:
         args.samples, args.max_centers, args.n_test, args.steps = 300, 40, 4, 20
         args.long_steps = args.long_steps or 60
-        args.search_families, args.search_updates, args.search_params, args.search_sweeps = ["imq"], ["midpoint"], ["eps_state"], 1
+        args.search_families, args.search_updates, args.search_params, args.search_sweeps = (
+            ["imq"],
+            ["midpoint"],
+            ["eps_state"],
+            1,
+        )
     if args.long_steps is None:
         args.long_steps = 10 * args.steps
     return args
@@ -554,8 +664,11 @@ def main(argv=None) -> dict:
 
         set_log_levels({"sympredict": "INFO"})
     benches = make_benchmarks()
-    result = {"goal": f"defaults within {GOAL}x of the hand tuning (median and max trajectory error)",
-              "settings": {k: v for k, v in vars(args).items() if k != "json"}, "systems": {}}
+    result = {
+        "goal": f"defaults within {GOAL}x of the hand tuning (median and max trajectory error)",
+        "settings": {k: v for k, v in vars(args).items() if k != "json"},
+        "systems": {},
+    }
     with _protocol.limits(args.blas_threads, numba_threads=args.threads):
         for name in args.systems:
             bench = benches[name]
@@ -564,35 +677,70 @@ def main(argv=None) -> dict:
             x1 = bench.system.flow(x0, mu[:, None], bench.dt)
             data_s = time.perf_counter() - t0
             test = make_test_set(bench, args.n_test, args.steps, seed=args.seed + 1000)
-            print(f"{name}: {args.samples} samples ({data_s:.1f} s), {args.n_test} test trajectories x {args.steps} steps, "
-                  f"energy over {args.long_steps}", flush=True)
-            entry = {"title": bench.title, "notes": bench.notes, "dim": bench.dim, "mu": {
-                "name": bench.mu_name, "unit": bench.mu_unit, "range": list(bench.mu_range)}, "dt": bench.dt,
-                "units": bench.units, "n_samples": args.samples, "max_centers": args.max_centers,
-                "data_time_s": data_s, "state_std": x0.std(axis=0).tolist(), "rows": {}}
+            print(
+                f"{name}: {args.samples} samples ({data_s:.1f} s), {args.n_test} test trajectories x {args.steps} steps, "
+                f"energy over {args.long_steps}",
+                flush=True,
+            )
+            entry = {
+                "title": bench.title,
+                "notes": bench.notes,
+                "dim": bench.dim,
+                "mu": {"name": bench.mu_name, "unit": bench.mu_unit, "range": list(bench.mu_range)},
+                "dt": bench.dt,
+                "units": bench.units,
+                "n_samples": args.samples,
+                "max_centers": args.max_centers,
+                "data_time_s": data_s,
+                "state_std": x0.std(axis=0).tolist(),
+                "rows": {},
+            }
             if "defaults" in args.configs:
                 entry["rows"]["defaults"] = run_config(
-                    "defaults", lambda: SymplecticKernelPredictor(max_centers=args.max_centers), bench, (x0, x1, mu),
-                    test, args)
+                    "defaults",
+                    lambda: SymplecticKernelPredictor(max_centers=args.max_centers),
+                    bench,
+                    (x0, x1, mu),
+                    test,
+                    args,
+                )
             if "hand" in args.configs:
                 if args.search:
                     settings, search = hand_search(bench, (x0, x1, mu), args)
                 else:
                     settings = {k: HAND[name][k] for k in ("family", "update", "eps_state", "eps_mu", "ratio")}
                     search = HAND[name]["search"]
-                full = dict(settings, factors=[float(f) for f in settings["ratio"] * base_factors(x0)],
-                            eps_state_absolute=settings["eps_state"] / spread(x0))
-                row = run_config("hand", lambda: hand_model(settings, x0, args.max_centers), bench, (x0, x1, mu),
-                                 test, args, settings=full)
+                full = dict(
+                    settings,
+                    factors=[float(f) for f in settings["ratio"] * base_factors(x0)],
+                    eps_state_absolute=settings["eps_state"] / spread(x0),
+                )
+                row = run_config(
+                    "hand",
+                    lambda: hand_model(settings, x0, args.max_centers),
+                    bench,
+                    (x0, x1, mu),
+                    test,
+                    args,
+                    settings=full,
+                )
                 row["search"] = search
                 entry["rows"]["hand"] = row
             entry["defaults_over_hand"] = ratios(entry["rows"])
             result["systems"][name] = entry
         print_table(result)
         if args.json:
-            _protocol.write_json(args.json, result, _protocol.record(
-                blas_threads=args.blas_threads, numba_threads=args.threads, repeats=args.repeats, warmup=0,
-                notes="fit times on a shared machine are indicative only; errors are deterministic given the seeds"))
+            _protocol.write_json(
+                args.json,
+                result,
+                _protocol.record(
+                    blas_threads=args.blas_threads,
+                    numba_threads=args.threads,
+                    repeats=args.repeats,
+                    warmup=0,
+                    notes="fit times on a shared machine are indicative only; errors are deterministic given the seeds",
+                ),
+            )
     return result
 
 
@@ -608,9 +756,13 @@ def print_table(result: dict) -> None:
         print("| config | centres | traj median | traj max | energy max | fit s | status |")
         print("|---|---|---|---|---|---|---|")
         for label, row in entry["rows"].items():
-            status = "ok" if row.get("ok") else (row.get("error") or row.get("traj_failure") or row.get("energy_failure"))
-            print(f"| {label} | {row.get('n_centers', '-')} | {_fmt(row, 'traj_error_median')} | {_fmt(row, 'traj_error_max')} "
-                  f"| {_fmt(row, 'energy_error_max')} | {_fmt(row, 'fit_time_s', '.1f')} | {str(status)[:80]} |")
+            status = (
+                "ok" if row.get("ok") else (row.get("error") or row.get("traj_failure") or row.get("energy_failure"))
+            )
+            print(
+                f"| {label} | {row.get('n_centers', '-')} | {_fmt(row, 'traj_error_median')} | {_fmt(row, 'traj_error_max')} "
+                f"| {_fmt(row, 'energy_error_max')} | {_fmt(row, 'fit_time_s', '.1f')} | {str(status)[:80]} |"
+            )
         if entry.get("defaults_over_hand"):
             print(f"defaults / hand: {entry['defaults_over_hand']}")
 

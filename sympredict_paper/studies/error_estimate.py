@@ -84,11 +84,23 @@ def _pendulum_states(mu, n, seed):
 def systems() -> dict:
     out = {
         "three_body": _TrajectorySystem(
-            "three_body", "planar circular restricted three-body problem, rotating frame, librations near L4 (4-D)",
-            ThreeBody(), lambda mu, n, seed: librating_states(mu, n, seed=seed), MU_RANGE, 0.05, True),
+            "three_body",
+            "planar circular restricted three-body problem, rotating frame, librations near L4 (4-D)",
+            ThreeBody(),
+            lambda mu, n, seed: librating_states(mu, n, seed=seed),
+            MU_RANGE,
+            0.05,
+            True,
+        ),
         "pendulum": _TrajectorySystem(
-            "pendulum", "pendulum, lengths in [0.7, 0.8] (the system the estimate was developed on)",
-            Pendulum(), _pendulum_states, (0.7, 0.8), 0.1, False),
+            "pendulum",
+            "pendulum, lengths in [0.7, 0.8] (the system the estimate was developed on)",
+            Pendulum(),
+            _pendulum_states,
+            (0.7, 0.8),
+            0.1,
+            False,
+        ),
     }
     return out
 
@@ -99,12 +111,17 @@ def training_data(name, args):
         sysd = systems()[name]
         x0, mu = sysd.sample(args.traj, args.seed)
         traj = sysd.trajectory(x0, mu, args.traj_steps)
-        data = FlowMapData(traj[:, :-1].reshape(-1, traj.shape[2]), traj[:, 1:].reshape(-1, traj.shape[2]),
-                           np.repeat(mu, args.traj_steps), np.full(args.traj * args.traj_steps, sysd.dt))
+        data = FlowMapData(
+            traj[:, :-1].reshape(-1, traj.shape[2]),
+            traj[:, 1:].reshape(-1, traj.shape[2]),
+            np.repeat(mu, args.traj_steps),
+            np.full(args.traj * args.traj_steps, sysd.dt),
+        )
 
         def test(n, seed, k):
             tx0, tmu = sysd.sample(n, seed)
             return tx0, tmu, sysd.trajectory(tx0, tmu, k)
+
         return data, test, sysd.dt, sysd.title, sysd.held_out
     bench = make_benchmarks()[name]
     x0, mu = bench.sample(args.samples, seed=args.seed)
@@ -114,6 +131,7 @@ def training_data(name, args):
     def test(n, seed, k):
         tx0, tmu = bench.sample(n, seed)
         return tx0, tmu, bench.system.trajectory(tx0, tmu[:, None], bench.dt, k)
+
     return data, test, bench.dt, bench.title, True
 
 
@@ -121,15 +139,25 @@ def effectivity_metrics(est, true, horizons) -> dict:
     """Median effectivity, share underestimated > 3x (all steps, and per horizon), Spearman per horizon."""
     tiny = np.finfo(float).tiny
     eff = est[:, 1:] / np.maximum(true[:, 1:], tiny)
-    out = {"all_steps": {"median_effectivity": float(np.median(eff)), "share_under_3x": float(np.mean(eff < 1 / 3)),
-                         "share_over_30x": float(np.mean(eff > 30)), "pairs": int(eff.size)}, "horizons": {}}
+    out = {
+        "all_steps": {
+            "median_effectivity": float(np.median(eff)),
+            "share_under_3x": float(np.mean(eff < 1 / 3)),
+            "share_over_30x": float(np.mean(eff > 30)),
+            "pairs": int(eff.size),
+        },
+        "horizons": {},
+    }
     for k in horizons:
         e = est[:, k] / np.maximum(true[:, k], tiny)
         rho = spearmanr(est[:, k], true[:, k]).correlation if len(e) > 2 else float("nan")
         out["horizons"][str(k)] = {
-            "median_effectivity": float(np.median(e)), "share_under_3x": float(np.mean(e < 1 / 3)),
-            "spearman": float(rho), "median_true_error": float(np.median(true[:, k])),
-            "median_estimate": float(np.median(est[:, k]))}
+            "median_effectivity": float(np.median(e)),
+            "share_under_3x": float(np.mean(e < 1 / 3)),
+            "spearman": float(rho),
+            "median_true_error": float(np.median(true[:, k])),
+            "median_estimate": float(np.median(est[:, k])),
+        }
     return out
 
 
@@ -141,13 +169,25 @@ def run_system(name, args) -> dict:
     model = SymplecticKernelPredictor(max_centers=args.max_centers).fit(data)
     fit_s = time.perf_counter() - t0
     x0, mu, ref = test(args.n_test, args.seed + 1000, args.steps)
-    print(f"{name}: {len(data)} samples, fit {fit_s:.0f} s, {model.n_centers_} centres, choice {model.choice_}",
-          flush=True)
-    entry = {"title": title, "held_out": held_out, "n_samples": len(data), "max_centers": args.max_centers,
-             "n_centers": model.n_centers_, "dt": dt, "n_test": args.n_test, "steps": args.steps,
-             "fit_s": fit_s, "data_s": data_s, "choice": {k: repr(v) for k, v in model.choice_.items()},
-             "calibration": model.error_calibration_,
-             "holdout_step_error": model.diagnostics_.holdout_step_error}
+    print(
+        f"{name}: {len(data)} samples, fit {fit_s:.0f} s, {model.n_centers_} centres, choice {model.choice_}",
+        flush=True,
+    )
+    entry = {
+        "title": title,
+        "held_out": held_out,
+        "n_samples": len(data),
+        "max_centers": args.max_centers,
+        "n_centers": model.n_centers_,
+        "dt": dt,
+        "n_test": args.n_test,
+        "steps": args.steps,
+        "fit_s": fit_s,
+        "data_s": data_s,
+        "choice": {k: repr(v) for k, v in model.choice_.items()},
+        "calibration": model.error_calibration_,
+        "holdout_step_error": model.diagnostics_.holdout_step_error,
+    }
     try:
         t0 = time.perf_counter()
         pred, est = model.rollout(x0, args.steps, mu=mu, dt=dt, return_error=True)
@@ -163,24 +203,37 @@ def run_system(name, args) -> dict:
     entry["goals_met"] = {
         "share_under_3x": entry["all_steps"]["share_under_3x"] <= GOALS["share_under_3x_max"],
         "median_effectivity": entry["all_steps"]["median_effectivity"] <= GOALS["median_effectivity_max"],
-        "rank_correlation_last": last["spearman"] >= GOALS["rank_correlation_last_min"]}
+        "rank_correlation_last": last["spearman"] >= GOALS["rank_correlation_last_min"],
+    }
     # cost: rollout with and without the estimate, interleaved in this process
     x_small, mu_small = x0[: args.timing_batch], mu[: args.timing_batch]
-    timing = _protocol.side_by_side({
-        "states only": lambda: model.rollout(x_small, args.timing_steps, mu=mu_small, dt=dt),
-        "states and error": lambda: model.rollout(x_small, args.timing_steps, mu=mu_small, dt=dt, return_error=True),
-    }, repeats=args.repeats, warmup=1)
+    timing = _protocol.side_by_side(
+        {
+            "states only": lambda: model.rollout(x_small, args.timing_steps, mu=mu_small, dt=dt),
+            "states and error": lambda: model.rollout(
+                x_small, args.timing_steps, mu=mu_small, dt=dt, return_error=True
+            ),
+        },
+        repeats=args.repeats,
+        warmup=1,
+    )
     entry["timing"] = {"batch": len(x_small), "steps": args.timing_steps, **timing}
     # the curves for a figure: median over trajectories of estimate and true error, and one trajectory
     stride = max(1, args.steps // 100)
-    entry["curves"] = {"step": list(range(0, args.steps + 1, stride)),
-                       "median_estimate": np.median(est, axis=0)[::stride].tolist(),
-                       "median_true": np.median(true, axis=0)[::stride].tolist(),
-                       "example_estimate": est[0, ::stride].tolist(), "example_true": true[0, ::stride].tolist()}
+    entry["curves"] = {
+        "step": list(range(0, args.steps + 1, stride)),
+        "median_estimate": np.median(est, axis=0)[::stride].tolist(),
+        "median_true": np.median(true, axis=0)[::stride].tolist(),
+        "example_estimate": est[0, ::stride].tolist(),
+        "example_true": true[0, ::stride].tolist(),
+    }
     a = entry["all_steps"]
-    print(f"  all steps: median effectivity {a['median_effectivity']:.2f}, under 3x {a['share_under_3x']:.1%}; "
-          f"last step: Spearman {last['spearman']:.2f}, median effectivity {last['median_effectivity']:.2f}; "
-          f"time ratio {timing['ratios']['states and error']:.1f}x", flush=True)
+    print(
+        f"  all steps: median effectivity {a['median_effectivity']:.2f}, under 3x {a['share_under_3x']:.1%}; "
+        f"last step: Spearman {last['spearman']:.2f}, median effectivity {last['median_effectivity']:.2f}; "
+        f"time ratio {timing['ratios']['states and error']:.1f}x",
+        flush=True,
+    )
     return entry
 
 
@@ -216,9 +269,17 @@ def main(argv=None) -> dict:
             result["systems"][name] = run_system(name, args)
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        _protocol.write_json(args.json, result, _protocol.record(
-            blas_threads=args.blas_threads, numba_threads=args.threads, repeats=args.repeats, warmup=1,
-            notes="shared 2-core machine: timings indicative, ratios side by side; errors deterministic given the seeds"))
+        _protocol.write_json(
+            args.json,
+            result,
+            _protocol.record(
+                blas_threads=args.blas_threads,
+                numba_threads=args.threads,
+                repeats=args.repeats,
+                warmup=1,
+                notes="shared 2-core machine: timings indicative, ratios side by side; errors deterministic given the seeds",
+            ),
+        )
     return result
 
 

@@ -30,8 +30,9 @@ def model(kind):
     if kind == "default":
         return SymplecticKernelPredictor(max_centers=300).fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
     dt_kernel, centers = (IMQ(5.0), 600) if kind == "small" else (IMQ(0.2), 60)
-    m = SymplecticKernelPredictor(IMQ(0.15), mu_kernel=IMQ(2.0), dt_kernel=dt_kernel, max_centers=centers,
-                                  trainer=ExactGreedy(tol=1e-10))
+    m = SymplecticKernelPredictor(
+        IMQ(0.15), mu_kernel=IMQ(2.0), dt_kernel=dt_kernel, max_centers=centers, trainer=ExactGreedy(tol=1e-10)
+    )
     return m.fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
 
 
@@ -46,8 +47,12 @@ def outcome(m, x0, mu, dt, steps, backend):
         m.rollout(x0, steps, mu=mu, dt=dt)
         return {"converged": True}
     except NewtonConvergenceError as exc:
-        return {"converged": False, "step": int(exc.step), "instances": [int(i) for i in exc.instances],
-                "residual": [float(r) for r in np.atleast_1d(exc.residuals)]}
+        return {
+            "converged": False,
+            "step": int(exc.step),
+            "instances": [int(i) for i in exc.instances],
+            "residual": [float(r) for r in np.atleast_1d(exc.residuals)],
+        }
 
 
 def main(argv=None):
@@ -73,15 +78,18 @@ def main(argv=None):
         rows, moved = {}, 0
         for dt in dts:
             for i in range(len(x0)):
-                a = outcome(m, x0[i:i + 1], mu[i:i + 1], dt, args.steps, backend)
-                b = outcome(m, pert[i:i + 1], mu[i:i + 1], dt, args.steps, backend)
+                a = outcome(m, x0[i : i + 1], mu[i : i + 1], dt, args.steps, backend)
+                b = outcome(m, pert[i : i + 1], mu[i : i + 1], dt, args.steps, backend)
                 sa, sb = a.get("step", -1), b.get("step", -1)
                 rows[f"{dt}/{i}"] = [sa, sb]
                 moved += sa != sb
         out["per_instance"][backend] = rows
         out["moved"][backend] = {"moved": moved, "failures": sum(v[0] >= 0 for v in rows.values()), "cases": len(rows)}
     if not args.timing_only:
-        agree = sum(out["per_instance"]["numpy"][k][0] == out["per_instance"]["numba"][k][0] for k in out["per_instance"]["numpy"])
+        agree = sum(
+            out["per_instance"]["numpy"][k][0] == out["per_instance"]["numba"][k][0]
+            for k in out["per_instance"]["numpy"]
+        )
         out["backends_agree_per_instance"] = {"agree": agree, "cases": len(out["per_instance"]["numpy"])}
     ends = {}  # batches of other states: do both backends end alike?
     for seed in range(0 if args.timing_only else args.seeds):
@@ -90,9 +98,12 @@ def main(argv=None):
             pair = [outcome(m, xb, mb, dt, args.steps, backend) for backend in ("numpy", "numba")]
             ends[f"{seed}/{dt}"] = [[e.get("step", -1), e.get("instances", [])] for e in pair]
     if ends:
-        out["batch_seeds"] = {"agree": sum(a == b for a, b in ends.values()), "cases": len(ends),
-                              "converged": sum(a[0] == b[0] == -1 for a, b in ends.values()),
-                              "disagree": {k: v for k, v in ends.items() if v[0] != v[1]}}
+        out["batch_seeds"] = {
+            "agree": sum(a == b for a, b in ends.values()),
+            "cases": len(ends),
+            "converged": sum(a[0] == b[0] == -1 for a, b in ends.values()),
+            "disagree": {k: v for k, v in ends.items() if v[0] != v[1]},
+        }
     # the normal rollout (dT in the training range) side by side: median of 5
     xs, ms = states(200, seed=3)
     for backend in () if args.no_timing else ("numpy", "numba"):
@@ -107,8 +118,12 @@ def main(argv=None):
     if args.json:
         with atomic_output(args.json) as fh:
             fh.write(json.dumps(out, indent=1).encode())
-    print(json.dumps({k: out.get(k) for k in ("batch", "moved", "backends_agree_per_instance", "batch_seeds",
-                                               "timing")}, indent=1))
+    print(
+        json.dumps(
+            {k: out.get(k) for k in ("batch", "moved", "backends_agree_per_instance", "batch_seeds", "timing")},
+            indent=1,
+        )
+    )
 
 
 if __name__ == "__main__":

@@ -44,10 +44,14 @@ def run(args) -> dict:
     RB = complex_svd_basis(S, n=args.dim // 2).to_pymor(fom.solution_space)
     h = fom.T / fom.time_stepper.nt
     dt = args.stride * h
-    estimator = DefaultEstimator(max_centers=args.max_centers) if args.update == "default" else \
-        SymplecticKernelPredictor(update=args.update, max_centers=args.max_centers)
-    reductor = SymplecticKernelReductor(fom, RB, dt, ProjectedTrajectories(train, parameter_space=space, n_validation=3),
-                                        estimator)
+    estimator = (
+        DefaultEstimator(max_centers=args.max_centers)
+        if args.update == "default"
+        else SymplecticKernelPredictor(update=args.update, max_centers=args.max_centers)
+    )
+    reductor = SymplecticKernelReductor(
+        fom, RB, dt, ProjectedTrajectories(train, parameter_space=space, n_validation=3), estimator
+    )
     rom = reductor.reduce()
     gal = QuadraticHamiltonianRBReductor(fom, RB)
     gal_rom = gal.reduce()
@@ -62,10 +66,19 @@ def run(args) -> dict:
         e_g = float(((U - gal.reconstruct(gal_rom.solve(mu))[:: args.stride]).norm()).max() / scale)
         rows.append({"c": float(c), "kernel": e_k, "galerkin": e_g})
     out = {
-        "setup": {"n_elements": args.n_elements, "T": args.T, "nt": args.nt, "dim": args.dim, "stride": args.stride,
-                  "dt": dt, "n_train": args.n_train, "update": args.update, "max_centers": args.max_centers,
-                  "projection_error": float(complex_svd_basis(S, n=args.dim // 2).projection_error),
-                  "choice": getattr(reductor, "choice_", None)},
+        "setup": {
+            "n_elements": args.n_elements,
+            "T": args.T,
+            "nt": args.nt,
+            "dim": args.dim,
+            "stride": args.stride,
+            "dt": dt,
+            "n_train": args.n_train,
+            "update": args.update,
+            "max_centers": args.max_centers,
+            "projection_error": float(complex_svd_basis(S, n=args.dim // 2).projection_error),
+            "choice": getattr(reductor, "choice_", None),
+        },
         "per_speed": rows,
         "mean_kernel": float(np.mean([r["kernel"] for r in rows])),
         "mean_galerkin": float(np.mean([r["galerkin"] for r in rows])),
@@ -91,8 +104,11 @@ def main(argv=None):
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.WARNING)
     # command and machine first: the documentation prints them next to the numbers it renders from this file
-    out = {"command": shlex.join(getattr(sys, "orig_argv", [sys.executable, *sys.argv])),
-           "machine": f"{os.cpu_count()} CPUs, {platform.platform()}", **run(args)}
+    out = {
+        "command": shlex.join(getattr(sys, "orig_argv", [sys.executable, *sys.argv])),
+        "machine": f"{os.cpu_count()} CPUs, {platform.platform()}",
+        **run(args),
+    }
     print(json.dumps(out, indent=2, default=str))
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)

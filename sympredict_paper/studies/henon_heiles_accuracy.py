@@ -53,8 +53,12 @@ NAMES = ("state", "mu", "dt")
 parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
 parser.add_argument("--update", default="midpoint", choices=["midpoint", "symplectic_euler"])
 parser.add_argument("--family", default="imq")
-parser.add_argument("--samplings", nargs="+", default=["grid:3:3", "grid:5:5", "random"],
-                    help="training-parameter samplings compared at the start shapes: grid:L:D or random")
+parser.add_argument(
+    "--samplings",
+    nargs="+",
+    default=["grid:3:3", "grid:5:5", "random"],
+    help="training-parameter samplings compared at the start shapes: grid:L:D or random",
+)
 parser.add_argument("--start", type=float, nargs=3, default=[0.5, 1.0, 1.0], metavar=("STATE", "MU", "DT"))
 parser.add_argument("--fixed", type=float, nargs=3, default=None, metavar=("STATE", "MU", "DT"))
 parser.add_argument("--search", nargs="+", default=list(NAMES), choices=NAMES)
@@ -67,8 +71,13 @@ parser.add_argument("--n-state", type=int, default=8)
 parser.add_argument("--horizon", type=float, default=10.0)
 parser.add_argument("--val-seeds", type=int, nargs="+", default=[100, 101])
 parser.add_argument("--test-seeds", type=int, nargs="+", default=[0], help="evaluated once each, with the chosen model")
-parser.add_argument("--sizes", type=int, nargs="*", default=[250, 500],
-                    help="also report the test errors of the chosen model truncated to these sizes (no choice made on them)")
+parser.add_argument(
+    "--sizes",
+    type=int,
+    nargs="*",
+    default=[250, 500],
+    help="also report the test errors of the chosen model truncated to these sizes (no choice made on them)",
+)
 _protocol.add_arguments(parser)
 parser.add_argument("--quick", action="store_true", help="tiny sizes, one sweep: checks that the script runs")
 args = parser.parse_args()
@@ -87,15 +96,19 @@ def training_data(sampling: str, seed: int = 1000) -> FlowMapData:
         rng = np.random.default_rng(seed)
         lams = rng.uniform(*LAMBDA_RANGE, args.n_samples)
         dts = rng.uniform(*DT_RANGE, args.n_samples)
-        x0 = np.concatenate([energy_bounded_states(system, lam, 1, ENERGY_MAX, seed=seed + 1 + i) for i, lam in enumerate(lams)])
+        x0 = np.concatenate(
+            [energy_bounded_states(system, lam, 1, ENERGY_MAX, seed=seed + 1 + i) for i, lam in enumerate(lams)]
+        )
     else:
         _, n_l, n_d = sampling.split(":")
         grid = [(lam, dt) for lam in np.linspace(*LAMBDA_RANGE, int(n_l)) for dt in np.linspace(*DT_RANGE, int(n_d))]
         per = -(-args.n_samples // len(grid))
-        x0 = np.concatenate([energy_bounded_states(system, lam, per, ENERGY_MAX, seed=seed + 1 + i) for i, (lam, _) in enumerate(grid)])
+        x0 = np.concatenate(
+            [energy_bounded_states(system, lam, per, ENERGY_MAX, seed=seed + 1 + i) for i, (lam, _) in enumerate(grid)]
+        )
         lams = np.repeat([g[0] for g in grid], per)
         dts = np.repeat([g[1] for g in grid], per)
-        x0, lams, dts = x0[:args.n_samples], lams[:args.n_samples], dts[:args.n_samples]
+        x0, lams, dts = x0[: args.n_samples], lams[: args.n_samples], dts[: args.n_samples]
     return FlowMapData(x0, system.flow(x0, lams, dts), lams[:, None], dts)
 
 
@@ -103,7 +116,12 @@ def instances(seed: int):
     """``n_lam`` lambdas x ``n_state`` states (``H <= 1/6``), a ``dT`` per trajectory; their steps and references."""
     rng = np.random.default_rng(seed + 5000)
     lams = rng.uniform(*LAMBDA_RANGE, args.n_lam)
-    x0 = np.concatenate([energy_bounded_states(system, lam, args.n_state, ENERGY_MAX, seed=seed + 5001 + i) for i, lam in enumerate(lams)])
+    x0 = np.concatenate(
+        [
+            energy_bounded_states(system, lam, args.n_state, ENERGY_MAX, seed=seed + 5001 + i)
+            for i, lam in enumerate(lams)
+        ]
+    )
     lam = np.repeat(lams, args.n_state)
     dt = rng.uniform(*DT_RANGE, len(x0))
     k = np.floor(args.horizon / dt + 1e-9).astype(int)
@@ -118,13 +136,19 @@ def errors(model, inst) -> tuple[np.ndarray, np.ndarray]:
         pred = model.rollout(x0, int(k.max()), mu=lam, dt=dt)
     err = relative_trajectory_error(pred, ref)
     idx = np.arange(len(x0))
-    return err[idx, k], np.array([np.median(err[i, 1:k[i] + 1]) for i in idx])
+    return err[idx, k], np.array([np.median(err[i, 1 : k[i] + 1]) for i in idx])
 
 
 def fit(p, data):
-    model = SymplecticKernelPredictor(family(p[0]), family(p[1]), family(p[2]), max_centers=args.max_centers,
-                                      update=args.update, trainer=ExactGreedy(tol=1e-10),
-                                      solver=NewtonSolver(backend="numpy" if args.update == "midpoint" else "auto"))
+    model = SymplecticKernelPredictor(
+        family(p[0]),
+        family(p[1]),
+        family(p[2]),
+        max_centers=args.max_centers,
+        update=args.update,
+        trainer=ExactGreedy(tol=1e-10),
+        solver=NewtonSolver(backend="numpy" if args.update == "midpoint" else "auto"),
+    )
     return model.fit(data.x0, data.x1, mu=data.mu, dt=data.dt)
 
 
@@ -140,15 +164,22 @@ def evaluate(p, sampling, data, vals):
     try:
         model = fit(p, data)
         at_t = {s: float(np.median(errors(model, inst)[0])) for s, inst in vals.items()}
-        row.update(n_centers=model.n_centers_, stop_reason=model.history_.stop_reason,
-                   E_train=float(model.history_.train_max_residual[-1]), val_median_at_T=at_t, score=max(at_t.values()))
+        row.update(
+            n_centers=model.n_centers_,
+            stop_reason=model.history_.stop_reason,
+            E_train=float(model.history_.train_max_residual[-1]),
+            val_median_at_T=at_t,
+            score=max(at_t.values()),
+        )
     except Exception as exc:  # a candidate whose Newton solve fails ranks last
         row.update(error=repr(exc), score=np.inf)
     row["time_s"] = time.perf_counter() - t0
     rows.append(row)
     seen[key] = row["score"]
-    print(f"  {sampling} {dict(zip(NAMES, p))}: score {row['score']:.3e}, {row.get('n_centers')} centres ({row['time_s']:.0f} s)",
-          flush=True)
+    print(
+        f"  {sampling} {dict(zip(NAMES, p))}: score {row['score']:.3e}, {row.get('n_centers')} centres ({row['time_s']:.0f} s)",
+        flush=True,
+    )
     return row["score"]
 
 
@@ -163,31 +194,64 @@ with _protocol.limits(args.blas_threads, numba_threads=1):
         scores = {s: evaluate(best, s, datasets[s], vals) for s in args.samplings}
         sampling = min(scores, key=scores.get)
         best_score = scores[sampling]
-        best, best_score = coordinate_search(lambda cand: evaluate(cand, sampling, datasets[sampling], vals), best,
-                                             NAMES, args.search, args.factor, args.sweeps, start_score=best_score,
-                                             label=f"{sampling} ")
+        best, best_score = coordinate_search(
+            lambda cand: evaluate(cand, sampling, datasets[sampling], vals),
+            best,
+            NAMES,
+            args.search,
+            args.factor,
+            args.sweeps,
+            start_score=best_score,
+            label=f"{sampling} ",
+        )
     model = fit(best, datasets[sampling])
     test, by_size = {}, {}
     for seed in args.test_seeds:
         test_inst = instances(seed)
         at_t, over_t = errors(model, test_inst)
-        test[seed] = {"median_at_T": float(np.median(at_t)), "median_over_time": float(np.median(over_t)),
-                      "max_at_T": float(np.max(at_t))}
-        print(f"  test seed {seed}: median at T {test[seed]['median_at_T']:.2e}, median over time "
-              f"{test[seed]['median_over_time']:.2e}, max at T {test[seed]['max_at_T']:.2e}", flush=True)
+        test[seed] = {
+            "median_at_T": float(np.median(at_t)),
+            "median_over_time": float(np.median(over_t)),
+            "max_at_T": float(np.max(at_t)),
+        }
+        print(
+            f"  test seed {seed}: median at T {test[seed]['median_at_T']:.2e}, median over time "
+            f"{test[seed]['median_over_time']:.2e}, max at T {test[seed]['max_at_T']:.2e}",
+            flush=True,
+        )
         by_size[seed] = {}
         for m in (m for m in args.sizes if m < model.n_centers_):
             a, o = errors(model.truncated(m), test_inst)
             by_size[seed][m] = {"median_at_T": float(np.median(a)), "median_over_time": float(np.median(o))}
             print(f"    truncated to {m} centres: median at T {by_size[seed][m]['median_at_T']:.2e}", flush=True)
     worst = max(t["median_at_T"] for t in test.values())
-    summary = {"update": args.update, "family": args.family, "sampling": sampling, "chosen": dict(zip(NAMES, best)),
-               "n_centers": model.n_centers_, "E_train": float(model.history_.train_max_residual[-1]),
-               "n_samples": args.n_samples, "test_seeds": args.test_seeds, "val_seeds": args.val_seeds, "test": test,
-               "test_truncated": by_size, "target": TARGET, "met": bool(worst <= TARGET),
-               "time_s": time.perf_counter() - t_start, "candidates": rows}
-    print(f"chosen {sampling} {summary['chosen']} ({model.n_centers_} centres): worst test median at T {worst:.2e} "
-          f"-> target {TARGET:g} {'met' if summary['met'] else 'NOT met'}", flush=True)
+    summary = {
+        "update": args.update,
+        "family": args.family,
+        "sampling": sampling,
+        "chosen": dict(zip(NAMES, best)),
+        "n_centers": model.n_centers_,
+        "E_train": float(model.history_.train_max_residual[-1]),
+        "n_samples": args.n_samples,
+        "test_seeds": args.test_seeds,
+        "val_seeds": args.val_seeds,
+        "test": test,
+        "test_truncated": by_size,
+        "target": TARGET,
+        "met": bool(worst <= TARGET),
+        "time_s": time.perf_counter() - t_start,
+        "candidates": rows,
+    }
+    print(
+        f"chosen {sampling} {summary['chosen']} ({model.n_centers_} centres): worst test median at T {worst:.2e} "
+        f"-> target {TARGET:g} {'met' if summary['met'] else 'NOT met'}",
+        flush=True,
+    )
     if args.json:
-        _protocol.write_json(args.json, summary, _protocol.record(blas_threads=args.blas_threads, numba_threads=1,
-                                                                  statistic="medians over test instances (no timing)"))
+        _protocol.write_json(
+            args.json,
+            summary,
+            _protocol.record(
+                blas_threads=args.blas_threads, numba_threads=1, statistic="medians over test instances (no timing)"
+            ),
+        )

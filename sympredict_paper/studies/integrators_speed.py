@@ -56,33 +56,56 @@ def main():
     traj_hand = np.empty((b, k + 1, 2))
 
     with _protocol.limits(args.blas_threads, numba_threads=args.threads):
-        compiled = _protocol.side_by_side({
-            "hand_written_numba": lambda: hand_written_sv(x0, length, dt, k, system.mass, system.g, traj_hand),
-            "library_compiled": lambda: rollout(system, x0, length, dt, k, scheme="stormer_verlet"),
-        }, repeats=args.repeats)
-        numpy_ref = _protocol.measure(lambda: rollout(system, x0, length, dt, k, scheme="stormer_verlet", backend="numpy"),
-                                      args.numpy_repeats)
+        compiled = _protocol.side_by_side(
+            {
+                "hand_written_numba": lambda: hand_written_sv(x0, length, dt, k, system.mass, system.g, traj_hand),
+                "library_compiled": lambda: rollout(system, x0, length, dt, k, scheme="stormer_verlet"),
+            },
+            repeats=args.repeats,
+        )
+        numpy_ref = _protocol.measure(
+            lambda: rollout(system, x0, length, dt, k, scheme="stormer_verlet", backend="numpy"), args.numpy_repeats
+        )
         lib = rollout(system, x0, length, dt, k, scheme="stormer_verlet")
-        protocol = _protocol.record(blas_threads=args.blas_threads, numba_threads=args.threads, repeats=args.repeats, warmup=1)
+        protocol = _protocol.record(
+            blas_threads=args.blas_threads, numba_threads=args.threads, repeats=args.repeats, warmup=1
+        )
     t_hand = compiled["methods"]["hand_written_numba"]["median_s"]
     t_lib = compiled["methods"]["library_compiled"]["median_s"]
     t_np = numpy_ref["median_s"]
     diff = float(np.abs(lib - traj_hand).max())
     result = {
-        "batch": b, "steps": k, "dt": args.dt, "threads": args.threads, "repeats": args.repeats,
-        "library_compiled_s": t_lib, "hand_written_numba_s": t_hand, "library_numpy_s": t_np,
-        "ratio_library_over_hand": t_lib / t_hand, "ratio_numpy_over_hand": t_np / t_hand,
-        "ns_per_instance_step_library": 1e9 * t_lib / (b * k), "ns_per_instance_step_hand": 1e9 * t_hand / (b * k),
-        "max_abs_difference": diff, "numba": numba.__version__, "numpy": np.__version__,
-        "machine": protocol["machine"]["machine"], "processor": protocol["machine"]["cpu_model"],
+        "batch": b,
+        "steps": k,
+        "dt": args.dt,
+        "threads": args.threads,
+        "repeats": args.repeats,
+        "library_compiled_s": t_lib,
+        "hand_written_numba_s": t_hand,
+        "library_numpy_s": t_np,
+        "ratio_library_over_hand": t_lib / t_hand,
+        "ratio_numpy_over_hand": t_np / t_hand,
+        "ns_per_instance_step_library": 1e9 * t_lib / (b * k),
+        "ns_per_instance_step_hand": 1e9 * t_hand / (b * k),
+        "max_abs_difference": diff,
+        "numba": numba.__version__,
+        "numpy": np.__version__,
+        "machine": protocol["machine"]["machine"],
+        "processor": protocol["machine"]["cpu_model"],
         "timings": {"compiled": compiled, "numpy": numpy_ref},
     }
     print(f"pendulum Störmer–Verlet, batch {b}, {k} steps, {args.threads} thread(s), medians of {args.repeats}:")
-    print(f"  hand-written numba loop : {t_hand * 1e3:9.2f} ms  ({result['ns_per_instance_step_hand']:.1f} ns per instance-step)")
-    print(f"  sympredict compiled     : {t_lib * 1e3:9.2f} ms  ({result['ns_per_instance_step_library']:.1f} ns per instance-step)"
-          f"  ratio {result['ratio_library_over_hand']:.2f}x (target <= 3x)")
-    print(f"  sympredict NumPy ref.   : {t_np * 1e3:9.2f} ms  ratio {result['ratio_numpy_over_hand']:.0f}x "
-          f"(median of {args.numpy_repeats})")
+    print(
+        f"  hand-written numba loop : {t_hand * 1e3:9.2f} ms  ({result['ns_per_instance_step_hand']:.1f} ns per instance-step)"
+    )
+    print(
+        f"  sympredict compiled     : {t_lib * 1e3:9.2f} ms  ({result['ns_per_instance_step_library']:.1f} ns per instance-step)"
+        f"  ratio {result['ratio_library_over_hand']:.2f}x (target <= 3x)"
+    )
+    print(
+        f"  sympredict NumPy ref.   : {t_np * 1e3:9.2f} ms  ratio {result['ratio_numpy_over_hand']:.0f}x "
+        f"(median of {args.numpy_repeats})"
+    )
     print(f"  max |library - hand-written| = {diff:.1e}")
     if args.json:
         _protocol.write_json(args.json, result, protocol, indent=2)

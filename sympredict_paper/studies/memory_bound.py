@@ -44,8 +44,13 @@ import _protocol  # sympredict_paper/studies/ (the script's folder is on sys.pat
 from blocked_greedy import gemm_rate
 from defaults_acceptance import HAND, _rejection, hand_model
 
-from sympredict.interpolation.greedy import (BlockedGreedy, BoundedActiveSetGreedy, ExactGreedy, available_memory,
-                                             trainer_memory)
+from sympredict.interpolation.greedy import (
+    BlockedGreedy,
+    BoundedActiveSetGreedy,
+    ExactGreedy,
+    available_memory,
+    trainer_memory,
+)
 from sympredict.interpolation.greedy.active_set import bounded_capacity, bounded_memory
 from sympredict.systems.flowmaps import HamiltonianSystem
 
@@ -55,6 +60,7 @@ BETA = (1000.0, 3000.0)
 
 def chain(n: int) -> HamiltonianSystem:
     """The FPU-beta chain of ``n`` masses between fixed walls (``2n``-D state, parameter ``beta``)."""
+
     def elongations(q):
         z = np.zeros((len(q), 1))
         return np.diff(np.concatenate([z, q, z], axis=1), axis=1)  # (B, n + 1)
@@ -62,12 +68,12 @@ def chain(n: int) -> HamiltonianSystem:
     def H(x, mu):
         q, p = x[:, :n], x[:, n:]
         d = elongations(q)
-        return (p ** 2).sum(1) / (2 * MASS) + (0.5 * SPRING * d ** 2 + 0.25 * mu[:, :1] * d ** 4).sum(1)
+        return (p**2).sum(1) / (2 * MASS) + (0.5 * SPRING * d**2 + 0.25 * mu[:, :1] * d**4).sum(1)
 
     def grad(x, mu):
         q, p = x[:, :n], x[:, n:]
         d = elongations(q)
-        f = SPRING * d + mu[:, :1] * d ** 3  # spring forces; dV/dq_i = f_{i-1} - f_i
+        f = SPRING * d + mu[:, :1] * d**3  # spring forces; dV/dq_i = f_{i-1} - f_i
         return np.concatenate([f[:, :n] - f[:, 1:], p / MASS], axis=1)
 
     system = HamiltonianSystem(H, grad, 2 * n, parameters={"beta": 1}, rtol=1e-11)
@@ -131,16 +137,28 @@ def fit_one(label, trainer, data, heldout, m, settings) -> dict:
     fit_s = time.perf_counter() - t0
     h, result = model.history_, model.greedy_result_
     stats = {k: v for k, v in result.stats.items() if k != "block_sizes"}
-    out = {"label": label, "trainer_given": None if trainer is None else trainer.spec,
-           "log": handler.lines, "max_centers": m, "centers": int(model.surrogate_.n_centers),
-           "fit_s": fit_s, "greedy_s": float(h.elapsed[-1]) if len(h.elapsed) else 0.0, "stop_reason": h.stop_reason,
-           "train_max_residual": float(h.train_max_residual[-1]), "held_out_error": held_out_error(model, *heldout),
-           "peak_rss_before_fit_bytes": rss0, "peak_rss_bytes": peak_rss(), "store_stats": stats}
+    out = {
+        "label": label,
+        "trainer_given": None if trainer is None else trainer.spec,
+        "log": handler.lines,
+        "max_centers": m,
+        "centers": int(model.surrogate_.n_centers),
+        "fit_s": fit_s,
+        "greedy_s": float(h.elapsed[-1]) if len(h.elapsed) else 0.0,
+        "stop_reason": h.stop_reason,
+        "train_max_residual": float(h.train_max_residual[-1]),
+        "held_out_error": held_out_error(model, *heldout),
+        "peak_rss_before_fit_bytes": rss0,
+        "peak_rss_bytes": peak_rss(),
+        "store_stats": stats,
+    }
     chosen = next((line.split()[1] for line in handler.lines if line.startswith("trainer: ")), None)
     out["trainer"] = chosen or type(trainer).__name__
-    print(f"  {label:>8s}: {out['trainer']}, fit {fit_s:.1f} s (greedy {out['greedy_s']:.1f} s), "
-          f"{out['centers']} centres, held-out {out['held_out_error']:.3e}, peak RSS {peak_rss() / 2**30:.2f} GiB",
-          flush=True)
+    print(
+        f"  {label:>8s}: {out['trainer']}, fit {fit_s:.1f} s (greedy {out['greedy_s']:.1f} s), "
+        f"{out['centers']} centres, held-out {out['held_out_error']:.3e}, peak RSS {peak_rss() / 2**30:.2f} GiB",
+        flush=True,
+    )
     for line in handler.lines:
         print(f"           {line}", flush=True)
     return out
@@ -153,12 +171,18 @@ def main(argv=None):
     parser.add_argument("--centers", type=int, default=500)
     parser.add_argument("--steps", type=int, default=100, help="steps per training trajectory")
     parser.add_argument("--holdout", type=int, default=2000, help="held-out samples (other trajectories)")
-    parser.add_argument("--memory", default="24G",
-                        help="the memory the fit may assume (SYMPREDICT_MEMORY: bytes, or 24G; default 24G, the machine "
-                             "this check is for); 'machine': what this machine has")
+    parser.add_argument(
+        "--memory",
+        default="24G",
+        help="the memory the fit may assume (SYMPREDICT_MEMORY: bytes, or 24G; default 24G, the machine "
+        "this check is for); 'machine': what this machine has",
+    )
     parser.add_argument("--trainer", choices=["default", "exact", "blocked", "bounded"], default="default")
-    parser.add_argument("--compare", action="store_true",
-                        help="also the exact greedy and the bounded active set with --slot-fraction of the points")
+    parser.add_argument(
+        "--compare",
+        action="store_true",
+        help="also the exact greedy and the bounded active set with --slot-fraction of the points",
+    )
     parser.add_argument("--slot-fraction", type=float, default=0.25)
     parser.add_argument("--project-samples", type=int, default=100_000)
     parser.add_argument("--project-centers", type=int, default=4000)
@@ -175,19 +199,31 @@ def main(argv=None):
     settings = dict(HAND["fpu_chain"])
     blas = max(args.blas_threads, args.threads)
     with _protocol.limits(blas, args.threads):
-        protocol = _protocol.record(blas_threads=blas, numba_threads=args.threads, repeats=1, warmup=0,
-                                    notes="one fit per trainer; peak RSS is the process's (ru_maxrss), monotone")
+        protocol = _protocol.record(
+            blas_threads=blas,
+            numba_threads=args.threads,
+            repeats=1,
+            warmup=0,
+            notes="one fit per trainer; peak RSS is the process's (ru_maxrss), monotone",
+        )
         t0 = time.perf_counter()
         n_traj = -(-args.samples // args.steps)
         data = [a[: args.samples] for a in samples(system, n_traj, args.steps, seed=1)]
         heldout = [a[: args.holdout] for a in samples(system, -(-args.holdout // args.steps), args.steps, seed=2)]
         data_s = time.perf_counter() - t0
         n_fun, dim, m = args.dim * len(data[0]), args.dim, args.centers
-        print(f"{len(data[0])} samples of a {dim}-D FPU chain ({n_fun} functionals), {args.holdout} held out; "
-              f"data {data_s:.1f} s; memory {available_memory() / 2**30:.2f} GiB; exact basis "
-              f"{8 * m * n_fun / 2**30:.2f} GiB", flush=True)
-        trainers = {"default": None, "exact": ExactGreedy(), "blocked": BlockedGreedy(),
-                    "bounded": BoundedActiveSetGreedy()}
+        print(
+            f"{len(data[0])} samples of a {dim}-D FPU chain ({n_fun} functionals), {args.holdout} held out; "
+            f"data {data_s:.1f} s; memory {available_memory() / 2**30:.2f} GiB; exact basis "
+            f"{8 * m * n_fun / 2**30:.2f} GiB",
+            flush=True,
+        )
+        trainers = {
+            "default": None,
+            "exact": ExactGreedy(),
+            "blocked": BlockedGreedy(),
+            "bounded": BoundedActiveSetGreedy(),
+        }
         runs = [fit_one(args.trainer, trainers[args.trainer], data, heldout, m, settings)]
         if args.compare:
             # the estimator holds out no samples here (every kernel given): N_val = 0
@@ -199,17 +235,26 @@ def main(argv=None):
             exact = ExactGreedy(memory_limit=trainer_memory(ExactGreedy(), n_fun, 0, m) + 1)
             runs.append(fit_one("exact", exact, data, heldout, m, settings))
         base = runs[0]
-        result = {"system": f"FPU-beta chain, {args.dim // 2} masses", "dim": dim, "samples": len(data[0]),
-                  "functionals": n_fun, "holdout": args.holdout, "max_centers": m, "data_s": data_s,
-                  "memory_assumed_bytes": available_memory(), "settings": {k: v for k, v in settings.items()
-                                                                           if k != "search"},
-                  "runs": runs}
+        result = {
+            "system": f"FPU-beta chain, {args.dim // 2} masses",
+            "dim": dim,
+            "samples": len(data[0]),
+            "functionals": n_fun,
+            "holdout": args.holdout,
+            "max_centers": m,
+            "data_s": data_s,
+            "memory_assumed_bytes": available_memory(),
+            "settings": {k: v for k, v in settings.items() if k != "search"},
+            "runs": runs,
+        }
         if args.compare:
             by = {r["label"]: r for r in runs}
             result["held_out_ratio_bounded_to_exact"] = by["bounded"]["held_out_error"] / by["exact"]["held_out_error"]
             result["centers_bounded_exact"] = [by["bounded"]["centers"], by["exact"]["centers"]]
-            print(f"held-out error bounded / exact at {m} centres: {result['held_out_ratio_bounded_to_exact']:.3f}",
-                  flush=True)
+            print(
+                f"held-out error bounded / exact at {m} centres: {result['held_out_ratio_bounded_to_exact']:.3f}",
+                flush=True,
+            )
         result["projection"] = project(args, base, dim, n_fun, m, data_s)
         if args.json:
             _protocol.write_json(args.json, result, protocol)
@@ -220,6 +265,7 @@ def main(argv=None):
 def project(args, run, dim, n_fun, m, data_s) -> dict:
     """The full size's formula memory, and its time from this run's parts: blocks ``~ S m^2``, each refresh ``~ N m``."""
     from sympredict.interpolation.greedy.loop import available_memory as _avail
+
     os.environ["SYMPREDICT_MEMORY"] = args.project_memory
     try:
         mem = _avail()
@@ -236,8 +282,15 @@ def project(args, run, dim, n_fun, m, data_s) -> dict:
     points = bounded.capacity(n_full, n_val, m_full, dim)
     need = trainer_memory(bounded, n_full, n_val, m_full, dim=dim)
     stats = run["store_stats"]
-    out = {"samples": args.project_samples, "centers": m_full, "functionals": n_full, "memory_bytes": mem,
-           "exact_basis_bytes": exact, "bounded_points": points, "bounded_formula_bytes": need}
+    out = {
+        "samples": args.project_samples,
+        "centers": m_full,
+        "functionals": n_full,
+        "memory_bytes": mem,
+        "exact_basis_bytes": exact,
+        "bounded_points": points,
+        "bounded_formula_bytes": need,
+    }
     if "slots" in stats and run["greedy_s"] > 0:
         refresh = float(stats.get("refresh_s", 0.0))
         blocks = run["greedy_s"] - refresh
@@ -245,9 +298,9 @@ def project(args, run, dim, n_fun, m, data_s) -> dict:
         # blocks: the products (S m^2 flops at this process's dgemm rate) and the rest, ~ S m (vector passes per
         # centre, Gramian rows of the blocks)
         rate = gemm_rate(slots, m0=mm)["gflops"] * 1e9
-        gemm_here = slots * mm ** 2 / rate
+        gemm_here = slots * mm**2 / rate
         s_full = points * dim
-        t_gemm = s_full * m_full ** 2 / rate
+        t_gemm = s_full * m_full**2 / rate
         t_rest = max(blocks - gemm_here, 0.0) * (s_full * m_full) / (slots * mm)
         t_blocks = t_gemm + t_rest
         out.update(gemm_gflops=rate / 1e9, blocks_gemm_projected_s=t_gemm, blocks_rest_projected_s=t_rest)
@@ -264,18 +317,27 @@ def project(args, run, dim, n_fun, m, data_s) -> dict:
         t_swap = swap * swap_full / swap_here
         t_refresh = t_eval + t_swap
         out.update(evaluation_projected_s=t_eval, swap_projected_s=t_swap)
-        out.update(greedy_projected_s=t_blocks + t_refresh, blocks_projected_s=t_blocks,
-                   refresh_projected_s=t_refresh,
-                   fit_rest_projected_s=(run["fit_s"] - run["greedy_s"]) * n_full / n_fun,
-                   data_projected_s=data_s * n_full / n_fun)
+        out.update(
+            greedy_projected_s=t_blocks + t_refresh,
+            blocks_projected_s=t_blocks,
+            refresh_projected_s=t_refresh,
+            fit_rest_projected_s=(run["fit_s"] - run["greedy_s"]) * n_full / n_fun,
+            data_projected_s=data_s * n_full / n_fun,
+        )
         out["total_projected_s"] = out["greedy_projected_s"] + out["fit_rest_projected_s"] + out["data_projected_s"]
-        print(f"projection, {args.project_samples} samples x {m_full} centres on {mem / 2**30:.0f} GiB: "
-              f"{points} points in slots, formula peak {need / 2**30:.2f} GiB; greedy ~{t_blocks + t_refresh:.0f} s "
-              f"(blocks {t_blocks:.0f} s, refreshes {t_eval:.0f} s, swaps {t_swap:.0f} s), run in all ~{out['total_projected_s']:.0f} s at "
-              f"this run's rates", flush=True)
+        print(
+            f"projection, {args.project_samples} samples x {m_full} centres on {mem / 2**30:.0f} GiB: "
+            f"{points} points in slots, formula peak {need / 2**30:.2f} GiB; greedy ~{t_blocks + t_refresh:.0f} s "
+            f"(blocks {t_blocks:.0f} s, refreshes {t_eval:.0f} s, swaps {t_swap:.0f} s), run in all ~{out['total_projected_s']:.0f} s at "
+            f"this run's rates",
+            flush=True,
+        )
     else:
-        print(f"projection: formula peak {need / 2**30:.2f} GiB ({points} points in slots); no time projection "
-              f"(this run's trainer has no slots)", flush=True)
+        print(
+            f"projection: formula peak {need / 2**30:.2f} GiB ({points} points in slots); no time projection "
+            f"(this run's trainer has no slots)",
+            flush=True,
+        )
     return out
 
 

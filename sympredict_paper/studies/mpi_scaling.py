@@ -45,8 +45,13 @@ def _step_profile(step_seconds: np.ndarray, n_functionals: int) -> dict:
     """Per-step time against the step index: ``t(m) ~ a + b m``; ``b / N`` is the time per basis entry."""
     m = np.arange(len(step_seconds))
     b, a = np.polyfit(m, step_seconds, 1) if len(m) > 2 else (np.nan, np.nan)
-    return {"fit_a_s": float(a), "fit_b_s_per_centre": float(b), "ns_per_basis_entry": float(b / n_functionals * 1e9),
-            "median_s": float(np.median(step_seconds)), "total_s": float(step_seconds.sum())}
+    return {
+        "fit_a_s": float(a),
+        "fit_b_s_per_centre": float(b),
+        "ns_per_basis_entry": float(b / n_functionals * 1e9),
+        "median_s": float(np.median(step_seconds)),
+        "total_s": float(step_seconds.sum()),
+    }
 
 
 def main(argv=None) -> int:
@@ -57,8 +62,12 @@ def main(argv=None) -> int:
     parser.add_argument("--out", default=None, help="JSON file to write")
     parser.add_argument("--compare", nargs="+", default=None, help="JSON files to tabulate (no run)")
     parser.add_argument("--project", default=None, help="JSON of a sharded run: project the greedy loop to more ranks")
-    parser.add_argument("--latency-us", type=float, default=5.0,
-                        help="assumed point-to-point latency between nodes for --project (InfiniBand ~2-5, TCP ~30-50)")
+    parser.add_argument(
+        "--latency-us",
+        type=float,
+        default=5.0,
+        help="assumed point-to-point latency between nodes for --project (InfiniBand ~2-5, TCP ~30-50)",
+    )
     args = parser.parse_args(argv)
     if args.compare:
         return compare(args.compare)
@@ -119,8 +128,13 @@ def _run(args, mpi) -> int:
     out["n_val_functionals"] = 2 * len(val)
 
     eps = preset.eps
-    model = SymplecticKernelPredictor(IMQ(eps[0]), IMQ(eps[1]), IMQ(eps[2]), max_centers=max_centers,
-                                      trainer=ShardedGreedy(pool, tol=1e-10) if sharded else ExactGreedy(tol=1e-10))
+    model = SymplecticKernelPredictor(
+        IMQ(eps[0]),
+        IMQ(eps[1]),
+        IMQ(eps[2]),
+        max_centers=max_centers,
+        trainer=ShardedGreedy(pool, tol=1e-10) if sharded else ExactGreedy(tol=1e-10),
+    )
     t0 = time.perf_counter()
     model.fit(data.x0, data.x1, mu=data.mu, dt=data.dt, validation=val)
     stats = model.greedy_result_.stats
@@ -155,7 +169,9 @@ def _run(args, mpi) -> int:
         }
     else:
         out["peak_rss_bytes_per_rank"] = [_peak_rss_bytes()]
-    out["protocol"] = _protocol.record(blas_threads=args.blas_threads, repeats=1, statistic="one fit; pool latency: mean of 300 calls")
+    out["protocol"] = _protocol.record(
+        blas_threads=args.blas_threads, repeats=1, statistic="one fit; pool latency: mean of 300 calls"
+    )
     text = json.dumps(out, indent=1)
     print(text, flush=True)
     if args.out:
@@ -170,8 +186,10 @@ def compare(paths) -> int:
     print("|---|---|---|---|---|---|---|")
     for r in runs:
         rss = ", ".join(f"{b / 2**30:.2f}" for b in r["peak_rss_bytes_per_rank"])
-        print(f"| {r['mode']} | {r['n_functionals']:,} | {r['n_centers']} | {r['time_data_s']:.1f} | {r['time_fit_s']:.1f} | "
-              f"{r['greedy_loop_s']:.1f} | {rss} |")
+        print(
+            f"| {r['mode']} | {r['n_functionals']:,} | {r['n_centers']} | {r['time_data_s']:.1f} | {r['time_fit_s']:.1f} | "
+            f"{r['greedy_loop_s']:.1f} | {rss} |"
+        )
     same = len({r["selected_sha1"] for r in runs}) == 1
     same_data = len({r.get("data_sha1") for r in runs}) == 1
     print(f"\nsame data in all runs (bit for bit): {same_data}; same selection in all runs: {same}")
@@ -199,8 +217,10 @@ def project(path, latency_us: float, ranks=(2, 4, 8, 16, 32, 64, 128), functiona
     o_meas = (sh["step_overhead_median_us"] + sh["winner_call_median_us"]) * 1e-6
     g = 5e-6
     lat = latency_us * 1e-6
-    print(f"measured at P={p0}, N={n0:,}, {m_total} centres: per-step compute (slowest rank) {a * 1e3:.2f} ms + "
-          f"{b * 1e6:.2f} us x m; per-step overhead {o_meas * 1e6:.0f} us; loop {r['greedy_loop_s']:.1f} s")
+    print(
+        f"measured at P={p0}, N={n0:,}, {m_total} centres: per-step compute (slowest rank) {a * 1e3:.2f} ms + "
+        f"{b * 1e6:.2f} us x m; per-step overhead {o_meas * 1e6:.0f} us; loop {r['greedy_loop_s']:.1f} s"
+    )
     print("| N | ranks | compute s | overhead s | loop s | speed-up vs 2 ranks |")
     print("|---|---|---|---|---|---|")
     for n in functionals:

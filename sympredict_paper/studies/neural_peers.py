@@ -103,8 +103,12 @@ class _TorchFlowMap:
     @torch.no_grad()
     def rollout(self, x0, n_steps, mu):
         mu = np.asarray(mu, dtype=float)
-        mu = np.broadcast_to(mu.reshape(1, -1) if mu.ndim <= 1 and mu.size == len(self.mu_lo) and mu.size != len(x0)
-                             else mu.reshape(len(x0), -1), (len(x0), len(self.mu_lo)))
+        mu = np.broadcast_to(
+            mu.reshape(1, -1)
+            if mu.ndim <= 1 and mu.size == len(self.mu_lo) and mu.size != len(x0)
+            else mu.reshape(len(x0), -1),
+            (len(x0), len(self.mu_lo)),
+        )
         M = torch.from_numpy((mu - self.mu_lo) / self.mu_span)
         x = torch.from_numpy(np.asarray(x0, dtype=float) / self.x_scale)
         out = [x]

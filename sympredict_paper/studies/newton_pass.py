@@ -63,17 +63,23 @@ from sympredict.kernels import IMQ  # noqa: E402
 
 def this_tree() -> types.SimpleNamespace:
     """This tree's compiled Newton code under the names a revision's ``_fastkernels`` module has."""
-    return types.SimpleNamespace(newton_rollout=_compiled_newton.newton_rollout,
-                                 CenterLayout=compiled_surrogate.CenterLayout,
-                                 newton_terms=compiled_surrogate.newton_terms,
-                                 factor_throughput=compiled_surrogate.factor_throughput)
+    return types.SimpleNamespace(
+        newton_rollout=_compiled_newton.newton_rollout,
+        CenterLayout=compiled_surrogate.CenterLayout,
+        newton_terms=compiled_surrogate.newton_terms,
+        factor_throughput=compiled_surrogate.factor_throughput,
+    )
 
 
 def load_revision(rev: str, where: Path):
     """``sympredict/_fastkernels.py`` of ``rev`` as a module (older revisions: numba's disk cache off for it; newer:
     cached next to the copy in ``where``)."""
-    src = subprocess.run(["git", "-C", str(ROOT), "show", f"{rev}:sympredict/_fastkernels.py"], capture_output=True,
-                         text=True, check=True).stdout
+    src = subprocess.run(
+        ["git", "-C", str(ROOT), "show", f"{rev}:sympredict/_fastkernels.py"],
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout
     src = src.replace("_build(cache)", "_build(False)")
     path = where / f"_fastkernels_{rev.replace('/', '_')}.py"
     path.write_text(src)
@@ -106,15 +112,30 @@ def measure(modules: dict, sur, x0, w, dt, *, steps: int, samples: int, repeats:
         stats, stats_b = {}, {}
         module.newton_rollout(x0[sub], w[sub], dt[sub], layout, kernel, 50, steps, parallel=False, stats=stats, **kw)
         module.newton_rollout(x0, w, dt, layout, kernel, 50, steps, stats=stats_b, **kw)
-        out[key] = {"passes": float(stats["passes"].sum()),
-                    "passes_per_step_batch": float(stats_b["passes"].sum()) / (len(x0) * steps)}
+        out[key] = {
+            "passes": float(stats["passes"].sum()),
+            "passes_per_step_batch": float(stats_b["passes"].sum()) / (len(x0) * steps),
+        }
     single = _protocol.side_by_side(
-        {key: (lambda m=module, lay=layout, kw=kw: m.newton_rollout(x0[sub], w[sub], dt[sub], lay, kernel, 50, steps,
-                                                                    parallel=False, **kw))
-         for key, (module, layout, kw) in cases.items()}, repeats=samples, statistic="min_s")
+        {
+            key: (
+                lambda m=module, lay=layout, kw=kw: m.newton_rollout(
+                    x0[sub], w[sub], dt[sub], lay, kernel, 50, steps, parallel=False, **kw
+                )
+            )
+            for key, (module, layout, kw) in cases.items()
+        },
+        repeats=samples,
+        statistic="min_s",
+    )
     batch = _protocol.side_by_side(
-        {key: (lambda m=module, lay=layout, kw=kw: m.newton_rollout(x0, w, dt, lay, kernel, 50, steps, **kw))
-         for key, (module, layout, kw) in cases.items()}, repeats=repeats, statistic="min_s")
+        {
+            key: (lambda m=module, lay=layout, kw=kw: m.newton_rollout(x0, w, dt, lay, kernel, 50, steps, **kw))
+            for key, (module, layout, kw) in cases.items()
+        },
+        repeats=repeats,
+        statistic="min_s",
+    )
     for key in cases:
         out[key]["t1"] = single["methods"][key]["min_s"]
         out[key]["tb"] = batch["methods"][key]["min_s"]
@@ -142,17 +163,23 @@ def pass_vs_dim(modules: dict, dims, samples: int, m: int = 1500, points: int = 
     out = {}
     for dim in dims:
         rng = np.random.default_rng(dim)
-        sur = HBSurrogate(ProductKernel(IMQ(0.5), IMQ(1.0), None), rng.uniform(-1, 1, (m, dim)), rng.uniform(0, 1, (m, 1)),
-                          np.ones(m), rng.integers(0, dim, m), 1e-2 * rng.standard_normal(m))
+        sur = HBSurrogate(
+            ProductKernel(IMQ(0.5), IMQ(1.0), None),
+            rng.uniform(-1, 1, (m, dim)),
+            rng.uniform(0, 1, (m, 1)),
+            np.ones(m),
+            rng.integers(0, dim, m),
+            1e-2 * rng.standard_normal(m),
+        )
         xi = rng.uniform(-1, 1, (points, dim))
         w = np.ascontiguousarray(np.repeat(sur.weights(np.full((1, 1), 0.5), np.ones(1)), points, axis=0))
         runs = {}
         for label, module in modules.items():
             layout = module.CenterLayout(sur.centers_xi, sur.components)
             full = "full" in module.newton_terms.__code__.co_varnames
-            runs[f"{label} block"] = (lambda mod=module, lay=layout: mod.newton_terms(xi, w, lay, IMQ(0.5)))
+            runs[f"{label} block"] = lambda mod=module, lay=layout: mod.newton_terms(xi, w, lay, IMQ(0.5))
             if full:
-                runs[f"{label} full"] = (lambda mod=module, lay=layout: mod.newton_terms(xi, w, lay, IMQ(0.5), full=True))
+                runs[f"{label} full"] = lambda mod=module, lay=layout: mod.newton_terms(xi, w, lay, IMQ(0.5), full=True)
         best = _protocol.side_by_side(runs, repeats=samples, statistic="min_s")["methods"]
         out[dim] = {key: 1e9 * t["min_s"] / (points * m) for key, t in best.items()}
     return out
@@ -166,8 +193,12 @@ def main(argv=None) -> dict:
     parser.add_argument("--samples", type=int, default=60, help="short runs per single-thread timing (minimum taken)")
     _protocol.add_arguments(parser, threads=2, threads_help="numba threads of the full-batch rollout")
     parser.add_argument("--repeats", type=int, default=10, help="full-batch runs (best taken)")
-    parser.add_argument("--dims", default="", help="also the pass cost by 2n on synthetic surrogates, e.g. 2,4,10,20,40")
-    parser.add_argument("--model", default=None, help="model file: loaded if it exists, else the fitted model is saved there")
+    parser.add_argument(
+        "--dims", default="", help="also the pass cost by 2n on synthetic surrogates, e.g. 2,4,10,20,40"
+    )
+    parser.add_argument(
+        "--model", default=None, help="model file: loaded if it exists, else the fitted model is saved there"
+    )
     args = parser.parse_args(argv)
     set_log_levels({"sympredict": "WARNING", "pymor": "WARN"})
     import suite  # the suite's model and inputs
@@ -188,35 +219,56 @@ def main(argv=None) -> dict:
         if args.against:
             modules[args.against] = load_revision(args.against, Path(tmp))
         for label, module in modules.items():  # compile and warm up
-            module.newton_rollout(x0[:16], w[:16], dt[:16], module.CenterLayout(sur.centers_xi, sur.components),
-                                  sur.kernel.state, 50, 2)
+            module.newton_rollout(
+                x0[:16], w[:16], dt[:16], module.CenterLayout(sur.centers_xi, sur.components), sur.kernel.state, 50, 2
+            )
         results = measure(modules, sur, x0, w, dt, steps=args.steps, samples=args.samples, repeats=args.repeats)
-        by_dim = pass_vs_dim(modules, [int(d) for d in args.dims.split(",")], max(5, args.samples // 6)) if args.dims else None
+        by_dim = (
+            pass_vs_dim(modules, [int(d) for d in args.dims.split(",")], max(5, args.samples // 6))
+            if args.dims
+            else None
+        )
         factor = 1e9 * factor_chunk_seconds(args.samples)  # one probe (this tree's) for both
         for label, module in modules.items():
             results[label]["factor_ns_l1"] = factor
             results[label]["factor_ns_1M_median"] = 1e9 * module.factor_throughput()
-        protocol = _protocol.record(blas_threads=args.blas_threads, numba_threads=threads, repeats=args.samples, warmup=1,
-                                    statistic="min (single-thread samples and full-batch repeats, interleaved)")
-    lines = [f"{model.n_centers_} centres, batch {args.batch}, {args.steps} steps; {args.threads} numba thread(s) for the "
-             f"batch, 1 for the pass", "",
-             "| implementation | start | passes/step | ns per centre visit (1 thread) | factor ns (L1 / 1M) | pass / factor "
-             "| traj-steps/s |", "|---|---|---|---|---|---|---|"]
+        protocol = _protocol.record(
+            blas_threads=args.blas_threads,
+            numba_threads=threads,
+            repeats=args.samples,
+            warmup=1,
+            statistic="min (single-thread samples and full-batch repeats, interleaved)",
+        )
+    lines = [
+        f"{model.n_centers_} centres, batch {args.batch}, {args.steps} steps; {args.threads} numba thread(s) for the "
+        f"batch, 1 for the pass",
+        "",
+        "| implementation | start | passes/step | ns per centre visit (1 thread) | factor ns (L1 / 1M) | pass / factor "
+        "| traj-steps/s |",
+        "|---|---|---|---|---|---|---|",
+    ]
     for label, r in results.items():
         for start in ("cold", "warm"):
             if start not in r:
                 continue
             m = r[start]
             m["ratio"] = m["ns_per_centre_visit_1_thread"] / r["factor_ns_l1"]
-            lines.append(f"| {label} | {start} | {m['passes_per_step']:.2f} | {m['ns_per_centre_visit_1_thread']:.2f} | "
-                         f"{r['factor_ns_l1']:.2f} / {r['factor_ns_1M_median']:.2f} | {m['ratio']:.2f} | "
-                         f"{m['traj_steps_per_s']:,.0f} |")
+            lines.append(
+                f"| {label} | {start} | {m['passes_per_step']:.2f} | {m['ns_per_centre_visit_1_thread']:.2f} | "
+                f"{r['factor_ns_l1']:.2f} / {r['factor_ns_1M_median']:.2f} | {m['ratio']:.2f} | "
+                f"{m['traj_steps_per_s']:,.0f} |"
+            )
     out = {"args": vars(args), "results": results}
     if by_dim:
         out["pass_vs_dim"] = by_dim
         keys = list(next(iter(by_dim.values())))
-        lines += ["", "ns per centre of one pass, 1,500 random centres, 1 thread:", "",
-                  "| 2n | " + " | ".join(keys) + " |", "|---|" + "---|" * len(keys)]
+        lines += [
+            "",
+            "ns per centre of one pass, 1,500 random centres, 1 thread:",
+            "",
+            "| 2n | " + " | ".join(keys) + " |",
+            "|---|" + "---|" * len(keys),
+        ]
         for dim, r in by_dim.items():
             lines.append(f"| {dim} | " + " | ".join(f"{r[k]:.2f}" for k in keys) + " |")
     print("\n".join(lines))

@@ -38,8 +38,9 @@ with _protocol.limits(args.blas_threads), warnings.catch_warnings():
     for theta in [0.5, 1.2, 1.5, np.pi / 2, 1.7, 2.5, 3.0]:
         errs = []
         for update in ("symplectic_euler", "midpoint"):
-            model = SymplecticKernelPredictor(IMQ(0.5), max_centers=600, update=update,
-                                              solver=NewtonSolver(backend="numpy"))
+            model = SymplecticKernelPredictor(
+                IMQ(0.5), max_centers=600, update=update, solver=NewtonSolver(backend="numpy")
+            )
             try:
                 model.fit(x0, rotation(x0, theta), dt=theta)
                 errs.append(f"{np.abs(model.step(xt) - rotation(xt, theta)).max():.1e}")

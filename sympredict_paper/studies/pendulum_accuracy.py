@@ -60,38 +60,68 @@ parser.add_argument("--search", nargs="+", default=list(NAMES), choices=NAMES, h
 parser.add_argument("--factor", type=float, default=2.0)
 parser.add_argument("--sweeps", type=int, default=3)
 parser.add_argument("--val-seeds", type=int, nargs="+", default=[100, 101])
-parser.add_argument("--test-seeds", type=int, nargs="*", default=[0],
-                    help="evaluated once each, with the chosen model (none: validation only)")
+parser.add_argument(
+    "--test-seeds",
+    type=int,
+    nargs="*",
+    default=[0],
+    help="evaluated once each, with the chosen model (none: validation only)",
+)
 parser.add_argument("--n-grid", type=int, default=50)
 parser.add_argument("--max-centers", type=int, default=1500)
 parser.add_argument("--horizon", type=float, default=20.0)
-parser.add_argument("--power-tol", type=float, default=1e-12,
-                    help="the greedy's breakdown guard relative to the Gramian diagonal (the estimator's power_tol)")
+parser.add_argument(
+    "--power-tol",
+    type=float,
+    default=1e-12,
+    help="the greedy's breakdown guard relative to the Gramian diagonal (the estimator's power_tol)",
+)
 parser.add_argument("--criterion", default="f", choices=["f", "p"], help="f-greedy or P-greedy centre selection")
-parser.add_argument("--reg-rel", type=float, default=0.0,
-                    help="ridge term relative to the Gramian diagonal eps_state^2 (a tiny one keeps flat kernels from breaking down)")
-parser.add_argument("--augment-reversal", action="store_true",
-                    help="add the time-reversed pair (R x1 -> R x0), R(q, p) = (q, -p), of every sample (more than the quick data)")
-parser.add_argument("--symmetry", default="none", choices=["none", "klein"],
-                    help="klein: a state kernel invariant under the sign flips (q, p) -> (+-q, +-p) (Symmetric(kernel, group=...); "
-                         "valid for the midpoint update only: the pendulum is even in q and in p)")
-parser.add_argument("--split", action="store_true",
-                    help="L_h o S o L_h: the exact flow of the quadratic part A(l) = diag(g l, 1/l^2) over dT/2 around "
-                         "the learned step S (sympredict.flowmap.splitting); the shapes and scaling are S's")
-parser.add_argument("--diagnose", action="store_true",
-                    help="where the error comes from, on the first validation seed: lengths on the training grid, per-q0 errors")
+parser.add_argument(
+    "--reg-rel",
+    type=float,
+    default=0.0,
+    help="ridge term relative to the Gramian diagonal eps_state^2 (a tiny one keeps flat kernels from breaking down)",
+)
+parser.add_argument(
+    "--augment-reversal",
+    action="store_true",
+    help="add the time-reversed pair (R x1 -> R x0), R(q, p) = (q, -p), of every sample (more than the quick data)",
+)
+parser.add_argument(
+    "--symmetry",
+    default="none",
+    choices=["none", "klein"],
+    help="klein: a state kernel invariant under the sign flips (q, p) -> (+-q, +-p) (Symmetric(kernel, group=...); "
+    "valid for the midpoint update only: the pendulum is even in q and in p)",
+)
+parser.add_argument(
+    "--split",
+    action="store_true",
+    help="L_h o S o L_h: the exact flow of the quadratic part A(l) = diag(g l, 1/l^2) over dT/2 around "
+    "the learned step S (sympredict.flowmap.splitting); the shapes and scaling are S's",
+)
+parser.add_argument(
+    "--diagnose",
+    action="store_true",
+    help="where the error comes from, on the first validation seed: lengths on the training grid, per-q0 errors",
+)
 _protocol.add_arguments(parser)
 parser.add_argument("--quick", action="store_true", help="tiny sizes, one sweep: checks that the script runs")
 args = parser.parse_args()
 if args.symmetry == "klein" and args.update != "midpoint":
-    parser.error("--symmetry klein needs --update midpoint (the type-II s(q0, p1) is not invariant under q -> -q, p -> -p)")
+    parser.error(
+        "--symmetry klein needs --update midpoint (the type-II s(q0, p1) is not invariant under q -> -q, p -> -p)"
+    )
 SYMMETRY = {"none": None, "klein": [(1, 1), (-1, -1), (1, -1), (-1, 1)]}[args.symmetry]
 if args.quick:
     args.n_grid, args.max_centers, args.horizon, args.sweeps, args.val_seeds = 12, 60, 1.0, 1, [100]
     args.diagnose = True
     args.search = ["state"]
 assert not set(args.test_seeds) & set(args.val_seeds), "the test seed must not be a validation seed"
-assert len(set(args.test_seeds)) == len(args.test_seeds), "each test seed once (a repeated seed would count its draw twice)"
+assert len(set(args.test_seeds)) == len(args.test_seeds), (
+    "each test seed once (a repeated seed would count its draw twice)"
+)
 
 system = Pendulum()
 family = KERNEL_FAMILIES[args.family]
@@ -99,8 +129,12 @@ data = flow_map_data(system, n_grid=args.n_grid)
 if args.augment_reversal:
     # the pendulum is reversible: R Phi R = Phi^{-1}, so Phi(R x1) = R x0 (exactly for the implicit-midpoint data too)
     flip = np.array([1.0, -1.0])
-    data = FlowMapData(np.concatenate([data.x0, data.x1 * flip]), np.concatenate([data.x1, data.x0 * flip]),
-                       np.concatenate([data.mu, data.mu]), np.concatenate([data.dt, data.dt]))
+    data = FlowMapData(
+        np.concatenate([data.x0, data.x1 * flip]),
+        np.concatenate([data.x1, data.x0 * flip]),
+        np.concatenate([data.mu, data.mu]),
+        np.concatenate([data.dt, data.dt]),
+    )
 
 
 def cases(seeds):
@@ -115,10 +149,17 @@ def cases(seeds):
 
 
 def fit(p):
-    model = SymplecticKernelPredictor(Symmetric(Scaled(family(p[0]), factors=None if p[3] == 1.0 else (p[3],)), group=SYMMETRY),
-                                      family(p[1]), family(p[2]), max_centers=args.max_centers, update=args.update,
-                                      trainer=ExactGreedy(tol=1e-10, regularization=args.reg_rel * p[0] ** 2, criterion=args.criterion, power_tol=args.power_tol),
-                                      solver=NewtonSolver(backend="numpy"))
+    model = SymplecticKernelPredictor(
+        Symmetric(Scaled(family(p[0]), factors=None if p[3] == 1.0 else (p[3],)), group=SYMMETRY),
+        family(p[1]),
+        family(p[2]),
+        max_centers=args.max_centers,
+        update=args.update,
+        trainer=ExactGreedy(
+            tol=1e-10, regularization=args.reg_rel * p[0] ** 2, criterion=args.criterion, power_tol=args.power_tol
+        ),
+        solver=NewtonSolver(backend="numpy"),
+    )
     if args.split:
         model = SplitKernelPredictor(model, system.quadratic_part())
     return model.fit(data.x0, data.x1, mu=data.mu, dt=data.dt)
@@ -133,7 +174,7 @@ def medians(model, cs, seeds, pooled=None):
     for dt, (x0, lengths, n_steps, ref) in case.items():
         err = relative_trajectory_error(model.rollout(x0, n_steps, mu=lengths, dt=dt), ref)
         for i, s in enumerate(seeds):
-            out[s][dt] = float(np.median(err[i * per:(i + 1) * per].mean(axis=0)[1:]))
+            out[s][dt] = float(np.median(err[i * per : (i + 1) * per].mean(axis=0)[1:]))
         if pooled is not None:
             pooled[dt] = float(np.median(err.mean(axis=0)[1:]))
     return out
@@ -151,14 +192,23 @@ def evaluate(p, val):
         model = fit(p)
         med = medians(model, val, args.val_seeds)
         score = max(v for d in med.values() for v in d.values())
-        row = {"params": dict(zip(NAMES, p)), "n_centers": model.n_centers_, "stop_reason": model.history_.stop_reason,
-               "E_train": float(model.history_.train_max_residual[-1]), "val_medians": med, "score": score}
+        row = {
+            "params": dict(zip(NAMES, p)),
+            "n_centers": model.n_centers_,
+            "stop_reason": model.history_.stop_reason,
+            "E_train": float(model.history_.train_max_residual[-1]),
+            "val_medians": med,
+            "score": score,
+        }
     except Exception as exc:  # a candidate whose Newton solve fails ranks last
         row = {"params": dict(zip(NAMES, p)), "error": repr(exc), "score": np.inf}
     row["time_s"] = time.perf_counter() - t0
     rows.append(row)
     seen[key] = row["score"]
-    print(f"  {dict(zip(NAMES, p))}: score {row['score']:.3e}, {row.get('n_centers')} centres ({row['time_s']:.0f} s)", flush=True)
+    print(
+        f"  {dict(zip(NAMES, p))}: score {row['score']:.3e}, {row.get('n_centers')} centres ({row['time_s']:.0f} s)",
+        flush=True,
+    )
     return row["score"]
 
 
@@ -169,26 +219,50 @@ with _protocol.limits(args.blas_threads, numba_threads=1):
     else:
         val = cases(args.val_seeds)
         best = list(args.start)
-        best, best_score = coordinate_search(lambda cand: evaluate(cand, val), best, NAMES, args.search, args.factor,
-                                             args.sweeps)
+        best, best_score = coordinate_search(
+            lambda cand: evaluate(cand, val), best, NAMES, args.search, args.factor, args.sweeps
+        )
     model = fit(best)
     pooled = {}
     test = medians(model, cases(args.test_seeds), args.test_seeds, pooled) if args.test_seeds else {}
     worst = max((v for d in test.values() for v in d.values()), default=np.inf)
-    summary = {"update": args.update, "symmetry": args.symmetry, "split": args.split, "power_tol": args.power_tol, "family": args.family, "reg_rel": args.reg_rel, "criterion": args.criterion, "augment_reversal": args.augment_reversal,
-               "chosen": dict(zip(NAMES, best)), "n_centers": model.n_centers_,
-               "E_train": float(model.history_.train_max_residual[-1]), "test_seeds": args.test_seeds,
-               "val_seeds": args.val_seeds, "test_medians": test, "test_medians_pooled": pooled, "target": TARGET, "met": bool(worst <= TARGET),
-               "met_pooled": bool(pooled) and max(pooled.values()) <= TARGET,
-               "n_samples": len(data.x0), "time_s": time.perf_counter() - t_start, "candidates": rows}
+    summary = {
+        "update": args.update,
+        "symmetry": args.symmetry,
+        "split": args.split,
+        "power_tol": args.power_tol,
+        "family": args.family,
+        "reg_rel": args.reg_rel,
+        "criterion": args.criterion,
+        "augment_reversal": args.augment_reversal,
+        "chosen": dict(zip(NAMES, best)),
+        "n_centers": model.n_centers_,
+        "E_train": float(model.history_.train_max_residual[-1]),
+        "test_seeds": args.test_seeds,
+        "val_seeds": args.val_seeds,
+        "test_medians": test,
+        "test_medians_pooled": pooled,
+        "target": TARGET,
+        "met": bool(worst <= TARGET),
+        "met_pooled": bool(pooled) and max(pooled.values()) <= TARGET,
+        "n_samples": len(data.x0),
+        "time_s": time.perf_counter() - t_start,
+        "candidates": rows,
+    }
     print(f"chosen {summary['chosen']} ({model.n_centers_} centres):", flush=True)
     for seed, d in test.items():
         print(f"  test seed {seed}: " + " / ".join(f"dT={dt}: {v:.2e}" for dt, v in d.items()), flush=True)
-    print(f"worst test median {worst:.2e} -> target {TARGET:g} {'met' if summary['met'] else 'NOT met'} on every seed",
-          flush=True)
+    print(
+        f"worst test median {worst:.2e} -> target {TARGET:g} {'met' if summary['met'] else 'NOT met'} on every seed",
+        flush=True,
+    )
     if len(args.test_seeds) > 1:  # the statistic over all test instances together, per test step
-        print("  all test seeds pooled: " + " / ".join(f"dT={dt}: {v:.2e}" for dt, v in pooled.items())
-              + f" -> {'met' if summary['met_pooled'] else 'NOT met'} pooled", flush=True)
+        print(
+            "  all test seeds pooled: "
+            + " / ".join(f"dT={dt}: {v:.2e}" for dt, v in pooled.items())
+            + f" -> {'met' if summary['met_pooled'] else 'NOT met'} pooled",
+            flush=True,
+        )
     if args.diagnose:
         # first validation seed: the same states with the lengths moved onto the training grid (no interpolation in l),
         # at a training step (0.05) and at the test steps; and the median over time per q0 (mean over the 5 lengths)
@@ -199,15 +273,27 @@ with _protocol.limits(args.blas_threads, numba_threads=1):
         for dt in (DT_TRAIN[1],) + tuple(DT_TEST):
             n_steps = int(np.floor(args.horizon / dt + 1e-9))
             for key, ls in (("on_grid_lengths", on_grid), ("off_grid", lengths)):
-                err = relative_trajectory_error(model.rollout(x0, n_steps, mu=ls, dt=dt), system.trajectory(x0, ls, dt, n_steps))
+                err = relative_trajectory_error(
+                    model.rollout(x0, n_steps, mu=ls, dt=dt), system.trajectory(x0, ls, dt, n_steps)
+                )
                 diag[key][dt] = float(np.median(err.mean(axis=0)[1:]))
                 if key == "off_grid":
-                    diag["per_q0"][dt] = {f"{q:.3f}": float(np.median(err[x0[:, 0] == q].mean(axis=0)[1:])) for q in np.unique(x0[:, 0])}
+                    diag["per_q0"][dt] = {
+                        f"{q:.3f}": float(np.median(err[x0[:, 0] == q].mean(axis=0)[1:])) for q in np.unique(x0[:, 0])
+                    }
         summary["diagnosis"] = diag
         print(f"diagnosis (validation seed {seed}): median error with lengths on / off the training grid:", flush=True)
         for dt in diag["off_grid"]:
-            print(f"  dT={dt}: {diag['on_grid_lengths'][dt]:.2e} / {diag['off_grid'][dt]:.2e}; per q0: "
-                  + ", ".join(f"{q}: {v:.1e}" for q, v in diag["per_q0"][dt].items()), flush=True)
+            print(
+                f"  dT={dt}: {diag['on_grid_lengths'][dt]:.2e} / {diag['off_grid'][dt]:.2e}; per q0: "
+                + ", ".join(f"{q}: {v:.1e}" for q, v in diag["per_q0"][dt].items()),
+                flush=True,
+            )
     if args.json:
-        _protocol.write_json(args.json, summary, _protocol.record(blas_threads=args.blas_threads, numba_threads=1,
-                                                                  statistic="medians over test instances (no timing)"))
+        _protocol.write_json(
+            args.json,
+            summary,
+            _protocol.record(
+                blas_threads=args.blas_threads, numba_threads=1, statistic="medians over test instances (no timing)"
+            ),
+        )

@@ -70,8 +70,9 @@ with _protocol.limits(args.blas_threads):
     clean_val = random_flow_map_data(system, args.n_val, seed=1, mu_values=MU_TRAIN, dt_values=DT_TRAIN)
     x0, lengths = paper_test_instances(0)
     refs = {dt: system.trajectory(x0, lengths, dt, int(np.floor(args.horizon / dt + 1e-9))) for dt in DT_TEST}
-    estimator = SymplecticKernelPredictor(IMQ(0.2), IMQ(1.5), IMQ(3.0), max_centers=args.max_centers,
-                                          trainer=ExactGreedy(tol=1e-10))
+    estimator = SymplecticKernelPredictor(
+        IMQ(0.2), IMQ(1.5), IMQ(3.0), max_centers=args.max_centers, trainer=ExactGreedy(tol=1e-10)
+    )
     rows = []
     for sigma in args.noise:
         train, val = noisy(clean, sigma, seed=10), noisy(clean_val, sigma, seed=11)
@@ -83,11 +84,26 @@ with _protocol.limits(args.blas_threads):
         err_reg = trajectory_errors(sel.model, system, x0, lengths, refs)
         # trajectory errors of every candidate too: does the validation score rank them?
         traj_all = {lam: trajectory_errors(m, system, x0, lengths, refs) for lam, m in sel.models.items()}
-        row = {"sigma": sigma, "lambda": sel.regularization, "traj_all": traj_all, "val_rms_exact": exact_row["score"], "val_rms_reg": sel.score,
-               "traj_exact": err_exact, "traj_reg": err_reg, "table": sel.table, "selection_s": t_sel}
+        row = {
+            "sigma": sigma,
+            "lambda": sel.regularization,
+            "traj_all": traj_all,
+            "val_rms_exact": exact_row["score"],
+            "val_rms_reg": sel.score,
+            "traj_exact": err_exact,
+            "traj_reg": err_reg,
+            "table": sel.table,
+            "selection_s": t_sel,
+        }
         rows.append(row)
-        print(f"sigma={sigma:.0e}: lambda={sel.regularization:.0e}  val RMS exact {exact_row['score']:.3e} reg {sel.score:.3e}  "
-              + "  ".join(f"dT={dt}: exact {err_exact[dt]:.2e} reg {err_reg[dt]:.2e}" for dt in DT_TEST), flush=True)
+        print(
+            f"sigma={sigma:.0e}: lambda={sel.regularization:.0e}  val RMS exact {exact_row['score']:.3e} reg {sel.score:.3e}  "
+            + "  ".join(f"dT={dt}: exact {err_exact[dt]:.2e} reg {err_reg[dt]:.2e}" for dt in DT_TEST),
+            flush=True,
+        )
     if args.json:
-        _protocol.write_json(args.json, {"args": vars(args), "rows": rows},
-                             _protocol.record(blas_threads=args.blas_threads, repeats=1, statistic="one timed selection"))
+        _protocol.write_json(
+            args.json,
+            {"args": vars(args), "rows": rows},
+            _protocol.record(blas_threads=args.blas_threads, repeats=1, statistic="one timed selection"),
+        )

@@ -73,9 +73,12 @@ for eps in triples:
         "trajectory_median_per_seed": medians,
     }
     rows.append(row)
-    print(f"eps {eps}: {row['n_centers']} centres ({row['stop']}), E_train {row['E_train']:.1e}, "
-          f"on-grid max/median {row['on_grid_max_median'][0]:.1e}/{row['on_grid_max_median'][1]:.1e}, "
-          f"off-grid {row['off_grid_max_median'][0]:.1e}/{row['off_grid_max_median'][1]:.1e}", flush=True)
+    print(
+        f"eps {eps}: {row['n_centers']} centres ({row['stop']}), E_train {row['E_train']:.1e}, "
+        f"on-grid max/median {row['on_grid_max_median'][0]:.1e}/{row['on_grid_max_median'][1]:.1e}, "
+        f"off-grid {row['off_grid_max_median'][0]:.1e}/{row['off_grid_max_median'][1]:.1e}",
+        flush=True,
+    )
     for seed, meds in medians.items():
         print(f"   test seed {seed}: median error at dT={DT_TEST}: " + ", ".join(f"{m:.2e}" for m in meds), flush=True)
 if args.json:

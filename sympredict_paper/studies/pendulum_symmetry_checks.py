@@ -87,17 +87,23 @@ def gram_feature(eps, xa, xb):
     """HB Gramian of k(F(x), F(y)), F = x * x: -4 x_a y_b (B u_a u_b + A delta_ab), u = F(x) - F(y)."""
     u = xa[:, None, :] ** 2 - xb[None, :, :] ** 2
     A, B = IMQ(eps).factors(np.sqrt((u * u).sum(-1)), order=2)
-    g = -4 * xa[:, None, :, None] * xb[None, :, None, :] * (B[..., None, None] * u[..., :, None] * u[..., None, :]
-                                                             + A[..., None, None] * np.eye(2))
+    g = (
+        -4
+        * xa[:, None, :, None]
+        * xb[None, :, None, :]
+        * (B[..., None, None] * u[..., :, None] * u[..., None, :] + A[..., None, None] * np.eye(2))
+    )
     return g.transpose(0, 2, 1, 3).reshape(2 * len(xa), 2 * len(xb))
 
 
 def design():
     tr, va, te = samples(300, 0), samples(1000, 1), samples(1000, 2)
     klein = StateSymmetry.from_signs(KLEIN)
-    kernels = {"plain": lambda e, a, b: gram_library(ProductKernel(IMQ(e)), a, b),
-               "group average": lambda e, a, b: gram_library(ProductKernel(IMQ(e), symmetry=klein), a, b),
-               "feature map (q^2, p^2)": gram_feature}
+    kernels = {
+        "plain": lambda e, a, b: gram_library(ProductKernel(IMQ(e)), a, b),
+        "group average": lambda e, a, b: gram_library(ProductKernel(IMQ(e), symmetry=klein), a, b),
+        "feature map (q^2, p^2)": gram_feature,
+    }
     for name, gram in kernels.items():
         best = None
         for eps in (0.1, 0.2, 0.4, 0.8, 1.6, 3.2):

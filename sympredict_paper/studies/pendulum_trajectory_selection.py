@@ -46,18 +46,26 @@ for seed in range(100, 100 + args.seeds):
 rows = []
 for eps in itertools.product(args.state, args.mu, args.dt):
     with _protocol.limits(args.blas_threads):
-        model = SymplecticKernelPredictor(IMQ(eps[0]), IMQ(eps[1]), IMQ(eps[2]), max_centers=1500).fit(data.x0, data.x1, mu=data.mu, dt=data.dt)
+        model = SymplecticKernelPredictor(IMQ(eps[0]), IMQ(eps[1]), IMQ(eps[2]), max_centers=1500).fit(
+            data.x0, data.x1, mu=data.mu, dt=data.dt
+        )
     worst = {}
     for seed, dt, x0, lengths, n_steps, ref in cases:
-        med = float(np.median(relative_trajectory_error(model.rollout(x0, n_steps, mu=lengths, dt=dt), ref).mean(axis=0)[1:]))
+        med = float(
+            np.median(relative_trajectory_error(model.rollout(x0, n_steps, mu=lengths, dt=dt), ref).mean(axis=0)[1:])
+        )
         worst[seed] = max(worst.get(seed, 0.0), med)
     score = float(np.mean(list(worst.values())))
     rows.append({"eps": eps, "score": score, "worst_median_per_seed": worst, "n_centers": model.n_centers_})
-    print(f"eps {eps}: {model.n_centers_} centres, validation score {score:.3e} "
-          f"(worst median per seed {', '.join(f'{v:.2e}' for v in worst.values())})", flush=True)
+    print(
+        f"eps {eps}: {model.n_centers_} centres, validation score {score:.3e} "
+        f"(worst median per seed {', '.join(f'{v:.2e}' for v in worst.values())})",
+        flush=True,
+    )
 best = min(rows, key=lambda r: r["score"])
 print(f"chosen: eps = {best['eps']} (score {best['score']:.3e})")
 if args.json:
     with _protocol.limits(args.blas_threads):
-        _protocol.write_json(args.json, {"rows": rows, "chosen": best["eps"]}, _protocol.record(blas_threads=args.blas_threads),
-                             indent=2)
+        _protocol.write_json(
+            args.json, {"rows": rows, "chosen": best["eps"]}, _protocol.record(blas_threads=args.blas_threads), indent=2
+        )

@@ -48,12 +48,23 @@ with _protocol.limits(args.blas_threads, numba_threads=args.threads):
     configs = [(u, None) for u in args.updates] + [("symplectic_euler", (a,)) for a in args.scalings]
     rows = []
     for update, scaling in configs:
-        model = SymplecticKernelPredictor(Scaled(IMQ(0.2), factors=scaling), IMQ(1.5), IMQ(3.0),
-                                          max_centers=args.max_centers, update=update,
-                                          trainer=ExactGreedy(tol=1e-10), solver=NewtonSolver(backend="numpy"))
+        model = SymplecticKernelPredictor(
+            Scaled(IMQ(0.2), factors=scaling),
+            IMQ(1.5),
+            IMQ(3.0),
+            max_centers=args.max_centers,
+            update=update,
+            trainer=ExactGreedy(tol=1e-10),
+            solver=NewtonSolver(backend="numpy"),
+        )
         model.fit(data.x0, data.x1, mu=data.mu, dt=data.dt)
-        row = {"update": update, "state_scaling": scaling, "n_centers": model.n_centers_,
-               "E_train": float(model.history_.train_max_residual[-1]), "per_dt": {}}
+        row = {
+            "update": update,
+            "state_scaling": scaling,
+            "n_centers": model.n_centers_,
+            "E_train": float(model.history_.train_max_residual[-1]),
+            "per_dt": {},
+        }
         for dt in DT_TEST:
             n_steps = int(np.floor(20.0 / dt + 1e-9))
             ref = system.trajectory(x0, lengths, dt, n_steps)
@@ -70,17 +81,36 @@ with _protocol.limits(args.blas_threads, numba_threads=args.threads):
                 pred_fast = fast.rollout(x0, n_steps, mu=lengths, dt=dt)
                 t_fast = time.perf_counter() - t0
                 err_fast = relative_trajectory_error(pred_fast, ref).mean(axis=0)
-                row["per_dt"][dt].update({"numba_median_err": float(np.median(err_fast[1:])),
-                                          "max_abs_numba_minus_numpy": float(np.abs(pred_fast - pred).max()),
-                                          "rollout_s_numpy": t_numpy, "rollout_s_numba": t_fast})
-                print(f"  dT={dt}: numba median error {np.median(err_fast[1:]):.3e}, max |numba - numpy| "
-                      f"{np.abs(pred_fast - pred).max():.1e}, rollout {t_numpy:.2f} s (NumPy) / {t_fast:.3f} s (numba)",
-                      flush=True)
+                row["per_dt"][dt].update(
+                    {
+                        "numba_median_err": float(np.median(err_fast[1:])),
+                        "max_abs_numba_minus_numpy": float(np.abs(pred_fast - pred).max()),
+                        "rollout_s_numpy": t_numpy,
+                        "rollout_s_numba": t_fast,
+                    }
+                )
+                print(
+                    f"  dT={dt}: numba median error {np.median(err_fast[1:]):.3e}, max |numba - numpy| "
+                    f"{np.abs(pred_fast - pred).max():.1e}, rollout {t_numpy:.2f} s (NumPy) / {t_fast:.3f} s (numba)",
+                    flush=True,
+                )
         rows.append(row)
-        print(f"{update:17s} scaling={scaling}: {model.n_centers_} centres, E_train {row['E_train']:.2e}; "
-              + "  ".join(f"dT={dt}: {v['median_err']:.2e} (energy {v['max_energy_err']:.1e})" for dt, v in row["per_dt"].items()),
-              flush=True)
+        print(
+            f"{update:17s} scaling={scaling}: {model.n_centers_} centres, E_train {row['E_train']:.2e}; "
+            + "  ".join(
+                f"dT={dt}: {v['median_err']:.2e} (energy {v['max_energy_err']:.1e})" for dt, v in row["per_dt"].items()
+            ),
+            flush=True,
+        )
     if args.json:
-        _protocol.write_json(args.json, {"rows": rows}, _protocol.record(
-            blas_threads=args.blas_threads, numba_threads=args.threads, repeats=1, warmup=1,
-            statistic="one timed rollout per backend (numba: after a compiling call)"))
+        _protocol.write_json(
+            args.json,
+            {"rows": rows},
+            _protocol.record(
+                blas_threads=args.blas_threads,
+                numba_threads=args.threads,
+                repeats=1,
+                warmup=1,
+                statistic="one timed rollout per backend (numba: after a compiling call)",
+            ),
+        )

@@ -64,8 +64,15 @@ def training_data(system: Pendulum, lengths, dts, n_q: int, n_p: int, p_max: flo
     return x0, system.flow(x0, mu, dt, h_max), mu, dt
 
 
-def rotating_orbits(system: Pendulum, n: int, seed: int, ratio_range=(1.1, 1.5), length_range=(0.75, 0.75),
-                    dt_values=(0.05,), length_values=None):
+def rotating_orbits(
+    system: Pendulum,
+    n: int,
+    seed: int,
+    ratio_range=(1.1, 1.5),
+    length_range=(0.75, 0.75),
+    dt_values=(0.05,),
+    length_values=None,
+):
     """``n`` rotating initial states and their ``(l, dT)``.
 
     ``q0`` uniform in ``[-pi, pi)``, ``H / (2 m g l)`` uniform in ``ratio_range``,
@@ -131,15 +138,42 @@ def energy_errors(system: Pendulum, model, orbits, n_steps: int, variant: str) -
         if len(x0) == 1:
             return np.array([np.inf])
         half = len(x0) // 2
-        return np.concatenate([energy_errors(system, model, tuple(a[:half] for a in orbits), n_steps, variant),
-                               energy_errors(system, model, tuple(a[half:] for a in orbits), n_steps, variant)])
+        return np.concatenate(
+            [
+                energy_errors(system, model, tuple(a[:half] for a in orbits), n_steps, variant),
+                energy_errors(system, model, tuple(a[half:] for a in orbits), n_steps, variant),
+            ]
+        )
     return relative_energy_error(system, traj, length)
 
 
-def run(*, lengths=(0.75,), dts=(0.05,), test_dts=None, mu_eps=1.5, dt_eps=3.0, n_q=48, n_p=48, p_max=5.5,
-        eps_grid=(0.3, 0.5, 0.8), max_centers=1500, tol=1e-10, n_val=20, n_test=40, n_steps=1000, val_steps=None,
-        update="symplectic_euler", val_seed=1, test_seed=2, ratio_range=(1.1, 1.5), variants=VARIANTS, h_max=1e-3,
-        reference_floor=False, on_grid_test=False, log=print) -> dict:
+def run(
+    *,
+    lengths=(0.75,),
+    dts=(0.05,),
+    test_dts=None,
+    mu_eps=1.5,
+    dt_eps=3.0,
+    n_q=48,
+    n_p=48,
+    p_max=5.5,
+    eps_grid=(0.3, 0.5, 0.8),
+    max_centers=1500,
+    tol=1e-10,
+    n_val=20,
+    n_test=40,
+    n_steps=1000,
+    val_steps=None,
+    update="symplectic_euler",
+    val_seed=1,
+    test_seed=2,
+    ratio_range=(1.1, 1.5),
+    variants=VARIANTS,
+    h_max=1e-3,
+    reference_floor=False,
+    on_grid_test=False,
+    log=print,
+) -> dict:
     """Fit, choose ``eps`` per variant on validation orbits, score on test orbits; returns a JSON-friendly dict.
 
     ``lengths`` x ``dts``: the training ``(l, dT)``; with several of either the
@@ -157,7 +191,9 @@ def run(*, lengths=(0.75,), dts=(0.05,), test_dts=None, mu_eps=1.5, dt_eps=3.0, 
     draw = {"ratio_range": ratio_range, "length_range": (min(lengths), max(lengths)), "dt_values": test_dts}
     val_orbits = rotating_orbits(system, n_val, val_seed, **draw)
     test_orbits = rotating_orbits(system, n_test, test_seed, **draw)
-    on_grid_orbits = rotating_orbits(system, n_test, test_seed, ratio_range, dt_values=tuple(dts), length_values=lengths)
+    on_grid_orbits = rotating_orbits(
+        system, n_test, test_seed, ratio_range, dt_values=tuple(dts), length_values=lengths
+    )
     val_steps = n_steps if val_steps is None else val_steps
     mu_kernel = IMQ(mu_eps) if len(lengths) > 1 else None
     dt_kernel = IMQ(dt_eps) if len(dts) > 1 else None
@@ -165,50 +201,97 @@ def run(*, lengths=(0.75,), dts=(0.05,), test_dts=None, mu_eps=1.5, dt_eps=3.0, 
     for periodic in sorted({v == "periodic" for v in variants}):
         for eps in eps_grid:
             t0 = time.perf_counter()
-            model = SymplecticKernelPredictor(Periodic(IMQ(eps), coordinates=(0,) if periodic else None),
-                                              mu_kernel, dt_kernel, max_centers=max_centers, update=update,
-                                              trainer=ExactGreedy(tol=tol), solver=NewtonSolver(backend="numpy"))
+            model = SymplecticKernelPredictor(
+                Periodic(IMQ(eps), coordinates=(0,) if periodic else None),
+                mu_kernel,
+                dt_kernel,
+                max_centers=max_centers,
+                update=update,
+                trainer=ExactGreedy(tol=tol),
+                solver=NewtonSolver(backend="numpy"),
+            )
             model.fit(x0, x1, mu=mu if mu_kernel is not None else None, dt=dt if dt_kernel is not None else dt[0])
             models[periodic, eps] = (model, time.perf_counter() - t0)
-    out = {"setup": {"lengths": list(lengths), "dts": list(dts), "test_dts": list(test_dts),
-                     "mu_kernel": repr(mu_kernel), "dt_kernel": repr(dt_kernel), "n_samples": len(x0),
-                     "grid": [n_q, n_p], "p_max": p_max, "eps_grid": list(eps_grid), "max_centers": max_centers,
-                     "tol": tol, "update": update, "n_val": n_val, "n_test": n_test, "n_steps": n_steps,
-                     "val_steps": val_steps, "ratio_range": list(ratio_range), "val_seed": val_seed,
-                     "test_seed": test_seed, "h_max": h_max},
-           "variants": {}}
+    out = {
+        "setup": {
+            "lengths": list(lengths),
+            "dts": list(dts),
+            "test_dts": list(test_dts),
+            "mu_kernel": repr(mu_kernel),
+            "dt_kernel": repr(dt_kernel),
+            "n_samples": len(x0),
+            "grid": [n_q, n_p],
+            "p_max": p_max,
+            "eps_grid": list(eps_grid),
+            "max_centers": max_centers,
+            "tol": tol,
+            "update": update,
+            "n_val": n_val,
+            "n_test": n_test,
+            "n_steps": n_steps,
+            "val_steps": val_steps,
+            "ratio_range": list(ratio_range),
+            "val_seed": val_seed,
+            "test_seed": test_seed,
+            "h_max": h_max,
+        },
+        "variants": {},
+    }
     if reference_floor:
         xt, lt, dtt = test_orbits
         ref = relative_energy_error(system, system.trajectory(xt, lt, dtt, n_steps, h_max), lt)
         out["reference"] = {"test_median": float(np.median(ref)), "test_max": float(ref.max())}
-        log(f"reference flow (implicit midpoint, micro step <= {h_max:g}) on the test orbits: energy error median "
-            f"{out['reference']['test_median']:.2e}, max {out['reference']['test_max']:.2e}")
+        log(
+            f"reference flow (implicit midpoint, micro step <= {h_max:g}) on the test orbits: energy error median "
+            f"{out['reference']['test_median']:.2e}, max {out['reference']['test_max']:.2e}"
+        )
     for variant in variants:
         periodic = variant == "periodic"
         scores = {}
         for eps in eps_grid:
             model, fit_s = models[periodic, eps]
             val = energy_errors(system, model, val_orbits, val_steps, variant)
-            scores[eps] = {"val_median": float(np.median(val)), "val_max": float(val.max()), "n_centers": model.n_centers_,
-                           "E_train": float(model.history_.train_max_residual[-1]), "fit_s": fit_s,
-                           "stop_reason": model.history_.stop_reason}
-            log(f"{variant:13s} eps={eps}: {model.n_centers_} centres, E_train {scores[eps]['E_train']:.1e}, "
-                f"validation energy error median {scores[eps]['val_median']:.2e}, max {scores[eps]['val_max']:.2e}")
+            scores[eps] = {
+                "val_median": float(np.median(val)),
+                "val_max": float(val.max()),
+                "n_centers": model.n_centers_,
+                "E_train": float(model.history_.train_max_residual[-1]),
+                "fit_s": fit_s,
+                "stop_reason": model.history_.stop_reason,
+            }
+            log(
+                f"{variant:13s} eps={eps}: {model.n_centers_} centres, E_train {scores[eps]['E_train']:.1e}, "
+                f"validation energy error median {scores[eps]['val_median']:.2e}, max {scores[eps]['val_max']:.2e}"
+            )
         best = min(eps_grid, key=lambda e: (scores[e]["val_median"], scores[e]["val_max"]))
         t0 = time.perf_counter()
         test = energy_errors(system, models[periodic, best][0], test_orbits, n_steps, variant)
-        res = {"eps": best, "test_median": float(np.median(test)), "test_max": float(test.max()),
-               "test_failed": int(np.sum(~np.isfinite(test))), "rollout_s": time.perf_counter() - t0,
-               "validation": {str(k): v for k, v in scores.items()}}
+        res = {
+            "eps": best,
+            "test_median": float(np.median(test)),
+            "test_max": float(test.max()),
+            "test_failed": int(np.sum(~np.isfinite(test))),
+            "rollout_s": time.perf_counter() - t0,
+            "validation": {str(k): v for k, v in scores.items()},
+        }
         if on_grid_test:
             on = energy_errors(system, models[periodic, best][0], on_grid_orbits, n_steps, variant)
-            res.update({"test_on_grid_median": float(np.median(on)), "test_on_grid_max": float(on.max()),
-                        "test_on_grid_failed": int(np.sum(~np.isfinite(on)))})
-            log(f"{variant:13s} chosen eps={best}: on-grid test orbits (training l and dT): median "
-                f"{res['test_on_grid_median']:.2e}, max {res['test_on_grid_max']:.2e}")
+            res.update(
+                {
+                    "test_on_grid_median": float(np.median(on)),
+                    "test_on_grid_max": float(on.max()),
+                    "test_on_grid_failed": int(np.sum(~np.isfinite(on))),
+                }
+            )
+            log(
+                f"{variant:13s} chosen eps={best}: on-grid test orbits (training l and dT): median "
+                f"{res['test_on_grid_median']:.2e}, max {res['test_on_grid_max']:.2e}"
+            )
         out["variants"][variant] = res
-        log(f"{variant:13s} chosen eps={best}: test energy error over {n_steps} steps: median {res['test_median']:.2e}, "
-            f"max {res['test_max']:.2e} ({res['test_failed']} of {n_test} failed)")
+        log(
+            f"{variant:13s} chosen eps={best}: test energy error over {n_steps} steps: median {res['test_median']:.2e}, "
+            f"max {res['test_max']:.2e} ({res['test_failed']} of {n_test} failed)"
+        )
     return out
 
 
@@ -217,7 +300,9 @@ def main(argv=None):
     parser.add_argument("--update", default="symplectic_euler", choices=["symplectic_euler", "midpoint"])
     parser.add_argument("--lengths", type=float, nargs="+", default=[0.75], help="training lengths l")
     parser.add_argument("--dts", type=float, nargs="+", default=[0.05], help="training macro steps")
-    parser.add_argument("--test-dts", type=float, nargs="+", default=None, help="macro steps of the orbits (default: --dts)")
+    parser.add_argument(
+        "--test-dts", type=float, nargs="+", default=None, help="macro steps of the orbits (default: --dts)"
+    )
     parser.add_argument("--mu-eps", type=float, default=1.5)
     parser.add_argument("--dt-eps", type=float, default=3.0)
     parser.add_argument("--grid", type=int, nargs=2, default=[48, 48], metavar=("N_Q", "N_P"))
@@ -229,19 +314,40 @@ def main(argv=None):
     parser.add_argument("--steps", type=int, default=1000)
     parser.add_argument("--val-steps", type=int, default=None)
     parser.add_argument("--h-max", type=float, default=1e-3, help="micro step of the training data's reference flow")
-    parser.add_argument("--reference-floor", action="store_true",
-                        help="also report the reference integrator's own energy error on the test orbits")
-    parser.add_argument("--on-grid-test", action="store_true",
-                        help="also score test orbits at the training lengths and steps")
+    parser.add_argument(
+        "--reference-floor",
+        action="store_true",
+        help="also report the reference integrator's own energy error on the test orbits",
+    )
+    parser.add_argument(
+        "--on-grid-test", action="store_true", help="also score test orbits at the training lengths and steps"
+    )
     parser.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
     _protocol.add_arguments(parser)
     args = parser.parse_args(argv)
     with _protocol.limits(args.blas_threads):
-        out = run(lengths=tuple(args.lengths), dts=tuple(args.dts), test_dts=args.test_dts, mu_eps=args.mu_eps,
-                  dt_eps=args.dt_eps, n_q=args.grid[0], n_p=args.grid[1], p_max=args.p_max, eps_grid=tuple(args.eps),
-                  max_centers=args.max_centers, n_val=args.n_val, n_test=args.n_test, n_steps=args.steps,
-                  val_steps=args.val_steps, update=args.update, h_max=args.h_max,
-                  reference_floor=args.reference_floor, on_grid_test=args.on_grid_test, variants=tuple(args.variants), log=lambda s: print(s, flush=True))
+        out = run(
+            lengths=tuple(args.lengths),
+            dts=tuple(args.dts),
+            test_dts=args.test_dts,
+            mu_eps=args.mu_eps,
+            dt_eps=args.dt_eps,
+            n_q=args.grid[0],
+            n_p=args.grid[1],
+            p_max=args.p_max,
+            eps_grid=tuple(args.eps),
+            max_centers=args.max_centers,
+            n_val=args.n_val,
+            n_test=args.n_test,
+            n_steps=args.steps,
+            val_steps=args.val_steps,
+            update=args.update,
+            h_max=args.h_max,
+            reference_floor=args.reference_floor,
+            on_grid_test=args.on_grid_test,
+            variants=tuple(args.variants),
+            log=lambda s: print(s, flush=True),
+        )
         protocol = _protocol.record(blas_threads=args.blas_threads, repeats=1, statistic="one run per fit and rollout")
     if args.json:
         _protocol.write_json(args.json, out, protocol)

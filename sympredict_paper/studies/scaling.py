@@ -52,7 +52,7 @@ def problem(n_points: int, dim: int, seed: int = 0):
     rng = np.random.default_rng(seed)
     xi = rng.uniform(-1, 1, size=(n_points, dim))
     mu = rng.uniform(0.5, 1.5, size=(n_points, 1))
-    y = -3 * mu * np.sin(3 * xi) + xi * (xi ** 2).sum(axis=1, keepdims=True)
+    y = -3 * mu * np.sin(3 * xi) + xi * (xi**2).sum(axis=1, keepdims=True)
     kernel = ProductKernel(IMQ(0.5 / np.sqrt(dim)), IMQ(1.0))
     return HBFunctionals(kernel, xi, mu, np.full(n_points, 0.1)), y.ravel()
 
@@ -63,8 +63,9 @@ def fpu_problem(n_points: int, dim: int, seed: int = 0):
 
     # energy per mass fixed (the chain's 4-mass level, 0.15 J / 4) and a box shrunk to 0.35 of the chain's, so
     # that its states mostly lie below it and rejection sampling works in 32 dimensions too
-    x0, x1, beta, dt = samples(chain(dim // 2), -(-n_points // 20), 20, seed, energy=0.0375 * (dim // 2),
-                               box=(0.035, 0.063))
+    x0, x1, beta, dt = samples(
+        chain(dim // 2), -(-n_points // 20), 20, seed, energy=0.0375 * (dim // 2), box=(0.035, 0.063)
+    )
     x0, x1, beta, dt = x0[:n_points], x1[:n_points], beta[:n_points], dt[:n_points]
     xi, y = mixed_variables(x0, x1, dt)
     scale = xi.std(axis=0) / np.sqrt(1.0 / 3.0)  # the spread of uniform [-1, 1]
@@ -90,16 +91,30 @@ def greedy_run(trainer, fun, y, m, memory: bool) -> dict:
 
 def measure(fun, y, m, rate, trainers) -> dict:
     n = fun.n_functionals
-    row = {"N": n, "points": len(fun.points), "dim": fun.dim, "m": m, "flops": float(m) ** 2 * n,
-           "arithmetic_limit_s": float(m) ** 2 * n / rate}
+    row = {
+        "N": n,
+        "points": len(fun.points),
+        "dim": fun.dim,
+        "m": m,
+        "flops": float(m) ** 2 * n,
+        "arithmetic_limit_s": float(m) ** 2 * n / rate,
+    }
     for name, trainer in trainers.items():
         mem = greedy_run(trainer, fun, y, m, memory=True)  # first: also the warm-up (compilation, caches)
         timed = greedy_run(trainer, fun, y, m, memory=False)
-        row[name] = {"seconds": timed["seconds"], "centers": timed["centers"], "stop": timed["stop"],
-                     "peak_bytes": mem["peak_bytes"], "formula_bytes": trainer_memory(trainer, n, 0, m)}
-    print(f"  N={n:6d} m={m:5d} 2n={fun.dim:2d}: " + ", ".join(
-        f"{k} {row[k]['seconds']:.2f} s / {row[k]['peak_bytes'] / 2**20:.0f} MiB" for k in trainers)
-        + f", limit {row['arithmetic_limit_s']:.2f} s", flush=True)
+        row[name] = {
+            "seconds": timed["seconds"],
+            "centers": timed["centers"],
+            "stop": timed["stop"],
+            "peak_bytes": mem["peak_bytes"],
+            "formula_bytes": trainer_memory(trainer, n, 0, m),
+        }
+    print(
+        f"  N={n:6d} m={m:5d} 2n={fun.dim:2d}: "
+        + ", ".join(f"{k} {row[k]['seconds']:.2f} s / {row[k]['peak_bytes'] / 2**20:.0f} MiB" for k in trainers)
+        + f", limit {row['arithmetic_limit_s']:.2f} s",
+        flush=True,
+    )
     return row
 
 
@@ -156,14 +171,21 @@ def main(argv=None):
     trainers = {"exact": ExactGreedy(tol=0), "blocked": BlockedGreedy(tol=0)}
     out = {"system": args.system}
     with _protocol.limits(args.blas_threads, args.threads):
-        protocol = _protocol.record(blas_threads=args.blas_threads, numba_threads=args.threads, repeats=1, warmup=0,
-                                    notes="one timed and one traced run per size and trainer, in one process")
+        protocol = _protocol.record(
+            blas_threads=args.blas_threads,
+            numba_threads=args.threads,
+            repeats=1,
+            warmup=0,
+            notes="one timed and one traced run per size and trainer, in one process",
+        )
         rate = gemm_rate()
         out["gemm_gflops"] = rate / 1e9
         print(f"dgemm {rate / 1e9:.1f} GFLOP/s", flush=True)
-        sweeps = {"samples": [(p, 4, args.m) for p in args.points],
-                  "centers": [(args.m_points, 4, m) for m in args.centers],
-                  "dim": [(args.dim_points, d, args.m) for d in args.dims]}
+        sweeps = {
+            "samples": [(p, 4, args.m) for p in args.points],
+            "centers": [(args.m_points, 4, m) for m in args.centers],
+            "dim": [(args.dim_points, d, args.m) for d in args.dims],
+        }
         for name, sizes in sweeps.items():
             print(f"sweep over {name}", flush=True)
             rows = []
@@ -172,17 +194,26 @@ def main(argv=None):
                 rows.append(measure(fun, y, m, rate, trainers))
             key = {"samples": "N", "centers": "m", "dim": "dim"}[name]
             x = [r[key] for r in rows]
-            exps = {t: {"time": slope(x, [r[t]["seconds"] for r in rows]),
-                        "memory": slope(x, [r[t]["peak_bytes"] for r in rows])} for t in trainers}
+            exps = {
+                t: {
+                    "time": slope(x, [r[t]["seconds"] for r in rows]),
+                    "memory": slope(x, [r[t]["peak_bytes"] for r in rows]),
+                }
+                for t in trainers
+            }
             exps["arithmetic_limit"] = {"time": slope(x, [r["arithmetic_limit_s"] for r in rows])}
             out[name] = {"variable": key, "rows": rows, "exponents": exps}
             print("  exponents: " + ", ".join(f"{t} {e['time']:.2f}" for t, e in exps.items()), flush=True)
             _protocol.write_json(args.json, out, protocol)
         print("scikit-learn GPR", flush=True)
         gpr = gpr_sweep(args.gpr_points)
-        out["gpr"] = {"rows": gpr, "exponents": {"time": slope([r["points"] for r in gpr], [r["seconds"] for r in gpr]),
-                                                 "memory": slope([r["points"] for r in gpr],
-                                                                 [r["peak_bytes"] for r in gpr])}}
+        out["gpr"] = {
+            "rows": gpr,
+            "exponents": {
+                "time": slope([r["points"] for r in gpr], [r["seconds"] for r in gpr]),
+                "memory": slope([r["points"] for r in gpr], [r["peak_bytes"] for r in gpr]),
+            },
+        }
         _protocol.write_json(args.json, out, protocol)
     print(f"wrote {args.json}")
 

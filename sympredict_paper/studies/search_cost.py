@@ -47,8 +47,11 @@ def _relative_rollout(model, x0, mu, dt, ref) -> dict:
     except Exception as exc:  # a Newton failure is a result
         return {"traj_failure": f"{type(exc).__name__}: {exc}"}
     err = (np.linalg.norm(pred - ref, axis=2) / np.linalg.norm(ref, axis=2))[:, 1:].max(axis=1)
-    return {"traj_error_median": float(np.median(err)), "traj_error_max": float(err.max()),
-            "traj_steps": int(ref.shape[1] - 1)}
+    return {
+        "traj_error_median": float(np.median(err)),
+        "traj_error_max": float(err.max()),
+        "traj_steps": int(ref.shape[1] - 1),
+    }
 
 
 def make_case(name: str, args) -> dict:
@@ -60,8 +63,12 @@ def make_case(name: str, args) -> dict:
         h0, hmu = bench.sample(1000, seed=12)
         heldout = (h0, bench.system.flow(h0, hmu[:, None], bench.dt), hmu, bench.dt)
         test = make_test_set(bench, args.n_test, args.steps, seed=13)
-        return {"data": data, "heldout": heldout, "max_centers": args.centers,
-                "metrics": lambda model: trajectory_metrics(model, bench, test, args.steps)}
+        return {
+            "data": data,
+            "heldout": heldout,
+            "max_centers": args.centers,
+            "metrics": lambda model: trajectory_metrics(model, bench, test, args.steps),
+        }
     if name == "henon_heiles":
         from sympredict_paper.henon_heiles import DT_HH, henon_heiles_data, henon_heiles_test_instances
         from sympredict.systems.henon_heiles import HenonHeiles
@@ -72,8 +79,12 @@ def make_case(name: str, args) -> dict:
         x0, lam = henon_heiles_test_instances(system, int(np.ceil(np.sqrt(args.n_test))), e_max, seed=0)
         x0, lam = x0[: args.n_test], lam[: args.n_test]
         ref = system.trajectory(x0, lam, DT_HH, args.steps)
-        return {"data": data, "heldout": (held.x0, held.x1, held.mu, DT_HH), "max_centers": args.centers,
-                "metrics": lambda model: _relative_rollout(model, x0, lam, DT_HH, ref)}
+        return {
+            "data": data,
+            "heldout": (held.x0, held.x1, held.mu, DT_HH),
+            "max_centers": args.centers,
+            "metrics": lambda model: _relative_rollout(model, x0, lam, DT_HH, ref),
+        }
     if name == "three_body":
         from sympredict.systems.three_body import MU_RANGE, ThreeBody, librating_states
 
@@ -84,13 +95,21 @@ def make_case(name: str, args) -> dict:
             return tb.trajectory(librating_states(mu, n, seed=seed + 1), mu, dt, k), mu
 
         traj, mu = trajectories(args.traj, 0, steps)
-        data = FlowMapData(traj[:, :-1].reshape(-1, 4), traj[:, 1:].reshape(-1, 4), np.repeat(mu, steps),
-                           np.full(args.traj * steps, dt))
+        data = FlowMapData(
+            traj[:, :-1].reshape(-1, 4),
+            traj[:, 1:].reshape(-1, 4),
+            np.repeat(mu, steps),
+            np.full(args.traj * steps, dt),
+        )
         vt, vmu = trajectories(20, 500, steps)
         heldout = (vt[:, :-1].reshape(-1, 4), vt[:, 1:].reshape(-1, 4), np.repeat(vmu, steps), dt)
         tt, tmu = trajectories(args.n_test, 1000, args.steps)
-        return {"data": data, "heldout": heldout, "max_centers": args.centers,
-                "metrics": lambda model: _relative_rollout(model, tt[:, 0], tmu, dt, tt)}
+        return {
+            "data": data,
+            "heldout": heldout,
+            "max_centers": args.centers,
+            "metrics": lambda model: _relative_rollout(model, tt[:, 0], tmu, dt, tt),
+        }
     if name == "readme_pendulum":  # the README's example, as it fits it
         from sympredict.systems.pendulum import Pendulum
 
@@ -98,17 +117,22 @@ def make_case(name: str, args) -> dict:
         pendulum, mu = Pendulum(), rng.uniform(0.7, 0.8, size=40)
         x0 = np.column_stack([rng.uniform(-1.5, 1.5, 40), rng.uniform(-1.0, 1.0, 40)])
         states = pendulum.trajectory(x0, mu, dt=0.1, n_steps=50)
-        data = FlowMapData(states[:, :-1].reshape(-1, 2), states[:, 1:].reshape(-1, 2), np.repeat(mu, 50),
-                           np.full(40 * 50, 0.1))
+        data = FlowMapData(
+            states[:, :-1].reshape(-1, 2), states[:, 1:].reshape(-1, 2), np.repeat(mu, 50), np.full(40 * 50, 0.1)
+        )
         r2 = np.random.default_rng(7)
         hmu = r2.uniform(0.7, 0.8, 500)
         h0 = np.column_stack([r2.uniform(-1.5, 1.5, 500), r2.uniform(-1.0, 1.0, 500)])
-        h1 = np.vstack([pendulum.flow(h0[i:i + 1], hmu[i], 0.1) for i in range(500)])
+        h1 = np.vstack([pendulum.flow(h0[i : i + 1], hmu[i], 0.1) for i in range(500)])
         tmu = r2.uniform(0.7, 0.8, args.n_test)
         t0 = np.column_stack([r2.uniform(-1.5, 1.5, args.n_test), r2.uniform(-1.0, 1.0, args.n_test)])
         ref = pendulum.trajectory(t0, tmu, dt=0.1, n_steps=args.steps)
-        return {"data": data, "heldout": (h0, h1, hmu, 0.1), "max_centers": 300,
-                "metrics": lambda model: _relative_rollout(model, t0, tmu, 0.1, ref)}
+        return {
+            "data": data,
+            "heldout": (h0, h1, hmu, 0.1),
+            "max_centers": 300,
+            "metrics": lambda model: _relative_rollout(model, t0, tmu, 0.1, ref),
+        }
     raise ValueError(f"unknown system {name!r}; choose from {SYSTEMS}")
 
 
@@ -122,19 +146,30 @@ def run(label: str, case: dict) -> dict:
     fit_s, fit_cpu = time.perf_counter() - t0, time.process_time() - c0
     search = model.search_
     table = search.table
-    out = {"config": label, "fit_s": fit_s, "search_s": float(search.seconds), "search_share": search.seconds / fit_s,
-           "fit_cpu_s": fit_cpu, "search_cpu_s": float(search.cpu_seconds),
-           "search_cpu_share": search.cpu_seconds / fit_cpu,
-           "fits": len(table), "fits_full_size": sum(1 for r in table if "rung" not in r and not r.get("cut")),
-           "choice": {k: repr(v) for k, v in model.choice_.items()}, "centers": int(model.n_centers_)}
+    out = {
+        "config": label,
+        "fit_s": fit_s,
+        "search_s": float(search.seconds),
+        "search_share": search.seconds / fit_s,
+        "fit_cpu_s": fit_cpu,
+        "search_cpu_s": float(search.cpu_seconds),
+        "search_cpu_share": search.cpu_seconds / fit_cpu,
+        "fits": len(table),
+        "fits_full_size": sum(1 for r in table if "rung" not in r and not r.get("cut")),
+        "choice": {k: repr(v) for k, v in model.choice_.items()},
+        "centers": int(model.n_centers_),
+    }
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         out["held_out_error"] = one_step_error(model, h0, h1, hmu, hdt)
         out.update(case["metrics"](model))
-    print(f"  {label:>8s}: fit {fit_s:6.1f} s, search {out['search_s']:6.1f} s ({100 * out['search_share']:.0f} %; "
-          f"processor time {100 * out['search_cpu_share']:.0f} %), "
-          f"{out['fits']} fits ({out['fits_full_size']} full size), held-out {out['held_out_error']:.3e}, rollout "
-          f"median {out.get('traj_error_median', np.nan):.3e}, choice {out['choice']}", flush=True)
+    print(
+        f"  {label:>8s}: fit {fit_s:6.1f} s, search {out['search_s']:6.1f} s ({100 * out['search_share']:.0f} %; "
+        f"processor time {100 * out['search_cpu_share']:.0f} %), "
+        f"{out['fits']} fits ({out['fits_full_size']} full size), held-out {out['held_out_error']:.3e}, rollout "
+        f"median {out.get('traj_error_median', np.nan):.3e}, choice {out['choice']}",
+        flush=True,
+    )
     return out
 
 
@@ -151,24 +186,45 @@ def main(argv=None):
     args.json = args.json or str(RESULTS)
     rows = []
     with _protocol.limits(args.blas_threads, args.threads):
-        protocol = _protocol.record(blas_threads=args.blas_threads, numba_threads=args.threads, repeats=1, warmup=0,
-                                    notes="one fit per configuration, side by side in one process, the two "
-                                          "configurations in alternating order from one system to the next")
+        protocol = _protocol.record(
+            blas_threads=args.blas_threads,
+            numba_threads=args.threads,
+            repeats=1,
+            warmup=0,
+            notes="one fit per configuration, side by side in one process, the two "
+            "configurations in alternating order from one system to the next",
+        )
         for i, name in enumerate(args.systems):
             case = make_case(name, args)
             print(f"{name}: {len(case['data'])} samples, max_centers {case['max_centers']}", flush=True)
             row = {"system": name, "samples": len(case["data"]), "max_centers": case["max_centers"]}
-            for label in (("full", "halving") if i % 2 == 0 else ("halving", "full")):
+            for label in ("full", "halving") if i % 2 == 0 else ("halving", "full"):
                 row[label] = run(label, case)
             full, new = row["full"], row["halving"]
             row["same_choice"] = full["choice"] == new["choice"]
-            row["ratios"] = {k: new[k] / full[k] for k in ("fit_s", "search_s", "fit_cpu_s", "search_cpu_s", "held_out_error", "traj_error_median",
-                                                          "traj_error_max") if full.get(k) and k in new}
-            print("  halving / full: " + ", ".join(f"{k} {v:.3f}" for k, v in row["ratios"].items())
-                  + f", same choice: {row['same_choice']}", flush=True)
+            row["ratios"] = {
+                k: new[k] / full[k]
+                for k in (
+                    "fit_s",
+                    "search_s",
+                    "fit_cpu_s",
+                    "search_cpu_s",
+                    "held_out_error",
+                    "traj_error_median",
+                    "traj_error_max",
+                )
+                if full.get(k) and k in new
+            }
+            print(
+                "  halving / full: "
+                + ", ".join(f"{k} {v:.3f}" for k, v in row["ratios"].items())
+                + f", same choice: {row['same_choice']}",
+                flush=True,
+            )
             rows.append(row)
-            _protocol.write_json(args.json, {"settings": {k: v for k, v in vars(args).items() if k != "json"},
-                                             "rows": rows}, protocol)
+            _protocol.write_json(
+                args.json, {"settings": {k: v for k, v in vars(args).items() if k != "json"}, "rows": rows}, protocol
+            )
     print(f"wrote {args.json}")
 
 

@@ -37,9 +37,16 @@ parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
 parser.add_argument("--dim", type=int, default=8)
 parser.add_argument("--data", nargs="*", default=["reduced", "projected"])
 parser.add_argument("--augment", nargs="*", default=["none"], help="none, symmetry, energy (reduced data only)")
-parser.add_argument("--lambdas", type=float, nargs="*", default=None, help="fixed ridge terms (default: the rollout choice)")
-parser.add_argument("--state-eps", type=float, nargs="*", default=[None],
-                    help="IMQ shape parameters of the state kernel in the scaled coordinates (default: the estimator's)")
+parser.add_argument(
+    "--lambdas", type=float, nargs="*", default=None, help="fixed ridge terms (default: the rollout choice)"
+)
+parser.add_argument(
+    "--state-eps",
+    type=float,
+    nargs="*",
+    default=[None],
+    help="IMQ shape parameters of the state kernel in the scaled coordinates (default: the estimator's)",
+)
 parser.add_argument("--cache", default="/tmp/sine_gordon_long_time.npz")
 _protocol.add_arguments(parser, json_option=False)
 args = parser.parse_args()
@@ -48,7 +55,9 @@ warnings.simplefilter("ignore")
 p = replace(PRESETS["quick"], n_c=3, n_amplitude=3, max_centers=600)  # the sizes the docs' diagnostics were run with
 K = int(round(p.T / p.DT))
 L = p.long_factor * K
-fom = SineGordonFOM(n_points=p.n_points, length=p.length, c_range=p.c_range, amplitude_range=p.amplitude_range, T=p.T, nt=K)
+fom = SineGordonFOM(
+    n_points=p.n_points, length=p.length, c_range=p.c_range, amplitude_range=p.amplitude_range, T=p.T, nt=K
+)
 u0 = fom.sech_cos(2.0, 1.0)
 c_tr = np.repeat(np.linspace(*p.c_range, p.n_c), p.n_amplitude)
 a_tr = np.tile(np.linspace(*p.amplitude_range, p.n_amplitude), p.n_c)
@@ -62,47 +71,67 @@ with _protocol.limits(args.blas_threads):
         X_tr = fom.reference_trajectory(a_tr[:, None] * u0, c_tr, p.DT, K, tol=p.ref_tol)
         X_te = fom.reference_trajectory(a_te[:, None] * u0, c_te, p.DT, L, tol=p.ref_tol)
         np.savez(args.cache, X_tr=X_tr, X_te=X_te)
-    gal = ReducedSineGordon.galerkin(fom, complex_svd_basis(X_tr.reshape(-1, fom.dim), n=args.dim // 2, layout="rows").V)
+    gal = ReducedSineGordon.galerkin(
+        fom, complex_svd_basis(X_tr.reshape(-1, fom.dim), n=args.dim // 2, layout="rows").V
+    )
     y0 = gal.project(X_te[:, 0])
     n = args.dim // 2
     Yg_te = gal.solve(y0, c_te, p.DT, L, substeps=p.substeps)
-    data = {"reduced": gal.solve(gal.project(X_tr[:, 0]), c_tr, p.DT, K, substeps=p.substeps), "projected": gal.project(X_tr)}
+    data = {
+        "reduced": gal.solve(gal.project(X_tr[:, 0]), c_tr, p.DT, K, substeps=p.substeps),
+        "projected": gal.project(X_tr),
+    }
 
     def windows(v):
-        return " ".join(f"{v[w * K: (w + 1) * K + 1].max():.1e}" for w in range(p.long_factor))
+        return " ".join(f"{v[w * K : (w + 1) * K + 1].max():.1e}" for w in range(p.long_factor))
 
     E = gal.reduced_energy(Yg_te.reshape(-1, args.dim), np.repeat(c_te, L + 1)).reshape(len(c_te), -1)
-    print(f"2n={args.dim}; windows of length T = {p.T}; Galerkin ROM energy error per window: "
-          f"{windows(np.max(np.abs(E - E[:, :1]) / np.abs(E[:, :1]), axis=0))}")
+    print(
+        f"2n={args.dim}; windows of length T = {p.T}; Galerkin ROM energy error per window: "
+        f"{windows(np.max(np.abs(E - E[:, :1]) / np.abs(E[:, :1]), axis=0))}"
+    )
     Yp_te = gal.project(X_te)
     Ep = gal.reduced_energy(Yp_te.reshape(-1, args.dim), np.repeat(c_te, L + 1)).reshape(len(c_te), -1)
     Ef = fom.energy(X_te.reshape(-1, fom.dim), np.repeat(c_te, L + 1)).reshape(len(c_te), -1)
-    print(f"projected FOM test trajectories (diagnostic): energy error dx H(V V+ x) per window: "
-          f"{windows(np.max(np.abs(Ep - Ep[:, :1]) / np.abs(Ep[:, :1]), axis=0))}; FOM's own: "
-          f"{windows(np.max(np.abs(Ef - Ef[:, :1]) / np.abs(Ef[:, :1]), axis=0))}; projection error per window: "
-          f"{windows(np.max(np.linalg.norm(gal.reconstruct(Yp_te) - X_te, axis=-1) / np.linalg.norm(X_te, axis=-1), axis=0))}")
+    print(
+        f"projected FOM test trajectories (diagnostic): energy error dx H(V V+ x) per window: "
+        f"{windows(np.max(np.abs(Ep - Ep[:, :1]) / np.abs(Ep[:, :1]), axis=0))}; FOM's own: "
+        f"{windows(np.max(np.abs(Ef - Ef[:, :1]) / np.abs(Ef[:, :1]), axis=0))}; projection error per window: "
+        f"{windows(np.max(np.linalg.norm(gal.reconstruct(Yp_te) - X_te, axis=-1) / np.linalg.norm(X_te, axis=-1), axis=0))}"
+    )
     amp = lambda Z: np.hypot(Z[..., :n], Z[..., n:])  # noqa: E731
     for kind in args.data:
         Y = data[kind]
         a_data = amp(Y).max(axis=(0, 1))
         lo, hi = Y.reshape(-1, args.dim).min(axis=0), Y.reshape(-1, args.dim).max(axis=0)
-        for name, Z in (("Galerkin ROM from the test states", Yg_te), ("projected FOM test trajectories", gal.project(X_te))):
+        for name, Z in (
+            ("Galerkin ROM from the test states", Yg_te),
+            ("projected FOM test trajectories", gal.project(X_te)),
+        ):
             outside = np.any((Z < lo) | (Z > hi), axis=-1).mean(axis=0)
-            print(f"{kind} data; reference {name} (diagnostic): share outside the {kind} data box per window: "
-                  f"{windows(outside)}; largest mode amplitude / training max per window: "
-                  f"{windows((amp(Z).max(axis=0) / a_data).max(axis=1))}")
+            print(
+                f"{kind} data; reference {name} (diagnostic): share outside the {kind} data box per window: "
+                f"{windows(outside)}; largest mode amplitude / training max per window: "
+                f"{windows((amp(Z).max(axis=0) / a_data).max(axis=1))}"
+            )
         for aug in args.augment:
             if aug.startswith("energy") and kind != "reduced":
                 continue
             Y0, Y1 = Y[:, :-1], Y[:, 1:]
-            strategy = {"none": no_augmentation, "symmetry": sign_symmetry,
-                        "energy": EnergySamples(gal, p.c_range, p.DT, p.substeps),
-                        "energy-box": EnergySamples(gal, p.c_range, p.DT, p.substeps, region="box")}[aug]
+            strategy = {
+                "none": no_augmentation,
+                "symmetry": sign_symmetry,
+                "energy": EnergySamples(gal, p.c_range, p.DT, p.substeps),
+                "energy-box": EnergySamples(gal, p.c_range, p.DT, p.substeps, region="box"),
+            }[aug]
             for lam, eps in [(lam, eps) for lam in (args.lambdas or [None]) for eps in args.state_eps]:
-                flow, model, fit_time, reg, table = _fit_kernel(replace(p, state_eps=eps), Y0, Y1,
-                                                                c_tr, p.DT, regularization=lam, augment=strategy, gal=gal)
-                head = (f"{kind:9s} augment={aug:8s} state_eps={eps} lambda={reg:g} (table {table}, fit pairs {len(strategy(Y0, Y1, c_tr)[0])}, "
-                        f"fit {fit_time:.0f} s)")
+                flow, model, fit_time, reg, table = _fit_kernel(
+                    replace(p, state_eps=eps), Y0, Y1, c_tr, p.DT, regularization=lam, augment=strategy, gal=gal
+                )
+                head = (
+                    f"{kind:9s} augment={aug:8s} state_eps={eps} lambda={reg:g} (table {table}, fit pairs {len(strategy(Y0, Y1, c_tr)[0])}, "
+                    f"fit {fit_time:.0f} s)"
+                )
                 Yk, failed = None, None
                 try:
                     Yk = flow.rollout(y0, L, mu=c_te[:, None], dt=p.DT)
@@ -124,7 +153,9 @@ with _protocol.limits(args.blas_threads):
                 out = (np.any((yk < lo) | (yk > hi), axis=1)).reshape(len(c_te), -1).mean(axis=0)
                 amax = amp(np.concatenate(strategy(Y0, Y1, c_tr)[:2])).max(axis=0)
                 ak = amp(Yk).max(axis=0) / amax  # (L+1, n)
-                print(f"{head}\n  energy error per window: {windows(err)}\n  distance to data / median NN spacing, max per window: "
-                      f"{windows(d)}\n  share outside the data box per window: {windows(out)}\n  largest mode amplitude / "
-                      f"training max per window: {windows(ak.max(axis=1))}; mode reaching it first: "
-                      f"{int(np.argmax(ak.max(axis=0)))} (ratios at the end {np.round(ak[-1], 2).tolist()})")
+                print(
+                    f"{head}\n  energy error per window: {windows(err)}\n  distance to data / median NN spacing, max per window: "
+                    f"{windows(d)}\n  share outside the data box per window: {windows(out)}\n  largest mode amplitude / "
+                    f"training max per window: {windows(ak.max(axis=1))}; mode reaching it first: "
+                    f"{int(np.argmax(ak.max(axis=0)))} (ratios at the end {np.round(ak[-1], 2).tolist()})"
+                )

@@ -43,10 +43,21 @@ with _protocol.limits(args.blas_threads):
     X = fom.reference_trajectory(a_tr[:, None] * fom.sech_cos(2.0, 1.0), c_tr, p.DT, K, tol=p.ref_tol)
     for dim in args.dims:
         gal = ReducedSineGordon.galerkin(fom, complex_svd_basis(X.reshape(-1, fom.dim), n=dim // 2, layout="rows").V)
-        data = {"reduced": gal.solve(gal.project(X[:, 0]), c_tr, p.DT, K, substeps=p.substeps), "projected": gal.project(X)}
+        data = {
+            "reduced": gal.solve(gal.project(X[:, 0]), c_tr, p.DT, K, substeps=p.substeps),
+            "projected": gal.project(X),
+        }
         for kind, Y in data.items():
             for lam in args.lambdas:
-                flow, model, *_ = _fit_kernel(replace(p, max_centers=args.max_centers), Y[:, :-1], Y[:, 1:], c_tr, p.DT, regularization=lam, gal=gal)
+                flow, model, *_ = _fit_kernel(
+                    replace(p, max_centers=args.max_centers),
+                    Y[:, :-1],
+                    Y[:, 1:],
+                    c_tr,
+                    p.DT,
+                    regularization=lam,
+                    gal=gal,
+                )
                 xs = flow.state_scaling.transform(Y[:, :-1].reshape(-1, dim))
                 ms = flow.mu_scaling.transform(np.repeat(c_tr, K)[:, None])
                 at = model.solvability(xs, mu=ms, dt=1.0)
@@ -57,7 +68,9 @@ with _protocol.limits(args.blas_threads):
                     roll = "rollout from the training initial states runs"
                 except Exception as exc:
                     roll = f"rollout fails: {type(exc).__name__}: {str(exc)[:110]}"
-                print(f"2n={dim} {kind:9s} lambda={lam:g}: residual {model.history_.train_max_residual[-1]:.2e}, "
-                      f"dT L_S at training states median {np.median(at):.2f} max {at.max():.2f} ({np.mean(at >= 1):.0%} >= 1), "
-                      f"between them median {np.median(mid):.2f} max {mid.max():.2f}; max |coef| {np.abs(model.surrogate_.coef).max():.1e}; "
-                      f"{roll}")
+                print(
+                    f"2n={dim} {kind:9s} lambda={lam:g}: residual {model.history_.train_max_residual[-1]:.2e}, "
+                    f"dT L_S at training states median {np.median(at):.2f} max {at.max():.2f} ({np.mean(at >= 1):.0%} >= 1), "
+                    f"between them median {np.median(mid):.2f} max {mid.max():.2f}; max |coef| {np.abs(model.surrogate_.coef).max():.1e}; "
+                    f"{roll}"
+                )

@@ -117,24 +117,35 @@ def main(argv=None):
                 model = SymplecticKernelPredictor(max_centers=args.centers, search=search).fit(x0, x1, mu=mus, dt=DT)
             models[name] = model
             table = model.search_.table
-            result[name] = {"fit_s": time.perf_counter() - t0, "choice": {k: repr(v) for k, v in model.choice_.items()},
-                            "structure": [f.summary() for f in model.search_.structure],
-                            "verdicts": {f"{f.kind} diag{f.signs}": f.verdict for f in model.search_.structure},
-                            "search_score": model.search_.score,
-                            "best_stage2_score": min(r["score"] for r in table if r["stage"] == 2),
-                            "stage3": [{k: r[k] for k in ("kernels", "update", "score", "n_centers")}
-                                       for r in table if r["stage"] == 3],
-                            **errors(system, model, mu_t, ref, steps)}
+            result[name] = {
+                "fit_s": time.perf_counter() - t0,
+                "choice": {k: repr(v) for k, v in model.choice_.items()},
+                "structure": [f.summary() for f in model.search_.structure],
+                "verdicts": {f"{f.kind} diag{f.signs}": f.verdict for f in model.search_.structure},
+                "search_score": model.search_.score,
+                "best_stage2_score": min(r["score"] for r in table if r["stage"] == 2),
+                "stage3": [
+                    {k: r[k] for k in ("kernels", "update", "score", "n_centers")} for r in table if r["stage"] == 3
+                ],
+                **errors(system, model, mu_t, ref, steps),
+            }
             print(name, result[name], flush=True)
         base = models["defaults_no_structure"].choice_
-        expert = SymplecticKernelPredictor(Symmetric(base["state_kernel"], group=[(1, 1, 1, 1), (1, -1, -1, 1)]),
-                                           base["mu_kernel"], max_centers=args.centers, update="midpoint")
+        expert = SymplecticKernelPredictor(
+            Symmetric(base["state_kernel"], group=[(1, 1, 1, 1), (1, -1, -1, 1)]),
+            base["mu_kernel"],
+            max_centers=args.centers,
+            update="midpoint",
+        )
         t0 = time.perf_counter()
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             expert.fit(x0, x1, mu=mus, dt=DT)
-        result["expert"] = {"fit_s": time.perf_counter() - t0, "state_kernel": repr(expert.state_kernel),
-                            **errors(system, expert, mu_t, ref, steps)}
+        result["expert"] = {
+            "fit_s": time.perf_counter() - t0,
+            "state_kernel": repr(expert.state_kernel),
+            **errors(system, expert, mu_t, ref, steps),
+        }
         print("expert", result["expert"], flush=True)
 
         # the structure test on noisy data: the search's quick model and split, noise on every state
@@ -146,10 +157,12 @@ def main(argv=None):
             n1 = x1 + level * spread * rng.standard_normal(x1.shape)
             data = FlowMapData(n0, n1, mus[:, None], np.full(len(n0), DT))
             rows = np.random.default_rng(0).permutation(len(data))
-            val, train = data.subset(np.sort(rows[:len(rows) // 4])), data.subset(np.sort(rows[len(rows) // 4:]))
+            val, train = data.subset(np.sort(rows[: len(rows) // 4])), data.subset(np.sort(rows[len(rows) // 4 :]))
             quick = clone_quick(base, train)
-            noisy[str(level)] = {f"{kind} diag{signs}": check_sign_flip(quick, train, val, signs, kind).verdict
-                                 for signs, kind in sign_flip_candidates(4)}
+            noisy[str(level)] = {
+                f"{kind} diag{signs}": check_sign_flip(quick, train, val, signs, kind).verdict
+                for signs, kind in sign_flip_candidates(4)
+            }
             print("noise", level, noisy[str(level)], flush=True)
         result["noise"] = noisy
 
@@ -164,23 +177,30 @@ def main(argv=None):
                 slow.rollout(x_t, n_time, mu=mu_t)
             except Exception:  # noqa: BLE001 - an orbit that fails later: time the in-distribution horizon
                 n_time = args.steps
-            timing = side_by_side({"numpy": lambda: slow.rollout(x_t, n_time, mu=mu_t),
-                                   "compiled": lambda: fast.rollout(x_t, n_time, mu=mu_t)},
-                                  repeats=args.repeats, warmup=0)
+            timing = side_by_side(
+                {
+                    "numpy": lambda: slow.rollout(x_t, n_time, mu=mu_t),
+                    "compiled": lambda: fast.rollout(x_t, n_time, mu=mu_t),
+                },
+                repeats=args.repeats,
+                warmup=0,
+            )
         timing["orbits"], timing["steps"] = len(x_t), n_time
         result["rollout_timing"] = timing
         print("timing", {k: v["median_s"] for k, v in timing["methods"].items()}, flush=True)
     if args.json:
-        write_json(args.json, result, record(blas_threads=args.blas_threads, numba_threads=args.threads,
-                                             repeats=args.repeats))
+        write_json(
+            args.json, result, record(blas_threads=args.blas_threads, numba_threads=args.threads, repeats=args.repeats)
+        )
 
 
 def clone_quick(base, train):
     """The search's quick model: the defaults' kernels at 200 centres, fitted to ``train``."""
     from sympredict.estimators.structure import QUICK_CENTERS
 
-    model = SymplecticKernelPredictor(base["state_kernel"], base["mu_kernel"], max_centers=QUICK_CENTERS,
-                                      update=base["update"])
+    model = SymplecticKernelPredictor(
+        base["state_kernel"], base["mu_kernel"], max_centers=QUICK_CENTERS, update=base["update"]
+    )
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         return model.fit(train.x0, train.x1, mu=train.mu, dt=train.dt)

@@ -133,9 +133,12 @@ def model_from_greedy(data, functionals: HBFunctionals, result, eps=EPS_A) -> Sy
     model = SymplecticKernelPredictor(IMQ(eps[0]), IMQ(eps[1]), IMQ(eps[2]), max_centers=len(result.selected))
     points, comps = np.divmod(result.selected, functionals.dim)
     k = functionals.kernel
-    surrogate = HBSurrogate(k, functionals.points[points], functionals.mu[points], functionals.dt[points], comps, result.coef)
-    model.model_ = FittedSymplecticFlowMap(k, surrogate, domain=training_box(data), history=result.history,
-                                           greedy_result=result, update="symplectic_euler")
+    surrogate = HBSurrogate(
+        k, functionals.points[points], functionals.mu[points], functionals.dt[points], comps, result.coef
+    )
+    model.model_ = FittedSymplecticFlowMap(
+        k, surrogate, domain=training_box(data), history=result.history, greedy_result=result, update="symplectic_euler"
+    )
     model.fitted_params_ = model.get_params(deep=False)
     return model
 
@@ -181,16 +184,28 @@ def bandwidth_ratio(history: GreedyHistory, basis: np.ndarray, n_samples: int = 
         v = rng.standard_normal(k).astype(basis.dtype)
         t_mv = median_time(lambda: basis[:k].T @ v, repeats)
         t_step = float(np.median(steps[max(0, k - 4) : k + 5]))
-        rows.append({"k": int(k), "step_s": t_step, "matvec_s": t_mv, "ratio": t_step / t_mv,
-                     "matvec_GBps": k * basis.shape[1] * basis.itemsize / t_mv / 1e9})
+        rows.append(
+            {
+                "k": int(k),
+                "step_s": t_step,
+                "matvec_s": t_mv,
+                "ratio": t_step / t_mv,
+                "matvec_GBps": k * basis.shape[1] * basis.itemsize / t_mv / 1e9,
+            }
+        )
     # lower bound of the whole run: the product's time at every step (linear fit in k through the samples)
     kk = np.array([r["k"] for r in rows], float)
     tt = np.array([r["matvec_s"] for r in rows])
     slope, icpt = np.polyfit(kk, tt, 1)
     bound = float(np.sum(np.maximum(icpt + slope * np.arange(m), 0.0)))
     total = float(history.elapsed[-1])
-    return {"samples": rows, "total_s": total, "matvec_bound_s": bound, "ratio_total": total / bound,
-            "ratio_median_samples": float(np.median([r["ratio"] for r in rows]))}
+    return {
+        "samples": rows,
+        "total_s": total,
+        "matvec_bound_s": bound,
+        "ratio_total": total / bound,
+        "ratio_median_samples": float(np.median([r["ratio"] for r in rows])),
+    }
 
 
 def section_greedy(n_grid: int, centers: int, n_grid_f32: int, centers_f32: int) -> dict:
@@ -276,26 +291,42 @@ def section_rollout(model, batch: int = 1000, steps_fast: int = 100, steps_numpy
         w = sur.weights(mu[:, None], dt)
         sub = slice(0, 10)
         layout = sur.layout()
-        cases = {"cold": {}, "warm": {"warm_start": True}, "midpoint_cold": {"update": "midpoint"},
-                 "midpoint_warm": {"update": "midpoint", "warm_start": True}}
+        cases = {
+            "cold": {},
+            "warm": {"warm_start": True},
+            "midpoint_cold": {"update": "midpoint"},
+            "midpoint_warm": {"update": "midpoint", "warm_start": True},
+        }
         passes = {}
         for key, kw in cases.items():
             stats = {}
-            _compiled_newton.newton_rollout(x0[sub], w[sub], dt[sub], layout, sur.kernel.state, 50, 20, parallel=False,
-                                        stats=stats, **kw)
+            _compiled_newton.newton_rollout(
+                x0[sub], w[sub], dt[sub], layout, sur.kernel.state, 50, 20, parallel=False, stats=stats, **kw
+            )
             passes[key] = float(stats["passes"].sum())
         factor_samples = []  # the factor probe times itself; it runs interleaved with the passes
-        runs = {key: (lambda kw=kw: _compiled_newton.newton_rollout(x0[sub], w[sub], dt[sub], layout, sur.kernel.state, 50, 20,
-                                                                 parallel=False, **kw)) for key, kw in cases.items()}
-        runs["factor"] = lambda: factor_samples.append(compiled_surrogate.factor_throughput(n=1 << 18, repeats=1, in_cache=True))
+        runs = {
+            key: (
+                lambda kw=kw: _compiled_newton.newton_rollout(
+                    x0[sub], w[sub], dt[sub], layout, sur.kernel.state, 50, 20, parallel=False, **kw
+                )
+            )
+            for key, kw in cases.items()
+        }
+        runs["factor"] = lambda: factor_samples.append(
+            compiled_surrogate.factor_throughput(n=1 << 18, repeats=1, in_cache=True)
+        )
         timed = _protocol.side_by_side(runs, repeats=30, warmup=0, statistic="min_s")["methods"]
         t1 = {key: timed[key]["min_s"] for key in cases}
         t_factor = min(factor_samples)
         cb = {}
         for key in cases:
             ns_visit = 1e9 * t1[key] / (passes[key] * sur.n_centers)
-            cb[key] = {"passes_per_step": passes[key] / (10 * 20), "ns_per_centre_visit_1_thread": ns_visit,
-                       "ratio": ns_visit / (1e9 * t_factor)}
+            cb[key] = {
+                "passes_per_step": passes[key] / (10 * 20),
+                "ns_per_centre_visit_1_thread": ns_visit,
+                "ratio": ns_visit / (1e9 * t_factor),
+            }
         out["compute_bound"] = {
             **cb["cold"],
             "ns_per_factor_evaluation_1_thread": 1e9 * t_factor,
@@ -323,8 +354,14 @@ def section_rollout(model, batch: int = 1000, steps_fast: int = 100, steps_numpy
 def synthetic_surrogate(m: int, dim: int, seed: int = 0) -> HBSurrogate:
     rng = np.random.default_rng(seed)
     kernel = ProductKernel(IMQ(0.5), IMQ(1.0), None)
-    return HBSurrogate(kernel, rng.uniform(-1, 1, (m, dim)), rng.uniform(0, 1, (m, 1)), np.ones(m),
-                       rng.integers(0, dim, m), rng.standard_normal(m) * 1e-3)
+    return HBSurrogate(
+        kernel,
+        rng.uniform(-1, 1, (m, dim)),
+        rng.uniform(0, 1, (m, 1)),
+        np.ones(m),
+        rng.integers(0, dim, m),
+        rng.standard_normal(m) * 1e-3,
+    )
 
 
 def section_scaling(model, repeats: int = 3) -> dict:
@@ -346,7 +383,11 @@ def section_scaling(model, repeats: int = 3) -> dict:
         for b in bs:
             k = max(20, 2000 // b)
             t_b.append(median_time(lambda: model.rollout(x0[:b], k, mu=mu[:b], dt=dt[:b]), repeats) / (b * k))
-        out["rollout_vs_batch"] = {"batch": bs, "s_per_traj_step": t_b, "exponent_total_time": fit_exponent(bs, np.array(t_b) * bs)}
+        out["rollout_vs_batch"] = {
+            "batch": bs,
+            "s_per_traj_step": t_b,
+            "exponent_total_time": fit_exponent(bs, np.array(t_b) * bs),
+        }
         model.set_params(solver__backend="auto")
         # Newton-iteration work vs state dimension: one gradient+Hessian-block pass per point
         # (synthetic surrogates, m = 1500, coefficients 1e-3: Newton converges in the same few
@@ -360,7 +401,9 @@ def section_scaling(model, repeats: int = 3) -> dict:
             w = sur.weights(np.full((1, 1), 0.5), np.ones(1))
             grp = np.zeros(len(pts), dtype=np.int64)
             compiled_surrogate.gradients(pts[:10], grp[:10], w, lay, IMQ(0.5))
-            t_d.append(median_time(lambda: compiled_surrogate.gradients(pts, grp, w, lay, IMQ(0.5)), repeats) / len(pts))
+            t_d.append(
+                median_time(lambda: compiled_surrogate.gradients(pts, grp, w, lay, IMQ(0.5)), repeats) / len(pts)
+            )
             wb = np.ascontiguousarray(np.repeat(w, len(pts), axis=0))
             h = np.full(len(pts), 0.01)
             run = lambda: _compiled_newton.newton_rollout(pts, wb, h, lay, IMQ(0.5), 50, 5)  # noqa: E731
@@ -411,26 +454,74 @@ def draw_scaling(scaling: dict):
     panels = []
     if "rollout_vs_centers" in scaling:
         r = scaling["rollout_vs_centers"]
-        panels.append(("rollout against centres", "centres $m$", r["m"], {"numba rollout": r["s_per_traj_step"]},
-                       "time per trajectory-step [s]"))
+        panels.append(
+            (
+                "rollout against centres",
+                "centres $m$",
+                r["m"],
+                {"numba rollout": r["s_per_traj_step"]},
+                "time per trajectory-step [s]",
+            )
+        )
         r = scaling["rollout_vs_batch"]
-        panels.append(("rollout against batch size", "batch size $B$ [trajectories]", r["batch"],
-                       {"numba rollout": r["s_per_traj_step"]}, "time per trajectory-step [s]"))
+        panels.append(
+            (
+                "rollout against batch size",
+                "batch size $B$ [trajectories]",
+                r["batch"],
+                {"numba rollout": r["s_per_traj_step"]},
+                "time per trajectory-step [s]",
+            )
+        )
         r = scaling["newton_vs_dim"]
-        panels.append(("Newton terms against $2n$ ($m$ = 1500)", "state dimension $2n$", r["dim"],
-                       {"numba implicit step": r["numba_implicit_step_s"], "numba gradient": r["numba_gradient_s_per_point"],
-                        "NumPy grad + Hessian block": r["numpy_newton_terms_s_per_point"]}, "time per state [s]"))
+        panels.append(
+            (
+                "Newton terms against $2n$ ($m$ = 1500)",
+                "state dimension $2n$",
+                r["dim"],
+                {
+                    "numba implicit step": r["numba_implicit_step_s"],
+                    "numba gradient": r["numba_gradient_s_per_point"],
+                    "NumPy grad + Hessian block": r["numpy_newton_terms_s_per_point"],
+                },
+                "time per state [s]",
+            )
+        )
     r = scaling["greedy_step_vs_N"]
-    panels.append((f"greedy step against candidates ($m$ = {r['m']})", "candidates $N$ [functionals]", r["N"],
-                   {"greedy step": r["s_per_step"]}, "time per greedy step [s]"))
+    panels.append(
+        (
+            f"greedy step against candidates ($m$ = {r['m']})",
+            "candidates $N$ [functionals]",
+            r["N"],
+            {"greedy step": r["s_per_step"]},
+            "time per greedy step [s]",
+        )
+    )
     r = scaling["greedy_step_vs_m"]
-    panels.append((f"greedy step against centres ($N$ = {r['N']:,})", "centres $m$", r["m"], {"greedy step": r["s_per_step"]},
-                   "time per greedy step [s]"))
+    panels.append(
+        (
+            f"greedy step against centres ($N$ = {r['N']:,})",
+            "centres $m$",
+            r["m"],
+            {"greedy step": r["s_per_step"]},
+            "time per greedy step [s]",
+        )
+    )
     ncols = min(3, len(panels))
     nrows = -(-len(panels) // ncols)
-    with plt.rc_context({"font.size": 10, "axes.titlesize": 10, "axes.labelsize": 10, "legend.fontsize": 8.5,
-                         "xtick.labelsize": 9, "ytick.labelsize": 9}):
-        fig, axes = plt.subplots(nrows, ncols, figsize=(3.3 * ncols, 3.1 * nrows), constrained_layout=True, squeeze=False)
+    with plt.rc_context(
+        {
+            "font.size": 10,
+            "axes.titlesize": 10,
+            "axes.labelsize": 10,
+            "legend.fontsize": 8.5,
+            "xtick.labelsize": 9,
+            "ytick.labelsize": 9,
+        }
+    ):
+        fig, axes = plt.subplots(
+            nrows, ncols, figsize=(3.3 * ncols, 3.1 * nrows), constrained_layout=True, squeeze=False
+        )
         for ax, (title, xlabel, x, curves, ylabel) in zip(axes.flat, panels):
             for label, yv in curves.items():
                 e = fit_exponent(x, yv)
@@ -448,7 +539,7 @@ def draw_scaling(scaling: dict):
             ax.set_xticklabels([f"{v:g}" if v < 1e4 else f"{v / 1e3:.0f}k" for v in ticks])
             ax.xaxis.set_minor_locator(matplotlib.ticker.NullLocator())
             ax.legend(loc="upper left")
-        for ax in list(axes.flat)[len(panels):]:
+        for ax in list(axes.flat)[len(panels) :]:
             ax.set_visible(False)
     return fig
 
@@ -485,13 +576,25 @@ def section_wave(seed: int = 0, basis_blas_threads: int = 1) -> dict:
     out = {
         "N_fom": preset.n_points,
         "dim_reduced": rom.dim,
-        "basis": {"time_s": t_rom, "time_snapshots_s": info["time_snapshots_s"], "time_basis_s": info["time_basis_s"],
-                  "symplecticity": info["symplecticity"], "blas_threads": basis_blas_threads},
+        "basis": {
+            "time_s": t_rom,
+            "time_snapshots_s": info["time_snapshots_s"],
+            "time_basis_s": info["time_basis_s"],
+            "symplecticity": info["symplecticity"],
+            "blas_threads": basis_blas_threads,
+        },
         "data": {"time_s": trained["time_data_s"], "n_samples": trained["n_samples"]},
-        "selection": {"time_s": trained["time_selection_s"], "E_val_m_star": trained["selection"].score,
-                      "kernel": [repr(trained["selection"].state), repr(trained["selection"].mu)]},
-        "training": {"time_s": trained["time_fit_s"], "n_centers": model.n_centers_,
-                     "E_train": float(model.history_.train_max_residual[-1]), "E_val": float(model.history_.val_max_residual[-1])},
+        "selection": {
+            "time_s": trained["time_selection_s"],
+            "E_val_m_star": trained["selection"].score,
+            "kernel": [repr(trained["selection"].state), repr(trained["selection"].mu)],
+        },
+        "training": {
+            "time_s": trained["time_fit_s"],
+            "n_centers": model.n_centers_,
+            "E_train": float(model.history_.train_max_residual[-1]),
+            "E_val": float(model.history_.val_max_residual[-1]),
+        },
         "online": {"dt": dt, "n_steps": n_steps, "batch": len(x0)},
     }
     for backend in ("numba", "numpy"):
@@ -530,9 +633,17 @@ def _scenario_a_child(kind: str, out_path: str, threads: int, n_grid: int = 200)
             res = active_set_greedy(fun, y, max_centers=2000, tol=1e-5)
         t_train = time.perf_counter() - t0
         peak = peak_rss()
-        out = {"kind": kind, "n_functionals": fun.n_functionals, "time_data_s": t_data, "time_train_s": t_train,
-               "peak_rss_bytes": peak, "peak_rss_after_data_bytes": rss_data, "n_centers": len(res.selected),
-               "stop_reason": res.history.stop_reason, "E_train_tracked": float(res.history.train_max_residual[-1])}
+        out = {
+            "kind": kind,
+            "n_functionals": fun.n_functionals,
+            "time_data_s": t_data,
+            "time_train_s": t_train,
+            "peak_rss_bytes": peak,
+            "peak_rss_after_data_bytes": rss_data,
+            "n_centers": len(res.selected),
+            "stop_reason": res.history.stop_reason,
+            "E_train_tracked": float(res.history.train_max_residual[-1]),
+        }
         if kind == "exact":
             out["bandwidth"] = bandwidth_ratio(res.history, res.basis, n_samples=8, repeats=3)
             res.basis = None
@@ -568,7 +679,8 @@ def section_scenario_a(threads: int, n_grid: int = 200) -> dict:
             out[kind]["first_touch_bytes"] = warm_bytes
     if "trajectory_errors" in out.get("fast", {}) and "trajectory_errors" in out.get("exact", {}):
         out["error_ratio_fast_over_exact"] = [
-            f["median_err"] / e["median_err"] for f, e in zip(out["fast"]["trajectory_errors"], out["exact"]["trajectory_errors"])
+            f["median_err"] / e["median_err"]
+            for f, e in zip(out["fast"]["trajectory_errors"], out["exact"]["trajectory_errors"])
         ]
     return out
 
@@ -590,66 +702,101 @@ def markdown(results: dict) -> str:
     g = results.get("greedy")
     if g:
         b = g["bandwidth"]
-        lines.append(f"| exact f-greedy, N = {g['n_functionals']}, {g['centers']} centres | {g['time_s']:.1f} s; "
-                     f"{b['ratio_total']:.2f}x the in-run matvec bound ({b['matvec_bound_s']:.1f} s; memory warmed first: "
-                     f"{g['first_touch_s']:.1f} s) | E_train {g['E_train']:.2e} |")
+        lines.append(
+            f"| exact f-greedy, N = {g['n_functionals']}, {g['centers']} centres | {g['time_s']:.1f} s; "
+            f"{b['ratio_total']:.2f}x the in-run matvec bound ({b['matvec_bound_s']:.1f} s; memory warmed first: "
+            f"{g['first_touch_s']:.1f} s) | E_train {g['E_train']:.2e} |"
+        )
         f = g["float32_vs_float64"]
         for dtype in ("float64", "float32"):
             r = f[dtype]
-            lines.append(f"| greedy {dtype} basis, N = {f['n_functionals']}, {r['n_centers']} centres ({r['stop_reason']}) | "
-                         f"{r['time_s']:.1f} s | E_train direct {r['E_train_direct']:.2e} |")
+            lines.append(
+                f"| greedy {dtype} basis, N = {f['n_functionals']}, {r['n_centers']} centres ({r['stop_reason']}) | "
+                f"{r['time_s']:.1f} s | E_train direct {r['E_train_direct']:.2e} |"
+            )
     r = results.get("rollout")
     if r:
         for backend in ("numba", "numpy"):
             if r.get(backend):
                 x = r[backend]
-                warm = (f" ({x['traj_steps_per_s_warm_start']:,.0f} with newton_warm_start)"
-                        if "traj_steps_per_s_warm_start" in x else "")
-                lines.append(f"| rollout {backend}, batch {r['batch']}, {r['n_centers']} centres | "
-                             f"{x['traj_steps_per_s']:,.0f} traj-steps/s{warm} | |")
-                lines.append(f"| latency {backend}, 1 trajectory | {x['latency_ms_per_step_in_rollout']:.3f} ms/step in a rollout, "
-                             f"{x['latency_ms_per_step_call']:.3f} ms per step() call | |")
+                warm = (
+                    f" ({x['traj_steps_per_s_warm_start']:,.0f} with newton_warm_start)"
+                    if "traj_steps_per_s_warm_start" in x
+                    else ""
+                )
+                lines.append(
+                    f"| rollout {backend}, batch {r['batch']}, {r['n_centers']} centres | "
+                    f"{x['traj_steps_per_s']:,.0f} traj-steps/s{warm} | |"
+                )
+                lines.append(
+                    f"| latency {backend}, 1 trajectory | {x['latency_ms_per_step_in_rollout']:.3f} ms/step in a rollout, "
+                    f"{x['latency_ms_per_step_call']:.3f} ms per step() call | |"
+                )
         if "compute_bound" in r:
             c = r["compute_bound"]
-            lines.append(f"| compiled Newton pass, 1 thread | {c['ns_per_centre_visit_1_thread']:.2f} ns per centre visit "
-                         f"({c['passes_per_step']:.2f} passes per step); {c['ratio']:.1f}x the kernel-factor loop alone "
-                         f"({c['ns_per_factor_evaluation_1_thread']:.2f} ns in L1) | |")
+            lines.append(
+                f"| compiled Newton pass, 1 thread | {c['ns_per_centre_visit_1_thread']:.2f} ns per centre visit "
+                f"({c['passes_per_step']:.2f} passes per step); {c['ratio']:.1f}x the kernel-factor loop alone "
+                f"({c['ns_per_factor_evaluation_1_thread']:.2f} ns in L1) | |"
+            )
             if "warm" in c:
                 wm = c["warm"]
-                lines.append(f"| compiled Newton pass, warm start | {wm['ns_per_centre_visit_1_thread']:.2f} ns per centre visit "
-                             f"({wm['passes_per_step']:.2f} passes per step); {wm['ratio']:.1f}x the factor loop | |")
+                lines.append(
+                    f"| compiled Newton pass, warm start | {wm['ns_per_centre_visit_1_thread']:.2f} ns per centre visit "
+                    f"({wm['passes_per_step']:.2f} passes per step); {wm['ratio']:.1f}x the factor loop | |"
+                )
                 mc = c["midpoint_cost"]["warm"]
-                lines.append(f"| compiled midpoint pass (full Hessian), warm start | {mc['ns_per_centre_visit_1_thread']:.2f} ns "
-                             f"per centre visit ({mc['passes_per_step']:.2f} passes per step) | cost only (same centres) |")
+                lines.append(
+                    f"| compiled midpoint pass (full Hessian), warm start | {mc['ns_per_centre_visit_1_thread']:.2f} ns "
+                    f"per centre visit ({mc['passes_per_step']:.2f} passes per step) | cost only (same centres) |"
+                )
         if "numba_vs_numpy_max_diff" in r:
-            lines.append(f"| numba vs NumPy trajectories (200 x 20 steps) | max diff {r['numba_vs_numpy_max_diff']:.1e} | "
-                         f"NumPy batch vs single {r['numpy_batch_vs_single_max_diff']:.1e}, gradient floor {r['gradient_roundoff_floor']:.1e} |")
+            lines.append(
+                f"| numba vs NumPy trajectories (200 x 20 steps) | max diff {r['numba_vs_numpy_max_diff']:.1e} | "
+                f"NumPy batch vs single {r['numpy_batch_vs_single_max_diff']:.1e}, gradient floor {r['gradient_roundoff_floor']:.1e} |"
+            )
     s = results.get("scaling")
     if s:
         if "rollout_vs_centers" in s:
             lines.append(f"| rollout cost vs m | exponent {s['rollout_vs_centers']['exponent']:.2f} | |")
-            lines.append(f"| rollout total time vs batch | exponent {s['rollout_vs_batch']['exponent_total_time']:.2f} | |")
+            lines.append(
+                f"| rollout total time vs batch | exponent {s['rollout_vs_batch']['exponent_total_time']:.2f} | |"
+            )
             d = s["newton_vs_dim"]
-            lines.append(f"| cost vs 2n (2 .. 40, m = 1500) | numba implicit step {d['exponent_numba_step']:.2f}, "
-                         f"numba gradient {d['exponent_numba_gradient']:.2f}, "
-                         f"NumPy grad+Hessian block {d['exponent_numpy_newton_terms']:.2f} | |")
-        lines.append(f"| greedy step vs N (m = {s['greedy_step_vs_N']['m']}) | exponent {s['greedy_step_vs_N']['exponent']:.2f} | |")
+            lines.append(
+                f"| cost vs 2n (2 .. 40, m = 1500) | numba implicit step {d['exponent_numba_step']:.2f}, "
+                f"numba gradient {d['exponent_numba_gradient']:.2f}, "
+                f"NumPy grad+Hessian block {d['exponent_numpy_newton_terms']:.2f} | |"
+            )
+        lines.append(
+            f"| greedy step vs N (m = {s['greedy_step_vs_N']['m']}) | exponent {s['greedy_step_vs_N']['exponent']:.2f} | |"
+        )
         lines.append(f"| greedy step vs m | exponent {s['greedy_step_vs_m']['exponent']:.2f} | |")
     w = results.get("wave")
     if w:
-        lines.append(f"| wave basis (N = {w['N_fom']}, 2n = {w['dim_reduced']}, {w['basis']['blas_threads']} BLAS thread) | "
-                     f"{w['basis']['time_s']:.2f} s (SVD {w['basis']['time_basis_s']:.2f} s) | "
-                     f"symplecticity {w['basis']['symplecticity']:.1e} |")
+        lines.append(
+            f"| wave basis (N = {w['N_fom']}, 2n = {w['dim_reduced']}, {w['basis']['blas_threads']} BLAS thread) | "
+            f"{w['basis']['time_s']:.2f} s (SVD {w['basis']['time_basis_s']:.2f} s) | "
+            f"symplecticity {w['basis']['symplecticity']:.1e} |"
+        )
         lines.append(f"| wave data ({w['data']['n_samples']} samples) | {w['data']['time_s']:.2f} s | |")
-        lines.append(f"| wave kernel selection | {w['selection']['time_s']:.1f} s | E_val(m*) {w['selection']['E_val_m_star']:.1e} |")
-        lines.append(f"| wave training ({w['training']['n_centers']} centres) | {w['training']['time_s']:.1f} s | "
-                     f"E_train {w['training']['E_train']:.1e}, E_val {w['training']['E_val']:.1e} |")
+        lines.append(
+            f"| wave kernel selection | {w['selection']['time_s']:.1f} s | E_val(m*) {w['selection']['E_val_m_star']:.1e} |"
+        )
+        lines.append(
+            f"| wave training ({w['training']['n_centers']} centres) | {w['training']['time_s']:.1f} s | "
+            f"E_train {w['training']['E_train']:.1e}, E_val {w['training']['E_val']:.1e} |"
+        )
         for backend in ("numba", "numpy"):
             if backend in w["online"]:
                 o = w["online"][backend]
-                lines.append(f"| wave online step ({backend}, batch {w['online']['batch']}) | {1e3 * o['s_per_step_batch']:.3f} ms/step, "
-                             f"{o['ms_per_step_single_call']:.3f} ms per single step() | mean rel. error {o['mean_rel_err']:.1e} |")
-        lines.append(f"| wave FOM reference (batch {w['online']['batch']}) | {1e3 * w['online']['fom_reference_s_per_step_batch']:.2f} ms/step | |")
+                lines.append(
+                    f"| wave online step ({backend}, batch {w['online']['batch']}) | {1e3 * o['s_per_step_batch']:.3f} ms/step, "
+                    f"{o['ms_per_step_single_call']:.3f} ms per single step() | mean rel. error {o['mean_rel_err']:.1e} |"
+                )
+        lines.append(
+            f"| wave FOM reference (batch {w['online']['batch']}) | {1e3 * w['online']['fom_reference_s_per_step_batch']:.2f} ms/step | |"
+        )
     a = results.get("scenario_a")
     if a:
         for kind in ("exact", "fast"):
@@ -659,11 +806,15 @@ def markdown(results: dict) -> str:
             errs = ", ".join(f"{e['median_err']:.1e}" for e in x["trajectory_errors"])
             extra = ""
             if "bandwidth" in x:
-                extra = (f"; {x['bandwidth']['ratio_total']:.2f}x the in-run matvec bound "
-                         f"(memory warmed first: {x['first_touch_s']:.1f} s for {x['first_touch_bytes'] / 2**30:.1f} GiB)")
-            lines.append(f"| scenario A {kind} (N = {x['n_functionals']}) | {x['time_train_s']:.1f} s, {x['n_centers']} centres, "
-                         f"peak {x['peak_rss_bytes'] / 2**30:.2f} GiB{extra} | max residual (direct) {x['E_train_direct']:.2e}; "
-                         f"median traj. errors {errs} |")
+                extra = (
+                    f"; {x['bandwidth']['ratio_total']:.2f}x the in-run matvec bound "
+                    f"(memory warmed first: {x['first_touch_s']:.1f} s for {x['first_touch_bytes'] / 2**30:.1f} GiB)"
+                )
+            lines.append(
+                f"| scenario A {kind} (N = {x['n_functionals']}) | {x['time_train_s']:.1f} s, {x['n_centers']} centres, "
+                f"peak {x['peak_rss_bytes'] / 2**30:.2f} GiB{extra} | max residual (direct) {x['E_train_direct']:.2e}; "
+                f"median traj. errors {errs} |"
+            )
     lines.append("")
     return "\n".join(lines)
 
@@ -673,9 +824,13 @@ def main(argv=None) -> dict:
     parser.add_argument("--sections", default=",".join(SECTIONS[:-1]), help=f"comma separated subset of {SECTIONS}")
     parser.add_argument("--scenario-a", action="store_true", help="add the full scenario A section (minutes, ~9 GiB)")
     _protocol.add_arguments(parser, threads=os.cpu_count(), json_option=False)
-    parser.add_argument("--greedy-grid", type=int, default=100, help="pendulum grid of the greedy section (N ~ 17 grid^2)")
+    parser.add_argument(
+        "--greedy-grid", type=int, default=100, help="pendulum grid of the greedy section (N ~ 17 grid^2)"
+    )
     parser.add_argument("--greedy-centers", type=int, default=600)
-    parser.add_argument("--scenario-a-grid", type=int, default=200, help="grid of scenario A (200: the paper's 688,464 functionals)")
+    parser.add_argument(
+        "--scenario-a-grid", type=int, default=200, help="grid of scenario A (200: the paper's 688,464 functionals)"
+    )
     parser.add_argument("--wave-basis-threads", type=int, default=1, help="BLAS threads of the wave basis SVD")
     parser.add_argument("--out", default="benchmarks/results")
     parser.add_argument("--figure", default="docs/figures/performance_scaling.png")
@@ -713,8 +868,13 @@ def main(argv=None) -> dict:
             print("wave ...", flush=True)
             results["wave"] = section_wave(basis_blas_threads=args.wave_basis_threads)
         results["environment"] = environment(args.blas_threads)  # numba's threading layer is known now
-        protocol = _protocol.record(blas_threads=args.blas_threads, numba_threads=numba_threads, repeats=None, warmup=1,
-                                    notes="repeats per measurement as stated next to it; scenario A in spawned children")
+        protocol = _protocol.record(
+            blas_threads=args.blas_threads,
+            numba_threads=numba_threads,
+            repeats=None,
+            warmup=1,
+            notes="repeats per measurement as stated next to it; scenario A in spawned children",
+        )
     if "scenario_a" in sections:
         print("scenario A (children) ...", flush=True)
         results["scenario_a"] = section_scenario_a(args.blas_threads, args.scenario_a_grid)

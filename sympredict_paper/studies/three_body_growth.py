@@ -75,13 +75,20 @@ def score(model, tb, val, test, args, dt) -> dict:
     one = np.linalg.norm(x1 - vt[:, 1:].reshape(-1, 4), axis=1) / inc
     roll = model.rollout(vt[:, 0], k, mu=vmu, dt=dt)
     inside = np.linalg.norm(roll[:, -1] - vt[:, -1], axis=1) / np.linalg.norm(vt[:, -1], axis=1)
-    out = {"inside_one_step_median": float(np.median(one)), "inside_one_step_p90": float(np.quantile(one, 0.9)),
-           "inside_rollout_median": float(np.median(inside)), "inside_rollout_max": float(inside.max())}
+    out = {
+        "inside_one_step_median": float(np.median(one)),
+        "inside_one_step_p90": float(np.quantile(one, 0.9)),
+        "inside_rollout_median": float(np.median(inside)),
+        "inside_rollout_max": float(inside.max()),
+    }
     pred = model.rollout(tt[:, 0], args.steps, mu=tmu, dt=dt)
     rel = np.linalg.norm(pred[:, -1] - tt[:, -1], axis=1) / np.linalg.norm(tt[:, -1], axis=1)
     lo, hi = model.domain_["x_min"], model.domain_["x_max"]
-    out.update(beyond_median=float(np.median(rel)), beyond_max=float(rel.max()),
-               beyond_share_outside_box=float(np.mean(np.any((tt < lo) | (tt > hi), axis=2))))
+    out.update(
+        beyond_median=float(np.median(rel)),
+        beyond_max=float(rel.max()),
+        beyond_share_outside_box=float(np.mean(np.any((tt < lo) | (tt > hi), axis=2))),
+    )
     long = model.rollout(tt[:, 0], args.long_steps, mu=tmu, dt=dt, stride=10)
     c = tb.jacobi_constant(long.reshape(-1, 4), np.repeat(tmu, long.shape[1])).reshape(len(tmu), -1)
     drift = np.abs(c - c[:, :1]).max(axis=1) / np.abs(c[:, 0])
@@ -93,8 +100,12 @@ def estimator(args, max_centers: int) -> SymplecticKernelPredictor:
     """The defaults, or the kernels given by ``--state-eps`` / ``--factors`` / ``--mu-eps`` (no search)."""
     if args.state_eps is None:
         return SymplecticKernelPredictor(max_centers=max_centers)
-    return SymplecticKernelPredictor(Scaled(IMQ(args.state_eps), factors=tuple(args.factors)),
-                                     mu_kernel=IMQ(args.mu_eps), update="symplectic_euler", max_centers=max_centers)
+    return SymplecticKernelPredictor(
+        Scaled(IMQ(args.state_eps), factors=tuple(args.factors)),
+        mu_kernel=IMQ(args.mu_eps),
+        update="symplectic_euler",
+        max_centers=max_centers,
+    )
 
 
 def fit_data(args, traj, mu, dt):
@@ -126,17 +137,32 @@ class _RolloutCost(logging.Handler):
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--max-centers", type=int, default=1600, help="the budget of the --sizes mode's one fit")
-    p.add_argument("--sizes", type=int, nargs="+", default=[200, 400, 800, 1600],
-                   help="prefixes of one fit to score (the default mode)")
-    p.add_argument("--centers", type=int, nargs="+", default=None,
-                   help="one fit per budget max_centers=C instead of prefixes (results under 'fits')")
-    p.add_argument("--data", choices=("trajectories", "samples"), default=None,
-                   help="how fit receives the data (default: trajectories with --centers, samples with --sizes)")
+    p.add_argument(
+        "--sizes",
+        type=int,
+        nargs="+",
+        default=[200, 400, 800, 1600],
+        help="prefixes of one fit to score (the default mode)",
+    )
+    p.add_argument(
+        "--centers",
+        type=int,
+        nargs="+",
+        default=None,
+        help="one fit per budget max_centers=C instead of prefixes (results under 'fits')",
+    )
+    p.add_argument(
+        "--data",
+        choices=("trajectories", "samples"),
+        default=None,
+        help="how fit receives the data (default: trajectories with --centers, samples with --sizes)",
+    )
     p.add_argument("--state-eps", type=float, default=None, help="a given IMQ state kernel shape (no search)")
     p.add_argument("--factors", type=float, nargs="+", default=[0.8, 1.21], help="its Scaled factors")
     p.add_argument("--mu-eps", type=float, default=20.0, help="a given IMQ parameter kernel shape")
-    p.add_argument("--holdout-traj", type=int, default=30,
-                   help="with given kernels: trajectories held out as validation (0: none)")
+    p.add_argument(
+        "--holdout-traj", type=int, default=30, help="with given kernels: trajectories held out as validation (0: none)"
+    )
     p.add_argument("--traj", type=int, default=100)
     p.add_argument("--traj-steps", type=int, default=60)
     p.add_argument("--n-val", type=int, default=20)
@@ -168,14 +194,21 @@ def main(argv=None):
                 finally:
                     log.removeHandler(cost)
                     log.setLevel(level)
-                row = {"fit_s": time.perf_counter() - t0, "rollout_scoring_s": cost.seconds, "n_centers": model.n_centers_,
-                       "stop": model.history_.stop_reason,
-                       "choice": {k: repr(v) for k, v in model.choice_.items()},
-                       "prefix_errors": {str(k): v for k, v in (model.prefix_errors_ or {}).items()},
-                       "prefix_rollout_errors": {str(k): v for k, v in
-                                                 (getattr(model, "prefix_rollout_errors_", None) or {}).items()}}
-                print(f"max_centers {cap}: fit {row['fit_s']:.0f} s, {model.n_centers_} centres ({row['stop']})",
-                      flush=True)
+                row = {
+                    "fit_s": time.perf_counter() - t0,
+                    "rollout_scoring_s": cost.seconds,
+                    "n_centers": model.n_centers_,
+                    "stop": model.history_.stop_reason,
+                    "choice": {k: repr(v) for k, v in model.choice_.items()},
+                    "prefix_errors": {str(k): v for k, v in (model.prefix_errors_ or {}).items()},
+                    "prefix_rollout_errors": {
+                        str(k): v for k, v in (getattr(model, "prefix_rollout_errors_", None) or {}).items()
+                    },
+                }
+                print(
+                    f"max_centers {cap}: fit {row['fit_s']:.0f} s, {model.n_centers_} centres ({row['stop']})",
+                    flush=True,
+                )
                 row.update(score(model, tb, val, test, args, dt))
                 row["min_pivot"] = float(model.history_.selected_power.min())
                 out["fits"][str(cap)] = row
@@ -185,9 +218,13 @@ def main(argv=None):
             out["sizes"] = {}
             t0 = time.perf_counter()
             model = estimator(args, args.max_centers).fit(data, validation=validation)
-            out.update(fit_s=time.perf_counter() - t0, n_centers=model.n_centers_, stop=model.history_.stop_reason,
-                       choice={k: repr(v) for k, v in model.choice_.items()},
-                       prefix_errors={str(k): v for k, v in (model.prefix_errors_ or {}).items()})
+            out.update(
+                fit_s=time.perf_counter() - t0,
+                n_centers=model.n_centers_,
+                stop=model.history_.stop_reason,
+                choice={k: repr(v) for k, v in model.choice_.items()},
+                prefix_errors={str(k): v for k, v in (model.prefix_errors_ or {}).items()},
+            )
             print(f"fit {out['fit_s']:.0f} s, {model.n_centers_} centres ({out['stop']})", flush=True)
             for m in args.sizes:
                 if m > model.n_centers_:
@@ -197,8 +234,13 @@ def main(argv=None):
                 row["min_pivot"] = float(model.history_.selected_power[:m].min())
                 out["sizes"][str(m)] = row
                 print(m, {k: f"{v:.2e}" for k, v in row.items()}, flush=True)
-        protocol = _protocol.record(blas_threads=args.blas_threads, numba_threads=args.threads, repeats=1, warmup=0,
-                                    notes="shared 2-core machine")
+        protocol = _protocol.record(
+            blas_threads=args.blas_threads,
+            numba_threads=args.threads,
+            repeats=1,
+            warmup=0,
+            notes="shared 2-core machine",
+        )
     Path(args.json).parent.mkdir(parents=True, exist_ok=True)
     _protocol.write_json(args.json, out, protocol)
     return out

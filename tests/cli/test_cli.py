@@ -15,13 +15,17 @@ def test_run_all_smoke_writes_everything(smoke_run):
     tmp_path, results, out = smoke_run
     pendulum = results["results"]["pendulum"]
     # the greedy used its whole budget exactly when it says so
-    assert pendulum["n_centers"] <= pendulum["preset"]["max_centers"] and len(pendulum["per_dt"]) == len(pendulum["preset"]["dt_test"])
+    assert pendulum["n_centers"] <= pendulum["preset"]["max_centers"] and len(pendulum["per_dt"]) == len(
+        pendulum["preset"]["dt_test"]
+    )
     assert (pendulum["n_centers"] == pendulum["preset"]["max_centers"]) == (pendulum["stop_reason"] == "max_centers")
     wave = results["results"]["wave"]
     assert wave["basis"]["symplecticity"] < 1e-13 and len(wave["per_dt"][0]["cases"]) == 2
     for name in results["figures"]:
         assert (tmp_path / name).stat().st_size > 1000
-    assert len(results["figures"]) == 2 * (6 + 5 + 4)  # pendulum A 4 + speed/accuracy + stability, B 5, wave 3 + speed/accuracy; png + pdf
+    assert len(results["figures"]) == 2 * (
+        6 + 5 + 4
+    )  # pendulum A 4 + speed/accuracy + stability, B 5, wave 3 + speed/accuracy; png + pdf
     st = pendulum["stability"]
     assert set(st["long"]) == {"kernel predictor", "direct kernel", "implicit midpoint"}
     assert len(st["dt_sweep"]) == 12 and len(st["mu_sweep"]) == 8
@@ -35,14 +39,24 @@ def test_run_all_smoke_writes_everything(smoke_run):
     assert isinstance(sv_large, str) or sv_large > 100 * sv_small
     rows = pendulum["speed_accuracy"]["rows"]
     methods = {r["method"] for r in rows}
-    assert {"kernel predictor", "implicit midpoint (compiled)", "Stormer-Verlet (compiled)", "Yoshida-4 (compiled)",
-            "Kahan-Li-6 (compiled)"} <= methods
+    assert {
+        "kernel predictor",
+        "implicit midpoint (compiled)",
+        "Stormer-Verlet (compiled)",
+        "Yoshida-4 (compiled)",
+        "Kahan-Li-6 (compiled)",
+    } <= methods
     # smallest models for the validation targets: measured, or listed as unreached (smoke is tiny)
     smallest = [m for m in methods if m.startswith("smallest kernel")]
     assert len(smallest) + len(pendulum["speed_accuracy"]["unreached"]) == 2
     assert all(r["time_per_trajectory_s"] > 0 and r["median_err"] > 0 for r in rows)
     # finer steps are more accurate: the chart shows real convergence, not noise
-    for method in ("implicit midpoint (compiled)", "Stormer-Verlet (compiled)", "Yoshida-4 (compiled)", "Kahan-Li-6 (compiled)"):
+    for method in (
+        "implicit midpoint (compiled)",
+        "Stormer-Verlet (compiled)",
+        "Yoshida-4 (compiled)",
+        "Kahan-Li-6 (compiled)",
+    ):
         errs = [r["median_err"] for r in rows if r["method"] == method]
         assert len(errs) >= 3 and all(a > b for a, b in zip(errs, errs[1:])), (method, errs)
     b = pendulum["scenario_b"]
@@ -52,7 +66,9 @@ def test_run_all_smoke_writes_everything(smoke_run):
     assert (tmp_path / "pendulum_model.h5").exists() and (tmp_path / "wave_model_dt0.1.h5").exists()
     assert "kernel median error" in out and "wave dT=0.1" in out
     # the paper's claims are stated with their numbers, in the summary and in results.json
-    assert len(results["claims"]) == 3 and all(isinstance(c["holds"], bool) and c["evidence"] for c in results["claims"])
+    assert len(results["claims"]) == 3 and all(
+        isinstance(c["holds"], bool) and c["evidence"] for c in results["claims"]
+    )
     assert text.count("- HOLDS: ") + text.count("- DOES NOT HOLD: ") == 3
     assert ("DOES NOT HOLD" in text) == (not all(c["holds"] for c in results["claims"]))
     # kernel selection by validation ran by default and its winner is the model's kernel
@@ -69,9 +85,21 @@ def test_run_all_smoke_writes_everything(smoke_run):
 def test_example_runs(tmp_path):
     out = tmp_path / "example.png"
     proc = subprocess.run(
-        [sys.executable, str(ROOT / "examples" / "pendulum_phase_portrait.py"), "--n-grid", "12", "--centers", "100",
-         "--horizon", "2", "--out", str(out)],
-        capture_output=True, text=True, timeout=300,
+        [
+            sys.executable,
+            str(ROOT / "examples" / "pendulum_phase_portrait.py"),
+            "--n-grid",
+            "12",
+            "--centers",
+            "100",
+            "--horizon",
+            "2",
+            "--out",
+            str(out),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
     )
     assert proc.returncode == 0, proc.stderr
     assert out.stat().st_size > 1000 and "kernel predictor" in proc.stdout
@@ -79,8 +107,19 @@ def test_example_runs(tmp_path):
 
 def test_wave_example_runs():
     proc = subprocess.run(
-        [sys.executable, str(ROOT / "examples" / "wave_mor_workflow.py"), "--n-points", "80", "--samples", "60", "--centers", "80"],
-        capture_output=True, text=True, timeout=300,
+        [
+            sys.executable,
+            str(ROOT / "examples" / "wave_mor_workflow.py"),
+            "--n-points",
+            "80",
+            "--samples",
+            "60",
+            "--centers",
+            "80",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
     )
     assert proc.returncode == 0, proc.stderr
     assert "ROM + kernel predictor" in proc.stdout and "V^T J V - J" in proc.stdout
@@ -91,7 +130,26 @@ def test_data_train_predict_report_workflow(tmp_path, capsys):
     assert main(["data", "--n-grid", "12", "--out", data]) == 0
     assert main(["data", "--random", "50", "--out", val]) == 0
     assert main(["train", data, "--validation", val, "--centers", "60", "--out", model, "--threads", "1"]) == 0
-    assert main(["predict", model, "--x0", "1.0,0.0", "0.5,0.2", "--mu", "0.75", "--dt", "0.05", "--steps", "5", "--out", csv]) == 0
+    assert (
+        main(
+            [
+                "predict",
+                model,
+                "--x0",
+                "1.0,0.0",
+                "0.5,0.2",
+                "--mu",
+                "0.75",
+                "--dt",
+                "0.05",
+                "--steps",
+                "5",
+                "--out",
+                csv,
+            ]
+        )
+        == 0
+    )
     rows = np.loadtxt(csv, delimiter=",", skiprows=1)  # traj, t, q1, p1, mu1
     assert rows.shape == (2 * 6, 5) and np.all(np.isfinite(rows))
     from sympredict import SymplecticKernelPredictor, read_trajectories
@@ -123,15 +181,45 @@ def test_version_plain_piped_output_and_one_line_warnings(tmp_path):
     assert out.returncode == 0 and out.stdout.strip() == f"sympredict {__version__}"
     env = {**__import__("os").environ, "TERM": "xterm-256color", "OPENBLAS_NUM_THREADS": "1"}
     data, model = tmp_path / "d.h5", tmp_path / "m.h5"
-    assert subprocess.run([*sym, "data", "--out", str(data), "--n-grid", "8"], capture_output=True, env=env,
-                          timeout=120).returncode == 0
-    train = subprocess.run([*sym, "train", str(data), "--out", str(model), "--centers", "30", "--threads", "1", "--verbose"],
-                           capture_output=True, text=True, env=env, timeout=300)
+    assert (
+        subprocess.run(
+            [*sym, "data", "--out", str(data), "--n-grid", "8"], capture_output=True, env=env, timeout=120
+        ).returncode
+        == 0
+    )
+    train = subprocess.run(
+        [*sym, "train", str(data), "--out", str(model), "--centers", "30", "--threads", "1", "--verbose"],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=300,
+    )
     assert train.returncode == 0, train.stderr
     assert "greedy" in train.stderr and "\x1b[" not in train.stderr  # the log is there, without escape codes
     # a start far outside the training states: the extrapolation warning, on one line
-    pred = subprocess.run([*sym, "predict", str(model), "--x0", "40,0", "--mu", "0.75", "--dt", "0.05", "--steps", "2",
-                           "--backend", "numpy"], capture_output=True, text=True, env=env, timeout=120)
+    pred = subprocess.run(
+        [
+            *sym,
+            "predict",
+            str(model),
+            "--x0",
+            "40,0",
+            "--mu",
+            "0.75",
+            "--dt",
+            "0.05",
+            "--steps",
+            "2",
+            "--backend",
+            "numpy",
+        ],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=120,
+    )
     warned = [line for line in pred.stderr.splitlines() if "warning" in line]
-    assert warned and all(line.startswith("sympredict: warning: ExtrapolationWarning: extrapolation") for line in warned), pred.stderr
+    assert warned and all(
+        line.startswith("sympredict: warning: ExtrapolationWarning: extrapolation") for line in warned
+    ), pred.stderr
     assert len(pred.stderr.splitlines()) == len(warned), pred.stderr

@@ -27,7 +27,10 @@ def test_outputs_equal_to_inputs_and_special_outputs_are_refused(tmp_path, capsy
         (["train", str(data), "--out", str(data)], "is also an input"),
         (["train", str(data), "--out", str(link)], "is also an input"),
         (["train", str(data), "--validation", str(model), "--out", str(model)], "is also an input"),
-        (["predict", str(model), "--x0", "1,0", "--steps", "2", "--mu", "0.75", "--dt", "0.05", "--out", str(model)], "is also an input"),
+        (
+            ["predict", str(model), "--x0", "1,0", "--steps", "2", "--mu", "0.75", "--dt", "0.05", "--out", str(model)],
+            "is also an input",
+        ),
         (["data", "--out", str(fifo)], "FIFO"),
         (["data", "--out", str(tmp_path)], "is a directory"),
         (["data", "--out", str(tmp_path / "no" / "d.h5")], "does not exist"),
@@ -72,12 +75,18 @@ def test_hostile_files_reaching_the_cli_are_one_line(tmp_path, capfd):
     fifo = tmp_path / "fifo.h5"
     os.mkfifo(fifo)
     capfd.readouterr()
-    for argv in (["report", str(hostile)], ["train", str(hostile), "--out", str(tmp_path / "m.h5")], ["report", str(damaged)],
-                 ["predict", str(fifo), "--x0", "1,0", "--steps", "1"], ["report", os.devnull]):
+    for argv in (
+        ["report", str(hostile)],
+        ["train", str(hostile), "--out", str(tmp_path / "m.h5")],
+        ["report", str(damaged)],
+        ["predict", str(fifo), "--x0", "1,0", "--steps", "1"],
+        ["report", os.devnull],
+    ):
         assert main(argv) == 1, argv
         captured = capfd.readouterr()
         lines = captured.err.strip().splitlines()
         assert len(lines) == 1 and lines[0].startswith("sympredict: error: ") and captured.out == "", (argv, captured)
-    proc = subprocess.run([sys.executable, "-m", "sympredict.cli", "report", str(damaged)], capture_output=True, text=True, timeout=120)
+    proc = subprocess.run(
+        [sys.executable, "-m", "sympredict.cli", "report", str(damaged)], capture_output=True, text=True, timeout=120
+    )
     assert proc.returncode == 1 and len(proc.stderr.strip().splitlines()) == 1 and proc.stdout == ""
-

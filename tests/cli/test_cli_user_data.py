@@ -26,7 +26,9 @@ def test_train_on_user_trajectories_then_predict(tmp_path, capsys, suffix):
     data = oscillator()
     write_trajectories(data, tmp_path / f"traj{suffix}")
     model = str(tmp_path / "m.h5")
-    assert main(["train", str(tmp_path / f"traj{suffix}"), "--out", model, "--max-centers", "12", "--threads", "1"]) == 0
+    assert (
+        main(["train", str(tmp_path / f"traj{suffix}"), "--out", model, "--max-centers", "12", "--threads", "1"]) == 0
+    )
     out = capsys.readouterr().out
     assert "3 trajectories of 9 states (2n = 2, 0 parameter(s), dt = 0.1), 24 pairs" in out and "saved to" in out
     fitted = SymplecticKernelPredictor.load(model)
@@ -42,7 +44,9 @@ def test_train_on_user_trajectories_then_predict(tmp_path, capsys, suffix):
     _same_rollout(fitted, back.states[0], np.array([0.5, 0.1]))
     np.testing.assert_allclose(back.times[0], np.arange(5) * 0.1, rtol=0, atol=1e-15)
     (tmp_path / "x0.csv").write_text("q,p\n0.5,0.1\n-0.2,0.3\n")
-    assert main(["predict", model, "--x0-file", str(tmp_path / "x0.csv"), "--steps", "4", "--out", traj, "--force"]) == 0
+    assert (
+        main(["predict", model, "--x0-file", str(tmp_path / "x0.csv"), "--steps", "4", "--out", traj, "--force"]) == 0
+    )
     both = read_trajectories(traj)
     _same_rollout(fitted, both.states[0], np.array([0.5, 0.1]))
     _same_rollout(fitted, both.states[1], np.array([-0.2, 0.3]))
@@ -91,8 +95,10 @@ def test_predict_errors_name_the_option_and_shape(tmp_path, capsys):
 @pytest.mark.parametrize("system, dim", [("henon-heiles", 4), ("wave", 8), ("sine-gordon", 8)])
 def test_data_for_every_shipped_system_is_read_by_train(tmp_path, capsys, system, dim):
     out = tmp_path / f"{system}.npz"
-    assert main(["data", "--system", system, "--trajectories", "3", "--steps", "4", "--n-points", "4",
-                 "--out", str(out)]) == 0
+    assert (
+        main(["data", "--system", system, "--trajectories", "3", "--steps", "4", "--n-points", "4", "--out", str(out)])
+        == 0
+    )
     assert f"wrote 3 {system} trajectories of 4 steps" in capsys.readouterr().out
     data = read_trajectories(out)
     assert data.states.shape == (3, 5, dim) and data.mu.shape == (3, 1) and data.dt == 0.1

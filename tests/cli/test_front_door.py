@@ -51,8 +51,27 @@ def test_train_kernel_options_are_named_after_the_kernel_and_dt_is_refused(tmp_p
     assert "train has no --dt" in err and "--dt-kernel" in err
     assert main(["train", str(traj), "--mu", "imq:1", "--out", out]) == 1
     assert "--mu-kernel" in capsys.readouterr().err
-    assert main(["train", str(traj), "--state-kernel", "imq:0.5", "--mu-kernel", "none", "--dt-kernel", "none",
-                 "--max-centers", "10", "--threads", "1", "--out", out]) == 0
+    assert (
+        main(
+            [
+                "train",
+                str(traj),
+                "--state-kernel",
+                "imq:0.5",
+                "--mu-kernel",
+                "none",
+                "--dt-kernel",
+                "none",
+                "--max-centers",
+                "10",
+                "--threads",
+                "1",
+                "--out",
+                out,
+            ]
+        )
+        == 0
+    )
     assert SymplecticKernelPredictor.load(out).kernel_.state == IMQ(0.5)
 
 
@@ -72,17 +91,21 @@ def test_train_prints_one_result_line_by_default_and_the_log_with_verbose(tmp_pa
     assert quiet.returncode == 0, quiet.stderr
     assert quiet.stderr == "" and len(quiet.stdout.strip().splitlines()) == 1, (quiet.stdout, quiet.stderr)
     assert quiet.stdout.startswith("trained 20 centres") and "saved to" in quiet.stdout
-    loud = subprocess.run([*sym, "--out", str(tmp_path / "b.h5"), "--verbose"], capture_output=True, text=True,
-                          timeout=300)
+    loud = subprocess.run(
+        [*sym, "--out", str(tmp_path / "b.h5"), "--verbose"], capture_output=True, text=True, timeout=300
+    )
     assert loud.returncode == 0 and "greedy" in loud.stderr and "read " in loud.stderr
     assert "nan on 0 held-out" not in loud.stderr
 
 
-@pytest.mark.parametrize("argv, expected", [
-    (["data", "--random", "0"], "--random: must be >= 1"),
-    (["data", "--n-grid", "0"], "--n-grid: must be >= 2"),
-    (["predict", "m.h5", "--x0", "1,0", "--steps", "1", "--mu="], "argument --mu"),
-])
+@pytest.mark.parametrize(
+    "argv, expected",
+    [
+        (["data", "--random", "0"], "--random: must be >= 1"),
+        (["data", "--n-grid", "0"], "--n-grid: must be >= 2"),
+        (["predict", "m.h5", "--x0", "1,0", "--steps", "1", "--mu="], "argument --mu"),
+    ],
+)
 def test_data_and_predict_numbers_are_checked_by_option(argv, expected, tmp_path, capsys):
     with pytest.raises(SystemExit) as exc:
         main([*argv, "--out", str(tmp_path / "x.h5")] if argv[0] == "data" else argv)
@@ -132,7 +155,9 @@ def test_reductor_empty_kernel_list_and_array_reconstruct(small_fe_wave):
     fom, _, _, train, RB = small_fe_wave
     dt = 5 * fom.T / fom.time_stepper.nt
     with pytest.raises(ValueError, match=r"state_kernels must be a non-empty sequence"):
-        SymplecticKernelReductor(fom, RB, dt, ProjectedTrajectories(train), selection=ValidationSelection(state_kernels=[]))
+        SymplecticKernelReductor(
+            fom, RB, dt, ProjectedTrajectories(train), selection=ValidationSelection(state_kernels=[])
+        )
     reductor = SymplecticKernelReductor(fom, RB, dt, ProjectedTrajectories(train), DefaultEstimator(max_centers=10))
     full = reductor.reconstruct(np.zeros((2, reductor.dim)))
     assert len(full) == 2 and full.space == fom.solution_space and full.norm().max() == 0

@@ -10,7 +10,6 @@ from sympredict import SymplecticKernelPredictor
 from sympredict.container import check_save_path
 
 
-
 def test_container_saves_under_the_longest_valid_name(coarse_pendulum_model, tmp_path):
     """A 255-byte name: the temporary sibling was longer than the limit, so the save failed after the work."""
     name = "m" * 252 + ".h5"
@@ -91,6 +90,7 @@ def test_model_kept_when_saving_fails_after_training(coarse_pendulum_model, tmp_
         if Path(path) == target:
             raise OSError(28, "No space left on device")
         real_save(self, path)
+
     monkeypatch.setattr(type(coarse_pendulum_model), "save", failing_save)
     with pytest.raises(OSError, match="kept in") as info:
         _files._save_model_or_keep(coarse_pendulum_model, target)

@@ -35,8 +35,12 @@ NUMBER = re.compile(r"[-+]?(?:\d+\.\d*|\.\d+|\d+)(?:[eE][-+]?\d+)?")
 FENCE = re.compile(r"^(`{3,})\s*([\w{}-]*)")
 
 #: pages whose examples take longer than a few seconds (minutes of training or a full-order model)
-SLOW_PAGES = {"docs/tutorials/pendulum.md", "docs/tutorials/pymor_rom.md", "docs/reference/integrators.md",
-              "docs/howto/test_your_rom.md"}
+SLOW_PAGES = {
+    "docs/tutorials/pendulum.md",
+    "docs/tutorials/pymor_rom.md",
+    "docs/reference/integrators.md",
+    "docs/howto/test_your_rom.md",
+}
 #: the number of blocks marked skip-example, page by page
 EXPECTED_SKIPS = {
     "docs/explanation/beyond.md": 1,
@@ -64,9 +68,16 @@ def parse_blocks(text: str) -> list[dict]:
         if i == len(lines):
             raise AssertionError(f"unclosed code fence opened at line {start + 1}")
         skip, output = SKIP.fullmatch(last), OUTPUT.fullmatch(last)
-        blocks.append({"lang": lang, "code": "\n".join(body) + "\n", "line": start + 1,
-                       "skip": skip.group(1) if skip else None, "output_marker": bool(output),
-                       "factor": float(output.group(1)) if output and output.group(1) else None})
+        blocks.append(
+            {
+                "lang": lang,
+                "code": "\n".join(body) + "\n",
+                "line": start + 1,
+                "skip": skip.group(1) if skip else None,
+                "output_marker": bool(output),
+                "factor": float(output.group(1)) if output and output.group(1) else None,
+            }
+        )
         last = ""
         i += 1
     return blocks
@@ -79,7 +90,8 @@ def examples(page: Path) -> list[dict]:
     for k, b in enumerate(blocks):
         if b["output_marker"]:
             assert k > 0 and blocks[k - 1]["lang"] in ("python", "pycon"), (
-                f"{page}:{b['line']}: an expected-output block must follow a python block")
+                f"{page}:{b['line']}: an expected-output block must follow a python block"
+            )
             continue
         if b["lang"] not in ("python", "pycon"):
             continue
@@ -147,8 +159,14 @@ def test_page_examples_run_and_print_what_the_page_shows(page, tmp_path):
     (tmp_path / "blocks.json").write_text(json.dumps(spec))
     (tmp_path / "runner.py").write_text(_RUNNER)
     env = {**os.environ, "MPLBACKEND": "Agg", "PYTHONPATH": str(ROOT)}
-    proc = subprocess.run([sys.executable, "runner.py", "blocks.json", "results.json"], cwd=tmp_path, env=env,
-                          capture_output=True, text=True, timeout=600)
+    proc = subprocess.run(
+        [sys.executable, "runner.py", "blocks.json", "results.json"],
+        cwd=tmp_path,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert proc.returncode == 0, proc.stderr[-3000:]
     results = json.loads((tmp_path / "results.json").read_text())
     checker = doctest.OutputChecker()
@@ -157,10 +175,12 @@ def test_page_examples_run_and_print_what_the_page_shows(page, tmp_path):
         where = f"{_rel(page)}, block at line {b['line']}"
         assert r["error"] is None, f"{where} raised:\n{r['error']}"
         if b["expected"] is not None:
-            same = (numbers_agree(b["expected"], r["out"], b["factor"]) if b["factor"] is not None
-                    else checker.check_output(b["expected"], r["out"], flags))
-            assert same, (
-                f"{where} printed\n{r['out']}\nbut the page shows\n{b['expected']}")
+            same = (
+                numbers_agree(b["expected"], r["out"], b["factor"])
+                if b["factor"] is not None
+                else checker.check_output(b["expected"], r["out"], flags)
+            )
+            assert same, f"{where} printed\n{r['out']}\nbut the page shows\n{b['expected']}"
     assert len(results) == len(runnable)
 
 
@@ -183,8 +203,10 @@ def test_the_readme_example_shows_its_output():
 
 
 def test_parser_reads_markers_and_outputs():
-    text = ("<!-- skip-example: a fragment of the tutorial -->\n```python\nx\n```\n\n"
-            "```python\nprint(1)\n```\n<!-- expected-output -->\n```text\n1\n```\n```pycon\n>>> print(2)\n2\n```\n")
+    text = (
+        "<!-- skip-example: a fragment of the tutorial -->\n```python\nx\n```\n\n"
+        "```python\nprint(1)\n```\n<!-- expected-output -->\n```text\n1\n```\n```pycon\n>>> print(2)\n2\n```\n"
+    )
     blocks = parse_blocks(text)
     assert [b["lang"] for b in blocks] == ["python", "python", "text", "pycon"]
     assert blocks[0]["skip"] == "a fragment of the tutorial" and blocks[1]["skip"] is None

@@ -19,8 +19,11 @@ HISTORY = {
     "run letter": re.compile(r"\b[Rr]uns? [A-Z]\b(?![-'’])"),
     "date": re.compile(r"\b20\d\d-\d\d-\d\d\b"),
     "commit hash": re.compile(r"\b(?=[0-9a-f]*\d)(?=[0-9a-f]*[a-f])[0-9a-f]{7,40}\b"),
-    "history phrase": re.compile(r"the target was|this session|the issue'?s?\b|(?:first|second) pass\b|"
-                                 r"the previous release|an earlier version", re.IGNORECASE),
+    "history phrase": re.compile(
+        r"the target was|this session|the issue'?s?\b|(?:first|second) pass\b|"
+        r"the previous release|an earlier version",
+        re.IGNORECASE,
+    ),
 }
 
 
@@ -40,16 +43,36 @@ def test_no_development_history(page):
     assert not bad, f"{page.relative_to(ROOT)} refers to development history:\n" + "\n".join(bad)
 
 
-@pytest.mark.parametrize("text", ["see issue 14", "fixed in #12", "run B shows", "measured 2026-11-22",
-                                  "against 75d2b66", "the target was 2e-5", "as in this session",
-                                  "the issue's 2e-5 target"])
+@pytest.mark.parametrize(
+    "text",
+    [
+        "see issue 14",
+        "fixed in #12",
+        "run B shows",
+        "measured 2026-11-22",
+        "against 75d2b66",
+        "the target was 2e-5",
+        "as in this session",
+        "the issue's 2e-5 target",
+    ],
+)
 def test_the_patterns_catch_history(text):
     assert findings(text)
 
 
-@pytest.mark.parametrize("text", ["1000000000000 bytes", "IMQ(0.5) kernel", "headings link as #1-data",
-                                  "scenario A and scenario B", "a run of the pendulum", "deadbeef",
-                                  "`ExactGreedy('float32')`", "fault E1 and F7"])
+@pytest.mark.parametrize(
+    "text",
+    [
+        "1000000000000 bytes",
+        "IMQ(0.5) kernel",
+        "headings link as #1-data",
+        "scenario A and scenario B",
+        "a run of the pendulum",
+        "deadbeef",
+        "`ExactGreedy('float32')`",
+        "fault E1 and F7",
+    ],
+)
 def test_the_patterns_spare_ordinary_text(text):
     assert not findings(text)
 

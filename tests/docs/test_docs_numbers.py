@@ -53,7 +53,9 @@ def test_every_json_role_resolves(page, text):
     assert shown.strip() and path.is_file()
 
 
-@pytest.mark.parametrize("page,kind,path,options", DIRECTIVES, ids=[f"{p.relative_to(DOCS)}:{k}:{a}" for p, k, a, _ in DIRECTIVES])
+@pytest.mark.parametrize(
+    "page,kind,path,options", DIRECTIVES, ids=[f"{p.relative_to(DOCS)}:{k}:{a}" for p, k, a, _ in DIRECTIVES]
+)
 def test_every_json_directive_resolves(page, kind, path, options):
     data = jsondata.load(page.parent / path)
     command, machine = jsondata.provenance(data)
@@ -77,9 +79,16 @@ def test_the_mutation_table_matches_the_per_fault_results():
 
 @pytest.fixture
 def source(tmp_path):
-    data = {"command": "python make.py --out x.json", "machine": "2 CPUs, test box",
-            "a": 17.4238, "n": 69, "rows": [{"k": "x", "v": 1.5}, {"k": "y", "v": 2.25}],
-            "by": {"numpy": {"t": 0.076}, "numba": {"t": 17.4}}, "name": "IMQ", "flag": True}
+    data = {
+        "command": "python make.py --out x.json",
+        "machine": "2 CPUs, test box",
+        "a": 17.4238,
+        "n": 69,
+        "rows": [{"k": "x", "v": 1.5}, {"k": "y", "v": 2.25}],
+        "by": {"numpy": {"t": 0.076}, "numba": {"t": 17.4}},
+        "name": "IMQ",
+        "flag": True,
+    }
     (tmp_path / "x.json").write_text(json.dumps(data))
     return tmp_path
 
@@ -111,17 +120,20 @@ def test_typed_text_is_compared_exactly(source):
         jsondata.resolve_role("Matern <x.json:name>", source)
 
 
-@pytest.mark.parametrize("text,match", [
-    ("x.json:b", r"no 'b' in keys command, machine, a"),
-    ("x.json:rows[5].v", "no 5 in a list of 2"),
-    ("x.json:by.jax.t", "no 'jax' in keys numpy, numba"),
-    ("x.json:name * 2", "not a number"),
-    ("x.json:__import__('os')", "not allowed"),
-    ("x.json:a:d", "cannot format"),
-    ("x.json:by", "not a number or text"),
-    ("y.json:a", "does not exist"),
-    ("x.json", "FILE:KEY"),
-])
+@pytest.mark.parametrize(
+    "text,match",
+    [
+        ("x.json:b", r"no 'b' in keys command, machine, a"),
+        ("x.json:rows[5].v", "no 5 in a list of 2"),
+        ("x.json:by.jax.t", "no 'jax' in keys numpy, numba"),
+        ("x.json:name * 2", "not a number"),
+        ("x.json:__import__('os')", "not allowed"),
+        ("x.json:a:d", "cannot format"),
+        ("x.json:by", "not a number or text"),
+        ("y.json:a", "does not exist"),
+        ("x.json", "FILE:KEY"),
+    ],
+)
 def test_a_wrong_reference_raises_and_says_what_exists(source, text, match):
     with pytest.raises(JsonDataError, match=match):
         jsondata.resolve_role(text, source)
@@ -131,8 +143,9 @@ def test_a_source_without_command_and_machine_is_refused(tmp_path):
     (tmp_path / "bare.json").write_text(json.dumps({"a": 1.0}))
     with pytest.raises(JsonDataError, match="lacks 'command' and 'machine'"):
         jsondata.load(tmp_path / "bare.json")
-    (tmp_path / "proto.json").write_text(json.dumps({"a": 1.0, "protocol": {"command": "python b.py",
-                                                                         "machine": {"cpus": 2, "platform": "Linux"}}}))
+    (tmp_path / "proto.json").write_text(
+        json.dumps({"a": 1.0, "protocol": {"command": "python b.py", "machine": {"cpus": 2, "platform": "Linux"}}})
+    )
     assert jsondata.provenance(jsondata.load(tmp_path / "proto.json")) == ("python b.py", "2 CPUs, Linux")
 
 
@@ -154,14 +167,28 @@ def _build(tmp_path, page: str):
 
     src = tmp_path / "src"
     (src / "data").mkdir(parents=True)
-    (src / "data" / "x.json").write_text(json.dumps({"command": "python make.py", "machine": "2 CPUs, test box",
-                                                     "a": 17.4238, "rows": [{"k": "x", "v": 1.5}]}))
-    (src / "conf.py").write_text(f"import sys\nsys.path.insert(0, {str(DOCS / '_ext')!r})\n"
-                                 "extensions = ['myst_parser', 'jsondata']\n")
+    (src / "data" / "x.json").write_text(
+        json.dumps(
+            {"command": "python make.py", "machine": "2 CPUs, test box", "a": 17.4238, "rows": [{"k": "x", "v": 1.5}]}
+        )
+    )
+    (src / "conf.py").write_text(
+        f"import sys\nsys.path.insert(0, {str(DOCS / '_ext')!r})\nextensions = ['myst_parser', 'jsondata']\n"
+    )
     (src / "index.md").write_text(page)
     warnings = io.StringIO()
-    app = Sphinx(str(src), str(src), str(tmp_path / "out"), str(tmp_path / "doctrees"), "html",
-                 status=None, warning=warnings, warningiserror=True, keep_going=True, freshenv=True)
+    app = Sphinx(
+        str(src),
+        str(src),
+        str(tmp_path / "out"),
+        str(tmp_path / "doctrees"),
+        "html",
+        status=None,
+        warning=warnings,
+        warningiserror=True,
+        keep_going=True,
+        freshenv=True,
+    )
     try:
         app.build()
     except Exception as exc:  # Sphinx < 8 raises on the first warning under warningiserror
@@ -171,18 +198,25 @@ def _build(tmp_path, page: str):
 
 
 def test_sphinx_build_renders_the_numbers_and_the_source(tmp_path):
-    page = ("# T\n\nIt took {json}`x.json:a:.1f` s, typed {json}`17.42 <x.json:a>` s.\n\n"
-            "```{json-table} data/x.json\n:rows: rows\n:columns: k, v|.2f\n:header: key, value\n```\n")
+    page = (
+        "# T\n\nIt took {json}`x.json:a:.1f` s, typed {json}`17.42 <x.json:a>` s.\n\n"
+        "```{json-table} data/x.json\n:rows: rows\n:columns: k, v|.2f\n:header: key, value\n```\n"
+    )
     status, html, warnings = _build(tmp_path, page)
     assert status == 0, warnings
-    assert "It took <span class=\"json-number\">17.4</span> s" in html and ">17.42</span>" in html
+    assert 'It took <span class="json-number">17.4</span> s' in html and ">17.42</span>" in html
     assert "<p>1.50</p>" in html and "<p>value</p>" in html
     assert re.search(r"Made by <code[^>]*>.*python.*make\.py.*</code> on 2 CPUs, test box\.", html)
 
 
-@pytest.mark.parametrize("bad,match", [("{json}`17.5 <x.json:a>`", "the page says '17.5'"),
-                                       ("{json}`x.json:b`", "no 'b'"),
-                                       ("```{json-table} data/x.json\n:rows: rows\n:columns: k, w\n```", "column 'w'")])
+@pytest.mark.parametrize(
+    "bad,match",
+    [
+        ("{json}`17.5 <x.json:a>`", "the page says '17.5'"),
+        ("{json}`x.json:b`", "no 'b'"),
+        ("```{json-table} data/x.json\n:rows: rows\n:columns: k, w\n```", "column 'w'"),
+    ],
+)
 def test_sphinx_build_fails_on_a_wrong_number_or_key(tmp_path, bad, match):
     status, _, warnings = _build(tmp_path, f"# T\n\n{bad}\n")
     assert status != 0 and match in warnings

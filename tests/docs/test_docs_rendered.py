@@ -48,8 +48,9 @@ def test_every_fence_closes_on_a_line_of_its_own(page):
     assert not problems, f"{page.relative_to(ROOT)}:\n" + "\n".join(problems)
 
 
-@pytest.mark.parametrize("text", ["```bash\nls\n``` On a terminal\n\n```{x} y\n```\n", "```python\nx = 1\n",
-                                  "text ```inline``` fence\n"])
+@pytest.mark.parametrize(
+    "text", ["```bash\nls\n``` On a terminal\n\n```{x} y\n```\n", "```python\nx = 1\n", "text ```inline``` fence\n"]
+)
 def test_the_fence_check_catches_broken_fences(text):
     assert fence_problems(text)
 
@@ -74,14 +75,20 @@ def test_the_html_check_catches_an_unrendered_directive():
 @pytest.fixture(scope="module")
 def built(tmp_path_factory):
     out = tmp_path_factory.mktemp("html")
-    proc = subprocess.run([sys.executable, "-m", "sphinx", "-E", "-q", "-b", "html", str(ROOT / "docs"), str(out)],
-                          capture_output=True, text=True, timeout=900)
+    proc = subprocess.run(
+        [sys.executable, "-m", "sphinx", "-E", "-q", "-b", "html", str(ROOT / "docs"), str(out)],
+        capture_output=True,
+        text=True,
+        timeout=900,
+    )
     assert proc.returncode == 0, proc.stderr[-3000:]
     return out
 
 
 def test_rendered_pages_hold_no_stray_fences_or_directives(built):
-    pages = [p for p in built.rglob("*.html") if not {"_modules", "_sources", "_static"} & set(p.relative_to(built).parts)]
+    pages = [
+        p for p in built.rglob("*.html") if not {"_modules", "_sources", "_static"} & set(p.relative_to(built).parts)
+    ]
     assert len(pages) > 20
     bad = {p.relative_to(built).as_posix(): found for p in pages if (found := leftovers(p.read_text(encoding="utf-8")))}
     assert not bad, bad

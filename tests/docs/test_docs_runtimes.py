@@ -34,8 +34,11 @@ def test_every_page_with_examples_states_their_measured_runtime(page):
 
 def test_the_readme_states_the_demo_times_within_the_measured_ones():
     text = " ".join((ROOT / "README.md").read_text(encoding="utf-8").split())
-    m = re.search(r"takes about (\d+) s on a 2-core machine the first time, with an empty compilation cache, "
-                  r"and about (\d+) s after that", text)
+    m = re.search(
+        r"takes about (\d+) s on a 2-core machine the first time, with an empty compilation cache, "
+        r"and about (\d+) s after that",
+        text,
+    )
     assert m, "README: the sentence with the demo's times"
     demo = RUNTIMES["demo"]
     for stated, key in zip(map(float, m.groups()), ("cold_s", "warm_s")):

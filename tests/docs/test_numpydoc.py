@@ -68,8 +68,11 @@ def test_every_default_is_stated(name):
     types = {n: t for n, (t, _) in doc.doc_parameters.items()}
     missing = []
     for pname, param in signature.parameters.items():
-        if pname == "self" or param.default is inspect.Parameter.empty or param.kind in (param.VAR_POSITIONAL,
-                                                                                          param.VAR_KEYWORD):
+        if (
+            pname == "self"
+            or param.default is inspect.Parameter.empty
+            or param.kind in (param.VAR_POSITIONAL, param.VAR_KEYWORD)
+        ):
             continue
         type_line = next((t for n, t in types.items() if pname in [s.strip() for s in n.split(",")]), None)
         if type_line is not None and "default=" not in type_line.replace(" ", ""):

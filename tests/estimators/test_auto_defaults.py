@@ -31,8 +31,11 @@ def _pendulum_samples(pendulum, n, seed, dt=0.1, mu_range=(0.6, 1.0)):
     x0 = np.column_stack([rng.uniform(-1.5, 1.5, n), rng.uniform(-2.0, 2.0, n)])
     mu = rng.uniform(*mu_range, n)
     dt = np.broadcast_to(np.asarray(dt, dtype=float), (n,)) if np.ndim(dt) == 0 else np.asarray(dt)
-    x1 = np.vstack([pendulum.flow(x0[i:i + 1], mu[i], dt[i]) for i in range(n)]) if np.ptp(dt) > 0 or np.ptp(mu) > 0 \
+    x1 = (
+        np.vstack([pendulum.flow(x0[i : i + 1], mu[i], dt[i]) for i in range(n)])
+        if np.ptp(dt) > 0 or np.ptp(mu) > 0
         else pendulum.flow(x0, mu[0], dt[0])
+    )
     return x0, x1, mu, dt
 
 
@@ -100,8 +103,9 @@ def test_physical_units_learn_as_well_as_units_of_order_one(pendulum, param_data
 
 
 def test_several_steps_without_a_dt_kernel_choose_one(pendulum):
-    x0, x1, mu, dt = _pendulum_samples(pendulum, 400, 3, dt=np.random.default_rng(3).choice([0.05, 0.1], 400),
-                                       mu_range=(0.8, 0.8))
+    x0, x1, mu, dt = _pendulum_samples(
+        pendulum, 400, 3, dt=np.random.default_rng(3).choice([0.05, 0.1], 400), mu_range=(0.8, 0.8)
+    )
     m = SymplecticKernelPredictor(max_centers=100, search=SMALL).fit(x0, x1, dt=dt)
     assert m.dt_fixed_ is None and m.kernel_.dt is not None and m.kernel_.dt == m.choice_["dt_kernel"]
     assert "mu_kernel" not in m.choice_ and m.n_mu_ == 0
@@ -168,8 +172,9 @@ def test_the_search_logs_its_choice(param_data, caplog):
 def test_diagnostics_report_the_fit_and_advise(param_data):
     x0, x1, mu, _ = param_data
     # without the structure stage: the pendulum's symmetry group makes 15 centres enough, no advice to give
-    few = SymplecticKernelPredictor(max_centers=15, search=KernelSearch(m_star=15, max_samples=300, refine_sweeps=0,
-                                                                        structure=False))
+    few = SymplecticKernelPredictor(
+        max_centers=15, search=KernelSearch(m_star=15, max_samples=300, refine_sweeps=0, structure=False)
+    )
     few.fit(x0, x1, mu=mu, dt=0.1)
     d = few.diagnostics_
     assert isinstance(d, FitDiagnostics)
@@ -182,7 +187,9 @@ def test_diagnostics_report_the_fit_and_advise(param_data):
 
 def test_a_converged_fit_says_so(param_data):
     x0, x1, mu, _ = param_data
-    m = SymplecticKernelPredictor(max_centers=400, trainer=ExactGreedy(tol=1e-2), search=SMALL).fit(x0, x1, mu=mu, dt=0.1)
+    m = SymplecticKernelPredictor(max_centers=400, trainer=ExactGreedy(tol=1e-2), search=SMALL).fit(
+        x0, x1, mu=mu, dt=0.1
+    )
     assert m.diagnostics_.converged and m.diagnostics_.stop_reason == "tol" and m.n_centers_ < 400
 
 
@@ -202,10 +209,14 @@ def test_a_file_whose_choice_is_tampered_with_is_refused(auto_model, tmp_path):
     path = tmp_path / "auto.h5"
     auto_model.save(path)
     settings, arrays = read_container(path, MODEL_FORMAT)
-    for bad, match in ((dict(settings, choice={"max_centers": 3}), "does not choose"),
-                       (dict(settings, choice={**settings["choice"], "mu_kernel": {"kernel": {"family": "imq", "eps": 9.0}}}),
-                        "disagrees with its kernel"),
-                       (dict(settings, choice=[1]), "not a JSON object")):
+    for bad, match in (
+        (dict(settings, choice={"max_centers": 3}), "does not choose"),
+        (
+            dict(settings, choice={**settings["choice"], "mu_kernel": {"kernel": {"family": "imq", "eps": 9.0}}}),
+            "disagrees with its kernel",
+        ),
+        (dict(settings, choice=[1]), "not a JSON object"),
+    ):
         write_container(tmp_path / "bad.h5", MODEL_FORMAT, bad, arrays)
         with pytest.raises(ModelFileError, match=match):
             SymplecticKernelPredictor.load(tmp_path / "bad.h5")
@@ -220,17 +231,20 @@ def test_the_estimator_contract_holds(param_data):
     assert not hasattr(c, "choice_") and m.get_params(deep=False)["state_kernel"] is None
 
 
-@pytest.mark.parametrize("bad, match", [
-    (dict(families=("rbf",)), "families"),
-    (dict(shapes=()), "shapes"),
-    (dict(parameter_shapes=(1.0, -2.0)), "parameter_shapes"),
-    (dict(updates=("leapfrog",)), "updates"),
-    (dict(m_star=0), "m_star"),
-    (dict(final_centers=0), "final_centers"),
-    (dict(max_samples=5), "max_samples"),
-    (dict(validation_fraction=1.0), "validation_fraction"),
-    (dict(halving="yes"), "halving"),
-])
+@pytest.mark.parametrize(
+    "bad, match",
+    [
+        (dict(families=("rbf",)), "families"),
+        (dict(shapes=()), "shapes"),
+        (dict(parameter_shapes=(1.0, -2.0)), "parameter_shapes"),
+        (dict(updates=("leapfrog",)), "updates"),
+        (dict(m_star=0), "m_star"),
+        (dict(final_centers=0), "final_centers"),
+        (dict(max_samples=5), "max_samples"),
+        (dict(validation_fraction=1.0), "validation_fraction"),
+        (dict(halving="yes"), "halving"),
+    ],
+)
 def test_bad_search_settings_are_named(bad, match, param_data):
     x0, x1, mu, _ = param_data
     with pytest.raises(ValueError, match=match):
@@ -320,12 +334,14 @@ def test_halving_is_deterministic(param_data, halved_pair):
     x0, x1, mu, _ = param_data
     again = SymplecticKernelPredictor(max_centers=100, search=clone(HALVED)).fit(x0, x1, mu=mu, dt=0.1)
     first = halved_pair[True].search_.table
-    assert [(r["stage"], r["kernels"], r.get("rung"), r.get("cut")) for r in again.search_.table] == \
-        [(r["stage"], r["kernels"], r.get("rung"), r.get("cut")) for r in first]
+    assert [(r["stage"], r["kernels"], r.get("rung"), r.get("cut")) for r in again.search_.table] == [
+        (r["stage"], r["kernels"], r.get("rung"), r.get("cut")) for r in first
+    ]
     assert again.choice_ == halved_pair[True].choice_
     # the same code path on the same arrays in one process: the same scores, bit for bit
-    assert [r.get("score", r.get("E_val")) for r in again.search_.table] == \
-        [r.get("score", r.get("E_val")) for r in first]
+    assert [r.get("score", r.get("E_val")) for r in again.search_.table] == [
+        r.get("score", r.get("E_val")) for r in first
+    ]
 
 
 def test_the_second_stage_cuts_candidates_beyond_the_margin_at_the_rung(param_data, monkeypatch):

@@ -1,8 +1,6 @@
 """What the defaults say about the data: scales per coordinate and component, wrapped angles, one warning per
 fit, an interrupted fit, noisy data, pre-release options beside their parts."""
 
-
-
 import numpy as np
 import pytest
 
@@ -155,7 +153,9 @@ def test_noisy_data_get_regularization_advice():
     rng = np.random.default_rng(0)
     x0 = np.column_stack([rng.uniform(-1, 1, 30), rng.uniform(-1, 1, 30)])
     clean = Pendulum().trajectory(x0, np.full(30, 0.75), 0.05, 20)
-    noisy = SymplecticKernelPredictor(max_centers=120).fit(TrajectoryData(clean + 1e-3 * rng.normal(size=clean.shape), None, 0.05))
+    noisy = SymplecticKernelPredictor(max_centers=120).fit(
+        TrajectoryData(clean + 1e-3 * rng.normal(size=clean.shape), None, 0.05)
+    )
     assert any("noisy data?" in a and "regularization" in a for a in noisy.diagnostics_.advice)
     exact = SymplecticKernelPredictor(max_centers=120).fit(TrajectoryData(clean, None, 0.05))
     assert not any("noisy data?" in a for a in exact.diagnostics_.advice)

@@ -28,12 +28,15 @@ def test_value_greedy_to_exhaustion_equals_dense_solve(rng):
 
 def test_direct_model_interpolates_the_step(pendulum, small_pendulum_data, rng):
     d = small_pendulum_data.subset(slice(0, 60))
-    model = DirectKernelPredictor(IMQ(0.3), IMQ(2.0), IMQ(5.0), max_centers=60,
-                                  trainer=ExactGreedy(tol=0.0, power_tol=0.0))
+    model = DirectKernelPredictor(
+        IMQ(0.3), IMQ(2.0), IMQ(5.0), max_centers=60, trainer=ExactGreedy(tol=0.0, power_tol=0.0)
+    )
     model.fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
     assert model.n_centers_ == 60
     np.testing.assert_allclose(model.step(d.x0, mu=d.mu, dt=d.dt), d.x1, atol=1e-8)
-    with pytest.warns(ExtrapolationWarning, match="leave the training states"):  # 60 samples: a corner of the phase space
+    with pytest.warns(
+        ExtrapolationWarning, match="leave the training states"
+    ):  # 60 samples: a corner of the phase space
         traj = model.rollout(d.x0[:3], 4, mu=d.mu[:3], dt=d.dt[:3])
     assert traj.shape == (3, 5, 2)
     np.testing.assert_allclose(traj[:, 1], model.step(d.x0[:3], mu=d.mu[:3], dt=d.dt[:3]), atol=1e-14)
@@ -77,8 +80,9 @@ def test_select_kernels_picks_the_smallest_validation_residual(small_pendulum_da
     for row in result.table:
         assert row["complete"] == (row["n_centers"] >= 60)
     assert result.score == min(scores.values()) == scores[result.state]
-    preferred = select_kernels(data, val, [IMQ(0.05), IMQ(0.15), IMQ(5.0)], [IMQ(2.0)], [IMQ(5.0)], m_star=60,
-                               prefer_complete=True, widen=0)
+    preferred = select_kernels(
+        data, val, [IMQ(0.05), IMQ(0.15), IMQ(5.0)], [IMQ(2.0)], [IMQ(5.0)], m_star=60, prefer_complete=True, widen=0
+    )
     complete = {kernel_from_spec(row["state"]): row["E_val"] for row in preferred.table if row["complete"]}
     assert preferred.score == min(complete.values() or scores.values())
     assert result.state != IMQ(5.0)  # a far too narrow kernel cannot interpolate 60 centres' worth of data
@@ -91,7 +95,12 @@ def test_selection_ranks_complete_runs_before_early_stops():
     complete = SelectionResult(IMQ(0.2), None, None, 1e-4, complete=True)
     worse = SelectionResult(IMQ(0.3), None, None, 1e-3, complete=True)
     broken = SelectionResult(IMQ(0.4), None, None, float("nan"), complete=True)
-    assert sorted([broken, early, worse, complete], key=lambda r: r.rank(prefer_complete=True)) == [complete, worse, early, broken]
+    assert sorted([broken, early, worse, complete], key=lambda r: r.rank(prefer_complete=True)) == [
+        complete,
+        worse,
+        early,
+        broken,
+    ]
     assert sorted([broken, early, worse, complete], key=SelectionResult.rank) == [early, complete, worse, broken]
 
 
@@ -132,8 +141,9 @@ def test_selection_survives_failing_candidates_and_widens_its_grid(small_pendulu
             return super().fit(*args, **kwargs)
 
     caplog.set_level(logging.INFO, logger="sympredict.estimators.selection")
-    result = select_kernels(data, val, [IMQ(0.5), IMQ(1.2), IMQ(2.4)], [IMQ(2.0)], [IMQ(5.0)], m_star=60,
-                            estimator=FailsAtHalf(), widen=0)
+    result = select_kernels(
+        data, val, [IMQ(0.5), IMQ(1.2), IMQ(2.4)], [IMQ(2.0)], [IMQ(5.0)], m_star=60, estimator=FailsAtHalf(), widen=0
+    )
     failed = [row for row in result.table if "error" in row]
     assert len(failed) == 1 and failed[0]["E_val"] == np.inf and failed[0]["state"]["eps"] == 0.5
     assert result.state == IMQ(1.2)  # the best that could be fitted

@@ -29,8 +29,9 @@ def _pendulum_data(n, seed, steps=20, dt=0.1):
 @pytest.fixture(scope="module")
 def model():
     train, val = _pendulum_data(30, 0), _pendulum_data(10, 1)
-    return SymplecticKernelPredictor(IMQ(0.5), mu_kernel=IMQ(2.0), max_centers=150,
-                                     trainer=ExactGreedy(tol=1e-12)).fit(train, validation=val)
+    return SymplecticKernelPredictor(IMQ(0.5), mu_kernel=IMQ(2.0), max_centers=150, trainer=ExactGreedy(tol=1e-12)).fit(
+        train, validation=val
+    )
 
 
 def _explicit_power(sur, xi, mu, dt):
@@ -60,8 +61,8 @@ def test_power_function_matches_the_explicit_gramian(model, rng):
     p = small.power_function(xi, mu, dt, small.gram_factor())
     expected = _explicit_power(small, xi, mu, dt)
     k0 = -small.kernel.state.factors(np.zeros(1), order=2)[0][0]
-    np.testing.assert_allclose(p ** 2, np.maximum(expected, 0), atol=1e-9 * k0)
-    assert np.all(p > 0) and np.all(p ** 2 <= k0 * (1 + 1e-12))
+    np.testing.assert_allclose(p**2, np.maximum(expected, 0), atol=1e-9 * k0)
+    assert np.all(p > 0) and np.all(p**2 <= k0 * (1 + 1e-12))
     # more centres: the power function does not grow (the posterior variance shrinks with more data)
     assert np.all(sur.power_function(xi, mu, dt, sur.gram_factor()) <= p * (1 + 1e-6) + 1e-7 * np.sqrt(k0))
 
@@ -100,6 +101,7 @@ def test_rollout_error_shape_zero_at_start_and_no_change_of_states(model):
 def test_local_error_is_the_gradient_error_mapped_through_the_implicit_step(model, rng):
     """``delta x1 = DF^-1 dT J delta g``: perturb the learned gradient by ``eps e_a`` and re-solve (oracle)."""
     from sympredict.symplectic.updates import as_update
+
     sur = model.surrogate_
     scale = model._scale_vector(2)
     x = np.array([[0.8, 0.1]]) * scale
@@ -189,15 +191,17 @@ def test_refusals(model):
 @pytest.fixture(scope="module", params=["periodic", "symmetric", "both"])
 def transformed(request):
     """Models whose state kernel is a transform: periodic in q, the pendulum's Klein group, or both."""
-    kernel = {"periodic": Periodic(IMQ(0.5), coordinates=(0,)),
-              "symmetric": Symmetric(IMQ(0.5), group=[(1, 1), (-1, -1), (1, -1), (-1, 1)]),
-              "both": Symmetric(Periodic(IMQ(0.5), coordinates=(0,)), group=[(1, 1), (-1, -1)])}[request.param]
+    kernel = {
+        "periodic": Periodic(IMQ(0.5), coordinates=(0,)),
+        "symmetric": Symmetric(IMQ(0.5), group=[(1, 1), (-1, -1), (1, -1), (-1, 1)]),
+        "both": Symmetric(Periodic(IMQ(0.5), coordinates=(0,)), group=[(1, 1), (-1, -1)]),
+    }[request.param]
     update = "symplectic_euler" if request.param == "periodic" else "midpoint"
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        return SymplecticKernelPredictor(kernel, mu_kernel=IMQ(2.0), max_centers=40, update=update,
-                                         trainer=ExactGreedy(tol=1e-12)).fit(_pendulum_data(20, 5),
-                                                                             validation=_pendulum_data(6, 6))
+        return SymplecticKernelPredictor(
+            kernel, mu_kernel=IMQ(2.0), max_centers=40, update=update, trainer=ExactGreedy(tol=1e-12)
+        ).fit(_pendulum_data(20, 5), validation=_pendulum_data(6, 6))
 
 
 def test_transformed_kernels_rows_sum_to_the_gradient_and_match_the_explicit_gramian(transformed, rng):
@@ -213,9 +217,10 @@ def test_transformed_kernels_rows_sum_to_the_gradient_and_match_the_explicit_gra
     p = sur.power_function(xi, mu, dt, sur.gram_factor())
     expected = _explicit_power(sur, xi, mu, dt)
     k0 = float(np.max(sur.diagonal(xi)))
-    np.testing.assert_allclose(p ** 2, np.maximum(expected, 0), atol=1e-8 * k0)
-    at_centre = sur.power_function(sur.centers_xi, sur.centers_mu, sur.centers_dt,
-                                   sur.gram_factor())[np.arange(sur.n_centers), sur.components]
+    np.testing.assert_allclose(p**2, np.maximum(expected, 0), atol=1e-8 * k0)
+    at_centre = sur.power_function(sur.centers_xi, sur.centers_mu, sur.centers_dt, sur.gram_factor())[
+        np.arange(sur.n_centers), sur.components
+    ]
     assert at_centre.max() < 1e-4 * np.sqrt(k0)
 
 

@@ -34,7 +34,9 @@ def test_params_come_from_init_and_sklearn_clone_works(cls):
     assert set(params) == {p.name for p in signature if p.name != "self" and p.kind != p.VAR_KEYWORD}
     assert params["max_centers"] == 77 and params["trainer"] == model.trainer
     deep = model.get_params(deep=True)
-    assert deep["state_kernel__eps"] == 0.2 and deep["dt_kernel__eps"] == 3.0 and deep["trainer__basis_dtype"] == "float32"
+    assert (
+        deep["state_kernel__eps"] == 0.2 and deep["dt_kernel__eps"] == 3.0 and deep["trainer__basis_dtype"] == "float32"
+    )
     for copy_ in (clone(model), sklearn.base.clone(model)):
         assert type(copy_) is cls and copy_ is not model
         assert repr(copy_.get_params(deep=False)) == repr(params)
@@ -66,10 +68,14 @@ def test_set_params_refuses_atomically_and_clone_still_stores():
     model = SymplecticKernelPredictor(IMQ(0.2), IMQ(1.5), IMQ(3.0), max_centers=20, trainer=trainer, solver=solver)
     before = repr(model.get_params(deep=True))
     for bad, match in [
-        ({"max_centers": 30, "trainer__tol": -1.0},
-         r"SymplecticKernelPredictor.set_params\(trainer__tol=-1.0\): tol must be a finite non-negative float, got -1.0"),
-        ({"trainer__tol": 1e-3, "solver__backend": "gpu"},
-         r"set_params\(solver__backend='gpu'\): backend must be 'auto', 'numpy' or 'numba', got 'gpu'"),
+        (
+            {"max_centers": 30, "trainer__tol": -1.0},
+            r"SymplecticKernelPredictor.set_params\(trainer__tol=-1.0\): tol must be a finite non-negative float, got -1.0",
+        ),
+        (
+            {"trainer__tol": 1e-3, "solver__backend": "gpu"},
+            r"set_params\(solver__backend='gpu'\): backend must be 'auto', 'numpy' or 'numba', got 'gpu'",
+        ),
         ({"state_kernel__eps": 0.3, "max_centers": 0}, r"max_centers must be >= 1, got 0"),
         ({"update": "midpoint", "mu_kernel": "imq"}, r"mu_kernel must be a sympredict.kernels kernel .* got 'imq'"),
         ({"state_kernel__eps": -1.0}, r"set_params\(state_kernel__eps=-1.0\): IMQ: eps must be a finite positive"),
@@ -104,14 +110,19 @@ def test_scikit_learns_own_set_params_check(cls):
 def test_init_only_stores(small_pendulum_data):
     """Nonsense settings are accepted by __init__ and refused by fit, naming the setting."""
     x0, x1, mu, dt = _data(small_pendulum_data, 60)
-    for kw, match in [({"max_centers": 0}, "max_centers"), ({"trainer": ExactGreedy(tol=float("nan"))}, "tol"),
-                      ({"trainer": ExactGreedy(power_tol=float("nan"))}, "power_tol"),
-                      ({"trainer": ExactGreedy(power_tol=2.0)}, "power_tol"),
-                      ({"trainer": ExactGreedy(memory_limit=float("nan"))}, "memory_limit"),
-                      ({"trainer": ExactGreedy(criterion="q")}, "criterion"),
-                      ({"solver": NewtonSolver(backend="gpu")}, "backend"), ({"trainer": "fast"}, "trainer"),
-                      ({"solver": NewtonSolver(max_iter=0)}, "max_iter"), ({"update": "leapfrog"}, "update"),
-                      ({"state_kernel": Periodic(IMQ(0.2), coordinates=(0, 0))}, "coordinates")]:
+    for kw, match in [
+        ({"max_centers": 0}, "max_centers"),
+        ({"trainer": ExactGreedy(tol=float("nan"))}, "tol"),
+        ({"trainer": ExactGreedy(power_tol=float("nan"))}, "power_tol"),
+        ({"trainer": ExactGreedy(power_tol=2.0)}, "power_tol"),
+        ({"trainer": ExactGreedy(memory_limit=float("nan"))}, "memory_limit"),
+        ({"trainer": ExactGreedy(criterion="q")}, "criterion"),
+        ({"solver": NewtonSolver(backend="gpu")}, "backend"),
+        ({"trainer": "fast"}, "trainer"),
+        ({"solver": NewtonSolver(max_iter=0)}, "max_iter"),
+        ({"update": "leapfrog"}, "update"),
+        ({"state_kernel": Periodic(IMQ(0.2), coordinates=(0, 0))}, "coordinates"),
+    ]:
         args = {"state_kernel": IMQ(0.2), **kw}
         model = SymplecticKernelPredictor(mu_kernel=IMQ(1.5), dt_kernel=IMQ(3.0), **args)
         assert model.get_params()[next(iter(kw))] is kw[next(iter(kw))]
@@ -126,7 +137,9 @@ def test_strategies_that_cannot_combine_say_so(small_pendulum_data):
     with pytest.raises(ValueError, match="direct model"):
         DirectKernelPredictor(IMQ(0.2), IMQ(1.5), IMQ(3.0), trainer=ActiveSetGreedy()).fit(x0, x1, mu=mu, dt=dt)
     with pytest.raises(ValueError, match="basis_dtype"):
-        SymplecticKernelPredictor(IMQ(0.2), IMQ(1.5), IMQ(3.0), trainer=ExactGreedy("float16")).fit(x0, x1, mu=mu, dt=dt)
+        SymplecticKernelPredictor(IMQ(0.2), IMQ(1.5), IMQ(3.0), trainer=ExactGreedy("float16")).fit(
+            x0, x1, mu=mu, dt=dt
+        )
 
 
 def test_sharded_strategy_keeps_its_pool_when_cloned():
@@ -135,23 +148,43 @@ def test_sharded_strategy_keeps_its_pool_when_cloned():
         assert c is not trainer and c.pool is dummy_pool and c.n_shards == 2
 
 
-@pytest.mark.parametrize("trainer", [None, ExactGreedy(), ExactGreedy("float32"), ActiveSetGreedy(initial_points=100, seed=3),
-                                     ShardedGreedy(dummy_pool, n_shards=2, timeout=5.0), BlockedGreedy(block_size=8)], ids=repr)
+@pytest.mark.parametrize(
+    "trainer",
+    [
+        None,
+        ExactGreedy(),
+        ExactGreedy("float32"),
+        ActiveSetGreedy(initial_points=100, seed=3),
+        ShardedGreedy(dummy_pool, n_shards=2, timeout=5.0),
+        BlockedGreedy(block_size=8),
+    ],
+    ids=repr,
+)
 def test_every_setting_round_trips_through_files(small_pendulum_data, tmp_path, trainer):
     x0, x1, mu, dt = _data(small_pendulum_data)
     settings = {"tol": 1e-9, "criterion": "f", "power_tol": 1e-11, "memory_limit": 2e9}
     if trainer is not None:  # each strategy with the greedy settings it has
         trainer = clone(trainer).set_params(**{k: v for k, v in settings.items() if k in trainer._param_names()})
-    model = SymplecticKernelPredictor(None, IMQ(1.5), Matern32(3.0), max_centers=40, trainer=trainer,
-                                      solver=NewtonSolver(max_iter=31, backend="numpy")).fit(x0, x1, mu=mu, dt=dt)
+    model = SymplecticKernelPredictor(
+        None,
+        IMQ(1.5),
+        Matern32(3.0),
+        max_centers=40,
+        trainer=trainer,
+        solver=NewtonSolver(max_iter=31, backend="numpy"),
+    ).fit(x0, x1, mu=mu, dt=dt)
     path = tmp_path / "m.h5"
     model.save(path)
     back = SymplecticKernelPredictor.load(path)
     expected = model.get_params(deep=False)
     if isinstance(trainer, ShardedGreedy):
         # a pool is a connection, not a setting
-        expected["trainer"] = ShardedGreedy(None, **{k: v for k, v in trainer.get_params(deep=False).items() if k != "pool"})
-    assert repr(back.get_params(deep=True)) == repr(clone(model).set_params(trainer=expected["trainer"]).get_params(deep=True))
+        expected["trainer"] = ShardedGreedy(
+            None, **{k: v for k, v in trainer.get_params(deep=False).items() if k != "pool"}
+        )
+    assert repr(back.get_params(deep=True)) == repr(
+        clone(model).set_params(trainer=expected["trainer"]).get_params(deep=True)
+    )
     assert back.state_kernel is None and back.kernel_ == model.kernel_
     assert_same_predictions(back, model, x0[:5], 1, mu=mu[:5], dt=dt[:5])
     # the same model fitted and written again gives the same file, byte for byte: no timings in it
@@ -185,12 +218,30 @@ def test_layout_1_files_are_refused_with_the_advice_to_refit(small_pendulum_data
     x0, x1, mu, dt = _data(small_pendulum_data)
     model = SymplecticKernelPredictor(IMQ(0.2), IMQ(1.5), IMQ(3.0), max_centers=30).fit(x0, x1, mu=mu, dt=dt)
     sur, h = model.surrogate_, model.history_
-    settings = {"kernel": model.kernel_.spec, "state_kernel_given": True, "max_centers": 30, "tol": 1e-10, "criterion": "f",
-                "power_tol": 1e-12, "newton_max_iter": 50, "memory_limit": None, "dim": 2, "n_mu": 1, "dt_fixed": None,
-                "stop_reason": h.stop_reason}
-    arrays = {"centers_xi": sur.centers_xi, "centers_mu": sur.centers_mu, "centers_dt": sur.centers_dt,
-              "components": sur.components, "coef": sur.coef, "train_max_residual": h.train_max_residual,
-              "selected_power": h.selected_power, "elapsed": h.elapsed}
+    settings = {
+        "kernel": model.kernel_.spec,
+        "state_kernel_given": True,
+        "max_centers": 30,
+        "tol": 1e-10,
+        "criterion": "f",
+        "power_tol": 1e-12,
+        "newton_max_iter": 50,
+        "memory_limit": None,
+        "dim": 2,
+        "n_mu": 1,
+        "dt_fixed": None,
+        "stop_reason": h.stop_reason,
+    }
+    arrays = {
+        "centers_xi": sur.centers_xi,
+        "centers_mu": sur.centers_mu,
+        "centers_dt": sur.centers_dt,
+        "components": sur.components,
+        "coef": sur.coef,
+        "train_max_residual": h.train_max_residual,
+        "selected_power": h.selected_power,
+        "elapsed": h.elapsed,
+    }
     arrays.update({f"domain_{k}": np.asarray(v) for k, v in model.domain_.items()})
     write_container(tmp_path / "old.h5", MODEL_FORMAT, settings, arrays)
     with pytest.raises(ModelFileError, match=r"pre-release version .*fit the model again and save it"):
@@ -202,14 +253,18 @@ def test_inconsistent_model_files_are_refused(small_pendulum_data, tmp_path):
     from sympredict.estimators.predictor import MODEL_FORMAT
 
     x0, x1, mu, dt = _data(small_pendulum_data)
-    SymplecticKernelPredictor(IMQ(0.2), IMQ(1.5), IMQ(3.0), max_centers=30).fit(x0, x1, mu=mu, dt=dt).save(tmp_path / "m.h5")
+    SymplecticKernelPredictor(IMQ(0.2), IMQ(1.5), IMQ(3.0), max_centers=30).fit(x0, x1, mu=mu, dt=dt).save(
+        tmp_path / "m.h5"
+    )
     settings, arrays = read_container(tmp_path / "m.h5", MODEL_FORMAT)
-    for change, match in [(lambda s, a: a.__setitem__("components", a["components"] + 5), "components"),
-                          (lambda s, a: a.__setitem__("coef", a["coef"] * np.nan), "finite"),
-                          (lambda s, a: a.pop("domain_x_min"), "training box"),
-                          (lambda s, a: a.__setitem__("centers_mu", a["centers_mu"][:3]), "centers_mu"),
-                          (lambda s, a: s["params"].__setitem__("trainer", {"trainer": {"name": "Magic", "params": {}}}), "Magic"),
-                          (lambda s, a: s.__setitem__("class", "Sneaky"), "Sneaky")]:
+    for change, match in [
+        (lambda s, a: a.__setitem__("components", a["components"] + 5), "components"),
+        (lambda s, a: a.__setitem__("coef", a["coef"] * np.nan), "finite"),
+        (lambda s, a: a.pop("domain_x_min"), "training box"),
+        (lambda s, a: a.__setitem__("centers_mu", a["centers_mu"][:3]), "centers_mu"),
+        (lambda s, a: s["params"].__setitem__("trainer", {"trainer": {"name": "Magic", "params": {}}}), "Magic"),
+        (lambda s, a: s.__setitem__("class", "Sneaky"), "Sneaky"),
+    ]:
         s, a = json.loads(json.dumps(settings)), dict(arrays)
         change(s, a)
         write_container(tmp_path / "bad.h5", MODEL_FORMAT, s, a)
@@ -228,23 +283,39 @@ def test_trainers_registry_and_a_new_strategy(small_pendulum_data):
             self.stride = stride
 
         def store(self, functionals, targets, *, tol, validation):
-            return DenseStore(functionals, targets, criterion=self.criterion, power_tol=self.power_tol,
-                              validation=validation, memory_limit=self.memory_limit)
+            return DenseStore(
+                functionals,
+                targets,
+                criterion=self.criterion,
+                power_tol=self.power_tol,
+                validation=validation,
+                memory_limit=self.memory_limit,
+            )
 
     x0, x1, mu, dt = _data(small_pendulum_data, 200)
-    a = SymplecticKernelPredictor(IMQ(0.2), IMQ(1.5), IMQ(3.0), max_centers=25, trainer=EveryOtherCentre()).fit(x0, x1, mu=mu, dt=dt)
+    a = SymplecticKernelPredictor(IMQ(0.2), IMQ(1.5), IMQ(3.0), max_centers=25, trainer=EveryOtherCentre()).fit(
+        x0, x1, mu=mu, dt=dt
+    )
     b = SymplecticKernelPredictor(IMQ(0.2), IMQ(1.5), IMQ(3.0), max_centers=25).fit(x0, x1, mu=mu, dt=dt)
     np.testing.assert_array_equal(a.surrogate_.coef, b.surrogate_.coef)
     assert isinstance(clone(a.trainer), EveryOtherCentre) and isinstance(a.trainer, Parametrized)
     assert copy.copy(a).n_centers_ == 25
 
 
-@pytest.mark.parametrize("part, good, bad, message", [
-    (ExactGreedy(), {"criterion": "p"}, {"tol": -1.0}, r"tol must be a finite non-negative float, got -1\.0"),
-    (BlockedGreedy(), {"block_size": 8}, {"target_error": 0.0}, r"target_error must be a positive float.*got 0\.0"),
-    (NewtonSolver(), {"max_iter": 10}, {"backend": "fortran"}, r"backend must be 'auto', 'numpy' or 'numba', got 'fortran'"),
-    (KernelSearch(), {"seed": 3}, {"halving": "yes"}, r"halving must be True or False.*'yes'"),
-])
+@pytest.mark.parametrize(
+    "part, good, bad, message",
+    [
+        (ExactGreedy(), {"criterion": "p"}, {"tol": -1.0}, r"tol must be a finite non-negative float, got -1\.0"),
+        (BlockedGreedy(), {"block_size": 8}, {"target_error": 0.0}, r"target_error must be a positive float.*got 0\.0"),
+        (
+            NewtonSolver(),
+            {"max_iter": 10},
+            {"backend": "fortran"},
+            r"backend must be 'auto', 'numpy' or 'numba', got 'fortran'",
+        ),
+        (KernelSearch(), {"seed": 3}, {"halving": "yes"}, r"halving must be True or False.*'yes'"),
+    ],
+)
 def test_a_part_on_its_own_refuses_a_bad_setting_and_stays_unchanged(part, good, bad, message):
     """A part's set_params checks its settings as a whole (its check()) before storing any: a call with one good
     and one bad value raises, names the setting and the value, and leaves every setting as it was."""

@@ -28,8 +28,9 @@ def three_body():
     mu = rng.uniform(*MU_RANGE, 60)
     traj = system.trajectory(librating_states(mu, 60, seed=0), mu, DT, 60)
     x0, x1 = traj[:, :-1].reshape(-1, 4), traj[:, 1:].reshape(-1, 4)
-    model = SymplecticKernelPredictor(Scaled(IMQ(1.0), factors=(0.8, 1.25)), IMQ(5.0), max_centers=150,
-                                      update="midpoint").fit(x0, x1, mu=np.repeat(mu, 60), dt=DT)
+    model = SymplecticKernelPredictor(
+        Scaled(IMQ(1.0), factors=(0.8, 1.25)), IMQ(5.0), max_centers=150, update="midpoint"
+    ).fit(x0, x1, mu=np.repeat(mu, 60), dt=DT)
     return system, model, traj
 
 
@@ -75,8 +76,9 @@ def test_orbits_that_leave_by_more_than_the_tolerance_are_named(three_body):
     rel = (np.maximum(np.maximum(lo - pred[left], pred[left] - hi), 0.0) / (hi - lo)).reshape(-1, 4)
     row, col = np.unravel_index(np.argmax(rel), rel.shape)
     assert flat.max() == pytest.approx(rel[row, col])
-    match = re.search(r"state coordinate (\d) \((\w+)\) left the box \[\S+, \S+\] by (\S+) \(([\d.]+) % of its width\)",
-                      message)
+    match = re.search(
+        r"state coordinate (\d) \((\w+)\) left the box \[\S+, \S+\] by (\S+) \(([\d.]+) % of its width\)", message
+    )
     assert match and int(match.group(1)) == col
     assert float(match.group(4)) == pytest.approx(100 * rel[row, col], abs=0.06)
     value = pred[left].reshape(-1, 4)[row, col]
@@ -94,6 +96,9 @@ def test_a_query_state_outside_by_more_than_the_tolerance_warns_with_its_coordin
         model.step(near, mu=0.012)
     far = inside.copy()
     far[2] = lo[2] - 3 * EXTRAPOLATION_TOLERANCE * (hi[2] - lo[2])
-    with pytest.warns(ExtrapolationWarning, match=r"query states span .*state coordinate 2 \(p1\) left the box .* "
-                                                  r"\(15\.0 % of its width\)"):
+    with pytest.warns(
+        ExtrapolationWarning,
+        match=r"query states span .*state coordinate 2 \(p1\) left the box .* "
+        r"\(15\.0 % of its width\)",
+    ):
         model.step(far, mu=0.012)

@@ -1,7 +1,6 @@
 """The fitted state is what predicts: settings changed after a fit take effect at the next fit; a failed refit keeps
 the fitted settings; what save writes, load accepts."""
 
-
 import numpy as np
 import pytest
 
@@ -15,11 +14,16 @@ DT = 0.1
 
 
 def test_set_params_after_fit_does_not_change_predictions(coarse_pendulum_data, tmp_path):
-    m = SymplecticKernelPredictor(IMQ(0.3), max_centers=20, solver=NewtonSolver(backend="numpy")).fit(coarse_pendulum_data.x0, coarse_pendulum_data.x1, dt=DT)
+    m = SymplecticKernelPredictor(IMQ(0.3), max_centers=20, solver=NewtonSolver(backend="numpy")).fit(
+        coarse_pendulum_data.x0, coarse_pendulum_data.x1, dt=DT
+    )
     x = coarse_pendulum_data.x0[:4]
     before = m.step(x)
-    for change in ({"update": "midpoint"}, {"state_kernel": Scaled(IMQ(0.3), factors=(2.0,))},
-                   {"state_kernel": Periodic(IMQ(0.3), coordinates=(0,))}):
+    for change in (
+        {"update": "midpoint"},
+        {"state_kernel": Scaled(IMQ(0.3), factors=(2.0,))},
+        {"state_kernel": Periodic(IMQ(0.3), coordinates=(0,))},
+    ):
         m.set_params(**change)
         np.testing.assert_array_equal(m.step(x), before)
     m.save(tmp_path / "m.h5")  # the fitted settings are written (a later periodic kernel would not fit the arrays)
@@ -30,13 +34,17 @@ def test_set_params_after_fit_does_not_change_predictions(coarse_pendulum_data, 
 
 
 def test_a_changed_parameter_takes_effect_at_the_next_fit(coarse_pendulum_data):
-    m = SymplecticKernelPredictor(IMQ(0.3), max_centers=20, solver=NewtonSolver(backend="numpy")).fit(coarse_pendulum_data.x0, coarse_pendulum_data.x1, dt=DT)
+    m = SymplecticKernelPredictor(IMQ(0.3), max_centers=20, solver=NewtonSolver(backend="numpy")).fit(
+        coarse_pendulum_data.x0, coarse_pendulum_data.x1, dt=DT
+    )
     m.set_params(update="midpoint").fit(coarse_pendulum_data.x0, coarse_pendulum_data.x1, dt=DT)
     assert m.update_ == "midpoint" and m.fitted_params_["update"] == "midpoint"
 
 
 def test_failed_refit_keeps_the_fitted_settings(coarse_pendulum_data):
-    m = SymplecticKernelPredictor(IMQ(0.3), max_centers=20, solver=NewtonSolver(backend="numpy")).fit(coarse_pendulum_data.x0, coarse_pendulum_data.x1, dt=DT)
+    m = SymplecticKernelPredictor(IMQ(0.3), max_centers=20, solver=NewtonSolver(backend="numpy")).fit(
+        coarse_pendulum_data.x0, coarse_pendulum_data.x1, dt=DT
+    )
     x = coarse_pendulum_data.x0[:4]
     before = m.step(x)
     m.set_params(state_kernel=Scaled(IMQ(0.3), factors=(2.0,)))
@@ -63,8 +71,9 @@ def test_save_refuses_a_solver_setting_load_would_refuse(coarse_pendulum_model, 
 def test_a_fitted_periodic_model_saves_with_the_compiled_backend(coarse_pendulum_data, tmp_path):
     """Periodic coordinates run compiled now: backend='numba' is a valid pair, saved and loaded back (a pair load
     would refuse is refused at save: test_save_refuses_a_solver_setting_load_would_refuse)."""
-    m = SymplecticKernelPredictor(Periodic(IMQ(0.3), coordinates=(0,)), max_centers=10,
-                                  solver=NewtonSolver(backend="numpy")).fit(coarse_pendulum_data.x0, coarse_pendulum_data.x1, dt=DT)
+    m = SymplecticKernelPredictor(
+        Periodic(IMQ(0.3), coordinates=(0,)), max_centers=10, solver=NewtonSolver(backend="numpy")
+    ).fit(coarse_pendulum_data.x0, coarse_pendulum_data.x1, dt=DT)
     m.set_params(solver__backend="numba")
     m.save(tmp_path / "n.h5")
     loaded = SymplecticKernelPredictor.load(tmp_path / "n.h5")
@@ -80,10 +89,12 @@ def test_endless_newton_setting_refused_at_prediction(coarse_pendulum_model, coa
     m = copy.copy(coarse_pendulum_model)
     solver = m.solver
     with pytest.raises(ValueError, match="max_iter must be at most"):
-        m.set_params(solver__max_iter=10 ** 15)  # refused at once, and nothing changed
+        m.set_params(solver__max_iter=10**15)  # refused at once, and nothing changed
     assert m.solver is solver
-    m.solver = NewtonSolver(max_iter=10 ** 15)  # set by assignment: prediction checks it
+    m.solver = NewtonSolver(max_iter=10**15)  # set by assignment: prediction checks it
     with pytest.raises(ValueError, match="max_iter must be at most"):
         m.step(coarse_pendulum_data.x0[:2])
     with pytest.raises(ValueError, match=str(MAX_NEWTON_ITER)):
-        SymplecticKernelPredictor(IMQ(0.3), solver=NewtonSolver(max_iter=MAX_NEWTON_ITER + 1)).fit(coarse_pendulum_data.x0, coarse_pendulum_data.x1, dt=DT)
+        SymplecticKernelPredictor(IMQ(0.3), solver=NewtonSolver(max_iter=MAX_NEWTON_ITER + 1)).fit(
+            coarse_pendulum_data.x0, coarse_pendulum_data.x1, dt=DT
+        )

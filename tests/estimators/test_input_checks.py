@@ -14,24 +14,34 @@ from sympredict.systems.wave import WaveFOM, fd_laplacian
 X = np.array([[0.3, 0.1]])
 
 
-@pytest.mark.parametrize("kwargs, match", [
-    ({"g": np.nan}, "g must be finite"),
-    ({"g": np.inf}, "g must be finite"),
-    ({"g": 0.0}, "g must be positive"),
-    ({"g": "9.81"}, "g must be a real number"),
-    ({"g": True}, "g must be a real number"),
-    ({"mass": np.nan}, "mass must be finite"),
-    ({"mass": -1.0}, "mass must be positive"),
-    ({"mass": 1 + 1j}, "mass must be a real number"),
-])
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        ({"g": np.nan}, "g must be finite"),
+        ({"g": np.inf}, "g must be finite"),
+        ({"g": 0.0}, "g must be positive"),
+        ({"g": "9.81"}, "g must be a real number"),
+        ({"g": True}, "g must be a real number"),
+        ({"mass": np.nan}, "mass must be finite"),
+        ({"mass": -1.0}, "mass must be positive"),
+        ({"mass": 1 + 1j}, "mass must be a real number"),
+    ],
+)
 def test_pendulum_constants(kwargs, match):
     with pytest.raises(ValueError, match=match):
         Pendulum(**kwargs)
 
 
-@pytest.mark.parametrize("h_max, match", [(0.0, "h_max must be positive"), (-1e-3, "h_max must be positive"),
-                                          (np.nan, "h_max must be finite"), (np.inf, "h_max must be finite"),
-                                          (1e-300, "too many")])
+@pytest.mark.parametrize(
+    "h_max, match",
+    [
+        (0.0, "h_max must be positive"),
+        (-1e-3, "h_max must be positive"),
+        (np.nan, "h_max must be finite"),
+        (np.inf, "h_max must be finite"),
+        (1e-300, "too many"),
+    ],
+)
 def test_reference_flows_refuse_bad_micro_steps(h_max, match):
     P = Pendulum()
     with pytest.raises(ValueError, match=match):
@@ -69,9 +79,14 @@ def test_wave_fom_times_and_constants():
             fom.exact_trajectory(x, 0.05, dt, 3)
         with pytest.raises(ValueError, match="dt"):
             fom.trajectory(x, 0.05, dt, 3)
-    for kwargs, match in (({"T": -1.0}, "T must be positive"), ({"T": np.nan}, "T must be finite"),
-                          ({"dt_micro": 0.0}, "dt_micro must be positive"), ({"length": np.nan}, "length must be finite"),
-                          ({"mu_range": (np.nan, 0.09)}, "mu_range must be finite"), ({"mu_range": (0.04,)}, "mu_range must be")):
+    for kwargs, match in (
+        ({"T": -1.0}, "T must be positive"),
+        ({"T": np.nan}, "T must be finite"),
+        ({"dt_micro": 0.0}, "dt_micro must be positive"),
+        ({"length": np.nan}, "length must be finite"),
+        ({"mu_range": (np.nan, 0.09)}, "mu_range must be finite"),
+        ({"mu_range": (0.04,)}, "mu_range must be"),
+    ):
         with pytest.raises(ValueError, match=match):
             WaveFOM(10, **kwargs)
     with pytest.raises(ValueError, match="energy must be finite"):
@@ -110,8 +125,11 @@ def test_sampler_that_can_never_accept_gives_up_quickly():
     with pytest.raises(ValueError, match=r"only \d+ of 50 states accepted .* in 5000 draws"):
         random_flow_map_data(Pendulum(mass=1e12), 50)
     assert time.perf_counter() - t0 < 5
-    for kwargs, match in (({"mu_range": (0.8, 0.7)}, "low <= high"), ({"dt_range": (np.nan, 0.06)}, "dt_range must be finite"),
-                          ({"mu_range": (-1.0, 0.8)}, "mu_range must be positive")):
+    for kwargs, match in (
+        ({"mu_range": (0.8, 0.7)}, "low <= high"),
+        ({"dt_range": (np.nan, 0.06)}, "dt_range must be finite"),
+        ({"mu_range": (-1.0, 0.8)}, "mu_range must be positive"),
+    ):
         with pytest.raises(ValueError, match=match):
             random_flow_map_data(Pendulum(), 10, **kwargs)
     # the ordinary sampler still works and is unchanged by the bound

@@ -50,9 +50,14 @@ def fitted_arrays(obj, path="model", seen=None, out=None):
 def assert_canonical_layout(obj, what):
     arrays = fitted_arrays(obj)
     assert arrays, f"{what}: no fitted arrays found (the walk is broken)"
-    bad = {p: (a.dtype.str, a.flags.c_contiguous) for p, a in arrays.items()
-           if not a.flags.c_contiguous or (a.dtype.kind == "f" and a.dtype != np.float64)
-           or (a.dtype.kind in "iu" and a.dtype.itemsize != 8 and a.size > 1) or not a.dtype.isnative}
+    bad = {
+        p: (a.dtype.str, a.flags.c_contiguous)
+        for p, a in arrays.items()
+        if not a.flags.c_contiguous
+        or (a.dtype.kind == "f" and a.dtype != np.float64)
+        or (a.dtype.kind in "iu" and a.dtype.itemsize != 8 and a.size > 1)
+        or not a.dtype.isnative
+    }
     assert not bad, f"{what}: arrays not C-contiguous native float64/int64: {bad}"
 
 
@@ -104,9 +109,9 @@ def test_warm_started_and_cloned_fits_keep_the_layout(small_pendulum_data):
     from sympredict.base import clone
 
     x0, x1, mu, dt = _data(small_pendulum_data)
-    model = SymplecticKernelPredictor(IMQ(0.2), IMQ(1.5), IMQ(3.0), max_centers=30,
-                                      solver=NewtonSolver(warm_start=True)).fit(
-        x0, x1, mu=mu, dt=dt)
+    model = SymplecticKernelPredictor(
+        IMQ(0.2), IMQ(1.5), IMQ(3.0), max_centers=30, solver=NewtonSolver(warm_start=True)
+    ).fit(x0, x1, mu=mu, dt=dt)
     model.rollout(x0[:3], 3, mu=mu[:3], dt=dt[:3])  # a warm start stores its last solution
     assert_canonical_layout(model, "warm-started model after a rollout")
     # Fortran-ordered and strided input gives the same layout as C-ordered input
@@ -117,8 +122,9 @@ def test_warm_started_and_cloned_fits_keep_the_layout(small_pendulum_data):
 
 def test_scaling_and_reduced_model_keep_the_layout(wave):
     fom, train, RB, dt = wave
-    red = SymplecticKernelReductor(fom, RB, dt, GalerkinSamples(train, n_samples=60, n_validation=1),
-                                   DefaultEstimator(max_centers=40))
+    red = SymplecticKernelReductor(
+        fom, RB, dt, GalerkinSamples(train, n_samples=60, n_validation=1), DefaultEstimator(max_centers=40)
+    )
     rom = red.reduce()
     assert_canonical_layout(red, "reductor after reduce")
     assert_canonical_layout(rom, "ROM")

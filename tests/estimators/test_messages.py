@@ -1,6 +1,5 @@
 """Messages that name the fix: memory advice, close fixed steps, a normalized flow map's warnings in the user's units."""
 
-
 import numpy as np
 import pytest
 
@@ -16,7 +15,7 @@ def test_memory_advice_never_suggests_an_invalid_max_centers():
     from sympredict.interpolation.greedy.loop import check_memory
 
     with pytest.raises(ValueError) as info:
-        check_memory(100, 10 ** 6, 0, memory_limit=1000.0)
+        check_memory(100, 10**6, 0, memory_limit=1000.0)
     assert "max_centers <= 0" not in str(info.value) and "memory_limit" in str(info.value)
 
 

@@ -24,7 +24,10 @@ def test_a_rollout_that_leaves_the_training_states_warns(cls):
     corner = 0.9 * np.minimum(model.domain_["x_max"], -model.domain_["x_min"])
     assert not model._outside_states(corner[None])[0]  # the start is inside the box ...
     assert np.linalg.norm(corner) > 1.05 * model.domain_["x_max"].max()  # ... on a circle that leaves it
-    with pytest.warns(ExtrapolationWarning, match=r"1 of 2 trajectories leave the training states .*instances \[1\], first at step \d+"):
+    with pytest.warns(
+        ExtrapolationWarning,
+        match=r"1 of 2 trajectories leave the training states .*instances \[1\], first at step \d+",
+    ):
         model.rollout(np.array([[0.1, 0.2], corner]), int(2 * np.pi / dt) + 1)
 
 
@@ -42,7 +45,9 @@ def test_a_rollout_inside_does_not_warn():
 def test_a_fit_that_selects_nothing_is_the_zero_surrogate(backend, tmp_path):
     """Zero increments: the greedy stops at 0 centres ('tol'); the model is the identity map, saved and loaded."""
     x0 = np.random.default_rng(1).uniform(-1, 1, (30, 2))
-    model = SymplecticKernelPredictor(IMQ(0.5), trainer=ExactGreedy(tol=0.0), solver=NewtonSolver(backend=backend)).fit(x0, x0.copy(), dt=0.1)
+    model = SymplecticKernelPredictor(IMQ(0.5), trainer=ExactGreedy(tol=0.0), solver=NewtonSolver(backend=backend)).fit(
+        x0, x0.copy(), dt=0.1
+    )
     assert model.n_centers_ == 0 and model.history_.stop_reason == "tol"
     x = x0[:4] * 0.5
     np.testing.assert_array_equal(model.rollout(x, 5)[:, -1], x)

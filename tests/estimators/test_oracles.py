@@ -61,17 +61,29 @@ def test_pendulum_gradient_and_hessian_are_derivatives_of_the_hamiltonian(mass, 
     x = rng.uniform([-2, -3], [2, 3], size=(7, 2))
     lengths = rng.uniform(0.7, 0.8, 7)
     h = 1e-6
-    fd = np.stack([(system.hamiltonian(x + h * e, lengths) - system.hamiltonian(x - h * e, lengths)) / (2 * h) for e in np.eye(2)], axis=1)
+    fd = np.stack(
+        [
+            (system.hamiltonian(x + h * e, lengths) - system.hamiltonian(x - h * e, lengths)) / (2 * h)
+            for e in np.eye(2)
+        ],
+        axis=1,
+    )
     np.testing.assert_allclose(system.gradient(x, lengths), fd, rtol=1e-7, atol=1e-8)
-    fd2 = np.stack([(system.gradient(x + h * e, lengths) - system.gradient(x - h * e, lengths)) / (2 * h) for e in np.eye(2)], axis=2)
+    fd2 = np.stack(
+        [(system.gradient(x + h * e, lengths) - system.gradient(x - h * e, lengths)) / (2 * h) for e in np.eye(2)],
+        axis=2,
+    )
     np.testing.assert_allclose(system.hessian(x, lengths), fd2, rtol=1e-7, atol=1e-8)
 
 
 # ------------------------------------------------------------------ solvability
 def _fd_hessian(model, xi, mu, dt, h=1e-5):
     """Hessian of the surrogate ``s`` by central differences of the public ``surrogate_gradient``, (B, 2n, 2n)."""
-    cols = [(model.surrogate_gradient(xi + h * e, mu=mu, dt=dt) - model.surrogate_gradient(xi - h * e, mu=mu, dt=dt)) / (2 * h)
-            for e in np.eye(xi.shape[1])]
+    cols = [
+        (model.surrogate_gradient(xi + h * e, mu=mu, dt=dt) - model.surrogate_gradient(xi - h * e, mu=mu, dt=dt))
+        / (2 * h)
+        for e in np.eye(xi.shape[1])
+    ]
     return np.stack(cols, axis=2)
 
 
@@ -115,7 +127,9 @@ def test_symplectic_inverse_of_a_non_orthonormal_symplectic_basis(rng):
         # written out: J_2n^T V^T J_2N
         np.testing.assert_allclose(Vp, canonical_J(V.shape[1]).T @ V.T @ canonical_J(V.shape[0]), atol=1e-14)
     # for the square case the inverse is known in closed form: [[I, -B], [0, I]]
-    np.testing.assert_allclose(symplectic_inverse(S), np.block([[np.eye(big_n), -B], [np.zeros((big_n, big_n)), np.eye(big_n)]]), atol=1e-13)
+    np.testing.assert_allclose(
+        symplectic_inverse(S), np.block([[np.eye(big_n), -B], [np.zeros((big_n, big_n)), np.eye(big_n)]]), atol=1e-13
+    )
 
 
 def test_projection_error_is_the_relative_snapshot_residual(rng):
@@ -160,13 +174,16 @@ def test_four_dimensional_step_jacobian_is_the_derivative_of_step(rng):
     x0 = rng.uniform(-1, 1, size=(60, 4))
     mu = rng.uniform(0.5, 1.0, size=(60, 1))
     x1 = integrate(implicit_midpoint_step, system, x0, mu, 0.01, 10)[:, -1]
-    model = SymplecticKernelPredictor(IMQ(0.5), mu_kernel=IMQ(1.0), max_centers=150,
-                                      trainer=ExactGreedy(tol=1e-10)).fit(x0, x1, mu=mu, dt=0.1)
+    model = SymplecticKernelPredictor(
+        IMQ(0.5), mu_kernel=IMQ(1.0), max_centers=150, trainer=ExactGreedy(tol=1e-10)
+    ).fit(x0, x1, mu=mu, dt=0.1)
     xq = rng.uniform(-0.7, 0.7, size=(8, 4))
     muq = rng.uniform(0.55, 0.95, 8)
     jac = model.step_jacobian(xq, mu=muq)
     h = 1e-5
-    fd = np.stack([(model.step(xq + h * e, mu=muq) - model.step(xq - h * e, mu=muq)) / (2 * h) for e in np.eye(4)], axis=2)
+    fd = np.stack(
+        [(model.step(xq + h * e, mu=muq) - model.step(xq - h * e, mu=muq)) / (2 * h) for e in np.eye(4)], axis=2
+    )
     np.testing.assert_allclose(jac, fd, atol=1e-6)
     # the finite-difference Jacobian itself is symplectic: ties the property to the step, not to the formula
     assert symplecticity_defect(fd).max() <= 1e-5
@@ -187,8 +204,9 @@ def compiled_newton_passes(model, x, mu, dt, n_steps):
     dt = np.full(len(x), float(dt))
     weights = sur.weights(np.full((len(x), 1), float(mu)), dt)
     stats = {}
-    _compiled_newton.newton_rollout(x, weights, dt, sur.layout(), sur.kernel.state, model._newton_iterations(), n_steps,
-                                    stats=stats)
+    _compiled_newton.newton_rollout(
+        x, weights, dt, sur.layout(), sur.kernel.state, model._newton_iterations(), n_steps, stats=stats
+    )
     return stats["passes"]
 
 

@@ -36,12 +36,32 @@ def test_the_estimators_keep_at_most_eight_options():
     assert len(SymplecticKernelPredictor._param_names()) <= 8, SymplecticKernelPredictor._param_names()
     assert len(DirectKernelPredictor._param_names()) <= 8
     assert set(SymplecticKernelPredictor._param_names()) == {
-        "state_kernel", "mu_kernel", "dt_kernel", "max_centers", "update", "trainer", "solver", "search"}
+        "state_kernel",
+        "mu_kernel",
+        "dt_kernel",
+        "max_centers",
+        "update",
+        "trainer",
+        "solver",
+        "search",
+    }
 
 
 # ------------------------------------------------------------------ pre-release options
-PRE_RELEASE_OPTIONS = ("tol", "criterion", "power_tol", "memory_limit", "regularization", "backend",
-                       "newton_max_iter", "newton_warm_start", "state_scaling", "periodic", "period", "symmetry")
+PRE_RELEASE_OPTIONS = (
+    "tol",
+    "criterion",
+    "power_tol",
+    "memory_limit",
+    "regularization",
+    "backend",
+    "newton_max_iter",
+    "newton_warm_start",
+    "state_scaling",
+    "periodic",
+    "period",
+    "symmetry",
+)
 
 
 @pytest.mark.parametrize("name", PRE_RELEASE_OPTIONS)
@@ -82,15 +102,17 @@ def test_numpy_only_features_are_declared_once_refused_for_numba_and_said_under_
 
     reasons = [reason for applies, reason in NUMPY_ONLY if applies(lower_state_kernel(IMQ(0.3)), Outside())]
     assert len(reasons) == 1
-    numba = SymplecticKernelPredictor(IMQ(0.3), IMQ(1.5), IMQ(3.0), max_centers=10, update=Outside(),
-                                      solver=NewtonSolver(backend="numba"))
+    numba = SymplecticKernelPredictor(
+        IMQ(0.3), IMQ(1.5), IMQ(3.0), max_centers=10, update=Outside(), solver=NewtonSolver(backend="numba")
+    )
     with pytest.raises(ValueError, match=reasons[0] + ".*backend='numpy'"):
         numba.fit(x0, x1, mu=mu, dt=dt)
     for kernel in (Periodic(IMQ(0.3), coordinates=(0,), period=8.0), Symmetric(IMQ(0.3), group=[(1, 1), (-1, -1)])):
         parts = lower_state_kernel(kernel)
         assert not [reason for applies, reason in NUMPY_ONLY if applies(parts, Midpoint())]
-        auto = SymplecticKernelPredictor(kernel, IMQ(1.5), IMQ(3.0), max_centers=10, update="midpoint",
-                                         solver=NewtonSolver()).fit(x0, x1, mu=mu, dt=dt)
+        auto = SymplecticKernelPredictor(
+            kernel, IMQ(1.5), IMQ(3.0), max_centers=10, update="midpoint", solver=NewtonSolver()
+        ).fit(x0, x1, mu=mu, dt=dt)
         assert auto.numpy_only_ is None
         assert auto.backend_for(10_000, 10_000) == "numba"
     plain = SymplecticKernelPredictor(IMQ(0.3), IMQ(1.5), IMQ(3.0), max_centers=10).fit(x0, x1, mu=mu, dt=dt)
@@ -144,9 +166,13 @@ def test_each_trainer_owns_only_the_settings_it_can_run():
     assert "criterion" not in ActiveSetGreedy._param_names()
     assert "regularization" not in ActiveSetGreedy._param_names()
     assert "memory_limit" not in ShardedGreedy._param_names()
-    for bad, match in [(ExactGreedy(tol=-1.0), "tol"), (ExactGreedy(criterion="x"), "criterion"),
-                       (ExactGreedy(power_tol=2.0), "power_tol"), (ExactGreedy(memory_limit=0), "memory_limit"),
-                       (ActiveSetGreedy(tol=float("nan")), "tol")]:
+    for bad, match in [
+        (ExactGreedy(tol=-1.0), "tol"),
+        (ExactGreedy(criterion="x"), "criterion"),
+        (ExactGreedy(power_tol=2.0), "power_tol"),
+        (ExactGreedy(memory_limit=0), "memory_limit"),
+        (ActiveSetGreedy(tol=float("nan")), "tol"),
+    ]:
         with pytest.raises(ValueError, match=match):
             bad.check()
     with pytest.raises(ValueError, match="max_iter"):
@@ -164,8 +190,10 @@ def test_predictors_and_wrappers_are_flow_maps(small_pendulum_data):
     x0, x1, mu, dt = _data(small_pendulum_data)
     sym = SymplecticKernelPredictor(IMQ(0.3), IMQ(1.5), IMQ(3.0), max_centers=20).fit(x0, x1, mu=mu, dt=dt)
     direct = DirectKernelPredictor(IMQ(0.3), IMQ(1.5), IMQ(3.0), max_centers=20).fit(x0, x1, mu=mu, dt=dt)
-    split = SplitKernelPredictor(SymplecticKernelPredictor(IMQ(0.3), IMQ(1.5), IMQ(3.0), max_centers=20),
-                                 QuadraticPart(np.eye(2)[None], np.zeros((1, 1)))).fit(x0, x1, mu=mu, dt=dt)
+    split = SplitKernelPredictor(
+        SymplecticKernelPredictor(IMQ(0.3), IMQ(1.5), IMQ(3.0), max_centers=20),
+        QuadraticPart(np.eye(2)[None], np.zeros((1, 1))),
+    ).fit(x0, x1, mu=mu, dt=dt)
     for model in (sym, split):
         assert isinstance(model, SymplecticFlowMap) and model.dim_ == 2 and model.n_mu_ == 1
     assert isinstance(direct, FlowMap) and not isinstance(direct, SymplecticFlowMap)
@@ -176,8 +204,9 @@ def test_the_around_hook_is_the_composed_step_on_the_same_solver(small_pendulum_
     import sympredict.estimators.fitted as fitted  # the fitted flow map runs the rollouts
 
     x0, x1, mu, dt = _data(small_pendulum_data)
-    model = SymplecticKernelPredictor(IMQ(0.3), IMQ(1.5), IMQ(3.0), max_centers=40,
-                                      solver=NewtonSolver(backend=backend)).fit(x0, x1, mu=mu, dt=dt)
+    model = SymplecticKernelPredictor(
+        IMQ(0.3), IMQ(1.5), IMQ(3.0), max_centers=40, solver=NewtonSolver(backend=backend)
+    ).fit(x0, x1, mu=mu, dt=dt)
     theta = 0.05
     rot = np.array([[np.cos(theta), np.sin(theta)], [-np.sin(theta), np.cos(theta)]])  # symplectic (det 1, 2-D)
     x = x0[:3] * 0.5

@@ -41,8 +41,9 @@ _with_backend = with_backend
 def well_conditioned_model(small_pendulum_data):
     """50 centres: coefficients ~1e4, gradient floor ~1e-12, so 1e-12 agreement is meaningful."""
     d = small_pendulum_data
-    model = SymplecticKernelPredictor(IMQ(0.15), mu_kernel=IMQ(2.0), dt_kernel=IMQ(5.0), max_centers=50,
-                                      solver=NewtonSolver(backend="numpy"))
+    model = SymplecticKernelPredictor(
+        IMQ(0.15), mu_kernel=IMQ(2.0), dt_kernel=IMQ(5.0), max_centers=50, solver=NewtonSolver(backend="numpy")
+    )
     return model.fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
 
 
@@ -51,8 +52,14 @@ def test_newton_terms_equal_gradient_hessian_block(small_pendulum_model, rng):
     for kernel in (IMQ(0.3), Matern52(0.5), Matern32(0.5)):
         # a 2n = 4 surrogate with random centres/components exercises every Hessian term
         m, dim = 40, 4
-        s4 = HBSurrogate(ProductKernel(kernel), rng.normal(size=(m, dim)), np.zeros((m, 0)), np.ones(m),
-                         rng.integers(0, dim, m), rng.normal(size=m))
+        s4 = HBSurrogate(
+            ProductKernel(kernel),
+            rng.normal(size=(m, dim)),
+            np.zeros((m, 0)),
+            np.ones(m),
+            rng.integers(0, dim, m),
+            rng.normal(size=m),
+        )
         xi = rng.normal(size=(7, dim))
         w = s4.weights(np.zeros((7, 0)), np.ones(7))
         g_ref, h_ref, f_ref = s4.gradient_hessian(xi, w, with_floor=True)
@@ -94,8 +101,9 @@ def test_compiled_equals_numpy_four_dimensional(state_kernel, with_mu, rng):
     x0 = rng.uniform(-1, 1, size=(40, 4))
     mu = rng.uniform(1.0, 2.0, size=(40, 1)) if with_mu else np.full((40, 1), 1.5)
     x1 = integrate(implicit_midpoint_step, system, x0, mu, 0.01, 10)[:, -1]
-    model = SymplecticKernelPredictor(state_kernel, mu_kernel=IMQ(1.0) if with_mu else None, max_centers=60,
-                                      solver=NewtonSolver(backend="numpy"))
+    model = SymplecticKernelPredictor(
+        state_kernel, mu_kernel=IMQ(1.0) if with_mu else None, max_centers=60, solver=NewtonSolver(backend="numpy")
+    )
     model.fit(x0, x1, mu=mu if with_mu else None, dt=0.1)
     xq = rng.uniform(-0.7, 0.7, size=(12, 4))
     kw = {"mu": rng.uniform(1.1, 1.9, 12)} if with_mu else {}
@@ -160,10 +168,9 @@ def test_backend_argument_checked(small_pendulum_model, small_pendulum_data, mon
         bad.step(x, mu=0.75, dt=0.05)
     d = small_pendulum_data
     with pytest.raises(ValueError, match="backend"):
-        SymplecticKernelPredictor(IMQ(0.15), mu_kernel=IMQ(2.0), dt_kernel=IMQ(5.0),
-                                  solver=NewtonSolver(backend="gpu")).fit(
-            d.x0[:20], d.x1[:20], mu=d.mu[:20], dt=d.dt[:20]
-        )
+        SymplecticKernelPredictor(
+            IMQ(0.15), mu_kernel=IMQ(2.0), dt_kernel=IMQ(5.0), solver=NewtonSolver(backend="gpu")
+        ).fit(d.x0[:20], d.x1[:20], mu=d.mu[:20], dt=d.dt[:20])
     auto = _with_backend(small_pendulum_model, "auto")
     assert auto._compiled() is _numba.HAVE_NUMBA  # 'auto' compiles exactly when numba is there
     # without numba: 'numba' is refused, 'auto' takes the NumPy reference (and reports it)
@@ -171,7 +178,9 @@ def test_backend_argument_checked(small_pendulum_model, small_pendulum_data, mon
     with pytest.raises(ImportError, match="numba"):
         _with_backend(small_pendulum_model, "numba").step(x, mu=0.75, dt=0.05)
     assert auto._compiled() is False
-    np.testing.assert_array_equal(auto.step(x, mu=0.75, dt=0.05), _with_backend(small_pendulum_model, "numpy").step(x, mu=0.75, dt=0.05))
+    np.testing.assert_array_equal(
+        auto.step(x, mu=0.75, dt=0.05), _with_backend(small_pendulum_model, "numpy").step(x, mu=0.75, dt=0.05)
+    )
 
 
 # ------------------------------------------------------------------ training paths
@@ -190,10 +199,15 @@ def test_functional_residuals_match_the_greedy_residual(small_pendulum_data):
     res = greedy_interpolation(fun, y, max_centers=200, tol=0.0)
     direct = functional_residuals(fun, y, res.selected, res.coef)
     # the greedy's Newton-form residual and the directly evaluated one agree to round-off
-    assert abs(np.abs(direct).max() - res.history.train_max_residual[-1]) <= 1e-6 * res.history.train_max_residual[-1] + 1e-9
+    assert (
+        abs(np.abs(direct).max() - res.history.train_max_residual[-1])
+        <= 1e-6 * res.history.train_max_residual[-1] + 1e-9
+    )
     np.testing.assert_allclose(direct[res.selected], 0.0, atol=1e-8)
     # the NumPy evaluation computes the same numbers
-    np.testing.assert_allclose(functional_residuals(fun, y, res.selected, res.coef, compiled=False), direct, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(
+        functional_residuals(fun, y, res.selected, res.coef, compiled=False), direct, rtol=0, atol=1e-9
+    )
 
 
 def test_gram_rows_equal_columns(rng):
@@ -265,7 +279,9 @@ def test_active_set_reaches_tol_over_all_functionals(small_pendulum_data):
 def test_predictor_fast_training(small_pendulum_data, rng):
     d = small_pendulum_data
     kw = dict(mu_kernel=IMQ(2.0), dt_kernel=IMQ(5.0), max_centers=800)
-    fast = SymplecticKernelPredictor(IMQ(0.15), trainer=ActiveSetGreedy(tol=1e-3), **kw).fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
+    fast = SymplecticKernelPredictor(IMQ(0.15), trainer=ActiveSetGreedy(tol=1e-3), **kw).fit(
+        d.x0, d.x1, mu=d.mu, dt=d.dt
+    )
     exact = SymplecticKernelPredictor(IMQ(0.15), trainer=ExactGreedy(tol=1e-3), **kw).fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
     assert fast.history_.stop_reason == "tol" and fast.history_.train_max_residual[-1] <= 1e-3
     x, mu, dt = _queries(rng, 8)
@@ -280,8 +296,14 @@ def test_predictor_fast_training(small_pendulum_data, rng):
 def _dense(fun, y, compiled, **kw):
     """The exact greedy with or without the compiled fused update pass."""
     kw.setdefault("max_centers", 400)
-    store = DenseStore(fun, y, validation=kw.pop("validation", None), power_tol=kw.pop("power_tol", 1e-12),
-                       basis_dtype=kw.pop("basis_dtype", "float64"), compiled=compiled)
+    store = DenseStore(
+        fun,
+        y,
+        validation=kw.pop("validation", None),
+        power_tol=kw.pop("power_tol", 1e-12),
+        basis_dtype=kw.pop("basis_dtype", "float64"),
+        compiled=compiled,
+    )
     return run_greedy(store, **kw)
 
 
@@ -322,7 +344,9 @@ def test_matvec_and_rollout_statistics(small_pendulum_model, rng):
     sur = small_pendulum_model.surrogate_
     x, mu, dt = _queries(rng, 6)
     stats = {}
-    _compiled_newton.newton_rollout(x, sur.weights(mu[:, None], dt), dt, sur.layout(), sur.kernel.state, 50, 4, stats=stats)
+    _compiled_newton.newton_rollout(
+        x, sur.weights(mu[:, None], dt), dt, sur.layout(), sur.kernel.state, 50, 4, stats=stats
+    )
     # per step: one gradient pass for the explicit guess, at least one Newton pass
     assert np.all(stats["passes"] >= 2 * 4) and np.all(stats["passes"] <= 4 * 51)
     assert 0 < compiled_surrogate.factor_throughput(n=1 << 12, repeats=1) < 1e-6
@@ -352,8 +376,12 @@ def test_compiled_column_is_bit_identical(rng):
             fun._compiled_column = True
             np.testing.assert_array_equal(got, ref)
     # not used where NumPy's sums are not sequential or exp enters
-    assert not HBFunctionals(ProductKernel(IMQ(0.5)), rng.normal(size=(5, 4)), np.zeros((5, 0)), np.ones(5))._compiled_column
-    assert not HBFunctionals(ProductKernel(Matern52(0.5)), rng.normal(size=(5, 2)), np.zeros((5, 0)), np.ones(5))._compiled_column
+    assert not HBFunctionals(
+        ProductKernel(IMQ(0.5)), rng.normal(size=(5, 4)), np.zeros((5, 0)), np.ones(5)
+    )._compiled_column
+    assert not HBFunctionals(
+        ProductKernel(Matern52(0.5)), rng.normal(size=(5, 2)), np.zeros((5, 0)), np.ones(5)
+    )._compiled_column
 
 
 def test_overflowing_coefficients_raise(rng):
@@ -368,11 +396,19 @@ def test_short_parameter_factor_is_bit_identical(rng):
     from sympredict.interpolation.surrogate import _parameter_factor
 
     cm, cd = rng.uniform(0.7, 0.8, (300, 1)), rng.choice([0.04, 0.05, 0.06], 300)
-    for kernel in (ProductKernel(IMQ(0.2), IMQ(1.5), IMQ(3.0)), ProductKernel(IMQ(0.2), Matern52(2.0), None),
-                   ProductKernel(IMQ(0.2), None, Matern32(4.0)), ProductKernel(IMQ(0.2))):
+    for kernel in (
+        ProductKernel(IMQ(0.2), IMQ(1.5), IMQ(3.0)),
+        ProductKernel(IMQ(0.2), Matern52(2.0), None),
+        ProductKernel(IMQ(0.2), None, Matern32(4.0)),
+        ProductKernel(IMQ(0.2)),
+    ):
         for b in (1, 7, 50):
             mu, dt = rng.uniform(0.6, 0.9, (b, 1)), rng.uniform(0.03, 0.07, b)
-            np.testing.assert_array_equal(_parameter_factor(kernel, mu, dt, cm, cd), kernel.parameter_factor(mu, dt, cm, cd))
+            np.testing.assert_array_equal(
+                _parameter_factor(kernel, mu, dt, cm, cd), kernel.parameter_factor(mu, dt, cm, cd)
+            )
     k2 = ProductKernel(IMQ(0.2), IMQ(1.5), IMQ(3.0))
     mu2, cm2 = rng.normal(size=(4, 2)), rng.normal(size=(300, 2))
-    np.testing.assert_array_equal(_parameter_factor(k2, mu2, dt[:4], cm2, cd), k2.parameter_factor(mu2, dt[:4], cm2, cd))
+    np.testing.assert_array_equal(
+        _parameter_factor(k2, mu2, dt[:4], cm2, cd), k2.parameter_factor(mu2, dt[:4], cm2, cd)
+    )

@@ -53,7 +53,8 @@ def test_learned_step_is_symplectic(small_pendulum_model, rng):
     h = 1e-4
     fd = np.stack(
         [
-            (small_pendulum_model.step(x + h * e, mu=mu, dt=dt) - small_pendulum_model.step(x - h * e, mu=mu, dt=dt)) / (2 * h)
+            (small_pendulum_model.step(x + h * e, mu=mu, dt=dt) - small_pendulum_model.step(x - h * e, mu=mu, dt=dt))
+            / (2 * h)
             for e in np.eye(2)
         ],
         axis=2,
@@ -67,8 +68,9 @@ def test_four_dimensional_system_symplectic_and_exact(state_kernel, rng):
     x0 = rng.uniform(-1, 1, size=(25, 4))
     mu = rng.uniform(1.0, 2.0, size=(25, 1))
     x1 = integrate(implicit_midpoint_step, system, x0, mu, 0.01, 10)[:, -1]  # dT = 0.1
-    model = SymplecticKernelPredictor(state_kernel, mu_kernel=IMQ(1.0), max_centers=100,
-                                      trainer=ExactGreedy(tol=0.0, power_tol=0.0))
+    model = SymplecticKernelPredictor(
+        state_kernel, mu_kernel=IMQ(1.0), max_centers=100, trainer=ExactGreedy(tol=0.0, power_tol=0.0)
+    )
     model.fit(x0, x1, mu=mu, dt=0.1)
     assert model.n_centers_ == 100 and model.history_.stop_reason == "exhausted"
     # all functionals selected: the step reproduces every training sample
@@ -177,7 +179,9 @@ def test_bad_input_gets_clear_errors(small_pendulum_model, small_pendulum_data):
     with pytest.raises(ValueError, match="same number of samples"):
         fresh.fit(d.x0, d.x1[:-1], mu=d.mu, dt=d.dt)
     with pytest.raises(ValueError, match=r"contradictory samples.*rows 0, 3"):  # same x0, mu, dt; another x1
-        fresh.fit(np.vstack([d.x0[:3], d.x0[:1]]), np.vstack([d.x1[:3], d.x1[1:2]]), mu=np.r_[d.mu[:3, 0], d.mu[0]], dt=0.05)
+        fresh.fit(
+            np.vstack([d.x0[:3], d.x0[:1]]), np.vstack([d.x1[:3], d.x1[1:2]]), mu=np.r_[d.mu[:3, 0], d.mu[0]], dt=0.05
+        )
     with pytest.raises(ValueError, match="max_centers"):
         SymplecticKernelPredictor(IMQ(1.0), max_centers=0).fit(d.x0, d.x1, dt=0.05)
     # the symplectic predictor chooses a missing mu or dt kernel (tests/estimators/test_auto_defaults.py); the direct one refuses
@@ -193,8 +197,9 @@ def test_fixed_step_parameter_free_model(pendulum, rng):
     x0 = np.column_stack([rng.uniform(-1, 1, 60), rng.uniform(-3, 3, 60)])
     x1 = pendulum.flow(x0, 0.75, 0.05)
     xv = np.column_stack([rng.uniform(-1, 1, 20), rng.uniform(-3, 3, 20)])
-    model = SymplecticKernelPredictor(max_centers=80).fit(x0, x1, dt=0.05,
-                                                         validation=(xv, pendulum.flow(xv, 0.75, 0.05), None, 0.05))
+    model = SymplecticKernelPredictor(max_centers=80).fit(
+        x0, x1, dt=0.05, validation=(xv, pendulum.flow(xv, 0.75, 0.05), None, 0.05)
+    )
     # default state kernel: chosen inside the symplectic scaling (a q, p / a), a = sqrt(std p / std q) over the
     # training states (all of them: with validation data nothing is held out), as documented
     x = np.vstack([x0, x1])
@@ -236,7 +241,9 @@ def test_truncated_model_equals_refit_with_fewer_centres(small_pendulum_data, rn
     small = full.truncated(80)
     refit = SymplecticKernelPredictor(*kernels, max_centers=80).fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
     np.testing.assert_array_equal(small.surrogate_.centers_xi, refit.surrogate_.centers_xi)
-    np.testing.assert_allclose(small.surrogate_.coef, refit.surrogate_.coef, rtol=1e-10, atol=1e-10 * np.abs(refit.surrogate_.coef).max())
+    np.testing.assert_allclose(
+        small.surrogate_.coef, refit.surrogate_.coef, rtol=1e-10, atol=1e-10 * np.abs(refit.surrogate_.coef).max()
+    )
     x, mu, dt = _random_queries(rng, 5)
     np.testing.assert_allclose(small.step(x, mu=mu, dt=dt), refit.step(x, mu=mu, dt=dt), atol=1e-12)
     assert small.n_centers_ == 80 and full.n_centers_ == 200 and len(small.history_.train_max_residual) == 81
@@ -266,4 +273,6 @@ def test_smallest_model_meeting_a_validation_target(small_pendulum_data):
     with pytest.raises(ValueError, match="the best is"):
         model.smallest(curve[1:].min() / 10)
     with pytest.raises(ValueError, match="validation data"):
-        SymplecticKernelPredictor(IMQ(0.15), IMQ(2.0), IMQ(5.0), max_centers=20).fit(train.x0, train.x1, mu=train.mu, dt=train.dt).smallest(1.0)
+        SymplecticKernelPredictor(IMQ(0.15), IMQ(2.0), IMQ(5.0), max_centers=20).fit(
+            train.x0, train.x1, mu=train.mu, dt=train.dt
+        ).smallest(1.0)

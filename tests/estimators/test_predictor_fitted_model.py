@@ -12,7 +12,11 @@ import pytest
 
 from sympredict import DirectKernelPredictor, SymplecticKernelPredictor
 from sympredict.estimators.fitted import (
-    FittedDirectFlowMap, FittedSymplecticFlowMap, check_finite, model_coordinates, training_box,
+    FittedDirectFlowMap,
+    FittedSymplecticFlowMap,
+    check_finite,
+    model_coordinates,
+    training_box,
 )
 from sympredict.exceptions import NonFinitePredictionError, NotFittedError
 from sympredict.interpolation.greedy import ExactGreedy
@@ -33,9 +37,9 @@ def _inner(data, n):
 def scaled_model(coarse_pendulum_data):
     """A model with a symplectic scaling and validation data (E_val recorded), on the NumPy solver."""
     d = coarse_pendulum_data
-    return SymplecticKernelPredictor(Scaled(IMQ(0.3), factors=(1.3,)), max_centers=30, update="midpoint",
-                                     solver=NewtonSolver(backend="numpy")).fit(
-        d.x0[::2], d.x1[::2], dt=DT, validation=(d.x0[1::2], d.x1[1::2], None, np.full(len(d.x0[1::2]), DT)))
+    return SymplecticKernelPredictor(
+        Scaled(IMQ(0.3), factors=(1.3,)), max_centers=30, update="midpoint", solver=NewtonSolver(backend="numpy")
+    ).fit(d.x0[::2], d.x1[::2], dt=DT, validation=(d.x0[1::2], d.x1[1::2], None, np.full(len(d.x0[1::2]), DT)))
 
 
 def test_fit_sets_one_fitted_map_and_the_fitted_attributes_are_views_of_it(scaled_model):
@@ -78,9 +82,17 @@ def test_the_public_constructor_rebuilds_the_same_map(scaled_model, coarse_pendu
     """The constructor model files use: the fitted arrays and settings give the same predictions bit for bit."""
     m = scaled_model.model_
     again = FittedSymplecticFlowMap(
-        m.kernel, FittedSymplecticFlowMap.surrogate_from_arrays(m.kernel, m.surrogate_arrays(), m.dim, m.n_mu),
-        domain=m.domain, history=m.history, dt_fixed=m.dt_fixed, update=m.update, parts=m.parts, solver=m.solver,
-        regularization=m.regularization, error_calibration=m.error_calibration)
+        m.kernel,
+        FittedSymplecticFlowMap.surrogate_from_arrays(m.kernel, m.surrogate_arrays(), m.dim, m.n_mu),
+        domain=m.domain,
+        history=m.history,
+        dt_fixed=m.dt_fixed,
+        update=m.update,
+        parts=m.parts,
+        solver=m.solver,
+        regularization=m.regularization,
+        error_calibration=m.error_calibration,
+    )
     x = _inner(coarse_pendulum_data, 5)
     np.testing.assert_array_equal(again.rollout(x, 6), m.rollout(x, 6))
     np.testing.assert_array_equal(again.step(x, return_error=True)[1], m.step(x, return_error=True)[1])

@@ -38,12 +38,17 @@ from sympredict.symplectic.solvers import NewtonSolver
 
 EXPECTED = (ValueError, SympredictError)
 # derandomized: CI sees the same examples every run (seeded, reproducible)
-_BASE = settings(deadline=None, derandomize=True, database=None,
-                 suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
+_BASE = settings(
+    deadline=None,
+    derandomize=True,
+    database=None,
+    suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow],
+)
 
 
 def examples(n):
     return settings(_BASE, max_examples=n)
+
 
 floats = st.floats(allow_nan=True, allow_infinity=True, width=64)
 small_arrays = hnp.arrays(np.float64, hnp.array_shapes(min_dims=0, max_dims=3, min_side=0, max_side=4), elements=floats)
@@ -53,7 +58,9 @@ params = st.one_of(st.none(), floats, small_arrays, st.text(max_size=3), st.list
 @pytest.fixture(scope="module")
 def tiny_model():
     data = flow_map_data(Pendulum(), mus=(0.7, 0.8), dts=(0.04, 0.06), n_grid=8)
-    return SymplecticKernelPredictor(IMQ(0.3), IMQ(2.0), IMQ(5.0), max_centers=40).fit(data.x0, data.x1, mu=data.mu, dt=data.dt)
+    return SymplecticKernelPredictor(IMQ(0.3), IMQ(2.0), IMQ(5.0), max_centers=40).fit(
+        data.x0, data.x1, mu=data.mu, dt=data.dt
+    )
 
 
 def _finite_or_expected(call, shape=None):
@@ -87,7 +94,9 @@ def test_rollout_random_input(tiny_model, x, n_steps, mu, dt):
 
 @examples(800)
 @given(
-    x0=hnp.arrays(np.float64, hnp.array_shapes(min_dims=1, max_dims=2, min_side=0, max_side=5), elements=st.floats(-3, 3)),
+    x0=hnp.arrays(
+        np.float64, hnp.array_shapes(min_dims=1, max_dims=2, min_side=0, max_side=5), elements=st.floats(-3, 3)
+    ),
     shift=st.floats(-0.5, 0.5),
     mu=params,
     dt=params,
@@ -115,8 +124,11 @@ def test_flow_map_data_random_input(x0, x1, mu, dt):
 
 
 @examples(2000)
-@given(family=st.sampled_from(sorted(KERNEL_FAMILIES)), eps=st.one_of(floats, st.text(max_size=2), st.none()),
-       r=hnp.arrays(np.float64, st.integers(1, 5), elements=st.floats(0, 1e6)))
+@given(
+    family=st.sampled_from(sorted(KERNEL_FAMILIES)),
+    eps=st.one_of(floats, st.text(max_size=2), st.none()),
+    r=hnp.arrays(np.float64, st.integers(1, 5), elements=st.floats(0, 1e6)),
+)
 def test_kernels_random_shapes(family, eps, r):
     try:
         kernel = KERNEL_FAMILIES[family](eps)
@@ -152,13 +164,17 @@ def test_same_seed_gives_bit_identical_data_selection_and_predictions():
     for name in ("x0", "x1", "mu", "dt"):
         np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
     assert not np.array_equal(a.x0, random_flow_map_data(pendulum, 300, seed=6).x0)
-    models = [SymplecticKernelPredictor(IMQ(0.3), IMQ(2.0), IMQ(5.0), max_centers=80).fit(a.x0, a.x1, mu=a.mu, dt=a.dt) for _ in range(2)]
+    models = [
+        SymplecticKernelPredictor(IMQ(0.3), IMQ(2.0), IMQ(5.0), max_centers=80).fit(a.x0, a.x1, mu=a.mu, dt=a.dt)
+        for _ in range(2)
+    ]
     np.testing.assert_array_equal(models[0].surrogate_.centers_xi, models[1].surrogate_.centers_xi)
     np.testing.assert_array_equal(models[0].surrogate_.coef, models[1].surrogate_.coef)
     x = a.x0[:5]
     with extrapolation_expected():  # reproducibility, not accuracy: a trajectory may leave the training states
-        np.testing.assert_array_equal(models[0].rollout(x, 10, mu=a.mu[:5], dt=0.05),
-                                      models[1].rollout(x, 10, mu=a.mu[:5], dt=0.05))
+        np.testing.assert_array_equal(
+            models[0].rollout(x, 10, mu=a.mu[:5], dt=0.05), models[1].rollout(x, 10, mu=a.mu[:5], dt=0.05)
+        )
 
 
 def test_flat_kernel_stops_cleanly_with_reason():
@@ -200,8 +216,9 @@ def test_long_rollout_energy_bounded_no_drift(backend):
     """
     pendulum = Pendulum()
     data = flow_map_data(pendulum, mus=(0.7, 0.8), dts=(0.04, 0.06), n_grid=14)
-    model = SymplecticKernelPredictor(IMQ(0.15), IMQ(2.0), IMQ(5.0), max_centers=150,
-                                      solver=NewtonSolver(backend=backend))
+    model = SymplecticKernelPredictor(
+        IMQ(0.15), IMQ(2.0), IMQ(5.0), max_centers=150, solver=NewtonSolver(backend=backend)
+    )
     model.fit(data.x0, data.x1, mu=data.mu, dt=data.dt)
     x0 = np.array([[1.0, 0.0]])
     traj = model.rollout(x0, 100_000, mu=0.75, dt=0.05)
@@ -268,8 +285,9 @@ def test_fit_valid_data_succeeds():
         x0 = np.array(x0)
         mu = np.linspace(0.7, 0.8, len(x0))
         x1 = pendulum.flow(x0, mu if with_mu else 0.75, dt)
-        model = SymplecticKernelPredictor(IMQ(0.5), IMQ(1.0) if with_mu else None, max_centers=centers,
-                                          trainer=ExactGreedy(tol=0.0))
+        model = SymplecticKernelPredictor(
+            IMQ(0.5), IMQ(1.0) if with_mu else None, max_centers=centers, trainer=ExactGreedy(tol=0.0)
+        )
         try:
             model.fit(x0, x1, mu=mu if with_mu else None, dt=dt)
         except EXPECTED:
@@ -286,8 +304,9 @@ def test_fit_valid_data_succeeds():
         xi, y = update_variables("symplectic_euler", x0, x1, steps)
         rows, comps = np.divmod(model.greedy_result_.selected, 2)
         grad = model.surrogate_.gradient(xi[rows], model.surrogate_.weights(params[rows], steps[rows]))
-        np.testing.assert_allclose(grad[np.arange(len(rows)), comps], y[rows, comps], rtol=0,
-                                   atol=1e-6 * np.abs(y).max())
+        np.testing.assert_allclose(
+            grad[np.arange(len(rows)), comps], y[rows, comps], rtol=0, atol=1e-6 * np.abs(y).max()
+        )
         pred = model.step(x0, mu=mu if with_mu else None, dt=dt)
         assert pred.shape == x0.shape and np.all(np.isfinite(pred))
 
@@ -299,8 +318,14 @@ def test_fit_valid_data_succeeds():
 
 # ------------------------------------------------------------------ valid input with one argument broken: the message names it
 BREAKS = {
-    "x has NaN": (lambda x, mu, dt: (np.where(np.arange(x.size).reshape(x.shape) == 0, np.nan, x), mu, dt), "x contains NaN or Inf"),
-    "x has 3 components": (lambda x, mu, dt: (np.column_stack([x, x[:, :1]]), mu, dt), "x must have 2 state components"),
+    "x has NaN": (
+        lambda x, mu, dt: (np.where(np.arange(x.size).reshape(x.shape) == 0, np.nan, x), mu, dt),
+        "x contains NaN or Inf",
+    ),
+    "x has 3 components": (
+        lambda x, mu, dt: (np.column_stack([x, x[:, :1]]), mu, dt),
+        "x must have 2 state components",
+    ),
     "x is 3-D": (lambda x, mu, dt: (x[None], mu, dt), "x must have shape"),
     "mu has the wrong length": (lambda x, mu, dt: (x, np.append(mu, 0.75), dt), "mu .*must have length"),
     "mu is missing": (lambda x, mu, dt: (x, None, dt), "mu is required"),

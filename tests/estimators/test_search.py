@@ -64,8 +64,11 @@ def test_ridge_search_always_tries_the_exact_fit_and_breaks_ties_towards_the_sma
     best, table, fitted = ridge_search([1e-2, 1e-4, 1e-6, 1e-4], evaluate)
     assert seen == [0.0, 1e-6, 1e-4, 1e-2]
     assert best == (1e-6, 1.0, "model 1e-06")
-    assert [row["regularization"] for row in table] == seen and table[0] == {"regularization": 0.0, "score": 3.0,
-                                                                             "n_centers": 7}
+    assert [row["regularization"] for row in table] == seen and table[0] == {
+        "regularization": 0.0,
+        "score": 3.0,
+        "n_centers": 7,
+    }
     assert fitted == {}
     _, _, fitted = ridge_search([1e-6], lambda lam: (1.0, lam, {}), keep=True)
     assert fitted == {0.0: 0.0, 1e-6: 1e-6}
@@ -92,8 +95,16 @@ def test_shrink_goes_on_after_a_sweep_without_gain_with_the_factors_logarithms_s
     assert coordinate_search((1.0,), score, [0], _scale, factors=(2.0, 0.5), sweeps=3) == (2.0,)
     key, calls = _counted(score)
     sweeps = []
-    best = coordinate_search((1.0,), key, [0], _scale, factors=(2.0, 0.5), sweeps=3, shrink=0.5,
-                             on_sweep=lambda sweep, b: sweeps.append((sweep, b)))
+    best = coordinate_search(
+        (1.0,),
+        key,
+        [0],
+        _scale,
+        factors=(2.0, 0.5),
+        sweeps=3,
+        shrink=0.5,
+        on_sweep=lambda sweep, b: sweeps.append((sweep, b)),
+    )
     root2 = float(np.exp(np.log(2.0) * 0.5))
     assert best == (2.0 * root2,)
     assert sweeps == [(0, (2.0,)), (1, (2.0,)), (2, (2.0 * root2,))]  # all three sweeps run
@@ -141,5 +152,6 @@ def test_grid_search_with_rungs_keeps_the_best_candidate_at_a_fraction_of_the_fi
     best25 = sorted(rows[25], key=lambda r: r["E_val"])[:3]
     assert {r["kernels"] for r in rows[50]} == {r["kernels"] for r in best25}
     again = grid_search(train, val, grid, m_star=100, estimator=est, widen=0, rungs=(25, 50))
-    assert [(r["kernels"], r.get("rung"), r["E_val"]) for r in again.table] == \
-        [(r["kernels"], r.get("rung"), r["E_val"]) for r in halved.table]
+    assert [(r["kernels"], r.get("rung"), r["E_val"]) for r in again.table] == [
+        (r["kernels"], r.get("rung"), r["E_val"]) for r in halved.table
+    ]

@@ -17,8 +17,10 @@ def split(small_pendulum_data):
 
 def step_error(val):
     """Independent score: the RMS error of one predicted step on the validation samples."""
+
     def score(model):
         return float(np.sqrt(np.mean((model.step(val.x0, mu=val.mu, dt=val.dt) - val.x1) ** 2)))
+
     return score
 
 
@@ -30,10 +32,14 @@ def test_chosen_model_is_the_best_scored_prefix_and_equals_a_refit(split):
         seen.append(model.n_centers_)
         return step_error(val)(model)
 
-    base = SymplecticKernelPredictor(mu_kernel=IMQ(2.0), dt_kernel=IMQ(5.0), trainer=ExactGreedy(tol=0.0),
-                                     solver=NewtonSolver(backend="numpy"))
-    cands = [{"state_kernel": IMQ(0.15)}, {"state_kernel": IMQ(0.6)},
-             {"state_kernel": IMQ(0.3), "trainer__tol": 3.0}]  # the last stops early (tolerance)
+    base = SymplecticKernelPredictor(
+        mu_kernel=IMQ(2.0), dt_kernel=IMQ(5.0), trainer=ExactGreedy(tol=0.0), solver=NewtonSolver(backend="numpy")
+    )
+    cands = [
+        {"state_kernel": IMQ(0.15)},
+        {"state_kernel": IMQ(0.6)},
+        {"state_kernel": IMQ(0.3), "trainer__tol": 3.0},
+    ]  # the last stops early (tolerance)
     res = select_by_score(data, val, cands, [20, 60, 40], score, estimator=base)
     rows = [r for r in res.table if r["budget"] is not None]
     # each full candidate scored at every budget (ascending), the early stop once, at its own size
@@ -45,19 +51,23 @@ def test_chosen_model_is_the_best_scored_prefix_and_equals_a_refit(split):
     assert res.params == cands[best["candidate"]]
     assert all(r["E_val"] is not None and np.isfinite(r["E_val"]) for r in rows)
     # the prefix equals a fit with that budget (round-off)
-    refit = base.set_params(**res.params, max_centers=res.n_centers).fit(
-        data.x0, data.x1, mu=data.mu, dt=data.dt)
-    np.testing.assert_allclose(res.model.step(val.x0, mu=val.mu, dt=val.dt), refit.step(val.x0, mu=val.mu, dt=val.dt),
-                               rtol=0, atol=1e-9)
+    refit = base.set_params(**res.params, max_centers=res.n_centers).fit(data.x0, data.x1, mu=data.mu, dt=data.dt)
+    np.testing.assert_allclose(
+        res.model.step(val.x0, mu=val.mu, dt=val.dt), refit.step(val.x0, mu=val.mu, dt=val.dt), rtol=0, atol=1e-9
+    )
     assert res.score == pytest.approx(step_error(val)(refit), rel=1e-6)
 
 
 def test_failed_fits_and_non_finite_scores_never_win(split):
     data, val = split
-    base = SymplecticKernelPredictor(mu_kernel=IMQ(2.0), dt_kernel=IMQ(5.0), trainer=ExactGreedy(tol=0.0),
-                                     solver=NewtonSolver(backend="numpy"))
-    cands = [{"state_kernel": IMQ(0.15), "update": "no such update"}, {"state_kernel": IMQ(0.15)},
-             {"state_kernel": IMQ(0.3)}]
+    base = SymplecticKernelPredictor(
+        mu_kernel=IMQ(2.0), dt_kernel=IMQ(5.0), trainer=ExactGreedy(tol=0.0), solver=NewtonSolver(backend="numpy")
+    )
+    cands = [
+        {"state_kernel": IMQ(0.15), "update": "no such update"},
+        {"state_kernel": IMQ(0.15)},
+        {"state_kernel": IMQ(0.3)},
+    ]
 
     def score(model):  # a diverged rollout, say, for the first fitted candidate
         return np.nan if model.state_kernel == IMQ(0.15) else step_error(val)(model)

@@ -14,8 +14,13 @@ import pytest
 
 from sympredict import KernelSearch, SymplecticKernelPredictor, TrajectoryData
 from sympredict.data import FlowMapData
-from sympredict.estimators.structure import (HOLD_CEILING, check_sign_flip, group_of, sign_flip_candidates,
-                                             wrapped_coordinates)
+from sympredict.estimators.structure import (
+    HOLD_CEILING,
+    check_sign_flip,
+    group_of,
+    sign_flip_candidates,
+    wrapped_coordinates,
+)
 from sympredict.exceptions import WrappedAngleWarning
 from sympredict.kernels import IMQ
 from sympredict.kernels.transforms import Symmetric, lower_state_kernel
@@ -76,7 +81,7 @@ def test_candidates_are_the_sign_flips_of_pairs_and_of_p_with_their_kind(dim):
         assert np.all(s[:n] * s[n:] == (1 if kind == "symmetry" else -1))
     assert len(set(cands)) == len(cands)
     if n <= 3:
-        assert len(cands) == 2 ** n + 2 ** n - 1
+        assert len(cands) == 2**n + 2**n - 1
     assert ((1,) * n + (-1,) * n, "reversing symmetry") in cands  # p -> -p
     assert group_of([(1, -1, -1, 1)]) == [(1, 1, 1, 1), (1, -1, -1, 1)]
     assert len(group_of([(-1, 1), (1, -1)])) == 4
@@ -88,8 +93,10 @@ def test_reversing_symmetry_of_the_torque_pendulum_found_and_false_ones_refused_
     of the states' spread on every state (the noise raises both errors, never the false ones under the ceiling)."""
     train, val = _torque_data(noise)
     quick = _quick(train)
-    found = {(signs, kind): check_sign_flip(quick, train, val, signs, kind, uses_mu=False, uses_dt=False)
-             for signs, kind in sign_flip_candidates(2)}
+    found = {
+        (signs, kind): check_sign_flip(quick, train, val, signs, kind, uses_mu=False, uses_dt=False)
+        for signs, kind in sign_flip_candidates(2)
+    }
     true = found[((1, -1), "reversing symmetry")]
     if noise <= 1e-3:
         assert true.verdict == "holds", true.summary()
@@ -181,13 +188,19 @@ def test_the_log_names_the_test_and_a_declared_group_is_tested_not_replaced(pend
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             model = SymplecticKernelPredictor(declared, max_centers=60, search=search).fit(data)
-    assert lower_state_kernel(model.choice_["state_kernel"]).symmetry == declared.group or \
-        lower_state_kernel(model.state_kernel).symmetry is not None
+    assert (
+        lower_state_kernel(model.choice_["state_kernel"]).symmetry == declared.group
+        or lower_state_kernel(model.state_kernel).symmetry is not None
+    )
     assert [f.signs for f in model.search_.structure] == [(1, -1)]
-    assert any("structure (declared group): reversing symmetry diag(1, -1): holds (a quick model's median relative "
-               "one-step error" in r.getMessage() for r in caplog.records)
-    off = SymplecticKernelPredictor(max_centers=60, search=KernelSearch(shapes=(0.5,), parameter_shapes=(0.5,),
-                                                                        refine_sweeps=0, structure=False))
+    assert any(
+        "structure (declared group): reversing symmetry diag(1, -1): holds (a quick model's median relative "
+        "one-step error" in r.getMessage()
+        for r in caplog.records
+    )
+    off = SymplecticKernelPredictor(
+        max_centers=60, search=KernelSearch(shapes=(0.5,), parameter_shapes=(0.5,), refine_sweeps=0, structure=False)
+    )
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         off.fit(data)

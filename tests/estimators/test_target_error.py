@@ -19,8 +19,9 @@ def _data(n, seed, steps=20, dt=0.1):
     mu = rng.uniform(0.7, 0.8, n)
     x0 = np.column_stack([rng.uniform(-1.5, 1.5, n), rng.uniform(-1.0, 1.0, n)])
     traj = Pendulum().trajectory(x0, mu, dt=dt, n_steps=steps)
-    return FlowMapData(traj[:, :-1].reshape(-1, 2), traj[:, 1:].reshape(-1, 2), np.repeat(mu, steps),
-                       np.full(n * steps, dt))
+    return FlowMapData(
+        traj[:, :-1].reshape(-1, 2), traj[:, 1:].reshape(-1, 2), np.repeat(mu, steps), np.full(n * steps, dt)
+    )
 
 
 def _median_step_error(model, data):
@@ -43,7 +44,9 @@ def test_checkpoint_schedule():
 def test_target_gives_the_smallest_model_that_meets_it(data, target):
     train, val, fresh = data
     kw = dict(mu_kernel=IMQ(2.0), max_centers=400)
-    model = SymplecticKernelPredictor(IMQ(0.5), trainer=ExactGreedy(target_error=target), **kw).fit(train, validation=val)
+    model = SymplecticKernelPredictor(IMQ(0.5), trainer=ExactGreedy(target_error=target), **kw).fit(
+        train, validation=val
+    )
     d = model.diagnostics_
     assert d.target_error == target and d.target_met and d.holdout_step_error <= target
     assert model.history_.stop_reason == "target" and model.n_centers_ < 400
@@ -63,8 +66,9 @@ def test_unreachable_target_warns_once_naming_the_limit_and_keeps_the_best(data)
     train, val, _ = data
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        model = SymplecticKernelPredictor(IMQ(0.5), mu_kernel=IMQ(2.0), max_centers=30,
-                                          trainer=ExactGreedy(target_error=1e-12)).fit(train, validation=val)
+        model = SymplecticKernelPredictor(
+            IMQ(0.5), mu_kernel=IMQ(2.0), max_centers=30, trainer=ExactGreedy(target_error=1e-12)
+        ).fit(train, validation=val)
     acc = [w for w in caught if issubclass(w.category, AccuracyWarning)]
     assert len(acc) == 1 and "max_centers=30" in str(acc[0].message) and "not met" in str(acc[0].message)
     d = model.diagnostics_
@@ -74,8 +78,9 @@ def test_unreachable_target_warns_once_naming_the_limit_and_keeps_the_best(data)
 
 def test_target_without_validation_holds_samples_out(data):
     train, _, _ = data
-    model = SymplecticKernelPredictor(IMQ(0.5), mu_kernel=IMQ(2.0), max_centers=300,
-                                      trainer=ExactGreedy(target_error=1e-3)).fit(train)
+    model = SymplecticKernelPredictor(
+        IMQ(0.5), mu_kernel=IMQ(2.0), max_centers=300, trainer=ExactGreedy(target_error=1e-3)
+    ).fit(train)
     assert model.diagnostics_.n_holdout == len(train) // 10 and model.diagnostics_.target_met
 
 
@@ -103,6 +108,7 @@ def test_readme_like_fit_summary_reports_held_out_error_without_not_converged():
     mu = rng.uniform(0.7, 0.8, size=40)
     x0 = np.column_stack([rng.uniform(-1.5, 1.5, 40), rng.uniform(-1.0, 1.0, 40)])
     from sympredict import TrajectoryData
+
     states = Pendulum().trajectory(x0, mu, dt=0.1, n_steps=50)
     model = SymplecticKernelPredictor(max_centers=300).fit(TrajectoryData(states, mu=mu, dt=0.1))
     text = model.diagnostics_.summary()
@@ -120,16 +126,33 @@ def test_cli_train_target_error_and_predict_error(tmp_path, capsys, data):
     states = Pendulum().trajectory(x0, 0.75, dt=0.1, n_steps=20)
     write_trajectories(TrajectoryData(states, dt=0.1), tmp_path / "t.npz")
     model_path = str(tmp_path / "m.h5")
-    assert main(["train", str(tmp_path / "t.npz"), "--out", model_path, "--max-centers", "300", "--target-error",
-                 "1e-3", "--threads", "1"]) == 0
+    assert (
+        main(
+            [
+                "train",
+                str(tmp_path / "t.npz"),
+                "--out",
+                model_path,
+                "--max-centers",
+                "300",
+                "--target-error",
+                "1e-3",
+                "--threads",
+                "1",
+            ]
+        )
+        == 0
+    )
     out = capsys.readouterr().out
     assert "target error 1.00e-03: met" in out
     model = SymplecticKernelPredictor.load(model_path)
     assert model.target_error_ == 1e-3 and model.trainer.target_error == 1e-3 and model.n_centers_ < 300
     for suffix in (".npz", ".csv"):
         path = tmp_path / f"pred{suffix}"
-        assert main(["predict", model_path, "--x0", "0.5,0.1", "0.3,0.2", "--steps", "6", "--out", str(path),
-                     "--error"]) == 0
+        assert (
+            main(["predict", model_path, "--x0", "0.5,0.1", "0.3,0.2", "--steps", "6", "--out", str(path), "--error"])
+            == 0
+        )
         traj, err = model.rollout(np.array([[0.5, 0.1], [0.3, 0.2]]), 6, dt=0.1, return_error=True)
         if suffix == ".npz":
             got = np.load(path)["error"]
@@ -144,10 +167,12 @@ def test_cli_train_target_error_and_predict_error(tmp_path, capsys, data):
 
 def test_every_strategy_takes_the_target_and_the_search_drops_it(data):
     train, val, _ = data
-    model = SymplecticKernelPredictor(IMQ(0.5), mu_kernel=IMQ(2.0), max_centers=300,
-                                      trainer=ActiveSetGreedy(target_error=1e-2)).fit(train, validation=val)
+    model = SymplecticKernelPredictor(
+        IMQ(0.5), mu_kernel=IMQ(2.0), max_centers=300, trainer=ActiveSetGreedy(target_error=1e-2)
+    ).fit(train, validation=val)
     assert model.history_.stop_reason == "target" and model.diagnostics_.target_met
     from sympredict.estimators.search import without_target as _without_target
+
     est = SymplecticKernelPredictor(trainer=ExactGreedy(target_error=1e-3))
     assert _without_target(est).trainer.target_error is None
 
@@ -156,8 +181,9 @@ def test_the_blocked_greedy_meets_a_target_too(data):
     from sympredict.interpolation.greedy import BlockedGreedy
 
     train, val, fresh = data
-    model = SymplecticKernelPredictor(IMQ(0.5), mu_kernel=IMQ(2.0), max_centers=400,
-                                      trainer=BlockedGreedy(block_size=16, target_error=1e-3)).fit(train, validation=val)
+    model = SymplecticKernelPredictor(
+        IMQ(0.5), mu_kernel=IMQ(2.0), max_centers=400, trainer=BlockedGreedy(block_size=16, target_error=1e-3)
+    ).fit(train, validation=val)
     d = model.diagnostics_
     assert d.target_met and model.history_.stop_reason == "target" and model.n_centers_ < 400
     assert model.prefix_errors_[model.n_centers_] <= 1e-3 < model.prefix_errors_.get(model.n_centers_ - 1, np.inf)
@@ -198,8 +224,9 @@ def test_validation_trajectories_score_the_prefixes_by_their_rollouts():
     np.testing.assert_allclose(roll[model.n_centers_], _rollout_score(model, val), rtol=1e-6)
     assert roll[model.n_centers_] < roll[16]
     # the same data as samples: every setting given, no target: the plain greedy, as before
-    plain = SymplecticKernelPredictor(IMQ(0.5), mu_kernel=IMQ(2.0), max_centers=200).fit(train.pairs(),
-                                                                                          validation=val.pairs())
+    plain = SymplecticKernelPredictor(IMQ(0.5), mu_kernel=IMQ(2.0), max_centers=200).fit(
+        train.pairs(), validation=val.pairs()
+    )
     assert plain.prefix_errors_ is None and plain.prefix_rollout_errors_ is None and plain.n_centers_ == 200
 
 
@@ -249,8 +276,9 @@ def test_the_rollout_rule_keeps_a_prefix_that_the_one_step_error_would_grow_past
 
 def test_with_a_target_and_trajectories_the_smallest_prefix_meeting_it_is_kept():
     train, val = _trajectories(40, 0), _trajectories(10, 1)
-    model = SymplecticKernelPredictor(IMQ(0.5), mu_kernel=IMQ(2.0), max_centers=400,
-                                      trainer=ExactGreedy(target_error=1e-2)).fit(train, validation=val)
+    model = SymplecticKernelPredictor(
+        IMQ(0.5), mu_kernel=IMQ(2.0), max_centers=400, trainer=ExactGreedy(target_error=1e-2)
+    ).fit(train, validation=val)
     steps, roll = model.prefix_errors_, model.prefix_rollout_errors_
     assert model.history_.stop_reason == "target" and model.diagnostics_.target_met
     assert steps[model.n_centers_] <= 1e-2 < steps.get(model.n_centers_ - 1, np.inf)

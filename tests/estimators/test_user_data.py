@@ -82,23 +82,33 @@ def test_shared_times_and_broadcast_mu():
     assert traj.times.shape == (2, 3) and traj.mu.shape == (2, 1) and traj.dt is None
 
 
-@pytest.mark.parametrize("kwargs, message", [
-    ({"times": [[0.0, 0.1, 0.2], [0.0, 0.2, 0.2]]}, r"trajectory 1 has t\[1\] = 0.2 >= t\[2\] = 0.2"),
-    ({"times": [0.0, -0.1, 0.2]}, r"increase strictly.*trajectory 0"),
-    ({"times": [0.0, 0.1]}, r"times must have shape \(P, K\+1\) = \(2, 3\)"),
-    ({"times": [0.0, np.nan, 0.2]}, "times contains NaN"),
-    ({}, "exactly one of dt"),
-    ({"dt": 0.1, "times": [0.0, 0.1, 0.2]}, "exactly one of dt"),
-    ({"dt": -0.1}, "dt must be positive"),
-])
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        ({"times": [[0.0, 0.1, 0.2], [0.0, 0.2, 0.2]]}, r"trajectory 1 has t\[1\] = 0.2 >= t\[2\] = 0.2"),
+        ({"times": [0.0, -0.1, 0.2]}, r"increase strictly.*trajectory 0"),
+        ({"times": [0.0, 0.1]}, r"times must have shape \(P, K\+1\) = \(2, 3\)"),
+        ({"times": [0.0, np.nan, 0.2]}, "times contains NaN"),
+        ({}, "exactly one of dt"),
+        ({"dt": 0.1, "times": [0.0, 0.1, 0.2]}, "exactly one of dt"),
+        ({"dt": -0.1}, "dt must be positive"),
+    ],
+)
 def test_bad_times_are_refused_naming_the_trajectory(kwargs, message):
     with pytest.raises(ValueError, match=message):
         TrajectoryData(np.zeros((2, 3, 2)), **kwargs)
 
 
-@pytest.mark.parametrize("strides, message", [
-    (0, "1..K = 1..8"), (9, "1..K = 1..8"), ([1, 1], "distinct"), (1.5, "positive integer"), ([], "positive integer"),
-])
+@pytest.mark.parametrize(
+    "strides, message",
+    [
+        (0, "1..K = 1..8"),
+        (9, "1..K = 1..8"),
+        ([1, 1], "distinct"),
+        (1.5, "positive integer"),
+        ([], "positive integer"),
+    ],
+)
 def test_bad_strides_are_refused(uniform, strides, message):
     with pytest.raises(ValueError, match=message):
         uniform[0].pairs(strides)
@@ -125,7 +135,9 @@ def test_drop_duplicates_counts_keeps_first_occurrences_in_order(uniform):
 
 def test_drop_duplicates_refuses_contradictory_samples_naming_the_rows(uniform):
     d = uniform[0].pairs()
-    bad = FlowMapData(np.r_[d.x0, d.x0[4:5]], np.r_[d.x1, d.x1[4:5] + 1e-3], np.r_[d.mu, d.mu[4:5]], np.r_[d.dt, d.dt[4:5]])
+    bad = FlowMapData(
+        np.r_[d.x0, d.x0[4:5]], np.r_[d.x1, d.x1[4:5] + 1e-3], np.r_[d.mu, d.mu[4:5]], np.r_[d.dt, d.dt[4:5]]
+    )
     with pytest.raises(ValueError, match=rf"contradictory samples.*rows 4, {len(d)}\b"):
         bad.drop_duplicates()
 
@@ -135,8 +147,12 @@ def _fixed_model(cls=SymplecticKernelPredictor):
 
 
 def _fixed_step_data():
-    traj = TrajectoryData(oscillator_trajectories(np.arange(7)[None] * 0.1 * np.ones((2, 1)), np.ones(2),
-                                                  np.array([[0.5, 0.0], [0.0, -0.7]])), dt=0.1)
+    traj = TrajectoryData(
+        oscillator_trajectories(
+            np.arange(7)[None] * 0.1 * np.ones((2, 1)), np.ones(2), np.array([[0.5, 0.0], [0.0, -0.7]])
+        ),
+        dt=0.1,
+    )
     return traj, traj.pairs()
 
 
@@ -168,8 +184,9 @@ def test_fit_takes_flowmap_and_trajectory_data_like_arrays():
         model = _fixed_model().fit(data)
         np.testing.assert_array_equal(model.greedy_result_.coef, arrays.greedy_result_.coef)
     direct = _fixed_model(DirectKernelPredictor).fit(traj)
-    np.testing.assert_array_equal(direct.greedy_result_.coef,
-                                  _fixed_model(DirectKernelPredictor).fit(d.x0, d.x1, dt=0.1).greedy_result_.coef)
+    np.testing.assert_array_equal(
+        direct.greedy_result_.coef, _fixed_model(DirectKernelPredictor).fit(d.x0, d.x1, dt=0.1).greedy_result_.coef
+    )
 
 
 def test_validation_takes_trajectory_data():
@@ -185,7 +202,9 @@ def test_validation_takes_trajectory_data():
 def test_data_objects_refuse_separate_arrays(extra, name):
     traj, d = _fixed_step_data()
     for data in (traj, d):
-        with pytest.raises(ValueError, match=rf"fit: the data were given as a {type(data).__name__}.*do not pass {name}"):
+        with pytest.raises(
+            ValueError, match=rf"fit: the data were given as a {type(data).__name__}.*do not pass {name}"
+        ):
             _fixed_model().fit(data, **extra)
 
 
@@ -256,7 +275,9 @@ def test_csv_round_trip_with_labels_interleaved_rows_and_parameters(tmp_path, us
     rows = []
     for k in range(5):  # rows of the trajectories interleaved, labels are strings
         for b, label in enumerate(["a", "b", "c"]):
-            rows.append([label, repr(float(times[b, k])), *(repr(float(v)) for v in states[b, k]), repr(float(omega[b])), 2.0])
+            rows.append(
+                [label, repr(float(times[b, k])), *(repr(float(v)) for v in states[b, k]), repr(float(omega[b])), 2.0]
+            )
     _write_csv(tmp_path / "t.csv", ["traj", "t", "q", "p", "mu1", "mu2"], rows)
     got = read_trajectories(tmp_path / "t.csv")
     np.testing.assert_array_equal(got.states, states)  # repr round-trips floats exactly
@@ -278,20 +299,23 @@ def test_csv_with_n_2_and_one_mu_column(tmp_path):
 GOOD = ["traj", "t", "q", "p"]
 
 
-@pytest.mark.parametrize("header, rows, message", [
-    (["traj", "t", "q1"], [[0, 0, 1]], r"lacks the column\(s\) \['p1'\]"),
-    (["traj", "q", "p"], [[0, 1, 2]], r"lacks the column\(s\) \['t'\]"),
-    (GOOD + ["energy"], [[0, 0, 1, 2, 3]], r"unexpected column\(s\) \['energy'\]"),
-    (GOOD, [[0, 0, 1, 2], [0, 0.1, "abc", 2]], r"row 3, column 'q': 'abc' is not a number"),
-    (GOOD, [[0, 0, 1, 2], [0, 0.1, 1, "nan"]], r"row 3, column 'p': 'nan' is not finite"),
-    (GOOD, [[0, 0, 1, 2], [0, 0.1, 1]], r"row 3: 3 cells, the header has 4 columns"),
-    (GOOD, [[0, 0, 1, 2], [0, 0.1, 1, 2], [1, 0, 1, 2]], r"trajectory '1' has 1 rows, trajectory '0' has 2"),
-    (GOOD, [[0, 0, 1, 2]], "at least 2 states"),
-    (GOOD, [[0, 0.2, 1, 2], [0, 0.1, 1, 2]], r"trajectory '0' is not in increasing time: row 3 has t = 0.1"),
-    (GOOD + ["mu"], [[0, 0, 1, 2, 0.5], [0, 0.1, 1, 2, 0.6]], "constant within a trajectory; trajectory '0'"),
-    (GOOD, [], "no data rows"),
-    (GOOD, [["", 0, 1, 2]], "trajectory label is empty"),
-])
+@pytest.mark.parametrize(
+    "header, rows, message",
+    [
+        (["traj", "t", "q1"], [[0, 0, 1]], r"lacks the column\(s\) \['p1'\]"),
+        (["traj", "q", "p"], [[0, 1, 2]], r"lacks the column\(s\) \['t'\]"),
+        (GOOD + ["energy"], [[0, 0, 1, 2, 3]], r"unexpected column\(s\) \['energy'\]"),
+        (GOOD, [[0, 0, 1, 2], [0, 0.1, "abc", 2]], r"row 3, column 'q': 'abc' is not a number"),
+        (GOOD, [[0, 0, 1, 2], [0, 0.1, 1, "nan"]], r"row 3, column 'p': 'nan' is not finite"),
+        (GOOD, [[0, 0, 1, 2], [0, 0.1, 1]], r"row 3: 3 cells, the header has 4 columns"),
+        (GOOD, [[0, 0, 1, 2], [0, 0.1, 1, 2], [1, 0, 1, 2]], r"trajectory '1' has 1 rows, trajectory '0' has 2"),
+        (GOOD, [[0, 0, 1, 2]], "at least 2 states"),
+        (GOOD, [[0, 0.2, 1, 2], [0, 0.1, 1, 2]], r"trajectory '0' is not in increasing time: row 3 has t = 0.1"),
+        (GOOD + ["mu"], [[0, 0, 1, 2, 0.5], [0, 0.1, 1, 2, 0.6]], "constant within a trajectory; trajectory '0'"),
+        (GOOD, [], "no data rows"),
+        (GOOD, [["", 0, 1, 2]], "trajectory label is empty"),
+    ],
+)
 def test_csv_errors_name_the_row_and_column(tmp_path, header, rows, message):
     _write_csv(tmp_path / "bad.csv", header, rows)
     with pytest.raises(ValueError, match=message) as info:
@@ -318,22 +342,28 @@ def test_file_level_errors(tmp_path):
         read_trajectories(tmp_path / "big.csv", max_bytes=10)
 
 
-@pytest.mark.parametrize("arrays, message", [
-    ({"dt": 0.1}, r"has no key 'states' \(found \['dt'\]\); expected layout"),
-    ({"states": np.zeros((2, 3, 2))}, "exactly one of 'dt'.*found neither"),
-    ({"states": np.zeros((2, 3, 2)), "dt": 0.1, "times": [0, 1, 2]}, "found both"),
-    ({"states": np.zeros((2, 3, 3)), "dt": 0.1}, r"key 'states' must have shape \(P, K\+1, 2n\).*got \(2, 3, 3\)"),
-    ({"states": np.zeros((2, 3, 2)), "dt": [0.1, 0.2]}, r"key 'dt' must be one positive number.*shape \(2,\)"),
-    ({"states": np.full((2, 3, 2), np.inf), "dt": 0.1}, "key 'states' contains NaN or Inf"),
-    ({"states": np.zeros((2, 3, 2)), "dt": 0.1, "mu": [1.0, 2.0, 3.0]}, "mu must have length 2"),
-    ({"states": np.zeros((2, 3, 2)), "times": [0, 2, 1]}, "times must increase strictly.*trajectory 0"),
-    ({"states": np.zeros((2, 3, 2)), "dt": -1.0}, "dt must be positive"),
-    ({"x0": np.zeros((4, 2)), "x1": np.zeros((4, 2))}, r"holds pairs but lacks \['dt'\]"),
-    ({"x0": np.zeros((4, 2)), "x1": np.zeros((3, 2)), "dt": 0.1}, "key 'x1' has shape \\(3, 2\\), 'x0' has \\(4, 2\\)"),
-    ({"x0": np.zeros((4, 2)), "x1": np.zeros((4, 2)), "states": np.zeros((1, 2, 2)), "dt": 0.1}, "holds both"),
-    ({"states": np.array([b"a", b"b"]), "dt": 0.1}, r"key 'states' has dtype \|?S1; a real numeric array"),
-    ({"states": np.zeros((2, 3, 2), complex), "dt": 0.1}, "key 'states' has dtype complex128"),
-])
+@pytest.mark.parametrize(
+    "arrays, message",
+    [
+        ({"dt": 0.1}, r"has no key 'states' \(found \['dt'\]\); expected layout"),
+        ({"states": np.zeros((2, 3, 2))}, "exactly one of 'dt'.*found neither"),
+        ({"states": np.zeros((2, 3, 2)), "dt": 0.1, "times": [0, 1, 2]}, "found both"),
+        ({"states": np.zeros((2, 3, 3)), "dt": 0.1}, r"key 'states' must have shape \(P, K\+1, 2n\).*got \(2, 3, 3\)"),
+        ({"states": np.zeros((2, 3, 2)), "dt": [0.1, 0.2]}, r"key 'dt' must be one positive number.*shape \(2,\)"),
+        ({"states": np.full((2, 3, 2), np.inf), "dt": 0.1}, "key 'states' contains NaN or Inf"),
+        ({"states": np.zeros((2, 3, 2)), "dt": 0.1, "mu": [1.0, 2.0, 3.0]}, "mu must have length 2"),
+        ({"states": np.zeros((2, 3, 2)), "times": [0, 2, 1]}, "times must increase strictly.*trajectory 0"),
+        ({"states": np.zeros((2, 3, 2)), "dt": -1.0}, "dt must be positive"),
+        ({"x0": np.zeros((4, 2)), "x1": np.zeros((4, 2))}, r"holds pairs but lacks \['dt'\]"),
+        (
+            {"x0": np.zeros((4, 2)), "x1": np.zeros((3, 2)), "dt": 0.1},
+            "key 'x1' has shape \\(3, 2\\), 'x0' has \\(4, 2\\)",
+        ),
+        ({"x0": np.zeros((4, 2)), "x1": np.zeros((4, 2)), "states": np.zeros((1, 2, 2)), "dt": 0.1}, "holds both"),
+        ({"states": np.array([b"a", b"b"]), "dt": 0.1}, r"key 'states' has dtype \|?S1; a real numeric array"),
+        ({"states": np.zeros((2, 3, 2), complex), "dt": 0.1}, "key 'states' has dtype complex128"),
+    ],
+)
 @pytest.mark.parametrize("suffix", [".npz", ".h5"])
 def test_binary_errors_name_the_file_and_key(tmp_path, arrays, message, suffix):
     path = tmp_path / f"bad{suffix}"

@@ -48,7 +48,7 @@ def test_propagators_against_expm_one_by_one(rng):
     J = canonical_J(4)
     for b in range(7):
         A = mu[b, 0] * mats[0] + mu[b, 1] ** 2 * mats[1] + mu[b, 0] ** -1 * mu[b, 1] ** 0.5 * mats[2]
-        np.testing.assert_allclose(quad.hessian(mu[b:b + 1])[0], A, rtol=1e-14, atol=1e-14)
+        np.testing.assert_allclose(quad.hessian(mu[b : b + 1])[0], A, rtol=1e-14, atol=1e-14)
         np.testing.assert_allclose(L[b], expm(t[b] * J @ A), rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(np.einsum("bji,jk,bkl->bil", L, J, L), np.broadcast_to(J, L.shape), atol=1e-12)
     np.testing.assert_allclose(inverse_symplectic_matrices(L), np.linalg.inv(L), atol=1e-10)
@@ -75,15 +75,18 @@ def test_propagator_closed_form_of_the_harmonic_oscillator(pendulum):
     np.testing.assert_allclose(L[:, 0, 1], np.sin(0.3 * w) / (lengths**2 * w), atol=1e-14)  # dq/dp0 = sin / (m l^2 w)
 
 
-@pytest.mark.parametrize("matrices, powers, match", [
-    (np.eye(2), None, "list of matrices"),
-    ([np.eye(3)], None, "even 2n"),
-    ([[[1.0, 2.0], [0.0, 1.0]]], None, "not symmetric"),
-    ([np.array([[np.nan, 0.0], [0.0, 1.0]])], None, "NaN"),
-    ([np.eye(2), np.eye(2)], [[1.0]], "one row per matrix"),
-    ([np.eye(2)], [[np.inf]], r"powers contains NaN or Inf \(index \(0, 0\): inf\)"),
-    ("abc", None, "matrices must be"),
-])
+@pytest.mark.parametrize(
+    "matrices, powers, match",
+    [
+        (np.eye(2), None, "list of matrices"),
+        ([np.eye(3)], None, "even 2n"),
+        ([[[1.0, 2.0], [0.0, 1.0]]], None, "not symmetric"),
+        ([np.array([[np.nan, 0.0], [0.0, 1.0]])], None, "NaN"),
+        ([np.eye(2), np.eye(2)], [[1.0]], "one row per matrix"),
+        ([np.eye(2)], [[np.inf]], r"powers contains NaN or Inf \(index \(0, 0\): inf\)"),
+        ("abc", None, "matrices must be"),
+    ],
+)
 def test_malformed_quadratic_parts_are_refused(matrices, powers, match):
     with pytest.raises(ValueError, match=match):
         QuadraticPart(matrices, powers).propagator(1.0, 0.1)
@@ -110,8 +113,14 @@ def test_undefined_coefficients_and_missing_mu_are_refused(pendulum):
 def split_pendulum(small_pendulum_data, pendulum):
     d = small_pendulum_data
     idx = np.random.default_rng(0).choice(len(d), 1200, replace=False)
-    inner = SymplecticKernelPredictor(Symmetric(IMQ(0.4), group=KLEIN), IMQ(0.75), IMQ(1.06), max_centers=250,
-                                      update="midpoint", solver=NewtonSolver(backend="numpy"))
+    inner = SymplecticKernelPredictor(
+        Symmetric(IMQ(0.4), group=KLEIN),
+        IMQ(0.75),
+        IMQ(1.06),
+        max_centers=250,
+        update="midpoint",
+        solver=NewtonSolver(backend="numpy"),
+    )
     model = SplitKernelPredictor(inner, pendulum.quadratic_part())
     return model.fit(d.x0[idx], d.x1[idx], mu=d.mu[idx], dt=d.dt[idx]), d
 
@@ -167,8 +176,9 @@ def test_exact_on_a_linear_system_with_zero_centres(tmp_path):
     x1 = np.einsum("bij,bj->bi", quad.propagator(mu, dt), x0)
     xt = rng.uniform(-0.5, 0.5, (10, 2))
     for backend in ("numpy", "numba"):
-        inner = SymplecticKernelPredictor(IMQ(1.0), IMQ(1.0), IMQ(1.0), max_centers=50, update="midpoint",
-                                          solver=NewtonSolver(backend=backend))
+        inner = SymplecticKernelPredictor(
+            IMQ(1.0), IMQ(1.0), IMQ(1.0), max_centers=50, update="midpoint", solver=NewtonSolver(backend=backend)
+        )
         model = SplitKernelPredictor(inner, quad).fit(x0, x1, mu=mu, dt=dt)
         assert model.n_centers_ == 0 and model.history_.stop_reason == "tol"
         L = quad.propagator(0.75, 0.05)[0]
@@ -177,7 +187,9 @@ def test_exact_on_a_linear_system_with_zero_centres(tmp_path):
         for k in range(30):
             ref[:, k + 1] = ref[:, k] @ L.T
         np.testing.assert_allclose(model.rollout(xt, 30, mu=0.75, dt=0.05), ref, rtol=0, atol=1e-14)
-        np.testing.assert_allclose(model.step_jacobian(xt, mu=0.75, dt=0.05), np.broadcast_to(L, (10, 2, 2)), atol=1e-15)
+        np.testing.assert_allclose(
+            model.step_jacobian(xt, mu=0.75, dt=0.05), np.broadcast_to(L, (10, 2, 2)), atol=1e-15
+        )
     save_model(model, tmp_path / "zero.h5")  # a model without centres is a valid file too
     loaded = load_model(tmp_path / "zero.h5")
     assert loaded.n_centers_ == 0
@@ -199,10 +211,12 @@ def test_rollout_agrees_with_steps_and_between_backends(split_pendulum, small_pe
     idx = np.random.default_rng(0).choice(len(d), 600, replace=False)
     fits = {}
     for backend in ("numpy", "numba"):
-        inner = SymplecticKernelPredictor(IMQ(0.4), IMQ(0.75), IMQ(1.06), max_centers=120, update="midpoint",
-                                          solver=NewtonSolver(backend=backend))
-        fits[backend] = SplitKernelPredictor(inner, pendulum.quadratic_part()).fit(d.x0[idx], d.x1[idx], mu=d.mu[idx],
-                                                                                   dt=d.dt[idx])
+        inner = SymplecticKernelPredictor(
+            IMQ(0.4), IMQ(0.75), IMQ(1.06), max_centers=120, update="midpoint", solver=NewtonSolver(backend=backend)
+        )
+        fits[backend] = SplitKernelPredictor(inner, pendulum.quadratic_part()).fit(
+            d.x0[idx], d.x1[idx], mu=d.mu[idx], dt=d.dt[idx]
+        )
     a, b = (fits[k].rollout(x, 40, mu=0.75, dt=0.05) for k in ("numpy", "numba"))
     np.testing.assert_allclose(a, b, rtol=0, atol=1e-11)
     single = fits["numba"].rollout(x[0], 5, mu=0.75, dt=0.05)
@@ -215,8 +229,14 @@ def test_compiled_split_rollout_equals_the_numpy_one_and_repeated_steps(small_pe
     both updates, a batch large enough for the parallel kernel: equal to the NumPy loop and to repeated step()."""
     d = small_pendulum_data
     idx = np.random.default_rng(1).choice(len(d), 600, replace=False)
-    inner = SymplecticKernelPredictor(Scaled(IMQ(0.4), factors=(1.3,)), IMQ(0.75), IMQ(1.06), max_centers=120,
-                                      update=update, solver=NewtonSolver(backend="numba"))
+    inner = SymplecticKernelPredictor(
+        Scaled(IMQ(0.4), factors=(1.3,)),
+        IMQ(0.75),
+        IMQ(1.06),
+        max_centers=120,
+        update=update,
+        solver=NewtonSolver(backend="numba"),
+    )
     model = SplitKernelPredictor(inner, pendulum.quadratic_part()).fit(d.x0[idx], d.x1[idx], mu=d.mu[idx], dt=d.dt[idx])
     rng = np.random.default_rng(2)
     x = np.column_stack([rng.uniform(0.05, 1.2, 10), rng.uniform(-0.3, 0.3, 10)])
@@ -255,7 +275,8 @@ def test_settings_and_inputs_are_checked(split_pendulum, pendulum, small_pendulu
         SplitKernelPredictor(inner, QuadraticPart([np.eye(4)])).fit(x0, x1, mu=mu, dt=dt)
     with pytest.raises(ValueError, match="pass mu"):
         SplitKernelPredictor(SymplecticKernelPredictor(IMQ(0.4), max_centers=5), pendulum.quadratic_part()).fit(
-            x0, x1, dt=0.05)
+            x0, x1, dt=0.05
+        )
     with pytest.raises(ValueError, match="same number of samples"):
         SplitKernelPredictor(inner, pendulum.quadratic_part()).fit(x0, x1[:10], mu=mu, dt=dt)
     with pytest.raises(ValueError, match="dt is required"):
@@ -309,20 +330,23 @@ def _tampered(tmp_path, edit):
     return tmp_path / "bad.h5"
 
 
-@pytest.mark.parametrize("edit, match", [
-    (lambda s, a: a.update(quadratic_matrices=np.array([[[1.0, 2.0], [0.0, 1.0]]] * 2)), "not symmetric"),
-    (lambda s, a: a.update(quadratic_matrices=np.zeros((2, 4, 4))), "do not fit"),
-    (lambda s, a: a.update(quadratic_powers=np.zeros((2, 3))), "do not fit"),
-    (lambda s, a: a.update(quadratic_powers=np.array([[np.nan], [1.0]])), "finite floats"),
-    (lambda s, a: a.pop("quadratic_powers"), "expected the arrays"),
-    (lambda s, a: a.update(extra=np.zeros(2)), "expected the arrays"),
-    (lambda s, a: s.update(dim=3), "invalid dimensions"),
-    (lambda s, a: s.update(n_mu=0), "do not fit|disagree"),
-    (lambda s, a: s.update(hack="x"), "exactly the keys"),
-    (lambda s, a: s["inner"].update({"class": "DirectKernelPredictor"}), "inner model must be"),
-    (lambda s, a: a.update(inner_coef=a["inner_coef"][:3]), "has shape"),  # the inner model's own checks
-    (lambda s, a: s.update(layout=99), "unknown layout"),
-])
+@pytest.mark.parametrize(
+    "edit, match",
+    [
+        (lambda s, a: a.update(quadratic_matrices=np.array([[[1.0, 2.0], [0.0, 1.0]]] * 2)), "not symmetric"),
+        (lambda s, a: a.update(quadratic_matrices=np.zeros((2, 4, 4))), "do not fit"),
+        (lambda s, a: a.update(quadratic_powers=np.zeros((2, 3))), "do not fit"),
+        (lambda s, a: a.update(quadratic_powers=np.array([[np.nan], [1.0]])), "finite floats"),
+        (lambda s, a: a.pop("quadratic_powers"), "expected the arrays"),
+        (lambda s, a: a.update(extra=np.zeros(2)), "expected the arrays"),
+        (lambda s, a: s.update(dim=3), "invalid dimensions"),
+        (lambda s, a: s.update(n_mu=0), "do not fit|disagree"),
+        (lambda s, a: s.update(hack="x"), "exactly the keys"),
+        (lambda s, a: s["inner"].update({"class": "DirectKernelPredictor"}), "inner model must be"),
+        (lambda s, a: a.update(inner_coef=a["inner_coef"][:3]), "has shape"),  # the inner model's own checks
+        (lambda s, a: s.update(layout=99), "unknown layout"),
+    ],
+)
 def test_malformed_model_files_are_refused(split_pendulum, tmp_path, edit, match):
     model, _ = split_pendulum
     save_model(model, tmp_path / "split.h5")
@@ -346,8 +370,10 @@ def test_parameter_free_fixed_step_model_defaults_to_its_step():
             p -= 0.5 * h * (q + q**3)
         return np.column_stack([q, p])
 
-    model = SplitKernelPredictor(SymplecticKernelPredictor(IMQ(1.0), max_centers=200, update="midpoint",
-                                                           solver=NewtonSolver(backend="numpy")), quad).fit(x0, flow(x0, 0.3), dt=0.3)
+    model = SplitKernelPredictor(
+        SymplecticKernelPredictor(IMQ(1.0), max_centers=200, update="midpoint", solver=NewtonSolver(backend="numpy")),
+        quad,
+    ).fit(x0, flow(x0, 0.3), dt=0.3)
     assert model.n_mu_ == 0 and model.predictor_.dt_fixed_ == 0.3 and model.n_centers_ > 0
     x = rng.uniform(-0.3, 0.3, (5, 2))
     np.testing.assert_array_equal(model.step(x), model.step(x, dt=0.3))
@@ -365,11 +391,13 @@ def test_validation_data_are_transformed_too(small_pendulum_data, pendulum):
     d = small_pendulum_data
     idx = np.random.default_rng(4).permutation(len(d))
     tr, va = idx[:400], idx[400:600]
-    inner = SymplecticKernelPredictor(IMQ(0.4), IMQ(0.75), IMQ(1.06), max_centers=40, update="midpoint",
-                                      solver=NewtonSolver(backend="numpy"))
+    inner = SymplecticKernelPredictor(
+        IMQ(0.4), IMQ(0.75), IMQ(1.06), max_centers=40, update="midpoint", solver=NewtonSolver(backend="numpy")
+    )
     quad = pendulum.quadratic_part()
-    model = SplitKernelPredictor(inner, quad).fit(d.x0[tr], d.x1[tr], mu=d.mu[tr], dt=d.dt[tr],
-                                                  validation=(d.x0[va], d.x1[va], d.mu[va], d.dt[va]))
+    model = SplitKernelPredictor(inner, quad).fit(
+        d.x0[tr], d.x1[tr], mu=d.mu[tr], dt=d.dt[tr], validation=(d.x0[va], d.x1[va], d.mu[va], d.dt[va])
+    )
     val = model.history_.val_max_residual
     assert val is not None and len(val) == model.n_centers_ + 1 and val[-1] < val[0]
     # the same residual from the inner model's surrogate on the pairs (L_h x0, L_{-h} x1) at their midpoints

@@ -14,8 +14,15 @@ import pytest
 from sympredict import SymplecticKernelPredictor
 from sympredict.base import clone
 from sympredict.interpolation.functionals import HBFunctionals, ValueFunctionals
-from sympredict.interpolation.greedy import (BlockedGreedy, BlockedStore, DenseStore, ExactGreedy, run_greedy,
-                                             trainer_from_spec, trainer_memory)
+from sympredict.interpolation.greedy import (
+    BlockedGreedy,
+    BlockedStore,
+    DenseStore,
+    ExactGreedy,
+    run_greedy,
+    trainer_from_spec,
+    trainer_memory,
+)
 from sympredict.interpolation.greedy.blocked import blocked_memory, pool_gramian
 from sympredict.interpolation.surrogate import HBSurrogate
 from sympredict.kernels import IMQ, Matern52, ProductKernel
@@ -30,7 +37,7 @@ def _problem(seed, m_points=400, dim=4, kernel=None):
     mu = rng.uniform(0.5, 1.5, size=(m_points, 1))
     dt = np.full(m_points, 0.1)
     # gradient of the generating function s = mu sum cos(xi) + 0.05 |xi|^4
-    y = -np.sin(xi) * mu + 0.2 * xi * (xi ** 2).sum(axis=1, keepdims=True)
+    y = -np.sin(xi) * mu + 0.2 * xi * (xi**2).sum(axis=1, keepdims=True)
     kernel = kernel or ProductKernel(IMQ(0.5), IMQ(1.0))
     return HBFunctionals(kernel, xi, mu, dt), xi, mu, dt, y.ravel()
 
@@ -38,13 +45,17 @@ def _problem(seed, m_points=400, dim=4, kernel=None):
 @pytest.mark.parametrize("criterion", ["f", "p"])
 def test_block_size_one_selects_as_the_exact_greedy(criterion):
     fun, *_, y = _problem(0, m_points=150)
-    exact = run_greedy(DenseStore(fun, y, criterion=criterion, compiled=False), max_centers=120, tol=0, criterion=criterion)
-    blocked = run_greedy(BlockedStore(fun, y, criterion=criterion, block_size=1), max_centers=120, tol=0,
-                         criterion=criterion)
+    exact = run_greedy(
+        DenseStore(fun, y, criterion=criterion, compiled=False), max_centers=120, tol=0, criterion=criterion
+    )
+    blocked = run_greedy(
+        BlockedStore(fun, y, criterion=criterion, block_size=1), max_centers=120, tol=0, criterion=criterion
+    )
     np.testing.assert_array_equal(blocked.selected, exact.selected)
     scale = np.abs(y).max()
-    np.testing.assert_allclose(blocked.history.train_max_residual, exact.history.train_max_residual,
-                               rtol=1e-6, atol=1e-9 * scale)
+    np.testing.assert_allclose(
+        blocked.history.train_max_residual, exact.history.train_max_residual, rtol=1e-6, atol=1e-9 * scale
+    )
     np.testing.assert_allclose(blocked.chol, exact.chol, rtol=0, atol=1e-9 * np.abs(exact.chol).max())
 
 
@@ -97,15 +108,18 @@ def test_pool_gramian_matches_columns():
     np.testing.assert_allclose(pool_gramian(vf, vpool), expected, rtol=1e-13, atol=1e-13)
 
 
-@pytest.mark.parametrize("kernel", [ProductKernel(IMQ(0.5), IMQ(1.0)), ProductKernel(Matern52(0.7), Matern52(1.0))],
-                         ids=["imq", "matern52"])
+@pytest.mark.parametrize(
+    "kernel", [ProductKernel(IMQ(0.5), IMQ(1.0)), ProductKernel(Matern52(0.7), Matern52(1.0))], ids=["imq", "matern52"]
+)
 def test_held_out_error_per_centre_within_ten_percent_of_the_exact_greedy(kernel):
     """The blocked greedy's default rule loses at most 10 % of held-out accuracy at the same number of centres."""
     fun, *_, y = _problem(5, m_points=1500, kernel=kernel)
     vfun, *_, vy = _problem(6, m_points=500, kernel=kernel)
     out = {}
-    for name, store in (("exact", DenseStore(fun, y, validation=(vfun, vy), compiled=False)),
-                        ("blocked", BlockedStore(fun, y, validation=(vfun, vy), block_size=64, slack=0.5))):
+    for name, store in (
+        ("exact", DenseStore(fun, y, validation=(vfun, vy), compiled=False)),
+        ("blocked", BlockedStore(fun, y, validation=(vfun, vy), block_size=64, slack=0.5)),
+    ):
         out[name] = run_greedy(store, max_centers=800, tol=0).history.val_max_residual
     for m in (400, 800):
         assert out["blocked"][m] <= 1.1 * out["exact"][m], (m, out["blocked"][m], out["exact"][m])
@@ -115,8 +129,9 @@ def test_estimator_with_blocked_trainer_and_spec_round_trip(small_pendulum_data,
     d = small_pendulum_data
     trainer = BlockedGreedy(block_size=16, pool_factor=3, slack=0.25, tol=1e-9)
     assert trainer_from_spec(trainer.spec) == trainer
-    model = SymplecticKernelPredictor(IMQ(0.15), mu_kernel=IMQ(2.0), dt_kernel=IMQ(5.0), max_centers=120,
-                                      trainer=trainer).fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
+    model = SymplecticKernelPredictor(
+        IMQ(0.15), mu_kernel=IMQ(2.0), dt_kernel=IMQ(5.0), max_centers=120, trainer=trainer
+    ).fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
     assert model.surrogate_.n_centers == 120 and model.greedy_result_.stats["blocks"] < 120
     small = model.truncated(50)
     assert small.surrogate_.n_centers == 50
@@ -161,6 +176,7 @@ def test_default_trainer_picks_what_fits_the_memory_and_logs_it(caplog):
         assert type(default_trainer(fun, 0, m, memory=2 * exact)) is ExactGreedy
         assert "ExactGreedy" in caplog.text
     from sympredict.interpolation.greedy import trainers
+
     old = trainers.BLOCKED_ABOVE_BYTES
     trainers.BLOCKED_ABOVE_BYTES = exact // 2  # a basis above the threshold: the blocked greedy
     try:
@@ -194,8 +210,11 @@ def test_compiled_gramian_rows_match_numpy(dim):
     from sympredict.interpolation.greedy import _compiled as compiled_greedy
     from sympredict.interpolation.greedy.blocked import gram_rows
 
-    for kernel in (ProductKernel(IMQ(0.5), IMQ(1.0)), ProductKernel(Matern52(0.7), Matern52(1.0), IMQ(3.0)),
-                   ProductKernel(IMQ(0.5))):
+    for kernel in (
+        ProductKernel(IMQ(0.5), IMQ(1.0)),
+        ProductKernel(Matern52(0.7), Matern52(1.0), IMQ(3.0)),
+        ProductKernel(IMQ(0.5)),
+    ):
         fun, xi, mu, dt, y = _problem(10, m_points=300, dim=dim, kernel=kernel)
         if kernel.dt is not None:
             fun = HBFunctionals(kernel, xi, mu, np.linspace(0.05, 0.15, len(xi)))

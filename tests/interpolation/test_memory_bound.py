@@ -14,9 +14,17 @@ import numpy as np
 import pytest
 
 from sympredict.interpolation.functionals import HBFunctionals, functional_residuals
-from sympredict.interpolation.greedy import (ActiveSetGreedy, BlockedStore, BoundedActiveSetGreedy,
-                                             BoundedActiveSetStore, DenseStore, ExactGreedy, available_memory,
-                                             run_greedy, trainer_memory)
+from sympredict.interpolation.greedy import (
+    ActiveSetGreedy,
+    BlockedStore,
+    BoundedActiveSetGreedy,
+    BoundedActiveSetStore,
+    DenseStore,
+    ExactGreedy,
+    available_memory,
+    run_greedy,
+    trainer_memory,
+)
 from sympredict.interpolation.greedy.active_set import bounded_capacity, bounded_memory, refresh_chunk
 from sympredict.kernels import IMQ, ProductKernel
 from _surrogate_oracles import gram_oracle  # tests/
@@ -28,7 +36,7 @@ def _problem(seed, m_points=1500, dim=8, n_mu=60):
     xi = rng.uniform(-2, 2, size=(m_points, dim))
     mu = np.repeat(rng.uniform(0.5, 1.5, size=(n_mu, 1)), -(-m_points // n_mu), axis=0)[:m_points]
     dt = np.full(m_points, 0.1)
-    y = -np.sin(xi) * mu + 0.2 * xi * (xi ** 2).sum(axis=1, keepdims=True)
+    y = -np.sin(xi) * mu + 0.2 * xi * (xi**2).sum(axis=1, keepdims=True)
     return HBFunctionals(ProductKernel(IMQ(0.5), IMQ(1.0)), xi, mu, dt), y.ravel()
 
 
@@ -94,18 +102,19 @@ def test_bounded_trainer_sizes_its_slots_to_the_budget():
 
 
 def test_refresh_chunk_bounds_the_rows_buffer():
-    for m in (1, 10, 1000, 4000, 10 ** 6):
+    for m in (1, 10, 1000, 4000, 10**6):
         k = refresh_chunk(m, 8)
         assert k % 8 == 0 and k >= 8
-        assert 8 * m * k <= 2 ** 25 or k == 8
+        assert 8 * m * k <= 2**25 or k == 8
 
 
 def test_bounded_with_every_point_in_slots_is_the_blocked_greedy():
     fun, y = _problem(4, m_points=600)
     m = 250
     blocked = run_greedy(BlockedStore(fun, y, block_size=32, pool_factor=4, slack=0.5), max_centers=m, tol=0)
-    bounded = run_greedy(BoundedActiveSetStore(fun, y, tol=0, max_points=600, block_size=32, slack=0.5),
-                         max_centers=m, tol=0)
+    bounded = run_greedy(
+        BoundedActiveSetStore(fun, y, tol=0, max_points=600, block_size=32, slack=0.5), max_centers=m, tol=0
+    )
     np.testing.assert_array_equal(bounded.selected, blocked.selected)
     np.testing.assert_array_equal(bounded.coef, blocked.coef)
     assert bounded.stats["refreshes"] == 0
@@ -114,8 +123,9 @@ def test_bounded_with_every_point_in_slots_is_the_blocked_greedy():
 def test_bounded_model_interpolates_and_its_residual_is_the_direct_one():
     fun, y = _problem(5, m_points=2500)
     m = 300
-    result = run_greedy(BoundedActiveSetStore(fun, y, tol=0, max_points=300, refresh_every=64, max_new_points=200),
-                        max_centers=m, tol=0)
+    result = run_greedy(
+        BoundedActiveSetStore(fun, y, tol=0, max_points=300, refresh_every=64, max_new_points=200), max_centers=m, tol=0
+    )
     assert result.stats["swapped"] > 0 and len(result.selected) == m
     r = functional_residuals(fun, y, result.selected, result.coef, compiled=False)
     scale = np.abs(y).max()
@@ -132,8 +142,11 @@ def test_bounded_stops_on_tol_only_over_every_candidate():
     fun, y = _problem(6, m_points=2000)
     full = run_greedy(BoundedActiveSetStore(fun, y, tol=0, max_points=2000), max_centers=400, tol=0)
     tol = float(full.history.train_max_residual[200])  # reachable with a few hundred centres
-    result = run_greedy(BoundedActiveSetStore(fun, y, tol=tol, max_points=200, refresh_every=64, max_new_points=200),
-                        max_centers=2000, tol=tol)
+    result = run_greedy(
+        BoundedActiveSetStore(fun, y, tol=tol, max_points=200, refresh_every=64, max_new_points=200),
+        max_centers=2000,
+        tol=tol,
+    )
     assert result.history.stop_reason == "tol"
     r = functional_residuals(fun, y, result.selected, result.coef, compiled=False)
     assert np.abs(r).max() <= tol
@@ -146,13 +159,17 @@ def test_bounded_accuracy_at_equal_centres_against_the_exact_greedy(seed):
     which the f-greedy chases, is 1.35-1.6x with a refresh every 256 centres and within 1.07x every 64)."""
     fun, y = _problem(seed, m_points=3000)
     other, y_other = _problem(seed + 100, m_points=1000)
-    both = HBFunctionals(fun.kernel, np.vstack([fun.points, other.points]), np.vstack([fun.mu, other.mu]),
-                         np.concatenate([fun.dt, other.dt]))
+    both = HBFunctionals(
+        fun.kernel,
+        np.vstack([fun.points, other.points]),
+        np.vstack([fun.mu, other.mu]),
+        np.concatenate([fun.dt, other.dt]),
+    )
     m = 400
 
     def held_out(result):
         r = functional_residuals(both, np.concatenate([y, y_other]), result.selected, result.coef)
-        return np.abs(r[len(y):]).mean()
+        return np.abs(r[len(y) :]).mean()
 
     exact = held_out(run_greedy(DenseStore(fun, y), max_centers=m, tol=0))
     bounded = held_out(run_greedy(BoundedActiveSetStore(fun, y, tol=0, max_points=750), max_centers=m, tol=0))
@@ -162,7 +179,7 @@ def test_bounded_accuracy_at_equal_centres_against_the_exact_greedy(seed):
 
 def test_memory_from_the_environment(monkeypatch):
     monkeypatch.setenv("SYMPREDICT_MEMORY", "2G")
-    assert available_memory() == 2 * 2 ** 30
+    assert available_memory() == 2 * 2**30
     monkeypatch.setenv("SYMPREDICT_MEMORY", "123456789")
     assert available_memory() == 123456789
     for bad in ("lots", "-1G", "0", "nanM"):
@@ -196,13 +213,20 @@ def test_estimator_with_the_bounded_trainer_validation_and_spec_round_trip(small
     n_points = len(d.x0) - 40
     n = 2 * n_points  # the pendulum's 2-D state
     budget = bounded_memory(120, n, 80, 100 * 2, 2, 16, 3)  # 100 points in the slots
-    trainer = BoundedActiveSetGreedy(block_size=16, pool_factor=3, refresh_every=32, max_new_points=50, tol=1e-9,
-                                     memory_limit=budget)
+    trainer = BoundedActiveSetGreedy(
+        block_size=16, pool_factor=3, refresh_every=32, max_new_points=50, tol=1e-9, memory_limit=budget
+    )
     assert trainer_from_spec(trainer.spec) == trainer
-    model = SymplecticKernelPredictor(IMQKernel(0.15), mu_kernel=IMQKernel(2.0), dt_kernel=IMQKernel(5.0),
-                                      max_centers=120, trainer=trainer)
-    model.fit(d.x0[:n_points], d.x1[:n_points], mu=d.mu[:n_points], dt=d.dt[:n_points],
-              validation=(d.x0[n_points:], d.x1[n_points:], d.mu[n_points:], d.dt[n_points:]))
+    model = SymplecticKernelPredictor(
+        IMQKernel(0.15), mu_kernel=IMQKernel(2.0), dt_kernel=IMQKernel(5.0), max_centers=120, trainer=trainer
+    )
+    model.fit(
+        d.x0[:n_points],
+        d.x1[:n_points],
+        mu=d.mu[:n_points],
+        dt=d.dt[:n_points],
+        validation=(d.x0[n_points:], d.x1[n_points:], d.mu[n_points:], d.dt[n_points:]),
+    )
     stats = model.greedy_result_.stats
     assert stats["slots"] == 200 < n and stats["refreshes"] >= 2 and model.surrogate_.n_centers == 120
     h = model.history_

@@ -12,7 +12,14 @@ from sympredict.exceptions import ExtrapolationWarning
 from sympredict.base import clone
 from sympredict.data import FlowMapData, mixed_variables
 from sympredict.interpolation.functionals import HBFunctionals
-from sympredict.interpolation.greedy import ActiveSetGreedy, DenseStore, ExactGreedy, ShardedGreedy, greedy_interpolation, run_greedy
+from sympredict.interpolation.greedy import (
+    ActiveSetGreedy,
+    DenseStore,
+    ExactGreedy,
+    ShardedGreedy,
+    greedy_interpolation,
+    run_greedy,
+)
 from sympredict.io import load_model, save_model
 from sympredict.kernels import IMQ, ProductKernel
 from sympredict.estimators.selection import select_regularization
@@ -64,7 +71,9 @@ def test_partial_greedy_is_ridge_on_its_centres_and_validation_is_the_models_res
     sel = res.selected
     gram = _gram(f)
     sub = gram[np.ix_(sel, sel)]
-    np.testing.assert_allclose((sub + lam * np.eye(len(sel))) @ res.coef, y[sel], rtol=1e-8, atol=1e-8 * np.abs(y).max())
+    np.testing.assert_allclose(
+        (sub + lam * np.eye(len(sel))) @ res.coef, y[sel], rtol=1e-8, atol=1e-8 * np.abs(y).max()
+    )
     # the model's residual at a centre is lambda c_j (not 0); elsewhere the greedy's residual is the model's
     model_res = y - gram[:, sel] @ res.coef
     np.testing.assert_allclose(model_res[sel], lam * res.coef, rtol=1e-6, atol=1e-10)
@@ -75,16 +84,22 @@ def test_partial_greedy_is_ridge_on_its_centres_and_validation_is_the_models_res
     assert np.isclose(res.history.val_max_residual[-1], np.abs(yv - gv @ res.coef).max(), rtol=1e-8)
     # a prefix of the expansion is the ridge fit on the first m centres
     m = 25
-    np.testing.assert_allclose((gram[np.ix_(sel[:m], sel[:m])] + lam * np.eye(m)) @ res.coef_prefix(m), y[sel[:m]],
-                               rtol=1e-8, atol=1e-8 * np.abs(y).max())
+    np.testing.assert_allclose(
+        (gram[np.ix_(sel[:m], sel[:m])] + lam * np.eye(m)) @ res.coef_prefix(m),
+        y[sel[:m]],
+        rtol=1e-8,
+        atol=1e-8 * np.abs(y).max(),
+    )
 
 
 def test_zero_regularization_is_the_exact_fit_bit_for_bit(small_pendulum_data):
     d = _subset(small_pendulum_data, 300)
-    base = SymplecticKernelPredictor(IMQ(0.3), IMQ(2.0), IMQ(5.0), max_centers=150,
-                                     trainer=ExactGreedy(tol=0.0)).fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
-    zero = SymplecticKernelPredictor(IMQ(0.3), IMQ(2.0), IMQ(5.0), max_centers=150,
-                                     trainer=ExactGreedy(tol=0.0, regularization=0.0)).fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
+    base = SymplecticKernelPredictor(IMQ(0.3), IMQ(2.0), IMQ(5.0), max_centers=150, trainer=ExactGreedy(tol=0.0)).fit(
+        d.x0, d.x1, mu=d.mu, dt=d.dt
+    )
+    zero = SymplecticKernelPredictor(
+        IMQ(0.3), IMQ(2.0), IMQ(5.0), max_centers=150, trainer=ExactGreedy(tol=0.0, regularization=0.0)
+    ).fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
     f, y = _functionals(d)
     direct = greedy_interpolation(f, y, max_centers=150, tol=0.0)  # the store without the option
     for other in (zero.greedy_result_, direct):
@@ -92,8 +107,9 @@ def test_zero_regularization_is_the_exact_fit_bit_for_bit(small_pendulum_data):
         assert np.array_equal(base.greedy_result_.coef, other.coef)
     assert np.array_equal(base.history_.train_max_residual, zero.history_.train_max_residual)
     # and a positive lambda does change the fit
-    reg = SymplecticKernelPredictor(IMQ(0.3), IMQ(2.0), IMQ(5.0), max_centers=150,
-                                    trainer=ExactGreedy(tol=0.0, regularization=1e-3)).fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
+    reg = SymplecticKernelPredictor(
+        IMQ(0.3), IMQ(2.0), IMQ(5.0), max_centers=150, trainer=ExactGreedy(tol=0.0, regularization=1e-3)
+    ).fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
     assert not np.array_equal(base.greedy_result_.coef, reg.greedy_result_.coef)
 
 
@@ -115,11 +131,14 @@ def test_estimator_parameter_checked_stored_and_refused_where_unsupported(small_
     d = _subset(small_pendulum_data, 100)
     for bad in (-1.0, float("nan"), "1e-3", True):
         with pytest.raises(ValueError, match="regularization"):
-            SymplecticKernelPredictor(IMQ(0.3), IMQ(2.0), IMQ(5.0), trainer=ExactGreedy(regularization=bad)).fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
+            SymplecticKernelPredictor(IMQ(0.3), IMQ(2.0), IMQ(5.0), trainer=ExactGreedy(regularization=bad)).fit(
+                d.x0, d.x1, mu=d.mu, dt=d.dt
+            )
     with pytest.raises(TypeError, match="regularization"):  # the active set has no regularized store: no such setting
         ActiveSetGreedy(regularization=1e-3)
-    model = SymplecticKernelPredictor(IMQ(0.3), IMQ(2.0), IMQ(5.0), max_centers=50,
-                                      trainer=ShardedGreedy(n_shards=2, regularization=2.5e-4)).fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
+    model = SymplecticKernelPredictor(
+        IMQ(0.3), IMQ(2.0), IMQ(5.0), max_centers=50, trainer=ShardedGreedy(n_shards=2, regularization=2.5e-4)
+    ).fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
     save_model(model, tmp_path / "m.h5")
     loaded = load_model(tmp_path / "m.h5")
     assert loaded.trainer.regularization == 2.5e-4
@@ -142,9 +161,13 @@ def test_lambda_chosen_on_noisy_validation_data_beats_the_exact_fit(small_pendul
     assert out.score < 0.9 * scores[0.0]
     # the clean targets are recovered better too (an oracle the selection never saw)
     exact = SymplecticKernelPredictor(IMQ(0.3), IMQ(2.0), IMQ(5.0), max_centers=400, trainer=ExactGreedy(tol=0.0)).fit(
-        train.x0, train.x1, mu=train.mu, dt=train.dt)
-    reg = clone(est).set_params(trainer__regularization=out.regularization).fit(
-        train.x0, train.x1, mu=train.mu, dt=train.dt)
+        train.x0, train.x1, mu=train.mu, dt=train.dt
+    )
+    reg = (
+        clone(est)
+        .set_params(trainer__regularization=out.regularization)
+        .fit(train.x0, train.x1, mu=train.mu, dt=train.dt)
+    )
     clean = d.subset(np.arange(450, 600))
     xi, y = mixed_variables(clean.x0, clean.x1, clean.dt)
     with warnings.catch_warnings():

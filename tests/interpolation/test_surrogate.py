@@ -32,7 +32,9 @@ def test_gradient_and_hessian_match_finite_differences(state_kernel, dim, rng):
     eye = np.eye(dim) * h
     fd_grad = np.column_stack([(sur.value(xi + eye[a], w) - sur.value(xi - eye[a], w)) / (2 * h) for a in range(dim)])
     np.testing.assert_allclose(grad, fd_grad, atol=1e-7 * np.abs(grad).max())
-    fd_hess = np.stack([(sur.gradient(xi + eye[c], w) - sur.gradient(xi - eye[c], w)) / (2 * h) for c in range(dim)], axis=2)
+    fd_hess = np.stack(
+        [(sur.gradient(xi + eye[c], w) - sur.gradient(xi - eye[c], w)) / (2 * h) for c in range(dim)], axis=2
+    )
     np.testing.assert_allclose(hess, fd_hess, atol=1e-6 * np.abs(hess).max())
     np.testing.assert_allclose(hess, hess.transpose(0, 2, 1), atol=1e-13 * np.abs(hess).max())
     assert np.all(floor > 0) and np.all(floor < 1e-12 * np.abs(sur.coef).sum() * 10)

@@ -112,18 +112,29 @@ def test_soft_links_and_foreign_objects_are_refused(tmp_path):
         "soft link": (lambda f: f["arrays"].__setitem__("y", h5py.SoftLink("/arrays/a")), "SoftLink"),
         "root attribute": (lambda f: f.attrs.__setitem__("extra", 1), "unexpected root attributes"),
         "missing attribute": (lambda f: f.attrs.__delitem__("package_version"), "lacks the attributes"),
-        "dataset attribute": (lambda f: f["arrays/a"].attrs.__setitem__("note", "x"), "attributes the writer never writes"),
+        "dataset attribute": (
+            lambda f: f["arrays/a"].attrs.__setitem__("note", "x"),
+            "attributes the writer never writes",
+        ),
         "group attribute": (lambda f: f["arrays"].attrs.__setitem__("note", "x"), "attributes the writer never writes"),
         "root group": (lambda f: f.create_group("more"), "objects the writer never writes"),
         "root dataset": (lambda f: f.create_dataset("z", data=np.ones(2)), "objects the writer never writes"),
         "nested group": (lambda f: f["arrays"].create_group("g"), "is not a dataset"),
         "hard link cycle": (lambda f: f["arrays"].__setitem__("loop", f["/"]), "is not a dataset"),
-        "string dataset": (lambda f: f["arrays"].create_dataset("t", data=np.array([b"ab", b"cd"])), "only numeric arrays"),
-        "compound dataset": (lambda f: f["arrays"].create_dataset("c", data=np.zeros(2, dtype=[("u", "f8"), ("v", "i4")])),
-                             "only numeric arrays"),
+        "string dataset": (
+            lambda f: f["arrays"].create_dataset("t", data=np.array([b"ab", b"cd"])),
+            "only numeric arrays",
+        ),
+        "compound dataset": (
+            lambda f: f["arrays"].create_dataset("c", data=np.zeros(2, dtype=[("u", "f8"), ("v", "i4")])),
+            "only numeric arrays",
+        ),
         "no arrays group": (lambda f: f.__delitem__("arrays"), "has no 'arrays' group"),
         "settings as int": (lambda f: f.attrs.__setitem__("settings", 3), "'settings' must be a string"),
-        "checksum as array": (lambda f: f.attrs.__setitem__("checksum", np.array(["a", "b"], dtype=object)), "must be a scalar"),
+        "checksum as array": (
+            lambda f: f.attrs.__setitem__("checksum", np.array(["a", "b"], dtype=object)),
+            "must be a scalar",
+        ),
     }
     for label, (attack, match) in cases.items():
         path = good(tmp_path, "c.h5")
@@ -273,25 +284,34 @@ def test_damaged_global_heap_of_a_schema_1_file_does_not_hang(tmp_path):
     data = path.read_bytes()
     start = data.find(b"GCOL")
     assert start > 0
-    end = start + int.from_bytes(data[start + 8:start + 16], "little")
+    end = start + int.from_bytes(data[start + 8 : start + 16], "little")
     objects, p = [], start + 16  # (offset of the object header, index)
     while p + 16 <= end:
-        index, size = int.from_bytes(data[p:p + 2], "little"), int.from_bytes(data[p + 8:p + 16], "little")
+        index, size = int.from_bytes(data[p : p + 2], "little"), int.from_bytes(data[p + 8 : p + 16], "little")
         objects.append(p)
         p += size if index == 0 else 16 + (size + 7) // 8 * 8
     attacks = {
         "free space of size 0": (objects[-1] + 8, (0).to_bytes(8, "little")),
-        "object of size 0 at index 0": (objects[0], (0).to_bytes(2, "little") + data[objects[0] + 2:objects[0] + 8] + (0).to_bytes(8, "little")),
+        "object of size 0 at index 0": (
+            objects[0],
+            (0).to_bytes(2, "little") + data[objects[0] + 2 : objects[0] + 8] + (0).to_bytes(8, "little"),
+        ),
         "object beyond the collection": (objects[0] + 8, (10**9).to_bytes(8, "little")),
         "collection beyond the file": (start + 8, (10**9).to_bytes(8, "little")),
     }
     for label, (offset, patch) in attacks.items():
         bad = tmp_path / "bad.h5"
-        bad.write_bytes(data[:offset] + patch + data[offset + len(patch):])
-        script = ("from sympredict import ModelFileError\nfrom sympredict.container import read_container\n"
-                  f"try:\n    read_container({str(bad)!r}, {FMT!r})\nexcept ModelFileError as exc:\n    print('refused:', exc)\n")
+        bad.write_bytes(data[:offset] + patch + data[offset + len(patch) :])
+        script = (
+            "from sympredict import ModelFileError\nfrom sympredict.container import read_container\n"
+            f"try:\n    read_container({str(bad)!r}, {FMT!r})\nexcept ModelFileError as exc:\n    print('refused:', exc)\n"
+        )
         proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
-        assert proc.returncode == 0 and "refused: " in proc.stdout and "global heap" in proc.stdout, (label, proc.stdout, proc.stderr)
+        assert proc.returncode == 0 and "refused: " in proc.stdout and "global heap" in proc.stdout, (
+            label,
+            proc.stdout,
+            proc.stderr,
+        )
     # the intact file still loads
     assert read_container(path, FMT)[0] == SETTINGS
 
@@ -300,13 +320,31 @@ def test_damaged_global_heap_of_a_schema_1_file_does_not_hang(tmp_path):
     "arrays, match",
     [
         ({"x0": np.ones((4, 2)), "x1": np.ones((3, 2)), "mu": np.ones((4, 1)), "dt": np.ones(4)}, "x1 has shape"),
-        ({"x0": np.ones((4, 2)), "x1": np.ones((4, 2)), "mu": np.ones(4), "dt": np.ones(4)}, r"mu must have shape \(4, d_mu\)"),
-        ({"x0": np.ones((4, 2)), "x1": np.ones((4, 2)), "mu": np.ones((4, 1)), "dt": np.zeros(4)}, "dt must be positive"),
-        ({"x0": np.full((4, 2), np.nan), "x1": np.ones((4, 2)), "mu": np.ones((4, 1)), "dt": np.ones(4)}, "x0 contains NaN"),
-        ({"x0": np.ones((4, 3)), "x1": np.ones((4, 3)), "mu": np.ones((4, 1)), "dt": np.ones(4)}, r"x0 must have shape \(M, 2n\)"),
+        (
+            {"x0": np.ones((4, 2)), "x1": np.ones((4, 2)), "mu": np.ones(4), "dt": np.ones(4)},
+            r"mu must have shape \(4, d_mu\)",
+        ),
+        (
+            {"x0": np.ones((4, 2)), "x1": np.ones((4, 2)), "mu": np.ones((4, 1)), "dt": np.zeros(4)},
+            "dt must be positive",
+        ),
+        (
+            {"x0": np.full((4, 2), np.nan), "x1": np.ones((4, 2)), "mu": np.ones((4, 1)), "dt": np.ones(4)},
+            "x0 contains NaN",
+        ),
+        (
+            {"x0": np.ones((4, 3)), "x1": np.ones((4, 3)), "mu": np.ones((4, 1)), "dt": np.ones(4)},
+            r"x0 must have shape \(M, 2n\)",
+        ),
         ({"x0": np.ones((4, 2)), "x1": np.ones((4, 2)), "dt": np.ones(4)}, r"missing arrays \['mu'\]"),
-        ({"x0": np.ones((4, 2)), "x1": np.ones((4, 2)), "mu": np.ones((4, 1)), "dt": np.ones((4, 1))}, r"dt must have shape \(4,\)"),
-        ({"x0": np.ones((4, 2)), "x1": np.ones((4, 2)), "mu": np.ones((4, 1)), "dt": np.ones(4), "y": np.ones(1)}, "unexpected arrays"),
+        (
+            {"x0": np.ones((4, 2)), "x1": np.ones((4, 2)), "mu": np.ones((4, 1)), "dt": np.ones((4, 1))},
+            r"dt must have shape \(4,\)",
+        ),
+        (
+            {"x0": np.ones((4, 2)), "x1": np.ones((4, 2)), "mu": np.ones((4, 1)), "dt": np.ones(4), "y": np.ones(1)},
+            "unexpected arrays",
+        ),
     ],
 )
 def test_inconsistent_datasets_are_refused(tmp_path, arrays, match):
@@ -338,7 +376,9 @@ def test_special_files_are_never_replaced(tmp_path):
     with pytest.raises(ValueError, match="FIFO"):
         write_container(link, FMT, SETTINGS, ARRAYS)
     assert link.is_symlink() and stat.S_ISFIFO(os.stat(fifo).st_mode)
-    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["fifo.h5", "to_fifo.h5"] + (["null"] if device != os.devnull else []))
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(
+        ["fifo.h5", "to_fifo.h5"] + (["null"] if device != os.devnull else [])
+    )
 
 
 def test_saving_writes_through_symlinks(tmp_path):
@@ -393,7 +433,9 @@ def test_disk_full_is_one_oserror_and_keeps_the_previous_file(tmp_path, monkeypa
         raise OSError(errno.ENOSPC, "No space left on device")
 
     monkeypatch.setattr(container.os, "write", full)
-    with pytest.raises(OSError, match="could not save .*No space left on device; the previous file, if any, is unchanged") as info:
+    with pytest.raises(
+        OSError, match="could not save .*No space left on device; the previous file, if any, is unchanged"
+    ) as info:
         write_container(path, FMT, dict(SETTINGS, n=4), {"a": np.ones(1000)})
     assert info.value.errno == errno.ENOSPC and len(calls) == 2
     monkeypatch.undo()
@@ -473,9 +515,11 @@ def test_same_content_gives_identical_bytes(tmp_path, small_pendulum_model):
     time.sleep(1.1)
     small_pendulum_model.save(b)
     assert a.read_bytes() == b.read_bytes()
-    script = (f"import numpy as np; from sympredict.container import write_container; "
-              f"write_container({str(tmp_path / 'c.h5')!r}, {FMT!r}, {SETTINGS!r}, "
-              f"{{'a': np.arange(12.0).reshape(3, 4), 'i': np.arange(5, dtype=np.int64), 's': np.asarray(2.5), 'e': np.zeros((0, 3))}})")
+    script = (
+        f"import numpy as np; from sympredict.container import write_container; "
+        f"write_container({str(tmp_path / 'c.h5')!r}, {FMT!r}, {SETTINGS!r}, "
+        f"{{'a': np.arange(12.0).reshape(3, 4), 'i': np.arange(5, dtype=np.int64), 's': np.asarray(2.5), 'e': np.zeros((0, 3))}})"
+    )
     write_container(a, FMT, SETTINGS, ARRAYS)
     subprocess.run([sys.executable, "-c", script], check=True, timeout=120)
     assert (tmp_path / "c.h5").read_bytes() == a.read_bytes()  # another process, another time

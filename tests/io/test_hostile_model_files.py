@@ -24,25 +24,46 @@ from sympredict.symplectic.solvers import NewtonSolver
 DT = 0.1
 
 
-@pytest.mark.parametrize("name, value, match", [
-    ("solver", {"solver": {"max_iter": 10 ** 15, "warm_start": False, "backend": "auto"}}, "max_iter must be at most"),
-    ("solver", {"solver": {"max_iter": 0, "warm_start": False, "backend": "auto"}}, "max_iter"),
-    ("solver", {"solver": {"max_iter": 2.5, "warm_start": False, "backend": "auto"}}, "max_iter"),
-    ("solver", {"solver": {"max_iter": 50, "warm_start": False, "backend": "cuda"}}, "backend"),
-    ("solver", {"solver": {"max_iter": 50, "warm_start": "yes", "backend": "auto"}}, "warm_start"),
-    ("solver", {"solver": {"max_iter": 50, "gpu": True}}, "gpu"),
-    ("update", "leapfrog", "update"),
-    ("trainer", {"trainer": {"name": "ExactGreedy", "params": {"tol": -1.0}}}, "tol"),
-    ("newton_max_iter", 50, "unknown setting.*newton_max_iter"),  # a layout-3 file has no flat options
-    ("max_centers", -3, "max_centers"),
-    ("state_kernel", {"transform": "scaled", "params": {"kernel": {"kernel": {"family": "imq", "eps": 0.3}},
-                                                        "factors": {"list": [1.0, 2.0]}}}, "factors"),
-    ("state_kernel", {"transform": "periodic", "params": {"kernel": None, "coordinates": {"tuple": [5]},
-                                                          "period": 6.0}}, "periodic"),
-    ("state_kernel", {"transform": "symmetric", "params": {"kernel": None, "group": {"list": [{"tuple": [1, 1]},
-                                                                                              {"tuple": [1, -1]}]}}},
-     "symmetry"),
-])
+@pytest.mark.parametrize(
+    "name, value, match",
+    [
+        (
+            "solver",
+            {"solver": {"max_iter": 10**15, "warm_start": False, "backend": "auto"}},
+            "max_iter must be at most",
+        ),
+        ("solver", {"solver": {"max_iter": 0, "warm_start": False, "backend": "auto"}}, "max_iter"),
+        ("solver", {"solver": {"max_iter": 2.5, "warm_start": False, "backend": "auto"}}, "max_iter"),
+        ("solver", {"solver": {"max_iter": 50, "warm_start": False, "backend": "cuda"}}, "backend"),
+        ("solver", {"solver": {"max_iter": 50, "warm_start": "yes", "backend": "auto"}}, "warm_start"),
+        ("solver", {"solver": {"max_iter": 50, "gpu": True}}, "gpu"),
+        ("update", "leapfrog", "update"),
+        ("trainer", {"trainer": {"name": "ExactGreedy", "params": {"tol": -1.0}}}, "tol"),
+        ("newton_max_iter", 50, "unknown setting.*newton_max_iter"),  # a layout-3 file has no flat options
+        ("max_centers", -3, "max_centers"),
+        (
+            "state_kernel",
+            {
+                "transform": "scaled",
+                "params": {"kernel": {"kernel": {"family": "imq", "eps": 0.3}}, "factors": {"list": [1.0, 2.0]}},
+            },
+            "factors",
+        ),
+        (
+            "state_kernel",
+            {"transform": "periodic", "params": {"kernel": None, "coordinates": {"tuple": [5]}, "period": 6.0}},
+            "periodic",
+        ),
+        (
+            "state_kernel",
+            {
+                "transform": "symmetric",
+                "params": {"kernel": None, "group": {"list": [{"tuple": [1, 1]}, {"tuple": [1, -1]}]}},
+            },
+            "symmetry",
+        ),
+    ],
+)
 def test_invalid_setting_in_a_file_is_refused_naming_it(coarse_pendulum_model_file, tmp_path, name, value, match):
     path = _rewrite(coarse_pendulum_model_file, tmp_path / "bad.h5", settings=_param(name, value))
     with pytest.raises(ModelFileError, match=match):
@@ -51,34 +72,42 @@ def test_invalid_setting_in_a_file_is_refused_naming_it(coarse_pendulum_model_fi
         load_model(path)
 
 
-@pytest.mark.parametrize("key, value, match", [
-    ("dim", float("inf"), "dim"),
-    ("dim", 2.0, "dim"),
-    ("dim", True, "dim"),
-    ("n_mu", -1, "n_mu"),
-    ("dt_fixed", -0.1, "dt_fixed"),
-    ("dt_fixed", "0.1", "dt_fixed"),
-    ("layout", 7, "layout"),
-    ("stop_reason", 3, "stop_reason"),
-])
+@pytest.mark.parametrize(
+    "key, value, match",
+    [
+        ("dim", float("inf"), "dim"),
+        ("dim", 2.0, "dim"),
+        ("dim", True, "dim"),
+        ("n_mu", -1, "n_mu"),
+        ("dt_fixed", -0.1, "dt_fixed"),
+        ("dt_fixed", "0.1", "dt_fixed"),
+        ("layout", 7, "layout"),
+        ("stop_reason", 3, "stop_reason"),
+    ],
+)
 def test_invalid_shape_information_in_a_file_is_refused(coarse_pendulum_model_file, tmp_path, key, value, match):
     def edit(s):
         s[key] = value
+
     path = _rewrite(coarse_pendulum_model_file, tmp_path / "bad.h5", settings=edit)
     with pytest.raises(ModelFileError, match=match):
         SymplecticKernelPredictor.load(path)
 
 
-@pytest.mark.parametrize("name, value", [
-    ("train_max_residual", np.zeros(0)),
-    ("selected_power", np.zeros(0)),
-    ("train_max_residual", np.zeros((31, 1))),
-    ("domain_x_min", np.full(2, 10.0)),  # min above max
-    ("domain_dt_min", np.array(-1.0)),
-])
+@pytest.mark.parametrize(
+    "name, value",
+    [
+        ("train_max_residual", np.zeros(0)),
+        ("selected_power", np.zeros(0)),
+        ("train_max_residual", np.zeros((31, 1))),
+        ("domain_x_min", np.full(2, 10.0)),  # min above max
+        ("domain_dt_min", np.array(-1.0)),
+    ],
+)
 def test_inconsistent_arrays_in_a_file_are_refused(coarse_pendulum_model_file, tmp_path, name, value):
     def edit(a):
         a[name] = value
+
     path = _rewrite(coarse_pendulum_model_file, tmp_path / "bad.h5", arrays=edit)
     with pytest.raises(ModelFileError):
         SymplecticKernelPredictor.load(path)
@@ -86,10 +115,18 @@ def test_inconsistent_arrays_in_a_file_are_refused(coarse_pendulum_model_file, t
 
 def test_file_asking_for_endless_newton_never_hangs(coarse_pendulum_model_file, tmp_path):
     """A solver with max_iter = 10**15 loaded would make `sympredict predict` run without end: the file is refused."""
-    path = _rewrite(coarse_pendulum_model_file, tmp_path / "hang.h5",
-                    settings=_param("solver", {"solver": {"max_iter": 10 ** 15, "warm_start": False, "backend": "auto"}}))
-    proc = subprocess.run([sys.executable, "-m", "sympredict.cli", "predict", str(path), "--x0", "0.5,0.1", "--steps", "3"],
-                          capture_output=True, text=True, timeout=120, env={**os.environ, "NUMBA_NUM_THREADS": "1"})
+    path = _rewrite(
+        coarse_pendulum_model_file,
+        tmp_path / "hang.h5",
+        settings=_param("solver", {"solver": {"max_iter": 10**15, "warm_start": False, "backend": "auto"}}),
+    )
+    proc = subprocess.run(
+        [sys.executable, "-m", "sympredict.cli", "predict", str(path), "--x0", "0.5,0.1", "--steps", "3"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env={**os.environ, "NUMBA_NUM_THREADS": "1"},
+    )
     assert proc.returncode == 1 and "max_iter" in proc.stderr and "Traceback" not in proc.stderr
 
 
@@ -99,6 +136,7 @@ def test_direct_model_with_huge_coefficients_raises_instead_of_inf(coarse_pendul
 
     def edit(a):
         a["coef"] = np.full_like(a["coef"], 1.7e308)
+
     path = _rewrite(tmp_path / "d.h5", tmp_path / "huge.h5", arrays=edit)
     loaded = DirectKernelPredictor.load(path)
     with pytest.raises(NonFinitePredictionError, match="non-finite"):
@@ -110,8 +148,12 @@ def test_direct_model_with_huge_coefficients_raises_instead_of_inf(coarse_pendul
 def test_symplectic_model_with_huge_coefficients_raises(coarse_pendulum_model_file, coarse_pendulum_data, tmp_path):
     def edit(a):
         a["coef"] = np.full_like(a["coef"], 1e308)
+
     loaded = SymplecticKernelPredictor.load(_rewrite(coarse_pendulum_model_file, tmp_path / "huge.h5", arrays=edit))
-    for call in (lambda: loaded.step(coarse_pendulum_data.x0[:3]), lambda: loaded.rollout(coarse_pendulum_data.x0[:3], 3)):
+    for call in (
+        lambda: loaded.step(coarse_pendulum_data.x0[:3]),
+        lambda: loaded.rollout(coarse_pendulum_data.x0[:3], 3),
+    ):
         with pytest.raises(SympredictError):
             call()
 
@@ -131,8 +173,33 @@ def test_split_model_with_huge_coefficients_raises(coarse_pendulum_data, tmp_pat
                 call()
 
 
-_SETTING_VALUES = [None, True, False, 0, 1, -1, 2, 3, 10 ** 15, 2.5, -0.5, 1e308, float("inf"), float("nan"), "",
-                   "numba", "midpoint", "x", [], [0], [1.0, 2.0], {}, {"kernel": {}}, {"tuple": [0]}, {"list": [1e300]}]
+_SETTING_VALUES = [
+    None,
+    True,
+    False,
+    0,
+    1,
+    -1,
+    2,
+    3,
+    10**15,
+    2.5,
+    -0.5,
+    1e308,
+    float("inf"),
+    float("nan"),
+    "",
+    "numba",
+    "midpoint",
+    "x",
+    [],
+    [0],
+    [1.0, 2.0],
+    {},
+    {"kernel": {}},
+    {"tuple": [0]},
+    {"list": [1e300]},
+]
 
 
 def _paths(d, prefix=()):
@@ -171,11 +238,11 @@ def _mutations(settings, arrays, rng, n):
                 if arr.dtype.kind == "f":
                     flat[rng.integers(flat.size)] = [np.inf, np.nan, 1e308, -1e308, 0.0, 1e-308][rng.integers(6)]
                 else:
-                    flat[rng.integers(flat.size)] = [-1, 0, 1, 2, 10 ** 9][rng.integers(5)]
+                    flat[rng.integers(flat.size)] = [-1, 0, 1, 2, 10**9][rng.integers(5)]
             elif choice == 1:
                 a[name] = arr.reshape(-1)[: max(0, arr.size - 1)]
             elif choice == 2:
-                a[name] = arr * 10.0 ** rng.integers(-300, 300) if arr.dtype.kind == "f" else arr + 10 ** 9
+                a[name] = arr * 10.0 ** rng.integers(-300, 300) if arr.dtype.kind == "f" else arr + 10**9
             elif choice == 3:
                 a[name] = np.concatenate([arr.reshape(-1), arr.reshape(-1)]) if arr.size else np.ones(3)
             else:
@@ -221,10 +288,13 @@ def other_model_files(coarse_pendulum_data, tmp_path_factory):
     from sympredict.flowmap.splitting import SplitKernelPredictor
 
     folder = tmp_path_factory.mktemp("others")
-    DirectKernelPredictor(IMQ(0.3), max_centers=20).fit(coarse_pendulum_data.x0, coarse_pendulum_data.x1, dt=DT).save(folder / "direct.h5")
+    DirectKernelPredictor(IMQ(0.3), max_centers=20).fit(coarse_pendulum_data.x0, coarse_pendulum_data.x1, dt=DT).save(
+        folder / "direct.h5"
+    )
     inner = SymplecticKernelPredictor(IMQ(0.5), IMQ(1.0), max_centers=15, solver=NewtonSolver(backend="numpy"))
     SplitKernelPredictor(inner, Pendulum().quadratic_part()).fit(
-        coarse_pendulum_data.x0, coarse_pendulum_data.x1, mu=np.full(len(coarse_pendulum_data.x0), 0.75), dt=DT).save(folder / "split.h5")
+        coarse_pendulum_data.x0, coarse_pendulum_data.x1, mu=np.full(len(coarse_pendulum_data.x0), 0.75), dt=DT
+    ).save(folder / "split.h5")
     return {"direct": folder / "direct.h5", "split": folder / "split.h5"}
 
 
@@ -248,6 +318,6 @@ def test_fuzzed_model_files_long(coarse_pendulum_model_file, other_model_files, 
 @pytest.mark.parametrize("key", ["dim", "n_mu"])
 def test_a_file_with_huge_sizes_is_refused_before_allocating(coarse_pendulum_model_file, tmp_path, key):
     """A file's dim or n_mu of 10**15 must be refused by its arrays' shapes, not by a failed allocation."""
-    path = _rewrite(coarse_pendulum_model_file, tmp_path / "huge.h5", settings=lambda s: s.__setitem__(key, 10 ** 15))
+    path = _rewrite(coarse_pendulum_model_file, tmp_path / "huge.h5", settings=lambda s: s.__setitem__(key, 10**15))
     with pytest.raises(ModelFileError, match=f"{key}=1000000000000000 disagrees with its training box"):
         SymplecticKernelPredictor.load(path)

@@ -52,7 +52,8 @@ def test_model_roundtrip_keeps_predictions_and_history(tmp_path):
     data = flow_map_data(Pendulum(), mus=(0.7, 0.8), dts=(0.04, 0.06), n_grid=8)
     val = random_flow_map_data(Pendulum(), 40, seed=1)
     model = SymplecticKernelPredictor(IMQ(0.3), IMQ(2.0), IMQ(5.0), max_centers=30).fit(
-        data.x0, data.x1, mu=data.mu, dt=data.dt, validation=val)
+        data.x0, data.x1, mu=data.mu, dt=data.dt, validation=val
+    )
     path = tmp_path / "model.h5"
     model.save(path)
     loaded = SymplecticKernelPredictor.load(path)

@@ -1,6 +1,5 @@
 """Outputs survive a full disk, a file-size limit and Ctrl-C; concurrent writers cannot both win."""
 
-
 import os
 import signal
 import subprocess
@@ -96,11 +95,14 @@ except KeyboardInterrupt as exc:
     print(f"interrupted: {{exc}}", file=sys.stderr)
     sys.exit(130)
 """
-    proc = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            env=ENV)
+    proc = subprocess.Popen(
+        [sys.executable, "-c", script], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ENV
+    )
     assert proc.stdout.readline().strip() == "ready"
     deadline = time.time() + 60
-    while time.time() < deadline and not any(p.name.endswith(".tmp") and p.stat().st_size > 0 for p in tmp_path.iterdir()):
+    while time.time() < deadline and not any(
+        p.name.endswith(".tmp") and p.stat().st_size > 0 for p in tmp_path.iterdir()
+    ):
         time.sleep(0.01)
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=120)

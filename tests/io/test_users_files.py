@@ -1,7 +1,6 @@
 """Users' trajectory and state files: parameter columns by name, .npz members checked before reading, CSV
 bounded by what it parses, times rounded in the file."""
 
-
 import io
 import struct
 import time
@@ -32,8 +31,9 @@ def test_read_states_state_columns_in_any_order(tmp_path):
     np.testing.assert_array_equal(mu, [[7]])
 
 
-@pytest.mark.parametrize("header, match", [("q,p,mu1,mu3", "without gaps"), ("q,p,mu,mu1", "both 'mu'"),
-                                           ("q,p,mu2", "without gaps")])
+@pytest.mark.parametrize(
+    "header, match", [("q,p,mu1,mu3", "without gaps"), ("q,p,mu,mu1", "both 'mu'"), ("q,p,mu2", "without gaps")]
+)
 def test_read_states_parameter_header_errors(tmp_path, header, match):
     path = tmp_path / "x0.csv"
     cells = ",".join(["0.5"] * len(header.split(",")))
@@ -60,8 +60,15 @@ def _npz_with_header(path: Path, shape, data: bytes, key="states", compress=zipf
         z.writestr("dt.npy", buf.getvalue())
 
 
-@pytest.mark.parametrize("shape, match", [((-1, 2), "negative dimension"), ((0, 2), "holds no numbers"),
-                                          ((2**62, 2**62, 4), "exceed max_bytes"), ((3, -5, 2), "negative dimension")])
+@pytest.mark.parametrize(
+    "shape, match",
+    [
+        ((-1, 2), "negative dimension"),
+        ((0, 2), "holds no numbers"),
+        ((2**62, 2**62, 4), "exceed max_bytes"),
+        ((3, -5, 2), "negative dimension"),
+    ],
+)
 def test_npz_declared_shapes_are_checked_before_reading(tmp_path, shape, match):
     path = tmp_path / "bad.npz"
     _npz_with_header(path, shape, b"\0" * 8 * 1000, compress=zipfile.ZIP_DEFLATED)
@@ -85,15 +92,18 @@ def _patch_method(path: Path, method: int = None, flag: int = None):
         i = raw.find(sig)
         while i >= 0:
             if method is not None:
-                raw[i + off_method:i + off_method + 2] = struct.pack("<H", method)
+                raw[i + off_method : i + off_method + 2] = struct.pack("<H", method)
             if flag is not None:
-                raw[i + off_flag:i + off_flag + 2] = struct.pack("<H", flag)
+                raw[i + off_flag : i + off_flag + 2] = struct.pack("<H", flag)
             i = raw.find(sig, i + 4)
     path.write_bytes(bytes(raw))
 
 
-@pytest.mark.parametrize("patch, match", [({"method": 9}, "Deflate64.*numpy.savez"), ({"flag": 1}, "encrypted")],
-                         ids=["deflate64", "encrypted"])
+@pytest.mark.parametrize(
+    "patch, match",
+    [({"method": 9}, "Deflate64.*numpy.savez"), ({"flag": 1}, "encrypted")],
+    ids=["deflate64", "encrypted"],
+)
 def test_npz_member_zipfile_cannot_read_is_a_clear_error(tmp_path, patch, match):
     """A Deflate64-compressed or an encrypted member (the npz patched into one) is refused with a clear message."""
     path = tmp_path / "member.npz"
@@ -138,7 +148,7 @@ def test_csv_line_longer_than_the_limit_is_refused_before_splitting(tmp_path):
 
 def test_cli_train_on_a_csv_with_a_huge_cell_is_one_line(tmp_path, capsys):
     path = tmp_path / "t.csv"
-    path.write_text("traj,t,q,p\na,0,1,2\na,1,\"" + "1" * 200_000 + "\",2\n")
+    path.write_text('traj,t,q,p\na,0,1,2\na,1,"' + "1" * 200_000 + '",2\n')
     code = cli.main(["train", str(path), "--out", str(tmp_path / "m.h5")])
     err = capsys.readouterr().err
     assert code == 1 and len(err.strip().splitlines()) == 1 and "row 3" in err and "Traceback" not in err
@@ -153,7 +163,9 @@ def test_csv_rows_in_any_order_keep_their_row_numbers(tmp_path):
 
 # --------------------------------------------------------------------------- rounded times
 def _csv_times(path: Path, times):
-    rows = "".join(f"{j},{t},{float(np.cos(float(t)))!r},{float(np.sin(float(t)))!r}\n" for j in range(2) for t in times)
+    rows = "".join(
+        f"{j},{t},{float(np.cos(float(t)))!r},{float(np.sin(float(t)))!r}\n" for j in range(2) for t in times
+    )
     path.write_text("traj,t,q,p\n" + rows)
 
 

@@ -81,7 +81,11 @@ def test_compiled_formulas_are_the_numpy_formulas(name, rng):
     r = np.concatenate([[0.0, 1e-200, 1e-120, 1e-8], rng.uniform(0, 6, 200), [1e3, 1e150]])
     profile, first, third = compiled_kernels.compiled_formulas(family)
     exact = family.exact_arithmetic  # correctly rounded operations only: bit for bit
-    check = np.testing.assert_array_equal if exact else (lambda a, b: np.testing.assert_allclose(a, b, rtol=1e-14, atol=1e-300))
+    check = (
+        np.testing.assert_array_equal
+        if exact
+        else (lambda a, b: np.testing.assert_allclose(a, b, rtol=1e-14, atol=1e-300))
+    )
     check(np.array([profile(e, v) for v in r]), family.profile(e, r))
     for got, want in zip(zip(*[first(e, v) for v in r]), family.first_factors(e, r)):
         check(np.array(got), want)
@@ -108,8 +112,11 @@ def test_compiled_formulas_stay_exact_after_the_fastmath_pass_compiles(name, rng
         model.rollout(x0[:4], 2, dt=0.1)  # compiles the fastmath pass with this family's formulas
     r = rng.uniform(0, 6, 100)
     third = compiled_kernels.compiled_formulas(family)[2]
-    check = np.testing.assert_array_equal if family.exact_arithmetic else (
-        lambda a, b: np.testing.assert_allclose(a, b, rtol=1e-14, atol=1e-300))
+    check = (
+        np.testing.assert_array_equal
+        if family.exact_arithmetic
+        else (lambda a, b: np.testing.assert_allclose(a, b, rtol=1e-14, atol=1e-300))
+    )
     for got, want in zip(zip(*[third(0.7, v) for v in r]), family.all_factors(0.7, r)):
         check(np.array(got), want)
 
@@ -121,8 +128,14 @@ def test_compiled_gradient_and_hessian_equal_numpy(name, dim, rng):
     """The compiled Newton pass (gradient, d_p d_q s, floor) against the NumPy surrogate, random centres."""
     kernel = KERNEL_FAMILIES[name](0.6)
     m = 60
-    sur = HBSurrogate(ProductKernel(kernel, IMQ(1.0)), rng.normal(size=(m, dim)), rng.normal(size=(m, 1)),
-                      np.ones(m), rng.integers(0, dim, m), rng.normal(size=m))
+    sur = HBSurrogate(
+        ProductKernel(kernel, IMQ(1.0)),
+        rng.normal(size=(m, dim)),
+        rng.normal(size=(m, 1)),
+        np.ones(m),
+        rng.integers(0, dim, m),
+        rng.normal(size=m),
+    )
     xi = rng.normal(size=(9, dim))
     w = sur.weights(rng.normal(size=(9, 1)), np.ones(9))
     g_ref, h_ref, f_ref = sur.newton_terms(xi, w)
@@ -141,8 +154,9 @@ def test_a_new_family_trains_and_rolls_out_compiled(small_pendulum_data, rng):
     """One class, registered: fit, file round trip and the compiled rollout work with no other change."""
     d = small_pendulum_data
     idx = rng.choice(len(d), 500, replace=False)
-    model = SymplecticKernelPredictor(Gaussian(0.3), IMQ(2.0), IMQ(5.0), max_centers=80,
-                                      solver=NewtonSolver(backend="numba"))
+    model = SymplecticKernelPredictor(
+        Gaussian(0.3), IMQ(2.0), IMQ(5.0), max_centers=80, solver=NewtonSolver(backend="numba")
+    )
     model.fit(d.x0[idx], d.x1[idx], mu=d.mu[idx], dt=d.dt[idx])
     x = d.x0[idx[:6]]
     mu, dt = d.mu[idx[:6], 0], d.dt[idx[:6]]
@@ -162,14 +176,17 @@ def test_a_foreign_family_leaves_the_disk_cache_readable(small_pendulum_data, rn
 
     d = small_pendulum_data
     idx = rng.choice(len(d), 300, replace=False)
-    model = SymplecticKernelPredictor(Gaussian(0.3), IMQ(2.0), IMQ(5.0), max_centers=30,
-                                      solver=NewtonSolver(backend="numba"))
+    model = SymplecticKernelPredictor(
+        Gaussian(0.3), IMQ(2.0), IMQ(5.0), max_centers=30, solver=NewtonSolver(backend="numba")
+    )
     model.fit(d.x0[idx], d.x1[idx], mu=d.mu[idx], dt=d.dt[idx]).rollout(d.x0[idx[:9]], 3, mu=0.75, dt=0.05)
-    code = ("import numpy as np; from sympredict import SymplecticKernelPredictor; from sympredict.kernels import IMQ; "
-            "from sympredict.symplectic.solvers import NewtonSolver; "
-            "from sympredict.systems.pendulum import Pendulum, flow_map_data; d = flow_map_data(Pendulum(), n_grid=8); "
-            "m = SymplecticKernelPredictor(IMQ(0.3), IMQ(2.0), IMQ(5.0), max_centers=20, solver=NewtonSolver(backend='numba'))"
-            ".fit(d.x0, d.x1, mu=d.mu, dt=d.dt); print(m.rollout(d.x0[:9], 3, mu=0.75, dt=0.05).shape)")
+    code = (
+        "import numpy as np; from sympredict import SymplecticKernelPredictor; from sympredict.kernels import IMQ; "
+        "from sympredict.symplectic.solvers import NewtonSolver; "
+        "from sympredict.systems.pendulum import Pendulum, flow_map_data; d = flow_map_data(Pendulum(), n_grid=8); "
+        "m = SymplecticKernelPredictor(IMQ(0.3), IMQ(2.0), IMQ(5.0), max_centers=20, solver=NewtonSolver(backend='numba'))"
+        ".fit(d.x0, d.x1, mu=d.mu, dt=d.dt); print(m.rollout(d.x0[:9], 3, mu=0.75, dt=0.05).shape)"
+    )
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr[-2000:]
     assert "(9, 4, 2)" in done.stdout

@@ -70,8 +70,13 @@ def test_product_kernel_parameter_factor(rng):
     dt_a, dt_b = rng.uniform(0.04, 0.06, 4), rng.uniform(0.04, 0.06, 3)
     fac = pk.parameter_factor(mu_a, dt_a, mu_b, dt_b)
     direct = np.array(
-        [[Matern52(2.0).phi(np.linalg.norm(mu_a[i] - mu_b[j])) * IMQ(5.0).phi(abs(dt_a[i] - dt_b[j])) for j in range(3)]
-         for i in range(4)]
+        [
+            [
+                Matern52(2.0).phi(np.linalg.norm(mu_a[i] - mu_b[j])) * IMQ(5.0).phi(abs(dt_a[i] - dt_b[j]))
+                for j in range(3)
+            ]
+            for i in range(4)
+        ]
     )
     np.testing.assert_allclose(fac, direct, rtol=1e-14)
     np.testing.assert_array_equal(ProductKernel(IMQ(1.0)).parameter_factor(mu_a, dt_a, mu_b, dt_b), np.ones((4, 3)))

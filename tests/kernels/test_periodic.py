@@ -25,8 +25,11 @@ from sympredict.symplectic.solvers import NewtonSolver
 from sympredict.kernels.transforms import Periodic, Scaled
 
 from _tolerances import assert_same_predictions  # tests/
-from _surrogate_oracles import (check_gramian_by_finite_differences, check_malformed_kernel_entries_refused,
-                               check_surrogate_by_finite_differences)  # tests/ (on sys.path under pytest)
+from _surrogate_oracles import (
+    check_gramian_by_finite_differences,
+    check_malformed_kernel_entries_refused,
+    check_surrogate_by_finite_differences,
+)  # tests/ (on sys.path under pytest)
 
 J = canonical_J(2)
 LENGTH, DT = 0.75, 0.05
@@ -98,13 +101,16 @@ def test_surrogate_value_gradient_hessian_by_finite_differences(dim, periodic, s
     comps, coef = rng.integers(0, dim, m), rng.normal(size=m)
     sur = HBSurrogate(kernel, centers, cmu, np.full(m, 0.05), comps, coef)
     xi, qmu = rng.normal(size=(4, dim)) * 3.0, rng.normal(size=(4, 1))
-    w, grad, hess, floor = check_surrogate_by_finite_differences(sur, partial(_kernel_value, kernel), centers, cmu, comps,
-                                                                 coef, xi, qmu)
+    w, grad, hess, floor = check_surrogate_by_finite_differences(
+        sur, partial(_kernel_value, kernel), centers, cmu, comps, coef, xi, qmu
+    )
     np.testing.assert_allclose(hess, hess.transpose(0, 2, 1), atol=1e-13 * np.abs(hess).max())
     # exactly periodic: value, gradient and Hessian at xi + k P
     for k in (1, -4, 50):
         s = _shift(periodic, dim, k)
-        np.testing.assert_allclose(sur.value(xi + s, w), sur.value(xi, w), atol=1e-13 * (1 + abs(k)) * np.abs(coef).sum())
+        np.testing.assert_allclose(
+            sur.value(xi + s, w), sur.value(xi, w), atol=1e-13 * (1 + abs(k)) * np.abs(coef).sum()
+        )
         g_s, h_s = sur.gradient_hessian(xi + s, w)
         np.testing.assert_allclose(g_s, grad, atol=1e-13 * (1 + abs(k)) * np.abs(coef).sum())
         np.testing.assert_allclose(h_s, hess, atol=1e-12 * (1 + abs(k)) * np.abs(coef).sum())
@@ -156,7 +162,9 @@ def test_interpolates_the_selected_functionals(fitted, data):
     res = functional_residuals(fun, y.reshape(-1), fitted.greedy_result_.selected, fitted.greedy_result_.coef)
     assert np.abs(res).max() == pytest.approx(fitted.history_.train_max_residual[-1], rel=1e-6)
     with pytest.raises(ValueError, match="periodic"):
-        functional_residuals(fun, y.reshape(-1), fitted.greedy_result_.selected, fitted.greedy_result_.coef, compiled=True)
+        functional_residuals(
+            fun, y.reshape(-1), fitted.greedy_result_.selected, fitted.greedy_result_.coef, compiled=True
+        )
 
 
 def test_step_symplectic_finite_differences_and_periodic(fitted):
@@ -186,7 +194,11 @@ def test_rotating_orbit_without_wrapping(fitted):
         warnings.simplefilter("error", ExtrapolationWarning)
         traj = fitted.rollout(x, 1000)
     assert np.all(np.abs(traj[:, -1, 0]) > 100)
-    h = Pendulum().hamiltonian(traj.reshape(-1, 2), np.full(traj.shape[0] * traj.shape[1], LENGTH)).reshape(traj.shape[:2])
+    h = (
+        Pendulum()
+        .hamiltonian(traj.reshape(-1, 2), np.full(traj.shape[0] * traj.shape[1], LENGTH))
+        .reshape(traj.shape[:2])
+    )
     assert (np.abs(h - h[:, :1]) / h[:, :1]).max() < 1e-4
 
 
@@ -253,9 +265,13 @@ def test_model_files(data, tmp_path):
     from sympredict.estimators.predictor import MODEL_FORMAT
 
     settings, arrays = read_container(tmp_path / "p.h5", MODEL_FORMAT)
-    check_malformed_kernel_entries_refused(tmp_path / "bad.h5", settings, arrays, "periodic",
-                                          ({"coordinates": [0], "periods": [3.0]}, None, {"coordinates": [0]},
-                                           {"coordinates": [5], "periods": [1.0]}))
+    check_malformed_kernel_entries_refused(
+        tmp_path / "bad.h5",
+        settings,
+        arrays,
+        "periodic",
+        ({"coordinates": [0], "periods": [3.0]}, None, {"coordinates": [0]}, {"coordinates": [5], "periods": [1.0]}),
+    )
     # and a plain model's file has no periodic entry (unchanged layout)
     plain = _model(periodic=None, max_centers=20).fit(x0, x1, dt=DT)
     save_model(plain, tmp_path / "plain.h5")
@@ -274,8 +290,9 @@ def _benchmark():
 def test_rotating_pendulum_benchmark_small():
     """A small version of sympredict_paper/studies/rotating_pendulum.py: the periodic model keeps the energy of rotating
     orbits (q unwrapped) and beats the same model without the factor, unwrapped and wrapped."""
-    out = _benchmark().run(n_q=24, n_p=24, eps_grid=(0.5,), max_centers=500, n_val=3, n_test=6, n_steps=300,
-                           log=lambda s: None)
+    out = _benchmark().run(
+        n_q=24, n_p=24, eps_grid=(0.5,), max_centers=500, n_val=3, n_test=6, n_steps=300, log=lambda s: None
+    )
     v = out["variants"]
     assert v["periodic"]["test_failed"] == 0 and v["periodic"]["test_max"] < 1e-3
     assert v["periodic"]["test_median"] < v["plain_wrapped"]["test_median"]

@@ -16,7 +16,6 @@ from sympredict.kernels.transforms import Scaled
 from _surrogate_oracles import check_step_jacobian  # tests/
 
 
-
 @pytest.fixture(scope="module")
 def data(small_pendulum_data):
     d = small_pendulum_data
@@ -24,8 +23,14 @@ def data(small_pendulum_data):
 
 
 def _model(update="symplectic_euler", scaling=(2.0,), backend="numpy", max_centers=300):
-    return SymplecticKernelPredictor(Scaled(IMQ(0.2), factors=scaling), IMQ(1.5), IMQ(3.0),
-                                     max_centers=max_centers, update=update, solver=NewtonSolver(backend=backend))
+    return SymplecticKernelPredictor(
+        Scaled(IMQ(0.2), factors=scaling),
+        IMQ(1.5),
+        IMQ(3.0),
+        max_centers=max_centers,
+        update=update,
+        solver=NewtonSolver(backend=backend),
+    )
 
 
 @pytest.mark.parametrize("update", ["symplectic_euler", "midpoint"])
@@ -45,15 +50,20 @@ def test_same_as_training_on_scaled_coordinates(data, update):
     np.testing.assert_allclose(scaled.rollout(x, 20, mu=mu, dt=dt), ref_traj, rtol=1e-13, atol=1e-14)
 
 
-@pytest.mark.parametrize("update,backend", [("symplectic_euler", "numpy"), ("symplectic_euler", "auto"), ("midpoint", "numpy")])
+@pytest.mark.parametrize(
+    "update,backend", [("symplectic_euler", "numpy"), ("symplectic_euler", "auto"), ("midpoint", "numpy")]
+)
 def test_symplectic_and_derivatives_by_finite_differences(data, update, backend):
     model = _model(update, scaling=(3.0,), backend=backend).fit(data.x0, data.x1, mu=data.mu, dt=data.dt)
     x = np.array([[0.4, 0.3], [1.0, -0.5], [-0.7, 0.9]])
     mu, dt = np.array([0.72, 0.75, 0.78]), np.array([0.045, 0.05, 0.055])
     check_step_jacobian(model, x, mu, dt, fd_atol=1e-6)
     # the gradient in the original coordinates: finite differences of nothing we own, so check it interpolates
-    xi, y = mixed_variables(data.x0, data.x1, data.dt) if update == "symplectic_euler" else (
-        0.5 * (data.x0 + data.x1), mixed_variables(data.x0, data.x1, data.dt)[1])
+    xi, y = (
+        mixed_variables(data.x0, data.x1, data.dt)
+        if update == "symplectic_euler"
+        else (0.5 * (data.x0 + data.x1), mixed_variables(data.x0, data.x1, data.dt)[1])
+    )
     pts, comps = np.divmod(model.greedy_result_.selected[:50], 2)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ExtrapolationWarning)
@@ -67,7 +77,9 @@ def test_stored_checked_and_searchable(data, tmp_path, pendulum):
     back = load_model(tmp_path / "s.h5")
     assert back.state_kernel == Scaled(IMQ(0.2), factors=(1.5,)) and back.state_scaling_ == (1.5,)
     x = data.x0[:4]
-    np.testing.assert_array_equal(back.step(x, mu=data.mu[:4], dt=data.dt[:4]), model.step(x, mu=data.mu[:4], dt=data.dt[:4]))
+    np.testing.assert_array_equal(
+        back.step(x, mu=data.mu[:4], dt=data.dt[:4]), model.step(x, mu=data.mu[:4], dt=data.dt[:4])
+    )
     for bad in ((0.0,), (1.0, 2.0), "2", (float("inf"),)):
         with pytest.raises(ValueError, match="Scaled.*factors"):
             _model(scaling=bad).fit(data.x0[:40], data.x1[:40], mu=data.mu[:40], dt=data.dt[:40])

@@ -14,7 +14,12 @@ from sympredict import _numba
 from sympredict.interpolation import _compiled as compiled_surrogate
 from sympredict.base import clone
 from sympredict.exceptions import ExtrapolationWarning, ModelFileError
-from sympredict.interpolation.functionals import HBFunctionals, ValueFunctionals, dense_interpolation, functional_residuals
+from sympredict.interpolation.functionals import (
+    HBFunctionals,
+    ValueFunctionals,
+    dense_interpolation,
+    functional_residuals,
+)
 from sympredict.interpolation.greedy import ActiveSetGreedy, ExactGreedy
 from sympredict.io import load_model, save_model
 from sympredict.kernels import IMQ, Matern52, PeriodicCoordinates, ProductKernel, StateSymmetry
@@ -25,8 +30,11 @@ from sympredict.symplectic.solvers import NewtonSolver
 from sympredict.kernels.transforms import Periodic, Scaled, Symmetric
 
 from _tolerances import assert_same_predictions  # tests/
-from _surrogate_oracles import (check_gramian_by_finite_differences, check_malformed_kernel_entries_refused,
-                               check_surrogate_by_finite_differences)  # tests/ (on sys.path under pytest)
+from _surrogate_oracles import (
+    check_gramian_by_finite_differences,
+    check_malformed_kernel_entries_refused,
+    check_surrogate_by_finite_differences,
+)  # tests/ (on sys.path under pytest)
 
 J = canonical_J(2)
 LENGTH, DT = 0.75, 0.05
@@ -44,13 +52,19 @@ def _mode_swap():
     return [np.eye(4), swap, -np.eye(4), -swap]
 
 
-GROUPS = [(2, StateSymmetry.from_signs(KLEIN)), (2, StateSymmetry(tuple(_rotations(3)))), (4, StateSymmetry(tuple(_mode_swap())))]
+GROUPS = [
+    (2, StateSymmetry.from_signs(KLEIN)),
+    (2, StateSymmetry(tuple(_rotations(3)))),
+    (4, StateSymmetry(tuple(_mode_swap()))),
+]
 GROUP_IDS = ["klein", "rotations3", "modeswap4d"]
 
 
 def _kernel_value(kernel, x, y, mu_x, mu_y):
     """``k_G((x, mu_x), (y, mu_y)) = sum_g phi(|x - g y|) k_mu``: the profile only (the oracle of the derivatives)."""
-    return sum(kernel.state.phi(np.linalg.norm(x - g @ y)) for g in kernel.symmetry.array) * kernel.mu.phi(abs(mu_x - mu_y))
+    return sum(kernel.state.phi(np.linalg.norm(x - g @ y)) for g in kernel.symmetry.array) * kernel.mu.phi(
+        abs(mu_x - mu_y)
+    )
 
 
 @pytest.mark.parametrize("dim,group", GROUPS, ids=GROUP_IDS)
@@ -66,7 +80,7 @@ def test_gramian_entries_match_mixed_finite_differences(dim, group, state, rng):
         moved = HBFunctionals(kernel, pts @ g.T, mu, np.full(5, 0.05))
         for b in range(dim):
             col = fun.column(moved.representer(2 * dim + b), out=np.empty(n))
-            np.testing.assert_allclose(col, gram[:, 2 * dim: 3 * dim] @ g.T[:, b], atol=1e-13 * np.abs(gram).max())
+            np.testing.assert_allclose(col, gram[:, 2 * dim : 3 * dim] @ g.T[:, b], atol=1e-13 * np.abs(gram).max())
 
 
 def test_fixed_points_give_zero_functionals():
@@ -163,11 +177,16 @@ def test_interpolates_the_selected_functionals(fitted, data):
     # (to the round-off of the Newton basis: coefficients ~1e6 times the data)
     assert np.abs(res).max() == pytest.approx(fitted.history_.train_max_residual[-1], abs=1e-10 * np.abs(y).max())
     with pytest.raises(ValueError, match="symmetry"):
-        functional_residuals(fun, y.reshape(-1), fitted.greedy_result_.selected, fitted.greedy_result_.coef, compiled=True)
+        functional_residuals(
+            fun, y.reshape(-1), fitted.greedy_result_.selected, fitted.greedy_result_.coef, compiled=True
+        )
     # the same model at the mirrored samples: the gradient of s is mirrored (s is invariant, grad s(g z) = g grad s(z))
     for s in KLEIN:
-        np.testing.assert_allclose(fitted.surrogate_gradient(xi[:50] * s, dt=DT), fitted.surrogate_gradient(xi[:50], dt=DT) * s,
-                                   atol=1e-9 * np.abs(y).max())
+        np.testing.assert_allclose(
+            fitted.surrogate_gradient(xi[:50] * s, dt=DT),
+            fitted.surrogate_gradient(xi[:50], dt=DT) * s,
+            atol=1e-9 * np.abs(y).max(),
+        )
 
 
 def test_symmetry_lowers_the_residual_against_the_plain_kernel(fitted, data):
@@ -210,8 +229,9 @@ def test_sharded_trainer_selects_the_exact_greedys_centres(data):
     exact = _model(max_centers=60).fit(x0, x1, dt=DT)
     sharded = _model(max_centers=60, trainer=ShardedGreedy(n_shards=2)).fit(x0, x1, dt=DT)
     np.testing.assert_array_equal(sharded.greedy_result_.selected, exact.greedy_result_.selected)
-    np.testing.assert_allclose(sharded.surrogate_.coef, exact.surrogate_.coef, rtol=0,
-                               atol=1e-10 * np.abs(exact.surrogate_.coef).max())
+    np.testing.assert_allclose(
+        sharded.surrogate_.coef, exact.surrogate_.coef, rtol=0, atol=1e-10 * np.abs(exact.surrogate_.coef).max()
+    )
 
 
 def test_estimator_contract(data):
@@ -232,12 +252,16 @@ def test_estimator_contract(data):
     np.testing.assert_allclose(t2.step(-x0[:3]), -t2.step(x0[:3]), atol=1e-12)
 
 
-@pytest.mark.parametrize("matrices", [
-    lambda: StateSymmetry.from_signs(KLEIN),
-    lambda: KLEIN,
-    lambda: tuple(tuple(s) for s in KLEIN),
-    lambda: [np.diag(s).tolist() for s in KLEIN],
-], ids=["group", "list", "tuples", "matrices"])
+@pytest.mark.parametrize(
+    "matrices",
+    [
+        lambda: StateSymmetry.from_signs(KLEIN),
+        lambda: KLEIN,
+        lambda: tuple(tuple(s) for s in KLEIN),
+        lambda: [np.diag(s).tolist() for s in KLEIN],
+    ],
+    ids=["group", "list", "tuples", "matrices"],
+)
 def test_model_files_round_trip(data, tmp_path, matrices):
     x0, x1 = data[0][:200], data[1][:200]
     model = _model(symmetry=matrices(), max_centers=60).fit(x0, x1, dt=DT)
@@ -258,11 +282,23 @@ def test_model_files_refused(data, tmp_path):
     save_model(model, tmp_path / "s.h5")
     settings, arrays = read_container(tmp_path / "s.h5", MODEL_FORMAT)
     eye = [[1.0, 0.0], [0.0, 1.0]]
-    bad_specs = [None, {"matrices": [eye, [[-1.0, 0.0], [0.0, -1.0]]]}, {"matrices": [eye, [[2.0, 0.0], [0.0, 1.0]]]},
-                 {"matrices": [eye, [[1.0, 0.0], [0.0, -1.0]], [[-1.0, 0.0], [0.0, 1.0]]]}, {"matrices": "klein"}, [1, 2]]
+    bad_specs = [
+        None,
+        {"matrices": [eye, [[-1.0, 0.0], [0.0, -1.0]]]},
+        {"matrices": [eye, [[2.0, 0.0], [0.0, 1.0]]]},
+        {"matrices": [eye, [[1.0, 0.0], [0.0, -1.0]], [[-1.0, 0.0], [0.0, 1.0]]]},
+        {"matrices": "klein"},
+        [1, 2],
+    ]
     check_malformed_kernel_entries_refused(tmp_path / "bad.h5", settings, arrays, "symmetry", bad_specs)
     # settings with a non-group symmetry are refused too
-    bad = {**settings, "params": {**settings["params"], "symmetry": {"list": [{"list": [1, 1]}, {"list": [1, -1]}, {"list": [-1, 1]}]}}}
+    bad = {
+        **settings,
+        "params": {
+            **settings["params"],
+            "symmetry": {"list": [{"list": [1, 1]}, {"list": [1, -1]}, {"list": [-1, 1]}]},
+        },
+    }
     write_container(tmp_path / "bad.h5", MODEL_FORMAT, bad, arrays)
     with pytest.raises(ModelFileError):
         load_model(tmp_path / "bad.h5")
@@ -276,12 +312,12 @@ def test_refused_input(data):
     x0, x1 = data[0][:60], data[1][:60]
     shear = np.array([[1.0, 0.5], [0.0, 1.0]])
     cases = [
-        ([(1, 1), (-1, -1), (1, -1)], "not a group"),                        # not closed
+        ([(1, 1), (-1, -1), (1, -1)], "not a group"),  # not closed
         ([(-1, -1), (1, 1), (-1, -1)], "distinct"),
         ([(-1, -1)], "identity"),
         ([(1, 1), (0, 1)], "sign patterns"),
         ([(1, 1), (2, -1)], "sign patterns"),
-        ([(1, 1, 1), (-1, -1, -1)], "dimension"),                           # 3 components for 2n = 2
+        ([(1, 1, 1), (-1, -1, -1)], "dimension"),  # 3 components for 2n = 2
         ([np.eye(2), shear], "orthogonal"),
         ([np.eye(2), np.eye(3)], "one size"),
         ("klein", "symmetry must be"),
@@ -309,9 +345,13 @@ def test_refused_input(data):
     with pytest.raises(ValueError, match="same period"):
         ProductKernel(IMQ(1.0), periodic=PeriodicCoordinates((0,), (1.0,)), symmetry=StateSymmetry(tuple(_mode_swap())))
     ProductKernel(IMQ(1.0), periodic=PeriodicCoordinates((0,), (1.0,)), symmetry=StateSymmetry.from_signs(KLEIN))
-    ProductKernel(IMQ(1.0), periodic=PeriodicCoordinates((0, 1), (1.0, 1.0)), symmetry=StateSymmetry(tuple(_mode_swap())))
+    ProductKernel(
+        IMQ(1.0), periodic=PeriodicCoordinates((0, 1), (1.0, 1.0)), symmetry=StateSymmetry(tuple(_mode_swap()))
+    )
     with pytest.raises(ValueError, match="direct model"):
-        ValueFunctionals(ProductKernel(IMQ(1.0), symmetry=StateSymmetry.from_signs(KLEIN)), x0, np.zeros((60, 0)), np.full(60, DT))
+        ValueFunctionals(
+            ProductKernel(IMQ(1.0), symmetry=StateSymmetry.from_signs(KLEIN)), x0, np.zeros((60, 0)), np.full(60, DT)
+        )
     model = _model(max_centers=20).fit(x0, x1, dt=DT)
     if _numba.HAVE_NUMBA:
         assert_same_predictions(copy.copy(model).set_params(solver__backend="numba"), model, x0[:2], 3)

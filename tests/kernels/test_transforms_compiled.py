@@ -47,8 +47,10 @@ PENDULUM_CASES = {
     "symmetric_scaled_midpoint": (lambda: Symmetric(Scaled(IMQ(0.3), factors=(1.4,)), group=KLEIN), "midpoint"),
     "symmetric_euler": (lambda: Symmetric(IMQ(0.3), group=[(1, 1), (-1, -1)]), "symplectic_euler"),
     "periodic_euler": (lambda: Periodic(IMQ(0.3), coordinates=(0,), period=8.0), "symplectic_euler"),
-    "periodic_scaled_midpoint": (lambda: Periodic(Scaled(Matern52(0.3), factors=(0.8,)), coordinates=(0,), period=8.0),
-                                 "midpoint"),
+    "periodic_scaled_midpoint": (
+        lambda: Periodic(Scaled(Matern52(0.3), factors=(0.8,)), coordinates=(0,), period=8.0),
+        "midpoint",
+    ),
 }
 
 
@@ -56,8 +58,14 @@ PENDULUM_CASES = {
 def pendulum_transform(request, small_pendulum_data):
     kernel, update = PENDULUM_CASES[request.param]
     d = small_pendulum_data
-    model = SymplecticKernelPredictor(kernel(), mu_kernel=IMQ(2.0), dt_kernel=IMQ(5.0), max_centers=80, update=update,
-                                      solver=NewtonSolver(backend="numpy"))
+    model = SymplecticKernelPredictor(
+        kernel(),
+        mu_kernel=IMQ(2.0),
+        dt_kernel=IMQ(5.0),
+        max_centers=80,
+        update=update,
+        solver=NewtonSolver(backend="numpy"),
+    )
     return model.fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
 
 
@@ -78,13 +86,19 @@ def test_compiled_transform_rollout_equals_numpy_to_the_stopping_rule(pendulum_t
 
 
 CHAIN_CASES = {
-    "symmetric_reversing_midpoint": (lambda: Symmetric(IMQ(0.5), group=[(1, 1, 1, 1), (-1, -1, -1, -1),
-                                                                        (1, 1, -1, -1), (-1, -1, 1, 1)]), "midpoint"),
-    "symmetric_scaled_euler": (lambda: Symmetric(Scaled(IMQ(0.5), factors=(1.2, 1.2)),
-                                                 group=[(1, 1, 1, 1), (-1, -1, -1, -1)]), "symplectic_euler"),
+    "symmetric_reversing_midpoint": (
+        lambda: Symmetric(IMQ(0.5), group=[(1, 1, 1, 1), (-1, -1, -1, -1), (1, 1, -1, -1), (-1, -1, 1, 1)]),
+        "midpoint",
+    ),
+    "symmetric_scaled_euler": (
+        lambda: Symmetric(Scaled(IMQ(0.5), factors=(1.2, 1.2)), group=[(1, 1, 1, 1), (-1, -1, -1, -1)]),
+        "symplectic_euler",
+    ),
     "periodic_two_angles_midpoint": (lambda: Periodic(IMQ(0.5), coordinates=(0, 1), period=(3.0, 4.0)), "midpoint"),
-    "periodic_momentum_euler": (lambda: Periodic(Scaled(IMQ(0.5), factors=(1.1, 0.9)), coordinates=(1, 2),
-                                                 period=5.0), "symplectic_euler"),
+    "periodic_momentum_euler": (
+        lambda: Periodic(Scaled(IMQ(0.5), factors=(1.1, 0.9)), coordinates=(1, 2), period=5.0),
+        "symplectic_euler",
+    ),
 }
 
 
@@ -93,8 +107,9 @@ def test_compiled_transform_rollout_equals_numpy_at_2n_4(case, rng):
     """2n = 4 (the chunked pass, not the 2n = 2 one): every transform on both updates against NumPy."""
     kernel, update = CHAIN_CASES[case]
     x0, x1 = _chain()
-    ref_model = SymplecticKernelPredictor(kernel(), max_centers=120, update=update,
-                                          solver=NewtonSolver(backend="numpy")).fit(x0, x1, dt=0.2)
+    ref_model = SymplecticKernelPredictor(
+        kernel(), max_centers=120, update=update, solver=NewtonSolver(backend="numpy")
+    ).fit(x0, x1, dt=0.2)
     fast = with_backend(ref_model, "numba")
     assert fast._compiled()
     x = rng.uniform(-0.6, 0.6, (6, 4))
@@ -116,8 +131,14 @@ def test_compiled_transform_rollout_equals_numpy_at_2n_4(case, rng):
 def _surrogate(kernel, dim, m, rng):
     comps = rng.integers(0, dim, m)
     comps[: m // 2] = 1  # one long segment: several chunks of one component
-    return HBSurrogate(kernel, rng.uniform(-1, 1, (m, dim)), rng.uniform(0, 1, (m, 1)), np.ones(m), comps,
-                       1e-2 * rng.standard_normal(m))
+    return HBSurrogate(
+        kernel,
+        rng.uniform(-1, 1, (m, dim)),
+        rng.uniform(0, 1, (m, 1)),
+        np.ones(m),
+        comps,
+        1e-2 * rng.standard_normal(m),
+    )
 
 
 @pytest.mark.parametrize("dim", [2, 6])
@@ -128,11 +149,12 @@ def test_compiled_pass_equals_numpy_for_transformed_kernels(dim, transform, rng)
         kernel = ProductKernel(IMQ(0.5), IMQ(1.0), periodic=PeriodicCoordinates((0, dim - 1), (2.5, 3.0)))
     elif transform == "symmetric":
         signs = np.ones(dim)
-        signs[dim // 2:] = -1  # p -> -p: anti-symplectic, as the midpoint update takes
+        signs[dim // 2 :] = -1  # p -> -p: anti-symplectic, as the midpoint update takes
         kernel = ProductKernel(IMQ(0.5), IMQ(1.0), symmetry=StateSymmetry.from_signs([np.ones(dim), signs]))
     else:  # periodic in every coordinate, periods unlike the data's spread
-        kernel = ProductKernel(Matern52(0.7), IMQ(1.0), periodic=PeriodicCoordinates(tuple(range(dim)),
-                                                                                      tuple(1.5 + np.arange(dim))))
+        kernel = ProductKernel(
+            Matern52(0.7), IMQ(1.0), periodic=PeriodicCoordinates(tuple(range(dim)), tuple(1.5 + np.arange(dim)))
+        )
     m = 1500
     sur = _surrogate(kernel, dim, m, rng)
     assert np.diff(sur.layout().seg).max() > compiled_surrogate.chunk_size(dim)
@@ -176,8 +198,11 @@ def test_compiled_gradient_is_periodic_and_invariant(rng):
 def test_numpy_only_table_holds_only_what_cannot_be_compiled(small_pendulum_data):
     """Every transform and both updates compile: the table's one row is an update rule without a compiled kernel."""
     d = small_pendulum_data
-    for kernel in (Periodic(IMQ(0.3), coordinates=(0,), period=8.0), Symmetric(IMQ(0.3), group=KLEIN),
-                   Symmetric(Scaled(IMQ(0.3), factors=(2.0,)), group=KLEIN)):
+    for kernel in (
+        Periodic(IMQ(0.3), coordinates=(0,), period=8.0),
+        Symmetric(IMQ(0.3), group=KLEIN),
+        Symmetric(Scaled(IMQ(0.3), factors=(2.0,)), group=KLEIN),
+    ):
         parts = lower_state_kernel(kernel)
         for rule in (Midpoint(), SymplecticEuler()):
             assert not [reason for applies, reason in NUMPY_ONLY if applies(parts, rule)]
@@ -187,8 +212,14 @@ def test_numpy_only_table_holds_only_what_cannot_be_compiled(small_pendulum_data
         compiled = False
 
     assert [reason for applies, reason in NUMPY_ONLY if applies(lower_state_kernel(IMQ(0.3)), Outside())]
-    model = SymplecticKernelPredictor(Symmetric(IMQ(0.3), group=KLEIN), IMQ(1.5), IMQ(3.0), max_centers=10,
-                                      update="midpoint", solver=NewtonSolver(backend="numba"))
+    model = SymplecticKernelPredictor(
+        Symmetric(IMQ(0.3), group=KLEIN),
+        IMQ(1.5),
+        IMQ(3.0),
+        max_centers=10,
+        update="midpoint",
+        solver=NewtonSolver(backend="numba"),
+    )
     model.fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
     assert model.numpy_only_ is None and model.backend_for(100, 100) == "numba"
     auto = copy.copy(model).set_params(solver__backend="auto")
@@ -198,8 +229,9 @@ def test_numpy_only_table_holds_only_what_cannot_be_compiled(small_pendulum_data
 # ------------------------------------------------------------------ Periodic and Symmetric together
 def _both_value(kernel, x, y, mu_x, mu_y):
     """``sum_g phi(r_P(x - g y)) k_mu``: the profile and the periodic distance only (the derivatives' oracle)."""
-    return sum(kernel.state.phi(kernel.periodic.distances((x - g @ y)[None])[0]) for g in kernel.symmetry.array) \
-        * kernel.mu.phi(abs(mu_x - mu_y))
+    return sum(
+        kernel.state.phi(kernel.periodic.distances((x - g @ y)[None])[0]) for g in kernel.symmetry.array
+    ) * kernel.mu.phi(abs(mu_x - mu_y))
 
 
 @pytest.mark.parametrize("dim", [2, 4])
@@ -212,9 +244,10 @@ def test_periodic_symmetric_kernel_by_finite_differences_and_compiled(dim, rng):
 
     from _surrogate_oracles import check_gramian_by_finite_differences, check_surrogate_by_finite_differences
 
-    signs = [np.ones(dim), -np.ones(dim)] + ([np.r_[1.0, -1.0] , np.r_[-1.0, 1.0]] if dim == 2 else [])
-    kernel = ProductKernel(IMQ(0.7), IMQ(1.5), periodic=PeriodicCoordinates((0,), (2.5,)),
-                           symmetry=StateSymmetry.from_signs(signs))
+    signs = [np.ones(dim), -np.ones(dim)] + ([np.r_[1.0, -1.0], np.r_[-1.0, 1.0]] if dim == 2 else [])
+    kernel = ProductKernel(
+        IMQ(0.7), IMQ(1.5), periodic=PeriodicCoordinates((0,), (2.5,)), symmetry=StateSymmetry.from_signs(signs)
+    )
     value = partial(_both_value, kernel)
     pts, mu = rng.normal(size=(4, dim)) * 2.0, rng.normal(size=(4, 1))
     check_gramian_by_finite_differences(HBFunctionals(kernel, pts, mu, np.full(4, 0.05)), value, pts, mu)
@@ -239,8 +272,14 @@ def test_periodic_symmetric_pendulum_compiled_equals_numpy(small_pendulum_data, 
     solvers to the stopping rule's bound."""
     d = small_pendulum_data
     kernel = Symmetric(Periodic(Scaled(IMQ(0.3), factors=(1.2,)), coordinates=(0,), period=8.0), group=KLEIN)
-    ref_model = SymplecticKernelPredictor(kernel, mu_kernel=IMQ(2.0), dt_kernel=IMQ(5.0), max_centers=80,
-                                          update="midpoint", solver=NewtonSolver(backend="numpy"))
+    ref_model = SymplecticKernelPredictor(
+        kernel,
+        mu_kernel=IMQ(2.0),
+        dt_kernel=IMQ(5.0),
+        max_centers=80,
+        update="midpoint",
+        solver=NewtonSolver(backend="numpy"),
+    )
     ref_model.fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
     assert ref_model.periodic_ == (0,) and ref_model.symmetry_ == KLEIN
     x, mu, dt = pendulum_queries(rng, 8)

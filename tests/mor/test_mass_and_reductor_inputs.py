@@ -1,10 +1,7 @@
 """Mass matrices that are not positive definite or badly conditioned, and reductor data outside the parameter space."""
 
-
-
 import numpy as np
 import pytest
-
 
 
 # --------------------------------------------------------------------------- mass matrices

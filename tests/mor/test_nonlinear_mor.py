@@ -26,7 +26,9 @@ def setup():
 def _one_step_defect(rom, y, c, h):
     """max |DPhi^T J DPhi - J| of one implicit-midpoint step, central differences."""
     e = 1e-6
-    cols = [(rom.solve(y + e * v, c, h, 1)[0, -1] - rom.solve(y - e * v, c, h, 1)[0, -1]) / (2 * e) for v in np.eye(rom.dim)]
+    cols = [
+        (rom.solve(y + e * v, c, h, 1)[0, -1] - rom.solve(y - e * v, c, h, 1)[0, -1]) / (2 * e) for v in np.eye(rom.dim)
+    ]
     Dphi = np.array(cols).T
     J = canonical_J(rom.dim)
     return np.abs(Dphi.T @ J @ Dphi - J).max()
@@ -97,6 +99,8 @@ def test_galerkin_energy_bounded_and_rk4_order(setup):
     fine = rk4_rollout(rom.pointwise(), y0, [[0.9], [1.0], [1.1]], 1.0, 1, substeps=256)[:, -1]
     hs, errs = [], []
     for r in (16, 24, 32, 48):
-        errs.append(np.abs(rk4_rollout(rom.pointwise(), y0, [[0.9], [1.0], [1.1]], 1.0, 1, substeps=r)[:, -1] - fine).max())
+        errs.append(
+            np.abs(rk4_rollout(rom.pointwise(), y0, [[0.9], [1.0], [1.1]], 1.0, 1, substeps=r)[:, -1] - fine).max()
+        )
         hs.append(1.0 / r)
     assert abs(linregress(np.log(hs), np.log(errs)).slope - 4) < 0.3, errs

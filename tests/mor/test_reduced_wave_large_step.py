@@ -16,8 +16,13 @@ SCRIPT = Path(__file__).resolve().parents[2] / "sympredict_paper" / "studies" / 
 
 def run_quick(out, *extra):
     env = dict(os.environ, OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", NUMBA_NUM_THREADS="1")
-    proc = subprocess.run([sys.executable, str(SCRIPT), "--quick", "--json", str(out), *extra], capture_output=True,
-                          text=True, env=env, timeout=600)
+    proc = subprocess.run(
+        [sys.executable, str(SCRIPT), "--quick", "--json", str(out), *extra],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=600,
+    )
     assert proc.returncode == 0, proc.stderr[-3000:]
     return json.loads(out.read_text()), proc.stdout
 
@@ -31,8 +36,10 @@ def quick(tmp_path_factory):
 def rollout_runs(tmp_path_factory):
     """The rollout search twice, with disjoint test seeds (one of them two seeds)."""
     tmp = tmp_path_factory.mktemp("large_step_rollout")
-    return (run_quick(tmp / "a.json", "--search", "rollout", "--test-seeds", "12"),
-            run_quick(tmp / "b.json", "--search", "rollout", "--test-seeds", "5", "6"))
+    return (
+        run_quick(tmp / "a.json", "--search", "rollout", "--test-seeds", "12"),
+        run_quick(tmp / "b.json", "--search", "rollout", "--test-seeds", "5", "6"),
+    )
 
 
 def test_results_file_structure(quick):
@@ -84,8 +91,12 @@ def _choice(res):
         out[entry["factor"]] = {"chosen_update": entry["chosen_update"]}
         for update, rec in entry["kernels"].items():
             if "selection" in rec:
-                out[entry["factor"]][update] = (rec["kernel"], rec["validation_speeds"], rec["validation_implicit_midpoint"],
-                                                [{k: v for k, v in r.items() if not k.endswith("_s")} for r in rec["selection"]])
+                out[entry["factor"]][update] = (
+                    rec["kernel"],
+                    rec["validation_speeds"],
+                    rec["validation_implicit_midpoint"],
+                    [{k: v for k, v in r.items() if not k.endswith("_s")} for r in rec["selection"]],
+                )
     return out
 
 

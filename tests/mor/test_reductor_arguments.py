@@ -1,12 +1,10 @@
 """The reductor checks its arguments (and its estimator's settings) before any FOM solve, and its messages tell
 steps apart."""
 
-
 import pytest
 
 from sympredict import SymplecticKernelPredictor
 from sympredict.kernels import IMQ
-
 
 
 @pytest.fixture(scope="module")
@@ -19,25 +17,28 @@ def wave_parts():
     return fom, RB
 
 
-@pytest.mark.parametrize("kwargs, match", [
-    ({"dt": "0.1"}, r"dt must be a real number, got '0.1'"),
-    ({"dt": [0.1, 0.2]}, r"dt must be a real number, got \[0.1, 0.2\]"),
-    ({"dt": -0.1}, r"dt must be positive, got -0.1"),
-    ({"n_samples": 0}, r"n_samples must be >= 2, got 0"),
-    ({"n_samples": 2.5}, r"n_samples must be an integer"),
-    ({"n_validation": 0}, r"n_validation must be >= 1, got 0"),
-    ({"radius": -0.1}, r"radius must be >= 0, got -0.1"),
-    ({"radius": "big"}, r"radius must be a real number"),
-    ({"horizon": -1.0}, r"horizon must be positive, got -1.0"),
-    ({"horizon": "1"}, r"horizon must be a real number"),
-    ({"max_centers": 0}, r"max_centers must be >= 1, got 0"),
-    ({"estimator": "imq"}, r"estimator must be an estimator"),
-    ({"estimator": SymplecticKernelPredictor}, r"estimator must be an estimator"),
-    ({"state": "log"}, r"TrainingScaling state must be one of"),
-    ({"split": "A"}, r"split must be a QuadraticSplit \(e.g. split=QuadraticSplit\(A\)\) or None, got 'A'"),
-    ({"samples": "reduced"}, r"samples must be GalerkinSamples\(...\), ProjectedTrajectories\(...\)"),
-    ({"check_existence": "no"}, r"check_existence must be True or False"),
-])
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        ({"dt": "0.1"}, r"dt must be a real number, got '0.1'"),
+        ({"dt": [0.1, 0.2]}, r"dt must be a real number, got \[0.1, 0.2\]"),
+        ({"dt": -0.1}, r"dt must be positive, got -0.1"),
+        ({"n_samples": 0}, r"n_samples must be >= 2, got 0"),
+        ({"n_samples": 2.5}, r"n_samples must be an integer"),
+        ({"n_validation": 0}, r"n_validation must be >= 1, got 0"),
+        ({"radius": -0.1}, r"radius must be >= 0, got -0.1"),
+        ({"radius": "big"}, r"radius must be a real number"),
+        ({"horizon": -1.0}, r"horizon must be positive, got -1.0"),
+        ({"horizon": "1"}, r"horizon must be a real number"),
+        ({"max_centers": 0}, r"max_centers must be >= 1, got 0"),
+        ({"estimator": "imq"}, r"estimator must be an estimator"),
+        ({"estimator": SymplecticKernelPredictor}, r"estimator must be an estimator"),
+        ({"state": "log"}, r"TrainingScaling state must be one of"),
+        ({"split": "A"}, r"split must be a QuadraticSplit \(e.g. split=QuadraticSplit\(A\)\) or None, got 'A'"),
+        ({"samples": "reduced"}, r"samples must be GalerkinSamples\(...\), ProjectedTrajectories\(...\)"),
+        ({"check_existence": "no"}, r"check_existence must be True or False"),
+    ],
+)
 def test_reductor_checks_its_arguments_up_front(wave_parts, monkeypatch, kwargs, match):
     from sympredict.mor import SymplecticKernelReductor
 
@@ -71,13 +72,17 @@ def test_reductor_checks_its_predictors_settings_before_sampling(monkeypatch):
 
     demo = pymordemos.discretize_fom(T=0.5)  # its stiffness scaled by c^2 / 0.01, as in test_mor.py
     blocks = demo.H_op.blocks
-    fom = demo.with_(H_op=BlockDiagonalOperator([
-        LincombOperator([blocks[0, 0]], [ExpressionParameterFunctional("c[0]**2/0.01", {"c": 1})]), blocks[1, 1]]))
+    fom = demo.with_(
+        H_op=BlockDiagonalOperator(
+            [LincombOperator([blocks[0, 0]], [ExpressionParameterFunctional("c[0]**2/0.01", {"c": 1})]), blocks[1, 1]]
+        )
+    )
     RB = psd_complex_svd(fom.solve(fom.parameters.parse(0.1)), 2)
     train = fom.parameters.space(0.08, 0.12).sample_uniformly(2)
     monkeypatch.setattr(type(fom), "solve", lambda *a, **k: (_ for _ in ()).throw(AssertionError("FOM solved")))
     with pytest.raises(ValueError, match="update must be one of"):
         SymplecticKernelReductor(fom, RB, 0.05, GalerkinSamples(train), SymplecticKernelPredictor(update="leapfrog"))
+
     class NoChoice(SymplecticKernelPredictor):  # an estimator that does not choose an open mu_kernel itself
         _chooses_open_factors = False
 

@@ -10,8 +10,16 @@ from sympredict import SymplecticKernelPredictor
 from sympredict.estimators.auto import KernelSearch
 from sympredict.interpolation.greedy import ExactGreedy
 from sympredict.kernels import IMQ
-from sympredict.mor import (DefaultEstimator, GalerkinSamples, GivenSamples, GivenTrajectories, ProjectedTrajectories,
-                            QuadraticSplit, SymplecticKernelReductor, TrainingScaling)
+from sympredict.mor import (
+    DefaultEstimator,
+    GalerkinSamples,
+    GivenSamples,
+    GivenTrajectories,
+    ProjectedTrajectories,
+    QuadraticSplit,
+    SymplecticKernelReductor,
+    TrainingScaling,
+)
 
 
 @pytest.fixture(scope="module")
@@ -21,8 +29,9 @@ def small_fe(small_fe_wave):
 
 
 def _small_search():
-    return KernelSearch(families=("imq",), shapes=(0.5, 1.0), parameter_shapes=(0.5,), m_star=20, refine_sweeps=0,
-                        max_samples=200)
+    return KernelSearch(
+        families=("imq",), shapes=(0.5, 1.0), parameter_shapes=(0.5,), m_star=20, refine_sweeps=0, max_samples=200
+    )
 
 
 # ------------------------------------------------------------------ the estimator as one argument
@@ -33,8 +42,15 @@ def test_the_estimator_is_one_argument(small_fe):
     samples = ProjectedTrajectories(train, n_validation=1)
     # pre-release names and the settings now held by the parts are gone (no shim): a budget beside the estimator
     # cannot contradict it
-    for old in ({"predictor": est}, {"max_centers": 50}, {"data": "projected"}, {"state_kernels": [IMQ(1.0)]},
-                {"split_fallback": None}, {"trajectories": None}, {"n_samples": 10}):
+    for old in (
+        {"predictor": est},
+        {"max_centers": 50},
+        {"data": "projected"},
+        {"state_kernels": [IMQ(1.0)]},
+        {"split_fallback": None},
+        {"trajectories": None},
+        {"n_samples": 10},
+    ):
         with pytest.raises(TypeError, match=f"unexpected keyword argument '{next(iter(old))}'"):
             SymplecticKernelReductor(fom, RB, 4 * h, samples, est, **old)
     with warnings.catch_warnings():
@@ -48,10 +64,12 @@ def test_estimator_knobs_reach_the_fit_and_its_search_choice_is_recorded(small_f
     search (KernelSearch, no kernels given) chooses the kernels; the reductor records what it chose."""
     fom, space, train, RB = small_fe
     h = fom.T / fom.time_stepper.nt
-    est = SymplecticKernelPredictor(max_centers=25, update="midpoint", trainer=ExactGreedy(tol=1e-12, power_tol=1e-9),
-                                    search=_small_search())
-    red = SymplecticKernelReductor(fom, RB, 4 * h, ProjectedTrajectories(train, parameter_space=space, n_validation=1),
-                                   estimator=est)
+    est = SymplecticKernelPredictor(
+        max_centers=25, update="midpoint", trainer=ExactGreedy(tol=1e-12, power_tol=1e-9), search=_small_search()
+    )
+    red = SymplecticKernelReductor(
+        fom, RB, 4 * h, ProjectedTrajectories(train, parameter_space=space, n_validation=1), estimator=est
+    )
     red.reduce()
     fitted = red.predictor_
     assert not est.is_fitted and fitted is not est
@@ -88,8 +106,14 @@ def sheared_oscillators(c=-2.0, w=(1.0, 0.7)):
 
 def _type2(scaling, dt):
     fom, RB = sheared_oscillators()
-    red = SymplecticKernelReductor(fom, RB, dt, GalerkinSamples(n_samples=40, n_validation=1),
-                                   SymplecticKernelPredictor(update="symplectic_euler"), scaling=TrainingScaling(scaling))
+    red = SymplecticKernelReductor(
+        fom,
+        RB,
+        dt,
+        GalerkinSamples(n_samples=40, n_validation=1),
+        SymplecticKernelPredictor(update="symplectic_euler"),
+        scaling=TrainingScaling(scaling),
+    )
     red.training_data()
     return red
 
@@ -118,7 +142,7 @@ def test_conjugated_system_has_the_conjugated_flow_jacobian():
     J = canonical_J(4)
     M = 1.7 * np.array([[2.0, 0, 0.3, 0], [0, 0.5, 0, 0], [0, 0, 0.5, 0], [0, 0, 0, 2.0]])
     M[:, 2] += 0.3 * M[:, 0]  # a shear: M^T J M = 1.7^2 J still
-    assert np.abs(M.T @ J @ M - 1.7 ** 2 * J).max() < 1e-12
+    assert np.abs(M.T @ J @ M - 1.7**2 * J).max() < 1e-12
     x = np.ones((1, 4))
     D = system.flow_jacobian(x, None, 0.9)[0]
     D_scaled = _conjugated_system(system, M).flow_jacobian(x, None, 0.9)[0]
@@ -129,8 +153,13 @@ def test_conjugated_system_has_the_conjugated_flow_jacobian():
 def test_given_trajectories_give_the_rom_of_the_fom_solving_path(small_fe, monkeypatch):
     fom, space, train, RB = small_fe
     dt = 4 * fom.T / fom.time_stepper.nt
-    solved = SymplecticKernelReductor(fom, RB, dt, ProjectedTrajectories(train, parameter_space=space, n_validation=1),
-                                      DefaultEstimator(max_centers=60))
+    solved = SymplecticKernelReductor(
+        fom,
+        RB,
+        dt,
+        ProjectedTrajectories(train, parameter_space=space, n_validation=1),
+        DefaultEstimator(max_centers=60),
+    )
     rom = solved.reduce()
     val_mus = solved.validation_parameters()
     U = [fom.solve(mu) for mu in train]
@@ -140,16 +169,24 @@ def test_given_trajectories_give_the_rom_of_the_fom_solving_path(small_fe, monke
     monkeypatch.setattr(type(fom), "solve", lambda *a, **k: (_ for _ in ()).throw(AssertionError("FOM solved")))
     arrays = np.stack([u.to_numpy().T for u in U])  # (P, K+1, N)
     for trajectories in ((U, train), (arrays, [{"c": float(m["c"][0])} for m in train])):
-        given = SymplecticKernelReductor(fom, RB, dt, GivenTrajectories(*trajectories, validation=(U_val, val_mus),
-                                                                        parameter_space=space),
-                                         DefaultEstimator(max_centers=60))
+        given = SymplecticKernelReductor(
+            fom,
+            RB,
+            dt,
+            GivenTrajectories(*trajectories, validation=(U_val, val_mus), parameter_space=space),
+            DefaultEstimator(max_centers=60),
+        )
         out = given.reduce().solve(test_mu).to_numpy()
         assert len(given.train_data_) == len(solved.train_data_)
         np.testing.assert_allclose(out, ref, rtol=0, atol=1e-12 * np.abs(ref).max())
     # without validation trajectories an estimator that holds out its own samples still trains
-    SymplecticKernelReductor(fom, RB, dt, GivenTrajectories(U, train, parameter_space=space),
-                             estimator=SymplecticKernelPredictor(max_centers=20, update="symplectic_euler",
-                                                                 search=_small_search())).reduce()
+    SymplecticKernelReductor(
+        fom,
+        RB,
+        dt,
+        GivenTrajectories(U, train, parameter_space=space),
+        estimator=SymplecticKernelPredictor(max_centers=20, update="symplectic_euler", search=_small_search()),
+    ).reduce()
 
 
 def test_given_trajectories_are_checked(small_fe):
@@ -221,7 +258,9 @@ def test_split_fallback_where_no_generating_function_exists_without_it():
         SymplecticKernelReductor(fom, RB, dt, samples, est, **kw).training_data()
     with pytest.raises(ValueError, match="neither generating function exists"):
         SymplecticKernelReductor(fom, RB, dt, samples, **kw).training_data()
-    red = SymplecticKernelReductor(fom, RB, dt, samples, est, split=QuadraticSplit(QuadraticPart([H]), fallback=True), **kw)
+    red = SymplecticKernelReductor(
+        fom, RB, dt, samples, est, split=QuadraticSplit(QuadraticPart([H]), fallback=True), **kw
+    )
     rom = red.reduce()
     assert red.choice_["split"] == "split_fallback" and "without a split" in red.choice_["reason"]
     assert type(red.predictor_).__name__ == "SplitKernelPredictor"
@@ -230,8 +269,17 @@ def test_split_fallback_where_no_generating_function_exists_without_it():
     np.testing.assert_allclose(red.flow_map_.step(x, dt=dt), exact, rtol=0, atol=1e-10 * np.abs(exact).max())
     assert len(rom.solve()) == round(fom.T / dt) + 1
     with pytest.raises(ValueError, match="nor for the remainder S"):
-        SymplecticKernelReductor(fom, RB, dt, samples, est, split=QuadraticSplit(QuadraticPart([0.05 * H]), fallback=True),
-                                 **kw).training_data()
+        SymplecticKernelReductor(
+            fom, RB, dt, samples, est, split=QuadraticSplit(QuadraticPart([0.05 * H]), fallback=True), **kw
+        ).training_data()
     with pytest.raises(ValueError, match="check_existence=False never checks"):  # a fallback decided by no check
-        SymplecticKernelReductor(fom, RB, dt, samples, est, split=QuadraticSplit(QuadraticPart([H]), fallback=True),
-                                 check_existence=False, **kw)
+        SymplecticKernelReductor(
+            fom,
+            RB,
+            dt,
+            samples,
+            est,
+            split=QuadraticSplit(QuadraticPart([H]), fallback=True),
+            check_existence=False,
+            **kw,
+        )

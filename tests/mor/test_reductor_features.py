@@ -15,8 +15,14 @@ from sympredict.interpolation.greedy import ExactGreedy
 from sympredict.kernels import IMQ, Matern52
 from sympredict.kernels.transforms import Scaled
 from sympredict.flowmap.scaling import SymplecticScaling
-from sympredict.mor import (GalerkinSamples, GivenSamples, QuadraticSplit, SymplecticKernelReductor, TrainingScaling,
-                            ValidationSelection)
+from sympredict.mor import (
+    GalerkinSamples,
+    GivenSamples,
+    QuadraticSplit,
+    SymplecticKernelReductor,
+    TrainingScaling,
+    ValidationSelection,
+)
 from sympredict.mor.basis import SymplecticROM, complex_svd_basis, symplecticity_of_basis
 from sympredict.systems.flowmaps import flow_map_data, sample_energy_ellipsoid
 from sympredict.systems.wave import WaveFOM
@@ -64,9 +70,14 @@ def test_unscaled_kernel_search_is_the_hand_made_selection_and_fit(wave_rom):
     """No scaling and kernel candidates: the reductor's model is the one select_kernels + fit gave by hand."""
     fom, rom, train, val = wave_rom
     states, mus = [IMQ(3e-3), IMQ(1e-2), Matern52(1e-2)], [IMQ(3.0), IMQ(10.0)]
-    red = given(rom, train, val, SymplecticKernelPredictor(max_centers=60, trainer=ExactGreedy(tol=1e-10)),
-                scaling=TrainingScaling("none", "none", "none"),
-                selection=ValidationSelection(state_kernels=states, mu_kernels=mus, m_star=25))
+    red = given(
+        rom,
+        train,
+        val,
+        SymplecticKernelPredictor(max_centers=60, trainer=ExactGreedy(tol=1e-10)),
+        scaling=TrainingScaling("none", "none", "none"),
+        selection=ValidationSelection(state_kernels=states, mu_kernels=mus, m_star=25),
+    )
     kernel_rom = red.reduce()
     sel = select_kernels(train, val, states, mus, m_star=25)
     assert (red.selection_.state, red.selection_.mu, red.selection_.score) == (sel.state, sel.mu, sel.score)
@@ -90,15 +101,26 @@ def test_given_data_reproduce_the_reductors_own_sampling(wave_rom):
     fom, rom, _, _ = wave_rom
     mus = [fom.model.parameters.parse(c**2) for c in (0.2, 0.3)]
     predictor = SymplecticKernelPredictor(IMQ(0.3), IMQ(1.0), max_centers=40)
-    own = SymplecticKernelReductor(fom.model, rom.RB, 0.1, GalerkinSamples(mus, n_samples=60, n_validation=2), predictor)
+    own = SymplecticKernelReductor(
+        fom.model, rom.RB, 0.1, GalerkinSamples(mus, n_samples=60, n_validation=2), predictor
+    )
     own.reduce()
     train, val = own.train_data_, own.validation_data_
-    handed = SymplecticKernelReductor(fom.model, rom.RB, 0.1, GivenSamples(
-        train, val, parameter_space=fom.model.parameters.space(0.04, 0.09)), predictor)
+    handed = SymplecticKernelReductor(
+        fom.model,
+        rom.RB,
+        0.1,
+        GivenSamples(train, val, parameter_space=fom.model.parameters.space(0.04, 0.09)),
+        predictor,
+    )
     handed.reduce()
     x = val.x0[:5]
-    np.testing.assert_allclose(handed.flow_map_.step(x, mu=val.mu[:5]), own.flow_map_.step(x, mu=val.mu[:5]),
-                               rtol=0, atol=1e-13 * np.abs(x).max())
+    np.testing.assert_allclose(
+        handed.flow_map_.step(x, mu=val.mu[:5]),
+        own.flow_map_.step(x, mu=val.mu[:5]),
+        rtol=0,
+        atol=1e-13 * np.abs(x).max(),
+    )
     assert handed.predictor_.n_centers_ == own.predictor_.n_centers_
 
 
@@ -106,9 +128,14 @@ def test_given_data_reproduce_the_reductors_own_sampling(wave_rom):
 def test_the_learned_step_is_symplectic_under_every_scaling(wave_rom, scaling):
     fom, rom, train, val = wave_rom
     state, param, time = scaling
-    red = given(rom, train, val, SymplecticKernelPredictor(max_centers=60, trainer=ExactGreedy(tol=1e-10)),
-                scaling=TrainingScaling(state, param, time),
-                selection=ValidationSelection([IMQ(3e-3), IMQ(1e-2), IMQ(0.1), IMQ(0.3)], [IMQ(1.0), IMQ(10.0)], m_star=30))
+    red = given(
+        rom,
+        train,
+        val,
+        SymplecticKernelPredictor(max_centers=60, trainer=ExactGreedy(tol=1e-10)),
+        scaling=TrainingScaling(state, param, time),
+        selection=ValidationSelection([IMQ(3e-3), IMQ(1e-2), IMQ(0.1), IMQ(0.3)], [IMQ(1.0), IMQ(10.0)], m_star=30),
+    )
     red.reduce()
     res = assert_symplectic_step(red.flow_map_, val.x0[:4], mu=val.mu[:4], dt=0.1, atol=1e-8, fd_h=1e-3, fd_atol=1e-3)
     assert res["analytic"] < 1e-8  # DPhi^T J DPhi = J
@@ -116,16 +143,24 @@ def test_the_learned_step_is_symplectic_under_every_scaling(wave_rom, scaling):
 
 def test_kernel_search_keeps_the_given_predictors_parts(wave_rom):
     fom, rom, train, val = wave_rom
-    template = SymplecticKernelPredictor(Scaled(IMQ(1.0), factors=(2.0, 0.5)), IMQ(1.0), update="midpoint", max_centers=40,
-                                         trainer=ExactGreedy(tol=1e-9))
+    template = SymplecticKernelPredictor(
+        Scaled(IMQ(1.0), factors=(2.0, 0.5)), IMQ(1.0), update="midpoint", max_centers=40, trainer=ExactGreedy(tol=1e-9)
+    )
     red = given(rom, train, val, template, selection=ValidationSelection([IMQ(0.03), IMQ(0.3)], m_star=20))
     red.reduce()
     chosen = red.predictor_
     assert template.get_params()["state_kernel"] == Scaled(IMQ(1.0), factors=(2.0, 0.5)) and not template.is_fitted
-    assert isinstance(chosen.state_kernel, Scaled) and tuple(chosen.state_kernel.factors) == (2.0, 0.5)  # the candidate went inside
+    assert isinstance(chosen.state_kernel, Scaled) and tuple(chosen.state_kernel.factors) == (
+        2.0,
+        0.5,
+    )  # the candidate went inside
     # among the candidates, or one grid step beyond an edge (select_kernels widens the grid there)
-    assert chosen.state_kernel.radial == red.selection_.state and red.selection_.state in [IMQ(3e-3), IMQ(0.03), IMQ(0.3),
-                                                                                         IMQ(3.0)]
+    assert chosen.state_kernel.radial == red.selection_.state and red.selection_.state in [
+        IMQ(3e-3),
+        IMQ(0.03),
+        IMQ(0.3),
+        IMQ(3.0),
+    ]
     assert chosen.mu_kernel == IMQ(1.0) and chosen.update == "midpoint" and chosen.trainer.tol == 1e-9
     assert {row["mu"]["eps"] for row in red.selection_.table} == {1.0}  # only the state kernel was searched
     # a given predictor without candidates is trained as given: no search
@@ -178,13 +213,24 @@ def sine_gordon(small_sine_gordon):
 def sg_reductor(sine_gordon, pairs, predictor, validation=None, **kw):
     fom, gal, RB, Y, c = sine_gordon
     space = fom.model.parameters.space({"amplitude": (0.5, 1.5), "c": (0.8, 1.2)})
-    return SymplecticKernelReductor(fom.model, RB, 0.1, GivenSamples(pairs, validation, parameter_space=space),
-                                    predictor, flow_parameters=("c",), **kw)
+    return SymplecticKernelReductor(
+        fom.model,
+        RB,
+        0.1,
+        GivenSamples(pairs, validation, parameter_space=space),
+        predictor,
+        flow_parameters=("c",),
+        **kw,
+    )
 
 
 def trajectory_pairs_of(Y, c):
-    return FlowMapData(Y[:, :-1].reshape(-1, Y.shape[-1]), Y[:, 1:].reshape(-1, Y.shape[-1]),
-                       np.repeat(c, Y.shape[1] - 1)[:, None], 0.1)
+    return FlowMapData(
+        Y[:, :-1].reshape(-1, Y.shape[-1]),
+        Y[:, 1:].reshape(-1, Y.shape[-1]),
+        np.repeat(c, Y.shape[1] - 1)[:, None],
+        0.1,
+    )
 
 
 def test_trajectory_data_pairs_are_the_consecutive_states():
@@ -216,10 +262,14 @@ def test_flow_parameters_leave_out_the_initial_datas_parameters(sine_gordon):
     assert np.abs(U - Y[3]).max() < 0.1 * np.abs(Y[3]).max()
     assert_symplectic_step(red.flow_map_, Y[3, 3:5], mu=[[1.2]], dt=0.1, atol=1e-8, fd_h=1e-3, fd_atol=1e-3)
     with pytest.raises(ValueError, match=r"depends on \['c'\].*leaves out \['c'\]"):
-        SymplecticKernelReductor(fom.model, RB, 0.1, GivenSamples(trajectory_pairs_of(Y, c)), p, flow_parameters=("amplitude",))
+        SymplecticKernelReductor(
+            fom.model, RB, 0.1, GivenSamples(trajectory_pairs_of(Y, c)), p, flow_parameters=("amplitude",)
+        )
     with pytest.raises(ValueError, match="not parameters of the FOM"):
         SymplecticKernelReductor(fom.model, RB, 0.1, GivenSamples(trajectory_pairs_of(Y, c)), p, flow_parameters=("k",))
-    with pytest.raises(ValueError, match="parameter vectors of dimension 1, the flow map's parameters have dimension 2"):
+    with pytest.raises(
+        ValueError, match="parameter vectors of dimension 1, the flow map's parameters have dimension 2"
+    ):
         SymplecticKernelReductor(fom.model, RB, 0.1, GivenSamples(trajectory_pairs_of(Y, c)), p)
 
 
@@ -231,12 +281,21 @@ def hand_made_flow(pairs, lam, dt=0.1, quadratic=None, validation=None):
 
     st = SymplecticScaling("diag").fit(np.concatenate([pairs.x0, pairs.x1]))
     ms = BoxScaling().fit(pairs.mu, np.array([0.8]), np.array([1.2]))
-    model = SymplecticKernelPredictor(None, mu_kernel=IMQ(1.0), max_centers=50,
-                                      trainer=ExactGreedy(tol=1e-9, regularization=lam))
+    model = SymplecticKernelPredictor(
+        None, mu_kernel=IMQ(1.0), max_centers=50, trainer=ExactGreedy(tol=1e-9, regularization=lam)
+    )
     if quadratic is not None:
         model = SplitKernelPredictor(model, scaled_quadratic_part(quadratic, st, ms, dt))
-    val = None if validation is None else (st.transform(validation.x0), st.transform(validation.x1),
-                                           ms.transform(validation.mu), np.ones(len(validation)))
+    val = (
+        None
+        if validation is None
+        else (
+            st.transform(validation.x0),
+            st.transform(validation.x1),
+            ms.transform(validation.mu),
+            np.ones(len(validation)),
+        )
+    )
     model.fit(st.transform(pairs.x0), st.transform(pairs.x1), mu=ms.transform(pairs.mu), dt=1.0, validation=val)
     return NormalizedFlowMap(model, st, ms, dt)
 
@@ -250,28 +309,43 @@ def test_regularization_chosen_by_rollouts_on_validation_trajectories(sine_gordo
     held = np.array([False, True, False, False])
     train, val = trajectory_pairs_of(Y[~held], c[~held]), TrajectoryData(Y[held], c[held, None], 0.1)
     lams = (1e-8, 1e-4, 1e-1)
-    red = sg_reductor(sine_gordon, train, SymplecticKernelPredictor(None, IMQ(1.0), max_centers=50,
-                                                                      trainer=ExactGreedy(tol=1e-9)),
-                      validation=val, selection=ValidationSelection(regularizations=lams))
+    red = sg_reductor(
+        sine_gordon,
+        train,
+        SymplecticKernelPredictor(None, IMQ(1.0), max_centers=50, trainer=ExactGreedy(tol=1e-9)),
+        validation=val,
+        selection=ValidationSelection(regularizations=lams),
+    )
     red.reduce()
     table = []
     for lam in (0.0, *lams):
         flow = hand_made_flow(train, lam, validation=val.pairs())
         pred = flow.rollout(Y[held, 0], 20, mu=c[held, None], dt=0.1)[:, 1:]
-        table.append((lam, float(np.mean(np.linalg.norm(pred - Y[held, 1:], axis=-1) / np.linalg.norm(Y[held, 1:], axis=-1)))))
+        table.append(
+            (lam, float(np.mean(np.linalg.norm(pred - Y[held, 1:], axis=-1) / np.linalg.norm(Y[held, 1:], axis=-1))))
+        )
     assert [(r["regularization"], r["score"]) for r in red.regularization_table_] == table
     assert red.regularization_ == min((s, lam) for lam, s in table)[1]
     assert red.predictor_.trainer.regularization == red.regularization_
     assert red.validation_score(red.flow_map_) == min(s for _, s in table)
     # validation samples: the one-step error
     pairs = val.pairs()
-    one_step = np.mean(np.linalg.norm(red.flow_map_.step(pairs.x0, mu=pairs.mu, dt=0.1) - pairs.x1, axis=-1)
-                       / np.linalg.norm(pairs.x1, axis=-1))
+    one_step = np.mean(
+        np.linalg.norm(red.flow_map_.step(pairs.x0, mu=pairs.mu, dt=0.1) - pairs.x1, axis=-1)
+        / np.linalg.norm(pairs.x1, axis=-1)
+    )
     assert red.validation_score(red.flow_map_, pairs) == pytest.approx(one_step, rel=1e-12)
-    with pytest.raises(ValueError, match=r"regularizations=\(1e-08, 0.0001, 0.1\)\) scores each ridge term on "
-                                         r"validation data: give GivenSamples\(..., validation=...\)"):
-        sg_reductor(sine_gordon, train, SymplecticKernelPredictor(None, IMQ(1.0)),
-                    selection=ValidationSelection(regularizations=lams))
+    with pytest.raises(
+        ValueError,
+        match=r"regularizations=\(1e-08, 0.0001, 0.1\)\) scores each ridge term on "
+        r"validation data: give GivenSamples\(..., validation=...\)",
+    ):
+        sg_reductor(
+            sine_gordon,
+            train,
+            SymplecticKernelPredictor(None, IMQ(1.0)),
+            selection=ValidationSelection(regularizations=lams),
+        )
     with pytest.raises(ValueError, match="regularizations must be >= 0"):
         sg_reductor(sine_gordon, train, None, selection=ValidationSelection(regularizations=(-1.0,)))
     with pytest.raises(ValueError, match="trajectories of dimension 4"):
@@ -283,8 +357,12 @@ def test_split_is_the_hand_made_split_predictor_and_symplectic(sine_gordon):
     fom, gal, RB, Y, c = sine_gordon
     quad = gal.quadratic_part(mass=True)
     train = trajectory_pairs_of(Y, c)
-    red = sg_reductor(sine_gordon, train, SymplecticKernelPredictor(None, IMQ(1.0), max_centers=50,
-                                                                      trainer=ExactGreedy(tol=1e-9)), split=QuadraticSplit(quad))
+    red = sg_reductor(
+        sine_gordon,
+        train,
+        SymplecticKernelPredictor(None, IMQ(1.0), max_centers=50, trainer=ExactGreedy(tol=1e-9)),
+        split=QuadraticSplit(quad),
+    )
     red.reduce()
     assert type(red.predictor_).__name__ == "SplitKernelPredictor"
     by_hand = hand_made_flow(train, 0.0, quadratic=quad)
@@ -313,7 +391,9 @@ def test_split_is_the_hand_made_split_predictor_and_symplectic(sine_gordon):
     with pytest.raises(ValueError, match="inner SymplecticKernelPredictor as estimator"):
         from sympredict.flowmap.splitting import SplitKernelPredictor
 
-        sg_reductor(sine_gordon, train, SplitKernelPredictor(SymplecticKernelPredictor(), quad), split=QuadraticSplit(quad))
+        sg_reductor(
+            sine_gordon, train, SplitKernelPredictor(SymplecticKernelPredictor(), quad), split=QuadraticSplit(quad)
+        )
 
 
 def test_split_of_the_whole_quadratic_hamiltonian_is_its_exact_flow(wave_rom):
@@ -326,10 +406,15 @@ def test_split_of_the_whole_quadratic_hamiltonian_is_its_exact_flow(wave_rom):
     fom, rom, _, _ = wave_rom
     mus = [fom.model.parameters.parse(c**2) for c in (0.2, 0.25, 0.3)]
     H0, H1 = rom.system.H0, rom.system.H1  # H(mu) = H0 + mu H1
-    red = SymplecticKernelReductor(fom.model, rom.RB, 0.1, GalerkinSamples(mus, n_samples=40, n_validation=2),
-                                   SymplecticKernelPredictor(max_centers=30),
-                                   split=QuadraticSplit(QuadraticPart([H0, H1], [[0.0], [1.0]])),
-                                   selection=ValidationSelection([IMQ(0.1), IMQ(1.0)], [IMQ(1.0)], m_star=10))
+    red = SymplecticKernelReductor(
+        fom.model,
+        rom.RB,
+        0.1,
+        GalerkinSamples(mus, n_samples=40, n_validation=2),
+        SymplecticKernelPredictor(max_centers=30),
+        split=QuadraticSplit(QuadraticPart([H0, H1], [[0.0], [1.0]])),
+        selection=ValidationSelection([IMQ(0.1), IMQ(1.0)], [IMQ(1.0)], m_star=10),
+    )
     red.reduce()
     assert hasattr(red, "selection_")
     x = red.validation_data_.x0[:5]

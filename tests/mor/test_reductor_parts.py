@@ -5,8 +5,15 @@ import numpy as np
 import pytest
 
 from sympredict.data import FlowMapData
-from sympredict.mor import (DefaultEstimator, GivenTrajectories, ProjectedTrajectories, QuadraticSplit,
-                            SymplecticKernelReductor, TrainingScaling, ValidationSelection)
+from sympredict.mor import (
+    DefaultEstimator,
+    GivenTrajectories,
+    ProjectedTrajectories,
+    QuadraticSplit,
+    SymplecticKernelReductor,
+    TrainingScaling,
+    ValidationSelection,
+)
 from sympredict.mor.existence import check_from_data
 from sympredict.systems.flowmaps import LinearHamiltonianSystem, check_generating_function
 from sympredict.systems.linear_flow import QuadraticPart
@@ -105,15 +112,19 @@ def test_the_default_estimator_is_estimator_none(small_fe):
     b = SymplecticKernelReductor(fom, RB, 4 * h, samples, DefaultEstimator(1000))
     a.reduce(), b.reduce()
     x = a.validation_data_.x0[:4]
-    np.testing.assert_array_equal(a.flow_map_.step(x, mu=a.validation_data_.mu[:4]),
-                                  b.flow_map_.step(x, mu=a.validation_data_.mu[:4]))
+    np.testing.assert_array_equal(
+        a.flow_map_.step(x, mu=a.validation_data_.mu[:4]), b.flow_map_.step(x, mu=a.validation_data_.mu[:4])
+    )
 
 
 def test_parts_check_their_own_settings():
     with pytest.raises(ValueError, match="DefaultEstimator max_centers must be >= 1, got 0"):
         DefaultEstimator(0).check()
-    with pytest.raises(ValueError, match=r"TrainingScaling state must be one of \('diag', 'uniform', 'williamson', "
-                                         r"'none'\), got 'log'"):
+    with pytest.raises(
+        ValueError,
+        match=r"TrainingScaling state must be one of \('diag', 'uniform', 'williamson', "
+        r"'none'\), got 'log'",
+    ):
         TrainingScaling("log").check()
     with pytest.raises(ValueError, match="ValidationSelection regularizations must be >= 0"):
         ValidationSelection(regularizations=[1e-6, -1.0]).check()

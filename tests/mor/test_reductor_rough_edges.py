@@ -20,8 +20,13 @@ def small_fe(small_fe_wave):
 def small_rom(small_fe):
     fom, coords, space, train, RB = small_fe
     h = fom.T / fom.time_stepper.nt
-    red = SymplecticKernelReductor(fom, RB, 4 * h, ProjectedTrajectories(train, parameter_space=space, n_validation=1),
-                                   DefaultEstimator(max_centers=200))
+    red = SymplecticKernelReductor(
+        fom,
+        RB,
+        4 * h,
+        ProjectedTrajectories(train, parameter_space=space, n_validation=1),
+        DefaultEstimator(max_centers=200),
+    )
     return red, red.reduce()
 
 
@@ -74,7 +79,7 @@ def test_mass_coordinates_are_symplectic_and_carry_the_energy():
         A = co.canonical_stiffness(K)
         Kd = K.toarray()
         H = 0.5 * np.einsum("bi,ij,bj->b", p, np.linalg.inv(Mm), p) + 0.5 * np.einsum("bi,ij,bj->b", q, Kd, q)
-        Ht = 0.5 * (pt ** 2).sum(1) + 0.5 * np.einsum("bi,ij,bj->b", qt, A, qt)
+        Ht = 0.5 * (pt**2).sum(1) + 0.5 * np.einsum("bi,ij,bj->b", qt, A, qt)
         np.testing.assert_allclose(Ht, H, rtol=1e-12)
         np.testing.assert_allclose(co.velocity(pt), p @ np.linalg.inv(Mm), atol=1e-11)
 
@@ -95,9 +100,10 @@ def test_fe_wave_fom_conserves_the_mass_matrix_energy(small_fe):
     M, K, _ = fe_wave_matrices(16)
     U = fom.solve(fom.parameters.parse(1.1))
     X = np.vstack([b.to_numpy() for b in U.blocks]).T  # (K+1, 2N) canonical
-    q, p = coords.from_canonical(X[:, : coords.N], X[:, coords.N:])
-    E = 0.5 * np.einsum("ki,ij,kj->k", p, np.linalg.inv(M.toarray()), p) + 0.5 * 1.1 ** 2 * np.einsum(
-        "ki,ij,kj->k", q, K.toarray(), q)
+    q, p = coords.from_canonical(X[:, : coords.N], X[:, coords.N :])
+    E = 0.5 * np.einsum("ki,ij,kj->k", p, np.linalg.inv(M.toarray()), p) + 0.5 * 1.1**2 * np.einsum(
+        "ki,ij,kj->k", q, K.toarray(), q
+    )
     np.testing.assert_allclose(E, E[0], rtol=1e-9)  # implicit midpoint conserves quadratic invariants
 
 
@@ -141,8 +147,11 @@ def test_projected_step_checked_before_any_solve_with_exact_numbers(small_fe):
             raise AssertionError("the FOM was solved before dt was checked")
 
     bare = fom.with_(new_type=NoSolve)
-    with pytest.raises(ValueError, match=r"h = T / nt = 0\.5 / 100 = 0\.005; dt = 0\.012 is 2\.4 output steps: use "
-                                         r"dt = k \* h, e\.g\. 0\.01 or 0\.015"):
+    with pytest.raises(
+        ValueError,
+        match=r"h = T / nt = 0\.5 / 100 = 0\.005; dt = 0\.012 is 2\.4 output steps: use "
+        r"dt = k \* h, e\.g\. 0\.01 or 0\.015",
+    ):
         SymplecticKernelReductor(bare, RB, 0.012, ProjectedTrajectories(train))
     with pytest.raises(ValueError, match=r"horizon = 0\.75 is past the FOM's final time T = 0\.5"):
         SymplecticKernelReductor(bare, RB, 0.01, ProjectedTrajectories(train, horizon=0.75))

@@ -69,7 +69,9 @@ def test_an_unreachable_target_warns_once_naming_the_limit_and_keeps_the_best(wa
     assert "target_error=1e-09 not met" in message and "Limit:" in message
     assert any(limit in message for limit in ("kernel breakdown", "centre cap", "the data"))
     assert not red.predictor_.diagnostics_.target_met
-    assert red.predictor_.n_centers_ >= 1 and np.all(np.isfinite(red.predictor_.prefix_errors_[red.predictor_.n_centers_]))
+    assert red.predictor_.n_centers_ >= 1 and np.all(
+        np.isfinite(red.predictor_.prefix_errors_[red.predictor_.n_centers_])
+    )
 
 
 @pytest.mark.parametrize("bad", [0.0, -1e-3, float("nan"), "1e-3", True])

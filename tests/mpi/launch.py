@@ -49,8 +49,11 @@ def have_mpi() -> bool:
 
 def run(mode: list, *, cleanup: bool = True, limit: float = 180.0) -> tuple[int, str]:
     """``mpiexec -n 2 python -m pymor.tools.mpi run_sharded_greedy.py MODE``; (exit code, output)."""
-    cmd = [mpiexec()] + ([] if cleanup else ["-disable-auto-cleanup"]) + [
-        "-n", "2", sys.executable, "-m", "pymor.tools.mpi", str(SCRIPT), *mode]
+    cmd = (
+        [mpiexec()]
+        + ([] if cleanup else ["-disable-auto-cleanup"])
+        + ["-n", "2", sys.executable, "-m", "pymor.tools.mpi", str(SCRIPT), *mode]
+    )
     env = dict(os.environ, OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", MKL_NUM_THREADS="1")
     try:
         proc = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=limit)

@@ -53,9 +53,11 @@ def same_greedy(r_serial, r_sharded, what):
     same = np.array_equal(r_serial.selected, r_sharded.selected)
     rel = float(np.abs(r_serial.coef - r_sharded.coef).max() / np.abs(r_serial.coef).max())
     hist = np.allclose(r_serial.history.train_max_residual, r_sharded.history.train_max_residual, rtol=1e-10, atol=0)
-    check(same and rel <= 1e-10 and hist and r_serial.history.stop_reason == r_sharded.history.stop_reason,
-          f"{what}: {len(r_sharded.selected)} centres, same selection {same}, coef rel. diff {rel:.1e}, "
-          f"stop {r_sharded.history.stop_reason}")
+    check(
+        same and rel <= 1e-10 and hist and r_serial.history.stop_reason == r_sharded.history.stop_reason,
+        f"{what}: {len(r_sharded.selected)} centres, same selection {same}, coef rel. diff {rel:.1e}, "
+        f"stop {r_sharded.history.stop_reason}",
+    )
 
 
 pool = new_parallel_pool()
@@ -89,17 +91,24 @@ if mode in ("--kill", "--freeze", "--exit"):
             print(f"rank {rank} calls os._exit(0) at step {m}", flush=True)
             pool.apply_only(os._exit, rank, 0)
 
-    sharded_greedy(F, y.reshape(-1), max_centers=400, validation=(VF, vy.reshape(-1)), pool=pool, timeout=3.0,
-                       callback=strike)
+    sharded_greedy(
+        F, y.reshape(-1), max_centers=400, validation=(VF, vy.reshape(-1)), pool=pool, timeout=3.0, callback=strike
+    )
     print("UNEXPECTED: the run survived a dead worker", flush=True)
     sys.exit(1)
 
 # ---- data generation over the pool equals the serial data, bit for bit
 d2 = flow_map_data(system, n_grid=14, pool=pool)
-check(np.array_equal(d2.x0, data.x0) and np.array_equal(d2.x1, data.x1) and np.array_equal(d2.mu, data.mu)
-      and np.array_equal(d2.dt, data.dt), f"pendulum grid data on the pool ({len(data)} samples)")
-v2 = random_flow_map_data(system, 300, seed=1, mu_values=(0.7, 0.75, 0.8), dt_values=(0.04, 0.05, 0.06),
-                          pool=pool, chunk_size=37)
+check(
+    np.array_equal(d2.x0, data.x0)
+    and np.array_equal(d2.x1, data.x1)
+    and np.array_equal(d2.mu, data.mu)
+    and np.array_equal(d2.dt, data.dt),
+    f"pendulum grid data on the pool ({len(data)} samples)",
+)
+v2 = random_flow_map_data(
+    system, 300, seed=1, mu_values=(0.7, 0.75, 0.8), dt_values=(0.04, 0.05, 0.06), pool=pool, chunk_size=37
+)
 check(np.array_equal(v2.x1, val.x1) and np.array_equal(v2.x0, val.x0), "pendulum random data on the pool")
 preset = wave.PRESETS["smoke"]
 fom, rom, energy, _ = wave.build_rom(preset)
@@ -113,21 +122,32 @@ check(np.array_equal(wd.x1, wd2.x1) and np.array_equal(wd.x0, wd2.x0), "reduced 
 serial = greedy_interpolation(F, y.reshape(-1), max_centers=300, validation=(VF, vy.reshape(-1)))
 sharded = sharded_greedy(F, y.reshape(-1), max_centers=300, validation=(VF, vy.reshape(-1)), pool=pool)
 same_greedy(serial, sharded, "f-greedy, 2 ranks, with validation")
-check(np.allclose(serial.history.val_max_residual, sharded.history.val_max_residual, rtol=1e-10, atol=0),
-      "validation residual curve")
+check(
+    np.allclose(serial.history.val_max_residual, sharded.history.val_max_residual, rtol=1e-10, atol=0),
+    "validation residual curve",
+)
 sharded3 = sharded_greedy(F, y.reshape(-1), max_centers=300, pool=pool, n_shards=5)
 same_greedy(greedy_interpolation(F, y.reshape(-1), max_centers=300), sharded3, "f-greedy, 5 shards on 2 ranks")
-same_greedy(greedy_interpolation(F, y.reshape(-1), max_centers=120, criterion="p"),
-            sharded_greedy(F, y.reshape(-1), max_centers=120, criterion="p", pool=pool), "P-greedy")
+same_greedy(
+    greedy_interpolation(F, y.reshape(-1), max_centers=120, criterion="p"),
+    sharded_greedy(F, y.reshape(-1), max_centers=120, criterion="p", pool=pool),
+    "P-greedy",
+)
 VAL = ValueFunctionals(kernel, data.x0, data.mu, data.dt)
 inc = data.x1 - data.x0
-same_greedy(greedy_interpolation(VAL, inc, max_centers=150), sharded_greedy(VAL, inc, max_centers=150, pool=pool),
-            "value functionals, 2 outputs")
+same_greedy(
+    greedy_interpolation(VAL, inc, max_centers=150),
+    sharded_greedy(VAL, inc, max_centers=150, pool=pool),
+    "value functionals, 2 outputs",
+)
 # exact ties: the same maximal |y| at the start of shard 0 and in shard 1 -> serial argmax takes the lowest index
 yt = np.full(F.n_functionals, 0.5)
 yt[[7, F.n_functionals // 2 + 3, F.n_functionals - 1]] = 2.0
-same_greedy(greedy_interpolation(F, yt, max_centers=60), sharded_greedy(F, yt, max_centers=60, pool=pool),
-            "exact ties across shards")
+same_greedy(
+    greedy_interpolation(F, yt, max_centers=60),
+    sharded_greedy(F, yt, max_centers=60, pool=pool),
+    "exact ties across shards",
+)
 check(sharded_greedy(F, yt, max_centers=1, pool=pool).selected[0] == 7, "tie at step 1 goes to the lowest index")
 
 # ---- fit with the sharded strategy equals fit
@@ -136,11 +156,18 @@ model_b = SymplecticKernelPredictor(IMQ(0.2), IMQ(1.5), IMQ(3.0), max_centers=20
 model_a.fit(data.x0, data.x1, mu=data.mu, dt=data.dt, validation=val)
 model_b.fit(data.x0, data.x1, mu=data.mu, dt=data.dt, validation=val)
 sa, sb = model_a.surrogate_, model_b.surrogate_
-check(np.array_equal(sa.centers_xi, sb.centers_xi) and np.array_equal(sa.components, sb.components)
-      and np.allclose(sa.coef, sb.coef, rtol=0, atol=1e-10 * np.abs(sa.coef).max())
-      and np.allclose(model_a.step(val.x0[:20], mu=val.mu[:20], dt=val.dt[:20]),
-                      model_b.step(val.x0[:20], mu=val.mu[:20], dt=val.dt[:20]), rtol=0, atol=1e-12),
-      "fit with trainer=ShardedGreedy(pool) equals fit")
+check(
+    np.array_equal(sa.centers_xi, sb.centers_xi)
+    and np.array_equal(sa.components, sb.components)
+    and np.allclose(sa.coef, sb.coef, rtol=0, atol=1e-10 * np.abs(sa.coef).max())
+    and np.allclose(
+        model_a.step(val.x0[:20], mu=val.mu[:20], dt=val.dt[:20]),
+        model_b.step(val.x0[:20], mu=val.mu[:20], dt=val.dt[:20]),
+        rtol=0,
+        atol=1e-12,
+    ),
+    "fit with trainer=ShardedGreedy(pool) equals fit",
+)
 
 # ---- a basis over one rank's memory limit trains across two ranks
 m_max = 300
@@ -150,17 +177,24 @@ try:
     greedy_interpolation(F, y.reshape(-1), max_centers=m_max, memory_limit=limit)
     check(False, "serial greedy should refuse the low memory limit")
 except ValueError as err:
-    check("memory limit" in str(err), f"serial greedy refuses {limit / 2**20:.2f} MiB for a {need / 2**20:.2f} MiB basis")
+    check(
+        "memory limit" in str(err), f"serial greedy refuses {limit / 2**20:.2f} MiB for a {need / 2**20:.2f} MiB basis"
+    )
 low = sharded_greedy(F, y.reshape(-1), max_centers=m_max, pool=pool, memory_limit_per_rank=limit)
-same_greedy(greedy_interpolation(F, y.reshape(-1), max_centers=m_max), low,
-            f"the same basis sharded over 2 ranks with a {limit / 2**20:.2f} MiB per-rank limit")
+same_greedy(
+    greedy_interpolation(F, y.reshape(-1), max_centers=m_max),
+    low,
+    f"the same basis sharded over 2 ranks with a {limit / 2**20:.2f} MiB per-rank limit",
+)
 wb = sharded_module.shard_bounds(3, 2, align=1)  # 3 shards on 2 ranks: one rank holds two of them and is over the limit
 big = int(np.argmax(np.diff(wb)))
 try:
     sharded_greedy(F, y.reshape(-1), max_centers=m_max, pool=pool, n_shards=3, memory_limit_per_rank=0.45 * need)
     check(False, f"rank {big} should be over its limit")
 except ValueError as err:
-    check(f"worker rank {big} " in str(err) and "per-rank memory limit" in str(err), f"over the limit: {str(err)[:90]}...")
+    check(
+        f"worker rank {big} " in str(err) and "per-rank memory limit" in str(err), f"over the limit: {str(err)[:90]}..."
+    )
 
 # ---- an exception on a worker comes back naming its rank (no hang)
 try:

@@ -15,8 +15,13 @@ ROOT = Path(__file__).resolve().parents[2]
 def _run(script, tmp_path, *extra):
     out = tmp_path / "out.json"
     env = dict(os.environ, NUMBA_NUM_THREADS="1", OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1")
-    proc = subprocess.run([sys.executable, str(ROOT / "sympredict_paper" / "studies" / script), "--quick", "--json", str(out), *extra],
-                          capture_output=True, text=True, env=env, timeout=600)
+    proc = subprocess.run(
+        [sys.executable, str(ROOT / "sympredict_paper" / "studies" / script), "--quick", "--json", str(out), *extra],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=600,
+    )
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert "chosen" in proc.stdout
     return json.loads(out.read_text())

@@ -26,7 +26,9 @@ ROOT = Path(__file__).resolve().parents[2]
 def da():
     sys.path.insert(0, str(ROOT / "sympredict_paper" / "studies"))
     try:
-        spec = importlib.util.spec_from_file_location("defaults_acceptance", ROOT / "sympredict_paper" / "studies" / "defaults_acceptance.py")
+        spec = importlib.util.spec_from_file_location(
+            "defaults_acceptance", ROOT / "sympredict_paper" / "studies" / "defaults_acceptance.py"
+        )
         module = importlib.util.module_from_spec(spec)
         sys.modules["defaults_acceptance"] = module  # its dataclass looks its module up
         spec.loader.exec_module(module)
@@ -39,9 +41,23 @@ def da():
 def test_quick_run_hand_only_writes_the_schema(tmp_path):
     out = tmp_path / "out.json"
     env = dict(os.environ, NUMBA_NUM_THREADS="1", OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1")
-    proc = subprocess.run([sys.executable, str(ROOT / "sympredict_paper" / "studies" / "defaults_acceptance.py"), "--quick",
-                           "--systems", "kepler", "--configs", "hand", "--json", str(out)],
-                          capture_output=True, text=True, env=env, timeout=600)
+    proc = subprocess.run(
+        [
+            sys.executable,
+            str(ROOT / "sympredict_paper" / "studies" / "defaults_acceptance.py"),
+            "--quick",
+            "--systems",
+            "kepler",
+            "--configs",
+            "hand",
+            "--json",
+            str(out),
+        ],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=600,
+    )
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert "| hand |" in proc.stdout
     data = json.loads(out.read_text())

@@ -23,8 +23,9 @@ RNG = np.random.default_rng(0)
 
 def _history(m=300):
     n = np.arange(m + 1)
-    return SimpleNamespace(n_centers=n, train_max_residual=np.exp(-n / 40.0) + 1e-9,
-                           val_max_residual=1.2 * np.exp(-n / 40.0) + 1e-9)
+    return SimpleNamespace(
+        n_centers=n, train_max_residual=np.exp(-n / 40.0) + 1e-9, val_max_residual=1.2 * np.exp(-n / 40.0) + 1e-9
+    )
 
 
 def _traj(phase=0.0):
@@ -33,53 +34,103 @@ def _traj(phase=0.0):
 
 def _speed_rows():
     rows = []
-    for method, needs, sizes in (("kernel predictor", "only data", (100, 200, 400, 800, 1500)),
-                                 ("direct kernel model", "only data", (100, 200, 400)),
-                                 ("implicit midpoint", "equations", (1, 2, 4, 8)),
-                                 ("VKOGA", "only data", (150,))):
+    for method, needs, sizes in (
+        ("kernel predictor", "only data", (100, 200, 400, 800, 1500)),
+        ("direct kernel model", "only data", (100, 200, 400)),
+        ("implicit midpoint", "equations", (1, 2, 4, 8)),
+        ("VKOGA", "only data", (150,)),
+    ):
         for k, size in enumerate(sizes):
             # the direct model's points lie close to the kernel predictor's: their tags must not collide
             shift = 1.3 if method.startswith("direct") else 1.0
-            rows.append({"method": method, "needs": needs, "size": size, "time_per_trajectory_s": 1e-4 * (k + 1) * 2.0,
-                         "median_err": shift * 10.0 ** (-2 - k)})
-    rows.append({"method": "micro-step reference (implicit midpoint, h<=1e-3)", "needs": "equations", "size": 1,
-                 "tag": "h<=1e-3", "time_per_trajectory_s": 3e-3, "median_err": 3e-5})
+            rows.append(
+                {
+                    "method": method,
+                    "needs": needs,
+                    "size": size,
+                    "time_per_trajectory_s": 1e-4 * (k + 1) * 2.0,
+                    "median_err": shift * 10.0 ** (-2 - k),
+                }
+            )
+    rows.append(
+        {
+            "method": "micro-step reference (implicit midpoint, h<=1e-3)",
+            "needs": "equations",
+            "size": 1,
+            "tag": "h<=1e-3",
+            "time_per_trajectory_s": 3e-3,
+            "median_err": 3e-5,
+        }
+    )
     return rows
 
 
 FIGURES = {
     "greedy_residuals": lambda: plotting.greedy_residuals({"": _history()}, "Pendulum scenario A: f-greedy residuals"),
     "error_over_time": lambda: plotting.error_over_time(
-        [{"t": T, "values": 1e-5 * (1 + T), "label": f"kernel, dT={dt}", "style": s, "marker": m}
-         for dt, s, m in ((0.1, "-", "o"), (0.05, "--", "s"))]
-        + [{"t": T, "values": 1e-2 * (1 + T), "label": f"implicit midpoint, dT={dt}", "style": s, "marker": m}
-           for dt, s, m in ((0.1, "-", "o"), (0.05, "--", "s"))],
-        "Wave, full space, after reconstruction: error vs micro-step reference (mean over test speeds)", time_unit="1"),
+        [
+            {"t": T, "values": 1e-5 * (1 + T), "label": f"kernel, dT={dt}", "style": s, "marker": m}
+            for dt, s, m in ((0.1, "-", "o"), (0.05, "--", "s"))
+        ]
+        + [
+            {"t": T, "values": 1e-2 * (1 + T), "label": f"implicit midpoint, dT={dt}", "style": s, "marker": m}
+            for dt, s, m in ((0.1, "-", "o"), (0.05, "--", "s"))
+        ],
+        "Wave, full space, after reconstruction: error vs micro-step reference (mean over test speeds)",
+        time_unit="1",
+    ),
     "phase_portrait": lambda: plotting.phase_portrait(
         {"reference": _traj(), "symplectic kernel model": _traj(1e-3), "direct kernel model": _traj(3e-2)},
-        f"Scenario B phase portrait, {WHERE}", t=T),
+        f"Scenario B phase portrait, {WHERE}",
+        t=T,
+    ),
     "energy_error": lambda: plotting.energy_error(
-        T, {"symplectic kernel model": 1e-4 * (1.1 + np.sin(T)), "direct kernel model": 1e-3 * (1 + T)},
-        f"Scenario B relative Hamiltonian error, {WHERE}"),
+        T,
+        {"symplectic kernel model": 1e-4 * (1.1 + np.sin(T)), "direct kernel model": 1e-3 * (1 + T)},
+        f"Scenario B relative Hamiltonian error, {WHERE}",
+    ),
     "trajectories_over_time": lambda: plotting.trajectories_over_time(
-        T, {"reference": _traj(), "symplectic kernel model": _traj(1e-3), "direct kernel model": _traj(3e-2)},
-        f"Scenario B trajectory, {WHERE}"),
+        T,
+        {"reference": _traj(), "symplectic kernel model": _traj(1e-3), "direct kernel model": _traj(3e-2)},
+        f"Scenario B trajectory, {WHERE}",
+    ),
     "hamiltonian_over_time": lambda: plotting.hamiltonian_over_time(
-        T, {"reference": 2 + 0 * T, "symplectic kernel model": 2 + 1e-4 * np.sin(T), "direct kernel model": 2 + 1e-3 * T},
-        f"Scenario B Hamiltonian, {WHERE}"),
+        T,
+        {"reference": 2 + 0 * T, "symplectic kernel model": 2 + 1e-4 * np.sin(T), "direct kernel model": 2 + 1e-3 * T},
+        f"Scenario B Hamiltonian, {WHERE}",
+    ),
     "speed_accuracy": lambda: plotting.speed_accuracy(_speed_rows(), 3e-3, "Pendulum: speed against accuracy, dT=0.05"),
     "stability_sweeps": lambda: plotting.stability_sweeps(
-        [{"dt": dt, "kernel predictor": 1e-4 * dt / 0.05, "direct kernel model": 1e-3, "implicit midpoint": 1e-2}
-         for dt in (0.02, 0.04, 0.05, 0.06, 0.1)],
-        [{"mu": mu, "kernel predictor": 1e-4, "direct kernel model": 1e-3, "implicit midpoint": 1e-2}
-         for mu in (0.65, 0.7, 0.75, 0.8, 0.85)], (0.04, 0.06), (0.7, 0.8), "Pendulum: stability in dT"),
+        [
+            {"dt": dt, "kernel predictor": 1e-4 * dt / 0.05, "direct kernel model": 1e-3, "implicit midpoint": 1e-2}
+            for dt in (0.02, 0.04, 0.05, 0.06, 0.1)
+        ],
+        [
+            {"mu": mu, "kernel predictor": 1e-4, "direct kernel model": 1e-3, "implicit midpoint": 1e-2}
+            for mu in (0.65, 0.7, 0.75, 0.8, 0.85)
+        ],
+        (0.04, 0.06),
+        (0.7, 0.8),
+        "Pendulum: stability in dT",
+    ),
     "solution_snapshots": lambda: plotting.solution_snapshots(
-        np.linspace(0, 1, 50), [0.0, 1.0, 2.0],
-        {"FOM": np.sin(np.outer([1, 2, 3], np.linspace(0, 3, 50))),
-         "kernel ROM": np.sin(np.outer([1, 2, 3], np.linspace(0, 3, 50))) + 1e-2}, "2n=8"),
+        np.linspace(0, 1, 50),
+        [0.0, 1.0, 2.0],
+        {
+            "FOM": np.sin(np.outer([1, 2, 3], np.linspace(0, 3, 50))),
+            "kernel ROM": np.sin(np.outer([1, 2, 3], np.linspace(0, 3, 50))) + 1e-2,
+        },
+        "2n=8",
+    ),
     "cost_against_n": lambda: plotting.cost_against_n(
-        [{"N": n, "label": f"{what}, 2n={d}", "time": 1e-4 * n * (d / 4)} for n in (100, 200, 400)
-         for what in ("Galerkin RK4", "kernel, FOM data") for d in (4, 8)], "Sine-Gordon: online cost against N"),
+        [
+            {"N": n, "label": f"{what}, 2n={d}", "time": 1e-4 * n * (d / 4)}
+            for n in (100, 200, 400)
+            for what in ("Galerkin RK4", "kernel, FOM data")
+            for d in (4, 8)
+        ],
+        "Sine-Gordon: online cost against N",
+    ),
 }
 
 
@@ -97,8 +148,16 @@ def _texts(fig):
     renderer = fig.canvas.get_renderer()
     candidates = list(fig.texts)
     for ax in fig.axes:
-        candidates += [ax.title, ax._left_title, ax._right_title, ax.xaxis.label, ax.yaxis.label, *ax.texts,
-                       *_drawn_tick_labels(ax.xaxis), *_drawn_tick_labels(ax.yaxis)]
+        candidates += [
+            ax.title,
+            ax._left_title,
+            ax._right_title,
+            ax.xaxis.label,
+            ax.yaxis.label,
+            *ax.texts,
+            *_drawn_tick_labels(ax.xaxis),
+            *_drawn_tick_labels(ax.yaxis),
+        ]
         if ax.get_legend() is not None:
             candidates += ax.get_legend().get_texts() + [ax.get_legend().get_title()]
     found = []
@@ -122,11 +181,17 @@ def test_no_text_overlaps_another_or_leaves_the_saved_area(figure):
     renderer = figure.canvas.get_renderer()
     saved = figure.get_tightbbox(renderer).transformed(figure.dpi_scale_trans)  # what bbox_inches="tight" keeps
     texts = _texts(figure)
-    outside = [t.get_text() for t, b in texts if b.x0 < saved.x0 - 1 or b.x1 > saved.x1 + 1
-               or b.y0 < saved.y0 - 1 or b.y1 > saved.y1 + 1]
+    outside = [
+        t.get_text()
+        for t, b in texts
+        if b.x0 < saved.x0 - 1 or b.x1 > saved.x1 + 1 or b.y0 < saved.y0 - 1 or b.y1 > saved.y1 + 1
+    ]
     assert not outside, outside
-    overlaps = [(a.get_text(), b.get_text()) for (a, ba), (b, bb) in itertools.combinations(texts, 2)
-                if ba.overlaps(bb) and ba.intersection(ba, bb).width > 1 and ba.intersection(ba, bb).height > 1]
+    overlaps = [
+        (a.get_text(), b.get_text())
+        for (a, ba), (b, bb) in itertools.combinations(texts, 2)
+        if ba.overlaps(bb) and ba.intersection(ba, bb).width > 1 and ba.intersection(ba, bb).height > 1
+    ]
     assert not overlaps, overlaps
     # nor does a text of a panel run under a legend box it does not belong to
     for ax in figure.axes:
@@ -134,8 +199,15 @@ def test_no_text_overlaps_another_or_leaves_the_saved_area(figure):
         if legend is None:
             continue
         box, own = legend.get_window_extent(renderer), {id(t) for t in legend.get_texts()}
-        under = [t.get_text() for t, b in texts if id(t) not in own and t is not legend.get_title() and box.overlaps(b)
-                 and box.intersection(box, b).width > 1 and box.intersection(box, b).height > 1]
+        under = [
+            t.get_text()
+            for t, b in texts
+            if id(t) not in own
+            and t is not legend.get_title()
+            and box.overlaps(b)
+            and box.intersection(box, b).width > 1
+            and box.intersection(box, b).height > 1
+        ]
         assert not under, under
 
 

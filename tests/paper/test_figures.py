@@ -46,7 +46,11 @@ def test_greedy_residual_figures_end_at_the_reported_residuals(smoke_run):
     assert ax["xscale"] == ax["yscale"] == "log"
     m, train = _line(ax, "training")
     _, val = _line(ax, "validation")
-    assert m[-1] == p["n_centers"] and train[-1] == pytest.approx(p["E_train"], rel=1e-12) and val[-1] == pytest.approx(p["E_val"], rel=1e-12)
+    assert (
+        m[-1] == p["n_centers"]
+        and train[-1] == pytest.approx(p["E_train"], rel=1e-12)
+        and val[-1] == pytest.approx(p["E_val"], rel=1e-12)
+    )
     (ax,) = _figure(out, "wave_greedy_residuals")
     for r in results["results"]["wave"]["per_dt"]:
         m, train = _line(ax, f"training, dT={r['dt']}")
@@ -63,14 +67,20 @@ def test_pendulum_error_and_energy_figures_show_the_reported_errors(smoke_run):
         _, im = _line(ax, f"implicit midpoint, dT={r['dt']}")
         np.testing.assert_allclose(np.diff(t), r["dt"], rtol=1e-9)
         assert t[-1] <= p["preset"]["horizon"] + 1e-9
-        assert np.median(kernel) == pytest.approx(r["kernel_median_err"], rel=1e-12) and kernel.max() == pytest.approx(r["kernel_max_err"], rel=1e-12)
-        assert np.median(im) == pytest.approx(r["im_median_err"], rel=1e-12) and im.max() == pytest.approx(r["im_max_err"], rel=1e-12)
+        assert np.median(kernel) == pytest.approx(r["kernel_median_err"], rel=1e-12) and kernel.max() == pytest.approx(
+            r["kernel_max_err"], rel=1e-12
+        )
+        assert np.median(im) == pytest.approx(r["im_median_err"], rel=1e-12) and im.max() == pytest.approx(
+            r["im_max_err"], rel=1e-12
+        )
     (ax,) = _figure(out, "pendulum_energy_error")
     _, kernel = _line(ax, "kernel predictor")
     _, im = _line(ax, "implicit midpoint, macro step")
     assert kernel.max() == pytest.approx(p["per_dt"][0]["kernel_max_energy_err"], rel=1e-12)
     assert im.max() == pytest.approx(p["per_dt"][0]["im_max_energy_err"], rel=1e-12)
-    plane, distance = _figure(out, "pendulum_phase_portrait")  # the phase plane, and each method's distance to the reference
+    plane, distance = _figure(
+        out, "pendulum_phase_portrait"
+    )  # the phase plane, and each method's distance to the reference
     methods = [line for line in plane["lines"] if not line["label"].startswith("_")]  # '_initial state': the marker
     starts = [(line["x"][0], line["y"][0]) for line in methods]
     assert len(starts) == 3 and len(set(starts)) == 1 and starts[0][1] == 0.0  # one initial state (q0, 0) for all
@@ -79,8 +89,10 @@ def test_pendulum_error_and_energy_figures_show_the_reported_errors(smoke_run):
 
 def test_speed_accuracy_figures_show_the_table_rows(smoke_run):
     out, results, _ = smoke_run
-    for name, sa in (("pendulum_speed_accuracy", results["results"]["pendulum"]["speed_accuracy"]),
-                     ("wave_speed_accuracy", results["results"]["wave"]["speed_accuracy"])):
+    for name, sa in (
+        ("pendulum_speed_accuracy", results["results"]["pendulum"]["speed_accuracy"]),
+        ("wave_speed_accuracy", results["results"]["wave"]["speed_accuracy"]),
+    ):
         (ax,) = _figure(out, name)
         assert ax["xscale"] == ax["yscale"] == "log"
         methods = dict.fromkeys(r["method"] for r in sa["rows"])
@@ -90,8 +102,13 @@ def test_speed_accuracy_figures_show_the_table_rows(smoke_run):
             np.testing.assert_allclose(t, [r["time_per_trajectory_s"] for r in rows], rtol=1e-12)
             np.testing.assert_allclose(e, [r["median_err"] for r in rows], rtol=1e-12)
     wave_methods = {r["method"] for r in results["results"]["wave"]["speed_accuracy"]["rows"]}
-    assert {"FOM micro-step reference", "FOM implicit midpoint", "ROM implicit midpoint (compiled)", "ROM exact propagator (expm)",
-            "ROM + kernel predictor"} <= wave_methods
+    assert {
+        "FOM micro-step reference",
+        "FOM implicit midpoint",
+        "ROM implicit midpoint (compiled)",
+        "ROM exact propagator (expm)",
+        "ROM + kernel predictor",
+    } <= wave_methods
 
 
 def test_scenario_b_figures(smoke_run):
@@ -111,7 +128,10 @@ def test_scenario_b_figures(smoke_run):
     assert q_ref[0] == pytest.approx(b["q0_example"])
     plane, distance = _figure(out, "pendulum_b_phase_portrait")
     assert {line["label"] for line in plane["lines"] if not line["label"].startswith("_")} == {
-        "reference", "symplectic kernel", "direct kernel"}
+        "reference",
+        "symplectic kernel",
+        "direct kernel",
+    }
     assert {line["label"] for line in distance["lines"]} == {"symplectic kernel", "direct kernel"}
     (ax,) = _figure(out, "pendulum_b_hamiltonian")
     _, h_ref = _line(ax, "reference")
@@ -197,7 +217,9 @@ def test_greedy_residuals_draw_the_validation_line_on_top_and_visible(n_historie
     ylo, yhi = ax.get_ylim()
     for lab in labels:
         train, val = lines[f"training{lab}"], lines[f"validation{lab}"]
-        assert val.get_zorder() > max(line.get_zorder() for line in ax.get_lines() if line.get_label().startswith("training"))
+        assert val.get_zorder() > max(
+            line.get_zorder() for line in ax.get_lines() if line.get_label().startswith("training")
+        )
         assert val.get_visible() and val.get_alpha() in (None, 1.0) and val.get_linewidth() > train.get_linewidth()
         assert val.get_linestyle() != train.get_linestyle()
         y = val.get_ydata()
@@ -224,8 +246,10 @@ def test_error_over_time_y_axis_stops_at_a_floor_above_round_off():
     kernel = 1e-6 * (1 + t)
     kernel[5] = 1e-17  # a single step that happens to hit the reference
     im = 1e-3 * (1 + t)
-    curves = [{"t": t, "values": kernel, "label": "kernel, dT=0.05", "style": "-", "color": 0},
-              {"t": t, "values": im, "label": "implicit midpoint, dT=0.05", "style": "--", "color": 0}]
+    curves = [
+        {"t": t, "values": kernel, "label": "kernel, dT=0.05", "style": "-", "color": 0},
+        {"t": t, "values": im, "label": "implicit midpoint, dT=0.05", "style": "--", "color": 0},
+    ]
     fig = plotting.error_over_time(curves, "wave")
     (ax,) = fig.axes
     lo, hi = ax.get_ylim()
@@ -284,7 +308,9 @@ def test_phase_portrait_without_times_is_one_panel():
 def _suite():
     import importlib.util
 
-    spec = importlib.util.spec_from_file_location("suite_for_tests", Path(__file__).resolve().parents[2] / "sympredict_paper" / "studies" / "suite.py")
+    spec = importlib.util.spec_from_file_location(
+        "suite_for_tests", Path(__file__).resolve().parents[2] / "sympredict_paper" / "studies" / "suite.py"
+    )
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
@@ -295,14 +321,29 @@ def test_performance_scaling_figure_is_readable_at_page_width():
     ms = [100, 200, 400, 800, 1500]
     scaling = {
         "rollout_vs_centers": {"m": ms, "s_per_traj_step": [3e-6 * (m / 100) ** 0.8 for m in ms], "exponent": 0.8},
-        "rollout_vs_batch": {"batch": [1, 10, 100, 1000], "s_per_traj_step": [3.6e-5, 2.4e-5, 2.5e-5, 2.7e-5],
-                             "exponent_total_time": 0.96},
-        "newton_vs_dim": {"dim": [2, 4, 10, 20, 40], "numba_implicit_step_s": [2e-5, 4e-5, 1e-4, 3e-4, 1e-3],
-                          "numba_gradient_s_per_point": [2e-5, 2e-5, 4e-5, 6e-5, 1e-4],
-                          "numpy_newton_terms_s_per_point": [5e-5, 9e-5, 1.3e-4, 2.2e-4, 4e-4]},
-        "greedy_step_vs_N": {"N": [30000, 60000, 120000, 289704], "m": 300, "s_per_step": [8e-3, 9e-3, 2e-2, 5e-2], "exponent": 0.8},
-        "greedy_step_vs_m": {"N": 289704, "m": [50, 100, 200, 400, 600, 800], "s_per_step": [0.015, 0.02, 0.04, 0.07, 0.09, 0.13],
-                             "exponent": 0.79},
+        "rollout_vs_batch": {
+            "batch": [1, 10, 100, 1000],
+            "s_per_traj_step": [3.6e-5, 2.4e-5, 2.5e-5, 2.7e-5],
+            "exponent_total_time": 0.96,
+        },
+        "newton_vs_dim": {
+            "dim": [2, 4, 10, 20, 40],
+            "numba_implicit_step_s": [2e-5, 4e-5, 1e-4, 3e-4, 1e-3],
+            "numba_gradient_s_per_point": [2e-5, 2e-5, 4e-5, 6e-5, 1e-4],
+            "numpy_newton_terms_s_per_point": [5e-5, 9e-5, 1.3e-4, 2.2e-4, 4e-4],
+        },
+        "greedy_step_vs_N": {
+            "N": [30000, 60000, 120000, 289704],
+            "m": 300,
+            "s_per_step": [8e-3, 9e-3, 2e-2, 5e-2],
+            "exponent": 0.8,
+        },
+        "greedy_step_vs_m": {
+            "N": 289704,
+            "m": [50, 100, 200, 400, 600, 800],
+            "s_per_step": [0.015, 0.02, 0.04, 0.07, 0.09, 0.13],
+            "exponent": 0.79,
+        },
     }
     fig = suite.draw_scaling(scaling)
     visible = [ax for ax in fig.axes if ax.get_visible()]

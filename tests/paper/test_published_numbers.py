@@ -40,8 +40,16 @@ def _rhs(_, y, lengths):
 def _reference(x0, lengths, dt, n_steps):
     """Exact flow to ~1e-11 (DOP853) on the macro grid, shape (B, K+1, 2)."""
     t = dt * np.arange(n_steps + 1)
-    sol = solve_ivp(_rhs, (0, t[-1]), np.concatenate([x0[:, 0], x0[:, 1]]), method="DOP853", t_eval=t,
-                    rtol=1e-12, atol=1e-12, args=(lengths,))
+    sol = solve_ivp(
+        _rhs,
+        (0, t[-1]),
+        np.concatenate([x0[:, 0], x0[:, 1]]),
+        method="DOP853",
+        t_eval=t,
+        rtol=1e-12,
+        atol=1e-12,
+        args=(lengths,),
+    )
     b = len(x0)
     return np.stack([sol.y[:b], sol.y[b:]], axis=-1)
 
@@ -74,8 +82,14 @@ def _rel_err(pred, ref):
 
 def _lines(fig):
     """{panel index: {label: (x, y)}} read back from the figure's Line2D objects."""
-    return {i: {line.get_label(): (np.asarray(line.get_xdata(), float), np.asarray(line.get_ydata(), float))
-                for line in ax.get_lines() if not line.get_label().startswith("_")} for i, ax in enumerate(fig.axes)}
+    return {
+        i: {
+            line.get_label(): (np.asarray(line.get_xdata(), float), np.asarray(line.get_ydata(), float))
+            for line in ax.get_lines()
+            if not line.get_label().startswith("_")
+        }
+        for i, ax in enumerate(fig.axes)
+    }
 
 
 # ------------------------------------------------------------------ runs
@@ -97,9 +111,15 @@ def recomputed_a(scenario_a):
     for r in scenario_a["per_dt"]:
         dt = r["dt"]
         n_steps = int(np.floor(TINY.horizon / dt + 1e-9))
-        out.append({"dt": dt, "n_steps": n_steps, "ref": _reference(x0, lengths, dt, n_steps),
-                    "im": _midpoint(x0, lengths, dt, n_steps),
-                    "kernel": scenario_a["model"].rollout(x0, n_steps, mu=lengths, dt=dt)})
+        out.append(
+            {
+                "dt": dt,
+                "n_steps": n_steps,
+                "ref": _reference(x0, lengths, dt, n_steps),
+                "im": _midpoint(x0, lengths, dt, n_steps),
+                "kernel": scenario_a["model"].rollout(x0, n_steps, mu=lengths, dt=dt),
+            }
+        )
     return out
 
 
@@ -132,13 +152,21 @@ def test_scenario_a_errors_recomputed_from_the_trajectories(scenario_a, recomput
 
 def test_scenario_a_figures_draw_the_recomputed_trajectories(scenario_a, recomputed_a):
     figs = report.pendulum_a_figures(scenario_a)
-    assert list(figs) == ["pendulum_greedy_residuals", "pendulum_error_over_time", "pendulum_phase_portrait", "pendulum_energy_error"]
+    assert list(figs) == [
+        "pendulum_greedy_residuals",
+        "pendulum_error_over_time",
+        "pendulum_phase_portrait",
+        "pendulum_energy_error",
+    ]
     x0, lengths = _instances(SEED)
     lines = _lines(figs["pendulum_error_over_time"])[0]
     assert len(lines) == 2 * len(recomputed_a)
     for mine in recomputed_a:
         t = mine["dt"] * np.arange(mine["n_steps"] + 1)
-        for label, traj in ((f"kernel, dT={mine['dt']}", mine["kernel"]), (f"implicit midpoint, dT={mine['dt']}", mine["im"])):
+        for label, traj in (
+            (f"kernel, dT={mine['dt']}", mine["kernel"]),
+            (f"implicit midpoint, dT={mine['dt']}", mine["im"]),
+        ):
             x, y = lines[label]
             np.testing.assert_allclose(x, t[1:], rtol=1e-12)
             np.testing.assert_allclose(y, _rel_err(traj, mine["ref"]).mean(axis=0)[1:], rtol=1e-3, atol=1e-5)
@@ -146,15 +174,20 @@ def test_scenario_a_figures_draw_the_recomputed_trajectories(scenario_a, recompu
     mine = recomputed_a[0]
     lines = _lines(figs["pendulum_phase_portrait"])[0]
     assert set(lines) == {"reference (implicit midpoint, h<=1e-3)", "kernel predictor", "implicit midpoint, macro step"}
-    for label, traj, tol in (("reference (implicit midpoint, h<=1e-3)", mine["ref"][-1], 1e-5),
-                             ("kernel predictor", mine["kernel"][-1], 1e-12), ("implicit midpoint, macro step", mine["im"][-1], 1e-9)):
+    for label, traj, tol in (
+        ("reference (implicit midpoint, h<=1e-3)", mine["ref"][-1], 1e-5),
+        ("kernel predictor", mine["kernel"][-1], 1e-12),
+        ("implicit midpoint, macro step", mine["im"][-1], 1e-9),
+    ):
         q, p = lines[label]
         np.testing.assert_allclose(np.column_stack([q, p]), traj, atol=tol, err_msg=label)
     assert f"l={lengths[-1]:.3f}" in figs["pendulum_phase_portrait"].axes[0].get_title()
     lines = _lines(figs["pendulum_energy_error"])[0]
     for label, traj in (("kernel predictor", mine["kernel"]), ("implicit midpoint, macro step", mine["im"])):
         e = _energy(traj, lengths[:, None])
-        np.testing.assert_allclose(lines[label][1], (np.abs(e - e[:, :1]) / e[:, :1]).mean(axis=0)[1:], rtol=1e-6, atol=1e-12)
+        np.testing.assert_allclose(
+            lines[label][1], (np.abs(e - e[:, :1]) / e[:, :1]).mean(axis=0)[1:], rtol=1e-6, atol=1e-12
+        )
     m, e_train = _lines(figs["pendulum_greedy_residuals"])[0]["training"]
     np.testing.assert_array_equal(e_train, scenario_a["history"].train_max_residual[1:])
 
@@ -168,12 +201,16 @@ def test_scenario_b_models_and_figures_recomputed(scenario_b):
     n_steps = int(np.floor(TINY.horizon / dt + 1e-9))
     x_ex = x0[:1]
     with pytest.warns(Warning):  # extrapolation in mu, by design
-        mine = {"symplectic": models["symplectic"].rollout(x_ex, n_steps, mu=mu, dt=dt)[0],
-                "direct": models["direct"].rollout(x_ex, n_steps, mu=mu, dt=dt)[0]}
+        mine = {
+            "symplectic": models["symplectic"].rollout(x_ex, n_steps, mu=mu, dt=dt)[0],
+            "direct": models["direct"].rollout(x_ex, n_steps, mu=mu, dt=dt)[0],
+        }
     mine["reference"] = _reference(x_ex, np.array([mu]), dt, n_steps)[0]
     assert np.abs(mine["symplectic"] - mine["direct"]).max() > 1e-6  # the two models are told apart
     sb = scenario_b["summary"]
-    assert sb["mu"] == 0.825 and sb["dt_example"] == 0.05365 and sb["q0_example"] == pytest.approx(x_ex[0, 0], rel=1e-15)
+    assert (
+        sb["mu"] == 0.825 and sb["dt_example"] == 0.05365 and sb["q0_example"] == pytest.approx(x_ex[0, 0], rel=1e-15)
+    )
     t = dt * np.arange(n_steps + 1)
     figs = report.pendulum_b_figures(scenario_b)
     labels = {"reference": "reference", "symplectic kernel": "symplectic", "direct kernel": "direct"}
@@ -192,7 +229,9 @@ def test_scenario_b_models_and_figures_recomputed(scenario_b):
         np.testing.assert_allclose(energy[label][1], h, rtol=1e-6, err_msg=label)
         # the experiment's reference (micro-step midpoint) keeps the energy to ~1e-8, DOP853 to ~1e-11
         atol = 1e-7 if key == "reference" else 1e-12
-        np.testing.assert_allclose(energy_err[label][1], (np.abs(h - h[0]) / h[0])[1:], rtol=1e-6, atol=atol, err_msg=label)
+        np.testing.assert_allclose(
+            energy_err[label][1], (np.abs(h - h[0]) / h[0])[1:], rtol=1e-6, atol=atol, err_msg=label
+        )
         if key != "reference":
             assert sb[f"max_rel_energy_err_{key}"] == pytest.approx((np.abs(h - h[0]) / h[0]).max(), rel=1e-6)
     # error curves over time for the paper's 5 q0, every test step
@@ -209,10 +248,18 @@ def test_scenario_b_models_and_figures_recomputed(scenario_b):
 
 def test_claims_follow_the_numbers():
     def results(ratio, pointwise, ds, dd, wave_ratio):
-        return {"pendulum": {"per_dt": [{"dt": 0.05, "ratio_median": ratio, "ratio_min_over_time": pointwise}],
-                             "scenario_b": {"energy_drift_symplectic": ds, "energy_drift_direct": dd,
-                                            "max_rel_energy_err_symplectic": 1e-3, "max_rel_energy_err_direct": 1e-1}},
-                "wave": {"per_dt": [{"dt": 0.1, "cases": [{"ratio_red": wave_ratio}, {"ratio_red": 50.0}]}]}}
+        return {
+            "pendulum": {
+                "per_dt": [{"dt": 0.05, "ratio_median": ratio, "ratio_min_over_time": pointwise}],
+                "scenario_b": {
+                    "energy_drift_symplectic": ds,
+                    "energy_drift_direct": dd,
+                    "max_rel_energy_err_symplectic": 1e-3,
+                    "max_rel_energy_err_direct": 1e-1,
+                },
+            },
+            "wave": {"per_dt": [{"dt": 0.1, "cases": [{"ratio_red": wave_ratio}, {"ratio_red": 50.0}]}]},
+        }
 
     holds = [c["holds"] for c in report.claims(results(100.0, 1.01, 1e-4, -1e-3, 1.01))]
     assert holds == [True, True, True]
@@ -231,6 +278,12 @@ def test_smoke_run_phase_portrait_is_the_saved_models_rollout(smoke_run):
     dt = p["per_dt"][0]["dt"]
     n_steps = int(np.floor(p["preset"]["horizon"] / dt + 1e-9))
     model = SymplecticKernelPredictor.load(out / "pendulum_model.h5")
-    np.testing.assert_allclose(lines["kernel predictor"], model.rollout(x0[-1], n_steps, mu=lengths[-1], dt=dt), atol=1e-12)
-    np.testing.assert_allclose(lines["reference (implicit midpoint, h<=1e-3)"], _reference(x0[-1:], lengths[-1:], dt, n_steps)[0], atol=1e-5)
-    np.testing.assert_allclose(lines["implicit midpoint, macro step"], _midpoint(x0[-1:], lengths[-1:], dt, n_steps)[0], atol=1e-9)
+    np.testing.assert_allclose(
+        lines["kernel predictor"], model.rollout(x0[-1], n_steps, mu=lengths[-1], dt=dt), atol=1e-12
+    )
+    np.testing.assert_allclose(
+        lines["reference (implicit midpoint, h<=1e-3)"], _reference(x0[-1:], lengths[-1:], dt, n_steps)[0], atol=1e-5
+    )
+    np.testing.assert_allclose(
+        lines["implicit midpoint, macro step"], _midpoint(x0[-1:], lengths[-1:], dt, n_steps)[0], atol=1e-9
+    )

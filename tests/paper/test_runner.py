@@ -58,12 +58,16 @@ def test_completed_run_has_the_marker_and_replaces_a_previous_run(tmp_path, fake
     assert main(["run", "pendulum", "--preset", "smoke", "--out", str(out), "--threads", "1"]) == 0
     marker = json.loads((out / RUN_MARKER).read_text())
     assert marker["complete"] is True and marker["systems"] == ["pendulum"]
-    assert set(marker["files"]) == {"fake_model.h5", "results.json", "summary.md"} == set(os.listdir(out)) - {RUN_MARKER}
+    assert (
+        set(marker["files"]) == {"fake_model.h5", "results.json", "summary.md"} == set(os.listdir(out)) - {RUN_MARKER}
+    )
     assert "old run" not in (out / "summary.md").read_text()  # nothing of the old run is mixed in
     assert os.listdir(tmp_path) == ["results"]  # no staging or old folder left
 
 
-@pytest.mark.parametrize("fail, code", [(KeyboardInterrupt(), 130), (ValueError("bad"), 1), (OSError(28, "No space left on device"), 1)])
+@pytest.mark.parametrize(
+    "fail, code", [(KeyboardInterrupt(), 130), (ValueError("bad"), 1), (OSError(28, "No space left on device"), 1)]
+)
 def test_failed_or_interrupted_run_leaves_the_previous_run_untouched(tmp_path, fake_run, capsys, fail, code):
     out = tmp_path / "results"
     before = previous_run(out)
@@ -85,8 +89,23 @@ def test_failed_first_run_leaves_no_folder(tmp_path, fake_run, capsys):
 def test_killed_run_in_a_child_process_leaves_nothing_that_passes_for_complete(tmp_path):
     """SIGKILL in the middle of a real run: --out never appears; the next run removes the staging folder."""
     out = tmp_path / "results"
-    proc = subprocess.Popen([sys.executable, "-m", "sympredict_paper", "run", "pendulum", "--preset", "smoke", "--out", str(out),
-                             "--threads", "1"], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "sympredict_paper",
+            "run",
+            "pendulum",
+            "--preset",
+            "smoke",
+            "--out",
+            str(out),
+            "--threads",
+            "1",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+    )
     deadline = time.time() + 120
     staging = []
     while time.time() < deadline and not staging:  # wait until the run has started writing
@@ -139,7 +158,9 @@ def test_smoke_run_is_marked_complete(smoke_run):
 
 def test_cli_rejects_unknown_system(tmp_path):
     proc = subprocess.run(
-        [sys.executable, "-m", "sympredict_paper", "run", "nosuchsystem", "--out", str(tmp_path)], capture_output=True, text=True
+        [sys.executable, "-m", "sympredict_paper", "run", "nosuchsystem", "--out", str(tmp_path)],
+        capture_output=True,
+        text=True,
     )
     assert proc.returncode == 2 and "invalid choice" in proc.stderr
 
@@ -148,13 +169,27 @@ def test_cli_user_errors_are_one_line_without_traceback(tmp_path):
     blocker = tmp_path / "file"
     blocker.write_text("not a folder")
     proc = subprocess.run(
-        [sys.executable, "-m", "sympredict_paper", "run", "pendulum", "--preset", "smoke", "--out", str(blocker / "sub")],
-        capture_output=True, text=True,
+        [
+            sys.executable,
+            "-m",
+            "sympredict_paper",
+            "run",
+            "pendulum",
+            "--preset",
+            "smoke",
+            "--out",
+            str(blocker / "sub"),
+        ],
+        capture_output=True,
+        text=True,
     )
     assert proc.returncode == 1
     assert proc.stderr.strip().startswith("sympredict-paper: error:") and "Traceback" not in proc.stderr
-    proc = subprocess.run([sys.executable, "-m", "sympredict_paper", "run", "pendulum", "--preset", "huge", "--out", str(tmp_path)],
-                          capture_output=True, text=True)
+    proc = subprocess.run(
+        [sys.executable, "-m", "sympredict_paper", "run", "pendulum", "--preset", "huge", "--out", str(tmp_path)],
+        capture_output=True,
+        text=True,
+    )
     assert proc.returncode == 2 and "invalid choice" in proc.stderr and "Traceback" not in proc.stderr
 
 
@@ -170,9 +205,10 @@ def test_nonsense_numbers_are_refused_by_the_parser_in_one_line(argv, capsys):
     assert_refused_in_one_line(main, argv, capsys)
 
 
-
-@pytest.mark.parametrize("module, system", [("pendulum", "pendulum"), ("wave", "wave"), ("henon_heiles", "henon-heiles"),
-                                            ("sine_gordon", "sine-gordon")])
+@pytest.mark.parametrize(
+    "module, system",
+    [("pendulum", "pendulum"), ("wave", "wave"), ("henon_heiles", "henon-heiles"), ("sine_gordon", "sine-gordon")],
+)
 def test_each_scenario_has_its_own_main(module, system, tmp_path, monkeypatch, capsys):
     """``python -m sympredict_paper.<scenario> ...`` is ``sympredict-paper run <scenario> ...``: the scenario's runner
     writes into the folder given, and a bad option is refused by the parser (exit 2) before any work."""
@@ -217,5 +253,7 @@ def test_the_paper_command_is_installed_beside_the_library_command():
 
     scripts = {e.name: e.value for e in entry_points(group="console_scripts") if e.name.startswith("sympredict")}
     assert scripts == {"sympredict": "sympredict.cli:main", "sympredict-paper": "sympredict_paper.cli:main"}
-    proc = subprocess.run([sys.executable, "-m", "sympredict_paper", "--help"], capture_output=True, text=True, timeout=120)
+    proc = subprocess.run(
+        [sys.executable, "-m", "sympredict_paper", "--help"], capture_output=True, text=True, timeout=120
+    )
     assert proc.returncode == 0 and "{run,study}" in proc.stdout

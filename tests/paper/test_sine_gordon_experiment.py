@@ -27,8 +27,11 @@ def test_smoke_run_is_consistent(smoke):
     assert np.allclose(res["galerkin_rk4_at_DT_error"], gal, rtol=0.1)
     assert np.allclose(res["deim_error"], gal, rtol=0.5)
     assert res["galerkin_energy_error_long"] < 1e-3
-    assert len(res["energy"]["galerkin"]) == len(res["energy"]["t"]) == \
-        PRESETS["smoke"].long_factor * (len(res["curves"]["t"]) - 1) + 1
+    assert (
+        len(res["energy"]["galerkin"])
+        == len(res["energy"]["t"])
+        == PRESETS["smoke"].long_factor * (len(res["curves"]["t"]) - 1) + 1
+    )
     for data in ("reduced", "projected"):
         k = res[f"kernel_{data}"]
         assert k["centers"] <= PRESETS["smoke"].max_centers
@@ -38,11 +41,16 @@ def test_smoke_run_is_consistent(smoke):
     assert {row["N"] for row in r["cost_vs_N"]} == set(PRESETS["smoke"].cost_N)
     for row in r["cost_vs_N"]:  # each N has its own ROMs, as accurate as at N = n_points (the grid change is tiny)
         assert row["galerkin_error"] < 1.0 and row["deim_error"] < 1.0
-        assert all(row[k] > 0 for k in ("galerkin_rk4", "galerkin_rk4_at_DT", "galerkin_im", "deim_rk4", "reconstruction"))
+        assert all(
+            row[k] > 0 for k in ("galerkin_rk4", "galerkin_rk4_at_DT", "galerkin_im", "deim_rk4", "reconstruction")
+        )
     at_n0 = next(row for row in r["cost_vs_N"] if row["N"] == PRESETS["smoke"].n_points and row["dim"] == 4)
     assert np.isclose(at_n0["galerkin_error"], np.median(res["galerkin_error"]), rtol=1e-6)
     ls = res["large_step"]  # one step per DT_large: errors on that grid, the projection error is the floor of every ROM
-    assert ls["DT"] == pytest.approx(PRESETS["smoke"].large_step * PRESETS["smoke"].DT) and len(ls["projection_error"]) == 2
+    assert (
+        ls["DT"] == pytest.approx(PRESETS["smoke"].large_step * PRESETS["smoke"].DT)
+        and len(ls["projection_error"]) == 2
+    )
     k = ls["kernel_projected_midpoint"]
     assert (k["failure"] is None) == isinstance(k["error"], list)
     if k["failure"] is None:  # no ROM in this basis beats the snapshot projection (up to the grid's round-off)
@@ -50,7 +58,9 @@ def test_smoke_run_is_consistent(smoke):
     assert all(e >= 0.999 * f for e, f in zip(ls["galerkin_error"], ls["projection_error"]))
     dd = res["data_driven"]  # pyMOR's DataDrivenReductor runs on the same projected data
     assert dd["failure"] is None, dd["failure"]
-    assert len(dd["error"]) == PRESETS["smoke"].n_test and np.isclose(np.mean(res["curves"]["data_driven"]), np.mean(dd["error"]))
+    assert len(dd["error"]) == PRESETS["smoke"].n_test and np.isclose(
+        np.mean(res["curves"]["data_driven"]), np.mean(dd["error"])
+    )
 
 
 def test_figures_show_the_results(smoke):
@@ -77,7 +87,9 @@ def test_figures_show_the_results(smoke):
     if be["flat_ratio"] is not None:
         ts = [t for _, t in krows]
         assert np.isclose(be["flat_ratio"], ts[-1] / ts[0])
-        assert be["error"] == [r["kernel_error"] for r in sorted(smoke["cost_vs_N"], key=lambda r: r["N"]) if r["dim"] == 4]
+        assert be["error"] == [
+            r["kernel_error"] for r in sorted(smoke["cost_vs_N"], key=lambda r: r["N"]) if r["dim"] == 4
+        ]
     sn = plotting.figure_data(figs["sine_gordon_snapshots"])
     assert np.allclose(sn["axes"][1]["lines"][0]["y"], res["snapshots"]["fom"][1])
     ls = res["large_step"]
@@ -118,8 +130,20 @@ def test_grid_interpolation_and_break_even_oracles():
     lin = lambda x: np.minimum(x, 20.0 - x)  # exact where the kinks are grid points
     assert np.allclose(_interpolation_matrix(x0, x1, 20.0) @ lin(x0), lin(x1))
     # break-even of a Galerkin cost exactly a + b N against a flat kernel cost: N* = (t_k - a) / b
-    rows = [{"N": N, "dim": 4, "galerkin_rk4_at_DT": 1e-3 + 2e-6 * N, "galerkin_rk4": 0.0, "galerkin_error": 0.1,
-             "kernel": 5e-3, "kernel_error": 0.1, "kernel_projected": None, "kernel_projected_error": None} for N in (100, 400, 1600)]
+    rows = [
+        {
+            "N": N,
+            "dim": 4,
+            "galerkin_rk4_at_DT": 1e-3 + 2e-6 * N,
+            "galerkin_rk4": 0.0,
+            "galerkin_error": 0.1,
+            "kernel": 5e-3,
+            "kernel_error": 0.1,
+            "kernel_projected": None,
+            "kernel_projected_error": None,
+        }
+        for N in (100, 400, 1600)
+    ]
     b = break_even(rows, {4: 0.5})[4]
     assert b["galerkin_variant"] == "galerkin_rk4_at_DT"
     assert np.isclose(b["kernel"]["N_star"], 2000.0) and np.isclose(b["kernel"]["flat_ratio"], 1.0)
@@ -133,10 +157,15 @@ def test_energy_claim_applies_the_boundedness_criterion(smoke):
     res = smoke["dims"]["4"]
     per = res["energy_per_test"]
     assert len(per["galerkin"]) == PRESETS["smoke"].n_test and len(per["galerkin"][0]) == len(res["energy"]["t"])
-    assert np.allclose(np.max(per["galerkin"], axis=0), res["energy"]["galerkin"])  # the figure shows the max over tests
+    assert np.allclose(
+        np.max(per["galerkin"], axis=0), res["energy"]["galerkin"]
+    )  # the figure shows the max over tests
     assert energy_boundedness(per["galerkin"], K)["all_bounded"]  # the Galerkin ROM conserves H up to its step error
     claim = next(c for c in report.sine_gordon_claims(smoke) if "energy error of the kernel ROMs" in c["claim"])
-    kernels = [energy_boundedness(per[k], K)["all_bounded"] if k in per else False for k in ("kernel_reduced", "kernel_projected")]
+    kernels = [
+        energy_boundedness(per[k], K)["all_bounded"] if k in per else False
+        for k in ("kernel_reduced", "kernel_projected")
+    ]
     assert claim["holds"] == all(kernels)
     assert res["energy_bounded"]["galerkin"]["all_bounded"]
 

@@ -86,7 +86,9 @@ def test_auto_prefers_the_unsplit_kernel_and_falls_back_to_the_split_one(small):
     assert kind == "none" and choice["large_step"] == choose_large_step(pinf, gal, X, c, 20)["large_step"]
     # the unsplit rule cannot meet the margin when no raw step is admissible; the split one then does
     strict = replace(p, large_step_sigma_min=1.01 * max(r["sigma_min"] for r in raw["table"]), large_step_margin=0.0)
-    assert any(r["sigma_min"] >= strict.large_step_sigma_min for r in split["table"])  # this data lets the split through
+    assert any(
+        r["sigma_min"] >= strict.large_step_sigma_min for r in split["table"]
+    )  # this data lets the split through
     kind, _, choice = sg._choose_large_step_split(strict, gal, X, c, 20)
     assert kind == "quadratic-mass" and set(choice["tables"]) == {"none", "quadratic-mass"}
     assert choice["table"] == choose_large_step(strict, gal, X, c, 20, quadratic=quad)["table"]

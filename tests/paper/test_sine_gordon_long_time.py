@@ -42,19 +42,19 @@ def test_energy_boundedness_rejects_secular_growth():
     # envelope rises by more than 2 m0: secular growth caught by the fit
     ramp = np.full(len(t), 1e-3)
     ramp[: K + 1] = 1e-3 * np.abs(np.sin(7.0 * t[: K + 1])) / np.abs(np.sin(7.0 * t[: K + 1])).max()
-    ramp[K + 1:] = 1e-3 * np.linspace(0.1, 2.95, len(t) - K - 1)
+    ramp[K + 1 :] = 1e-3 * np.linspace(0.1, 2.95, len(t) - K - 1)
     r = energy_boundedness(ramp, K)
     assert r["ratio"][0] <= 3.0 and r["rise"][0] > 2.0 and not r["all_bounded"]
     # the same series with the scatter of a bounded quasi-periodic error around a flat level passes
     flat = ramp.copy()
-    flat[K + 1:] = 1e-3 * (1.5 + 0.9 * np.sin(0.37 * np.arange(len(t) - K - 1)))
+    flat[K + 1 :] = 1e-3 * (1.5 + 0.9 * np.sin(0.37 * np.arange(len(t) - K - 1)))
     assert energy_boundedness(flat, K)["all_bounded"]
 
 
 def test_energy_boundedness_rejects_jumps_blowups_and_nan():
     e = 1e-3 * np.abs(np.sin(7.0 * t))
     jump = e.copy()
-    jump[6 * K:] *= 10  # bounded after the jump, but 10x the training level
+    jump[6 * K :] *= 10  # bounded after the jump, but 10x the training level
     assert not energy_boundedness(jump, K)["all_bounded"]
     assert energy_boundedness(jump, K)["ratio"][0] > 3.0
     # below the floor (0.1 %) the level counts as conserved: a tiny error that grows 5x is still bounded, the same

@@ -37,7 +37,9 @@ def test_quadratic_part_is_the_reduced_hessian_at_zero(gal):
         no_mass = gal.quadratic_part(mass=False).hessian(c)[0]
         Vq = gal.V[: gal.fom.n_points]
         assert np.allclose(no_mass, with_mass - gal.fom.strength * Vq.T @ Vq, atol=1e-12 * np.abs(with_mass).max())
-    deim = ReducedSineGordon.deim(gal.fom, gal.V, np.sin(np.random.default_rng(1).normal(size=(30, gal.fom.n_points))), 6)
+    deim = ReducedSineGordon.deim(
+        gal.fom, gal.V, np.sin(np.random.default_rng(1).normal(size=(30, gal.fom.n_points))), 6
+    )
     with pytest.raises(ValueError, match="Galerkin"):
         deim.quadratic_part()
 

@@ -35,9 +35,11 @@ def hh_run(tmp_path_factory):
 def _charts(smoke_run, hh_run):
     _, results, _ = smoke_run
     hh_out, hh = hh_run
-    return {"pendulum": (smoke_run[0], "pendulum_speed_accuracy", results["results"]["pendulum"]["speed_accuracy"]),
-            "wave": (smoke_run[0], "wave_speed_accuracy", results["results"]["wave"]["speed_accuracy"]),
-            "henon-heiles": (hh_out, "henon_heiles_speed_accuracy", hh["results"]["henon-heiles"]["speed_accuracy"])}
+    return {
+        "pendulum": (smoke_run[0], "pendulum_speed_accuracy", results["results"]["pendulum"]["speed_accuracy"]),
+        "wave": (smoke_run[0], "wave_speed_accuracy", results["results"]["wave"]["speed_accuracy"]),
+        "henon-heiles": (hh_out, "henon_heiles_speed_accuracy", hh["results"]["henon-heiles"]["speed_accuracy"]),
+    }
 
 
 def test_every_chart_has_the_methods_a_user_chooses_between(smoke_run, hh_run):
@@ -123,13 +125,49 @@ def test_deliberate_threads_sets_and_restores_numba_threads():
 
 def test_equal_cost_picks_the_most_accurate_classical_run_at_no_more_cost():
     eq, data = speed.NEEDS["equations"], speed.NEEDS["data"]
-    sa = {"dt": 0.5, "n_trajectories": 4, "n_steps": 10, "repeats": 3, "rows": [
-        {"method": "kernel predictor", "size": 100, "needs": data, "time_per_trajectory_s": 1.0, "median_err": 1e-2},
-        {"method": "kernel predictor", "size": 500, "needs": data, "time_per_trajectory_s": 2.0, "median_err": 1e-4},
-        {"method": "micro-step reference", "size": 0, "needs": eq, "time_per_trajectory_s": 0.5, "median_err": 1e-14},
-        {"method": "Yoshida-4 (compiled)", "size": 2, "needs": eq, "time_per_trajectory_s": 1.5, "median_err": 1e-6},
-        {"method": "Kahan-Li-6 (compiled)", "size": 8, "needs": eq, "time_per_trajectory_s": 3.0, "median_err": 1e-12},
-    ]}
+    sa = {
+        "dt": 0.5,
+        "n_trajectories": 4,
+        "n_steps": 10,
+        "repeats": 3,
+        "rows": [
+            {
+                "method": "kernel predictor",
+                "size": 100,
+                "needs": data,
+                "time_per_trajectory_s": 1.0,
+                "median_err": 1e-2,
+            },
+            {
+                "method": "kernel predictor",
+                "size": 500,
+                "needs": data,
+                "time_per_trajectory_s": 2.0,
+                "median_err": 1e-4,
+            },
+            {
+                "method": "micro-step reference",
+                "size": 0,
+                "needs": eq,
+                "time_per_trajectory_s": 0.5,
+                "median_err": 1e-14,
+            },
+            {
+                "method": "Yoshida-4 (compiled)",
+                "size": 2,
+                "needs": eq,
+                "time_per_trajectory_s": 1.5,
+                "median_err": 1e-6,
+            },
+            {
+                "method": "Kahan-Li-6 (compiled)",
+                "size": 8,
+                "needs": eq,
+                "time_per_trajectory_s": 3.0,
+                "median_err": 1e-12,
+            },
+        ],
+    }
     for r in sa["rows"]:
         r["max_err"] = 2 * r["median_err"]
     eq_cost = report.equal_cost(sa)
@@ -140,7 +178,9 @@ def test_equal_cost_picks_the_most_accurate_classical_run_at_no_more_cost():
     eq_cost = report.equal_cost(sa)
     assert eq_cost["classical"]["method"] == "Yoshida-4 (compiled)" and eq_cost["error_ratio"] == pytest.approx(1e-2)
     assert any("the kernel is 100x less accurate" in line for line in report.speed_accuracy_markdown(sa, ""))
-    sa["rows"] = [r for r in sa["rows"] if r["method"] == "kernel predictor"] + [dict(sa["rows"][-1], time_per_trajectory_s=9.0)]
+    sa["rows"] = [r for r in sa["rows"] if r["method"] == "kernel predictor"] + [
+        dict(sa["rows"][-1], time_per_trajectory_s=9.0)
+    ]
     assert report.equal_cost(sa)["classical"] is None
     assert any("No method with the equations is as cheap" in line for line in report.speed_accuracy_markdown(sa, ""))
 

@@ -1,4 +1,5 @@
 """Run as a script: a compiled parallel rollout, then os.fork and a Pool(fork) rolling out in the children."""
+
 import multiprocessing
 import os
 import sys
@@ -13,8 +14,14 @@ from sympredict.symplectic.solvers import NewtonSolver
 from sympredict.systems.pendulum import Pendulum, flow_map_data
 
 d = flow_map_data(Pendulum(), n_grid=8)
-model = SymplecticKernelPredictor(IMQ(0.15), mu_kernel=IMQ(2.0), dt_kernel=IMQ(5.0), max_centers=60,
-                                  trainer=ExactGreedy(tol=1e-8), solver=NewtonSolver(backend="numba"))
+model = SymplecticKernelPredictor(
+    IMQ(0.15),
+    mu_kernel=IMQ(2.0),
+    dt_kernel=IMQ(5.0),
+    max_centers=60,
+    trainer=ExactGreedy(tol=1e-8),
+    solver=NewtonSolver(backend="numba"),
+)
 model.fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
 x0 = np.column_stack([np.linspace(-0.5, 0.5, 16), np.linspace(0.3, -0.3, 16)])
 args = dict(mu=np.full(16, 0.75), dt=0.05)

@@ -20,7 +20,9 @@ from sympredict.kernels import IMQ, ProductKernel
 from sympredict.estimators.predictor import DirectKernelPredictor
 from sympredict.systems.pendulum import flow_map_data, random_flow_map_data
 
-_spec = importlib.util.spec_from_file_location("sympredict_tests_mpi_launch", Path(__file__).resolve().parents[1] / "mpi" / "launch.py")
+_spec = importlib.util.spec_from_file_location(
+    "sympredict_tests_mpi_launch", Path(__file__).resolve().parents[1] / "mpi" / "launch.py"
+)
 launch = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(launch)
 
@@ -34,8 +36,12 @@ def problem(pendulum):
     xi, y = mixed_variables(data.x0, data.x1, data.dt)
     vxi, vy = mixed_variables(val.x0, val.x1, val.dt)
     return {
-        "data": data, "val": val, "y": y.reshape(-1), "vy": vy.reshape(-1),
-        "F": HBFunctionals(KERNEL, xi, data.mu, data.dt), "VF": HBFunctionals(KERNEL, vxi, val.mu, val.dt),
+        "data": data,
+        "val": val,
+        "y": y.reshape(-1),
+        "vy": vy.reshape(-1),
+        "F": HBFunctionals(KERNEL, xi, data.mu, data.dt),
+        "VF": HBFunctionals(KERNEL, vxi, val.mu, val.dt),
     }
 
 
@@ -44,10 +50,14 @@ def assert_same(serial, sharded, exact=True):
     (``exact``), else to round-off (shards too small to align: BLAS sums in another order)."""
     np.testing.assert_array_equal(sharded.selected, serial.selected)
     assert sharded.history.stop_reason == serial.history.stop_reason
-    pairs = [(sharded.coef, serial.coef), (sharded.newton_coef, serial.newton_coef), (sharded.chol, serial.chol),
-             (sharded.history.train_max_residual, serial.history.train_max_residual),
-             (sharded.history.val_max_residual, serial.history.val_max_residual),
-             (sharded.coef_prefix(len(serial.selected) // 2), serial.coef_prefix(len(serial.selected) // 2))]
+    pairs = [
+        (sharded.coef, serial.coef),
+        (sharded.newton_coef, serial.newton_coef),
+        (sharded.chol, serial.chol),
+        (sharded.history.train_max_residual, serial.history.train_max_residual),
+        (sharded.history.val_max_residual, serial.history.val_max_residual),
+        (sharded.coef_prefix(len(serial.selected) // 2), serial.coef_prefix(len(serial.selected) // 2)),
+    ]
     for a, b in pairs:
         if b is None:
             assert a is None
@@ -92,8 +102,9 @@ def test_wave_snapshots_basis_and_reduced_data_on_pool_equal_serial():
 
 def test_pool_flow_passes_extra_arguments(pendulum, rng):
     x0 = rng.uniform(-1, 1, (30, 2))
-    np.testing.assert_array_equal(pool_flow(pendulum, x0, 0.75, 0.05, 5e-4, chunk_size=7),
-                                  pendulum.flow(x0, 0.75, 0.05, 5e-4))
+    np.testing.assert_array_equal(
+        pool_flow(pendulum, x0, 0.75, 0.05, 5e-4, chunk_size=7), pendulum.flow(x0, 0.75, 0.05, 5e-4)
+    )
 
 
 # ------------------------------------------------------------------ sharded greedy
@@ -118,11 +129,16 @@ def test_sharded_greedy_unaligned_shards_still_agree(problem, monkeypatch):
 
 def test_sharded_p_greedy_and_value_functionals_equal_serial(problem):
     p = problem
-    assert_same(greedy_interpolation(p["F"], p["y"], max_centers=80, criterion="p"),
-                sharded_greedy(p["F"], p["y"], max_centers=80, criterion="p", n_shards=2))
+    assert_same(
+        greedy_interpolation(p["F"], p["y"], max_centers=80, criterion="p"),
+        sharded_greedy(p["F"], p["y"], max_centers=80, criterion="p", n_shards=2),
+    )
     d = p["data"]
     vf = ValueFunctionals(KERNEL, d.x0, d.mu, d.dt)
-    assert_same(greedy_interpolation(vf, d.x1 - d.x0, max_centers=80), sharded_greedy(vf, d.x1 - d.x0, max_centers=80, n_shards=3))
+    assert_same(
+        greedy_interpolation(vf, d.x1 - d.x0, max_centers=80),
+        sharded_greedy(vf, d.x1 - d.x0, max_centers=80, n_shards=3),
+    )
 
 
 def test_sharded_greedy_stop_reasons_equal_serial(problem):
@@ -136,7 +152,10 @@ def test_sharded_greedy_stop_reasons_equal_serial(problem):
         serial = greedy_interpolation(sub, ys, max_centers=100, power_tol=power_tol)
         assert_same(serial, sharded_greedy(sub, ys, max_centers=100, power_tol=power_tol, n_shards=2), exact=False)
     assert {greedy_interpolation(sub, ys, max_centers=100, power_tol=t).history.stop_reason for t in (1e-12, 1e-3)} <= {
-        "exhausted", "power", "tol"}
+        "exhausted",
+        "power",
+        "tol",
+    }
 
 
 def test_ties_go_to_the_lowest_global_index(problem):
@@ -147,7 +166,10 @@ def test_ties_go_to_the_lowest_global_index(problem):
     for n_shards in (2, 3):
         first = sharded_greedy(p["F"], y, max_centers=1, n_shards=n_shards)
         assert first.selected[0] == 11 == greedy_interpolation(p["F"], y, max_centers=1).selected[0]
-        assert_same(greedy_interpolation(p["F"], y, max_centers=40), sharded_greedy(p["F"], y, max_centers=40, n_shards=n_shards))
+        assert_same(
+            greedy_interpolation(p["F"], y, max_centers=40),
+            sharded_greedy(p["F"], y, max_centers=40, n_shards=n_shards),
+        )
 
 
 @pytest.mark.parametrize("cls", [SymplecticKernelPredictor, DirectKernelPredictor])
@@ -155,12 +177,15 @@ def test_sharded_trainer_fit_equals_fit(problem, cls):
     d, v = problem["data"], problem["val"]
     a = cls(IMQ(0.2), IMQ(1.5), IMQ(3.0), max_centers=120).fit(d.x0, d.x1, mu=d.mu, dt=d.dt, validation=v)
     b = cls(IMQ(0.2), IMQ(1.5), IMQ(3.0), max_centers=120, trainer=ShardedGreedy(n_shards=2)).fit(
-        d.x0, d.x1, mu=d.mu, dt=d.dt, validation=v)
+        d.x0, d.x1, mu=d.mu, dt=d.dt, validation=v
+    )
     np.testing.assert_array_equal(b.greedy_result_.selected, a.greedy_result_.selected)
     np.testing.assert_array_equal(b.surrogate_.coef, a.surrogate_.coef)  # aligned shards: bit for bit
     assert b.greedy_result_.stats["n_shards"] == 2 and len(b.greedy_result_.stats["step_call"]) == 120
     np.testing.assert_array_equal(b.surrogate_.centers_mu, a.surrogate_.centers_mu)
-    np.testing.assert_allclose(b.surrogate_.coef, a.surrogate_.coef, rtol=0, atol=1e-10 * np.abs(a.surrogate_.coef).max())
+    np.testing.assert_allclose(
+        b.surrogate_.coef, a.surrogate_.coef, rtol=0, atol=1e-10 * np.abs(a.surrogate_.coef).max()
+    )
     np.testing.assert_array_equal(b.history_.val_max_residual, a.history_.val_max_residual)
     assert b.domain_.keys() == a.domain_.keys() and all(np.array_equal(b.domain_[k], a.domain_[k]) for k in a.domain_)
     x, mu, dt = d.x0[::50], d.mu[::50], d.dt[::50]
@@ -173,8 +198,10 @@ def test_per_rank_memory_limit_is_checked_on_the_worker(problem):
     with pytest.raises(ValueError, match=r"worker rank 0 .*per-rank memory limit.*at least 2"):
         sharded_greedy(p["F"], p["y"], max_centers=100, n_shards=2, memory_limit_per_rank=0.6 * need)
     # the dummy pool survives the failure and the same limit holds a basis that fits
-    assert_same(greedy_interpolation(p["F"], p["y"], max_centers=50),
-                sharded_greedy(p["F"], p["y"], max_centers=50, n_shards=2, memory_limit_per_rank=0.6 * need))
+    assert_same(
+        greedy_interpolation(p["F"], p["y"], max_centers=50),
+        sharded_greedy(p["F"], p["y"], max_centers=50, n_shards=2, memory_limit_per_rank=0.6 * need),
+    )
 
 
 def test_worker_exceptions_come_back_naming_the_rank():
@@ -195,7 +222,9 @@ def test_bad_arguments(problem):
     with pytest.raises(TypeError, match="point-based"):
         sharded_greedy(object(), p["y"], max_centers=5)
     with pytest.raises(ValueError, match="n_shards"):
-        model = SymplecticKernelPredictor(IMQ(0.2), IMQ(1.5), IMQ(3.0), max_centers=5, trainer=ShardedGreedy(n_shards=0))
+        model = SymplecticKernelPredictor(
+            IMQ(0.2), IMQ(1.5), IMQ(3.0), max_centers=5, trainer=ShardedGreedy(n_shards=0)
+        )
         model.fit(p["data"].x0, p["data"].x1, mu=p["data"].mu, dt=p["data"].dt)
 
 

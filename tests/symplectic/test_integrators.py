@@ -3,7 +3,12 @@
 import numpy as np
 import pytest
 
-from sympredict.symplectic.integrators import implicit_midpoint_step, integrate, stormer_verlet_step, symplectic_euler_step
+from sympredict.symplectic.integrators import (
+    implicit_midpoint_step,
+    integrate,
+    stormer_verlet_step,
+    symplectic_euler_step,
+)
 from sympredict.symplectic.metrics import relative_hamiltonian_error
 from sympredict.systems.pendulum import (
     MU_TRAIN,
@@ -22,9 +27,20 @@ def _states(rng, n=6):
 def test_pendulum_gradient_and_hessian_match_finite_differences(pendulum, rng):
     x, length = _states(rng)
     h = 1e-6
-    fd = np.column_stack([(pendulum.hamiltonian(x + h * e, length) - pendulum.hamiltonian(x - h * e, length)) / (2 * h) for e in np.eye(2)])
+    fd = np.column_stack(
+        [
+            (pendulum.hamiltonian(x + h * e, length) - pendulum.hamiltonian(x - h * e, length)) / (2 * h)
+            for e in np.eye(2)
+        ]
+    )
     np.testing.assert_allclose(pendulum.gradient(x, length[:, None]), fd, atol=1e-8)
-    fdh = np.stack([(pendulum.gradient(x + h * e, length[:, None]) - pendulum.gradient(x - h * e, length[:, None])) / (2 * h) for e in np.eye(2)], axis=2)
+    fdh = np.stack(
+        [
+            (pendulum.gradient(x + h * e, length[:, None]) - pendulum.gradient(x - h * e, length[:, None])) / (2 * h)
+            for e in np.eye(2)
+        ],
+        axis=2,
+    )
     np.testing.assert_allclose(pendulum.hessian(x, length[:, None]), fdh, atol=1e-7)
 
 

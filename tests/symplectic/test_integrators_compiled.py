@@ -46,7 +46,9 @@ def _case(name, b=10, seed=0):
     if name == "henon_heiles":
         system = HenonHeiles()
         lam = rng.uniform(0.8, 1.0, b)
-        x = np.vstack([energy_bounded_states(system, lam_i, 1, energy_max=0.12, seed=seed + i) for i, lam_i in enumerate(lam)])
+        x = np.vstack(
+            [energy_bounded_states(system, lam_i, 1, energy_max=0.12, seed=seed + i) for i, lam_i in enumerate(lam)]
+        )
         return system, x, lam
     raise KeyError(name)
 
@@ -61,8 +63,12 @@ def _exact(system, x, mu, t):
     def rhs(_, y, m):
         return apply_J(system.gradient(y[None], np.array([[m]])))[0]
 
-    return np.array([solve_ivp(rhs, (0.0, t), xi, method="DOP853", rtol=1e-13, atol=1e-13, args=(m,)).y[:, -1]
-                     for xi, m in zip(x, mu)])
+    return np.array(
+        [
+            solve_ivp(rhs, (0.0, t), xi, method="DOP853", rtol=1e-13, atol=1e-13, args=(m,)).y[:, -1]
+            for xi, m in zip(x, mu)
+        ]
+    )
 
 
 def test_numba_is_installed_for_these_tests():
@@ -87,7 +93,9 @@ def test_pointwise_gradients_match_the_numpy_system(name):
     np.testing.assert_allclose(spec.gradient(x, mu), system.gradient(x, mu), rtol=1e-14, atol=1e-14)
     np.testing.assert_allclose(spec.hessian(x, mu), system.hessian(x, mu), rtol=1e-14, atol=1e-14)
     # the separable parts on their own (what the explicit schemes call)
-    split = PointwiseHamiltonian(spec.dim, 1, grad_T=spec.grad_T, grad_V=spec.grad_V, fargs=spec.fargs, iargs=spec.iargs)
+    split = PointwiseHamiltonian(
+        spec.dim, 1, grad_T=spec.grad_T, grad_V=spec.grad_V, fargs=spec.fargs, iargs=spec.iargs
+    )
     np.testing.assert_allclose(split.gradient(x, mu), system.gradient(x, mu), rtol=1e-14, atol=1e-14)
 
 
@@ -104,7 +112,9 @@ def test_compiled_rollout_matches_numpy_reference(name, scheme):
     # per-instance steps, one state
     dts = np.linspace(0.05, 0.15, len(x))
     got = rollout(system, x, mu, dts, 5, scheme=scheme, backend="numba")
-    np.testing.assert_allclose(got, rollout(system, x, mu, dts, 5, scheme=scheme, backend="numpy"), rtol=0, atol=1e-13 * scale)
+    np.testing.assert_allclose(
+        got, rollout(system, x, mu, dts, 5, scheme=scheme, backend="numpy"), rtol=0, atol=1e-13 * scale
+    )
     one = rollout(system, x[2], mu[2], 0.1, 12, scheme=scheme, substeps=2)
     np.testing.assert_allclose(one, ref[2], rtol=0, atol=1e-13 * scale)
 
@@ -121,7 +131,9 @@ def test_observed_convergence_order(name, scheme):
     t = _ORDER_GRID[name]
     exact = _exact(system, x, mu, t)
     steps = _BASE_STEPS[scheme] * np.array([1, 2, 4, 8])
-    errors = np.array([np.abs(rollout(system, x, mu, t, 1, scheme=scheme, substeps=int(r))[:, 1] - exact).max() for r in steps])
+    errors = np.array(
+        [np.abs(rollout(system, x, mu, t, 1, scheme=scheme, substeps=int(r))[:, 1] - exact).max() for r in steps]
+    )
     assert errors.min() > 1e-11, errors  # asymptotic range, not round-off
     fit = linregress(np.log(t / steps), np.log(errors))
     assert abs(fit.slope - SCHEME_ORDERS[scheme]) < 0.25, (fit.slope, errors)
@@ -161,7 +173,9 @@ def test_symplecticity_check_detects_a_non_symplectic_map():
     assert np.abs(D.T @ J @ D - J).max() > 1e-3
 
 
-@pytest.mark.parametrize("scheme, tol", [("stormer_verlet", 5e-3), ("yoshida4", 5e-4), ("kahan_li6", 1e-4), ("implicit_midpoint", 5e-3)])
+@pytest.mark.parametrize(
+    "scheme, tol", [("stormer_verlet", 5e-3), ("yoshida4", 5e-4), ("kahan_li6", 1e-4), ("implicit_midpoint", 5e-3)]
+)
 def test_energy_error_bounded_over_long_runs(scheme, tol):
     system = HenonHeiles()
     lam = np.array([0.8, 0.9, 1.0, 1.0])
@@ -213,7 +227,9 @@ def _morse_hess_H(x, mu, fargs, iargs, out):
 
 
 def _morse(fns):
-    return PointwiseHamiltonian(4, 1, grad_T=fns[0], grad_V=fns[1], grad_H=fns[2], hess_H=fns[3], fargs=[1.3], name="morse")
+    return PointwiseHamiltonian(
+        4, 1, grad_T=fns[0], grad_V=fns[1], grad_H=fns[2], hess_H=fns[3], fargs=[1.3], name="morse"
+    )
 
 
 _PY = (_morse_grad_T, _morse_grad_V, _morse_grad_H, _morse_hess_H)

@@ -31,9 +31,11 @@ def _data(d, n=400):
 # ------------------------------------------------------------------ the chunk driver on a toy map
 def _toy_run(calls):
     """A 'rollout' of x -> x + 1 that records the chunk lengths it was asked for."""
+
     def run(state, k):
         calls.append(k)
         return state[:, None, :] + np.arange(k + 1)[None, :, None]
+
     return run
 
 
@@ -94,21 +96,29 @@ def _fitted(name, pendulum, d, backend):
     kernels = (IMQ(0.3), IMQ(1.5), IMQ(3.0))
     x0, x1, mu, dt = _data(d)
     model = {
-        "symplectic_euler": lambda: SymplecticKernelPredictor(Scaled(kernels[0], factors=[1.3]), *kernels[1:], max_centers=40,
-                                                              solver=NewtonSolver(backend=backend)),
-        "midpoint": lambda: SymplecticKernelPredictor(*kernels, max_centers=40, update="midpoint",
-                                                      solver=NewtonSolver(backend=backend)),
+        "symplectic_euler": lambda: SymplecticKernelPredictor(
+            Scaled(kernels[0], factors=[1.3]), *kernels[1:], max_centers=40, solver=NewtonSolver(backend=backend)
+        ),
+        "midpoint": lambda: SymplecticKernelPredictor(
+            *kernels, max_centers=40, update="midpoint", solver=NewtonSolver(backend=backend)
+        ),
         "direct": lambda: DirectKernelPredictor(*kernels, max_centers=40),
-        "split": lambda: SplitKernelPredictor(SymplecticKernelPredictor(*kernels, max_centers=40,
-                                                                        solver=NewtonSolver(backend=backend)),
-                                              pendulum.quadratic_part()),
+        "split": lambda: SplitKernelPredictor(
+            SymplecticKernelPredictor(*kernels, max_centers=40, solver=NewtonSolver(backend=backend)),
+            pendulum.quadratic_part(),
+        ),
     }[name]()
     return model.fit(x0, x1, mu=mu, dt=dt)
 
 
-@pytest.mark.parametrize("name,backend", [(name, backend) for name in ("symplectic_euler", "midpoint", "split")
-                                           for backend in ("numpy", "numba")] + [("direct", "numpy")])
-def test_chunked_and_strided_rollouts_equal_the_one_call_rollout(small_pendulum_data, pendulum, monkeypatch, name, backend):
+@pytest.mark.parametrize(
+    "name,backend",
+    [(name, backend) for name in ("symplectic_euler", "midpoint", "split") for backend in ("numpy", "numba")]
+    + [("direct", "numpy")],
+)
+def test_chunked_and_strided_rollouts_equal_the_one_call_rollout(
+    small_pendulum_data, pendulum, monkeypatch, name, backend
+):
     """Each step depends only on the state before it: chunks change nothing, bit for bit (same code, same arrays)."""
     model = _fitted(name, pendulum, small_pendulum_data, backend)
     x = np.array([[0.3, 0.1], [0.8, -0.2], [0.1, 0.0]])
@@ -136,8 +146,12 @@ def test_warm_started_chunks_solve_the_same_steps(small_pendulum_model, monkeypa
     monkeypatch.setattr(newton, "FIRST_CHUNK_STEPS", 3)
     monkeypatch.setattr(newton, "CHUNK_SECONDS", 0.0)
     sur = warm.surrogate_
-    np.testing.assert_allclose(warm.rollout(x, 40, mu=mu, dt=dt), whole, rtol=0,
-                               atol=rollout_bound(sur, whole, sur.weights(mu[:, None], dt), dt))
+    np.testing.assert_allclose(
+        warm.rollout(x, 40, mu=mu, dt=dt),
+        whole,
+        rtol=0,
+        atol=rollout_bound(sur, whole, sur.weights(mu[:, None], dt), dt),
+    )
 
 
 # ------------------------------------------------------------------ backend='auto'
@@ -188,15 +202,37 @@ def model_file(tmp_path_factory, small_pendulum_data):
 
 
 def _predict(model_file, steps, backend, *extra):
-    return [sys.executable, "-m", "sympredict.cli", "predict", str(model_file), "--x0", "0.3,0.1", "--mu", "0.75",
-            "--dt", "0.05", "--steps", str(steps), "--backend", backend, *extra]
+    return [
+        sys.executable,
+        "-m",
+        "sympredict.cli",
+        "predict",
+        str(model_file),
+        "--x0",
+        "0.3,0.1",
+        "--mu",
+        "0.75",
+        "--dt",
+        "0.05",
+        "--steps",
+        str(steps),
+        "--backend",
+        backend,
+        *extra,
+    ]
 
 
 @pytest.mark.parametrize("backend", ["numpy", "numba"])
 def test_a_billion_step_predict_stops_on_ctrl_c(model_file, backend):
     env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "NUMBA_NUM_THREADS": "1"}
-    proc = subprocess.Popen(_predict(model_file, 10**9, backend), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True, env=env, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    proc = subprocess.Popen(
+        _predict(model_file, 10**9, backend),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
     try:
         # wait until it is stepping (imports, load and, for numba, the compiled code are behind it)
         deadline = time.monotonic() + 240
@@ -227,15 +263,23 @@ def _cpu_seconds(pid: int) -> float:
 
 
 def test_predict_refuses_an_output_that_cannot_fit_before_stepping(model_file, tmp_path):
-    proc = subprocess.run(_predict(model_file, 10**11, "numpy", "--out", str(tmp_path / "t.csv")),
-                          capture_output=True, text=True, timeout=120)
+    proc = subprocess.run(
+        _predict(model_file, 10**11, "numpy", "--out", str(tmp_path / "t.csv")),
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert proc.returncode == 1 and "--stride" in proc.stderr and "Traceback" not in proc.stderr, proc.stderr
     assert not (tmp_path / "t.csv").exists()
     # printing the final state keeps two states: a long run's memory does not grow with its steps
     proc = subprocess.run(_predict(model_file, 2000, "numpy"), capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0 and proc.stdout.startswith("instance 0: x(2000 steps) = "), proc.stderr
-    proc = subprocess.run(_predict(model_file, 20, "numpy", "--out", str(tmp_path / "s.csv"), "--stride", "5"),
-                          capture_output=True, text=True, timeout=120)
+    proc = subprocess.run(
+        _predict(model_file, 20, "numpy", "--out", str(tmp_path / "s.csv"), "--stride", "5"),
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     rows = np.loadtxt(tmp_path / "s.csv", delimiter=",", skiprows=1)
     # the time column: every 5th step of dt = 0.05
     assert proc.returncode == 0 and rows[:, 1] == pytest.approx([0, 0.25, 0.5, 0.75, 1.0], rel=1e-12), proc.stderr
@@ -246,6 +290,8 @@ def test_predict_on_a_direct_model_with_check_is_refused_in_one_line(small_pendu
     path = tmp_path / "direct.h5"
     DirectKernelPredictor(IMQ(0.3), IMQ(1.5), IMQ(3.0), max_centers=20).fit(x0, x1, mu=mu, dt=dt).save(path)
     ok = subprocess.run(_predict(path, 5, "numba"), capture_output=True, text=True, timeout=120)
-    assert ok.returncode == 0 and ok.stdout.startswith("instance 0: x(5 steps) = "), ok.stderr  # no Newton solver to set
+    assert ok.returncode == 0 and ok.stdout.startswith("instance 0: x(5 steps) = "), (
+        ok.stderr
+    )  # no Newton solver to set
     proc = subprocess.run(_predict(path, 5, "auto", "--check"), capture_output=True, text=True, timeout=120)
     assert proc.returncode == 1 and "--check" in proc.stderr and "Traceback" not in proc.stderr, proc.stderr

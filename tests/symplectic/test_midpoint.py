@@ -26,8 +26,7 @@ def _rotation(x, theta):
 
 def _oscillator_model(theta, update, n=300):
     x0 = np.random.default_rng(0).uniform(-1, 1, (n, 2))
-    model = SymplecticKernelPredictor(IMQ(0.5), max_centers=2 * n, update=update,
-                                      solver=NewtonSolver(backend="numpy"))
+    model = SymplecticKernelPredictor(IMQ(0.5), max_centers=2 * n, update=update, solver=NewtonSolver(backend="numpy"))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ExtrapolationWarning)
         return model.fit(x0, _rotation(x0, theta), dt=theta)
@@ -63,8 +62,9 @@ def pendulum_midpoint(small_pendulum_data):
     d = small_pendulum_data
     idx = np.random.default_rng(0).choice(len(d), 1500, replace=False)
     # the NumPy reference solver (the compiled one is checked against it in test_midpoint_compiled.py)
-    model = SymplecticKernelPredictor(IMQ(0.2), IMQ(1.5), IMQ(3.0), max_centers=400, update="midpoint",
-                                      solver=NewtonSolver(backend="numpy"))
+    model = SymplecticKernelPredictor(
+        IMQ(0.2), IMQ(1.5), IMQ(3.0), max_centers=400, update="midpoint", solver=NewtonSolver(backend="numpy")
+    )
     return model.fit(d.x0[idx], d.x1[idx], mu=d.mu[idx], dt=d.dt[idx]), d
 
 
@@ -103,5 +103,6 @@ def test_accuracy_on_the_pendulum_and_settings(pendulum_midpoint, pendulum, tmp_
     assert loaded.update == "midpoint"
     assert_same_predictions(loaded, model, x, 5, mu=mu, dt=dt)
     with pytest.raises(ValueError, match="update must be"):
-        SymplecticKernelPredictor(IMQ(0.2), IMQ(1.5), IMQ(3.0), update="leapfrog").fit(d.x0[:50], d.x1[:50], mu=d.mu[:50],
-                                                                                       dt=d.dt[:50])
+        SymplecticKernelPredictor(IMQ(0.2), IMQ(1.5), IMQ(3.0), update="leapfrog").fit(
+            d.x0[:50], d.x1[:50], mu=d.mu[:50], dt=d.dt[:50]
+        )

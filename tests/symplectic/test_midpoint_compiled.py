@@ -35,8 +35,14 @@ _with_backend = with_backend
 def pendulum_mid(small_pendulum_data):
     """2n = 2, 50 centres: coefficients ~1e4, gradient floor ~1e-12 (as the symplectic-Euler 1e-12 test)."""
     d = small_pendulum_data
-    model = SymplecticKernelPredictor(IMQ(0.15), mu_kernel=IMQ(2.0), dt_kernel=IMQ(5.0), max_centers=50,
-                                      update="midpoint", solver=NewtonSolver(backend="numpy"))
+    model = SymplecticKernelPredictor(
+        IMQ(0.15),
+        mu_kernel=IMQ(2.0),
+        dt_kernel=IMQ(5.0),
+        max_centers=50,
+        update="midpoint",
+        solver=NewtonSolver(backend="numpy"),
+    )
     return model.fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
 
 
@@ -56,8 +62,9 @@ def chain_mid():
     a = _chain_system(4)
     x0 = rng.uniform(-1, 1, (400, 8))
     x1 = x0 @ expm(0.2 * a).T
-    model = SymplecticKernelPredictor(IMQ(0.3), max_centers=120, update="midpoint",
-                                      solver=NewtonSolver(backend="numpy"))
+    model = SymplecticKernelPredictor(
+        IMQ(0.3), max_centers=120, update="midpoint", solver=NewtonSolver(backend="numpy")
+    )
     return model.fit(x0, x1, dt=0.2), a
 
 
@@ -140,9 +147,15 @@ def test_compiled_midpoint_reverse_step_inverts(which, pendulum_mid, chain_mid, 
 def test_compiled_midpoint_on_an_ill_conditioned_model_agrees_to_the_floor(small_pendulum_data, rng):
     """600 centres, coefficients ~1e7: agreement to the gradient floor (several chunks: the 2n = 2 case below)."""
     d = small_pendulum_data
-    model = SymplecticKernelPredictor(IMQ(0.15), mu_kernel=IMQ(2.0), dt_kernel=IMQ(5.0), max_centers=600,
-                                      update="midpoint", trainer=ExactGreedy(tol=1e-10),
-                                      solver=NewtonSolver(backend="numpy")).fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
+    model = SymplecticKernelPredictor(
+        IMQ(0.15),
+        mu_kernel=IMQ(2.0),
+        dt_kernel=IMQ(5.0),
+        max_centers=600,
+        update="midpoint",
+        trainer=ExactGreedy(tol=1e-10),
+        solver=NewtonSolver(backend="numpy"),
+    ).fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
     x, mu, dt = _queries(rng, 20)
     check_rollouts_agree_to_the_floor(model, _with_backend(model, "numba"), x, mu, dt)
 
@@ -154,8 +167,9 @@ def test_compiled_midpoint_warm_start(pendulum_mid, rng):
     runs = {}
     for warm in (False, True):
         stats = {}
-        traj, codes, *_ = _compiled_newton.newton_rollout(x, w, dt, sur.layout(), sur.kernel.state, 50, 100, stats=stats,
-                                                      warm_start=warm, update="midpoint")
+        traj, codes, *_ = _compiled_newton.newton_rollout(
+            x, w, dt, sur.layout(), sur.kernel.state, 50, 100, stats=stats, warm_start=warm, update="midpoint"
+        )
         assert np.all(codes == 0)
         runs[warm] = (traj, stats["passes"])
     (cold, p_cold), (warm, p_warm) = runs[False], runs[True]
@@ -190,8 +204,14 @@ def _synthetic(dim, m, rng, big_segment=0):
     """Random centres in [-1, 1]^dim, components random (``big_segment`` of them on component 0)."""
     comps = rng.integers(0, dim, m)
     comps[:big_segment] = 0
-    return HBSurrogate(ProductKernel(IMQ(0.5), IMQ(1.0), None), rng.uniform(-1, 1, (m, dim)), rng.uniform(0, 1, (m, 1)),
-                       np.ones(m), comps, 1e-2 * rng.standard_normal(m))
+    return HBSurrogate(
+        ProductKernel(IMQ(0.5), IMQ(1.0), None),
+        rng.uniform(-1, 1, (m, dim)),
+        rng.uniform(0, 1, (m, 1)),
+        np.ones(m),
+        comps,
+        1e-2 * rng.standard_normal(m),
+    )
 
 
 @pytest.mark.parametrize("dim", [2, 8, 40])
@@ -240,4 +260,6 @@ def test_chunk_size_keeps_the_scratch_in_l1():
         assert (dim + 6) * c <= compiled_surrogate.SCRATCH_DOUBLES or c == 32
     assert compiled_surrogate.chunk_size(2) == compiled_surrogate.CHUNK
     with pytest.raises(ValueError, match="update"):
-        _compiled_newton.newton_rollout(np.zeros((1, 2)), np.zeros((1, 1)), np.ones(1), None, IMQ(1.0), 5, 1, update="leapfrog")
+        _compiled_newton.newton_rollout(
+            np.zeros((1, 2)), np.zeros((1, 1)), np.ones(1), None, IMQ(1.0), 5, 1, update="leapfrog"
+        )

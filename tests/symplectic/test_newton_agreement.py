@@ -42,9 +42,9 @@ def _queries(seed, n=12):
 
 
 def _fit(data, warm=False, **settings):
-    return SymplecticKernelPredictor(IMQ(0.15), mu_kernel=IMQ(2.0), trainer=ExactGreedy(tol=1e-10),
-                                     solver=NewtonSolver(warm_start=warm), **settings).fit(
-        data.x0, data.x1, mu=data.mu, dt=data.dt)
+    return SymplecticKernelPredictor(
+        IMQ(0.15), mu_kernel=IMQ(2.0), trainer=ExactGreedy(tol=1e-10), solver=NewtonSolver(warm_start=warm), **settings
+    ).fit(data.x0, data.x1, mu=data.mu, dt=data.dt)
 
 
 @pytest.fixture(scope="module")
@@ -167,7 +167,7 @@ def test_chunks_receive_the_states_before_them(monkeypatch):
 
     def run(state, k, previous):
         start = int(state[0, 0])
-        expected = full[:, max(0, start - 2):start]
+        expected = full[:, max(0, start - 2) : start]
         if start == 0:
             assert previous is None
         else:

@@ -1,11 +1,8 @@
 """Newton's watchdog: full steps while the residual improves, a restart from the best iterate otherwise, alike on
 both backends."""
 
-
-
 import numpy as np
 import pytest
-
 
 
 # --------------------------------------------------------------------------- Newton with a watchdog
@@ -17,8 +14,9 @@ def test_watchdog_rule_on_synthetic_values():
     best = np.array([inf, 4.0, 5.0, 5.0, 4.0, 1e-21, inf])
     fraction = np.array([1.0, 1.0, 1.0, 0.5, MIN_FRACTION, 1.0, 1.0])
     f_norm, f_floor = merit, np.full(7, 1e-18)
-    np.testing.assert_array_equal(accepted(merit, best, fraction, f_norm, f_floor),
-                                  [True, False, True, False, True, True, True])
+    np.testing.assert_array_equal(
+        accepted(merit, best, fraction, f_norm, f_floor), [True, False, True, False, True, True, True]
+    )
 
 
 @pytest.mark.paths
@@ -53,8 +51,9 @@ def test_a_cycling_newton_is_restarted_alike_on_both_backends(small_pendulum_dat
     from sympredict import SymplecticKernelPredictor
 
     d = small_pendulum_data
-    model = SymplecticKernelPredictor(IMQ(0.15), mu_kernel=IMQ(2.0), dt_kernel=IMQ(0.2), max_centers=60,
-                                      trainer=ExactGreedy(tol=1e-10)).fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
+    model = SymplecticKernelPredictor(
+        IMQ(0.15), mu_kernel=IMQ(2.0), dt_kernel=IMQ(0.2), max_centers=60, trainer=ExactGreedy(tol=1e-10)
+    ).fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
     rng = np.random.default_rng(0)
     x = np.column_stack([rng.uniform(0.0, np.pi / 2, 20), rng.uniform(-0.5, 0.5, 20)])
     mu = rng.uniform(0.71, 0.79, 20)
@@ -64,7 +63,7 @@ def test_a_cycling_newton_is_restarted_alike_on_both_backends(small_pendulum_dat
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", ExtrapolationWarning)
-                m.rollout(xs[i:i + 1], 20, mu=mu[i:i + 1], dt=1.0)
+                m.rollout(xs[i : i + 1], 20, mu=mu[i : i + 1], dt=1.0)
             return -1
         except NewtonConvergenceError as exc:
             return exc.step
@@ -93,8 +92,9 @@ def test_far_steps_fail_or_converge_alike_on_both_backends(small_pendulum_data):
     from sympredict.kernels import IMQ
 
     d = small_pendulum_data
-    model = SymplecticKernelPredictor(IMQ(0.15), mu_kernel=IMQ(2.0), dt_kernel=IMQ(0.2), max_centers=60,
-                                      trainer=ExactGreedy(tol=1e-10)).fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
+    model = SymplecticKernelPredictor(
+        IMQ(0.15), mu_kernel=IMQ(2.0), dt_kernel=IMQ(0.2), max_centers=60, trainer=ExactGreedy(tol=1e-10)
+    ).fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
     rng = np.random.default_rng(0)  # the far-step study's states (sympredict_paper/studies/far_step_newton.py)
     x = np.column_stack([rng.uniform(0.0, np.pi / 2, 20), rng.uniform(-0.5, 0.5, 20)])
     mu = rng.uniform(0.71, 0.79, 20)

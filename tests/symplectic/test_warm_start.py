@@ -22,8 +22,9 @@ def test_warm_start_saves_passes_and_solves_the_same_equation(small_pendulum_mod
     runs = {}
     for warm in (False, True):
         stats = {}
-        traj, codes, *_ = _compiled_newton.newton_rollout(x0, w, dt, sur.layout(), sur.kernel.state, 50, 200, stats=stats,
-                                                      warm_start=warm)
+        traj, codes, *_ = _compiled_newton.newton_rollout(
+            x0, w, dt, sur.layout(), sur.kernel.state, 50, 200, stats=stats, warm_start=warm
+        )
         assert np.all(codes == 0)
         runs[warm] = (traj, stats["passes"])
     (cold, p_cold), (warm, p_warm) = runs[False], runs[True]

@@ -20,7 +20,9 @@ def _states(rng, b=6):
 
 def test_hamiltonian_closed_form(hh):
     # a saddle of lambda = 1 at (0, 1): energy 1/6 with p = 0; the origin has energy |p|^2 / 2
-    np.testing.assert_allclose(hh.hamiltonian(np.array([[0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 0.3, 0.4]]), 1.0), [1 / 6, 0.125])
+    np.testing.assert_allclose(
+        hh.hamiltonian(np.array([[0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 0.3, 0.4]]), 1.0), [1 / 6, 0.125]
+    )
     assert escape_energy(1.0) == pytest.approx(1 / 6) and escape_energy(0.5) == pytest.approx(2 / 3)
     # the saddles of lambda: (0, 1/lambda) and (+-sqrt(3)/(2 lambda), -1/(2 lambda)), energy 1/(6 lambda^2)
     lam = 0.8
@@ -32,7 +34,9 @@ def test_hamiltonian_closed_form(hh):
 def test_gradient_and_hessian_match_finite_differences(hh, rng):
     x, lam = _states(rng)
     h = 1e-6
-    fd = np.column_stack([(hh.hamiltonian(x + h * e, lam) - hh.hamiltonian(x - h * e, lam)) / (2 * h) for e in np.eye(4)])
+    fd = np.column_stack(
+        [(hh.hamiltonian(x + h * e, lam) - hh.hamiltonian(x - h * e, lam)) / (2 * h) for e in np.eye(4)]
+    )
     np.testing.assert_allclose(hh.gradient(x, lam), fd, atol=1e-9)
     fdh = np.stack([(hh.gradient(x + h * e, lam) - hh.gradient(x - h * e, lam)) / (2 * h) for e in np.eye(4)], axis=2)
     np.testing.assert_allclose(hh.hessian(x, lam), fdh, atol=1e-8)
@@ -40,7 +44,9 @@ def test_gradient_and_hessian_match_finite_differences(hh, rng):
 
 def test_reference_flow_matches_dop853_and_conserves_energy(hh):
     lam = np.array([0.8, 0.9, 1.0])
-    x = np.vstack([energy_bounded_states(hh, m, 1, energy_max=0.9 * escape_energy(m), seed=i) for i, m in enumerate(lam)])
+    x = np.vstack(
+        [energy_bounded_states(hh, m, 1, energy_max=0.9 * escape_energy(m), seed=i) for i, m in enumerate(lam)]
+    )
     traj = hh.trajectory(x, lam, 0.5, 40)  # T = 20
     assert traj.shape == (3, 41, 4)
 

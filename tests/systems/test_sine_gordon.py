@@ -16,7 +16,9 @@ def small():
 
 def _state(fom, seed=0):
     rng = np.random.default_rng(seed)
-    return np.concatenate([fom.sech_cos(2.0, 1.0)[:fom.n_points], 0.3 * fom.breather(1.0, 0.5)[fom.n_points:]]) + 0.1 * rng.normal(size=fom.dim)
+    return np.concatenate(
+        [fom.sech_cos(2.0, 1.0)[: fom.n_points], 0.3 * fom.breather(1.0, 0.5)[fom.n_points :]]
+    ) + 0.1 * rng.normal(size=fom.dim)
 
 
 @pytest.mark.parametrize("boundary", ["dirichlet", "periodic"])
@@ -36,12 +38,20 @@ def test_laplacian(boundary):
 def test_gradient_and_hessian_against_finite_differences(small):
     x, c, e = _state(small), 1.1, 1e-6
     g = small.gradient(x[None], c)[0]
-    fd = np.array([(small.hamiltonian((x + e * v)[None], c)[0] - small.hamiltonian((x - e * v)[None], c)[0]) / (2 * e)
-                   for v in np.eye(small.dim)])
+    fd = np.array(
+        [
+            (small.hamiltonian((x + e * v)[None], c)[0] - small.hamiltonian((x - e * v)[None], c)[0]) / (2 * e)
+            for v in np.eye(small.dim)
+        ]
+    )
     assert np.abs(g - fd).max() < 1e-6 * (1 + np.abs(g).max())
     H = small.hessian(x[None], c)[0]
-    fdH = np.array([(small.gradient((x + e * v)[None], c)[0] - small.gradient((x - e * v)[None], c)[0]) / (2 * e)
-                    for v in np.eye(small.dim)]).T
+    fdH = np.array(
+        [
+            (small.gradient((x + e * v)[None], c)[0] - small.gradient((x - e * v)[None], c)[0]) / (2 * e)
+            for v in np.eye(small.dim)
+        ]
+    ).T
     assert np.abs(H - fdH).max() < 1e-5 * (1 + np.abs(H).max())
     assert np.allclose(H, H.T)
 
@@ -103,8 +113,10 @@ def test_pymor_model_solves_with_the_reference():
     v = np.random.default_rng(1).normal(size=fom.dim)
     Jv = fom.from_pymor(jac.apply(fom.to_pymor(v)))[0]
     e = 1e-6
-    fd = (fom.from_pymor(fom.operator.apply(fom.to_pymor(x + e * v), mu))[0]
-          - fom.from_pymor(fom.operator.apply(fom.to_pymor(x - e * v), mu))[0]) / (2 * e)
+    fd = (
+        fom.from_pymor(fom.operator.apply(fom.to_pymor(x + e * v), mu))[0]
+        - fom.from_pymor(fom.operator.apply(fom.to_pymor(x - e * v), mu))[0]
+    ) / (2 * e)
     assert np.abs(Jv - fd).max() < 1e-5 * np.abs(Jv).max()
 
 

@@ -18,7 +18,7 @@ def test_breather_initial_states_are_the_exact_breathers_at_t0():
     X0 = initial_states(fom, p, c, w)
     for x0, ci, wi in zip(X0, c, w):
         assert np.allclose(x0, fom.breather_exact([0.0], ci, wi)[0], atol=1e-14)
-        assert np.all(x0[: fom.n_points] == 0) and x0[fom.n_points:].max() > 0  # at its zero crossing
+        assert np.all(x0[: fom.n_points] == 0) and x0[fom.n_points :].max() > 0  # at its zero crossing
     # the default family is unchanged: amplitude * sech(x/2) cos(x)
     a = np.array([0.5, 1.5])
     assert np.allclose(initial_states(fom, PRESETS["quick"], c[:2], a), a[:, None] * fom.sech_cos(2.0, 1.0))
@@ -43,7 +43,9 @@ def test_fom_breather_follows_the_closed_form_over_one_period():
     for N in (200, 400):
         fom = SineGordonFOM(n_points=N, length=30.0)
         c, w, dt, K = 1.1, 0.8, 0.1, 79  # 2 pi / 0.8 = 7.85
-        X = fom.reference_trajectory(initial_states(fom, PRESETS["breather"], [c], [w]), np.array([c]), dt, K, tol=1e-8)[0]
+        X = fom.reference_trajectory(
+            initial_states(fom, PRESETS["breather"], [c], [w]), np.array([c]), dt, K, tol=1e-8
+        )[0]
         E = fom.breather_exact(dt * np.arange(K + 1), c, w)
         errs.append(np.abs(X - E).max() / np.abs(E).max())
     assert errs[0] < 3e-3 and errs[1] < 0.5 * errs[0]
@@ -101,7 +103,9 @@ def test_cli_rejects_breather_outside_sine_gordon(tmp_path, capsys):
 def test_cli_smoke_breather_run(tmp_path):
     from sympredict_paper.cli import main
 
-    assert main(["run", "sine-gordon", "--preset", "smoke", "--initial", "breather", "--out", str(tmp_path / "run")]) == 0
+    assert (
+        main(["run", "sine-gordon", "--preset", "smoke", "--initial", "breather", "--out", str(tmp_path / "run")]) == 0
+    )
     results = json.loads((tmp_path / "run" / "results.json").read_text())
     s = results["results"]["sine-gordon"]
     assert s["preset"]["initial"] == "breather" and s["second_parameter"] == "omega"

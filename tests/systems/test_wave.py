@@ -83,7 +83,11 @@ def test_reduced_operator_and_reconstruction(fom, snapshots, rng):
         direct = basis.V.T @ fom.hamiltonian_matrix(mu).toarray() @ basis.V
         np.testing.assert_allclose(rom.system.matrix(mu), direct, atol=1e-12 * np.abs(direct).max())
     x_red = rng.normal(size=(4, 6))
-    np.testing.assert_allclose(rom.reconstruct(x_red), fom.from_pymor(rom.reductor.reconstruct(rom.rom.solution_space.from_numpy(x_red.T))), atol=1e-13)
+    np.testing.assert_allclose(
+        rom.reconstruct(x_red),
+        fom.from_pymor(rom.reductor.reconstruct(rom.rom.solution_space.from_numpy(x_red.T))),
+        atol=1e-13,
+    )
     np.testing.assert_allclose(rom.project(rom.reconstruct(x_red)), x_red, atol=1e-12)
     # states in the span: the ROM trajectory reconstructs the FOM trajectory
     mu = 0.07
@@ -91,7 +95,9 @@ def test_reduced_operator_and_reconstruction(fom, snapshots, rng):
     red = rom.system.trajectory(x0, mu, 0.1, 5)
     full = fom.trajectory(rom.reconstruct(x0), mu, 0.1, 5)
     np.testing.assert_allclose(rom.reconstruct(red), full, atol=1e-9 * np.abs(full).max())
-    np.testing.assert_allclose(rom.system.exact_flow(x0, mu, 0.5), rom.system.trajectory(x0, mu, 0.1, 5, exact=True)[:, -1], atol=1e-12)
+    np.testing.assert_allclose(
+        rom.system.exact_flow(x0, mu, 0.5), rom.system.trajectory(x0, mu, 0.1, 5, exact=True)[:, -1], atol=1e-12
+    )
 
 
 def test_rom_rejects_bad_bases_and_parameters(fom, snapshots):

@@ -46,19 +46,56 @@ from sympredict.interpolation.greedy.trainers import (
 from sympredict.interpolation.greedy.blocked import BlockedStore
 
 __all__ = [
-    "GreedyHistory", "GreedyResult", "NewtonBasisStore", "run_greedy", "DenseStore", "ActiveSetStore", "ShardedStore",
-    "BlockedStore", "BlockedGreedy", "trainer_memory", "default_trainer", "BoundedActiveSetStore",
-    "BoundedActiveSetGreedy", "bounded_memory", "memory_budget",
-    "Trainer", "ExactGreedy", "ActiveSetGreedy", "ShardedGreedy", "TRAINERS", "register_trainer", "trainer_from_spec",
-    "greedy_interpolation", "active_set_greedy", "sharded_greedy", "shard_bounds", "SHARD_ALIGN", "available_memory",
-    "check_memory", "format_bytes", "kernel_coefficients",
+    "GreedyHistory",
+    "GreedyResult",
+    "NewtonBasisStore",
+    "run_greedy",
+    "DenseStore",
+    "ActiveSetStore",
+    "ShardedStore",
+    "BlockedStore",
+    "BlockedGreedy",
+    "trainer_memory",
+    "default_trainer",
+    "BoundedActiveSetStore",
+    "BoundedActiveSetGreedy",
+    "bounded_memory",
+    "memory_budget",
+    "Trainer",
+    "ExactGreedy",
+    "ActiveSetGreedy",
+    "ShardedGreedy",
+    "TRAINERS",
+    "register_trainer",
+    "trainer_from_spec",
+    "greedy_interpolation",
+    "active_set_greedy",
+    "sharded_greedy",
+    "shard_bounds",
+    "SHARD_ALIGN",
+    "available_memory",
+    "check_memory",
+    "format_bytes",
+    "kernel_coefficients",
 ]
 
 
-def greedy_interpolation(functionals, targets, *, max_centers: int, tol: float = 1e-10, criterion: str = "f",
-                         power_tol: float = 1e-12, divergence_factor: float = 100.0, validation: Optional[tuple] = None,
-                         memory_limit: Optional[float] = None, log_every: int = 100, basis_dtype: str = "float64",
-                         keep_basis: bool = False, regularization: float = 0.0) -> GreedyResult:
+def greedy_interpolation(
+    functionals,
+    targets,
+    *,
+    max_centers: int,
+    tol: float = 1e-10,
+    criterion: str = "f",
+    power_tol: float = 1e-12,
+    divergence_factor: float = 100.0,
+    validation: Optional[tuple] = None,
+    memory_limit: Optional[float] = None,
+    log_every: int = 100,
+    basis_dtype: str = "float64",
+    keep_basis: bool = False,
+    regularization: float = 0.0,
+) -> GreedyResult:
     """Sparse generalized interpolation by f-greedy (or P-greedy) selection, all candidates in memory.
 
     Parameters
@@ -108,20 +145,47 @@ def greedy_interpolation(functionals, targets, *, max_centers: int, tol: float =
     Time ``O(m^2 (N + N_val) / 2)`` memory traffic, memory ``itemsize m_max (N + N_val)``
     bytes (:mod:`sympredict.interpolation.greedy.dense`).
     """
-    store = DenseStore(functionals, targets, criterion=criterion, power_tol=power_tol, validation=validation,
-                       memory_limit=memory_limit, basis_dtype=basis_dtype, regularization=regularization)
-    result = run_greedy(store, max_centers=max_centers, tol=tol, criterion=criterion,
-                        divergence_factor=divergence_factor, log_every=log_every)
+    store = DenseStore(
+        functionals,
+        targets,
+        criterion=criterion,
+        power_tol=power_tol,
+        validation=validation,
+        memory_limit=memory_limit,
+        basis_dtype=basis_dtype,
+        regularization=regularization,
+    )
+    result = run_greedy(
+        store,
+        max_centers=max_centers,
+        tol=tol,
+        criterion=criterion,
+        divergence_factor=divergence_factor,
+        log_every=log_every,
+    )
     if keep_basis:
         result.basis = store.basis[: len(result.selected)]
     return result
 
 
-def active_set_greedy(functionals, targets, *, max_centers: int, tol: float = 1e-10, power_tol: float = 1e-12,
-                      divergence_factor: float = 100.0, validation: Optional[tuple] = None,
-                      memory_limit: Optional[float] = None, log_every: int = 100, initial_points: int = 8192,
-                      refresh_every: int = 200, max_new_points: int = 4096, margin: float = 0.7,
-                      refresh_fraction: float = 0.25, seed: int = 0) -> GreedyResult:
+def active_set_greedy(
+    functionals,
+    targets,
+    *,
+    max_centers: int,
+    tol: float = 1e-10,
+    power_tol: float = 1e-12,
+    divergence_factor: float = 100.0,
+    validation: Optional[tuple] = None,
+    memory_limit: Optional[float] = None,
+    log_every: int = 100,
+    initial_points: int = 8192,
+    refresh_every: int = 200,
+    max_new_points: int = 4096,
+    margin: float = 0.7,
+    refresh_fraction: float = 0.25,
+    seed: int = 0,
+) -> GreedyResult:
     """Fast f-greedy on an active subset of the points, refreshed against the full residual (:class:`ActiveSetStore`).
 
     Arguments as in :func:`greedy_interpolation` (f-greedy, one output) and
@@ -129,19 +193,44 @@ def active_set_greedy(functionals, targets, *, max_centers: int, tol: float = 1e
     set's maximum after ``k`` centres, except the last entry: the full maximum
     over all ``N`` candidates; ``'tol'`` only if that full maximum is at or below ``tol``.
     """
-    store = ActiveSetStore(functionals, targets, tol=tol, power_tol=power_tol, validation=validation,
-                           memory_limit=memory_limit, initial_points=initial_points, refresh_every=refresh_every,
-                           max_new_points=max_new_points, margin=margin, refresh_fraction=refresh_fraction, seed=seed)
-    return run_greedy(store, max_centers=max_centers, tol=tol, criterion="f", divergence_factor=divergence_factor,
-                      log_every=log_every)
+    store = ActiveSetStore(
+        functionals,
+        targets,
+        tol=tol,
+        power_tol=power_tol,
+        validation=validation,
+        memory_limit=memory_limit,
+        initial_points=initial_points,
+        refresh_every=refresh_every,
+        max_new_points=max_new_points,
+        margin=margin,
+        refresh_fraction=refresh_fraction,
+        seed=seed,
+    )
+    return run_greedy(
+        store, max_centers=max_centers, tol=tol, criterion="f", divergence_factor=divergence_factor, log_every=log_every
+    )
 
 
-def sharded_greedy(functionals, targets, *, max_centers: int, tol: float = 1e-10, criterion: str = "f",
-                   power_tol: float = 1e-12, divergence_factor: float = 100.0, validation: Optional[tuple] = None,
-                   pool=None, n_shards: Optional[int] = None, memory_limit_per_rank: Optional[float] = None,
-                   timeout: Optional[float] = 60.0, log_every: int = 100,
-                   callback: Optional[Callable[[int, float], None]] = None, stats: Optional[dict] = None,
-                   regularization: float = 0.0) -> GreedyResult:
+def sharded_greedy(
+    functionals,
+    targets,
+    *,
+    max_centers: int,
+    tol: float = 1e-10,
+    criterion: str = "f",
+    power_tol: float = 1e-12,
+    divergence_factor: float = 100.0,
+    validation: Optional[tuple] = None,
+    pool=None,
+    n_shards: Optional[int] = None,
+    memory_limit_per_rank: Optional[float] = None,
+    timeout: Optional[float] = 60.0,
+    log_every: int = 100,
+    callback: Optional[Callable[[int, float], None]] = None,
+    stats: Optional[dict] = None,
+    regularization: float = 0.0,
+) -> GreedyResult:
     """f-greedy (or P-greedy) with the candidates sharded over a pyMOR worker pool (:class:`~sympredict.interpolation.greedy.sharded.ShardedStore`).
 
     Same arguments and result as :func:`greedy_interpolation` (same selection
@@ -157,11 +246,27 @@ def sharded_greedy(functionals, targets, *, max_centers: int, tol: float = 1e-10
     sympredict.parallel.WorkerError
         Any other exception on a worker (names the rank, carries the remote traceback).
     """
-    store = ShardedStore(functionals, targets, criterion=criterion, power_tol=power_tol, validation=validation,
-                         pool=pool, n_shards=n_shards, memory_limit_per_rank=memory_limit_per_rank, timeout=timeout,
-                         regularization=regularization)
-    result = run_greedy(store, max_centers=max_centers, tol=tol, criterion=criterion,
-                        divergence_factor=divergence_factor, log_every=log_every, callback=callback)
+    store = ShardedStore(
+        functionals,
+        targets,
+        criterion=criterion,
+        power_tol=power_tol,
+        validation=validation,
+        pool=pool,
+        n_shards=n_shards,
+        memory_limit_per_rank=memory_limit_per_rank,
+        timeout=timeout,
+        regularization=regularization,
+    )
+    result = run_greedy(
+        store,
+        max_centers=max_centers,
+        tol=tol,
+        criterion=criterion,
+        divergence_factor=divergence_factor,
+        log_every=log_every,
+        callback=callback,
+    )
     if stats is not None:
         stats.update(result.stats)
     return result

@@ -101,8 +101,9 @@ def _greedy_update_serial(row, t, inv_pj, b, res, p2, j, breakdown, chunk, cmax,
 
 
 @compiled(JIT)
-def _hb_rows_range(k0, k1, points, mu, dt, xq, muq, dtq, comps, e, first_family, emu, mu_family, edt, dt_family,
-                   has_mu, has_dt, out):
+def _hb_rows_range(
+    k0, k1, points, mu, dt, xq, muq, dtq, comps, e, first_family, emu, mu_family, edt, dt_family, has_mu, has_dt, out
+):
     """Gramian rows ``k0:k1`` of state-derivative functionals against every point (any ``2n``, plain kernel)."""
     n_pts, dim = points.shape
     d_mu = mu.shape[1]
@@ -134,20 +135,56 @@ def _hb_rows_range(k0, k1, points, mu, dt, xq, muq, dtq, comps, e, first_family,
 
 
 @compiled(JIT)
-def _hb_rows_serial(points, mu, dt, xq, muq, dtq, comps, e, first_family, emu, mu_family, edt, dt_family,
-                    has_mu, has_dt, out):
-    _hb_rows_range(0, xq.shape[0], points, mu, dt, xq, muq, dtq, comps, e, first_family, emu, mu_family, edt,
-                   dt_family, has_mu, has_dt, out)
+def _hb_rows_serial(
+    points, mu, dt, xq, muq, dtq, comps, e, first_family, emu, mu_family, edt, dt_family, has_mu, has_dt, out
+):
+    _hb_rows_range(
+        0,
+        xq.shape[0],
+        points,
+        mu,
+        dt,
+        xq,
+        muq,
+        dtq,
+        comps,
+        e,
+        first_family,
+        emu,
+        mu_family,
+        edt,
+        dt_family,
+        has_mu,
+        has_dt,
+        out,
+    )
 
 
 @compiled(PJIT)
-def _hb_rows_parallel(points, mu, dt, xq, muq, dtq, comps, e, first_family, emu, mu_family, edt, dt_family,
-                      has_mu, has_dt, out):
+def _hb_rows_parallel(
+    points, mu, dt, xq, muq, dtq, comps, e, first_family, emu, mu_family, edt, dt_family, has_mu, has_dt, out
+):
     for k in numba.prange(xq.shape[0]):
-        _hb_rows_range(k, k + 1, points, mu, dt, xq, muq, dtq, comps, e, first_family, emu, mu_family, edt,
-                       dt_family, has_mu, has_dt, out)
-
-
+        _hb_rows_range(
+            k,
+            k + 1,
+            points,
+            mu,
+            dt,
+            xq,
+            muq,
+            dtq,
+            comps,
+            e,
+            first_family,
+            emu,
+            mu_family,
+            edt,
+            dt_family,
+            has_mu,
+            has_dt,
+            out,
+        )
 
 
 MATVEC_CHUNK = 16384
@@ -176,7 +213,14 @@ def matvec_t(basis: np.ndarray, m: int, c: np.ndarray) -> np.ndarray:
     """
     check_available()
     out = np.empty(basis.shape[1])
-    call(family_kernels()[0]._matvec_t_kernel, basis, int(m), np.ascontiguousarray(c, dtype=np.float64), out, MATVEC_CHUNK)
+    call(
+        family_kernels()[0]._matvec_t_kernel,
+        basis,
+        int(m),
+        np.ascontiguousarray(c, dtype=np.float64),
+        out,
+        MATVEC_CHUNK,
+    )
     return out
 
 
@@ -269,7 +313,23 @@ def hb_rows(kernel, points, mu, dt, xq, muq, dtq, comps, out: np.ndarray) -> np.
     edt = kernel.dt.eps if kernel.dt is not None else 0.0
     fn = ns._hb_rows_parallel if (_numba.GREEDY_PARALLEL and len(xq) > 1) else ns._hb_rows_serial
     f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)  # noqa: E731
-    call(fn, f64(points), f64(mu), f64(dt), f64(xq), f64(muq), f64(dtq),
-          np.ascontiguousarray(comps, dtype=np.int64), float(kernel.state.eps), state_family, emu, mu_family, edt,
-          dt_family, kernel.mu is not None, kernel.dt is not None, out)
+    call(
+        fn,
+        f64(points),
+        f64(mu),
+        f64(dt),
+        f64(xq),
+        f64(muq),
+        f64(dtq),
+        np.ascontiguousarray(comps, dtype=np.int64),
+        float(kernel.state.eps),
+        state_family,
+        emu,
+        mu_family,
+        edt,
+        dt_family,
+        kernel.mu is not None,
+        kernel.dt is not None,
+        out,
+    )
     return out

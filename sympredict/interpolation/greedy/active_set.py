@@ -78,21 +78,39 @@ class ActiveSetStore(BaseStore):
 
     label = "active-set greedy"
 
-    def __init__(self, functionals, targets, *, tol: float, power_tol: float = 1e-12, validation: Optional[tuple] = None,
-                 memory_limit: Optional[float] = None, initial_points: int = 8192, refresh_every: int = 200,
-                 max_new_points: int = 4096, margin: float = 0.7, refresh_fraction: float = 0.25, seed: int = 0):
+    def __init__(
+        self,
+        functionals,
+        targets,
+        *,
+        tol: float,
+        power_tol: float = 1e-12,
+        validation: Optional[tuple] = None,
+        memory_limit: Optional[float] = None,
+        initial_points: int = 8192,
+        refresh_every: int = 200,
+        max_new_points: int = 4096,
+        margin: float = 0.7,
+        refresh_fraction: float = 0.25,
+        seed: int = 0,
+    ):
         if not isinstance(functionals, HBFunctionals):
             raise ValueError("the active-set greedy needs HBFunctionals (state-derivative functionals)")
         n = functionals.n_functionals
         if np.size(targets) != n:
-            raise ValueError(f"the active-set greedy interpolates one output: targets must have shape ({n},), "
-                             f"got {np.shape(targets)}")
+            raise ValueError(
+                f"the active-set greedy interpolates one output: targets must have shape ({n},), "
+                f"got {np.shape(targets)}"
+            )
         if not 0 < margin <= 1:
             raise ValueError(f"margin must lie in (0, 1], got {margin!r}")
         if not 0 < refresh_fraction <= 1:
             raise ValueError(f"refresh_fraction must lie in (0, 1], got {refresh_fraction!r}")
-        for name, value in (("initial_points", initial_points), ("refresh_every", refresh_every),
-                            ("max_new_points", max_new_points)):
+        for name, value in (
+            ("initial_points", initial_points),
+            ("refresh_every", refresh_every),
+            ("max_new_points", max_new_points),
+        ):
             if int(value) != value or value < 1:
                 raise ValueError(f"{name} must be a positive integer, got {value!r}")
         super().__init__(functionals, targets, criterion="f", power_tol=power_tol, validation=validation)
@@ -155,7 +173,7 @@ class ActiveSetStore(BaseStore):
             hit = pool_res > max(self.inner_tol, active_max)
             new, new_res = pool[hit], pool_res[hit]
             if new.size > self.max_new_points:
-                new = new[np.argpartition(new_res, -self.max_new_points)[-self.max_new_points:]]
+                new = new[np.argpartition(new_res, -self.max_new_points)[-self.max_new_points :]]
             if new.size == 0:
                 if exhausted:
                     return -1, -np.inf, np.inf
@@ -163,7 +181,7 @@ class ActiveSetStore(BaseStore):
             self._add_points(m, np.sort(new))
 
     def winner(self, j: int, m: int):
-        return int(self.cand[j]), self.sub.representer(j), self.basis[:m, j].copy(), self.p2[j], self.res[j:j + 1]
+        return int(self.cand[j]), self.sub.representer(j), self.basis[:m, j].copy(), self.p2[j], self.res[j : j + 1]
 
     def add(self, m, rep, coeffs_j, pj, b, j):
         n_s = len(self.cand)
@@ -197,10 +215,16 @@ class ActiveSetStore(BaseStore):
     # ------------------------------------------------------------------ refreshes
     def _evaluate_full(self, m: int) -> np.ndarray:
         e = self.expansion
-        r_all = functional_residuals(self.functionals, self.targets, e.selected[:m], e.coef(m)) if m else self.targets.copy()
+        r_all = (
+            functional_residuals(self.functionals, self.targets, e.selected[:m], e.coef(m))
+            if m
+            else self.targets.copy()
+        )
         self.full_max = float(np.abs(r_all).max())
         self.full_at = m
-        logger.info(f"refresh at {m} centres: full max residual {self.full_max:.3e} ({len(self.cand)} active candidates)")
+        logger.info(
+            f"refresh at {m} centres: full max residual {self.full_max:.3e} ({len(self.cand)} active candidates)"
+        )
         return r_all
 
     def _refresh(self, m: int):
@@ -214,8 +238,10 @@ class ActiveSetStore(BaseStore):
             pool = np.sort(self.rng.choice(outside, size=size, replace=False)) if size else outside
             r_eval = functional_residuals(self.functionals, self.targets, e.selected[:m], e.coef(m), points=pool)
             sample_max = float(np.abs(r_eval).max()) if r_eval.size else 0.0
-            logger.info(f"refresh at {m} centres: max residual {sample_max:.3e} on {pool.size} sampled points "
-                        f"({len(self.cand)} active candidates)")
+            logger.info(
+                f"refresh at {m} centres: max residual {sample_max:.3e} on {pool.size} sampled points "
+                f"({len(self.cand)} active candidates)"
+            )
             full = sample_max <= self.tol
             pool_res = np.abs(r_eval).reshape(-1, dim).max(axis=1) if r_eval.size else np.zeros(0)
         if full:
@@ -264,8 +290,9 @@ def refresh_chunk(max_centers: int, dim: int) -> int:
     return dim * max(1, REFRESH_CHUNK_BYTES // (8 * max(int(max_centers), 1) * dim))
 
 
-def bounded_memory(max_centers: int, n_train: int, n_val: int, slots: int, dim: int, block_size: int = 64,
-                   pool_factor: int = 4) -> int:
+def bounded_memory(
+    max_centers: int, n_train: int, n_val: int, slots: int, dim: int, block_size: int = 64, pool_factor: int = 4
+) -> int:
     """Peak bytes of a run on :class:`BoundedActiveSetStore` (store, refresh buffers and the greedy loop's factor).
 
     ``8 [(m + b) (S + N_val) + c b (c b (2n + 1) + m) + m K + 2 m^2 + 4 S + 6 N]`` for ``m`` centres,
@@ -279,12 +306,12 @@ def bounded_memory(max_centers: int, n_train: int, n_val: int, slots: int, dim: 
     m, b, c = int(max_centers), min(int(block_size), int(max_centers)), int(pool_factor)
     k = refresh_chunk(m, dim)
     pool = c * b
-    return 8 * ((m + b) * (slots + n_val) + pool * (pool * (dim + 1) + m) + m * k + 2 * m * m
-                + 4 * slots + 6 * n_train)
+    return 8 * ((m + b) * (slots + n_val) + pool * (pool * (dim + 1) + m) + m * k + 2 * m * m + 4 * slots + 6 * n_train)
 
 
-def bounded_capacity(budget: float, max_centers: int, n_train: int, n_val: int, dim: int, block_size: int = 64,
-                     pool_factor: int = 4) -> int:
+def bounded_capacity(
+    budget: float, max_centers: int, n_train: int, n_val: int, dim: int, block_size: int = 64, pool_factor: int = 4
+) -> int:
     """The most points whose ``2n`` functionals fit in the slots within ``budget`` bytes (:func:`bounded_memory`),
     at most ``N / 2n``; ``0`` when not even the fixed part fits."""
     fixed = bounded_memory(max_centers, n_train, n_val, 0, dim, block_size, pool_factor)
@@ -343,25 +370,54 @@ class BoundedActiveSetStore(BlockedStore):
 
     label = "bounded active-set greedy"
 
-    def __init__(self, functionals, targets, *, tol: float, max_points: Optional[int] = None, power_tol: float = 1e-12,
-                 validation: Optional[tuple] = None, memory_limit: Optional[float] = None, block_size: int = 64,
-                 pool_factor: int = 4, slack: float = 0.5, refresh_every: int = 256, max_new_points: int = 1024,
-                 compiled: Optional[bool] = None):
+    def __init__(
+        self,
+        functionals,
+        targets,
+        *,
+        tol: float,
+        max_points: Optional[int] = None,
+        power_tol: float = 1e-12,
+        validation: Optional[tuple] = None,
+        memory_limit: Optional[float] = None,
+        block_size: int = 64,
+        pool_factor: int = 4,
+        slack: float = 0.5,
+        refresh_every: int = 256,
+        max_new_points: int = 1024,
+        compiled: Optional[bool] = None,
+    ):
         if not isinstance(functionals, HBFunctionals):
-            raise ValueError("the bounded active-set greedy needs HBFunctionals (state-derivative functionals): "
-                             "use BlockedGreedy() for the direct model")
+            raise ValueError(
+                "the bounded active-set greedy needs HBFunctionals (state-derivative functionals): "
+                "use BlockedGreedy() for the direct model"
+            )
         if np.size(targets) != functionals.n_functionals:
-            raise ValueError(f"the bounded active-set greedy interpolates one output: targets must have shape "
-                             f"({functionals.n_functionals},), got {np.shape(targets)}")
-        for name, value in (("max_points", max_points), ("refresh_every", refresh_every),
-                            ("max_new_points", max_new_points)):
+            raise ValueError(
+                f"the bounded active-set greedy interpolates one output: targets must have shape "
+                f"({functionals.n_functionals},), got {np.shape(targets)}"
+            )
+        for name, value in (
+            ("max_points", max_points),
+            ("refresh_every", refresh_every),
+            ("max_new_points", max_new_points),
+        ):
             if name == "max_points" and value is None:
                 continue
             if isinstance(value, bool) or int(value) != value or value < 1:
                 raise ValueError(f"{name} must be a positive integer, got {value!r}")
-        super().__init__(functionals, targets, criterion="f", power_tol=power_tol, validation=validation,
-                         memory_limit=memory_limit, block_size=block_size, pool_factor=pool_factor, slack=slack,
-                         compiled=compiled)
+        super().__init__(
+            functionals,
+            targets,
+            criterion="f",
+            power_tol=power_tol,
+            validation=validation,
+            memory_limit=memory_limit,
+            block_size=block_size,
+            pool_factor=pool_factor,
+            slack=slack,
+            compiled=compiled,
+        )
         self.full = functionals
         self.tol = float(tol)
         self.max_points = None if max_points is None else int(max_points)
@@ -377,16 +433,21 @@ class BoundedActiveSetStore(BlockedStore):
         if self.max_points is None:  # sized to the memory limit
             cap = bounded_capacity(limit, m_max, self.n_functionals, self.n_val, dim, b, self.pool_factor)
             if cap < 1:
-                raise ValueError(f"the bounded active-set greedy cannot hold one point within {format_bytes(limit)} "
-                                 f"with {m_max} centres (bounded_memory): use fewer centres or raise memory_limit")
+                raise ValueError(
+                    f"the bounded active-set greedy cannot hold one point within {format_bytes(limit)} "
+                    f"with {m_max} centres (bounded_memory): use fewer centres or raise memory_limit"
+                )
             logger.info(f"bounded active set: {cap} of {n_points} points in its slots within {format_bytes(limit)}")
         cap = min(self.max_points or cap, n_points)
         need = bounded_memory(m_max, self.n_functionals, self.n_val, cap * dim, dim, b, self.pool_factor)
         if need > limit:
             fits = bounded_capacity(limit, m_max, self.n_functionals, self.n_val, dim, b, self.pool_factor)
-            raise ValueError(f"the bounded active-set greedy with {cap} points in its slots needs {format_bytes(need)} "
-                             f"(bounded_memory) but the memory limit is {format_bytes(limit)}; use max_points <= {fits}"
-                             + (", fewer centres" if fits == 0 else "") + " or raise memory_limit")
+            raise ValueError(
+                f"the bounded active-set greedy with {cap} points in its slots needs {format_bytes(need)} "
+                f"(bounded_memory) but the memory limit is {format_bytes(limit)}; use max_points <= {fits}"
+                + (", fewer centres" if fits == 0 else "")
+                + " or raise memory_limit"
+            )
         self.expansion, self.max_centers, self.dim, self.n_points = expansion, m_max, dim, n_points
         self.covers_all = cap >= n_points
         self.y_points = self.y[:, 0].reshape(n_points, dim)
@@ -417,8 +478,19 @@ class BoundedActiveSetStore(BlockedStore):
         self.vbasis = np.empty((m_max + b, self.n_val)) if self.n_val else None
         self.queue, self.block_start, self.block_chol, self.position = [], 0, None, 0
         self.next_size = self.block_size
-        self.stats = {"blocks": 0, "block_sizes": [], "rejected": 0, "refreshes": 0, "swapped": 0, "refresh_s": 0.0,
-                      "swap_s": 0.0, "swaps": [], "evaluated_at": [], "slots": int(len(cand)), "memory_formula": int(need)}
+        self.stats = {
+            "blocks": 0,
+            "block_sizes": [],
+            "rejected": 0,
+            "refreshes": 0,
+            "swapped": 0,
+            "refresh_s": 0.0,
+            "swap_s": 0.0,
+            "swaps": [],
+            "evaluated_at": [],
+            "slots": int(len(cand)),
+            "memory_formula": int(need),
+        }
         self.refreshed_at, self.full_at, self.full_max = 0, 0, self.targets_max
         abs_residual(self.res, out=self.res_abs)
         return self.targets_max, (np.abs(self.vres).max() if self.n_val else None)
@@ -488,8 +560,10 @@ class BoundedActiveSetStore(BlockedStore):
         self.full_max, self.full_at = float(point_res.max()), m
         self.stats["refresh_s"] += time.perf_counter() - t0
         self.stats["evaluated_at"].append(int(m))
-        logger.info(f"refresh at {m} centres: full max residual {self.full_max:.3e} over {self.n_functionals} "
-                    f"functionals ({len(self.res)} in slots)")
+        logger.info(
+            f"refresh at {m} centres: full max residual {self.full_max:.3e} over {self.n_functionals} "
+            f"functionals ({len(self.res)} in slots)"
+        )
         return point_res
 
     def _refresh(self, m: int) -> None:
@@ -525,7 +599,7 @@ class BoundedActiveSetStore(BlockedStore):
         buf = np.empty(m * chunk * dim) if m else None
         beta = e.beta[:m, 0]
         for start in range(0, len(new), chunk):
-            pts, where = new[start:start + chunk], slots[start:start + chunk]
+            pts, where = new[start : start + chunk], slots[start : start + chunk]
             cols = (where[:, None] * dim + np.arange(dim)).reshape(-1)
             flat = (pts[:, None] * dim + np.arange(dim)).reshape(-1)
             if m:

@@ -77,11 +77,24 @@ def gram_rows(functionals, others, indices: np.ndarray, out: np.ndarray, compile
     ``compiled``, else :meth:`HBFunctionals.gram_rows`; column by column for sets that have no such method.
     ``out`` has shape (K, N).
     """
-    if compiled and isinstance(functionals, HBFunctionals) and isinstance(others, HBFunctionals) \
-            and _compiled.hb_rows_supported(functionals.kernel):
+    if (
+        compiled
+        and isinstance(functionals, HBFunctionals)
+        and isinstance(others, HBFunctionals)
+        and _compiled.hb_rows_supported(functionals.kernel)
+    ):
         pts, comps = np.divmod(np.asarray(indices, dtype=np.int64), others.dim)
-        return _compiled.hb_rows(functionals.kernel, functionals.points, functionals.mu, functionals.dt,
-                                    others.points[pts], others.mu[pts], others.dt[pts], comps, out)
+        return _compiled.hb_rows(
+            functionals.kernel,
+            functionals.points,
+            functionals.mu,
+            functionals.dt,
+            others.points[pts],
+            others.mu[pts],
+            others.dt[pts],
+            comps,
+            out,
+        )
     if hasattr(functionals, "gram_rows"):
         return functionals.gram_rows(others, indices, out)
     for k, i in enumerate(indices):
@@ -141,9 +154,20 @@ class BlockedStore(BaseStore):
 
     label = "blocked greedy"
 
-    def __init__(self, functionals, targets, *, criterion: str = "f", power_tol: float = 1e-12,
-                 validation: Optional[tuple] = None, memory_limit: Optional[float] = None,
-                 block_size: int = 64, pool_factor: int = 4, slack: float = 0.0, compiled: Optional[bool] = None):
+    def __init__(
+        self,
+        functionals,
+        targets,
+        *,
+        criterion: str = "f",
+        power_tol: float = 1e-12,
+        validation: Optional[tuple] = None,
+        memory_limit: Optional[float] = None,
+        block_size: int = 64,
+        pool_factor: int = 4,
+        slack: float = 0.0,
+        compiled: Optional[bool] = None,
+    ):
         if isinstance(slack, bool) or not isinstance(slack, (int, float, np.number)) or not 0 <= slack < 1:
             raise ValueError(f"slack must be a float in [0, 1), got {slack!r}")
         for name, value in (("block_size", block_size), ("pool_factor", pool_factor)):
@@ -269,7 +293,7 @@ class BlockedStore(BaseStore):
     def _block_rows(self, m: int, block: np.ndarray, pool_chol: np.ndarray) -> None:
         """``V_B = L_B^{-1} (G(B, :) - V(:, B)^T V)`` into ``basis[m:m+b]`` (and the validation basis)."""
         kb = len(block)
-        rows = self.basis[m:m + kb]
+        rows = self.basis[m : m + kb]
         gram_rows(self.functionals, self.functionals, block, rows, self.compiled)
         vt = self.basis[:m, block]  # (m, kb)
         if m:
@@ -286,7 +310,7 @@ class BlockedStore(BaseStore):
             chol = pool_chol
         blas.dtrsm(1.0, chol, rows.T, side=1, lower=1, trans_a=1, overwrite_b=1)
         if self.n_val:
-            vrows = self.vbasis[m:m + kb]
+            vrows = self.vbasis[m : m + kb]
             gram_rows(self.val_functionals, self.functionals, block, vrows, self.compiled)
             if m:
                 blas.dgemm(-1.0, self.vbasis[:m].T, vt, beta=1.0, c=vrows.T, overwrite_c=1)
@@ -299,7 +323,7 @@ class BlockedStore(BaseStore):
     def winner(self, j: int, m: int):
         k = self.position
         coeffs = self.basis[:m, j].copy()
-        coeffs[self.block_start:m] = self.block_chol[k, :k]  # the factor the block's rows were divided by
+        coeffs[self.block_start : m] = self.block_chol[k, :k]  # the factor the block's rows were divided by
         return j, None, coeffs, self.block_chol[k, k] ** 2, self.res[j]
 
     def add(self, m, rep, coeffs_j, pj, b, j):

@@ -93,10 +93,20 @@ class DenseStore(BaseStore):
 
     label = "greedy"
 
-    def __init__(self, functionals, targets, *, criterion: str = "f", power_tol: float = 1e-12,
-                 validation: Optional[tuple] = None, memory_limit: Optional[float] = None, basis_dtype: str = "float64",
-                 compiled: Optional[bool] = None, diagonal_max: Optional[float] = None,
-                 regularization: float = 0.0):
+    def __init__(
+        self,
+        functionals,
+        targets,
+        *,
+        criterion: str = "f",
+        power_tol: float = 1e-12,
+        validation: Optional[tuple] = None,
+        memory_limit: Optional[float] = None,
+        basis_dtype: str = "float64",
+        compiled: Optional[bool] = None,
+        diagonal_max: Optional[float] = None,
+        regularization: float = 0.0,
+    ):
         if not (np.isfinite(regularization) and regularization >= 0):
             raise ValueError(f"regularization must be a finite non-negative float, got {regularization!r}")
         if basis_dtype not in ("float64", "float32"):

@@ -150,7 +150,7 @@ def available_memory() -> int:
     limit), else the total memory."""
     given = os.environ.get("SYMPREDICT_MEMORY", "").strip()
     if given:
-        units = {"K": 2 ** 10, "M": 2 ** 20, "G": 2 ** 30, "T": 2 ** 40}
+        units = {"K": 2**10, "M": 2**20, "G": 2**30, "T": 2**40}
         scale = units.get(given[-1].upper(), 1)
         try:
             value = float(given[:-1] if scale > 1 else given) * scale
@@ -188,7 +188,6 @@ def format_bytes(n: float) -> str:
     return f"{n:.0f} B"
 
 
-
 def as_targets(targets, n: int) -> tuple:
     """The greedy's data as a float array of shape (N, q), whether it was a vector, and ``max |y|``."""
     y = np.asarray(targets, dtype=float)
@@ -215,9 +214,7 @@ def _finite_coefficients(coef: np.ndarray, targets_max: float) -> np.ndarray:
     return coef
 
 
-def check_memory(
-    max_centers: int, n_train: int, n_val: int, memory_limit: Optional[float], itemsize: int = 8
-) -> None:
+def check_memory(max_centers: int, n_train: int, n_val: int, memory_limit: Optional[float], itemsize: int = 8) -> None:
     """Refuse, before any work, a Newton basis larger than the memory limit, saying what fits.
 
     The message offers the three ways out: fewer centres, a subset of the
@@ -241,7 +238,8 @@ def check_memory(
         raise ValueError(
             f"the Newton basis needs {format_bytes(need)} ({max_centers} centres x "
             f"{n_all} functionals x {itemsize} bytes) but the memory limit is {format_bytes(limit)}; "
-            + ", ".join(offers) + ", or raise memory_limit"
+            + ", ".join(offers)
+            + ", or raise memory_limit"
         )
 
 
@@ -371,8 +369,15 @@ class BaseStore:
 
     label = "greedy"
 
-    def __init__(self, functionals, targets, *, criterion: str = "f", power_tol: float = 1e-12,
-                 validation: Optional[tuple] = None):
+    def __init__(
+        self,
+        functionals,
+        targets,
+        *,
+        criterion: str = "f",
+        power_tol: float = 1e-12,
+        validation: Optional[tuple] = None,
+    ):
         self.functionals = functionals
         self.n_functionals = n = functionals.n_functionals
         self.y, self.squeeze, self.targets_max = as_targets(targets, n)
@@ -541,9 +546,9 @@ def run_greedy(
                 why = "the smallest meeting the target" if stop_reason == "target" else "the best held-out prefix"
                 logger.info(f"{store.label}: keeping the first {keep} of {m} centres ({why})")
                 m = keep
-                del train_hist[m + 1:]
+                del train_hist[m + 1 :]
                 if val_hist is not None:
-                    del val_hist[m + 1:]
+                    del val_hist[m + 1 :]
         final = store.finish(m)
     finally:
         store.close()
@@ -564,8 +569,12 @@ def run_greedy(
     if store.squeeze:
         coef, newton = coef[:, 0], newton[:, 0].copy()
     return GreedyResult(
-        selected=expansion.selected[:m].copy(), coef=coef, newton_coef=newton, history=history,
-        chol=expansion.chol[:m, :m].copy(), stats=dict(store.stats),
+        selected=expansion.selected[:m].copy(),
+        coef=coef,
+        newton_coef=newton,
+        history=history,
+        chol=expansion.chol[:m, :m].copy(),
+        stats=dict(store.stats),
     )
 
 
@@ -577,9 +586,13 @@ def _squeezed(coef: np.ndarray, squeeze: bool) -> np.ndarray:
 def _divergence_message(label: str, m: int, m_best: int, train_max: float, best_train: float) -> str:
     """What the greedy logs when its training residual blows up at ``m`` centres and it keeps the best ``m_best``."""
     if m_best == 0:
-        return (f"{label} residual grew from {best_train:.2e} (no centres) to {train_max:.2e} with {m} centre(s): no "
-                f"centre reduced it, so the fit keeps no centres (the zero correction); the data are inconsistent "
-                f"(equal states with different targets: remove duplicate samples) or the kernel shapes do not "
-                f"fit the data's scale (choose other shapes)")
-    return (f"{label} residual blew up at {m} centres ({train_max:.2e} vs best {best_train:.2e} at {m_best} centres): "
-            f"round-off in the Newton basis; keeping the first {m_best} centres (a larger power_tol stops before it)")
+        return (
+            f"{label} residual grew from {best_train:.2e} (no centres) to {train_max:.2e} with {m} centre(s): no "
+            f"centre reduced it, so the fit keeps no centres (the zero correction); the data are inconsistent "
+            f"(equal states with different targets: remove duplicate samples) or the kernel shapes do not "
+            f"fit the data's scale (choose other shapes)"
+        )
+    return (
+        f"{label} residual blew up at {m} centres ({train_max:.2e} vs best {best_train:.2e} at {m_best} centres): "
+        f"round-off in the Newton basis; keeping the first {m_best} centres (a larger power_tol stops before it)"
+    )

@@ -102,8 +102,13 @@ class _Sized:
 def _report(sid: int, offset: int, store: DenseStore, m: int, train_max: float, val_max) -> tuple:
     """``(shard, max |r|, max |r_val|, best score, its global index)`` after ``m`` centres."""
     j, score, _ = store.select(m)
-    return (sid, float(train_max), -np.inf if val_max is None else float(val_max), float(score),
-            offset + j if j >= 0 else -1)
+    return (
+        sid,
+        float(train_max),
+        -np.inf if val_max is None else float(val_max),
+        float(score),
+        offset + j if j >= 0 else -1,
+    )
 
 
 @guarded
@@ -124,9 +129,16 @@ def _w_load_shards(payload, shards=None):
         )
     for s in specs:
         val = (s["val_functionals"], s["val_targets"]) if s["n_val"] else None
-        store = DenseStore(s["functionals"], s["targets"], criterion=settings["criterion"], power_tol=settings["power_tol"],
-                           validation=val, memory_limit=np.inf, diagonal_max=settings["diagonal_max"],
-                           regularization=settings["regularization"])
+        store = DenseStore(
+            s["functionals"],
+            s["targets"],
+            criterion=settings["criterion"],
+            power_tol=settings["power_tol"],
+            validation=val,
+            memory_limit=np.inf,
+            diagonal_max=settings["diagonal_max"],
+            regularization=settings["regularization"],
+        )
         shards.shards[s["shard_id"]] = (s["offset"], store, store.open(_Sized(settings["max_centers"])))
     return sorted(shards.shards)
 
@@ -223,10 +235,20 @@ class ShardedStore(BaseStore):
 
     label = "sharded greedy"
 
-    def __init__(self, functionals, targets, *, criterion: str = "f", power_tol: float = 1e-12,
-                 validation: Optional[tuple] = None, pool=None, n_shards: Optional[int] = None,
-                 memory_limit_per_rank: Optional[float] = None, timeout: Optional[float] = 60.0,
-                 regularization: float = 0.0):
+    def __init__(
+        self,
+        functionals,
+        targets,
+        *,
+        criterion: str = "f",
+        power_tol: float = 1e-12,
+        validation: Optional[tuple] = None,
+        pool=None,
+        n_shards: Optional[int] = None,
+        memory_limit_per_rank: Optional[float] = None,
+        timeout: Optional[float] = 60.0,
+        regularization: float = 0.0,
+    ):
         if not (np.isfinite(regularization) and regularization >= 0):
             raise ValueError(f"regularization must be a finite non-negative float, got {regularization!r}")
         _subset(functionals, 0, 1)  # TypeError for functionals that cannot be sharded
@@ -256,21 +278,37 @@ class ShardedStore(BaseStore):
         specs = []
         for s in range(n_shards):
             sub, per = _subset(f, bounds[s], bounds[s + 1])
-            spec = {"shard_id": s, "offset": int(bounds[s] * per), "functionals": sub, "n_train": sub.n_functionals,
-                    "targets": y[bounds[s] * per: bounds[s + 1] * per], "val_functionals": None, "val_targets": None,
-                    "n_val": 0}
+            spec = {
+                "shard_id": s,
+                "offset": int(bounds[s] * per),
+                "functionals": sub,
+                "n_train": sub.n_functionals,
+                "targets": y[bounds[s] * per : bounds[s + 1] * per],
+                "val_functionals": None,
+                "val_targets": None,
+                "n_val": 0,
+            }
             if self.n_val and vbounds[s + 1] > vbounds[s]:
                 vsub, vper = _subset(val_f, vbounds[s], vbounds[s + 1])
                 if vsub.n_functionals:
-                    spec.update(val_functionals=vsub, val_targets=vres0[vbounds[s] * vper: vbounds[s + 1] * vper],
-                                n_val=vsub.n_functionals)
+                    spec.update(
+                        val_functionals=vsub,
+                        val_targets=vres0[vbounds[s] * vper : vbounds[s + 1] * vper],
+                        n_val=vsub.n_functionals,
+                    )
             specs.append(spec)
         wb = shard_bounds(n_shards, self.n_workers, align=1)  # shards of worker w: wb[w]..wb[w+1]
-        settings = {"max_centers": max_centers, "criterion": self.criterion, "power_tol": self.power_tol,
-                    "diagonal_max": float(f.diagonal().max()), "regularization": self.regularization,
-                    "memory_limit_per_rank": self.memory_limit_per_rank,
-                    "ranks_on_host": ranks_on_host, "need_total": 8 * max_centers * (self.n_functionals + self.n_val)}
-        return [(specs[wb[w]: wb[w + 1]], settings) for w in range(self.n_workers)], bounds, per
+        settings = {
+            "max_centers": max_centers,
+            "criterion": self.criterion,
+            "power_tol": self.power_tol,
+            "diagonal_max": float(f.diagonal().max()),
+            "regularization": self.regularization,
+            "memory_limit_per_rank": self.memory_limit_per_rank,
+            "ranks_on_host": ranks_on_host,
+            "need_total": 8 * max_centers * (self.n_functionals + self.n_val),
+        }
+        return [(specs[wb[w] : wb[w + 1]], settings) for w in range(self.n_workers)], bounds, per
 
     # ------------------------------------------------------------------ protocol
     def open(self, expansion: Expansion):
@@ -278,8 +316,10 @@ class ShardedStore(BaseStore):
         workers = worker_info(pool)
         payloads, bounds, per = self._payloads(expansion.max_centers, workers)
         logger.info("workers: " + ", ".join(f"rank {r} pid {pid} on {host}" for r, host, pid in workers))
-        logger.info(f"sharded greedy: {self.n_functionals} functionals{f' (+{self.n_val} validation)' if self.n_val else ''} "
-                    f"in {self.n_shards} shard(s) on {self.n_workers} worker(s), up to {expansion.max_centers} centres")
+        logger.info(
+            f"sharded greedy: {self.n_functionals} functionals{f' (+{self.n_val} validation)' if self.n_val else ''} "
+            f"in {self.n_shards} shard(s) on {self.n_workers} worker(s), up to {expansion.max_centers} centres"
+        )
         self._stack = contextlib.ExitStack()
         self._stack.enter_context(Watchdog(pool, workers, self.timeout))
         self.remote = self._stack.enter_context(pool.push(_Shards()))
@@ -296,8 +336,12 @@ class ShardedStore(BaseStore):
             self.close()
             raise
         self.timing = []
-        self.stats = {"n_workers": self.n_workers, "n_shards": self.n_shards, "shard_sizes": np.diff(bounds) * per,
-                      "workers": workers}
+        self.stats = {
+            "n_workers": self.n_workers,
+            "n_shards": self.n_shards,
+            "shard_sizes": np.diff(bounds) * per,
+            "workers": workers,
+        }
         return train_max, (val_max if self.n_val else None)
 
     def _step(self, winner):
@@ -314,8 +358,9 @@ class ShardedStore(BaseStore):
 
     def winner(self, j: int, m: int):
         t0 = time.perf_counter()
-        rep, coeffs_j, p2_j, res_j = checked(self.pool.apply_only(_w_winner, self.owner[self.best[2]], self.best[2], j, m,
-                                                                   shards=self.remote))
+        rep, coeffs_j, p2_j, res_j = checked(
+            self.pool.apply_only(_w_winner, self.owner[self.best[2]], self.best[2], j, m, shards=self.remote)
+        )
         self._t_winner = time.perf_counter() - t0
         return j, rep, coeffs_j, p2_j, res_j
 

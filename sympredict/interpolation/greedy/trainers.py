@@ -50,15 +50,31 @@ from pymor.core.logger import getLogger
 
 from sympredict.base import Setting
 from sympredict.interpolation.functionals import HBFunctionals
-from sympredict.interpolation.greedy.active_set import (ActiveSetStore, BoundedActiveSetStore, bounded_capacity,
-                                                        bounded_memory)
+from sympredict.interpolation.greedy.active_set import (
+    ActiveSetStore,
+    BoundedActiveSetStore,
+    bounded_capacity,
+    bounded_memory,
+)
 from sympredict.interpolation.greedy.blocked import BlockedStore, blocked_memory
 from sympredict.interpolation.greedy.dense import DenseStore
 from sympredict.interpolation.greedy.loop import GreedyResult, available_memory, format_bytes, run_greedy
 from sympredict.interpolation.greedy.sharded import ShardedStore
 
-__all__ = ["Trainer", "ExactGreedy", "ActiveSetGreedy", "ShardedGreedy", "BlockedGreedy", "BoundedActiveSetGreedy",
-           "trainer_memory", "memory_budget", "default_trainer", "TRAINERS", "register_trainer", "trainer_from_spec"]
+__all__ = [
+    "Trainer",
+    "ExactGreedy",
+    "ActiveSetGreedy",
+    "ShardedGreedy",
+    "BlockedGreedy",
+    "BoundedActiveSetGreedy",
+    "trainer_memory",
+    "memory_budget",
+    "default_trainer",
+    "TRAINERS",
+    "register_trainer",
+    "trainer_from_spec",
+]
 
 logger = getLogger("sympredict.interpolation.greedy")
 
@@ -97,21 +113,32 @@ class Trainer(Setting):
         """``ValueError`` naming the setting that is malformed; returns ``self``."""
         for name in ("tol", "power_tol", "regularization"):
             value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)) \
-                    or not (np.isfinite(value) and value >= 0):
+            if (
+                isinstance(value, bool)
+                or not isinstance(value, (int, float, np.floating, np.integer))
+                or not (np.isfinite(value) and value >= 0)
+            ):
                 raise ValueError(f"{name} must be a finite non-negative float, got {value!r}")
         if not self.power_tol < 1:
             raise ValueError(f"power_tol must be below 1 (relative to the Gramian diagonal), got {self.power_tol!r}")
         if self.criterion not in ("f", "p"):
             raise ValueError(f"criterion must be 'f' (f-greedy) or 'p' (P-greedy), got {self.criterion!r}")
         target = self.target_error
-        if target is not None and (isinstance(target, bool) or not isinstance(target, (int, float, np.floating))
-                                   or not (np.isfinite(target) and target > 0)):
-            raise ValueError(f"target_error must be a positive float (a relative one-step error such as 1e-4) or None, "
-                             f"got {target!r}")
+        if target is not None and (
+            isinstance(target, bool)
+            or not isinstance(target, (int, float, np.floating))
+            or not (np.isfinite(target) and target > 0)
+        ):
+            raise ValueError(
+                f"target_error must be a positive float (a relative one-step error such as 1e-4) or None, "
+                f"got {target!r}"
+            )
         limit = self.memory_limit
-        if limit is not None and (isinstance(limit, bool) or not isinstance(limit, (int, float, np.number))
-                                  or not (np.isfinite(limit) and limit > 0)):
+        if limit is not None and (
+            isinstance(limit, bool)
+            or not isinstance(limit, (int, float, np.number))
+            or not (np.isfinite(limit) and limit > 0)
+        ):
             raise ValueError(f"memory_limit must be None or a positive number of bytes, got {limit!r}")
         return self
 
@@ -119,9 +146,19 @@ class Trainer(Setting):
         """The :class:`~sympredict.interpolation.greedy.loop.NewtonBasisStore` for these candidates (this strategy's settings)."""
         raise NotImplementedError
 
-    def run(self, functionals, targets, *, max_centers: int, validation: Optional[tuple] = None,
-            tol_scale: float = 1.0, divergence_factor: float = 100.0, log_every: int = 100,
-            callback=None, checkpoints=None) -> GreedyResult:
+    def run(
+        self,
+        functionals,
+        targets,
+        *,
+        max_centers: int,
+        validation: Optional[tuple] = None,
+        tol_scale: float = 1.0,
+        divergence_factor: float = 100.0,
+        log_every: int = 100,
+        callback=None,
+        checkpoints=None,
+    ) -> GreedyResult:
         """Greedy selection over ``functionals`` with this strategy's store (:func:`run_greedy`).
 
         ``tol_scale`` multiplies ``tol`` (the estimator's rule for data in small units); ``checkpoints``
@@ -131,9 +168,16 @@ class Trainer(Setting):
         tol = float(self.tol) * float(tol_scale)
         store = self.store(functionals, targets, tol=tol, validation=validation)
         with logger.block(f"{store.label} over {functionals.n_functionals} functionals"):
-            return run_greedy(store, max_centers=max_centers, tol=tol, criterion=self.criterion,
-                              divergence_factor=divergence_factor, log_every=log_every, callback=callback,
-                              checkpoints=checkpoints)
+            return run_greedy(
+                store,
+                max_centers=max_centers,
+                tol=tol,
+                criterion=self.criterion,
+                divergence_factor=divergence_factor,
+                log_every=log_every,
+                callback=callback,
+                checkpoints=checkpoints,
+            )
 
     @property
     def spec(self) -> dict:
@@ -178,9 +222,17 @@ class ExactGreedy(Trainer):
     checked before the run; time ``O(m^2 (N + N_val))`` at memory bandwidth.
     """
 
-    def __init__(self, basis_dtype: str = "float64", *, tol: float = 1e-10, criterion: str = "f",
-                 power_tol: float = 1e-12, memory_limit: Optional[float] = None, regularization: float = 0.0,
-                 target_error: Optional[float] = None):
+    def __init__(
+        self,
+        basis_dtype: str = "float64",
+        *,
+        tol: float = 1e-10,
+        criterion: str = "f",
+        power_tol: float = 1e-12,
+        memory_limit: Optional[float] = None,
+        regularization: float = 0.0,
+        target_error: Optional[float] = None,
+    ):
         self.target_error = target_error
         self.tol = tol
         self.criterion = criterion
@@ -190,9 +242,16 @@ class ExactGreedy(Trainer):
         self.basis_dtype = basis_dtype
 
     def store(self, functionals, targets, *, tol, validation):
-        return DenseStore(functionals, targets, criterion=self.criterion, power_tol=self.power_tol, validation=validation,
-                          memory_limit=self.memory_limit, basis_dtype=self.basis_dtype,
-                          regularization=float(self.regularization))
+        return DenseStore(
+            functionals,
+            targets,
+            criterion=self.criterion,
+            power_tol=self.power_tol,
+            validation=validation,
+            memory_limit=self.memory_limit,
+            basis_dtype=self.basis_dtype,
+            regularization=float(self.regularization),
+        )
 
 
 @register_trainer
@@ -209,9 +268,20 @@ class ActiveSetGreedy(Trainer):
     trains in a fraction of the exact greedy's time (``docs/explanation/performance.md``).
     """
 
-    def __init__(self, initial_points: int = 8192, refresh_every: int = 200, max_new_points: int = 4096,
-                 margin: float = 0.7, refresh_fraction: float = 0.25, seed: int = 0, *, tol: float = 1e-10,
-                 power_tol: float = 1e-12, memory_limit: Optional[float] = None, target_error: Optional[float] = None):
+    def __init__(
+        self,
+        initial_points: int = 8192,
+        refresh_every: int = 200,
+        max_new_points: int = 4096,
+        margin: float = 0.7,
+        refresh_fraction: float = 0.25,
+        seed: int = 0,
+        *,
+        tol: float = 1e-10,
+        power_tol: float = 1e-12,
+        memory_limit: Optional[float] = None,
+        target_error: Optional[float] = None,
+    ):
         self.target_error = target_error
         self.tol = tol
         self.power_tol = power_tol
@@ -225,12 +295,24 @@ class ActiveSetGreedy(Trainer):
 
     def store(self, functionals, targets, *, tol, validation):
         if not isinstance(functionals, HBFunctionals):
-            raise ValueError("ActiveSetGreedy needs state-derivative functionals (the symplectic predictor): "
-                             "use ExactGreedy() or ShardedGreedy() for the direct model")
-        own = {k: v for k, v in self.get_params(deep=False).items()
-               if k not in ("tol", "power_tol", "memory_limit", "target_error")}
-        return ActiveSetStore(functionals, targets, tol=tol, power_tol=self.power_tol, validation=validation,
-                              memory_limit=self.memory_limit, **own)
+            raise ValueError(
+                "ActiveSetGreedy needs state-derivative functionals (the symplectic predictor): "
+                "use ExactGreedy() or ShardedGreedy() for the direct model"
+            )
+        own = {
+            k: v
+            for k, v in self.get_params(deep=False).items()
+            if k not in ("tol", "power_tol", "memory_limit", "target_error")
+        }
+        return ActiveSetStore(
+            functionals,
+            targets,
+            tol=tol,
+            power_tol=self.power_tol,
+            validation=validation,
+            memory_limit=self.memory_limit,
+            **own,
+        )
 
 
 @register_trainer
@@ -257,9 +339,19 @@ class ShardedGreedy(Trainer):
     result's store statistics (``model.greedy_result_.stats``).
     """
 
-    def __init__(self, pool=None, n_shards: Optional[int] = None, memory_limit_per_rank: Optional[float] = None,
-                 timeout: Optional[float] = 60.0, *, tol: float = 1e-10, criterion: str = "f",
-                 power_tol: float = 1e-12, regularization: float = 0.0, target_error: Optional[float] = None):
+    def __init__(
+        self,
+        pool=None,
+        n_shards: Optional[int] = None,
+        memory_limit_per_rank: Optional[float] = None,
+        timeout: Optional[float] = 60.0,
+        *,
+        tol: float = 1e-10,
+        criterion: str = "f",
+        power_tol: float = 1e-12,
+        regularization: float = 0.0,
+        target_error: Optional[float] = None,
+    ):
         self.target_error = target_error
         self.pool = pool
         self.tol = tol
@@ -274,8 +366,10 @@ class ShardedGreedy(Trainer):
         """As :meth:`Trainer.check`, and ``pool`` must be a pyMOR worker pool (or ``None``)."""
         super().check()
         if self.pool is not None and not all(callable(getattr(self.pool, a, None)) for a in ("apply", "map", "push")):
-            raise ValueError(f"pool must be a pyMOR WorkerPool (e.g. pymor.parallel.mpi.MPIPool() under mpiexec) or "
-                             f"None (the in-process dummy pool), got {self.pool!r}")
+            raise ValueError(
+                f"pool must be a pyMOR WorkerPool (e.g. pymor.parallel.mpi.MPIPool() under mpiexec) or "
+                f"None (the in-process dummy pool), got {self.pool!r}"
+            )
         return self
 
     def __sklearn_clone__(self):
@@ -283,10 +377,18 @@ class ShardedGreedy(Trainer):
         return type(self)(**params)  # the same pool object: a pool is a connection, not a setting
 
     def store(self, functionals, targets, *, tol, validation):
-        return ShardedStore(functionals, targets, criterion=self.criterion, power_tol=self.power_tol,
-                            validation=validation, pool=self.pool, n_shards=self.n_shards,
-                            memory_limit_per_rank=self.memory_limit_per_rank, timeout=self.timeout,
-                            regularization=float(self.regularization))
+        return ShardedStore(
+            functionals,
+            targets,
+            criterion=self.criterion,
+            power_tol=self.power_tol,
+            validation=validation,
+            pool=self.pool,
+            n_shards=self.n_shards,
+            memory_limit_per_rank=self.memory_limit_per_rank,
+            timeout=self.timeout,
+            regularization=float(self.regularization),
+        )
 
     @property
     def spec(self) -> dict:
@@ -332,8 +434,18 @@ class BlockedGreedy(Trainer):
     Memory ``8 ((m + b) (N + N_val) + (c b)^2)`` bytes.
     """
 
-    def __init__(self, block_size: int = 64, pool_factor: int = 4, slack: float = 0.5, *, tol: float = 1e-10, criterion: str = "f",
-                 power_tol: float = 1e-12, memory_limit: Optional[float] = None, target_error: Optional[float] = None):
+    def __init__(
+        self,
+        block_size: int = 64,
+        pool_factor: int = 4,
+        slack: float = 0.5,
+        *,
+        tol: float = 1e-10,
+        criterion: str = "f",
+        power_tol: float = 1e-12,
+        memory_limit: Optional[float] = None,
+        target_error: Optional[float] = None,
+    ):
         self.tol = tol
         self.criterion = criterion
         self.power_tol = power_tol
@@ -344,9 +456,17 @@ class BlockedGreedy(Trainer):
         self.slack = slack
 
     def store(self, functionals, targets, *, tol, validation):
-        return BlockedStore(functionals, targets, criterion=self.criterion, power_tol=self.power_tol,
-                            validation=validation, memory_limit=self.memory_limit, block_size=self.block_size,
-                            pool_factor=self.pool_factor, slack=self.slack)
+        return BlockedStore(
+            functionals,
+            targets,
+            criterion=self.criterion,
+            power_tol=self.power_tol,
+            validation=validation,
+            memory_limit=self.memory_limit,
+            block_size=self.block_size,
+            pool_factor=self.pool_factor,
+            slack=self.slack,
+        )
 
 
 @register_trainer
@@ -381,9 +501,19 @@ class BoundedActiveSetGreedy(Trainer):
     per refresh.
     """
 
-    def __init__(self, block_size: int = 64, pool_factor: int = 4, slack: float = 0.5, refresh_every: int = 256,
-                 max_new_points: int = 1024, *, tol: float = 1e-10, power_tol: float = 1e-12,
-                 memory_limit: Optional[float] = None, target_error: Optional[float] = None):
+    def __init__(
+        self,
+        block_size: int = 64,
+        pool_factor: int = 4,
+        slack: float = 0.5,
+        refresh_every: int = 256,
+        max_new_points: int = 1024,
+        *,
+        tol: float = 1e-10,
+        power_tol: float = 1e-12,
+        memory_limit: Optional[float] = None,
+        target_error: Optional[float] = None,
+    ):
         self.tol = tol
         self.power_tol = power_tol
         self.memory_limit = memory_limit
@@ -401,17 +531,30 @@ class BoundedActiveSetGreedy(Trainer):
     def capacity(self, n_train: int, n_val: int, max_centers: int, dim: int) -> int:
         """Points the slots hold within :meth:`budget` (:func:`~sympredict.interpolation.greedy.active_set.bounded_capacity`)."""
         m = min(int(max_centers), n_train)
-        return bounded_capacity(self.budget(), m, n_train, n_val, dim, min(int(self.block_size), m),
-                                int(self.pool_factor))
+        return bounded_capacity(
+            self.budget(), m, n_train, n_val, dim, min(int(self.block_size), m), int(self.pool_factor)
+        )
 
     def store(self, functionals, targets, *, tol, validation):
         if not isinstance(functionals, HBFunctionals):
-            raise ValueError("BoundedActiveSetGreedy needs state-derivative functionals (the symplectic predictor): "
-                             "use BlockedGreedy() for the direct model")
-        return BoundedActiveSetStore(functionals, targets, tol=tol, max_points=None, power_tol=self.power_tol,
-                                     validation=validation, memory_limit=self.budget(), block_size=self.block_size,
-                                     pool_factor=self.pool_factor, slack=self.slack, refresh_every=self.refresh_every,
-                                     max_new_points=self.max_new_points)
+            raise ValueError(
+                "BoundedActiveSetGreedy needs state-derivative functionals (the symplectic predictor): "
+                "use BlockedGreedy() for the direct model"
+            )
+        return BoundedActiveSetStore(
+            functionals,
+            targets,
+            tol=tol,
+            max_points=None,
+            power_tol=self.power_tol,
+            validation=validation,
+            memory_limit=self.budget(),
+            block_size=self.block_size,
+            pool_factor=self.pool_factor,
+            slack=self.slack,
+            refresh_every=self.refresh_every,
+            max_new_points=self.max_new_points,
+        )
 
 
 def memory_budget(fraction: float = 0.5) -> float:
@@ -420,8 +563,9 @@ def memory_budget(fraction: float = 0.5) -> float:
     return fraction * available_memory()
 
 
-def trainer_memory(trainer: Trainer, n_train: int, n_val: int, max_centers: int, dim: int = 1,
-                   initial: bool = False) -> float:
+def trainer_memory(
+    trainer: Trainer, n_train: int, n_val: int, max_centers: int, dim: int = 1, initial: bool = False
+) -> float:
     """Peak bytes of ``trainer``'s store for ``n_train`` training and ``n_val`` validation functionals (module docstring).
 
     ``dim``: functionals per point (``2n`` for the state-derivative functionals; the active set's size).
@@ -443,7 +587,9 @@ def trainer_memory(trainer: Trainer, n_train: int, n_val: int, max_centers: int,
         if initial:
             active = dim * (trainer.initial_points + 4 * trainer.max_new_points)
         else:
-            active = dim * (trainer.initial_points + trainer.max_new_points * -(-m // max(int(trainer.refresh_every), 1)))
+            active = dim * (
+                trainer.initial_points + trainer.max_new_points * -(-m // max(int(trainer.refresh_every), 1))
+            )
         return float(8 * m * (min(active, n_train) + n_val))
     if isinstance(trainer, ShardedGreedy):
         shards = trainer.n_shards or 1
@@ -453,7 +599,7 @@ def trainer_memory(trainer: Trainer, n_train: int, n_val: int, max_centers: int,
 
 #: Above this size of the exact greedy's Newton basis (bytes) the default is the blocked greedy: the one-at-a-time
 #: greedy streams the whole basis once per centre and runs at memory bandwidth, the blocked one at the arithmetic rate.
-BLOCKED_ABOVE_BYTES = 2 ** 30
+BLOCKED_ABOVE_BYTES = 2**30
 
 
 def default_trainer(functionals, n_val: int, max_centers: int, memory: Optional[float] = None) -> Trainer:
@@ -480,16 +626,26 @@ def default_trainer(functionals, n_val: int, max_centers: int, memory: Optional[
     if need_exact <= min(limit, BLOCKED_ABOVE_BYTES) or (need_exact <= limit < need_blocked):
         choice, why = exact, f"its Newton basis needs {format_bytes(need_exact)} of {format_bytes(limit)}"
     elif need_blocked <= limit:
-        choice, why = blocked, (f"the Newton basis ({format_bytes(need_blocked)} of {format_bytes(limit)}) exceeds "
-                                f"{format_bytes(BLOCKED_ABOVE_BYTES)}: blocks of centres with matrix products")
+        choice, why = (
+            blocked,
+            (
+                f"the Newton basis ({format_bytes(need_blocked)} of {format_bytes(limit)}) exceeds "
+                f"{format_bytes(BLOCKED_ABOVE_BYTES)}: blocks of centres with matrix products"
+            ),
+        )
     elif isinstance(functionals, HBFunctionals):
         bounded = BoundedActiveSetGreedy(memory_limit=0.5 * limit)
         points = bounded.capacity(n, n_val, m, functionals.dim)
         if points >= 1:
             need = trainer_memory(bounded, n, n_val, m, dim=functionals.dim)
-            choice, why = bounded, (f"the full Newton basis ({format_bytes(need_exact)}) exceeds {format_bytes(limit)}; "
-                                    f"{points} of {len(functionals.points)} points in the slots, peak "
-                                    f"{format_bytes(need)} within half of it")
+            choice, why = (
+                bounded,
+                (
+                    f"the full Newton basis ({format_bytes(need_exact)}) exceeds {format_bytes(limit)}; "
+                    f"{points} of {len(functionals.points)} points in the slots, peak "
+                    f"{format_bytes(need)} within half of it"
+                ),
+            )
         else:
             choice, why = exact, "nothing fits: the exact greedy's memory check says what does"
     else:

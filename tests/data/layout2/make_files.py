@@ -29,17 +29,36 @@ x0, x1, mu, dt = data.x0[idx], data.x1[idx], data.mu[idx], data.dt[idx]
 start = x0[:3] * 0.5
 models = {
     "plain": SymplecticKernelPredictor(IMQ(0.3), IMQ(1.5), IMQ(3.0), max_centers=40),
-    "solver_and_greedy": SymplecticKernelPredictor(Matern52(0.4), IMQ(1.5), IMQ(3.0), max_centers=40, tol=1e-9,
-                                                   criterion="p", power_tol=1e-11, newton_max_iter=30,
-                                                   backend="numpy", newton_warm_start=True, regularization=1e-10),
-    "midpoint_scaled": SymplecticKernelPredictor(IMQ(0.3), IMQ(1.5), IMQ(3.0), max_centers=40, update="midpoint",
-                                                 state_scaling=[1.5]),
-    "periodic": SymplecticKernelPredictor(IMQ(0.3), IMQ(1.5), IMQ(3.0), max_centers=40, periodic=(0,),
-                                          period=2 * np.pi, backend="numpy"),
-    "symmetric": SymplecticKernelPredictor(IMQ(0.3), IMQ(1.5), IMQ(3.0), max_centers=40, update="midpoint",
-                                           symmetry=[(1, 1), (-1, -1)], backend="auto"),
-    "active_set": SymplecticKernelPredictor(IMQ(0.3), IMQ(1.5), IMQ(3.0), max_centers=40, tol=1e-8,
-                                            trainer=ActiveSetGreedy(initial_points=200, refresh_every=20)),
+    "solver_and_greedy": SymplecticKernelPredictor(
+        Matern52(0.4),
+        IMQ(1.5),
+        IMQ(3.0),
+        max_centers=40,
+        tol=1e-9,
+        criterion="p",
+        power_tol=1e-11,
+        newton_max_iter=30,
+        backend="numpy",
+        newton_warm_start=True,
+        regularization=1e-10,
+    ),
+    "midpoint_scaled": SymplecticKernelPredictor(
+        IMQ(0.3), IMQ(1.5), IMQ(3.0), max_centers=40, update="midpoint", state_scaling=[1.5]
+    ),
+    "periodic": SymplecticKernelPredictor(
+        IMQ(0.3), IMQ(1.5), IMQ(3.0), max_centers=40, periodic=(0,), period=2 * np.pi, backend="numpy"
+    ),
+    "symmetric": SymplecticKernelPredictor(
+        IMQ(0.3), IMQ(1.5), IMQ(3.0), max_centers=40, update="midpoint", symmetry=[(1, 1), (-1, -1)], backend="auto"
+    ),
+    "active_set": SymplecticKernelPredictor(
+        IMQ(0.3),
+        IMQ(1.5),
+        IMQ(3.0),
+        max_centers=40,
+        tol=1e-8,
+        trainer=ActiveSetGreedy(initial_points=200, refresh_every=20),
+    ),
     "float32": SymplecticKernelPredictor(IMQ(0.3), IMQ(1.5), IMQ(3.0), max_centers=40, trainer=ExactGreedy("float32")),
     "direct": DirectKernelPredictor(IMQ(0.3), IMQ(1.5), IMQ(3.0), max_centers=40, tol=1e-9, power_tol=1e-11),
 }
