@@ -52,6 +52,7 @@ __all__ = [
     "summary",
     "machine_info",
     "record",
+    "record_options",
     "write_json",
 ]
 
@@ -310,6 +311,15 @@ def record(
     if notes:
         out["notes"] = notes
     return out
+
+
+def record_options(args: argparse.Namespace, **timing) -> dict:
+    """:func:`record` of a run whose threads come from the options of :func:`add_arguments`.
+
+    ``args.blas_threads`` and, where the script has ``--threads``, ``args.threads``; ``timing``: the other
+    keywords of :func:`record` (``repeats``, ``warmup``, ``statistic``, ``notes``).
+    """
+    return record(blas_threads=args.blas_threads, numba_threads=getattr(args, "threads", None), **timing)
 
 
 def _jsonable(value):

@@ -120,9 +120,8 @@ def main(argv=None):
     settings = dict(HAND["coupled_pendulums"])
     settings["eps_state"] *= args.eps_factor
     with _protocol.limits(args.blas_threads, args.threads):
-        protocol = _protocol.record(
-            blas_threads=args.blas_threads,
-            numba_threads=args.threads,
+        protocol = _protocol.record_options(
+            args,
             repeats=1,
             warmup=0,
             notes="one fit per trainer and size; exact and blocked side by side in one process",

@@ -733,9 +733,8 @@ def main(argv=None) -> dict:
             _protocol.write_json(
                 args.json,
                 result,
-                _protocol.record(
-                    blas_threads=args.blas_threads,
-                    numba_threads=args.threads,
+                _protocol.record_options(
+                    args,
                     repeats=args.repeats,
                     warmup=0,
                     notes="fit times on a shared machine are indicative only; errors are deterministic given the seeds",

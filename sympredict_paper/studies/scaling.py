@@ -171,12 +171,8 @@ def main(argv=None):
     trainers = {"exact": ExactGreedy(tol=0), "blocked": BlockedGreedy(tol=0)}
     out = {"system": args.system}
     with _protocol.limits(args.blas_threads, args.threads):
-        protocol = _protocol.record(
-            blas_threads=args.blas_threads,
-            numba_threads=args.threads,
-            repeats=1,
-            warmup=0,
-            notes="one timed and one traced run per size and trainer, in one process",
+        protocol = _protocol.record_options(
+            args, repeats=1, warmup=0, notes="one timed and one traced run per size and trainer, in one process"
         )
         rate = gemm_rate()
         out["gemm_gflops"] = rate / 1e9

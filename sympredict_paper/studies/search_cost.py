@@ -186,9 +186,8 @@ def main(argv=None):
     args.json = args.json or str(RESULTS)
     rows = []
     with _protocol.limits(args.blas_threads, args.threads):
-        protocol = _protocol.record(
-            blas_threads=args.blas_threads,
-            numba_threads=args.threads,
+        protocol = _protocol.record_options(
+            args,
             repeats=1,
             warmup=0,
             notes="one fit per configuration, side by side in one process, the two "

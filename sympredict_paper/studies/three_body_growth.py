@@ -234,13 +234,7 @@ def main(argv=None):
                 row["min_pivot"] = float(model.history_.selected_power[:m].min())
                 out["sizes"][str(m)] = row
                 print(m, {k: f"{v:.2e}" for k, v in row.items()}, flush=True)
-        protocol = _protocol.record(
-            blas_threads=args.blas_threads,
-            numba_threads=args.threads,
-            repeats=1,
-            warmup=0,
-            notes="shared 2-core machine",
-        )
+        protocol = _protocol.record_options(args, repeats=1, warmup=0, notes="shared 2-core machine")
     Path(args.json).parent.mkdir(parents=True, exist_ok=True)
     _protocol.write_json(args.json, out, protocol)
     return out
