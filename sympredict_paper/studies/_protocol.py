@@ -317,9 +317,10 @@ def record_options(args: argparse.Namespace, **timing) -> dict:
     """:func:`record` of a run whose threads come from the options of :func:`add_arguments`.
 
     ``args.blas_threads`` and, where the script has ``--threads``, ``args.threads``; ``timing``: the other
-    keywords of :func:`record` (``repeats``, ``warmup``, ``statistic``, ``notes``).
+    keywords of :func:`record` (``repeats``, ``warmup``, ``statistic``, ``notes``; ``numba_threads`` where the
+    script fixes them).
     """
-    return record(blas_threads=args.blas_threads, numba_threads=getattr(args, "threads", None), **timing)
+    return record(**{"blas_threads": args.blas_threads, "numba_threads": getattr(args, "threads", None), **timing})
 
 
 def _jsonable(value):
