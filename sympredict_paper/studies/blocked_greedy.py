@@ -113,9 +113,8 @@ def main(argv=None):
         help="state shape = this times the hand setting's (the hand kernel's Gramian turns singular "
         "near 1,600 centres on these data; 4: room for 4,000 centres)",
     )
-    _protocol.add_arguments(parser, threads=1)
+    _protocol.add_arguments(parser, threads=1, json_default="docs/data/blocked_greedy.json")
     args = parser.parse_args(argv)
-    args.json = args.json or "docs/data/blocked_greedy.json"
     bench = make_benchmarks()["coupled_pendulums"]
     settings = dict(HAND["coupled_pendulums"])
     settings["eps_state"] *= args.eps_factor

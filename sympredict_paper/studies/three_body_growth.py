@@ -170,9 +170,8 @@ def main(argv=None):
     p.add_argument("--steps", type=int, default=200)
     p.add_argument("--long-steps", type=int, default=2000)
     p.add_argument("--seed", type=int, default=0)
-    _protocol.add_arguments(p, threads=1)
+    _protocol.add_arguments(p, threads=1, json_default=str(RESULTS))
     args = p.parse_args(argv)
-    args.json = args.json or str(RESULTS)
     args.data = args.data or ("trajectories" if args.centers else "samples")
     warnings.simplefilter("ignore", ExtrapolationWarning)
     tb, dt = ThreeBody(), 0.05
