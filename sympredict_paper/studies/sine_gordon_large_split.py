@@ -140,7 +140,7 @@ def main():
         "choices": [],
     }
     with _protocol.limits(args.blas_threads):
-        protocol = _protocol.record(blas_threads=args.blas_threads, repeats=1, statistic="one run per fit and rollout")
+        protocol = _protocol.record_options(args, repeats=1, statistic="one run per fit and rollout")
         fom, K, c_tr, c_te, X_tr, X_te = load_fom_data(p, args.preset, args.cache, show=_r)
         for dim in args.dims:
             gal = ReducedSineGordon.galerkin(

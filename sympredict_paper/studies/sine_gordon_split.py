@@ -82,7 +82,7 @@ def main():
     p = replace(PRESETS[args.preset], **over)
     results = {"preset": args.preset, "overrides": over, "rows": []}
     with _protocol.limits(args.blas_threads):
-        protocol = _protocol.record(blas_threads=args.blas_threads, repeats=1, statistic="one run per fit and rollout")
+        protocol = _protocol.record_options(args, repeats=1, statistic="one run per fit and rollout")
         fom, K, c_tr, c_te, X_tr, X_te = load_fom_data(p, args.preset, args.cache)
         L = p.long_factor * K
         for dim in args.dims:
