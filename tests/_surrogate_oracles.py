@@ -5,7 +5,9 @@
 * the compiled Newton solvers: pendulum queries, a model with another backend, and agreement of two rollouts
   to the surrogate's gradient floor;
 * model files whose kernel entry is malformed are refused;
-* a predicted step's Jacobian: symplectic and equal to central differences of the step.
+* a predicted step's Jacobian: symplectic and equal to central differences of the step;
+* pendulum samples at one length and step (the kernel-factor tests' data), the Klein group of sign flips and a
+  midpoint predictor averaged over it.
 """
 
 import copy
@@ -13,10 +15,14 @@ import copy
 import numpy as np
 import pytest
 
+from sympredict import SymplecticKernelPredictor
 from sympredict.container import write_container
 from sympredict.exceptions import ModelFileError
 from sympredict.io import load_model
+from sympredict.kernels import IMQ
+from sympredict.kernels.transforms import Symmetric
 from sympredict.symplectic.metrics import canonical_J
+from sympredict.symplectic.solvers import NewtonSolver
 from sympredict.estimators.predictor import MODEL_FORMAT
 
 from _tolerances import rollout_bound  # tests/
@@ -99,13 +105,18 @@ def check_gramian_by_finite_differences(fun, kernel_value, pts, mu, rtol=1e-13, 
     return gram
 
 
+def assert_jacobians_symplectic(jac, atol=1e-12):
+    """``DPhi^T J DPhi = J`` to ``atol`` for each of the Jacobians ``jac`` of shape (B, 2n, 2n)."""
+    J = canonical_J(jac.shape[-1])
+    np.testing.assert_allclose(np.einsum("bji,jk,bkl->bil", jac, J, jac), np.broadcast_to(J, jac.shape), atol=atol)
+
+
 def check_step_jacobian(model, x, mu, dt, fd_atol, h=1e-4):
     """``DPhi^T J DPhi = J`` (to 1e-12) of ``model.step_jacobian`` and central differences of ``model.step``
     (step ``h``, to ``fd_atol``: the Newton tolerance sets the floor of the differences); returns ``(jac, fd)``."""
     dim = x.shape[1]
-    J = canonical_J(dim)
     jac = model.step_jacobian(x, mu=mu, dt=dt)
-    np.testing.assert_allclose(np.einsum("bji,jk,bkl->bil", jac, J, jac), np.broadcast_to(J, jac.shape), atol=1e-12)
+    assert_jacobians_symplectic(jac)
     fd = np.empty_like(jac)
     for k in range(dim):
         e = np.zeros(dim)
@@ -113,6 +124,37 @@ def check_step_jacobian(model, x, mu, dt, fd_atol, h=1e-4):
         fd[:, :, k] = (model.step(x + e, mu=mu, dt=dt) - model.step(x - e, mu=mu, dt=dt)) / (2 * h)
     np.testing.assert_allclose(fd, jac, atol=fd_atol)
     return jac, fd
+
+
+#: the pendulum length and step of :func:`pendulum_samples`
+PENDULUM_LENGTH, PENDULUM_DT = 0.75, 0.05
+
+
+def pendulum_samples(q_max, p_max, n=500, seed=0):
+    """``n`` pendulum states uniform in ``[-q_max, q_max] x [-p_max, p_max]`` and their true images after
+    ``PENDULUM_DT`` at length ``PENDULUM_LENGTH``: ``(x0, x1)``, each of shape (n, 2)."""
+    from sympredict.systems.pendulum import Pendulum
+
+    rng = np.random.default_rng(seed)
+    x0 = np.column_stack([rng.uniform(-q_max, q_max, n), rng.uniform(-p_max, p_max, n)])
+    return x0, Pendulum().flow(x0, PENDULUM_LENGTH, PENDULUM_DT)
+
+
+#: the Klein four-group of the 2-D sign flips ``(q, p) -> (+-q, +-p)``, as signs
+KLEIN = [(1, 1), (-1, -1), (1, -1), (-1, 1)]
+
+
+def klein_midpoint_predictor(state_eps, mu_eps, dt_eps, max_centers, backend):
+    """A midpoint :class:`~sympredict.SymplecticKernelPredictor` (2n = 2) whose state kernel ``IMQ(state_eps)`` is
+    averaged over :data:`KLEIN`, with IMQ parameter and step kernels and the Newton ``backend``."""
+    return SymplecticKernelPredictor(
+        Symmetric(IMQ(state_eps), group=KLEIN),
+        IMQ(mu_eps),
+        IMQ(dt_eps),
+        max_centers=max_centers,
+        update="midpoint",
+        solver=NewtonSolver(backend=backend),
+    )
 
 
 def pendulum_queries(rng, n):

@@ -1,5 +1,6 @@
 """The accuracy studies' multiplicative coordinate search, run by the library's one search engine
-(:func:`sympredict.estimators.search.coordinate_search`); this module only names the coordinates and prints.
+(:func:`sympredict.estimators.search.coordinate_search`); this module only names the coordinates and prints, and
+keeps the scored candidates (:class:`Candidates`).
 
 Each searched parameter is multiplied and divided by ``factor`` in turn, from the best candidate so far, keeping
 any candidate that lowers the score; after a sweep without improvement the factor's logarithm halves
@@ -9,6 +10,7 @@ any candidate that lowers the score; after a sweep without improvement the facto
 
 from __future__ import annotations
 
+import time
 from typing import Callable, Optional, Sequence
 
 import numpy as np
@@ -59,3 +61,42 @@ def coordinate_search(
         shrink=0.5,
     )
     return list(best), scores[best]
+
+
+class Candidates:
+    """The candidates an accuracy study scores: each scored once, timed and kept as a row of its JSON.
+
+    ``names``: the parameters' names (a row's ``params``). A candidate whose ``measure`` raises (a fit or a Newton
+    solve that fails) is kept with its ``error`` and scores ``inf``: it ranks last.
+    """
+
+    def __init__(self, names: Sequence[str]):
+        self.names = list(names)
+        self.rows: list = []
+        self._scores: dict = {}
+
+    def score(self, p: Sequence[float], measure: Callable[[Sequence[float]], dict], **fields) -> float:
+        """The score of the parameters ``p``: ``measure(p)``'s ``"score"`` (its other entries go into the row).
+
+        ``fields``: entries that lead the row and tell candidates with equal ``p`` apart (e.g. ``sampling=``);
+        their values are printed before the parameters.
+        """
+        key = tuple(fields.values()) + tuple(round(v, 10) for v in p)
+        if key in self._scores:
+            return self._scores[key]
+        t0 = time.perf_counter()
+        params = dict(zip(self.names, p))
+        row = {**fields, "params": params}
+        try:
+            row.update(measure(p))
+        except Exception as exc:  # a candidate whose fit or Newton solve fails ranks last
+            row.update(error=repr(exc), score=np.inf)
+        row["time_s"] = time.perf_counter() - t0
+        self.rows.append(row)
+        self._scores[key] = row["score"]
+        shown = "".join(f"{v} " for v in fields.values())
+        print(
+            f"  {shown}{params}: score {row['score']:.3e}, {row.get('n_centers')} centres ({row['time_s']:.0f} s)",
+            flush=True,
+        )
+        return row["score"]

@@ -52,6 +52,7 @@ __all__ = [
     "summary",
     "machine_info",
     "record",
+    "record_options",
     "write_json",
 ]
 
@@ -68,11 +69,13 @@ def add_arguments(
     repeats: Optional[int] = None,
     json_option: bool = True,
     blas_alias: Optional[str] = None,
+    json_default: Optional[str] = None,
 ) -> None:
     """The protocol's options: ``--blas-threads``, and where asked ``--threads``, ``--repeats``, ``--json``.
 
     ``threads`` / ``repeats``: the script's defaults (``None``: the script has no such option).
     ``blas_alias``: an older name of ``--blas-threads`` that command lines in the docs use (e.g. ``"--threads"``).
+    ``json_default``: where ``--json`` writes when not given (``None``: nothing is written then).
     """
     parser.add_argument(
         "--blas-threads",
@@ -98,7 +101,10 @@ def add_arguments(
             help=f"timed calls after the warm-up; their median is reported (default {repeats})",
         )
     if json_option:
-        parser.add_argument("--json", default=None, help="also write the results as JSON (with the protocol record)")
+        written = "" if json_default is None else f" (default {json_default})"
+        parser.add_argument(
+            "--json", default=json_default, help=f"also write the results as JSON (with the protocol record){written}"
+        )
 
 
 # --------------------------------------------------------------------------- threads
@@ -310,6 +316,16 @@ def record(
     if notes:
         out["notes"] = notes
     return out
+
+
+def record_options(args: argparse.Namespace, **timing) -> dict:
+    """:func:`record` of a run whose threads come from the options of :func:`add_arguments`.
+
+    ``args.blas_threads`` and, where the script has ``--threads``, ``args.threads``; ``timing``: the other
+    keywords of :func:`record` (``repeats``, ``warmup``, ``statistic``, ``notes``; ``numba_threads`` where the
+    script fixes them).
+    """
+    return record(**{"blas_threads": args.blas_threads, "numba_threads": getattr(args, "threads", None), **timing})
 
 
 def _jsonable(value):

@@ -7,6 +7,8 @@ from typing import Callable, Optional
 
 import numpy as np
 
+from sympredict.mor.basis import complex_svd_basis
+from sympredict.mor.nonlinear import ReducedSineGordon
 from sympredict_paper.sine_gordon import failure_text, fom_data
 
 
@@ -47,6 +49,12 @@ def load_fom_data(
         flush=True,
     )
     return d["fom"], int(round(p.T / p.DT)), d["c_tr"], d["c_te"], d["X_tr"], d["X_te"]
+
+
+def galerkin_rom(fom, X, dim: int) -> ReducedSineGordon:
+    """The Galerkin ROM of dimension ``dim`` (= 2n) on the complex SVD basis of the FOM states ``X`` (any shape
+    ``(..., fom.dim)``, e.g. trajectories (B, K + 1, fom.dim))."""
+    return ReducedSineGordon.galerkin(fom, complex_svd_basis(X.reshape(-1, fom.dim), n=dim // 2, layout="rows").V)
 
 
 def record_failure(row: dict, exc: BaseException, what: str = "fails") -> str:

@@ -113,16 +113,14 @@ def main(argv=None):
         help="state shape = this times the hand setting's (the hand kernel's Gramian turns singular "
         "near 1,600 centres on these data; 4: room for 4,000 centres)",
     )
-    _protocol.add_arguments(parser, threads=1)
+    _protocol.add_arguments(parser, threads=1, json_default="docs/data/blocked_greedy.json")
     args = parser.parse_args(argv)
-    args.json = args.json or "docs/data/blocked_greedy.json"
     bench = make_benchmarks()["coupled_pendulums"]
     settings = dict(HAND["coupled_pendulums"])
     settings["eps_state"] *= args.eps_factor
     with _protocol.limits(args.blas_threads, args.threads):
-        protocol = _protocol.record(
-            blas_threads=args.blas_threads,
-            numba_threads=args.threads,
+        protocol = _protocol.record_options(
+            args,
             repeats=1,
             warmup=0,
             notes="one fit per trainer and size; exact and blocked side by side in one process",

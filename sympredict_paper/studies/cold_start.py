@@ -211,9 +211,8 @@ def main(argv=None) -> dict:
             }
         cache = tmp / "numba_cache"
         result["cache_files"] = sum(1 for p in cache.rglob("*") if p.is_file()) if cache.exists() else 0
-        protocol = _protocol.record(
-            blas_threads=args.blas_threads,
-            numba_threads=args.threads,
+        protocol = _protocol.record_options(
+            args,
             repeats=args.repeats,
             warmup=1,
             notes="fresh child processes; the first per backend compiles (its own keys)",

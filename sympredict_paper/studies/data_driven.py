@@ -40,67 +40,47 @@ except ImportError:  # no torch
     GSympNet = MLPFlowMap = None
 
 
+#: per case: the test step and horizon, the reference flow's substeps, the kernels (state, parameter, step; the
+#: Henon-Heiles one chosen on validation by ``sympredict-paper run henon-heiles --quick``), the centres and whether
+#: the step is an input of the models
+CASES = {
+    "pendulum_fixed": dict(
+        dt=0.05, horizon=20.0, substeps=128, kernels=(IMQ(0.2), IMQ(1.5), None), centers=1000, with_dt=False
+    ),
+    "pendulum_full": dict(
+        dt=DT_TEST[0], horizon=20.0, substeps=128, kernels=(IMQ(0.2), IMQ(1.5), IMQ(3.0)), centers=1000, with_dt=True
+    ),
+    "henon_heiles": dict(
+        dt=DT_HH, horizon=50.0, substeps=256, kernels=(IMQ(0.5), IMQ(1.0), None), centers=500, with_dt=False
+    ),
+}
+
+
 def _case(name):
+    if name not in CASES:
+        raise ValueError(f"unknown case {name!r}: choose from {', '.join(CASES)}")
     if name == "pendulum_fixed":
         system = Pendulum()
         data = flow_map_data(system, MU_TRAIN, (0.05,), n_grid=50)
         val = random_flow_map_data(system, 1000, seed=2, dt_values=(0.05,))
         x0, mu = paper_test_instances(0)
-        return dict(
-            system=system,
-            data=data,
-            val=val,
-            x0=x0,
-            mu=mu,
-            dt=0.05,
-            horizon=20.0,
-            substeps=128,
-            kernels=(IMQ(0.2), IMQ(1.5), None),
-            centers=1000,
-            with_dt=False,
-        )
-    if name == "pendulum_full":
+    elif name == "pendulum_full":
         system = Pendulum()
         data = flow_map_data(system, n_grid=50)
         val = random_flow_map_data(system, 1000, seed=2)
         x0, mu = paper_test_instances(0)
-        return dict(
-            system=system,
-            data=data,
-            val=val,
-            x0=x0,
-            mu=mu,
-            dt=DT_TEST[0],
-            horizon=20.0,
-            substeps=128,
-            kernels=(IMQ(0.2), IMQ(1.5), IMQ(3.0)),
-            centers=1000,
-            with_dt=True,
+    else:
+        system = HenonHeiles()
+        p = HH_PRESETS["quick"]
+        data = henon_heiles_data(system, np.linspace(*LAMBDA_RANGE, p.n_lambda), p.n_per_lambda, p.energy_max)
+        rng = np.random.default_rng(1)
+        lv = rng.uniform(*LAMBDA_RANGE, 1000)
+        vx0 = np.concatenate(
+            [energy_bounded_states(system, lam, 1, p.energy_max, seed=100 + i) for i, lam in enumerate(lv)]
         )
-    system = HenonHeiles()
-    p = HH_PRESETS["quick"]
-    data = henon_heiles_data(system, np.linspace(*LAMBDA_RANGE, p.n_lambda), p.n_per_lambda, p.energy_max)
-    rng = np.random.default_rng(1)
-    lv = rng.uniform(*LAMBDA_RANGE, 1000)
-    vx0 = np.concatenate(
-        [energy_bounded_states(system, lam, 1, p.energy_max, seed=100 + i) for i, lam in enumerate(lv)]
-    )
-    val = FlowMapData(vx0, system.flow(vx0, lv, DT_HH), lv[:, None], np.full(1000, DT_HH))
-    x0, mu = henon_heiles_test_instances(system, p.n_test, p.energy_max)
-    # the kernel chosen on validation by `sympredict-paper run henon-heiles --quick`
-    return dict(
-        system=system,
-        data=data,
-        val=val,
-        x0=x0,
-        mu=mu,
-        dt=DT_HH,
-        horizon=50.0,
-        substeps=256,
-        kernels=(IMQ(0.5), IMQ(1.0), None),
-        centers=500,
-        with_dt=False,
-    )
+        val = FlowMapData(vx0, system.flow(vx0, lv, DT_HH), lv[:, None], np.full(1000, DT_HH))
+        x0, mu = henon_heiles_test_instances(system, p.n_test, p.energy_max)
+    return dict(system=system, data=data, val=val, x0=x0, mu=mu, **CASES[name])
 
 
 def run_case(name, neural_epochs, neural_only=False):

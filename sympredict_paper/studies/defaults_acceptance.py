@@ -93,8 +93,7 @@ class Benchmark:
 
     name: str
     title: str
-    system: object  # flow(x0, mu, t), hamiltonian(x, mu), trajectory(x0, mu, dt, n)
-    dim: int
+    system: object  # flow(x0, mu, t), hamiltonian(x, mu), trajectory(x0, mu, dt, n), dim
     mu_name: str
     mu_unit: str
     mu_range: tuple
@@ -103,6 +102,11 @@ class Benchmark:
     sampler: Callable  # (mu (N,), rng) -> states (N, dim)
     notes: str = ""
     extra: dict = field(default_factory=dict)
+
+    @property
+    def dim(self) -> int:
+        """The state dimension ``2n`` (the system's)."""
+        return self.system.dim
 
     def sample(self, n: int, seed: int):
         """``n`` parameters uniform in the range and one state each: ``(x0 (n, dim), mu (n,))``."""
@@ -260,12 +264,11 @@ def _kepler_sampler(mu, rng):
 
 def make_benchmarks() -> dict:
     """The systems by name."""
-    return {
-        "coupled_pendulums": Benchmark(
+    benchmarks = (
+        Benchmark(
             "coupled_pendulums",
             "two pendulums coupled by a torsion spring (the user story: 4-D, dT = 0.1 s)",
             HamiltonianSystem(_pend_H, _pend_grad, 4, parameters={"kappa": 1}, rtol=1e-11),
-            4,
             "kappa",
             "N m/rad",
             (0.5, 1.5),
@@ -274,11 +277,10 @@ def make_benchmarks() -> dict:
             _pend_sampler,
             notes=f"m = {PEND_M} kg, L = {PEND_L} m, g = {PEND_G} m/s^2, states uniform in H <= {PEND_E} J",
         ),
-        "fpu_chain": Benchmark(
+        Benchmark(
             "fpu_chain",
             "three-mass FPU-beta chain between fixed walls (6-D)",
             HamiltonianSystem(_fpu_H, _fpu_grad, 6, parameters={"beta": 1}, rtol=1e-11),
-            6,
             "beta",
             "N/m^3",
             (1000.0, 3000.0),
@@ -287,11 +289,10 @@ def make_benchmarks() -> dict:
             _fpu_sampler,
             notes=f"m = {FPU_M} kg, k = {FPU_K} N/m, states uniform in H <= {FPU_E} J",
         ),
-        "kepler": Benchmark(
+        Benchmark(
             "kepler",
             "planar Kepler orbits, a in [1, 2] AU, e in [0, 0.5] (4-D)",
             FlowFunctionSystem(kepler_flow, 4, n_mu=1, H=kepler_H),
-            4,
             "GM",
             "AU^3/yr^2",
             (0.5 * GM_SUN, 1.5 * GM_SUN),
@@ -300,7 +301,8 @@ def make_benchmarks() -> dict:
             _kepler_sampler,
             notes="exact flow (Kepler's equation); prograde orbits",
         ),
-    }
+    )
+    return {b.name: b for b in benchmarks}
 
 
 # --------------------------------------------------------------------------- hand settings
@@ -733,9 +735,8 @@ def main(argv=None) -> dict:
             _protocol.write_json(
                 args.json,
                 result,
-                _protocol.record(
-                    blas_threads=args.blas_threads,
-                    numba_threads=args.threads,
+                _protocol.record_options(
+                    args,
                     repeats=args.repeats,
                     warmup=0,
                     notes="fit times on a shared machine are indicative only; errors are deterministic given the seeds",

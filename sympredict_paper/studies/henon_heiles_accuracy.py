@@ -34,7 +34,7 @@ import time
 import numpy as np
 
 import _protocol  # sympredict_paper/studies/ (the script's folder is on sys.path)
-from _coordinate_search import coordinate_search  # sympredict_paper/studies/
+from _coordinate_search import Candidates, coordinate_search  # sympredict_paper/studies/
 
 from sympredict import SymplecticKernelPredictor
 from sympredict.data import FlowMapData
@@ -152,35 +152,24 @@ def fit(p, data):
     return model.fit(data.x0, data.x1, mu=data.mu, dt=data.dt)
 
 
-rows, seen = [], {}
+candidates = Candidates(NAMES)
+
+
+def measure(p, data, vals):
+    """The row entries and score of the parameters ``p``: the worst validation median error at T."""
+    model = fit(p, data)
+    at_t = {s: float(np.median(errors(model, inst)[0])) for s, inst in vals.items()}
+    return dict(
+        n_centers=model.n_centers_,
+        stop_reason=model.history_.stop_reason,
+        E_train=float(model.history_.train_max_residual[-1]),
+        val_median_at_T=at_t,
+        score=max(at_t.values()),
+    )
 
 
 def evaluate(p, sampling, data, vals):
-    key = (sampling,) + tuple(round(v, 10) for v in p)
-    if key in seen:
-        return seen[key]
-    t0 = time.perf_counter()
-    row = {"sampling": sampling, "params": dict(zip(NAMES, p))}
-    try:
-        model = fit(p, data)
-        at_t = {s: float(np.median(errors(model, inst)[0])) for s, inst in vals.items()}
-        row.update(
-            n_centers=model.n_centers_,
-            stop_reason=model.history_.stop_reason,
-            E_train=float(model.history_.train_max_residual[-1]),
-            val_median_at_T=at_t,
-            score=max(at_t.values()),
-        )
-    except Exception as exc:  # a candidate whose Newton solve fails ranks last
-        row.update(error=repr(exc), score=np.inf)
-    row["time_s"] = time.perf_counter() - t0
-    rows.append(row)
-    seen[key] = row["score"]
-    print(
-        f"  {sampling} {dict(zip(NAMES, p))}: score {row['score']:.3e}, {row.get('n_centers')} centres ({row['time_s']:.0f} s)",
-        flush=True,
-    )
-    return row["score"]
+    return candidates.score(p, lambda q: measure(q, data, vals), sampling=sampling)
 
 
 with _protocol.limits(args.blas_threads, numba_threads=1):
@@ -240,18 +229,12 @@ with _protocol.limits(args.blas_threads, numba_threads=1):
         "target": TARGET,
         "met": bool(worst <= TARGET),
         "time_s": time.perf_counter() - t_start,
-        "candidates": rows,
+        "candidates": candidates.rows,
     }
     print(
         f"chosen {sampling} {summary['chosen']} ({model.n_centers_} centres): worst test median at T {worst:.2e} "
         f"-> target {TARGET:g} {'met' if summary['met'] else 'NOT met'}",
         flush=True,
     )
-    if args.json:
-        _protocol.write_json(
-            args.json,
-            summary,
-            _protocol.record(
-                blas_threads=args.blas_threads, numba_threads=1, statistic="medians over test instances (no timing)"
-            ),
-        )
+    statistic = "medians over test instances (no timing)"
+    _protocol.write_json(args.json, summary, _protocol.record_options(args, numba_threads=1, statistic=statistic))

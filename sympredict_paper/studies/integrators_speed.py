@@ -67,9 +67,7 @@ def main():
             lambda: rollout(system, x0, length, dt, k, scheme="stormer_verlet", backend="numpy"), args.numpy_repeats
         )
         lib = rollout(system, x0, length, dt, k, scheme="stormer_verlet")
-        protocol = _protocol.record(
-            blas_threads=args.blas_threads, numba_threads=args.threads, repeats=args.repeats, warmup=1
-        )
+        protocol = _protocol.record_options(args, repeats=args.repeats, warmup=1)
     t_hand = compiled["methods"]["hand_written_numba"]["median_s"]
     t_lib = compiled["methods"]["library_compiled"]["median_s"]
     t_np = numpy_ref["median_s"]

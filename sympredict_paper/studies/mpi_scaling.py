@@ -169,9 +169,7 @@ def _run(args, mpi) -> int:
         }
     else:
         out["peak_rss_bytes_per_rank"] = [_peak_rss_bytes()]
-    out["protocol"] = _protocol.record(
-        blas_threads=args.blas_threads, repeats=1, statistic="one fit; pool latency: mean of 300 calls"
-    )
+    out["protocol"] = _protocol.record_options(args, repeats=1, statistic="one fit; pool latency: mean of 300 calls")
     text = json.dumps(out, indent=1)
     print(text, flush=True)
     if args.out:

@@ -35,7 +35,7 @@ import time
 import numpy as np
 
 import _protocol  # sympredict_paper/studies/ (the script's folder is on sys.path)
-from _coordinate_search import coordinate_search  # sympredict_paper/studies/
+from _coordinate_search import Candidates, coordinate_search  # sympredict_paper/studies/
 
 from sympredict import SymplecticKernelPredictor
 from sympredict.data import FlowMapData
@@ -180,36 +180,24 @@ def medians(model, cs, seeds, pooled=None):
     return out
 
 
-rows, seen = [], {}
+candidates = Candidates(NAMES)
+
+
+def measure(p, val):
+    """The row entries and score of the parameters ``p``: the worst validation median error."""
+    model = fit(p)
+    med = medians(model, val, args.val_seeds)
+    return {
+        "n_centers": model.n_centers_,
+        "stop_reason": model.history_.stop_reason,
+        "E_train": float(model.history_.train_max_residual[-1]),
+        "val_medians": med,
+        "score": max(v for d in med.values() for v in d.values()),
+    }
 
 
 def evaluate(p, val):
-    key = tuple(round(v, 10) for v in p)
-    if key in seen:
-        return seen[key]
-    t0 = time.perf_counter()
-    try:
-        model = fit(p)
-        med = medians(model, val, args.val_seeds)
-        score = max(v for d in med.values() for v in d.values())
-        row = {
-            "params": dict(zip(NAMES, p)),
-            "n_centers": model.n_centers_,
-            "stop_reason": model.history_.stop_reason,
-            "E_train": float(model.history_.train_max_residual[-1]),
-            "val_medians": med,
-            "score": score,
-        }
-    except Exception as exc:  # a candidate whose Newton solve fails ranks last
-        row = {"params": dict(zip(NAMES, p)), "error": repr(exc), "score": np.inf}
-    row["time_s"] = time.perf_counter() - t0
-    rows.append(row)
-    seen[key] = row["score"]
-    print(
-        f"  {dict(zip(NAMES, p))}: score {row['score']:.3e}, {row.get('n_centers')} centres ({row['time_s']:.0f} s)",
-        flush=True,
-    )
-    return row["score"]
+    return candidates.score(p, lambda q: measure(q, val))
 
 
 with _protocol.limits(args.blas_threads, numba_threads=1):
@@ -247,7 +235,7 @@ with _protocol.limits(args.blas_threads, numba_threads=1):
         "met_pooled": bool(pooled) and max(pooled.values()) <= TARGET,
         "n_samples": len(data.x0),
         "time_s": time.perf_counter() - t_start,
-        "candidates": rows,
+        "candidates": candidates.rows,
     }
     print(f"chosen {summary['chosen']} ({model.n_centers_} centres):", flush=True)
     for seed, d in test.items():
@@ -289,11 +277,5 @@ with _protocol.limits(args.blas_threads, numba_threads=1):
                 + ", ".join(f"{q}: {v:.1e}" for q, v in diag["per_q0"][dt].items()),
                 flush=True,
             )
-    if args.json:
-        _protocol.write_json(
-            args.json,
-            summary,
-            _protocol.record(
-                blas_threads=args.blas_threads, numba_threads=1, statistic="medians over test instances (no timing)"
-            ),
-        )
+    statistic = "medians over test instances (no timing)"
+    _protocol.write_json(args.json, summary, _protocol.record_options(args, numba_threads=1, statistic=statistic))

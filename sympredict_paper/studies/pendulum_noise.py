@@ -105,5 +105,5 @@ with _protocol.limits(args.blas_threads):
         _protocol.write_json(
             args.json,
             {"args": vars(args), "rows": rows},
-            _protocol.record(blas_threads=args.blas_threads, repeats=1, statistic="one timed selection"),
+            _protocol.record_options(args, repeats=1, statistic="one timed selection"),
         )

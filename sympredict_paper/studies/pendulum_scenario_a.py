@@ -36,7 +36,7 @@ out = Path(args.out)
 out.mkdir(parents=True, exist_ok=True)
 t0 = time.perf_counter()
 with _protocol.limits(args.blas_threads):
-    protocol = _protocol.record(blas_threads=args.blas_threads, repeats=1, statistic="one run")
+    protocol = _protocol.record_options(args, repeats=1, statistic="one run")
     blas = [
         {k: p.get(k) for k in ("internal_api", "num_threads", "version")} for p in protocol["machine"]["threadpools"]
     ]

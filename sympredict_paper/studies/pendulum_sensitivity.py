@@ -83,4 +83,4 @@ for eps in triples:
         print(f"   test seed {seed}: median error at dT={DT_TEST}: " + ", ".join(f"{m:.2e}" for m in meds), flush=True)
 if args.json:
     with _protocol.limits(args.blas_threads):
-        _protocol.write_json(args.json, {"rows": rows}, _protocol.record(blas_threads=args.blas_threads), indent=2)
+        _protocol.write_json(args.json, {"rows": rows}, _protocol.record_options(args), indent=2)

@@ -66,6 +66,4 @@ best = min(rows, key=lambda r: r["score"])
 print(f"chosen: eps = {best['eps']} (score {best['score']:.3e})")
 if args.json:
     with _protocol.limits(args.blas_threads):
-        _protocol.write_json(
-            args.json, {"rows": rows, "chosen": best["eps"]}, _protocol.record(blas_threads=args.blas_threads), indent=2
-        )
+        _protocol.write_json(args.json, {"rows": rows, "chosen": best["eps"]}, _protocol.record_options(args), indent=2)

@@ -106,11 +106,7 @@ with _protocol.limits(args.blas_threads, numba_threads=args.threads):
         _protocol.write_json(
             args.json,
             {"rows": rows},
-            _protocol.record(
-                blas_threads=args.blas_threads,
-                numba_threads=args.threads,
-                repeats=1,
-                warmup=1,
-                statistic="one timed rollout per backend (numba: after a compiling call)",
+            _protocol.record_options(
+                args, repeats=1, warmup=1, statistic="one timed rollout per backend (numba: after a compiling call)"
             ),
         )

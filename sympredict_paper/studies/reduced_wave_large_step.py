@@ -473,5 +473,5 @@ if args.json:
     _protocol.write_json(
         args.json,
         results,
-        _protocol.record(blas_threads=args.blas_threads, repeats=1, statistic="one run per fit and rollout"),
+        _protocol.record_options(args, repeats=1, statistic="one run per fit and rollout"),
     )

@@ -348,7 +348,7 @@ def main(argv=None):
             variants=tuple(args.variants),
             log=lambda s: print(s, flush=True),
         )
-        protocol = _protocol.record(blas_threads=args.blas_threads, repeats=1, statistic="one run per fit and rollout")
+        protocol = _protocol.record_options(args, repeats=1, statistic="one run per fit and rollout")
     if args.json:
         _protocol.write_json(args.json, out, protocol)
 

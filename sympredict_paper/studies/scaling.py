@@ -165,18 +165,13 @@ def main(argv=None):
     parser.add_argument("--dims", type=int, nargs="+", default=[2, 4, 8, 16, 32])
     parser.add_argument("--gpr-points", type=int, nargs="+", default=[1000, 2000, 4000])
     parser.add_argument("--system", choices=("fpu", "random"), default="fpu", help="the greedy's problem")
-    _protocol.add_arguments(parser, threads=1)
+    _protocol.add_arguments(parser, threads=1, json_default="docs/data/scaling.json")
     args = parser.parse_args(argv)
-    args.json = args.json or "docs/data/scaling.json"
     trainers = {"exact": ExactGreedy(tol=0), "blocked": BlockedGreedy(tol=0)}
     out = {"system": args.system}
     with _protocol.limits(args.blas_threads, args.threads):
-        protocol = _protocol.record(
-            blas_threads=args.blas_threads,
-            numba_threads=args.threads,
-            repeats=1,
-            warmup=0,
-            notes="one timed and one traced run per size and trainer, in one process",
+        protocol = _protocol.record_options(
+            args, repeats=1, warmup=0, notes="one timed and one traced run per size and trainer, in one process"
         )
         rate = gemm_rate()
         out["gemm_gflops"] = rate / 1e9

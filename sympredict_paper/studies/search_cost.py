@@ -181,14 +181,12 @@ def main(argv=None):
     parser.add_argument("--centers", type=int, default=1000)
     parser.add_argument("--n-test", type=int, default=20)
     parser.add_argument("--steps", type=int, default=200)
-    _protocol.add_arguments(parser, threads=1)
+    _protocol.add_arguments(parser, threads=1, json_default=str(RESULTS))
     args = parser.parse_args(argv)
-    args.json = args.json or str(RESULTS)
     rows = []
     with _protocol.limits(args.blas_threads, args.threads):
-        protocol = _protocol.record(
-            blas_threads=args.blas_threads,
-            numba_threads=args.threads,
+        protocol = _protocol.record_options(
+            args,
             repeats=1,
             warmup=0,
             notes="one fit per configuration, side by side in one process, the two "

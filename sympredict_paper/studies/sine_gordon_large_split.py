@@ -37,12 +37,10 @@ from dataclasses import replace
 import numpy as np
 
 import _protocol  # sympredict_paper/studies/ (the script's folder is on sys.path)
-from _sine_gordon_data import load_fom_data, record_failure  # sympredict_paper/studies/
+from _sine_gordon_data import galerkin_rom, load_fom_data, record_failure  # sympredict_paper/studies/
 
 from sympredict.symplectic.metrics import canonical_J
 from sympredict_paper.sine_gordon import PRESETS, _err, _fit_kernel, _jg, choose_large_step
-from sympredict.mor.nonlinear import ReducedSineGordon
-from sympredict.mor.basis import complex_svd_basis
 
 
 def _r(v, d=4):
@@ -140,12 +138,10 @@ def main():
         "choices": [],
     }
     with _protocol.limits(args.blas_threads):
-        protocol = _protocol.record(blas_threads=args.blas_threads, repeats=1, statistic="one run per fit and rollout")
+        protocol = _protocol.record_options(args, repeats=1, statistic="one run per fit and rollout")
         fom, K, c_tr, c_te, X_tr, X_te = load_fom_data(p, args.preset, args.cache, show=_r)
         for dim in args.dims:
-            gal = ReducedSineGordon.galerkin(
-                fom, complex_svd_basis(X_tr.reshape(-1, fom.dim), n=dim // 2, layout="rows").V
-            )
+            gal = galerkin_rom(fom, X_tr, dim)
             quads = {
                 sp: None if sp == "none" else gal.quadratic_part(mass=sp == "quadratic-mass") for sp in args.splits
             }

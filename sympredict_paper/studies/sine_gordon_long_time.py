@@ -27,10 +27,9 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 import _protocol  # sympredict_paper/studies/ (the script's folder is on sys.path)
+from _sine_gordon_data import galerkin_rom  # sympredict_paper/studies/
 
 from sympredict_paper.sine_gordon import PRESETS, _fit_kernel, sign_symmetry, EnergySamples, no_augmentation
-from sympredict.mor.nonlinear import ReducedSineGordon
-from sympredict.mor.basis import complex_svd_basis
 from sympredict.systems.sine_gordon import SineGordonFOM
 
 parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -71,9 +70,7 @@ with _protocol.limits(args.blas_threads):
         X_tr = fom.reference_trajectory(a_tr[:, None] * u0, c_tr, p.DT, K, tol=p.ref_tol)
         X_te = fom.reference_trajectory(a_te[:, None] * u0, c_te, p.DT, L, tol=p.ref_tol)
         np.savez(args.cache, X_tr=X_tr, X_te=X_te)
-    gal = ReducedSineGordon.galerkin(
-        fom, complex_svd_basis(X_tr.reshape(-1, fom.dim), n=args.dim // 2, layout="rows").V
-    )
+    gal = galerkin_rom(fom, X_tr, args.dim)
     y0 = gal.project(X_te[:, 0])
     n = args.dim // 2
     Yg_te = gal.solve(y0, c_te, p.DT, L, substeps=p.substeps)

@@ -20,10 +20,9 @@ from dataclasses import replace
 import numpy as np
 
 import _protocol  # sympredict_paper/studies/ (the script's folder is on sys.path)
+from _sine_gordon_data import galerkin_rom  # sympredict_paper/studies/
 
 from sympredict_paper.sine_gordon import PRESETS, _fit_kernel
-from sympredict.mor.nonlinear import ReducedSineGordon
-from sympredict.mor.basis import complex_svd_basis
 from sympredict.systems.sine_gordon import SineGordonFOM
 
 parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -42,7 +41,7 @@ a_tr = np.tile(np.linspace(*p.amplitude_range, 4), 5)
 with _protocol.limits(args.blas_threads):
     X = fom.reference_trajectory(a_tr[:, None] * fom.sech_cos(2.0, 1.0), c_tr, p.DT, K, tol=p.ref_tol)
     for dim in args.dims:
-        gal = ReducedSineGordon.galerkin(fom, complex_svd_basis(X.reshape(-1, fom.dim), n=dim // 2, layout="rows").V)
+        gal = galerkin_rom(fom, X, dim)
         data = {
             "reduced": gal.solve(gal.project(X[:, 0]), c_tr, p.DT, K, substeps=p.substeps),
             "projected": gal.project(X),

@@ -34,7 +34,7 @@ from dataclasses import replace
 import numpy as np
 
 import _protocol  # sympredict_paper/studies/ (the script's folder is on sys.path)
-from _sine_gordon_data import load_fom_data, record_failure  # sympredict_paper/studies/
+from _sine_gordon_data import galerkin_rom, load_fom_data, record_failure  # sympredict_paper/studies/
 
 from sympredict_paper.sine_gordon import (
     PRESETS,
@@ -47,8 +47,6 @@ from sympredict_paper.sine_gordon import (
     split_setup,
 )
 from sympredict.symplectic.metrics import relative_trajectory_error
-from sympredict.mor.nonlinear import ReducedSineGordon
-from sympredict.mor.basis import complex_svd_basis
 
 
 def main():
@@ -82,13 +80,11 @@ def main():
     p = replace(PRESETS[args.preset], **over)
     results = {"preset": args.preset, "overrides": over, "rows": []}
     with _protocol.limits(args.blas_threads):
-        protocol = _protocol.record(blas_threads=args.blas_threads, repeats=1, statistic="one run per fit and rollout")
+        protocol = _protocol.record_options(args, repeats=1, statistic="one run per fit and rollout")
         fom, K, c_tr, c_te, X_tr, X_te = load_fom_data(p, args.preset, args.cache)
         L = p.long_factor * K
         for dim in args.dims:
-            gal = ReducedSineGordon.galerkin(
-                fom, complex_svd_basis(X_tr.reshape(-1, fom.dim), n=dim // 2, layout="rows").V
-            )
+            gal = galerkin_rom(fom, X_tr, dim)
             x_te = X_te[:, : K + 1]
             y0 = gal.project(X_te[:, 0])
             Yg = gal.solve(y0, c_te, p.DT, L, substeps=p.substeps)

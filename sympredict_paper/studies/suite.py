@@ -438,6 +438,61 @@ def section_scaling(model, repeats: int = 3) -> dict:
     return out
 
 
+#: the scaling figure's panels, in order: (key of the ``scaling`` section, measured only where numba is installed,
+#: title (formatted with the section's entries), x label, x entry, {legend: y entry}, y label)
+SCALING_PANELS = [
+    (
+        "rollout_vs_centers",
+        True,
+        "rollout against centres",
+        "centres $m$",
+        "m",
+        {"numba rollout": "s_per_traj_step"},
+        "time per trajectory-step [s]",
+    ),
+    (
+        "rollout_vs_batch",
+        True,
+        "rollout against batch size",
+        "batch size $B$ [trajectories]",
+        "batch",
+        {"numba rollout": "s_per_traj_step"},
+        "time per trajectory-step [s]",
+    ),
+    (
+        "newton_vs_dim",
+        True,
+        "Newton terms against $2n$ ($m$ = 1500)",
+        "state dimension $2n$",
+        "dim",
+        {
+            "numba implicit step": "numba_implicit_step_s",
+            "numba gradient": "numba_gradient_s_per_point",
+            "NumPy grad + Hessian block": "numpy_newton_terms_s_per_point",
+        },
+        "time per state [s]",
+    ),
+    (
+        "greedy_step_vs_N",
+        False,
+        "greedy step against candidates ($m$ = {m})",
+        "candidates $N$ [functionals]",
+        "N",
+        {"greedy step": "s_per_step"},
+        "time per greedy step [s]",
+    ),
+    (
+        "greedy_step_vs_m",
+        False,
+        "greedy step against centres ($N$ = {N:,})",
+        "centres $m$",
+        "m",
+        {"greedy step": "s_per_step"},
+        "time per greedy step [s]",
+    ),
+]
+
+
 def draw_scaling(scaling: dict):
     """The scaling figure of a ``scaling`` section: one log-log panel per measurement, two rows of three.
 
@@ -451,62 +506,12 @@ def draw_scaling(scaling: dict):
     import matplotlib.pyplot as plt
     import matplotlib.ticker
 
-    panels = []
-    if "rollout_vs_centers" in scaling:
-        r = scaling["rollout_vs_centers"]
-        panels.append(
-            (
-                "rollout against centres",
-                "centres $m$",
-                r["m"],
-                {"numba rollout": r["s_per_traj_step"]},
-                "time per trajectory-step [s]",
-            )
-        )
-        r = scaling["rollout_vs_batch"]
-        panels.append(
-            (
-                "rollout against batch size",
-                "batch size $B$ [trajectories]",
-                r["batch"],
-                {"numba rollout": r["s_per_traj_step"]},
-                "time per trajectory-step [s]",
-            )
-        )
-        r = scaling["newton_vs_dim"]
-        panels.append(
-            (
-                "Newton terms against $2n$ ($m$ = 1500)",
-                "state dimension $2n$",
-                r["dim"],
-                {
-                    "numba implicit step": r["numba_implicit_step_s"],
-                    "numba gradient": r["numba_gradient_s_per_point"],
-                    "NumPy grad + Hessian block": r["numpy_newton_terms_s_per_point"],
-                },
-                "time per state [s]",
-            )
-        )
-    r = scaling["greedy_step_vs_N"]
-    panels.append(
-        (
-            f"greedy step against candidates ($m$ = {r['m']})",
-            "candidates $N$ [functionals]",
-            r["N"],
-            {"greedy step": r["s_per_step"]},
-            "time per greedy step [s]",
-        )
-    )
-    r = scaling["greedy_step_vs_m"]
-    panels.append(
-        (
-            f"greedy step against centres ($N$ = {r['N']:,})",
-            "centres $m$",
-            r["m"],
-            {"greedy step": r["s_per_step"]},
-            "time per greedy step [s]",
-        )
-    )
+    panels = [
+        (title.format(**r), xlabel, r[x], {label: r[y] for label, y in curves.items()}, ylabel)
+        for key, compiled, title, xlabel, x, curves, ylabel in SCALING_PANELS
+        if not compiled or key in scaling
+        for r in [scaling[key]]
+    ]
     ncols = min(3, len(panels))
     nrows = -(-len(panels) // ncols)
     with plt.rc_context(

@@ -170,9 +170,8 @@ def main(argv=None):
     p.add_argument("--steps", type=int, default=200)
     p.add_argument("--long-steps", type=int, default=2000)
     p.add_argument("--seed", type=int, default=0)
-    _protocol.add_arguments(p, threads=1)
+    _protocol.add_arguments(p, threads=1, json_default=str(RESULTS))
     args = p.parse_args(argv)
-    args.json = args.json or str(RESULTS)
     args.data = args.data or ("trajectories" if args.centers else "samples")
     warnings.simplefilter("ignore", ExtrapolationWarning)
     tb, dt = ThreeBody(), 0.05
@@ -234,13 +233,7 @@ def main(argv=None):
                 row["min_pivot"] = float(model.history_.selected_power[:m].min())
                 out["sizes"][str(m)] = row
                 print(m, {k: f"{v:.2e}" for k, v in row.items()}, flush=True)
-        protocol = _protocol.record(
-            blas_threads=args.blas_threads,
-            numba_threads=args.threads,
-            repeats=1,
-            warmup=0,
-            notes="shared 2-core machine",
-        )
+        protocol = _protocol.record_options(args, repeats=1, warmup=0, notes="shared 2-core machine")
     Path(args.json).parent.mkdir(parents=True, exist_ok=True)
     _protocol.write_json(args.json, out, protocol)
     return out

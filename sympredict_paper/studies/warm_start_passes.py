@@ -64,9 +64,7 @@ def main(argv=None) -> dict:
             diff = float(np.abs(trajs[True] - trajs[False]).max())
             rows[-1]["max_abs_warm_minus_cold"] = diff
             print(f"  max |warm - cold| = {diff:.1e}")
-        protocol = _protocol.record(
-            blas_threads=args.blas_threads, numba_threads=args.threads, statistic="counts (no timing)"
-        )
+        protocol = _protocol.record_options(args, statistic="counts (no timing)")
     if args.json:
         _protocol.write_json(args.json, {"rows": rows}, protocol)
     return {"rows": rows}

@@ -70,5 +70,5 @@ for n in args.n or [2]:
         )
 path = out / f"wave_pipeline_{args.preset}.json"
 with _protocol.limits(args.blas_threads):
-    _protocol.write_json(path, {"rows": rows}, _protocol.record(blas_threads=args.blas_threads, repeats=1), indent=2)
+    _protocol.write_json(path, {"rows": rows}, _protocol.record_options(args, repeats=1), indent=2)
 print(f"written to {path}")

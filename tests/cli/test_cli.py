@@ -82,47 +82,26 @@ def test_run_all_smoke_writes_everything(smoke_run):
     assert all(e > z["target"] for m, e in z["center_errors"].items() if int(m) < z["n_centers"])
 
 
-def test_example_runs(tmp_path):
-    out = tmp_path / "example.png"
+def _run_example(script, *args):
+    """Run ``examples/<script>`` with ``args`` in a child process; asserts exit 0 and returns its stdout."""
     proc = subprocess.run(
-        [
-            sys.executable,
-            str(ROOT / "examples" / "pendulum_phase_portrait.py"),
-            "--n-grid",
-            "12",
-            "--centers",
-            "100",
-            "--horizon",
-            "2",
-            "--out",
-            str(out),
-        ],
-        capture_output=True,
-        text=True,
-        timeout=300,
+        [sys.executable, str(ROOT / "examples" / script), *args], capture_output=True, text=True, timeout=300
     )
     assert proc.returncode == 0, proc.stderr
-    assert out.stat().st_size > 1000 and "kernel predictor" in proc.stdout
+    return proc.stdout
+
+
+def test_example_runs(tmp_path):
+    out = tmp_path / "example.png"
+    stdout = _run_example(
+        "pendulum_phase_portrait.py", "--n-grid", "12", "--centers", "100", "--horizon", "2", "--out", str(out)
+    )
+    assert out.stat().st_size > 1000 and "kernel predictor" in stdout
 
 
 def test_wave_example_runs():
-    proc = subprocess.run(
-        [
-            sys.executable,
-            str(ROOT / "examples" / "wave_mor_workflow.py"),
-            "--n-points",
-            "80",
-            "--samples",
-            "60",
-            "--centers",
-            "80",
-        ],
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
-    assert proc.returncode == 0, proc.stderr
-    assert "ROM + kernel predictor" in proc.stdout and "V^T J V - J" in proc.stdout
+    stdout = _run_example("wave_mor_workflow.py", "--n-points", "80", "--samples", "60", "--centers", "80")
+    assert "ROM + kernel predictor" in stdout and "V^T J V - J" in stdout
 
 
 def test_data_train_predict_report_workflow(tmp_path, capsys):

@@ -20,17 +20,16 @@ from sympredict.exceptions import ExtrapolationWarning, ModelFileError, NotFitte
 from sympredict.io import load_model, save_model
 from sympredict.kernels import IMQ
 from sympredict.systems.linear_flow import QuadraticPart, inverse_symplectic_matrices
-from _surrogate_oracles import check_step_jacobian  # tests/
+from _surrogate_oracles import KLEIN, check_step_jacobian, klein_midpoint_predictor  # tests/
 from _tolerances import rollout_bound  # tests/
 from sympredict.symplectic.metrics import canonical_J
 from sympredict.symplectic.newton import solve_midpoint_numpy
 from sympredict.estimators.predictor import MODEL_FORMAT
 from sympredict.flowmap.splitting import SplitKernelPredictor
 from sympredict.symplectic.solvers import NewtonSolver
-from sympredict.kernels.transforms import Scaled, Symmetric
+from sympredict.kernels.transforms import Scaled
 
 J2 = canonical_J(2)
-KLEIN = [(1, 1), (-1, -1), (1, -1), (-1, 1)]
 
 
 def _random_quadratic(rng, dim=4, d_mu=2):
@@ -113,14 +112,7 @@ def test_undefined_coefficients_and_missing_mu_are_refused(pendulum):
 def split_pendulum(small_pendulum_data, pendulum):
     d = small_pendulum_data
     idx = np.random.default_rng(0).choice(len(d), 1200, replace=False)
-    inner = SymplecticKernelPredictor(
-        Symmetric(IMQ(0.4), group=KLEIN),
-        IMQ(0.75),
-        IMQ(1.06),
-        max_centers=250,
-        update="midpoint",
-        solver=NewtonSolver(backend="numpy"),
-    )
+    inner = klein_midpoint_predictor(0.4, 0.75, 1.06, max_centers=250, backend="numpy")
     model = SplitKernelPredictor(inner, pendulum.quadratic_part())
     return model.fit(d.x0[idx], d.x1[idx], mu=d.mu[idx], dt=d.dt[idx]), d
 

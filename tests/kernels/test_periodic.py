@@ -18,7 +18,6 @@ from sympredict.exceptions import ExtrapolationWarning
 from sympredict.interpolation.functionals import HBFunctionals, functional_residuals
 from sympredict.io import load_model, save_model
 from sympredict.kernels import IMQ, Matern52, PeriodicCoordinates, ProductKernel
-from sympredict.symplectic.metrics import canonical_J
 from sympredict.estimators.predictor import update_variables
 from sympredict.interpolation.surrogate import HBSurrogate
 from sympredict.symplectic.solvers import NewtonSolver
@@ -26,13 +25,16 @@ from sympredict.kernels.transforms import Periodic, Scaled
 
 from _tolerances import assert_same_predictions  # tests/
 from _surrogate_oracles import (
+    PENDULUM_DT,
+    PENDULUM_LENGTH,
+    assert_jacobians_symplectic,
     check_gramian_by_finite_differences,
     check_malformed_kernel_entries_refused,
     check_surrogate_by_finite_differences,
+    pendulum_samples,
 )  # tests/ (on sys.path under pytest)
 
-J = canonical_J(2)
-LENGTH, DT = 0.75, 0.05
+LENGTH, DT = PENDULUM_LENGTH, PENDULUM_DT
 
 PERIODICS = [(2, PeriodicCoordinates((0,), (2 * np.pi,))), (4, PeriodicCoordinates((0, 3), (2 * np.pi, 1.7)))]
 
@@ -121,18 +123,10 @@ def test_surrogate_value_gradient_hessian_by_finite_differences(dim, periodic, s
         np.testing.assert_allclose(f_c, floor, rtol=1e-12)
 
 
-def _data(n=500, seed=0):
-    """Pendulum samples at one length and step; angles of x0 in [-pi, pi), x1 the true image (rotations included)."""
-    from sympredict.systems.pendulum import Pendulum
-
-    rng = np.random.default_rng(seed)
-    x0 = np.column_stack([rng.uniform(-np.pi, np.pi, n), rng.uniform(-5.5, 5.5, n)])
-    return x0, Pendulum().flow(x0, LENGTH, DT)
-
-
 @pytest.fixture(scope="module")
 def data():
-    return _data()
+    """Pendulum samples at one length and step (angles of x0 in [-pi, pi), x1 the true image (rotations included))."""
+    return pendulum_samples(np.pi, 5.5)
 
 
 def _model(update="symplectic_euler", periodic=(0,), period=2 * np.pi, backend="numpy", state_scaling=None, **kw):
@@ -170,7 +164,7 @@ def test_interpolates_the_selected_functionals(fitted, data):
 def test_step_symplectic_finite_differences_and_periodic(fitted):
     x = X_FAR
     jac = fitted.step_jacobian(x)
-    np.testing.assert_allclose(np.einsum("bji,jk,bkl->bil", jac, J, jac), np.broadcast_to(J, jac.shape), atol=1e-12)
+    assert_jacobians_symplectic(jac)
     h = 1e-5
     fd = np.stack([(fitted.step(x + h * e) - fitted.step(x - h * e)) / (2 * h) for e in np.eye(2)], axis=2)
     np.testing.assert_allclose(fd, jac, atol=1e-7 * np.abs(jac).max())
@@ -249,7 +243,7 @@ def test_period_and_state_scaling(data):
     shift = np.column_stack([x[:, 0] - base[:, 0], np.zeros(2)])
     np.testing.assert_allclose(model.step(x) - shift, model.step(base), atol=1e-11 * np.abs(x).max())
     jac = model.step_jacobian(x)
-    np.testing.assert_allclose(np.einsum("bji,jk,bkl->bil", jac, J, jac), np.broadcast_to(J, jac.shape), atol=1e-12)
+    assert_jacobians_symplectic(jac)
 
 
 def test_model_files(data, tmp_path):

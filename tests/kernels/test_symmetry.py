@@ -23,7 +23,6 @@ from sympredict.interpolation.functionals import (
 from sympredict.interpolation.greedy import ActiveSetGreedy, ExactGreedy
 from sympredict.io import load_model, save_model
 from sympredict.kernels import IMQ, Matern52, PeriodicCoordinates, ProductKernel, StateSymmetry
-from sympredict.symplectic.metrics import canonical_J
 from sympredict.estimators.predictor import update_variables
 from sympredict.interpolation.surrogate import HBSurrogate
 from sympredict.symplectic.solvers import NewtonSolver
@@ -31,14 +30,17 @@ from sympredict.kernels.transforms import Periodic, Scaled, Symmetric
 
 from _tolerances import assert_same_predictions  # tests/
 from _surrogate_oracles import (
+    KLEIN,
+    PENDULUM_DT,
+    PENDULUM_LENGTH,
+    assert_jacobians_symplectic,
     check_gramian_by_finite_differences,
     check_malformed_kernel_entries_refused,
     check_surrogate_by_finite_differences,
+    pendulum_samples,
 )  # tests/ (on sys.path under pytest)
 
-J = canonical_J(2)
-LENGTH, DT = 0.75, 0.05
-KLEIN = [(1, 1), (-1, -1), (1, -1), (-1, 1)]
+LENGTH, DT = PENDULUM_LENGTH, PENDULUM_DT
 
 
 def _rotations(k):
@@ -134,18 +136,10 @@ def test_dense_interpolation_is_exact_and_invariant(rng):
         np.testing.assert_allclose(sur.gradient(pts @ g.T, w), sur.gradient(pts, w) @ g.T, atol=1e-8)
 
 
-def _data(n=500, seed=0):
-    """Pendulum samples at one length and step (librations and rotations)."""
-    from sympredict.systems.pendulum import Pendulum
-
-    rng = np.random.default_rng(seed)
-    x0 = np.column_stack([rng.uniform(-2.5, 2.5, n), rng.uniform(-4.0, 4.0, n)])
-    return x0, Pendulum().flow(x0, LENGTH, DT)
-
-
 @pytest.fixture(scope="module")
 def data():
-    return _data()
+    """Pendulum samples at one length and step (librations and rotations)."""
+    return pendulum_samples(2.5, 4.0)
 
 
 def _model(symmetry=KLEIN, backend="numpy", tol=None, trainer=None, state_scaling=None, periodic=None, **kw):
@@ -198,7 +192,7 @@ def test_symmetry_lowers_the_residual_against_the_plain_kernel(fitted, data):
 def test_step_symplectic_equivariant_and_reversible(fitted):
     x = np.array([[0.3, 0.1], [-1.2, 0.8], [0.05, -2.0], [1.0, 0.0]])
     jac = fitted.step_jacobian(x)
-    np.testing.assert_allclose(np.einsum("bji,jk,bkl->bil", jac, J, jac), np.broadcast_to(J, jac.shape), atol=1e-12)
+    assert_jacobians_symplectic(jac)
     # h balances the differences' O(h^2) against Newton's stopping floor (~1e-11 here: coefficients ~1e6)
     h = 3e-4
     fd = np.stack([(fitted.step(x + h * e) - fitted.step(x - h * e)) / (2 * h) for e in np.eye(2)], axis=2)
@@ -366,4 +360,4 @@ def test_state_scaling_with_sign_flips(data):
     x = np.array([[0.3, 0.1], [-1.2, 0.8]])
     np.testing.assert_allclose(model.step(-x), -model.step(x), atol=1e-12)
     jac = model.step_jacobian(x)
-    np.testing.assert_allclose(np.einsum("bji,jk,bkl->bil", jac, J, jac), np.broadcast_to(J, jac.shape), atol=1e-12)
+    assert_jacobians_symplectic(jac)

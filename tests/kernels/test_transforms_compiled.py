@@ -25,11 +25,15 @@ from sympredict.interpolation.surrogate import HBSurrogate
 from sympredict.symplectic.solvers import NewtonSolver
 from sympredict.symplectic.updates import Midpoint, SymplecticEuler
 
-from _surrogate_oracles import check_rollouts_agree_to_the_floor, pendulum_queries, with_backend  # tests/
+from _surrogate_oracles import (
+    KLEIN,
+    check_rollouts_agree_to_the_floor,
+    klein_midpoint_predictor,
+    pendulum_queries,
+    with_backend,
+)  # tests/
 
 pytestmark = pytest.mark.skipif(not _numba.HAVE_NUMBA, reason="the compiled solver needs numba (optional extra)")
-
-KLEIN = [(1, 1), (-1, -1), (1, -1), (-1, 1)]
 
 
 def _chain(dt=0.2, n=2, size=300, seed=3):
@@ -212,14 +216,7 @@ def test_numpy_only_table_holds_only_what_cannot_be_compiled(small_pendulum_data
         compiled = False
 
     assert [reason for applies, reason in NUMPY_ONLY if applies(lower_state_kernel(IMQ(0.3)), Outside())]
-    model = SymplecticKernelPredictor(
-        Symmetric(IMQ(0.3), group=KLEIN),
-        IMQ(1.5),
-        IMQ(3.0),
-        max_centers=10,
-        update="midpoint",
-        solver=NewtonSolver(backend="numba"),
-    )
+    model = klein_midpoint_predictor(0.3, 1.5, 3.0, max_centers=10, backend="numba")
     model.fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
     assert model.numpy_only_ is None and model.backend_for(100, 100) == "numba"
     auto = copy.copy(model).set_params(solver__backend="auto")

@@ -1,30 +1,15 @@
 """sympredict_paper/studies/reduced_wave_large_step.py --quick: its results file, and the midpoint form at 50x the FOM step."""
 
-import json
-import os
-import subprocess
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
 
-pytest.importorskip("pymordemos.symplectic_wave_equation")
+from _studies import run_study  # tests/
 
-SCRIPT = Path(__file__).resolve().parents[2] / "sympredict_paper" / "studies" / "reduced_wave_large_step.py"
+pytest.importorskip("pymordemos.symplectic_wave_equation")
 
 
 def run_quick(out, *extra):
-    env = dict(os.environ, OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", NUMBA_NUM_THREADS="1")
-    proc = subprocess.run(
-        [sys.executable, str(SCRIPT), "--quick", "--json", str(out), *extra],
-        capture_output=True,
-        text=True,
-        env=env,
-        timeout=600,
-    )
-    assert proc.returncode == 0, proc.stderr[-3000:]
-    return json.loads(out.read_text()), proc.stdout
+    return run_study("reduced_wave_large_step.py", out, "--quick", *extra)
 
 
 @pytest.fixture(scope="module")

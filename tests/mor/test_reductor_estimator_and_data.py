@@ -22,12 +22,6 @@ from sympredict.mor import (
 )
 
 
-@pytest.fixture(scope="module")
-def small_fe(small_fe_wave):
-    fom, _, space, train, RB = small_fe_wave
-    return fom, space, train, RB
-
-
 def _small_search():
     return KernelSearch(
         families=("imq",), shapes=(0.5, 1.0), parameter_shapes=(0.5,), m_star=20, refine_sweeps=0, max_samples=200

@@ -19,12 +19,6 @@ from sympredict.systems.flowmaps import LinearHamiltonianSystem, check_generatin
 from sympredict.systems.linear_flow import QuadraticPart
 
 
-@pytest.fixture(scope="module")
-def small_fe(small_fe_wave):
-    fom, _, space, train, RB = small_fe_wave
-    return fom, space, train, RB
-
-
 def _oscillators(w):
     """Uncoupled oscillators ``H = sum w_i (q_i^2 + p_i^2) / 2`` (2n = 2 len(w)), no parameter."""
     H = np.diag(np.concatenate([w, w]))

@@ -12,13 +12,8 @@ from sympredict.testing import fe_wave_matrices
 
 
 @pytest.fixture(scope="module")
-def small_fe(small_fe_wave):
-    return small_fe_wave
-
-
-@pytest.fixture(scope="module")
-def small_rom(small_fe):
-    fom, coords, space, train, RB = small_fe
+def small_rom(small_fe_wave):
+    fom, coords, space, train, RB = small_fe_wave
     h = fom.T / fom.time_stepper.nt
     red = SymplecticKernelReductor(
         fom,
@@ -46,8 +41,8 @@ def test_as_parameter_reads_mu_and_dicts_in_parameter_order():
         as_parameter({"b": 1.0, "a": 3}, 2, 2, parameters={"a": 1, "b": 2})
 
 
-def test_rom_flow_map_takes_pymor_mu_and_dict(small_fe, small_rom):
-    fom = small_fe[0]
+def test_rom_flow_map_takes_pymor_mu_and_dict(small_fe_wave, small_rom):
+    fom = small_fe_wave[0]
     red, rom = small_rom
     x = red.project(fom.initial_data.as_range_array(fom.parameters.parse(0.93)))
     ref = rom.flow_map.step(x, mu=0.93, dt=red.dt)
@@ -95,8 +90,8 @@ def test_mass_coordinates_refuse_bad_matrices():
         MassMatrixCoordinates(np.ones((2, 3)))
 
 
-def test_fe_wave_fom_conserves_the_mass_matrix_energy(small_fe):
-    fom, coords, *_ = small_fe
+def test_fe_wave_fom_conserves_the_mass_matrix_energy(small_fe_wave):
+    fom, coords, *_ = small_fe_wave
     M, K, _ = fe_wave_matrices(16)
     U = fom.solve(fom.parameters.parse(1.1))
     X = np.vstack([b.to_numpy() for b in U.blocks]).T  # (K+1, 2N) canonical
@@ -108,10 +103,10 @@ def test_fe_wave_fom_conserves_the_mass_matrix_energy(small_fe):
 
 
 # ------------------------------------------------------------------ b. assert_symplectic_step on a valid ROM
-def test_assert_symplectic_step_passes_a_valid_rom_and_says_what_it_used(small_fe, small_rom):
+def test_assert_symplectic_step_passes_a_valid_rom_and_says_what_it_used(small_fe_wave, small_rom):
     from sympredict.testing import assert_symplectic_step
 
-    fom, *_, train, _ = small_fe
+    fom, *_, train, _ = small_fe_wave
     red, rom = small_rom
     X = red.project(fom.solve(train[1]))[::10]  # reduced states of very different component sizes
     res = assert_symplectic_step(rom.flow_map, X, mu=0.9, dt=red.dt)  # failed on finite-difference noise before
@@ -139,8 +134,8 @@ def test_assert_symplectic_step_finite_differences_tolerate_noise_and_catch_stre
 
 
 # ------------------------------------------------------------------ d. dt, T and nt checked before any FOM solve
-def test_projected_step_checked_before_any_solve_with_exact_numbers(small_fe):
-    fom, coords, space, train, RB = small_fe
+def test_projected_step_checked_before_any_solve_with_exact_numbers(small_fe_wave):
+    fom, coords, space, train, RB = small_fe_wave
 
     class NoSolve(type(fom)):
         def solve(self, *args, **kwargs):  # pragma: no cover - reached only if the check comes too late
@@ -188,10 +183,10 @@ def test_finite_element_howto_runs():
 
 
 # ------------------------------------------------------------------ g. a Newton failure keeps the trajectory so far
-def test_newton_failure_in_rom_solve_carries_the_trajectory_so_far(small_fe, small_rom):
+def test_newton_failure_in_rom_solve_carries_the_trajectory_so_far(small_fe_wave, small_rom):
     from sympredict.exceptions import NewtonConvergenceError
 
-    fom = small_fe[0]
+    fom = small_fe_wave[0]
     red, rom = small_rom
     inner = rom.flow_map
 
@@ -212,8 +207,8 @@ def test_newton_failure_in_rom_solve_carries_the_trajectory_so_far(small_fe, sma
 
 
 # ------------------------------------------------------------------ e/f. a generating function that exists; no unusable ROM
-def test_default_predictor_switches_to_midpoint_where_type_ii_does_not_exist(small_fe):
-    fom, coords, space, train, RB = small_fe
+def test_default_predictor_switches_to_midpoint_where_type_ii_does_not_exist(small_fe_wave):
+    fom, coords, space, train, RB = small_fe_wave
     samples = GalerkinSamples(train, n_samples=40, n_validation=1, parameter_space=space)
     red = SymplecticKernelReductor(fom, RB, 0.06, samples, DefaultEstimator(max_centers=100))
     rom = red.reduce()
@@ -227,7 +222,7 @@ def test_default_predictor_switches_to_midpoint_where_type_ii_does_not_exist(sma
     assert ok.choice_["update"] == "symplectic_euler"
 
 
-def test_reduce_never_returns_a_rom_that_cannot_step(small_fe, small_rom):
+def test_reduce_never_returns_a_rom_that_cannot_step(small_fe_wave, small_rom):
     from sympredict.exceptions import NewtonConvergenceError
 
     red, _ = small_rom

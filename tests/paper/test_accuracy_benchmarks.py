@@ -1,30 +1,15 @@
 """The issue-14 accuracy benchmarks run (``--quick``) and report what they chose on validation data only."""
 
-import json
-import os
-import subprocess
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
 
-ROOT = Path(__file__).resolve().parents[2]
+from _studies import run_study  # tests/
 
 
 def _run(script, tmp_path, *extra):
-    out = tmp_path / "out.json"
-    env = dict(os.environ, NUMBA_NUM_THREADS="1", OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1")
-    proc = subprocess.run(
-        [sys.executable, str(ROOT / "sympredict_paper" / "studies" / script), "--quick", "--json", str(out), *extra],
-        capture_output=True,
-        text=True,
-        env=env,
-        timeout=600,
-    )
-    assert proc.returncode == 0, proc.stderr[-3000:]
-    assert "chosen" in proc.stdout
-    return json.loads(out.read_text())
+    summary, stdout = run_study(script, tmp_path / "out.json", "--quick", *extra)
+    assert "chosen" in stdout
+    return summary
 
 
 def _check_choice(summary):

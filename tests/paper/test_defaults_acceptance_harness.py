@@ -7,11 +7,7 @@ the closed-form Kepler flow agrees with an RK4 reference and is symplectic
 """
 
 import importlib.util
-import json
-import os
-import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -19,48 +15,28 @@ import pytest
 from sympredict.symplectic.metrics import canonical_J
 from sympredict.systems.flowmaps import HamiltonianSystem
 
-ROOT = Path(__file__).resolve().parents[2]
+from _studies import STUDIES, run_study  # tests/
 
 
 @pytest.fixture(scope="module")
 def da():
-    sys.path.insert(0, str(ROOT / "sympredict_paper" / "studies"))
+    sys.path.insert(0, str(STUDIES))
     try:
-        spec = importlib.util.spec_from_file_location(
-            "defaults_acceptance", ROOT / "sympredict_paper" / "studies" / "defaults_acceptance.py"
-        )
+        spec = importlib.util.spec_from_file_location("defaults_acceptance", STUDIES / "defaults_acceptance.py")
         module = importlib.util.module_from_spec(spec)
         sys.modules["defaults_acceptance"] = module  # its dataclass looks its module up
         spec.loader.exec_module(module)
         yield module
     finally:
         sys.modules.pop("defaults_acceptance", None)
-        sys.path.remove(str(ROOT / "sympredict_paper" / "studies"))
+        sys.path.remove(str(STUDIES))
 
 
 def test_quick_run_hand_only_writes_the_schema(tmp_path):
-    out = tmp_path / "out.json"
-    env = dict(os.environ, NUMBA_NUM_THREADS="1", OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1")
-    proc = subprocess.run(
-        [
-            sys.executable,
-            str(ROOT / "sympredict_paper" / "studies" / "defaults_acceptance.py"),
-            "--quick",
-            "--systems",
-            "kepler",
-            "--configs",
-            "hand",
-            "--json",
-            str(out),
-        ],
-        capture_output=True,
-        text=True,
-        env=env,
-        timeout=600,
+    data, stdout = run_study(
+        "defaults_acceptance.py", tmp_path / "out.json", "--quick", "--systems", "kepler", "--configs", "hand"
     )
-    assert proc.returncode == 0, proc.stderr[-3000:]
-    assert "| hand |" in proc.stdout
-    data = json.loads(out.read_text())
+    assert "| hand |" in stdout
     assert set(data["systems"]) == {"kepler"}
     assert data["protocol"]["threads"] == {"blas": 1, "numba": 1}
     assert data["protocol"]["command"] and data["protocol"]["machine"]["numpy"]

@@ -16,6 +16,11 @@ from sympredict_paper.runner import RUN_MARKER
 
 from _cli import assert_refused_in_one_line  # tests/
 
+#: the paper's command in a child process
+PAPER = [sys.executable, "-m", "sympredict_paper"]
+#: the pendulum scenario's smoke run (``--out`` follows)
+SMOKE = ["run", "pendulum", "--preset", "smoke"]
+
 
 def fake_runner(fail=None):
     """A stand-in for a scenario runner: writes a file into the run folder, then returns or fails."""
@@ -55,7 +60,7 @@ def test_completed_run_has_the_marker_and_replaces_a_previous_run(tmp_path, fake
     out = tmp_path / "results"
     previous_run(out)
     fake_run()
-    assert main(["run", "pendulum", "--preset", "smoke", "--out", str(out), "--threads", "1"]) == 0
+    assert main([*SMOKE, "--out", str(out), "--threads", "1"]) == 0
     marker = json.loads((out / RUN_MARKER).read_text())
     assert marker["complete"] is True and marker["systems"] == ["pendulum"]
     assert (
@@ -72,7 +77,7 @@ def test_failed_or_interrupted_run_leaves_the_previous_run_untouched(tmp_path, f
     out = tmp_path / "results"
     before = previous_run(out)
     fake_run(fail)
-    assert main(["run", "pendulum", "--preset", "smoke", "--out", str(out), "--threads", "1"]) == code
+    assert main([*SMOKE, "--out", str(out), "--threads", "1"]) == code
     assert contents(out) == before
     assert os.listdir(tmp_path) == ["results"]
     err = capsys.readouterr().err
@@ -81,7 +86,7 @@ def test_failed_or_interrupted_run_leaves_the_previous_run_untouched(tmp_path, f
 
 def test_failed_first_run_leaves_no_folder(tmp_path, fake_run, capsys):
     fake_run(KeyboardInterrupt())
-    assert main(["run", "pendulum", "--preset", "smoke", "--out", str(tmp_path / "new" / "results")]) == 130
+    assert main([*SMOKE, "--out", str(tmp_path / "new" / "results")]) == 130
     assert not (tmp_path / "new" / "results").exists()
     assert os.listdir(tmp_path / "new") == []
 
@@ -90,19 +95,7 @@ def test_killed_run_in_a_child_process_leaves_nothing_that_passes_for_complete(t
     """SIGKILL in the middle of a real run: --out never appears; the next run removes the staging folder."""
     out = tmp_path / "results"
     proc = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "sympredict_paper",
-            "run",
-            "pendulum",
-            "--preset",
-            "smoke",
-            "--out",
-            str(out),
-            "--threads",
-            "1",
-        ],
+        [*PAPER, *SMOKE, "--out", str(out), "--threads", "1"],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
     )
@@ -139,11 +132,11 @@ def test_run_output_is_checked_before_any_work(tmp_path, monkeypatch, capsys):
         (tmp_path, "not the output folder of a previous run"),
     ]
     for out, match in cases:
-        assert main(["run", "pendulum", "--preset", "smoke", "--out", str(out)]) == 1
+        assert main([*SMOKE, "--out", str(out)]) == 1
         err = capsys.readouterr().err
         assert match in err and len(err.strip().splitlines()) == 1, err
     monkeypatch.chdir(foreign)
-    assert main(["run", "pendulum", "--preset", "smoke", "--out", "."]) == 1
+    assert main([*SMOKE, "--out", "."]) == 1
     assert "current directory" in capsys.readouterr().err
     assert afile.read_text() == "keep me" and (foreign / "thesis.tex").read_text() == "keep me too"
 
@@ -158,7 +151,7 @@ def test_smoke_run_is_marked_complete(smoke_run):
 
 def test_cli_rejects_unknown_system(tmp_path):
     proc = subprocess.run(
-        [sys.executable, "-m", "sympredict_paper", "run", "nosuchsystem", "--out", str(tmp_path)],
+        [*PAPER, "run", "nosuchsystem", "--out", str(tmp_path)],
         capture_output=True,
         text=True,
     )
@@ -169,24 +162,14 @@ def test_cli_user_errors_are_one_line_without_traceback(tmp_path):
     blocker = tmp_path / "file"
     blocker.write_text("not a folder")
     proc = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "sympredict_paper",
-            "run",
-            "pendulum",
-            "--preset",
-            "smoke",
-            "--out",
-            str(blocker / "sub"),
-        ],
+        [*PAPER, *SMOKE, "--out", str(blocker / "sub")],
         capture_output=True,
         text=True,
     )
     assert proc.returncode == 1
     assert proc.stderr.strip().startswith("sympredict-paper: error:") and "Traceback" not in proc.stderr
     proc = subprocess.run(
-        [sys.executable, "-m", "sympredict_paper", "run", "pendulum", "--preset", "huge", "--out", str(tmp_path)],
+        [*PAPER, "run", "pendulum", "--preset", "huge", "--out", str(tmp_path)],
         capture_output=True,
         text=True,
     )
@@ -253,7 +236,5 @@ def test_the_paper_command_is_installed_beside_the_library_command():
 
     scripts = {e.name: e.value for e in entry_points(group="console_scripts") if e.name.startswith("sympredict")}
     assert scripts == {"sympredict": "sympredict.cli:main", "sympredict-paper": "sympredict_paper.cli:main"}
-    proc = subprocess.run(
-        [sys.executable, "-m", "sympredict_paper", "--help"], capture_output=True, text=True, timeout=120
-    )
+    proc = subprocess.run([*PAPER, "--help"], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0 and "{run,study}" in proc.stdout

@@ -31,19 +31,23 @@ pytestmark = pytest.mark.skipif(not _numba.HAVE_NUMBA, reason="the compiled roll
 _with_backend = with_backend
 
 
-@pytest.fixture(scope="module")
-def pendulum_mid(small_pendulum_data):
-    """2n = 2, 50 centres: coefficients ~1e4, gradient floor ~1e-12 (as the symplectic-Euler 1e-12 test)."""
-    d = small_pendulum_data
+def _fit_pendulum_midpoint(d, **settings):
+    """A midpoint predictor (NumPy Newton) of the pendulum data ``d`` with the kernels of these tests."""
     model = SymplecticKernelPredictor(
         IMQ(0.15),
         mu_kernel=IMQ(2.0),
         dt_kernel=IMQ(5.0),
-        max_centers=50,
         update="midpoint",
         solver=NewtonSolver(backend="numpy"),
+        **settings,
     )
     return model.fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
+
+
+@pytest.fixture(scope="module")
+def pendulum_mid(small_pendulum_data):
+    """2n = 2, 50 centres: coefficients ~1e4, gradient floor ~1e-12 (as the symplectic-Euler 1e-12 test)."""
+    return _fit_pendulum_midpoint(small_pendulum_data, max_centers=50)
 
 
 def _chain_system(n=4):
@@ -146,16 +150,7 @@ def test_compiled_midpoint_reverse_step_inverts(which, pendulum_mid, chain_mid, 
 
 def test_compiled_midpoint_on_an_ill_conditioned_model_agrees_to_the_floor(small_pendulum_data, rng):
     """600 centres, coefficients ~1e7: agreement to the gradient floor (several chunks: the 2n = 2 case below)."""
-    d = small_pendulum_data
-    model = SymplecticKernelPredictor(
-        IMQ(0.15),
-        mu_kernel=IMQ(2.0),
-        dt_kernel=IMQ(5.0),
-        max_centers=600,
-        update="midpoint",
-        trainer=ExactGreedy(tol=1e-10),
-        solver=NewtonSolver(backend="numpy"),
-    ).fit(d.x0, d.x1, mu=d.mu, dt=d.dt)
+    model = _fit_pendulum_midpoint(small_pendulum_data, max_centers=600, trainer=ExactGreedy(tol=1e-10))
     x, mu, dt = _queries(rng, 20)
     check_rollouts_agree_to_the_floor(model, _with_backend(model, "numba"), x, mu, dt)
 

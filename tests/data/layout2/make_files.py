@@ -27,13 +27,18 @@ inside = np.flatnonzero(np.abs(data.x0[:, 0]) < 3.0)  # no two angles one period
 idx = rng.choice(inside, 300, replace=False)
 x0, x1, mu, dt = data.x0[idx], data.x1[idx], data.mu[idx], data.dt[idx]
 start = x0[:3] * 0.5
+
+
+def pendulum_model(state=None, cls=SymplecticKernelPredictor, **options):
+    """A model of 40 centres with the parameter and step kernels every model here shares (state kernel
+    ``IMQ(0.3)`` unless given); ``options``: its own."""
+    return cls(IMQ(0.3) if state is None else state, IMQ(1.5), IMQ(3.0), max_centers=40, **options)
+
+
 models = {
-    "plain": SymplecticKernelPredictor(IMQ(0.3), IMQ(1.5), IMQ(3.0), max_centers=40),
-    "solver_and_greedy": SymplecticKernelPredictor(
+    "plain": pendulum_model(),
+    "solver_and_greedy": pendulum_model(
         Matern52(0.4),
-        IMQ(1.5),
-        IMQ(3.0),
-        max_centers=40,
         tol=1e-9,
         criterion="p",
         power_tol=1e-11,
@@ -42,25 +47,12 @@ models = {
         newton_warm_start=True,
         regularization=1e-10,
     ),
-    "midpoint_scaled": SymplecticKernelPredictor(
-        IMQ(0.3), IMQ(1.5), IMQ(3.0), max_centers=40, update="midpoint", state_scaling=[1.5]
-    ),
-    "periodic": SymplecticKernelPredictor(
-        IMQ(0.3), IMQ(1.5), IMQ(3.0), max_centers=40, periodic=(0,), period=2 * np.pi, backend="numpy"
-    ),
-    "symmetric": SymplecticKernelPredictor(
-        IMQ(0.3), IMQ(1.5), IMQ(3.0), max_centers=40, update="midpoint", symmetry=[(1, 1), (-1, -1)], backend="auto"
-    ),
-    "active_set": SymplecticKernelPredictor(
-        IMQ(0.3),
-        IMQ(1.5),
-        IMQ(3.0),
-        max_centers=40,
-        tol=1e-8,
-        trainer=ActiveSetGreedy(initial_points=200, refresh_every=20),
-    ),
-    "float32": SymplecticKernelPredictor(IMQ(0.3), IMQ(1.5), IMQ(3.0), max_centers=40, trainer=ExactGreedy("float32")),
-    "direct": DirectKernelPredictor(IMQ(0.3), IMQ(1.5), IMQ(3.0), max_centers=40, tol=1e-9, power_tol=1e-11),
+    "midpoint_scaled": pendulum_model(update="midpoint", state_scaling=[1.5]),
+    "periodic": pendulum_model(periodic=(0,), period=2 * np.pi, backend="numpy"),
+    "symmetric": pendulum_model(update="midpoint", symmetry=[(1, 1), (-1, -1)], backend="auto"),
+    "active_set": pendulum_model(tol=1e-8, trainer=ActiveSetGreedy(initial_points=200, refresh_every=20)),
+    "float32": pendulum_model(trainer=ExactGreedy("float32")),
+    "direct": pendulum_model(cls=DirectKernelPredictor, tol=1e-9, power_tol=1e-11),
 }
 expected = {"start": start.tolist(), "mu": mu[:3].tolist(), "dt": dt[:3].tolist(), "models": {}}
 for name, model in models.items():
