@@ -317,11 +317,29 @@ class FittedFlowMap:
             stop_reason=f"truncated to {n_centers} of {self.n_centers} centres",
         )
 
-    @staticmethod
-    def _check_array_shapes(arrays: dict, shapes: dict) -> None:
-        for name, shape in shapes.items():
+    # ----------------------------------------------------------------- files
+    #: The surrogate's class (:mod:`sympredict.interpolation.surrogate`), and its arrays as a model file stores them:
+    #: ``name -> shape``, in ``m`` (centres), ``dim`` (``2n``) and ``n_mu``, in the order of its constructor.
+    surrogate_type, surrogate_layout = None, {}
+
+    def surrogate_arrays(self) -> dict:
+        """The surrogate's arrays as a model file stores them (:attr:`surrogate_layout`)."""
+        return {name: getattr(self.surrogate, name) for name in self.surrogate_layout}
+
+    @classmethod
+    def surrogate_from_arrays(cls, kernel, arrays: dict, dim: int, n_mu: int):
+        """The surrogate of a model file's arrays (:meth:`surrogate_arrays`), their shapes and values checked."""
+        sizes = {"m": len(arrays["coef"]), "dim": dim, "n_mu": n_mu}
+        for name, layout in cls.surrogate_layout.items():
+            shape = tuple(sizes[size] for size in layout)
             if arrays[name].shape != shape:
                 raise ModelFileError(f"the file's {name!r} has shape {arrays[name].shape}, expected {shape}")
+        cls._check_surrogate_values(arrays, dim)
+        return cls.surrogate_type(kernel, *(arrays[name] for name in cls.surrogate_layout))
+
+    @staticmethod
+    def _check_surrogate_values(arrays: dict, dim: int) -> None:
+        """``ModelFileError`` for a file's surrogate arrays of the right shapes but unusable values."""
 
 
 class FittedDirectFlowMap(FittedFlowMap):
@@ -330,6 +348,13 @@ class FittedDirectFlowMap(FittedFlowMap):
     :class:`~sympredict.interpolation.surrogate.ValueSurrogate`)."""
 
     name = "DirectKernelPredictor"
+    surrogate_type = ValueSurrogate
+    surrogate_layout = {
+        "centers_x": ("m", "dim"),
+        "centers_mu": ("m", "n_mu"),
+        "centers_dt": ("m",),
+        "coef": ("m", "dim"),
+    }
 
     def _advance(self, x, weights, dt):
         return x + self.surrogate.value(x, weights)
@@ -360,25 +385,6 @@ class FittedDirectFlowMap(FittedFlowMap):
         self._warn_if_trajectory_leaves(traj, stride)
         return traj[0] if single else traj
 
-    def surrogate_arrays(self) -> dict:
-        """The surrogate's arrays as a model file stores them."""
-        sur = self.surrogate
-        return {
-            "centers_x": sur.centers_x,
-            "centers_mu": sur.centers_mu,
-            "centers_dt": sur.centers_dt,
-            "coef": sur.coef,
-        }
-
-    @classmethod
-    def surrogate_from_arrays(cls, kernel, arrays: dict, dim: int, n_mu: int) -> ValueSurrogate:
-        """The surrogate of a model file's arrays (:meth:`surrogate_arrays`), their shapes checked."""
-        m = len(arrays["coef"])
-        cls._check_array_shapes(
-            arrays, {"centers_x": (m, dim), "centers_mu": (m, n_mu), "centers_dt": (m,), "coef": (m, dim)}
-        )
-        return ValueSurrogate(kernel, arrays["centers_x"], arrays["centers_mu"], arrays["centers_dt"], arrays["coef"])
-
 
 class FittedSymplecticFlowMap(FittedFlowMap):
     """The fitted symplectic flow map of :class:`~sympredict.estimators.predictor.SymplecticKernelPredictor`.
@@ -404,6 +410,14 @@ class FittedSymplecticFlowMap(FittedFlowMap):
     """
 
     name = "SymplecticKernelPredictor"
+    surrogate_type = HBSurrogate
+    surrogate_layout = {
+        "centers_xi": ("m", "dim"),
+        "centers_mu": ("m", "n_mu"),
+        "centers_dt": ("m",),
+        "components": ("m",),
+        "coef": ("m",),
+    }
     #: Quantile of the held-out ratios (true one-step error / power-function estimate) used as the scale.
     ERROR_QUANTILE = 0.9
     #: Samples the calibration uses at most (``O(n 2n m^2)``).
@@ -466,8 +480,15 @@ class FittedSymplecticFlowMap(FittedFlowMap):
         return numpy_only_reason(self.parts, self.rule)
 
     def backend_for(self, n_instances: int = 1, n_steps: int = 1) -> str:
-        """The code :meth:`step` / :meth:`rollout` run for this much work: ``'numpy'`` or ``'numba'``
-        (:meth:`NewtonSolver.compiled <sympredict.symplectic.solvers.NewtonSolver.compiled>`)."""
+        """The code :meth:`step` / :meth:`rollout` run for this much work: ``'numpy'`` or ``'numba'``.
+
+        The solver's rule (:meth:`~sympredict.symplectic.solvers.NewtonSolver.backend_for`): ``'numpy'`` or
+        ``'numba'`` decide alone; ``'auto'`` uses NumPy without numba, for a model with a NumPy-only
+        feature (``numpy_only_``), or when NumPy is estimated at under
+        :data:`~sympredict.symplectic.solvers.AUTO_NUMPY_SECONDS` and this process has not loaded the compiled
+        rollout yet; compiled code otherwise.  Each call logs its choice at DEBUG level
+        (logger ``sympredict.estimators.predictor``).
+        """
         return "numba" if self.compiled(int(n_instances), int(n_steps)) else "numpy"
 
     def compiled(self, n_instances: Optional[int] = None, n_steps: int = 1) -> bool:
@@ -987,28 +1008,8 @@ class FittedSymplecticFlowMap(FittedFlowMap):
         return err
 
     # ----------------------------------------------------------------- files
-    def surrogate_arrays(self) -> dict:
-        """The surrogate's arrays as a model file stores them."""
-        sur = self.surrogate
-        return {
-            "centers_xi": sur.centers_xi,
-            "centers_mu": sur.centers_mu,
-            "centers_dt": sur.centers_dt,
-            "components": sur.components,
-            "coef": sur.coef,
-        }
-
-    @classmethod
-    def surrogate_from_arrays(cls, kernel, arrays: dict, dim: int, n_mu: int) -> HBSurrogate:
-        """The surrogate of a model file's arrays (:meth:`surrogate_arrays`), their shapes and components checked."""
-        m = len(arrays["coef"])
-        cls._check_array_shapes(
-            arrays,
-            {"centers_xi": (m, dim), "centers_mu": (m, n_mu), "centers_dt": (m,), "components": (m,), "coef": (m,)},
-        )
+    @staticmethod
+    def _check_surrogate_values(arrays: dict, dim: int) -> None:
         comps = arrays["components"]
         if comps.dtype.kind != "i" or np.any((comps < 0) | (comps >= dim)):
             raise ModelFileError(f"the file's centre components must be integers in 0..{dim - 1}")
-        return HBSurrogate(
-            kernel, arrays["centers_xi"], arrays["centers_mu"], arrays["centers_dt"], comps, arrays["coef"]
-        )
