@@ -93,6 +93,19 @@ SOLVER_SETTING = Constraint(
 DOMAIN_KEYS = ("x_min", "x_max", "mu_min", "mu_max", "dt_min", "dt_max")
 
 
+#: The numpydoc entries of the states, parameters and steps that the predictions other than ``step`` take as it does.
+_QUERY_PARAMETERS = """x : array_like of shape (B, 2n) or (2n,)
+            States ``(q, p)``, one per row (or a single state).
+        mu, dt : float or array_like, default=None
+            Parameters and macro steps, as in :meth:`step`."""
+
+
+def _query_documented(method):
+    """Put :data:`_QUERY_PARAMETERS` where ``method``'s docstring says ``{query}`` (one text for every such method)."""
+    method.__doc__ = method.__doc__.replace("{query}", _QUERY_PARAMETERS)
+    return method
+
+
 def _fmt(v) -> str:
     """A short component-wise rendering of a parameter vector."""
     v = np.atleast_1d(v)
@@ -321,6 +334,8 @@ class FittedFlowMap:
     #: The surrogate's class (:mod:`sympredict.interpolation.surrogate`), and its arrays as a model file stores them:
     #: ``name -> shape``, in ``m`` (centres), ``dim`` (``2n``) and ``n_mu``, in the order of its constructor.
     surrogate_type, surrogate_layout = None, {}
+    #: The centres' parameters and steps (what the weights of a query are computed from), in every surrogate.
+    centre_weights_layout = {"centers_mu": ("m", "n_mu"), "centers_dt": ("m",)}
 
     def surrogate_arrays(self) -> dict:
         """The surrogate's arrays as a model file stores them (:attr:`surrogate_layout`)."""
@@ -349,12 +364,7 @@ class FittedDirectFlowMap(FittedFlowMap):
 
     name = "DirectKernelPredictor"
     surrogate_type = ValueSurrogate
-    surrogate_layout = {
-        "centers_x": ("m", "dim"),
-        "centers_mu": ("m", "n_mu"),
-        "centers_dt": ("m",),
-        "coef": ("m", "dim"),
-    }
+    surrogate_layout = {"centers_x": ("m", "dim"), **FittedFlowMap.centre_weights_layout, "coef": ("m", "dim")}
 
     def _advance(self, x, weights, dt):
         return x + self.surrogate.value(x, weights)
@@ -413,8 +423,7 @@ class FittedSymplecticFlowMap(FittedFlowMap):
     surrogate_type = HBSurrogate
     surrogate_layout = {
         "centers_xi": ("m", "dim"),
-        "centers_mu": ("m", "n_mu"),
-        "centers_dt": ("m",),
+        **FittedFlowMap.centre_weights_layout,
         "components": ("m",),
         "coef": ("m",),
     }
@@ -513,29 +522,11 @@ class FittedSymplecticFlowMap(FittedFlowMap):
         if around is not None:  # Phi = D^-1 Phi_scaled D: pre becomes D pre, post becomes post D^-1
             pre, post = around
             pre, post = pre * scale[None, :, None], post / scale[None, None, :]
-            if compiled:  # no warm start here: its extrapolation would mix x_k and pre x_k
-
-                def run(state, k):
-                    return rollout_compiled(
-                        self.surrogate,
-                        state,
-                        ordered,
-                        dt,
-                        k,
-                        max_iter,
-                        update=update,
-                        around=(pre, post),
-                        weights_ordered=True,
-                    )
-            else:
-
-                def run(state, k):
-                    return rollout_reference(
-                        self.surrogate, state, weights, dt, k, max_iter, update=update, around=(pre, post)
-                    )
-
-            return rollout_in_chunks(run, x, n_steps, stride=stride, progress=progress)
-        warm = bool(solver.warm_start)
+            # no warm start here (its extrapolation would mix x_k and pre x_k); states in the original coordinates
+            options, start, history = {"around": (pre, post)}, x, 0
+        else:
+            warm = bool(solver.warm_start)
+            options, start, history = {"warm_start": warm}, x * scale, WARM_HISTORY if warm else 0
         if compiled:
 
             def run(state, k, previous=None):
@@ -546,22 +537,20 @@ class FittedSymplecticFlowMap(FittedFlowMap):
                     dt,
                     k,
                     max_iter,
-                    warm_start=warm,
                     update=update,
                     weights_ordered=True,
                     previous=previous,
+                    **options,
                 )
         else:
 
             def run(state, k, previous=None):
                 return rollout_reference(
-                    self.surrogate, state, weights, dt, k, max_iter, warm_start=warm, update=update, previous=previous
+                    self.surrogate, state, weights, dt, k, max_iter, update=update, previous=previous, **options
                 )
 
-        traj = rollout_in_chunks(
-            run, x * scale, n_steps, stride=stride, progress=progress, history=WARM_HISTORY if warm else 0
-        )
-        return traj if self.parts.scaling is None else traj / scale
+        traj = rollout_in_chunks(run, start, n_steps, stride=stride, progress=progress, history=history)
+        return traj if around is not None or self.parts.scaling is None else traj / scale
 
     def _solve_step(self, x: np.ndarray, weights: np.ndarray, dt: np.ndarray) -> np.ndarray:
         """One implicit step for a validated batch in the original coordinates (``state_scaling`` applied)."""
@@ -750,6 +739,7 @@ class FittedSymplecticFlowMap(FittedFlowMap):
     def _solvability(self, x, weights, dt):
         return self.rule.contraction(self.surrogate, x * self.scale, weights, dt)
 
+    @_query_documented
     def solvability(self, x, mu=None, dt=None) -> np.ndarray:
         """``dT * L_S`` estimated at the states ``x``: the implicit step is a contraction where it is < 1.
 
@@ -759,10 +749,7 @@ class FittedSymplecticFlowMap(FittedFlowMap):
 
         Parameters
         ----------
-        x : array_like of shape (B, 2n) or (2n,)
-            States ``(q, p)``, one per row (or a single state).
-        mu, dt : float or array_like, default=None
-            Parameters and macro steps, as in :meth:`step`.
+        {query}
 
         Returns
         -------
@@ -772,6 +759,7 @@ class FittedSymplecticFlowMap(FittedFlowMap):
         margin = self._solvability(x, self.surrogate.weights(mu, dt), dt)
         return float(margin[0]) if single else margin
 
+    @_query_documented
     def step_jacobian(self, x, mu=None, dt=None) -> np.ndarray:
         """Jacobian ``D Phi`` of the predicted step, by implicit differentiation.
 
@@ -785,10 +773,7 @@ class FittedSymplecticFlowMap(FittedFlowMap):
 
         Parameters
         ----------
-        x : array_like of shape (B, 2n) or (2n,)
-            States ``(q, p)``, one per row (or a single state).
-        mu, dt : float or array_like, default=None
-            Parameters and macro steps, as in :meth:`step`.
+        {query}
 
         Returns
         -------
