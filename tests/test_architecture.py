@@ -229,6 +229,29 @@ def test_the_private_member_scan_can_fail():
     assert _touches(tree, names) == [(2, "_fit_resolved"), (3, "_train")]
 
 
+# ------------------------------------------------------------------ the estimator stays small
+#: The most lines the estimator class may span (docstring included): it holds settings, runs the fit's steps and
+#: delegates predictions to the fitted flow map; hold-out scoring, the open settings' choice and the logs live apart.
+ESTIMATOR_MAX_LINES = 399
+
+
+def _class_lines(source: str, name: str) -> int:
+    """Lines of the top-level class ``name`` of ``source``, docstring included (``end_lineno - lineno + 1``)."""
+    (node,) = [n for n in ast.parse(source).body if isinstance(n, ast.ClassDef) and n.name == name]
+    return node.end_lineno - node.lineno + 1
+
+
+def test_the_estimator_class_stays_under_400_lines():
+    lines = _class_lines((PACKAGE / "estimators" / "predictor.py").read_text(), "SymplecticKernelPredictor")
+    assert lines <= ESTIMATOR_MAX_LINES, (
+        f"SymplecticKernelPredictor spans {lines} lines (at most {ESTIMATOR_MAX_LINES}): move a responsibility "
+        "out of the class (to the fitted flow map, the held-out scoring, the search) rather than cramming it"
+    )
+    # the count is the class's own span (what follows it does not count): a 400-line class is too long
+    too_long = "class SymplecticKernelPredictor:\n" + "    x = 1\n" * 399 + "\n\ny = 2\n"
+    assert _class_lines(too_long, "SymplecticKernelPredictor") == 400 > ESTIMATOR_MAX_LINES
+
+
 # ------------------------------------------------------------------ the architecture page matches the code
 ARCHITECTURE = ROOT / "docs" / "explanation" / "architecture.md"
 

@@ -93,6 +93,19 @@ SOLVER_SETTING = Constraint(
 DOMAIN_KEYS = ("x_min", "x_max", "mu_min", "mu_max", "dt_min", "dt_max")
 
 
+#: The numpydoc entries of the states, parameters and steps that the predictions other than ``step`` take as it does.
+_QUERY_PARAMETERS = """x : array_like of shape (B, 2n) or (2n,)
+            States ``(q, p)``, one per row (or a single state).
+        mu, dt : float or array_like, default=None
+            Parameters and macro steps, as in :meth:`step`."""
+
+
+def _query_documented(method):
+    """Put :data:`_QUERY_PARAMETERS` where ``method``'s docstring says ``{query}`` (one text for every such method)."""
+    method.__doc__ = method.__doc__.replace("{query}", _QUERY_PARAMETERS)
+    return method
+
+
 def _fmt(v) -> str:
     """A short component-wise rendering of a parameter vector."""
     v = np.atleast_1d(v)
@@ -317,11 +330,31 @@ class FittedFlowMap:
             stop_reason=f"truncated to {n_centers} of {self.n_centers} centres",
         )
 
-    @staticmethod
-    def _check_array_shapes(arrays: dict, shapes: dict) -> None:
-        for name, shape in shapes.items():
+    # ----------------------------------------------------------------- files
+    #: The surrogate's class (:mod:`sympredict.interpolation.surrogate`), and its arrays as a model file stores them:
+    #: ``name -> shape``, in ``m`` (centres), ``dim`` (``2n``) and ``n_mu``, in the order of its constructor.
+    surrogate_type, surrogate_layout = None, {}
+    #: The centres' parameters and steps (what the weights of a query are computed from), in every surrogate.
+    centre_weights_layout = {"centers_mu": ("m", "n_mu"), "centers_dt": ("m",)}
+
+    def surrogate_arrays(self) -> dict:
+        """The surrogate's arrays as a model file stores them (:attr:`surrogate_layout`)."""
+        return {name: getattr(self.surrogate, name) for name in self.surrogate_layout}
+
+    @classmethod
+    def surrogate_from_arrays(cls, kernel, arrays: dict, dim: int, n_mu: int):
+        """The surrogate of a model file's arrays (:meth:`surrogate_arrays`), their shapes and values checked."""
+        sizes = {"m": len(arrays["coef"]), "dim": dim, "n_mu": n_mu}
+        for name, layout in cls.surrogate_layout.items():
+            shape = tuple(sizes[size] for size in layout)
             if arrays[name].shape != shape:
                 raise ModelFileError(f"the file's {name!r} has shape {arrays[name].shape}, expected {shape}")
+        cls._check_surrogate_values(arrays, dim)
+        return cls.surrogate_type(kernel, *(arrays[name] for name in cls.surrogate_layout))
+
+    @staticmethod
+    def _check_surrogate_values(arrays: dict, dim: int) -> None:
+        """``ModelFileError`` for a file's surrogate arrays of the right shapes but unusable values."""
 
 
 class FittedDirectFlowMap(FittedFlowMap):
@@ -330,6 +363,8 @@ class FittedDirectFlowMap(FittedFlowMap):
     :class:`~sympredict.interpolation.surrogate.ValueSurrogate`)."""
 
     name = "DirectKernelPredictor"
+    surrogate_type = ValueSurrogate
+    surrogate_layout = {"centers_x": ("m", "dim"), **FittedFlowMap.centre_weights_layout, "coef": ("m", "dim")}
 
     def _advance(self, x, weights, dt):
         return x + self.surrogate.value(x, weights)
@@ -360,25 +395,6 @@ class FittedDirectFlowMap(FittedFlowMap):
         self._warn_if_trajectory_leaves(traj, stride)
         return traj[0] if single else traj
 
-    def surrogate_arrays(self) -> dict:
-        """The surrogate's arrays as a model file stores them."""
-        sur = self.surrogate
-        return {
-            "centers_x": sur.centers_x,
-            "centers_mu": sur.centers_mu,
-            "centers_dt": sur.centers_dt,
-            "coef": sur.coef,
-        }
-
-    @classmethod
-    def surrogate_from_arrays(cls, kernel, arrays: dict, dim: int, n_mu: int) -> ValueSurrogate:
-        """The surrogate of a model file's arrays (:meth:`surrogate_arrays`), their shapes checked."""
-        m = len(arrays["coef"])
-        cls._check_array_shapes(
-            arrays, {"centers_x": (m, dim), "centers_mu": (m, n_mu), "centers_dt": (m,), "coef": (m, dim)}
-        )
-        return ValueSurrogate(kernel, arrays["centers_x"], arrays["centers_mu"], arrays["centers_dt"], arrays["coef"])
-
 
 class FittedSymplecticFlowMap(FittedFlowMap):
     """The fitted symplectic flow map of :class:`~sympredict.estimators.predictor.SymplecticKernelPredictor`.
@@ -404,6 +420,13 @@ class FittedSymplecticFlowMap(FittedFlowMap):
     """
 
     name = "SymplecticKernelPredictor"
+    surrogate_type = HBSurrogate
+    surrogate_layout = {
+        "centers_xi": ("m", "dim"),
+        **FittedFlowMap.centre_weights_layout,
+        "components": ("m",),
+        "coef": ("m",),
+    }
     #: Quantile of the held-out ratios (true one-step error / power-function estimate) used as the scale.
     ERROR_QUANTILE = 0.9
     #: Samples the calibration uses at most (``O(n 2n m^2)``).
@@ -466,8 +489,15 @@ class FittedSymplecticFlowMap(FittedFlowMap):
         return numpy_only_reason(self.parts, self.rule)
 
     def backend_for(self, n_instances: int = 1, n_steps: int = 1) -> str:
-        """The code :meth:`step` / :meth:`rollout` run for this much work: ``'numpy'`` or ``'numba'``
-        (:meth:`NewtonSolver.compiled <sympredict.symplectic.solvers.NewtonSolver.compiled>`)."""
+        """The code :meth:`step` / :meth:`rollout` run for this much work: ``'numpy'`` or ``'numba'``.
+
+        The solver's rule (:meth:`~sympredict.symplectic.solvers.NewtonSolver.backend_for`): ``'numpy'`` or
+        ``'numba'`` decide alone; ``'auto'`` uses NumPy without numba, for a model with a NumPy-only
+        feature (``numpy_only_``), or when NumPy is estimated at under
+        :data:`~sympredict.symplectic.solvers.AUTO_NUMPY_SECONDS` and this process has not loaded the compiled
+        rollout yet; compiled code otherwise.  Each call logs its choice at DEBUG level
+        (logger ``sympredict.estimators.predictor``).
+        """
         return "numba" if self.compiled(int(n_instances), int(n_steps)) else "numpy"
 
     def compiled(self, n_instances: Optional[int] = None, n_steps: int = 1) -> bool:
@@ -492,29 +522,11 @@ class FittedSymplecticFlowMap(FittedFlowMap):
         if around is not None:  # Phi = D^-1 Phi_scaled D: pre becomes D pre, post becomes post D^-1
             pre, post = around
             pre, post = pre * scale[None, :, None], post / scale[None, None, :]
-            if compiled:  # no warm start here: its extrapolation would mix x_k and pre x_k
-
-                def run(state, k):
-                    return rollout_compiled(
-                        self.surrogate,
-                        state,
-                        ordered,
-                        dt,
-                        k,
-                        max_iter,
-                        update=update,
-                        around=(pre, post),
-                        weights_ordered=True,
-                    )
-            else:
-
-                def run(state, k):
-                    return rollout_reference(
-                        self.surrogate, state, weights, dt, k, max_iter, update=update, around=(pre, post)
-                    )
-
-            return rollout_in_chunks(run, x, n_steps, stride=stride, progress=progress)
-        warm = bool(solver.warm_start)
+            # no warm start here (its extrapolation would mix x_k and pre x_k); states in the original coordinates
+            options, start, history = {"around": (pre, post)}, x, 0
+        else:
+            warm = bool(solver.warm_start)
+            options, start, history = {"warm_start": warm}, x * scale, WARM_HISTORY if warm else 0
         if compiled:
 
             def run(state, k, previous=None):
@@ -525,22 +537,20 @@ class FittedSymplecticFlowMap(FittedFlowMap):
                     dt,
                     k,
                     max_iter,
-                    warm_start=warm,
                     update=update,
                     weights_ordered=True,
                     previous=previous,
+                    **options,
                 )
         else:
 
             def run(state, k, previous=None):
                 return rollout_reference(
-                    self.surrogate, state, weights, dt, k, max_iter, warm_start=warm, update=update, previous=previous
+                    self.surrogate, state, weights, dt, k, max_iter, update=update, previous=previous, **options
                 )
 
-        traj = rollout_in_chunks(
-            run, x * scale, n_steps, stride=stride, progress=progress, history=WARM_HISTORY if warm else 0
-        )
-        return traj if self.parts.scaling is None else traj / scale
+        traj = rollout_in_chunks(run, start, n_steps, stride=stride, progress=progress, history=history)
+        return traj if around is not None or self.parts.scaling is None else traj / scale
 
     def _solve_step(self, x: np.ndarray, weights: np.ndarray, dt: np.ndarray) -> np.ndarray:
         """One implicit step for a validated batch in the original coordinates (``state_scaling`` applied)."""
@@ -729,6 +739,7 @@ class FittedSymplecticFlowMap(FittedFlowMap):
     def _solvability(self, x, weights, dt):
         return self.rule.contraction(self.surrogate, x * self.scale, weights, dt)
 
+    @_query_documented
     def solvability(self, x, mu=None, dt=None) -> np.ndarray:
         """``dT * L_S`` estimated at the states ``x``: the implicit step is a contraction where it is < 1.
 
@@ -738,10 +749,7 @@ class FittedSymplecticFlowMap(FittedFlowMap):
 
         Parameters
         ----------
-        x : array_like of shape (B, 2n) or (2n,)
-            States ``(q, p)``, one per row (or a single state).
-        mu, dt : float or array_like, default=None
-            Parameters and macro steps, as in :meth:`step`.
+        {query}
 
         Returns
         -------
@@ -751,6 +759,7 @@ class FittedSymplecticFlowMap(FittedFlowMap):
         margin = self._solvability(x, self.surrogate.weights(mu, dt), dt)
         return float(margin[0]) if single else margin
 
+    @_query_documented
     def step_jacobian(self, x, mu=None, dt=None) -> np.ndarray:
         """Jacobian ``D Phi`` of the predicted step, by implicit differentiation.
 
@@ -764,10 +773,7 @@ class FittedSymplecticFlowMap(FittedFlowMap):
 
         Parameters
         ----------
-        x : array_like of shape (B, 2n) or (2n,)
-            States ``(q, p)``, one per row (or a single state).
-        mu, dt : float or array_like, default=None
-            Parameters and macro steps, as in :meth:`step`.
+        {query}
 
         Returns
         -------
@@ -987,28 +993,8 @@ class FittedSymplecticFlowMap(FittedFlowMap):
         return err
 
     # ----------------------------------------------------------------- files
-    def surrogate_arrays(self) -> dict:
-        """The surrogate's arrays as a model file stores them."""
-        sur = self.surrogate
-        return {
-            "centers_xi": sur.centers_xi,
-            "centers_mu": sur.centers_mu,
-            "centers_dt": sur.centers_dt,
-            "components": sur.components,
-            "coef": sur.coef,
-        }
-
-    @classmethod
-    def surrogate_from_arrays(cls, kernel, arrays: dict, dim: int, n_mu: int) -> HBSurrogate:
-        """The surrogate of a model file's arrays (:meth:`surrogate_arrays`), their shapes and components checked."""
-        m = len(arrays["coef"])
-        cls._check_array_shapes(
-            arrays,
-            {"centers_xi": (m, dim), "centers_mu": (m, n_mu), "centers_dt": (m,), "components": (m,), "coef": (m,)},
-        )
+    @staticmethod
+    def _check_surrogate_values(arrays: dict, dim: int) -> None:
         comps = arrays["components"]
         if comps.dtype.kind != "i" or np.any((comps < 0) | (comps >= dim)):
             raise ModelFileError(f"the file's centre components must be integers in 0..{dim - 1}")
-        return HBSurrogate(
-            kernel, arrays["centers_xi"], arrays["centers_mu"], arrays["centers_dt"], comps, arrays["coef"]
-        )

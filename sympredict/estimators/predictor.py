@@ -28,10 +28,12 @@ greedy.  Both follow scikit-learn's estimator contract
 from __future__ import annotations
 
 import copy
+import inspect
 import logging
 import operator
 import time
 import warnings
+from dataclasses import replace
 from typing import Optional
 
 import numpy as np
@@ -68,7 +70,7 @@ from sympredict.interpolation.greedy.loop import checkpoint_schedule
 from sympredict.interpolation.greedy.trainers import ExactGreedy, default_trainer
 from sympredict.interpolation.surrogate import HBSurrogate, ValueSurrogate
 from sympredict.kernels import IMQ, PeriodicCoordinates, ProductKernel, RadialKernel, StateSymmetry
-from sympredict.kernels.transforms import KernelTransform, StateKernelParts, lower_state_kernel
+from sympredict.kernels.transforms import KernelTransform, lower_state_kernel
 from sympredict.symplectic.solvers import AUTO_NUMPY_SECONDS, MAX_NEWTON_ITER, NewtonSolver, numpy_seconds
 from sympredict.symplectic.updates import UPDATE_RULES, as_update
 
@@ -118,18 +120,22 @@ def update_variables(update: str, x0: np.ndarray, x1: np.ndarray, dt: np.ndarray
     return as_update(update).variables(x0, x1, dt)
 
 
-def _fitted_attribute(name: str):
-    """The estimator's fitted attribute ``name_``: a read-only view of ``model_.name`` (an ``AttributeError``
-    before ``fit``, as for any fitted attribute)."""
-    get = operator.attrgetter(name)
+def _fitted_attributes(*names: str) -> tuple:
+    """The estimator's fitted attributes ``name_``, one per name: read-only views of ``model_.name`` (an
+    ``AttributeError`` before ``fit``, as for any fitted attribute)."""
 
-    def fitted(self):
-        model = self.__dict__.get("model_")
-        if model is None:
-            raise AttributeError(f"this {type(self).__name__} is not fitted: it has no fitted attributes yet")
-        return get(model)
+    def view(name: str):
+        get = operator.attrgetter(name)
 
-    return property(fitted, doc=f"``model_.{name}`` (:mod:`sympredict.estimators.fitted`).")
+        def fitted(self):
+            model = self.__dict__.get("model_")
+            if model is None:
+                raise AttributeError(f"this {type(self).__name__} is not fitted: it has no fitted attributes yet")
+            return get(model)
+
+        return property(fitted, doc=f"``model_.{name}`` (:mod:`sympredict.estimators.fitted`).")
+
+    return tuple(map(view, names))
 
 
 #: What a radial kernel setting must be (the fix its message names).
@@ -147,6 +153,19 @@ def _documented_by(method):
     return document
 
 
+def _delegated(method):
+    """The estimator's prediction ``method``: the fitted map's ``method`` (its signature and docstring, one text
+    for both) called on the estimator's fitted map (``_fitted()``: ``NotFittedError`` before ``fit``, the current
+    ``solver`` for the symplectic model)."""
+    name = method.__name__
+
+    def delegate(self, *args, **kwargs):
+        return getattr(self._fitted(), name)(*args, **kwargs)
+
+    delegate.__name__, delegate.__doc__, delegate.__signature__ = name, method.__doc__, inspect.signature(method)
+    return delegate
+
+
 class _FlowMapKernelModel(Parametrized):
     """What the kernel flow-map estimators share: settings checks, data validation, training, files.
 
@@ -160,13 +179,9 @@ class _FlowMapKernelModel(Parametrized):
     #: The fitted flow map's class (:mod:`sympredict.estimators.fitted`): what ``model_`` is and files hold.
     fitted_type = None
 
-    kernel_, surrogate_, history_ = (
-        _fitted_attribute("kernel"),
-        _fitted_attribute("surrogate"),
-        _fitted_attribute("history"),
+    kernel_, surrogate_, history_, greedy_result_, domain_, dim_, n_mu_, dt_fixed_ = _fitted_attributes(
+        "kernel", "surrogate", "history", "greedy_result", "domain", "dim", "n_mu", "dt_fixed"
     )
-    greedy_result_, domain_ = _fitted_attribute("greedy_result"), _fitted_attribute("domain")
-    dim_, n_mu_, dt_fixed_ = _fitted_attribute("dim"), _fitted_attribute("n_mu"), _fitted_attribute("dt_fixed")
 
     def __repr__(self) -> str:
         fitted = f", {self.surrogate_.n_centers} centres" if self.is_fitted else ", unfitted"
@@ -482,28 +497,16 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         centres); ``None`` (default): the fastest strategy that fits the memory, ``ExactGreedy()`` where
         its Newton basis does, ``BlockedGreedy()`` or ``BoundedActiveSetGreedy()`` (slots sized to half the
         memory) beyond (:func:`~sympredict.interpolation.greedy.trainers.default_trainer`, logged).
-        The greedy stops when the max training residual is at or
-        below ``tol * min(1, max|x| / min dT)`` (``max|x|`` over the training
-        states): ``tol`` is absolute for data in units of order one and above,
-        relative to the data's scale for data in small units.  A fit that
-        selects no centre, or reproduces less than a tenth of its largest
-        training increments, warns (:class:`~sympredict.exceptions.UnderfitWarning`).
-        Accuracy on demand is the trainer's ``target_error`` (``ExactGreedy(target_error=1e-4)``):
-        the median relative one-step error ``|Phi(x0) - x1| / |x1 - x0|`` on held-out samples the
-        model must reach.  The greedy scores its prefixes on the held-out samples at geometric
-        checkpoints (16, 20, 25, ... centres) and stops at the first that meets the target (refined by
-        bisection): the smallest model it can give that meets it.  ``max_centers`` stays the cap; when
-        the cap, the data or a numerically singular kernel matrix stop it first, one
-        :class:`~sympredict.exceptions.AccuracyWarning` names the limit and the best model found is
-        kept.  Without ``validation``, a fit with a target holds a tenth of the samples out (as the
-        kernel search does).  With a target, and in a fit that chooses settings, the fit keeps the
-        best-scoring prefix (growing never returns a worse model than one it passed).  Where the data are
-        trajectories (a :class:`~sympredict.data.TrajectoryData` with a uniform step, as the data or as
-        ``validation``), whole trajectories are held out too (:meth:`fit`), and the prefixes are scored also by
-        rollouts of the held-out trajectories from their first states (up to 50 trajectories, up to 100 steps
-        each, on the model's solver): without a target the prefix with the best rollout score is kept, since
-        more centres can fit the samples better and still extrapolate worse beyond the region the trajectories
-        cover.
+        The greedy stops when the max training residual is at or below ``tol * min(1, max|x| / min dT)``
+        (``max|x|`` over the training states): absolute for data in units of order one and above, relative to
+        the data's scale in small units.  A fit that selects no centre, or reproduces less than a tenth of its
+        largest training increments, warns (:class:`~sympredict.exceptions.UnderfitWarning`).
+        Accuracy on demand is the trainer's ``target_error`` (``ExactGreedy(target_error=1e-4)``): the fit keeps
+        the smallest model whose median relative one-step error ``|Phi(x0) - x1| / |x1 - x0|`` on held-out
+        samples (held out as :meth:`fit`'s ``validation`` says) meets it, ``max_centers`` the cap; where none
+        does, one :class:`~sympredict.exceptions.AccuracyWarning` names the limit and the best model found is
+        kept.  Which of the greedy's prefixes a fit keeps: ``prefix_errors_`` and
+        ``prefix_rollout_errors_`` below, and the how-to ``docs/howto/how_accurate.md``.
     solver : NewtonSolver or None, default=None
         The Newton solver of :meth:`step` / :meth:`rollout`
         (:class:`~sympredict.symplectic.solvers.NewtonSolver`: ``max_iter``,
@@ -556,14 +559,17 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         Residuals and one-step errors on training and held-out samples, the target (met or not), the
         error estimate's calibration, and advice where the model falls short (``None`` after :meth:`load`).
     prefix_errors_ : dict or None
-        ``{m: median relative one-step error on held-out samples}`` of the prefixes the greedy scored
-        (checkpoints, and the target's bisection) in a fit with a ``target_error`` or one that chose
-        settings (the best prefix is kept); ``None`` otherwise.
+        ``{m: median relative one-step error on held-out samples}`` of the prefixes the greedy scored at
+        geometric checkpoints (16, 20, 25, ... centres, and the target's bisection) in a fit with a
+        ``target_error``, one that chose settings, or one with held-out trajectories; ``None`` otherwise.
+        With a target, the smallest prefix that meets it is kept (the greedy stops there); else the
+        best-scoring one (growing never returns a worse model than one it passed).
     prefix_rollout_errors_ : dict or None
-        ``{m: rollout score}`` of the same prefixes where held-out trajectories scored them: the mean over the
-        held-out trajectories of ``max_k |x_k - X_k| / rms_k |X_k|`` along the rollout from each one's first
-        state; without a target the kept prefix has the smallest (prefixes that meet a target are not rolled
-        out; ``None`` without held-out trajectories).
+        ``{m: rollout score}`` of the same prefixes where held-out trajectories scored them (up to 50, from
+        their first states over up to 100 steps, on the model's solver): the mean over them of
+        ``max_k |x_k - X_k| / rms_k |X_k|``.  Without a target the kept prefix has the smallest score, since
+        more centres can fit the samples better and still extrapolate worse beyond the region the trajectories
+        cover (prefixes that meet a target are not rolled out; ``None`` without held-out trajectories).
     error_calibration_ : dict or None
         The scale of the error estimate (``rollout(..., return_error=True)``) and how it was obtained:
         ``scale`` (the :attr:`ERROR_QUANTILE` quantile of true one-step error over the power-function
@@ -583,12 +589,9 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
     _functionals = HBFunctionals
     _chooses_open_factors = True
     fitted_type = FittedSymplecticFlowMap
-    update_, state_scaling_, periodic_ = (
-        _fitted_attribute("update"),
-        _fitted_attribute("parts.scaling"),
-        _fitted_attribute("parts.periodic"),
+    update_, state_scaling_, periodic_, period_, symmetry_ = _fitted_attributes(
+        "update", "parts.scaling", "parts.periodic", "parts.period", "parts.symmetry"
     )
-    period_, symmetry_ = _fitted_attribute("parts.period"), _fitted_attribute("parts.symmetry")
 
     def __init__(
         self,
@@ -635,12 +638,11 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
             step kernel is chosen.
         validation : FlowMapData, TrajectoryData or tuple ``(x0, x1, mu, dt)``, default=None
             Validation samples; ``E_val(m)`` is then recorded in ``history_``, and they score the fit
-            (``diagnostics_``).  Without them, a fit that chooses kernels holds a tenth of the samples
-            (at most 2,000) out of the final fit to score it; given trajectories (``x0`` a
+            (``diagnostics_``).  Without them, a fit that chooses kernels or has a ``target_error`` holds a
+            tenth of the samples (at most 2,000) out of the final fit to score it; given trajectories (``x0`` a
             ``TrajectoryData`` with a uniform step, at least 20 trajectories), it also holds a twentieth of
             the trajectories out whole (at least 2, at most 50).  Validation trajectories, or those held out,
-            score the greedy's prefixes by their rollouts (``prefix_rollout_errors_``; the class's ``trainer``
-            entry says which prefix is kept).
+            score the greedy's prefixes by their rollouts (``prefix_rollout_errors_``).
 
         Returns
         -------
@@ -655,62 +657,27 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         progress (logger ``sympredict``, level INFO).
         """
         trainer = self.check_params()
-        rollouts = validation if isinstance(validation, TrajectoryData) and validation.dt is not None else None
-        if validation is None and isinstance(x0, TrajectoryData) and self._holds_out(trainer, x0):
-            x0, rollouts = _hold_out_trajectories(x0, self._search().seed)  # whole trajectories, for rollouts
+        x0, rollouts = _HeldOutSteps.trajectories(self, trainer, x0, validation)
         data, validation = self.validate_data(x0, x1, mu, dt, validation)
         as_even_dimension(data.x0.shape[1])
-        open_factors = {
-            "state": self._state_parts().radial is None,  # what this fit must choose
-            "mu": data.mu.shape[1] > 0 and self.mu_kernel is None,
-            "dt": bool(np.ptp(data.dt) > 0) and self.dt_kernel is None,
-            "update": self.update is None,
-        }
-        return self._fit_resolved(trainer, data, validation, open_factors, rollouts=rollouts)
-
-    def _holds_out(self, trainer, trajectories: TrajectoryData) -> bool:
-        """Whether a fit on ``trajectories`` without ``validation`` holds data out (a kernel to choose, or a
-        target) and can hold whole trajectories out (a uniform step)."""
-        chooses = self._state_parts().radial is None or (trajectories.mu.shape[1] > 0 and self.mu_kernel is None)
-        return trajectories.dt is not None and (chooses or getattr(trainer, "target_error", None) is not None)
+        return self._fit_resolved(trainer, data, validation, _open_settings(self, data), rollouts=rollouts)
 
     def _fit_resolved(
         self, trainer, data: FlowMapData, validation, open_factors: dict, rollouts: Optional[TrajectoryData] = None
     ) -> "SymplecticKernelPredictor":
-        """Fit with the open settings chosen (:class:`~sympredict.estimators.auto.KernelSearch`), then diagnose.
-
-        With nothing to choose but the update, the update is ``'symplectic_euler'`` and every sample is trained
-        on.  Otherwise, without ``validation``, a tenth of the samples (at most 2,000) is held out of the final
-        fit to score it (``diagnostics_``); the search runs on a subsample of the rest.
-        """
-        search, t0 = None, time.perf_counter()
+        """Fit with the open settings chosen (:func:`_choose_open_settings`) and the prefixes scored on held-out data
+        (:class:`_HeldOutSteps`), then diagnose."""
+        t0 = time.perf_counter()
         # never the previous fit's beside a new model (Ctrl-C)
         for name in ("diagnostics_", "search_", "choice_", "prefix_rollout_errors_"):
             self.__dict__.pop(name, None)
         if self._state_parts().periodic is None:
             warn_wrapped_angles(data)
-        if not any(open_factors.values()):
-            params = {}
-            train, holdout = data, validation
-        elif not any(v for k, v in open_factors.items() if k != "update"):
-            params = {"update": "symplectic_euler"}
-            train, holdout = data, validation
-            logger.info("update=None with every kernel given: the update is 'symplectic_euler'")
-        else:
-            train, holdout = _holdout_split(data, self._search().seed) if validation is None else (data, validation)
-            with warnings.catch_warnings():  # the candidates' fits: the warnings are about the final model, once
-                warnings.simplefilter("ignore", UnderfitWarning)
-                warnings.simplefilter("ignore", WrappedAngleWarning)
-                search = self._search().choose(self, train, open_factors)
-            params = search.params
+        params, search, train, holdout = _choose_open_settings(self, data, validation, open_factors)
         target = getattr(trainer, "target_error", None)
         if target is not None and holdout is None:  # the target is judged on samples the fit does not see
             train, holdout = _holdout_split(train, self._search().seed)
-        # prefixes are scored on held-out samples (the target's stop, the best prefix) in the fit a user asked
-        # for: with a target, or where this fit chose settings; not in fits with every setting and validation
-        # data given (the kernel search's candidates, compared at their full size; E_val and smallest() there)
-        # (and with held-out trajectories, whose rollouts score the prefixes: the user's own use of the model)
-        score = holdout is not None and (target is not None or search is not None or rollouts is not None)
+        score = _HeldOutSteps.wanted(holdout, target, search, rollouts)
         resolved = clone(self).set_params(**params) if params else self
         fitted, prefix_errors, rollout_errors = resolved._fit(
             trainer, train, holdout, score_prefixes=score, rollouts=rollouts
@@ -721,14 +688,7 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         self.prefix_rollout_errors_ = rollout_errors
         self.diagnostics_ = diagnose(self, train, holdout)
         _HeldOutSteps.warn_if_target_missed(self)
-        if search is not None:  # the search's share of the fit, for the log and search_.share
-            search.fit_seconds = time.perf_counter() - t0
-            logger.info(
-                f"{type(self).__name__}.fit: the kernel search took {search.seconds:.1f} s of the fit's "
-                f"{search.fit_seconds:.1f} s ({search.share:.0%})"
-            )
-        if (search is not None or self.diagnostics_.advice) and logger.isEnabledFor(logging.INFO):
-            logger.info(f"{type(self).__name__}.fit: {self.diagnostics_.summary()}")
+        _log_fit(self, search, t0)
         return self
 
     @property
@@ -758,26 +718,25 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         xi, y = rule.variables(data.x0 * scale, data.x1 * scale, data.dt)
         self._check_duplicates(xi, data, periodic)
         kernel = self._product_kernel(xi, periodic, symmetry)
+        # what defines the fitted map besides its surrogate (that of every prefix the held-out rollouts score too)
+        settings = dict(
+            domain=training_box(data), update=self.update, solver=self.solver, parts=replace(parts, radial=None)
+        )
         val = checkpoints = None
         if validation is not None:
             vxi, vy = rule.variables(validation.x0 * scale, validation.x1 * scale, validation.dt)
             val = (HBFunctionals(kernel, vxi, validation.mu, validation.dt), vy.reshape(-1))
             if score_prefixes:
-                checkpoints = _HeldOutSteps(self, rule, kernel, xi, data, validation, scale, rollouts=rollouts)
+                checkpoints = _HeldOutSteps(self, rule, kernel, xi, data, validation, scale, settings, rollouts)
         result, points, comps = self._train(trainer, kernel, xi, y.reshape(-1), data, val, checkpoints=checkpoints)
         sur = HBSurrogate(kernel, xi[points], data.mu[points], data.dt[points], comps, result.coef)
         fitted = FittedSymplecticFlowMap(
             kernel,
             sur,
-            domain=training_box(data),
+            **settings,
             history=result.history,
             greedy_result=result,
             dt_fixed=data.dt[0] if self.dt_kernel is None else None,
-            update=self.update,
-            parts=StateKernelParts(
-                scaling=parts.scaling, periodic=parts.periodic, period=parts.period, symmetry=parts.symmetry
-            ),
-            solver=self.solver,
             regularization=trainer_regularization(self.trainer),
             calibration_samples=FittedSymplecticFlowMap.calibration_data(
                 data, validation, result.selected, data.x0.shape[1]
@@ -786,15 +745,7 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
         self._warn_if_underfit(
             data, y, lambda rows: sur.gradient(xi[rows], sur.weights(data.mu[rows], data.dt[rows])), fitted
         )
-        if checkpoints is None:
-            return fitted, None, None
-        rollout_errors = None if checkpoints.rollouts is None else dict(sorted(checkpoints.rollout_scores.items()))
-        if rollout_errors is not None:
-            logger.info(
-                f"held-out rollouts scored {len(rollout_errors)} prefixes in {checkpoints.rollout_seconds:.1f} s "
-                f"(kept {fitted.n_centers} centres)"
-            )
-        return fitted, dict(sorted(checkpoints.scores.items())), rollout_errors
+        return (fitted, None, None) if checkpoints is None else (fitted, *checkpoints.results(fitted.n_centers))
 
     def _with_model(self, fitted) -> "SymplecticKernelPredictor":
         """A shallow copy of this fitted estimator around the smaller fitted map ``fitted``."""
@@ -872,59 +823,56 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
     def _scale_vector(self, dim: int) -> np.ndarray:
         return self._fitted().parts.scale_vector(dim)
 
-    def backend_for(self, n_instances: int = 1, n_steps: int = 1) -> str:
-        """The code :meth:`step` / :meth:`rollout` run for this much work: ``'numpy'`` or ``'numba'``.
+    backend_for, step = _delegated(FittedSymplecticFlowMap.backend_for), _delegated(FittedSymplecticFlowMap.step)
+    rollout, solvability = _delegated(FittedSymplecticFlowMap.rollout), _delegated(FittedSymplecticFlowMap.solvability)
+    step_jacobian = _delegated(FittedSymplecticFlowMap.step_jacobian)
+    surrogate_gradient = _delegated(FittedSymplecticFlowMap.surrogate_gradient)
 
-        The solver's rule (:meth:`~sympredict.symplectic.solvers.NewtonSolver.backend_for`): ``'numpy'`` or
-        ``'numba'`` decide alone; ``'auto'`` uses NumPy without numba, for a model with a NumPy-only
-        feature (``numpy_only_``), or when NumPy is estimated at under
-        :data:`~sympredict.symplectic.solvers.AUTO_NUMPY_SECONDS` and this process has not loaded the compiled
-        rollout yet; compiled code otherwise.  Each call logs its choice at DEBUG level
-        (logger ``sympredict.estimators.predictor``).
-        """
-        return self._fitted().backend_for(n_instances, n_steps)
 
-    @_documented_by(FittedSymplecticFlowMap.step)
-    def step(self, x, mu=None, dt=None, *, return_error: bool = False):
-        return self._fitted().step(x, mu, dt, return_error=return_error)
+def _open_settings(model: SymplecticKernelPredictor, data: FlowMapData) -> dict:
+    """What a fit of ``model`` on ``data`` must choose: ``{"state", "mu", "dt", "update": bool}`` (a kernel the data
+    need but ``model`` leaves ``None``, and the update)."""
+    return {
+        "state": model._state_parts().radial is None,
+        "mu": data.mu.shape[1] > 0 and model.mu_kernel is None,
+        "dt": bool(np.ptp(data.dt) > 0) and model.dt_kernel is None,
+        "update": model.update is None,
+    }
 
-    @_documented_by(FittedSymplecticFlowMap.rollout)
-    def rollout(
-        self,
-        x0,
-        n_steps: int,
-        mu=None,
-        dt=None,
-        *,
-        stride: int = 1,
-        progress=None,
-        check_solvability: bool = False,
-        around=None,
-        return_error: bool = False,
-    ):
-        return self._fitted().rollout(
-            x0,
-            n_steps,
-            mu,
-            dt,
-            stride=stride,
-            progress=progress,
-            check_solvability=check_solvability,
-            around=around,
-            return_error=return_error,
+
+def _choose_open_settings(model: SymplecticKernelPredictor, data: FlowMapData, validation, open_factors: dict):
+    """``(params, search, train, holdout)``: the settings ``model``'s search chooses for the open ones
+    (:func:`_open_settings`), the :class:`~sympredict.estimators.auto.SearchResult` (``None`` without a search),
+    and the samples the final fit trains on and is scored on.
+
+    Nothing open: every sample is trained on.  Only the update open: ``'symplectic_euler'``.  Otherwise, without
+    ``validation``, a tenth of the samples (at most 2,000) is held out of the final fit to score it
+    (``diagnostics_``), and the search runs on a subsample of the rest.
+    """
+    if not any(open_factors.values()):
+        return {}, None, data, validation
+    if not any(v for k, v in open_factors.items() if k != "update"):
+        logger.info("update=None with every kernel given: the update is 'symplectic_euler'")
+        return {"update": "symplectic_euler"}, None, data, validation
+    train, holdout = _holdout_split(data, model._search().seed) if validation is None else (data, validation)
+    with warnings.catch_warnings():  # the candidates' fits: the warnings are about the final model, once
+        warnings.simplefilter("ignore", UnderfitWarning)
+        warnings.simplefilter("ignore", WrappedAngleWarning)
+        search = model._search().choose(model, train, open_factors)
+    return search.params, search, train, holdout
+
+
+def _log_fit(model: SymplecticKernelPredictor, search, t0: float) -> None:
+    """The fit's INFO log lines: the kernel search's share of the fit (begun at ``t0``; also kept as
+    ``search_.share``), and the diagnostics' summary where a search ran or they advise."""
+    if search is not None:
+        search.fit_seconds = time.perf_counter() - t0
+        logger.info(
+            f"{type(model).__name__}.fit: the kernel search took {search.seconds:.1f} s of the fit's "
+            f"{search.fit_seconds:.1f} s ({search.share:.0%})"
         )
-
-    @_documented_by(FittedSymplecticFlowMap.solvability)
-    def solvability(self, x, mu=None, dt=None) -> np.ndarray:
-        return self._fitted().solvability(x, mu, dt)
-
-    @_documented_by(FittedSymplecticFlowMap.step_jacobian)
-    def step_jacobian(self, x, mu=None, dt=None) -> np.ndarray:
-        return self._fitted().step_jacobian(x, mu, dt)
-
-    @_documented_by(FittedSymplecticFlowMap.surrogate_gradient)
-    def surrogate_gradient(self, xi, mu=None, dt=None) -> np.ndarray:
-        return self._fitted().surrogate_gradient(xi, mu, dt)
+    if (search is not None or model.diagnostics_.advice) and logger.isEnabledFor(logging.INFO):
+        logger.info(f"{type(model).__name__}.fit: {model.diagnostics_.summary()}")
 
 
 def _hold_out_trajectories(trajectories: TrajectoryData, seed: int, fraction: float = 0.05, largest: int = 50):
@@ -980,9 +928,11 @@ class _HeldOutSteps:
         data: FlowMapData,
         holdout: FlowMapData,
         scale: np.ndarray,
+        fitted_settings: dict,
         rollouts: Optional[TrajectoryData] = None,
     ):
         self.rule, self.kernel, self.xi, self.data, self.scale = rule, kernel, xi, data, scale
+        self.fitted_settings = fitted_settings  # the fitted map's, for the prefixes' rollouts
         self.max_iter = model._newton_iterations()
         holdout = holdout.subset(np.arange(min(len(holdout), self.largest)))  # the rows diagnose() scores
         inc = np.linalg.norm(holdout.x1 - holdout.x0, axis=1)
@@ -994,7 +944,6 @@ class _HeldOutSteps:
         self.scores = {}
         self.rollouts, self.rollout_scores, self.rollout_seconds = None, {}, 0.0
         if rollouts is not None:
-            parts = model._state_parts()
             k = min(rollouts.states.shape[1] - 1, self.horizon)
             p = min(len(rollouts), self.largest_rollouts)
             self.rollouts = (
@@ -1002,15 +951,39 @@ class _HeldOutSteps:
                 rollouts.mu[:p] if rollouts.mu.shape[1] else None,
                 rollouts.dt,
             )
-            self.fitted_settings = dict(
-                domain=training_box(data),
-                history=None,
-                update=model.update,
-                solver=model.solver,
-                parts=StateKernelParts(
-                    scaling=parts.scaling, periodic=parts.periodic, period=parts.period, symmetry=parts.symmetry
-                ),
+
+    @staticmethod
+    def trajectories(model, trainer, x0, validation) -> tuple:
+        """``(x0, rollouts)`` for a fit of ``model`` on ``x0``: the held-out trajectories whose rollouts score the
+        prefixes (``validation`` trajectories with a uniform step; without ``validation``, a twentieth of ``x0``'s
+        trajectories (:func:`_hold_out_trajectories`) where the fit holds data out, a kernel to choose or a target,
+        and the trajectories have a uniform step; else ``None``), and ``x0`` without those held out."""
+        if validation is not None or not isinstance(x0, TrajectoryData):
+            return x0, validation if isinstance(validation, TrajectoryData) and validation.dt is not None else None
+        chooses = model._state_parts().radial is None or (x0.mu.shape[1] > 0 and model.mu_kernel is None)
+        if x0.dt is not None and (chooses or getattr(trainer, "target_error", None) is not None):
+            return _hold_out_trajectories(x0, model._search().seed)  # whole trajectories, for rollouts
+        return x0, None
+
+    @staticmethod
+    def wanted(holdout, target, search, rollouts) -> bool:
+        """Whether a fit scores the greedy's prefixes on its ``holdout`` samples (the target's stop, the best prefix):
+        in the fit a user asked for, with a ``target``, where it chose settings (a ``search``), or with held-out
+        trajectories (``rollouts``, whose rollouts score the prefixes: the user's own use of the model); not in
+        fits with every setting and validation data given (the kernel search's candidates, compared at their full
+        size; ``E_val`` and ``smallest()`` there)."""
+        return holdout is not None and (target is not None or search is not None or rollouts is not None)
+
+    def results(self, n_centers: int) -> tuple:
+        """``(prefix_errors_, prefix_rollout_errors_)`` of the fit that kept ``n_centers``, by size (the rollout
+        scores ``None`` without held-out trajectories); logs the rollouts' cost."""
+        rollout_errors = None if self.rollouts is None else dict(sorted(self.rollout_scores.items()))
+        if rollout_errors is not None:
+            logger.info(
+                f"held-out rollouts scored {len(rollout_errors)} prefixes in {self.rollout_seconds:.1f} s "
+                f"(kept {n_centers} centres)"
             )
+        return dict(sorted(self.scores.items())), rollout_errors
 
     def score(self, m: int, selected: np.ndarray, coef: np.ndarray) -> float:
         pts, comps = np.divmod(np.asarray(selected), self.xi.shape[1])
@@ -1037,7 +1010,7 @@ class _HeldOutSteps:
         error along each rollout from its first state, ``k <= horizon``) of the model ``sur``; ``inf`` where a
         rollout fails or is not finite."""
         states, mu, dt = self.rollouts
-        fitted = FittedSymplecticFlowMap(self.kernel, sur, **self.fitted_settings)
+        fitted = FittedSymplecticFlowMap(self.kernel, sur, history=None, **self.fitted_settings)
         t0 = time.perf_counter()
         try:
             with warnings.catch_warnings(), np.errstate(all="ignore"):
@@ -1203,13 +1176,4 @@ class DirectKernelPredictor(_FlowMapKernelModel):
         self.model_, self.fitted_params_ = fitted, dict(self.get_params(deep=False))
         return self
 
-    def step(self, x, mu=None, dt=None) -> np.ndarray:
-        """One explicit predicted step, shape of ``x`` ((B, 2n) or (2n,))."""
-        return self._fitted().step(x, mu, dt)
-
-    def rollout(self, x0, n_steps: int, mu=None, dt=None, *, stride: int = 1, progress=None) -> np.ndarray:
-        """Trajectories (B, K // stride + 1, 2n) of ``n_steps`` explicit steps, every ``stride``-th state kept.
-
-        ``stride`` and ``progress`` as in :meth:`SymplecticKernelPredictor.rollout`; ``O(K B m 2n)``.
-        """
-        return self._fitted().rollout(x0, n_steps, mu, dt, stride=stride, progress=progress)
+    step, rollout = _delegated(FittedDirectFlowMap.step), _delegated(FittedDirectFlowMap.rollout)

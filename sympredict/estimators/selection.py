@@ -15,6 +15,7 @@ itself (grids, coordinate refinement, held-out scores, the record) is :mod:`symp
 
 from __future__ import annotations
 
+import inspect
 import time
 import warnings
 from dataclasses import dataclass, field
@@ -36,7 +37,6 @@ from sympredict.estimators.search import (
     log_grid,
 )
 from sympredict.exceptions import ExtrapolationWarning
-from sympredict.kernels import RadialKernel
 
 __all__ = [
     "log_grid",
@@ -54,59 +54,30 @@ __all__ = [
 logger = getLogger("sympredict.estimators.selection")
 
 
-def select_kernels(
-    data: FlowMapData,
-    validation: FlowMapData,
-    state_kernels: Sequence[RadialKernel],
-    mu_kernels: Sequence[Optional[RadialKernel]] = (None,),
-    dt_kernels: Sequence[Optional[RadialKernel]] = (None,),
-    m_star: int = 300,
-    prefer_complete: bool = False,
-    estimator: Optional[SymplecticKernelPredictor] = None,
-    widen: int = 2,
-) -> SelectionResult:
-    return search.grid_search(
-        data,
-        validation,
-        state_kernels,
-        mu_kernels,
-        dt_kernels,
-        m_star=m_star,
-        prefer_complete=prefer_complete,
-        estimator=SymplecticKernelPredictor() if estimator is None else estimator,
-        widen=widen,
+def _with_default_estimator(engine, name: str):
+    """The public entry point ``name`` of the search's ``engine``: the same function (its signature and docstring),
+    with ``SymplecticKernelPredictor()`` as the default ``estimator`` (the search itself has none: it is imported by
+    the estimator's module)."""
+    signature = inspect.signature(engine)
+
+    def entry(*args, **kwargs):
+        bound = signature.bind(*args, **kwargs)
+        if bound.arguments.get("estimator") is None:
+            bound.arguments["estimator"] = SymplecticKernelPredictor()
+        return engine(*bound.args, **bound.kwargs)
+
+    entry.__name__ = entry.__qualname__ = name
+    entry.__signature__ = signature
+    entry.__doc__ = engine.__doc__.replace(
+        "Required here (:func:`sympredict.estimators.selection.select_kernels`\n        defaults to "
+        "``SymplecticKernelPredictor()``).",
+        "Default ``SymplecticKernelPredictor()``.",
     )
+    return entry
 
 
-def refine_kernel_shapes(
-    data: FlowMapData,
-    validation: FlowMapData,
-    start: SelectionResult,
-    m_star: int,
-    factor: float = 2.0,
-    max_sweeps: int = 3,
-    prefer_complete: bool = False,
-    estimator: Optional[SymplecticKernelPredictor] = None,
-    refine: Sequence[bool] = (True, True, True),
-) -> SelectionResult:
-    return search.refine_shapes(
-        data,
-        validation,
-        start,
-        m_star,
-        factor=factor,
-        max_sweeps=max_sweeps,
-        prefer_complete=prefer_complete,
-        estimator=SymplecticKernelPredictor() if estimator is None else estimator,
-        refine=refine,
-    )
-
-
-select_kernels.__doc__ = search.grid_search.__doc__.replace(
-    "Required here (:func:`sympredict.estimators.selection.select_kernels`\n        defaults to ``SymplecticKernelPredictor()``).",
-    "Default ``SymplecticKernelPredictor()``.",
-)
-refine_kernel_shapes.__doc__ = search.refine_shapes.__doc__
+select_kernels = _with_default_estimator(search.grid_search, "select_kernels")
+refine_kernel_shapes = _with_default_estimator(search.refine_shapes, "refine_kernel_shapes")
 
 
 @dataclass
