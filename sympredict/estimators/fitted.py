@@ -571,7 +571,7 @@ class FittedSymplecticFlowMap(FittedFlowMap):
             Macro steps; ``None``: the training step of a fixed-step model (required otherwise).
         return_error : bool, default=False
             Also return an estimate of ``|x1_predicted - x1_exact|_2`` per instance (in the states'
-            units): the power function of the learned gradient at the step's evaluation point, mapped
+            units): the posterior covariance of the learned gradient at the step's evaluation point, mapped
             through the implicit update (``delta x1 = DF^-1 dT J delta g``) and scaled by the fit's
             calibration on held-out samples (``error_calibration_``).  Costs ``O(B 2n m^2)`` more.
 
@@ -638,14 +638,15 @@ class FittedSymplecticFlowMap(FittedFlowMap):
             checks and extrapolation warnings are about the model's inputs ``pre x_k``.
         return_error : bool, default=False
             Also return ``error`` (B, K // stride + 1), an estimate of ``|x_predicted - x_exact|_2`` at the
-            kept steps, in the states' units (0 at step 0): the local error of each step (:meth:`step`'s
-            estimate) propagated through the step Jacobians, ``F_k+1 = D Phi_k F_k + G_k``,
-            ``error_k = c ||F_k||_F`` (consecutive steps' gradient errors taken as one, since the error
-            field is smooth on the kernel's scale).  It covers the model's interpolation error, not noise in
-            the training data nor states far outside the training box (see the how-to "How accurate is my
-            prediction?").  The states come from the usual solver (compiled where that is); the estimate is
-            computed afterwards in NumPy, ``O(B K 2n m^2)`` (the power function at every step: for
-            ``m = 1000`` centres about 10x to 100x the rollout itself), with every step's state kept
+            kept steps, in the states' units (0 at step 0): the covariance of the learned gradient's error at
+            every step's evaluation point and between the steps (the Gaussian-process posterior, mixed with one
+            error vector fixed in the coordinates), mapped through each step and carried by the later steps'
+            Jacobians, with the calibrated scale (:mod:`sympredict.estimators.error_estimate`).  It covers the
+            model's interpolation error, not noise in the training data nor states far outside the training
+            box (see the how-to "How accurate is my prediction?").  The states come from the usual solver
+            (compiled where that is); the estimate is computed afterwards in NumPy, ``O(B K 2n m^2)`` (the
+            posterior at every step: for ``m = 1000`` centres about 10x to 100x the rollout itself) plus
+            ``O(B K^2 (2n)^3)`` for the pairs of steps, with every step's state kept
             while it runs.  Not with ``around``.
 
         Returns
