@@ -336,3 +336,26 @@ def test_rollout_estimate_is_the_dense_posterior_covariance_propagated(model):
             sigma = 0.5 * (sigma_gp + f @ f.T)
             expected = c * np.sqrt(np.sum(np.diag(sigma) / scale**2))
             np.testing.assert_allclose(err[b, kk], expected, rtol=1e-5)
+
+
+def test_local_covariance_has_the_power_function_on_its_diagonal(model, transformed, rng):
+    """The one-step covariance's diagonal is ``P_a^2`` (:meth:`HBSurrogate.power_function`, its own code), for plain
+    and transformed state kernels; the prior blocks of points against themselves have ``K_aa`` (``diagonal``) on
+    theirs, and the off-diagonal entries are the mixture's half of the posterior's, symmetric."""
+    from sympredict.estimators.error_estimate import _prior_at_points, local_covariance, newton_rows
+
+    for fitted in (model.truncated(40), transformed.truncated(25)):
+        sur = fitted.surrogate_
+        xi = np.column_stack([rng.uniform(-1.5, 1.5, 37), rng.uniform(-1.0, 1.0, 37)]) * fitted._scale_vector(2)
+        mu, dt = rng.uniform(0.7, 0.8, (37, 1)), np.full(37, 0.1)
+        chol = sur.gram_factor()
+        k0 = float(np.max(sur.diagonal(xi)))
+        prior = _prior_at_points(sur, xi, mu, dt)
+        np.testing.assert_allclose(np.diagonal(prior, axis1=1, axis2=2), sur.diagonal(xi), rtol=1e-12, atol=1e-14 * k0)
+        cov = local_covariance(sur, xi, mu, dt, chol)
+        p = sur.power_function(xi, mu, dt, chol)
+        np.testing.assert_allclose(np.diagonal(cov, axis1=1, axis2=2), p**2, rtol=1e-9, atol=1e-12 * k0)
+        np.testing.assert_allclose(cov, cov.transpose(0, 2, 1), rtol=0, atol=1e-12 * k0)
+        v = newton_rows(sur, xi, mu, dt, chol)
+        posterior = prior - v @ v.transpose(0, 2, 1)
+        np.testing.assert_allclose(cov[:, 0, 1], 0.5 * posterior[:, 0, 1], rtol=1e-12, atol=1e-14 * k0)
