@@ -29,6 +29,7 @@ from sympredict.exceptions import (
     SolvabilityError,
 )
 from sympredict.exceptions import NotFittedError
+from sympredict.estimators.error_estimate import local_covariance, local_error_units, rollout_error_units
 from sympredict.interpolation.greedy import GreedyHistory
 from sympredict.interpolation.greedy.trainers import ExactGreedy
 from sympredict.interpolation.surrogate import HBSurrogate, ValueSurrogate
@@ -580,7 +581,7 @@ class FittedSymplecticFlowMap(FittedFlowMap):
             Macro steps; ``None``: the training step of a fixed-step model (required otherwise).
         return_error : bool, default=False
             Also return an estimate of ``|x1_predicted - x1_exact|_2`` per instance (in the states'
-            units): the power function of the learned gradient at the step's evaluation point, mapped
+            units): the posterior covariance of the learned gradient at the step's evaluation point, mapped
             through the implicit update (``delta x1 = DF^-1 dT J delta g``) and scaled by the fit's
             calibration on held-out samples (``error_calibration_``).  Costs ``O(B 2n m^2)`` more.
 
@@ -602,8 +603,7 @@ class FittedSymplecticFlowMap(FittedFlowMap):
             return out[0] if single else out
         c = self._check_error_estimate()
         scale = self.scale
-        _, g = self._error_terms(x * scale, out * scale, mu, dt, weights)
-        err = c * np.linalg.norm(g / scale[None, :, None], axis=(1, 2))
+        err = c * self._local_error_units(x * scale, out * scale, mu, dt, weights)
         return (out[0], float(err[0])) if single else (out, err)
 
     def rollout(
@@ -648,14 +648,15 @@ class FittedSymplecticFlowMap(FittedFlowMap):
             checks and extrapolation warnings are about the model's inputs ``pre x_k``.
         return_error : bool, default=False
             Also return ``error`` (B, K // stride + 1), an estimate of ``|x_predicted - x_exact|_2`` at the
-            kept steps, in the states' units (0 at step 0): the local error of each step (:meth:`step`'s
-            estimate) propagated through the step Jacobians, ``F_k+1 = D Phi_k F_k + G_k``,
-            ``error_k = c ||F_k||_F`` (consecutive steps' gradient errors taken as one, since the error
-            field is smooth on the kernel's scale).  It covers the model's interpolation error, not noise in
-            the training data nor states far outside the training box (see the how-to "How accurate is my
-            prediction?").  The states come from the usual solver (compiled where that is); the estimate is
-            computed afterwards in NumPy, ``O(B K 2n m^2)`` (the power function at every step: for
-            ``m = 1000`` centres about 10x to 100x the rollout itself), with every step's state kept
+            kept steps, in the states' units (0 at step 0): the covariance of the learned gradient's error at
+            every step's evaluation point and between the steps (the Gaussian-process posterior, mixed with one
+            error vector fixed in the coordinates), mapped through each step and carried by the later steps'
+            Jacobians, with the calibrated scale (:mod:`sympredict.estimators.error_estimate`).  It covers the
+            model's interpolation error, not noise in the training data nor states far outside the training
+            box (see the how-to "How accurate is my prediction?").  The states come from the usual solver
+            (compiled where that is); the estimate is computed afterwards in NumPy, ``O(B K 2n m^2)`` (the
+            posterior at every step: for ``m = 1000`` centres about 10x to 100x the rollout itself) plus
+            ``O(B K^2 (2n)^3)`` for the pairs of steps, with every step's state kept
             while it runs.  Not with ``around``.
 
         Returns
@@ -878,17 +879,13 @@ class FittedSymplecticFlowMap(FittedFlowMap):
         return self.truncated(int(hits[0]) + 1)
 
     # ------------------------------------------------------- error estimate
-    def _error_terms(self, xs: np.ndarray, x1s: np.ndarray, mu: np.ndarray, dt: np.ndarray, weights: np.ndarray):
-        """``(D Phi, G)`` (B, 2n, 2n) of solved steps ``xs -> x1s`` in the model's (scaled) coordinates.
-
-        ``G = (d x1 / d g) diag(P)``: the columns of the step's sensitivity to the learned gradient
-        (:meth:`~sympredict.symplectic.updates.UpdateRule.linearization`) scaled by the power function
-        ``P_a`` of each gradient component at the step's evaluation point; ``||D^-1 G||_F`` times the
-        calibrated scale is the local (one-step) error estimate.  ``O(B 2n m^2)``.
-        """
-        xi, jac, sens = self.rule.linearization(self.surrogate, xs, x1s, weights, dt)
-        power = self.surrogate.power_function(xi, mu, dt, self.surrogate.gram_factor(self.regularization))
-        return jac, sens * power[:, None, :]
+    def _local_error_units(self, xs: np.ndarray, x1s: np.ndarray, mu: np.ndarray, dt: np.ndarray, weights: np.ndarray):
+        """One-step error estimates before calibration (B,) of solved steps ``xs -> x1s`` (scaled coordinates):
+        the gradient's posterior covariance at the step's evaluation point mapped through ``d x1 / d g``
+        (:func:`~sympredict.estimators.error_estimate.local_error_units`).  ``O(B 2n m^2)``."""
+        xi, _, sens = self.rule.linearization(self.surrogate, xs, x1s, weights, dt)
+        cov = local_covariance(self.surrogate, xi, mu, dt, self.surrogate.gram_factor(self.regularization))
+        return local_error_units(sens, cov, self.scale)
 
     def _check_error_estimate(self) -> float:
         """The calibrated scale of the error estimate; ``ValueError`` naming why there is none."""
@@ -945,8 +942,7 @@ class FittedSymplecticFlowMap(FittedFlowMap):
         except (NewtonConvergenceError, NonFinitePredictionError):
             return None
         true = np.linalg.norm(x1s / scale - data.x1, axis=1)
-        _, g = self._error_terms(data.x0 * scale, x1s, mu, data.dt, weights)
-        unit = np.linalg.norm(g / scale[None, :, None], axis=(1, 2))
+        unit = self._local_error_units(data.x0 * scale, x1s, mu, data.dt, weights)
         ok = (unit > 0) & np.isfinite(true)
         if not ok.any():
             return None
@@ -966,31 +962,10 @@ class FittedSymplecticFlowMap(FittedFlowMap):
         }
 
     def _rollout_error(self, traj: np.ndarray, mu: np.ndarray, dt: np.ndarray, weights: np.ndarray) -> np.ndarray:
-        """Error estimates (B, K+1) along predicted trajectories ``traj`` (B, K+1, 2n) (every step kept).
-
-        Linearised propagation ``delta_k+1 = D Phi_k delta_k + G_k z`` with one unknown ``z`` shared by all
-        steps (the gradient's error field is smooth on the kernel's scale, so consecutive steps err alike):
-        ``F_k+1 = D Phi_k F_k + G_k``, estimate ``c ||D^-1 F_k||_F``.  ``O(B K 2n m^2)`` (the power function at
-        every step), in blocks of steps (memory ``O(block m 2n)``).
-        """
-        c = self._check_error_estimate()
-        b, k1, dim = traj.shape
-        scale = self.scale
-        err = np.zeros((b, k1))
-        fac = np.zeros((b, dim, dim))
-        block = max(1, 256 // b)
-        for k0 in range(0, k1 - 1, block):
-            kk = min(k1 - 1, k0 + block)
-            nk = kk - k0
-            xs = (traj[:, k0:kk] * scale).reshape(-1, dim)
-            x1s = (traj[:, k0 + 1 : kk + 1] * scale).reshape(-1, dim)
-            rep = lambda a: np.repeat(a, nk, axis=0)
-            jac, g = self._error_terms(xs, x1s, rep(mu), rep(dt), rep(weights))
-            jac, g = jac.reshape(b, nk, dim, dim), g.reshape(b, nk, dim, dim)
-            for i in range(nk):
-                fac = np.matmul(jac[:, i], fac) + g[:, i]
-                err[:, k0 + i + 1] = c * np.linalg.norm(fac / scale[None, :, None], axis=(1, 2))
-        return err
+        """Error estimates (B, K+1) along predicted trajectories ``traj`` (B, K+1, 2n) (every step kept): the
+        gradient's posterior covariance carried through the steps' Jacobians, with the calibrated scale
+        (:func:`~sympredict.estimators.error_estimate.rollout_error_units`)."""
+        return self._check_error_estimate() * rollout_error_units(self, traj, mu, dt, weights)
 
     # ----------------------------------------------------------------- files
     @staticmethod

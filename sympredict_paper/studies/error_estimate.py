@@ -1,8 +1,8 @@
 """How good is the error estimate of a prediction? Effectivities on systems the estimate was not developed on.
 
 ``model.rollout(x0, K, mu=..., dt=..., return_error=True)`` returns, next to the
-states, an estimate of ``|x_predicted - x_exact|_2`` at every step (the power
-function of the learned gradient, mapped through the implicit update,
+states, an estimate of ``|x_predicted - x_exact|_2`` at every step (the posterior
+covariance of the learned gradient, mapped through the implicit update,
 propagated along the rollout, calibrated on the fit's held-out samples).  This
 script measures it against the true error of the reference flow:
 
@@ -17,12 +17,15 @@ script measures it against the true error of the reference flow:
 
 Systems (``--systems``):
 
-* ``three_body`` (held out): the planar circular restricted three-body problem in the
+* ``three_body`` (held out for the one-step estimate; the propagation's fixed-coordinate part is there for
+  its exponential growth): the planar circular restricted three-body problem in the
   rotating frame (:mod:`sympredict.systems.three_body`), mass ratio in [0.010, 0.014],
   tadpole librations near L4 (:func:`~sympredict.systems.three_body.librating_states`),
   ``dT = 0.05``, trained on trajectories (``--traj`` x ``--traj-steps``);
-* ``coupled_pendulums``, ``fpu_chain`` (held out): the physical-unit systems of
-  ``sympredict_paper/studies/defaults_acceptance.py``, trained on scattered one-step samples (``--samples``);
+* ``coupled_pendulums``, ``fpu_chain`` (held out for the one-step estimate; the propagation along the
+  rollout was revised where it failed on them), ``kepler`` (held out: not looked at before the revised
+  propagation was fixed): the physical-unit systems of ``sympredict_paper/studies/defaults_acceptance.py``,
+  trained on scattered one-step samples (``--samples``);
 * ``pendulum`` (the system the estimate was developed on, for comparison):
   the README's pendulum, lengths in [0.7, 0.8], ``dT = 0.1``, trained on trajectories.
 
@@ -205,6 +208,7 @@ def run_system(name, args) -> dict:
         "median_effectivity": entry["all_steps"]["median_effectivity"] <= GOALS["median_effectivity_max"],
         "rank_correlation_last": last["spearman"] >= GOALS["rank_correlation_last_min"],
     }
+    entry["rank_correlation_last"] = last["spearman"]  # the goal's number (Spearman, horizons[K]["spearman"])
     # cost: rollout with and without the estimate, interleaved in this process
     x_small, mu_small = x0[: args.timing_batch], mu[: args.timing_batch]
     timing = _protocol.side_by_side(
@@ -239,7 +243,9 @@ def run_system(name, args) -> dict:
 
 def parse_args(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("--systems", nargs="+", default=["three_body", "coupled_pendulums", "fpu_chain", "pendulum"])
+    p.add_argument(
+        "--systems", nargs="+", default=["three_body", "coupled_pendulums", "fpu_chain", "kepler", "pendulum"]
+    )
     p.add_argument("--max-centers", type=int, default=500)
     p.add_argument("--samples", type=int, default=3000, help="scattered samples (defaults_acceptance systems)")
     p.add_argument("--traj", type=int, default=100, help="training trajectories (three_body, pendulum)")

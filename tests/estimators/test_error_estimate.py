@@ -230,3 +230,132 @@ def test_transformed_models_estimate_their_rollout_error(transformed):
     plain = transformed.rollout(x0, 20, mu=np.array([0.75, 0.72]), dt=0.1)
     np.testing.assert_array_equal(states, plain)
     assert err.shape == (2, 21) and np.all(err[:, 0] == 0) and np.all(np.isfinite(err)) and np.all(err[:, 1:] > 0)
+
+
+# ---------------------------------------------------------------- propagation along a rollout: oracles
+def _rotation(theta):
+    c, s = np.cos(theta), np.sin(theta)
+    return np.array([[c, -s], [s, c]])
+
+
+def _harmonic_propagation(field, n_steps, theta=0.3, dt=0.1, eps=1e-3, m=0, seed=0):
+    """Propagate a gradient-error field along a harmonic orbit ``x_k = R^k x0`` (``D Phi = R``, ``S = dT J``, which
+    commute with ``R``).  ``field``: ``"coherent"`` (``delta g(x) = eps xi x``, one ``xi``: a frequency error) or
+    ``"white"`` (independent ``eps xi_k`` per step); ``m > 0`` adds a Newton basis ``V`` to the prior rows that the
+    propagation must subtract again.  Returns (x0, the propagation's kernel part and fixed part per step)."""
+    from sympredict.estimators.error_estimate import CovariancePropagation
+
+    rng = np.random.default_rng(seed)
+    x0 = np.array([[0.8, -0.3]])
+    rot, jmat = _rotation(theta), np.array([[0.0, 1.0], [-1.0, 0.0]])
+    xs = np.array([np.linalg.matrix_power(rot, k) @ x0[0] for k in range(n_steps)])
+    v = rng.standard_normal((n_steps, 2, m)) * 1e-2
+    prop = CovariancePropagation(1, 2, m, n_steps)
+    kernel_part, fixed_part = [], []
+    for k in range(n_steps):
+        if field == "coherent":
+            cov = eps**2 * np.einsum("a,lc->alc", xs[k], xs[: k + 1])
+        else:
+            cov = np.zeros((2, k + 1, 2))
+            cov[:, k, :] = eps**2 * np.eye(2)
+        rows = cov + np.einsum("am,lcm->alc", v[k], v[: k + 1])  # prior = posterior + V V^T
+        sigma = prop.advance(rot[None], dt * jmat[None], v[k][None], rows[None])
+        kernel_part.append(np.trace(prop.correlated[0]))
+        fixed_part.append(np.trace(prop.fixed[0]))
+        np.testing.assert_allclose(sigma, 0.5 * (prop.correlated + prop.fixed), rtol=1e-14, atol=0)
+    return x0, np.array(kernel_part), np.array(fixed_part)
+
+
+@pytest.mark.parametrize("m", [0, 5])
+def test_a_coherent_frequency_error_grows_linearly_along_a_harmonic_orbit(m):
+    """Closed form: ``delta g(x) = eps xi x`` gives ``delta_K = K dT eps xi J x_K-1``, ``E|delta_K|^2 = (K dT eps |x0|)^2``:
+    the kernel part of the propagation is exact for it; the part constant in the coordinates (the propagation before
+    the covariance was carried) is averaged away by the rotation and stays bounded."""
+    dt, eps, n = 0.1, 1e-3, 400
+    x0, kernel_part, fixed_part = _harmonic_propagation("coherent", n, dt=dt, eps=eps, m=m)
+    steps = np.arange(1, n + 1)
+    expected = (steps * dt * eps * np.linalg.norm(x0)) ** 2
+    np.testing.assert_allclose(kernel_part, expected, rtol=1e-10)
+    # the fixed-coordinate part: a sum of rotated vectors of length <= dT eps |x0|, bounded by 1 / sin(theta / 2)
+    assert fixed_part.max() <= (2 * dt * eps * np.linalg.norm(x0) / np.sin(0.15)) ** 2
+    assert np.sqrt(fixed_part[-1] / kernel_part[-1]) < 0.05  # so the mixture follows the linear growth
+    # the mixture's estimate grows linearly: after 400 steps within sqrt(2) of the closed form
+    np.testing.assert_allclose(np.sqrt(0.5 * (kernel_part + fixed_part))[-1], np.sqrt(0.5 * expected[-1]), rtol=1e-2)
+
+
+def test_independent_step_errors_add_as_a_random_walk():
+    """Closed form: independent gradient errors ``eps xi_k`` (white in the steps) give ``tr Sigma_K = 2 K (dT eps)^2``."""
+    dt, eps, n = 0.1, 1e-3, 200
+    _, kernel_part, _ = _harmonic_propagation("white", n, dt=dt, eps=eps, m=3)
+    np.testing.assert_allclose(kernel_part, 2 * np.arange(1, n + 1) * (dt * eps) ** 2, rtol=1e-10)
+
+
+def test_rollout_estimate_is_the_dense_posterior_covariance_propagated(model):
+    """Oracle: the posterior covariance of the gradient functionals at all of a rollout's evaluation points from the
+    Gramian built column by column by the functionals' own code (dense solve), the step maps multiplied out
+    explicitly, ``Sigma_K = (sum_kl M_K,k C_kl M_K,l^T + F F^T) / 2``."""
+    small = model.truncated(40)
+    fitted = small.model_
+    sur, rule, scale = fitted.surrogate, fitted.rule, fitted.scale
+    x0 = np.array([[1.0, 0.0], [0.3, -0.4]])
+    mu, n = np.array([0.72, 0.78]), 6
+    traj, err = small.rollout(x0, n, mu=mu, dt=0.1, return_error=True)
+    c = small.error_calibration_["scale"]
+    m, dim = sur.n_centers, 2
+    centres = HBFunctionals(sur.kernel, sur.centers_xi, sur.centers_mu, sur.centers_dt)
+    sel = np.arange(m) * dim + sur.components
+    gram = np.empty((m, m))
+    col = np.empty(centres.n_functionals)
+    for j in range(m):
+        gram[:, j] = centres.column(centres.representer(sel[j]), col)[sel]
+    gram[np.diag_indices(m)] += fitted.regularization
+    for b in range(2):
+        mub, dtb = np.full((n, 1), mu[b]), np.full(n, 0.1)
+        w = sur.weights(mub, dtb)
+        xi, jac, sens = rule.linearization(sur, traj[b, :-1] * scale, traj[b, 1:] * scale, w, dtb)
+        queries = HBFunctionals(sur.kernel, xi, mub, dtb)
+        kqc = np.empty((n * dim, m))
+        kqq = np.empty((n * dim, n * dim))
+        qcol = np.empty(n * dim)
+        for j in range(m):
+            queries.column(centres.representer(sel[j]), kqc[:, j])
+        for i in range(n * dim):
+            kqq[:, i] = queries.column(queries.representer(i), qcol)
+        post = kqq - kqc @ np.linalg.solve(gram, kqc.T)
+        for kk in range(1, n + 1):
+            maps = []
+            for k in range(kk):
+                mk = sens[k]
+                for j in range(k + 1, kk):
+                    mk = jac[j] @ mk
+                maps.append(mk)
+            big = np.concatenate(maps, axis=1)  # (2n, kk 2n)
+            sigma_gp = big @ post[: kk * dim, : kk * dim] @ big.T
+            power = np.sqrt(np.maximum(np.diag(post)[: kk * dim], 0.0))
+            f = sum(maps[k] * power[k * dim : (k + 1) * dim][None, :] for k in range(kk))
+            sigma = 0.5 * (sigma_gp + f @ f.T)
+            expected = c * np.sqrt(np.sum(np.diag(sigma) / scale**2))
+            np.testing.assert_allclose(err[b, kk], expected, rtol=1e-5)
+
+
+def test_local_covariance_has_the_power_function_on_its_diagonal(model, transformed, rng):
+    """The one-step covariance's diagonal is ``P_a^2`` (:meth:`HBSurrogate.power_function`, its own code), for plain
+    and transformed state kernels; the prior blocks of points against themselves have ``K_aa`` (``diagonal``) on
+    theirs, and the off-diagonal entries are the mixture's half of the posterior's, symmetric."""
+    from sympredict.estimators.error_estimate import _prior_at_points, local_covariance, newton_rows
+
+    for fitted in (model.truncated(40), transformed.truncated(25)):
+        sur = fitted.surrogate_
+        xi = np.column_stack([rng.uniform(-1.5, 1.5, 37), rng.uniform(-1.0, 1.0, 37)]) * fitted._scale_vector(2)
+        mu, dt = rng.uniform(0.7, 0.8, (37, 1)), np.full(37, 0.1)
+        chol = sur.gram_factor()
+        k0 = float(np.max(sur.diagonal(xi)))
+        prior = _prior_at_points(sur, xi, mu, dt)
+        np.testing.assert_allclose(np.diagonal(prior, axis1=1, axis2=2), sur.diagonal(xi), rtol=1e-12, atol=1e-14 * k0)
+        cov = local_covariance(sur, xi, mu, dt, chol)
+        p = sur.power_function(xi, mu, dt, chol)
+        np.testing.assert_allclose(np.diagonal(cov, axis1=1, axis2=2), p**2, rtol=1e-9, atol=1e-12 * k0)
+        np.testing.assert_allclose(cov, cov.transpose(0, 2, 1), rtol=0, atol=1e-12 * k0)
+        v = newton_rows(sur, xi, mu, dt, chol)
+        posterior = prior - v @ v.transpose(0, 2, 1)
+        np.testing.assert_allclose(cov[:, 0, 1], 0.5 * posterior[:, 0, 1], rtol=1e-12, atol=1e-14 * k0)
