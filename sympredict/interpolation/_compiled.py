@@ -548,36 +548,9 @@ def _hb_column2_range(
         out[2 * p + 1] = v1
 
 
-@compiled(JIT)
-def _hb_column2_serial(
-    points, mu, dt, xq, muq, dtq, b, e, first_family, emu, mu_family, edt, dt_family, has_mu, has_dt, out
-):
-    _hb_column2_range(
-        0,
-        points.shape[0],
-        points,
-        mu,
-        dt,
-        xq,
-        muq,
-        dtq,
-        b,
-        e,
-        first_family,
-        emu,
-        mu_family,
-        edt,
-        dt_family,
-        has_mu,
-        has_dt,
-        out,
-    )
-
-
-@compiled(PJIT)
-def _hb_column2_parallel(
-    points, mu, dt, xq, muq, dtq, b, e, first_family, emu, mu_family, edt, dt_family, has_mu, has_dt, out
-):
+def _hb_column2(points, mu, dt, xq, muq, dtq, b, e, first_family, emu, mu_family, edt, dt_family, has_mu, has_dt, out):
+    """The whole column (:func:`_hb_column2_range`, blocks of points a task); compiled as ``_hb_column2_parallel``
+    (blocks on numba's threads) and ``_hb_column2_serial`` (a plain loop)."""
     n_pts = points.shape[0]
     block = 32768
     for k in numba.prange((n_pts + block - 1) // block):
@@ -601,6 +574,10 @@ def _hb_column2_parallel(
             has_dt,
             out,
         )
+
+
+_hb_column2_parallel = compiled(PJIT, "_hb_column2_parallel")(_hb_column2)
+_hb_column2_serial = compiled(JIT, "_hb_column2_serial")(_hb_column2)
 
 
 def gradients(xi, group, group_weights, layout: CenterLayout, kernel) -> np.ndarray:

@@ -334,8 +334,7 @@ def _rollout_one(
             return
 
 
-@compiled(PJIT)
-def _rollout_parallel(
+def _rollout(
     x0,
     W,
     h,
@@ -359,6 +358,8 @@ def _rollout_parallel(
     around,
     prev,
 ):
+    """Every instance's rollout (:func:`_rollout_one`), compiled twice: ``_rollout_parallel`` runs the instances on
+    numba's threads, ``_rollout_serial`` in a plain loop (one trajectory's latency)."""
     for i in numba.prange(x0.shape[0]):
         _rollout_one(
             i,
@@ -387,57 +388,8 @@ def _rollout_parallel(
         )
 
 
-@compiled(JIT)
-def _rollout_serial(
-    x0,
-    W,
-    h,
-    cT,
-    seg,
-    family,
-    eps,
-    per,
-    max_iter,
-    chunk,
-    traj,
-    codes,
-    fail_step,
-    fail_iter,
-    resid,
-    passes,
-    warm_start,
-    mid,
-    pre,
-    post,
-    around,
-    prev,
-):
-    for i in range(x0.shape[0]):
-        _rollout_one(
-            i,
-            x0,
-            W,
-            h,
-            cT,
-            seg,
-            family,
-            eps,
-            per,
-            max_iter,
-            chunk,
-            traj,
-            codes,
-            fail_step,
-            fail_iter,
-            resid,
-            passes,
-            warm_start,
-            mid,
-            pre,
-            post,
-            around,
-            prev,
-        )
+_rollout_parallel = compiled(PJIT, "_rollout_parallel")(_rollout)
+_rollout_serial = compiled(JIT, "_rollout_serial")(_rollout)
 
 
 #: The updates the compiled rollout solves (``mid`` flag of the compiled solver).

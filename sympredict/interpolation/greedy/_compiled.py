@@ -88,16 +88,15 @@ def _greedy_update_chunk(ch, row, t, inv_pj, b, res, p2, j, breakdown, chunk, cm
     cbest[ch] = best
 
 
-@compiled(PJIT)
-def _greedy_update_parallel(row, t, inv_pj, b, res, p2, j, breakdown, chunk, cmax, carg, cbest):
+def _greedy_update(row, t, inv_pj, b, res, p2, j, breakdown, chunk, cmax, carg, cbest):
+    """Every chunk's update (:func:`_greedy_update_chunk`); compiled as ``_greedy_update_parallel`` (chunks on
+    numba's threads) and ``_greedy_update_serial`` (a plain loop)."""
     for ch in numba.prange(cmax.shape[0]):
         _greedy_update_chunk(ch, row, t, inv_pj, b, res, p2, j, breakdown, chunk, cmax, carg, cbest)
 
 
-@compiled(JIT)
-def _greedy_update_serial(row, t, inv_pj, b, res, p2, j, breakdown, chunk, cmax, carg, cbest):
-    for ch in range(cmax.shape[0]):
-        _greedy_update_chunk(ch, row, t, inv_pj, b, res, p2, j, breakdown, chunk, cmax, carg, cbest)
+_greedy_update_parallel = compiled(PJIT, "_greedy_update_parallel")(_greedy_update)
+_greedy_update_serial = compiled(JIT, "_greedy_update_serial")(_greedy_update)
 
 
 @compiled(JIT)
@@ -134,36 +133,9 @@ def _hb_rows_range(
             out[k, base + b] -= w * A
 
 
-@compiled(JIT)
-def _hb_rows_serial(
-    points, mu, dt, xq, muq, dtq, comps, e, first_family, emu, mu_family, edt, dt_family, has_mu, has_dt, out
-):
-    _hb_rows_range(
-        0,
-        xq.shape[0],
-        points,
-        mu,
-        dt,
-        xq,
-        muq,
-        dtq,
-        comps,
-        e,
-        first_family,
-        emu,
-        mu_family,
-        edt,
-        dt_family,
-        has_mu,
-        has_dt,
-        out,
-    )
-
-
-@compiled(PJIT)
-def _hb_rows_parallel(
-    points, mu, dt, xq, muq, dtq, comps, e, first_family, emu, mu_family, edt, dt_family, has_mu, has_dt, out
-):
+def _hb_rows(points, mu, dt, xq, muq, dtq, comps, e, first_family, emu, mu_family, edt, dt_family, has_mu, has_dt, out):
+    """Every Gramian row (:func:`_hb_rows_range`, a row a task); compiled as ``_hb_rows_parallel`` (rows on numba's
+    threads) and ``_hb_rows_serial`` (a plain loop)."""
     for k in numba.prange(xq.shape[0]):
         _hb_rows_range(
             k,
@@ -185,6 +157,10 @@ def _hb_rows_parallel(
             has_dt,
             out,
         )
+
+
+_hb_rows_parallel = compiled(PJIT, "_hb_rows_parallel")(_hb_rows)
+_hb_rows_serial = compiled(JIT, "_hb_rows_serial")(_hb_rows)
 
 
 MATVEC_CHUNK = 16384
