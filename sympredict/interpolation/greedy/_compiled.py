@@ -20,7 +20,7 @@ import numpy as np
 
 from sympredict import _numba
 from sympredict._numba import JIT, PJIT, call, check_available, compiled, numba
-from sympredict.kernels._compiled import _first_factors, _profile, family_kernels
+from sympredict.kernels._compiled import _first_factors, _profile, family_kernels, product_factors
 
 __all__ = ["greedy_update", "matvec_t", "hb_rows", "hb_rows_supported"]
 
@@ -100,14 +100,19 @@ _greedy_update_serial = compiled(JIT, "_greedy_update_serial")(_greedy_update)
 
 
 @compiled(JIT)
-def _hb_rows_range(
-    k0, k1, points, mu, dt, xq, muq, dtq, comps, e, first_family, emu, mu_family, edt, dt_family, has_mu, has_dt, out
-):
-    """Gramian rows ``k0:k1`` of state-derivative functionals against every point (any ``2n``, plain kernel)."""
+def _task_vector(dim):
+    """A work vector of one task of a parallel loop, allocated in a call: numba may hoist an allocation written in
+    the loop body out of the loop, where the threads would share it."""
+    return np.empty(dim)
+
+
+def _hb_rows(points, mu, dt, xq, muq, dtq, comps, e, first_family, emu, mu_family, edt, dt_family, has_mu, has_dt, out):
+    """Gramian rows of state-derivative functionals against every point (any ``2n``, plain kernel), a row a task;
+    compiled as ``_hb_rows_parallel`` (rows on numba's threads) and ``_hb_rows_serial`` (a plain loop)."""
     n_pts, dim = points.shape
     d_mu = mu.shape[1]
-    diff = np.empty(dim)
-    for k in range(k0, k1):
+    for k in numba.prange(xq.shape[0]):
+        diff = _task_vector(dim)
         b = comps[k]
         for p in range(n_pts):
             r2 = 0.0
@@ -131,32 +136,6 @@ def _hb_rows_range(
             for a in range(dim):
                 out[k, base + a] = diff[a] * g
             out[k, base + b] -= w * A
-
-
-def _hb_rows(points, mu, dt, xq, muq, dtq, comps, e, first_family, emu, mu_family, edt, dt_family, has_mu, has_dt, out):
-    """Every Gramian row (:func:`_hb_rows_range`, a row a task); compiled as ``_hb_rows_parallel`` (rows on numba's
-    threads) and ``_hb_rows_serial`` (a plain loop)."""
-    for k in numba.prange(xq.shape[0]):
-        _hb_rows_range(
-            k,
-            k + 1,
-            points,
-            mu,
-            dt,
-            xq,
-            muq,
-            dtq,
-            comps,
-            e,
-            first_family,
-            emu,
-            mu_family,
-            edt,
-            dt_family,
-            has_mu,
-            has_dt,
-            out,
-        )
 
 
 _hb_rows_parallel = compiled(PJIT, "_hb_rows_parallel")(_hb_rows)
@@ -283,29 +262,8 @@ def hb_rows(kernel, points, mu, dt, xq, muq, dtq, comps, out: np.ndarray) -> np.
     -----
     ``O(K M (2n + d_mu))`` work, rows in parallel on numba's threads for ``K > 1``.
     """
-    state, mu_k, dt_k = (k if k is not None else kernel.state for k in (kernel.state, kernel.mu, kernel.dt))
-    ns, (state_family, mu_family, dt_family) = family_kernels(type(state), type(mu_k), type(dt_k))
-    emu = kernel.mu.eps if kernel.mu is not None else 0.0
-    edt = kernel.dt.eps if kernel.dt is not None else 0.0
+    ns, factors = product_factors(kernel)
     fn = ns._hb_rows_parallel if (_numba.GREEDY_PARALLEL and len(xq) > 1) else ns._hb_rows_serial
-    f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)  # noqa: E731
-    call(
-        fn,
-        f64(points),
-        f64(mu),
-        f64(dt),
-        f64(xq),
-        f64(muq),
-        f64(dtq),
-        np.ascontiguousarray(comps, dtype=np.int64),
-        float(kernel.state.eps),
-        state_family,
-        emu,
-        mu_family,
-        edt,
-        dt_family,
-        kernel.mu is not None,
-        kernel.dt is not None,
-        out,
-    )
+    points, mu, dt, xq, muq, dtq = (np.ascontiguousarray(a, dtype=np.float64) for a in (points, mu, dt, xq, muq, dtq))
+    call(fn, points, mu, dt, xq, muq, dtq, np.ascontiguousarray(comps, dtype=np.int64), *factors, out)
     return out
