@@ -46,6 +46,7 @@ from __future__ import annotations
 import logging
 import os
 import sys
+import types
 import warnings
 from typing import Optional
 
@@ -180,8 +181,14 @@ def _warn_cache(exc: BaseException) -> None:
         )
 
 
-def jit_cached(function, flags: dict):
-    """``numba.njit(function, cache=True, **flags)``; a cache folder that cannot be used leaves it uncached."""
+def jit_cached(function, flags: dict, name: Optional[str] = None):
+    """``numba.njit(function, cache=True, **flags)``; a cache folder that cannot be used leaves it uncached.
+
+    ``name``: compile a copy of ``function`` under this name (one Python function, two sets of flags: see
+    :func:`compiled`).
+    """
+    if name is not None:
+        function = _named_copy(function, name)
     dispatcher = numba.njit(**flags)(function)
     try:  # what cache=True does; it raises if no cache folder is writable (a read-only install, no home folder)
         dispatcher.enable_caching()
@@ -191,11 +198,19 @@ def jit_cached(function, flags: dict):
     return dispatcher
 
 
-def compiled(flags: dict):
+def compiled(flags: dict, name: Optional[str] = None):
     """Decorator: a top-level compiled kernel, cached on disk and listed in :data:`DEFINITIONS` (without numba:
-    the Python function)."""
+    the Python function).
+
+    ``name``: the kernel's name where it is not the function's.  One Python function compiled under two names with
+    two sets of flags (a loop over ``numba.prange``: parallel with :data:`PJIT`, a plain loop with :data:`JIT`)
+    is one copy of the function per name, because numba's disk cache tells kernels apart by their name and code,
+    not by their flags.
+    """
 
     def decorate(function):
+        if name is not None:
+            function = _named_copy(function, name)
         if any(name == function.__name__ for name, _, _, _ in DEFINITIONS):
             raise RuntimeError(f"a compiled kernel named {function.__name__!r} exists already")
         dispatcher = jit_cached(function, flags) if HAVE_NUMBA else function
@@ -203,6 +218,14 @@ def compiled(flags: dict):
         return dispatcher
 
     return decorate
+
+
+def _named_copy(function, name: str):
+    """``function`` under another name (its code, globals, defaults and docstring)."""
+    copy = types.FunctionType(function.__code__, function.__globals__, name, function.__defaults__)
+    copy.__qualname__ = name
+    copy.__doc__ = function.__doc__
+    return copy
 
 
 def jit_user(function):

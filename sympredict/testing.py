@@ -161,6 +161,10 @@ def _symplectic_step(model, x, mu, dt, atol, fd, fd_h, fd_atol) -> dict:
         "finite-difference Jacobian: central differences, step {h:.2e} (= fd_h * max|x|), estimated error "
         "{e:.2e}, tolerance {t:.2e}" + (" (fd_atol)" if fd_atol is not None else " (from the error estimate)")
     )
+
+    def where(i: int) -> str:  # how state i's Jacobian was checked, and the state
+        return f" ({how.format(h=steps[i], e=err[i], t=tol[i])}) at state #{i} {x[i].tolist()}"
+
     out["fd_error"] = float(err.max())
     if jac is None:
         d = _defect(fdj)
@@ -169,9 +173,7 @@ def _symplectic_step(model, x, mu, dt, atol, fd, fd_h, fd_atol) -> dict:
         out["finite_differences"], out["method"] = float(d[i]), "finite_differences"
         if not d[i] <= bound[i]:
             raise AssertionError(
-                f"the step is not symplectic: max |DPhi^T J DPhi - J| = {d[i]:.3e} > {bound[i]:.2e} ("
-                + how.format(h=steps[i], e=err[i], t=tol[i])
-                + f") at state #{i} {x[i].tolist()}"
+                f"the step is not symplectic: max |DPhi^T J DPhi - J| = {d[i]:.3e} > {bound[i]:.2e}" + where(i)
             )
         return out
     out["finite_differences"], out["method"] = float(_defect(fdj).max()), "analytic+finite_differences"
@@ -179,9 +181,7 @@ def _symplectic_step(model, x, mu, dt, atol, fd, fd_h, fd_atol) -> dict:
     i = int(np.argmax(gap / tol))
     if not gap[i] <= tol[i]:
         raise AssertionError(
-            f"step_jacobian disagrees with the finite-difference Jacobian of step by {gap[i]:.3e} ("
-            + how.format(h=steps[i], e=err[i], t=tol[i])
-            + f") at state #{i} {x[i].tolist()}"
+            f"step_jacobian disagrees with the finite-difference Jacobian of step by {gap[i]:.3e}" + where(i)
         )
     return out
 

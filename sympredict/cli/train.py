@@ -72,10 +72,15 @@ def _cmd_train_user_data(args) -> int:
         _Working(f"sympredict train: {_describe(data)}, training", quiet=args.verbose),
     ):
         model.fit(data, validation=validation)
+    return _save_and_report(model, args, _describe(data))
+
+
+def _save_and_report(model, args, trained_on: str) -> int:
+    """Save the fitted model to ``--out`` and print what was trained on ``trained_on`` (the data, in words)."""
     _save_model_or_keep(model, args.out, overwrite=args.force)
     h = model.history_
     print(
-        f"trained {model.n_centers_} centres ({h.stop_reason}) on {_describe(data)}: E_train {h.train_max_residual[-1]:.2e}"
+        f"trained {model.n_centers_} centres ({h.stop_reason}) on {trained_on}: E_train {h.train_max_residual[-1]:.2e}"
         + (f", E_val {h.val_max_residual[-1]:.2e}" if h.val_max_residual is not None else "")
         + f"; saved to {args.out}"
     )
@@ -144,16 +149,7 @@ def _cmd_train(args) -> int:
         _Working(f"sympredict train: {_describe(data)}, training", quiet=args.verbose),
     ):
         model.fit(data.x0, data.x1, mu=mu, dt=data.dt, validation=validation)
-    _save_model_or_keep(model, args.out, overwrite=args.force)
-    h = model.history_
-    print(
-        f"trained {model.n_centers_} centres ({h.stop_reason}) on {len(data)} samples of {meta.get('system', 'unknown system')}: "
-        f"E_train {h.train_max_residual[-1]:.2e}"
-        + (f", E_val {h.val_max_residual[-1]:.2e}" if h.val_max_residual is not None else "")
-        + f"; saved to {args.out}"
-    )
-    _print_target(model)
-    return 0
+    return _save_and_report(model, args, f"{len(data)} samples of {meta.get('system', 'unknown system')}")
 
 
 def add_parser(sub) -> None:

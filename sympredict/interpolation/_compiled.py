@@ -35,7 +35,14 @@ import numpy as np
 from sympredict import _numba
 from sympredict._numba import FJIT, JIT, PJIT, call, check_available, compiled, numba
 from sympredict.kernels import IMQ
-from sympredict.kernels._compiled import _all_factors, _first_factors, _periodic_formulas, _profile, family_kernels
+from sympredict.kernels._compiled import (
+    _all_factors,
+    _first_factors,
+    _periodic_formulas,
+    _profile,
+    family_kernels,
+    product_factors,
+)
 
 __all__ = [
     "CenterLayout",
@@ -516,13 +523,11 @@ def _terms_kernel(xi, W, cT, seg, family, eps, per, chunk, mode, grad, hess, flo
         floor[i] = _pass(xi[i], W[i], cT, seg, family, eps, mode, per, sc, grad[i], hess[i])
 
 
-@compiled(JIT)
-def _hb_column2_range(
-    p0, p1, points, mu, dt, xq, muq, dtq, b, e, first_family, emu, mu_family, edt, dt_family, has_mu, has_dt, out
-):
-    """Column entries of points ``p0:p1`` (``2n = 2``), the operations of the NumPy column in its order."""
+def _hb_column2(points, mu, dt, xq, muq, dtq, b, e, first_family, emu, mu_family, edt, dt_family, has_mu, has_dt, out):
+    """Column entries of every point (``2n = 2``), the operations of the NumPy column in its order; compiled as
+    ``_hb_column2_parallel`` (points on numba's threads) and ``_hb_column2_serial`` (a plain loop)."""
     d_mu = mu.shape[1]
-    for p in range(p0, p1):
+    for p in numba.prange(points.shape[0]):
         d0 = points[p, 0] - xq[0]
         d1 = points[p, 1] - xq[1]
         A, B = _first_factors(first_family, e, math.sqrt(d0 * d0 + d1 * d1))
@@ -548,59 +553,8 @@ def _hb_column2_range(
         out[2 * p + 1] = v1
 
 
-@compiled(JIT)
-def _hb_column2_serial(
-    points, mu, dt, xq, muq, dtq, b, e, first_family, emu, mu_family, edt, dt_family, has_mu, has_dt, out
-):
-    _hb_column2_range(
-        0,
-        points.shape[0],
-        points,
-        mu,
-        dt,
-        xq,
-        muq,
-        dtq,
-        b,
-        e,
-        first_family,
-        emu,
-        mu_family,
-        edt,
-        dt_family,
-        has_mu,
-        has_dt,
-        out,
-    )
-
-
-@compiled(PJIT)
-def _hb_column2_parallel(
-    points, mu, dt, xq, muq, dtq, b, e, first_family, emu, mu_family, edt, dt_family, has_mu, has_dt, out
-):
-    n_pts = points.shape[0]
-    block = 32768
-    for k in numba.prange((n_pts + block - 1) // block):
-        _hb_column2_range(
-            k * block,
-            min(n_pts, (k + 1) * block),
-            points,
-            mu,
-            dt,
-            xq,
-            muq,
-            dtq,
-            b,
-            e,
-            first_family,
-            emu,
-            mu_family,
-            edt,
-            dt_family,
-            has_mu,
-            has_dt,
-            out,
-        )
+_hb_column2_parallel = compiled(PJIT, "_hb_column2_parallel")(_hb_column2)
+_hb_column2_serial = compiled(JIT, "_hb_column2_serial")(_hb_column2)
 
 
 def gradients(xi, group, group_weights, layout: CenterLayout, kernel) -> np.ndarray:
@@ -761,29 +715,8 @@ def hb_column(kernel, points, mu, dt, representer, out: np.ndarray) -> np.ndarra
     ``O(N)``; bit-identical to :meth:`sympredict.interpolation.functionals.HBFunctionals.column`.
     """
     xq, muq, dtq, b = representer
-    # a dropped factor's family code is the state's (never used)
-    state, mu_k, dt_k = (k if k is not None else kernel.state for k in (kernel.state, kernel.mu, kernel.dt))
-    ns, (state_family, mu_family, dt_family) = family_kernels(type(state), type(mu_k), type(dt_k))
-    emu = kernel.mu.eps if kernel.mu is not None else 0.0
-    edt = kernel.dt.eps if kernel.dt is not None else 0.0
+    ns, factors = product_factors(kernel)
     fn = ns._hb_column2_parallel if (_numba.GREEDY_PARALLEL and len(points) > 65536) else ns._hb_column2_serial
-    call(
-        fn,
-        points,
-        mu,
-        dt,
-        np.ascontiguousarray(xq, dtype=np.float64),
-        np.ascontiguousarray(muq, dtype=np.float64),
-        float(dtq),
-        int(b),
-        float(kernel.state.eps),
-        state_family,
-        emu,
-        mu_family,
-        edt,
-        dt_family,
-        kernel.mu is not None,
-        kernel.dt is not None,
-        out,
-    )
+    xq, muq = (np.ascontiguousarray(a, dtype=np.float64) for a in (xq, muq))
+    call(fn, points, mu, dt, xq, muq, float(dtq), int(b), *factors, out)
     return out

@@ -9,30 +9,7 @@
 The compiled kernels built from the families' formulas are :mod:`sympredict.kernels._compiled`.
 """
 
-from sympredict.kernels.radial import (
-    IMQ,
-    KERNEL_FAMILIES,
-    Matern32,
-    Matern52,
-    PeriodicCoordinates,
-    ProductKernel,
-    RadialKernel,
-    StateSymmetry,
-    kernel_from_spec,
-    pairwise_distances,
-    register_family,
-)
+from sympredict.kernels import radial
+from sympredict.kernels.radial import *  # noqa: F403 - the package's names are the radial module's (its __all__)
 
-__all__ = [
-    "RadialKernel",
-    "IMQ",
-    "Matern32",
-    "Matern52",
-    "ProductKernel",
-    "PeriodicCoordinates",
-    "StateSymmetry",
-    "KERNEL_FAMILIES",
-    "register_family",
-    "kernel_from_spec",
-    "pairwise_distances",
-]
+__all__ = list(radial.__all__)

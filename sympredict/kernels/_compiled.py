@@ -25,7 +25,7 @@ from sympredict._numba import DEFINITIONS, EXACT, HAVE_NUMBA, check_available, j
 from sympredict._numba import parallel_safe
 from sympredict.kernels import IMQ, Matern32, Matern52, PeriodicCoordinates
 
-__all__ = ["FamilyCode", "FAMILY_CODES", "compiled_formulas", "family_kernels"]
+__all__ = ["FamilyCode", "FAMILY_CODES", "compiled_formulas", "family_kernels", "product_factors"]
 
 
 # --------------------------------------------------------------------------- the families' formulas
@@ -236,6 +236,26 @@ def family_kernels(*families):
         ns = _NAMESPACES[key] = _serial_namespace(ns) if serial else ns
     codes = tuple(FAMILY_CODES[f] if f in FAMILY_CODES else FamilyCode(-1 - outside.index(f)) for f in families)
     return ns, codes
+
+
+def product_factors(kernel) -> tuple:
+    """The compiled kernels for a product kernel's families, and its factors as the compiled Gramian kernels take them.
+
+    Returns
+    -------
+    namespace : SimpleNamespace
+        As :func:`family_kernels`.
+    factors : tuple
+        ``(e, state_family, e_mu, mu_family, e_dt, dt_family, has_mu, has_dt)``: the shape parameters and family
+        codes of the state, ``mu`` and ``dT`` factors and whether the latter two are present (a dropped factor's
+        shape parameter is 0 and its family code the state's, never used).
+    """
+    state, mu_k, dt_k = (k if k is not None else kernel.state for k in (kernel.state, kernel.mu, kernel.dt))
+    ns, (state_family, mu_family, dt_family) = family_kernels(type(state), type(mu_k), type(dt_k))
+    emu = kernel.mu.eps if kernel.mu is not None else 0.0
+    edt = kernel.dt.eps if kernel.dt is not None else 0.0
+    has_mu, has_dt = kernel.mu is not None, kernel.dt is not None
+    return ns, (float(kernel.state.eps), state_family, emu, mu_family, edt, dt_family, has_mu, has_dt)
 
 
 def _serial_namespace(ns: types.SimpleNamespace) -> types.SimpleNamespace:

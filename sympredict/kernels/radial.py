@@ -59,6 +59,7 @@ __all__ = [
     "KERNEL_FAMILIES",
     "register_family",
     "kernel_from_spec",
+    "pairwise_distances",
 ]
 
 #: Shape parameters are limited to [1e-50, 1e50]: the derivative factors contain

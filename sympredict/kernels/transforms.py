@@ -172,6 +172,36 @@ class Scaled(KernelTransform):
         _positive_vector(self.factors, "Scaled: factors")
 
 
+def _periodic_setting(coordinates, period, dim: Optional[int] = None) -> tuple:
+    """``(coordinates, periods)`` of a :class:`Periodic` setting as ints and floats, one period per coordinate.
+
+    ``ValueError`` naming the malformed one; ``dim``: the state dimension where it is known (the indices must lie
+    below it).
+    """
+    coords = coordinates
+    within = "" if dim is None else f" in 0..{dim - 1}"
+    if (
+        not isinstance(coords, (tuple, list))
+        or not coords
+        or not all(isinstance(c, (int, np.integer)) and not isinstance(c, bool) and c >= 0 for c in coords)
+        or len(set(int(c) for c in coords)) != len(coords)
+        or (dim is not None and not all(c < dim for c in coords))
+    ):
+        raise ValueError(
+            f"Periodic: coordinates must be a tuple of distinct state indices{within} (the periodic "
+            f"coordinates, e.g. angles), got {coords!r}"
+        )
+    periods = tuple(period) if isinstance(period, (tuple, list)) else (period,) * len(coords)
+    if len(periods) != len(coords) or not all(
+        isinstance(p, (int, float, np.number)) and not isinstance(p, bool) and np.isfinite(p) and p > 0 for p in periods
+    ):
+        raise ValueError(
+            f"Periodic: period must be a positive finite number or one per periodic coordinate "
+            f"({len(coords)}), got {period!r}"
+        )
+    return tuple(int(c) for c in coords), tuple(float(p) for p in periods)
+
+
 class Periodic(KernelTransform):
     """A state kernel periodic in some coordinates (angles): ``s`` is exactly periodic in them.
 
@@ -201,26 +231,7 @@ class Periodic(KernelTransform):
 
     def _check(self) -> None:
         super()._check()
-        coords = self.coordinates
-        if (
-            not isinstance(coords, (tuple, list))
-            or not coords
-            or not all(isinstance(c, (int, np.integer)) and not isinstance(c, bool) and c >= 0 for c in coords)
-            or len(set(int(c) for c in coords)) != len(coords)
-        ):
-            raise ValueError(
-                f"Periodic: coordinates must be a tuple of distinct state indices (the periodic "
-                f"coordinates, e.g. angles), got {coords!r}"
-            )
-        periods = self.periods
-        if len(periods) != len(coords) or not all(
-            isinstance(p, (int, float, np.number)) and not isinstance(p, bool) and np.isfinite(p) and p > 0
-            for p in periods
-        ):
-            raise ValueError(
-                f"Periodic: period must be a positive finite number or one per coordinate "
-                f"({len(coords)}), got {self.period!r}"
-            )
+        _periodic_setting(self.coordinates, self.period)
 
     @property
     def periods(self) -> tuple:
@@ -295,29 +306,7 @@ class StateKernelParts:
         """``(coordinates, periods)`` of the periodic coordinates in the user's coordinates; checks them."""
         if self.periodic is None:
             return (), ()
-        coords = self.periodic
-        if (
-            not isinstance(coords, (tuple, list))
-            or not coords
-            or not all(isinstance(c, (int, np.integer)) and not isinstance(c, bool) for c in coords)
-            or len(set(int(c) for c in coords)) != len(coords)
-            or not all(0 <= c < dim for c in coords)
-        ):
-            raise ValueError(
-                f"periodic coordinates must be a tuple of distinct state indices in 0..{dim - 1} "
-                f"(e.g. angles), got {self.periodic!r}"
-            )
-        period = self.period
-        periods = tuple(period) if isinstance(period, (tuple, list)) else (period,) * len(coords)
-        if len(periods) != len(coords) or not all(
-            isinstance(p, (int, float, np.number)) and not isinstance(p, bool) and np.isfinite(p) and p > 0
-            for p in periods
-        ):
-            raise ValueError(
-                f"period must be a positive finite number or one per periodic coordinate "
-                f"({len(coords)}), got {self.period!r}"
-            )
-        return tuple(int(c) for c in coords), tuple(float(p) for p in periods)
+        return _periodic_setting(self.periodic, self.period, dim)
 
     def model_periodic(self, dim: int) -> Optional[PeriodicCoordinates]:
         """The kernel's periodic coordinates in the trained (scaled) coordinates: periods times the scaling."""

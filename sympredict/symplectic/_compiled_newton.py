@@ -213,8 +213,24 @@ def _state(traj, prev, i, j, c):
 
 
 @compiled(JIT)
-def _rollout_one(
-    i,
+def _instance_scratch(dim, k_unknown, chunk, periodic):
+    """One instance's work arrays: the pass's scratch, ``grad``, ``hess``, ``jac``, ``u``, ``delta``, ``xi`` and the
+    split step's input and output ``y_in``, ``y_out``.  Allocated in a call, so that each instance of a parallel loop
+    gets its own (numba may hoist an allocation written in the loop body out of the loop)."""
+    return (
+        _scratch(dim, chunk, periodic),
+        np.empty(dim),
+        np.empty((dim, dim)),
+        np.empty((k_unknown, k_unknown)),
+        np.empty(k_unknown),
+        np.empty(k_unknown),
+        np.empty(dim),
+        np.empty(dim),
+        np.empty(dim),
+    )
+
+
+def _rollout(
     x0,
     W,
     h,
@@ -238,206 +254,80 @@ def _rollout_one(
     around,
     prev,
 ):
-    """One instance's rollout; with ``around``: ``x_k+1 = post[i] S(pre[i] x_k)`` (S the implicit step).
+    """Every instance's rollout; with ``around``: ``x_k+1 = post[i] S(pre[i] x_k)`` (S the implicit step).
 
     ``prev`` (B, j, 2n): the rollout's states before ``x0`` (oldest first), which a warm start extrapolates from.
+    Compiled twice: ``_rollout_parallel`` runs the instances on numba's threads, ``_rollout_serial`` in a plain
+    loop (one trajectory's latency).
     """
     dim = x0.shape[1]
     n = dim // 2
     k_unknown = dim if mid else n
-    sc = _scratch(dim, chunk, per.shape[0] > 0)
-    grad = np.empty(dim)
-    hess = np.empty((dim, dim))
-    jac = np.empty((k_unknown, k_unknown))
-    u = np.empty(k_unknown)
-    delta = np.empty(k_unknown)
-    xi = np.empty(dim)
-    y_in = np.empty(dim)  # around: the step's input pre x_k and output S(pre x_k)
-    y_out = np.empty(dim)
-    for a in range(dim):
-        traj[i, 0, a] = x0[i, a]
     n_steps = traj.shape[1] - 1
-    codes[i] = 0
-    fail_step[i] = -1
-    fail_iter[i] = -1
-    resid[i] = 0.0
     n_prev = prev.shape[1]
-    for k in range(n_steps):
-        before = k + n_prev  # states before x_k
-        warm = warm_start and before > 0
-        if warm:  # extrapolate the previous steps: saves the explicit guess's pass
-            off = 0 if mid else n
-            for a in range(k_unknown):
-                x_k = traj[i, k, off + a]
-                x_1 = _state(traj, prev, i, k - 1, off + a)
-                if before >= 2:  # x_k+1 ~ 3 x_k - 3 x_k-1 + x_k-2 (error O(dT^3))
-                    nxt = 3.0 * (x_k - x_1) + _state(traj, prev, i, k - 2, off + a)
-                else:  # x_k+1 ~ 2 x_k - x_k-1 (error O(dT^2))
-                    nxt = 2.0 * x_k - x_1
-                u[a] = 0.5 * (x_k + nxt) if mid else nxt  # midpoint: z = (x_k + x_k+1) / 2
-        if around:
-            _matvec_into(pre[i], traj[i, k], y_in)
-            code, r, it = _solve_one(
-                y_in,
-                W[i],
-                h[i],
-                cT,
-                seg,
-                family,
-                eps,
-                per,
-                max_iter,
-                y_out,
-                sc,
-                grad,
-                hess,
-                jac,
-                delta,
-                u,
-                xi,
-                warm,
-                mid,
-            )
-            _matvec_into(post[i], y_out, traj[i, k + 1])
-        else:
-            code, r, it = _solve_one(
-                traj[i, k],
-                W[i],
-                h[i],
-                cT,
-                seg,
-                family,
-                eps,
-                per,
-                max_iter,
-                traj[i, k + 1],
-                sc,
-                grad,
-                hess,
-                jac,
-                delta,
-                u,
-                xi,
-                warm,
-                mid,
-            )
-        # (the explicit guess's gradient pass and) the Newton passes: it + 1, or max_iter without convergence
-        passes[i] += (max_iter if code == 3 else it + 1) + (0 if warm else 1)
-        if code != 0:
-            codes[i] = code
-            fail_step[i] = k
-            fail_iter[i] = it
-            resid[i] = r
-            for kk in range(k + 1, n_steps + 1):
-                for a in range(dim):
-                    traj[i, kk, a] = np.nan
-            return
-
-
-@compiled(PJIT)
-def _rollout_parallel(
-    x0,
-    W,
-    h,
-    cT,
-    seg,
-    family,
-    eps,
-    per,
-    max_iter,
-    chunk,
-    traj,
-    codes,
-    fail_step,
-    fail_iter,
-    resid,
-    passes,
-    warm_start,
-    mid,
-    pre,
-    post,
-    around,
-    prev,
-):
     for i in numba.prange(x0.shape[0]):
-        _rollout_one(
-            i,
-            x0,
-            W,
-            h,
-            cT,
-            seg,
-            family,
-            eps,
-            per,
-            max_iter,
-            chunk,
-            traj,
-            codes,
-            fail_step,
-            fail_iter,
-            resid,
-            passes,
-            warm_start,
-            mid,
-            pre,
-            post,
-            around,
-            prev,
-        )
+        sc, grad, hess, jac, u, delta, xi, y_in, y_out = _instance_scratch(dim, k_unknown, chunk, per.shape[0] > 0)
+        for a in range(dim):
+            traj[i, 0, a] = x0[i, a]
+        codes[i] = 0
+        fail_step[i] = -1
+        fail_iter[i] = -1
+        resid[i] = 0.0
+        for k in range(n_steps):
+            before = k + n_prev  # states before x_k
+            warm = warm_start and before > 0
+            if warm:  # extrapolate the previous steps: saves the explicit guess's pass
+                off = 0 if mid else n
+                for a in range(k_unknown):
+                    x_k = traj[i, k, off + a]
+                    x_1 = _state(traj, prev, i, k - 1, off + a)
+                    if before >= 2:  # x_k+1 ~ 3 x_k - 3 x_k-1 + x_k-2 (error O(dT^3))
+                        nxt = 3.0 * (x_k - x_1) + _state(traj, prev, i, k - 2, off + a)
+                    else:  # x_k+1 ~ 2 x_k - x_k-1 (error O(dT^2))
+                        nxt = 2.0 * x_k - x_1
+                    u[a] = 0.5 * (x_k + nxt) if mid else nxt  # midpoint: z = (x_k + x_k+1) / 2
+            x_in, x_out = traj[i, k], traj[i, k + 1]
+            if around:  # the step maps pre x_k to y_out; x_k+1 = post y_out
+                _matvec_into(pre[i], traj[i, k], y_in)
+                x_in, x_out = y_in, y_out
+            code, r, it = _solve_one(
+                x_in,
+                W[i],
+                h[i],
+                cT,
+                seg,
+                family,
+                eps,
+                per,
+                max_iter,
+                x_out,
+                sc,
+                grad,
+                hess,
+                jac,
+                delta,
+                u,
+                xi,
+                warm,
+                mid,
+            )
+            if around:
+                _matvec_into(post[i], y_out, traj[i, k + 1])
+            # (the explicit guess's gradient pass and) the Newton passes: it + 1, or max_iter without convergence
+            passes[i] += (max_iter if code == 3 else it + 1) + (0 if warm else 1)
+            if code != 0:
+                codes[i] = code
+                fail_step[i] = k
+                fail_iter[i] = it
+                resid[i] = r
+                for kk in range(k + 1, n_steps + 1):
+                    for a in range(dim):
+                        traj[i, kk, a] = np.nan
+                break
 
 
-@compiled(JIT)
-def _rollout_serial(
-    x0,
-    W,
-    h,
-    cT,
-    seg,
-    family,
-    eps,
-    per,
-    max_iter,
-    chunk,
-    traj,
-    codes,
-    fail_step,
-    fail_iter,
-    resid,
-    passes,
-    warm_start,
-    mid,
-    pre,
-    post,
-    around,
-    prev,
-):
-    for i in range(x0.shape[0]):
-        _rollout_one(
-            i,
-            x0,
-            W,
-            h,
-            cT,
-            seg,
-            family,
-            eps,
-            per,
-            max_iter,
-            chunk,
-            traj,
-            codes,
-            fail_step,
-            fail_iter,
-            resid,
-            passes,
-            warm_start,
-            mid,
-            pre,
-            post,
-            around,
-            prev,
-        )
+_rollout_parallel = compiled(PJIT, "_rollout_parallel")(_rollout)
+_rollout_serial = compiled(JIT, "_rollout_serial")(_rollout)
 
 
 #: The updates the compiled rollout solves (``mid`` flag of the compiled solver).

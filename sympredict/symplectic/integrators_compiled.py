@@ -271,13 +271,10 @@ def _explicit_instance(i, grad_T, grad_V, fargs, iargs, x0, mu, h, n_steps, subs
             traj[i, k + 1, n + j] = p[j]
 
 
-def _explicit_parallel(grad_T, grad_V, fargs, iargs, x0, mu, h, n_steps, substeps, fractions, traj):
+def _explicit_all(grad_T, grad_V, fargs, iargs, x0, mu, h, n_steps, substeps, fractions, traj):
+    """Every instance (:func:`_explicit_instance`), compiled as ``_explicit_parallel`` (instances on numba's threads)
+    and ``_explicit_serial`` (a plain loop)."""
     for i in numba.prange(x0.shape[0]):
-        _explicit_one(i, grad_T, grad_V, fargs, iargs, x0, mu, h, n_steps, substeps, fractions, traj)
-
-
-def _explicit_serial(grad_T, grad_V, fargs, iargs, x0, mu, h, n_steps, substeps, fractions, traj):
-    for i in range(x0.shape[0]):
         _explicit_one(i, grad_T, grad_V, fargs, iargs, x0, mu, h, n_steps, substeps, fractions, traj)
 
 
@@ -350,19 +347,9 @@ def _midpoint_instance(
             traj[i, k + 1, j] = x[j]
 
 
-def _midpoint_parallel(
-    grad_H, hess_H, fargs, iargs, x0, mu, h, n_steps, substeps, max_iter, traj, codes, fail_step, resid
-):
+def _midpoint_all(grad_H, hess_H, fargs, iargs, x0, mu, h, n_steps, substeps, max_iter, traj, codes, fail_step, resid):
+    """Every instance (:func:`_midpoint_instance`), compiled as ``_midpoint_parallel`` and ``_midpoint_serial``."""
     for i in numba.prange(x0.shape[0]):
-        _midpoint_one(
-            i, grad_H, hess_H, fargs, iargs, x0, mu, h, n_steps, substeps, max_iter, traj, codes, fail_step, resid
-        )
-
-
-def _midpoint_serial(
-    grad_H, hess_H, fargs, iargs, x0, mu, h, n_steps, substeps, max_iter, traj, codes, fail_step, resid
-):
-    for i in range(x0.shape[0]):
         _midpoint_one(
             i, grad_H, hess_H, fargs, iargs, x0, mu, h, n_steps, substeps, max_iter, traj, codes, fail_step, resid
         )
@@ -371,10 +358,10 @@ def _midpoint_serial(
 if HAVE_NUMBA:
     _explicit_one = jit_cached(_explicit_instance, JIT)
     _midpoint_one = jit_cached(_midpoint_instance, JIT)
-    _explicit_parallel = jit_cached(_explicit_parallel, dict(JIT, parallel=True))
-    _explicit_serial = jit_cached(_explicit_serial, JIT)
-    _midpoint_parallel = jit_cached(_midpoint_parallel, dict(JIT, parallel=True))
-    _midpoint_serial = jit_cached(_midpoint_serial, JIT)
+    _explicit_parallel = jit_cached(_explicit_all, dict(JIT, parallel=True), "_explicit_parallel")
+    _explicit_serial = jit_cached(_explicit_all, JIT, "_explicit_serial")
+    _midpoint_parallel = jit_cached(_midpoint_all, dict(JIT, parallel=True), "_midpoint_parallel")
+    _midpoint_serial = jit_cached(_midpoint_all, JIT, "_midpoint_serial")
 
 
 @functools.lru_cache(maxsize=None)
@@ -511,53 +498,27 @@ def rollout(
         parallel = b >= PARALLEL_MIN_BATCH
     parallel = parallel and parallel_safe()  # not in a child forked after the parallel loops ran
     traj = np.empty((b, n_steps + 1, x0.shape[1]))
+    codes = np.zeros(b, dtype=np.int64)
+    fail_step = np.full(b, -1, dtype=np.int64)
+    resid = np.zeros(b)
+    # the scheme chooses the kernel, its two pointwise functions and the arguments after the common ones
     if scheme in EXPLICIT_SCHEMES:
-        _compile_pointwise(spec.grad_T, GRADIENT_SIGNATURE, "grad_T")
-        _compile_pointwise(spec.grad_V, GRADIENT_SIGNATURE, "grad_V")
-        fn = kernels["explicit_parallel" if parallel else "explicit_serial"]
-        fn(
-            spec.grad_T,
-            spec.grad_V,
-            spec.fargs,
-            spec.iargs,
-            x0,
-            mu,
-            dt,
-            n_steps,
-            substeps,
-            np.asarray(COMPOSITIONS[scheme], dtype=np.float64),
-            traj,
-        )
+        kind, functions = "explicit", (("grad_T", GRADIENT_SIGNATURE), ("grad_V", GRADIENT_SIGNATURE))
+        last = (np.asarray(COMPOSITIONS[scheme], dtype=np.float64), traj)
     else:
-        _compile_pointwise(spec.grad_H, GRADIENT_SIGNATURE, "grad_H")
-        _compile_pointwise(spec.hess_H, HESSIAN_SIGNATURE, "hess_H")
-        codes = np.zeros(b, dtype=np.int64)
-        fail_step = np.full(b, -1, dtype=np.int64)
-        resid = np.zeros(b)
-        fn = kernels["midpoint_parallel" if parallel else "midpoint_serial"]
-        fn(
-            spec.grad_H,
-            spec.hess_H,
-            spec.fargs,
-            spec.iargs,
-            x0,
-            mu,
-            dt,
-            n_steps,
-            substeps,
-            max_iter,
-            traj,
-            codes,
-            fail_step,
-            resid,
-        )
-        bad = np.flatnonzero(codes)
-        if bad.size:
-            reasons = {
-                1: "produced a non-finite iterate",
-                2: "met a singular Jacobian",
-                3: f"did not converge in {max_iter} iterations",
-            }
-            reason = "(implicit midpoint, compiled) " + "; ".join(sorted({reasons[int(c)] for c in codes[bad]}))
-            raise NewtonConvergenceError(bad, resid[bad], reason=reason, step=int(fail_step[bad].min()))
+        kind, functions = "midpoint", (("grad_H", GRADIENT_SIGNATURE), ("hess_H", HESSIAN_SIGNATURE))
+        last = (max_iter, traj, codes, fail_step, resid)
+    for name, signature in functions:
+        _compile_pointwise(getattr(spec, name), signature, name)
+    fn = kernels[f"{kind}_parallel" if parallel else f"{kind}_serial"]
+    fn(*(getattr(spec, name) for name, _ in functions), spec.fargs, spec.iargs, x0, mu, dt, n_steps, substeps, *last)
+    bad = np.flatnonzero(codes)  # the explicit kernels leave them 0
+    if bad.size:
+        reasons = {
+            1: "produced a non-finite iterate",
+            2: "met a singular Jacobian",
+            3: f"did not converge in {max_iter} iterations",
+        }
+        reason = "(implicit midpoint, compiled) " + "; ".join(sorted({reasons[int(c)] for c in codes[bad]}))
+        raise NewtonConvergenceError(bad, resid[bad], reason=reason, step=int(fail_step[bad].min()))
     return traj[0] if single else traj

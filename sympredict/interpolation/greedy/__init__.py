@@ -8,8 +8,8 @@
 * :mod:`~sympredict.interpolation.greedy.trainers`: the estimators' ``trainer`` strategies
   (:class:`ExactGreedy`, :class:`ActiveSetGreedy`, :class:`ShardedGreedy`).
 
-The functions below run the loop on one store with explicit arguments (the
-estimators use the strategies).
+The functions below run one strategy with explicit arguments (the estimators take the
+strategies themselves).
 """
 
 from __future__ import annotations
@@ -145,27 +145,23 @@ def greedy_interpolation(
     Time ``O(m^2 (N + N_val) / 2)`` memory traffic, memory ``itemsize m_max (N + N_val)``
     bytes (:mod:`sympredict.interpolation.greedy.dense`).
     """
-    store = DenseStore(
-        functionals,
-        targets,
-        criterion=criterion,
-        power_tol=power_tol,
-        validation=validation,
-        memory_limit=memory_limit,
-        basis_dtype=basis_dtype,
-        regularization=regularization,
-    )
-    result = run_greedy(
-        store,
-        max_centers=max_centers,
+    trainer = ExactGreedy(
+        basis_dtype,
         tol=tol,
         criterion=criterion,
+        power_tol=power_tol,
+        memory_limit=memory_limit,
+        regularization=regularization,
+    )
+    return trainer.run(
+        functionals,
+        targets,
+        max_centers=max_centers,
+        validation=validation,
         divergence_factor=divergence_factor,
         log_every=log_every,
+        keep_basis=keep_basis,
     )
-    if keep_basis:
-        result.basis = store.basis[: len(result.selected)]
-    return result
 
 
 def active_set_greedy(
@@ -193,22 +189,24 @@ def active_set_greedy(
     set's maximum after ``k`` centres, except the last entry: the full maximum
     over all ``N`` candidates; ``'tol'`` only if that full maximum is at or below ``tol``.
     """
-    store = ActiveSetStore(
-        functionals,
-        targets,
+    trainer = ActiveSetGreedy(
+        initial_points,
+        refresh_every,
+        max_new_points,
+        margin,
+        refresh_fraction,
+        seed,
         tol=tol,
         power_tol=power_tol,
-        validation=validation,
         memory_limit=memory_limit,
-        initial_points=initial_points,
-        refresh_every=refresh_every,
-        max_new_points=max_new_points,
-        margin=margin,
-        refresh_fraction=refresh_fraction,
-        seed=seed,
     )
-    return run_greedy(
-        store, max_centers=max_centers, tol=tol, criterion="f", divergence_factor=divergence_factor, log_every=log_every
+    return trainer.run(
+        functionals,
+        targets,
+        max_centers=max_centers,
+        validation=validation,
+        divergence_factor=divergence_factor,
+        log_every=log_every,
     )
 
 
@@ -246,23 +244,21 @@ def sharded_greedy(
     sympredict.parallel.WorkerError
         Any other exception on a worker (names the rank, carries the remote traceback).
     """
-    store = ShardedStore(
-        functionals,
-        targets,
-        criterion=criterion,
-        power_tol=power_tol,
-        validation=validation,
-        pool=pool,
-        n_shards=n_shards,
-        memory_limit_per_rank=memory_limit_per_rank,
-        timeout=timeout,
-        regularization=regularization,
-    )
-    result = run_greedy(
-        store,
-        max_centers=max_centers,
+    trainer = ShardedGreedy(
+        pool,
+        n_shards,
+        memory_limit_per_rank,
+        timeout,
         tol=tol,
         criterion=criterion,
+        power_tol=power_tol,
+        regularization=regularization,
+    )
+    result = trainer.run(
+        functionals,
+        targets,
+        max_centers=max_centers,
+        validation=validation,
         divergence_factor=divergence_factor,
         log_every=log_every,
         callback=callback,

@@ -20,7 +20,7 @@ import numpy as np
 
 from sympredict import _numba
 from sympredict._numba import JIT, PJIT, call, check_available, compiled, numba
-from sympredict.kernels._compiled import _first_factors, _profile, family_kernels
+from sympredict.kernels._compiled import _first_factors, _profile, family_kernels, product_factors
 
 __all__ = ["greedy_update", "matvec_t", "hb_rows", "hb_rows_supported"]
 
@@ -88,27 +88,31 @@ def _greedy_update_chunk(ch, row, t, inv_pj, b, res, p2, j, breakdown, chunk, cm
     cbest[ch] = best
 
 
-@compiled(PJIT)
-def _greedy_update_parallel(row, t, inv_pj, b, res, p2, j, breakdown, chunk, cmax, carg, cbest):
+def _greedy_update(row, t, inv_pj, b, res, p2, j, breakdown, chunk, cmax, carg, cbest):
+    """Every chunk's update (:func:`_greedy_update_chunk`); compiled as ``_greedy_update_parallel`` (chunks on
+    numba's threads) and ``_greedy_update_serial`` (a plain loop)."""
     for ch in numba.prange(cmax.shape[0]):
         _greedy_update_chunk(ch, row, t, inv_pj, b, res, p2, j, breakdown, chunk, cmax, carg, cbest)
 
 
-@compiled(JIT)
-def _greedy_update_serial(row, t, inv_pj, b, res, p2, j, breakdown, chunk, cmax, carg, cbest):
-    for ch in range(cmax.shape[0]):
-        _greedy_update_chunk(ch, row, t, inv_pj, b, res, p2, j, breakdown, chunk, cmax, carg, cbest)
+_greedy_update_parallel = compiled(PJIT, "_greedy_update_parallel")(_greedy_update)
+_greedy_update_serial = compiled(JIT, "_greedy_update_serial")(_greedy_update)
 
 
 @compiled(JIT)
-def _hb_rows_range(
-    k0, k1, points, mu, dt, xq, muq, dtq, comps, e, first_family, emu, mu_family, edt, dt_family, has_mu, has_dt, out
-):
-    """Gramian rows ``k0:k1`` of state-derivative functionals against every point (any ``2n``, plain kernel)."""
+def _task_vector(dim):
+    """A work vector of one task of a parallel loop, allocated in a call: numba may hoist an allocation written in
+    the loop body out of the loop, where the threads would share it."""
+    return np.empty(dim)
+
+
+def _hb_rows(points, mu, dt, xq, muq, dtq, comps, e, first_family, emu, mu_family, edt, dt_family, has_mu, has_dt, out):
+    """Gramian rows of state-derivative functionals against every point (any ``2n``, plain kernel), a row a task;
+    compiled as ``_hb_rows_parallel`` (rows on numba's threads) and ``_hb_rows_serial`` (a plain loop)."""
     n_pts, dim = points.shape
     d_mu = mu.shape[1]
-    diff = np.empty(dim)
-    for k in range(k0, k1):
+    for k in numba.prange(xq.shape[0]):
+        diff = _task_vector(dim)
         b = comps[k]
         for p in range(n_pts):
             r2 = 0.0
@@ -134,57 +138,8 @@ def _hb_rows_range(
             out[k, base + b] -= w * A
 
 
-@compiled(JIT)
-def _hb_rows_serial(
-    points, mu, dt, xq, muq, dtq, comps, e, first_family, emu, mu_family, edt, dt_family, has_mu, has_dt, out
-):
-    _hb_rows_range(
-        0,
-        xq.shape[0],
-        points,
-        mu,
-        dt,
-        xq,
-        muq,
-        dtq,
-        comps,
-        e,
-        first_family,
-        emu,
-        mu_family,
-        edt,
-        dt_family,
-        has_mu,
-        has_dt,
-        out,
-    )
-
-
-@compiled(PJIT)
-def _hb_rows_parallel(
-    points, mu, dt, xq, muq, dtq, comps, e, first_family, emu, mu_family, edt, dt_family, has_mu, has_dt, out
-):
-    for k in numba.prange(xq.shape[0]):
-        _hb_rows_range(
-            k,
-            k + 1,
-            points,
-            mu,
-            dt,
-            xq,
-            muq,
-            dtq,
-            comps,
-            e,
-            first_family,
-            emu,
-            mu_family,
-            edt,
-            dt_family,
-            has_mu,
-            has_dt,
-            out,
-        )
+_hb_rows_parallel = compiled(PJIT, "_hb_rows_parallel")(_hb_rows)
+_hb_rows_serial = compiled(JIT, "_hb_rows_serial")(_hb_rows)
 
 
 MATVEC_CHUNK = 16384
@@ -307,29 +262,8 @@ def hb_rows(kernel, points, mu, dt, xq, muq, dtq, comps, out: np.ndarray) -> np.
     -----
     ``O(K M (2n + d_mu))`` work, rows in parallel on numba's threads for ``K > 1``.
     """
-    state, mu_k, dt_k = (k if k is not None else kernel.state for k in (kernel.state, kernel.mu, kernel.dt))
-    ns, (state_family, mu_family, dt_family) = family_kernels(type(state), type(mu_k), type(dt_k))
-    emu = kernel.mu.eps if kernel.mu is not None else 0.0
-    edt = kernel.dt.eps if kernel.dt is not None else 0.0
+    ns, factors = product_factors(kernel)
     fn = ns._hb_rows_parallel if (_numba.GREEDY_PARALLEL and len(xq) > 1) else ns._hb_rows_serial
-    f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)  # noqa: E731
-    call(
-        fn,
-        f64(points),
-        f64(mu),
-        f64(dt),
-        f64(xq),
-        f64(muq),
-        f64(dtq),
-        np.ascontiguousarray(comps, dtype=np.int64),
-        float(kernel.state.eps),
-        state_family,
-        emu,
-        mu_family,
-        edt,
-        dt_family,
-        kernel.mu is not None,
-        kernel.dt is not None,
-        out,
-    )
+    points, mu, dt, xq, muq, dtq = (np.ascontiguousarray(a, dtype=np.float64) for a in (points, mu, dt, xq, muq, dtq))
+    call(fn, points, mu, dt, xq, muq, dtq, np.ascontiguousarray(comps, dtype=np.int64), *factors, out)
     return out

@@ -159,21 +159,19 @@ class BlockedStore(BaseStore):
         functionals,
         targets,
         *,
-        criterion: str = "f",
-        power_tol: float = 1e-12,
-        validation: Optional[tuple] = None,
         memory_limit: Optional[float] = None,
         block_size: int = 64,
         pool_factor: int = 4,
         slack: float = 0.0,
         compiled: Optional[bool] = None,
+        **base,
     ):
         if isinstance(slack, bool) or not isinstance(slack, (int, float, np.number)) or not 0 <= slack < 1:
             raise ValueError(f"slack must be a float in [0, 1), got {slack!r}")
         for name, value in (("block_size", block_size), ("pool_factor", pool_factor)):
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
                 raise ValueError(f"{name} must be a positive integer, got {value!r}")
-        super().__init__(functionals, targets, criterion=criterion, power_tol=power_tol, validation=validation)
+        super().__init__(functionals, targets, **base)  # criterion, power_tol, validation
         self.memory_limit = memory_limit
         self.block_size = int(block_size)
         self.pool_factor = int(pool_factor)

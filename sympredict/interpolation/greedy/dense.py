@@ -98,20 +98,18 @@ class DenseStore(BaseStore):
         functionals,
         targets,
         *,
-        criterion: str = "f",
-        power_tol: float = 1e-12,
-        validation: Optional[tuple] = None,
         memory_limit: Optional[float] = None,
         basis_dtype: str = "float64",
         compiled: Optional[bool] = None,
         diagonal_max: Optional[float] = None,
         regularization: float = 0.0,
+        **base,
     ):
         if not (np.isfinite(regularization) and regularization >= 0):
             raise ValueError(f"regularization must be a finite non-negative float, got {regularization!r}")
         if basis_dtype not in ("float64", "float32"):
             raise ValueError(f"basis_dtype must be 'float64' or 'float32', got {basis_dtype!r}")
-        super().__init__(functionals, targets, criterion=criterion, power_tol=power_tol, validation=validation)
+        super().__init__(functionals, targets, **base)  # criterion, power_tol, validation
         self.memory_limit = memory_limit
         self.dtype = np.dtype(basis_dtype)
         self.diagonal_max = diagonal_max

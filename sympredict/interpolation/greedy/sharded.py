@@ -240,19 +240,17 @@ class ShardedStore(BaseStore):
         functionals,
         targets,
         *,
-        criterion: str = "f",
-        power_tol: float = 1e-12,
-        validation: Optional[tuple] = None,
         pool=None,
         n_shards: Optional[int] = None,
         memory_limit_per_rank: Optional[float] = None,
         timeout: Optional[float] = 60.0,
         regularization: float = 0.0,
+        **base,
     ):
         if not (np.isfinite(regularization) and regularization >= 0):
             raise ValueError(f"regularization must be a finite non-negative float, got {regularization!r}")
         _subset(functionals, 0, 1)  # TypeError for functionals that cannot be sharded
-        super().__init__(functionals, targets, criterion=criterion, power_tol=power_tol, validation=validation)
+        super().__init__(functionals, targets, **base)  # criterion, power_tol, validation
         self.pool = dummy_pool if pool is None else pool
         self.n_workers = len(self.pool)
         self.n_shards = self.n_workers if n_shards is None else int(n_shards)

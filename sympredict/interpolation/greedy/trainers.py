@@ -146,6 +146,14 @@ class Trainer(Setting):
         """The :class:`~sympredict.interpolation.greedy.loop.NewtonBasisStore` for these candidates (this strategy's settings)."""
         raise NotImplementedError
 
+    def store_settings(self, validation: Optional[tuple]) -> dict:
+        """The keyword arguments every store takes from its strategy: ``power_tol``, ``validation``, and
+        ``criterion`` and ``memory_limit`` where they are among the strategy's parameters (an f-greedy-only
+        strategy has no ``criterion``, a sharded one a memory limit per rank instead)."""
+        params = self.get_params(deep=False)
+        shared = {name: params[name] for name in ("criterion", "memory_limit") if name in params}
+        return {"power_tol": self.power_tol, "validation": validation, **shared}
+
     def run(
         self,
         functionals,
@@ -158,17 +166,24 @@ class Trainer(Setting):
         log_every: int = 100,
         callback=None,
         checkpoints=None,
+        keep_basis: bool = False,
     ) -> GreedyResult:
         """Greedy selection over ``functionals`` with this strategy's store (:func:`run_greedy`).
 
         ``tol_scale`` multiplies ``tol`` (the estimator's rule for data in small units); ``checkpoints``
-        scores prefixes (held-out errors: the target stop and the best prefix, :func:`run_greedy`).
+        scores prefixes (held-out errors: the target stop and the best prefix, :func:`run_greedy`);
+        ``keep_basis``: the selected centres' Newton basis rows in ``result.basis`` (:class:`ExactGreedy`
+        only, whose store holds the basis of every candidate).
         """
         self.check()
+        if keep_basis and not isinstance(self, ExactGreedy):
+            raise ValueError(
+                f"keep_basis needs ExactGreedy (the whole Newton basis in memory), not {type(self).__name__}"
+            )
         tol = float(self.tol) * float(tol_scale)
         store = self.store(functionals, targets, tol=tol, validation=validation)
         with logger.block(f"{store.label} over {functionals.n_functionals} functionals"):
-            return run_greedy(
+            result = run_greedy(
                 store,
                 max_centers=max_centers,
                 tol=tol,
@@ -178,6 +193,9 @@ class Trainer(Setting):
                 callback=callback,
                 checkpoints=checkpoints,
             )
+        if keep_basis:
+            result.basis = store.basis[: len(result.selected)]
+        return result
 
     @property
     def spec(self) -> dict:
@@ -245,10 +263,7 @@ class ExactGreedy(Trainer):
         return DenseStore(
             functionals,
             targets,
-            criterion=self.criterion,
-            power_tol=self.power_tol,
-            validation=validation,
-            memory_limit=self.memory_limit,
+            **self.store_settings(validation),
             basis_dtype=self.basis_dtype,
             regularization=float(self.regularization),
         )
@@ -304,15 +319,7 @@ class ActiveSetGreedy(Trainer):
             for k, v in self.get_params(deep=False).items()
             if k not in ("tol", "power_tol", "memory_limit", "target_error")
         }
-        return ActiveSetStore(
-            functionals,
-            targets,
-            tol=tol,
-            power_tol=self.power_tol,
-            validation=validation,
-            memory_limit=self.memory_limit,
-            **own,
-        )
+        return ActiveSetStore(functionals, targets, tol=tol, **self.store_settings(validation), **own)
 
 
 @register_trainer
@@ -380,9 +387,7 @@ class ShardedGreedy(Trainer):
         return ShardedStore(
             functionals,
             targets,
-            criterion=self.criterion,
-            power_tol=self.power_tol,
-            validation=validation,
+            **self.store_settings(validation),
             pool=self.pool,
             n_shards=self.n_shards,
             memory_limit_per_rank=self.memory_limit_per_rank,
@@ -459,10 +464,7 @@ class BlockedGreedy(Trainer):
         return BlockedStore(
             functionals,
             targets,
-            criterion=self.criterion,
-            power_tol=self.power_tol,
-            validation=validation,
-            memory_limit=self.memory_limit,
+            **self.store_settings(validation),
             block_size=self.block_size,
             pool_factor=self.pool_factor,
             slack=self.slack,
@@ -546,9 +548,7 @@ class BoundedActiveSetGreedy(Trainer):
             targets,
             tol=tol,
             max_points=None,
-            power_tol=self.power_tol,
-            validation=validation,
-            memory_limit=self.budget(),
+            **{**self.store_settings(validation), "memory_limit": self.budget()},
             block_size=self.block_size,
             pool_factor=self.pool_factor,
             slack=self.slack,
