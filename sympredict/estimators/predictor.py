@@ -54,6 +54,7 @@ from sympredict.estimators.fitted import (
     training_box,
 )
 from sympredict.estimators.model_files import MODEL_FORMAT, MODEL_LAYOUT
+from sympredict.estimators.search import relative_rollout_error
 from sympredict.estimators.structure import warn_wrapped_angles
 from sympredict.exceptions import (
     AccuracyWarning,
@@ -701,7 +702,7 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
             with warnings.catch_warnings():  # the candidates' fits: the warnings are about the final model, once
                 warnings.simplefilter("ignore", UnderfitWarning)
                 warnings.simplefilter("ignore", WrappedAngleWarning)
-                search = self._search().choose(self, train, open_factors)
+                search = self._search().choose(self, train, open_factors, rollouts=rollouts)
             params = search.params
         target = getattr(trainer, "target_error", None)
         if target is not None and holdout is None:  # the target is judged on samples the fit does not see
@@ -1047,10 +1048,7 @@ class _HeldOutSteps:
             return float("inf")
         finally:
             self.rollout_seconds += time.perf_counter() - t0
-        size = np.sqrt(np.mean(np.sum(states * states, axis=2), axis=1))
-        err = np.linalg.norm(pred - states, axis=2).max(axis=1) / np.where(size > 0, size, 1.0)
-        value = float(np.mean(err))
-        return value if np.isfinite(value) else float("inf")
+        return relative_rollout_error(pred, states)
 
     def keep(self, m: int) -> int:
         scored = {k: v for k, v in self.scores.items() if k <= m}
