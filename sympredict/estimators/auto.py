@@ -134,6 +134,12 @@ class SearchResult:
     finalists: list = field(default_factory=list, repr=False)
 
     @property
+    def rollout_seconds(self) -> float:
+        """Wall time of the candidates' rollouts of held-out trajectories (0 without them): the cost of
+        :attr:`KernelSearch.rollout_finalists`, a part of :attr:`seconds`."""
+        return float(sum(row.get("rollout_s", 0.0) for row in self.table))
+
+    @property
     def share(self) -> Optional[float]:
         """The search's share of the fit's wall time (``None`` without :attr:`fit_seconds`)."""
         return None if not self.fit_seconds else self.seconds / self.fit_seconds
@@ -438,13 +444,13 @@ class KernelSearch(Setting):
             that passes its rung; ``inf`` (``cut``) for one that does not."""
             ok, rung = rung_passes(p, label)
             if rung is None:
-                sc, n, secs, err, ro = final_size_score(estimator, p, m_final, train, val, rollouts=roll)
-                return sc, n, secs, err, ({} if ro is None else {"rollout": ro})
+                sc, n, secs, err, ro, ro_s = final_size_score(estimator, p, m_final, train, val, rollouts=roll)
+                return sc, n, secs, err, ({} if ro is None else {"rollout": ro, "rollout_s": ro_s})
             extra = {"rung_score": rung[0], "rung_centers": rung[1]}
             if not ok:
                 return np.inf, rung[1], rung[2], rung[3], {**extra, "cut": True}
-            sc, n, secs, err, ro = final_size_score(estimator, p, m_final, train, val, rollouts=roll)
-            return sc, n, secs + rung[2], err, {**extra, **({} if ro is None else {"rollout": ro})}
+            sc, n, secs, err, ro, ro_s = final_size_score(estimator, p, m_final, train, val, rollouts=roll)
+            return sc, n, secs + rung[2], err, {**extra, **({} if ro is None else {"rollout": ro, "rollout_s": ro_s})}
 
         def params_of(cand):
             radial, ratio, mu_k, dt_k, update = cand
@@ -547,8 +553,8 @@ class KernelSearch(Setting):
 
             def score_params(p):
                 # at full size only: a group multiplies the centres' reach, so its error at a rung compares unevenly
-                sc, n, secs, err, ro = final_size_score(estimator, p, m_final, train, val, rollouts=roll)
-                extra = {} if ro is None else {"rollout": ro}
+                sc, n, secs, err, ro, ro_s = final_size_score(estimator, p, m_final, train, val, rollouts=roll)
+                extra = {} if ro is None else {"rollout": ro, "rollout_s": ro_s}
                 structured.append((p, sc, ro))
                 table.append(
                     {
@@ -598,7 +604,8 @@ class KernelSearch(Setting):
                     f"({roll[0].shape[1] - 1} steps): "
                     + "; ".join(f"{f['kernels']} ({f['update']}): {f['rollout']:.3e}" for f in finalists)
                     + f"; chosen: {win['kernels']} ({win['update']}), one-step error {win['score']:.3e}"
-                    + f" (the one-step choice's: {best_score:.3e})"
+                    + f" (the one-step choice's: {best_score:.3e}); the candidates' rollouts took "
+                    + f"{sum(r.get('rollout_s', 0.0) for r in table):.1f} s"
                 )
                 chosen, best_score = win["params"], float(win["score"])
                 decided, rollout_score = "held-out rollouts", float(win["rollout"])

@@ -595,9 +595,10 @@ def final_size_score(
     largest: int = 500,
     rollouts: Optional[tuple] = None,
 ) -> tuple:
-    """``(score, centres, seconds, error, rollout)`` of one candidate: :func:`one_step_score`'s four, and
-    ``rollout``, the :func:`relative_rollout_error` of the fitted candidate's rollouts of held-out trajectories
-    from their first states (``None`` without ``rollouts``; ``inf`` where the fit or a rollout fails).
+    """``(score, centres, seconds, error, rollout, rollout_seconds)`` of one candidate: :func:`one_step_score`'s
+    four, ``rollout``, the :func:`relative_rollout_error` of the fitted candidate's rollouts of held-out trajectories
+    from their first states (``None`` without ``rollouts``; ``inf`` where the fit or a rollout fails), and the
+    rollouts' share of ``seconds``.
 
     ``rollouts`` is ``(states, mu, dt)``: ``states`` of shape ``(P, K + 1, 2n)``, ``mu`` of shape ``(P, p)`` or
     ``None``, ``dt`` a float.  Cost: one greedy fit to ``m_final`` centres, ``largest`` implicit steps and ``P K``
@@ -619,8 +620,9 @@ def final_size_score(
         err = np.linalg.norm(pred - sub.x1, axis=1)[rows] / inc[rows]
         value = float(np.mean(err)) if rows.any() else float(np.mean(np.linalg.norm(pred - sub.x1, axis=1)))
     except (ValueError, ArithmeticError, NewtonConvergenceError, NonFinitePredictionError) as exc:
-        return np.inf, 0, time.perf_counter() - t0, f"{type(exc).__name__}: {exc}", None if rollouts is None else np.inf
-    rollout = None
+        failed = f"{type(exc).__name__}: {exc}"
+        return np.inf, 0, time.perf_counter() - t0, failed, None if rollouts is None else np.inf, 0.0
+    rollout, t1 = None, time.perf_counter()
     if rollouts is not None:
         states, mu, dt = rollouts
         try:
@@ -635,7 +637,8 @@ def final_size_score(
             rollout = relative_rollout_error(predicted, states)
         except (ValueError, ArithmeticError, NewtonConvergenceError, NonFinitePredictionError, np.linalg.LinAlgError):
             rollout = np.inf
-    return (value if np.isfinite(value) else np.inf), model.n_centers_, time.perf_counter() - t0, None, rollout
+    t2 = time.perf_counter()
+    return (value if np.isfinite(value) else np.inf), model.n_centers_, t2 - t0, None, rollout, t2 - t1
 
 
 def one_step_score(

@@ -385,10 +385,17 @@ def scripted_scores(monkeypatch):
     real, seen = auto.final_size_score, []
 
     def scripted(estimator, params, m_final, train, val, largest=500, rollouts=None):
-        _, n, secs, err, _ = real(estimator, params, m_final, train, val, largest, rollouts)
+        _, n, secs, err, _, ro_s = real(estimator, params, m_final, train, val, largest, rollouts)
         seen.append(rollouts)
         midpoint = params["update"] == "midpoint"
-        return (1e-3 if midpoint else 2e-3), n, secs, err, None if rollouts is None else (1.0 if midpoint else 0.1)
+        return (
+            (1e-3 if midpoint else 2e-3),
+            n,
+            secs,
+            err,
+            None if rollouts is None else (1.0 if midpoint else 0.1),
+            ro_s,
+        )
 
     monkeypatch.setattr(auto, "final_size_score", scripted)
     return seen
@@ -409,6 +416,7 @@ def test_finalists_are_decided_by_held_out_rollouts_where_one_step_scores_disagr
     ]
     assert "decided by held-out rollouts" in s.summary()
     assert all(r["rollout"] in (0.1, 1.0) for r in s.table if r["stage"] == 2)
+    assert 0 < s.rollout_seconds == sum(r["rollout_s"] for r in s.table if "rollout_s" in r) < s.seconds
     # the rollouts are whole held-out trajectories the fit does not see: 2 of 24, all their 10 steps
     states, mu, dt = scripted_scores[0]
     assert states.shape == (2, 11, 2) and mu.shape == (2, 1) and dt == 0.1
@@ -438,7 +446,7 @@ def test_the_rollout_score_is_the_mean_worst_relative_error_of_the_held_out_roll
     states, mu = traj.states[10:], traj.mu[10:]
     params = {"state_kernel": IMQ(0.3), "mu_kernel": IMQ(1.0), "dt_kernel": None, "update": "midpoint"}
     base = SymplecticKernelPredictor()
-    value, n, _, err, rollout = final_size_score(base, params, 30, data, data, rollouts=(states, mu, 0.1))
+    value, n, secs, err, rollout, rollout_s = final_size_score(base, params, 30, data, data, rollouts=(states, mu, 0.1))
     ref = clone(base).set_params(**params, max_centers=30).fit(data.x0, data.x1, mu=data.mu, dt=0.1)
     with warnings.catch_warnings():  # the held-out states may leave the training box: the score measures it
         warnings.simplefilter("ignore")
@@ -446,6 +454,7 @@ def test_the_rollout_score_is_the_mean_worst_relative_error_of_the_held_out_roll
     worst = np.linalg.norm(pred - states, axis=2).max(axis=1)
     expected = np.mean(worst / np.sqrt(np.mean(np.sum(states**2, axis=2), axis=1)))
     assert err is None and n == 30 and rollout == pytest.approx(expected, rel=1e-12) and rollout > 0
+    assert 0 < rollout_s < secs
     assert final_size_score(base, params, 30, data, data)[4] is None  # no trajectories, no rollout score
     strict = SymplecticKernelPredictor(solver=NewtonSolver(max_iter=1, backend="numpy"))
     assert final_size_score(strict, params, 30, data, data, rollouts=(states, mu, 0.1))[4] == np.inf
