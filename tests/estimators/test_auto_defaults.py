@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from sympredict.kernels.transforms import lower_state_kernel
-from sympredict import KernelSearch, ModelFileError, SymplecticKernelPredictor
+from sympredict import KernelSearch, ModelFileError, SymplecticKernelPredictor, TrajectoryData
 from sympredict.base import clone
 from sympredict.container import read_container, write_container
 from sympredict.estimators.auto import FitDiagnostics, pair_factors
@@ -365,8 +365,6 @@ def test_the_second_stage_cuts_candidates_beyond_the_margin_at_the_rung(param_da
 
 
 def _pendulum_trajectories(pendulum, n, steps, seed):
-    from sympredict import TrajectoryData
-
     rng = np.random.default_rng(seed)
     mu = rng.uniform(0.6, 1.0, n)
     x0 = np.column_stack([rng.uniform(-1.5, 1.5, n), rng.uniform(-1.0, 1.0, n)])
@@ -405,7 +403,7 @@ def test_finalists_are_decided_by_held_out_rollouts_where_one_step_scores_disagr
     """From trajectories, the search rolls the held-out trajectories out with every full-size candidate and the
     finalist with the smallest rollout error wins, although another wins one step; the log and ``search_`` say
     which score decided.  Without rollout scoring, or from samples, the one-step error decides."""
-    traj = _pendulum_trajectories(pendulum, 24, 10, 0)
+    traj = _pendulum_trajectories(pendulum, 100, 6, 0)
     m = SymplecticKernelPredictor(max_centers=40, search=ROLLED).fit(traj)
     s = m.search_
     assert m.choice_["update"] == "symplectic_euler"
@@ -417,17 +415,23 @@ def test_finalists_are_decided_by_held_out_rollouts_where_one_step_scores_disagr
     assert "decided by held-out rollouts" in s.summary()
     assert all(r["rollout"] in (0.1, 1.0) for r in s.table if r["stage"] == 2)
     assert 0 < s.rollout_seconds == sum(r["rollout_s"] for r in s.table if "rollout_s" in r) < s.seconds
-    # the rollouts are whole held-out trajectories the fit does not see: 2 of 24, all their 10 steps
+    # the rollouts are whole held-out trajectories the fit does not see: 5 of 100, all their 6 steps
     states, mu, dt = scripted_scores[0]
-    assert states.shape == (2, 11, 2) and mu.shape == (2, 1) and dt == 0.1
-    assert len({tuple(x) for x in states[:, 0]} & {tuple(x) for x in traj.states[:, 0]}) == 2
+    assert states.shape == (5, 7, 2) and mu.shape == (5, 1) and dt == 0.1
+    assert len({tuple(x) for x in states[:, 0]} & {tuple(x) for x in traj.states[:, 0]}) == 5
     off = SymplecticKernelPredictor(max_centers=40, search=clone(ROLLED).set_params(rollout_finalists=False))
     off.fit(traj)
     assert off.choice_["update"] == "midpoint" and off.search_.decided_by == "one-step error"
     assert off.search_.rollout_score is None and off.search_.finalists == []
-    x0, x1, mu = traj.states[:, :-1].reshape(-1, 2), traj.states[:, 1:].reshape(-1, 2), np.repeat(traj.mu, 10, axis=0)
+    x0, x1, mu = traj.states[:, :-1].reshape(-1, 2), traj.states[:, 1:].reshape(-1, 2), np.repeat(traj.mu, 6, axis=0)
     samples = SymplecticKernelPredictor(max_centers=40, search=ROLLED).fit(x0, x1, mu=mu, dt=0.1)
     assert samples.choice_["update"] == "midpoint" and samples.search_.decided_by == "one-step error"
+    # two held-out trajectories (of 40) are too few to rank models by: the one-step error decides
+    few = SymplecticKernelPredictor(max_centers=40, search=ROLLED).fit(
+        TrajectoryData(traj.states[:40], mu=traj.mu[:40], dt=0.1)
+    )
+    assert few.choice_["update"] == "midpoint" and few.search_.decided_by == "one-step error"
+    assert all("rollout" not in r for r in few.search_.table)
 
 
 def test_the_rollout_score_is_the_mean_worst_relative_error_of_the_held_out_rollouts(pendulum):

@@ -164,28 +164,23 @@ def pendulum_search():
 
 
 def test_the_search_finds_the_pendulums_symmetries_and_the_held_out_comparison_decides(pendulum_search, caplog):
-    """From trajectories, the held-out comparison is by the finalists' rollouts of held-out trajectories: the
-    symmetric models compete among the finalists, and the one with the smallest rollout error is chosen."""
+    """The symmetric models compete in the held-out comparison: here by the one-step error, since 2 held-out
+    trajectories (of 30) are too few to rank the finalists by their rollouts."""
     model, _ = pendulum_search
-    s = model.search_
-    verdicts = {f.signs: f.verdict for f in s.structure}
+    verdicts = {f.signs: f.verdict for f in model.search_.structure}
     assert verdicts == {(1, -1): "holds", (-1, 1): "holds", (-1, -1): "holds"}
-    table = s.table
+    assert model.search_.decided_by == "one-step error" and model.search_.finalists == []
+    table = model.search_.table
+    stage2 = min(r["score"] for r in table if r["stage"] == 2)
     stage3 = [r for r in table if r["stage"] == 3]
     assert stage3 and all("Symmetric" in r["kernels"] for r in stage3)  # the symmetric models competed
-    assert s.decided_by == "held-out rollouts"
-    # every finite symmetric candidate is a finalist, beside the best candidate of each update
-    assert {(r["kernels"], r["rollout"]) for r in stage3 if np.isfinite(r["score"])} <= {
-        (f["kernels"], f["rollout"]) for f in s.finalists
-    }
-    assert {f["update"] for f in s.finalists if "Symmetric" not in f["kernels"]} == {"symplectic_euler", "midpoint"}
-    best = min(s.finalists, key=lambda f: (f["rollout"], f["score"]))
-    assert s.rollout_score == best["rollout"] == min(f["rollout"] for f in s.finalists)
-    assert repr(model.choice_["state_kernel"]) == best["kernels"] and s.score == best["score"]
     group = lower_state_kernel(model.choice_["state_kernel"]).symmetry
-    assert (group is not None) == ("Symmetric" in best["kernels"])
-    if group is not None:
-        assert "structure found" in s.summary()
+    if group is not None:  # used only where the held-out comparison preferred it
+        assert model.search_.score < stage2
+        assert model.search_.score == min(r["score"] for r in stage3)
+        assert "structure found" in model.search_.summary()
+    else:
+        assert min(r["score"] for r in stage3) >= stage2
 
 
 def test_the_log_names_the_test_and_a_declared_group_is_tested_not_replaced(pendulum_search, caplog):
