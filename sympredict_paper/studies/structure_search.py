@@ -161,9 +161,27 @@ def main(argv=None):
         result["expert"] = {
             "fit_s": time.perf_counter() - t0,
             "state_kernel": repr(expert.state_kernel),
+            "n_centers": expert.n_centers_,
             **errors(system, expert, mu_t, ref, steps),
         }
         print("expert", result["expert"], flush=True)
+        models["expert"] = expert
+        result["comparison"] = {}  # one row per model, for the docs' table
+        for name, model in models.items():
+            kernel, update = model.get_params()["state_kernel"], model.get_params()["update"]
+            if name != "expert":
+                kernel, update = model.choice_.get("state_kernel", kernel), model.choice_.get("update", update)
+            row = result[name]
+            result["comparison"][name] = {
+                "model": ("symmetric " if isinstance(kernel, Symmetric) else "plain ") + str(update),
+                "decided_by": row.get("decided_by", "given"),
+                "n_centers": row["n_centers"],
+                "at_steps": row[f"step_{args.steps}"]["median"],
+                "median": row[f"step_{args.horizon}"]["median"],
+                "worst": row[f"step_{args.horizon}"]["worst"],
+                "drift": row.get("jacobi_drift_median", float("nan")),
+                "fit_s": row["fit_s"],
+            }
 
         # the structure test on noisy data: the search's quick model and split, noise on every state
         noisy = {}
