@@ -162,7 +162,8 @@ class SearchResult:
             else ""
         )
         return (
-            f"chose {chosen} ({decided}one-step error {self.score:.3e} on held-out samples with {self.m_final} centres; "
+            f"chose {chosen} ({decided}one-step error {self.score:.3e} on held-out samples with {self.m_final} "
+            f"centres; "
             f"{len(self.table)} candidates, {self.n_train} + {self.n_validation} samples, {self.seconds:.1f} s)"
             + (f"; structure found: {'; '.join(found)}" if found else "")
         )
@@ -241,9 +242,10 @@ class KernelSearch(Setting):
 
         Finalists by rollouts (``rollout_finalists``, with at least :data:`MIN_ROLLOUT_TRAJECTORIES` (5) held-out
         trajectories: a fit from 91 or more trajectories holds a twentieth out, or the caller's validation
-        trajectories): every candidate fitted to ``m_final`` centres in the second and structure stages also rolls out the held-out trajectories (at most
-        :data:`ROLLOUT_TRAJECTORIES`, their first :data:`ROLLOUT_HORIZON` steps) from their first states; its
-        rollout score is the mean over them of the worst relative error along the rollout.  The shapes are still
+        trajectories): every candidate fitted to ``m_final`` centres in the second and structure stages also rolls
+        out the held-out trajectories (at most :data:`ROLLOUT_TRAJECTORIES`, their first :data:`ROLLOUT_HORIZON`
+        steps) from their first states; its rollout score is the mean over them of the worst relative error along
+        the rollout.  The shapes are still
         refined by the one-step error (many candidates, few held-out trajectories: a noisy score would be
         overfitted); the finalists, the best candidate of each update and every symmetric candidate of the structure
         stage, are then ranked by their rollout score (ties to the one-step order).  A one-step error compounds
