@@ -100,7 +100,8 @@ class SearchResult:
         Estimator parameters that replace the open ones: ``state_kernel``, ``mu_kernel``, ``dt_kernel``, ``update``
         (only the keys that were open).
     score : float
-        The winner's mean relative one-step error on the search's validation samples with ``m_final`` centres.
+        The winner's mean relative one-step error on the search's validation samples with ``m_final`` centres
+        (with :attr:`final_size` centres where the final-size stage ran).
     m_star : int
         Centres at which the first stage compared candidates (by ``E_val(m_star)``).
     n_train, n_validation : int
@@ -139,6 +140,9 @@ class SearchResult:
     rollout_score: Optional[float] = None
     #: The finalists rollouts compared: ``{'kernels', 'update', 'score', 'rollout'}`` each (empty without rollouts).
     finalists: list = field(default_factory=list, repr=False)
+    #: Centres of the final-size stage (:attr:`KernelSearch.final_size`; 0 where it did not run): :attr:`score` is
+    #: then the winner's one-step error with this many centres.
+    final_size: int = 0
 
     @property
     def rollout_seconds(self) -> float:
@@ -164,7 +168,8 @@ class SearchResult:
         return (
             f"chose {chosen} ({decided}one-step error {self.score:.3e} on held-out samples with {self.m_final} "
             f"centres; "
-            f"{len(self.table)} candidates, {self.n_train} + {self.n_validation} samples, {self.seconds:.1f} s)"
+            + (f"refitted with {self.final_size} centres; " if self.final_size else "")
+            + f"{len(self.table)} candidates, {self.n_train} + {self.n_validation} samples, {self.seconds:.1f} s)"
             + (f"; structure found: {'; '.join(found)}" if found else "")
         )
 
@@ -215,6 +220,11 @@ class KernelSearch(Setting):
             error of their rollouts of the held-out trajectories and choose the smallest (see Notes); ``False``:
             the smallest one-step error decides, as it does for scattered samples.  Off by default: on pendulum
             trajectories it chose a worse model for the test trajectories more often than a better one (Notes).
+        final_size : bool
+            Where the estimator's ``max_centers`` exceeds ``final_centers``, fit the chosen settings to
+            ``max_centers`` centres too, and where that fit stops early (numerically singular: shapes too flat for
+            the final size), try them with the open shapes doubled, up to three times; the smallest one-step error
+            at the final size wins (see Notes).
 
         Notes
         -----
@@ -259,6 +269,15 @@ class KernelSearch(Setting):
         step 200 1.3 to 3.6 times the one-step choice's), a better one in one (0.52 times), the same in four.  A
         trajectory's rollout error depends on where it runs more than on the model, and a few held-out trajectories
         are a small sample of the orbits a user rolls out; so it is an option, not the default.
+        Final size (``final_size``, where ``max_centers > final_centers``): the chosen settings are fitted to
+        ``max_centers`` centres on the search's samples and scored by the one-step error; while such a fit stops
+        before ``max_centers`` (and before the samples run out) and succeeds, the open shapes (state, parameter and
+        step kernels) are doubled, up to three times, as the second stage does for its finalists; the smallest
+        one-step error wins (rows of ``stage`` 4).  Shapes chosen at fewer centres than the model will have are
+        too flat for it: on the three-body problem (160 orbits of 60 steps, ``max_centers=1000``) a search with
+        ``final_centers=250`` and no final-size stage chose a state shape 8 times flatter whose fit stopped at 184
+        centres, median error at step 200 0.13 against 1.6e-3 with the second stage at 1,000 centres.  Cost: one
+        to four fits to ``max_centers`` centres.
         Both stages fit with the estimator's own ``trainer`` (the one-at-a-time greedy by default: with
         :class:`~sympredict.interpolation.greedy.BlockedGreedy` fits in the second stage the search took a half to a
         third of its time on two acceptance systems of ``sympredict_paper/studies/defaults_acceptance.py``, but chose another update
@@ -285,6 +304,7 @@ class KernelSearch(Setting):
         structure: bool = True,
         halving: bool = False,
         rollout_finalists: bool = False,
+        final_size: bool = True,
     ):
         self.families = families
         self.shapes = shapes
@@ -299,6 +319,7 @@ class KernelSearch(Setting):
         self.structure = structure
         self.halving = halving
         self.rollout_finalists = rollout_finalists
+        self.final_size = final_size
 
     def check(self) -> "KernelSearch":
         """Validate the settings; ``ValueError`` naming the bad one."""
@@ -337,6 +358,7 @@ class KernelSearch(Setting):
         as_flag(self.structure, "KernelSearch: structure")
         as_flag(self.halving, "KernelSearch: halving")
         as_flag(self.rollout_finalists, "KernelSearch: rollout_finalists")
+        as_flag(self.final_size, "KernelSearch: final_size")
         if not (isinstance(self.validation_fraction, (int, float)) and 0 < self.validation_fraction < 1):
             raise ValueError(f"KernelSearch: validation_fraction must lie in (0, 1), got {self.validation_fraction!r}")
         return self
@@ -634,6 +656,9 @@ class KernelSearch(Setting):
                 decided, rollout_score = "held-out rollouts", float(win["rollout"])
             for f in finalists:
                 del f["params"]
+        m_full = int(estimator.max_centers)
+        if self.final_size and m_full > m_final:  # the shapes at the size the model will have
+            chosen, best_score = _at_final_size(estimator, chosen, best_score, m_full, train, val, table, open_factors)
         for key, factor in (("state_kernel", "state"), ("mu_kernel", "mu"), ("dt_kernel", "dt"), ("update", "update")):
             if open_factors[factor]:
                 params[key] = chosen[key]
@@ -651,6 +676,7 @@ class KernelSearch(Setting):
             decided_by=decided,
             rollout_score=rollout_score,
             finalists=finalists,
+            final_size=m_full if self.final_size and m_full > m_final else 0,
         )
         logger.info("kernel search: " + out.summary())
         return out
@@ -716,6 +742,51 @@ class KernelSearch(Setting):
         rows = rng.permutation(m)[: min(m, int(self.max_samples))]
         n_val = max(2, int(round(self.validation_fraction * len(rows))))
         return data.subset(np.sort(rows[n_val:])), data.subset(np.sort(rows[:n_val]))
+
+
+def _narrowed(params: dict, open_factors: dict) -> dict:
+    """``params`` with its open shapes doubled (state kernel inside its transforms, parameter and step kernels)."""
+    out = dict(params)
+    if open_factors["state"]:
+        state = params["state_kernel"]
+        radial = state.radial if isinstance(state, KernelTransform) else state
+        wider = radial.set_params(eps=_clip(radial.eps * 2.0))
+        out["state_kernel"] = state.with_radial(wider) if isinstance(state, KernelTransform) else wider
+    for key, factor in (("mu_kernel", "mu"), ("dt_kernel", "dt")):
+        if open_factors[factor] and params.get(key) is not None:
+            out[key] = params[key].set_params(eps=_clip(params[key].eps * 2.0))
+    return out
+
+
+def _at_final_size(estimator, chosen: dict, score: float, m_full: int, train, val, table: list, open_factors: dict):
+    """``(params, score)``: ``chosen`` fitted to ``m_full`` centres and, while that fit stops early, with its open
+    shapes doubled (up to three times); the smallest one-step error at ``m_full`` wins (``chosen`` and its ``score``
+    where every such fit fails).  Rows of ``stage`` 4 in ``table``."""
+    capacity = len(train) * train.x0.shape[1]  # the greedy cannot select more centres than functionals
+    best, best_score, cand = chosen, np.inf, chosen
+    for doubling in range(4):
+        sc, n, secs, err = one_step_score(estimator, cand, m_full, train, val)
+        table.append(
+            {
+                "stage": 4,
+                "kernels": repr(cand["state_kernel"]),
+                "update": cand["update"],
+                "score": sc,
+                "n_centers": n,
+                "fit_s": secs,
+                **({"error": err} if err else {}),
+            }
+        )
+        logger.info(
+            f"kernel search, final size: {cand['state_kernel']!r} ({cand['update']}): "
+            + (f"failed ({err})" if err else f"one-step error {sc:.3e} with {n} of {m_full} centres")
+        )
+        if sc < best_score:
+            best, best_score = cand, sc
+        if err is not None or n >= min(m_full, capacity) or doubling == 3:
+            break
+        cand = _narrowed(cand, open_factors)
+    return (best, float(best_score)) if np.isfinite(best_score) else (chosen, score)
 
 
 def _rollout_data(trajectories: TrajectoryData) -> tuple:

@@ -245,6 +245,7 @@ def test_the_estimator_contract_holds(param_data):
         (dict(validation_fraction=1.0), "validation_fraction"),
         (dict(halving="yes"), "halving"),
         (dict(rollout_finalists="yes"), "rollout_finalists"),
+        (dict(final_size="yes"), "final_size"),
     ],
 )
 def test_bad_search_settings_are_named(bad, match, param_data):
@@ -465,3 +466,40 @@ def test_the_rollout_score_is_the_mean_worst_relative_error_of_the_held_out_roll
     assert final_size_score(base, params, 30, data, data)[4] is None  # no trajectories, no rollout score
     strict = SymplecticKernelPredictor(solver=NewtonSolver(max_iter=1, backend="numpy"))
     assert final_size_score(strict, params, 30, data, data, rollouts=(states, mu, 0.1))[4] == np.inf
+
+
+def test_the_choice_is_refitted_at_the_final_size_and_narrowed_where_it_stops_early(param_data, monkeypatch):
+    """With ``max_centers`` above ``final_centers``, the chosen settings are fitted to ``max_centers`` centres; a
+    fit that stops early (scripted: 10 of 60 centres) is followed by the same settings with every open shape
+    doubled, and the smallest one-step error at the final size wins.  Without the stage the search ends at its
+    second stage's choice."""
+    import sympredict.estimators.auto as auto
+
+    real, calls = auto.one_step_score, []
+
+    def scripted(estimator, params, m_final, train, val, largest=500):
+        value, n, secs, err = real(estimator, params, m_final, train, val, largest)
+        calls.append((params, m_final))
+        first = len(calls) == 1
+        return (1e-2 if first else 1e-3), (10 if first else m_final), secs, err
+
+    monkeypatch.setattr(auto, "one_step_score", scripted)
+    x0, x1, mu, _ = param_data
+    search = KernelSearch(families=("imq",), m_star=20, final_centers=30, max_samples=300, refine_sweeps=0)
+    off = SymplecticKernelPredictor(max_centers=60, search=clone(search).set_params(final_size=False))
+    off.fit(x0, x1, mu=mu, dt=0.1)
+    assert not calls and off.search_.final_size == 0 and not [r for r in off.search_.table if r["stage"] == 4]
+    m = SymplecticKernelPredictor(max_centers=60, search=search).fit(x0, x1, mu=mu, dt=0.1)
+    assert [c[1] for c in calls] == [60, 60] and m.search_.final_size == 60
+    first, second = calls[0][0], calls[1][0]
+    assert repr(first["state_kernel"]) == repr(off.choice_["state_kernel"])  # the second stage's choice, refitted
+    inner = lower_state_kernel(first["state_kernel"]).radial, lower_state_kernel(second["state_kernel"]).radial
+    assert inner[1].eps == pytest.approx(2 * inner[0].eps, rel=1e-15)
+    assert second["mu_kernel"].eps == pytest.approx(2 * first["mu_kernel"].eps, rel=1e-15)
+    assert repr(m.choice_["state_kernel"]) == repr(second["state_kernel"]) and m.search_.score == 1e-3
+    assert [r["n_centers"] for r in m.search_.table if r["stage"] == 4] == [10, 60]
+    assert "refitted with 60 centres" in m.search_.summary()
+    # no stage where the second stage already ran at the final size
+    calls.clear()
+    same = SymplecticKernelPredictor(max_centers=30, search=search).fit(x0, x1, mu=mu, dt=0.1)
+    assert not calls and same.search_.final_size == 0
