@@ -16,6 +16,10 @@ Models, each with ``--centers`` centres, fitted to the training orbits given as 
   hold compete; the smallest held-out one-step error decides);
 * ``rollout_finalists``: ``KernelSearch(rollout_finalists=True)``: as ``defaults``, but the finalists' rollouts of
   the held-out orbits decide;
+* ``quarter_size``: ``KernelSearch(final_centers=M // 4)``: the second and structure stages at a quarter of the
+  centres, the choice then fitted to ``M`` centres and narrowed where that fit stops early (the final-size stage);
+* ``quarter_size_only``: the same with ``final_size=False``: the shapes chosen at a quarter of the centres are
+  used at ``M``;
 * ``expert``: the first model's chosen kernels with the reversing symmetry declared,
   ``Symmetric(state_kernel, group=[(1, 1, 1, 1), (1, -1, -1, 1)])`` and ``update='midpoint'``.
 
@@ -117,6 +121,8 @@ def main(argv=None):
             ("defaults_no_structure", KernelSearch(structure=False)),
             ("defaults", KernelSearch()),
             ("rollout_finalists", KernelSearch(rollout_finalists=True)),
+            ("quarter_size", KernelSearch(final_centers=max(1, args.centers // 4))),
+            ("quarter_size_only", KernelSearch(final_centers=max(1, args.centers // 4), final_size=False)),
         )
         for name, search in configs:
             t0 = time.perf_counter()
@@ -181,6 +187,7 @@ def main(argv=None):
                 "worst": row[f"step_{args.horizon}"]["worst"],
                 "drift": row.get("jacobi_drift_median", float("nan")),
                 "fit_s": row["fit_s"],
+                "search_s": row.get("search_s", float("nan")),
             }
 
         # the structure test on noisy data: the search's quick model and split, noise on every state
