@@ -276,8 +276,10 @@ class KernelSearch(Setting):
         one-step error wins (rows of ``stage`` 4).  Shapes chosen at fewer centres than the model will have are
         too flat for it: on the three-body problem (160 orbits of 60 steps, ``max_centers=1000``) a search with
         ``final_centers=250`` and no final-size stage chose a state shape 8 times flatter whose fit stopped at 184
-        centres, median error at step 200 0.13 against 1.6e-3 with the second stage at 1,000 centres.  Cost: one
-        to four fits to ``max_centers`` centres.
+        centres: median error at step 200 0.13; the final-size stage doubled that shape three times, 8.1e-3 (the
+        search at 1,000 centres: 5.2e-3 without the structure stage, 1.6e-3 with it; rows ``quarter_size_only``,
+        ``quarter_size``, ``defaults_no_structure``, ``defaults`` of ``docs/data/structure_search.json``, from
+        ``sympredict_paper/studies/structure_search.py``).  Cost: one to four fits to ``max_centers`` centres.
         Both stages fit with the estimator's own ``trainer`` (the one-at-a-time greedy by default: with
         :class:`~sympredict.interpolation.greedy.BlockedGreedy` fits in the second stage the search took a half to a
         third of its time on two acceptance systems of ``sympredict_paper/studies/defaults_acceptance.py``, but chose another update
