@@ -23,7 +23,9 @@ the same targets ``y = J^T (x1 - x0) / dT``, at different points, so their resid
 units).  A small ``m_star`` favours kernels too flat for the final size (they break down early), so the
 finalists then compete at the final size (at most ``final_centers``) by the mean relative one-step error on
 the validation samples, the error a rollout compounds, with a coordinate search (factor 2) of their shapes and
-of the ratio of the ``q`` to the ``p`` shapes.  For scattered one-step samples no rollout can be scored, and the
+of the ratio of the ``q`` to the ``p`` shapes.  Where ``max_centers`` exceeds ``final_centers``, the choice is then
+fitted to ``max_centers`` centres as well, its shapes narrowed where that fit stops early
+(``KernelSearch(final_size=True)``).  For scattered one-step samples no rollout can be scored, and the
 one-step error of the whole implicit step is the closest cheap proxy.  Where the data are trajectories, the fit
 holds whole trajectories out, and the last word goes to what the user will do with the model: the finalists (the
 best candidate of each update, and each symmetric candidate of the structure stage) can be scored by the error of
