@@ -23,8 +23,14 @@ the same targets ``y = J^T (x1 - x0) / dT``, at different points, so their resid
 units).  A small ``m_star`` favours kernels too flat for the final size (they break down early), so the
 finalists then compete at the final size (at most ``final_centers``) by the mean relative one-step error on
 the validation samples, the error a rollout compounds, with a coordinate search (factor 2) of their shapes and
-of the ratio of the ``q`` to the ``p`` shapes.  The data are scattered one-step samples in general, so no
-rollout can be scored; the one-step error of the whole implicit step is the closest cheap proxy.  With
+of the ratio of the ``q`` to the ``p`` shapes.  Where ``max_centers`` exceeds ``final_centers``, the choice is then
+fitted to ``max_centers`` centres as well, its shapes narrowed where that fit stops early
+(``KernelSearch(final_size=True)``).  For scattered one-step samples no rollout can be scored, and the
+one-step error of the whole implicit step is the closest cheap proxy.  Where the data are trajectories, the fit
+holds whole trajectories out, and the last word goes to what the user will do with the model: the finalists (the
+best candidate of each update, and each symmetric candidate of the structure stage) can be scored by the error of
+their rollouts of those held-out trajectories, the smallest winning (``KernelSearch(rollout_finalists=True)``; off
+by default, see its Notes).  With
 ``KernelSearch(halving=True)`` both stages compare candidates first at a quarter of their centres and fit only
 those not clearly losing there to full size (successive halving; the rule is in :class:`KernelSearch`'s Notes).
 """
@@ -41,12 +47,13 @@ import numpy as np
 
 from sympredict._checks import as_flag
 from sympredict.base import Setting, clone
-from sympredict.data import FlowMapData
+from sympredict.data import FlowMapData, TrajectoryData
 from sympredict.estimators.search import (
     CANDIDATE_FIT,
     SEARCH_LOGGER,
     coordinate_search,
     grid_search,
+    final_size_score,
     one_step_score,
     quiet_logs,
     without_target,
@@ -75,6 +82,14 @@ RUNG_MARGIN = 30.0
 STAGE1_RUNGS = (4, 2)
 #: Stage 2's rung: ``m_final // RUNG_FRACTION`` centres.
 RUNG_FRACTION = 4
+#: Held-out trajectories the finalists roll out, at most, and steps of each (the fit's prefix scoring uses the same).
+ROLLOUT_TRAJECTORIES, ROLLOUT_HORIZON = 50, 100
+#: Fewest held-out trajectories whose rollouts decide among the finalists.  A trajectory's rollout error depends on
+#: where it runs (near a separatrix, an edge of the data) more than on the model, so a mean over two or three of
+#: them is a sample too small to rank models: on the pendulum of the README (40 trajectories, 2 held out) deciding
+#: by their rollouts chose the better model on the 20 test trajectories in one of four data sets and the worse in
+#: another (median error at step 200 0.5 and 2.9 times the one-step choice's).
+MIN_ROLLOUT_TRAJECTORIES = 5
 
 
 @dataclass
@@ -87,7 +102,8 @@ class SearchResult:
         Estimator parameters that replace the open ones: ``state_kernel``, ``mu_kernel``, ``dt_kernel``, ``update``
         (only the keys that were open).
     score : float
-        The winner's mean relative one-step error on the search's validation samples with ``m_final`` centres.
+        The winner's mean relative one-step error on the search's validation samples with ``m_final`` centres
+        (with :attr:`final_size` centres where the final-size stage ran).
     m_star : int
         Centres at which the first stage compared candidates (by ``E_val(m_star)``).
     n_train, n_validation : int
@@ -118,6 +134,23 @@ class SearchResult:
     fit_seconds: Optional[float] = None
     #: Processor time of the search (this process; less sensitive than ``seconds`` to other jobs on the machine).
     cpu_seconds: Optional[float] = None
+    #: What decided among the finalists: ``'one-step error'``, or ``'held-out rollouts'`` where held-out
+    #: trajectories scored them (:attr:`KernelSearch.rollout_finalists`).
+    decided_by: str = "one-step error"
+    #: The winner's rollout score on the held-out trajectories (``None`` where none scored the finalists): the mean
+    #: over them of ``max_k |x_k - X_k| / rms_k |X_k|`` (:func:`~sympredict.estimators.search.relative_rollout_error`).
+    rollout_score: Optional[float] = None
+    #: The finalists rollouts compared: ``{'kernels', 'update', 'score', 'rollout'}`` each (empty without rollouts).
+    finalists: list = field(default_factory=list, repr=False)
+    #: Centres of the final-size stage (:attr:`KernelSearch.final_size`; 0 where it did not run): :attr:`score` is
+    #: then the winner's one-step error with this many centres.
+    final_size: int = 0
+
+    @property
+    def rollout_seconds(self) -> float:
+        """Wall time of the candidates' rollouts of held-out trajectories (0 without them): the cost of
+        :attr:`KernelSearch.rollout_finalists`, a part of :attr:`seconds`."""
+        return float(sum(row.get("rollout_s", 0.0) for row in self.table))
 
     @property
     def share(self) -> Optional[float]:
@@ -128,9 +161,17 @@ class SearchResult:
         """One line: what was chosen and how."""
         chosen = ", ".join(f"{k}={v!r}" for k, v in self.params.items())
         found = [f.summary() for f in self.structure if f.verdict == "holds"]
+        decided = (
+            f"decided by held-out rollouts: rollout error {self.rollout_score:.3e}, best of {len(self.finalists)} "
+            f"finalists; "
+            if self.decided_by == "held-out rollouts" and self.rollout_score is not None
+            else ""
+        )
         return (
-            f"chose {chosen} (one-step error {self.score:.3e} on held-out samples with {self.m_final} centres; "
-            f"{len(self.table)} candidates, {self.n_train} + {self.n_validation} samples, {self.seconds:.1f} s)"
+            f"chose {chosen} ({decided}one-step error {self.score:.3e} on held-out samples with {self.m_final} "
+            f"centres; "
+            + (f"refitted with {self.final_size} centres; " if self.final_size else "")
+            + f"{len(self.table)} candidates, {self.n_train} + {self.n_validation} samples, {self.seconds:.1f} s)"
             + (f"; structure found: {'; '.join(found)}" if found else "")
         )
 
@@ -175,6 +216,17 @@ class KernelSearch(Setting):
             size.  On the five systems of ``sympredict_paper/studies/search_cost.py`` both choose the same settings;
             on noisy pendulum trajectories (30 x 20 steps, noise 1e-3) halving chose a wider kernel whose held-out
             error was 1.25 times the full search's, so it is not the default.
+        rollout_finalists : bool
+            Where the fit holds at least five whole trajectories out (data given as 91 or more trajectories, see
+            :meth:`~sympredict.estimators.predictor.SymplecticKernelPredictor.fit`), score the finalists by the
+            error of their rollouts of the held-out trajectories and choose the smallest (see Notes); ``False``:
+            the smallest one-step error decides, as it does for scattered samples.  Off by default: on pendulum
+            trajectories it chose a worse model for the test trajectories more often than a better one (Notes).
+        final_size : bool
+            Where the estimator's ``max_centers`` exceeds ``final_centers``, fit the chosen settings to
+            ``max_centers`` centres too, and where that fit stops early (numerically singular: shapes too flat for
+            the final size), try them with the open shapes doubled, up to three times; the smallest one-step error
+            at the final size wins (see Notes).
 
         Notes
         -----
@@ -199,6 +251,37 @@ class KernelSearch(Setting):
         A fit costs about ``m^2`` times the samples, so a rung at a quarter of the centres costs a sixteenth of a
         full fit: stage 1 fits about 4 instead of 15 full candidates per grid, stage 2 fits to full size only the
         candidates within the margin.  The rule is deterministic (ties go to the earlier candidate).
+
+        Finalists by rollouts (``rollout_finalists``, with at least :data:`MIN_ROLLOUT_TRAJECTORIES` (5) held-out
+        trajectories: a fit from 91 or more trajectories holds a twentieth out, or the caller's validation
+        trajectories): every candidate fitted to ``m_final`` centres in the second and structure stages also rolls
+        out the held-out trajectories (at most :data:`ROLLOUT_TRAJECTORIES`, their first :data:`ROLLOUT_HORIZON`
+        steps) from their first states; its rollout score is the mean over them of the worst relative error along
+        the rollout.  The shapes are still
+        refined by the one-step error (many candidates, few held-out trajectories: a noisy score would be
+        overfitted); the finalists, the best candidate of each update and every symmetric candidate of the structure
+        stage, are then ranked by their rollout score (ties to the one-step order).  A one-step error compounds
+        differently along a rollout for each update and structure (a symmetric midpoint model can be better on
+        one step and worse over a rollout, or the reverse), which is why the finalists differ there.  Cost: ``P K``
+        more implicit steps per full-size candidate (``P`` held-out trajectories of ``K`` steps), in batches of
+        ``P``; no extra fit.  Measured (``sympredict_paper/studies/structure_search.py`` and the pendulum of the
+        README, 20 test trajectories of 200 steps): on the three-body problem (160 orbits, 400 and 1,000 centres, 8
+        held out) the rollouts and the one-step error chose the same model; on pendulum trajectories (40 and 120
+        trajectories, four data sets each) the rollouts chose a worse model in three of eight cases (median error at
+        step 200 1.3 to 3.6 times the one-step choice's), a better one in one (0.52 times), the same in four.  A
+        trajectory's rollout error depends on where it runs more than on the model, and a few held-out trajectories
+        are a small sample of the orbits a user rolls out; so it is an option, not the default.
+        Final size (``final_size``, where ``max_centers > final_centers``): the chosen settings are fitted to
+        ``max_centers`` centres on the search's samples and scored by the one-step error; while such a fit stops
+        before ``max_centers`` (and before the samples run out) and succeeds, the open shapes (state, parameter and
+        step kernels) are doubled, up to three times, as the second stage does for its finalists; the smallest
+        one-step error wins (rows of ``stage`` 4).  Shapes chosen at fewer centres than the model will have are
+        too flat for it: on the three-body problem (160 orbits of 60 steps, ``max_centers=1000``) a search with
+        ``final_centers=250`` and no final-size stage chose a state shape 8 times flatter whose fit stopped at 184
+        centres: median error at step 200 0.13; the final-size stage doubled that shape three times, 8.1e-3 (the
+        search at 1,000 centres: 5.2e-3 without the structure stage, 1.6e-3 with it; rows ``quarter_size_only``,
+        ``quarter_size``, ``defaults_no_structure``, ``defaults`` of ``docs/data/structure_search.json``, from
+        ``sympredict_paper/studies/structure_search.py``).  Cost: one to four fits to ``max_centers`` centres.
         Both stages fit with the estimator's own ``trainer`` (the one-at-a-time greedy by default: with
         :class:`~sympredict.interpolation.greedy.BlockedGreedy` fits in the second stage the search took a half to a
         third of its time on two acceptance systems of ``sympredict_paper/studies/defaults_acceptance.py``, but chose another update
@@ -224,6 +307,8 @@ class KernelSearch(Setting):
         seed: int = 0,
         structure: bool = True,
         halving: bool = False,
+        rollout_finalists: bool = False,
+        final_size: bool = True,
     ):
         self.families = families
         self.shapes = shapes
@@ -237,6 +322,8 @@ class KernelSearch(Setting):
         self.seed = seed
         self.structure = structure
         self.halving = halving
+        self.rollout_finalists = rollout_finalists
+        self.final_size = final_size
 
     def check(self) -> "KernelSearch":
         """Validate the settings; ``ValueError`` naming the bad one."""
@@ -274,13 +361,20 @@ class KernelSearch(Setting):
             raise ValueError(f"KernelSearch: m_star must be a positive integer or None, got {self.m_star!r}")
         as_flag(self.structure, "KernelSearch: structure")
         as_flag(self.halving, "KernelSearch: halving")
+        as_flag(self.rollout_finalists, "KernelSearch: rollout_finalists")
+        as_flag(self.final_size, "KernelSearch: final_size")
         if not (isinstance(self.validation_fraction, (int, float)) and 0 < self.validation_fraction < 1):
             raise ValueError(f"KernelSearch: validation_fraction must lie in (0, 1), got {self.validation_fraction!r}")
         return self
 
     # ------------------------------------------------------------------ the search
     def choose(
-        self, estimator, data: FlowMapData, open_factors: dict, validation: Optional[FlowMapData] = None
+        self,
+        estimator,
+        data: FlowMapData,
+        open_factors: dict,
+        validation: Optional[FlowMapData] = None,
+        rollouts: Optional[TrajectoryData] = None,
     ) -> SearchResult:
         """Choose the open settings of ``estimator`` for ``data``.
 
@@ -296,6 +390,9 @@ class KernelSearch(Setting):
             Held-out samples the caller gives to score the candidates (all of them; the one-step error uses the
             first 500); the candidates are then fitted to a random subsample of at most ``max_samples`` of ``data``.
             Default: a random subsample of ``data`` split by ``validation_fraction``.
+        rollouts : TrajectoryData, optional
+            Whole trajectories held out of ``data`` (a uniform step): with ``rollout_finalists``, their rollouts
+            decide among the finalists.
 
         Returns
         -------
@@ -361,6 +458,14 @@ class KernelSearch(Setting):
         # one-step error on the held-out samples (what a rollout compounds; the small-m ranking favours kernels too
         # flat for the final size, which break down early)
         m_final = min(int(estimator.max_centers), int(self.final_centers))
+        roll = _rollout_data(rollouts) if self.rollout_finalists and rollouts is not None else None
+        if roll is not None and len(roll[0]) < MIN_ROLLOUT_TRAJECTORIES:
+            logger.info(
+                f"kernel search: {len(roll[0])} held-out trajectories are too few to rank the finalists by their "
+                f"rollouts (at least {MIN_ROLLOUT_TRAJECTORIES}); the one-step error decides"
+            )
+            roll = None
+        rollout_of = {}  # candidate -> its rollout score (full-size candidates, with held-out trajectories)
         scaled = open_factors["state"] and estimator.state_kernel is None
         factors = np.asarray(params["state_kernel"].factors) if scaled else None
         opened = {i for i, key in ((0, "state"), (2, "mu"), (3, "dt")) if open_factors[key]}  # shapes to search
@@ -388,12 +493,13 @@ class KernelSearch(Setting):
             that passes its rung; ``inf`` (``cut``) for one that does not."""
             ok, rung = rung_passes(p, label)
             if rung is None:
-                return (*one_step_score(estimator, p, m_final, train, val), {})
+                sc, n, secs, err, ro, ro_s = final_size_score(estimator, p, m_final, train, val, rollouts=roll)
+                return sc, n, secs, err, ({} if ro is None else {"rollout": ro, "rollout_s": ro_s})
             extra = {"rung_score": rung[0], "rung_centers": rung[1]}
             if not ok:
                 return np.inf, rung[1], rung[2], rung[3], {**extra, "cut": True}
-            sc, n, secs, err = one_step_score(estimator, p, m_final, train, val)
-            return sc, n, secs + rung[2], err, extra
+            sc, n, secs, err, ro, ro_s = final_size_score(estimator, p, m_final, train, val, rollouts=roll)
+            return sc, n, secs + rung[2], err, {**extra, **({} if ro is None else {"rollout": ro, "rollout_s": ro_s})}
 
         def params_of(cand):
             radial, ratio, mu_k, dt_k, update = cand
@@ -413,6 +519,8 @@ class KernelSearch(Setting):
                 label = label_of(cand)
                 sc, n, secs, err, extra = halved_score(params_of(cand), label)
                 scores[cand] = (sc, n, secs, err, extra.get("cut", False))
+                if "rollout" in extra:
+                    rollout_of[cand] = extra["rollout"]
                 table.append(
                     {
                         "stage": 2,
@@ -429,6 +537,7 @@ class KernelSearch(Setting):
                 logger.info(
                     f"kernel search, stage 2 ({cand[4]}): {label}: "
                     + ("cut at the rung" if extra.get("cut") else f"one-step error {sc:.3e} with {n} centres")
+                    + (f", held-out rollout error {extra['rollout']:.3e}" if "rollout" in extra else "")
                 )
             return scores[cand][0]
 
@@ -484,12 +593,18 @@ class KernelSearch(Setting):
                 "centres (every fit or Newton solve failed); see the log, or pass the kernels and update"
             )
         chosen, best_score, structure = params_of(best), float(score(best)), []
+        by_update = {}  # the best full-size candidate of each update (first seen first): finalists
+        for cand in scores:
+            if cand[4] not in by_update:
+                by_update[cand[4]] = min((k for k in scores if k[4] == cand[4]), key=score)
+        structured = []  # (params, one-step score, rollout score) of the structure stage's candidates
         if self.structure:  # symmetries the data show compete at m_final (sympredict.estimators.structure)
 
             def score_params(p):
                 # at full size only: a group multiplies the centres' reach, so its error at a rung compares unevenly
-                sc, n, secs, err = one_step_score(estimator, p, m_final, train, val)
-                extra = {}
+                sc, n, secs, err, ro, ro_s = final_size_score(estimator, p, m_final, train, val, rollouts=roll)
+                extra = {} if ro is None else {"rollout": ro, "rollout_s": ro_s}
+                structured.append((p, sc, ro))
                 table.append(
                     {
                         "stage": 3,
@@ -504,7 +619,6 @@ class KernelSearch(Setting):
                 )
                 return sc
 
-            by_update = {c[4]: params_of(min((k for k in scores if k[4] == c[4]), key=score)) for c in scores}
             chosen, best_score, structure = _structure_stage(
                 estimator,
                 chosen,
@@ -515,8 +629,40 @@ class KernelSearch(Setting):
                 score_params,
                 open_factors["state"],
                 open_factors["update"],
-                by_update,
+                {u: params_of(c) for u, c in by_update.items()},
             )
+        decided, rollout_score, finalists = "one-step error", None, []
+        if roll is not None:  # the finalists ranked by their held-out rollouts: what the user will do with the model
+            pool = [(params_of(c), scores[c][0], rollout_of.get(c)) for c in by_update.values()] + structured
+            finalists = [
+                {
+                    "kernels": repr(p["state_kernel"]),
+                    "update": p["update"],
+                    "score": sc,
+                    "rollout": ro,
+                    "params": p,
+                }
+                for p, sc, ro in pool
+                if np.isfinite(sc) and ro is not None
+            ]
+            ranked = sorted(finalists, key=lambda f: (f["rollout"], f["score"]))
+            if ranked and np.isfinite(ranked[0]["rollout"]):
+                win = ranked[0]
+                logger.info(
+                    f"kernel search, finalists by rollouts of {roll[0].shape[0]} held-out trajectories "
+                    f"({roll[0].shape[1] - 1} steps): "
+                    + "; ".join(f"{f['kernels']} ({f['update']}): {f['rollout']:.3e}" for f in finalists)
+                    + f"; chosen: {win['kernels']} ({win['update']}), one-step error {win['score']:.3e}"
+                    + f" (the one-step choice's: {best_score:.3e}); the candidates' rollouts took "
+                    + f"{sum(r.get('rollout_s', 0.0) for r in table):.1f} s"
+                )
+                chosen, best_score = win["params"], float(win["score"])
+                decided, rollout_score = "held-out rollouts", float(win["rollout"])
+            for f in finalists:
+                del f["params"]
+        m_full = int(estimator.max_centers)
+        if self.final_size and m_full > m_final:  # the shapes at the size the model will have
+            chosen, best_score = _at_final_size(estimator, chosen, best_score, m_full, train, val, table, open_factors)
         for key, factor in (("state_kernel", "state"), ("mu_kernel", "mu"), ("dt_kernel", "dt"), ("update", "update")):
             if open_factors[factor]:
                 params[key] = chosen[key]
@@ -531,6 +677,10 @@ class KernelSearch(Setting):
             m_final=m_final,
             structure=structure,
             cpu_seconds=time.process_time() - c0,
+            decided_by=decided,
+            rollout_score=rollout_score,
+            finalists=finalists,
+            final_size=m_full if self.final_size and m_full > m_final else 0,
         )
         logger.info("kernel search: " + out.summary())
         return out
@@ -596,6 +746,59 @@ class KernelSearch(Setting):
         rows = rng.permutation(m)[: min(m, int(self.max_samples))]
         n_val = max(2, int(round(self.validation_fraction * len(rows))))
         return data.subset(np.sort(rows[n_val:])), data.subset(np.sort(rows[:n_val]))
+
+
+def _narrowed(params: dict, open_factors: dict) -> dict:
+    """``params`` with its open shapes doubled (state kernel inside its transforms, parameter and step kernels)."""
+    out = dict(params)
+    if open_factors["state"]:
+        state = params["state_kernel"]
+        radial = state.radial if isinstance(state, KernelTransform) else state
+        wider = radial.set_params(eps=_clip(radial.eps * 2.0))
+        out["state_kernel"] = state.with_radial(wider) if isinstance(state, KernelTransform) else wider
+    for key, factor in (("mu_kernel", "mu"), ("dt_kernel", "dt")):
+        if open_factors[factor] and params.get(key) is not None:
+            out[key] = params[key].set_params(eps=_clip(params[key].eps * 2.0))
+    return out
+
+
+def _at_final_size(estimator, chosen: dict, score: float, m_full: int, train, val, table: list, open_factors: dict):
+    """``(params, score)``: ``chosen`` fitted to ``m_full`` centres and, while that fit stops early, with its open
+    shapes doubled (up to three times); the smallest one-step error at ``m_full`` wins (``chosen`` and its ``score``
+    where every such fit fails).  Rows of ``stage`` 4 in ``table``."""
+    capacity = len(train) * train.x0.shape[1]  # the greedy cannot select more centres than functionals
+    best, best_score, cand = chosen, np.inf, chosen
+    for doubling in range(4):
+        sc, n, secs, err = one_step_score(estimator, cand, m_full, train, val)
+        table.append(
+            {
+                "stage": 4,
+                "kernels": repr(cand["state_kernel"]),
+                "update": cand["update"],
+                "score": sc,
+                "n_centers": n,
+                "fit_s": secs,
+                **({"error": err} if err else {}),
+            }
+        )
+        logger.info(
+            f"kernel search, final size: {cand['state_kernel']!r} ({cand['update']}): "
+            + (f"failed ({err})" if err else f"one-step error {sc:.3e} with {n} of {m_full} centres")
+        )
+        if sc < best_score:
+            best, best_score = cand, sc
+        if err is not None or n >= min(m_full, capacity) or doubling == 3:
+            break
+        cand = _narrowed(cand, open_factors)
+    return (best, float(best_score)) if np.isfinite(best_score) else (chosen, score)
+
+
+def _rollout_data(trajectories: TrajectoryData) -> tuple:
+    """``(states, mu, dt)`` of the held-out trajectories the finalists roll out: at most
+    :data:`ROLLOUT_TRAJECTORIES` of them, their first :data:`ROLLOUT_HORIZON` steps."""
+    k = min(trajectories.states.shape[1] - 1, ROLLOUT_HORIZON)
+    p = min(len(trajectories), ROLLOUT_TRAJECTORIES)
+    return trajectories.states[:p, : k + 1], trajectories.mu[:p] if trajectories.mu.shape[1] else None, trajectories.dt
 
 
 def _holdout_split(data: FlowMapData, seed: int, fraction: float = 0.1, largest: int = 2000):

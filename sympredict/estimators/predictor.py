@@ -56,6 +56,7 @@ from sympredict.estimators.fitted import (
     training_box,
 )
 from sympredict.estimators.model_files import MODEL_FORMAT, MODEL_LAYOUT
+from sympredict.estimators.search import relative_rollout_error
 from sympredict.estimators.structure import warn_wrapped_angles
 from sympredict.exceptions import (
     AccuracyWarning,
@@ -673,7 +674,7 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
             self.__dict__.pop(name, None)
         if self._state_parts().periodic is None:
             warn_wrapped_angles(data)
-        params, search, train, holdout = _choose_open_settings(self, data, validation, open_factors)
+        params, search, train, holdout = _choose_open_settings(self, data, validation, open_factors, rollouts)
         target = getattr(trainer, "target_error", None)
         if target is not None and holdout is None:  # the target is judged on samples the fit does not see
             train, holdout = _holdout_split(train, self._search().seed)
@@ -840,14 +841,21 @@ def _open_settings(model: SymplecticKernelPredictor, data: FlowMapData) -> dict:
     }
 
 
-def _choose_open_settings(model: SymplecticKernelPredictor, data: FlowMapData, validation, open_factors: dict):
+def _choose_open_settings(
+    model: SymplecticKernelPredictor,
+    data: FlowMapData,
+    validation,
+    open_factors: dict,
+    rollouts: Optional[TrajectoryData] = None,
+):
     """``(params, search, train, holdout)``: the settings ``model``'s search chooses for the open ones
     (:func:`_open_settings`), the :class:`~sympredict.estimators.auto.SearchResult` (``None`` without a search),
     and the samples the final fit trains on and is scored on.
 
     Nothing open: every sample is trained on.  Only the update open: ``'symplectic_euler'``.  Otherwise, without
     ``validation``, a tenth of the samples (at most 2,000) is held out of the final fit to score it
-    (``diagnostics_``), and the search runs on a subsample of the rest.
+    (``diagnostics_``), and the search runs on a subsample of the rest (``rollouts``: held-out trajectories the
+    search's ``rollout_finalists`` may score its finalists on).
     """
     if not any(open_factors.values()):
         return {}, None, data, validation
@@ -858,7 +866,7 @@ def _choose_open_settings(model: SymplecticKernelPredictor, data: FlowMapData, v
     with warnings.catch_warnings():  # the candidates' fits: the warnings are about the final model, once
         warnings.simplefilter("ignore", UnderfitWarning)
         warnings.simplefilter("ignore", WrappedAngleWarning)
-        search = model._search().choose(model, train, open_factors)
+        search = model._search().choose(model, train, open_factors, rollouts=rollouts)
     return search.params, search, train, holdout
 
 
@@ -1020,10 +1028,7 @@ class _HeldOutSteps:
             return float("inf")
         finally:
             self.rollout_seconds += time.perf_counter() - t0
-        size = np.sqrt(np.mean(np.sum(states * states, axis=2), axis=1))
-        err = np.linalg.norm(pred - states, axis=2).max(axis=1) / np.where(size > 0, size, 1.0)
-        value = float(np.mean(err))
-        return value if np.isfinite(value) else float("inf")
+        return relative_rollout_error(pred, states)
 
     def keep(self, m: int) -> int:
         scored = {k: v for k, v in self.scores.items() if k <= m}

@@ -18,7 +18,8 @@ Every search of the package runs here: the public selections of :mod:`sympredict
   caller can scale) times the given factors, one at a time, while a sweep improves the score
   (:func:`refine_shapes` at a larger ``m_star``; the kernel search's second stage);
 * **held-out scores**: ``E_val(m_star)`` (the greedy's validation residual), the mean relative one-step error
-  (:func:`one_step_score`), or a score the caller computes on the fitted model
+  (:func:`one_step_score`), the relative error of rollouts of held-out trajectories
+  (:func:`final_size_score`, :func:`relative_rollout_error`), or a score the caller computes on the fitted model
   (:func:`score_search`, :func:`ridge_search`);
 * **the record**: one ``dict`` row per candidate fitted (settings, score, centres, fit time, ``error`` where the fit
   failed), kept in the result (:class:`SelectionResult`, ``table``).
@@ -56,6 +57,8 @@ __all__ = [
     "coordinate_search",
     "refine_shapes",
     "one_step_score",
+    "final_size_score",
+    "relative_rollout_error",
     "score_search",
     "ridge_search",
 ]
@@ -563,16 +566,43 @@ def refine_shapes(
 
 
 # ------------------------------------------------------------------ held-out scores of final-size candidates
-def one_step_score(
-    estimator, params: dict, m_final: int, train: FlowMapData, val: FlowMapData, largest: int = 500
-) -> tuple:
-    """``(score, centres, seconds, error)`` of one candidate: ``clone(estimator)`` with ``params`` fitted
-    to ``m_final`` centres on ``train`` (its trainer's ``target_error`` dropped: candidates compete at their full
-    size), scored by the mean relative one-step error ``|Phi(x0) - x1| / |x1 - x0|`` on (up to ``largest``)
-    ``val`` samples; ``inf`` for a failed fit or Newton solve, or a non-finite prediction.
+def relative_rollout_error(predicted: np.ndarray, states: np.ndarray) -> float:
+    """The rollout score: the mean over trajectories of ``max_k |x_k - X_k| / rms_k |X_k|``, the worst relative
+    error along each rollout; ``inf`` where it is not finite.
 
-    ``params`` holds ``state_kernel``, ``mu_kernel``, ``dt_kernel``, ``update`` and any other settings.
-    Cost: one greedy fit to ``m_final`` centres and ``largest`` implicit steps.
+    Parameters
+    ----------
+    predicted, states : ndarray of shape (P, K + 1, 2n)
+        Rolled-out and true states of ``P`` trajectories.
+
+    Returns
+    -------
+    float
+    """
+    size = np.sqrt(np.mean(np.sum(states * states, axis=2), axis=1))
+    with np.errstate(all="ignore"):
+        err = np.linalg.norm(predicted - states, axis=2).max(axis=1) / np.where(size > 0, size, 1.0)
+        value = float(np.mean(err))
+    return value if np.isfinite(value) else float("inf")
+
+
+def final_size_score(
+    estimator,
+    params: dict,
+    m_final: int,
+    train: FlowMapData,
+    val: FlowMapData,
+    largest: int = 500,
+    rollouts: Optional[tuple] = None,
+) -> tuple:
+    """``(score, centres, seconds, error, rollout, rollout_seconds)`` of one candidate: :func:`one_step_score`'s
+    four, ``rollout``, the :func:`relative_rollout_error` of the fitted candidate's rollouts of held-out trajectories
+    from their first states (``None`` without ``rollouts``; ``inf`` where the fit or a rollout fails), and the
+    rollouts' share of ``seconds``.
+
+    ``rollouts`` is ``(states, mu, dt)``: ``states`` of shape ``(P, K + 1, 2n)``, ``mu`` of shape ``(P, p)`` or
+    ``None``, ``dt`` a float.  Cost: one greedy fit to ``m_final`` centres, ``largest`` implicit steps and ``P K``
+    more (``K`` steps of a batch of ``P``), on the candidate's own solver (compiled where it is).
     """
     t0 = time.perf_counter()
     model = without_target(clone(estimator).set_params(**params, max_centers=m_final))
@@ -589,9 +619,40 @@ def one_step_score(
             )
         err = np.linalg.norm(pred - sub.x1, axis=1)[rows] / inc[rows]
         value = float(np.mean(err)) if rows.any() else float(np.mean(np.linalg.norm(pred - sub.x1, axis=1)))
-        return (value if np.isfinite(value) else np.inf), model.n_centers_, time.perf_counter() - t0, None
     except (ValueError, ArithmeticError, NewtonConvergenceError, NonFinitePredictionError) as exc:
-        return np.inf, 0, time.perf_counter() - t0, f"{type(exc).__name__}: {exc}"
+        failed = f"{type(exc).__name__}: {exc}"
+        return np.inf, 0, time.perf_counter() - t0, failed, None if rollouts is None else np.inf, 0.0
+    rollout, t1 = None, time.perf_counter()
+    if rollouts is not None:
+        states, mu, dt = rollouts
+        try:
+            with warnings.catch_warnings(), np.errstate(all="ignore"):
+                warnings.simplefilter("ignore")  # a candidate may leave the box: its score says so
+                predicted = model.rollout(
+                    states[:, 0],
+                    states.shape[1] - 1,
+                    mu=mu if uses_mu else None,
+                    dt=dt if params["dt_kernel"] is not None else None,
+                )
+            rollout = relative_rollout_error(predicted, states)
+        except (ValueError, ArithmeticError, NewtonConvergenceError, NonFinitePredictionError, np.linalg.LinAlgError):
+            rollout = np.inf
+    t2 = time.perf_counter()
+    return (value if np.isfinite(value) else np.inf), model.n_centers_, t2 - t0, None, rollout, t2 - t1
+
+
+def one_step_score(
+    estimator, params: dict, m_final: int, train: FlowMapData, val: FlowMapData, largest: int = 500
+) -> tuple:
+    """``(score, centres, seconds, error)`` of one candidate: ``clone(estimator)`` with ``params`` fitted
+    to ``m_final`` centres on ``train`` (its trainer's ``target_error`` dropped: candidates compete at their full
+    size), scored by the mean relative one-step error ``|Phi(x0) - x1| / |x1 - x0|`` on (up to ``largest``)
+    ``val`` samples; ``inf`` for a failed fit or Newton solve, or a non-finite prediction.
+
+    ``params`` holds ``state_kernel``, ``mu_kernel``, ``dt_kernel``, ``update`` and any other settings.
+    Cost: one greedy fit to ``m_final`` centres and ``largest`` implicit steps.
+    """
+    return final_size_score(estimator, params, m_final, train, val, largest)[:4]
 
 
 def without_target(model):

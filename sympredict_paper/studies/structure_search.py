@@ -8,11 +8,18 @@ are states of orbits about ``L5``; ``--trajectories`` x ``--steps`` samples.  Te
 the same way): the error ``|x_k - x_ref(k)|`` at steps ``--steps`` and ``--horizon``, median and worst over
 the orbits, and the drift of the Jacobi constant.
 
-Models, each with ``--centers`` centres:
+Models, each with ``--centers`` centres, fitted to the training orbits given as trajectories
+(``TrajectoryData``: the fit holds a twentieth of them out whole):
 
 * ``defaults_no_structure``: ``SymplecticKernelPredictor(max_centers=M, search=KernelSearch(structure=False))``;
 * ``defaults``: ``SymplecticKernelPredictor(max_centers=M)`` (the search tests the structures and lets those that
-  hold compete);
+  hold compete; the smallest held-out one-step error decides);
+* ``rollout_finalists``: ``KernelSearch(rollout_finalists=True)``: as ``defaults``, but the finalists' rollouts of
+  the held-out orbits decide;
+* ``quarter_size``: ``KernelSearch(final_centers=M // 4)``: the second and structure stages at a quarter of the
+  centres, the choice then fitted to ``M`` centres and narrowed where that fit stops early (the final-size stage);
+* ``quarter_size_only``: the same with ``final_size=False``: the shapes chosen at a quarter of the centres are
+  used at ``M``;
 * ``expert``: the first model's chosen kernels with the reversing symmetry declared,
   ``Symmetric(state_kernel, group=[(1, 1, 1, 1), (1, -1, -1, 1)])`` and ``update='midpoint'``.
 
@@ -39,7 +46,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _protocol import add_arguments, limits, record, side_by_side, write_json  # noqa: E402
 
-from sympredict import KernelSearch, SymplecticKernelPredictor  # noqa: E402
+from sympredict import KernelSearch, SymplecticKernelPredictor, TrajectoryData  # noqa: E402
 from sympredict.data import FlowMapData  # noqa: E402
 from sympredict.estimators.structure import check_sign_flip, sign_flip_candidates  # noqa: E402
 from sympredict.exceptions import extrapolation_expected  # noqa: E402
@@ -110,11 +117,19 @@ def main(argv=None):
         mu_t, ref = orbits(system, args.test_orbits, args.horizon, seed=1)
         steps = sorted({args.steps, args.horizon})
         models = {}
-        for name, search in (("defaults_no_structure", KernelSearch(structure=False)), ("defaults", KernelSearch())):
+        configs = (
+            ("defaults_no_structure", KernelSearch(structure=False)),
+            ("defaults", KernelSearch()),
+            ("rollout_finalists", KernelSearch(rollout_finalists=True)),
+            ("quarter_size", KernelSearch(final_centers=max(1, args.centers // 4))),
+            ("quarter_size_only", KernelSearch(final_centers=max(1, args.centers // 4), final_size=False)),
+        )
+        for name, search in configs:
             t0 = time.perf_counter()
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                model = SymplecticKernelPredictor(max_centers=args.centers, search=search).fit(x0, x1, mu=mus, dt=DT)
+                model = SymplecticKernelPredictor(max_centers=args.centers, search=search)
+                model.fit(TrajectoryData(traj, mu=mu, dt=DT))
             models[name] = model
             table = model.search_.table
             result[name] = {
@@ -122,10 +137,18 @@ def main(argv=None):
                 "choice": {k: repr(v) for k, v in model.choice_.items()},
                 "structure": [f.summary() for f in model.search_.structure],
                 "verdicts": {f"{f.kind} diag{f.signs}": f.verdict for f in model.search_.structure},
+                "search_s": model.search_.seconds,
+                "n_centers": model.n_centers_,
                 "search_score": model.search_.score,
+                "decided_by": model.search_.decided_by,
+                "rollout_score": model.search_.rollout_score,
+                "finalists": model.search_.finalists,
+                "rollout_s": model.search_.rollout_seconds,
                 "best_stage2_score": min(r["score"] for r in table if r["stage"] == 2),
                 "stage3": [
-                    {k: r[k] for k in ("kernels", "update", "score", "n_centers")} for r in table if r["stage"] == 3
+                    {k: r.get(k) for k in ("kernels", "update", "score", "rollout", "n_centers")}
+                    for r in table
+                    if r["stage"] == 3
                 ],
                 **errors(system, model, mu_t, ref, steps),
             }
@@ -144,9 +167,28 @@ def main(argv=None):
         result["expert"] = {
             "fit_s": time.perf_counter() - t0,
             "state_kernel": repr(expert.state_kernel),
+            "n_centers": expert.n_centers_,
             **errors(system, expert, mu_t, ref, steps),
         }
         print("expert", result["expert"], flush=True)
+        models["expert"] = expert
+        result["comparison"] = {}  # one row per model, for the docs' table
+        for name, model in models.items():
+            kernel, update = model.get_params()["state_kernel"], model.get_params()["update"]
+            if name != "expert":
+                kernel, update = model.choice_.get("state_kernel", kernel), model.choice_.get("update", update)
+            row = result[name]
+            result["comparison"][name] = {
+                "model": ("symmetric " if isinstance(kernel, Symmetric) else "plain ") + str(update),
+                "decided_by": row.get("decided_by", "given"),
+                "n_centers": row["n_centers"],
+                "at_steps": row[f"step_{args.steps}"]["median"],
+                "median": row[f"step_{args.horizon}"]["median"],
+                "worst": row[f"step_{args.horizon}"]["worst"],
+                "drift": row.get("jacobi_drift_median", float("nan")),
+                "fit_s": row["fit_s"],
+                "search_s": row.get("search_s", float("nan")),
+            }
 
         # the structure test on noisy data: the search's quick model and split, noise on every state
         noisy = {}

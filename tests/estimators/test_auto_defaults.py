@@ -6,12 +6,13 @@ several steps without being given their kernels, and reports the fit (``diagnost
 """
 
 import logging
+import warnings
 
 import numpy as np
 import pytest
 
 from sympredict.kernels.transforms import lower_state_kernel
-from sympredict import KernelSearch, ModelFileError, SymplecticKernelPredictor
+from sympredict import KernelSearch, ModelFileError, SymplecticKernelPredictor, TrajectoryData
 from sympredict.base import clone
 from sympredict.container import read_container, write_container
 from sympredict.estimators.auto import FitDiagnostics, pair_factors
@@ -243,6 +244,8 @@ def test_the_estimator_contract_holds(param_data):
         (dict(max_samples=5), "max_samples"),
         (dict(validation_fraction=1.0), "validation_fraction"),
         (dict(halving="yes"), "halving"),
+        (dict(rollout_finalists="yes"), "rollout_finalists"),
+        (dict(final_size="yes"), "final_size"),
     ],
 )
 def test_bad_search_settings_are_named(bad, match, param_data):
@@ -360,3 +363,143 @@ def test_the_second_stage_cuts_candidates_beyond_the_margin_at_the_rung(param_da
     fitted = [r for r in stage2 if not r.get("cut")]
     assert fitted and all(np.isfinite(r["score"]) for r in fitted)
     assert m.search_.score == min(r["score"] for r in fitted)
+
+
+def _pendulum_trajectories(pendulum, n, steps, seed):
+    rng = np.random.default_rng(seed)
+    mu = rng.uniform(0.6, 1.0, n)
+    x0 = np.column_stack([rng.uniform(-1.5, 1.5, n), rng.uniform(-1.0, 1.0, n)])
+    return TrajectoryData(pendulum.trajectory(x0, mu, dt=0.1, n_steps=steps), mu=mu, dt=0.1)
+
+
+ROLLED = KernelSearch(
+    families=("imq",), m_star=20, max_samples=200, refine_sweeps=0, structure=False, rollout_finalists=True
+)
+
+
+@pytest.fixture()
+def scripted_scores(monkeypatch):
+    """The candidates' scores scripted (the fits are real): midpoint wins one step (1e-3 against 2e-3) and loses the
+    held-out rollouts (1.0 against 0.1); the held-out trajectories each call received are recorded."""
+    import sympredict.estimators.auto as auto
+
+    real, seen = auto.final_size_score, []
+
+    def scripted(estimator, params, m_final, train, val, largest=500, rollouts=None):
+        _, n, secs, err, _, ro_s = real(estimator, params, m_final, train, val, largest, rollouts)
+        seen.append(rollouts)
+        midpoint = params["update"] == "midpoint"
+        return (
+            (1e-3 if midpoint else 2e-3),
+            n,
+            secs,
+            err,
+            None if rollouts is None else (1.0 if midpoint else 0.1),
+            ro_s,
+        )
+
+    monkeypatch.setattr(auto, "final_size_score", scripted)
+    return seen
+
+
+def test_finalists_are_decided_by_held_out_rollouts_where_one_step_scores_disagree(pendulum, scripted_scores):
+    """From trajectories, the search rolls the held-out trajectories out with every full-size candidate and the
+    finalist with the smallest rollout error wins, although another wins one step; the log and ``search_`` say
+    which score decided.  Without rollout scoring, or from samples, the one-step error decides."""
+    traj = _pendulum_trajectories(pendulum, 100, 6, 0)
+    m = SymplecticKernelPredictor(max_centers=40, search=ROLLED).fit(traj)
+    s = m.search_
+    assert m.choice_["update"] == "symplectic_euler"
+    assert s.decided_by == "held-out rollouts" and s.rollout_score == 0.1 and s.score == 2e-3
+    assert sorted((f["update"], f["score"], f["rollout"]) for f in s.finalists) == [
+        ("midpoint", 1e-3, 1.0),
+        ("symplectic_euler", 2e-3, 0.1),
+    ]
+    assert "decided by held-out rollouts" in s.summary()
+    assert all(r["rollout"] in (0.1, 1.0) for r in s.table if r["stage"] == 2)
+    assert 0 < s.rollout_seconds == sum(r["rollout_s"] for r in s.table if "rollout_s" in r) < s.seconds
+    # the rollouts are whole held-out trajectories the fit does not see: 5 of 100, all their 6 steps
+    states, mu, dt = scripted_scores[0]
+    assert states.shape == (5, 7, 2) and mu.shape == (5, 1) and dt == 0.1
+    assert len({tuple(x) for x in states[:, 0]} & {tuple(x) for x in traj.states[:, 0]}) == 5
+    assert KernelSearch().rollout_finalists is False  # the default (its Notes: it measured worse on the pendulum)
+    off = SymplecticKernelPredictor(max_centers=40, search=clone(ROLLED).set_params(rollout_finalists=False))
+    off.fit(traj)
+    assert off.choice_["update"] == "midpoint" and off.search_.decided_by == "one-step error"
+    assert off.search_.rollout_score is None and off.search_.finalists == []
+    x0, x1, mu = traj.states[:, :-1].reshape(-1, 2), traj.states[:, 1:].reshape(-1, 2), np.repeat(traj.mu, 6, axis=0)
+    samples = SymplecticKernelPredictor(max_centers=40, search=ROLLED).fit(x0, x1, mu=mu, dt=0.1)
+    assert samples.choice_["update"] == "midpoint" and samples.search_.decided_by == "one-step error"
+    # two held-out trajectories (of 40) are too few to rank models by: the one-step error decides
+    few = SymplecticKernelPredictor(max_centers=40, search=ROLLED).fit(
+        TrajectoryData(traj.states[:40], mu=traj.mu[:40], dt=0.1)
+    )
+    assert few.choice_["update"] == "midpoint" and few.search_.decided_by == "one-step error"
+    assert all("rollout" not in r for r in few.search_.table)
+
+
+def test_the_rollout_score_is_the_mean_worst_relative_error_of_the_held_out_rollouts(pendulum):
+    """``final_size_score``'s rollout score against an independent recomputation with the same fit: the mean over
+    the trajectories of ``max_k |x_k - X_k| / rms_k |X_k|``; a failed Newton solve scores ``inf``."""
+    from sympredict.estimators.search import final_size_score
+    from sympredict.symplectic.solvers import NewtonSolver
+
+    traj = _pendulum_trajectories(pendulum, 12, 8, 1)
+    data = FlowMapData(
+        traj.states[:10, :-1].reshape(-1, 2),
+        traj.states[:10, 1:].reshape(-1, 2),
+        np.repeat(traj.mu[:10], 8, axis=0),
+        np.full(80, 0.1),
+    )
+    states, mu = traj.states[10:], traj.mu[10:]
+    params = {"state_kernel": IMQ(0.3), "mu_kernel": IMQ(1.0), "dt_kernel": None, "update": "midpoint"}
+    base = SymplecticKernelPredictor()
+    value, n, secs, err, rollout, rollout_s = final_size_score(base, params, 30, data, data, rollouts=(states, mu, 0.1))
+    ref = clone(base).set_params(**params, max_centers=30).fit(data.x0, data.x1, mu=data.mu, dt=0.1)
+    with warnings.catch_warnings():  # the held-out states may leave the training box: the score measures it
+        warnings.simplefilter("ignore")
+        pred = ref.rollout(states[:, 0], 8, mu=mu)
+    worst = np.linalg.norm(pred - states, axis=2).max(axis=1)
+    expected = np.mean(worst / np.sqrt(np.mean(np.sum(states**2, axis=2), axis=1)))
+    assert err is None and n == 30 and rollout == pytest.approx(expected, rel=1e-12) and rollout > 0
+    assert 0 < rollout_s < secs
+    assert final_size_score(base, params, 30, data, data)[4] is None  # no trajectories, no rollout score
+    strict = SymplecticKernelPredictor(solver=NewtonSolver(max_iter=1, backend="numpy"))
+    assert final_size_score(strict, params, 30, data, data, rollouts=(states, mu, 0.1))[4] == np.inf
+
+
+def test_the_choice_is_refitted_at_the_final_size_and_narrowed_where_it_stops_early(param_data, monkeypatch):
+    """With ``max_centers`` above ``final_centers``, the chosen settings are fitted to ``max_centers`` centres; a
+    fit that stops early (scripted: 10 of 60 centres) is followed by the same settings with every open shape
+    doubled, and the smallest one-step error at the final size wins.  Without the stage the search ends at its
+    second stage's choice."""
+    import sympredict.estimators.auto as auto
+
+    real, calls = auto.one_step_score, []
+
+    def scripted(estimator, params, m_final, train, val, largest=500):
+        value, n, secs, err = real(estimator, params, m_final, train, val, largest)
+        calls.append((params, m_final))
+        first = len(calls) == 1
+        return (1e-2 if first else 1e-3), (10 if first else m_final), secs, err
+
+    monkeypatch.setattr(auto, "one_step_score", scripted)
+    x0, x1, mu, _ = param_data
+    search = KernelSearch(families=("imq",), m_star=20, final_centers=30, max_samples=300, refine_sweeps=0)
+    off = SymplecticKernelPredictor(max_centers=60, search=clone(search).set_params(final_size=False))
+    off.fit(x0, x1, mu=mu, dt=0.1)
+    assert not calls and off.search_.final_size == 0 and not [r for r in off.search_.table if r["stage"] == 4]
+    m = SymplecticKernelPredictor(max_centers=60, search=search).fit(x0, x1, mu=mu, dt=0.1)
+    assert [c[1] for c in calls] == [60, 60] and m.search_.final_size == 60
+    first, second = calls[0][0], calls[1][0]
+    assert repr(first["state_kernel"]) == repr(off.choice_["state_kernel"])  # the second stage's choice, refitted
+    inner = lower_state_kernel(first["state_kernel"]).radial, lower_state_kernel(second["state_kernel"]).radial
+    assert inner[1].eps == pytest.approx(2 * inner[0].eps, rel=1e-15)
+    assert second["mu_kernel"].eps == pytest.approx(2 * first["mu_kernel"].eps, rel=1e-15)
+    assert repr(m.choice_["state_kernel"]) == repr(second["state_kernel"]) and m.search_.score == 1e-3
+    assert [r["n_centers"] for r in m.search_.table if r["stage"] == 4] == [10, 60]
+    assert "refitted with 60 centres" in m.search_.summary()
+    # no stage where the second stage already ran at the final size
+    calls.clear()
+    same = SymplecticKernelPredictor(max_centers=30, search=search).fit(x0, x1, mu=mu, dt=0.1)
+    assert not calls and same.search_.final_size == 0

@@ -164,9 +164,12 @@ def pendulum_search():
 
 
 def test_the_search_finds_the_pendulums_symmetries_and_the_held_out_comparison_decides(pendulum_search, caplog):
+    """The symmetric models compete in the held-out comparison: by the one-step error (the default; rollouts of the
+    2 held-out trajectories of 30 would be too few to rank the finalists anyway)."""
     model, _ = pendulum_search
     verdicts = {f.signs: f.verdict for f in model.search_.structure}
     assert verdicts == {(1, -1): "holds", (-1, 1): "holds", (-1, -1): "holds"}
+    assert model.search_.decided_by == "one-step error" and model.search_.finalists == []
     table = model.search_.table
     stage2 = min(r["score"] for r in table if r["stage"] == 2)
     stage3 = [r for r in table if r["stage"] == 3]
