@@ -85,18 +85,15 @@ def greedy_interpolation(
     targets,
     *,
     max_centers: int,
-    tol: float = 1e-10,
-    criterion: str = "f",
-    power_tol: float = 1e-12,
-    divergence_factor: float = 100.0,
     validation: Optional[tuple] = None,
-    memory_limit: Optional[float] = None,
+    divergence_factor: float = 100.0,
     log_every: int = 100,
-    basis_dtype: str = "float64",
     keep_basis: bool = False,
-    regularization: float = 0.0,
+    **settings,
 ) -> GreedyResult:
     """Sparse generalized interpolation by f-greedy (or P-greedy) selection, all candidates in memory.
+
+    ``ExactGreedy(**settings).run(...)``: the strategy the estimators take, run once on explicit arguments.
 
     Parameters
     ----------
@@ -105,36 +102,20 @@ def greedy_interpolation(
     targets : ndarray of shape (N,) or (N, q)
         Data ``y_i = lambda_i(f)``; ``q > 1`` interpolates ``q`` outputs with
         shared centres (selection by the max over outputs).
-    max_centers
+    max_centers : int
         Upper bound on the number of selected functionals.
-    tol
-        f-greedy stops when ``max |r| <= tol`` over the selectable candidates.
-    criterion
-        ``'f'`` (residual) or ``'p'`` (power function).
-    divergence_factor
+    validation : tuple or None, default=None
+        Optional ``(val_functionals, val_targets)``; then ``E_val(m)`` is recorded.
+    divergence_factor : float, default=100.0
         Blow-up factor of the residual that stops and truncates the run
         (:func:`~sympredict.interpolation.greedy.loop.run_greedy`).
-    log_every
+    log_every : int, default=100
         Log progress every this many steps.
-    power_tol
-        Candidates with ``P2_i <= power_tol * max(G_ii)`` are never selected
-        (breakdown guard); when no candidate is left the run stops with
-        reason ``'power'``.  The new basis column is computed with a relative
-        error of about ``eps_mach sqrt(m) G_ii / P2_j``; below ``1e-12`` the
-        basis degrades and the residual can blow up (seen at ``1e-13`` on the
-        pendulum), which the divergence rule catches.
-    validation
-        Optional ``(val_functionals, val_targets)``; then ``E_val(m)`` is recorded.
-    memory_limit
-        Bytes the Newton basis may use; default 90% of available memory.
-        Checked before any work, with a message saying what fits.
-    basis_dtype
-        ``'float64'`` (the exact greedy) or ``'float32'`` (:class:`DenseStore`).
-    keep_basis
+    keep_basis : bool, default=False
         Return the Newton basis in :attr:`GreedyResult.basis` (benchmarks).
-    regularization
-        Ridge term ``lambda >= 0``: the Newton basis of ``G + lambda I`` (noisy
-        data, :class:`DenseStore`); ``0`` is the exact interpolation.
+    **settings
+        The settings of :class:`ExactGreedy`, which checks them: ``tol=1e-10``, ``criterion='f'``,
+        ``power_tol=1e-12``, ``memory_limit=None``, ``basis_dtype='float64'``, ``regularization=0.0``.
 
     Returns
     -------
@@ -145,15 +126,7 @@ def greedy_interpolation(
     Time ``O(m^2 (N + N_val) / 2)`` memory traffic, memory ``itemsize m_max (N + N_val)``
     bytes (:mod:`sympredict.interpolation.greedy.dense`).
     """
-    trainer = ExactGreedy(
-        basis_dtype,
-        tol=tol,
-        criterion=criterion,
-        power_tol=power_tol,
-        memory_limit=memory_limit,
-        regularization=regularization,
-    )
-    return trainer.run(
+    return ExactGreedy(**settings).run(
         functionals,
         targets,
         max_centers=max_centers,
@@ -169,38 +142,20 @@ def active_set_greedy(
     targets,
     *,
     max_centers: int,
-    tol: float = 1e-10,
-    power_tol: float = 1e-12,
-    divergence_factor: float = 100.0,
     validation: Optional[tuple] = None,
-    memory_limit: Optional[float] = None,
+    divergence_factor: float = 100.0,
     log_every: int = 100,
-    initial_points: int = 8192,
-    refresh_every: int = 200,
-    max_new_points: int = 4096,
-    margin: float = 0.7,
-    refresh_fraction: float = 0.25,
-    seed: int = 0,
+    **settings,
 ) -> GreedyResult:
     """Fast f-greedy on an active subset of the points, refreshed against the full residual (:class:`ActiveSetStore`).
 
-    Arguments as in :func:`greedy_interpolation` (f-greedy, one output) and
-    :class:`~sympredict.interpolation.greedy.active_set.ActiveSetStore`.  ``history.train_max_residual[k]`` is the active
-    set's maximum after ``k`` centres, except the last entry: the full maximum
-    over all ``N`` candidates; ``'tol'`` only if that full maximum is at or below ``tol``.
+    ``ActiveSetGreedy(**settings).run(...)``.  Arguments as in :func:`greedy_interpolation`, with the settings of
+    :class:`ActiveSetGreedy` (``initial_points``, ``refresh_every``, ``max_new_points``, ``margin``,
+    ``refresh_fraction``, ``seed``, ``tol``, ``power_tol``, ``memory_limit``).  ``history.train_max_residual[k]``
+    is the active set's maximum after ``k`` centres, except the last entry: the full maximum over all ``N``
+    candidates; ``'tol'`` only if that full maximum is at or below ``tol``.
     """
-    trainer = ActiveSetGreedy(
-        initial_points,
-        refresh_every,
-        max_new_points,
-        margin,
-        refresh_fraction,
-        seed,
-        tol=tol,
-        power_tol=power_tol,
-        memory_limit=memory_limit,
-    )
-    return trainer.run(
+    return ActiveSetGreedy(**settings).run(
         functionals,
         targets,
         max_centers=max_centers,
@@ -215,27 +170,20 @@ def sharded_greedy(
     targets,
     *,
     max_centers: int,
-    tol: float = 1e-10,
-    criterion: str = "f",
-    power_tol: float = 1e-12,
-    divergence_factor: float = 100.0,
     validation: Optional[tuple] = None,
-    pool=None,
-    n_shards: Optional[int] = None,
-    memory_limit_per_rank: Optional[float] = None,
-    timeout: Optional[float] = 60.0,
+    divergence_factor: float = 100.0,
     log_every: int = 100,
     callback: Optional[Callable[[int, float], None]] = None,
     stats: Optional[dict] = None,
-    regularization: float = 0.0,
+    **settings,
 ) -> GreedyResult:
     """f-greedy (or P-greedy) with the candidates sharded over a pyMOR worker pool (:class:`~sympredict.interpolation.greedy.sharded.ShardedStore`).
 
-    Same arguments and result as :func:`greedy_interpolation` (same selection
-    and coefficients), plus the store's ``pool``, ``n_shards``,
-    ``memory_limit_per_rank``, ``timeout`` and ``regularization``; ``callback(m, E_train(m))``
-    after each step; ``stats``, a dict filled with the pool timings
-    (the store's ``stats``).
+    ``ShardedGreedy(**settings).run(...)``: the same arguments and result as :func:`greedy_interpolation` (same
+    selection and coefficients), with the settings of :class:`ShardedGreedy` (``pool``, ``n_shards``,
+    ``memory_limit_per_rank``, ``timeout``, ``tol``, ``criterion``, ``power_tol``, ``regularization``);
+    ``callback(m, E_train(m))`` after each step; ``stats``, a dict filled with the pool timings (the store's
+    ``stats``).
 
     Raises
     ------
@@ -244,17 +192,7 @@ def sharded_greedy(
     sympredict.parallel.WorkerError
         Any other exception on a worker (names the rank, carries the remote traceback).
     """
-    trainer = ShardedGreedy(
-        pool,
-        n_shards,
-        memory_limit_per_rank,
-        timeout,
-        tol=tol,
-        criterion=criterion,
-        power_tol=power_tol,
-        regularization=regularization,
-    )
-    result = trainer.run(
+    result = ShardedGreedy(**settings).run(
         functionals,
         targets,
         max_centers=max_centers,

@@ -220,9 +220,13 @@ class ExactGreedy(Trainer):
     criterion
         ``'f'`` (f-greedy, default) or ``'p'`` (P-greedy).
     power_tol
-        Breakdown guard, relative to the Gramian diagonal.
+        Breakdown guard, relative to the Gramian diagonal: candidates with ``P2_i <= power_tol * max(G_ii)``
+        are never selected; when none is left the run stops with reason ``'power'``.  The new basis column
+        carries a relative error of about ``eps_mach sqrt(m) G_ii / P2_j``; below ``1e-12`` the basis degrades
+        and the residual can blow up (seen at ``1e-13`` on the pendulum), which the divergence rule catches.
     memory_limit
-        Bytes the Newton basis may use (default: 90% of the available memory).
+        Bytes the Newton basis may use (default: 90% of the available memory), checked before any work with
+        a message saying what fits.
     regularization
         Ridge term ``lambda >= 0`` for noisy data: the Newton basis of
         ``G + lambda I``, so the coefficients solve ``(G_sel + lambda I) c = y_sel``
