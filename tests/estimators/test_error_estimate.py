@@ -419,6 +419,7 @@ def _rollout_units(model, n_steps, method):
     return rollout_error_units(fitted, traj, mu, dt, fitted.surrogate.weights(mu, dt), method=method)
 
 
+@pytest.mark.paths
 @pytest.mark.parametrize("n_steps", [150, 400])
 def test_lowrank_estimate_agrees_with_the_exact_pairwise_one(model, n_steps):
     """Every evaluation point a candidate landmark: the factorised posterior is the exact one up to the pivoted
@@ -429,6 +430,7 @@ def test_lowrank_estimate_agrees_with_the_exact_pairwise_one(model, n_steps):
     np.testing.assert_allclose(low, exact, rtol=1e-6, atol=0)
 
 
+@pytest.mark.paths
 def test_lowrank_estimate_with_subsampled_landmarks_stays_close(model, monkeypatch):
     """A long horizon pivots its landmarks from an evenly spaced subset of the evaluation points: with 40 of 400
     points as candidates the estimate stays within 10% of the exact one (the remainder's diagonal is kept)."""
@@ -440,6 +442,7 @@ def test_lowrank_estimate_with_subsampled_landmarks_stays_close(model, monkeypat
     np.testing.assert_allclose(low, exact, rtol=0.1, atol=0)
 
 
+@pytest.mark.paths
 def test_long_horizons_take_the_linear_path_and_say_so(model, monkeypatch, caplog):
     """``method="auto"`` is exact up to ``EXACT_MAX_STEPS`` and factorised beyond, logged at INFO; the public
     rollout uses it; an unknown method is refused by name."""
