@@ -656,8 +656,9 @@ class FittedSymplecticFlowMap(FittedFlowMap):
             box (see the how-to "How accurate is my prediction?").  The states come from the usual solver
             (compiled where that is); the estimate is computed afterwards in NumPy, ``O(B K 2n m^2)`` (the
             posterior at every step: for ``m = 1000`` centres about 10x to 100x the rollout itself) plus
-            ``O(B K^2 (2n)^3)`` for the pairs of steps, with every step's state kept
-            while it runs.  Not with ``around``.
+            ``O(B K^2 (2n)^3)`` for the pairs of steps up to ``EXACT_MAX_STEPS`` (1,000) steps, beyond that
+            linear in ``K`` (the posterior factorised on landmarks, logged at INFO), with every step's state
+            kept while it runs.  Not with ``around``.
 
         Returns
         -------

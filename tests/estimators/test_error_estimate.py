@@ -359,3 +359,106 @@ def test_local_covariance_has_the_power_function_on_its_diagonal(model, transfor
         v = newton_rows(sur, xi, mu, dt, chol)
         posterior = prior - v @ v.transpose(0, 2, 1)
         np.testing.assert_allclose(cov[:, 0, 1], 0.5 * posterior[:, 0, 1], rtol=1e-12, atol=1e-14 * k0)
+
+
+def _lowrank_harmonic(field, n_steps, theta=0.3, dt=0.1, eps=1e-3):
+    """:class:`LowRankPropagation` along the harmonic orbit of :func:`_harmonic_propagation`, the field given as
+    its exact factorisation: ``"coherent"``, ``A_k = eps x_k^T`` (rank 1, no remainder); ``"white"``, ``A_k = 0``
+    and the remainder ``eps^2 I``.  Returns the kernel part ``tr(G G^T + Q)`` per step."""
+    from sympredict.estimators.error_estimate import LowRankPropagation
+
+    x0 = np.array([0.8, -0.3])
+    rot, jmat = _rotation(theta), np.array([[0.0, 1.0], [-1.0, 0.0]])
+    prop = LowRankPropagation(1, 2, 1)
+    out = []
+    for k in range(n_steps):
+        xk = np.linalg.matrix_power(rot, k) @ x0
+        a = eps * xk[None, None, :] if field == "coherent" else np.zeros((1, 1, 2))
+        resid = np.zeros((1, 2, 2)) if field == "coherent" else eps**2 * np.eye(2)[None]
+        prop.advance(rot[None], dt * jmat[None], a, resid, np.zeros((1, 2)))
+        out.append(np.trace(np.matmul(prop.g, prop.g.transpose(0, 2, 1))[0] + prop.q[0]))
+    return np.array(out)
+
+
+def test_lowrank_propagation_meets_the_closed_forms_of_the_exact_one():
+    """The factorised recursion is the same sum as the pairwise one: a coherent frequency error grows linearly
+    (``(K dT eps |x0|)^2``), independent step errors add as a random walk (``2 K (dT eps)^2``), and both equal
+    :class:`CovariancePropagation`'s kernel part on the same fields."""
+    dt, eps, n = 0.1, 1e-3, 300
+    steps = np.arange(1, n + 1)
+    coherent = _lowrank_harmonic("coherent", n, dt=dt, eps=eps)
+    np.testing.assert_allclose(coherent, (steps * dt * eps * np.linalg.norm([0.8, -0.3])) ** 2, rtol=1e-10)
+    np.testing.assert_allclose(coherent, _harmonic_propagation("coherent", n, dt=dt, eps=eps)[1], rtol=1e-10)
+    white = _lowrank_harmonic("white", n, dt=dt, eps=eps)
+    np.testing.assert_allclose(white, 2 * steps * (dt * eps) ** 2, rtol=1e-10)
+
+
+def test_pivoted_cholesky_reproduces_the_pivots_and_leaves_a_small_remainder(rng):
+    from sympredict.estimators.error_estimate import pivoted_cholesky
+
+    basis = rng.standard_normal((60, 7)) * np.logspace(0, -6, 7)
+    mat = basis @ basis.T
+    pivots, factor = pivoted_cholesky(mat, 60, 1e-14)
+    assert len(pivots) == 7 and len(set(pivots)) == 7
+    np.testing.assert_allclose(factor @ factor.T, mat[np.ix_(pivots, pivots)], rtol=1e-12, atol=1e-14 * mat.max())
+    # the Nystrom remainder at every row is below the stopping tolerance's scale
+    cross = np.linalg.solve(factor, mat[pivots])
+    assert np.max(np.diagonal(mat) - np.sum(cross**2, axis=0)) <= 1e-10 * np.max(np.diagonal(mat))
+    capped, small = pivoted_cholesky(mat, 3, 0.0)
+    assert len(capped) == 3 and small.shape == (3, 3)
+    np.testing.assert_allclose(capped, pivots[:3])
+
+
+def _rollout_units(model, n_steps, method):
+    from sympredict.estimators.error_estimate import rollout_error_units
+
+    fitted = model.model_
+    x0, mu = np.array([[1.0, 0.0], [0.3, -0.4], [-1.2, 0.5]]), np.array([[0.72], [0.75], [0.78]])
+    traj = model.rollout(x0, n_steps, mu=mu[:, 0], dt=0.1)
+    dt = np.full(3, 0.1)
+    return rollout_error_units(fitted, traj, mu, dt, fitted.surrogate.weights(mu, dt), method=method)
+
+
+@pytest.mark.paths
+@pytest.mark.parametrize("n_steps", [150, 400])
+def test_lowrank_estimate_agrees_with_the_exact_pairwise_one(model, n_steps):
+    """Every evaluation point a candidate landmark: the factorised posterior is the exact one up to the pivoted
+    Cholesky's stopping tolerance, so the estimates agree far below the estimate's own accuracy."""
+    exact = _rollout_units(model, n_steps, "exact")
+    low = _rollout_units(model, n_steps, "lowrank")
+    assert np.all(exact[:, 1:] > 0)
+    np.testing.assert_allclose(low, exact, rtol=1e-6, atol=0)
+
+
+@pytest.mark.paths
+def test_lowrank_estimate_with_subsampled_landmarks_stays_close(model, monkeypatch):
+    """A long horizon pivots its landmarks from an evenly spaced subset of the evaluation points: with 40 of 400
+    points as candidates the estimate stays within 10% of the exact one (the remainder's diagonal is kept)."""
+    from sympredict.estimators import error_estimate
+
+    exact = _rollout_units(model, 400, "exact")
+    monkeypatch.setattr(error_estimate, "_CANDIDATES", 80)
+    low = _rollout_units(model, 400, "lowrank")
+    np.testing.assert_allclose(low, exact, rtol=0.1, atol=0)
+
+
+@pytest.mark.paths
+def test_long_horizons_take_the_linear_path_and_say_so(model, monkeypatch, caplog):
+    """``method="auto"`` is exact up to ``EXACT_MAX_STEPS`` and factorised beyond, logged at INFO; the public
+    rollout uses it; an unknown method is refused by name."""
+    import logging
+
+    from sympredict.estimators import error_estimate
+
+    x0, mu = np.array([[1.0, 0.0]]), np.array([0.72])
+    _, short = model.rollout(x0, 30, mu=mu, dt=0.1, return_error=True)
+    c = model.error_calibration_["scale"]
+    np.testing.assert_allclose(short, c * _rollout_units(model, 30, "exact")[:1], rtol=1e-8, atol=0)
+    monkeypatch.setattr(error_estimate, "EXACT_MAX_STEPS", 20)
+    with caplog.at_level(logging.INFO, logger="sympredict.estimators.error_estimate"):
+        _, long = model.rollout(x0, 30, mu=mu, dt=0.1, return_error=True)
+    assert "landmarks" in caplog.text and "30 steps" in caplog.text
+    np.testing.assert_allclose(long, c * _rollout_units(model, 30, "lowrank")[:1], rtol=1e-8, atol=0)
+    assert not np.array_equal(long, short)
+    with pytest.raises(ValueError, match="method"):
+        _rollout_units(model, 5, "fast")
