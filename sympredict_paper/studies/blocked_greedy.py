@@ -177,6 +177,8 @@ def main(argv=None):
                     "functionals": n_fun,
                     "settings": {k: v for k, v in settings.items() if k != "search"},
                     "block_size": args.block_size,
+                    "n_test": args.n_test,
+                    "test_steps": args.test_steps,
                     "gemm": rate,
                     "rows": rows,
                 },
