@@ -12,7 +12,11 @@ Per ``max_centers`` in ``--centers``, in one process, exact then blocked: the fi
 own time (``history_.elapsed[-1]``); the held-out error (mean relative one-step error
 ``|Phi(x0) - x1| / |x1 - x0|`` on ``--holdout`` trajectories of the same length, seed disjoint) and the max
 residual over those held-out functionals' targets; the rollout error (median and max over ``--n-test``
-test trajectories of the max relative trajectory error over ``--test-steps`` steps); the ratios blocked / exact.
+test trajectories of the max relative trajectory error over ``--test-steps`` steps, and each trajectory's error,
+``traj_errors``); the ratios blocked / exact, and per trajectory (their median and max).  A max over 20 test
+trajectories is one trajectory's error: compare it with the per-trajectory ratios and a larger ``--n-test``.
+The blocked trainer's ``--slack`` and ``--pool-factor`` default to its own defaults; ``--train-seed`` draws
+another, equally good training set (the exact greedy against itself: the noise floor of the ratios).
 
 Arithmetic limit: the greedy's Newton basis costs ``m^2 N`` flops in total (``2 m N`` for the ``m``-th
 centre's projection), the minimum any f-greedy on the full Newton basis does; its time at this process's
@@ -35,6 +39,7 @@ import _protocol  # sympredict_paper/studies/ (the script's folder is on sys.pat
 from defaults_acceptance import HAND, hand_model, make_benchmarks, make_test_set, trajectory_metrics
 
 from sympredict.interpolation.greedy import BlockedGreedy, ExactGreedy, trainer_memory
+from sympredict.symplectic.metrics import relative_trajectory_error
 
 
 def pendulum_samples(bench, n_traj: int, steps: int, seed: int):
@@ -88,6 +93,10 @@ def fit_one(label, trainer, settings, data, heldout, test, bench, m, args) -> di
         sizes = np.asarray(stats["block_sizes"])
         out.update(blocks=int(stats["blocks"]), mean_block=float(sizes.mean()))
     out.update(trajectory_metrics(model, bench, test, args.test_steps))
+    if "traj_failure" not in out:
+        # the per-trajectory errors (max over the horizon): which trajectory sets the max, and the ratios per trajectory
+        pred = model.rollout(test["x0"], test["ref"].shape[1] - 1, mu=test["mu"], dt=bench.dt)
+        out["traj_errors"] = relative_trajectory_error(pred, test["ref"])[:, 1:].max(axis=1).tolist()
     print(
         f"  {label:>8s} m={m}: fit {fit_s:7.1f} s (greedy {out['greedy_s']:7.1f} s), held-out {out['held_out_error']:.3e}, "
         f"rollout median {out.get('traj_error_median', float('nan')):.3e}",
@@ -103,8 +112,14 @@ def main(argv=None):
     parser.add_argument("--steps", type=int, default=60)
     parser.add_argument("--holdout", type=int, default=30, help="held-out trajectories (same length)")
     parser.add_argument("--n-test", type=int, default=20)
+    parser.add_argument("--train-seed", type=int, default=1, help="the training trajectories' seed (held-out: 2)")
+    parser.add_argument("--test-seed", type=int, default=3, help="the test trajectories' seed")
     parser.add_argument("--test-steps", type=int, default=200)
     parser.add_argument("--block-size", type=int, default=64)
+    parser.add_argument(
+        "--pool-factor", type=int, default=None, help="the blocked trainer's pool_factor (default: its own)"
+    )
+    parser.add_argument("--slack", type=float, default=None, help="the blocked trainer's slack (default: its own)")
     parser.add_argument("--skip-exact", action="store_true", help="blocked only (no exact baseline)")
     parser.add_argument(
         "--eps-factor",
@@ -125,9 +140,9 @@ def main(argv=None):
             warmup=0,
             notes="one fit per trainer and size; exact and blocked side by side in one process",
         )
-        data = pendulum_samples(bench, args.trajectories, args.steps, seed=1)
+        data = pendulum_samples(bench, args.trajectories, args.steps, seed=args.train_seed)
         heldout = pendulum_samples(bench, args.holdout, args.steps, seed=2)
-        test = make_test_set(bench, args.n_test, args.test_steps, seed=3)
+        test = make_test_set(bench, args.n_test, args.test_steps, seed=args.test_seed)
         n_fun = 4 * len(data[0])
         rate = gemm_rate(n_fun)
         print(f"{len(data[0])} samples ({n_fun} functionals); dgemm {rate['gflops']:.2f} GFLOP/s", flush=True)
@@ -137,9 +152,11 @@ def main(argv=None):
             row = {"max_centers": m, "flops": float(m) ** 2 * n_fun, "arithmetic_limit_s": limit_s}
             if not args.skip_exact:
                 row["exact"] = fit_one("exact", ExactGreedy(), settings, data, heldout, test, bench, m, args)
-            row["blocked"] = fit_one(
-                "blocked", BlockedGreedy(block_size=args.block_size), settings, data, heldout, test, bench, m, args
-            )
+            blocked = BlockedGreedy(block_size=args.block_size)
+            for name in ("pool_factor", "slack"):
+                if getattr(args, name) is not None:
+                    blocked.set_params(**{name: getattr(args, name)})
+            row["blocked"] = fit_one("blocked", blocked, settings, data, heldout, test, bench, m, args)
             if "exact" in row:
                 e, b = row["exact"], row["blocked"]
                 row["ratios"] = {
@@ -147,6 +164,10 @@ def main(argv=None):
                     for k in ("fit_s", "greedy_s", "held_out_error", "traj_error_median", "traj_error_max")
                     if k in e and k in b and e[k]
                 }
+                if "traj_errors" in e and "traj_errors" in b:
+                    per_traj = np.asarray(b["traj_errors"]) / np.asarray(e["traj_errors"])
+                    row["ratios"]["per_traj_median"] = float(np.median(per_traj))
+                    row["ratios"]["per_traj_max"] = float(per_traj.max())
                 print(
                     "  ratios blocked/exact: " + ", ".join(f"{k} {v:.3f}" for k, v in row["ratios"].items()), flush=True
                 )
@@ -159,6 +180,9 @@ def main(argv=None):
                     "functionals": n_fun,
                     "settings": {k: v for k, v in settings.items() if k != "search"},
                     "block_size": args.block_size,
+                    "n_test": args.n_test,
+                    "seeds": {"train": args.train_seed, "held_out": 2, "test": args.test_seed},
+                    "test_steps": args.test_steps,
                     "gemm": rate,
                     "rows": rows,
                 },
