@@ -23,6 +23,10 @@ centre's projection), the minimum any f-greedy on the full Newton basis does; it
 rate of a matrix product (``dgemm`` of shape ``(b, m0) x (m0, N)``, the block update's shape, median of 3)
 is the limit line.  Peak memory: the trainers' formulas (:func:`sympredict.interpolation.greedy.trainer_memory`).
 
+Noise floor (``--noise-floor A.json B.json --json OUT``): two runs of this study on different ``--train-seed``
+and the same test trajectories, compared trainer by trainer: the exact greedy of B against that of A (the
+ratios an equally good exact fit moves by), beside each run's blocked / exact ratios.
+
 Run:  python sympredict_paper/studies/blocked_greedy.py --centers 4000 1000 2000   # 4,000 / 1,000 / 2,000 centres
       python sympredict_paper/studies/blocked_greedy.py --centers 500 --trajectories 60 --json /tmp/quick.json   # a minute
 One BLAS and one numba thread; writes ``docs/data/blocked_greedy.json`` (``--json``).
@@ -31,6 +35,7 @@ One BLAS and one numba thread; writes ``docs/data/blocked_greedy.json`` (``--jso
 from __future__ import annotations
 
 import argparse
+import json
 import time
 
 import numpy as np
@@ -105,6 +110,47 @@ def fit_one(label, trainer, settings, data, heldout, test, bench, m, args) -> di
     return out
 
 
+def _ratios(num: dict, den: dict) -> dict:
+    """Ratios ``num / den`` of two fits' errors, and per test trajectory (their median and max)."""
+    out = {k: num[k] / den[k] for k in ("held_out_error", "traj_error_median", "traj_error_max") if den.get(k)}
+    per_traj = np.asarray(num["traj_errors"]) / np.asarray(den["traj_errors"])
+    out["per_traj_median"], out["per_traj_max"] = float(np.median(per_traj)), float(per_traj.max())
+    return out
+
+
+def noise_floor(path_a: str, path_b: str) -> dict:
+    """The exact greedy of run B against that of run A at each size both ran (``exact_b_over_a``), beside each
+    run's blocked / exact ratios; the runs must share the test trajectories and differ in the training seed."""
+    a, b = (json.loads(open(p, encoding="utf-8").read()) for p in (path_a, path_b))
+    for key in ("n_test", "test_steps", "system"):
+        if a.get(key) != b.get(key):
+            raise SystemExit(f"--noise-floor: the runs differ in {key!r} ({a.get(key)!r} vs {b.get(key)!r})")
+    if a["seeds"]["test"] != b["seeds"]["test"] or a["seeds"]["train"] == b["seeds"]["train"]:
+        raise SystemExit("--noise-floor: the runs must share the test seed and differ in the training seed")
+    rows_b = {r["max_centers"]: r for r in b["rows"]}
+    rows = []
+    for ra in a["rows"]:
+        rb = rows_b.get(ra["max_centers"])
+        if rb is None:
+            continue
+        rows.append(
+            {
+                "max_centers": ra["max_centers"],
+                "exact_b_over_a": _ratios(rb["exact"], ra["exact"]),
+                "blocked_over_exact_a": _ratios(ra["blocked"], ra["exact"]),
+                "blocked_over_exact_b": _ratios(rb["blocked"], rb["exact"]),
+            }
+        )
+    if not rows:
+        raise SystemExit("--noise-floor: the runs share no size (max_centers)")
+    return {
+        "runs": {"a": path_a, "b": path_b},
+        "seeds": {"a": a["seeds"], "b": b["seeds"]},
+        "n_test": a["n_test"],
+        "rows": rows,
+    }
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--centers", type=int, nargs="+", default=[1000, 2000, 4000])
@@ -122,6 +168,9 @@ def main(argv=None):
     parser.add_argument("--slack", type=float, default=None, help="the blocked trainer's slack (default: its own)")
     parser.add_argument("--skip-exact", action="store_true", help="blocked only (no exact baseline)")
     parser.add_argument(
+        "--noise-floor", nargs=2, metavar=("A_JSON", "B_JSON"), help="compare two runs (see above); needs --json"
+    )
+    parser.add_argument(
         "--eps-factor",
         type=float,
         default=4.0,
@@ -130,6 +179,15 @@ def main(argv=None):
     )
     _protocol.add_arguments(parser, threads=1, json_default="docs/data/blocked_greedy.json")
     args = parser.parse_args(argv)
+    if args.noise_floor:
+        if args.json == "docs/data/blocked_greedy.json":
+            raise SystemExit(
+                "--noise-floor writes its own JSON: give --json (e.g. docs/data/blocked_greedy_noise.json)"
+            )
+        record = _protocol.record_options(args, repeats=1, warmup=0, notes="derived from the two runs' JSON")
+        _protocol.write_json(args.json, noise_floor(*args.noise_floor), record)
+        print(f"wrote {args.json}")
+        return
     bench = make_benchmarks()["coupled_pendulums"]
     settings = dict(HAND["coupled_pendulums"])
     settings["eps_state"] *= args.eps_factor
@@ -165,9 +223,7 @@ def main(argv=None):
                     if k in e and k in b and e[k]
                 }
                 if "traj_errors" in e and "traj_errors" in b:
-                    per_traj = np.asarray(b["traj_errors"]) / np.asarray(e["traj_errors"])
-                    row["ratios"]["per_traj_median"] = float(np.median(per_traj))
-                    row["ratios"]["per_traj_max"] = float(per_traj.max())
+                    row["ratios"].update(_ratios(b, e))
                 print(
                     "  ratios blocked/exact: " + ", ".join(f"{k} {v:.3f}" for k, v in row["ratios"].items()), flush=True
                 )
