@@ -1,6 +1,7 @@
 """The blocked-greedy study's noise floor: two runs' JSON compared trainer by trainer, as its users run it."""
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -67,3 +68,30 @@ def test_the_noise_floor_refuses_runs_that_are_not_comparable(tmp_path):
                 str(tmp_path / "a.json"),
                 str(tmp_path / other),
             )
+
+
+def test_the_published_ratios_are_those_of_the_runs_per_trajectory_errors():
+    """The scaling page's ratios, recomputed from the committed runs' per-trajectory errors by separate code."""
+    data = Path(__file__).resolve().parents[2] / "docs" / "data"
+    first, second, noise = (
+        json.loads((data / name).read_text())
+        for name in ("blocked_greedy.json", "blocked_greedy_seed4.json", "blocked_greedy_noise.json")
+    )
+    for row in first["rows"]:
+        exact, blocked = (np.asarray(row[k]["traj_errors"]) for k in ("exact", "blocked"))
+        assert len(exact) == first["n_test"] == 100
+        assert row["ratios"]["traj_error_max"] == pytest.approx(blocked.max() / exact.max(), rel=1e-12)
+        assert row["ratios"]["traj_error_median"] == pytest.approx(np.median(blocked) / np.median(exact), rel=1e-12)
+        assert row["ratios"]["per_traj_median"] == pytest.approx(np.median(blocked / exact), rel=1e-12)
+    (published,) = noise["rows"]
+    a = next(r for r in first["rows"] if r["max_centers"] == published["max_centers"])
+    (b,) = second["rows"]
+    ea, eb = np.asarray(a["exact"]["traj_errors"]), np.asarray(b["exact"]["traj_errors"])
+    assert second["seeds"]["train"] != first["seeds"]["train"] and second["seeds"]["test"] == first["seeds"]["test"]
+    assert published["exact_b_over_a"]["traj_error_max"] == pytest.approx(eb.max() / ea.max(), rel=1e-12)
+    assert published["exact_b_over_a"]["per_traj_median"] == pytest.approx(np.median(eb / ea), rel=1e-12)
+    assert published["exact_b_over_a"]["held_out_error"] == pytest.approx(
+        b["exact"]["held_out_error"] / a["exact"]["held_out_error"], rel=1e-12
+    )
+    bb = np.asarray(b["blocked"]["traj_errors"])
+    assert published["blocked_over_exact_b"]["traj_error_max"] == pytest.approx(bb.max() / eb.max(), rel=1e-12)
