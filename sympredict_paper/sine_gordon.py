@@ -51,6 +51,7 @@ import numpy as np
 from pymor.core.logger import getLogger
 
 from sympredict_paper import scenario_main
+from sympredict_paper.speed import time_median
 from sympredict.systems.flowmaps import midpoint_sigma_min, type2_sigma_min
 from sympredict.kernels import IMQ
 from sympredict.symplectic.metrics import canonical_J, relative_trajectory_error
@@ -214,17 +215,6 @@ def initial_states(fom, p: SineGordonPreset, c, s) -> np.ndarray:
     return s[:, None] * fom.sech_cos(2.0, 1.0)[None, :]
 
 
-def _median_time(fn, repeats):
-    """Median wall time of ``repeats`` calls after one untimed call (compilation, caches: the same for every method)."""
-    fn()
-    times = []
-    for _ in range(repeats):
-        t = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t)
-    return float(np.median(times))
-
-
 def fom_data(p: SineGordonPreset) -> dict:
     """The FOM, the training and test parameters and the FOM trajectories of a run (what
     :func:`run_sine_gordon` and the benchmarks share).
@@ -293,9 +283,9 @@ def run_sine_gordon(preset: SineGordonPreset = PRESETS["quick"], **overrides) ->
         out["fom_step_halving_estimate"] = d["step_halving_estimate"]
         x0_te = X_te[:, 0]
         x_te = X_te[:, : K + 1]
-        out["fom_time_per_trajectory"] = _median_time(
+        out["fom_time_per_trajectory"] = time_median(
             lambda: fom.reference_trajectory(x0_te[:1], c_te[:1], p.DT, K, tol=p.ref_tol), max(1, p.repeats // 2)
-        )
+        )[0]
         snaps = X_tr.reshape(-1, fom.dim)
         for dim in p.dims:
             out["dims"][dim] = _one_dimension(fom, p, dim // 2, snaps, X_tr, c_tr, a_tr, X_te, c_te, a_te, K)
@@ -478,9 +468,9 @@ def _one_dimension(fom, p, n, snaps, X_tr, c_tr, a_tr, X_te, c_te, a_te, K):
             energy[f"kernel_{data}"] = energy_per_test[f"kernel_{data}"].max(axis=0).tolist()
             entry["energy_error_long"] = max(energy[f"kernel_{data}"])
             snapshots[f"kernel_{data}"] = gal.reconstruct(Yk[0, snap_k])[:, : fom.n_points].tolist()
-            entry["time_per_trajectory"] = _median_time(
+            entry["time_per_trajectory"] = time_median(
                 lambda: flow.rollout(y0[:1], K, mu=c_te[:1, None], dt=p.DT), p.repeats
-            )
+            )[0]
         except Exception as exc:  # a failed rollout is a result, reported as such
             entry["failure"] = failure_text(exc)
         res[f"kernel_{data}"] = entry
@@ -492,18 +482,11 @@ def _one_dimension(fom, p, n, snaps, X_tr, c_tr, a_tr, X_te, c_te, a_te, K):
     res["curves"], res["energy"], res["snapshots"] = curves, energy, snapshots
     res["energy_per_test"] = {k: v.tolist() for k, v in energy_per_test.items()}
     res["energy_bounded"] = {k: energy_boundedness(v, K) for k, v in energy_per_test.items()}
-    res["galerkin_time_per_trajectory"] = _median_time(
-        lambda: gal.solve(y0[:1], c_te[:1], p.DT, K, substeps=p.substeps), p.repeats
-    )
-    res["galerkin_rk4_time_per_trajectory"] = _median_time(
-        lambda: gal.solve(y0[:1], c_te[:1], p.DT, K, scheme="rk4", substeps=p.substeps), p.repeats
-    )
-    res["deim_time_per_trajectory"] = _median_time(
-        lambda: deim.solve(y0[:1], c_te[:1], p.DT, K, substeps=p.substeps), p.repeats
-    )
-    res["deim_rk4_time_per_trajectory"] = _median_time(
-        lambda: deim.solve(y0[:1], c_te[:1], p.DT, K, scheme="rk4", substeps=p.substeps), p.repeats
-    )
+    for name, rom in (("galerkin", gal), ("deim", deim)):  # implicit midpoint (the default) and RK4
+        for suffix, scheme in (("", {}), ("_rk4", {"scheme": "rk4"})):
+            res[f"{name}{suffix}_time_per_trajectory"] = time_median(
+                lambda: rom.solve(y0[:1], c_te[:1], p.DT, K, substeps=p.substeps, **scheme), p.repeats
+            )[0]
     return res
 
 
@@ -897,7 +880,9 @@ def _large_step(p, gal, X_tr, c_tr, X_te, c_te, K):
             out[f"{scheme}_at_DT_error"] = _err(gal, gal.solve(y0, c_te, dt, Kl, scheme=scheme), x_te).tolist()
         except Exception as exc:  # a Newton failure is a result here
             out[f"{scheme}_at_DT_error"] = f"failed: {type(exc).__name__}"
-    out["implicit_midpoint_time_per_trajectory"] = _median_time(lambda: gal.solve(y0[:1], c_te[:1], dt, Kl), p.repeats)
+    out["implicit_midpoint_time_per_trajectory"] = time_median(lambda: gal.solve(y0[:1], c_te[:1], dt, Kl), p.repeats)[
+        0
+    ]
     Yp = gal.project(X_tr)
     flow, model, fit_time, reg, table = _fit_kernel(
         p, Yp[:, :-s], Yp[:, s:], c_tr, dt, update="midpoint", stride=s, quadratic=quad, gal=gal
@@ -914,9 +899,9 @@ def _large_step(p, gal, X_tr, c_tr, X_te, c_te, K):
     }
     try:
         entry["error"] = _err(gal, flow.rollout(y0, Kl, mu=c_te[:, None], dt=dt), x_te).tolist()
-        entry["time_per_trajectory"] = _median_time(
+        entry["time_per_trajectory"] = time_median(
             lambda: flow.rollout(y0[:1], Kl, mu=c_te[:1, None], dt=dt), p.repeats
-        )
+        )[0]
     except Exception as exc:  # a failed rollout is a result, reported as such
         entry["failure"] = failure_text(exc)
     out["kernel_projected_midpoint"] = entry
@@ -945,7 +930,7 @@ def _data_driven(fom, p, Yp_tr, c_tr, a_tr, c_te, a_te, gal, x_te, K, curves):
         Y = np.stack([rom.solve(mu).to_numpy().T for mu in mus])  # (B, K+1, 2n)
         entry["error"] = _err(gal, Y, x_te).tolist()
         curves["data_driven"] = _curve(gal, Y, x_te).tolist()
-        entry["time_per_trajectory"] = _median_time(lambda: rom.solve(mus[0]), p.repeats)
+        entry["time_per_trajectory"] = time_median(lambda: rom.solve(mus[0]), p.repeats)[0]
     except Exception as exc:  # reported, not raised
         entry["failure"] = failure_text(exc)
     return entry

@@ -55,8 +55,9 @@ def deliberate_threads(n: int):
             numba.set_num_threads(old)
 
 
-def time_median(run, repeats: int, batch: int):
-    """One untimed warm-up call, then the median wall time of ``repeats`` calls divided by ``batch``; and the last output."""
+def time_median(run, repeats: int, batch: int = 1):
+    """One untimed warm-up call (compilation, caches: the same for every method), then the median wall time of
+    ``repeats`` calls divided by ``batch``; and the last output."""
     out = run()
     times = []
     for _ in range(repeats):

@@ -43,6 +43,7 @@ from pymordemos.symplectic_wave_equation import discretize_fom  # noqa: E402
 from sympredict.systems.flowmaps import random_parameters  # noqa: E402
 from sympredict.mor import DefaultEstimator, GalerkinSamples, ProjectedTrajectories, SymplecticKernelReductor  # noqa: E402
 from sympredict.flowmap.scaling import BoxScaling  # noqa: E402
+from sympredict_paper.speed import time_median  # noqa: E402
 
 set_log_levels({"pymor": "ERROR", "sympredict": "WARNING"})
 
@@ -79,16 +80,6 @@ def errors(mu, U_rom):
     first = min(n, K + 1)
     e = lambda a, b: float(np.sqrt((R[a:b] - U_rom[a:b]).norm2().sum() / R[a:b].norm2().sum()))
     return e(0, first), (e(K + 1, n) if n > K + 1 else None)
-
-
-def timed(fn, repeats):
-    fn()  # warm-up (compilation, caches)
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return float(np.median(times))
 
 
 rows = []
@@ -227,7 +218,7 @@ for row in rows:
         _, el = errors(mu, row["long"](mu))
         errs.append(e)
         errs_long.append(el)
-        times.append(timed(lambda: row["solve"](mu), args.repeats))
+        times.append(time_median(lambda: row["solve"](mu), args.repeats)[0])
     results.append(
         {k: v for k, v in row.items() if k not in ("solve", "long", "recon")}
         | {

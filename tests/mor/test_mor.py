@@ -431,20 +431,11 @@ def test_projected_reductor_on_a_nonlinear_pymor_model():
 
 def test_reductor_bad_input(wave):
     fom, train, RB, dt = wave
+    stationary = StationaryModel(NumpyMatrixOperator(np.eye(4)), NumpyMatrixOperator(np.ones((4, 1))))
     with pytest.raises(ValueError, match="Hamiltonian"):
-        SymplecticKernelReductor(
-            StationaryModel(NumpyMatrixOperator(np.eye(4)), NumpyMatrixOperator(np.ones((4, 1)))),
-            RB,
-            dt,
-            GalerkinSamples(train),
-        )
+        SymplecticKernelReductor(stationary, RB, dt, GalerkinSamples(train))
     with pytest.raises(ValueError, match="time-dependent pyMOR Model.*lacks initial_data, T"):
-        SymplecticKernelReductor(
-            StationaryModel(NumpyMatrixOperator(np.eye(4)), NumpyMatrixOperator(np.ones((4, 1)))),
-            RB,
-            dt,
-            ProjectedTrajectories(train),
-        )
+        SymplecticKernelReductor(stationary, RB, dt, ProjectedTrajectories(train))
     bad = SymplecticBasis(RB.E * 1.1, RB.F, check_symplecticity=False)
     with pytest.raises(ValueError, match="not symplectic"):
         SymplecticKernelReductor(fom, bad, dt, GalerkinSamples(train))
