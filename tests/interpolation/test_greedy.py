@@ -97,6 +97,67 @@ def test_tolerance_stop_and_argument_checks(rng):
         greedy_interpolation(fun, y.ravel(), max_centers=50, memory_limit=8 * 80 * 10)
 
 
+def test_functional_forms_are_the_strategies_run(rng):
+    """greedy_interpolation / active_set_greedy split their keywords into the strategy's settings and the run's
+    arguments: the same result as the strategy's run, and any other keyword refused, naming both lists."""
+    from sympredict.interpolation.greedy import ActiveSetGreedy, ExactGreedy, active_set_greedy
+
+    kernel = ProductKernel(IMQ(0.5), IMQ(2.0), IMQ(5.0))
+    fun, xi, mu, dt, y = _problem(rng, kernel, m_points=40)
+    seen = []
+    res = greedy_interpolation(
+        fun, y.ravel(), max_centers=30, tol=0.0, criterion="p", callback=lambda m, e: seen.append(m)
+    )
+    ref = ExactGreedy(tol=0.0, criterion="p").run(fun, y.ravel(), max_centers=30)
+    np.testing.assert_array_equal(res.selected, ref.selected)
+    np.testing.assert_array_equal(res.coef, ref.coef)
+    assert len(seen) == len(res.selected)
+    act = active_set_greedy(fun, y.ravel(), max_centers=20, tol=0.0, initial_points=10, refresh_every=5)
+    act_ref = ActiveSetGreedy(initial_points=10, refresh_every=5, tol=0.0).run(fun, y.ravel(), max_centers=20)
+    np.testing.assert_array_equal(act.selected, act_ref.selected)
+    with pytest.raises(
+        TypeError,
+        match=r"greedy_interpolation\(\) got unexpected keyword arguments \['tolerance'\]; "
+        r"ExactGreedy's settings are \[.*'tol'.*\], the run's arguments \[.*'validation'.*\]",
+    ):
+        greedy_interpolation(fun, y.ravel(), max_centers=5, tolerance=1e-3)
+    with pytest.raises(ValueError, match="keep_basis needs ExactGreedy"):
+        active_set_greedy(fun, y.ravel(), max_centers=5, keep_basis=True)
+
+
+def test_strategies_declare_their_settings_once_and_hand_their_own_to_the_store():
+    """The shared settings are the Trainer's keyword-only fields, each strategy's own settings its positional
+    fields, which are its store's keyword arguments (by the same names, every one of them)."""
+    import inspect
+
+    from sympredict.interpolation.greedy import TRAINERS, Trainer
+    from sympredict.interpolation.greedy.trainers import ActiveSetStore, BoundedActiveSetStore, BlockedStore
+    from sympredict.interpolation.greedy.trainers import DenseStore, ShardedStore
+
+    stores = {
+        "ExactGreedy": DenseStore,
+        "ActiveSetGreedy": ActiveSetStore,
+        "ShardedGreedy": ShardedStore,
+        "BlockedGreedy": BlockedStore,
+        "BoundedActiveSetGreedy": BoundedActiveSetStore,
+    }
+    assert set(stores) == set(TRAINERS)
+    for name, cls in TRAINERS.items():
+        params = inspect.signature(cls.__init__).parameters.values()
+        keyword = {p.name for p in params if p.kind is p.KEYWORD_ONLY}
+        own = [p.name for p in params if p.kind is p.POSITIONAL_OR_KEYWORD and p.name != "self"]
+        assert {"tol", "power_tol", "target_error"} <= keyword and not keyword & set(own), name
+        trainer = cls()
+        settings = trainer.store_settings(validation=None)
+        assert all(settings[k] == getattr(trainer, k) for k in own), name
+        assert set(own) <= set(inspect.signature(stores[name].__init__).parameters), name
+        assert set(settings) - {"power_tol", "validation"} <= set(trainer.get_params()), name
+    # a strategy lacking a setting runs with the Trainer's value for it, and cannot be given one
+    assert Trainer.criterion == "f" and Trainer.regularization == 0.0 and Trainer.memory_limit is None
+    with pytest.raises(TypeError):
+        TRAINERS["ActiveSetGreedy"](criterion="p")
+
+
 def test_mixed_variables_roundtrip(rng):
     x0, x1, dt = rng.normal(size=(5, 4)), rng.normal(size=(5, 4)), rng.uniform(0.1, 0.2, 5)
     xi, y = mixed_variables(x0, x1, dt)

@@ -14,7 +14,8 @@ strategies themselves).
 
 from __future__ import annotations
 
-from typing import Callable, Optional
+import inspect
+from typing import Optional
 
 from sympredict.interpolation.greedy.active_set import BoundedActiveSetStore, ActiveSetStore, bounded_memory
 from sympredict.interpolation.greedy.dense import DenseStore
@@ -80,20 +81,12 @@ __all__ = [
 ]
 
 
-def greedy_interpolation(
-    functionals,
-    targets,
-    *,
-    max_centers: int,
-    validation: Optional[tuple] = None,
-    divergence_factor: float = 100.0,
-    log_every: int = 100,
-    keep_basis: bool = False,
-    **settings,
-) -> GreedyResult:
+def greedy_interpolation(functionals, targets, *, max_centers: int, **arguments) -> GreedyResult:
     """Sparse generalized interpolation by f-greedy (or P-greedy) selection, all candidates in memory.
 
-    ``ExactGreedy(**settings).run(...)``: the strategy the estimators take, run once on explicit arguments.
+    ``ExactGreedy(**settings).run(...)``: the strategy the estimators take, run once on explicit arguments
+    (the keyword arguments that are :class:`ExactGreedy`'s settings make the strategy, the others go to
+    :meth:`Trainer.run`).
 
     Parameters
     ----------
@@ -104,49 +97,34 @@ def greedy_interpolation(
         shared centres (selection by the max over outputs).
     max_centers : int
         Upper bound on the number of selected functionals.
-    validation : tuple or None, default=None
-        Optional ``(val_functionals, val_targets)``; then ``E_val(m)`` is recorded.
-    divergence_factor : float, default=100.0
-        Blow-up factor of the residual that stops and truncates the run
-        (:func:`~sympredict.interpolation.greedy.loop.run_greedy`).
-    log_every : int, default=100
-        Log progress every this many steps.
-    keep_basis : bool, default=False
-        Return the Newton basis in :attr:`GreedyResult.basis` (benchmarks).
-    **settings
-        The settings of :class:`ExactGreedy`, which checks them: ``tol=1e-10``, ``criterion='f'``,
-        ``power_tol=1e-12``, ``memory_limit=None``, ``basis_dtype='float64'``, ``regularization=0.0``.
+    **arguments
+        :meth:`Trainer.run`'s arguments: ``validation=None`` (optional ``(val_functionals, val_targets)``;
+        then ``E_val(m)`` is recorded), ``divergence_factor=100.0`` (blow-up factor of the residual that stops
+        and truncates the run, :func:`~sympredict.interpolation.greedy.loop.run_greedy`), ``log_every=100``
+        (log progress every this many steps), ``keep_basis=False`` (return the Newton basis in
+        :attr:`GreedyResult.basis`; benchmarks), ``callback=None``; and the settings of
+        :class:`ExactGreedy`, which checks them: ``tol=1e-10``, ``criterion='f'``, ``power_tol=1e-12``,
+        ``memory_limit=None``, ``basis_dtype='float64'``, ``regularization=0.0``.
 
     Returns
     -------
     GreedyResult
+
+    Raises
+    ------
+    TypeError
+        A keyword argument that is neither a setting of the strategy nor an argument of :meth:`Trainer.run`
+        (the message lists both).
 
     Notes
     -----
     Time ``O(m^2 (N + N_val) / 2)`` memory traffic, memory ``itemsize m_max (N + N_val)``
     bytes (:mod:`sympredict.interpolation.greedy.dense`).
     """
-    return ExactGreedy(**settings).run(
-        functionals,
-        targets,
-        max_centers=max_centers,
-        validation=validation,
-        divergence_factor=divergence_factor,
-        log_every=log_every,
-        keep_basis=keep_basis,
-    )
+    return _run_strategy(ExactGreedy, "greedy_interpolation", functionals, targets, max_centers, arguments)
 
 
-def active_set_greedy(
-    functionals,
-    targets,
-    *,
-    max_centers: int,
-    validation: Optional[tuple] = None,
-    divergence_factor: float = 100.0,
-    log_every: int = 100,
-    **settings,
-) -> GreedyResult:
+def active_set_greedy(functionals, targets, *, max_centers: int, **arguments) -> GreedyResult:
     """Fast f-greedy on an active subset of the points, refreshed against the full residual (:class:`ActiveSetStore`).
 
     ``ActiveSetGreedy(**settings).run(...)``.  Arguments as in :func:`greedy_interpolation`, with the settings of
@@ -155,27 +133,11 @@ def active_set_greedy(
     is the active set's maximum after ``k`` centres, except the last entry: the full maximum over all ``N``
     candidates; ``'tol'`` only if that full maximum is at or below ``tol``.
     """
-    return ActiveSetGreedy(**settings).run(
-        functionals,
-        targets,
-        max_centers=max_centers,
-        validation=validation,
-        divergence_factor=divergence_factor,
-        log_every=log_every,
-    )
+    return _run_strategy(ActiveSetGreedy, "active_set_greedy", functionals, targets, max_centers, arguments)
 
 
 def sharded_greedy(
-    functionals,
-    targets,
-    *,
-    max_centers: int,
-    validation: Optional[tuple] = None,
-    divergence_factor: float = 100.0,
-    log_every: int = 100,
-    callback: Optional[Callable[[int, float], None]] = None,
-    stats: Optional[dict] = None,
-    **settings,
+    functionals, targets, *, max_centers: int, stats: Optional[dict] = None, **arguments
 ) -> GreedyResult:
     """f-greedy (or P-greedy) with the candidates sharded over a pyMOR worker pool (:class:`~sympredict.interpolation.greedy.sharded.ShardedStore`).
 
@@ -192,15 +154,24 @@ def sharded_greedy(
     sympredict.parallel.WorkerError
         Any other exception on a worker (names the rank, carries the remote traceback).
     """
-    result = ShardedGreedy(**settings).run(
-        functionals,
-        targets,
-        max_centers=max_centers,
-        validation=validation,
-        divergence_factor=divergence_factor,
-        log_every=log_every,
-        callback=callback,
-    )
+    result = _run_strategy(ShardedGreedy, "sharded_greedy", functionals, targets, max_centers, arguments)
     if stats is not None:
         stats.update(result.stats)
     return result
+
+
+def _run_strategy(cls: type, caller: str, functionals, targets, max_centers: int, arguments: dict) -> GreedyResult:
+    """``cls(**settings).run(functionals, targets, max_centers=max_centers, **rest)``: ``arguments`` split into the
+    strategy's settings (its ``__init__`` parameters) and :meth:`Trainer.run`'s arguments; ``TypeError`` naming
+    ``caller`` for any other keyword."""
+    names = set(cls().get_params(deep=False))  # the strategy's settings (its defaults' names)
+    run_names = set(inspect.signature(Trainer.run).parameters) - {"self", "functionals", "targets", "max_centers"}
+    unknown = sorted(set(arguments) - names - run_names)
+    if unknown:
+        raise TypeError(
+            f"{caller}() got unexpected keyword arguments {unknown}; {cls.__name__}'s settings are "
+            f"{sorted(names)}, the run's arguments {sorted(run_names)}"
+        )
+    settings = {k: v for k, v in arguments.items() if k in names}
+    rest = {k: v for k, v in arguments.items() if k not in names}
+    return cls(**settings).run(functionals, targets, max_centers=max_centers, **rest)

@@ -48,6 +48,9 @@ logger = getLogger("sympredict.interpolation.greedy")
 class ActiveSetStore(BaseStore):
     """Newton basis on an active subset of the points (f-greedy, one output, HB functionals).
 
+    Built by :class:`~sympredict.interpolation.greedy.trainers.ActiveSetGreedy`, which declares the defaults of the
+    active set's settings (``initial_points`` to ``seed``); here they are required.
+
     Parameters
     ----------
     functionals
@@ -87,12 +90,12 @@ class ActiveSetStore(BaseStore):
         power_tol: float = 1e-12,
         validation: Optional[tuple] = None,
         memory_limit: Optional[float] = None,
-        initial_points: int = 8192,
-        refresh_every: int = 200,
-        max_new_points: int = 4096,
-        margin: float = 0.7,
-        refresh_fraction: float = 0.25,
-        seed: int = 0,
+        initial_points: int,
+        refresh_every: int,
+        max_new_points: int,
+        margin: float,
+        refresh_fraction: float,
+        seed: int,
     ):
         if not isinstance(functionals, HBFunctionals):
             raise ValueError("the active-set greedy needs HBFunctionals (state-derivative functionals)")

@@ -42,7 +42,8 @@ with :func:`register_trainer` so that model files can name it.
 
 from __future__ import annotations
 
-from typing import Optional
+from dataclasses import KW_ONLY, dataclass, fields
+from typing import ClassVar, Optional
 
 import numpy as np
 
@@ -88,26 +89,34 @@ def register_trainer(cls):
     return cls
 
 
+@dataclass(eq=False, repr=False, kw_only=True)
 class Trainer(Setting):
     """A training strategy: owns the greedy's settings and builds the store the greedy loop runs on.
 
     Every strategy has ``tol`` (stop when the max training residual is at or
     below it; the estimator makes it relative to the data's scale for data in
-    small units) and ``power_tol`` (the breakdown guard, relative to the Gramian
-    diagonal); strategies that can, also ``criterion`` (``'f'``: f-greedy,
-    ``'p'``: P-greedy), ``memory_limit`` (bytes for the Newton basis) and
-    ``regularization`` (the ridge term ``lambda``).  A strategy lacks a setting it
+    small units), ``power_tol`` (the breakdown guard, relative to the Gramian
+    diagonal) and ``target_error``, declared here once as keyword-only settings;
+    strategies that can, also ``criterion`` (``'f'``: f-greedy, ``'p'``: P-greedy),
+    ``memory_limit`` (bytes for the Newton basis) and ``regularization`` (the ridge
+    term ``lambda``), declared by each such strategy.  A strategy lacks a setting it
     cannot run, so a combination it cannot run cannot be written.
+
+    The strategies are dataclasses (``eq=False, repr=False``: equality and ``repr`` are
+    :class:`~sympredict.base.Setting`'s): the generated ``__init__`` only stores, its arguments are the
+    settings (:meth:`~sympredict.base.Parametrized.get_params`), a strategy's own settings positional
+    first, the shared ones keyword-only.
     """
 
     tol: float = 1e-10
     power_tol: float = 1e-12
-    criterion: str = "f"
-    memory_limit: Optional[float] = None
-    regularization: float = 0.0
     #: Accuracy on demand: the median relative one-step error on held-out samples the estimator grows the
     #: model to (``None``: no target, the size is ``max_centers``); read by the estimator's fit.
     target_error: Optional[float] = None
+    #: What a strategy without the setting runs with (an f-greedy, its basis unbounded but checked, no ridge).
+    criterion: ClassVar[str] = "f"
+    memory_limit: ClassVar[Optional[float]] = None
+    regularization: ClassVar[float] = 0.0
 
     def check(self) -> "Trainer":
         """``ValueError`` naming the setting that is malformed; returns ``self``."""
@@ -147,12 +156,16 @@ class Trainer(Setting):
         raise NotImplementedError
 
     def store_settings(self, validation: Optional[tuple]) -> dict:
-        """The keyword arguments every store takes from its strategy: ``power_tol``, ``validation``, and
-        ``criterion`` and ``memory_limit`` where they are among the strategy's parameters (an f-greedy-only
-        strategy has no ``criterion``, a sharded one a memory limit per rank instead)."""
+        """The keyword arguments a store takes from its strategy: ``power_tol``, ``validation``; ``criterion``,
+        ``memory_limit`` and ``regularization`` where they are among the strategy's settings (an f-greedy-only
+        strategy has no ``criterion``, a sharded one a memory limit per rank instead); and the strategy's own
+        settings, its positional fields (``basis_dtype``, ``block_size``, ...), which are its store's."""
         params = self.get_params(deep=False)
         shared = {name: params[name] for name in ("criterion", "memory_limit") if name in params}
-        return {"power_tol": self.power_tol, "validation": validation, **shared}
+        if "regularization" in params:
+            shared["regularization"] = float(params["regularization"])
+        own = {f.name: getattr(self, f.name) for f in fields(self) if not f.kw_only}
+        return {"power_tol": self.power_tol, "validation": validation, **shared, **own}
 
     def run(
         self,
@@ -204,6 +217,7 @@ class Trainer(Setting):
 
 
 @register_trainer
+@dataclass(eq=False, repr=False)
 class ExactGreedy(Trainer):
     """The exact f-greedy (or P-greedy) over all candidates (:class:`~sympredict.interpolation.greedy.dense.DenseStore`).
 
@@ -244,36 +258,18 @@ class ExactGreedy(Trainer):
     checked before the run; time ``O(m^2 (N + N_val))`` at memory bandwidth.
     """
 
-    def __init__(
-        self,
-        basis_dtype: str = "float64",
-        *,
-        tol: float = 1e-10,
-        criterion: str = "f",
-        power_tol: float = 1e-12,
-        memory_limit: Optional[float] = None,
-        regularization: float = 0.0,
-        target_error: Optional[float] = None,
-    ):
-        self.target_error = target_error
-        self.tol = tol
-        self.criterion = criterion
-        self.power_tol = power_tol
-        self.memory_limit = memory_limit
-        self.regularization = regularization
-        self.basis_dtype = basis_dtype
+    basis_dtype: str = "float64"
+    _: KW_ONLY
+    criterion: str = "f"
+    memory_limit: Optional[float] = None
+    regularization: float = 0.0
 
     def store(self, functionals, targets, *, tol, validation):
-        return DenseStore(
-            functionals,
-            targets,
-            **self.store_settings(validation),
-            basis_dtype=self.basis_dtype,
-            regularization=float(self.regularization),
-        )
+        return DenseStore(functionals, targets, **self.store_settings(validation))
 
 
 @register_trainer
+@dataclass(eq=False, repr=False)
 class ActiveSetGreedy(Trainer):
     """f-greedy on an active subset of the samples, refreshed against the full residual.
 
@@ -287,30 +283,14 @@ class ActiveSetGreedy(Trainer):
     trains in a fraction of the exact greedy's time (``docs/explanation/performance.md``).
     """
 
-    def __init__(
-        self,
-        initial_points: int = 8192,
-        refresh_every: int = 200,
-        max_new_points: int = 4096,
-        margin: float = 0.7,
-        refresh_fraction: float = 0.25,
-        seed: int = 0,
-        *,
-        tol: float = 1e-10,
-        power_tol: float = 1e-12,
-        memory_limit: Optional[float] = None,
-        target_error: Optional[float] = None,
-    ):
-        self.target_error = target_error
-        self.tol = tol
-        self.power_tol = power_tol
-        self.memory_limit = memory_limit
-        self.initial_points = initial_points
-        self.refresh_every = refresh_every
-        self.max_new_points = max_new_points
-        self.margin = margin
-        self.refresh_fraction = refresh_fraction
-        self.seed = seed
+    initial_points: int = 8192
+    refresh_every: int = 200
+    max_new_points: int = 4096
+    margin: float = 0.7
+    refresh_fraction: float = 0.25
+    seed: int = 0
+    _: KW_ONLY
+    memory_limit: Optional[float] = None
 
     def store(self, functionals, targets, *, tol, validation):
         if not isinstance(functionals, HBFunctionals):
@@ -318,15 +298,11 @@ class ActiveSetGreedy(Trainer):
                 "ActiveSetGreedy needs state-derivative functionals (the symplectic predictor): "
                 "use ExactGreedy() or ShardedGreedy() for the direct model"
             )
-        own = {
-            k: v
-            for k, v in self.get_params(deep=False).items()
-            if k not in ("tol", "power_tol", "memory_limit", "target_error")
-        }
-        return ActiveSetStore(functionals, targets, tol=tol, **self.store_settings(validation), **own)
+        return ActiveSetStore(functionals, targets, tol=tol, **self.store_settings(validation))
 
 
 @register_trainer
+@dataclass(eq=False, repr=False)
 class ShardedGreedy(Trainer):
     """The exact greedy with the candidates sharded over a pyMOR worker pool (:class:`~sympredict.interpolation.greedy.sharded.ShardedStore`).
 
@@ -350,28 +326,13 @@ class ShardedGreedy(Trainer):
     result's store statistics (``model.greedy_result_.stats``).
     """
 
-    def __init__(
-        self,
-        pool=None,
-        n_shards: Optional[int] = None,
-        memory_limit_per_rank: Optional[float] = None,
-        timeout: Optional[float] = 60.0,
-        *,
-        tol: float = 1e-10,
-        criterion: str = "f",
-        power_tol: float = 1e-12,
-        regularization: float = 0.0,
-        target_error: Optional[float] = None,
-    ):
-        self.target_error = target_error
-        self.pool = pool
-        self.tol = tol
-        self.criterion = criterion
-        self.power_tol = power_tol
-        self.regularization = regularization
-        self.n_shards = n_shards
-        self.memory_limit_per_rank = memory_limit_per_rank
-        self.timeout = timeout
+    pool: object = None
+    n_shards: Optional[int] = None
+    memory_limit_per_rank: Optional[float] = None
+    timeout: Optional[float] = 60.0
+    _: KW_ONLY
+    criterion: str = "f"
+    regularization: float = 0.0
 
     def check(self) -> "ShardedGreedy":
         """As :meth:`Trainer.check`, and ``pool`` must be a pyMOR worker pool (or ``None``)."""
@@ -388,16 +349,7 @@ class ShardedGreedy(Trainer):
         return type(self)(**params)  # the same pool object: a pool is a connection, not a setting
 
     def store(self, functionals, targets, *, tol, validation):
-        return ShardedStore(
-            functionals,
-            targets,
-            **self.store_settings(validation),
-            pool=self.pool,
-            n_shards=self.n_shards,
-            memory_limit_per_rank=self.memory_limit_per_rank,
-            timeout=self.timeout,
-            regularization=float(self.regularization),
-        )
+        return ShardedStore(functionals, targets, **self.store_settings(validation))
 
     @property
     def spec(self) -> dict:
@@ -406,8 +358,20 @@ class ShardedGreedy(Trainer):
         return {"name": type(self).__name__, "params": params}
 
 
+@dataclass(eq=False, repr=False)
+class _BlockRule:
+    """The block rule's settings, the first positional settings of :class:`BlockedGreedy` and
+    :class:`BoundedActiveSetGreedy` (whose store grows :class:`BlockedStore`'s blocks): ``block_size``
+    centres per block at most, a pool of ``pool_factor`` blocks, the weak greedy's ``slack``."""
+
+    block_size: int = 64
+    pool_factor: int = 4
+    slack: float = 0.5
+
+
 @register_trainer
-class BlockedGreedy(Trainer):
+@dataclass(eq=False, repr=False)
+class BlockedGreedy(Trainer, _BlockRule):
     """The f-greedy (or P-greedy) grown by blocks of centres with matrix-matrix products (:class:`~sympredict.interpolation.greedy.blocked.BlockedStore`).
 
     How a block is chosen: the ``pool_factor * block_size`` candidates with the
@@ -443,40 +407,17 @@ class BlockedGreedy(Trainer):
     Memory ``8 ((m + b) (N + N_val) + (c b)^2)`` bytes.
     """
 
-    def __init__(
-        self,
-        block_size: int = 64,
-        pool_factor: int = 4,
-        slack: float = 0.5,
-        *,
-        tol: float = 1e-10,
-        criterion: str = "f",
-        power_tol: float = 1e-12,
-        memory_limit: Optional[float] = None,
-        target_error: Optional[float] = None,
-    ):
-        self.tol = tol
-        self.criterion = criterion
-        self.power_tol = power_tol
-        self.memory_limit = memory_limit
-        self.target_error = target_error
-        self.block_size = block_size
-        self.pool_factor = pool_factor
-        self.slack = slack
+    _: KW_ONLY
+    criterion: str = "f"
+    memory_limit: Optional[float] = None
 
     def store(self, functionals, targets, *, tol, validation):
-        return BlockedStore(
-            functionals,
-            targets,
-            **self.store_settings(validation),
-            block_size=self.block_size,
-            pool_factor=self.pool_factor,
-            slack=self.slack,
-        )
+        return BlockedStore(functionals, targets, **self.store_settings(validation))
 
 
 @register_trainer
-class BoundedActiveSetGreedy(Trainer):
+@dataclass(eq=False, repr=False)
+class BoundedActiveSetGreedy(Trainer, _BlockRule):
     """The blocked f-greedy on an active set of bounded size, refreshed against every candidate (:class:`~sympredict.interpolation.greedy.active_set.BoundedActiveSetStore`).
 
     For data whose Newton basis ``8 m N`` exceeds the memory: the basis lives on ``S = 2n P`` slots,
@@ -507,28 +448,10 @@ class BoundedActiveSetGreedy(Trainer):
     per refresh.
     """
 
-    def __init__(
-        self,
-        block_size: int = 64,
-        pool_factor: int = 4,
-        slack: float = 0.5,
-        refresh_every: int = 256,
-        max_new_points: int = 1024,
-        *,
-        tol: float = 1e-10,
-        power_tol: float = 1e-12,
-        memory_limit: Optional[float] = None,
-        target_error: Optional[float] = None,
-    ):
-        self.tol = tol
-        self.power_tol = power_tol
-        self.memory_limit = memory_limit
-        self.target_error = target_error
-        self.block_size = block_size
-        self.pool_factor = pool_factor
-        self.slack = slack
-        self.refresh_every = refresh_every
-        self.max_new_points = max_new_points
+    refresh_every: int = 256
+    max_new_points: int = 1024
+    _: KW_ONLY
+    memory_limit: Optional[float] = None
 
     def budget(self) -> float:
         """The bytes the run may use: ``memory_limit``, or :func:`memory_budget`."""
@@ -553,11 +476,6 @@ class BoundedActiveSetGreedy(Trainer):
             tol=tol,
             max_points=None,
             **{**self.store_settings(validation), "memory_limit": self.budget()},
-            block_size=self.block_size,
-            pool_factor=self.pool_factor,
-            slack=self.slack,
-            refresh_every=self.refresh_every,
-            max_new_points=self.max_new_points,
         )
 
 
