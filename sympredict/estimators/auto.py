@@ -33,6 +33,9 @@ their rollouts of those held-out trajectories, the smallest winning (``KernelSea
 by default, see its Notes).  With
 ``KernelSearch(halving=True)`` both stages compare candidates first at a quarter of their centres and fit only
 those not clearly losing there to full size (successive halving; the rule is in :class:`KernelSearch`'s Notes).
+:meth:`KernelSearch.quick` compares the candidates well below the final size (100 and 250 centres, 1,200 samples,
+halving) and leaves the final size to the final-size stage: a fraction of the default's cost for fits of 1,000
+centres or more.
 """
 
 from __future__ import annotations
@@ -324,6 +327,36 @@ class KernelSearch(Setting):
         self.halving = halving
         self.rollout_finalists = rollout_finalists
         self.final_size = final_size
+
+    @classmethod
+    def quick(cls, **overrides) -> "KernelSearch":
+        """A search that compares its candidates well below the final size, at a fraction of the default's cost.
+
+        ``KernelSearch(max_samples=1200, m_star=100, final_centers=250, halving=True, refine_sweeps=1)`` with
+        ``overrides`` (any other parameter) on top.  Stage 1 compares at 100 centres, stage 2 (and the structure
+        stage) at ``min(max_centers, 250)`` centres, both on a subsample of 1,200 samples with successive halving; a
+        model of more than 250 centres then gets its shapes at its own size from the final-size stage (``final_size``:
+        the choice fitted to ``max_centers`` centres on the search's samples, its open shapes doubled while that fit
+        stops early), the only fits at the final size.  The shape that suits ``m`` centres grows with ``m`` (the fill
+        distance of the centres shrinks), which is why the final-size stage cannot be skipped; the stage-2 ranking of
+        families, updates, the parameter kernel and the ``q``/``p`` ratio at a quarter of the size is what this preset
+        trusts.
+
+        Returns
+        -------
+        KernelSearch
+
+        Notes
+        -----
+        Cost: stage 1 as the default's with ``m_star`` 100 instead of 300 and halving (about a tenth), stage 2 at 250
+        instead of 1,000 centres (a sixteenth per fit on the same samples, about a fortieth on 900 instead of 2,250),
+        and one to four fits to ``max_centers`` on 900 samples.  Measured side by side with the default
+        (``sympredict_paper/studies/search_cost.py --configs full quick``, ``docs/data/search_cost_quick.json``): see
+        the defaults page, section "What the search costs".
+        """
+        params = dict(max_samples=1200, m_star=100, final_centers=250, halving=True, refine_sweeps=1)
+        params.update(overrides)
+        return cls(**params).check()
 
     def check(self) -> "KernelSearch":
         """Validate the settings; ``ValueError`` naming the bad one."""

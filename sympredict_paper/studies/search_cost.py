@@ -1,16 +1,22 @@
-"""The kernel search's share of a default fit, with and without successive halving, and what it chooses.
+"""The kernel search's share of a default fit, with and without successive halving or the quick preset, and what
+each chooses.
 
-Per system, ``SymplecticKernelPredictor(max_centers=m)`` (the defaults) is fitted twice in one process, the two
-configurations in alternating order from one system to the next (the machine may be shared; compare the ratios):
+Per system, ``SymplecticKernelPredictor(max_centers=m)`` (the defaults) is fitted twice in one process, with the two
+configurations of ``--configs`` (default ``full halving``) in alternating order from one system to the next (the
+machine may be shared; compare the ratios, the second configuration's over the first's):
 
-* ``full``: ``search=KernelSearch(halving=False)``: every search candidate fitted to its full size (the default);
+* ``full``: ``search=KernelSearch()``: every search candidate fitted to its full size (the default);
 * ``halving``: ``search=KernelSearch(halving=True)``: candidates compared first at a fraction of their centres, and only
-  those not clearly losing there fitted to full size (:class:`sympredict.KernelSearch`, Notes).
+  those not clearly losing there fitted to full size (:class:`sympredict.KernelSearch`, Notes);
+* ``quick``: ``search=KernelSearch.quick()``: candidates compared at 100 and 250 centres on 1,200 samples, with
+  halving; only the final-size stage fits to ``max_centers``.
 
 The systems: the coupled pendulums and the Kepler orbits of ``defaults_acceptance.py`` (``--samples`` one-step
 samples), the Hénon-Heiles system (``lambda`` in [0.8, 1.0], ``dT = 0.5``, ``--samples`` samples), the planar
 restricted three-body problem (``--traj`` trajectories x 60 steps of 0.05 near L4), all at ``max_centers``
-``--centers``, and the README's pendulum (40 trajectories x 50 steps, ``max_centers=300``, as the README fits it).
+``--centers`` (the three-body problem also at each of ``--three-body-centers``), the README's pendulum (40
+trajectories x 50 steps, ``max_centers=300``, as the README fits it) and noisy pendulum trajectories (30 x 20 steps of
+0.05, noise 1e-3 on the states, ``max_centers=120``; held-out and test data without noise).
 
 Recorded: fit wall time, the search's own time (``search_.seconds``) and its share of the fit (``search_.share``),
 the number of candidate fits, the choice (kernels, update), the final model's held-out one-step error (mean of
@@ -18,6 +24,9 @@ the number of candidate fits, the choice (kernels, update), the final model's he
 of ``--steps`` steps of the largest relative state error along each).
 
 Run:  python sympredict_paper/studies/search_cost.py        # writes docs/data/search_cost.json
+      python sympredict_paper/studies/search_cost.py --configs full quick --systems three_body noisy_pendulum \
+          readme_pendulum kepler henon_heiles coupled_pendulums --three-body-centers 2000 \
+          --json docs/data/search_cost_quick.json
 One BLAS and one numba thread.
 """
 
@@ -37,7 +46,13 @@ from sympredict import KernelSearch, SymplecticKernelPredictor
 from sympredict.data import FlowMapData
 
 RESULTS = Path(__file__).resolve().parents[2] / "docs" / "data" / "search_cost.json"
-SYSTEMS = ("three_body", "readme_pendulum", "kepler", "henon_heiles", "coupled_pendulums")
+SYSTEMS = ("three_body", "readme_pendulum", "kepler", "henon_heiles", "coupled_pendulums", "noisy_pendulum")
+#: The configurations compared: the default search, successive halving, and the quick preset.
+CONFIGS = {
+    "full": lambda: KernelSearch(),
+    "halving": lambda: KernelSearch(halving=True),
+    "quick": lambda: KernelSearch.quick(),
+}
 
 
 def _relative_rollout(model, x0, mu, dt, ref) -> dict:
@@ -110,6 +125,26 @@ def make_case(name: str, args) -> dict:
             "max_centers": args.centers,
             "metrics": lambda model: _relative_rollout(model, tt[:, 0], tmu, dt, tt),
         }
+    if name == "noisy_pendulum":  # 30 pendulum trajectories x 20 steps, noise 1e-3 on the states, 120 centres
+        from sympredict.data import TrajectoryData
+        from sympredict.systems.pendulum import Pendulum
+
+        rng = np.random.default_rng(0)
+        pendulum = Pendulum()
+        x0 = np.column_stack([rng.uniform(-1, 1, 30), rng.uniform(-1, 1, 30)])
+        clean = pendulum.trajectory(x0, np.full(30, 0.75), 0.05, 20)
+        data = TrajectoryData(clean + 1e-3 * rng.normal(size=clean.shape), None, 0.05)
+        r2 = np.random.default_rng(7)
+        h0 = np.column_stack([r2.uniform(-1, 1, 500), r2.uniform(-1, 1, 500)])
+        h1 = pendulum.flow(h0, 0.75, 0.05)
+        t0 = np.column_stack([r2.uniform(-1, 1, args.n_test), r2.uniform(-1, 1, args.n_test)])
+        ref = pendulum.trajectory(t0, np.full(args.n_test, 0.75), dt=0.05, n_steps=args.steps)
+        return {
+            "data": data,
+            "heldout": (h0, h1, None, 0.05),
+            "max_centers": 120,
+            "metrics": lambda model: _relative_rollout(model, t0, None, 0.05, ref),
+        }
     if name == "readme_pendulum":  # the README's example, as it fits it
         from sympredict.systems.pendulum import Pendulum
 
@@ -136,9 +171,15 @@ def make_case(name: str, args) -> dict:
     raise ValueError(f"unknown system {name!r}; choose from {SYSTEMS}")
 
 
+def max_centers_of(row: dict, search) -> bool:
+    """Was the candidate of ``row`` fitted with the estimator's ``max_centers`` (the final-size stage, or a second
+    stage at the final size)?"""
+    return row.get("stage") == 4 or (search.final_size == 0 and row.get("stage") in (2, 3))
+
+
 def run(label: str, case: dict) -> dict:
     data, (h0, h1, hmu, hdt) = case["data"], case["heldout"]
-    model = SymplecticKernelPredictor(max_centers=case["max_centers"], search=KernelSearch(halving=label == "halving"))
+    model = SymplecticKernelPredictor(max_centers=case["max_centers"], search=CONFIGS[label]())
     t0, c0 = time.perf_counter(), time.process_time()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -156,6 +197,12 @@ def run(label: str, case: dict) -> dict:
         "search_cpu_share": search.cpu_seconds / fit_cpu,
         "fits": len(table),
         "fits_full_size": sum(1 for r in table if "rung" not in r and not r.get("cut")),
+        # candidates fitted to the estimator's max_centers (the final size; the final fit itself not counted)
+        "fits_at_max_centers": sum(
+            1
+            for r in table
+            if r.get("stage") != 1 and "rung" not in r and not r.get("cut") and max_centers_of(r, search)
+        ),
         "choice": {k: repr(v) for k, v in model.choice_.items()},
         "centers": int(model.n_centers_),
     }
@@ -180,7 +227,21 @@ def main(argv=None):
     parser.add_argument("--traj", type=int, default=100, help="three-body training trajectories (60 steps each)")
     parser.add_argument("--centers", type=int, default=1000)
     parser.add_argument("--n-test", type=int, default=20)
+    parser.add_argument(
+        "--configs",
+        nargs=2,
+        default=["full", "halving"],
+        choices=tuple(CONFIGS),
+        help="the two configurations compared; the ratios are the second's over the first's",
+    )
     parser.add_argument("--steps", type=int, default=200)
+    parser.add_argument(
+        "--three-body-centers",
+        type=int,
+        nargs="*",
+        default=[],
+        help="further three-body rows at these max_centers (the search's share at larger sizes)",
+    )
     _protocol.add_arguments(parser, threads=1, json_default=str(RESULTS))
     args = parser.parse_args(argv)
     rows = []
@@ -192,13 +253,16 @@ def main(argv=None):
             notes="one fit per configuration, side by side in one process, the two "
             "configurations in alternating order from one system to the next",
         )
-        for i, name in enumerate(args.systems):
-            case = make_case(name, args)
+        jobs = [(name, args.centers) for name in args.systems]
+        jobs += [("three_body", m) for m in args.three_body_centers]
+        for i, (name, centers) in enumerate(jobs):
+            case = make_case(name, argparse.Namespace(**{**vars(args), "centers": centers}))
             print(f"{name}: {len(case['data'])} samples, max_centers {case['max_centers']}", flush=True)
             row = {"system": name, "samples": len(case["data"]), "max_centers": case["max_centers"]}
-            for label in ("full", "halving") if i % 2 == 0 else ("halving", "full"):
+            first, second = args.configs
+            for label in (first, second) if i % 2 == 0 else (second, first):
                 row[label] = run(label, case)
-            full, new = row["full"], row["halving"]
+            full, new = row[first], row[second]
             row["same_choice"] = full["choice"] == new["choice"]
             row["ratios"] = {
                 k: new[k] / full[k]
@@ -214,7 +278,7 @@ def main(argv=None):
                 if full.get(k) and k in new
             }
             print(
-                "  halving / full: "
+                f"  {second} / {first}: "
                 + ", ".join(f"{k} {v:.3f}" for k, v in row["ratios"].items())
                 + f", same choice: {row['same_choice']}",
                 flush=True,

@@ -155,3 +155,56 @@ def test_grid_search_with_rungs_keeps_the_best_candidate_at_a_fraction_of_the_fi
     assert [(r["kernels"], r.get("rung"), r["E_val"]) for r in again.table] == [
         (r["kernels"], r.get("rung"), r["E_val"]) for r in halved.table
     ]
+
+
+def test_quick_search_preset_and_its_overrides():
+    """``KernelSearch.quick()``: the default search with smaller comparison sizes and halving; overrides on top,
+    checked as any setting is."""
+    from sympredict import KernelSearch
+    from sympredict.base import clone
+
+    quick = KernelSearch.quick()
+    expected = dict(max_samples=1200, m_star=100, final_centers=250, halving=True, refine_sweeps=1)
+    assert {k: quick.get_params()[k] for k in expected} == expected
+    default = KernelSearch().get_params()
+    assert {k: v for k, v in quick.get_params().items() if k not in expected} == {
+        k: v for k, v in default.items() if k not in expected
+    }
+    assert clone(quick) == quick and KernelSearch.quick(seed=3).seed == 3
+    assert KernelSearch.quick(final_centers=400).final_centers == 400
+    with pytest.raises(ValueError, match="final_centers must be a positive integer"):
+        KernelSearch.quick(final_centers=0)
+    with pytest.raises(TypeError):
+        KernelSearch.quick(no_such_setting=1)
+
+
+@pytest.fixture(scope="module")
+def quick_fit(pendulum):
+    """Pendulum samples at five lengths, fitted to 300 centres with the quick search."""
+    from sympredict import KernelSearch, SymplecticKernelPredictor
+
+    rng = np.random.default_rng(5)
+    n = 1600
+    x0 = np.column_stack([rng.uniform(-1.5, 1.5, n), rng.uniform(-1.5, 1.5, n)])
+    mu = rng.choice(np.linspace(0.7, 0.8, 5), n)
+    x1 = pendulum.flow(x0, mu, 0.1)
+    return SymplecticKernelPredictor(max_centers=300, search=KernelSearch.quick()).fit(x0, x1, mu=mu, dt=0.1)
+
+
+def test_quick_search_scores_its_candidates_below_the_final_size(quick_fit):
+    """The quick search compares its candidates at 100 (stage 1) and 250 (stages 2 and 3) centres on at most 1,200
+    samples, and fits only the final-size stage's few candidates to ``max_centers``: a search that scored its
+    candidates at the final size (as the default does where ``max_centers <= 1000``) fails here."""
+    s = quick_fit.search_
+    assert s.m_star == 100 and s.m_final == 250 and s.final_size == 300
+    assert s.n_train + s.n_validation <= 1200
+    by_stage = {k: [r for r in s.table if r["stage"] == k] for k in (1, 2, 3, 4)}
+    assert by_stage[1] and by_stage[2] and by_stage[4]
+    assert max(r["n_centers"] for r in by_stage[1] if "n_centers" in r) <= 100
+    assert all(r["n_centers"] <= 250 for k in (2, 3) for r in by_stage[k])
+    # halving: stage 1 at rungs of 25 and 50 centres, stage 2's candidates scored at a rung of 62 first
+    assert {r["rung"] for r in by_stage[1] if "rung" in r} == {25, 50}
+    assert all(r["rung_centers"] <= 62 for r in by_stage[2])
+    # the fits at the size of the model: the final-size stage's one to four
+    assert 1 <= len(by_stage[4]) <= 4 and len(s.table) == sum(len(v) for v in by_stage.values())
+    assert quick_fit.n_centers_ <= 300 and np.isfinite(s.score)
