@@ -59,10 +59,11 @@ from sympredict.estimators.search import (
     without_target,
 )
 from sympredict.estimators.structure import compete as _structure_stage
+from sympredict.estimators.structure import fold
 from sympredict.exceptions import ExtrapolationWarning, NewtonConvergenceError, NonFinitePredictionError, ScaleWarning
 from sympredict.kernels import IMQ, KERNEL_FAMILIES
 from sympredict.kernels.radial import _EPS_RANGE
-from sympredict.kernels.transforms import KernelTransform, Scaled, lower_state_kernel
+from sympredict.kernels.transforms import KernelTransform, Scaled, Symmetric, lower_state_kernel
 from sympredict.symplectic.updates import UPDATE_RULES, as_update
 
 __all__ = ["KernelSearch", "SearchResult", "FitDiagnostics"]
@@ -208,8 +209,10 @@ class KernelSearch(Setting):
             Seed of the subsample and the split.
         structure : bool
             Test the data for symmetries, reversing symmetries and wrapped angles and let the symmetries that hold
-            compete (:mod:`sympredict.estimators.structure`): one quick fit, then one fit to ``m_final`` centres per
-            group that holds.
+            compete (:mod:`sympredict.estimators.structure`): one quick fit, then per group that holds its symmetric
+            candidate fitted to ``m_final`` centres with its shapes chosen for the group (normalised on the states
+            folded by the group, narrowed where it stops early, a coordinate search of ``refine_sweeps`` sweeps:
+            :func:`_refine_structured`).
         halving : bool
             Successive halving: candidates are first compared at a fraction of their centres, and only those not
             clearly losing there are fitted to full size (see Notes); ``False`` (the default): every candidate at full
@@ -226,7 +229,8 @@ class KernelSearch(Setting):
             Where the estimator's ``max_centers`` exceeds ``final_centers``, fit the chosen settings to
             ``max_centers`` centres too, and where that fit stops early (numerically singular: shapes too flat for
             the final size), try them with the open shapes doubled, up to three times; the smallest one-step error
-            at the final size wins (see Notes).
+            at the final size wins (see Notes).  Where the structure stage ran, its best candidate and the best one
+            without a structure both go through this stage (a symmetric kernel reaches further per centre).
 
         Notes
         -----
@@ -617,7 +621,22 @@ class KernelSearch(Setting):
                         **({"error": err} if err else {}),
                     }
                 )
-                return sc
+                return sc, n
+
+            def refine(cand, group, value, n):  # the symmetric candidate's shapes, for its group
+                return _refine_structured(
+                    estimator,
+                    cand,
+                    group,
+                    value,
+                    n,
+                    m_final,
+                    train,
+                    score_params,
+                    open_factors,
+                    scaled,
+                    self.refine_sweeps,
+                )
 
             chosen, best_score, structure = _structure_stage(
                 estimator,
@@ -630,6 +649,7 @@ class KernelSearch(Setting):
                 open_factors["state"],
                 open_factors["update"],
                 {u: params_of(c) for u, c in by_update.items()},
+                refine=refine,
             )
         decided, rollout_score, finalists = "one-step error", None, []
         if roll is not None:  # the finalists ranked by their held-out rollouts: what the user will do with the model
@@ -662,7 +682,12 @@ class KernelSearch(Setting):
                 del f["params"]
         m_full = int(estimator.max_centers)
         if self.final_size and m_full > m_final:  # the shapes at the size the model will have
-            chosen, best_score = _at_final_size(estimator, chosen, best_score, m_full, train, val, table, open_factors)
+            # the best candidate with and without a structure both compete there (the chosen one first)
+            pool = [params_of(best)] + [p for p, sc, _ in sorted(structured, key=lambda r: r[1])[:1] if np.isfinite(sc)]
+            others = [p for p in pool if repr(p) != repr(chosen)] if structured else []
+            chosen, best_score = _at_final_size(
+                estimator, chosen, best_score, m_full, train, val, table, open_factors, others=others
+            )
         for key, factor in (("state_kernel", "state"), ("mu_kernel", "mu"), ("dt_kernel", "dt"), ("update", "update")):
             if open_factors[factor]:
                 params[key] = chosen[key]
@@ -762,35 +787,138 @@ def _narrowed(params: dict, open_factors: dict) -> dict:
     return out
 
 
-def _at_final_size(estimator, chosen: dict, score: float, m_full: int, train, val, table: list, open_factors: dict):
-    """``(params, score)``: ``chosen`` fitted to ``m_full`` centres and, while that fit stops early, with its open
-    shapes doubled (up to three times); the smallest one-step error at ``m_full`` wins (``chosen`` and its ``score``
-    where every such fit fails).  Rows of ``stage`` 4 in ``table``."""
+def _at_final_size(
+    estimator, chosen: dict, score: float, m_full: int, train, val, table: list, open_factors: dict, others=()
+):
+    """``(params, score)``: ``chosen`` (and each of ``others``: the best candidates with and without a structure
+    that were not chosen) fitted to ``m_full`` centres and, while such a fit stops early, with its open shapes doubled (up
+    to three times); the smallest one-step error at ``m_full`` wins (``chosen`` and its ``score`` where every such
+    fit fails).  Rows of ``stage`` 4 in ``table``.
+
+    The structure stage compares at ``m_final`` centres; a symmetric kernel reaches further per centre, so the order
+    at ``m_full`` may differ: the finalist of the other kind competes there too (one to four more fits to
+    ``m_full``)."""
     capacity = len(train) * train.x0.shape[1]  # the greedy cannot select more centres than functionals
-    best, best_score, cand = chosen, np.inf, chosen
-    for doubling in range(4):
-        sc, n, secs, err = one_step_score(estimator, cand, m_full, train, val)
-        table.append(
-            {
-                "stage": 4,
-                "kernels": repr(cand["state_kernel"]),
-                "update": cand["update"],
-                "score": sc,
-                "n_centers": n,
-                "fit_s": secs,
-                **({"error": err} if err else {}),
-            }
-        )
-        logger.info(
-            f"kernel search, final size: {cand['state_kernel']!r} ({cand['update']}): "
-            + (f"failed ({err})" if err else f"one-step error {sc:.3e} with {n} of {m_full} centres")
-        )
-        if sc < best_score:
-            best, best_score = cand, sc
-        if err is not None or n >= min(m_full, capacity) or doubling == 3:
-            break
-        cand = _narrowed(cand, open_factors)
+    best, best_score = chosen, np.inf
+    for start in [chosen, *others]:
+        cand = start
+        for doubling in range(4):
+            sc, n, secs, err = one_step_score(estimator, cand, m_full, train, val)
+            table.append(
+                {
+                    "stage": 4,
+                    "kernels": repr(cand["state_kernel"]),
+                    "update": cand["update"],
+                    "score": sc,
+                    "n_centers": n,
+                    "fit_s": secs,
+                    **({"error": err} if err else {}),
+                }
+            )
+            logger.info(
+                f"kernel search, final size: {cand['state_kernel']!r} ({cand['update']}): "
+                + (f"failed ({err})" if err else f"one-step error {sc:.3e} with {n} of {m_full} centres")
+            )
+            if sc < best_score:
+                best, best_score = cand, sc
+            if err is not None or n >= min(m_full, capacity) or doubling == 3:
+                break
+            cand = _narrowed(cand, open_factors)
     return (best, float(best_score)) if np.isfinite(best_score) else (chosen, score)
+
+
+def _refine_structured(
+    estimator,
+    cand: dict,
+    group: list,
+    value: float,
+    n: int,
+    m_final: int,
+    train: FlowMapData,
+    score,
+    open_factors: dict,
+    scaled: bool,
+    sweeps: int,
+) -> tuple:
+    """``(params, score)``: the structure stage's symmetric candidate ``cand`` (one-step error ``value`` with ``n``
+    centres) with its shapes chosen for its group, as the second stage chose them without it.
+
+    A symmetric kernel sees the data modulo the group (:func:`~sympredict.estimators.structure.fold`), so the
+    shapes chosen without it fit it badly: where the search chose the symplectic normalisation, a second start
+    takes the pair factors of the folded training states (times the chosen ``q``/``p`` ratio) and the state shape
+    rescaled by the ratio of the spreads (the shape unit is ``1 / spread``).  Each start that stops before
+    ``m_final`` centres is narrowed (its open shapes doubled, up to three times), then a coordinate search of the
+    best one's state shape, ``q``/``p`` ratio and open parameter and step shapes (``sweeps`` sweeps, factors 1/2 and
+    2) at ``m_final`` centres; the smallest held-out one-step error wins, so the result is never worse than
+    ``cand``.  ``score(params) -> (score, centres)``.  Cost: up to ``2 + 6 + 8 sweeps`` fits of the symmetric
+    candidate to ``m_final`` centres (a sweep ends the search when it does not improve).
+    """
+    state = cand["state_kernel"]
+    inner = state.kernel  # the Symmetric candidate's kernel: Scaled under the symplectic normalisation
+    starts = [(cand, value, n)]
+    if scaled and isinstance(inner, Scaled) and inner.kernel is not None and len(train) >= 8:
+        g = fold(train.x0, group)
+        folded = FlowMapData(train.x0 * g, train.x1 * g, train.mu, train.dt)
+        ratio = np.asarray(inner.factors) / pair_factors(train)
+        factors = tuple(float(a) for a in pair_factors(folded) * ratio)
+        try:
+            old = _spread(without_target(clone(estimator).set_params(state_kernel=inner, update=cand["update"])), train)
+            scale = Scaled(None, factors=factors)
+            new = _spread(
+                without_target(clone(estimator).set_params(state_kernel=scale, update=cand["update"])), folded
+            )
+        except ValueError:  # a fold that leaves no spread: the start without it
+            new = None
+        if new:
+            radial = inner.kernel.set_params(eps=_clip(inner.kernel.eps * old / new))
+            p = {**cand, "state_kernel": Symmetric(Scaled(radial, factors=factors), group=group)}
+            starts.append((p, *score(p)))
+    capacity = min(m_final, len(train) * train.x0.shape[1])
+    best = min(starts, key=lambda r: r[1])
+    for p, sc, k in list(starts):  # too flat for the group: narrowed while the fit stops early
+        for _ in range(3):
+            if not np.isfinite(sc) or k >= capacity:
+                break
+            p = _narrowed(p, open_factors)
+            sc, k = score(p)
+            if sc < best[1]:
+                best = (p, sc, k)
+    if sweeps <= 0:
+        return best[0], best[1]
+    base = best[0]["state_kernel"].kernel
+    group_of_base = best[0]["state_kernel"].group
+
+    def params_of(t):
+        radial, ratio, mu_k, dt_k = t
+        if isinstance(base, Scaled):
+            kernel = Scaled(radial, factors=tuple(float(a) * ratio for a in base.factors))
+        elif isinstance(base, KernelTransform):
+            kernel = base.with_radial(radial)
+        else:
+            kernel = radial
+        return {**best[0], "state_kernel": Symmetric(kernel, group=group_of_base), "mu_kernel": mu_k, "dt_kernel": dt_k}
+
+    radial0 = base.radial if isinstance(base, KernelTransform) else base
+    start = (radial0, 1.0, best[0].get("mu_kernel"), best[0].get("dt_kernel"))
+    seen = {start: best[1]}
+
+    def key(t):
+        if t not in seen:
+            seen[t] = score(params_of(t))[0]
+        return seen[t]
+
+    active = [
+        i
+        for i, on in (
+            (0, open_factors["state"]),
+            (1, scaled and isinstance(base, Scaled)),
+            (2, open_factors["mu"] and start[2] is not None),
+            (3, open_factors["dt"] and start[3] is not None),
+        )
+        if on
+    ]
+    t = coordinate_search(start, key, active, _move, factors=(0.5, 2.0), sweeps=sweeps)
+    return (params_of(t), float(seen[t])) if seen[t] < best[1] else (best[0], best[1])
 
 
 def _rollout_data(trajectories: TrajectoryData) -> tuple:

@@ -17,6 +17,7 @@ from sympredict.data import FlowMapData
 from sympredict.estimators.structure import (
     HOLD_CEILING,
     check_sign_flip,
+    fold,
     group_of,
     sign_flip_candidates,
     wrapped_coordinates,
@@ -210,3 +211,60 @@ def test_the_log_names_the_test_and_a_declared_group_is_tested_not_replaced(pend
     assert off.search_.structure == [] and not [r for r in off.search_.table if r["stage"] == 3]
     with pytest.raises(ValueError, match="structure must be True or False"):
         KernelSearch(structure="yes").check()
+
+
+def test_fold_maps_mirror_images_to_one_representative():
+    """``fold``: a state and its images under the group fold to one state (the three-body data: orbits and their
+    mirror images), by an element of the group, into the half where the widest flipped coordinate is positive."""
+    rng = np.random.default_rng(3)
+    x = rng.normal(size=(50, 4)) * np.array([0.1, 0.3, 0.8, 0.05]) + np.array([0.5, 0.9, -0.9, 0.5])
+    group = group_of([(1, -1, -1, 1)])
+    both = np.concatenate([x, x * np.array(group[1])])
+    g = fold(both, group)
+    assert {tuple(int(v) for v in row) for row in g} <= set(group)
+    folded = both * g
+    np.testing.assert_array_equal(folded[:50], folded[50:])  # sign flips: exact
+    widest_flipped = max((1, 2), key=lambda i: both[:, i].std())
+    assert np.all(folded[:, widest_flipped] >= 0)
+
+
+@pytest.fixture(scope="module")
+def pendulum_final_size():
+    """The search on pendulum trajectories with a final size above its comparison size (60 of 120 centres)."""
+    rng = np.random.default_rng(0)
+    mu = rng.uniform(0.7, 0.8, size=30)
+    x0 = np.column_stack([rng.uniform(-1.5, 1.5, 30), rng.uniform(-1.0, 1.0, 30)])
+    states = Pendulum().trajectory(x0, mu, dt=DT, n_steps=40)
+    search = KernelSearch(shapes=(0.25, 0.5, 1.0), parameter_shapes=(0.5,), final_centers=60, refine_sweeps=1)
+    model = SymplecticKernelPredictor(max_centers=120, search=search)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        model.fit(TrajectoryData(states, mu=mu, dt=DT))
+    return model
+
+
+def test_the_final_size_stage_fits_the_best_candidates_with_and_without_a_structure(pendulum_final_size):
+    """At ``max_centers`` above ``final_centers`` the structure stage's best candidate and the best one without a
+    structure are both fitted to ``max_centers`` (a symmetric kernel reaches further per centre, so the order at 60
+    centres need not hold at 120); the smallest one-step error there is chosen."""
+    search = pendulum_final_size.search_
+    assert search.final_size == 120
+    final = [r for r in search.table if r["stage"] == 4]
+    kinds = {"Symmetric" in r["kernels"] for r in final}
+    assert kinds == {True, False}, [r["kernels"] for r in final]
+    best = min(final, key=lambda r: r["score"])
+    assert search.score == best["score"]
+    assert repr(pendulum_final_size.choice_["state_kernel"]) == best["kernels"]
+
+
+def test_the_symmetric_candidates_shapes_are_chosen_for_their_group(pendulum_final_size):
+    """Each group that holds starts from the best kernels without it and has its shapes refined (a coordinate
+    search at ``final_centers``, as the second stage's): more than one candidate per group, and the group's best is
+    at least as good as its start."""
+    table = pendulum_final_size.search_.table
+    stage3 = [r for r in table if r["stage"] == 3]
+    groups = {}
+    for r in stage3:
+        groups.setdefault(r["kernels"].split("kernel=")[0], []).append(r["score"])
+    assert groups and all(len(v) > 1 for v in groups.values())
+    assert all(min(v) <= v[0] for v in groups.values())
