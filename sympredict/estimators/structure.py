@@ -308,7 +308,9 @@ def fold(x: np.ndarray, group) -> np.ndarray:
 
     A symmetric kernel ``sum_g k(x, g y)`` sees the data only modulo the group, so its normalisation and shapes
     belong to the folded states: on the three-body problem's orbits about ``L4`` and their mirror images about
-    ``L5`` (``y -> -y``) the unfolded ``y`` spreads over both clusters, the folded ``y`` over one.
+    ``L5`` (``y -> -y``) the unfolded ``y`` spreads over both clusters, the folded ``y`` over one.  The fold is clean
+    where the widest flipped coordinate separates the images (it does there); where the images overlap in it, the
+    folded states mix parts of both.
 
     Parameters
     ----------
@@ -418,9 +420,9 @@ def compete(
         The search's best parameters per update (``{'midpoint': params, ...}``): a group that reverses time
         competes with the best midpoint kernels, not with kernels chosen for another update.
     refine : callable, optional
-        ``refine(params, group, value, n_centers) -> (params, value)``: the shapes of a symmetric candidate re-chosen
-        for its group (the search's :func:`~sympredict.estimators.auto._refine_structured`); ``None``: the candidate
-        keeps the shapes chosen without the symmetry.
+        ``refine(params, group, value, n_centers) -> (params, value)``: the symmetric candidate normalised for its
+        group where that is better (the search's :func:`~sympredict.estimators.auto._refine_structured`); ``None``:
+        the candidate keeps the normalisation and shapes chosen without the symmetry.
 
     Returns
     -------
@@ -434,8 +436,8 @@ def compete(
     -----
     Cost: one quick fit (at most :data:`QUICK_CENTERS` centres), one one-step prediction of the validation
     samples plus one per candidate that stays in the data's box (``2^n + 2^n - 1`` candidates for ``n <= 3``),
-    then per group that holds (at most one more per holding flip) one fit to ``m_final`` centres, and the fits of
-    ``refine`` (the search's: up to ``2 + 6 + 8 refine_sweeps``).  ``O(M 2n)``
+    then per group that holds (at most one more per holding flip) one fit to ``m_final`` centres, and those of
+    ``refine`` (the search's: one more where the fold separates).  ``O(M 2n)``
     for the wrapped-angle check.
     """
     findings = wrapped_coordinates(train)  # warned about once per fit, by the estimator (warn_wrapped_angles)
@@ -486,7 +488,7 @@ def compete(
         base = (by_update or {}).get(update, chosen) if update != chosen["update"] else chosen
         cand = {**base, "state_kernel": Symmetric(base["state_kernel"], group=group), "update": update}
         value, n = score(cand)
-        if refine is not None:  # the group changes what the kernel sees: its shapes are chosen anew
+        if refine is not None:  # the group changes what the kernel sees
             cand, value = refine(cand, group, value, n)
         logger.info(
             "structure: Symmetric(group=%s) with update %r: held-out one-step error %.3e (without: %.3e)",
