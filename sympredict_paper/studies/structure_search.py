@@ -121,6 +121,8 @@ def main(argv=None):
     parser.add_argument("--no-extras", action="store_true", help="skip the noise test and the timing")
     add_arguments(parser, threads=1, repeats=3)
     args = parser.parse_args(argv)
+    if args.train_seed == 1:
+        parser.error("--train-seed 1 draws the test orbits: choose another seed")
     system = ThreeBody()
     result = {"settings": {k: v for k, v in vars(args).items() if k != "json"}}
     with limits(args.blas_threads, args.threads):
