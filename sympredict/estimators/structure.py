@@ -67,6 +67,7 @@ __all__ = [
     "validation_error",
     "wrapped_coordinates",
     "group_of",
+    "fold",
     "QUICK_CENTERS",
     "HOLD_FACTOR",
     "HOLD_CEILING",
@@ -300,6 +301,42 @@ def group_of(signs_list) -> list:
     return [ident] + sorted(e for e in elements if e != ident)
 
 
+def fold(x: np.ndarray, group) -> np.ndarray:
+    """The sign flip ``g`` (in ``group``) that maps each state of ``x`` to its representative: the image ``g x``
+    that is largest in the lexicographic order of the coordinates sorted by their spread over ``x``
+    (largest first; ties by index).
+
+    A symmetric kernel ``sum_g k(x, g y)`` sees the data only modulo the group, so its normalisation and shapes
+    belong to the folded states: on the three-body problem's orbits about ``L4`` and their mirror images about
+    ``L5`` (``y -> -y``) the unfolded ``y`` spreads over both clusters, the folded ``y`` over one.  The fold is clean
+    where the widest flipped coordinate separates the images (it does there); where the images overlap in it, the
+    folded states mix parts of both.
+
+    Parameters
+    ----------
+    x : ndarray of shape (M, 2n)
+    group : sequence of sign patterns (tuples of ``+1`` / ``-1``), the identity among them
+
+    Returns
+    -------
+    ndarray of shape (M, 2n)
+        ``g`` per state (``x * fold(x, group)`` are the folded states; a pair ``(x0, x1)`` folds with ``x0``'s).
+        ``O(|G| M 2n)``.
+    """
+    x = np.asarray(x, dtype=float)
+    signs = np.asarray(group, dtype=float)
+    order = np.argsort(-np.std(x, axis=0), kind="stable")
+    images = signs[:, None, :] * x[None, :, :]  # (|G|, M, 2n)
+    keys = images[:, :, order]
+    best = np.zeros(len(x), dtype=int)
+    rows = np.arange(len(x))
+    for k in range(1, len(signs)):
+        diff = keys[k] - keys[best, rows]
+        first = np.argmax(diff != 0, axis=1)  # the first coordinate where the two images differ
+        best = np.where(diff[rows, first] > 0, k, best)
+    return signs[best]
+
+
 def wrapped_coordinates(data: FlowMapData, period: float = 2 * np.pi) -> list:
     """The coordinates that look like angles reduced to one period (module docstring), as findings.
 
@@ -356,6 +393,7 @@ def compete(
     open_state: bool,
     open_update: bool,
     by_update: Optional[dict] = None,
+    refine=None,
 ):
     """The search's structure stage: test the candidates and let those that hold compete with ``chosen``.
 
@@ -372,14 +410,19 @@ def compete(
     train, val : FlowMapData
         The search's samples.
     score
-        ``score(params) -> float``: the held-out one-step error of the candidate ``params`` at ``m_final`` centres
-        (the search's own criterion, which also records the candidate in the search's table).
+        ``score(params) -> (float, int)``: the held-out one-step error of the candidate ``params`` at ``m_final``
+        centres and the centres its fit reached (the search's own criterion, which also records the candidate in
+        the search's table).
     open_state, open_update : bool
         Whether the search chose the state kernel and the update (a given state kernel is the user's: only a group
         the user declared inside it is tested, and reported).
     by_update : dict, optional
         The search's best parameters per update (``{'midpoint': params, ...}``): a group that reverses time
         competes with the best midpoint kernels, not with kernels chosen for another update.
+    refine : callable, optional
+        ``refine(params, group, value, n_centers) -> (params, value)``: the symmetric candidate normalised for its
+        group where that is better (the search's :func:`~sympredict.estimators.auto._refine_structured`); ``None``:
+        the candidate keeps the normalisation and shapes chosen without the symmetry.
 
     Returns
     -------
@@ -393,7 +436,8 @@ def compete(
     -----
     Cost: one quick fit (at most :data:`QUICK_CENTERS` centres), one one-step prediction of the validation
     samples plus one per candidate that stays in the data's box (``2^n + 2^n - 1`` candidates for ``n <= 3``),
-    then one fit to ``m_final`` centres per group that holds (at most one more per holding flip).  ``O(M 2n)``
+    then per group that holds (at most one more per holding flip) one fit to ``m_final`` centres, and those of
+    ``refine`` (the search's: one more where the fold separates).  ``O(M 2n)``
     for the wrapped-angle check.
     """
     findings = wrapped_coordinates(train)  # warned about once per fit, by the estimator (warn_wrapped_angles)
@@ -443,7 +487,9 @@ def compete(
             continue
         base = (by_update or {}).get(update, chosen) if update != chosen["update"] else chosen
         cand = {**base, "state_kernel": Symmetric(base["state_kernel"], group=group), "update": update}
-        value = score(cand)
+        value, n = score(cand)
+        if refine is not None:  # the group changes what the kernel sees
+            cand, value = refine(cand, group, value, n)
         logger.info(
             "structure: Symmetric(group=%s) with update %r: held-out one-step error %.3e (without: %.3e)",
             group,
