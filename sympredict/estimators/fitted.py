@@ -492,8 +492,8 @@ class FittedSymplecticFlowMap(FittedFlowMap):
 
     def with_error_calibration(self, calibration: Optional[dict]) -> "FittedSymplecticFlowMap":
         """This fitted map with the error calibration ``calibration`` (``None``: no error estimate); the local
-        scale (:attr:`error_local`) is kept."""
-        local = self.error_local if calibration is not None else None
+        scale (:attr:`error_local`) is kept where ``calibration`` has ``local_neighbours``, dropped otherwise."""
+        local = self.error_local if isinstance(calibration, dict) and "local_neighbours" in calibration else None
         return self._replace(_cache={"calibration": calibration, "local": local})
 
     def original_periods(self):

@@ -623,3 +623,22 @@ def test_lowrank_keeps_each_steps_own_covariance_whatever_its_rank(model, monkey
     low = _rollout_units(model, 30, "lowrank")
     np.testing.assert_allclose(low[:, 1], exact[:, 1], rtol=1e-8, atol=0)
     assert np.all(np.isfinite(low)) and not np.allclose(low, exact, rtol=1e-3)
+
+
+def test_a_calibration_set_by_hand_keeps_the_local_scale_only_with_its_neighbours(model, tmp_path):
+    """``error_calibration_ = {...}`` with ``local_neighbours`` keeps the local scale; without, the estimate is that
+    one scale times the propagated covariance; either model's file loads back to the same estimate."""
+    x0 = np.array([[1.0, 0.0], [0.3, -0.4], [-1.2, 0.5]])
+    mu = [0.72, 0.75, 0.78]
+    for keep in (True, False):
+        copy_ = SymplecticKernelPredictor.__new__(SymplecticKernelPredictor)
+        copy_.__dict__.update(model.__dict__)
+        cal = {"scale": 2.0, **({"local_neighbours": 5} if keep else {})}
+        copy_.error_calibration_ = cal
+        assert (copy_.model_.error_local is not None) is keep
+        _, err = copy_.rollout(x0, 10, mu=mu, dt=0.1, return_error=True)
+        units = _rollout_units(copy_, 10, "exact", local=keep)
+        np.testing.assert_allclose(err, 2.0 * units, rtol=1e-12, atol=0)
+        copy_.save(tmp_path / f"{keep}.h5")
+        loaded = SymplecticKernelPredictor.load(tmp_path / f"{keep}.h5")
+        np.testing.assert_allclose(loaded.rollout(x0, 10, mu=mu, dt=0.1, return_error=True)[1], err, rtol=1e-12)
