@@ -17,7 +17,11 @@ alike) and average out where it does not; neither a root-sum-square of local err
 by all steps in fixed coordinates (which a rotating Jacobian averages away) does that.
 
 The estimate is ``c sqrt(tr Sigma)`` in the states' units with the scale ``c`` calibrated on held-out one-step
-errors (the one-step estimate is the ``K = 1`` case, so one scale serves both).
+errors (the one-step estimate is the ``K = 1`` case, so one scale serves both).  The posterior says where the data
+are sparse, not where the flow map is harder to learn, so each step's gradient error also carries a local scale
+``f_k`` (``C(z_k, z_l)`` becomes ``f_k f_l C(z_k, z_l)``): the geometric mean of the held-out ratios true one-step
+error / estimate at the ``LOCAL_NEIGHBOURS`` held-out samples nearest to the step's state (:func:`local_log_ratio`),
+``O(B K N (2n + d_mu))`` for ``N`` held-out samples, small beside the rest.
 
 Cost along ``B`` rollouts of ``K`` steps with ``m`` centres: the Newton basis at every step, ``O(B K 2n m^2)``
 (as the power function).  Up to :data:`EXACT_MAX_STEPS` steps every pair of steps is carried
