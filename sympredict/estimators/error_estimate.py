@@ -17,7 +17,11 @@ alike) and average out where it does not; neither a root-sum-square of local err
 by all steps in fixed coordinates (which a rotating Jacobian averages away) does that.
 
 The estimate is ``c sqrt(tr Sigma)`` in the states' units with the scale ``c`` calibrated on held-out one-step
-errors (the one-step estimate is the ``K = 1`` case, so one scale serves both).
+errors (the one-step estimate is the ``K = 1`` case, so one scale serves both).  The posterior says where the data
+are sparse, not where the flow map is harder to learn, so each step's gradient error also carries a local scale
+``f_k`` (``C(z_k, z_l)`` becomes ``f_k f_l C(z_k, z_l)``): the geometric mean of the held-out ratios true one-step
+error / estimate at the ``LOCAL_NEIGHBOURS`` held-out samples nearest to the step's state (:func:`local_log_ratio`),
+``O(B K N (2n + d_mu))`` for ``N`` held-out samples, small beside the rest.
 
 Cost along ``B`` rollouts of ``K`` steps with ``m`` centres: the Newton basis at every step, ``O(B K 2n m^2)``
 (as the power function).  Up to :data:`EXACT_MAX_STEPS` steps every pair of steps is carried
@@ -56,7 +60,13 @@ __all__ = [
     "local_covariance",
     "local_error_units",
     "rollout_error_units",
+    "LOCAL_NEIGHBOURS",
+    "local_points",
+    "local_log_ratio",
 ]
+
+#: Held-out samples whose ratios (true one-step error / estimate) set the local scale of the estimate at a point.
+LOCAL_NEIGHBOURS = 20
 
 #: Target number of float64 entries of a block of prior covariances (about 32 MB).
 _BLOCK_ENTRIES = 1 << 22
@@ -99,6 +109,45 @@ def prior_covariance(sur, z_rows: np.ndarray, z_cols: np.ndarray, mu: np.ndarray
     probes = _probes(sur, z_cols, np.repeat(np.reshape(mu, (1, -1)), n_cols, axis=0), np.full(n_cols, float(dt)))
     rows = probes.gradient_kernel_rows(z_rows, np.ones((len(z_rows), n_cols * dim)))
     return rows.reshape(len(z_rows), dim, n_cols, dim)
+
+
+def local_points(x: np.ndarray, mu: np.ndarray, dt: np.ndarray, domain: dict) -> np.ndarray:
+    """The coordinates in which the local scale's neighbours are found: state, parameter and step, each
+    coordinate divided by the width of the training box (``domain``; a coordinate of zero width is dropped),
+    so that every one counts alike whatever its units.  ``x`` (N, 2n), ``mu`` (N, d_mu), ``dt`` (N,) ->
+    (N, 2n + d_mu + 1)."""
+    lo = np.concatenate([domain["x_min"], domain["mu_min"], np.atleast_1d(domain["dt_min"])]).astype(float)
+    hi = np.concatenate([domain["x_max"], domain["mu_max"], np.atleast_1d(domain["dt_max"])]).astype(float)
+    width = hi - lo
+    keep = width > 0
+    pts = np.concatenate([x, np.reshape(mu, (len(x), -1)), np.reshape(dt, (len(x), 1))], axis=1)
+    return (pts[:, keep] - lo[keep]) / width[keep]
+
+
+def local_log_ratio(
+    points: np.ndarray, log_ratio: np.ndarray, queries: np.ndarray, k: int, leave_one_out: bool = False
+) -> np.ndarray:
+    """The local scale of the error estimate at each query: the mean of ``log_ratio`` over the ``k`` nearest
+    ``points`` (Euclidean, in :func:`local_points` coordinates), shape (Q,).
+
+    ``log_ratio`` (N,) are the logs of true one-step error over estimate at held-out samples ``points`` (N, q);
+    the power function says where data are sparse, not where the flow map is hard to learn, so the estimate is
+    rescaled by what the fit's own errors near the query were.  ``leave_one_out``: the queries are the points
+    themselves, each without its own ratio (the calibration's).  ``O(Q N q)`` time, ``O(chunk N)`` memory.
+    """
+    n = len(points)
+    k = max(1, min(int(k), n - 1 if leave_one_out else n))
+    out = np.empty(len(queries))
+    chunk = max(1, (1 << 20) // max(1, n))
+    for start in range(0, len(queries), chunk):
+        sl = slice(start, min(len(queries), start + chunk))
+        d2 = np.einsum("qj,qj->q", queries[sl], queries[sl])[:, None] - 2.0 * queries[sl] @ points.T
+        d2 += np.einsum("nj,nj->n", points, points)[None, :]
+        if leave_one_out:
+            d2[np.arange(sl.stop - sl.start), np.arange(sl.start, sl.stop)] = np.inf
+        near = np.argpartition(d2, k - 1, axis=1)[:, :k]
+        out[sl] = log_ratio[near].mean(axis=1)
+    return out
 
 
 def _prior_at_points(sur, z: np.ndarray, mu: np.ndarray, dt: np.ndarray, chunk: int = 32) -> np.ndarray:
@@ -334,7 +383,13 @@ def _landmarks(sur, chol, z: np.ndarray, mu: np.ndarray, dt: float) -> tuple:
 
 
 def rollout_error_units(
-    fitted, traj: np.ndarray, mu: np.ndarray, dt: np.ndarray, weights: np.ndarray, method: str = "auto"
+    fitted,
+    traj: np.ndarray,
+    mu: np.ndarray,
+    dt: np.ndarray,
+    weights: np.ndarray,
+    method: str = "auto",
+    local: np.ndarray = None,
 ) -> np.ndarray:
     """Error estimates before calibration (B, K+1) along predicted trajectories ``traj`` (B, K+1, 2n).
 
@@ -343,7 +398,8 @@ def rollout_error_units(
     and scale); ``mu`` (B, d_mu), ``dt`` (B,), ``weights`` (B, m).  ``method``: ``"exact"``, every pair of steps
     (:class:`CovariancePropagation`, ``O(B K^2 (2n)^3)``); ``"lowrank"``, the posterior factorised on landmarks
     along each trajectory (:class:`LowRankPropagation`, linear in ``K``); ``"auto"``: exact up to
-    :data:`EXACT_MAX_STEPS` steps.  Cost: see the module.
+    :data:`EXACT_MAX_STEPS` steps.  ``local`` (B, K), optional: each step's local scale (a factor on its gradient
+    error, so ``C(z_k, z_l)`` becomes ``s_k s_l C(z_k, z_l)``; :func:`local_log_ratio`).  Cost: see the module.
     """
     sur, rule, scale = fitted.surrogate, fitted.rule, fitted.scale
     chol = sur.gram_factor(fitted.regularization)
@@ -361,7 +417,7 @@ def rollout_error_units(
                 n_steps,
                 _RANK_MAX,
             )
-        return _rollout_error_lowrank(fitted, chol, traj, mu, dt, weights)
+        return _rollout_error_lowrank(fitted, chol, traj, mu, dt, weights, factors=local)
     z_all = np.empty((b, n_steps, dim))
     out = np.zeros((b, k1))
     prop = CovariancePropagation(b, dim, m, n_steps)
@@ -375,6 +431,8 @@ def rollout_error_units(
         xi, jac, sens = rule.linearization(sur, xs, x1s, rep(weights), rep(dt))
         v = newton_rows(sur, xi, rep(mu), rep(dt), chol).reshape(b, nk, dim, m)
         xi, jac, sens = xi.reshape(b, nk, dim), jac.reshape(b, nk, dim, dim), sens.reshape(b, nk, dim, dim)
+        if local is not None:
+            sens = sens * local[:, k0:kk, None, None]
         z_all[:, k0:kk] = xi
         # prior covariances of this block's points with every point so far (theirs included): (b, nk, 2n, kk, 2n)
         prior = np.stack([prior_covariance(sur, xi[i], z_all[i, :kk], mu[i], dt[i]) for i in range(b)])
@@ -385,7 +443,7 @@ def rollout_error_units(
     return out
 
 
-def _rollout_error_lowrank(fitted, chol, traj, mu, dt, weights) -> np.ndarray:
+def _rollout_error_lowrank(fitted, chol, traj, mu, dt, weights, factors=None) -> np.ndarray:
     """:func:`rollout_error_units` by :class:`LowRankPropagation`: landmarks per trajectory, then the steps in
     blocks of bounded memory.  ``O(B K 2n m^2)`` (the Newton basis at the steps) ``+ O(B K (2n)^2 r (2n + m))``
     ``+ O(B N r^2)`` (the pivoting over ``N`` candidates); memory ``O(B 2n (r + m) block)``."""
@@ -436,6 +494,8 @@ def _rollout_error_lowrank(fitted, chol, traj, mu, dt, weights) -> np.ndarray:
         resid = local - np.matmul(a.transpose(0, 1, 3, 2), a)
         power = np.sqrt(np.maximum(np.diagonal(local, axis1=2, axis2=3), 0.0))
         jac, sens = jac.reshape(b, nk, dim, dim), sens.reshape(b, nk, dim, dim)
+        if factors is not None:
+            sens = sens * factors[:, k0:kk, None, None]
         for j in range(nk):
             sigma = prop.advance(jac[:, j], sens[:, j], a[:, j], resid[:, j], power[:, j])
             out[:, k0 + j + 1] = _norm_units(sigma, scale)

@@ -29,7 +29,14 @@ from sympredict.exceptions import (
     SolvabilityError,
 )
 from sympredict.exceptions import NotFittedError
-from sympredict.estimators.error_estimate import local_covariance, local_error_units, rollout_error_units
+from sympredict.estimators import error_estimate as _estimate
+from sympredict.estimators.error_estimate import (
+    local_covariance,
+    local_error_units,
+    local_log_ratio,
+    local_points,
+    rollout_error_units,
+)
 from sympredict.interpolation.greedy import GreedyHistory
 from sympredict.interpolation.greedy.trainers import ExactGreedy
 from sympredict.interpolation.surrogate import HBSurrogate, ValueSurrogate
@@ -418,6 +425,11 @@ class FittedSymplecticFlowMap(FittedFlowMap):
         from ``calibration_samples``.
     calibration_samples : tuple ``(FlowMapData, str)`` or None
         Held-out samples and where they come from, for the calibration computed on first use.
+    error_local : dict or None, optional
+        The error estimate's local scale (:attr:`error_local`), with ``error_calibration``: ``points``
+        (N, 2n + d_mu + 1), the held-out samples' states, parameters and steps, and ``log_ratio`` (N,), the log of
+        true one-step error over estimate there (centred); ``None``: one scale everywhere (a model file written
+        before the local scale existed).
     """
 
     name = "SymplecticKernelPredictor"
@@ -448,12 +460,13 @@ class FittedSymplecticFlowMap(FittedFlowMap):
         regularization: float = 0.0,
         error_calibration=...,
         calibration_samples=None,
+        error_local=None,
     ):
         super().__init__(
             kernel, surrogate, domain=domain, history=history, dt_fixed=dt_fixed, greedy_result=greedy_result
         )
         scale, periodic, symmetry = model_coordinates(parts, update, self.dim)
-        cache = {} if error_calibration is ... else {"calibration": error_calibration}
+        cache = {} if error_calibration is ... else {"calibration": error_calibration, "local": error_local}
         self._set(
             update=update,
             rule=as_update(update),
@@ -478,8 +491,10 @@ class FittedSymplecticFlowMap(FittedFlowMap):
         return self._replace(solver=checked, _solver_setting=solver)
 
     def with_error_calibration(self, calibration: Optional[dict]) -> "FittedSymplecticFlowMap":
-        """This fitted map with the error calibration ``calibration`` (``None``: no error estimate)."""
-        return self._replace(_cache={"calibration": calibration})
+        """This fitted map with the error calibration ``calibration`` (``None``: no error estimate); the local
+        scale (:attr:`error_local`) is kept where ``calibration`` has ``local_neighbours``, dropped otherwise."""
+        local = self.error_local if isinstance(calibration, dict) and "local_neighbours" in calibration else None
+        return self._replace(_cache={"calibration": calibration, "local": local})
 
     def original_periods(self):
         return self.parts.original_periods(self.dim)
@@ -603,7 +618,7 @@ class FittedSymplecticFlowMap(FittedFlowMap):
             return out[0] if single else out
         c = self._check_error_estimate()
         scale = self.scale
-        err = c * self._local_error_units(x * scale, out * scale, mu, dt, weights)
+        err = c * self._local_factors(x, mu, dt) * self._local_error_units(x * scale, out * scale, mu, dt, weights)
         return (out[0], float(err[0])) if single else (out, err)
 
     def rollout(
@@ -923,16 +938,46 @@ class FittedSymplecticFlowMap(FittedFlowMap):
     @property
     def error_calibration(self) -> Optional[dict]:
         """The error estimate's calibration, computed on first use from ``calibration_samples``, then kept:
-        ``scale`` (the :attr:`ERROR_QUANTILE` quantile of true one-step error over the power-function estimate),
-        ``source``, ``n_samples``, ``median_effectivity``, ``share_under_3x``; ``None`` without samples."""
+        ``scale`` (the :attr:`ERROR_QUANTILE` quantile of true one-step error over the estimate with its local
+        scale), ``local_neighbours`` (the held-out samples the local scale averages), ``source``, ``n_samples``,
+        ``median_effectivity``, ``share_under_3x`` (each sample's local scale left out of its own); ``None``
+        without samples."""
         if "calibration" not in self._cache:
             samples = None if self.n_centers == 0 else self.calibration_samples
-            self._cache["calibration"] = None if samples is None else self._error_calibration(*samples)
+            cal, local = (None, None) if samples is None else self._error_calibration(*samples)
+            self._cache.update(calibration=cal, local=local)
         return self._cache["calibration"]
 
-    def _error_calibration(self, data: FlowMapData, source: str) -> Optional[dict]:
-        """``ratio_i = |Phi(x0_i) - x1_i| / ||D^-1 G_i||_F`` (:meth:`_error_terms`) on ``data``; the scale is the
-        :attr:`ERROR_QUANTILE` quantile of the ratios (the one-step estimate covers that share of the errors)."""
+    @property
+    def error_local(self) -> Optional[dict]:
+        """The error estimate's local scale: ``points`` (N, 2n + d_mu + 1), the held-out samples' states,
+        parameters and steps, and ``log_ratio`` (N,), the log of true one-step error over estimate at each
+        (centred); the estimate at a state is multiplied by ``exp`` of the mean ``log_ratio`` of its
+        ``error_calibration["local_neighbours"]`` nearest samples
+        (:func:`~sympredict.estimators.error_estimate.local_log_ratio`).  ``None``: one scale everywhere."""
+        self.error_calibration  # computed with it
+        return self._cache.get("local")
+
+    def _local_factors(self, x: np.ndarray, mu: np.ndarray, dt: np.ndarray) -> np.ndarray:
+        """The local scale at states ``x`` (Q, 2n) in the user's units with ``mu`` (Q, d_mu), ``dt`` (Q,): (Q,);
+        ones without :attr:`error_local`.  ``O(Q N (2n + d_mu))`` for ``N`` held-out samples."""
+        local = self.error_local
+        if local is None:
+            return np.ones(len(x))
+        k = int(self.error_calibration.get("local_neighbours", _estimate.LOCAL_NEIGHBOURS))
+        query = local_points(x, mu, dt, self.domain)
+        points = local_points(
+            local["points"][:, : self.dim], local["points"][:, self.dim : -1], local["points"][:, -1], self.domain
+        )
+        return np.exp(local_log_ratio(points, local["log_ratio"], query, k))
+
+    def _error_calibration(self, data: FlowMapData, source: str) -> tuple:
+        """``(calibration, local)`` (:attr:`error_calibration`, :attr:`error_local`) from held-out ``data``.
+
+        ``ratio_i = |Phi(x0_i) - x1_i| / e_i`` with ``e_i`` the one-step estimate before calibration; the local
+        scale ``f_i`` is ``exp`` of the mean centred ``log ratio`` of the ``LOCAL_NEIGHBOURS`` nearest other
+        samples; the scale is the :attr:`ERROR_QUANTILE` quantile of ``ratio_i / f_i`` (the one-step estimate
+        covers that share of the errors).  ``O(N 2n m^2 + N^2 (2n + d_mu))`` for ``N`` samples."""
         mu = data.mu if self.n_mu else np.zeros((len(data), 0))
         scale = self.scale
         weights = self.surrogate.weights(mu, data.dt)
@@ -941,32 +986,54 @@ class FittedSymplecticFlowMap(FittedFlowMap):
                 warnings.simplefilter("ignore", ExtrapolationWarning)
                 x1s = self._solve_scaled(data.x0 * scale, weights, data.dt)
         except (NewtonConvergenceError, NonFinitePredictionError):
-            return None
+            return None, None
         true = np.linalg.norm(x1s / scale - data.x1, axis=1)
         unit = self._local_error_units(data.x0 * scale, x1s, mu, data.dt, weights)
         ok = (unit > 0) & np.isfinite(true)
         if not ok.any():
-            return None
-        ratio = true[ok] / unit[ok]
+            return None, None
+        true, unit = true[ok], unit[ok]
+        local, factor = None, np.ones(len(true))
+        k = _estimate.LOCAL_NEIGHBOURS
+        if ok.sum() > k and np.all(true > 0):
+            # the log ratios, centred; each sample's own ratio left out of its local scale
+            log_ratio = np.log(true / unit)
+            log_ratio -= log_ratio.mean()
+            raw = np.concatenate([data.x0[ok], mu[ok], data.dt[ok, None]], axis=1)
+            points = local_points(raw[:, : self.dim], mu[ok], data.dt[ok], self.domain)
+            factor = np.exp(local_log_ratio(points, log_ratio, points, k, leave_one_out=True))
+            local = {"points": raw, "log_ratio": log_ratio}
+        ratio = true / (unit * factor)
         c = float(np.quantile(ratio, self.ERROR_QUANTILE))
         if not c > 0:  # every held-out step exact: fall back to the largest ratio's scale of round-off
             c = float(np.finfo(float).eps)
-        est = c * unit[ok]
-        return {
+        est = c * unit * factor
+        cal = {
             "scale": c,
             "quantile": self.ERROR_QUANTILE,
             "n_samples": int(ok.sum()),
             "source": source,
-            "median_effectivity": float(np.median(est / np.maximum(true[ok], np.finfo(float).tiny))),
-            "share_under_3x": float(np.mean(3 * est < true[ok])),
-            "median_step_error": float(np.median(true[ok])),
+            "median_effectivity": float(np.median(est / np.maximum(true, np.finfo(float).tiny))),
+            "share_under_3x": float(np.mean(3 * est < true)),
+            "median_step_error": float(np.median(true)),
         }
+        if local is not None:
+            cal["local_neighbours"] = k
+        return cal, local
 
     def _rollout_error(self, traj: np.ndarray, mu: np.ndarray, dt: np.ndarray, weights: np.ndarray) -> np.ndarray:
         """Error estimates (B, K+1) along predicted trajectories ``traj`` (B, K+1, 2n) (every step kept): the
         gradient's posterior covariance carried through the steps' Jacobians, with the calibrated scale
         (:func:`~sympredict.estimators.error_estimate.rollout_error_units`)."""
-        return self._check_error_estimate() * rollout_error_units(self, traj, mu, dt, weights)
+        c = self._check_error_estimate()
+        b, k1, dim = traj.shape
+        local = None
+        if self.error_local is not None and k1 > 1:
+            n = k1 - 1
+            local = self._local_factors(
+                traj[:, :-1].reshape(-1, dim), np.repeat(mu, n, axis=0), np.repeat(dt, n)
+            ).reshape(b, n)
+        return c * rollout_error_units(self, traj, mu, dt, weights, local=local)
 
     # ----------------------------------------------------------------- files
     @staticmethod

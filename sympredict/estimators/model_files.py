@@ -170,6 +170,9 @@ def to_container(model) -> tuple:
     if calibration:  # the error estimate's scale (SymplecticKernelPredictor.rollout(..., return_error=True))
         settings["error_calibration"] = dict(calibration)
     arrays = {"train_max_residual": hist.train_max_residual, "selected_power": hist.selected_power}
+    local = getattr(fitted, "error_local", None) if calibration else None
+    if local is not None:  # its local scale
+        arrays.update(error_local_points=local["points"], error_local_log_ratio=local["log_ratio"])
     if hist.val_max_residual is not None:
         arrays["val_max_residual"] = hist.val_max_residual
     arrays.update({f"domain_{k}": np.asarray(v) for k, v in fitted.domain.items()})
@@ -260,6 +263,7 @@ def from_container(cls, settings, arrays: dict, path):
             isinstance(calibration, dict) and isinstance(calibration.get("scale"), float) and calibration["scale"] > 0
         ):
             raise ModelFileError(f"{str(path)!r}: its error_calibration is not a record with a positive 'scale'")
+        local = _file_error_local(arrays, calibration, dim + n_mu + 1, path)
         domain = {k: arrays[f"domain_{k}"] for k in DOMAIN_KEYS}
         _check_file_history(surrogate.n_centers, history, domain, path)
         if symplectic:  # the fitted flow map, by its public constructor (as fit builds it)
@@ -274,6 +278,7 @@ def from_container(cls, settings, arrays: dict, path):
                 solver=model.solver,
                 regularization=trainer_regularization(fitted_params["trainer"]),
                 error_calibration=calibration,
+                error_local=local,
             )
         else:
             model.model_ = FittedDirectFlowMap(
@@ -284,6 +289,34 @@ def from_container(cls, settings, arrays: dict, path):
     except (KeyError, TypeError, ValueError, AttributeError, IndexError, OverflowError, RecursionError) as exc:
         raise ModelFileError(f"{str(path)!r} is an incomplete or inconsistent sympredict model file: {exc!r}") from None
     return model
+
+
+def _file_error_local(arrays: dict, calibration, width: int, path):
+    """The error estimate's local scale of a model file (``error_local_points`` (N, 2n + d_mu + 1) and
+    ``error_local_log_ratio`` (N,), with the calibration's ``local_neighbours`` in 1..N), or ``None`` for a file
+    without it (written before it existed, or by a fit without enough held-out samples)."""
+    names = ("error_local_points", "error_local_log_ratio")
+    present = [name in arrays for name in names]
+    k = calibration.get("local_neighbours") if isinstance(calibration, dict) else None
+    if not any(present) and k is None:
+        return None
+    if not all(present) or k is None:
+        raise ModelFileError(
+            f"{str(path)!r}: its error estimate's local scale is incomplete (it needs the arrays {list(names)} "
+            "and the error_calibration's 'local_neighbours')"
+        )
+    points, log_ratio = arrays["error_local_points"], arrays["error_local_log_ratio"]
+    n = len(log_ratio)
+    if points.ndim != 2 or points.shape != (n, width) or log_ratio.ndim != 1 or points.dtype.kind != "f":
+        raise ModelFileError(
+            f"{str(path)!r}: its error_local_points of shape {points.shape} and error_local_log_ratio of shape "
+            f"{log_ratio.shape} are not (N, {width}) and (N,) float arrays"
+        )
+    if type(k) is not int or not 1 <= k <= n:
+        raise ModelFileError(
+            f"{str(path)!r}: its error_calibration's local_neighbours={k!r} is not an integer in 1..{n}"
+        )
+    return {"points": points.astype(float), "log_ratio": log_ratio.astype(float)}
 
 
 def _file_choice_of(model, params: dict) -> dict:

@@ -290,10 +290,28 @@ def test_independent_step_errors_add_as_a_random_walk():
     np.testing.assert_allclose(kernel_part, 2 * np.arange(1, n + 1) * (dt * eps) ** 2, rtol=1e-10)
 
 
+def _oracle_local_factors(fitted, x, mu, dt):
+    """The local scale at states ``x`` (Q, 2n) by brute force: every coordinate divided by the training box's width,
+    all distances sorted, ``exp`` of the mean log ratio of the ``local_neighbours`` nearest held-out samples."""
+    local, k = fitted.error_local, fitted.error_calibration["local_neighbours"]
+    box = fitted.domain
+    lo = np.concatenate([box["x_min"], box["mu_min"], np.atleast_1d(box["dt_min"])])
+    width = np.concatenate([box["x_max"], box["mu_max"], np.atleast_1d(box["dt_max"])]) - lo
+    keep = width > 0
+    pts = (local["points"][:, keep] - lo[keep]) / width[keep]
+    out = []
+    for row in np.column_stack([x, np.reshape(mu, (len(x), -1)), dt]):
+        q = (row[keep] - lo[keep]) / width[keep]
+        order = np.argsort(np.sum((pts - q) ** 2, axis=1), kind="stable")
+        out.append(np.exp(np.mean(local["log_ratio"][order[:k]])))
+    return np.array(out)
+
+
 def test_rollout_estimate_is_the_dense_posterior_covariance_propagated(model):
     """Oracle: the posterior covariance of the gradient functionals at all of a rollout's evaluation points from the
     Gramian built column by column by the functionals' own code (dense solve), the step maps multiplied out
-    explicitly, ``Sigma_K = (sum_kl M_K,k C_kl M_K,l^T + F F^T) / 2``."""
+    explicitly with each step's local scale ``f_k`` (brute-force neighbours), ``M_K,k = D Phi ... S_k f_k``,
+    ``Sigma_K = (sum_kl M_K,k C_kl M_K,l^T + F F^T) / 2``."""
     small = model.truncated(40)
     fitted = small.model_
     sur, rule, scale = fitted.surrogate, fitted.rule, fitted.scale
@@ -313,6 +331,8 @@ def test_rollout_estimate_is_the_dense_posterior_covariance_propagated(model):
         mub, dtb = np.full((n, 1), mu[b]), np.full(n, 0.1)
         w = sur.weights(mub, dtb)
         xi, jac, sens = rule.linearization(sur, traj[b, :-1] * scale, traj[b, 1:] * scale, w, dtb)
+        assert fitted.error_local is not None
+        sens = sens * _oracle_local_factors(fitted, traj[b, :-1], mub, dtb)[:, None, None]
         queries = HBFunctionals(sur.kernel, xi, mub, dtb)
         kqc = np.empty((n * dim, m))
         kqq = np.empty((n * dim, n * dim))
@@ -409,14 +429,20 @@ def test_pivoted_cholesky_reproduces_the_pivots_and_leaves_a_small_remainder(rng
     np.testing.assert_allclose(capped, pivots[:3])
 
 
-def _rollout_units(model, n_steps, method):
+def _rollout_units(model, n_steps, method, local=False):
+    """``rollout_error_units`` along three rollouts; ``local``: with the local scale at each step (brute force)."""
     from sympredict.estimators.error_estimate import rollout_error_units
 
     fitted = model.model_
     x0, mu = np.array([[1.0, 0.0], [0.3, -0.4], [-1.2, 0.5]]), np.array([[0.72], [0.75], [0.78]])
     traj = model.rollout(x0, n_steps, mu=mu[:, 0], dt=0.1)
     dt = np.full(3, 0.1)
-    return rollout_error_units(fitted, traj, mu, dt, fitted.surrogate.weights(mu, dt), method=method)
+    factors = None
+    if local:
+        x = traj[:, :-1].reshape(-1, 2)
+        factors = _oracle_local_factors(fitted, x, np.repeat(mu, n_steps, axis=0), np.full(len(x), 0.1))
+        factors = factors.reshape(3, n_steps)
+    return rollout_error_units(fitted, traj, mu, dt, fitted.surrogate.weights(mu, dt), method=method, local=factors)
 
 
 @pytest.mark.paths
@@ -453,12 +479,166 @@ def test_long_horizons_take_the_linear_path_and_say_so(model, monkeypatch, caplo
     x0, mu = np.array([[1.0, 0.0]]), np.array([0.72])
     _, short = model.rollout(x0, 30, mu=mu, dt=0.1, return_error=True)
     c = model.error_calibration_["scale"]
-    np.testing.assert_allclose(short, c * _rollout_units(model, 30, "exact")[:1], rtol=1e-8, atol=0)
+    np.testing.assert_allclose(short, c * _rollout_units(model, 30, "exact", local=True)[:1], rtol=1e-8, atol=0)
     monkeypatch.setattr(error_estimate, "EXACT_MAX_STEPS", 20)
     with caplog.at_level(logging.INFO, logger="sympredict.estimators.error_estimate"):
         _, long = model.rollout(x0, 30, mu=mu, dt=0.1, return_error=True)
     assert "landmarks" in caplog.text and "30 steps" in caplog.text
-    np.testing.assert_allclose(long, c * _rollout_units(model, 30, "lowrank")[:1], rtol=1e-8, atol=0)
+    np.testing.assert_allclose(long, c * _rollout_units(model, 30, "lowrank", local=True)[:1], rtol=1e-8, atol=0)
     assert not np.array_equal(long, short)
     with pytest.raises(ValueError, match="method"):
         _rollout_units(model, 5, "fast")
+
+
+def test_local_scale_recovers_a_linear_and_a_step_field(rng):
+    """``local_log_ratio`` is the mean over the ``k`` nearest points: for a linear field exactly the field at the
+    neighbours' centroid (brute-force neighbours), with or without each point's own value; for a field with two
+    levels, the level of the region at queries farther from its border than their neighbours are."""
+    from sympredict.estimators.error_estimate import local_log_ratio
+
+    pts = rng.uniform(0.0, 1.0, (400, 3))
+    slope = np.array([2.0, -1.0, 0.5])
+    field = pts @ slope + 0.3
+    queries = rng.uniform(0.0, 1.0, (50, 3))
+    for k in (1, 7, 20):
+        got = local_log_ratio(pts, field, queries, k)
+        near = np.argsort(np.sum((queries[:, None] - pts[None]) ** 2, axis=2), axis=1)[:, :k]
+        np.testing.assert_allclose(got, pts[near].mean(axis=1) @ slope + 0.3, rtol=1e-12, atol=1e-12)
+        loo = local_log_ratio(pts, field, pts, k, leave_one_out=True)
+        d2 = np.sum((pts[:, None] - pts[None]) ** 2, axis=2)
+        np.fill_diagonal(d2, np.inf)
+        near = np.argsort(d2, axis=1)[:, :k]
+        np.testing.assert_allclose(loo, pts[near].mean(axis=1) @ slope + 0.3, rtol=1e-12, atol=1e-12)
+    step = np.where(pts[:, 0] < 0.5, np.log(10.0), 0.0)
+    inner = np.array([[0.1, 0.5, 0.5], [0.9, 0.5, 0.5]])
+    np.testing.assert_allclose(local_log_ratio(pts, step, inner, 10), [np.log(10.0), 0.0], atol=1e-12)
+    # k beyond the points: all of them (the others, leaving one out)
+    np.testing.assert_allclose(local_log_ratio(pts, field, queries[:2], 10**6), field.mean(), rtol=1e-12)
+
+
+def _edited_local(model, tmp_path, log_ratio=None, settings=None, arrays=None, name="edited.h5"):
+    from _model_files import _rewrite  # tests/
+
+    src = tmp_path / "src.h5"
+    model.save(src)
+
+    def edit_arrays(a):
+        if log_ratio is not None:
+            a["error_local_log_ratio"] = np.full_like(a["error_local_log_ratio"], log_ratio)
+        if arrays is not None:
+            arrays(a)
+
+    _rewrite(src, tmp_path / name, settings=settings, arrays=edit_arrays)
+    return SymplecticKernelPredictor.load(tmp_path / name)
+
+
+@pytest.mark.parametrize("exact_max", [1000, 5])
+def test_a_constant_local_scale_multiplies_the_estimate(model, tmp_path, monkeypatch, exact_max):
+    """A local log ratio of ``ln 3`` everywhere makes every step's gradient error 3 times larger, so every estimate
+    (one step, the exact and the low-rank propagation) is 3 times that of a log ratio of 0."""
+    from sympredict.estimators import error_estimate
+
+    monkeypatch.setattr(error_estimate, "EXACT_MAX_STEPS", exact_max)
+    one = _edited_local(model, tmp_path, log_ratio=0.0, name="one.h5")
+    three = _edited_local(model, tmp_path, log_ratio=np.log(3.0), name="three.h5")
+    x0, mu = np.array([[1.0, 0.0], [-0.6, 0.4]]), np.array([0.72, 0.78])
+    _, e1 = one.rollout(x0, 12, mu=mu, dt=0.1, return_error=True)
+    _, e3 = three.rollout(x0, 12, mu=mu, dt=0.1, return_error=True)
+    assert np.all(e1[:, 1:] > 0)
+    # the same arrays scaled by 3 (9 in the covariances): round-off of a posterior that is a difference of
+    # prior-sized terms (``Q - W W^T``), relative to the prior
+    np.testing.assert_allclose(e3, 3.0 * e1, rtol=1e-8, atol=0)
+    s1 = one.step(x0, mu=mu, dt=0.1, return_error=True)[1]
+    s3 = three.step(x0, mu=mu, dt=0.1, return_error=True)[1]
+    np.testing.assert_allclose(s3, 3.0 * s1, rtol=1e-12, atol=0)
+    np.testing.assert_allclose(s1, e1[:, 1], rtol=1e-10)  # the one-step estimate is the K = 1 case
+
+
+def test_local_scale_is_calibrated_and_survives_model_files(model, tmp_path):
+    """The local scale is the held-out samples' centred log ratios, stored in the model file and read back;
+    the estimates of the loaded model are the fitted one's."""
+    local = model.model_.error_local
+    cal = model.error_calibration_
+    assert cal["local_neighbours"] == 20 and local["points"].shape == (cal["n_samples"], 2 + 1 + 1)
+    assert abs(local["log_ratio"].mean()) < 1e-12 and np.ptp(local["log_ratio"]) > 0
+    path = tmp_path / "m.h5"
+    model.save(path)
+    loaded = SymplecticKernelPredictor.load(path)
+    np.testing.assert_array_equal(loaded.model_.error_local["points"], local["points"])
+    np.testing.assert_array_equal(loaded.model_.error_local["log_ratio"], local["log_ratio"])
+    x0 = np.array([[1.0, 0.0], [0.3, -0.4]])
+    a = model.rollout(x0, 8, mu=0.75, dt=0.1, return_error=True)[1]
+    np.testing.assert_allclose(loaded.rollout(x0, 8, mu=0.75, dt=0.1, return_error=True)[1], a, rtol=1e-12)
+
+
+def test_files_without_the_local_scale_load_with_one_scale(model, tmp_path):
+    """A model file written before the local scale existed (no arrays, no ``local_neighbours``) loads, and its
+    estimate is its one scale times the propagated covariance, without local factors."""
+
+    def old_settings(s):
+        s["error_calibration"].pop("local_neighbours")
+
+    def old_arrays(a):
+        a.pop("error_local_points")
+        a.pop("error_local_log_ratio")
+
+    old = _edited_local(model, tmp_path, settings=old_settings, arrays=old_arrays)
+    assert old.model_.error_local is None
+    _, err = old.rollout(
+        np.array([[1.0, 0.0], [0.3, -0.4], [-1.2, 0.5]]), 10, mu=[0.72, 0.75, 0.78], dt=0.1, return_error=True
+    )
+    c = old.error_calibration_["scale"]
+    np.testing.assert_allclose(err, c * _rollout_units(old, 10, "exact"), rtol=1e-12, atol=0)
+
+
+@pytest.mark.parametrize(
+    "settings, arrays, match",
+    [
+        (None, lambda a: a.pop("error_local_log_ratio"), "incomplete"),
+        (lambda s: s["error_calibration"].pop("local_neighbours"), None, "incomplete"),
+        (None, lambda a: a.update(error_local_points=a["error_local_points"][:, :2]), "not \\(N, 4\\)"),
+        (None, lambda a: a.update(error_local_log_ratio=a["error_local_log_ratio"][:-1]), "not \\(N, 4\\)"),
+        (lambda s: s["error_calibration"].update(local_neighbours=0), None, "local_neighbours"),
+        (lambda s: s["error_calibration"].update(local_neighbours=10**6), None, "local_neighbours"),
+        (lambda s: s["error_calibration"].update(local_neighbours=2.5), None, "local_neighbours"),
+        (None, lambda a: a["error_local_log_ratio"].__setitem__(0, np.nan), "finite"),
+    ],
+)
+def test_hostile_local_scale_in_model_files_is_refused(model, tmp_path, settings, arrays, match):
+    from sympredict.exceptions import ModelFileError
+
+    with pytest.raises(ModelFileError, match=match):
+        _edited_local(model, tmp_path, settings=settings, arrays=arrays)
+
+
+@pytest.mark.paths
+def test_lowrank_keeps_each_steps_own_covariance_whatever_its_rank(model, monkeypatch):
+    """With two landmark functionals the factorisation misses most of the posterior, but each step's own covariance
+    is kept exactly (landmark part plus remainder): the first step's estimate, ``sqrt(tr S C(z, z) S^T)``, is the
+    exact path's; the later ones differ (the correlations between steps the landmarks miss are dropped)."""
+    from sympredict.estimators import error_estimate
+
+    exact = _rollout_units(model, 30, "exact")
+    monkeypatch.setattr(error_estimate, "_RANK_MAX", 2)
+    low = _rollout_units(model, 30, "lowrank")
+    np.testing.assert_allclose(low[:, 1], exact[:, 1], rtol=1e-8, atol=0)
+    assert np.all(np.isfinite(low)) and not np.allclose(low, exact, rtol=1e-3)
+
+
+def test_a_calibration_set_by_hand_keeps_the_local_scale_only_with_its_neighbours(model, tmp_path):
+    """``error_calibration_ = {...}`` with ``local_neighbours`` keeps the local scale; without, the estimate is that
+    one scale times the propagated covariance; either model's file loads back to the same estimate."""
+    x0 = np.array([[1.0, 0.0], [0.3, -0.4], [-1.2, 0.5]])
+    mu = [0.72, 0.75, 0.78]
+    for keep in (True, False):
+        copy_ = SymplecticKernelPredictor.__new__(SymplecticKernelPredictor)
+        copy_.__dict__.update(model.__dict__)
+        cal = {"scale": 2.0, **({"local_neighbours": 5} if keep else {})}
+        copy_.error_calibration_ = cal
+        assert (copy_.model_.error_local is not None) is keep
+        _, err = copy_.rollout(x0, 10, mu=mu, dt=0.1, return_error=True)
+        units = _rollout_units(copy_, 10, "exact", local=keep)
+        np.testing.assert_allclose(err, 2.0 * units, rtol=1e-12, atol=0)
+        copy_.save(tmp_path / f"{keep}.h5")
+        loaded = SymplecticKernelPredictor.load(tmp_path / f"{keep}.h5")
+        np.testing.assert_allclose(loaded.rollout(x0, 10, mu=mu, dt=0.1, return_error=True)[1], err, rtol=1e-12)
