@@ -205,6 +205,10 @@ def test_quick_search_scores_its_candidates_below_the_final_size(quick_fit):
     # halving: stage 1 at rungs of 25 and 50 centres, stage 2's candidates scored at a rung of 62 first
     assert {r["rung"] for r in by_stage[1] if "rung" in r} == {25, 50}
     assert all(r["rung_centers"] <= 62 for r in by_stage[2])
-    # the fits at the size of the model: the final-size stage's one to four
-    assert 1 <= len(by_stage[4]) <= 4 and len(s.table) == sum(len(v) for v in by_stage.values())
+    # the fits at the size of the model: the final-size stage's one to four per finalist, the best candidates
+    # with and without a structure (one finalist of each kind at most)
+    symmetric = [r for r in by_stage[4] if r["kernels"].startswith("Symmetric(")]
+    plain = [r for r in by_stage[4] if not r["kernels"].startswith("Symmetric(")]
+    assert 1 <= len(symmetric) + len(plain) and len(symmetric) <= 4 and len(plain) <= 4
+    assert len(s.table) == sum(len(v) for v in by_stage.values())
     assert quick_fit.n_centers_ <= 300 and np.isfinite(s.score)
