@@ -77,6 +77,7 @@ def test_state_weights_are_the_symplectic_normalisation():
     np.testing.assert_allclose(w[:, :2].std(axis=0), w[:, 2:].std(axis=0), rtol=1e-12)
 
 
+@pytest.mark.paths
 def test_the_defaults_choose_the_same_model_in_si_units_as_in_units_of_order_one(orbits):
     canonical, si, xt, gt = orbits
     with warnings.catch_warnings():
