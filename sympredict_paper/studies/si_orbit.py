@@ -188,7 +188,7 @@ def run(label, make, data, wrap, test, args) -> dict:
     return row
 
 
-def expert_search(states_c, gm_c, args) -> tuple:
+def expert_search(states_c, gm_c, args, start: dict) -> tuple:
     """Coordinate search (factor 2) over the expert's shapes on a split of the training trajectories."""
     from _coordinate_search import coordinate_search  # sympredict_paper/studies/
 
@@ -200,7 +200,7 @@ def expert_search(states_c, gm_c, args) -> tuple:
     x0v, x1v = states_c[va, :-1].reshape(-1, 4), states_c[va, 1:].reshape(-1, 4)
     muv = np.repeat(gm_c[va], states_c.shape[1] - 1)
     rows, t_start = [], time.perf_counter()
-    base = dict(EXPERT_START)
+    base = dict(start)
     names = ("eps_state", "eps_mu", "ratio")
 
     def score(settings):
@@ -260,6 +260,12 @@ def parse_args(argv=None):
         choices=["defaults", "defaults_canonical", "defaults_active_set", "expert", "expert_exact_greedy"],
     )
     p.add_argument("--search", action="store_true", help="redo the expert's shape search")
+    p.add_argument(
+        "--search-start",
+        choices=["start", "expert"],
+        default="start",
+        help="start the expert's search at EXPERT_START (default) or at EXPERT (with --expert overrides)",
+    )
     p.add_argument("--search-families", nargs="+", default=["imq", "matern52"])
     p.add_argument("--search-updates", nargs="+", default=["symplectic_euler", "midpoint"])
     p.add_argument("--search-params", nargs="+", default=["eps_state", "eps_mu", "ratio"])
@@ -328,7 +334,8 @@ def main(argv=None) -> dict:
         if "expert" in args.configs:
             record = None
             if args.search:
-                settings, record = expert_search(data_c.states, data_c.mu[:, 0], args)
+                start = settings if args.search_start == "expert" else EXPERT_START
+                settings, record = expert_search(data_c.states, data_c.mu[:, 0], args, start)
             row = run("expert", lambda: expert_model(settings, data_c.states, m), data_c, canon, test, args)
             row["settings"] = settings
             row["search"] = record
