@@ -58,8 +58,10 @@ from sympredict.estimators.search import (
     grid_search,
     final_size_score,
     one_step_score,
+    pair_factors,
     quiet_logs,
     without_target,
+    _std,
 )
 from sympredict.estimators.structure import compete as _structure_stage
 from sympredict.estimators.structure import fold
@@ -246,7 +248,10 @@ class KernelSearch(Setting):
         finalist that stops early also with its open shapes doubled, up to three times), then the
         coordinate search's candidates, to ``m_final = min(max_centers, final_centers)`` centres and ranks them by the
         mean relative one-step error ``|Phi(x0) - x1| / |x1 - x0|`` on the held-out samples (a Newton failure scores
-        ``inf``): the error a rollout compounds, at the size the model will have.
+        ``inf``): the error a rollout compounds, at the size the model will have.  Errors are measured in the data's
+        normalised coordinates ``(a_i q_i, p_i / a_i)`` (:func:`~sympredict.estimators.search.state_weights`), so the
+        choice does not depend on the units of the states (raw norms of states in metres and m/s weigh only the
+        positions).
         With ``halving`` (where ``m_star >= 4 MIN_RUNG``, resp. ``m_final >= 4 MIN_RUNG``; :data:`MIN_RUNG` = 25):
 
         * stage 1 trains each grid's candidates to ``m_star / 4`` centres, the best third of them (at least two, by
@@ -922,24 +927,6 @@ def _move(value, index: int, factor: float):
     return value * factor if index == 1 else value.set_params(eps=_clip(value.eps * factor))
 
 
-def pair_factors(data: FlowMapData) -> np.ndarray:
-    """``a_i = sqrt(std(p_i) / std(q_i))`` over the states ``x0`` and ``x1``: the symplectic scaling
-    ``(a_i q_i, p_i / a_i)`` that gives each conjugate pair equal spreads (``1`` where a spread is zero).
-
-    Returns
-    -------
-    ndarray of shape (n,)
-    """
-    x = np.concatenate([data.x0, data.x1])
-    n = x.shape[1] // 2
-    # a spread far below the other is round-off: the ratio of two stds each scaled to their maximum (no underflow)
-    sq, sp = _std(x[:, :n]), _std(x[:, n:])
-    a = np.ones(n)
-    ok = (sq > 0) & (sp > 0)
-    a[ok] = np.sqrt(sp[ok] / sq[ok])
-    return np.clip(a, 1e-6, 1e6)
-
-
 #: Spreads of pairs (or widths of parameter components) below this fraction of the largest draw a ScaleWarning.
 SCALE_RATIO = 1e-3
 
@@ -981,13 +968,6 @@ def _warn_unbalanced_parameters(data: FlowMapData) -> None:
             ScaleWarning,
             stacklevel=4,
         )
-
-
-def _std(x: np.ndarray) -> np.ndarray:
-    """Column standard deviations without overflow or underflow (values scaled by their largest magnitude)."""
-    big = np.abs(x).max(axis=0)
-    big = np.where(big > 0, big, 1.0)
-    return (x / big).std(axis=0) * big
 
 
 def _widths(values: np.ndarray) -> np.ndarray:

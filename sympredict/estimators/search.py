@@ -59,6 +59,8 @@ __all__ = [
     "one_step_score",
     "final_size_score",
     "relative_rollout_error",
+    "pair_factors",
+    "state_weights",
     "score_search",
     "ridge_search",
 ]
@@ -586,6 +588,45 @@ def relative_rollout_error(predicted: np.ndarray, states: np.ndarray) -> float:
     return value if np.isfinite(value) else float("inf")
 
 
+def _std(x: np.ndarray) -> np.ndarray:
+    """Column standard deviations without overflow or underflow (values scaled by their largest magnitude)."""
+    big = np.abs(x).max(axis=0)
+    big = np.where(big > 0, big, 1.0)
+    return (x / big).std(axis=0) * big
+
+
+def pair_factors(data: FlowMapData) -> np.ndarray:
+    """``a_i = sqrt(std(p_i) / std(q_i))`` over the states ``x0`` and ``x1``: the symplectic scaling
+    ``(a_i q_i, p_i / a_i)`` that gives each conjugate pair equal spreads (``1`` where a spread is zero).
+
+    Returns
+    -------
+    ndarray of shape (n,)
+    """
+    x = np.concatenate([data.x0, data.x1])
+    n = x.shape[1] // 2
+    # a spread far below the other is round-off: the ratio of two stds each scaled to their maximum (no underflow)
+    sq, sp = _std(x[:, :n]), _std(x[:, n:])
+    a = np.ones(n)
+    ok = (sq > 0) & (sp > 0)
+    a[ok] = np.sqrt(sp[ok] / sq[ok])
+    return np.clip(a, 1e-6, 1e6)
+
+
+def state_weights(data: FlowMapData) -> np.ndarray:
+    """The weights ``(a_1, ..., a_n, 1 / a_1, ..., 1 / a_n)`` (:func:`pair_factors`) of the states' coordinates under
+    which the search measures errors: the data's symplectic normalisation ``(a_i q_i, p_i / a_i)``, so that a score
+    does not depend on the units of the states (a position error in metres and a velocity error in m/s count alike
+    once each is scaled to its spread; an overall factor cancels in a relative error).
+
+    Returns
+    -------
+    ndarray of shape (2n,)
+    """
+    a = pair_factors(data)
+    return np.concatenate([a, 1.0 / a])
+
+
 def final_size_score(
     estimator,
     params: dict,
@@ -598,7 +639,7 @@ def final_size_score(
     """``(score, centres, seconds, error, rollout, rollout_seconds)`` of one candidate: :func:`one_step_score`'s
     four, ``rollout``, the :func:`relative_rollout_error` of the fitted candidate's rollouts of held-out trajectories
     from their first states (``None`` without ``rollouts``; ``inf`` where the fit or a rollout fails), and the
-    rollouts' share of ``seconds``.
+    rollouts' share of ``seconds``.  Both errors are taken in ``val``'s normalised coordinates (:func:`state_weights`).
 
     ``rollouts`` is ``(states, mu, dt)``: ``states`` of shape ``(P, K + 1, 2n)``, ``mu`` of shape ``(P, p)`` or
     ``None``, ``dt`` a float.  Cost: one greedy fit to ``m_final`` centres, ``largest`` implicit steps and ``P K``
@@ -607,7 +648,8 @@ def final_size_score(
     t0 = time.perf_counter()
     model = without_target(clone(estimator).set_params(**params, max_centers=m_final))
     sub = val.subset(np.arange(min(len(val), largest)))
-    inc = np.linalg.norm(sub.x1 - sub.x0, axis=1)
+    w = state_weights(val)  # errors in the normalised coordinates: the score does not depend on the units
+    inc = np.linalg.norm((sub.x1 - sub.x0) * w, axis=1)
     rows = inc > 0
     uses_mu = params["mu_kernel"] is not None
     try:
@@ -617,8 +659,8 @@ def final_size_score(
             pred = model.step(
                 sub.x0, mu=sub.mu if uses_mu else None, dt=sub.dt if params["dt_kernel"] is not None else None
             )
-        err = np.linalg.norm(pred - sub.x1, axis=1)[rows] / inc[rows]
-        value = float(np.mean(err)) if rows.any() else float(np.mean(np.linalg.norm(pred - sub.x1, axis=1)))
+        miss = np.linalg.norm((pred - sub.x1) * w, axis=1)
+        value = float(np.mean(miss[rows] / inc[rows])) if rows.any() else float(np.mean(miss))
     except (ValueError, ArithmeticError, NewtonConvergenceError, NonFinitePredictionError) as exc:
         failed = f"{type(exc).__name__}: {exc}"
         return np.inf, 0, time.perf_counter() - t0, failed, None if rollouts is None else np.inf, 0.0
@@ -634,7 +676,7 @@ def final_size_score(
                     mu=mu if uses_mu else None,
                     dt=dt if params["dt_kernel"] is not None else None,
                 )
-            rollout = relative_rollout_error(predicted, states)
+            rollout = relative_rollout_error(predicted * w, states * w)
         except (ValueError, ArithmeticError, NewtonConvergenceError, NonFinitePredictionError, np.linalg.LinAlgError):
             rollout = np.inf
     t2 = time.perf_counter()
@@ -647,7 +689,8 @@ def one_step_score(
     """``(score, centres, seconds, error)`` of one candidate: ``clone(estimator)`` with ``params`` fitted
     to ``m_final`` centres on ``train`` (its trainer's ``target_error`` dropped: candidates compete at their full
     size), scored by the mean relative one-step error ``|Phi(x0) - x1| / |x1 - x0|`` on (up to ``largest``)
-    ``val`` samples; ``inf`` for a failed fit or Newton solve, or a non-finite prediction.
+    ``val`` samples, the norms taken in ``val``'s normalised coordinates (:func:`state_weights`: no dependence on the
+    units); ``inf`` for a failed fit or Newton solve, or a non-finite prediction.
 
     ``params`` holds ``state_kernel``, ``mu_kernel``, ``dt_kernel``, ``update`` and any other settings.
     Cost: one greedy fit to ``m_final`` centres and ``largest`` implicit steps.

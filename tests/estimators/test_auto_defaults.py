@@ -263,8 +263,9 @@ def test_too_few_samples_for_a_search_name_the_fix(param_data):
 
 
 def test_the_second_stage_scores_the_one_step_error_on_held_out_samples(param_data):
-    """The stage-2 score is the mean of |Phi(x0) - x1| / |x1 - x0| over the held-out samples (independent
-    recomputation with the same fit), and a Newton failure scores inf instead of stopping the search."""
+    """The stage-2 score is the mean of |Phi(x0) - x1| / |x1 - x0| over the held-out samples, the norms taken in the
+    held-out states' normalised coordinates (a q, p / a), a = sqrt(std p / std q) (independent recomputation with the
+    same fit), and a Newton failure scores inf instead of stopping the search."""
     from sympredict.estimators.search import one_step_score as _one_step_score
     from sympredict.symplectic.solvers import NewtonSolver
 
@@ -276,7 +277,10 @@ def test_the_second_stage_scores_the_one_step_error_on_held_out_samples(param_da
     value, n, _, err = _one_step_score(base, params, 50, train, val)
     ref = clone(base).set_params(**params, max_centers=50).fit(train.x0, train.x1, mu=train.mu, dt=0.1)
     pred = ref.step(val.x0, mu=val.mu)
-    expected = np.mean(np.linalg.norm(pred - val.x1, axis=1) / np.linalg.norm(val.x1 - val.x0, axis=1))
+    both = np.concatenate([val.x0, val.x1])
+    a = np.sqrt(both[:, 1].std() / both[:, 0].std())
+    w = np.array([a, 1 / a])
+    expected = np.mean(np.linalg.norm((pred - val.x1) * w, axis=1) / np.linalg.norm((val.x1 - val.x0) * w, axis=1))
     assert err is None and n == 50 and value == pytest.approx(expected, rel=1e-12)
     strict = SymplecticKernelPredictor(solver=NewtonSolver(max_iter=1, backend="numpy"))
     value, _, _, err = _one_step_score(strict, params, 50, train, val)
@@ -440,7 +444,8 @@ def test_finalists_are_decided_by_held_out_rollouts_where_one_step_scores_disagr
 
 def test_the_rollout_score_is_the_mean_worst_relative_error_of_the_held_out_rollouts(pendulum):
     """``final_size_score``'s rollout score against an independent recomputation with the same fit: the mean over
-    the trajectories of ``max_k |x_k - X_k| / rms_k |X_k|``; a failed Newton solve scores ``inf``."""
+    the trajectories of ``max_k |x_k - X_k| / rms_k |X_k|``, the states weighted as the validation samples'
+    normalisation (a q, p / a), a = sqrt(std p / std q); a failed Newton solve scores ``inf``."""
     from sympredict.estimators.search import final_size_score
     from sympredict.symplectic.solvers import NewtonSolver
 
@@ -459,8 +464,11 @@ def test_the_rollout_score_is_the_mean_worst_relative_error_of_the_held_out_roll
     with warnings.catch_warnings():  # the held-out states may leave the training box: the score measures it
         warnings.simplefilter("ignore")
         pred = ref.rollout(states[:, 0], 8, mu=mu)
-    worst = np.linalg.norm(pred - states, axis=2).max(axis=1)
-    expected = np.mean(worst / np.sqrt(np.mean(np.sum(states**2, axis=2), axis=1)))
+    both = np.concatenate([data.x0, data.x1])
+    a = np.sqrt(both[:, 1].std() / both[:, 0].std())
+    w = np.array([a, 1 / a])
+    worst = np.linalg.norm((pred - states) * w, axis=2).max(axis=1)
+    expected = np.mean(worst / np.sqrt(np.mean(np.sum((states * w) ** 2, axis=2), axis=1)))
     assert err is None and n == 30 and rollout == pytest.approx(expected, rel=1e-12) and rollout > 0
     assert 0 < rollout_s < secs
     assert final_size_score(base, params, 30, data, data)[4] is None  # no trajectories, no rollout score
