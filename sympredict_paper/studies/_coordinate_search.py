@@ -63,6 +63,58 @@ def coordinate_search(
     return list(best), scores[best]
 
 
+def grid_then_coordinate_search(
+    score: Callable[[dict], float],
+    base: dict,
+    families: Sequence[str],
+    updates: Sequence[str],
+    names: Sequence[str],
+    search: Sequence[str],
+    factor: float = 2.0,
+    sweeps: int = 3,
+    label: str = "",
+) -> tuple[dict, float]:
+    """An expert's search as the accuracy studies run it: every kernel ``family`` x ``update`` at the start shapes
+    ``base``, then :func:`coordinate_search` over the ``search`` coordinates (of ``names``) from the best of them.
+
+    ``score(settings) -> float`` scores a dict of settings (``family``, ``update`` and the ``names``).  Returns
+    ``(chosen settings, best score)``."""
+    best, best_score = None, np.inf
+    for family in families:
+        for update in updates:
+            cand = dict(base, family=family, update=update)
+            s = score(cand)
+            if s < best_score:
+                best, best_score = cand, s
+    if best is None:
+        raise RuntimeError(f"{label}every kernel family and update failed at the start shapes {base}")
+    vec, best_score = coordinate_search(
+        lambda v: score(dict(best, **dict(zip(names, v)))),
+        [best[n] for n in names],
+        names,
+        search,
+        factor,
+        sweeps,
+        start_score=best_score,
+        label=label,
+    )
+    return dict(best, **dict(zip(names, vec))), best_score
+
+
+def search_record(base: dict, rows: list, t_start: float, best_score: float, **details) -> dict:
+    """The JSON record of a :func:`grid_then_coordinate_search`: ``details`` (what was scored, the split), then its
+    start, the number of evaluations, the cost since ``t_start`` (``time.perf_counter``), the best score and every
+    row."""
+    return {
+        **details,
+        "start": base,
+        "evaluations": len(rows),
+        "cost_s": time.perf_counter() - t_start,
+        "best_score": float(best_score),
+        "candidates": rows,
+    }
+
+
 class Candidates:
     """The candidates an accuracy study scores: each scored once, timed and kept as a row of its JSON.
 

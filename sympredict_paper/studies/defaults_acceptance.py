@@ -72,7 +72,7 @@ from typing import Callable
 import numpy as np
 
 import _protocol  # sympredict_paper/studies/ (the script's folder is on sys.path)
-from _coordinate_search import coordinate_search  # sympredict_paper/studies/
+from _coordinate_search import grid_then_coordinate_search, search_record  # sympredict_paper/studies/
 
 from sympredict import SymplecticKernelPredictor
 from sympredict.exceptions import ExtrapolationWarning
@@ -537,42 +537,33 @@ def hand_search(bench, data, args) -> tuple[dict, dict]:
         print(f"    {bench.name} {settings}: val {row['score']:.3e} ({row['time_s']:.0f} s)", flush=True)
         return row["score"]
 
-    # 1. kernel family x update at the start shapes
-    best, best_score = None, np.inf
-    for family in args.search_families:
-        for update in args.search_updates:
-            cand = dict(base, family=family, update=update)
-            s = score(cand)
-            if s < best_score:
-                best, best_score = cand, s
-    # 2. coordinate search over the shapes and the q/p ratio
+    # kernel family x update at the start shapes, then a coordinate search over the shapes and the q/p ratio
     names = [n for n in SEARCH_NAMES if n in args.search_params]
-    vec, best_score = coordinate_search(
-        lambda v: score(dict(best, **dict(zip(SEARCH_NAMES, v)))),
-        [best[n] for n in SEARCH_NAMES],
+    chosen, best_score = grid_then_coordinate_search(
+        score,
+        base,
+        args.search_families,
+        args.search_updates,
         SEARCH_NAMES,
         names,
         args.search_factor,
         args.search_sweeps,
-        start_score=best_score,
         label=f"{bench.name} ",
     )
-    chosen = dict(best, **dict(zip(SEARCH_NAMES, vec)))
-    record = {
-        "split": {"train": int(n_tr), "validation": int(len(va)), "seed": 7},
-        "score": "mean relative one-step error on the validation split",
-        "max_centers": args.search_centers or args.max_centers,
-        "families": list(args.search_families),
-        "updates": list(args.search_updates),
-        "params": names,
-        "factor": args.search_factor,
-        "sweeps": args.search_sweeps,
-        "start": base,
-        "evaluations": len(rows),
-        "cost_s": time.perf_counter() - t_start,
-        "best_score": float(best_score),
-        "candidates": rows,
-    }
+    record = search_record(
+        base,
+        rows,
+        t_start,
+        best_score,
+        split={"train": int(n_tr), "validation": int(len(va)), "seed": 7},
+        score="mean relative one-step error on the validation split",
+        max_centers=args.search_centers or args.max_centers,
+        families=list(args.search_families),
+        updates=list(args.search_updates),
+        params=names,
+        factor=args.search_factor,
+        sweeps=args.search_sweeps,
+    )
     return chosen, record
 
 

@@ -190,7 +190,7 @@ def run(label, make, data, wrap, test, args) -> dict:
 
 def expert_search(states_c, gm_c, args, start: dict) -> tuple:
     """Coordinate search (factor 2) over the expert's shapes on a split of the training trajectories."""
-    from _coordinate_search import coordinate_search  # sympredict_paper/studies/
+    from _coordinate_search import grid_then_coordinate_search, search_record  # sympredict_paper/studies/
 
     rng = np.random.default_rng(7)
     perm = rng.permutation(len(states_c))
@@ -216,32 +216,24 @@ def expert_search(states_c, gm_c, args, start: dict) -> tuple:
         print(f"    {settings}: {s:.3e} ({rows[-1]['time_s']:.0f} s)", flush=True)
         return s
 
-    best, best_score = None, np.inf
-    for family in args.search_families:
-        for update in args.search_updates:
-            cand = dict(base, family=family, update=update)
-            s = score(cand)
-            if s < best_score:
-                best, best_score = cand, s
-    vec, best_score = coordinate_search(
-        lambda v: score(dict(best, **dict(zip(names, v)))),
-        [best[n] for n in names],
+    chosen, best_score = grid_then_coordinate_search(
+        score,
+        base,
+        args.search_families,
+        args.search_updates,
         names,
         list(args.search_params),
         2.0,
         args.search_sweeps,
-        start_score=best_score,
         label="expert ",
     )
-    chosen = dict(best, **dict(zip(names, vec)))
-    record = {
-        "score": "mean relative one-step error |Phi(x0) - x1| / |x1 - x0| on a fifth of the training trajectories",
-        "start": base,
-        "evaluations": len(rows),
-        "cost_s": time.perf_counter() - t_start,
-        "best_score": float(best_score),
-        "candidates": rows,
-    }
+    record = search_record(
+        base,
+        rows,
+        t_start,
+        best_score,
+        score="mean relative one-step error |Phi(x0) - x1| / |x1 - x0| on a fifth of the training trajectories",
+    )
     return chosen, record
 
 

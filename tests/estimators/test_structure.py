@@ -149,19 +149,23 @@ def test_the_search_warns_about_wrapped_angles(caplog):
             SymplecticKernelPredictor(max_centers=40, search=search).fit(TrajectoryData(states, dt=DT))
 
 
-@pytest.fixture(scope="module")
-def pendulum_search():
-    """The default search on pendulum trajectories (Klein group: every sign flip is a (reversing) symmetry)."""
+def _fitted_on_pendulum_trajectories(search):
+    """``(model, data)``: a 120-centre model with ``search`` fitted on 30 pendulum trajectories of 40 steps."""
     rng = np.random.default_rng(0)
     mu = rng.uniform(0.7, 0.8, size=30)
     x0 = np.column_stack([rng.uniform(-1.5, 1.5, 30), rng.uniform(-1.0, 1.0, 30)])
-    states = Pendulum().trajectory(x0, mu, dt=DT, n_steps=40)
-    search = KernelSearch(shapes=(0.25, 0.5, 1.0), refine_sweeps=1)
+    data = TrajectoryData(Pendulum().trajectory(x0, mu, dt=DT, n_steps=40), mu=mu, dt=DT)
     model = SymplecticKernelPredictor(max_centers=120, search=search)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        model.fit(TrajectoryData(states, mu=mu, dt=DT))
-    return model, TrajectoryData(states, mu=mu, dt=DT)
+        model.fit(data)
+    return model, data
+
+
+@pytest.fixture(scope="module")
+def pendulum_search():
+    """The default search on pendulum trajectories (Klein group: every sign flip is a (reversing) symmetry)."""
+    return _fitted_on_pendulum_trajectories(KernelSearch(shapes=(0.25, 0.5, 1.0), refine_sweeps=1))
 
 
 def test_the_search_finds_the_pendulums_symmetries_and_the_held_out_comparison_decides(pendulum_search, caplog):
@@ -231,16 +235,8 @@ def test_fold_maps_mirror_images_to_one_representative():
 @pytest.fixture(scope="module")
 def pendulum_final_size():
     """The search on pendulum trajectories with a final size above its comparison size (60 of 120 centres)."""
-    rng = np.random.default_rng(0)
-    mu = rng.uniform(0.7, 0.8, size=30)
-    x0 = np.column_stack([rng.uniform(-1.5, 1.5, 30), rng.uniform(-1.0, 1.0, 30)])
-    states = Pendulum().trajectory(x0, mu, dt=DT, n_steps=40)
     search = KernelSearch(shapes=(0.25, 0.5, 1.0), parameter_shapes=(0.5,), final_centers=60, refine_sweeps=1)
-    model = SymplecticKernelPredictor(max_centers=120, search=search)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        model.fit(TrajectoryData(states, mu=mu, dt=DT))
-    return model
+    return _fitted_on_pendulum_trajectories(search)[0]
 
 
 def test_the_final_size_stage_fits_the_best_candidates_with_and_without_a_structure(pendulum_final_size):

@@ -6,30 +6,19 @@ the closed-form Kepler flow agrees with an RK4 reference and is symplectic
 (finite-difference ``DPhi^T J DPhi = J``).
 """
 
-import importlib.util
-import sys
-
 import numpy as np
 import pytest
 
 from sympredict.symplectic.metrics import canonical_J
 from sympredict.systems.flowmaps import HamiltonianSystem
 
-from _studies import STUDIES, run_study  # tests/
+from _studies import run_study, study_module  # tests/
 
 
 @pytest.fixture(scope="module")
 def da():
-    sys.path.insert(0, str(STUDIES))
-    try:
-        spec = importlib.util.spec_from_file_location("defaults_acceptance", STUDIES / "defaults_acceptance.py")
-        module = importlib.util.module_from_spec(spec)
-        sys.modules["defaults_acceptance"] = module  # its dataclass looks its module up
-        spec.loader.exec_module(module)
+    with study_module("defaults_acceptance.py") as module:
         yield module
-    finally:
-        sys.modules.pop("defaults_acceptance", None)
-        sys.path.remove(str(STUDIES))
 
 
 def test_quick_run_hand_only_writes_the_schema(tmp_path):

@@ -1,24 +1,15 @@
 """The SI-orbit study (sympredict_paper/studies/si_orbit.py): its unit conversion and its JSON."""
 
-import importlib.util
-import sys
-
 import numpy as np
 import pytest
 
-from _studies import STUDIES, run_study  # tests/
+from _studies import run_study, study_module  # tests/
 
 
 @pytest.fixture(scope="module")
 def si():
-    sys.path.insert(0, str(STUDIES))
-    try:
-        spec = importlib.util.spec_from_file_location("si_orbit", STUDIES / "si_orbit.py")
-        module = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(module)
+    with study_module("si_orbit.py") as module:
         yield module
-    finally:
-        sys.path.remove(str(STUDIES))
 
 
 def test_canonical_units_map_the_flow_onto_the_flow(si):
