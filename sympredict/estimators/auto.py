@@ -362,7 +362,8 @@ class KernelSearch(Setting):
         -----
         Cost: stage 1 as the default's with ``m_star`` 100 instead of 300 and halving (about a tenth), stage 2 at 250
         instead of 1,000 centres (a sixteenth per fit on the same samples, about a fortieth on 900 instead of 2,250),
-        and one to four fits to ``max_centers`` on 900 samples.  Measured side by side with the default
+        and one to four fits per finalist to ``max_centers`` on 900 samples.  Its choice can be clearly worse than
+        the default's (a flat kernel narrowed by the final-size stage).  Measured side by side with the default
         (``sympredict_paper/studies/search_cost.py --configs full quick``, ``docs/data/search_cost_quick.json``): see
         the defaults page, section "What the search costs".
         """
