@@ -1,0 +1,94 @@
+"""The ratios and claims the docs render from the search studies, recomputed from each run's own rows.
+
+``docs/data/search_cost_quick.json`` (``sympredict_paper/studies/search_cost.py``), the three-body structure runs
+``docs/data/structure_search_300*.json`` (``structure_search.py``) and the satellite orbit
+``docs/data/si_orbit*.json`` (``si_orbit.py``) store both the measurements and the ratios the pages show.  This
+module recomputes every ratio from the measurements with its own code, and checks that the sentences of
+``docs/explanation/defaults.md`` and ``docs/howto/structure.md`` still follow from the numbers: a rerun that
+changes them fails here until the text is rewritten.
+"""
+
+import json
+from pathlib import Path
+
+import pytest
+
+DATA = Path(__file__).resolve().parents[2] / "docs" / "data"
+
+
+def _load(name):
+    return json.loads((DATA / name).read_text())
+
+
+# ------------------------------------------------------------------------------------------- search cost, quick()
+@pytest.fixture(scope="module")
+def quick_rows():
+    return {(r["system"], r["max_centers"]): r for r in _load("search_cost_quick.json")["rows"]}
+
+
+def test_search_cost_ratios_and_shares_recomputed(quick_rows):
+    for key, row in quick_rows.items():
+        full, quick = row["full"], row["quick"]
+        for config in (full, quick):
+            assert config["search_share"] == pytest.approx(config["search_s"] / config["fit_s"], rel=1e-12), key
+            assert config["search_cpu_share"] == pytest.approx(config["search_cpu_s"] / config["fit_cpu_s"], rel=1e-12)
+        for name, ratio in row["ratios"].items():
+            assert ratio == pytest.approx(quick[name] / full[name], rel=1e-12), (key, name)
+        assert row["same_choice"] == (quick["choice"] == full["choice"]), key
+
+
+def test_the_defaults_page_claims_follow_the_search_cost_numbers(quick_rows):
+    """The text: at 1,000 centres the quick search takes a smaller share than the default; its models are as good on
+    the three-body problem, better on Hénon–Heiles and the coupled pendulums; clearly worse on the README's pendulum,
+    the noisy pendulum and the three-body problem at 2,000 centres; so it is not the default."""
+    at_1000 = [r for (_, m), r in quick_rows.items() if m == 1000]
+    assert len(at_1000) == 4
+    assert all(r["quick"]["search_share"] < r["full"]["search_share"] for r in at_1000)
+    assert 0.8 <= quick_rows[("three_body", 1000)]["ratios"]["traj_error_median"] <= 1.25
+    for system in ("henon_heiles", "coupled_pendulums"):
+        assert quick_rows[(system, 1000)]["ratios"]["traj_error_median"] < 1.0, system
+    assert quick_rows[("readme_pendulum", 300)]["ratios"]["held_out_error"] > 2.0
+    assert quick_rows[("noisy_pendulum", 120)]["ratios"]["traj_error_median"] > 2.0
+    assert quick_rows[("three_body", 2000)]["ratios"]["traj_error_median"] > 2.0
+    # the issue-free statement of the goal it misses: the 1,000-centre three-body search is above a third of the fit
+    assert quick_rows[("three_body", 1000)]["quick"]["search_share"] > 1 / 3
+
+
+# ---------------------------------------------------------------------------------- the three-body structure runs
+@pytest.mark.parametrize("name", ["structure_search_300.json", "structure_search_300_seed2.json"])
+def test_structure_comparison_recomputed_from_the_runs(name):
+    run = _load(name)
+    horizon, steps = run["settings"]["horizon"], run["settings"]["steps"]
+    declared = run["declared_expert"][f"step_{horizon}"]
+    for config, row in run["comparison"].items():
+        measured = run[config]
+        assert row["median"] == measured[f"step_{horizon}"]["median"]
+        assert row["worst"] == measured[f"step_{horizon}"]["worst"]
+        assert row["at_steps"] == measured[f"step_{steps}"]["median"]
+        assert row["n_centers"] == measured["n_centers"]
+        assert row["ratio_declared_expert_median"] == pytest.approx(row["median"] / declared["median"], rel=1e-12)
+        assert row["ratio_declared_expert_worst"] == pytest.approx(row["worst"] / declared["worst"], rel=1e-12)
+
+
+@pytest.mark.parametrize("name", ["structure_search_300.json", "structure_search_300_seed2.json"])
+def test_the_structure_page_claims_follow_the_numbers(name):
+    """The text: on both draws the defaults choose the symmetric midpoint model, as good as the hand tuning at the
+    training length, worse in the median at the horizon and better in the worst orbit."""
+    run = _load(name)
+    row = run["comparison"]["defaults"]
+    declared = run["comparison"]["declared_expert"]
+    assert row["model"] == "symmetric midpoint"
+    assert run["defaults"]["verdicts"]["reversing symmetry diag(1, -1, -1, 1)"] == "holds"
+    assert row["at_steps"] <= 1.5 * declared["at_steps"]
+    assert row["median"] > declared["median"] and row["worst"] < declared["worst"]
+
+
+# ------------------------------------------------------------------------------------------- the satellite orbit
+@pytest.mark.parametrize("name", ["si_orbit.json", "si_orbit_4000.json"])
+def test_si_orbit_ratios_recomputed(name):
+    run = _load(name)
+    defaults, expert = run["rows"]["defaults"], run["rows"]["expert"]
+    ratios = run["defaults_over_expert"]
+    for key in ("error_median", "error_max", "energy_median", "energy_max"):
+        assert ratios[key] == pytest.approx(defaults[key] / expert[key], rel=1e-12), key
+    assert ratios["within_goal"] == (ratios["error_median"] <= 1.5 and ratios["energy_median"] <= 1.5)
