@@ -50,8 +50,6 @@ def test_the_defaults_page_claims_follow_the_search_cost_numbers(quick_rows):
     assert quick_rows[("readme_pendulum", 300)]["ratios"]["held_out_error"] > 2.0
     assert quick_rows[("noisy_pendulum", 120)]["ratios"]["traj_error_median"] > 2.0
     assert quick_rows[("three_body", 2000)]["ratios"]["traj_error_median"] > 2.0
-    # the issue-free statement of the goal it misses: the 1,000-centre three-body search is above a third of the fit
-    assert quick_rows[("three_body", 1000)]["quick"]["search_share"] > 1 / 3
 
 
 # ---------------------------------------------------------------------------------- the three-body structure runs
