@@ -20,6 +20,7 @@ from pymor.core.logger import getLogger
 from sympredict.exceptions import extrapolation_expected
 from sympredict.data import FlowMapData
 from sympredict_paper import scenario_main
+from sympredict_paper.presets import load_presets
 from sympredict_paper.peers import VKOGAFlowMap, select_vkoga_length_scale
 from sympredict_paper.speed import SpeedTable, add_classical, deliberate_threads, model_sizes, timed
 from sympredict.symplectic.integrators_compiled import EXPLICIT_SCHEMES, rollout
@@ -86,27 +87,8 @@ class HenonHeilesPreset:
     threads: int = 1
 
 
-PRESETS = {
-    "smoke": HenonHeilesPreset(
-        n_lambda=3,
-        n_per_lambda=150,
-        n_val=100,
-        max_centers=60,
-        centers=(20, 40, 60),
-        state_eps=(1.0,),
-        mu_eps=(1.0,),
-        m_star=30,
-        vkoga_centers=30,
-        n_test=2,
-        horizon=5.0,
-        refinements=(1, 2, 4),
-        repeats=1,
-    ),
-    "quick": HenonHeilesPreset(),
-    "paper": HenonHeilesPreset(
-        n_per_lambda=8000, n_val=4000, max_centers=1500, centers=(100, 300, 1000, 1500), vkoga_centers=500
-    ),
-}
+#: ``smoke``, ``quick``, ``paper``: sympredict_paper/presets/henon_heiles.toml
+PRESETS = load_presets("henon_heiles", HenonHeilesPreset)
 
 
 def henon_heiles_data(
@@ -215,20 +197,10 @@ def run_henon_heiles(preset: HenonHeilesPreset, seed: int = 0) -> dict:
             small = timed(model.truncated(m))
             table.add("kernel predictor", m, f"m={m}", "data", lambda: small.rollout(x0, n_steps, mu=lam_test))
         trajectories["kernel predictor"] = model.rollout(x0, n_steps, mu=lam_test)
-        table.add(
-            "direct kernel model (NumPy)",
-            direct.n_centers_,
-            f"m={direct.n_centers_}",
-            "data",
-            lambda: direct.rollout(x0, n_steps, mu=lam_test),
-        )
+        table.add_model("direct kernel model (NumPy)", direct, lambda: direct.rollout(x0, n_steps, mu=lam_test))
         trajectories["direct kernel model"] = direct.rollout(x0, n_steps, mu=lam_test)
-        table.add(
-            "pyMOR VKOGA flow map (NumPy)",
-            vkoga.n_centers_,
-            f"m={vkoga.n_centers_}",
-            "data",
-            lambda: vkoga.rollout(x0, n_steps, mu=lam_test, dt=DT_HH),
+        table.add_model(
+            "pyMOR VKOGA flow map (NumPy)", vkoga, lambda: vkoga.rollout(x0, n_steps, mu=lam_test, dt=DT_HH)
         )
         trajectories["pyMOR VKOGA"] = vkoga.rollout(x0, n_steps, mu=lam_test, dt=DT_HH)
         add_classical(table, system, x0, lam_test, DT_HH, n_steps, preset.refinements, EXPLICIT_SCHEMES)

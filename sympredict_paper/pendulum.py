@@ -22,6 +22,7 @@ from pymor.core.logger import getLogger
 from sympredict.symplectic.integrators import implicit_midpoint_step, integrate, stormer_verlet_step
 from sympredict.symplectic.integrators_compiled import EXPLICIT_SCHEMES, rollout
 from sympredict_paper import scenario_main
+from sympredict_paper.presets import load_presets
 from sympredict_paper.peers import VKOGAFlowMap, select_vkoga_length_scale
 from sympredict_paper.speed import SpeedTable, add_classical, deliberate_threads, model_sizes, timed
 from sympredict.kernels import IMQ, RadialKernel
@@ -118,38 +119,9 @@ class PendulumPreset:
     speed_centers: tuple = (100, 200, 400, 800, 1500)
 
 
-PRESETS = {
-    # seconds: for tests of the pipeline itself, not of accuracy
-    "smoke": PendulumPreset(
-        n_grid=14,
-        max_centers=150,
-        n_val=200,
-        horizon=2.0,
-        n_grid_b=12,
-        max_centers_b=100,
-        stability_periods=5,
-        select_n_grid=10,
-        select_n_val=200,
-        select_eps=((0.2, 0.4), (1.5,), (3.0,)),
-        select_m_screen=30,
-        select_m_refine=60,
-        vkoga_centers=30,
-        speed_centers=(30, 60, 150),
-    ),
-    # minutes on 2 cores (docs/data/runtimes.json: quick.pendulum): already meets the paper's accuracy
-    "quick": PendulumPreset(n_grid=50, max_centers=1500, n_val=2000, horizon=20.0),
-    # the paper's data size: 688,464 candidate functionals
-    "paper": PendulumPreset(
-        n_grid=200,
-        max_centers=1500,
-        n_val=20000,
-        horizon=20.0,
-        n_grid_b=100,
-        max_centers_b=1500,
-        stability_periods=1000,
-        vkoga_centers=300,
-    ),
-}
+#: ``smoke`` (seconds, for tests of the pipeline), ``quick`` (minutes on 2 cores), ``paper`` (the paper's data size):
+#: sympredict_paper/presets/pendulum.toml
+PRESETS = load_presets("pendulum", PendulumPreset)
 
 
 def paper_test_instances(seed: int = 0, n_q0: int = 5, n_mu: int = 5):
@@ -539,29 +511,11 @@ def run_speed_accuracy(
             except ValueError as exc:
                 unreached.append(f"E_val <= {target:g}: {exc}")
                 continue
-            table.add(
-                f"smallest kernel, E_val <= {target:g}",
-                small.n_centers_,
-                f"m={small.n_centers_}",
-                "data",
-                lambda: small.rollout(x0, n_steps, mu=lengths, dt=dt),
+            table.add_model(
+                f"smallest kernel, E_val <= {target:g}", small, lambda: small.rollout(x0, n_steps, mu=lengths, dt=dt)
             )
-        if direct is not None:
-            table.add(
-                "direct kernel model (NumPy)",
-                direct.n_centers_,
-                f"m={direct.n_centers_}",
-                "data",
-                lambda: direct.rollout(x0, n_steps, mu=lengths, dt=dt),
-            )
-        if vkoga is not None:
-            table.add(
-                "pyMOR VKOGA flow map (NumPy)",
-                vkoga.n_centers_,
-                f"m={vkoga.n_centers_}",
-                "data",
-                lambda: vkoga.rollout(x0, n_steps, mu=lengths, dt=dt),
-            )
+        table.add_model("direct kernel model (NumPy)", direct, lambda: direct.rollout(x0, n_steps, mu=lengths, dt=dt))
+        table.add_model("pyMOR VKOGA flow map (NumPy)", vkoga, lambda: vkoga.rollout(x0, n_steps, mu=lengths, dt=dt))
         add_classical(table, system, x0, lengths, dt, n_steps, refinements, (*EXPLICIT_SCHEMES, "implicit_midpoint"))
     return {
         "dt": dt,

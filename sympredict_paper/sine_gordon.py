@@ -51,6 +51,7 @@ import numpy as np
 from pymor.core.logger import getLogger
 
 from sympredict_paper import scenario_main
+from sympredict_paper.presets import load_presets
 from sympredict_paper.speed import time_median
 from sympredict.systems.flowmaps import midpoint_sigma_min, type2_sigma_min
 from sympredict.kernels import IMQ
@@ -147,48 +148,9 @@ class SineGordonPreset:
     seed: int = 0
 
 
-#: quick and paper split the reduced quadratic flow off the Galerkin-data kernel and let the training-only rule pick
-#: the large-step kernel (run K in docs/explanation/sine_gordon.md: the 2x and large-step claims hold with them, not without)
-PRESETS = {
-    "quick": SineGordonPreset(kernel_split="quadratic-mass", large_step_split="auto"),
-    "paper": SineGordonPreset(
-        n_c=5,
-        n_amplitude=6,
-        n_test=5,
-        dims=(8, 12, 16),
-        max_centers=3000,
-        repeats=11,
-        kernel_split="quadratic-mass",
-        large_step_split="auto",
-    ),
-    "smoke": SineGordonPreset(
-        n_points=60,
-        length=12.0,
-        n_c=2,
-        n_amplitude=2,
-        n_test=2,
-        T=2.0,
-        dims=(4,),
-        max_centers=60,
-        cost_N=(60, 120),
-        repeats=2,
-        long_factor=2,
-        large_step=5,
-        large_step_candidates=(),
-    ),
-}
-#: breathers (the other initial family): c in [0.8, 1.2], omega in [0.6, 0.9].
-#: Physics: T = 10.5 >= 2 pi / 0.6 = 10.47, one period of the slowest breather (the training snapshots then hold
-#: every phase of the time-periodic states); L = 30: the widest breather (c = 1.2, omega = 0.9, width
-#: c / sqrt(1 - omega^2) = 2.75) has decayed to 0.9 % of its peak at the Dirichlet boundary (L = 20: 5 %).
-#: Budget: the --quick sizes (4 x 4 trajectories, 1,000 centres): measured 8 min 41 s wall on the shared 2-core
-#: machine (run I in docs/explanation/sine_gordon.md); the first choice, 3 x 3 and 600 centres (run H, 3 min 56 s), left half
-#: the budget unused.  Both runs' test errors were seen before the change; no choice here uses them.
-PRESETS["breather"] = SineGordonPreset(initial="breather", length=30.0, T=10.5)
-#: a seconds-sized breather case for the tests
-PRESETS["smoke-breather"] = replace(
-    PRESETS["smoke"], initial="breather", n_points=80, length=16.0, T=8.0, omega_range=(0.8, 0.9)
-)
+#: ``quick``, ``paper``, ``smoke`` and the breather family's ``breather``, ``smoke-breather`` (why these sizes:
+#: the comments in sympredict_paper/presets/sine_gordon.toml)
+PRESETS = load_presets("sine_gordon", SineGordonPreset)
 
 
 def second_parameter(p: SineGordonPreset) -> tuple:

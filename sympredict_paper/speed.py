@@ -133,6 +133,13 @@ class SpeedTable:
         self.rows.append(row)
         return row
 
+    def add_model(self, method: str, model, run) -> dict | None:
+        """A learned model's row: its size is its centres ``model.n_centers_``, it needs only data; nothing where
+        ``model`` is ``None`` (a peer the run did not fit)."""
+        if model is None:
+            return None
+        return self.add(method, model.n_centers_, f"m={model.n_centers_}", "data", run)
+
 
 def add_classical(
     table: SpeedTable,

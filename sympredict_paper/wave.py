@@ -35,6 +35,7 @@ from sympredict.systems.flowmaps import flow_map_data, mus_to_matrix, random_par
 from sympredict.symplectic.metrics import relative_trajectory_error
 from sympredict.parallel import pool_flow, pool_map_instances
 from sympredict_paper import scenario_main
+from sympredict_paper.presets import load_presets
 from sympredict_paper.peers import VKOGAFlowMap, select_vkoga_length_scale
 from sympredict_paper.speed import SpeedTable, add_classical, deliberate_threads, model_sizes, timed
 from sympredict.symplectic.integrators_compiled import EXPLICIT_SCHEMES, rollout
@@ -127,31 +128,8 @@ class WavePreset:
     target_accuracy: float = 1e-4
 
 
-PRESETS = {
-    "smoke": WavePreset(
-        n_points=200,
-        n_snapshot_states=4,
-        samples_per_speed=150,
-        val_per_speed=40,
-        max_centers=150,
-        dts=(0.1,),
-        n_test_speeds=2,
-        n_test_ics=2,
-        horizon=1.0,
-        state_eps=(3e-3, 1e-2),
-        mu_eps=(10.0,),
-        families=("imq",),
-        m_star=60,
-        speed_centers=(20, 50, 150),
-        speed_repeats=1,
-        target_accuracy=1e-2,
-        speed_refinements=(1, 2, 4),
-        vkoga_centers=30,
-        fom_explicit_refinements=(1, 8, 16),
-    ),
-    "quick": WavePreset(),
-    "paper": WavePreset(samples_per_speed=20000, val_per_speed=2000),
-}
+#: ``smoke``, ``quick``, ``paper``: sympredict_paper/presets/wave.toml
+PRESETS = load_presets("wave", WavePreset)
 
 
 def fom_snapshots(preset: WavePreset, seed: int = 0, pool=None):
@@ -566,22 +544,10 @@ def run_wave_speed_accuracy(
                 "data",
                 reduced(lambda x, small=small: small.rollout(x, n_steps, mu=mu)),
             )
-        if direct is not None:
-            table.add(
-                "ROM + direct kernel model (NumPy)",
-                direct.n_centers_,
-                f"m={direct.n_centers_}",
-                "data",
-                reduced(lambda x: direct.rollout(x, n_steps, mu=mu)),
-            )
-        if vkoga is not None:
-            table.add(
-                "ROM + pyMOR VKOGA (NumPy)",
-                vkoga.n_centers_,
-                f"m={vkoga.n_centers_}",
-                "data",
-                reduced(lambda x: vkoga.rollout(x, n_steps, mu=mu, dt=dt)),
-            )
+        table.add_model(
+            "ROM + direct kernel model (NumPy)", direct, reduced(lambda x: direct.rollout(x, n_steps, mu=mu))
+        )
+        table.add_model("ROM + pyMOR VKOGA (NumPy)", vkoga, reduced(lambda x: vkoga.rollout(x, n_steps, mu=mu, dt=dt)))
     return {
         "dt": dt,
         "n_steps": n_steps,

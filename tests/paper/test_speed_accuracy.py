@@ -111,6 +111,19 @@ def test_time_median_excludes_the_warm_up_and_divides_by_the_batch():
     assert len(calls) == 4 and out == 4 and seconds >= 0
 
 
+def test_a_models_row_is_sized_by_its_centres_and_needs_only_data():
+    """``SpeedTable.add_model``: size and tag from ``n_centers_``, needs only data; a peer not fitted (``None``): no row."""
+    exact = np.zeros((2, 4, 2))
+    table = speed.SpeedTable(exact, repeats=1)
+
+    class Fitted:
+        n_centers_ = 7
+
+    row = table.add_model("a model", Fitted(), lambda: exact + 1.0)
+    assert (row["method"], row["size"], row["tag"], row["needs"]) == ("a model", 7, "m=7", "only data")
+    assert table.add_model("not fitted", None, lambda: exact) is None and table.rows == [row]
+
+
 @pytest.mark.skipif(not HAVE_NUMBA, reason="numba threads")
 def test_deliberate_threads_sets_and_restores_numba_threads():
     import numba
