@@ -9,9 +9,14 @@ the key, not a silently ignored size.
 from __future__ import annotations
 
 import dataclasses
-import tomllib
+import sys
 import typing
 from importlib import resources
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # the same parser, as a package before Python 3.11
+    import tomli as tomllib
 
 __all__ = ["load_presets"]
 
