@@ -29,8 +29,8 @@ from sympredict.exceptions import (
     SolvabilityError,
 )
 from sympredict.exceptions import NotFittedError
-from sympredict.estimators import error_estimate as _estimate
 from sympredict.estimators.error_estimate import (
+    LOCAL_NEIGHBOURS,
     local_covariance,
     local_error_units,
     local_log_ratio,
@@ -964,7 +964,7 @@ class FittedSymplecticFlowMap(FittedFlowMap):
         local = self.error_local
         if local is None:
             return np.ones(len(x))
-        k = int(self.error_calibration.get("local_neighbours", _estimate.LOCAL_NEIGHBOURS))
+        k = int(self.error_calibration.get("local_neighbours", LOCAL_NEIGHBOURS))
         query = local_points(x, mu, dt, self.domain)
         points = local_points(
             local["points"][:, : self.dim], local["points"][:, self.dim : -1], local["points"][:, -1], self.domain
@@ -994,7 +994,7 @@ class FittedSymplecticFlowMap(FittedFlowMap):
             return None, None
         true, unit = true[ok], unit[ok]
         local, factor = None, np.ones(len(true))
-        k = _estimate.LOCAL_NEIGHBOURS
+        k = LOCAL_NEIGHBOURS
         if ok.sum() > k and np.all(true > 0):
             # the log ratios, centred; each sample's own ratio left out of its local scale
             log_ratio = np.log(true / unit)
