@@ -43,11 +43,10 @@ from sympredict.interpolation.surrogate import HBSurrogate, ValueSurrogate
 from sympredict.kernels.transforms import StateKernelParts
 from sympredict.symplectic.newton import (
     WARM_HISTORY,
+    implicit_rollout,
     ordered_weights,
-    rollout_compiled,
     rollout_in_chunks,
     rollout_numpy,
-    rollout_reference,
 )
 from sympredict.symplectic.solvers import NewtonSolver
 from sympredict.symplectic.updates import as_update
@@ -533,8 +532,9 @@ class FittedSymplecticFlowMap(FittedFlowMap):
         solver, update = self.solver, self.rule.name
         max_iter = solver.iterations()
         compiled = self.compiled(len(x), n_steps)
+        backend = "numba" if compiled else "numpy"
         if compiled:  # the chunks share the weights in the compiled centre order: permuted once
-            ordered = ordered_weights(self.surrogate, weights)
+            weights = ordered_weights(self.surrogate, weights)
         if around is not None:  # Phi = D^-1 Phi_scaled D: pre becomes D pre, post becomes post D^-1
             pre, post = around
             pre, post = pre * scale[None, :, None], post / scale[None, None, :]
@@ -543,27 +543,21 @@ class FittedSymplecticFlowMap(FittedFlowMap):
         else:
             warm = bool(solver.warm_start)
             options, start, history = {"warm_start": warm}, x * scale, WARM_HISTORY if warm else 0
-        if compiled:
 
-            def run(state, k, previous=None):
-                return rollout_compiled(
-                    self.surrogate,
-                    state,
-                    ordered,
-                    dt,
-                    k,
-                    max_iter,
-                    update=update,
-                    weights_ordered=True,
-                    previous=previous,
-                    **options,
-                )
-        else:
-
-            def run(state, k, previous=None):
-                return rollout_reference(
-                    self.surrogate, state, weights, dt, k, max_iter, update=update, previous=previous, **options
-                )
+        def run(state, k, previous=None):
+            return implicit_rollout(
+                self.surrogate,
+                state,
+                weights,
+                dt,
+                k,
+                max_iter,
+                backend=backend,
+                update=update,
+                weights_ordered=compiled,
+                previous=previous,
+                **options,
+            )
 
         traj = rollout_in_chunks(run, start, n_steps, stride=stride, progress=progress, history=history)
         return traj if around is not None or self.parts.scaling is None else traj / scale
@@ -578,8 +572,8 @@ class FittedSymplecticFlowMap(FittedFlowMap):
         """One implicit step in the model's coordinates, on the configured backend (:mod:`sympredict.symplectic.newton`)."""
         max_iter = self.solver.iterations()
         if self.compiled(len(x), 1):
-            return rollout_compiled(
-                self.surrogate, x, weights, dt, 1, max_iter, step_index=False, update=self.rule.name
+            return implicit_rollout(
+                self.surrogate, x, weights, dt, 1, max_iter, backend="numba", step_index=False, update=self.rule.name
             )[:, 1]
         return self.rule.solve(self.surrogate, x, weights, dt, max_iter)
 
