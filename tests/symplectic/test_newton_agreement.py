@@ -104,6 +104,24 @@ def test_far_larger_steps_fail_alike_with_a_warm_start(far_models):
     _assert_same_failure(*(_failure(model, backend, x, 6, mu, dt, warm=True) for backend in BACKENDS))
 
 
+def test_one_entry_point_takes_the_compiled_centre_order_on_both_backends(small_pendulum_model):
+    """``weights_ordered``: weights in the compiled layout's order give each backend its result for the surrogate's
+    order, bit for bit (the same arrays on the same path); an unknown backend is named."""
+    sur = small_pendulum_model.surrogate_
+    x, mu = _queries(5, 6)
+    dt = np.full(6, 0.05)
+    w = sur.weights(mu[:, None], dt)
+    ordered = newton.ordered_weights(sur, w)
+    assert not np.array_equal(ordered, w)  # the layout reorders the centres: the test sees the difference
+    for backend in newton.BACKENDS:
+        plain = newton.implicit_rollout(sur, x, w, dt, 4, 50, backend=backend)
+        np.testing.assert_array_equal(
+            newton.implicit_rollout(sur, x, ordered, dt, 4, 50, backend=backend, weights_ordered=True), plain
+        )
+    with pytest.raises(ValueError, match="backend must be one of"):
+        newton.implicit_rollout(sur, x, w, dt, 4, 50, backend="jax")
+
+
 def test_non_finite_iterates_reported_alike(small_pendulum_model):
     """Non-finite weights: a non-finite residual at the first iteration (reason 1), NaN residual, on both paths."""
     sur = small_pendulum_model.surrogate_
