@@ -61,7 +61,7 @@ from sympredict.estimators.search import (
     pair_factors,
     quiet_logs,
     without_target,
-    _std,
+    column_std,
 )
 from sympredict.estimators.structure import compete as _structure_stage
 from sympredict.estimators.structure import fold
@@ -932,43 +932,43 @@ def _move(value, index: int, factor: float):
 SCALE_RATIO = 1e-3
 
 
+def _warn_small_scales(scale: np.ndarray, label, message: str) -> None:
+    """:class:`ScaleWarning` naming the entries of ``scale`` (k,) above zero but below :data:`SCALE_RATIO` times the
+    largest: ``message`` with ``{names}`` (the first four, each ``label(i)``) and ``{big}`` (the largest) filled in."""
+    big = float(scale.max()) if scale.size else 0.0
+    small = np.flatnonzero((scale > 0) & (scale < SCALE_RATIO * big))
+    if big > 0 and small.size:
+        names = ", ".join(label(i) for i in small[:4])
+        warnings.warn(message.format(names=names, big=f"{big:.2g}"), ScaleWarning, stacklevel=5)
+
+
 def _warn_unbalanced_pairs(data: FlowMapData) -> None:
     """:class:`ScaleWarning` naming the conjugate pairs whose spread, after the symplectic normalisation, is below
     :data:`SCALE_RATIO` times the largest pair's (the normalisation balances ``q_i`` against ``p_i``, not pairs
     against each other: a symplectic linear map cannot scale one pair alone)."""
     x = np.concatenate([data.x0, data.x1])
     n = x.shape[1] // 2
-    spread = np.sqrt(_std(x[:, :n]) * _std(x[:, n:]))  # each pair's spread after (a_i q_i, p_i / a_i)
-    big = float(spread.max()) if n else 0.0
-    small = np.flatnonzero((spread > 0) & (spread < SCALE_RATIO * big))
-    if big > 0 and small.size:
-        names = ", ".join(f"(q{i + 1}, p{i + 1}) spread {spread[i]:.2g}" for i in small[:4])
-        warnings.warn(
-            f"the states' conjugate pairs differ in scale: {names}, against {big:.2g} for the largest; the "
-            "state kernel hardly sees the small ones, which will be learned badly. Give the states in units of "
-            "comparable size (divide each pair (q_i, p_i) by its amplitude), or fit the pairs apart",
-            ScaleWarning,
-            stacklevel=4,
-        )
+    spread = np.sqrt(column_std(x[:, :n]) * column_std(x[:, n:]))  # each pair's spread after (a_i q_i, p_i / a_i)
+    _warn_small_scales(
+        spread,
+        lambda i: f"(q{i + 1}, p{i + 1}) spread {spread[i]:.2g}",
+        "the states' conjugate pairs differ in scale: {names}, against {big} for the largest; the state kernel "
+        "hardly sees the small ones, which will be learned badly. Give the states in units of comparable size "
+        "(divide each pair (q_i, p_i) by its amplitude), or fit the pairs apart",
+    )
 
 
 def _warn_unbalanced_parameters(data: FlowMapData) -> None:
     """:class:`ScaleWarning` naming the parameter components whose width is below :data:`SCALE_RATIO` times the
     widest's (the parameter kernel is isotropic: its shape comes from the mean width)."""
-    if data.mu.shape[1] < 2:
-        return
     width = np.ptp(data.mu, axis=0).astype(float)
-    big = float(width.max())
-    small = np.flatnonzero((width > 0) & (width < SCALE_RATIO * big))
-    if big > 0 and small.size:
-        names = ", ".join(f"mu{i + 1} (width {width[i]:.2g})" for i in small[:4])
-        warnings.warn(
-            f"the parameter components differ in width: {names}, against {big:.2g} for the widest; the "
-            "isotropic parameter kernel hardly sees the narrow ones. Map each component onto a range of "
-            "comparable width (e.g. (mu - lo) / (hi - lo)) before fitting and querying",
-            ScaleWarning,
-            stacklevel=4,
-        )
+    _warn_small_scales(
+        width,
+        lambda i: f"mu{i + 1} (width {width[i]:.2g})",
+        "the parameter components differ in width: {names}, against {big} for the widest; the isotropic "
+        "parameter kernel hardly sees the narrow ones. Map each component onto a range of comparable width "
+        "(e.g. (mu - lo) / (hi - lo)) before fitting and querying",
+    )
 
 
 def _widths(values: np.ndarray) -> np.ndarray:
@@ -984,7 +984,7 @@ def _spread(template, data: FlowMapData) -> float:
     scale = lower_state_kernel(template.state_kernel).scale_vector(data.x0.shape[1])
     xi, _ = as_update(template.update).variables(data.x0 * scale, data.x1 * scale, data.dt)
 
-    stds = _std(xi)
+    stds = column_std(xi)
     big = float(stds.max()) if stds.size else 0.0
     spread = big * float(np.linalg.norm(stds / big)) if big > 0 else 0.0  # no underflow of the squares
     if not (np.isfinite(spread) and _EPS_RANGE[0] * 1e3 * spread < 1.0 < _EPS_RANGE[1] * 1e-3 * spread):

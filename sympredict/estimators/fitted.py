@@ -29,8 +29,8 @@ from sympredict.exceptions import (
     SolvabilityError,
 )
 from sympredict.exceptions import NotFittedError
-from sympredict.estimators import error_estimate as _estimate
 from sympredict.estimators.error_estimate import (
+    LOCAL_NEIGHBOURS,
     local_covariance,
     local_error_units,
     local_log_ratio,
@@ -43,11 +43,10 @@ from sympredict.interpolation.surrogate import HBSurrogate, ValueSurrogate
 from sympredict.kernels.transforms import StateKernelParts
 from sympredict.symplectic.newton import (
     WARM_HISTORY,
+    implicit_rollout,
     ordered_weights,
-    rollout_compiled,
     rollout_in_chunks,
     rollout_numpy,
-    rollout_reference,
 )
 from sympredict.symplectic.solvers import NewtonSolver
 from sympredict.symplectic.updates import as_update
@@ -533,8 +532,9 @@ class FittedSymplecticFlowMap(FittedFlowMap):
         solver, update = self.solver, self.rule.name
         max_iter = solver.iterations()
         compiled = self.compiled(len(x), n_steps)
+        backend = "numba" if compiled else "numpy"
         if compiled:  # the chunks share the weights in the compiled centre order: permuted once
-            ordered = ordered_weights(self.surrogate, weights)
+            weights = ordered_weights(self.surrogate, weights)
         if around is not None:  # Phi = D^-1 Phi_scaled D: pre becomes D pre, post becomes post D^-1
             pre, post = around
             pre, post = pre * scale[None, :, None], post / scale[None, None, :]
@@ -543,27 +543,21 @@ class FittedSymplecticFlowMap(FittedFlowMap):
         else:
             warm = bool(solver.warm_start)
             options, start, history = {"warm_start": warm}, x * scale, WARM_HISTORY if warm else 0
-        if compiled:
 
-            def run(state, k, previous=None):
-                return rollout_compiled(
-                    self.surrogate,
-                    state,
-                    ordered,
-                    dt,
-                    k,
-                    max_iter,
-                    update=update,
-                    weights_ordered=True,
-                    previous=previous,
-                    **options,
-                )
-        else:
-
-            def run(state, k, previous=None):
-                return rollout_reference(
-                    self.surrogate, state, weights, dt, k, max_iter, update=update, previous=previous, **options
-                )
+        def run(state, k, previous=None):
+            return implicit_rollout(
+                self.surrogate,
+                state,
+                weights,
+                dt,
+                k,
+                max_iter,
+                backend=backend,
+                update=update,
+                weights_ordered=compiled,
+                previous=previous,
+                **options,
+            )
 
         traj = rollout_in_chunks(run, start, n_steps, stride=stride, progress=progress, history=history)
         return traj if around is not None or self.parts.scaling is None else traj / scale
@@ -578,8 +572,8 @@ class FittedSymplecticFlowMap(FittedFlowMap):
         """One implicit step in the model's coordinates, on the configured backend (:mod:`sympredict.symplectic.newton`)."""
         max_iter = self.solver.iterations()
         if self.compiled(len(x), 1):
-            return rollout_compiled(
-                self.surrogate, x, weights, dt, 1, max_iter, step_index=False, update=self.rule.name
+            return implicit_rollout(
+                self.surrogate, x, weights, dt, 1, max_iter, backend="numba", step_index=False, update=self.rule.name
             )[:, 1]
         return self.rule.solve(self.surrogate, x, weights, dt, max_iter)
 
@@ -964,7 +958,7 @@ class FittedSymplecticFlowMap(FittedFlowMap):
         local = self.error_local
         if local is None:
             return np.ones(len(x))
-        k = int(self.error_calibration.get("local_neighbours", _estimate.LOCAL_NEIGHBOURS))
+        k = int(self.error_calibration.get("local_neighbours", LOCAL_NEIGHBOURS))
         query = local_points(x, mu, dt, self.domain)
         points = local_points(
             local["points"][:, : self.dim], local["points"][:, self.dim : -1], local["points"][:, -1], self.domain
@@ -994,7 +988,7 @@ class FittedSymplecticFlowMap(FittedFlowMap):
             return None, None
         true, unit = true[ok], unit[ok]
         local, factor = None, np.ones(len(true))
-        k = _estimate.LOCAL_NEIGHBOURS
+        k = LOCAL_NEIGHBOURS
         if ok.sum() > k and np.all(true > 0):
             # the log ratios, centred; each sample's own ratio left out of its local scale
             log_ratio = np.log(true / unit)

@@ -60,6 +60,7 @@ __all__ = [
     "final_size_score",
     "relative_rollout_error",
     "pair_factors",
+    "column_std",
     "state_weights",
     "score_search",
     "ridge_search",
@@ -588,8 +589,9 @@ def relative_rollout_error(predicted: np.ndarray, states: np.ndarray) -> float:
     return value if np.isfinite(value) else float("inf")
 
 
-def _std(x: np.ndarray) -> np.ndarray:
-    """Column standard deviations without overflow or underflow (values scaled by their largest magnitude)."""
+def column_std(x: np.ndarray) -> np.ndarray:
+    """Column standard deviations (n,) of ``x`` (N, n) without overflow or underflow (each column scaled by its
+    largest magnitude first); ``O(N n)``."""
     big = np.abs(x).max(axis=0)
     big = np.where(big > 0, big, 1.0)
     return (x / big).std(axis=0) * big
@@ -606,7 +608,7 @@ def pair_factors(data: FlowMapData) -> np.ndarray:
     x = np.concatenate([data.x0, data.x1])
     n = x.shape[1] // 2
     # a spread far below the other is round-off: the ratio of two stds each scaled to their maximum (no underflow)
-    sq, sp = _std(x[:, :n]), _std(x[:, n:])
+    sq, sp = column_std(x[:, :n]), column_std(x[:, n:])
     a = np.ones(n)
     ok = (sq > 0) & (sp > 0)
     a[ok] = np.sqrt(sp[ok] / sq[ok])

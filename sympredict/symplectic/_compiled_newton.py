@@ -75,7 +75,7 @@ def _solve_one(x, w, h, cT, seg, family, eps, per, max_iter, out, sc, grad, hess
     """One implicit step for one instance: ``out <- Phi(x)``.  Returns ``(code, residual, iteration)``.
 
     The algorithm of :mod:`sympredict.symplectic.newton` (its module docstring; the NumPy
-    reference :func:`sympredict.symplectic.newton.rollout_reference`), for one instance:
+    reference :func:`sympredict.symplectic.newton.implicit_rollout`), for one instance:
     symplectic Euler (``mid`` False): unknowns ``u = p1``,
     ``F = p1 - p0 + dT d_q s(q0, p1)``, Jacobian ``I + dT d_p d_q s``; midpoint
     (``mid`` True): unknowns ``u = z = (x0 + x1) / 2``, ``F = z - x0 - dT/2 J grad s(z)``,
@@ -340,7 +340,7 @@ WARM_HISTORY = 2
 def check_around(around, b: int, dim: int, warm_start: bool):
     """``(pre, post)`` of a split rollout as C-contiguous float arrays (B, 2n, 2n), or ``None``; checked.
 
-    Shared by the compiled rollout and the NumPy reference (:func:`sympredict.symplectic.newton.rollout_reference`).
+    Shared by the compiled rollout and the NumPy reference (:func:`sympredict.symplectic.newton.implicit_rollout`).
     """
     if around is None:
         return None

@@ -75,6 +75,8 @@ __all__ = [
     "jit_pointwise",
     "rollout",
     "unit_mass_grad_T",
+    "csr_matvec",
+    "csr_fill_dense",
 ]
 
 #: The schemes that need a separable Hamiltonian (compositions of Störmer–Verlet).
@@ -116,6 +118,28 @@ def unit_mass_grad_T(p, mu, fargs, iargs, out):
     """``dT/dp = p`` of the unit-mass kinetic energy ``T = |p|^2 / 2`` (a per-instance gradient; any length)."""
     for j in range(p.shape[0]):
         out[j] = p[j]
+
+
+# A sparse matrix ``A`` (n, n) in a system's constants (:meth:`PointwiseHamiltonian.unit_mass_csr`): its CSR values
+# ``data`` in ``fargs`` (after the system's own constants), ``iargs = (indptr, indices)``, ``len(indptr) = n + 1``.
+@jit_pointwise
+def csr_matvec(q, scale, data, iargs, out):
+    """``out = scale * (A q)`` (n,), ``A`` in CSR (``data``, ``iargs = (indptr, indices)``); ``O(nnz(A))``."""
+    n = q.shape[0]
+    for j in range(n):
+        s = 0.0
+        for k in range(iargs[j], iargs[j + 1]):
+            s += data[k] * q[iargs[n + 1 + k]]
+        out[j] = scale * s
+
+
+@jit_pointwise
+def csr_fill_dense(n, scale, data, iargs, out):
+    """``out[:n, :n] = scale * A`` on ``A``'s pattern (the rest of ``out`` untouched), ``A`` in CSR as in
+    :func:`csr_matvec`; ``O(nnz(A))``."""
+    for j in range(n):
+        for k in range(iargs[j], iargs[j + 1]):
+            out[j, iargs[n + 1 + k]] = scale * data[k]
 
 
 def _is_numba(fn) -> bool:
@@ -187,6 +211,31 @@ class PointwiseHamiltonian:
         self.iargs = np.ascontiguousarray(iargs.astype(np.int64).reshape(-1))
         self._check_mu = check_mu
         self.name = name
+
+    @classmethod
+    def unit_mass_csr(
+        cls, A, *, grad_V, grad_H, hess_H=None, head=(), n_mu: int = 1, check_mu=None, name: str
+    ) -> "PointwiseHamiltonian":
+        """``H = |p|^2 / 2 + V(q; mu)`` whose functions read a sparse ``A`` (n, n) (e.g. a stiffness matrix) with
+        :func:`csr_matvec` / :func:`csr_fill_dense`: ``fargs = (*head, A.data)``, ``iargs = (A.indptr, A.indices)``.
+
+        ``grad_T`` is :func:`unit_mass_grad_T`; the functions find ``A``'s values at ``fargs[len(head):]``; the
+        other parameters are :class:`PointwiseHamiltonian`'s.  The phase space has dimension ``2n``.
+        """
+        A = A.tocsr()
+        A.sort_indices()
+        return cls(
+            2 * A.shape[0],
+            n_mu,
+            grad_T=unit_mass_grad_T,
+            grad_V=grad_V,
+            grad_H=grad_H,
+            hess_H=hess_H,
+            fargs=np.concatenate([np.asarray(head, dtype=np.float64), A.data]),
+            iargs=np.concatenate([A.indptr, A.indices]),
+            check_mu=check_mu,
+            name=name,
+        )
 
     def __repr__(self) -> str:
         return f"{self.name}(dim={self.dim}, n_mu={self.n_mu}, separable={self.separable})"

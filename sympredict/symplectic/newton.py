@@ -1,8 +1,8 @@
 """Newton solvers of the implicit steps (symplectic Euler, midpoint): the NumPy reference and the compiled rollout.
 
-**The algorithm** (one, written here; :func:`rollout_reference` runs it in
-NumPy, batched over the instances, :func:`rollout_compiled` in compiled code,
-one instance at a time, :mod:`sympredict.symplectic._compiled_newton`).  Per instance and
+**The algorithm** (one, written here; :func:`implicit_rollout` runs it in
+NumPy, batched over the instances, or in compiled code, one instance at a
+time, :mod:`sympredict.symplectic._compiled_newton`).  Per instance and
 macro step, with ``x0 = (q0, p0)`` the step's input:
 
 * *Unknowns, residual, Jacobian.*  Symplectic Euler: ``u = p1`` (``n``
@@ -94,9 +94,8 @@ __all__ = [
     "solve_step_numpy",
     "solve_midpoint_numpy",
     "midpoint_jacobian",
-    "rollout_reference",
+    "implicit_rollout",
     "rollout_numpy",
-    "rollout_compiled",
     "rollout_in_chunks",
     "ordered_weights",
     "available_memory",
@@ -460,49 +459,63 @@ def _window(traj: np.ndarray, previous: np.ndarray, k: int) -> np.ndarray:
     return np.concatenate([previous, traj[:, : k + 1]], axis=1)[:, -(WARM_HISTORY + 1) :]
 
 
-def rollout_reference(
+#: The implementations :func:`implicit_rollout` runs.
+BACKENDS = ("numpy", "numba")
+
+
+def implicit_rollout(
     sur: HBSurrogate,
     x,
     weights,
     dt,
     n_steps: int,
     max_iter: int,
+    *,
+    backend: str = "numpy",
     step_index: bool = True,
     warm_start: bool = False,
     update: str = "symplectic_euler",
     around=None,
+    weights_ordered: bool = False,
     previous=None,
     stats: Optional[dict] = None,
 ) -> np.ndarray:
-    """``n_steps`` implicit steps in NumPy: the reference of :func:`rollout_compiled`, the same arguments and algorithm.
+    """``n_steps`` implicit steps of the module docstring's algorithm, in NumPy or in compiled code.
 
     Parameters
     ----------
-    sur
+    sur : HBSurrogate
         The fitted surrogate.
     x : ndarray of shape (B, 2n)
         Initial states.
     weights : ndarray of shape (B, m)
         :meth:`HBSurrogate.weights` of the instances' ``(mu, dT)``.
     dt : ndarray of shape (B,)
-    n_steps
+    n_steps : int
         ``K >= 0``.
-    max_iter
+    max_iter : int
         Newton iterations per step at most.
-    step_index
+    backend : {'numpy', 'numba'}, default='numpy'
+        ``'numpy'``: the reference, batched over the instances (converged instances leave the active set, cost per
+        iteration ``O(B_active m (2n + n^2))``); ``'numba'``: one compiled call
+        (:func:`sympredict.symplectic._compiled_newton.newton_rollout`), instance by instance on numba's threads.
+        The same algorithm and failure report; results equal to round-off.
+    step_index : bool, default=True
         Name the macro step in the error.
-    warm_start
+    warm_start : bool, default=False
         Start Newton from the extrapolation of the previous states when there are any (module docstring).
-    update
-        ``'symplectic_euler'`` or ``'midpoint'``.
-    around
-        ``None`` or ``(pre, post)`` (B, 2n, 2n): steps ``x_k+1 = post S(pre x_k)``; not with ``warm_start``.
-    previous : ndarray of shape (B, j, 2n), optional
+    update : {'symplectic_euler', 'midpoint'}, default='symplectic_euler'
+        The implicit step (as :func:`solve_step_numpy` or :func:`solve_midpoint_numpy`).
+    around : tuple of two ndarray of shape (B, 2n, 2n), default=None
+        ``(pre, post)``: steps ``x_k+1 = post S(pre x_k)``; not with ``warm_start``.
+    weights_ordered : bool, default=False
+        ``weights`` are already in the compiled layout's centre order (:func:`ordered_weights`; a chunked compiled
+        rollout orders them once, not per chunk).
+    previous : ndarray of shape (B, j, 2n), default=None
         The rollout's states before ``x`` (oldest first; the last ``WARM_HISTORY`` are used): a
         warm start continues from them (:func:`rollout_in_chunks` passes them between chunks).
-    stats
-        If a dict, ``stats['passes']`` receives the passes over the centres per instance, shape (B,),
-        counted as the compiled rollout counts them.
+    stats : dict, default=None
+        If a dict, ``stats['passes']`` receives the passes over the centres per instance, shape (B,).
 
     Returns
     -------
@@ -514,15 +527,29 @@ def rollout_reference(
         The report of the module docstring, with the macro step (``step_index``).
     """
     midpoint = _check_update(update)
+    compiled = as_choice(backend, "backend", BACKENDS) == "numba"
+    if weights_ordered and not compiled:  # the reference takes them in the surrogate's centre order
+        weights = np.asarray(weights, dtype=np.float64)[:, np.argsort(sur.layout().order)]
+    args = (sur, x, weights, dt, int(n_steps), max_iter, midpoint, warm_start, around, previous, stats)
+    traj, failure = _compiled_rollout(*args, weights_ordered) if compiled else _numpy_rollout(*args)
+    if failure is not None:
+        codes, fail_step, fail_iter, resid, contraction = failure
+        raise failure_error(codes, fail_step, fail_iter, resid, max_iter, midpoint, contraction, step_index)
+    return traj
+
+
+def _numpy_rollout(sur, x, weights, dt, n_steps, max_iter, midpoint, warm_start, around, previous, stats):
+    """:func:`implicit_rollout` in NumPy: ``(traj, failure)``, ``failure`` ``None`` or the arguments of
+    :func:`failure_error` that the instances' state gives (at the first macro step where any fails)."""
     x = np.asarray(x, dtype=np.float64)
     dt = np.asarray(dt, dtype=np.float64)
     b, dim = x.shape
     maps = _compiled_newton.check_around(around, b, dim, warm_start)
     previous = _compiled_newton.previous_states(previous, b, dim)
-    traj = np.empty((b, int(n_steps) + 1, dim))
+    traj = np.empty((b, n_steps + 1, dim))
     traj[:, 0] = x
     passes = np.zeros(b, dtype=np.int64)
-    for k in range(int(n_steps)):
+    for k in range(n_steps):
         if maps is None:
             window = _window(traj, previous, k)
         else:
@@ -537,27 +564,16 @@ def rollout_reference(
             if stats is not None:
                 stats["passes"] = passes
             codes, fail_iter, resid = failure
-            raise failure_error(
-                codes,
-                np.where(codes != 0, k, -1),
-                fail_iter,
-                resid,
-                max_iter,
-                midpoint,
-                lambda i, kk: contraction_estimate(
-                    sur,
-                    y[i],
-                    start_guess(sur, window[i], weights[i], dt[i], midpoint, warm),
-                    weights[i],
-                    dt[i],
-                    midpoint,
-                ),
-                step_index,
-            )
+
+            def contraction(i, kk, y=y, window=window, warm=warm):  # dT L_S at the failed step's start guesses
+                guess = start_guess(sur, window[i], weights[i], dt[i], midpoint, warm)
+                return contraction_estimate(sur, y[i], guess, weights[i], dt[i], midpoint)
+
+            return traj, (codes, np.where(codes != 0, k, -1), fail_iter, resid, contraction)
         traj[:, k + 1] = x1 if maps is None else np.einsum("bij,bj->bi", maps[1], x1)
     if stats is not None:
         stats["passes"] = passes
-    return traj
+    return traj, None
 
 
 def rollout_numpy(advance, x: np.ndarray, n_steps: int) -> np.ndarray:
@@ -691,37 +707,11 @@ def ordered_weights(sur: HBSurrogate, weights: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(np.asarray(weights, dtype=np.float64)[:, sur.layout().order])
 
 
-def rollout_compiled(
-    sur: HBSurrogate,
-    x,
-    weights,
-    dt,
-    n_steps: int,
-    max_iter: int,
-    step_index: bool = True,
-    warm_start: bool = False,
-    update: str = "symplectic_euler",
-    around=None,
-    weights_ordered: bool = False,
-    previous=None,
-    stats: Optional[dict] = None,
+def _compiled_rollout(
+    sur, x, weights, dt, n_steps, max_iter, midpoint, warm_start, around, previous, stats, weights_ordered
 ):
-    """``n_steps`` steps in compiled code (:func:`sympredict.symplectic._compiled_newton.newton_rollout`): :func:`rollout_reference`'s
-    algorithm, arguments and failure report.
-
-    ``weights_ordered``: ``weights`` are already in the compiled layout's centre order
-    (:func:`ordered_weights`; a chunked rollout orders them once, not per chunk).
-    ``warm_start``, ``previous``: as in :func:`rollout_reference`.
-    ``update``: ``'symplectic_euler'`` (as :func:`solve_step_numpy`) or ``'midpoint'``
-    (as :func:`solve_midpoint_numpy`).
-    ``around``: ``None`` or ``(pre, post)`` (B, 2n, 2n): steps ``x_k+1 = post S(pre x_k)``.
-    ``stats``: if a dict, ``stats['passes']`` receives the passes over the centres per instance (B,).
-
-    Returns
-    -------
-    ndarray of shape (B, K+1, 2n)
-    """
-    midpoint = _check_update(update)
+    """:func:`implicit_rollout` in compiled code (:func:`sympredict.symplectic._compiled_newton.newton_rollout`):
+    ``(traj, failure)`` as :func:`_numpy_rollout` returns them."""
     stats = {} if stats is None else stats
     traj, codes, fail_step, fail_iter, resid = _compiled_newton.newton_rollout(
         x,
@@ -732,7 +722,7 @@ def rollout_compiled(
         max_iter,
         n_steps,
         warm_start=warm_start,
-        update=update,
+        update="midpoint" if midpoint else "symplectic_euler",
         around=around,
         weights_ordered=weights_ordered,
         previous=previous,
@@ -752,6 +742,4 @@ def rollout_compiled(
         warm = warm_start and window.shape[1] >= 2
         return contraction_estimate(sur, window[:, -1], start_guess(sur, window, w, h, midpoint, warm), w, h, midpoint)
 
-    if codes.any():
-        raise failure_error(codes, fail_step, fail_iter, resid, max_iter, midpoint, contraction, step_index)
-    return traj
+    return traj, ((codes, fail_step, fail_iter, resid, contraction) if codes.any() else None)

@@ -6,7 +6,7 @@ equation and its NumPy Newton solver, the step's Jacobian, the contraction
 estimate ``dT L_S``, and which state symmetries leave its ``s`` invariant
 (the existence of ``s`` on data is checked by
 :func:`sympredict.systems.flowmaps.check_generating_function`).  The compiled solver runs the
-same equations (:func:`sympredict.symplectic.newton.rollout_compiled`, selected by
+same equations (:func:`sympredict.symplectic.newton.implicit_rollout`, selected by
 :attr:`UpdateRule.name`).
 
 ==========================  =========================================================  ===================

@@ -46,7 +46,14 @@ from pymor.operators.interface import Operator
 
 from sympredict._checks import as_choice, as_parameter, as_positive_int, as_real, as_states, as_steps
 from sympredict.symplectic.metrics import j_times
-from sympredict.symplectic.integrators_compiled import PointwiseHamiltonian, jit_pointwise, rollout, unit_mass_grad_T
+from sympredict.symplectic.integrators_compiled import (
+    PointwiseHamiltonian,
+    csr_fill_dense,
+    csr_matvec,
+    jit_pointwise,
+    rollout,
+    unit_mass_grad_T,
+)
 
 __all__ = [
     "fd_laplacian_1d",
@@ -95,17 +102,10 @@ def laplacian_max_eigenvalue(n_points: int, length: float, boundary: str = "diri
 @jit_pointwise
 def _grad_V(q, mu, fargs, iargs, out):
     """``c^2 D q + s sin q``."""
-    n = q.shape[0]
-    c2 = mu[0] * mu[0]
+    csr_matvec(q, mu[0] * mu[0], fargs[1:], iargs, out)
     s = fargs[0]
-    for j in range(n):
-        acc = 0.0
-        for k in range(iargs[j], iargs[j + 1]):
-            acc += fargs[1 + k] * q[iargs[n + 1 + k]]
-        out[j] = c2 * acc + s * np.sin(q[j])
-
-
-_grad_T = unit_mass_grad_T  # dT/dp = p
+    for j in range(q.shape[0]):
+        out[j] += s * np.sin(q[j])
 
 
 @jit_pointwise
@@ -120,11 +120,9 @@ def _grad_H(x, mu, fargs, iargs, out):
 def _hess_H(x, mu, fargs, iargs, out):
     """``diag(c^2 D + s diag(cos q), I)``, dense (``O(N^2)`` writes: small ``N`` only)."""
     n = x.shape[0] // 2
-    c2 = mu[0] * mu[0]
     out[:, :] = 0.0
+    csr_fill_dense(n, mu[0] * mu[0], fargs[1:], iargs, out)
     for j in range(n):
-        for k in range(iargs[j], iargs[j + 1]):
-            out[j, iargs[n + 1 + k]] = c2 * fargs[1 + k]
         out[j, j] += fargs[0] * np.cos(x[j])
         out[n + j, n + j] = 1.0
 
@@ -273,15 +271,12 @@ class SineGordonFOM:
         Separable: every scheme applies; ``grad V`` costs ``O(nnz(D)) = O(N)``.
         Implicit midpoint uses a dense Jacobian (``O(N^3)`` per Newton iteration): small ``N`` only.
         """
-        return PointwiseHamiltonian(
-            self.dim,
-            1,
-            grad_T=_grad_T,
+        return PointwiseHamiltonian.unit_mass_csr(
+            self.D,
             grad_V=_grad_V,
             grad_H=_grad_H,
             hess_H=_hess_H,
-            fargs=np.concatenate([[self.strength], self.D.data]),
-            iargs=np.concatenate([self.D.indptr, self.D.indices]),
+            head=(self.strength,),
             check_mu=lambda mu: self.check_c(np.asarray(mu)[:, 0], len(mu)),
             name=f"SineGordonFOM(N={self.n_points})",
         )

@@ -26,7 +26,13 @@ from scipy.sparse.linalg import splu
 
 from sympredict._checks import as_parameter, as_positive_int, as_real, as_states, as_steps
 from sympredict.symplectic.integrators import micro_steps
-from sympredict.symplectic.integrators_compiled import PointwiseHamiltonian, jit_pointwise, unit_mass_grad_T
+from sympredict.symplectic.integrators_compiled import (
+    PointwiseHamiltonian,
+    csr_fill_dense,
+    csr_matvec,
+    jit_pointwise,
+    unit_mass_grad_T,
+)
 
 __all__ = ["C_TRAIN", "C_REF", "DT_WAVE", "fd_laplacian", "laplacian_eigenvalues", "sine_modes", "WaveFOM"]
 
@@ -76,30 +82,16 @@ def sine_modes(n_points: int, modes) -> np.ndarray:
 # Per-instance gradients for the compiled integrators (sympredict.symplectic.integrators_compiled):
 # mu = (c^2,), fargs = D.data and iargs = (D.indptr, D.indices) of D in CSR; O(nnz(D)) per gradient.
 @jit_pointwise
-def _csr_matvec_scaled(q, scale, data, iargs, out):
-    """``out = scale * (D q)``, ``D`` in CSR (``iargs = (indptr, indices)``, ``len(indptr) = len(q) + 1``)."""
-    n = q.shape[0]
-    for j in range(n):
-        s = 0.0
-        for k in range(iargs[j], iargs[j + 1]):
-            s += data[k] * q[iargs[n + 1 + k]]
-        out[j] = scale * s
-
-
-@jit_pointwise
 def _grad_V(q, mu, fargs, iargs, out):
     """``dV/dq = mu D q``."""
-    _csr_matvec_scaled(q, mu[0], fargs, iargs, out)
-
-
-_grad_T = unit_mass_grad_T  # dT/dp = p
+    csr_matvec(q, mu[0], fargs, iargs, out)
 
 
 @jit_pointwise
 def _grad_H(x, mu, fargs, iargs, out):
     """``(mu D q, p)``."""
     n = x.shape[0] // 2
-    _csr_matvec_scaled(x[:n], mu[0], fargs, iargs, out[:n])
+    csr_matvec(x[:n], mu[0], fargs, iargs, out[:n])
     unit_mass_grad_T(x[n:], mu, fargs, iargs, out[n:])
 
 
@@ -108,9 +100,8 @@ def _hess_H(x, mu, fargs, iargs, out):
     """``diag(mu D, I)``, dense (``O(N^2)`` writes: for small ``N``)."""
     n = x.shape[0] // 2
     out[:, :] = 0.0
+    csr_fill_dense(n, mu[0], fargs, iargs, out)
     for j in range(n):
-        for k in range(iargs[j], iargs[j + 1]):
-            out[j, iargs[n + 1 + k]] = mu[0] * fargs[k]
         out[n + j, n + j] = 1.0
 
 
@@ -245,17 +236,11 @@ class WaveFOM:
         ``O(N^3)`` per Newton iteration: for small ``N``
         (:meth:`trajectory` is the sparse solver for this linear system).
         """
-        D = self.D.tocsr()
-        D.sort_indices()
-        return PointwiseHamiltonian(
-            self.dim,
-            1,
-            grad_T=_grad_T,
+        return PointwiseHamiltonian.unit_mass_csr(
+            self.D,
             grad_V=_grad_V,
             grad_H=_grad_H,
             hess_H=_hess_H,
-            fargs=D.data,
-            iargs=np.concatenate([D.indptr, D.indices]),
             check_mu=lambda mu: self.check_mu(mu, len(mu)),
             name=f"WaveFOM(N={self.n_points})",
         )

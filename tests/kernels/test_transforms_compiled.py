@@ -2,7 +2,7 @@
 
 Oracles: the NumPy surrogate's gradient, Hessian and floor (:meth:`HBSurrogate.gradient_hessian`, itself
 checked against finite differences of the kernel's value in ``tests/kernels/test_periodic.py`` and
-``tests/kernels/test_symmetry.py``) for the compiled pass; the NumPy rollout (:func:`rollout_reference`) for the
+``tests/kernels/test_symmetry.py``) for the compiled pass; the NumPy rollout (:func:`implicit_rollout`) for the
 compiled rollout, to the stopping rule's bound (``tests/_tolerances.py``); the group invariance
 ``s(g x) = s(x)`` and the period of the compiled gradient.
 """

@@ -8,7 +8,14 @@ from scipy.stats import linregress
 
 from sympredict.exceptions import NewtonConvergenceError
 from sympredict.symplectic.integrators import COMPOSITIONS, SCHEME_ORDERS, SCHEMES, apply_J
-from sympredict.symplectic.integrators_compiled import HAVE_NUMBA, PointwiseHamiltonian, jit_pointwise, rollout
+from sympredict.symplectic.integrators_compiled import (
+    HAVE_NUMBA,
+    PointwiseHamiltonian,
+    csr_fill_dense,
+    csr_matvec,
+    jit_pointwise,
+    rollout,
+)
 from sympredict.symplectic.metrics import canonical_J
 from sympredict.systems.henon_heiles import HenonHeiles, energy_bounded_states
 from sympredict.systems.pendulum import Pendulum
@@ -247,6 +254,31 @@ def test_user_system_jitted_and_plain_python_agree(scheme):
     np.testing.assert_allclose(a, b, rtol=0, atol=1e-13)
     with pytest.raises(ValueError, match="not numba-jitted"):
         rollout(plain, x, mu, 0.1, 1, scheme=scheme, backend="numba")
+
+
+def test_csr_helpers_match_scipy_and_unit_mass_csr_packs_the_matrix_after_the_head():
+    """``csr_matvec`` / ``csr_fill_dense`` against SciPy's product and dense matrix, on a random unsorted CSR matrix
+    read at the offset ``unit_mass_csr`` puts it (after two constants of the system's own)."""
+    import scipy.sparse as sps
+
+    rng = np.random.default_rng(3)
+    n = 9
+    A = sps.random(n, n, density=0.4, random_state=4, format="csr") + sps.identity(n, format="csr")
+    A = A.tocsr()[:, rng.permutation(n)][rng.permutation(n)].tocsr()  # an unsorted index order to be sorted
+    spec = PointwiseHamiltonian.unit_mass_csr(A, grad_V=_JIT[1], grad_H=_JIT[2], head=(7.0, -1.0), n_mu=2, name="csr")
+    assert spec.dim == 2 * n and spec.n_mu == 2 and spec.grad_T is not None
+    np.testing.assert_array_equal(spec.fargs[:2], [7.0, -1.0])
+    q, scale = rng.normal(size=n), -1.7
+    out = np.full(n, np.nan)
+    csr_matvec(q, scale, spec.fargs[2:], spec.iargs, out)
+    terms = abs(scale) * (abs(A) @ np.abs(q))  # the round-off of a sum of at most n products
+    np.testing.assert_array_less(np.abs(out - scale * (A @ q)), 4 * n * np.finfo(float).eps * terms + 1e-300)
+    dense = np.full((2 * n, 2 * n), 5.0)
+    csr_fill_dense(n, scale, spec.fargs[2:], spec.iargs, dense)
+    expected = np.where(A.toarray() != 0, scale * A.toarray(), 5.0)  # A's pattern written, the rest untouched
+    np.testing.assert_array_equal(dense[:n, :n], expected)
+    np.testing.assert_array_equal(dense[n:], 5.0)
+    np.testing.assert_array_equal(dense[:, n:], 5.0)
 
 
 def test_user_gradient_with_wrong_signature_is_named():

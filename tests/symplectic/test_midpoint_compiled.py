@@ -18,7 +18,7 @@ from sympredict.symplectic import _compiled_newton
 from sympredict.exceptions import extrapolation_expected
 from sympredict.kernels import IMQ, ProductKernel
 from sympredict.symplectic.metrics import canonical_J
-from sympredict.symplectic.newton import rollout_compiled, rollout_numpy, solve_midpoint_numpy, solve_step_numpy
+from sympredict.symplectic.newton import implicit_rollout, rollout_numpy, solve_midpoint_numpy, solve_step_numpy
 from sympredict.interpolation.surrogate import HBSurrogate
 from sympredict.interpolation.greedy import ExactGreedy
 from sympredict.symplectic.solvers import NewtonSolver
@@ -141,8 +141,8 @@ def test_compiled_midpoint_reverse_step_inverts(which, pendulum_mid, chain_mid, 
         x = rng.uniform(-0.5, 0.5, (20, 8))
         dt = np.full(20, 0.2)
         w = sur.weights(np.zeros((20, 0)), dt)
-    x1 = rollout_compiled(sur, x, w, dt, 1, 50, update="midpoint")[:, 1]
-    back = rollout_compiled(sur, x1, w, -dt, 1, 50, update="midpoint")[:, 1]
+    x1 = implicit_rollout(sur, x, w, dt, 1, 50, backend="numba", update="midpoint")[:, 1]
+    back = implicit_rollout(sur, x1, w, -dt, 1, 50, backend="numba", update="midpoint")[:, 1]
     np.testing.assert_allclose(back, x, rtol=0, atol=1e-13 if which == "pendulum" else 1e-12)
     assert np.abs(x1 - x).max() > 1e-2
     np.testing.assert_allclose(x1, solve_midpoint_numpy(sur, x, w, dt, 50), rtol=0, atol=1e-12)
@@ -242,10 +242,12 @@ def test_compiled_rollouts_equal_numpy_at_2n_40(update, rng):
     w = sur.weights(np.full((6, 1), 0.5), dt)
     solve = solve_midpoint_numpy if update == "midpoint" else solve_step_numpy
     ref = rollout_numpy(lambda s: solve(sur, s, w, dt, 50), x, 5)
-    fast = rollout_compiled(sur, x, w, dt, 5, 50, update=update)
+    fast = implicit_rollout(sur, x, w, dt, 5, 50, backend="numba", update=update)
     np.testing.assert_allclose(fast, ref, rtol=0, atol=1e-12)
     assert np.abs(ref[:, -1] - ref[:, 0]).max() > 1e-4  # (the states move: 1e-8 of the motion is the tolerance)
-    np.testing.assert_array_equal(rollout_compiled(sur, x[2:3], w[2:3], dt[2:3], 5, 50, update=update)[0], fast[2])
+    np.testing.assert_array_equal(
+        implicit_rollout(sur, x[2:3], w[2:3], dt[2:3], 5, 50, backend="numba", update=update)[0], fast[2]
+    )
 
 
 def test_chunk_size_keeps_the_scratch_in_l1():

@@ -104,6 +104,24 @@ def test_far_larger_steps_fail_alike_with_a_warm_start(far_models):
     _assert_same_failure(*(_failure(model, backend, x, 6, mu, dt, warm=True) for backend in BACKENDS))
 
 
+def test_one_entry_point_takes_the_compiled_centre_order_on_both_backends(small_pendulum_model):
+    """``weights_ordered``: weights in the compiled layout's order give each backend its result for the surrogate's
+    order, bit for bit (the same arrays on the same path); an unknown backend is named."""
+    sur = small_pendulum_model.surrogate_
+    x, mu = _queries(5, 6)
+    dt = np.full(6, 0.05)
+    w = sur.weights(mu[:, None], dt)
+    ordered = newton.ordered_weights(sur, w)
+    assert not np.array_equal(ordered, w)  # the layout reorders the centres: the test sees the difference
+    for backend in newton.BACKENDS:
+        plain = newton.implicit_rollout(sur, x, w, dt, 4, 50, backend=backend)
+        np.testing.assert_array_equal(
+            newton.implicit_rollout(sur, x, ordered, dt, 4, 50, backend=backend, weights_ordered=True), plain
+        )
+    with pytest.raises(ValueError, match="backend must be one of"):
+        newton.implicit_rollout(sur, x, w, dt, 4, 50, backend="jax")
+
+
 def test_non_finite_iterates_reported_alike(small_pendulum_model):
     """Non-finite weights: a non-finite residual at the first iteration (reason 1), NaN residual, on both paths."""
     sur = small_pendulum_model.surrogate_
@@ -112,9 +130,9 @@ def test_non_finite_iterates_reported_alike(small_pendulum_model):
     w = sur.weights(mu[:, None], dt)
     w[[1, 4]] = np.nan
     errors = []
-    for rollout in (newton.rollout_reference, newton.rollout_compiled):
+    for backend in newton.BACKENDS:
         with pytest.raises(NewtonConvergenceError) as info:
-            rollout(sur, x, w, dt, 3, 50)
+            newton.implicit_rollout(sur, x, w, dt, 3, 50, backend=backend)
         errors.append(info.value)
     a, b = errors
     assert a.step == b.step == 0 and a.reason == b.reason == newton.FAILURE_REASONS[1]
@@ -188,7 +206,7 @@ def test_warm_start_on_numpy_saves_the_guess_pass(small_pendulum_model):
     passes = {}
     for warm in (False, True):
         stats = {}
-        newton.rollout_reference(sur, x, w, dt, 20, 50, warm_start=warm, stats=stats)
+        newton.implicit_rollout(sur, x, w, dt, 20, 50, warm_start=warm, stats=stats)
         passes[warm] = stats["passes"]
     assert np.all(passes[True] < passes[False])
 
@@ -206,14 +224,14 @@ def test_the_estimate_costs_no_pass_on_success(small_pendulum_data, monkeypatch)
     w = sur.weights(mu[:, None], dt)
     for warm in (False, True):
         stats = {"numpy": {}, "numba": {}}
-        newton.rollout_reference(sur, x, w, dt, 20, 50, warm_start=warm, stats=stats["numpy"])
-        newton.rollout_compiled(sur, x, w, dt, 20, 50, warm_start=warm, stats=stats["numba"])
+        for backend in newton.BACKENDS:
+            newton.implicit_rollout(sur, x, w, dt, 20, 50, backend=backend, warm_start=warm, stats=stats[backend])
         np.testing.assert_array_equal(stats["numba"]["passes"], stats["numpy"]["passes"])
         # the explicit guess (warm: at the first step only) and about three Newton passes per step
         assert stats["numba"]["passes"].max() <= (20 * 3 + 1 if warm else 20 * 4)
     assert calls == []
     with extrapolation_expected(), pytest.raises(NewtonConvergenceError):
-        newton.rollout_compiled(sur, x, w, dt * 200, 20, 50)
+        newton.implicit_rollout(sur, x, w, dt * 200, 20, 50, backend="numba")
     assert calls == [1]  # once, for the failure report
 
 
