@@ -163,6 +163,17 @@ class SearchResult:
         return float(sum(row.get("rollout_s", 0.0) for row in self.table))
 
     @property
+    def stage_seconds(self) -> dict:
+        """Where :attr:`seconds` went: ``{stage: seconds}`` of the candidates of each stage of :attr:`table` (1 the
+        grids, 2 the finalists and their coordinate search, 3 the structure stage, 4 the final-size stage; each
+        candidate's ``fit_s``, its fits and its scoring), in the order of the stages.  The rest of :attr:`seconds`
+        (the normalisation, the structure tests, the bookkeeping) is ``seconds - sum(stage_seconds.values())``."""
+        out = {}
+        for row in self.table:
+            out[row.get("stage")] = out.get(row.get("stage"), 0.0) + float(row.get("fit_s", 0.0))
+        return {stage: out[stage] for stage in sorted(out)}
+
+    @property
     def share(self) -> Optional[float]:
         """The search's share of the fit's wall time (``None`` without :attr:`fit_seconds`)."""
         return None if not self.fit_seconds else self.seconds / self.fit_seconds

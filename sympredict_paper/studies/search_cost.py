@@ -19,14 +19,23 @@ trajectories x 50 steps, ``max_centers=300``, as the README fits it) and noisy p
 0.05, noise 1e-3 on the states, ``max_centers=120``; held-out and test data without noise).
 
 Recorded: fit wall time, the search's own time (``search_.seconds``) and its share of the fit (``search_.share``),
-the number of candidate fits, the choice (kernels, update), the final model's held-out one-step error (mean of
-``|step(x0) - x1| / |x1|`` over fresh samples) and rollout errors (median and max over ``--n-test`` test trajectories
-of ``--steps`` steps of the largest relative state error along each).
+where the search's time went (``stage_s``: the candidates' fit and scoring seconds of each stage, 1 the grids, 2 the
+finalists' coordinate search, 3 the structure stage, 4 the final-size stage, ``other`` the rest of the search) and
+the final fit's own seconds (``final_fit_s``: the fit less the search), the number of candidate fits, the choice
+(kernels, update), the final model's held-out one-step error (mean of ``|step(x0) - x1| / |x1|`` over fresh samples)
+and rollout errors (median and max over ``--n-test`` test trajectories of ``--steps`` steps of the largest relative
+state error along each).  With ``--repeats r`` every system's two fits are repeated ``r`` times in the same process
+(the two configurations' order alternating from one repeat to the next): ``repeats`` keeps each repeat's seconds and
+shares, ``median_search_share`` and ``median_search_cpu_share`` their medians per configuration (of the wall
+times, and of this process's processor times, less sensitive to other jobs on a shared machine); the errors and the ratios are those of the first repeat (the choice is deterministic:
+``same_choice_across_repeats`` checks it).
 
 Run:  python sympredict_paper/studies/search_cost.py        # writes docs/data/search_cost.json
       python sympredict_paper/studies/search_cost.py --configs full quick --systems three_body noisy_pendulum \
           readme_pendulum kepler henon_heiles coupled_pendulums --three-body-centers 2000 \
           --json docs/data/search_cost_quick.json
+      python sympredict_paper/studies/search_cost.py --configs full quick --systems three_body --repeats 3 \
+          --json docs/data/search_cost_stages.json
 One BLAS and one numba thread.
 """
 
@@ -177,6 +186,14 @@ def max_centers_of(row: dict, search) -> bool:
     return row.get("stage") == 4 or (search.final_size == 0 and row.get("stage") in (2, 3))
 
 
+def stage_seconds(search) -> dict:
+    """``search_.stage_seconds`` with string keys (``'1'`` to ``'4'``) and ``'other'``: the rest of the search's
+    seconds (normalisation, tests of the structure, bookkeeping)."""
+    out = {str(stage): seconds for stage, seconds in search.stage_seconds.items()}
+    out["other"] = float(search.seconds) - sum(out.values())
+    return out
+
+
 def run(label: str, case: dict) -> dict:
     data, (h0, h1, hmu, hdt) = case["data"], case["heldout"]
     model = SymplecticKernelPredictor(max_centers=case["max_centers"], search=CONFIGS[label]())
@@ -203,6 +220,9 @@ def run(label: str, case: dict) -> dict:
             for r in table
             if r.get("stage") != 1 and "rung" not in r and not r.get("cut") and max_centers_of(r, search)
         ),
+        # where the search's time went: each stage's candidates (fits and their scoring), and the rest of the search
+        "stage_s": stage_seconds(search),
+        "final_fit_s": fit_s - float(search.seconds),
         "choice": {k: repr(v) for k, v in model.choice_.items()},
         "centers": int(model.n_centers_),
     }
@@ -228,6 +248,12 @@ def main(argv=None):
     parser.add_argument("--centers", type=int, default=1000)
     parser.add_argument("--n-test", type=int, default=20)
     parser.add_argument(
+        "--repeats",
+        type=int,
+        default=1,
+        help="fits per configuration and system, side by side in the same process (their median share is kept)",
+    )
+    parser.add_argument(
         "--configs",
         nargs=2,
         default=["full", "halving"],
@@ -248,10 +274,10 @@ def main(argv=None):
     with _protocol.limits(args.blas_threads, args.threads):
         protocol = _protocol.record_options(
             args,
-            repeats=1,
+            repeats=args.repeats,
             warmup=0,
-            notes="one fit per configuration, side by side in one process, the two "
-            "configurations in alternating order from one system to the next",
+            notes=f"{args.repeats} fit(s) per configuration, side by side in one process, the two "
+            "configurations in alternating order from one system (and repeat) to the next",
         )
         jobs = [(name, args.centers) for name in args.systems]
         jobs += [("three_body", m) for m in args.three_body_centers]
@@ -260,8 +286,27 @@ def main(argv=None):
             print(f"{name}: {len(case['data'])} samples, max_centers {case['max_centers']}", flush=True)
             row = {"system": name, "samples": len(case["data"]), "max_centers": case["max_centers"]}
             first, second = args.configs
-            for label in (first, second) if i % 2 == 0 else (second, first):
-                row[label] = run(label, case)
+            runs = {first: [], second: []}
+            for r in range(args.repeats):
+                for label in (first, second) if (i + r) % 2 == 0 else (second, first):
+                    runs[label].append(run(label, case))
+            for label in (first, second):
+                row[label] = runs[label][0]
+            if args.repeats > 1:
+                keys = ("fit_s", "search_s", "search_share", "search_cpu_share", "stage_s", "final_fit_s")
+                row["repeats"] = {label: [{k: out[k] for k in keys} for out in runs[label]] for label in runs}
+                for key in ("search_share", "search_cpu_share"):  # wall time, and this process's processor time
+                    row[f"median_{key}"] = {
+                        label: float(np.median([out[key] for out in runs[label]])) for label in runs
+                    }
+                row["same_choice_across_repeats"] = all(
+                    out["choice"] == runs[label][0]["choice"] for label in runs for out in runs[label]
+                )
+                print(
+                    "  median search share: "
+                    + ", ".join(f"{label} {100 * v:.0f} %" for label, v in row["median_search_share"].items()),
+                    flush=True,
+                )
             full, new = row[first], row[second]
             row["same_choice"] = full["choice"] == new["choice"]
             row["ratios"] = {

@@ -212,3 +212,15 @@ def test_quick_search_scores_its_candidates_below_the_final_size(quick_fit):
     assert 1 <= len(symmetric) + len(plain) and len(symmetric) <= 4 and len(plain) <= 4
     assert len(s.table) == sum(len(v) for v in by_stage.values())
     assert quick_fit.n_centers_ <= 300 and np.isfinite(s.score)
+
+
+def test_stage_seconds_split_the_search_time_by_stage(quick_fit):
+    """``search_.stage_seconds``: per stage of the table, the sum of its candidates' ``fit_s``, stages in order, within
+    the search's wall time (a split that dropped a stage, or counted a candidate twice, fails)."""
+    s = quick_fit.search_
+    split = s.stage_seconds
+    assert list(split) == sorted({r["stage"] for r in s.table}) and {1, 2, 4} <= set(split)
+    for stage, seconds in split.items():
+        assert seconds == pytest.approx(sum(r.get("fit_s", 0.0) for r in s.table if r["stage"] == stage), rel=1e-12)
+        assert seconds > 0
+    assert sum(split.values()) <= s.seconds

@@ -52,6 +52,51 @@ def test_the_defaults_page_claims_follow_the_search_cost_numbers(quick_rows):
     assert quick_rows[("three_body", 2000)]["ratios"]["traj_error_median"] > 2.0
 
 
+@pytest.mark.parametrize("name", ["search_cost_stages.json", "search_cost_stages_300.json"])
+def test_search_cost_stages_recomputed_from_the_repeats(name):
+    """The repeated three-body runs: each repeat's share, its split by stage and the final fit's seconds add up, the
+    medians are those of the repeats, and every repeat chose the same settings."""
+    import numpy as np
+
+    (row,) = _load(name)["rows"]
+    assert row["same_choice_across_repeats"] is True
+    for config, runs in row["repeats"].items():
+        assert len(runs) == _load(name)["settings"]["repeats"] >= 3
+        for run in runs:
+            assert run["search_share"] == pytest.approx(run["search_s"] / run["fit_s"], rel=1e-12)
+            assert sum(run["stage_s"].values()) == pytest.approx(run["search_s"], rel=1e-9)
+            assert run["final_fit_s"] == pytest.approx(run["fit_s"] - run["search_s"], rel=1e-9)
+        for key in ("search_share", "search_cpu_share"):
+            if f"median_{key}" in row:
+                assert row[f"median_{key}"][config] == pytest.approx(np.median([r[key] for r in runs]), rel=1e-12)
+    assert row["quick"] == {**row["quick"], **{k: row["repeats"]["quick"][0][k] for k in ("fit_s", "search_s")}}
+
+
+def test_the_defaults_page_claims_follow_the_search_cost_stages():
+    """The text: the quick search's median share is below the default's, under a third of the fit with 18,000
+    samples and not with 6,000; its time grew less with the data than the final fit's; its three stages cost about
+    alike (each median within a factor 2 of the others); with 18,000 samples it chose another update, with larger
+    held-out and median rollout errors than the default's."""
+    import numpy as np
+
+    small, large = (_load(name)["rows"][0] for name in ("search_cost_stages.json", "search_cost_stages_300.json"))
+    assert (small["samples"], large["samples"]) == (6000, 18000)
+    for row in (small, large):
+        assert row["median_search_share"]["quick"] < row["median_search_share"]["full"]
+        stages = [np.median([r["stage_s"][k] for r in row["repeats"]["quick"]]) for k in ("1", "2", "4")]
+        assert max(stages) <= 2 * min(stages)
+    assert large["median_search_share"]["quick"] <= 1 / 3 < small["median_search_share"]["quick"]
+
+    def median(row, key):
+        return np.median([r[key] for r in row["repeats"]["quick"]])
+
+    assert median(large, "search_s") / median(small, "search_s") < median(large, "final_fit_s") / median(
+        small, "final_fit_s"
+    )
+    assert large["quick"]["choice"]["update"] != large["full"]["choice"]["update"]
+    assert large["ratios"]["held_out_error"] > 1 and large["ratios"]["traj_error_median"] > 1
+
+
 # ---------------------------------------------------------------------------------- the three-body structure runs
 @pytest.mark.parametrize("name", ["structure_search_300.json", "structure_search_300_seed2.json"])
 def test_structure_comparison_recomputed_from_the_runs(name):
