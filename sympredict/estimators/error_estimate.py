@@ -23,6 +23,16 @@ are sparse, not where the flow map is harder to learn, so each step's gradient e
 error / estimate at the ``LOCAL_NEIGHBOURS`` held-out samples nearest to the step's state (:func:`local_log_ratio`),
 ``O(B K N (2n + d_mu))`` for ``N`` held-out samples, small beside the rest.
 
+Which trajectories err most is this one model's own, and its one-step residual vectors ``r_i = Phi(x0_i) - x1_i``
+on the samples the fit did not interpolate (held-out samples and training samples that are not centres) say it
+where the posterior cannot.  The residual part carries the ``RESIDUAL_NEIGHBOURS`` residual vectors nearest to each
+step's state through the later steps as one draw among them, coherently (:func:`propagated_residuals`), times a
+scale calibrated like ``c`` (the one-step case on the samples, each without its own residual); it is added to the
+posterior's estimate in quadrature.  Near the data it tells the trajectories that pass where the model errs
+systematically from the others; away from them (its residuals small, the posterior large) the posterior's part
+dominates.  ``O(B K N' (2n + d_mu))`` for the neighbours among ``N'`` residual vectors plus ``O(B K (2n)^2 k)``
+for the propagation and ``O(B K 2n m)`` for the steps' Jacobians.
+
 Cost along ``B`` rollouts of ``K`` steps with ``m`` centres: the Newton basis at every step, ``O(B K 2n m^2)``
 (as the power function).  Up to :data:`EXACT_MAX_STEPS` steps every pair of steps is carried
 (:class:`CovariancePropagation`): the prior covariances of all pairs, ``O(B K^2 (2n)^2)`` kernel terms, and the
@@ -63,6 +73,9 @@ __all__ = [
     "LOCAL_NEIGHBOURS",
     "local_points",
     "local_log_ratio",
+    "nearest",
+    "RESIDUAL_NEIGHBOURS",
+    "propagated_residuals",
 ]
 
 #: Held-out samples whose ratios (true one-step error / estimate) set the local scale of the estimate at a point.
@@ -124,6 +137,24 @@ def local_points(x: np.ndarray, mu: np.ndarray, dt: np.ndarray, domain: dict) ->
     return (pts[:, keep] - lo[keep]) / width[keep]
 
 
+def nearest(points: np.ndarray, queries: np.ndarray, k: int, leave_one_out: bool = False) -> np.ndarray:
+    """Indices (Q, k') of the ``k' = min(k, N)`` nearest ``points`` (N, q) to each query (Q, q), Euclidean, in no
+    particular order; ``leave_one_out``: the queries are the points themselves, each without itself
+    (``k' <= N - 1``).  ``O(Q N q)`` time, ``O(chunk N)`` memory."""
+    n = len(points)
+    k = max(1, min(int(k), n - 1 if leave_one_out else n))
+    out = np.empty((len(queries), k), dtype=np.intp)
+    chunk = max(1, (1 << 20) // max(1, n))
+    sq = np.einsum("nj,nj->n", points, points)
+    for start in range(0, len(queries), chunk):
+        sl = slice(start, min(len(queries), start + chunk))
+        d2 = np.einsum("qj,qj->q", queries[sl], queries[sl])[:, None] - 2.0 * queries[sl] @ points.T + sq[None, :]
+        if leave_one_out:
+            d2[np.arange(sl.stop - sl.start), np.arange(sl.start, sl.stop)] = np.inf
+        out[sl] = np.argpartition(d2, k - 1, axis=1)[:, :k]
+    return out
+
+
 def local_log_ratio(
     points: np.ndarray, log_ratio: np.ndarray, queries: np.ndarray, k: int, leave_one_out: bool = False
 ) -> np.ndarray:
@@ -133,21 +164,10 @@ def local_log_ratio(
     ``log_ratio`` (N,) are the logs of true one-step error over estimate at held-out samples ``points`` (N, q);
     the power function says where data are sparse, not where the flow map is hard to learn, so the estimate is
     rescaled by what the fit's own errors near the query were.  ``leave_one_out``: the queries are the points
-    themselves, each without its own ratio (the calibration's).  ``O(Q N q)`` time, ``O(chunk N)`` memory.
+    themselves, each without its own ratio (the calibration's).  ``O(Q N q)`` time, ``O(chunk N)`` memory
+    (:func:`nearest`).
     """
-    n = len(points)
-    k = max(1, min(int(k), n - 1 if leave_one_out else n))
-    out = np.empty(len(queries))
-    chunk = max(1, (1 << 20) // max(1, n))
-    for start in range(0, len(queries), chunk):
-        sl = slice(start, min(len(queries), start + chunk))
-        d2 = np.einsum("qj,qj->q", queries[sl], queries[sl])[:, None] - 2.0 * queries[sl] @ points.T
-        d2 += np.einsum("nj,nj->n", points, points)[None, :]
-        if leave_one_out:
-            d2[np.arange(sl.stop - sl.start), np.arange(sl.start, sl.stop)] = np.inf
-        near = np.argpartition(d2, k - 1, axis=1)[:, :k]
-        out[sl] = log_ratio[near].mean(axis=1)
-    return out
+    return log_ratio[nearest(points, queries, k, leave_one_out)].mean(axis=1)
 
 
 def _prior_at_points(sur, z: np.ndarray, mu: np.ndarray, dt: np.ndarray, chunk: int = 32) -> np.ndarray:
@@ -499,4 +519,31 @@ def _rollout_error_lowrank(fitted, chol, traj, mu, dt, weights, factors=None) ->
         for j in range(nk):
             sigma = prop.advance(jac[:, j], sens[:, j], a[:, j], resid[:, j], power[:, j])
             out[:, k0 + j + 1] = _norm_units(sigma, scale)
+    return out
+
+
+#: Nearest residual vectors whose spread, carried through the later steps, is the residual part of the estimate.
+RESIDUAL_NEIGHBOURS = 5
+
+
+def propagated_residuals(jac: np.ndarray, resid: np.ndarray, scale: np.ndarray) -> np.ndarray:
+    """The model's own one-step residuals near each step, carried coherently through the later steps' Jacobians.
+
+    ``resid`` (B, K, k, 2n): at step ``k`` the residual vectors ``Phi(x0_i) - x1_i`` of the ``k`` held-out samples
+    nearest to the step's state (scaled coordinates); ``U_k = resid_k^T / sqrt(k)`` (2n, k) is their second-moment
+    factor (``U_k U_k^T`` the neighbours' mean ``r r^T``).  One draw among the neighbours' residuals errs alike at
+    every step (a systematic error near the orbit adds up, as the residuals of one model do along a trajectory),
+
+        F_0 = 0,   F_k+1 = D Phi_k F_k + U_k,   e_k = |D^-1 F_k|_F,
+
+    ``jac`` (B, K, 2n, 2n) the steps' Jacobians, ``scale`` (2n,) the model's scaling (``D``).  Returns (B, K+1),
+    0 at step 0, in the states' units.  ``O(B K (2n)^2 k)``; memory ``O(B 2n k)`` besides the inputs.
+    """
+    b, n_steps, k, dim = resid.shape
+    out = np.zeros((b, n_steps + 1))
+    f = np.zeros((b, dim, k))
+    u = resid.transpose(0, 1, 3, 2) / np.sqrt(max(k, 1))
+    for j in range(n_steps):
+        f = np.matmul(jac[:, j], f) + u[:, j]
+        out[:, j + 1] = np.sqrt(np.einsum("bik,i->b", f * f, 1.0 / scale**2))
     return out

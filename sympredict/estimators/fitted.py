@@ -429,6 +429,13 @@ class FittedSymplecticFlowMap(FittedFlowMap):
         (N, 2n + d_mu + 1), the held-out samples' states, parameters and steps, and ``log_ratio`` (N,), the log of
         true one-step error over estimate there (centred); ``None``: one scale everywhere (a model file written
         before the local scale existed).
+    residual_samples : FlowMapData or None, optional
+        Samples the model's one-step residual vectors are taken on when the calibration is computed (held-out
+        samples and training samples that are not centres, :meth:`residual_data`); ``None``: the calibration's
+        samples.
+    error_residuals : dict or None, optional
+        The residual part of the error estimate (:attr:`error_residuals`), with ``error_calibration``: ``points``
+        (N, 2n + d_mu + 1) and ``vectors`` (N, 2n); ``None``: none (a model file written before it existed).
     """
 
     name = "SymplecticKernelPredictor"
@@ -443,6 +450,8 @@ class FittedSymplecticFlowMap(FittedFlowMap):
     ERROR_QUANTILE = 0.9
     #: Samples the calibration uses at most (``O(n 2n m^2)``).
     ERROR_SAMPLES = 500
+    #: Residual vectors kept at most (one predicted step each to compute; the rollout's estimate searches them).
+    RESIDUAL_SAMPLES = 4000
 
     def __init__(
         self,
@@ -460,12 +469,18 @@ class FittedSymplecticFlowMap(FittedFlowMap):
         error_calibration=...,
         calibration_samples=None,
         error_local=None,
+        residual_samples=None,
+        error_residuals=None,
     ):
         super().__init__(
             kernel, surrogate, domain=domain, history=history, dt_fixed=dt_fixed, greedy_result=greedy_result
         )
         scale, periodic, symmetry = model_coordinates(parts, update, self.dim)
-        cache = {} if error_calibration is ... else {"calibration": error_calibration, "local": error_local}
+        cache = (
+            {}
+            if error_calibration is ...
+            else {"calibration": error_calibration, "local": error_local, "residuals": error_residuals}
+        )
         self._set(
             update=update,
             rule=as_update(update),
@@ -477,6 +492,7 @@ class FittedSymplecticFlowMap(FittedFlowMap):
             _solver_setting=solver,
             regularization=float(regularization or 0.0),
             calibration_samples=calibration_samples,
+            residual_samples=residual_samples,
             _cache=cache,
         )
 
@@ -491,9 +507,12 @@ class FittedSymplecticFlowMap(FittedFlowMap):
 
     def with_error_calibration(self, calibration: Optional[dict]) -> "FittedSymplecticFlowMap":
         """This fitted map with the error calibration ``calibration`` (``None``: no error estimate); the local
-        scale (:attr:`error_local`) is kept where ``calibration`` has ``local_neighbours``, dropped otherwise."""
-        local = self.error_local if isinstance(calibration, dict) and "local_neighbours" in calibration else None
-        return self._replace(_cache={"calibration": calibration, "local": local})
+        scale (:attr:`error_local`) is kept where ``calibration`` has ``local_neighbours``, the residual part
+        (:attr:`error_residuals`) where it has ``residual_neighbours``, each dropped otherwise."""
+        has = lambda key: isinstance(calibration, dict) and key in calibration
+        local = self.error_local if has("local_neighbours") else None
+        residuals = self.error_residuals if has("residual_neighbours") else None
+        return self._replace(_cache={"calibration": calibration, "local": local, "residuals": residuals})
 
     def original_periods(self):
         return self.parts.original_periods(self.dim)
@@ -592,7 +611,8 @@ class FittedSymplecticFlowMap(FittedFlowMap):
             Also return an estimate of ``|x1_predicted - x1_exact|_2`` per instance (in the states'
             units): the posterior covariance of the learned gradient at the step's evaluation point, mapped
             through the implicit update (``delta x1 = DF^-1 dT J delta g``) and scaled by the fit's
-            calibration on held-out samples (``error_calibration_``).  Costs ``O(B 2n m^2)`` more.
+            calibration on held-out samples (``error_calibration_``), and in quadrature the nearest of the model's
+            own one-step residual vectors (:attr:`error_residuals`).  Costs ``O(B 2n m^2)`` more.
 
         Returns
         -------
@@ -613,6 +633,7 @@ class FittedSymplecticFlowMap(FittedFlowMap):
         c = self._check_error_estimate()
         scale = self.scale
         err = c * self._local_factors(x, mu, dt) * self._local_error_units(x * scale, out * scale, mu, dt, weights)
+        err = np.hypot(err, self._residual_part(x[:, None], mu, dt)[:, 1])
         return (out[0], float(err[0])) if single else (out, err)
 
     def rollout(
@@ -660,7 +681,9 @@ class FittedSymplecticFlowMap(FittedFlowMap):
             kept steps, in the states' units (0 at step 0): the covariance of the learned gradient's error at
             every step's evaluation point and between the steps (the Gaussian-process posterior, mixed with one
             error vector fixed in the coordinates), mapped through each step and carried by the later steps'
-            Jacobians, with the calibrated scale (:mod:`sympredict.estimators.error_estimate`).  It covers the
+            Jacobians, with the calibrated scale, and in quadrature the model's own one-step residual vectors
+            nearest to each step's state carried coherently by the later steps (:attr:`error_residuals`,
+            ``O(B K N (2n + d_mu))`` for ``N`` of them; :mod:`sympredict.estimators.error_estimate`).  It covers the
             model's interpolation error, not noise in the training data nor states far outside the training
             box (see the how-to "How accurate is my prediction?").  The states come from the usual solver
             (compiled where that is); the estimate is computed afterwards in NumPy, ``O(B K 2n m^2)`` (the
@@ -929,6 +952,58 @@ class FittedSymplecticFlowMap(FittedFlowMap):
             data = data.subset(np.random.default_rng(0).choice(len(data), cls.ERROR_SAMPLES, replace=False))
         return data, source
 
+    @classmethod
+    def residual_data(cls, train: FlowMapData, holdout: Optional[FlowMapData], selected, dim: int):
+        """The samples whose one-step residual vectors the error estimate searches near each step: the held-out
+        samples and the training samples that are not centres (``selected // dim``), at most
+        :attr:`RESIDUAL_SAMPLES` of them (a random subset, seed 0), or ``None``.  Computed on first use with the
+        calibration (one predicted step each)."""
+        used = np.zeros(len(train), dtype=bool)
+        used[np.asarray(selected, dtype=int) // dim] = True
+        rest = train.subset(np.flatnonzero(~used)) if (~used).any() else None
+        parts = [d for d in (holdout, rest) if d is not None and len(d)]
+        if not parts:
+            return None
+        data = FlowMapData(*(np.concatenate([getattr(d, f) for d in parts]) for f in ("x0", "x1", "mu", "dt")))
+        if len(data) > cls.RESIDUAL_SAMPLES:
+            data = data.subset(np.sort(np.random.default_rng(0).choice(len(data), cls.RESIDUAL_SAMPLES, replace=False)))
+        return data
+
+    @property
+    def error_residuals(self) -> Optional[dict]:
+        """The residual part of the error estimate: ``points`` (N, 2n + d_mu + 1), the states, parameters and steps
+        of held-out samples and training samples that are not centres, and ``vectors`` (N, 2n), the model's one-step
+        residuals there, ``Phi(x0_i) - x1_i`` in the states' units; the ``error_calibration["residual_neighbours"]``
+        nearest to each step's state, times ``error_calibration["residual_scale"]``, are carried through the later
+        steps (:func:`~sympredict.estimators.error_estimate.propagated_residuals`).  ``None``: none."""
+        self.error_calibration  # computed with it
+        return self._cache.get("residuals")
+
+    def _residual_part(self, xs: np.ndarray, mu: np.ndarray, dt: np.ndarray, jac: Optional[np.ndarray] = None):
+        """The residual part of the estimate (B, K+1) for the steps from the states ``xs`` (B, K, 2n) (user units),
+        ``mu`` (B, d_mu), ``dt`` (B,), ``jac`` (B, K, 2n, 2n) their Jacobians in scaled coordinates (``None``: one
+        step, K = 1); zeros without :attr:`error_residuals`.  ``O(B K N (2n + d_mu))`` for the neighbours plus
+        :func:`~sympredict.estimators.error_estimate.propagated_residuals`."""
+        b, n_steps, dim = xs.shape
+        res = self.error_residuals
+        if res is None:
+            return np.zeros((b, n_steps + 1))
+        cal = self.error_calibration
+        pts, vec = res["points"], res["vectors"]
+        query = local_points(
+            xs.reshape(-1, dim),
+            np.repeat(np.reshape(mu, (b, -1)), n_steps, axis=0),
+            np.repeat(dt, n_steps),
+            self.domain,
+        )
+        near = _estimate.nearest(
+            local_points(pts[:, :dim], pts[:, dim:-1], pts[:, -1], self.domain), query, int(cal["residual_neighbours"])
+        )
+        resid = (vec * self.scale)[near].reshape(b, n_steps, near.shape[1], dim)
+        if jac is None:
+            jac = np.zeros((b, n_steps, dim, dim))
+        return float(cal["residual_scale"]) * _estimate.propagated_residuals(jac, resid, self.scale)
+
     @property
     def error_calibration(self) -> Optional[dict]:
         """The error estimate's calibration, computed on first use from ``calibration_samples``, then kept:
@@ -938,8 +1013,8 @@ class FittedSymplecticFlowMap(FittedFlowMap):
         without samples."""
         if "calibration" not in self._cache:
             samples = None if self.n_centers == 0 else self.calibration_samples
-            cal, local = (None, None) if samples is None else self._error_calibration(*samples)
-            self._cache.update(calibration=cal, local=local)
+            cal, local, res = (None, None, None) if samples is None else self._error_calibration(*samples)
+            self._cache.update(calibration=cal, local=local, residuals=res)
         return self._cache["calibration"]
 
     @property
@@ -966,7 +1041,8 @@ class FittedSymplecticFlowMap(FittedFlowMap):
         return np.exp(local_log_ratio(points, local["log_ratio"], query, k))
 
     def _error_calibration(self, data: FlowMapData, source: str) -> tuple:
-        """``(calibration, local)`` (:attr:`error_calibration`, :attr:`error_local`) from held-out ``data``.
+        """``(calibration, local, residuals)`` (:attr:`error_calibration`, :attr:`error_local`,
+        :attr:`error_residuals`) from held-out ``data`` (and the residual vectors on ``residual_samples``).
 
         ``ratio_i = |Phi(x0_i) - x1_i| / e_i`` with ``e_i`` the one-step estimate before calibration; the local
         scale ``f_i`` is ``exp`` of the mean centred ``log ratio`` of the ``LOCAL_NEIGHBOURS`` nearest other
@@ -980,12 +1056,12 @@ class FittedSymplecticFlowMap(FittedFlowMap):
                 warnings.simplefilter("ignore", ExtrapolationWarning)
                 x1s = self._solve_scaled(data.x0 * scale, weights, data.dt)
         except (NewtonConvergenceError, NonFinitePredictionError):
-            return None, None
+            return None, None, None
         true = np.linalg.norm(x1s / scale - data.x1, axis=1)
         unit = self._local_error_units(data.x0 * scale, x1s, mu, data.dt, weights)
         ok = (unit > 0) & np.isfinite(true)
         if not ok.any():
-            return None, None
+            return None, None, None
         true, unit = true[ok], unit[ok]
         local, factor = None, np.ones(len(true))
         k = LOCAL_NEIGHBOURS
@@ -1013,7 +1089,46 @@ class FittedSymplecticFlowMap(FittedFlowMap):
         }
         if local is not None:
             cal["local_neighbours"] = k
-        return cal, local
+        residuals = self._residual_calibration(cal, data, x1s / scale)
+        return cal, local, residuals
+
+    def _residual_calibration(self, cal: dict, data: FlowMapData, pred: np.ndarray) -> Optional[dict]:
+        """The residual vectors of :attr:`error_residuals` on ``residual_samples`` (``data`` itself when there are
+        none; ``pred`` its predicted steps), with ``cal``'s ``residual_neighbours`` and ``residual_scale`` (the
+        :attr:`ERROR_QUANTILE` quantile over the samples of ``|r_i|`` over the root mean square of its nearest
+        other residuals: the one-step case).  ``None`` (and ``cal`` unchanged) with too few samples or a failed
+        step.  ``O(N n_newton + N^2 (2n + d_mu))`` for ``N`` samples."""
+        pool = self.residual_samples
+        if pool is None or not len(pool):
+            pool = data
+        else:
+            try:
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore", ExtrapolationWarning)
+                    weights = self.surrogate.weights(pool.mu if self.n_mu else np.zeros((len(pool), 0)), pool.dt)
+                    pred = self._solve_scaled(pool.x0 * self.scale, weights, pool.dt) / self.scale
+            except (NewtonConvergenceError, NonFinitePredictionError):
+                return None
+        k = _estimate.RESIDUAL_NEIGHBOURS
+        vectors = pred - pool.x1
+        ok = np.all(np.isfinite(vectors), axis=1)
+        if ok.sum() <= k:
+            return None
+        mu = pool.mu[ok] if self.n_mu else np.zeros((int(ok.sum()), 0))
+        vectors, raw = vectors[ok], np.concatenate([pool.x0[ok], mu, pool.dt[ok, None]], axis=1)
+        pts = local_points(pool.x0[ok], mu, pool.dt[ok], self.domain)
+        near = _estimate.nearest(pts, pts, k, leave_one_out=True)
+        rms = np.sqrt(np.mean(np.sum(vectors[near] ** 2, axis=2), axis=1))
+        size = np.linalg.norm(vectors, axis=1)
+        good = rms > 0
+        if not good.any():
+            return None
+        cal.update(
+            residual_neighbours=k,
+            residual_scale=float(max(np.quantile(size[good] / rms[good], self.ERROR_QUANTILE), np.finfo(float).eps)),
+            residual_samples=int(ok.sum()),
+        )
+        return {"points": raw, "vectors": vectors}
 
     def _rollout_error(self, traj: np.ndarray, mu: np.ndarray, dt: np.ndarray, weights: np.ndarray) -> np.ndarray:
         """Error estimates (B, K+1) along predicted trajectories ``traj`` (B, K+1, 2n) (every step kept): the
@@ -1027,7 +1142,29 @@ class FittedSymplecticFlowMap(FittedFlowMap):
             local = self._local_factors(
                 traj[:, :-1].reshape(-1, dim), np.repeat(mu, n, axis=0), np.repeat(dt, n)
             ).reshape(b, n)
-        return c * rollout_error_units(self, traj, mu, dt, weights, local=local)
+        est = c * rollout_error_units(self, traj, mu, dt, weights, local=local)
+        if self.error_residuals is None or k1 < 2:
+            return est
+        return np.hypot(est, self._residual_part(traj[:, :-1], mu, dt, self._rollout_jacobians(traj, dt, weights)))
+
+    def _rollout_jacobians(self, traj: np.ndarray, dt: np.ndarray, weights: np.ndarray) -> np.ndarray:
+        """The steps' Jacobians (B, K, 2n, 2n) in scaled coordinates along ``traj`` (B, K+1, 2n), in blocks of
+        bounded memory.  ``O(B K 2n m)`` (the Hessian at each step)."""
+        b, k1, dim = traj.shape
+        n_steps, scale = k1 - 1, self.scale
+        out = np.empty((b, n_steps, dim, dim))
+        block = max(1, min(n_steps, (1 << 16) // max(1, b)))
+        for k0 in range(0, n_steps, block):
+            kk = min(n_steps, k0 + block)
+            rep = lambda a: np.repeat(a, kk - k0, axis=0)
+            out[:, k0:kk] = self.rule.jacobian(
+                self.surrogate,
+                (traj[:, k0:kk] * scale).reshape(-1, dim),
+                (traj[:, k0 + 1 : kk + 1] * scale).reshape(-1, dim),
+                rep(weights),
+                rep(dt),
+            ).reshape(b, kk - k0, dim, dim)
+        return out
 
     # ----------------------------------------------------------------- files
     @staticmethod

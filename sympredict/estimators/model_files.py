@@ -173,6 +173,9 @@ def to_container(model) -> tuple:
     local = getattr(fitted, "error_local", None) if calibration else None
     if local is not None:  # its local scale
         arrays.update(error_local_points=local["points"], error_local_log_ratio=local["log_ratio"])
+    residuals = getattr(fitted, "error_residuals", None) if calibration else None
+    if residuals is not None:  # its residual part
+        arrays.update(error_residual_points=residuals["points"], error_residual_vectors=residuals["vectors"])
     if hist.val_max_residual is not None:
         arrays["val_max_residual"] = hist.val_max_residual
     arrays.update({f"domain_{k}": np.asarray(v) for k, v in fitted.domain.items()})
@@ -264,6 +267,7 @@ def from_container(cls, settings, arrays: dict, path):
         ):
             raise ModelFileError(f"{str(path)!r}: its error_calibration is not a record with a positive 'scale'")
         local = _file_error_local(arrays, calibration, dim + n_mu + 1, path)
+        residuals = _file_error_residuals(arrays, calibration, dim, n_mu, path)
         domain = {k: arrays[f"domain_{k}"] for k in DOMAIN_KEYS}
         _check_file_history(surrogate.n_centers, history, domain, path)
         if symplectic:  # the fitted flow map, by its public constructor (as fit builds it)
@@ -279,6 +283,7 @@ def from_container(cls, settings, arrays: dict, path):
                 regularization=trainer_regularization(fitted_params["trainer"]),
                 error_calibration=calibration,
                 error_local=local,
+                error_residuals=residuals,
             )
         else:
             model.model_ = FittedDirectFlowMap(
@@ -378,3 +383,43 @@ def check_file_arrays(dim: int, n_mu: int, symplectic: bool, kernel: ProductKern
     for name, arr in arrays.items():
         if arr.dtype.kind not in "fi" or not np.all(np.isfinite(arr)):
             raise ModelFileError(f"the file's array {name!r} is not a finite numeric array")
+
+
+def _file_error_residuals(arrays: dict, calibration, dim: int, n_mu: int, path):
+    """The error estimate's residual part of a model file (``error_residual_points`` (N, 2n + d_mu + 1) and
+    ``error_residual_vectors`` (N, 2n), finite floats, with the calibration's ``residual_neighbours`` in 1..N and a
+    positive finite ``residual_scale``), or ``None`` for a file without it (written before it existed, or by a fit
+    without enough samples)."""
+    names = ("error_residual_points", "error_residual_vectors")
+    present = [name in arrays for name in names]
+    cal = calibration if isinstance(calibration, dict) else {}
+    k, c = cal.get("residual_neighbours"), cal.get("residual_scale")
+    if not any(present) and k is None and c is None:
+        return None
+    if not all(present) or k is None or c is None:
+        raise ModelFileError(
+            f"{str(path)!r}: its error estimate's residual part is incomplete (it needs the arrays {list(names)} "
+            "and the error_calibration's 'residual_neighbours' and 'residual_scale')"
+        )
+    points, vectors = arrays["error_residual_points"], arrays["error_residual_vectors"]
+    n, width = len(vectors), dim + n_mu + 1
+    if (
+        points.ndim != 2
+        or points.shape != (n, width)
+        or vectors.shape != (n, dim)
+        or points.dtype.kind != "f"
+        or vectors.dtype.kind != "f"
+    ):
+        raise ModelFileError(
+            f"{str(path)!r}: its error_residual_points of shape {points.shape} and error_residual_vectors of shape "
+            f"{vectors.shape} are not (N, {width}) and (N, {dim}) float arrays"
+        )
+    if not (np.all(np.isfinite(points)) and np.all(np.isfinite(vectors))):
+        raise ModelFileError(f"{str(path)!r}: its error_residual_points or error_residual_vectors are not finite")
+    if type(k) is not int or not 1 <= k <= n:
+        raise ModelFileError(
+            f"{str(path)!r}: its error_calibration's residual_neighbours={k!r} is not an integer in 1..{n}"
+        )
+    if not isinstance(c, float) or not (np.isfinite(c) and c > 0):
+        raise ModelFileError(f"{str(path)!r}: its error_calibration's residual_scale={c!r} is not a positive float")
+    return {"points": points.astype(float), "vectors": vectors.astype(float)}

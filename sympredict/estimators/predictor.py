@@ -742,6 +742,7 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
             calibration_samples=FittedSymplecticFlowMap.calibration_data(
                 data, validation, result.selected, data.x0.shape[1]
             ),
+            residual_samples=FittedSymplecticFlowMap.residual_data(data, validation, result.selected, data.x0.shape[1]),
         )
         self._warn_if_underfit(
             data, y, lambda rows: sur.gradient(xi[rows], sur.weights(data.mu[rows], data.dt[rows])), fitted

@@ -307,11 +307,43 @@ def _oracle_local_factors(fitted, x, mu, dt):
     return np.array(out)
 
 
+def _oracle_neighbours(fitted, points, x, mu, dt, k):
+    """Indices of the ``k`` nearest ``points`` (N, 2n + d_mu + 1) to each ``(x, mu, dt)`` by brute force: every
+    coordinate divided by the training box's width, all distances sorted."""
+    box = fitted.domain
+    lo = np.concatenate([box["x_min"], box["mu_min"], np.atleast_1d(box["dt_min"])])
+    width = np.concatenate([box["x_max"], box["mu_max"], np.atleast_1d(box["dt_max"])]) - lo
+    keep = width > 0
+    pts = (points[:, keep] - lo[keep]) / width[keep]
+    out = []
+    for row in np.column_stack([x, np.reshape(mu, (len(x), -1)), dt]):
+        q = (row[keep] - lo[keep]) / width[keep]
+        out.append(np.argsort(np.sum((pts - q) ** 2, axis=1), kind="stable")[:k])
+    return np.array(out)
+
+
+def _oracle_residual_part(fitted, x, mu, dt, jac, kk):
+    """The residual part after ``kk`` steps from the states ``x`` (K, 2n) with Jacobians ``jac`` (K, 2n, 2n) (scaled
+    coordinates), the step maps multiplied out: ``c_r |D^-1 sum_k D Phi_kk-1 ... D Phi_k+1 U_k|_F``, ``U_k`` the
+    ``residual_neighbours`` nearest residual vectors (scaled) over ``sqrt(k)``."""
+    res, cal, scale = fitted.error_residuals, fitted.error_calibration, fitted.scale
+    k = cal["residual_neighbours"]
+    near = _oracle_neighbours(fitted, res["points"], x, mu, dt, k)
+    total = np.zeros((len(scale), k))
+    for step in range(kk):
+        u = (res["vectors"][near[step]] * scale).T / np.sqrt(k)
+        for j in range(step + 1, kk):
+            u = jac[j] @ u
+        total += u
+    return cal["residual_scale"] * np.sqrt(np.sum(total**2 / scale[:, None] ** 2))
+
+
 def test_rollout_estimate_is_the_dense_posterior_covariance_propagated(model):
     """Oracle: the posterior covariance of the gradient functionals at all of a rollout's evaluation points from the
     Gramian built column by column by the functionals' own code (dense solve), the step maps multiplied out
     explicitly with each step's local scale ``f_k`` (brute-force neighbours), ``M_K,k = D Phi ... S_k f_k``,
-    ``Sigma_K = (sum_kl M_K,k C_kl M_K,l^T + F F^T) / 2``."""
+    ``Sigma_K = (sum_kl M_K,k C_kl M_K,l^T + F F^T) / 2``; with the residual part (the nearest residual vectors by
+    brute force, carried by the explicit products of the steps' Jacobians) added in quadrature."""
     small = model.truncated(40)
     fitted = small.model_
     sur, rule, scale = fitted.surrogate, fitted.rule, fitted.scale
@@ -355,6 +387,9 @@ def test_rollout_estimate_is_the_dense_posterior_covariance_propagated(model):
             f = sum(maps[k] * power[k * dim : (k + 1) * dim][None, :] for k in range(kk))
             sigma = 0.5 * (sigma_gp + f @ f.T)
             expected = c * np.sqrt(np.sum(np.diag(sigma) / scale**2))
+            residual = _oracle_residual_part(fitted, traj[b, :-1], mub, dtb, jac, kk)
+            assert residual > 0
+            expected = np.hypot(expected, residual)
             np.testing.assert_allclose(err[b, kk], expected, rtol=1e-5)
 
 
@@ -445,6 +480,40 @@ def _rollout_units(model, n_steps, method, local=False):
     return rollout_error_units(fitted, traj, mu, dt, fitted.surrogate.weights(mu, dt), method=method, local=factors)
 
 
+def _residual_units(model, n_steps):
+    """The residual part (3, K+1) along :func:`_rollout_units`' three rollouts, by :func:`_oracle_residual_part`."""
+    fitted = model.model_
+    x0, mu = np.array([[1.0, 0.0], [0.3, -0.4], [-1.2, 0.5]]), np.array([[0.72], [0.75], [0.78]])
+    traj = model.rollout(x0, n_steps, mu=mu[:, 0], dt=0.1)
+    out = np.zeros((3, n_steps + 1))
+    for b in range(3):
+        mub, dtb = np.repeat(mu[b : b + 1], n_steps, axis=0), np.full(n_steps, 0.1)
+        scaled = traj[b] * fitted.scale
+        jac = fitted.rule.jacobian(fitted.surrogate, scaled[:-1], scaled[1:], fitted.surrogate.weights(mub, dtb), dtb)
+        for kk in range(1, n_steps + 1):
+            out[b, kk] = _oracle_residual_part(fitted, traj[b, :-1], mub, dtb, jac, kk)
+    return out
+
+
+def _no_residuals(settings=None, arrays=None):
+    """Edits of a model file that drop the residual part (as written before it existed), then ``settings`` and
+    ``arrays``."""
+
+    def edit_settings(s):
+        for key in ("residual_neighbours", "residual_scale", "residual_samples"):
+            s["error_calibration"].pop(key)
+        if settings is not None:
+            settings(s)
+
+    def edit_arrays(a):
+        a.pop("error_residual_points")
+        a.pop("error_residual_vectors")
+        if arrays is not None:
+            arrays(a)
+
+    return {"settings": edit_settings, "arrays": edit_arrays}
+
+
 @pytest.mark.paths
 @pytest.mark.parametrize("n_steps", [150, 400])
 def test_lowrank_estimate_agrees_with_the_exact_pairwise_one(model, n_steps):
@@ -479,12 +548,14 @@ def test_long_horizons_take_the_linear_path_and_say_so(model, monkeypatch, caplo
     x0, mu = np.array([[1.0, 0.0]]), np.array([0.72])
     _, short = model.rollout(x0, 30, mu=mu, dt=0.1, return_error=True)
     c = model.error_calibration_["scale"]
-    np.testing.assert_allclose(short, c * _rollout_units(model, 30, "exact", local=True)[:1], rtol=1e-8, atol=0)
+    expected = np.hypot(c * _rollout_units(model, 30, "exact", local=True), _residual_units(model, 30))[:1]
+    np.testing.assert_allclose(short, expected, rtol=1e-8, atol=0)
     monkeypatch.setattr(error_estimate, "EXACT_MAX_STEPS", 20)
     with caplog.at_level(logging.INFO, logger="sympredict.estimators.error_estimate"):
         _, long = model.rollout(x0, 30, mu=mu, dt=0.1, return_error=True)
     assert "landmarks" in caplog.text and "30 steps" in caplog.text
-    np.testing.assert_allclose(long, c * _rollout_units(model, 30, "lowrank", local=True)[:1], rtol=1e-8, atol=0)
+    expected = np.hypot(c * _rollout_units(model, 30, "lowrank", local=True), _residual_units(model, 30))[:1]
+    np.testing.assert_allclose(long, expected, rtol=1e-8, atol=0)
     assert not np.array_equal(long, short)
     with pytest.raises(ValueError, match="method"):
         _rollout_units(model, 5, "fast")
@@ -535,12 +606,14 @@ def _edited_local(model, tmp_path, log_ratio=None, settings=None, arrays=None, n
 @pytest.mark.parametrize("exact_max", [1000, 5])
 def test_a_constant_local_scale_multiplies_the_estimate(model, tmp_path, monkeypatch, exact_max):
     """A local log ratio of ``ln 3`` everywhere makes every step's gradient error 3 times larger, so every estimate
-    (one step, the exact and the low-rank propagation) is 3 times that of a log ratio of 0."""
+    (one step, the exact and the low-rank propagation) is 3 times that of a log ratio of 0 (files without the
+    residual part, which the local scale does not multiply)."""
     from sympredict.estimators import error_estimate
 
     monkeypatch.setattr(error_estimate, "EXACT_MAX_STEPS", exact_max)
-    one = _edited_local(model, tmp_path, log_ratio=0.0, name="one.h5")
-    three = _edited_local(model, tmp_path, log_ratio=np.log(3.0), name="three.h5")
+    one = _edited_local(model, tmp_path, log_ratio=0.0, name="one.h5", **_no_residuals())
+    three = _edited_local(model, tmp_path, log_ratio=np.log(3.0), name="three.h5", **_no_residuals())
+    assert one.model_.error_residuals is None
     x0, mu = np.array([[1.0, 0.0], [-0.6, 0.4]]), np.array([0.72, 0.78])
     _, e1 = one.rollout(x0, 12, mu=mu, dt=0.1, return_error=True)
     _, e3 = three.rollout(x0, 12, mu=mu, dt=0.1, return_error=True)
@@ -572,8 +645,9 @@ def test_local_scale_is_calibrated_and_survives_model_files(model, tmp_path):
 
 
 def test_files_without_the_local_scale_load_with_one_scale(model, tmp_path):
-    """A model file written before the local scale existed (no arrays, no ``local_neighbours``) loads, and its
-    estimate is its one scale times the propagated covariance, without local factors."""
+    """A model file written before the local scale and the residual part existed (no arrays, no
+    ``local_neighbours``, no ``residual_*``) loads, and its estimate is its one scale times the propagated covariance,
+    without local factors."""
 
     def old_settings(s):
         s["error_calibration"].pop("local_neighbours")
@@ -582,8 +656,8 @@ def test_files_without_the_local_scale_load_with_one_scale(model, tmp_path):
         a.pop("error_local_points")
         a.pop("error_local_log_ratio")
 
-    old = _edited_local(model, tmp_path, settings=old_settings, arrays=old_arrays)
-    assert old.model_.error_local is None
+    old = _edited_local(model, tmp_path, **_no_residuals(old_settings, old_arrays))
+    assert old.model_.error_local is None and old.model_.error_residuals is None
     _, err = old.rollout(
         np.array([[1.0, 0.0], [0.3, -0.4], [-1.2, 0.5]]), 10, mu=[0.72, 0.75, 0.78], dt=0.1, return_error=True
     )
@@ -636,9 +710,95 @@ def test_a_calibration_set_by_hand_keeps_the_local_scale_only_with_its_neighbour
         cal = {"scale": 2.0, **({"local_neighbours": 5} if keep else {})}
         copy_.error_calibration_ = cal
         assert (copy_.model_.error_local is not None) is keep
+        assert copy_.model_.error_residuals is None  # without residual_neighbours: no residual part
         _, err = copy_.rollout(x0, 10, mu=mu, dt=0.1, return_error=True)
         units = _rollout_units(copy_, 10, "exact", local=keep)
         np.testing.assert_allclose(err, 2.0 * units, rtol=1e-12, atol=0)
         copy_.save(tmp_path / f"{keep}.h5")
         loaded = SymplecticKernelPredictor.load(tmp_path / f"{keep}.h5")
         np.testing.assert_allclose(loaded.rollout(x0, 10, mu=mu, dt=0.1, return_error=True)[1], err, rtol=1e-12)
+
+
+def test_propagated_residuals_meet_the_closed_form_of_a_linear_map(rng):
+    """Oracle: with one Jacobian ``D`` at every step and the same neighbours' residuals ``U`` (2n, k) / sqrt(k),
+    ``F_K = sum_j<K D^j U = (I - D)^-1 (I - D^K) U`` (a geometric series); with ``D = I`` the error grows linearly,
+    ``K |U|_F``; with a rotation it stays bounded by ``2 |U|_F / |1 - e^i theta|``.  In the states' units: the
+    scaled coordinates divided out."""
+    from sympredict.estimators.error_estimate import propagated_residuals
+
+    theta, k, n_steps = 0.3, 4, 60
+    rot = np.array([[np.cos(theta), np.sin(theta)], [-np.sin(theta), np.cos(theta)]])
+    scale = np.array([2.0, 0.5])
+    resid = rng.normal(size=(k, 2))
+    for d in (np.eye(2), rot, 1.01 * rot):
+        jac = np.broadcast_to(d, (1, n_steps, 2, 2))
+        got = propagated_residuals(jac, np.broadcast_to(resid, (1, n_steps, k, 2)), scale)[0]
+        u = resid.T / np.sqrt(k)
+        for kk in range(n_steps + 1):
+            if np.allclose(d, np.eye(2)):
+                f = kk * u
+            else:
+                f = np.linalg.solve(np.eye(2) - d, (np.eye(2) - np.linalg.matrix_power(d, kk)) @ u)
+            np.testing.assert_allclose(got[kk], np.sqrt(np.sum(f**2 / scale[:, None] ** 2)), rtol=1e-10, atol=1e-15)
+    bounded = propagated_residuals(
+        np.broadcast_to(rot, (1, n_steps, 2, 2)), np.broadcast_to(resid, (1, n_steps, k, 2)), np.ones(2)
+    )
+    assert bounded.max() <= 2 * np.linalg.norm(resid / np.sqrt(k)) / abs(1 - np.exp(1j * theta)) + 1e-12
+
+
+@pytest.mark.paths
+def test_residual_part_is_the_models_own_residuals_calibrated_and_survives_model_files(model, tmp_path):
+    """The residual vectors are the model's one-step residuals ``Phi(x0_i) - x1_i`` on its held-out samples and
+    the training samples that are not centres; ``residual_scale`` is the 0.9 quantile of ``|r_i|`` over the root mean
+    square of its nearest other residuals (brute force); the one-step estimate is the rollout's first step; the model
+    file stores the arrays and the loaded model gives the same estimates."""
+    fitted = model.model_
+    res, cal = fitted.error_residuals, model.error_calibration_
+    pool = fitted.residual_samples
+    assert len(pool) > cal["n_samples"] and res["vectors"].shape == (len(pool), 2) == (cal["residual_samples"], 2)
+    pred = model.step(pool.x0, mu=pool.mu, dt=pool.dt)
+    # two Newton solves of the same steps (another batch, another solver state): within the solver's stopping rule
+    from _tolerances import rollout_bound  # tests/
+
+    states = np.stack([pool.x0, pred], axis=1) * fitted.scale
+    tol = rollout_bound(fitted.surrogate, states, fitted.surrogate.weights(pool.mu, pool.dt), pool.dt)
+    np.testing.assert_allclose(res["vectors"], pred - pool.x1, rtol=0, atol=tol / fitted.scale.min())
+    np.testing.assert_array_equal(res["points"], np.column_stack([pool.x0, pool.mu, pool.dt]))
+    k = cal["residual_neighbours"]
+    near = _oracle_neighbours(fitted, res["points"], pool.x0, pool.mu, pool.dt, k + 1)
+    ratios = []
+    for i, row in enumerate(near):
+        others = row[row != i][:k]
+        ratios.append(np.linalg.norm(res["vectors"][i]) / np.sqrt(np.mean(np.sum(res["vectors"][others] ** 2, axis=1))))
+    np.testing.assert_allclose(cal["residual_scale"], np.quantile(ratios, 0.9), rtol=1e-12)
+    x0, mu = np.array([[1.0, 0.0], [0.3, -0.4]]), np.array([0.72, 0.78])
+    _, err = model.rollout(x0, 8, mu=mu, dt=0.1, return_error=True)
+    np.testing.assert_allclose(model.step(x0, mu=mu, dt=0.1, return_error=True)[1], err[:, 1], rtol=1e-10)
+    path = tmp_path / "m.h5"
+    model.save(path)
+    loaded = SymplecticKernelPredictor.load(path)
+    np.testing.assert_array_equal(loaded.model_.error_residuals["vectors"], res["vectors"])
+    np.testing.assert_array_equal(loaded.model_.error_residuals["points"], res["points"])
+    np.testing.assert_allclose(loaded.rollout(x0, 8, mu=mu, dt=0.1, return_error=True)[1], err, rtol=1e-12)
+
+
+@pytest.mark.parametrize(
+    "settings, arrays, match",
+    [
+        (None, lambda a: a.pop("error_residual_vectors"), "incomplete"),
+        (lambda s: s["error_calibration"].pop("residual_scale"), None, "incomplete"),
+        (None, lambda a: a.update(error_residual_points=a["error_residual_points"][:, :2]), "not \\(N, 4\\)"),
+        (None, lambda a: a.update(error_residual_vectors=a["error_residual_vectors"][:-1]), "not \\(N, 4\\)"),
+        (None, lambda a: a.update(error_residual_vectors=a["error_residual_vectors"].astype(int)), "float"),
+        (None, lambda a: a["error_residual_vectors"].__setitem__((0, 0), np.inf), "finite"),
+        (lambda s: s["error_calibration"].update(residual_neighbours=0), None, "residual_neighbours"),
+        (lambda s: s["error_calibration"].update(residual_neighbours=10**7), None, "residual_neighbours"),
+        (lambda s: s["error_calibration"].update(residual_scale=-1.0), None, "residual_scale"),
+        (lambda s: s["error_calibration"].update(residual_scale="big"), None, "residual_scale"),
+    ],
+)
+def test_hostile_residual_part_in_model_files_is_refused(model, tmp_path, settings, arrays, match):
+    from sympredict.exceptions import ModelFileError
+
+    with pytest.raises(ModelFileError, match=match):
+        _edited_local(model, tmp_path, settings=settings, arrays=arrays)

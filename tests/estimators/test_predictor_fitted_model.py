@@ -92,6 +92,8 @@ def test_the_public_constructor_rebuilds_the_same_map(scaled_model, coarse_pendu
         solver=m.solver,
         regularization=m.regularization,
         error_calibration=m.error_calibration,
+        error_local=m.error_local,
+        error_residuals=m.error_residuals,
     )
     x = _inner(coarse_pendulum_data, 5)
     np.testing.assert_array_equal(again.rollout(x, 6), m.rollout(x, 6))
