@@ -31,10 +31,13 @@ from sympredict.exceptions import (
 from sympredict.exceptions import NotFittedError
 from sympredict.estimators.error_estimate import (
     LOCAL_NEIGHBOURS,
+    RESIDUAL_NEIGHBOURS,
     local_covariance,
     local_error_units,
     local_log_ratio,
     local_points,
+    nearest,
+    propagated_residuals,
     rollout_error_units,
 )
 from sympredict.interpolation.greedy import GreedyHistory
@@ -996,13 +999,13 @@ class FittedSymplecticFlowMap(FittedFlowMap):
             np.repeat(dt, n_steps),
             self.domain,
         )
-        near = _estimate.nearest(
+        near = nearest(
             local_points(pts[:, :dim], pts[:, dim:-1], pts[:, -1], self.domain), query, int(cal["residual_neighbours"])
         )
         resid = (vec * self.scale)[near].reshape(b, n_steps, near.shape[1], dim)
         if jac is None:
             jac = np.zeros((b, n_steps, dim, dim))
-        return float(cal["residual_scale"]) * _estimate.propagated_residuals(jac, resid, self.scale)
+        return float(cal["residual_scale"]) * propagated_residuals(jac, resid, self.scale)
 
     @property
     def error_calibration(self) -> Optional[dict]:
@@ -1109,7 +1112,7 @@ class FittedSymplecticFlowMap(FittedFlowMap):
                     pred = self._solve_scaled(pool.x0 * self.scale, weights, pool.dt) / self.scale
             except (NewtonConvergenceError, NonFinitePredictionError):
                 return None
-        k = _estimate.RESIDUAL_NEIGHBOURS
+        k = RESIDUAL_NEIGHBOURS
         vectors = pred - pool.x1
         ok = np.all(np.isfinite(vectors), axis=1)
         if ok.sum() <= k:
@@ -1117,7 +1120,7 @@ class FittedSymplecticFlowMap(FittedFlowMap):
         mu = pool.mu[ok] if self.n_mu else np.zeros((int(ok.sum()), 0))
         vectors, raw = vectors[ok], np.concatenate([pool.x0[ok], mu, pool.dt[ok, None]], axis=1)
         pts = local_points(pool.x0[ok], mu, pool.dt[ok], self.domain)
-        near = _estimate.nearest(pts, pts, k, leave_one_out=True)
+        near = nearest(pts, pts, k, leave_one_out=True)
         rms = np.sqrt(np.mean(np.sum(vectors[near] ** 2, axis=2), axis=1))
         size = np.linalg.norm(vectors, axis=1)
         good = rms > 0
