@@ -241,8 +241,8 @@ class KernelSearch(Setting):
             Where the estimator's ``max_centers`` exceeds ``final_centers``, fit the chosen settings to
             ``max_centers`` centres too, and where that fit stops early (numerically singular: shapes too flat for
             the final size; before :data:`NEAR_FULL` of its centres), try them with the open shapes doubled, up to
-            three times, while the doubled shape is better beyond the noise of the flatter one's score (one
-            standard error over the held-out samples); the smallest one-step error at the final size wins (see
+            three times, while the doubled shape is better beyond the noise of its own score (the flatter one's
+            error exceeds it by more than its standard error over the held-out samples); the smallest one-step error at the final size wins (see
             Notes).  Where the structure stage ran, its best candidate and the best one
             without a structure both go through this stage (a symmetric kernel reaches further per centre).
 
@@ -297,7 +297,7 @@ class KernelSearch(Setting):
         before :data:`NEAR_FULL` (90 %) of ``max_centers`` (or of the functionals the samples give) and succeeds, the
         open shapes (state, parameter and step kernels) are doubled, up to three times, as the second stage does
         for its finalists, but a doubled shape replaces the flatter one only where the flatter one's one-step error
-        exceeds the doubled one's by more than the flatter one's standard error over the held-out samples (the
+        exceeds the doubled one's by more than the doubled one's standard error over the held-out samples (the
         "one-standard-error rule": within its noise the flatter kernel is kept, and the doubling stops); the
         smallest one-step error among the starts wins (rows of ``stage`` 4).  A fit on the search's subsample stops
         early for shapes that can suit the whole data (more samples: denser centres), so narrowing within the

@@ -542,9 +542,9 @@ def _scripted_final_size(monkeypatch, results):
 
 def test_the_final_size_stage_narrows_only_where_narrowing_measures_better(monkeypatch):
     """A fit that stops early is narrowed (its shape doubled) only while the narrowed one's held-out error is below
-    the flatter one's beyond the flatter one's noise (one standard error): a narrowed shape within the noise, or
+    the flatter one's beyond the noise (one standard error of the narrowed one's): a narrowed shape within it, or
     worse, does not replace the flat one and ends the doubling; a clearly better one does, and the doubling goes on."""
-    # the narrowed shape is better, but within the flat one's standard error: the flat one stays, no third fit
+    # the narrowed shape is better, but within its standard error: the flat one stays, no third fit
     params, score, fitted = _scripted_final_size(
         monkeypatch, [(1.0e-3, 2e-4, 10), (0.9e-3, 1e-4, 30)] + [(1e-9, 0, 60)]
     )
