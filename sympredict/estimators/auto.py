@@ -58,6 +58,7 @@ from sympredict.estimators.search import (
     grid_search,
     final_size_score,
     one_step_score,
+    standard_error,
     pair_factors,
     quiet_logs,
     without_target,
@@ -231,7 +232,10 @@ class KernelSearch(Setting):
             Test the data for symmetries, reversing symmetries and wrapped angles and let the symmetries that hold
             compete (:mod:`sympredict.estimators.structure`): one quick fit, then per group that holds its symmetric
             candidate fitted to ``m_final`` centres, and where the group's images of the data lie apart from them
-            also that candidate normalised on the folded states (:func:`_refine_structured`).
+            also that candidate normalised on the folded states (:func:`_refine_structured`); where its update is
+            not the one the second stage chose (a reversing symmetry takes the midpoint update), also its open
+            shapes refined by the second stage's coordinate search (:func:`_refine_symmetric_shapes`: the second
+            stage refined the winning update's shapes only).
         halving : bool
             Successive halving: candidates are first compared at a fraction of their centres, and only those not
             clearly losing there are fitted to full size (see Notes); ``False`` (the default): every candidate at full
@@ -247,8 +251,10 @@ class KernelSearch(Setting):
         final_size : bool
             Where the estimator's ``max_centers`` exceeds ``final_centers``, fit the chosen settings to
             ``max_centers`` centres too, and where that fit stops early (numerically singular: shapes too flat for
-            the final size), try them with the open shapes doubled, up to three times; the smallest one-step error
-            at the final size wins (see Notes).  Where the structure stage ran, its best candidate and the best one
+            the final size; before :data:`NEAR_FULL` of its centres), try them with the open shapes doubled, up to
+            three times, while the doubled shape is better beyond the noise of its own score (the flatter one's
+            error exceeds it by more than its standard error over the held-out samples); the smallest one-step error at the final size wins (see
+            Notes).  Where the structure stage ran, its best candidate and the best one
             without a structure both go through this stage (a symmetric kernel reaches further per centre).
 
         Notes
@@ -299,9 +305,14 @@ class KernelSearch(Setting):
         are a small sample of the orbits a user rolls out; so it is an option, not the default.
         Final size (``final_size``, where ``max_centers > final_centers``): the chosen settings are fitted to
         ``max_centers`` centres on the search's samples and scored by the one-step error; while such a fit stops
-        before ``max_centers`` (and before the samples run out) and succeeds, the open shapes (state, parameter and
-        step kernels) are doubled, up to three times, as the second stage does for its finalists; the smallest
-        one-step error wins (rows of ``stage`` 4).  Shapes chosen at fewer centres than the model will have are
+        before :data:`NEAR_FULL` (90 %) of ``max_centers`` (or of the functionals the samples give) and succeeds, the
+        open shapes (state, parameter and step kernels) are doubled, up to three times, as the second stage does
+        for its finalists, but a doubled shape replaces the flatter one only where the flatter one's one-step error
+        exceeds the doubled one's by more than the doubled one's standard error over the held-out samples (the
+        "one-standard-error rule": within its noise the flatter kernel is kept, and the doubling stops); the
+        smallest one-step error among the starts wins (rows of ``stage`` 4).  A fit on the search's subsample stops
+        early for shapes that can suit the whole data (more samples: denser centres), so narrowing within the
+        score's noise would trade a good flat kernel for a sharper one.  Shapes chosen at fewer centres than the model will have are
         too flat for it: on the three-body problem (160 orbits of 60 steps, ``max_centers=1000``) a search with
         ``final_centers=250`` and no final-size stage chose a state shape 8 times flatter whose fit stopped at 184
         centres: median error at step 200 0.13; the final-size stage doubled that shape three times, 8.1e-3 (the
@@ -677,7 +688,10 @@ class KernelSearch(Setting):
                 return sc, n
 
             def refine(cand, group, value, n):  # the symmetric candidate normalised for its group
-                return _refine_structured(estimator, cand, group, value, n, train, score_params, scaled)
+                cand, value = _refine_structured(estimator, cand, group, value, n, train, score_params, scaled)
+                if cand["update"] == best[4]:  # the second stage refined this update's shapes
+                    return cand, value
+                return _refine_symmetric_shapes(cand, value, score_params, open_factors, self.refine_sweeps)
 
             chosen, best_score, structure = _structure_stage(
                 estimator,
@@ -828,6 +842,19 @@ def _narrowed(params: dict, open_factors: dict) -> dict:
     return out
 
 
+#: A fit that reaches this fraction of its centres is not narrowed by the final-size stage: the shape that suits ``m``
+#: centres scales with their fill distance ``~ m^(-1/d)``, which at 90 % of the centres is within 11 % of the full
+#: fit's for any dimension ``d >= 1``, far below the stage's step (a factor 2).
+NEAR_FULL = 0.9
+
+
+def _within_noise(value: float, reference: float) -> bool:
+    """Whether the held-out score ``value`` is within the noise of ``reference``: at most ``reference`` plus its
+    standard error over the held-out samples (:class:`~sympredict.estimators.search.HeldOutScore`; the
+    "one-standard-error rule").  A plain ``float`` reference has no noise: ``value <= reference``."""
+    return bool(value <= reference + standard_error(reference))
+
+
 def _at_final_size(
     estimator, chosen: dict, score: float, m_full: int, train, val, table: list, open_factors: dict, others=()
 ):
@@ -836,13 +863,21 @@ def _at_final_size(
     to three times); the smallest one-step error at ``m_full`` wins (``chosen`` and its ``score`` where every such
     fit fails).  Rows of ``stage`` 4 in ``table``.
 
+    Each start narrows only where narrowing measures better: a doubled shape replaces the flatter one only where its
+    held-out error is below the flatter one's beyond the noise (the flatter one's error is not within one standard
+    error of the doubled one's, :func:`_within_noise`), and the doubling stops at the first that does not, at a
+    failed fit, or at a fit that reaches :data:`NEAR_FULL` of ``min(m_full, capacity)`` centres.  A fit on the
+    search's subsample can stop early for a shape that suits the whole data (more samples, denser centres): a flat
+    kernel is kept unless a narrowed one is clearly better.
+
     The structure stage compares at ``m_final`` centres; a symmetric kernel reaches further per centre, so the order
     at ``m_full`` may differ: the finalist of the other kind competes there too (one to four more fits to
     ``m_full``)."""
     capacity = len(train) * train.x0.shape[1]  # the greedy cannot select more centres than functionals
+    full = min(m_full, capacity)
     best, best_score = chosen, np.inf
     for start in [chosen, *others]:
-        cand = start
+        cand, kept, kept_score = start, start, np.inf
         for doubling in range(4):
             sc, n, secs, err = one_step_score(estimator, cand, m_full, train, val)
             table.append(
@@ -851,6 +886,7 @@ def _at_final_size(
                     "kernels": repr(cand["state_kernel"]),
                     "update": cand["update"],
                     "score": sc,
+                    "score_se": standard_error(sc),
                     "n_centers": n,
                     "fit_s": secs,
                     **({"error": err} if err else {}),
@@ -860,11 +896,14 @@ def _at_final_size(
                 f"kernel search, final size: {cand['state_kernel']!r} ({cand['update']}): "
                 + (f"failed ({err})" if err else f"one-step error {sc:.3e} with {n} of {m_full} centres")
             )
-            if sc < best_score:
-                best, best_score = cand, sc
-            if err is not None or n >= min(m_full, capacity) or doubling == 3:
+            if doubling and (not np.isfinite(sc) or _within_noise(kept_score, sc)):
+                break  # the narrowed shape is not clearly better: the flatter one stays
+            kept, kept_score = cand, sc
+            if err is not None or n >= NEAR_FULL * full or doubling == 3:
                 break
             cand = _narrowed(cand, open_factors)
+        if kept_score < best_score:
+            best, best_score = kept, kept_score
     return (best, float(best_score)) if np.isfinite(best_score) else (chosen, score)
 
 
@@ -915,6 +954,56 @@ def _refine_structured(
     return (other, other_value) if other_value < value else (cand, value)
 
 
+def _refine_symmetric_shapes(cand: dict, value: float, score, open_factors: dict, sweeps: int) -> tuple:
+    """``(params, score)``: the structure stage's symmetric candidate ``cand`` (held-out one-step error ``value``)
+    after the second stage's coordinate search of its open shapes (the radial shape inside the ``Symmetric``
+    transform, the parameter and step kernels' shapes; factors 0.5 and 2, at most ``sweeps`` sweeps) by the same
+    score at ``m_final`` centres.  ``score(params) -> (score, centres)``.
+
+    The search calls it where the candidate's update is not the one the second stage chose: the symmetric candidate
+    starts from the best kernels of its update, and the second stage refines the shapes of the overall best
+    candidate only, so where another update won there the midpoint kernels a reversing symmetry takes are the first
+    stage's, chosen at ``m_star`` centres (on the three-body problem a state shape twice too sharp, with a held-out
+    one-step error 39 times the refined one's).  Where the candidate's update won the second stage its shapes are
+    already refined: searching them again among the symmetric candidates (several groups, each with its shape
+    neighbours) chose a sharper parameter kernel on the README's pendulum whose rollouts were a hundred times worse.
+    Cost: at most ``1 + 2 k sweeps`` fits to ``m_final`` centres (``k`` open shapes), the first of them already done.
+    """
+    if not isinstance(cand.get("state_kernel"), Symmetric) or not np.isfinite(value):
+        return cand, value
+    sym = cand["state_kernel"]
+    inner = sym.kernel
+    radial = inner.radial if isinstance(inner, KernelTransform) else inner
+    if radial is None:
+        return cand, value
+
+    def params_of(t):
+        state = inner.with_radial(t[0]) if isinstance(inner, KernelTransform) else t[0]
+        return {**cand, "state_kernel": Symmetric(state, group=sym.group), "mu_kernel": t[1], "dt_kernel": t[2]}
+
+    start = (radial, cand.get("mu_kernel"), cand.get("dt_kernel"))
+    cache = {repr(start): value}
+
+    def key(t):
+        if repr(t) not in cache:
+            cache[repr(t)] = score(params_of(t))[0]
+        return cache[repr(t)]
+
+    active = [i for i, k in ((0, "state"), (1, "mu"), (2, "dt")) if open_factors[k] and start[i] is not None]
+    best = coordinate_search(start, key, active, _move_shape, factors=(0.5, 2.0), sweeps=sweeps)
+    if best is not start:
+        logger.info(
+            f"structure: the symmetric candidate's shapes refined: {best[0]!r}, {best[1]!r}, {best[2]!r}: held-out "
+            f"one-step error {key(best):.3e} (before: {value:.3e})"
+        )
+    return params_of(best), key(best)
+
+
+def _move_shape(value, index: int, factor: float):
+    """A kernel's shape times ``factor`` (kept in the accepted range): the symmetric candidate's coordinate move."""
+    return value.set_params(eps=_clip(value.eps * factor))
+
+
 def _rollout_data(trajectories: TrajectoryData) -> tuple:
     """``(states, mu, dt)`` of the held-out trajectories the finalists roll out: at most
     :data:`ROLLOUT_TRAJECTORIES` of them, their first :data:`ROLLOUT_HORIZON` steps."""
@@ -936,7 +1025,7 @@ def _holdout_split(data: FlowMapData, seed: int, fraction: float = 0.1, largest:
 def _move(value, index: int, factor: float):
     """The second stage's coordinate move: the ``q``/``p`` shape ratio (coordinate 1) times ``factor``, a kernel's
     shape times ``factor`` (kept in the accepted range)."""
-    return value * factor if index == 1 else value.set_params(eps=_clip(value.eps * factor))
+    return value * factor if index == 1 else _move_shape(value, index, factor)
 
 
 #: Spreads of pairs (or widths of parameter components) below this fraction of the largest draw a ScaleWarning.

@@ -58,6 +58,7 @@ __all__ = [
     "refine_shapes",
     "one_step_score",
     "final_size_score",
+    "HeldOutScore",
     "relative_rollout_error",
     "pair_factors",
     "column_std",
@@ -629,6 +630,28 @@ def state_weights(data: FlowMapData) -> np.ndarray:
     return np.concatenate([a, 1.0 / a])
 
 
+class HeldOutScore(float):
+    """A mean held-out error (a ``float``, compared and printed as one) that carries its ``standard_error``: the
+    standard deviation of the per-sample errors over ``sqrt`` of their number, the score's own noise from the finite
+    held-out sample.  Arithmetic on it gives plain floats; a score without one (a plain ``float``) has none
+    (:func:`standard_error` gives 0)."""
+
+    standard_error: float
+
+    def __new__(cls, value: float, standard_error: float = 0.0):
+        out = super().__new__(cls, value)
+        out.standard_error = float(standard_error) if np.isfinite(standard_error) else 0.0
+        return out
+
+    def __reduce__(self):
+        return (HeldOutScore, (float(self), self.standard_error))
+
+
+def standard_error(score) -> float:
+    """The ``standard_error`` of a :class:`HeldOutScore`; ``0.0`` for any other score."""
+    return float(getattr(score, "standard_error", 0.0))
+
+
 def final_size_score(
     estimator,
     params: dict,
@@ -639,7 +662,7 @@ def final_size_score(
     rollouts: Optional[tuple] = None,
 ) -> tuple:
     """``(score, centres, seconds, error, rollout, rollout_seconds)`` of one candidate: :func:`one_step_score`'s
-    four, ``rollout``, the :func:`relative_rollout_error` of the fitted candidate's rollouts of held-out trajectories
+    four (``score`` a :class:`HeldOutScore`, which carries its standard error over the held-out samples), ``rollout``, the :func:`relative_rollout_error` of the fitted candidate's rollouts of held-out trajectories
     from their first states (``None`` without ``rollouts``; ``inf`` where the fit or a rollout fails), and the
     rollouts' share of ``seconds``.  Both errors are taken in ``val``'s normalised coordinates (:func:`state_weights`).
 
@@ -662,7 +685,9 @@ def final_size_score(
                 sub.x0, mu=sub.mu if uses_mu else None, dt=sub.dt if params["dt_kernel"] is not None else None
             )
         miss = np.linalg.norm((pred - sub.x1) * w, axis=1)
-        value = float(np.mean(miss[rows] / inc[rows])) if rows.any() else float(np.mean(miss))
+        each = miss[rows] / inc[rows] if rows.any() else miss
+        value = float(np.mean(each))
+        spread = float(np.std(each, ddof=1) / np.sqrt(each.size)) if each.size > 1 else 0.0
     except (ValueError, ArithmeticError, NewtonConvergenceError, NonFinitePredictionError) as exc:
         failed = f"{type(exc).__name__}: {exc}"
         return np.inf, 0, time.perf_counter() - t0, failed, None if rollouts is None else np.inf, 0.0
@@ -682,7 +707,8 @@ def final_size_score(
         except (ValueError, ArithmeticError, NewtonConvergenceError, NonFinitePredictionError, np.linalg.LinAlgError):
             rollout = np.inf
     t2 = time.perf_counter()
-    return (value if np.isfinite(value) else np.inf), model.n_centers_, t2 - t0, None, rollout, t2 - t1
+    score = HeldOutScore(value, spread) if np.isfinite(value) else np.inf
+    return score, model.n_centers_, t2 - t0, None, rollout, t2 - t1
 
 
 def one_step_score(

@@ -515,3 +515,57 @@ def test_the_choice_is_refitted_at_the_final_size_and_narrowed_where_it_stops_ea
     calls.clear()
     same = SymplecticKernelPredictor(max_centers=30, search=search).fit(x0, x1, mu=mu, dt=0.1)
     assert not calls and same.search_.final_size == 0
+
+
+def _scripted_final_size(monkeypatch, results):
+    """``_at_final_size`` run on a chosen candidate whose fits at 60 centres give the scripted ``results``
+    ``(score, standard error, centres)`` in order; ``(params, score, state shapes fitted)``."""
+    import sympredict.estimators.auto as auto
+    from sympredict.estimators.search import HeldOutScore
+
+    fitted = []
+
+    def scripted(estimator, params, m_final, train, val, largest=500):
+        value, se, n = results[len(fitted)]
+        fitted.append(lower_state_kernel(params["state_kernel"]).radial.eps)
+        return HeldOutScore(value, se), n, 0.0, None
+
+    monkeypatch.setattr(auto, "one_step_score", scripted)
+    rng = np.random.default_rng(0)
+    train = FlowMapData(rng.normal(size=(40, 2)), rng.normal(size=(40, 2)), np.zeros((40, 0)), np.full(40, 0.1))
+    chosen = {"state_kernel": IMQ(0.5), "mu_kernel": None, "dt_kernel": None, "update": "midpoint"}
+    table, opened = [], {"state": True, "mu": False, "dt": False, "update": True}
+    params, score = auto._at_final_size(None, chosen, 1.0, 60, train, train, table, opened)
+    assert [r["n_centers"] for r in table] == [r[2] for r in results[: len(fitted)]]
+    return params, score, fitted
+
+
+def test_the_final_size_stage_narrows_only_where_narrowing_measures_better(monkeypatch):
+    """A fit that stops early is narrowed (its shape doubled) only while the narrowed one's held-out error is below
+    the flatter one's beyond the noise (one standard error of the narrowed one's): a narrowed shape within it, or
+    worse, does not replace the flat one and ends the doubling; a clearly better one does, and the doubling goes on."""
+    # the narrowed shape is better, but within its standard error: the flat one stays, no third fit
+    params, score, fitted = _scripted_final_size(
+        monkeypatch, [(1.0e-3, 2e-4, 10), (0.9e-3, 1e-4, 30)] + [(1e-9, 0, 60)]
+    )
+    assert fitted == [0.5, 1.0] and params["state_kernel"].eps == 0.5 and score == 1.0e-3
+    # worse: likewise
+    params, score, fitted = _scripted_final_size(monkeypatch, [(1.0e-3, 1e-5, 10), (2e-3, 1e-5, 60), (1e-9, 0, 60)])
+    assert fitted == [0.5, 1.0] and params["state_kernel"].eps == 0.5 and score == 1.0e-3
+    # clearly better twice, then within the noise: the second narrowing is chosen
+    params, score, fitted = _scripted_final_size(
+        monkeypatch, [(1.0e-3, 1e-5, 10), (1e-4, 1e-6, 20), (5e-5, 1e-6, 40), (4.95e-5, 1e-6, 60)]
+    )
+    assert fitted == [0.5, 1.0, 2.0, 4.0] and params["state_kernel"].eps == 2.0 and score == 5e-5
+
+
+def test_the_final_size_stage_does_not_narrow_a_nearly_full_fit(monkeypatch):
+    """A fit that reaches ``NEAR_FULL`` of its centres is not narrowed (the shape that suits 90 % of the centres is
+    within 11 % of the full fit's, far below a doubling); one that stops below it is."""
+    from sympredict.estimators.auto import NEAR_FULL
+
+    near = int(np.ceil(NEAR_FULL * 60))
+    params, score, fitted = _scripted_final_size(monkeypatch, [(1e-3, 1e-5, near), (1e-9, 0, 60)])
+    assert fitted == [0.5] and params["state_kernel"].eps == 0.5
+    params, score, fitted = _scripted_final_size(monkeypatch, [(1e-3, 1e-5, near - 1), (1e-5, 0, 60)])
+    assert fitted == [0.5, 1.0] and params["state_kernel"].eps == 1.0

@@ -253,6 +253,74 @@ def test_the_final_size_stage_fits_the_best_candidates_with_and_without_a_struct
     assert repr(pendulum_final_size.choice_["state_kernel"]) == best["kernels"]
 
 
+def test_the_symmetric_candidates_shapes_are_refined_by_the_held_out_score():
+    """The structure stage's symmetric candidate starts from the best kernels of its update, which the second stage
+    did not refine where another update won there: its open shapes (the radial shape inside the transforms, the
+    parameter kernel's) get the second stage's coordinate search (factors 0.5 and 2).  Scripted score, smallest at a
+    state shape four times flatter and a parameter shape twice sharper than the start: both are found; a given
+    parameter kernel (not open) is kept, and a candidate without a symmetry is returned unchanged."""
+    from sympredict.estimators.auto import _refine_symmetric_shapes
+
+    group = [(1, 1), (1, -1)]
+    seen = []
+
+    def score(p):
+        assert isinstance(p["state_kernel"], Symmetric) and p["state_kernel"].group == group
+        state = p["state_kernel"].kernel
+        assert state.factors == (2.0,)  # the normalisation is kept, only shapes move
+        seen.append((state.radial.eps, p["mu_kernel"].eps))
+        return np.log2(state.radial.eps / 0.25) ** 2 + np.log2(p["mu_kernel"].eps / 2.0) ** 2, 10
+
+    cand = {"state_kernel": Symmetric(Scaled(IMQ(1.0), factors=(2.0,)), group=group), "mu_kernel": IMQ(1.0)}
+    cand.update(dt_kernel=None, update="midpoint")
+    value = score(cand)[0]
+    opened = {"state": True, "mu": True, "dt": True, "update": True}
+    best, best_value = _refine_symmetric_shapes(cand, value, score, opened, sweeps=3)
+    assert lower_state_kernel(best["state_kernel"]).radial.eps == 0.25 and best["mu_kernel"].eps == 2.0
+    assert best_value == 0.0 and best["update"] == "midpoint" and isinstance(best["state_kernel"], Symmetric)
+    # one sweep: one move per shape
+    best, _ = _refine_symmetric_shapes(cand, value, score, opened, sweeps=1)
+    assert lower_state_kernel(best["state_kernel"]).radial.eps == 0.5 and best["mu_kernel"].eps == 2.0
+    seen.clear()
+    best, _ = _refine_symmetric_shapes(cand, value, score, {**opened, "mu": False}, sweeps=3)
+    assert best["mu_kernel"] is cand["mu_kernel"] and {mu for _, mu in seen} == {1.0}
+    plain = {**cand, "state_kernel": Scaled(IMQ(1.0), factors=(2.0,))}
+    assert _refine_symmetric_shapes(plain, value, score, opened, sweeps=3) == (plain, value)
+
+
+@pytest.fixture(scope="module")
+def pendulum_euler_only():
+    """The search on pendulum trajectories with the symplectic Euler update only in its second stage: a reversing
+    symmetry's candidate (midpoint) starts from kernels the second stage did not refine for its update."""
+    search = KernelSearch(
+        shapes=(0.25, 0.5, 1.0), parameter_shapes=(0.5,), updates=("symplectic_euler",), refine_sweeps=1
+    )
+    return _fitted_on_pendulum_trajectories(search)[0]
+
+
+def test_the_structure_stage_refines_the_shapes_the_second_stage_did_not(pendulum_euler_only, pendulum_final_size):
+    """A symmetric candidate whose update is not the second stage's choice (a reversing symmetry: midpoint) is
+    followed by its shape neighbours (the state shape halved first) at the comparison size; one of the second
+    stage's update (the symplectic symmetry ``-1``, and every candidate where midpoint won the second stage) keeps
+    the refined shapes: one fit per candidate (two where the fold separates)."""
+    stage2 = [r for r in pendulum_euler_only.search_.table if r["stage"] == 2]
+    assert {r["update"] for r in stage2} == {"symplectic_euler"}
+    rows = {}
+    for r in (r for r in pendulum_euler_only.search_.table if r["stage"] == 3):
+        rows.setdefault((r["kernels"].split(", kernel=")[0], r["update"]), []).append(r)
+    updates = {update for _, update in rows}
+    assert updates == {"midpoint", "symplectic_euler"}, list(rows)
+    for (group, update), group_rows in rows.items():
+        eps = [float(r["kernels"].rsplit("(", 1)[1].split(")")[0]) for r in group_rows]
+        if update == "midpoint":  # refined: the halved state shape, and more
+            assert len(eps) >= 3 and any(e == pytest.approx(eps[0] / 2, rel=1e-12) for e in eps[1:]), (group, eps)
+        else:
+            assert len(eps) == 1, (group, eps)
+    assert {r["update"] for r in pendulum_final_size.search_.table if r["stage"] == 2} >= {"midpoint"}
+    plain = [r for r in pendulum_final_size.search_.table if r["stage"] == 3]
+    assert len({r["kernels"].split(", kernel=")[0] for r in plain}) == len(plain)
+
+
 def test_a_group_whose_images_lie_apart_is_normalised_on_the_folded_states():
     """Orbits about two mirror points (``R = diag(1, -1, -1, 1)``, as the three-body problem's L4 and L5): the
     unfolded spreads measure the distance between the clusters, so the symmetric candidate is also tried with the

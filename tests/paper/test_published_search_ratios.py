@@ -115,15 +115,19 @@ def test_structure_comparison_recomputed_from_the_runs(name):
 
 @pytest.mark.parametrize("name", ["structure_search_300.json", "structure_search_300_seed2.json"])
 def test_the_structure_page_claims_follow_the_numbers(name):
-    """The text: on both draws the defaults choose the symmetric midpoint model, as good as the hand tuning at the
-    training length, worse in the median at the horizon and better in the worst orbit."""
+    """The text: on both draws the defaults choose the symmetric midpoint model, its shapes refined at the comparison
+    size (the plain model's winning update is symplectic Euler), better than the hand tuning at the training length
+    and at the horizon, in the median and in the worst orbit."""
     run = _load(name)
     row = run["comparison"]["defaults"]
     declared = run["comparison"]["declared_expert"]
     assert row["model"] == "symmetric midpoint"
     assert run["defaults"]["verdicts"]["reversing symmetry diag(1, -1, -1, 1)"] == "holds"
-    assert row["at_steps"] <= 1.5 * declared["at_steps"]
-    assert row["median"] > declared["median"] and row["worst"] < declared["worst"]
+    assert run["defaults"]["best_stage3_score"] < run["defaults"]["best_stage2_score"]
+    assert run["defaults"]["stage3_candidates"] > 2  # the folded and unfolded candidates, then the refined shapes
+    assert row["at_steps"] < declared["at_steps"]
+    assert row["median"] < declared["median"] and row["worst"] < declared["worst"]
+    assert row["ratio_declared_expert_median"] <= 1.5 and row["ratio_declared_expert_worst"] <= 1.5
 
 
 # ------------------------------------------------------------------------------------------- the satellite orbit
