@@ -232,10 +232,10 @@ class KernelSearch(Setting):
             Test the data for symmetries, reversing symmetries and wrapped angles and let the symmetries that hold
             compete (:mod:`sympredict.estimators.structure`): one quick fit, then per group that holds its symmetric
             candidate fitted to ``m_final`` centres, and where the group's images of the data lie apart from them
-            also that candidate normalised on the folded states (:func:`_refine_structured`); where its update is
-            not the one the second stage chose (a reversing symmetry takes the midpoint update), also its open
-            shapes refined by the second stage's coordinate search (:func:`_refine_symmetric_shapes`: the second
-            stage refined the winning update's shapes only).
+            also that candidate normalised on the folded states (:func:`_refine_structured`); where the candidate's
+            shapes were never refined (its update is not the one the second stage chose, as a reversing symmetry's
+            midpoint update may not be, or it was normalised on the folded states), also its open shapes refined by
+            the second stage's coordinate search (:func:`_refine_symmetric_shapes`).
         halving : bool
             Successive halving: candidates are first compared at a fraction of their centres, and only those not
             clearly losing there are fitted to full size (see Notes); ``False`` (the default): every candidate at full
@@ -688,8 +688,9 @@ class KernelSearch(Setting):
                 return sc, n
 
             def refine(cand, group, value, n):  # the symmetric candidate normalised for its group
+                start = cand
                 cand, value = _refine_structured(estimator, cand, group, value, n, train, score_params, scaled)
-                if cand["update"] == best[4]:  # the second stage refined this update's shapes
+                if not _shapes_unrefined(start, cand, best[4]):
                     return cand, value
                 return _refine_symmetric_shapes(cand, value, score_params, open_factors, self.refine_sweeps)
 
@@ -954,17 +955,25 @@ def _refine_structured(
     return (other, other_value) if other_value < value else (cand, value)
 
 
+def _shapes_unrefined(start: dict, cand: dict, second_stage_update: str) -> bool:
+    """Whether the structure stage's symmetric candidate ``cand`` has shapes no coordinate search has refined: its
+    update is not ``second_stage_update`` (the second stage refines the shapes of its winner's update only), or it
+    is not ``start`` (:func:`_refine_structured` normalised it on the folded states and rescaled its shape)."""
+    return cand is not start or cand["update"] != second_stage_update
+
+
 def _refine_symmetric_shapes(cand: dict, value: float, score, open_factors: dict, sweeps: int) -> tuple:
     """``(params, score)``: the structure stage's symmetric candidate ``cand`` (held-out one-step error ``value``)
     after the second stage's coordinate search of its open shapes (the radial shape inside the ``Symmetric``
     transform, the parameter and step kernels' shapes; factors 0.5 and 2, at most ``sweeps`` sweeps) by the same
     score at ``m_final`` centres.  ``score(params) -> (score, centres)``.
 
-    The search calls it where the candidate's update is not the one the second stage chose: the symmetric candidate
-    starts from the best kernels of its update, and the second stage refines the shapes of the overall best
-    candidate only, so where another update won there the midpoint kernels a reversing symmetry takes are the first
-    stage's, chosen at ``m_star`` centres (on the three-body problem a state shape twice too sharp, with a held-out
-    one-step error 39 times the refined one's).  Where the candidate's update won the second stage its shapes are
+    The search calls it where the candidate's shapes were never refined (:func:`_shapes_unrefined`): where its update
+    is not the one the second stage chose (the symmetric candidate starts from the best kernels of its update, and
+    the second stage refines the shapes of the overall best candidate only, so the midpoint kernels a reversing
+    symmetry takes are then the first stage's, chosen at ``m_star`` centres), and where it was normalised on the
+    folded states (its shape rescaled by the spreads' ratio, not searched; on the three-body problem a state shape
+    twice too sharp, with a held-out one-step error 37 times the refined one's).  Where neither holds its shapes are
     already refined: searching them again among the symmetric candidates (several groups, each with its shape
     neighbours) chose a sharper parameter kernel on the README's pendulum whose rollouts were a hundred times worse.
     Cost: at most ``1 + 2 k sweeps`` fits to ``m_final`` centres (``k`` open shapes), the first of them already done.

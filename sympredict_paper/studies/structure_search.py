@@ -160,6 +160,7 @@ def main(argv=None):
                 "finalists": model.search_.finalists,
                 "rollout_s": model.search_.rollout_seconds,
                 "best_stage2_score": min(r["score"] for r in table if r["stage"] == 2),
+                "best_stage2_update": min((r for r in table if r["stage"] == 2), key=lambda r: r["score"])["update"],
                 "best_stage3_score": min((r["score"] for r in table if r["stage"] == 3), default=None),
                 "stage3_candidates": sum(r["stage"] == 3 for r in table),
                 "stage3": [

@@ -288,6 +288,20 @@ def test_the_symmetric_candidates_shapes_are_refined_by_the_held_out_score():
     assert _refine_symmetric_shapes(plain, value, score, opened, sweeps=3) == (plain, value)
 
 
+def test_a_symmetric_candidate_is_refined_where_no_search_has_refined_its_shapes():
+    """The structure stage refines a symmetric candidate's shapes where they were never searched: its update is not
+    the second stage's winner's, or :func:`_refine_structured` normalised it on the folded states (a new candidate,
+    its shape only rescaled).  The candidate the second stage's shapes were refined for, unchanged, is not."""
+    from sympredict.estimators.auto import _shapes_unrefined
+
+    cand = {"state_kernel": Symmetric(Scaled(IMQ(1.0), factors=(2.0,)), group=[(1, 1), (1, -1)]), "update": "midpoint"}
+    assert not _shapes_unrefined(cand, cand, "midpoint")
+    assert _shapes_unrefined(cand, cand, "symplectic_euler")
+    folded = {**cand, "state_kernel": Symmetric(Scaled(IMQ(0.5), factors=(1.0,)), group=[(1, 1), (1, -1)])}
+    assert _shapes_unrefined(cand, folded, "midpoint")
+    assert _shapes_unrefined(cand, folded, "symplectic_euler")
+
+
 @pytest.fixture(scope="module")
 def pendulum_euler_only():
     """The search on pendulum trajectories with the symplectic Euler update only in its second stage: a reversing
