@@ -371,7 +371,7 @@ class KernelSearch(Setting):
         stage) at ``min(max_centers, 250)`` centres, both on a subsample of 1,200 samples with successive halving; a
         model of more than 250 centres then gets its shapes at its own size from the final-size stage (``final_size``:
         the choice fitted to ``max_centers`` centres on the search's samples, its open shapes doubled while that fit
-        stops early), the only fits at the final size.  The shape that suits ``m`` centres grows with ``m`` (the fill
+        stops early and the doubled shape scores better beyond the score's noise), the only fits at the final size.  The shape that suits ``m`` centres grows with ``m`` (the fill
         distance of the centres shrinks), which is why the final-size stage cannot be skipped; the stage-2 ranking of
         families, updates, the parameter kernel and the ``q``/``p`` ratio at a quarter of the size is what this preset
         trusts.
@@ -385,7 +385,7 @@ class KernelSearch(Setting):
         Cost: stage 1 as the default's with ``m_star`` 100 instead of 300 and halving (about a tenth), stage 2 at 250
         instead of 1,000 centres (a sixteenth per fit on the same samples, about a fortieth on 900 instead of 2,250),
         and one to four fits per finalist to ``max_centers`` on 900 samples.  Its choice can be clearly worse than
-        the default's (a flat kernel narrowed by the final-size stage).  Measured side by side with the default
+        the default's (a flat kernel narrowed by the final-size stage on the search's samples).  Measured side by side with the default
         (``sympredict_paper/studies/search_cost.py --configs full quick``, ``docs/data/search_cost_quick.json``): see
         the defaults page, section "What the search costs".
         """

@@ -39,8 +39,9 @@ def test_search_cost_ratios_and_shares_recomputed(quick_rows):
 
 def test_the_defaults_page_claims_follow_the_search_cost_numbers(quick_rows):
     """The text: at 1,000 centres the quick search takes a smaller share than the default; its models are as good on
-    the three-body problem, better on Hénon–Heiles and the coupled pendulums; clearly worse on the README's pendulum,
-    the noisy pendulum and the three-body problem at 2,000 centres; so it is not the default."""
+    the three-body problem, better on Hénon–Heiles and the coupled pendulums; the default's own model on the noisy
+    pendulum, one as good on the three-body problem at 2,000 centres with a smaller share; clearly worse on the
+    README's pendulum; so it is not the default."""
     at_1000 = [r for (_, m), r in quick_rows.items() if m == 1000]
     assert len(at_1000) == 4
     assert all(r["quick"]["search_share"] < r["full"]["search_share"] for r in at_1000)
@@ -48,8 +49,11 @@ def test_the_defaults_page_claims_follow_the_search_cost_numbers(quick_rows):
     for system in ("henon_heiles", "coupled_pendulums"):
         assert quick_rows[(system, 1000)]["ratios"]["traj_error_median"] < 1.0, system
     assert quick_rows[("readme_pendulum", 300)]["ratios"]["held_out_error"] > 2.0
-    assert quick_rows[("noisy_pendulum", 120)]["ratios"]["traj_error_median"] > 2.0
-    assert quick_rows[("three_body", 2000)]["ratios"]["traj_error_median"] > 2.0
+    noisy = quick_rows[("noisy_pendulum", 120)]
+    assert noisy["same_choice"] is True and noisy["ratios"]["traj_error_median"] == pytest.approx(1.0, rel=0.05)
+    at_2000 = quick_rows[("three_body", 2000)]
+    assert 0.8 <= at_2000["ratios"]["traj_error_median"] <= 1.25
+    assert at_2000["quick"]["search_share"] < at_2000["full"]["search_share"]
 
 
 @pytest.mark.parametrize("name", ["search_cost_stages.json", "search_cost_stages_300.json"])
