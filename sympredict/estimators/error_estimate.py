@@ -138,20 +138,31 @@ def local_points(x: np.ndarray, mu: np.ndarray, dt: np.ndarray, domain: dict) ->
 
 
 def nearest(points: np.ndarray, queries: np.ndarray, k: int, leave_one_out: bool = False) -> np.ndarray:
-    """Indices (Q, k') of the ``k' = min(k, N)`` nearest ``points`` (N, q) to each query (Q, q), Euclidean, in no
-    particular order; ``leave_one_out``: the queries are the points themselves, each without itself
-    (``k' <= N - 1``).  ``O(Q N q)`` time, ``O(chunk N)`` memory."""
+    """Indices (Q, k') of the ``k' = min(k, N)`` nearest ``points`` (N, q) to each query (Q, q), Euclidean, nearest
+    first (equal distances by index); ``leave_one_out``: the queries are the points themselves, each without itself
+    (``k' <= N - 1``).  ``O(Q N q)`` time, ``O(chunk N)`` memory.
+
+    The squared distances are summed coordinate by coordinate from the differences, not expanded as
+    ``|a|^2 - 2 a.b + |b|^2``: the expansion loses the small distances to cancellation and rounds with the BLAS
+    kernel, so two nearly equally near points could swap from one CPU to another; elementwise sums in a fixed
+    order round alike everywhere."""
     n = len(points)
     k = max(1, min(int(k), n - 1 if leave_one_out else n))
     out = np.empty((len(queries), k), dtype=np.intp)
     chunk = max(1, (1 << 20) // max(1, n))
-    sq = np.einsum("nj,nj->n", points, points)
     for start in range(0, len(queries), chunk):
         sl = slice(start, min(len(queries), start + chunk))
-        d2 = np.einsum("qj,qj->q", queries[sl], queries[sl])[:, None] - 2.0 * queries[sl] @ points.T + sq[None, :]
+        d2 = np.zeros((sl.stop - sl.start, n))
+        for j in range(points.shape[1]):  # a handful of coordinates: 2n + d_mu + 1
+            diff = queries[sl, j][:, None] - points[None, :, j]
+            d2 += diff * diff
         if leave_one_out:
             d2[np.arange(sl.stop - sl.start), np.arange(sl.start, sl.stop)] = np.inf
-        out[sl] = np.argpartition(d2, k - 1, axis=1)[:, :k]
+        near = np.argpartition(d2, k - 1, axis=1)[:, :k]
+        # nearest first (ties by index): argpartition's order differs between NumPy's builds, and the residual
+        # part pairs the i-th nearest of one step with the i-th nearest of the next
+        order = np.lexsort((near, np.take_along_axis(d2, near, axis=1)), axis=1)
+        out[sl] = np.take_along_axis(near, order, axis=1)
     return out
 
 
@@ -530,7 +541,8 @@ def propagated_residuals(jac: np.ndarray, resid: np.ndarray, scale: np.ndarray) 
     """The model's own one-step residuals near each step, carried coherently through the later steps' Jacobians.
 
     ``resid`` (B, K, k, 2n): at step ``k`` the residual vectors ``Phi(x0_i) - x1_i`` of the ``k`` held-out samples
-    nearest to the step's state (scaled coordinates); ``U_k = resid_k^T / sqrt(k)`` (2n, k) is their second-moment
+    nearest to the step's state (scaled coordinates), nearest first (:func:`nearest`: the ``i``-th nearest of one
+    step and of the next make one draw); ``U_k = resid_k^T / sqrt(k)`` (2n, k) is their second-moment
     factor (``U_k U_k^T`` the neighbours' mean ``r r^T``).  One draw among the neighbours' residuals errs alike at
     every step (a systematic error near the orbit adds up, as the residuals of one model do along a trajectory),
 
