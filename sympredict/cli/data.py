@@ -105,6 +105,30 @@ def _check_grid_memory(n_grid: int, n_pairs: int) -> None:
         )
 
 
+#: The whole-number options of ``sympredict data``: flag, least value, default, metavar (``None``: the flag's name)
+#: and help (``%(default)s``: argparse writes the default); the help names the systems an option applies to.
+_COUNT_OPTIONS = (
+    ("--n-grid", 2, 50, None, "pendulum: energy-bounded grid points per axis (default %(default)s; paper 200)"),
+    ("--random", 1, None, "N", "pendulum: N >= 1 random samples instead of the grid (validation data)"),
+    (
+        "--trajectories",
+        1,
+        20,
+        "P",
+        "other systems: number of trajectories (default %(default)s), parameters drawn uniformly from the system's "
+        "range",
+    ),
+    ("--steps", 1, 20, "K", "other systems: macro steps per trajectory (default %(default)s)"),
+    (
+        "--n-points",
+        3,
+        16,
+        "N",
+        "wave and sine-gordon: interior grid points, states of dimension 2N (default %(default)s)",
+    ),
+)
+
+
 def add_parser(sub) -> None:
     """Register ``sympredict data`` with the subparsers ``sub``."""
     data = sub.add_parser("data", help="write a data set of a shipped system that 'sympredict train' reads")
@@ -117,42 +141,11 @@ def add_parser(sub) -> None:
     )
     data.add_argument("--out", required=True, help="data file (.h5 for the pendulum; .npz, .h5 or .csv otherwise)")
     data.add_argument(
-        "--n-grid",
-        type=_int_at_least(2),
-        default=50,
-        help="pendulum: energy-bounded grid points per axis (default 50; paper 200)",
-    )
-    data.add_argument(
         "--p-nonpositive", action="store_true", help="pendulum: keep only states with p <= 0 (scenario B)"
     )
-    data.add_argument(
-        "--random",
-        type=_int_at_least(1),
-        metavar="N",
-        help="pendulum: N >= 1 random samples instead of the grid (validation data)",
-    )
-    data.add_argument(
-        "--trajectories",
-        type=_int_at_least(1),
-        default=20,
-        metavar="P",
-        help="other systems: number of trajectories (default 20), parameters drawn uniformly from the system's range",
-    )
-    data.add_argument(
-        "--steps",
-        type=_int_at_least(1),
-        default=20,
-        metavar="K",
-        help="other systems: macro steps per trajectory (default 20)",
-    )
+    for flag, least, default, metavar, text in _COUNT_OPTIONS:
+        data.add_argument(flag, type=_int_at_least(least), default=default, metavar=metavar, help=text)
     data.add_argument("--dt", type=_finite_float(positive=True), help="other systems: macro step (default 0.1)")
-    data.add_argument(
-        "--n-points",
-        type=_int_at_least(3),
-        default=16,
-        metavar="N",
-        help="wave and sine-gordon: interior grid points, states of dimension 2N (default 16)",
-    )
     data.add_argument("--seed", type=_int_at_least(0), default=0)
     data.add_argument("--force", action="store_true", help="replace an existing --out file")
     _add_verbose(data)
