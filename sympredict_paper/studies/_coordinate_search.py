@@ -1,6 +1,8 @@
 """The accuracy studies' multiplicative coordinate search, run by the library's one search engine
 (:func:`sympredict.estimators.search.coordinate_search`); this module only names the coordinates and prints, and
-keeps the scored candidates (:class:`Candidates`).
+keeps the scored candidates (:class:`Candidates`) and the command-line options of a study's hand search
+(:func:`add_search_arguments`, :func:`quick_search`, :func:`with_overrides`) and runs it with them
+(:func:`run_search`).
 
 Each searched parameter is multiplied and divided by ``factor`` in turn, from the best candidate so far, keeping
 any candidate that lowers the score; after a sweep without improvement the factor's logarithm halves
@@ -10,8 +12,9 @@ any candidate that lowers the score; after a sweep without improvement the facto
 
 from __future__ import annotations
 
+import argparse
 import time
-from typing import Callable, Optional, Sequence
+from typing import Callable, Iterable, Optional, Sequence
 
 import numpy as np
 
@@ -99,6 +102,65 @@ def grid_then_coordinate_search(
         label=label,
     )
     return dict(best, **dict(zip(names, vec))), best_score
+
+
+def add_search_arguments(
+    parser: argparse.ArgumentParser,
+    *,
+    search_help: str,
+    starts: Sequence[str],
+    start_default: str,
+    start_help: str,
+    names: Sequence[str],
+    sweeps: int,
+    factor: Optional[float] = None,
+) -> None:
+    """The options of a study's hand search (:func:`grid_then_coordinate_search`).
+
+    ``--search`` (redo the search; ``search_help``), ``--search-start`` (one of ``starts``, default
+    ``start_default``), ``--search-families``, ``--search-updates``, ``--search-params`` (the searched coordinates,
+    all of ``names`` by default, no others), ``--search-factor`` where ``factor`` is
+    given (its default; otherwise the study searches by factors of 2) and ``--search-sweeps`` (default ``sweeps``).
+    """
+    parser.add_argument("--search", action="store_true", help=search_help)
+    parser.add_argument("--search-start", choices=list(starts), default=start_default, help=start_help)
+    parser.add_argument("--search-families", nargs="+", default=["imq", "matern52"])
+    parser.add_argument("--search-updates", nargs="+", default=["symplectic_euler", "midpoint"])
+    parser.add_argument("--search-params", nargs="+", default=list(names), choices=list(names))
+    if factor is not None:
+        parser.add_argument("--search-factor", type=float, default=factor)
+    parser.add_argument("--search-sweeps", type=int, default=sweeps)
+
+
+def quick_search(args: argparse.Namespace) -> None:
+    """The smallest search (``--quick``): one family (IMQ), one update (midpoint), one coordinate (``eps_state``)."""
+    args.search_families, args.search_updates, args.search_params = ["imq"], ["midpoint"], ["eps_state"]
+
+
+def run_search(
+    args: argparse.Namespace,
+    score: Callable[[dict], float],
+    base: dict,
+    names: Sequence[str],
+    search: Sequence[str],
+    factor: float,
+    label: str = "",
+) -> tuple[dict, float]:
+    """:func:`grid_then_coordinate_search` over the families, updates and sweeps of the :func:`add_search_arguments`
+    options ``args``, moving the coordinates ``search`` (of ``names``) by ``factor``."""
+    return grid_then_coordinate_search(
+        score, base, args.search_families, args.search_updates, names, search, factor, args.search_sweeps, label=label
+    )
+
+
+def with_overrides(settings: dict, items: Iterable[str]) -> dict:
+    """``settings`` with the command line's ``NAME=VALUE`` items applied (``family`` and ``update`` as strings, every
+    other value a float)."""
+    out = dict(settings)
+    for item in items:
+        key, value = item.split("=", 1)
+        out[key] = value if key in ("family", "update") else float(value)
+    return out
 
 
 def search_record(base: dict, rows: list, t_start: float, best_score: float, **details) -> dict:

@@ -67,13 +67,15 @@ def add_arguments(
     threads: Optional[int] = None,
     threads_help: str = "numba threads of the compiled code",
     repeats: Optional[int] = None,
+    repeats_help: str = "timed calls after the warm-up; their median is reported",
     json_option: bool = True,
     blas_alias: Optional[str] = None,
     json_default: Optional[str] = None,
 ) -> None:
     """The protocol's options: ``--blas-threads``, and where asked ``--threads``, ``--repeats``, ``--json``.
 
-    ``threads`` / ``repeats``: the script's defaults (``None``: the script has no such option).
+    ``threads`` / ``repeats``: the script's defaults (``None``: the script has no such option); ``threads_help`` /
+    ``repeats_help``: what they count in this script.
     ``blas_alias``: an older name of ``--blas-threads`` that command lines in the docs use (e.g. ``"--threads"``).
     ``json_default``: where ``--json`` writes when not given (``None``: nothing is written then).
     """
@@ -98,7 +100,7 @@ def add_arguments(
             "--repeats",
             type=int,
             default=repeats,
-            help=f"timed calls after the warm-up; their median is reported (default {repeats})",
+            help=f"{repeats_help} (default {repeats})",
         )
     if json_option:
         written = "" if json_default is None else f" (default {json_default})"

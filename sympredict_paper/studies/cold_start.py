@@ -152,8 +152,13 @@ def main(argv=None) -> dict:
     parser.add_argument("--centers", type=int, default=200)
     parser.add_argument("--trajectories", type=int, default=20)
     parser.add_argument("--steps", type=int, default=100)
-    parser.add_argument("--repeats", type=int, default=3, help="fresh processes per backend after the first")
-    _protocol.add_arguments(parser, threads=1, threads_help="numba threads of the child processes")
+    _protocol.add_arguments(
+        parser,
+        threads=1,
+        threads_help="numba threads of the child processes",
+        repeats=3,
+        repeats_help="fresh processes per backend after the first",
+    )
     parser.add_argument("--cli-steps", type=int, default=400, help="steps of the timed `sympredict predict`")
     parser.add_argument(
         "--interrupt-after", type=float, default=5.0, help="seconds before SIGINT to a 10^9-step predict"

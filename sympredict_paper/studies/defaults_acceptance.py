@@ -72,7 +72,13 @@ from typing import Callable
 import numpy as np
 
 import _protocol  # sympredict_paper/studies/ (the script's folder is on sys.path)
-from _coordinate_search import grid_then_coordinate_search, search_record  # sympredict_paper/studies/
+from _coordinate_search import (  # sympredict_paper/studies/
+    add_search_arguments,
+    quick_search,
+    run_search,
+    search_record,
+    with_overrides,
+)
 
 from sympredict import SymplecticKernelPredictor
 from sympredict.exceptions import ExtrapolationWarning
@@ -514,9 +520,7 @@ def hand_search(bench, data, args) -> tuple[dict, dict]:
     base = {k: recorded[k] for k in ("family", "update", "eps_state", "eps_mu", "ratio")}
     if args.search_start == "default":  # the start a person would take: shapes ~ 1 / spread, 1 / parameter range
         base.update(eps_state=0.5, eps_mu=float(1.0 / (bench.mu_range[1] - bench.mu_range[0])), ratio=1.0)
-    for item in args.search_from:  # NAME=VALUE overrides of the start
-        key, value = item.split("=", 1)
-        base[key] = value if key in ("family", "update") else float(value)
+    base = with_overrides(base, args.search_from)  # NAME=VALUE overrides of the start
 
     def score(settings) -> float:
         key = tuple(sorted((k, round(v, 12) if isinstance(v, float) else v) for k, v in settings.items()))
@@ -539,17 +543,7 @@ def hand_search(bench, data, args) -> tuple[dict, dict]:
 
     # kernel family x update at the start shapes, then a coordinate search over the shapes and the q/p ratio
     names = [n for n in SEARCH_NAMES if n in args.search_params]
-    chosen, best_score = grid_then_coordinate_search(
-        score,
-        base,
-        args.search_families,
-        args.search_updates,
-        SEARCH_NAMES,
-        names,
-        args.search_factor,
-        args.search_sweeps,
-        label=f"{bench.name} ",
-    )
+    chosen, best_score = run_search(args, score, base, SEARCH_NAMES, names, args.search_factor, label=f"{bench.name} ")
     record = search_record(
         base,
         rows,
@@ -582,12 +576,15 @@ def parse_args(argv=None):
     parser.add_argument("--n-test", type=int, default=20, help="test trajectories (states x parameters)")
     parser.add_argument("--steps", type=int, default=200, help="test horizon in steps (default 200)")
     parser.add_argument("--long-steps", type=int, default=None, help="energy horizon (default 10 x --steps)")
-    parser.add_argument("--search", action="store_true", help="redo the hand search instead of the recorded settings")
-    parser.add_argument(
-        "--search-start",
-        choices=["recorded", "default"],
-        default="default",
-        help="start the search at the recorded settings or at 1/spread, 1/range (default)",
+    add_search_arguments(
+        parser,
+        search_help="redo the hand search instead of the recorded settings",
+        starts=["recorded", "default"],
+        start_default="default",
+        start_help="start the search at the recorded settings or at 1/spread, 1/range (default)",
+        names=SEARCH_NAMES,
+        sweeps=2,
+        factor=2.0,
     )
     parser.add_argument(
         "--search-from",
@@ -599,11 +596,6 @@ def parse_args(argv=None):
     parser.add_argument(
         "--search-centers", type=int, default=None, help="centre budget during the search (default: --max-centers)"
     )
-    parser.add_argument("--search-families", nargs="+", default=["imq", "matern52"])
-    parser.add_argument("--search-updates", nargs="+", default=["symplectic_euler", "midpoint"])
-    parser.add_argument("--search-params", nargs="+", default=list(SEARCH_NAMES), choices=SEARCH_NAMES)
-    parser.add_argument("--search-factor", type=float, default=2.0)
-    parser.add_argument("--search-sweeps", type=int, default=2)
     parser.add_argument("--seed", type=int, default=0, help="training seed (test seed: seed + 1000)")
     parser.add_argument(
         "--big", action="store_true", help="the user story: coupled pendulums, 30,000 samples, 4,000 centres"
@@ -614,20 +606,15 @@ def parse_args(argv=None):
         action="store_true",
         help="show the library's progress log (the greedy's centres and residuals; on with --big)",
     )
-    _protocol.add_arguments(parser, threads=1, repeats=1, json_option=False)
-    parser.add_argument("--json", default=str(RESULTS), help=f"output JSON (default {RESULTS})")
+    _protocol.add_arguments(parser, threads=1, repeats=1, json_default=str(RESULTS))
     args = parser.parse_args(argv)
     if args.big:
         args.systems, args.samples, args.max_centers, args.progress = ["coupled_pendulums"], 30_000, 4000, True
     if args.quick:
         args.samples, args.max_centers, args.n_test, args.steps = 300, 40, 4, 20
         args.long_steps = args.long_steps or 60
-        args.search_families, args.search_updates, args.search_params, args.search_sweeps = (
-            ["imq"],
-            ["midpoint"],
-            ["eps_state"],
-            1,
-        )
+        quick_search(args)
+        args.search_sweeps = 1
     if args.long_steps is None:
         args.long_steps = 10 * args.steps
     return args

@@ -191,8 +191,13 @@ def main(argv=None) -> dict:
     parser.add_argument("--batch", type=int, default=1000)
     parser.add_argument("--steps", type=int, default=20)
     parser.add_argument("--samples", type=int, default=60, help="short runs per single-thread timing (minimum taken)")
-    _protocol.add_arguments(parser, threads=2, threads_help="numba threads of the full-batch rollout")
-    parser.add_argument("--repeats", type=int, default=10, help="full-batch runs (best taken)")
+    _protocol.add_arguments(
+        parser,
+        threads=2,
+        threads_help="numba threads of the full-batch rollout",
+        repeats=10,
+        repeats_help="full-batch runs (best taken)",
+    )
     parser.add_argument(
         "--dims", default="", help="also the pass cost by 2n on synthetic surrogates, e.g. 2,4,10,20,40"
     )

@@ -43,6 +43,13 @@ import warnings
 import numpy as np
 
 import _protocol  # sympredict_paper/studies/ (the script's folder is on sys.path)
+from _coordinate_search import (  # sympredict_paper/studies/
+    add_search_arguments,
+    quick_search,
+    run_search,
+    search_record,
+    with_overrides,
+)
 from defaults_acceptance import kepler_H, kepler_flow  # sympredict_paper/studies/
 
 from pathlib import Path
@@ -72,6 +79,8 @@ SYSTEM = FlowFunctionSystem(kepler_flow, 4, n_mu=1, H=kepler_H)
 EXPERT = {"family": "imq", "update": "midpoint", "eps_state": 0.25, "eps_mu": 1.25, "ratio": 2.0}
 #: Where the search started (shapes ~ 1 / spread and ~ half the inverse width of GM's range, no anisotropy).
 EXPERT_START = {"family": "imq", "update": "midpoint", "eps_state": 0.5, "eps_mu": 2.5, "ratio": 1.0}
+#: The coordinates the expert's search can move (``--search-params``).
+SEARCH_NAMES = ("eps_state", "eps_mu", "ratio")
 
 
 def sample(n: int, seed: int):
@@ -190,8 +199,6 @@ def run(label, make, data, wrap, test, args) -> dict:
 
 def expert_search(states_c, gm_c, args, start: dict) -> tuple:
     """Coordinate search (factor 2) over the expert's shapes on a split of the training trajectories."""
-    from _coordinate_search import grid_then_coordinate_search, search_record  # sympredict_paper/studies/
-
     rng = np.random.default_rng(7)
     perm = rng.permutation(len(states_c))
     n_va = max(2, len(perm) // 5)
@@ -201,7 +208,6 @@ def expert_search(states_c, gm_c, args, start: dict) -> tuple:
     muv = np.repeat(gm_c[va], states_c.shape[1] - 1)
     rows, t_start = [], time.perf_counter()
     base = dict(start)
-    names = ("eps_state", "eps_mu", "ratio")
 
     def score(settings):
         t0 = time.perf_counter()
@@ -216,17 +222,7 @@ def expert_search(states_c, gm_c, args, start: dict) -> tuple:
         print(f"    {settings}: {s:.3e} ({rows[-1]['time_s']:.0f} s)", flush=True)
         return s
 
-    chosen, best_score = grid_then_coordinate_search(
-        score,
-        base,
-        args.search_families,
-        args.search_updates,
-        names,
-        list(args.search_params),
-        2.0,
-        args.search_sweeps,
-        label="expert ",
-    )
+    chosen, best_score = run_search(args, score, base, SEARCH_NAMES, list(args.search_params), 2.0, label="expert ")
     record = search_record(
         base,
         rows,
@@ -251,37 +247,31 @@ def parse_args(argv=None):
         default=["defaults", "defaults_canonical", "expert"],
         choices=["defaults", "defaults_canonical", "defaults_active_set", "expert", "expert_exact_greedy"],
     )
-    p.add_argument("--search", action="store_true", help="redo the expert's shape search")
-    p.add_argument(
-        "--search-start",
-        choices=["start", "expert"],
-        default="start",
-        help="start the expert's search at EXPERT_START (default) or at EXPERT (with --expert overrides)",
+    add_search_arguments(
+        p,
+        search_help="redo the expert's shape search",
+        starts=["start", "expert"],
+        start_default="start",
+        start_help="start the expert's search at EXPERT_START (default) or at EXPERT (with --expert overrides)",
+        names=SEARCH_NAMES,
+        sweeps=1,
     )
-    p.add_argument("--search-families", nargs="+", default=["imq", "matern52"])
-    p.add_argument("--search-updates", nargs="+", default=["symplectic_euler", "midpoint"])
-    p.add_argument("--search-params", nargs="+", default=["eps_state", "eps_mu", "ratio"])
-    p.add_argument("--search-sweeps", type=int, default=1)
     p.add_argument("--expert", nargs="*", default=[], metavar="NAME=VALUE", help="override the expert's settings")
     p.add_argument("--seed", type=int, default=0, help="training seed (test seed: seed + 1000)")
     p.add_argument("--quick", action="store_true", help="tiny sizes (seconds)")
-    _protocol.add_arguments(p, threads=1, json_option=False)
-    p.add_argument("--json", default=str(RESULTS))
+    _protocol.add_arguments(p, threads=1, json_default=str(RESULTS))
     args = p.parse_args(argv)
     if args.quick:
         args.max_centers, args.trajectories, args.steps_per_trajectory = 60, 30, 10
         args.n_test, args.horizon, args.long_steps = 4, 20, 60
-        args.search_families, args.search_updates, args.search_params = ["imq"], ["midpoint"], ["eps_state"]
+        quick_search(args)
     return args
 
 
 def main(argv=None) -> dict:
     args = parse_args(argv)
     warnings.simplefilter("ignore", ExtrapolationWarning)
-    settings = dict(EXPERT)
-    for item in args.expert:
-        key, value = item.split("=", 1)
-        settings[key] = value if key in ("family", "update") else float(value)
+    settings = with_overrides(EXPERT, args.expert)
     with _protocol.limits(args.blas_threads, numba_threads=args.threads):
         states, gm = training_data(args, args.seed)
         tx0, tgm = sample(args.n_test, args.seed + 1000)
