@@ -74,6 +74,7 @@ from defaults_acceptance import make_benchmarks  # sympredict_paper/studies/
 from sympredict import SymplecticKernelPredictor
 from sympredict.data import FlowMapData
 from sympredict.exceptions import ExtrapolationWarning
+from sympredict.systems.henon_heiles import LAMBDA_RANGE, HenonHeiles, energy_bounded_states
 from sympredict.systems.pendulum import Pendulum
 from sympredict.systems.three_body import MU_RANGE, ThreeBody, librating_states
 
@@ -102,8 +103,26 @@ def _pendulum_states(mu, n, seed):
     return np.column_stack([rng.uniform(-1.5, 1.5, n), rng.uniform(-1.0, 1.0, n)])
 
 
+def _henon_heiles_states(mu, n, seed):
+    """States with ``H <= 1/12`` (half the escape energy at ``lambda = 1``), one for each ``lambda`` of ``mu``."""
+    system = HenonHeiles()
+    return np.concatenate(
+        [energy_bounded_states(system, lam, 1, 1.0 / 12.0, seed=seed + i) for i, lam in enumerate(mu)]
+    )
+
+
 def systems() -> dict:
     out = {
+        "henon_heiles": _TrajectorySystem(
+            "henon_heiles",
+            "Hénon–Heiles, lambda in [0.8, 1.0], energies up to 1/12 (4-D; never looked at while the estimate was "
+            "developed)",
+            HenonHeiles(),
+            _henon_heiles_states,
+            LAMBDA_RANGE,
+            0.2,
+            True,
+        ),
         "three_body": _TrajectorySystem(
             "three_body",
             "planar circular restricted three-body problem, rotating frame, librations near L4 (4-D)",
@@ -128,7 +147,7 @@ def systems() -> dict:
 
 def training_data(name, args):
     """``FlowMapData`` of the system's training set and a function ``test(n, seed, K) -> (x0, mu, ref)``."""
-    if name in ("three_body", "pendulum"):
+    if name in systems():
         sysd = systems()[name]
         x0, mu = sysd.sample(args.traj, args.seed)
         traj = sysd.trajectory(x0, mu, args.traj_steps)
@@ -322,7 +341,9 @@ def run_system(name, args) -> dict:
 def parse_args(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument(
-        "--systems", nargs="+", default=["three_body", "coupled_pendulums", "fpu_chain", "kepler", "pendulum"]
+        "--systems",
+        nargs="+",
+        default=["three_body", "coupled_pendulums", "fpu_chain", "kepler", "pendulum", "henon_heiles"],
     )
     p.add_argument("--max-centers", type=int, default=500)
     p.add_argument("--samples", type=int, default=3000, help="scattered samples (defaults_acceptance systems)")

@@ -53,7 +53,7 @@ def knn(points, queries, k):
 
 
 def true_step_fn(name, args):
-    if name in ("three_body", "pendulum"):
+    if name in study.systems():
         sysd = study.systems()[name]
         return lambda x, mu: sysd.trajectory(x, mu, 1)[:, 1]
     bench = study.make_benchmarks()[name]
