@@ -633,7 +633,7 @@ class FittedSymplecticFlowMap(FittedFlowMap):
         out = check_finite(self._solve_step(x, weights, dt), self._what())
         if not return_error:
             return out[0] if single else out
-        c = self._check_error_estimate() * self._share()
+        c = self._check_error_estimate()
         scale = self.scale
         err = c * self._local_factors(x, mu, dt) * self._local_error_units(x * scale, out * scale, mu, dt, weights)
         err = np.hypot(err, self._residual_part(x[:, None], mu, dt)[:, 1])
@@ -982,13 +982,6 @@ class FittedSymplecticFlowMap(FittedFlowMap):
         self.error_calibration  # computed with it
         return self._cache.get("residuals")
 
-    def _share(self) -> float:
-        """The posterior part's share of its scale beside the residual part (``error_calibration["posterior_share"]``,
-        :meth:`_posterior_share`); 1 without :attr:`error_residuals` or in files written before it."""
-        if self.error_residuals is None:
-            return 1.0
-        return float(self.error_calibration.get("posterior_share", 1.0))
-
     def _residual_neighbours(self, xs: np.ndarray, mu: np.ndarray, dt: np.ndarray):
         """The residual part's propagation (:class:`~sympredict.estimators.error_estimate.ResidualNeighbours`) for
         the steps from the states ``xs`` (B, K, 2n) (user units), ``mu`` (B, d_mu), ``dt`` (B,), fed block by block
@@ -1114,33 +1107,7 @@ class FittedSymplecticFlowMap(FittedFlowMap):
         if local is not None:
             cal["local_neighbours"] = k
         residuals = self._residual_calibration(cal, data, x1s / scale)
-        if residuals is not None:
-            raw = np.concatenate([data.x0[ok], mu[ok], data.dt[ok, None]], axis=1)
-            cal["posterior_share"] = self._posterior_share(
-                c, residuals, raw, x1s[ok] / scale - data.x1[ok], unit * factor, int(cal["residual_neighbours"])
-            )
         return cal, local, residuals
-
-    def _posterior_share(self, c: float, residuals: dict, raw: np.ndarray, true: np.ndarray, units, k: int) -> float:
-        """The share of the posterior's calibrated scale ``c`` kept beside the residual part: the posterior covers
-        what the residual samples near a state do not tell, so its scale is calibrated on the misfit
-        ``|r_i - mean of the k nearest other residuals|`` instead of ``|r_i|``, the :attr:`ERROR_QUANTILE` quantile of
-        misfit over estimate (``units`` (N,), the estimate before calibration with its local scale), over ``c``,
-        in ``(0, 1]``.  ``raw`` (N, 2n + d_mu + 1): the calibration samples' states, parameters and steps; ``true``
-        (N, 2n): their residual vectors; a sample that is also a residual sample is left out of its own neighbours.
-        ``O(N N' (2n + d_mu))`` for ``N'`` residual samples."""
-        pool, vectors = residuals["points"], residuals["vectors"]
-        dim = self.dim
-        near = nearest(
-            local_points(pool[:, :dim], pool[:, dim:-1], pool[:, -1], self.domain),
-            local_points(raw[:, :dim], raw[:, dim:-1], raw[:, -1], self.domain),
-            k + 1,
-        )
-        itself = np.all(pool[near] == raw[:, None, :], axis=2)
-        near = np.take_along_axis(near, np.argsort(itself, axis=1, kind="stable")[:, :k], axis=1)
-        misfit = np.linalg.norm(true - vectors[near].mean(axis=1), axis=1)
-        share = float(np.quantile(misfit / units, self.ERROR_QUANTILE)) / c
-        return float(min(1.0, max(share, np.finfo(float).eps)))
 
     def _residual_calibration(self, cal: dict, data: FlowMapData, pred: np.ndarray) -> Optional[dict]:
         """The residual vectors of :attr:`error_residuals` on ``residual_samples`` (``data`` itself when there are
@@ -1186,7 +1153,7 @@ class FittedSymplecticFlowMap(FittedFlowMap):
         (:func:`~sympredict.estimators.error_estimate.rollout_error_units`), and in quadrature the residual part,
         propagated block by block with the Jacobians of that linearisation (memory ``O(B 2n (k + 2n))`` carried
         between the blocks)."""
-        c = self._check_error_estimate() * self._share()
+        c = self._check_error_estimate()
         b, k1, dim = traj.shape
         local = None
         if self.error_local is not None and k1 > 1:

@@ -422,9 +422,4 @@ def _file_error_residuals(arrays: dict, calibration, dim: int, n_mu: int, path):
         )
     if not isinstance(c, float) or not (np.isfinite(c) and c > 0):
         raise ModelFileError(f"{str(path)!r}: its error_calibration's residual_scale={c!r} is not a positive float")
-    share = cal.get("posterior_share", 1.0)  # files written before it: the posterior part at its full scale
-    if not isinstance(share, float) or not (np.isfinite(share) and 0 < share <= 1):
-        raise ModelFileError(
-            f"{str(path)!r}: its error_calibration's posterior_share={share!r} is not a float in (0, 1]"
-        )
     return {"points": points.astype(float), "vectors": vectors.astype(float)}

@@ -350,10 +350,7 @@ def test_rollout_estimate_is_the_dense_posterior_covariance_propagated(model):
     x0 = np.array([[1.0, 0.0], [0.3, -0.4]])
     mu, n = np.array([0.72, 0.78]), 6
     traj, err = small.rollout(x0, n, mu=mu, dt=0.1, return_error=True)
-    # the posterior's scale times its share beside the residual part (the brute-force oracle of the share:
-    # test_posterior_share_is_calibrated_on_the_residual_neighbours_misfit)
-    c = small.error_calibration_["scale"] * small.error_calibration_["posterior_share"]
-    assert 0 < small.error_calibration_["posterior_share"] < 1
+    c = small.error_calibration_["scale"]
     m, dim = sur.n_centers, 2
     centres = HBFunctionals(sur.kernel, sur.centers_xi, sur.centers_mu, sur.centers_dt)
     sel = np.arange(m) * dim + sur.components
@@ -503,7 +500,7 @@ def _no_residuals(settings=None, arrays=None):
     ``arrays``."""
 
     def edit_settings(s):
-        for key in ("residual_neighbours", "residual_scale", "residual_samples", "posterior_share"):
+        for key in ("residual_neighbours", "residual_scale", "residual_samples"):
             s["error_calibration"].pop(key)
         if settings is not None:
             settings(s)
@@ -550,7 +547,7 @@ def test_long_horizons_take_the_linear_path_and_say_so(model, monkeypatch, caplo
 
     x0, mu = np.array([[1.0, 0.0]]), np.array([0.72])
     _, short = model.rollout(x0, 30, mu=mu, dt=0.1, return_error=True)
-    c = model.error_calibration_["scale"] * model.error_calibration_["posterior_share"]
+    c = model.error_calibration_["scale"]
     expected = np.hypot(c * _rollout_units(model, 30, "exact", local=True), _residual_units(model, 30))[:1]
     np.testing.assert_allclose(short, expected, rtol=1e-8, atol=0)
     monkeypatch.setattr(error_estimate, "EXACT_MAX_STEPS", 20)
@@ -860,74 +857,6 @@ def test_residual_part_reuses_the_linearisations_hessians(model, monkeypatch, me
     assert sum(hessians) == 3 * n_steps and len(hessians) > 1
     assert normalised == [3 * n_steps]  # the local scale's queries; the stored points were normalised before
     np.testing.assert_array_equal(err, first)
-    c = fitted.error_calibration["scale"] * fitted.error_calibration["posterior_share"]
+    c = fitted.error_calibration["scale"]
     expected = np.hypot(c * _rollout_units(model, n_steps, method, local=True), _residual_units(model, n_steps))
     np.testing.assert_allclose(err, expected, rtol=1e-8, atol=0)
-
-
-def test_posterior_share_is_calibrated_on_the_residual_neighbours_misfit(model):
-    """Oracle (brute force): on the calibration samples, with ``u_i`` the one-step estimate before calibration times
-    the local scale left out of its own sample (the mean centred log ratio of the ``local_neighbours`` nearest other
-    samples), the posterior's scale is the 0.9 quantile of ``|r_i| / u_i`` and its share beside the residual part
-    the 0.9 quantile of ``|r_i - mean of the k nearest residual vectors other than its own| / u_i`` over it."""
-    fitted = model.model_
-    cal, local, res = fitted.error_calibration, fitted.error_local, fitted.error_residuals
-    data = fitted.calibration_samples[0]
-    scale = fitted.scale
-    w = fitted.surrogate.weights(data.mu, data.dt)
-    x1 = model.step(data.x0, mu=data.mu, dt=data.dt)
-    r = x1 - data.x1
-    unit = fitted._local_error_units(data.x0 * scale, x1 * scale, data.mu, data.dt, w)
-    raw = np.column_stack([data.x0, data.mu, data.dt])
-    np.testing.assert_array_equal(local["points"], raw)  # every calibration sample kept (none exact)
-    kl = cal["local_neighbours"]
-    near = _oracle_neighbours(fitted, raw, data.x0, data.mu, data.dt, kl + 1)
-    factor = np.array([np.exp(local["log_ratio"][row[row != i][:kl]].mean()) for i, row in enumerate(near)])
-    u = unit * factor
-    c = np.quantile(np.linalg.norm(r, axis=1) / u, 0.9)
-    np.testing.assert_allclose(cal["scale"], c, rtol=1e-6)
-    k = cal["residual_neighbours"]
-    near = _oracle_neighbours(fitted, res["points"], data.x0, data.mu, data.dt, k + 1)
-    misfit = []
-    for i, row in enumerate(near):
-        others = [j for j in row if not np.array_equal(res["points"][j], raw[i])][:k]
-        misfit.append(np.linalg.norm(r[i] - res["vectors"][others].mean(axis=0)))
-    share = np.quantile(np.array(misfit) / u, 0.9) / c
-    assert 0.05 < share < 1  # the neighbours explain part of the residuals
-    np.testing.assert_allclose(cal["posterior_share"], share, rtol=1e-6)
-    # the one-step estimate: the posterior at its share, in quadrature the residual part
-    x0, mu = np.array([[1.0, 0.0], [0.3, -0.4]]), np.array([0.72, 0.78])
-    _, e1 = model.step(x0, mu=mu, dt=0.1, return_error=True)
-    nearest_res = _oracle_neighbours(fitted, res["points"], x0, mu, np.full(2, 0.1), k)
-    part = [np.sqrt(np.sum(res["vectors"][row] ** 2) / k) * cal["residual_scale"] for row in nearest_res]
-    x1 = model.step(x0, mu=mu, dt=0.1)
-    w = fitted.surrogate.weights(mu[:, None], np.full(2, 0.1))
-    post = (
-        cal["scale"]
-        * cal["posterior_share"]
-        * _oracle_local_factors(fitted, x0, mu[:, None], np.full(2, 0.1))
-        * fitted._local_error_units(x0 * scale, x1 * scale, mu[:, None], np.full(2, 0.1), w)
-    )
-    np.testing.assert_allclose(e1, np.hypot(post, part), rtol=1e-8)
-
-
-@pytest.mark.parametrize("share", [0.0, -0.5, 1.5, float("nan"), "half", 1])
-def test_hostile_posterior_share_in_model_files_is_refused(model, tmp_path, share):
-    from sympredict.exceptions import ModelFileError
-
-    with pytest.raises(ModelFileError, match="posterior_share"):
-        _edited_local(model, tmp_path, settings=lambda s: s["error_calibration"].update(posterior_share=share))
-
-
-def test_files_without_the_posterior_share_use_the_posterior_at_its_full_scale(model, tmp_path):
-    """A file written before the share existed (its residual part without ``posterior_share``) loads and adds the
-    posterior's part at its full scale: ``hypot(c U, R)`` instead of ``hypot(c share U, R)``, ``U`` and ``R`` by the
-    brute-force oracles (:func:`_rollout_units`, :func:`_residual_units`)."""
-    old = _edited_local(model, tmp_path, settings=lambda s: s["error_calibration"].pop("posterior_share"))
-    cal = model.error_calibration_
-    x0, mu = np.array([[1.0, 0.0], [0.3, -0.4], [-1.2, 0.5]]), np.array([0.72, 0.75, 0.78])
-    _, now = model.rollout(x0, 10, mu=mu, dt=0.1, return_error=True)
-    _, before = old.rollout(x0, 10, mu=mu, dt=0.1, return_error=True)
-    units, resid = _rollout_units(model, 10, "exact", local=True), _residual_units(model, 10)
-    np.testing.assert_allclose(now, np.hypot(cal["scale"] * cal["posterior_share"] * units, resid), rtol=1e-8)
-    np.testing.assert_allclose(before, np.hypot(cal["scale"] * units, resid), rtol=1e-8)
