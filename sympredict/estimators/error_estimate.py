@@ -31,7 +31,9 @@ scale calibrated like ``c`` (the one-step case on the samples, each without its 
 posterior's estimate in quadrature.  Near the data it tells the trajectories that pass where the model errs
 systematically from the others; away from them (its residuals small, the posterior large) the posterior's part
 dominates.  ``O(B K N' (2n + d_mu))`` for the neighbours among ``N'`` residual vectors plus ``O(B K (2n)^2 k)``
-for the propagation and ``O(B K 2n m)`` for the steps' Jacobians.
+for the propagation; the steps' Jacobians are those the posterior's linearisation computes (handed over block by
+block, :func:`rollout_error_units`' ``jacobians``), and the propagation carries ``F`` (B, 2n, k) from one block of
+steps to the next (:class:`ResidualNeighbours`): memory ``O(B 2n (k + 2n))`` beyond the block and the output.
 
 Cost along ``B`` rollouts of ``K`` steps with ``m`` centres: the Newton basis at every step, ``O(B K 2n m^2)``
 (as the power function).  Up to :data:`EXACT_MAX_STEPS` steps every pair of steps is carried
