@@ -821,6 +821,7 @@ def test_residual_propagation_in_blocks_is_the_propagation_in_one_go(rng):
         np.testing.assert_allclose(prop.out, whole, rtol=1e-13, atol=0)
 
 
+@pytest.mark.paths
 @pytest.mark.parametrize("method", ["exact", "lowrank"])
 def test_residual_part_reuses_the_linearisations_hessians(model, monkeypatch, method):
     """The residual part takes the steps' Jacobians from the posterior's linearisation, block by block: the Hessian
