@@ -29,7 +29,8 @@ each predicted trajectory, with the model's step Jacobians ``D_k`` and the ``k``
 Spearman at ``--horizons`` with 90% bootstrap intervals at the last, median effectivity and the share
 underestimated more than 3x.
 
-Run:  python sympredict_paper/studies/error_estimate_residuals.py --pool all --neighbours 5 10 --json out.json
+Run:  python sympredict_paper/studies/error_estimate_residuals.py --pool all --neighbours 5 10 \
+          --json docs/data/error_estimate_residuals_weights.json
 """
 
 from __future__ import annotations
