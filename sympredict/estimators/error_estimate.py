@@ -31,7 +31,9 @@ scale calibrated like ``c`` (the one-step case on the samples, each without its 
 posterior's estimate in quadrature.  Near the data it tells the trajectories that pass where the model errs
 systematically from the others; away from them (its residuals small, the posterior large) the posterior's part
 dominates.  ``O(B K N' (2n + d_mu))`` for the neighbours among ``N'`` residual vectors plus ``O(B K (2n)^2 k)``
-for the propagation and ``O(B K 2n m)`` for the steps' Jacobians.
+for the propagation; the steps' Jacobians are those the posterior's linearisation computes (handed over block by
+block, :func:`rollout_error_units`' ``jacobians``), and the propagation carries ``F`` (B, 2n, k) from one block of
+steps to the next (:class:`ResidualNeighbours`): memory ``O(B 2n (k + 2n))`` beyond the block and the output.
 
 Cost along ``B`` rollouts of ``K`` steps with ``m`` centres: the Newton basis at every step, ``O(B K 2n m^2)``
 (as the power function).  Up to :data:`EXACT_MAX_STEPS` steps every pair of steps is carried
@@ -76,6 +78,8 @@ __all__ = [
     "nearest",
     "RESIDUAL_NEIGHBOURS",
     "propagated_residuals",
+    "ResidualPropagation",
+    "ResidualNeighbours",
 ]
 
 #: Held-out samples whose ratios (true one-step error / estimate) set the local scale of the estimate at a point.
@@ -421,6 +425,7 @@ def rollout_error_units(
     weights: np.ndarray,
     method: str = "auto",
     local: np.ndarray = None,
+    jacobians=None,
 ) -> np.ndarray:
     """Error estimates before calibration (B, K+1) along predicted trajectories ``traj`` (B, K+1, 2n).
 
@@ -430,7 +435,10 @@ def rollout_error_units(
     (:class:`CovariancePropagation`, ``O(B K^2 (2n)^3)``); ``"lowrank"``, the posterior factorised on landmarks
     along each trajectory (:class:`LowRankPropagation`, linear in ``K``); ``"auto"``: exact up to
     :data:`EXACT_MAX_STEPS` steps.  ``local`` (B, K), optional: each step's local scale (a factor on its gradient
-    error, so ``C(z_k, z_l)`` becomes ``s_k s_l C(z_k, z_l)``; :func:`local_log_ratio`).  Cost: see the module.
+    error, so ``C(z_k, z_l)`` becomes ``s_k s_l C(z_k, z_l)``; :func:`local_log_ratio`).  ``jacobians``, optional:
+    ``jacobians(k0, jac)`` is called with each block's step Jacobians ``jac`` (B, nk, 2n, 2n) (scaled coordinates,
+    steps ``k0 .. k0 + nk - 1``, in order), so that other parts of the estimate reuse them
+    (:class:`ResidualNeighbours`) instead of evaluating the Hessians again.  Cost: see the module.
     """
     sur, rule, scale = fitted.surrogate, fitted.rule, fitted.scale
     chol = sur.gram_factor(fitted.regularization)
@@ -448,7 +456,7 @@ def rollout_error_units(
                 n_steps,
                 _RANK_MAX,
             )
-        return _rollout_error_lowrank(fitted, chol, traj, mu, dt, weights, factors=local)
+        return _rollout_error_lowrank(fitted, chol, traj, mu, dt, weights, factors=local, jacobians=jacobians)
     z_all = np.empty((b, n_steps, dim))
     out = np.zeros((b, k1))
     prop = CovariancePropagation(b, dim, m, n_steps)
@@ -462,6 +470,8 @@ def rollout_error_units(
         xi, jac, sens = rule.linearization(sur, xs, x1s, rep(weights), rep(dt))
         v = newton_rows(sur, xi, rep(mu), rep(dt), chol).reshape(b, nk, dim, m)
         xi, jac, sens = xi.reshape(b, nk, dim), jac.reshape(b, nk, dim, dim), sens.reshape(b, nk, dim, dim)
+        if jacobians is not None:
+            jacobians(k0, jac)
         if local is not None:
             sens = sens * local[:, k0:kk, None, None]
         z_all[:, k0:kk] = xi
@@ -474,7 +484,7 @@ def rollout_error_units(
     return out
 
 
-def _rollout_error_lowrank(fitted, chol, traj, mu, dt, weights, factors=None) -> np.ndarray:
+def _rollout_error_lowrank(fitted, chol, traj, mu, dt, weights, factors=None, jacobians=None) -> np.ndarray:
     """:func:`rollout_error_units` by :class:`LowRankPropagation`: landmarks per trajectory, then the steps in
     blocks of bounded memory.  ``O(B K 2n m^2)`` (the Newton basis at the steps) ``+ O(B K (2n)^2 r (2n + m))``
     ``+ O(B N r^2)`` (the pivoting over ``N`` candidates); memory ``O(B 2n (r + m) block)``."""
@@ -525,6 +535,8 @@ def _rollout_error_lowrank(fitted, chol, traj, mu, dt, weights, factors=None) ->
         resid = local - np.matmul(a.transpose(0, 1, 3, 2), a)
         power = np.sqrt(np.maximum(np.diagonal(local, axis1=2, axis2=3), 0.0))
         jac, sens = jac.reshape(b, nk, dim, dim), sens.reshape(b, nk, dim, dim)
+        if jacobians is not None:
+            jacobians(k0, jac)
         if factors is not None:
             sens = sens * factors[:, k0:kk, None, None]
         for j in range(nk):
@@ -549,13 +561,101 @@ def propagated_residuals(jac: np.ndarray, resid: np.ndarray, scale: np.ndarray) 
         F_0 = 0,   F_k+1 = D Phi_k F_k + U_k,   e_k = |D^-1 F_k|_F,
 
     ``jac`` (B, K, 2n, 2n) the steps' Jacobians, ``scale`` (2n,) the model's scaling (``D``).  Returns (B, K+1),
-    0 at step 0, in the states' units.  ``O(B K (2n)^2 k)``; memory ``O(B 2n k)`` besides the inputs.
+    0 at step 0, in the states' units.  ``O(B K (2n)^2 k)``; memory ``O(B 2n k)`` besides the inputs
+    (:class:`ResidualPropagation`, all steps as one block).
     """
     b, n_steps, k, dim = resid.shape
-    out = np.zeros((b, n_steps + 1))
-    f = np.zeros((b, dim, k))
-    u = resid.transpose(0, 1, 3, 2) / np.sqrt(max(k, 1))
-    for j in range(n_steps):
-        f = np.matmul(jac[:, j], f) + u[:, j]
-        out[:, j + 1] = np.sqrt(np.einsum("bik,i->b", f * f, 1.0 / scale**2))
-    return out
+    prop = ResidualPropagation(b, dim, k, scale, n_steps)
+    prop.advance(jac, resid)
+    return prop.out
+
+
+class ResidualPropagation:
+    """:func:`propagated_residuals` block by block of steps: ``F_k+1 = D Phi_k F_k + U_k`` with ``F`` (B, 2n, k)
+    carried from one block to the next, so that a rollout's Jacobians and neighbours are never all held at once.
+
+    Parameters
+    ----------
+    b, dim, k : int
+        Instances, state dimension, neighbours per step.
+    scale : ndarray of shape (2n,)
+        The model's scaling ``D`` (the residuals and Jacobians are in scaled coordinates).
+    n_steps : int
+        Steps of the rollout; :attr:`out` (B, K+1) holds the estimate in the states' units, 0 at step 0.
+
+    Notes
+    -----
+    A block of ``nk`` steps costs ``O(B nk (2n)^2 k)``; memory ``O(B 2n k)`` for ``F`` plus the block's inputs
+    ``O(B nk 2n (2n + k))``, besides :attr:`out`.
+    """
+
+    def __init__(self, b: int, dim: int, k: int, scale: np.ndarray, n_steps: int):
+        self.f = np.zeros((b, dim, k))
+        self.out = np.zeros((b, n_steps + 1))
+        self.inv_scale2 = 1.0 / np.asarray(scale, dtype=float) ** 2
+        self.step = 0
+
+    def advance(self, jac: np.ndarray, resid: np.ndarray) -> None:
+        """The next ``nk`` steps: ``jac`` (B, nk, 2n, 2n) their Jacobians, ``resid`` (B, nk, k, 2n) their
+        neighbours' residual vectors (scaled coordinates, nearest first); fills ``out[:, j + 1]`` for them."""
+        k = resid.shape[2]
+        u = resid.transpose(0, 1, 3, 2) / np.sqrt(max(k, 1))
+        f, k0 = self.f, self.step
+        for j in range(resid.shape[1]):
+            f = np.matmul(jac[:, j], f) + u[:, j]
+            self.out[:, k0 + j + 1] = np.sqrt(np.einsum("bik,i->b", f * f, self.inv_scale2))
+        self.f, self.step = f, k0 + resid.shape[1]
+
+
+class ResidualNeighbours:
+    """The residual part along ``B`` rollouts, step block by step block: for each block, the ``k`` residual vectors
+    nearest to its states (:func:`nearest` in :func:`local_points` coordinates), carried by
+    :class:`ResidualPropagation` with the block's Jacobians (the ones the posterior's linearisation computed).
+
+    Parameters
+    ----------
+    points : ndarray of shape (N, q)
+        The residual samples in :func:`local_points` coordinates (normalised once, at the calibration).
+    vectors : ndarray of shape (N, 2n)
+        Their residual vectors in scaled coordinates.
+    k : int
+        Neighbours per step.
+    states : ndarray of shape (B, K, 2n)
+        The steps' initial states in the states' units.
+    mu : ndarray of shape (B, d_mu)
+    dt : ndarray of shape (B,)
+    domain : dict
+        The training box (:func:`local_points`).
+    scale : ndarray of shape (2n,)
+
+    Notes
+    -----
+    A block of ``nk`` steps costs ``O(B nk N q)`` for the neighbours plus :class:`ResidualPropagation`'s; memory
+    ``O(B nk (k 2n + q) + chunk N)`` for the block, ``O(B 2n k)`` carried, besides :attr:`out` (B, K+1).
+    """
+
+    def __init__(self, points, vectors, k, states, mu, dt, domain, scale):
+        self.points, self.vectors, self.states = points, vectors, states
+        self.mu, self.dt, self.domain = np.reshape(mu, (len(states), -1)), dt, domain
+        b, n_steps, dim = states.shape
+        self.k = max(1, min(int(k), len(points)))
+        self.prop = ResidualPropagation(b, dim, self.k, scale, n_steps)
+
+    @property
+    def out(self) -> np.ndarray:
+        """(B, K+1): the part so far, 0 at step 0 (before calibration's ``residual_scale``)."""
+        return self.prop.out
+
+    def __call__(self, k0: int, jac: np.ndarray) -> None:
+        """The steps ``k0 .. k0 + nk - 1`` with their Jacobians ``jac`` (B, nk, 2n, 2n) (scaled coordinates)."""
+        b, nk, dim = jac.shape[0], jac.shape[1], jac.shape[2]
+        if k0 != self.prop.step:
+            raise ValueError(f"the residual part's blocks come in order: expected step {self.prop.step}, got {k0}")
+        query = local_points(
+            self.states[:, k0 : k0 + nk].reshape(-1, dim),
+            np.repeat(self.mu, nk, axis=0),
+            np.repeat(self.dt, nk),
+            self.domain,
+        )
+        near = nearest(self.points, query, self.k)
+        self.prop.advance(jac, self.vectors[near].reshape(b, nk, near.shape[1], dim))

@@ -37,7 +37,7 @@ from sympredict.estimators.error_estimate import (
     local_log_ratio,
     local_points,
     nearest,
-    propagated_residuals,
+    ResidualNeighbours,
     rollout_error_units,
 )
 from sympredict.interpolation.greedy import GreedyHistory
@@ -982,30 +982,42 @@ class FittedSymplecticFlowMap(FittedFlowMap):
         self.error_calibration  # computed with it
         return self._cache.get("residuals")
 
-    def _residual_part(self, xs: np.ndarray, mu: np.ndarray, dt: np.ndarray, jac: Optional[np.ndarray] = None):
-        """The residual part of the estimate (B, K+1) for the steps from the states ``xs`` (B, K, 2n) (user units),
-        ``mu`` (B, d_mu), ``dt`` (B,), ``jac`` (B, K, 2n, 2n) their Jacobians in scaled coordinates (``None``: one
-        step, K = 1); zeros without :attr:`error_residuals`.  ``O(B K N (2n + d_mu))`` for the neighbours plus
-        :func:`~sympredict.estimators.error_estimate.propagated_residuals`."""
-        b, n_steps, dim = xs.shape
+    def _residual_neighbours(self, xs: np.ndarray, mu: np.ndarray, dt: np.ndarray):
+        """The residual part's propagation (:class:`~sympredict.estimators.error_estimate.ResidualNeighbours`) for
+        the steps from the states ``xs`` (B, K, 2n) (user units), ``mu`` (B, d_mu), ``dt`` (B,), fed block by block
+        with the steps' Jacobians; ``None`` without :attr:`error_residuals`.  The residual samples' normalised points
+        and scaled vectors are computed once per model (:meth:`_residual_arrays`)."""
+        arrays = self._residual_arrays()
+        if arrays is None:
+            return None
+        points, vectors, k = arrays
+        return ResidualNeighbours(points, vectors, k, xs, mu, dt, self.domain, self.scale)
+
+    def _residual_arrays(self):
+        """``(points (N, q), vectors (N, 2n), k)``: :attr:`error_residuals` in
+        :func:`~sympredict.estimators.error_estimate.local_points` coordinates and scaled coordinates, and the
+        neighbours per step; cached beside the calibration.  ``None`` without :attr:`error_residuals`."""
         res = self.error_residuals
         if res is None:
+            return None
+        if "residual_arrays" not in self._cache:
+            dim, pts = self.dim, res["points"]
+            self._cache["residual_arrays"] = (
+                local_points(pts[:, :dim], pts[:, dim:-1], pts[:, -1], self.domain),
+                res["vectors"] * self.scale,
+                int(self.error_calibration["residual_neighbours"]),
+            )
+        return self._cache["residual_arrays"]
+
+    def _residual_part(self, xs: np.ndarray, mu: np.ndarray, dt: np.ndarray):
+        """The residual part of the one-step estimate (B, 2) from the states ``xs`` (B, 1, 2n) (user units): the
+        nearest residuals at the step (no Jacobian acts on them); zeros without :attr:`error_residuals`."""
+        b, n_steps, dim = xs.shape
+        part = self._residual_neighbours(xs, mu, dt)
+        if part is None:
             return np.zeros((b, n_steps + 1))
-        cal = self.error_calibration
-        pts, vec = res["points"], res["vectors"]
-        query = local_points(
-            xs.reshape(-1, dim),
-            np.repeat(np.reshape(mu, (b, -1)), n_steps, axis=0),
-            np.repeat(dt, n_steps),
-            self.domain,
-        )
-        near = nearest(
-            local_points(pts[:, :dim], pts[:, dim:-1], pts[:, -1], self.domain), query, int(cal["residual_neighbours"])
-        )
-        resid = (vec * self.scale)[near].reshape(b, n_steps, near.shape[1], dim)
-        if jac is None:
-            jac = np.zeros((b, n_steps, dim, dim))
-        return float(cal["residual_scale"]) * propagated_residuals(jac, resid, self.scale)
+        part(0, np.zeros((b, n_steps, dim, dim)))
+        return float(self.error_calibration["residual_scale"]) * part.out
 
     @property
     def error_calibration(self) -> Optional[dict]:
@@ -1038,10 +1050,12 @@ class FittedSymplecticFlowMap(FittedFlowMap):
             return np.ones(len(x))
         k = int(self.error_calibration.get("local_neighbours", LOCAL_NEIGHBOURS))
         query = local_points(x, mu, dt, self.domain)
-        points = local_points(
-            local["points"][:, : self.dim], local["points"][:, self.dim : -1], local["points"][:, -1], self.domain
-        )
-        return np.exp(local_log_ratio(points, local["log_ratio"], query, k))
+        if "local_points" not in self._cache:  # normalised once per model
+            pts = local["points"]
+            self._cache["local_points"] = local_points(
+                pts[:, : self.dim], pts[:, self.dim : -1], pts[:, -1], self.domain
+            )
+        return np.exp(local_log_ratio(self._cache["local_points"], local["log_ratio"], query, k))
 
     def _error_calibration(self, data: FlowMapData, source: str) -> tuple:
         """``(calibration, local, residuals)`` (:attr:`error_calibration`, :attr:`error_local`,
@@ -1136,7 +1150,9 @@ class FittedSymplecticFlowMap(FittedFlowMap):
     def _rollout_error(self, traj: np.ndarray, mu: np.ndarray, dt: np.ndarray, weights: np.ndarray) -> np.ndarray:
         """Error estimates (B, K+1) along predicted trajectories ``traj`` (B, K+1, 2n) (every step kept): the
         gradient's posterior covariance carried through the steps' Jacobians, with the calibrated scale
-        (:func:`~sympredict.estimators.error_estimate.rollout_error_units`)."""
+        (:func:`~sympredict.estimators.error_estimate.rollout_error_units`), and in quadrature the residual part,
+        propagated block by block with the Jacobians of that linearisation (memory ``O(B 2n (k + 2n))`` carried
+        between the blocks)."""
         c = self._check_error_estimate()
         b, k1, dim = traj.shape
         local = None
@@ -1145,29 +1161,11 @@ class FittedSymplecticFlowMap(FittedFlowMap):
             local = self._local_factors(
                 traj[:, :-1].reshape(-1, dim), np.repeat(mu, n, axis=0), np.repeat(dt, n)
             ).reshape(b, n)
-        est = c * rollout_error_units(self, traj, mu, dt, weights, local=local)
-        if self.error_residuals is None or k1 < 2:
+        part = self._residual_neighbours(traj[:, :-1], mu, dt) if k1 > 1 else None
+        est = c * rollout_error_units(self, traj, mu, dt, weights, local=local, jacobians=part)
+        if part is None:
             return est
-        return np.hypot(est, self._residual_part(traj[:, :-1], mu, dt, self._rollout_jacobians(traj, dt, weights)))
-
-    def _rollout_jacobians(self, traj: np.ndarray, dt: np.ndarray, weights: np.ndarray) -> np.ndarray:
-        """The steps' Jacobians (B, K, 2n, 2n) in scaled coordinates along ``traj`` (B, K+1, 2n), in blocks of
-        bounded memory.  ``O(B K 2n m)`` (the Hessian at each step)."""
-        b, k1, dim = traj.shape
-        n_steps, scale = k1 - 1, self.scale
-        out = np.empty((b, n_steps, dim, dim))
-        block = max(1, min(n_steps, (1 << 16) // max(1, b)))
-        for k0 in range(0, n_steps, block):
-            kk = min(n_steps, k0 + block)
-            rep = lambda a: np.repeat(a, kk - k0, axis=0)
-            out[:, k0:kk] = self.rule.jacobian(
-                self.surrogate,
-                (traj[:, k0:kk] * scale).reshape(-1, dim),
-                (traj[:, k0 + 1 : kk + 1] * scale).reshape(-1, dim),
-                rep(weights),
-                rep(dt),
-            ).reshape(b, kk - k0, dim, dim)
-        return out
+        return np.hypot(est, float(self.error_calibration["residual_scale"]) * part.out)
 
     # ----------------------------------------------------------------- files
     @staticmethod

@@ -802,3 +802,62 @@ def test_hostile_residual_part_in_model_files_is_refused(model, tmp_path, settin
 
     with pytest.raises(ModelFileError, match=match):
         _edited_local(model, tmp_path, settings=settings, arrays=arrays)
+
+
+def test_residual_propagation_in_blocks_is_the_propagation_in_one_go(rng):
+    """:class:`ResidualPropagation` fed the steps in blocks of any sizes carries ``F`` from block to block: the
+    same recursion as :func:`propagated_residuals` over all steps at once, up to round-off."""
+    from sympredict.estimators.error_estimate import ResidualPropagation, propagated_residuals
+
+    b, n_steps, k, dim = 3, 23, 4, 4
+    jac = np.eye(dim) + 0.1 * rng.normal(size=(b, n_steps, dim, dim))
+    resid = rng.normal(size=(b, n_steps, k, dim))
+    scale = np.array([2.0, 0.5, 1.0, 3.0])
+    whole = propagated_residuals(jac, resid, scale)
+    for cuts in ([0, 1, 2, 23], [0, 7, 8, 20, 23], [0, 23]):
+        prop = ResidualPropagation(b, dim, k, scale, n_steps)
+        for k0, k1 in zip(cuts[:-1], cuts[1:]):
+            prop.advance(jac[:, k0:k1], resid[:, k0:k1])
+        np.testing.assert_allclose(prop.out, whole, rtol=1e-13, atol=0)
+
+
+@pytest.mark.paths
+@pytest.mark.parametrize("method", ["exact", "lowrank"])
+def test_residual_part_reuses_the_linearisations_hessians(model, monkeypatch, method):
+    """The residual part takes the steps' Jacobians from the posterior's linearisation, block by block: the Hessian
+    is evaluated once per step of the rollout (not once more for the residual part), the residual samples' points
+    are normalised once per model (later calls normalise only the rollout's states), and the estimate is the
+    brute-force oracle's (the explicit products of the steps' Jacobians, :func:`_residual_units`)."""
+    from sympredict.estimators import error_estimate, fitted as fitted_module
+    from sympredict.interpolation.surrogate import HBSurrogate
+
+    fitted = model.model_
+    x0, mu = np.array([[1.0, 0.0], [0.3, -0.4], [-1.2, 0.5]]), np.array([[0.72], [0.75], [0.78]])
+    n_steps = 12
+    traj = model.rollout(x0, n_steps, mu=mu[:, 0], dt=0.1)
+    dt = np.full(3, 0.1)
+    weights = fitted.surrogate.weights(mu, dt)
+    if method == "lowrank":
+        monkeypatch.setattr(error_estimate, "EXACT_MAX_STEPS", 5)
+    monkeypatch.setattr(error_estimate, "_BLOCK_ENTRIES", 3 * 4 * 13 * 5)  # blocks of 5 steps (exact)
+    first = fitted._rollout_error(traj, mu, dt, weights)
+    hessians, normalised = [], []
+    hessian, points = HBSurrogate.gradient_hessian, fitted_module.local_points
+
+    def counted_hessian(self, xi, w):
+        hessians.append(len(xi))
+        return hessian(self, xi, w)
+
+    def counted_points(x, *args):
+        normalised.append(len(x))
+        return points(x, *args)
+
+    monkeypatch.setattr(HBSurrogate, "gradient_hessian", counted_hessian)
+    monkeypatch.setattr(fitted_module, "local_points", counted_points)
+    err = fitted._rollout_error(traj, mu, dt, weights)
+    assert sum(hessians) == 3 * n_steps and len(hessians) > 1
+    assert normalised == [3 * n_steps]  # the local scale's queries; the stored points were normalised before
+    np.testing.assert_array_equal(err, first)
+    c = fitted.error_calibration["scale"]
+    expected = np.hypot(c * _rollout_units(model, n_steps, method, local=True), _residual_units(model, n_steps))
+    np.testing.assert_allclose(err, expected, rtol=1e-8, atol=0)
