@@ -53,7 +53,9 @@ from sympredict.base import Setting, clone
 from sympredict.data import FlowMapData, TrajectoryData
 from sympredict.estimators.search import (
     CANDIDATE_FIT,
+    EARLY_STOP,
     SEARCH_LOGGER,
+    EarlyStop,
     coordinate_search,
     grid_search,
     final_size_score,
@@ -248,6 +250,15 @@ class KernelSearch(Setting):
             error of their rollouts of the held-out trajectories and choose the smallest (see Notes); ``False``:
             the smallest one-step error decides, as it does for scattered samples.  Off by default: on pendulum
             trajectories it chose a worse model for the test trajectories more often than a better one (Notes).
+        early_stop : bool
+            Stop the fit of a candidate of the second stage's coordinate search once it is clearly losing: at half
+            its centres its prefix is scored as the full fit would be, and the fit stops where that error exceeds
+            :data:`~sympredict.estimators.search.EARLY_STOP_MARGINS`' factor (100) times the best full-size score so
+            far (:class:`~sympredict.estimators.search.EarlyStop`; rows with ``abandoned``, never chosen).  Such a
+            candidate cannot win unless its error falls more than that factor over the second half of its centres;
+            on the search candidates of the acceptance systems it fell at most about 50 times.  Not where held-out
+            rollouts decide among the finalists (``rollout_finalists``: a candidate losing on one step may win there),
+            nor with ``halving`` (its rung rule decides there).  ``False``: every candidate is fitted to its full size.
         final_size : bool
             Where the estimator's ``max_centers`` exceeds ``final_centers``, fit the chosen settings to
             ``max_centers`` centres too, and where that fit stops early (numerically singular: shapes too flat for
@@ -346,6 +357,7 @@ class KernelSearch(Setting):
         halving: bool = False,
         rollout_finalists: bool = False,
         final_size: bool = True,
+        early_stop: bool = True,
     ):
         self.families = families
         self.shapes = shapes
@@ -361,6 +373,7 @@ class KernelSearch(Setting):
         self.halving = halving
         self.rollout_finalists = rollout_finalists
         self.final_size = final_size
+        self.early_stop = early_stop
 
     @classmethod
     def quick(cls, **overrides) -> "KernelSearch":
@@ -431,6 +444,7 @@ class KernelSearch(Setting):
         as_flag(self.halving, "KernelSearch: halving")
         as_flag(self.rollout_finalists, "KernelSearch: rollout_finalists")
         as_flag(self.final_size, "KernelSearch: final_size")
+        as_flag(self.early_stop, "KernelSearch: early_stop")
         if not (isinstance(self.validation_fraction, (int, float)) and 0 < self.validation_fraction < 1):
             raise ValueError(f"KernelSearch: validation_fraction must lie in (0, 1), got {self.validation_fraction!r}")
         return self
@@ -582,10 +596,25 @@ class KernelSearch(Setting):
                 f", q/p shape ratio {cand[1]:g}" if scaled else ""
             )
 
+        # the coordinate search's candidates each compete with its best so far, which is the best full-size score
+        # of the stage (it starts from the best start): one clearly losing stops early (EarlyStop); the starts do
+        # not (one that would stop early, too flat, gets its shapes narrowed, which a stopped fit cannot tell)
+        early = EarlyStop() if self.early_stop and roll is None and rung_size is None else None
+        refining = [False]
+
         def score(cand):
             if cand not in scores:
                 label = label_of(cand)
-                sc, n, secs, err, extra = halved_score(params_of(cand), label)
+                finite = [v[0] for v in scores.values() if np.isfinite(v[0])]
+                bound = min(finite) if refining[0] and finite else np.inf
+                token = None if early is None else EARLY_STOP.set(early.start(bound))
+                try:
+                    sc, n, secs, err, extra = halved_score(params_of(cand), label)
+                finally:
+                    if token is not None:
+                        EARLY_STOP.reset(token)
+                if early is not None and early.abandoned is not None:
+                    extra = {**extra, "abandoned": early.abandoned, "abandoned_score": early.scores[early.abandoned]}
                 scores[cand] = (sc, n, secs, err, extra.get("cut", False))
                 if "rollout" in extra:
                     rollout_of[cand] = extra["rollout"]
@@ -604,7 +633,13 @@ class KernelSearch(Setting):
                 )
                 logger.info(
                     f"kernel search, stage 2 ({cand[4]}): {label}: "
-                    + ("cut at the rung" if extra.get("cut") else f"one-step error {sc:.3e} with {n} centres")
+                    + (
+                        "cut at the rung"
+                        if extra.get("cut")
+                        else f"stopped at {n} centres, one-step error {extra['abandoned_score']:.3e} (clearly losing)"
+                        if "abandoned" in extra
+                        else f"one-step error {sc:.3e} with {n} centres"
+                    )
                     + (f", held-out rollout error {extra['rollout']:.3e}" if "rollout" in extra else "")
                 )
             return scores[cand][0]
@@ -630,6 +665,7 @@ class KernelSearch(Setting):
                 )
                 starts.append(cand)
         best = min(starts, key=score)
+        refining[0] = True
         active = [
             i
             for i, key in ((0, "state"), (1, None), (2, "mu"), (3, "dt"))

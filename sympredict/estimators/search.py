@@ -59,6 +59,9 @@ __all__ = [
     "one_step_score",
     "final_size_score",
     "HeldOutScore",
+    "EarlyStop",
+    "EARLY_STOP",
+    "CANDIDATE_STOP",
     "relative_rollout_error",
     "pair_factors",
     "column_std",
@@ -652,6 +655,97 @@ def standard_error(score) -> float:
     return float(getattr(score, "standard_error", 0.0))
 
 
+#: Where a search candidate's fit is checked, ``(fraction, factor)``: at ``fraction`` of its centres it stops if its
+#: held-out one-step error exceeds ``factor`` times the score it must beat (:class:`EarlyStop`).  The factor bounds
+#: how far the error may still fall from there to the full size: on the full-size search candidates of the six
+#: systems of ``sympredict_paper/studies/search_cost.py`` it fell at most 49 times from half the centres to all of
+#: them (and up to 970 times from a quarter, so no earlier checkpoint: spectral convergence, a sharp kernel far
+#: behind at a quarter of its centres can still win).
+EARLY_STOP_MARGINS = ((0.5, 100.0),)
+
+
+@dataclass
+class EarlyStop:
+    """Stop a search candidate's greedy fit at a checkpoint where it is clearly losing (successive halving over the
+    centres of one fit: no refit, the fit that goes on is the same run).
+
+    At each checkpoint, ``c = fraction m`` centres of the ``m`` it is fitted to (:data:`EARLY_STOP_MARGINS`), the
+    fit's prefix is scored as :func:`final_size_score` scores the full fit (the mean relative one-step error on the
+    held-out samples, in their normalised coordinates); the fit gives up where that error exceeds the margin's
+    ``factor`` times ``bound``, the score the candidate must beat (the best full-size candidate's so far).  The
+    greedy's prefixes are its own smaller interpolants, whose held-out errors fall as centres are added, and the
+    factors bound how far they fell from a checkpoint to the full size on the search candidates of the acceptance
+    systems, with room to spare: a candidate given up would have lost.  A prefix whose Newton solve fails (score
+    ``inf``) is not given up (a flat kernel's small prefix can fail where the full fit does not).
+
+    Attributes
+    ----------
+    bound : float
+        The score to beat; ``inf``: nothing to beat yet, the fit runs to its size.
+    margins : tuple of (float, float)
+        ``(fraction, factor)`` per checkpoint.
+    abandoned : int or None
+        Centres at which the last fit gave up (set by :meth:`give_up`; ``None``: it did not).
+    scores : dict
+        ``{centres: score}`` of the checkpoints of the last fit.
+    """
+
+    bound: float = np.inf
+    margins: tuple = EARLY_STOP_MARGINS
+    abandoned: Optional[int] = None
+    scores: dict = field(default_factory=dict)
+    #: ``(samples, weights)``: the held-out samples (a :class:`~sympredict.data.FlowMapData`) and the weights of
+    #: their coordinates (:func:`state_weights`) that score the checkpoints (set by :func:`final_size_score`).
+    samples: Optional[tuple] = field(default=None, repr=False)
+
+    #: Checkpoints below this many centres are skipped (a prefix that small says little).
+    smallest = 20
+
+    def checkpoints(self, m: int) -> list:
+        """The centre counts (increasing) at which a fit to ``m`` centres is scored."""
+        return sorted({int(f * m) for f, _ in self.margins if self.smallest <= int(f * m) < m})
+
+    def factor(self, c: int, m: int) -> float:
+        """The margin at ``c`` of ``m`` centres (that of the largest fraction at most ``c / m``)."""
+        out = np.inf
+        for f, k in sorted(self.margins):
+            if int(f * m) <= c:
+                out = k
+        return float(out)
+
+    def give_up(self, c: int, m: int, value: float) -> bool:
+        """Whether a fit to ``m`` centres whose prefix of ``c`` centres scores ``value`` stops (records it)."""
+        self.scores[int(c)] = float(value)
+        stop = bool(np.isfinite(value) and np.isfinite(self.bound) and value > self.factor(c, m) * self.bound)
+        if stop:
+            self.abandoned = int(c)
+        return stop
+
+    def start(self, bound: float) -> "EarlyStop":
+        """Reset for the next candidate, which must beat ``bound``; returns ``self``."""
+        self.bound, self.abandoned, self.scores = float(bound), None, {}
+        return self
+
+    @staticmethod
+    def error(predicted: np.ndarray, x0: np.ndarray, x1: np.ndarray, weights: np.ndarray) -> float:
+        """The mean over samples of ``|w (predicted - x1)| / |w (x1 - x0)|`` (samples that do not move left out),
+        as :func:`final_size_score` scores; ``inf`` where it is not finite."""
+        inc = np.linalg.norm((x1 - x0) * weights, axis=1)
+        rows = inc > 0
+        miss = np.linalg.norm((predicted - x1) * weights, axis=1)
+        with np.errstate(all="ignore"):
+            value = float(np.mean(miss[rows] / inc[rows] if rows.any() else miss))
+        return value if np.isfinite(value) else float("inf")
+
+
+#: The :class:`EarlyStop` that :func:`final_size_score` applies to its candidates' fits (set by the kernel search
+#: around the candidates it compares with the best so far), or ``None``: every fit runs to its size.
+EARLY_STOP = contextvars.ContextVar("sympredict_early_stop", default=None)
+#: During :func:`final_size_score`'s fit of one candidate only: its :class:`EarlyStop`, whose ``samples`` (the
+#: held-out samples and their weights) score the fit's checkpoints; read by the estimator's fit.
+CANDIDATE_STOP = contextvars.ContextVar("sympredict_candidate_stop", default=None)
+
+
 def final_size_score(
     estimator,
     params: dict,
@@ -677,10 +771,28 @@ def final_size_score(
     inc = np.linalg.norm((sub.x1 - sub.x0) * w, axis=1)
     rows = inc > 0
     uses_mu = params["mu_kernel"] is not None
+    early = EARLY_STOP.get()
+    if early is not None:
+        early.start(early.bound)
+        early.samples = (sub, w)
+    token = None if early is None else CANDIDATE_STOP.set(early)
     try:
         with warnings.catch_warnings():  # a candidate may underfit or extrapolate: its score says so
             warnings.simplefilter("ignore")
-            fit_candidate(model, train, uses_mu=uses_mu, quiet=False)
+            try:
+                fit_candidate(model, train, uses_mu=uses_mu, quiet=False)
+            finally:
+                if token is not None:
+                    CANDIDATE_STOP.reset(token)
+            if early is not None and early.abandoned is not None:  # clearly losing: no score at full size
+                return (
+                    np.inf,
+                    model.n_centers_,
+                    time.perf_counter() - t0,
+                    None,
+                    None if rollouts is None else np.inf,
+                    0.0,
+                )
             pred = model.step(
                 sub.x0, mu=sub.mu if uses_mu else None, dt=sub.dt if params["dt_kernel"] is not None else None
             )

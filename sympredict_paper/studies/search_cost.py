@@ -5,7 +5,9 @@ Per system, ``SymplecticKernelPredictor(max_centers=m)`` (the defaults) is fitte
 configurations of ``--configs`` (default ``full halving``) in alternating order from one system to the next (the
 machine may be shared; compare the ratios, the second configuration's over the first's):
 
-* ``full``: ``search=KernelSearch()``: every search candidate fitted to its full size (the default);
+* ``full``: ``search=KernelSearch()``: the default (a candidate of the second stage's coordinate search clearly
+  losing at half its centres stops there, ``early_stop``);
+* ``exhaustive``: ``search=KernelSearch(early_stop=False)``: every search candidate fitted to its full size;
 * ``halving``: ``search=KernelSearch(halving=True)``: candidates compared first at a fraction of their centres, and only
   those not clearly losing there fitted to full size (:class:`sympredict.KernelSearch`, Notes);
 * ``quick``: ``search=KernelSearch.quick()``: candidates compared at 100 and 250 centres on 1,200 samples, with
@@ -59,6 +61,7 @@ SYSTEMS = ("three_body", "readme_pendulum", "kepler", "henon_heiles", "coupled_p
 #: The configurations compared: the default search, successive halving, and the quick preset.
 CONFIGS = {
     "full": lambda: KernelSearch(),
+    "exhaustive": lambda: KernelSearch(early_stop=False),
     "halving": lambda: KernelSearch(halving=True),
     "quick": lambda: KernelSearch.quick(),
 }
