@@ -913,7 +913,8 @@ def _hold_out_trajectories(trajectories: TrajectoryData, seed: int, fraction: fl
 class _EarlyStopCheckpoints:
     """A search candidate's checkpoints (:class:`~sympredict.interpolation.greedy.loop.Checkpoints`): at each of
     ``early.checkpoints(max_centers)`` the prefix's one-step error on ``early.samples`` (NumPy Newton, as
-    :class:`_HeldOutSteps`; :meth:`~sympredict.estimators.search.EarlyStop.error`), and ``give_up`` where
+    :class:`_HeldOutSteps`; :meth:`~sympredict.estimators.search.EarlyStop.error`; or, by the criterion ``'E_val'``,
+    the greedy's validation residual, at no cost), and ``give_up`` where
     :class:`~sympredict.estimators.search.EarlyStop` says the candidate is clearly losing.  No target; the run keeps
     every centre.  ``O(S m (2n)^2)`` per checkpoint for ``S`` held-out samples."""
 
@@ -926,7 +927,7 @@ class _EarlyStopCheckpoints:
         self.max_iter = model._newton_iterations()
 
     def score(self, m: int, selected: np.ndarray, coef: np.ndarray) -> float:
-        if m not in self.at:  # the run's last size: the search scores the fitted model itself
+        if m not in self.at or self.early.criterion == "E_val":  # the last size: the search scores it itself
             return float("nan")
         pts, comps = np.divmod(np.asarray(selected), self.xi.shape[1])
         d = self.data
@@ -939,8 +940,8 @@ class _EarlyStopCheckpoints:
         except (NewtonConvergenceError, NonFinitePredictionError, ArithmeticError, np.linalg.LinAlgError):
             return float("inf")
 
-    def give_up(self, m: int, value: float) -> bool:
-        return self.early.give_up(m, self.m, value)
+    def give_up(self, m: int, value: float, val_max: Optional[float] = None) -> bool:
+        return self.early.give_up(m, self.m, val_max if self.early.criterion == "E_val" else value)
 
     def keep(self, m: int) -> int:
         return m

@@ -221,6 +221,7 @@ def grid_search(
     estimator=None,
     widen: int = 2,
     rungs: Sequence[int] = (),
+    early_stop: bool = False,
 ) -> SelectionResult:
     """Grid search over kernel tuples by validation residual at ``m_star`` centres.
 
@@ -257,6 +258,13 @@ def grid_search(
         Rung fits are recorded in the table with ``rung`` (their centre count) and are never the result.
         Widening candidates are trained to ``m_star`` directly (comparing them at a rung changed the choice on
         one acceptance system).
+    early_stop
+        Stop a candidate's fit at half of ``m_star`` where its validation residual exceeds
+        :data:`EARLY_STOP_MARGINS`' factor (100) times the smallest ``E_val(m_star)`` so far (:class:`EarlyStop` by
+        ``'E_val'``: the residual is the greedy's own, no extra cost); recorded with ``abandoned`` (its centres) and
+        ``E_val = inf``, never the result.  From half of ``m_star`` to all of it the validation residuals of the
+        kernel search's first-stage candidates on the six systems of ``sympredict_paper/studies/search_cost.py``
+        fell at most 37 times, so such a candidate would not have won.  Not with ``rungs`` or ``prefer_complete``.
 
     Returns
     -------
@@ -290,6 +298,7 @@ def grid_search(
     base = estimator
     dt_fixed = np.ptp(data.dt) == 0
     table = []
+    early = EarlyStop(criterion="E_val") if early_stop and not rungs and not prefer_complete else None
     unresolved = []  # per fitted candidate: is its validation residual at m_star still above half its start?
 
     def score(tup, widened=False, rung=None) -> SelectionResult:
@@ -309,6 +318,10 @@ def grid_search(
             **({} if rung is None else {"rung": rung}),
         }
         t0 = time.perf_counter()
+        token = None
+        if early is not None and rung is None:  # to beat: the smallest E_val(m_star) so far
+            finite = [r["E_val"] for r in table if "rung" not in r and np.isfinite(r["E_val"])]
+            token = CANDIDATE_STOP.set(early.start(min(finite) if finite else np.inf))
         try:
             fit_candidate(model, data, validation, uses_mu=mu_k is not None)
         except (ValueError, ArithmeticError) as exc:  # LinAlgError is a ValueError
@@ -324,7 +337,24 @@ def grid_search(
             table.append(row)
             logger.warning(f"{label}: fit failed, candidate skipped ({exc})")
             return SelectionResult(state, mu_k, dt_k, np.inf, False)
+        finally:
+            if token is not None:
+                CANDIDATE_STOP.reset(token)
         val = model.history_.val_max_residual
+        if token is not None and early.abandoned is not None:  # clearly losing: never the result
+            row.update(
+                E_val=np.inf,
+                E_train=float(model.history_.train_max_residual[-1]),
+                n_centers=model.n_centers_,
+                complete=False,
+                abandoned=early.abandoned,
+                abandoned_E_val=float(val[-1]),
+                fit_s=time.perf_counter() - t0,
+            )
+            table.append(row)
+            unresolved.append(float(val[-1]) > 0.5 * float(val[0]))
+            logger.info(f"{label}: E_val({model.n_centers_}) = {float(val[-1]):.3e}, clearly losing: stopped")
+            return SelectionResult(state, mu_k, dt_k, np.inf, False)
         value = float(val[-1])
         complete = model.n_centers_ >= size or model.history_.stop_reason == "tol"
         if np.isfinite(value) and rung is None:
@@ -656,10 +686,11 @@ def standard_error(score) -> float:
 
 
 #: Where a search candidate's fit is checked, ``(fraction, factor)``: at ``fraction`` of its centres it stops if its
-#: held-out one-step error exceeds ``factor`` times the score it must beat (:class:`EarlyStop`).  The factor bounds
-#: how far the error may still fall from there to the full size: on the full-size search candidates of the six
-#: systems of ``sympredict_paper/studies/search_cost.py`` it fell at most 49 times from half the centres to all of
-#: them (and up to 970 times from a quarter, so no earlier checkpoint: spectral convergence, a sharp kernel far
+#: score exceeds ``factor`` times the score it must beat (:class:`EarlyStop`).  The factor bounds how far the score
+#: may still fall from there to the full size: on the search candidates of the six systems of
+#: ``sympredict_paper/studies/search_cost.py``, from half the centres to all of them, the held-out one-step error of
+#: the second stage's fell at most 49 times and the validation residual ``E_val`` of the first stage's 37 times (the
+#: one-step error fell up to 970 times from a quarter of the centres, so no earlier checkpoint: a sharp kernel far
 #: behind at a quarter of its centres can still win).
 EARLY_STOP_MARGINS = ((0.5, 100.0),)
 
@@ -697,6 +728,9 @@ class EarlyStop:
     #: ``(samples, weights)``: the held-out samples (a :class:`~sympredict.data.FlowMapData`) and the weights of
     #: their coordinates (:func:`state_weights`) that score the checkpoints (set by :func:`final_size_score`).
     samples: Optional[tuple] = field(default=None, repr=False)
+    #: What a checkpoint compares: ``'one-step'`` (the held-out one-step error of the prefix, by Newton steps on
+    #: :attr:`samples`) or ``'E_val'`` (the greedy's own validation residual, at no cost: the first stage's score).
+    criterion: str = "one-step"
 
     #: Checkpoints below this many centres are skipped (a prefix that small says little).
     smallest = 20

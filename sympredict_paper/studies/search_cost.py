@@ -5,9 +5,9 @@ Per system, ``SymplecticKernelPredictor(max_centers=m)`` (the defaults) is fitte
 configurations of ``--configs`` (default ``full halving``) in alternating order from one system to the next (the
 machine may be shared; compare the ratios, the second configuration's over the first's):
 
-* ``full``: ``search=KernelSearch()``: the default (a candidate of the second stage's coordinate search clearly
-  losing at half its centres stops there, ``early_stop``);
-* ``exhaustive``: ``search=KernelSearch(early_stop=False)``: every search candidate fitted to its full size;
+* ``full``: ``search=KernelSearch(early_stop=False)``: every search candidate fitted to its full size;
+* ``default``: ``search=KernelSearch()``: the default, a candidate clearly losing at half its centres stopped there
+  (``early_stop``: in the first stage and in the second stage's coordinate search);
 * ``halving``: ``search=KernelSearch(halving=True)``: candidates compared first at a fraction of their centres, and only
   those not clearly losing there fitted to full size (:class:`sympredict.KernelSearch`, Notes);
 * ``quick``: ``search=KernelSearch.quick()``: candidates compared at 100 and 250 centres on 1,200 samples, with
@@ -38,6 +38,10 @@ Run:  python sympredict_paper/studies/search_cost.py        # writes docs/data/s
           --json docs/data/search_cost_quick.json
       python sympredict_paper/studies/search_cost.py --configs full quick --systems three_body --repeats 3 \
           --json docs/data/search_cost_stages.json
+      python sympredict_paper/studies/search_cost.py --configs full default --systems three_body noisy_pendulum \
+          readme_pendulum kepler henon_heiles coupled_pendulums --json docs/data/search_cost_early.json
+      python sympredict_paper/studies/search_cost.py --configs full default --systems three_body --traj 300 \
+          --repeats 3 --json docs/data/search_cost_early_300.json
 One BLAS and one numba thread.
 """
 
@@ -60,8 +64,8 @@ RESULTS = Path(__file__).resolve().parents[2] / "docs" / "data" / "search_cost.j
 SYSTEMS = ("three_body", "readme_pendulum", "kepler", "henon_heiles", "coupled_pendulums", "noisy_pendulum")
 #: The configurations compared: the default search, successive halving, and the quick preset.
 CONFIGS = {
-    "full": lambda: KernelSearch(),
-    "exhaustive": lambda: KernelSearch(early_stop=False),
+    "full": lambda: KernelSearch(early_stop=False),
+    "default": lambda: KernelSearch(),
     "halving": lambda: KernelSearch(halving=True),
     "quick": lambda: KernelSearch.quick(),
 }

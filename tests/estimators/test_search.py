@@ -159,6 +159,32 @@ def test_grid_search_with_rungs_keeps_the_best_candidate_at_a_fraction_of_the_fi
     ]
 
 
+def test_grid_search_early_stop_keeps_the_winner_and_stops_only_candidates_clearly_losing_at_half_m_star(rung_case):
+    """With ``early_stop`` a candidate whose ``E_val`` at half of ``m_star`` exceeds 100 times the smallest
+    ``E_val(m_star)`` so far stops there: the same winner and score as training every candidate to ``m_star`` (the
+    same fits of the same arrays), and every stopped candidate was that far behind."""
+    from sympredict import SymplecticKernelPredictor
+    from sympredict.estimators.search import EARLY_STOP_MARGINS
+
+    ((fraction, factor),) = EARLY_STOP_MARGINS
+    train, val = rung_case
+    grid = [IMQ(e) for e in (0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0, 20.0, 50.0)]
+    est = SymplecticKernelPredictor(update="midpoint")
+    plain = grid_search(train, val, grid, m_star=100, estimator=est, widen=0)
+    early = grid_search(train, val, grid, m_star=100, estimator=est, widen=0, early_stop=True)
+    assert early.state == plain.state and early.score == plain.score
+    stopped = [r for r in early.table if "abandoned" in r]
+    assert stopped and all(r["n_centers"] == r["abandoned"] == int(fraction * 100) for r in stopped)
+    full = {r["kernels"]: r["E_val"] for r in plain.table}
+    for i, r in enumerate(early.table):
+        if "abandoned" in r:
+            before = [q["E_val"] for q in early.table[:i] if np.isfinite(q["E_val"])]
+            assert r["E_val"] == np.inf and r["abandoned_E_val"] > factor * min(before)
+            assert full[r["kernels"]] > plain.score  # it would have lost
+        else:
+            assert r["E_val"] == full[r["kernels"]]
+
+
 def test_quick_search_preset_and_its_overrides():
     """``KernelSearch.quick()``: the default search with smaller comparison sizes and halving; overrides on top,
     checked as any setting is."""

@@ -301,8 +301,9 @@ class Checkpoints(Protocol):
     def keep(self, m: int) -> int:
         """Of a run with ``m`` centres, how many to keep (the best prefix, or the smallest meeting the target)."""
 
-    # optional: ``give_up(m, score) -> bool`` after the score at a checkpoint of ``at``: ``True`` stops the run there
-    # (reason ``'abandoned'``: a search's candidate clearly losing, :class:`~sympredict.estimators.search.EarlyStop`)
+    # optional: ``give_up(m, score, val_max) -> bool`` after the score at a checkpoint of ``at`` (``val_max``: the
+    # validation residual ``E_val(m)``, or None without validation): ``True`` stops the run there (reason
+    # ``'abandoned'``: a search's candidate clearly losing, :class:`~sympredict.estimators.search.EarlyStop`)
 
 
 class NewtonBasisStore(Protocol):
@@ -442,7 +443,7 @@ def run_greedy(
         whose score meets it, after refining by bisection between it and the previous checkpoint
         (prefixes cost no new selection); in any case the run is cut to ``checkpoints.keep(m)`` centres at
         the end (the best prefix: growing never returns a worse model than one it passed).  Where ``checkpoints``
-        has a ``give_up(m, score)`` method and it returns ``True`` at a checkpoint, the run stops there (reason
+        has a ``give_up(m, score, val_max)`` method and it returns ``True`` at a checkpoint, the run stops there (reason
         ``'abandoned'``).
 
     Returns
@@ -544,7 +545,7 @@ def run_greedy(
                     stop_reason = "target"
                     break
                 give_up = getattr(checkpoints, "give_up", None)
-                if give_up is not None and give_up(m, err):
+                if give_up is not None and give_up(m, err, None if val_hist is None else val_hist[-1]):
                     stop_reason = "abandoned"
                     break
                 last_mark = m
