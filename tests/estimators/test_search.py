@@ -164,7 +164,7 @@ def test_grid_search_early_stop_keeps_the_winner_and_stops_only_candidates_clear
     ``E_val(m_star)`` so far stops there: the same winner and score as training every candidate to ``m_star`` (the
     same fits of the same arrays), and every stopped candidate was that far behind."""
     from sympredict import SymplecticKernelPredictor
-    from sympredict.estimators.search import EARLY_STOP_MARGINS
+    from sympredict.estimators.search import EARLY_STOP_MARGINS, fit_candidate
 
     ((fraction, factor),) = EARLY_STOP_MARGINS
     train, val = rung_case
@@ -176,10 +176,19 @@ def test_grid_search_early_stop_keeps_the_winner_and_stops_only_candidates_clear
     stopped = [r for r in early.table if "abandoned" in r]
     assert stopped and all(r["n_centers"] == r["abandoned"] == int(fraction * 100) for r in stopped)
     full = {r["kernels"]: r["E_val"] for r in plain.table}
+    half = {}  # each candidate's own E_val at the checkpoint, from its full run's history
+    for k in grid:
+        model = clone(est).set_params(state_kernel=k, max_centers=100, trainer__tol=0.0)
+        curve = fit_candidate(model, train, val).history_.val_max_residual
+        half[repr(k)] = float(curve[int(fraction * 100)]) if len(curve) > fraction * 100 else None  # stopped before
     for i, r in enumerate(early.table):
+        before = [q["E_val"] for q in early.table[:i] if np.isfinite(q["E_val"])]
+        reached = half[r["kernels"]] is not None
+        assert ("abandoned" in r) == bool(before and reached and half[r["kernels"]] > factor * min(before)), r[
+            "kernels"
+        ]
         if "abandoned" in r:
-            before = [q["E_val"] for q in early.table[:i] if np.isfinite(q["E_val"])]
-            assert r["E_val"] == np.inf and r["abandoned_E_val"] > factor * min(before)
+            assert r["E_val"] == np.inf and r["abandoned_E_val"] == half[r["kernels"]]
             assert full[r["kernels"]] > plain.score  # it would have lost
         else:
             assert r["E_val"] == full[r["kernels"]]
