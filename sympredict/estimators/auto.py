@@ -241,7 +241,7 @@ class KernelSearch(Setting):
         halving : bool
             Successive halving: candidates are first compared at a fraction of their centres, and only those not
             clearly losing there are fitted to full size (see Notes); ``False`` (the default): every candidate at full
-            size.  On the five systems of ``sympredict_paper/studies/search_cost.py`` both choose the same settings;
+            size (unless ``early_stop`` stops it at half of it).  On the five systems of ``sympredict_paper/studies/search_cost.py`` both choose the same settings;
             on noisy pendulum trajectories (30 x 20 steps, noise 1e-3) halving chose a wider kernel whose held-out
             error was 1.25 times the full search's, so it is not the default.
         rollout_finalists : bool
