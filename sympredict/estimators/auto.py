@@ -241,9 +241,10 @@ class KernelSearch(Setting):
         halving : bool
             Successive halving: candidates are first compared at a fraction of their centres, and only those not
             clearly losing there are fitted to full size (see Notes); ``False`` (the default): every candidate at full
-            size (unless ``early_stop`` stops it at half of it).  On the five systems of ``sympredict_paper/studies/search_cost.py`` both choose the same settings;
-            on noisy pendulum trajectories (30 x 20 steps, noise 1e-3) halving chose a wider kernel whose held-out
-            error was 1.25 times the full search's, so it is not the default.
+            size (unless ``early_stop`` stops it at half of it).  On the five systems of
+            ``sympredict_paper/studies/search_cost.py`` both choose the same settings; on noisy pendulum trajectories
+            (30 x 20 steps, noise 1e-3) halving chose a wider kernel whose held-out error was 1.25 times the full
+            search's, so it is not the default.
         rollout_finalists : bool
             Where the fit holds at least five whole trajectories out (data given as 91 or more trajectories, see
             :meth:`~sympredict.estimators.predictor.SymplecticKernelPredictor.fit`), score the finalists by the
@@ -253,12 +254,13 @@ class KernelSearch(Setting):
         early_stop : bool
             Stop the fit of a candidate once it is clearly losing (:class:`~sympredict.estimators.search.EarlyStop`;
             rows with ``abandoned``, never chosen): in the first stage where its validation residual at half of
-            ``m_star`` exceeds 100 times the smallest ``E_val(m_star)`` of its grid so far (the greedy's own residual,
+            ``m_star`` exceeds 200 times the smallest ``E_val(m_star)`` of its grid so far (the greedy's own residual,
             no extra cost); in the second stage's coordinate search where its one-step error at half its centres
-            (the prefix scored as the full fit would be) exceeds 100 times the best full-size score so far.  Such a
-            candidate cannot win unless its score falls more than 100 times over the second half of its centres; on
-            the search candidates of the six systems of ``sympredict_paper/studies/search_cost.py`` the residual fell
-            at most 37 times and the one-step error 49 times (:data:`~sympredict.estimators.search.EARLY_STOP_MARGINS`).
+            (the prefix scored as the full fit would be) exceeds 300 times the best full-size score so far.  Such a
+            candidate cannot win unless its score falls more than that over the second half of its centres; on the
+            search candidates of the six systems of ``sympredict_paper/studies/search_cost.py`` the residual fell at
+            most 62 times and the one-step error 107 times (:data:`~sympredict.estimators.search.E_VAL_STOP_MARGINS`,
+            :data:`~sympredict.estimators.search.EARLY_STOP_MARGINS`).
             The second stage's starts are never stopped (one that stops early, too flat, gets its shapes narrowed,
             which a stopped fit cannot tell), nor any candidate where held-out rollouts decide among the finalists
             (``rollout_finalists``: one losing on one step may win there) or with ``halving`` (its rung rule decides

@@ -61,6 +61,8 @@ __all__ = [
     "HeldOutScore",
     "EarlyStop",
     "EARLY_STOP",
+    "EARLY_STOP_MARGINS",
+    "E_VAL_STOP_MARGINS",
     "CANDIDATE_STOP",
     "relative_rollout_error",
     "pair_factors",
@@ -260,11 +262,12 @@ def grid_search(
         one acceptance system).
     early_stop
         Stop a candidate's fit at half of ``m_star`` where its validation residual exceeds
-        :data:`EARLY_STOP_MARGINS`' factor (100) times the smallest ``E_val(m_star)`` so far (:class:`EarlyStop` by
-        ``'E_val'``: the residual is the greedy's own, no extra cost); recorded with ``abandoned`` (its centres) and
+        :data:`E_VAL_STOP_MARGINS`' factor (200) times the smallest ``E_val(m_star)`` so far (:class:`EarlyStop` by
+        ``'E_val'``: the residual is the greedy's own, no extra cost; every candidate trained to ``m_star`` records
+        its ``E_val_half`` there, with or without the early stop); recorded with ``abandoned`` (its centres) and
         ``E_val = inf``, never the result.  From half of ``m_star`` to all of it the validation residuals of the
         kernel search's first-stage candidates on the six systems of ``sympredict_paper/studies/search_cost.py``
-        fell at most 37 times, so such a candidate would not have won.  Not with ``rungs`` or ``prefer_complete``.
+        fell at most 62 times, so such a candidate would not have won.  Not with ``rungs`` or ``prefer_complete``.
 
     Returns
     -------
@@ -298,7 +301,8 @@ def grid_search(
     base = estimator
     dt_fixed = np.ptp(data.dt) == 0
     table = []
-    early = EarlyStop(criterion="E_val") if early_stop and not rungs and not prefer_complete else None
+    use = early_stop and not rungs and not prefer_complete
+    early = EarlyStop(criterion="E_val", margins=E_VAL_STOP_MARGINS) if use else None
     unresolved = []  # per fitted candidate: is its validation residual at m_star still above half its start?
 
     def score(tup, widened=False, rung=None) -> SelectionResult:
@@ -359,8 +363,10 @@ def grid_search(
         complete = model.n_centers_ >= size or model.history_.stop_reason == "tol"
         if np.isfinite(value) and rung is None:
             unresolved.append(value > 0.5 * float(val[0]))
+        half = size // 2  # the early stop's checkpoint: what its margin is measured on
         row.update(
             E_val=value,
+            **({"E_val_half": float(val[half])} if rung is None and len(val) > half else {}),
             E_train=float(model.history_.train_max_residual[-1]),
             n_centers=model.n_centers_,
             complete=complete,
@@ -685,14 +691,17 @@ def standard_error(score) -> float:
     return float(getattr(score, "standard_error", 0.0))
 
 
-#: Where a search candidate's fit is checked, ``(fraction, factor)``: at ``fraction`` of its centres it stops if its
-#: score exceeds ``factor`` times the score it must beat (:class:`EarlyStop`).  The factor bounds how far the score
-#: may still fall from there to the full size: on the search candidates of the six systems of
-#: ``sympredict_paper/studies/search_cost.py``, from half the centres to all of them, the held-out one-step error of
-#: the second stage's fell at most 49 times and the validation residual ``E_val`` of the first stage's 37 times (the
-#: one-step error fell up to 970 times from a quarter of the centres, so no earlier checkpoint: a sharp kernel far
-#: behind at a quarter of its centres can still win).
-EARLY_STOP_MARGINS = ((0.5, 100.0),)
+#: Where a search candidate's fit is checked by its held-out one-step error, ``(fraction, factor)``: at ``fraction``
+#: of its centres it stops if its score exceeds ``factor`` times the score it must beat (:class:`EarlyStop`).  The
+#: factor bounds how far the score may still fall from there to the full size, with room to spare: on the full-size
+#: search candidates of the six systems of ``sympredict_paper/studies/search_cost.py`` (``--decay``,
+#: ``docs/data/search_decay.json``) the one-step error fell at most 107 times from half the centres to all of them,
+#: and up to 1,700 times from a quarter (so no earlier checkpoint: a sharp kernel far behind at a quarter of its
+#: centres can still win).
+EARLY_STOP_MARGINS = ((0.5, 300.0),)
+#: The same for the first stage's validation residual ``E_val`` (:func:`grid_search`'s ``early_stop``): it fell at
+#: most 62 times from half of ``m_star`` to all of it on those systems.
+E_VAL_STOP_MARGINS = ((0.5, 200.0),)
 
 
 @dataclass

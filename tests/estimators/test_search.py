@@ -160,13 +160,13 @@ def test_grid_search_with_rungs_keeps_the_best_candidate_at_a_fraction_of_the_fi
 
 
 def test_grid_search_early_stop_keeps_the_winner_and_stops_only_candidates_clearly_losing_at_half_m_star(rung_case):
-    """With ``early_stop`` a candidate whose ``E_val`` at half of ``m_star`` exceeds 100 times the smallest
+    """With ``early_stop`` a candidate whose ``E_val`` at half of ``m_star`` exceeds 200 times the smallest
     ``E_val(m_star)`` so far stops there: the same winner and score as training every candidate to ``m_star`` (the
     same fits of the same arrays), and every stopped candidate was that far behind."""
     from sympredict import SymplecticKernelPredictor
-    from sympredict.estimators.search import EARLY_STOP_MARGINS, fit_candidate
+    from sympredict.estimators.search import E_VAL_STOP_MARGINS, fit_candidate
 
-    ((fraction, factor),) = EARLY_STOP_MARGINS
+    ((fraction, factor),) = E_VAL_STOP_MARGINS
     train, val = rung_case
     grid = [IMQ(e) for e in (0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0, 20.0, 50.0)]
     est = SymplecticKernelPredictor(update="midpoint")

@@ -135,6 +135,26 @@ def test_the_defaults_page_claims_follow_the_early_stop_run_at_18000_samples():
         assert 1 / 3 < row[f"median_{key}"]["default"] < row[f"median_{key}"]["full"]
 
 
+def test_the_early_stop_margin_lies_above_every_decay_of_the_published_run():
+    """``search_decay.json`` (``search_cost.py --decay``): its maxima are those of its rows, and the early stop's
+    factors at half the centres (the library's constants) are at least twice the largest fall of any search
+    candidate's score from half its centres to all of them, for each criterion; from a quarter of the centres the
+    one-step error fell by more than the factor (why the check is not earlier)."""
+    from sympredict.estimators.search import E_VAL_STOP_MARGINS, EARLY_STOP_MARGINS
+
+    run = _load("search_decay.json")
+    assert sorted(r["system"] for r in run["rows"]) == sorted(
+        ["three_body", "noisy_pendulum", "readme_pendulum", "kepler", "henon_heiles", "coupled_pendulums"]
+    )
+    for key in ("first_stage_half", "one_step_half", "one_step_quarter"):
+        assert run["max"][key] == max(r[key]["max"] for r in run["rows"] if r[key]["max"] is not None), key
+        assert all(r[key]["n"] > 0 for r in run["rows"]), key
+    ((fraction, factor),), ((e_fraction, e_factor),) = EARLY_STOP_MARGINS, E_VAL_STOP_MARGINS
+    assert fraction == e_fraction == 0.5
+    assert factor >= 2 * run["max"]["one_step_half"] and e_factor >= 2 * run["max"]["first_stage_half"]
+    assert run["max"]["one_step_quarter"] > factor
+
+
 # ---------------------------------------------------------------------------------- the three-body structure runs
 @pytest.mark.parametrize("name", ["structure_search_300.json", "structure_search_300_seed2.json"])
 def test_structure_comparison_recomputed_from_the_runs(name):
