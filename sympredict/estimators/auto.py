@@ -125,7 +125,8 @@ class SearchResult:
         Wall time of the search.
     table : list of dict
         Every candidate fitted, by ``stage``: 1 (kernels, update, ``E_val``, ``E_train``, centres, fit time) and 2
-        (kernels, ``ratio``, update, one-step ``score``, centres, fit time); ``error`` where a fit failed.
+        (kernels, ``ratio``, update, one-step ``score``, centres, fit time); ``error`` where a fit failed, ``abandoned``
+        (the centres it stopped at, its score ``inf``) where :attr:`KernelSearch.early_stop` stopped a clearly losing one.
     m_final : int
         Centres at which the second stage compared candidates (the final budget, at most
         :attr:`KernelSearch.final_centers`).
