@@ -53,7 +53,9 @@ from sympredict.base import Setting, clone
 from sympredict.data import FlowMapData, TrajectoryData
 from sympredict.estimators.search import (
     CANDIDATE_FIT,
+    EARLY_STOP,
     SEARCH_LOGGER,
+    EarlyStop,
     coordinate_search,
     grid_search,
     final_size_score,
@@ -123,7 +125,8 @@ class SearchResult:
         Wall time of the search.
     table : list of dict
         Every candidate fitted, by ``stage``: 1 (kernels, update, ``E_val``, ``E_train``, centres, fit time) and 2
-        (kernels, ``ratio``, update, one-step ``score``, centres, fit time); ``error`` where a fit failed.
+        (kernels, ``ratio``, update, one-step ``score``, centres, fit time); ``error`` where a fit failed, ``abandoned``
+        (the centres it stopped at, its score ``inf``) where :attr:`KernelSearch.early_stop` stopped a clearly losing one.
     m_final : int
         Centres at which the second stage compared candidates (the final budget, at most
         :attr:`KernelSearch.final_centers`).
@@ -239,15 +242,30 @@ class KernelSearch(Setting):
         halving : bool
             Successive halving: candidates are first compared at a fraction of their centres, and only those not
             clearly losing there are fitted to full size (see Notes); ``False`` (the default): every candidate at full
-            size.  On the five systems of ``sympredict_paper/studies/search_cost.py`` both choose the same settings;
-            on noisy pendulum trajectories (30 x 20 steps, noise 1e-3) halving chose a wider kernel whose held-out
-            error was 1.25 times the full search's, so it is not the default.
+            size (unless ``early_stop`` stops it at half of it).  On the five systems of
+            ``sympredict_paper/studies/search_cost.py`` both choose the same settings; on noisy pendulum trajectories
+            (30 x 20 steps, noise 1e-3) halving chose a wider kernel whose held-out error was 1.25 times the full
+            search's, so it is not the default.
         rollout_finalists : bool
             Where the fit holds at least five whole trajectories out (data given as 91 or more trajectories, see
             :meth:`~sympredict.estimators.predictor.SymplecticKernelPredictor.fit`), score the finalists by the
             error of their rollouts of the held-out trajectories and choose the smallest (see Notes); ``False``:
             the smallest one-step error decides, as it does for scattered samples.  Off by default: on pendulum
             trajectories it chose a worse model for the test trajectories more often than a better one (Notes).
+        early_stop : bool
+            Stop the fit of a candidate once it is clearly losing (:class:`~sympredict.estimators.search.EarlyStop`;
+            rows with ``abandoned``, never chosen): in the first stage where its validation residual at half of
+            ``m_star`` exceeds 200 times the smallest ``E_val(m_star)`` of its grid so far (the greedy's own residual,
+            no extra cost); in the second stage's coordinate search where its one-step error at half its centres
+            (the prefix scored as the full fit would be) exceeds 300 times the best full-size score so far.  Such a
+            candidate cannot win unless its score falls more than that over the second half of its centres; on the
+            search candidates of the six systems of ``sympredict_paper/studies/search_cost.py`` the residual fell at
+            most 62 times and the one-step error 107 times (:data:`~sympredict.estimators.search.E_VAL_STOP_MARGINS`,
+            :data:`~sympredict.estimators.search.EARLY_STOP_MARGINS`).
+            The second stage's starts are never stopped (one that stops early, too flat, gets its shapes narrowed,
+            which a stopped fit cannot tell), nor any candidate where held-out rollouts decide among the finalists
+            (``rollout_finalists``: one losing on one step may win there) or with ``halving`` (its rung rule decides
+            there).  ``False``: every candidate is fitted to its full size.
         final_size : bool
             Where the estimator's ``max_centers`` exceeds ``final_centers``, fit the chosen settings to
             ``max_centers`` centres too, and where that fit stops early (numerically singular: shapes too flat for
@@ -346,6 +364,7 @@ class KernelSearch(Setting):
         halving: bool = False,
         rollout_finalists: bool = False,
         final_size: bool = True,
+        early_stop: bool = True,
     ):
         self.families = families
         self.shapes = shapes
@@ -361,6 +380,7 @@ class KernelSearch(Setting):
         self.halving = halving
         self.rollout_finalists = rollout_finalists
         self.final_size = final_size
+        self.early_stop = early_stop
 
     @classmethod
     def quick(cls, **overrides) -> "KernelSearch":
@@ -431,6 +451,7 @@ class KernelSearch(Setting):
         as_flag(self.halving, "KernelSearch: halving")
         as_flag(self.rollout_finalists, "KernelSearch: rollout_finalists")
         as_flag(self.final_size, "KernelSearch: final_size")
+        as_flag(self.early_stop, "KernelSearch: early_stop")
         if not (isinstance(self.validation_fraction, (int, float)) and 0 < self.validation_fraction < 1):
             raise ValueError(f"KernelSearch: validation_fraction must lie in (0, 1), got {self.validation_fraction!r}")
         return self
@@ -582,10 +603,25 @@ class KernelSearch(Setting):
                 f", q/p shape ratio {cand[1]:g}" if scaled else ""
             )
 
+        # the coordinate search's candidates each compete with its best so far, which is the best full-size score
+        # of the stage (it starts from the best start): one clearly losing stops early (EarlyStop); the starts do
+        # not (one that would stop early, too flat, gets its shapes narrowed, which a stopped fit cannot tell)
+        early = EarlyStop() if self.early_stop and roll is None and rung_size is None else None
+        refining = [False]
+
         def score(cand):
             if cand not in scores:
                 label = label_of(cand)
-                sc, n, secs, err, extra = halved_score(params_of(cand), label)
+                finite = [v[0] for v in scores.values() if np.isfinite(v[0])]
+                bound = min(finite) if refining[0] and finite else np.inf
+                token = None if early is None else EARLY_STOP.set(early.start(bound))
+                try:
+                    sc, n, secs, err, extra = halved_score(params_of(cand), label)
+                finally:
+                    if token is not None:
+                        EARLY_STOP.reset(token)
+                if early is not None and early.abandoned is not None:
+                    extra = {**extra, "abandoned": early.abandoned, "abandoned_score": early.scores[early.abandoned]}
                 scores[cand] = (sc, n, secs, err, extra.get("cut", False))
                 if "rollout" in extra:
                     rollout_of[cand] = extra["rollout"]
@@ -604,7 +640,13 @@ class KernelSearch(Setting):
                 )
                 logger.info(
                     f"kernel search, stage 2 ({cand[4]}): {label}: "
-                    + ("cut at the rung" if extra.get("cut") else f"one-step error {sc:.3e} with {n} centres")
+                    + (
+                        "cut at the rung"
+                        if extra.get("cut")
+                        else f"stopped at {n} centres, one-step error {extra['abandoned_score']:.3e} (clearly losing)"
+                        if "abandoned" in extra
+                        else f"one-step error {sc:.3e} with {n} centres"
+                    )
                     + (f", held-out rollout error {extra['rollout']:.3e}" if "rollout" in extra else "")
                 )
             return scores[cand][0]
@@ -630,6 +672,7 @@ class KernelSearch(Setting):
                 )
                 starts.append(cand)
         best = min(starts, key=score)
+        refining[0] = True
         active = [
             i
             for i, key in ((0, "state"), (1, None), (2, "mu"), (3, "dt"))
@@ -781,7 +824,15 @@ class KernelSearch(Setting):
             for update in updates:
                 try:
                     result = grid_search(
-                        train, val, state_grid, mu_grid, dt_grid, m_star=m_star, estimator=template(update), rungs=rungs
+                        train,
+                        val,
+                        state_grid,
+                        mu_grid,
+                        dt_grid,
+                        m_star=m_star,
+                        estimator=template(update),
+                        rungs=rungs,
+                        early_stop=self.early_stop,
                     )
                 except ValueError as exc:  # no candidate of this update trains: the other update may
                     logger.info(f"kernel search, stage 1 ({update}): no candidate trains ({exc})")
@@ -802,6 +853,7 @@ class KernelSearch(Setting):
                                 m_star=m_star,
                                 estimator=template(update),
                                 rungs=rungs,
+                                early_stop=self.early_stop,
                             )
                         except ValueError as exc:
                             table.append({"stage": 1, "update": update, "E_val": np.inf, "error": str(exc)})

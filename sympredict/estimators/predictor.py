@@ -56,7 +56,7 @@ from sympredict.estimators.fitted import (
     training_box,
 )
 from sympredict.estimators.model_files import MODEL_FORMAT, MODEL_LAYOUT
-from sympredict.estimators.search import relative_rollout_error
+from sympredict.estimators.search import CANDIDATE_STOP, relative_rollout_error
 from sympredict.estimators.structure import warn_wrapped_angles
 from sympredict.exceptions import (
     AccuracyWarning,
@@ -729,6 +729,9 @@ class SymplecticKernelPredictor(_FlowMapKernelModel):
             val = (HBFunctionals(kernel, vxi, validation.mu, validation.dt), vy.reshape(-1))
             if score_prefixes:
                 checkpoints = _HeldOutSteps(self, rule, kernel, xi, data, validation, scale, settings, rollouts)
+        early = CANDIDATE_STOP.get()
+        if checkpoints is None and early is not None:  # a search's candidate: stopped where it is clearly losing
+            checkpoints = _EarlyStopCheckpoints(self, rule, kernel, xi, data, scale, early)
         result, points, comps = self._train(trainer, kernel, xi, y.reshape(-1), data, val, checkpoints=checkpoints)
         sur = HBSurrogate(kernel, xi[points], data.mu[points], data.dt[points], comps, result.coef)
         fitted = FittedSymplecticFlowMap(
@@ -905,6 +908,47 @@ def _hold_out_trajectories(trajectories: TrajectoryData, seed: int, fraction: fl
         return TrajectoryData(trajectories.states[index], mu if mu.shape[1] else None, dt=trajectories.dt)
 
     return part(rows[n_out:]), part(rows[:n_out])
+
+
+class _EarlyStopCheckpoints:
+    """A search candidate's checkpoints (:class:`~sympredict.interpolation.greedy.loop.Checkpoints`): at each of
+    ``early.checkpoints(max_centers)`` the prefix's one-step error on ``early.samples`` (NumPy Newton, as
+    :class:`_HeldOutSteps`; :meth:`~sympredict.estimators.search.EarlyStop.error`; or, by the criterion ``'E_val'``,
+    the greedy's validation residual, at no cost), and ``give_up`` where
+    :class:`~sympredict.estimators.search.EarlyStop` says the candidate is clearly losing.  No target; the run keeps
+    every centre.  ``O(S m (2n)^2)`` per checkpoint for ``S`` held-out samples."""
+
+    target = None
+
+    def __init__(self, model, rule, kernel, xi, data: FlowMapData, scale: np.ndarray, early):
+        self.rule, self.kernel, self.xi, self.data, self.scale, self.early = rule, kernel, xi, data, scale, early
+        self.m = int(model.max_centers)
+        self.at = early.checkpoints(self.m)
+        self.max_iter = model._newton_iterations()
+
+    def score(self, m: int, selected: np.ndarray, coef: np.ndarray) -> float:
+        if m not in self.at or self.early.criterion == "E_val":  # the last size: the search scores it itself
+            return float("nan")
+        pts, comps = np.divmod(np.asarray(selected), self.xi.shape[1])
+        d = self.data
+        sur = HBSurrogate(self.kernel, self.xi[pts], d.mu[pts], d.dt[pts], comps, coef)
+        h, w = self.early.samples
+        try:
+            with np.errstate(all="ignore"):
+                x1 = self.rule.solve(sur, h.x0 * self.scale, sur.weights(h.mu, h.dt), h.dt, self.max_iter) / self.scale
+            return self.early.error(x1, h.x0, h.x1, w)
+        except (NewtonConvergenceError, NonFinitePredictionError, ArithmeticError, np.linalg.LinAlgError):
+            return float("inf")
+
+    def give_up(self, m: int, value: float, val_max: Optional[float] = None) -> bool:
+        return self.early.give_up(m, self.m, val_max if self.early.criterion == "E_val" else value)
+
+    def keep(self, m: int) -> int:
+        return m
+
+    def results(self, n_centers: int) -> tuple:
+        """No prefix errors for the fit to report (``prefix_errors_``, ``prefix_rollout_errors_``: ``None``)."""
+        return None, None
 
 
 class _HeldOutSteps:

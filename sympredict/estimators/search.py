@@ -59,6 +59,11 @@ __all__ = [
     "one_step_score",
     "final_size_score",
     "HeldOutScore",
+    "EarlyStop",
+    "EARLY_STOP",
+    "EARLY_STOP_MARGINS",
+    "E_VAL_STOP_MARGINS",
+    "CANDIDATE_STOP",
     "relative_rollout_error",
     "pair_factors",
     "column_std",
@@ -218,6 +223,7 @@ def grid_search(
     estimator=None,
     widen: int = 2,
     rungs: Sequence[int] = (),
+    early_stop: bool = False,
 ) -> SelectionResult:
     """Grid search over kernel tuples by validation residual at ``m_star`` centres.
 
@@ -254,6 +260,14 @@ def grid_search(
         Rung fits are recorded in the table with ``rung`` (their centre count) and are never the result.
         Widening candidates are trained to ``m_star`` directly (comparing them at a rung changed the choice on
         one acceptance system).
+    early_stop
+        Stop a candidate's fit at half of ``m_star`` where its validation residual exceeds
+        :data:`E_VAL_STOP_MARGINS`' factor (200) times the smallest ``E_val(m_star)`` so far (:class:`EarlyStop` by
+        ``'E_val'``: the residual is the greedy's own, no extra cost; every candidate trained to ``m_star`` records
+        its ``E_val_half`` there, with or without the early stop); recorded with ``abandoned`` (its centres) and
+        ``E_val = inf``, never the result.  From half of ``m_star`` to all of it the validation residuals of the
+        kernel search's first-stage candidates on the six systems of ``sympredict_paper/studies/search_cost.py``
+        fell at most 62 times, so such a candidate would not have won.  Not with ``rungs`` or ``prefer_complete``.
 
     Returns
     -------
@@ -287,6 +301,8 @@ def grid_search(
     base = estimator
     dt_fixed = np.ptp(data.dt) == 0
     table = []
+    use = early_stop and not rungs and not prefer_complete
+    early = EarlyStop(criterion="E_val", margins=E_VAL_STOP_MARGINS) if use else None
     unresolved = []  # per fitted candidate: is its validation residual at m_star still above half its start?
 
     def score(tup, widened=False, rung=None) -> SelectionResult:
@@ -306,6 +322,10 @@ def grid_search(
             **({} if rung is None else {"rung": rung}),
         }
         t0 = time.perf_counter()
+        token = None
+        if early is not None and rung is None:  # to beat: the smallest E_val(m_star) so far
+            finite = [r["E_val"] for r in table if "rung" not in r and np.isfinite(r["E_val"])]
+            token = CANDIDATE_STOP.set(early.start(min(finite) if finite else np.inf))
         try:
             fit_candidate(model, data, validation, uses_mu=mu_k is not None)
         except (ValueError, ArithmeticError) as exc:  # LinAlgError is a ValueError
@@ -321,13 +341,32 @@ def grid_search(
             table.append(row)
             logger.warning(f"{label}: fit failed, candidate skipped ({exc})")
             return SelectionResult(state, mu_k, dt_k, np.inf, False)
+        finally:
+            if token is not None:
+                CANDIDATE_STOP.reset(token)
         val = model.history_.val_max_residual
+        if token is not None and early.abandoned is not None:  # clearly losing: never the result
+            row.update(
+                E_val=np.inf,
+                E_train=float(model.history_.train_max_residual[-1]),
+                n_centers=model.n_centers_,
+                complete=False,
+                abandoned=early.abandoned,
+                abandoned_E_val=float(val[-1]),
+                fit_s=time.perf_counter() - t0,
+            )
+            table.append(row)
+            unresolved.append(float(val[-1]) > 0.5 * float(val[0]))
+            logger.info(f"{label}: E_val({model.n_centers_}) = {float(val[-1]):.3e}, clearly losing: stopped")
+            return SelectionResult(state, mu_k, dt_k, np.inf, False)
         value = float(val[-1])
         complete = model.n_centers_ >= size or model.history_.stop_reason == "tol"
         if np.isfinite(value) and rung is None:
             unresolved.append(value > 0.5 * float(val[0]))
+        half = size // 2  # the early stop's checkpoint: what its margin is measured on
         row.update(
             E_val=value,
+            **({"E_val_half": float(val[half])} if rung is None and len(val) > half else {}),
             E_train=float(model.history_.train_max_residual[-1]),
             n_centers=model.n_centers_,
             complete=complete,
@@ -652,6 +691,104 @@ def standard_error(score) -> float:
     return float(getattr(score, "standard_error", 0.0))
 
 
+#: Where a search candidate's fit is checked by its held-out one-step error, ``(fraction, factor)``: at ``fraction``
+#: of its centres it stops if its score exceeds ``factor`` times the score it must beat (:class:`EarlyStop`).  The
+#: factor bounds how far the score may still fall from there to the full size, with room to spare: on the full-size
+#: search candidates of the six systems of ``sympredict_paper/studies/search_cost.py`` (``--decay``,
+#: ``docs/data/search_decay.json``) the one-step error fell at most 107 times from half the centres to all of them,
+#: and up to 1,700 times from a quarter (so no earlier checkpoint: a sharp kernel far behind at a quarter of its
+#: centres can still win).
+EARLY_STOP_MARGINS = ((0.5, 300.0),)
+#: The same for the first stage's validation residual ``E_val`` (:func:`grid_search`'s ``early_stop``): it fell at
+#: most 62 times from half of ``m_star`` to all of it on those systems.
+E_VAL_STOP_MARGINS = ((0.5, 200.0),)
+
+
+@dataclass
+class EarlyStop:
+    """Stop a search candidate's greedy fit at a checkpoint where it is clearly losing (successive halving over the
+    centres of one fit: no refit, the fit that goes on is the same run).
+
+    At each checkpoint, ``c = fraction m`` centres of the ``m`` it is fitted to (:data:`EARLY_STOP_MARGINS`), the
+    fit's prefix is scored as :func:`final_size_score` scores the full fit (the mean relative one-step error on the
+    held-out samples, in their normalised coordinates); the fit gives up where that error exceeds the margin's
+    ``factor`` times ``bound``, the score the candidate must beat (the best full-size candidate's so far).  The
+    greedy's prefixes are its own smaller interpolants, whose held-out errors fall as centres are added, and the
+    factors bound how far they fell from a checkpoint to the full size on the search candidates of the acceptance
+    systems, with room to spare: a candidate given up would have lost.  A prefix whose Newton solve fails (score
+    ``inf``) is not given up (a flat kernel's small prefix can fail where the full fit does not).
+
+    Attributes
+    ----------
+    bound : float
+        The score to beat; ``inf``: nothing to beat yet, the fit runs to its size.
+    margins : tuple of (float, float)
+        ``(fraction, factor)`` per checkpoint.
+    abandoned : int or None
+        Centres at which the last fit gave up (set by :meth:`give_up`; ``None``: it did not).
+    scores : dict
+        ``{centres: score}`` of the checkpoints of the last fit.
+    """
+
+    bound: float = np.inf
+    margins: tuple = EARLY_STOP_MARGINS
+    abandoned: Optional[int] = None
+    scores: dict = field(default_factory=dict)
+    #: ``(samples, weights)``: the held-out samples (a :class:`~sympredict.data.FlowMapData`) and the weights of
+    #: their coordinates (:func:`state_weights`) that score the checkpoints (set by :func:`final_size_score`).
+    samples: Optional[tuple] = field(default=None, repr=False)
+    #: What a checkpoint compares: ``'one-step'`` (the held-out one-step error of the prefix, by Newton steps on
+    #: :attr:`samples`) or ``'E_val'`` (the greedy's own validation residual, at no cost: the first stage's score).
+    criterion: str = "one-step"
+
+    #: Checkpoints below this many centres are skipped (a prefix that small says little).
+    smallest = 20
+
+    def checkpoints(self, m: int) -> list:
+        """The centre counts (increasing) at which a fit to ``m`` centres is scored."""
+        return sorted({int(f * m) for f, _ in self.margins if self.smallest <= int(f * m) < m})
+
+    def factor(self, c: int, m: int) -> float:
+        """The margin at ``c`` of ``m`` centres (that of the largest fraction at most ``c / m``)."""
+        out = np.inf
+        for f, k in sorted(self.margins):
+            if int(f * m) <= c:
+                out = k
+        return float(out)
+
+    def give_up(self, c: int, m: int, value: float) -> bool:
+        """Whether a fit to ``m`` centres whose prefix of ``c`` centres scores ``value`` stops (records it)."""
+        self.scores[int(c)] = float(value)
+        stop = bool(np.isfinite(value) and np.isfinite(self.bound) and value > self.factor(c, m) * self.bound)
+        if stop:
+            self.abandoned = int(c)
+        return stop
+
+    def start(self, bound: float) -> "EarlyStop":
+        """Reset for the next candidate, which must beat ``bound``; returns ``self``."""
+        self.bound, self.abandoned, self.scores = float(bound), None, {}
+        return self
+
+    @staticmethod
+    def error(predicted: np.ndarray, x0: np.ndarray, x1: np.ndarray, weights: np.ndarray) -> float:
+        """The mean over samples of ``|w (predicted - x1)| / |w (x1 - x0)|`` (samples that do not move left out),
+        as :func:`final_size_score` scores; ``inf`` where it is not finite."""
+        inc = np.linalg.norm((x1 - x0) * weights, axis=1)
+        rows = inc > 0
+        miss = np.linalg.norm((predicted - x1) * weights, axis=1)
+        with np.errstate(all="ignore"):
+            value = float(np.mean(miss[rows] / inc[rows] if rows.any() else miss))
+        return value if np.isfinite(value) else float("inf")
+
+
+#: The :class:`EarlyStop` that :func:`final_size_score` applies to its candidates' fits (set by the kernel search
+#: around the candidates it compares with the best so far), or ``None``: every fit runs to its size.
+EARLY_STOP = contextvars.ContextVar("sympredict_early_stop", default=None)
+#: During :func:`final_size_score`'s fit of one candidate only: its :class:`EarlyStop`, whose ``samples`` (the
+#: held-out samples and their weights) score the fit's checkpoints; read by the estimator's fit.
+CANDIDATE_STOP = contextvars.ContextVar("sympredict_candidate_stop", default=None)
+
+
 def final_size_score(
     estimator,
     params: dict,
@@ -677,10 +814,28 @@ def final_size_score(
     inc = np.linalg.norm((sub.x1 - sub.x0) * w, axis=1)
     rows = inc > 0
     uses_mu = params["mu_kernel"] is not None
+    early = EARLY_STOP.get()
+    if early is not None:
+        early.start(early.bound)
+        early.samples = (sub, w)
+    token = None if early is None else CANDIDATE_STOP.set(early)
     try:
         with warnings.catch_warnings():  # a candidate may underfit or extrapolate: its score says so
             warnings.simplefilter("ignore")
-            fit_candidate(model, train, uses_mu=uses_mu, quiet=False)
+            try:
+                fit_candidate(model, train, uses_mu=uses_mu, quiet=False)
+            finally:
+                if token is not None:
+                    CANDIDATE_STOP.reset(token)
+            if early is not None and early.abandoned is not None:  # clearly losing: no score at full size
+                return (
+                    np.inf,
+                    model.n_centers_,
+                    time.perf_counter() - t0,
+                    None,
+                    None if rollouts is None else np.inf,
+                    0.0,
+                )
             pred = model.step(
                 sub.x0, mu=sub.mu if uses_mu else None, dt=sub.dt if params["dt_kernel"] is not None else None
             )

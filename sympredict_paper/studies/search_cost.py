@@ -5,7 +5,9 @@ Per system, ``SymplecticKernelPredictor(max_centers=m)`` (the defaults) is fitte
 configurations of ``--configs`` (default ``full halving``) in alternating order from one system to the next (the
 machine may be shared; compare the ratios, the second configuration's over the first's):
 
-* ``full``: ``search=KernelSearch()``: every search candidate fitted to its full size (the default);
+* ``full``: ``search=KernelSearch(early_stop=False)``: every search candidate fitted to its full size;
+* ``default``: ``search=KernelSearch()``: the default, a candidate clearly losing at half its centres stopped there
+  (``early_stop``: in the first stage and in the second stage's coordinate search);
 * ``halving``: ``search=KernelSearch(halving=True)``: candidates compared first at a fraction of their centres, and only
   those not clearly losing there fitted to full size (:class:`sympredict.KernelSearch`, Notes);
 * ``quick``: ``search=KernelSearch.quick()``: candidates compared at 100 and 250 centres on 1,200 samples, with
@@ -36,6 +38,12 @@ Run:  python sympredict_paper/studies/search_cost.py        # writes docs/data/s
           --json docs/data/search_cost_quick.json
       python sympredict_paper/studies/search_cost.py --configs full quick --systems three_body --repeats 3 \
           --json docs/data/search_cost_stages.json
+      python sympredict_paper/studies/search_cost.py --configs full default --systems three_body noisy_pendulum \
+          readme_pendulum kepler henon_heiles coupled_pendulums --json docs/data/search_cost_early.json
+      python sympredict_paper/studies/search_cost.py --configs full default --systems three_body --traj 300 \
+          --repeats 3 --json docs/data/search_cost_early_300.json
+      python sympredict_paper/studies/search_cost.py --decay --systems three_body noisy_pendulum readme_pendulum \
+          kepler henon_heiles coupled_pendulums --json docs/data/search_decay.json
 One BLAS and one numba thread.
 """
 
@@ -44,6 +52,7 @@ from __future__ import annotations
 import argparse
 import time
 import warnings
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -52,13 +61,15 @@ import _protocol  # sympredict_paper/studies/ (the script's folder is on sys.pat
 from defaults_acceptance import make_benchmarks, make_test_set, one_step_error, trajectory_metrics
 
 from sympredict import KernelSearch, SymplecticKernelPredictor
+from sympredict.estimators.search import EARLY_STOP, EarlyStop
 from sympredict.data import FlowMapData
 
 RESULTS = Path(__file__).resolve().parents[2] / "docs" / "data" / "search_cost.json"
 SYSTEMS = ("three_body", "readme_pendulum", "kepler", "henon_heiles", "coupled_pendulums", "noisy_pendulum")
 #: The configurations compared: the default search, successive halving, and the quick preset.
 CONFIGS = {
-    "full": lambda: KernelSearch(),
+    "full": lambda: KernelSearch(early_stop=False),
+    "default": lambda: KernelSearch(),
     "halving": lambda: KernelSearch(halving=True),
     "quick": lambda: KernelSearch.quick(),
 }
@@ -240,6 +251,65 @@ def run(label: str, case: dict) -> dict:
     return out
 
 
+@dataclass
+class _Recorder(EarlyStop):
+    """An :class:`EarlyStop` that never stops: it keeps each full-size candidate's checkpoint scores (``history``,
+    one dict per candidate fitted, in the order of the search's table rows of stages 2 to 4)."""
+
+    history: list = field(default_factory=list)
+
+    def start(self, bound: float) -> "EarlyStop":
+        self.history.append({})
+        return super().start(np.inf)
+
+    def give_up(self, c: int, m: int, value: float) -> bool:
+        self.history[-1][int(c)] = float(value)
+        return False
+
+
+def decay(name: str, case: dict) -> dict:
+    """How far each search candidate's score fell from a checkpoint to its full size (the early stop's margin):
+    the default search with every candidate at full size (``early_stop=False``); the first stage's ``E_val`` at half
+    of ``m_star`` (``E_val_half``) over ``E_val(m_star)``; the later stages' held-out one-step error at a quarter and
+    at half of the centres (the prefix of the same fit) over the full fit's.  Only candidates that reached their size."""
+    recorder = _Recorder(margins=((0.25, np.inf), (0.5, np.inf)))
+    model = SymplecticKernelPredictor(max_centers=case["max_centers"], search=KernelSearch(early_stop=False))
+    token = EARLY_STOP.set(recorder)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            model.fit(case["data"])
+    finally:
+        EARLY_STOP.reset(token)
+    table = model.search_.table
+    first = [
+        r["E_val_half"] / r["E_val"] for r in table if r.get("stage") == 1 and "E_val_half" in r and r.get("complete")
+    ]
+    later = [r for r in table if r.get("stage") in (2, 3, 4)]
+    assert len(later) == len(recorder.history), "one recorded candidate per row of stages 2 to 4"
+    m_final, out = model.search_.m_final, {"quarter": [], "half": []}
+    for row, scores in zip(later, recorder.history):
+        m = model.search_.final_size if row["stage"] == 4 else m_final
+        if not np.isfinite(row["score"]) or row["n_centers"] < m or row["score"] <= 0:
+            continue
+        for key, fraction in (("quarter", 0.25), ("half", 0.5)):
+            value = scores.get(int(fraction * m))
+            if value is not None and np.isfinite(value):
+                out[key].append(value / float(row["score"]))
+    result = {
+        "system": name,
+        "first_stage_half": {"n": len(first), "max": max(first, default=None), "median": _median(first)},
+        **{f"one_step_{k}": {"n": len(v), "max": max(v, default=None), "median": _median(v)} for k, v in out.items()},
+        "choice": {k: repr(v) for k, v in model.choice_.items()},
+    }
+    print(f"  {name}: {result}", flush=True)
+    return result
+
+
+def _median(values):
+    return float(np.median(values)) if values else None
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--systems", nargs="+", default=list(SYSTEMS), choices=SYSTEMS)
@@ -268,8 +338,31 @@ def main(argv=None):
         default=[],
         help="further three-body rows at these max_centers (the search's share at larger sizes)",
     )
+    parser.add_argument(
+        "--decay",
+        action="store_true",
+        help="instead of the comparison: how far each search candidate's score fell from a checkpoint to its full "
+        "size (the early stop's margin), with every candidate at full size",
+    )
     _protocol.add_arguments(parser, threads=1, json_default=str(RESULTS))
     args = parser.parse_args(argv)
+    if args.decay:
+        with _protocol.limits(args.blas_threads, args.threads):
+            protocol = _protocol.record_options(args, repeats=1, warmup=0, notes="one fit per system")
+            rows = []
+            for name in args.systems:
+                rows.append(decay(name, make_case(name, args)))
+                summary = {
+                    key: max((r[key]["max"] for r in rows if r[key]["max"] is not None), default=None)
+                    for key in ("first_stage_half", "one_step_half", "one_step_quarter")
+                }
+                _protocol.write_json(
+                    args.json,
+                    {"settings": {k: v for k, v in vars(args).items() if k != "json"}, "rows": rows, "max": summary},
+                    protocol,
+                )
+        print(f"wrote {args.json}")
+        return
     rows = []
     with _protocol.limits(args.blas_threads, args.threads):
         protocol = _protocol.record_options(

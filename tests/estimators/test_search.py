@@ -7,6 +7,8 @@ import pytest
 
 from sympredict.data import FlowMapData
 from sympredict.estimators.search import HALVING_KEEP, coordinate_search, grid_search, halving_survivors, ridge_search
+from sympredict import KernelSearch
+from sympredict.base import clone
 from sympredict.kernels import IMQ
 
 
@@ -157,6 +159,41 @@ def test_grid_search_with_rungs_keeps_the_best_candidate_at_a_fraction_of_the_fi
     ]
 
 
+def test_grid_search_early_stop_keeps_the_winner_and_stops_only_candidates_clearly_losing_at_half_m_star(rung_case):
+    """With ``early_stop`` a candidate whose ``E_val`` at half of ``m_star`` exceeds 200 times the smallest
+    ``E_val(m_star)`` so far stops there: the same winner and score as training every candidate to ``m_star`` (the
+    same fits of the same arrays), and every stopped candidate was that far behind."""
+    from sympredict import SymplecticKernelPredictor
+    from sympredict.estimators.search import E_VAL_STOP_MARGINS, fit_candidate
+
+    ((fraction, factor),) = E_VAL_STOP_MARGINS
+    train, val = rung_case
+    grid = [IMQ(e) for e in (0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0, 20.0, 50.0)]
+    est = SymplecticKernelPredictor(update="midpoint")
+    plain = grid_search(train, val, grid, m_star=100, estimator=est, widen=0)
+    early = grid_search(train, val, grid, m_star=100, estimator=est, widen=0, early_stop=True)
+    assert early.state == plain.state and early.score == plain.score
+    stopped = [r for r in early.table if "abandoned" in r]
+    assert stopped and all(r["n_centers"] == r["abandoned"] == int(fraction * 100) for r in stopped)
+    full = {r["kernels"]: r["E_val"] for r in plain.table}
+    half = {}  # each candidate's own E_val at the checkpoint, from its full run's history
+    for k in grid:
+        model = clone(est).set_params(state_kernel=k, max_centers=100, trainer__tol=0.0)
+        curve = fit_candidate(model, train, val).history_.val_max_residual
+        half[repr(k)] = float(curve[int(fraction * 100)]) if len(curve) > fraction * 100 else None  # stopped before
+    for i, r in enumerate(early.table):
+        before = [q["E_val"] for q in early.table[:i] if np.isfinite(q["E_val"])]
+        reached = half[r["kernels"]] is not None
+        assert ("abandoned" in r) == bool(before and reached and half[r["kernels"]] > factor * min(before)), r[
+            "kernels"
+        ]
+        if "abandoned" in r:
+            assert r["E_val"] == np.inf and r["abandoned_E_val"] == half[r["kernels"]]
+            assert full[r["kernels"]] > plain.score  # it would have lost
+        else:
+            assert r["E_val"] == full[r["kernels"]]
+
+
 def test_quick_search_preset_and_its_overrides():
     """``KernelSearch.quick()``: the default search with smaller comparison sizes and halving; overrides on top,
     checked as any setting is."""
@@ -224,3 +261,140 @@ def test_stage_seconds_split_the_search_time_by_stage(quick_fit):
         assert seconds == pytest.approx(sum(r.get("fit_s", 0.0) for r in s.table if r["stage"] == stage), rel=1e-12)
         assert seconds > 0
     assert sum(split.values()) <= s.seconds
+
+
+# ------------------------------------------------------------------ early stop of clearly losing candidates
+def test_early_stop_checks_half_the_centres_and_gives_up_only_beyond_its_margin_of_a_finite_bound():
+    from sympredict.estimators.search import EARLY_STOP_MARGINS, EarlyStop
+
+    ((fraction, factor),) = EARLY_STOP_MARGINS
+    early = EarlyStop()
+    assert early.checkpoints(40) == [int(fraction * 40)] and early.checkpoints(30) == []  # none below 20 centres
+    assert not early.start(np.inf).give_up(20, 40, 1e9)  # nothing to beat yet
+    early.start(1e-3)
+    assert not early.give_up(20, 40, 0.99 * factor * 1e-3) and early.abandoned is None
+    assert not early.give_up(20, 40, np.inf) and not early.give_up(20, 40, np.nan)  # a failed prefix goes on
+    assert early.give_up(20, 40, 1.01 * factor * 1e-3) and early.abandoned == 20
+    assert early.start(1.0).abandoned is None and early.scores == {}
+
+
+@pytest.fixture(scope="module")
+def pendulum_split(pendulum):
+    rng = np.random.default_rng(3)
+    x0 = np.column_stack([rng.uniform(-1.5, 1.5, 160), rng.uniform(-1.5, 1.5, 160)])
+    data = FlowMapData(x0, pendulum.flow(x0, 0.8, 0.1), None, np.full(160, 0.1))
+    return data.subset(np.arange(120)), data.subset(np.arange(120, 160))
+
+
+@pytest.mark.paths
+def test_a_candidate_given_up_stops_at_its_checkpoint_with_the_full_runs_prefix(pendulum_split):
+    """Under :data:`CANDIDATE_STOP` a fit scores its prefix at half its centres (the one-step error of the full fit's
+    own truncation, by another Newton solver: within its stopping rule) and stops there where it gives up; its
+    selection is the full run's prefix (the same code path), and with nothing to beat it is the full run."""
+    from sympredict import SymplecticKernelPredictor
+    from sympredict.estimators.search import CANDIDATE_STOP, EarlyStop, fit_candidate, state_weights
+
+    train, val = pendulum_split
+    est = SymplecticKernelPredictor(IMQ(0.5), max_centers=60, update="midpoint")
+    full = fit_candidate(clone(est), train)
+    assert full.n_centers_ == 60
+    w = state_weights(val)
+    for bound, stops in ((1e-12, True), (np.inf, False)):
+        early = EarlyStop(bound=bound, samples=(val, w))
+        token = CANDIDATE_STOP.set(early)
+        try:
+            model = fit_candidate(clone(est), train)
+        finally:
+            CANDIDATE_STOP.reset(token)
+        result, ref = model.model_.greedy_result, full.model_.greedy_result
+        if stops:
+            assert model.history_.stop_reason == "abandoned" and model.n_centers_ == early.abandoned == 30
+            np.testing.assert_array_equal(result.selected, ref.selected[:30])
+        else:
+            assert model.history_.stop_reason == "max_centers" and early.abandoned is None
+            np.testing.assert_array_equal(result.selected, ref.selected)
+            np.testing.assert_array_equal(result.coef, ref.coef)
+        half = full.truncated(30).step(val.x0, dt=0.1)
+        np.testing.assert_allclose(early.scores[30], EarlyStop.error(half, val.x0, val.x1, w), rtol=1e-6)
+
+
+def test_final_size_score_of_an_abandoned_candidate_is_inf_with_the_checkpoints_centres(pendulum_split):
+    from sympredict import SymplecticKernelPredictor
+    from sympredict.estimators.search import EARLY_STOP, EarlyStop, final_size_score
+
+    train, val = pendulum_split
+    est = SymplecticKernelPredictor(max_centers=60)
+    params = {"state_kernel": IMQ(0.5), "mu_kernel": None, "dt_kernel": None, "update": "midpoint"}
+    plain = final_size_score(est, params, 60, train, val)
+    for bound, expect in ((1e-12, (np.inf, 30)), (np.inf, (float(plain[0]), 60))):
+        token = EARLY_STOP.set(EarlyStop(bound=bound))
+        try:
+            value, n, _, err, _, _ = final_size_score(est, params, 60, train, val)
+        finally:
+            EARLY_STOP.reset(token)
+        assert (float(value), n, err) == (*expect, None)
+
+
+@pytest.fixture()
+def scripted_search(monkeypatch):
+    """The second stage's scores scripted by the candidate's shapes relative to the start's (the first stage is real):
+    the start scores 1e-3; its state shape doubled wins (1e-4) although at half its centres it is 50 times the start's
+    score; every other candidate scores 1e-2, and 1.0 at half its centres.  The checkpoint goes through the search's
+    :class:`EarlyStop` as a fit's would.  Returns ``{'seen': [(state eps / start's, bound or None) per call], 'start':
+    (eps, factors, mu kernel)}``."""
+    import sympredict.estimators.auto as auto
+    from sympredict.estimators.search import EARLY_STOP, HeldOutScore
+
+    record = {"seen": [], "start": None}
+
+    def scripted(estimator, params, m_final, train, val, largest=500, rollouts=None):
+        state = params["state_kernel"]
+        if record["start"] is None:
+            record["start"] = (state.kernel.eps, state.factors, params["mu_kernel"])
+        eps0, factors0, mu0 = record["start"]
+        early = EARLY_STOP.get()
+        record["seen"].append((state.kernel.eps / eps0, None if early is None else early.bound))
+        same = state.factors == factors0 and params["mu_kernel"] == mu0
+        if same and np.isclose(state.kernel.eps, 2 * eps0):
+            half, full = 5e-2, 1e-4
+        elif same and state.kernel.eps == eps0:
+            half, full = 1e-3, 1e-3
+        else:
+            half, full = 1.0, 1e-2
+        if early is not None and early.give_up(m_final // 2, m_final, half):
+            return np.inf, m_final // 2, 0.0, None, None, 0.0
+        return HeldOutScore(full, 0.0), m_final, 0.0, None, None, 0.0
+
+    monkeypatch.setattr(auto, "final_size_score", scripted)
+    return record
+
+
+def test_the_early_stop_keeps_a_winner_far_behind_at_half_its_centres_and_stops_clear_losers(pendulum, scripted_search):
+    """The coordinate search's neighbour that wins at full size was 50 times the best score at half its centres:
+    within the margin, it is fitted to full size and chosen; the neighbours 1000 times behind stop there (rows with
+    ``abandoned``, never chosen); the start is never stopped (it has nothing to beat).  Without the early stop, the
+    same choice."""
+    from sympredict import SymplecticKernelPredictor
+
+    rng = np.random.default_rng(0)
+    x0 = np.column_stack([rng.uniform(-1.5, 1.5, 300), rng.uniform(-1.5, 1.5, 300)])
+    mu = rng.uniform(0.6, 1.0, 300)
+    x1 = np.vstack([pendulum.flow(x0[i : i + 1], mu[i], 0.1) for i in range(300)])
+    search = KernelSearch(
+        families=("imq",), updates=("symplectic_euler",), m_star=20, max_samples=200, refine_sweeps=1, structure=False
+    )
+    model = SymplecticKernelPredictor(max_centers=40, search=search).fit(x0, x1, mu=mu, dt=0.1)
+    seen, eps0 = scripted_search["seen"], scripted_search["start"][0]
+    assert seen[0] == (1.0, np.inf)  # the start: nothing to beat, never stopped
+    assert model.choice_["state_kernel"].kernel.eps == pytest.approx(2 * eps0)
+    assert model.search_.score == pytest.approx(1e-4)
+    rows = [r for r in model.search_.table if r.get("stage") == 2]
+    stopped = [r for r in rows if "abandoned" in r]
+    assert len(rows) == 7 and len(stopped) == 5  # the start, the winner; five neighbours stopped at 20 of 40 centres
+    assert all(r["score"] == np.inf and r["n_centers"] == 20 and r["abandoned_score"] == 1.0 for r in stopped)
+    scripted_search["seen"].clear()
+    scripted_search["start"] = None
+    off = SymplecticKernelPredictor(max_centers=40, search=clone(search).set_params(early_stop=False))
+    off.fit(x0, x1, mu=mu, dt=0.1)
+    assert all(bound is None for _, bound in scripted_search["seen"])
+    assert repr(off.choice_) == repr(model.choice_)

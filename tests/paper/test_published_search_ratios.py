@@ -101,6 +101,60 @@ def test_the_defaults_page_claims_follow_the_search_cost_stages():
     assert large["ratios"]["held_out_error"] > 1 and large["ratios"]["traj_error_median"] > 1
 
 
+# ------------------------------------------------------------------------------ search cost, the early stop
+def test_early_stop_ratios_recomputed_and_the_same_choice_on_the_six_systems():
+    """``search_cost_early.json`` (``--configs full default``): every ratio from the two fits' own numbers; the
+    default search (candidates clearly losing at half their centres stopped) chose what the search fitting every
+    candidate to full size chose, on each of the six systems, so its errors are those of that search."""
+    rows = _load("search_cost_early.json")["rows"]
+    assert sorted(r["system"] for r in rows) == sorted(
+        ["three_body", "noisy_pendulum", "readme_pendulum", "kepler", "henon_heiles", "coupled_pendulums"]
+    )
+    for row in rows:
+        full, default = row["full"], row["default"]
+        for name, ratio in row["ratios"].items():
+            assert ratio == pytest.approx(default[name] / full[name], rel=1e-12), (row["system"], name)
+        assert row["same_choice"] is True and default["choice"] == full["choice"], row["system"]
+        for name in ("held_out_error", "traj_error_median", "traj_error_max"):
+            assert row["ratios"][name] == pytest.approx(1.0, rel=1e-9), (row["system"], name)
+
+
+def test_the_defaults_page_claims_follow_the_early_stop_run_at_18000_samples():
+    """The text: with 18,000 three-body samples the default's median share (wall and processor time) is below that
+    of the search fitting every candidate to full size, with the same model, and well above a third of the fit; the
+    medians are those of the repeats."""
+    import numpy as np
+
+    run = _load("search_cost_early_300.json")
+    (row,) = run["rows"]
+    assert row["samples"] == 18000 and run["settings"]["repeats"] >= 3
+    assert row["same_choice"] is True and row["same_choice_across_repeats"] is True
+    for key in ("search_share", "search_cpu_share"):
+        for config, runs in row["repeats"].items():
+            assert row[f"median_{key}"][config] == pytest.approx(np.median([r[key] for r in runs]), rel=1e-12)
+        assert 1 / 3 < row[f"median_{key}"]["default"] < row[f"median_{key}"]["full"]
+
+
+def test_the_early_stop_margin_lies_above_every_decay_of_the_published_run():
+    """``search_decay.json`` (``search_cost.py --decay``): its maxima are those of its rows, and the early stop's
+    factors at half the centres (the library's constants) are at least twice the largest fall of any search
+    candidate's score from half its centres to all of them, for each criterion; from a quarter of the centres the
+    one-step error fell by more than the factor (why the check is not earlier)."""
+    from sympredict.estimators.search import E_VAL_STOP_MARGINS, EARLY_STOP_MARGINS
+
+    run = _load("search_decay.json")
+    assert sorted(r["system"] for r in run["rows"]) == sorted(
+        ["three_body", "noisy_pendulum", "readme_pendulum", "kepler", "henon_heiles", "coupled_pendulums"]
+    )
+    for key in ("first_stage_half", "one_step_half", "one_step_quarter"):
+        assert run["max"][key] == max(r[key]["max"] for r in run["rows"] if r[key]["max"] is not None), key
+        assert all(r[key]["n"] > 0 for r in run["rows"]), key
+    ((fraction, factor),), ((e_fraction, e_factor),) = EARLY_STOP_MARGINS, E_VAL_STOP_MARGINS
+    assert fraction == e_fraction == 0.5
+    assert factor >= 2 * run["max"]["one_step_half"] and e_factor >= 2 * run["max"]["first_stage_half"]
+    assert run["max"]["one_step_quarter"] > factor
+
+
 # ---------------------------------------------------------------------------------- the three-body structure runs
 @pytest.mark.parametrize("name", ["structure_search_300.json", "structure_search_300_seed2.json"])
 def test_structure_comparison_recomputed_from_the_runs(name):

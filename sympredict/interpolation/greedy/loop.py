@@ -84,7 +84,8 @@ class GreedyHistory:
         ``'max_centers'``, ``'tol'`` (max residual at or below ``tol``),
         ``'power'`` (every remaining candidate's power function is at round-off),
         ``'diverged'`` (residual blow-up from round-off, truncated to the best
-        step) or ``'exhausted'`` (every candidate selected).
+        step), ``'exhausted'`` (every candidate selected), ``'target'`` (a checkpoint met the target) or
+        ``'abandoned'`` (a checkpoint's ``give_up`` stopped it: a search's candidate clearly losing).
     """
 
     train_max_residual: np.ndarray
@@ -300,6 +301,10 @@ class Checkpoints(Protocol):
     def keep(self, m: int) -> int:
         """Of a run with ``m`` centres, how many to keep (the best prefix, or the smallest meeting the target)."""
 
+    # optional: ``give_up(m, score, val_max) -> bool`` after the score at a checkpoint of ``at`` (``val_max``: the
+    # validation residual ``E_val(m)``, or None without validation): ``True`` stops the run there (reason
+    # ``'abandoned'``: a search's candidate clearly losing, :class:`~sympredict.estimators.search.EarlyStop`)
+
 
 class NewtonBasisStore(Protocol):
     """What :func:`run_greedy` needs of a store of the Newton basis.
@@ -437,7 +442,9 @@ def run_greedy(
         ``checkpoints.at``.  With a ``target``, the run stops (reason ``'target'``) at the first checkpoint
         whose score meets it, after refining by bisection between it and the previous checkpoint
         (prefixes cost no new selection); in any case the run is cut to ``checkpoints.keep(m)`` centres at
-        the end (the best prefix: growing never returns a worse model than one it passed).
+        the end (the best prefix: growing never returns a worse model than one it passed).  Where ``checkpoints``
+        has a ``give_up(m, score, val_max)`` method and it returns ``True`` at a checkpoint, the run stops there (reason
+        ``'abandoned'``).
 
     Returns
     -------
@@ -536,6 +543,10 @@ def run_greedy(
                         else:
                             lo = mid
                     stop_reason = "target"
+                    break
+                give_up = getattr(checkpoints, "give_up", None)
+                if give_up is not None and give_up(m, err, None if val_hist is None else val_hist[-1]):
+                    stop_reason = "abandoned"
                     break
                 last_mark = m
         if checkpoints is not None and m:
