@@ -60,6 +60,7 @@ __all__ = [
     "final_size_score",
     "HeldOutScore",
     "EarlyStop",
+    "relative_step_errors",
     "EARLY_STOP",
     "EARLY_STOP_MARGINS",
     "E_VAL_STOP_MARGINS",
@@ -691,6 +692,19 @@ def standard_error(score) -> float:
     return float(getattr(score, "standard_error", 0.0))
 
 
+def relative_step_errors(predicted: np.ndarray, x0: np.ndarray, x1: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """Per sample, ``|w (predicted - x1)| / |w (x1 - x0)|``: the relative one-step errors the search scores.
+
+    ``predicted``, ``x0``, ``x1`` have shape (S, 2n) and ``weights`` (2n,) (:func:`state_weights`: the normalised
+    coordinates).  Samples that do not move (``x1 == x0``) are left out; where none moves, the absolute errors
+    ``|w (predicted - x1)|`` are returned.  Shape (S',).
+    """
+    inc = np.linalg.norm((x1 - x0) * weights, axis=1)
+    rows = inc > 0
+    miss = np.linalg.norm((predicted - x1) * weights, axis=1)
+    return miss[rows] / inc[rows] if rows.any() else miss
+
+
 #: Where a search candidate's fit is checked by its held-out one-step error, ``(fraction, factor)``: at ``fraction``
 #: of its centres it stops if its score exceeds ``factor`` times the score it must beat (:class:`EarlyStop`).  The
 #: factor bounds how far the score may still fall from there to the full size, with room to spare: on the full-size
@@ -771,13 +785,10 @@ class EarlyStop:
 
     @staticmethod
     def error(predicted: np.ndarray, x0: np.ndarray, x1: np.ndarray, weights: np.ndarray) -> float:
-        """The mean over samples of ``|w (predicted - x1)| / |w (x1 - x0)|`` (samples that do not move left out),
-        as :func:`final_size_score` scores; ``inf`` where it is not finite."""
-        inc = np.linalg.norm((x1 - x0) * weights, axis=1)
-        rows = inc > 0
-        miss = np.linalg.norm((predicted - x1) * weights, axis=1)
+        """The mean of :func:`relative_step_errors`, as :func:`final_size_score` scores; ``inf`` where it is not
+        finite."""
         with np.errstate(all="ignore"):
-            value = float(np.mean(miss[rows] / inc[rows] if rows.any() else miss))
+            value = float(np.mean(relative_step_errors(predicted, x0, x1, weights)))
         return value if np.isfinite(value) else float("inf")
 
 
@@ -811,8 +822,6 @@ def final_size_score(
     model = without_target(clone(estimator).set_params(**params, max_centers=m_final))
     sub = val.subset(np.arange(min(len(val), largest)))
     w = state_weights(val)  # errors in the normalised coordinates: the score does not depend on the units
-    inc = np.linalg.norm((sub.x1 - sub.x0) * w, axis=1)
-    rows = inc > 0
     uses_mu = params["mu_kernel"] is not None
     early = EARLY_STOP.get()
     if early is not None:
@@ -839,8 +848,7 @@ def final_size_score(
             pred = model.step(
                 sub.x0, mu=sub.mu if uses_mu else None, dt=sub.dt if params["dt_kernel"] is not None else None
             )
-        miss = np.linalg.norm((pred - sub.x1) * w, axis=1)
-        each = miss[rows] / inc[rows] if rows.any() else miss
+        each = relative_step_errors(pred, sub.x0, sub.x1, w)
         value = float(np.mean(each))
         spread = float(np.std(each, ddof=1) / np.sqrt(each.size)) if each.size > 1 else 0.0
     except (ValueError, ArithmeticError, NewtonConvergenceError, NonFinitePredictionError) as exc:
