@@ -80,6 +80,9 @@ __all__ = [
     "propagated_residuals",
     "ResidualPropagation",
     "ResidualNeighbours",
+    "SHARE_DISTANCE_QUANTILE",
+    "kth_distance",
+    "posterior_share",
 ]
 
 #: Held-out samples whose ratios (true one-step error / estimate) set the local scale of the estimate at a point.
@@ -659,3 +662,26 @@ class ResidualNeighbours:
         )
         near = nearest(self.points, query, self.k)
         self.prop.advance(jac, self.vectors[near].reshape(b, nk, near.shape[1], dim))
+
+
+#: Quantile of the residual samples' own (leave-one-out) distances to their ``k``-th nearest other sample within
+#: which the posterior part is cut to its share beside the residual part (:func:`posterior_share`).
+SHARE_DISTANCE_QUANTILE = 0.9
+
+
+def kth_distance(points: np.ndarray, queries: np.ndarray, k: int, leave_one_out: bool = False) -> np.ndarray:
+    """Euclidean distance (Q,) of each query (Q, q) to its ``k``-th nearest of ``points`` (N, q) (:func:`nearest`,
+    with its ``leave_one_out``).  ``O(Q N q)``."""
+    near = nearest(points, queries, k, leave_one_out=leave_one_out)
+    return np.sqrt(np.sum((queries - points[near[:, -1]]) ** 2, axis=1))
+
+
+def posterior_share(distance: np.ndarray, share: float, reference: float) -> np.ndarray:
+    """The posterior part's factor beside the residual part at states ``distance`` (any shape) from their ``k``-th
+    nearest residual sample: ``share`` (in (0, 1]) within ``reference`` (the residual samples' own spacing, where
+    the share was calibrated), rising linearly to 1 at twice it, 1 beyond (far from the residual samples only the
+    posterior knows the error),
+
+        g(d) = share + (1 - share) * clip(d / reference - 1, 0, 1).
+    """
+    return share + (1.0 - share) * np.clip(np.asarray(distance, dtype=float) / reference - 1.0, 0.0, 1.0)

@@ -32,11 +32,14 @@ from sympredict.exceptions import NotFittedError
 from sympredict.estimators.error_estimate import (
     LOCAL_NEIGHBOURS,
     RESIDUAL_NEIGHBOURS,
+    SHARE_DISTANCE_QUANTILE,
+    kth_distance,
     local_covariance,
     local_error_units,
     local_log_ratio,
     local_points,
     nearest,
+    posterior_share,
     ResidualNeighbours,
     rollout_error_units,
 )
@@ -635,7 +638,7 @@ class FittedSymplecticFlowMap(FittedFlowMap):
             return out[0] if single else out
         c = self._check_error_estimate()
         scale = self.scale
-        err = c * self._local_factors(x, mu, dt) * self._local_error_units(x * scale, out * scale, mu, dt, weights)
+        err = c * self._step_factors(x, mu, dt) * self._local_error_units(x * scale, out * scale, mu, dt, weights)
         err = np.hypot(err, self._residual_part(x[:, None], mu, dt)[:, 1])
         return (out[0], float(err[0])) if single else (out, err)
 
@@ -982,6 +985,28 @@ class FittedSymplecticFlowMap(FittedFlowMap):
         self.error_calibration  # computed with it
         return self._cache.get("residuals")
 
+    def _share(self) -> Optional[tuple]:
+        """``(posterior_share, share_distance)`` of ``error_calibration`` (:meth:`_share_factors`); ``None`` without
+        :attr:`error_residuals` or in files written before them (the posterior part at its full scale)."""
+        if self.error_residuals is None:
+            return None
+        cal = self.error_calibration
+        if "posterior_share" not in cal:
+            return None
+        return float(cal["posterior_share"]), float(cal["share_distance"])
+
+    def _share_factors(self, x: np.ndarray, mu: np.ndarray, dt: np.ndarray, query=None) -> np.ndarray:
+        """The posterior part's factor beside the residual part at states ``x`` (Q, 2n) (user units) with ``mu``
+        (Q, d_mu), ``dt`` (Q,): (Q,), :func:`~sympredict.estimators.error_estimate.posterior_share` of the distance
+        to the ``residual_neighbours``-th nearest residual sample; ones without it (:meth:`_share`).  ``query``: the
+        states' ``local_points`` if already computed.  ``O(Q N (2n + d_mu))`` for ``N`` residual samples."""
+        share = self._share()
+        if share is None:
+            return np.ones(len(x))
+        points, _, k = self._residual_arrays()
+        d = kth_distance(points, local_points(x, mu, dt, self.domain) if query is None else query, k)
+        return posterior_share(d, *share)
+
     def _residual_neighbours(self, xs: np.ndarray, mu: np.ndarray, dt: np.ndarray):
         """The residual part's propagation (:class:`~sympredict.estimators.error_estimate.ResidualNeighbours`) for
         the steps from the states ``xs`` (B, K, 2n) (user units), ``mu`` (B, d_mu), ``dt`` (B,), fed block by block
@@ -1042,14 +1067,24 @@ class FittedSymplecticFlowMap(FittedFlowMap):
         self.error_calibration  # computed with it
         return self._cache.get("local")
 
-    def _local_factors(self, x: np.ndarray, mu: np.ndarray, dt: np.ndarray) -> np.ndarray:
+    def _step_factors(self, x: np.ndarray, mu: np.ndarray, dt: np.ndarray) -> np.ndarray:
+        """The factors (Q,) on the posterior part of the steps from states ``x`` (Q, 2n) (user units), ``mu``
+        (Q, d_mu), ``dt`` (Q,): the local scale (:meth:`_local_factors`) times the share beside the residual part
+        (:meth:`_share_factors`), the states normalised once for both."""
+        if self.error_local is None and self._share() is None:
+            return np.ones(len(x))
+        query = local_points(x, mu, dt, self.domain)
+        return self._local_factors(x, mu, dt, query) * self._share_factors(x, mu, dt, query)
+
+    def _local_factors(self, x: np.ndarray, mu: np.ndarray, dt: np.ndarray, query=None) -> np.ndarray:
         """The local scale at states ``x`` (Q, 2n) in the user's units with ``mu`` (Q, d_mu), ``dt`` (Q,): (Q,);
-        ones without :attr:`error_local`.  ``O(Q N (2n + d_mu))`` for ``N`` held-out samples."""
+        ones without :attr:`error_local`.  ``query``: the states' ``local_points`` if already computed.
+        ``O(Q N (2n + d_mu))`` for ``N`` held-out samples."""
         local = self.error_local
         if local is None:
             return np.ones(len(x))
         k = int(self.error_calibration.get("local_neighbours", LOCAL_NEIGHBOURS))
-        query = local_points(x, mu, dt, self.domain)
+        query = local_points(x, mu, dt, self.domain) if query is None else query
         if "local_points" not in self._cache:  # normalised once per model
             pts = local["points"]
             self._cache["local_points"] = local_points(
@@ -1107,7 +1142,46 @@ class FittedSymplecticFlowMap(FittedFlowMap):
         if local is not None:
             cal["local_neighbours"] = k
         residuals = self._residual_calibration(cal, data, x1s / scale)
+        if residuals is not None:
+            raw = np.concatenate([data.x0[ok], mu[ok], data.dt[ok, None]], axis=1)
+            self._posterior_share(cal, local, residuals, raw, x1s[ok] / scale - data.x1[ok], unit)
         return cal, local, residuals
+
+    def _posterior_share(self, cal: dict, local, residuals: dict, raw: np.ndarray, true: np.ndarray, unit) -> None:
+        """``cal``'s ``posterior_share`` and ``share_distance`` (:meth:`_share_factors`).  The share: the posterior
+        covers what the residual samples near a state do not tell, so beside them its scale is calibrated on the
+        misfit ``|r_i - mean of the k nearest other residual vectors|`` instead of ``|r_i|``: the
+        :attr:`ERROR_QUANTILE` quantile of misfit over the one-step estimate before calibration ``unit`` (N,) times
+        the local scale the estimate applies at the sample, over ``cal["scale"]``, in ``(0, 1]``.  The distance:
+        the :data:`~sympredict.estimators.error_estimate.SHARE_DISTANCE_QUANTILE` quantile of the residual samples'
+        distances to their ``k``-th nearest other one (the spacing within which the share was calibrated).
+        ``raw`` (N, 2n + d_mu + 1): the calibration samples' states, parameters and steps; ``true`` (N, 2n): their
+        residual vectors; a sample that is also a residual sample is left out of its own neighbours.
+        ``O((N + N') N' (2n + d_mu))`` for ``N'`` residual samples."""
+        pool, vectors = residuals["points"], residuals["vectors"]
+        dim, k = self.dim, int(cal["residual_neighbours"])
+        pts = local_points(pool[:, :dim], pool[:, dim:-1], pool[:, -1], self.domain)
+        near = nearest(pts, local_points(raw[:, :dim], raw[:, dim:-1], raw[:, -1], self.domain), k + 1)
+        itself = np.all(pool[near] == raw[:, None, :], axis=2)
+        near = np.take_along_axis(near, np.argsort(itself, axis=1, kind="stable")[:, :k], axis=1)
+        misfit = np.linalg.norm(true - vectors[near].mean(axis=1), axis=1)
+        factor = np.ones(len(raw))
+        if local is not None:
+            factor = np.exp(
+                local_log_ratio(
+                    local_points(
+                        local["points"][:, :dim], local["points"][:, dim:-1], local["points"][:, -1], self.domain
+                    ),
+                    local["log_ratio"],
+                    local_points(raw[:, :dim], raw[:, dim:-1], raw[:, -1], self.domain),
+                    int(cal["local_neighbours"]),
+                )
+            )
+        share = float(np.quantile(misfit / (unit * factor), self.ERROR_QUANTILE)) / cal["scale"]
+        distance = float(np.quantile(kth_distance(pts, pts, k, leave_one_out=True), SHARE_DISTANCE_QUANTILE))
+        if not (np.isfinite(share) and np.isfinite(distance) and distance > 0):
+            return  # no share: the posterior at its full scale
+        cal.update(posterior_share=float(min(1.0, max(share, np.finfo(float).eps))), share_distance=distance)
 
     def _residual_calibration(self, cal: dict, data: FlowMapData, pred: np.ndarray) -> Optional[dict]:
         """The residual vectors of :attr:`error_residuals` on ``residual_samples`` (``data`` itself when there are
@@ -1156,11 +1230,10 @@ class FittedSymplecticFlowMap(FittedFlowMap):
         c = self._check_error_estimate()
         b, k1, dim = traj.shape
         local = None
-        if self.error_local is not None and k1 > 1:
+        if (self.error_local is not None or self._share() is not None) and k1 > 1:
             n = k1 - 1
-            local = self._local_factors(
-                traj[:, :-1].reshape(-1, dim), np.repeat(mu, n, axis=0), np.repeat(dt, n)
-            ).reshape(b, n)
+            local = self._step_factors(traj[:, :-1].reshape(-1, dim), np.repeat(mu, n, axis=0), np.repeat(dt, n))
+            local = local.reshape(b, n)
         part = self._residual_neighbours(traj[:, :-1], mu, dt) if k1 > 1 else None
         est = c * rollout_error_units(self, traj, mu, dt, weights, local=local, jacobians=part)
         if part is None:

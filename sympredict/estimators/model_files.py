@@ -422,4 +422,18 @@ def _file_error_residuals(arrays: dict, calibration, dim: int, n_mu: int, path):
         )
     if not isinstance(c, float) or not (np.isfinite(c) and c > 0):
         raise ModelFileError(f"{str(path)!r}: its error_calibration's residual_scale={c!r} is not a positive float")
+    # the posterior part's share beside the residual part; files written before it: the posterior at its full scale
+    share, distance = cal.get("posterior_share"), cal.get("share_distance")
+    if (share is None) != (distance is None):
+        raise ModelFileError(
+            f"{str(path)!r}: its error_calibration has only one of 'posterior_share' and 'share_distance' (both or none)"
+        )
+    if share is not None and (not isinstance(share, float) or not (np.isfinite(share) and 0 < share <= 1)):
+        raise ModelFileError(
+            f"{str(path)!r}: its error_calibration's posterior_share={share!r} is not a float in (0, 1]"
+        )
+    if distance is not None and (not isinstance(distance, float) or not (np.isfinite(distance) and distance > 0)):
+        raise ModelFileError(
+            f"{str(path)!r}: its error_calibration's share_distance={distance!r} is not a positive float"
+        )
     return {"points": points.astype(float), "vectors": vectors.astype(float)}

@@ -322,6 +322,24 @@ def _oracle_neighbours(fitted, points, x, mu, dt, k):
     return np.array(out)
 
 
+def _oracle_share_factors(fitted, x, mu, dt):
+    """The posterior part's share beside the residual part at states ``x`` (Q, 2n) by brute force: every coordinate
+    divided by the training box's width, all distances to the residual samples sorted, ``d`` the
+    ``residual_neighbours``-th smallest; ``share`` within ``share_distance``, 1 beyond twice it, linear between."""
+    cal, res, box = fitted.error_calibration, fitted.error_residuals, fitted.domain
+    lo = np.concatenate([box["x_min"], box["mu_min"], np.atleast_1d(box["dt_min"])])
+    width = np.concatenate([box["x_max"], box["mu_max"], np.atleast_1d(box["dt_max"])]) - lo
+    keep = width > 0
+    pts = (res["points"][:, keep] - lo[keep]) / width[keep]
+    share, ref, k = cal["posterior_share"], cal["share_distance"], cal["residual_neighbours"]
+    out = []
+    for row in np.column_stack([x, np.reshape(mu, (len(x), -1)), dt]):
+        q = (row[keep] - lo[keep]) / width[keep]
+        d = np.sqrt(np.sort(np.sum((pts - q) ** 2, axis=1))[k - 1])
+        out.append(share if d <= ref else 1.0 if d >= 2 * ref else share + (1 - share) * (d - ref) / ref)
+    return np.array(out)
+
+
 def _oracle_residual_part(fitted, x, mu, dt, jac, kk):
     """The residual part after ``kk`` steps from the states ``x`` (K, 2n) with Jacobians ``jac`` (K, 2n, 2n) (scaled
     coordinates), the step maps multiplied out: ``c_r |D^-1 sum_k D Phi_kk-1 ... D Phi_k+1 U_k|_F``, ``U_k`` the
@@ -341,7 +359,8 @@ def _oracle_residual_part(fitted, x, mu, dt, jac, kk):
 def test_rollout_estimate_is_the_dense_posterior_covariance_propagated(model):
     """Oracle: the posterior covariance of the gradient functionals at all of a rollout's evaluation points from the
     Gramian built column by column by the functionals' own code (dense solve), the step maps multiplied out
-    explicitly with each step's local scale ``f_k`` (brute-force neighbours), ``M_K,k = D Phi ... S_k f_k``,
+    explicitly with each step's local scale ``f_k`` times its share beside the residual part ``g_k`` (brute-force
+    neighbours and distances), ``M_K,k = D Phi ... S_k f_k g_k``,
     ``Sigma_K = (sum_kl M_K,k C_kl M_K,l^T + F F^T) / 2``; with the residual part (the nearest residual vectors by
     brute force, carried by the explicit products of the steps' Jacobians) added in quadrature."""
     small = model.truncated(40)
@@ -364,7 +383,8 @@ def test_rollout_estimate_is_the_dense_posterior_covariance_propagated(model):
         w = sur.weights(mub, dtb)
         xi, jac, sens = rule.linearization(sur, traj[b, :-1] * scale, traj[b, 1:] * scale, w, dtb)
         assert fitted.error_local is not None
-        sens = sens * _oracle_local_factors(fitted, traj[b, :-1], mub, dtb)[:, None, None]
+        factors = _oracle_local_factors(fitted, traj[b, :-1], mub, dtb)
+        sens = sens * (factors * _oracle_share_factors(fitted, traj[b, :-1], mub, dtb))[:, None, None]
         queries = HBFunctionals(sur.kernel, xi, mub, dtb)
         kqc = np.empty((n * dim, m))
         kqq = np.empty((n * dim, n * dim))
@@ -465,7 +485,8 @@ def test_pivoted_cholesky_reproduces_the_pivots_and_leaves_a_small_remainder(rng
 
 
 def _rollout_units(model, n_steps, method, local=False):
-    """``rollout_error_units`` along three rollouts; ``local``: with the local scale at each step (brute force)."""
+    """``rollout_error_units`` along three rollouts; ``local``: with the posterior part's factor at each step, the
+    local scale times the share beside the residual part where the model has one (brute force)."""
     from sympredict.estimators.error_estimate import rollout_error_units
 
     fitted = model.model_
@@ -475,7 +496,10 @@ def _rollout_units(model, n_steps, method, local=False):
     factors = None
     if local:
         x = traj[:, :-1].reshape(-1, 2)
-        factors = _oracle_local_factors(fitted, x, np.repeat(mu, n_steps, axis=0), np.full(len(x), 0.1))
+        mus, dts = np.repeat(mu, n_steps, axis=0), np.full(len(x), 0.1)
+        factors = _oracle_local_factors(fitted, x, mus, dts)
+        if fitted._share() is not None:
+            factors = factors * _oracle_share_factors(fitted, x, mus, dts)
         factors = factors.reshape(3, n_steps)
     return rollout_error_units(fitted, traj, mu, dt, fitted.surrogate.weights(mu, dt), method=method, local=factors)
 
@@ -500,7 +524,7 @@ def _no_residuals(settings=None, arrays=None):
     ``arrays``."""
 
     def edit_settings(s):
-        for key in ("residual_neighbours", "residual_scale", "residual_samples"):
+        for key in ("residual_neighbours", "residual_scale", "residual_samples", "posterior_share", "share_distance"):
             s["error_calibration"].pop(key)
         if settings is not None:
             settings(s)
@@ -861,3 +885,137 @@ def test_residual_part_reuses_the_linearisations_hessians(model, monkeypatch, me
     c = fitted.error_calibration["scale"]
     expected = np.hypot(c * _rollout_units(model, n_steps, method, local=True), _residual_units(model, n_steps))
     np.testing.assert_allclose(err, expected, rtol=1e-8, atol=0)
+
+
+def test_posterior_share_is_its_closed_form_and_kth_distance_is_brute_force(rng):
+    """``g(d) = s`` up to the reference distance, ``1`` from twice it, linear between (exact values at the
+    breakpoints and the midpoint); :func:`kth_distance` is the ``k``-th smallest of all distances, with and without
+    leaving each point out."""
+    from sympredict.estimators.error_estimate import kth_distance, posterior_share
+
+    d = np.array([0.0, 0.5, 1.0, 1.25, 1.5, 2.0, 7.0])
+    np.testing.assert_allclose(posterior_share(2 * d, 0.2, 2.0), [0.2, 0.2, 0.2, 0.4, 0.6, 1.0, 1.0], rtol=1e-15)
+    np.testing.assert_array_equal(posterior_share(d, 1.0, 1.0), np.ones_like(d))
+    pts, q = rng.uniform(size=(40, 3)), rng.uniform(size=(7, 3))
+    full = np.sqrt(((q[:, None] - pts[None]) ** 2).sum(-1))
+    np.testing.assert_allclose(kth_distance(pts, q, 4), np.sort(full, axis=1)[:, 3], rtol=1e-13)
+    own = np.sqrt(((pts[:, None] - pts[None]) ** 2).sum(-1)) + np.diag(np.full(40, np.inf))
+    np.testing.assert_allclose(kth_distance(pts, pts, 4, leave_one_out=True), np.sort(own, axis=1)[:, 3], rtol=1e-13)
+
+
+def test_posterior_share_is_calibrated_on_the_residual_neighbours_misfit(model):
+    """Oracle (brute force): on the calibration samples, with ``u_i`` the one-step estimate before calibration times
+    the local scale the estimate applies at the sample, the share of the posterior's scale beside the residual part
+    is the 0.9 quantile of ``|r_i - mean of the k nearest residual vectors other than its own| / u_i`` over the
+    scale; ``share_distance`` the 0.9 quantile of the residual samples' distances to their ``k``-th nearest other
+    one; the one-step estimate is ``hypot(c f g U, R)`` with ``g`` the share at the state's distance: the share near
+    the residual samples, 1 far from them."""
+    fitted = model.model_
+    cal, res = fitted.error_calibration, fitted.error_residuals
+    data = fitted.calibration_samples[0]
+    scale = fitted.scale
+    w = fitted.surrogate.weights(data.mu, data.dt)
+    x1 = model.step(data.x0, mu=data.mu, dt=data.dt)
+    r = x1 - data.x1
+    unit = fitted._local_error_units(data.x0 * scale, x1 * scale, data.mu, data.dt, w)
+    u = unit * _oracle_local_factors(fitted, data.x0, data.mu, data.dt)
+    raw = np.column_stack([data.x0, data.mu, data.dt])
+    k = cal["residual_neighbours"]
+    near = _oracle_neighbours(fitted, res["points"], data.x0, data.mu, data.dt, k + 1)
+    misfit = []
+    for i, row in enumerate(near):
+        others = [j for j in row if not np.array_equal(res["points"][j], raw[i])][:k]
+        misfit.append(np.linalg.norm(r[i] - res["vectors"][others].mean(axis=0)))
+    share = np.quantile(np.array(misfit) / u, 0.9) / cal["scale"]
+    assert 0.05 < share < 1  # the neighbours explain part of the residuals
+    np.testing.assert_allclose(cal["posterior_share"], share, rtol=1e-6)
+    box = fitted.domain
+    lo = np.concatenate([box["x_min"], box["mu_min"], np.atleast_1d(box["dt_min"])])
+    width = np.concatenate([box["x_max"], box["mu_max"], np.atleast_1d(box["dt_max"])]) - lo
+    keep = width > 0
+    pts = (res["points"][:, keep] - lo[keep]) / width[keep]
+    own = np.sqrt(((pts[:, None] - pts[None]) ** 2).sum(-1)) + np.diag(np.full(len(pts), np.inf))
+    np.testing.assert_allclose(cal["share_distance"], np.quantile(np.sort(own, axis=1)[:, k - 1], 0.9), rtol=1e-12)
+    # the one-step estimate: near the data (a residual sample's state), between, and far outside the training box
+    x0 = np.array([res["points"][0, :2], [1.0, 0.0], [0.3, -0.4], [4.0, 3.0]])
+    mu, dt = np.array([res["points"][0, 2], 0.72, 0.78, 0.75]), np.full(4, 0.1)
+    g = _oracle_share_factors(fitted, x0, mu, dt)
+    assert g[0] == cal["posterior_share"] and g[-1] == 1.0
+    from sympredict.exceptions import ExtrapolationWarning
+
+    with pytest.warns(ExtrapolationWarning, match="left the box"):  # the last state, far outside
+        _, e1 = model.step(x0, mu=mu, dt=0.1, return_error=True)
+    with pytest.warns(ExtrapolationWarning, match="left the box"):
+        x1 = model.step(x0, mu=mu, dt=0.1)
+    nearest_res = _oracle_neighbours(fitted, res["points"], x0, mu, dt, k)
+    part = [np.sqrt(np.sum(res["vectors"][row] ** 2) / k) * cal["residual_scale"] for row in nearest_res]
+    w = fitted.surrogate.weights(mu[:, None], dt)
+    post = (
+        cal["scale"]
+        * g
+        * _oracle_local_factors(fitted, x0, mu[:, None], dt)
+        * fitted._local_error_units(x0 * scale, x1 * scale, mu[:, None], dt, w)
+    )
+    np.testing.assert_allclose(e1, np.hypot(post, part), rtol=1e-8)
+
+
+@pytest.mark.parametrize(
+    "edit, match",
+    [
+        ({"posterior_share": 0.0}, "posterior_share"),
+        ({"posterior_share": -0.5}, "posterior_share"),
+        ({"posterior_share": 1.5}, "posterior_share"),
+        ({"posterior_share": float("nan")}, "posterior_share"),
+        ({"posterior_share": "half"}, "posterior_share"),
+        ({"posterior_share": 1}, "posterior_share"),
+        ({"share_distance": 0.0}, "share_distance"),
+        ({"share_distance": -1.0}, "share_distance"),
+        ({"share_distance": float("inf")}, "share_distance"),
+        ({"share_distance": "far"}, "share_distance"),
+        ({"share_distance": None}, "both or none"),
+        ({"posterior_share": None}, "both or none"),
+    ],
+)
+def test_hostile_posterior_share_in_model_files_is_refused(model, tmp_path, edit, match):
+    from sympredict.exceptions import ModelFileError
+
+    def settings(s):
+        for key, value in edit.items():
+            if value is None:
+                s["error_calibration"].pop(key)
+            else:
+                s["error_calibration"][key] = value
+
+    with pytest.raises(ModelFileError, match=match):
+        _edited_local(model, tmp_path, settings=settings)
+
+
+def test_files_without_the_posterior_share_use_the_posterior_at_its_full_scale(model, tmp_path):
+    """A file written before the share existed (its residual part without ``posterior_share`` and
+    ``share_distance``) loads and adds the posterior's part at its full scale: ``hypot(c U, R)``, ``U`` with the
+    local scale only and ``R`` by the brute-force oracles; the file of today gives ``hypot(c G U, R)`` with the
+    share's factors ``G`` and stores them."""
+
+    def old_settings(s):
+        s["error_calibration"].pop("posterior_share")
+        s["error_calibration"].pop("share_distance")
+
+    old = _edited_local(model, tmp_path, settings=old_settings)
+    assert old.model_._share() is None and old.model_.error_residuals is not None
+    cal = model.error_calibration_
+    path = tmp_path / "now.h5"
+    model.save(path)
+    loaded = SymplecticKernelPredictor.load(path)
+    assert loaded.error_calibration_["posterior_share"] == cal["posterior_share"]
+    assert loaded.error_calibration_["share_distance"] == cal["share_distance"]
+    x0, mu = np.array([[1.0, 0.0], [0.3, -0.4], [-1.2, 0.5]]), np.array([0.72, 0.75, 0.78])
+    _, now = loaded.rollout(x0, 10, mu=mu, dt=0.1, return_error=True)
+    _, before = old.rollout(x0, 10, mu=mu, dt=0.1, return_error=True)
+    resid = _residual_units(model, 10)
+    np.testing.assert_allclose(
+        now, np.hypot(cal["scale"] * _rollout_units(model, 10, "exact", local=True), resid), rtol=1e-8
+    )
+    np.testing.assert_allclose(
+        before, np.hypot(cal["scale"] * _rollout_units(old, 10, "exact", local=True), resid), rtol=1e-8
+    )
+    assert np.all(now[:, 1:] <= before[:, 1:] * (1 + 1e-12)) and np.any(now[:, 1:] < 0.99 * before[:, 1:])
