@@ -540,9 +540,12 @@ class FittedSymplecticFlowMap(FittedFlowMap):
         """
         return "numba" if self.compiled(int(n_instances), int(n_steps)) else "numpy"
 
-    def compiled(self, n_instances: Optional[int] = None, n_steps: int = 1) -> bool:
-        """Whether :meth:`step` / :meth:`rollout` use the compiled solver (resolves the solver's ``backend``)."""
-        return self.solver.compiled(n_instances, n_steps, self.surrogate.n_centers, self.dim, self.numpy_only)
+    def compiled(self, n_instances: Optional[int] = None, n_steps: int = 1, *, by_size: bool = False) -> bool:
+        """Whether :meth:`step` / :meth:`rollout` use the compiled solver (resolves the solver's ``backend``;
+        ``by_size``: :meth:`~sympredict.symplectic.solvers.NewtonSolver.compiled`'s)."""
+        return self.solver.compiled(
+            n_instances, n_steps, self.surrogate.n_centers, self.dim, self.numpy_only, by_size=by_size
+        )
 
     # ------------------------------------------------------------ stepping
     def _rollout(self, x, weights, dt, n_steps: int, around=None, *, stride: int = 1, progress=None) -> np.ndarray:
@@ -593,10 +596,11 @@ class FittedSymplecticFlowMap(FittedFlowMap):
             return self._solve_scaled(x, weights, dt)
         return self._solve_scaled(x * self.scale, weights, dt) / self.scale
 
-    def _solve_scaled(self, x: np.ndarray, weights: np.ndarray, dt: np.ndarray) -> np.ndarray:
-        """One implicit step in the model's coordinates, on the configured backend (:mod:`sympredict.symplectic.newton`)."""
+    def _solve_scaled(self, x: np.ndarray, weights: np.ndarray, dt: np.ndarray, by_size: bool = False) -> np.ndarray:
+        """One implicit step in the model's coordinates, on the configured backend (:mod:`sympredict.symplectic.newton`;
+        ``by_size``: chosen by the work's size alone, the same in every process, :meth:`compiled`)."""
         max_iter = self.solver.iterations()
-        if self.compiled(len(x), 1):
+        if self.compiled(len(x), 1, by_size=by_size):
             return implicit_rollout(
                 self.surrogate, x, weights, dt, 1, max_iter, backend="numba", step_index=False, update=self.rule.name
             )[:, 1]
@@ -1106,7 +1110,7 @@ class FittedSymplecticFlowMap(FittedFlowMap):
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", ExtrapolationWarning)
-                x1s = self._solve_scaled(data.x0 * scale, weights, data.dt)
+                x1s = self._solve_scaled(data.x0 * scale, weights, data.dt, by_size=True)
         except (NewtonConvergenceError, NonFinitePredictionError):
             return None, None, None
         true = np.linalg.norm(x1s / scale - data.x1, axis=1)
@@ -1197,7 +1201,7 @@ class FittedSymplecticFlowMap(FittedFlowMap):
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore", ExtrapolationWarning)
                     weights = self.surrogate.weights(pool.mu if self.n_mu else np.zeros((len(pool), 0)), pool.dt)
-                    pred = self._solve_scaled(pool.x0 * self.scale, weights, pool.dt) / self.scale
+                    pred = self._solve_scaled(pool.x0 * self.scale, weights, pool.dt, by_size=True) / self.scale
             except (NewtonConvergenceError, NonFinitePredictionError):
                 return None
         k = RESIDUAL_NEIGHBOURS

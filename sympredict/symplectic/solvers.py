@@ -104,10 +104,20 @@ class NewtonSolver(Setting):
             raise ValueError(f"{numpy_only}: use NewtonSolver(backend='numpy') or 'auto' (which then uses NumPy)")
 
     def compiled(
-        self, n_instances: Optional[int], n_steps: int, n_centers: int, dim: int, numpy_only: Optional[str] = None
+        self,
+        n_instances: Optional[int],
+        n_steps: int,
+        n_centers: int,
+        dim: int,
+        numpy_only: Optional[str] = None,
+        *,
+        by_size: bool = False,
     ) -> bool:
         """Whether this much work runs compiled (see :meth:`backend_for`); ``numpy_only`` is the reason a model
-        has no compiled solver (``None``: it has one)."""
+        has no compiled solver (``None``: it has one).  ``by_size``: ``backend='auto'`` decides by the work's size
+        alone, not by whether this process has loaded the compiled rollout already, so that what is computed with
+        it (the error estimate's calibration) does not depend on what ran before in the process (the two solvers
+        agree only to Newton's stopping rule)."""
         if numpy_only is not None:
             self.refuse_compiled(numpy_only)
             return False
@@ -123,7 +133,7 @@ class NewtonSolver(Setting):
             raise ValueError(f"backend must be 'auto', 'numpy' or 'numba', got {self.backend!r}")
         if not _numba.HAVE_NUMBA:
             return False
-        if n_instances is None or _compiled_newton.rollout_loaded():
+        if n_instances is None or (not by_size and _compiled_newton.rollout_loaded()):
             return True
         estimate = numpy_seconds(n_instances, n_steps, n_centers, dim)
         compiled = estimate >= AUTO_NUMPY_SECONDS

@@ -1019,3 +1019,27 @@ def test_files_without_the_posterior_share_use_the_posterior_at_its_full_scale(m
         before, np.hypot(cal["scale"] * _rollout_units(old, 10, "exact", local=True), resid), rtol=1e-8
     )
     assert np.all(now[:, 1:] <= before[:, 1:] * (1 + 1e-12)) and np.any(now[:, 1:] < 0.99 * before[:, 1:])
+
+
+def test_the_calibration_does_not_depend_on_what_ran_before_in_the_process(monkeypatch):
+    """``backend='auto'`` runs a small batch compiled once the process has loaded the compiled rollout, and NumPy in a
+    fresh one; the two solvers agree only to Newton's stopping rule.  The calibration's held-out and residual steps
+    are chosen by their size alone, so a model calibrates alike in a fresh process and after other fits (compared
+    bit for bit: the same code path on the same arrays)."""
+    from sympredict.symplectic import _compiled_newton
+
+    train, val = _pendulum_data(20, 3), _pendulum_data(8, 4)
+    calibrations = []
+    for loaded in (False, True):
+        monkeypatch.setattr(_compiled_newton, "rollout_loaded", lambda loaded=loaded: loaded)
+        est = SymplecticKernelPredictor(IMQ(0.5), mu_kernel=IMQ(2.0), max_centers=80, trainer=ExactGreedy(tol=1e-12))
+        est.fit(train, validation=val)
+        # the case this guards: a later call of this size in this process would run compiled
+        assert est.model_.compiled(len(val), 1) is loaded
+        calibrations.append((est.error_calibration_, est.model_.error_local, est.model_.error_residuals))
+    (cal_a, local_a, res_a), (cal_b, local_b, res_b) = calibrations
+    assert cal_a == cal_b
+    for key in local_a:
+        np.testing.assert_array_equal(local_a[key], local_b[key])
+    for key in res_a:
+        np.testing.assert_array_equal(res_a[key], res_b[key])
