@@ -77,6 +77,7 @@ One BLAS thread (``--blas-threads``), one numba thread (``--threads``); the reco
 from __future__ import annotations
 
 import argparse
+import json
 import time
 import warnings
 from pathlib import Path
@@ -309,13 +310,18 @@ def ranking_checks(model, test, dt, est, true, args, name=None) -> dict:
     return out
 
 
+def fit_defaults(data, args):
+    """The study's model: the defaults with ``args.max_centers``, as a new user fits them; ``(model, seconds)``."""
+    t0 = time.perf_counter()
+    model = SymplecticKernelPredictor(max_centers=args.max_centers).fit(data)
+    return model, time.perf_counter() - t0
+
+
 def run_system(name, args) -> dict:
     t0 = time.perf_counter()
     data, test, dt, title, held_out = training_data(name, args)
     data_s = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    model = SymplecticKernelPredictor(max_centers=args.max_centers).fit(data)
-    fit_s = time.perf_counter() - t0
+    model, fit_s = fit_defaults(data, args)
     x0, mu, ref = test(args.n_test, args.seed + 1000, args.steps)
     print(
         f"{name}: {len(data)} samples, fit {fit_s:.0f} s, {model.n_centers_} centres, choice {model.choice_}",
@@ -387,6 +393,37 @@ def run_system(name, args) -> dict:
     return entry
 
 
+def add_training_arguments(p: argparse.ArgumentParser) -> None:
+    """The options :func:`training_data` reads (the training set of a system and the model's size), shared with the
+    design studies of the estimate (``error_estimate_residuals.py``, ``error_estimate_share_distance.py``)."""
+    p.add_argument("--max-centers", type=int, default=500)
+    p.add_argument("--samples", type=int, default=3000, help="scattered samples (defaults_acceptance systems)")
+    p.add_argument("--traj", type=int, default=100, help="training trajectories (three_body, pendulum)")
+    p.add_argument("--traj-steps", type=int, default=30)
+    p.add_argument("--seed", type=int, default=0)
+
+
+def add_development_arguments(p: argparse.ArgumentParser) -> None:
+    """The design studies' development test set: ``--n`` trajectories from seeds offset by ``--test-offset`` from
+    the training seed, other than the trajectories this study evaluates on."""
+    p.add_argument("--test-offset", type=int, default=9000)
+    p.add_argument("--n", type=int, default=100)
+
+
+def run_design_study(args: argparse.Namespace, run, report) -> dict:
+    """A design study's loop: ``run(name, args)`` for each of ``args.systems``, ``report(name, result)`` (prints),
+    and, with ``args.json``, ``{"settings": vars(args), "systems": {name: result}}`` written after each system (a
+    stopped run keeps the systems it finished).  Extrapolation warnings are silenced: the studies roll out far."""
+    warnings.simplefilter("ignore", ExtrapolationWarning)
+    results = {}
+    for name in args.systems:
+        results[name] = run(name, args)
+        report(name, results[name])
+        if args.json:
+            Path(args.json).write_text(json.dumps({"settings": vars(args), "systems": results}, indent=1))
+    return results
+
+
 def parse_args(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument(
@@ -394,10 +431,7 @@ def parse_args(argv=None):
         nargs="+",
         default=["three_body", "coupled_pendulums", "fpu_chain", "kepler", "pendulum", "double_well"],
     )
-    p.add_argument("--max-centers", type=int, default=500)
-    p.add_argument("--samples", type=int, default=3000, help="scattered samples (defaults_acceptance systems)")
-    p.add_argument("--traj", type=int, default=100, help="training trajectories (three_body, pendulum)")
-    p.add_argument("--traj-steps", type=int, default=30)
+    add_training_arguments(p)
     p.add_argument("--n-test", type=int, default=20)
     p.add_argument("--n-rank", type=int, default=100, help="fresh trajectories for the rank correlation's check")
     p.add_argument(
@@ -409,7 +443,6 @@ def parse_args(argv=None):
     p.add_argument("--steps", type=int, default=200)
     p.add_argument("--timing-batch", type=int, default=4)
     p.add_argument("--timing-steps", type=int, default=50)
-    p.add_argument("--seed", type=int, default=0)
     p.add_argument("--quick", action="store_true", help="small sizes (a smoke run)")
     _protocol.add_arguments(p, threads=1, repeats=3)
     args = p.parse_args(argv)

@@ -36,10 +36,7 @@ Run:  python sympredict_paper/studies/error_estimate_residuals.py --pool all --n
 from __future__ import annotations
 
 import argparse
-import json
 import sys
-import time
-import warnings
 from pathlib import Path
 
 import numpy as np
@@ -48,9 +45,7 @@ from scipy.stats import spearmanr
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import error_estimate as study  # noqa: E402
 
-from sympredict import SymplecticKernelPredictor  # noqa: E402
 from sympredict.estimators.error_estimate import local_points  # noqa: E402
-from sympredict.exceptions import ExtrapolationWarning  # noqa: E402
 
 
 def knn(points, queries, k):
@@ -69,9 +64,7 @@ def true_step_fn(name, args):
 
 def run(name, args):
     data, test, dt, title, _ = study.training_data(name, args)
-    t0 = time.perf_counter()
-    model = SymplecticKernelPredictor(max_centers=args.max_centers).fit(data)
-    fit_s = time.perf_counter() - t0
+    model, fit_s = study.fit_defaults(data, args)
     fm = model.model_
     x0, mu, ref = test(args.n, args.seed + args.test_offset, args.steps)
     mu = np.asarray(mu, float)
@@ -251,13 +244,8 @@ def finish(out, cands, true, args, K):
 def main():
     p = argparse.ArgumentParser()
     p.add_argument("--systems", nargs="+", default=["pendulum", "coupled_pendulums"])
-    p.add_argument("--max-centers", type=int, default=500)
-    p.add_argument("--samples", type=int, default=3000)
-    p.add_argument("--traj", type=int, default=100)
-    p.add_argument("--traj-steps", type=int, default=30)
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--test-offset", type=int, default=9000)
-    p.add_argument("--n", type=int, default=100)
+    study.add_training_arguments(p)
+    study.add_development_arguments(p)
     p.add_argument("--steps", type=int, default=200)
     p.add_argument("--horizons", type=int, nargs="+", default=[50, 100, 200])
     p.add_argument("--neighbours", type=int, nargs="+", default=[5, 20])
@@ -266,26 +254,23 @@ def main():
     p.add_argument("--krr", action="store_true")
     p.add_argument("--npz", default=None)
     args = p.parse_args()
-    warnings.simplefilter("ignore", ExtrapolationWarning)
-    allres = {}
-    for name in args.systems:
-        r = run(name, args)
-        allres[name] = r
-        print(
-            name,
-            r["n_centers"],
-            f"fit {r['fit_s']:.0f}s",
-            "true sd",
-            round(r["true_log10_sd"], 2),
-            r["loo_r2"],
-            r.get("krr"),
-            r["n_holdout"],
-            flush=True,
-        )
-        for nm, row in r["candidates"].items():
-            print(f"  {nm:14s}", row, flush=True)
-    if args.json:
-        Path(args.json).write_text(json.dumps({"settings": vars(args), "systems": allres}, indent=1))
+    study.run_design_study(args, run, _report)
+
+
+def _report(name, r):
+    print(
+        name,
+        r["n_centers"],
+        f"fit {r['fit_s']:.0f}s",
+        "true sd",
+        round(r["true_log10_sd"], 2),
+        r["loo_r2"],
+        r.get("krr"),
+        r["n_holdout"],
+        flush=True,
+    )
+    for nm, row in r["candidates"].items():
+        print(f"  {nm:14s}", row, flush=True)
 
 
 if __name__ == "__main__":

@@ -41,8 +41,6 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import time
-import warnings
 from pathlib import Path
 
 import numpy as np
@@ -51,15 +49,12 @@ from scipy.stats import spearmanr
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import error_estimate as study  # noqa: E402
 
-from sympredict import SymplecticKernelPredictor  # noqa: E402
-from sympredict.estimators.error_estimate import local_points, nearest, rollout_error_units  # noqa: E402
-from sympredict.exceptions import ExtrapolationWarning  # noqa: E402
-
-
-def kth_distance(points, queries, k, leave_one_out=False):
-    """Distance of each query to its ``k``-th nearest point (the library's ``nearest`` ordering)."""
-    near = nearest(points, queries, k, leave_one_out=leave_one_out)
-    return np.linalg.norm(queries - points[near[:, -1]], axis=1)
+from sympredict.estimators.error_estimate import (  # noqa: E402
+    kth_distance,
+    local_points,
+    nearest,
+    rollout_error_units,
+)
 
 
 def constant_share(fm):
@@ -138,9 +133,7 @@ def candidates(model, x0, mu, dt, steps, variants, s, pts, dloo):
 
 def run(name, args):
     data, test, dt, title, _ = study.training_data(name, args)
-    t0 = time.perf_counter()
-    model = SymplecticKernelPredictor(max_centers=args.max_centers).fit(data)
-    fit_s = time.perf_counter() - t0
+    model, fit_s = study.fit_defaults(data, args)
     fm = model.model_
     fm.error_calibration
     s = constant_share(fm)
@@ -171,26 +164,14 @@ def main():
     p.add_argument("--systems", nargs="+", default=["pendulum", "coupled_pendulums", "three_body"])
     p.add_argument("--variants", nargs="+", default=["current", "const", "lin90", "lin50", "step90", "step50"])
     p.add_argument("--final", action="store_true")
-    p.add_argument("--max-centers", type=int, default=500)
-    p.add_argument("--samples", type=int, default=3000)
-    p.add_argument("--traj", type=int, default=100)
-    p.add_argument("--traj-steps", type=int, default=30)
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--test-offset", type=int, default=9000)
-    p.add_argument("--n", type=int, default=100)
+    study.add_training_arguments(p)
+    study.add_development_arguments(p)
     p.add_argument("--n-test", type=int, default=20)
     p.add_argument("--n-rank", type=int, default=100)
     p.add_argument("--steps", type=int, default=200)
     p.add_argument("--json", default=None)
     args = p.parse_args()
-    warnings.simplefilter("ignore", ExtrapolationWarning)
-    allres = {}
-    for name in args.systems:
-        r = run(name, args)
-        allres[name] = r
-        print(name, json.dumps(r), flush=True)
-        if args.json:
-            Path(args.json).write_text(json.dumps({"settings": vars(args), "systems": allres}, indent=1))
+    study.run_design_study(args, run, lambda name, r: print(name, json.dumps(r), flush=True))
 
 
 if __name__ == "__main__":
