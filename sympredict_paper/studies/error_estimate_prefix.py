@@ -24,6 +24,14 @@ Variants (``--variants``; every one is measured on the same rollouts):
 * ``post+pfx{q}`` / ``post+pfxmix``: the prefix part replacing the residual part (posterior at full scale beside it,
   ``post_full``, since the share was calibrated against the residual part).
 
+A second design, added after the first was rejected on development (below) and after the diagnostic ``--oracle``
+(estimates that know the true local error vectors along the rollout) showed that the directions of the local errors,
+not their sizes, set the ranking: ``dir{k}``, each step's local error taken as the direction of the mean of the ``k``
+nearest residual vectors (``k`` in 5, 20; the residual part's search) times the size of the posterior's calibrated
+one-step estimate with its local scale (no share), carried coherently like the others (its one-step case is the
+posterior's, so it needs no scale of its own); ``cur+dir{k}`` and ``post+dir{k}`` join it to the library's estimate
+or to the posterior part.  Chosen and adopted by the same rules, on the same development data.
+
 Protocol (written before any number of this experiment was looked at):
 
 * Development only on the pendulum, the coupled pendulums, the FPU chain and the Kepler problem with ``--n`` = 100
@@ -67,11 +75,12 @@ from scipy.stats import spearmanr
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import error_estimate as study  # noqa: E402
 
-from sympredict.estimators.error_estimate import rollout_error_units  # noqa: E402
+from sympredict.estimators.error_estimate import local_points, nearest, rollout_error_units  # noqa: E402
 from sympredict.interpolation.surrogate import HBSurrogate  # noqa: E402
 from sympredict.systems.flowmaps import HamiltonianSystem  # noqa: E402
 
 PREFIXES = (50, 75, 90)
+DIRECTION_NEIGHBOURS = (5, 20)
 
 
 def _quartic_H(x, mu):
@@ -196,6 +205,16 @@ def candidates(model, x0, mu, dt, steps, variants, pfx, c_mix):
         parts[f"pfx{q}"] = cp * propagate(jac, u[..., i : i + 1], scale)
     t_prefix = (time.perf_counter() - t0) / len(parts)
     parts["pfxmix"] = c_mix * propagate(jac, u, scale)
+    # the second design: direction from the residual samples, size from the posterior's one-step estimate
+    w = fm.surrogate.weights(mus, dts)
+    e1 = c * f_lib.ravel() * fm._local_error_units(xs * scale, pred[:, 1:].reshape(-1, dim) * scale, mus, dts, w)
+    points, vectors, _ = fm._residual_arrays()
+    query = local_points(xs, mus, dts, fm.domain)
+    for k in DIRECTION_NEIGHBOURS:
+        mean = vectors[nearest(points, query, k)].mean(axis=1) / scale  # user units
+        direction = mean / np.maximum(np.linalg.norm(mean, axis=1, keepdims=True), np.finfo(float).tiny)
+        u_dir = (direction * e1[:, None] * scale).reshape(b, kk, dim, 1)
+        parts[f"dir{k}"] = propagate(jac, u_dir, scale)
     out = {"current": est, "post": post, "resid": resid, "post_full": post_full}
     check = np.max(np.abs(np.hypot(post, resid) - est) / np.maximum(est, np.finfo(float).tiny))
     for name, e in parts.items():
@@ -205,6 +224,62 @@ def candidates(model, x0, mu, dt, steps, variants, pfx, c_mix):
     out = {v: e for v, e in out.items() if v in variants or "all" in variants}
     info = {"current_s": t_current, "prefix_part_s_each": t_prefix, "parts_vs_current_max_rel": float(check)}
     return pred, out, info
+
+
+def exact_step(name, args):
+    """``step(x (N, 2n), mu (N, d_mu)) -> x1 (N, 2n)``: the reference flow over one step (the oracle diagnostic)."""
+    if name in study.systems():
+        sysd = study.systems()[name]
+        return lambda x, mu: sysd.system.trajectory(x, mu[:, 0], sysd.dt, 1)[:, 1]
+    bench = study.make_benchmarks()[name]
+    return lambda x, mu: bench.system.flow(x, mu, bench.dt)
+
+
+def oracle(model, pred, mu, dt, step):
+    """Diagnostic estimates that know the true local errors ``r_k = Phi(x_k) - Phi_exact(x_k)`` along the rollout:
+    ``oracle_coh``, ``r_k`` carried coherently through the later steps' Jacobians (the ceiling of any design that
+    estimates the local error vectors and propagates them linearly); ``oracle_rss``, ``sqrt(sum_k |r_k|^2)`` (no
+    propagation); ``oracle_post``, the posterior's propagation with each step's local scale set to the true local
+    error over the posterior's one-step estimate (the ceiling of a better local magnitude, direction from the
+    posterior)."""
+    fm = model.model_
+    b, k1, dim = pred.shape
+    kk = k1 - 1
+    tmu = np.asarray(mu, float).reshape(b, -1) if model.n_mu_ else np.zeros((b, 0))
+    xs, x1s = pred[:, :-1].reshape(-1, dim), pred[:, 1:].reshape(-1, dim)
+    mus, dts = np.repeat(tmu, kk, axis=0), np.full(b * kk, dt)
+    r = x1s - step(xs, mus)
+    scale = fm.scale
+    w = fm.surrogate.weights(mus, dts)
+    _, jac, _ = fm.rule.linearization(fm.surrogate, xs * scale, x1s * scale, w, dts)
+    coh = propagate(jac.reshape(b, kk, dim, dim), (r * scale).reshape(b, kk, dim, 1), scale)
+    rss = np.concatenate([np.zeros((b, 1)), np.sqrt(np.cumsum(np.sum(r**2, axis=1).reshape(b, kk), axis=1))], axis=1)
+    unit = fm._local_error_units(xs * scale, x1s * scale, mus, dts, w)
+    f = (np.linalg.norm(r, axis=1) / np.maximum(unit, np.finfo(float).tiny)).reshape(b, kk)
+    twts = fm.surrogate.weights(tmu, np.full(b, dt))
+    post = rollout_error_units(fm, pred, tmu, np.full(b, dt), twts, local=f)
+    # the residual samples' estimate of the local vectors: the mean of the k nearest (the residual part's search)
+    points, vectors, k = fm._residual_arrays()
+    near = nearest(points, local_points(xs, mus, dts, fm.domain), k)
+    mean = vectors[near].mean(axis=1) / scale  # user units
+    size = lambda v: np.linalg.norm(v, axis=1, keepdims=True)
+    unit = lambda v: v / np.maximum(size(v), np.finfo(float).tiny)
+    jac4 = jac.reshape(b, kk, dim, dim)
+    carry = lambda v: propagate(jac4, (v * scale).reshape(b, kk, dim, 1), scale)
+    info = {
+        "local_r2_knn_mean": float(1 - np.sum((r - mean) ** 2) / np.sum(r**2)),
+        "local_cosine_knn_mean_median": float(np.median(np.sum(unit(r) * unit(mean), axis=1))),
+        "local_size_spearman_knn_mean": float(spearmanr(size(mean)[:, 0], size(r)[:, 0]).correlation),
+    }
+    est = {
+        "oracle_coh": coh,
+        "oracle_rss": rss,
+        "oracle_post": post,
+        "knn_mean_coh": carry(mean),
+        "oracle_size_knn_dir": carry(unit(mean) * size(r)),
+        "knn_size_oracle_dir": carry(unit(r) * size(mean)),
+    }
+    return est, info
 
 
 def metrics(e, true, quiet_rank=False):
@@ -245,6 +320,10 @@ def run(name, args):
     for label, (n, seed) in sets.items():
         x0, mu, ref = test(n, seed, args.steps)
         pred, cands, info = candidates(model, x0, mu, dt, args.steps, args.variants, pfx, c_mix)
+        if args.oracle and not args.final:
+            more, local_info = oracle(model, pred, mu, dt, exact_step(name, args))
+            cands.update(more)
+            info.update(local_info)
         true = np.linalg.norm(pred - ref, axis=2)
         out[label] = {"n": n, "seed": seed, **info, "candidates": {v: metrics(e, true, quiet) for v, e in cands.items()}}
     return out
@@ -264,6 +343,7 @@ def main():
     p.add_argument("--systems", nargs="+", default=["pendulum", "coupled_pendulums", "fpu_chain", "kepler"])
     p.add_argument("--variants", nargs="+", default=["all"])
     p.add_argument("--final", action="store_true")
+    p.add_argument("--oracle", action="store_true", help="also the diagnostic estimates that know the true local errors")
     study.add_training_arguments(p)
     study.add_development_arguments(p)
     p.add_argument("--n-test", type=int, default=20)
