@@ -814,52 +814,57 @@ class KernelSearch(Setting):
     ) -> tuple:
         """``(table, finalists)``: per update, the grid search over ``grids = (state, mu, dt)`` at ``m_star`` centres
         and, with an open state kernel, the other families around its winner's shape; ``finalists`` holds
-        ``(SelectionResult, update)`` per update and family.  ``template(update)`` is the estimator the candidates
-        are clones of."""
+        ``(SelectionResult, update)`` per update and family that has one.  ``template(update)`` is the estimator the
+        candidates are clones of.
+
+        With ``early_stop``, the other families' candidates must beat the smallest ``E_val(m_star)`` of their update
+        so far (the first family's grid, and the families before them: fitted on the same samples with the same
+        update, their residuals compare), not only their own grid's: a family whose every candidate is clearly
+        losing against it (:data:`~sympredict.estimators.search.E_VAL_STOP_MARGINS`) has no finalist of that update
+        (its rows are kept, with ``abandoned``).  The first family's grid of each update is bounded by its own
+        candidates only: its winner can lie beyond the grid's edge, where only the widening after the grid finds
+        it."""
         state_grid, mu_grid, dt_grid = grids
         table, finalists = [], []
+        best = [np.inf]  # the smallest E_val(m_star) of the update so far: the early stop's bound for its next grid
+
+        def search(update, *candidates):
+            try:
+                result = grid_search(
+                    train,
+                    val,
+                    *candidates,
+                    m_star=m_star,
+                    estimator=template(update),
+                    rungs=rungs,
+                    early_stop=self.early_stop,
+                    bound=best[0],
+                )
+            except ValueError as exc:  # no candidate of this grid trains (or beats the update's best): others may
+                table.extend({**row, "stage": 1, "update": update} for row in getattr(exc, "table", ()))
+                table.append({"stage": 1, "update": update, "E_val": np.inf, "error": str(exc)})
+                return None
+            table.extend({**row, "stage": 1, "update": update} for row in result.table)
+            finalists.append((result, update))
+            best[0] = min(best[0], result.score)
+            return result
+
         rungs = tuple(m_star // d for d in STAGE1_RUNGS if m_star // d >= MIN_RUNG) if self.halving else ()
         # the grid search's own notes (a winner on a grid's edge, m_star too small) are what stage 2 resolves
         with quiet_logs(SEARCH_LOGGER, level=logging.ERROR):
             for update in updates:
-                try:
-                    result = grid_search(
-                        train,
-                        val,
-                        state_grid,
-                        mu_grid,
-                        dt_grid,
-                        m_star=m_star,
-                        estimator=template(update),
-                        rungs=rungs,
-                        early_stop=self.early_stop,
-                    )
-                except ValueError as exc:  # no candidate of this update trains: the other update may
-                    logger.info(f"kernel search, stage 1 ({update}): no candidate trains ({exc})")
-                    table.append({"stage": 1, "update": update, "E_val": np.inf, "error": str(exc)})
+                best[0] = np.inf
+                result = search(update, state_grid, mu_grid, dt_grid)
+                if result is None:
+                    logger.info(f"kernel search, stage 1 ({update}): no finalist ({table[-1]['error']})")
                     continue
-                table += [{**row, "stage": 1, "update": update} for row in result.table]
-                finalists.append((result, update))
                 if open_state:  # the other families around this update's shape, with its mu and dt kernels
                     for family in self.families[1:]:
                         grid = [KERNEL_FAMILIES[family](_clip(result.state.eps * f)) for f in (0.5, 1.0, 2.0)]
-                        try:
-                            other = grid_search(
-                                train,
-                                val,
-                                grid,
-                                [result.mu],
-                                [result.dt],
-                                m_star=m_star,
-                                estimator=template(update),
-                                rungs=rungs,
-                                early_stop=self.early_stop,
+                        if search(update, grid, [result.mu], [result.dt]) is None:
+                            logger.info(
+                                f"kernel search, stage 1 ({update}, {family}): no finalist ({table[-1]['error']})"
                             )
-                        except ValueError as exc:
-                            table.append({"stage": 1, "update": update, "E_val": np.inf, "error": str(exc)})
-                            continue
-                        table += [{**row, "stage": 1, "update": update} for row in other.table]
-                        finalists.append((other, update))
         return table, finalists
 
     def _subsample(self, data: FlowMapData) -> FlowMapData:

@@ -269,8 +269,9 @@ class _Recorder(EarlyStop):
 
 def decay(name: str, case: dict) -> dict:
     """How far each search candidate's score fell from a checkpoint to its full size (the early stop's margin):
-    the default search with every candidate at full size (``early_stop=False``); the first stage's ``E_val`` at half
-    of ``m_star`` (``E_val_half``) over ``E_val(m_star)``; the later stages' held-out one-step error at a quarter and
+    the default search with every candidate at full size (``early_stop=False``); the first stage's ``E_val`` at a
+    quarter, half and three quarters of ``m_star`` (``E_val_quarter``, ``E_val_half``, ``E_val_three_quarters``) over
+    ``E_val(m_star)``; the later stages' held-out one-step error at a quarter and
     at half of the centres (the prefix of the same fit) over the full fit's.  Only candidates that reached their size."""
     recorder = _Recorder(margins=((0.25, np.inf), (0.5, np.inf)))
     model = SymplecticKernelPredictor(max_centers=case["max_centers"], search=KernelSearch(early_stop=False))
@@ -282,9 +283,14 @@ def decay(name: str, case: dict) -> dict:
     finally:
         EARLY_STOP.reset(token)
     table = model.search_.table
-    first = [
-        r["E_val_half"] / r["E_val"] for r in table if r.get("stage") == 1 and "E_val_half" in r and r.get("complete")
-    ]
+    first = {
+        key: [
+            r[f"E_val_{key}"] / r["E_val"]
+            for r in table
+            if r.get("stage") == 1 and f"E_val_{key}" in r and r.get("complete")
+        ]
+        for key in ("quarter", "half", "three_quarters")
+    }
     later = [r for r in table if r.get("stage") in (2, 3, 4)]
     assert len(later) == len(recorder.history), "one recorded candidate per row of stages 2 to 4"
     m_final, out = model.search_.m_final, {"quarter": [], "half": []}
@@ -298,7 +304,10 @@ def decay(name: str, case: dict) -> dict:
                 out[key].append(value / float(row["score"]))
     result = {
         "system": name,
-        "first_stage_half": {"n": len(first), "max": max(first, default=None), "median": _median(first)},
+        **{
+            f"first_stage_{k}": {"n": len(v), "max": max(v, default=None), "median": _median(v)}
+            for k, v in first.items()
+        },
         **{f"one_step_{k}": {"n": len(v), "max": max(v, default=None), "median": _median(v)} for k, v in out.items()},
         "choice": {k: repr(v) for k, v in model.choice_.items()},
     }
@@ -354,7 +363,13 @@ def main(argv=None):
                 rows.append(decay(name, make_case(name, args)))
                 summary = {
                     key: max((r[key]["max"] for r in rows if r[key]["max"] is not None), default=None)
-                    for key in ("first_stage_half", "one_step_half", "one_step_quarter")
+                    for key in (
+                        "first_stage_quarter",
+                        "first_stage_half",
+                        "first_stage_three_quarters",
+                        "one_step_half",
+                        "one_step_quarter",
+                    )
                 }
                 _protocol.write_json(
                     args.json,
