@@ -149,10 +149,30 @@ def test_the_early_stop_margin_lies_above_every_decay_of_the_published_run():
     for key in ("first_stage_half", "one_step_half", "one_step_quarter"):
         assert run["max"][key] == max(r[key]["max"] for r in run["rows"] if r[key]["max"] is not None), key
         assert all(r[key]["n"] > 0 for r in run["rows"]), key
-    ((fraction, factor),), ((e_fraction, e_factor),) = EARLY_STOP_MARGINS, E_VAL_STOP_MARGINS
-    assert fraction == e_fraction == 0.5
+    ((fraction, factor),) = EARLY_STOP_MARGINS
+    e_factor = dict(E_VAL_STOP_MARGINS)[0.5]
+    assert fraction == 0.5
     assert factor >= 2 * run["max"]["one_step_half"] and e_factor >= 2 * run["max"]["first_stage_half"]
     assert run["max"]["one_step_quarter"] > factor
+
+
+def test_the_first_stage_margins_lie_above_every_decay_of_the_published_run():
+    """``search_decay_stage1.json`` (``search_cost.py --decay``, the first stage's three checkpoints): its maxima are
+    those of its rows, on the six systems, and each of the first stage's factors (a quarter, half and three quarters
+    of ``m_star``) is at least twice the largest fall of a candidate's ``E_val`` from its checkpoint to ``m_star``."""
+    from sympredict.estimators.search import E_VAL_STOP_MARGINS
+
+    run = _load("search_decay_stage1.json")
+    assert sorted(r["system"] for r in run["rows"]) == sorted(
+        ["three_body", "noisy_pendulum", "readme_pendulum", "kepler", "henon_heiles", "coupled_pendulums"]
+    )
+    names = {0.25: "first_stage_quarter", 0.5: "first_stage_half", 0.75: "first_stage_three_quarters"}
+    for key in names.values():
+        assert run["max"][key] == max(r[key]["max"] for r in run["rows"] if r[key]["max"] is not None), key
+        assert all(r[key]["n"] > 0 for r in run["rows"]), key
+    assert sorted(f for f, _ in E_VAL_STOP_MARGINS) == sorted(names)
+    for f, k in E_VAL_STOP_MARGINS:
+        assert k >= 2 * run["max"][names[f]], f
 
 
 # ---------------------------------------------------------------------------------- the three-body structure runs
