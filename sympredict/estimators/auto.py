@@ -254,13 +254,16 @@ class KernelSearch(Setting):
             trajectories it chose a worse model for the test trajectories more often than a better one (Notes).
         early_stop : bool
             Stop the fit of a candidate once it is clearly losing (:class:`~sympredict.estimators.search.EarlyStop`;
-            rows with ``abandoned``, never chosen): in the first stage where its validation residual at half of
-            ``m_star`` exceeds 200 times the smallest ``E_val(m_star)`` of its grid so far (the greedy's own residual,
-            no extra cost); in the second stage's coordinate search where its one-step error at half its centres
-            (the prefix scored as the full fit would be) exceeds 300 times the best full-size score so far.  Such a
-            candidate cannot win unless its score falls more than that over the second half of its centres; on the
-            search candidates of the six systems of ``sympredict_paper/studies/search_cost.py`` the residual fell at
-            most 62 times and the one-step error 107 times (:data:`~sympredict.estimators.search.E_VAL_STOP_MARGINS`,
+            rows with ``abandoned``, never chosen): in the first stage where its validation residual at a quarter,
+            half or three quarters of ``m_star`` exceeds 2000, 200 or 40 times the smallest ``E_val(m_star)`` so far
+            of its grid and, for the families after the first, of its update's grids before it (the greedy's own
+            residual, no extra cost; a family whose every candidate stops has no finalist of that update); in the
+            second stage's coordinate search where its one-step error at half its centres (the prefix scored as the
+            full fit would be) exceeds 300 times the best full-size score so far.  Such a candidate cannot win unless
+            its score falls more than that over the rest of its centres; on the search candidates of the six systems
+            of ``sympredict_paper/studies/search_cost.py`` the residual fell at most 613, 62 and 12 times from a
+            quarter, half and three quarters of ``m_star``, and the one-step error 107 times from half its centres
+            (:data:`~sympredict.estimators.search.E_VAL_STOP_MARGINS`,
             :data:`~sympredict.estimators.search.EARLY_STOP_MARGINS`).
             The second stage's starts are never stopped (one that stops early, too flat, gets its shapes narrowed,
             which a stopped fit cannot tell), nor any candidate where held-out rollouts decide among the finalists
@@ -279,7 +282,13 @@ class KernelSearch(Setting):
         -----
         Two stages.  The first fits every update and family on the shape grids to ``m_star`` centres and keeps, per
         update and family, the tuple with the smallest validation residual ``E_val(m_star)`` (cheap, but at a small
-        ``m_star`` flat kernels win that break down before the final size).  The second fits those finalists (a
+        ``m_star`` flat kernels win that break down before the final size).  With ``early_stop``, a family after the
+        first whose every candidate is clearly losing against its update's best (above) has no finalist there: both
+        learn the same targets on the same samples, so their residuals compare, and a family that far behind at
+        ``m_star`` did not win the second stage on the six systems (Matern52, the default's second family, stops
+        this way on the three-body problem, the README's pendulum and Hénon–Heiles, 37 to 2,700 times behind IMQ
+        there, and for the midpoint update on the coupled pendulums, 60 times behind; it competes on the Kepler orbits
+        and the noisy pendulum, 1.2 and 0.3 to 0.5 times IMQ's, where it wins).  The second fits those finalists (a
         finalist that stops early also with its open shapes doubled, up to three times), then the
         coordinate search's candidates, to ``m_final = min(max_centers, final_centers)`` centres and ranks them by the
         mean relative one-step error ``|Phi(x0) - x1| / |x1 - x0|`` on the held-out samples (a Newton failure scores
@@ -342,7 +351,9 @@ class KernelSearch(Setting):
         third of its time on two acceptance systems of ``sympredict_paper/studies/defaults_acceptance.py``, but chose another update
         and parameter kernel on the Kepler orbits, with a 1.3x larger rollout error).
         Cost: about ``len(updates) (len(shapes) len(parameter_shapes)^k + 3 (len(families) - 1))`` fits to ``m_star``
-        centres (``k`` open parameter and step kernels), then ``len(updates) len(families) + 8 refine_sweeps`` fits to
+        centres (``k`` open parameter and step kernels; with ``early_stop`` a candidate stopped at a fraction ``f`` of
+        ``m_star`` costs about ``f^2`` of one, and a family stopped in stage 1 adds no finalist to stage 2), then
+        ``len(updates) len(families) + 8 refine_sweeps`` fits to
         ``m_final`` centres, each ``O(m^2 2n max_samples)``, without ``halving``; with it, per grid of ``c`` candidates
     about ``c / 16 + c / 12 + 2`` fits' worth to ``m_star`` instead of ``c``, and in the second stage a sixteenth of a
     fit for each candidate cut at its rung (the rung fit of one that goes on adds a sixteenth to its full fit).
@@ -814,52 +825,57 @@ class KernelSearch(Setting):
     ) -> tuple:
         """``(table, finalists)``: per update, the grid search over ``grids = (state, mu, dt)`` at ``m_star`` centres
         and, with an open state kernel, the other families around its winner's shape; ``finalists`` holds
-        ``(SelectionResult, update)`` per update and family.  ``template(update)`` is the estimator the candidates
-        are clones of."""
+        ``(SelectionResult, update)`` per update and family that has one.  ``template(update)`` is the estimator the
+        candidates are clones of.
+
+        With ``early_stop``, the other families' candidates must beat the smallest ``E_val(m_star)`` of their update
+        so far (the first family's grid, and the families before them: fitted on the same samples with the same
+        update, their residuals compare), not only their own grid's: a family whose every candidate is clearly
+        losing against it (:data:`~sympredict.estimators.search.E_VAL_STOP_MARGINS`) has no finalist of that update
+        (its rows are kept, with ``abandoned``).  The first family's grid of each update is bounded by its own
+        candidates only: its winner can lie beyond the grid's edge, where only the widening after the grid finds
+        it."""
         state_grid, mu_grid, dt_grid = grids
         table, finalists = [], []
+        best = [np.inf]  # the smallest E_val(m_star) of the update so far: the early stop's bound for its next grid
+
+        def search(update, *candidates):
+            try:
+                result = grid_search(
+                    train,
+                    val,
+                    *candidates,
+                    m_star=m_star,
+                    estimator=template(update),
+                    rungs=rungs,
+                    early_stop=self.early_stop,
+                    bound=best[0],
+                )
+            except ValueError as exc:  # no candidate of this grid trains (or beats the update's best): others may
+                table.extend({**row, "stage": 1, "update": update} for row in getattr(exc, "table", ()))
+                table.append({"stage": 1, "update": update, "E_val": np.inf, "error": str(exc)})
+                return None
+            table.extend({**row, "stage": 1, "update": update} for row in result.table)
+            finalists.append((result, update))
+            best[0] = min(best[0], result.score)
+            return result
+
         rungs = tuple(m_star // d for d in STAGE1_RUNGS if m_star // d >= MIN_RUNG) if self.halving else ()
         # the grid search's own notes (a winner on a grid's edge, m_star too small) are what stage 2 resolves
         with quiet_logs(SEARCH_LOGGER, level=logging.ERROR):
             for update in updates:
-                try:
-                    result = grid_search(
-                        train,
-                        val,
-                        state_grid,
-                        mu_grid,
-                        dt_grid,
-                        m_star=m_star,
-                        estimator=template(update),
-                        rungs=rungs,
-                        early_stop=self.early_stop,
-                    )
-                except ValueError as exc:  # no candidate of this update trains: the other update may
-                    logger.info(f"kernel search, stage 1 ({update}): no candidate trains ({exc})")
-                    table.append({"stage": 1, "update": update, "E_val": np.inf, "error": str(exc)})
+                best[0] = np.inf
+                result = search(update, state_grid, mu_grid, dt_grid)
+                if result is None:
+                    logger.info(f"kernel search, stage 1 ({update}): no finalist ({table[-1]['error']})")
                     continue
-                table += [{**row, "stage": 1, "update": update} for row in result.table]
-                finalists.append((result, update))
                 if open_state:  # the other families around this update's shape, with its mu and dt kernels
                     for family in self.families[1:]:
                         grid = [KERNEL_FAMILIES[family](_clip(result.state.eps * f)) for f in (0.5, 1.0, 2.0)]
-                        try:
-                            other = grid_search(
-                                train,
-                                val,
-                                grid,
-                                [result.mu],
-                                [result.dt],
-                                m_star=m_star,
-                                estimator=template(update),
-                                rungs=rungs,
-                                early_stop=self.early_stop,
+                        if search(update, grid, [result.mu], [result.dt]) is None:
+                            logger.info(
+                                f"kernel search, stage 1 ({update}, {family}): no finalist ({table[-1]['error']})"
                             )
-                        except ValueError as exc:
-                            table.append({"stage": 1, "update": update, "E_val": np.inf, "error": str(exc)})
-                            continue
-                        table += [{**row, "stage": 1, "update": update} for row in other.table]
-                        finalists.append((other, update))
         return table, finalists
 
     def _subsample(self, data: FlowMapData) -> FlowMapData:

@@ -225,6 +225,7 @@ def grid_search(
     widen: int = 2,
     rungs: Sequence[int] = (),
     early_stop: bool = False,
+    bound: float = np.inf,
 ) -> SelectionResult:
     """Grid search over kernel tuples by validation residual at ``m_star`` centres.
 
@@ -262,13 +263,21 @@ def grid_search(
         Widening candidates are trained to ``m_star`` directly (comparing them at a rung changed the choice on
         one acceptance system).
     early_stop
-        Stop a candidate's fit at half of ``m_star`` where its validation residual exceeds
-        :data:`E_VAL_STOP_MARGINS`' factor (200) times the smallest ``E_val(m_star)`` so far (:class:`EarlyStop` by
-        ``'E_val'``: the residual is the greedy's own, no extra cost; every candidate trained to ``m_star`` records
-        its ``E_val_half`` there, with or without the early stop); recorded with ``abandoned`` (its centres) and
-        ``E_val = inf``, never the result.  From half of ``m_star`` to all of it the validation residuals of the
-        kernel search's first-stage candidates on the six systems of ``sympredict_paper/studies/search_cost.py``
-        fell at most 62 times, so such a candidate would not have won.  Not with ``rungs`` or ``prefer_complete``.
+        Stop a candidate's fit where it is clearly losing (:class:`EarlyStop` by ``'E_val'``, margins
+        :data:`E_VAL_STOP_MARGINS`): at a quarter, half and three quarters of ``m_star`` where its validation
+        residual exceeds 2000, 200 and 40 times the score to beat, the smallest ``E_val(m_star)`` so far (of this
+        grid, and ``bound``).  The residual is the greedy's own (no extra cost); every candidate trained to ``m_star``
+        records its ``E_val_quarter``, ``E_val_half`` and ``E_val_three_quarters`` there, with or without the early
+        stop.  A stopped candidate is recorded with ``abandoned`` (its centres) and ``E_val = inf``, never the result.
+        From a quarter (half, three quarters) of ``m_star`` to all of it the validation residuals of the kernel
+        search's first-stage candidates on the six systems of ``sympredict_paper/studies/search_cost.py`` fell at most
+        613 (62, 12) times, so such a candidate would not have beaten the score to beat.  Not with ``rungs`` or
+        ``prefer_complete``.
+    bound
+        With ``early_stop``: a score to beat from outside this grid (the smallest ``E_val(m_star)`` of the grids
+        searched before it on the same training and validation samples, as the kernel search's first stage passes
+        across families and updates); ``inf`` (default): only this grid's own candidates.  Where it stops every
+        candidate, the ``ValueError`` of "no candidate" carries the table (``table`` attribute).
 
     Returns
     -------
@@ -299,6 +308,8 @@ def grid_search(
             "grid_search of sympredict.estimators.search needs the estimator whose settings the "
             "candidates share (sympredict.estimators.selection.select_kernels defaults to one)"
         )
+    if not float(bound) >= 0:
+        raise ValueError(f"grid_search: bound must be a non-negative float or inf, got {bound!r}")
     base = estimator
     dt_fixed = np.ptp(data.dt) == 0
     table = []
@@ -324,9 +335,9 @@ def grid_search(
         }
         t0 = time.perf_counter()
         token = None
-        if early is not None and rung is None:  # to beat: the smallest E_val(m_star) so far
+        if early is not None and rung is None:  # to beat: the smallest E_val(m_star) so far, here or before the grid
             finite = [r["E_val"] for r in table if "rung" not in r and np.isfinite(r["E_val"])]
-            token = CANDIDATE_STOP.set(early.start(min(finite) if finite else np.inf))
+            token = CANDIDATE_STOP.set(early.start(min(finite + [float(bound)])))
         try:
             fit_candidate(model, data, validation, uses_mu=mu_k is not None)
         except (ValueError, ArithmeticError) as exc:  # LinAlgError is a ValueError
@@ -364,10 +375,14 @@ def grid_search(
         complete = model.n_centers_ >= size or model.history_.stop_reason == "tol"
         if np.isfinite(value) and rung is None:
             unresolved.append(value > 0.5 * float(val[0]))
-        half = size // 2  # the early stop's checkpoint: what its margin is measured on
+        half = size // 2  # the early stop's checkpoints: what their margins are measured on
         row.update(
             E_val=value,
+            **({"E_val_quarter": float(val[size // 4])} if rung is None and len(val) > size // 4 else {}),
             **({"E_val_half": float(val[half])} if rung is None and len(val) > half else {}),
+            **(
+                {"E_val_three_quarters": float(val[3 * size // 4])} if rung is None and len(val) > 3 * size // 4 else {}
+            ),
             E_train=float(model.history_.train_max_residual[-1]),
             n_centers=model.n_centers_,
             complete=complete,
@@ -396,10 +411,18 @@ def grid_search(
         if better(candidate, best):
             best = candidate
     if best is None:
-        raise ValueError(
-            "no candidate produced a finite validation residual: every fit failed or broke down "
-            "(see the table of the log); try other kernel families or shapes"
-        )
+        if early is not None and np.isfinite(bound) and any("abandoned" in r for r in table):
+            exc = ValueError(
+                f"every candidate is clearly losing against E_val = {float(bound):.3e} of the grids before this one "
+                "(or failed): no finalist from this grid"
+            )
+        else:
+            exc = ValueError(
+                "no candidate produced a finite validation residual: every fit failed or broke down "
+                "(see the table of the log); try other kernel families or shapes"
+            )
+        exc.table = table
+        raise exc
     # a winner on the edge of its shape grid: extend the grid beyond that edge, one step at a time
     grids = [
         sorted({k.eps for k in opts if k is not None and type(k) is type(chosen)}) if chosen is not None else []
@@ -713,9 +736,11 @@ def relative_step_errors(predicted: np.ndarray, x0: np.ndarray, x1: np.ndarray, 
 #: and up to 1,700 times from a quarter (so no earlier checkpoint: a sharp kernel far behind at a quarter of its
 #: centres can still win).
 EARLY_STOP_MARGINS = ((0.5, 300.0),)
-#: The same for the first stage's validation residual ``E_val`` (:func:`grid_search`'s ``early_stop``): it fell at
-#: most 62 times from half of ``m_star`` to all of it on those systems.
-E_VAL_STOP_MARGINS = ((0.5, 200.0),)
+#: The same for the first stage's validation residual ``E_val`` (:func:`grid_search`'s ``early_stop``): on the
+#: first-stage candidates of those systems it fell at most 613 times from a quarter of ``m_star`` to all of it, 62
+#: times from half and 12 times from three quarters (``search_cost.py --decay``,
+#: ``docs/data/search_decay_stage1.json``); each factor is more than three times that fall.
+E_VAL_STOP_MARGINS = ((0.25, 2000.0), (0.5, 200.0), (0.75, 40.0))
 
 
 @dataclass

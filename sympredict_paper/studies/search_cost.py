@@ -6,12 +6,16 @@ configurations of ``--configs`` (default ``full halving``) in alternating order 
 machine may be shared; compare the ratios, the second configuration's over the first's):
 
 * ``full``: ``search=KernelSearch(early_stop=False)``: every search candidate fitted to its full size;
-* ``default``: ``search=KernelSearch()``: the default, a candidate clearly losing at half its centres stopped there
-  (``early_stop``: in the first stage and in the second stage's coordinate search);
+* ``default``: ``search=KernelSearch()``: the default, a candidate clearly losing stopped early (``early_stop``: in
+  the first stage at a quarter, half or three quarters of ``m_star``, the families after the first bounded by their
+  update's best; in the second stage's coordinate search at half its centres);
 * ``halving``: ``search=KernelSearch(halving=True)``: candidates compared first at a fraction of their centres, and only
   those not clearly losing there fitted to full size (:class:`sympredict.KernelSearch`, Notes);
 * ``quick``: ``search=KernelSearch.quick()``: candidates compared at 100 and 250 centres on 1,200 samples, with
-  halving; only the final-size stage fits to ``max_centers``.
+  halving; only the final-size stage fits to ``max_centers``;
+* ``previous``: the default with its first stage's early stop as it was before (at half of ``m_star`` only, every
+  grid bounded by its own candidates; set around the fit in this study only), for a side-by-side run with
+  ``default``.
 
 The systems: the coupled pendulums and the Kepler orbits of ``defaults_acceptance.py`` (``--samples`` one-step
 samples), the Hénon-Heiles system (``lambda`` in [0.8, 1.0], ``dT = 0.5``, ``--samples`` samples), the planar
@@ -22,7 +26,8 @@ trajectories x 50 steps, ``max_centers=300``, as the README fits it) and noisy p
 
 Recorded: fit wall time, the search's own time (``search_.seconds``) and its share of the fit (``search_.share``),
 where the search's time went (``stage_s``: the candidates' fit and scoring seconds of each stage, 1 the grids, 2 the
-finalists' coordinate search, 3 the structure stage, 4 the final-size stage, ``other`` the rest of the search) and
+finalists' coordinate search, 3 the structure stage, 4 the final-size stage, ``other`` the rest of the search), the
+greedy's work per stage (``stage_work``: the sum of the candidates' centres squared, free of timing noise) and
 the final fit's own seconds (``final_fit_s``: the fit less the search), the number of candidate fits, the choice
 (kernels, update), the final model's held-out one-step error (mean of ``|step(x0) - x1| / |x1|`` over fresh samples)
 and rollout errors (median and max over ``--n-test`` test trajectories of ``--steps`` steps of the largest relative
@@ -44,12 +49,19 @@ Run:  python sympredict_paper/studies/search_cost.py        # writes docs/data/s
           --repeats 3 --json docs/data/search_cost_early_300.json
       python sympredict_paper/studies/search_cost.py --decay --systems three_body noisy_pendulum readme_pendulum \
           kepler henon_heiles coupled_pendulums --json docs/data/search_decay.json
+      python sympredict_paper/studies/search_cost.py --decay --systems three_body noisy_pendulum readme_pendulum \
+          kepler henon_heiles coupled_pendulums --json docs/data/search_decay_stage1.json
+      python sympredict_paper/studies/search_cost.py --configs previous default --systems three_body \
+          readme_pendulum kepler henon_heiles coupled_pendulums noisy_pendulum --json docs/data/search_cost_stage1.json
+      python sympredict_paper/studies/search_cost.py --configs previous default --systems three_body --traj 300 \
+          --repeats 3 --json docs/data/search_cost_stage1_300.json
 One BLAS and one numba thread.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import time
 import warnings
 from dataclasses import dataclass, field
@@ -60,6 +72,8 @@ import numpy as np
 import _protocol  # sympredict_paper/studies/ (the script's folder is on sys.path)
 from defaults_acceptance import make_benchmarks, make_test_set, one_step_error, trajectory_metrics
 
+import sympredict.estimators.auto as _auto
+import sympredict.estimators.search as _search
 from sympredict import KernelSearch, SymplecticKernelPredictor
 from sympredict.estimators.search import EARLY_STOP, EarlyStop
 from sympredict.data import FlowMapData
@@ -72,7 +86,29 @@ CONFIGS = {
     "default": lambda: KernelSearch(),
     "halving": lambda: KernelSearch(halving=True),
     "quick": lambda: KernelSearch.quick(),
+    "previous": lambda: KernelSearch(),
 }
+
+
+@contextlib.contextmanager
+def _previous_first_stage():
+    """The default search with its first stage as it was before the stage's early stop checked three checkpoints and
+    bounded the other families by their update's best (for a side-by-side run with ``default``, here only): the early
+    stop at half of ``m_star`` alone (factor 200) and every grid bounded by its own candidates."""
+    margins, grid_search = _search.E_VAL_STOP_MARGINS, _auto.grid_search
+
+    def own_grid_only(*args, bound=np.inf, **kwargs):
+        return grid_search(*args, **kwargs)
+
+    _search.E_VAL_STOP_MARGINS, _auto.grid_search = ((0.5, 200.0),), own_grid_only
+    try:
+        yield
+    finally:
+        _search.E_VAL_STOP_MARGINS, _auto.grid_search = margins, grid_search
+
+
+#: What a configuration changes around its fit (only ``previous``: the first stage's earlier rule).
+AROUND = {"previous": _previous_first_stage}
 
 
 def _relative_rollout(model, x0, mu, dt, ref) -> dict:
@@ -205,11 +241,20 @@ def stage_seconds(search) -> dict:
     return out
 
 
+def stage_work(search) -> dict:
+    """``{stage: sum of n_centers^2 over the stage's candidates}`` (string keys, as :func:`stage_seconds`)."""
+    out = {}
+    for row in search.table:
+        key = str(row.get("stage"))
+        out[key] = out.get(key, 0) + int(row.get("n_centers") or 0) ** 2
+    return out
+
+
 def run(label: str, case: dict) -> dict:
     data, (h0, h1, hmu, hdt) = case["data"], case["heldout"]
     model = SymplecticKernelPredictor(max_centers=case["max_centers"], search=CONFIGS[label]())
     t0, c0 = time.perf_counter(), time.process_time()
-    with warnings.catch_warnings():
+    with warnings.catch_warnings(), AROUND.get(label, contextlib.nullcontext)():
         warnings.simplefilter("ignore")
         model.fit(data)
     fit_s, fit_cpu = time.perf_counter() - t0, time.process_time() - c0
@@ -233,6 +278,9 @@ def run(label: str, case: dict) -> dict:
         ),
         # where the search's time went: each stage's candidates (fits and their scoring), and the rest of the search
         "stage_s": stage_seconds(search),
+        # the greedy's work in each stage, the sum of centres^2 over its candidates (a fit costs about its candidate
+        # functionals times centres^2, the same functionals throughout a stage): a cost free of timing noise
+        "stage_work": stage_work(search),
         "final_fit_s": fit_s - float(search.seconds),
         "choice": {k: repr(v) for k, v in model.choice_.items()},
         "centers": int(model.n_centers_),
@@ -269,8 +317,9 @@ class _Recorder(EarlyStop):
 
 def decay(name: str, case: dict) -> dict:
     """How far each search candidate's score fell from a checkpoint to its full size (the early stop's margin):
-    the default search with every candidate at full size (``early_stop=False``); the first stage's ``E_val`` at half
-    of ``m_star`` (``E_val_half``) over ``E_val(m_star)``; the later stages' held-out one-step error at a quarter and
+    the default search with every candidate at full size (``early_stop=False``); the first stage's ``E_val`` at a
+    quarter, half and three quarters of ``m_star`` (``E_val_quarter``, ``E_val_half``, ``E_val_three_quarters``) over
+    ``E_val(m_star)``; the later stages' held-out one-step error at a quarter and
     at half of the centres (the prefix of the same fit) over the full fit's.  Only candidates that reached their size."""
     recorder = _Recorder(margins=((0.25, np.inf), (0.5, np.inf)))
     model = SymplecticKernelPredictor(max_centers=case["max_centers"], search=KernelSearch(early_stop=False))
@@ -282,9 +331,14 @@ def decay(name: str, case: dict) -> dict:
     finally:
         EARLY_STOP.reset(token)
     table = model.search_.table
-    first = [
-        r["E_val_half"] / r["E_val"] for r in table if r.get("stage") == 1 and "E_val_half" in r and r.get("complete")
-    ]
+    first = {
+        key: [
+            r[f"E_val_{key}"] / r["E_val"]
+            for r in table
+            if r.get("stage") == 1 and f"E_val_{key}" in r and r.get("complete")
+        ]
+        for key in ("quarter", "half", "three_quarters")
+    }
     later = [r for r in table if r.get("stage") in (2, 3, 4)]
     assert len(later) == len(recorder.history), "one recorded candidate per row of stages 2 to 4"
     m_final, out = model.search_.m_final, {"quarter": [], "half": []}
@@ -298,7 +352,10 @@ def decay(name: str, case: dict) -> dict:
                 out[key].append(value / float(row["score"]))
     result = {
         "system": name,
-        "first_stage_half": {"n": len(first), "max": max(first, default=None), "median": _median(first)},
+        **{
+            f"first_stage_{k}": {"n": len(v), "max": max(v, default=None), "median": _median(v)}
+            for k, v in first.items()
+        },
         **{f"one_step_{k}": {"n": len(v), "max": max(v, default=None), "median": _median(v)} for k, v in out.items()},
         "choice": {k: repr(v) for k, v in model.choice_.items()},
     }
@@ -354,7 +411,13 @@ def main(argv=None):
                 rows.append(decay(name, make_case(name, args)))
                 summary = {
                     key: max((r[key]["max"] for r in rows if r[key]["max"] is not None), default=None)
-                    for key in ("first_stage_half", "one_step_half", "one_step_quarter")
+                    for key in (
+                        "first_stage_quarter",
+                        "first_stage_half",
+                        "first_stage_three_quarters",
+                        "one_step_half",
+                        "one_step_quarter",
+                    )
                 }
                 _protocol.write_json(
                     args.json,
@@ -386,12 +449,15 @@ def main(argv=None):
             for label in (first, second):
                 row[label] = runs[label][0]
             if args.repeats > 1:
-                keys = ("fit_s", "search_s", "search_share", "search_cpu_share", "stage_s", "final_fit_s")
+                keys = ("fit_s", "search_s", "search_share", "search_cpu_share", "stage_s", "stage_work", "final_fit_s")
                 row["repeats"] = {label: [{k: out[k] for k in keys} for out in runs[label]] for label in runs}
                 for key in ("search_share", "search_cpu_share"):  # wall time, and this process's processor time
                     row[f"median_{key}"] = {
                         label: float(np.median([out[key] for out in runs[label]])) for label in runs
                     }
+                row["median_stage1_s"] = {
+                    label: float(np.median([out["stage_s"].get("1", 0.0) for out in runs[label]])) for label in runs
+                }
                 row["same_choice_across_repeats"] = all(
                     out["choice"] == runs[label][0]["choice"] for label in runs for out in runs[label]
                 )
@@ -402,6 +468,11 @@ def main(argv=None):
                 )
             full, new = row[first], row[second]
             row["same_choice"] = full["choice"] == new["choice"]
+            # the first stage's seconds and each stage's greedy work, the second configuration's over the first's
+            row["stage_ratios"] = {
+                **({"stage_s_1": new["stage_s"]["1"] / full["stage_s"]["1"]} if full["stage_s"].get("1") else {}),
+                **{f"stage_work_{k}": new["stage_work"].get(k, 0) / v for k, v in full["stage_work"].items() if v},
+            }
             row["ratios"] = {
                 k: new[k] / full[k]
                 for k in (

@@ -159,14 +159,15 @@ def test_grid_search_with_rungs_keeps_the_best_candidate_at_a_fraction_of_the_fi
     ]
 
 
-def test_grid_search_early_stop_keeps_the_winner_and_stops_only_candidates_clearly_losing_at_half_m_star(rung_case):
-    """With ``early_stop`` a candidate whose ``E_val`` at half of ``m_star`` exceeds 200 times the smallest
-    ``E_val(m_star)`` so far stops there: the same winner and score as training every candidate to ``m_star`` (the
-    same fits of the same arrays), and every stopped candidate was that far behind."""
+def test_grid_search_early_stop_keeps_the_winner_and_stops_only_candidates_clearly_losing_at_a_checkpoint(rung_case):
+    """With ``early_stop`` a candidate whose ``E_val`` at a checkpoint (a quarter, half of ``m_star``) exceeds its
+    margin (2000, 200) times the smallest ``E_val(m_star)`` so far stops at the first such checkpoint: the same
+    winner and score as training every candidate to ``m_star`` (the same fits of the same arrays), and every stopped
+    candidate was that far behind."""
     from sympredict import SymplecticKernelPredictor
     from sympredict.estimators.search import E_VAL_STOP_MARGINS, fit_candidate
 
-    ((fraction, factor),) = E_VAL_STOP_MARGINS
+    margins = sorted(E_VAL_STOP_MARGINS)
     train, val = rung_case
     grid = [IMQ(e) for e in (0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0, 20.0, 50.0)]
     est = SymplecticKernelPredictor(update="midpoint")
@@ -174,21 +175,26 @@ def test_grid_search_early_stop_keeps_the_winner_and_stops_only_candidates_clear
     early = grid_search(train, val, grid, m_star=100, estimator=est, widen=0, early_stop=True)
     assert early.state == plain.state and early.score == plain.score
     stopped = [r for r in early.table if "abandoned" in r]
-    assert stopped and all(r["n_centers"] == r["abandoned"] == int(fraction * 100) for r in stopped)
+    assert stopped and all(r["n_centers"] == r["abandoned"] in {int(f * 100) for f, _ in margins} for r in stopped)
     full = {r["kernels"]: r["E_val"] for r in plain.table}
-    half = {}  # each candidate's own E_val at the checkpoint, from its full run's history
+    curves = {}  # each candidate's own E_val curve, from its full run's history
     for k in grid:
         model = clone(est).set_params(state_kernel=k, max_centers=100, trainer__tol=0.0)
-        curve = fit_candidate(model, train, val).history_.val_max_residual
-        half[repr(k)] = float(curve[int(fraction * 100)]) if len(curve) > fraction * 100 else None  # stopped before
+        curves[repr(k)] = fit_candidate(model, train, val).history_.val_max_residual
     for i, r in enumerate(early.table):
         before = [q["E_val"] for q in early.table[:i] if np.isfinite(q["E_val"])]
-        reached = half[r["kernels"]] is not None
-        assert ("abandoned" in r) == bool(before and reached and half[r["kernels"]] > factor * min(before)), r[
-            "kernels"
-        ]
+        curve = curves[r["kernels"]]
+        stop = next(
+            (
+                int(f * 100)
+                for f, k in margins
+                if before and len(curve) > f * 100 and curve[int(f * 100)] > k * min(before)
+            ),
+            None,
+        )
+        assert r.get("abandoned") == stop, r["kernels"]
         if "abandoned" in r:
-            assert r["E_val"] == np.inf and r["abandoned_E_val"] == half[r["kernels"]]
+            assert r["E_val"] == np.inf and r["abandoned_E_val"] == curve[stop]
             assert full[r["kernels"]] > plain.score  # it would have lost
         else:
             assert r["E_val"] == full[r["kernels"]]

@@ -149,10 +149,30 @@ def test_the_early_stop_margin_lies_above_every_decay_of_the_published_run():
     for key in ("first_stage_half", "one_step_half", "one_step_quarter"):
         assert run["max"][key] == max(r[key]["max"] for r in run["rows"] if r[key]["max"] is not None), key
         assert all(r[key]["n"] > 0 for r in run["rows"]), key
-    ((fraction, factor),), ((e_fraction, e_factor),) = EARLY_STOP_MARGINS, E_VAL_STOP_MARGINS
-    assert fraction == e_fraction == 0.5
+    ((fraction, factor),) = EARLY_STOP_MARGINS
+    e_factor = dict(E_VAL_STOP_MARGINS)[0.5]
+    assert fraction == 0.5
     assert factor >= 2 * run["max"]["one_step_half"] and e_factor >= 2 * run["max"]["first_stage_half"]
     assert run["max"]["one_step_quarter"] > factor
+
+
+def test_the_first_stage_margins_lie_above_every_decay_of_the_published_run():
+    """``search_decay_stage1.json`` (``search_cost.py --decay``, the first stage's three checkpoints): its maxima are
+    those of its rows, on the six systems, and each of the first stage's factors (a quarter, half and three quarters
+    of ``m_star``) is at least twice the largest fall of a candidate's ``E_val`` from its checkpoint to ``m_star``."""
+    from sympredict.estimators.search import E_VAL_STOP_MARGINS
+
+    run = _load("search_decay_stage1.json")
+    assert sorted(r["system"] for r in run["rows"]) == sorted(
+        ["three_body", "noisy_pendulum", "readme_pendulum", "kepler", "henon_heiles", "coupled_pendulums"]
+    )
+    names = {0.25: "first_stage_quarter", 0.5: "first_stage_half", 0.75: "first_stage_three_quarters"}
+    for key in names.values():
+        assert run["max"][key] == max(r[key]["max"] for r in run["rows"] if r[key]["max"] is not None), key
+        assert all(r[key]["n"] > 0 for r in run["rows"]), key
+    assert sorted(f for f, _ in E_VAL_STOP_MARGINS) == sorted(names)
+    for f, k in E_VAL_STOP_MARGINS:
+        assert k >= 2 * run["max"][names[f]], f
 
 
 # ---------------------------------------------------------------------------------- the three-body structure runs
@@ -197,3 +217,45 @@ def test_si_orbit_ratios_recomputed(name):
     for key in ("error_median", "error_max", "energy_median", "energy_max"):
         assert ratios[key] == pytest.approx(defaults[key] / expert[key], rel=1e-12), key
     assert ratios["within_goal"] == (ratios["error_median"] <= 1.5 and ratios["energy_median"] <= 1.5)
+
+
+# ------------------------------------------------------------------------------ the first stage's early stop
+def test_the_first_stage_comparison_has_the_same_models_and_less_first_stage_work():
+    """``search_cost_stage1.json`` (``--configs previous default`` on the six systems): the same model on every system
+    (the errors' ratios exactly 1: the same final fit), every stage's work no larger with the default's first stage,
+    strictly smaller in the first stage where the second family was dropped; the ratios are those of the rows'
+    numbers."""
+    run = _load("search_cost_stage1.json")
+    assert run["settings"]["configs"] == ["previous", "default"]
+    assert sorted(r["system"] for r in run["rows"]) == sorted(
+        ["three_body", "noisy_pendulum", "readme_pendulum", "kepler", "henon_heiles", "coupled_pendulums"]
+    )
+    for row in run["rows"]:
+        old, new = row["previous"], row["default"]
+        assert row["same_choice"] is True and old["choice"] == new["choice"]
+        for key in ("held_out_error", "traj_error_median", "traj_error_max"):
+            assert row["ratios"][key] == pytest.approx(1.0, rel=1e-12), (row["system"], key)
+        for stage, work in old["stage_work"].items():
+            assert row["stage_ratios"][f"stage_work_{stage}"] == pytest.approx(new["stage_work"][stage] / work)
+            assert new["stage_work"][stage] <= work, (row["system"], stage)
+        assert row["stage_ratios"]["stage_s_1"] == pytest.approx(new["stage_s"]["1"] / old["stage_s"]["1"])
+    dropped = [r for r in run["rows"] if r["system"] in ("three_body", "readme_pendulum", "henon_heiles")]
+    assert all(r["stage_ratios"]["stage_work_1"] < 1 for r in dropped)
+
+
+def test_the_first_stage_comparison_at_18000_samples_follows_its_repeats():
+    """``search_cost_stage1_300.json``: the medians are those of the repeats, the same model in every repeat, and the
+    default's first stage took less work and a smaller median time than the comparison's."""
+    import numpy as np
+
+    run = _load("search_cost_stage1_300.json")
+    (row,) = run["rows"]
+    assert row["samples"] == 18000 and run["settings"]["repeats"] >= 3
+    assert row["same_choice"] is True and row["same_choice_across_repeats"] is True
+    for label, runs in row["repeats"].items():
+        assert row["median_stage1_s"][label] == pytest.approx(np.median([r["stage_s"]["1"] for r in runs]), rel=1e-12)
+        for key in ("search_share", "search_cpu_share"):
+            assert row[f"median_{key}"][label] == pytest.approx(np.median([r[key] for r in runs]), rel=1e-12)
+        assert all(r["stage_work"] == runs[0]["stage_work"] for r in runs)  # the same fits in every repeat
+    assert row["median_stage1_s"]["default"] < row["median_stage1_s"]["previous"]
+    assert row["default"]["stage_work"]["1"] < row["previous"]["stage_work"]["1"]
