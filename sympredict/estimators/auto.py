@@ -603,25 +603,44 @@ class KernelSearch(Setting):
                 f", q/p shape ratio {cand[1]:g}" if scaled else ""
             )
 
-        # the coordinate search's candidates each compete with its best so far, which is the best full-size score
-        # of the stage (it starts from the best start): one clearly losing stops early (EarlyStop); the starts do
-        # not (one that would stop early, too flat, gets its shapes narrowed, which a stopped fit cannot tell)
+        # each candidate competes with the best so far (in the coordinate search; a start, with the best of its own
+        # update, so that each update's best is kept for the structure stage): at half its centres it stops where it
+        # is clearly losing (EarlyStop), against that one's full-size score (the margin covers how far a score falls
+        # from half to full size) or, like with like, against the half-size score of the best so far that reached
+        # m_final centres (the margin covers rank reversals between half and full size)
         early = EarlyStop() if self.early_stop and roll is None and rung_size is None else None
         refining = [False]
+        checks = {}  # candidate -> its checkpoint scores {centres: one-step error} (with the early stop)
+        stopped = set()  # candidates the early stop gave up: losing, not too flat
+
+        def to_beat(cand) -> tuple:
+            """``(bound, reference)`` for ``cand``: the best score so far, and the checkpoint scores of the best
+            candidate so far that reached ``m_final`` centres (``None``: none yet)."""
+            pool = [c for c, v in scores.items() if np.isfinite(v[0]) and (refining[0] or c[4] == cand[4])]
+            full = [c for c in pool if scores[c][1] >= m_final]
+            bound = float(min(scores[c][0] for c in pool)) if pool else np.inf
+            return bound, (checks.get(min(full, key=lambda c: scores[c][0]), {}) if full else None)
 
         def score(cand):
             if cand not in scores:
                 label = label_of(cand)
-                finite = [v[0] for v in scores.values() if np.isfinite(v[0])]
-                bound = min(finite) if refining[0] and finite else np.inf
-                token = None if early is None else EARLY_STOP.set(early.start(bound))
+                token = None
+                if early is not None:
+                    token = EARLY_STOP.set(early.start(*to_beat(cand)))
                 try:
                     sc, n, secs, err, extra = halved_score(params_of(cand), label)
                 finally:
                     if token is not None:
                         EARLY_STOP.reset(token)
-                if early is not None and early.abandoned is not None:
-                    extra = {**extra, "abandoned": early.abandoned, "abandoned_score": early.scores[early.abandoned]}
+                if early is not None:
+                    checks[cand] = dict(early.scores)
+                    if early.abandoned is not None:
+                        stopped.add(cand)
+                        extra = {
+                            **extra,
+                            "abandoned": early.abandoned,
+                            "abandoned_score": early.scores[early.abandoned],
+                        }
                 scores[cand] = (sc, n, secs, err, extra.get("cut", False))
                 if "rollout" in extra:
                     rollout_of[cand] = extra["rollout"]
@@ -634,6 +653,7 @@ class KernelSearch(Setting):
                         "score": sc,
                         "n_centers": n,
                         "fit_s": secs,
+                        **({} if refining[0] else {"start": True}),
                         **extra,
                         **({"error": err} if err else {}),
                     }
@@ -657,13 +677,14 @@ class KernelSearch(Setting):
         for cand in list(starts):
             # a finalist that stops before m_final (numerically singular: too flat for the final size, which the
             # small-m ranking favours) competes with its open shapes narrowed, up to three doublings; one cut at the
-            # rung with the rung's centres is losing, not too flat
+            # rung with the rung's centres is losing, not too flat, and so is one stopped at half its centres
             for _ in range(3):
                 score(cand)
                 if (
                     scores[cand][1] >= m_final
                     or scores[cand][3] is not None
                     or (scores[cand][4] and scores[cand][1] >= rung_size)
+                    or cand in stopped
                 ):
                     break
                 cand = tuple(

@@ -258,7 +258,7 @@ class _Recorder(EarlyStop):
 
     history: list = field(default_factory=list)
 
-    def start(self, bound: float) -> "EarlyStop":
+    def start(self, bound: float, reference=None) -> "EarlyStop":
         self.history.append({})
         return super().start(np.inf)
 
