@@ -256,16 +256,22 @@ class KernelSearch(Setting):
             Stop the fit of a candidate once it is clearly losing (:class:`~sympredict.estimators.search.EarlyStop`;
             rows with ``abandoned``, never chosen): in the first stage where its validation residual at half of
             ``m_star`` exceeds 200 times the smallest ``E_val(m_star)`` of its grid so far (the greedy's own residual,
-            no extra cost); in the second stage's coordinate search where its one-step error at half its centres
-            (the prefix scored as the full fit would be) exceeds 300 times the best full-size score so far.  Such a
-            candidate cannot win unless its score falls more than that over the second half of its centres; on the
-            search candidates of the six systems of ``sympredict_paper/studies/search_cost.py`` the residual fell at
-            most 62 times and the one-step error 107 times (:data:`~sympredict.estimators.search.E_VAL_STOP_MARGINS`,
-            :data:`~sympredict.estimators.search.EARLY_STOP_MARGINS`).
-            The second stage's starts are never stopped (one that stops early, too flat, gets its shapes narrowed,
-            which a stopped fit cannot tell), nor any candidate where held-out rollouts decide among the finalists
-            (``rollout_finalists``: one losing on one step may win there) or with ``halving`` (its rung rule decides
-            there).  ``False``: every candidate is fitted to its full size.
+            no extra cost); in the second stage where its one-step error at half its centres (the prefix scored as
+            the full fit would be) exceeds 300 times the best score so far, or, like with like, 8 times the
+            half-size score of the best candidate so far that reached its full size (the best of its own update, for
+            a start).  Such a candidate cannot win unless its score falls more than 300 times over the second half
+            of its centres, or the two swap ranks by more than 8 times from half to full size; on the search
+            candidates of the six systems of ``sympredict_paper/studies/search_cost.py`` the residual fell at most 62
+            times and the one-step error 107 times, and a second-stage candidate that ended better than another
+            scored at most 3.4 times that one's score at half their centres
+            (:data:`~sympredict.estimators.search.E_VAL_STOP_MARGINS`,
+            :data:`~sympredict.estimators.search.EARLY_STOP_MARGINS`,
+            :data:`~sympredict.estimators.search.REVERSAL_MARGINS`; ``sympredict_paper/studies/search_reversals.py``).
+            A start stopped this way is losing, and is not narrowed as one that stops early for being too flat is (in
+            those runs no start the rule would have stopped broke down later).  No candidate is stopped where
+            held-out rollouts decide among the finalists (``rollout_finalists``: one losing on one step may win
+            there) or with ``halving`` (its rung rule decides there).  ``False``: every candidate is fitted to its full
+            size.
         final_size : bool
             Where the estimator's ``max_centers`` exceeds ``final_centers``, fit the chosen settings to
             ``max_centers`` centres too, and where that fit stops early (numerically singular: shapes too flat for
@@ -280,8 +286,10 @@ class KernelSearch(Setting):
         Two stages.  The first fits every update and family on the shape grids to ``m_star`` centres and keeps, per
         update and family, the tuple with the smallest validation residual ``E_val(m_star)`` (cheap, but at a small
         ``m_star`` flat kernels win that break down before the final size).  The second fits those finalists (a
-        finalist that stops early also with its open shapes doubled, up to three times), then the
-        coordinate search's candidates, to ``m_final = min(max_centers, final_centers)`` centres and ranks them by the
+        finalist that stops early for being too flat also with its open shapes doubled, up to three times), then the
+        coordinate search's candidates, to ``m_final = min(max_centers, final_centers)`` centres (with ``early_stop``,
+        one clearly losing at half of them stops there: against the best so far, a start against the best of its
+        own update) and ranks them by the
         mean relative one-step error ``|Phi(x0) - x1| / |x1 - x0|`` on the held-out samples (a Newton failure scores
         ``inf``): the error a rollout compounds, at the size the model will have.  Errors are measured in the data's
         normalised coordinates ``(a_i q_i, p_i / a_i)`` (:func:`~sympredict.estimators.search.state_weights`), so the
@@ -343,7 +351,8 @@ class KernelSearch(Setting):
         and parameter kernel on the Kepler orbits, with a 1.3x larger rollout error).
         Cost: about ``len(updates) (len(shapes) len(parameter_shapes)^k + 3 (len(families) - 1))`` fits to ``m_star``
         centres (``k`` open parameter and step kernels), then ``len(updates) len(families) + 8 refine_sweeps`` fits to
-        ``m_final`` centres, each ``O(m^2 2n max_samples)``, without ``halving``; with it, per grid of ``c`` candidates
+        ``m_final`` centres, each ``O(m^2 2n max_samples)``, without ``halving`` (a candidate the early stop gives
+        up at half its centres costs a quarter of a fit, plus one scoring of its prefix); with it, per grid of ``c`` candidates
     about ``c / 16 + c / 12 + 2`` fits' worth to ``m_star`` instead of ``c``, and in the second stage a sixteenth of a
     fit for each candidate cut at its rung (the rung fit of one that goes on adds a sixteenth to its full fit).
     """

@@ -736,10 +736,13 @@ class EarlyStop:
     At each checkpoint, ``c = fraction m`` centres of the ``m`` it is fitted to (:data:`EARLY_STOP_MARGINS`), the
     fit's prefix is scored as :func:`final_size_score` scores the full fit (the mean relative one-step error on the
     held-out samples, in their normalised coordinates); the fit gives up where that error exceeds the margin's
-    ``factor`` times ``bound``, the score the candidate must beat (the best full-size candidate's so far).  The
-    greedy's prefixes are its own smaller interpolants, whose held-out errors fall as centres are added, and the
+    ``factor`` times ``bound``, the score the candidate must beat (the best candidate's so far), or, where a
+    ``reference`` is given (the checkpoint scores of the best candidate so far that reached its full size),
+    :data:`REVERSAL_MARGINS`' factor times the reference's score at the same checkpoint (like with like).  The
+    greedy's prefixes are its own smaller interpolants, whose held-out errors fall as centres are added; the first
     factors bound how far they fell from a checkpoint to the full size on the search candidates of the acceptance
-    systems, with room to spare: a candidate given up would have lost.  A prefix whose Newton solve fails (score
+    systems, the second how far two candidates' ranks reversed between the checkpoint and the full size, each with
+    room to spare: a candidate given up would have lost.  A prefix whose Newton solve fails (score
     ``inf``) is not given up (a flat kernel's small prefix can fail where the full fit does not).
 
     Attributes
