@@ -44,6 +44,10 @@ Run:  python sympredict_paper/studies/search_cost.py        # writes docs/data/s
           --repeats 3 --json docs/data/search_cost_early_300.json
       python sympredict_paper/studies/search_cost.py --decay --systems three_body noisy_pendulum readme_pendulum \
           kepler henon_heiles coupled_pendulums --json docs/data/search_decay.json
+      python sympredict_paper/studies/search_cost.py --configs full default --systems three_body readme_pendulum \
+          kepler henon_heiles coupled_pendulums noisy_pendulum --json docs/data/search_cost_reversal.json
+      python sympredict_paper/studies/search_cost.py --configs full default --systems three_body --traj 300 \
+          --json docs/data/search_cost_reversal_300.json
 One BLAS and one numba thread.
 """
 
