@@ -352,7 +352,8 @@ class KernelSearch(Setting):
         Cost: about ``len(updates) (len(shapes) len(parameter_shapes)^k + 3 (len(families) - 1))`` fits to ``m_star``
         centres (``k`` open parameter and step kernels), then ``len(updates) len(families) + 8 refine_sweeps`` fits to
         ``m_final`` centres, each ``O(m^2 2n max_samples)``, without ``halving`` (a candidate the early stop gives
-        up at half its centres costs a quarter of a fit, plus one scoring of its prefix); with it, per grid of ``c`` candidates
+        up at half its centres costs a quarter of a fit, plus one scoring of its prefix); with it, per grid of ``c``
+        candidates
     about ``c / 16 + c / 12 + 2`` fits' worth to ``m_star`` instead of ``c``, and in the second stage a sixteenth of a
     fit for each candidate cut at its rung (the rung fit of one that goes on adds a sixteenth to its full fit).
     """

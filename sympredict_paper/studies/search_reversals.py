@@ -8,9 +8,10 @@ at half of its centres (the prefix of the same fit, scored as the full fit is) a
 * ``rows``: per second-stage candidate in the search's order, ``start`` (a starting finalist or its narrowed copy;
   otherwise a candidate of the coordinate search), its update, kernels, ``score`` (full size), ``n_centers``,
   ``quarter`` and ``half`` (the checkpoint scores; ``None`` where the fit stopped before);
-* ``quarter`` and ``half``, per checkpoint: the rule's comparisons.  Each candidate ``c`` that reached the checkpoint is compared with its
-  reference ``r``, the candidate the early stop compares it with: in the coordinate search the best candidate so far
-  that reached its full size, for a start the same among its own update's candidates (none: no comparison).
+* ``quarter`` and ``half``, per checkpoint: the rule's comparisons.  Each candidate ``c`` that reached the
+  checkpoint is compared with its reference ``r``, the candidate the early stop compares it with: in the coordinate
+  search the best candidate so far that reached its full size, for a start the same among its own update's
+  candidates (none: no comparison).
   ``won`` lists ``checkpoint(c) / checkpoint(r)`` over the ``c`` that ended better than ``r`` (full size): a margin
   must exceed their maximum, or the rule stops a candidate that would have won; ``lost`` the same ratio over the
   others (a margin below it stops them); ``won_max`` and ``lost_min``; and ``pairs_max``: over every pair of
@@ -92,9 +93,9 @@ def second_stage_rows(name: str, case: dict) -> tuple:
 
 
 def references(rows: list, m_final: int) -> list:
-    """Per row, the index of the candidate the early stop compares it with (``None``: none yet): in the coordinate search
-    the best candidate so far that reached ``m_final`` centres; for a start the same among its own update's.  Ties go
-    to the earlier candidate, as in the search."""
+    """Per row, the index of the candidate the early stop compares it with (``None``: none yet): in the coordinate
+    search the best candidate so far that reached ``m_final`` centres; for a start the same among its own update's.
+    Ties go to the earlier candidate, as in the search."""
     out = []
     for i, row in enumerate(rows):
         pool = [

@@ -372,9 +372,9 @@ def scripted_search(monkeypatch):
 
 def test_the_early_stop_keeps_a_winner_far_behind_at_half_its_centres_and_stops_clear_losers(pendulum, scripted_search):
     """The coordinate search's neighbour that wins at full size was 50 times the best score at half its centres (5
-    times the best candidate's own score there): within the margins, it is fitted to full size and chosen; the neighbours 1000 times behind stop there (rows with
-    ``abandoned``, never chosen); the start is never stopped (it has nothing to beat).  Without the early stop, the
-    same choice."""
+    times the best candidate's own score there): within the margins, it is fitted to full size and chosen; the
+    neighbours 1000 times behind stop there (rows with ``abandoned``, never chosen); the start is never stopped (it
+    has nothing to beat).  Without the early stop, the same choice."""
     from sympredict import SymplecticKernelPredictor
 
     rng = np.random.default_rng(0)
