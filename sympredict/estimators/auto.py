@@ -258,17 +258,22 @@ class KernelSearch(Setting):
             half or three quarters of ``m_star`` exceeds 2000, 200 or 40 times the smallest ``E_val(m_star)`` so far
             of its grid and, for the families after the first, of its update's grids before it (the greedy's own
             residual, no extra cost; a family whose every candidate stops has no finalist of that update); in the
-            second stage's coordinate search where its one-step error at half its centres (the prefix scored as the
-            full fit would be) exceeds 300 times the best full-size score so far.  Such a candidate cannot win unless
-            its score falls more than that over the rest of its centres; on the search candidates of the six systems
-            of ``sympredict_paper/studies/search_cost.py`` the residual fell at most 613, 62 and 12 times from a
-            quarter, half and three quarters of ``m_star``, and the one-step error 107 times from half its centres
-            (:data:`~sympredict.estimators.search.E_VAL_STOP_MARGINS`,
-            :data:`~sympredict.estimators.search.EARLY_STOP_MARGINS`).
-            The second stage's starts are never stopped (one that stops early, too flat, gets its shapes narrowed,
-            which a stopped fit cannot tell), nor any candidate where held-out rollouts decide among the finalists
-            (``rollout_finalists``: one losing on one step may win there) or with ``halving`` (its rung rule decides
-            there).  ``False``: every candidate is fitted to its full size.
+            second stage where its one-step error at half its centres (the prefix scored as the full fit would be)
+            exceeds 300 times the best score so far, or, like with like, 8 times the half-size score of the best
+            candidate so far that reached its full size (the best of its own update, for a start).  Such a candidate
+            cannot win unless its score falls more than that over the rest of its centres, or the two swap ranks by
+            more than 8 times from half to full size; on the search candidates of the six systems of
+            ``sympredict_paper/studies/search_cost.py`` the residual fell at most 613, 62 and 12 times from a
+            quarter, half and three quarters of ``m_star``, the one-step error 107 times from half its centres, and a
+            second-stage candidate that ended better than another scored at most 3.4 times that one's score at half
+            their centres (:data:`~sympredict.estimators.search.E_VAL_STOP_MARGINS`,
+            :data:`~sympredict.estimators.search.EARLY_STOP_MARGINS`,
+            :data:`~sympredict.estimators.search.REVERSAL_MARGINS`; ``sympredict_paper/studies/search_reversals.py``).
+            A start stopped this way is losing, and is not narrowed as one that stops early for being too flat is (in
+            those runs no start the rule would have stopped broke down later).  No candidate is stopped where
+            held-out rollouts decide among the finalists (``rollout_finalists``: one losing on one step may win
+            there) or with ``halving`` (its rung rule decides there).  ``False``: every candidate is fitted to its full
+            size.
         final_size : bool
             Where the estimator's ``max_centers`` exceeds ``final_centers``, fit the chosen settings to
             ``max_centers`` centres too, and where that fit stops early (numerically singular: shapes too flat for
@@ -289,8 +294,10 @@ class KernelSearch(Setting):
         this way on the three-body problem, the README's pendulum and Hénon–Heiles, 37 to 2,700 times behind IMQ
         there, and for the midpoint update on the coupled pendulums, 60 times behind; it competes on the Kepler orbits
         and the noisy pendulum, 1.2 and 0.3 to 0.5 times IMQ's, where it wins).  The second fits those finalists (a
-        finalist that stops early also with its open shapes doubled, up to three times), then the
-        coordinate search's candidates, to ``m_final = min(max_centers, final_centers)`` centres and ranks them by the
+        finalist that stops early for being too flat also with its open shapes doubled, up to three times), then the
+        coordinate search's candidates, to ``m_final = min(max_centers, final_centers)`` centres (with ``early_stop``,
+        one clearly losing at half of them stops there: against the best so far, a start against the best of its
+        own update) and ranks them by the
         mean relative one-step error ``|Phi(x0) - x1| / |x1 - x0|`` on the held-out samples (a Newton failure scores
         ``inf``): the error a rollout compounds, at the size the model will have.  Errors are measured in the data's
         normalised coordinates ``(a_i q_i, p_i / a_i)`` (:func:`~sympredict.estimators.search.state_weights`), so the
@@ -353,8 +360,9 @@ class KernelSearch(Setting):
         Cost: about ``len(updates) (len(shapes) len(parameter_shapes)^k + 3 (len(families) - 1))`` fits to ``m_star``
         centres (``k`` open parameter and step kernels; with ``early_stop`` a candidate stopped at a fraction ``f`` of
         ``m_star`` costs about ``f^2`` of one, and a family stopped in stage 1 adds no finalist to stage 2), then
-        ``len(updates) len(families) + 8 refine_sweeps`` fits to
-        ``m_final`` centres, each ``O(m^2 2n max_samples)``, without ``halving``; with it, per grid of ``c`` candidates
+        ``len(updates) len(families) + 8 refine_sweeps`` fits to ``m_final`` centres, each ``O(m^2 2n max_samples)``,
+        without ``halving`` (a candidate the early stop gives up at half its centres costs a quarter of a fit, plus
+        one scoring of its prefix); with it, per grid of ``c`` candidates
     about ``c / 16 + c / 12 + 2`` fits' worth to ``m_star`` instead of ``c``, and in the second stage a sixteenth of a
     fit for each candidate cut at its rung (the rung fit of one that goes on adds a sixteenth to its full fit).
     """
@@ -614,25 +622,44 @@ class KernelSearch(Setting):
                 f", q/p shape ratio {cand[1]:g}" if scaled else ""
             )
 
-        # the coordinate search's candidates each compete with its best so far, which is the best full-size score
-        # of the stage (it starts from the best start): one clearly losing stops early (EarlyStop); the starts do
-        # not (one that would stop early, too flat, gets its shapes narrowed, which a stopped fit cannot tell)
+        # each candidate competes with the best so far (in the coordinate search; a start, with the best of its own
+        # update, so that each update's best is kept for the structure stage): at half its centres it stops where it
+        # is clearly losing (EarlyStop), against that one's full-size score (the margin covers how far a score falls
+        # from half to full size) or, like with like, against the half-size score of the best so far that reached
+        # m_final centres (the margin covers rank reversals between half and full size)
         early = EarlyStop() if self.early_stop and roll is None and rung_size is None else None
         refining = [False]
+        checks = {}  # candidate -> its checkpoint scores {centres: one-step error} (with the early stop)
+        stopped = set()  # candidates the early stop gave up: losing, not too flat
+
+        def to_beat(cand) -> tuple:
+            """``(bound, reference)`` for ``cand``: the best score so far, and the checkpoint scores of the best
+            candidate so far that reached ``m_final`` centres (``None``: none yet)."""
+            pool = [c for c, v in scores.items() if np.isfinite(v[0]) and (refining[0] or c[4] == cand[4])]
+            full = [c for c in pool if scores[c][1] >= m_final]
+            bound = float(min(scores[c][0] for c in pool)) if pool else np.inf
+            return bound, (checks.get(min(full, key=lambda c: scores[c][0]), {}) if full else None)
 
         def score(cand):
             if cand not in scores:
                 label = label_of(cand)
-                finite = [v[0] for v in scores.values() if np.isfinite(v[0])]
-                bound = min(finite) if refining[0] and finite else np.inf
-                token = None if early is None else EARLY_STOP.set(early.start(bound))
+                token = None
+                if early is not None:
+                    token = EARLY_STOP.set(early.start(*to_beat(cand)))
                 try:
                     sc, n, secs, err, extra = halved_score(params_of(cand), label)
                 finally:
                     if token is not None:
                         EARLY_STOP.reset(token)
-                if early is not None and early.abandoned is not None:
-                    extra = {**extra, "abandoned": early.abandoned, "abandoned_score": early.scores[early.abandoned]}
+                if early is not None:
+                    checks[cand] = dict(early.scores)
+                    if early.abandoned is not None:
+                        stopped.add(cand)
+                        extra = {
+                            **extra,
+                            "abandoned": early.abandoned,
+                            "abandoned_score": early.scores[early.abandoned],
+                        }
                 scores[cand] = (sc, n, secs, err, extra.get("cut", False))
                 if "rollout" in extra:
                     rollout_of[cand] = extra["rollout"]
@@ -645,6 +672,7 @@ class KernelSearch(Setting):
                         "score": sc,
                         "n_centers": n,
                         "fit_s": secs,
+                        **({} if refining[0] else {"start": True}),
                         **extra,
                         **({"error": err} if err else {}),
                     }
@@ -668,13 +696,14 @@ class KernelSearch(Setting):
         for cand in list(starts):
             # a finalist that stops before m_final (numerically singular: too flat for the final size, which the
             # small-m ranking favours) competes with its open shapes narrowed, up to three doublings; one cut at the
-            # rung with the rung's centres is losing, not too flat
+            # rung with the rung's centres is losing, not too flat, and so is one stopped at half its centres
             for _ in range(3):
                 score(cand)
                 if (
                     scores[cand][1] >= m_final
                     or scores[cand][3] is not None
                     or (scores[cand][4] and scores[cand][1] >= rung_size)
+                    or cand in stopped
                 ):
                     break
                 cand = tuple(

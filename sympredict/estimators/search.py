@@ -63,6 +63,7 @@ __all__ = [
     "relative_step_errors",
     "EARLY_STOP",
     "EARLY_STOP_MARGINS",
+    "REVERSAL_MARGINS",
     "E_VAL_STOP_MARGINS",
     "CANDIDATE_STOP",
     "relative_rollout_error",
@@ -736,7 +737,16 @@ def relative_step_errors(predicted: np.ndarray, x0: np.ndarray, x1: np.ndarray, 
 #: and up to 1,700 times from a quarter (so no earlier checkpoint: a sharp kernel far behind at a quarter of its
 #: centres can still win).
 EARLY_STOP_MARGINS = ((0.5, 300.0),)
-#: The same for the first stage's validation residual ``E_val`` (:func:`grid_search`'s ``early_stop``): on the
+#: Where a search candidate's one-step error at ``fraction`` of its centres is compared like with like, with the score
+#: at the same checkpoint of a candidate to beat that reached its full size, ``(fraction, factor)``: it stops if its
+#: score exceeds ``factor`` times that one (:class:`EarlyStop`'s ``reference``).  The factor bounds rank reversals
+#: between half and full size, with room to spare: on the second-stage candidates of the six systems of
+#: ``sympredict_paper/studies/search_cost.py`` (``sympredict_paper/studies/search_reversals.py``,
+#: ``docs/data/search_reversals.json`` and ``search_reversals_300.json``), a candidate that ended better than another
+#: (both at full size) scored at most 3.4 times that one's score at half the centres, and one that went on to beat the
+#: candidate the rule compared it with at most 0.83 times; the factor is at least twice the former.
+REVERSAL_MARGINS = ((0.5, 8.0),)
+#: As ``EARLY_STOP_MARGINS``, for the first stage's validation residual ``E_val`` (:func:`grid_search`'s ``early_stop``): on the
 #: first-stage candidates of those systems it fell at most 613 times from a quarter of ``m_star`` to all of it, 62
 #: times from half and 12 times from three quarters (``search_cost.py --decay``,
 #: ``docs/data/search_decay_stage1.json``); each factor is more than three times that fall.
@@ -751,10 +761,13 @@ class EarlyStop:
     At each checkpoint, ``c = fraction m`` centres of the ``m`` it is fitted to (:data:`EARLY_STOP_MARGINS`), the
     fit's prefix is scored as :func:`final_size_score` scores the full fit (the mean relative one-step error on the
     held-out samples, in their normalised coordinates); the fit gives up where that error exceeds the margin's
-    ``factor`` times ``bound``, the score the candidate must beat (the best full-size candidate's so far).  The
-    greedy's prefixes are its own smaller interpolants, whose held-out errors fall as centres are added, and the
+    ``factor`` times ``bound``, the score the candidate must beat (the best candidate's so far), or, where a
+    ``reference`` is given (the checkpoint scores of the best candidate so far that reached its full size),
+    :data:`REVERSAL_MARGINS`' factor times the reference's score at the same checkpoint (like with like).  The
+    greedy's prefixes are its own smaller interpolants, whose held-out errors fall as centres are added; the first
     factors bound how far they fell from a checkpoint to the full size on the search candidates of the acceptance
-    systems, with room to spare: a candidate given up would have lost.  A prefix whose Newton solve fails (score
+    systems, the second how far two candidates' ranks reversed between the checkpoint and the full size, each with
+    room to spare: a candidate given up would have lost.  A prefix whose Newton solve fails (score
     ``inf``) is not given up (a flat kernel's small prefix can fail where the full fit does not).
 
     Attributes
@@ -779,33 +792,49 @@ class EarlyStop:
     #: What a checkpoint compares: ``'one-step'`` (the held-out one-step error of the prefix, by Newton steps on
     #: :attr:`samples`) or ``'E_val'`` (the greedy's own validation residual, at no cost: the first stage's score).
     criterion: str = "one-step"
+    #: ``{centres: score}``: the checkpoint scores of a candidate to beat that reached its full size (the
+    #: :attr:`scores` of its own fit), compared like with like at each checkpoint by :attr:`reference_margins`;
+    #: ``None``: no such comparison.
+    reference: Optional[dict] = None
+    #: ``(fraction, factor)`` per checkpoint of the comparison with :attr:`reference` (criterion ``'one-step'`` only).
+    reference_margins: tuple = REVERSAL_MARGINS
 
     #: Checkpoints below this many centres are skipped (a prefix that small says little).
     smallest = 20
 
+    def _all_margins(self) -> tuple:
+        return tuple(self.margins) + (tuple(self.reference_margins) if self.criterion == "one-step" else ())
+
     def checkpoints(self, m: int) -> list:
         """The centre counts (increasing) at which a fit to ``m`` centres is scored."""
-        return sorted({int(f * m) for f, _ in self.margins if self.smallest <= int(f * m) < m})
+        return sorted({int(f * m) for f, _ in self._all_margins() if self.smallest <= int(f * m) < m})
 
-    def factor(self, c: int, m: int) -> float:
-        """The margin at ``c`` of ``m`` centres (that of the largest fraction at most ``c / m``)."""
+    def factor(self, c: int, m: int, margins: Optional[tuple] = None) -> float:
+        """The margin at ``c`` of ``m`` centres (that of the largest fraction at most ``c / m``) of ``margins``
+        (default :attr:`margins`)."""
         out = np.inf
-        for f, k in sorted(self.margins):
+        for f, k in sorted(self.margins if margins is None else margins):
             if int(f * m) <= c:
                 out = k
         return float(out)
 
     def give_up(self, c: int, m: int, value: float) -> bool:
-        """Whether a fit to ``m`` centres whose prefix of ``c`` centres scores ``value`` stops (records it)."""
+        """Whether a fit to ``m`` centres whose prefix of ``c`` centres scores ``value`` stops (records it): where
+        ``value`` exceeds :attr:`margins`' factor times :attr:`bound` (the full-size score to beat), or
+        :attr:`reference_margins`' factor times :attr:`reference`'s score at the same ``c`` (like with like)."""
         self.scores[int(c)] = float(value)
         stop = bool(np.isfinite(value) and np.isfinite(self.bound) and value > self.factor(c, m) * self.bound)
+        if self.reference is not None and self.criterion == "one-step" and np.isfinite(value):
+            target = self.reference.get(int(c), np.inf)
+            stop = stop or bool(np.isfinite(target) and value > self.factor(c, m, self.reference_margins) * target)
         if stop:
             self.abandoned = int(c)
         return stop
 
-    def start(self, bound: float) -> "EarlyStop":
-        """Reset for the next candidate, which must beat ``bound``; returns ``self``."""
-        self.bound, self.abandoned, self.scores = float(bound), None, {}
+    def start(self, bound: float, reference: Optional[dict] = None) -> "EarlyStop":
+        """Reset for the next candidate, which must beat ``bound`` (and, where given, the checkpoint scores
+        ``reference`` of the candidate that scored it); returns ``self``."""
+        self.bound, self.reference, self.abandoned, self.scores = float(bound), reference, None, {}
         return self
 
     @staticmethod
@@ -850,7 +879,7 @@ def final_size_score(
     uses_mu = params["mu_kernel"] is not None
     early = EARLY_STOP.get()
     if early is not None:
-        early.start(early.bound)
+        early.start(early.bound, early.reference)
         early.samples = (sub, w)
     token = None if early is None else CANDIDATE_STOP.set(early)
     try:

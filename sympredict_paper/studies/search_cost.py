@@ -55,6 +55,10 @@ Run:  python sympredict_paper/studies/search_cost.py        # writes docs/data/s
           readme_pendulum kepler henon_heiles coupled_pendulums noisy_pendulum --json docs/data/search_cost_stage1.json
       python sympredict_paper/studies/search_cost.py --configs previous default --systems three_body --traj 300 \
           --repeats 3 --json docs/data/search_cost_stage1_300.json
+      python sympredict_paper/studies/search_cost.py --configs full default --systems three_body readme_pendulum \
+          kepler henon_heiles coupled_pendulums noisy_pendulum --json docs/data/search_cost_reversal.json
+      python sympredict_paper/studies/search_cost.py --configs full default --systems three_body --traj 300 \
+          --json docs/data/search_cost_reversal_300.json
 One BLAS and one numba thread.
 """
 
@@ -306,7 +310,7 @@ class _Recorder(EarlyStop):
 
     history: list = field(default_factory=list)
 
-    def start(self, bound: float) -> "EarlyStop":
+    def start(self, bound: float, reference=None) -> "EarlyStop":
         self.history.append({})
         return super().start(np.inf)
 

@@ -344,8 +344,9 @@ def test_final_size_score_of_an_abandoned_candidate_is_inf_with_the_checkpoints_
 @pytest.fixture()
 def scripted_search(monkeypatch):
     """The second stage's scores scripted by the candidate's shapes relative to the start's (the first stage is real):
-    the start scores 1e-3; its state shape doubled wins (1e-4) although at half its centres it is 50 times the start's
-    score; every other candidate scores 1e-2, and 1.0 at half its centres.  The checkpoint goes through the search's
+    the start scores 1e-3 (1e-2 at half its centres); its state shape doubled wins (1e-4) although at half its centres
+    it is 50 times the start's full-size score (5 times the start's at half); every other candidate scores 1e-2, and
+    1.0 at half its centres.  The checkpoint goes through the search's
     :class:`EarlyStop` as a fit's would.  Returns ``{'seen': [(state eps / start's, bound or None) per call], 'start':
     (eps, factors, mu kernel)}``."""
     import sympredict.estimators.auto as auto
@@ -364,7 +365,7 @@ def scripted_search(monkeypatch):
         if same and np.isclose(state.kernel.eps, 2 * eps0):
             half, full = 5e-2, 1e-4
         elif same and state.kernel.eps == eps0:
-            half, full = 1e-3, 1e-3
+            half, full = 1e-2, 1e-3
         else:
             half, full = 1.0, 1e-2
         if early is not None and early.give_up(m_final // 2, m_final, half):
@@ -376,10 +377,10 @@ def scripted_search(monkeypatch):
 
 
 def test_the_early_stop_keeps_a_winner_far_behind_at_half_its_centres_and_stops_clear_losers(pendulum, scripted_search):
-    """The coordinate search's neighbour that wins at full size was 50 times the best score at half its centres:
-    within the margin, it is fitted to full size and chosen; the neighbours 1000 times behind stop there (rows with
-    ``abandoned``, never chosen); the start is never stopped (it has nothing to beat).  Without the early stop, the
-    same choice."""
+    """The coordinate search's neighbour that wins at full size was 50 times the best score at half its centres (5
+    times the best candidate's own score there): within the margins, it is fitted to full size and chosen; the
+    neighbours 1000 times behind stop there (rows with ``abandoned``, never chosen); the start is never stopped (it
+    has nothing to beat).  Without the early stop, the same choice."""
     from sympredict import SymplecticKernelPredictor
 
     rng = np.random.default_rng(0)
