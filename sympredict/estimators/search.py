@@ -746,9 +746,9 @@ EARLY_STOP_MARGINS = ((0.5, 300.0),)
 #: (both at full size) scored at most 3.4 times that one's score at half the centres, and one that went on to beat the
 #: candidate the rule compared it with at most 0.83 times; the factor is at least twice the former.
 REVERSAL_MARGINS = ((0.5, 8.0),)
-#: As ``EARLY_STOP_MARGINS``, for the first stage's validation residual ``E_val`` (:func:`grid_search`'s ``early_stop``): on the
-#: first-stage candidates of those systems it fell at most 613 times from a quarter of ``m_star`` to all of it, 62
-#: times from half and 12 times from three quarters (``search_cost.py --decay``,
+#: As :data:`EARLY_STOP_MARGINS`, for the first stage's validation residual ``E_val`` (:func:`grid_search`'s
+#: ``early_stop``): on the first-stage candidates of those systems it fell at most 613 times from a quarter of
+#: ``m_star`` to all of it, 62 times from half and 12 times from three quarters (``search_cost.py --decay``,
 #: ``docs/data/search_decay_stage1.json``); each factor is more than three times that fall.
 E_VAL_STOP_MARGINS = ((0.25, 2000.0), (0.5, 200.0), (0.75, 40.0))
 
