@@ -424,6 +424,42 @@ def run_design_study(args: argparse.Namespace, run, report) -> dict:
     return results
 
 
+def design_metrics(estimate: np.ndarray, true: np.ndarray, quiet_rank: bool = False) -> dict:
+    """A design study's measures of one variant: median effectivity and share underestimated by more than 3x over
+    steps ``1..K``, and (unless ``quiet_rank``) the Spearman correlation at the last step with its 90% bootstrap
+    interval.  ``estimate`` and ``true`` of shape ``(B, K + 1)``."""
+    eff = estimate[:, 1:] / np.maximum(true[:, 1:], np.finfo(float).tiny)
+    row = {"med_eff": round(float(np.median(eff)), 3), "under3": round(float(np.mean(eff < 1 / 3)), 4)}
+    if not quiet_rank:
+        row["spearman_last"] = round(float(spearmanr(estimate[:, -1], true[:, -1]).correlation), 3)
+        row["ci90_last"] = [round(v, 3) for v in spearman_interval(estimate[:, -1], true[:, -1], n_boot=1000)]
+    return row
+
+
+def measure_design_sets(args: argparse.Namespace, test, estimates, quiet_rank: bool = False) -> dict:
+    """A design study's test sets and measures: with ``args.final`` this study's own test sets (``--n-test``
+    trajectories of seed ``--seed`` + 1000 for the effectivities, ``--n-rank`` of seed + 5000 for the ranking),
+    else the development set (``--n`` of seed ``--seed`` + ``--test-offset``).  ``test(n, seed, steps)`` gives
+    ``(x0, mu, reference states)``; ``estimates(x0, mu)`` gives ``(predicted states (B, K + 1, 2n), {variant:
+    estimate (B, K + 1)}, info)``.  Returns ``{set: {n, seed, **info, candidates: {variant: design_metrics}}}``."""
+    if args.final:
+        sets = {"effectivity": (args.n_test, args.seed + 1000), "rank": (args.n_rank, args.seed + 5000)}
+    else:
+        sets = {"dev": (args.n, args.seed + args.test_offset)}
+    out = {}
+    for label, (n, seed) in sets.items():
+        x0, mu, ref = test(n, seed, args.steps)
+        pred, variants, info = estimates(x0, mu)
+        true = np.linalg.norm(pred - ref, axis=2)
+        out[label] = {
+            "n": n,
+            "seed": seed,
+            **info,
+            "candidates": {v: design_metrics(e, true, quiet_rank) for v, e in variants.items()},
+        }
+    return out
+
+
 def parse_args(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument(

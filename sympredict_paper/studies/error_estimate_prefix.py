@@ -315,15 +315,6 @@ def oracle(model, pred, mu, dt, step):
     return est, info
 
 
-def metrics(e, true, quiet_rank=False):
-    eff = e[:, 1:] / np.maximum(true[:, 1:], np.finfo(float).tiny)
-    row = {"med_eff": round(float(np.median(eff)), 3), "under3": round(float(np.mean(eff < 1 / 3)), 4)}
-    if not quiet_rank:
-        row["spearman_last"] = round(float(spearmanr(e[:, -1], true[:, -1]).correlation), 3)
-        row["ci90_last"] = [round(v, 3) for v in study.spearman_interval(e[:, -1], true[:, -1], n_boot=1000)]
-    return row
-
-
 def run(name, args):
     data, test, dt, title, _ = study.training_data(name, args)
     model, fit_s = study.fit_defaults(data, args)
@@ -345,25 +336,16 @@ def run(name, args):
         "pfxmix": {"scale": c_mix, "one_step_spearman": rho_mix},
     }
     pfx = [(q, p, c) for q, p, c, *_ in pfx]
-    quiet = False
-    if args.final:
-        sets = {"effectivity": (args.n_test, args.seed + 1000), "rank": (args.n_rank, args.seed + 5000)}
-    else:
-        sets = {"dev": (args.n, args.seed + args.test_offset)}
-    for label, (n, seed) in sets.items():
-        x0, mu, ref = test(n, seed, args.steps)
+
+    def estimates(x0, mu):
         pred, cands, info = candidates(model, x0, mu, dt, args.steps, args.variants, pfx, c_mix)
         if args.oracle and not args.final:
             more, local_info = oracle(model, pred, mu, dt, exact_step(name, args))
             cands.update(more)
             info.update(local_info)
-        true = np.linalg.norm(pred - ref, axis=2)
-        out[label] = {
-            "n": n,
-            "seed": seed,
-            **info,
-            "candidates": {v: metrics(e, true, quiet) for v, e in cands.items()},
-        }
+        return pred, cands, info
+
+    out.update(study.measure_design_sets(args, test, estimates))
     return out
 
 

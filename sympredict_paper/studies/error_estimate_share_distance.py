@@ -44,7 +44,6 @@ import sys
 from pathlib import Path
 
 import numpy as np
-from scipy.stats import spearmanr
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import error_estimate as study  # noqa: E402
@@ -83,15 +82,6 @@ def constant_share(fm):
     misfit = np.linalg.norm(true[ok] - vectors[near].mean(axis=1), axis=1)
     share = float(np.quantile(misfit / unit[ok], fm.ERROR_QUANTILE)) / fm.error_calibration["scale"]
     return float(min(1.0, max(share, np.finfo(float).eps)))
-
-
-def metrics(e, true, quiet_rank=False):
-    eff = e[:, 1:] / np.maximum(true[:, 1:], np.finfo(float).tiny)
-    row = {"med_eff": round(float(np.median(eff)), 3), "under3": round(float(np.mean(eff < 1 / 3)), 4)}
-    if not quiet_rank:
-        row["spearman_last"] = round(float(spearmanr(e[:, -1], true[:, -1]).correlation), 3)
-        row["ci90_last"] = [round(v, 3) for v in study.spearman_interval(e[:, -1], true[:, -1], n_boot=1000)]
-    return row
 
 
 def candidates(model, x0, mu, dt, steps, variants, s, pts, dloo):
@@ -142,20 +132,11 @@ def run(name, args):
     dloo = kth_distance(pts, pts, k, leave_one_out=True)
     out = {"title": title, "fit_s": fit_s, "n_centers": model.n_centers_, "share": s, "n_residual": len(pts)}
     quiet = name == "three_body" and not args.final
-    if args.final:
-        sets = {"effectivity": (args.n_test, args.seed + 1000), "rank": (args.n_rank, args.seed + 5000)}
-    else:
-        sets = {"dev": (args.n, args.seed + args.test_offset)}
-    for label, (n, seed) in sets.items():
-        x0, mu, ref = test(n, seed, args.steps)
-        pred, cands, info = candidates(model, x0, mu, dt, args.steps, args.variants, s, pts, dloo)
-        true = np.linalg.norm(pred - ref, axis=2)
-        out[label] = {
-            "n": n,
-            "seed": seed,
-            **info,
-            "candidates": {v: metrics(e, true, quiet) for v, e in cands.items()},
-        }
+    out.update(
+        study.measure_design_sets(
+            args, test, lambda x0, mu: candidates(model, x0, mu, dt, args.steps, args.variants, s, pts, dloo), quiet
+        )
+    )
     return out
 
 

@@ -319,13 +319,9 @@ class _Recorder(EarlyStop):
         return False
 
 
-def decay(name: str, case: dict) -> dict:
-    """How far each search candidate's score fell from a checkpoint to its full size (the early stop's margin):
-    the default search with every candidate at full size (``early_stop=False``); the first stage's ``E_val`` at a
-    quarter, half and three quarters of ``m_star`` (``E_val_quarter``, ``E_val_half``, ``E_val_three_quarters``) over
-    ``E_val(m_star)``; the later stages' held-out one-step error at a quarter and
-    at half of the centres (the prefix of the same fit) over the full fit's.  Only candidates that reached their size."""
-    recorder = _Recorder(margins=((0.25, np.inf), (0.5, np.inf)))
+def recorded_fit(case: dict, recorder: "_Recorder") -> SymplecticKernelPredictor:
+    """The defaults fitted to ``case['data']`` with every search candidate at its full size (``early_stop=False``),
+    ``recorder`` keeping each later-stage candidate's checkpoint scores (warnings silenced: candidates may underfit)."""
     model = SymplecticKernelPredictor(max_centers=case["max_centers"], search=KernelSearch(early_stop=False))
     token = EARLY_STOP.set(recorder)
     try:
@@ -334,6 +330,17 @@ def decay(name: str, case: dict) -> dict:
             model.fit(case["data"])
     finally:
         EARLY_STOP.reset(token)
+    return model
+
+
+def decay(name: str, case: dict) -> dict:
+    """How far each search candidate's score fell from a checkpoint to its full size (the early stop's margin):
+    the default search with every candidate at full size (``early_stop=False``); the first stage's ``E_val`` at a
+    quarter, half and three quarters of ``m_star`` (``E_val_quarter``, ``E_val_half``, ``E_val_three_quarters``) over
+    ``E_val(m_star)``; the later stages' held-out one-step error at a quarter and
+    at half of the centres (the prefix of the same fit) over the full fit's.  Only candidates that reached their size."""
+    recorder = _Recorder(margins=((0.25, np.inf), (0.5, np.inf)))
+    model = recorded_fit(case, recorder)
     table = model.search_.table
     first = {
         key: [

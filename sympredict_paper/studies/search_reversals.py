@@ -37,16 +37,14 @@ One BLAS and one numba thread.
 from __future__ import annotations
 
 import argparse
-import warnings
 from pathlib import Path
 
 import numpy as np
 
 import _protocol  # sympredict_paper/studies/ (the script's folder is on sys.path)
-from search_cost import SYSTEMS, _Recorder, make_case
+from search_cost import SYSTEMS, _Recorder, make_case, recorded_fit
 
-from sympredict import KernelSearch, SymplecticKernelPredictor
-from sympredict.estimators.search import EARLY_STOP, EARLY_STOP_MARGINS, REVERSAL_MARGINS
+from sympredict.estimators.search import EARLY_STOP_MARGINS, REVERSAL_MARGINS
 
 RESULTS = Path(__file__).resolve().parents[2] / "docs" / "data" / "search_reversals.json"
 CHECKPOINTS = (("quarter", 0.25), ("half", 0.5))
@@ -60,14 +58,7 @@ def second_stage_rows(name: str, case: dict) -> tuple:
     """``(rows, m_final, choice)``: the second stage's candidates of the default search with every candidate at full
     size, with their checkpoint scores."""
     recorder = _Recorder(margins=tuple((f, np.inf) for _, f in CHECKPOINTS))
-    model = SymplecticKernelPredictor(max_centers=case["max_centers"], search=KernelSearch(early_stop=False))
-    token = EARLY_STOP.set(recorder)
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            model.fit(case["data"])
-    finally:
-        EARLY_STOP.reset(token)
+    model = recorded_fit(case, recorder)
     search = model.search_
     later = [r for r in search.table if r.get("stage") in (2, 3, 4)]
     assert len(later) == len(recorder.history), "one recorded candidate per row of stages 2 to 4"
