@@ -424,6 +424,19 @@ def run_design_study(args: argparse.Namespace, run, report) -> dict:
     return results
 
 
+def rollout_points(model, x0, mu, dt: float, steps: int) -> tuple:
+    """A design study's rollout with the library's estimate and the points its steps read:
+    ``(pred (B, K + 1, 2n), estimate (B, K + 1), mu (B, d_mu), xs (B K, 2n), mus (B K, d_mu), dts (B K,),
+    weights)``, ``xs`` the states steps ``0..K-1`` start from, ``weights`` the surrogate's per trajectory."""
+    pred, est = model.rollout(x0, steps, mu=mu, dt=dt, return_error=True)
+    b, k1, dim = pred.shape
+    tmu = np.asarray(mu, float).reshape(b, -1) if model.n_mu_ else np.zeros((b, 0))
+    xs = pred[:, :-1].reshape(-1, dim)
+    mus = np.repeat(tmu, k1 - 1, axis=0)
+    weights = model.model_.surrogate.weights(tmu, np.full(b, dt))
+    return pred, est, tmu, xs, mus, np.full(len(xs), dt), weights
+
+
 def design_metrics(estimate: np.ndarray, true: np.ndarray, quiet_rank: bool = False) -> dict:
     """A design study's measures of one variant: median effectivity and share underestimated by more than 3x over
     steps ``1..K``, and (unless ``quiet_rank``) the Spearman correlation at the last step with its 90% bootstrap

@@ -213,15 +213,10 @@ def candidates(model, x0, mu, dt, steps, variants, pfx, c_mix):
     """Every variant's estimate (B, K+1) on the same rollouts, and the seconds of each part."""
     fm = model.model_
     t0 = time.perf_counter()
-    pred, est = model.rollout(x0, steps, mu=mu, dt=dt, return_error=True)
+    pred, est, tmu, xs, mus, dts, twts = study.rollout_points(model, x0, mu, dt, steps)
     t_current = time.perf_counter() - t0
     b, k1, dim = pred.shape
     kk = k1 - 1
-    tmu = np.asarray(mu, float).reshape(b, -1) if model.n_mu_ else np.zeros((b, 0))
-    xs = pred[:, :-1].reshape(-1, dim)
-    mus = np.repeat(tmu, kk, axis=0)
-    dts = np.full(len(xs), dt)
-    twts = fm.surrogate.weights(tmu, np.full(b, dt))
     c = fm.error_calibration["scale"]
     f_lib = fm._local_factors(xs, mus, dts).reshape(b, kk)
     f_est = fm._step_factors(xs, mus, dts).reshape(b, kk)

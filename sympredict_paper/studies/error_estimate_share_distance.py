@@ -86,14 +86,8 @@ def constant_share(fm):
 
 def candidates(model, x0, mu, dt, steps, variants, s, pts, dloo):
     fm = model.model_
-    pred, est = model.rollout(x0, steps, mu=mu, dt=dt, return_error=True)
-    b, k1, dim = pred.shape
-    kk = k1 - 1
-    tmu = np.asarray(mu, float).reshape(b, -1) if model.n_mu_ else np.zeros((b, 0))
-    xs = pred[:, :-1].reshape(-1, dim)
-    mus = np.repeat(tmu, kk, axis=0)
-    dts = np.full(len(xs), dt)
-    twts = fm.surrogate.weights(tmu, np.full(b, dt))
+    pred, est, tmu, xs, mus, dts, twts = study.rollout_points(model, x0, mu, dt, steps)
+    b, kk = pred.shape[0], pred.shape[1] - 1
     f_lib = fm._local_factors(xs, mus, dts).reshape(b, kk)
     c = fm.error_calibration["scale"]
     # the residual part: the library's estimate less its posterior part (with the library's own factors on it:

@@ -374,17 +374,23 @@ def decay(name: str, case: dict) -> dict:
     return result
 
 
+def add_case_arguments(parser: argparse.ArgumentParser) -> None:
+    """The options :func:`make_case` reads: the systems, their sizes and the test rollouts."""
+    parser.add_argument("--systems", nargs="+", default=list(SYSTEMS), choices=SYSTEMS)
+    parser.add_argument("--samples", type=int, default=5000)
+    parser.add_argument("--traj", type=int, default=100, help="three-body training trajectories (60 steps each)")
+    parser.add_argument("--centers", type=int, default=1000)
+    parser.add_argument("--n-test", type=int, default=20)
+    parser.add_argument("--steps", type=int, default=200)
+
+
 def _median(values):
     return float(np.median(values)) if values else None
 
 
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--systems", nargs="+", default=list(SYSTEMS), choices=SYSTEMS)
-    parser.add_argument("--samples", type=int, default=5000)
-    parser.add_argument("--traj", type=int, default=100, help="three-body training trajectories (60 steps each)")
-    parser.add_argument("--centers", type=int, default=1000)
-    parser.add_argument("--n-test", type=int, default=20)
+    add_case_arguments(parser)
     parser.add_argument(
         "--repeats",
         type=int,
@@ -398,7 +404,6 @@ def main(argv=None):
         choices=tuple(CONFIGS),
         help="the two configurations compared; the ratios are the second's over the first's",
     )
-    parser.add_argument("--steps", type=int, default=200)
     parser.add_argument(
         "--three-body-centers",
         type=int,

@@ -42,7 +42,7 @@ from pathlib import Path
 import numpy as np
 
 import _protocol  # sympredict_paper/studies/ (the script's folder is on sys.path)
-from search_cost import SYSTEMS, _Recorder, make_case, recorded_fit
+from search_cost import _Recorder, add_case_arguments, make_case, recorded_fit
 
 from sympredict.estimators.search import EARLY_STOP_MARGINS, REVERSAL_MARGINS
 
@@ -192,12 +192,7 @@ def stopped_by_rule(rows: list, m_final: int) -> dict:
 
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--systems", nargs="+", default=list(SYSTEMS), choices=SYSTEMS)
-    parser.add_argument("--samples", type=int, default=5000)
-    parser.add_argument("--traj", type=int, default=100, help="three-body training trajectories (60 steps each)")
-    parser.add_argument("--centers", type=int, default=1000)
-    parser.add_argument("--n-test", type=int, default=20)
-    parser.add_argument("--steps", type=int, default=200)
+    add_case_arguments(parser)
     _protocol.add_arguments(parser, threads=1, json_default=str(RESULTS))
     args = parser.parse_args(argv)
     with _protocol.limits(args.blas_threads, args.threads):
