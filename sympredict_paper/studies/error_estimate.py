@@ -410,6 +410,19 @@ def add_development_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--n", type=int, default=100)
 
 
+def add_design_arguments(p: argparse.ArgumentParser) -> None:
+    """The options a design study's fit and test sets read (:func:`fit_defaults`, :func:`measure_design_sets`): the
+    training options, the development set, and ``--final`` with this study's own test sets; ``--steps`` and
+    ``--json``."""
+    add_training_arguments(p)
+    add_development_arguments(p)
+    p.add_argument("--final", action="store_true", help="measure on this study's own test sets (the evaluation)")
+    p.add_argument("--n-test", type=int, default=20)
+    p.add_argument("--n-rank", type=int, default=100)
+    p.add_argument("--steps", type=int, default=200)
+    p.add_argument("--json", default=None)
+
+
 def run_design_study(args: argparse.Namespace, run, report) -> dict:
     """A design study's loop: ``run(name, args)`` for each of ``args.systems``, ``report(name, result)`` (prints),
     and, with ``args.json``, ``{"settings": vars(args), "systems": {name: result}}`` written after each system (a

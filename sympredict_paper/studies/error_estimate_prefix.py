@@ -357,16 +357,10 @@ def main():
     p = argparse.ArgumentParser()
     p.add_argument("--systems", nargs="+", default=["pendulum", "coupled_pendulums", "fpu_chain", "kepler"])
     p.add_argument("--variants", nargs="+", default=["all"])
-    p.add_argument("--final", action="store_true")
     p.add_argument(
         "--oracle", action="store_true", help="also the diagnostic estimates that know the true local errors"
     )
-    study.add_training_arguments(p)
-    study.add_development_arguments(p)
-    p.add_argument("--n-test", type=int, default=20)
-    p.add_argument("--n-rank", type=int, default=100)
-    p.add_argument("--steps", type=int, default=200)
-    p.add_argument("--json", default=None)
+    study.add_design_arguments(p)
     args = p.parse_args()
     study.run_design_study(args, run, report)
 
