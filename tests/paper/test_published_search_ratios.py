@@ -20,6 +20,17 @@ def _load(name):
     return json.loads((DATA / name).read_text())
 
 
+def _assert_same_model(row, first, second):
+    """A side-by-side row of ``search_cost.py``: every ratio is ``second``'s number over ``first``'s (recomputed),
+    both searches chose the same settings, and so the final model's error ratios are exactly 1 (the same final fit)."""
+    a, b = row[first], row[second]
+    for key, ratio in row["ratios"].items():
+        assert ratio == pytest.approx(b[key] / a[key], rel=1e-12), (row["system"], key)
+    assert row["same_choice"] is True and a["choice"] == b["choice"], row["system"]
+    for key in ("held_out_error", "traj_error_median", "traj_error_max"):
+        assert row["ratios"][key] == pytest.approx(1.0, rel=1e-12), (row["system"], key)
+
+
 # ------------------------------------------------------------------------------------------- search cost, quick()
 @pytest.fixture(scope="module")
 def quick_rows():
@@ -111,12 +122,7 @@ def test_early_stop_ratios_recomputed_and_the_same_choice_on_the_six_systems():
         ["three_body", "noisy_pendulum", "readme_pendulum", "kepler", "henon_heiles", "coupled_pendulums"]
     )
     for row in rows:
-        full, default = row["full"], row["default"]
-        for name, ratio in row["ratios"].items():
-            assert ratio == pytest.approx(default[name] / full[name], rel=1e-12), (row["system"], name)
-        assert row["same_choice"] is True and default["choice"] == full["choice"], row["system"]
-        for name in ("held_out_error", "traj_error_median", "traj_error_max"):
-            assert row["ratios"][name] == pytest.approx(1.0, rel=1e-9), (row["system"], name)
+        _assert_same_model(row, "full", "default")
 
 
 def test_the_defaults_page_claims_follow_the_early_stop_run_at_18000_samples():
@@ -231,10 +237,8 @@ def test_the_first_stage_comparison_has_the_same_models_and_less_first_stage_wor
         ["three_body", "noisy_pendulum", "readme_pendulum", "kepler", "henon_heiles", "coupled_pendulums"]
     )
     for row in run["rows"]:
+        _assert_same_model(row, "previous", "default")
         old, new = row["previous"], row["default"]
-        assert row["same_choice"] is True and old["choice"] == new["choice"]
-        for key in ("held_out_error", "traj_error_median", "traj_error_max"):
-            assert row["ratios"][key] == pytest.approx(1.0, rel=1e-12), (row["system"], key)
         for stage, work in old["stage_work"].items():
             assert row["stage_ratios"][f"stage_work_{stage}"] == pytest.approx(new["stage_work"][stage] / work)
             assert new["stage_work"][stage] <= work, (row["system"], stage)
@@ -259,3 +263,25 @@ def test_the_first_stage_comparison_at_18000_samples_follows_its_repeats():
         assert all(r["stage_work"] == runs[0]["stage_work"] for r in runs)  # the same fits in every repeat
     assert row["median_stage1_s"]["default"] < row["median_stage1_s"]["previous"]
     assert row["default"]["stage_work"]["1"] < row["previous"]["stage_work"]["1"]
+
+
+@pytest.mark.parametrize("name", ["search_cost_reversal.json", "search_cost_reversal_300.json"])
+def test_the_second_stage_comparison_recomputes_and_the_default_chose_as_the_full_search(name):
+    """``search_cost.py --configs full default`` with the second stage's like-with-like early stop: every ratio from
+    the two fits' own numbers; on each system the default search chose what the search fitting every candidate to
+    full size chose (so its held-out and rollout errors are that search's); ``stage_s`` sums to the search's
+    seconds."""
+    run = _load(name)
+    systems = [r["system"] for r in run["rows"]]
+    expected = (
+        ["three_body"]
+        if name.endswith("_300.json")
+        else ["three_body", "readme_pendulum", "kepler", "henon_heiles", "coupled_pendulums", "noisy_pendulum"]
+    )
+    assert systems == expected
+    if name.endswith("_300.json"):
+        assert run["rows"][0]["samples"] == 18000
+    for row in run["rows"]:
+        _assert_same_model(row, "full", "default")
+        for out in (row["full"], row["default"]):
+            assert sum(out["stage_s"].values()) == pytest.approx(out["search_s"], rel=1e-9)
