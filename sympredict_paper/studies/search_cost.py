@@ -15,7 +15,9 @@ machine may be shared; compare the ratios, the second configuration's over the f
   halving; only the final-size stage fits to ``max_centers``;
 * ``previous``: the default with its first stage's early stop as it was before (at half of ``m_star`` only, every
   grid bounded by its own candidates; set around the fit in this study only), for a side-by-side run with
-  ``default``.
+  ``default``;
+* ``norefine``: the default without the second stage's coordinate refinement (``refine_sweeps=0``: the finalists'
+  starts only), to measure what the refinement costs and what it changes.
 
 The systems: the coupled pendulums and the Kepler orbits of ``defaults_acceptance.py`` (``--samples`` one-step
 samples), the Hénon-Heiles system (``lambda`` in [0.8, 1.0], ``dT = 0.5``, ``--samples`` samples), the planar
@@ -59,6 +61,10 @@ Run:  python sympredict_paper/studies/search_cost.py        # writes docs/data/s
           kepler henon_heiles coupled_pendulums noisy_pendulum --json docs/data/search_cost_reversal.json
       python sympredict_paper/studies/search_cost.py --configs full default --systems three_body --traj 300 \
           --json docs/data/search_cost_reversal_300.json
+      python sympredict_paper/studies/search_cost.py --configs default norefine --systems three_body \
+          readme_pendulum kepler henon_heiles coupled_pendulums noisy_pendulum --json docs/data/search_cost_norefine.json
+      python sympredict_paper/studies/search_cost.py --configs default norefine --systems three_body --traj 300 \
+          --repeats 3 --json docs/data/search_cost_norefine_300.json
 One BLAS and one numba thread.
 """
 
@@ -91,6 +97,7 @@ CONFIGS = {
     "halving": lambda: KernelSearch(halving=True),
     "quick": lambda: KernelSearch.quick(),
     "previous": lambda: KernelSearch(),
+    "norefine": lambda: KernelSearch(refine_sweeps=0),
 }
 
 
