@@ -115,6 +115,13 @@ class _TrajectorySystem:
         return self.system.trajectory(x0, mu, self.dt, k)
 
 
+def analytic_system(name, title, H, grad_H, dim: int, parameter: str, states, mu_range, dt: float = 0.1):
+    """A :class:`_TrajectorySystem` of an analytic Hamiltonian ``H(x, mu)`` with one parameter, trained on
+    trajectories, its reference flow integrated to ``rtol = 1e-11``."""
+    system = HamiltonianSystem(H, grad_H, dim, parameters={parameter: 1}, rtol=1e-11)
+    return _TrajectorySystem(name, title, system, states, mu_range, dt, True)
+
+
 def _pendulum_states(mu, n, seed):
     rng = np.random.default_rng(seed)
     return np.column_stack([rng.uniform(-1.5, 1.5, n), rng.uniform(-1.0, 1.0, n)])

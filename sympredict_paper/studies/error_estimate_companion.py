@@ -135,7 +135,6 @@ from sympredict import SymplecticKernelPredictor  # noqa: E402
 from sympredict.base import clone  # noqa: E402
 from sympredict.estimators.companion import CompanionEstimate, combined_error  # noqa: E402
 from sympredict.estimators.predictor import _holdout_split  # noqa: E402
-from sympredict.systems.flowmaps import HamiltonianSystem  # noqa: E402
 
 COMPANIONS = ("twice", "look")
 PROTOCOL_NOTE = (
@@ -178,29 +177,26 @@ def _coupled_quartic_states(mu, n, seed):
 _prefix_systems = study.systems
 
 
-def systems() -> dict:
-    """The studies' systems, the quartic oscillator and the unseen cubic oscillator."""
-    out = _prefix_systems()
-    out["cubic"] = study._TrajectorySystem(
-        "cubic",
+#: The systems nobody had used, each measured once: ``name: (title, H, grad H, 2n, states, range of b)``.
+UNSEEN = {
+    "cubic": (
         "cubic oscillator H = p^2/2 + q^2/2 - b q^3/3, b in [0.2, 0.4], bound orbits (unseen: measured once, for the "
         "guarded companion estimate)",
-        HamiltonianSystem(_cubic_H, _cubic_grad, 2, parameters={"b": 1}, rtol=1e-11),
-        _cubic_states,
-        (0.2, 0.4),
-        0.1,
-        True,
-    )
-    out["coupled_quartic"] = study._TrajectorySystem(
-        "coupled_quartic",
+        *(_cubic_H, _cubic_grad, 2, _cubic_states, (0.2, 0.4)),
+    ),
+    "coupled_quartic": (
         "coupled quartic oscillators H = |p|^2/2 + |q|^2/2 + b q1^2 q2^2/2, b in [0.2, 1.0] (4-D; unseen: measured "
         "once, for the pair design of the companion estimate)",
-        HamiltonianSystem(_coupled_quartic_H, _coupled_quartic_grad, 4, parameters={"b": 1}, rtol=1e-11),
-        _coupled_quartic_states,
-        (0.2, 1.0),
-        0.1,
-        True,
-    )
+        *(_coupled_quartic_H, _coupled_quartic_grad, 4, _coupled_quartic_states, (0.2, 1.0)),
+    ),
+}
+
+
+def systems() -> dict:
+    """The studies' systems, the quartic oscillator and the unseen ones (:data:`UNSEEN`)."""
+    out = _prefix_systems()
+    for name, (title, H, grad_H, dim, states, b_range) in UNSEEN.items():
+        out[name] = study.analytic_system(name, title, H, grad_H, dim, "b", states, b_range)
     return out
 
 

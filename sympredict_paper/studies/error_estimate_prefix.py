@@ -112,7 +112,6 @@ import error_estimate as study  # noqa: E402
 
 from sympredict.estimators.error_estimate import local_points, nearest, rollout_error_units  # noqa: E402
 from sympredict.interpolation.surrogate import HBSurrogate  # noqa: E402
-from sympredict.systems.flowmaps import HamiltonianSystem  # noqa: E402
 
 PREFIXES = (50, 75, 90)
 DIRECTION_NEIGHBOURS = (5, 20)
@@ -139,15 +138,16 @@ _study_systems = study.systems
 def systems() -> dict:
     """The study's systems and the unseen quartic oscillator."""
     out = _study_systems()
-    out["quartic"] = study._TrajectorySystem(
+    out["quartic"] = study.analytic_system(
         "quartic",
         "quartic oscillator H = p^2/2 + q^2/2 + b q^4/4, b in [0.2, 1.0] (unseen: measured once, after the design "
         "was frozen)",
-        HamiltonianSystem(_quartic_H, _quartic_grad, 2, parameters={"b": 1}, rtol=1e-11),
+        _quartic_H,
+        _quartic_grad,
+        2,
+        "b",
         _quartic_states,
         (0.2, 1.0),
-        0.1,
-        True,
     )
     return out
 

@@ -10,19 +10,9 @@ import numpy as np
 import pytest
 
 from sympredict import SymplecticKernelPredictor
-from sympredict.data import FlowMapData
 from sympredict.estimators.companion import CompanionEstimate, combined_error
 from sympredict.systems.pendulum import Pendulum
-
-
-def _pendulum_data(n, seed, steps=20, dt=0.1):
-    rng = np.random.default_rng(seed)
-    mu = rng.uniform(0.7, 0.8, n)
-    x0 = np.column_stack([rng.uniform(-1.5, 1.5, n), rng.uniform(-1.0, 1.0, n)])
-    traj = Pendulum().trajectory(x0, mu, dt=dt, n_steps=steps)
-    return FlowMapData(
-        traj[:, :-1].reshape(-1, 2), traj[:, 1:].reshape(-1, 2), np.repeat(mu, steps), np.full(n * steps, dt)
-    )
+from test_target_error import _data as _pendulum_data  # tests/estimators/: pendulum samples from trajectories
 
 
 def _test_set(n=12, steps=100):
