@@ -81,3 +81,55 @@ def test_the_published_results_agree_with_themselves_and_with_the_goals_they_rep
         ranking = s["ranking"]
         lo, hi = ranking["spearman_interval_90_n_rank"]
         assert lo <= ranking["spearman_last_n_rank"] <= hi, name
+
+
+# ------------------------------------------------------------------- the companion-model designs
+def _companion_run(name):
+    import json
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[2] / "docs" / "data" / name
+    return json.loads(path.read_text())["systems"]
+
+
+def _meets_goals(row) -> bool:
+    return row["under3"] <= 0.10 and row["med_eff"] <= 30
+
+
+def test_the_companion_designs_that_failed_failed_as_the_study_and_the_how_to_say():
+    """``error_estimate_companion_final.json``: ``twice_roll`` broke the underestimate goal on the three-body problem
+    (39% of the pairs under 3x); ``..._guarded.json``: the difference alone overestimated 41 times in the median on the
+    cubic oscillator, and ``guarded`` broke a goal there too."""
+    final = _companion_run("error_estimate_companion_final.json")
+    three_body = final["three_body"]["effectivity"]["candidates"]["twice_roll"]
+    assert three_body["under3"] > 0.3 and not _meets_goals(three_body)
+    guarded = _companion_run("error_estimate_companion_guarded.json")
+    cubic = guarded["cubic"]["dev"]["candidates"]
+    assert cubic["twice_roll"]["med_eff"] > 30 and not _meets_goals(cubic["guarded"])
+    assert guarded["cubic"]["companions"]["twice"]["accuracy_ratio"] <= 0.5  # the guard let it through
+
+
+def test_the_pair_design_qualified_by_its_rule_and_the_how_to_claims_follow():
+    """``error_estimate_companion_pair.json``: the goals held on all ten systems; the rank correlation at step 200 was
+    at least the own estimate's on nine (below only on the pendulum) and on none below the lower end of the own
+    estimate's 90% interval; at least 0.6 on all but the double well; the median effectivity lower on all ten; the
+    largest share underestimated on the three-body problem; the companion's fit
+    1.6 to 4.7 times the model's and the estimate 1.9 to 4.9 times the own estimate's time (CHANGELOG, docstring)."""
+    runs = _companion_run("error_estimate_companion_pair.json")
+    assert len(runs) == 10 and "coupled_quartic" in runs
+    own = {name: run["dev"]["candidates"]["current"] for name, run in runs.items()}
+    pair = {name: run["dev"]["candidates"]["twice_pair"] for name, run in runs.items()}
+    assert all(_meets_goals(row) for row in pair.values())
+    at_least = [n for n in runs if pair[n]["spearman_last"] >= own[n]["spearman_last"]]
+    below_interval = [n for n in runs if pair[n]["spearman_last"] < own[n]["ci90_last"][0]]
+    under_06 = [n for n in runs if pair[n]["spearman_last"] < 0.6]
+    lower_eff = [n for n in runs if pair[n]["med_eff"] < own[n]["med_eff"]]
+    assert len(at_least) == 9 and set(runs) - set(at_least) == {"pendulum"}
+    assert below_interval == [] and under_06 == ["double_well"]
+    assert len(lower_eff) == 10
+    worst = max(runs, key=lambda n: pair[n]["under3"])
+    assert worst == "three_body"
+    fit = [r["companions"]["twice"]["fit_s"] / r["fit_s"] for r in runs.values()]
+    estimate = [(r["dev"]["current_s"] + r["dev"]["twice_estimate_s"]) / r["dev"]["current_s"] for r in runs.values()]
+    assert round(min(fit), 1) == 1.6 and round(max(fit), 1) == 4.7
+    assert round(min(estimate), 1) == 1.9 and round(max(estimate), 1) == 4.9
