@@ -270,7 +270,7 @@ def estimates_for(model, companions, scales, x0, mu, dt, steps, ratios=None, pai
             info[f"{name}_failure"] = f"{type(exc).__name__}: {exc}"
             continue
         raw = np.linalg.norm(pred - pred_c, axis=2)
-        d = _step(comp, xs, mus if model.n_mu_ else None, dts) - x1s  # one-step differences at the user's states
+        d = _step(comp, xs, mus, dts) - x1s  # one-step differences at the user's states
         coh = prefix_study.propagate(jac, (d * scale).reshape(b, kk, dim, 1), scale)
         s = scales[name]
         for label, e in ((f"{name}_roll", s * raw), (f"{name}_coh", s * coh), (f"{name}_raw", raw)):
